@@ -1,0 +1,3 @@
+from imucal_cli.cli import main
+
+main()

@@ -1,0 +1,31 @@
+"""Command-line interface: thin typer commands that parse, call the library and print.
+
+Each command lives in its own module and registers itself on :data:`app`.
+:func:`main` turns an :class:`~imucal_cli.errors.ImucalError` into one line on stderr and its
+exit code, so a user mistake never shows a traceback.
+"""
+
+from __future__ import annotations
+
+import sys
+
+from imucal_cli.errors import ImucalError
+
+from .app import app
+
+# Importing the command modules registers their commands on ``app``.
+from . import calibrate as _calibrate  # noqa: E402,F401
+from . import report as _report  # noqa: E402,F401
+from . import simulate as _simulate  # noqa: E402,F401
+
+
+def main() -> None:
+    """Console-script entry point (``imucal``)."""
+    try:
+        app()
+    except ImucalError as exc:
+        print(f"imucal: error: {exc}", file=sys.stderr)
+        sys.exit(exc.exit_code)
+    except KeyboardInterrupt:
+        print("imucal: interrupted", file=sys.stderr)
+        sys.exit(130)

@@ -1,0 +1,3 @@
+"""`imucal calibrate` (being written)."""
+
+from .app import app  # noqa: F401

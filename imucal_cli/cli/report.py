@@ -1,0 +1,3 @@
+"""`imucal report` (being written)."""
+
+from .app import app  # noqa: F401

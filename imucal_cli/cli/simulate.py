@@ -1,0 +1,3 @@
+"""`imucal simulate` (being written)."""
+
+from .app import app  # noqa: F401
