@@ -1,0 +1,69 @@
+"""Cramér-Rao bounds of calibration designs: the best accuracy the data allows.
+
+Gravity-magnitude design (Qureshi & Golnaraghi III-A)
+-----------------------------------------------------
+Pose k holds the unit still with an unknown true gravity direction ``u_k`` (two angles: a
+nuisance parameter per pose, since hand placement is never exact). Its mean raw reading is
+
+    a_k = S (g u_k) + B + e_k,     e_k ~ N(0, Sigma_k),      S = M^-1,
+
+with ``M`` upper triangular (the gauge of the 9-parameter model). The Fisher information of
+``theta = (B, upper(M))`` and all ``u_k`` together is ``sum_k J_k^T Sigma_k^-1 J_k``; the bound
+on ``theta`` is the corresponding block of its inverse (which accounts for the nuisance
+directions through the Schur complement).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .gravity import _UPPER
+
+
+def _tangent_basis(u: np.ndarray) -> np.ndarray:
+    """Two unit vectors perpendicular to ``u`` (3,), as columns of a (3, 2) array."""
+    helper = np.eye(3)[np.argmin(np.abs(u))]
+    t1 = np.cross(u, helper)
+    t1 /= np.linalg.norm(t1)
+    t2 = np.cross(u, t1)
+    return np.column_stack([t1, t2])
+
+
+def gravity_crb(M: np.ndarray, B: np.ndarray, u: np.ndarray, g: float, cov_mean: np.ndarray) -> np.ndarray:
+    """Cramér-Rao bound of the 9-parameter gravity model for one design.
+
+    Parameters
+    ----------
+    M : ndarray, shape (3, 3)
+        True upper-triangular calibration matrix (m/s^2 per raw unit).
+    B : ndarray, shape (3,)
+        True bias, raw units (the bound does not depend on it; kept for clarity).
+    u : ndarray, shape (N, 3)
+        True gravity direction of each pose, unit vectors in the frame of ``M``.
+    g : float
+        Gravity, m/s^2.
+    cov_mean : ndarray, shape (N, 3, 3)
+        Covariance of each pose's mean reading, raw units^2.
+
+    Returns
+    -------
+    ndarray, shape (9, 9)
+        Lower bound on the covariance of any unbiased estimate of
+        ``(b_x, b_y, b_z, k_x, k_y, k_z, k_xy, k_xz, k_yz)``.
+    """
+    del B
+    S = np.linalg.inv(M)
+    N = len(u)
+    p = 9 + 2 * N
+    F = np.zeros((p, p))
+    for k in range(N):
+        Jk = np.zeros((3, p))
+        Jk[:, :3] = np.eye(3)  # d a / d B
+        f = g * u[k]
+        for c, (i, j) in enumerate(zip(*_UPPER)):
+            # d(M^-1) = -M^-1 dM M^-1  ->  d a / d M_ij = -S E_ij S f
+            Jk[:, 3 + c] = -S[:, i] * (S[j] @ f)
+        Jk[:, 9 + 2 * k : 11 + 2 * k] = g * S @ _tangent_basis(u[k])  # d a / d (angles of u_k)
+        Wk = np.linalg.inv(cov_mean[k])
+        F += Jk.T @ Wk @ Jk
+    return np.linalg.inv(F)[:9, :9]
