@@ -1,3 +1,40 @@
-"""`imucal report` (being written)."""
+"""`imucal report`: show what a calibration says (it reads results, it never re-solves)."""
 
-from .app import app  # noqa: F401
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+from rich.console import Console
+
+from imucal_cli.report import build_report, load_for_report, render_report
+
+from .app import app
+
+
+@app.command()
+def report(
+    path: Path = typer.Argument(
+        ...,
+        help="A calibration JSON, or a session .h5 (its last stored calibration is shown).",
+        show_default=False,
+    ),
+    json_output: bool = typer.Option(
+        False,
+        "--json",
+        help="Print the report as JSON on stdout (nothing else) instead of tables.",
+    ),
+) -> None:
+    """Report a calibration: model, parameters ± std, misalignment, RMS before/after/held-out,
+    per-pose residuals and pose coverage.
+
+    The figures are the ones the solver stored; nothing is re-solved.  A calibration written by
+    another tool (only bias, matrix and residual_rms) is shown with what it does not carry.
+    """
+    cal = load_for_report(path)
+    result = build_report(cal)
+    if json_output:
+        typer.echo(json.dumps(result, indent=2))
+    else:
+        render_report(result, Console())

@@ -1,0 +1,752 @@
+"""Calibration report: what a stored calibration says, as a JSON-ready dict and as rich tables.
+
+A report only *reads* results.  It takes a :class:`~imucal_cli.calibration.Calibration` (from a
+calibration JSON, or the last one stored under ``/calibrations`` of a session) and lays out what
+the solver wrote: the model and its parameters with standard deviations, misalignment angles,
+the gravity-magnitude RMS before / after / leave-one-pose-out, the per-pose residuals and how
+well the measured gravity directions cover the sphere.  Nothing is re-solved or recomputed from
+raw data; fields a calibration does not carry (one written by another tool has only the
+standard ``solver``/``units``/``bias``/``matrix``/``residual_rms``) are listed as unavailable.
+
+:func:`build_report` gives the dict (the ``imucal report --json`` output), :func:`render_report`
+draws that dict on a :class:`rich.console.Console`.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+from rich import box
+from rich.console import Console
+from rich.panel import Panel
+from rich.rule import Rule
+from rich.table import Table
+from rich.text import Text
+
+from imucal_cli.calibration import Calibration, SensorCalibration, calibration_from_json
+from imucal_cli.errors import InputError
+from imucal_cli.session import read_session
+
+STANDARD_GRAVITY = 9.80665
+"""m/s^2; used for milli-g figures when a calibration does not state its local gravity."""
+
+REPORT_FORMAT = "imucal-report"
+REPORT_FORMAT_VERSION = 1
+
+PAPER_REFERENCE: dict[str, Any] = {
+    "source": (
+        "Qureshi & Golnaraghi, 'An Algorithm for the In-Field Calibration of a MEMS IMU', "
+        "Fig. 5 / Table II"
+    ),
+    "description": "their real unit, 92 orientations, gravity-magnitude RMS error",
+    "rms_before_g": 0.0129,
+    "rms_after_g": 0.0014,
+    "rms_before_mg": 12.9,
+    "rms_after_mg": 1.4,
+    "improvement": round(0.0129 / 0.0014, 1),
+}
+"""The paper's published result, shown next to ours for context (it is not a pass mark)."""
+
+_MISSING = "—"
+
+# (report key, what the user is told is not in the file)
+_OPTIONAL_ITEMS = (
+    ("variant", "model variant"),
+    ("units_in", "raw input units"),
+    ("parameters", "named parameters with standard deviations"),
+    ("misalignment_deg", "misalignment angles"),
+    ("sensitivity", "sensitivities"),
+    ("fit", "solver iterations / convergence"),
+    ("rms.before", "RMS before calibration"),
+    ("rms.after", "RMS after calibration"),
+    ("rms.held_out", "leave-one-pose-out (held-out) RMS"),
+    ("poses", "per-pose residuals"),
+    ("coverage", "pose coverage (fraction, largest gap)"),
+)
+
+
+# --------------------------------------------------------------------------------------------
+# Loading
+
+
+def load_for_report(path: str | os.PathLike[str]) -> Calibration:
+    """Read the calibration a report is about.
+
+    Parameters
+    ----------
+    path
+        A calibration JSON, or a session ``.h5``; of a session the *last* calibration stored
+        under ``/calibrations`` is used.  The kind is decided by the HDF5 signature.
+
+    Returns
+    -------
+    Calibration
+        The calibration as read; nothing is re-solved.
+
+    Raises
+    ------
+    InputError
+        The file is missing, unreadable, neither JSON nor HDF5, or a session without a stored
+        calibration.  ``CalibrationFileError`` and ``SessionError`` (both ``InputError``) come
+        from the readers for malformed files.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    if path.is_dir():
+        raise InputError(f"{path}: is a directory, expected a calibration JSON or a session .h5")
+    if h5py.is_hdf5(path):
+        return _last_stored_calibration(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise InputError(
+            f"{path}: neither a session (HDF5) nor a calibration (JSON) file"
+        ) from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+    return calibration_from_json(text, str(path))
+
+
+def _last_stored_calibration(path: Path) -> Calibration:
+    """The last calibration under ``/calibrations`` of a session (names are zero-padded)."""
+    session = read_session(path)
+    if not session.calibrations:
+        raise InputError(
+            f"{path}: session has no stored calibration; run `imucal calibrate {path}` first"
+        )
+    name = max(session.calibrations)
+    return calibration_from_json(session.calibrations[name], f"{path}:/calibrations/{name}")
+
+
+# --------------------------------------------------------------------------------------------
+# Building the report dict
+
+
+def build_report(cal: Calibration) -> dict[str, Any]:
+    """Everything the report shows, as a JSON-serialisable dict (the ``--json`` output).
+
+    Parameters
+    ----------
+    cal
+        A calibration as read from a file.  Optional solver fields may be missing; they are
+        then ``None`` (or empty) in the report and named in each section's ``unavailable``.
+
+    Returns
+    -------
+    dict
+        ``format``, ``format_version``, ``session``, ``created``, ``sensor``,
+        ``toolkit_version``, ``config`` (solver options used, if recorded), ``sensors``
+        (``{"accel": ..., "gyro": ...}``, only those present, see :func:`_section_report`) and
+        ``reference`` (the paper's published RMS before/after, for context).
+    """
+    extra = cal.extra or {}
+    sections = {"accel": cal.accel, "gyro": cal.gyro}
+    return {
+        "format": REPORT_FORMAT,
+        "format_version": REPORT_FORMAT_VERSION,
+        "session": cal.session,
+        "created": cal.created,
+        "sensor": _text(extra.get("sensor")),
+        "toolkit_version": _text(extra.get("toolkit_version")),
+        "config": extra.get("config") if isinstance(extra.get("config"), dict) else None,
+        "sensors": {
+            kind: _section_report(kind, section)
+            for kind, section in sections.items()
+            if section is not None
+        },
+        "reference": dict(PAPER_REFERENCE),
+    }
+
+
+def _section_report(kind: str, sec: SensorCalibration) -> dict[str, Any]:
+    """The report of one sensor section.
+
+    Keys: ``solver``, ``variant``, ``gauge``, ``model``, ``units_in``, ``units_out``,
+    ``matrix`` (3 x n), ``matrix_unit``, ``bias`` (n), ``bias_unit``, ``gravity``
+    (``{"value", "stated"}`` or ``None``), ``parameters`` (``name``, ``value``, ``std``,
+    ``unit``), ``misalignment_deg`` (``axes``, ``angle``, ``std``), ``sensitivity``
+    (``values``, ``unit``), ``fit`` (``init``, ``iterations``, ``converged``, ``message``,
+    ``noise_scale``), ``rms`` (see :func:`_rms_report`), ``coverage``, ``poses``,
+    ``warnings`` and ``unavailable`` (what this calibration does not carry).
+    """
+    extra = sec.extra or {}
+    units_in = _text(extra.get("units_in"))
+    gravity = _gravity(kind, sec)
+    mg_per_unit = 1000.0 / gravity["value"] if gravity else None
+    report: dict[str, Any] = {
+        "solver": sec.solver,
+        "variant": _text(extra.get("variant")),
+        "gauge": _text(extra.get("gauge")),
+        "model": _text(extra.get("model")) or "calibrated = matrix @ (raw - bias)",
+        "units_in": units_in,
+        "units_out": sec.units,
+        "matrix": np.asarray(sec.matrix, dtype=float).tolist(),
+        "matrix_unit": f"{sec.units} per {units_in or 'raw unit'}",
+        "bias": np.asarray(sec.bias, dtype=float).tolist(),
+        "bias_unit": units_in or "raw units",
+        "gravity": gravity,
+        "parameters": _parameters(extra.get("parameters")),
+        "misalignment_deg": _misalignment(
+            extra.get("misalignment_deg"), extra.get("misalignment_std_deg")
+        ),
+        "sensitivity": _sensitivity(extra.get("sensitivity"), extra.get("sensitivity_unit")),
+        "fit": _fit(extra),
+        "rms": _rms_report(sec, mg_per_unit),
+        "coverage": _coverage(extra.get("coverage")),
+        "poses": _poses(extra.get("poses"), mg_per_unit),
+        "warnings": [str(w) for w in _list(extra.get("warnings"))],
+    }
+    report["unavailable"] = _unavailable(kind, report)
+    return report
+
+
+def _gravity(kind: str, sec: SensorCalibration) -> dict[str, Any] | None:
+    """Gravity for milli-g figures: the calibration's own, else standard for an accelerometer."""
+    stated = _number(sec.extra.get("gravity"))
+    if stated is not None and stated > 0:
+        return {"value": stated, "stated": True}
+    if kind == "accel" and sec.units == "m/s^2":
+        return {"value": STANDARD_GRAVITY, "stated": False}
+    return None
+
+
+def _rms_report(sec: SensorCalibration, mg_per_unit: float | None) -> dict[str, Any]:
+    """RMS figures as stored, each also in mg when the output is an acceleration.
+
+    ``before``/``after``/``held_out`` are the solver's ``rms_before``/``rms_after``/``rms_loo``
+    (gravity-magnitude RMS for the gravity solver); ``residual_rms`` is the standard field (what
+    the solver minimised).  ``improvement`` = before / after, ``improvement_held_out`` =
+    before / held_out.
+    """
+    extra = sec.extra
+    figures = {
+        "before": _number(extra.get("rms_before")),
+        "after": _number(extra.get("rms_after")),
+        "held_out": _number(extra.get("rms_loo")),
+        "residual_rms": _number(sec.residual_rms),
+    }
+    rms: dict[str, Any] = {
+        "unit": sec.units,
+        "quantity": ("gravity-magnitude error" if sec.solver == "gravity" else "solver residual"),
+        **figures,
+    }
+    for key, value in figures.items():
+        rms[f"{key}_mg"] = _scaled(value, mg_per_unit)
+    rms["improvement"] = _ratio(figures["before"], figures["after"])
+    rms["improvement_held_out"] = _ratio(figures["before"], figures["held_out"])
+    rms["before_basis"] = _text(extra.get("before_basis"))
+    return rms
+
+
+def _parameters(raw: Any) -> list[dict[str, Any]]:
+    rows = []
+    for item in _list(raw):
+        if isinstance(item, dict) and "name" in item:
+            rows.append(
+                {
+                    "name": str(item["name"]),
+                    "value": _number(item.get("value")),
+                    "std": _number(item.get("std")),
+                    "unit": _text(item.get("unit")),
+                }
+            )
+    return rows
+
+
+def _misalignment(angles: Any, stds: Any) -> list[dict[str, Any]]:
+    if not isinstance(angles, dict):
+        return []
+    stds = stds if isinstance(stds, dict) else {}
+    return [
+        {"axes": str(axes), "angle": _number(angle), "std": _number(stds.get(axes))}
+        for axes, angle in angles.items()
+    ]
+
+
+def _sensitivity(values: Any, unit: Any) -> dict[str, Any] | None:
+    numbers = [_number(v) for v in _list(values)]
+    if not numbers:
+        return None
+    return {"values": numbers, "unit": _text(unit)}
+
+
+def _fit(extra: dict[str, Any]) -> dict[str, Any] | None:
+    fit = {
+        "init": _text(extra.get("init")),
+        "iterations": _integer(extra.get("iterations")),
+        "converged": extra.get("converged") if isinstance(extra.get("converged"), bool) else None,
+        "message": _text(extra.get("message")),
+        "noise_scale": _number(extra.get("noise_scale")),
+    }
+    return fit if any(v is not None for v in fit.values()) else None
+
+
+def _coverage(raw: Any) -> dict[str, Any] | None:
+    if not isinstance(raw, dict):
+        return None
+    return {
+        "fraction": _number(raw.get("fraction")),
+        "largest_gap_deg": _number(raw.get("largest_gap_deg")),
+        "n_poses": _integer(raw.get("n_poses")),
+        "n_distinct": _integer(raw.get("n_distinct")),
+    }
+
+
+def _poses(raw: Any, mg_per_unit: float | None) -> list[dict[str, Any]]:
+    rows = []
+    for item in _list(raw):
+        if not isinstance(item, dict):
+            continue
+        row = {
+            "segment": _text(item.get("segment")),
+            "label": _text(item.get("label")),
+            "up": _vector(item.get("up")),
+            "samples": _integer(item.get("samples")),
+            "magnitude_before": _number(item.get("magnitude_before")),
+            "magnitude_after": _number(item.get("magnitude_after")),
+            "residual": _number(item.get("residual")),
+            "residual_loo": _number(item.get("residual_loo")),
+            "angle_to_up_deg": _number(item.get("angle_to_up_deg")),
+            "direction": _vector(item.get("direction")),
+        }
+        row["residual_mg"] = _scaled(row["residual"], mg_per_unit)
+        row["residual_loo_mg"] = _scaled(row["residual_loo"], mg_per_unit)
+        rows.append(row)
+    return rows
+
+
+def _unavailable(kind: str, report: dict[str, Any]) -> list[str]:
+    """Human names of the optional items this section does not carry."""
+    missing = []
+    for key, name in _OPTIONAL_ITEMS:
+        value: Any = report
+        for part in key.split("."):
+            value = value.get(part) if isinstance(value, dict) else None
+        if value is None or value == []:
+            missing.append(name)
+    poses = report["poses"]
+    if poses and not any(p["direction"] for p in poses):
+        missing.append("measured gravity directions (coverage map)")
+    gravity = report["gravity"]
+    if kind == "accel" and gravity and not gravity["stated"]:
+        missing.append(f"local gravity (mg figures use standard {STANDARD_GRAVITY} m/s^2)")
+    return missing
+
+
+# Tolerant field readers: a malformed optional field reads as missing.
+
+
+def _number(value: Any) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    return float(value)
+
+
+def _integer(value: Any) -> int | None:
+    number = _number(value)
+    return int(number) if number is not None and math.isfinite(number) else None
+
+
+def _text(value: Any) -> str | None:
+    return None if value is None else str(value)
+
+
+def _list(value: Any) -> list[Any]:
+    return value if isinstance(value, list) else []
+
+
+def _vector(value: Any) -> list[float] | None:
+    numbers = [_number(v) for v in _list(value)]
+    if len(numbers) != 3 or any(n is None for n in numbers):
+        return None
+    return numbers
+
+
+def _scaled(value: float | None, factor: float | None) -> float | None:
+    return None if value is None or factor is None else value * factor
+
+
+def _ratio(num: float | None, den: float | None) -> float | None:
+    if num is None or den is None or den == 0:
+        return None
+    return num / den
+
+
+# --------------------------------------------------------------------------------------------
+# Rendering
+
+
+def render_report(report: dict[str, Any], console: Console) -> None:
+    """Draw a report dict (from :func:`build_report`) as rich tables.
+
+    Parameters
+    ----------
+    report
+        The dict :func:`build_report` returned.
+    console
+        Where to draw; the layout fits 100 columns.
+    """
+    console.print(_header(report))
+    for kind, section in report["sensors"].items():
+        console.print(Rule(Text(_section_title(kind, section)), style="bold"))
+        if section["warnings"]:
+            console.print(_bullet_panel(section["warnings"], "Warnings", "bold yellow"))
+        console.print(_model_grid(section))
+        console.print(_matrix_table(section))
+        if section["parameters"]:
+            console.print(_parameter_table(section["parameters"]))
+        angles = _angle_sensitivity_table(section)
+        if angles is not None:
+            console.print(angles)
+        console.print(_rms_table(section, report["reference"] if kind == "accel" else None))
+        if section["fit"]:
+            console.print(_fit_line(section["fit"]))
+        if section["poses"]:
+            console.print(_pose_table(section))
+        if section["coverage"] or any(p["direction"] for p in section["poses"]):
+            console.print(_coverage_panel(section))
+        if section["unavailable"]:
+            console.print(_bullet_panel(section["unavailable"], "Not in this calibration", "dim"))
+    if not report["sensors"]:
+        console.print(Text("The calibration holds no sensor section.", style="yellow"))
+
+
+def _header(report: dict[str, Any]) -> Panel:
+    grid = Table.grid(padding=(0, 2))
+    grid.add_column(style="bold")
+    grid.add_column()
+    for name, value in (
+        ("session", report["session"]),
+        ("created", report["created"]),
+        ("sensor", report["sensor"]),
+        ("toolkit", report["toolkit_version"]),
+    ):
+        if value:
+            grid.add_row(name, Text(str(value)))
+    if report["config"]:
+        options = ", ".join(f"{k}={v}" for k, v in report["config"].items())
+        grid.add_row("options", Text(options))
+    return Panel(grid, title="imucal calibration report", expand=False)
+
+
+def _section_title(kind: str, section: dict[str, Any]) -> str:
+    title = f"{kind}: {section['solver']} solver"
+    if section["variant"]:
+        title += f", {section['variant']}"
+    return title
+
+
+def _model_grid(section: dict[str, Any]) -> Table:
+    """Model equation, units in and out, gauge and gravity, one per line."""
+    grid = Table.grid(padding=(0, 2))
+    grid.add_column(style="bold")
+    grid.add_column()
+    units_in = section["units_in"] or "raw units (not stated)"
+    rows = [
+        ("model", section["model"]),
+        ("units", f"raw {units_in} -> calibrated {section['units_out']}"),
+    ]
+    if section["gauge"]:
+        rows.append(("gauge", section["gauge"]))
+    if section["gravity"]:
+        gravity = section["gravity"]
+        origin = "local, from the calibration" if gravity["stated"] else "standard, not stated"
+        rows.append(("gravity", f"{gravity['value']:.6g} {section['units_out']} ({origin})"))
+    for name, value in rows:
+        grid.add_row(name, Text(value))
+    return grid
+
+
+def _matrix_table(section: dict[str, Any]) -> Table:
+    """The matrix and bias exactly as stored, with their units in the title."""
+    n_in = len(section["bias"])
+    channels = list("xyz") if n_in == 3 else [f"ch{i}" for i in range(n_in)]
+    title = f"matrix [{section['matrix_unit']}] and bias [{section['bias_unit']}]"
+    table = Table(title=Text(title), box=box.SIMPLE, title_justify="left")
+    table.add_column("")
+    for channel in channels:
+        table.add_column(channel, justify="right")
+    for axis, row in zip("xyz", section["matrix"], strict=False):
+        table.add_row(axis, *(_fmt(v) for v in row))
+    table.add_row(Text("bias", style="bold"), *(_fmt(v) for v in section["bias"]))
+    return table
+
+
+def _parameter_table(parameters: list[dict[str, Any]]) -> Table:
+    table = Table(title="parameters", box=box.SIMPLE, title_justify="left")
+    table.add_column("name")
+    table.add_column("value ± std", justify="right")
+    for p in parameters:
+        table.add_row(Text(p["name"]), Text(_fmt(p["value"], p["unit"], p["std"])))
+    return table
+
+
+def _angle_sensitivity_table(section: dict[str, Any]) -> Table | None:
+    """Misalignment angles and sensitivities side by side (either may be absent)."""
+    parts = []
+    if section["misalignment_deg"]:
+        table = Table(title="misalignment (angle - 90)", box=box.SIMPLE, title_justify="left")
+        table.add_column("axes")
+        table.add_column("angle ± std", justify="right")
+        for m in section["misalignment_deg"]:
+            table.add_row(Text(m["axes"]), Text(_fmt(m["angle"], "deg", m["std"])))
+        parts.append(table)
+    if section["sensitivity"]:
+        sens = section["sensitivity"]
+        table = Table(title="sensitivity", box=box.SIMPLE, title_justify="left")
+        table.add_column("axis")
+        table.add_column("value", justify="right")
+        names = "xyz" if len(sens["values"]) == 3 else [str(i) for i in range(len(sens["values"]))]
+        for name, value in zip(names, sens["values"], strict=False):
+            table.add_row(name, Text(_fmt(value, sens["unit"])))
+        parts.append(table)
+    if not parts:
+        return None
+    grid = Table.grid(padding=(0, 4))
+    for _ in parts:
+        grid.add_column()
+    grid.add_row(*parts)
+    return grid
+
+
+def _rms_table(section: dict[str, Any], reference: dict[str, Any] | None) -> Table:
+    """RMS before / after / held-out in output units and mg, with the improvement factor."""
+    rms = section["rms"]
+    unit = rms["unit"]
+    show_mg = any(rms[f"{k}_mg"] is not None for k in ("before", "after", "held_out"))
+    table = Table(title=Text(f"RMS {rms['quantity']}"), box=box.SIMPLE, title_justify="left")
+    table.add_column("")
+    table.add_column("RMS", justify="right")
+    if show_mg:
+        table.add_column("RMS in mg", justify="right")
+    table.add_column("improvement", justify="right")
+    rows = (
+        ("before calibration", "before", None),
+        ("after calibration", "after", "improvement"),
+        ("held out (leave-one-pose-out)", "held_out", "improvement_held_out"),
+        ("solver residual_rms", "residual_rms", None),
+    )
+    for name, key, factor_key in rows:
+        cells = [name, _fmt(rms[key], unit)]
+        if show_mg:
+            cells.append(_fmt(rms[f"{key}_mg"], "mg", digits=3))
+        factor = rms[factor_key] if factor_key else None
+        cells.append(f"{factor:.1f} ×" if factor is not None else "")
+        table.add_row(*map(Text, cells))
+    if reference is not None and show_mg:
+        cells = [
+            "paper: Qureshi & Golnaraghi, Fig. 5",
+            f"{reference['rms_before_g']} -> {reference['rms_after_g']} g",
+            f"{reference['rms_before_mg']} -> {reference['rms_after_mg']} mg",
+            f"{reference['improvement']:.1f} ×",
+        ]
+        table.add_row(*(Text(cell, style="dim") for cell in cells))
+    if rms["before_basis"]:
+        table.caption = Text(f"before = {rms['before_basis']}")
+        table.caption_justify = "left"
+    return table
+
+
+def _fit_line(fit: dict[str, Any]) -> Text:
+    parts = []
+    if fit["init"]:
+        parts.append(f"init {fit['init']}")
+    if fit["iterations"] is not None:
+        parts.append(f"{fit['iterations']} iterations")
+    if fit["converged"] is not None:
+        parts.append("converged" if fit["converged"] else "NOT converged")
+    if fit["noise_scale"] is not None:
+        parts.append(f"noise scale {fit['noise_scale']:.3g} (applied to covariances)")
+    if fit["message"]:
+        parts.append(fit["message"])
+    return Text("solver: " + "; ".join(parts))
+
+
+def _pose_table(section: dict[str, Any]) -> Table:
+    """One row per pose; residuals in mg where the output is an acceleration."""
+    poses = section["poses"]
+    unit = section["units_out"]
+    in_mg = any(p["residual_mg"] is not None or p["residual_loo_mg"] is not None for p in poses)
+    residual_unit = "mg" if in_mg else unit
+    table = Table(title="poses", box=box.SIMPLE, title_justify="left", pad_edge=False)
+    table.add_column("seg")
+    table.add_column("label", max_width=22, overflow="ellipsis", no_wrap=True)
+    table.add_column("up")
+    table.add_column("samples", justify="right")
+    table.add_column(f"|a| before\n{unit}", justify="right")
+    table.add_column(f"|a| after\n{unit}", justify="right")
+    table.add_column(f"residual\n{residual_unit}", justify="right")
+    table.add_column(f"held out\n{residual_unit}", justify="right")
+    table.add_column("angle to\nup, deg", justify="right")
+    for p in poses:
+        if in_mg:
+            residual, held_out = p["residual_mg"], p["residual_loo_mg"]
+        else:
+            residual, held_out = p["residual"], p["residual_loo"]
+        table.add_row(
+            *(
+                Text(cell)
+                for cell in (
+                    p["segment"] or _MISSING,
+                    p["label"] or _MISSING,
+                    _axis_name(p["up"]),
+                    _MISSING if p["samples"] is None else str(p["samples"]),
+                    _fixed(p["magnitude_before"], 4),
+                    _fixed(p["magnitude_after"], 4),
+                    _fixed(residual, 3, signed=True),
+                    _fixed(held_out, 3, signed=True),
+                    _fixed(p["angle_to_up_deg"], 2),
+                )
+            )
+        )
+    return table
+
+
+def _coverage_panel(section: dict[str, Any]) -> Panel:
+    """Equal-area maps of the two hemispheres with a mark per pose, and the coverage figures."""
+    directions = [p["direction"] for p in section["poses"] if p["direction"]]
+    lines = coverage_map(directions) if directions else []
+    coverage = section["coverage"] or {}
+    facts = []
+    if coverage.get("fraction") is not None:
+        facts.append(f"covered {100 * coverage['fraction']:.0f} % of the sphere")
+    if coverage.get("largest_gap_deg") is not None:
+        facts.append(f"largest gap {coverage['largest_gap_deg']:.1f} deg")
+    if coverage.get("n_poses") is not None:
+        facts.append(f"{coverage['n_poses']} poses")
+    if coverage.get("n_distinct") is not None:
+        facts.append(f"{coverage['n_distinct']} distinct")
+    if not directions:
+        facts.append("no measured directions stored: no map")
+    body = Text("\n".join([*lines, "; ".join(facts)]), no_wrap=True)
+    return Panel(body, title="coverage of measured gravity directions", expand=False)
+
+
+def _bullet_panel(items: list[str], title: str, style: str) -> Panel:
+    body = Text("\n".join(f"- {item}" for item in items))
+    return Panel(body, title=title, border_style=style, expand=False)
+
+
+# Coverage map
+
+
+def coverage_map(
+    directions: list[list[float]], radius_cols: int = 11, radius_rows: int = 5
+) -> list[str]:
+    """Text map of unit directions on the sphere: two hemispheres side by side.
+
+    Each hemisphere is an azimuthal equal-area projection about its pole (+Z left, -Z right),
+    both drawn as seen from +Z (x to the right, y up), so an empty area of the disc is an
+    uncovered area of the sphere.  ``.`` is the disc, ``+`` the pole, ``o`` one pose, a digit
+    several poses in one cell.
+
+    Parameters
+    ----------
+    directions
+        Unit vectors (normalised here); z >= 0 goes to the +Z map.
+    radius_cols, radius_rows
+        Disc radius in character columns and rows (characters are about twice as tall as wide).
+
+    Returns
+    -------
+    list of str
+        Lines of text, the first a caption.
+    """
+    upper, lower = [], []
+    for d in directions:
+        x, y, z = np.asarray(d, dtype=float) / np.linalg.norm(d)
+        # Equal-area: distance from the pole r = 2 sin(polar angle / 2), here scaled to 1 at
+        # the equator, i.e. r = sqrt(1 - |z|).
+        r = math.sqrt(max(0.0, 1.0 - abs(z)))
+        rho = math.hypot(x, y)
+        point = (r * x / rho, r * y / rho) if rho > 0 else (0.0, 0.0)
+        (upper if z >= 0 else lower).append(point)
+    left = _hemisphere(upper, radius_cols, radius_rows)
+    right = _hemisphere(lower, radius_cols, radius_rows)
+    width = 2 * radius_cols + 1
+    gap = " " * 4
+    caption = f"{'+Z side (z >= 0)':^{width}}{gap}{'-Z side (z < 0)':^{width}}"
+    rows = [f"{a}{gap}{b}" for a, b in zip(left, right, strict=True)]
+    note = f"{'x ->, y up, both seen from +Z':^{2 * width + len(gap)}}"
+    return [caption, *rows, note]
+
+
+def _hemisphere(points: list[tuple[float, float]], radius_cols: int, radius_rows: int) -> list[str]:
+    """One disc of the coverage map with the projected points marked."""
+    height, width = 2 * radius_rows + 1, 2 * radius_cols + 1
+    grid = [[" "] * width for _ in range(height)]
+    for i in range(height):
+        for j in range(width):
+            u, v = (j - radius_cols) / radius_cols, (radius_rows - i) / radius_rows
+            if u * u + v * v <= 1.0 + 0.5 / radius_rows:
+                grid[i][j] = "."
+    grid[radius_rows][radius_cols] = "+"
+    counts = Counter(
+        (round(radius_rows - radius_rows * py), round(radius_cols + radius_cols * px))
+        for px, py in points
+    )
+    for (i, j), n in counts.items():
+        grid[i][j] = "o" if n == 1 else (str(n) if n < 10 else "#")
+    return ["".join(row) for row in grid]
+
+
+# Number formatting
+
+
+def _fmt(
+    value: float | None, unit: str | None = None, std: float | None = None, digits: int = 5
+) -> str:
+    """``value ± std unit`` with decimals set by the std, or ``digits`` significant digits."""
+    if value is None:
+        return _MISSING
+    suffix = f" {unit}" if unit else ""
+    if std is not None and math.isfinite(std) and std > 0 and math.isfinite(value):
+        decimals = _decimals_for(std)
+        return f"{value:.{decimals}f} ± {std:.{decimals}f}{suffix}"
+    text = f"{value:.{digits}g}"
+    if std == 0:
+        text += " ± 0"
+    elif std is not None:
+        text += " ± n/a"
+    return text + suffix
+
+
+def _decimals_for(std: float) -> int:
+    """Decimals that show a std with one significant digit (two when it starts with a 1)."""
+    exponent = math.floor(math.log10(std))
+    leading = std / 10**exponent
+    decimals = -exponent + (1 if leading < 2 else 0)
+    return min(max(decimals, 0), 9)
+
+
+def _fixed(value: float | None, decimals: int, signed: bool = False) -> str:
+    if value is None:
+        return _MISSING
+    return f"{value:+.{decimals}f}" if signed else f"{value:.{decimals}f}"
+
+
+def _axis_name(up: list[float] | None) -> str:
+    """``+Z``, ``-X``, ``+X+Z`` (a 45-degree edge) when the vector is one of those, else numbers."""
+    if not up:
+        return _MISSING
+    vector = np.asarray(up, dtype=float)
+    norm = np.linalg.norm(vector)
+    if norm == 0:
+        return _MISSING
+    vector = vector / norm
+    nonzero = np.abs(vector) > 1e-3
+    magnitude = 1 / math.sqrt(nonzero.sum())
+    if np.allclose(np.abs(vector[nonzero]), magnitude, atol=2e-3):
+        return "".join(
+            f"{'+' if c > 0 else '-'}{axis}"
+            for axis, c in zip("XYZ", vector, strict=True)
+            if abs(c) > 1e-3
+        )
+    return "[" + ",".join(f"{c:.2f}" for c in vector) + "]"
