@@ -8,8 +8,6 @@ from pathlib import Path
 import typer
 from rich.console import Console
 
-from imucal_cli.report import build_report, load_for_report, render_report
-
 from .app import app
 
 
@@ -26,12 +24,15 @@ def report(
         help="Print the report as JSON on stdout (nothing else) instead of tables.",
     ),
 ) -> None:
-    """Report a calibration: model, parameters ± std, misalignment, RMS before/after/held-out,
-    per-pose residuals and pose coverage.
+    """Report a calibration: parameters ± std, RMS before/after/held-out, poses, coverage.
 
-    The figures are the ones the solver stored; nothing is re-solved.  A calibration written by
-    another tool (only bias, matrix and residual_rms) is shown with what it does not carry.
+    Shows the figures the solver stored; nothing is re-solved.
+
+    A calibration from another tool (only bias, matrix, residual_rms) is shown with what it lacks.
     """
+    # Imported here so the other commands and `imucal --help` do not load the report stack.
+    from imucal_cli.report import build_report, load_for_report, render_report
+
     cal = load_for_report(path)
     result = build_report(cal)
     if json_output:

@@ -1,0 +1,410 @@
+"""`imucal report`: the report dict, its rendering, loading from JSON or session, CLI errors.
+
+The calibrations here are written by hand following DEVELOPERS.md (the gravity solver's accel
+section) and the spec's minimal example, so the report is tested on what files carry, not on a
+solve.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+from rich.console import Console
+
+from imucal_cli.calibration import calibration_from_json
+from imucal_cli.cli import main
+from imucal_cli.report import (
+    STANDARD_GRAVITY,
+    build_report,
+    coverage_map,
+    load_for_report,
+    render_report,
+)
+
+G = STANDARD_GRAVITY
+UPS = [
+    [0, 0, 1],
+    [0, 0, -1],
+    [1, 0, 0],
+    [-1, 0, 0],
+    [0, 1, 0],
+    [0, -1, 0],
+    [0.7071, 0, 0.7071],
+    [0, 0.7071, -0.7071],
+]
+
+
+def _poses() -> list[dict]:
+    poses = []
+    for i, up in enumerate(UPS):
+        tilted = np.asarray(up, dtype=float) + [0.01, -0.02, 0.005]
+        poses.append(
+            {
+                "segment": f"{i:04d}",
+                "label": f"pose {i} [tilt]",
+                "up": up,
+                "samples": 200 + i,
+                "magnitude_before": 9.9 + 0.01 * i,
+                "magnitude_after": G + 0.0004 * (i - 3),
+                "residual": 0.0004 * (i - 3),
+                "residual_loo": 0.0006 * (i - 3),
+                "angle_to_up_deg": 1.9 + 0.1 * i,
+                "direction": (tilted / np.linalg.norm(tilted)).tolist(),
+            }
+        )
+    return poses
+
+
+def full_calibration() -> dict:
+    """A calibration as the gravity solver writes it (DEVELOPERS.md schema)."""
+    return {
+        "format": "imucal-calibration",
+        "format_version": 1,
+        "session": "bench3-unit17.h5",
+        "created": "2026-11-21T10:00:00Z",
+        "sensor": "BNO055 #17",
+        "toolkit_version": "0.1.0",
+        "config": {"variant": "9-parameter", "init": "updown"},
+        "accel": {
+            "solver": "gravity",
+            "units": "m/s^2",
+            "bias": [12.3, -4.5, 7.8],
+            "matrix": [[0.0011975, -1.2e-5, 1.9e-5], [0.0, 0.0012045, 5e-7], [0.0, 0.0, 0.001189]],
+            "residual_rms": 0.0021,
+            "model": "calibrated = matrix @ (raw - bias)",
+            "units_in": "counts",
+            "variant": "9-parameter",
+            "gauge": "upper-triangular matrix",
+            "gravity": G,
+            "parameters": [
+                {"name": "b_x", "value": 12.3, "std": 0.4, "unit": "counts"},
+                {"name": "s_x", "value": 835.1234, "std": 0.04, "unit": "counts per m/s^2"},
+            ],
+            "misalignment_deg": {"xy": 0.12, "xz": -0.3, "yz": 0.05},
+            "misalignment_std_deg": {"xy": 0.01, "xz": 0.02, "yz": 0.015},
+            "sensitivity": [835.1, 830.2, 841.0],
+            "sensitivity_unit": "counts per m/s^2",
+            "init": "updown",
+            "iterations": 7,
+            "converged": True,
+            "message": "step below tolerance",
+            "noise_scale": 1.0,
+            "rms_before": 0.12,
+            "rms_after": 0.002,
+            "rms_loo": 0.0025,
+            "before_basis": "nominal sensitivity 835.0 counts per m/s^2, zero bias",
+            "coverage": {"fraction": 0.83, "largest_gap_deg": 41.0, "n_poses": 8, "n_distinct": 8},
+            "poses": _poses(),
+            "warnings": ["pose 0003 sits 3 sigma off"],
+        },
+    }
+
+
+def minimal_calibration() -> dict:
+    """The spec's example: only the standard fields, as another tool would write it."""
+    return {
+        "format": "imucal-calibration",
+        "format_version": 1,
+        "session": "bench3-unit17.h5",
+        "created": "2026-11-21T10:00:00Z",
+        "accel": {
+            "solver": "gravity",
+            "units": "m/s^2",
+            "bias": [0.012, -0.031, 0.004],
+            "matrix": [[1.006, -0.012, 0.019], [0.0, 1.007, 0.0005], [0.0, 0.0, 0.983]],
+            "residual_rms": 0.0138,
+        },
+        "gyro": {
+            "solver": "gyro-dynamic",
+            "units": "rad/s",
+            "bias": [0.0008, -0.0011, 0.0009],
+            "matrix": [[0.9754, 0, 0], [0, 0.983, 0], [0, 0, 0.9747]],
+            "residual_rms": 0.002,
+        },
+    }
+
+
+def write_json(path: Path, document: dict) -> Path:
+    path.write_text(json.dumps(document, indent=2))
+    return path
+
+
+def write_session(path: Path, calibrations: list[dict]) -> Path:
+    """A minimal valid session with the given calibrations under /calibrations/0000, 0001, ..."""
+    n = 100
+    with h5py.File(path, "w") as f:
+        f.attrs["format"] = "imucal-session"
+        f.attrs["format_version"] = 1
+        f.attrs["created"] = "2026-11-21T10:00:00Z"
+        f.attrs["accel_units"] = "counts"
+        f.create_dataset("raw/time", data=np.arange(n) / 100.0)
+        f.create_dataset("raw/accel", data=np.tile([0.0, 0.0, 835.0], (n, 1)))
+        segment = f.create_group("segments/0000")
+        segment.attrs["kind"] = "static"
+        segment.attrs["start"] = 0
+        segment.attrs["stop"] = n
+        segment.attrs["up"] = [0.0, 0.0, 1.0]
+        group = f.create_group("calibrations")
+        for i, document in enumerate(calibrations):
+            group.create_group(f"{i:04d}").attrs["json"] = json.dumps(document)
+    return path
+
+
+def rendered(document: dict) -> str:
+    cal = calibration_from_json(json.dumps(document), "test.json")
+    console = Console(record=True, width=100)
+    render_report(build_report(cal), console)
+    return console.export_text()
+
+
+def run_imucal(args: list[str], capsys, monkeypatch) -> tuple[int, str, str]:
+    """Run the console entry point in-process; returns (exit code, stdout, stderr)."""
+    monkeypatch.setattr(sys, "argv", ["imucal", *args])
+    try:
+        main()
+        code = 0
+    except SystemExit as exc:
+        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+# ---------------------------------------------------------------------------------------------
+# The report dict / --json
+
+
+def test_json_output_carries_the_stored_values(tmp_path, capsys, monkeypatch):
+    path = write_json(tmp_path / "cal.json", full_calibration())
+    code, out, err = run_imucal(["report", str(path), "--json"], capsys, monkeypatch)
+    assert code == 0, err
+    assert err == ""
+    report = json.loads(out)  # stdout is the JSON and nothing else
+    accel = report["sensors"]["accel"]
+    assert list(report["sensors"]) == ["accel"]
+    assert report["sensor"] == "BNO055 #17"
+    assert accel["variant"] == "9-parameter"
+    assert (accel["units_in"], accel["units_out"]) == ("counts", "m/s^2")
+    assert accel["parameters"][1] == {
+        "name": "s_x",
+        "value": 835.1234,
+        "std": 0.04,
+        "unit": "counts per m/s^2",
+    }
+    assert accel["misalignment_deg"][1] == {"axes": "xz", "angle": -0.3, "std": 0.02}
+    rms = accel["rms"]
+    assert (rms["before"], rms["after"], rms["held_out"]) == (0.12, 0.002, 0.0025)
+    assert rms["after_mg"] == pytest.approx(0.002 / G * 1000)
+    assert rms["held_out_mg"] == pytest.approx(0.0025 / G * 1000)
+    assert rms["improvement"] == pytest.approx(60.0)
+    assert rms["improvement_held_out"] == pytest.approx(48.0)
+    assert accel["fit"] == {
+        "init": "updown",
+        "iterations": 7,
+        "converged": True,
+        "message": "step below tolerance",
+        "noise_scale": 1.0,
+    }
+    assert accel["coverage"]["largest_gap_deg"] == 41.0
+    assert len(accel["poses"]) == len(UPS)
+    assert accel["poses"][0]["residual_mg"] == pytest.approx(-0.0012 / G * 1000)
+    assert accel["warnings"] == ["pose 0003 sits 3 sigma off"]
+    assert accel["unavailable"] == []
+    assert report["reference"]["rms_before_g"] == 0.0129
+    assert report["reference"]["rms_after_g"] == 0.0014
+
+
+def test_mg_figures_use_the_calibrations_gravity():
+    document = full_calibration()
+    document["accel"]["gravity"] = 9.81
+    cal = calibration_from_json(json.dumps(document), "test.json")
+    rms = build_report(cal)["sensors"]["accel"]["rms"]
+    assert rms["before_mg"] == pytest.approx(0.12 / 9.81 * 1000)
+
+
+# ---------------------------------------------------------------------------------------------
+# Rendering
+
+
+def test_render_shows_values_with_units_and_std():
+    text = rendered(full_calibration())
+    assert "835.12 ± 0.04 counts per m/s^2" in text
+    assert "12.3 ± 0.4 counts" in text
+    assert "-0.30 ± 0.02 deg" in text
+    assert "matrix [m/s^2 per counts] and bias [counts]" in text
+    assert "raw counts -> calibrated m/s^2" in text
+    assert "7 iterations; converged" in text
+    assert "pose 0003 sits 3 sigma off" in text
+    assert max(len(line) for line in text.splitlines()) <= 100
+
+
+def test_render_rms_before_after_held_out_with_improvement():
+    lines = rendered(full_calibration()).splitlines()
+
+    def line_with(start: str) -> str:
+        return next(line for line in lines if line.strip().startswith(start))
+
+    assert "0.12 m/s^2" in line_with("before calibration")
+    assert "12.2 mg" in line_with("before calibration")
+    after = line_with("after calibration")
+    assert "0.002 m/s^2" in after and "0.204 mg" in after and "60.0 ×" in after
+    held_out = line_with("held out")
+    assert "0.0025 m/s^2" in held_out and "0.255 mg" in held_out and "48.0 ×" in held_out
+    paper = line_with("paper: Qureshi & Golnaraghi")
+    assert "0.0129 -> 0.0014 g" in paper and "12.9 -> 1.4 mg" in paper
+
+
+def test_render_has_one_row_per_pose():
+    lines = rendered(full_calibration()).splitlines()
+    for i, pose in enumerate(_poses()):
+        row = next(line for line in lines if line.strip().startswith(pose["segment"]))
+        assert f"pose {i} [tilt]" in row  # markup-like labels are shown verbatim
+        assert str(pose["samples"]) in row
+        assert f"{pose['magnitude_before']:.4f}" in row
+        assert f"{pose['magnitude_after']:.4f}" in row
+        assert f"{pose['residual'] / G * 1000:+.3f}" in row
+        assert f"{pose['residual_loo'] / G * 1000:+.3f}" in row
+        assert f"{pose['angle_to_up_deg']:.2f}" in row
+    assert "+X+Z" in next(line for line in lines if line.strip().startswith("0006"))
+    assert "+Y-Z" in next(line for line in lines if line.strip().startswith("0007"))
+
+
+def test_render_coverage_figure():
+    text = rendered(full_calibration())
+    assert "+Z side" in text and "-Z side" in text
+    assert "covered 83 % of the sphere; largest gap 41.0 deg" in text
+
+
+def test_coverage_map_marks_each_pose_in_its_hemisphere():
+    lines = coverage_map([[0, 0, 1], [0, 0, -1], [1, 0, 0], [0, 0.7071, -0.7071]])
+    rows = lines[1:-1]
+    width = 23
+    left = [row[:width] for row in rows]
+    right = [row[width + 4 :] for row in rows]
+    centre = len(rows) // 2
+    assert left[centre][width // 2] == "o"  # +Z at the +Z pole
+    assert left[centre][-1] == "o"  # +X on the equator, right edge
+    assert right[centre][width // 2] == "o"  # -Z at the -Z pole
+    # (0, 0.71, -0.71): 45 deg from the -Z pole, above the centre on the -Z side
+    assert sum(row.count("o") for row in right[:centre]) == 1
+    assert sum(row.count("o") for row in rows) == 4
+
+
+# ---------------------------------------------------------------------------------------------
+# Calibrations with only the standard fields, and malformed optional fields
+
+
+def test_minimal_calibration_renders_and_says_what_is_unavailable():
+    text = rendered(minimal_calibration())
+    assert "1.006" in text and "0.983" in text  # the matrix
+    assert "0.0138 m/s^2" in text  # residual_rms
+    assert "raw units (not stated)" in text
+    assert "Not in this calibration" in text
+    assert "named parameters with standard deviations" in text
+    assert "per-pose residuals" in text
+    assert "gyro: gyro-dynamic solver" in text
+
+    cal = calibration_from_json(json.dumps(minimal_calibration()), "minimal.json")
+    report = build_report(cal)
+    accel = report["sensors"]["accel"]
+    assert accel["rms"]["before"] is None and accel["rms"]["improvement"] is None
+    assert "leave-one-pose-out (held-out) RMS" in accel["unavailable"]
+    assert accel["matrix"][0] == [1.006, -0.012, 0.019]
+    assert report["sensors"]["gyro"]["rms"]["after_mg"] is None  # no mg for rad/s
+    json.dumps(report)
+
+
+def test_malformed_optional_fields_read_as_missing():
+    document = full_calibration()
+    accel = document["accel"]
+    accel["parameters"] = "see lab book"
+    accel["poses"] = [1, {"segment": "0000", "up": "up"}]
+    accel["coverage"] = None
+    accel["iterations"] = "seven"
+    text = rendered(document)
+    assert "named parameters with standard deviations" in text
+    assert "pose coverage (fraction, largest gap)" in text
+
+
+# ---------------------------------------------------------------------------------------------
+# Sessions
+
+
+def test_session_reports_its_last_stored_calibration(tmp_path, capsys, monkeypatch):
+    older = minimal_calibration()
+    newer = full_calibration()
+    path = write_session(tmp_path / "s.h5", [older, newer])
+    cal = load_for_report(path)
+    assert cal.accel.extra["rms_after"] == 0.002
+
+    code, out, err = run_imucal(["report", str(path), "--json"], capsys, monkeypatch)
+    assert code == 0, err
+    assert json.loads(out)["sensors"]["accel"]["rms"]["after"] == 0.002
+
+    code, out, err = run_imucal(["report", str(path)], capsys, monkeypatch)
+    assert code == 0, err
+    assert "835.12 ± 0.04 counts per m/s^2" in out
+
+
+# ---------------------------------------------------------------------------------------------
+# Bad input: exit 2, one line on stderr, no traceback
+
+
+def _assert_one_line_error(code: int, out: str, err: str, fragment: str) -> None:
+    assert code == 2
+    assert out == ""
+    assert err.startswith("imucal: error: ")
+    assert err.count("\n") == 1
+    assert "Traceback" not in err
+    assert fragment in err
+
+
+def test_session_without_calibration(tmp_path, capsys, monkeypatch):
+    path = write_session(tmp_path / "s.h5", [])
+    code, out, err = run_imucal(["report", str(path)], capsys, monkeypatch)
+    _assert_one_line_error(
+        code, out, err, "session has no stored calibration; run `imucal calibrate"
+    )
+
+
+def test_missing_file(tmp_path, capsys, monkeypatch):
+    path = tmp_path / "nope.json"
+    code, out, err = run_imucal(["report", str(path), "--json"], capsys, monkeypatch)
+    _assert_one_line_error(code, out, err, str(path))
+
+
+@pytest.mark.parametrize(
+    "content",
+    [b'{"format": "imucal-calibration", "accel": ', b"\xff\xfe\x00binary", b"[1, 2, 3]"],
+    ids=["truncated-json", "binary", "not-a-calibration"],
+)
+def test_invalid_calibration_file(tmp_path, capsys, monkeypatch, content):
+    path = tmp_path / "bad.json"
+    path.write_bytes(content)
+    code, out, err = run_imucal(["report", str(path)], capsys, monkeypatch)
+    _assert_one_line_error(code, out, err, str(path))
+
+
+def test_installed_entry_point_missing_file(tmp_path):
+    imucal = Path(sys.executable).with_name("imucal")
+    if not imucal.exists():
+        pytest.skip("imucal console script not installed next to this interpreter")
+    path = tmp_path / "missing.json"
+    result = subprocess.run(
+        [str(imucal), "report", str(path)], capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode == 2
+    assert result.stderr.strip() == f"imucal: error: {path}: no such file"
+    assert result.stdout == ""
+
+
+def test_help_explains_the_command(capsys, monkeypatch):
+    code, out, _ = run_imucal(["report", "--help"], capsys, monkeypatch)
+    assert code == 0
+    assert "--json" in out
+    assert "session" in out and "re-solved" in out
