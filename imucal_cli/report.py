@@ -196,7 +196,9 @@ def _section_report(kind: str, sec: SensorCalibration) -> dict[str, Any]:
         "misalignment_deg": _misalignment(
             extra.get("misalignment_deg"), extra.get("misalignment_std_deg")
         ),
-        "sensitivity": _sensitivity(extra.get("sensitivity"), extra.get("sensitivity_unit")),
+        "sensitivity": _sensitivity(
+            extra.get("sensitivity"), extra.get("sensitivity_std"), extra.get("sensitivity_unit")
+        ),
         "fit": _fit(extra),
         "rms": _rms_report(sec, mg_per_unit),
         "coverage": _coverage(extra.get("coverage")),
@@ -242,6 +244,7 @@ def _rms_report(sec: SensorCalibration, mg_per_unit: float | None) -> dict[str, 
     rms["improvement"] = _ratio(figures["before"], figures["after"])
     rms["improvement_held_out"] = _ratio(figures["before"], figures["held_out"])
     rms["before_basis"] = _text(extra.get("before_basis"))
+    rms["held_out_method"] = _text(extra.get("loo_method"))
     return rms
 
 
@@ -270,11 +273,16 @@ def _misalignment(angles: Any, stds: Any) -> list[dict[str, Any]]:
     ]
 
 
-def _sensitivity(values: Any, unit: Any) -> dict[str, Any] | None:
+def _sensitivity(values: Any, stds: Any, unit: Any) -> dict[str, Any] | None:
     numbers = [_number(v) for v in _list(values)]
     if not numbers:
         return None
-    return {"values": numbers, "unit": _text(unit)}
+    std = [_number(v) for v in _list(stds)]
+    return {
+        "values": numbers,
+        "std": std if len(std) == len(numbers) else None,
+        "unit": _text(unit),
+    }
 
 
 def _fit(extra: dict[str, Any]) -> dict[str, Any] | None:
@@ -284,6 +292,9 @@ def _fit(extra: dict[str, Any]) -> dict[str, Any] | None:
         "converged": extra.get("converged") if isinstance(extra.get("converged"), bool) else None,
         "message": _text(extra.get("message")),
         "noise_scale": _number(extra.get("noise_scale")),
+        "weighting": _text(extra.get("weighting")),
+        "chi2": _number(extra.get("chi2")),
+        "dof": _integer(extra.get("dof")),
     }
     return fit if any(v is not None for v in fit.values()) else None
 
@@ -296,6 +307,8 @@ def _coverage(raw: Any) -> dict[str, Any] | None:
         "largest_gap_deg": _number(raw.get("largest_gap_deg")),
         "n_poses": _integer(raw.get("n_poses")),
         "n_distinct": _integer(raw.get("n_distinct")),
+        "cap_deg": _number(raw.get("cap_deg")),
+        "weakest_direction": _vector(raw.get("weakest_direction")),
     }
 
 
@@ -344,14 +357,15 @@ def _unavailable(kind: str, report: dict[str, Any]) -> list[str]:
 
 
 def _number(value: Any) -> float | None:
+    """A finite number, else ``None`` (NaN marks "not determined" in solver output)."""
     if isinstance(value, bool) or not isinstance(value, int | float):
         return None
-    return float(value)
+    return float(value) if math.isfinite(value) else None
 
 
 def _integer(value: Any) -> int | None:
     number = _number(value)
-    return int(number) if number is not None and math.isfinite(number) else None
+    return None if number is None else int(number)
 
 
 def _text(value: Any) -> str | None:
@@ -484,7 +498,7 @@ def _parameter_table(parameters: list[dict[str, Any]]) -> Table:
     table.add_column("name")
     table.add_column("value ± std", justify="right")
     for p in parameters:
-        table.add_row(Text(p["name"]), Text(_fmt(p["value"], p["unit"], p["std"])))
+        table.add_row(Text(p["name"]), Text(_fmt_std(p["value"], p["std"], p["unit"])))
     return table
 
 
@@ -496,7 +510,7 @@ def _angle_sensitivity_table(section: dict[str, Any]) -> Table | None:
         table.add_column("axes")
         table.add_column("angle ± std", justify="right")
         for m in section["misalignment_deg"]:
-            table.add_row(Text(m["axes"]), Text(_fmt(m["angle"], "deg", m["std"])))
+            table.add_row(Text(m["axes"]), Text(_fmt_std(m["angle"], m["std"], "deg")))
         parts.append(table)
     if section["sensitivity"]:
         sens = section["sensitivity"]
@@ -504,8 +518,10 @@ def _angle_sensitivity_table(section: dict[str, Any]) -> Table | None:
         table.add_column("axis")
         table.add_column("value", justify="right")
         names = "xyz" if len(sens["values"]) == 3 else [str(i) for i in range(len(sens["values"]))]
-        for name, value in zip(names, sens["values"], strict=False):
-            table.add_row(name, Text(_fmt(value, sens["unit"])))
+        stds = sens["std"] or [None] * len(sens["values"])
+        for name, value, std in zip(names, sens["values"], stds, strict=False):
+            text = _fmt_std(value, std, sens["unit"]) if sens["std"] else _fmt(value, sens["unit"])
+            table.add_row(name, Text(text))
         parts.append(table)
     if not parts:
         return None
@@ -548,8 +564,13 @@ def _rms_table(section: dict[str, Any], reference: dict[str, Any] | None) -> Tab
             f"{reference['improvement']:.1f} ×",
         ]
         table.add_row(*(Text(cell, style="dim") for cell in cells))
+    notes = []
     if rms["before_basis"]:
-        table.caption = Text(f"before = {rms['before_basis']}")
+        notes.append(f"before = {rms['before_basis']}")
+    if rms["held_out_method"]:
+        notes.append(f"held out = {rms['held_out_method']}")
+    if notes:
+        table.caption = Text("\n".join(notes))
         table.caption_justify = "left"
     return table
 
@@ -562,6 +583,10 @@ def _fit_line(fit: dict[str, Any]) -> Text:
         parts.append(f"{fit['iterations']} iterations")
     if fit["converged"] is not None:
         parts.append("converged" if fit["converged"] else "NOT converged")
+    if fit["weighting"]:
+        parts.append(f"weighting {fit['weighting']}")
+    if fit["chi2"] is not None and fit["dof"] is not None:
+        parts.append(f"chi2 {fit['chi2']:.3g} for {fit['dof']} dof")
     if fit["noise_scale"] is not None:
         parts.append(f"noise scale {fit['noise_scale']:.3g} (applied to covariances)")
     if fit["message"]:
@@ -616,13 +641,16 @@ def _coverage_panel(section: dict[str, Any]) -> Panel:
     coverage = section["coverage"] or {}
     facts = []
     if coverage.get("fraction") is not None:
-        facts.append(f"covered {100 * coverage['fraction']:.0f} % of the sphere")
+        within = f" (within {coverage['cap_deg']:.0f} deg of a pose)" if coverage["cap_deg"] else ""
+        facts.append(f"covered {100 * coverage['fraction']:.0f} % of the sphere{within}")
     if coverage.get("largest_gap_deg") is not None:
         facts.append(f"largest gap {coverage['largest_gap_deg']:.1f} deg")
     if coverage.get("n_poses") is not None:
         facts.append(f"{coverage['n_poses']} poses")
     if coverage.get("n_distinct") is not None:
         facts.append(f"{coverage['n_distinct']} distinct")
+    if coverage.get("weakest_direction"):
+        facts.append(f"weakest direction {_axis_name(coverage['weakest_direction'])}")
     if not directions:
         facts.append("no measured directions stored: no map")
     body = Text("\n".join([*lines, "; ".join(facts)]), no_wrap=True)
@@ -661,7 +689,10 @@ def coverage_map(
     """
     upper, lower = [], []
     for d in directions:
-        x, y, z = np.asarray(d, dtype=float) / np.linalg.norm(d)
+        norm = np.linalg.norm(d)
+        if not norm > 0:
+            continue
+        x, y, z = np.asarray(d, dtype=float) / norm
         # Equal-area: distance from the pole r = 2 sin(polar angle / 2), here scaled to 1 at
         # the equator, i.e. r = sqrt(1 - |z|).
         r = math.sqrt(max(0.0, 1.0 - abs(z)))
@@ -700,22 +731,24 @@ def _hemisphere(points: list[tuple[float, float]], radius_cols: int, radius_rows
 # Number formatting
 
 
-def _fmt(
-    value: float | None, unit: str | None = None, std: float | None = None, digits: int = 5
-) -> str:
-    """``value ± std unit`` with decimals set by the std, or ``digits`` significant digits."""
+def _fmt(value: float | None, unit: str | None = None, digits: int = 5) -> str:
+    """``value unit`` with ``digits`` significant digits, or a dash when missing."""
+    if value is None:
+        return _MISSING
+    return f"{value:.{digits}g}" + (f" {unit}" if unit else "")
+
+
+def _fmt_std(value: float | None, std: float | None, unit: str | None = None) -> str:
+    """``value ± std unit`` with as many decimals as the std warrants."""
     if value is None:
         return _MISSING
     suffix = f" {unit}" if unit else ""
-    if std is not None and math.isfinite(std) and std > 0 and math.isfinite(value):
-        decimals = _decimals_for(std)
-        return f"{value:.{decimals}f} ± {std:.{decimals}f}{suffix}"
-    text = f"{value:.{digits}g}"
+    if std is None:
+        return f"{value:.5g} ± n/a{suffix}"
     if std == 0:
-        text += " ± 0"
-    elif std is not None:
-        text += " ± n/a"
-    return text + suffix
+        return f"{value:.5g} ± 0{suffix}"
+    decimals = _decimals_for(std)
+    return f"{value:.{decimals}f} ± {std:.{decimals}f}{suffix}"
 
 
 def _decimals_for(std: float) -> int:

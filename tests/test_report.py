@@ -89,15 +89,19 @@ def full_calibration() -> dict:
             "misalignment_deg": {"xy": 0.12, "xz": -0.3, "yz": 0.05},
             "misalignment_std_deg": {"xy": 0.01, "xz": 0.02, "yz": 0.015},
             "sensitivity": [835.1, 830.2, 841.0],
+            "sensitivity_std": [0.04, 0.05, 0.06],
             "sensitivity_unit": "counts per m/s^2",
             "init": "updown",
             "iterations": 7,
             "converged": True,
             "message": "step below tolerance",
             "noise_scale": 1.0,
+            "chi2": 8.7,
+            "dof": 7,
             "rms_before": 0.12,
             "rms_after": 0.002,
             "rms_loo": 0.0025,
+            "loo_method": "refit without each pose",
             "before_basis": "nominal sensitivity 835.0 counts per m/s^2, zero bias",
             "coverage": {"fraction": 0.83, "largest_gap_deg": 41.0, "n_poses": 8, "n_distinct": 8},
             "poses": _poses(),
@@ -203,13 +207,9 @@ def test_json_output_carries_the_stored_values(tmp_path, capsys, monkeypatch):
     assert rms["held_out_mg"] == pytest.approx(0.0025 / G * 1000)
     assert rms["improvement"] == pytest.approx(60.0)
     assert rms["improvement_held_out"] == pytest.approx(48.0)
-    assert accel["fit"] == {
-        "init": "updown",
-        "iterations": 7,
-        "converged": True,
-        "message": "step below tolerance",
-        "noise_scale": 1.0,
-    }
+    fit = accel["fit"]
+    assert (fit["init"], fit["iterations"], fit["converged"]) == ("updown", 7, True)
+    assert (fit["noise_scale"], fit["chi2"], fit["dof"]) == (1.0, 8.7, 7)
     assert accel["coverage"]["largest_gap_deg"] == 41.0
     assert len(accel["poses"]) == len(UPS)
     assert accel["poses"][0]["residual_mg"] == pytest.approx(-0.0012 / G * 1000)
@@ -236,6 +236,7 @@ def test_render_shows_values_with_units_and_std():
     assert "835.12 ± 0.04 counts per m/s^2" in text
     assert "12.3 ± 0.4 counts" in text
     assert "-0.30 ± 0.02 deg" in text
+    assert "830.20 ± 0.05 counts per m/s^2" in text  # sensitivity with its std
     assert "matrix [m/s^2 per counts] and bias [counts]" in text
     assert "raw counts -> calibrated m/s^2" in text
     assert "7 iterations; converged" in text
@@ -329,6 +330,19 @@ def test_malformed_optional_fields_read_as_missing():
     text = rendered(document)
     assert "named parameters with standard deviations" in text
     assert "pose coverage (fraction, largest gap)" in text
+
+
+def test_undetermined_values_are_null_in_json_and_n_a_in_text():
+    document = full_calibration()
+    document["accel"]["parameters"][0]["std"] = float("nan")
+    document["accel"]["rms_loo"] = float("nan")
+    cal = calibration_from_json(json.dumps(document), "test.json")
+    report = build_report(cal)
+    json.dumps(report, allow_nan=False)  # strict JSON
+    accel = report["sensors"]["accel"]
+    assert accel["parameters"][0]["std"] is None
+    assert accel["rms"]["held_out"] is None
+    assert "12.3 ± n/a counts" in rendered(document)
 
 
 # ---------------------------------------------------------------------------------------------
