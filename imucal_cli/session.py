@@ -58,7 +58,7 @@ _LOG_ITEM_BYTES = 2048  # one segment as JSON, fixed-length bytes (SWMR cannot g
 
 
 def utc_now_iso() -> str:
-    """Return the current UTC time as ISO 8601 with second resolution, e.g. ``2026-11-21T10:00:00Z``."""
+    """Return the current UTC time as ISO 8601, second resolution: ``2026-11-21T10:00:00Z``."""
     return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
@@ -332,7 +332,9 @@ def _get_attr(attrs: h5py.AttributeManager, name: str, src: str, where: str) -> 
     try:
         return attrs[name]
     except (OSError, TypeError, ValueError) as exc:
-        raise SessionError(f"{src}: {where}attribute {name!r} cannot be read ({_one_line(exc)})")
+        raise SessionError(
+            f"{src}: {where}attribute {name!r} cannot be read ({_one_line(exc)})"
+        ) from None
 
 
 def _read_open_file(file: h5py.File, src: str, unclosed: bool) -> Session:
@@ -620,7 +622,8 @@ class SessionWriter:
     ) -> None:
         self.path = Path(path)
         self._src = src = str(path)
-        for name, channels in (("accel_channels", accel_channels), ("gyro_channels", gyro_channels)):
+        channel_counts = {"accel_channels": accel_channels, "gyro_channels": gyro_channels}
+        for name, channels in channel_counts.items():
             if channels is not None and (not isinstance(channels, int | np.integer) or channels < 3):
                 raise InputError(f"{src}: {name} must be an integer >= 3 or None, got {channels!r}")
         for name, number in (("sample_rate_hz", sample_rate_hz), ("gravity", gravity)):

@@ -1,0 +1,313 @@
+"""Calibration JSON (``shared/spec/session-format.md``, version 1): model, validation, I/O.
+
+For each sensor present, the calibrated 3-vector in SI units is::
+
+    calibrated = matrix @ (raw - bias)
+
+with ``bias`` (length n) in raw units and ``matrix`` of shape (3, n).  Fields a solver adds
+beyond the standard ones are kept in ``extra`` dictionaries and written back unchanged.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from imucal_cli.errors import CalibrationFileError
+
+FORMAT = "imucal-calibration"
+FORMAT_VERSION = 1
+MODEL_EQUATION = "calibrated = matrix @ (raw - bias)"
+SENSOR_UNITS = {"accel": "m/s^2", "gyro": "rad/s"}
+
+_ROOT_FIELDS = ("format", "format_version", "session", "created", "accel", "gyro")
+_SECTION_FIELDS = ("solver", "units", "bias", "matrix", "residual_rms")
+
+
+def _utc_now_iso() -> str:
+    return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+@dataclass
+class SensorCalibration:
+    """Calibration of one sensor: ``calibrated = matrix @ (raw - bias)``.
+
+    Attributes
+    ----------
+    solver : str
+        Name of the solver that produced it, e.g. ``"gravity"``.
+    units : str
+        Units of the calibrated output: ``"m/s^2"`` (accel) or ``"rad/s"`` (gyro).
+    bias : ndarray, shape (n,)
+        Bias in raw units, n >= 3 raw channels.
+    matrix : ndarray, shape (3, n)
+        Maps bias-free raw channels to the calibrated 3-vector.
+    residual_rms : float or None
+        RMS of what the solver minimised, in ``units``.
+    extra : dict
+        Every other field of the section, preserved on a round trip.
+    """
+
+    solver: str
+    units: str
+    bias: np.ndarray
+    matrix: np.ndarray
+    residual_rms: float | None = None
+    extra: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.bias = np.asarray(self.bias, dtype=np.float64)
+        self.matrix = np.asarray(self.matrix, dtype=np.float64)
+
+    def apply(self, raw: np.ndarray) -> np.ndarray:
+        """Calibrate raw samples.
+
+        Parameters
+        ----------
+        raw : ndarray, shape (N, n) or (n,)
+            Raw channels in raw units.
+
+        Returns
+        -------
+        ndarray, shape (N, 3) or (3,)
+            ``matrix @ (raw - bias)`` per sample, in ``units``.
+
+        Raises
+        ------
+        CalibrationFileError
+            ``raw`` does not have n channels in its last axis.
+        """
+        raw = np.asarray(raw, dtype=np.float64)
+        n = self.bias.shape[0]
+        if raw.ndim not in (1, 2) or raw.shape[-1] != n:
+            raise CalibrationFileError(
+                f"cannot apply a calibration for {n} raw channels to data of shape {raw.shape}"
+            )
+        return (raw - self.bias) @ self.matrix.T
+
+    def to_dict(self) -> dict:
+        """Return the JSON section: standard fields first, then ``extra``."""
+        section = {
+            "solver": self.solver,
+            "units": self.units,
+            "bias": self.bias.tolist(),
+            "matrix": self.matrix.tolist(),
+            "residual_rms": self.residual_rms,
+        }
+        section.update({k: v for k, v in self.extra.items() if k not in section})
+        return section
+
+
+@dataclass
+class Calibration:
+    """A calibration file: one section per calibrated sensor plus root metadata.
+
+    Attributes
+    ----------
+    accel, gyro : SensorCalibration or None
+        At least one is present in a valid file.
+    session : str or None
+        The session file the calibration was computed from.
+    created : str
+        ISO 8601 UTC time of the calibration; default now.
+    extra : dict
+        Other root fields (``sensor``, ``toolkit_version``, ``config``, ...), preserved.
+    """
+
+    accel: SensorCalibration | None = None
+    gyro: SensorCalibration | None = None
+    session: str | None = None
+    created: str = field(default_factory=_utc_now_iso)
+    extra: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        """Return the JSON document as a dict (arrays as lists, sections only when present)."""
+        d: dict[str, Any] = {"format": FORMAT, "format_version": FORMAT_VERSION}
+        if self.session is not None:
+            d["session"] = self.session
+        d["created"] = self.created
+        d.update({k: v for k, v in self.extra.items() if k not in _ROOT_FIELDS})
+        for name in ("accel", "gyro"):
+            section = getattr(self, name)
+            if section is not None:
+                d[name] = section.to_dict()
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict, source: str = "<dict>") -> Calibration:
+        """Validate a parsed calibration document and build a Calibration.
+
+        Parameters
+        ----------
+        d : dict
+            The parsed JSON.
+        source : str
+            Name of the file (or string) it came from, used in error messages.
+
+        Raises
+        ------
+        CalibrationFileError
+            The document does not follow the calibration format; one line naming ``source``.
+        """
+
+        def fail(problem: str) -> CalibrationFileError:
+            return CalibrationFileError(f"{source}: {problem}")
+
+        if not isinstance(d, dict):
+            raise fail(f"expected a JSON object, got {type(d).__name__}")
+        if d.get("format") != FORMAT:
+            raise fail(
+                f"not an imucal calibration (format is {d.get('format')!r}, expected {FORMAT!r})"
+            )
+        version = d.get("format_version")
+        if isinstance(version, bool) or version != FORMAT_VERSION:
+            raise fail(
+                f"unsupported format_version {version!r} "
+                f"(this reader reads version {FORMAT_VERSION})"
+            )
+        for key in ("session", "created"):
+            if key in d and d[key] is not None and not isinstance(d[key], str):
+                raise fail(f"{key!r} must be a string, got {d[key]!r}")
+        if not isinstance(d.get("created"), str):
+            raise fail("'created' is missing")
+        sections = {
+            name: _parse_section(d[name], name, fail)
+            for name in ("accel", "gyro")
+            if d.get(name) is not None
+        }
+        if not sections:
+            raise fail("holds neither an 'accel' nor a 'gyro' calibration")
+        return cls(
+            accel=sections.get("accel"),
+            gyro=sections.get("gyro"),
+            session=d.get("session"),
+            created=d["created"],
+            extra={k: v for k, v in d.items() if k not in _ROOT_FIELDS},
+        )
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _is_finite_list(value: Any) -> bool:
+    return isinstance(value, list) and all(_is_number(v) and math.isfinite(v) for v in value)
+
+
+def _parse_section(section: Any, name: str, fail) -> SensorCalibration:
+    if not isinstance(section, dict):
+        raise fail(f"{name!r} must be an object, got {type(section).__name__}")
+    for key in ("solver", "units"):
+        if not isinstance(section.get(key), str):
+            problem = "is missing" if key not in section else "must be a string"
+            raise fail(f"{name}.{key} {problem}")
+    if section["units"] != SENSOR_UNITS[name]:
+        raise fail(f"{name}.units is {section['units']!r}, expected {SENSOR_UNITS[name]!r}")
+    bias = section.get("bias")
+    if not _is_finite_list(bias) or len(bias) < 3:
+        raise fail(f"{name}.bias must be a list of at least 3 finite numbers, got {bias!r}")
+    n = len(bias)
+    matrix = section.get("matrix")
+    if (
+        not isinstance(matrix, list)
+        or len(matrix) != 3
+        or not all(_is_finite_list(row) and len(row) == n for row in matrix)
+    ):
+        raise fail(f"{name}.matrix must be 3 rows of {n} finite numbers (one per bias entry)")
+    rms = section.get("residual_rms")
+    if rms is not None and not (_is_number(rms) and math.isfinite(rms)):
+        raise fail(f"{name}.residual_rms must be a finite number or null, got {rms!r}")
+    return SensorCalibration(
+        solver=section["solver"],
+        units=section["units"],
+        bias=np.array(bias, dtype=np.float64),
+        matrix=np.array(matrix, dtype=np.float64),
+        residual_rms=None if rms is None else float(rms),
+        extra={k: v for k, v in section.items() if k not in _SECTION_FIELDS},
+    )
+
+
+def _jsonable(value: Any) -> Any:
+    """Convert numpy arrays/scalars and tuples to JSON types; NaN and inf become None."""
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple | np.ndarray):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def calibration_to_json(cal: Calibration) -> str:
+    """Return the calibration as pretty JSON text (indent 2, NaN and inf written as null)."""
+    return json.dumps(_jsonable(cal.to_dict()), indent=2, allow_nan=False)
+
+
+def calibration_from_json(text: str, source: str = "<string>") -> Calibration:
+    """Parse and validate calibration JSON text.
+
+    Raises
+    ------
+    CalibrationFileError
+        Invalid JSON (the message gives the line) or a document that breaks the format.
+    """
+    try:
+        d = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise CalibrationFileError(
+            f"{source}: invalid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}"
+        ) from None
+    return Calibration.from_dict(d, source=source)
+
+
+def read_calibration(path: str | os.PathLike) -> Calibration:
+    """Read and validate a calibration JSON file.
+
+    Raises
+    ------
+    CalibrationFileError
+        Missing or unreadable file, not UTF-8, invalid JSON, or not a valid calibration.
+    """
+    src = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise CalibrationFileError(f"{src}: no such file") from None
+    except IsADirectoryError:
+        raise CalibrationFileError(f"{src}: is a directory, not a calibration file") from None
+    except UnicodeDecodeError:
+        raise CalibrationFileError(f"{src}: not a text (UTF-8) file") from None
+    except OSError as exc:
+        raise CalibrationFileError(f"{src}: cannot read ({exc.strerror or exc})") from None
+    return calibration_from_json(text, source=src)
+
+
+def write_calibration(path: str | os.PathLike, cal: Calibration) -> None:
+    """Write a calibration JSON file (replacing it atomically if it exists).
+
+    Raises
+    ------
+    CalibrationFileError
+        The calibration would not read back as valid (e.g. NaN in ``bias``), or the file
+        cannot be written.
+    """
+    src = str(path)
+    text = calibration_to_json(cal)
+    calibration_from_json(text, source=src)  # never write what cannot be read back
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        tmp.write_text(text + "\n", encoding="utf-8")
+        os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise CalibrationFileError(f"{src}: cannot write ({exc.strerror or exc})") from None
