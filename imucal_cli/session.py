@@ -624,7 +624,8 @@ class SessionWriter:
         self._src = src = str(path)
         channel_counts = {"accel_channels": accel_channels, "gyro_channels": gyro_channels}
         for name, channels in channel_counts.items():
-            if channels is not None and (not isinstance(channels, int | np.integer) or channels < 3):
+            valid = isinstance(channels, int | np.integer) and channels >= 3
+            if channels is not None and not valid:
                 raise InputError(f"{src}: {name} must be an integer >= 3 or None, got {channels!r}")
         for name, number in (("sample_rate_hz", sample_rate_hz), ("gravity", gravity)):
             value = None if number is None else _as_float(number)
