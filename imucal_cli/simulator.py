@@ -32,7 +32,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from .calibration import Calibration, SensorCalibration
 from .errors import InputError
+from .session import Segment, Session, utc_now_iso
 
 __all__ = [
     "G0",
@@ -653,7 +655,7 @@ def sensor_name(seed: int) -> str:
     return f"sim-16bit seed {int(seed)}"
 
 
-def truth_calibration(stream: SimulatedStream, created: str | None = None):
+def truth_calibration(stream: SimulatedStream, created: str | None = None) -> Calibration:
     """The truth of a simulated stream as a :class:`~imucal_cli.calibration.Calibration`.
 
     ``matrix = inv(S)`` and ``bias = b`` in raw units, so ``matrix @ (raw - bias)`` gives the
@@ -662,8 +664,6 @@ def truth_calibration(stream: SimulatedStream, created: str | None = None):
     each static pose (``accel.extra["true_up"]``, in segment order) and the true rotation of
     each move (``gyro.extra["true_rotvec"]``, rad).
     """
-    from .calibration import Calibration, SensorCalibration
-
     t, opt = stream.truth, stream.options
     static = [s for s in stream.segments if s.kind == "static"]
     moves = [s for s in stream.segments if s.kind == "rotation"]
@@ -744,7 +744,7 @@ def simulate(
     lead_s: float = 1.0,
     lift_m: float = 0.03,
     created: str | None = None,
-):
+) -> tuple[Session, Calibration]:
     """Simulate a calibration session and return it with its truth.
 
     Parameters are those of :func:`simulate_stream`; ``created`` (ISO 8601 UTC) defaults to
@@ -759,8 +759,6 @@ def simulate(
     truth : imucal_cli.calibration.Calibration
         See :func:`truth_calibration`.
     """
-    from .session import Segment, Session, utc_now_iso
-
     stream = simulate_stream(
         plan=plan,
         seed=seed,
