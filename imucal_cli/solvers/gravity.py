@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
-from scipy.stats import chi2 as chi2_dist
+from scipy.special import chdtri  # inverse survival function of chi^2 (lighter than scipy.stats)
 
 from imucal_cli.errors import DesignError, SolverError
 
@@ -352,7 +352,7 @@ def fit_gravity(
     cov_n = np.linalg.inv(JtJ)
     if weighting == "noise":
         noise_scale = 1.0
-        if dof > 0 and chi2 > chi2_dist.ppf(0.99, dof):
+        if dof > 0 and chi2 > chdtri(dof, 0.01):  # beyond the 99th percentile of chi^2(dof)
             noise_scale = chi2 / dof
     else:
         noise_scale = chi2 / dof if dof > 0 else float("nan")

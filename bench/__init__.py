@@ -1,0 +1,1 @@
+"""Benchmarks: accuracy against truth and the Cramér-Rao bound, and timing (``make bench``)."""
