@@ -445,9 +445,20 @@ def _header(report: dict[str, Any]) -> Panel:
         if value:
             grid.add_row(name, Text(str(value)))
     if report["config"]:
-        options = ", ".join(f"{k}={v}" for k, v in report["config"].items())
+        options = ", ".join(f"{k}={v}" for k, v in _flatten(report["config"]))
         grid.add_row("options", Text(options))
     return Panel(grid, title="imucal calibration report", expand=False)
+
+
+def _flatten(options: dict[str, Any], prefix: str = "") -> list[tuple[str, Any]]:
+    """Nested solver options as ``(dotted.key, value)`` pairs."""
+    pairs = []
+    for key, value in options.items():
+        if isinstance(value, dict):
+            pairs.extend(_flatten(value, f"{prefix}{key}."))
+        else:
+            pairs.append((f"{prefix}{key}", value))
+    return pairs
 
 
 def _section_title(kind: str, section: dict[str, Any]) -> str:
@@ -635,26 +646,30 @@ def _pose_table(section: dict[str, Any]) -> Table:
 
 
 def _coverage_panel(section: dict[str, Any]) -> Panel:
-    """Equal-area maps of the two hemispheres with a mark per pose, and the coverage figures."""
+    """Equal-area maps of the two hemispheres with a mark per pose, the coverage figures beside."""
     directions = [p["direction"] for p in section["poses"] if p["direction"]]
-    lines = coverage_map(directions) if directions else []
     coverage = section["coverage"] or {}
     facts = []
     if coverage.get("fraction") is not None:
-        within = f" (within {coverage['cap_deg']:.0f} deg of a pose)" if coverage["cap_deg"] else ""
-        facts.append(f"covered {100 * coverage['fraction']:.0f} % of the sphere{within}")
+        facts.append(f"covered: {100 * coverage['fraction']:.0f} % of the sphere")
+        if coverage["cap_deg"]:
+            facts.append(f"  (within {coverage['cap_deg']:.0f} deg of a pose)")
     if coverage.get("largest_gap_deg") is not None:
-        facts.append(f"largest gap {coverage['largest_gap_deg']:.1f} deg")
+        facts.append(f"largest gap: {coverage['largest_gap_deg']:.1f} deg")
     if coverage.get("n_poses") is not None:
-        facts.append(f"{coverage['n_poses']} poses")
+        facts.append(f"poses: {coverage['n_poses']}")
     if coverage.get("n_distinct") is not None:
-        facts.append(f"{coverage['n_distinct']} distinct")
+        facts.append(f"distinct poses: {coverage['n_distinct']}")
     if coverage.get("weakest_direction"):
-        facts.append(f"weakest direction {_axis_name(coverage['weakest_direction'])}")
+        facts.append(f"weakest direction: {_axis_name(coverage['weakest_direction'])}")
     if not directions:
         facts.append("no measured directions stored: no map")
-    body = Text("\n".join([*lines, "; ".join(facts)]), no_wrap=True)
-    return Panel(body, title="coverage of measured gravity directions", expand=False)
+    grid = Table.grid(padding=(0, 3))
+    grid.add_column(no_wrap=True)
+    grid.add_column()
+    map_text = "\n".join(coverage_map(directions)) if directions else ""
+    grid.add_row(Text(map_text), Text("\n".join(["", *facts])))
+    return Panel(grid, title="coverage of measured gravity directions", expand=False)
 
 
 def _bullet_panel(items: list[str], title: str, style: str) -> Panel:
@@ -713,10 +728,14 @@ def _hemisphere(points: list[tuple[float, float]], radius_cols: int, radius_rows
     """One disc of the coverage map with the projected points marked."""
     height, width = 2 * radius_rows + 1, 2 * radius_cols + 1
     grid = [[" "] * width for _ in range(height)]
+    half_u, half_v = 0.5 / radius_cols, 0.5 / radius_rows
     for i in range(height):
         for j in range(width):
-            u, v = (j - radius_cols) / radius_cols, (radius_rows - i) / radius_rows
-            if u * u + v * v <= 1.0 + 0.5 / radius_rows:
+            # A cell belongs to the disc when any of it does, so every projected point's cell
+            # is drawn inside.
+            u = max(abs(j - radius_cols) / radius_cols - half_u, 0.0)
+            v = max(abs(radius_rows - i) / radius_rows - half_v, 0.0)
+            if u * u + v * v <= 1.0:
                 grid[i][j] = "."
     grid[radius_rows][radius_cols] = "+"
     counts = Counter(
@@ -747,8 +766,13 @@ def _fmt_std(value: float | None, std: float | None, unit: str | None = None) ->
         return f"{value:.5g} ± n/a{suffix}"
     if std == 0:
         return f"{value:.5g} ± 0{suffix}"
+    scale = max(abs(value), std)
+    exponent = 3 * math.floor(math.log10(scale) / 3) if scale < 1e-2 or scale >= 1e6 else 0
+    if exponent:
+        value, std = value / 10.0**exponent, std / 10.0**exponent
     decimals = _decimals_for(std)
-    return f"{value:.{decimals}f} ± {std:.{decimals}f}{suffix}"
+    text = f"{value:.{decimals}f} ± {std:.{decimals}f}"
+    return (f"({text})e{exponent}" if exponent else text) + suffix
 
 
 def _decimals_for(std: float) -> int:

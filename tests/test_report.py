@@ -85,6 +85,7 @@ def full_calibration() -> dict:
             "parameters": [
                 {"name": "b_x", "value": 12.3, "std": 0.4, "unit": "counts"},
                 {"name": "s_x", "value": 835.1234, "std": 0.04, "unit": "counts per m/s^2"},
+                {"name": "k_x", "value": 0.00118295, "std": 4e-8, "unit": "m/s^2 per counts"},
             ],
             "misalignment_deg": {"xy": 0.12, "xz": -0.3, "yz": 0.05},
             "misalignment_std_deg": {"xy": 0.01, "xz": 0.02, "yz": 0.015},
@@ -235,6 +236,7 @@ def test_render_shows_values_with_units_and_std():
     text = rendered(full_calibration())
     assert "835.12 ± 0.04 counts per m/s^2" in text
     assert "12.3 ± 0.4 counts" in text
+    assert "(1.18295 ± 0.00004)e-3 m/s^2 per counts" in text  # small values: common exponent
     assert "-0.30 ± 0.02 deg" in text
     assert "830.20 ± 0.05 counts per m/s^2" in text  # sensitivity with its std
     assert "matrix [m/s^2 per counts] and bias [counts]" in text
@@ -278,7 +280,8 @@ def test_render_has_one_row_per_pose():
 def test_render_coverage_figure():
     text = rendered(full_calibration())
     assert "+Z side" in text and "-Z side" in text
-    assert "covered 83 % of the sphere; largest gap 41.0 deg" in text
+    assert "covered: 83 % of the sphere" in text
+    assert "largest gap: 41.0 deg" in text
 
 
 def test_coverage_map_marks_each_pose_in_its_hemisphere():
@@ -422,3 +425,25 @@ def test_help_explains_the_command(capsys, monkeypatch):
     assert code == 0
     assert "--json" in out
     assert "session" in out and "re-solved" in out
+
+
+# ---------------------------------------------------------------------------------------------
+# End to end: what `imucal calibrate` writes, the report shows in full
+
+
+def test_report_of_a_real_calibrate_run_misses_nothing(tmp_path, capsys, monkeypatch):
+    session = tmp_path / "sim.h5"
+    output = tmp_path / "sim.cal.json"
+    code, _, err = run_imucal(["simulate", "--seed", "3", "-o", str(session)], capsys, monkeypatch)
+    assert code == 0, err
+    code, _, err = run_imucal(
+        ["calibrate", str(session), "--output", str(output)], capsys, monkeypatch
+    )
+    assert code == 0, err
+    for path in (output, session):  # the JSON and the copy stored in the session
+        code, out, err = run_imucal(["report", str(path), "--json"], capsys, monkeypatch)
+        assert code == 0, err
+        accel = json.loads(out)["sensors"]["accel"]
+        assert accel["unavailable"] == []
+        assert len(accel["poses"]) == accel["coverage"]["n_poses"]
+        assert accel["rms"]["after"] < accel["rms"]["before"]
