@@ -77,7 +77,7 @@ def simulate(
         "-o",
         metavar="PATH.h5",
         help=(
-            "Session file to write [default: sim-<plan>-seed<seed>.h5]; the truth goes "
+            "Session file to write (default: sim-<plan>-seed<seed>.h5); the truth goes "
             "beside it as <name>.truth.json."
         ),
     ),
