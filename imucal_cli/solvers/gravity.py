@@ -200,7 +200,7 @@ def _solve(a_n, g, w, x0, max_iterations):
     jac = lambda x: _residuals_and_jacobian(x, a_n, g, w)[1]  # noqa: E731
     return least_squares(
         fun, x0, jac=jac, method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12,
-        max_nfev=max_iterations * 10,
+        max_nfev=max_iterations,
     )
 
 
