@@ -252,6 +252,17 @@ def _as_unit_vector(value: Any) -> np.ndarray | None:
     return vector / norm
 
 
+def _show(value: Any) -> str:
+    """Return ``repr`` of an attribute value without numpy types: ``2``, not ``np.int64(2)``."""
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    elif isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, bytes):
+        value = value.decode("utf-8", errors="replace")
+    return repr(value)
+
+
 def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split()) or type(exc).__name__
 
@@ -349,13 +360,15 @@ def _read_open_file(file: h5py.File, src: str, unclosed: bool) -> Session:
     if fmt is None:
         raise SessionError(f"{src}: not an imucal session (no root attribute 'format')")
     if _as_str(fmt) != FORMAT:
-        raise SessionError(f"{src}: not an imucal session (format is {fmt!r}, expected {FORMAT!r})")
+        raise SessionError(
+            f"{src}: not an imucal session (format is {_show(fmt)}, expected {FORMAT!r})"
+        )
     version = root["format_version"]
     if version is None:
         raise SessionError(f"{src}: root attribute 'format_version' is missing")
     if _as_int(version) != FORMAT_VERSION:
         raise SessionError(
-            f"{src}: unsupported format_version {_scalar(version)!r} (this reader reads "
+            f"{src}: unsupported format_version {_show(version)} (this reader reads "
             f"version {FORMAT_VERSION})"
         )
     created = _as_str(root["created"])
@@ -373,7 +386,7 @@ def _read_open_file(file: h5py.File, src: str, unclosed: bool) -> Session:
         if root[name] is not None and (numbers[name] is None or numbers[name] <= 0):
             raise SessionError(
                 f"{src}: root attribute {name!r} must be a positive number, "
-                f"got {_scalar(root[name])!r}"
+                f"got {_show(root[name])}"
             )
 
     time, accel, gyro, temperature = _read_raw(file, src, unclosed)
@@ -507,11 +520,11 @@ def _parse_segment(
             raise fail(f"attribute {key!r} is missing")
     kind = _as_str(values["kind"])
     if kind not in SEGMENT_KINDS:
-        raise fail(f"unknown kind {_scalar(values['kind'])!r} (expected 'static' or 'rotation')")
+        raise fail(f"unknown kind {_show(values['kind'])} (expected 'static' or 'rotation')")
     start, stop = _as_int(values["start"]), _as_int(values["stop"])
     for key, number in (("start", start), ("stop", stop)):
         if number is None:
-            raise fail(f"{key!r} must be an integer sample index, got {_scalar(values[key])!r}")
+            raise fail(f"{key!r} must be an integer sample index, got {_show(values[key])}")
     if start >= stop:
         raise fail(f"start {start} is not before stop {stop}")
     if start < 0 or stop > n:
@@ -527,19 +540,19 @@ def _parse_segment(
         if raw_up is not None:
             up = _as_unit_vector(raw_up)
             if up is None:
-                raise fail(f"'up' must be 3 finite numbers, not all zero, got {raw_up!r}")
+                raise fail(f"'up' must be 3 finite numbers, not all zero, got {_show(raw_up)}")
         data, dataset = accel, "/raw/accel"
     else:
         raw_axis = get("axis")
         if raw_axis is not None:
             axis = _as_unit_vector(raw_axis)
             if axis is None:
-                raise fail(f"'axis' must be 3 finite numbers, not all zero, got {raw_axis!r}")
+                raise fail(f"'axis' must be 3 finite numbers, not all zero, got {_show(raw_axis)}")
         raw_angle = get("angle_deg")
         if raw_angle is not None:
             angle_deg = _as_float(raw_angle)
             if angle_deg is None:
-                raise fail(f"'angle_deg' must be a finite number, got {_scalar(raw_angle)!r}")
+                raise fail(f"'angle_deg' must be a finite number, got {_show(raw_angle)}")
         data, dataset = gyro, "/raw/gyro"
     if data is None:
         raise fail(f"{kind} segment but the file has no {dataset}")
