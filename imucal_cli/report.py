@@ -66,6 +66,7 @@ _OPTIONAL_ITEMS = (
     ("rms.before", "RMS before calibration"),
     ("rms.after", "RMS after calibration"),
     ("rms.held_out", "leave-one-pose-out (held-out) RMS"),
+    ("rms.residual_rms", "solver residual RMS"),
     ("poses", "per-pose residuals"),
     ("coverage", "pose coverage (fraction, largest gap)"),
 )
@@ -396,6 +397,14 @@ def _ratio(num: float | None, den: float | None) -> float | None:
 # --------------------------------------------------------------------------------------------
 # Rendering
 
+# rms key -> (row name, key of its improvement factor)
+_RMS_ROWS = {
+    "before": ("before calibration", None),
+    "after": ("after calibration", "improvement"),
+    "held_out": ("held out (leave-one-pose-out)", "improvement_held_out"),
+    "residual_rms": ("solver residual_rms", None),
+}
+
 
 def render_report(report: dict[str, Any], console: Console) -> None:
     """Draw a report dict (from :func:`build_report`) as rich tables.
@@ -419,7 +428,8 @@ def render_report(report: dict[str, Any], console: Console) -> None:
         angles = _angle_sensitivity_table(section)
         if angles is not None:
             console.print(angles)
-        console.print(_rms_table(section, report["reference"] if kind == "accel" else None))
+        if any(section["rms"][key] is not None for key in _RMS_ROWS):
+            console.print(_rms_table(section, report["reference"] if kind == "accel" else None))
         if section["fit"]:
             console.print(_fit_line(section["fit"]))
         if section["poses"]:
@@ -504,36 +514,38 @@ def _matrix_table(section: dict[str, Any]) -> Table:
     return table
 
 
-def _parameter_table(parameters: list[dict[str, Any]]) -> Table:
-    table = Table(title="parameters", box=box.SIMPLE, title_justify="left")
-    table.add_column("name")
-    table.add_column("value ± std", justify="right")
-    for p in parameters:
-        table.add_row(Text(p["name"]), Text(_fmt_std(p["value"], p["std"], p["unit"])))
+def _value_table(
+    title: str, key: str, rows: list[tuple[str, float | None, float | None, str | None]]
+) -> Table:
+    """``name | value ± std unit`` rows; the ``± std`` only when the file gives any std."""
+    with_std = any(std is not None for _, _, std, _ in rows)
+    table = Table(title=Text(title), box=box.SIMPLE, title_justify="left", min_width=len(title))
+    table.add_column(key)
+    table.add_column("value ± std" if with_std else "value", justify="right")
+    for name, value, std, unit in rows:
+        text = _fmt_std(value, std, unit) if with_std else _fmt(value, unit)
+        table.add_row(Text(name), Text(text))
     return table
+
+
+def _parameter_table(parameters: list[dict[str, Any]]) -> Table:
+    rows = [(p["name"], p["value"], p["std"], p["unit"]) for p in parameters]
+    return _value_table("parameters", "name", rows)
 
 
 def _angle_sensitivity_table(section: dict[str, Any]) -> Table | None:
     """Misalignment angles and sensitivities side by side (either may be absent)."""
     parts = []
     if section["misalignment_deg"]:
-        table = Table(title="misalignment (angle - 90)", box=box.SIMPLE, title_justify="left")
-        table.add_column("axes")
-        table.add_column("angle ± std", justify="right")
-        for m in section["misalignment_deg"]:
-            table.add_row(Text(m["axes"]), Text(_fmt_std(m["angle"], m["std"], "deg")))
-        parts.append(table)
+        rows = [(m["axes"], m["angle"], m["std"], "deg") for m in section["misalignment_deg"]]
+        parts.append(_value_table("misalignment (angle - 90)", "axes", rows))
     if section["sensitivity"]:
         sens = section["sensitivity"]
-        table = Table(title="sensitivity", box=box.SIMPLE, title_justify="left")
-        table.add_column("axis")
-        table.add_column("value", justify="right")
-        names = "xyz" if len(sens["values"]) == 3 else [str(i) for i in range(len(sens["values"]))]
-        stds = sens["std"] or [None] * len(sens["values"])
-        for name, value, std in zip(names, sens["values"], stds, strict=False):
-            text = _fmt_std(value, std, sens["unit"]) if sens["std"] else _fmt(value, sens["unit"])
-            table.add_row(name, Text(text))
-        parts.append(table)
+        values = sens["values"]
+        names = "xyz" if len(values) == 3 else [str(i) for i in range(len(values))]
+        stds = sens["std"] or [None] * len(values)
+        rows = list(zip(names, values, stds, [sens["unit"]] * len(values), strict=True))
+        parts.append(_value_table("sensitivity", "axis", rows))
     if not parts:
         return None
     grid = Table.grid(padding=(0, 4))
@@ -554,13 +566,7 @@ def _rms_table(section: dict[str, Any], reference: dict[str, Any] | None) -> Tab
     if show_mg:
         table.add_column("RMS in mg", justify="right")
     table.add_column("improvement", justify="right")
-    rows = (
-        ("before calibration", "before", None),
-        ("after calibration", "after", "improvement"),
-        ("held out (leave-one-pose-out)", "held_out", "improvement_held_out"),
-        ("solver residual_rms", "residual_rms", None),
-    )
-    for name, key, factor_key in rows:
+    for key, (name, factor_key) in _RMS_ROWS.items():
         cells = [name, _fmt(rms[key], unit)]
         if show_mg:
             cells.append(_fmt(rms[f"{key}_mg"], "mg", digits=3))
@@ -611,16 +617,19 @@ def _pose_table(section: dict[str, Any]) -> Table:
     unit = section["units_out"]
     in_mg = any(p["residual_mg"] is not None or p["residual_loo_mg"] is not None for p in poses)
     residual_unit = "mg" if in_mg else unit
-    table = Table(title="poses", box=box.SIMPLE, title_justify="left", pad_edge=False)
-    table.add_column("seg")
-    table.add_column("label", max_width=22, overflow="ellipsis", no_wrap=True)
-    table.add_column("up")
-    table.add_column("samples", justify="right")
-    table.add_column(f"|a| before\n{unit}", justify="right")
-    table.add_column(f"|a| after\n{unit}", justify="right")
-    table.add_column(f"residual\n{residual_unit}", justify="right")
-    table.add_column(f"held out\n{residual_unit}", justify="right")
-    table.add_column("angle to\nup, deg", justify="right")
+    title = "poses (n: samples averaged; angle: measured gravity to the labelled up)"
+    table = Table(title=title, box=box.SIMPLE, title_justify="left", pad_edge=False)
+    # Numbers never wrap; on a narrow terminal the label column wraps instead.
+    numbers = {"justify": "right", "no_wrap": True}
+    table.add_column("\n\nseg", no_wrap=True)
+    table.add_column("\n\nlabel", max_width=22, overflow="fold")
+    table.add_column("\n\nup", no_wrap=True)
+    table.add_column("\n\nn", **numbers)
+    table.add_column(f"|a|\nbefore\n{unit}", **numbers)
+    table.add_column(f"|a|\nafter\n{unit}", **numbers)
+    table.add_column(f"\nresidual\n{residual_unit}", **numbers)
+    table.add_column(f"held\nout\n{residual_unit}", **numbers)
+    table.add_column("\nangle\ndeg", **numbers)
     for p in poses:
         if in_mg:
             residual, held_out = p["residual_mg"], p["residual_loo_mg"]

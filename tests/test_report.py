@@ -447,3 +447,13 @@ def test_report_of_a_real_calibrate_run_misses_nothing(tmp_path, capsys, monkeyp
         assert accel["unavailable"] == []
         assert len(accel["poses"]) == accel["coverage"]["n_poses"]
         assert accel["rms"]["after"] < accel["rms"]["before"]
+
+
+def test_values_without_any_std_are_shown_plain():
+    document = minimal_calibration()
+    document["accel"]["residual_rms"] = None
+    document["accel"]["misalignment_deg"] = {"xy": 0.12, "xz": -0.3, "yz": 0.05}
+    text = rendered(document)
+    assert "0.12 deg" in text and "n/a" not in text
+    assert "RMS gravity-magnitude error" not in text  # no table of dashes
+    assert "solver residual RMS" in text  # listed as not in this calibration
