@@ -173,9 +173,12 @@ def _section_report(kind: str, sec: SensorCalibration) -> dict[str, Any]:
     ``matrix`` (3 x n), ``matrix_unit``, ``bias`` (n), ``bias_unit``, ``gravity``
     (``{"value", "stated"}`` or ``None``), ``parameters`` (``name``, ``value``, ``std``,
     ``unit``), ``misalignment_deg`` (``axes``, ``angle``, ``std``), ``sensitivity``
-    (``values``, ``unit``), ``fit`` (``init``, ``iterations``, ``converged``, ``message``,
-    ``noise_scale``), ``rms`` (see :func:`_rms_report`), ``coverage``, ``poses``,
-    ``warnings`` and ``unavailable`` (what this calibration does not carry).
+    (``values``, ``std``, ``unit``), ``fit`` (``init``, ``iterations``, ``converged``,
+    ``message``, ``noise_scale``, ``weighting``, ``chi2``, ``dof``), ``rms`` (see
+    :func:`_rms_report`), ``coverage`` (``fraction``, ``largest_gap_deg``, ``n_poses``,
+    ``n_distinct``, ``cap_deg``, ``weakest_direction``), ``poses`` (the stored rows plus
+    ``residual_mg``, ``residual_loo_mg``), ``warnings`` and ``unavailable`` (what this
+    calibration does not carry).  Non-finite numbers read as ``None`` (strict JSON).
     """
     extra = sec.extra or {}
     units_in = _text(extra.get("units_in"))
