@@ -12,9 +12,12 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet -e '.[dev]'
 	touch $(STAMP)
 
+# The demo works on a copy, so the shipped session is never modified.
 demo: $(STAMP)
-	$(BIN)/imucal calibrate sessions/qureshi18-seed1.h5 --output /tmp/imucal-demo.cal.json
-	$(BIN)/imucal report /tmp/imucal-demo.cal.json
+	mkdir -p out
+	cp sessions/qureshi18-seed1.h5 out/demo.h5
+	$(BIN)/imucal calibrate out/demo.h5 --output out/demo.cal.json
+	$(BIN)/imucal report out/demo.cal.json
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -n 2 -q
@@ -26,4 +29,4 @@ lint: $(STAMP)
 	$(BIN)/ruff check imucal_cli tests bench
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache
+	rm -rf $(VENV) build *.egg-info .pytest_cache out
