@@ -231,7 +231,7 @@ def test_read_errors_for_files(tmp_path):
     (tmp_path / "binary.json").write_bytes(b"\x89HDF\r\n\x1a\n\xff\xfe")
     cases = {
         tmp_path / "missing.json": "no such file",
-        tmp_path: "is a directory",
+        tmp_path: "is a directory, not a calibration file",
         tmp_path / "binary.json": "not a text (UTF-8) file",
     }
     for path, message in cases.items():
