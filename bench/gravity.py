@@ -66,15 +66,29 @@ def one_seed(seed: int) -> dict:
     crb = np.diag(gravity_crb(M_true, b_true, u, G0, cov_mean))
 
     # 50 new random poses of the same unit (same seed -> same truth; other poses and noise).
-    new, truth_new = simulate(plan="random:50", seed=seed, created="2026-01-01T00:00:00Z",
-                              rate_hz=100.0, hold_s=2.0, accel_noise=0.01, jitter_deg=0.0)
+    new, truth_new = simulate(
+        plan="random:50",
+        seed=seed,
+        created="2026-01-01T00:00:00Z",
+        rate_hz=100.0,
+        hold_s=2.0,
+        accel_noise=0.01,
+        jitter_deg=0.0,
+    )
     assert np.allclose(truth_new.accel.matrix, T_true)
     a_new = static_poses(new).a_mean
     before = np.linalg.norm(a_new, axis=1) / (ACCEL_LSB_PER_G / G0) - G0
     after = np.linalg.norm(acc.apply(a_new), axis=1) - G0
-    return dict(err=x_hat - x_true, std=std, crb=crb, solve_s=solve_s,
-                rms_before=rms(before), rms_after=rms(after), rms_loo=acc.extra["rms_loo"],
-                iterations=acc.extra["iterations"])
+    return dict(
+        err=x_hat - x_true,
+        std=std,
+        crb=crb,
+        solve_s=solve_s,
+        rms_before=rms(before),
+        rms_after=rms(after),
+        rms_loo=acc.extra["rms_loo"],
+        iterations=acc.extra["iterations"],
+    )
 
 
 def session_noise(truth) -> float:
@@ -93,20 +107,29 @@ def rms(x) -> float:
 
 def hour_session_timing(console: Console) -> tuple[float, float]:
     """Write a 1-hour 100 Hz session and time `imucal calibrate` on it (wall clock, s)."""
-    session, _ = simulate(plan="qureshi18", seed=7, rate_hz=100.0, hold_s=196.0,
-                          accel_noise=0.01, jitter_deg=2.0, created="2026-01-01T00:00:00Z")
+    session, _ = simulate(
+        plan="qureshi18",
+        seed=7,
+        rate_hz=100.0,
+        hold_s=196.0,
+        accel_noise=0.01,
+        jitter_deg=2.0,
+        created="2026-01-01T00:00:00Z",
+    )
     hours = (session.time[-1] - session.time[0]) / 3600
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "hour.h5"
         write_session(path, session)
         exe = Path(sys.executable).with_name("imucal")
         t0 = time.perf_counter()
-        proc = subprocess.run([str(exe), "calibrate", str(path), "--no-store"],
-                              capture_output=True, text=True)
+        proc = subprocess.run(
+            [str(exe), "calibrate", str(path), "--no-store"], capture_output=True, text=True
+        )
         wall = time.perf_counter() - t0
         if proc.returncode != 0:
             console.print(f"[red]imucal calibrate failed on the 1-hour session: {proc.stderr}")
         from imucal_cli.session import read_session
+
         t0 = time.perf_counter()
         calibrate_session(read_session(path), Config())
         inproc = time.perf_counter() - t0
@@ -116,8 +139,9 @@ def hour_session_timing(console: Console) -> tuple[float, float]:
 
 def run(console: Console, n_seeds: int = 200) -> bool:
     console.rule("[bold]Gravity-magnitude accelerometer calibration (Qureshi & Golnaraghi III-A)")
-    console.print(f"design: {DESIGN}, {n_seeds} seeds, simulated 16-bit part "
-                  f"({ACCEL_LSB_PER_G:.0f} LSB/g)")
+    console.print(
+        f"design: {DESIGN}, {n_seeds} seeds, simulated 16-bit part ({ACCEL_LSB_PER_G:.0f} LSB/g)"
+    )
     rows = [one_seed(s) for s in range(n_seeds)]
     err = np.array([r["err"] for r in rows])
     std = np.array([r["std"] for r in rows])
@@ -128,13 +152,27 @@ def run(console: Console, n_seeds: int = 200) -> bool:
     cover = np.mean(np.abs(err) <= 1.96 * std, axis=0)
 
     t = Table(title="Parameter errors against truth (solver gauge: upper-triangular M)")
-    for col in ("parameter", "unit", "RMS error", "sqrt(CRB)", "error/bound", "mean reported std",
-                "95% interval coverage"):
+    for col in (
+        "parameter",
+        "unit",
+        "RMS error",
+        "sqrt(CRB)",
+        "error/bound",
+        "mean reported std",
+        "95% interval coverage",
+    ):
         t.add_column(col, justify="right")
     units = ["counts"] * 3 + ["m/s^2 per count"] * 6
     for i, name in enumerate(PARAM_NAMES_9):
-        t.add_row(name, units[i], f"{rms_err[i]:.4g}", f"{bound[i]:.4g}", f"{ratio[i]:.3f}",
-                  f"{np.mean(std[:, i]):.4g}", f"{100 * cover[i]:.1f}%")
+        t.add_row(
+            name,
+            units[i],
+            f"{rms_err[i]:.4g}",
+            f"{bound[i]:.4g}",
+            f"{ratio[i]:.3f}",
+            f"{np.mean(std[:, i]):.4g}",
+            f"{100 * cover[i]:.1f}%",
+        )
     console.print(t)
 
     before = np.array([r["rms_before"] for r in rows])
@@ -143,32 +181,49 @@ def run(console: Console, n_seeds: int = 200) -> bool:
     t2 = Table(title="Gravity-magnitude RMS on 50 new random poses (mean over seeds)")
     for col in ("", "before", "after", "factor"):
         t2.add_column(col, justify="right")
-    t2.add_row("imucal, m/s^2", f"{before.mean():.4f}", f"{after.mean():.5f}",
-               f"{before.mean() / after.mean():.0f}x")
+    t2.add_row(
+        "imucal, m/s^2",
+        f"{before.mean():.4f}",
+        f"{after.mean():.5f}",
+        f"{before.mean() / after.mean():.0f}x",
+    )
     t2.add_row("imucal, g", f"{before.mean() / G0:.5f}", f"{after.mean() / G0:.6f}", "")
     t2.add_row("imucal held-out (LOO on the 18 poses), g", "", f"{loo.mean() / G0:.6f}", "")
-    t2.add_row("paper Fig. 5 (real BNO055, 92 poses), g", f"{PAPER_RMS_G[0]:.4f}",
-               f"{PAPER_RMS_G[1]:.4f}", f"{PAPER_RMS_G[0] / PAPER_RMS_G[1]:.0f}x")
+    t2.add_row(
+        "paper Fig. 5 (real BNO055, 92 poses), g",
+        f"{PAPER_RMS_G[0]:.4f}",
+        f"{PAPER_RMS_G[1]:.4f}",
+        f"{PAPER_RMS_G[0] / PAPER_RMS_G[1]:.0f}x",
+    )
     console.print(t2)
-    console.print("  note: the paper's 'after' includes its sensor's nonlinearity and placement; "
-                  "ours is limited by noise alone (0.01 m/s^2 per sample).")
+    console.print(
+        "  note: the paper's 'after' includes its sensor's nonlinearity and placement; "
+        "ours is limited by noise alone (0.01 m/s^2 per sample)."
+    )
 
     solve = np.array([r["solve_s"] for r in rows])
     wall, inproc = hour_session_timing(console)
     t3 = Table(title="Timing")
     for col in ("what", "value", "target"):
         t3.add_column(col, justify="right")
-    t3.add_row("calibrate_session, 18-pose session (median)", f"{1000 * np.median(solve):.1f} ms", "")
+    t3.add_row(
+        "calibrate_session, 18-pose session (median)", f"{1000 * np.median(solve):.1f} ms", ""
+    )
     t3.add_row("mean LM iterations", f"{np.mean([r['iterations'] for r in rows]):.1f}", "")
-    t3.add_row("`imucal calibrate` on a 1-hour 100 Hz session (wall, incl. start-up)",
-               f"{wall:.2f} s", "< 1 s")
+    t3.add_row(
+        "`imucal calibrate` on a 1-hour 100 Hz session (wall, incl. start-up)",
+        f"{wall:.2f} s",
+        "< 1 s",
+    )
     t3.add_row("  of which read + solve in process", f"{inproc:.2f} s", "")
     console.print(t3)
 
     ok_ratio = bool(np.all(ratio <= 1.2))
     ok_time = wall < 1.0
-    console.print(f"error/bound max {ratio.max():.3f} (target <= 1.2): "
-                  f"{'[green]PASS' if ok_ratio else '[red]FAIL'}[/]; "
-                  f"1-hour calibrate {wall:.2f} s (target < 1 s): "
-                  f"{'[green]PASS' if ok_time else '[red]FAIL'}[/]")
+    console.print(
+        f"error/bound max {ratio.max():.3f} (target <= 1.2): "
+        f"{'[green]PASS' if ok_ratio else '[red]FAIL'}[/]; "
+        f"1-hour calibrate {wall:.2f} s (target < 1 s): "
+        f"{'[green]PASS' if ok_time else '[red]FAIL'}[/]"
+    )
     return ok_ratio and ok_time

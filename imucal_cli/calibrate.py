@@ -125,7 +125,9 @@ def nominal_sensor(session: Session, cfg: Config, g: float) -> Nominal:
     else:
         bias = np.zeros(3)
     if sens is not None:
-        basis = f"nominal sensitivity {sens:.6g} {units} per m/s^2, offset {_fmt_bias(bias)} {units}"
+        basis = (
+            f"nominal sensitivity {sens:.6g} {units} per m/s^2, offset {_fmt_bias(bias)} {units}"
+        )
     else:
         basis = f"one scale fitted to the raw magnitudes, offset {_fmt_bias(bias)} {units}"
     return Nominal(sens, bias, rng, basis)
@@ -138,7 +140,9 @@ def _fmt_bias(b: np.ndarray) -> str:
 # --------------------------------------------------------------------------- design checks
 
 
-def check_design(poses: StaticPoses, nominal: Nominal, min_separation_deg: float, where: str) -> None:
+def check_design(
+    poses: StaticPoses, nominal: Nominal, min_separation_deg: float, where: str
+) -> None:
     """Refuse poses that cannot determine a triad's 9 parameters, with advice."""
     N = len(poses.a_mean)
     centre = nominal.bias
@@ -184,7 +188,9 @@ def _derived(params: np.ndarray, variant: str) -> np.ndarray:
     return np.r_[gains, ang]
 
 
-def _derived_with_std(params: np.ndarray, cov: np.ndarray, variant: str) -> tuple[np.ndarray, np.ndarray]:
+def _derived_with_std(
+    params: np.ndarray, cov: np.ndarray, variant: str
+) -> tuple[np.ndarray, np.ndarray]:
     f0 = _derived(params, variant)
     J = np.empty((len(f0), len(params)))
     for i in range(len(params)):
@@ -228,7 +234,12 @@ def calibrate_accel(session: Session, cfg: Config) -> SensorCalibration:
     cov_mean = poses.cov_mean if weighted else None
     up = poses.up if np.isfinite(poses.up).any() else None
     res = gravity_solver.fit_gravity(
-        poses.a_mean, g, cov_mean=cov_mean, up=up, variant=opts.model, init=opts.init,
+        poses.a_mean,
+        g,
+        cov_mean=cov_mean,
+        up=up,
+        variant=opts.model,
+        init=opts.init,
         max_iterations=opts.max_iterations,
     )
 
@@ -260,22 +271,26 @@ def calibrate_accel(session: Session, cfg: Config) -> SensorCalibration:
     param_units = [units_in] * 3 + [f"m/s^2 per {units_in}"] * (len(res.params) - 3)
     parameters = [
         {"name": n, "value": float(v), "std": float(s), "unit": u}
-        for n, v, s, u in zip(res.param_names, res.params, res.std, param_units)
+        for n, v, s, u in zip(res.param_names, res.params, res.std, param_units, strict=True)
     ]
     pose_rows = []
     for k, s in enumerate(poses.segments):
-        pose_rows.append({
-            "segment": s.name,
-            "label": s.label,
-            "up": None if s.up is None else [float(x) for x in s.up],
-            "samples": int(poses.samples[k]),
-            "magnitude_before": float(mag_before[k]),
-            "magnitude_after": float(mag_after[k]),
-            "residual": float(res.residuals[k]),
-            "residual_loo": _num(loo[k]),
-            "angle_to_up_deg": _num(res.up_angle_deg[k]) if res.up_angle_deg is not None else None,
-            "direction": [float(x) for x in res.directions[k]],
-        })
+        pose_rows.append(
+            {
+                "segment": s.name,
+                "label": s.label,
+                "up": None if s.up is None else [float(x) for x in s.up],
+                "samples": int(poses.samples[k]),
+                "magnitude_before": float(mag_before[k]),
+                "magnitude_after": float(mag_after[k]),
+                "residual": float(res.residuals[k]),
+                "residual_loo": _num(loo[k]),
+                "angle_to_up_deg": _num(res.up_angle_deg[k])
+                if res.up_angle_deg is not None
+                else None,
+                "direction": [float(x) for x in res.directions[k]],
+            }
+        )
 
     gauge = (
         "upper-triangular matrix: calibrated z is the z sensitivity axis, y lies in the plane of "
@@ -293,8 +308,10 @@ def calibrate_accel(session: Session, cfg: Config) -> SensorCalibration:
         "sensitivity": [float(x) for x in gains],
         "sensitivity_std": [float(x) for x in gains_std],
         "sensitivity_unit": f"{units_in} per m/s^2",
-        "misalignment_deg": dict(zip(("xy", "xz", "yz"), map(float, derived[3:]))),
-        "misalignment_std_deg": dict(zip(("xy", "xz", "yz"), map(float, derived_std[3:]))),
+        "misalignment_deg": dict(zip(("xy", "xz", "yz"), map(float, derived[3:]), strict=True)),
+        "misalignment_std_deg": dict(
+            zip(("xy", "xz", "yz"), map(float, derived_std[3:]), strict=True)
+        ),
         "init": res.init,
         "weighting": res.weighting,
         "iterations": res.iterations,
@@ -322,8 +339,12 @@ def calibrate_accel(session: Session, cfg: Config) -> SensorCalibration:
         "warnings": warnings,
     }
     return SensorCalibration(
-        solver="gravity", units="m/s^2", bias=res.bias, matrix=res.matrix,
-        residual_rms=_rms(res.cost_residuals), extra=extra,
+        solver="gravity",
+        units="m/s^2",
+        bias=res.bias,
+        matrix=res.matrix,
+        residual_rms=_rms(res.cost_residuals),
+        extra=extra,
     )
 
 
@@ -334,7 +355,7 @@ def _physical_checks(res, gains, nominal: Nominal, cfg: Config, units: str, g: f
         ref, what = np.full(3, nominal.sensitivity), "nominal"
     else:
         ref, what = np.full(3, np.median(gains)), "the median of the three axes"
-    for axis, gain, r in zip("xyz", gains, ref):
+    for axis, gain, r in zip("xyz", gains, ref, strict=True):
         if abs(gain / r - 1) > limit:
             warnings.append(
                 f"{axis} sensitivity {gain:.6g} {units} per m/s^2 is {100 * (gain / r - 1):+.0f}% "
@@ -343,7 +364,7 @@ def _physical_checks(res, gains, nominal: Nominal, cfg: Config, units: str, g: f
             )
     if nominal.range is not None:
         lo, hi = nominal.range
-        for axis, b in zip("xyz", res.bias):
+        for axis, b in zip("xyz", res.bias, strict=True):
             if not lo <= b <= hi:
                 warnings.append(
                     f"{axis} bias {b:.6g} {units} lies outside the sensor's range "
@@ -358,7 +379,9 @@ def _physical_checks(res, gains, nominal: Nominal, cfg: Config, units: str, g: f
     return warnings
 
 
-def calibrate_session(session: Session, cfg: Config, *, session_name: str | None = None) -> Calibration:
+def calibrate_session(
+    session: Session, cfg: Config, *, session_name: str | None = None
+) -> Calibration:
     """Calibrate every sensor the config asks for; returns the calibration (not yet saved)."""
     accel = calibrate_accel(session, cfg)
     extra = {"toolkit_version": __version__, "config": cfg.to_dict()}
@@ -398,4 +421,3 @@ def _num(x) -> float | None:
 
 def _name(session: Session) -> str:
     return str(session.path) if session.path is not None else "session"
-

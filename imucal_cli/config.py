@@ -115,7 +115,9 @@ def _fill(obj: Any, table: dict[str, Any], where: str, subtables: dict[str, Any]
                 value = _check_type(where, key, value, float)
         elif key == "range":
             if not (isinstance(value, list) and len(value) == 2):
-                raise ConfigError(f"{where}: `range` must be [min, max] in raw units, not {value!r}")
+                raise ConfigError(
+                    f"{where}: `range` must be [min, max] in raw units, not {value!r}"
+                )
             value = [_check_type(where, key, v, float) for v in value]
             if value[0] >= value[1]:
                 raise ConfigError(f"{where}: `range` minimum must be below its maximum")
@@ -129,7 +131,8 @@ def validate(cfg: Config, where: str = "<config>") -> None:
     a = cfg.accel
     if a.solver not in ACCEL_SOLVERS:
         raise ConfigError(
-            f"{where}: [accel] solver = {a.solver!r} is not known (choose: {', '.join(ACCEL_SOLVERS)})"
+            f"{where}: [accel] solver = {a.solver!r} is not known "
+            f"(choose: {', '.join(ACCEL_SOLVERS)})"
         )
     g = a.gravity
     for key, value, allowed in (

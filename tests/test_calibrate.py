@@ -94,7 +94,9 @@ def test_same_answer_whatever_the_raw_units(tmp_path):
     np.testing.assert_allclose(gains_c / gains_c.mean(), gains_s / gains_s.mean(), atol=2e-4)
     np.testing.assert_allclose(
         list(cal_c.accel.extra["misalignment_deg"].values()),
-        list(cal_s.accel.extra["misalignment_deg"].values()), atol=0.02)
+        list(cal_s.accel.extra["misalignment_deg"].values()),
+        atol=0.02,
+    )
 
 
 def test_unlabelled_random_session_calibrates():
@@ -138,7 +140,9 @@ def test_cli_writes_json_beside_the_session_and_stores_it(sim18, tmp_path):
 def test_cli_config_and_output_options(sim18, tmp_path):
     path, _ = sim18
     cfg = tmp_path / "c.toml"
-    cfg.write_text('[accel]\nsolver = "gravity"\n[accel.gravity]\nmodel = "12"\nleave_one_out = false\n')
+    cfg.write_text(
+        '[accel]\nsolver = "gravity"\n[accel.gravity]\nmodel = "12"\nleave_one_out = false\n'
+    )
     out = tmp_path / "x.json"
     proc = run("calibrate", path, "--config", cfg, "--output", out, "--no-store")
     assert proc.returncode == 0, proc.stderr
@@ -194,11 +198,11 @@ def test_poses_all_near_one_direction_refused(tmp_path):
     # of each static segment toward the +Z pose's mean.
     accel = session.accel.copy()
     statics = session.static_segments()
-    top = np.argmax([accel[s.start:s.stop, 2].mean() for s in statics])
-    ref = accel[statics[top].start:statics[top].stop].mean(axis=0)
+    top = np.argmax([accel[s.start : s.stop, 2].mean() for s in statics])
+    ref = accel[statics[top].start : statics[top].stop].mean(axis=0)
     for s in statics:
-        m = accel[s.start:s.stop].mean(axis=0)
-        accel[s.start:s.stop] += (ref + 0.2 * (m - ref)) - m
+        m = accel[s.start : s.stop].mean(axis=0)
+        accel[s.start : s.stop] += (ref + 0.2 * (m - ref)) - m
     session.accel = accel
     with pytest.raises(DesignError, match="turn the unit over|distinct"):
         calibrate_session(session, Config())
@@ -215,7 +219,7 @@ def test_non_convergence_is_exit_1(sim18, tmp_path):
         rng = np.random.default_rng(0)
         for name in f["segments"]:
             s = f["segments"][name].attrs
-            a[s["start"]:s["stop"]] += rng.normal(0, 1500, 3)
+            a[s["start"] : s["stop"]] += rng.normal(0, 1500, 3)
         f["raw/accel"][...] = a
     assert_one_line_error(run("calibrate", bad, "--config", cfg, "--no-store"), 1, "converge")
 
@@ -228,8 +232,11 @@ def test_result_outside_physical_sense_is_not_saved_without_force(tmp_path):
     cfg.write_text("[accel]\nnominal_sensitivity = 1.5\n")  # datasheet says 1.5, data say ~1
     out = tmp_path / "si.json"
     assert_one_line_error(
-        run("calibrate", path, "--config", cfg, "--output", out, "--no-store"), 1,
-        "physical sense", "--force")
+        run("calibrate", path, "--config", cfg, "--output", out, "--no-store"),
+        1,
+        "physical sense",
+        "--force",
+    )
     assert not out.exists()
     proc = run("calibrate", path, "--config", cfg, "--output", out, "--no-store", "--force")
     assert proc.returncode == 0 and "warning" in proc.stdout
@@ -248,3 +255,21 @@ def test_config_validation_in_process():
     with pytest.raises(ConfigError, match="weighting"):
         config_from_dict({"accel": {"gravity": {"weighting": "heavy"}}})
     assert config_from_dict({"accel": {"gravity": {"model": 12}}}).accel.gravity.model == "12"
+
+
+def test_reported_intervals_are_honest_over_simulated_seeds():
+    """Through the whole path (simulated stream, segment statistics, solver): the 95 %
+    intervals cover the truth about 95 % of the time."""
+    hits = []
+    for seed in range(60):
+        session, truth = simulate(plan="qureshi18", seed=1000 + seed, created=CREATED)
+        acc = calibrate_session(
+            session, config_from_dict({"accel": {"gravity": {"leave_one_out": False}}})
+        ).accel
+        x_true = model_to_params(truth.accel.bias, gauge(truth.accel.matrix))
+        x = np.array([p["value"] for p in acc.extra["parameters"]])
+        std = np.array([p["std"] for p in acc.extra["parameters"]])
+        hits.append(np.abs(x - x_true) <= 1.96 * std)
+    covered = np.mean(hits)
+    # 540 (partly correlated) trials: binomial sd ~0.9 %; allow about 3 sd.
+    assert 0.92 <= covered <= 0.98, covered

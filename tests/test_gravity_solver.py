@@ -51,7 +51,9 @@ def gauge(T):
 
 
 def poses(rng, S, b, ups, sigma_counts=0.0, n=200, jitter_deg=0.0):
-    rot = Rotation.from_rotvec(np.radians(jitter_deg / np.sqrt(3)) * rng.standard_normal((len(ups), 3)))
+    rot = Rotation.from_rotvec(
+        np.radians(jitter_deg / np.sqrt(3)) * rng.standard_normal((len(ups), 3))
+    )
     u = rot.apply(ups)
     a = (G * u) @ S.T + b + sigma_counts / np.sqrt(n) * rng.standard_normal((len(ups), 3))
     cov = np.repeat((sigma_counts**2 / n * np.eye(3))[None], len(ups), axis=0)
@@ -190,8 +192,9 @@ def test_no_convergence_is_a_solver_error():
     S, b = random_part(rng)
     a, cov, _ = poses(rng, S, b, cube18(), sigma_counts=0.01 * SENS)
     with pytest.raises(SolverError, match="did not converge"):
-        fit_gravity(a + 2000 * rng.standard_normal(a.shape), G, init="updown", up=cube18(),
-                    max_iterations=1)
+        fit_gravity(
+            a + 2000 * rng.standard_normal(a.shape), G, init="updown", up=cube18(), max_iterations=1
+        )
 
 
 def test_12_parameter_needs_labels():

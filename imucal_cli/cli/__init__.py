@@ -11,12 +11,11 @@ import sys
 
 from imucal_cli.errors import ImucalError
 
-from .app import app
-
 # Importing the command modules registers their commands on ``app``.
 from . import calibrate as _calibrate  # noqa: E402,F401
 from . import report as _report  # noqa: E402,F401
 from . import simulate as _simulate  # noqa: E402,F401
+from .app import app
 
 
 def main() -> None:

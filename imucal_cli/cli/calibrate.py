@@ -12,7 +12,9 @@ from .app import app
 
 @app.command()
 def calibrate(
-    session: Path = typer.Argument(..., help="Session file (.h5) to calibrate.", show_default=False),
+    session: Path = typer.Argument(
+        ..., help="Session file (.h5) to calibrate.", show_default=False
+    ),
     config: Path | None = typer.Option(
         None, "--config", "-c", help="TOML config choosing solvers and options (see README)."
     ),
@@ -20,8 +22,10 @@ def calibrate(
         None, "--output", "-o", help="Calibration JSON to write [default: SESSION with .cal.json]."
     ),
     model: str | None = typer.Option(
-        None, "--model", help="Gravity solver model: 9 (triangular, eqs. 3-8) or 12 (full matrix "
-        "aligned to the labelled up directions). Overrides [accel.gravity] model."
+        None,
+        "--model",
+        help="Gravity solver model: 9 (triangular, eqs. 3-8) or 12 (full matrix "
+        "aligned to the labelled up directions). Overrides [accel.gravity] model.",
     ),
     gravity: float | None = typer.Option(
         None, "--gravity", help="Local gravity in m/s^2 [default: the session's, else 9.80665]."
@@ -30,7 +34,9 @@ def calibrate(
         False, "--force", help="Save a result that fails the physical-sense checks (with warnings)."
     ),
     store: bool = typer.Option(
-        True, "--store/--no-store", help="Also store the calibration under the session's /calibrations."
+        True,
+        "--store/--no-store",
+        help="Also store the calibration under the session's /calibrations.",
     ),
 ) -> None:
     """Calibrate the accelerometer of SESSION and write a calibration JSON.
@@ -87,8 +93,11 @@ def _summary(console: Console, cal, where: str) -> None:
     )
     units = x["units_in"]
     console.print(
-        "  bias " + ", ".join(f"{b:.5g}" for b in a.bias) + f" {units}; sensitivity "
-        + ", ".join(f"{s:.5g}" for s in x["sensitivity"]) + f" {units} per m/s^2"
+        "  bias "
+        + ", ".join(f"{b:.5g}" for b in a.bias)
+        + f" {units}; sensitivity "
+        + ", ".join(f"{s:.5g}" for s in x["sensitivity"])
+        + f" {units} per m/s^2"
     )
     for w in x.get("warnings", []):
         console.print(f"  [bold yellow]warning[/]: {w}")

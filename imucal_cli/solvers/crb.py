@@ -29,7 +29,9 @@ def _tangent_basis(u: np.ndarray) -> np.ndarray:
     return np.column_stack([t1, t2])
 
 
-def gravity_crb(M: np.ndarray, B: np.ndarray, u: np.ndarray, g: float, cov_mean: np.ndarray) -> np.ndarray:
+def gravity_crb(
+    M: np.ndarray, B: np.ndarray, u: np.ndarray, g: float, cov_mean: np.ndarray
+) -> np.ndarray:
     """Cramér-Rao bound of the 9-parameter gravity model for one design.
 
     Parameters
@@ -60,7 +62,7 @@ def gravity_crb(M: np.ndarray, B: np.ndarray, u: np.ndarray, g: float, cov_mean:
         Jk = np.zeros((3, p))
         Jk[:, :3] = np.eye(3)  # d a / d B
         f = g * u[k]
-        for c, (i, j) in enumerate(zip(*_UPPER)):
+        for c, (i, j) in enumerate(zip(*_UPPER, strict=True)):
             # d(M^-1) = -M^-1 dM M^-1  ->  d a / d M_ij = -S E_ij S f
             Jk[:, 3 + c] = -S[:, i] * (S[j] @ f)
         Jk[:, 9 + 2 * k : 11 + 2 * k] = g * S @ _tangent_basis(u[k])  # d a / d (angles of u_k)

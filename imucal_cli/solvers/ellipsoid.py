@@ -70,7 +70,9 @@ def fit_ellipsoid(points: np.ndarray, radius: float) -> EllipsoidFit:
 
 def _general_quadric(p: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     x, y, z = p.T
-    D = np.column_stack([x * x, y * y, z * z, 2 * x * y, 2 * x * z, 2 * y * z, x, y, z, np.ones_like(x)])
+    D = np.column_stack(
+        [x * x, y * y, z * z, 2 * x * y, 2 * x * z, 2 * y * z, x, y, z, np.ones_like(x)]
+    )
     _, _, Vt = np.linalg.svd(D, full_matrices=False)
     v = Vt[-1]
     A = np.array([[v[0], v[3], v[4]], [v[3], v[1], v[5]], [v[4], v[5], v[2]]])
@@ -98,4 +100,3 @@ def _sphere(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     r2 = d + centre @ centre
     r = np.sqrt(r2) if r2 > 0 else 1.0
     return centre, np.eye(3) / r
-

@@ -36,7 +36,7 @@ from scipy.special import chdtri  # inverse survival function of chi^2 (lighter 
 from imucal_cli.errors import DesignError, SolverError
 
 from .ellipsoid import fit_ellipsoid
-from .poses import angle_deg, unit
+from .poses import angle_deg
 
 #: Names of the 9 parameters of eq. (7), in order.
 PARAM_NAMES_9 = ["b_x", "b_y", "b_z", "k_x", "k_y", "k_z", "k_xy", "k_xz", "k_yz"]
@@ -47,7 +47,7 @@ _UPPER = (np.array([0, 1, 2, 0, 0, 1]), np.array([0, 1, 2, 1, 2, 2]))  # k_x k_y
 
 
 def params_to_model(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Split the 9-parameter vector ``X`` (eq. 7) into bias ``B`` (3,) and upper-triangular ``M``."""
+    """Split the 9-parameter vector ``X`` (eq. 7) into bias ``B`` (3,) and triangular ``M``."""
     M = np.zeros((3, 3))
     M[_UPPER] = X[3:9]
     return X[:3].copy(), M
@@ -199,7 +199,13 @@ def _solve(a_n, g, w, x0, max_iterations):
     fun = lambda x: _residuals_and_jacobian(x, a_n, g, w)[0]  # noqa: E731
     jac = lambda x: _residuals_and_jacobian(x, a_n, g, w)[1]  # noqa: E731
     return least_squares(
-        fun, x0, jac=jac, method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12,
+        fun,
+        x0,
+        jac=jac,
+        method="lm",
+        xtol=1e-12,
+        ftol=1e-12,
+        gtol=1e-12,
         max_nfev=max_iterations,
     )
 
@@ -264,7 +270,9 @@ def fit_gravity(
     a_mean = np.asarray(a_mean, dtype=float)
     N = len(a_mean)
     if a_mean.ndim != 2 or a_mean.shape[1] != 3:
-        raise DesignError(f"the gravity solver needs 3 accelerometer channels, got {a_mean.shape[1:]}")
+        raise DesignError(
+            f"the gravity solver needs 3 accelerometer channels, got {a_mean.shape[1:]}"
+        )
     if N < 9:
         raise DesignError(
             f"{N} static poses cannot determine the 9 parameters; capture at least 9 "
@@ -285,7 +293,7 @@ def fit_gravity(
         elif init == "updown":
             raise DesignError(
                 "the up/down start (eqs. 13-14) needs a labelled pose with each of +X, -X, +Y, -Y, "
-                "+Z, -Z up; capture the six faces or use init = \"ellipsoid\""
+                '+Z, -Z up; capture the six faces or use init = "ellipsoid"'
             )
     if init in ("auto", "ellipsoid"):
         ell = fit_ellipsoid(a_mean, g)
@@ -379,7 +387,7 @@ def fit_gravity(
     elif variant == "12":
         raise DesignError(
             "the 12-parameter variant needs at least two labelled poses with different `up` "
-            "directions; label the poses or use model = \"9\""
+            'directions; label the poses or use model = "9"'
         )
 
     if variant == "9":
@@ -395,12 +403,27 @@ def fit_gravity(
 
     rot_std = None if R_cov is None else float(np.degrees(np.sqrt(np.trace(R_cov) / 3)))
     return GravityResult(
-        bias=B, matrix=matrix, variant=f"{variant}-parameter", param_names=names, params=params,
-        cov=cov, residuals=residuals, cost_residuals=cost_residuals, chi2=chi2, dof=dof,
-        noise_scale=float(noise_scale), weighting=weighting, init=init_used,
-        iterations=int(sol.njev or 0), nfev=int(sol.nfev), converged=True,
-        message=str(sol.message), rotation=R, rotation_std_deg=rot_std,
-        up_angle_deg=up_angle, directions=directions,
+        bias=B,
+        matrix=matrix,
+        variant=f"{variant}-parameter",
+        param_names=names,
+        params=params,
+        cov=cov,
+        residuals=residuals,
+        cost_residuals=cost_residuals,
+        chi2=chi2,
+        dof=dof,
+        noise_scale=float(noise_scale),
+        weighting=weighting,
+        init=init_used,
+        iterations=int(sol.njev or 0),
+        nfev=int(sol.nfev),
+        converged=True,
+        message=str(sol.message),
+        rotation=R,
+        rotation_std_deg=rot_std,
+        up_angle_deg=up_angle,
+        directions=directions,
     )
 
 
@@ -430,7 +453,7 @@ def _cov_12(cov9: np.ndarray, M: np.ndarray, R: np.ndarray, R_cov: np.ndarray) -
     # d(RM) = R dM + [dphi]x R M
     J = np.zeros((12, 12))  # rows: B(3), vec(RM)(9); cols: B(3), upper M(6), phi(3)
     J[:3, :3] = np.eye(3)
-    for c, (i, j) in enumerate(zip(*_UPPER)):
+    for c, (i, j) in enumerate(zip(*_UPPER, strict=True)):
         E = np.zeros((3, 3))
         E[i, j] = 1.0
         J[3:, 3 + c] = (R @ E).ravel()
