@@ -111,7 +111,7 @@ def hour_session_timing(console: Console) -> tuple[float, float]:
         plan="qureshi18",
         seed=7,
         rate_hz=100.0,
-        hold_s=196.0,
+        hold_s=200.0,
         accel_noise=0.01,
         jitter_deg=2.0,
         created="2026-01-01T00:00:00Z",
