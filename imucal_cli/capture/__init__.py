@@ -1,0 +1,1 @@
+"""Capture and import: serial streams, protocols, guided plans, file importers."""
