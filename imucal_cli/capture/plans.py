@@ -1,0 +1,274 @@
+"""Capture plans: the steps a person (or a bench script) goes through, and what was done.
+
+Built-in plans (:func:`load_plan`):
+
+``six``
+    The 6 faces of a cube, static, with ``up`` (``"face +Z up"``, ...).
+``qureshi18``
+    6 faces + 12 edges at 45 degrees (Qureshi & Golnaraghi section IV-B), static, with ``up``.
+``random:N``
+    N static poses, unlabelled (no ``up``), as the simulator's plan of that name.
+``gyro-axes``
+    For each axis X, Y, Z: a still period, then a turn about that axis (rotation steps with
+    ``axis``, angle free); a final still period.  The still periods have no ``up``.
+``hwangbo-iron``
+    Hwangbo & Kanade's right-angle iron: the 6 faces as static steps, then a 90-degree turn
+    about each face normal (rotation steps with ``axis`` and ``angle_deg = 90``).
+
+A TOML plan file::
+
+    name = "my bench"                # optional; default the file name
+    [[step]]
+    kind = "static"                  # "static" or "rotation"
+    label = "face +Z up"             # what the person is told; default "step N"
+    up = [0, 0, 1]                   # static only, optional
+    [[step]]
+    kind = "rotation"
+    label = "turn about +Z"
+    axis = [0, 0, 1]                 # rotation only, optional
+    angle_deg = 90                   # rotation only, optional
+
+``up`` and ``axis`` are scaled to unit length.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from imucal_cli.errors import InputError
+
+__all__ = ["BUILTIN_PLANS", "CaptureSummary", "Plan", "Step", "load_plan"]
+
+BUILTIN_PLANS = ("six", "qureshi18", "gyro-axes", "hwangbo-iron", "random:N")
+
+
+@dataclass(frozen=True)
+class Step:
+    """One step of a plan.
+
+    Attributes
+    ----------
+    kind : str
+        ``"static"`` (hold still) or ``"rotation"`` (turn, still before and after).
+    label : str
+        What the person is told, stored as the segment's label.
+    up : ndarray, shape (3,), or None
+        Static: nominal unit vector pointing away from the earth, fixture frame.
+    axis : ndarray, shape (3,), or None
+        Rotation: nominal unit rotation axis, fixture frame.
+    angle_deg : float or None
+        Rotation: known signed angle about ``axis``, degrees.
+    """
+
+    kind: str
+    label: str
+    up: np.ndarray | None = field(default=None, compare=False)
+    axis: np.ndarray | None = field(default=None, compare=False)
+    angle_deg: float | None = None
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A named sequence of steps.
+
+    Attributes
+    ----------
+    name : str
+        ``"six"``, ``"qureshi18"``, ... or a plan file's name.
+    steps : tuple of Step
+    """
+
+    name: str
+    steps: tuple[Step, ...]
+
+    @property
+    def static_steps(self) -> list[Step]:
+        """The static steps, in order."""
+        return [s for s in self.steps if s.kind == "static"]
+
+    @property
+    def rotation_steps(self) -> list[Step]:
+        """The rotation steps, in order."""
+        return [s for s in self.steps if s.kind == "rotation"]
+
+
+@dataclass
+class CaptureSummary:
+    """How a capture went: shared by the guided and the unattended mode.
+
+    Attributes
+    ----------
+    complete : bool
+        Every step of the plan was done (or, without a plan, the recording ran its course).
+    done, skipped, missing : list of str
+        Step labels done, skipped by the person, not done.
+    end_reason : str
+        Why the recording ended, one line.
+    samples : int
+        Samples in the session.
+    stats : dict
+        The recorder's counters (lines, samples, comments, malformed, bytes, duration_s, ...).
+    """
+
+    complete: bool
+    done: list[str]
+    skipped: list[str]
+    missing: list[str]
+    end_reason: str
+    samples: int
+    stats: dict
+
+
+# --------------------------------------------------------------------------------------------
+# Built-ins
+# --------------------------------------------------------------------------------------------
+
+_AXES = "XYZ"
+
+
+def _from_poses(name: str) -> Plan:
+    from imucal_cli.simulator import plan_poses
+
+    steps = tuple(Step("static", label, up=_unit_or_none(up)) for label, up in plan_poses(name))
+    return Plan(name.strip().lower(), steps)
+
+
+def _gyro_axes() -> Plan:
+    steps = []
+    for i, a in enumerate(_AXES):
+        steps.append(Step("static", f"hold still before the turn about +{a}"))
+        steps.append(Step("rotation", f"turn about +{a}", axis=np.eye(3)[i].copy()))
+    steps.append(Step("static", "hold still after the last turn"))
+    return Plan("gyro-axes", tuple(steps))
+
+
+def _hwangbo_iron() -> Plan:
+    faces = _from_poses("six").steps
+    turns = tuple(
+        Step(
+            "rotation",
+            f"turn 90 deg about the {f.label.split()[1]} face normal",
+            axis=f.up,
+            angle_deg=90.0,
+        )
+        for f in faces
+    )
+    return Plan("hwangbo-iron", faces + turns)
+
+
+def _unit_or_none(v) -> np.ndarray | None:
+    if v is None:
+        return None
+    v = np.asarray(v, dtype=np.float64).reshape(3)
+    out = v / np.linalg.norm(v)
+    out.flags.writeable = False
+    return out
+
+
+def load_plan(name_or_path: str) -> Plan:
+    """A built-in plan by name, or a TOML plan file.
+
+    Parameters
+    ----------
+    name_or_path : str
+        ``six``, ``qureshi18``, ``random:N``, ``gyro-axes``, ``hwangbo-iron``, or a path to a
+        ``.toml`` file (see the module notes).
+
+    Returns
+    -------
+    Plan
+
+    Raises
+    ------
+    InputError
+        Unknown plan, unreadable file or a bad step (one line naming the file and the step).
+    """
+    text = str(name_or_path).strip()
+    key = text.lower()
+    if key in ("six", "qureshi18") or key.startswith("random:"):
+        return _from_poses(key)
+    if key == "gyro-axes":
+        return _gyro_axes()
+    if key == "hwangbo-iron":
+        return _hwangbo_iron()
+    path = Path(text)
+    if path.suffix.lower() == ".toml" or path.exists():
+        return _load_file(path)
+    raise InputError(
+        f"plan {text!r} is unknown: use six, qureshi18, random:N, gyro-axes, hwangbo-iron "
+        "or a .toml plan file"
+    )
+
+
+def _load_file(path: Path) -> Plan:
+    src = str(path)
+    if not path.is_file():
+        raise InputError(f"{src}: no such plan file")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{src}: cannot read ({' '.join(str(exc).split())})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{src}: not valid TOML ({exc})") from None
+    unknown = sorted(set(data) - {"name", "step"})
+    if unknown:
+        raise InputError(f"{src}: unknown key {unknown[0]!r} (expected name and [[step]])")
+    name = data.get("name", path.stem)
+    if not isinstance(name, str) or not name.strip():
+        raise InputError(f"{src}: name must be a non-empty string")
+    raw = data.get("step")
+    if not isinstance(raw, list) or not raw:
+        raise InputError(f"{src}: no steps (add [[step]] tables with kind = 'static' or ...)")
+    steps = tuple(_parse_step(src, i + 1, item) for i, item in enumerate(raw))
+    return Plan(name.strip(), steps)
+
+
+def _parse_step(src: str, number: int, item) -> Step:
+    where = f"{src}: step {number}"
+    if not isinstance(item, dict):
+        raise InputError(f"{where}: must be a table ([[step]])")
+    unknown = sorted(set(item) - {"kind", "label", "up", "axis", "angle_deg"})
+    if unknown:
+        raise InputError(
+            f"{where}: unknown key {unknown[0]!r} (expected kind, label, up, axis, angle_deg)"
+        )
+    kind = item.get("kind")
+    if kind not in ("static", "rotation"):
+        raise InputError(f"{where}: kind must be 'static' or 'rotation', got {kind!r}")
+    label = item.get("label", f"step {number}")
+    if not isinstance(label, str) or not label.strip():
+        raise InputError(f"{where}: label must be a non-empty string, got {label!r}")
+    wrong = ("axis", "angle_deg") if kind == "static" else ("up",)
+    for key in wrong:
+        if key in item:
+            raise InputError(f"{where}: {key!r} does not apply to a {kind} step")
+    vectors = {}
+    for key in ("up", "axis"):
+        if key in item:
+            vectors[key] = _vector(where, key, item[key])
+    angle = item.get("angle_deg")
+    if angle is not None:
+        if (
+            isinstance(angle, bool)
+            or not isinstance(angle, int | float)
+            or not math.isfinite(angle)
+        ):
+            raise InputError(f"{where}: angle_deg must be a finite number, got {angle!r}")
+        angle = float(angle)
+    return Step(kind, label.strip(), up=vectors.get("up"), axis=vectors.get("axis"),
+                angle_deg=angle)  # fmt: skip
+
+
+def _vector(where: str, key: str, value) -> np.ndarray:
+    ok = isinstance(value, list) and len(value) == 3
+    ok = ok and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+    if ok:
+        v = np.asarray(value, dtype=np.float64)
+        if np.isfinite(v).all() and np.linalg.norm(v) > 0:
+            return _unit_or_none(v)
+    raise InputError(f"{where}: {key} must be 3 finite numbers, not all zero, got {value!r}")

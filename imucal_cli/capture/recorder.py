@@ -1,0 +1,391 @@
+"""Record a stream into a session while it arrives, and end cleanly whatever happens.
+
+:class:`Recorder` reads a source through a protocol, appends every block of samples to a
+:class:`~imucal_cli.session.SessionWriter` (opened on the first samples, with the channel
+counts the data show) and hands the blocks to the user interface through :meth:`Recorder.blocks`.
+The capture ends, always with a valid session holding every sample received, on:
+
+- Ctrl-C (SIGINT) or SIGTERM: handlers installed while recording set a flag (the previous
+  handlers are restored afterwards); ``end_kind`` ``"interrupted"`` / ``"terminated"``;
+- the device disappearing (unplugged, pseudo-terminal closed): ``"device-gone"``;
+- no valid line for ``wait_timeout_s`` at the start, or for ``read_timeout_s`` once data
+  flowed: ``"timeout"``;
+- :meth:`Recorder.stop` (the UI is done): ``"done"``.
+
+Samples reach the file at least every :data:`FLUSH_INTERVAL_S` (the writer flushes on append;
+the recorder also flushes when the stream stalls), so after ``kill -9`` the file opens with at
+most the last second missing.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time as _time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import numpy as np
+
+from imucal_cli.errors import InputError, SessionError
+
+from .stream import DeviceGone, SampleBlock
+
+__all__ = ["END_KINDS", "FLUSH_INTERVAL_S", "CaptureEnded", "Recorder"]
+
+FLUSH_INTERVAL_S = 0.5
+"""Longest time a received sample stays in memory before it is written and flushed."""
+
+END_KINDS = ("interrupted", "terminated", "device-gone", "timeout", "done")
+
+STATUS_REPEAT_S = 5.0
+"""While waiting for data, the waiting message is repeated this often."""
+
+
+class CaptureEnded(Exception):
+    """Why a capture ended (used inside the recorder; :meth:`Recorder.blocks` just stops).
+
+    Attributes
+    ----------
+    kind : str
+        One of :data:`END_KINDS`.
+    reason : str
+        One line for the user.
+    """
+
+    def __init__(self, kind: str, reason: str) -> None:
+        super().__init__(reason)
+        self.kind = kind
+        self.reason = reason
+
+
+class Recorder:
+    """Append a live stream to a session file.
+
+    Parameters
+    ----------
+    path : str or path-like
+        Session file to create.  Checked at once (exists without ``overwrite``, no such
+        directory); written from the first samples on.  No file is created when no sample
+        ever arrives.
+    source : SerialSource or similar
+        ``read() -> bytes``, ``close()``, ``describe() -> str``, ``uri``; see
+        :mod:`imucal_cli.capture.stream`.
+    protocol : LineProtocol or similar
+        ``feed(data, host_time) -> SampleBlock`` and ``stats``.
+    sensor, accel_units, gyro_units : str, optional
+        Root attributes of the session.
+    overwrite : bool
+        Replace an existing file.
+    wait_timeout_s : float
+        Give up when no valid sample arrived this long after the start.
+    read_timeout_s : float
+        Give up when no valid sample arrived this long after the last one.
+    on_status : callable, optional
+        Called with one-line messages while recording (``"waiting for data on /dev/ttyUSB0 at
+        115200 baud"``, ``"receiving data: 8 fields per line"``).
+
+    Attributes
+    ----------
+    end_kind : str or None
+        Why :meth:`blocks` ended: one of :data:`END_KINDS` (None while recording).
+    end_reason : str
+        The same for the user, one line.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        source,
+        protocol,
+        *,
+        sensor: str | None = None,
+        accel_units: str | None = None,
+        gyro_units: str | None = None,
+        overwrite: bool = False,
+        wait_timeout_s: float = 10.0,
+        read_timeout_s: float = 5.0,
+        on_status: Callable[[str], None] | None = None,
+    ) -> None:
+        self.path = Path(path)
+        if self.path.is_dir():
+            raise InputError(f"{path}: is a directory")
+        if not self.path.parent.is_dir():
+            raise InputError(f"{path}: directory {self.path.parent} does not exist")
+        if self.path.exists() and not overwrite:
+            raise InputError(f"{path} exists: use --force to overwrite it")
+        self.source = source
+        self.protocol = protocol
+        self._meta = {"sensor": sensor, "accel_units": accel_units, "gyro_units": gyro_units}
+        self._overwrite = overwrite
+        self.wait_timeout_s = float(wait_timeout_s)
+        self.read_timeout_s = float(read_timeout_s)
+        self._on_status = on_status
+        self._writer = None
+        self._stop = False
+        self._signal_kind: str | None = None
+        self._old_handlers: dict[int, object] = {}
+        self.end_kind: str | None = None
+        self.end_reason = ""
+        self._t0: float | None = None
+        self._t_first: float | None = None
+        self._t_last_sample: float | None = None
+        self._t_end: float | None = None
+        self._closed = False
+        self._segments: list[dict] = []
+
+    # status ------------------------------------------------------------------------------------
+    def _status(self, message: str) -> None:
+        if self._on_status is not None:
+            self._on_status(message)
+
+    @property
+    def n_samples(self) -> int:
+        """Samples appended so far; segment indices refer to these."""
+        return 0 if self._writer is None else self._writer.n_samples
+
+    @property
+    def recording(self) -> bool:
+        """Whether :meth:`blocks` is running and has not ended."""
+        return self._t0 is not None and self.end_kind is None
+
+    @property
+    def stats(self) -> dict:
+        """Protocol counters plus ``samples`` (appended), ``duration_s`` (wall clock since the
+        start) and ``rate_hz`` (mean sample rate while data flowed)."""
+        out = dict(self.protocol.stats)
+        out["samples"] = self.n_samples
+        end = self._t_end if self._t_end is not None else _time.monotonic()
+        out["duration_s"] = 0.0 if self._t0 is None else end - self._t0
+        span = 0.0
+        if self._t_first is not None and self._t_last_sample is not None:
+            span = self._t_last_sample - self._t_first
+        out["rate_hz"] = (self.n_samples - 1) / span if span > 0 and self.n_samples > 1 else 0.0
+        return out
+
+    # signals -----------------------------------------------------------------------------------
+    def _install_signals(self) -> None:
+        if threading.current_thread() is not threading.main_thread():
+            return
+
+        def handler(signum, frame):  # noqa: ARG001
+            self._signal_kind = "interrupted" if signum == signal.SIGINT else "terminated"
+
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            try:
+                self._old_handlers[signum] = signal.signal(signum, handler)
+            except (ValueError, OSError):
+                pass
+
+    def _restore_signals(self) -> None:
+        for signum, old in self._old_handlers.items():
+            try:
+                signal.signal(signum, old)
+            except (ValueError, OSError, TypeError):
+                pass
+        self._old_handlers = {}
+
+    # the loop ----------------------------------------------------------------------------------
+    def stop(self) -> None:
+        """Ask :meth:`blocks` to end after the current read (``end_kind`` ``"done"``)."""
+        self._stop = True
+
+    def _open_writer(self, block: SampleBlock) -> None:
+        from imucal_cli.session import SessionWriter
+
+        self._writer = SessionWriter(
+            self.path,
+            source=getattr(self.source, "uri", None),
+            accel_channels=None if block.accel is None else block.accel.shape[1],
+            gyro_channels=None if block.gyro is None else block.gyro.shape[1],
+            temperature=block.temperature is not None,
+            flush_interval_s=FLUSH_INTERVAL_S,
+            overwrite=self._overwrite,
+            **self._meta,
+        )
+
+    def _append(self, block: SampleBlock) -> None:
+        if self._writer is None:
+            self._open_writer(block)
+        self._writer.append(block.time, block.accel, block.gyro, block.temperature)
+
+    def _check_end(self, now: float) -> CaptureEnded | None:
+        what = self.source.describe()
+        if self._signal_kind is not None:
+            name = "Ctrl-C" if self._signal_kind == "interrupted" else "SIGTERM"
+            return CaptureEnded(self._signal_kind, f"stopped by {name}")
+        if self._stop:
+            return CaptureEnded("done", "done")
+        if self._t_last_sample is None:
+            if now - self._t0 >= self.wait_timeout_s:
+                return CaptureEnded("timeout", self._no_data_reason(what))
+        elif now - self._t_last_sample >= self.read_timeout_s:
+            return CaptureEnded(
+                "timeout",
+                f"no data from {what} for {self.read_timeout_s:g} s after "
+                f"{self.n_samples} samples: the device stopped sending",
+            )
+        return None
+
+    def _no_data_reason(self, what: str) -> str:
+        stats = self.protocol.stats
+        wait = f"{self.wait_timeout_s:g} s"
+        if stats.get("bytes", 0) == 0:
+            return (
+                f"no data from {what} in {wait}: check the port, the baud rate and that "
+                "the sketch prints lines"
+            )
+        if stats.get("lines", 0) == stats.get("comments", 0) and stats.get("malformed", 0) == 0:
+            return (
+                f"received {stats['bytes']} bytes from {what} in {wait} but no data line "
+                f"({stats.get('comments', 0)} comment lines): check that the sketch prints "
+                "numbers"
+            )
+        columns = getattr(self.protocol, "columns", None)
+        expected = f", {columns.n_fields} fields per line expected" if columns else ""
+        return (
+            f"received {stats['bytes']} bytes from {what} in {wait} but no valid line "
+            f"({stats.get('malformed', 0)} malformed{expected}): wrong baud rate? "
+            "(or check --columns)"
+        )
+
+    def blocks(self, tick_s: float = 0.1) -> Iterator[SampleBlock]:
+        """Record; yield every block of samples after it was appended to the session.
+
+        Yields an empty block at least every ``tick_s`` seconds when nothing arrived, so that a
+        user interface stays live.  Ends (no exception) on Ctrl-C, SIGTERM, the device gone, a
+        timeout or :meth:`stop`, with :attr:`end_kind` and :attr:`end_reason` set.  SIGINT and
+        SIGTERM are handled (by setting a flag) only while this generator runs.
+
+        Parameters
+        ----------
+        tick_s : float
+            Longest interval between two yields, s.
+
+        Raises
+        ------
+        SessionError
+            The session file cannot be written (disk full, ...); samples flushed before stay.
+        """
+        if self._t0 is not None:
+            raise RuntimeError("Recorder.blocks() runs once")
+        self._t0 = now = _time.monotonic()
+        what = self.source.describe()
+        self._install_signals()
+        self._status(f"waiting for data on {what}")
+        last_yield = last_status = now
+        last_flush = now
+        dirty = False
+        try:
+            while True:
+                ended = self._check_end(now)
+                if ended is not None:
+                    self.end_kind, self.end_reason = ended.kind, ended.reason
+                    break
+                try:
+                    data = self.source.read()
+                except DeviceGone as exc:
+                    self.end_kind = "device-gone"
+                    self.end_reason = f"{what}: the device is gone ({exc})"
+                    break
+                now = _time.monotonic()
+                block = self.protocol.feed(data, now - self._t0) if data else SampleBlock.empty()
+                if len(block):
+                    if self._t_first is None:
+                        self._t_first = now
+                        self._status(f"receiving data from {what}")
+                    self._t_last_sample = now
+                    self._append(block)
+                    dirty = True
+                elif self._t_first is None and now - last_status >= STATUS_REPEAT_S:
+                    last_status = now
+                    self._status(
+                        f"waiting for data on {what} ({now - self._t0:.0f} s, "
+                        f"{self.protocol.stats.get('bytes', 0)} bytes received)"
+                    )
+                if dirty and now - last_flush >= FLUSH_INTERVAL_S:
+                    self._writer.flush()
+                    last_flush, dirty = now, False
+                if len(block) or now - last_yield >= tick_s:
+                    last_yield = now
+                    yield block
+                    now = _time.monotonic()
+        finally:
+            self._t_end = _time.monotonic()
+            if self.end_kind is None:  # the consumer closed the generator
+                self.end_kind, self.end_reason = "done", "done"
+            self._restore_signals()
+            if self._writer is not None:
+                try:
+                    self._writer.flush()
+                except SessionError:
+                    pass
+
+    # segments and closing ----------------------------------------------------------------------
+    def add_segment(
+        self,
+        kind: str,
+        start: int,
+        stop: int,
+        *,
+        label: str | None = None,
+        up: np.ndarray | None = None,
+        axis: np.ndarray | None = None,
+        angle_deg: float | None = None,
+    ) -> str:
+        """Mark samples ``[start, stop)`` as a segment (see
+        :meth:`imucal_cli.session.SessionWriter.add_segment`); return its name.
+
+        Segments are added in time order.  While recording they are logged in the file at the
+        next flush; :meth:`close` writes them as ``/segments`` groups.
+
+        Raises
+        ------
+        SessionError
+            No samples yet, or a bad segment.
+        """
+        if self._writer is None:
+            raise SessionError(f"{self.path}: no samples recorded, so no segment can be added")
+        name = self._writer.add_segment(
+            kind, start, stop, label=label, up=up, axis=axis, angle_deg=angle_deg
+        )
+        entry = {"name": name, "kind": kind, "start": int(start), "stop": int(stop)}
+        extra = {"label": label, "up": up, "axis": axis, "angle_deg": angle_deg}
+        entry.update({k: v for k, v in extra.items() if v is not None})
+        self._segments.append(entry)
+        return name
+
+    @property
+    def segments(self) -> list[dict]:
+        """The segments added so far (name, kind, start, stop, and the optional attributes)."""
+        return [dict(s) for s in self._segments]
+
+    @property
+    def file_written(self) -> bool:
+        """Whether a session file was created (some samples arrived)."""
+        return self._writer is not None
+
+    def close(self) -> None:
+        """Write everything and close the session and the source.  Closing twice does nothing.
+
+        Raises
+        ------
+        SessionError
+            The file cannot be written.
+        """
+        if self._closed:
+            return
+        self._closed = True
+        self._restore_signals()
+        try:
+            if self._writer is not None:
+                self._writer.close()
+        finally:
+            self.source.close()
+
+    def __enter__(self) -> Recorder:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()

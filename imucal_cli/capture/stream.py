@@ -1,0 +1,376 @@
+"""Samples from a byte source: the source (a serial port), the protocol (text lines), blocks.
+
+The capture pipeline has three replaceable parts:
+
+- a **source** delivers bytes: :class:`SerialSource` reads a serial port with pyserial (a
+  pseudo-terminal of ``imucal simulate --serve`` is one too).  Anything with ``read() -> bytes``
+  (empty after a short wait with no data; :class:`DeviceGone` when the device disappears),
+  ``close()``, ``describe() -> str`` and ``uri -> str`` can stand in for it.
+- a **protocol** turns bytes into samples: :class:`LineProtocol` parses text lines.  A binary
+  protocol is one new class with the same two members, ``feed(data, host_time) ->
+  SampleBlock`` and ``stats``.
+- a :class:`SampleBlock` holds k samples as arrays, the unit that the recorder appends to the
+  session and that user interfaces look at.
+"""
+
+from __future__ import annotations
+
+import errno
+import time as _time
+from dataclasses import dataclass
+
+import numpy as np
+
+from imucal_cli.errors import InputError
+
+from .columns import ColumnSpec
+
+__all__ = [
+    "DeviceGone",
+    "LineProtocol",
+    "MAX_LINE_BYTES",
+    "RESYNC_SAMPLES",
+    "SampleBlock",
+    "SerialSource",
+]
+
+MAX_LINE_BYTES = 4096
+"""A partial line longer than this (no newline: binary data, wrong baud rate) is dropped and
+counted as malformed, so garbage never grows memory."""
+
+RESYNC_SAMPLES = 10
+"""After this many consecutive samples whose device time is not after the last kept one, the
+device clock is taken to have wrapped or restarted and the time base is shifted to continue."""
+
+
+# --------------------------------------------------------------------------------------------
+# Blocks
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass
+class SampleBlock:
+    """k consecutive samples; a sensor the device does not have is None.
+
+    Attributes
+    ----------
+    time : ndarray, shape (k,)
+        Seconds, strictly increasing (device clock, else host clock since the start).
+    accel : ndarray, shape (k, na), or None
+        Raw accelerometer channels, exactly as received.
+    gyro : ndarray, shape (k, ng), or None
+        Raw gyroscope channels.
+    temperature : ndarray, shape (k,), or None
+        Degrees C.
+    """
+
+    time: np.ndarray
+    accel: np.ndarray | None = None
+    gyro: np.ndarray | None = None
+    temperature: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return int(self.time.shape[0])
+
+    @classmethod
+    def empty(cls) -> SampleBlock:
+        """A block of no samples (what a UI tick gets when nothing arrived)."""
+        return cls(time=np.empty(0))
+
+    def take(self, mask: np.ndarray) -> SampleBlock:
+        """The samples where ``mask`` (boolean or index array) selects."""
+
+        def pick(a: np.ndarray | None) -> np.ndarray | None:
+            return None if a is None else a[mask]
+
+        return SampleBlock(self.time[mask], pick(self.accel), pick(self.gyro),
+                           pick(self.temperature))  # fmt: skip
+
+    @staticmethod
+    def concatenate(blocks: list[SampleBlock]) -> SampleBlock:
+        """One block of all samples of ``blocks`` (empty blocks are skipped)."""
+        blocks = [b for b in blocks if len(b)]
+        if not blocks:
+            return SampleBlock.empty()
+        first = blocks[0]
+
+        def cat(name: str) -> np.ndarray | None:
+            if getattr(first, name) is None:
+                return None
+            return np.concatenate([getattr(b, name) for b in blocks])
+
+        return SampleBlock(cat("time"), cat("accel"), cat("gyro"), cat("temperature"))
+
+
+# --------------------------------------------------------------------------------------------
+# Text lines
+# --------------------------------------------------------------------------------------------
+
+_SEPARATORS = bytes.maketrans(b",;\t", b"   ")
+
+
+class LineProtocol:
+    """Text lines of numbers, as Arduino and ESP32 sketches print them.
+
+    A line is numbers separated by commas, semicolons, spaces or tabs (any mix), ended by
+    ``\\n``, ``\\r\\n`` or ``\\r``; :class:`~imucal_cli.capture.columns.ColumnSpec` says which
+    number is which channel.  Nothing in a line is ever fatal:
+
+    - blank lines are ignored;
+    - lines starting with ``#`` are comments (a sketch's banner): counted in ``comments``;
+    - lines with the wrong number of fields, a field that is not a finite number, a partial
+      line longer than :data:`MAX_LINE_BYTES`, and samples whose device time is not after the
+      previous sample's (a glitch, or a clock that wrapped or restarted) are dropped and
+      counted in ``malformed``.  The session format needs strictly increasing times, so such
+      samples cannot be kept; after :data:`RESYNC_SAMPLES` such samples in a row the clock is
+      taken to have wrapped or restarted and later samples are shifted to follow on.
+
+    Without a ``t`` column the host clock stamps the lines: the lines completed by one
+    :meth:`feed` are spread evenly between the previous call's ``host_time`` and this one's,
+    so that times stay strictly increasing whatever the batching.
+
+    Parameters
+    ----------
+    columns : ColumnSpec
+        The fields of a line.
+
+    Attributes
+    ----------
+    stats : dict
+        ``lines`` (complete non-blank lines), ``samples`` (kept), ``comments``, ``malformed``,
+        and ``bytes`` (received).
+    """
+
+    def __init__(self, columns: ColumnSpec) -> None:
+        self.columns = columns
+        self.stats = {"lines": 0, "samples": 0, "comments": 0, "malformed": 0, "bytes": 0}
+        self._partial = b""
+        self._last_time: float | None = None  # last kept sample time, s
+        self._last_host: float | None = None
+        self._offset = 0.0  # added to device times after a wrap/restart
+        self._behind = 0  # consecutive samples not after the last kept one
+        self._dt = 0.0  # recent sample interval, s (for a resync)
+
+    def feed(self, data: bytes, host_time: float) -> SampleBlock:
+        """Parse the complete lines of ``data`` (after what was left over by the last call).
+
+        Parameters
+        ----------
+        data : bytes
+            Bytes as received; a trailing partial line is kept for the next call.
+        host_time : float
+            Host clock when ``data`` arrived, s (used without a ``t`` column).
+
+        Returns
+        -------
+        SampleBlock
+            The valid samples of the completed lines (possibly none).
+        """
+        stats = self.stats
+        stats["bytes"] += len(data)
+        buffer = self._partial + data if self._partial else data
+        cut = max(buffer.rfind(b"\n"), buffer.rfind(b"\r"))
+        if cut < 0:
+            self._partial = self._bounded(buffer)
+            return SampleBlock.empty()
+        self._partial = self._bounded(buffer[cut + 1 :])
+        text = buffer[:cut].replace(b"\r", b"\n").translate(_SEPARATORS)
+        n_fields = self.columns.n_fields
+        tokens: list[bytes] = []
+        n_good = 0
+        for line in text.split(b"\n"):
+            fields = line.split()
+            if not fields:
+                continue
+            stats["lines"] += 1
+            if fields[0][:1] == b"#":
+                stats["comments"] += 1
+            elif len(fields) != n_fields:
+                stats["malformed"] += 1
+            else:
+                tokens.extend(fields)
+                n_good += 1
+        if n_good == 0:
+            return SampleBlock.empty()
+        try:
+            rows = np.array(tokens, dtype=np.float64).reshape(n_good, n_fields)
+        except ValueError:  # some field is not a number: parse line by line
+            rows = self._rows_one_by_one(tokens, n_fields)
+        finite = np.isfinite(rows).all(axis=1)
+        if not finite.all():
+            stats["malformed"] += int((~finite).sum())
+            rows = rows[finite]
+        if rows.shape[0] == 0:
+            return SampleBlock.empty()
+        if self.columns.time is None:
+            block = self.columns.to_block(rows, self._host_stamps(rows.shape[0], host_time))
+        else:
+            block = self.columns.to_block(rows)
+            keep = self._accept_device_times(block.time)
+            if keep is not None:
+                block = block.take(keep)
+        if len(block):
+            self._last_time = float(block.time[-1])
+        stats["samples"] += len(block)
+        return block
+
+    # helpers ---------------------------------------------------------------------------------
+    def _bounded(self, partial: bytes) -> bytes:
+        if len(partial) > MAX_LINE_BYTES:
+            self.stats["malformed"] += 1
+            return b""
+        return partial
+
+    def _rows_one_by_one(self, tokens: list[bytes], n_fields: int) -> np.ndarray:
+        rows = []
+        for i in range(0, len(tokens), n_fields):
+            try:
+                rows.append([float(x) for x in tokens[i : i + n_fields]])
+            except ValueError:
+                self.stats["malformed"] += 1
+        return np.array(rows, dtype=np.float64).reshape(-1, n_fields)
+
+    def _host_stamps(self, k: int, host_time: float) -> np.ndarray:
+        start = self._last_host
+        if start is None:
+            start = host_time - 1e-3 * k
+        if self._last_time is not None:
+            start = max(start, self._last_time)
+        end = max(host_time, start + 1e-6 * k)
+        self._last_host = end
+        return start + (end - start) * np.arange(1, k + 1) / k
+
+    def _accept_device_times(self, t: np.ndarray) -> np.ndarray | None:
+        """Shift ``t`` in place by the resync offset; return the mask of samples to keep, or
+        None when every sample is kept."""
+        if self._offset:
+            t += self._offset
+        last = -np.inf if self._last_time is None else self._last_time
+        if t[0] > last and (t.size == 1 or bool((np.diff(t) > 0).all())):
+            self._behind = 0
+            if t.size > 1:
+                self._dt = float(np.median(np.diff(t)))
+            return None
+        keep = np.zeros(t.size, dtype=bool)
+        for i in range(t.size):
+            if t[i] > last:
+                keep[i], last, self._behind = True, float(t[i]), 0
+                continue
+            self._behind += 1
+            if self._behind >= RESYNC_SAMPLES:  # wrapped or restarted: continue after `last`
+                shift = last + (self._dt or 1e-3) - t[i]
+                self._offset += shift
+                t[i:] += shift
+                keep[i], last, self._behind = True, float(t[i]), 0
+        self.stats["malformed"] += int((~keep).sum())
+        return keep
+
+
+# --------------------------------------------------------------------------------------------
+# Serial ports
+# --------------------------------------------------------------------------------------------
+
+
+class DeviceGone(Exception):
+    """The source cannot be read any more (unplugged, closed pseudo-terminal)."""
+
+
+def available_ports() -> list[str]:
+    """Device paths of the serial ports the system lists (USB adapters, built-in UARTs)."""
+    try:
+        from serial.tools import list_ports
+
+        return sorted(p.device for p in list_ports.comports())
+    except Exception:  # noqa: BLE001 - listing is a courtesy in an error message
+        return []
+
+
+class SerialSource:
+    """A serial port read with pyserial, in batches.
+
+    Parameters
+    ----------
+    port : str
+        Device path (``/dev/ttyUSB0``, ``/dev/ttyACM0``, ``COM3``, a pseudo-terminal).
+    baud : int
+        Baud rate.
+    timeout_s : float
+        Longest a :meth:`read` waits for a first byte.
+    batch_s : float
+        After a first byte, wait this long for more before returning, so that a fast stream
+        is read in batches of a few milliseconds (few system calls, low CPU).
+
+    Raises
+    ------
+    InputError
+        No such port (the message lists the available ones), permission denied, or the port
+        cannot be opened or configured.
+    """
+
+    def __init__(self, port: str, baud: int, timeout_s: float = 0.05, batch_s: float = 0.005):
+        import serial
+
+        if not isinstance(baud, int) or baud <= 0:
+            raise InputError(f"baud rate must be a positive integer, got {baud!r}")
+        self.port, self.baud, self.batch_s = str(port), int(baud), float(batch_s)
+        try:
+            self._serial = serial.Serial(self.port, self.baud, timeout=timeout_s)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise _open_error(self.port, self.baud, exc) from None
+
+    @property
+    def uri(self) -> str:
+        """The session's ``source`` attribute: ``serial:/dev/ttyUSB0@115200``."""
+        return f"serial:{self.port}@{self.baud}"
+
+    def describe(self) -> str:
+        """``"/dev/ttyUSB0 at 115200 baud"`` for messages."""
+        return f"{self.port} at {self.baud} baud"
+
+    def read(self) -> bytes:
+        """Bytes received so far, or b"" after ``timeout_s`` with none.
+
+        Raises
+        ------
+        DeviceGone
+            The port cannot be read any more (unplugged, pseudo-terminal closed).
+        """
+        ser = self._serial
+        try:
+            waiting = ser.in_waiting
+            if waiting:
+                return ser.read(waiting)
+            first = ser.read(1)
+            if not first:
+                return b""
+            _time.sleep(self.batch_s)
+            waiting = ser.in_waiting
+            return first + ser.read(waiting) if waiting else first
+        except (OSError, TypeError, AttributeError) as exc:  # SerialException is an OSError
+            raise DeviceGone(" ".join(str(exc).split()) or type(exc).__name__) from None
+
+    def close(self) -> None:
+        """Close the port (never raises)."""
+        try:
+            self._serial.close()
+        except Exception:  # noqa: BLE001 - the device may be gone already
+            pass
+
+
+def _open_error(port: str, baud: int, exc: BaseException) -> InputError:
+    code = getattr(exc, "errno", None)
+    text = " ".join(str(exc).split())
+    if code == errno.ENOENT or "No such file" in text or "FileNotFoundError" in text:
+        ports = available_ports()
+        listed = ", ".join(ports) if ports else "none found"
+        return InputError(f"{port}: no such serial port (available: {listed})")
+    if code in (errno.EACCES, errno.EPERM) or "Permission denied" in text:
+        return InputError(
+            f"{port}: permission denied: add your user to the group that owns the port "
+            "(often 'dialout': sudo usermod -aG dialout $USER, then log in again)"
+        )
+    if code == errno.EBUSY or "busy" in text.lower():
+        return InputError(f"{port}: the port is busy (another program has it open)")
+    if isinstance(exc, ValueError):
+        return InputError(f"{port}: cannot use baud rate {baud} ({text})")
+    return InputError(f"{port}: cannot open the serial port ({text})")
