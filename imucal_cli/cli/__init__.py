@@ -13,6 +13,7 @@ from imucal_cli.errors import ImucalError
 
 # Importing the command modules registers their commands on ``app``.
 from . import calibrate as _calibrate  # noqa: E402,F401
+from . import capture as _capture  # noqa: E402,F401
 from . import import_ as _import  # noqa: E402,F401
 from . import report as _report  # noqa: E402,F401
 from . import simulate as _simulate  # noqa: E402,F401

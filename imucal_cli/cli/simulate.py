@@ -82,11 +82,45 @@ def simulate(
         ),
     ),
     force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
+    serve: bool = typer.Option(
+        False,
+        "--serve",
+        help=(
+            "Instead of writing a file, be a virtual serial IMU: open a pseudo-terminal, print "
+            "its device path, and stream the plan in real time as text lines "
+            "t,ax,ay,az,gx,gy,gz,temp (t in s, raw counts) for 'imucal capture --port PATH'."
+        ),
+    ),
+    baud: int = typer.Option(
+        115200, "--baud", metavar="N", help="--serve: emulated baud rate (bytes are paced)."
+    ),
+    loop: bool = typer.Option(False, "--loop", help="--serve: repeat the plan."),
+    duration: float | None = typer.Option(
+        None, "--duration", metavar="SECONDS", help="--serve: stop streaming after this long."
+    ),
+    temp: bool = typer.Option(
+        True, "--temp/--no-temp", help="--serve: print the temperature field (8 or 7 fields)."
+    ),
+    garbage: bool = typer.Option(False, "--garbage", hidden=True),
+    stall_after: float | None = typer.Option(None, "--stall-after", hidden=True),
+    vanish_after: float | None = typer.Option(None, "--vanish-after", hidden=True),
+    malformed_every: int | None = typer.Option(None, "--malformed-every", hidden=True),
 ) -> None:
     """Simulate a calibration session of a cheap 16-bit MEMS IMU with known truth.
 
-    Writes the session (HDF5) and the true calibration (JSON) of the simulated part.
+    Writes the session (HDF5) and the true calibration (JSON) of the simulated part; with
+    --serve, streams it live on a pseudo-terminal instead (plans six, qureshi18, random:N,
+    gyro-axes, hwangbo-iron or a TOML plan file; ends after the plan, --duration, or on
+    Ctrl-C/SIGTERM).  Test faults of --serve: --garbage (random bytes, as a wrong baud rate),
+    --stall-after S, --vanish-after S (close the port), --malformed-every N.
     """
+    if serve:
+        _serve(
+            plan, rate, baud, seed=seed, hold_s=hold, units=units, temperature=temp,
+            loop=loop, duration_s=duration, garbage=garbage, stall_after_s=stall_after,
+            vanish_after_s=vanish_after, malformed_every=malformed_every,
+        )  # fmt: skip
+        return
     from imucal_cli.calibration import write_calibration
     from imucal_cli.session import write_session
     from imucal_cli.simulator import simulate as run
@@ -120,3 +154,22 @@ def simulate(
     )
     write_calibration(truth_out, truth)
     typer.echo(f"wrote {truth_out}: true calibration of {session.sensor}")
+
+
+def _serve(plan: str, rate: float, baud: int, **options) -> None:
+    import sys
+
+    from imucal_cli.capture.virtual import serve
+
+    def announce(path: str) -> None:
+        print(path, flush=True)
+
+    def status(message: str) -> None:
+        print(f"imucal: {message}", file=sys.stderr, flush=True)
+
+    result = serve(plan, rate, baud, announce=announce, status=status, **options)
+    print(
+        f"# sent {result.lines} lines, {result.malformed} malformed, "
+        f"{result.garbage_bytes} garbage bytes, {result.seconds:.2f} s, end {result.end}",
+        flush=True,
+    )

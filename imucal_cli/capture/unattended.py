@@ -1,0 +1,443 @@
+"""Unattended capture (``imucal capture --no-prompt``): no keyboard, the motion tells all.
+
+:func:`run_unattended` records until ``duration_s`` has passed since the first sample, or until
+every step of the plan has been seen in the motion itself, then segments the whole recording
+with :func:`imucal_cli.solvers.segmentation.find_static` / ``find_rotations`` and adds the
+segments to the session.
+
+Seeing a plan
+-------------
+A **still period** is seen when it lasted at least ``min_still_s`` and was followed by motion
+(or by the end of the recording); while recording, the still period in progress counts once it
+has lasted ``min_still_s + FINAL_HOLD_EXTRA_S``, so the recording can stop in the last pose.
+Every second the still periods since the last confirmed one are searched again.
+
+- A static step with ``up`` is seen when a still period's mean accelerometer direction lies
+  within :data:`MATCH_DEG` of its ``up`` and of no other step's.  This needs raw data centred
+  on zero (counts of a signed ADC, g, m/s^2): when the still periods' mean magnitudes differ by
+  more than :data:`MAX_MAGNITUDE_RATIO` (an unsigned ADC, a large bias) directions are not
+  used, and static steps are counted instead (as many still periods as static steps).
+- Static steps without ``up`` are counted.
+- A rotation step is seen in the motion between two still periods when the gyroscope's
+  integrated rotation (bias from the neighbouring still periods) points along its ``axis``
+  within :data:`MATCH_DEG` (either sign when the plan leaves the angle free) and, when the step
+  has an ``angle_deg`` and directions are usable, the turn by that angle takes the still
+  direction before onto the one after within :data:`MATCH_DEG`.  Without a gyroscope, rotation
+  steps are counted as motions between still periods.
+
+The segments written are the offline result; their labels, ``up``, ``axis`` and ``angle_deg``
+come from the step they match unambiguously as above, else they are left unlabelled.
+"""
+
+from __future__ import annotations
+
+import time as _time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .plans import CaptureSummary, Plan, Step
+from .stream import SampleBlock
+
+__all__ = [
+    "FINAL_HOLD_EXTRA_S",
+    "MATCH_DEG",
+    "MAX_MAGNITUDE_RATIO",
+    "run_unattended",
+    "segment_recording",
+]
+
+MATCH_DEG = 20.0
+"""A still direction or rotation axis matches a step within this angle, degrees."""
+
+MAX_MAGNITUDE_RATIO = 1.2
+"""Still periods whose mean accel magnitudes differ by more than this ratio are not centred
+data: their directions are not matched to ``up`` vectors."""
+
+FINAL_HOLD_EXTRA_S = 1.0
+"""The still period in progress counts, while recording, once it lasted ``min_still_s`` plus
+this."""
+
+CHECK_EVERY_S = 1.0
+"""How often the plan is checked while recording, s."""
+
+
+# --------------------------------------------------------------------------------------------
+# Growing arrays
+# --------------------------------------------------------------------------------------------
+
+
+class _Buffer:
+    """The samples recorded so far, in arrays that grow by doubling."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self._arrays: dict[str, np.ndarray | None] = {}
+
+    def add(self, block: SampleBlock) -> None:
+        k = len(block)
+        if k == 0:
+            return
+        parts = {"time": block.time, "accel": block.accel, "gyro": block.gyro}
+        if not self._arrays:
+            for name, a in parts.items():
+                self._arrays[name] = None if a is None else np.empty((1024,) + a.shape[1:])
+        for name, a in parts.items():
+            store = self._arrays[name]
+            if store is None:
+                continue
+            if self.n + k > len(store):
+                bigger = np.empty((max(2 * len(store), self.n + k),) + store.shape[1:])
+                bigger[: self.n] = store[: self.n]
+                self._arrays[name] = store = bigger
+            store[self.n : self.n + k] = a
+        self.n += k
+
+    def get(self, name: str) -> np.ndarray | None:
+        a = self._arrays.get(name)
+        return None if a is None else a[: self.n]
+
+
+# --------------------------------------------------------------------------------------------
+# Matching still periods and motions to plan steps
+# --------------------------------------------------------------------------------------------
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    c = float(a @ b / (np.linalg.norm(a) * np.linalg.norm(b)))
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
+@dataclass
+class _Still:
+    start: int
+    stop: int
+    mean_accel: np.ndarray | None
+    mean_gyro: np.ndarray | None
+
+
+@dataclass
+class _Matches:
+    """Which step (index into plan.steps) each still period and each motion matched."""
+
+    still: list[int | None]
+    motion: list[int | None]  # motion i is between still i and i + 1
+    directions_used: bool
+
+
+def _directions_usable(stills: list[_Still]) -> bool:
+    norms = [np.linalg.norm(s.mean_accel) for s in stills if s.mean_accel is not None]
+    if not norms or min(norms) <= 0:
+        return False
+    return max(norms) / min(norms) <= MAX_MAGNITUDE_RATIO
+
+
+def _match_still(step_ups: list[tuple[int, np.ndarray]], direction: np.ndarray) -> int | None:
+    close = [i for i, up in step_ups if _angle_deg(direction, up) <= MATCH_DEG]
+    return close[0] if len(close) == 1 else None
+
+
+def _motion_rotvec(
+    time: np.ndarray, gyro: np.ndarray, before: _Still, after: _Still
+) -> np.ndarray | None:
+    """Integrated bias-free gyro over the motion between two still periods (raw units * s)."""
+    if before.mean_gyro is None or after.mean_gyro is None or after.start <= before.stop:
+        return None
+    bias = 0.5 * (before.mean_gyro + after.mean_gyro)
+    a, b = before.stop, after.start
+    dt = np.diff(time[a - 1 : b + 1])
+    g = gyro[a:b] - bias
+    rv = (g * 0.5 * (dt[:-1] + dt[1:])[:, None]).sum(axis=0)
+    return rv if np.linalg.norm(rv) > 0 else None
+
+
+def _match_motion(
+    steps: list[tuple[int, Step]], rotvec: np.ndarray, before: _Still, after: _Still,
+    use_directions: bool,
+) -> int | None:  # fmt: skip
+    close = []
+    for i, step in steps:
+        if step.axis is None:
+            continue
+        angle = _angle_deg(rotvec, step.axis)
+        if step.angle_deg is None:
+            ok = min(angle, 180.0 - angle) <= MATCH_DEG
+        else:
+            ok = _angle_deg(rotvec * np.sign(step.angle_deg), step.axis) <= MATCH_DEG
+            if ok and use_directions and before.mean_accel is not None:
+                turn = Rotation.from_rotvec(np.radians(step.angle_deg) * np.asarray(step.axis))
+                predicted = turn.inv().apply(before.mean_accel)
+                ok = _angle_deg(predicted, after.mean_accel) <= MATCH_DEG
+        if ok:
+            close.append(i)
+    return close[0] if len(close) == 1 else None
+
+
+def _match(plan: Plan, stills: list[_Still], time: np.ndarray, gyro: np.ndarray | None) -> _Matches:
+    use_directions = _directions_usable(stills)
+    steps = plan.steps
+    step_ups = [(i, s.up) for i, s in enumerate(steps) if s.kind == "static" and s.up is not None]
+    still = [
+        _match_still(step_ups, s.mean_accel)
+        if use_directions and s.mean_accel is not None
+        else None
+        for s in stills
+    ]
+    rot_steps = [(i, s) for i, s in enumerate(plan.steps) if s.kind == "rotation"]
+    motion: list[int | None] = []
+    for before, after in zip(stills[:-1], stills[1:], strict=True):
+        rv = None if gyro is None else _motion_rotvec(time, gyro, before, after)
+        motion.append(
+            None if rv is None else _match_motion(rot_steps, rv, before, after, use_directions)
+        )
+    return _Matches(still, motion, use_directions)
+
+
+def _progress(plan: Plan, stills: list[_Still], matches: _Matches, has_gyro: bool):
+    """Return (done, missing): step labels of the plan seen and not seen, in plan order."""
+    seen = set(i for i in matches.still + matches.motion if i is not None)
+    statics = [i for i, s in enumerate(plan.steps) if s.kind == "static"]
+    rotations = [i for i, s in enumerate(plan.steps) if s.kind == "rotation"]
+    # Steps that can only be counted: static steps without up (or when directions are not
+    # usable), rotation steps without axis (or without a gyro).
+    counted_static = [i for i in statics if plan.steps[i].up is None or not matches.directions_used]
+    spare_stills = sum(1 for m in matches.still if m is None)
+    for i in counted_static[:spare_stills]:
+        seen.add(i)
+    counted_rot = [i for i in rotations if plan.steps[i].axis is None or not has_gyro]
+    spare_motions = sum(1 for m in matches.motion if m is None)
+    for i in counted_rot[:spare_motions]:
+        seen.add(i)
+    done = [s.label for i, s in enumerate(plan.steps) if i in seen]
+    missing = [s.label for i, s in enumerate(plan.steps) if i not in seen]
+    return done, missing
+
+
+def _stills(ranges, accel, gyro) -> list[_Still]:
+    """Still periods with their means, from ``(start, stop)`` pairs."""
+    out = []
+    for a, b in ranges:
+        a, b = int(a), int(b)
+        out.append(
+            _Still(
+                a, b,
+                None if accel is None else accel[a:b].mean(axis=0),
+                None if gyro is None else gyro[a:b].mean(axis=0),
+            )
+        )  # fmt: skip
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# Offline segmentation
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass
+class SegmentPlanEntry:
+    """A segment to add: kind, half-open samples and the matched step (or None)."""
+
+    kind: str
+    start: int
+    stop: int
+    step: Step | None
+
+
+def segment_recording(
+    time: np.ndarray,
+    accel: np.ndarray | None,
+    gyro: np.ndarray | None,
+    plan: Plan | None,
+    *,
+    min_still_s: float = 1.0,
+) -> tuple[list[SegmentPlanEntry], list[str], list[str]]:
+    """Segment a whole recording and match it to a plan (see the module notes).
+
+    Returns
+    -------
+    segments : list of SegmentPlanEntry
+        Static and rotation segments in time order.
+    done, missing : list of str
+        Labels of the plan's steps seen and not seen (empty without a plan).
+    """
+    from imucal_cli.solvers.segmentation import find_rotations, find_static
+
+    if len(time) < 2:
+        return [], [], [] if plan is None else [s.label for s in plan.steps]
+    static = find_static(time, accel, gyro, min_still_s=min_still_s)
+    if accel is None:  # static segments need accel: keep the still periods for rotations only
+        static_for_segments = []
+    else:
+        static_for_segments = static
+    rotations = find_rotations(time, gyro, static) if gyro is not None and static else []
+    stills = _stills([(iv.start, iv.stop) for iv in static], accel, gyro)
+    done: list[str] = []
+    missing: list[str] = []
+    still_steps: list[Step | None] = [None] * len(stills)
+    motion_by_start: dict[int, Step | None] = {}
+    if plan is not None:
+        matches = _match(plan, stills, time, gyro)
+        done, missing = _progress(plan, stills, matches, gyro is not None)
+        still_steps = [None if i is None else plan.steps[i] for i in matches.still]
+        for before, m in zip(stills[:-1], matches.motion, strict=True):
+            motion_by_start[before.stop] = None if m is None else plan.steps[m]
+    entries = [
+        SegmentPlanEntry("static", s.start, s.stop, step)
+        for s, step in zip(stills, still_steps, strict=True)
+        if static_for_segments
+    ]
+    for iv in rotations:
+        entries.append(
+            SegmentPlanEntry("rotation", int(iv.start), int(iv.stop),
+                             motion_by_start.get(int(iv.start)))
+        )  # fmt: skip
+    entries.sort(key=lambda e: (e.start, e.stop))
+    return entries, done, missing
+
+
+# --------------------------------------------------------------------------------------------
+# The mode
+# --------------------------------------------------------------------------------------------
+
+
+class _PlanWatcher:
+    """Online: are all steps of the plan seen yet?  Re-searches from the last confirmed still."""
+
+    def __init__(self, plan: Plan, min_still_s: float) -> None:
+        self.plan = plan
+        self.min_still_s = min_still_s
+        self.closed: list[_Still] = []
+        self.missing = [s.label for s in plan.steps]
+
+    def update(self, buffer: _Buffer) -> bool:
+        from imucal_cli.errors import InputError
+        from imucal_cli.solvers.segmentation import find_static
+
+        time, accel, gyro = buffer.get("time"), buffer.get("accel"), buffer.get("gyro")
+        n = len(time)
+        base = self.closed[-1].start if self.closed else 0
+        if n - base < 10:
+            return False
+        try:
+            found = find_static(
+                time[base:],
+                None if accel is None else accel[base:],
+                None if gyro is None else gyro[base:],
+                min_still_s=self.min_still_s,
+            )
+        except InputError:
+            return False
+        rate = (n - base - 1) / (time[-1] - time[base]) if time[-1] > time[base] else 0.0
+        margin = max(2, int(0.5 * rate))
+        ongoing = None
+        for iv in found:
+            a, b = base + int(iv.start), base + int(iv.stop)
+            if self.closed and a < self.closed[-1].stop:
+                continue  # the last confirmed still period, found again
+            if b < n - margin:
+                self.closed.extend(_stills([(a, b)], accel, gyro))
+            else:
+                ongoing = (a, b)
+        stills = list(self.closed)
+        if ongoing is not None:
+            a, b = ongoing
+            if time[b - 1] - time[a] >= self.min_still_s + FINAL_HOLD_EXTRA_S:
+                stills.extend(_stills([(a, b)], accel, gyro))
+        if not stills:
+            return False
+        matches = _match(self.plan, stills, time, gyro)
+        _, self.missing = _progress(self.plan, stills, matches, gyro is not None)
+        return not self.missing
+
+
+def run_unattended(
+    recorder,
+    plan: Plan | None,
+    duration_s: float | None = None,
+    *,
+    min_still_s: float = 1.0,
+    on_status: Callable[[str], None] | None = None,
+) -> CaptureSummary:
+    """Record without a keyboard, then segment the recording; see the module notes.
+
+    Parameters
+    ----------
+    recorder : Recorder
+        Not started yet; the caller closes it afterwards.
+    plan : Plan or None
+        Steps to see; None records for ``duration_s`` only.
+    duration_s : float, optional
+        Stop this long after the first sample (at the latest).
+    min_still_s : float
+        Shortest still period that counts, s.
+    on_status : callable, optional
+        Called with progress messages.
+
+    Returns
+    -------
+    CaptureSummary
+        ``complete``: with a plan, every step seen in the segmented recording; without one,
+        the recording ran for ``duration_s``.
+    """
+    if plan is None and duration_s is None:
+        raise ValueError("run_unattended needs a plan or a duration")
+    say = on_status or (lambda message: None)
+    buffer = _Buffer()
+    watcher = None if plan is None else _PlanWatcher(plan, min_still_s)
+    first = None
+    last_check = _time.monotonic()
+    reached_duration = False
+    reported: list[str] | None = None
+    for block in recorder.blocks():
+        now = _time.monotonic()
+        if len(block):
+            buffer.add(block)
+            if first is None:
+                first = now
+        if first is None:
+            continue
+        if duration_s is not None and now - first >= duration_s and not reached_duration:
+            reached_duration = True
+            say(f"{duration_s:g} s recorded")
+            recorder.stop()
+        if watcher is not None and now - last_check >= CHECK_EVERY_S:
+            last_check = now
+            if watcher.update(buffer):
+                say("every step of the plan was seen")
+                recorder.stop()
+            elif watcher.missing != reported:
+                reported = watcher.missing
+                n_done = len(plan.steps) - len(watcher.missing)
+                say(f"{n_done} of {len(plan.steps)} steps seen")
+    time, accel, gyro = buffer.get("time"), buffer.get("accel"), buffer.get("gyro")
+    done: list[str] = []
+    missing: list[str] = [] if plan is None else [s.label for s in plan.steps]
+    if time is not None and len(time) >= 2:
+        entries, done, missing = segment_recording(time, accel, gyro, plan, min_still_s=min_still_s)
+        for e in entries:
+            step = e.step
+            if e.kind == "static":
+                recorder.add_segment(
+                    "static", e.start, e.stop,
+                    label=None if step is None else step.label,
+                    up=None if step is None else step.up,
+                )  # fmt: skip
+            else:
+                recorder.add_segment(
+                    "rotation", e.start, e.stop,
+                    label=None if step is None else step.label,
+                    axis=None if step is None else step.axis,
+                    angle_deg=None if step is None else step.angle_deg,
+                )  # fmt: skip
+    complete = not missing if plan is not None else reached_duration
+    return CaptureSummary(
+        complete=complete,
+        done=done,
+        skipped=[],
+        missing=missing,
+        end_reason=recorder.end_reason,
+        samples=recorder.n_samples,
+        stats=recorder.stats,
+    )

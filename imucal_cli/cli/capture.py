@@ -1,0 +1,204 @@
+"""`imucal capture`: record a session from a serial port (guided or unattended)."""
+
+from __future__ import annotations
+
+import sys
+from datetime import datetime
+from pathlib import Path
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+
+from imucal_cli.errors import InputError
+
+from .app import app
+
+EXIT_COMPLETE, EXIT_INCOMPLETE = 0, 3
+
+
+def default_output() -> Path:
+    """``capture-YYYYmmdd-HHMMSS.h5`` in the current directory (local time)."""
+    return Path(datetime.now().strftime("capture-%Y%m%d-%H%M%S.h5"))
+
+
+@app.command()
+def capture(
+    port: str = typer.Option(
+        ..., "--port", "-p", metavar="PORT", help="Serial port (/dev/ttyUSB0, COM3, a pty)."
+    ),
+    baud: int = typer.Option(115200, "--baud", "-b", metavar="N", help="Baud rate."),
+    plan: str | None = typer.Option(
+        None,
+        "--plan",
+        metavar="NAME|FILE.toml",
+        help=(
+            "Steps to go through: six, qureshi18 (the default when guided), random:N, gyro-axes, "
+            "hwangbo-iron, or a TOML plan file ([[step]] kind, label, up, axis, angle_deg)."
+        ),
+    ),
+    output: Path | None = typer.Option(
+        None,
+        "--output",
+        "-o",
+        metavar="FILE.h5",
+        help="Session file to write [default: capture-<date>-<time>.h5].",
+    ),
+    columns: str = typer.Option(
+        "t,ax,ay,az,gx,gy,gz,temp",
+        "--columns",
+        metavar="SPEC",
+        help=(
+            "Fields of a line, in order: t (device time), ax ay az (a4.. more), gx gy gz "
+            "(g4..), temp, _ (skip). Without t the host clock stamps each line."
+        ),
+    ),
+    time_unit: str = typer.Option(
+        "s", "--time-unit", metavar="s|ms|us|ns", help="Unit of the t field."
+    ),
+    no_prompt: bool = typer.Option(
+        False,
+        "--no-prompt",
+        help=(
+            "Unattended (bench scripts): no keyboard; record for --duration or until every "
+            "step of --plan was seen in the motion, then segment the recording by itself."
+        ),
+    ),
+    duration: float | None = typer.Option(
+        None,
+        "--duration",
+        metavar="SECONDS",
+        help="Stop this long after the first sample (at the latest).",
+    ),
+    sensor: str | None = typer.Option(
+        None, "--sensor", metavar="TEXT", help="Free text stored in the session (part, serial)."
+    ),
+    accel_units: str | None = typer.Option(
+        None, "--accel-units", metavar="UNITS", help="Units of the raw accel: counts, V, g, m/s^2."
+    ),
+    gyro_units: str | None = typer.Option(
+        None,
+        "--gyro-units",
+        metavar="UNITS",
+        help="Units of the raw gyro: counts, V, rad/s, deg/s.",
+    ),
+    min_still: float = typer.Option(
+        1.0, "--min-still", metavar="SECONDS", help="Shortest still period that counts."
+    ),
+    wait_timeout: float = typer.Option(
+        10.0, "--wait-timeout", metavar="SECONDS", help="Give up when no line came this long."
+    ),
+    read_timeout: float = typer.Option(
+        5.0,
+        "--read-timeout",
+        metavar="SECONDS",
+        help="End the capture when the data stops this long.",
+    ),
+    force: bool = typer.Option(False, "--force", help="Overwrite the output file."),
+) -> None:
+    """Record a calibration session from an IMU on a serial port.
+
+    Reads text lines of numbers (commas, spaces or tabs) and appends them to the session as
+    they arrive (flushed at least once a second).  Ctrl-C, SIGTERM, an unplugged device or a
+    stalled stream end the capture with a valid session holding every sample received.
+
+    Exit status: 0 the session is complete; 3 the session is saved but incomplete (steps of
+    the plan not seen, interrupted, device gone, data stopped); 2 bad input (no such port,
+    bad --columns or plan, no data at all: nothing saved).
+    """
+    from imucal_cli.capture.columns import ColumnSpec
+    from imucal_cli.capture.plans import load_plan
+    from imucal_cli.capture.recorder import Recorder
+    from imucal_cli.capture.stream import LineProtocol, SerialSource
+
+    spec = ColumnSpec.parse(columns, time_unit)
+    limits = {"--duration": duration, "--min-still": min_still,
+              "--wait-timeout": wait_timeout, "--read-timeout": read_timeout}  # fmt: skip
+    for name, value in limits.items():
+        if value is not None and not value > 0:
+            raise InputError(f"{name} must be > 0 s, got {value:g}")
+    guided = None
+    if no_prompt:
+        if plan is None and duration is None:
+            raise InputError("--no-prompt needs --duration SECONDS or --plan NAME (or both)")
+        plan_obj = None if plan is None else load_plan(plan)
+    else:
+        plan_obj = load_plan(plan or "qureshi18")
+        try:
+            from imucal_cli.capture import guided
+        except ImportError:
+            raise InputError("guided mode not available yet: use --no-prompt") from None
+    out = output if output is not None else default_output()
+    if out.exists() and not force:
+        raise InputError(f"{out} exists: use --force to overwrite it")
+    if not out.parent.is_dir():
+        raise InputError(f"{out}: directory {out.parent} does not exist")
+
+    console = Console()
+    err = Console(stderr=True, highlight=False)
+
+    def status(message: str) -> None:
+        err.print(f"imucal: {escape(message)}")
+
+    source = SerialSource(port, baud)
+    try:
+        recorder = Recorder(
+            out, source, LineProtocol(spec), sensor=sensor, accel_units=accel_units,
+            gyro_units=gyro_units, overwrite=force, wait_timeout_s=wait_timeout,
+            read_timeout_s=read_timeout, on_status=status,
+        )  # fmt: skip
+    except BaseException:
+        source.close()
+        raise
+    try:
+        if no_prompt:
+            from imucal_cli.capture.unattended import run_unattended
+
+            summary = run_unattended(
+                recorder, plan_obj, duration, min_still_s=min_still, on_status=status
+            )
+        else:
+            summary = guided.run_guided(
+                recorder, plan_obj, console=console, keys=guided.StdinKeys()
+            )
+    finally:
+        recorder.close()
+    if not recorder.file_written:
+        if recorder.end_kind == "timeout":
+            raise InputError(recorder.end_reason)
+        err.print(f"imucal: {escape(recorder.end_reason)} before any data: no file written")
+        raise typer.Exit(EXIT_INCOMPLETE)
+    _print_summary(console, out, recorder, summary)
+    sys.stdout.flush()
+    if not summary.complete:
+        raise typer.Exit(EXIT_INCOMPLETE)
+
+
+def _print_summary(console: Console, out: Path, recorder, summary) -> None:
+    st = summary.stats
+    segs = recorder.segments
+    n_static = sum(1 for s in segs if s["kind"] == "static")
+    n_rot = len(segs) - n_static
+    n_labelled = sum(1 for s in segs if "label" in s)
+    kind = recorder.end_kind
+    why = "" if kind == "done" else f": {summary.end_reason}"
+    console.print(
+        f"saved {summary.samples} samples to {escape(str(out))}: {n_static} static and "
+        f"{n_rot} rotation segments ({n_labelled} labelled)",
+        highlight=False,
+    )
+    console.print(
+        f"  lines {st.get('lines', 0)}, comments {st.get('comments', 0)}, malformed "
+        f"{st.get('malformed', 0)}; {st.get('duration_s', 0.0):.1f} s, "
+        f"{st.get('rate_hz', 0.0):.1f} Hz; ended: {kind}{escape(why)}",
+        highlight=False,
+    )
+    if summary.complete:
+        done = f" ({len(summary.done)} steps seen)" if summary.done else ""
+        console.print(f"  complete{done}", highlight=False)
+    else:
+        missing = ", ".join(summary.missing)
+        text = f"  incomplete: missing {missing}" if missing else "  incomplete"
+        if summary.skipped:
+            text += f"; skipped {', '.join(summary.skipped)}"
+        console.print(escape(text), highlight=False)
