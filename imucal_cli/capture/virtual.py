@@ -173,7 +173,7 @@ def plan_motion(
 
 def stream_arrays(
     plan: str, *, seed: int = 0, rate_hz: float = 100.0, hold_s: float = 2.0,
-    units: str = "counts",
+    units: str = "counts", move_s: float = 1.5,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """Time (N,), raw accel (N, 3) and raw gyro (N, 3) of one pass through ``plan``.
 
@@ -186,11 +186,15 @@ def stream_arrays(
     if key in _SIMULATOR_PLANS or key.startswith("random:"):
         from imucal_cli.simulator import simulate_stream
 
-        s = simulate_stream(plan=key, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units)
+        s = simulate_stream(
+            plan=key, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s
+        )
         return s.time, s.accel, s.gyro
-    if not rate_hz > 0 or not hold_s > 0:
-        raise InputError("rate and hold must be positive")
-    return plan_motion(load_plan(plan), seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units)
+    if not rate_hz > 0 or not hold_s > 0 or not move_s > 0:
+        raise InputError("rate, hold and move time must be positive")
+    return plan_motion(
+        load_plan(plan), seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s
+    )
 
 
 def _format(
@@ -222,6 +226,7 @@ def serve(
     *,
     seed: int = 0,
     hold_s: float = 2.0,
+    move_s: float = 1.5,
     units: str = "counts",
     temperature: bool = True,
     loop: bool = False,
@@ -246,6 +251,8 @@ def serve(
         Emulated baud rate: at most ``baud / 10`` bytes per second.
     seed, hold_s, units
         As for ``imucal simulate``.
+    move_s : float
+        Duration of each move between poses, s.
     temperature : bool
         Print the temperature field (8 fields per line, else 7).
     loop : bool
@@ -278,7 +285,9 @@ def serve(
         raise InputError(f"baud rate must be a positive integer, got {baud!r}")
     if malformed_every is not None and malformed_every < 1:
         raise InputError(f"--malformed-every must be >= 1, got {malformed_every}")
-    time, accel, gyro = stream_arrays(plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units)
+    time, accel, gyro = stream_arrays(
+        plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s
+    )
     counts = units == "counts"
     lines = _format(time, accel, gyro, temperature, counts)
     pass_s = len(time) / rate_hz

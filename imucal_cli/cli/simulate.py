@@ -101,6 +101,7 @@ def simulate(
     temp: bool = typer.Option(
         True, "--temp/--no-temp", help="--serve: print the temperature field (8 or 7 fields)."
     ),
+    move: float = typer.Option(1.5, "--move", hidden=True),
     garbage: bool = typer.Option(False, "--garbage", hidden=True),
     stall_after: float | None = typer.Option(None, "--stall-after", hidden=True),
     vanish_after: float | None = typer.Option(None, "--vanish-after", hidden=True),
@@ -116,7 +117,7 @@ def simulate(
     """
     if serve:
         _serve(
-            plan, rate, baud, seed=seed, hold_s=hold, units=units, temperature=temp,
+            plan, rate, baud, seed=seed, hold_s=hold, move_s=move, units=units, temperature=temp,
             loop=loop, duration_s=duration, garbage=garbage, stall_after_s=stall_after,
             vanish_after_s=vanish_after, malformed_every=malformed_every,
         )  # fmt: skip
