@@ -255,7 +255,8 @@ class Recorder:
 
         Yields an empty block at least every ``tick_s`` seconds when nothing arrived, so that a
         user interface stays live.  Ends (no exception) on Ctrl-C, SIGTERM, the device gone, a
-        timeout or :meth:`stop`, with :attr:`end_kind` and :attr:`end_reason` set.  SIGINT and
+        timeout or :meth:`stop`, with :attr:`end_kind` and :attr:`end_reason` set; the source
+        is closed then (segments can still be added until :meth:`close`).  SIGINT and
         SIGTERM are handled (by setting a flag) only while this generator runs.
 
         Parameters
@@ -316,6 +317,7 @@ class Recorder:
             if self.end_kind is None:  # the consumer closed the generator
                 self.end_kind, self.end_reason = "done", "done"
             self._restore_signals()
+            self.source.close()  # nothing more is read: let the device see it at once
             if self._writer is not None:
                 try:
                     self._writer.flush()

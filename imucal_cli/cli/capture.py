@@ -138,7 +138,7 @@ def capture(
     err = Console(stderr=True, highlight=False)
 
     def status(message: str) -> None:
-        err.print(f"imucal: {escape(message)}")
+        err.print(f"imucal: {escape(message)}", soft_wrap=True)
 
     source = SerialSource(port, baud)
     try:
@@ -186,19 +186,21 @@ def _print_summary(console: Console, out: Path, recorder, summary) -> None:
         f"saved {summary.samples} samples to {escape(str(out))}: {n_static} static and "
         f"{n_rot} rotation segments ({n_labelled} labelled)",
         highlight=False,
+        soft_wrap=True,
     )
     console.print(
         f"  lines {st.get('lines', 0)}, comments {st.get('comments', 0)}, malformed "
         f"{st.get('malformed', 0)}; {st.get('duration_s', 0.0):.1f} s, "
         f"{st.get('rate_hz', 0.0):.1f} Hz; ended: {kind}{escape(why)}",
         highlight=False,
+        soft_wrap=True,
     )
     if summary.complete:
         done = f" ({len(summary.done)} steps seen)" if summary.done else ""
-        console.print(f"  complete{done}", highlight=False)
+        console.print(f"  complete{done}", highlight=False, soft_wrap=True)
     else:
         missing = ", ".join(summary.missing)
         text = f"  incomplete: missing {missing}" if missing else "  incomplete"
         if summary.skipped:
             text += f"; skipped {', '.join(summary.skipped)}"
-        console.print(escape(text), highlight=False)
+        console.print(escape(text), highlight=False, soft_wrap=True)

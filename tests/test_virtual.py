@@ -1,0 +1,198 @@
+"""End to end through the tty layer: ``imucal simulate --serve`` -> ``imucal capture``.
+
+Every fault of a capture: Ctrl-C, SIGTERM, the device unplugged (the pseudo-terminal closed), a
+stalled stream, ``kill -9`` of the capture, malformed lines, a wrong baud rate (garbage) and a
+port that does not exist.  The server reports how many lines it wrote completely, so the
+session can be compared with what was sent.
+"""
+
+from __future__ import annotations
+
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from imucal_cli.session import read_session
+
+pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminals are POSIX")
+
+CLI = [sys.executable, "-m", "imucal_cli"]
+RATE = 200
+
+
+class Server:
+    """``imucal simulate --serve`` in the background; ``path`` is its device."""
+
+    def __init__(self, *args: str) -> None:
+        self.proc = subprocess.Popen(
+            [*CLI, "simulate", "--serve", "--rate", str(RATE), *args],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        self.path = self.proc.stdout.readline().strip()
+        assert self.path.startswith("/dev/"), self.proc.stderr.read()
+
+    def finish(self, timeout: float = 30.0) -> dict:
+        """Wait for the server to end; return its ``sent`` report."""
+        try:
+            out, err = self.proc.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            out, err = self.proc.communicate()
+        m = re.search(r"# sent (\d+) lines, (\d+) malformed, (\d+) garbage bytes", out)
+        assert m, (out, err)
+        return {"lines": int(m[1]), "malformed": int(m[2]), "garbage": int(m[3])}
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.communicate()
+
+
+def start_capture(port: str, output: Path, *args: str) -> subprocess.Popen:
+    return subprocess.Popen(
+        [*CLI, "capture", "--port", port, "--output", str(output), "--no-prompt", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def wait_for_file(path: Path, proc: subprocess.Popen, timeout: float = 15.0) -> None:
+    end = time.monotonic() + timeout
+    while not path.exists():
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < end, "the capture wrote no file"
+        time.sleep(0.05)
+
+
+def saved_samples(stdout: str) -> int:
+    m = re.search(r"saved (\d+) samples", stdout)
+    assert m, stdout
+    return int(m[1])
+
+
+@pytest.fixture
+def server_factory():
+    servers = []
+
+    def make(*args: str) -> Server:
+        servers.append(Server(*args))
+        return servers[-1]
+
+    yield make
+    for s in servers:
+        s.kill()
+
+
+def test_unattended_complete_session(tmp_path, server_factory):
+    server = server_factory("--plan", "six", "--hold", "1.5", "--move", "0.8",
+                            "--malformed-every", "97")  # fmt: skip
+    out = tmp_path / "six.h5"
+    cap = start_capture(server.path, out, "--plan", "six")
+    stdout, stderr = cap.communicate(timeout=60)
+    sent = server.finish()
+    assert cap.returncode == 0, (stdout, stderr)
+    assert "complete (6 steps seen)" in stdout
+    session = read_session(out)
+    assert len(session.time) == saved_samples(stdout) == sent["lines"] - sent["malformed"]
+    assert f"malformed {sent['malformed']};" in stdout and sent["malformed"] > 0
+    static = session.static_segments()
+    assert [s.label for s in static] == ["face +Z up", "face -Z up", "face +X up", "face -X up",
+                                         "face +Y up", "face -Y up"]  # fmt: skip
+    assert all(s.up is not None for s in static) and len(session.rotation_segments()) == 5
+    assert session.source == f"serial:{server.path}@115200"
+    # The session is one the calibrator reads (six faces cannot determine 9 parameters).
+    cal = subprocess.run([*CLI, "calibrate", str(out)], capture_output=True, text=True)
+    assert cal.returncode == 2 and cal.stderr.count("\n") == 1 and "imucal: error:" in cal.stderr
+
+
+@pytest.mark.parametrize(("signum", "words"), [(signal.SIGINT, "Ctrl-C"),
+                                               (signal.SIGTERM, "SIGTERM")])  # fmt: skip
+def test_signal_saves_every_sample_received(tmp_path, server_factory, signum, words):
+    server = server_factory("--plan", "six", "--loop")
+    out = tmp_path / "sig.h5"
+    cap = start_capture(server.path, out, "--duration", "60")
+    wait_for_file(out, cap)
+    time.sleep(1.5)
+    cap.send_signal(signum)
+    stdout, stderr = cap.communicate(timeout=20)
+    sent = server.finish()
+    assert cap.returncode == 3, (stdout, stderr)
+    assert f"stopped by {words}" in stdout and "Traceback" not in stderr
+    n = saved_samples(stdout)
+    assert len(read_session(out).time) == n
+    assert 0 <= sent["lines"] - n <= 0.2 * RATE  # at most the lines in flight
+
+
+def test_device_vanishes(tmp_path, server_factory):
+    server = server_factory("--plan", "six", "--vanish-after", "2.5")
+    out = tmp_path / "gone.h5"
+    cap = start_capture(server.path, out, "--duration", "60")
+    stdout, stderr = cap.communicate(timeout=30)
+    sent = server.finish()
+    assert cap.returncode == 3, (stdout, stderr)
+    assert "the device is gone" in stdout
+    assert len(read_session(out).time) == saved_samples(stdout) == sent["lines"]
+
+
+def test_stalled_stream_times_out(tmp_path, server_factory):
+    server = server_factory("--plan", "six", "--stall-after", "2")
+    out = tmp_path / "stall.h5"
+    cap = start_capture(server.path, out, "--duration", "60", "--read-timeout", "1")
+    stdout, stderr = cap.communicate(timeout=30)
+    sent = server.finish()  # the server ends when the capture closes the port
+    assert cap.returncode == 3, (stdout, stderr)
+    assert "for 1 s after" in stdout and "the device stopped sending" in stdout
+    assert len(read_session(out).time) == saved_samples(stdout) == sent["lines"]
+
+
+def test_kill_9_loses_at_most_the_last_second(tmp_path, server_factory):
+    server = server_factory("--plan", "six", "--loop")
+    out = tmp_path / "killed.h5"
+    cap = start_capture(server.path, out, "--duration", "60")
+    wait_for_file(out, cap)
+    time.sleep(2.5)
+    cap.kill()
+    cap.communicate()
+    sent = server.finish()
+    session = read_session(out)
+    missing = sent["lines"] - len(session.time)
+    assert 0 <= missing <= 1.0 * RATE + 0.2 * RATE  # the last second, and the lines in flight
+    assert len(session.time) > 1.5 * RATE
+
+
+def test_wrong_baud_rate_garbage(tmp_path, server_factory):
+    server = server_factory("--garbage")
+    out = tmp_path / "garbage.h5"
+    cap = start_capture(server.path, out, "--duration", "10", "--wait-timeout", "2")
+    stdout, stderr = cap.communicate(timeout=30)
+    assert cap.returncode == 2, (stdout, stderr)
+    last = stderr.splitlines()[-1]  # after the "waiting for data" status
+    assert last.startswith("imucal: error: received ") and "wrong baud rate?" in last
+    assert not out.exists()
+
+
+def test_no_such_port(tmp_path):
+    r = subprocess.run(
+        [*CLI, "capture", "--port", "/dev/ttyIMUCAL_NOPE", "--no-prompt", "--duration", "1",
+         "--output", str(tmp_path / "x.h5")],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert r.returncode == 2
+    assert r.stderr.startswith(
+        "imucal: error: /dev/ttyIMUCAL_NOPE: no such serial port (available:"
+    )
+    assert r.stderr.count("\n") == 1
+
+
+def test_no_prompt_needs_a_duration_or_a_plan(tmp_path):
+    r = subprocess.run([*CLI, "capture", "--port", "/dev/null", "--no-prompt"],
+                       capture_output=True, text=True)  # fmt: skip
+    assert r.returncode == 2 and "--no-prompt needs --duration" in r.stderr
