@@ -1,4 +1,4 @@
-"""``python -m bench [--seeds N]``: run every benchmark and print its tables."""
+"""``python -m bench [--seeds N] [--only NAME] [--quick]``: run benchmarks, print tables."""
 
 from __future__ import annotations
 
@@ -6,15 +6,23 @@ import argparse
 
 from rich.console import Console
 
-from bench import gravity
+from bench import capture, gravity
+
+BENCHMARKS = ("gravity", "capture")
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(prog="python -m bench", description=__doc__)
     parser.add_argument("--seeds", type=int, default=200, help="Monte-Carlo seeds per benchmark")
+    parser.add_argument("--only", choices=BENCHMARKS, help="run only this benchmark")
+    parser.add_argument("--quick", action="store_true", help="capture: 10 s instead of 60 s")
     args = parser.parse_args()
     console = Console(width=110)
-    ok = gravity.run(console, n_seeds=args.seeds)
+    ok = True
+    if args.only in (None, "gravity"):
+        ok = gravity.run(console, n_seeds=args.seeds) and ok
+    if args.only in (None, "capture"):
+        ok = capture.run(console, quick=args.quick) and ok
     raise SystemExit(0 if ok else 1)
 
 
