@@ -69,3 +69,70 @@ def gravity_crb(
         Wk = np.linalg.inv(cov_mean[k])
         F += Jk.T @ Wk @ Jk
     return np.linalg.inv(F)[:9, :9]
+
+
+def factorization_crb(
+    S: np.ndarray, b: np.ndarray, u: np.ndarray, sigma: float, samples: np.ndarray | int
+) -> np.ndarray:
+    """Cramér-Rao bound of an n-element unit calibrated from static orientations.
+
+    Each orientation i gives ``samples`` readings ``z = S^T g_i + b + e``, ``e ~ N(0, sigma^2 I_n)``,
+    with ``g_i`` a unit vector (two nuisance angles each): the design of Hwangbo & Kanade's
+    Table I (magnitude constraints only). The rotation of ``S`` is not identifiable, so the
+    information matrix is singular along it; the pseudo-inverse gives the bound for every
+    rotation-invariant function of the parameters (biases, gains, angles between axes).
+
+    Parameters
+    ----------
+    S : ndarray, shape (3, n)
+        True sensitivity axes (raw units per motion unit).
+    b : ndarray, shape (n,)
+    u : ndarray, shape (N, 3)
+        True unit motion of each orientation.
+    sigma : float
+        Per-sample noise, raw units.
+    samples : int or ndarray (N,)
+        Readings per orientation.
+
+    Returns
+    -------
+    ndarray, shape (n + 3n, n + 3n)
+        Bound on the covariance of ``(b, vec(S))`` (row-major ``S``) in the gauge-free sense.
+    """
+    del b
+    n = S.shape[1]
+    N = len(u)
+    counts = np.broadcast_to(np.asarray(samples, float), (N,))
+    p = n + 3 * n + 2 * N
+    F = np.zeros((p, p))
+    for i in range(N):
+        J = np.zeros((n, p))
+        J[:, :n] = np.eye(n)  # d z / d b
+        for r in range(3):  # d z_j / d S_rj = u_r
+            J[np.arange(n), n + r * n + np.arange(n)] = u[i, r]
+        J[:, 4 * n + 2 * i : 4 * n + 2 * i + 2] = S.T @ _tangent_basis(u[i])
+        F += counts[i] * (J.T @ J) / sigma**2
+    full = np.linalg.pinv(F, rcond=1e-12, hermitian=True)
+    return full[: 4 * n, : 4 * n]
+
+
+def invariant_summary(S: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Rotation-invariant quantities of a unit: biases (n), gains (n), angles between every
+    pair of axes (n(n-1)/2, degrees, row-major upper triangle)."""
+    gains = np.linalg.norm(S, axis=0)
+    s = S / gains
+    iu = np.triu_indices(S.shape[1], 1)
+    ang = np.degrees(np.arccos(np.clip((s.T @ s)[iu], -1, 1)))
+    return np.concatenate([b, gains, ang])
+
+
+def propagate(fun, x: np.ndarray, cov: np.ndarray, rel_step: float = 1e-7) -> np.ndarray:
+    """Covariance of ``fun(x)`` by the delta method (central differences)."""
+    f0 = np.asarray(fun(x))
+    J = np.empty((len(f0), len(x)))
+    for k in range(len(x)):
+        h = rel_step * max(abs(x[k]), 1.0)
+        dx = np.zeros_like(x)
+        dx[k] = h
+        J[:, k] = (np.asarray(fun(x + dx)) - np.asarray(fun(x - dx))) / (2 * h)
+    return J @ cov @ J.T
