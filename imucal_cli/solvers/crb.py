@@ -76,11 +76,12 @@ def factorization_crb(
 ) -> np.ndarray:
     """Cramér-Rao bound of an n-element unit calibrated from static orientations.
 
-    Each orientation i gives ``samples`` readings ``z = S^T g_i + b + e``, ``e ~ N(0, sigma^2 I_n)``,
-    with ``g_i`` a unit vector (two nuisance angles each): the design of Hwangbo & Kanade's
-    Table I (magnitude constraints only). The rotation of ``S`` is not identifiable, so the
-    information matrix is singular along it; the pseudo-inverse gives the bound for every
-    rotation-invariant function of the parameters (biases, gains, angles between axes).
+    Each orientation i gives ``samples`` readings ``z = S^T g_i + b + e`` with
+    ``e ~ N(0, sigma^2 I_n)`` and ``g_i`` a unit vector (two nuisance angles each): the design
+    of Hwangbo & Kanade's Table I (magnitude constraints only). The rotation of ``S`` is not
+    identifiable, so the information matrix is singular along it; the pseudo-inverse gives the
+    bound for every rotation-invariant function of the parameters (biases, gains, angles
+    between axes).
 
     Parameters
     ----------
