@@ -58,7 +58,7 @@ def calibrate(
     validate(cfg, "command line" if config is None else str(config))
 
     sess = read_session(session)
-    cal = calibrate_session(sess, cfg, session_name=session.name)
+    cal = calibrate_session(sess, cfg, name=session.name)
     problem = suspect_error(cal)
     if problem is not None and not force:
         raise problem
