@@ -1080,7 +1080,4 @@ def run_guided(
 
 
 def _recorder_attr(recorder, name: str) -> str | None:
-    value = getattr(recorder, name, None)
-    if value is None:
-        value = (getattr(recorder, "_meta", None) or {}).get(name)
-    return value
+    return getattr(recorder, name, None)

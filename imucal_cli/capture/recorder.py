@@ -118,6 +118,8 @@ class Recorder:
         self.source = source
         self.protocol = protocol
         self._meta = {"sensor": sensor, "accel_units": accel_units, "gyro_units": gyro_units}
+        self.accel_units = accel_units  #: raw accelerometer units as the user gave them
+        self.gyro_units = gyro_units  #: raw gyroscope units as the user gave them
         self._overwrite = overwrite
         self.wait_timeout_s = float(wait_timeout_s)
         self.read_timeout_s = float(read_timeout_s)

@@ -94,6 +94,9 @@ def capture(
         metavar="SECONDS",
         help="End the capture when the data stops this long.",
     ),
+    hold: float = typer.Option(
+        2.0, "--hold", metavar="SECONDS", help="Guided mode: seconds to hold each pose still."
+    ),
     force: bool = typer.Option(False, "--force", help="Overwrite the output file."),
 ) -> None:
     """Record a calibration session from an IMU on a serial port.
@@ -159,7 +162,7 @@ def capture(
             )
         else:
             summary = guided.run_guided(
-                recorder, plan_obj, console=console, keys=guided.StdinKeys()
+                recorder, plan_obj, console=console, keys=guided.StdinKeys(), hold_s=hold
             )
     finally:
         recorder.close()
