@@ -53,6 +53,7 @@ __all__ = [
     "QUANTISATION_COUNTS",
     "pairwise_angles_deg",
     "simulate_hk_gyro",
+    "simulate_hk_plan",
     "simulate_redundant_accel",
 ]
 
@@ -716,3 +717,77 @@ def simulate_hk_gyro(
     )
     root = {"sensor": sensor, "seed": seed, "plan": "hk-gyro", "simulator": options}
     return session, Calibration(accel=accel, gyro=gyro, extra=root, created=created)
+
+
+def simulate_hk_plan(
+    plan: str,
+    seed: int = 0,
+    rate_hz: float | None = None,
+    units: str = "counts",
+    hold_s: float | None = None,
+    accel_noise: float = 0.01,
+    sigma_counts: float = 0.7,
+    orientations: int | None = None,
+    samples: int = 10,
+    labelled: bool = False,
+    mountings: int = 2,
+    created: str | None = None,
+) -> tuple[Session, Calibration]:
+    """Run one of :data:`HK_PLANS` with the options of ``imucal simulate``.
+
+    Parameters
+    ----------
+    plan : {"hk-redundant", "hk-gyro"}
+        The design.
+    seed : int
+        Non-negative seed.
+    rate_hz : float, optional
+        Sample rate, Hz (default 50 for hk-redundant, 100 for hk-gyro).
+    units : str
+        ``counts`` (hk-redundant accepts nothing else); hk-gyro also ``m/s^2``.
+    hold_s : float, optional
+        hk-gyro: duration of each still period, s (default 3).
+    accel_noise : float
+        hk-gyro: accelerometer noise, m/s^2 per axis per sample.
+    sigma_counts, orientations, samples, labelled
+        hk-redundant: see :func:`simulate_redundant_accel`.
+    mountings : int
+        hk-gyro: number of IMU mountings in the iron.
+    created : str, optional
+        ISO 8601 UTC creation time; default now.
+
+    Returns
+    -------
+    (Session, Calibration)
+
+    Raises
+    ------
+    InputError
+        Unknown plan, or a bad value.
+    """
+    name = plan.strip().lower()
+    if name == "hk-redundant":
+        if units != "counts":
+            raise InputError(
+                f"plan hk-redundant records 11-bit ADC codes: units must be counts, not {units!r}"
+            )
+        return simulate_redundant_accel(
+            seed=seed,
+            sigma_counts=sigma_counts,
+            orientations=orientations,
+            samples=samples,
+            rate_hz=50.0 if rate_hz is None else rate_hz,
+            labelled=labelled,
+            created=created,
+        )
+    if name == "hk-gyro":
+        return simulate_hk_gyro(
+            seed=seed,
+            mountings=mountings,
+            rate_hz=100.0 if rate_hz is None else rate_hz,
+            still_s=3.0 if hold_s is None else hold_s,
+            units=units,
+            accel_noise=accel_noise,
+            created=created,
+        )
+    raise InputError(f"plan {plan!r} is not one of {', '.join(HK_PLANS)}")
