@@ -24,6 +24,7 @@ def default_output(plan: str, seed: int) -> Path:
 
 @app.command()
 def simulate(
+    ctx: typer.Context,
     plan: str = typer.Option(
         "qureshi18",
         "--plan",
@@ -31,7 +32,12 @@ def simulate(
         help=(
             "Poses to visit: 'six' (the 6 faces of a cube), 'qureshi18' (6 faces + 12 edges "
             "at 45 degrees, Qureshi & Golnaraghi) or 'random:N' (N unlabelled poses, "
-            "directions uniform on the sphere)."
+            "directions uniform on the sphere); or the Hwangbo & Kanade designs "
+            "'hk-redundant' (two dual-axis accelerometers, n = 4 channels, 11-bit ADC codes "
+            "0..2047 = -2.5..2.5 g, held still in random orientations; 50 Hz unless --rate) and "
+            "'hk-gyro' (sinusoidal sweeps about 3 orthogonal faces of a right-angle iron in each "
+            "mounting, then one ruler-guided 90-degree turn; --hold sets the still periods, "
+            "default 3 s)."
         ),
     ),
     seed: int = typer.Option(
@@ -82,6 +88,38 @@ def simulate(
         ),
     ),
     force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
+    sigma_counts: float = typer.Option(
+        0.7,
+        "--sigma-counts",
+        metavar="COUNTS",
+        help=(
+            "hk-redundant: Gaussian noise per channel per sample, ADC counts, before rounding to "
+            "integer codes (the paper used 0.7 and 1.5)."
+        ),
+    ),
+    orientations: int | None = typer.Option(
+        None,
+        "--orientations",
+        metavar="N",
+        help="hk-redundant: number of orientations (default 20 random, or 18 with --labelled).",
+    ),
+    samples: int = typer.Option(
+        10, "--samples", metavar="N", help="hk-redundant: readings held still per orientation."
+    ),
+    labelled: bool = typer.Option(
+        False,
+        "--labelled",
+        help=(
+            "hk-redundant: put the block on its 6 faces and 12 edges and record each pose's up "
+            "direction, instead of unlabelled random directions."
+        ),
+    ),
+    mountings: int = typer.Option(
+        2,
+        "--mountings",
+        metavar="N",
+        help="hk-gyro: IMU mountings in the iron (1..8), each swept about 3 orthogonal faces.",
+    ),
     serve: bool = typer.Option(
         False,
         "--serve",
@@ -115,6 +153,11 @@ def simulate(
     Ctrl-C/SIGTERM).  Test faults of --serve: --garbage (random bytes, as a wrong baud rate),
     --stall-after S, --vanish-after S (close the port), --malformed-every N.
     """
+    from imucal_cli.simulator_hk import HK_PLANS, simulate_hk_plan
+
+    hk = plan.strip().lower() in HK_PLANS
+    if serve and hk:
+        raise InputError(f"--serve does not stream plan {plan!r}: write a session file instead")
     if serve:
         _serve(
             plan, rate, baud, seed=seed, hold_s=hold, move_s=move, units=units, temperature=temp,
@@ -136,15 +179,36 @@ def simulate(
         for p in (out, truth_out):
             if p.exists():
                 raise InputError(f"{p} exists: use --force to overwrite it")
-    session, truth = run(
-        plan=plan,
-        seed=seed,
-        rate_hz=rate,
-        hold_s=hold,
-        accel_noise=accel_noise,
-        jitter_deg=jitter_deg,
-        units=units,
-    )
+    if hk:
+
+        def given(name: str) -> bool:
+            source = ctx.get_parameter_source(name)
+            return source is not None and source.name != "DEFAULT"
+
+        session, truth = simulate_hk_plan(
+            plan,
+            seed=seed,
+            rate_hz=rate if given("rate") else None,
+            units=units,
+            hold_s=hold if given("hold") else None,
+            accel_noise=accel_noise,
+            sigma_counts=sigma_counts,
+            orientations=orientations,
+            samples=samples,
+            labelled=labelled,
+            mountings=mountings,
+        )
+        rate = float(session.sample_rate_hz)
+    else:
+        session, truth = run(
+            plan=plan,
+            seed=seed,
+            rate_hz=rate,
+            hold_s=hold,
+            accel_noise=accel_noise,
+            jitter_deg=jitter_deg,
+            units=units,
+        )
     truth = dataclasses.replace(truth, session=out.name)
     write_session(out, session, overwrite=force)
     n_static = sum(1 for s in session.segments if s.kind == "static")
