@@ -5,7 +5,7 @@ Example (every key optional; these are the defaults)::
     gravity = 9.80665            # m/s^2; default: the session's `gravity` attribute
 
     [accel]
-    solver = "gravity"           # gravity-magnitude fit (Qureshi & Golnaraghi III-A)
+    solver = "gravity"           # "gravity" (Qureshi & Golnaraghi III-A) or "factorization"
     # nominal_sensitivity = 835.4  # raw units per m/s^2 (datasheet); default from the units
     # nominal_bias = 0.0           # raw units, scalar or one per channel
     # range = [-32768, 32767]      # raw output range; default inferred from the units/data
@@ -19,19 +19,34 @@ Example (every key optional; these are the defaults)::
     max_iterations = 200
     leave_one_out = true         # held-out residual of each pose in the report
 
+    [accel.factorization]        # Hwangbo & Kanade
+    use = "means"                # constraints over per-pose "means" or individual "samples"
+    linear = "subspace"          # redundant units: "subspace" or "paper" (eqs. 16-26)
+    refine = true                # nonlinear refinement (section IV-C)
+    max_iterations = 200
+
+    [gyro]
+    solver = "none"              # "none" or "factorization"
+
+    [gyro.factorization]
+    samples_per_segment = 40     # samples of each rotation used in the constraints
+    refine = true
+    max_iterations = 200
+
 Unknown keys and wrong types are errors (a typo must not silently fall back to a default).
 """
 
 from __future__ import annotations
 
 import tomllib
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, is_dataclass
 from pathlib import Path
 from typing import Any
 
 from imucal_cli.errors import ConfigError
 
-ACCEL_SOLVERS = ("gravity",)
+ACCEL_SOLVERS = ("gravity", "factorization")
+GYRO_SOLVERS = ("none", "factorization")
 
 
 @dataclass
@@ -46,6 +61,26 @@ class GravityOptions:
 
 
 @dataclass
+class AccelFactorizationOptions:
+    """Options of the factorization solver for accelerometers (``[accel.factorization]``)."""
+
+    use: str = "means"
+    linear: str = "subspace"
+    refine: bool = True
+    max_iterations: int = 200
+
+
+@dataclass
+class GyroFactorizationOptions:
+    """Options of the factorization solver for gyroscopes (``[gyro.factorization]``)."""
+
+    samples_per_segment: int = 40
+    linear: str = "subspace"
+    refine: bool = True
+    max_iterations: int = 200
+
+
+@dataclass
 class AccelConfig:
     """``[accel]``: which solver, and what is nominal for the physical-sense checks."""
 
@@ -56,6 +91,17 @@ class AccelConfig:
     max_scale_error: float = 0.20
     min_separation_deg: float = 10.0
     gravity: GravityOptions = field(default_factory=GravityOptions)
+    factorization: AccelFactorizationOptions = field(default_factory=AccelFactorizationOptions)
+
+
+@dataclass
+class GyroConfig:
+    """``[gyro]``: which solver (``"none"``: the gyroscope is not calibrated)."""
+
+    solver: str = "none"
+    nominal_sensitivity: float | None = None
+    max_scale_error: float = 0.20
+    factorization: GyroFactorizationOptions = field(default_factory=GyroFactorizationOptions)
 
 
 @dataclass
@@ -64,6 +110,7 @@ class Config:
 
     gravity: float | None = None
     accel: AccelConfig = field(default_factory=AccelConfig)
+    gyro: GyroConfig = field(default_factory=GyroConfig)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict (for recording in the calibration JSON); None values dropped."""
@@ -76,20 +123,40 @@ def _drop_none(d: Any) -> Any:
     return d
 
 
-def _check_type(where: str, key: str, value: Any, kind: Any) -> Any:
-    if kind is float or kind == "float|None":
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ConfigError(f"{where}: `{key}` must be a number, not {value!r}")
-        return float(value)
-    if kind is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{where}: `{key}` must be a whole number, not {value!r}")
+#: Keys whose value is a number even though their default is None.
+_NUMBER_KEYS = {"gravity", "nominal_sensitivity"}
+
+
+def _number(where: str, key: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ConfigError(f"{where}: `{key}` must be a number, not {value!r}")
+    return float(value)
+
+
+def _convert(where: str, key: str, value: Any, default: Any) -> Any:
+    """Check ``value`` against the type of the key's default and convert it."""
+    if key in _NUMBER_KEYS or isinstance(default, float):
+        return _number(where, key, value)
+    if key == "nominal_bias":
+        if isinstance(value, list):
+            return [_number(where, key, v) for v in value]
+        return _number(where, key, value)
+    if key == "range":
+        if not (isinstance(value, list) and len(value) == 2):
+            raise ConfigError(f"{where}: `range` must be [min, max] in raw units, not {value!r}")
+        value = [_number(where, key, v) for v in value]
+        if value[0] >= value[1]:
+            raise ConfigError(f"{where}: `range` minimum must be below its maximum")
         return value
-    if kind is bool:
+    if isinstance(default, bool):
         if not isinstance(value, bool):
             raise ConfigError(f"{where}: `{key}` must be true or false, not {value!r}")
         return value
-    if kind is str:
+    if isinstance(default, int):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where}: `{key}` must be a whole number, not {value!r}")
+        return value
+    if isinstance(default, str):
         if isinstance(value, int) and not isinstance(value, bool):
             value = str(value)  # model = 9 is as good as model = "9"
         if not isinstance(value, str):
@@ -98,74 +165,66 @@ def _check_type(where: str, key: str, value: Any, kind: Any) -> Any:
     return value
 
 
-def _fill(obj: Any, table: dict[str, Any], where: str, subtables: dict[str, Any]) -> None:
-    known = {f.name: f for f in fields(obj)}
+def _fill(obj: Any, table: dict[str, Any], where: str) -> None:
+    """Set the fields of dataclass ``obj`` from a TOML table; nested dataclasses are tables."""
+    known = {f.name for f in fields(obj)}
     for key, value in table.items():
-        if key in subtables:
-            continue
         if key not in known:
             raise ConfigError(f"{where}: unknown key `{key}` (known: {', '.join(sorted(known))})")
-        hint = type(getattr(obj, key)) if getattr(obj, key) is not None else None
-        if key in ("nominal_sensitivity", "gravity"):
-            value = _check_type(where, key, value, float)
-        elif key == "nominal_bias":
-            if isinstance(value, list):
-                value = [_check_type(where, key, v, float) for v in value]
-            else:
-                value = _check_type(where, key, value, float)
-        elif key == "range":
-            if not (isinstance(value, list) and len(value) == 2):
-                raise ConfigError(
-                    f"{where}: `range` must be [min, max] in raw units, not {value!r}"
-                )
-            value = [_check_type(where, key, v, float) for v in value]
-            if value[0] >= value[1]:
-                raise ConfigError(f"{where}: `range` minimum must be below its maximum")
-        elif hint is not None:
-            value = _check_type(where, key, value, hint)
-        setattr(obj, key, value)
+        default = getattr(obj, key)
+        if is_dataclass(default):
+            if not isinstance(value, dict):
+                raise ConfigError(f"{where}: `{key}` must be a table ([...{key}])")
+            _fill(default, value, f"{where} [{key}]")
+        else:
+            setattr(obj, key, _convert(where, key, value, default))
+
+
+def _one_of(where: str, table: str, key: str, value: str, allowed: tuple[str, ...]) -> None:
+    if value not in allowed:
+        raise ConfigError(
+            f"{where}: [{table}] {key} = {value!r} is not known (choose: {', '.join(allowed)})"
+        )
 
 
 def validate(cfg: Config, where: str = "<config>") -> None:
     """Check values (after flags have overridden the file); raises :class:`ConfigError`."""
     a = cfg.accel
-    if a.solver not in ACCEL_SOLVERS:
-        raise ConfigError(
-            f"{where}: [accel] solver = {a.solver!r} is not known "
-            f"(choose: {', '.join(ACCEL_SOLVERS)})"
-        )
+    _one_of(where, "accel", "solver", a.solver, ACCEL_SOLVERS)
     g = a.gravity
-    for key, value, allowed in (
-        ("model", g.model, ("9", "12")),
-        ("init", g.init, ("auto", "updown", "ellipsoid")),
-        ("weighting", g.weighting, ("noise", "equal")),
+    _one_of(where, "accel.gravity", "model", g.model, ("9", "12"))
+    _one_of(where, "accel.gravity", "init", g.init, ("auto", "updown", "ellipsoid"))
+    _one_of(where, "accel.gravity", "weighting", g.weighting, ("noise", "equal"))
+    f = a.factorization
+    _one_of(where, "accel.factorization", "use", f.use, ("means", "samples"))
+    _one_of(where, "accel.factorization", "linear", f.linear, ("subspace", "paper"))
+    _one_of(where, "gyro", "solver", cfg.gyro.solver, GYRO_SOLVERS)
+    _one_of(
+        where, "gyro.factorization", "linear", cfg.gyro.factorization.linear, ("subspace", "paper")
+    )
+    for table, n in (
+        ("accel.gravity", g.max_iterations),
+        ("accel.factorization", f.max_iterations),
+        ("gyro.factorization", cfg.gyro.factorization.max_iterations),
     ):
-        if value not in allowed:
-            raise ConfigError(
-                f"{where}: [accel.gravity] {key} = {value!r} is not one of {', '.join(allowed)}"
-            )
-    if g.max_iterations < 1:
-        raise ConfigError(f"{where}: [accel.gravity] max_iterations must be at least 1")
+        if n < 1:
+            raise ConfigError(f"{where}: [{table}] max_iterations must be at least 1")
+    if cfg.gyro.factorization.samples_per_segment < 3:
+        raise ConfigError(f"{where}: [gyro.factorization] samples_per_segment must be at least 3")
     if cfg.gravity is not None and not 9.0 < cfg.gravity < 10.5:
         raise ConfigError(f"{where}: gravity = {cfg.gravity} m/s^2 is not a gravity on Earth")
-    if a.nominal_sensitivity is not None and a.nominal_sensitivity <= 0:
-        raise ConfigError(f"{where}: [accel] nominal_sensitivity must be positive")
-    if not 0 < a.max_scale_error < 1:
-        raise ConfigError(f"{where}: [accel] max_scale_error must be between 0 and 1")
+    for table, sens in (("accel", a.nominal_sensitivity), ("gyro", cfg.gyro.nominal_sensitivity)):
+        if sens is not None and sens <= 0:
+            raise ConfigError(f"{where}: [{table}] nominal_sensitivity must be positive")
+    for table, err in (("accel", a.max_scale_error), ("gyro", cfg.gyro.max_scale_error)):
+        if not 0 < err < 1:
+            raise ConfigError(f"{where}: [{table}] max_scale_error must be between 0 and 1")
 
 
 def config_from_dict(data: dict[str, Any], where: str = "<config>") -> Config:
     """Build and validate a :class:`Config` from a parsed TOML table."""
     cfg = Config()
-    accel = data.get("accel", {})
-    if not isinstance(accel, dict):
-        raise ConfigError(f"{where}: `accel` must be a table ([accel])")
-    _fill(cfg, data, where, {"accel": None})
-    grav = accel.get("gravity", {})
-    if not isinstance(grav, dict):
-        raise ConfigError(f"{where}: `accel.gravity` must be a table ([accel.gravity])")
-    _fill(cfg.accel, accel, f"{where} [accel]", {"gravity": None})
-    _fill(cfg.accel.gravity, grav, f"{where} [accel.gravity]", {})
+    _fill(cfg, data, where)
     validate(cfg, where)
     return cfg
 

@@ -101,6 +101,10 @@ class Segment:
         Rotation only: nominal unit rotation axis, fixture frame.
     angle_deg : float or None
         Rotation only: known signed rotation angle about ``axis`` in degrees (right hand).
+    extra : dict
+        Attributes the format does not name (allowed by the spec), e.g. ``mounting`` (int): the
+        unit's mounting in the fixture, for constraints that hold within one mounting only.
+        Values are numbers, strings or lists of numbers.
     """
 
     name: str
@@ -111,6 +115,7 @@ class Segment:
     up: np.ndarray | None = None
     axis: np.ndarray | None = None
     angle_deg: float | None = None
+    extra: dict[str, Any] = field(default_factory=dict, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "up", _frozen_vector(self.up))
@@ -385,8 +390,7 @@ def _read_open_file(file: h5py.File, src: str, unclosed: bool) -> Session:
         numbers[name] = None if root[name] is None else _as_float(root[name])
         if root[name] is not None and (numbers[name] is None or numbers[name] <= 0):
             raise SessionError(
-                f"{src}: root attribute {name!r} must be a positive number, "
-                f"got {_show(root[name])}"
+                f"{src}: root attribute {name!r} must be a positive number, got {_show(root[name])}"
             )
 
     time, accel, gyro, temperature = _read_raw(file, src, unclosed)
@@ -478,7 +482,9 @@ def _read_segments(
             if isinstance(obj, h5py.Group):
                 where = f"/segments/{name}"
                 get = _attr_getter(obj.attrs, src, where)
-                segments.append(_parse_segment(name, get, src, where, n, accel, gyro))
+                segment = _parse_segment(name, get, src, where, n, accel, gyro)
+                segment.extra.update(_extra_attrs(obj.attrs.items()))
+                segments.append(segment)
     log = file.get(_LOG_DATASET)
     if not segments and isinstance(log, h5py.Dataset):
         # The writer was killed before it wrote the segment groups: use its SWMR-safe log.
@@ -492,9 +498,31 @@ def _read_segments(
                 raise SessionError(f"{src}: {where} is not a segment")
             if unclosed and isinstance(entry.get("stop"), int) and entry["stop"] > n:
                 continue  # describes samples the writer did not get to save
-            segments.append(_parse_segment(entry["name"], entry.get, src, where, n, accel, gyro))
+            segment = _parse_segment(entry["name"], entry.get, src, where, n, accel, gyro)
+            segment.extra.update(_extra_attrs((k, v) for k, v in entry.items() if k != "name"))
+            segments.append(segment)
     segments.sort(key=lambda s: s.start)
     return segments
+
+
+#: Segment attributes the format names; everything else lands in ``Segment.extra``.
+_SEGMENT_ATTRS = {"kind", "start", "stop", "label", "up", "axis", "angle_deg"}
+
+
+def _extra_attrs(items) -> dict[str, Any]:
+    """Plain Python values of the attributes the format does not name."""
+    extra = {}
+    for key, value in items:
+        if key in _SEGMENT_ATTRS:
+            continue
+        if isinstance(value, bytes):
+            value = value.decode("utf-8", "replace")
+        elif isinstance(value, np.ndarray):
+            value = value.tolist()
+        elif isinstance(value, np.generic):
+            value = value.item()
+        extra[key] = value
+    return extra
 
 
 def _attr_getter(attrs: h5py.AttributeManager, src: str, where: str) -> Callable[[str], Any]:
@@ -840,6 +868,7 @@ class SessionWriter:
         up: np.ndarray | None = None,
         axis: np.ndarray | None = None,
         angle_deg: float | None = None,
+        extra: dict[str, Any] | None = None,
     ) -> str:
         """Mark samples ``[start, stop)`` as a segment; return its name (``"0000"``, ...).
 
@@ -858,6 +887,8 @@ class SessionWriter:
             Rotation only: nominal rotation axis; stored scaled to unit length.
         angle_deg : float, optional
             Rotation only: known signed rotation angle in degrees.
+        extra : dict, optional
+            Further attributes (numbers, strings, lists of numbers), e.g. ``{"mounting": 2}``.
 
         Raises
         ------
@@ -892,6 +923,12 @@ class SessionWriter:
         entry: dict[str, Any] = {"name": name, "kind": kind, "start": start, "stop": stop}
         if label is not None:
             entry["label"] = label
+        for key, value in (extra or {}).items():
+            if key in _SEGMENT_ATTRS or key == "name":
+                raise fail(f"extra attribute {key!r} is one the format defines")
+            if not isinstance(value, int | float | str | list):
+                raise fail(f"extra attribute {key!r} must be a number, string or list")
+            entry[key] = value
         sensor = "accel" if kind == "static" else "gyro"
         wrong = {"up": up} if kind == "rotation" else {"axis": axis, "angle_deg": angle_deg}
         for option, value in wrong.items():
@@ -990,6 +1027,7 @@ def write_session(path: str | os.PathLike, session: Session, *, overwrite: bool 
                 up=segment.up,
                 axis=segment.axis,
                 angle_deg=segment.angle_deg,
+                extra=segment.extra,
             )
     for name, text in session.calibrations.items():
         store_calibration(path, text, name)

@@ -16,10 +16,9 @@ as a recorder would have written it and the truth in the toolkit's model
 spawned from ``numpy.random.SeedSequence(seed)`` for the truth, the poses and the noise, so a
 seed reproduces a session bit for bit.
 
-Segments of the gyroscope session carry the IMU mounting in their label (``"mounting 2: sweep
-about +Y"``): :class:`imucal_cli.session.Segment` has no place for extra attributes yet, so the
-mapping segment name -> mounting is also returned in the truth
-(``gyro.extra["segment_mounting"]``).
+Segments of the gyroscope session carry the IMU mounting as the extra segment attribute
+``mounting`` (an integer, 1 = the unit square in the iron) and in their label (``"mounting 2:
+sweep about +Y"``); the truth repeats the mapping (``gyro.extra["segment_mounting"]``).
 """
 
 from __future__ import annotations
@@ -486,7 +485,7 @@ def simulate_hk_gyro(
         labelled ``"mounting 2: sweep about +Y"``, with ``axis`` = the face normal in the iron
         frame; the ruler turn labelled ``"mounting 1: ruler-guided 90-degree turn about +Z"``
         with ``axis`` and ``angle_deg``.  Orthogonality holds only between sweeps of one
-        mounting: the mounting is in the label and in ``truth.gyro.extra["segment_mounting"]``.
+        mounting: every segment has the attribute ``mounting`` (int).
     truth : imucal_cli.calibration.Calibration
         ``gyro``: ``matrix = inv(S_g)``, ``bias = b_g`` with ``S_g`` the sensitivity in the
         sensor frame (= the iron frame of mounting 1).  Extras: ``mounting_rotvec_deg`` (one
@@ -556,7 +555,17 @@ def simulate_hk_gyro(
     def add_segment(kind, n, label, m, **attrs) -> str:
         name = f"{len(segments):04d}"
         i = state["i"]
-        segments.append(Segment(name=name, kind=kind, start=i, stop=i + n, label=label, **attrs))
+        segments.append(
+            Segment(
+                name=name,
+                kind=kind,
+                start=i,
+                stop=i + n,
+                label=label,
+                extra={"mounting": m},
+                **attrs,
+            )
+        )
         seg_mount[name] = m
         return name
 

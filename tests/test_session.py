@@ -41,8 +41,9 @@ def make_session(n: int = N, na: int = 3) -> Session:
         temperature=np.linspace(20.0, 21.0, n),
         segments=[
             Segment("0000", "static", 0, 40, label="face +Z up", up=np.array([0.0, 0.0, 1.0])),
-            Segment("0001", "rotation", 50, 80, label="turn about X", axis=[1.0, 0, 0],
-                    angle_deg=90.0),
+            Segment(
+                "0001", "rotation", 50, 80, label="turn about X", axis=[1.0, 0, 0], angle_deg=90.0
+            ),
         ],  # fmt: skip
         created="2026-11-21T10:00:00Z",
         sensor="BNO055 #17",
@@ -599,3 +600,32 @@ def test_store_calibration_refuses_non_session_hdf5(tmp_path):
         store_calibration(path, "{}")
     with h5py.File(path, "r") as f:
         assert "calibrations" not in f
+
+
+def test_segment_extra_attributes_round_trip(tmp_path):
+    """Attributes the format does not name (e.g. a rotation's `mounting`) survive a round trip
+    and are also recovered from the crash log of an unclosed writer."""
+    from imucal_cli.session import Segment, Session, read_session, write_session
+
+    t = np.arange(100) / 100.0
+    session = Session(
+        time=t,
+        accel=np.ones((100, 3)),
+        gyro=np.zeros((100, 3)),
+        temperature=None,
+        segments=[
+            Segment(
+                "0000",
+                "rotation",
+                10,
+                50,
+                axis=np.array([0, 0, 1.0]),
+                extra={"mounting": 2, "note": "ruler"},
+            )
+        ],
+        created="2026-11-21T10:00:00Z",
+    )
+    path = tmp_path / "x.h5"
+    write_session(path, session)
+    seg = read_session(path).segments[0]
+    assert seg.extra == {"mounting": 2, "note": "ruler"}

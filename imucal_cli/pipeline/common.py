@@ -74,7 +74,7 @@ class Nominal:
     """What an uncalibrated user would assume: datasheet sensitivity and zero-g offset."""
 
     sensitivity: float | None  # raw units per m/s^2; None when unknown
-    bias: np.ndarray  # raw units (3,)
+    bias: np.ndarray  # raw units (n,)
     range: tuple[float, float] | None  # raw output range
     basis: str  # words for the report
     notes: list[str] = field(default_factory=list)
@@ -95,6 +95,7 @@ def nominal_sensor(session: Session, cfg: Config, g: float) -> Nominal:
     a = cfg.accel
     units = session.accel_units or "unknown units"
     accel = session.accel
+    n = accel.shape[1]
     sens = a.nominal_sensitivity
     rng = tuple(a.range) if a.range else None
     if sens is None:
@@ -107,11 +108,11 @@ def nominal_sensor(session: Session, cfg: Config, g: float) -> Nominal:
             finite = accel[np.isfinite(accel).all(axis=1)]
             rng = _adc_range(float(finite.min()), float(finite.max())) if len(finite) else None
     if a.nominal_bias is not None:
-        bias = np.broadcast_to(np.asarray(a.nominal_bias, float), (3,)).copy()
+        bias = np.broadcast_to(np.asarray(a.nominal_bias, float), (n,)).copy()
     elif rng is not None and rng[0] == 0.0 and units == "counts":
-        bias = np.full(3, (rng[1] + 1) / 2)  # unsigned ADC: zero-g at mid-scale
+        bias = np.full(n, (rng[1] + 1) / 2)  # unsigned ADC: zero-g at mid-scale
     else:
-        bias = np.zeros(3)
+        bias = np.zeros(n)
     if sens is not None:
         basis = f"nominal sensitivity {sens:.6g} {units} per m/s^2, offset {fmt_bias(bias)} {units}"
     else:
@@ -165,11 +166,12 @@ def physical_checks(
     outside the sensor's range, poses that disagree on |g| after calibration."""
     warnings = []
     limit = cfg.accel.max_scale_error
+    names = channel_names(len(gains))
     if nominal.sensitivity is not None:
-        ref, what = np.full(3, nominal.sensitivity), "nominal"
+        ref, what = np.full(len(gains), nominal.sensitivity), "nominal"
     else:
-        ref, what = np.full(3, np.median(gains)), "the median of the three axes"
-    for axis, gain, r in zip("xyz", gains, ref, strict=True):
+        ref, what = np.full(len(gains), np.median(gains)), "the median of the channels"
+    for axis, gain, r in zip(names, gains, ref, strict=True):
         if abs(gain / r - 1) > limit:
             warnings.append(
                 f"{axis} sensitivity {gain:.6g} {units} per m/s^2 is {100 * (gain / r - 1):+.0f}% "
@@ -178,7 +180,7 @@ def physical_checks(
             )
     if nominal.range is not None:
         lo, hi = nominal.range
-        for axis, b in zip("xyz", bias, strict=True):
+        for axis, b in zip(names, bias, strict=True):
             if not lo <= b <= hi:
                 warnings.append(
                     f"{axis} bias {b:.6g} {units} lies outside the sensor's range "
@@ -190,6 +192,11 @@ def physical_checks(
             f"{rms:.3g} m/s^2): was the unit moving during the holds?"
         )
     return warnings
+
+
+def channel_names(n: int) -> list[str]:
+    """``x, y, z`` for a triad, ``1 .. n`` for a redundant unit."""
+    return list("xyz") if n == 3 else [str(i + 1) for i in range(n)]
 
 
 def rms(x) -> float:
