@@ -8,6 +8,13 @@ well the measured gravity directions cover the sphere.  Nothing is re-solved or 
 raw data; fields a calibration does not carry (one written by another tool has only the
 standard ``solver``/``units``/``bias``/``matrix``/``residual_rms``) are listed as unavailable.
 
+Sections written by the factorization solver (Hwangbo & Kanade; accelerometer triads and
+redundant units, gyroscopes) are shown the same way, plus the frame the matrix is expressed in
+(the rotation the constraints leave free, resolved by the solver), the constraint case, a
+linear-versus-refined table in the layout of the paper's Table I (per element bias and gain,
+per pair of sensitivity axes the angle between them, and the constraint RMS ``C_err``) and,
+for gyroscopes, each known-angle turn with its measured angle.
+
 :func:`build_report` gives the dict (the ``imucal report --json`` output), :func:`render_report`
 draws that dict on a :class:`rich.console.Console`.
 """
@@ -55,20 +62,20 @@ PAPER_REFERENCE: dict[str, Any] = {
 
 _MISSING = "—"
 
-# (report key, what the user is told is not in the file)
+# (report key, what the user is told is not in the file, sensors it applies to)
 _OPTIONAL_ITEMS = (
-    ("variant", "model variant"),
-    ("units_in", "raw input units"),
-    ("parameters", "named parameters with standard deviations"),
-    ("misalignment_deg", "misalignment angles"),
-    ("sensitivity", "sensitivities"),
-    ("fit", "solver iterations / convergence"),
-    ("rms.before", "RMS before calibration"),
-    ("rms.after", "RMS after calibration"),
-    ("rms.held_out", "leave-one-pose-out (held-out) RMS"),
-    ("rms.residual_rms", "solver residual RMS"),
-    ("poses", "per-pose residuals"),
-    ("coverage", "pose coverage (fraction, largest gap)"),
+    ("variant", "model variant", ("accel", "gyro")),
+    ("units_in", "raw input units", ("accel", "gyro")),
+    ("parameters", "named parameters with standard deviations", ("accel", "gyro")),
+    ("misalignment_deg", "misalignment angles", ("accel", "gyro")),
+    ("sensitivity", "sensitivities", ("accel", "gyro")),
+    ("fit", "solver iterations / convergence", ("accel", "gyro")),
+    ("rms.before", "RMS before calibration", ("accel",)),
+    ("rms.after", "RMS after calibration", ("accel",)),
+    ("rms.held_out", "leave-one-pose-out (held-out) RMS", ("accel",)),
+    ("rms.residual_rms", "solver residual RMS", ("accel", "gyro")),
+    ("poses", "per-pose residuals", ("accel",)),
+    ("coverage", "pose coverage (fraction, largest gap)", ("accel",)),
 )
 
 
@@ -177,8 +184,12 @@ def _section_report(kind: str, sec: SensorCalibration) -> dict[str, Any]:
     ``message``, ``noise_scale``, ``weighting``, ``chi2``, ``dof``), ``rms`` (see
     :func:`_rms_report`), ``coverage`` (``fraction``, ``largest_gap_deg``, ``n_poses``,
     ``n_distinct``, ``cap_deg``, ``weakest_direction``), ``poses`` (the stored rows plus
-    ``residual_mg``, ``residual_loo_mg``), ``warnings`` and ``unavailable`` (what this
-    calibration does not carry).  Non-finite numbers read as ``None`` (strict JSON).
+    ``residual_mg``, ``residual_loo_mg``), ``rotation`` (the frame the matrix is in, as the
+    solver states it), ``factorization`` (see :func:`_factorization`; ``None`` for other
+    solvers), ``rotations`` (turns of known angle: ``segment``, ``label``,
+    ``known_angle_deg``, ``measured_angle_deg``, ``angle_error_deg``), ``notes``, ``warnings``
+    and ``unavailable`` (what this calibration does not carry).  Non-finite numbers read as
+    ``None`` (strict JSON).
     """
     extra = sec.extra or {}
     units_in = _text(extra.get("units_in"))
@@ -207,6 +218,10 @@ def _section_report(kind: str, sec: SensorCalibration) -> dict[str, Any]:
         "rms": _rms_report(sec, mg_per_unit),
         "coverage": _coverage(extra.get("coverage")),
         "poses": _poses(extra.get("poses"), mg_per_unit),
+        "rotation": _text(extra.get("rotation")),
+        "factorization": _factorization(kind, sec),
+        "rotations": _rotations(extra.get("rotations")),
+        "notes": [str(n) for n in _list(extra.get("notes"))],
         "warnings": [str(w) for w in _list(extra.get("warnings"))],
     }
     report["unavailable"] = _unavailable(kind, report)
@@ -238,9 +253,12 @@ def _rms_report(sec: SensorCalibration, mg_per_unit: float | None) -> dict[str, 
         "held_out": _number(extra.get("rms_loo")),
         "residual_rms": _number(sec.residual_rms),
     }
+    gravity_magnitude = sec.solver == "gravity" or (
+        sec.solver == "factorization" and sec.units == "m/s^2"
+    )
     rms: dict[str, Any] = {
         "unit": sec.units,
-        "quantity": ("gravity-magnitude error" if sec.solver == "gravity" else "solver residual"),
+        "quantity": "gravity-magnitude error" if gravity_magnitude else "solver residual",
         **figures,
     }
     for key, value in figures.items():
@@ -339,10 +357,127 @@ def _poses(raw: Any, mg_per_unit: float | None) -> list[dict[str, Any]]:
     return rows
 
 
+def _factorization(kind: str, sec: SensorCalibration) -> dict[str, Any] | None:
+    """The factorization solver's own fields, laid out as the paper's Table I.
+
+    Returns ``None`` for other solvers, else ``configuration``, ``case``, ``elements``,
+    ``axis_names``, ``refined`` (bool: the nonlinear refinement ran), ``linear_method``,
+    ``use``, ``constraints`` (their number), ``singular_values``, ``rows`` and
+    ``constraint_rms`` (``linear``, ``refined``, ``unit``: the paper's ``C_err`` as an RMS of
+    ``f_i . f_k - h_ik``).  ``rows`` lists, in Table I order, every element's bias
+    (``b1``...), gain (``|s1|``...) and every pair's angle (``s1s2``, ``s1s3``, ...), each
+    ``{"group", "name", "unit", "linear", "refined", "refined_std"}``; without refinement
+    ``refined`` and ``refined_std`` are ``None`` and ``linear`` holds the final values.
+    """
+    extra = sec.extra or {}
+    linear = extra.get("linear")
+    if sec.solver != "factorization" and not isinstance(linear, dict):
+        return None
+    linear = linear if isinstance(linear, dict) else {}
+    bias = [_number(v) for v in np.asarray(sec.bias, dtype=float).ravel()]
+    n = len(bias)
+    names = [str(a) for a in _list(extra.get("axis_names"))]
+    if len(names) != n:
+        names = list("xyz") if n == 3 else [str(i + 1) for i in range(n)]
+    refined = extra.get("refined") if isinstance(extra.get("refined"), bool) else bool(linear)
+    std_of = {p["name"]: p["std"] for p in _parameters(extra.get("parameters"))}
+    units_in = _text(extra.get("units_in")) or "raw units"
+    gain_unit = _text(extra.get("sensitivity_unit")) or f"{units_in} per {sec.units}"
+
+    def element(values: Any, i: int) -> float | None:
+        items = _list(values)
+        return _number(items[i]) if i < len(items) else None
+
+    def pair(matrix: Any, i: int, j: int) -> float | None:
+        row = _list(matrix)[i] if i < len(_list(matrix)) else None
+        return element(row, j)
+
+    final = {
+        "bias": lambda i: bias[i],
+        "gain": lambda i: element(extra.get("sensitivity"), i),
+        "angle": lambda i, j: pair(extra.get("angles_deg"), i, j),
+    }
+    final_std = {
+        "bias": lambda i: std_of.get(f"b_{names[i]}"),
+        "gain": lambda i: element(extra.get("sensitivity_std"), i),
+        "angle": lambda i, j: pair(extra.get("angles_std_deg"), i, j),
+    }
+    first = {
+        "bias": lambda i: element(linear.get("bias"), i),
+        "gain": lambda i: element(linear.get("sensitivity"), i),
+        "angle": lambda i, j: pair(linear.get("angles_deg"), i, j),
+    }
+    rows = []
+
+    def add(group: str, name: str, unit: str, *index: int) -> None:
+        lin = first[group](*index) if linear else final[group](*index)
+        rows.append(
+            {
+                "group": group,
+                "name": name,
+                "unit": unit,
+                "linear": lin,
+                "refined": final[group](*index) if refined else None,
+                "refined_std": final_std[group](*index) if refined else None,
+            }
+        )
+
+    for i, a in enumerate(names):
+        add("bias", f"b{a}", units_in, i)
+    for i, a in enumerate(names):
+        add("gain", f"|s{a}|", gain_unit, i)
+    for i in range(n):
+        for j in range(i + 1, n):
+            add("angle", f"s{names[i]}s{names[j]}", "deg", i, j)
+    final_rms = _number(extra.get("constraint_rms"))
+    return {
+        "configuration": _text(extra.get("configuration")),
+        "case": _text(extra.get("case")),
+        "elements": _integer(extra.get("elements")) or n,
+        "axis_names": names,
+        "refined": refined,
+        "linear_method": _text(linear.get("method")),
+        "use": _text(extra.get("use")),
+        "constraints": _integer(extra.get("constraints")),
+        "singular_values": [v for v in map(_number, _list(extra.get("singular_values")))],
+        "rows": rows,
+        "constraint_rms": {
+            "linear": _number(linear.get("constraint_rms")) if linear else final_rms,
+            "refined": final_rms if refined else None,
+            "unit": "g^2" if kind == "accel" else f"({sec.units})^2",
+        },
+    }
+
+
+def _rotations(raw: Any) -> list[dict[str, Any]]:
+    rows = []
+    for item in _list(raw):
+        if isinstance(item, dict):
+            rows.append(
+                {
+                    "segment": _text(item.get("segment")),
+                    "label": _text(item.get("label")),
+                    "known_angle_deg": _number(item.get("known_angle_deg")),
+                    "measured_angle_deg": _number(item.get("measured_angle_deg")),
+                    "angle_error_deg": _number(item.get("angle_error_deg")),
+                }
+            )
+    return rows
+
+
 def _unavailable(kind: str, report: dict[str, Any]) -> list[str]:
     """Human names of the optional items this section does not carry."""
     missing = []
-    for key, name in _OPTIONAL_ITEMS:
+    factorization = report["factorization"]
+    for key, name, kinds in _OPTIONAL_ITEMS:
+        if kind not in kinds:
+            continue
+        if key == "misalignment_deg" and factorization is not None:
+            if not any(
+                r["group"] == "angle" and r["linear"] is not None for r in factorization["rows"]
+            ):
+                missing.append("angles between sensitivity axes")
+            continue
         value: Any = report
         for part in key.split("."):
             value = value.get(part) if isinstance(value, dict) else None
@@ -351,6 +486,10 @@ def _unavailable(kind: str, report: dict[str, Any]) -> list[str]:
     poses = report["poses"]
     if poses and not any(p["direction"] for p in poses):
         missing.append("measured gravity directions (coverage map)")
+    if factorization is not None and not report["rotation"]:
+        missing.append("the frame of the matrix (how the free rotation was resolved)")
+    if kind == "gyro" and factorization is not None and not report["rotations"]:
+        missing.append("known-angle turns (measured vs known angle)")
     gravity = report["gravity"]
     if kind == "accel" and gravity and not gravity["stated"]:
         missing.append(f"local gravity (mg figures use standard {STANDARD_GRAVITY} m/s^2)")
@@ -428,17 +567,32 @@ def render_report(report: dict[str, Any], console: Console) -> None:
         console.print(_matrix_table(section))
         if section["parameters"]:
             console.print(_parameter_table(section["parameters"]))
-        angles = _angle_sensitivity_table(section)
-        if angles is not None:
-            console.print(angles)
-        if any(section["rms"][key] is not None for key in _RMS_ROWS):
-            console.print(_rms_table(section, report["reference"] if kind == "accel" else None))
+        factorization = section["factorization"]
+        if factorization is not None:
+            console.print(_table_one(section))
+            if section["misalignment_deg"]:  # another tool's extra field: still shown
+                console.print(_angle_sensitivity_table({**section, "sensitivity": None}))
+        else:
+            angles = _angle_sensitivity_table(section)
+            if angles is not None:
+                console.print(angles)
+        # The factorization's residual_rms is its constraint RMS, shown in the Table I layout.
+        rms_rows = [k for k in _RMS_ROWS if factorization is None or k != "residual_rms"]
+        if kind == "gyro":  # before/after/held out are gravity-pose figures: no rows of dashes
+            rms_rows = [k for k in rms_rows if section["rms"][k] is not None]
+        if any(section["rms"][key] is not None for key in rms_rows):
+            reference = report["reference"] if _shows_paper_reference(kind, section) else None
+            console.print(_rms_table(section, reference, rms_rows))
         if section["fit"]:
             console.print(_fit_line(section["fit"]))
+        if section["rotations"]:
+            console.print(_rotations_table(section["rotations"]))
         if section["poses"]:
             console.print(_pose_table(section))
         if section["coverage"] or any(p["direction"] for p in section["poses"]):
             console.print(_coverage_panel(section))
+        if section["notes"]:
+            console.print(_bullet_panel(section["notes"], "Notes", "dim"))
         if section["unavailable"]:
             console.print(_bullet_panel(section["unavailable"], "Not in this calibration", "dim"))
     if not report["sensors"]:
@@ -474,10 +628,17 @@ def _flatten(options: dict[str, Any], prefix: str = "") -> list[tuple[str, Any]]
     return pairs
 
 
+def _shows_paper_reference(kind: str, section: dict[str, Any]) -> bool:
+    """Qureshi & Golnaraghi's figure is the gravity solver's context, and only that one's."""
+    return kind == "accel" and section["solver"] == "gravity"
+
+
 def _section_title(kind: str, section: dict[str, Any]) -> str:
     title = f"{kind}: {section['solver']} solver"
-    if section["variant"]:
-        title += f", {section['variant']}"
+    variant = section["variant"]
+    if variant:
+        prefix = f"{section['solver']}, "  # "factorization, triad (n = 3), ...": no repeat
+        title += f", {variant[len(prefix) :] if variant.startswith(prefix) else variant}"
     return title
 
 
@@ -491,7 +652,15 @@ def _model_grid(section: dict[str, Any]) -> Table:
         ("model", section["model"]),
         ("units", f"raw {units_in} -> calibrated {section['units_out']}"),
     ]
-    if section["gauge"]:
+    factorization = section["factorization"]
+    if factorization is not None:
+        rows.append(("design", _design_text(factorization)))
+        # The frame: the constraints fix the matrix only up to a rotation (eq. 25); the
+        # solver resolved it on purpose and says how.
+        rows.append(("matrix frame", section["rotation"] or section["gauge"] or "not stated"))
+        if section["gauge"] and section["gauge"] != section["rotation"] and section["rotation"]:
+            rows.append(("gauge", section["gauge"]))
+    elif section["gauge"]:
         rows.append(("gauge", section["gauge"]))
     if section["gravity"]:
         gravity = section["gravity"]
@@ -502,10 +671,30 @@ def _model_grid(section: dict[str, Any]) -> Table:
     return grid
 
 
+def _design_text(factorization: dict[str, Any]) -> str:
+    """``redundant unit, 4 elements; magnitude-only constraints: 20, over per-pose means``."""
+    unit = factorization["configuration"] or "unit"
+    text = f"{unit} unit, {factorization['elements']} elements"
+    if factorization["case"]:
+        text += f"; {factorization['case']} constraints"
+        details = []
+        if factorization["constraints"] is not None:
+            details.append(str(factorization["constraints"]))
+        if factorization["use"]:
+            details.append(f"over per-pose {factorization['use']}")
+        if details:
+            text += f": {', '.join(details)}"
+    return text
+
+
 def _matrix_table(section: dict[str, Any]) -> Table:
     """The matrix and bias exactly as stored, with their units in the title."""
     n_in = len(section["bias"])
-    channels = list("xyz") if n_in == 3 else [f"ch{i}" for i in range(n_in)]
+    if section["factorization"] is not None:
+        names = section["factorization"]["axis_names"]
+        channels = [name if name in "xyz" else f"ch{name}" for name in names]
+    else:
+        channels = list("xyz") if n_in == 3 else [f"ch{i}" for i in range(n_in)]
     title = f"matrix [{section['matrix_unit']}] and bias [{section['bias_unit']}]"
     table = Table(title=Text(title), box=box.SIMPLE, title_justify="left")
     table.add_column("")
@@ -558,7 +747,9 @@ def _angle_sensitivity_table(section: dict[str, Any]) -> Table | None:
     return grid
 
 
-def _rms_table(section: dict[str, Any], reference: dict[str, Any] | None) -> Table:
+def _rms_table(
+    section: dict[str, Any], reference: dict[str, Any] | None, keys: list[str] | None = None
+) -> Table:
     """RMS before / after / held-out in output units and mg, with the improvement factor."""
     rms = section["rms"]
     unit = rms["unit"]
@@ -570,6 +761,8 @@ def _rms_table(section: dict[str, Any], reference: dict[str, Any] | None) -> Tab
         table.add_column("RMS in mg", justify="right")
     table.add_column("improvement", justify="right")
     for key, (name, factor_key) in _RMS_ROWS.items():
+        if keys is not None and key not in keys:
+            continue
         cells = [name, _fmt(rms[key], unit)]
         if show_mg:
             cells.append(_fmt(rms[f"{key}_mg"], "mg", digits=3))
@@ -592,6 +785,79 @@ def _rms_table(section: dict[str, Any], reference: dict[str, Any] | None) -> Tab
     if notes:
         table.caption = Text("\n".join(notes))
         table.caption_justify = "left"
+    return table
+
+
+def _table_one(section: dict[str, Any]) -> Table:
+    """Linear vs refined, as Hwangbo & Kanade's Table I: per element the bias and gain, per
+    pair of sensitivity axes the angle, then the constraint RMS (``C_err``)."""
+    fz = section["factorization"]
+    refined = fz["refined"]
+    linear_name = "linear" + (f" ({fz['linear_method']})" if fz["linear_method"] else "")
+    title = "linear vs refined solution (layout of Hwangbo & Kanade, Table I)"
+    if not refined:
+        title = "linear solution, not refined (layout of Hwangbo & Kanade, Table I)"
+    table = Table(title=Text(title), box=box.SIMPLE, title_justify="left", pad_edge=False)
+    table.add_column("", no_wrap=True)
+    table.add_column("", no_wrap=True)
+    table.add_column(linear_name, justify="right", no_wrap=True)
+    if refined:
+        table.add_column("refined ± std", justify="right", no_wrap=True)
+    previous = None
+    for row in fz["rows"]:
+        group = row["group"]
+        label = f"{group} [{row['unit']}]" if group != previous else ""
+        if group != previous and previous is not None:
+            table.add_section()
+        previous = group
+        cells = [label, row["name"], _fmt_like(row["linear"], row["refined_std"])]
+        if refined:
+            cells.append(_fmt_std(row["refined"], row["refined_std"]))
+        table.add_row(*map(Text, cells))
+    table.add_section()
+    crms = fz["constraint_rms"]
+    cells = [f"C_err RMS [{crms['unit']}]", "", _fmt(crms["linear"], digits=4)]
+    if refined:
+        cells.append(_fmt(crms["refined"], digits=4))
+    table.add_row(*map(Text, cells))
+    motions = "motions in g" if section["units_out"] == "m/s^2" else "motions in rad/s"
+    caption = [f"C_err: RMS of f_i . f_k - h_ik over the constraints ({motions})"]
+    if section["rms"]["residual_rms"] is not None:
+        caption.append(
+            f"residual_rms (standard field, as stored): {_fmt(section['rms']['residual_rms'])}"
+        )
+    values = [v for v in fz["singular_values"] if v is not None]
+    if values:
+        caption.append("singular values (rank evidence): " + ", ".join(f"{v:.4g}" for v in values))
+    table.caption = Text("\n".join(caption))
+    table.caption_justify = "left"
+    return table
+
+
+def _rotations_table(rotations: list[dict[str, Any]]) -> Table:
+    """Turns of known angle: the angle the calibrated gyro integrates against the known one."""
+    title = "turns of known angle (error = measured - known)"
+    table = Table(title=Text(title), box=box.SIMPLE, title_justify="left", pad_edge=False)
+    numbers = {"justify": "right", "no_wrap": True}
+    table.add_column("seg", no_wrap=True)
+    table.add_column("label", max_width=52, overflow="fold")
+    table.add_column("known deg", **numbers)
+    table.add_column("measured deg", **numbers)
+    table.add_column("error deg", **numbers)
+    for r in rotations:
+        error = r["angle_error_deg"]
+        table.add_row(
+            *(
+                Text(cell)
+                for cell in (
+                    r["segment"] or _MISSING,
+                    r["label"] or _MISSING,
+                    _fixed(r["known_angle_deg"], 3),
+                    _fixed(r["measured_angle_deg"], 4),
+                    _MISSING if error is None else f"{error:+.3g}",
+                )
+            )
+        )
     return table
 
 
@@ -785,6 +1051,16 @@ def _fmt_std(value: float | None, std: float | None, unit: str | None = None) ->
     decimals = _decimals_for(std)
     text = f"{value:.{decimals}f} ± {std:.{decimals}f}"
     return (f"({text})e{exponent}" if exponent else text) + suffix
+
+
+def _fmt_like(value: float | None, std: float | None) -> str:
+    """A value with the decimals ``_fmt_std`` gives its neighbour ``value ± std`` (aligned
+    columns); 6 significant digits without a std or for values shown with an exponent."""
+    if value is None:
+        return _MISSING
+    if std is None or std <= 0 or not 1e-2 <= max(abs(value), std) < 1e6:
+        return f"{value:.6g}"
+    return f"{value:.{_decimals_for(std)}f}"
 
 
 def _decimals_for(std: float) -> int:

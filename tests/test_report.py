@@ -1,8 +1,9 @@
 """`imucal report`: the report dict, its rendering, loading from JSON or session, CLI errors.
 
-The calibrations here are written by hand following DEVELOPERS.md (the gravity solver's accel
+The gravity-solver calibrations here are written by hand following DEVELOPERS.md (its accel
 section) and the spec's minimal example, so the report is tested on what files carry, not on a
-solve.
+solve.  The factorization sections come from the real pipeline on the Hwangbo-Kanade
+simulations (redundant accelerometer unit, gyroscope procedure).
 """
 
 from __future__ import annotations
@@ -457,3 +458,220 @@ def test_values_without_any_std_are_shown_plain():
     assert "0.12 deg" in text and "n/a" not in text
     assert "RMS gravity-magnitude error" not in text  # no table of dashes
     assert "solver residual RMS" in text  # listed as not in this calibration
+
+
+# ---------------------------------------------------------------------------------------------
+# Factorization sections (Hwangbo & Kanade), from the real pipeline on simulated sessions
+
+TABLE_I_ANGLES = ["s1s2", "s1s3", "s1s4", "s2s3", "s2s4", "s3s4"]
+
+
+def _calibrated(session, config: dict):
+    from imucal_cli.calibrate import calibrate_session
+    from imucal_cli.config import config_from_dict
+
+    return calibrate_session(session, config_from_dict(config))
+
+
+@pytest.fixture(scope="module")
+def redundant_accel_cal():
+    """Section V's unit (two dual-axis parts, n = 4), unlabelled orientations."""
+    from imucal_cli.simulator_hk import simulate_redundant_accel
+
+    session, _truth = simulate_redundant_accel(seed=1)
+    return _calibrated(session, {"accel": {"solver": "factorization"}})
+
+
+@pytest.fixture(scope="module")
+def gyro_cal():
+    """Section IV-B: turns on three orthogonal faces in two mountings, one ruler 90-degree turn."""
+    from imucal_cli.simulator_hk import simulate_hk_gyro
+
+    session, _truth = simulate_hk_gyro(seed=1)
+    return _calibrated(session, {"accel": {"solver": "none"}, "gyro": {"solver": "factorization"}})
+
+
+def _render_cal(cal) -> str:
+    console = Console(record=True, width=100)
+    render_report(build_report(cal), console)
+    return console.export_text()
+
+
+def _line(text: str, start: str) -> str:
+    return next(line for line in text.splitlines() if line.strip().startswith(start))
+
+
+def test_factorization_redundant_accel_table_one(redundant_accel_cal):
+    extra = redundant_accel_cal.accel.extra
+    report = build_report(redundant_accel_cal)
+    json.dumps(report, allow_nan=False)
+    accel = report["sensors"]["accel"]
+    fz = accel["factorization"]
+    assert (fz["configuration"], fz["case"], fz["elements"]) == ("redundant", "magnitude-only", 4)
+    assert fz["refined"] is True
+    names = [row["name"] for row in fz["rows"]]
+    assert names == ["b1", "b2", "b3", "b4", "|s1|", "|s2|", "|s3|", "|s4|", *TABLE_I_ANGLES]
+    rows = {row["name"]: row for row in fz["rows"]}
+    # refined = the section's final values, linear = the stored linear solution
+    assert rows["b3"]["refined"] == pytest.approx(redundant_accel_cal.accel.bias[2])
+    assert rows["b3"]["linear"] == pytest.approx(extra["linear"]["bias"][2])
+    assert rows["|s4|"]["refined"] == pytest.approx(extra["sensitivity"][3])
+    assert rows["|s4|"]["refined_std"] == pytest.approx(extra["sensitivity_std"][3])
+    assert rows["|s4|"]["unit"] == "counts per m/s^2"
+    assert rows["s1s4"]["refined"] == pytest.approx(extra["angles_deg"][0][3])
+    assert rows["s1s4"]["refined_std"] == pytest.approx(extra["angles_std_deg"][0][3])
+    assert rows["s3s4"]["linear"] == pytest.approx(extra["linear"]["angles_deg"][2][3])
+    assert all(row["refined_std"] is not None and row["refined_std"] > 0 for row in fz["rows"])
+    assert rows["s1s4"]["refined"] == pytest.approx(45.0, abs=0.5)  # Table I's 45-degree pair
+    assert rows["s1s2"]["refined"] == pytest.approx(90.0, abs=0.5)
+    crms = fz["constraint_rms"]
+    assert crms["linear"] == extra["linear"]["constraint_rms"]
+    assert crms["refined"] == extra["constraint_rms"]
+    assert accel["rotation"] == extra["rotation"]
+    assert "canonical frame" in accel["rotation"]  # no labels: the frame the solver chose
+    assert accel["rms"]["quantity"] == "gravity-magnitude error"
+    # angles replace the gravity solver's misalignment field
+    assert "misalignment angles" not in accel["unavailable"]
+    assert "angles between sensitivity axes" not in accel["unavailable"]
+
+
+def test_factorization_redundant_accel_renders_table_one(redundant_accel_cal):
+    text = _render_cal(redundant_accel_cal)
+    report = build_report(redundant_accel_cal)["sensors"]["accel"]
+    rows = {row["name"]: row for row in report["factorization"]["rows"]}
+    assert "accel: factorization solver, redundant (n = 4), magnitude-only constraints" in text
+    assert "layout of Hwangbo & Kanade, Table I" in text
+    header = _line(text, "linear (subspace)")
+    assert "refined ± std" in header
+    assert "bias [counts]" in _line(text, "bias [counts]") and "b1" in _line(text, "bias [")
+    for name in TABLE_I_ANGLES:
+        line = _line(text, "angle [deg]" if name == "s1s2" else name)
+        row = rows[name]
+        assert name in line
+        assert f"{row['linear']:.2f}" in line  # std ~0.03 deg: two decimals
+        assert f"{row['refined']:.2f} ± {row['refined_std']:.2f}" in line
+    gain = _line(text, "gain [counts per m/s^2]")
+    assert "|s1|" in gain and f"{rows['|s1|']['refined']:.3f} ± " in gain
+    assert "C_err RMS [g^2]" in text
+    frame = _line(text, "matrix frame")
+    assert "no labels: canonical frame" in frame
+    assert "redundant unit, 4 elements; magnitude-only constraints: 20" in text
+    for channel in ("ch1", "ch2", "ch3", "ch4"):
+        assert channel in _line(text, "ch1")
+    assert "paper: Qureshi & Golnaraghi" not in text  # that figure is the gravity solver's
+    assert "linear solution in the subspace of the sensitivity axes" in text  # notes
+    assert max(len(line) for line in text.splitlines()) <= 100
+
+
+def test_factorization_triad_accel_with_labels_states_the_aligned_frame():
+    from imucal_cli.simulator import simulate
+
+    session, _truth = simulate(plan="qureshi18", seed=1)
+    cal = _calibrated(session, {"accel": {"solver": "factorization"}})
+    accel = build_report(cal)["sensors"]["accel"]
+    names = [row["name"] for row in accel["factorization"]["rows"]]
+    assert names == ["bx", "by", "bz", "|sx|", "|sy|", "|sz|", "sxsy", "sxsz", "sysz"]
+    assert "labelled up directions" in accel["rotation"]
+    text = _render_cal(cal)
+    assert "labelled up directions" in _line(text, "matrix frame")
+    assert "triad unit, 3 elements" in text
+    assert "misalignment angles" not in accel["unavailable"]
+    assert not any("frame" in item for item in accel["unavailable"])
+
+
+def test_factorization_without_refinement_shows_the_linear_column_only(tmp_path):
+    from imucal_cli.simulator_hk import simulate_redundant_accel
+
+    session, _truth = simulate_redundant_accel(seed=2)
+    config = {"accel": {"solver": "factorization", "factorization": {"refine": False}}}
+    cal = _calibrated(session, config)
+    fz = build_report(cal)["sensors"]["accel"]["factorization"]
+    assert fz["refined"] is False
+    assert all(row["refined"] is None and row["linear"] is not None for row in fz["rows"])
+    assert fz["constraint_rms"]["refined"] is None
+    text = _render_cal(cal)
+    assert "linear solution, not refined" in text
+    assert "refined ± std" not in text
+
+
+def test_factorization_gyro_turns_gains_and_frame(gyro_cal):
+    extra = gyro_cal.gyro.extra
+    report = build_report(gyro_cal)
+    assert list(report["sensors"]) == ["gyro"]  # accel solver "none": no accel section
+    gyro = report["sensors"]["gyro"]
+    fz = gyro["factorization"]
+    assert (fz["configuration"], fz["case"]) == ("triad", "orthogonal-only")
+    rows = {row["name"]: row for row in fz["rows"]}
+    assert list(rows) == ["bx", "by", "bz", "|sx|", "|sy|", "|sz|", "sxsy", "sxsz", "sysz"]
+    assert rows["|sy|"]["unit"] == "counts per rad/s"
+    assert fz["constraint_rms"]["unit"] == "(rad/s)^2"
+    turn = gyro["rotations"][0]
+    stored = extra["rotations"][0]
+    assert turn["known_angle_deg"] == 90.0
+    assert turn["measured_angle_deg"] == stored["measured_angle_deg"]
+    assert turn["angle_error_deg"] == stored["angle_error_deg"]
+    assert "known-angle turn" in gyro["rotation"]
+    assert gyro["unavailable"] == []
+
+    text = _render_cal(gyro_cal)
+    assert "gyro: factorization solver, triad (n = 3), " in text  # "factorization" once
+    assert "known-angle turn along its labelled axis" in _line(text, "matrix frame")
+    line = _line(text, turn["segment"])
+    assert "ruler-guided" in line
+    assert "90.000" in line and f"{turn['measured_angle_deg']:.4f}" in line
+    assert f"{turn['angle_error_deg']:+.3g}" in line
+    gain = _line(text, "gain [counts per rad/s]")
+    assert f"{rows['|sx|']['refined']:.1f} ± " in gain
+    assert "sysz" in text and "C_err RMS [(rad/s)^2]" in text
+    assert "before calibration" not in text  # no gravity-pose RMS rows for a gyroscope
+    assert max(len(line) for line in text.splitlines()) <= 100
+
+
+def test_factorization_reports_through_the_cli(tmp_path, capsys, monkeypatch, gyro_cal):
+    from imucal_cli.calibration import write_calibration
+
+    path = tmp_path / "gyro.cal.json"
+    write_calibration(path, gyro_cal)
+    code, out, err = run_imucal(["report", str(path), "--json"], capsys, monkeypatch)
+    assert code == 0, err
+    gyro = json.loads(out)["sensors"]["gyro"]
+    assert [r["name"] for r in gyro["factorization"]["rows"]][-3:] == ["sxsy", "sxsz", "sysz"]
+    assert gyro["rotations"][0]["known_angle_deg"] == 90.0
+    code, out, err = run_imucal(["report", str(path)], capsys, monkeypatch)
+    assert code == 0, err
+    assert "turns of known angle" in out and "Table I" in out
+
+
+def test_minimal_factorization_sections_render_with_what_they_lack():
+    document = minimal_calibration()
+    document["accel"] = {
+        "solver": "factorization",
+        "units": "m/s^2",
+        "bias": [1.0, 2.0, 3.0, 4.0],
+        "matrix": [[0.02, 0, 0, 0.01], [0, 0.02, 0, 0], [0, 0, 0.02, 0.01]],
+        "residual_rms": 0.005,
+    }
+    document["gyro"]["solver"] = "factorization"
+    report = build_report(calibration_from_json(json.dumps(document), "minimal.json"))
+    json.dumps(report, allow_nan=False)
+    accel, gyro = report["sensors"]["accel"], report["sensors"]["gyro"]
+    assert [r["name"] for r in accel["factorization"]["rows"]][-6:] == TABLE_I_ANGLES
+    assert "angles between sensitivity axes" in accel["unavailable"]
+    assert "the frame of the matrix (how the free rotation was resolved)" in accel["unavailable"]
+    assert "known-angle turns (measured vs known angle)" in gyro["unavailable"]
+    assert "per-pose residuals" not in gyro["unavailable"]  # an accelerometer figure
+    text = rendered(document)
+    assert "not stated" in _line(text, "matrix frame")
+    assert "0.9754" in text and "gyro: factorization solver" in text
+
+
+def test_minimal_gyro_section_lists_only_gyro_items():
+    gyro = build_report(calibration_from_json(json.dumps(minimal_calibration()), "m.json"))[
+        "sensors"
+    ]["gyro"]
+    assert gyro["factorization"] is None and gyro["rotations"] == []
+    assert "per-pose residuals" not in gyro["unavailable"]
+    assert "RMS before calibration" not in gyro["unavailable"]
+    assert "named parameters with standard deviations" in gyro["unavailable"]
+    text = rendered(minimal_calibration())
+    assert "0.002 rad/s" in text
