@@ -11,7 +11,7 @@ from pathlib import Path
 from imucal_cli import __version__
 from imucal_cli.calibration import Calibration, SensorCalibration
 from imucal_cli.config import Config
-from imucal_cli.errors import SolverError
+from imucal_cli.errors import ConfigError, SolverError
 from imucal_cli.pipeline.common import (  # noqa: F401 (re-exported for callers)
     StaticPoses,
     check_design,
@@ -33,17 +33,30 @@ def calibrate_accel(session: Session, cfg: Config) -> SensorCalibration:
     return calibrate_accel_gravity(session, cfg)
 
 
+def calibrate_gyro(session: Session, cfg: Config) -> SensorCalibration | None:
+    """Run the configured gyroscope solver (``[gyro] solver``); None when it is ``"none"``."""
+    if cfg.gyro.solver == "factorization":
+        from imucal_cli.pipeline.factorization import calibrate_gyro_factorization
+
+        return calibrate_gyro_factorization(session, cfg)
+    return None
+
+
 def calibrate_session(session: Session, cfg: Config, *, name: str | None = None) -> Calibration:
     """Calibrate every sensor the config asks for; returns the calibration (not yet saved).
 
     ``name`` is what the calibration records as its session (default: the session's path).
     """
-    accel = calibrate_accel(session, cfg)
+    if cfg.accel.solver == "none" and cfg.gyro.solver == "none":
+        raise ConfigError("the config calibrates nothing: [accel] and [gyro] solver are both none")
+    accel = calibrate_accel(session, cfg) if cfg.accel.solver != "none" else None
+    gyro = calibrate_gyro(session, cfg)
     extra = {"toolkit_version": __version__, "config": cfg.to_dict()}
     if session.sensor:
         extra["sensor"] = session.sensor
     return Calibration(
         accel=accel,
+        gyro=gyro,
         session=name or session_name(session),
         created=utc_now_iso(),
         extra=extra,

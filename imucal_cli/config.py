@@ -5,7 +5,7 @@ Example (every key optional; these are the defaults)::
     gravity = 9.80665            # m/s^2; default: the session's `gravity` attribute
 
     [accel]
-    solver = "gravity"           # "gravity" (Qureshi & Golnaraghi III-A) or "factorization"
+    solver = "gravity"           # "gravity" (Qureshi & Golnaraghi III-A), "factorization", "none"
     # nominal_sensitivity = 835.4  # raw units per m/s^2 (datasheet); default from the units
     # nominal_bias = 0.0           # raw units, scalar or one per channel
     # range = [-32768, 32767]      # raw output range; default inferred from the units/data
@@ -23,6 +23,7 @@ Example (every key optional; these are the defaults)::
     use = "means"                # constraints over per-pose "means" or individual "samples"
     linear = "subspace"          # redundant units: "subspace" or "paper" (eqs. 16-26)
     refine = true                # nonlinear refinement (section IV-C)
+    # fixture_tolerance_deg = 0.0  # how square the block is placed; default: from the data
     max_iterations = 200
 
     [gyro]
@@ -31,6 +32,7 @@ Example (every key optional; these are the defaults)::
     [gyro.factorization]
     samples_per_segment = 40     # samples of each rotation used in the constraints
     refine = true
+    # fixture_tolerance_deg = 0.0  # how square the turns are; default: from the data
     max_iterations = 200
 
 Unknown keys and wrong types are errors (a typo must not silently fall back to a default).
@@ -45,7 +47,7 @@ from typing import Any
 
 from imucal_cli.errors import ConfigError
 
-ACCEL_SOLVERS = ("gravity", "factorization")
+ACCEL_SOLVERS = ("gravity", "factorization", "none")
 GYRO_SOLVERS = ("none", "factorization")
 
 
@@ -67,6 +69,7 @@ class AccelFactorizationOptions:
     use: str = "means"
     linear: str = "subspace"
     refine: bool = True
+    fixture_tolerance_deg: float | None = None
     max_iterations: int = 200
 
 
@@ -77,6 +80,7 @@ class GyroFactorizationOptions:
     samples_per_segment: int = 40
     linear: str = "subspace"
     refine: bool = True
+    fixture_tolerance_deg: float | None = None
     max_iterations: int = 200
 
 
@@ -124,7 +128,7 @@ def _drop_none(d: Any) -> Any:
 
 
 #: Keys whose value is a number even though their default is None.
-_NUMBER_KEYS = {"gravity", "nominal_sensitivity"}
+_NUMBER_KEYS = {"gravity", "nominal_sensitivity", "fixture_tolerance_deg"}
 
 
 def _number(where: str, key: str, value: Any) -> float:

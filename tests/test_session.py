@@ -183,7 +183,8 @@ def test_nan_outside_segments_is_allowed(tmp_path):
     assert np.isnan(read_session(path).accel[45]).all()
 
 
-def test_read_is_fast_for_one_hour_at_100_hz(tmp_path):
+def test_reads_one_hour_at_100_hz(tmp_path):
+    # (Its speed is measured by `make bench`, not asserted here.)
     path = tmp_path / "hour.h5"
     n = 360_000
     rng = np.random.default_rng(0)
@@ -194,13 +195,8 @@ def test_read_is_fast_for_one_hour_at_100_hz(tmp_path):
         Session(np.arange(n) * 0.01, rng.normal(size=(n, 3)), rng.normal(size=(n, 3)), None,
                 segments, created=utc_now_iso()),
     )  # fmt: skip
-    best = np.inf
-    for _ in range(3):
-        start = time.perf_counter()
-        s = read_session(path)
-        best = min(best, time.perf_counter() - start)
+    s = read_session(path)
     assert s.accel.shape == (n, 3) and len(s.segments) == 300
-    assert best < 0.3
 
 
 # ------------------------------------------------------------------------------------------

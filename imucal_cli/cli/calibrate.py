@@ -78,27 +78,44 @@ def calibrate(
 
 
 def _summary(console: Console, cal, where: str) -> None:
-    a = cal.accel
-    x = a.extra
-    g = x["gravity"]
-    loo = x.get("rms_loo")
-    held = f", held out {loo:.4f} m/s^2" if loo is not None else ""
-    console.print(
-        f"[bold]accel[/]: {a.solver} ({x['variant']}), {x['coverage']['n_poses']} poses, "
-        f"{x['iterations']} iterations, init {x['init']}"
-    )
-    console.print(
-        f"  |a| - g RMS: before {x['rms_before']:.4f} m/s^2 ({1000 * x['rms_before'] / g:.2f} mg) "
-        f"-> after {x['rms_after']:.4f} m/s^2 ({1000 * x['rms_after'] / g:.3f} mg){held}"
-    )
-    units = x["units_in"]
-    console.print(
-        "  bias "
-        + ", ".join(f"{b:.5g}" for b in a.bias)
-        + f" {units}; sensitivity "
-        + ", ".join(f"{s:.5g}" for s in x["sensitivity"])
-        + f" {units} per m/s^2"
-    )
-    for w in x.get("warnings", []):
-        console.print(f"  [bold yellow]warning[/]: {w}")
+    """A few lines per calibrated sensor: what ran, the residuals, bias and sensitivity."""
+    for name, sec in (("accel", cal.accel), ("gyro", cal.gyro)):
+        if sec is None:
+            continue
+        x = sec.extra
+        units = x.get("units_in", "raw units")
+        how = [f"{sec.solver} ({x['variant']})" if "variant" in x else sec.solver]
+        if "coverage" in x:
+            how.append(f"{x['coverage']['n_poses']} poses")
+        if "iterations" in x:
+            how.append(f"{x['iterations']} iterations")
+        if x.get("init"):
+            how.append(f"init {x['init']}")
+        console.print(f"[bold]{name}[/]: " + ", ".join(how))
+        if name == "accel" and x.get("rms_after") is not None:
+            g = x["gravity"]
+            before = x.get("rms_before")
+            text = "  |a| - g RMS: "
+            if before is not None:
+                text += f"before {before:.4f} m/s^2 ({1000 * before / g:.2f} mg) -> "
+            text += f"after {x['rms_after']:.4f} m/s^2 ({1000 * x['rms_after'] / g:.3f} mg)"
+            if x.get("rms_loo") is not None:
+                text += f", held out {x['rms_loo']:.4f} m/s^2"
+            console.print(text)
+        for rot in x.get("rotations", [])[:3]:
+            console.print(
+                f"  {rot['label'] or rot['segment']}: "
+                f"measured {rot['measured_angle_deg']:.3f} deg, "
+                f"known {rot['known_angle_deg']:.3f} deg"
+            )
+        per = "m/s^2" if name == "accel" else "rad/s"
+        console.print(
+            "  bias "
+            + ", ".join(f"{b:.5g}" for b in sec.bias)
+            + f" {units}; sensitivity "
+            + ", ".join(f"{v:.5g}" for v in x.get("sensitivity", []))
+            + f" {units} per {per}"
+        )
+        for w in x.get("warnings", []):
+            console.print(f"  [bold yellow]warning[/]: {w}")
     console.print(f"wrote {where}")

@@ -26,7 +26,9 @@ def report(
 ) -> None:
     """Report a calibration: parameters ± std, RMS before/after/held-out, poses, coverage.
 
-    Shows the figures the solver stored; nothing is re-solved.
+    Shows the figures the solver stored; nothing is re-solved. For the factorization solver
+    also the frame of the matrix, linear vs refined values (bias, gain, every pair's angle, as
+    in Hwangbo & Kanade's Table I) and, for gyroscopes, each known-angle turn.
 
     A calibration from another tool (only bias, matrix, residual_rms) is shown with what it lacks.
     """

@@ -143,6 +143,7 @@ class FactorizationResult:
     cov: np.ndarray | None = None
     noise_scale: float = 1.0
     notes: list[str] = field(default_factory=list)
+    fixture_tolerance: float = 0.0
 
     @property
     def gains(self) -> np.ndarray:
@@ -361,6 +362,7 @@ def factorize(
     if case == "orthogonal-only":
         beta = _reference_scale(T, b, scale_reference)  # eq. (31)
         T, S, F = T * beta, S / beta, F * beta
+    T, S, F = _right_handed(T, S, F)
     return FactorizationResult(
         S=S,
         b=b,
@@ -423,6 +425,15 @@ def _project_reference(ref, V3, z_bar):
     return ScaleReference(V3.T @ w, ref.magnitude, ref.duration, ref.sigma)
 
 
+def _right_handed(T, S, F):
+    """Resolve the reflection that inner products cannot see: the first three channels form a
+    right-handed set (``det T[:, :3] > 0``), as on every standard IMU."""
+    if np.linalg.det(T[:, :3]) < 0:
+        flip = np.diag([1.0, 1.0, -1.0])
+        return flip @ T, flip @ S, F @ flip
+    return T, S, F
+
+
 def _reference_scale(T: np.ndarray, b: np.ndarray, ref: ScaleReference) -> float:
     """Factor making the reference motion's magnitude right (eq. 31)."""
     w = np.asarray(ref.w, float) - ref.duration * b * (ref.duration > 0)
@@ -449,6 +460,18 @@ def align(result: FactorizationResult, R: np.ndarray) -> FactorizationResult:
 # --------------------------------------------------------------------------- refinement
 
 
+def _gauge_free_inverse(J: np.ndarray, gauge: int) -> np.ndarray:
+    """``(J^T J)^+`` without the ``gauge`` directions the data cannot see (the rotation of the
+    frame): columns scaled to unit norm first, so that only those directions, and not merely
+    small parameters, are dropped."""
+    d = np.linalg.norm(J, axis=0)
+    d[d == 0] = 1.0
+    w, V = np.linalg.eigh((J / d).T @ (J / d))
+    keep = np.arange(len(w)) >= gauge  # eigenvalues ascending: the gauge ones come first
+    inv = (V[:, keep] / w[keep]) @ V[:, keep].T
+    return inv / np.outer(d, d)
+
+
 def _unpack(x: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     return x[:n], x[n:].reshape(3, n)
 
@@ -460,6 +483,9 @@ def refine(
     *,
     sigma: np.ndarray | float | None = None,
     scale_reference: ScaleReference | None = None,
+    zero_motion: tuple[np.ndarray, np.ndarray] | None = None,
+    row_owner: np.ndarray | None = None,
+    fixture_tolerance: float | None = 0.0,
     max_iterations: int = 200,
 ) -> FactorizationResult:
     """Nonlinear refinement of every parameter together, biases included (section IV-C).
@@ -467,8 +493,12 @@ def refine(
     Minimises the motion-constraint errors ``f_i^T f_k - h_ik`` with ``f_i = T (z_i - b)``,
     each divided by its first-order standard deviation, plus (for n > 3) the part of each
     ``z_i - b`` outside the span of the sensitivity axes, which the constraints cannot see but
-    the affine model predicts to be noise. With Gaussian noise this is the first-order
-    maximum-likelihood estimate, started from the linear solution.
+    the affine model predicts to be noise.
+
+    One row of ``Z`` often enters many constraints (a labelled pose with every other one), so
+    the residuals are correlated; the covariance of the result accounts for that (a sandwich
+    estimator built from how every residual depends on every noise source), so the reported
+    uncertainty stays honest whatever the constraint set.
 
     Parameters
     ----------
@@ -477,47 +507,120 @@ def refine(
     initial : FactorizationResult
         The linear solution.
     sigma : float or ndarray (m,), optional
-        Noise standard deviation of each row of ``Z`` (raw units; a pose mean's is the sample
-        noise / sqrt(samples)). Omitted: equal weights, noise estimated from the residuals.
+        Noise standard deviation of each row of ``Z`` (raw units, per channel; a pose mean's
+        is the sample noise / sqrt(samples)). Omitted: equal weights, noise estimated from the
+        residuals.
     scale_reference : ScaleReference, optional
         The known-magnitude motion (needed for orthogonality-only data).
+    zero_motion : (ndarray (r, n), ndarray (r,)), optional
+        Readings with no motion at all (a gyroscope held still) and their noise: each says
+        ``z = b`` up to noise, which ties the biases to the still data while they are refined.
+    row_owner : ndarray of int (m,), optional
+        The physical pose of each row (several samples of one pose share its placement error).
+    fixture_tolerance : float or None
+        RMS angle (rad) by which a labelled direction may differ from the true one (a block
+        placed by hand, an iron that is not perfectly square). It weakens the constraints
+        between different poses accordingly; 0 trusts the fixture exactly, as the paper does;
+        None estimates it from the data (the part of the cross-constraint errors that the
+        noise does not explain, by the method of moments) and refines again with it.
 
     Returns
     -------
     FactorizationResult
         ``method="nonlinear"``, with ``cov`` of ``(b, vec(T))``.
     """
+    if fixture_tolerance is None:
+        again = dict(
+            sigma=sigma,
+            scale_reference=scale_reference,
+            zero_motion=zero_motion,
+            row_owner=row_owner,
+            max_iterations=max_iterations,
+        )
+        first = refine(Z, constraints, initial, fixture_tolerance=0.0, **again)
+        tol = estimate_fixture_tolerance(Z, constraints, first, sigma, row_owner)
+        result = refine(Z, constraints, first, fixture_tolerance=tol, **again)
+        result.notes.append(f"fixture tolerance estimated from the data: {np.degrees(tol):.3f} deg")
+        return result
     Z = np.asarray(Z, float)
     m, n = Z.shape
     sig = np.ones(m) if sigma is None else np.broadcast_to(np.asarray(sigma, float), (m,))
+    owner = np.arange(m) if row_owner is None else np.asarray(row_owner, int)
     rows = np.unique(np.r_[constraints.i, constraints.k])
     redundant = n > 3
     ci, ck, h = constraints.i, constraints.k, constraints.h
     same = ci == ck
+    jitter = (~same) & (owner[ci] != owner[ck]) & (fixture_tolerance > 0)
+    Z0 = s0 = None
+    if zero_motion is not None:
+        Z0, s0 = np.asarray(zero_motion[0], float), np.asarray(zero_motion[1], float)
+    ref_sigma = None
+    if scale_reference is not None:
+        ref_sigma = scale_reference.sigma or 1e-3 * abs(scale_reference.magnitude)
 
-    def residuals(x):
+    def parts(x):
         b, T = _unpack(x, n)
         D = Z - b
         F = D @ T.T
-        G = F @ T  # rows: T^T f_i (gradient of |f_i|^2 / 2 w.r.t. z_i)
+        G = F @ T  # rows: T^T f_i, the gradient of f_i . (anything) with respect to z_i
         dot = np.sum(F[ci] * F[ck], axis=1)
         var = sig[ci] ** 2 * np.sum(G[ck] ** 2, 1) + sig[ck] ** 2 * np.sum(G[ci] ** 2, 1)
-        r = (dot - h) / np.sqrt(np.maximum(var, 1e-300))
-        # A magnitude constraint: d|f|^2 = 2 f^T T dz, variance 4 sigma^2 |T^T f|^2.
-        var_mag = 4 * sig[ci] ** 2 * np.sum(G[ci] ** 2, 1)
-        r = np.where(same, (dot - h) / np.sqrt(np.maximum(var_mag, 1e-300)), r)
-        out = [r]
+        var = np.where(same, 4 * sig[ci] ** 2 * np.sum(G[ci] ** 2, 1), var)  # d|f|^2 = 2 f.T dz
+        cross = np.cross(F[ci], F[ck])
+        var = var + np.where(jitter, fixture_tolerance**2 * np.sum(cross**2, 1), 0.0)
+        return b, T, D, F, G, cross, np.sqrt(np.maximum(var, 1e-300)), dot
+
+    def residuals(x):
+        b, T, D, F, G, cross, sd, dot = parts(x)
+        out = [(dot - h) / sd]
         if redundant:
-            P = np.linalg.pinv(T) @ T  # projector onto span(S^T)... rows of T span it
-            E = (D[rows] - D[rows] @ P.T) / sig[rows, None]
-            out.append(E.ravel())
+            P = np.linalg.pinv(T) @ T  # orthogonal projector onto the span of the axes
+            out.append(((D[rows] - D[rows] @ P.T) / sig[rows, None]).ravel())
+        if Z0 is not None:
+            out.append(((Z0 - b) / s0[:, None]).ravel())
         if scale_reference is not None:
             w = np.asarray(scale_reference.w, float) - scale_reference.duration * b
-            ref_sigma = scale_reference.sigma or 1e-3 * abs(scale_reference.magnitude)
             out.append(
                 np.atleast_1d((np.linalg.norm(T @ w) - scale_reference.magnitude) / ref_sigma)
             )
         return np.concatenate(out)
+
+    def noise_jacobian(x) -> np.ndarray:
+        """d residuals / d (every noise source, in units of its standard deviation)."""
+        b, T, D, F, G, cross, sd, dot = parts(x)
+        poses = np.unique(owner)
+        pose_col = {p: k for k, p in enumerate(poses)}
+        n_res = len(residuals(x))
+        n_noise = m * n + 3 * len(poses) + (0 if Z0 is None else Z0.size) + (ref_sigma is not None)
+        C = np.zeros((n_res, n_noise))
+        K = len(h)
+        for j in range(K):
+            i, k = ci[j], ck[j]
+            if i == k:
+                C[j, i * n : (i + 1) * n] += 2 * sig[i] * G[i] / sd[j]
+                continue
+            C[j, i * n : (i + 1) * n] += sig[i] * G[k] / sd[j]
+            C[j, k * n : (k + 1) * n] += sig[k] * G[i] / sd[j]
+            if jitter[j]:
+                base = m * n
+                pi, pk = pose_col[owner[i]], pose_col[owner[k]]
+                amp = fixture_tolerance / np.sqrt(2)
+                C[j, base + 3 * pi : base + 3 * pi + 3] += amp * cross[j] / sd[j]
+                C[j, base + 3 * pk : base + 3 * pk + 3] -= amp * cross[j] / sd[j]
+        r0 = K
+        if redundant:
+            P = np.linalg.pinv(T) @ T
+            for row in rows:
+                C[r0 : r0 + n, row * n : (row + 1) * n] = np.eye(n) - P
+                r0 += n
+        c0 = m * n + 3 * len(poses)
+        if Z0 is not None:
+            C[r0 : r0 + Z0.size, c0 : c0 + Z0.size] = np.eye(Z0.size)
+            r0 += Z0.size
+            c0 += Z0.size
+        if ref_sigma is not None:
+            C[r0, c0] = 1.0
+        return C
 
     x0 = np.concatenate([initial.b, initial.T.ravel()])
     # Scale the parameters to O(1) for the solver: biases by the raw spread, T by its size.
@@ -534,18 +637,28 @@ def refine(
         gtol=1e-12,
         max_nfev=max_iterations,
     )
-    b, T = _unpack(sol.x, n)
-    S = np.linalg.pinv(T).T
-    F = (Z - b) @ T.T
-    J = sol.jac
-    r = sol.fun
-    dof = max(len(r) - (4 * n - 3), 1)
+    J, r = sol.jac, sol.fun
+    A_inv = _gauge_free_inverse(J, gauge=3)
+    C = noise_jacobian(sol.x)
+    JC = J.T @ C
+    cov = A_inv @ (JC @ JC.T) @ A_inv  # sandwich: Cov = A^+ J^T (C C^T) J A^+
+    # Expected chi^2 of correlated residuals: trace((I - H) C C^T), H the hat matrix.
+    H = J @ A_inv @ J.T
+    dof = max(float(np.sum(C * C) - np.sum((H @ C) * C)), 1.0)
     chi2 = float(r @ r)
     if sigma is None:
         noise_scale = chi2 / dof  # noise unknown: estimated from the residuals
-    else:  # noise given: inflate only when the residuals are significantly larger
+    else:  # noise given: inflate only when the residuals are clearly larger than it
         noise_scale = chi2 / dof if chi2 > chdtri(dof, 0.01) else 1.0
-    cov = noise_scale * np.linalg.pinv(J.T @ J, rcond=1e-10, hermitian=True)
+    cov = noise_scale * cov
+
+    b, T = _unpack(sol.x, n)
+    S = np.linalg.pinv(T).T
+    if np.linalg.det(T[:, :3]) < 0:  # right-handed channels; flip the cov of the flipped row
+        flip = np.r_[np.ones(n + 2 * n), -np.ones(n)]
+        cov = cov * np.outer(flip, flip)
+    T, S, _ = _right_handed(T, S, np.zeros((0, 3)))
+    F = (Z - b) @ T.T
     return FactorizationResult(
         S=S,
         b=b,
@@ -562,4 +675,35 @@ def refine(
         cov=cov,
         noise_scale=float(noise_scale),
         notes=list(initial.notes),
+        fixture_tolerance=float(fixture_tolerance),
     )
+
+
+def estimate_fixture_tolerance(
+    Z: np.ndarray,
+    constraints: Constraints,
+    result: FactorizationResult,
+    sigma: np.ndarray | float | None,
+    row_owner: np.ndarray | None,
+) -> float:
+    """RMS placement error (rad) of the labelled directions, by the method of moments.
+
+    Each cross constraint between two poses errs by the noise (known) plus
+    ``omega . (f_i x f_k)`` from the placement errors ``omega`` of both poses; the excess of
+    the squared errors over the noise, per unit of ``|f_i x f_k|^2``, estimates the squared
+    tolerance. Returns 0 when the noise explains everything.
+    """
+    m, n = Z.shape
+    sig = np.ones(m) if sigma is None else np.broadcast_to(np.asarray(sigma, float), (m,))
+    owner = np.arange(m) if row_owner is None else np.asarray(row_owner, int)
+    ci, ck, h = constraints.i, constraints.k, constraints.h
+    sel = (ci != ck) & (owner[ci] != owner[ck])
+    if not sel.any():
+        return 0.0
+    F = (Z - result.b) @ result.T.T
+    G = F @ result.T
+    e = np.sum(F[ci] * F[ck], axis=1) - h
+    noise = sig[ci] ** 2 * np.sum(G[ck] ** 2, 1) + sig[ck] ** 2 * np.sum(G[ci] ** 2, 1)
+    cross2 = np.sum(np.cross(F[ci], F[ck]) ** 2, axis=1)
+    excess = np.sum(e[sel] ** 2 - noise[sel]) / max(np.sum(cross2[sel]), 1e-300)
+    return float(np.sqrt(excess)) if excess > 0 else 0.0
