@@ -326,6 +326,15 @@ def _mounting(seg: Segment) -> int:
     return int(seg.extra.get("mounting", 1))
 
 
+def _orthogonal_pairs(turns: list[Segment]) -> int:
+    """Pairs of distinct, orthogonal axes among some turns."""
+    axes = []
+    for s in turns:
+        if all(abs(abs(s.axis @ a) - 1) > 1e-3 for a in axes):
+            axes.append(s.axis)
+    return sum(abs(a @ b) < 1e-3 for n, a in enumerate(axes) for b in axes[n + 1 :])
+
+
 def _gyro_bias(session: Session, where: str) -> tuple[np.ndarray, float]:
     """Gyro biases and per-sample noise from the still (static) segments."""
     still = [s for s in session.static_segments()]
@@ -390,6 +399,18 @@ def calibrate_gyro_factorization(session: Session, cfg: Config) -> SensorCalibra
         raise DesignError(
             f"{where}: no two turns about orthogonal axes in one mounting: turn the block on "
             "three orthogonal faces"
+        )
+    # Structure, not numerics: one mounting gives at most 3 independent orthogonality
+    # constraints (its three axes), and the metric upgrade needs 5 (section IV-B).
+    independent = sum(
+        min(3, _orthogonal_pairs([s for s in turns if _mounting(s) == mt and s.angle_deg is None]))
+        for mt in {_mounting(s) for s in turns}
+    )
+    if independent < 5:
+        raise DesignError(
+            f"{where}: the turns give {independent} independent orthogonality constraints, the "
+            "metric upgrade needs 5: the constraints are not independent enough; repeat the "
+            "three turns with the unit in a second mounting inside the block (section IV-B)"
         )
     c = fz.Constraints(np.array(i), np.array(k), np.zeros(len(i)))
 
