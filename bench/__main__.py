@@ -6,9 +6,9 @@ import argparse
 
 from rich.console import Console
 
-from bench import capture, gravity
+from bench import capture, factorization, gravity
 
-BENCHMARKS = ("gravity", "capture")
+BENCHMARKS = ("gravity", "factorization", "capture")
 
 
 def main() -> None:
@@ -17,10 +17,12 @@ def main() -> None:
     parser.add_argument("--only", choices=BENCHMARKS, help="run only this benchmark")
     parser.add_argument("--quick", action="store_true", help="capture: 10 s instead of 60 s")
     args = parser.parse_args()
-    console = Console(width=110)
+    console = Console(width=160)
     ok = True
     if args.only in (None, "gravity"):
         ok = gravity.run(console, n_seeds=args.seeds) and ok
+    if args.only in (None, "factorization"):
+        ok = factorization.run(console, n_seeds=args.seeds) and ok
     if args.only in (None, "capture"):
         ok = capture.run(console, quick=args.quick) and ok
     raise SystemExit(0 if ok else 1)
