@@ -1,0 +1,577 @@
+"""Hand rotations for gyroscope calibration (Qureshi & Golnaraghi, section III-B, IV-B.2).
+
+The virtual experiment of the paper's gyroscope calibration (Fig. 2): the unit is turned by
+hand, smoothly, about each of its sensitive axes in turn, ``rotations_per_axis`` times per axis
+(18 in the paper), every turn a different angle within +-180 degrees, with the unit held still
+for ``still_s`` (5 s in the paper) before and after each turn.  The accelerometer sees each
+turn through gravity only if the turn axis is horizontal, so:
+
+* x and y turns: the unit starts flat, +Z up, and is turned about its x (then y) axis;
+* z turns: the unit is first laid on its side, +X up (the paper's "rotate the coordinate axes
+  90 degrees around y"), so that z is horizontal, and turned about z.
+
+Plan ``free:N`` instead turns the unit N times about random axes (uniform on the sphere) by
+random angles: arbitrary hand rotations for the full 12-parameter gyroscope model.
+
+:func:`simulate_gyro_rotations` returns ``(Session, Calibration)`` like
+:func:`imucal_cli.simulator.simulate`.  The part is :func:`imucal_cli.simulator.random_imu`
+drawn from the same spawned generator, so a seed gives the same physical part (accelerometer
+and gyroscope, both relative to the fixture frame) as ``imucal simulate --plan qureshi18`` with
+that seed: one seed can calibrate the accelerometer from a pose session and then the gyroscope
+from a rotation session.
+
+Frames: world (z up), body = fixture frame; the attitude ``R`` maps body to world.  Each turn is
+about a fixed axis ``u`` (body frame) with angle profile ``theta(t)``, so the attitude
+``R(t) = R0 Exp(theta(t) u)`` and the body rate ``theta'(t) u`` are exact in closed form; the
+accelerometer reads ``R(t)^T (0, 0, g)`` (no linear acceleration: the unit turns about its own
+centre) and the gyroscope the body rate.  The earth rate is left out.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .calibration import Calibration, SensorCalibration
+from .errors import InputError
+from .session import Segment, Session, utc_now_iso
+from .simulator import (
+    G0,
+    MAX_SAMPLES,
+    UNITS,
+    _check_positive,
+    _floats,
+    _misalignment_deg,
+    _unit,
+    _up_to_vertical,
+    random_imu,
+    sensor_name,
+)
+
+__all__ = [
+    "GYRO_PLANS",
+    "LEVELLING",
+    "MAX_PEAK_RATE_DPS",
+    "MIN_TURN_DEG",
+    "SMOOTHERSTEP_PEAK",
+    "is_gyro_plan",
+    "parse_gyro_plan",
+    "simulate_gyro_rotations",
+]
+
+GYRO_PLANS = ("qureshi-axes", "free:N")
+"""Plan names of ``imucal simulate`` served by this module."""
+
+SMOOTHERSTEP_PEAK = 1.875
+"""Peak of the smootherstep rate ``30 tau^2 (1 - tau)^2``: peak rate = 1.875 angle / duration."""
+
+MIN_TURN_DEG = 20.0
+"""Smallest turn magnitude, degrees: smaller turns carry little scale information."""
+
+MIN_SEPARATION_DEG = 10.0
+"""Turns about one axis differ by at least this much (fewer if many turns are asked for)."""
+
+MAX_PEAK_RATE_DPS = 1000.0
+"""Largest ``peak_rate_dps`` accepted: half the +-2000 deg/s range of the simulated gyro."""
+
+MIN_TURN_S = 0.5
+"""Shortest turn, s: a hand does not flick the unit faster, whatever the peak rate allows."""
+
+PEAK_FRACTION = (0.5, 1.0)
+"""Each turn's peak rate is uniform in this fraction of ``peak_rate_dps``."""
+
+MOVE_S = 2.0
+"""Duration of the unsegmented move that lays the unit on the next starting face, s."""
+
+MAX_TURNS = 1000
+
+LEVELLING = 0.5
+"""qureshi-axes: the hand aims each turn at the body axis steered this fraction of the way back
+to level (a person keeps the axis roughly horizontal), then misses by ``axis_jitter_deg``.
+Without it the axis errors of successive turns would walk the axis up to 30 degrees from level
+over 18 turns; with it the axis stays within about 10 degrees."""
+
+_FREE_RE = re.compile(r"free(?::(\d+))?")
+_AXIS_NAMES = "xyz"
+# (axis index, nominal up of the starting face, its label) for plan qureshi-axes
+_QURESHI_AXES = ((0, 2, "+Z"), (1, 2, "+Z"), (2, 0, "+X"))
+
+
+def is_gyro_plan(plan: str) -> bool:
+    """True when ``plan`` names a plan of this module (``qureshi-axes``, ``free``, ``free:N``)."""
+    name = plan.strip().lower()
+    return name == "qureshi-axes" or _FREE_RE.fullmatch(name) is not None
+
+
+def parse_gyro_plan(plan: str, count: int | None = None) -> tuple[str, int | None]:
+    """Split a plan name into its kind and the number of free rotations.
+
+    Parameters
+    ----------
+    plan : str
+        ``qureshi-axes``, ``free:N``, or ``free`` together with ``count``.
+    count : int, optional
+        Number of free rotations; must agree with N when both are given.
+
+    Returns
+    -------
+    kind : {"qureshi-axes", "free"}
+    n : int or None
+        Number of free rotations (None for qureshi-axes).
+
+    Raises
+    ------
+    InputError
+        Unknown plan, missing or bad N.
+    """
+    name = plan.strip().lower()
+    if name == "qureshi-axes":
+        if count is not None:
+            raise InputError("plan qureshi-axes takes rotations_per_axis, not count")
+        return "qureshi-axes", None
+    m = _FREE_RE.fullmatch(name)
+    if m is None:
+        raise InputError(f"plan {plan!r} is unknown: use qureshi-axes or free:N (N rotations)")
+    n = None if m.group(1) is None else int(m.group(1))
+    if count is not None:
+        if isinstance(count, bool) or not isinstance(count, int | np.integer):
+            raise InputError(f"count must be an integer, got {count!r}")
+        if n is not None and n != int(count):
+            raise InputError(f"plan {plan!r} and count {count} disagree")
+        n = int(count)
+    if n is None:
+        raise InputError(f"plan {plan!r}: say how many rotations, e.g. free:12")
+    if not 1 <= n <= MAX_TURNS:
+        raise InputError(f"plan {plan!r}: N must be between 1 and {MAX_TURNS}")
+    return "free", n
+
+
+def _draw_angles_deg(rng: np.random.Generator, n: int) -> np.ndarray:
+    """``n`` turn angles uniform within +-180 deg, |angle| >= 20, pairwise >= ~10 deg apart.
+
+    Sequential draws with rejection; the separation is ``min(10, 192 / n)`` degrees, which
+    keeps the packing below the jamming density of random sequential adsorption, so the draws
+    always finish.
+    """
+    sep = min(MIN_SEPARATION_DEG, 192.0 / n)
+    out: list[float] = []
+    while len(out) < n:
+        a = rng.uniform(MIN_TURN_DEG, 180.0) * rng.choice([-1.0, 1.0])
+        if all(abs(a - b) >= sep for b in out):
+            out.append(float(a))
+    return np.array(out)
+
+
+def _tilt_perpendicular(rng: np.random.Generator, axis: np.ndarray, rms_deg: float) -> Rotation:
+    """A small rotation about a random direction perpendicular to ``axis``, RMS ``rms_deg``.
+
+    Two iid normal components (std ``rms_deg / sqrt(2)``) in the plane perpendicular to
+    ``axis``, so the RMS angle is ``rms_deg``.  Draws 2 numbers.
+    """
+    p = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+    p = _unit(p)
+    q = np.cross(axis, p)
+    c = rng.standard_normal(2) * np.radians(rms_deg) / np.sqrt(2.0)
+    return Rotation.from_rotvec(c[0] * p + c[1] * q)
+
+
+def _towards_level(att: Rotation, axis: np.ndarray, fraction: float) -> np.ndarray:
+    """Body ``axis`` turned ``fraction`` of the way to its level (horizontal) direction.
+
+    ``att`` maps body to world (z up).  Returns a unit vector in the body frame.
+    """
+    w = att.apply(axis)
+    level = np.array([w[0], w[1], 0.0])
+    if np.linalg.norm(level) < 1e-9:  # vertical axis: no level direction to aim at
+        return np.asarray(axis, dtype=float)
+    level = _unit(level)
+    cross = np.cross(w, level)
+    s = np.linalg.norm(cross)
+    if s < 1e-15:
+        return np.asarray(axis, dtype=float)
+    angle = np.arctan2(s, float(w @ level))
+    aim = Rotation.from_rotvec(cross / s * angle * fraction).apply(w)
+    return _unit(att.inv().apply(aim))
+
+
+def _profile(n: int, dur: float) -> tuple[np.ndarray, np.ndarray]:
+    """Smootherstep ``s`` and ``ds/dt`` at the ``n`` interior samples of a move of ``dur`` s.
+
+    Zero rate and angular acceleration at both ends; the neighbouring still samples sit at
+    ``tau = 0`` and ``tau = 1``.
+    """
+    tau = np.arange(1, n + 1) / (n + 1)
+    s = tau**3 * (10.0 - 15.0 * tau + 6.0 * tau**2)
+    ds = 30.0 * tau**2 * (1.0 - tau) ** 2 / dur
+    return s, ds
+
+
+def _check_seed(seed) -> int:
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+        raise InputError(f"seed must be a non-negative integer, got {seed!r}")
+    return int(seed)
+
+
+def simulate_gyro_rotations(
+    plan: str = "qureshi-axes",
+    seed: int = 0,
+    rate_hz: float = 100.0,
+    rotations_per_axis: int = 18,
+    peak_rate_dps: float = 150.0,
+    still_s: float = 5.0,
+    accel_noise: float = 0.01,
+    gyro_noise: float = 0.005,
+    jitter_deg: float = 2.0,
+    axis_jitter_deg: float = 2.0,
+    units: str = "counts",
+    gravity: float = G0,
+    created: str | None = None,
+    count: int | None = None,
+) -> tuple[Session, Calibration]:
+    """Simulate hand rotations for gyroscope calibration; return the session and its truth.
+
+    Plan ``qureshi-axes`` (Qureshi & Golnaraghi, Fig. 2; III-B; IV-B.2): for the x, then y
+    axis the unit is placed flat, +Z up, and turned ``rotations_per_axis`` times about that
+    axis; for z it is laid on its side, +X up, and turned about z.  Each starting pose is the
+    labelled one tilted by a random horizontal rotation vector (RMS angle ``jitter_deg``) at a
+    random heading; the move that lays the unit on the next starting face (``MOVE_S``, a
+    smootherstep slerp) is not a segment.  Turn angles are uniform within +-180 degrees, at
+    least 20 degrees in magnitude and at least ~10 degrees from each other on one axis.  The
+    hand turns about the nominal body axis, steered half-way back to level (:data:`LEVELLING`),
+    tilted by a random error perpendicular to it (RMS angle ``axis_jitter_deg``, fresh for
+    every turn): the true axis is a few degrees off the body axis (recorded in the truth), and
+    the body axis stays within about 10 degrees of level.
+
+    Plan ``free:N``: the unit starts flat, +Z up (with placement jitter), then N turns about
+    body axes uniform on the sphere by angles within +-180 degrees (|angle| >= 20 degrees).
+
+    Every turn has a smootherstep angle profile (zero rate and angular acceleration at both
+    ends); its peak rate is drawn uniformly in 50-100 % of ``peak_rate_dps`` and sets the
+    duration (at least ``MIN_TURN_S``; the duration is then rounded to whole samples, and the
+    true peak rate is recomputed and recorded).  ``still_s`` of stillness comes before the
+    first turn, between turns (the still after one turn is the still before the next) and
+    after the last.
+
+    Parameters
+    ----------
+    plan : str
+        ``qureshi-axes``, ``free:N``, or ``free`` with ``count``.
+    seed : int
+        Non-negative seed; the same seed and options give the same samples bit for bit.  The
+        part is the one :func:`imucal_cli.simulator.simulate` draws for this seed.
+    rate_hz : float
+        Sample rate, Hz.
+    rotations_per_axis : int
+        qureshi-axes: turns per axis (1..1000; the paper used 18).
+    peak_rate_dps : float
+        Largest peak rate of a turn, deg/s (<= 1000; the paper kept hand turns under 150).
+    still_s : float
+        Still period before and after each turn, s (at least 10 samples).
+    accel_noise : float
+        Accelerometer white noise per axis per sample, m/s^2.
+    gyro_noise : float
+        Gyroscope white noise per axis per sample, rad/s.
+    jitter_deg : float
+        RMS placement error of each starting face, degrees (<= 45).
+    axis_jitter_deg : float
+        RMS angle between each turn's true axis and its nominal body axis (qureshi-axes),
+        degrees (<= 45).
+    units : {"counts", "m/s^2"}
+        Raw units of the part (see :func:`imucal_cli.simulator.random_imu`).
+    gravity : float
+        Local gravity, m/s^2.
+    created : str, optional
+        ISO 8601 UTC creation time; default now.
+    count : int, optional
+        Number of turns of plan ``free`` (the N of ``free:N``; both may be given if equal).
+
+    Returns
+    -------
+    session : imucal_cli.session.Session
+        Raw accel and gyro (N, 3).  Segments in time order, alternating: a static segment
+        per still period, labelled ``"still before x turn 3"`` (``"still after x turn 18"``
+        for the last of an axis; ``"still before turn 3"`` for free:N), with ``up`` only on
+        the first still of each starting face (``[0, 0, 1]`` or ``[1, 0, 0]``, labelled
+        ``"still before z turn 1, +X up"``); and a rotation
+        segment per turn spanning its moving samples, labelled ``"turn 3 about x"`` with
+        ``axis`` = the nominal body axis (qureshi-axes), or ``"turn 3"`` without ``axis``
+        (free:N).  No segment has ``angle_deg``: the angle is unknown to the person; the
+        accelerometer measures it.
+    truth : imucal_cli.calibration.Calibration
+        ``accel`` and ``gyro``: ``matrix = inv(S)``, ``bias = b`` (fixture frame), as
+        :func:`imucal_cli.simulator.truth_calibration`.  ``gyro.extra``: per turn, in order,
+        ``turn_segments`` (segment names), ``turn_labels``, ``turn_axis_names`` (qureshi-axes:
+        x/y/z), ``true_angle_deg``, ``true_axis`` (unit, body frame), ``true_rotvec`` (rad,
+        body frame: ``R_after = R_before Exp(rotvec)``), ``nominal_axis`` (or None),
+        ``axis_error_deg``, ``peak_rate_dps``, ``duration_s``; ``noise``.  ``accel.extra``:
+        per still, ``segments``, ``labels``, ``true_up`` (unit, fixture frame), ``labelled_up``
+        (or None); ``noise``, ``gravity``.
+
+    Raises
+    ------
+    InputError
+        A bad plan, unit or value.
+    """
+    kind, n_free = parse_gyro_plan(plan, count)
+    seed = _check_seed(seed)
+    if units not in UNITS:
+        raise InputError(f"units {units!r} are not supported: use counts or m/s^2")
+    rate_hz = _check_positive("rate", rate_hz, "Hz")
+    if kind == "qureshi-axes":
+        r = rotations_per_axis
+        if isinstance(r, bool) or not isinstance(r, int | np.integer) or not 1 <= r <= MAX_TURNS:
+            raise InputError(f"rotations per axis must be an integer in 1..{MAX_TURNS}, got {r!r}")
+        rotations_per_axis = int(r)
+    peak_rate_dps = _check_positive("peak rate", peak_rate_dps, "deg/s")
+    if peak_rate_dps > MAX_PEAK_RATE_DPS:
+        raise InputError(f"peak rate must be at most {MAX_PEAK_RATE_DPS:g} deg/s")
+    still_s = _check_positive("still time", still_s, "s")
+    accel_noise = _check_positive("accel noise", accel_noise, "m/s^2", allow_zero=True)
+    gyro_noise = _check_positive("gyro noise", gyro_noise, "rad/s", allow_zero=True)
+    jitter_deg = _check_positive("jitter", jitter_deg, "deg", allow_zero=True)
+    axis_jitter_deg = _check_positive("axis jitter", axis_jitter_deg, "deg", allow_zero=True)
+    gravity = _check_positive("gravity", gravity, "m/s^2")
+    for name, value in (("jitter", jitter_deg), ("axis jitter", axis_jitter_deg)):
+        if value > 45.0:
+            raise InputError(f"{name} must be at most 45 deg, got {value:g}")
+    n_still = int(round(still_s * rate_hz))
+    if n_still < 10:
+        raise InputError(f"still {still_s:g} s at {rate_hz:g} Hz gives {n_still} samples: >= 10")
+
+    truth_ss, pose_ss, noise_ss = np.random.SeedSequence(seed).spawn(3)
+    truth = random_imu(
+        np.random.default_rng(truth_ss), units, accel_noise=accel_noise, gyro_noise=gyro_noise
+    )
+    prng = np.random.default_rng(pose_ss)
+    eye = np.eye(3)
+
+    # ---- the plan (pose generator, fixed order): per starting face, its placement, then the
+    # angles, then per turn the axis error and the peak rate.  timed[g]: list of (nominal axis
+    # or None, true unit axis (body), angle rad, n interior samples, duration s).
+    groups = (
+        [(_AXIS_NAMES[i], face, label) for i, face, label in _QURESHI_AXES]
+        if kind == "qureshi-axes"
+        else [(None, 2, "+Z")]
+    )
+    starts, timed = [], []
+    for axis_name, face, _ in groups:
+        tilt = np.zeros(3)
+        tilt[:2] = prng.standard_normal(2) * np.radians(jitter_deg) / np.sqrt(2.0)
+        heading = Rotation.from_rotvec([0.0, 0.0, prng.uniform(0.0, 2.0 * np.pi)])
+        att = Rotation.from_rotvec(tilt) * heading * _up_to_vertical(eye[face])
+        starts.append(att)
+        if axis_name is not None:
+            nominal = eye[_AXIS_NAMES.index(axis_name)]
+            angles = np.radians(_draw_angles_deg(prng, rotations_per_axis))
+        else:
+            nominal = None
+            angles = np.radians(prng.uniform(MIN_TURN_DEG, 180.0, n_free))
+            angles *= prng.choice([-1.0, 1.0], n_free)
+        out = []
+        for a in angles:
+            if nominal is not None:
+                aim = _towards_level(att, nominal, LEVELLING)
+                u = _unit(_tilt_perpendicular(prng, aim, axis_jitter_deg).apply(aim))
+            else:
+                u = _unit(prng.standard_normal(3))
+            peak = np.radians(peak_rate_dps) * prng.uniform(*PEAK_FRACTION)
+            dur = max(SMOOTHERSTEP_PEAK * abs(a) / peak, MIN_TURN_S)
+            n = max(2, int(round(dur * rate_hz)) - 1)
+            out.append((nominal, u, float(a), n, (n + 1) / rate_hz))
+            att = att * Rotation.from_rotvec(a * u)
+        timed.append(out)
+
+    n_move = max(2, int(round(MOVE_S * rate_hz)))
+    n_total = sum(n_still * (len(t) + 1) + sum(x[3] for x in t) for t in timed)
+    n_total += n_move * (len(groups) - 1)
+    if n_total > MAX_SAMPLES:
+        raise InputError(
+            f"the session would have {n_total} samples (more than {MAX_SAMPLES}): "
+            "lower the rate, the still time or the number of rotations"
+        )
+
+    # ---- the stream ----
+    ez = eye[2]
+    force = np.empty((n_total, 3))
+    rate = np.zeros((n_total, 3))
+    segments: list[Segment] = []
+    still_true_up: list[np.ndarray] = []
+    still_labelled_up: list[list[float] | None] = []
+    rec = {k: [] for k in ("seg", "label", "axis_name", "angle", "axis", "nominal", "peak", "dur")}
+    i = 0
+    prev_att: Rotation | None = None  # attitude at the end of the previous group
+
+    def add(kind_: str, n: int, label: str, **attrs) -> None:
+        segments.append(
+            Segment(name=f"{len(segments):04d}", kind=kind_, start=i, stop=i + n, label=label,
+                    **attrs)
+        )  # fmt: skip
+
+    for g, ((axis_name, face, face_label), turns) in enumerate(zip(groups, timed, strict=True)):
+        att = starts[g]
+        if prev_att is not None:  # lay the unit on the next starting face (unsegmented move)
+            rv = (prev_att.inv() * att).as_rotvec()
+            s, ds = _profile(n_move, (n_move + 1) / rate_hz)
+            path = prev_att * Rotation.from_rotvec(s[:, None] * rv)
+            force[i : i + n_move] = path.inv().apply(gravity * ez)
+            rate[i : i + n_move] = ds[:, None] * rv
+            i += n_move
+        tag = f"{axis_name} turn" if axis_name else "turn"
+        for k, (nominal, u, a, n, dur) in enumerate(turns, start=1):
+            # still before turn k (the still after turn k-1)
+            up = eye[face] if k == 1 else None
+            where = f", {face_label} up" if k == 1 else ""
+            add("static", n_still, f"still before {tag} {k}{where}", up=up)
+            force[i : i + n_still] = att.inv().apply(gravity * ez)
+            still_true_up.append(att.inv().apply(ez))
+            still_labelled_up.append(None if up is None else _floats(up))
+            i += n_still
+            # turn k about the fixed body axis u: R(t) = R0 Exp(theta(t) u)
+            label = f"turn {k} about {axis_name}" if axis_name else f"turn {k}"
+            add("rotation", n, label, axis=nominal)
+            rec["seg"].append(segments[-1].name)
+            rec["label"].append(label)
+            rec["axis_name"].append(axis_name)
+            rec["angle"].append(a)
+            rec["axis"].append(u)
+            rec["nominal"].append(nominal)
+            rec["peak"].append(SMOOTHERSTEP_PEAK * abs(a) / dur)
+            rec["dur"].append(dur)
+            s, ds = _profile(n, dur)
+            path = att * Rotation.from_rotvec((a * s)[:, None] * u)
+            force[i : i + n] = path.inv().apply(gravity * ez)
+            rate[i : i + n] = (a * ds)[:, None] * u
+            i += n
+            att = att * Rotation.from_rotvec(a * u)
+        add("static", n_still, f"still after {tag} {len(turns)}")
+        force[i : i + n_still] = att.inv().apply(gravity * ez)
+        still_true_up.append(att.inv().apply(ez))
+        still_labelled_up.append(None)
+        i += n_still
+        prev_att = att
+    assert i == n_total, (i, n_total)
+
+    # Noise in SI (noise generator: accel then gyro), as the simulator.
+    nrng = np.random.default_rng(noise_ss)
+    accel_n = nrng.standard_normal((n_total, 3)) * truth.accel_noise
+    gyro_n = nrng.standard_normal((n_total, 3)) * truth.gyro_noise
+
+    created = created or utc_now_iso()
+    sensor = sensor_name(seed)
+    session = Session(
+        time=np.arange(n_total) / rate_hz,
+        accel=truth.accel_raw(force, accel_n),
+        gyro=truth.gyro_raw(rate, gyro_n),
+        temperature=None,
+        segments=segments,
+        created=created,
+        sensor=sensor,
+        source="simulator",
+        sample_rate_hz=rate_hz,
+        gravity=gravity,
+        accel_units=truth.accel_units,
+        gyro_units=truth.gyro_units,
+    )
+
+    plan_name = "qureshi-axes" if kind == "qureshi-axes" else f"free:{n_free}"
+    options = {
+        "plan": plan_name,
+        "seed": seed,
+        "rate_hz": rate_hz,
+        "rotations_per_axis": rotations_per_axis if kind == "qureshi-axes" else None,
+        "count": n_free,
+        "peak_rate_dps": peak_rate_dps,
+        "still_s": still_s,
+        "accel_noise": accel_noise,
+        "gyro_noise": gyro_noise,
+        "jitter_deg": jitter_deg,
+        "axis_jitter_deg": axis_jitter_deg,
+        "units": units,
+        "gravity": gravity,
+        "move_s": MOVE_S,
+    }
+    angles = np.array(rec["angle"])
+    axes = np.array(rec["axis"])
+    axis_err = [
+        None if nom is None else float(np.degrees(np.arccos(np.clip(nom @ u, -1.0, 1.0))))
+        for nom, u in zip(rec["nominal"], rec["axis"], strict=True)
+    ]
+    common = {"model": "calibrated = matrix @ (raw - bias)", "quantised": bool(truth.quantise)}
+    design = (
+        "Qureshi & Golnaraghi Fig. 2: turns about x and y with +Z up, about z with +X up"
+        if kind == "qureshi-axes"
+        else "hand turns about random axes (uniform on the sphere)"
+    )
+    gyro_extra = {
+        **common,
+        "design": design,
+        "units_in": truth.gyro_units,
+        "frame": "fixture (body) frame",
+        "noise": gyro_noise,
+        "noise_unit": "rad/s per axis per sample (white, input-referred)",
+        "sensitivity": _floats(np.linalg.norm(truth.gyro_S, axis=1)),
+        "sensitivity_unit": f"{truth.gyro_units} per rad/s",
+        "nominal_sensitivity": float(truth.gyro_nominal),
+        "scale_error": _floats(truth.gyro_scale_error),
+        "misalignment_deg": _misalignment_deg(truth.gyro_S),
+        "bias_dps": _floats(truth.gyro_bias_dps),
+        "S": _floats(truth.gyro_S),
+        "turn_segments": rec["seg"],
+        "turn_labels": rec["label"],
+        "turn_axis_names": rec["axis_name"],
+        "true_angle_deg": _floats(np.degrees(angles)),
+        "true_axis": _floats(axes),
+        "true_rotvec": _floats(angles[:, None] * axes),
+        "true_rotvec_unit": "rad, body (fixture) frame: R_after = R_before Exp(rotvec)",
+        "nominal_axis": [None if v is None else _floats(v) for v in rec["nominal"]],
+        "axis_error_deg": axis_err,
+        "peak_rate_dps": _floats(np.degrees(rec["peak"])),
+        "duration_s": _floats(rec["dur"]),
+        "axis_jitter_deg": axis_jitter_deg,
+    }
+    static = [s for s in segments if s.kind == "static"]
+    accel_extra = {
+        **common,
+        "units_in": truth.accel_units,
+        "frame": "fixture (body) frame",
+        "noise": accel_noise,
+        "noise_unit": "m/s^2 per axis per sample (white, input-referred)",
+        "gravity": gravity,
+        "sensitivity": _floats(np.linalg.norm(truth.accel_S, axis=1)),
+        "sensitivity_unit": f"{truth.accel_units} per m/s^2",
+        "nominal_sensitivity": float(truth.accel_nominal),
+        "scale_error": _floats(truth.accel_scale_error),
+        "misalignment_deg": _misalignment_deg(truth.accel_S),
+        "mount_rotvec_deg": _floats(np.degrees(truth.mount_rotvec)),
+        "bias_mg": _floats(1000.0 * truth.accel_bias_g),
+        "S": _floats(truth.accel_S),
+        "jitter_deg": jitter_deg,
+        "segments": [s.name for s in static],
+        "labels": [s.label for s in static],
+        "true_up": _floats(_unit(np.array(still_true_up))),
+        "labelled_up": still_labelled_up,
+    }
+    accel = SensorCalibration(
+        solver="truth",
+        units="m/s^2",
+        bias=np.array(truth.accel_b, dtype=float),
+        matrix=np.linalg.inv(truth.accel_S),
+        extra=accel_extra,
+    )
+    gyro = SensorCalibration(
+        solver="truth",
+        units="rad/s",
+        bias=np.array(truth.gyro_b, dtype=float),
+        matrix=np.linalg.inv(truth.gyro_S),
+        extra=gyro_extra,
+    )
+    root = {
+        "sensor": sensor,
+        "seed": seed,
+        "plan": plan_name,
+        "jitter_deg": jitter_deg,
+        "simulator": options,
+    }
+    return session, Calibration(accel=accel, gyro=gyro, extra=root, created=created)
