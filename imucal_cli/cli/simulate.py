@@ -37,7 +37,10 @@ def simulate(
             "0..2047 = -2.5..2.5 g, held still in random orientations; 50 Hz unless --rate) and "
             "'hk-gyro' (sinusoidal sweeps about 3 orthogonal faces of a right-angle iron in each "
             "mounting, then one ruler-guided 90-degree turn; --hold sets the still periods, "
-            "default 3 s)."
+            "default 3 s); or hand rotations for the gyroscope: 'qureshi-axes' (Qureshi & "
+            "Golnaraghi Fig. 2: --rotations-per-axis turns about x and y with +Z up, then about z "
+            "with +X up, different angles within +-180 degrees) and 'free:N' (N turns about "
+            "random axes); --peak-rate and --still shape the turns."
         ),
     ),
     seed: int = typer.Option(
@@ -88,6 +91,27 @@ def simulate(
         ),
     ),
     force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
+    rotations_per_axis: int = typer.Option(
+        18,
+        "--rotations-per-axis",
+        metavar="N",
+        help="qureshi-axes: hand turns per axis, each a different angle (the paper used 18).",
+    ),
+    peak_rate: float = typer.Option(
+        150.0,
+        "--peak-rate",
+        metavar="DEG/S",
+        help=(
+            "qureshi-axes, free:N: largest peak rate of a turn, deg/s (each turn's peak is "
+            "drawn in 50-100 % of it; smooth smootherstep profiles)."
+        ),
+    ),
+    still: float = typer.Option(
+        5.0,
+        "--still",
+        metavar="SECONDS",
+        help="qureshi-axes, free:N: still period before and after each turn, s.",
+    ),
     sigma_counts: float = typer.Option(
         0.7,
         "--sigma-counts",
@@ -153,10 +177,12 @@ def simulate(
     Ctrl-C/SIGTERM).  Test faults of --serve: --garbage (random bytes, as a wrong baud rate),
     --stall-after S, --vanish-after S (close the port), --malformed-every N.
     """
+    from imucal_cli.simulator_gyro import is_gyro_plan, simulate_gyro_rotations
     from imucal_cli.simulator_hk import HK_PLANS, simulate_hk_plan
 
     hk = plan.strip().lower() in HK_PLANS
-    if serve and hk:
+    gyro = is_gyro_plan(plan)
+    if serve and (hk or gyro):
         raise InputError(f"--serve does not stream plan {plan!r}: write a session file instead")
     if serve:
         _serve(
@@ -199,6 +225,18 @@ def simulate(
             mountings=mountings,
         )
         rate = float(session.sample_rate_hz)
+    elif gyro:
+        session, truth = simulate_gyro_rotations(
+            plan=plan,
+            seed=seed,
+            rate_hz=rate,
+            rotations_per_axis=rotations_per_axis,
+            peak_rate_dps=peak_rate,
+            still_s=still,
+            accel_noise=accel_noise,
+            jitter_deg=jitter_deg,
+            units=units,
+        )
     else:
         session, truth = run(
             plan=plan,
