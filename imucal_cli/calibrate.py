@@ -33,12 +33,28 @@ def calibrate_accel(session: Session, cfg: Config) -> SensorCalibration:
     return calibrate_accel_gravity(session, cfg)
 
 
-def calibrate_gyro(session: Session, cfg: Config) -> SensorCalibration | None:
-    """Run the configured gyroscope solver (``[gyro] solver``); None when it is ``"none"``."""
-    if cfg.gyro.solver == "factorization":
+def calibrate_gyro(
+    session: Session, cfg: Config, accel: SensorCalibration | None
+) -> SensorCalibration | None:
+    """Run the configured gyroscope solver (``[gyro] solver``); None when it is ``"none"``.
+
+    The static, dynamic and full solvers measure each rotation with the accelerometer, so
+    they need ``accel``, calibrated in the same run.
+    """
+    solver = cfg.gyro.solver
+    if solver == "factorization":
         from imucal_cli.pipeline.factorization import calibrate_gyro_factorization
 
         return calibrate_gyro_factorization(session, cfg)
+    if solver in ("static", "dynamic", "full"):
+        if accel is None:
+            raise ConfigError(
+                f"[gyro] solver = {solver!r} measures each rotation with the calibrated "
+                "accelerometer: set an [accel] solver too"
+            )
+        from imucal_cli.pipeline.gyro import calibrate_gyro_rotations
+
+        return calibrate_gyro_rotations(session, cfg, accel)
     return None
 
 
@@ -50,7 +66,7 @@ def calibrate_session(session: Session, cfg: Config, *, name: str | None = None)
     if cfg.accel.solver == "none" and cfg.gyro.solver == "none":
         raise ConfigError("the config calibrates nothing: [accel] and [gyro] solver are both none")
     accel = calibrate_accel(session, cfg) if cfg.accel.solver != "none" else None
-    gyro = calibrate_gyro(session, cfg)
+    gyro = calibrate_gyro(session, cfg, accel)
     extra = {"toolkit_version": __version__, "config": cfg.to_dict()}
     if session.sensor:
         extra["sensor"] = session.sensor

@@ -27,7 +27,17 @@ Example (every key optional; these are the defaults)::
     max_iterations = 200
 
     [gyro]
-    solver = "none"              # "none" or "factorization"
+    solver = "none"              # "none"; "static", "dynamic" (Qureshi III-B), "full"
+                                 # (12 parameters), or "factorization" (Hwangbo & Kanade)
+    # nominal_sensitivity = 938.7  # raw units per rad/s (datasheet); default from the units
+    max_scale_error = 0.20
+
+    [gyro.rotations]             # static, dynamic and full
+    max_gap_s = 2.0              # still data must end/start this close to a rotation
+    min_tilt_deg = 30.0          # static/dynamic: skip turns about an axis this near vertical
+
+    [gyro.full]
+    max_iterations = 100
 
     [gyro.factorization]
     samples_per_segment = 40     # samples of each rotation used in the constraints
@@ -48,7 +58,7 @@ from typing import Any
 from imucal_cli.errors import ConfigError
 
 ACCEL_SOLVERS = ("gravity", "factorization", "none")
-GYRO_SOLVERS = ("none", "factorization")
+GYRO_SOLVERS = ("none", "static", "dynamic", "full", "factorization")
 
 
 @dataclass
@@ -99,6 +109,21 @@ class AccelConfig:
 
 
 @dataclass
+class GyroRotationOptions:
+    """How rotations are used (``[gyro.rotations]``), for the static/dynamic/full solvers."""
+
+    max_gap_s: float = 2.0
+    min_tilt_deg: float = 30.0
+
+
+@dataclass
+class GyroFullOptions:
+    """Options of the 12-parameter gyro model (``[gyro.full]``)."""
+
+    max_iterations: int = 100
+
+
+@dataclass
 class GyroConfig:
     """``[gyro]``: which solver (``"none"``: the gyroscope is not calibrated)."""
 
@@ -106,6 +131,8 @@ class GyroConfig:
     nominal_sensitivity: float | None = None
     max_scale_error: float = 0.20
     factorization: GyroFactorizationOptions = field(default_factory=GyroFactorizationOptions)
+    rotations: GyroRotationOptions = field(default_factory=GyroRotationOptions)
+    full: GyroFullOptions = field(default_factory=GyroFullOptions)
 
 
 @dataclass

@@ -102,12 +102,18 @@ def _summary(console: Console, cal, where: str) -> None:
             if x.get("rms_loo") is not None:
                 text += f", held out {x['rms_loo']:.4f} m/s^2"
             console.print(text)
-        for rot in x.get("rotations", [])[:3]:
+        turns = x.get("rotations", [])
+        if turns and x.get("rotation_rms_deg") is not None:
             console.print(
-                f"  {rot['label'] or rot['segment']}: "
-                f"measured {rot['measured_angle_deg']:.3f} deg, "
-                f"known {rot['known_angle_deg']:.3f} deg"
+                f"  {len(turns)} rotations, angle residual RMS {x['rotation_rms_deg']:.3f} deg"
             )
+        elif turns:
+            for rot in turns[:3]:
+                console.print(
+                    f"  {rot['label'] or rot['segment']}: "
+                    f"measured {rot['measured_angle_deg']:.3f} deg, "
+                    f"known {rot['known_angle_deg']:.3f} deg"
+                )
         per = "m/s^2" if name == "accel" else "rad/s"
         console.print(
             "  bias "
