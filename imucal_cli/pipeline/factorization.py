@@ -30,6 +30,7 @@ from .common import (
     session_name,
     static_poses,
 )
+from .gyro import _gyro_checks
 
 #: Poses whose labelled up directions are this close to opposite form an eq.-(14) pair.
 OPPOSITE_TOLERANCE_DEG = 5.0
@@ -307,7 +308,8 @@ def calibrate_accel_factorization(session: Session, cfg: Config) -> SensorCalibr
         units="m/s^2",
         bias=res.b,
         matrix=matrix,
-        residual_rms=g * res.constraint_rms,
+        # In output units: the constraint errors are in g^2; |f|^2 - 1 ~ 2 (|f| - 1).
+        residual_rms=g * res.constraint_rms / 2,
         extra=extra,
     )
 
@@ -333,6 +335,13 @@ def _orthogonal_pairs(turns: list[Segment]) -> int:
         if all(abs(abs(s.axis @ a) - 1) > 1e-3 for a in axes):
             axes.append(s.axis)
     return sum(abs(a @ b) < 1e-3 for n, a in enumerate(axes) for b in axes[n + 1 :])
+
+
+def _orthogonality_rms(res: fz.FactorizationResult, c: fz.Constraints) -> float:
+    """RMS, in rad/s, of each turn's rate along the other turn's axis (f_i . f_k / |f_k|)."""
+    F = res.F
+    along = np.sum(F[c.i] * F[c.k], axis=1) / np.linalg.norm(F[c.k], axis=1)
+    return rms(along)
 
 
 def _gyro_bias(session: Session, where: str) -> tuple[np.ndarray, float]:
@@ -520,7 +529,7 @@ def calibrate_gyro_factorization(session: Session, cfg: Config) -> SensorCalibra
                     ),
                 }
             ],
-            "warnings": [],
+            "warnings": _gyro_checks(session, cfg, gains, units_in),
         }
     )
     return SensorCalibration(
@@ -528,6 +537,6 @@ def calibrate_gyro_factorization(session: Session, cfg: Config) -> SensorCalibra
         units="rad/s",
         bias=res.b,
         matrix=res.T,
-        residual_rms=res.constraint_rms,
+        residual_rms=_orthogonality_rms(res, c),
         extra=extra,
     )
