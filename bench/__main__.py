@@ -6,9 +6,9 @@ import argparse
 
 from rich.console import Console
 
-from bench import capture, factorization, gravity
+from bench import capture, factorization, gravity, gyro
 
-BENCHMARKS = ("gravity", "factorization", "capture")
+BENCHMARKS = ("gravity", "factorization", "gyro", "capture")
 
 
 def main() -> None:
@@ -23,6 +23,8 @@ def main() -> None:
         ok = gravity.run(console, n_seeds=args.seeds) and ok
     if args.only in (None, "factorization"):
         ok = factorization.run(console, n_seeds=args.seeds) and ok
+    if args.only in (None, "gyro"):
+        ok = gyro.run(console, n_seeds=max(20, args.seeds // 2)) and ok
     if args.only in (None, "capture"):
         ok = capture.run(console, quick=args.quick) and ok
     raise SystemExit(0 if ok else 1)

@@ -18,6 +18,7 @@ from imucal_cli.pipeline.common import (  # noqa: F401 (re-exported for callers)
     nominal_sensor,
     session_name,
     static_poses,
+    with_segments,
 )
 from imucal_cli.session import Session, utc_now_iso
 
@@ -81,31 +82,6 @@ def calibrate_session(session: Session, cfg: Config, *, name: str | None = None)
         created=utc_now_iso(),
         extra=extra,
     )
-
-
-def with_segments(session: Session) -> tuple[Session, str | None]:
-    """The session itself, or, when it has no segments at all (a continuous recording of hold,
-    turn, hold, ...), a copy segmented here: still periods and the motions between them,
-    thresholds from the data's own noise. Returns a note saying so, or None."""
-    if session.segments or session.accel is None:
-        return session, None
-    from dataclasses import replace
-
-    from imucal_cli.session import Segment
-    from imucal_cli.solvers.segmentation import find_rotations, find_static
-
-    still = find_static(session.time, session.accel, session.gyro)
-    segs = [Segment(f"{i:04d}", "static", iv.start, iv.stop) for i, iv in enumerate(still)]
-    if session.gyro is not None:
-        moves = find_rotations(session.time, session.gyro, still)
-        segs += [Segment("", "rotation", iv.start, iv.stop) for iv in moves]
-    segs.sort(key=lambda s: s.start)
-    segs = [replace(s, name=f"{i:04d}") for i, s in enumerate(segs)]
-    note = (
-        f"the session had no segments: {len(still)} still periods and "
-        f"{len(segs) - len(still)} motions found in the stream"
-    )
-    return replace(session, segments=segs), note
 
 
 def suspect_error(cal: Calibration) -> SolverError | None:

@@ -211,3 +211,28 @@ def num(x) -> float | None:
 
 def session_name(session: Session) -> str:
     return str(session.path) if session.path is not None else "session"
+
+
+def with_segments(session: Session) -> tuple[Session, str | None]:
+    """The session itself, or, when it has no segments at all (a continuous recording of hold,
+    turn, hold, ...), a copy segmented here: still periods and the motions between them,
+    thresholds from the data's own noise. Returns a note saying so, or None."""
+    if session.segments or session.accel is None:
+        return session, None
+    from dataclasses import replace
+
+    from imucal_cli.session import Segment
+    from imucal_cli.solvers.segmentation import find_rotations, find_static
+
+    still = find_static(session.time, session.accel, session.gyro)
+    segs = [Segment(f"{i:04d}", "static", iv.start, iv.stop) for i, iv in enumerate(still)]
+    if session.gyro is not None:
+        moves = find_rotations(session.time, session.gyro, still)
+        segs += [Segment("", "rotation", iv.start, iv.stop) for iv in moves]
+    segs.sort(key=lambda s: s.start)
+    segs = [replace(s, name=f"{i:04d}") for i, s in enumerate(segs)]
+    note = (
+        f"the session had no segments: {len(still)} still periods and "
+        f"{len(segs) - len(still)} motions found in the stream"
+    )
+    return replace(session, segments=segs), note

@@ -25,7 +25,7 @@ from imucal_cli.session import Segment, Session
 from imucal_cli.solvers import gyro_axes, gyro_full
 from imucal_cli.solvers.segmentation import find_rotations, find_static
 
-from .common import num, rms, session_name
+from .common import num, rms, session_name, with_segments
 
 AXES = "xyz"
 
@@ -169,50 +169,14 @@ def calibrate_gyro_rotations(session: Session, cfg: Config, accel_cal: SensorCal
 
     rotations = []
     if solver in ("static", "dynamic"):
-        k, b, k_std, b_std = np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)
-        min_lev = np.sin(np.radians(cfg.gyro.rotations.min_tilt_deg)) ** 2
-        per_axis = {i: [] for i in range(3)}
-        for turn in turns:
-            x, T = _integral(session, turn.segment)
-            i = _axis_of(turn, x, bias_still, T)
-            axis = np.eye(3)[i] * (
-                np.sign(turn.segment.axis[i]) if turn.segment.axis is not None else 1
-            )
-            angle, lev = gyro_axes.rotation_angle_about_axis(
-                stills[turn.before].g, stills[turn.after].g, axis
-            )
-            if lev < min_lev:
-                notes.append(
-                    f"{turn.segment.label or turn.segment.name}: axis within "
-                    f"{cfg.gyro.rotations.min_tilt_deg:g} deg of vertical, invisible to "
-                    "gravity: skipped"
-                )
-                continue
-            sign = 1.0 if axis[i] > 0 else -1.0
-            per_axis[i].append((turn, x[i], T, sign * angle))
-        for i in range(3):
-            rows = per_axis[i]
-            if len(rows) < (2 if solver == "static" else 3):
-                raise DesignError(
-                    f"{where}: {len(rows)} usable rotation(s) about {AXES[i]}; the {solver} "
-                    f"approach needs {'2' if solver == 'static' else '3'} or more per axis (the "
-                    f"paper turns 18 times per axis; {AXES[i]} turns need {AXES[i]} horizontal)"
-                )
-            x = np.array([r[1] for r in rows])
-            T = np.array([r[2] for r in rows])
-            ang = np.array([r[3] for r in rows])
-            if solver == "static":
-                fit = gyro_axes.fit_axis_static(x, T, ang, bias_still[i], b_still_std)
-            else:
-                fit = gyro_axes.fit_axis_dynamic(x, T, ang)
-            k[i], b[i], k_std[i], b_std[i] = fit.k, fit.b, fit.k_std, fit.b_std
-            for (turn, xi, Ti, ai), res in zip(rows, fit.residuals_rad, strict=True):
-                rotations.append({
-                    "segment": turn.segment.name, "label": turn.segment.label, "axis": AXES[i],
-                    "known_angle_deg": float(np.degrees(ai)),
-                    "measured_angle_deg": float(np.degrees(fit.k * (xi - fit.b * Ti))),
-                    "angle_error_deg": float(np.degrees(-res)),
-                })  # fmt: skip
+        # Pass 1 reads each angle about the nominal axis; pass 2 about the turn's own axis,
+        # the rotation vector that the pass-1 calibration integrates (a hand is never exact).
+        k = b = None
+        for _ in range(2):
+            k, b, k_std, b_std, rotations = _per_axis(
+                session, solver, turns, stills, bias_still, b_still_std, cfg, where,
+                notes if k is None else [], None if k is None else (k, b),
+            )  # fmt: skip
         matrix = np.diag(k)
         parameters = [
             {"name": f"b_{a}", "value": float(b[i]), "std": num(b_std[i]), "unit": units_in}
@@ -226,19 +190,7 @@ def calibrate_gyro_rotations(session: Session, cfg: Config, accel_cal: SensorCal
         extra = {"model_paper": "omega = K (omega_s - B), eq. (15)", "approach": solver}
         scale_for_checks = 1 / np.abs(k)
     else:
-        P = len(stills)
-        rot = gyro_full.Rotations(
-            t=[session.time[t.segment.start : t.segment.stop] for t in turns],
-            z=[session.gyro[t.segment.start : t.segment.stop] for t in turns],
-            before=np.array([t.before for t in turns]),
-            after=np.array([t.after for t in turns]),
-        )
-        st = gyro_full.Stills(
-            g=np.array([s.g for s in stills]), g_sigma=np.array([s.g_sigma for s in stills]),
-            z_mean=np.array([s.z_mean for s in stills]),
-            z_sigma=np.array([max(s.z_sigma, 1e-12) for s in stills]),
-        )  # fmt: skip
-        del P
+        rot, st = _full_problem(session, stills, turns)
         M0 = np.eye(3) * _initial_scale(session, cfg, rot, st, bias_still)
         res = gyro_full.fit_full(
             rot,
@@ -302,6 +254,97 @@ def calibrate_gyro_rotations(session: Session, cfg: Config, accel_cal: SensorCal
         residual_rms=rms(residual),
         extra=extra,
     )
+
+
+def _per_axis(session, solver, turns, stills, bias_still, b_still_std, cfg, where, notes, first):
+    """Per-axis fits (static or dynamic) of every axis; ``first`` = (k, b) of a previous pass
+    whose calibration gives each turn's actual axis."""
+    k, b, k_std, b_std = np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)
+    min_lev = np.sin(np.radians(cfg.gyro.rotations.min_tilt_deg)) ** 2
+    per_axis = {i: [] for i in range(3)}
+    for turn in turns:
+        x, T = _integral(session, turn.segment)
+        i = _axis_of(turn, x, bias_still, T)
+        sign = np.sign(turn.segment.axis[i]) if turn.segment.axis is not None else 1.0
+        axis = np.eye(3)[i] * sign
+        if first is not None:
+            rotvec = first[0] * (x - first[1] * T)
+            axis = rotvec / np.linalg.norm(rotvec) * np.sign(rotvec[i]) * sign
+        angle, lev = gyro_axes.rotation_angle_about_axis(
+            stills[turn.before].g, stills[turn.after].g, axis
+        )
+        if lev < min_lev:
+            notes.append(
+                f"{turn.segment.label or turn.segment.name}: axis within "
+                f"{cfg.gyro.rotations.min_tilt_deg:g} deg of vertical, invisible to gravity: "
+                "skipped"
+            )
+            continue
+        # Channel i sees the rotation vector's component along i: the angle times the axis's
+        # i-th component (1 for a turn exactly about the axis; the paper assumes that).
+        per_axis[i].append((turn, x[i], T, sign * angle * abs(axis[i])))
+    rotations = []
+    for i in range(3):
+        rows = per_axis[i]
+        if len(rows) < (2 if solver == "static" else 3):
+            raise DesignError(
+                f"{where}: {len(rows)} usable rotation(s) about {AXES[i]}; the {solver} "
+                f"approach needs {'2' if solver == 'static' else '3'} or more per axis (the "
+                f"paper turns 18 times per axis; {AXES[i]} turns need {AXES[i]} horizontal)"
+            )
+        x = np.array([r[1] for r in rows])
+        T = np.array([r[2] for r in rows])
+        ang = _unwrap(np.array([r[3] for r in rows]), x - bias_still[i] * T)
+        if solver == "static":
+            fit = gyro_axes.fit_axis_static(x, T, ang, bias_still[i], b_still_std)
+        else:
+            fit = gyro_axes.fit_axis_dynamic(x, T, ang)
+        k[i], b[i], k_std[i], b_std[i] = fit.k, fit.b, fit.k_std, fit.b_std
+        for (turn, xi, Ti, ai), res in zip(rows, fit.residuals_rad, strict=True):
+            rotations.append({
+                "segment": turn.segment.name, "label": turn.segment.label, "axis": AXES[i],
+                "known_angle_deg": float(np.degrees(ai)),
+                "measured_angle_deg": float(np.degrees(fit.k * (xi - fit.b * Ti))),
+                "angle_error_deg": float(np.degrees(-res)),
+            })  # fmt: skip
+    return k, b, k_std, b_std, rotations
+
+
+def _unwrap(angle: np.ndarray, integral: np.ndarray) -> np.ndarray:
+    """Gravity gives each angle only modulo 360 degrees: a turn of 179 degrees may read -181.
+    Take the branch nearest the gyro's own estimate (a rough scale from the turns clear of
+    +-180 degrees times each turn's bias-free integral)."""
+    clear = np.abs(angle) < np.radians(150)
+    if not clear.any():
+        return angle
+    k = np.median(angle[clear] / integral[clear])
+    return angle + 2 * np.pi * np.round((k * integral - angle) / (2 * np.pi))
+
+
+def _full_problem(session, stills, turns) -> tuple[gyro_full.Rotations, gyro_full.Stills]:
+    rot = gyro_full.Rotations(
+        t=[session.time[t.segment.start : t.segment.stop] for t in turns],
+        z=[session.gyro[t.segment.start : t.segment.stop] for t in turns],
+        before=np.array([t.before for t in turns]),
+        after=np.array([t.after for t in turns]),
+    )
+    st = gyro_full.Stills(
+        g=np.array([s.g for s in stills]),
+        g_sigma=np.array([s.g_sigma for s in stills]),
+        z_mean=np.array([s.z_mean for s in stills]),
+        z_sigma=np.array([max(s.z_sigma, 1e-12) for s in stills]),
+    )
+    return rot, st
+
+
+def full_problem(session: Session, cfg: Config, accel_cal: SensorCalibration):
+    """The full model's data for a session, as :func:`calibrate_gyro_rotations` builds it:
+    ``(Rotations, Stills, per-sample gyro noise)`` (for the Cramér-Rao bound of a design)."""
+    session, _ = with_segments(session)
+    stills, turns, _, _ = _stills_and_turns(session, accel_cal, cfg, session_name(session))
+    z = np.vstack([session.gyro[s.segment.start : s.segment.stop] for s in stills])
+    rot, st = _full_problem(session, stills, turns)
+    return rot, st, float(np.sqrt(np.mean(np.var(z, axis=0))))
 
 
 def _initial_scale(session, cfg, rot, st, bias) -> float:
