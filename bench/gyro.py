@@ -110,7 +110,8 @@ def simulated(console: Console, n_seeds: int) -> bool:
     for col in ("parameter", "RMS error", "sqrt(CRB)", "error/bound", "95% coverage"):
         t2.add_column(col, justify="right")
     for i, n in enumerate(names):
-        t2.add_row(n, f"{np.sqrt(np.mean(err[:, i] ** 2)):.4g}", f"{np.sqrt(np.mean(crb[:, i])):.4g}",
+        rms_err, bound = np.sqrt(np.mean(err[:, i] ** 2)), np.sqrt(np.mean(crb[:, i]))
+        t2.add_row(n, f"{rms_err:.4g}", f"{bound:.4g}",
                    f"{ratio[i]:.2f}", f"{100 * cover[i]:.0f}%")  # fmt: skip
     console.print(t2)
     ok = ratio.max() <= 1.2 and worst_scale < 0.1

@@ -835,14 +835,22 @@ def _table_one(section: dict[str, Any]) -> Table:
 
 
 def _rotations_table(rotations: list[dict[str, Any]]) -> Table:
-    """Turns of known angle: the angle the calibrated gyro integrates against the known one."""
-    title = "turns of known angle (error = measured - known)"
+    """Per rotation: the angle the calibrated gyro integrates against the reference one (a
+    known angle, or the angle the calibrated accelerometer measured), or, for models without
+    a reference angle, the mismatch of the gravity direction predicted after the turn."""
+    reference = any(r["known_angle_deg"] is not None for r in rotations)
+    title = (
+        "rotations (error = gyro angle - reference angle, from the fixture or the accelerometer)"
+        if reference
+        else "rotations (error = angle between predicted and measured gravity after the turn)"
+    )
     table = Table(title=Text(title), box=box.SIMPLE, title_justify="left", pad_edge=False)
     numbers = {"justify": "right", "no_wrap": True}
     table.add_column("seg", no_wrap=True)
     table.add_column("label", max_width=52, overflow="fold")
-    table.add_column("known deg", **numbers)
-    table.add_column("measured deg", **numbers)
+    if reference:
+        table.add_column("reference deg", **numbers)
+    table.add_column("gyro deg", **numbers)
     table.add_column("error deg", **numbers)
     for r in rotations:
         error = r["angle_error_deg"]
@@ -852,7 +860,7 @@ def _rotations_table(rotations: list[dict[str, Any]]) -> Table:
                 for cell in (
                     r["segment"] or _MISSING,
                     r["label"] or _MISSING,
-                    _fixed(r["known_angle_deg"], 3),
+                    *([_fixed(r["known_angle_deg"], 3)] if reference else []),
                     _fixed(r["measured_angle_deg"], 4),
                     _MISSING if error is None else f"{error:+.3g}",
                 )

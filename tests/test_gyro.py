@@ -15,7 +15,11 @@ from imucal_cli.config import config_from_dict
 from imucal_cli.errors import ConfigError, DesignError
 from imucal_cli.simulator import simulate
 from imucal_cli.simulator_gyro import simulate_gyro_rotations
-from imucal_cli.solvers.gyro_axes import fit_axis_dynamic, fit_axis_static, rotation_angle_about_axis
+from imucal_cli.solvers.gyro_axes import (
+    fit_axis_dynamic,
+    fit_axis_static,
+    rotation_angle_about_axis,
+)
 from imucal_cli.solvers.gyro_full import integrate_rotations
 
 CREATED = "2026-01-01T00:00:00Z"
@@ -99,8 +103,9 @@ def test_full_model_recovers_misalignment_from_free_rotations():
 def test_rotations_are_found_in_an_unsegmented_stream(axes_session):
     session, truth = axes_session
     bare = replace(session, segments=[])
-    cal = calibrate_session(bare, config_from_dict(
-        {"accel": {"solver": "gravity"}, "gyro": {"solver": "full"}}))
+    cal = calibrate_session(
+        bare, config_from_dict({"accel": {"solver": "gravity"}, "gyro": {"solver": "full"}})
+    )
     assert any("found in the stream" in n for n in cal.gyro.extra["notes"])
     M_true = gyro_truth_in_accel_frame(cal, truth)
     assert np.all(np.abs(np.diag(cal.gyro.matrix) / np.diag(M_true) - 1) < 1e-3)
@@ -118,11 +123,15 @@ def test_a_session_without_rotations_is_refused():
 
 def test_rotations_without_still_data_around_them_are_refused(axes_session):
     session, _ = axes_session
-    cut = replace(session, segments=[s for s in session.segments if s.kind == "rotation"][:5]
-                  + [s for s in session.segments if s.kind == "static"][:0])
+    cut = replace(
+        session,
+        segments=[s for s in session.segments if s.kind == "rotation"][:5]
+        + [s for s in session.segments if s.kind == "static"][:0],
+    )
     with pytest.raises(DesignError):
-        calibrate_session(cut, config_from_dict({"accel": {"solver": "gravity"},
-                                                 "gyro": {"solver": "static"}}))
+        calibrate_session(
+            cut, config_from_dict({"accel": {"solver": "gravity"}, "gyro": {"solver": "static"}})
+        )
 
 
 def test_clipped_rotations_are_left_out_with_a_warning(axes_session):
@@ -138,5 +147,6 @@ def test_clipped_rotations_are_left_out_with_a_warning(axes_session):
 def test_gyro_solver_needs_an_accelerometer_calibration(axes_session):
     session, _ = axes_session
     with pytest.raises(ConfigError, match="accelerometer"):
-        calibrate_session(session, config_from_dict(
-            {"accel": {"solver": "none"}, "gyro": {"solver": "dynamic"}}))
+        calibrate_session(
+            session, config_from_dict({"accel": {"solver": "none"}, "gyro": {"solver": "dynamic"}})
+        )

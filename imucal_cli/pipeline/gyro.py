@@ -221,7 +221,13 @@ def calibrate_gyro_rotations(session: Session, cfg: Config, accel_cal: SensorCal
         s_axes = S / np.linalg.norm(S, axis=1, keepdims=True)
         extra = {
             "approach": "full",
-            "misalignment_deg": {  # sensitivity axes against the accelerometer's frame
+            # Angles between the gyro's sensitivity axes, minus 90 (as for the accelerometer)...
+            "misalignment_deg": {
+                f"{AXES[i]}{AXES[j]}": float(np.degrees(np.arccos(s_axes[i] @ s_axes[j])) - 90)
+                for i, j in ((0, 1), (0, 2), (1, 2))
+            },
+            # ...and of each sensitivity axis from the accelerometer's axis of the same name.
+            "axis_to_accel_frame_deg": {
                 a: float(np.degrees(np.arccos(np.clip(s_axes[i, i], -1, 1))))
                 for i, a in enumerate(AXES)
             },
