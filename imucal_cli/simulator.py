@@ -793,3 +793,40 @@ def simulate(
         gyro_units=stream.truth.gyro_units,
     )
     return session, truth_calibration(stream, created)
+
+
+def session_from_motion(
+    truth: ImuTruth,
+    specific_force: np.ndarray,
+    rate: np.ndarray,
+    segments: list,
+    *,
+    noise_seed: np.random.SeedSequence,
+    rate_hz: float,
+    gravity: float,
+    sensor: str,
+    created: str | None = None,
+):
+    """A session of the simulated unit performing a motion: the true specific force and rate
+    (fixture frame, (N, 3), m/s^2 and rad/s) through the sensor model with its noise (one
+    generator from ``noise_seed``: accelerometer noise first, then gyroscope)."""
+    from .session import Session, utc_now_iso
+
+    n = len(specific_force)
+    nrng = np.random.default_rng(noise_seed)
+    accel_n = nrng.standard_normal((n, 3)) * truth.accel_noise
+    gyro_n = nrng.standard_normal((n, 3)) * truth.gyro_noise
+    return Session(
+        time=np.arange(n) / rate_hz,
+        accel=truth.accel_raw(specific_force, accel_n),
+        gyro=truth.gyro_raw(rate, gyro_n),
+        temperature=None,
+        segments=segments,
+        created=created or utc_now_iso(),
+        sensor=sensor,
+        source="simulator",
+        sample_rate_hz=rate_hz,
+        gravity=gravity,
+        accel_units=truth.accel_units,
+        gyro_units=truth.gyro_units,
+    )

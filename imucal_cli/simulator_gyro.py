@@ -48,6 +48,7 @@ from .simulator import (
     _up_to_vertical,
     random_imu,
     sensor_name,
+    session_from_motion,
 )
 
 __all__ = [
@@ -454,25 +455,18 @@ def simulate_gyro_rotations(
     assert i == n_total, (i, n_total)
 
     # Noise in SI (noise generator: accel then gyro), as the simulator.
-    nrng = np.random.default_rng(noise_ss)
-    accel_n = nrng.standard_normal((n_total, 3)) * truth.accel_noise
-    gyro_n = nrng.standard_normal((n_total, 3)) * truth.gyro_noise
-
     created = created or utc_now_iso()
     sensor = sensor_name(seed)
-    session = Session(
-        time=np.arange(n_total) / rate_hz,
-        accel=truth.accel_raw(force, accel_n),
-        gyro=truth.gyro_raw(rate, gyro_n),
-        temperature=None,
-        segments=segments,
-        created=created,
-        sensor=sensor,
-        source="simulator",
-        sample_rate_hz=rate_hz,
+    session = session_from_motion(
+        truth,
+        force,
+        rate,
+        segments,
+        noise_seed=noise_ss,
+        rate_hz=rate_hz,
         gravity=gravity,
-        accel_units=truth.accel_units,
-        gyro_units=truth.gyro_units,
+        sensor=sensor,
+        created=created,
     )
 
     plan_name = "qureshi-axes" if kind == "qureshi-axes" else f"free:{n_free}"

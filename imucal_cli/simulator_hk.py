@@ -41,6 +41,7 @@ from .simulator import (
     _up_to_vertical,
     plan_poses,
     random_imu,
+    session_from_motion,
 )
 
 __all__ = [
@@ -629,25 +630,18 @@ def simulate_hk_gyro(
     still("mounting 1: still, +Z up, after the ruler turn", 1, ez)
     assert state["i"] == n_total, (state["i"], n_total)
 
-    nrng = np.random.default_rng(noise_ss)
-    accel_n = nrng.standard_normal((n_total, 3)) * truth.accel_noise
-    gyro_n = nrng.standard_normal((n_total, 3)) * truth.gyro_noise
-
     created = created or utc_now_iso()
     sensor = f"sim-16bit seed {seed} (hk-gyro)"
-    session = Session(
-        time=np.arange(n_total) / rate_hz,
-        accel=truth.accel_raw(force, accel_n),
-        gyro=truth.gyro_raw(rate, gyro_n),
-        temperature=None,
-        segments=segments,
-        created=created,
-        sensor=sensor,
-        source="simulator",
-        sample_rate_hz=rate_hz,
+    session = session_from_motion(
+        truth,
+        force,
+        rate,
+        segments,
+        noise_seed=noise_ss,
+        rate_hz=rate_hz,
         gravity=gravity,
-        accel_units=truth.accel_units,
-        gyro_units=truth.gyro_units,
+        sensor=sensor,
+        created=created,
     )
 
     options = {
