@@ -381,15 +381,13 @@ def calibrate_gyro_factorization(session: Session, cfg: Config) -> SensorCalibra
     bias, noise = _gyro_bias(session, where)
 
     rows, seg_of_row = [], []
-    for k, s in enumerate(turns):
-        if s.angle_deg is not None:
-            continue
+    for k, s in enumerate(turns):  # every turn, known-angle ones too, gives orthogonality
         z = session.gyro[s.start : s.stop]
         idx = _pick_rows(z, bias, opts.samples_per_segment, noise)
         rows.append(z[idx])
         seg_of_row += [k] * len(idx)
     if not rows:
-        raise DesignError(f"{where}: no turn without a known angle to build constraints from")
+        raise DesignError(f"{where}: no turn shows motion above the gyro noise")
     Z = np.vstack(rows)
     seg_of_row = np.array(seg_of_row)
     i, k = [], []
@@ -412,7 +410,7 @@ def calibrate_gyro_factorization(session: Session, cfg: Config) -> SensorCalibra
     # Structure, not numerics: one mounting gives at most 3 independent orthogonality
     # constraints (its three axes), and the metric upgrade needs 5 (section IV-B).
     independent = sum(
-        min(3, _orthogonal_pairs([s for s in turns if _mounting(s) == mt and s.angle_deg is None]))
+        min(3, _orthogonal_pairs([s for s in turns if _mounting(s) == mt]))
         for mt in {_mounting(s) for s in turns}
     )
     if independent < 5:
