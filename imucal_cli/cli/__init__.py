@@ -15,6 +15,7 @@ from imucal_cli.errors import ImucalError
 from . import calibrate as _calibrate  # noqa: E402,F401
 from . import capture as _capture  # noqa: E402,F401
 from . import import_ as _import  # noqa: E402,F401
+from . import noise as _noise  # noqa: E402,F401
 from . import report as _report  # noqa: E402,F401
 from . import simulate as _simulate  # noqa: E402,F401
 from .app import app

@@ -1,0 +1,99 @@
+"""`imucal noise`: Allan deviation of a still recording; random walk and bias instability."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+from rich.console import Console
+
+from .app import app
+
+
+@app.command()
+def noise(
+    session: Path = typer.Argument(
+        ..., help="A still recording (.h5), e.g. from capture --plan still:20.", show_default=False
+    ),
+    calibration: Path | None = typer.Option(
+        None,
+        "--calibration",
+        "-c",
+        help="Calibration JSON (or a session holding one) turning raw channels into SI; "
+        "needed for counts or V.",
+    ),
+    plot: Path | None = typer.Option(
+        None, "--plot", metavar="FILE.png", help="Also draw the Allan deviation curves (matplotlib)."
+    ),
+    json_output: bool = typer.Option(
+        False, "--json", help="Print the figures and curves as JSON on stdout (nothing else)."
+    ),
+) -> None:
+    """Noise figures of a still recording for your filter: Allan deviation per axis.
+
+    Accelerometer: velocity random walk (m/s/sqrt(s), ug/sqrt(Hz)) and bias instability
+    (m/s^2, ug); gyroscope: angle random walk (rad/sqrt(s), deg/sqrt(h)) and bias instability
+    (deg/h); rate random walk where the curve shows a +1/2 slope.  Uses the longest static
+    segment of SESSION, or the whole recording when it has none.  Exit status: 0 done; 2 bad
+    input (raw units without --calibration, a recording too short or not still).
+    """
+    from imucal_cli.noise import analyse_noise, load_calibration
+    from imucal_cli.session import read_session
+
+    sess = read_session(session)
+    cal = None if calibration is None else load_calibration(calibration)
+    result = analyse_noise(sess, cal)
+    if plot is not None:
+        from imucal_cli.plots import noise_figure
+
+        noise_figure(result, plot)
+    if json_output:
+        typer.echo(json.dumps(result.to_dict(), indent=2))
+        return
+    console = Console()
+    _render(console, result)
+    if plot is not None:
+        console.print(f"wrote {plot}")
+
+
+def _render(console: Console, result) -> None:
+    """One table per sensor: a row per axis, a column per figure with its unit."""
+    from rich import box
+    from rich.table import Table
+    from rich.text import Text
+
+    from imucal_cli.noise import figures
+
+    sensor = f" ({result.sensor})" if result.sensor else ""
+    console.print(Text(f"{result.session}{sensor}: {result.span}, {result.limits()}"))
+    for s in result.sensors:
+        table = Table(
+            title=Text(f"{s.kind}: Allan deviation figures, raw -> {s.units} by {s.basis}"),
+            box=box.SIMPLE,
+            title_justify="left",
+        )
+        table.add_column("axis")
+        rows = figures(s.kind)
+        for _, _, _, unit, title in rows:
+            table.add_column(f"{title}\n{unit}", justify="right", no_wrap=True)
+        table.add_column("min at\ns", justify="right")
+        for name, a in zip(s.axes, s.noise, strict=True):
+            cells = [name]
+            for _, attr, factor, _, _ in rows:
+                value = getattr(a, attr)
+                text = "—" if value is None else f"{value * factor:.3g}"
+                if attr == "bias_instability" and a.bias_instability_bound and value is not None:
+                    text = "< " + text
+                cells.append(text)
+            cells.append(f"{a.bias_instability_tau_s:.3g}")
+            table.add_row(*map(Text, cells))
+        notes = sorted({note for a in s.noise for note in a.notes})
+        table.caption = Text(
+            "\n".join(["VRW/ARW: -1/2 slope line at tau = 1 s; bias instab.: minimum / 0.664; "
+                       "RRW: +1/2 slope at tau = 3 s", *notes])  # fmt: skip
+        )
+        table.caption_justify = "left"
+        console.print(table)
+    for w in result.warnings:
+        console.print(f"[bold yellow]warning[/]: {w}")
