@@ -180,10 +180,24 @@ def _known_turn(console: Console) -> None:
     still = turn.static_segments()
     start, stop = still[0].stop, still[-1].start
     w = cal.gyro.apply(turn.gyro[start:stop])
-    angle = np.degrees(np.trapezoid(w, turn.time[start:stop], axis=0))
+    from imucal_cli.solvers.gyro_full import integrate_rotations
+    from imucal_cli.solvers.gyro_axes import rotation_angle_about_axis
+
+    R = integrate_rotations([turn.time[start:stop]], [w])[0]
+    rotvec = (
+        __import__("scipy.spatial.transform", fromlist=["Rotation"])
+        .Rotation.from_matrix(R)
+        .as_rotvec()
+    )
+    g0 = cal.accel.apply(turn.accel[still[0].start : still[0].stop]).mean(axis=0)
+    g1 = cal.accel.apply(turn.accel[still[-1].start : still[-1].stop]).mean(axis=0)
+    axis = rotvec / np.linalg.norm(rotvec)
+    seen, _ = rotation_angle_about_axis(g0, g1, axis)
     console.print(
-        f"tomisuarez2 imu_90_x_rot (README: +90 deg about x): integrated with the calibrated gyro "
-        f"{angle[0]:+.2f} deg about x ({angle[1]:+.2f}, {angle[2]:+.2f} about y, z)"
+        f"tomisuarez2 imu_90_x_rot (README: +90 deg about x): the calibrated gyro integrates a "
+        f"turn of {np.degrees(np.linalg.norm(rotvec)):.2f} deg about "
+        f"[{axis[0]:+.3f}, {axis[1]:+.3f}, {axis[2]:+.3f}]; the calibrated accelerometer sees "
+        f"{np.degrees(seen):+.2f} deg about that axis"
     )
 
 
