@@ -180,8 +180,8 @@ def _known_turn(console: Console) -> None:
     still = turn.static_segments()
     start, stop = still[0].stop, still[-1].start
     w = cal.gyro.apply(turn.gyro[start:stop])
-    from imucal_cli.solvers.gyro_full import integrate_rotations
     from imucal_cli.solvers.gyro_axes import rotation_angle_about_axis
+    from imucal_cli.solvers.gyro_full import integrate_rotations
 
     R = integrate_rotations([turn.time[start:stop]], [w])[0]
     rotvec = (
