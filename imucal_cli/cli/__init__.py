@@ -12,8 +12,10 @@ import sys
 from imucal_cli.errors import ImucalError
 
 # Importing the command modules registers their commands on ``app``.
+from . import apply as _apply  # noqa: E402,F401
 from . import calibrate as _calibrate  # noqa: E402,F401
 from . import capture as _capture  # noqa: E402,F401
+from . import export as _export  # noqa: E402,F401
 from . import import_ as _import  # noqa: E402,F401
 from . import noise as _noise  # noqa: E402,F401
 from . import report as _report  # noqa: E402,F401

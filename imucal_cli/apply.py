@@ -1,0 +1,675 @@
+"""`imucal apply`: raw samples of a session or CSV file turned into SI units, streamed in chunks.
+
+For each sensor the calibration holds, every raw sample becomes::
+
+    calibrated = matrix @ (raw - bias)          # m/s^2 (accel), rad/s (gyro)
+
+The input is read and the output written one block of ``chunk_rows`` samples at a time
+(default 65536), so memory stays constant however long the file is.
+
+Input
+-----
+- A session (HDF5, ``shared/spec/session-format.md``): ``/raw/time`` and the ``/raw/accel`` /
+  ``/raw/gyro`` datasets the calibration needs, read by slicing.  Only the basics are checked
+  (format attribute and version, datasets present, shapes, channel counts, time finite and
+  strictly increasing); segments are not read.  A file whose writer was killed opens in SWMR
+  mode and is read up to its shortest ``/raw`` dataset, like
+  :func:`imucal_cli.session.read_session` does.
+- A CSV (any other file): the same column mapping as ``imucal import``
+  (:func:`imucal_cli.capture.importers.parse_columns` / ``infer_columns``: ``--columns`` or a
+  header line; commas, tabs or spaces; ``#`` comments; non-numeric lines before the data are
+  the header; later lines that do not give the expected numbers are skipped and counted).
+  Without a ``t`` column the time of kept row i is ``i / rate``.
+
+Only the sensors the calibration holds are applied; each must be in the input with as many
+channels as its ``bias`` has.
+
+Output: HDF5 (``imucal-calibrated``, version 1)
+-----------------------------------------------
+A new file (written to ``OUTPUT.tmp`` and renamed when complete):
+
+======================  ============  =====================================================
+dataset                 shape, dtype  meaning
+======================  ============  =====================================================
+``/calibrated/time``    (N,) float64  seconds, as in the input (attribute ``units = "s"``)
+``/calibrated/accel``   (N, 3) f8     m/s^2, only if the calibration has ``accel``
+``/calibrated/gyro``    (N, 3) f8     rad/s, only if the calibration has ``gyro``
+======================  ============  =====================================================
+
+The datasets are chunked and resizable (``maxshape = (None, ...)``).  Each sensor dataset has
+attributes ``units`` (output units), ``units_in`` (raw units, when known), ``solver`` and
+``channels_in`` (the raw channel count).  Root attributes: ``format = "imucal-calibrated"``,
+``format_version = 1``, ``created`` (ISO 8601 UTC, when written), ``model`` (the equation
+above), ``source`` (the input file), ``calibration`` (the calibration file), ``calibration_json``
+(its content), ``calibration_created``, and, when known, ``calibration_session`` and ``sensor``;
+``toolkit_version``.
+
+Output: CSV
+-----------
+A comment line naming the model, the calibration and the units, then the header
+``t,ax,ay,az,gx,gy,gz`` (the sensor columns of the calibrated sensors only) and one line per
+sample: time as Python's shortest round-trip repr, values with 10 significant digits.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO
+
+import h5py
+import numpy as np
+
+from imucal_cli import __version__
+from imucal_cli.calibration import (
+    MODEL_EQUATION,
+    Calibration,
+    SensorCalibration,
+    calibration_to_json,
+)
+from imucal_cli.capture.importers import (
+    TIME_UNITS,
+    _check_time,
+    _numbers,
+    _split,
+    infer_columns,
+    parse_columns,
+)
+from imucal_cli.errors import InputError
+from imucal_cli.session import FORMAT as SESSION_FORMAT
+from imucal_cli.session import FORMAT_VERSION as SESSION_FORMAT_VERSION
+from imucal_cli.session import _as_int, _as_str, _one_line, _open_for_reading, utc_now_iso
+
+__all__ = [
+    "DEFAULT_CHUNK_ROWS",
+    "FORMAT",
+    "FORMAT_VERSION",
+    "OUTPUT_FORMATS",
+    "ApplySummary",
+    "apply_calibration",
+    "output_format",
+]
+
+FORMAT = "imucal-calibrated"
+FORMAT_VERSION = 1
+DEFAULT_CHUNK_ROWS = 65536
+OUTPUT_FORMATS = ("h5", "csv")
+SENSORS = ("accel", "gyro")
+UNITS = {"accel": "m/s^2", "gyro": "rad/s"}
+CSV_NAMES = {"accel": ("ax", "ay", "az"), "gyro": ("gx", "gy", "gz")}
+
+_SUFFIXES = {".h5": "h5", ".hdf5": "h5", ".hdf": "h5", ".csv": "csv", ".txt": "csv"}
+_H5_CHUNK_ROWS = 8192  # rows per HDF5 chunk of the output datasets
+_VALUE_FMT = "%.10g"
+
+Progress = Callable[[int, int], None]
+"""``progress(done, total)``: rows of ``total`` rows (HDF5) or bytes of ``total`` bytes (CSV)."""
+
+
+@dataclass
+class ApplySummary:
+    """What :func:`apply_calibration` did.
+
+    Attributes
+    ----------
+    input, output : Path
+        The files read and written.
+    input_kind : {"session", "csv"}
+    output_format : {"h5", "csv"}
+    sensors : tuple of str
+        The sensors calibrated, in the order ``accel``, ``gyro``.
+    samples : int
+        Samples written.
+    duration_s : float
+        Time span of the samples written, s (0 for fewer than two).
+    malformed : int
+        CSV: lines skipped because they did not give the expected numbers.
+    first_malformed : str or None
+        CSV: ``file:line`` of the first of them.
+    chunks : int
+        Blocks read and written.
+    """
+
+    input: Path
+    output: Path
+    input_kind: str
+    output_format: str
+    sensors: tuple[str, ...]
+    samples: int = 0
+    duration_s: float = 0.0
+    malformed: int = 0
+    first_malformed: str | None = None
+    chunks: int = 0
+    _first_time: float | None = field(default=None, repr=False)
+
+
+@dataclass
+class _Block:
+    time: np.ndarray
+    raw: dict[str, np.ndarray]
+    done: int  # progress units consumed up to the end of this block
+
+
+def output_format(path: str | os.PathLike, fmt: str | None = None) -> str:
+    """Return the output format: ``fmt`` when given, else from the suffix of ``path``.
+
+    Raises
+    ------
+    InputError
+        An unknown ``fmt``, or no ``fmt`` and a suffix that is not ``.h5``/``.hdf5``/``.hdf``
+        (HDF5) or ``.csv``/``.txt`` (CSV).
+    """
+    if fmt is not None:
+        if fmt not in OUTPUT_FORMATS:
+            raise InputError(f"--format {fmt!r}: use h5 or csv")
+        return fmt
+    suffix = Path(path).suffix.lower()
+    if suffix not in _SUFFIXES:
+        raise InputError(
+            f"{path}: cannot tell the output format from the suffix {suffix or '(none)'!r}: "
+            "name it .h5 or .csv, or pass --format h5|csv"
+        )
+    return _SUFFIXES[suffix]
+
+
+def _sections(cal: Calibration) -> dict[str, SensorCalibration]:
+    return {name: getattr(cal, name) for name in SENSORS if getattr(cal, name) is not None}
+
+
+def _chunk_bounds(n: int, chunk_rows: int) -> list[tuple[int, int]]:
+    """Half-open blocks of ``chunk_rows``; a last block of one row joins the one before.
+
+    ``SensorCalibration.apply`` on one row takes numpy's matrix-vector path, which may round
+    differently from the matrix-matrix path of longer blocks; joining keeps the output equal
+    bit for bit to applying the calibration to the whole array at once.
+    """
+    bounds = [(start, min(start + chunk_rows, n)) for start in range(0, n, chunk_rows)]
+    if len(bounds) >= 2 and bounds[-1][1] - bounds[-1][0] == 1:
+        bounds[-2:] = [(bounds[-2][0], n)]
+    return bounds
+
+
+# --------------------------------------------------------------------------------------------
+# Readers: iterators of blocks
+# --------------------------------------------------------------------------------------------
+
+
+def _session_blocks(
+    path: Path, sections: dict[str, SensorCalibration], cal_src: str, chunk_rows: int
+) -> tuple[Iterator[_Block], int, dict[str, str | None], Callable[[], None]]:
+    """Open a session; return its block iterator, row count, raw units and a closer."""
+    src = str(path)
+    file, unclosed = _open_for_reading(path, src)
+    try:
+        fmt = file.attrs.get("format")
+        if _as_str(fmt) != SESSION_FORMAT:
+            shown = "absent" if fmt is None else repr(_as_str(fmt) or fmt)
+            raise InputError(
+                f"{src}: not an imucal session (format attribute {shown}, "
+                f"expected {SESSION_FORMAT!r})"
+            )
+        version = file.attrs.get("format_version")
+        if _as_int(version) != SESSION_FORMAT_VERSION:
+            raise InputError(
+                f"{src}: unsupported session format_version {version!r} "
+                f"(this reader reads version {SESSION_FORMAT_VERSION})"
+            )
+        raw = file.get("raw")
+        if not isinstance(raw, h5py.Group):
+            raise InputError(f"{src}: /raw is missing")
+        time_ds = raw.get("time")
+        if not isinstance(time_ds, h5py.Dataset) or time_ds.dtype.kind not in "iuf":
+            raise InputError(f"{src}: /raw/time is missing or not numeric")
+        if time_ds.ndim != 1:
+            raise InputError(f"{src}: /raw/time must be 1-D, has shape {time_ds.shape}")
+        datasets = {}
+        for name, sec in sections.items():
+            ds = raw.get(name)
+            if not isinstance(ds, h5py.Dataset):
+                raise InputError(
+                    f"{src} has no {name} data (/raw/{name}), but {cal_src} calibrates the {name}"
+                )
+            if ds.dtype.kind not in "iuf" or ds.ndim != 2:
+                raise InputError(
+                    f"{src}: /raw/{name} must be numeric with shape (N, channels), "
+                    f"has shape {ds.shape}"
+                )
+            n_cal = sec.bias.shape[0]
+            if ds.shape[1] != n_cal:
+                raise InputError(
+                    f"{cal_src} calibrates {n_cal} {name} channels but {src} has "
+                    f"{ds.shape[1]} (/raw/{name} shape {ds.shape})"
+                )
+            datasets[name] = ds
+        n = time_ds.shape[0]
+        if unclosed:
+            n = min([n, *(ds.shape[0] for ds in datasets.values())])
+        for name, ds in datasets.items():
+            if ds.shape[0] != n:
+                raise InputError(f"{src}: /raw/{name} has {ds.shape[0]} rows, /raw/time has {n}")
+        units = {name: _as_str(file.attrs.get(f"{name}_units")) for name in sections}
+    except BaseException:
+        file.close()
+        raise
+
+    def blocks() -> Iterator[_Block]:
+        last = None
+        for start, stop in _chunk_bounds(n, chunk_rows):
+            try:
+                t = np.asarray(time_ds[start:stop], dtype=np.float64)
+                values = {
+                    name: np.asarray(ds[start:stop], dtype=np.float64)
+                    for name, ds in datasets.items()
+                }
+            except (OSError, KeyError, RuntimeError) as exc:
+                raise InputError(f"{src}: damaged HDF5 file ({_one_line(exc)})") from None
+            bad = np.flatnonzero(~np.isfinite(t))
+            if bad.size:
+                raise InputError(f"{src}: /raw/time is {t[bad[0]]} at sample {start + bad[0]}")
+            previous = t if last is None else np.concatenate(([last], t))
+            bad = np.flatnonzero(np.diff(previous) <= 0)
+            if bad.size:
+                i = int(bad[0])
+                sample = start + i + (0 if last is None else -1) + 1
+                raise InputError(
+                    f"{src}: /raw/time is not strictly increasing (sample {sample}: "
+                    f"{float(previous[i + 1])!r} s after {float(previous[i])!r} s)"
+                )
+            last = float(t[-1])
+            yield _Block(time=t, raw=values, done=stop)
+
+    return blocks(), n, units, file.close
+
+
+@dataclass
+class _CsvState:
+    malformed: int = 0
+    first_malformed: str | None = None
+
+
+def _csv_blocks(
+    path: Path,
+    handle: IO[bytes],
+    sections: dict[str, SensorCalibration],
+    cal_src: str,
+    columns: str | None,
+    time_unit: str,
+    rate_hz: float | None,
+    chunk_rows: int,
+    state: _CsvState,
+) -> Iterator[_Block]:
+    """Blocks of a CSV read line by line (the ``imucal import`` column rules)."""
+    src = str(path)
+    spec = None if columns is None else parse_columns(columns)
+    spec_from_header = False
+    comma: bool | None = None
+    header: list[str] | None = None
+    rows: list[list[float]] = []
+    lines: list[int] = []
+    done = 0
+    n_kept = 0
+    last_time: float | None = None
+    last_line = 0
+
+    def col(name: str) -> int | None:
+        return spec.index(name) if name in spec else None
+
+    def check_spec() -> None:
+        nonlocal spec, spec_from_header
+        if spec is None:
+            spec = infer_columns(header) if header else None
+            if spec is None:
+                raise InputError(
+                    f"{src}: cannot tell which field is which (no header naming the axes): "
+                    "pass --columns, e.g. --columns t,ax,ay,az,gx,gy,gz"
+                )
+            spec_from_header = True
+        for name, sec in sections.items():
+            axes = CSV_NAMES[name]
+            if axes[0] not in spec:
+                how = "--columns" if not spec_from_header else "the header"
+                raise InputError(
+                    f"{src} has no {name} columns ({','.join(axes)} in {how}), but {cal_src} "
+                    f"calibrates the {name}"
+                )
+            if sec.bias.shape[0] != 3:
+                raise InputError(
+                    f"{cal_src} calibrates {sec.bias.shape[0]} {name} channels but {src} has 3 "
+                    f"({','.join(axes)})"
+                )
+        if col("t") is None and rate_hz is None:
+            raise InputError(
+                f"{src}: no time column (t) in the columns: pass --rate HZ to stamp row i "
+                "at i / rate"
+            )
+
+    def make_block(k: int) -> _Block:
+        nonlocal rows, lines, n_kept, last_time, last_line
+        data = np.array(rows[:k], dtype=np.float64)
+        numbers = np.array(lines[:k])
+        del rows[:k], lines[:k]
+        if col("t") is not None:
+            t = data[:, col("t")] * TIME_UNITS[time_unit]
+            if last_time is None:
+                _check_time(t, numbers, src)
+            else:
+                _check_time(np.r_[last_time, t], np.r_[last_line, numbers], src)
+        else:
+            t = np.arange(n_kept, n_kept + k) / rate_hz
+        n_kept += k
+        last_time, last_line = float(t[-1]), int(numbers[-1])
+        raw = {name: data[:, [col(a) for a in CSV_NAMES[name]]] for name in sections}
+        return _Block(time=t, raw=raw, done=done)
+
+    seen_data = False
+    for number, raw_line in enumerate(handle, start=1):
+        done += len(raw_line)
+        line = raw_line.decode("utf-8", errors="replace").strip().lstrip("\ufeff")
+        if not line or line.startswith("#"):
+            continue
+        if comma is None:
+            comma = "," in line
+        parts = _split(line, comma)
+        values = _numbers(parts)
+        if values is None and not seen_data:
+            header = parts
+            continue
+        if not seen_data and values is not None:
+            seen_data = True
+            check_spec()
+            if spec_from_header and len(values) != len(spec):
+                raise InputError(
+                    f"{src}: the header names {len(spec)} fields but rows have "
+                    f"{len(values)}: pass --columns"
+                )
+        if values is None or len(values) != len(spec):
+            state.malformed += 1
+            if state.first_malformed is None:
+                state.first_malformed = f"{path.name}:{number}"
+            continue
+        rows.append(values)
+        lines.append(number)
+        # Keep at least 2 rows back so that the last block never has a single row.
+        if len(rows) >= chunk_rows + 2:
+            yield make_block(chunk_rows)
+    if not seen_data:
+        raise InputError(f"{src}: no numeric rows (only header or text lines)")
+    if n_kept == 0 and not rows:
+        raise InputError(
+            f"{src}: no row has the {len(spec)} fields the columns name; fix --columns"
+        )
+    if rows:
+        yield make_block(len(rows))
+
+
+# --------------------------------------------------------------------------------------------
+# Writers
+# --------------------------------------------------------------------------------------------
+
+
+class _H5Writer:
+    def __init__(
+        self,
+        tmp: Path,
+        sections: dict[str, SensorCalibration],
+        cal: Calibration,
+        cal_src: str,
+        input_path: Path,
+        units_in: dict[str, str | None],
+    ) -> None:
+        self.file = h5py.File(tmp, "w")
+        self.n = 0
+        attrs = self.file.attrs
+        attrs["format"] = FORMAT
+        attrs["format_version"] = FORMAT_VERSION
+        attrs["created"] = utc_now_iso()
+        attrs["model"] = MODEL_EQUATION
+        attrs["source"] = str(input_path)
+        attrs["calibration"] = cal_src
+        attrs["calibration_json"] = calibration_to_json(cal)
+        attrs["calibration_created"] = cal.created
+        if cal.session is not None:
+            attrs["calibration_session"] = cal.session
+        if isinstance(cal.extra.get("sensor"), str):
+            attrs["sensor"] = cal.extra["sensor"]
+        attrs["toolkit_version"] = __version__
+        group = self.file.create_group("calibrated")
+        self.datasets = {
+            "time": group.create_dataset(
+                "time", shape=(0,), maxshape=(None,), dtype="f8", chunks=(_H5_CHUNK_ROWS,)
+            )
+        }
+        self.datasets["time"].attrs["units"] = "s"
+        for name, sec in sections.items():
+            ds = group.create_dataset(
+                name, shape=(0, 3), maxshape=(None, 3), dtype="f8", chunks=(_H5_CHUNK_ROWS, 3)
+            )
+            ds.attrs["units"] = UNITS[name]
+            ds.attrs["solver"] = sec.solver
+            ds.attrs["channels_in"] = int(sec.bias.shape[0])
+            unit = units_in.get(name) or sec.extra.get("units_in")
+            if isinstance(unit, str) and unit != "unknown":
+                ds.attrs["units_in"] = unit
+            self.datasets[name] = ds
+
+    def write(self, time: np.ndarray, values: dict[str, np.ndarray]) -> None:
+        start, stop = self.n, self.n + len(time)
+        for name, ds in self.datasets.items():
+            ds.resize(stop, axis=0)
+            ds[start:stop] = time if name == "time" else values[name]
+        self.n = stop
+
+    def close(self) -> None:
+        self.file.close()
+
+
+class _CsvWriter:
+    def __init__(
+        self, tmp: Path, sections: dict[str, SensorCalibration], cal_src: str, input_path: Path
+    ) -> None:
+        self.handle = open(tmp, "w", encoding="utf-8", newline="\n")
+        self.names = list(sections)
+        units = "; ".join(f"{','.join(CSV_NAMES[n])} {UNITS[n]}" for n in self.names)
+        self.handle.write(
+            f"# imucal apply: {MODEL_EQUATION} with {cal_src} on {input_path}; "
+            f"units: t s; {units}\n"
+        )
+        self.handle.write(",".join(["t", *(c for n in self.names for c in CSV_NAMES[n])]) + "\n")
+        self.row_fmt = ",".join(["%s", *([_VALUE_FMT] * (3 * len(self.names)))]) + "\n"
+
+    def write(self, time: np.ndarray, values: dict[str, np.ndarray]) -> None:
+        data = np.column_stack([values[n] for n in self.names]).tolist()
+        fmt = self.row_fmt
+        self.handle.writelines(
+            fmt % (repr(t), *row) for t, row in zip(time.tolist(), data, strict=True)
+        )
+
+    def close(self) -> None:
+        self.handle.close()
+
+
+# --------------------------------------------------------------------------------------------
+# The whole job
+# --------------------------------------------------------------------------------------------
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def apply_calibration(
+    cal: Calibration,
+    input_path: str | os.PathLike,
+    output_path: str | os.PathLike,
+    *,
+    cal_source: str = "<calibration>",
+    fmt: str | None = None,
+    columns: str | None = None,
+    time_unit: str = "s",
+    rate_hz: float | None = None,
+    chunk_rows: int = DEFAULT_CHUNK_ROWS,
+    overwrite: bool = False,
+    progress: Progress | None = None,
+) -> ApplySummary:
+    """Calibrate every sample of a session or CSV file and write them, block by block.
+
+    Parameters
+    ----------
+    cal : Calibration
+        What to apply: every sensor section it holds.
+    input_path : path-like
+        An HDF5 session, or a CSV (any file that is not HDF5).
+    output_path : path-like
+        The file to write (see the module docstring for the formats).  Written to
+        ``<output>.tmp`` first and renamed when complete, so a failure leaves no partial file.
+    cal_source : str
+        Name of the calibration file, for messages and the output's attributes.
+    fmt : {"h5", "csv"}, optional
+        Output format; default from the suffix of ``output_path``.
+    columns : str, optional
+        CSV input: the column spec of ``imucal import`` (``t,ax,ay,az,gx,gy,gz``; ``_`` skips);
+        default from the header line.
+    time_unit : {"s", "ms", "us"}
+        CSV input: unit of the ``t`` column.
+    rate_hz : float, optional
+        CSV input without a ``t`` column: sample rate, Hz (time of kept row i is ``i / rate``).
+    chunk_rows : int
+        Samples per block read, calibrated and written.  Memory is proportional to it.
+    overwrite : bool
+        Replace an existing output file instead of refusing.
+    progress : callable, optional
+        ``progress(done, total)`` after each block: rows (session) or bytes (CSV).
+
+    Returns
+    -------
+    ApplySummary
+
+    Raises
+    ------
+    InputError
+        Missing or unreadable input; not a session / columns that do not fit; a sensor of the
+        calibration missing from the input; a channel count that differs from the
+        calibration's (the message names both); raw units that differ from those the
+        calibration was made for; time not increasing; an output that exists (without
+        ``overwrite``), is the input, or cannot be written.
+    """
+    input_path, output_path = Path(input_path), Path(output_path)
+    src = str(input_path)
+    out_fmt = output_format(output_path, fmt)
+    if isinstance(chunk_rows, bool) or not isinstance(chunk_rows, int) or chunk_rows < 1:
+        raise InputError(f"chunk size must be a positive number of rows, got {chunk_rows!r}")
+    if time_unit not in TIME_UNITS:
+        raise InputError(f"unknown time unit {time_unit!r}: use s, ms or us")
+    if rate_hz is not None and not (np.isfinite(rate_hz) and rate_hz > 0):
+        raise InputError(f"--rate must be a positive number of Hz, got {rate_hz:g}")
+    if not input_path.exists():
+        raise InputError(f"{src}: no such file")
+    if input_path.is_dir():
+        raise InputError(f"{src}: is a directory, not a session or CSV file")
+    if _same_file(input_path, output_path):
+        raise InputError(f"{output_path}: is the input file; choose another --output")
+    if output_path.is_dir():
+        raise InputError(f"{output_path}: is a directory; give a file name as --output")
+    if output_path.exists() and not overwrite:
+        raise InputError(f"{output_path}: already exists (pass --force to replace it)")
+    sections = _sections(cal)
+
+    is_session = h5py.is_hdf5(input_path)
+    if not is_session and input_path.suffix.lower() in (".h5", ".hdf5", ".hdf"):
+        raise InputError(f"{src}: not an HDF5 file")
+    summary = ApplySummary(
+        input=input_path,
+        output=output_path,
+        input_kind="session" if is_session else "csv",
+        output_format=out_fmt,
+        sensors=tuple(sections),
+    )
+    csv_state = _CsvState()
+    if is_session:
+        if columns is not None:
+            raise InputError(f"{src}: --columns applies to CSV input, not to a session")
+        blocks, total, units_in, close_input = _session_blocks(
+            input_path, sections, cal_source, chunk_rows
+        )
+        for name, sec in sections.items():
+            want = sec.extra.get("units_in")
+            have = units_in.get(name)
+            if (
+                isinstance(want, str)
+                and have is not None
+                and "unknown" not in (want, have)
+                and want != have
+            ):
+                close_input()
+                raise InputError(
+                    f"{src} records the {name} in {have} but {cal_source} was made for {want}"
+                )
+    else:
+        try:
+            handle = open(input_path, "rb")
+            total = os.fstat(handle.fileno()).st_size
+        except OSError as exc:
+            raise InputError(f"{src}: cannot read ({exc.strerror or exc})") from None
+        if total == 0:
+            handle.close()
+            raise InputError(f"{src}: empty file")
+        blocks = _csv_blocks(
+            input_path,
+            handle,
+            sections,
+            cal_source,
+            columns,
+            time_unit,
+            rate_hz,
+            chunk_rows,
+            csv_state,
+        )
+        units_in = {}
+        close_input = handle.close
+
+    tmp = output_path.with_name(output_path.name + ".tmp")
+    writer: _H5Writer | _CsvWriter | None = None
+    try:
+        try:
+            if out_fmt == "h5":
+                writer = _H5Writer(tmp, sections, cal, cal_source, input_path, units_in)
+            else:
+                writer = _CsvWriter(tmp, sections, cal_source, input_path)
+        except OSError as exc:
+            raise InputError(f"{output_path}: cannot write ({_one_line(exc)})") from None
+        for block in blocks:
+            values = {name: sec.apply(block.raw[name]) for name, sec in sections.items()}
+            try:
+                writer.write(block.time, values)
+            except OSError as exc:
+                raise InputError(f"{output_path}: cannot write ({_one_line(exc)})") from None
+            if summary._first_time is None:
+                summary._first_time = float(block.time[0])
+            summary.samples += len(block.time)
+            summary.duration_s = float(block.time[-1]) - summary._first_time
+            summary.chunks += 1
+            if progress is not None:
+                progress(block.done, total)
+        if summary.samples == 0:
+            raise InputError(f"{src}: no samples to calibrate")
+        writer.close()
+        writer = None
+        os.replace(tmp, output_path)
+    except OSError as exc:
+        raise InputError(f"{output_path}: cannot write ({_one_line(exc)})") from None
+    finally:
+        close_input()
+        if writer is not None:
+            try:
+                writer.close()
+            except OSError:
+                pass
+        tmp.unlink(missing_ok=True)
+    summary.malformed = csv_state.malformed
+    summary.first_malformed = csv_state.first_malformed
+    return summary
