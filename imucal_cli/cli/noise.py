@@ -24,7 +24,10 @@ def noise(
         "needed for counts or V.",
     ),
     plot: Path | None = typer.Option(
-        None, "--plot", metavar="FILE.png", help="Also draw the Allan deviation curves (matplotlib)."
+        None,
+        "--plot",
+        metavar="FILE.png",
+        help="Also draw the Allan deviation curves (needs matplotlib).",
     ),
     json_output: bool = typer.Option(
         False, "--json", help="Print the figures and curves as JSON on stdout (nothing else)."
@@ -57,6 +60,19 @@ def noise(
         console.print(f"wrote {plot}")
 
 
+# Columns of the tables (--json has every unit).
+_SHOWN = {
+    "vrw_m_s_per_sqrt_s", "vrw_ug_per_sqrt_hz", "bias_instability_ug", "rrw_m_s2_per_sqrt_s",
+    "arw_rad_per_sqrt_s", "arw_deg_per_sqrt_h", "bias_instability_deg_h", "rrw_deg_h_per_sqrt_h",
+}  # fmt: skip
+_HOW = {
+    "accel": "VRW (velocity random walk; m/s/sqrt(s) = (m/s^2)/sqrt(Hz)): -1/2 slope line at "
+    "tau = 1 s; bias instab.: minimum / 0.664 (< : an upper bound); RRW: +1/2 line at 3 s",
+    "gyro": "ARW (angle random walk): -1/2 slope line at tau = 1 s; bias instab.: minimum / "
+    "0.664 (< : an upper bound); RRW (rate random walk): +1/2 line at tau = 3 s",
+}
+
+
 def _render(console: Console, result) -> None:
     """One table per sensor: a row per axis, a column per figure with its unit."""
     from rich import box
@@ -74,7 +90,7 @@ def _render(console: Console, result) -> None:
             title_justify="left",
         )
         table.add_column("axis")
-        rows = figures(s.kind)
+        rows = [f for f in figures(s.kind) if f[0] in _SHOWN]
         for _, _, _, unit, title in rows:
             table.add_column(f"{title}\n{unit}", justify="right", no_wrap=True)
         table.add_column("min at\ns", justify="right")
@@ -89,10 +105,7 @@ def _render(console: Console, result) -> None:
             cells.append(f"{a.bias_instability_tau_s:.3g}")
             table.add_row(*map(Text, cells))
         notes = sorted({note for a in s.noise for note in a.notes})
-        table.caption = Text(
-            "\n".join(["VRW/ARW: -1/2 slope line at tau = 1 s; bias instab.: minimum / 0.664; "
-                       "RRW: +1/2 slope at tau = 3 s", *notes])  # fmt: skip
-        )
+        table.caption = Text("\n".join([_HOW[s.kind], *notes]))
         table.caption_justify = "left"
         console.print(table)
     for w in result.warnings:

@@ -13,15 +13,29 @@ from .app import app
 
 @app.command()
 def report(
-    path: Path = typer.Argument(
+    paths: list[Path] = typer.Argument(
         ...,
-        help="A calibration JSON, or a session .h5 (its last stored calibration is shown).",
+        help="A calibration JSON, or a session .h5 (its last stored calibration is shown). "
+        "Several: the history of each sensor across them.",
         show_default=False,
     ),
     json_output: bool = typer.Option(
         False,
         "--json",
-        help="Print the report as JSON on stdout (nothing else) instead of tables.",
+        help="Print the report (or the history) as JSON on stdout (nothing else), not tables.",
+    ),
+    plot: Path | None = typer.Option(
+        None,
+        "--plot",
+        metavar="FILE.png",
+        help="Also draw |a| per pose before/after, residuals, rotation angle errors and the "
+        "pose directions to a PNG (needs matplotlib: pip install 'imucal-cli[plot]').",
+    ),
+    history: bool = typer.Option(
+        False,
+        "--history",
+        help="Show how the parameters of each sensor drift across its calibrations (every "
+        "calibration stored in a session counts); implied by several paths.",
     ),
 ) -> None:
     """Report a calibration: parameters ± std, RMS before/after/held-out, poses, coverage.
@@ -31,13 +45,41 @@ def report(
     in Hwangbo & Kanade's Table I) and, for gyroscopes, each known-angle turn.
 
     A calibration from another tool (only bias, matrix, residual_rms) is shown with what it lacks.
+
+    With several paths (or --history): calibrations are grouped by their sensor field; for
+    each sensor with two or more, its parameters over time, the change from the first and a
+    "drifted" flag when a change exceeds 3 combined standard deviations.
     """
     # Imported here so the other commands and `imucal --help` do not load the report stack.
-    from imucal_cli.report import build_report, load_for_report, render_report
+    from imucal_cli.errors import InputError
+    from imucal_cli.report import (
+        build_history,
+        build_report,
+        load_all_for_history,
+        load_for_report,
+        render_history,
+        render_report,
+    )
 
-    cal = load_for_report(path)
+    if history or len(paths) > 1:
+        if plot is not None:
+            raise InputError("--plot draws one calibration: give one path without --history")
+        result = build_history(load_all_for_history(paths))
+        if json_output:
+            typer.echo(json.dumps(result, indent=2))
+        else:
+            render_history(result, Console())
+        return
+
+    cal = load_for_report(paths[0])
     result = build_report(cal)
+    if plot is not None:
+        from imucal_cli.plots import report_figure
+
+        report_figure(result, plot)
     if json_output:
         typer.echo(json.dumps(result, indent=2))
     else:
         render_report(result, Console())
+        if plot is not None:
+            Console().print(f"wrote {plot}")

@@ -157,9 +157,7 @@ def log_taus(
     return m[m >= 1] * tau0
 
 
-def allan_deviation(
-    y: np.ndarray, rate_hz: float, *, max_tau_fraction: float = 0.1
-) -> AllanCurve:
+def allan_deviation(y: np.ndarray, rate_hz: float, *, max_tau_fraction: float = 0.1) -> AllanCurve:
     """Overlapping Allan deviation of one rate signal (``allantools.oadev``, frequency data).
 
     Parameters
@@ -218,9 +216,7 @@ def _fixed_slope_fit(tau, adev, slope: float, tau_read: float) -> float:
     return float(np.exp(np.mean(np.log(adev) - slope * np.log(tau / tau_read))))
 
 
-def axis_noise(
-    y: np.ndarray, rate_hz: float, *, max_tau_fraction: float = 0.1
-) -> AxisNoise:
+def axis_noise(y: np.ndarray, rate_hz: float, *, max_tau_fraction: float = 0.1) -> AxisNoise:
     """Allan deviation of one axis and the noise parameters read from it (module notes).
 
     Parameters
