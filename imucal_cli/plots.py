@@ -71,7 +71,7 @@ def _magnitude_panel(ax, section: dict[str, Any]) -> None:
         g = section["gravity"]["value"]
         ax.axhline(g, color="black", lw=1, ls="--", label=f"g = {g:.5g} {unit}")
     rms = section["rms"]
-    title = "(a) |a| per pose"
+    title = "|a| per pose"
     if rms["before_mg"] is not None and rms["after_mg"] is not None:
         title += f": RMS {rms['before_mg']:.3g} -> {rms['after_mg']:.3g} mg"
     ax.set_title(title)
@@ -95,7 +95,7 @@ def _residual_panel(ax, section: dict[str, Any]) -> None:
     if not np.all(np.isnan(loo)):
         ax.bar(x + width / 2, loo, width, color="tab:orange", label="held out (pose not fitted)")
     ax.axhline(0, color="black", lw=0.8)
-    ax.set_title("(b) |a| - g per pose after calibration")
+    ax.set_title("|a| - g per pose after calibration")
     ax.set_xlabel("pose")
     ax.xaxis.get_major_locator().set_params(integer=True)
     ax.set_ylabel(f"residual  [{unit}]")
@@ -110,7 +110,7 @@ def _rotation_panel(ax, kind: str, section: dict[str, Any]) -> None:
     ax.bar(x, errors, color="tab:green")
     ax.axhline(0, color="black", lw=0.8)
     rms = float(np.sqrt(np.mean(np.square(errors)))) if errors else float("nan")
-    ax.set_title(f"(c) {kind}: angle error per rotation (RMS {rms:.3g} deg)")
+    ax.set_title(f"{kind}: angle error per rotation (RMS {rms:.3g} deg)")
     ax.set_xlabel("rotation")
     ax.set_ylabel("gyro angle - reference  [deg]")
     labels = [r["label"] or r["segment"] or str(i) for i, r in enumerate(rows)]
@@ -126,7 +126,7 @@ def _sphere_panel(ax, section: dict[str, Any]) -> None:
     ax.plot_wireframe(np.cos(u) * np.sin(v), np.sin(u) * np.sin(v), np.cos(v), color="0.8", lw=0.5)
     ax.scatter(d[:, 0], d[:, 1], d[:, 2], color="tab:blue", s=30, depthshade=False)
     coverage = section["coverage"] or {}
-    title = "(d) measured gravity directions"
+    title = "measured gravity directions"
     if coverage.get("fraction") is not None:
         title += f"\ncovered {100 * coverage['fraction']:.0f} % of the sphere"
     ax.set_title(title)
@@ -179,6 +179,7 @@ def report_figure(report: dict[str, Any], path: str | os.PathLike[str]) -> Path:
     for i, (kind, draw) in enumerate(panels):
         ax = fig.add_subplot(rows, cols, i + 1, **({"projection": "3d"} if kind == "3d" else {}))
         draw(ax)
+        ax.set_title(f"({'abcdefgh'[i]}) {ax.get_title()}")
     title = "imucal calibration report"
     for key in ("sensor", "session", "created"):
         if report.get(key):

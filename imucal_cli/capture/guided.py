@@ -356,8 +356,9 @@ def _fmt_vec(v: np.ndarray) -> str:
 class _History:
     """The recent samples, indexed by recorder sample index."""
 
-    def __init__(self, first: int) -> None:
+    def __init__(self, first: int, keep_s: float = 0.0) -> None:
         self.first = first
+        self.keep_s = keep_s  # never drop samples younger than this (a long hold), s
         self.time = np.empty(0)
         self.accel: np.ndarray | None = None
         self.gyro: np.ndarray | None = None
@@ -371,6 +372,9 @@ class _History:
             g = np.asarray(gyro, float)
             self.gyro = g if self.gyro is None else np.concatenate([self.gyro, g])
         drop = len(self.time) - HISTORY_SAMPLES
+        if drop > 0 and self.keep_s > 0:
+            young = int(np.searchsorted(self.time, self.time[-1] - self.keep_s, side="left"))
+            drop = min(drop, young)
         if drop > 0:
             self.first += drop
             self.time = self.time[drop:]
@@ -416,7 +420,8 @@ class _Guided:
         self.focus: int | None = None
         self.detector = opt["detector"] or StillnessDetector()
         self.base = int(recorder.n_samples)
-        self.hist = _History(self.base)
+        longest = max((s.hold_s or 0.0 for s in self.steps), default=0.0)
+        self.hist = _History(self.base, keep_s=longest + 10.0 if longest else 0.0)
         self.armed = True
         self.min_start = 0
         self.holding = False
@@ -434,6 +439,12 @@ class _Guided:
         self.noise_told = False
         self.no_direction_told = False
         self.rotations = any(s.kind == "rotation" for s in self.steps)
+
+    def hold_s(self) -> float:
+        """The current step's hold (its own ``hold_s``, e.g. a still:MINUTES plan), else --hold."""
+        cur = self.current()
+        own = None if cur is None else self.steps[cur].hold_s
+        return float(own) if own else self.o["hold_s"]
 
     # ---------------------------------------------------------------- output
     def say(self, text: str, style: str | None = None) -> None:
@@ -457,7 +468,7 @@ class _Guided:
         if phase == "move":
             return  # the message after the pose already says to turn the unit
         if phase == "hold":
-            self.say(f"still: holding {self.o['hold_s']:g} s ...")
+            self.say(f"still: holding {self.hold_s():g} s ...")
         elif phase == "turning":
             self.say("turning ...")
         else:
@@ -484,11 +495,11 @@ class _Guided:
             rows.add_row(Text(head, style="bold"))
         rows.add_row(self.signal_text())
         if self.holding and self.state is not None:
-            done = min(self.hold_elapsed(), self.o["hold_s"])
+            done = min(self.hold_elapsed(), self.hold_s())
             bar = Table.grid(padding=(0, 1))
             bar.add_row(
-                ProgressBar(total=self.o["hold_s"], completed=done, width=40),
-                Text(f"{done:.1f}/{self.o['hold_s']:g} s"),
+                ProgressBar(total=self.hold_s(), completed=done, width=40),
+                Text(f"{done:.1f}/{self.hold_s():g} s"),
             )
             rows.add_row(bar)
         rows.add_row(Text(self.progress_text(), style="dim"))
@@ -716,7 +727,7 @@ class _Guided:
             if self.armed:
                 s0 = max(s, self.min_start)
                 dur = self.hist.t(e) - self.hist.t(s0) if e > s0 else 0.0
-                if dur >= self.o["hold_s"]:
+                if dur >= self.hold_s():
                     self.hold_done(s0, e)
                 elif self.holding and dur >= self.o["warn_after_s"]:
                     self.say("the unit moved during the hold: hold it again", "bold yellow")
@@ -748,7 +759,7 @@ class _Guided:
             if end - s0 < 2:
                 return
             self.holding = True
-            if self.hist.t(end - 1) - self.hist.t(s0) >= self.o["hold_s"]:
+            if self.hist.t(end - 1) - self.hist.t(s0) >= self.hold_s():
                 self.hold_done(s0, end)
         elif self.rot_phase == "turning":
             if self.hist.t(self.hist.end - 1) - self.hist.t(s) >= self.o["settle_s"]:
@@ -758,7 +769,7 @@ class _Guided:
     def hold_done(self, s0: int, e: int) -> None:
         """The unit stayed still from ``s0`` for at least ``hold_s``: take the pose."""
         t = self.hist.time[s0 - self.hist.first : e - self.hist.first]
-        n = int(np.searchsorted(t, t[0] + self.o["hold_s"] - 1e-9, side="left"))
+        n = int(np.searchsorted(t, t[0] + self.hold_s() - 1e-9, side="left"))
         n = max(2, min(n if n > 0 else len(t), e - s0))
         stop = s0 + n
         self.holding = False
@@ -1021,7 +1032,8 @@ def run_guided(
     keys : KeySource
         Commands: ``r`` redo, ``s`` skip, ``q`` finish, Enter continue, a step number or label.
     hold_s : float
-        Length of each static hold, s.
+        Length of each static hold, s; a step's own ``hold_s`` (the ``still:MINUTES`` plan)
+        takes precedence.
     min_separation_deg : float
         A pose closer than this to one already taken is refused (unless the plan itself asks
         for that direction again).

@@ -14,6 +14,9 @@ Built-in plans (:func:`load_plan`):
 ``hwangbo-iron``
     Hwangbo & Kanade's right-angle iron: the 6 faces as static steps, then a 90-degree turn
     about each face normal (rotation steps with ``axis`` and ``angle_deg = 90``).
+``still:MINUTES``
+    One static step held for MINUTES minutes (``hold_s`` = 60 * MINUTES), no ``up``: a still
+    recording for ``imucal noise`` (Allan deviation; bias instability needs tens of minutes).
 
 A TOML plan file::
 
@@ -44,7 +47,7 @@ from imucal_cli.errors import InputError
 
 __all__ = ["BUILTIN_PLANS", "CaptureSummary", "Plan", "Step", "load_plan"]
 
-BUILTIN_PLANS = ("six", "qureshi18", "gyro-axes", "hwangbo-iron", "random:N")
+BUILTIN_PLANS = ("six", "qureshi18", "gyro-axes", "hwangbo-iron", "random:N", "still:MINUTES")
 
 
 @dataclass(frozen=True)
@@ -63,6 +66,9 @@ class Step:
         Rotation: nominal unit rotation axis, fixture frame.
     angle_deg : float or None
         Rotation: known signed angle about ``axis``, degrees.
+    hold_s : float or None
+        Static: how long this step is held, s; None uses the capture's ``--hold`` (the
+        ``still:MINUTES`` plan sets it to its full duration).
     """
 
     kind: str
@@ -70,6 +76,7 @@ class Step:
     up: np.ndarray | None = field(default=None, compare=False)
     axis: np.ndarray | None = field(default=None, compare=False)
     angle_deg: float | None = None
+    hold_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -161,6 +168,19 @@ def _hwangbo_iron() -> Plan:
     return Plan("hwangbo-iron", faces + turns)
 
 
+def _still(key: str) -> Plan:
+    """``still:MINUTES``: one static step held for the whole recording."""
+    text = key.split(":", 1)[1].strip()
+    try:
+        minutes = float(text)
+    except ValueError:
+        minutes = float("nan")
+    if not math.isfinite(minutes) or minutes <= 0:
+        raise InputError(f"plan still:{text}: MINUTES must be a positive number, e.g. still:20")
+    step = Step("static", f"hold still for {minutes:g} min (noise)", hold_s=60.0 * minutes)
+    return Plan(f"still:{minutes:g}", (step,))
+
+
 def _unit_or_none(v) -> np.ndarray | None:
     if v is None:
         return None
@@ -176,7 +196,8 @@ def load_plan(name_or_path: str) -> Plan:
     Parameters
     ----------
     name_or_path : str
-        ``six``, ``qureshi18``, ``random:N``, ``gyro-axes``, ``hwangbo-iron``, or a path to a
+        ``six``, ``qureshi18``, ``random:N``, ``gyro-axes``, ``hwangbo-iron``, ``still:MINUTES``,
+        or a path to a
         ``.toml`` file (see the module notes).
 
     Returns
@@ -196,12 +217,14 @@ def load_plan(name_or_path: str) -> Plan:
         return _gyro_axes()
     if key == "hwangbo-iron":
         return _hwangbo_iron()
+    if key.startswith("still:"):
+        return _still(key)
     path = Path(text)
     if path.suffix.lower() == ".toml" or path.exists():
         return _load_file(path)
     raise InputError(
-        f"plan {text!r} is unknown: use six, qureshi18, random:N, gyro-axes, hwangbo-iron "
-        "or a .toml plan file"
+        f"plan {text!r} is unknown: use six, qureshi18, random:N, gyro-axes, hwangbo-iron, "
+        "still:MINUTES or a .toml plan file"
     )
 
 

@@ -18,6 +18,9 @@ Every second the still periods since the last confirmed one are searched again.
   more than :data:`MAX_MAGNITUDE_RATIO` (an unsigned ADC, a large bias) directions are not
   used, and static steps are counted instead (as many still periods as static steps).
 - Static steps without ``up`` are counted.
+- A static step with its own ``hold_s`` (the ``still:MINUTES`` plan) needs a still period at
+  least that long: while recording, the shortest still period that counts is the plan's
+  longest ``hold_s`` (so a still plan records its full duration).
 - A rotation step is seen in the motion between two still periods when the gyroscope's
   integrated rotation (bias from the neighbouring still periods) points along its ``axis``
   within :data:`MATCH_DEG` (either sign when the plan leaves the angle free) and, when the step
@@ -307,7 +310,8 @@ class _PlanWatcher:
 
     def __init__(self, plan: Plan, min_still_s: float) -> None:
         self.plan = plan
-        self.min_still_s = min_still_s
+        holds = [s.hold_s for s in plan.steps if s.kind == "static" and s.hold_s]
+        self.min_still_s = max([min_still_s, *holds])
         self.closed: list[_Still] = []
         self.missing = [s.label for s in plan.steps]
 

@@ -22,7 +22,8 @@ bias instability ``B``
     turned up yet: ``B`` is then only an upper bound (record longer) and is flagged.
 rate random walk ``K`` (optional)
     A +1/2 slope at long taus, ``sigma(tau) = K sqrt(tau / 3)``, read at ``tau = 3 s``; fitted
-    like ``N`` over the last run of taus whose local slope is within the tolerance of +1/2.
+    like ``N`` over the longest run of taus after the minimum whose local slope is within
+    :data:`RRW_SLOPE_TOLERANCE` of +1/2.
     ``None`` when the curve shows no such run (the usual case for a recording of minutes).
 
 Taus are log-spaced (:data:`POINTS_PER_DECADE` per decade) from one sample to
@@ -46,6 +47,7 @@ __all__ = [
     "MIN_FIT_POINTS",
     "MIN_SAMPLES",
     "POINTS_PER_DECADE",
+    "RRW_SLOPE_TOLERANCE",
     "SLOPE_TOLERANCE",
     "allan_deviation",
     "axis_noise",
@@ -61,6 +63,9 @@ POINTS_PER_DECADE = 10
 SLOPE_TOLERANCE = 0.2
 """A local log-log slope within this of -1/2 (+1/2) belongs to the random-walk (rate random
 walk) region."""
+
+RRW_SLOPE_TOLERANCE = 0.3
+"""The same for the +1/2 region, wider: the long-tau end of the curve scatters more."""
 
 MIN_FIT_POINTS = 3
 """Fewest taus a slope line is fitted over."""
@@ -265,10 +270,12 @@ def axis_noise(y: np.ndarray, rate_hz: float, *, max_tau_fraction: float = 0.1) 
             "(record longer: tens of minutes)"
         )
 
-    rising = [r for r in _runs(np.abs(slopes - 0.5) <= SLOPE_TOLERANCE)
+    # The long-tau end is scattered (few independent averages): a wider tolerance, and the
+    # longest run after the minimum.
+    rising = [r for r in _runs(np.abs(slopes - 0.5) <= RRW_SLOPE_TOLERANCE)
               if r[1] - r[0] >= MIN_FIT_POINTS and r[0] > i_min]  # fmt: skip
     if rising:
-        a, b = rising[-1]
+        a, b = max(rising, key=lambda r: r[1] - r[0])
         rate_random_walk = _fixed_slope_fit(tau[a:b], adev[a:b], 0.5, 3.0)
         rrw_taus = (float(tau[a]), float(tau[b - 1]))
     else:
