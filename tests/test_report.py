@@ -675,3 +675,121 @@ def test_minimal_gyro_section_lists_only_gyro_items():
     assert "named parameters with standard deviations" in gyro["unavailable"]
     text = rendered(minimal_calibration())
     assert "0.002 rad/s" in text
+
+
+# ---------------------------------------------------------------------------------------------
+# History: several calibrations of one sensor
+
+
+@pytest.fixture(scope="module")
+def two_calibrations(tmp_path_factory):
+    """The same simulated part (same seed: same truth) calibrated twice, the second session
+    recorded with twice the accelerometer noise and a day later."""
+    from imucal_cli.calibrate import calibrate_session
+    from imucal_cli.calibration import write_calibration
+    from imucal_cli.config import config_from_dict
+    from imucal_cli.simulator import simulate
+
+    folder = tmp_path_factory.mktemp("history")
+    paths = []
+    for i, noise in enumerate((0.01, 0.02)):
+        session, _truth = simulate(seed=4, accel_noise=noise, created=f"2026-11-2{i}T10:00:00Z")
+        cal = calibrate_session(session, config_from_dict({}), name=f"run{i}.h5")
+        cal.created = f"2026-11-2{i}T10:05:00Z"
+        paths.append(folder / f"run{i}.cal.json")
+        write_calibration(paths[-1], cal)
+    return paths
+
+
+def test_history_of_two_calibrations_without_false_drift(two_calibrations, capsys, monkeypatch):
+    first, second = two_calibrations
+    # Given newest first: ordered by their created date all the same.
+    code, out, err = run_imucal(["report", str(second), str(first), "--json"], capsys, monkeypatch)
+    assert code == 0, err
+    history = json.loads(out)
+    assert history["format"] == "imucal-history" and history["drift_sigmas"] == 3.0
+    (entry,) = history["sensors"]
+    assert entry["sensor"] == "sim-16bit seed 4"
+    assert [c["session"] for c in entry["calibrations"]] == ["run0.h5", "run1.h5"]
+    rows = {r["name"]: r for r in entry["sections"]["accel"]["rows"]}
+    assert {"b_x", "k_x", "k_xy", "sensitivity x", "misalignment xy"} <= set(rows)
+    for row in rows.values():
+        assert len(row["values"]) == 2 and all(v is not None for v in row["values"])
+        assert row["change"][0] == 0 and row["change"][1] == pytest.approx(
+            row["values"][1] - row["values"][0]
+        )
+        assert row["z"][1] is not None and abs(row["z"][1]) <= 3.0, row
+        assert row["drifted"] == [False, False]
+    assert entry["drifted"] == []
+    code, text, err = run_imucal(["report", str(first), str(second)], capsys, monkeypatch)
+    assert code == 0, err
+    assert "history of sim-16bit seed 4: 2 calibrations" in text
+    assert "run0.h5" in text and "run1.h5" in text and "change (z)" in text
+    assert "no parameter changed by more than 3 combined std" in text
+    assert "drifted" not in text.replace("drifted when", "")
+
+
+def test_injected_drift_is_flagged(two_calibrations, tmp_path, capsys, monkeypatch):
+    first, second = two_calibrations
+    document = json.loads(second.read_text())
+    b_x = next(p for p in document["accel"]["parameters"] if p["name"] == "b_x")
+    shift = 10 * b_x["std"]
+    b_x["value"] += shift
+    document["accel"]["bias"][0] += shift
+    document["created"] = "2026-12-01T10:00:00Z"
+    drifted = write_json(tmp_path / "drifted.cal.json", document)
+    code, out, err = run_imucal(
+        ["report", str(first), str(second), str(drifted), "--json"], capsys, monkeypatch
+    )
+    assert code == 0, err
+    (entry,) = json.loads(out)["sensors"]
+    assert entry["drifted"] == ["accel b_x"]
+    row = next(r for r in entry["sections"]["accel"]["rows"] if r["name"] == "b_x")
+    assert row["drifted"] == [False, False, True] and row["z"][2] > 3.0
+    code, text, err = run_imucal(["report", str(first), str(drifted)], capsys, monkeypatch)
+    assert code == 0, err
+    assert "drifted" in _line(text, "b_x") and "Drifted beyond the uncertainty" in text
+
+
+def test_history_from_a_session_with_several_stored_calibrations(
+    two_calibrations, tmp_path, capsys, monkeypatch
+):
+    documents = [json.loads(p.read_text()) for p in two_calibrations]
+    session = write_session(tmp_path / "s.h5", documents)
+    # One path without --history: today's report of the last calibration.
+    code, out, _ = run_imucal(["report", str(session), "--json"], capsys, monkeypatch)
+    assert code == 0 and json.loads(out)["format"] == "imucal-report"
+    code, out, err = run_imucal(
+        ["report", str(session), "--history", "--json"], capsys, monkeypatch
+    )
+    assert code == 0, err
+    (entry,) = json.loads(out)["sensors"]
+    assert len(entry["calibrations"]) == 2 and entry["drifted"] == []
+
+
+def test_history_groups_by_sensor_and_says_what_it_leaves_out(two_calibrations, tmp_path):
+    from imucal_cli.report import build_history, load_all_for_history
+
+    other = json.loads(two_calibrations[0].read_text())
+    other["sensor"] = "another part"
+    unnamed = minimal_calibration()
+    paths = [*two_calibrations, write_json(tmp_path / "o.json", other),
+             write_json(tmp_path / "u.json", unnamed)]  # fmt: skip
+    history = build_history(load_all_for_history(paths))
+    assert [e["sensor"] for e in history["sensors"]] == ["sim-16bit seed 4"]
+    assert history["single"] == ["another part"] and history["without_sensor"] == 1
+    console = Console(record=True, width=100)
+    from imucal_cli.report import render_history
+
+    render_history(history, console)
+    text = console.export_text()
+    assert "one calibration only (no history): another part" in text
+    assert "1 calibration(s) name no sensor" in text
+
+
+def test_history_refuses_plot_with_one_line(two_calibrations, tmp_path, capsys, monkeypatch):
+    code, out, err = run_imucal(
+        ["report", *map(str, two_calibrations), "--plot", str(tmp_path / "x.png")],
+        capsys, monkeypatch,
+    )  # fmt: skip
+    _assert_one_line_error(code, out, err, "--plot draws one calibration")
