@@ -539,7 +539,8 @@ def apply_calibration(
     rate_hz : float, optional
         CSV input without a ``t`` column: sample rate, Hz (time of kept row i is ``i / rate``).
     chunk_rows : int
-        Samples per block read, calibrated and written.  Memory is proportional to it.
+        Samples per block read, calibrated and written (at least 2 are used).  Memory is
+        proportional to it.
     overwrite : bool
         Replace an existing output file instead of refusing.
     progress : callable, optional
@@ -577,6 +578,9 @@ def apply_calibration(
         raise InputError(f"{output_path}: is a directory; give a file name as --output")
     if output_path.exists() and not overwrite:
         raise InputError(f"{output_path}: already exists (pass --force to replace it)")
+    # Blocks of one row take numpy's matrix-vector path, which may round differently from
+    # the matrix-matrix path of longer blocks (see _chunk_bounds): at least 2 rows per block.
+    chunk_rows = max(chunk_rows, 2)
     sections = _sections(cal)
 
     is_session = h5py.is_hdf5(input_path)
