@@ -57,7 +57,7 @@ def noise(
     console = Console()
     _render(console, result)
     if plot is not None:
-        console.print(f"wrote {plot}")
+        typer.echo(f"wrote {plot}")
 
 
 # Columns of the tables (--json has every unit).

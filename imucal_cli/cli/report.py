@@ -82,4 +82,4 @@ def report(
     else:
         render_report(result, Console())
         if plot is not None:
-            Console().print(f"wrote {plot}")
+            typer.echo(f"wrote {plot}")
