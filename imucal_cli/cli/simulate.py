@@ -193,7 +193,17 @@ def simulate(
         return
     from imucal_cli.calibration import write_calibration
     from imucal_cli.session import write_session
+    from imucal_cli.simulator import plan_poses
     from imucal_cli.simulator import simulate as run
+
+    if not (hk or gyro):
+        try:
+            plan_poses(plan)
+        except InputError:
+            raise InputError(
+                f"plan {plan!r} is unknown: use six, qureshi18, random:N (poses), qureshi-axes, "
+                "free:N (hand rotations), hk-redundant or hk-gyro (Hwangbo & Kanade)"
+            ) from None
 
     out = output if output is not None else default_output(plan, seed)
     truth_out = truth_path(out)
