@@ -30,6 +30,8 @@ Example (every key optional; these are the defaults)::
     solver = "none"              # "none"; "static", "dynamic" (Qureshi III-B), "full"
                                  # (12 parameters), or "factorization" (Hwangbo & Kanade)
     # nominal_sensitivity = 938.7  # raw units per rad/s (datasheet); default from the units
+    # range = [-32768, 32767]      # raw output range: turns reaching it are clipped and left
+                                   # out; default: the ADC word of counts data, else none
     max_scale_error = 0.20
 
     [gyro.rotations]             # static, dynamic and full
@@ -129,6 +131,7 @@ class GyroConfig:
 
     solver: str = "none"
     nominal_sensitivity: float | None = None
+    range: list[float] | None = None
     max_scale_error: float = 0.20
     factorization: GyroFactorizationOptions = field(default_factory=GyroFactorizationOptions)
     rotations: GyroRotationOptions = field(default_factory=GyroRotationOptions)

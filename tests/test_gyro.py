@@ -150,3 +150,13 @@ def test_gyro_solver_needs_an_accelerometer_calibration(axes_session):
         calibrate_session(
             session, config_from_dict({"accel": {"solver": "none"}, "gyro": {"solver": "dynamic"}})
         )
+
+
+def test_rates_beyond_the_configured_range_are_left_out(axes_session):
+    session, _ = axes_session
+    peak = np.abs(session.gyro).max()
+    g = calibrate_session(
+        session, config_from_dict({"gyro": {"solver": "full", "range": [-0.6 * peak, 0.6 * peak]}})
+    ).gyro
+    assert any("range" in w for w in g.extra["warnings"])
+    assert len(g.extra["rotations"]) < len(session.rotation_segments())

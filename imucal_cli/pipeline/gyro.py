@@ -108,24 +108,30 @@ def _stills_and_turns(session, accel_cal, cfg, where):
     return stills, usable, skipped, source
 
 
-def _saturated(session: Session, turn: Turn, limit: float | None) -> bool:
+def _saturated(session: Session, turn: Turn, limit: tuple[float, float] | None) -> bool:
     if limit is None:
         return False
     z = session.gyro[turn.segment.start : turn.segment.stop]
-    return bool(np.any(np.abs(z) >= limit))
+    return bool(np.any((z <= limit[0]) | (z >= limit[1])))
 
 
-def _saturation_limit(session: Session) -> float | None:
-    """Raw level beyond which a counts gyro is clipping (the ADC word's end, less 0.5 %)."""
+def _saturation_limit(session: Session, cfg: Config) -> tuple[float, float] | None:
+    """Raw levels at which the gyro clips: the configured range, else a counts gyro's ADC word,
+    less 0.5 % of the span at both ends."""
+    if cfg.gyro.range is not None:
+        lo, hi = cfg.gyro.range
+        margin = 0.005 * (hi - lo)
+        return lo + margin, hi - margin
     if session.gyro_units != "counts":
         return None
     from .common import _adc_range
 
     finite = session.gyro[np.isfinite(session.gyro).all(axis=1)]
     rng = _adc_range(float(finite.min()), float(finite.max()))
-    if rng is None or rng[0] == 0.0:
+    if rng is None:
         return None
-    return 0.995 * max(abs(rng[0]), abs(rng[1]))
+    margin = 0.005 * (rng[1] - rng[0])
+    return rng[0] + margin, rng[1] - margin
 
 
 def _integral(session: Session, seg: Segment) -> tuple[np.ndarray, float]:
@@ -151,12 +157,12 @@ def calibrate_gyro_rotations(session: Session, cfg: Config, accel_cal: SensorCal
     warnings = []
     if skipped:
         notes.append(f"{len(skipped)} rotation(s) without still data before and after: skipped")
-    limit = _saturation_limit(session)
+    limit = _saturation_limit(session, cfg)
     clipped = [t for t in turns if _saturated(session, t, limit)]
     if clipped:
         warnings.append(
-            f"{len(clipped)} rotation(s) reach the end of the gyro's range (clipped samples): "
-            "left out; turn more slowly"
+            f"{len(clipped)} rotation(s) reach the end of the gyro's range (raw "
+            f"{limit[0]:.6g} .. {limit[1]:.6g}): left out; turn more slowly"
         )
         turns = [t for t in turns if t not in clipped]
     if not turns:
