@@ -112,7 +112,10 @@ def _rotation_panel(ax, kind: str, section: dict[str, Any]) -> None:
     rms = float(np.sqrt(np.mean(np.square(errors)))) if errors else float("nan")
     ax.set_title(f"{kind}: angle error per rotation (RMS {rms:.3g} deg)")
     ax.set_xlabel("rotation")
-    ax.set_ylabel("gyro angle - reference  [deg]")
+    if any(r.get("known_angle_deg") is not None for r in rows):
+        ax.set_ylabel("gyro angle - reference  [deg]")
+    else:  # models without a reference angle (the full gyro model)
+        ax.set_ylabel("predicted vs measured gravity after the turn  [deg]", fontsize=8)
     labels = [r["label"] or r["segment"] or str(i) for i, r in enumerate(rows)]
     if len(rows) <= 24:
         ax.set_xticks(x, labels, rotation=60, ha="right", fontsize=7)
