@@ -71,16 +71,16 @@ from imucal_cli.calibration import (
 )
 from imucal_cli.capture.importers import (
     TIME_UNITS,
-    _check_time,
-    _numbers,
-    _split,
+    check_time,
     infer_columns,
     parse_columns,
+    parse_numbers,
+    split_fields,
 )
 from imucal_cli.errors import InputError
 from imucal_cli.session import FORMAT as SESSION_FORMAT
 from imucal_cli.session import FORMAT_VERSION as SESSION_FORMAT_VERSION
-from imucal_cli.session import _as_int, _as_str, _one_line, _open_for_reading, utc_now_iso
+from imucal_cli.session import as_int, as_str, one_line, open_for_reading, utc_now_iso
 
 __all__ = [
     "DEFAULT_CHUNK_ROWS",
@@ -201,17 +201,17 @@ def _session_blocks(
 ) -> tuple[Iterator[_Block], int, dict[str, str | None], Callable[[], None]]:
     """Open a session; return its block iterator, row count, raw units and a closer."""
     src = str(path)
-    file, unclosed = _open_for_reading(path, src)
+    file, unclosed = open_for_reading(path, src)
     try:
         fmt = file.attrs.get("format")
-        if _as_str(fmt) != SESSION_FORMAT:
-            shown = "absent" if fmt is None else repr(_as_str(fmt) or fmt)
+        if as_str(fmt) != SESSION_FORMAT:
+            shown = "absent" if fmt is None else repr(as_str(fmt) or fmt)
             raise InputError(
                 f"{src}: not an imucal session (format attribute {shown}, "
                 f"expected {SESSION_FORMAT!r})"
             )
         version = file.attrs.get("format_version")
-        if _as_int(version) != SESSION_FORMAT_VERSION:
+        if as_int(version) != SESSION_FORMAT_VERSION:
             raise InputError(
                 f"{src}: unsupported session format_version {version!r} "
                 f"(this reader reads version {SESSION_FORMAT_VERSION})"
@@ -249,7 +249,7 @@ def _session_blocks(
         for name, ds in datasets.items():
             if ds.shape[0] != n:
                 raise InputError(f"{src}: /raw/{name} has {ds.shape[0]} rows, /raw/time has {n}")
-        units = {name: _as_str(file.attrs.get(f"{name}_units")) for name in sections}
+        units = {name: as_str(file.attrs.get(f"{name}_units")) for name in sections}
     except BaseException:
         file.close()
         raise
@@ -264,7 +264,7 @@ def _session_blocks(
                     for name, ds in datasets.items()
                 }
             except (OSError, KeyError, RuntimeError) as exc:
-                raise InputError(f"{src}: damaged HDF5 file ({_one_line(exc)})") from None
+                raise InputError(f"{src}: damaged HDF5 file ({one_line(exc)})") from None
             bad = np.flatnonzero(~np.isfinite(t))
             if bad.size:
                 raise InputError(f"{src}: /raw/time is {t[bad[0]]} at sample {start + bad[0]}")
@@ -353,9 +353,9 @@ def _csv_blocks(
         if col("t") is not None:
             t = data[:, col("t")] * TIME_UNITS[time_unit]
             if last_time is None:
-                _check_time(t, numbers, src)
+                check_time(t, numbers, src)
             else:
-                _check_time(np.r_[last_time, t], np.r_[last_line, numbers], src)
+                check_time(np.r_[last_time, t], np.r_[last_line, numbers], src)
         else:
             t = np.arange(n_kept, n_kept + k) / rate_hz
         n_kept += k
@@ -371,8 +371,8 @@ def _csv_blocks(
             continue
         if comma is None:
             comma = "," in line
-        parts = _split(line, comma)
-        values = _numbers(parts)
+        parts = split_fields(line, comma)
+        values = parse_numbers(parts)
         if values is None and not seen_data:
             header = parts
             continue
@@ -645,13 +645,13 @@ def apply_calibration(
             else:
                 writer = _CsvWriter(tmp, sections, cal_source, input_path)
         except OSError as exc:
-            raise InputError(f"{output_path}: cannot write ({_one_line(exc)})") from None
+            raise InputError(f"{output_path}: cannot write ({one_line(exc)})") from None
         for block in blocks:
             values = {name: sec.apply(block.raw[name]) for name, sec in sections.items()}
             try:
                 writer.write(block.time, values)
             except OSError as exc:
-                raise InputError(f"{output_path}: cannot write ({_one_line(exc)})") from None
+                raise InputError(f"{output_path}: cannot write ({one_line(exc)})") from None
             if summary._first_time is None:
                 summary._first_time = float(block.time[0])
             summary.samples += len(block.time)
@@ -665,7 +665,7 @@ def apply_calibration(
         writer = None
         os.replace(tmp, output_path)
     except OSError as exc:
-        raise InputError(f"{output_path}: cannot write ({_one_line(exc)})") from None
+        raise InputError(f"{output_path}: cannot write ({one_line(exc)})") from None
     finally:
         close_input()
         if writer is not None:

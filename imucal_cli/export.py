@@ -66,7 +66,7 @@ def _units_in(sec: SensorCalibration) -> str:
     return unit if isinstance(unit, str) and unit != "unknown" else "raw units"
 
 
-def _one_line(text: object) -> str:
+def one_line(text: object) -> str:
     return " ".join(str(text).split())
 
 
@@ -105,7 +105,7 @@ def _c_float(value: float, where: str) -> str:
 
 def _c_comment(text: object) -> str:
     """Free text made safe inside a ``/* */`` comment: one line, no ``*/``, printable ASCII."""
-    line = _one_line(text).replace("*/", "* /").replace("/*", "/ *")
+    line = one_line(text).replace("*/", "* /").replace("/*", "/ *")
     return "".join(c if 32 <= ord(c) < 127 else "?" for c in line)
 
 
@@ -264,14 +264,14 @@ def export_yaml(cal: Calibration) -> str:
         "#   SM: 3 x 3 scale-misalignment matrix, row-major; bias in calibrated units.",
         f"# This equals imucal's model {MODEL_EQUATION} with SM = matrix and",
         "# bias = matrix @ (imucal's raw-unit bias). Check the convention of any other reader.",
-        f"# sensor: {_one_line(sensor) if sensor else 'not stated'}; session: "
-        f"{_one_line(cal.session) if cal.session else 'not stated'}; created: "
-        f"{_one_line(cal.created)}",
+        f"# sensor: {one_line(sensor) if sensor else 'not stated'}; session: "
+        f"{one_line(cal.session) if cal.session else 'not stated'}; created: "
+        f"{one_line(cal.created)}",
     ]
     sm, bias = arrays["accel"]
     out += [
-        f"# accelerometer: solver {_one_line(cal.accel.solver)}, raw in "
-        f"{_one_line(_units_in(cal.accel))} -> m/s^2",
+        f"# accelerometer: solver {one_line(cal.accel.solver)}, raw in "
+        f"{one_line(_units_in(cal.accel))} -> m/s^2",
         f"SM: {_yaml_list(sm.ravel())}",
         f"bias: {_yaml_list(bias)}",
     ]
@@ -280,7 +280,7 @@ def export_yaml(cal: Calibration) -> str:
         out += [
             "# gyroscope (not read by imu_calib, which estimates gyro bias at start-up): same "
             "equation,",
-            f"# solver {_one_line(cal.gyro.solver)}, raw in {_one_line(_units_in(cal.gyro))} "
+            f"# solver {one_line(cal.gyro.solver)}, raw in {one_line(_units_in(cal.gyro))} "
             "-> rad/s",
             "gyro:",
             f"  SM: {_yaml_list(sm.ravel())}",

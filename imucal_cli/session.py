@@ -210,7 +210,7 @@ def _scalar(value: Any) -> Any:
     return value
 
 
-def _as_str(value: Any) -> str | None:
+def as_str(value: Any) -> str | None:
     """Return a string attribute as str (from str, bytes or a 1-element array), else None."""
     value = _scalar(value)
     if isinstance(value, bytes | np.bytes_):
@@ -234,7 +234,7 @@ def _as_float(value: Any) -> float | None:
     return number if math.isfinite(number) else None
 
 
-def _as_int(value: Any) -> int | None:
+def as_int(value: Any) -> int | None:
     """Return an integer (also an integral float, as MATLAB writes them) as int, else None."""
     number = _as_float(value)
     if number is None or number != int(number):
@@ -268,7 +268,7 @@ def _show(value: Any) -> str:
     return repr(value)
 
 
-def _one_line(exc: BaseException) -> str:
+def one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split()) or type(exc).__name__
 
 
@@ -289,7 +289,7 @@ def _check_session_file(path: Path, src: str) -> None:
         raise SessionError(f"{src}: not an HDF5 file")
 
 
-def _open_for_reading(path: Path, src: str) -> tuple[h5py.File, bool]:
+def open_for_reading(path: Path, src: str) -> tuple[h5py.File, bool]:
     """Open a session read-only; return the file and whether its writer has not closed it.
 
     A file still being written (or whose SWMR writer was killed) carries the HDF5 "open for
@@ -304,7 +304,7 @@ def _open_for_reading(path: Path, src: str) -> tuple[h5py.File, bool]:
         return h5py.File(path, "r", swmr=True), True
     except OSError as exc:
         raise SessionError(
-            f"{src}: cannot open the HDF5 file ({_one_line(exc)}); if the program that wrote "
+            f"{src}: cannot open the HDF5 file ({one_line(exc)}); if the program that wrote "
             f"it was killed, `h5clear -s {src}` clears the flag"
         ) from None
 
@@ -330,11 +330,11 @@ def read_session(path: str | os.PathLike) -> Session:
     """
     path = Path(path)
     src = str(path)
-    file, unclosed = _open_for_reading(path, src)
+    file, unclosed = open_for_reading(path, src)
     try:
         session = _read_open_file(file, src, unclosed)
     except (OSError, KeyError, RuntimeError) as exc:
-        raise SessionError(f"{src}: damaged HDF5 file ({_one_line(exc)})") from None
+        raise SessionError(f"{src}: damaged HDF5 file ({one_line(exc)})") from None
     finally:
         file.close()
     session.path = path
@@ -349,7 +349,7 @@ def _get_attr(attrs: h5py.AttributeManager, name: str, src: str, where: str) -> 
         return attrs[name]
     except (OSError, TypeError, ValueError) as exc:
         raise SessionError(
-            f"{src}: {where}attribute {name!r} cannot be read ({_one_line(exc)})"
+            f"{src}: {where}attribute {name!r} cannot be read ({one_line(exc)})"
         ) from None
 
 
@@ -364,25 +364,25 @@ def _read_open_file(file: h5py.File, src: str, unclosed: bool) -> Session:
     fmt = root["format"]
     if fmt is None:
         raise SessionError(f"{src}: not an imucal session (no root attribute 'format')")
-    if _as_str(fmt) != FORMAT:
+    if as_str(fmt) != FORMAT:
         raise SessionError(
             f"{src}: not an imucal session (format is {_show(fmt)}, expected {FORMAT!r})"
         )
     version = root["format_version"]
     if version is None:
         raise SessionError(f"{src}: root attribute 'format_version' is missing")
-    if _as_int(version) != FORMAT_VERSION:
+    if as_int(version) != FORMAT_VERSION:
         raise SessionError(
             f"{src}: unsupported format_version {_show(version)} (this reader reads "
             f"version {FORMAT_VERSION})"
         )
-    created = _as_str(root["created"])
+    created = as_str(root["created"])
     if created is None:
         problem = "is missing" if root["created"] is None else "is not a string"
         raise SessionError(f"{src}: root attribute 'created' {problem}")
     text = {}
     for name in ("sensor", "source", "accel_units", "gyro_units"):
-        text[name] = None if root[name] is None else _as_str(root[name])
+        text[name] = None if root[name] is None else as_str(root[name])
         if root[name] is not None and text[name] is None:
             raise SessionError(f"{src}: root attribute {name!r} is not a string")
     numbers = {}
@@ -546,10 +546,10 @@ def _parse_segment(
         values[key] = get(key)
         if values[key] is None:
             raise fail(f"attribute {key!r} is missing")
-    kind = _as_str(values["kind"])
+    kind = as_str(values["kind"])
     if kind not in SEGMENT_KINDS:
         raise fail(f"unknown kind {_show(values['kind'])} (expected 'static' or 'rotation')")
-    start, stop = _as_int(values["start"]), _as_int(values["stop"])
+    start, stop = as_int(values["start"]), as_int(values["stop"])
     for key, number in (("start", start), ("stop", stop)):
         if number is None:
             raise fail(f"{key!r} must be an integer sample index, got {_show(values[key])}")
@@ -558,9 +558,9 @@ def _parse_segment(
     if start < 0 or stop > n:
         raise fail(f"samples [{start}, {stop}) are outside the recorded range [0, {n}]")
     label = get("label")
-    if label is not None and _as_str(label) is None:
+    if label is not None and as_str(label) is None:
         raise fail("attribute 'label' is not a string")
-    label = None if label is None else _as_str(label)
+    label = None if label is None else as_str(label)
 
     up = axis = angle_deg = None
     if kind == "static":
@@ -597,7 +597,7 @@ def _read_calibrations(file: h5py.File) -> dict[str, str]:
         for name in group:
             obj = group.get(name)
             if isinstance(obj, h5py.Group) and "json" in obj.attrs:
-                text = _as_str(obj.attrs["json"])
+                text = as_str(obj.attrs["json"])
                 if text is not None:
                     calibrations[name] = text
     return calibrations
@@ -706,7 +706,7 @@ class SessionWriter:
         try:
             self._file: h5py.File | None = h5py.File(self.path, "w", libver="latest")
         except OSError as exc:
-            raise InputError(f"{src}: cannot create the file ({_one_line(exc)})") from None
+            raise InputError(f"{src}: cannot create the file ({one_line(exc)})") from None
         try:
             self._file.attrs.update(attrs)
             raw = self._file.create_group("raw")
@@ -733,7 +733,7 @@ class SessionWriter:
             self._file.swmr_mode = True
         except OSError as exc:
             self._file.close()
-            raise InputError(f"{src}: cannot write ({_one_line(exc)})") from None
+            raise InputError(f"{src}: cannot write ({one_line(exc)})") from None
         self._last_flush = _time.monotonic()
 
     # context manager ---------------------------------------------------------------------
@@ -854,7 +854,7 @@ class SessionWriter:
                 self._pending_log = []
             file.flush()
         except OSError as exc:
-            raise self._fail(f"cannot write ({_one_line(exc)})") from None
+            raise self._fail(f"cannot write ({one_line(exc)})") from None
         self._last_flush = _time.monotonic()
 
     # segments ------------------------------------------------------------------------------
@@ -981,7 +981,7 @@ class SessionWriter:
                             attrs[key] = value
                 del file[_LOG_GROUP]
         except OSError as exc:
-            raise self._fail(f"cannot write the segments ({_one_line(exc)})") from None
+            raise self._fail(f"cannot write the segments ({one_line(exc)})") from None
 
 
 def write_session(path: str | os.PathLike, session: Session, *, overwrite: bool = False) -> None:
@@ -1070,9 +1070,9 @@ def store_calibration(path: str | os.PathLike, json_text: str, name: str | None 
     try:
         file = h5py.File(path, "r+")
     except OSError as exc:
-        raise SessionError(f"{src}: cannot open for writing ({_one_line(exc)})") from None
+        raise SessionError(f"{src}: cannot open for writing ({one_line(exc)})") from None
     with file:
-        if _as_str(file.attrs.get("format")) != FORMAT:
+        if as_str(file.attrs.get("format")) != FORMAT:
             raise SessionError(f"{src}: not an imucal session (format is not {FORMAT!r})")
         group = file.get("calibrations")
         if group is None:

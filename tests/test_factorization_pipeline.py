@@ -116,8 +116,9 @@ def test_triad_without_an_opposite_pair_is_refused_through_the_cli(tmp_path):
     write_session(path, session)
     cfg = tmp_path / "f.toml"
     cfg.write_text('[accel]\nsolver = "factorization"\n')
-    proc = subprocess.run([IMUCAL, "calibrate", str(path), "-c", str(cfg)],
-                          capture_output=True, text=True)
+    proc = subprocess.run(
+        [IMUCAL, "calibrate", str(path), "-c", str(cfg)], capture_output=True, text=True
+    )
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1 and "opposite" in proc.stderr
 
@@ -128,8 +129,9 @@ def test_cli_writes_a_redundant_calibration(tmp_path):
     write_session(path, session)
     cfg = tmp_path / "f.toml"
     cfg.write_text('[accel]\nsolver = "factorization"\n[accel.factorization]\nuse = "samples"\n')
-    proc = subprocess.run([IMUCAL, "calibrate", str(path), "-c", str(cfg)],
-                          capture_output=True, text=True)
+    proc = subprocess.run(
+        [IMUCAL, "calibrate", str(path), "-c", str(cfg)], capture_output=True, text=True
+    )
     assert proc.returncode == 0, proc.stderr
     cal = read_calibration(tmp_path / "r.cal.json")
     assert cal.accel.solver == "factorization" and np.shape(cal.accel.matrix) == (3, 4)

@@ -220,13 +220,13 @@ def infer_columns(header: Sequence[str]) -> list[str | None] | None:
 # --------------------------------------------------------------------------------------------
 
 
-def _split(line: str, comma: bool) -> list[str]:
+def split_fields(line: str, comma: bool) -> list[str]:
     if comma:
         return [p.strip() for p in line.split(",")]
     return line.split()
 
 
-def _numbers(parts: list[str]) -> list[float] | None:
+def parse_numbers(parts: list[str]) -> list[float] | None:
     try:
         values = [float(p) for p in parts]
     except ValueError:
@@ -284,8 +284,8 @@ def _read_table(
             continue
         if comma is None:
             comma = "," in line
-        parts = _split(line, comma)
-        values = _numbers(parts)
+        parts = split_fields(line, comma)
+        values = parse_numbers(parts)
         if values is None:
             if not seen_data:
                 stats.header += 1
@@ -318,7 +318,7 @@ def _read_table(
     return data, np.asarray(numbers)[keep], header
 
 
-def _check_time(time: np.ndarray, lines: np.ndarray, src: str) -> None:
+def check_time(time: np.ndarray, lines: np.ndarray, src: str) -> None:
     dt = np.diff(time)
     bad = np.flatnonzero(~(dt > 0))
     if len(bad):
@@ -387,7 +387,7 @@ def read_recording(
         tables = [_read_table(p, 4, skip_rows, stats, comma=False) for p in paths]
         for (data, lines, _), p in zip(tables, paths, strict=True):
             data[:, 0] *= TIME_UNITS[time_unit]
-            _check_time(data[:, 0], lines, str(p))
+            check_time(data[:, 0], lines, str(p))
         (acc, acc_lines, _), (gyr, _, _) = tables
         common, ia, ig = np.intersect1d(acc[:, 0], gyr[:, 0], return_indices=True)
         stats.unmatched = len(acc) + len(gyr) - 2 * len(common)
@@ -425,7 +425,7 @@ def read_recording(
 
         if col("t") is not None:
             time = data[:, col("t")] * TIME_UNITS[time_unit]
-            _check_time(time, lines, str(path))
+            check_time(time, lines, str(path))
         elif rate_hz is None:
             raise InputError(
                 f"{path}: no time column (t) in the columns: pass --rate HZ to stamp row i "

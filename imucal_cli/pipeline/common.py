@@ -80,7 +80,7 @@ class Nominal:
     notes: list[str] = field(default_factory=list)
 
 
-def _adc_range(data_min: float, data_max: float) -> tuple[float, float] | None:
+def adc_range(data_min: float, data_max: float) -> tuple[float, float] | None:
     """The smallest standard ADC word (signed or unsigned) that holds the data."""
     for bits in (8, 10, 12, 14, 16, 18, 20, 24, 32):
         if data_min >= 0 and data_max <= 2**bits - 1:
@@ -106,7 +106,7 @@ def nominal_sensor(session: Session, cfg: Config, g: float) -> Nominal:
             rng = (-full, full)
         elif units == "counts":
             finite = accel[np.isfinite(accel).all(axis=1)]
-            rng = _adc_range(float(finite.min()), float(finite.max())) if len(finite) else None
+            rng = adc_range(float(finite.min()), float(finite.max())) if len(finite) else None
     if a.nominal_bias is not None:
         bias = np.broadcast_to(np.asarray(a.nominal_bias, float), (n,)).copy()
     elif rng is not None and rng[0] == 0.0 and units == "counts":

@@ -30,7 +30,7 @@ from .common import (
     session_name,
     static_poses,
 )
-from .gyro import _gyro_checks
+from .gyro import gyro_checks
 
 #: Poses whose labelled up directions are this close to opposite form an eq.-(14) pair.
 OPPOSITE_TOLERANCE_DEG = 5.0
@@ -527,7 +527,7 @@ def calibrate_gyro_factorization(session: Session, cfg: Config) -> SensorCalibra
                     ),
                 }
             ],
-            "warnings": _gyro_checks(session, cfg, gains, units_in),
+            "warnings": gyro_checks(session, cfg, gains, units_in),
         }
     )
     return SensorCalibration(

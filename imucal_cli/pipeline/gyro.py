@@ -124,10 +124,10 @@ def _saturation_limit(session: Session, cfg: Config) -> tuple[float, float] | No
         return lo + margin, hi - margin
     if session.gyro_units != "counts":
         return None
-    from .common import _adc_range
+    from .common import adc_range
 
     finite = session.gyro[np.isfinite(session.gyro).all(axis=1)]
-    rng = _adc_range(float(finite.min()), float(finite.max()))
+    rng = adc_range(float(finite.min()), float(finite.max()))
     if rng is None:
         return None
     margin = 0.005 * (rng[1] - rng[0])
@@ -241,7 +241,7 @@ def calibrate_gyro_rotations(session: Session, cfg: Config, accel_cal: SensorCal
             "noise_scale": res.noise_scale,
         }  # fmt: skip
         scale_for_checks = np.linalg.norm(S, axis=1)
-    warnings += _gyro_checks(session, cfg, scale_for_checks, units_in)
+    warnings += gyro_checks(session, cfg, scale_for_checks, units_in)
     extra.update({
         "model": MODEL_EQUATION,
         "units_in": units_in,
@@ -379,7 +379,7 @@ def _initial_scale(session, cfg, rot, st, bias) -> float:
     return float(np.median(ratios))
 
 
-def _gyro_checks(session, cfg, gains, units) -> list[str]:
+def gyro_checks(session, cfg, gains, units) -> list[str]:
     """Sensitivities far from nominal (units or config)."""
     nominal = cfg.gyro.nominal_sensitivity or {"rad/s": 1.0, "deg/s": 180 / np.pi}.get(
         session.gyro_units or ""
