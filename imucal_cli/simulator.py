@@ -705,20 +705,7 @@ def truth_calibration(stream: SimulatedStream, created: str | None = None) -> Ca
         "true_rotvec": _floats(stream.rotvec),
         "true_rotvec_unit": "rad, body (fixture) frame",
     }
-    accel = SensorCalibration(
-        solver="truth",
-        units="m/s^2",
-        bias=np.array(t.accel_b, dtype=float),
-        matrix=np.linalg.inv(t.accel_S),
-        extra=accel_extra,
-    )
-    gyro = SensorCalibration(
-        solver="truth",
-        units="rad/s",
-        bias=np.array(t.gyro_b, dtype=float),
-        matrix=np.linalg.inv(t.gyro_S),
-        extra=gyro_extra,
-    )
+    accel, gyro = truth_sections(t, accel_extra, gyro_extra)
     root_extra = {
         "sensor": sensor_name(opt["seed"]),
         "seed": int(opt["seed"]),
@@ -830,3 +817,24 @@ def session_from_motion(
         accel_units=truth.accel_units,
         gyro_units=truth.gyro_units,
     )
+
+
+def truth_sections(truth: ImuTruth, accel_extra: dict, gyro_extra: dict):
+    """The accel and gyro sections of a truth calibration: ``matrix = inv(S)``, ``bias = b``,
+    so that ``matrix @ (raw - bias)`` gives the fixture-frame specific force and rate."""
+
+    accel = SensorCalibration(
+        solver="truth",
+        units="m/s^2",
+        bias=np.array(truth.accel_b, dtype=float),
+        matrix=np.linalg.inv(truth.accel_S),
+        extra=accel_extra,
+    )
+    gyro = SensorCalibration(
+        solver="truth",
+        units="rad/s",
+        bias=np.array(truth.gyro_b, dtype=float),
+        matrix=np.linalg.inv(truth.gyro_S),
+        extra=gyro_extra,
+    )
+    return accel, gyro

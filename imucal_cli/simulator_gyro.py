@@ -34,7 +34,7 @@ import re
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .calibration import Calibration, SensorCalibration
+from .calibration import Calibration
 from .errors import InputError
 from .session import Segment, Session, utc_now_iso
 from .simulator import (
@@ -49,6 +49,7 @@ from .simulator import (
     random_imu,
     sensor_name,
     session_from_motion,
+    truth_sections,
 )
 
 __all__ = [
@@ -547,20 +548,7 @@ def simulate_gyro_rotations(
         "true_up": _floats(_unit(np.array(still_true_up))),
         "labelled_up": still_labelled_up,
     }
-    accel = SensorCalibration(
-        solver="truth",
-        units="m/s^2",
-        bias=np.array(truth.accel_b, dtype=float),
-        matrix=np.linalg.inv(truth.accel_S),
-        extra=accel_extra,
-    )
-    gyro = SensorCalibration(
-        solver="truth",
-        units="rad/s",
-        bias=np.array(truth.gyro_b, dtype=float),
-        matrix=np.linalg.inv(truth.gyro_S),
-        extra=gyro_extra,
-    )
+    accel, gyro = truth_sections(truth, accel_extra, gyro_extra)
     root = {
         "sensor": sensor,
         "seed": seed,

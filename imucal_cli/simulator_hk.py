@@ -42,6 +42,7 @@ from .simulator import (
     plan_poses,
     random_imu,
     session_from_motion,
+    truth_sections,
 )
 
 __all__ = [
@@ -704,20 +705,7 @@ def simulate_hk_gyro(
         "bias_mg": _floats(1000.0 * truth.accel_bias_g),
         "S": _floats(truth.accel_S),
     }
-    gyro = SensorCalibration(
-        solver="truth",
-        units="rad/s",
-        bias=np.array(truth.gyro_b, dtype=float),
-        matrix=np.linalg.inv(truth.gyro_S),
-        extra=gyro_extra,
-    )
-    accel = SensorCalibration(
-        solver="truth",
-        units="m/s^2",
-        bias=np.array(truth.accel_b, dtype=float),
-        matrix=np.linalg.inv(truth.accel_S),
-        extra=accel_extra,
-    )
+    accel, gyro = truth_sections(truth, accel_extra, gyro_extra)
     root = {"sensor": sensor, "seed": seed, "plan": "hk-gyro", "simulator": options}
     return session, Calibration(accel=accel, gyro=gyro, extra=root, created=created)
 
