@@ -75,6 +75,7 @@ from imucal_cli.capture.importers import (
     infer_columns,
     parse_columns,
     parse_numbers,
+    skipped_fields,
     split_fields,
 )
 from imucal_cli.errors import InputError
@@ -372,7 +373,7 @@ def _csv_blocks(
         if comma is None:
             comma = "," in line
         parts = split_fields(line, comma)
-        values = parse_numbers(parts)
+        values = parse_numbers(parts, skipped_fields(spec))
         if values is None and not seen_data:
             header = parts
             continue

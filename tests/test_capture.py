@@ -382,3 +382,14 @@ def test_run_unattended_incomplete(tmp_path):
     summary = run_unattended(rec, load_plan("six"))
     rec.close()
     assert not summary.complete and "face -Y up" in summary.missing
+
+
+def test_skipped_fields_may_hold_text():
+    """`_` skips a field whatever it holds: a sketch that prints a tag first still parses."""
+    from imucal_cli.capture.columns import ColumnSpec
+    from imucal_cli.capture.stream import LineProtocol
+
+    proto = LineProtocol(ColumnSpec.parse("_,t,ax,ay,az", "s"))
+    block = proto.feed(b"IMU,0.01,1,2,3\nIMU,0.02,4,5,6\n", host_time=1.0)
+    assert len(block) == 2 and proto.stats["malformed"] == 0
+    assert block.accel.tolist() == [[1, 2, 3], [4, 5, 6]]

@@ -296,3 +296,13 @@ def test_ferraris_six_faces_refused_with_the_reason(tmp_path):
     assert session.gyro_units == "deg/s"
     assert len(session.static_segments()) >= 6
     assert_one_line_error(run("calibrate", out), "only 6 distinct gravity directions")
+
+
+def test_skipped_columns_may_hold_text(tmp_path):
+    from imucal_cli.capture.importers import read_recording
+
+    path = tmp_path / "tagged.csv"
+    rows = [f"imu{i % 2},{i / 100:.2f},0,0,9.8,0,0,0" for i in range(300)]
+    path.write_text("tag,t,ax,ay,az,gx,gy,gz\n" + "\n".join(rows) + "\n")
+    rec = read_recording([path], "csv", "_,t,ax,ay,az,gx,gy,gz")
+    assert rec.accel.shape == (300, 3) and rec.stats.malformed == 0

@@ -226,9 +226,18 @@ def split_fields(line: str, comma: bool) -> list[str]:
     return line.split()
 
 
-def parse_numbers(parts: list[str]) -> list[float] | None:
+def skipped_fields(spec) -> frozenset[int]:
+    """Positions of the ``_`` (skipped) fields of a column spec (None: no spec yet)."""
+    if spec is None:
+        return frozenset()
+    return frozenset(j for j, name in enumerate(spec) if name is None)
+
+
+def parse_numbers(parts: list[str], skip: frozenset[int] = frozenset()) -> list[float] | None:
+    """The fields of a line as numbers, or None when one is not a finite number. Fields at
+    the positions in ``skip`` (``_`` in a column spec) may hold anything; they read as 0."""
     try:
-        values = [float(p) for p in parts]
+        values = [0.0 if j in skip else float(p) for j, p in enumerate(parts)]
     except ValueError:
         return None
     if not all(np.isfinite(values)):
@@ -257,6 +266,7 @@ def _read_table(
     skip_rows: int,
     stats: ImportStats,
     comma: bool | None = None,
+    skip: frozenset[int] = frozenset(),
 ) -> tuple[np.ndarray, np.ndarray, list[str] | None]:
     """Numeric rows of a text file.
 
@@ -285,7 +295,7 @@ def _read_table(
         if comma is None:
             comma = "," in line
         parts = split_fields(line, comma)
-        values = parse_numbers(parts)
+        values = parse_numbers(parts, skip)
         if values is None:
             if not seen_data:
                 stats.header += 1
@@ -404,7 +414,11 @@ def read_recording(
         path = paths[0]
         spec = parse_columns(columns) if isinstance(columns, str) else columns
         data, lines, header = _read_table(
-            path, None if spec is None else len(spec), skip_rows, stats
+            path,
+            None if spec is None else len(spec),
+            skip_rows,
+            stats,
+            skip=skipped_fields(spec),
         )
         if spec is None:
             spec = infer_columns(header) if header else None

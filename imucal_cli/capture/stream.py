@@ -143,6 +143,7 @@ class LineProtocol:
 
     def __init__(self, columns: ColumnSpec) -> None:
         self.columns = columns
+        self._skipped = frozenset(j for j, name in enumerate(columns.names) if name == "_")
         self.stats = {"lines": 0, "samples": 0, "comments": 0, "malformed": 0, "bytes": 0}
         self._partial = b""
         self._last_time: float | None = None  # last kept sample time, s
@@ -188,6 +189,8 @@ class LineProtocol:
             elif len(fields) != n_fields:
                 stats["malformed"] += 1
             else:
+                if self._skipped:  # `_` fields may hold anything (a text tag): read as 0
+                    fields = [b"0" if j in self._skipped else f for j, f in enumerate(fields)]
                 tokens.extend(fields)
                 n_good += 1
         if n_good == 0:
