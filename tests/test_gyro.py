@@ -160,3 +160,14 @@ def test_rates_beyond_the_configured_range_are_left_out(axes_session):
     ).gyro
     assert any("range" in w for w in g.extra["warnings"])
     assert len(g.extra["rotations"]) < len(session.rotation_segments())
+
+
+def test_per_axis_solvers_refuse_turns_that_are_not_about_one_axis():
+    """A pose session's moves turn between faces and edges: the per-axis model cannot use
+    them, and says so instead of saving wrong gains."""
+    session, _ = simulate(plan="qureshi18", seed=3, created=CREATED)
+    with pytest.raises(DesignError, match="not about one sensor axis"):
+        calibrate_session(session, cfg("static"))
+    # The full model takes them.
+    g = calibrate_session(session, cfg("full")).gyro
+    assert g.extra["rotation_rms_deg"] < 0.5

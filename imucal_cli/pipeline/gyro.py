@@ -28,6 +28,11 @@ from imucal_cli.solvers.segmentation import find_rotations, find_static
 from .common import num, rms, session_name, with_segments
 
 AXES = "xyz"
+#: Per-axis (static/dynamic) solvers: a turn whose axis is further than this from the sensor
+#: axis it is attributed to is left out (the full model takes any turn).
+MAX_AXIS_ERROR_DEG = 15.0
+#: Per-axis solvers: rotation residuals above this RMS mean the per-axis model does not fit.
+MAX_PER_AXIS_RMS_DEG = 1.0
 
 
 @dataclass
@@ -193,6 +198,12 @@ def calibrate_gyro_rotations(session: Session, cfg: Config, accel_cal: SensorCal
             for i, a in enumerate(AXES)
         ]  # fmt: skip
         residual = np.radians([r["angle_error_deg"] for r in rotations])
+        if np.degrees(rms(residual)) > MAX_PER_AXIS_RMS_DEG:
+            warnings.append(
+                f"the per-axis model does not fit these turns (angle residual RMS "
+                f"{np.degrees(rms(residual)):.2f} deg): turn about one sensor axis at a time "
+                '(x and y with z up, z on its side), or use [gyro] solver = "full"'
+            )
         extra = {"model_paper": "omega = K (omega_s - B), eq. (15)", "approach": solver}
         scale_for_checks = 1 / np.abs(k)
     else:
@@ -274,11 +285,23 @@ def _per_axis(session, solver, turns, stills, bias_still, b_still_std, cfg, wher
     k, b, k_std, b_std = np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)
     min_lev = np.sin(np.radians(cfg.gyro.rotations.min_tilt_deg)) ** 2
     per_axis = {i: [] for i in range(3)}
+    oblique = 0
     for turn in turns:
         x, T = _integral(session, turn.segment)
         i = _axis_of(turn, x, bias_still, T)
         sign = np.sign(turn.segment.axis[i]) if turn.segment.axis is not None else 1.0
         axis = np.eye(3)[i] * sign
+        # The per-axis model holds for turns about one sensor axis only: the turn's own axis
+        # (raw integral in pass 1, calibrated in pass 2) must be near it.
+        turned = (x - bias_still * T) if first is None else first[0] * (x - first[1] * T)
+        off = np.degrees(np.arccos(min(1.0, abs(turned[i]) / max(np.linalg.norm(turned), 1e-300))))
+        if off > MAX_AXIS_ERROR_DEG:
+            oblique += 1
+            notes.append(
+                f"{turn.segment.label or turn.segment.name}: turned {off:.0f} deg away from the "
+                f"{AXES[i]} axis, not about one sensor axis: left out of the per-axis fit"
+            )
+            continue
         if first is not None:
             rotvec = first[0] * (x - first[1] * T)
             axis = rotvec / np.linalg.norm(rotvec) * np.sign(rotvec[i]) * sign
@@ -303,6 +326,12 @@ def _per_axis(session, solver, turns, stills, bias_still, b_still_std, cfg, wher
                 f"{where}: {len(rows)} usable rotation(s) about {AXES[i]}; the {solver} "
                 f"approach needs {'2' if solver == 'static' else '3'} or more per axis (the "
                 f"paper turns 18 times per axis; {AXES[i]} turns need {AXES[i]} horizontal)"
+                + (
+                    f"; {oblique} turn(s) not about one sensor axis were left out: "
+                    '[gyro] solver = "full" takes any turn'
+                    if oblique
+                    else ""
+                )
             )
         x = np.array([r[1] for r in rows])
         T = np.array([r[2] for r in rows])
