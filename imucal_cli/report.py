@@ -1247,11 +1247,16 @@ def build_history(cals: list[Calibration]) -> dict[str, Any]:
                 unit = next(r["unit"] for r in found if r is not None)
                 values = [None if r is None else r["value"] for r in found]
                 stds = [None if r is None else r["std"] for r in found]
+                # The reference: the first calibration that has this figure (an earlier one
+                # may lack the section, e.g. an accelerometer-only run).
+                ref = next(i for i, v in enumerate(values) if v is not None)
                 change, z, flags = [], [], []
-                for v, s in zip(values, stds, strict=True):
-                    d = None if v is None or values[0] is None else v - values[0]
+                for i, (v, s) in enumerate(zip(values, stds, strict=True)):
+                    d = None if v is None or i < ref else v - values[ref]
                     combined = (
-                        math.hypot(s, stds[0]) if s is not None and stds[0] is not None else None
+                        math.hypot(s, stds[ref])
+                        if s is not None and stds[ref] is not None
+                        else None
                     )
                     zz = None if d is None or not combined else d / combined
                     change.append(d)
@@ -1260,7 +1265,8 @@ def build_history(cals: list[Calibration]) -> dict[str, Any]:
                 if any(flags):
                     drifted.append(f"{kind} {name}")
                 rows.append({"name": name, "unit": unit, "values": values, "std": stds,
-                             "change": change, "z": z, "drifted": flags})  # fmt: skip
+                             "reference": ref, "change": change, "z": z,
+                             "drifted": flags})  # fmt: skip
             sections[kind] = {
                 "solvers": [None if s is None else s.solver for s in secs],
                 "rows": rows,
@@ -1307,9 +1313,13 @@ def render_history(history: dict[str, Any], console: Console) -> None:
                 )
             for row in section["rows"]:
                 cells = [Text(row["name"]), Text(row["unit"] or "")]
+                ref = row.get("reference", 0)
                 cells.append(Text(_fmt_std(row["values"][0], row["std"][0])))
                 for i in range(1, len(cals)):
                     d, z, flag = row["change"][i], row["z"][i], row["drifted"][i]
+                    if i == ref:  # first calibration with this figure: its value
+                        cells.append(Text(_fmt_std(row["values"][i], row["std"][i]) + " (ref)"))
+                        continue
                     if d is None:
                         cells.append(Text(_MISSING))
                         continue

@@ -793,3 +793,25 @@ def test_history_refuses_plot_with_one_line(two_calibrations, tmp_path, capsys, 
         capsys, monkeypatch,
     )  # fmt: skip
     _assert_one_line_error(code, out, err, "--plot draws one calibration")
+
+
+def test_history_compares_a_section_from_its_first_appearance():
+    """The first calibration of a sensor may lack the gyro: later gyro runs are still compared
+    with each other (the first one that has it is the reference)."""
+    from imucal_cli.calibrate import calibrate_session
+    from imucal_cli.config import config_from_dict
+    from imucal_cli.report import build_history
+    from imucal_cli.simulator_gyro import simulate_gyro_rotations
+
+    session, _ = simulate_gyro_rotations(plan="qureshi-axes", seed=5, rotations_per_axis=6,
+                                         created="2026-01-01T00:00:00Z")  # fmt: skip
+    accel_only = calibrate_session(session, config_from_dict({}))
+    with_gyro = [calibrate_session(session, config_from_dict({"gyro": {"solver": "full"}}))
+                 for _ in range(2)]  # fmt: skip
+    accel_only.created, with_gyro[0].created, with_gyro[1].created = (
+        "2026-01-01T00:00:00Z", "2026-01-02T00:00:00Z", "2026-01-03T00:00:00Z")
+    history = build_history([accel_only, *with_gyro])
+    gyro_rows = history["sensors"][0]["sections"]["gyro"]["rows"]
+    assert gyro_rows and all(row["reference"] == 1 for row in gyro_rows)
+    assert all(row["change"][2] == pytest.approx(0.0, abs=1e-12) for row in gyro_rows)
+    assert history["sensors"][0]["drifted"] == []
