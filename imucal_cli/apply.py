@@ -131,6 +131,8 @@ class ApplySummary:
         CSV: ``file:line`` of the first of them.
     chunks : int
         Blocks read and written.
+    nonfinite : int
+        Samples whose raw input held NaN or inf (a dropout): written as NaN, never as a number.
     """
 
     input: Path
@@ -143,6 +145,7 @@ class ApplySummary:
     malformed: int = 0
     first_malformed: str | None = None
     chunks: int = 0
+    nonfinite: int = 0
     _first_time: float | None = field(default=None, repr=False)
 
 
@@ -649,6 +652,10 @@ def apply_calibration(
             raise InputError(f"{output_path}: cannot write ({one_line(exc)})") from None
         for block in blocks:
             values = {name: sec.apply(block.raw[name]) for name, sec in sections.items()}
+            bad = np.zeros(len(block.time), dtype=bool)
+            for raw in block.raw.values():
+                bad |= ~np.isfinite(raw).all(axis=1)
+            summary.nonfinite += int(bad.sum())
             try:
                 writer.write(block.time, values)
             except OSError as exc:

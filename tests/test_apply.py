@@ -347,3 +347,23 @@ def test_constant_memory_on_a_long_session(tmp_path):
             np.testing.assert_array_equal(f["calibrated/gyro"][rows],
                                           cal.gyro.apply(g["raw/gyro"][rows]))  # fmt: skip
             np.testing.assert_array_equal(f["calibrated/time"][rows], g["raw/time"][rows])
+
+
+def test_nan_in_the_input_is_reported_not_hidden(tmp_path):
+    import h5py
+
+    from imucal_cli.apply import apply_calibration
+    from imucal_cli.session import write_session
+    from imucal_cli.simulator import simulate
+
+    session, truth = simulate(plan="six", seed=2, created="2026-01-01T00:00:00Z")
+    session.accel = session.accel.copy()
+    move = session.rotation_segments()[0]  # an accel dropout while the unit is being turned
+    i = move.start + 5
+    session.accel[i : i + 3, 1] = np.nan
+    src = tmp_path / "s.h5"
+    write_session(src, session)
+    summary = apply_calibration(truth, src, tmp_path / "out.h5")
+    assert summary.nonfinite == 3
+    with h5py.File(tmp_path / "out.h5") as f:
+        assert np.isnan(f["calibrated/accel"][i : i + 3]).all()

@@ -98,6 +98,11 @@ def apply_(
         skipped = (
             f"; skipped {summary.malformed} malformed line(s), first {summary.first_malformed}"
         )
+    if summary.nonfinite:
+        skipped += (
+            f"; warning: {summary.nonfinite} sample(s) had NaN or inf in the raw input and are "
+            "NaN in the output"
+        )
     Console().print(
         f"calibrated {summary.samples} samples ({summary.duration_s:.6g} s; "
         f"{', '.join(summary.sensors)}) from {input_file} with {calibration} "
