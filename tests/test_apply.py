@@ -3,8 +3,6 @@ boundaries, every refusal as one line, and constant memory on a long session."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
 import time
 import tracemalloc
 from pathlib import Path
@@ -19,21 +17,7 @@ from imucal_cli.errors import InputError
 from imucal_cli.session import Session, write_session
 from imucal_cli.simulator import simulate
 from imucal_cli.simulator_hk import simulate_redundant_accel
-
-IMUCAL = str(Path(sys.executable).with_name("imucal"))
-
-
-def run(*args) -> subprocess.CompletedProcess:
-    return subprocess.run([IMUCAL, *map(str, args)], capture_output=True, text=True, timeout=120)
-
-
-def assert_one_line_error(proc, *words: str) -> None:
-    assert proc.returncode == 2, (proc.returncode, proc.stdout, proc.stderr)
-    assert "Traceback" not in proc.stderr
-    err = proc.stderr.strip()
-    assert len(err.splitlines()) == 1 and err.startswith("imucal: error:"), err
-    for w in words:
-        assert w in err, (w, err)
+from tests.cli_helpers import IMUCAL, assert_one_line_error, run  # noqa: F401
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -23,25 +22,12 @@ from imucal_cli.errors import InputError
 from imucal_cli.export import export, export_c_header, export_json, export_yaml
 from imucal_cli.simulator import simulate
 from imucal_cli.simulator_hk import simulate_redundant_accel
+from tests.cli_helpers import IMUCAL, assert_one_line_error, run  # noqa: F401
 
-IMUCAL = str(Path(sys.executable).with_name("imucal"))
 GCC = shutil.which("gcc")
 CFLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-Wshadow", "-Wconversion",
           "-Wdouble-promotion"]  # fmt: skip
 needs_gcc = pytest.mark.skipif(GCC is None, reason="gcc not installed")
-
-
-def run(*args) -> subprocess.CompletedProcess:
-    return subprocess.run([IMUCAL, *map(str, args)], capture_output=True, text=True, timeout=120)
-
-
-def assert_one_line_error(proc, *words: str) -> None:
-    assert proc.returncode == 2, (proc.returncode, proc.stdout, proc.stderr)
-    assert "Traceback" not in proc.stderr
-    err = proc.stderr.strip()
-    assert len(err.splitlines()) == 1 and err.startswith("imucal: error:"), err
-    for w in words:
-        assert w in err, (w, err)
 
 
 @pytest.fixture(scope="module")

@@ -15,22 +15,9 @@ from imucal_cli.config import Config
 from imucal_cli.errors import InputError
 from imucal_cli.session import read_session
 from imucal_cli.simulator import simulate
+from tests.cli_helpers import IMUCAL, assert_one_line_error, run  # noqa: F401
 
-IMUCAL = str(Path(sys.executable).with_name("imucal"))
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
-
-
-def run(*args) -> subprocess.CompletedProcess:
-    return subprocess.run([IMUCAL, *map(str, args)], capture_output=True, text=True, timeout=120)
-
-
-def assert_one_line_error(proc, *words: str) -> None:
-    assert proc.returncode == 2, (proc.returncode, proc.stdout, proc.stderr)
-    assert "Traceback" not in proc.stderr
-    err = proc.stderr.strip()
-    assert len(err.splitlines()) == 1 and err.startswith("imucal: error:"), err
-    for w in words:
-        assert w in err, (w, err)
 
 
 @pytest.fixture(scope="module")

@@ -809,7 +809,10 @@ def test_history_compares_a_section_from_its_first_appearance():
     with_gyro = [calibrate_session(session, config_from_dict({"gyro": {"solver": "full"}}))
                  for _ in range(2)]  # fmt: skip
     accel_only.created, with_gyro[0].created, with_gyro[1].created = (
-        "2026-01-01T00:00:00Z", "2026-01-02T00:00:00Z", "2026-01-03T00:00:00Z")
+        "2026-01-01T00:00:00Z",
+        "2026-01-02T00:00:00Z",
+        "2026-01-03T00:00:00Z",
+    )
     history = build_history([accel_only, *with_gyro])
     gyro_rows = history["sensors"][0]["sections"]["gyro"]["rows"]
     assert gyro_rows and all(row["reference"] == 1 for row in gyro_rows)
