@@ -22,7 +22,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
-from imucal_cli.session import read_session
+from imucal_cli.formats.session import read_session
 
 RATE_HZ = 1000
 BAUD = 921600

@@ -17,10 +17,10 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from imucal_cli.calibrate import calibrate_session
-from imucal_cli.config import config_from_dict
-from imucal_cli.simulator import simulate
-from imucal_cli.simulator_hk import simulate_redundant_accel
+from imucal_cli.formats.config import config_from_dict
+from imucal_cli.pipeline.calibrate import calibrate_session
+from imucal_cli.simulate.redundant import simulate_redundant_accel
+from imucal_cli.simulate.triad import simulate
 from imucal_cli.solvers import factorization as fz
 from imucal_cli.solvers.crb import factorization_crb, gravity_crb, invariant_summary, propagate
 

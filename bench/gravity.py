@@ -24,10 +24,10 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from imucal_cli.calibrate import calibrate_session, static_poses
-from imucal_cli.config import Config
-from imucal_cli.session import write_session
-from imucal_cli.simulator import ACCEL_LSB_PER_G, simulate
+from imucal_cli.formats.config import Config
+from imucal_cli.formats.session import write_session
+from imucal_cli.pipeline.calibrate import calibrate_session, static_poses
+from imucal_cli.simulate.triad import ACCEL_LSB_PER_G, simulate
 from imucal_cli.solvers.crb import gravity_crb
 from imucal_cli.solvers.gravity import PARAM_NAMES_9, model_to_params
 
@@ -128,7 +128,7 @@ def hour_session_timing(console: Console) -> tuple[float, float]:
         wall = time.perf_counter() - t0
         if proc.returncode != 0:
             console.print(f"[red]imucal calibrate failed on the 1-hour session: {proc.stderr}")
-        from imucal_cli.session import read_session
+        from imucal_cli.formats.session import read_session
 
         t0 = time.perf_counter()
         calibrate_session(read_session(path), Config())

@@ -18,11 +18,11 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from imucal_cli.calibrate import calibrate_session
-from imucal_cli.config import config_from_dict
 from imucal_cli.errors import ImucalError
+from imucal_cli.formats.config import config_from_dict
+from imucal_cli.pipeline.calibrate import calibrate_session
 from imucal_cli.pipeline.gyro import full_problem
-from imucal_cli.simulator_gyro import simulate_gyro_rotations
+from imucal_cli.simulate.rotations import simulate_gyro_rotations
 from imucal_cli.solvers.gyro_full import full_information
 
 CREATED = "2026-01-01T00:00:00Z"
@@ -140,7 +140,7 @@ def real_data(console: Console) -> None:
     if not DATA.is_dir():
         console.print(f"[yellow]{DATA} not found: real recordings skipped")
         return
-    from imucal_cli.capture.importers import import_files
+    from imucal_cli.formats.importers import import_files
 
     t = Table(title="Real recordings with rotations: accel (gravity) + gyro (full) calibration")
     for col in ("recording", "stills", "rotations used", "accel |a|-g RMS after, m/s^2",
@@ -165,7 +165,7 @@ def real_data(console: Console) -> None:
 def _known_turn(console: Console) -> None:
     """tomisuarez2's +90 degree turn about x, measured with the gyro calibrated from its own
     calibration recording: a check of the scale on data the calibration never saw."""
-    from imucal_cli.capture.importers import import_files
+    from imucal_cli.formats.importers import import_files
 
     base = DATA / "tomisuarez2_mpu6050"
     opts = dict(columns="ax,ay,az,gx,gy,gz", rate_hz=100.0, accel_units="counts",

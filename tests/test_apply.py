@@ -11,12 +11,12 @@ import h5py
 import numpy as np
 import pytest
 
-from imucal_cli.apply import FORMAT, apply_calibration
-from imucal_cli.calibration import Calibration, SensorCalibration, write_calibration
 from imucal_cli.errors import InputError
-from imucal_cli.session import Session, write_session
-from imucal_cli.simulator import simulate
-from imucal_cli.simulator_hk import simulate_redundant_accel
+from imucal_cli.formats.calibration import Calibration, SensorCalibration, write_calibration
+from imucal_cli.formats.session import Session, write_session
+from imucal_cli.simulate.redundant import simulate_redundant_accel
+from imucal_cli.simulate.triad import simulate
+from imucal_cli.use.apply import FORMAT, apply_calibration
 from tests.cli_helpers import IMUCAL, assert_one_line_error, run  # noqa: F401
 
 
@@ -336,9 +336,9 @@ def test_constant_memory_on_a_long_session(tmp_path):
 def test_nan_in_the_input_is_reported_not_hidden(tmp_path):
     import h5py
 
-    from imucal_cli.apply import apply_calibration
-    from imucal_cli.session import write_session
-    from imucal_cli.simulator import simulate
+    from imucal_cli.formats.session import write_session
+    from imucal_cli.simulate.triad import simulate
+    from imucal_cli.use.apply import apply_calibration
 
     session, truth = simulate(plan="six", seed=2, created="2026-01-01T00:00:00Z")
     session.accel = session.accel.copy()

@@ -12,12 +12,12 @@ import h5py
 import numpy as np
 import pytest
 
-from imucal_cli.calibrate import calibrate_session, static_poses
-from imucal_cli.calibration import read_calibration
-from imucal_cli.config import Config, config_from_dict
 from imucal_cli.errors import ConfigError, DesignError
-from imucal_cli.session import read_session, write_session
-from imucal_cli.simulator import simulate
+from imucal_cli.formats.calibration import read_calibration
+from imucal_cli.formats.config import Config, config_from_dict
+from imucal_cli.formats.session import read_session, write_session
+from imucal_cli.pipeline.calibrate import calibrate_session, static_poses
+from imucal_cli.simulate.triad import simulate
 from imucal_cli.solvers.gravity import model_to_params
 
 IMUCAL = str(Path(sys.executable).with_name("imucal"))

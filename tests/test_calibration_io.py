@@ -7,7 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from imucal_cli.calibration import (
+from imucal_cli.errors import CalibrationFileError, InputError
+from imucal_cli.formats.calibration import (
     FORMAT,
     FORMAT_VERSION,
     MODEL_EQUATION,
@@ -18,7 +19,6 @@ from imucal_cli.calibration import (
     read_calibration,
     write_calibration,
 )
-from imucal_cli.errors import CalibrationFileError, InputError
 
 SPEC_EXAMPLE = """{
   "format": "imucal-calibration",

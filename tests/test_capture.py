@@ -8,14 +8,14 @@ import signal
 import numpy as np
 import pytest
 
-from imucal_cli.capture.columns import ColumnSpec
-from imucal_cli.capture.plans import load_plan
 from imucal_cli.capture.recorder import Recorder
-from imucal_cli.capture.stream import RESYNC_SAMPLES, DeviceGone, LineProtocol, SampleBlock
+from imucal_cli.capture.stream import RESYNC_SAMPLES, DeviceGone, LineProtocol
 from imucal_cli.capture.unattended import run_unattended, segment_recording
-from imucal_cli.capture.virtual import _format, plan_motion, stream_arrays
 from imucal_cli.errors import InputError
-from imucal_cli.session import read_session
+from imucal_cli.formats.columns import ColumnSpec, SampleBlock
+from imucal_cli.formats.session import read_session
+from imucal_cli.plans import load_plan
+from imucal_cli.simulate.device import _format, plan_motion, stream_arrays
 
 # --------------------------------------------------------------------------------------------
 # Column specs
@@ -386,8 +386,8 @@ def test_run_unattended_incomplete(tmp_path):
 
 def test_skipped_fields_may_hold_text():
     """`_` skips a field whatever it holds: a sketch that prints a tag first still parses."""
-    from imucal_cli.capture.columns import ColumnSpec
     from imucal_cli.capture.stream import LineProtocol
+    from imucal_cli.formats.columns import ColumnSpec
 
     proto = LineProtocol(ColumnSpec.parse("_,t,ax,ay,az", "s"))
     block = proto.feed(b"IMU,0.01,1,2,3\nIMU,0.02,4,5,6\n", host_time=1.0)

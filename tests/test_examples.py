@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from imucal_cli.calibrate import calibrate_session
-from imucal_cli.calibration import read_calibration
-from imucal_cli.config import Config
 from imucal_cli.errors import DesignError
-from imucal_cli.session import read_session
+from imucal_cli.formats.calibration import read_calibration
+from imucal_cli.formats.config import Config
+from imucal_cli.formats.session import read_session
+from imucal_cli.pipeline.calibrate import calibrate_session
 
 SESSIONS = Path(__file__).resolve().parent.parent / "sessions"
 

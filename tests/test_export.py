@@ -12,16 +12,16 @@ import numpy as np
 import pytest
 import yaml
 
-from imucal_cli.calibration import (
+from imucal_cli.errors import InputError
+from imucal_cli.formats.calibration import (
     Calibration,
     SensorCalibration,
     calibration_from_json,
     write_calibration,
 )
-from imucal_cli.errors import InputError
-from imucal_cli.export import export, export_c_header, export_json, export_yaml
-from imucal_cli.simulator import simulate
-from imucal_cli.simulator_hk import simulate_redundant_accel
+from imucal_cli.simulate.redundant import simulate_redundant_accel
+from imucal_cli.simulate.triad import simulate
+from imucal_cli.use.export import export, export_c_header, export_json, export_yaml
 from tests.cli_helpers import IMUCAL, assert_one_line_error, run  # noqa: F401
 
 GCC = shutil.which("gcc")

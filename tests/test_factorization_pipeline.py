@@ -12,13 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from imucal_cli.calibrate import calibrate_session
-from imucal_cli.calibration import read_calibration
-from imucal_cli.config import config_from_dict
 from imucal_cli.errors import DesignError
-from imucal_cli.session import write_session
-from imucal_cli.simulator import simulate
-from imucal_cli.simulator_hk import simulate_hk_gyro, simulate_redundant_accel
+from imucal_cli.formats.calibration import read_calibration
+from imucal_cli.formats.config import config_from_dict
+from imucal_cli.formats.session import write_session
+from imucal_cli.pipeline.calibrate import calibrate_session
+from imucal_cli.simulate.redundant import simulate_hk_gyro, simulate_redundant_accel
+from imucal_cli.simulate.triad import simulate
 from imucal_cli.solvers.crb import invariant_summary
 
 CREATED = "2026-01-01T00:00:00Z"

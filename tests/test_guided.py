@@ -18,9 +18,9 @@ from imucal_cli.capture.guided import (
     parse_command,
     run_guided,
 )
-from imucal_cli.capture.plans import Plan, Step, load_plan
-from imucal_cli.capture.stream import SampleBlock
-from imucal_cli.simulator import G0, random_imu
+from imucal_cli.formats.columns import SampleBlock
+from imucal_cli.plans import Plan, Step, load_plan
+from imucal_cli.simulate.triad import G0, random_imu
 
 RATE = 100.0
 GYRO_SCALE = 16.4 * 180.0 / np.pi  # counts per rad/s, nominal

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from imucal_cli.session import read_session
+from imucal_cli.formats.session import read_session
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminals are POSIX")
 

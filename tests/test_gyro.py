@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from imucal_cli.calibrate import calibrate_session
-from imucal_cli.config import config_from_dict
 from imucal_cli.errors import ConfigError, DesignError
-from imucal_cli.simulator import simulate
-from imucal_cli.simulator_gyro import simulate_gyro_rotations
+from imucal_cli.formats.config import config_from_dict
+from imucal_cli.pipeline.calibrate import calibrate_session
+from imucal_cli.simulate.rotations import simulate_gyro_rotations
+from imucal_cli.simulate.triad import simulate
 from imucal_cli.solvers.gyro_axes import (
     fit_axis_dynamic,
     fit_axis_static,

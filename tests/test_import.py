@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from imucal_cli.calibrate import calibrate_session
-from imucal_cli.capture.importers import import_files, infer_columns, parse_columns
-from imucal_cli.config import Config
 from imucal_cli.errors import InputError
-from imucal_cli.session import read_session
-from imucal_cli.simulator import simulate
+from imucal_cli.formats.config import Config
+from imucal_cli.formats.importers import import_files, infer_columns, parse_columns
+from imucal_cli.formats.session import read_session
+from imucal_cli.pipeline.calibrate import calibrate_session
+from imucal_cli.simulate.triad import simulate
 from tests.cli_helpers import IMUCAL, assert_one_line_error, run  # noqa: F401
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -286,7 +286,7 @@ def test_ferraris_six_faces_refused_with_the_reason(tmp_path):
 
 
 def test_skipped_columns_may_hold_text(tmp_path):
-    from imucal_cli.capture.importers import read_recording
+    from imucal_cli.formats.importers import read_recording
 
     path = tmp_path / "tagged.csv"
     rows = [f"imu{i % 2},{i / 100:.2f},0,0,9.8,0,0,0" for i in range(300)]

@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from imucal_cli.plots import PLOT_HINT, report_figure
+from imucal_cli.use.plots import PLOT_HINT, report_figure
 
 from .test_report import (
     _assert_one_line_error,
@@ -49,8 +49,8 @@ def test_gyro_rotation_panel(tmp_path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from imucal_cli.calibration import calibration_from_json
-    from imucal_cli.report import build_report
+    from imucal_cli.formats.calibration import calibration_from_json
+    from imucal_cli.use.report import build_report
 
     document = full_calibration()
     document["gyro"] = {

@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 from rich.console import Console
 
-from imucal_cli.calibration import calibration_from_json
 from imucal_cli.cli import main
-from imucal_cli.report import (
+from imucal_cli.formats.calibration import calibration_from_json
+from imucal_cli.use.report import (
     STANDARD_GRAVITY,
     build_report,
     coverage_map,
@@ -467,8 +467,8 @@ TABLE_I_ANGLES = ["s1s2", "s1s3", "s1s4", "s2s3", "s2s4", "s3s4"]
 
 
 def _calibrated(session, config: dict):
-    from imucal_cli.calibrate import calibrate_session
-    from imucal_cli.config import config_from_dict
+    from imucal_cli.formats.config import config_from_dict
+    from imucal_cli.pipeline.calibrate import calibrate_session
 
     return calibrate_session(session, config_from_dict(config))
 
@@ -476,7 +476,7 @@ def _calibrated(session, config: dict):
 @pytest.fixture(scope="module")
 def redundant_accel_cal():
     """Section V's unit (two dual-axis parts, n = 4), unlabelled orientations."""
-    from imucal_cli.simulator_hk import simulate_redundant_accel
+    from imucal_cli.simulate.redundant import simulate_redundant_accel
 
     session, _truth = simulate_redundant_accel(seed=1)
     return _calibrated(session, {"accel": {"solver": "factorization"}})
@@ -485,7 +485,7 @@ def redundant_accel_cal():
 @pytest.fixture(scope="module")
 def gyro_cal():
     """Section IV-B: turns on three orthogonal faces in two mountings, one ruler 90-degree turn."""
-    from imucal_cli.simulator_hk import simulate_hk_gyro
+    from imucal_cli.simulate.redundant import simulate_hk_gyro
 
     session, _truth = simulate_hk_gyro(seed=1)
     return _calibrated(session, {"accel": {"solver": "none"}, "gyro": {"solver": "factorization"}})
@@ -564,7 +564,7 @@ def test_factorization_redundant_accel_renders_table_one(redundant_accel_cal):
 
 
 def test_factorization_triad_accel_with_labels_states_the_aligned_frame():
-    from imucal_cli.simulator import simulate
+    from imucal_cli.simulate.triad import simulate
 
     session, _truth = simulate(plan="qureshi18", seed=1)
     cal = _calibrated(session, {"accel": {"solver": "factorization"}})
@@ -580,7 +580,7 @@ def test_factorization_triad_accel_with_labels_states_the_aligned_frame():
 
 
 def test_factorization_without_refinement_shows_the_linear_column_only(tmp_path):
-    from imucal_cli.simulator_hk import simulate_redundant_accel
+    from imucal_cli.simulate.redundant import simulate_redundant_accel
 
     session, _truth = simulate_redundant_accel(seed=2)
     config = {"accel": {"solver": "factorization", "factorization": {"refine": False}}}
@@ -628,7 +628,7 @@ def test_factorization_gyro_turns_gains_and_frame(gyro_cal):
 
 
 def test_factorization_reports_through_the_cli(tmp_path, capsys, monkeypatch, gyro_cal):
-    from imucal_cli.calibration import write_calibration
+    from imucal_cli.formats.calibration import write_calibration
 
     path = tmp_path / "gyro.cal.json"
     write_calibration(path, gyro_cal)
@@ -685,10 +685,10 @@ def test_minimal_gyro_section_lists_only_gyro_items():
 def two_calibrations(tmp_path_factory):
     """The same simulated part (same seed: same truth) calibrated twice, the second session
     recorded with twice the accelerometer noise and a day later."""
-    from imucal_cli.calibrate import calibrate_session
-    from imucal_cli.calibration import write_calibration
-    from imucal_cli.config import config_from_dict
-    from imucal_cli.simulator import simulate
+    from imucal_cli.formats.calibration import write_calibration
+    from imucal_cli.formats.config import config_from_dict
+    from imucal_cli.pipeline.calibrate import calibrate_session
+    from imucal_cli.simulate.triad import simulate
 
     folder = tmp_path_factory.mktemp("history")
     paths = []
@@ -768,7 +768,7 @@ def test_history_from_a_session_with_several_stored_calibrations(
 
 
 def test_history_groups_by_sensor_and_says_what_it_leaves_out(two_calibrations, tmp_path):
-    from imucal_cli.report import build_history, load_all_for_history
+    from imucal_cli.use.report import build_history, load_all_for_history
 
     other = json.loads(two_calibrations[0].read_text())
     other["sensor"] = "another part"
@@ -779,7 +779,7 @@ def test_history_groups_by_sensor_and_says_what_it_leaves_out(two_calibrations, 
     assert [e["sensor"] for e in history["sensors"]] == ["sim-16bit seed 4"]
     assert history["single"] == ["another part"] and history["without_sensor"] == 1
     console = Console(record=True, width=100)
-    from imucal_cli.report import render_history
+    from imucal_cli.use.report import render_history
 
     render_history(history, console)
     text = console.export_text()
@@ -798,10 +798,10 @@ def test_history_refuses_plot_with_one_line(two_calibrations, tmp_path, capsys, 
 def test_history_compares_a_section_from_its_first_appearance():
     """The first calibration of a sensor may lack the gyro: later gyro runs are still compared
     with each other (the first one that has it is the reference)."""
-    from imucal_cli.calibrate import calibrate_session
-    from imucal_cli.config import config_from_dict
-    from imucal_cli.report import build_history
-    from imucal_cli.simulator_gyro import simulate_gyro_rotations
+    from imucal_cli.formats.config import config_from_dict
+    from imucal_cli.pipeline.calibrate import calibrate_session
+    from imucal_cli.simulate.rotations import simulate_gyro_rotations
+    from imucal_cli.use.report import build_history
 
     session, _ = simulate_gyro_rotations(plan="qureshi-axes", seed=5, rotations_per_axis=6,
                                          created="2026-01-01T00:00:00Z")  # fmt: skip

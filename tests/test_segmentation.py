@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from imucal_cli.simulator import simulate_stream
+from imucal_cli.simulate.triad import simulate_stream
 from imucal_cli.solvers.segmentation import (
     Interval,
     estimate_noise,

@@ -14,9 +14,9 @@ import h5py
 import numpy as np
 import pytest
 
-from imucal_cli import session as session_module
 from imucal_cli.errors import InputError, SessionError
-from imucal_cli.session import (
+from imucal_cli.formats import session as session_module
+from imucal_cli.formats.session import (
     GRAVITY_DEFAULT,
     Segment,
     Session,
@@ -269,7 +269,7 @@ def test_writer_flushes_on_time(tmp_path, monkeypatch):
 CHILD = """
 import sys, time
 import numpy as np
-from imucal_cli.session import SessionWriter
+from imucal_cli.formats.session import SessionWriter
 
 with SessionWriter(sys.argv[1], gyro_channels=None, sample_rate_hz=1000.0) as w:
     n = 0
@@ -601,7 +601,7 @@ def test_store_calibration_refuses_non_session_hdf5(tmp_path):
 def test_segment_extra_attributes_round_trip(tmp_path):
     """Attributes the format does not name (e.g. a rotation's `mounting`) survive a round trip
     and are also recovered from the crash log of an unclosed writer."""
-    from imucal_cli.session import Segment, Session, read_session, write_session
+    from imucal_cli.formats.session import Segment, Session, read_session, write_session
 
     t = np.arange(100) / 100.0
     session = Session(

@@ -17,14 +17,14 @@ import numpy as np
 import pytest
 from scipy import stats
 
-import imucal_cli.calibration as calibration_mod
-import imucal_cli.session as session_mod
+import imucal_cli.formats.calibration as calibration_mod
+import imucal_cli.formats.session as session_mod
 from imucal_cli.errors import InputError
-from imucal_cli.simulator import (
+from imucal_cli.plans import plan_poses
+from imucal_cli.simulate.triad import (
     ACCEL_LSB_PER_G,
     G0,
     GYRO_LSB_PER_DPS,
-    plan_poses,
     random_imu,
     simulate,
     simulate_stream,

@@ -15,17 +15,17 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-import imucal_cli.calibration as calibration_mod
-import imucal_cli.session as session_mod
+import imucal_cli.formats.calibration as calibration_mod
+import imucal_cli.formats.session as session_mod
 from imucal_cli.errors import InputError
-from imucal_cli.simulator import G0, simulate
-from imucal_cli.simulator_gyro import (
+from imucal_cli.simulate.rotations import (
     MIN_TURN_DEG,
     SMOOTHERSTEP_PEAK,
     is_gyro_plan,
     parse_gyro_plan,
     simulate_gyro_rotations,
 )
+from imucal_cli.simulate.triad import G0, simulate
 
 Z_MAX = 4.5
 CREATED = "2026-01-01T00:00:00Z"

@@ -13,11 +13,10 @@ import sys
 import numpy as np
 import pytest
 
-import imucal_cli.calibration as calibration_mod
-import imucal_cli.session as session_mod
+import imucal_cli.formats.calibration as calibration_mod
+import imucal_cli.formats.session as session_mod
 from imucal_cli.errors import InputError
-from imucal_cli.simulator import G0
-from imucal_cli.simulator_hk import (
+from imucal_cli.simulate.redundant import (
     ADC_MAX,
     COUNTS_PER_VOLT,
     NOMINAL_AXES,
@@ -26,6 +25,7 @@ from imucal_cli.simulator_hk import (
     simulate_hk_gyro,
     simulate_redundant_accel,
 )
+from imucal_cli.simulate.triad import G0
 
 Z_MAX = 4.5
 TABLE_I_ANGLES = {

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from imucal_cli.simulator import simulate_stream
+from imucal_cli.simulate.triad import simulate_stream
 from imucal_cli.solvers.stillness import (
     StillnessDetector,
     integrate_rate,

@@ -2,7 +2,7 @@
 
 :func:`run_guided` consumes :meth:`Recorder.blocks() <imucal_cli.capture.recorder.Recorder.blocks>`
 (every block is already in the session file when it arrives) and, for each step of a
-:class:`~imucal_cli.capture.plans.Plan`:
+:class:`~imucal_cli.plans.Plan`:
 
 static step
     says what to do (``Put face +Z up and hold still``), shows the live signal and STILL/MOVING;
@@ -23,7 +23,7 @@ without waiting for it to move), a number or a step label picks the step to do n
 
 Segments reach the recorder only when they are final: the last step taken stays pending (so
 that ``r`` can drop it) until the next one is taken or the capture ends; segments are therefore
-added once, in time order, as :class:`~imucal_cli.session.SessionWriter` requires.
+added once, in time order, as :class:`~imucal_cli.formats.session.SessionWriter` requires.
 
 Output works in a terminal (a :class:`rich.live.Live` display refreshed ``refresh_hz`` times a
 second, events printed above it) and without one (tests, logs: plain lines, one per event or
@@ -48,6 +48,7 @@ from rich.progress_bar import ProgressBar
 from rich.table import Table
 from rich.text import Text
 
+from imucal_cli.plans import CaptureSummary, Plan, Step
 from imucal_cli.solvers.poses import angle_deg, coverage, describe_direction, unit
 from imucal_cli.solvers.stillness import (
     StillnessDetector,
@@ -56,8 +57,6 @@ from imucal_cli.solvers.stillness import (
     motion_span,
     rate_to_deg_s,
 )
-
-from .plans import CaptureSummary, Plan, Step
 
 __all__ = [
     "Command",

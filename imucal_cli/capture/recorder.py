@@ -1,7 +1,7 @@
 """Record a stream into a session while it arrives, and end cleanly whatever happens.
 
 :class:`Recorder` reads a source through a protocol, appends every block of samples to a
-:class:`~imucal_cli.session.SessionWriter` (opened on the first samples, with the channel
+:class:`~imucal_cli.formats.session.SessionWriter` (opened on the first samples, with the channel
 counts the data show) and hands the blocks to the user interface through :meth:`Recorder.blocks`.
 The capture ends, always with a valid session holding every sample received, on:
 
@@ -28,9 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
+from imucal_cli.capture.stream import DeviceGone
 from imucal_cli.errors import InputError, SessionError
-
-from .stream import DeviceGone, SampleBlock
+from imucal_cli.formats.columns import SampleBlock
 
 __all__ = ["END_KINDS", "FLUSH_INTERVAL_S", "CaptureEnded", "Recorder"]
 
@@ -194,7 +194,7 @@ class Recorder:
         self._stop = True
 
     def _open_writer(self, block: SampleBlock) -> None:
-        from imucal_cli.session import SessionWriter
+        from imucal_cli.formats.session import SessionWriter
 
         self._writer = SessionWriter(
             self.path,
@@ -339,7 +339,7 @@ class Recorder:
         angle_deg: float | None = None,
     ) -> str:
         """Mark samples ``[start, stop)`` as a segment (see
-        :meth:`imucal_cli.session.SessionWriter.add_segment`); return its name.
+        :meth:`imucal_cli.formats.session.SessionWriter.add_segment`); return its name.
 
         Segments are added in time order.  While recording they are logged in the file at the
         next flush; :meth:`close` writes them as ``/segments`` groups.

@@ -17,13 +17,11 @@ from __future__ import annotations
 
 import errno
 import time as _time
-from dataclasses import dataclass
 
 import numpy as np
 
 from imucal_cli.errors import InputError
-
-from .columns import ColumnSpec
+from imucal_cli.formats.columns import ColumnSpec, SampleBlock
 
 __all__ = [
     "DeviceGone",
@@ -44,65 +42,6 @@ device clock is taken to have wrapped or restarted and the time base is shifted 
 
 
 # --------------------------------------------------------------------------------------------
-# Blocks
-# --------------------------------------------------------------------------------------------
-
-
-@dataclass
-class SampleBlock:
-    """k consecutive samples; a sensor the device does not have is None.
-
-    Attributes
-    ----------
-    time : ndarray, shape (k,)
-        Seconds, strictly increasing (device clock, else host clock since the start).
-    accel : ndarray, shape (k, na), or None
-        Raw accelerometer channels, exactly as received.
-    gyro : ndarray, shape (k, ng), or None
-        Raw gyroscope channels.
-    temperature : ndarray, shape (k,), or None
-        Degrees C.
-    """
-
-    time: np.ndarray
-    accel: np.ndarray | None = None
-    gyro: np.ndarray | None = None
-    temperature: np.ndarray | None = None
-
-    def __len__(self) -> int:
-        return int(self.time.shape[0])
-
-    @classmethod
-    def empty(cls) -> SampleBlock:
-        """A block of no samples (what a UI tick gets when nothing arrived)."""
-        return cls(time=np.empty(0))
-
-    def take(self, mask: np.ndarray) -> SampleBlock:
-        """The samples where ``mask`` (boolean or index array) selects."""
-
-        def pick(a: np.ndarray | None) -> np.ndarray | None:
-            return None if a is None else a[mask]
-
-        return SampleBlock(self.time[mask], pick(self.accel), pick(self.gyro),
-                           pick(self.temperature))  # fmt: skip
-
-    @staticmethod
-    def concatenate(blocks: list[SampleBlock]) -> SampleBlock:
-        """One block of all samples of ``blocks`` (empty blocks are skipped)."""
-        blocks = [b for b in blocks if len(b)]
-        if not blocks:
-            return SampleBlock.empty()
-        first = blocks[0]
-
-        def cat(name: str) -> np.ndarray | None:
-            if getattr(first, name) is None:
-                return None
-            return np.concatenate([getattr(b, name) for b in blocks])
-
-        return SampleBlock(cat("time"), cat("accel"), cat("gyro"), cat("temperature"))
-
-
-# --------------------------------------------------------------------------------------------
 # Text lines
 # --------------------------------------------------------------------------------------------
 
@@ -113,7 +52,7 @@ class LineProtocol:
     """Text lines of numbers, as Arduino and ESP32 sketches print them.
 
     A line is numbers separated by commas, semicolons, spaces or tabs (any mix), ended by
-    ``\\n``, ``\\r\\n`` or ``\\r``; :class:`~imucal_cli.capture.columns.ColumnSpec` says which
+    ``\\n``, ``\\r\\n`` or ``\\r``; :class:`~imucal_cli.formats.columns.ColumnSpec` says which
     number is which channel.  Nothing in a line is ever fatal:
 
     - blank lines are ignored;

@@ -41,8 +41,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .plans import CaptureSummary, Plan, Step
-from .stream import SampleBlock
+from imucal_cli.formats.columns import SampleBlock
+from imucal_cli.plans import CaptureSummary, Plan, Step
 
 __all__ = [
     "FINAL_HOLD_EXTRA_S",

@@ -51,8 +51,8 @@ def apply_(
     """
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-    from imucal_cli.apply import apply_calibration
-    from imucal_cli.calibration import read_calibration
+    from imucal_cli.formats.calibration import read_calibration
+    from imucal_cli.use.apply import apply_calibration
 
     cal = read_calibration(calibration)
     err = Console(stderr=True)

@@ -45,10 +45,10 @@ def calibrate(
     determine the model); 1 the solver did not converge or the result is outside physical
     sense (not saved unless --force).
     """
-    from imucal_cli.calibrate import calibrate_session, default_output, suspect_error
-    from imucal_cli.calibration import calibration_to_json, write_calibration
-    from imucal_cli.config import load_config, validate
-    from imucal_cli.session import read_session, store_calibration
+    from imucal_cli.formats.calibration import calibration_to_json, write_calibration
+    from imucal_cli.formats.config import load_config, validate
+    from imucal_cli.formats.session import read_session, store_calibration
+    from imucal_cli.pipeline.calibrate import calibrate_session, default_output, suspect_error
 
     cfg = load_config(config)
     if model is not None:

@@ -109,10 +109,10 @@ def capture(
     the plan not seen, interrupted, device gone, data stopped); 2 bad input (no such port,
     bad --columns or plan, no data at all: nothing saved).
     """
-    from imucal_cli.capture.columns import ColumnSpec
-    from imucal_cli.capture.plans import load_plan
     from imucal_cli.capture.recorder import Recorder
     from imucal_cli.capture.stream import LineProtocol, SerialSource
+    from imucal_cli.formats.columns import ColumnSpec
+    from imucal_cli.plans import load_plan
 
     spec = ColumnSpec.parse(columns, time_unit)
     limits = {"--duration": duration, "--min-still": min_still,

@@ -43,9 +43,9 @@ def export(
     bias is written as matrix @ bias in m/s^2 (3-channel sensors only; gyro under gyro:).
     json: the standard fields only, one line. Exit status: 0 written; 2 bad input.
     """
-    from imucal_cli.calibration import read_calibration
     from imucal_cli.errors import InputError
-    from imucal_cli.export import export as export_text
+    from imucal_cli.formats.calibration import read_calibration
+    from imucal_cli.use.export import export as export_text
 
     if fmt is None:
         fmt = _SUFFIX_FORMATS.get(output.suffix.lower()) if output is not None else None

@@ -56,8 +56,8 @@ def import_(
     Exit status: 0 written; 2 bad input (missing or empty file, columns that do not fit,
     no time and no --rate, time that does not increase, no still period).
     """
-    from imucal_cli.capture.importers import import_files
-    from imucal_cli.session import write_session
+    from imucal_cli.formats.importers import import_files
+    from imucal_cli.formats.session import write_session
 
     session = import_files(
         files,

@@ -41,14 +41,14 @@ def noise(
     segment of SESSION, or the whole recording when it has none.  Exit status: 0 done; 2 bad
     input (raw units without --calibration, a recording too short or not still).
     """
-    from imucal_cli.noise import analyse_noise, load_calibration
-    from imucal_cli.session import read_session
+    from imucal_cli.formats.session import read_session
+    from imucal_cli.use.noise import analyse_noise, load_calibration
 
     sess = read_session(session)
     cal = None if calibration is None else load_calibration(calibration)
     result = analyse_noise(sess, cal)
     if plot is not None:
-        from imucal_cli.plots import noise_figure
+        from imucal_cli.use.plots import noise_figure
 
         noise_figure(result, plot)
     if json_output:
@@ -79,7 +79,7 @@ def _render(console: Console, result) -> None:
     from rich.table import Table
     from rich.text import Text
 
-    from imucal_cli.noise import figures
+    from imucal_cli.use.noise import figures
 
     sensor = f" ({result.sensor})" if result.sensor else ""
     console.print(Text(f"{result.session}{sensor}: {result.span}, {result.limits()}"))

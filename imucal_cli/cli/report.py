@@ -52,7 +52,7 @@ def report(
     """
     # Imported here so the other commands and `imucal --help` do not load the report stack.
     from imucal_cli.errors import InputError
-    from imucal_cli.report import (
+    from imucal_cli.use.report import (
         build_history,
         build_report,
         load_all_for_history,
@@ -74,7 +74,7 @@ def report(
     cal = load_for_report(paths[0])
     result = build_report(cal)
     if plot is not None:
-        from imucal_cli.plots import report_figure
+        from imucal_cli.use.plots import report_figure
 
         report_figure(result, plot)
     if json_output:

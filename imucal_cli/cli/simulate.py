@@ -177,8 +177,8 @@ def simulate(
     Ctrl-C/SIGTERM).  Test faults of --serve: --garbage (random bytes, as a wrong baud rate),
     --stall-after S, --vanish-after S (close the port), --malformed-every N.
     """
-    from imucal_cli.simulator_gyro import is_gyro_plan, simulate_gyro_rotations
-    from imucal_cli.simulator_hk import HK_PLANS, simulate_hk_plan
+    from imucal_cli.simulate.redundant import HK_PLANS, simulate_hk_plan
+    from imucal_cli.simulate.rotations import is_gyro_plan, simulate_gyro_rotations
 
     hk = plan.strip().lower() in HK_PLANS
     gyro = is_gyro_plan(plan)
@@ -191,10 +191,10 @@ def simulate(
             vanish_after_s=vanish_after, malformed_every=malformed_every,
         )  # fmt: skip
         return
-    from imucal_cli.calibration import write_calibration
-    from imucal_cli.session import write_session
-    from imucal_cli.simulator import plan_poses
-    from imucal_cli.simulator import simulate as run
+    from imucal_cli.formats.calibration import write_calibration
+    from imucal_cli.formats.session import write_session
+    from imucal_cli.plans import plan_poses
+    from imucal_cli.simulate.triad import simulate as run
 
     if not (hk or gyro):
         try:
@@ -272,7 +272,7 @@ def simulate(
 def _serve(plan: str, rate: float, baud: int, **options) -> None:
     import sys
 
-    from imucal_cli.capture.virtual import serve
+    from imucal_cli.simulate.device import serve
 
     def announce(path: str) -> None:
         print(path, flush=True)

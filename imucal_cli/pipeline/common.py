@@ -7,9 +7,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from imucal_cli.config import Config
 from imucal_cli.errors import DesignError
-from imucal_cli.session import Segment, Session
+from imucal_cli.formats.config import Config
+from imucal_cli.formats.session import Segment, Session
 from imucal_cli.solvers.poses import count_distinct, describe_direction, spread_deg, unit
 
 #: Every pose within this angle of one direction cannot separate bias from scale.
@@ -221,7 +221,7 @@ def with_segments(session: Session) -> tuple[Session, str | None]:
         return session, None
     from dataclasses import replace
 
-    from imucal_cli.session import Segment
+    from imucal_cli.formats.session import Segment
     from imucal_cli.solvers.segmentation import find_rotations, find_static
 
     still = find_static(session.time, session.accel, session.gyro)

@@ -13,10 +13,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from imucal_cli.calibration import MODEL_EQUATION, SensorCalibration
-from imucal_cli.config import Config
 from imucal_cli.errors import DesignError
-from imucal_cli.session import Segment, Session
+from imucal_cli.formats.calibration import MODEL_EQUATION, SensorCalibration
+from imucal_cli.formats.config import Config
+from imucal_cli.formats.session import Segment, Session
 from imucal_cli.solvers import factorization as fz
 from imucal_cli.solvers.crb import invariant_summary, propagate
 from imucal_cli.solvers.poses import angle_deg, count_distinct, coverage

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from imucal_cli.calibration import MODEL_EQUATION, SensorCalibration
-from imucal_cli.config import Config
 from imucal_cli.errors import DesignError
-from imucal_cli.session import Session
+from imucal_cli.formats.calibration import MODEL_EQUATION, SensorCalibration
+from imucal_cli.formats.config import Config
+from imucal_cli.formats.session import Session
 from imucal_cli.solvers import gravity as gravity_solver
 from imucal_cli.solvers.poses import count_distinct, coverage
 

@@ -18,10 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imucal_cli.calibration import MODEL_EQUATION, SensorCalibration
-from imucal_cli.config import Config
 from imucal_cli.errors import DesignError
-from imucal_cli.session import Segment, Session
+from imucal_cli.formats.calibration import MODEL_EQUATION, SensorCalibration
+from imucal_cli.formats.config import Config
+from imucal_cli.formats.session import Segment, Session
 from imucal_cli.solvers import gyro_axes, gyro_full
 from imucal_cli.solvers.segmentation import find_rotations, find_static
 

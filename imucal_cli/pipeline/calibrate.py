@@ -9,9 +9,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from imucal_cli import __version__
-from imucal_cli.calibration import Calibration, SensorCalibration
-from imucal_cli.config import Config
 from imucal_cli.errors import ConfigError, SolverError
+from imucal_cli.formats.calibration import Calibration, SensorCalibration
+from imucal_cli.formats.config import Config
+from imucal_cli.formats.session import Session, utc_now_iso
 from imucal_cli.pipeline.common import (  # noqa: F401 (re-exported for callers)
     StaticPoses,
     check_design,
@@ -20,7 +21,6 @@ from imucal_cli.pipeline.common import (  # noqa: F401 (re-exported for callers)
     static_poses,
     with_segments,
 )
-from imucal_cli.session import Session, utc_now_iso
 
 
 def calibrate_accel(session: Session, cfg: Config) -> SensorCalibration:

@@ -14,9 +14,9 @@ Input
   (format attribute and version, datasets present, shapes, channel counts, time finite and
   strictly increasing); segments are not read.  A file whose writer was killed opens in SWMR
   mode and is read up to its shortest ``/raw`` dataset, like
-  :func:`imucal_cli.session.read_session` does.
+  :func:`imucal_cli.formats.session.read_session` does.
 - A CSV (any other file): the same column mapping as ``imucal import``
-  (:func:`imucal_cli.capture.importers.parse_columns` / ``infer_columns``: ``--columns`` or a
+  (:func:`imucal_cli.formats.importers.parse_columns` / ``infer_columns``: ``--columns`` or a
   header line; commas, tabs or spaces; ``#`` comments; non-numeric lines before the data are
   the header; later lines that do not give the expected numbers are skipped and counted).
   Without a ``t`` column the time of kept row i is ``i / rate``.
@@ -63,13 +63,14 @@ import h5py
 import numpy as np
 
 from imucal_cli import __version__
-from imucal_cli.calibration import (
+from imucal_cli.errors import InputError
+from imucal_cli.formats.calibration import (
     MODEL_EQUATION,
     Calibration,
     SensorCalibration,
     calibration_to_json,
 )
-from imucal_cli.capture.importers import (
+from imucal_cli.formats.importers import (
     TIME_UNITS,
     check_time,
     infer_columns,
@@ -78,10 +79,9 @@ from imucal_cli.capture.importers import (
     skipped_fields,
     split_fields,
 )
-from imucal_cli.errors import InputError
-from imucal_cli.session import FORMAT as SESSION_FORMAT
-from imucal_cli.session import FORMAT_VERSION as SESSION_FORMAT_VERSION
-from imucal_cli.session import as_int, as_str, one_line, open_for_reading, utc_now_iso
+from imucal_cli.formats.session import FORMAT as SESSION_FORMAT
+from imucal_cli.formats.session import FORMAT_VERSION as SESSION_FORMAT_VERSION
+from imucal_cli.formats.session import as_int, as_str, one_line, open_for_reading, utc_now_iso
 
 __all__ = [
     "DEFAULT_CHUNK_ROWS",

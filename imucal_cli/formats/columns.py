@@ -26,7 +26,7 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 
-__all__ = ["DEFAULT_COLUMNS", "TIME_UNITS", "ColumnSpec"]
+__all__ = ["DEFAULT_COLUMNS", "TIME_UNITS", "ColumnSpec", "SampleBlock"]
 
 DEFAULT_COLUMNS = "t,ax,ay,az,gx,gy,gz,temp"
 """What ``imucal simulate --serve`` prints, and the default of ``imucal capture --columns``."""
@@ -166,8 +166,6 @@ class ColumnSpec:
         SampleBlock
             Time in seconds (device time times :attr:`time_scale`, else ``host_time``).
         """
-        from .stream import SampleBlock
-
         rows = np.asarray(rows, dtype=np.float64).reshape(-1, self.n_fields)
         k = rows.shape[0]
         if self.time is not None:
@@ -182,3 +180,62 @@ class ColumnSpec:
             gyro=rows[:, list(self.gyro)] if self.gyro else None,
             temperature=rows[:, self.temperature] if self.temperature is not None else None,
         )
+
+
+# --------------------------------------------------------------------------------------------
+# Blocks of samples
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass
+class SampleBlock:
+    """k consecutive samples; a sensor the device does not have is None.
+
+    Attributes
+    ----------
+    time : ndarray, shape (k,)
+        Seconds, strictly increasing (device clock, else host clock since the start).
+    accel : ndarray, shape (k, na), or None
+        Raw accelerometer channels, exactly as received.
+    gyro : ndarray, shape (k, ng), or None
+        Raw gyroscope channels.
+    temperature : ndarray, shape (k,), or None
+        Degrees C.
+    """
+
+    time: np.ndarray
+    accel: np.ndarray | None = None
+    gyro: np.ndarray | None = None
+    temperature: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return int(self.time.shape[0])
+
+    @classmethod
+    def empty(cls) -> SampleBlock:
+        """A block of no samples (what a UI tick gets when nothing arrived)."""
+        return cls(time=np.empty(0))
+
+    def take(self, mask: np.ndarray) -> SampleBlock:
+        """The samples where ``mask`` (boolean or index array) selects."""
+
+        def pick(a: np.ndarray | None) -> np.ndarray | None:
+            return None if a is None else a[mask]
+
+        return SampleBlock(self.time[mask], pick(self.accel), pick(self.gyro),
+                           pick(self.temperature))  # fmt: skip
+
+    @staticmethod
+    def concatenate(blocks: list[SampleBlock]) -> SampleBlock:
+        """One block of all samples of ``blocks`` (empty blocks are skipped)."""
+        blocks = [b for b in blocks if len(b)]
+        if not blocks:
+            return SampleBlock.empty()
+        first = blocks[0]
+
+        def cat(name: str) -> np.ndarray | None:
+            if getattr(first, name) is None:
+                return None
+            return np.concatenate([getattr(b, name) for b in blocks])
+
+        return SampleBlock(cat("time"), cat("accel"), cat("gyro"), cat("temperature"))

@@ -37,6 +37,7 @@ A TOML plan file::
 from __future__ import annotations
 
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,7 +46,7 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 
-__all__ = ["BUILTIN_PLANS", "CaptureSummary", "Plan", "Step", "load_plan"]
+__all__ = ["BUILTIN_PLANS", "CaptureSummary", "Plan", "Step", "load_plan", "plan_poses"]
 
 BUILTIN_PLANS = ("six", "qureshi18", "gyro-axes", "hwangbo-iron", "random:N", "still:MINUTES")
 
@@ -136,11 +137,75 @@ class CaptureSummary:
 # --------------------------------------------------------------------------------------------
 
 _AXES = "XYZ"
+_RANDOM_RE = re.compile(r"random:(\d+)")
+MAX_RANDOM_POSES = 10000
+
+
+def _sign(s: float) -> str:
+    return "+" if s > 0 else "-"
+
+
+def _faces() -> list[tuple[str, np.ndarray]]:
+    out = []
+    for i in (2, 0, 1):  # +Z first: the unit starts flat on the table
+        for s in (1.0, -1.0):
+            up = np.zeros(3)
+            up[i] = s
+            out.append((f"face {_sign(s)}{_AXES[i]} up", up))
+    return out
+
+
+def _edges() -> list[tuple[str, np.ndarray]]:
+    out = []
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        for si in (1.0, -1.0):
+            for sj in (1.0, -1.0):
+                up = np.zeros(3)
+                up[i], up[j] = si, sj
+                label = f"edge {_sign(si)}{_AXES[i]}{_sign(sj)}{_AXES[j]} up"
+                out.append((label, up / np.sqrt(2.0)))
+    return out
+
+
+def plan_poses(plan: str) -> list[tuple[str, np.ndarray | None]]:
+    """The poses of a plan, in the order they are visited.
+
+    Parameters
+    ----------
+    plan : str
+        ``six`` (the 6 faces of a cube), ``qureshi18`` (6 faces + 12 edges at 45 degrees,
+        Qureshi & Golnaraghi section IV-B) or ``random:N`` (N unlabelled poses; the simulator
+        draws their directions uniformly on the sphere).
+
+    Returns
+    -------
+    list of (label, up)
+        ``label`` like ``"face +Z up"``, ``"edge +X+Z up"`` or ``"pose 7"`` (1-based);
+        ``up`` the nominal unit vector (3,) pointing away from the earth in the fixture frame,
+        or None for ``random:N``.
+
+    Raises
+    ------
+    InputError
+        Unknown plan, or N outside 1..10000.
+    """
+    name = plan.strip().lower()
+    if name == "six":
+        return list(_faces())
+    if name == "qureshi18":
+        return list(_faces()) + _edges()
+    m = _RANDOM_RE.fullmatch(name)
+    if m:
+        n = int(m.group(1))
+        if not 1 <= n <= MAX_RANDOM_POSES:
+            raise InputError(f"plan {plan!r}: N must be between 1 and {MAX_RANDOM_POSES}")
+        return [(f"pose {k + 1}", None) for k in range(n)]
+    raise InputError(f"plan {plan!r} is unknown: use six, qureshi18 or random:N (N poses)")
+
+
 
 
 def _from_poses(name: str) -> Plan:
-    from imucal_cli.simulator import plan_poses
-
     steps = tuple(Step("static", label, up=_unit_or_none(up)) for label, up in plan_poses(name))
     return Plan(name.strip().lower(), steps)
 

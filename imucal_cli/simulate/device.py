@@ -5,7 +5,8 @@ for a reader to open it, and writes the text lines of a simulated 6-axis IMU per
 in real time, ``t,ax,ay,az,gx,gy,gz,temp`` (``t`` in seconds, raw counts), so that
 ``imucal capture --port PATH`` reads it through the real tty layer.
 
-- Plans ``six``, ``qureshi18`` and ``random:N`` play :func:`imucal_cli.simulator.simulate_stream`
+- Plans ``six``, ``qureshi18`` and ``random:N`` play
+  :func:`imucal_cli.simulate.triad.simulate_stream`
   (same seed, same samples as ``imucal simulate``).  Any other plan (``gyro-axes``,
   ``hwangbo-iron``, a TOML file) plays :func:`plan_motion`: still, a smooth turn about each
   rotation step's axis, still again, with the simulator's sensor model.
@@ -36,8 +37,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from imucal_cli.errors import InputError
-
-from .plans import Plan, load_plan
+from imucal_cli.plans import Plan, load_plan
 
 __all__ = ["SETTLE_S", "ServeResult", "plan_motion", "serve", "stream_arrays"]
 
@@ -114,14 +114,14 @@ def plan_motion(
     pose, then hold ``hold_s``; static steps without ``up`` hold where the unit is.  Rotation
     steps turn about the body ``axis`` by ``angle_deg`` (90 degrees when the plan leaves it
     free), then hold ``hold_s`` when the next step is not a static one.  The sensor is
-    :func:`imucal_cli.simulator.random_imu` drawn from ``seed``.
+    :func:`imucal_cli.simulate.triad.random_imu` drawn from ``seed``.
 
     Returns
     -------
     time, accel, gyro : ndarray
         ``(N,)`` seconds, ``(N, 3)`` raw accelerometer and gyroscope samples.
     """
-    from imucal_cli.simulator import random_imu
+    from imucal_cli.simulate.triad import random_imu
 
     truth_ss, noise_ss = np.random.SeedSequence(int(seed)).spawn(2)
     truth = random_imu(np.random.default_rng(truth_ss), units, accel_noise, gyro_noise)
@@ -184,7 +184,7 @@ def stream_arrays(
     """
     key = plan.strip().lower()
     if key in _SIMULATOR_PLANS or key.startswith("random:"):
-        from imucal_cli.simulator import simulate_stream
+        from imucal_cli.simulate.triad import simulate_stream
 
         s = simulate_stream(
             plan=key, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s
@@ -244,7 +244,7 @@ def serve(
     Parameters
     ----------
     plan : str
-        A plan name or TOML file (see :func:`imucal_cli.capture.plans.load_plan`).
+        A plan name or TOML file (see :func:`imucal_cli.plans.load_plan`).
     rate_hz : float
         Sample rate, Hz.
     baud : int

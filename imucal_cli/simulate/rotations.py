@@ -14,7 +14,8 @@ Plan ``free:N`` instead turns the unit N times about random axes (uniform on the
 random angles: arbitrary hand rotations for the full 12-parameter gyroscope model.
 
 :func:`simulate_gyro_rotations` returns ``(Session, Calibration)`` like
-:func:`imucal_cli.simulator.simulate`.  The part is :func:`imucal_cli.simulator.random_imu`
+:func:`imucal_cli.simulate.triad.simulate`.  The part is
+:func:`imucal_cli.simulate.triad.random_imu`
 drawn from the same spawned generator, so a seed gives the same physical part (accelerometer
 and gyroscope, both relative to the fixture frame) as ``imucal simulate --plan qureshi18`` with
 that seed: one seed can calibrate the accelerometer from a pose session and then the gyroscope
@@ -34,10 +35,10 @@ import re
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .calibration import Calibration
-from .errors import InputError
-from .session import Segment, Session, utc_now_iso
-from .simulator import (
+from imucal_cli.errors import InputError
+from imucal_cli.formats.calibration import Calibration
+from imucal_cli.formats.session import Segment, Session, utc_now_iso
+from imucal_cli.simulate.triad import (
     G0,
     MAX_SAMPLES,
     UNITS,
@@ -262,7 +263,7 @@ def simulate_gyro_rotations(
         ``qureshi-axes``, ``free:N``, or ``free`` with ``count``.
     seed : int
         Non-negative seed; the same seed and options give the same samples bit for bit.  The
-        part is the one :func:`imucal_cli.simulator.simulate` draws for this seed.
+        part is the one :func:`imucal_cli.simulate.triad.simulate` draws for this seed.
     rate_hz : float
         Sample rate, Hz.
     rotations_per_axis : int
@@ -281,7 +282,7 @@ def simulate_gyro_rotations(
         RMS angle between each turn's true axis and its nominal body axis (qureshi-axes),
         degrees (<= 45).
     units : {"counts", "m/s^2"}
-        Raw units of the part (see :func:`imucal_cli.simulator.random_imu`).
+        Raw units of the part (see :func:`imucal_cli.simulate.triad.random_imu`).
     gravity : float
         Local gravity, m/s^2.
     created : str, optional
@@ -291,7 +292,7 @@ def simulate_gyro_rotations(
 
     Returns
     -------
-    session : imucal_cli.session.Session
+    session : imucal_cli.formats.session.Session
         Raw accel and gyro (N, 3).  Segments in time order, alternating: a static segment
         per still period, labelled ``"still before x turn 3"`` (``"still after x turn 18"``
         for the last of an axis; ``"still before turn 3"`` for free:N), with ``up`` only on
@@ -301,9 +302,9 @@ def simulate_gyro_rotations(
         ``axis`` = the nominal body axis (qureshi-axes), or ``"turn 3"`` without ``axis``
         (free:N).  No segment has ``angle_deg``: the angle is unknown to the person; the
         accelerometer measures it.
-    truth : imucal_cli.calibration.Calibration
+    truth : imucal_cli.formats.calibration.Calibration
         ``accel`` and ``gyro``: ``matrix = inv(S)``, ``bias = b`` (fixture frame), as
-        :func:`imucal_cli.simulator.truth_calibration`.  ``gyro.extra``: per turn, in order,
+        :func:`imucal_cli.simulate.triad.truth_calibration`.  ``gyro.extra``: per turn, in order,
         ``turn_segments`` (segment names), ``turn_labels``, ``turn_axis_names`` (qureshi-axes:
         x/y/z), ``true_angle_deg``, ``true_axis`` (unit, body frame), ``true_rotvec`` (rad,
         body frame: ``R_after = R_before Exp(rotvec)``), ``nominal_axis`` (or None),

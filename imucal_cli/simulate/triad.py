@@ -4,7 +4,7 @@ The simulator plays the experiment of Qureshi & Golnaraghi (section III-A, IV-B)
 placed by hand in a list of poses (the 6 faces and 12 45-degree edges of a cube, or any other
 plan), held still in each for ``hold_s`` seconds, and turned smoothly from one pose to the
 next.  It returns the session exactly as a recorder would have written it, plus a truth
-:class:`~imucal_cli.calibration.Calibration` that maps the raw channels back to the specific
+:class:`~imucal_cli.formats.calibration.Calibration` that maps the raw channels back to the specific
 force and angular rate in the fixture frame.
 
 Sensor model (per sample, body = fixture frame, SI input, raw output)::
@@ -26,15 +26,15 @@ seed describes the same physical experiment whatever the raw ``units``.
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .calibration import Calibration, SensorCalibration
-from .errors import InputError
-from .session import Segment, Session, utc_now_iso
+from imucal_cli.errors import InputError
+from imucal_cli.formats.calibration import Calibration, SensorCalibration
+from imucal_cli.formats.session import Segment, Session, utc_now_iso
+from imucal_cli.plans import plan_poses
 
 __all__ = [
     "G0",
@@ -42,7 +42,6 @@ __all__ = [
     "SimulatedStream",
     "StreamSegment",
     "UNITS",
-    "plan_poses",
     "random_imu",
     "sensor_name",
     "simulate",
@@ -268,73 +267,6 @@ def random_imu(
 # --------------------------------------------------------------------------------------------
 # Plans
 # --------------------------------------------------------------------------------------------
-
-_AXES = "XYZ"
-_RANDOM_RE = re.compile(r"random:(\d+)")
-MAX_RANDOM_POSES = 10000
-
-
-def _sign(s: float) -> str:
-    return "+" if s > 0 else "-"
-
-
-def _faces() -> list[tuple[str, np.ndarray]]:
-    out = []
-    for i in (2, 0, 1):  # +Z first: the unit starts flat on the table
-        for s in (1.0, -1.0):
-            up = np.zeros(3)
-            up[i] = s
-            out.append((f"face {_sign(s)}{_AXES[i]} up", up))
-    return out
-
-
-def _edges() -> list[tuple[str, np.ndarray]]:
-    out = []
-    for i, j in ((0, 1), (0, 2), (1, 2)):
-        for si in (1.0, -1.0):
-            for sj in (1.0, -1.0):
-                up = np.zeros(3)
-                up[i], up[j] = si, sj
-                label = f"edge {_sign(si)}{_AXES[i]}{_sign(sj)}{_AXES[j]} up"
-                out.append((label, up / np.sqrt(2.0)))
-    return out
-
-
-def plan_poses(plan: str) -> list[tuple[str, np.ndarray | None]]:
-    """The poses of a plan, in the order they are visited.
-
-    Parameters
-    ----------
-    plan : str
-        ``six`` (the 6 faces of a cube), ``qureshi18`` (6 faces + 12 edges at 45 degrees,
-        Qureshi & Golnaraghi section IV-B) or ``random:N`` (N unlabelled poses; the simulator
-        draws their directions uniformly on the sphere).
-
-    Returns
-    -------
-    list of (label, up)
-        ``label`` like ``"face +Z up"``, ``"edge +X+Z up"`` or ``"pose 7"`` (1-based);
-        ``up`` the nominal unit vector (3,) pointing away from the earth in the fixture frame,
-        or None for ``random:N``.
-
-    Raises
-    ------
-    InputError
-        Unknown plan, or N outside 1..10000.
-    """
-    name = plan.strip().lower()
-    if name == "six":
-        return list(_faces())
-    if name == "qureshi18":
-        return list(_faces()) + _edges()
-    m = _RANDOM_RE.fullmatch(name)
-    if m:
-        n = int(m.group(1))
-        if not 1 <= n <= MAX_RANDOM_POSES:
-            raise InputError(f"plan {plan!r}: N must be between 1 and {MAX_RANDOM_POSES}")
-        return [(f"pose {k + 1}", None) for k in range(n)]
-    raise InputError(f"plan {plan!r} is unknown: use six, qureshi18 or random:N (N poses)")
-
 
 # --------------------------------------------------------------------------------------------
 # The stream
@@ -656,7 +588,7 @@ def sensor_name(seed: int) -> str:
 
 
 def truth_calibration(stream: SimulatedStream, created: str | None = None) -> Calibration:
-    """The truth of a simulated stream as a :class:`~imucal_cli.calibration.Calibration`.
+    """The truth of a simulated stream as a :class:`~imucal_cli.formats.calibration.Calibration`.
 
     ``matrix = inv(S)`` and ``bias = b`` in raw units, so ``matrix @ (raw - bias)`` gives the
     specific force (m/s^2) and angular rate (rad/s) in the fixture frame, up to noise and
@@ -739,11 +671,11 @@ def simulate(
 
     Returns
     -------
-    session : imucal_cli.session.Session
+    session : imucal_cli.formats.session.Session
         ``source="simulator"``, ``sensor="sim-16bit seed <seed>"``, raw accel and gyro (N, 3)
         in ``accel_units``/``gyro_units``; segments ``0000``, ``0001``, ... alternating static
         holds (label and, except for ``random:N``, ``up``) and rotation segments (label only).
-    truth : imucal_cli.calibration.Calibration
+    truth : imucal_cli.formats.calibration.Calibration
         See :func:`truth_calibration`.
     """
     stream = simulate_stream(
@@ -797,7 +729,7 @@ def session_from_motion(
     """A session of the simulated unit performing a motion: the true specific force and rate
     (fixture frame, (N, 3), m/s^2 and rad/s) through the sensor model with its noise (one
     generator from ``noise_seed``: accelerometer noise first, then gyroscope)."""
-    from .session import Session, utc_now_iso
+    from imucal_cli.formats.session import Session, utc_now_iso
 
     n = len(specific_force)
     nrng = np.random.default_rng(noise_seed)

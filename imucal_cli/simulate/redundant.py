@@ -10,7 +10,7 @@ MEMS inertial measurement unit":
   right-angle iron, swept sinusoidally by hand about the normals of three orthogonal faces,
   in two mountings of the IMU in the iron, then turned 90 degrees along a ruler.
 
-Both return ``(Session, Calibration)`` like :func:`imucal_cli.simulator.simulate`: the session
+Both return ``(Session, Calibration)`` like :func:`imucal_cli.simulate.triad.simulate`: the session
 as a recorder would have written it and the truth in the toolkit's model
 ``calibrated = matrix @ (raw - bias)``.  Randomness follows the simulator: three generators
 spawned from ``numpy.random.SeedSequence(seed)`` for the truth, the poses and the noise, so a
@@ -28,10 +28,11 @@ import itertools
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .calibration import Calibration, SensorCalibration
-from .errors import InputError
-from .session import Segment, Session, utc_now_iso
-from .simulator import (
+from imucal_cli.errors import InputError
+from imucal_cli.formats.calibration import Calibration, SensorCalibration
+from imucal_cli.formats.session import Segment, Session, utc_now_iso
+from imucal_cli.plans import plan_poses
+from imucal_cli.simulate.triad import (
     G0,
     MAX_SAMPLES,
     _check_positive,
@@ -39,7 +40,6 @@ from .simulator import (
     _misalignment_deg,
     _unit,
     _up_to_vertical,
-    plan_poses,
     random_imu,
     session_from_motion,
     truth_sections,
@@ -210,11 +210,11 @@ def simulate_redundant_accel(
 
     Returns
     -------
-    session : imucal_cli.session.Session
+    session : imucal_cli.formats.session.Session
         ``accel_units="counts"``, ``/raw/accel`` (N, 4), no gyro; one static segment per
         orientation labelled ``"orientation 7"`` (1-based), or the pose name (``"face +Z up"``)
         with ``up`` when ``labelled``.
-    truth : imucal_cli.calibration.Calibration
+    truth : imucal_cli.formats.calibration.Calibration
         Accel section only: ``matrix`` (3, 4) = 9.80665 * pinv(S^T) with ``S`` (3, 4) the
         sensitivity axes in counts per g as columns, ``bias`` (4,) counts; so ``matrix @ (raw
         - bias)`` is the specific force in m/s^2.  Extras: ``S_counts_per_g``,
@@ -422,7 +422,7 @@ def simulate_hk_gyro(
 ) -> tuple[Session, Calibration]:
     """Simulate the gyroscope procedure of Hwangbo & Kanade, section IV-B (Fig. 3 f-j, Fig. 5).
 
-    The part is :func:`imucal_cli.simulator.random_imu` (16.4 LSB per deg/s gyroscope with
+    The part is :func:`imucal_cli.simulate.triad.random_imu` (16.4 LSB per deg/s gyroscope with
     1-3 % scale errors, axes off by up to 1 degree, bias up to 3 deg/s; plus its
     accelerometer), fixed in a right-angle iron.  Frames: the *iron* frame (the fixture frame
     of the session's ``axis``/``up``) and the *sensor* frame, the IMU housing.  Mounting ``m``
@@ -480,7 +480,7 @@ def simulate_hk_gyro(
 
     Returns
     -------
-    session : imucal_cli.session.Session
+    session : imucal_cli.formats.session.Session
         Raw accel and gyro (N, 3).  Static segments for the still periods, labelled
         ``"mounting 1: still, +Z up"``, with ``up`` (iron frame) in mounting 1 only (in other
         mountings the sensor is not aligned with the iron).  Rotation segments for the sweeps,
@@ -488,7 +488,7 @@ def simulate_hk_gyro(
         frame; the ruler turn labelled ``"mounting 1: ruler-guided 90-degree turn about +Z"``
         with ``axis`` and ``angle_deg``.  Orthogonality holds only between sweeps of one
         mounting: every segment has the attribute ``mounting`` (int).
-    truth : imucal_cli.calibration.Calibration
+    truth : imucal_cli.formats.calibration.Calibration
         ``gyro``: ``matrix = inv(S_g)``, ``bias = b_g`` with ``S_g`` the sensitivity in the
         sensor frame (= the iron frame of mounting 1).  Extras: ``mounting_rotvec_deg`` (one
         rotation vector per mounting, sensor -> iron, degrees), ``segment_mounting``

@@ -4,7 +4,7 @@ matplotlib is an optional extra (``pip install 'imucal-cli[plot]'``): it is impo
 figure is drawn, with the non-interactive ``Agg`` backend; without it the plot functions raise
 :class:`~imucal_cli.errors.InputError` with :data:`PLOT_HINT`.
 
-The report figure is drawn from the report dict (:func:`imucal_cli.report.build_report`), so
+The report figure is drawn from the report dict (:func:`imucal_cli.use.report.build_report`), so
 it shows what the calibration stores and nothing is re-solved.  Only panels whose data exist
 are drawn:
 
@@ -145,7 +145,7 @@ def report_figure(report: dict[str, Any], path: str | os.PathLike[str]) -> Path:
     Parameters
     ----------
     report : dict
-        From :func:`imucal_cli.report.build_report`.
+        From :func:`imucal_cli.use.report.build_report`.
     path : path-like
         The PNG to write.
 
@@ -196,7 +196,7 @@ def noise_figure(result, path: str | os.PathLike[str]) -> Path:
 
     Parameters
     ----------
-    result : imucal_cli.noise.NoiseReport
+    result : imucal_cli.use.noise.NoiseReport
     path : path-like
         The PNG to write.
 

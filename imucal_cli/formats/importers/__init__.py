@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from imucal_cli.errors import InputError
-from imucal_cli.session import Segment, Session
+from imucal_cli.formats.session import Segment, Session
 from imucal_cli.solvers.segmentation import (
     estimate_noise,
     find_rotations,

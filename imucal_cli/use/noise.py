@@ -26,9 +26,9 @@ from typing import Any
 
 import numpy as np
 
-from imucal_cli.calibration import Calibration, SensorCalibration
 from imucal_cli.errors import InputError
-from imucal_cli.session import Session
+from imucal_cli.formats.calibration import Calibration, SensorCalibration
+from imucal_cli.formats.session import Session
 from imucal_cli.solvers.allan import AxisNoise, axis_noise
 
 __all__ = [
@@ -348,6 +348,6 @@ def analyse_noise(
 
 def load_calibration(path: str | os.PathLike[str]) -> Calibration:
     """A calibration JSON or the last one stored in a session (as ``imucal report`` reads)."""
-    from imucal_cli.report import load_for_report
+    from imucal_cli.use.report import load_for_report
 
     return load_for_report(path)

@@ -1,6 +1,7 @@
 """Calibration report: what a stored calibration says, as a JSON-ready dict and as rich tables.
 
-A report only *reads* results.  It takes a :class:`~imucal_cli.calibration.Calibration` (from a
+A report only *reads* results.  It takes a
+:class:`~imucal_cli.formats.calibration.Calibration` (from a
 calibration JSON, or the last one stored under ``/calibrations`` of a session) and lays out what
 the solver wrote: the model and its parameters with standard deviations, misalignment angles,
 the gravity-magnitude RMS before / after / leave-one-pose-out, the per-pose residuals and how
@@ -36,9 +37,9 @@ from rich.rule import Rule
 from rich.table import Table
 from rich.text import Text
 
-from imucal_cli.calibration import Calibration, SensorCalibration, calibration_from_json
 from imucal_cli.errors import InputError
-from imucal_cli.session import read_session
+from imucal_cli.formats.calibration import Calibration, SensorCalibration, calibration_from_json
+from imucal_cli.formats.session import read_session
 
 STANDARD_GRAVITY = 9.80665
 """m/s^2; used for milli-g figures when a calibration does not state its local gravity."""

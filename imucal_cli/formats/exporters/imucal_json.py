@@ -1,0 +1,47 @@
+"""Compact JSON: the standard fields of the calibration format only (``format``,
+``format_version``, ``session``, ``created``; per sensor ``solver``, ``units``, ``bias``,
+``matrix``, ``residual_rms``) plus ``model`` per sensor, on one line with a fixed key order,
+for scripts.  It reads back with :func:`imucal_cli.formats.calibration.calibration_from_json`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+from imucal_cli.formats.calibration import (
+    FORMAT,
+    FORMAT_VERSION,
+    MODEL_EQUATION,
+    Calibration,
+)
+from imucal_cli.formats.exporters import sections
+
+__all__ = ["export_json"]
+
+
+def _finite_or_none(value: float | None) -> float | None:
+    return value if value is not None and math.isfinite(value) else None
+
+
+def export_json(cal: Calibration) -> str:
+    """Return the standard fields of the calibration as compact JSON on one line (plus ``\\n``).
+
+    Keys in a fixed order: ``format``, ``format_version``, ``session`` (when known),
+    ``created``, then ``accel``/``gyro`` each with ``solver``, ``units``, ``model``, ``bias``,
+    ``matrix``, ``residual_rms``.  Numbers are written so that they read back bit for bit.
+    """
+    doc: dict = {"format": FORMAT, "format_version": FORMAT_VERSION}
+    if cal.session is not None:
+        doc["session"] = cal.session
+    doc["created"] = cal.created
+    for name, sec in sections(cal):
+        doc[name] = {
+            "solver": sec.solver,
+            "units": sec.units,
+            "model": MODEL_EQUATION,
+            "bias": [float(v) for v in sec.bias],
+            "matrix": [[float(v) for v in row] for row in sec.matrix],
+            "residual_rms": _finite_or_none(sec.residual_rms),
+        }
+    return json.dumps(doc, separators=(",", ":"), allow_nan=False) + "\n"
