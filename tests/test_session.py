@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 
 from imucal_cli.errors import InputError, SessionError
-from imucal_cli.formats.session import writer as session_writer
 from imucal_cli.formats.session import (
     GRAVITY_DEFAULT,
     Segment,
@@ -26,6 +25,7 @@ from imucal_cli.formats.session import (
     utc_now_iso,
     write_session,
 )
+from imucal_cli.formats.session import writer as session_writer
 
 ROOT = Path(__file__).resolve().parents[1]
 N = 100
