@@ -56,7 +56,8 @@ class Design:
         self.pose_cov = np.broadcast_to(self.S / hold, (n_poses, 3, 3)).copy()
         self.up_cov = np.broadcast_to(up_sigma**2 / hold * np.eye(3), (n_poses, 3, 3)).copy()
         k = 1.0 if noise else 0.0
-        samples = F * self.dirs @ self.Winv.T + self.b + k * rng.normal(0, sigma, (len(self.dirs), 3))
+        samples = F * self.dirs @ self.Winv.T + self.b
+        samples += k * rng.normal(0, sigma, samples.shape)
         means = F * self.pose_dirs @ self.Winv.T + self.b
         means += k * rng.normal(0, sigma / np.sqrt(hold), means.shape)
         up_meas = self.up + k * rng.normal(0, up_sigma / np.sqrt(hold), self.up.shape)
@@ -89,7 +90,8 @@ def test_fit_finds_hard_soft_iron_and_the_rotation_to_the_accelerometer():
     # the swapped AK8963 axes are found: the output is in the accelerometer frame
     h_true = F * d.pose_dirs
     h_est = res.calibrate(F * d.pose_dirs @ d.Winv.T + d.b)
-    assert np.degrees(np.max(np.arccos(np.sum(h_true * h_est, 1) / F / np.linalg.norm(h_est, axis=1)))) < 0.3
+    cos = np.sum(h_true * h_est, 1) / F / np.linalg.norm(h_est, axis=1)
+    assert np.degrees(np.max(np.arccos(np.clip(cos, -1, 1)))) < 0.3
     assert abs(res.inclination_deg - np.degrees(INC)) < 5 * res.inclination_std_deg
     assert np.allclose(res.rotation, polar(res.matrix)[0])
     assert 0.8 < res.chi2 / res.dof < 1.2 and res.noise_scale == 1.0
