@@ -87,13 +87,14 @@ def export_fusion(cal: Calibration, opts: ExportOptions) -> str:
         misalignment, sensitivity = fusion_arrays(sec.matrix, factor)
         base = _NAMES[name]
         ident = (prefix + base[0].upper() + base[1:]) if prefix else base
-        m = ", ".join(c_float(v, f"{name} misalignment") for v in misalignment.ravel())
+        m = ", ".join("{" + ", ".join(c_float(v, f"{name} misalignment") for v in row) + "}"
+                      for row in misalignment)  # fmt: skip
         s = ", ".join(c_float(v, f"{name} sensitivity") for v in sensitivity)
         o = ", ".join(c_float(v, f"{name} offset") for v in sec.bias)
         lines += [
-            f"static const FusionMatrix {ident}Misalignment = {{{m}}};",
-            f"static const FusionVector {ident}Sensitivity = {{{s}}};",
-            f"static const FusionVector {ident}Offset = {{{o}}};",
+            f"static const FusionMatrix {ident}Misalignment = {{{{{m}}}}};",
+            f"static const FusionVector {ident}Sensitivity = {{{{{s}}}}};",
+            f"static const FusionVector {ident}Offset = {{{{{o}}}}};",
             "",
         ]
     return "\n".join(lines)
