@@ -79,7 +79,7 @@ def one_line(text: object) -> str:
 
 def fmt(value: float) -> str:
     """Shortest round-trip repr of a float that YAML 1.1, JSON and C parsers read as a float."""
-    text = repr(float(value))
+    text = repr(float(value) + 0.0)  # + 0.0: no "-0.0"
     mantissa, e, exponent = text.partition("e")
     if e and "." not in mantissa:
         text = f"{mantissa}.0e{exponent}"
@@ -184,10 +184,12 @@ def published(
     if given is not None:
         if not (math.isfinite(given) and given != 0):
             raise InputError(f"--{name}-scale must be a finite non-zero number, got {given!r}")
-        factor, basis = float(given), f"raw {raw_units} x {fmt(given)} (--{name}-scale)"
+        factor = float(given)
+        basis = f"raw ({raw_units}) x {fmt(given)} {SI_UNITS[name]} per raw unit (--{name}-scale)"
     elif raw_units in _NOMINAL[name]:
         factor = _NOMINAL[name][raw_units]
-        basis = f"raw in {raw_units}" + ("" if factor == 1.0 else f" x {factor:.9g}")
+        basis = (f"raw, already in {raw_units}" if factor == 1.0
+                 else f"raw ({raw_units}) x {factor:.9g} {SI_UNITS[name]} per {raw_units}")
     else:
         raise InputError(
             f"the {name} calibration takes raw {raw_units}; {target} reads {name} in "
@@ -204,7 +206,7 @@ def published(
         g_sensitivity=None if gs is None else gs * factor,
         factor=factor,
         raw_units=raw_units,
-        basis=basis + f" = {SI_UNITS[name]}",
+        basis=basis,
     )
 
 
@@ -353,10 +355,10 @@ class DiagonalFit:
         axes = ", ".join(f"{a} {v:.3f}" for a, v in zip("xyz", self.axis_angle_deg, strict=True))
         at = f"{self.worst_error * STANDARD_GRAVITY:.4g} m/s^2 at 1 g" if pub.name == "accel" \
             else f"{100 * self.worst_error:.3g} % of the rate"  # fmt: skip
-        what = "offset and per-axis scale" if pub.name == "accel" else "an offset"
+        what, lost = ("offset and per-axis scale", "misalignment") if pub.name == "accel" \
+            else ("an offset", "scale and misalignment")  # fmt: skip
         out = [
-            f"{pub.name}: {target} holds {what} only; the full calibration's misalignment is "
-            "lost:",
+            f"{pub.name}: {target} holds {what} only; the full calibration's {lost} is lost:",
             f"  angles between sensitivity axes minus 90 deg: {no}",
             f"  each sensitivity axis to the calibrated frame's axis, deg: {axes}",
             f"  worst error over all directions: {self.worst_angle_deg:.3f} deg, {at}",
