@@ -114,28 +114,6 @@ def require(cal: Calibration, names: tuple[str, ...], target: str) -> None:
             )
 
 
-def g_sensitivity(sec: SensorCalibration) -> np.ndarray | None:
-    """The gyro's ``g_sensitivity`` (n x 3, raw units per m/s^2), or None when absent or zero.
-
-    Raises
-    ------
-    InputError
-        Present but not an n x 3 array of finite numbers.
-    """
-    value = sec.extra.get("g_sensitivity")
-    if value is None:
-        return None
-    try:
-        g = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        g = np.empty(0)
-    if g.shape != (sec.bias.shape[0], 3) or not np.isfinite(g).all():
-        raise InputError(
-            f"gyro.g_sensitivity must be {sec.bias.shape[0]} x 3 finite numbers, got {value!r}"
-        )
-    return None if not g.any() else g
-
-
 @dataclass
 class Published:
     """One sensor's calibration in terms of what a driver publishes, ``p = factor * raw``.
@@ -198,7 +176,7 @@ def published(
         )
     if abs(np.linalg.det(sec.matrix)) < 1e-300 or not np.isfinite(np.linalg.cond(sec.matrix)):
         raise InputError(f"the {name} matrix is singular: it cannot be inverted for {target}")
-    gs = g_sensitivity(sec) if name == "gyro" else None
+    gs = sec.g_sensitivity if name == "gyro" else None
     return Published(
         name=name,
         matrix=sec.matrix / factor,

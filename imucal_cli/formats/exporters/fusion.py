@@ -30,7 +30,6 @@ from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.exporters import (
     STANDARD_GRAVITY,
     ExportOptions,
-    g_sensitivity,
     provenance,
     require,
     sections,
@@ -76,7 +75,7 @@ def export_fusion(cal: Calibration, opts: ExportOptions) -> str:
         unit, _ = _UNITS[name]
         lines.append(f" * {name}: raw {c_comment(units_in(sec))} -> {unit}, solver "
                      f"{c_comment(sec.solver)}")  # fmt: skip
-        gs = g_sensitivity(sec) if name == "gyro" else None
+        gs = sec.g_sensitivity if name == "gyro" else None
         if gs is not None:
             worst = float(np.linalg.norm(sec.matrix @ gs, 2) * STANDARD_GRAVITY)
             lines.append(f" * gyro g-sensitivity dropped (Fusion has none): up to {worst:.4g} "
