@@ -290,3 +290,34 @@ def test_witmotion_file(tmp_path):
     with pytest.raises(InputError, match="--rate"):
         read_witmotion(path)
     assert len(read_witmotion(path, rate_hz=100).time) == 50
+
+
+def test_witmotion_capture_protocol_records_a_session(tmp_path):
+    from imucal_cli.capture.recorder import Recorder
+    from imucal_cli.capture.stream import WitMotionProtocol
+    from imucal_cli.formats.session import read_session
+
+    from .test_capture import ScriptedSource
+
+    data, acc, gyr, _ = wit_stream(n=120, time=False)
+    chunks = [data[i : i + 64] for i in range(0, len(data), 64)]
+    protocol = WitMotionProtocol()
+    rec = Recorder(tmp_path / "wit.h5", ScriptedSource(chunks), protocol, accel_units="counts",
+                   gyro_units="counts")  # fmt: skip
+    got = sum(len(b) for b in rec.blocks())
+    rec.close()
+    s = read_session(tmp_path / "wit.h5")
+    assert got == len(s.time) == 119  # the last sample waits for the next 0x51 frame
+    np.testing.assert_array_equal(s.accel, acc[:119])
+    np.testing.assert_array_equal(s.gyro, gyr[:119])
+    np.testing.assert_allclose(s.temperature, 25.34)
+    assert np.all(np.diff(s.time) > 0) and s.accel_units == "counts"
+    assert protocol.stats["malformed"] >= 1 and protocol.stats["comments"] == 120  # 0x53 angles
+
+
+def test_capture_refuses_an_unknown_protocol(tmp_path):
+    from .cli_helpers import assert_one_line_error, run
+
+    assert_one_line_error(run("capture", "--port", "/dev/null", "--protocol", "nope",
+                              "--no-prompt", "--duration", "1", "-o", tmp_path / "x.h5"),
+                          "--protocol")  # fmt: skip
