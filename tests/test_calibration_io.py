@@ -184,7 +184,7 @@ BAD = {
     "version true": (with_changes(setter("format_version", True)), "unsupported format_version"),
     "created missing": (with_changes(deleter("created")), "'created' is missing"),
     "session number": (with_changes(setter("session", 3)), "'session' must be a string"),
-    "no sections": (with_changes(both_sections_gone), "neither an 'accel' nor a 'gyro'"),
+    "no sections": (with_changes(both_sections_gone), "no 'accel', 'gyro' or 'mag' calibration"),
     "section list": (with_changes(setter("accel", [1, 2])), "'accel' must be an object"),
     "solver missing": (with_changes(deleter("accel.solver")), "accel.solver is missing"),
     "solver number": (with_changes(setter("gyro.solver", 1)), "gyro.solver must be a string"),

@@ -39,7 +39,8 @@ def calibrate(
         help="Also store the calibration under the session's /calibrations.",
     ),
 ) -> None:
-    """Calibrate the accelerometer of SESSION and write a calibration JSON.
+    """Calibrate the accelerometer of SESSION (the gyroscope and the magnetometer as the config
+    and the session say) and write a calibration JSON.
 
     Exit status: 0 saved; 2 bad input (unreadable file, bad config, poses that cannot
     determine the model); 1 the solver did not converge or the result is outside physical
@@ -124,4 +125,51 @@ def _summary(console: Console, cal, where: str) -> None:
         )
         for w in x.get("warnings", []):
             console.print(f"  [bold yellow]warning[/]: {w}")
+    if cal.mag is not None:
+        for line in mag_summary(cal.mag):
+            console.print(line, highlight=False, soft_wrap=True)
     console.print(f"wrote {where}")
+
+
+def mag_summary(sec) -> list[str]:
+    """The magnetometer's lines: what ran, |B| residuals, inclination, hard iron, axes, the
+    quality verdict and the warnings."""
+    x = sec.extra
+    rd = x.get("readings", {})
+    how = [sec.solver, f"{rd.get('motion', 0)} motion readings + {rd.get('poses', 0)} poses"]
+    if x.get("iterations"):
+        how.append(f"{x['iterations']} iterations")
+    how.append("aligned to the accelerometer" if x.get("aligned") else "own axes (not aligned)")
+    lines = ["[bold]mag[/]: " + ", ".join(how)]
+    field = x.get("field_uT")
+    unit = "uT" if field else "x local field"
+    text = f"  |B| residual RMS {x['rms_after']:.4g} {unit}"
+    if field:
+        text += f" ({100 * x['rms_after'] / field:.2f} % of {field:g} uT)"
+    if x.get("rms_held_out") is not None:
+        text += f", held out {x['rms_held_out']:.4g} {unit}"
+    if x.get("inclination_deg") is not None:
+        text += f"; inclination {x['inclination_deg']:.2f} ± {x['inclination_std_deg']:.2f} deg"
+    lines.append(text)
+    if not field:
+        est = x.get("field_estimate_uT")
+        lines.append(
+            "  field magnitude unknown: output in units of the local field (|B| = 1)"
+            + (f", about {est:.3g} uT" if est else "")
+            + "; give [mag] field_uT for uT"
+        )
+    text = "  hard iron " + ", ".join(f"{b:.5g}" for b in sec.bias) + f" {x.get('units_in')}"
+    if x.get("axes"):
+        text += "; axes " + ", ".join(x["axes"])
+    lines.append(text)
+    q = x.get("quality")
+    if q:
+        figs = ", ".join(
+            f"{c['name']} {c['value_pct']:.1f} %" if c["value_pct"] is not None
+            else f"{c['name']} -" for c in q["checks"]
+        )  # fmt: skip
+        verdict = "pass" if q["verdict"] == "pass" else "[bold yellow]recapture[/]"
+        lines.append(f"  quality: {verdict} ({figs})")
+    for w in x.get("warnings", []):
+        lines.append(f"  [bold yellow]warning[/]: {w}")
+    return lines

@@ -163,6 +163,50 @@ def simulate(
     temp: bool = typer.Option(
         True, "--temp/--no-temp", help="--serve: print the temperature field (8 or 7 fields)."
     ),
+    mag: bool = typer.Option(
+        False,
+        "--mag",
+        help=(
+            "Pose plans (six, qureshi18, random:N): add a magnetometer (an AK8963-like part: "
+            "hard and soft iron, axes x/y swapped and z reversed relative to the accelerometer) "
+            "and tumble the unit through random attitudes between the holds (--tumble)."
+        ),
+    ),
+    field_ut: float = typer.Option(
+        48.0, "--field-uT", metavar="UT", help="--mag: local field magnitude, microtesla."
+    ),
+    inclination: float = typer.Option(
+        60.0,
+        "--inclination-deg",
+        metavar="DEG",
+        help="--mag: inclination of the field below the horizontal, degrees (-90..90).",
+    ),
+    mag_units: str = typer.Option(
+        "counts",
+        "--mag-units",
+        metavar="counts|uT|nT|gauss",
+        help="--mag: raw magnetometer units (counts: 0.15 uT per LSB, integers).",
+    ),
+    mag_noise: float = typer.Option(
+        0.4, "--mag-noise", metavar="UT", help="--mag: white noise per axis per sample, uT."
+    ),
+    mag_layout: str = typer.Option(
+        "ak8963",
+        "--mag-layout",
+        metavar="ak8963|aligned",
+        help="--mag: the magnetometer's axes relative to the accelerometer's.",
+    ),
+    field_known: bool = typer.Option(
+        True,
+        "--field-known/--field-unknown",
+        help="--mag: write the field magnitude into the session (magnetic_field_uT).",
+    ),
+    tumble: float = typer.Option(
+        4.0,
+        "--tumble",
+        metavar="SECONDS",
+        help="--mag: tumble through random attitudes this long between holds (0: plain moves).",
+    ),
     move: float = typer.Option(1.5, "--move", hidden=True),
     garbage: bool = typer.Option(False, "--garbage", hidden=True),
     stall_after: float | None = typer.Option(None, "--stall-after", hidden=True),
@@ -182,6 +226,11 @@ def simulate(
 
     hk = plan.strip().lower() in HK_PLANS
     gyro = is_gyro_plan(plan)
+    if mag and (hk or gyro or serve):
+        raise InputError(
+            "--mag simulates pose plans written to a file (six, qureshi18, random:N), not "
+            f"{'--serve' if serve else repr(plan)}"
+        )
     if serve and (hk or gyro):
         raise InputError(f"--serve does not stream plan {plan!r}: write a session file instead")
     if serve:
@@ -247,6 +296,15 @@ def simulate(
             jitter_deg=jitter_deg,
             units=units,
         )
+    elif mag:
+        from imucal_cli.simulate.magnetometer import simulate_mag
+
+        session, truth = simulate_mag(
+            plan, seed, field_uT=field_ut, inclination_deg=inclination, mag_units=mag_units,
+            mag_noise=mag_noise, layout=mag_layout, field_known=field_known, tumble_s=tumble,
+            rate_hz=rate, hold_s=hold, accel_noise=accel_noise, jitter_deg=jitter_deg,
+            units=units,
+        )  # fmt: skip
     else:
         session, truth = run(
             plan=plan,
@@ -264,6 +322,7 @@ def simulate(
     typer.echo(
         f"wrote {out}: {n_static} poses, {n} samples ({n / rate:.1f} s at {rate:g} Hz), "
         f"{session.accel_units}"
+        + (f"; magnetometer in {session.mag_units}" if session.mag is not None else "")
     )
     write_calibration(truth_out, truth)
     typer.echo(f"wrote {truth_out}: true calibration of {session.sensor}")

@@ -25,9 +25,14 @@ from imucal_cli.errors import CalibrationFileError
 FORMAT = "imucal-calibration"
 FORMAT_VERSION = 1
 MODEL_EQUATION = "calibrated = matrix @ (raw - bias)"
-SENSOR_UNITS = {"accel": "m/s^2", "gyro": "rad/s"}
+SENSOR_UNITS = {"accel": "m/s^2", "gyro": "rad/s", "mag": "uT"}
+SENSORS = ("accel", "gyro", "mag")
+#: Units of a ``mag`` section calibrated without a known field magnitude: the calibrated
+#: vector's magnitude is 1 at the local field.
+LOCAL_FIELD = "local field"
+_ALLOWED_UNITS = {"accel": ("m/s^2",), "gyro": ("rad/s",), "mag": ("uT", LOCAL_FIELD)}
 
-_ROOT_FIELDS = ("format", "format_version", "session", "created", "accel", "gyro")
+_ROOT_FIELDS = ("format", "format_version", "session", "created", "accel", "gyro", "mag")
 _SECTION_FIELDS = ("solver", "units", "bias", "matrix", "residual_rms")
 
 
@@ -44,7 +49,8 @@ class SensorCalibration:
     solver : str
         Name of the solver that produced it, e.g. ``"gravity"``.
     units : str
-        Units of the calibrated output: ``"m/s^2"`` (accel) or ``"rad/s"`` (gyro).
+        Units of the calibrated output: ``"m/s^2"`` (accel), ``"rad/s"`` (gyro), ``"uT"`` or
+        ``"local field"`` (mag: hard iron ``bias``, soft iron ``matrix``).
     bias : ndarray, shape (n,)
         Bias in raw units, n >= 3 raw channels.
     matrix : ndarray, shape (3, n)
@@ -145,7 +151,7 @@ class Calibration:
 
     Attributes
     ----------
-    accel, gyro : SensorCalibration or None
+    accel, gyro, mag : SensorCalibration or None
         At least one is present in a valid file.
     session : str or None
         The session file the calibration was computed from.
@@ -160,6 +166,11 @@ class Calibration:
     session: str | None = None
     created: str = field(default_factory=_utc_now_iso)
     extra: dict = field(default_factory=dict)
+    mag: SensorCalibration | None = None
+
+    def sections(self) -> dict[str, SensorCalibration]:
+        """The sensors present, in file order: ``{"accel": ..., "gyro": ..., "mag": ...}``."""
+        return {n: getattr(self, n) for n in SENSORS if getattr(self, n) is not None}
 
     def to_dict(self) -> dict:
         """Return the JSON document as a dict (arrays as lists, sections only when present)."""
@@ -168,10 +179,8 @@ class Calibration:
             d["session"] = self.session
         d["created"] = self.created
         d.update({k: v for k, v in self.extra.items() if k not in _ROOT_FIELDS})
-        for name in ("accel", "gyro"):
-            section = getattr(self, name)
-            if section is not None:
-                d[name] = section.to_dict()
+        for name, section in self.sections().items():
+            d[name] = section.to_dict()
         return d
 
     @classmethod
@@ -213,13 +222,14 @@ class Calibration:
             raise fail("'created' is missing")
         sections = {
             name: _parse_section(d[name], name, fail)
-            for name in ("accel", "gyro")
+            for name in SENSORS
             if d.get(name) is not None
         }
         if not sections:
-            raise fail("holds neither an 'accel' nor a 'gyro' calibration")
+            raise fail("holds no 'accel', 'gyro' or 'mag' calibration")
         return cls(
             accel=sections.get("accel"),
+            mag=sections.get("mag"),
             gyro=sections.get("gyro"),
             session=d.get("session"),
             created=d["created"],
@@ -242,8 +252,9 @@ def _parse_section(section: Any, name: str, fail) -> SensorCalibration:
         if not isinstance(section.get(key), str):
             problem = "is missing" if key not in section else "must be a string"
             raise fail(f"{name}.{key} {problem}")
-    if section["units"] != SENSOR_UNITS[name]:
-        raise fail(f"{name}.units is {section['units']!r}, expected {SENSOR_UNITS[name]!r}")
+    if section["units"] not in _ALLOWED_UNITS[name]:
+        expected = " or ".join(repr(u) for u in _ALLOWED_UNITS[name])
+        raise fail(f"{name}.units is {section['units']!r}, expected {expected}")
     bias = section.get("bias")
     if not _is_finite_list(bias) or len(bias) < 3:
         raise fail(f"{name}.bias must be a list of at least 3 finite numbers, got {bias!r}")

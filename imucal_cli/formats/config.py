@@ -47,6 +47,25 @@ Example (every key optional; these are the defaults)::
     # fixture_tolerance_deg = 0.0  # how square the turns are; default: from the data
     max_iterations = 200
 
+    [mag]                        # runs whenever the session has /raw/mag
+    solver = "magnitude"         # "magnitude" (ML on |B| and the dip), "ellipsoid", "none"
+    # field_uT = 48.9            # local field, uT; default the session's magnetic_field_uT,
+                                 # else unknown: the output is in units of the local field
+    align = true                 # rotate onto the accelerometer frame (the dip angle)
+    # range = [-32760, 32760]    # raw output range: readings reaching it are saturated
+    min_coverage = 0.5           # refuse below this fraction of the sphere covered
+    max_field_change_pct = 3.0   # flag |B| off by more than this % of |B| beyond the noise
+                                 # (overall, over any 1 s of motion, or in a hold)
+    max_dip_error_deg = 2.0      # flag a hold whose gravity-field angle is this far off
+    max_saturated_pct = 5.0      # refuse when more readings than this are saturated
+    max_iterations = 100
+
+    [mag.quality]                # pass or recapture (MotionCal's goals)
+    max_gaps_pct = 15.0
+    max_variance_pct = 4.5
+    max_wobble_pct = 4.0
+    max_fit_error_pct = 5.0
+
 Unknown keys and wrong types are errors (a typo must not silently fall back to a default).
 """
 
@@ -61,6 +80,7 @@ from imucal_cli.errors import ConfigError
 
 ACCEL_SOLVERS = ("gravity", "factorization", "none")
 GYRO_SOLVERS = ("none", "static", "dynamic", "full", "factorization")
+MAG_SOLVERS = ("magnitude", "ellipsoid", "none")
 
 
 @dataclass
@@ -139,12 +159,39 @@ class GyroConfig:
 
 
 @dataclass
+class MagQualityOptions:
+    """``[mag.quality]``: the figures a calibration must meet to pass (else: recapture)."""
+
+    max_gaps_pct: float = 15.0
+    max_variance_pct: float = 4.5
+    max_wobble_pct: float = 4.0
+    max_fit_error_pct: float = 5.0
+
+
+@dataclass
+class MagConfig:
+    """``[mag]``: the magnetometer solver (runs whenever the session has ``/raw/mag``)."""
+
+    solver: str = "magnitude"
+    field_uT: float | None = None
+    align: bool = True
+    range: list[float] | None = None
+    min_coverage: float = 0.5
+    max_field_change_pct: float = 3.0
+    max_dip_error_deg: float = 2.0
+    max_saturated_pct: float = 5.0
+    max_iterations: int = 100
+    quality: MagQualityOptions = field(default_factory=MagQualityOptions)
+
+
+@dataclass
 class Config:
     """The whole configuration."""
 
     gravity: float | None = None
     accel: AccelConfig = field(default_factory=AccelConfig)
     gyro: GyroConfig = field(default_factory=GyroConfig)
+    mag: MagConfig = field(default_factory=MagConfig)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict (for recording in the calibration JSON); None values dropped."""
@@ -158,7 +205,7 @@ def _drop_none(d: Any) -> Any:
 
 
 #: Keys whose value is a number even though their default is None.
-_NUMBER_KEYS = {"gravity", "nominal_sensitivity", "fixture_tolerance_deg"}
+_NUMBER_KEYS = {"gravity", "nominal_sensitivity", "fixture_tolerance_deg", "field_uT"}
 
 
 def _number(where: str, key: str, value: Any) -> float:
@@ -253,6 +300,26 @@ def validate(cfg: Config, where: str = "<config>") -> None:
     for table, err in (("accel", a.max_scale_error), ("gyro", cfg.gyro.max_scale_error)):
         if not 0 < err < 1:
             raise ConfigError(f"{where}: [{table}] max_scale_error must be between 0 and 1")
+    _validate_mag(cfg.mag, where)
+
+
+def _validate_mag(m: MagConfig, where: str) -> None:
+    _one_of(where, "mag", "solver", m.solver, MAG_SOLVERS)
+    if m.field_uT is not None and not 0 < m.field_uT < 1e4:
+        raise ConfigError(f"{where}: [mag] field_uT must be a positive number of microtesla "
+                          f"(Earth: 20 to 70), not {m.field_uT:g}")  # fmt: skip
+    if not 0 < m.min_coverage <= 1:
+        raise ConfigError(f"{where}: [mag] min_coverage must be a fraction in (0, 1]")
+    if m.max_iterations < 1:
+        raise ConfigError(f"{where}: [mag] max_iterations must be at least 1")
+    positive = {
+        "max_field_change_pct": m.max_field_change_pct, "max_dip_error_deg": m.max_dip_error_deg,
+        "max_saturated_pct": m.max_saturated_pct,
+        **{f"quality.{k}": v for k, v in asdict(m.quality).items()},
+    }  # fmt: skip
+    for key, value in positive.items():
+        if not value > 0:
+            raise ConfigError(f"{where}: [mag] {key} must be positive, not {value:g}")
 
 
 def config_from_dict(data: dict[str, Any], where: str = "<config>") -> Config:

@@ -59,17 +59,34 @@ def calibrate_gyro(
     return None
 
 
+def calibrate_mag(
+    session: Session, cfg: Config, accel: SensorCalibration | None
+) -> SensorCalibration | None:
+    """Run the ``[mag]`` solver when the session has ``/raw/mag`` (None otherwise, or with
+    ``solver = "none"``); the accelerometer of the same run aligns it."""
+    if session.mag is None or cfg.mag.solver == "none":
+        return None
+    from imucal_cli.pipeline.magnetometer import calibrate_mag as run
+
+    return run(session, cfg, accel)
+
+
 def calibrate_session(session: Session, cfg: Config, *, name: str | None = None) -> Calibration:
     """Calibrate every sensor the config asks for; returns the calibration (not yet saved).
 
+    The magnetometer is calibrated whenever the session has one (``[mag] solver = "none"``
+    turns it off); a session with a magnetometer and no accelerometer skips the accelerometer.
     ``name`` is what the calibration records as its session (default: the session's path).
     """
-    if cfg.accel.solver == "none" and cfg.gyro.solver == "none":
+    with_mag = session.mag is not None and cfg.mag.solver != "none"
+    if cfg.accel.solver == "none" and cfg.gyro.solver == "none" and not with_mag:
         raise ConfigError("the config calibrates nothing: [accel] and [gyro] solver are both none")
     session, segmented = with_segments(session)
-    accel = calibrate_accel(session, cfg) if cfg.accel.solver != "none" else None
+    run_accel = cfg.accel.solver != "none" and not (session.accel is None and with_mag)
+    accel = calibrate_accel(session, cfg) if run_accel else None
     gyro = calibrate_gyro(session, cfg, accel)
-    for sec in (accel, gyro):
+    mag = calibrate_mag(session, cfg, accel)
+    for sec in (accel, gyro, mag):
         if sec is not None and segmented:
             sec.extra.setdefault("notes", []).insert(0, segmented)
     extra = {"toolkit_version": __version__, "config": cfg.to_dict()}
@@ -78,6 +95,7 @@ def calibrate_session(session: Session, cfg: Config, *, name: str | None = None)
     return Calibration(
         accel=accel,
         gyro=gyro,
+        mag=mag,
         session=name or session_name(session),
         created=utc_now_iso(),
         extra=extra,
@@ -86,7 +104,7 @@ def calibrate_session(session: Session, cfg: Config, *, name: str | None = None)
 
 def suspect_error(cal: Calibration) -> SolverError | None:
     """A :class:`SolverError` describing the physical-sense warnings, or None when clean."""
-    warnings = [w for sec in (cal.accel, cal.gyro) if sec for w in sec.extra.get("warnings", [])]
+    warnings = [w for sec in cal.sections().values() for w in sec.extra.get("warnings", [])]
     if not warnings:
         return None
     more = f" (and {len(warnings) - 1} more)" if len(warnings) > 1 else ""

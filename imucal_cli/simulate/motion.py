@@ -140,11 +140,15 @@ class Timeline:
         self.segments: list[Segment] = []
         self._force: list[np.ndarray] = []
         self._rate: list[np.ndarray] = []
+        self._quat: list[np.ndarray] = []  # attitude of every sample (a magnetometer sees it)
 
-    def _append(self, force: np.ndarray, rate: np.ndarray) -> tuple[int, int]:
+    def _append(self, force: np.ndarray, rate: np.ndarray, path: Rotation | None = None
+                ) -> tuple[int, int]:  # fmt: skip
         start = self.n
         self._force.append(force)
         self._rate.append(rate)
+        quat = self.att.as_quat() if path is None else path.as_quat()
+        self._quat.append(np.broadcast_to(quat, (len(force), 4)))
         self.n += len(force)
         return start, self.n
 
@@ -177,8 +181,9 @@ class Timeline:
             world = np.zeros((n, 3))
             world[:, 2] = self.gravity + lift_acc
             force = path.inv().apply(world)
+        span = self._append(force, rate, path)
         self.att = target
-        return self._append(force, rate)
+        return span
 
     def turn(
         self, axis: np.ndarray, theta: np.ndarray, dtheta: np.ndarray,
@@ -187,7 +192,7 @@ class Timeline:
         """A motion about the fixed body ``axis`` (unit) with angle ``theta`` (rad) and rate
         ``dtheta`` (rad/s) per sample; it ends turned by ``angle`` rad (None: where it began)."""
         path, rate = fixed_axis(self.att, axis, theta, dtheta)
-        span = self._append(self.gravity_in_body(path), rate)
+        span = self._append(self.gravity_in_body(path), rate, path)
         if angle is not None:
             self.att = self.att * Rotation.from_rotvec(angle * axis)
         return span
@@ -205,6 +210,12 @@ class Timeline:
         )  # fmt: skip
         self.segments.append(seg)
         return seg
+
+    def attitudes(self) -> Rotation:
+        """Attitude (body -> world) of every sample, N rotations."""
+        if not self._quat:
+            return Rotation.identity(0)
+        return Rotation.from_quat(np.concatenate(self._quat))
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray]:
         """Specific force and body rate, (N, 3) each, m/s^2 and rad/s."""

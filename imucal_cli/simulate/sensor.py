@@ -70,7 +70,7 @@ MOUNT_MAX_DEG = 1.0  # chip rotated <= 1 deg relative to the fixture
 UNITS = {"counts": "rad/s", "m/s^2": "rad/s"}
 """Accepted accelerometer raw units (keys); the gyro reads ``counts`` or ``rad/s`` to match."""
 
-_SI = {"m/s^2": ("m/s^2", 1.0), "g": ("m/s^2", G0), "rad/s": ("rad/s", 1.0)}
+_SI = {"m/s^2": ("m/s^2", 1.0), "g": ("m/s^2", G0), "rad/s": ("rad/s", 1.0), "uT": ("uT", 1.0)}
 """Input unit -> (SI unit of the calibrated output, factor from the input unit to SI)."""
 
 
@@ -278,7 +278,7 @@ class Imu:
         3) each) through the sensor model with noise from one generator (``noise_seed``)."""
         raw = self.sample(inputs, np.random.default_rng(noise_seed))
         n = len(next(iter(inputs.values())))
-        accel, gyro = raw.get("accel"), raw.get("gyro")
+        accel, gyro, mag = raw.get("accel"), raw.get("gyro"), raw.get("mag")
         return Session(
             time=np.arange(n) / rate_hz if time is None else time,
             accel=accel,
@@ -292,6 +292,8 @@ class Imu:
             gravity=gravity,
             accel_units=None if accel is None else self.group("accel").units,
             gyro_units=None if gyro is None else self.group("gyro").units,
+            mag=mag,
+            mag_units=None if mag is None else self.group("mag").units,
         )
 
     def truth_sections(self, extras: dict[str, dict]) -> dict[str, SensorCalibration]:
@@ -322,7 +324,8 @@ class Imu:
         head = {"sensor": sensor, "seed": options["seed"], "plan": options["plan"]}
         extra = {**head, **(root or {}), "simulator": options}
         return session, Calibration(
-            accel=sections.get("accel"), gyro=sections.get("gyro"), extra=extra, created=created
+            accel=sections.get("accel"), gyro=sections.get("gyro"), extra=extra, created=created,
+            mag=sections.get("mag"),
         )
 
 
@@ -331,7 +334,7 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def _tilted_axes(rng: np.random.Generator, max_deg: float) -> np.ndarray:
+def tilted_axes(rng: np.random.Generator, max_deg: float) -> np.ndarray:
     """Three sensitivity axes, each leaning from its chip axis by up to ``max_deg``.
 
     Returns rows n_i (3, 3), unit vectors in the chip frame.  Draws 6 numbers.
@@ -385,10 +388,10 @@ def random_imu(
         raise InputError(f"units {units!r} are not supported: use counts or m/s^2")
     # Every draw happens, in this order, whatever the units.
     a_scale = rng.uniform(-ACCEL_SCALE_ERROR_MAX, ACCEL_SCALE_ERROR_MAX, 3)
-    a_axes = _tilted_axes(rng, AXIS_TILT_MAX_DEG)
+    a_axes = tilted_axes(rng, AXIS_TILT_MAX_DEG)
     a_bias_g = rng.uniform(-ACCEL_BIAS_MAX_G, ACCEL_BIAS_MAX_G, 3)
     g_scale = rng.uniform(*GYRO_SCALE_ERROR_RANGE, 3) * rng.choice([-1.0, 1.0], 3)
-    g_axes = _tilted_axes(rng, AXIS_TILT_MAX_DEG)
+    g_axes = tilted_axes(rng, AXIS_TILT_MAX_DEG)
     g_bias_dps = rng.uniform(-GYRO_BIAS_MAX_DPS, GYRO_BIAS_MAX_DPS, 3)
     mount_axis = _unit(rng.standard_normal(3))
     mount_angle = np.radians(rng.uniform(0.0, MOUNT_MAX_DEG))

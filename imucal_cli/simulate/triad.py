@@ -78,6 +78,8 @@ class SimulatedStream:
         Angle between the true and the nominal up (placement error), degrees.
     rotvec : ndarray, shape (K-1, 3)
         True rotation of each move (body frame rotation vector, rad): the integral of ``rate``.
+    attitudes : Rotation
+        True attitude (body -> world, world z up) of every sample, N rotations.
     truth : Imu
     options : dict
         The generation options (JSON-ready).
@@ -95,10 +97,11 @@ class SimulatedStream:
     rotvec: np.ndarray
     truth: Imu
     options: dict
+    attitudes: Rotation | None = None
 
 
 def _stream_options(plan, seed, rate_hz, hold_s, accel_noise, jitter_deg, units, gravity,
-                    gyro_noise, move_s, lead_s, lift_m) -> dict:  # fmt: skip
+                    gyro_noise, move_s, lead_s, lift_m, tumble_s) -> dict:  # fmt: skip
     """The options of :func:`simulate_stream`, checked, as a JSON-ready dict."""
     if units not in UNITS:
         raise InputError(f"units {units!r} are not supported: use counts or m/s^2")
@@ -115,6 +118,7 @@ def _stream_options(plan, seed, rate_hz, hold_s, accel_noise, jitter_deg, units,
         "move_s": check_positive("move time", move_s, "s"),
         "lead_s": check_positive("lead time", lead_s, "s", allow_zero=True),
         "lift_m": check_positive("lift", lift_m, "m", allow_zero=True),
+        "tumble_s": check_positive("tumble", tumble_s, "s", allow_zero=True),
     }
     if opt["jitter_deg"] > 45.0:
         raise InputError(f"jitter must be at most 45 deg, got {opt['jitter_deg']:g}")
@@ -146,19 +150,37 @@ def _orientations(
     return nominal_up, orient, true_up, tilt_vec
 
 
+TUMBLE_STEP_S = 1.0
+"""A tumble passes through one random attitude per this many seconds."""
+
+
+def _tumble_steps(opt: dict) -> tuple[int, int]:
+    """Random waypoints per tumble and samples per waypoint move (0, 0: no tumble)."""
+    if opt["tumble_s"] <= 0:
+        return 0, 0
+    n_way = max(1, int(round(opt["tumble_s"] / TUMBLE_STEP_S)))
+    return n_way, max(2, int(round(opt["tumble_s"] * opt["rate_hz"] / n_way)))
+
+
 def _pose_timeline(opt: dict, poses: list, nominal_up, orient, true_up) -> Timeline:
-    """Lead, then per pose a labelled hold and a lifted move to the next pose."""
+    """Lead, then per pose a labelled hold and a lifted move to the next pose (through random
+    attitudes first when ``tumble_s`` > 0: the motion then sweeps the sphere)."""
     rate_hz, g = opt["rate_hz"], opt["gravity"]
     n_hold = int(round(opt["hold_s"] * rate_hz))
     n_move = max(2, int(round(opt["move_s"] * rate_hz)))
+    n_way, n_step = _tumble_steps(opt)
+    tumble_rng = np.random.default_rng(np.random.SeedSequence(opt["seed"]).spawn(5)[4])
     tl = Timeline(rate_hz, g, orient[0])
     tl.hold(int(round(opt["lead_s"] * rate_hz)), g * true_up[0])
     for k, (label, up) in enumerate(poses):
         span = tl.hold(n_hold, g * true_up[k])
         tl.segment("static", span, label, up=None if up is None else nominal_up[k].copy())
         if k + 1 < len(poses):
+            start = tl.n
+            for waypoint in Rotation.random(n_way, random_state=tumble_rng) if n_way else []:
+                tl.move(waypoint, n_step)
             span = tl.move(orient[k + 1], n_move, lift_m=opt["lift_m"])
-            tl.segment("rotation", span, f"turn to {poses[k + 1][0]}")
+            tl.segment("rotation", (start, span[1]), f"turn to {poses[k + 1][0]}")
     return tl
 
 
@@ -175,6 +197,7 @@ def simulate_stream(
     move_s: float = 1.5,
     lead_s: float = 1.0,
     lift_m: float = 0.03,
+    tumble_s: float = 0.0,
 ) -> SimulatedStream:
     """Generate the raw stream of a calibration session and its truth, as arrays.
 
@@ -216,6 +239,9 @@ def simulate_stream(
         Still time before the first hold, s.
     lift_m : float
         Height the unit is lifted during each move, m (vertical linear acceleration).
+    tumble_s : float
+        Before each move, the unit tumbles this long through random attitudes (one per
+        second, drawn from a fifth generator of the seed), s; 0: none.
 
     Returns
     -------
@@ -228,7 +254,7 @@ def simulate_stream(
     """
     poses = plan_poses(plan)
     opt = _stream_options(plan, seed, rate_hz, hold_s, accel_noise, jitter_deg, units, gravity,
-                          gyro_noise, move_s, lead_s, lift_m)  # fmt: skip
+                          gyro_noise, move_s, lead_s, lift_m, tumble_s)  # fmt: skip
     rate_hz = opt["rate_hz"]
     n_hold = int(round(opt["hold_s"] * rate_hz))
     if n_hold < 10:
@@ -237,10 +263,11 @@ def simulate_stream(
             "at least 10 are needed"
         )
     k_poses = len(poses)
+    n_way, n_step = _tumble_steps(opt)
     n_total = (
         int(round(opt["lead_s"] * rate_hz))
         + k_poses * n_hold
-        + (k_poses - 1) * max(2, int(round(opt["move_s"] * rate_hz)))
+        + (k_poses - 1) * (max(2, int(round(opt["move_s"] * rate_hz))) + n_way * n_step)
     )
     check_samples(n_total, "lower the rate, the hold or the number of poses")
 
@@ -271,6 +298,7 @@ def simulate_stream(
         rotvec=rotvecs,
         truth=truth,
         options=opt,
+        attitudes=tl.attitudes(),
     )
 
 

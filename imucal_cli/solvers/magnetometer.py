@@ -68,6 +68,7 @@ __all__ = [
     "fit_plain_ellipsoid",
     "held_out_residuals",
     "polar",
+    "residual_sigmas",
 ]
 
 _AXES = "xyz"
@@ -814,3 +815,14 @@ def held_out_residuals(
             if len(pts):
                 out[idx] = np.linalg.norm(res.calibrate(pts), axis=1) - field
     return out
+
+
+def residual_sigmas(result: MagResult, data: MagData) -> np.ndarray:
+    """Standard deviation the noise alone gives each reading's eq.-(2) residual, output units.
+
+    Shape (N + K,) in the order of :attr:`MagData.points`; NaN without a noise model.
+    """
+    covs = data.point_covs()
+    if covs is None:
+        return np.full(len(data.points), np.nan)
+    return _magnitude_sigma(data.points, covs, result.bias, result.matrix)

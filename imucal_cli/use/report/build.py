@@ -27,6 +27,7 @@ from .fields import (
     read_sensitivity,
     scaled,
 )
+from .mag import add_mag_content
 
 STANDARD_GRAVITY = 9.80665
 """m/s^2; used for milli-g figures when a calibration does not state its local gravity."""
@@ -54,12 +55,13 @@ MISSING = "—"
 _OPTIONAL_ITEMS = (
     ("variant", "model variant", ("accel", "gyro")),
     ("units_in", "raw input units", ("accel", "gyro")),
-    ("parameters", "named parameters with standard deviations", ("accel", "gyro")),
+    ("parameters", "named parameters with standard deviations", ("accel", "gyro", "mag")),
     ("misalignment_deg", "misalignment angles", ("accel", "gyro")),
     ("sensitivity", "sensitivities", ("accel", "gyro")),
-    ("fit", "solver iterations / convergence", ("accel", "gyro")),
+    ("fit", "solver iterations / convergence", ("accel", "gyro", "mag")),
     ("rms.before", "RMS before calibration", ("accel",)),
-    ("rms.after", "RMS after calibration", ("accel",)),
+    ("rms.after", "RMS after calibration", ("accel", "mag")),
+    ("mag.quality", "quality figures (gaps, variance, wobble, fit error)", ("mag",)),
     ("rms.held_out", "leave-one-pose-out (held-out) RMS", ("accel",)),
     ("rms.residual_rms", "solver residual RMS", ("accel", "gyro")),
     ("poses", "per-pose residuals", ("accel",)),
@@ -81,11 +83,12 @@ def build_report(cal: Calibration) -> dict[str, Any]:
     dict
         ``format``, ``format_version``, ``session``, ``created``, ``sensor``,
         ``toolkit_version``, ``config`` (solver options used, if recorded), ``sensors``
-        (``{"accel": ..., "gyro": ...}``, only those present, see :func:`_section_report`) and
+        (``{"accel": ..., "gyro": ..., "mag": ...}``, only those present, see
+        :func:`_section_report`; a magnetometer's adds :func:`.mag.mag_report` as ``mag``) and
         ``reference`` (the paper's published RMS before/after, for context).
     """
     extra = cal.extra or {}
-    sections = {"accel": cal.accel, "gyro": cal.gyro}
+    sections = cal.sections()
     return {
         "format": REPORT_FORMAT,
         "format_version": REPORT_FORMAT_VERSION,
@@ -157,6 +160,8 @@ def _section_report(kind: str, sec: SensorCalibration) -> dict[str, Any]:
         "notes": [str(n) for n in as_list(extra.get("notes"))],
         "warnings": [str(w) for w in as_list(extra.get("warnings"))],
     }
+    if kind == "mag":
+        add_mag_content(report, sec, add_table)
     report["unavailable"] = _unavailable(kind, report)
     return report
 

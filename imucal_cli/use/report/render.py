@@ -74,6 +74,8 @@ def render_report(report: dict[str, Any], console: Console) -> None:
             console.print(_coverage_panel(section))
         for spec in section.get("tables", []):
             console.print(_generic_table(spec))
+        for spec in section.get("maps", []):
+            console.print(_map_panel(spec))
         if section["notes"]:
             console.print(bullet_panel(section["notes"], "Notes", "dim"))
         if section["unavailable"]:
@@ -94,7 +96,9 @@ def _generic_table(spec: dict[str, Any]) -> Table:
     table = Table(title=Text(title), box=box.SIMPLE, title_justify="left", pad_edge=False,
                   min_width=len(title))  # fmt: skip
     for name, is_number in zip(spec["columns"], numeric, strict=True):
-        table.add_column(name, justify="right" if is_number else "left", no_wrap=bool(is_number))
+        # Text: a unit in brackets ("[uT]") is not rich markup
+        table.add_column(Text(name), justify="right" if is_number else "left",
+                         no_wrap=bool(is_number))  # fmt: skip
     for row in rows:
         table.add_row(*(Text(MISSING if v is None else fmt(v) if isinstance(v, float) else str(v))
                         for v in row))  # fmt: skip
@@ -461,6 +465,17 @@ def _coverage_panel(section: dict[str, Any]) -> Panel:
     map_text = "\n".join(coverage_map(directions)) if directions else ""
     grid.add_row(Text(map_text), Text("\n".join(["", *facts])))
     return Panel(grid, title="coverage of measured gravity directions", expand=False)
+
+
+def _map_panel(spec: dict[str, Any]) -> Panel:
+    """A section's ``maps`` entry: ``title``, unit ``directions`` and ``facts`` beside them."""
+    grid = Table.grid(padding=(0, 3))
+    grid.add_column(no_wrap=True)
+    grid.add_column()
+    directions = spec.get("directions") or []
+    map_text = "\n".join(coverage_map(directions)) if directions else "no directions stored"
+    grid.add_row(Text(map_text), Text("\n".join(["", *spec.get("facts", [])])))
+    return Panel(grid, title=spec.get("title", "coverage"), expand=False)
 
 
 def bullet_panel(items: list[str], title: str, style: str) -> Panel:
