@@ -64,6 +64,8 @@ __all__ = [
     "ReadOptions",
     "Recording",
     "TIME_UNITS",
+    "RATE_RANGE_HZ",
+    "check_sample_rate",
     "check_time",
     "import_files",
     "infer_columns",
@@ -153,13 +155,71 @@ def read_recording(
     time = np.asarray(rec.time, np.float64)
     rec.time = time
     rec.stats.samples = len(time)
+    where = " and ".join(str(p) for p in paths)
+    stamped = rate_hz is None or rec.columns.count("t") > 0
+    measured = float(1.0 / np.median(np.diff(time))) if len(time) >= 2 else float("nan")
+    if stamped and np.isfinite(measured):
+        check_sample_rate(measured, time_unit, where)
     if rate_hz is not None:
-        rec.rate_hz = float(rate_hz)
-    elif len(time) >= 2:
-        rec.rate_hz = float(1.0 / np.median(np.diff(time)))
-    else:
-        rec.rate_hz = float("nan")
+        check_sample_rate(rate_hz, None, where)
+        if stamped and np.isfinite(measured) and abs(measured / rate_hz - 1.0) > 0.1:
+            raise InputError(
+                f"{where}: the time stamps (read in {_UNIT_NAMES[time_unit]}) give "
+                f"{measured:.4g} Hz but --rate says {rate_hz:g} Hz: drop --rate, or fix "
+                "--time-unit"
+            )
+    rec.rate_hz = float(rate_hz) if rate_hz is not None else measured
     return rec
+
+
+RATE_RANGE_HZ = (1.0, 10_000.0)
+"""Sample rates plausible for an IMU, Hz: outside them, the time unit or ``--rate`` is wrong."""
+
+_UNIT_NAMES = {"s": "seconds", "ms": "milliseconds", "us": "microseconds"}
+
+
+def check_sample_rate(rate_hz: float, time_unit: str | None, where: str) -> None:
+    """Refuse a sample rate no IMU has (outside :data:`RATE_RANGE_HZ`).
+
+    Parameters
+    ----------
+    rate_hz : float
+        The rate, Hz: from the median step of time stamps read in ``time_unit``, or given
+        (``time_unit`` None: ``--rate``).
+    time_unit : str or None
+        The unit the stamps were read in; when another unit of :data:`TIME_UNITS` gives a
+        plausible rate, the message names ``--time-unit`` with it.
+    where : str
+        The file(s), for the message.
+
+    Raises
+    ------
+    InputError
+        The rate is implausible (the message says what to pass).
+    """
+    lo, hi = RATE_RANGE_HZ
+    if lo <= rate_hz <= hi:
+        return
+    plausible = f"an IMU samples at {lo:g} Hz to {hi / 1000:g} kHz"
+    if time_unit is None:
+        raise InputError(f"{where}: --rate {rate_hz:g} Hz is implausible ({plausible})")
+    scale = TIME_UNITS[time_unit]
+    fits = {
+        unit: rate_hz * scale / factor
+        for unit, factor in TIME_UNITS.items()
+        if unit != time_unit and lo <= rate_hz * scale / factor <= hi
+    }
+    step = 1.0 / rate_hz / scale
+    said = f"time stamps {step:.4g} apart read as {_UNIT_NAMES[time_unit]} give {rate_hz:.4g} Hz"
+    if fits:
+        unit, rate = min(fits.items(), key=lambda kv: abs(np.log10(kv[1] / 100.0)))
+        raise InputError(
+            f"{where}: {said} ({plausible}); the stamps look like {_UNIT_NAMES[unit]}: pass "
+            f"--time-unit {unit} ({rate:.4g} Hz)"
+        )
+    raise InputError(
+        f"{where}: {said} ({plausible}); check the t column and --time-unit, or pass --rate"
+    )
 
 
 # --------------------------------------------------------------------------------------------
