@@ -38,6 +38,7 @@ __all__ = [
     "estimate_noise",
     "find_rotations",
     "find_static",
+    "find_steps",
     "still_threshold",
 ]
 
@@ -472,6 +473,52 @@ def find_static(
         if b2 - a2 >= max(min_n, 2):
             out.append(Interval(int(a2), int(b2)))
     return out
+
+
+STEP_SIGMAS = 20.0
+"""A hold's mean may not jump by more than this many noise standard deviations (one sample's)
+between consecutive windows: more is a different pose (10 degrees of tilt is about 20 sigma
+of a cheap accelerometer's noise), not tremor."""
+
+
+def find_steps(
+    accel: np.ndarray, sigma: np.ndarray, n: int, *, limit: float = STEP_SIGMAS
+) -> list[int]:
+    """Where the level of a (supposedly) still stretch jumps: two poses joined together.
+
+    The mean of the ``n`` samples before each index is compared with the mean of the ``n``
+    after it, per channel, in units of the channel's noise ``sigma``; a step is where the
+    largest such jump exceeds ``limit`` (one index per step: the peak of each excursion).
+
+    Parameters
+    ----------
+    accel : ndarray, shape (N, C)
+        Raw samples of the stretch.
+    sigma : ndarray, shape (C,)
+        Noise standard deviation per channel (:func:`estimate_noise`).
+    n : int
+        Window length, samples.
+    limit : float
+        Threshold on the jump, noise standard deviations.
+
+    Returns
+    -------
+    list of int
+        Indices into ``accel`` where a new level starts (empty: one level throughout).
+    """
+    x = np.asarray(accel, dtype=np.float64)
+    N = len(x)
+    if N < 2 * n:
+        return []
+    s1 = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(x - x[0], axis=0)])
+    means = (s1[n:] - s1[:-n]) / n  # means[j] = mean of x[j:j+n]
+    jump = np.max(np.abs(means[n:] - means[:-n]) / np.maximum(sigma, 1e-300), axis=1)
+    over = jump > limit  # jump[k] compares x[k:k+n] with x[k+n:k+2n]: a step at k + n
+    if not over.any():
+        return []
+    m = np.concatenate([[False], over, [False]]).astype(np.int8)
+    edges = np.flatnonzero(np.diff(m)).reshape(-1, 2)
+    return [int(a + np.argmax(jump[a:b]) + n) for a, b in edges]
 
 
 # --------------------------------------------------------------------------------------------

@@ -32,9 +32,12 @@ import numpy as np
 from imucal_cli.errors import InputError
 from imucal_cli.formats.session import Segment, Session
 from imucal_cli.solvers.segmentation import (
+    Interval,
+    NoiseEstimate,
     estimate_noise,
     find_rotations,
     find_static,
+    find_steps,
 )
 
 from .recording import (
@@ -75,6 +78,7 @@ __all__ = [
     "reader",
     "segment_recording",
     "skipped_fields",
+    "split_steps",
     "split_fields",
 ]
 
@@ -248,9 +252,12 @@ def segment_recording(
             f"{where}: too few samples ({n}, {duration:.3g} s) to hold a still period of "
             f"{min_still_s:g} s plus a {window_s:g} s window; record longer"
         )
-    static = find_static(rec.time, rec.accel, rec.gyro, min_still_s=min_still_s, window_s=window_s)
+    noise = estimate_noise(rec.time, rec.accel, rec.gyro, window_s=window_s)
+    static = find_static(
+        rec.time, rec.accel, rec.gyro, min_still_s=min_still_s, window_s=window_s, noise=noise
+    )
+    static = split_steps(static, rec.accel, noise, min_n=int(np.ceil(min_still_s * rec.rate_hz)))
     if not static:
-        noise = estimate_noise(rec.time, rec.accel, rec.gyro, window_s=window_s)
         shown = ", ".join(f"{s:.3g}" for s in noise.accel)
         raise InputError(
             f"{where}: no still period of at least {min_still_s:g} s found in {duration:.3g} s "
@@ -271,6 +278,25 @@ def segment_recording(
     ]
 
 
+def split_steps(
+    static: list[Interval], accel: np.ndarray, noise: NoiseEstimate, min_n: int
+) -> list[Interval]:
+    """Still periods cut where their level jumps (two poses with no motion between, as in
+    concatenated recordings): each part is kept, less half a window on each side of the step,
+    when it still lasts ``min_n`` samples; never one period averaging two poses."""
+    out: list[Interval] = []
+    half = max(1, noise.window // 2)
+    for s in static:
+        cuts = [s.start + k for k in find_steps(accel[s.start : s.stop], noise.accel, noise.window)]
+        bounds = [s.start, *cuts, s.stop]
+        for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
+            a2 = a + half if k > 0 else a
+            b2 = b - half if k < len(cuts) else b
+            if b2 - a2 >= max(min_n, 2):
+                out.append(Interval(a2, b2))
+    return out
+
+
 def import_files(
     paths: Sequence[str | os.PathLike],
     fmt: str = "csv",
@@ -283,12 +309,16 @@ def import_files(
     gyro_units: str | None = None,
     sensor: str | None = None,
     min_still_s: float = _MIN_STILL_S,
+    sections: str | os.PathLike | None = None,
+    turn_angle_deg: float | None = None,
 ) -> Session:
     """Read recorded text files and segment them into a session (not yet written).
 
     Parameters are those of :func:`read_recording`, plus the raw units (``accel_units`` from
     :data:`ACCEL_UNITS`, ``gyro_units`` from :data:`GYRO_UNITS`), a ``sensor`` description and
-    the shortest still period kept, s.
+    the shortest still period kept, s; ``sections``: a MaD Lab section list (JSON file) or the
+    name of a column holding each row's label, whose labelled sections replace the automatic
+    segmentation (:mod:`.sections`); ``turn_angle_deg``: the signed angle of their turns.
 
     Returns
     -------
@@ -308,7 +338,21 @@ def import_files(
     rec = read_recording(
         paths, fmt, columns, time_unit=time_unit, rate_hz=rate_hz, skip_rows=skip_rows
     )
-    segments = segment_recording(rec, min_still_s=min_still_s)
+    notes: list[str] = []
+    if sections is None:
+        segments = segment_recording(rec, min_still_s=min_still_s)
+    else:
+        from .sections import labelled_segments, read_section_list, sections_of_column
+
+        where = " and ".join(rec.names)
+        spec = Path(sections)
+        if spec.suffix.lower() == ".json" or spec.is_file():
+            ranges = read_section_list(spec)
+        else:
+            ranges = sections_of_column(rec, Path(paths[0]), str(sections))
+        segments, notes = labelled_segments(
+            rec, ranges, turn_angle_deg=turn_angle_deg, where=where
+        )
     try:
         mtime = os.path.getmtime(paths[0])
         created = datetime.fromtimestamp(mtime, UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
@@ -328,4 +372,5 @@ def import_files(
         gyro_units=gyro_units if rec.gyro is not None else None,
     )
     session.import_stats = rec.stats  # type: ignore[attr-defined]
+    session.import_notes = notes  # type: ignore[attr-defined]
     return session

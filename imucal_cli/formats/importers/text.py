@@ -24,6 +24,7 @@ __all__ = [
     "FIELDS",
     "HEADER_ALIASES",
     "check_time",
+    "first_fields",
     "infer_columns",
     "parse_columns",
     "parse_numbers",
@@ -163,6 +164,22 @@ def _read_bytes(path: Path) -> bytes:
         return path.read_bytes()
     except OSError as exc:
         raise InputError(f"{src}: cannot read ({exc.strerror or exc})") from None
+
+
+def first_fields(path: Path, skip_rows: int = 0) -> list[str] | None:
+    """The fields of the first line after ``skip_rows`` that is not blank or a comment (None:
+    no such line in the first 64 KiB, or the file cannot be read: the reader will say why)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(65536)
+    except OSError:
+        return None
+    lines = head.decode("utf-8", errors="replace").lstrip("\ufeff").splitlines()
+    for line in lines[skip_rows:-1] if len(head) == 65536 else lines[skip_rows:]:
+        line = line.strip()
+        if line and not line.startswith("#"):
+            return split_fields(line, "," in line)
+    return None
 
 
 def read_lines(path: Path, raw: bytes | None = None) -> list[str]:
