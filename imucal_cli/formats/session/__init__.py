@@ -50,6 +50,7 @@ from .model import (
     utc_now_iso,
 )
 from .reader import read_session
+from .relabel import ROOT_LABELS, rewrite_labels
 from .store import store_calibration
 from .writer import SessionWriter, write_session
 
@@ -57,6 +58,7 @@ __all__ = [
     "FORMAT",
     "FORMAT_VERSION",
     "GRAVITY_DEFAULT",
+    "ROOT_LABELS",
     "SEGMENT_KINDS",
     "Segment",
     "Session",
@@ -69,6 +71,7 @@ __all__ = [
     "one_line",
     "open_for_reading",
     "read_session",
+    "rewrite_labels",
     "show",
     "store_calibration",
     "utc_now_iso",
