@@ -17,6 +17,7 @@ def main() -> None:
     parser.add_argument("--only", choices=BENCHMARKS, help="run only this benchmark")
     parser.add_argument("--quick", action="store_true", help="capture: 10 s instead of 60 s")
     parser.add_argument("--runs", type=int, default=5, help="speed: runs per figure (median)")
+    parser.add_argument("--sessions", type=int, default=500, help="speed: production-line size")
     args = parser.parse_args()
     console = Console(width=160)
     ok = True
@@ -31,7 +32,7 @@ def main() -> None:
     if args.only in (None, "capture"):
         ok = capture.run(console, quick=args.quick) and ok
     if args.only in (None, "speed"):
-        ok = speed.run(console, runs=args.runs) and ok
+        ok = speed.run(console, runs=args.runs, n_sessions=args.sessions) and ok
     raise SystemExit(0 if ok else 1)
 
 
