@@ -20,11 +20,17 @@ NO_WRAP_WIDTH = 100_000
 
 EXIT_CODES = (
     (0, "done: the result was written or printed (capture: the session is complete)"),
-    (1, "calibrate: the solver failed or the result is outside physical sense (not saved "
-        "unless --force)"),
+    (
+        1,
+        "calibrate: the solver failed or the result is outside physical sense (not saved "
+        "unless --force)",
+    ),
     (2, "bad input or usage: nothing was written"),
-    (3, "capture: the session is saved but incomplete (steps missing, interrupted, device "
-        "gone, data stopped)"),
+    (
+        3,
+        "capture: the session is saved but incomplete (steps missing, interrupted, device "
+        "gone, data stopped)",
+    ),
     (130, "interrupted (Ctrl-C) before anything was saved"),
 )
 """The exit statuses of every command (the same table is in the README)."""
@@ -44,6 +50,33 @@ def help_width() -> int:
     if not terminal:
         return NO_WRAP_WIDTH
     return min(shutil.get_terminal_size().columns, 100)
+
+
+def _metavar_only(argument_class) -> None:
+    """In the help, an argument with a metavar (``SESSION.h5``) is shown by it alone: not also
+    by its Python type (``SESSION.h5 <path>``), and in the usage line as click writes it
+    (``SESSION.h5``, ``FILE...``; not ``{SESSION.h5}``)."""
+    display = getattr(argument_class, "display_type_rich", None)
+    usage = getattr(argument_class, "_usage_display_name", None)
+    if display is None or getattr(display, "imucal_patched", False):
+        return
+
+    def display_type(self, ctx):
+        return None if self.metavar else display(self, ctx)
+
+    def usage_name(self):
+        if not self.metavar or usage is None:
+            return usage(self) if usage is not None else self.metavar
+        name = self.metavar if self.required else f"[{self.metavar}]"
+        return name + ("..." if self.nargs != 1 else "")
+
+    display_type.imucal_patched = True
+    argument_class.display_type_rich = display_type
+    if usage is not None:
+        argument_class._usage_display_name = usage_name
+
+
+_metavar_only(getattr(typer.core, "TyperArgument", object))
 
 
 def _version(value: bool) -> None:

@@ -2,33 +2,51 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 from .app import app
+from .console import make_console, print_json
 
 
 @app.command()
 def calibrate(
     session: Path = typer.Argument(
-        ..., help="Session file (.h5) to calibrate.", show_default=False
+        ...,
+        metavar="SESSION.h5",
+        help="Session file (.h5) to calibrate.",
+        show_default=False,
     ),
     config: Path | None = typer.Option(
-        None, "--config", "-c", help="TOML config choosing solvers and options (see README)."
+        None,
+        "--config",
+        "-c",
+        metavar="FILE.toml",
+        help="TOML config choosing solvers and options (see README, Config reference).",
     ),
     output: Path | None = typer.Option(
-        None, "--output", "-o", help="Calibration JSON to write [default: SESSION with .cal.json]."
+        None,
+        "--output",
+        "-o",
+        metavar="FILE.json",
+        help="Calibration JSON to write [default: SESSION with .cal.json].",
     ),
     model: str | None = typer.Option(
         None,
         "--model",
+        metavar="9|12",
         help="Gravity solver model: 9 (triangular, eqs. 3-8) or 12 (full matrix "
         "aligned to the labelled up directions). Overrides [accel.gravity] model.",
     ),
     gravity: float | None = typer.Option(
-        None, "--gravity", help="Local gravity in m/s^2 [default: the session's, else 9.80665]."
+        None,
+        "--gravity",
+        metavar="M/S^2",
+        help="Local gravity in m/s^2 [default: the session's, else 9.80665].",
     ),
     force: bool = typer.Option(
         False, "--force", help="Save a result that fails the physical-sense checks (with warnings)."
@@ -38,8 +56,14 @@ def calibrate(
         "--store/--no-store",
         help="Also store the calibration under the session's /calibrations.",
     ),
+    json_output: bool = typer.Option(
+        False,
+        "--json",
+        help="Print the result as JSON on stdout (nothing else): where it was written and the "
+        "calibration itself (schema in the README).",
+    ),
 ) -> None:
-    """Calibrate the accelerometer of SESSION and write a calibration JSON.
+    """Calibrate the sensors of SESSION the config asks for and write a calibration JSON.
 
     Exit status: 0 saved; 2 bad input (unreadable file, bad config, poses that cannot
     determine the model); 1 the solver did not converge or the result is outside physical
@@ -65,16 +89,25 @@ def calibrate(
 
     out = output or default_output(session)
     write_calibration(out, cal)
-    console = Console()
+    stored, not_stored = None, None
     if store:
         try:
-            name = store_calibration(session, calibration_to_json(cal))
-            stored = f" and {session}:/calibrations/{name}"
+            stored = (
+                f"{session}:/calibrations/{store_calibration(session, calibration_to_json(cal))}"
+            )
         except OSError as exc:  # read-only session: the JSON is what matters
-            stored = f" (not stored in the session: {exc})"
-    else:
-        stored = ""
-    _summary(console, cal, f"{out}{stored}")
+            not_stored = str(exc)
+    if json_output:
+        warnings = [w for s in (cal.accel, cal.gyro) if s for w in s.extra.get("warnings", [])]
+        print_json(
+            {"format": "imucal-calibrate", "format_version": 1, "output": str(out),
+             "stored": stored, "not_stored": not_stored, "warnings": warnings,
+             "calibration": json.loads(calibration_to_json(cal))}
+        )  # fmt: skip
+        return
+    where = str(out) + (f" and {stored}" if stored else "")
+    where += f" (not stored in the session: {not_stored})" if not_stored else ""
+    _summary(make_console(), cal, where)
 
 
 def _summary(console: Console, cal, where: str) -> None:
@@ -91,7 +124,7 @@ def _summary(console: Console, cal, where: str) -> None:
             how.append(f"{x['iterations']} iterations")
         if x.get("init"):
             how.append(f"init {x['init']}")
-        console.print(f"[bold]{name}[/]: " + ", ".join(how))
+        console.print(f"[bold]{name}[/]: " + escape(", ".join(how)))
         if name == "accel" and x.get("rms_after") is not None:
             g = x["gravity"]
             before = x.get("rms_before")
@@ -110,7 +143,7 @@ def _summary(console: Console, cal, where: str) -> None:
         elif turns:
             for rot in turns[:3]:
                 console.print(
-                    f"  {rot['label'] or rot['segment']}: "
+                    f"  {escape(str(rot['label'] or rot['segment']))}: "
                     f"measured {rot['measured_angle_deg']:.3f} deg, "
                     f"known {rot['known_angle_deg']:.3f} deg"
                 )
@@ -123,5 +156,5 @@ def _summary(console: Console, cal, where: str) -> None:
             + f" {units} per {per}"
         )
         for w in x.get("warnings", []):
-            console.print(f"  [bold yellow]warning[/]: {w}")
-    console.print(f"wrote {where}")
+            console.print(f"  [bold yellow]warning[/]: {escape(w)}")
+    console.print(f"wrote {escape(where)}")

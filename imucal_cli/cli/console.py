@@ -32,3 +32,13 @@ def make_console(*, stderr: bool = False) -> Console:
         highlight=False,
         color_system=None,
     )
+
+
+def print_json(document) -> None:
+    """A JSON document on stdout, alone (``--json``): indented, keys in their order, strict
+    (NaN and infinities are not JSON: they must have been turned into ``null`` before)."""
+    import json
+
+    import typer
+
+    typer.echo(json.dumps(document, indent=2, allow_nan=False))

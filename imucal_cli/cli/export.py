@@ -6,9 +6,10 @@ import os
 from pathlib import Path
 
 import typer
-from rich.console import Console
 
+from . import completion
 from .app import app
+from .console import make_console
 
 _SUFFIX_FORMATS = {".h": "c-header", ".yaml": "yaml", ".yml": "yaml", ".json": "json"}
 
@@ -16,21 +17,31 @@ _SUFFIX_FORMATS = {".h": "c-header", ".yaml": "yaml", ".yml": "yaml", ".json": "
 @app.command()
 def export(
     calibration: Path = typer.Argument(
-        ..., help="Calibration JSON (from imucal calibrate).", show_default=False
+        ...,
+        metavar="CAL.json",
+        help="Calibration JSON (from imucal calibrate).",
+        show_default=False,
     ),
     fmt: str | None = typer.Option(
         None,
         "--format",
         "-f",
+        metavar="FORMAT",
         help="c-header (C99 constants and inline apply functions), yaml (ROS imu_calib: SM, "
         "bias) or json (standard fields) [default: from OUTPUT's suffix .h/.yaml/.json].",
+        autocompletion=completion.export_formats,
     ),
     output: Path | None = typer.Option(
-        None, "--output", "-o", help="File to write [default: standard output]."
+        None,
+        "--output",
+        "-o",
+        metavar="FILE",
+        help="File to write [default: standard output].",
     ),
     prefix: str | None = typer.Option(
         None,
         "--prefix",
+        metavar="NAME",
         help="c-header: name prefix, a C identifier (IMUCAL_ACCEL_MATRIX, imucal_accel_apply) "
         "[default: IMUCAL].",
     ),
@@ -68,4 +79,4 @@ def export(
         for name, sec in (("accel", cal.accel), ("gyro", cal.gyro))
         if sec is not None
     )
-    Console(stderr=True).print(f"wrote {output} ({fmt}: {sensors})", highlight=False)
+    make_console(stderr=True).print(f"wrote {output} ({fmt}: {sensors})", markup=False)
