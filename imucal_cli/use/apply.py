@@ -70,8 +70,8 @@ from imucal_cli.formats.calibration import (
     SensorCalibration,
     calibration_to_json,
 )
-from imucal_cli.formats.importers import (
-    TIME_UNITS,
+from imucal_cli.formats.importers.recording import TIME_UNITS
+from imucal_cli.formats.importers.text import (
     check_time,
     infer_columns,
     parse_columns,
