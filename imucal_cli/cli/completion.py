@@ -47,7 +47,9 @@ def simulate_units(incomplete: str) -> list[str]:
 
 
 def import_formats(incomplete: str) -> list[str]:
-    return _matching(("csv", "imu_tk"), incomplete)
+    from imucal_cli.formats.importers import FORMATS  # the registry: new readers appear here
+
+    return _matching(FORMATS, incomplete)
 
 
 def apply_formats(incomplete: str) -> list[str]:
@@ -55,7 +57,9 @@ def apply_formats(incomplete: str) -> list[str]:
 
 
 def export_formats(incomplete: str) -> list[str]:
-    return _matching(("c-header", "yaml", "json"), incomplete)
+    from imucal_cli.use.export import EXPORT_FORMATS  # the registry
+
+    return _matching(EXPORT_FORMATS, incomplete)
 
 
 def ports(incomplete: str) -> list[str]:
