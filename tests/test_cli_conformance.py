@@ -17,13 +17,14 @@ from pathlib import Path
 import pytest
 
 from imucal_cli import __version__
+from imucal_cli.cli import app
 from imucal_cli.cli.app import EXIT_CODES
 
 from .cli_helpers import IMUCAL, run
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX pipes")
 
-COMMANDS = ["capture", "import", "simulate", "calibrate", "report", "apply", "export", "noise"]
+COMMANDS = sorted(c.name or c.callback.__name__ for c in app.registered_commands)
 ENV = {**os.environ, "NO_COLOR": "1", "COLUMNS": "80"}
 README = Path(__file__).resolve().parents[1] / "README.md"
 

@@ -37,7 +37,7 @@ def import_(
         None,
         "--columns",
         metavar="SPEC",
-        help="Fields of a line, e.g. t,ax,ay,az,gx,gy,gz or _,ax,ay,az (_ skips a field) "
+        help="Fields of a line, e.g. t,ax,ay,az,gx,gy,gz,mx,my,mz or _,ax,ay,az (_ skips a field) "
         "[default: from the header line].",
     ),
     time_unit: str = typer.Option(
@@ -67,6 +67,18 @@ def import_(
         help="Raw gyroscope units: counts, V, rad/s or deg/s.",
         autocompletion=completion.gyro_units,
     ),
+    mag_units: str | None = typer.Option(
+        None,
+        "--mag-units",
+        metavar="UNITS",
+        help="Raw magnetometer units (columns mx,my,mz): counts, uT, nT or gauss.",
+    ),
+    field_ut: float | None = typer.Option(
+        None,
+        "--field-uT",
+        metavar="UT",
+        help="Local geomagnetic field magnitude, microtesla, where known.",
+    ),
     skip_rows: int = typer.Option(
         0,
         "--skip-rows",
@@ -75,6 +87,22 @@ def import_(
     ),
     sensor: str | None = typer.Option(
         None, "--sensor", metavar="TEXT", help="Free text stored in the session (part, serial)."
+    ),
+    sections: str | None = typer.Option(
+        None,
+        "--sections",
+        metavar="FILE.json|COLUMN",
+        help="Labelled sections instead of automatic segmentation: a MaD Lab section list "
+        "(JSON {label: {start, end}}, rows end-exclusive) or the name of a column holding each "
+        "row's label (e.g. part). Ferraris labels x_p x_a y_p y_a z_p z_a become faces with "
+        "their up direction, x_rot y_rot z_rot 360-degree turns about that axis.",
+    ),
+    turn_angle: float | None = typer.Option(
+        None,
+        "--turn-angle",
+        metavar="DEG",
+        help="Signed angle of the sections' turns in degrees, e.g. -360 [default: 360 with the "
+        "sign of the gyro's own integral].",
     ),
     output: Path | None = typer.Option(
         None,
@@ -108,13 +136,16 @@ def import_(
         accel_units=accel_units,
         gyro_units=gyro_units,
         sensor=sensor,
+        sections=sections,
+        turn_angle_deg=turn_angle,
+        mag_units=mag_units,
+        magnetic_field_uT=field_ut,
     )
     out = output or default_output(files[0])
     write_session(out, session, overwrite=force)
 
     stats = session.import_stats
     static = session.static_segments()
-    rotations = session.rotation_segments()
     skipped = {"header": stats.header, "comments": stats.comments, "malformed": stats.malformed,
                "first_malformed": stats.first_malformed, "unmatched": stats.unmatched}  # fmt: skip
     result = {
@@ -122,9 +153,11 @@ def import_(
         "files": [str(f) for f in files], "samples": int(stats.samples),
         "duration_s": float(session.time[-1] - session.time[0]),
         "sample_rate_hz": float(session.sample_rate_hz),
-        "static_segments": len(static), "rotation_segments": len(rotations),
+        "static_segments": len(static), "rotation_segments": len(session.rotation_segments()),
         "still_s": float(sum(s.n_samples for s in static) / session.sample_rate_hz),
-        "skipped_lines": skipped,
+        "skipped_lines": skipped, "notes": list(getattr(session, "import_notes", [])),
+        "mag_channels": None if session.mag is None else int(session.mag.shape[1]),
+        "mag_units": session.mag_units,
     }  # fmt: skip
     if json_output:
         print_json(result)
@@ -157,4 +190,9 @@ def _print_summary(result: dict) -> None:
         f"{result['rotation_segments']} rotation segments",
         markup=False,
     )
+    for note in result["notes"]:
+        console.print(f"  {note}", markup=False)
+    if result["mag_channels"] is not None:
+        units = result["mag_units"] or "units not given"
+        console.print(f"  magnetometer: {result['mag_channels']} channels ({units})", markup=False)
     console.print(f"wrote {result['output']}", markup=False)
