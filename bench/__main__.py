@@ -6,9 +6,11 @@ import argparse
 
 from rich.console import Console
 
-from bench import capture, factorization, gravity, gyro, gyro_speed, speed
+from bench import capture, factorization, gravity, gyro, gyro_speed, mag, speed
 
-BENCHMARKS = ("gravity", "factorization", "gyro", "gyro-speed", "capture", "speed")
+BENCHMARKS = (
+    "gravity", "factorization", "gyro", "gyro-speed", "capture", "speed", "mag",
+)  # fmt: skip
 
 
 def main() -> None:
@@ -31,6 +33,8 @@ def main() -> None:
         ok = gyro_speed.run(console) and ok
     if args.only in (None, "capture"):
         ok = capture.run(console, quick=args.quick) and ok
+    if args.only in (None, "mag"):
+        ok = mag.run(console, n_seeds=max(20, args.seeds // 5)) and ok
     if args.only in (None, "speed"):
         ok = speed.run(console, runs=args.runs, n_sessions=args.sessions) and ok
     raise SystemExit(0 if ok else 1)

@@ -201,10 +201,10 @@ def simulate(
         metavar="ak8963|aligned",
         help="--mag: the magnetometer's axes relative to the accelerometer's.",
     ),
-    field_known: bool = typer.Option(
-        True,
-        "--field-known/--field-unknown",
-        help="--mag: write the field magnitude into the session (magnetic_field_uT).",
+    field_unknown: bool = typer.Option(
+        False,
+        "--field-unknown",
+        help="--mag: leave the field magnitude out of the session (no magnetic_field_uT).",
     ),
     tumble: float = typer.Option(
         4.0,
@@ -337,7 +337,7 @@ def simulate(
 
         session, truth = simulate_mag(
             plan, seed, field_uT=field_ut, inclination_deg=inclination, mag_units=mag_units,
-            mag_noise=mag_noise, layout=mag_layout, field_known=field_known, tumble_s=tumble,
+            mag_noise=mag_noise, layout=mag_layout, field_known=not field_unknown, tumble_s=tumble,
             rate_hz=rate, hold_s=hold, accel_noise=accel_noise, jitter_deg=jitter_deg,
             units=units,
         )  # fmt: skip
