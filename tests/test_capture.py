@@ -272,6 +272,17 @@ def test_recorder_records_every_sample_until_the_device_is_gone(tmp_path):
     assert rec.stats["comments"] == 1 and rec.stats["samples"] == n
 
 
+def test_recorder_writes_the_device_clock_rate(tmp_path):
+    """Issue 10.5: the lines arrive all at once (host clock: thousands of Hz); the session's
+    sample_rate_hz is the device's 250 Hz from its own time stamps."""
+    chunks, n = lines_of(rate=250.0)
+    rec = Recorder(tmp_path / "r.h5", ScriptedSource(chunks), proto())
+    got = sum(len(b) for b in rec.blocks())
+    rec.close()
+    assert got == n
+    assert read_session(tmp_path / "r.h5").sample_rate_hz == pytest.approx(250.0, rel=1e-9)
+
+
 def test_recorder_no_data_times_out_without_a_file(tmp_path):
     rec = Recorder(tmp_path / "r.h5", ScriptedSource([], then="stall"), proto(),
                    wait_timeout_s=0.3)  # fmt: skip

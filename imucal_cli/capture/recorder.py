@@ -138,6 +138,8 @@ class Recorder:
         self._t0: float | None = None
         self._t_first: float | None = None
         self._t_last_sample: float | None = None
+        self._device_first: float | None = None  # time stamp of the first sample, s
+        self._device_last: float | None = None
         self._t_end: float | None = None
         self._closed = False
         self._segments: list[dict] = []
@@ -217,6 +219,9 @@ class Recorder:
         if self._writer is None:
             self._open_writer(block)
         self._writer.append(block.time, block.accel, block.gyro, block.temperature, block.mag)
+        if self._device_first is None:
+            self._device_first = float(block.time[0])
+        self._device_last = float(block.time[-1])
 
     def _check_end(self, now: float) -> CaptureEnded | None:
         what = self.source.describe()
@@ -391,8 +396,22 @@ class Recorder:
         try:
             if self._writer is not None:
                 self._writer.close()
+                self._write_rate()
         finally:
             self.source.close()
+
+    def _write_rate(self) -> None:
+        """``sample_rate_hz`` from the samples' own time stamps (the device clock where the
+        protocol has one), not from when the host received them (issue 10.5)."""
+        if self._device_first is None or self.n_samples < 2:
+            return
+        span = self._device_last - self._device_first
+        if not span > 0:
+            return
+        from imucal_cli.formats.session.h5open import open_for_update
+
+        with open_for_update(self.path, str(self.path)) as file:
+            file.attrs["sample_rate_hz"] = (self.n_samples - 1) / span
 
     def __enter__(self) -> Recorder:
         return self
