@@ -31,7 +31,7 @@ def apply_(
         "--output",
         "-o",
         metavar="OUTPUT",
-        help="File to write: .h5 (datasets /calibrated/time, accel, gyro) or .csv.",
+        help="File to write: .h5 (datasets /calibrated/time, accel, gyro, mag) or .csv.",
         show_default=False,
     ),
     fmt: str | None = typer.Option(
@@ -66,10 +66,10 @@ def apply_(
 ) -> None:
     """Apply a calibration to every sample: calibrated = matrix @ (raw - bias).
 
-    Writes m/s^2 (accel) and rad/s (gyro) for the sensors the calibration holds; each must be
-    in INPUT with the calibration's number of channels. Reads and writes in blocks, so a file
-    of any length needs the same memory. Exit status: 0 written; 2 bad input (missing file,
-    missing sensor, channel count or units that differ, time not increasing, OUTPUT exists).
+    Writes m/s^2 (accel), rad/s (gyro) and uT (mag) for the sensors the calibration holds; each must
+    be in INPUT with the calibration's number of channels. Reads and writes in blocks, so a file of
+    any length needs the same memory. Exit status: 0 written; 2 bad input (missing file, missing
+    sensor, channel count or units that differ, time not increasing, OUTPUT exists).
     """
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 

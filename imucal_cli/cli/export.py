@@ -61,6 +61,13 @@ def export(
     gyro_scale: str | None = typer.Option(
         None, "--gyro-scale", metavar="SCALE", help="Driver's rad/s per raw unit, as --accel-scale."
     ),
+    mag_scale: str | None = typer.Option(
+        None,
+        "--mag-scale",
+        metavar="SCALE",
+        help="Driver's uT per raw unit, for a magnetometer calibrated in counts exported to px4 "
+        "or ardupilot, e.g. 0.15 (AK8963, 16-bit).",
+    ),
     device_id: int | None = typer.Option(
         None,
         "--device-id",
@@ -79,7 +86,8 @@ def export(
     Every file states the equation the target applies, its direction and units. px4 and
     ardupilot hold only an offset and a diagonal scale: the file says how much misalignment
     (degrees) is lost. Targets reading SI values (kalibr, openvins, basalt, px4, ardupilot)
-    need raw data in m/s^2, g, rad/s or deg/s, or --accel-scale/--gyro-scale.
+    need raw data in m/s^2, g, rad/s or deg/s, or --accel-scale/--gyro-scale (a magnetometer:
+    uT, nT or gauss, or --mag-scale).
     Exit status: 0 written; 2 bad input.
     """
     from imucal_cli.errors import InputError
@@ -95,7 +103,7 @@ def export(
     if rate is not None and not rate > 0:
         raise InputError(f"--rate {rate}: must be a positive number of Hz")
     scale = {}
-    for name, text in (("accel", accel_scale), ("gyro", gyro_scale)):
+    for name, text in (("accel", accel_scale), ("gyro", gyro_scale), ("mag", mag_scale)):
         if text is not None:
             scale[name] = parse_scale(text, f"--{name}-scale")
     cal, noise_in = load_input(calibration)

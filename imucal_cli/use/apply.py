@@ -2,7 +2,7 @@
 
 For each sensor the calibration holds, every raw sample becomes::
 
-    calibrated = matrix @ (raw - bias)          # m/s^2 (accel), rad/s (gyro)
+    calibrated = matrix @ (raw - bias)          # m/s^2 (accel), rad/s (gyro), uT (mag)
 
 The input is read and the output written one block of ``chunk_rows`` samples at a time
 (default 65536), so memory stays constant however long the file is.
@@ -10,11 +10,11 @@ The input is read and the output written one block of ``chunk_rows`` samples at 
 Input
 -----
 - A session (HDF5, ``shared/spec/session-format.md``): ``/raw/time`` and the ``/raw/accel`` /
-  ``/raw/gyro`` datasets the calibration needs, read by slicing.  Only the basics are checked
-  (format attribute and version, datasets present, shapes, channel counts, time finite and
-  strictly increasing); segments are not read.  A file whose writer was killed opens in SWMR
-  mode and is read up to its shortest ``/raw`` dataset, like
-  :func:`imucal_cli.formats.session.read_session` does.
+  ``/raw/gyro`` / ``/raw/mag`` datasets the calibration needs, read by slicing. Only the basics are
+  checked (format attribute and version, datasets present, shapes, channel counts, time finite and
+  strictly increasing); segments are not read. A file whose writer was killed opens in SWMR mode and
+  is read up to its shortest ``/raw`` dataset, like :func:`imucal_cli.formats.session.read_session`
+  does.
 - A CSV (any other file): the same column mapping as ``imucal import``
   (:func:`imucal_cli.formats.importers.parse_columns` / ``infer_columns``: ``--columns`` or a
   header line; commas, tabs or spaces; ``#`` comments; non-numeric lines before the data are
@@ -34,6 +34,7 @@ dataset                 shape, dtype  meaning
 ``/calibrated/time``    (N,) float64  seconds, as in the input (attribute ``units = "s"``)
 ``/calibrated/accel``   (N, 3) f8     m/s^2, only if the calibration has ``accel``
 ``/calibrated/gyro``    (N, 3) f8     rad/s, only if the calibration has ``gyro``
+``/calibrated/mag``     (N, 3) f8     uT (or units of the local field), if it has ``mag``
 ======================  ============  =====================================================
 
 The datasets are chunked and resizable (``maxshape = (None, ...)``).  Each sensor dataset has
@@ -46,7 +47,7 @@ above), ``source`` (the input file), ``calibration`` (the calibration file), ``c
 
 Output: CSV
 -----------
-The header ``t,ax,ay,az,gx,gy,gz`` (the sensor columns of the calibrated sensors only), then a
+The header ``t,ax,ay,az,gx,gy,gz,mx,my,mz`` (the columns of the calibrated sensors only), then a
 comment line (``#``, no commas) naming the model, the calibration and the units, then one line
 per sample: time as Python's shortest round-trip repr, values with 10 significant digits.
 """
@@ -97,9 +98,8 @@ FORMAT = "imucal-calibrated"
 FORMAT_VERSION = 1
 DEFAULT_CHUNK_ROWS = 65536
 OUTPUT_FORMATS = ("h5", "csv")
-SENSORS = ("accel", "gyro")
-UNITS = {"accel": "m/s^2", "gyro": "rad/s"}
-CSV_NAMES = {"accel": ("ax", "ay", "az"), "gyro": ("gx", "gy", "gz")}
+SENSORS = ("accel", "gyro", "mag")
+CSV_NAMES = {"accel": ("ax", "ay", "az"), "gyro": ("gx", "gy", "gz"), "mag": ("mx", "my", "mz")}
 
 _SUFFIXES = {".h5": "h5", ".hdf5": "h5", ".hdf": "h5", ".csv": "csv", ".txt": "csv"}
 _H5_CHUNK_ROWS = 8192  # rows per HDF5 chunk of the output datasets
@@ -445,7 +445,7 @@ class _H5Writer:
             ds = group.create_dataset(
                 name, shape=(0, 3), maxshape=(None, 3), dtype="f8", chunks=(_H5_CHUNK_ROWS, 3)
             )
-            ds.attrs["units"] = UNITS[name]
+            ds.attrs["units"] = sec.units
             ds.attrs["solver"] = sec.solver
             ds.attrs["channels_in"] = int(sec.bias.shape[0])
             unit = units_in.get(name) or sec.extra.get("units_in")
@@ -470,7 +470,7 @@ class _CsvWriter:
     ) -> None:
         self.handle = open(tmp, "w", encoding="utf-8", newline="\n")
         self.names = list(sections)
-        units = "; ".join(f"{' '.join(CSV_NAMES[n])} {UNITS[n]}" for n in self.names)
+        units = "; ".join(f"{' '.join(CSV_NAMES[n])} {sections[n].units}" for n in self.names)
         # The header first (readers such as numpy.genfromtxt(names=True) take the first line
         # for the names), then one comment line without commas: what made the numbers.
         self.handle.write(",".join(["t", *(c for n in self.names for c in CSV_NAMES[n])]) + "\n")

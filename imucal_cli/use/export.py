@@ -71,11 +71,14 @@ FORMATS: dict[str, ExportFormat] = {
                      "OpenVINS kalibr_imu_chain.yaml: Tw, Ta, R_IMUtoGYRO, R_IMUtoACC, Tg "
                      "(needs --noise)"),
         ExportFormat("basalt", export_basalt, "Basalt calib_accel_bias, calib_gyro_bias"),
-        ExportFormat("px4", export_px4, "PX4 CAL_ACC0_*, CAL_GYRO0_* (offset, diagonal scale)"),
+        ExportFormat("px4", export_px4, "PX4 CAL_ACC0_*, CAL_GYRO0_* (offset, diagonal scale), "
+                     "CAL_MAG0_* (offset, symmetric scale)"),
         ExportFormat("ardupilot", export_ardupilot,
-                     "ArduPilot .parm INS_ACCOFFS_*, INS_ACCSCAL_*, INS_GYROFFS_*"),
+                     "ArduPilot .parm INS_ACCOFFS_*, INS_ACCSCAL_*, INS_GYROFFS_*, COMPASS_OFS_*, "
+                     "COMPASS_DIA_*, COMPASS_ODI_*"),
         ExportFormat("fusion", export_fusion,
-                     "x-io Fusion: misalignment, sensitivity, offset per sensor (C)",
+                     "x-io Fusion: misalignment, sensitivity, offset per sensor; softIronMatrix, "
+                     "hardIronOffset (C)",
                      uses_prefix=True),
         ExportFormat("ros-imu", export_ros_imu,
                      "sensor_msgs/Imu covariances from the noise (needs --noise)",

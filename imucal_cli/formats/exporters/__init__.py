@@ -49,7 +49,8 @@ class ExportOptions:
         The ROS topic of the IMU messages (Kalibr, OpenVINS).
     scale : dict
         ``{"accel": f, "gyro": f}``: SI units per raw unit as the target's driver publishes
-        them, for raw data in counts or V (PX4, ArduPilot, Kalibr, OpenVINS, Basalt).
+        them, for raw data in counts or V (PX4, ArduPilot, Kalibr, OpenVINS, Basalt);
+        ``"mag"``: uT per raw unit (PX4, ArduPilot).
     device_id : int or None
         PX4's ``CAL_ACC0_ID``/``CAL_GYRO0_ID``, ArduPilot's ``INS_ACC_ID``/``INS_GYR_ID``.
     prefix : str or None
@@ -65,7 +66,13 @@ class ExportOptions:
 
 
 def sections(cal: Calibration) -> list[tuple[str, SensorCalibration]]:
+    """The accelerometer and gyroscope sections present (the inertial sensors)."""
     return [(name, getattr(cal, name)) for name in SENSORS if getattr(cal, name) is not None]
+
+
+def all_sections(cal: Calibration) -> list[tuple[str, SensorCalibration]]:
+    """Every sensor section present, the magnetometer too, in file order."""
+    return list(cal.sections().items())
 
 
 def units_in(sec: SensorCalibration) -> str:

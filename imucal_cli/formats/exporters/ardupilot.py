@@ -1,5 +1,6 @@
-"""ArduPilot parameters (``INS_ACCOFFS_*``, ``INS_ACCSCAL_*``, ``INS_GYROFFS_*``) as a ``.parm``
-file (``NAME,VALUE`` lines, ``#`` comments; Mission Planner and MAVProxy ``param load``).
+"""ArduPilot parameters (``INS_ACCOFFS_*``, ``INS_ACCSCAL_*``, ``INS_GYROFFS_*``, and the
+compass's ``COMPASS_OFS_*``, ``COMPASS_DIA_*``, ``COMPASS_ODI_*``) as a ``.parm`` file
+(``NAME,VALUE`` lines, ``#`` comments; Mission Planner and MAVProxy ``param load``).
 
 ArduPilot corrects the first IMU in the sensor frame, then rotates to the body frame
 (``AP_InertialSensor_Backend::_rotate_and_correct_accel``/``_gyro``)::
@@ -14,6 +15,16 @@ the gyro's scale) is lost, and the file says how much
 refuses scales outside 0.8 .. 1.2 and offsets beyond 3.5 m/s^2; values outside are flagged.
 ``--device-id`` writes ``INS_ACC_ID``/``INS_GYR_ID`` (ArduPilot resets the calibration of a
 device whose id changed).
+
+The first compass (``AP_Compass_Backend::correct_field``), in milligauss::
+
+    mag = D @ ((p + COMPASS_OFS_[XYZ]) * COMPASS_SCALE),
+    D = [[DIA_X, ODI_X, ODI_Y], [ODI_X, DIA_Y, ODI_Z], [ODI_Y, ODI_Z, DIA_Z]]
+
+the offset is *added* (it is minus the hard iron) and ``D`` is symmetric: imucal's rotation of
+the magnetometer onto the accelerometer is not part of it (the file says how far it was).
+``COMPASS_SCALE`` is written as 1.  Offsets beyond ArduPilot's default ``COMPASS_OFFS_MAX``
+(1800 mG) are flagged.
 """
 
 from __future__ import annotations
@@ -30,17 +41,19 @@ from imucal_cli.formats.exporters import (
     published,
     require,
 )
+from imucal_cli.formats.exporters.magnetic import mag_for_target
 
 __all__ = ["export_ardupilot"]
 
 _SCALE_RANGE = (0.8, 1.2)
 _MAX_OFFSET = 3.5  # m/s^2
+_MAX_COMPASS_OFFSET = 1800.0  # mG, ArduPilot's default COMPASS_OFFS_MAX
 
 
 def export_ardupilot(cal: Calibration, opts: ExportOptions) -> str:
     """ArduPilot ``INS_ACCOFFS_*``, ``INS_ACCSCAL_*``, ``INS_GYROFFS_*`` as ``NAME,VALUE``."""
     target = "ArduPilot"
-    require(cal, ("accel", "gyro"), target)
+    require(cal, ("accel", "gyro", "mag"), target)
     comments = provenance(cal, "ArduPilot parameters (.parm: Mission Planner 'Load from "
                           "file', MAVProxy 'param load')") + [  # fmt: skip
         "ArduPilot applies: accel = R_board @ ((p - INS_ACCOFFS_x) * INS_ACCSCAL_x) per axis, "
@@ -76,6 +89,27 @@ def export_ardupilot(cal: Calibration, opts: ExportOptions) -> str:
                 params.append(("INS_GYR_ID", str(int(opts.device_id))))
             params += [(f"INS_GYROFFS_{a}", fmt(v)) for a, v in zip("XYZ", fit.offset,
                                                                      strict=True)]  # fmt: skip
+    params += _compass(cal, opts, target, comments)
     lines = ["# " + c for c in comments]
     lines += [f"{n},{v}" for n, v in params]
     return "\n".join(lines) + "\n"
+
+
+def _compass(cal: Calibration, opts: ExportOptions, target: str, comments: list[str]):
+    """``COMPASS_*`` of the first compass (milligauss), or nothing without a magnetometer."""
+    mag = mag_for_target(cal, target, "mG", opts.scale.get("mag"))
+    if mag is None:
+        return []
+    comments.append("ArduPilot applies: mag = D @ ((p + COMPASS_OFS_x) * COMPASS_SCALE), "
+                    "D symmetric from COMPASS_DIA_x and COMPASS_ODI_x (xy, xz, yz); mG")
+    comments += mag.lines
+    if np.any(np.abs(mag.offset) > _MAX_COMPASS_OFFSET):
+        comments.append(f"WARNING: an offset beyond ArduPilot's default COMPASS_OFFS_MAX "
+                        f"({_MAX_COMPASS_OFFSET:g} mG): raise it or check --mag-scale")  # fmt: skip
+    P = mag.symmetric
+    params = [(f"COMPASS_OFS_{a}", fmt(-v)) for a, v in zip("XYZ", mag.offset, strict=True)]
+    params += [(f"COMPASS_DIA_{a}", fmt(P[i, i])) for i, a in enumerate("XYZ")]
+    params += [(f"COMPASS_ODI_{a}", fmt(P[i, j]))
+               for a, (i, j) in zip("XYZ", ((0, 1), (0, 2), (1, 2)), strict=True)]  # fmt: skip
+    params.append(("COMPASS_SCALE", fmt(1.0)))
+    return params

@@ -2,7 +2,8 @@
 ``static const float <P>_ACCEL_MATRIX[3][N]``, ``<P>_ACCEL_BIAS[N]`` (float32 values written
 with 9 significant digits, which round-trip float32 exactly), ``#define <P>_ACCEL_CHANNELS N``
 and ``static inline void <p>_accel_apply(const float raw[N], float out[3])`` computing
-``out = M (raw - b)`` in float; the same for ``GYRO``.  No dynamic memory, no libm, no other
+``out = M (raw - b)`` in float; the same for ``GYRO`` and ``MAG`` (hard iron ``b``, soft iron
+``M``, out in uT or units of the local field).  No dynamic memory, no libm, no other
 header.  The arithmetic is plain float: subtract the bias, then for each output axis sum
 ``M[i][j] * d[j]`` for j = 0..N-1 in order, so a compiler that does not contract to FMA
 gives exactly what numpy does in float32 in the same order.
@@ -19,7 +20,7 @@ from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import (
     Calibration,
 )
-from imucal_cli.formats.exporters import one_line, sections, units_in
+from imucal_cli.formats.exporters import all_sections, one_line, units_in
 
 __all__ = ["c_comment", "c_float", "check_prefix", "export_c_header"]
 
@@ -98,9 +99,9 @@ def export_c_header(cal: Calibration, *, prefix: str = "IMUCAL") -> str:
         " *",
         " * Model, per sensor:  out = M (raw - b)",
         " *   raw: the N raw channels as the device reports them, b: bias (N, raw units),",
-        " *   M: 3 x N matrix, out: calibrated 3-vector (accel m/s^2, gyro rad/s).",
+        " *   M: 3 x N matrix, out: calibrated 3-vector (accel m/s^2, gyro rad/s, mag uT).",
     ]
-    for name, sec in sections(cal):
+    for name, sec in all_sections(cal):
         n = sec.bias.shape[0]
         rms = "n/a" if sec.residual_rms is None else f"{sec.residual_rms:.6g} {sec.units}"
         lines.append(
@@ -121,7 +122,7 @@ def export_c_header(cal: Calibration, *, prefix: str = "IMUCAL") -> str:
         f"#define {guard}",
         "",
     ]
-    for name, sec in sections(cal):
+    for name, sec in all_sections(cal):
         n = sec.bias.shape[0]
         const = f"{upper}_{name.upper()}"
         channels = f"{const}_CHANNELS"

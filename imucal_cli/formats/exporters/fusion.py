@@ -17,6 +17,16 @@ gyro g-sensitivity, which Fusion does not model: the file says how large it was.
 Constants: ``<prefix>GyroscopeMisalignment`` (``FusionMatrix``), ``...Sensitivity``,
 ``...Offset`` (``FusionVector``), the same for ``Accelerometer``; the default prefix is none,
 giving Fusion's own example names (``gyroscopeMisalignment`` ...).
+
+The magnetometer (``FusionCalibrationMagnetic``)::
+
+    calibrated = softIronMatrix @ (uncalibrated - hardIronOffset)
+
+is imucal's model exactly: ``softIronMatrix`` = ``matrix`` (a full matrix: soft iron and the
+rotation onto the accelerometer's axes), ``hardIronOffset`` = ``bias`` (raw units), out in uT
+(or units of the local field: Fusion's AHRS uses the field's direction only).  Constants
+``softIronMatrix`` and ``hardIronOffset`` (Fusion's example names; with a prefix
+``<prefix>SoftIronMatrix`` ...).
 """
 
 from __future__ import annotations
@@ -56,7 +66,7 @@ def fusion_arrays(matrix: np.ndarray, factor: float) -> tuple[np.ndarray, np.nda
 
 def export_fusion(cal: Calibration, opts: ExportOptions) -> str:
     """C99 constants for Fusion's ``FusionCalibrationInertial``, per sensor present."""
-    require(cal, ("accel", "gyro"), "Fusion")
+    require(cal, ("accel", "gyro", "mag"), "Fusion")
     prefix = opts.prefix or ""
     if prefix:
         check_prefix(prefix)
@@ -80,6 +90,17 @@ def export_fusion(cal: Calibration, opts: ExportOptions) -> str:
             worst = float(np.linalg.norm(sec.matrix @ gs, 2) * STANDARD_GRAVITY)
             lines.append(f" * gyro g-sensitivity dropped (Fusion has none): up to {worst:.4g} "
                          f"rad/s ({math.degrees(worst):.4g} deg/s) at 1 g")  # fmt: skip
+    mag = cal.mag
+    if mag is not None:
+        if mag.bias.shape[0] != 3:
+            raise InputError(f"the mag calibration has {mag.bias.shape[0]} channels; Fusion "
+                             "holds a 3-axis magnetometer")  # fmt: skip
+        lines += [
+            " * magnetometer (FusionCalibrationMagnetic):",
+            " *   calibrated = softIronMatrix * (uncalibrated - hardIronOffset)",
+            f" * mag: raw {c_comment(units_in(mag))} -> {c_comment(mag.units)}, solver "
+            f"{c_comment(mag.solver)}; {c_comment(mag.extra.get('frame') or '')}",
+        ]
     lines += [" */", '#include "Fusion.h"', ""]
     for name, sec in sections(cal):
         _, factor = _UNITS[name]
@@ -94,6 +115,17 @@ def export_fusion(cal: Calibration, opts: ExportOptions) -> str:
             f"static const FusionMatrix {ident}Misalignment = {{{{{m}}}}};",
             f"static const FusionVector {ident}Sensitivity = {{{{{s}}}}};",
             f"static const FusionVector {ident}Offset = {{{{{o}}}}};",
+            "",
+        ]
+    if mag is not None:
+        m = ", ".join("{" + ", ".join(c_float(v, "mag soft iron") for v in row) + "}"
+                      for row in mag.matrix)  # fmt: skip
+        o = ", ".join(c_float(v, "mag hard iron") for v in mag.bias)
+        soft = prefix + "SoftIronMatrix" if prefix else "softIronMatrix"
+        hard = prefix + "HardIronOffset" if prefix else "hardIronOffset"
+        lines += [
+            f"static const FusionMatrix {soft} = {{{{{m}}}}};",
+            f"static const FusionVector {hard} = {{{{{o}}}}};",
             "",
         ]
     return "\n".join(lines)

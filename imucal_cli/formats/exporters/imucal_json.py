@@ -15,7 +15,7 @@ from imucal_cli.formats.calibration import (
     MODEL_EQUATION,
     Calibration,
 )
-from imucal_cli.formats.exporters import sections
+from imucal_cli.formats.exporters import all_sections
 
 __all__ = ["export_json"]
 
@@ -28,14 +28,14 @@ def export_json(cal: Calibration) -> str:
     """Return the standard fields of the calibration as compact JSON on one line (plus ``\\n``).
 
     Keys in a fixed order: ``format``, ``format_version``, ``session`` (when known),
-    ``created``, then ``accel``/``gyro`` each with ``solver``, ``units``, ``model``, ``bias``,
-    ``matrix``, ``residual_rms``.  Numbers are written so that they read back bit for bit.
+    ``created``, then ``accel``/``gyro``/``mag`` each with ``solver``, ``units``, ``model``,
+    ``bias``, ``matrix``, ``residual_rms``.  Numbers are written so that they read back bit for bit.
     """
     doc: dict = {"format": FORMAT, "format_version": FORMAT_VERSION}
     if cal.session is not None:
         doc["session"] = cal.session
     doc["created"] = cal.created
-    for name, sec in sections(cal):
+    for name, sec in all_sections(cal):
         doc[name] = {
             "solver": sec.solver,
             "units": sec.units,

@@ -1,4 +1,5 @@
-"""PX4 parameters (``CAL_ACC0_*``, ``CAL_GYRO0_*``) in QGroundControl's parameter file format.
+"""PX4 parameters (``CAL_ACC0_*``, ``CAL_GYRO0_*``, ``CAL_MAG0_*``) in QGroundControl's
+parameter file format.
 
 PX4 corrects each sensor in its own frame, then rotates it to the body frame
 (``src/lib/sensor_calibration``, ``Accelerometer::Correct`` and ``Gyroscope::Correct``)::
@@ -7,7 +8,14 @@ PX4 corrects each sensor in its own frame, then rotates it to the body frame
     gyro  = R_rot @ (p - CAL_GYRO0_[XYZ]OFF)                            rad/s
 
 ``p`` is ``sensor_accel``/``sensor_gyro`` as the driver publishes it (m/s^2, rad/s) and
-``R_rot`` the ``CAL_*_ROT`` mounting rotation (left as it is).  That is an offset and a
+``R_rot`` the ``CAL_*_ROT`` mounting rotation (left as it is).  The magnetometer
+(``src/lib/sensor_calibration/Magnetometer.cpp``)::
+
+    mag = R_rot @ (S @ (p - CAL_MAG0_[XYZ]OFF))          gauss,
+    S = [[XSCALE, XODIAG, YODIAG], [XODIAG, YSCALE, ZODIAG], [YODIAG, ZODIAG, ZSCALE]]
+
+a symmetric matrix: imucal's rotation of the magnetometer onto the accelerometer is not part of
+it (:mod:`~imucal_cli.formats.exporters.magnetic` says how far it was).  That is an offset and a
 diagonal scale for the accelerometer and an offset only for the gyroscope: the misalignment
 (and for the gyro the scale) of imucal's full calibration is lost.  The file says how much
 (:func:`~imucal_cli.formats.exporters.diagonal_fit`).  PX4 applies a calibration only to the
@@ -30,6 +38,7 @@ from imucal_cli.formats.exporters import (
     published,
     require,
 )
+from imucal_cli.formats.exporters.magnetic import mag_for_target
 
 __all__ = ["export_px4"]
 
@@ -37,9 +46,10 @@ _FLOAT, _INT32 = 9, 6
 
 
 def export_px4(cal: Calibration, opts: ExportOptions) -> str:
-    """PX4 ``CAL_ACC0_*``/``CAL_GYRO0_*`` parameters in QGroundControl's ``.params`` format."""
+    """PX4 ``CAL_ACC0_*``/``CAL_GYRO0_*``/``CAL_MAG0_*`` parameters in QGroundControl's
+    ``.params`` format."""
     target = "PX4"
-    require(cal, ("accel", "gyro"), target)
+    require(cal, ("accel", "gyro", "mag"), target)
     comments = provenance(cal, "PX4 parameters (QGroundControl: Parameters > Tools > Load "
                           "from file)") + [  # fmt: skip
         "PX4 applies: accel = R_rot @ ((p - CAL_ACC0_xOFF) * CAL_ACC0_xSCALE) per axis, "
@@ -63,7 +73,21 @@ def export_px4(cal: Calibration, opts: ExportOptions) -> str:
         if name == "accel":
             for i, axis in enumerate("XYZ"):
                 params.append((f"{prefix}_{axis}SCALE", float(fit.scale[i]), _FLOAT))
-    if opts.device_id is None:
+    mag = mag_for_target(cal, target, "gauss", opts.scale.get("mag"))
+    if mag is not None:
+        comments.append("PX4 applies: mag = R_rot @ (S @ (p - CAL_MAG0_xOFF)), S symmetric from "
+                        "CAL_MAG0_xSCALE (diagonal), CAL_MAG0_[XYZ]ODIAG (xy, xz, yz); gauss")
+        comments += mag.lines
+        comments.append("CAL_MAG0_ID not written: PX4 uses these values for the magnetometer "
+                        "whose device id is in CAL_MAG0_ID (set it on the vehicle)")  # fmt: skip
+        P = mag.symmetric
+        for i, axis in enumerate("XYZ"):
+            params.append((f"CAL_MAG0_{axis}OFF", float(mag.offset[i]), _FLOAT))
+        for i, axis in enumerate("XYZ"):
+            params.append((f"CAL_MAG0_{axis}SCALE", float(P[i, i]), _FLOAT))
+        for axis, (i, j) in zip("XYZ", ((0, 1), (0, 2), (1, 2)), strict=True):
+            params.append((f"CAL_MAG0_{axis}ODIAG", float(P[i, j]), _FLOAT))
+    if opts.device_id is None and (cal.accel is not None or cal.gyro is not None):
         comments.append("CAL_ACC0_ID / CAL_GYRO0_ID not written (no --device-id): PX4 uses "
                         "these values only for the device whose id they hold")  # fmt: skip
     lines = ["# " + c for c in comments]
