@@ -86,6 +86,7 @@ def run_guided(
     settle_s: float = 0.5,
     axis_tolerance_deg: float = 30.0,
     tick_s: float = 0.1,
+    mag_goal: float = 0.9,
 ) -> CaptureSummary:
     """Guide a person through ``plan`` while ``recorder`` records; return what was done.
 
@@ -129,6 +130,10 @@ def run_guided(
         Warn when a turn's measured axis is further than this from the plan's.
     tick_s : float
         Passed to ``recorder.blocks``.
+    mag_goal : float
+        With a magnetometer in the stream: the fraction of the field directions (100 equal
+        areas, :mod:`.magnetic`) it must have seen; after the plan's last step the capture goes
+        on, showing where to point the unit, until it has (or ``q``).
 
     Returns
     -------
@@ -147,6 +152,7 @@ def run_guided(
         gyro_scale=gyro_scale, detector=detector, warn_after_s=float(warn_after_s),
         pre_still_s=float(pre_still_s), settle_s=float(settle_s),
         axis_tolerance_deg=float(axis_tolerance_deg), tick_s=float(tick_s),
+        mag_goal=float(mag_goal),
     )  # fmt: skip
     state = GuidedState(plan, opt, int(recorder.n_samples), recorder.add_segment)
     return drive(state, Screen(console, opt.refresh_hz), recorder, keys, opt.tick_s)

@@ -15,6 +15,8 @@ from rich.progress_bar import ProgressBar
 from rich.table import Table
 from rich.text import Text
 
+from imucal_cli.use.report.coverage_map import coverage_map
+
 from .state import GuidedState
 
 COMMANDS = "commands: r redo, s skip, q finish, Enter continue"
@@ -87,6 +89,8 @@ class Screen:
         if key == self.plain_key:
             return
         self.plain_key = key
+        if p.phase == "mag":
+            return  # said in the message after the last step
         if p.phase == "move":
             return  # the message after the pose already says to turn the unit
         if p.phase == "hold":
@@ -104,6 +108,8 @@ class Screen:
         rows.add_column()
         if p.step is not None:
             rows.add_row(Text(f"[step {p.step + 1}/{p.n_steps}] {p.text}", style="bold"))
+        elif p.phase == "mag":
+            rows.add_row(Text(p.text, style="bold"))
         signal = Text()
         for text, style in state.signal_line():
             signal.append(text, style=style)
@@ -115,6 +121,11 @@ class Screen:
                 Text(f"{p.held_s:.1f}/{p.hold_s:g} s"),
             )
             rows.add_row(bar)
+        if state.mag is not None:
+            rows.add_row(Text(state.mag.status()))
+            if state.mag.ready:
+                rows.add_row(Text("\n".join(coverage_map(state.mag.map_directions())[:-1]),
+                                  style="cyan"))  # fmt: skip
         rows.add_row(Text(state.progress_text(), style="dim"))
         rows.add_row(Text(COMMANDS, style="dim"))
         return Group(rows)

@@ -20,6 +20,7 @@ from imucal_cli.solvers.stillness import StillnessDetector, StillState
 
 from .direction import estimate_direction
 from .keys import Command, parse_command
+from .magnetic import MagCoverage
 from .matching import Taken, match_hold, measure_turn, turn_warnings
 from .samples import SampleHistory
 from .words import fmt_vec, instruction
@@ -44,6 +45,7 @@ class GuidedOptions:
     settle_s: float = 0.5
     axis_tolerance_deg: float = 30.0
     tick_s: float = 0.1
+    mag_goal: float = 0.9
 
     def __post_init__(self) -> None:
         if not self.hold_s > 0:
@@ -70,7 +72,8 @@ class Prompt:
         Steps in the plan.
     phase : str
         ``"wait"`` (waiting for the unit to be still), ``"hold"`` (holding), ``"move"`` (turn
-        the unit to the next pose), ``"pre"``/``"turning"`` (a rotation step), ``"done"``.
+        the unit to the next pose), ``"pre"``/``"turning"`` (a rotation step), ``"mag"``
+        (every step done, the magnetometer still needs field directions), ``"done"``.
     text : str
         The instruction line.
     hold_s : float
@@ -137,6 +140,9 @@ class GuidedState:
         self.noise_told = False
         self.no_direction_told = False
         self.rotations = any(s.kind == "rotation" for s in self.steps)
+        self.mag: MagCoverage | None = None  # the magnetometer's coverage, when it streams
+        self.mag_told = -1  # the last tenth of coverage told
+        self.mag_pending = False  # every step done; turning on for the magnetometer
 
     # ------------------------------------------------------------------------ reading
     def say(self, text: str, style: str = "") -> None:
@@ -202,6 +208,10 @@ class GuidedState:
     def prompt(self) -> Prompt:
         """What the person should do now."""
         cur = self.current()
+        if cur is None and self.mag_pending:
+            text = ("Turn the unit slowly through the field directions still missing "
+                    "(q: finish now)")  # fmt: skip
+            return Prompt(None, len(self.steps), "mag", text, 0.0, 0.0, self.serial)
         if cur is None:
             return Prompt(None, len(self.steps), "done", "", 0.0, 0.0, self.serial)
         step = self.steps[cur]
@@ -304,7 +314,15 @@ class GuidedState:
         self.pre_run = None
         self.serial += 1
         if self.current() is None:
-            self.end_reason = "every step of the plan done or skipped"
+            if self.mag is not None and not self.mag.done:
+                self.mag_pending = True
+                self.say(
+                    "every step done; " + self.mag.status() + ". Keep turning the unit slowly "
+                    "through the missing directions (q: finish now)",
+                    "bold",
+                )
+                return
+            self.end_reason = "every step of the plan done or skipped" + self.mag_done_text()
 
     # ------------------------------------------------------------------------ segments
     def take(self, t: Taken) -> None:
@@ -340,6 +358,10 @@ class GuidedState:
         self.last_block = block
         if len(block) == 0:
             return
+        if getattr(block, "mag", None) is not None:
+            self.on_mag(block.mag)
+            if self.end_reason is not None:
+                return
         self.hist.append(block.time, block.accel, block.gyro)
         if block.accel is not None:
             self.data_min = min(self.data_min, float(np.min(block.accel)))
@@ -354,6 +376,28 @@ class GuidedState:
             if self.end_reason is not None:
                 return
         self.on_current(st)
+
+    def on_mag(self, mag: np.ndarray) -> None:
+        """Magnetometer rows: update the coverage, tell each new tenth of it, and end the
+        capture once the steps are done and the magnetometer has seen enough."""
+        if self.mag is None:
+            self.mag = MagCoverage(self.o.mag_goal)
+        self.mag.update(mag)
+        if not self.mag.ready:
+            return
+        tenth = int(10 * self.mag.fraction)
+        if tenth > self.mag_told:
+            self.mag_told = tenth
+            self.say(self.mag.status(), "dim")
+        if self.mag_pending and self.mag.done:
+            self.mag_pending = False
+            self.end_reason = "every step of the plan done or skipped" + self.mag_done_text()
+
+    def mag_done_text(self) -> str:
+        """``", and the magnetometer saw 93% ..."`` with a magnetometer, else ``""``."""
+        if self.mag is None:
+            return ""
+        return f", and the magnetometer saw {100 * self.mag.fraction:.0f}% of the field directions"
 
     def tell_noise(self) -> None:
         sd = self.detector.noise_std()
@@ -525,6 +569,8 @@ class GuidedState:
         if missing:
             text += f", {len(missing)} missing: " + ", ".join(missing)
         self.say(f"{text} ({reason})", "bold green" if complete else "bold yellow")
+        if self.mag is not None:
+            self.say(self.mag.status(), "bold green" if self.mag.done else "bold yellow")
         return CaptureSummary(
             complete=complete,
             done=done,
