@@ -6,9 +6,9 @@ import argparse
 
 from rich.console import Console
 
-from bench import capture, factorization, gravity, gyro
+from bench import capture, factorization, gravity, gyro, labelled
 
-BENCHMARKS = ("gravity", "factorization", "gyro", "capture")
+BENCHMARKS = ("gravity", "labelled", "factorization", "gyro", "capture")
 
 
 def main() -> None:
@@ -21,6 +21,8 @@ def main() -> None:
     ok = True
     if args.only in (None, "gravity"):
         ok = gravity.run(console, n_seeds=args.seeds) and ok
+    if args.only in (None, "labelled"):
+        ok = labelled.run(console, n_seeds=args.seeds) and ok
     if args.only in (None, "factorization"):
         ok = factorization.run(console, n_seeds=args.seeds) and ok
     if args.only in (None, "gyro"):

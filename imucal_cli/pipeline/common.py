@@ -99,9 +99,7 @@ def static_poses(session: Session) -> StaticPoses:
     clean = [b[~m] if (~m).sum() >= 2 else b for b, m in zip(blocks, masks, strict=True)]
     ctimes = [t[~m] if (~m).sum() >= 2 else t for t, m in zip(times, masks, strict=True)]
     noise = holds.pooled_noise(clean, step)
-    trends = [
-        holds.trend(t, b, noise.cov, len(segs)) for t, b in zip(ctimes, clean, strict=True)
-    ]
+    trends = [holds.trend(t, b, noise.cov, len(segs)) for t, b in zip(ctimes, clean, strict=True)]
     moved = np.array([tr.moved for tr in trends])
     if moved.any() and not moved.all():
         noise = holds.pooled_noise([b for b, m in zip(clean, moved, strict=True) if not m], step)
@@ -179,9 +177,14 @@ def fmt_bias(b: np.ndarray) -> str:
 
 
 def check_design(
-    poses: StaticPoses, nominal: Nominal, min_separation_deg: float, where: str
+    poses: StaticPoses,
+    nominal: Nominal,
+    min_separation_deg: float,
+    where: str,
+    model: str = "9",
 ) -> None:
-    """Refuse poses that cannot determine a triad's 9 parameters, with advice."""
+    """Refuse poses that cannot determine a triad's gravity-magnitude model, naming the model
+    (``"9"`` or ``"12"``) and what would work with what the session already has."""
     N = len(poses.a_mean)
     centre = nominal.bias
     if nominal.sensitivity is None and nominal.range is None:
@@ -189,11 +192,17 @@ def check_design(
         centre = (poses.a_mean.min(axis=0) + poses.a_mean.max(axis=0)) / 2
     directions = unit(poses.a_mean - centre)
     distinct = count_distinct(directions, min_separation_deg)
+    name = (
+        "the 9-parameter gravity-magnitude model"
+        if model == "9"
+        else "the 12-parameter gravity model (9 parameters from the magnitudes, the rotation "
+        "from the labels)"
+    )
     if distinct < 9:
         raise DesignError(
             f"{where}: {N} static poses give only {distinct} distinct gravity directions "
-            f"(>{min_separation_deg:g} deg apart); the 9-parameter model needs at least 9: "
-            "capture the 6 faces and the 45-degree edges (plan qureshi18)"
+            f"(>{min_separation_deg:g} deg apart); {name} needs at least 9"
+            + _what_would_work(poses)
         )
     spread = spread_deg(directions)
     if spread <= MIN_SPREAD_DEG:
@@ -202,6 +211,26 @@ def check_design(
             f"{where}: every pose is within {spread:.0f} deg of {mean_dir} up, which cannot "
             "separate bias from scale; turn the unit over: capture each face up, then the edges"
         )
+
+
+def labels_determine(up: np.ndarray) -> bool:
+    """Whether labelled up directions can separate bias from sensitivity: at least four
+    labels not in one plane (``[1, up_k]`` of rank 4)."""
+    lab = np.isfinite(up).all(axis=1)
+    if lab.sum() < 4:
+        return False
+    X = np.column_stack([np.ones(lab.sum()), up[lab]])
+    return bool(np.linalg.matrix_rank(X, tol=1e-6) == 4)
+
+
+def _what_would_work(poses: StaticPoses) -> str:
+    if labels_determine(poses.up):
+        return (
+            "; these poses carry `up` labels, which the labelled-pose solver uses: "
+            '[accel] solver = "labelled" (or the default "auto"), or capture the 45-degree '
+            "edges too (plan qureshi18)"
+        )
+    return ": capture the 6 faces and the 45-degree edges (plan qureshi18)"
 
 
 def physical_checks(
