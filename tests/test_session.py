@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 
 from imucal_cli.errors import InputError, SessionError
-from imucal_cli.formats import session as session_module
 from imucal_cli.formats.session import (
     GRAVITY_DEFAULT,
     Segment,
@@ -26,6 +25,7 @@ from imucal_cli.formats.session import (
     utc_now_iso,
     write_session,
 )
+from imucal_cli.formats.session import writer as session_writer
 
 ROOT = Path(__file__).resolve().parents[1]
 N = 100
@@ -254,7 +254,7 @@ def test_writer_file_layout(tmp_path):
 
 def test_writer_flushes_on_time(tmp_path, monkeypatch):
     clock = [100.0]
-    monkeypatch.setattr(session_module._time, "monotonic", lambda: clock[0])
+    monkeypatch.setattr(session_writer._time, "monotonic", lambda: clock[0])
     with SessionWriter(tmp_path / "w.h5", gyro_channels=None) as w:
         on_disk = w._file["raw/time"]
         w.append(0.0, [0, 0, 1])

@@ -1,0 +1,76 @@
+"""HDF5 session files: validating reader, appending writer, calibration storage (a package).
+
+Implements the session format of ``shared/spec/session-format.md``, version 1:
+
+- :func:`read_session` opens any file that follows the format (written by this package or by
+  another tool), validates it and returns a :class:`Session`.  Every problem a user can fix
+  raises :class:`~imucal_cli.errors.SessionError` with a one-line message that names the file.
+- :class:`SessionWriter` records a session while it is captured: chunked, resizable ``/raw``
+  datasets written at least once per ``flush_interval_s`` in HDF5 SWMR mode, so that a reader
+  can open the file while it is written and a writer killed with ``kill -9`` leaves a readable
+  file that misses at most the last ``flush_interval_s`` of samples.
+- :func:`write_session` writes a complete :class:`Session` in one go (through the writer).
+- :func:`store_calibration` appends a calibration JSON under ``/calibrations``.
+
+SWMR and segments
+-----------------
+HDF5 does not support creating groups or attributes while a file is in SWMR write mode, so the
+writer keeps segments in memory and writes the ``/segments/NNNN`` groups when it is closed.
+Until then each segment is also logged, SWMR-safely, as one JSON object per row of the
+fixed-length string dataset ``/capture_log/segments`` (an extra dataset the format allows).
+A clean :meth:`SessionWriter.close` removes the log.  When a writer was killed, the file has
+no segment groups but still holds the log, and :func:`read_session` reads the segments from it.
+
+A file whose SWMR writer was killed keeps the HDF5 "open for writing" flag.  Plain HDF5 readers
+(``h5py.File(path)``, ``h5dump``) refuse such a file until ``h5clear -s FILE`` clears the flag;
+:func:`read_session` opens it in SWMR read mode instead and reads every ``/raw`` dataset up to
+the shortest one (the datasets of an interrupted flush may differ in length).
+
+Modules: :mod:`.model` (``Session``, ``Segment``, constants, attribute values), :mod:`.h5open`
+(opening a file for reading), :mod:`.reader`, :mod:`.writer`, :mod:`.store`.  Import the public
+names from here (``from imucal_cli.formats.session import read_session``).
+"""
+
+from __future__ import annotations
+
+from .h5open import check_session_file, open_for_reading
+from .model import (
+    FORMAT,
+    FORMAT_VERSION,
+    GRAVITY_DEFAULT,
+    SEGMENT_KINDS,
+    Segment,
+    Session,
+    as_float,
+    as_int,
+    as_str,
+    as_unit_vector,
+    one_line,
+    show,
+    utc_now_iso,
+)
+from .reader import read_session
+from .store import store_calibration
+from .writer import SessionWriter, write_session
+
+__all__ = [
+    "FORMAT",
+    "FORMAT_VERSION",
+    "GRAVITY_DEFAULT",
+    "SEGMENT_KINDS",
+    "Segment",
+    "Session",
+    "SessionWriter",
+    "as_float",
+    "as_int",
+    "as_str",
+    "as_unit_vector",
+    "check_session_file",
+    "one_line",
+    "open_for_reading",
+    "read_session",
+    "show",
+    "store_calibration",
+    "utc_now_iso",
+    "write_session",
+]

@@ -1,0 +1,239 @@
+"""The session data model: :class:`Segment`, :class:`Session`, format constants, and the
+conversions of HDF5 attribute values (str or bytes, numpy scalars or 1-element arrays)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+FORMAT = "imucal-session"
+FORMAT_VERSION = 1
+GRAVITY_DEFAULT = 9.80665
+SEGMENT_KINDS = ("static", "rotation")
+
+LOG_GROUP = "capture_log"
+LOG_DATASET = "capture_log/segments"
+LOG_ITEM_BYTES = 2048  # one segment as JSON, fixed-length bytes (SWMR cannot grow VL strings)
+
+#: Segment attributes the format names; everything else lands in ``Segment.extra``.
+SEGMENT_ATTRS = frozenset({"kind", "start", "stop", "label", "up", "axis", "angle_deg"})
+
+
+def utc_now_iso() -> str:
+    """Return the current UTC time as ISO 8601, second resolution: ``2026-11-21T10:00:00Z``."""
+    return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+# --------------------------------------------------------------------------------------------
+# Data model
+# --------------------------------------------------------------------------------------------
+
+
+def _frozen_vector(value: Any) -> np.ndarray | None:
+    if value is None:
+        return None
+    vector = np.array(value, dtype=np.float64).reshape(3)
+    vector.flags.writeable = False
+    return vector
+
+
+def _optional_equal(a: np.ndarray | None, b: np.ndarray | None) -> bool:
+    if a is None or b is None:
+        return a is None and b is None
+    return bool(np.array_equal(a, b))
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One labelled stretch of a session: the half-open sample range ``[start, stop)`` of /raw.
+
+    Attributes
+    ----------
+    name : str
+        Subgroup name under ``/segments``, e.g. ``"0000"``.
+    kind : str
+        ``"static"`` (held still) or ``"rotation"`` (turned).
+    start, stop : int
+        Half-open sample indices into the ``/raw`` datasets.
+    label : str or None
+        What the person was told, e.g. ``"face +Z up"``.
+    up : ndarray, shape (3,), or None
+        Static only: nominal unit vector pointing away from the earth, fixture frame.
+    axis : ndarray, shape (3,), or None
+        Rotation only: nominal unit rotation axis, fixture frame.
+    angle_deg : float or None
+        Rotation only: known signed rotation angle about ``axis`` in degrees (right hand).
+    extra : dict
+        Attributes the format does not name (allowed by the spec), e.g. ``mounting`` (int): the
+        unit's mounting in the fixture, for constraints that hold within one mounting only.
+        Values are numbers, strings or lists of numbers.
+    """
+
+    name: str
+    kind: str
+    start: int
+    stop: int
+    label: str | None = None
+    up: np.ndarray | None = None
+    axis: np.ndarray | None = None
+    angle_deg: float | None = None
+    extra: dict[str, Any] = field(default_factory=dict, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "up", _frozen_vector(self.up))
+        object.__setattr__(self, "axis", _frozen_vector(self.axis))
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Segment):
+            return NotImplemented
+        return (
+            (self.name, self.kind, self.start, self.stop, self.label, self.angle_deg)
+            == (other.name, other.kind, other.start, other.stop, other.label, other.angle_deg)
+            and _optional_equal(self.up, other.up)
+            and _optional_equal(self.axis, other.axis)
+        )
+
+    def __hash__(self) -> int:
+        return hash((self.name, self.kind, self.start, self.stop, self.label, self.angle_deg))
+
+    @property
+    def n_samples(self) -> int:
+        """Number of samples in the segment, ``stop - start``."""
+        return self.stop - self.start
+
+
+@dataclass
+class Session:
+    """A recording: the raw stream, what happened when, and the file's metadata.
+
+    Attributes
+    ----------
+    time : ndarray, shape (N,)
+        Sample times in seconds, strictly increasing.
+    accel : ndarray, shape (N, na), or None
+        Raw accelerometer channels (na >= 3) in ``accel_units``.
+    gyro : ndarray, shape (N, ng), or None
+        Raw gyroscope channels (ng >= 3) in ``gyro_units``.
+    temperature : ndarray, shape (N,), or None
+        Degrees C.
+    segments : list of Segment
+        Sorted by ``start``.
+    created : str
+        ISO 8601 UTC time the recording started.
+    sensor, source : str or None
+        Free text (part and serial number; where the samples came from).
+    sample_rate_hz : float or None
+        Nominal sample rate in Hz.
+    gravity : float
+        Local gravity magnitude in m/s^2 (9.80665 when the file does not say).
+    accel_units, gyro_units : str or None
+        Units of the raw channels as recorded (``counts``, ``V``, ``g``, ``m/s^2``, ...).
+    path : Path or None
+        The file the session was read from.
+    calibrations : dict of str to str
+        ``/calibrations/<name>`` -> its calibration JSON text.
+    """
+
+    time: np.ndarray
+    accel: np.ndarray | None
+    gyro: np.ndarray | None
+    temperature: np.ndarray | None
+    segments: list[Segment]
+    created: str
+    sensor: str | None = None
+    source: str | None = None
+    sample_rate_hz: float | None = None
+    gravity: float = GRAVITY_DEFAULT
+    accel_units: str | None = None
+    gyro_units: str | None = None
+    path: Path | None = None
+    calibrations: dict[str, str] = field(default_factory=dict)
+
+    def static_segments(self) -> list[Segment]:
+        """Return the static segments, in time order."""
+        return [s for s in self.segments if s.kind == "static"]
+
+    def rotation_segments(self) -> list[Segment]:
+        """Return the rotation segments, in time order."""
+        return [s for s in self.segments if s.kind == "rotation"]
+
+
+# --------------------------------------------------------------------------------------------
+# Attribute values: h5py gives str or bytes, numpy scalars or 1-element arrays
+# --------------------------------------------------------------------------------------------
+
+
+def _scalar(value: Any) -> Any:
+    if isinstance(value, np.ndarray | list | tuple):
+        array = np.asarray(value)
+        if array.size != 1:
+            return None
+        return array.reshape(-1)[0]
+    return value
+
+
+def as_str(value: Any) -> str | None:
+    """Return a string attribute as str (from str, bytes or a 1-element array), else None."""
+    value = _scalar(value)
+    if isinstance(value, bytes | np.bytes_):
+        try:
+            return bytes(value).decode("utf-8")
+        except UnicodeDecodeError:
+            return None
+    if isinstance(value, str):
+        return str(value)
+    return None
+
+
+def as_float(value: Any) -> float | None:
+    """Return a finite real number as float, else None."""
+    value = _scalar(value)
+    if isinstance(value, bool | np.bool_) or not isinstance(value, int | float | np.number):
+        return None
+    if isinstance(value, np.complexfloating):
+        return None
+    number = float(value)
+    return number if math.isfinite(number) else None
+
+
+def as_int(value: Any) -> int | None:
+    """Return an integer (also an integral float, as MATLAB writes them) as int, else None."""
+    number = as_float(value)
+    if number is None or number != int(number):
+        return None
+    return int(number)
+
+
+def as_unit_vector(value: Any) -> np.ndarray | None:
+    """Return 3 finite, not all zero numbers scaled to unit length, else None."""
+    try:
+        vector = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        return None
+    if vector.size != 3 or vector.ndim > 1 and vector.shape != (3, 1):
+        return None
+    vector = vector.reshape(3)
+    norm = float(np.linalg.norm(vector))
+    if not np.isfinite(vector).all() or norm == 0.0:
+        return None
+    return vector / norm
+
+
+def show(value: Any) -> str:
+    """Return ``repr`` of an attribute value without numpy types: ``2``, not ``np.int64(2)``."""
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    elif isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, bytes):
+        value = value.decode("utf-8", errors="replace")
+    return repr(value)
+
+
+def one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
