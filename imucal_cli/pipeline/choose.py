@@ -152,9 +152,10 @@ def _refusal(session: Session, poses: StaticPoses, nominal, exc: DesignError, wh
     text = str(exc).removeprefix(f"{where}: ")
     if distinct < 9 and near_axes >= 4:
         return (
-            f"{where}: {N} static poses give {distinct} distinct directions, too few for the "
-            f"gravity-magnitude model (9 parameters), and they carry no `up` labels; {near_axes} "
-            "of them lie within 15 deg of a face: label them (`imucal label SESSION`) and the "
+            f"{where}: {N} static poses give only {distinct} distinct gravity directions, too few "
+            f"for the gravity-magnitude model (9 parameters), and no `up` labels; {near_axes} "
+            "of them lie within 15 deg of a face: label them (`imucal label SESSION`, or each "
+            "static segment's `up` attribute) and the "
             "labelled-pose solver calibrates them, or capture the 45-degree edges too "
             "(plan qureshi18)"
         )
