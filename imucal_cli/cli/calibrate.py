@@ -12,8 +12,11 @@ from .app import app
 
 @app.command()
 def calibrate(
-    session: Path = typer.Argument(
-        ..., help="Session file (.h5) to calibrate.", show_default=False
+    sessions: list[Path] = typer.Argument(
+        ...,
+        help="Session file(s) (.h5) to calibrate; several: each to SESSION.cal.json, one "
+        "summary table.",
+        show_default=False,
     ),
     config: Path | None = typer.Option(
         None, "--config", "-c", help="TOML config choosing solvers and options (see README)."
@@ -38,17 +41,19 @@ def calibrate(
         "--store/--no-store",
         help="Also store the calibration under the session's /calibrations.",
     ),
+    jobs: int = typer.Option(
+        1, "--jobs", "-j", help="Several sessions: worker processes (0: one per CPU)."
+    ),
 ) -> None:
     """Calibrate the accelerometer of SESSION and write a calibration JSON.
 
     Exit status: 0 saved; 2 bad input (unreadable file, bad config, poses that cannot
     determine the model); 1 the solver did not converge or the result is outside physical
-    sense (not saved unless --force).
+    sense (not saved unless --force).  Several sessions: the worst of theirs.
     """
-    from imucal_cli.formats.calibration import calibration_to_json, write_calibration
+    from imucal_cli.errors import InputError
     from imucal_cli.formats.config import load_config, validate
-    from imucal_cli.formats.session import read_session, store_calibration
-    from imucal_cli.pipeline.calibrate import calibrate_session, default_output, suspect_error
+    from imucal_cli.pipeline.batch import calibrate_file
 
     cfg = load_config(config)
     if model is not None:
@@ -57,24 +62,67 @@ def calibrate(
         cfg.gravity = gravity
     validate(cfg, "command line" if config is None else str(config))
 
-    sess = read_session(session)
-    cal = calibrate_session(sess, cfg, name=session.name)
-    problem = suspect_error(cal)
-    if problem is not None and not force:
-        raise problem
+    if len(sessions) > 1:
+        if output is not None:
+            raise InputError("--output names one file: with several sessions each goes to "
+                             "SESSION.cal.json")  # fmt: skip
+        raise typer.Exit(_many(sessions, cfg, jobs, force, store))
+    cal, out, stored = calibrate_file(sessions[0], cfg, output=output, force=force, store=store)
+    _summary(Console(), cal, f"{out}{stored}")
 
-    out = output or default_output(session)
-    write_calibration(out, cal)
+
+def _many(sessions: list[Path], cfg, jobs: int, force: bool, store: bool) -> int:
+    """Calibrate several sessions with a progress bar; one table; the worst exit status."""
+    import resource
+    import time
+
+    from rich.markup import escape
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
+    from rich.table import Table
+
+    from imucal_cli.pipeline.batch import calibrate_many
+
     console = Console()
-    if store:
-        try:
-            name = store_calibration(session, calibration_to_json(cal))
-            stored = f" and {session}:/calibrations/{name}"
-        except OSError as exc:  # read-only session: the JSON is what matters
-            stored = f" (not stored in the session: {exc})"
-    else:
-        stored = ""
-    _summary(console, cal, f"{out}{stored}")
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    c_children = usage.ru_utime + usage.ru_stime
+    t0, c0 = time.perf_counter(), time.process_time()
+    with Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+        console=console,
+        transient=True,
+    ) as bar:
+        task = bar.add_task("calibrating", total=len(sessions))
+        results = calibrate_many(
+            sessions, cfg, jobs=jobs, force=force, store=store,
+            progress=lambda _r: bar.advance(task),
+        )  # fmt: skip
+    wall = time.perf_counter() - t0
+    table = Table(title=f"{len(sessions)} sessions")
+    for col in ("session", "result", "accel |a|-g RMS, m/s^2", "gyro turn RMS, deg", "warnings"):
+        table.add_column(col)
+    for r in results:
+        f = r.figures
+        table.add_row(
+            r.session,
+            "[green]saved[/]" if r.exit_code == 0 else f"[red]failed ({r.exit_code})[/]",
+            f"{f['accel_rms_after']:.4f}" if "accel_rms_after" in f else "",
+            f"{f['gyro_rms_deg']:.3f}" if "gyro_rms_deg" in f else "",
+            str(f.get("warnings", "")),
+        )
+    console.print(table)
+    failed = [r for r in results if r.exit_code]
+    for r in failed:
+        console.print(f"[red]failed[/]: {escape(r.error or '')}", soft_wrap=True)
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = time.process_time() - c0 + usage.ru_utime + usage.ru_stime - c_children
+    console.print(
+        f"{len(results) - len(failed)} saved, {len(failed)} failed in {wall:.1f} s, "
+        f"{cpu:.1f} s CPU ({len(results) / max(cpu, 1e-9):.1f} sessions per CPU second)"
+    )
+    return max((r.exit_code for r in failed), default=0)
 
 
 def _summary(console: Console, cal, where: str) -> None:

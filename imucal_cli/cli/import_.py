@@ -27,7 +27,7 @@ def import_(
     columns: str | None = typer.Option(
         None,
         "--columns",
-        help="Fields of a line, e.g. t,ax,ay,az,gx,gy,gz or _,ax,ay,az (_ skips a field) "
+        help="Fields of a line, e.g. t,ax,ay,az,gx,gy,gz,mx,my,mz or _,ax,ay,az (_ skips a field) "
         "[default: from the header line].",
     ),
     time_unit: str = typer.Option("s", "--time-unit", help="Unit of the t column: s, ms or us."),
@@ -40,10 +40,31 @@ def import_(
     gyro_units: str | None = typer.Option(
         None, "--gyro-units", help="Raw gyroscope units: counts, V, rad/s or deg/s."
     ),
+    mag_units: str | None = typer.Option(
+        None, "--mag-units", help="Raw magnetometer units (columns mx,my,mz): counts, uT, nT or "
+        "gauss."
+    ),
+    field_ut: float | None = typer.Option(
+        None, "--field-uT", help="Local geomagnetic field magnitude, microtesla, where known."
+    ),
     skip_rows: int = typer.Option(
         0, "--skip-rows", help="Lines to skip at the top of each file (headers are also detected)."
     ),
     sensor: str | None = typer.Option(None, "--sensor", help="Free text: part and serial number."),
+    sections: str | None = typer.Option(
+        None,
+        "--sections",
+        help="Labelled sections instead of automatic segmentation: a MaD Lab section list "
+        "(JSON {label: {start, end}}, rows end-exclusive) or the name of a column holding each "
+        "row's label (e.g. part). Ferraris labels x_p x_a y_p y_a z_p z_a become faces with "
+        "their up direction, x_rot y_rot z_rot 360-degree turns about that axis.",
+    ),
+    turn_angle: float | None = typer.Option(
+        None,
+        "--turn-angle",
+        help="Signed angle of the sections' turns in degrees, e.g. -360 [default: 360 with the "
+        "sign of the gyro's own integral].",
+    ),
     output: Path | None = typer.Option(
         None, "--output", "-o", help="Session file to write [default: FILE's name with .h5, here]."
     ),
@@ -69,6 +90,10 @@ def import_(
         accel_units=accel_units,
         gyro_units=gyro_units,
         sensor=sensor,
+        sections=sections,
+        turn_angle_deg=turn_angle,
+        mag_units=mag_units,
+        magnetic_field_uT=field_ut,
     )
     out = output or default_output(files[0])
     write_session(out, session, overwrite=force)
@@ -98,4 +123,9 @@ def import_(
     console.print(
         f"  {len(static)} static segments ({held:.1f} s still), {len(rotations)} rotation segments"
     )
+    for note in getattr(session, "import_notes", []):
+        console.print(f"  {note}")
+    if session.mag is not None:
+        units = session.mag_units or "units not given"
+        console.print(f"  magnetometer: {session.mag.shape[1]} channels ({units})")
     console.print(f"wrote {out}")

@@ -154,9 +154,8 @@ def _refusal(session: Session, poses: StaticPoses, nominal, exc: DesignError, wh
         return (
             f"{where}: {N} static poses give only {distinct} distinct gravity directions, too few "
             f"for the gravity-magnitude model (9 parameters), and no `up` labels; {near_axes} "
-            "of them lie within 15 deg of a face: label them (`imucal label SESSION`, or each "
-            "static segment's `up` attribute) and the "
-            "labelled-pose solver calibrates them, or capture the 45-degree edges too "
+            "of them lie within 15 deg of a face: label them (`imucal label SESSION --faces`) "
+            "and the labelled-pose solver calibrates them, or capture the 45-degree edges too "
             "(plan qureshi18)"
         )
     return f"{where}: {text}"

@@ -131,8 +131,8 @@ def calibrate_accel_labelled(session: Session, cfg: Config) -> SensorCalibration
         raise DesignError(
             f"{where}: the labelled-pose solver needs at least 4 poses whose `up` labels are not "
             f"in one plane (this session has {n_lab} labelled of {len(poses.segments)}): label "
-            "the faces with `imucal label`, or use the gravity solver (9 or more distinct "
-            "poses need no labels)"
+            "the faces with `imucal label SESSION --faces`, or use the gravity solver (9 or more "
+            "distinct poses need no labels)"
         )
     nominal = nominal_sensor(session, cfg, g)
     return labelled_section(session, cfg, poses, g, nominal)
