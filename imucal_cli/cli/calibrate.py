@@ -2,36 +2,52 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 from .app import app
+from .console import make_console, print_json
 
 
 @app.command()
 def calibrate(
     sessions: list[Path] = typer.Argument(
         ...,
+        metavar="SESSION.h5",
         help="Session file(s) (.h5) to calibrate; several: each to SESSION.cal.json, one "
         "summary table.",
         show_default=False,
     ),
     config: Path | None = typer.Option(
-        None, "--config", "-c", help="TOML config choosing solvers and options (see README)."
+        None,
+        "--config",
+        "-c",
+        metavar="FILE.toml",
+        help="TOML config choosing solvers and options (see README, Config reference).",
     ),
     output: Path | None = typer.Option(
-        None, "--output", "-o", help="Calibration JSON to write [default: SESSION with .cal.json]."
+        None,
+        "--output",
+        "-o",
+        metavar="FILE.json",
+        help="Calibration JSON to write [default: SESSION with .cal.json].",
     ),
     model: str | None = typer.Option(
         None,
         "--model",
+        metavar="9|12",
         help="Gravity solver model: 9 (triangular, eqs. 3-8) or 12 (full matrix "
         "aligned to the labelled up directions). Overrides [accel.gravity] model.",
     ),
     gravity: float | None = typer.Option(
-        None, "--gravity", help="Local gravity in m/s^2 [default: the session's, else 9.80665]."
+        None,
+        "--gravity",
+        metavar="M/S^2",
+        help="Local gravity in m/s^2 [default: the session's, else 9.80665].",
     ),
     force: bool = typer.Option(
         False, "--force", help="Save a result that fails the physical-sense checks (with warnings)."
@@ -42,10 +58,16 @@ def calibrate(
         help="Also store the calibration under the session's /calibrations.",
     ),
     jobs: int = typer.Option(
-        1, "--jobs", "-j", help="Several sessions: worker processes (0: one per CPU)."
+        1, "--jobs", "-j", metavar="N", help="Several sessions: worker processes (0: one per CPU)."
+    ),
+    json_output: bool = typer.Option(
+        False,
+        "--json",
+        help="Print the result as JSON on stdout (nothing else): where it was written and the "
+        "calibration itself; several sessions: one entry each (schema in the README).",
     ),
 ) -> None:
-    """Calibrate the accelerometer of SESSION and write a calibration JSON.
+    """Calibrate the sensors of SESSION the config asks for and write a calibration JSON.
 
     Exit status: 0 saved; 2 bad input (unreadable file, bad config, poses that cannot
     determine the model); 1 the solver did not converge or the result is outside physical
@@ -66,23 +88,43 @@ def calibrate(
         if output is not None:
             raise InputError("--output names one file: with several sessions each goes to "
                              "SESSION.cal.json")  # fmt: skip
-        raise typer.Exit(_many(sessions, cfg, jobs, force, store))
+        raise typer.Exit(_many(sessions, cfg, jobs, force, store, json_output))
     cal, out, stored = calibrate_file(sessions[0], cfg, output=output, force=force, store=store)
-    _summary(Console(), cal, f"{out}{stored}")
+    if json_output:
+        print_json(_result_json(cal, out, stored))
+        return
+    _summary(make_console(), cal, f"{out}{stored}")
 
 
-def _many(sessions: list[Path], cfg, jobs: int, force: bool, store: bool) -> int:
+def _result_json(cal, out: Path, stored: str) -> dict:
+    """The ``imucal-calibrate`` document (README); ``stored`` as :func:`calibrate_file` says it:
+    `` and SESSION:/calibrations/N``, `` (not stored in the session: why)`` or ``""``."""
+    from imucal_cli.formats.calibration import calibration_to_json
+
+    where, why = None, None
+    if stored.startswith(" and "):
+        where = stored[len(" and ") :]
+    elif stored.startswith(" (not stored in the session: "):
+        why = stored[len(" (not stored in the session: ") : -1]
+    warnings = [w for s in (cal.accel, cal.gyro) if s for w in s.extra.get("warnings", [])]
+    return {"format": "imucal-calibrate", "format_version": 1, "output": str(out),
+            "stored": where, "not_stored": why, "warnings": warnings,
+            "calibration": json.loads(calibration_to_json(cal))}  # fmt: skip
+
+
+def _many(
+    sessions: list[Path], cfg, jobs: int, force: bool, store: bool, json_output: bool = False
+) -> int:
     """Calibrate several sessions with a progress bar; one table; the worst exit status."""
     import resource
     import time
 
-    from rich.markup import escape
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
     from rich.table import Table
 
     from imucal_cli.pipeline.batch import calibrate_many
 
-    console = Console()
+    console = make_console(stderr=json_output)
     usage = resource.getrusage(resource.RUSAGE_CHILDREN)
     c_children = usage.ru_utime + usage.ru_stime
     t0, c0 = time.perf_counter(), time.process_time()
@@ -100,6 +142,11 @@ def _many(sessions: list[Path], cfg, jobs: int, force: bool, store: bool) -> int
             progress=lambda _r: bar.advance(task),
         )  # fmt: skip
     wall = time.perf_counter() - t0
+    if json_output:
+        rows = [{"session": r.session, "exit_code": r.exit_code, "error": r.error,
+                 "figures": r.figures} for r in results]  # fmt: skip
+        print_json({"format": "imucal-calibrate-many", "format_version": 1, "results": rows})
+        return max((r.exit_code for r in results), default=0)
     table = Table(title=f"{len(sessions)} sessions")
     for col in ("session", "result", "accel |a|-g RMS, m/s^2", "gyro turn RMS, deg", "warnings"):
         table.add_column(col)
@@ -139,10 +186,10 @@ def _summary(console: Console, cal, where: str) -> None:
             how.append(f"{x['iterations']} iterations")
         if x.get("init"):
             how.append(f"init {x['init']}")
-        console.print(f"[bold]{name}[/]: " + ", ".join(how))
+        console.print(f"[bold]{name}[/]: " + escape(", ".join(how)))
         choice = x.get("choice") or {}
         if choice.get("by") == "auto":
-            console.print(f"  solver chosen: {choice['reason']}")
+            console.print("  solver chosen: " + escape(choice["reason"]))
         if name == "accel" and x.get("rms_after") is not None:
             g = x["gravity"]
             before = x.get("rms_before")
@@ -161,7 +208,7 @@ def _summary(console: Console, cal, where: str) -> None:
         elif turns:
             for rot in turns[:3]:
                 console.print(
-                    f"  {rot['label'] or rot['segment']}: "
+                    f"  {escape(str(rot['label'] or rot['segment']))}: "
                     f"measured {rot['measured_angle_deg']:.3f} deg, "
                     f"known {rot['known_angle_deg']:.3f} deg"
                 )
@@ -174,5 +221,5 @@ def _summary(console: Console, cal, where: str) -> None:
             + f" {units} per {per}"
         )
         for w in x.get("warnings", []):
-            console.print(f"  [bold yellow]warning[/]: {w}")
-    console.print(f"wrote {where}")
+            console.print(f"  [bold yellow]warning[/]: {escape(w)}")
+    console.print(f"wrote {escape(where)}")

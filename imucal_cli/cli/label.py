@@ -5,11 +5,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import typer
-from rich.console import Console
 
 from imucal_cli.errors import InputError
 
+from . import completion
 from .app import app
+from .console import make_console, print_json
 
 
 def _vector(text: str | None, option: str):
@@ -28,7 +29,9 @@ def _vector(text: str | None, option: str):
 
 @app.command("label")
 def label(
-    session: Path = typer.Argument(..., help="Session file (.h5) to relabel.", show_default=False),
+    session: Path = typer.Argument(
+        ..., metavar="SESSION.h5", help="Session file (.h5) to relabel.", show_default=False
+    ),
     faces: bool = typer.Option(
         False,
         "--faces",
@@ -36,32 +39,57 @@ def label(
         "the accelerometer reads, divided by g).",
     ),
     tolerance: float = typer.Option(
-        15.0, "--tolerance", help="--faces: largest angle from a +-axis, degrees."
+        15.0, "--tolerance", metavar="DEG", help="--faces: largest angle from a +-axis, degrees."
     ),
     calibration: Path | None = typer.Option(
         None,
         "--calibration",
+        metavar="CAL.json",
         help="--faces: calibration JSON turning raw readings into directions [default: the "
         "session's last stored one; else the raw units, or a fit to the poses themselves].",
     ),
     segment: str | None = typer.Option(
-        None, "--segment", help="Segment to change by hand (its name, e.g. 0003)."
+        None, "--segment", metavar="NAME", help="Segment to change by hand (its name, e.g. 0003)."
     ),
-    text: str | None = typer.Option(None, "--label", help="--segment: its new label."),
-    up: str | None = typer.Option(None, "--up", help="--segment: its up, e.g. 0,0,1."),
-    axis: str | None = typer.Option(None, "--axis", help="--segment: its turn axis, e.g. 0,0,1."),
+    text: str | None = typer.Option(
+        None, "--label", metavar="TEXT", help="--segment: its new label."
+    ),
+    up: str | None = typer.Option(
+        None, "--up", metavar="X,Y,Z", help="--segment: its up, e.g. 0,0,1."
+    ),
+    axis: str | None = typer.Option(
+        None, "--axis", metavar="X,Y,Z", help="--segment: its turn axis, e.g. 0,0,1."
+    ),
     angle: float | None = typer.Option(
-        None, "--angle", help="--segment: its known turn angle, degrees (signed, right hand)."
+        None,
+        "--angle",
+        metavar="DEG",
+        help="--segment: its known turn angle, degrees (signed, right hand).",
     ),
-    sensor: str | None = typer.Option(None, "--sensor", help="Part and serial number."),
+    sensor: str | None = typer.Option(
+        None, "--sensor", metavar="TEXT", help="Part and serial number."
+    ),
     accel_units: str | None = typer.Option(
-        None, "--accel-units", help="Raw accelerometer units: counts, V, g or m/s^2."
+        None,
+        "--accel-units",
+        metavar="UNITS",
+        help="Raw accelerometer units: counts, V, g or m/s^2.",
+        autocompletion=completion.accel_units,
     ),
     gyro_units: str | None = typer.Option(
-        None, "--gyro-units", help="Raw gyroscope units: counts, V, rad/s or deg/s."
+        None,
+        "--gyro-units",
+        metavar="UNITS",
+        help="Raw gyroscope units: counts, V, rad/s or deg/s.",
+        autocompletion=completion.gyro_units,
     ),
-    gravity: float | None = typer.Option(None, "--gravity", help="Local gravity, m/s^2."),
+    gravity: float | None = typer.Option(
+        None, "--gravity", metavar="M/S^2", help="Local gravity, m/s^2."
+    ),
     dry_run: bool = typer.Option(False, "--dry-run", help="Show the labels, write nothing."),
+    json_output: bool = typer.Option(
+        False, "--json", help="Print the labels found and what changed as JSON on stdout."
+    ),
 ) -> None:
     """Set or correct the labels of SESSION: faces from the measured directions, one segment
     by hand, the sensor, units and gravity.
@@ -89,7 +117,8 @@ def label(
     if accel_units is not None:
         s.accel_units = accel_units
     segments = list(s.segments)
-    console = Console(highlight=False, soft_wrap=True)
+    console = make_console(stderr=json_output)  # with --json, stdout holds the JSON alone
+    found: list[dict] = []
     if faces:
         cal = None
         if calibration is not None:
@@ -105,6 +134,9 @@ def label(
             if c is None:
                 continue
             d = ", ".join(f"{v:+.3f}" for v in c.direction)
+            found.append({"segment": seg.name, "direction": [float(v) for v in c.direction],
+                          "off_deg": float(c.off_deg),
+                          "label": None if c.up is None else face_label(c.up)})  # fmt: skip
             if c.up is None:
                 console.print(f"  {seg.name}  [{d}]  {c.off_deg:5.1f} deg off: no face (kept)")
                 continue
@@ -122,10 +154,16 @@ def label(
         )
     if not faces and segment is None and not attrs:
         raise InputError("nothing to change: pass --faces, --segment ..., or a root label")
+    changed = sum(a != b for a, b in zip(segments, s.segments, strict=True))
+    if not dry_run:
+        rewrite_labels(session, segments, attrs)
+    if json_output:
+        print_json({"format": "imucal-label", "format_version": 1, "session": str(session),
+                    "dry_run": dry_run, "faces": found, "changed_segments": changed,
+                    "attributes": attrs})  # fmt: skip
+        return
     if dry_run:
         console.print("dry run: nothing written")
         return
-    rewrite_labels(session, segments, attrs)
-    changed = sum(a != b for a, b in zip(segments, s.segments, strict=True))
     extra = f" and {', '.join(attrs)}" if attrs else ""
     console.print(f"relabelled {changed} segment(s){extra} in {session} (raw data untouched)")
