@@ -6,11 +6,18 @@ import argparse
 
 from rich.console import Console
 
-from bench import capture, factorization, gravity, gyro, gyro_speed, mag, speed
+from bench import capture, factorization, gravity, gyro, gyro_speed, labelled, mag, speed
 
 BENCHMARKS = (
-    "gravity", "factorization", "gyro", "gyro-speed", "capture", "speed", "mag",
-)  # fmt: skip
+    "gravity",
+    "labelled",
+    "factorization",
+    "gyro",
+    "gyro-speed",
+    "capture",
+    "speed",
+    "mag",
+)
 
 
 def main() -> None:
@@ -25,6 +32,8 @@ def main() -> None:
     ok = True
     if args.only in (None, "gravity"):
         ok = gravity.run(console, n_seeds=args.seeds) and ok
+    if args.only in (None, "labelled"):
+        ok = labelled.run(console, n_seeds=args.seeds) and ok
     if args.only in (None, "factorization"):
         ok = factorization.run(console, n_seeds=args.seeds) and ok
     if args.only in (None, "gyro"):
