@@ -43,11 +43,11 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def _accel_frame(truth) -> np.ndarray:
-    """``Q^T``: fixture frame -> the gravity solver's calibrated frame (``T = Q M``, QR)."""
-    Q, R = np.linalg.qr(truth.accel.matrix)
-    D = np.diag(np.sign(np.diag(R)))
-    return (Q @ D).T
+def _accel_frame(cal, truth) -> np.ndarray:
+    """The rotation from the fixture frame (the truth's) into the frame the accelerometer of
+    this run calibrates to (whichever solver ran): the nearest rotation to ``M_est A^-1``."""
+    U, _, Vt = np.linalg.svd(cal.accel.matrix @ np.linalg.inv(truth.accel.matrix))
+    return U @ Vt
 
 
 def _crb(session, truth, cal, readings, W, aligned: bool) -> np.ndarray:
@@ -64,7 +64,7 @@ def _crb(session, truth, cal, readings, W, aligned: bool) -> np.ndarray:
     if not aligned:
         return magnetometer_crb(W, FIELD, dirs, cov, pose_dirs=pose_dirs, pose_cov=pose_cov,
                                 aligned=False)  # fmt: skip
-    to_acc = _accel_frame(truth)
+    to_acc = _accel_frame(cal, truth)
     static = [s.name for s in session.static_segments()]
     true_up = np.array(truth.accel.extra["true_up"])
     ups = np.array([true_up[static.index(seg.name)] for seg in readings.segments]) @ to_acc.T
@@ -101,7 +101,7 @@ def one_seed(seed: int) -> dict:
     solve_s = time.perf_counter() - t0
     mag = cal.mag
     readings = mag_readings(session, Config().mag, cal.accel, "bench")
-    to_acc = _accel_frame(truth)
+    to_acc = _accel_frame(cal, truth)
     W_true = to_acc @ truth.mag.matrix
     s_true = -np.sin(np.radians(INCLINATION))
     x_true = np.r_[truth.mag.bias, W_true.ravel(), s_true]
@@ -125,10 +125,7 @@ def one_seed(seed: int) -> dict:
     def soft(P):
         return np.array([P[i, j] for i, j in sym])
 
-    # what the accelerometer of this run calls its frame (estimated): fixture -> est. frame
-    to_est = cal.accel.matrix @ np.linalg.inv(truth.accel.matrix)
-    U, _, Vt = np.linalg.svd(to_est)
-    to_est = U @ Vt
+    to_est = to_acc
     rng = np.random.default_rng(10_000 + seed)
     layout = LAYOUTS["ak8963"]
     nominal = np.eye(3) / truth.mag.extra["nominal_sensitivity"]
