@@ -30,7 +30,12 @@ are what the parameters see; the direction of each sample along the sphere is a 
 weighted least squares over
 
 - eq. (2) for every sample of the motion and every static pose mean, each residual divided by
-  its standard deviation ``sqrt(h^T W Sigma W^T h) / |h|``;
+  its standard deviation ``sqrt(h^T W Sigma W^T h) / |h|`` and less the mean the noise gives it
+  (the part of the noise across the sphere lengthens every reading by ``tr(P W Sigma W^T) /
+  (2 |h|)``, ``P`` the projection across ``h``: left in, it shrinks ``W`` and, for a
+  magnetometer whose soft iron is not round, distorts its shape); the remaining second-order
+  bias (the Jacobian of a reading moves with its own noise) is taken out after the fit by one
+  step, ``(J^T J)^-1 sum_i w_i^2 cov(J_i, r_i)``;
 - eq. (3) for every static pose with an up direction, divided by the standard deviation that
   the pose's magnetometer and accelerometer noise give it.
 
@@ -287,11 +292,16 @@ class _Problem:
     reading, so their errors correlate.
     """
 
-    def __init__(self, points, w_mag, poses=None, up=None, white=None):
-        self.points, self.w_mag = points, w_mag
+    def __init__(self, points, w_mag, poses=None, up=None, white=None, shift=None,
+                 pose_shift=None, covs=None):  # fmt: skip
+        self.points, self.w_mag, self.covs = points, w_mag, covs
         self.aligned = poses is not None
         self.poses, self.up, self.white = poses, up, white
         self.n_w = 9 if self.aligned else 6
+        # the mean the noise adds to each eq.-(2) residual (second order), held fixed
+        self.shift = np.zeros(len(points)) if shift is None else shift
+        self.pose_shift = (np.zeros(0 if poses is None else len(poses)) if pose_shift is None
+                           else pose_shift)  # fmt: skip
 
     def unpack(self, x):
         b = x[:3]
@@ -328,7 +338,7 @@ class _Problem:
         b, W, s = self.unpack(x)
         n_par = len(x)
         r, J1, *_ = self._magnitude(self.points, b, W, n_par)
-        res = [r * self.w_mag]
+        res = [(r - self.shift) * self.w_mag]
         jac = [J1 * self.w_mag[:, None]]
         if self.aligned and len(self.poses):
             rm, Jm, dk, _, rk, hku = self._magnitude(self.poses, b, W, n_par)
@@ -338,7 +348,7 @@ class _Problem:
             Jd[:, :3] = -(g @ W)
             Jd[:, 3:12] = self._dW(g, dk)
             Jd[:, 12] = -1.0
-            pair = np.stack([rm, c - s], axis=1)  # (K, 2)
+            pair = np.stack([rm - self.pose_shift, c - s], axis=1)  # (K, 2)
             Jpair = np.stack([Jm, Jd], axis=1)  # (K, 2, p)
             res.append(np.einsum("kij,kj->ki", self.white, pair).ravel())
             jac.append((self.white @ Jpair).reshape(-1, n_par))
@@ -366,6 +376,19 @@ def _magnitude_sigma(points, covs, b, W):
     r = np.linalg.norm(h, axis=1)
     v = (h / r[:, None]) @ W
     return np.sqrt(np.clip(np.einsum("ni,nij,nj->n", v, covs, v), 0, None))
+
+
+def _magnitude_shift(points, covs, b, W) -> np.ndarray:
+    """Mean of each point's eq.-(2) residual from its noise alone, to second order:
+    ``tr(P W Sigma W^T) / (2 |h|)`` with ``P`` the projection across ``h``."""
+    if covs is None:
+        return np.zeros(len(points))
+    h = (points - b) @ W.T
+    r = np.linalg.norm(h, axis=1)
+    hu = h / r[:, None]
+    C = W[None] @ covs @ W.T[None]  # (n, 3, 3) output covariance
+    across = np.trace(C, axis1=1, axis2=2) - np.einsum("ni,nij,nj->n", hu, C, hu)
+    return across / (2.0 * r)
 
 
 def _pose_pair_cov(poses, covs, up, up_cov, b, W):
@@ -580,7 +603,7 @@ def fit_magnetometer(
     w_mag = np.ones(len(points))
     if covs_n is not None:
         w_mag = _weights(_magnitude_sigma(pts_n, covs_n, b0, W0))
-    prob = _Problem(pts_n, w_mag)
+    prob = _Problem(pts_n, w_mag, shift=_magnitude_shift(pts_n, covs_n, b0, W0))
     sol = prob.solve(prob.pack(b0, W0), max_iterations)
     _check_converged(sol, max_iterations)
     b1, W1, _ = prob.unpack(sol.x)
@@ -621,11 +644,15 @@ def fit_magnetometer(
             prob, sol = fit
     if not aligned and covs_n is not None:  # second pass, weights at the solution
         w_mag = _weights(_magnitude_sigma(pts_n, covs_n, b1, W1))
-        prob = _Problem(pts_n, w_mag)
+        prob = _Problem(pts_n, w_mag, shift=_magnitude_shift(pts_n, covs_n, b1, W1),
+                        covs=covs_n)  # fmt: skip
         sol2 = prob.solve(sol.x, max_iterations)
         sol = sol2 if sol2.status > 0 else sol
     x = sol.x
     r, J = prob.evaluate(x)
+    if prob.covs is not None:
+        x = x + _bias_step(prob, x, J)
+        r, J = prob.evaluate(x)
     if _conditioning(J) <= 1e-6:
         raise DesignError(
             "the magnetometer readings leave hard and soft iron undetermined (they lie in one "
@@ -638,6 +665,30 @@ def fit_magnetometer(
         scale=(c, rho),
     )  # fmt: skip
     return out
+
+
+def _bias_step(prob: _Problem, x: np.ndarray, J: np.ndarray) -> np.ndarray:
+    """The step that takes out the second-order bias of eq. (2)'s estimating equation.
+
+    At the truth ``E[sum w^2 J_i r_i] = sum w^2 cov(J_i, r_i)`` is not zero, because a
+    reading's Jacobian row moves with its own noise.  With ``g = W^T h^`` (``r``'s gradient by
+    the reading) and ``A = (I - h^ h^T) W / |h|`` (``h^``'s), ``cov(J_b, r) = -W^T A Sigma g``
+    and ``cov(J_W_ij, r) = (A Sigma g)_i d_j + h^_i (Sigma g)_j``.  The estimate is biased by
+    ``-(J^T J)^-1`` times their weighted sum; this returns the opposite.
+    """
+    b, W, _ = prob.unpack(x)
+    d = prob.points - b
+    h = d @ W.T
+    r = np.linalg.norm(h, axis=1)
+    hu = h / r[:, None]
+    Sg = np.einsum("nij,nj->ni", prob.covs, hu @ W)  # Sigma g
+    v = Sg @ W.T
+    ASg = (v - np.sum(v * hu, axis=1, keepdims=True) * hu) / r[:, None]
+    w2 = prob.w_mag**2
+    c = np.zeros(J.shape[1])
+    c[:3] = -(w2 @ (ASg @ W))
+    c[3 : 3 + prob.n_w] = w2 @ (prob._dW(ASg, d) + prob._dW(hu, Sg))
+    return np.linalg.solve(J.T @ J, c)
 
 
 def _conditioning(J: np.ndarray) -> float:
@@ -660,17 +711,18 @@ def _check_converged(sol, max_iterations: int) -> None:
 def _aligned_fit(pts_n, covs_n, poses_n, pose_covs_n, up, up_cov, b1, W1, max_iter):
     """Joint fit of eqs. (2) and (3): ``(problem, solution)``, or why it could not align."""
 
-    def weights(b, W):
+    def problem(b, W):
         w = np.ones(len(pts_n)) if covs_n is None else _weights(
             _magnitude_sigma(pts_n, covs_n, b, W))
         C = _pose_pair_cov(poses_n, pose_covs_n, up, up_cov, b, W)
-        return w, C
+        shifts = (_magnitude_shift(pts_n, covs_n, b, W),
+                  _magnitude_shift(poses_n, pose_covs_n, b, W))  # fmt: skip
+        return _Problem(pts_n, w, poses_n, up, _whiten(C), *shifts, covs=covs_n), C
 
     h = (poses_n - b1) @ W1.T
     n_dir = h / np.linalg.norm(h, axis=1, keepdims=True)
-    w_mag, C = weights(b1, W1)
+    prob, C = problem(b1, W1)
     R0, s0 = _rotation_start(n_dir, up, 1.0 / np.sqrt(C[:, 1, 1]))
-    prob = _Problem(pts_n, w_mag, poses_n, up, _whiten(C))
     sol = prob.solve(prob.pack(b1, R0 @ W1, s0), max_iter)
     if sol.status <= 0:
         return (
@@ -679,8 +731,7 @@ def _aligned_fit(pts_n, covs_n, poses_n, pose_covs_n, up, up_cov, b1, W1, max_it
         )
     if covs_n is not None:  # second pass, weights at the solution
         b, W, _ = prob.unpack(sol.x)
-        w_mag, C = weights(b, W)
-        prob = _Problem(pts_n, w_mag, poses_n, up, _whiten(C))
+        prob, _ = problem(b, W)
         sol2 = prob.solve(sol.x, max_iter)
         sol = sol2 if sol2.status > 0 else sol
     _, J = prob.evaluate(sol.x)
