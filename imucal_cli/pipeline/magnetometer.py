@@ -26,6 +26,7 @@ from imucal_cli.solvers.clipping import clipped_rows
 from imucal_cli.solvers.poses import describe_direction
 from imucal_cli.solvers.sphere_quality import sphere_quality, suggest_direction
 
+from .accel import parameter_rows
 from .common import num, rms, session_name
 
 #: Folds of the held-out fit error: readings alternate between them in blocks of this length.
@@ -401,12 +402,10 @@ def _axes_words(R: np.ndarray) -> list[str]:
 def _section_extra(session, readings: MagReadings, res, units_in, field, units, source) -> dict:
     """The fields of the ``mag`` section beyond the standard ones (see DEVELOPERS.md)."""
     data = readings.data
-    param_units = [units_in] * 3 + [f"{units} per {units_in}"] * (len(res.params) - 3)
-    parameters = [
-        {"name": n, "value": float(v), "std": float(sd), "unit": u}
-        for n, v, sd, u in zip(res.param_names, res.params, res.std, param_units, strict=True)
-        if n != "s"
-    ]
+    n_w = len(res.params) - 3 - (1 if res.aligned else 0)  # the dip s is told as an angle
+    param_units = [units_in] * 3 + [f"{units} per {units_in}"] * n_w
+    parameters = parameter_rows(res.param_names[: 3 + n_w], res.params[: 3 + n_w],
+                                res.std[: 3 + n_w], param_units)  # fmt: skip
     R, P = mag_solver.polar(res.matrix)
     axis_gains = np.linalg.eigvalsh(P)
     soft_pct = 100.0 * float(axis_gains[-1] / axis_gains[0] - 1.0)

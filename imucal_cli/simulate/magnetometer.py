@@ -177,7 +177,7 @@ def simulate_mag(
         The triad's truth plus a ``mag`` section: ``matrix = S^-1``, ``bias = b``, and the
         field, inclination, hard iron (uT), soft iron and layout.
     """
-    from imucal_cli.simulate.triad import sensor_name, simulate_stream, truth_calibration
+    from imucal_cli.simulate.triad import simulate_stream, stream_session, truth_calibration
 
     field_uT = check_positive("field", field_uT, "uT")
     if not 1.0 <= field_uT <= 1000.0:
@@ -210,22 +210,8 @@ def simulate_mag(
         "field_uT": float(field_uT), "inclination_deg": float(inclination_deg),
         "layout": layout, "field_known": bool(field_known), "tumble_s": float(tumble_s),
     }  # fmt: skip
-    opt = stream.options
-    session = Session(
-        time=stream.time,
-        accel=stream.accel,
-        gyro=stream.gyro,
-        temperature=None,
-        segments=stream.segments,
-        created=truth.created,
-        sensor=sensor_name(seed),
-        source="simulator",
-        sample_rate_hz=float(opt["rate_hz"]),
-        gravity=float(opt["gravity"]),
-        accel_units=stream.truth.accel_units,
-        gyro_units=stream.truth.gyro_units,
-        mag=raw,
-        mag_units=mag_units,
+    session = replace(
+        stream_session(stream, truth.created), mag=raw, mag_units=mag_units,
         magnetic_field_uT=float(field_uT) if field_known else None,
-    )
+    )  # fmt: skip
     return session, truth

@@ -51,7 +51,7 @@ from imucal_cli.simulate.sensor import (  # noqa: F401 (the part's figures, re-e
 )
 
 __all__ = ["SimulatedStream", "random_imu", "sensor_name", "simulate", "simulate_stream",
-           "truth_calibration"]  # fmt: skip
+           "stream_session", "truth_calibration"]  # fmt: skip
 
 
 @dataclass
@@ -377,18 +377,22 @@ def simulate(
     """
     stream = simulate_stream(plan=plan, seed=seed, **options)
     created = created or utc_now_iso()
-    session = Session(
+    return stream_session(stream, created), truth_calibration(stream, created)
+
+
+def stream_session(stream: SimulatedStream, created: str) -> Session:
+    """The session a recorder would have written of a simulated stream (accel and gyro)."""
+    return Session(
         time=stream.time,
         accel=stream.accel,
         gyro=stream.gyro,
         temperature=None,
         segments=stream.segments,
         created=created,
-        sensor=sensor_name(seed),
+        sensor=sensor_name(stream.options["seed"]),
         source="simulator",
         sample_rate_hz=float(stream.options["rate_hz"]),
         gravity=float(stream.options["gravity"]),
         accel_units=stream.truth.accel_units,
         gyro_units=stream.truth.gyro_units,
     )
-    return session, truth_calibration(stream, created)
