@@ -235,6 +235,10 @@ def test_command_line_simulate_calibrate_report(tmp_path):
     proc = run("calibrate", out)
     assert proc.returncode == 0, proc.stderr
     assert "mag: magnetometer" in proc.stdout and "quality: pass" in proc.stdout
+    second = tmp_path / "m2.h5"
+    second.write_bytes(out.read_bytes())
+    proc = run("calibrate", out, second, "--no-store", "--force")
+    assert proc.returncode == 0 and "mag quality" in proc.stdout and "pass" in proc.stdout
     proc = run("report", tmp_path / "m.cal.json", "--json")
     assert json.loads(proc.stdout)["sensors"]["mag"]["mag"]["aligned"] is True
     proc = run("report", tmp_path / "m.cal.json")

@@ -148,17 +148,25 @@ def _many(
         print_json({"format": "imucal-calibrate-many", "format_version": 1, "results": rows})
         return max((r.exit_code for r in results), default=0)
     table = Table(title=f"{len(sessions)} sessions")
-    for col in ("session", "result", "accel |a|-g RMS, m/s^2", "gyro turn RMS, deg", "warnings"):
+    with_mag = any("mag_solver" in r.figures for r in results)
+    columns = ["session", "result", "accel |a|-g RMS, m/s^2", "gyro turn RMS, deg"]
+    columns += ["mag |B| RMS", "mag quality"] if with_mag else []
+    for col in (*columns, "warnings"):
         table.add_column(col)
     for r in results:
         f = r.figures
-        table.add_row(
+        cells = [
             r.session,
             "[green]saved[/]" if r.exit_code == 0 else f"[red]failed ({r.exit_code})[/]",
             f"{f['accel_rms_after']:.4f}" if "accel_rms_after" in f else "",
             f"{f['gyro_rms_deg']:.3f}" if "gyro_rms_deg" in f else "",
-            str(f.get("warnings", "")),
-        )
+        ]
+        if with_mag:
+            cells += [
+                f"{f['mag_rms_after']:.4g} {f['mag_units']}" if "mag_rms_after" in f else "",
+                f.get("mag_quality") or "",
+            ]
+        table.add_row(*cells, str(f.get("warnings", "")))
     console.print(table)
     failed = [r for r in results if r.exit_code]
     for r in failed:

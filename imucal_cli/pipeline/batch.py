@@ -42,6 +42,7 @@ class SessionResult:
         The one-line error when not saved.
     figures : dict
         ``accel_solver``, ``accel_rms_after`` (m/s^2), ``gyro_solver``, ``gyro_rms_deg``,
+        ``mag_solver``, ``mag_rms_after`` (in ``mag_units``), ``mag_quality`` (pass/recapture),
         ``warnings`` (count), where present.
     """
 
@@ -90,15 +91,19 @@ def calibrate_file(
 
 def _figures(cal: Calibration) -> dict:
     out: dict = {}
-    for name, sec in (("accel", cal.accel), ("gyro", cal.gyro)):
-        if sec is None:
-            continue
+    for name, sec in cal.sections().items():
         out[f"{name}_solver"] = sec.solver
         x = sec.extra
         if name == "accel" and x.get("rms_after") is not None:
             out["accel_rms_after"] = float(x["rms_after"])
         if name == "gyro" and x.get("rotation_rms_deg") is not None:
             out["gyro_rms_deg"] = float(x["rotation_rms_deg"])
+        if name == "mag":
+            if x.get("rms_after") is not None:
+                out["mag_rms_after"] = float(x["rms_after"])
+                out["mag_units"] = sec.units
+            if isinstance(x.get("quality"), dict):
+                out["mag_quality"] = x["quality"].get("verdict")
         out["warnings"] = out.get("warnings", 0) + len(x.get("warnings", []))
     return out
 
