@@ -6,9 +6,9 @@ import argparse
 
 from rich.console import Console
 
-from bench import capture, factorization, gravity, gyro, gyro_speed
+from bench import capture, factorization, gravity, gyro, gyro_speed, trust_gyro
 
-BENCHMARKS = ("gravity", "factorization", "gyro", "gyro-speed", "capture")
+BENCHMARKS = ("gravity", "factorization", "gyro", "gyro-speed", "trust-gyro", "capture")
 
 
 def main() -> None:
@@ -27,6 +27,8 @@ def main() -> None:
         ok = gyro.run(console, n_seeds=max(20, args.seeds // 2)) and ok
     if args.only in (None, "gyro-speed"):
         ok = gyro_speed.run(console) and ok
+    if args.only in (None, "trust-gyro"):
+        ok = trust_gyro.run(console, n_seeds=max(5, args.seeds // 20)) and ok
     if args.only in (None, "capture"):
         ok = capture.run(console, quick=args.quick) and ok
     raise SystemExit(0 if ok else 1)

@@ -124,4 +124,6 @@ def _summary(console: Console, cal, where: str) -> None:
         )
         for w in x.get("warnings", []):
             console.print(f"  [bold yellow]warning[/]: {w}")
+    if cal.extra.get("gyro_note"):
+        console.print(f"[bold]gyro[/]: {cal.extra['gyro_note']}")
     console.print(f"wrote {where}")

@@ -43,6 +43,8 @@ def calibrate_gyro(
     they need ``accel``, calibrated in the same run.
     """
     solver = cfg.gyro.solver
+    if solver == "auto":
+        return calibrate_gyro_auto(session, cfg, accel)[0]
     if solver == "factorization":
         from imucal_cli.pipeline.factorization import calibrate_gyro_factorization
 
@@ -59,6 +61,53 @@ def calibrate_gyro(
     return None
 
 
+def calibrate_gyro_auto(
+    session: Session, cfg: Config, accel: SensorCalibration | None
+) -> tuple[SensorCalibration | None, str | None]:
+    """``[gyro] solver = "auto"``: the most accurate solver the session supports.
+
+    The full model (bias, scale, misalignment, g-sensitivity when significant) wherever the
+    turns and a calibrated accelerometer allow it; Hwangbo & Kanade's factorization for a
+    redundant gyro (more than 3 channels) or turns about labelled axes without an
+    accelerometer calibration; None when the session has no gyro, or no rotations that it
+    did not capture on purpose. A session with rotation segments that no solver can use is
+    refused with the full model's reason.
+
+    Returns
+    -------
+    section : SensorCalibration or None
+    note : str or None
+        Why the gyro was left uncalibrated (None when it was calibrated).
+    """
+    from dataclasses import replace
+
+    from imucal_cli.errors import ImucalError
+
+    if session.gyro is None:
+        return None, "gyro not calibrated: the session has no /raw/gyro"
+    labelled = [s for s in session.rotation_segments() if s.axis is not None]
+    if session.gyro.shape[1] != 3 or (accel is None and labelled):
+        choice, why = "factorization", (
+            f"a redundant gyro ({session.gyro.shape[1]} channels)" if session.gyro.shape[1] != 3
+            else "turns about labelled axes and no accelerometer calibration"
+        )
+    elif accel is None:
+        return None, ("gyro not calibrated: the full gyro model needs the accelerometer "
+                      "calibrated (an [accel] solver, or --accel CAL.json)")  # fmt: skip
+    else:
+        choice, why = "full", "turns between still periods, accelerometer calibrated"
+    try:
+        sec = calibrate_gyro(session, replace(cfg, gyro=replace(cfg.gyro, solver=choice)), accel)
+    except ImucalError:
+        if session.rotation_segments():
+            raise  # turns captured on purpose: say why they cannot calibrate
+        return None, ("gyro not calibrated: no usable rotations (the gyro needs turns "
+                      "between still periods)")  # fmt: skip
+    sec.extra.setdefault("notes", []).insert(0, f'solver "{choice}" chosen by [gyro] solver = '
+                                                f'"auto": {why}')  # fmt: skip
+    return sec, None
+
+
 def calibrate_session(session: Session, cfg: Config, *, name: str | None = None) -> Calibration:
     """Calibrate every sensor the config asks for; returns the calibration (not yet saved).
 
@@ -68,11 +117,16 @@ def calibrate_session(session: Session, cfg: Config, *, name: str | None = None)
         raise ConfigError("the config calibrates nothing: [accel] and [gyro] solver are both none")
     session, segmented = with_segments(session)
     accel = calibrate_accel(session, cfg) if cfg.accel.solver != "none" else None
-    gyro = calibrate_gyro(session, cfg, accel)
+    if cfg.gyro.solver == "auto":
+        gyro, gyro_note = calibrate_gyro_auto(session, cfg, accel)
+    else:
+        gyro, gyro_note = calibrate_gyro(session, cfg, accel), None
     for sec in (accel, gyro):
         if sec is not None and segmented:
             sec.extra.setdefault("notes", []).insert(0, segmented)
     extra = {"toolkit_version": __version__, "config": cfg.to_dict()}
+    if gyro_note:
+        extra["gyro_note"] = gyro_note
     if session.sensor:
         extra["sensor"] = session.sensor
     return Calibration(
