@@ -129,6 +129,8 @@ def calibrate_session(session: Session, cfg: Config, *, name: str | None = None)
         extra["gyro_note"] = gyro_note
     if session.sensor:
         extra["sensor"] = session.sensor
+    if session.source:  # "simulator", "serial:...": the report's context (paper figures or not)
+        extra["source"] = session.source
     return Calibration(
         accel=accel,
         gyro=gyro,
