@@ -236,7 +236,7 @@ def calibrate_gyro_rotations(session: Session, cfg: Config, accel_cal: SensorCal
         "model": MODEL_EQUATION if variant != "full-g" else MODEL_EQUATION_G,
         "units_in": data.units_in,
         "variant": VARIANTS[variant],
-        "frame": "the calibrated accelerometer's frame",
+        "frame": _frame(data.accel_cal),
         "parameters": fit.parameters,
         "sensitivity": [float(x) for x in fit.gains],
         "sensitivity_unit": f"{data.units_in} per rad/s",
@@ -255,6 +255,13 @@ def calibrate_gyro_rotations(session: Session, cfg: Config, accel_cal: SensorCal
         residual_rms=rms(fit.residual_rad),
         extra=extra,
     )
+
+
+def _frame(accel: SensorCalibration) -> str:
+    """The frame the gyro is calibrated in: the accelerometer's, which its solver and model
+    fix (another accelerometer solver is another frame: not drift)."""
+    how = ", ".join(x for x in (accel.solver, accel.extra.get("variant")) if x)
+    return f"the calibrated accelerometer's frame ({how})"
 
 
 #: The model equation of a gyro section with g-sensitivity (spec: optional term).
