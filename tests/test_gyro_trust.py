@@ -12,6 +12,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from imucal_cli.errors import DesignError
 from imucal_cli.formats.config import config_from_dict
 from imucal_cli.formats.session import write_session
 from imucal_cli.pipeline.calibrate import calibrate_session, suspect_error
@@ -200,5 +201,6 @@ def test_auto_leaves_the_gyro_out_when_nothing_can_calibrate_it():
                     segments=[s for s in session.segments if s.kind == "static"])  # fmt: skip
     cal = calibrate_session(still, config_from_dict({}))
     assert cal.gyro is None and "no usable rotations" in cal.extra["gyro_note"]
-    accel_off = calibrate_session(session, config_from_dict({"accel": {"solver": "none"}}))
-    assert accel_off.gyro is None and "--accel" in accel_off.extra["gyro_note"]
+    # Nothing at all to calibrate: refused, saying what would calibrate the gyro.
+    with pytest.raises(DesignError, match="--accel CAL.json"):
+        calibrate_session(session, config_from_dict({"accel": {"solver": "none"}}))
