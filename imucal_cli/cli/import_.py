@@ -23,7 +23,18 @@ def import_(
         "gyroscope file.",
         show_default=False,
     ),
-    fmt: str = typer.Option("csv", "--format", "-f", help="csv or imu_tk."),
+    fmt: str | None = typer.Option(
+        None,
+        "--format",
+        "-f",
+        help="csv, imu_tk, ros (.bag, ROS 2 bag folder, .mcap), ulog (.ulg), lines (MotionCal "
+        "Raw:, i2cdevlib a/g:) or witmotion (0x55 frames) [default: recognised from the file].",
+    ),
+    topic: str | None = typer.Option(
+        None,
+        "--topic",
+        help="ros: the sensor_msgs/Imu topic (listed when several); ulog: the IMU instance N.",
+    ),
     columns: str | None = typer.Option(
         None,
         "--columns",
@@ -69,6 +80,7 @@ def import_(
         accel_units=accel_units,
         gyro_units=gyro_units,
         sensor=sensor,
+        topic=topic,
     )
     out = output or default_output(files[0])
     write_session(out, session, overwrite=force)
@@ -95,6 +107,8 @@ def import_(
         skipped.append(f"{stats.unmatched} unmatched (no sample of that time in the other file)")
     if skipped:
         console.print("  skipped lines: " + ", ".join(skipped))
+    for note in getattr(session, "import_notes", []):
+        console.print(f"  {note}", highlight=False, markup=False, soft_wrap=True)
     console.print(
         f"  {len(static)} static segments ({held:.1f} s still), {len(rotations)} rotation segments"
     )

@@ -30,12 +30,15 @@ class ReadOptions:
         Sample rate, Hz, for recordings without time stamps.
     skip_rows : int
         Text formats: lines skipped at the top of each file.
+    topic : str, optional
+        Logs of several streams: the one to read (ROS topic, ULog instance).
     """
 
     columns: str | list[str | None] | None = None
     time_unit: str = "s"
     rate_hz: float | None = None
     skip_rows: int = 0
+    topic: str | None = None
 
 
 @dataclass
@@ -91,6 +94,15 @@ class Recording:
     columns : list of (str or None)
         The fields of the (first) file, as used.
     stats : ImportStats
+    accel_units, gyro_units : str or None
+        Units the format itself fixes (ROS and ULog: m/s^2, rad/s; binary and serial
+        formats: counts); ``--accel-units``/``--gyro-units`` override them.
+    mag : ndarray, shape (N, 3), or None
+        Magnetometer channels, where the format has them (not stored by the session writer
+        yet).
+    mag_units : str or None
+    notes : list of str
+        What the reader chose or left out (topic, time base, pairing), for the summary.
     """
 
     time: np.ndarray
@@ -101,3 +113,8 @@ class Recording:
     names: list[str]
     columns: list[str | None]
     stats: ImportStats = field(default_factory=ImportStats)
+    accel_units: str | None = None
+    gyro_units: str | None = None
+    mag: np.ndarray | None = None
+    mag_units: str | None = None
+    notes: list[str] = field(default_factory=list)
