@@ -405,3 +405,17 @@ def test_import_topic_option_and_refusals(tmp_path, six):
                               tmp_path / "y.h5"), "--columns does not apply")  # fmt: skip
     motion = write_format("motioncal", tmp_path, six)
     assert_one_line_error(run("import", motion, "-o", tmp_path / "z.h5"), "--rate")
+
+
+@pytest.mark.parametrize(
+    ("module", "reader", "name", "extra"),
+    [("rosbags.highlevel", read_ros, "x.bag", "[ros]"),
+     ("mcap.reader", read_ros, "x.mcap", "[mcap]"),
+     ("pyulog", read_ulog, "x.ulg", "[px4]")],
+)  # fmt: skip
+def test_missing_library_names_the_extra(monkeypatch, tmp_path, module, reader, name, extra):
+    path = tmp_path / name
+    path.write_bytes(b"data")
+    monkeypatch.setitem(__import__("sys").modules, module, None)  # as if not installed
+    with pytest.raises(InputError, match=rf"pip install 'imucal-cli\{extra}'"):
+        reader(path)
