@@ -8,11 +8,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["ACCEL_UNITS", "GYRO_UNITS", "TIME_UNITS", "ImportStats", "ReadOptions", "Recording"]
+__all__ = [
+    "ACCEL_UNITS", "GYRO_UNITS", "MAG_UNITS", "TIME_UNITS", "ImportStats", "ReadOptions",
+    "Recording",
+]  # fmt: skip
 
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
 ACCEL_UNITS = ("counts", "V", "g", "m/s^2")
 GYRO_UNITS = ("counts", "V", "rad/s", "deg/s")
+MAG_UNITS = ("counts", "uT", "nT", "gauss")
 
 
 @dataclass(frozen=True)
@@ -94,13 +98,11 @@ class Recording:
     columns : list of (str or None)
         The fields of the (first) file, as used.
     stats : ImportStats
-    accel_units, gyro_units : str or None
-        Units the format itself fixes (ROS and ULog: m/s^2, rad/s; binary and serial
-        formats: counts); ``--accel-units``/``--gyro-units`` override them.
     mag : ndarray, shape (N, 3), or None
-        Magnetometer channels, where the format has them (not stored by the session writer
-        yet).
-    mag_units : str or None
+        Raw magnetometer values as read.
+    accel_units, gyro_units, mag_units : str or None
+        Units the format itself fixes (ROS: m/s^2, rad/s, uT; ULog: m/s^2, rad/s, gauss;
+        binary and serial formats: counts); ``--accel-units`` ... override them.
     notes : list of str
         What the reader chose or left out (topic, time base, pairing), for the summary.
     """
@@ -113,8 +115,8 @@ class Recording:
     names: list[str]
     columns: list[str | None]
     stats: ImportStats = field(default_factory=ImportStats)
+    mag: np.ndarray | None = None
     accel_units: str | None = None
     gyro_units: str | None = None
-    mag: np.ndarray | None = None
     mag_units: str | None = None
     notes: list[str] = field(default_factory=list)
