@@ -6,9 +6,9 @@ import argparse
 
 from rich.console import Console
 
-from bench import capture, factorization, gravity, gyro, gyro_speed
+from bench import capture, factorization, gravity, gyro, gyro_speed, speed
 
-BENCHMARKS = ("gravity", "factorization", "gyro", "gyro-speed", "capture")
+BENCHMARKS = ("gravity", "factorization", "gyro", "gyro-speed", "capture", "speed")
 
 
 def main() -> None:
@@ -16,6 +16,8 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=200, help="Monte-Carlo seeds per benchmark")
     parser.add_argument("--only", choices=BENCHMARKS, help="run only this benchmark")
     parser.add_argument("--quick", action="store_true", help="capture: 10 s instead of 60 s")
+    parser.add_argument("--runs", type=int, default=5, help="speed: runs per figure (median)")
+    parser.add_argument("--sessions", type=int, default=500, help="speed: production-line size")
     args = parser.parse_args()
     console = Console(width=160)
     ok = True
@@ -29,6 +31,8 @@ def main() -> None:
         ok = gyro_speed.run(console) and ok
     if args.only in (None, "capture"):
         ok = capture.run(console, quick=args.quick) and ok
+    if args.only in (None, "speed"):
+        ok = speed.run(console, runs=args.runs, n_sessions=args.sessions) and ok
     raise SystemExit(0 if ok else 1)
 
 

@@ -98,6 +98,10 @@ class Recording:
     columns : list of (str or None)
         The fields of the (first) file, as used.
     stats : ImportStats
+    lines : ndarray of int, shape (N,), or None
+        Text formats: the 1-based line number of each sample in the (first) file.
+    header : list of str or None
+        Text formats: the fields of the header line, when there is one.
     mag : ndarray, shape (N, 3), or None
         Raw magnetometer values as read.
     accel_units, gyro_units, mag_units : str or None
@@ -115,6 +119,8 @@ class Recording:
     names: list[str]
     columns: list[str | None]
     stats: ImportStats = field(default_factory=ImportStats)
+    lines: np.ndarray | None = None
+    header: list[str] | None = None
     mag: np.ndarray | None = None
     accel_units: str | None = None
     gyro_units: str | None = None
