@@ -6,9 +6,17 @@ import argparse
 
 from rich.console import Console
 
-from bench import capture, factorization, gravity, gyro, gyro_speed, speed
+from bench import capture, factorization, gravity, gyro, gyro_speed, labelled, speed
 
-BENCHMARKS = ("gravity", "factorization", "gyro", "gyro-speed", "capture", "speed")
+BENCHMARKS = (
+    "gravity",
+    "labelled",
+    "factorization",
+    "gyro",
+    "gyro-speed",
+    "capture",
+    "speed",
+)
 
 
 def main() -> None:
@@ -23,6 +31,8 @@ def main() -> None:
     ok = True
     if args.only in (None, "gravity"):
         ok = gravity.run(console, n_seeds=args.seeds) and ok
+    if args.only in (None, "labelled"):
+        ok = labelled.run(console, n_seeds=args.seeds) and ok
     if args.only in (None, "factorization"):
         ok = factorization.run(console, n_seeds=args.seeds) and ok
     if args.only in (None, "gyro"):
