@@ -175,20 +175,20 @@ def test_apply_writes_calibrated_mag_to_h5_and_csv(tmp_path):
     cal = calibrate_session(session, Config())
     write_calibration(tmp_path / "c.json", cal)
     summary = apply_calibration(cal, tmp_path / "s.h5", tmp_path / "o.h5")
-    assert summary.sensors == ("accel", "mag")
+    assert summary.sensors == ("accel", "gyro", "mag")
     with h5py.File(tmp_path / "o.h5") as f:
         ds = f["calibrated/mag"]
         assert ds.attrs["units"] == "uT" and ds.attrs["units_in"] == "counts"
         np.testing.assert_array_equal(ds[:], cal.mag.apply(session.mag))
-    rows = np.column_stack([session.time, session.accel, session.mag])
-    np.savetxt(tmp_path / "in.csv", rows, delimiter=",", header="t,ax,ay,az,mx,my,mz",
+    rows = np.column_stack([session.time, session.accel, session.gyro, session.mag])
+    np.savetxt(tmp_path / "in.csv", rows, delimiter=",", header="t,ax,ay,az,gx,gy,gz,mx,my,mz",
                comments="")  # fmt: skip
     apply_calibration(cal, tmp_path / "in.csv", tmp_path / "o.csv")
     lines = (tmp_path / "o.csv").read_text().splitlines()
-    assert lines[0] == "t,ax,ay,az,mx,my,mz" and "mx my mz uT" in lines[1]
+    assert lines[0] == "t,ax,ay,az,gx,gy,gz,mx,my,mz" and "mx my mz uT" in lines[1]
     out = np.loadtxt(lines[2:], delimiter=",")
-    np.testing.assert_allclose(out[:, 4:], cal.mag.apply(session.mag), rtol=1e-9)
+    np.testing.assert_allclose(out[:, 7:], cal.mag.apply(session.mag), rtol=1e-9)
     no_mag = tmp_path / "nomag.csv"
-    np.savetxt(no_mag, rows[:, :4], delimiter=",", header="t,ax,ay,az", comments="")
+    np.savetxt(no_mag, rows[:, :7], delimiter=",", header="t,ax,ay,az,gx,gy,gz", comments="")
     assert_one_line_error(run("apply", tmp_path / "c.json", no_mag, "-o", tmp_path / "x.csv"),
                           "no mag columns (mx,my,mz")  # fmt: skip

@@ -106,7 +106,7 @@ def test_calibration_json_round_trip_keeps_the_mag_section(sim):
     _, _, cal = sim
     back = calibration_from_json(calibration_to_json(cal))
     assert np.allclose(back.mag.matrix, cal.mag.matrix) and back.mag.units == "uT"
-    assert list(back.sections()) == ["accel", "mag"]
+    assert list(back.sections()) == ["accel", "gyro", "mag"]  # gyro auto uses the tumbles
 
 
 def test_unknown_field_gives_output_in_units_of_the_local_field():
