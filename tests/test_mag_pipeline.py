@@ -250,3 +250,28 @@ def test_command_line_simulate_calibrate_report(tmp_path):
     cfg = tmp_path / "c.toml"
     cfg.write_text('[accel]\nsolver = "none"\n')
     assert_one_line_error(run("calibrate", six, "--config", cfg), "of the directions")
+
+
+def test_a_ros_import_without_magnetometer_values_before_its_first_message():
+    """A ROS import holds each MagneticField message until the next and leaves the rows before
+    the first NaN: the step leaves those out and says so."""
+    from imucal_cli.formats.importers.ros import hold_latest
+
+    session, _ = simulate_mag("random:12", 11, **FAST)
+    t = session.time
+    sent = np.flatnonzero(t >= t[0] + 0.2 * (t[-1] - t[0]))[::5]  # 20 Hz, from 20 % on
+    mag = hold_latest(t[sent] + 1e-4, session.mag[sent].astype(float), t)
+    first = int(np.argmax(np.isfinite(mag).all(axis=1)))
+    assert first > 0.15 * len(t)
+    cal = calibrate_session(dataclasses.replace(session, mag=mag), Config())
+    left = cal.mag.extra["readings"]["left_out"]
+    assert left["nonfinite"] == left["before_first"] == first
+    assert any(f"{first} of {len(t)} rows have no magnetometer value" in n
+               and "all before its first value" in n for n in cal.mag.extra["notes"])
+    assert cal.mag.extra["quality"]["verdict"] == "pass"
+    from imucal_cli.cli.calibrate import mag_summary
+
+    assert f"({first} rows without a value left out)" in mag_summary(cal.mag)[0]
+    none = dataclasses.replace(session, mag=np.full_like(mag, np.nan))
+    with pytest.raises(DesignError, match="no reading with a value"):
+        calibrate_session(none, Config())

@@ -258,6 +258,9 @@ def mag_summary(sec) -> list[str]:
     x = sec.extra
     rd = x.get("readings", {})
     how = [sec.solver, f"{rd.get('motion', 0)} motion readings + {rd.get('poses', 0)} poses"]
+    missing = (rd.get("left_out") or {}).get("nonfinite") if isinstance(rd, dict) else None
+    if missing:
+        how[-1] += f" ({missing} rows without a value left out)"
     if x.get("iterations"):
         how.append(f"{x['iterations']} iterations")
     how.append("aligned to the accelerometer" if x.get("aligned") else "own axes (not aligned)")

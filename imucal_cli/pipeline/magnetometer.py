@@ -55,7 +55,8 @@ class MagReadings:
     pose_samples : ndarray of int
         Distinct readings in each pose.
     dropped : dict
-        Rows left out: ``nonfinite``, ``clipped``, ``repeated``.
+        Rows left out: ``nonfinite`` (of which ``before_first``: before the magnetometer's
+        first value, as in a ROS import before its first message), ``clipped``, ``repeated``.
     clip_limits : (low, high) or None
         The range used for clipping, raw units.
     """
@@ -95,6 +96,12 @@ def mag_readings(
             f"{mag.shape[1]}"
         )
     finite = np.isfinite(mag).all(axis=1)
+    if not finite.any():
+        raise DesignError(
+            f"{where}: /raw/mag has no reading with a value (every row is NaN): the "
+            "magnetometer sent nothing; check its topic, column or connection, or set [mag] "
+            'solver = "none" to calibrate the rest without it'
+        )
     limits = None if cfg.range is None else (float(cfg.range[0]), float(cfg.range[1]))
     clipped = clipped_rows(mag, limits)
     n_finite = int(finite.sum())
@@ -139,6 +146,7 @@ def mag_readings(
     )
     dropped = {
         "nonfinite": int((~finite).sum()),
+        "before_first": int(np.argmax(finite)),
         "clipped": int(clipped.sum()),
         "repeated": int(len(all_motion) - len(motion)),
     }
@@ -229,6 +237,7 @@ def calibrate_mag(
     elif accel is None:
         res.notes.append("not aligned to the accelerometer: no accelerometer calibrated in this "
                          "run (the static poses' gravity directions fix the rotation)")  # fmt: skip
+    res.notes += _missing_note(readings.dropped, len(session.mag))
     calibrated = res.calibrate(data.points)
     quality = sphere_quality(calibrated)
     _check_coverage(quality, res, mcfg, where)
@@ -259,6 +268,21 @@ def calibrate_mag(
         residual_rms=rms(res.residuals),
         extra=extra,
     )
+
+
+def _missing_note(dropped: dict, n_rows: int) -> list[str]:
+    """Say how many rows had no magnetometer value (left out), and how many of them came
+    before its first value (a ROS import's rows before the first magnetometer message)."""
+    n, first = dropped["nonfinite"], dropped["before_first"]
+    if not n:
+        return []
+    text = f"{n} of {n_rows} rows have no magnetometer value and were left out"
+    if first:
+        text += (f" ({first} before its first value, e.g. before a recording's first "
+                 "magnetometer message)" if first < n else
+                 " (all before its first value, e.g. before a recording's first magnetometer "
+                 "message)")  # fmt: skip
+    return [text]
 
 
 def _check_coverage(quality, res, cfg: MagConfig, where: str) -> None:

@@ -62,7 +62,7 @@ from scipy.special import chdtri
 
 from imucal_cli.errors import DesignError, SolverError
 
-from .ellipsoid import fit_ellipsoid
+from .magnetometer_start import ellipsoid_start, polar, rotation_start
 
 __all__ = [
     "PARAM_NAMES_ALIGNED",
@@ -254,29 +254,6 @@ def _sym_params(W: np.ndarray) -> np.ndarray:
     return np.array([W[i, j] for i, j in SYM_INDEX])
 
 
-def polar(W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Polar decomposition ``W = R P``: rotation ``R`` (det +1) and symmetric ``P``.
-
-    For a ``W`` with negative determinant (a left-handed sensor) ``R`` is a reflection.
-    """
-    U, sv, Vt = np.linalg.svd(W)
-    R = U @ Vt
-    P = Vt.T @ np.diag(sv) @ Vt
-    return R, P
-
-
-def _tangent(u: np.ndarray) -> np.ndarray:
-    """Two unit vectors perpendicular to each row of ``u`` (..., 3) -> (..., 3, 2)."""
-    u = np.asarray(u, float)
-    helper = np.zeros_like(u)
-    idx = np.argmin(np.abs(u), axis=-1)
-    np.put_along_axis(helper, idx[..., None], 1.0, axis=-1)
-    t1 = np.cross(u, helper)
-    t1 /= np.linalg.norm(t1, axis=-1, keepdims=True)
-    t2 = np.cross(u, t1)
-    return np.stack([t1, t2], axis=-1)
-
-
 # --------------------------------------------------------------------------------------------
 # Residuals of eqs. (2) and (3) and their Jacobians, in normalised coordinates
 # --------------------------------------------------------------------------------------------
@@ -430,84 +407,6 @@ def _weights(sig: np.ndarray) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------------------------
-# Starts: the algebraic ellipsoid, then the rotation from eq. (3)
-# --------------------------------------------------------------------------------------------
-
-
-def _ellipsoid_start(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, str]:
-    """Centre and symmetric ``P`` with ``|P (m - c)| = 1`` from the algebraic fit."""
-    try:
-        ell = fit_ellipsoid(points, 1.0)
-    except ValueError:
-        raise DesignError(
-            "every magnetometer reading is the same: the sensor is stuck or not connected"
-        ) from None
-    Q = ell.M.T @ ell.M
-    lam, V = np.linalg.eigh(Q)
-    P = V @ np.diag(np.sqrt(np.clip(lam, 1e-30, None))) @ V.T
-    return ell.bias, P, ell.kind
-
-
-def _cube_rotations() -> list[np.ndarray]:
-    """The 24 proper rotations that map the axes onto (signed) axes."""
-    out = []
-    for perm in ((0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0)):
-        for signs in np.ndindex(2, 2, 2):
-            R = np.zeros((3, 3))
-            for row, (col, sgn) in enumerate(zip(perm, signs, strict=True)):
-                R[row, col] = 1.0 if sgn == 0 else -1.0
-            if np.linalg.det(R) > 0:
-                out.append(R)
-    return out
-
-
-def _rotation_start(n: np.ndarray, up: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, float]:
-    """Rotation ``R`` and ``s`` minimising ``sum w^2 (u . R n - s)^2`` (eq. 3), multi-start.
-
-    ``n`` (K, 3) are the unit field directions in the magnetometer's frame, ``up`` (K, 3) the
-    unit up directions in the accelerometer's frame.
-    """
-    starts = _cube_rotations()
-    if len(n) >= 9:
-        # eq. (3) is linear in (vec R, s): the null vector of [kron(u, n), -1] rows.
-        A = np.column_stack([np.einsum("ki,kj->kij", up, n).reshape(len(n), 9), -np.ones(len(n))])
-        v = np.linalg.svd(A * w[:, None])[2][-1]
-        for sign in (1.0, -1.0):
-            R_lin, _ = polar(sign * v[:9].reshape(3, 3))
-            if np.linalg.det(R_lin) > 0:
-                starts.append(R_lin)
-
-    def cost(R):
-        c = np.einsum("ki,ij,kj->k", up, R, n)
-        s_opt = float(np.average(c, weights=w * w))
-        return float(np.sum((w * (c - s_opt)) ** 2)), s_opt
-
-    # the best few starts, refined by Gauss-Newton on R <- R Exp(delta)
-    ranked = sorted(starts, key=lambda R: cost(R)[0])[:4]
-    best = None
-    for R in ranked:
-        R, s_k = _refine_rotation(R, cost(R)[1], n, up, w)
-        value = cost(R)[0]
-        if best is None or value < best[0]:
-            best = (value, R, s_k)
-    return best[1], float(np.clip(best[2], -1.0, 1.0))
-
-
-def _refine_rotation(R, s, n, up, w, iterations: int = 30):
-    """Gauss-Newton on ``w (u . R Exp(delta) n - s)`` over ``(delta, s)``."""
-    for _ in range(iterations):
-        Ru = up @ R  # rows R^T u
-        r = w * (np.sum(Ru * n, axis=1) - s)
-        J = np.column_stack([np.cross(n, Ru), -np.ones(len(n))]) * w[:, None]
-        step, *_ = np.linalg.lstsq(J, -r, rcond=None)
-        R = R @ Rotation.from_rotvec(step[:3]).as_matrix()
-        s += step[3]
-        if np.linalg.norm(step) < 1e-12:
-            break
-    return R, s
-
-
-# --------------------------------------------------------------------------------------------
 # The fit
 # --------------------------------------------------------------------------------------------
 
@@ -517,7 +416,7 @@ def fit_plain_ellipsoid(data: MagData, field: float = 1.0) -> MagResult:
     no alignment.  Standard deviations from the Jacobian of eq. (2) at that solution."""
     points = data.points
     _check_points(points)
-    c, P, kind = _ellipsoid_start(points)
+    c, P, kind = ellipsoid_start(points)
     n = len(points)
     prob = _Problem(points, np.ones(n))
     x = prob.pack(c, P)
@@ -586,14 +485,11 @@ def fit_magnetometer(
     _check_points(points)
     if not field > 0:
         raise ValueError("field must be positive")
-    c, P, kind = _ellipsoid_start(points)
+    c, P, kind = ellipsoid_start(points)
     rho = 1.0 / float(np.cbrt(abs(np.linalg.det(P))))  # mean radius, raw units
     notes: list[str] = []
 
-    def norm(m):
-        return (m - c) / rho
-
-    pts_n = norm(points)
+    pts_n = (points - c) / rho
     covs = data.point_covs()
     covs_n = None if covs is None else covs / rho**2
     weighting = "equal" if covs is None else "noise"
@@ -609,39 +505,10 @@ def fit_magnetometer(
     b1, W1, _ = prob.unpack(sol.x)
 
     # ---- rotation onto the accelerometer frame (eq. 3)
-    labelled = data.labelled()
-    aligned = False
-    if align:
-        ups = np.asarray(data.up, float)[labelled] if labelled.any() else np.empty((0, 3))
-        if labelled.sum() < MIN_ALIGN_POSES:
-            notes.append(
-                f"not aligned to the accelerometer: {int(labelled.sum())} static poses with an "
-                f"accelerometer direction, at least {MIN_ALIGN_POSES} needed"
-            )
-        elif _max_angle_deg(ups) < MIN_UP_SPREAD_DEG:
-            notes.append(
-                "not aligned to the accelerometer: the static poses share one gravity direction "
-                "(the rotation about it is free); hold the unit with different faces up"
-            )
-        else:
-            aligned = True
+    fit = _aligned(data, pts_n, covs_n, rho, b1, W1, max_iterations, notes) if align else None
+    aligned = fit is not None
     if aligned:
-        n = len(data.samples)
-        rest = np.r_[np.ones(n, bool), ~labelled]  # magnitude-only readings
-        pose_covs_n = (
-            None if covs is None or data.pose_cov is None
-            else np.asarray(data.pose_cov, float)[labelled] / rho**2
-        )  # fmt: skip
-        up_cov = None if data.up_cov is None else np.asarray(data.up_cov, float)[labelled]
-        fit = _aligned_fit(
-            pts_n[rest], None if covs_n is None else covs_n[rest], pts_n[n:][labelled],
-            pose_covs_n, np.asarray(data.up, float)[labelled], up_cov, b1, W1, max_iterations,
-        )  # fmt: skip
-        if isinstance(fit, str):
-            aligned = False
-            notes.append(fit)
-        else:
-            prob, sol = fit
+        prob, sol = fit
     if not aligned and covs_n is not None:  # second pass, weights at the solution
         w_mag = _weights(_magnitude_sigma(pts_n, covs_n, b1, W1))
         prob = _Problem(pts_n, w_mag, shift=_magnitude_shift(pts_n, covs_n, b1, W1),
@@ -659,12 +526,52 @@ def fit_magnetometer(
             "plane or cone of directions, e.g. turned flat on a table); turn the unit through "
             "every direction: a slow figure-eight, then each face up"
         )
-    # back to raw units
-    out = _result(
+    return _result(  # back to raw units
         prob, x, r, J, field, weighting=weighting, init=kind, sol=sol, data=data, notes=notes,
         scale=(c, rho),
     )  # fmt: skip
-    return out
+
+
+def _can_align(data: MagData, notes: list[str]) -> bool:
+    """Whether the poses can fix the rotation by eq. (3): at least :data:`MIN_ALIGN_POSES`
+    with an up direction, not all parallel; else a note says why not."""
+    labelled = data.labelled()
+    if labelled.sum() < MIN_ALIGN_POSES:
+        notes.append(
+            f"not aligned to the accelerometer: {int(labelled.sum())} static poses with an "
+            f"accelerometer direction, at least {MIN_ALIGN_POSES} needed"
+        )
+        return False
+    if _max_angle_deg(np.asarray(data.up, float)[labelled]) < MIN_UP_SPREAD_DEG:
+        notes.append(
+            "not aligned to the accelerometer: the static poses share one gravity direction "
+            "(the rotation about it is free); hold the unit with different faces up"
+        )
+        return False
+    return True
+
+
+def _aligned(data: MagData, pts_n, covs_n, rho, b1, W1, max_iterations, notes):
+    """The joint fit of eqs. (2) and (3) in normalised coordinates, started from the symmetric
+    solution ``(b1, W1)``: ``(problem, solution)``, or None (a note says why not)."""
+    if not _can_align(data, notes):
+        return None
+    labelled = data.labelled()
+    n = len(data.samples)
+    rest = np.r_[np.ones(n, bool), ~labelled]  # magnitude-only readings
+    pose_covs_n = (
+        None if covs_n is None or data.pose_cov is None
+        else np.asarray(data.pose_cov, float)[labelled] / rho**2
+    )  # fmt: skip
+    up_cov = None if data.up_cov is None else np.asarray(data.up_cov, float)[labelled]
+    fit = _aligned_fit(
+        pts_n[rest], None if covs_n is None else covs_n[rest], pts_n[n:][labelled],
+        pose_covs_n, np.asarray(data.up, float)[labelled], up_cov, b1, W1, max_iterations,
+    )  # fmt: skip
+    if isinstance(fit, str):
+        notes.append(fit)
+        return None
+    return fit
 
 
 def _bias_step(prob: _Problem, x: np.ndarray, J: np.ndarray) -> np.ndarray:
@@ -722,7 +629,7 @@ def _aligned_fit(pts_n, covs_n, poses_n, pose_covs_n, up, up_cov, b1, W1, max_it
     h = (poses_n - b1) @ W1.T
     n_dir = h / np.linalg.norm(h, axis=1, keepdims=True)
     prob, C = problem(b1, W1)
-    R0, s0 = _rotation_start(n_dir, up, 1.0 / np.sqrt(C[:, 1, 1]))
+    R0, s0 = rotation_start(n_dir, up, 1.0 / np.sqrt(C[:, 1, 1]))
     sol = prob.solve(prob.pack(b1, R0 @ W1, s0), max_iter)
     if sol.status <= 0:
         return (
