@@ -68,6 +68,23 @@ def parameter_rows(
     return rows
 
 
+def fit_fields(res, weighting: str | None = None) -> dict:
+    """The fit's own fields of a section: ``init``, ``weighting``, ``iterations``,
+    ``function_evaluations``, ``converged``, ``message``, ``chi2``, ``dof``, ``noise_scale``
+    (from a solver result with those attributes; ``nfev`` for the evaluations)."""
+    return {
+        "init": res.init,
+        "weighting": res.weighting if weighting is None else weighting,
+        "iterations": res.iterations,
+        "function_evaluations": res.nfev,
+        "converged": res.converged,
+        "message": res.message,
+        "chi2": res.chi2,
+        "dof": res.dof,
+        "noise_scale": res.noise_scale,
+    }
+
+
 @dataclass
 class PoseFit:
     """What a solver says about each pose (arrays of length N)."""

@@ -11,7 +11,7 @@ from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
 from imucal_cli.solvers import gravity as gravity_solver
 
-from .accel import PoseFit, axes_summary_with_std, common_extra, parameter_rows
+from .accel import PoseFit, axes_summary_with_std, common_extra, fit_fields, parameter_rows
 from .common import (
     StaticPoses,
     check_design,
@@ -92,15 +92,7 @@ def gravity_section(
             "variant": res.variant,
             "gauge": GAUGE_9 if res.variant == "9-parameter" else GAUGE_12,
             "parameters": parameter_rows(res.param_names, res.params, res.std, units),
-            "init": res.init,
-            "weighting": res.weighting,
-            "iterations": res.iterations,
-            "function_evaluations": res.nfev,
-            "converged": res.converged,
-            "message": res.message,
-            "chi2": res.chi2,
-            "dof": res.dof,
-            "noise_scale": res.noise_scale,
+            **fit_fields(res),
             "rotation_std_deg": res.rotation_std_deg,
             "loo_method": loo_method,
             "warnings": physical_checks(

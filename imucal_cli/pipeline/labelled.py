@@ -12,7 +12,7 @@ from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
 from imucal_cli.solvers import labelled as labelled_solver
 
-from .accel import PoseFit, common_extra, parameter_rows
+from .accel import PoseFit, common_extra, fit_fields, parameter_rows
 from .common import (
     StaticPoses,
     labels_determine,
@@ -75,15 +75,7 @@ def labelled_section(
                 "dof": res.placement_dof,
                 "meaning": "RMS angle between each pose's true up and its label",
             },
-            "init": res.init,
-            "weighting": "noise",
-            "iterations": res.iterations,
-            "function_evaluations": res.nfev,
-            "converged": res.converged,
-            "message": res.message,
-            "chi2": res.chi2,
-            "dof": res.dof,
-            "noise_scale": res.noise_scale,
+            **fit_fields(res, "noise"),
             "rotation_std_deg": float(np.sqrt(np.mean(r_std**2))),
             "loo_method": "first-order deletion of each pose",
             "warnings": physical_checks(

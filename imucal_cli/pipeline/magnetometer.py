@@ -26,7 +26,7 @@ from imucal_cli.solvers.clipping import clipped_rows
 from imucal_cli.solvers.poses import describe_direction
 from imucal_cli.solvers.sphere_quality import sphere_quality, suggest_direction
 
-from .accel import parameter_rows
+from .accel import fit_fields, parameter_rows
 from .common import num, rms, session_name
 
 #: Folds of the held-out fit error: readings alternate between them in blocks of this length.
@@ -456,15 +456,7 @@ def _section_extra(session, readings: MagReadings, res, units_in, field, units, 
         "hard_iron_out_magnitude": float(np.linalg.norm(hard_out)),
         "soft_iron_axis_ratio_pct": soft_pct,
         "variance_before_pct": float(100.0 * raw_mag.std() / raw_mag.mean()),
-        "init": res.init,
-        "weighting": res.weighting,
-        "iterations": res.iterations,
-        "function_evaluations": res.nfev,
-        "converged": res.converged,
-        "message": res.message,
-        "chi2": res.chi2,
-        "dof": res.dof,
-        "noise_scale": res.noise_scale,
+        **fit_fields(res),
         "rms_after": rms(res.residuals),
         "dip_rms_deg": rms(res.dip_residuals_deg) if np.isfinite(res.dip_residuals_deg).any()
         else None,
