@@ -320,7 +320,7 @@ def test_recorder_signals_end_cleanly(tmp_path, signum, kind):
 
 def test_recorder_refuses_existing_file(tmp_path):
     (tmp_path / "r.h5").write_bytes(b"x")
-    with pytest.raises(InputError, match="exists: use --force"):
+    with pytest.raises(InputError, match="already exists"):
         Recorder(tmp_path / "r.h5", ScriptedSource([]), proto())
 
 

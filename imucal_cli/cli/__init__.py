@@ -7,10 +7,12 @@ exit code, so a user mistake never shows a traceback.
 
 from __future__ import annotations
 
+import errno
 import os
 import sys
+import warnings
 
-from imucal_cli.errors import ImucalError
+from imucal_cli.errors import ImucalError, ImucalWarning
 
 # Importing the command modules registers their commands on ``app``.
 from . import apply as _apply  # noqa: E402,F401
@@ -24,14 +26,39 @@ from . import simulate as _simulate  # noqa: E402,F401
 from .app import app
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Warnings of the library (:class:`ImucalWarning`) on one line; others as Python does."""
+    if issubclass(category, ImucalWarning):
+        from imucal_cli.formats.text import clean_text
+
+        try:
+            print(f"imucal: warning: {clean_text(str(message))}", file=sys.stderr, flush=True)
+        except OSError:
+            pass
+    else:
+        _python_showwarning(message, category, filename, lineno, file, line)
+
+
+_python_showwarning = warnings.showwarning
+
+
 def main() -> None:
     """Console-script entry point (``imucal``): run, then exit with the command's status."""
+    warnings.showwarning = _show_warning
+    warnings.simplefilter("always", ImucalWarning)
     code = _run()
     try:
         sys.stdout.flush()
     except BrokenPipeError:  # `imucal report ... | head`: the reader has gone; so do we
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     sys.exit(code)
+
+
+def _print_error(text: str) -> None:
+    try:
+        print(text, file=sys.stderr)
+    except OSError:
+        pass
 
 
 def _run() -> int:
@@ -56,12 +83,21 @@ def _run() -> int:
         print(f"imucal: error: {where}{exc.format_message()}{hint}", file=sys.stderr)
         return getattr(exc, "exit_code", 2)
     except ImucalError as exc:
-        print(f"imucal: error: {exc}", file=sys.stderr)
+        from imucal_cli.formats.text import clean_text
+
+        _print_error(f"imucal: error: {clean_text(str(exc))}")
         return exc.exit_code
+    except MemoryError:
+        _print_error("imucal: error: not enough memory for this input")
+        return 1
     except KeyboardInterrupt:
         print("imucal: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+    except OSError as exc:
+        if exc.errno == errno.EIO:  # the terminal hung up (SIGHUP): nobody reads the output
+            return 129
+        raise
     return code if isinstance(code, int) else 0

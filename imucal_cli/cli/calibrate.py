@@ -6,6 +6,7 @@ from pathlib import Path
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 from .app import app
 
@@ -31,7 +32,10 @@ def calibrate(
         None, "--gravity", help="Local gravity in m/s^2 [default: the session's, else 9.80665]."
     ),
     force: bool = typer.Option(
-        False, "--force", help="Save a result that fails the physical-sense checks (with warnings)."
+        False,
+        "--force",
+        help="Replace an existing OUTPUT, and save a result that fails the physical-sense "
+        "checks (with warnings).",
     ),
     store: bool = typer.Option(
         True,
@@ -41,13 +45,15 @@ def calibrate(
 ) -> None:
     """Calibrate the accelerometer of SESSION and write a calibration JSON.
 
-    Exit status: 0 saved; 2 bad input (unreadable file, bad config, poses that cannot
-    determine the model); 1 the solver did not converge or the result is outside physical
-    sense (not saved unless --force).
+    Exit status: 0 saved; 2 bad input, nothing saved (unreadable file, bad config, poses that
+    cannot determine the model, OUTPUT exists without --force or is the session); 1 the
+    solver did not converge or the result is outside physical sense (not saved unless --force),
+    or saved but not stored in the session (the reason is printed).
     """
-    from imucal_cli.formats.calibration import calibration_to_json, write_calibration
+    from imucal_cli.formats.calibration import write_calibration
     from imucal_cli.formats.config import load_config, validate
-    from imucal_cli.formats.session import read_session, store_calibration
+    from imucal_cli.formats.output import check_output
+    from imucal_cli.formats.session import read_session
     from imucal_cli.pipeline.calibrate import calibrate_session, default_output, suspect_error
 
     cfg = load_config(config)
@@ -56,6 +62,9 @@ def calibrate(
     if gravity is not None:
         cfg.gravity = gravity
     validate(cfg, "command line" if config is None else str(config))
+    out = output or default_output(session)
+    inputs = [session, config]
+    check_output(out, force=force, inputs=inputs)  # refuse before solving, not after
 
     sess = read_session(session)
     cal = calibrate_session(sess, cfg, name=session.name)
@@ -63,21 +72,34 @@ def calibrate(
     if problem is not None and not force:
         raise problem
 
-    out = output or default_output(session)
-    write_calibration(out, cal)
-    console = Console()
-    if store:
-        try:
-            name = store_calibration(session, calibration_to_json(cal))
-            stored = f" and {session}:/calibrations/{name}"
-        except OSError as exc:  # read-only session: the JSON is what matters
-            stored = f" (not stored in the session: {exc})"
-    else:
-        stored = ""
-    _summary(console, cal, f"{out}{stored}")
+    write_calibration(out, cal, force=force, inputs=inputs)
+    # Saved: from here on the exit status is 0, or 1 with the reason (never 2).
+    name, failure = _store(session, cal) if store else (None, None)
+    console = Console(highlight=False, soft_wrap=True)
+    _summary(console, cal)
+    where = f" and {session}:/calibrations/{name}" if name is not None else ""
+    console.print(f"wrote {escape(str(out) + where)}")
+    if failure is not None:
+        Console(stderr=True, highlight=False, soft_wrap=True).print(
+            f"imucal: error: saved {escape(str(out))} but could not store it in the session "
+            f"({escape(str(failure))}); pass --no-store not to store it"
+        )
+        raise typer.Exit(1)
 
 
-def _summary(console: Console, cal, where: str) -> None:
+def _store(session: Path, cal) -> tuple[str | None, Exception | None]:
+    """Store in the session; return (name, None), or (None, the error): the JSON is saved."""
+    from imucal_cli.errors import ImucalError
+    from imucal_cli.formats.calibration import calibration_to_json
+    from imucal_cli.formats.session import store_calibration
+
+    try:
+        return store_calibration(session, calibration_to_json(cal)), None
+    except (ImucalError, OSError) as exc:
+        return None, exc
+
+
+def _summary(console: Console, cal) -> None:
     """A few lines per calibrated sensor: what ran, the residuals, bias and sensitivity."""
     for name, sec in (("accel", cal.accel), ("gyro", cal.gyro)):
         if sec is None:
@@ -91,7 +113,7 @@ def _summary(console: Console, cal, where: str) -> None:
             how.append(f"{x['iterations']} iterations")
         if x.get("init"):
             how.append(f"init {x['init']}")
-        console.print(f"[bold]{name}[/]: " + ", ".join(how))
+        console.print(f"[bold]{name}[/]: " + escape(", ".join(how)))
         if name == "accel" and x.get("rms_after") is not None:
             g = x["gravity"]
             before = x.get("rms_before")
@@ -101,7 +123,7 @@ def _summary(console: Console, cal, where: str) -> None:
             text += f"after {x['rms_after']:.4f} m/s^2 ({1000 * x['rms_after'] / g:.3f} mg)"
             if x.get("rms_loo") is not None:
                 text += f", held out {x['rms_loo']:.4f} m/s^2"
-            console.print(text)
+            console.print(escape(text))
         turns = x.get("rotations", [])
         if turns and x.get("rotation_rms_deg") is not None:
             console.print(
@@ -110,18 +132,21 @@ def _summary(console: Console, cal, where: str) -> None:
         elif turns:
             for rot in turns[:3]:
                 console.print(
-                    f"  {rot['label'] or rot['segment']}: "
-                    f"measured {rot['measured_angle_deg']:.3f} deg, "
-                    f"known {rot['known_angle_deg']:.3f} deg"
+                    escape(
+                        f"  {rot['label'] or rot['segment']}: "
+                        f"measured {rot['measured_angle_deg']:.3f} deg, "
+                        f"known {rot['known_angle_deg']:.3f} deg"
+                    )
                 )
         per = "m/s^2" if name == "accel" else "rad/s"
         console.print(
-            "  bias "
-            + ", ".join(f"{b:.5g}" for b in sec.bias)
-            + f" {units}; sensitivity "
-            + ", ".join(f"{v:.5g}" for v in x.get("sensitivity", []))
-            + f" {units} per {per}"
+            escape(
+                "  bias "
+                + ", ".join(f"{b:.5g}" for b in sec.bias)
+                + f" {units}; sensitivity "
+                + ", ".join(f"{v:.5g}" for v in x.get("sensitivity", []))
+                + f" {units} per {per}"
+            )
         )
         for w in x.get("warnings", []):
-            console.print(f"  [bold yellow]warning[/]: {w}")
-    console.print(f"wrote {where}")
+            console.print(f"  [bold yellow]warning[/]: {escape(str(w))}")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import typer
@@ -28,6 +27,7 @@ def export(
     output: Path | None = typer.Option(
         None, "--output", "-o", help="File to write [default: standard output]."
     ),
+    force: bool = typer.Option(False, "--force", help="Replace an existing OUTPUT."),
     prefix: str | None = typer.Option(
         None,
         "--prefix",
@@ -41,28 +41,26 @@ def export(
     <prefix>_<sensor>_apply(raw, out) computing out = M (raw - b); C99, no libm.
     yaml: imu_calib's SM (9, row-major) and bias (3); imu_calib applies SM * raw - bias, so
     bias is written as matrix @ bias in m/s^2 (3-channel sensors only; gyro under gyro:).
-    json: the standard fields only, one line. Exit status: 0 written; 2 bad input.
+    json: the standard fields only, one line. An existing OUTPUT is replaced only with
+    --force. Exit status: 0 written; 2 bad input.
     """
     from imucal_cli.errors import InputError
     from imucal_cli.formats.calibration import read_calibration
+    from imucal_cli.formats.output import check_output, write_output
     from imucal_cli.use.export import export as export_text
 
     if fmt is None:
         fmt = _SUFFIX_FORMATS.get(output.suffix.lower()) if output is not None else None
         if fmt is None:
             raise InputError("pass --format c-header, yaml or json")
+    if output is not None:
+        check_output(output, force=force, inputs=[calibration])
     cal = read_calibration(calibration)
     text = export_text(cal, fmt, prefix=prefix)
     if output is None:
         typer.echo(text, nl=False)
         return
-    tmp = output.with_name(output.name + ".tmp")
-    try:
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, output)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise InputError(f"{output}: cannot write ({exc.strerror or exc})") from None
+    write_output(output, text, force=force, inputs=[calibration])
     sensors = ", ".join(
         f"{name} 3x{sec.bias.shape[0]}"
         for name, sec in (("accel", cal.accel), ("gyro", cal.gyro))

@@ -57,8 +57,10 @@ def import_(
     no time and no --rate, time that does not increase, no still period).
     """
     from imucal_cli.formats.importers import import_files
+    from imucal_cli.formats.output import check_output
     from imucal_cli.formats.session import write_session
 
+    out = check_output(output or default_output(files[0]), force=force, inputs=files)
     session = import_files(
         files,
         fmt,
@@ -70,8 +72,7 @@ def import_(
         gyro_units=gyro_units,
         sensor=sensor,
     )
-    out = output or default_output(files[0])
-    write_session(out, session, overwrite=force)
+    write_session(out, session, overwrite=force, inputs=files)
 
     stats = session.import_stats
     static = session.static_segments()
@@ -82,7 +83,8 @@ def import_(
     duration = session.time[-1] - session.time[0]
     console.print(
         f"read {stats.samples} samples ({duration:.1f} s at {session.sample_rate_hz:.4g} Hz) "
-        f"from {', '.join(str(f) for f in files)}"
+        f"from {', '.join(str(f) for f in files)}",
+        markup=False,
     )
     skipped = []
     if stats.header:
@@ -94,8 +96,8 @@ def import_(
     if stats.unmatched:
         skipped.append(f"{stats.unmatched} unmatched (no sample of that time in the other file)")
     if skipped:
-        console.print("  skipped lines: " + ", ".join(skipped))
+        console.print("  skipped lines: " + ", ".join(skipped), markup=False)
     console.print(
         f"  {len(static)} static segments ({held:.1f} s still), {len(rotations)} rotation segments"
     )
-    console.print(f"wrote {out}")
+    console.print(f"wrote {out}", markup=False)

@@ -35,6 +35,7 @@ from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.exporters.c_header import export_c_header
 from imucal_cli.formats.exporters.imu_calib import export_yaml
 from imucal_cli.formats.exporters.imucal_json import export_json
+from imucal_cli.formats.text import is_clean
 
 __all__ = ["EXPORT_FORMATS", "export", "export_c_header", "export_json", "export_yaml"]
 
@@ -55,7 +56,11 @@ def export(cal: Calibration, fmt: str, *, prefix: str | None = None) -> str:
     if prefix is not None and fmt != "c-header":
         raise InputError(f"--prefix applies to --format c-header only, not {fmt}")
     if fmt == "c-header":
-        return export_c_header(cal, prefix="IMUCAL" if prefix is None else prefix)
-    if fmt == "yaml":
-        return export_yaml(cal)
-    return export_json(cal)
+        text = export_c_header(cal, prefix="IMUCAL" if prefix is None else prefix)
+    elif fmt == "yaml":
+        text = export_yaml(cal)
+    else:
+        text = export_json(cal)
+    if any(not is_clean(line) for line in text.split("\n")):  # belt and braces (issue 11.5)
+        raise InputError(f"the {fmt} export would hold control characters; refusing it")
+    return text

@@ -6,7 +6,11 @@ returning text; :mod:`imucal_cli.use.export` chooses one. This module holds what
 
 from __future__ import annotations
 
+import numpy as np
+
+from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import Calibration, SensorCalibration
+from imucal_cli.formats.text import clean_text
 
 SENSORS = ("accel", "gyro")
 
@@ -21,4 +25,20 @@ def units_in(sec: SensorCalibration) -> str:
 
 
 def one_line(text: object) -> str:
-    return " ".join(str(text).split())
+    """Free text (a sensor name, a solver) for a comment in an export: one printable line,
+    control characters written as escapes (see :mod:`imucal_cli.formats.text`)."""
+    return " ".join(clean_text(str(text)).split())
+
+
+def check_finite(name: str, what: str, values: np.ndarray) -> np.ndarray:
+    """Refuse NaN or infinite numbers (a matrix of 1e200 times a bias overflows to inf): an
+    export must never carry a number the target would read as inf or nan."""
+    values = np.asarray(values, dtype=np.float64)
+    with np.errstate(all="ignore"):
+        finite = np.isfinite(values).all()
+    if not finite:
+        raise InputError(
+            f"the {name} {what} has a value that is not a finite number "
+            f"({values.ravel()[~np.isfinite(values.ravel())][0]!r}); refusing to export it"
+        )
+    return values

@@ -1,0 +1,99 @@
+"""Reading a small input file (calibration JSON, TOML config, plan) so that no path can hang,
+exhaust memory or give a traceback: only regular files are read (a FIFO would block forever, a
+device never end), opened without blocking, bounded in size, and every failure is one line.
+
+The counterpart of :mod:`imucal_cli.formats.output` for what imucal reads whole.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import stat
+
+from imucal_cli.errors import InputError
+
+__all__ = ["MAX_TEXT_BYTES", "read_input", "read_text_input"]
+
+#: A calibration, config or plan is a few kB; anything past this is not one.
+MAX_TEXT_BYTES = 64 << 20
+
+
+def read_input(
+    path: str | os.PathLike,
+    *,
+    what: str = "file",
+    max_bytes: int = MAX_TEXT_BYTES,
+    error: type[InputError] = InputError,
+) -> bytes:
+    """Return the bytes of a regular file of at most ``max_bytes``.
+
+    Parameters
+    ----------
+    path : path-like
+    what : str
+        What the file should be, for messages (``"calibration file"``).
+    max_bytes : int
+    error : InputError subclass
+        The exception raised (``CalibrationFileError``, ``ConfigError``, ...).
+
+    Raises
+    ------
+    error
+        Missing, a directory, not a regular file, unreadable, or too large; one line.
+    """
+    src = str(path)
+    flags = os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_CLOEXEC", 0)
+    try:
+        fd = os.open(path, flags)
+    except FileNotFoundError:
+        raise error(f"{src}: no such file") from None
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise error(f"{src}: a loop of symbolic links") from None
+        if exc.errno == errno.EISDIR:
+            raise error(f"{src}: is a directory, not a {what}") from None
+        raise error(f"{src}: cannot read ({exc.strerror or exc})") from None
+    try:
+        st = os.fstat(fd)
+        if stat.S_ISDIR(st.st_mode):
+            raise error(f"{src}: is a directory, not a {what}")
+        if not stat.S_ISREG(st.st_mode):
+            raise error(f"{src}: is not a regular file (a pipe or a device), not a {what}")
+        if st.st_size > max_bytes:
+            raise error(f"{src}: {st.st_size} bytes is too large for a {what}")
+        chunks, total = [], 0
+        while True:
+            chunk = os.read(fd, 1 << 20)
+            if not chunk:
+                break
+            total += len(chunk)
+            if total > max_bytes:
+                raise error(f"{src}: too large for a {what}")
+            chunks.append(chunk)
+        return b"".join(chunks)
+    except OSError as exc:
+        raise error(f"{src}: cannot read ({exc.strerror or exc})") from None
+    finally:
+        os.close(fd)
+
+
+def read_text_input(
+    path: str | os.PathLike,
+    *,
+    what: str = "file",
+    max_bytes: int = MAX_TEXT_BYTES,
+    error: type[InputError] = InputError,
+) -> str:
+    """:func:`read_input` decoded as UTF-8 (a leading byte-order mark is dropped).
+
+    Raises
+    ------
+    error
+        As :func:`read_input`, or the bytes are not UTF-8 (the message gives the offset).
+    """
+    data = read_input(path, what=what, max_bytes=max_bytes, error=error)
+    try:
+        return data.decode("utf-8").removeprefix("\ufeff")
+    except UnicodeDecodeError:
+        raise error(f"{path}: not a text (UTF-8) file") from None
