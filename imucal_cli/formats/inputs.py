@@ -13,10 +13,66 @@ import stat
 
 from imucal_cli.errors import InputError
 
-__all__ = ["MAX_TEXT_BYTES", "read_input", "read_text_input"]
+__all__ = ["MAX_TEXT_BYTES", "is_hdf5_file", "read_input", "read_text_input"]
 
 #: A calibration, config or plan is a few kB; anything past this is not one.
 MAX_TEXT_BYTES = 64 << 20
+
+
+def _open_regular(path: str | os.PathLike, what: str, error: type[InputError]) -> int:
+    """A descriptor on a regular file (opened without blocking), or ``error``."""
+    src = str(path)
+    flags = os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_CLOEXEC", 0)
+    try:
+        fd = os.open(path, flags)
+    except FileNotFoundError:
+        raise error(f"{src}: no such file") from None
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise error(f"{src}: a loop of symbolic links") from None
+        if exc.errno == errno.EISDIR:
+            raise error(f"{src}: is a directory, not a {what}") from None
+        raise error(f"{src}: cannot read ({exc.strerror or exc})") from None
+    try:
+        st = os.fstat(fd)
+    except OSError as exc:
+        os.close(fd)
+        raise error(f"{src}: cannot read ({exc.strerror or exc})") from None
+    if stat.S_ISDIR(st.st_mode):
+        os.close(fd)
+        raise error(f"{src}: is a directory, not a {what}")
+    if not stat.S_ISREG(st.st_mode):
+        os.close(fd)
+        raise error(f"{src}: is not a regular file (a pipe or a device), not a {what}")
+    return fd
+
+
+def is_hdf5_file(
+    path: str | os.PathLike, *, what: str = "file", error: type[InputError] = InputError
+) -> bool:
+    """Whether a regular file starts with the HDF5 signature (at 0, 512, 1024, ...): what
+    ``h5py.is_hdf5`` tells, without blocking on a FIFO.
+
+    Raises
+    ------
+    error
+        Missing, a directory, not a regular file, or unreadable.
+    """
+    from imucal_cli.formats.session.superblock import SIGNATURE
+
+    fd = _open_regular(path, what, error)
+    try:
+        size = os.fstat(fd).st_size
+        offset = 0
+        while offset + len(SIGNATURE) <= size:
+            if os.pread(fd, len(SIGNATURE), offset) == SIGNATURE:
+                return True
+            offset = 512 if offset == 0 else offset * 2
+        return False
+    except OSError as exc:
+        raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
+    finally:
+        os.close(fd)
 
 
 def read_input(
@@ -43,23 +99,9 @@ def read_input(
         Missing, a directory, not a regular file, unreadable, or too large; one line.
     """
     src = str(path)
-    flags = os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_CLOEXEC", 0)
-    try:
-        fd = os.open(path, flags)
-    except FileNotFoundError:
-        raise error(f"{src}: no such file") from None
-    except OSError as exc:
-        if exc.errno == errno.ELOOP:
-            raise error(f"{src}: a loop of symbolic links") from None
-        if exc.errno == errno.EISDIR:
-            raise error(f"{src}: is a directory, not a {what}") from None
-        raise error(f"{src}: cannot read ({exc.strerror or exc})") from None
+    fd = _open_regular(path, what, error)
     try:
         st = os.fstat(fd)
-        if stat.S_ISDIR(st.st_mode):
-            raise error(f"{src}: is a directory, not a {what}")
-        if not stat.S_ISREG(st.st_mode):
-            raise error(f"{src}: is not a regular file (a pipe or a device), not a {what}")
         if st.st_size > max_bytes:
             raise error(f"{src}: {st.st_size} bytes is too large for a {what}")
         chunks, total = [], 0

@@ -16,10 +16,11 @@ from typing import Any
 __all__ = ["clean_text", "clean_tree", "is_clean"]
 
 # C0 controls but tab, DEL and C1 controls, zero-width and bidirectional formatting, line and
-# paragraph separators, the byte-order mark and interlinear annotations.
+# paragraph separators, lone surrogates (bytes that were not UTF-8), the byte-order mark and
+# interlinear annotations.
 _UNSAFE = re.compile(
     "[\x00-\x08\x0a-\x1f\x7f-\x9f\u00ad\u061c\u180e\u200b-\u200f\u2028-\u202e"
-    "\u2060-\u206f\ufeff\ufff9-\ufffb]"
+    "\u2060-\u206f\ud800-\udfff\ufeff\ufff9-\ufffb]"
 )
 
 

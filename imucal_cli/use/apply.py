@@ -60,7 +60,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
-import h5py
 import numpy as np
 
 from imucal_cli import __version__
@@ -80,6 +79,7 @@ from imucal_cli.formats.importers import (
     skipped_fields,
     split_fields,
 )
+from imucal_cli.formats.inputs import is_hdf5_file
 from imucal_cli.formats.output import OutputFile, check_output
 from imucal_cli.formats.session import FORMAT as SESSION_FORMAT
 from imucal_cli.formats.session import FORMAT_VERSION as SESSION_FORMAT_VERSION
@@ -583,7 +583,7 @@ def apply_calibration(
     chunk_rows = max(chunk_rows, 2)
     sections = _sections(cal)
 
-    is_session = h5py.is_hdf5(input_path)
+    is_session = is_hdf5_file(input_path, what="session or CSV file")
     if not is_session and input_path.suffix.lower() in (".h5", ".hdf5", ".hdf"):
         raise InputError(f"{src}: not an HDF5 file")
     summary = ApplySummary(

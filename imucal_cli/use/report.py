@@ -28,7 +28,6 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
-import h5py
 import numpy as np
 from rich import box
 from rich.console import Console
@@ -39,6 +38,7 @@ from rich.text import Text
 
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import Calibration, SensorCalibration, calibration_from_json
+from imucal_cli.formats.inputs import is_hdf5_file, read_input
 from imucal_cli.formats.session import read_session
 
 STANDARD_GRAVITY = 9.80665
@@ -106,20 +106,16 @@ def load_for_report(path: str | os.PathLike[str]) -> Calibration:
         from the readers for malformed files.
     """
     path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: no such file")
-    if path.is_dir():
-        raise InputError(f"{path}: is a directory, expected a calibration JSON or a session .h5")
-    if h5py.is_hdf5(path):
+    what = "calibration JSON or session .h5"
+    if is_hdf5_file(path, what=what):
         return _last_stored_calibration(path)
+    data = read_input(path, what=what)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = data.decode("utf-8")
     except UnicodeDecodeError:
         raise InputError(
             f"{path}: neither a session (HDF5) nor a calibration (JSON) file"
         ) from None
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
     return calibration_from_json(text, str(path))
 
 
@@ -1049,8 +1045,8 @@ def _fmt_std(value: float | None, std: float | None, unit: str | None = None) ->
     if value is None:
         return _MISSING
     suffix = f" {unit}" if unit else ""
-    if std is None:
-        return f"{value:.5g} ± n/a{suffix}"
+    if std is None or not math.isfinite(std) or std < 0 or not math.isfinite(value):
+        return f"{value:.5g} ± n/a{suffix}"  # also a std a file got wrong (negative, inf)
     if std == 0:
         return f"{value:.5g} ± 0{suffix}"
     scale = max(abs(value), std)
@@ -1137,7 +1133,7 @@ def load_all_for_history(paths: list[str | os.PathLike[str]]) -> list[Calibratio
     out: list[Calibration] = []
     for item in paths:
         path = Path(item)
-        if path.exists() and not path.is_dir() and h5py.is_hdf5(path):
+        if is_hdf5_file(path, what="calibration JSON or session .h5"):
             session = read_session(path)
             if not session.calibrations:
                 raise InputError(
