@@ -6,9 +6,9 @@ import argparse
 
 from rich.console import Console
 
-from bench import capture, factorization, gravity, gyro
+from bench import capture, factorization, gravity, gyro, gyro_speed
 
-BENCHMARKS = ("gravity", "factorization", "gyro", "capture")
+BENCHMARKS = ("gravity", "factorization", "gyro", "gyro-speed", "capture")
 
 
 def main() -> None:
@@ -25,6 +25,8 @@ def main() -> None:
         ok = factorization.run(console, n_seeds=args.seeds) and ok
     if args.only in (None, "gyro"):
         ok = gyro.run(console, n_seeds=max(20, args.seeds // 2)) and ok
+    if args.only in (None, "gyro-speed"):
+        ok = gyro_speed.run(console) and ok
     if args.only in (None, "capture"):
         ok = capture.run(console, quick=args.quick) and ok
     raise SystemExit(0 if ok else 1)

@@ -373,3 +373,60 @@ def test_block_sizes(block):
     summary = run_guided(rec, load_plan("six"), console=_console(), keys=ScriptedKeys([]))
     assert summary.done == order
     _check_statics(rec, stream)
+
+
+# --------------------------------------------------------------------------------------------
+# The state machine alone: blocks and commands in, prompts, messages and segments out
+# --------------------------------------------------------------------------------------------
+
+
+def test_state_machine_without_a_screen():
+    from imucal_cli.capture.guided import GuidedOptions, GuidedState
+
+    order = ["face +Z up", "face -Y up"]
+    stream = poses([FACES[k] for k in order])
+    segments = []
+    state = GuidedState(
+        Plan("two", [Step("static", k, up=FACES[k]) for k in order]),
+        GuidedOptions(accel_units="counts"),
+        0,
+        lambda kind, start, stop, **kw: segments.append((kind, start, stop, kw["label"])),
+    )
+    first = state.prompt()
+    assert (first.step, first.phase, first.n_steps) == (0, "wait", 2)
+    assert "Put face +Z up and hold still" in first.text
+    phases, told = [], []
+    for i in range(0, len(stream.time), 10):
+        state.on_block(SampleBlock(*(x[i : i + 10] for x in (stream.time, stream.accel,
+                                                             stream.gyro))))  # fmt: skip
+        p = state.prompt()
+        if not phases or phases[-1] != p.phase:
+            phases.append(p.phase)
+        if p.phase == "hold":
+            assert 0.0 <= p.held_s <= p.hold_s == 2.0
+        told += [m.text for m in state.drain()]
+        if state.end_reason:
+            break
+    assert phases[:3] == ["wait", "hold", "move"] and phases[-1] == "done"
+    assert any(t.startswith("recorded face +Z up") for t in told)
+    assert any(t.startswith("noise learned") for t in told)
+    summary = state.summary(FakeRecorder(stream))
+    assert summary.complete and summary.done == order
+    # the last pose stays pending (redo-able) until the end: segments arrive in time order
+    assert [s[0] for s in segments if s[0] == "static"] == ["static", "static"]
+    assert [s[3] for s in segments if s[0] == "static"] == order
+
+
+def test_state_machine_redo_and_skip_by_command():
+    from imucal_cli.capture.guided import GuidedOptions, GuidedState
+
+    state = GuidedState(load_plan("six"), GuidedOptions(), 0, lambda *a, **k: None)
+    state.on_command("s")
+    assert state.status[0] == "skipped" and state.prompt().step == 1
+    state.on_command("r")
+    assert "nothing to redo" in state.drain()[-1].text
+    serial = state.prompt().serial
+    state.on_command("3")
+    assert state.prompt().step == 2 and state.prompt().serial == serial
+    state.on_command("q")
+    assert state.end_reason.startswith("finished by the person")

@@ -22,6 +22,7 @@ from imucal_cli.cli import main
 from imucal_cli.formats.calibration import calibration_from_json
 from imucal_cli.use.report import (
     STANDARD_GRAVITY,
+    add_table,
     build_report,
     coverage_map,
     load_for_report,
@@ -448,6 +449,35 @@ def test_report_of_a_real_calibrate_run_misses_nothing(tmp_path, capsys, monkeyp
         assert accel["unavailable"] == []
         assert len(accel["poses"]) == accel["coverage"]["n_poses"]
         assert accel["rms"]["after"] < accel["rms"]["before"]
+
+
+def test_data_added_in_build_is_drawn_without_new_render_code():
+    """Other report content (outliers, g-sensitivity, ...) is added to the dict as warnings,
+    parameters or tables; the renderer draws it generically."""
+    cal = calibration_from_json(json.dumps(full_calibration()), "test.json")
+    report = build_report(cal)
+    section = report["sensors"]["accel"]
+    section["warnings"].append("pose 0003 looks bumped: left out")
+    section["parameters"].append({"name": "k_t", "value": 1.25e-3, "std": 2e-5, "unit": "1/K"})
+    add_table(
+        section,
+        "outliers (studentized residual)",
+        ["seg", "label", "t [1]"],
+        [["0003", "pose 3", 7.25], ["0005", "pose 5", None]],
+        caption="left out when |t| > 4",
+    )
+    json.dumps(report)  # still JSON-ready
+    console = Console(record=True, width=100)
+    render_report(report, console)
+    text = console.export_text()
+    assert "pose 0003 looks bumped: left out" in text
+    assert "k_t" in text and "1/K" in text
+    assert "outliers (studentized residual)" in text and "left out when |t| > 4" in text
+    row = next(line for line in text.splitlines() if "0003" in line and "7.25" in line)
+    assert "pose 3" in row
+    assert any("0005" in line and "—" in line for line in text.splitlines())
+    with pytest.raises(ValueError, match="3 cells"):
+        add_table(section, "bad", ["a", "b", "c"], [[1, 2]])
 
 
 def test_values_without_any_std_are_shown_plain():

@@ -208,14 +208,9 @@ def calibrate_gyro_rotations(session: Session, cfg: Config, accel_cal: SensorCal
         scale_for_checks = 1 / np.abs(k)
     else:
         rot, st = _full_problem(session, stills, turns)
-        M0 = np.eye(3) * _initial_scale(session, cfg, rot, st, bias_still)
+        b0, M0 = initial_values(session, cfg, rot, st, bias_still)
         res = gyro_full.fit_full(
-            rot,
-            st,
-            max(gyro_noise, 1e-12),
-            bias_still,
-            M0,
-            max_iterations=cfg.gyro.full.max_iterations,
+            rot, st, max(gyro_noise, 1e-12), b0, M0, max_iterations=cfg.gyro.full.max_iterations
         )
         b, matrix = res.b, res.M
         names = [f"m_{r}{c}" for r in AXES for c in AXES]
@@ -386,6 +381,15 @@ def full_problem(session: Session, cfg: Config, accel_cal: SensorCalibration):
     z = np.vstack([session.gyro[s.segment.start : s.segment.stop] for s in stills])
     rot, st = _full_problem(session, stills, turns)
     return rot, st, float(np.sqrt(np.mean(np.var(z, axis=0))))
+
+
+def initial_values(session, cfg, rot, st, bias=None) -> tuple[np.ndarray, np.ndarray]:
+    """Start of the full model: ``(b0, M0)``. ``bias`` default: the still periods' gyro means
+    weighted by their precision."""
+    if bias is None:
+        w = 1 / st.z_sigma**2
+        bias = (st.z_mean * w[:, None]).sum(axis=0) / w.sum()
+    return np.asarray(bias, float), np.eye(3) * _initial_scale(session, cfg, rot, st, bias)
 
 
 def _initial_scale(session, cfg, rot, st, bias) -> float:

@@ -38,6 +38,8 @@ from scipy.spatial.transform import Rotation
 
 from imucal_cli.errors import InputError
 from imucal_cli.plans import Plan, load_plan
+from imucal_cli.simulate.motion import Timeline, smootherstep, unit, up_to_vertical
+from imucal_cli.simulate.sensor import random_imu
 
 __all__ = ["SETTLE_S", "ServeResult", "plan_motion", "serve", "stream_arrays"]
 
@@ -84,17 +86,6 @@ class ServeResult:
 # --------------------------------------------------------------------------------------------
 
 
-def _to_vertical(up: np.ndarray) -> Rotation:
-    """A rotation (body -> world) taking body vector ``up`` onto world +Z."""
-    up = np.asarray(up, float) / np.linalg.norm(up)
-    ez = np.array([0.0, 0.0, 1.0])
-    axis = np.cross(up, ez)
-    s, c = float(np.linalg.norm(axis)), float(up @ ez)
-    if s < 1e-12:
-        return Rotation.identity() if c > 0 else Rotation.from_rotvec([np.pi, 0.0, 0.0])
-    return Rotation.from_rotvec(axis / s * np.arctan2(s, c))
-
-
 def plan_motion(
     plan: Plan,
     *,
@@ -114,61 +105,43 @@ def plan_motion(
     pose, then hold ``hold_s``; static steps without ``up`` hold where the unit is.  Rotation
     steps turn about the body ``axis`` by ``angle_deg`` (90 degrees when the plan leaves it
     free), then hold ``hold_s`` when the next step is not a static one.  The sensor is
-    :func:`imucal_cli.simulate.triad.random_imu` drawn from ``seed``.
+    :func:`imucal_cli.simulate.sensor.random_imu` drawn from ``seed``.
 
     Returns
     -------
     time, accel, gyro : ndarray
         ``(N,)`` seconds, ``(N, 3)`` raw accelerometer and gyroscope samples.
     """
-    from imucal_cli.simulate.triad import random_imu
-
     truth_ss, noise_ss = np.random.SeedSequence(int(seed)).spawn(2)
     truth = random_imu(np.random.default_rng(truth_ss), units, accel_noise, gyro_noise)
     n_hold = max(2, int(round(hold_s * rate_hz)))
     n_move = max(2, int(round(move_s * rate_hz)))
-    world_g = np.array([0.0, 0.0, gravity])
-    forces: list[np.ndarray] = []
-    rates: list[np.ndarray] = []
     first_up = next((s.up for s in plan.steps if s.kind == "static" and s.up is not None), None)
-    attitude = Rotation.identity() if first_up is None else _to_vertical(first_up)
-
-    def hold(n: int) -> None:
-        forces.append(np.tile(attitude.inv().apply(world_g), (n, 1)))
-        rates.append(np.zeros((n, 3)))
+    start = Rotation.identity() if first_up is None else up_to_vertical(unit(first_up))
+    tl = Timeline(rate_hz, gravity, start)
 
     def turn(rotvec: np.ndarray) -> None:
-        nonlocal attitude
-        dur = (n_move + 1) / rate_hz
-        tau = np.arange(1, n_move + 1) / (n_move + 1)
-        s = tau**3 * (10.0 - 15.0 * tau + 6.0 * tau**2)
-        ds = 30.0 * tau**2 * (1.0 - tau) ** 2 / dur
-        att = attitude * Rotation.from_rotvec(s[:, None] * rotvec)
-        forces.append(att.inv().apply(world_g))
-        rates.append(ds[:, None] * rotvec)
-        attitude = attitude * Rotation.from_rotvec(rotvec)
+        s, ds = smootherstep(n_move, (n_move + 1) / rate_hz)
+        tl.turn(rotvec, s, ds, angle=1.0)
 
-    hold(max(1, int(round(lead_s * rate_hz))))
+    tl.hold(max(1, int(round(lead_s * rate_hz))))
     steps = plan.steps
     for i, step in enumerate(steps):
         if step.kind == "static":
             if step.up is not None:
-                target = _to_vertical(step.up)
-                rv = (attitude.inv() * target).as_rotvec()
+                rv = (tl.att.inv() * up_to_vertical(unit(step.up))).as_rotvec()
                 if np.linalg.norm(rv) > np.radians(1.0):
                     turn(rv)
-            hold(n_hold)
+            tl.hold(n_hold)
         else:
             axis = np.array([0.0, 0.0, 1.0]) if step.axis is None else np.asarray(step.axis)
             angle = 90.0 if step.angle_deg is None else step.angle_deg
             turn(axis / np.linalg.norm(axis) * np.radians(angle))
             if i + 1 == len(steps) or steps[i + 1].kind != "static":
-                hold(n_hold)
-    force, rate = np.vstack(forces), np.vstack(rates)
-    rng = np.random.default_rng(noise_ss)
-    accel = truth.accel_raw(force, rng.standard_normal(force.shape) * truth.accel_noise)
-    gyro = truth.gyro_raw(rate, rng.standard_normal(rate.shape) * truth.gyro_noise)
-    return np.arange(len(force)) / rate_hz, accel, gyro
+                tl.hold(n_hold)
+    force, rate = tl.arrays()
+    raw = truth.sample({"accel": force, "gyro": rate}, np.random.default_rng(noise_ss))
+    return np.arange(len(force)) / rate_hz, raw["accel"], raw["gyro"]
 
 
 def stream_arrays(
@@ -288,11 +261,8 @@ def serve(
     time, accel, gyro = stream_arrays(
         plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s
     )
-    counts = units == "counts"
-    lines = _format(time, accel, gyro, temperature, counts)
-    pass_s = len(time) / rate_hz
+    lines = _format(time, accel, gyro, temperature, units == "counts")
     say = status or (lambda message: None)
-
     stop = {"kind": None}
     old_handlers = {}
     if threading.current_thread() is threading.main_thread():
@@ -314,93 +284,136 @@ def serve(
         announce(path)
         fields = "t,ax,ay,az,gx,gy,gz" + (",temp" if temperature else "")
         say(f"serving plan {plan} at {rate_hz:g} Hz, {baud} baud on {path}; waiting for a reader")
-        waited = _time.monotonic()
-        while any(ev & select.POLLHUP for _, ev in poller.poll(50)):
-            if stop["kind"] is not None:
-                result.end = "signal"
-                return result
-            if wait_reader_s is not None and _time.monotonic() - waited > wait_reader_s:
-                result.end = "no-reader"
-                return result
-        _time.sleep(SETTLE_S)
-        os.set_blocking(master, False)
+        result.end = _wait_for_reader(poller, stop, wait_reader_s)
+        if result.end:
+            return result
         header = (
             f"# imucal virtual IMU: plan {plan}, {rate_hz:g} Hz, {units}, "
             f"columns {fields}, seed {seed}\n"
         ).encode()
-        out = bytearray(header)
-        rng = np.random.default_rng(seed + 1)
-        t0 = _time.monotonic()
-        queued_bytes = len(header)  # bytes put into `out` (paced by the baud rate)
-        written_total = 0
-        line_ends: list[tuple[int, bool]] = []  # (byte offset after the line, malformed)
-        index = 0  # next line to queue, counting passes
-        n = len(lines)
-        end = ""
-        while True:
-            now = _time.monotonic() - t0
-            if stop["kind"] is not None:
-                end = "signal"
-            elif any(ev & select.POLLHUP for _, ev in poller.poll(0)):
-                end = "reader-closed"
-            elif vanish_after_s is not None and now >= vanish_after_s:
-                end = "vanished"
-            elif duration_s is not None and now >= duration_s:
-                end = "duration"
-            elif not loop and index >= n and not out:
-                end = "plan"
-            if end:
-                break
-            stalled = stall_after_s is not None and now >= stall_after_s
-            budget = now * baud / 10.0 - queued_bytes
-            if not stalled and budget > 0:
-                if garbage:
-                    k = int(budget)
-                    junk = rng.integers(128, 256, k, dtype=np.uint8)
-                    junk[rng.random(k) < 1 / 64] = ord("\n")
-                    out += junk.tobytes()
-                    queued_bytes += k
-                    result.garbage_bytes += k
-                else:
-                    due = int(now * rate_hz) + 1 if loop else min(n, int(now * rate_hz) + 1)
-                    while index < due and budget > 0:
-                        p, i = divmod(index, n)
-                        line = lines[i]
-                        if p:
-                            t_text, rest = line.split(b",", 1)
-                            line = b"%.4f," % (float(t_text) + p * pass_s) + rest
-                        bad = malformed_every is not None and (index + 1) % malformed_every == 0
-                        if bad:
-                            line = _damage(line)
-                        out += line
-                        queued_bytes += len(line)
-                        budget -= len(line)
-                        line_ends.append((queued_bytes, bad))
-                        index += 1
-            if out:
-                try:
-                    written = os.write(master, out)
-                except BlockingIOError:
-                    written = 0
-                except OSError:  # the reader's side is gone
-                    end = "reader-closed"
-                    break
-                del out[:written]
-                written_total += written
-            _time.sleep(0.004)
-        # Count what was written completely.
-        done = [bad for offset, bad in line_ends if offset <= written_total]
-        result.lines, result.malformed = len(done), sum(done)
-        result.seconds = _time.monotonic() - t0
-        result.end = end
-        if end in ("plan", "duration", "signal", "vanished"):
+        line = _Line(
+            master, poller, stop, lines, rate_hz, baud, loop=loop, duration_s=duration_s,
+            garbage=garbage, stall_after_s=stall_after_s, vanish_after_s=vanish_after_s,
+            malformed_every=malformed_every, rng=np.random.default_rng(seed + 1),
+        )  # fmt: skip
+        line.run(header, result)
+        if result.end in ("plan", "duration", "signal", "vanished"):
             _time.sleep(DRAIN_S)
         say(
             f"sent {result.lines} lines ({result.malformed} malformed) in "
-            f"{result.seconds:.1f} s; end: {end}"
+            f"{result.seconds:.1f} s; end: {result.end}"
         )
         return result
     finally:
         os.close(master)
         for signum, old in old_handlers.items():
             signal.signal(signum, old)
+
+
+def _wait_for_reader(poller, stop: dict, wait_reader_s: float | None) -> str:
+    """Wait until a reader opened the port (then :data:`SETTLE_S`); "" or why it gave up."""
+    waited = _time.monotonic()
+    while any(ev & select.POLLHUP for _, ev in poller.poll(50)):
+        if stop["kind"] is not None:
+            return "signal"
+        if wait_reader_s is not None and _time.monotonic() - waited > wait_reader_s:
+            return "no-reader"
+    _time.sleep(SETTLE_S)
+    return ""
+
+
+class _Line:
+    """The serial line: queues lines (or garbage) as their time comes, paced to the baud
+    rate, writes them to the master side, and counts what was written completely."""
+
+    def __init__(
+        self, master: int, poller, stop: dict, lines: list[bytes], rate_hz: float, baud: int,
+        *, loop: bool, duration_s, garbage: bool, stall_after_s, vanish_after_s,
+        malformed_every, rng: np.random.Generator,
+    ) -> None:  # fmt: skip
+        self.master, self.poller, self.stop, self.lines = master, poller, stop, lines
+        self.rate_hz, self.baud, self.loop, self.garbage = rate_hz, baud, loop, garbage
+        self.duration_s, self.stall_after_s = duration_s, stall_after_s
+        self.vanish_after_s, self.malformed_every, self.rng = vanish_after_s, malformed_every, rng
+        self.pass_s = len(lines) / rate_hz
+        self.out = bytearray()
+        self.queued_bytes = 0  # bytes put into `out` (paced by the baud rate)
+        self.line_ends: list[tuple[int, bool]] = []  # (byte offset after the line, malformed)
+        self.index = 0  # next line to queue, counting passes
+        self.garbage_bytes = 0
+
+    def why_end(self, now: float) -> str:
+        """Why streaming ends now, or ""."""
+        if self.stop["kind"] is not None:
+            return "signal"
+        if any(ev & select.POLLHUP for _, ev in self.poller.poll(0)):
+            return "reader-closed"
+        if self.vanish_after_s is not None and now >= self.vanish_after_s:
+            return "vanished"
+        if self.duration_s is not None and now >= self.duration_s:
+            return "duration"
+        if not self.loop and self.index >= len(self.lines) and not self.out:
+            return "plan"
+        return ""
+
+    def queue(self, now: float, budget: float) -> None:
+        """Queue what is due at ``now`` within ``budget`` bytes."""
+        if self.garbage:
+            k = int(budget)
+            junk = self.rng.integers(128, 256, k, dtype=np.uint8)
+            junk[self.rng.random(k) < 1 / 64] = ord("\n")
+            self.out += junk.tobytes()
+            self.queued_bytes += k
+            self.garbage_bytes += k
+            return
+        n = len(self.lines)
+        due = int(now * self.rate_hz) + 1
+        due = due if self.loop else min(n, due)
+        while self.index < due and budget > 0:
+            p, i = divmod(self.index, n)
+            line = self.lines[i]
+            if p:
+                t_text, rest = line.split(b",", 1)
+                line = b"%.4f," % (float(t_text) + p * self.pass_s) + rest
+            every = self.malformed_every
+            bad = every is not None and (self.index + 1) % every == 0
+            if bad:
+                line = _damage(line)
+            self.out += line
+            self.queued_bytes += len(line)
+            budget -= len(line)
+            self.line_ends.append((self.queued_bytes, bad))
+            self.index += 1
+
+    def run(self, header: bytes, result: ServeResult) -> None:
+        """Stream until the end; fill ``result`` (lines, malformed, garbage, seconds, end)."""
+        os.set_blocking(self.master, False)
+        self.out += header
+        self.queued_bytes = len(header)
+        t0 = _time.monotonic()
+        written_total = 0
+        while True:
+            now = _time.monotonic() - t0
+            end = self.why_end(now)
+            if end:
+                break
+            stalled = self.stall_after_s is not None and now >= self.stall_after_s
+            budget = now * self.baud / 10.0 - self.queued_bytes
+            if not stalled and budget > 0:
+                self.queue(now, budget)
+            if self.out:
+                try:
+                    written = os.write(self.master, self.out)
+                except BlockingIOError:
+                    written = 0
+                except OSError:  # the reader's side is gone
+                    end = "reader-closed"
+                    break
+                del self.out[:written]
+                written_total += written
+            _time.sleep(0.004)
+        done = [bad for offset, bad in self.line_ends if offset <= written_total]
+        result.lines, result.malformed = len(done), sum(done)
+        result.garbage_bytes = self.garbage_bytes
+        result.seconds = _time.monotonic() - t0
+        result.end = end

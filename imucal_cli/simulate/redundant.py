@@ -29,21 +29,20 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import Calibration, SensorCalibration
-from imucal_cli.formats.session import Segment, Session, utc_now_iso
+from imucal_cli.formats.calibration import Calibration
+from imucal_cli.formats.session import Session
 from imucal_cli.plans import plan_poses
-from imucal_cli.simulate.triad import (
-    G0,
+from imucal_cli.simulate.motion import (
     MAX_SAMPLES,
-    _check_positive,
-    _floats,
-    _misalignment_deg,
-    _unit,
-    _up_to_vertical,
-    random_imu,
-    session_from_motion,
-    truth_sections,
+    Timeline,
+    check_int,
+    check_positive,
+    check_samples,
+    check_seed,
+    unit,
+    up_to_vertical,
 )
+from imucal_cli.simulate.sensor import G0, ChannelGroup, Imu, random_imu, spawn
 
 __all__ = [
     "ADC_MAX",
@@ -100,22 +99,6 @@ MAX_ORIENTATIONS = 10000
 BLOCK_POSES = 18  # 6 faces + 12 edges of the right-angle iron
 
 
-def _check_int(name: str, value, low: int, high: int) -> int:
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, int | np.integer)
-        or not low <= value <= high
-    ):
-        raise InputError(f"{name} must be an integer from {low} to {high}, got {value!r}")
-    return int(value)
-
-
-def _check_seed(seed) -> int:
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
-        raise InputError(f"seed must be a non-negative integer, got {seed!r}")
-    return int(seed)
-
-
 def pairwise_angles_deg(S: np.ndarray) -> dict[str, float]:
     """Angles between the sensitivity axes (columns of ``S``), in Table I's order.
 
@@ -129,7 +112,7 @@ def pairwise_angles_deg(S: np.ndarray) -> dict[str, float]:
     dict of str to float
         ``{"s1s2": ..., "s1s3": ..., ...}``: every pair i < j, degrees.
     """
-    u = _unit(np.asarray(S, dtype=float).T)
+    u = unit(np.asarray(S, dtype=float).T)
     out = {}
     for i, j in itertools.combinations(range(u.shape[0]), 2):
         c = float(np.clip(u[i] @ u[j], -1.0, 1.0))
@@ -142,7 +125,7 @@ def _lean(rng: np.random.Generator, axes: np.ndarray, max_deg: float) -> np.ndar
     out = np.empty_like(axes)
     for j in range(axes.shape[1]):
         u = axes[:, j]
-        p = _unit(np.cross(u, rng.standard_normal(3)))
+        p = unit(np.cross(u, rng.standard_normal(3)))
         tilt = np.radians(rng.uniform(0.0, max_deg))
         out[:, j] = np.cos(tilt) * u + np.sin(tilt) * p
     return out
@@ -227,12 +210,77 @@ def simulate_redundant_accel(
     InputError
         A bad value, or more than 18 labelled orientations.
     """
-    seed = _check_seed(seed)
-    sigma_counts = _check_positive("sigma", sigma_counts, "counts", allow_zero=True)
-    rate_hz = _check_positive("rate", rate_hz, "Hz")
-    gravity = _check_positive("gravity", gravity, "m/s^2")
-    gap_s = _check_positive("gap", gap_s, "s", allow_zero=True)
-    samples = _check_int("samples per orientation", samples, 1, MAX_SAMPLES)
+    opt = _redundant_options(seed, sigma_counts, orientations, samples, rate_hz, labelled,
+                             gravity, perturb, gap_s)  # fmt: skip
+    k_poses, samples, rate_hz = opt["orientations"], opt["samples"], opt["rate_hz"]
+    truth_ss, pose_ss, noise_ss = spawn(opt["seed"])
+    group, gains, bias_v = _redundant_part(truth_ss, perturb, opt["sigma_counts"])
+
+    # Orientations (pose generator).
+    if labelled:
+        poses = plan_poses("qureshi18")[:k_poses]
+        labels = [label for label, _ in poses]
+        up = np.array([u for _, u in poses], dtype=float)
+    else:
+        up = unit(np.random.default_rng(pose_ss).standard_normal((k_poses, 3)))
+        labels = [f"orientation {k + 1}" for k in range(k_poses)]
+
+    hold_s = samples / rate_hz
+    time = (
+        np.arange(k_poses)[:, None] * (hold_s + opt["gap_s"])
+        + np.arange(samples)[None, :] / rate_hz
+    ).ravel()
+    tl = Timeline(rate_hz, opt["gravity"], Rotation.identity())
+    for k in range(k_poses):
+        span = (k * samples, (k + 1) * samples)
+        tl.segment("static", span, labels[k], up=up[k] if labelled else None)
+    f_g = np.repeat(up * (opt["gravity"] / G0), samples, axis=0)  # (N, 3) in g
+    S = group.S.T  # (3, 4) counts per g, columns s_j
+    extra = {
+        "design": "Hwangbo & Kanade section V: two dual-axis accelerometers, n = 4, 45 deg",
+        "gravity": opt["gravity"],
+        "g_unit": "standard gravity 9.80665 m/s^2 (of V/g and counts per g)",
+        "S_counts_per_g": _floats(S),
+        "S_layout": "3 x 4, column j = gain_j * counts_per_volt * unit sensitivity axis s_j",
+        "gains_V_per_g": _floats(gains),
+        "bias_V": _floats(bias_v),
+        "angles_deg": pairwise_angles_deg(S),
+        "counts_per_volt": COUNTS_PER_VOLT,
+        "adc_range_counts": [0, ADC_MAX],
+        "adc_range_V": [0.0, ADC_VOLTS],
+        "noise_counts": opt["sigma_counts"],
+        "quantisation_counts": float(QUANTISATION_COUNTS),
+        "noise_total_counts": float(np.hypot(opt["sigma_counts"], QUANTISATION_COUNTS)),
+        "noise_unit": "counts per channel per sample (Gaussian before rounding; rounding adds "
+        "about 1/sqrt(12))",
+        "perturbed": bool(perturb),
+        "segments": [s.name for s in tl.segments],
+        "labels": labels,
+        "true_up": _floats(up),
+    }
+    return Imu(groups=(group,)).session_and_truth(
+        {"accel": f_g}, tl.segments, noise_seed=noise_ss, options=opt, time=time,
+        sensor=f"sim-hk-redundant (2 x dual-axis, 45 deg) seed {opt['seed']}",
+        extras={"accel": extra}, created=created,
+    )  # fmt: skip
+
+
+def _floats(a) -> list:
+    return np.asarray(a, dtype=float).tolist()
+
+
+def _redundant_options(seed, sigma_counts, orientations, samples, rate_hz, labelled, gravity,
+                       perturb, gap_s) -> dict:  # fmt: skip
+    """The options of :func:`simulate_redundant_accel`, checked, as a JSON-ready dict."""
+    opt = {
+        "plan": "hk-redundant",
+        "seed": check_seed(seed),
+        "sigma_counts": check_positive("sigma", sigma_counts, "counts", allow_zero=True),
+    }
+    rate_hz = check_positive("rate", rate_hz, "Hz")
+    gravity = check_positive("gravity", gravity, "m/s^2")
+    gap_s = check_positive("gap", gap_s, "s", allow_zero=True)
+    samples = check_int("samples per orientation", samples, 1, MAX_SAMPLES)
     if labelled:
         if orientations is None:
             orientations = BLOCK_POSES
@@ -244,14 +292,21 @@ def simulate_redundant_accel(
             )
     elif orientations is None:
         orientations = 20
-    k_poses = _check_int("orientations", orientations, 1, MAX_ORIENTATIONS)
+    k_poses = check_int("orientations", orientations, 1, MAX_ORIENTATIONS)
     n_total = k_poses * samples
     if n_total > MAX_SAMPLES:
         raise InputError(f"{n_total} samples (more than {MAX_SAMPLES}): fewer samples please")
+    opt.update(orientations=k_poses, samples=samples, rate_hz=rate_hz, labelled=bool(labelled),
+               gravity=gravity, perturb=bool(perturb), gap_s=gap_s)  # fmt: skip
+    return opt
 
-    truth_ss, pose_ss, noise_ss = np.random.SeedSequence(seed).spawn(3)
 
-    # Truth (truth generator; no draws for the nominal part).
+def _redundant_part(
+    truth_ss, perturb: bool, sigma_counts: float
+) -> tuple[ChannelGroup, np.ndarray, np.ndarray]:
+    """The redundant unit as a channel group (input in g, ADC counts out, ``sigma_counts``
+    output noise), its gains (V/g) and biases (V).  The nominal part draws nothing;
+    ``perturb`` draws gains, biases and axis tilts from the truth generator."""
     axes = NOMINAL_AXES.copy()
     gains = np.full(4, NOMINAL_GAIN_V_PER_G)
     bias_v = np.full(4, NOMINAL_BIAS_V)
@@ -261,102 +316,19 @@ def simulate_redundant_accel(
         bias_v = bias_v + trng.uniform(-PERTURB_BIAS_MAX_V, PERTURB_BIAS_MAX_V, 4)
         axes = _lean(trng, axes, PERTURB_TILT_MAX_DEG)
     S = COUNTS_PER_VOLT * axes * gains  # (3, 4) counts per g, columns s_j
-    bias_counts = COUNTS_PER_VOLT * bias_v
-
-    # Orientations (pose generator).
-    if labelled:
-        poses = plan_poses("qureshi18")[:k_poses]
-        labels = [label for label, _ in poses]
-        up = np.array([u for _, u in poses], dtype=float)
-    else:
-        prng = np.random.default_rng(pose_ss)
-        up = _unit(prng.standard_normal((k_poses, 3)))
-        labels = [f"orientation {k + 1}" for k in range(k_poses)]
-
-    # Samples (noise generator).
-    f_g = np.repeat(up * (gravity / G0), samples, axis=0)  # (N, 3) in g
-    nrng = np.random.default_rng(noise_ss)
-    noise = nrng.standard_normal((n_total, 4)) * sigma_counts
-    raw = np.clip(np.rint(f_g @ S + bias_counts + noise), 0.0, float(ADC_MAX))
-
-    hold_s = samples / rate_hz
-    time = (
-        np.arange(k_poses)[:, None] * (hold_s + gap_s) + np.arange(samples)[None, :] / rate_hz
-    ).ravel()
-    segments = [
-        Segment(
-            name=f"{k:04d}",
-            kind="static",
-            start=k * samples,
-            stop=(k + 1) * samples,
-            label=labels[k],
-            up=up[k] if labelled else None,
-        )
-        for k in range(k_poses)
-    ]
-    created = created or utc_now_iso()
-    sensor = f"sim-hk-redundant (2 x dual-axis, 45 deg) seed {seed}"
-    session = Session(
-        time=time,
-        accel=raw,
-        gyro=None,
-        temperature=None,
-        segments=segments,
-        created=created,
-        sensor=sensor,
-        source="simulator",
-        sample_rate_hz=rate_hz,
-        gravity=gravity,
-        accel_units="counts",
-        gyro_units=None,
+    group = ChannelGroup(
+        name="accel",
+        input_unit="g",
+        units="counts",
+        S=S.T,
+        b=COUNTS_PER_VOLT * bias_v,
+        noise_out=sigma_counts,
+        nominal=COUNTS_PER_VOLT * NOMINAL_GAIN_V_PER_G,
+        quantise=True,
+        limits=(0.0, float(ADC_MAX)),
+        scale_error=gains / NOMINAL_GAIN_V_PER_G - 1.0,
     )
-
-    options = {
-        "plan": "hk-redundant",
-        "seed": seed,
-        "sigma_counts": sigma_counts,
-        "orientations": k_poses,
-        "samples": samples,
-        "rate_hz": rate_hz,
-        "labelled": bool(labelled),
-        "gravity": gravity,
-        "perturb": bool(perturb),
-        "gap_s": gap_s,
-    }
-    extra = {
-        "model": "calibrated = matrix @ (raw - bias)",
-        "design": "Hwangbo & Kanade section V: two dual-axis accelerometers, n = 4, 45 deg",
-        "units_in": "counts",
-        "quantised": True,
-        "gravity": gravity,
-        "g_unit": "standard gravity 9.80665 m/s^2 (of V/g and counts per g)",
-        "S_counts_per_g": _floats(S),
-        "S_layout": "3 x 4, column j = gain_j * counts_per_volt * unit sensitivity axis s_j",
-        "gains_V_per_g": _floats(gains),
-        "bias_V": _floats(bias_v),
-        "angles_deg": pairwise_angles_deg(S),
-        "counts_per_volt": COUNTS_PER_VOLT,
-        "adc_range_counts": [0, ADC_MAX],
-        "adc_range_V": [0.0, ADC_VOLTS],
-        "noise_counts": sigma_counts,
-        "quantisation_counts": float(QUANTISATION_COUNTS),
-        "noise_total_counts": float(np.hypot(sigma_counts, QUANTISATION_COUNTS)),
-        "noise_unit": "counts per channel per sample (Gaussian before rounding; rounding adds "
-        "about 1/sqrt(12))",
-        "perturbed": bool(perturb),
-        "segments": [s.name for s in segments],
-        "labels": labels,
-        "true_up": _floats(up),
-    }
-    accel = SensorCalibration(
-        solver="truth",
-        units="m/s^2",
-        bias=bias_counts,
-        matrix=G0 * np.linalg.pinv(S.T),
-        extra=extra,
-    )
-    root = {"sensor": sensor, "seed": seed, "plan": "hk-redundant", "simulator": options}
-    return session, Calibration(accel=accel, gyro=None, extra=root, created=created)
+    return group, gains, bias_v
 
 
 # --------------------------------------------------------------------------------------------
@@ -393,14 +365,6 @@ def _draw_mountings(rng: np.random.Generator, count: int) -> list[Rotation]:
         scores = np.min([_orbit_distance_deg(m, cands) for m in out], axis=0)
         out.append(cands[int(np.argmax(scores))])
     return out
-
-
-def _smootherstep(n: int, dur: float) -> tuple[np.ndarray, np.ndarray]:
-    """Profile ``s`` and rate ``ds/dt`` at ``n`` interior samples of a move lasting ``dur``."""
-    tau = np.arange(1, n + 1) / (n + 1)
-    s = tau**3 * (10.0 - 15.0 * tau + 6.0 * tau**2)
-    ds = 30.0 * tau**2 * (1.0 - tau) ** 2 / dur
-    return s, ds
 
 
 def simulate_hk_gyro(
@@ -501,213 +465,138 @@ def simulate_hk_gyro(
     InputError
         A bad value.
     """
-    seed = _check_seed(seed)
-    if units == "rad/s":
-        units = "m/s^2"
-    mountings = _check_int("mountings", mountings, 1, 8)
-    periods = _check_int("periods per sweep", periods, 1, 1000)
-    rate_hz = _check_positive("rate", rate_hz, "Hz")
-    sweep_s = _check_positive("sweep time", sweep_s, "s")
-    peak_rate = _check_positive("peak rate", peak_rate, "rad/s")
-    still_s = _check_positive("still time", still_s, "s")
-    noise = _check_positive("gyro noise", noise, "rad/s", allow_zero=True)
-    accel_noise = _check_positive("accel noise", accel_noise, "m/s^2", allow_zero=True)
-    move_s = _check_positive("move time", move_s, "s")
-    turn_s = _check_positive("turn time", turn_s, "s")
-    gravity = _check_positive("gravity", gravity, "m/s^2")
-    ruler_angle_deg = float(ruler_angle_deg)
-    if not np.isfinite(ruler_angle_deg) or ruler_angle_deg == 0.0 or abs(ruler_angle_deg) > 180:
-        raise InputError(f"ruler angle must be non-zero, within +-180 deg, got {ruler_angle_deg}")
-    n_still = int(round(still_s * rate_hz))
+    opt = _hk_options(seed, mountings, rate_hz, sweep_s, peak_rate, still_s, noise, units,
+                      ruler_angle_deg, periods, accel_noise, move_s, turn_s, gravity)  # fmt: skip
+    truth_ss, pose_ss, noise_ss = spawn(opt["seed"])
+    truth = random_imu(np.random.default_rng(truth_ss), opt["units"],
+                       accel_noise=opt["accel_noise"], gyro_noise=opt["noise"])  # fmt: skip
+    prng = np.random.default_rng(pose_ss)
+    mounts = _draw_mountings(prng, opt["mountings"])
+    tl, sweep_axes, ruler_seg = _hk_timeline(opt, prng, mounts)
+    force, rate = tl.arrays()
+    assert len(force) == opt["n_total"], (len(force), opt["n_total"])
+    del opt["n_total"]
+
+    frame = "sensor frame (= the iron frame in mounting 1)"
+    gyro_extra = {
+        "design": "Hwangbo & Kanade section IV-B: sweeps about 3 orthogonal iron faces per "
+        "mounting, one ruler-guided turn",
+        "frame": frame,
+        "mounting_rotvec_deg": [_floats(np.degrees(r.as_rotvec())) for r in mounts],
+        "mounting_rotvec_note": "rotation vector of each mounting, sensor -> iron frame",
+        "segment_mounting": {s.name: s.extra["mounting"] for s in tl.segments},
+        "sweep_axes_sensor": sweep_axes,
+        "peak_rate": opt["peak_rate"],
+        "sweep_period_s": opt["sweep_s"] / opt["periods"],
+        "ruler": {
+            "segment": ruler_seg,
+            "axis_iron": [0.0, 0.0, 1.0],
+            "axis_sensor": [0.0, 0.0, 1.0],
+            "angle_deg": opt["ruler_angle_deg"],
+        },
+    }
+    return truth.session_and_truth(
+        {"accel": force, "gyro": rate}, tl.segments, noise_seed=noise_ss, options=opt,
+        sensor=f"sim-16bit seed {opt['seed']} (hk-gyro)", created=created,
+        extras={"accel": {"frame": frame, "gravity": opt["gravity"]}, "gyro": gyro_extra},
+    )  # fmt: skip
+
+
+def _hk_options(
+    seed, mountings, rate_hz, sweep_s, peak_rate, still_s, noise, units, ruler_angle_deg,
+    periods, accel_noise, move_s, turn_s, gravity,
+) -> dict:  # fmt: skip
+    """The options of :func:`simulate_hk_gyro`, checked, as a JSON-ready dict (plus the
+    sample count ``n_total``)."""
+    opt = {
+        "plan": "hk-gyro",
+        "seed": check_seed(seed),
+        "mountings": check_int("mountings", mountings, 1, 8),
+        "rate_hz": check_positive("rate", rate_hz, "Hz"),
+        "sweep_s": check_positive("sweep time", sweep_s, "s"),
+        "peak_rate": check_positive("peak rate", peak_rate, "rad/s"),
+        "still_s": check_positive("still time", still_s, "s"),
+        "noise": check_positive("gyro noise", noise, "rad/s", allow_zero=True),
+        "units": "m/s^2" if units == "rad/s" else units,
+        "ruler_angle_deg": float(ruler_angle_deg),
+        "periods": check_int("periods per sweep", periods, 1, 1000),
+        "accel_noise": check_positive("accel noise", accel_noise, "m/s^2", allow_zero=True),
+        "move_s": check_positive("move time", move_s, "s"),
+        "turn_s": check_positive("turn time", turn_s, "s"),
+        "gravity": check_positive("gravity", gravity, "m/s^2"),
+    }
+    ruler, rate_hz, periods = opt["ruler_angle_deg"], opt["rate_hz"], opt["periods"]
+    if not np.isfinite(ruler) or ruler == 0.0 or abs(ruler) > 180:
+        raise InputError(f"ruler angle must be non-zero, within +-180 deg, got {ruler}")
+    n_still = int(round(opt["still_s"] * rate_hz))
     if n_still < 10:
         raise InputError(f"still {still_s:g} s at {rate_hz:g} Hz gives {n_still} samples: >= 10")
-    n_sweep = int(round(sweep_s * rate_hz)) - 1  # interior samples: rate 0 at both ends
-    n_move = max(2, int(round(move_s * rate_hz)))
-    n_turn = max(2, int(round(turn_s * rate_hz)))
+    n_sweep = int(round(opt["sweep_s"] * rate_hz)) - 1  # interior samples: rate 0 at both ends
     if n_sweep < 4 * periods:
         raise InputError(
             f"sweep {sweep_s:g} s at {rate_hz:g} Hz is too short for {periods} periods"
         )
+    m = opt["mountings"]
     n_total = (
-        n_still * (6 * mountings + 2) + n_sweep * 3 * mountings + n_move * (3 * mountings) + n_turn
+        n_still * (6 * m + 2)
+        + n_sweep * 3 * m
+        + max(2, int(round(opt["move_s"] * rate_hz))) * (3 * m)
+        + max(2, int(round(opt["turn_s"] * rate_hz)))
     )
-    if n_total > MAX_SAMPLES:
-        raise InputError(f"the session would have {n_total} samples (more than {MAX_SAMPLES})")
+    check_samples(n_total, "lower the rate, the sweep or still time, or the mountings")
+    opt["n_total"] = n_total
+    return opt
 
-    truth_ss, pose_ss, noise_ss = np.random.SeedSequence(seed).spawn(3)
-    truth = random_imu(
-        np.random.default_rng(truth_ss), units, accel_noise=accel_noise, gyro_noise=noise
-    )
-    prng = np.random.default_rng(pose_ss)
-    mounts = _draw_mountings(prng, mountings)
 
+def _hk_timeline(opt: dict, prng: np.random.Generator, mounts: list[Rotation]):
+    """The iron procedure (see :func:`simulate_hk_gyro`): returns the timeline, the sweep axes
+    in the sensor frame per segment, and the ruler turn's segment name."""
     eye = np.eye(3)
     ez = eye[2]
-    rate = np.zeros((n_total, 3))  # body (sensor) frame, rad/s
-    force = np.empty((n_total, 3))  # body frame, m/s^2
-    segments: list[Segment] = []
-    seg_mount: dict[str, int] = {}
+    rate_hz = opt["rate_hz"]
+    n_still = int(round(opt["still_s"] * rate_hz))
+    n_sweep = int(round(opt["sweep_s"] * rate_hz)) - 1
+    n_move = max(2, int(round(opt["move_s"] * rate_hz)))
     sweep_axes: dict[str, list[float]] = {}
-    state = {"i": 0, "att": None}  # att: body -> world of the current sample
 
     def iron_pose(face: int) -> Rotation:
         heading = Rotation.from_rotvec([0.0, 0.0, prng.uniform(0.0, 2.0 * np.pi)])
-        return heading * _up_to_vertical(eye[face])
+        return heading * up_to_vertical(eye[face])
 
-    def add_segment(kind, n, label, m, **attrs) -> str:
-        name = f"{len(segments):04d}"
-        i = state["i"]
-        segments.append(
-            Segment(
-                name=name,
-                kind=kind,
-                start=i,
-                stop=i + n,
-                label=label,
-                extra={"mounting": m},
-                **attrs,
-            )
-        )
-        seg_mount[name] = m
-        return name
+    tl = Timeline(rate_hz, opt["gravity"], iron_pose(2) * mounts[0])
 
     def still(label: str, m: int, up: np.ndarray | None) -> None:
-        i = state["i"]
-        add_segment("static", n_still, label, m, up=up)
-        force[i : i + n_still] = state["att"].inv().apply(gravity * ez)
-        state["i"] = i + n_still
-
-    def move_to(target: Rotation) -> None:
-        """Unsegmented smootherstep move of the body attitude to ``target``."""
-        i, att = state["i"], state["att"]
-        rv = (att.inv() * target).as_rotvec()
-        s, ds = _smootherstep(n_move, (n_move + 1) / rate_hz)
-        path = att * Rotation.from_rotvec(s[:, None] * rv)
-        force[i : i + n_move] = path.inv().apply(gravity * ez)
-        rate[i : i + n_move] = ds[:, None] * rv
-        state["i"], state["att"] = i + n_move, target
-
-    def turn(axis_body: np.ndarray, theta: np.ndarray, dtheta: np.ndarray) -> None:
-        """Fixed-axis motion: attitude ``att * Exp(theta axis)``, body rate ``dtheta axis``."""
-        i, n = state["i"], len(theta)
-        path = state["att"] * Rotation.from_rotvec(theta[:, None] * axis_body)
-        force[i : i + n] = path.inv().apply(gravity * ez)
-        rate[i : i + n] = dtheta[:, None] * axis_body
-        state["i"] = i + n
+        tl.segment("static", tl.hold(n_still), label, up=up, extra={"mounting": m})
 
     # 1. initial still, mounting 1, +Z up.
-    state["att"] = iron_pose(2) * mounts[0]
     still("mounting 1: still, +Z up (biases)", 1, ez)
-
     # 2. sweeps about three orthogonal face normals, per mounting.
-    omega = 2.0 * np.pi * periods / sweep_s
+    omega = 2.0 * np.pi * opt["periods"] / opt["sweep_s"]
     t_sweep = np.arange(1, n_sweep + 1) / rate_hz
-    theta = peak_rate / omega * (1.0 - np.cos(omega * t_sweep))
-    dtheta = peak_rate * np.sin(omega * t_sweep)
+    theta = opt["peak_rate"] / omega * (1.0 - np.cos(omega * t_sweep))
+    dtheta = opt["peak_rate"] * np.sin(omega * t_sweep)
     for m, mount in enumerate(mounts, start=1):
         mount_m = mount.as_matrix()
         for k, (face, name) in enumerate(_FACES):
             up = eye[face] if m == 1 else None  # in mounting 1 the sensor is aligned with the iron
             if m > 1 or k > 0:
-                move_to(iron_pose(face) * mount)
+                tl.move(iron_pose(face) * mount, n_move)
                 still(f"mounting {m}: still, {name} up", m, up)
             axis_sensor = mount_m.T @ eye[face]
-            seg = add_segment(
-                "rotation", n_sweep, f"mounting {m}: sweep about {name}", m, axis=eye[face]
-            )
-            sweep_axes[seg] = _floats(axis_sensor)
-            turn(axis_sensor, theta, dtheta)
+            span = tl.turn(axis_sensor, theta, dtheta)
+            seg = tl.segment("rotation", span, f"mounting {m}: sweep about {name}",
+                             axis=eye[face], extra={"mounting": m})  # fmt: skip
+            sweep_axes[seg.name] = _floats(axis_sensor)
             still(f"mounting {m}: still after the sweep about {name}", m, up)
-
     # 3. ruler-guided turn in mounting 1, +Z up.
-    move_to(iron_pose(2) * mounts[0])
+    tl.move(iron_pose(2) * mounts[0], n_move)
     still("mounting 1: still, +Z up, iron against the ruler", 1, ez)
-    angle = np.radians(ruler_angle_deg)
-    s, ds = _smootherstep(n_turn, (n_turn + 1) / rate_hz)
-    ruler_label = f"mounting 1: ruler-guided {ruler_angle_deg:g}-degree turn about +Z"
-    ruler_seg = add_segment("rotation", n_turn, ruler_label, 1, axis=ez, angle_deg=ruler_angle_deg)
-    turn(ez, angle * s, angle * ds)
-    state["att"] = state["att"] * Rotation.from_rotvec(angle * ez)
+    angle_deg = opt["ruler_angle_deg"]
+    span = tl.smooth_turn(ez, np.radians(angle_deg), max(2, int(round(opt["turn_s"] * rate_hz))))
+    ruler = tl.segment("rotation", span, f"mounting 1: ruler-guided {angle_deg:g}-degree turn "
+                       "about +Z", axis=ez, angle_deg=angle_deg, extra={"mounting": 1})  # fmt: skip
     still("mounting 1: still, +Z up, after the ruler turn", 1, ez)
-    assert state["i"] == n_total, (state["i"], n_total)
-
-    created = created or utc_now_iso()
-    sensor = f"sim-16bit seed {seed} (hk-gyro)"
-    session = session_from_motion(
-        truth,
-        force,
-        rate,
-        segments,
-        noise_seed=noise_ss,
-        rate_hz=rate_hz,
-        gravity=gravity,
-        sensor=sensor,
-        created=created,
-    )
-
-    options = {
-        "plan": "hk-gyro",
-        "seed": seed,
-        "mountings": mountings,
-        "rate_hz": rate_hz,
-        "sweep_s": sweep_s,
-        "peak_rate": peak_rate,
-        "still_s": still_s,
-        "noise": noise,
-        "units": units,
-        "ruler_angle_deg": ruler_angle_deg,
-        "periods": periods,
-        "accel_noise": accel_noise,
-        "move_s": move_s,
-        "turn_s": turn_s,
-        "gravity": gravity,
-    }
-    common = {"model": "calibrated = matrix @ (raw - bias)", "quantised": bool(truth.quantise)}
-    frame = "sensor frame (= the iron frame in mounting 1)"
-    gyro_extra = {
-        **common,
-        "design": "Hwangbo & Kanade section IV-B: sweeps about 3 orthogonal iron faces per "
-        "mounting, one ruler-guided turn",
-        "units_in": truth.gyro_units,
-        "frame": frame,
-        "noise": noise,
-        "noise_unit": "rad/s per axis per sample (white, input-referred)",
-        "sensitivity": _floats(np.linalg.norm(truth.gyro_S, axis=1)),
-        "sensitivity_unit": f"{truth.gyro_units} per rad/s",
-        "nominal_sensitivity": float(truth.gyro_nominal),
-        "scale_error": _floats(truth.gyro_scale_error),
-        "misalignment_deg": _misalignment_deg(truth.gyro_S),
-        "bias_dps": _floats(truth.gyro_bias_dps),
-        "S": _floats(truth.gyro_S),
-        "mounting_rotvec_deg": [_floats(np.degrees(r.as_rotvec())) for r in mounts],
-        "mounting_rotvec_note": "rotation vector of each mounting, sensor -> iron frame",
-        "segment_mounting": seg_mount,
-        "sweep_axes_sensor": sweep_axes,
-        "peak_rate": peak_rate,
-        "sweep_period_s": sweep_s / periods,
-        "ruler": {
-            "segment": ruler_seg,
-            "axis_iron": [0.0, 0.0, 1.0],
-            "axis_sensor": [0.0, 0.0, 1.0],
-            "angle_deg": ruler_angle_deg,
-        },
-    }
-    accel_extra = {
-        **common,
-        "units_in": truth.accel_units,
-        "frame": frame,
-        "noise": accel_noise,
-        "noise_unit": "m/s^2 per axis per sample (white, input-referred)",
-        "gravity": gravity,
-        "sensitivity": _floats(np.linalg.norm(truth.accel_S, axis=1)),
-        "sensitivity_unit": f"{truth.accel_units} per m/s^2",
-        "misalignment_deg": _misalignment_deg(truth.accel_S),
-        "bias_mg": _floats(1000.0 * truth.accel_bias_g),
-        "S": _floats(truth.accel_S),
-    }
-    accel, gyro = truth_sections(truth, accel_extra, gyro_extra)
-    root = {"sensor": sensor, "seed": seed, "plan": "hk-gyro", "simulator": options}
-    return session, Calibration(accel=accel, gyro=gyro, extra=root, created=created)
+    return tl, sweep_axes, ruler.name
 
 
 def simulate_hk_plan(

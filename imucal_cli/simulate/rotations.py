@@ -37,21 +37,18 @@ from scipy.spatial.transform import Rotation
 
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import Calibration
-from imucal_cli.formats.session import Segment, Session, utc_now_iso
-from imucal_cli.simulate.triad import (
-    G0,
-    MAX_SAMPLES,
-    UNITS,
-    _check_positive,
-    _floats,
-    _misalignment_deg,
-    _unit,
-    _up_to_vertical,
-    random_imu,
-    sensor_name,
-    session_from_motion,
-    truth_sections,
+from imucal_cli.formats.session import Session
+from imucal_cli.simulate.motion import (
+    EZ,
+    Timeline,
+    check_positive,
+    check_samples,
+    check_seed,
+    unit,
+    up_to_vertical,
 )
+from imucal_cli.simulate.sensor import G0, UNITS, random_imu, spawn
+from imucal_cli.simulate.triad import sensor_name
 
 __all__ = [
     "GYRO_PLANS",
@@ -174,7 +171,7 @@ def _tilt_perpendicular(rng: np.random.Generator, axis: np.ndarray, rms_deg: flo
     ``axis``, so the RMS angle is ``rms_deg``.  Draws 2 numbers.
     """
     p = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
-    p = _unit(p)
+    p = unit(p)
     q = np.cross(axis, p)
     c = rng.standard_normal(2) * np.radians(rms_deg) / np.sqrt(2.0)
     return Rotation.from_rotvec(c[0] * p + c[1] * q)
@@ -189,32 +186,14 @@ def _towards_level(att: Rotation, axis: np.ndarray, fraction: float) -> np.ndarr
     level = np.array([w[0], w[1], 0.0])
     if np.linalg.norm(level) < 1e-9:  # vertical axis: no level direction to aim at
         return np.asarray(axis, dtype=float)
-    level = _unit(level)
+    level = unit(level)
     cross = np.cross(w, level)
     s = np.linalg.norm(cross)
     if s < 1e-15:
         return np.asarray(axis, dtype=float)
     angle = np.arctan2(s, float(w @ level))
     aim = Rotation.from_rotvec(cross / s * angle * fraction).apply(w)
-    return _unit(att.inv().apply(aim))
-
-
-def _profile(n: int, dur: float) -> tuple[np.ndarray, np.ndarray]:
-    """Smootherstep ``s`` and ``ds/dt`` at the ``n`` interior samples of a move of ``dur`` s.
-
-    Zero rate and angular acceleration at both ends; the neighbouring still samples sit at
-    ``tau = 0`` and ``tau = 1``.
-    """
-    tau = np.arange(1, n + 1) / (n + 1)
-    s = tau**3 * (10.0 - 15.0 * tau + 6.0 * tau**2)
-    ds = 30.0 * tau**2 * (1.0 - tau) ** 2 / dur
-    return s, ds
-
-
-def _check_seed(seed) -> int:
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
-        raise InputError(f"seed must be a non-negative integer, got {seed!r}")
-    return int(seed)
+    return unit(att.inv().apply(aim))
 
 
 def simulate_gyro_rotations(
@@ -318,202 +297,176 @@ def simulate_gyro_rotations(
         A bad plan, unit or value.
     """
     kind, n_free = parse_gyro_plan(plan, count)
-    seed = _check_seed(seed)
-    if units not in UNITS:
-        raise InputError(f"units {units!r} are not supported: use counts or m/s^2")
-    rate_hz = _check_positive("rate", rate_hz, "Hz")
-    if kind == "qureshi-axes":
-        r = rotations_per_axis
-        if isinstance(r, bool) or not isinstance(r, int | np.integer) or not 1 <= r <= MAX_TURNS:
-            raise InputError(f"rotations per axis must be an integer in 1..{MAX_TURNS}, got {r!r}")
-        rotations_per_axis = int(r)
-    peak_rate_dps = _check_positive("peak rate", peak_rate_dps, "deg/s")
-    if peak_rate_dps > MAX_PEAK_RATE_DPS:
-        raise InputError(f"peak rate must be at most {MAX_PEAK_RATE_DPS:g} deg/s")
-    still_s = _check_positive("still time", still_s, "s")
-    accel_noise = _check_positive("accel noise", accel_noise, "m/s^2", allow_zero=True)
-    gyro_noise = _check_positive("gyro noise", gyro_noise, "rad/s", allow_zero=True)
-    jitter_deg = _check_positive("jitter", jitter_deg, "deg", allow_zero=True)
-    axis_jitter_deg = _check_positive("axis jitter", axis_jitter_deg, "deg", allow_zero=True)
-    gravity = _check_positive("gravity", gravity, "m/s^2")
-    for name, value in (("jitter", jitter_deg), ("axis jitter", axis_jitter_deg)):
-        if value > 45.0:
-            raise InputError(f"{name} must be at most 45 deg, got {value:g}")
-    n_still = int(round(still_s * rate_hz))
-    if n_still < 10:
-        raise InputError(f"still {still_s:g} s at {rate_hz:g} Hz gives {n_still} samples: >= 10")
-
-    truth_ss, pose_ss, noise_ss = np.random.SeedSequence(seed).spawn(3)
-    truth = random_imu(
-        np.random.default_rng(truth_ss), units, accel_noise=accel_noise, gyro_noise=gyro_noise
-    )
-    prng = np.random.default_rng(pose_ss)
-    eye = np.eye(3)
-
-    # ---- the plan (pose generator, fixed order): per starting face, its placement, then the
-    # angles, then per turn the axis error and the peak rate.  timed[g]: list of (nominal axis
-    # or None, true unit axis (body), angle rad, n interior samples, duration s).
+    opt = _gyro_options(
+        kind, n_free, seed, rate_hz, rotations_per_axis, peak_rate_dps, still_s,
+        accel_noise, gyro_noise, jitter_deg, axis_jitter_deg, units, gravity,
+    )  # fmt: skip
+    truth_ss, pose_ss, noise_ss = spawn(opt["seed"])
+    truth = random_imu(np.random.default_rng(truth_ss), units, accel_noise=opt["accel_noise"],
+                       gyro_noise=opt["gyro_noise"])  # fmt: skip
     groups = (
         [(_AXIS_NAMES[i], face, label) for i, face, label in _QURESHI_AXES]
         if kind == "qureshi-axes"
         else [(None, 2, "+Z")]
     )
-    starts, timed = [], []
-    for axis_name, face, _ in groups:
-        tilt = np.zeros(3)
-        tilt[:2] = prng.standard_normal(2) * np.radians(jitter_deg) / np.sqrt(2.0)
-        heading = Rotation.from_rotvec([0.0, 0.0, prng.uniform(0.0, 2.0 * np.pi)])
-        att = Rotation.from_rotvec(tilt) * heading * _up_to_vertical(eye[face])
-        starts.append(att)
-        if axis_name is not None:
-            nominal = eye[_AXIS_NAMES.index(axis_name)]
-            angles = np.radians(_draw_angles_deg(prng, rotations_per_axis))
-        else:
-            nominal = None
-            angles = np.radians(prng.uniform(MIN_TURN_DEG, 180.0, n_free))
-            angles *= prng.choice([-1.0, 1.0], n_free)
-        out = []
-        for a in angles:
-            if nominal is not None:
-                aim = _towards_level(att, nominal, LEVELLING)
-                u = _unit(_tilt_perpendicular(prng, aim, axis_jitter_deg).apply(aim))
-            else:
-                u = _unit(prng.standard_normal(3))
-            peak = np.radians(peak_rate_dps) * prng.uniform(*PEAK_FRACTION)
-            dur = max(SMOOTHERSTEP_PEAK * abs(a) / peak, MIN_TURN_S)
-            n = max(2, int(round(dur * rate_hz)) - 1)
-            out.append((nominal, u, float(a), n, (n + 1) / rate_hz))
-            att = att * Rotation.from_rotvec(a * u)
-        timed.append(out)
-
-    n_move = max(2, int(round(MOVE_S * rate_hz)))
+    starts, timed = _draw_turns(np.random.default_rng(pose_ss), groups, opt)
+    n_still = int(round(opt["still_s"] * opt["rate_hz"]))
+    n_move = max(2, int(round(MOVE_S * opt["rate_hz"])))
     n_total = sum(n_still * (len(t) + 1) + sum(x[3] for x in t) for t in timed)
     n_total += n_move * (len(groups) - 1)
-    if n_total > MAX_SAMPLES:
-        raise InputError(
-            f"the session would have {n_total} samples (more than {MAX_SAMPLES}): "
-            "lower the rate, the still time or the number of rotations"
-        )
+    check_samples(n_total, "lower the rate, the still time or the number of rotations")
+    tl, rec, stills = _turn_timeline(opt, groups, starts, timed, n_still, n_move)
+    force, rate = tl.arrays()
+    assert len(force) == n_total, (len(force), n_total)
 
-    # ---- the stream ----
-    ez = eye[2]
-    force = np.empty((n_total, 3))
-    rate = np.zeros((n_total, 3))
-    segments: list[Segment] = []
-    still_true_up: list[np.ndarray] = []
-    still_labelled_up: list[list[float] | None] = []
-    rec = {k: [] for k in ("seg", "label", "axis_name", "angle", "axis", "nominal", "peak", "dur")}
-    i = 0
-    prev_att: Rotation | None = None  # attitude at the end of the previous group
-
-    def add(kind_: str, n: int, label: str, **attrs) -> None:
-        segments.append(
-            Segment(name=f"{len(segments):04d}", kind=kind_, start=i, stop=i + n, label=label,
-                    **attrs)
-        )  # fmt: skip
-
-    for g, ((axis_name, face, face_label), turns) in enumerate(zip(groups, timed, strict=True)):
-        att = starts[g]
-        if prev_att is not None:  # lay the unit on the next starting face (unsegmented move)
-            rv = (prev_att.inv() * att).as_rotvec()
-            s, ds = _profile(n_move, (n_move + 1) / rate_hz)
-            path = prev_att * Rotation.from_rotvec(s[:, None] * rv)
-            force[i : i + n_move] = path.inv().apply(gravity * ez)
-            rate[i : i + n_move] = ds[:, None] * rv
-            i += n_move
-        tag = f"{axis_name} turn" if axis_name else "turn"
-        for k, (nominal, u, a, n, dur) in enumerate(turns, start=1):
-            # still before turn k (the still after turn k-1)
-            up = eye[face] if k == 1 else None
-            where = f", {face_label} up" if k == 1 else ""
-            add("static", n_still, f"still before {tag} {k}{where}", up=up)
-            force[i : i + n_still] = att.inv().apply(gravity * ez)
-            still_true_up.append(att.inv().apply(ez))
-            still_labelled_up.append(None if up is None else _floats(up))
-            i += n_still
-            # turn k about the fixed body axis u: R(t) = R0 Exp(theta(t) u)
-            label = f"turn {k} about {axis_name}" if axis_name else f"turn {k}"
-            add("rotation", n, label, axis=nominal)
-            rec["seg"].append(segments[-1].name)
-            rec["label"].append(label)
-            rec["axis_name"].append(axis_name)
-            rec["angle"].append(a)
-            rec["axis"].append(u)
-            rec["nominal"].append(nominal)
-            rec["peak"].append(SMOOTHERSTEP_PEAK * abs(a) / dur)
-            rec["dur"].append(dur)
-            s, ds = _profile(n, dur)
-            path = att * Rotation.from_rotvec((a * s)[:, None] * u)
-            force[i : i + n] = path.inv().apply(gravity * ez)
-            rate[i : i + n] = (a * ds)[:, None] * u
-            i += n
-            att = att * Rotation.from_rotvec(a * u)
-        add("static", n_still, f"still after {tag} {len(turns)}")
-        force[i : i + n_still] = att.inv().apply(gravity * ez)
-        still_true_up.append(att.inv().apply(ez))
-        still_labelled_up.append(None)
-        i += n_still
-        prev_att = att
-    assert i == n_total, (i, n_total)
-
-    # Noise in SI (noise generator: accel then gyro), as the simulator.
-    created = created or utc_now_iso()
-    sensor = sensor_name(seed)
-    session = session_from_motion(
-        truth,
-        force,
-        rate,
-        segments,
-        noise_seed=noise_ss,
-        rate_hz=rate_hz,
-        gravity=gravity,
-        sensor=sensor,
-        created=created,
+    design = (
+        "Qureshi & Golnaraghi Fig. 2: turns about x and y with +Z up, about z with +X up"
+        if kind == "qureshi-axes"
+        else "hand turns about random axes (uniform on the sphere)"
     )
+    static = [s for s in tl.segments if s.kind == "static"]
+    accel_extra = {
+        "frame": "fixture (body) frame",
+        "gravity": opt["gravity"],
+        "mount_rotvec_deg": _floats(np.degrees(truth.mount_rotvec)),
+        "jitter_deg": opt["jitter_deg"],
+        "segments": [s.name for s in static],
+        "labels": [s.label for s in static],
+        "true_up": _floats(unit(np.array([u for u, _ in stills]))),
+        "labelled_up": [lab for _, lab in stills],
+    }
+    return truth.session_and_truth(
+        {"accel": force, "gyro": rate}, tl.segments, noise_seed=noise_ss, options=opt,
+        sensor=sensor_name(opt["seed"]), created=created, root={"jitter_deg": opt["jitter_deg"]},
+        extras={"accel": accel_extra, "gyro": {"design": design, **_turn_record(rec, opt)}},
+    )  # fmt: skip
 
-    plan_name = "qureshi-axes" if kind == "qureshi-axes" else f"free:{n_free}"
-    options = {
-        "plan": plan_name,
+
+def _floats(a) -> list:
+    return np.asarray(a, dtype=float).tolist()
+
+
+def _gyro_options(
+    kind, n_free, seed, rate_hz, rotations_per_axis, peak_rate_dps, still_s,
+    accel_noise, gyro_noise, jitter_deg, axis_jitter_deg, units, gravity,
+) -> dict:  # fmt: skip
+    """The options of :func:`simulate_gyro_rotations`, checked, as a JSON-ready dict."""
+    seed = check_seed(seed)
+    if units not in UNITS:
+        raise InputError(f"units {units!r} are not supported: use counts or m/s^2")
+    rate_hz = check_positive("rate", rate_hz, "Hz")
+    if kind == "qureshi-axes":
+        r = rotations_per_axis
+        if isinstance(r, bool) or not isinstance(r, int | np.integer) or not 1 <= r <= MAX_TURNS:
+            raise InputError(f"rotations per axis must be an integer in 1..{MAX_TURNS}, got {r!r}")
+        rotations_per_axis = int(r)
+    peak_rate_dps = check_positive("peak rate", peak_rate_dps, "deg/s")
+    if peak_rate_dps > MAX_PEAK_RATE_DPS:
+        raise InputError(f"peak rate must be at most {MAX_PEAK_RATE_DPS:g} deg/s")
+    opt = {
+        "plan": "qureshi-axes" if kind == "qureshi-axes" else f"free:{n_free}",
         "seed": seed,
         "rate_hz": rate_hz,
         "rotations_per_axis": rotations_per_axis if kind == "qureshi-axes" else None,
         "count": n_free,
         "peak_rate_dps": peak_rate_dps,
-        "still_s": still_s,
-        "accel_noise": accel_noise,
-        "gyro_noise": gyro_noise,
-        "jitter_deg": jitter_deg,
-        "axis_jitter_deg": axis_jitter_deg,
+        "still_s": check_positive("still time", still_s, "s"),
+        "accel_noise": check_positive("accel noise", accel_noise, "m/s^2", allow_zero=True),
+        "gyro_noise": check_positive("gyro noise", gyro_noise, "rad/s", allow_zero=True),
+        "jitter_deg": check_positive("jitter", jitter_deg, "deg", allow_zero=True),
+        "axis_jitter_deg": check_positive("axis jitter", axis_jitter_deg, "deg", allow_zero=True),
         "units": units,
-        "gravity": gravity,
+        "gravity": check_positive("gravity", gravity, "m/s^2"),
         "move_s": MOVE_S,
     }
+    for name, key in (("jitter", "jitter_deg"), ("axis jitter", "axis_jitter_deg")):
+        if opt[key] > 45.0:
+            raise InputError(f"{name} must be at most 45 deg, got {opt[key]:g}")
+    n_still = int(round(opt["still_s"] * rate_hz))
+    if n_still < 10:
+        raise InputError(f"still {still_s:g} s at {rate_hz:g} Hz gives {n_still} samples: >= 10")
+    return opt
+
+
+def _draw_turns(prng: np.random.Generator, groups: list, opt: dict) -> tuple[list, list]:
+    """The plan, drawn from the pose generator in a fixed order: per starting face its
+    placement, then the angles, then per turn the axis error and the peak rate.
+
+    Returns the starting attitudes and, per group, a list of (nominal axis or None, true unit
+    axis (body), angle rad, n interior samples, duration s).
+    """
+    eye = np.eye(3)
+    starts, timed = [], []
+    for axis_name, face, _ in groups:
+        tilt = np.zeros(3)
+        tilt[:2] = prng.standard_normal(2) * np.radians(opt["jitter_deg"]) / np.sqrt(2.0)
+        heading = Rotation.from_rotvec([0.0, 0.0, prng.uniform(0.0, 2.0 * np.pi)])
+        att = Rotation.from_rotvec(tilt) * heading * up_to_vertical(eye[face])
+        starts.append(att)
+        if axis_name is not None:
+            nominal = eye[_AXIS_NAMES.index(axis_name)]
+            angles = np.radians(_draw_angles_deg(prng, opt["rotations_per_axis"]))
+        else:
+            nominal = None
+            angles = np.radians(prng.uniform(MIN_TURN_DEG, 180.0, opt["count"]))
+            angles *= prng.choice([-1.0, 1.0], opt["count"])
+        out = []
+        for a in angles:
+            if nominal is not None:
+                aim = _towards_level(att, nominal, LEVELLING)
+                u = unit(_tilt_perpendicular(prng, aim, opt["axis_jitter_deg"]).apply(aim))
+            else:
+                u = unit(prng.standard_normal(3))
+            peak = np.radians(opt["peak_rate_dps"]) * prng.uniform(*PEAK_FRACTION)
+            dur = max(SMOOTHERSTEP_PEAK * abs(a) / peak, MIN_TURN_S)
+            n = max(2, int(round(dur * opt["rate_hz"])) - 1)
+            out.append((nominal, u, float(a), n, (n + 1) / opt["rate_hz"]))
+            att = att * Rotation.from_rotvec(a * u)
+        timed.append(out)
+    return starts, timed
+
+
+def _turn_timeline(opt, groups, starts, timed, n_still, n_move):
+    """The motion: per starting face a move to it (after the first), then still, turn,
+    still, ...  Returns the timeline, the per-turn record and (true up, labelled up) of each
+    still."""
+    eye = np.eye(3)
+    tl = Timeline(opt["rate_hz"], opt["gravity"], starts[0])
+    stills: list[tuple[np.ndarray, list[float] | None]] = []
+    rec = {k: [] for k in ("seg", "label", "axis_name", "angle", "axis", "nominal", "peak", "dur")}
+
+    def still(label: str, up: np.ndarray | None) -> None:
+        tl.segment("static", tl.hold(n_still), label, up=up)
+        stills.append((tl.att.inv().apply(EZ), None if up is None else _floats(up)))
+
+    for g, ((axis_name, face, face_label), turns) in enumerate(zip(groups, timed, strict=True)):
+        if g > 0:  # lay the unit on the next starting face (unsegmented move)
+            tl.move(starts[g], n_move)
+        tag = f"{axis_name} turn" if axis_name else "turn"
+        for k, (nominal, u, a, n, dur) in enumerate(turns, start=1):
+            where = f", {face_label} up" if k == 1 else ""
+            still(f"still before {tag} {k}{where}", eye[face] if k == 1 else None)
+            label = f"turn {k} about {axis_name}" if axis_name else f"turn {k}"
+            seg = tl.segment("rotation", tl.smooth_turn(u, a, n), label, axis=nominal)
+            for key, value in zip(
+                rec, (seg.name, label, axis_name, a, u, nominal, SMOOTHERSTEP_PEAK * abs(a) / dur,
+                      dur), strict=True,
+            ):  # fmt: skip
+                rec[key].append(value)
+        still(f"still after {tag} {len(turns)}", None)
+    return tl, rec, stills
+
+
+def _turn_record(rec: dict, opt: dict) -> dict:
+    """The gyro truth's per-turn record (see :func:`simulate_gyro_rotations`)."""
     angles = np.array(rec["angle"])
     axes = np.array(rec["axis"])
     axis_err = [
         None if nom is None else float(np.degrees(np.arccos(np.clip(nom @ u, -1.0, 1.0))))
         for nom, u in zip(rec["nominal"], rec["axis"], strict=True)
     ]
-    common = {"model": "calibrated = matrix @ (raw - bias)", "quantised": bool(truth.quantise)}
-    design = (
-        "Qureshi & Golnaraghi Fig. 2: turns about x and y with +Z up, about z with +X up"
-        if kind == "qureshi-axes"
-        else "hand turns about random axes (uniform on the sphere)"
-    )
-    gyro_extra = {
-        **common,
-        "design": design,
-        "units_in": truth.gyro_units,
+    return {
         "frame": "fixture (body) frame",
-        "noise": gyro_noise,
-        "noise_unit": "rad/s per axis per sample (white, input-referred)",
-        "sensitivity": _floats(np.linalg.norm(truth.gyro_S, axis=1)),
-        "sensitivity_unit": f"{truth.gyro_units} per rad/s",
-        "nominal_sensitivity": float(truth.gyro_nominal),
-        "scale_error": _floats(truth.gyro_scale_error),
-        "misalignment_deg": _misalignment_deg(truth.gyro_S),
-        "bias_dps": _floats(truth.gyro_bias_dps),
-        "S": _floats(truth.gyro_S),
         "turn_segments": rec["seg"],
         "turn_labels": rec["label"],
         "turn_axis_names": rec["axis_name"],
@@ -525,36 +478,5 @@ def simulate_gyro_rotations(
         "axis_error_deg": axis_err,
         "peak_rate_dps": _floats(np.degrees(rec["peak"])),
         "duration_s": _floats(rec["dur"]),
-        "axis_jitter_deg": axis_jitter_deg,
+        "axis_jitter_deg": opt["axis_jitter_deg"],
     }
-    static = [s for s in segments if s.kind == "static"]
-    accel_extra = {
-        **common,
-        "units_in": truth.accel_units,
-        "frame": "fixture (body) frame",
-        "noise": accel_noise,
-        "noise_unit": "m/s^2 per axis per sample (white, input-referred)",
-        "gravity": gravity,
-        "sensitivity": _floats(np.linalg.norm(truth.accel_S, axis=1)),
-        "sensitivity_unit": f"{truth.accel_units} per m/s^2",
-        "nominal_sensitivity": float(truth.accel_nominal),
-        "scale_error": _floats(truth.accel_scale_error),
-        "misalignment_deg": _misalignment_deg(truth.accel_S),
-        "mount_rotvec_deg": _floats(np.degrees(truth.mount_rotvec)),
-        "bias_mg": _floats(1000.0 * truth.accel_bias_g),
-        "S": _floats(truth.accel_S),
-        "jitter_deg": jitter_deg,
-        "segments": [s.name for s in static],
-        "labels": [s.label for s in static],
-        "true_up": _floats(_unit(np.array(still_true_up))),
-        "labelled_up": still_labelled_up,
-    }
-    accel, gyro = truth_sections(truth, accel_extra, gyro_extra)
-    root = {
-        "sensor": sensor,
-        "seed": seed,
-        "plan": plan_name,
-        "jitter_deg": jitter_deg,
-        "simulator": options,
-    }
-    return session, Calibration(accel=accel, gyro=gyro, extra=root, created=created)

@@ -22,9 +22,22 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import sparse
 from scipy.optimize import least_squares
 
 from imucal_cli.errors import DesignError, SolverError
+from imucal_cli.solvers.banded import BandedWhitener
+from imucal_cli.solvers.gyro_integration import (
+    Stack,
+    attitudes,
+    end_sensitivity,
+    integrate_rotations,
+    matrix_rows,
+    quat_to_matrix,
+)
+
+__all__ = ["FullResult", "Rotations", "Stills", "fit_full", "full_information",
+           "integrate_rotations"]  # fmt: skip
 
 
 @dataclass
@@ -108,94 +121,6 @@ class FullResult:
         return np.sqrt(np.clip(np.diag(self.cov), 0, None))
 
 
-# --------------------------------------------------------------------------- quaternions
-
-
-def _qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Hamilton product of (K, 4) quaternions ``[w, x, y, z]``."""
-    pw, px, py, pz = p.T
-    qw, qx, qy, qz = q.T
-    return np.stack(
-        [
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        ],
-        axis=1,
-    )
-
-
-def _qdot(q: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """``q' = 1/2 q (0, w)`` for body rates ``w`` (K, 3)."""
-    return 0.5 * _qmul(q, np.column_stack([np.zeros(len(w)), w]))
-
-
-def integrate_rotations(
-    t: list[np.ndarray], w: list[np.ndarray], *, path: bool = False
-) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
-    """Body rotation over each segment by 4th-order Runge-Kutta, all segments at once.
-
-    Parameters
-    ----------
-    t : list of ndarray (n_k,)
-        Sample times, s.
-    w : list of ndarray (n_k, 3)
-        Body angular rate, rad/s, linearly interpolated between samples.
-
-    path : bool
-        Also return the rotation at every sample (for the Jacobian).
-
-    Returns
-    -------
-    ndarray (K, 3, 3)
-        ``R_k``: the body frame at the end expressed in the body frame at the start.
-    ndarray (K, L, 3, 3), only with ``path``
-        The same from the start to every sample (the last one repeated past a segment's end).
-    """
-    K = len(t)
-    L = max(len(x) for x in t)
-    W = np.zeros((K, L, 3))
-    dt = np.zeros((K, L - 1))
-    for k in range(K):
-        n = len(t[k])
-        W[k, :n] = w[k]
-        W[k, n:] = w[k][-1]
-        dt[k, : n - 1] = np.diff(t[k])  # zero after the segment's end: the state stays put
-    q = np.tile([1.0, 0.0, 0.0, 0.0], (K, 1))
-    Q = np.empty((K, L, 4)) if path else None
-    if path:
-        Q[:, 0] = q
-    for i in range(L - 1):
-        h = dt[:, i : i + 1]
-        w0, w1 = W[:, i], W[:, i + 1]
-        wm = 0.5 * (w0 + w1)
-        k1 = _qdot(q, w0)
-        k2 = _qdot(q + 0.5 * h * k1, wm)
-        k3 = _qdot(q + 0.5 * h * k2, wm)
-        k4 = _qdot(q + h * k3, w1)
-        q = q + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        q /= np.linalg.norm(q, axis=1, keepdims=True)
-        if path:
-            Q[:, i + 1] = q
-    if path:
-        return _quat_to_matrix(q), _quat_to_matrix(Q.reshape(-1, 4)).reshape(K, L, 3, 3)
-    return _quat_to_matrix(q)
-
-
-def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """(N, 4) unit quaternions -> (N, 3, 3) rotation matrices."""
-    w_, x, y, z = q.T
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w_), 2 * (x * z + y * w_)], -1),
-            np.stack([2 * (x * y + z * w_), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w_)], -1),
-            np.stack([2 * (x * z - y * w_), 2 * (y * z + x * w_), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        axis=1,
-    )
-
-
 # --------------------------------------------------------------------------- the model
 
 
@@ -208,24 +133,58 @@ def _tangent(u: np.ndarray) -> np.ndarray:
     return np.stack([t1, t2], axis=2)
 
 
-class _Problem:
-    """Residuals of the full model, and how they depend on every noise source."""
+def _skew(p: np.ndarray) -> np.ndarray:
+    """(K, 3, 3) cross-product matrices ``[p]x`` of (K, 3) vectors."""
+    out = np.zeros((len(p), 3, 3))
+    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -p[:, 2], p[:, 1], -p[:, 0]
+    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = p[:, 2], -p[:, 1], p[:, 0]
+    return out
 
-    def __init__(self, rot: Rotations, still: Stills, gyro_sigma: float):
-        self.rot, self.still = rot, still
+
+class _Problem:
+    """Residuals of the full model, their Jacobian, and their noise covariance.
+
+    Parameters ``x = (b, vec(M))`` (row-major). Residuals: two per rotation (the predicted
+    gravity direction after it, ``p = R^T u_before``, minus the measured one, in the tangent
+    plane of the measured one), then three per still period (gyro mean minus bias).
+    """
+
+    def __init__(self, rot: Rotations, still: Stills, gyro_sigma: float, clock: float = 1.0):
+        self.rot, self.still, self.clock = rot, still, clock
+        self.stack = Stack.of(rot.t)
+        self.z = np.ascontiguousarray(np.concatenate(rot.z).T, dtype=float)  # (3, N)
         self.u = still.g / np.linalg.norm(still.g, axis=1, keepdims=True)
         self.B = _tangent(self.u)
         self.gyro_sigma = gyro_sigma
         self.K, self.P = len(rot.t), len(still.g)
         # Integrated white gyro noise over a rotation: sigma * sqrt(sum dt^2) per axis (raw).
-        self.int_noise = np.array([gyro_sigma * np.sqrt(np.sum(np.diff(t) ** 2)) for t in rot.t])
+        h2 = (clock * np.diff(self.stack.t)) ** 2
+        h2[self.stack.stop[:-1] - 1] = 0.0
+        self.int_noise = gyro_sigma * np.sqrt(np.add.reduceat(np.r_[h2, 0.0], self.stack.start))
+        self._last = (None, None)
+
+    def _attitudes(self, x):
+        """Every sample's attitude in its rotation (4, N); the last evaluation is kept (the
+        solver asks for residuals, Jacobian and noise model at one point in turn)."""
+        key = x.tobytes()
+        if self._last[0] != key:
+            b, M = x[:3], x[3:12].reshape(3, 3)
+            self._last = (key, attitudes(self.stack, M @ (self.z - b[:, None]), self.clock))
+        return self._last[1]
 
     def predicted(self, x):
-        b, M = x[:3], x[3:].reshape(3, 3)
-        w = [(z - b) @ M.T for z in self.rot.z]
-        R = integrate_rotations(self.rot.t, w)
-        u0 = self.u[self.rot.before]
-        return np.einsum("kji,kj->ki", R, u0), R  # R^T u0
+        """Predicted gravity direction after each rotation (K, 3) and the rotations (K, 3, 3)."""
+        q = self._attitudes(x)
+        R = quat_to_matrix(q[:, self.stack.stop - 1])
+        return np.einsum("kji,kj->ki", R, self.u[self.rot.before]), R  # R^T u0
+
+    def _rotation_residuals(self, p):
+        B1 = self.B[self.rot.after]
+        return np.einsum("kij,ki->kj", B1, p - self.u[self.rot.after]).ravel()
+
+    def raw_residuals(self, x):
+        p, _ = self.predicted(x)
+        return np.concatenate([self._rotation_residuals(p), (self.still.z_mean - x[:3]).ravel()])
 
     def residuals_and_jacobian(self, x):
         """Raw residuals and their analytic Jacobian (first order in the rate perturbation).
@@ -234,73 +193,68 @@ class _Problem:
         ``d phi = integral R(t -> end) d omega(t) dt`` (body frame at the end), which moves the
         predicted gravity direction by ``d p = [p]x d phi``.
         """
-        b, M = x[:3], x[3:].reshape(3, 3)
-        d = [z - b for z in self.rot.z]
-        R, Rpath = integrate_rotations(self.rot.t, [di @ M.T for di in d], path=True)
-        u0 = self.u[self.rot.before]
-        p = np.einsum("kji,kj->ki", R, u0)
-        u1 = self.u[self.rot.after]
-        B1 = self.B[self.rot.after]
-        K, P = self.K, self.P
-        r = np.concatenate([np.einsum("kij,ki->kj", B1, p - u1).ravel(),
-                            (self.still.z_mean - b).ravel()])  # fmt: skip
-        J = np.zeros((2 * K + 3 * P, 12))
-        for k in range(K):
-            n = len(self.rot.t[k])
-            dt = np.diff(self.rot.t[k])
-            wts = np.zeros(n)  # trapezoid weights of the integral
-            wts[:-1] += dt / 2
-            wts[1:] += dt / 2
-            # E_i = R_end^T R_i carries a small rotation at t_i (body at t_i) to the end.
-            E = np.einsum("ba,ibc->iac", R[k], Rpath[k, :n])
-            dphi_db = -np.einsum("i,iac->ac", wts, E) @ M  # d omega_i = -M d b
-            dphi_dM = np.einsum("i,iac,ij->acj", wts, E, d[k]).reshape(3, 9)  # d omega = dM d_i
-            px = np.array([[0, -p[k, 2], p[k, 1]], [p[k, 2], 0, -p[k, 0]],
-                           [-p[k, 1], p[k, 0], 0]])  # fmt: skip
-            G = B1[k].T @ px
-            J[2 * k : 2 * k + 2, :3] = G @ dphi_db
-            J[2 * k : 2 * k + 2, 3:] = G @ dphi_dM
-        J[2 * K :, :3] = -np.tile(np.eye(3), (P, 1))
+        b, M = x[:3], x[3:12].reshape(3, 3)
+        st, K = self.stack, self.K
+        R = matrix_rows(self._attitudes(x))
+        R_end = R[:, st.stop - 1].T.reshape(K, 3, 3)
+        p = np.einsum("kji,kj->ki", R_end, self.u[self.rot.before])
+        r = np.concatenate([self._rotation_residuals(p), (self.still.z_mean - b).ravel()])
+        dphi_db = -end_sensitivity(st, R, clock=self.clock) @ M  # d omega_i = -M d b
+        dphi_dM = end_sensitivity(st, R, self.z - b[:, None], self.clock).reshape(K, 3, 9)  # dM d_i
+        G = np.einsum("kai,kab->kib", self.B[self.rot.after], _skew(p))  # B1^T [p]x
+        J = np.zeros((2 * K + 3 * self.P, 12))
+        J[: 2 * K, :3] = (G @ dphi_db).reshape(2 * K, 3)
+        J[: 2 * K, 3:] = (G @ dphi_dM).reshape(2 * K, 9)
+        J[2 * K :, :3] = -np.tile(np.eye(3), (self.P, 1))
         return r, J
 
-    def raw_residuals(self, x):
-        p, _ = self.predicted(x)
-        u1 = self.u[self.rot.after]
-        B1 = self.B[self.rot.after]
-        r_rot = np.einsum("kij,ki->kj", B1, p - u1).ravel()  # 2 per rotation
-        b = x[:3]
-        r_zero = (self.still.z_mean - b).ravel()  # still periods: z = b
-        return np.concatenate([r_rot, r_zero])
-
-    def noise_jacobian(self, x) -> np.ndarray:
-        """d raw residuals / d noise sources (each in units of its standard deviation)."""
+    def rotation_covariance(self, x) -> sparse.csr_matrix:
+        """Covariance of the rotation residuals (2K x 2K, sparse): each rotation's from the
+        gravity directions before and after it (shared with its neighbours) and its
+        integrated gyro noise."""
         p, R = self.predicted(x)
-        M = x[3:].reshape(3, 3)
+        M = x[3:12].reshape(3, 3)
         K, P = self.K, self.P
-        n_res = 2 * K + 3 * P
-        n_noise = 2 * P + 3 * K + 3 * P
-        C = np.zeros((n_res, n_noise))
-        for k in range(K):
-            i0, i1 = self.rot.before[k], self.rot.after[k]
-            B1 = self.B[i1]
-            rows = slice(2 * k, 2 * k + 2)
-            # u_before perturbed in its tangent plane: d p = R^T B0 e
-            C[rows, 2 * i0 : 2 * i0 + 2] += B1.T @ R[k].T @ self.B[i0] * self.still.g_sigma[i0]
-            # u_after perturbed: d(-u1) projected (B1 is fixed from the data, to first order)
-            C[rows, 2 * i1 : 2 * i1 + 2] -= B1.T @ self.B[i1] * self.still.g_sigma[i1]
-            # Integrated gyro noise: a small rotation eps (body, end) -> d p = -eps x p = [p]x eps
-            px = np.array([[0, -p[k, 2], p[k, 1]], [p[k, 2], 0, -p[k, 0]],
-                           [-p[k, 1], p[k, 0], 0]])  # fmt: skip
-            C[rows, 2 * P + 3 * k : 2 * P + 3 * k + 3] = B1.T @ px @ M * self.int_noise[k]
-        zero = slice(2 * K, 2 * K + 3 * P)
-        C[zero, 2 * P + 3 * K :] = np.diag(np.repeat(self.still.z_sigma, 3))
-        return C
+        i0, i1 = self.rot.before, self.rot.after
+        B1 = self.B[i1]
+        g_sigma = self.still.g_sigma
+        # u_before perturbed in its tangent plane: d p = R^T B0 e
+        c0 = np.einsum("kai,kba,kbj->kij", B1, R, self.B[i0]) * g_sigma[i0, None, None]
+        # u_after perturbed: d(-u1) projected (B1 is fixed from the data, to first order)
+        c1 = -np.broadcast_to(np.eye(2), (K, 2, 2)) * g_sigma[i1, None, None]
+        # Integrated gyro noise: a small rotation eps (body, end) -> d p = [p]x eps
+        cg = np.einsum("kai,kab,bc->kic", B1, _skew(p), M) * self.int_noise[:, None, None]
+        rows = 2 * np.arange(K)[:, None, None] + np.arange(2)[None, :, None]
+        blocks = [(c0, 2 * i0), (c1, 2 * i1), (cg, 2 * P + 3 * np.arange(K))]
+        data, rr, cc = [], [], []
+        for c, col0 in blocks:
+            n = c.shape[2]
+            cols = col0[:, None, None] + np.arange(n)[None, None, :]
+            data.append(c.ravel())
+            rr.append(np.broadcast_to(rows, c.shape).ravel())
+            cc.append(np.broadcast_to(cols, c.shape).ravel())
+        C = sparse.csr_matrix(
+            (np.concatenate(data), (np.concatenate(rr), np.concatenate(cc))),
+            shape=(2 * K, 2 * P + 3 * K),
+        )
+        return C @ C.T
+
+    def whitener(self, x) -> _Whitener:
+        return _Whitener(BandedWhitener(self.rotation_covariance(x)), self)
 
 
-def _whitener(C: np.ndarray) -> np.ndarray:
-    cov = C @ C.T
-    cov += 1e-12 * np.trace(cov) / len(cov) * np.eye(len(cov))
-    return np.linalg.inv(np.linalg.cholesky(cov))
+class _Whitener:
+    """Whitens the stacked residuals: rotation rows by the banded factor, still rows by their
+    standard deviation."""
+
+    def __init__(self, rot: BandedWhitener, prob: _Problem):
+        self.rot, self.n_rot = rot, 2 * prob.K
+        self.zero_sigma = np.repeat(prob.still.z_sigma, 3)
+
+    def __call__(self, a: np.ndarray) -> np.ndarray:
+        top = self.rot(a[: self.n_rot])
+        bottom = a[self.n_rot :] / (self.zero_sigma if a.ndim == 1 else self.zero_sigma[:, None])
+        return np.concatenate([top, bottom])
 
 
 def full_information(x: np.ndarray, rot: Rotations, still: Stills, gyro_sigma: float) -> np.ndarray:
@@ -309,8 +263,7 @@ def full_information(x: np.ndarray, rot: Rotations, still: Stills, gyro_sigma: f
     Its inverse is the Cramér-Rao bound when ``x`` and the data are the truth.
     """
     prob = _Problem(rot, still, gyro_sigma)
-    W = _whitener(prob.noise_jacobian(x))
-    J = W @ prob.residuals_and_jacobian(x)[1]
+    J = prob.whitener(x)(prob.residuals_and_jacobian(x)[1])
     return J.T @ J
 
 
@@ -352,34 +305,34 @@ def fit_full(
         )
     prob = _Problem(rot, still, gyro_sigma)
     x0 = np.r_[b0, M0.ravel()]
-    W = _whitener(prob.noise_jacobian(x0))
-    scale = np.r_[np.full(3, max(np.std(np.vstack(rot.z)), 1e-9)), np.full(9, np.abs(M0).max())]
+    scale = np.r_[np.full(3, max(np.std(prob.z), 1e-9)), np.full(9, np.abs(M0).max())]
+    W = prob.whitener(x0)
+    jac_at = {}
 
-    cache = {}
+    def fun(x):
+        return W(prob.raw_residuals(x))
 
-    def evaluate(x):
+    def jac(x):
         key = x.tobytes()
-        if key not in cache:
-            cache.clear()
-            r, J = prob.residuals_and_jacobian(x)
-            cache[key] = (W @ r, W @ J)
-        return cache[key]
+        if key not in jac_at:
+            jac_at.clear()
+            jac_at[key] = W(prob.residuals_and_jacobian(x)[1])
+        return jac_at[key]
 
     def solve(x_start):
-        return least_squares(lambda x: evaluate(x)[0], x_start, jac=lambda x: evaluate(x)[1],
-                             x_scale=scale, method="trf", xtol=1e-12, ftol=1e-12, gtol=1e-12,
-                             max_nfev=max_iterations)  # fmt: skip
+        return least_squares(fun, x_start, jac=jac, x_scale=scale, method="trf", xtol=1e-12,
+                             ftol=1e-12, gtol=1e-12, max_nfev=max_iterations)  # fmt: skip
 
     sol = solve(x0)
-    W = _whitener(prob.noise_jacobian(sol.x))  # the noise model at the solution, then again
-    cache.clear()
+    W = prob.whitener(sol.x)  # the noise model at the solution, then again
+    jac_at.clear()
     sol = solve(sol.x)
     if sol.status <= 0:
         raise SolverError(
             f"the full gyro model did not converge ({sol.message}); capture more rotations about "
             "different axes with the unit still before and after each"
         )
-    J = evaluate(sol.x)[1]
+    J = jac(sol.x)
     sv = np.linalg.svd(J, compute_uv=False)
     if sv[-1] < 1e-8 * sv[0]:
         raise DesignError(

@@ -70,8 +70,8 @@ from imucal_cli.formats.calibration import (
     SensorCalibration,
     calibration_to_json,
 )
-from imucal_cli.formats.importers import (
-    TIME_UNITS,
+from imucal_cli.formats.importers.recording import TIME_UNITS
+from imucal_cli.formats.importers.text import (
     check_time,
     infer_columns,
     parse_columns,
@@ -490,7 +490,9 @@ class _CsvWriter:
 
 
 def _write_block(writer, block: _Block, sections, summary: ApplySummary, output_path) -> None:
-    values = {name: sec.apply(block.raw[name]) for name, sec in sections.items()}
+    values: dict[str, np.ndarray] = {}
+    for name, sec in sections.items():  # accel first: the gyro's g_sensitivity needs it
+        values[name] = sec.apply(block.raw[name], accel=values.get("accel"))
     bad = np.zeros(len(block.time), dtype=bool)
     for raw in block.raw.values():
         bad |= ~np.isfinite(raw).all(axis=1)
@@ -582,6 +584,12 @@ def apply_calibration(
     # the matrix-matrix path of longer blocks (see _chunk_bounds): at least 2 rows per block.
     chunk_rows = max(chunk_rows, 2)
     sections = _sections(cal)
+    gyro = sections.get("gyro")
+    if gyro is not None and gyro.g_sensitivity is not None and "accel" not in sections:
+        raise InputError(
+            f"{cal_source}: the gyro calibration holds g_sensitivity but there is no "
+            "accelerometer calibration to give the specific force it needs"
+        )
 
     is_session = is_hdf5_file(input_path, what="session or CSV file")
     if not is_session and input_path.suffix.lower() in (".h5", ".hdf5", ".hdf"):

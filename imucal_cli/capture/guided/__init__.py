@@ -1,0 +1,174 @@
+"""Guided capture: tell the person at the bench what to do, and record it when it is done.
+
+:func:`run_guided` consumes :meth:`Recorder.blocks() <imucal_cli.capture.recorder.Recorder.blocks>`
+(every block is already in the session file when it arrives) and, for each step of a
+:class:`~imucal_cli.plans.Plan`:
+
+static step
+    says what to do (``Put face +Z up and hold still``), shows the live signal and STILL/MOVING;
+    as soon as the :class:`~imucal_cli.solvers.stillness.StillnessDetector` calls the unit
+    still, the hold starts by itself and runs ``hold_s`` seconds under a progress bar.  Motion
+    during the hold restarts it with a warning.  The finished hold is matched by its gravity
+    direction to the nearest static step of the plan not yet taken (any order), refused when
+    it is within ``min_separation_deg`` of a pose already taken, and the coverage of the sphere
+    and the steps left are shown.  After a pose the next hold waits for the unit to move.
+rotation step
+    says ``Turn about +X by 90 degrees, then hold still``; waits for a still period, detects
+    the start and end of the turn from the gyro (:func:`~imucal_cli.solvers.stillness.motion_span`)
+    and records a ``rotation`` segment spanning it, with the plan's ``axis`` and ``angle_deg``.
+
+Commands (a line each, from a :class:`KeySource`): ``r`` redo the last step taken, ``s`` skip
+the current step, ``q`` finish now, Enter continue (take the next hold where the unit is now,
+without waiting for it to move), a number or a step label picks the step to do next.
+
+Segments reach the recorder only when they are final: the last step taken stays pending (so
+that ``r`` can drop it) until the next one is taken or the capture ends; segments are therefore
+added once, in time order, as :class:`~imucal_cli.formats.session.SessionWriter` requires.
+
+The package is split into the state machine (:mod:`.state`, testable without a terminal:
+blocks and commands in, messages, prompts and segments out), its screen (:mod:`.screen`), the
+commands and their sources (:mod:`.keys`), matching holds to steps and measuring turns
+(:mod:`.matching`), the gravity direction of a hold (:mod:`.direction`) and the words
+(:mod:`.words`).
+
+Output works in a terminal (a :class:`rich.live.Live` display refreshed ``refresh_hz`` times a
+second, events printed above it) and without one (tests, logs: plain lines, one per event or
+change of instruction, nothing per block).
+"""
+
+from __future__ import annotations
+
+from rich.console import Console
+
+from imucal_cli.plans import CaptureSummary, Plan
+from imucal_cli.solvers.stillness import StillnessDetector
+
+from .direction import estimate_direction
+from .keys import Command, KeySource, ScriptedKeys, StdinKeys, parse_command
+from .screen import Screen
+from .state import GuidedOptions, GuidedState, Message, Prompt
+from .words import instruction
+
+__all__ = [
+    "Command",
+    "GuidedOptions",
+    "GuidedState",
+    "KeySource",
+    "Message",
+    "Prompt",
+    "ScriptedKeys",
+    "StdinKeys",
+    "estimate_direction",
+    "instruction",
+    "parse_command",
+    "run_guided",
+]
+
+
+def run_guided(
+    recorder,
+    plan: Plan,
+    *,
+    console: Console,
+    keys: KeySource,
+    hold_s: float = 2.0,
+    min_separation_deg: float = 15.0,
+    nominal_bias=None,
+    nominal_scale=None,
+    refresh_hz: float = 10.0,
+    match_tolerance_deg: float = 20.0,
+    accel_units: str | None = None,
+    gyro_units: str | None = None,
+    gyro_scale: float | None = None,
+    detector: StillnessDetector | None = None,
+    warn_after_s: float = 0.5,
+    pre_still_s: float = 0.5,
+    settle_s: float = 0.5,
+    axis_tolerance_deg: float = 30.0,
+    tick_s: float = 0.1,
+) -> CaptureSummary:
+    """Guide a person through ``plan`` while ``recorder`` records; return what was done.
+
+    Parameters
+    ----------
+    recorder : Recorder
+        Provides ``blocks(tick_s)``, ``n_samples``, ``add_segment(...)``, ``stop()``,
+        ``end_reason``, ``stats`` and, optionally, ``accel_units``/``gyro_units``.  Blocks must
+        be yielded after they were appended (segment indices count the recorder's samples).
+    plan : Plan
+        The steps (static and rotation).
+    console : rich.console.Console
+        Where to talk.  A terminal gets a live display; anything else plain lines.
+    keys : KeySource
+        Commands: ``r`` redo, ``s`` skip, ``q`` finish, Enter continue, a step number or label.
+    hold_s : float
+        Length of each static hold, s; a step's own ``hold_s`` (the ``still:MINUTES`` plan)
+        takes precedence.
+    min_separation_deg : float
+        A pose closer than this to one already taken is refused (unless the plan itself asks
+        for that direction again).
+    nominal_bias, nominal_scale : optional
+        How a raw accel mean becomes a gravity direction (see :func:`estimate_direction`).
+    refresh_hz : float
+        Live display refresh rate (terminal only).
+    match_tolerance_deg : float
+        A hold is matched to the nearest pending static step whose ``up`` is within this angle.
+    accel_units, gyro_units : str, optional
+        Raw units; default the recorder's.
+    gyro_scale : float, optional
+        Raw gyro units per rad/s, to show measured turn angles for ``counts``/``V``.
+    detector : StillnessDetector, optional
+        Default ``StillnessDetector()`` (0.25 s windows, false alarm 1e-4 per window).
+    warn_after_s : float
+        A hold interrupted by motion after this long is reported ("moved during the hold");
+        shorter still moments are handling.
+    pre_still_s, settle_s : float
+        A turn needs the unit still this long before it, and counts as ended when the unit is
+        still again this long.
+    axis_tolerance_deg : float
+        Warn when a turn's measured axis is further than this from the plan's.
+    tick_s : float
+        Passed to ``recorder.blocks``.
+
+    Returns
+    -------
+    CaptureSummary
+        ``complete`` iff no step is missing or skipped; ``done`` in the order taken.
+    """
+    if accel_units is None:
+        accel_units = getattr(recorder, "accel_units", None)
+    if gyro_units is None:
+        gyro_units = getattr(recorder, "gyro_units", None)
+    opt = GuidedOptions(
+        hold_s=float(hold_s), min_separation_deg=float(min_separation_deg),
+        nominal_bias=nominal_bias, nominal_scale=nominal_scale,
+        refresh_hz=max(float(refresh_hz), 0.1), match_tolerance_deg=float(match_tolerance_deg),
+        accel_units=accel_units, gyro_units=gyro_units,
+        gyro_scale=gyro_scale, detector=detector, warn_after_s=float(warn_after_s),
+        pre_still_s=float(pre_still_s), settle_s=float(settle_s),
+        axis_tolerance_deg=float(axis_tolerance_deg), tick_s=float(tick_s),
+    )  # fmt: skip
+    state = GuidedState(plan, opt, int(recorder.n_samples), recorder.add_segment)
+    return drive(state, Screen(console, opt.refresh_hz), recorder, keys, opt.tick_s)
+
+
+def drive(state: GuidedState, screen: Screen, recorder, keys: KeySource, tick_s: float):
+    """The loop: each block to the state, then the commands typed, then the screen."""
+    gen = recorder.blocks(tick_s)
+    screen.start(state)
+    try:
+        for block in gen:
+            state.on_block(block)
+            while state.end_reason is None and (line := keys.get()) is not None:
+                state.on_command(line)
+            if state.end_reason is not None:
+                break
+            screen.show(state)
+    finally:
+        gen.close()
+        if state.end_reason is not None:
+            recorder.stop()
+        screen.stop(state)
+    summary = state.summary(recorder)
+    screen.print_messages(state)
+    return summary

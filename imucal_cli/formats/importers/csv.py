@@ -1,0 +1,84 @@
+"""``--format csv``: one sample per line, fields separated by commas, tabs or spaces (detected
+per file).
+
+The fields are named by a column spec (:func:`~.text.parse_columns`) or, when none is given, by
+a header line (``acc_x``/``ax``/``accel_x``, ``gyr_x``/``gx``/``gyro_x``, ``t``/``time``/
+``timestamp``, ...).  Without a ``t`` column, time is ``row / rate``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from imucal_cli.errors import InputError
+
+from .recording import TIME_UNITS, ImportStats, ReadOptions, Recording
+from .text import check_time, infer_columns, parse_columns, read_table, skipped_fields
+
+NAME = "csv"
+FILES = "one CSV or text file"
+
+
+def read(paths: Sequence[Path], options: ReadOptions, stats: ImportStats) -> Recording:
+    """Read one delimited text file; see the module notes.
+
+    Raises
+    ------
+    InputError
+        Not one file, no numeric rows, a spec that does not fit the rows, no header naming the
+        axes and no spec, no time column and no rate, time that does not increase.
+    """
+    if len(paths) != 1:
+        raise InputError(f"--format csv takes one file, got {len(paths)}")
+    path = paths[0]
+    columns = options.columns
+    spec = parse_columns(columns) if isinstance(columns, str) else columns
+    data, lines, header = read_table(
+        path,
+        None if spec is None else len(spec),
+        options.skip_rows,
+        stats,
+        skip=skipped_fields(spec),
+    )
+    if spec is None:
+        spec = infer_columns(header) if header else None
+        if spec is None:
+            raise InputError(
+                f"{path}: cannot tell which field is which (no header naming the axes): "
+                "pass --columns, e.g. --columns t,ax,ay,az,gx,gy,gz"
+            )
+        if len(spec) != data.shape[1]:
+            raise InputError(
+                f"{path}: the header names {len(spec)} fields but rows have "
+                f"{data.shape[1]}: pass --columns"
+            )
+    used = list(spec)
+
+    def col(name: str) -> int | None:
+        return used.index(name) if name in used else None
+
+    if col("t") is not None:
+        time = data[:, col("t")] * TIME_UNITS[options.time_unit]
+        check_time(time, lines, str(path))
+    elif options.rate_hz is None:
+        raise InputError(
+            f"{path}: no time column (t) in the columns: pass --rate HZ to stamp row i at i / rate"
+        )
+    else:
+        time = np.arange(len(data)) / options.rate_hz
+    accel = data[:, [col(a) for a in ("ax", "ay", "az")]] if "ax" in used else None
+    gyro = data[:, [col(g) for g in ("gx", "gy", "gz")]] if "gx" in used else None
+    temp = data[:, col("temp")] if "temp" in used else None
+    return Recording(
+        time=time,
+        accel=accel,
+        gyro=gyro,
+        temperature=temp,
+        rate_hz=float("nan"),
+        names=[path.name],
+        columns=used,
+        stats=stats,
+    )

@@ -1,0 +1,251 @@
+"""Integration of gyro rates over many rotations at once, and its sensitivity to the rates.
+
+All rotations are stacked end to end (:class:`Stack`); one pass computes every sample
+interval's rotation increment, and a segmented prefix product (``ceil(log2 L)`` vectorised
+passes for segments of at most ``L`` samples) gives each sample's attitude relative to the
+start of its rotation. Time and memory are linear in the number of samples.
+
+Increment over one sample interval ``h`` with the rate linear between samples ``w0``, ``w1``
+(Bortz's rotation-vector equation to second order, the "two-sample coning" form):
+
+    phi = h/2 (w0 + w1) + h^2/12 (w0 x w1)
+
+exact for turns about a fixed axis, and within ``h^4 |w|^2 |w1 - w0| / 96`` rad per step
+otherwise (below 1e-7 rad per step for hand turns at 100 Hz).
+
+The sensitivity of a rotation's end attitude to a rate perturbation ``d omega(t)`` is the
+small rotation (body frame at the end) ``d phi = integral R(t -> end) d omega(t) dt``,
+evaluated with trapezoid weights over the samples.
+
+Time enters only through ``clock``: every sample interval is ``clock * diff(t)``, so a sample
+clock correction scales the whole integration through that one factor.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+def qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Hamilton product of quaternions ``[w, x, y, z]`` stored component-major, (4, N)."""
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    return np.array(
+        [
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        ]
+    )
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """(4, N) unit quaternions -> (N, 3, 3) rotation matrices."""
+    return np.ascontiguousarray(matrix_rows(q).T).reshape(-1, 3, 3)
+
+
+def matrix_rows(q: np.ndarray) -> np.ndarray:
+    """(4, N) unit quaternions -> (9, N) rotation matrices, row-major entries first."""
+    w_, x, y, z = q
+    xx, yy, zz, xy, xz, yz = x * x, y * y, z * z, x * y, x * z, y * z
+    wx, wy, wz = w_ * x, w_ * y, w_ * z
+    R = np.array(
+        [
+            1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy),
+            2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx),
+            2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy),
+        ]
+    )  # fmt: skip
+    return R
+
+
+def rotvec_to_quat(phi: np.ndarray) -> np.ndarray:
+    """(3, N) rotation vectors -> (4, N) unit quaternions."""
+    theta = np.sqrt(np.einsum("in,in->n", phi, phi))
+    return np.vstack([np.cos(theta / 2), phi * (0.5 * np.sinc(theta / (2 * np.pi)))])
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross products of (3, N) vectors."""
+    return np.array(
+        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    )
+
+
+#: Samples per block of the blocked prefix product.
+BLOCK = 16
+
+
+@dataclass
+class Stack:
+    """Rotation segments stacked end to end.
+
+    Attributes
+    ----------
+    t : ndarray (N,)
+        Sample times, s.
+    start, stop : ndarray of int (K,)
+        Each segment's rows ``start:stop``.
+    seg : ndarray of int (N,)
+        Segment of each row.
+    pos : ndarray of int (N,)
+        Row index within its segment.
+    weights : ndarray (N,)
+        Trapezoid weights of each sample in its segment's time integral, s (``clock`` 1).
+    """
+
+    t: np.ndarray
+    start: np.ndarray
+    stop: np.ndarray
+    seg: np.ndarray
+    pos: np.ndarray
+    weights: np.ndarray
+    _blocks: tuple | None = field(default=None, repr=False)
+
+    @classmethod
+    def of(cls, t: list[np.ndarray]) -> Stack:
+        lengths = np.array([len(x) for x in t], dtype=np.int64)
+        if np.any(lengths < 2):
+            raise ValueError("every rotation needs at least 2 samples")
+        stop = np.cumsum(lengths)
+        start = stop - lengths
+        seg = np.repeat(np.arange(len(t)), lengths)
+        pos = np.arange(stop[-1]) - start[seg]
+        tt = np.concatenate(t).astype(float)
+        h = np.diff(tt)
+        h[stop[:-1] - 1] = 0.0  # no interval across two segments
+        weights = np.zeros(len(tt))
+        weights[:-1] += h / 2
+        weights[1:] += h / 2
+        return cls(tt, start, stop, seg, pos, weights)
+
+    @property
+    def n_segments(self) -> int:
+        return len(self.start)
+
+    def blocks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+        """Layout of the blocked prefix product (computed once): each row's block, its flat
+        index in a (BLOCK, n_blocks) array, each block's index within its segment, and the
+        most blocks of one segment."""
+        if self._blocks is None:
+            lengths = self.stop - self.start
+            n_blocks = -(-lengths // BLOCK)
+            first = np.cumsum(n_blocks) - n_blocks
+            block = first[self.seg] + self.pos // BLOCK
+            nb = int(n_blocks.sum())
+            flat = (self.pos % BLOCK) * nb + block
+            bpos = np.arange(nb) - np.repeat(first, n_blocks)
+            self._blocks = (block, flat, bpos, int(n_blocks.max()))
+        return self._blocks
+
+
+def attitudes(stack: Stack, w: np.ndarray, clock: float = 1.0) -> np.ndarray:
+    """Attitude of every sample relative to the start of its segment, (4, N) quaternions.
+
+    Parameters
+    ----------
+    stack : Stack
+    w : ndarray (3, N)
+        Body rate, rad/s (per second of ``clock * t``), linear between samples; component-major
+        like every per-sample array here (contiguous rows make the vector passes fast).
+    clock : float
+        Factor on every time interval (sample-clock correction).
+
+    Returns
+    -------
+    ndarray (4, N)
+        ``q_i`` (component-major) with ``R(q_i)`` the body frame at sample ``i`` expressed in
+        the body frame at its segment's first sample.
+    """
+    w0, w1 = w[:, :-1], w[:, 1:]
+    h = clock * np.diff(stack.t) * (stack.pos[1:] > 0)  # zero across a segment boundary
+    phi = np.zeros((3, len(stack.t)))
+    # Increment into row i from row i-1; rows at a segment start keep the identity.
+    phi[:, 1:] = h / 2 * (w0 + w1) + h * h / 12 * _cross(w0, w1)
+    return _prefix_product(stack, rotvec_to_quat(phi))
+
+
+def _prefix_product(stack: Stack, q: np.ndarray) -> np.ndarray:
+    """Segmented inclusive prefix product of (4, N) quaternions, then normalised.
+
+    Blocked scan: each segment is cut into blocks of :data:`BLOCK` samples; a running product
+    within every block at once (``BLOCK`` vector passes), a segmented Hillis-Steele scan over
+    the block totals (``log2`` of the blocks per segment passes over a ``1/BLOCK`` array), and
+    one pass that puts each block's preceding total in front. About three quaternion products
+    per sample, whatever the segments' lengths.
+    """
+    block, flat, bpos, n_blocks = stack.blocks()
+    nb = len(bpos)
+    Qb = np.zeros((4, BLOCK, nb))
+    Qb[0] = 1.0
+    Qb.reshape(4, -1)[:, flat] = q
+    for j in range(1, BLOCK):
+        Qb[:, j] = qmul(Qb[:, j - 1], Qb[:, j])
+    # Inclusive scan of block totals within each segment (Hillis-Steele).
+    T = Qb[:, -1].copy()
+    d = 1
+    while d < n_blocks:
+        T[:, d:] = np.where(bpos[d:] >= d, qmul(T[:, :-d], T[:, d:]), T[:, d:])
+        d *= 2
+    before = np.zeros((4, nb))  # product of the blocks before each block in its segment
+    before[0] = 1.0
+    later = bpos > 0
+    before[:, later] = T[:, np.flatnonzero(later) - 1]
+    out = qmul(before[:, block], Qb.reshape(4, -1)[:, flat])
+    return out / np.sqrt(np.einsum("in,in->n", out, out))
+
+
+def end_sensitivity(
+    stack: Stack, R9: np.ndarray, v: np.ndarray | None = None, clock: float = 1.0
+) -> np.ndarray:
+    """How each segment's end attitude moves with a rate perturbation, summed with weights.
+
+    With ``E_i = R_end^T R_i`` (carrying a small rotation at sample ``i`` to the segment's
+    end), returns ``sum_i w_i E_i`` (shape (K, 3, 3)) when ``v`` is None, else
+    ``sum_i w_i E_i[a, c] v_i[j]`` (shape (K, 3, 3, 3), indices ``a, c, j``): the end rotation
+    caused by ``d omega_i = dA v_i`` for a 3 x 3 ``dA`` is ``S[:, :, c, j] dA[c, j]``.
+
+    Parameters
+    ----------
+    R9 : ndarray (9, N)
+        Attitudes (:func:`matrix_rows` of :func:`attitudes`).
+    v : ndarray (3, N), optional
+        A per-sample vector (the bias-free raw rate, the specific force...).
+    """
+    R_end = R9[:, stack.stop - 1].T.reshape(-1, 3, 3)
+    w = clock * stack.weights
+    if v is None:
+        S = np.add.reduceat(R9 * w, stack.start, axis=1).T.reshape(-1, 3, 3)
+        return np.einsum("kba,kbc->kac", R_end, S)
+    S = np.stack(
+        [np.add.reduceat(R9 * (w * v[j]), stack.start, axis=1).T.reshape(-1, 3, 3)
+         for j in range(3)], axis=3,
+    )  # fmt: skip
+    return np.einsum("kba,kbcj->kacj", R_end, S)
+
+
+def integrate_rotations(
+    t: list[np.ndarray], w: list[np.ndarray], *, clock: float = 1.0
+) -> np.ndarray:
+    """Body rotation over each segment, all segments at once.
+
+    Parameters
+    ----------
+    t : list of ndarray (n_k,)
+        Sample times, s.
+    w : list of ndarray (n_k, 3)
+        Body angular rate, rad/s, linearly interpolated between samples.
+    clock : float
+        Factor on every time interval.
+
+    Returns
+    -------
+    ndarray (K, 3, 3)
+        ``R_k``: the body frame at the end expressed in the body frame at the start.
+    """
+    stack = Stack.of(t)
+    q = attitudes(stack, np.concatenate(w).T.copy(), clock)
+    return quat_to_matrix(q[:, stack.stop - 1])
