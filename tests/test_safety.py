@@ -441,3 +441,28 @@ def test_write_calibration_keeps_the_force_rule(tmp_path):
     with pytest.raises(InputError, match="already exists"):
         write_calibration(out, cal)
     write_calibration(out, cal, force=True)
+
+
+# ---------------------------------------------------------------------------------------------
+# Import parsing (found by the import fuzzer): no cut numbers, no lenient number syntax
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("bad_line", "why"),
+    [("0.50,1.0,2.0\v33,0.1,0.2,0.3", "vertical tab"),
+     ("0.50,1.0,2.0\u202833,0.1,0.2,0.3", "line separator U+2028"),
+     ("0.50,1_000.5,2.0,3.0,0.1,0.2,0.3", "underscore in a number"),
+     ("0.50,\u0661\u0662,2.0,3.0,0.1,0.2,0.3", "Arabic-Indic digits"),
+     ("0.50,1.0,2.0,3.0,0.1,0.2,nan", "nan"),
+     ("0.50,0x1p3,2.0,3.0,0.1,0.2,0.3", "hexadecimal")],
+)  # fmt: skip
+def test_import_refuses_what_is_not_a_number(tmp_path, bad_line, why):
+    from imucal_cli.formats.importers.text import parse_numbers, split_fields, split_lines
+
+    text = "t,ax,ay,az,gx,gy,gz\n0.49,1,2,3,0,0,0\n" + bad_line + "\n0.51,1,2,3,0,0,0\n"
+    lines = split_lines(text)
+    assert len(lines) == 4, why  # the control character did not split the line
+    parsed = [parse_numbers(split_fields(line, True)) for line in lines[1:]]
+    assert parsed[0] is not None and parsed[2] is not None
+    assert parsed[1] is None, why  # malformed: skipped and counted, never a cut number

@@ -13,7 +13,7 @@ from __future__ import annotations
 import re
 from typing import Any
 
-__all__ = ["clean_text", "clean_tree", "is_clean"]
+__all__ = ["clean_text", "clean_tree", "has_control", "is_clean"]
 
 # C0 controls but tab, DEL and C1 controls, zero-width and bidirectional formatting, line and
 # paragraph separators, lone surrogates (bytes that were not UTF-8), the byte-order mark and
@@ -38,6 +38,12 @@ def clean_text(text: str) -> str:
 def is_clean(text: str) -> bool:
     """Whether :func:`clean_text` would leave ``text`` as it is."""
     return _UNSAFE.search(text) is None and "\t" not in text
+
+
+def has_control(text: str) -> bool:
+    """Whether ``text`` holds a character :func:`clean_text` would escape (tabs and newlines
+    are fine: a file's layout)."""
+    return _UNSAFE.search(text.replace("\n", " ")) is not None
 
 
 def clean_tree(value: Any) -> Any:

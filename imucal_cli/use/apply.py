@@ -72,6 +72,7 @@ from imucal_cli.formats.calibration import (
 )
 from imucal_cli.formats.importers.recording import TIME_UNITS
 from imucal_cli.formats.importers.text import (
+    BLANK,
     check_time,
     infer_columns,
     parse_columns,
@@ -356,7 +357,7 @@ def _csv_blocks(
     seen_data = False
     for number, raw_line in enumerate(handle, start=1):
         done += len(raw_line)
-        line = raw_line.decode("utf-8", errors="replace").strip().lstrip("\ufeff")
+        line = raw_line.decode("utf-8", errors="replace").lstrip("\ufeff").strip(BLANK)
         if not line or line.startswith("#"):
             continue
         if comma is None:

@@ -30,7 +30,7 @@ from imucal_cli.formats.exporters.openvins import export_openvins
 from imucal_cli.formats.exporters.px4 import export_px4
 from imucal_cli.formats.exporters.ros_imu import export_ros_imu
 from imucal_cli.formats.noise import NOISE_FORMAT, NoiseFigures, noise_from_dict
-from imucal_cli.formats.text import is_clean
+from imucal_cli.formats.text import has_control
 
 __all__ = [
     "EXPORT_FORMATS",
@@ -118,7 +118,7 @@ def export(
         raise InputError(f"--format {fmt} needs a calibration (imucal calibrate's JSON), "
                          "not only noise figures")  # fmt: skip
     text = target.write(cal, opts)
-    if any(not is_clean(line) for line in text.split("\n")):  # belt and braces (issue 11.5)
+    if has_control(text):  # belt and braces (issue 11.5): strings were cleaned when read
         raise InputError(f"the {fmt} export would hold control characters; refusing it")
     return text
 

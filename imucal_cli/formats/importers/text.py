@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from imucal_cli.errors import InputError
+from imucal_cli.formats.inputs import read_input
 
 from .recording import ImportStats
 
@@ -29,6 +30,7 @@ __all__ = [
     "read_table",
     "skipped_fields",
     "split_fields",
+    "split_lines",
 ]
 
 FIELDS = ("t", "ax", "ay", "az", "gx", "gy", "gz", "temp")
@@ -127,10 +129,30 @@ def infer_columns(header: Sequence[str]) -> list[str | None] | None:
 # --------------------------------------------------------------------------------------------
 
 
+#: A number as a recording writes it: ASCII digits, an optional sign, point and exponent.
+#: Python's float() also takes ``1_000.5``, non-ASCII digits (``"١٢"``), ``inf`` and ``nan``:
+#: none of those is a sample (issue 11.2, found by the import fuzzer).
+NUMBER = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?\Z")
+_BLANKS = re.compile(r"[ \t]+")
+#: What may surround a line or a field: ASCII blanks only (a vertical tab, U+2028 or another
+#: control character inside a line makes it malformed, never two lines or a cut number).
+BLANK = " \t\r\n"
+
+
 def split_fields(line: str, comma: bool) -> list[str]:
+    """The fields of a line: comma-separated, or separated by spaces and tabs."""
     if comma:
-        return [p.strip() for p in line.split(",")]
-    return line.split()
+        return [p.strip(BLANK) for p in line.split(",")]
+    return [p for p in _BLANKS.split(line.strip(BLANK)) if p]
+
+
+def split_lines(text: str) -> list[str]:
+    """Lines split at ``\n`` only (``\r\n`` too); ``str.splitlines`` would also split at a
+    vertical tab, a form feed, U+0085, U+2028 and U+2029 and keep the halves as two lines."""
+    lines = text.split("\n")
+    if lines and lines[-1] == "":
+        lines.pop()
+    return [line[:-1] if line.endswith("\r") else line for line in lines]
 
 
 def skipped_fields(spec) -> frozenset[int]:
@@ -143,28 +165,30 @@ def skipped_fields(spec) -> frozenset[int]:
 def parse_numbers(parts: list[str], skip: frozenset[int] = frozenset()) -> list[float] | None:
     """The fields of a line as numbers, or None when one is not a finite number. Fields at
     the positions in ``skip`` (``_`` in a column spec) may hold anything; they read as 0."""
-    try:
-        values = [0.0 if j in skip else float(p) for j, p in enumerate(parts)]
-    except ValueError:
-        return None
-    if not all(np.isfinite(values)):
+    values = []
+    for j, part in enumerate(parts):
+        if j in skip:
+            values.append(0.0)
+        elif NUMBER.match(part):
+            values.append(float(part))
+        else:
+            return None
+    if not all(np.isfinite(values)):  # 1e999
         return None
     return values
 
 
+#: A recording read whole is bounded by this (a day at 1 kHz as CSV is about 7 GB).
+MAX_RECORDING_BYTES = 16 << 30
+
+
 def read_lines(path: Path) -> list[str]:
-    src = str(path)
-    if not path.exists():
-        raise InputError(f"{src}: no such file")
-    if path.is_dir():
-        raise InputError(f"{src}: is a directory, not a recording")
-    try:
-        text = path.read_text(encoding="utf-8", errors="replace")
-    except OSError as exc:
-        raise InputError(f"{src}: cannot read ({exc.strerror or exc})") from None
+    """The lines of a text recording (a regular file, read without blocking on a FIFO)."""
+    data = read_input(path, what="recording", max_bytes=MAX_RECORDING_BYTES)
+    text = data.decode("utf-8", errors="replace")
     if not text.strip():
-        raise InputError(f"{src}: empty file")
-    return text.splitlines()
+        raise InputError(f"{path}: empty file")
+    return split_lines(text)
 
 
 def read_table(
@@ -189,7 +213,7 @@ def read_table(
     bad: list[int] = []
     seen_data = False
     for i, raw in enumerate(lines):
-        line = raw.strip().lstrip("\ufeff")
+        line = raw.lstrip("\ufeff").strip(BLANK)
         if i < skip_rows:
             stats.header += 1
             continue

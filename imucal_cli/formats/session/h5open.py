@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import ctypes
 import errno
+import fcntl
 import math
 import os
 import socket
@@ -129,25 +130,47 @@ def _open(path: Path, swmr: bool, mode: str = "r") -> h5py.File:
     return h5py.File(path, mode, swmr=swmr)
 
 
-def _is_lock_error(exc: OSError) -> bool:
+def locked_by_other(path: Path) -> bool:
+    """Whether another process holds an exclusive ``flock`` on the file: HDF5's lock while it
+    has the file open for writing (not in SWMR mode)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    except OSError:
+        return False
+    finally:
+        os.close(fd)  # releases our shared lock, if we got it
+    return False
+
+
+def _busy(exc: OSError, path: Path) -> bool:
+    """Whether an open failed because another process is writing the file right now."""
     text = str(exc).lower()
-    return "lock" in text or "temporarily unavailable" in text
+    if "unable to lock" in text or "temporarily unavailable" in text:
+        return True
+    return "already open for write" in text and locked_by_other(path)
 
 
 def _open_waiting(path: Path, src: str, swmr: bool, mode: str = "r") -> h5py.File:
-    """Open; while another process holds the file's lock, retry for up to LOCK_WAIT_S."""
+    """Open; while another process has the file open for writing, retry for up to
+    :data:`LOCK_WAIT_S` (a concurrent ``imucal calibrate`` storing its result)."""
     deadline = time.monotonic() + LOCK_WAIT_S
     delay = 0.02
     while True:
         try:
             return _open(path, swmr, mode)
         except OSError as exc:
-            if not _is_lock_error(exc):
+            if not _busy(exc, path):
                 raise SessionError(f"{src}: damaged HDF5 file ({one_line(exc)})") from None
             if time.monotonic() >= deadline:
                 raise SessionError(
-                    f"{src}: another program keeps the file locked ({LOCK_WAIT_S:g} s); "
-                    "try again when it is done"
+                    f"{src}: another program keeps the file open for writing "
+                    f"({LOCK_WAIT_S:g} s); try again when it is done"
                 ) from None
         except (KeyError, RuntimeError, ValueError) as exc:
             raise SessionError(f"{src}: damaged HDF5 file ({one_line(exc)})") from None
@@ -182,10 +205,14 @@ def open_for_update(path: str | os.PathLike, src: str | None = None) -> h5py.Fil
     """
     path = Path(path)
     src = str(path) if src is None else src
-    if _superblock(path, src).open_for_write:
-        raise SessionError(f"{src}: is still being written (or its writer was killed)")
+    block = _superblock(path, src)
     if not os.access(path, os.W_OK):
         raise SessionError(f"{src}: is read-only")
+    if block.open_for_write and not locked_by_other(path):
+        raise SessionError(
+            f"{src}: its writer has not closed it (a capture still running, or killed: "
+            f"`imucal report {src}` repairs a killed capture's file)"
+        )
     return _open_waiting(path, src, swmr=False, mode="r+")
 
 
@@ -201,7 +228,8 @@ def open_for_reading(path: str | os.PathLike, src: str | None = None) -> tuple[h
     path = Path(path)
     src = str(path) if src is None else src
     block = _superblock(path, src)
-    if not block.open_for_write:
+    if not block.open_for_write or locked_by_other(path):
+        # a flag set by a program writing it now (storing a calibration): wait for it
         return _open_waiting(path, src, swmr=False), False
     file = _open_waiting(path, src, swmr=True)
     state = _writer_state(file)
