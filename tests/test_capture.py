@@ -41,7 +41,7 @@ def test_columns_default_and_skips():
         ("t,t,ax,ay,az", "appears twice"),
         ("t,ax,ay", "at least 3 channels"),
         ("t,ax,ay,az,a5", "without gaps"),
-        ("t,temp", "no accelerometer or gyroscope"),
+        ("t,temp", "no accelerometer, gyroscope or magnetometer"),
         ("", "no fields"),
     ],
 )

@@ -90,8 +90,10 @@ class Recorder:
         :mod:`imucal_cli.capture.stream`.
     protocol : LineProtocol or similar
         ``feed(data, host_time) -> SampleBlock`` and ``stats``.
-    sensor, accel_units, gyro_units : str, optional
+    sensor, accel_units, gyro_units, mag_units : str, optional
         Root attributes of the session.
+    magnetic_field_uT : float, optional
+        Local field magnitude, microtesla (root attribute), where known.
     overwrite : bool
         Replace an existing file.
     wait_timeout_s : float
@@ -119,6 +121,8 @@ class Recorder:
         sensor: str | None = None,
         accel_units: str | None = None,
         gyro_units: str | None = None,
+        mag_units: str | None = None,
+        magnetic_field_uT: float | None = None,
         overwrite: bool = False,
         wait_timeout_s: float = 10.0,
         read_timeout_s: float = 5.0,
@@ -127,7 +131,8 @@ class Recorder:
         self.path = check_output(path, force=overwrite)
         self.source = source
         self.protocol = protocol
-        self._meta = {"sensor": sensor, "accel_units": accel_units, "gyro_units": gyro_units}
+        self._meta = {"sensor": sensor, "accel_units": accel_units, "gyro_units": gyro_units,
+                      "mag_units": mag_units, "magnetic_field_uT": magnetic_field_uT}  # fmt: skip
         self.accel_units = accel_units  #: raw accelerometer units as the user gave them
         self.gyro_units = gyro_units  #: raw gyroscope units as the user gave them
         self._overwrite = overwrite
@@ -211,6 +216,7 @@ class Recorder:
             source=getattr(self.source, "uri", None),
             accel_channels=None if block.accel is None else block.accel.shape[1],
             gyro_channels=None if block.gyro is None else block.gyro.shape[1],
+            mag_channels=None if block.mag is None else block.mag.shape[1],
             temperature=block.temperature is not None,
             flush_interval_s=FLUSH_INTERVAL_S,
             overwrite=self._overwrite,
@@ -223,7 +229,9 @@ class Recorder:
         if self._writer is None:
             self._open_writer(block)
         try:
-            self._writer.append(block.time, block.accel, block.gyro, block.temperature)
+            self._writer.append(
+                block.time, block.accel, block.gyro, block.temperature, block.mag
+            )
         except WriteFailed as exc:
             return self._write_failed(exc)
         return None

@@ -51,7 +51,8 @@ def capture(
         metavar="SPEC",
         help=(
             "Fields of a line, in order: t (device time), ax ay az (a4.. more), gx gy gz "
-            "(g4..), temp, _ (skip). Without t the host clock stamps each line."
+            "(g4..), mx my mz (magnetometer), temp, _ (skip). Without t the host clock stamps "
+            "each line."
         ),
     ),
     time_unit: str = typer.Option(
@@ -90,6 +91,19 @@ def capture(
         metavar="UNITS",
         help="Units of the raw gyro: counts, V, rad/s, deg/s.",
     ),
+    mag_units: str | None = typer.Option(
+        None, "--mag-units", metavar="UNITS", help="Units of the raw magnetometer: counts, uT, "
+        "nT, gauss.",
+    ),
+    field_ut: float | None = typer.Option(
+        None,
+        "--field-uT",
+        metavar="UT",
+        help=(
+            "Local geomagnetic field magnitude, microtesla (from a geomagnetic model such as "
+            "the WMM for your place): the magnetometer calibration comes out in uT."
+        ),
+    ),
     min_still: float = typer.Option(
         1.0, "--min-still", metavar="SECONDS", help="Shortest still period that counts."
     ),
@@ -122,6 +136,7 @@ def capture(
     from imucal_cli.formats.columns import ColumnSpec
     from imucal_cli.plans import load_plan
 
+    check_mag_options(mag_units, field_ut)
     if protocol == "witmotion":
         stream_protocol = WitMotionProtocol()
         accel_units, gyro_units = accel_units or "counts", gyro_units or "counts"
@@ -157,7 +172,8 @@ def capture(
     try:
         recorder = Recorder(
             out, source, stream_protocol, sensor=sensor, accel_units=accel_units,
-            gyro_units=gyro_units, overwrite=force, wait_timeout_s=wait_timeout,
+            gyro_units=gyro_units, mag_units=mag_units, magnetic_field_uT=field_ut,
+            overwrite=force, wait_timeout_s=wait_timeout,
             read_timeout_s=read_timeout, on_status=status,
         )  # fmt: skip
     except BaseException:
@@ -185,6 +201,16 @@ def capture(
     sys.stdout.flush()
     if not summary.complete:
         raise typer.Exit(EXIT_INCOMPLETE)
+
+
+def check_mag_options(mag_units: str | None, field_ut: float | None) -> None:
+    """Refuse unknown magnetometer units or a field that is not a positive number."""
+    from imucal_cli.formats.session import MAG_UNITS
+
+    if mag_units is not None and mag_units not in MAG_UNITS:
+        raise InputError(f"--mag-units {mag_units!r}: use {', '.join(MAG_UNITS)}")
+    if field_ut is not None and not (field_ut > 0 and field_ut < 1e4):
+        raise InputError(f"--field-uT must be a positive number of microtesla, got {field_ut:g}")
 
 
 def _print_summary(console: Console, out: Path, recorder, summary) -> None:

@@ -27,7 +27,7 @@ def import_(
     columns: str | None = typer.Option(
         None,
         "--columns",
-        help="Fields of a line, e.g. t,ax,ay,az,gx,gy,gz or _,ax,ay,az (_ skips a field) "
+        help="Fields of a line, e.g. t,ax,ay,az,gx,gy,gz,mx,my,mz or _,ax,ay,az (_ skips a field) "
         "[default: from the header line].",
     ),
     time_unit: str = typer.Option("s", "--time-unit", help="Unit of the t column: s, ms or us."),
@@ -39,6 +39,13 @@ def import_(
     ),
     gyro_units: str | None = typer.Option(
         None, "--gyro-units", help="Raw gyroscope units: counts, V, rad/s or deg/s."
+    ),
+    mag_units: str | None = typer.Option(
+        None, "--mag-units", help="Raw magnetometer units (columns mx,my,mz): counts, uT, nT or "
+        "gauss."
+    ),
+    field_ut: float | None = typer.Option(
+        None, "--field-uT", help="Local geomagnetic field magnitude, microtesla, where known."
     ),
     skip_rows: int = typer.Option(
         0, "--skip-rows", help="Lines to skip at the top of each file (headers are also detected)."
@@ -71,6 +78,8 @@ def import_(
         accel_units=accel_units,
         gyro_units=gyro_units,
         sensor=sensor,
+        mag_units=mag_units,
+        magnetic_field_uT=field_ut,
     )
     write_session(out, session, overwrite=force, inputs=files)
 
@@ -100,4 +109,7 @@ def import_(
     console.print(
         f"  {len(static)} static segments ({held:.1f} s still), {len(rotations)} rotation segments"
     )
+    if session.mag is not None:
+        units = session.mag_units or "units not given"
+        console.print(f"  magnetometer: {session.mag.shape[1]} channels ({units})", markup=False)
     console.print(f"wrote {out}", markup=False)

@@ -40,6 +40,7 @@ from imucal_cli.solvers.segmentation import (
 from .recording import (
     ACCEL_UNITS,
     GYRO_UNITS,
+    MAG_UNITS,
     TIME_UNITS,
     ImportStats,
     ReadOptions,
@@ -61,6 +62,7 @@ __all__ = [
     "FORMATS",
     "GYRO_UNITS",
     "ImportStats",
+    "MAG_UNITS",
     "ReadOptions",
     "Recording",
     "TIME_UNITS",
@@ -223,12 +225,16 @@ def import_files(
     gyro_units: str | None = None,
     sensor: str | None = None,
     min_still_s: float = _MIN_STILL_S,
+    mag_units: str | None = None,
+    magnetic_field_uT: float | None = None,
 ) -> Session:
     """Read recorded text files and segment them into a session (not yet written).
 
     Parameters are those of :func:`read_recording`, plus the raw units (``accel_units`` from
-    :data:`ACCEL_UNITS`, ``gyro_units`` from :data:`GYRO_UNITS`), a ``sensor`` description and
-    the shortest still period kept, s.
+    :data:`ACCEL_UNITS`, ``gyro_units`` from :data:`GYRO_UNITS`, ``mag_units`` from
+    :data:`MAG_UNITS`), a ``sensor`` description, the shortest still period kept, s, and the
+    local field magnitude ``magnetic_field_uT`` where known.  A recording with a magnetometer
+    and no accelerometer has no segments (the magnetometer needs none).
 
     Returns
     -------
@@ -245,10 +251,19 @@ def import_files(
         raise InputError(f"--accel-units {accel_units!r}: use {', '.join(ACCEL_UNITS)}")
     if gyro_units is not None and gyro_units not in GYRO_UNITS:
         raise InputError(f"--gyro-units {gyro_units!r}: use {', '.join(GYRO_UNITS)}")
+    if mag_units is not None and mag_units not in MAG_UNITS:
+        raise InputError(f"--mag-units {mag_units!r}: use {', '.join(MAG_UNITS)}")
+    if magnetic_field_uT is not None and not (
+        np.isfinite(magnetic_field_uT) and magnetic_field_uT > 0
+    ):
+        raise InputError(f"--field-uT must be a positive number, got {magnetic_field_uT:g}")
     rec = read_recording(
         paths, fmt, columns, time_unit=time_unit, rate_hz=rate_hz, skip_rows=skip_rows
     )
-    segments = segment_recording(rec, min_still_s=min_still_s)
+    if rec.accel is None and rec.mag is not None:
+        segments: list[Segment] = []
+    else:
+        segments = segment_recording(rec, min_still_s=min_still_s)
     try:
         mtime = os.path.getmtime(paths[0])
         created = datetime.fromtimestamp(mtime, UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
@@ -266,6 +281,9 @@ def import_files(
         sample_rate_hz=rec.rate_hz,
         accel_units=accel_units if rec.accel is not None else None,
         gyro_units=gyro_units if rec.gyro is not None else None,
+        mag=rec.mag,
+        mag_units=mag_units if rec.mag is not None else None,
+        magnetic_field_uT=magnetic_field_uT,
     )
     session.import_stats = rec.stats  # type: ignore[attr-defined]
     return session

@@ -2,8 +2,8 @@
 per file).
 
 The fields are named by a column spec (:func:`~.text.parse_columns`) or, when none is given, by
-a header line (``acc_x``/``ax``/``accel_x``, ``gyr_x``/``gx``/``gyro_x``, ``t``/``time``/
-``timestamp``, ...).  Without a ``t`` column, time is ``row / rate``.
+a header line (``acc_x``/``ax``/``accel_x``, ``gyr_x``/``gx``/``gyro_x``, ``mag_x``/``mx``,
+``t``/``time``/``timestamp``, ...).  Without a ``t`` column, time is ``row / rate``.
 """
 
 from __future__ import annotations
@@ -71,6 +71,7 @@ def read(paths: Sequence[Path], options: ReadOptions, stats: ImportStats) -> Rec
         time = np.arange(len(data)) / options.rate_hz
     accel = data[:, [col(a) for a in ("ax", "ay", "az")]] if "ax" in used else None
     gyro = data[:, [col(g) for g in ("gx", "gy", "gz")]] if "gx" in used else None
+    mag = data[:, [col(m) for m in ("mx", "my", "mz")]] if "mx" in used else None
     temp = data[:, col("temp")] if "temp" in used else None
     return Recording(
         time=time,
@@ -81,4 +82,5 @@ def read(paths: Sequence[Path], options: ReadOptions, stats: ImportStats) -> Rec
         names=[path.name],
         columns=used,
         stats=stats,
+        mag=mag,
     )

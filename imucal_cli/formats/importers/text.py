@@ -33,7 +33,7 @@ __all__ = [
     "split_lines",
 ]
 
-FIELDS = ("t", "ax", "ay", "az", "gx", "gy", "gz", "temp")
+FIELDS = ("t", "ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz", "temp")
 """Field names of a column spec; ``_`` skips a field."""
 
 #: Header names (lower case, without spaces, dashes and brackets) and the field they mean.
@@ -49,6 +49,8 @@ for _axis in "xyz":
         HEADER_ALIASES[_name.format(_axis)] = "a" + _axis
     for _name in ("g{}", "gyr_{}", "gyr{}", "gyro_{}", "gyro{}", "gyroscope_{}", "gyr_{}_raw"):
         HEADER_ALIASES[_name.format(_axis)] = "g" + _axis
+    for _name in ("m{}", "mag_{}", "mag{}", "magn_{}", "magnetometer_{}", "mag_{}_raw"):
+        HEADER_ALIASES[_name.format(_axis)] = "m" + _axis
 
 
 # --------------------------------------------------------------------------------------------
@@ -73,8 +75,8 @@ def parse_columns(text: str) -> list[str | None]:
     Raises
     ------
     InputError
-        An unknown or repeated name, an empty field, or an accelerometer or gyroscope with
-        some but not all of its three axes.
+        An unknown or repeated name, an empty field, or an accelerometer, gyroscope or
+        magnetometer with some but not all of its three axes.
     """
     names = [part.strip().lower() for part in str(text).split(",")]
     if not names or any(not n for n in names):
@@ -91,14 +93,16 @@ def parse_columns(text: str) -> list[str | None]:
         if n in out:
             raise InputError(f"--columns {text!r}: field {n!r} appears twice")
         out.append(n)
-    for sensor, what in (("a", "accelerometer"), ("g", "gyroscope")):
+    for sensor, what in (("a", "accelerometer"), ("g", "gyroscope"), ("m", "magnetometer")):
         have = [f"{sensor}{x}" in out for x in "xyz"]
         if any(have) and not all(have):
             raise InputError(
                 f"--columns {text!r}: the {what} needs all three of {sensor}x,{sensor}y,{sensor}z"
             )
-    if "ax" not in out and "gx" not in out:
-        raise InputError(f"--columns {text!r}: names no accelerometer (ax,ay,az) or gyroscope")
+    if "ax" not in out and "gx" not in out and "mx" not in out:
+        raise InputError(
+            f"--columns {text!r}: names no accelerometer (ax,ay,az), gyroscope or magnetometer"
+        )
     return out
 
 
@@ -115,11 +119,11 @@ def infer_columns(header: Sequence[str]) -> list[str | None] | None:
         name = re.sub(r"[\s\-]+", "_", name)
         f = HEADER_ALIASES.get(name)
         out.append(f if f is not None and f not in out else None)
-    for sensor in "ag":
+    for sensor in "agm":
         axes = [f"{sensor}{x}" for x in "xyz"]
         if not all(a in out for a in axes):
             out = [None if f in axes else f for f in out]
-    if not any(f in ("ax", "gx") for f in out):
+    if not any(f in ("ax", "gx", "mx") for f in out):
         return None
     return out
 

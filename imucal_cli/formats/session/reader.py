@@ -23,6 +23,7 @@ from .model import (
     GRAVITY_DEFAULT,
     LOG_DATASET,
     LOG_GROUP,
+    MAG_UNITS,
     SEGMENT_ATTRS,
     SEGMENT_KINDS,
     Segment,
@@ -75,7 +76,7 @@ def _read_open_file(file: h5py.File, src: str, unclosed: bool) -> Session:
         name: get_attr(file.attrs, name, src, "root ")
         for name in (
             "format", "format_version", "created", "sensor", "source", "sample_rate_hz",
-            "gravity", "accel_units", "gyro_units",
+            "gravity", "accel_units", "gyro_units", "mag_units", "magnetic_field_uT",
         )
     }  # fmt: skip
     fmt = root["format"]
@@ -99,21 +100,26 @@ def _read_open_file(file: h5py.File, src: str, unclosed: bool) -> Session:
         problem = "is missing" if root["created"] is None else "is not a string"
         raise SessionError(f"{src}: root attribute 'created' {problem}")
     text = {}
-    for name in ("sensor", "source", "accel_units", "gyro_units"):
+    for name in ("sensor", "source", "accel_units", "gyro_units", "mag_units"):
         text[name] = None if root[name] is None else as_str(root[name])
         if text[name] is not None:
             text[name] = clean_text(text[name])
         if root[name] is not None and text[name] is None:
             raise SessionError(f"{src}: root attribute {name!r} is not a string")
+    if text["mag_units"] is not None and text["mag_units"] not in MAG_UNITS:
+        raise SessionError(
+            f"{src}: root attribute 'mag_units' is {text['mag_units']!r}, expected one of "
+            f"{', '.join(MAG_UNITS)}"
+        )
     numbers = {}
-    for name in ("sample_rate_hz", "gravity"):
+    for name in ("sample_rate_hz", "gravity", "magnetic_field_uT"):
         numbers[name] = None if root[name] is None else as_float(root[name])
         if root[name] is not None and (numbers[name] is None or numbers[name] <= 0):
             raise SessionError(
                 f"{src}: root attribute {name!r} must be a positive number, got {show(root[name])}"
             )
 
-    time, accel, gyro, temperature = _read_raw(file, src, unclosed)
+    time, accel, gyro, temperature, mag = _read_raw(file, src, unclosed)
     segments = _read_segments(file, src, len(time), accel, gyro, unclosed)
     return Session(
         time=time,
@@ -129,17 +135,20 @@ def _read_open_file(file: h5py.File, src: str, unclosed: bool) -> Session:
         accel_units=text["accel_units"],
         gyro_units=text["gyro_units"],
         calibrations=_read_calibrations(file, src),
+        mag=mag,
+        mag_units=text["mag_units"],
+        magnetic_field_uT=numbers["magnetic_field_uT"],
     )
 
 
-RAW_NAMES = ("time", "accel", "gyro", "temperature")
+RAW_NAMES = ("time", "accel", "gyro", "temperature", "mag")
 
 
 def raw_datasets(file: h5py.File, src: str, unclosed: bool) -> tuple[dict[str, h5py.Dataset], int]:
     """Validate the ``/raw`` datasets present (of :data:`RAW_NAMES`); return them and the
     number of samples N to read.
 
-    Shapes are checked (time (N,), accel and gyro (N, >=3), temperature (N,)), and each dataset
+    Shapes are checked (time (N,), accel, gyro and mag (N, >=3), temperature (N,)), and each dataset
     with :func:`~.h5open.check_dataset` (no links, no external or virtual data, size bounded
     by the file's).  For a file whose writer did not close it, N is the shortest dataset (an
     interrupted flush may have grown some and not others).
@@ -166,7 +175,7 @@ def raw_datasets(file: h5py.File, src: str, unclosed: bool) -> tuple[dict[str, h
     n = datasets["time"].shape[0]
     if unclosed:
         n = min(ds.shape[0] for ds in datasets.values() if ds.ndim >= 1)
-    for name in ("accel", "gyro"):
+    for name in ("accel", "gyro", "mag"):
         ds = datasets.get(name)
         if ds is not None and (ds.ndim != 2 or ds.shape[0] < n or ds.shape[1] < 3):
             raise SessionError(
@@ -227,9 +236,8 @@ def written_length(dataset: h5py.Dataset, n: int) -> int:
     return lo
 
 
-def _read_raw(
-    file: h5py.File, src: str, unclosed: bool
-) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+def _read_raw(file: h5py.File, src: str, unclosed: bool) -> tuple[np.ndarray | None, ...]:
+    """``time, accel, gyro, temperature, mag`` of ``/raw`` (None where absent), validated."""
     datasets, n = raw_datasets(file, src, unclosed)
     time = np.asarray(datasets["time"][:n], dtype=np.float64)
     check_time(time, src)
@@ -239,7 +247,7 @@ def _read_raw(
             return None
         return np.asarray(datasets[name][:n], dtype=np.float64)
 
-    return time, load("accel"), load("gyro"), load("temperature")
+    return time, load("accel"), load("gyro"), load("temperature"), load("mag")
 
 
 def _read_segments(

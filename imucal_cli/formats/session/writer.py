@@ -33,6 +33,7 @@ from .model import (
     FORMAT_VERSION,
     LOG_GROUP,
     LOG_ITEM_BYTES,
+    MAG_UNITS,
     SEGMENT_ATTRS,
     SEGMENT_KINDS,
     Session,
@@ -48,7 +49,13 @@ _MAX_PENDING_ROWS = 65536  # the writer writes out earlier than its flush interv
 _WRITE_ERRORS = (OSError, RuntimeError)  # h5py raises RuntimeError for some ENOSPC failures
 
 
-def _check_options(src: str, channels: dict[str, Any], numbers: dict[str, Any]) -> None:
+def _check_options(
+    src: str, channels: dict[str, Any], numbers: dict[str, Any], mag_units: str | None
+) -> None:
+    if mag_units is not None and mag_units not in MAG_UNITS:
+        raise InputError(
+            f"{src}: mag_units must be one of {', '.join(MAG_UNITS)}, got {mag_units!r}"
+        )
     for name, value in channels.items():
         valid = isinstance(value, int | np.integer) and not isinstance(value, bool) and value >= 3
         if value is not None and not valid:
@@ -131,14 +138,16 @@ class SessionWriter:
         The file to create.
     created : str, optional
         ISO 8601 UTC start time; default now.
-    sensor, source, accel_units, gyro_units : str, optional
-        Root attributes, written only when given.
+    sensor, source, accel_units, gyro_units, mag_units : str, optional
+        Root attributes, written only when given (``mag_units`` one of ``MAG_UNITS``).
     sample_rate_hz : float, optional
         Nominal rate in Hz, written only when given.
     gravity : float, optional
         Local gravity in m/s^2, written only when given.
-    accel_channels, gyro_channels : int or None
-        Raw channels per sample (>= 3); None records no such sensor.
+    magnetic_field_uT : float, optional
+        Local geomagnetic field magnitude in microtesla, written only when given.
+    accel_channels, gyro_channels, mag_channels : int or None
+        Raw channels per sample (>= 3); None records no such sensor (default: no magnetometer).
     temperature : bool
         Whether samples carry a temperature in degrees C.
     flush_interval_s : float
@@ -174,6 +183,9 @@ class SessionWriter:
         gyro_units: str | None = None,
         accel_channels: int | None = 3,
         gyro_channels: int | None = 3,
+        mag_channels: int | None = None,
+        mag_units: str | None = None,
+        magnetic_field_uT: float | None = None,
         temperature: bool = False,
         flush_interval_s: float = 1.0,
         overwrite: bool = False,
@@ -185,8 +197,17 @@ class SessionWriter:
         self._src = src = str(path)
         _check_options(
             src,
-            {"accel_channels": accel_channels, "gyro_channels": gyro_channels},
-            {"sample_rate_hz": sample_rate_hz, "gravity": gravity},
+            {
+                "accel_channels": accel_channels,
+                "gyro_channels": gyro_channels,
+                "mag_channels": mag_channels,
+            },
+            {
+                "sample_rate_hz": sample_rate_hz,
+                "gravity": gravity,
+                "magnetic_field_uT": magnetic_field_uT,
+            },
+            mag_units,
         )
         attrs: dict[str, Any] = {
             "format": FORMAT,
@@ -200,11 +221,14 @@ class SessionWriter:
             "gravity": None if gravity is None else float(gravity),
             "accel_units": accel_units,
             "gyro_units": gyro_units,
+            "mag_units": mag_units,
+            "magnetic_field_uT": None if magnetic_field_uT is None else float(magnetic_field_uT),
         }
         attrs.update({k: v for k, v in optional.items() if v is not None})
         self._widths: dict[str, int | None] = {
             "accel": None if accel_channels is None else int(accel_channels),
             "gyro": None if gyro_channels is None else int(gyro_channels),
+            "mag": None if mag_channels is None else int(mag_channels),
         }
         self._flush_interval_s = float(flush_interval_s)
         self._n_written = 0
@@ -242,6 +266,7 @@ class SessionWriter:
         shapes = {
             "accel": self._widths["accel"],
             "gyro": self._widths["gyro"],
+            "mag": self._widths["mag"],
             "temperature": 0 if temperature else None,
             "time": 0,
         }
@@ -315,6 +340,7 @@ class SessionWriter:
         accel: np.ndarray | None = None,
         gyro: np.ndarray | None = None,
         temperature: float | np.ndarray | None = None,
+        mag: np.ndarray | None = None,
     ) -> None:
         """Append samples: a block of k, or a single one.
 
@@ -328,6 +354,9 @@ class SessionWriter:
             Raw gyroscope channels; required exactly when the writer records gyro.
         temperature : ndarray, shape (k,), or float
             Degrees C; required exactly when the writer records temperature.
+        mag : ndarray, shape (k, nm) or (nm,)
+            Raw magnetometer channels; required exactly when the writer records mag (NaN
+            where the magnetometer gave no reading).
 
         Raises
         ------
@@ -338,7 +367,8 @@ class SessionWriter:
             The block was kept but writing what is due failed (see :meth:`flush`).
         """
         self._check_open()
-        block = self._block(time, {"accel": accel, "gyro": gyro, "temperature": temperature})
+        given = {"accel": accel, "gyro": gyro, "temperature": temperature, "mag": mag}
+        block = self._block(time, given)
         t = block["time"]
         if t.size == 0:
             return
@@ -667,7 +697,7 @@ def write_session(
     InputError
         The file exists or cannot be written, or the session breaks the format (SessionError).
     """
-    accel, gyro = session.accel, session.gyro
+    accel, gyro, mag = session.accel, session.gyro, session.mag
     writer = SessionWriter(
         path,
         created=session.created,
@@ -679,12 +709,15 @@ def write_session(
         gyro_units=session.gyro_units,
         accel_channels=None if accel is None else np.shape(accel)[1],
         gyro_channels=None if gyro is None else np.shape(gyro)[1],
+        mag_channels=None if mag is None else np.shape(mag)[1],
+        mag_units=session.mag_units,
+        magnetic_field_uT=session.magnetic_field_uT,
         temperature=session.temperature is not None,
         overwrite=overwrite,
         inputs=inputs,
     )
     with writer:
-        writer.append(session.time, accel, gyro, session.temperature)
+        writer.append(session.time, accel, gyro, session.temperature, mag)
         for segment in sorted(session.segments, key=lambda s: s.start):
             writer.add_segment(
                 segment.kind,
