@@ -173,13 +173,9 @@ def _time_edit(fn: Callable[[np.ndarray], np.ndarray]) -> Callable[[h5py.File, P
     return edit
 
 
-def session_cases() -> list[Case]:
-    """Every malformed-session case (more than 100), deterministic."""
-    cases: list[Case] = [("valid session", base_session, "ok")]
-
-    def add(name: str, edit, expect: str = "error") -> None:
-        cases.append((name, _edited(edit), expect))
-
+def _byte_cases() -> list[Case]:
+    """Cut, zeroed and overwritten files."""
+    cases: list[Case] = []
     for size in (0, 7, 8, 16, 40, 47, 48, 100, 512, 1000, 4096, 20000, 100000):
         cases.append((f"truncated to {size} bytes", _bytes(lambda d, s=size: d[:s]), "error"))
     cases.append(("truncated by one byte", _bytes(lambda d: d[:-1]), "error"))
@@ -198,6 +194,16 @@ def session_cases() -> list[Case]:
             return d[:o] + flipped + d[o + n :]
 
         cases.append((f"{span} bytes overwritten at {offset}", _bytes(flip), "either"))
+    return cases
+
+
+def session_cases() -> list[Case]:
+    """Every malformed-session case (more than 100), deterministic."""
+    cases: list[Case] = [("valid session", base_session, "ok"), *_byte_cases()]
+
+    def add(name: str, edit, expect: str = "error") -> None:
+        cases.append((name, _edited(edit), expect))
+
     for name, value in [
         ("format", "imucal-calibration"), ("format", 7), ("format", b"\xff\xfe"),
         ("format_version", 2), ("format_version", "1"), ("format_version", 1.5),
@@ -396,6 +402,16 @@ def calibration_cases(valid: str) -> list[tuple[str, bytes, str]]:
         if key in doc["accel"]:
             for value in (-1, "x", None, [1, 2], {"a": 1}, 1e308):
                 with_(f"accel.{key}", value, "ok")
+    for name, content in _text_cases(valid).items():
+        cases.append((name, content, "ok" if name == "BOM" else "error"))
+    return cases
+
+
+def _text_cases(valid: str) -> dict[str, bytes]:
+    """Calibration files broken as text: NaN/Infinity, huge integers, nesting, encodings."""
+    import json
+
+    doc = json.loads(valid)
     raw = valid.encode()
     compact = json.dumps(doc).encode()
 
@@ -424,9 +440,7 @@ def calibration_cases(valid: str) -> list[tuple[str, bytes, str]]:
         "NUL bytes": raw.replace(b"{", b"{\x00", 1),
         "BOM": b"\xef\xbb\xbf" + raw,
     }  # fmt: skip
-    for name, content in text_cases.items():
-        cases.append((name, content, "ok" if name == "BOM" else "error"))
-    return cases
+    return text_cases
 
 
 class _Delete:

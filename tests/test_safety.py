@@ -466,3 +466,23 @@ def test_import_refuses_what_is_not_a_number(tmp_path, bad_line, why):
     parsed = [parse_numbers(split_fields(line, True)) for line in lines[1:]]
     assert parsed[0] is not None and parsed[2] is not None
     assert parsed[1] is None, why  # malformed: skipped and counted, never a cut number
+
+
+def test_a_killed_captures_file_is_repaired_and_the_cli_says_so(tmp_path):
+    path = tmp_path / "killed.h5"
+    child = (
+        "import os, sys, numpy as np\n"
+        "from imucal_cli.formats.session import SessionWriter\n"
+        "w = SessionWriter(sys.argv[1], gyro_channels=None, publish_early=True)\n"
+        "w.append(np.arange(500) * 0.01, np.ones((500, 3)))\n"
+        "w.flush()\n"
+        "os._exit(0)  # gone without closing, as after kill -9\n"
+    )
+    subprocess.run([sys.executable, "-c", child, str(path)], check=True, cwd=ROOT)
+    with pytest.raises(OSError):
+        h5py.File(path, "r")
+    proc = run("noise", path)
+    assert "imucal: warning:" in proc.stderr and "repaired" in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr
+    with h5py.File(path, "r") as f:  # plain HDF5 opens it now
+        assert f["raw/time"].shape == (500,)

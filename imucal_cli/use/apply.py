@@ -85,6 +85,7 @@ from imucal_cli.formats.output import OutputFile, check_output
 from imucal_cli.formats.session import FORMAT as SESSION_FORMAT
 from imucal_cli.formats.session import FORMAT_VERSION as SESSION_FORMAT_VERSION
 from imucal_cli.formats.session import as_int, as_str, one_line, open_for_reading, utc_now_iso
+from imucal_cli.formats.session.reader import check_time as check_session_time
 from imucal_cli.formats.session.reader import raw_datasets
 
 __all__ = [
@@ -256,18 +257,7 @@ def _session_blocks(
                 }
             except (OSError, KeyError, RuntimeError) as exc:
                 raise InputError(f"{src}: damaged HDF5 file ({one_line(exc)})") from None
-            bad = np.flatnonzero(~np.isfinite(t))
-            if bad.size:
-                raise InputError(f"{src}: /raw/time is {t[bad[0]]} at sample {start + bad[0]}")
-            previous = t if last is None else np.concatenate(([last], t))
-            bad = np.flatnonzero(np.diff(previous) <= 0)
-            if bad.size:
-                i = int(bad[0])
-                sample = start + i + (0 if last is None else -1) + 1
-                raise InputError(
-                    f"{src}: /raw/time is not strictly increasing (sample {sample}: "
-                    f"{float(previous[i + 1])!r} s after {float(previous[i])!r} s)"
-                )
+            check_session_time(t, src, first=start, before=last)
             last = float(t[-1])
             yield _Block(time=t, raw=values, done=stop)
 
