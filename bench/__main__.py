@@ -6,9 +6,11 @@ import argparse
 
 from rich.console import Console
 
-from bench import capture, factorization, gravity, gyro, gyro_speed, reliability
+from bench import capture, factorization, gravity, gyro, gyro_speed, reliability, speed
 
-BENCHMARKS = ("gravity", "factorization", "gyro", "gyro-speed", "capture", "reliability")
+BENCHMARKS = (
+    "gravity", "factorization", "gyro", "gyro-speed", "capture", "speed", "reliability",
+)  # fmt: skip
 
 
 def main() -> None:
@@ -20,6 +22,8 @@ def main() -> None:
         action="store_true",
         help="capture: 10 s instead of 60 s; reliability: 1,000 fuzzed import files, not 10,000",
     )
+    parser.add_argument("--runs", type=int, default=5, help="speed: runs per figure (median)")
+    parser.add_argument("--sessions", type=int, default=500, help="speed: production-line size")
     args = parser.parse_args()
     console = Console(width=160)
     ok = True
@@ -33,6 +37,8 @@ def main() -> None:
         ok = gyro_speed.run(console) and ok
     if args.only in (None, "capture"):
         ok = capture.run(console, quick=args.quick) and ok
+    if args.only in (None, "speed"):
+        ok = speed.run(console, runs=args.runs, n_sessions=args.sessions) and ok
     if args.only in (None, "reliability"):
         ok = reliability.run(console, quick=args.quick) and ok
     raise SystemExit(0 if ok else 1)

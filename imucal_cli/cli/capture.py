@@ -13,7 +13,9 @@ from rich.markup import escape
 from imucal_cli.errors import InputError
 from imucal_cli.formats.output import check_output
 
+from . import completion
 from .app import app
+from .console import make_console, print_json
 
 EXIT_COMPLETE, EXIT_INCOMPLETE = 0, 3
 
@@ -26,7 +28,12 @@ def default_output() -> Path:
 @app.command()
 def capture(
     port: str = typer.Option(
-        ..., "--port", "-p", metavar="PORT", help="Serial port (/dev/ttyUSB0, COM3, a pty)."
+        ...,
+        "--port",
+        "-p",
+        metavar="PORT",
+        help="Serial port (/dev/ttyUSB0, COM3, a pty).",
+        autocompletion=completion.ports,
     ),
     baud: int = typer.Option(115200, "--baud", "-b", metavar="N", help="Baud rate."),
     plan: str | None = typer.Option(
@@ -37,6 +44,7 @@ def capture(
             "Steps to go through: six, qureshi18 (the default when guided), random:N, gyro-axes, "
             "hwangbo-iron, or a TOML plan file ([[step]] kind, label, up, axis, angle_deg)."
         ),
+        autocompletion=completion.capture_plan,
     ),
     output: Path | None = typer.Option(
         None,
@@ -56,7 +64,11 @@ def capture(
         ),
     ),
     time_unit: str = typer.Option(
-        "s", "--time-unit", metavar="s|ms|us|ns", help="Unit of the t field."
+        "s",
+        "--time-unit",
+        metavar="s|ms|us|ns",
+        help="Unit of the t field.",
+        autocompletion=completion.time_units,
     ),
     protocol: str = typer.Option(
         "lines",
@@ -83,17 +95,24 @@ def capture(
         None, "--sensor", metavar="TEXT", help="Free text stored in the session (part, serial)."
     ),
     accel_units: str | None = typer.Option(
-        None, "--accel-units", metavar="UNITS", help="Units of the raw accel: counts, V, g, m/s^2."
+        None,
+        "--accel-units",
+        metavar="UNITS",
+        help="Units of the raw accel: counts, V, g, m/s^2.",
+        autocompletion=completion.accel_units,
     ),
     gyro_units: str | None = typer.Option(
         None,
         "--gyro-units",
         metavar="UNITS",
         help="Units of the raw gyro: counts, V, rad/s, deg/s.",
+        autocompletion=completion.gyro_units,
     ),
     mag_units: str | None = typer.Option(
-        None, "--mag-units", metavar="UNITS", help="Units of the raw magnetometer: counts, uT, "
-        "nT, gauss.",
+        None,
+        "--mag-units",
+        metavar="UNITS",
+        help="Units of the raw magnetometer: counts, uT, nT, gauss.",
     ),
     field_ut: float | None = typer.Option(
         None,
@@ -120,12 +139,17 @@ def capture(
         2.0, "--hold", metavar="SECONDS", help="Guided mode: seconds to hold each pose still."
     ),
     force: bool = typer.Option(False, "--force", help="Overwrite the output file."),
+    json_output: bool = typer.Option(
+        False,
+        "--json",
+        help="Print the summary as JSON on stdout (nothing else; guided prompts go to stderr).",
+    ),
 ) -> None:
     """Record a calibration session from an IMU on a serial port.
 
-    Reads text lines of numbers (commas, spaces or tabs) and appends them to the session as
-    they arrive (flushed at least once a second).  Ctrl-C, SIGTERM, an unplugged device or a
-    stalled stream end the capture with a valid session holding every sample received.
+    Reads text lines of numbers (commas, semicolons, spaces or tabs) and appends them to the
+    session as they arrive (flushed at least once a second).  Ctrl-C, SIGTERM, an unplugged
+    device or a stalled stream end the capture with a valid session holding every sample.
 
     Exit status: 0 the session is complete; 3 the session is saved but incomplete (steps of
     the plan not seen, interrupted, device gone, data stopped); 2 bad input (no such port,
@@ -162,8 +186,8 @@ def capture(
             raise InputError("guided mode not available yet: use --no-prompt") from None
     out = check_output(output if output is not None else default_output(), force=force)
 
-    console = Console()
-    err = Console(stderr=True, highlight=False)
+    console = make_console(stderr=json_output)  # with --json, stdout holds the JSON alone
+    err = make_console(stderr=True)
 
     def status(message: str) -> None:
         err.print(f"imucal: {escape(message)}", soft_wrap=True)
@@ -197,10 +221,31 @@ def capture(
             raise InputError(recorder.end_reason)
         err.print(f"imucal: {escape(recorder.end_reason)} before any data: no file written")
         raise typer.Exit(EXIT_INCOMPLETE)
-    _print_summary(console, out, recorder, summary)
+    if json_output:
+        print_json(_summary_json(out, recorder, summary))
+    else:
+        _print_summary(console, out, recorder, summary)
     sys.stdout.flush()
     if not summary.complete:
         raise typer.Exit(EXIT_INCOMPLETE)
+
+
+def _summary_json(out: Path, recorder, summary) -> dict:
+    segs = recorder.segments
+    n_static = sum(1 for s in segs if s["kind"] == "static")
+    st = summary.stats
+    return {
+        "format": "imucal-capture", "format_version": 1, "output": str(out),
+        "complete": bool(summary.complete), "done": list(summary.done),
+        "skipped": list(summary.skipped), "missing": list(summary.missing),
+        "end": recorder.end_kind, "end_reason": summary.end_reason,
+        "samples": int(summary.samples), "static_segments": n_static,
+        "rotation_segments": len(segs) - n_static,
+        "labelled_segments": sum(1 for s in segs if "label" in s),
+        "lines": int(st.get("lines", 0)), "comments": int(st.get("comments", 0)),
+        "malformed": int(st.get("malformed", 0)), "duration_s": float(st.get("duration_s", 0.0)),
+        "rate_hz": float(st.get("rate_hz", 0.0)),
+    }  # fmt: skip
 
 
 def check_mag_options(mag_units: str | None, field_ut: float | None) -> None:

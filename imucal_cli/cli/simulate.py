@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 
 import typer
 
 from imucal_cli.errors import InputError
 
+from . import completion
 from .app import app
+from .console import print_json
 
 
 def truth_path(session_path: Path) -> Path:
@@ -42,6 +45,7 @@ def simulate(
             "with +X up, different angles within +-180 degrees) and 'free:N' (N turns about "
             "random axes); --peak-rate and --still shape the turns."
         ),
+        autocompletion=completion.simulate_plan,
     ),
     seed: int = typer.Option(
         0,
@@ -79,12 +83,13 @@ def simulate(
             "Raw units: 'counts' (16-bit integers, 8192 LSB/g, 16.4 LSB per deg/s) or 'm/s^2' "
             "(a part of nominal gain 1; gyro in rad/s; no quantisation)."
         ),
+        autocompletion=completion.simulate_units,
     ),
     output: Path | None = typer.Option(
         None,
         "--output",
         "-o",
-        metavar="PATH.h5",
+        metavar="FILE.h5",
         help=(
             "Session file to write (default: sim-<plan>-seed<seed>.h5); the truth goes "
             "beside it as <name>.truth.json."
@@ -163,11 +168,38 @@ def simulate(
     temp: bool = typer.Option(
         True, "--temp/--no-temp", help="--serve: print the temperature field (8 or 7 fields)."
     ),
-    move: float = typer.Option(1.5, "--move", hidden=True),
-    garbage: bool = typer.Option(False, "--garbage", hidden=True),
-    stall_after: float | None = typer.Option(None, "--stall-after", hidden=True),
-    vanish_after: float | None = typer.Option(None, "--vanish-after", hidden=True),
-    malformed_every: int | None = typer.Option(None, "--malformed-every", hidden=True),
+    move: float = typer.Option(
+        1.5, "--move", metavar="SECONDS", help="--serve: time each turn between poses takes, s."
+    ),
+    garbage: bool = typer.Option(
+        False,
+        "--garbage",
+        help="--serve, test fault: random bytes instead of lines (as a wrong baud rate shows).",
+    ),
+    stall_after: float | None = typer.Option(
+        None,
+        "--stall-after",
+        metavar="SECONDS",
+        help="--serve, test fault: stop sending after this long, keep the port open.",
+    ),
+    vanish_after: float | None = typer.Option(
+        None,
+        "--vanish-after",
+        metavar="SECONDS",
+        help="--serve, test fault: close the port after this long (the device is unplugged).",
+    ),
+    malformed_every: int | None = typer.Option(
+        None,
+        "--malformed-every",
+        metavar="N",
+        help="--serve, test fault: every N-th line loses its last two fields.",
+    ),
+    json_output: bool = typer.Option(
+        False,
+        "--json",
+        help="Print what was written (or, with --serve, sent) as JSON on stdout; with --serve "
+        "the device path still comes first, on its own line.",
+    ),
 ) -> None:
     """Simulate a calibration session of a cheap 16-bit MEMS IMU with known truth.
 
@@ -175,7 +207,10 @@ def simulate(
     --serve, streams it live on a pseudo-terminal instead (plans six, qureshi18, random:N,
     gyro-axes, hwangbo-iron or a TOML plan file; ends after the plan, --duration, or on
     Ctrl-C/SIGTERM).  Test faults of --serve: --garbage (random bytes, as a wrong baud rate),
-    --stall-after S, --vanish-after S (close the port), --malformed-every N.
+    --stall-after SECONDS, --vanish-after SECONDS (close the port), --malformed-every N.
+
+    Exit status: 0 written (or streamed); 2 bad input (unknown plan, bad option, existing
+    output without --force).
     """
     from imucal_cli.simulate.redundant import HK_PLANS, simulate_hk_plan
     from imucal_cli.simulate.rotations import is_gyro_plan, simulate_gyro_rotations
@@ -186,9 +221,10 @@ def simulate(
         raise InputError(f"--serve does not stream plan {plan!r}: write a session file instead")
     if serve:
         _serve(
-            plan, rate, baud, seed=seed, hold_s=hold, move_s=move, units=units, temperature=temp,
-            loop=loop, duration_s=duration, garbage=garbage, stall_after_s=stall_after,
-            vanish_after_s=vanish_after, malformed_every=malformed_every,
+            plan, rate, baud, json_output, seed=seed, hold_s=hold, move_s=move, units=units,
+            temperature=temp, loop=loop, duration_s=duration, garbage=garbage,
+            stall_after_s=stall_after, vanish_after_s=vanish_after,
+            malformed_every=malformed_every,
         )  # fmt: skip
         return
     from imucal_cli.formats.calibration import write_calibration
@@ -256,17 +292,26 @@ def simulate(
         )
     truth = dataclasses.replace(truth, session=out.name)
     write_session(out, session, overwrite=force)
+    write_calibration(truth_out, truth, force=force)
     n_static = sum(1 for s in session.segments if s.kind == "static")
     n = len(session.time)
+    if json_output:
+        print_json(
+            {"format": "imucal-simulate", "format_version": 1, "output": str(out),
+             "truth": str(truth_out), "plan": plan, "seed": seed, "sensor": session.sensor,
+             "samples": n, "duration_s": n / rate, "sample_rate_hz": rate,
+             "static_segments": n_static, "rotation_segments": len(session.segments) - n_static,
+             "accel_units": session.accel_units, "gyro_units": session.gyro_units}
+        )  # fmt: skip
+        return
     typer.echo(
         f"wrote {out}: {n_static} poses, {n} samples ({n / rate:.1f} s at {rate:g} Hz), "
         f"{session.accel_units}"
     )
-    write_calibration(truth_out, truth, force=force)
     typer.echo(f"wrote {truth_out}: true calibration of {session.sensor}")
 
 
-def _serve(plan: str, rate: float, baud: int, **options) -> None:
+def _serve(plan: str, rate: float, baud: int, json_output: bool, **options) -> None:
     import sys
 
     from imucal_cli.simulate.device import serve
@@ -278,6 +323,13 @@ def _serve(plan: str, rate: float, baud: int, **options) -> None:
         print(f"imucal: {message}", file=sys.stderr, flush=True)
 
     result = serve(plan, rate, baud, announce=announce, status=status, **options)
+    if json_output:
+        document = {"format": "imucal-serve", "format_version": 1, "path": result.path,
+                    "lines": result.lines, "malformed": result.malformed,
+                    "garbage_bytes": result.garbage_bytes, "seconds": result.seconds,
+                    "end": result.end}  # fmt: skip
+        print(json.dumps(document), flush=True)
+        return
     print(
         f"# sent {result.lines} lines, {result.malformed} malformed, "
         f"{result.garbage_bytes} garbage bytes, {result.seconds:.2f} s, end {result.end}",

@@ -13,7 +13,7 @@ import stat
 
 from imucal_cli.errors import InputError
 
-__all__ = ["MAX_TEXT_BYTES", "is_hdf5_file", "read_input", "read_text_input"]
+__all__ = ["MAX_TEXT_BYTES", "is_hdf5_file", "read_head", "read_input", "read_text_input"]
 
 #: A calibration, config or plan is a few kB; anything past this is not one.
 MAX_TEXT_BYTES = 64 << 20
@@ -69,6 +69,25 @@ def is_hdf5_file(
                 return True
             offset = 512 if offset == 0 else offset * 2
         return False
+    except OSError as exc:
+        raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
+    finally:
+        os.close(fd)
+
+
+def read_head(
+    path: str | os.PathLike, n: int, *, what: str = "file", error: type[InputError] = InputError
+) -> bytes:
+    """The first ``n`` bytes of a regular file (fewer when it is shorter).
+
+    Raises
+    ------
+    error
+        Missing, a directory, not a regular file, or unreadable.
+    """
+    fd = _open_regular(path, what, error)
+    try:
+        return os.pread(fd, n, 0)
     except OSError as exc:
         raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
     finally:

@@ -75,6 +75,8 @@ def calibrate_session(session: Session, cfg: Config, *, name: str | None = None)
     extra = {"toolkit_version": __version__, "config": cfg.to_dict()}
     if session.sensor:
         extra["sensor"] = session.sensor
+    if session.source:  # "simulator", "serial:...": the report's context (paper figures or not)
+        extra["source"] = session.source
     return Calibration(
         accel=accel,
         gyro=gyro,

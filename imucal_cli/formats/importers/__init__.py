@@ -32,9 +32,12 @@ import numpy as np
 from imucal_cli.errors import InputError
 from imucal_cli.formats.session import Segment, Session
 from imucal_cli.solvers.segmentation import (
+    Interval,
+    NoiseEstimate,
     estimate_noise,
     find_rotations,
     find_static,
+    find_steps,
 )
 
 from .recording import (
@@ -66,6 +69,8 @@ __all__ = [
     "ReadOptions",
     "Recording",
     "TIME_UNITS",
+    "RATE_RANGE_HZ",
+    "check_sample_rate",
     "check_time",
     "import_files",
     "infer_columns",
@@ -75,6 +80,7 @@ __all__ = [
     "reader",
     "segment_recording",
     "skipped_fields",
+    "split_steps",
     "split_fields",
 ]
 
@@ -155,13 +161,71 @@ def read_recording(
     time = np.asarray(rec.time, np.float64)
     rec.time = time
     rec.stats.samples = len(time)
+    where = " and ".join(str(p) for p in paths)
+    stamped = rate_hz is None or rec.columns.count("t") > 0
+    measured = float(1.0 / np.median(np.diff(time))) if len(time) >= 2 else float("nan")
+    if stamped and np.isfinite(measured):
+        check_sample_rate(measured, time_unit, where)
     if rate_hz is not None:
-        rec.rate_hz = float(rate_hz)
-    elif len(time) >= 2:
-        rec.rate_hz = float(1.0 / np.median(np.diff(time)))
-    else:
-        rec.rate_hz = float("nan")
+        check_sample_rate(rate_hz, None, where)
+        if stamped and np.isfinite(measured) and abs(measured / rate_hz - 1.0) > 0.1:
+            raise InputError(
+                f"{where}: the time stamps (read in {_UNIT_NAMES[time_unit]}) give "
+                f"{measured:.4g} Hz but --rate says {rate_hz:g} Hz: drop --rate, or fix "
+                "--time-unit"
+            )
+    rec.rate_hz = float(rate_hz) if rate_hz is not None else measured
     return rec
+
+
+RATE_RANGE_HZ = (1.0, 10_000.0)
+"""Sample rates plausible for an IMU, Hz: outside them, the time unit or ``--rate`` is wrong."""
+
+_UNIT_NAMES = {"s": "seconds", "ms": "milliseconds", "us": "microseconds"}
+
+
+def check_sample_rate(rate_hz: float, time_unit: str | None, where: str) -> None:
+    """Refuse a sample rate no IMU has (outside :data:`RATE_RANGE_HZ`).
+
+    Parameters
+    ----------
+    rate_hz : float
+        The rate, Hz: from the median step of time stamps read in ``time_unit``, or given
+        (``time_unit`` None: ``--rate``).
+    time_unit : str or None
+        The unit the stamps were read in; when another unit of :data:`TIME_UNITS` gives a
+        plausible rate, the message names ``--time-unit`` with it.
+    where : str
+        The file(s), for the message.
+
+    Raises
+    ------
+    InputError
+        The rate is implausible (the message says what to pass).
+    """
+    lo, hi = RATE_RANGE_HZ
+    if lo <= rate_hz <= hi:
+        return
+    plausible = f"an IMU samples at {lo:g} Hz to {hi / 1000:g} kHz"
+    if time_unit is None:
+        raise InputError(f"{where}: --rate {rate_hz:g} Hz is implausible ({plausible})")
+    scale = TIME_UNITS[time_unit]
+    fits = {
+        unit: rate_hz * scale / factor
+        for unit, factor in TIME_UNITS.items()
+        if unit != time_unit and lo <= rate_hz * scale / factor <= hi
+    }
+    step = 1.0 / rate_hz / scale
+    said = f"time stamps {step:.4g} apart read as {_UNIT_NAMES[time_unit]} give {rate_hz:.4g} Hz"
+    if fits:
+        unit, rate = min(fits.items(), key=lambda kv: abs(np.log10(kv[1] / 100.0)))
+        raise InputError(
+            f"{where}: {said} ({plausible}); the stamps look like {_UNIT_NAMES[unit]}: pass "
+            f"--time-unit {unit} ({rate:.4g} Hz)"
+        )
+    raise InputError(
+        f"{where}: {said} ({plausible}); check the t column and --time-unit, or pass --rate"
+    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -190,9 +254,12 @@ def segment_recording(
             f"{where}: too few samples ({n}, {duration:.3g} s) to hold a still period of "
             f"{min_still_s:g} s plus a {window_s:g} s window; record longer"
         )
-    static = find_static(rec.time, rec.accel, rec.gyro, min_still_s=min_still_s, window_s=window_s)
+    noise = estimate_noise(rec.time, rec.accel, rec.gyro, window_s=window_s)
+    static = find_static(
+        rec.time, rec.accel, rec.gyro, min_still_s=min_still_s, window_s=window_s, noise=noise
+    )
+    static = split_steps(static, rec.accel, noise, min_n=int(np.ceil(min_still_s * rec.rate_hz)))
     if not static:
-        noise = estimate_noise(rec.time, rec.accel, rec.gyro, window_s=window_s)
         shown = ", ".join(f"{s:.3g}" for s in noise.accel)
         raise InputError(
             f"{where}: no still period of at least {min_still_s:g} s found in {duration:.3g} s "
@@ -213,6 +280,25 @@ def segment_recording(
     ]
 
 
+def split_steps(
+    static: list[Interval], accel: np.ndarray, noise: NoiseEstimate, min_n: int
+) -> list[Interval]:
+    """Still periods cut where their level jumps (two poses with no motion between, as in
+    concatenated recordings): each part is kept, less half a window on each side of the step,
+    when it still lasts ``min_n`` samples; never one period averaging two poses."""
+    out: list[Interval] = []
+    half = max(1, noise.window // 2)
+    for s in static:
+        cuts = [s.start + k for k in find_steps(accel[s.start : s.stop], noise.accel, noise.window)]
+        bounds = [s.start, *cuts, s.stop]
+        for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
+            a2 = a + half if k > 0 else a
+            b2 = b - half if k < len(cuts) else b
+            if b2 - a2 >= max(min_n, 2):
+                out.append(Interval(a2, b2))
+    return out
+
+
 def import_files(
     paths: Sequence[str | os.PathLike],
     fmt: str = "csv",
@@ -225,6 +311,8 @@ def import_files(
     gyro_units: str | None = None,
     sensor: str | None = None,
     min_still_s: float = _MIN_STILL_S,
+    sections: str | os.PathLike | None = None,
+    turn_angle_deg: float | None = None,
     mag_units: str | None = None,
     magnetic_field_uT: float | None = None,
 ) -> Session:
@@ -234,7 +322,10 @@ def import_files(
     :data:`ACCEL_UNITS`, ``gyro_units`` from :data:`GYRO_UNITS`, ``mag_units`` from
     :data:`MAG_UNITS`), a ``sensor`` description, the shortest still period kept, s, and the
     local field magnitude ``magnetic_field_uT`` where known.  A recording with a magnetometer
-    and no accelerometer has no segments (the magnetometer needs none).
+    and no accelerometer has no segments (the magnetometer needs none).  ``sections``: a MaD
+    Lab section list (JSON file) or the name of a column holding each row's label, whose
+    labelled sections replace the automatic segmentation (:mod:`.sections`);
+    ``turn_angle_deg``: the signed angle of their turns.
 
     Returns
     -------
@@ -260,8 +351,21 @@ def import_files(
     rec = read_recording(
         paths, fmt, columns, time_unit=time_unit, rate_hz=rate_hz, skip_rows=skip_rows
     )
-    if rec.accel is None and rec.mag is not None:
-        segments: list[Segment] = []
+    notes: list[str] = []
+    if sections is not None:
+        from .sections import labelled_segments, read_section_list, sections_of_column
+
+        where = " and ".join(rec.names)
+        spec = Path(sections)
+        if spec.suffix.lower() == ".json" or spec.is_file():
+            ranges = read_section_list(spec)
+        else:
+            ranges = sections_of_column(rec, Path(paths[0]), str(sections))
+        segments, notes = labelled_segments(
+            rec, ranges, turn_angle_deg=turn_angle_deg, where=where
+        )
+    elif rec.accel is None and rec.mag is not None:
+        segments = []
     else:
         segments = segment_recording(rec, min_still_s=min_still_s)
     try:
@@ -286,4 +390,5 @@ def import_files(
         magnetic_field_uT=magnetic_field_uT,
     )
     session.import_stats = rec.stats  # type: ignore[attr-defined]
+    session.import_notes = notes  # type: ignore[attr-defined]
     return session

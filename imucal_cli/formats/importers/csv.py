@@ -16,7 +16,15 @@ import numpy as np
 from imucal_cli.errors import InputError
 
 from .recording import TIME_UNITS, ImportStats, ReadOptions, Recording
-from .text import check_time, infer_columns, parse_columns, read_table, skipped_fields
+from .text import (
+    check_time,
+    first_fields,
+    infer_columns,
+    parse_columns,
+    parse_numbers,
+    read_table,
+    skipped_fields,
+)
 
 NAME = "csv"
 FILES = "one CSV or text file"
@@ -36,6 +44,10 @@ def read(paths: Sequence[Path], options: ReadOptions, stats: ImportStats) -> Rec
     path = paths[0]
     columns = options.columns
     spec = parse_columns(columns) if isinstance(columns, str) else columns
+    if spec is None:  # a header naming the axes also says which fields to skip (text labels)
+        first = first_fields(path, options.skip_rows)
+        if first is not None and parse_numbers(first) is None:
+            spec = infer_columns(first)
     data, lines, header = read_table(
         path,
         None if spec is None else len(spec),
@@ -82,5 +94,7 @@ def read(paths: Sequence[Path], options: ReadOptions, stats: ImportStats) -> Rec
         names=[path.name],
         columns=used,
         stats=stats,
+        lines=lines,
+        header=header,
         mag=mag,
     )

@@ -95,6 +95,10 @@ class Recording:
     columns : list of (str or None)
         The fields of the (first) file, as used.
     stats : ImportStats
+    lines : ndarray of int, shape (N,), or None
+        Text formats: the 1-based line number of each sample in the (first) file.
+    header : list of str or None
+        Text formats: the fields of the header line, when there is one.
     mag : ndarray, shape (N, 3), or None
         Raw magnetometer values as read.
     """
@@ -107,4 +111,6 @@ class Recording:
     names: list[str]
     columns: list[str | None]
     stats: ImportStats = field(default_factory=ImportStats)
+    lines: np.ndarray | None = None
+    header: list[str] | None = None
     mag: np.ndarray | None = None

@@ -60,6 +60,7 @@ from .model import (
     utc_now_iso,
 )
 from .reader import read_session
+from .relabel import ROOT_LABELS, rewrite_labels
 from .store import store_calibration
 from .writer import SessionWriter, write_session
 
@@ -68,6 +69,7 @@ __all__ = [
     "FORMAT_VERSION",
     "GRAVITY_DEFAULT",
     "MAG_UNITS",
+    "ROOT_LABELS",
     "SEGMENT_KINDS",
     "Segment",
     "Session",
@@ -80,6 +82,7 @@ __all__ = [
     "one_line",
     "open_for_reading",
     "read_session",
+    "rewrite_labels",
     "show",
     "store_calibration",
     "UT_PER_MAG_UNIT",
