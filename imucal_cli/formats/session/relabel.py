@@ -12,7 +12,7 @@ import numpy as np
 
 from imucal_cli.errors import SessionError
 
-from .h5open import check_session_file
+from .h5open import open_for_update
 from .model import FORMAT, SEGMENT_ATTRS, SEGMENT_KINDS, Segment, as_str, as_unit_vector, one_line
 
 __all__ = ["ROOT_LABELS", "rewrite_labels"]
@@ -72,11 +72,7 @@ def rewrite_labels(
     for key in attrs:
         if key not in ROOT_LABELS:
             raise SessionError(f"{src}: {key!r} is not a label this command sets")
-    check_session_file(path, src)
-    try:
-        file = h5py.File(path, "r+")
-    except OSError as exc:
-        raise SessionError(f"{src}: cannot open for writing ({one_line(exc)})") from None
+    file = open_for_update(path, src)  # superblock checked, waits for a concurrent writer
     with file:
         if as_str(file.attrs.get("format")) != FORMAT:
             raise SessionError(f"{src}: not an imucal session (format is not {FORMAT!r})")
@@ -109,5 +105,5 @@ def rewrite_labels(
                     file.attrs.pop(key, None)
                 else:
                     file.attrs[key] = value
-        except (OSError, TypeError, ValueError) as exc:
+        except (OSError, RuntimeError, TypeError, ValueError) as exc:
             raise SessionError(f"{src}: cannot write the labels ({one_line(exc)})") from None
