@@ -18,7 +18,6 @@ resident memory are printed beside it.
 
 from __future__ import annotations
 
-import os
 import shutil
 import statistics
 import subprocess
@@ -48,23 +47,37 @@ class Timing:
     note: str = ""
 
 
+# Peak memory must be the command's own: a child forked (or vforked) from this large process
+# inherits its high-water mark.  A small trampoline forks the command and reports its rusage.
+_TRAMPOLINE = """
+import os, sys
+pid = os.fork()
+if pid == 0:
+    os.execv(sys.argv[1], sys.argv[1:])
+_, status, ru = os.wait4(pid, 0)
+sys.stderr.write(f"\\nRUSAGE {ru.ru_utime + ru.ru_stime} {ru.ru_maxrss} "
+                 f"{os.waitstatus_to_exitcode(status)}\\n")
+"""
+
+
 def run_process(args: list[str], runs: int, cwd: Path) -> Timing:
-    """Run ``args`` ``runs`` times; CPU from the child's rusage (start-up included)."""
+    """Run ``args`` ``runs`` times; CPU (user + system, start-up included) and peak RSS from
+    the command's own rusage; wall from here."""
     cpu, wall, rss = [], [], []
     note = ""
     ok = True
     for _ in range(runs):
         t0 = time.perf_counter()
-        proc = subprocess.Popen(
-            args, cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
-        )
-        _, status, usage = os.wait4(proc.pid, 0)
+        proc = subprocess.run(
+            [sys.executable, "-S", "-c", _TRAMPOLINE, *args],
+            cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+        )  # fmt: skip
         wall.append(time.perf_counter() - t0)
-        err = proc.stderr.read()
-        proc.stderr.close()
-        cpu.append(usage.ru_utime + usage.ru_stime)
-        rss.append(usage.ru_maxrss / 1024.0)
-        if os.waitstatus_to_exitcode(status) != 0:
+        err, _, last = proc.stderr.rstrip().rpartition("\n")
+        _, used, peak, code = last.split()
+        cpu.append(float(used))
+        rss.append(int(peak) / 1024.0)
+        if int(code) != 0:
             ok = False
             note = (err.strip().splitlines() or ["failed"])[-1][:70]
     return Timing(statistics.median(cpu), statistics.median(wall), max(rss), ok, note)

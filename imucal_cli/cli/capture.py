@@ -216,6 +216,8 @@ def capture(
             )
     finally:
         recorder.close()
+    if recorder.end_kind == "clock":  # issue 10.5: a time unit off by a factor
+        raise InputError(f"{recorder.end_reason} ({out} keeps the {recorder.n_samples} samples)")
     if not recorder.file_written:
         if recorder.end_kind == "timeout":
             raise InputError(recorder.end_reason)

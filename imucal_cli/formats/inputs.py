@@ -15,6 +15,9 @@ from imucal_cli.errors import InputError
 
 __all__ = ["MAX_TEXT_BYTES", "is_hdf5_file", "read_head", "read_input", "read_text_input"]
 
+#: The HDF5 file signature (HDF5 File Format Specification II.A), at 0, 512, 1024, ...
+SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
 #: A calibration, config or plan is a few kB; anything past this is not one.
 MAX_TEXT_BYTES = 64 << 20
 
@@ -58,8 +61,6 @@ def is_hdf5_file(
     error
         Missing, a directory, not a regular file, or unreadable.
     """
-    from imucal_cli.formats.session.superblock import SIGNATURE
-
     fd = _open_regular(path, what, error)
     try:
         size = os.fstat(fd).st_size

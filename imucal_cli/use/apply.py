@@ -74,7 +74,7 @@ from imucal_cli.formats.importers.recording import TIME_UNITS
 from imucal_cli.formats.importers.text import (
     BLANK,
     check_time,
-    infer_columns,
+    header_columns,
     parse_columns,
     parse_numbers,
     skipped_fields,
@@ -300,12 +300,7 @@ def _csv_blocks(
     def check_spec() -> None:
         nonlocal spec, spec_from_header
         if spec is None:
-            spec = infer_columns(header) if header else None
-            if spec is None:
-                raise InputError(
-                    f"{src}: cannot tell which field is which (no header naming the axes): "
-                    "pass --columns, e.g. --columns t,ax,ay,az,gx,gy,gz"
-                )
+            spec = header_columns(header, src)
             spec_from_header = True
         for name, sec in sections.items():
             axes = CSV_NAMES[name]

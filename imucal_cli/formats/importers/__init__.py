@@ -21,6 +21,7 @@ there is gyro data) from ``find_rotations``.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import os
 from collections.abc import Sequence
@@ -274,10 +275,7 @@ def segment_recording(
         for r in find_rotations(rec.time, rec.gyro, static):
             segments.append(Segment(name="", kind="rotation", start=r.start, stop=r.stop))
     segments.sort(key=lambda s: (s.start, s.kind))
-    return [
-        Segment(name=f"{i:04d}", kind=s.kind, start=s.start, stop=s.stop, label=s.label)
-        for i, s in enumerate(segments)
-    ]
+    return [dataclasses.replace(s, name=f"{i:04d}") for i, s in enumerate(segments)]
 
 
 def split_steps(
@@ -361,9 +359,7 @@ def import_files(
             ranges = read_section_list(spec)
         else:
             ranges = sections_of_column(rec, Path(paths[0]), str(sections))
-        segments, notes = labelled_segments(
-            rec, ranges, turn_angle_deg=turn_angle_deg, where=where
-        )
+        segments, notes = labelled_segments(rec, ranges, turn_angle_deg=turn_angle_deg, where=where)
     elif rec.accel is None and rec.mag is not None:
         segments = []
     else:

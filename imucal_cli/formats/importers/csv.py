@@ -19,6 +19,7 @@ from .recording import TIME_UNITS, ImportStats, ReadOptions, Recording
 from .text import (
     check_time,
     first_fields,
+    header_columns,
     infer_columns,
     parse_columns,
     parse_numbers,
@@ -56,12 +57,7 @@ def read(paths: Sequence[Path], options: ReadOptions, stats: ImportStats) -> Rec
         skip=skipped_fields(spec),
     )
     if spec is None:
-        spec = infer_columns(header) if header else None
-        if spec is None:
-            raise InputError(
-                f"{path}: cannot tell which field is which (no header naming the axes): "
-                "pass --columns, e.g. --columns t,ax,ay,az,gx,gy,gz"
-            )
+        spec = header_columns(header, str(path))
         if len(spec) != data.shape[1]:
             raise InputError(
                 f"{path}: the header names {len(spec)} fields but rows have "

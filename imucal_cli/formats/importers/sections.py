@@ -22,6 +22,7 @@ different faces are concatenated) is refused, never averaged.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -194,19 +195,7 @@ def labelled_segments(
                 angle_deg=float(angle),
             )
         )
-    return [
-        Segment(
-            name=f"{i:04d}",
-            kind=s.kind,
-            start=s.start,
-            stop=s.stop,
-            label=s.label,
-            up=s.up,
-            axis=s.axis,
-            angle_deg=s.angle_deg,
-        )
-        for i, s in enumerate(segments)
-    ], notes
+    return [dataclasses.replace(s, name=f"{i:04d}") for i, s in enumerate(segments)], notes
 
 
 def _refuse_steps(rec: Recording, sections: list[tuple[str, int, int]], where: str) -> None:

@@ -26,6 +26,7 @@ __all__ = [
     "HEADER_ALIASES",
     "check_time",
     "first_fields",
+    "header_columns",
     "infer_columns",
     "parse_columns",
     "parse_numbers",
@@ -128,6 +129,24 @@ def infer_columns(header: Sequence[str]) -> list[str | None] | None:
     if not any(f in ("ax", "gx", "mx") for f in out):
         return None
     return out
+
+
+def header_columns(header: Sequence[str] | None, src: str) -> list[str | None]:
+    """The fields a header line names (:func:`infer_columns`), or the error saying to pass
+    ``--columns``.
+
+    Raises
+    ------
+    InputError
+        No header, or one that names no sensor axis.
+    """
+    spec = infer_columns(header) if header else None
+    if spec is None:
+        raise InputError(
+            f"{src}: cannot tell which field is which (no header naming the axes): "
+            "pass --columns, e.g. --columns t,ax,ay,az,gx,gy,gz"
+        )
+    return spec
 
 
 # --------------------------------------------------------------------------------------------

@@ -32,7 +32,7 @@ import h5py
 
 from imucal_cli.errors import ImucalWarning, SessionError
 
-from .model import LOG_GROUP, as_int, as_str, one_line
+from .model import FORMAT, LOG_GROUP, as_int, as_str, one_line
 from .superblock import Superblock, SuperblockError, clear_status_flags, read_superblock
 
 #: Metadata read attempts in SWMR read mode (HDF5's default, 100, sleeps for minutes).
@@ -201,7 +201,7 @@ def open_for_update(path: str | os.PathLike, src: str | None = None) -> h5py.Fil
     Raises
     ------
     SessionError
-        Not a session file, still being written, damaged, read-only or locked too long.
+        Not an imucal session, still being written, damaged, read-only or locked too long.
     """
     path = Path(path)
     src = str(path) if src is None else src
@@ -213,7 +213,16 @@ def open_for_update(path: str | os.PathLike, src: str | None = None) -> h5py.Fil
             f"{src}: its writer has not closed it (a capture still running, or killed: "
             f"`imucal report {src}` repairs a killed capture's file)"
         )
-    return _open_waiting(path, src, swmr=False, mode="r+")
+    file = _open_waiting(path, src, swmr=False, mode="r+")
+    try:
+        fmt = as_str(get_attr(file.attrs, "format", src, "root "))
+    except SessionError:
+        file.close()
+        raise
+    if fmt != FORMAT:
+        file.close()
+        raise SessionError(f"{src}: not an imucal session (format is not {FORMAT!r})")
+    return file
 
 
 def open_for_reading(path: str | os.PathLike, src: str | None = None) -> tuple[h5py.File, bool]:

@@ -13,7 +13,7 @@ import numpy as np
 from imucal_cli.errors import SessionError
 
 from .h5open import open_for_update
-from .model import FORMAT, SEGMENT_ATTRS, SEGMENT_KINDS, Segment, as_str, as_unit_vector, one_line
+from .model import SEGMENT_ATTRS, SEGMENT_KINDS, Segment, as_unit_vector, one_line
 
 __all__ = ["ROOT_LABELS", "rewrite_labels"]
 
@@ -72,10 +72,7 @@ def rewrite_labels(
     for key in attrs:
         if key not in ROOT_LABELS:
             raise SessionError(f"{src}: {key!r} is not a label this command sets")
-    file = open_for_update(path, src)  # superblock checked, waits for a concurrent writer
-    with file:
-        if as_str(file.attrs.get("format")) != FORMAT:
-            raise SessionError(f"{src}: not an imucal session (format is not {FORMAT!r})")
+    with open_for_update(path, src) as file:
         time = file.get("raw/time")
         if not isinstance(time, h5py.Dataset):
             raise SessionError(f"{src}: no /raw/time")

@@ -11,8 +11,8 @@ import h5py
 
 from imucal_cli.errors import SessionError
 
-from .h5open import get_attr, member, open_for_update
-from .model import FORMAT, as_str, one_line
+from .h5open import member, open_for_update
+from .model import one_line
 
 
 def check_calibration_entry(src: str, json_text: str, name: str | None) -> None:
@@ -62,8 +62,6 @@ def store_calibration(path: str | os.PathLike, json_text: str, name: str | None 
 
 
 def _store(file: h5py.File, src: str, json_text: str, name: str | None) -> str:
-    if as_str(get_attr(file.attrs, "format", src, "root ")) != FORMAT:
-        raise SessionError(f"{src}: not an imucal session (format is not {FORMAT!r})")
     group = member(file, "calibrations", src)
     if group is None:
         group = file.create_group("calibrations")

@@ -18,7 +18,8 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
-SIGNATURE = b"\x89HDF\r\n\x1a\n"
+from imucal_cli.formats.inputs import SIGNATURE
+
 _WRITE_ACCESS = 0x01  # version 3 status flags: opened for writing
 _SWMR_WRITE = 0x04  # ... in SWMR write mode
 _M32 = 0xFFFFFFFF
