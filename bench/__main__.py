@@ -6,11 +6,18 @@ import argparse
 
 from rich.console import Console
 
-from bench import capture, factorization, gravity, gyro, gyro_speed, reliability, speed
+from bench import capture, factorization, gravity, gyro, gyro_speed, labelled, reliability, speed
 
 BENCHMARKS = (
-    "gravity", "factorization", "gyro", "gyro-speed", "capture", "speed", "reliability",
-)  # fmt: skip
+    "gravity",
+    "labelled",
+    "factorization",
+    "gyro",
+    "gyro-speed",
+    "capture",
+    "speed",
+    "reliability",
+)
 
 
 def main() -> None:
@@ -29,6 +36,8 @@ def main() -> None:
     ok = True
     if args.only in (None, "gravity"):
         ok = gravity.run(console, n_seeds=args.seeds) and ok
+    if args.only in (None, "labelled"):
+        ok = labelled.run(console, n_seeds=args.seeds) and ok
     if args.only in (None, "factorization"):
         ok = factorization.run(console, n_seeds=args.seeds) and ok
     if args.only in (None, "gyro"):

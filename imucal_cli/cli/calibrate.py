@@ -201,6 +201,9 @@ def _summary(console: Console, cal, where: str) -> None:
         if x.get("init"):
             how.append(f"init {x['init']}")
         console.print(f"[bold]{name}[/]: " + escape(", ".join(how)))
+        choice = x.get("choice") or {}
+        if choice.get("by") == "auto":
+            console.print("  solver chosen: " + escape(choice["reason"]))
         if name == "accel" and x.get("rms_after") is not None:
             g = x["gravity"]
             before = x.get("rms_before")

@@ -73,6 +73,7 @@ def export(
         metavar="NAME",
         help="c-header / fusion: name prefix, a C identifier [default: IMUCAL; fusion none].",
     ),
+    force: bool = typer.Option(False, "--force", help="Overwrite the output file."),
 ) -> None:
     """Export a calibration for firmware, ROS, estimators or scripts.
 
@@ -99,9 +100,8 @@ def export(
     for name, text in (("accel", accel_scale), ("gyro", gyro_scale)):
         if text is not None:
             scale[name] = parse_scale(text, f"--{name}-scale")
-    inputs = [calibration, noise]
     if output is not None:
-        check_output(output, force=force, inputs=inputs)
+        check_output(output, force=force, inputs=[calibration, noise])
     cal, noise_in = load_input(calibration)
     if noise is not None:
         noise_in = read_noise(noise)
@@ -111,7 +111,7 @@ def export(
     if output is None:
         typer.echo(text, nl=False)
         return
-    write_output(output, text, force=force, inputs=inputs)
+    write_output(output, text, force=force, inputs=[calibration, noise])
     what = ", ".join(
         f"{name} 3x{sec.bias.shape[0]}"
         for name, sec in (("accel", cal.accel), ("gyro", cal.gyro))

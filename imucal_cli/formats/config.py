@@ -5,7 +5,9 @@ Example (every key optional; these are the defaults)::
     gravity = 9.80665            # m/s^2; default: the session's `gravity` attribute
 
     [accel]
-    solver = "gravity"           # "gravity" (Qureshi & Golnaraghi III-A), "factorization", "none"
+    solver = "auto"              # "auto" (the most accurate the session supports), "gravity"
+                                 # (Qureshi & Golnaraghi III-A), "labelled" (labelled poses,
+                                 # full matrix), "factorization" (Hwangbo & Kanade), "none"
     # nominal_sensitivity = 835.4  # raw units per m/s^2 (datasheet); default from the units
     # nominal_bias = 0.0           # raw units, scalar or one per channel
     # range = [-32768, 32767]      # raw output range; default inferred from the units/data
@@ -18,6 +20,11 @@ Example (every key optional; these are the defaults)::
     weighting = "noise"          # "noise": weight poses by their measured noise; "equal"
     max_iterations = 200
     leave_one_out = true         # held-out residual of each pose in the report
+
+    [accel.labelled]             # poses with `up` labels, each direction a nuisance parameter
+    # placement_deg = 2.0        # RMS angle between the true and the labelled up; default:
+                                 # estimated from the data (2 deg when too few poses)
+    max_iterations = 200
 
     [accel.factorization]        # Hwangbo & Kanade
     use = "means"                # constraints over per-pose "means" or individual "samples"
@@ -63,7 +70,7 @@ from typing import Any
 from imucal_cli.errors import ConfigError
 from imucal_cli.formats.inputs import read_text_input
 
-ACCEL_SOLVERS = ("gravity", "factorization", "none")
+ACCEL_SOLVERS = ("auto", "gravity", "labelled", "factorization", "none")
 GYRO_SOLVERS = ("none", "static", "dynamic", "full", "factorization")
 
 #: Largest whole number a count (iterations, samples) may take.
@@ -251,6 +258,14 @@ class GravityOptions:
 
 
 @dataclass
+class LabelledOptions:
+    """Options of the labelled-pose solver (``[accel.labelled]``)."""
+
+    placement_deg: float | None = setting(None, "number", gt=0, le=45, unit=_DEG)
+    max_iterations: int = setting(200, "count", **_ITERATIONS)
+
+
+@dataclass
 class AccelFactorizationOptions:
     """Options of the factorization solver for accelerometers (``[accel.factorization]``)."""
 
@@ -276,13 +291,14 @@ class GyroFactorizationOptions:
 class AccelConfig:
     """``[accel]``: which solver, and what is nominal for the physical-sense checks."""
 
-    solver: str = setting("gravity", "text", choices=ACCEL_SOLVERS)
+    solver: str = setting("auto", "text", choices=ACCEL_SOLVERS)
     nominal_sensitivity: float | None = setting(None, "number", gt=0)
     nominal_bias: float | list[float] | None = setting(None, "numbers", min_len=3)
     range: list[float] | None = setting(None, "range")
     max_scale_error: float = setting(0.20, "number", gt=0, lt=1)
     min_separation_deg: float = setting(10.0, "number", gt=0, lt=90, unit=_DEG)
     gravity: GravityOptions = field(default_factory=GravityOptions)
+    labelled: LabelledOptions = field(default_factory=LabelledOptions)
     factorization: AccelFactorizationOptions = field(default_factory=AccelFactorizationOptions)
 
 
