@@ -34,7 +34,6 @@ def export(
     output: Path | None = typer.Option(
         None, "--output", "-o", metavar="FILE", help="File to write [default: standard output]."
     ),
-    force: bool = typer.Option(False, "--force", help="Replace an existing OUTPUT."),
     noise: Path | None = typer.Option(
         None,
         "--noise",
