@@ -34,12 +34,16 @@ Example (every key optional; these are the defaults)::
     max_iterations = 200
 
     [gyro]
-    solver = "none"              # "none"; "static", "dynamic" (Qureshi III-B), "full"
-                                 # (12 parameters), or "factorization" (Hwangbo & Kanade)
+    solver = "auto"              # "auto": the most accurate solver the session supports
+                                 # (none when it has no gyro or no rotations); "none";
+                                 # "static", "dynamic" (Qureshi III-B), "full" (12 or 21
+                                 # parameters), or "factorization" (Hwangbo & Kanade)
     # nominal_sensitivity = 938.7  # raw units per rad/s (datasheet); default from the units
     # range = [-32768, 32767]      # raw output range: turns reaching it are clipped and left
                                    # out; default: the ADC word of counts data, else none
     max_scale_error = 0.20
+    max_residual_ratio = 10.0    # refuse when turns' residuals exceed this many times the
+                                 # noise (and the other turns' level); --force saves anyway
 
     [gyro.rotations]             # static, dynamic and full
     max_gap_s = 2.0              # still data must end/start this close to a rotation
@@ -47,6 +51,7 @@ Example (every key optional; these are the defaults)::
 
     [gyro.full]
     max_iterations = 100
+    g_sensitivity = "auto"       # "auto" (kept when significant and determined), "on", "off"
 
     [gyro.factorization]
     samples_per_segment = 40     # samples of each rotation used in the constraints
@@ -71,7 +76,7 @@ from imucal_cli.errors import ConfigError
 from imucal_cli.formats.inputs import read_text_input
 
 ACCEL_SOLVERS = ("auto", "gravity", "labelled", "factorization", "none")
-GYRO_SOLVERS = ("none", "static", "dynamic", "full", "factorization")
+GYRO_SOLVERS = ("auto", "none", "static", "dynamic", "full", "factorization")
 
 #: Largest whole number a count (iterations, samples) may take.
 MAX_COUNT = 1_000_000
@@ -315,16 +320,19 @@ class GyroFullOptions:
     """Options of the 12-parameter gyro model (``[gyro.full]``)."""
 
     max_iterations: int = setting(100, "count", **_ITERATIONS)
+    g_sensitivity: str = setting("auto", "text", choices=("auto", "on", "off"))
 
 
 @dataclass
 class GyroConfig:
-    """``[gyro]``: which solver (``"none"``: the gyroscope is not calibrated)."""
+    """``[gyro]``: which solver (``"auto"``: the most accurate the session supports;
+    ``"none"``: the gyroscope is not calibrated)."""
 
-    solver: str = setting("none", "text", choices=GYRO_SOLVERS)
+    solver: str = setting("auto", "text", choices=GYRO_SOLVERS)
     nominal_sensitivity: float | None = setting(None, "number", gt=0)
     range: list[float] | None = setting(None, "range")
     max_scale_error: float = setting(0.20, "number", gt=0, lt=1)
+    max_residual_ratio: float = setting(10.0, "number", gt=1)
     factorization: GyroFactorizationOptions = field(default_factory=GyroFactorizationOptions)
     rotations: GyroRotationOptions = field(default_factory=GyroRotationOptions)
     full: GyroFullOptions = field(default_factory=GyroFullOptions)
