@@ -180,10 +180,13 @@ def test_concurrent_calibrations_of_one_session(tmp_path):
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         for i in range(6)
     ]  # fmt: skip
-    results = [(p.wait(timeout=120), p.stderr.read()) for p in procs]
-    for p in procs:
-        p.stdout.close()
-        p.stderr.close()
+    try:
+        results = [(p.returncode, err) for p in procs for _, err in [p.communicate(timeout=600)]]
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+                p.communicate()
     assert all(code == 0 for code, _ in results), results
     after = read_session(session)
     assert sorted(after.calibrations) == [f"{i:04d}" for i in range(6)]

@@ -115,6 +115,20 @@ def test_calibrate_saved_but_not_stored_is_exit_1_with_the_reason(session, tmp_p
     assert "Traceback" not in proc.stderr and read_calibration(out).accel is not None
 
 
+def test_calibrate_many_saved_but_not_stored_is_exit_1(session, tmp_path):
+    """--jobs/several sessions: one whose store fails is "saved, not stored" (1), not 2."""
+    from imucal_cli.formats.config import Config
+    from imucal_cli.pipeline.batch import calibrate_many
+
+    other = Path(shutil.copy(session, tmp_path / "other.h5"))
+    with h5py.File(session, "r+") as f:
+        f["calibrations"] = np.zeros(2)
+    bad, good = calibrate_many([session, other], Config(), jobs=1)
+    assert bad.exit_code == 1 and "saved" in bad.error and "not stored" in bad.error
+    assert read_calibration(session.with_suffix(".cal.json")).accel is not None
+    assert good.exit_code == 0 and "/calibrations/0000" in good.stored
+
+
 def test_calibrate_waits_for_a_transient_lock(session, tmp_path):
     """Another process holding the session open for writing (storing its own calibration)
     delays the store; it does not fail it."""
@@ -127,8 +141,12 @@ def test_calibrate_waits_for_a_transient_lock(session, tmp_path):
         assert holder.stdout.readline().strip() == "held"
         proc = run("calibrate", session, "-o", tmp_path / "c.json")
     finally:
-        holder.wait(timeout=30)
-        holder.stdout.close()
+        try:
+            holder.wait(timeout=60)
+        finally:
+            if holder.poll() is None:
+                holder.kill()
+            holder.stdout.close()
     assert proc.returncode == 0, proc.stderr
     assert "/calibrations/0000" in proc.stdout
 
@@ -382,6 +400,47 @@ def test_nominal_bias_of_the_wrong_length_names_the_key(session, tmp_path):
                           "accel.nominal_bias", "4 values", "3 channels")  # fmt: skip
 
 
+def _config_keys(obj=None, path=""):
+    """(dotted key, rule) of every value in the config tree, tables walked."""
+    from dataclasses import fields, is_dataclass
+
+    from imucal_cli.formats.config import Config, rule_of
+
+    obj = Config() if obj is None else obj
+    for f in fields(obj):
+        value = getattr(obj, f.name)
+        key = f"{path}.{f.name}".lstrip(".")
+        if is_dataclass(value):
+            yield from _config_keys(value, key)
+        else:
+            yield key, rule_of(f)
+
+
+def _bad_values(rule):
+    return {"number": [float("nan"), float("inf"), "1.0", True],
+            "numbers": [float("nan"), [1.0, float("inf"), 0.0], [], "x"],
+            "count": [2**63, -(2**63), 1.5, True], "bool": ["yes", 1],
+            "text": [1.5, ["a"]] + (["no such choice"] if rule.choices else []),
+            "range": [[1.0, float("nan")], [2.0, 1.0], [1.0]]}[rule.kind]  # fmt: skip
+
+
+def test_every_config_key_refuses_bad_values_naming_the_key():
+    """A sweep over the whole config tree, so keys added later are covered too."""
+    keys = list(_config_keys())
+    assert len(keys) > 30
+    for key, rule in keys:
+        for bad in _bad_values(rule):
+            table: dict = {}
+            *tables, leaf = key.split(".")
+            node = table
+            for name in tables:
+                node = node.setdefault(name, {})
+            node[leaf] = bad
+            with pytest.raises(ConfigError, match=rf"`{key}`") as err:
+                config_from_dict(table, "c.toml")
+            assert "\n" not in str(err.value)
+
+
 def test_a_field_added_without_a_rule_is_still_checked():
     from dataclasses import dataclass, fields
 
@@ -417,7 +476,7 @@ def test_escapes_in_a_sensor_name_reach_neither_terminal_nor_export(session, tmp
     import yaml as pyyaml
 
     doc = pyyaml.safe_load(yaml.stdout)
-    assert set(doc) == {"SM", "bias"}  # the newline did not add a key
+    assert "key" not in doc and set(doc) <= {"SM", "bias", "gyro"}  # no key from the newline
 
 
 def test_exports_refuse_non_finite_and_overflowing_numbers(tmp_path):
@@ -466,6 +525,30 @@ def test_import_refuses_what_is_not_a_number(tmp_path, bad_line, why):
     parsed = [parse_numbers(split_fields(line, True)) for line in lines[1:]]
     assert parsed[0] is not None and parsed[2] is not None
     assert parsed[1] is None, why  # malformed: skipped and counted, never a cut number
+
+
+@pytest.mark.parametrize(
+    "bad",
+    ["1.0\v33", "1.0\u202833", "1_000.5", "\u0661\u0662", "1.0\x1c5", "1.0\u20295", "\uff11.0"],
+)
+@pytest.mark.parametrize("ascii_rest", [True, False], ids=["ascii", "utf8"])
+def test_import_reader_skips_a_line_cut_or_written_oddly(tmp_path, bad, ascii_rest):
+    """End to end through the current reader (the array scanner for plain ASCII files, the
+    line reader otherwise): the odd line is skipped and counted, every other sample exact."""
+    from imucal_cli.formats.importers import read_recording
+
+    rows = [f"{0.01 * i:.2f},{i}.5,2,3,0.1,0.2,0.3" for i in range(40)]
+    rows[20] = f"0.20,{bad},2,3,0.1,0.2,0.3"
+    if not ascii_rest:
+        rows.append("# fin: température")  # not plain ASCII: the line reader reads it all
+    path = tmp_path / "r.csv"
+    path.write_bytes(("t,ax,ay,az,gx,gy,gz\n" + "\n".join(rows) + "\n").encode())
+    rec = read_recording([path], "csv")
+    assert 0.2 not in np.round(rec.time, 3)  # never a cut or misread number
+    assert rec.stats.malformed == 1
+    kept = [i for i in range(40) if i != 20]
+    assert np.array_equal(rec.accel[:, 0], [i + 0.5 for i in kept])
+    assert np.allclose(rec.time, [0.01 * i for i in kept])
 
 
 def test_a_killed_captures_file_is_repaired_and_the_cli_says_so(tmp_path):

@@ -358,21 +358,11 @@ class Recorder:
                 now = _time.monotonic()
                 block = self.protocol.feed(data, now - self._t0) if data else SampleBlock.empty()
                 if len(block):
-                    if self._t_first is None:
-                        self._t_first = now
-                        self._status(f"receiving data from {what}")
-                    self._t_last_sample = now
-                    ended = self._append(block)
+                    ended = self._received(block, now, what)
                     if ended is not None:
                         self.end_kind, self.end_reason = ended.kind, ended.reason
                         break
                     dirty = True
-                    if not self._clock_checked and now - self._t_first >= CLOCK_CHECK_S:
-                        self._clock_checked = True
-                        problem = self._clock_problem(now - self._t_first)
-                        if problem is not None:
-                            self.end_kind, self.end_reason = "clock", problem
-                            break
                 elif self._t_first is None and now - last_status >= STATUS_REPEAT_S:
                     last_status = now
                     self._status(
@@ -390,15 +380,37 @@ class Recorder:
                     yield block
                     now = _time.monotonic()
         finally:
-            self._t_end = _time.monotonic()
-            if self.end_kind is None:  # the consumer closed the generator
-                self.end_kind, self.end_reason = "done", "done"
-            self._restore_signals()
-            self.source.close()  # nothing more is read: let the device see it at once
-            if self._writer is not None and self._writer.n_samples > self._writer.n_written:
-                ended = self._flush()
-                if ended is not None and self.end_kind != "disk-full":
-                    self.end_kind, self.end_reason = ended.kind, ended.reason
+            self._finish()
+
+    def _received(self, block: SampleBlock, now: float, what: str) -> CaptureEnded | None:
+        """Append a block that arrived at ``now``; check the device clock once enough time
+        has passed.  Returns why the capture ends, or None."""
+        if self._t_first is None:
+            self._t_first = now
+            self._status(f"receiving data from {what}")
+        self._t_last_sample = now
+        ended = self._append(block)
+        if ended is not None:
+            return ended
+        if not self._clock_checked and now - self._t_first >= CLOCK_CHECK_S:
+            self._clock_checked = True
+            problem = self._clock_problem(now - self._t_first)
+            if problem is not None:
+                return CaptureEnded("clock", problem)
+        return None
+
+    def _finish(self) -> None:
+        """After the recording loop, however it ended: restore the signals, close the source
+        and flush what is still pending (a full disk keeps its reason)."""
+        self._t_end = _time.monotonic()
+        if self.end_kind is None:  # the consumer closed the generator
+            self.end_kind, self.end_reason = "done", "done"
+        self._restore_signals()
+        self.source.close()  # nothing more is read: let the device see it at once
+        if self._writer is not None and self._writer.n_samples > self._writer.n_written:
+            ended = self._flush()
+            if ended is not None and self.end_kind != "disk-full":
+                self.end_kind, self.end_reason = ended.kind, ended.reason
 
     # segments and closing ----------------------------------------------------------------------
     def add_segment(

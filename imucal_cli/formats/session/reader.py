@@ -72,6 +72,27 @@ def read_session(path: str | os.PathLike) -> Session:
 
 
 def _read_open_file(file: h5py.File, src: str, unclosed: bool) -> Session:
+    created, text, numbers = _root_attributes(file, src)
+    raw = _read_raw(file, src, unclosed)
+    segments = _read_segments(file, src, len(raw["time"]), raw["accel"], raw["gyro"], unclosed)
+    return Session(
+        **raw,
+        segments=segments,
+        created=created,
+        sensor=text["sensor"],
+        source=text["source"],
+        sample_rate_hz=numbers["sample_rate_hz"],
+        gravity=GRAVITY_DEFAULT if numbers["gravity"] is None else numbers["gravity"],
+        accel_units=text["accel_units"],
+        gyro_units=text["gyro_units"],
+        calibrations=_read_calibrations(file, src),
+        mag_units=text["mag_units"],
+        magnetic_field_uT=numbers["magnetic_field_uT"],
+    )
+
+
+def _root_attributes(file: h5py.File, src: str) -> tuple[str, dict, dict]:
+    """The root attributes, checked: ``created``, the texts (cleaned) and the numbers."""
     root = {
         name: get_attr(file.attrs, name, src, "root ")
         for name in (
@@ -119,38 +140,23 @@ def _read_open_file(file: h5py.File, src: str, unclosed: bool) -> Session:
                 f"{src}: root attribute {name!r} must be a positive number, got {show(root[name])}"
             )
 
-    time, accel, gyro, temperature, mag = _read_raw(file, src, unclosed)
-    segments = _read_segments(file, src, len(time), accel, gyro, unclosed)
-    return Session(
-        time=time,
-        accel=accel,
-        gyro=gyro,
-        temperature=temperature,
-        segments=segments,
-        created=created,
-        sensor=text["sensor"],
-        source=text["source"],
-        sample_rate_hz=numbers["sample_rate_hz"],
-        gravity=GRAVITY_DEFAULT if numbers["gravity"] is None else numbers["gravity"],
-        accel_units=text["accel_units"],
-        gyro_units=text["gyro_units"],
-        calibrations=_read_calibrations(file, src),
-        mag=mag,
-        mag_units=text["mag_units"],
-        magnetic_field_uT=numbers["magnetic_field_uT"],
-    )
+    return created, text, numbers
 
 
-RAW_NAMES = ("time", "accel", "gyro", "temperature", "mag")
+#: The ``/raw`` datasets read, each with its shape: 0 for one value per sample ``(N,)``, k for
+#: ``(N, >=k)`` channels.  A channel added to the format (and a :class:`Session` field of the
+#: same name) is one entry here: every check and read below is generic.
+RAW_CHANNELS: dict[str, int] = {"time": 0, "accel": 3, "gyro": 3, "temperature": 0, "mag": 3}
+RAW_NAMES = tuple(RAW_CHANNELS)
 
 
 def raw_datasets(file: h5py.File, src: str, unclosed: bool) -> tuple[dict[str, h5py.Dataset], int]:
     """Validate the ``/raw`` datasets present (of :data:`RAW_NAMES`); return them and the
     number of samples N to read.
 
-    Shapes are checked (time (N,), accel, gyro and mag (N, >=3), temperature (N,)), and each dataset
-    with :func:`~.h5open.check_dataset` (no links, no external or virtual data, size bounded
-    by the file's).  For a file whose writer did not close it, N is the shortest dataset (an
+    Shapes are checked (:data:`RAW_CHANNELS`), and each dataset with
+    :func:`~.h5open.check_dataset` (no links, no external or virtual data, size bounded by the
+    file's).  For a file whose writer did not close it, N is the shortest dataset (an
     interrupted flush may have grown some and not others).
     """
     raw = member(file, "raw", src)
@@ -175,18 +181,8 @@ def raw_datasets(file: h5py.File, src: str, unclosed: bool) -> tuple[dict[str, h
     n = datasets["time"].shape[0]
     if unclosed:
         n = min(ds.shape[0] for ds in datasets.values() if ds.ndim >= 1)
-    for name in ("accel", "gyro", "mag"):
-        ds = datasets.get(name)
-        if ds is not None and (ds.ndim != 2 or ds.shape[0] < n or ds.shape[1] < 3):
-            raise SessionError(
-                f"{src}: /raw/{name} must have shape (N, >=3) with N = {n} samples, "
-                f"has shape {ds.shape}"
-            )
-        if ds is not None and not unclosed and ds.shape[0] != n:
-            raise SessionError(f"{src}: /raw/{name} has {ds.shape[0]} rows, /raw/time has {n}")
-    ds = datasets.get("temperature")
-    if ds is not None and (ds.shape != (n,) and (not unclosed or ds.ndim != 1)):
-        raise SessionError(f"{src}: /raw/temperature must have shape ({n},), has shape {ds.shape}")
+    for name, ds in datasets.items():
+        _check_shape(name, ds, n, RAW_CHANNELS[name], src, unclosed)
     kept = written_length(datasets["time"], n)
     if kept < n:
         warnings.warn(
@@ -236,18 +232,29 @@ def written_length(dataset: h5py.Dataset, n: int) -> int:
     return lo
 
 
-def _read_raw(file: h5py.File, src: str, unclosed: bool) -> tuple[np.ndarray | None, ...]:
-    """``time, accel, gyro, temperature, mag`` of ``/raw`` (None where absent), validated."""
+def _check_shape(name: str, ds: h5py.Dataset, n: int, width: int, src: str,
+                 unclosed: bool) -> None:  # fmt: skip
+    """``(n,)`` (``width`` 0) or ``(n, >=width)``; a file left open may hold more rows."""
+    if width == 0:
+        if ds.shape != (n,) and (not unclosed or ds.ndim != 1 or ds.shape[0] < n):
+            raise SessionError(f"{src}: /raw/{name} must have shape ({n},), has shape {ds.shape}")
+        return
+    if ds.ndim != 2 or ds.shape[0] < n or ds.shape[1] < width:
+        raise SessionError(
+            f"{src}: /raw/{name} must have shape (N, >={width}) with N = {n} samples, "
+            f"has shape {ds.shape}"
+        )
+    if not unclosed and ds.shape[0] != n:
+        raise SessionError(f"{src}: /raw/{name} has {ds.shape[0]} rows, /raw/time has {n}")
+
+
+def _read_raw(file: h5py.File, src: str, unclosed: bool) -> dict[str, np.ndarray | None]:
+    """Every channel of :data:`RAW_CHANNELS` (None where absent), validated, as float64."""
     datasets, n = raw_datasets(file, src, unclosed)
-    time = np.asarray(datasets["time"][:n], dtype=np.float64)
-    check_time(time, src)
-
-    def load(name: str) -> np.ndarray | None:
-        if name not in datasets:
-            return None
-        return np.asarray(datasets[name][:n], dtype=np.float64)
-
-    return time, load("accel"), load("gyro"), load("temperature"), load("mag")
+    raw = {name: None if name not in datasets else
+           np.asarray(datasets[name][:n], dtype=np.float64) for name in RAW_CHANNELS}  # fmt: skip
+    check_time(raw["time"], src)
+    return raw
 
 
 def _read_segments(

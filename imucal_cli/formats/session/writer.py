@@ -122,6 +122,20 @@ def segment_entry(
     return entry
 
 
+def _root_attrs(created: str | None, **optional: Any) -> dict[str, Any]:
+    """The root attributes of a new session: format, version, creation time, then the
+    optional ones that were given (numbers as floats)."""
+    attrs: dict[str, Any] = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "created": created if created is not None else utc_now_iso(),
+    }
+    for key, value in optional.items():
+        if value is not None:
+            attrs[key] = float(value) if isinstance(value, int | float) else value
+    return attrs
+
+
 class SessionWriter:
     """Write a session while it is recorded; a context manager.
 
@@ -194,9 +208,9 @@ class SessionWriter:
         reserve_bytes: int = 0,
     ) -> None:
         self.path = Path(path)
-        self._src = src = str(path)
+        self._src = str(path)
         _check_options(
-            src,
+            self._src,
             {
                 "accel_channels": accel_channels,
                 "gyro_channels": gyro_channels,
@@ -209,22 +223,11 @@ class SessionWriter:
             },
             mag_units,
         )
-        attrs: dict[str, Any] = {
-            "format": FORMAT,
-            "format_version": FORMAT_VERSION,
-            "created": created if created is not None else utc_now_iso(),
-        }
-        optional = {
-            "sensor": sensor,
-            "source": source,
-            "sample_rate_hz": None if sample_rate_hz is None else float(sample_rate_hz),
-            "gravity": None if gravity is None else float(gravity),
-            "accel_units": accel_units,
-            "gyro_units": gyro_units,
-            "mag_units": mag_units,
-            "magnetic_field_uT": None if magnetic_field_uT is None else float(magnetic_field_uT),
-        }
-        attrs.update({k: v for k, v in optional.items() if v is not None})
+        attrs = _root_attrs(
+            created, sensor=sensor, source=source, sample_rate_hz=sample_rate_hz,
+            gravity=gravity, accel_units=accel_units, gyro_units=gyro_units,
+            mag_units=mag_units, magnetic_field_uT=magnetic_field_uT,
+        )  # fmt: skip
         self._widths: dict[str, int | None] = {
             "accel": None if accel_channels is None else int(accel_channels),
             "gyro": None if gyro_channels is None else int(gyro_channels),
@@ -243,6 +246,12 @@ class SessionWriter:
         self._file: h5py.File | None = None
         self._out = OutputFile(self.path, force=overwrite, inputs=inputs)
         self._reserve = _Reserve(self.path, 0)
+        self._open(attrs, temperature, publish_early, reserve_bytes)
+        self._last_flush = _time.monotonic()
+
+    def _open(self, attrs: dict[str, Any], temperature: bool, publish_early: bool,
+              reserve_bytes: int) -> None:  # fmt: skip
+        """Create the file's layout in its temporary file; nothing is left when that fails."""
         try:
             self._file = self._out.h5(libver="latest")
             self._create_layout(attrs, temperature)
@@ -253,9 +262,8 @@ class SessionWriter:
         except BaseException as exc:
             self._abandon()
             if isinstance(exc, _WRITE_ERRORS):
-                raise InputError(f"{src}: cannot write ({io_reason(exc)})") from None
+                raise InputError(f"{self._src}: cannot write ({io_reason(exc)})") from None
             raise
-        self._last_flush = _time.monotonic()
 
     def _create_layout(self, attrs: dict[str, Any], temperature: bool) -> None:
         file = self._file
