@@ -129,6 +129,19 @@ def test_calibrate_many_saved_but_not_stored_is_exit_1(session, tmp_path):
     assert good.exit_code == 0 and "/calibrations/0000" in good.stored
 
 
+def test_any_failure_to_store_after_saving_is_exit_1(session, monkeypatch):
+    from imucal_cli.formats.config import Config
+    from imucal_cli.pipeline import batch
+
+    def broken(*_args):
+        raise TypeError("an unforeseen\nfailure")
+
+    monkeypatch.setattr(batch, "store_calibration", broken)
+    (result,) = batch.calibrate_many([session], Config(), jobs=1)
+    assert result.exit_code == 1 and "an unforeseen failure" in result.error
+    assert read_calibration(session.with_suffix(".cal.json")).accel is not None
+
+
 def test_calibrate_waits_for_a_transient_lock(session, tmp_path):
     """Another process holding the session open for writing (storing its own calibration)
     delays the store; it does not fail it."""

@@ -101,8 +101,11 @@ def calibrate_file(
         try:
             name = store_calibration(path, calibration_to_json(cal))
             stored = f" and {path}:/calibrations/{name}"
-        except (OSError, ImucalError) as exc:  # the JSON is saved: exit 1 with the reason
-            stored = f"{NOT_STORED}{exc})"
+        except Exception as exc:  # noqa: BLE001  the JSON is saved: exit 1 with the reason
+            reason = str(exc)
+            if not isinstance(exc, OSError | ImucalError):
+                reason = f"{type(exc).__name__}: {reason}"
+            stored = f"{NOT_STORED}{' '.join(reason.split())})"
     return cal, out, stored
 
 
