@@ -167,7 +167,7 @@ def test_malformed_calibration_json(tmp_path, name, content, expect):
 
 
 def test_suite_sizes():
-    assert len(SESSION_CASES) >= 100 and len(CONFIG_CASES) >= 100 and len(CAL_CASES) >= 60
+    assert len(SESSION_CASES) >= 100 and len(CONFIG_CASES) >= 100 and len(CAL_CASES) >= 100
 
 
 def test_concurrent_calibrations_of_one_session(tmp_path):
