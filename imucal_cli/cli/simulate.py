@@ -14,6 +14,29 @@ from . import completion
 from .app import app
 from .console import print_json
 
+SERVE_HOLD_S = 4.0
+"""--serve's hold per pose when --hold is not given, s: capture's default hold (2 s) plus time for
+the stillness detector to see the unit settle after a turn."""
+
+
+def _enter_presses():
+    """A poll ``() -> bool`` that is True once per Enter typed on stdin, or None when stdin cannot
+    be read without stopping the process (a terminal of a background job: SIGTTIN)."""
+    import os
+    import sys
+
+    try:
+        if sys.stdin is None or sys.stdin.closed:
+            return None
+        if sys.stdin.isatty() and os.tcgetpgrp(sys.stdin.fileno()) != os.getpgrp():
+            return None
+    except (OSError, ValueError, AttributeError):
+        return None
+    from imucal_cli.capture.guided.keys import StdinKeys
+
+    keys = StdinKeys()
+    return lambda: keys.get() is not None
+
 
 def truth_path(session_path: Path) -> Path:
     """Where the truth goes: ``x.h5`` -> ``x.truth.json`` (beside the session)."""
@@ -54,11 +77,12 @@ def simulate(
         help="Random seed (>= 0): the same seed and options give the same samples, in any units.",
     ),
     rate: float = typer.Option(100.0, "--rate", metavar="HZ", help="Sample rate, Hz."),
-    hold: float = typer.Option(
-        2.0,
+    hold: float | None = typer.Option(
+        None,
         "--hold",
         metavar="SECONDS",
-        help="Time held still in each pose, s (at least 10 samples).",
+        help="Time held still in each pose, s (at least 10 samples) [default: 2; with --serve 4, "
+        "so that a capture with its default 2 s hold has time to see the unit settle].",
     ),
     accel_noise: float = typer.Option(
         0.01,
@@ -162,6 +186,12 @@ def simulate(
         115200, "--baud", metavar="N", help="--serve: emulated baud rate (bytes are paced)."
     ),
     loop: bool = typer.Option(False, "--loop", help="--serve: repeat the plan."),
+    step: bool = typer.Option(
+        False,
+        "--step",
+        help="--serve: hold each pose until Enter is pressed in this terminal (without it the "
+        "plan runs on a timer, --hold per pose, and Enter moves to the next pose early).",
+    ),
     duration: float | None = typer.Option(
         None, "--duration", metavar="SECONDS", help="--serve: stop streaming after this long."
     ),
@@ -221,7 +251,8 @@ def simulate(
         raise InputError(f"--serve does not stream plan {plan!r}: write a session file instead")
     if serve:
         _serve(
-            plan, rate, baud, json_output, seed=seed, hold_s=hold, move_s=move, units=units,
+            plan, rate, baud, json_output, seed=seed, hold_s=SERVE_HOLD_S if hold is None else hold,
+            move_s=move, step=step, units=units,
             temperature=temp, loop=loop, duration_s=duration, garbage=garbage,
             stall_after_s=stall_after, vanish_after_s=vanish_after,
             malformed_every=malformed_every,
@@ -262,7 +293,7 @@ def simulate(
             seed=seed,
             rate_hz=rate if given("rate") else None,
             units=units,
-            hold_s=hold if given("hold") else None,
+            hold_s=hold,
             accel_noise=accel_noise,
             sigma_counts=sigma_counts,
             orientations=orientations,
@@ -288,7 +319,7 @@ def simulate(
             plan=plan,
             seed=seed,
             rate_hz=rate,
-            hold_s=hold,
+            hold_s=2.0 if hold is None else hold,
             accel_noise=accel_noise,
             jitter_deg=jitter_deg,
             units=units,
@@ -325,7 +356,15 @@ def _serve(plan: str, rate: float, baud: int, json_output: bool, **options) -> N
     def status(message: str) -> None:
         print(f"imucal: {message}", file=sys.stderr, flush=True)
 
-    result = serve(plan, rate, baud, announce=announce, status=status, **options)
+    enter = _enter_presses()
+    if options.get("step") and enter is None:
+        raise InputError("--step needs Enter from this terminal: run --serve in the foreground")
+    how = ("each pose is held until you press Enter here" if options.get("step") else
+           f"the plan runs on a timer, each pose held {options['hold_s']:g} s"
+           + ("; Enter here moves to the next pose now" if enter else ""))  # fmt: skip
+    status(how)
+    result = serve(plan, rate, baud, announce=announce, status=status, next_pose=enter,
+                   **options)  # fmt: skip
     if json_output:
         document = {"format": "imucal-serve", "format_version": 1, "path": result.path,
                     "lines": result.lines, "malformed": result.malformed,

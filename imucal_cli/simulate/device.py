@@ -20,6 +20,11 @@ in real time, ``t,ax,ay,az,gx,gy,gz,temp`` (``t`` in seconds, raw counts), so th
 The stream starts when a reader opens the port (plus :data:`SETTLE_S`, since pyserial flushes
 the input when it configures the port) and ends after the plan (or after ``duration_s``, with
 ``loop`` repeating the plan), when the reader closes the port, or on SIGINT/SIGTERM.
+
+Pacing: by default the device walks its plan on a timer (each pose held ``hold_s``, then the
+next).  ``next_pose`` (a callable, e.g. Enter typed in the device's own terminal) moves on at
+once, cutting the current hold short; with ``step`` every hold lasts until ``next_pose`` says
+so (the still samples keep coming, the time keeps increasing), as a person at the bench would.
 """
 
 from __future__ import annotations
@@ -41,7 +46,15 @@ from imucal_cli.plans import Plan, load_plan
 from imucal_cli.simulate.motion import Timeline, smootherstep, unit, up_to_vertical
 from imucal_cli.simulate.sensor import random_imu
 
-__all__ = ["SETTLE_S", "ServeResult", "plan_motion", "serve", "stream_arrays"]
+__all__ = [
+    "SETTLE_S",
+    "Hold",
+    "ServeResult",
+    "plan_motion",
+    "serve",
+    "stream_arrays",
+    "stream_with_holds",
+]
 
 SETTLE_S = 0.3
 """Wait after a reader opened the port before the first byte (pyserial flushes its input)."""
@@ -50,6 +63,15 @@ DRAIN_S = 0.3
 """Wait after the last byte before closing the pseudo-terminal, so the reader gets it all."""
 
 _SIMULATOR_PLANS = ("six", "qureshi18")
+
+
+@dataclass(frozen=True)
+class Hold:
+    """A still pose of the stream: samples ``[start, stop)`` and what the pose is."""
+
+    start: int
+    stop: int
+    label: str
 
 
 @dataclass
@@ -98,6 +120,7 @@ def plan_motion(
     gravity: float = 9.80665,
     accel_noise: float = 0.01,
     gyro_noise: float = 0.005,
+    holds: list[Hold] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Raw samples of a simple motion through any plan: still, smooth turns, still.
 
@@ -111,6 +134,8 @@ def plan_motion(
     -------
     time, accel, gyro : ndarray
         ``(N,)`` seconds, ``(N, 3)`` raw accelerometer and gyroscope samples.
+
+    ``holds``, when given, receives a :class:`Hold` per still pose (the lead joins the first).
     """
     truth_ss, noise_ss = np.random.SeedSequence(int(seed)).spawn(2)
     truth = random_imu(np.random.default_rng(truth_ss), units, accel_noise, gyro_noise)
@@ -124,7 +149,16 @@ def plan_motion(
         s, ds = smootherstep(n_move, (n_move + 1) / rate_hz)
         tl.turn(rotvec, s, ds, angle=1.0)
 
-    tl.hold(max(1, int(round(lead_s * rate_hz))))
+    found: list[Hold] = [] if holds is None else holds
+
+    def hold(label: str) -> None:
+        start, stop = tl.hold(n_hold)
+        if found and found[-1].stop == start:  # the same pose still: one hold
+            start = found.pop().start
+        found.append(Hold(start, stop, label))
+
+    lead = tl.hold(max(1, int(round(lead_s * rate_hz))))
+    found.append(Hold(*lead, "start"))
     steps = plan.steps
     for i, step in enumerate(steps):
         if step.kind == "static":
@@ -132,13 +166,13 @@ def plan_motion(
                 rv = (tl.att.inv() * up_to_vertical(unit(step.up))).as_rotvec()
                 if np.linalg.norm(rv) > np.radians(1.0):
                     turn(rv)
-            tl.hold(n_hold)
+            hold(step.label)
         else:
             axis = np.array([0.0, 0.0, 1.0]) if step.axis is None else np.asarray(step.axis)
             angle = 90.0 if step.angle_deg is None else step.angle_deg
             turn(axis / np.linalg.norm(axis) * np.radians(angle))
             if i + 1 == len(steps) or steps[i + 1].kind != "static":
-                tl.hold(n_hold)
+                hold(f"after {step.label}")
     force, rate = tl.arrays()
     raw = truth.sample({"accel": force, "gyro": rate}, np.random.default_rng(noise_ss))
     return np.arange(len(force)) / rate_hz, raw["accel"], raw["gyro"]
@@ -155,6 +189,17 @@ def stream_arrays(
     InputError
         Unknown plan or bad options.
     """
+    time, accel, gyro, _ = stream_with_holds(
+        plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s
+    )
+    return time, accel, gyro
+
+
+def stream_with_holds(
+    plan: str, *, seed: int = 0, rate_hz: float = 100.0, hold_s: float = 2.0,
+    units: str = "counts", move_s: float = 1.5,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[Hold]]:  # fmt: skip
+    """As :func:`stream_arrays`, plus the still poses (:class:`Hold`, in time order)."""
     key = plan.strip().lower()
     if key in _SIMULATOR_PLANS or key.startswith("random:"):
         from imucal_cli.simulate.triad import simulate_stream
@@ -162,12 +207,19 @@ def stream_arrays(
         s = simulate_stream(
             plan=key, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s
         )
-        return s.time, s.accel, s.gyro
+        holds = [Hold(seg.start, seg.stop, seg.label or f"pose {i + 1}")
+                 for i, seg in enumerate(x for x in s.segments if x.kind == "static")]  # fmt: skip
+        if holds:  # the lead is the first pose held a little longer
+            holds[0] = Hold(0, holds[0].stop, holds[0].label)
+        return s.time, s.accel, s.gyro, holds
     if not rate_hz > 0 or not hold_s > 0 or not move_s > 0:
         raise InputError("rate, hold and move time must be positive")
-    return plan_motion(
-        load_plan(plan), seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s
-    )
+    holds: list[Hold] = []
+    time, accel, gyro = plan_motion(
+        load_plan(plan), seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units,
+        move_s=move_s, holds=holds,
+    )  # fmt: skip
+    return time, accel, gyro, holds
 
 
 def _format(
@@ -209,6 +261,8 @@ def serve(
     stall_after_s: float | None = None,
     vanish_after_s: float | None = None,
     malformed_every: int | None = None,
+    step: bool = False,
+    next_pose: Callable[[], bool] | None = None,
     announce: Callable[[str], None] = print,
     status: Callable[[str], None] | None = None,
 ) -> ServeResult:
@@ -243,6 +297,10 @@ def serve(
         Close the pseudo-terminal after this long (the device is unplugged).
     malformed_every : int, optional
         Every N-th data line is sent with two fields missing.
+    step : bool
+        Hold every pose until ``next_pose`` says to move on (not on a timer).
+    next_pose : callable, optional
+        Polled for each line: True moves on to the next pose now (e.g. Enter was typed).
     announce : callable
         Called once with the slave device path, before anything else.
     status : callable, optional
@@ -258,11 +316,13 @@ def serve(
         raise InputError(f"baud rate must be a positive integer, got {baud!r}")
     if malformed_every is not None and malformed_every < 1:
         raise InputError(f"--malformed-every must be >= 1, got {malformed_every}")
-    time, accel, gyro = stream_arrays(
+    time, accel, gyro, holds = stream_with_holds(
         plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s
     )
     lines = _format(time, accel, gyro, temperature, units == "counts")
     say = status or (lambda message: None)
+    schedule = _Schedule(len(lines), holds, loop=loop, step=step, next_pose=next_pose, say=say,
+                         hold_s=hold_s)  # fmt: skip
     stop = {"kind": None}
     old_handlers = {}
     if threading.current_thread() is threading.main_thread():
@@ -292,7 +352,7 @@ def serve(
             f"columns {fields}, seed {seed}\n"
         ).encode()
         line = _Line(
-            master, poller, stop, lines, rate_hz, baud, loop=loop, duration_s=duration_s,
+            master, poller, stop, lines, rate_hz, baud, schedule=schedule, duration_s=duration_s,
             garbage=garbage, stall_after_s=stall_after_s, vanish_after_s=vanish_after_s,
             malformed_every=malformed_every, rng=np.random.default_rng(seed + 1),
         )  # fmt: skip
@@ -322,24 +382,79 @@ def _wait_for_reader(poller, stop: dict, wait_reader_s: float | None) -> str:
     return ""
 
 
+class _Schedule:
+    """Which sample of the pass goes out next: the plan in order, holds cut short when
+    ``next_pose()`` says so, or (``step``) extended until it does by replaying the hold's own
+    samples; the time of every line is ``k / rate`` for the k-th line sent."""
+
+    def __init__(self, n: int, holds: list[Hold], *, loop: bool, step: bool, next_pose,
+                 say, hold_s: float) -> None:  # fmt: skip
+        self.n, self.holds, self.loop, self.step = n, holds, loop, step
+        self.next_pose = next_pose or (lambda: False)
+        self.say, self.hold_s = say, hold_s
+        self.i = 0  # next sample of the pass
+        self.k = 0  # lines handed out
+        self.replay = 0  # samples replayed in the current paused hold
+        self.paused: Hold | None = None
+        self.done = False
+
+    def _hold_at(self, i: int) -> Hold | None:
+        return next((h for h in self.holds if h.start <= i < h.stop), None)
+
+    def next_index(self) -> int | None:
+        """The sample of the pass to send next (None: the plan is over)."""
+        if self.next_pose():
+            self._advance()
+        if self.paused is not None:
+            h = self.paused
+            self.replay += 1
+            return h.start + (self.replay - 1) % (h.stop - h.start)
+        if self.i >= self.n:
+            if not self.loop:
+                self.done = True
+                return None
+            self.i = 0
+        h = self._hold_at(self.i)
+        if h is not None and self.i == h.start:
+            self._announce(h)
+        index = self.i
+        self.i += 1
+        if self.step and h is not None and self.i == h.stop:
+            self.paused, self.replay = h, 0  # hold until told to move on
+        return index
+
+    def _advance(self) -> None:
+        """Move on now: leave a paused hold, or cut the current one short."""
+        if self.paused is not None:
+            self.paused = None
+            return
+        h = self._hold_at(self.i)
+        if h is not None:
+            self.i = h.stop
+
+    def _announce(self, h: Hold) -> None:
+        n = self.holds.index(h) + 1
+        until = ("until Enter here" if self.step
+                 else f"{self.hold_s:g} s, then the next (Enter here: now)")  # fmt: skip
+        self.say(f"pose {n}/{len(self.holds)}: {h.label}: held {until}")
+
+
 class _Line:
     """The serial line: queues lines (or garbage) as their time comes, paced to the baud
     rate, writes them to the master side, and counts what was written completely."""
 
     def __init__(
         self, master: int, poller, stop: dict, lines: list[bytes], rate_hz: float, baud: int,
-        *, loop: bool, duration_s, garbage: bool, stall_after_s, vanish_after_s,
+        *, schedule: _Schedule, duration_s, garbage: bool, stall_after_s, vanish_after_s,
         malformed_every, rng: np.random.Generator,
     ) -> None:  # fmt: skip
         self.master, self.poller, self.stop, self.lines = master, poller, stop, lines
-        self.rate_hz, self.baud, self.loop, self.garbage = rate_hz, baud, loop, garbage
+        self.rate_hz, self.baud, self.schedule, self.garbage = rate_hz, baud, schedule, garbage
         self.duration_s, self.stall_after_s = duration_s, stall_after_s
         self.vanish_after_s, self.malformed_every, self.rng = vanish_after_s, malformed_every, rng
-        self.pass_s = len(lines) / rate_hz
         self.out = bytearray()
         self.queued_bytes = 0  # bytes put into `out` (paced by the baud rate)
         self.line_ends: list[tuple[int, bool]] = []  # (byte offset after the line, malformed)
-        self.index = 0  # next line to queue, counting passes
         self.garbage_bytes = 0
 
     def why_end(self, now: float) -> str:
@@ -352,7 +467,7 @@ class _Line:
             return "vanished"
         if self.duration_s is not None and now >= self.duration_s:
             return "duration"
-        if not self.loop and self.index >= len(self.lines) and not self.out:
+        if self.schedule.done and not self.out:
             return "plan"
         return ""
 
@@ -366,24 +481,24 @@ class _Line:
             self.queued_bytes += k
             self.garbage_bytes += k
             return
-        n = len(self.lines)
         due = int(now * self.rate_hz) + 1
-        due = due if self.loop else min(n, due)
-        while self.index < due and budget > 0:
-            p, i = divmod(self.index, n)
+        while self.schedule.k < due and budget > 0:
+            i = self.schedule.next_index()
+            if i is None:
+                break
+            k = self.schedule.k
+            self.schedule.k += 1
             line = self.lines[i]
-            if p:
-                t_text, rest = line.split(b",", 1)
-                line = b"%.4f," % (float(t_text) + p * self.pass_s) + rest
+            if i != k:  # a later pass, a cut or a paused hold: the time goes on
+                line = b"%.4f," % (k / self.rate_hz) + line.split(b",", 1)[1]
             every = self.malformed_every
-            bad = every is not None and (self.index + 1) % every == 0
+            bad = every is not None and k % every == every - 1
             if bad:
                 line = _damage(line)
             self.out += line
             self.queued_bytes += len(line)
             budget -= len(line)
             self.line_ends.append((self.queued_bytes, bad))
-            self.index += 1
 
     def run(self, header: bytes, result: ServeResult) -> None:
         """Stream until the end; fill ``result`` (lines, malformed, garbage, seconds, end)."""
