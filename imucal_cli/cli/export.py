@@ -88,7 +88,7 @@ def export(
     (degrees) is lost. Targets reading SI values (kalibr, openvins, basalt, px4, ardupilot)
     need raw data in m/s^2, g, rad/s or deg/s, or --accel-scale/--gyro-scale (a magnetometer:
     uT, nT or gauss, or --mag-scale).
-    Exit status: 0 written; 2 bad input.
+    An existing OUTPUT is replaced only with --force. Exit status: 0 written; 2 bad input.
     """
     from imucal_cli.errors import InputError
     from imucal_cli.formats.exporters import ExportOptions, parse_scale
