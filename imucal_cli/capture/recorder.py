@@ -337,6 +337,7 @@ class Recorder:
         up: np.ndarray | None = None,
         axis: np.ndarray | None = None,
         angle_deg: float | None = None,
+        extra: dict | None = None,
     ) -> str:
         """Mark samples ``[start, stop)`` as a segment (see
         :meth:`imucal_cli.formats.session.SessionWriter.add_segment`); return its name.
@@ -352,11 +353,11 @@ class Recorder:
         if self._writer is None:
             raise SessionError(f"{self.path}: no samples recorded, so no segment can be added")
         name = self._writer.add_segment(
-            kind, start, stop, label=label, up=up, axis=axis, angle_deg=angle_deg
+            kind, start, stop, label=label, up=up, axis=axis, angle_deg=angle_deg, extra=extra
         )
         entry = {"name": name, "kind": kind, "start": int(start), "stop": int(stop)}
-        extra = {"label": label, "up": up, "axis": axis, "angle_deg": angle_deg}
-        entry.update({k: v for k, v in extra.items() if v is not None})
+        attrs = {"label": label, "up": up, "axis": axis, "angle_deg": angle_deg}
+        entry.update({k: v for k, v in {**attrs, **(extra or {})}.items() if v is not None})
         self._segments.append(entry)
         return name
 

@@ -13,6 +13,7 @@ from rich.markup import escape
 from imucal_cli.errors import InputError
 
 from .app import app
+from .options import hold_option, plan_option
 
 EXIT_COMPLETE, EXIT_INCOMPLETE = 0, 3
 
@@ -28,14 +29,8 @@ def capture(
         ..., "--port", "-p", metavar="PORT", help="Serial port (/dev/ttyUSB0, COM3, a pty)."
     ),
     baud: int = typer.Option(115200, "--baud", "-b", metavar="N", help="Baud rate."),
-    plan: str | None = typer.Option(
-        None,
-        "--plan",
-        metavar="NAME|FILE.toml",
-        help=(
-            "Steps to go through: six, qureshi18 (the default when guided), random:N, gyro-axes, "
-            "hwangbo-iron, or a TOML plan file ([[step]] kind, label, up, axis, angle_deg)."
-        ),
+    plan: str | None = plan_option(
+        None, "Steps to go through (qureshi18 when guided; the same plans as imucal simulate):"
     ),
     output: Path | None = typer.Option(
         None,
@@ -94,9 +89,7 @@ def capture(
         metavar="SECONDS",
         help="End the capture when the data stops this long.",
     ),
-    hold: float = typer.Option(
-        2.0, "--hold", metavar="SECONDS", help="Guided mode: seconds to hold each pose still."
-    ),
+    hold: float = hold_option("Guided mode: time to hold each pose still"),
     force: bool = typer.Option(False, "--force", help="Overwrite the output file."),
 ) -> None:
     """Record a calibration session from an IMU on a serial port.

@@ -10,6 +10,7 @@ import typer
 from imucal_cli.errors import InputError
 
 from .app import app
+from .options import hold_option, plan_option
 
 
 def truth_path(session_path: Path) -> Path:
@@ -25,23 +26,10 @@ def default_output(plan: str, seed: int) -> Path:
 @app.command()
 def simulate(
     ctx: typer.Context,
-    plan: str = typer.Option(
+    plan: str = plan_option(
         "qureshi18",
-        "--plan",
-        metavar="PLAN",
-        help=(
-            "Poses to visit: 'six' (the 6 faces of a cube), 'qureshi18' (6 faces + 12 edges "
-            "at 45 degrees, Qureshi & Golnaraghi) or 'random:N' (N unlabelled poses, "
-            "directions uniform on the sphere); or the Hwangbo & Kanade designs "
-            "'hk-redundant' (two dual-axis accelerometers, n = 4 channels, 11-bit ADC codes "
-            "0..2047 = -2.5..2.5 g, held still in random orientations; 50 Hz unless --rate) and "
-            "'hk-gyro' (sinusoidal sweeps about 3 orthogonal faces of a right-angle iron in each "
-            "mounting, then one ruler-guided 90-degree turn; --hold sets the still periods, "
-            "default 3 s); or hand rotations for the gyroscope: 'qureshi-axes' (Qureshi & "
-            "Golnaraghi Fig. 2: --rotations-per-axis turns about x and y with +Z up, then about z "
-            "with +X up, different angles within +-180 degrees) and 'free:N' (N turns about "
-            "random axes); --peak-rate and --still shape the turns."
-        ),
+        "What the virtual IMU goes through (the same plans as imucal capture; --serve streams "
+        "them live):",
     ),
     seed: int = typer.Option(
         0,
@@ -50,11 +38,9 @@ def simulate(
         help="Random seed (>= 0): the same seed and options give the same samples, in any units.",
     ),
     rate: float = typer.Option(100.0, "--rate", metavar="HZ", help="Sample rate, Hz."),
-    hold: float = typer.Option(
-        2.0,
-        "--hold",
-        metavar="SECONDS",
-        help="Time held still in each pose, s (at least 10 samples).",
+    hold: float = hold_option(
+        "Time held still in each pose (at least 10 samples; the iron plans' still periods "
+        "default to 3 s)"
     ),
     accel_noise: float = typer.Option(
         0.01,
@@ -172,38 +158,35 @@ def simulate(
     """Simulate a calibration session of a cheap 16-bit MEMS IMU with known truth.
 
     Writes the session (HDF5) and the true calibration (JSON) of the simulated part; with
-    --serve, streams it live on a pseudo-terminal instead (plans six, qureshi18, random:N,
-    gyro-axes, hwangbo-iron or a TOML plan file; ends after the plan, --duration, or on
-    Ctrl-C/SIGTERM).  Test faults of --serve: --garbage (random bytes, as a wrong baud rate),
-    --stall-after S, --vanish-after S (close the port), --malformed-every N.
+    --serve, streams it live on a pseudo-terminal instead (every plan; ends after the plan,
+    --duration, or on Ctrl-C/SIGTERM).  Test faults of --serve: --garbage (random bytes, as a
+    wrong baud rate), --stall-after S, --vanish-after S (close the port), --malformed-every N.
     """
-    from imucal_cli.simulate.redundant import HK_PLANS, simulate_hk_plan
-    from imucal_cli.simulate.rotations import is_gyro_plan, simulate_gyro_rotations
+    from imucal_cli.plans import load_plan
 
-    hk = plan.strip().lower() in HK_PLANS
-    gyro = is_gyro_plan(plan)
-    if serve and (hk or gyro):
-        raise InputError(f"--serve does not stream plan {plan!r}: write a session file instead")
+    def given(name: str) -> bool:
+        source = ctx.get_parameter_source(name)
+        return source is not None and source.name != "DEFAULT"
+
+    load_plan(plan)  # an unknown plan is refused first, with the list of plans
+    options = {
+        "hold_s": hold if given("hold") else None,  # a plan's own default otherwise
+        "accel_noise": accel_noise, "jitter_deg": jitter_deg, "still_s": still,
+        "rotations_per_axis": rotations_per_axis if given("rotations_per_axis") else None,
+        "peak_rate_dps": peak_rate, "sigma_counts": sigma_counts, "orientations": orientations,
+        "samples": samples, "labelled": labelled, "mountings": mountings,
+    }  # fmt: skip
     if serve:
         _serve(
-            plan, rate, baud, seed=seed, hold_s=hold, move_s=move, units=units, temperature=temp,
+            plan, rate, baud, seed=seed, move_s=move, units=units, temperature=temp,
             loop=loop, duration_s=duration, garbage=garbage, stall_after_s=stall_after,
             vanish_after_s=vanish_after, malformed_every=malformed_every,
+            hold_s=options.pop("hold_s"), plan_options=options,
         )  # fmt: skip
         return
     from imucal_cli.formats.calibration import write_calibration
     from imucal_cli.formats.session import write_session
-    from imucal_cli.plans import plan_poses
-    from imucal_cli.simulate.triad import simulate as run
-
-    if not (hk or gyro):
-        try:
-            plan_poses(plan)
-        except InputError:
-            raise InputError(
-                f"plan {plan!r} is unknown: use six, qureshi18, random:N (poses), qureshi-axes, "
-                "free:N (hand rotations), hk-redundant or hk-gyro (Hwangbo & Kanade)"
-            ) from None
+    from imucal_cli.simulate.play import simulate_plan
 
     out = output if output is not None else default_output(plan, seed)
     truth_out = truth_path(out)
@@ -215,48 +198,11 @@ def simulate(
         for p in (out, truth_out):
             if p.exists():
                 raise InputError(f"{p} exists: use --force to overwrite it")
-    if hk:
-
-        def given(name: str) -> bool:
-            source = ctx.get_parameter_source(name)
-            return source is not None and source.name != "DEFAULT"
-
-        session, truth = simulate_hk_plan(
-            plan,
-            seed=seed,
-            rate_hz=rate if given("rate") else None,
-            units=units,
-            hold_s=hold if given("hold") else None,
-            accel_noise=accel_noise,
-            sigma_counts=sigma_counts,
-            orientations=orientations,
-            samples=samples,
-            labelled=labelled,
-            mountings=mountings,
-        )
-        rate = float(session.sample_rate_hz)
-    elif gyro:
-        session, truth = simulate_gyro_rotations(
-            plan=plan,
-            seed=seed,
-            rate_hz=rate,
-            rotations_per_axis=rotations_per_axis,
-            peak_rate_dps=peak_rate,
-            still_s=still,
-            accel_noise=accel_noise,
-            jitter_deg=jitter_deg,
-            units=units,
-        )
-    else:
-        session, truth = run(
-            plan=plan,
-            seed=seed,
-            rate_hz=rate,
-            hold_s=hold,
-            accel_noise=accel_noise,
-            jitter_deg=jitter_deg,
-            units=units,
-        )
+    session, truth = simulate_plan(
+        plan, seed=seed, units=units, rate_hz=rate if given("rate") else None, move_s=move,
+        **options,
+    )  # fmt: skip
+    rate = float(session.sample_rate_hz)
     truth = dataclasses.replace(truth, session=out.name)
     write_session(out, session, overwrite=force)
     n_static = sum(1 for s in session.segments if s.kind == "static")

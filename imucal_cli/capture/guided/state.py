@@ -106,9 +106,7 @@ class GuidedState:
         called once per final segment, in time order.
     """
 
-    def __init__(
-        self, plan: Plan, opt: GuidedOptions, base: int, add_segment: Callable[..., None]
-    ):
+    def __init__(self, plan: Plan, opt: GuidedOptions, base: int, add_segment: Callable[..., None]):
         self.plan = plan
         self.steps = plan.steps
         self.o = opt
@@ -324,14 +322,7 @@ class GuidedState:
         if t.start < self.committed_start:  # cannot happen with holds and turns in order
             self.say(f"{self.steps[t.step].label}: out of time order, not saved", "red")
             return
-        step = self.steps[t.step]
-        if t.kind == "static":
-            up = None if step.up is None else np.asarray(step.up, float)
-            self.add_segment("static", t.start, t.stop, label=step.label, up=up)
-        else:
-            axis = None if step.axis is None else np.asarray(step.axis, float)
-            self.add_segment("rotation", t.start, t.stop, label=step.label, axis=axis,
-                             angle_deg=step.angle_deg)  # fmt: skip
+        self.add_segment(t.kind, t.start, t.stop, **self.steps[t.step].segment_attrs())
         self.committed_start = t.start
 
     # ------------------------------------------------------------------------ stream
