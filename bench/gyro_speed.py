@@ -19,7 +19,7 @@ from rich.table import Table
 
 from imucal_cli.formats.config import config_from_dict
 from imucal_cli.pipeline.calibrate import calibrate_accel, with_segments
-from imucal_cli.pipeline.gyro import full_problem, initial_values
+from imucal_cli.pipeline.gyro import full_problem
 from imucal_cli.simulate.rotations import simulate_gyro_rotations
 from imucal_cli.solvers.gyro_full import fit_full
 
@@ -36,8 +36,9 @@ def _problem(session):
     session, _ = with_segments(session)
     accel = calibrate_accel(session, cfg)
     rot, still, noise = full_problem(session, cfg, accel)
-    b0, M0 = initial_values(session, cfg, rot, still)
-    return rot, still, noise, b0, M0
+    w = 1 / still.z_sigma**2
+    b0 = (still.z_mean * w[:, None]).sum(axis=0) / w.sum()
+    return rot, still, noise, b0
 
 
 def _measure(args, runs: int) -> dict:

@@ -30,6 +30,8 @@ __all__ = [
     "RESYNC_SAMPLES",
     "SampleBlock",
     "SerialSource",
+    "WitMotionProtocol",
+    "host_stamps",
 ]
 
 MAX_LINE_BYTES = 4096
@@ -39,6 +41,20 @@ counted as malformed, so garbage never grows memory."""
 RESYNC_SAMPLES = 10
 """After this many consecutive samples whose device time is not after the last kept one, the
 device clock is taken to have wrapped or restarted and the time base is shifted to continue."""
+
+
+def host_stamps(
+    k: int, host_time: float, last_host: float | None, last_time: float | None
+) -> tuple[np.ndarray, float]:
+    """Host-clock times for ``k`` samples that arrived by ``host_time``: spread evenly after
+    the previous batch's ``last_host`` (and after ``last_time``, the last sample kept), so that
+    times stay strictly increasing whatever the batching.  Returns the times and the new
+    ``last_host``."""
+    start = host_time - 1e-3 * k if last_host is None else last_host
+    if last_time is not None:
+        start = max(start, last_time)
+    end = max(host_time, start + 1e-6 * k)
+    return start + (end - start) * np.arange(1, k + 1) / k, end
 
 
 # --------------------------------------------------------------------------------------------
@@ -173,14 +189,8 @@ class LineProtocol:
         return np.array(rows, dtype=np.float64).reshape(-1, n_fields)
 
     def _host_stamps(self, k: int, host_time: float) -> np.ndarray:
-        start = self._last_host
-        if start is None:
-            start = host_time - 1e-3 * k
-        if self._last_time is not None:
-            start = max(start, self._last_time)
-        end = max(host_time, start + 1e-6 * k)
-        self._last_host = end
-        return start + (end - start) * np.arange(1, k + 1) / k
+        stamps, self._last_host = host_stamps(k, host_time, self._last_host, self._last_time)
+        return stamps
 
     def _accept_device_times(self, t: np.ndarray) -> np.ndarray | None:
         """Shift ``t`` in place by the resync offset; return the mask of samples to keep, or
@@ -225,6 +235,61 @@ def available_ports() -> list[str]:
         return sorted(p.device for p in list_ports.comports())
     except Exception:  # noqa: BLE001 - listing is a courtesy in an error message
         return []
+
+
+# --------------------------------------------------------------------------------------------
+# WitMotion's binary frames
+# --------------------------------------------------------------------------------------------
+
+
+class WitMotionProtocol:
+    """WitMotion's binary protocol (WT901, JY901, HWT905 ...): 11-byte ``0x55`` frames,
+    decoded by :class:`~imucal_cli.formats.importers.witmotion.WitMotionDecoder`.
+
+    A sample is an acceleration frame (0x51: int16 counts and the temperature) with the
+    angular-velocity frame (0x52) that follows it; the raw counts are kept (``counts``; the
+    nominal scale is 16 g and 2000 deg/s per 32768).  The frames carry no sample time, so the
+    host clock stamps the samples as for text lines without ``t``.  A sample completes when the
+    next acceleration frame arrives.
+
+    Attributes
+    ----------
+    stats : dict
+        ``lines`` (good frames), ``samples`` (kept), ``comments`` (frames of other types:
+        angles, quaternions ...), ``malformed`` (checksum failures, bytes skipped to
+        resynchronise, samples without an angular-velocity frame), ``bytes``.
+    """
+
+    def __init__(self) -> None:
+        from imucal_cli.formats.importers.witmotion import WitMotionDecoder
+
+        self._decoder = WitMotionDecoder()
+        self.stats = {"lines": 0, "samples": 0, "comments": 0, "malformed": 0, "bytes": 0}
+        self._incomplete = 0
+        self._last_host: float | None = None
+        self._last_time: float | None = None
+
+    def feed(self, data: bytes, host_time: float) -> SampleBlock:
+        """Decode the frames of ``data``; return the samples they complete."""
+        dec = self._decoder
+        done = dec.feed(data)
+        full = [s for s in done if s.gyro is not None]
+        self._incomplete += len(done) - len(full)
+        self.stats.update(lines=dec.stats["frames"], comments=dec.stats["skipped"],
+                          malformed=dec.stats["malformed"] + self._incomplete,
+                          bytes=dec.stats["bytes"])  # fmt: skip
+        if not full:
+            return SampleBlock.empty()
+        time, self._last_host = host_stamps(len(full), host_time, self._last_host,
+                                            self._last_time)  # fmt: skip
+        self._last_time = float(time[-1])
+        self.stats["samples"] += len(full)
+        return SampleBlock(
+            time=time,
+            accel=np.array([s.accel for s in full], np.float64),
+            gyro=np.array([s.gyro for s in full], np.float64),
+            temperature=np.array([s.temperature for s in full], np.float64),
+        )
 
 
 class SerialSource:

@@ -51,6 +51,13 @@ def capture(
     time_unit: str = typer.Option(
         "s", "--time-unit", metavar="s|ms|us|ns", help="Unit of the t field."
     ),
+    protocol: str = typer.Option(
+        "lines",
+        "--protocol",
+        metavar="lines|witmotion",
+        help="lines: text lines of numbers (--columns); witmotion: WitMotion's binary 0x55 "
+        "frames (WT901, JY901: accel, gyro, temperature as int16 counts, host-clock time).",
+    ),
     no_prompt: bool = typer.Option(
         False,
         "--no-prompt",
@@ -103,11 +110,17 @@ def capture(
     bad --columns or plan, no data at all: nothing saved).
     """
     from imucal_cli.capture.recorder import Recorder
-    from imucal_cli.capture.stream import LineProtocol, SerialSource
+    from imucal_cli.capture.stream import LineProtocol, SerialSource, WitMotionProtocol
     from imucal_cli.formats.columns import ColumnSpec
     from imucal_cli.plans import load_plan
 
-    spec = ColumnSpec.parse(columns, time_unit)
+    if protocol == "witmotion":
+        stream_protocol = WitMotionProtocol()
+        accel_units, gyro_units = accel_units or "counts", gyro_units or "counts"
+    elif protocol == "lines":
+        stream_protocol = LineProtocol(ColumnSpec.parse(columns, time_unit))
+    else:
+        raise InputError(f"--protocol {protocol!r}: use lines or witmotion")
     limits = {"--duration": duration, "--min-still": min_still,
               "--wait-timeout": wait_timeout, "--read-timeout": read_timeout}  # fmt: skip
     for name, value in limits.items():
@@ -139,7 +152,7 @@ def capture(
     source = SerialSource(port, baud)
     try:
         recorder = Recorder(
-            out, source, LineProtocol(spec), sensor=sensor, accel_units=accel_units,
+            out, source, stream_protocol, sensor=sensor, accel_units=accel_units,
             gyro_units=gyro_units, overwrite=force, wait_timeout_s=wait_timeout,
             read_timeout_s=read_timeout, on_status=status,
         )  # fmt: skip

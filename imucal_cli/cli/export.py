@@ -1,4 +1,5 @@
-"""`imucal export`: a calibration as a C header (firmware), imu_calib YAML (ROS) or JSON."""
+"""`imucal export`: a calibration for firmware (C, PX4, ArduPilot, Fusion), ROS and estimators
+(imu_calib, Kalibr, OpenVINS, Basalt, sensor_msgs/Imu covariances) or scripts (JSON)."""
 
 from __future__ import annotations
 
@@ -10,49 +11,84 @@ from rich.console import Console
 
 from .app import app
 
-_SUFFIX_FORMATS = {".h": "c-header", ".yaml": "yaml", ".yml": "yaml", ".json": "json"}
-
 
 @app.command()
 def export(
     calibration: Path = typer.Argument(
-        ..., help="Calibration JSON (from imucal calibrate).", show_default=False
+        ...,
+        help="Calibration JSON (from imucal calibrate); for kalibr-imu and ros-imu a noise "
+        "JSON (imucal noise --json) is enough.",
+        show_default=False,
     ),
     fmt: str | None = typer.Option(
         None,
         "--format",
         "-f",
-        help="c-header (C99 constants and inline apply functions), yaml (ROS imu_calib: SM, "
-        "bias) or json (standard fields) [default: from OUTPUT's suffix .h/.yaml/.json].",
+        help="c-header, yaml (ROS imu_calib), json, kalibr-imu (noise imu.yaml), kalibr "
+        "(M, A, C_gyro_i), openvins, basalt, px4, ardupilot, fusion, ros-imu (covariances) "
+        "[default: from OUTPUT's suffix .h/.yaml/.json/.params/.parm].",
     ),
     output: Path | None = typer.Option(
         None, "--output", "-o", help="File to write [default: standard output]."
     ),
+    noise: Path | None = typer.Option(
+        None,
+        "--noise",
+        help="Noise figures from imucal noise SESSION --json (kalibr-imu, kalibr, openvins, "
+        "ros-imu).",
+    ),
+    rate: float | None = typer.Option(
+        None, "--rate", help="Rate the target runs at, Hz [default: the noise recording's]."
+    ),
+    topic: str = typer.Option("/imu0", "--topic", help="ROS topic of the IMU (Kalibr, OpenVINS)."),
+    accel_scale: str | None = typer.Option(
+        None,
+        "--accel-scale",
+        help="Driver's m/s^2 per raw unit, for a calibration of counts or V exported to targets "
+        "that read SI (kalibr, openvins, basalt, px4, ardupilot), e.g. 9.80665/16384.",
+    ),
+    gyro_scale: str | None = typer.Option(
+        None, "--gyro-scale", help="Driver's rad/s per raw unit, as --accel-scale."
+    ),
+    device_id: int | None = typer.Option(
+        None, "--device-id", help="px4: CAL_ACC0_ID/CAL_GYRO0_ID; ardupilot: INS_ACC_ID/INS_GYR_ID."
+    ),
     prefix: str | None = typer.Option(
         None,
         "--prefix",
-        help="c-header: name prefix, a C identifier (IMUCAL_ACCEL_MATRIX, imucal_accel_apply) "
-        "[default: IMUCAL].",
+        help="c-header / fusion: name prefix, a C identifier [default: IMUCAL; fusion none].",
     ),
 ) -> None:
-    """Export a calibration for firmware, ROS or scripts.
+    """Export a calibration for firmware, ROS, estimators or scripts.
 
-    c-header: per sensor MATRIX[3][N], BIAS[N] as float constants and
-    <prefix>_<sensor>_apply(raw, out) computing out = M (raw - b); C99, no libm.
-    yaml: imu_calib's SM (9, row-major) and bias (3); imu_calib applies SM * raw - bias, so
-    bias is written as matrix @ bias in m/s^2 (3-channel sensors only; gyro under gyro:).
-    json: the standard fields only, one line. Exit status: 0 written; 2 bad input.
+    Every file states the equation the target applies, its direction and units. px4 and
+    ardupilot hold only an offset and a diagonal scale: the file says how much misalignment
+    (degrees) is lost. Targets reading SI values (kalibr, openvins, basalt, px4, ardupilot)
+    need raw data in m/s^2, g, rad/s or deg/s, or --accel-scale/--gyro-scale.
+    Exit status: 0 written; 2 bad input.
     """
     from imucal_cli.errors import InputError
-    from imucal_cli.formats.calibration import read_calibration
+    from imucal_cli.formats.exporters import ExportOptions, parse_scale
+    from imucal_cli.formats.noise import read_noise
+    from imucal_cli.use.export import FORMATS, format_for_suffix, load_input
     from imucal_cli.use.export import export as export_text
 
     if fmt is None:
-        fmt = _SUFFIX_FORMATS.get(output.suffix.lower()) if output is not None else None
+        fmt = format_for_suffix(output) if output is not None else None
         if fmt is None:
-            raise InputError("pass --format c-header, yaml or json")
-    cal = read_calibration(calibration)
-    text = export_text(cal, fmt, prefix=prefix)
+            raise InputError(f"pass --format ({', '.join(FORMATS)})")
+    if rate is not None and not rate > 0:
+        raise InputError(f"--rate {rate}: must be a positive number of Hz")
+    scale = {}
+    for name, text in (("accel", accel_scale), ("gyro", gyro_scale)):
+        if text is not None:
+            scale[name] = parse_scale(text, f"--{name}-scale")
+    cal, noise_in = load_input(calibration)
+    if noise is not None:
+        noise_in = read_noise(noise)
+    opts = ExportOptions(noise=noise_in, rate_hz=rate, topic=topic, scale=scale,
+                         device_id=device_id, prefix=prefix)  # fmt: skip
+    text = export_text(cal, fmt, options=opts)
     if output is None:
         typer.echo(text, nl=False)
         return
@@ -63,9 +99,9 @@ def export(
     except OSError as exc:
         tmp.unlink(missing_ok=True)
         raise InputError(f"{output}: cannot write ({exc.strerror or exc})") from None
-    sensors = ", ".join(
+    what = ", ".join(
         f"{name} 3x{sec.bias.shape[0]}"
         for name, sec in (("accel", cal.accel), ("gyro", cal.gyro))
         if sec is not None
-    )
-    Console(stderr=True).print(f"wrote {output} ({fmt}: {sensors})", highlight=False)
+    ) if cal is not None else "noise figures"  # fmt: skip
+    Console(stderr=True).print(f"wrote {output} ({fmt}: {what})", highlight=False)

@@ -66,23 +66,49 @@ class SensorCalibration:
         self.bias = np.asarray(self.bias, dtype=np.float64)
         self.matrix = np.asarray(self.matrix, dtype=np.float64)
 
-    def apply(self, raw: np.ndarray) -> np.ndarray:
+    @property
+    def g_sensitivity(self) -> np.ndarray | None:
+        """The optional ``g_sensitivity`` term (n x 3, raw units per m/s^2), None when absent
+        or all zero.
+
+        Raises
+        ------
+        CalibrationFileError
+            Present but not n x 3 finite numbers.
+        """
+        value = self.extra.get("g_sensitivity")
+        if value is None:
+            return None
+        try:
+            g = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            g = np.empty(0)
+        n = self.bias.shape[0]
+        if g.shape != (n, 3) or not np.isfinite(g).all():
+            raise CalibrationFileError(f"g_sensitivity must be {n} x 3 finite numbers")
+        return g if g.any() else None
+
+    def apply(self, raw: np.ndarray, accel: np.ndarray | None = None) -> np.ndarray:
         """Calibrate raw samples.
 
         Parameters
         ----------
         raw : ndarray, shape (N, n) or (n,)
             Raw channels in raw units.
+        accel : ndarray, shape (N, 3) or (3,), optional
+            The calibrated accelerometer of the same samples, m/s^2: needed when the section
+            holds ``g_sensitivity``, subtracted as ``raw - bias - g_sensitivity @ accel``.
 
         Returns
         -------
         ndarray, shape (N, 3) or (3,)
-            ``matrix @ (raw - bias)`` per sample, in ``units``.
+            ``matrix @ (raw - bias [- g_sensitivity @ accel])`` per sample, in ``units``.
 
         Raises
         ------
         CalibrationFileError
-            ``raw`` does not have n channels in its last axis.
+            ``raw`` does not have n channels in its last axis, or the section holds
+            ``g_sensitivity`` and ``accel`` is not given.
         """
         raw = np.asarray(raw, dtype=np.float64)
         n = self.bias.shape[0]
@@ -90,7 +116,15 @@ class SensorCalibration:
             raise CalibrationFileError(
                 f"cannot apply a calibration for {n} raw channels to data of shape {raw.shape}"
             )
-        return (raw - self.bias) @ self.matrix.T
+        gs = self.g_sensitivity
+        if gs is None:
+            return (raw - self.bias) @ self.matrix.T
+        if accel is None:
+            raise CalibrationFileError(
+                "the gyro calibration holds g_sensitivity: it needs the calibrated "
+                "accelerometer of the same samples"
+            )
+        return (raw - self.bias - np.asarray(accel, dtype=np.float64) @ gs.T) @ self.matrix.T
 
     def to_dict(self) -> dict:
         """Return the JSON section: standard fields first, then ``extra``."""
@@ -255,11 +289,19 @@ def calibration_to_json(cal: Calibration) -> str:
 def calibration_from_json(text: str, source: str = "<string>") -> Calibration:
     """Parse and validate calibration JSON text.
 
+    A calibration another tool wrote (Kalibr YAML, MaD Lab imucal JSON) is read too, as
+    :mod:`imucal_cli.formats.foreign_calibration` describes.
+
     Raises
     ------
     CalibrationFileError
         Invalid JSON (the message gives the line) or a document that breaks the format.
     """
+    from imucal_cli.formats.foreign_calibration import foreign_calibration
+
+    foreign = foreign_calibration(text, source)  # issue 15.3
+    if foreign is not None:
+        return foreign
     try:
         d = json.loads(text)
     except json.JSONDecodeError as exc:
@@ -270,7 +312,8 @@ def calibration_from_json(text: str, source: str = "<string>") -> Calibration:
 
 
 def read_calibration(path: str | os.PathLike) -> Calibration:
-    """Read and validate a calibration JSON file.
+    """Read and validate a calibration JSON file (or Kalibr YAML, MaD Lab imucal JSON: see
+    :func:`calibration_from_json`).
 
     Raises
     ------

@@ -208,10 +208,11 @@ def calibrate_gyro_rotations(session: Session, cfg: Config, accel_cal: SensorCal
         scale_for_checks = 1 / np.abs(k)
     else:
         rot, st = _full_problem(session, stills, turns)
-        b0, M0 = initial_values(session, cfg, rot, st, bias_still)
         res = gyro_full.fit_full(
-            rot, st, max(gyro_noise, 1e-12), b0, M0, max_iterations=cfg.gyro.full.max_iterations
-        )
+            rot, st, max(gyro_noise, 1e-12), bias_still,
+            max_iterations=cfg.gyro.full.max_iterations,
+        )  # fmt: skip
+        notes += res.notes
         b, matrix = res.b, res.M
         names = [f"m_{r}{c}" for r in AXES for c in AXES]
         parameters = [
@@ -381,35 +382,6 @@ def full_problem(session: Session, cfg: Config, accel_cal: SensorCalibration):
     z = np.vstack([session.gyro[s.segment.start : s.segment.stop] for s in stills])
     rot, st = _full_problem(session, stills, turns)
     return rot, st, float(np.sqrt(np.mean(np.var(z, axis=0))))
-
-
-def initial_values(session, cfg, rot, st, bias=None) -> tuple[np.ndarray, np.ndarray]:
-    """Start of the full model: ``(b0, M0)``. ``bias`` default: the still periods' gyro means
-    weighted by their precision."""
-    if bias is None:
-        w = 1 / st.z_sigma**2
-        bias = (st.z_mean * w[:, None]).sum(axis=0) / w.sum()
-    return np.asarray(bias, float), np.eye(3) * _initial_scale(session, cfg, rot, st, bias)
-
-
-def _initial_scale(session, cfg, rot, st, bias) -> float:
-    """A starting scale (rad/s per raw unit): nominal from the units or the config, else the
-    median ratio of gravity-measured to integrated turn (a lower bound per turn)."""
-    if cfg.gyro.nominal_sensitivity:
-        return 1.0 / cfg.gyro.nominal_sensitivity
-    nominal = {"rad/s": 1.0, "deg/s": np.pi / 180}.get(session.gyro_units or "")
-    if nominal is not None:
-        return nominal
-    u = st.g / np.linalg.norm(st.g, axis=1, keepdims=True)
-    ratios = []
-    for k in range(len(rot.t)):
-        seen = np.arccos(np.clip(u[rot.before[k]] @ u[rot.after[k]], -1, 1))
-        raw = np.linalg.norm(np.trapezoid(rot.z[k] - bias, rot.t[k], axis=0))
-        if raw > 0 and seen > np.radians(10):
-            ratios.append(seen / raw)
-    if not ratios:
-        raise DesignError("the rotations turn too little for the accelerometer to see them")
-    return float(np.median(ratios))
 
 
 def gyro_checks(session, cfg, gains, units) -> list[str]:

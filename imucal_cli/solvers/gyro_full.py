@@ -3,10 +3,10 @@
 Beyond Qureshi & Golnaraghi's per-axis model (eq. 15): 12 parameters, ``omega = M (z - b)``
 with ``M`` a full 3 x 3 matrix (scale and misalignment of the gyro triad relative to the
 accelerometer's frame) and ``b`` the bias. Each rotation between two still periods is
-integrated (quaternions, 4th-order Runge-Kutta with the rate interpolated linearly between
-samples) into the body rotation ``R_k``; gravity, fixed in the world, must then appear in the
-body as ``u_after = R_k^T u_before``, where the calibrated accelerometer measures both
-directions. No known angles and no particular axes are needed.
+integrated (:mod:`imucal_cli.solvers.gyro_integration`: all rotations at once, the rate
+linear between samples) into the body rotation ``R_k``; gravity, fixed in the world, must
+then appear in the body as ``u_after = R_k^T u_before``, where the calibrated accelerometer
+measures both directions. No known angles and no particular axes are needed.
 
 Estimation is generalised least squares: each rotation gives two residual components (the
 mismatch of the predicted gravity direction in the plane normal to the measured one), whose
@@ -14,7 +14,11 @@ noise comes from the accelerometer means before and after (shared by consecutive
 and from the integrated gyro noise; the still periods' gyro means tie the bias. The residual
 covariance is propagated from those noise sources and whitened, which makes the fit the
 first-order maximum-likelihood estimate and its covariance the Cramér-Rao bound of the
-design (:func:`full_information`).
+design (:func:`full_information`). The covariance is sparse (a still period is shared by the
+turn before and the turn after it) and is whitened through its banded Cholesky factor
+(:mod:`imucal_cli.solvers.banded`): time and memory are linear in the number of turns.
+
+Start values come from the data alone (:mod:`imucal_cli.solvers.gyro_start`).
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import sparse
 from scipy.optimize import least_squares
+from scipy.special import chdtri
 
 from imucal_cli.errors import DesignError, SolverError
 from imucal_cli.solvers.banded import BandedWhitener
@@ -35,6 +40,11 @@ from imucal_cli.solvers.gyro_integration import (
     matrix_rows,
     quat_to_matrix,
 )
+from imucal_cli.solvers.gyro_start import Start, start_values
+
+#: A fit leaving a turn's gravity direction further off than this did not find the turns'
+#: minimum: the next start is tried.
+MAX_TURN_RESIDUAL_DEG = 10.0
 
 __all__ = ["FullResult", "Rotations", "Stills", "fit_full", "full_information",
            "integrate_rotations"]  # fmt: skip
@@ -267,45 +277,26 @@ def full_information(x: np.ndarray, rot: Rotations, still: Stills, gyro_sigma: f
     return J.T @ J
 
 
-def fit_full(
-    rot: Rotations,
-    still: Stills,
-    gyro_sigma: float,
-    b0: np.ndarray,
-    M0: np.ndarray,
-    *,
-    max_iterations: int = 100,
-) -> FullResult:
-    """Estimate the 12 parameters from rotations between still periods.
+@dataclass
+class _Solved:
+    """One Gauss-Newton run: the solution, its whitened residuals and Jacobian."""
 
-    Parameters
-    ----------
-    rot, still
-        The rotations and the still periods around them.
-    gyro_sigma : float
-        Per-sample gyro noise, raw units.
-    b0, M0 : ndarray (3,), (3, 3)
-        Initial values (bias from still data; a nominal or per-axis scale).
-    max_iterations : int
-        Function evaluations of the solver (each integrates every rotation).
+    x: np.ndarray
+    f: np.ndarray
+    J: np.ndarray
+    nfev: int
+    message: str
+    start: str
 
-    Raises
-    ------
-    DesignError
-        Too few rotations, or rotations that leave the model undetermined (all about one
-        axis, or about the vertical only).
-    SolverError
-        No convergence.
-    """
-    K = len(rot.t)
-    if K < 4:
-        raise DesignError(
-            f"{K} rotations cannot determine the 12-parameter gyro model; turn the unit at least "
-            "4 times (better 10 or more) about different axes, still before and after each"
-        )
-    prob = _Problem(rot, still, gyro_sigma)
-    x0 = np.r_[b0, M0.ravel()]
-    scale = np.r_[np.full(3, max(np.std(prob.z), 1e-9)), np.full(9, np.abs(M0).max())]
+    @property
+    def chi2(self) -> float:
+        return float(self.f @ self.f)
+
+
+def _solve(prob: _Problem, x0: np.ndarray, max_iterations: int, start: str) -> _Solved | None:
+    """Generalised least squares from ``x0``: solve with the noise model at the start, again
+    with the noise model at that solution. None when it does not converge."""
+    scale = np.r_[np.full(3, max(np.std(prob.z), 1e-9)), np.full(9, np.abs(x0[3:]).max())]
     W = prob.whitener(x0)
     jac_at = {}
 
@@ -319,47 +310,123 @@ def fit_full(
             jac_at[key] = W(prob.residuals_and_jacobian(x)[1])
         return jac_at[key]
 
-    def solve(x_start):
+    def run(x_start):
         return least_squares(fun, x_start, jac=jac, x_scale=scale, method="trf", xtol=1e-12,
                              ftol=1e-12, gtol=1e-12, max_nfev=max_iterations)  # fmt: skip
 
-    sol = solve(x0)
-    W = prob.whitener(sol.x)  # the noise model at the solution, then again
+    first = run(x0)
+    W = prob.whitener(first.x)  # the noise model at the solution, then again
     jac_at.clear()
-    sol = solve(sol.x)
-    if sol.status <= 0:
-        raise SolverError(
-            f"the full gyro model did not converge ({sol.message}); capture more rotations about "
-            "different axes with the unit still before and after each"
+    sol = run(first.x)
+    if sol.status <= 0 or not np.all(np.isfinite(sol.x)):
+        return None
+    return _Solved(sol.x, sol.fun, jac(sol.x), int(first.nfev + sol.nfev), str(sol.message),
+                   start)  # fmt: skip
+
+
+def _explains(prob: _Problem, solved: _Solved) -> bool:
+    """A fit that explains the turns: no rotation residual beyond what the fit's own noise
+    level makes plausible (a start in the wrong basin leaves residuals of tens of degrees)."""
+    p, _ = prob.predicted(solved.x)
+    resid = np.arccos(np.clip(np.sum(p * prob.u[prob.rot.after], axis=1), -1, 1))
+    return bool(np.degrees(resid).max() < MAX_TURN_RESIDUAL_DEG)
+
+
+def fit_full(
+    rot: Rotations,
+    still: Stills,
+    gyro_sigma: float,
+    b0: np.ndarray,
+    M0: np.ndarray | None = None,
+    *,
+    max_iterations: int = 100,
+    clock: float = 1.0,
+) -> FullResult:
+    """Estimate the 12 parameters from rotations between still periods.
+
+    Parameters
+    ----------
+    rot, still
+        The rotations and the still periods around them.
+    gyro_sigma : float
+        Per-sample gyro noise, raw units.
+    b0 : ndarray (3,)
+        Initial bias (the still periods' gyro means).
+    M0 : ndarray (3, 3), optional
+        Initial matrix. Default: the starts of :func:`imucal_cli.solvers.gyro_start.start_values`
+        (from the data alone, no nominal sensitivity), tried in turn until one explains the
+        turns; the fit with the smallest chi^2 is kept.
+    max_iterations : int
+        Function evaluations of each solve (each integrates every rotation).
+    clock : float
+        Factor on every sample interval (sample-clock correction).
+
+    Raises
+    ------
+    DesignError
+        Too few rotations, or rotations that leave the model undetermined (all about one
+        axis, or about the vertical only).
+    SolverError
+        No convergence from any start.
+    """
+    K = len(rot.t)
+    if 2 * K < 9:
+        raise DesignError(
+            f"{K} rotations cannot determine the 12-parameter gyro model (each gives 2 equations "
+            "for the 9 of the matrix); turn the unit at least 5 times (better 10 or more) about "
+            "different axes, still before and after each"
         )
-    J = jac(sol.x)
+    prob = _Problem(rot, still, gyro_sigma, clock)
+    if M0 is not None:
+        starts = iter([Start(np.asarray(M0, float), 0.0, np.eye(3), 0.0, "given start")])
+    else:
+        starts = start_values(rot.t, rot.z, still.g[rot.before], still.g[rot.after], b0,
+                              clock=clock)  # fmt: skip
+    best, tried = None, 0
+    for start in starts:  # lazily: the next start is computed only when needed
+        tried += 1
+        solved = _solve(prob, np.r_[b0, start.M.ravel()], max_iterations, start.describe)
+        if solved is not None and (best is None or solved.chi2 < best.chi2):
+            best = solved
+        if best is not None and _explains(prob, best):
+            break
+    if best is None:
+        raise SolverError(
+            f"the full gyro model did not converge from {tried} start(s); capture more rotations "
+            "about different axes with the unit still before and after each"
+        )
+    return _result(prob, best, tried)
+
+
+def _result(prob: _Problem, solved: _Solved, tried: int) -> FullResult:
+    """Covariance and diagnostics of a solution."""
+    J = solved.J
     sv = np.linalg.svd(J, compute_uv=False)
     if sv[-1] < 1e-8 * sv[0]:
         raise DesignError(
             "the rotations leave the gyro model undetermined: turn the unit about at least two "
             "different horizontal axes (a turn about the vertical is invisible to gravity)"
         )
-    r = sol.fun
-    dof = max(len(r) - 12, 1)
-    chi2 = float(r @ r)
-    from scipy.special import chdtri
-
+    dof = max(len(solved.f) - 12, 1)
+    chi2 = solved.chi2
     noise_scale = chi2 / dof if chi2 > chdtri(dof, 0.01) else 1.0
     cov = noise_scale * np.linalg.inv(J.T @ J)
-    p, R = prob.predicted(sol.x)
-    u1 = prob.u[rot.after]
+    p, R = prob.predicted(solved.x)
+    u1 = prob.u[prob.rot.after]
     resid = np.degrees(np.arccos(np.clip(np.sum(p * u1, axis=1), -1, 1)))
     angles = np.degrees(np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1) / 2, -1, 1)))
+    notes = [solved.start + (f" (best of {tried} starts)" if tried > 1 else "")]
     return FullResult(
-        b=sol.x[:3],
-        M=sol.x[3:].reshape(3, 3),
+        b=solved.x[:3],
+        M=solved.x[3:].reshape(3, 3),
         cov=cov,
         angle_residual_deg=resid,
         rotation_angle_deg=angles,
         chi2=chi2,
         dof=dof,
         noise_scale=float(noise_scale),
-        iterations=int(sol.nfev),
+        iterations=solved.nfev,
         converged=True,
-        message=str(sol.message),
+        message=solved.message,
+        notes=notes,
     )

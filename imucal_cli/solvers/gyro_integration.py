@@ -165,6 +165,12 @@ def attitudes(stack: Stack, w: np.ndarray, clock: float = 1.0) -> np.ndarray:
     phi = np.zeros((3, len(stack.t)))
     # Increment into row i from row i-1; rows at a segment start keep the identity.
     phi[:, 1:] = h / 2 * (w0 + w1) + h * h / 12 * _cross(w0, w1)
+    return compose(stack, phi)
+
+
+def compose(stack: Stack, phi: np.ndarray) -> np.ndarray:
+    """Attitudes (4, N) from rotation-vector increments ``phi`` (3, N), each the body rotation
+    from the previous row to this one (zero at every segment's first row)."""
     return _prefix_product(stack, rotvec_to_quat(phi))
 
 

@@ -586,6 +586,12 @@ def apply_calibration(
     # the matrix-matrix path of longer blocks (see _chunk_bounds): at least 2 rows per block.
     chunk_rows = max(chunk_rows, 2)
     sections = _sections(cal)
+    gyro = sections.get("gyro")
+    if gyro is not None and gyro.g_sensitivity is not None and "accel" not in sections:
+        raise InputError(
+            f"{cal_source}: the gyro calibration holds g_sensitivity but there is no "
+            "accelerometer calibration to give the specific force it needs"
+        )
 
     is_session = h5py.is_hdf5(input_path)
     if not is_session and input_path.suffix.lower() in (".h5", ".hdf5", ".hdf"):
@@ -651,7 +657,9 @@ def apply_calibration(
         except OSError as exc:
             raise InputError(f"{output_path}: cannot write ({one_line(exc)})") from None
         for block in blocks:
-            values = {name: sec.apply(block.raw[name]) for name, sec in sections.items()}
+            values: dict[str, np.ndarray] = {}
+            for name, sec in sections.items():  # accel first: the gyro's g_sensitivity needs it
+                values[name] = sec.apply(block.raw[name], accel=values.get("accel"))
             bad = np.zeros(len(block.time), dtype=bool)
             for raw in block.raw.values():
                 bad |= ~np.isfinite(raw).all(axis=1)

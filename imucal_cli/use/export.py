@@ -1,61 +1,140 @@
-"""`imucal export`: a calibration as a C header, an imu_calib YAML file or compact JSON.
+"""`imucal export`: a calibration (and noise figures) in the format a firmware, an estimator or
+a calibration tool loads.  One exporter module per format in
+:mod:`imucal_cli.formats.exporters`; this module chooses one (:data:`FORMATS`).
 
-Three formats, each a function of a
-:class:`~imucal_cli.formats.calibration.Calibration` returning text:
-
-- :func:`export_c_header`: C99 for microcontroller firmware.  For each sensor present,
-  ``static const float <P>_ACCEL_MATRIX[3][N]``, ``<P>_ACCEL_BIAS[N]`` (float32 values written
-  with 9 significant digits, which round-trip float32 exactly), ``#define <P>_ACCEL_CHANNELS N``
-  and ``static inline void <p>_accel_apply(const float raw[N], float out[3])`` computing
-  ``out = M (raw - b)`` in float; the same for ``GYRO``.  No dynamic memory, no libm, no other
-  header.  The arithmetic is plain float: subtract the bias, then for each output axis sum
-  ``M[i][j] * d[j]`` for j = 0..N-1 in order, so a compiler that does not contract to FMA
-  gives exactly what numpy does in float32 in the same order.
-- :func:`export_yaml`: the layout of ROS ``imu_calib`` (``do_calib`` writes it,
-  ``apply_calib`` reads it): ``SM``, the 3 x 3 scale-misalignment matrix row-major as a flat
-  list of 9 numbers, and ``bias``, 3 numbers.  imu_calib's ``AccelCalib::applyCalib``
-  computes ``corrected = SM * raw - bias``: its bias is **in output units (m/s^2)**, subtracted
-  after the matrix.  The file therefore holds ``SM = matrix`` and ``bias = matrix @ bias_raw``
-  (imucal's raw-unit bias mapped through the matrix), so that ``SM @ raw - bias`` equals
-  imucal's ``matrix @ (raw - bias_raw)`` exactly (up to rounding).  A comment in the file
-  states the equation; check the convention of whatever else reads the file.  imu_calib
-  calibrates accelerometers only: the accelerometer is the top-level ``SM``/``bias``; a
-  gyroscope calibration, when present, goes under a separate ``gyro:`` key (same convention)
-  that imu_calib ignores.  imu_calib needs 3 x 3: a redundant unit (N != 3) is refused.
-- :func:`export_json`: the standard fields of the calibration format only (``format``,
-  ``format_version``, ``session``, ``created``; per sensor ``solver``, ``units``, ``bias``,
-  ``matrix``, ``residual_rms``) plus ``model`` per sensor, on one line with a fixed key order,
-  for scripts.  It reads back with :func:`imucal_cli.formats.calibration.calibration_from_json`.
+Every file states the equation the target applies, its direction (what is subtracted, before
+or after which matrix) and the units.  Targets that hold less than imucal's model (PX4 and
+ArduPilot: offset and diagonal scale) say what is lost, in degrees; a g-sensitivity the target
+cannot hold is reported, never silently dropped.
 """
 
 from __future__ import annotations
 
+import json
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import Calibration
+from imucal_cli.formats.exporters import ExportOptions
+from imucal_cli.formats.exporters.ardupilot import export_ardupilot
+from imucal_cli.formats.exporters.basalt import export_basalt
 from imucal_cli.formats.exporters.c_header import export_c_header
+from imucal_cli.formats.exporters.fusion import export_fusion
 from imucal_cli.formats.exporters.imu_calib import export_yaml
 from imucal_cli.formats.exporters.imucal_json import export_json
+from imucal_cli.formats.exporters.kalibr import export_kalibr, export_kalibr_imu
+from imucal_cli.formats.exporters.openvins import export_openvins
+from imucal_cli.formats.exporters.px4 import export_px4
+from imucal_cli.formats.exporters.ros_imu import export_ros_imu
+from imucal_cli.formats.noise import NOISE_FORMAT, NoiseFigures, noise_from_dict
 
-__all__ = ["EXPORT_FORMATS", "export", "export_c_header", "export_json", "export_yaml"]
+__all__ = [
+    "EXPORT_FORMATS",
+    "FORMATS",
+    "ExportFormat",
+    "export",
+    "export_c_header",
+    "export_json",
+    "export_yaml",
+    "format_for_suffix",
+    "load_input",
+]
 
-EXPORT_FORMATS = ("c-header", "yaml", "json")
+
+@dataclass(frozen=True)
+class ExportFormat:
+    """One target: its exporter, what it writes, and what it needs."""
+
+    name: str
+    write: Callable[[Calibration | None, ExportOptions], str]
+    what: str
+    needs_calibration: bool = True
+    uses_prefix: bool = False
 
 
-def export(cal: Calibration, fmt: str, *, prefix: str | None = None) -> str:
+FORMATS: dict[str, ExportFormat] = {
+    f.name: f
+    for f in (
+        ExportFormat("c-header", lambda c, o: export_c_header(c, prefix=o.prefix or "IMUCAL"),
+                     "C99 constants and inline apply functions", uses_prefix=True),
+        ExportFormat("yaml", lambda c, o: export_yaml(c), "ROS imu_calib: SM, bias"),
+        ExportFormat("json", lambda c, o: export_json(c), "imucal's standard fields, one line"),
+        ExportFormat("kalibr-imu", export_kalibr_imu,
+                     "Kalibr imu.yaml: noise densities and random walks (needs --noise)",
+                     needs_calibration=False),
+        ExportFormat("kalibr", export_kalibr,
+                     "Kalibr scale-misalignment intrinsics M, A, C_gyro_i and biases"),
+        ExportFormat("openvins", export_openvins,
+                     "OpenVINS kalibr_imu_chain.yaml: Tw, Ta, R_IMUtoGYRO, R_IMUtoACC, Tg "
+                     "(needs --noise)"),
+        ExportFormat("basalt", export_basalt, "Basalt calib_accel_bias, calib_gyro_bias"),
+        ExportFormat("px4", export_px4, "PX4 CAL_ACC0_*, CAL_GYRO0_* (offset, diagonal scale)"),
+        ExportFormat("ardupilot", export_ardupilot,
+                     "ArduPilot .parm INS_ACCOFFS_*, INS_ACCSCAL_*, INS_GYROFFS_*"),
+        ExportFormat("fusion", export_fusion,
+                     "x-io Fusion: misalignment, sensitivity, offset per sensor (C)",
+                     uses_prefix=True),
+        ExportFormat("ros-imu", export_ros_imu,
+                     "sensor_msgs/Imu covariances from the noise (needs --noise)",
+                     needs_calibration=False),
+    )
+}  # fmt: skip
+EXPORT_FORMATS = tuple(FORMATS)
+
+_SUFFIX_FORMATS = {".h": "c-header", ".yaml": "yaml", ".yml": "yaml", ".json": "json",
+                   ".params": "px4", ".parm": "ardupilot"}  # fmt: skip
+
+
+def format_for_suffix(path: str | os.PathLike) -> str | None:
+    """The format a file name implies (``.h``, ``.yaml``, ``.json``, ``.params``, ``.parm``)."""
+    return _SUFFIX_FORMATS.get(Path(path).suffix.lower())
+
+
+def export(
+    cal: Calibration | None, fmt: str, *, prefix: str | None = None,
+    options: ExportOptions | None = None,
+) -> str:  # fmt: skip
     """Dispatch to the exporter for ``fmt`` (one of :data:`EXPORT_FORMATS`).
 
     Raises
     ------
     InputError
-        An unknown format, ``prefix`` with a format other than ``c-header``, or what the
-        exporter refuses.
+        An unknown format, ``prefix`` with a format that has no C names, no calibration for a
+        format that needs one, or what the exporter refuses.
     """
-    if fmt not in EXPORT_FORMATS:
+    if fmt not in FORMATS:
         raise InputError(f"--format {fmt!r}: use {', '.join(EXPORT_FORMATS)}")
-    if prefix is not None and fmt != "c-header":
-        raise InputError(f"--prefix applies to --format c-header only, not {fmt}")
-    if fmt == "c-header":
-        return export_c_header(cal, prefix="IMUCAL" if prefix is None else prefix)
-    if fmt == "yaml":
-        return export_yaml(cal)
-    return export_json(cal)
+    target = FORMATS[fmt]
+    opts = options or ExportOptions()
+    if prefix is not None:
+        opts.prefix = prefix
+    if opts.prefix is not None and not target.uses_prefix:
+        raise InputError(f"--prefix applies to --format c-header or fusion only, not {fmt}")
+    if cal is None and target.needs_calibration:
+        raise InputError(f"--format {fmt} needs a calibration (imucal calibrate's JSON), "
+                         "not only noise figures")  # fmt: skip
+    return target.write(cal, opts)
+
+
+def load_input(path: str | os.PathLike) -> tuple[Calibration | None, NoiseFigures | None]:
+    """The export's input: a calibration, or a noise file (``imucal noise --json``).
+
+    Raises
+    ------
+    CalibrationFileError, InputError
+        Neither, or a file that does not follow its format.
+    """
+    from imucal_cli.formats.calibration import read_calibration
+
+    src = str(path)
+    try:
+        with open(path, encoding="utf-8") as f:
+            doc = json.load(f)
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        doc = None  # read_calibration gives the one-line reason
+    if isinstance(doc, dict) and doc.get("format") == NOISE_FORMAT:
+        return None, noise_from_dict(doc, src)
+    return read_calibration(path), None

@@ -28,6 +28,7 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import Calibration, SensorCalibration
+from imucal_cli.formats.noise import NOISE_FORMAT
 from imucal_cli.formats.session import Session
 from imucal_cli.solvers.allan import AxisNoise, axis_noise
 
@@ -41,8 +42,6 @@ __all__ = [
     "analyse_noise",
     "figures",
 ]
-
-NOISE_FORMAT = "imucal-noise"
 
 STANDARD_GRAVITY = 9.80665
 """m/s^2, for micro-g figures."""

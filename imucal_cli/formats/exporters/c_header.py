@@ -21,7 +21,7 @@ from imucal_cli.formats.calibration import (
 )
 from imucal_cli.formats.exporters import one_line, sections, units_in
 
-__all__ = ["check_prefix", "export_c_header"]
+__all__ = ["c_comment", "c_float", "check_prefix", "export_c_header"]
 
 _PREFIX_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]*\Z")
 _C_KEYWORDS = frozenset(
@@ -47,7 +47,7 @@ def check_prefix(prefix: str) -> str:
     return prefix
 
 
-def _c_float(value: float, where: str) -> str:
+def c_float(value: float, where: str) -> str:
     """A C float literal for the float32 nearest ``value``, 9 significant digits."""
     with np.errstate(over="ignore"):
         f32 = np.float32(value)
@@ -59,7 +59,7 @@ def _c_float(value: float, where: str) -> str:
     return text + "f"
 
 
-def _c_comment(text: object) -> str:
+def c_comment(text: object) -> str:
     """Free text made safe inside a ``/* */`` comment: one line, no ``*/``, printable ASCII."""
     line = one_line(text).replace("*/", "* /").replace("/*", "/ *")
     return "".join(c if 32 <= ord(c) < 127 else "?" for c in line)
@@ -104,16 +104,16 @@ def export_c_header(cal: Calibration, *, prefix: str = "IMUCAL") -> str:
         n = sec.bias.shape[0]
         rms = "n/a" if sec.residual_rms is None else f"{sec.residual_rms:.6g} {sec.units}"
         lines.append(
-            f" * {name}: solver {_c_comment(sec.solver)}, N = {n} channels in "
-            f"{_c_comment(units_in(sec))} -> {sec.units}, residual RMS {rms}"
+            f" * {name}: solver {c_comment(sec.solver)}, N = {n} channels in "
+            f"{c_comment(units_in(sec))} -> {sec.units}, residual RMS {rms}"
         )
     sensor = cal.extra.get("sensor")
     lines += [
-        f" * Sensor:   {_c_comment(sensor) if sensor else 'not stated'}",
-        f" * Session:  {_c_comment(cal.session) if cal.session else 'not stated'}",
-        f" * Created:  {_c_comment(cal.created)}",
+        f" * Sensor:   {c_comment(sensor) if sensor else 'not stated'}",
+        f" * Session:  {c_comment(cal.session) if cal.session else 'not stated'}",
+        f" * Created:  {c_comment(cal.created)}",
         f" * Toolkit:  imucal {__version__}"
-        + (f" (calibration made with imucal {_c_comment(made_with)})" if made_with else ""),
+        + (f" (calibration made with imucal {c_comment(made_with)})" if made_with else ""),
         " *",
         " * C99, no dynamic memory, no libm. Floats carry 9 significant digits (exact float32).",
         " */",
@@ -127,13 +127,13 @@ def export_c_header(cal: Calibration, *, prefix: str = "IMUCAL") -> str:
         channels = f"{const}_CHANNELS"
         matrix_rows = [
             "    { "
-            + ", ".join(_c_float(v, f"{name}.matrix[{i}][{j}]") for j, v in enumerate(row))
+            + ", ".join(c_float(v, f"{name}.matrix[{i}][{j}]") for j, v in enumerate(row))
             + " }"
             for i, row in enumerate(sec.matrix.tolist())
         ]
-        bias = ", ".join(_c_float(v, f"{name}.bias[{j}]") for j, v in enumerate(sec.bias))
+        bias = ", ".join(c_float(v, f"{name}.bias[{j}]") for j, v in enumerate(sec.bias))
         lines += [
-            f"/* {name}: {n} raw channels ({_c_comment(units_in(sec))}) -> {sec.units} */",
+            f"/* {name}: {n} raw channels ({c_comment(units_in(sec))}) -> {sec.units} */",
             f"#define {channels} {n}",
             "",
             f"static const float {const}_MATRIX[3][{channels}] = {{",

@@ -1,0 +1,275 @@
+"""ROS recordings: ROS 1 bags and ROS 2 bags (``rosbags``, no ROS install) and MCAP files
+(``mcap`` with ``mcap-ros2-support``).  ``pip install 'imucal-cli[ros]'`` / ``[mcap]``.
+
+What is read:
+
+- ``sensor_msgs/Imu`` on the topic given by ``topic``, or the only such topic; with several and
+  no ``topic`` the reader refuses and lists them.  ``linear_acceleration`` (m/s^2) and
+  ``angular_velocity`` (rad/s) as published; time from ``header.stamp`` (the driver's clock)
+  when it is set and strictly increasing, else the time the message was recorded.
+- ``sensor_msgs/MagneticField`` (tesla, stored in uT) and ``sensor_msgs/Temperature``
+  (degrees C) when the recording holds one such topic (or one in the IMU topic's namespace):
+  each IMU sample takes the latest field and temperature received at or before it (zero-order
+  hold: no value is invented between messages); samples before the first are NaN.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from imucal_cli.errors import InputError
+
+__all__ = ["Channels", "choose_topic", "hold_latest", "read_mcap", "read_ros", "read_rosbag"]
+
+IMU = "sensor_msgs/msg/Imu"
+MAG = "sensor_msgs/msg/MagneticField"
+TEMP = "sensor_msgs/msg/Temperature"
+
+
+@dataclass
+class Channels:
+    """Samples of a topic-based log, before segmentation (format-neutral).
+
+    Attributes
+    ----------
+    time : ndarray (N,)
+        Seconds, strictly increasing.
+    accel, gyro : ndarray (N, 3) or None
+        As published.
+    accel_units, gyro_units : str
+    temperature : ndarray (N,) or None
+        Degrees C.
+    mag : ndarray (N, 3) or None
+    mag_units : str or None
+    notes : list of str
+        What was chosen and what was left out, for the import summary.
+    dropped : int
+        Samples dropped (time not increasing, non-finite values).
+    """
+
+    time: np.ndarray
+    accel: np.ndarray | None
+    gyro: np.ndarray | None
+    accel_units: str
+    gyro_units: str
+    temperature: np.ndarray | None = None
+    mag: np.ndarray | None = None
+    mag_units: str | None = None
+    notes: list[str] = field(default_factory=list)
+    dropped: int = 0
+
+
+def _normal(msgtype: str) -> str:
+    """``sensor_msgs/Imu`` (ROS 1) and ``sensor_msgs/msg/Imu`` (ROS 2) are one type."""
+    pkg, _, name = msgtype.rpartition("/")
+    pkg = pkg.removesuffix("/msg")
+    return f"{pkg}/msg/{name}"
+
+
+def choose_topic(topics: dict[str, str], wanted: str | None, source: str) -> str:
+    """The ``sensor_msgs/Imu`` topic to read: ``wanted``, or the only one.
+
+    Raises
+    ------
+    InputError
+        ``wanted`` is not an Imu topic, or several and none chosen, or none at all; the message
+        lists the Imu topics (and the others when there is none).
+    """
+    imu = sorted(t for t, ty in topics.items() if _normal(ty) == IMU)
+    if wanted is not None:
+        if wanted in imu:
+            return wanted
+        what = f"of type {topics[wanted]}" if wanted in topics else "not in the recording"
+        raise InputError(f"{source}: --topic {wanted} is {what}; sensor_msgs/Imu topics: "
+                         f"{', '.join(imu) or 'none'}")  # fmt: skip
+    if len(imu) == 1:
+        return imu[0]
+    if not imu:
+        others = ", ".join(f"{t} ({ty})" for t, ty in sorted(topics.items())) or "none"
+        raise InputError(f"{source}: no sensor_msgs/Imu topic; topics: {others}")
+    raise InputError(f"{source}: several sensor_msgs/Imu topics: {', '.join(imu)}; choose one "
+                     "with --topic")  # fmt: skip
+
+
+def _companion(topics: dict[str, str], kind: str, imu_topic: str) -> tuple[str | None, str]:
+    """The one topic of ``kind`` to read with ``imu_topic`` (or the one sharing its namespace)."""
+    found = sorted(t for t, ty in topics.items() if _normal(ty) == kind)
+    if len(found) == 1:
+        return found[0], ""
+    namespace = imu_topic.rpartition("/")[0]
+    near = [t for t in found if t.rpartition("/")[0] == namespace]
+    if len(near) == 1:
+        return near[0], ""
+    if found:
+        return None, f"{kind.rpartition('/')[2]} topics {', '.join(found)} left out (ambiguous)"
+    return None, ""
+
+
+def _stamp(msg: Any) -> float:
+    stamp = msg.header.stamp
+    nanosec = getattr(stamp, "nanosec", None)
+    if nanosec is None:
+        nanosec = getattr(stamp, "nsec", 0)
+    return stamp.sec + nanosec * 1e-9
+
+
+def hold_latest(times: np.ndarray, values: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """The latest of ``values`` received at or before each of ``at`` (NaN before the first)."""
+    order = np.argsort(times, kind="stable")
+    times, values = times[order], values[order]
+    idx = np.searchsorted(times, at, side="right") - 1
+    out = np.full((len(at), *values.shape[1:]), np.nan)
+    ok = idx >= 0
+    out[ok] = values[idx[ok]]
+    return out
+
+
+def _vector(v: Any) -> tuple[float, float, float]:
+    return (v.x, v.y, v.z)
+
+
+def build(
+    topics: dict[str, str],
+    messages: Callable[[list[str]], Iterable[tuple[str, int, Any]]],
+    wanted: str | None,
+    source: str,
+) -> Channels:
+    """Channels from a log given its ``topics`` (name -> type) and ``messages(topics)``, an
+    iterator of ``(topic, log_time_ns, decoded message)``."""
+    imu_topic = choose_topic(topics, wanted, source)
+    notes = [f"sensor_msgs/Imu from {imu_topic}"]
+    mag_topic, mag_note = _companion(topics, MAG, imu_topic)
+    temp_topic, temp_note = _companion(topics, TEMP, imu_topic)
+    notes += [n for n in (mag_note, temp_note) if n]
+    read = [t for t in (imu_topic, mag_topic, temp_topic) if t is not None]
+    imu_rows, stamps, logged = [], [], []
+    mag_t, mag_v, temp_t, temp_v = [], [], [], []
+    for topic, log_ns, msg in messages(read):
+        if topic == imu_topic:
+            imu_rows.append((*_vector(msg.linear_acceleration), *_vector(msg.angular_velocity)))
+            stamps.append(_stamp(msg))
+            logged.append(log_ns * 1e-9)
+        elif topic == mag_topic:
+            mag_t.append(_stamp(msg) or log_ns * 1e-9)
+            mag_v.append(_vector(msg.magnetic_field))
+        elif topic == temp_topic:
+            temp_t.append(_stamp(msg) or log_ns * 1e-9)
+            temp_v.append(msg.temperature)
+    if not imu_rows:
+        raise InputError(f"{source}: topic {imu_topic} holds no messages")
+    rows = np.asarray(imu_rows, np.float64)
+    stamps_a, logged_a = np.asarray(stamps), np.asarray(logged)
+    use_stamp = np.all(stamps_a > 0) and np.all(np.diff(stamps_a) > 0)
+    time = stamps_a if use_stamp else logged_a
+    notes.append("time from header.stamp" if use_stamp else
+                 "time from the recording's receive time (header.stamp unset or not increasing)")
+    keep = np.isfinite(rows).all(axis=1)
+    last = -np.inf  # drop samples whose time does not follow the last kept one
+    for i in np.flatnonzero(keep):
+        if time[i] <= last:
+            keep[i] = False
+        else:
+            last = time[i]
+    dropped = int((~keep).sum())
+    time, rows = time[keep], rows[keep]
+    ch = Channels(time=time, accel=rows[:, :3], gyro=rows[:, 3:], accel_units="m/s^2",
+                  gyro_units="rad/s", notes=notes, dropped=dropped)  # fmt: skip
+    if mag_v:
+        ch.mag = hold_latest(np.asarray(mag_t), np.asarray(mag_v) * 1e6, time)  # T -> uT
+        ch.mag_units = "uT"
+        notes.append(f"sensor_msgs/MagneticField from {mag_topic} (tesla -> uT), latest per sample")
+    if temp_v:
+        ch.temperature = hold_latest(np.asarray(temp_t), np.asarray(temp_v, float), time)
+        notes.append(f"sensor_msgs/Temperature from {temp_topic}, latest per sample")
+    return ch
+
+
+def _missing(extra: str, module: str) -> InputError:
+    return InputError(f"reading this file needs {module}: pip install 'imucal-cli[{extra}]'")
+
+
+def read_rosbag(path: str | os.PathLike, topic: str | None = None) -> Channels:
+    """A ROS 1 bag (``.bag``) or a ROS 2 bag (a directory with ``metadata.yaml``), read with
+    ``rosbags``.
+
+    Raises
+    ------
+    InputError
+        ``rosbags`` not installed (names the extra), an unreadable bag, or the topic choice.
+    """
+    try:
+        from rosbags.highlevel import AnyReader
+        from rosbags.typesys import Stores, get_typestore
+    except ImportError:
+        raise _missing("ros", "rosbags") from None
+    src = str(path)
+    try:
+        reader = AnyReader([Path(path)], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+        reader.open()
+    except Exception as exc:  # noqa: BLE001 - rosbags raises its own error types
+        raise InputError(f"{src}: not a readable ROS bag ({' '.join(str(exc).split())})") from None
+    try:
+        topics = {c.topic: c.msgtype for c in reader.connections}
+
+        def messages(wanted: list[str]) -> Iterator[tuple[str, int, Any]]:
+            conns = [c for c in reader.connections if c.topic in wanted]
+            for conn, log_ns, raw in reader.messages(connections=conns):
+                yield conn.topic, log_ns, reader.deserialize(raw, conn.msgtype)
+
+        return build(topics, messages, topic, src)
+    finally:
+        reader.close()
+
+
+def read_mcap(path: str | os.PathLike, topic: str | None = None) -> Channels:
+    """An MCAP file of ROS 2 messages (``ros2msg`` schemas, CDR), read with ``mcap`` and
+    ``mcap-ros2-support``.
+
+    Raises
+    ------
+    InputError
+        The libraries not installed (names the extra), an unreadable file, or the topic choice.
+    """
+    try:
+        from mcap.reader import make_reader
+        from mcap_ros2.decoder import DecoderFactory
+    except ImportError:
+        raise _missing("mcap", "mcap and mcap-ros2-support") from None
+    src = str(path)
+    try:
+        handle = open(path, "rb")
+    except OSError as exc:
+        raise InputError(f"{src}: cannot read ({exc.strerror or exc})") from None
+    with handle:
+        try:
+            reader = make_reader(handle, decoder_factories=[DecoderFactory()])
+            summary = reader.get_summary()
+            if summary is None:
+                raise ValueError("no summary section")
+            schemas = summary.schemas
+            topics = {ch.topic: schemas[ch.schema_id].name for ch in summary.channels.values()
+                      if ch.schema_id in schemas}  # fmt: skip
+        except Exception as exc:  # noqa: BLE001 - mcap raises its own error types
+            raise InputError(f"{src}: not a readable MCAP file "
+                             f"({' '.join(str(exc).split())})") from None  # fmt: skip
+
+        def messages(wanted: list[str]) -> Iterator[tuple[str, int, Any]]:
+            for _, channel, message, decoded in reader.iter_decoded_messages(topics=wanted):
+                yield channel.topic, message.log_time, decoded
+
+        return build(topics, messages, topic, src)
+
+
+def read_ros(path: str | os.PathLike, topic: str | None = None) -> Channels:
+    """A ``.mcap`` file with :func:`read_mcap`, anything else (``.bag``, a ROS 2 bag folder)
+    with :func:`read_rosbag`."""
+    p = Path(path)
+    if p.suffix.lower() == ".mcap" and p.is_file():
+        return read_mcap(p, topic)
+    return read_rosbag(p, topic)

@@ -1,0 +1,118 @@
+"""Text lines common Arduino sketches print, recognised by their prefix:
+
+=====================================  =============================================  =========
+line                                    sketch                                         fields
+=====================================  =============================================  =========
+``Raw:ax,ay,az,gx,gy,gz,mx,my,mz``      PJRC/Adafruit sketches feeding MotionCal       9 ints
+``a/g:\\tax\\tay\\taz\\tgx\\tgy\\tgz``  i2cdevlib ``MPU6050_raw``                      6 ints
+``a/g/m:\\tax ... gz\\tmx\\tmy\\tmz``   i2cdevlib ``MPU9150_raw``                      9 ints
+=====================================  =============================================  =========
+
+The values are raw counts (MotionCal's convention: 8192 per g, 16 per deg/s, 10 per uT, as its
+sketches scale them; i2cdevlib: the part's registers).  Other lines (MotionCal's ``Uni:`` and
+``Cal1:``, banners, partial lines) are counted and skipped.  Neither format carries a time, so
+the rate is needed (``--rate``).  :func:`detect_line_format` tells the format from the first
+lines, so ``imucal import`` needs no ``--format`` for them.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from imucal_cli.errors import InputError
+
+__all__ = ["LINE_FORMATS", "LineRecording", "detect_line_format", "read_serial_lines"]
+
+# name -> (prefix, number of values, what the values are)
+LINE_FORMATS = {
+    "motioncal": ("Raw:", 9, "MotionCal Raw: accel, gyro, mag counts"),
+    "i2cdevlib": ("a/g:", 6, "i2cdevlib a/g: accel, gyro counts"),
+    "i2cdevlib-mag": ("a/g/m:", 9, "i2cdevlib a/g/m: accel, gyro, mag counts"),
+}
+_SPLIT = re.compile(r"[\s,;]+")
+
+
+def detect_line_format(head: str) -> str | None:
+    """The :data:`LINE_FORMATS` name of the first line with a known prefix, else None."""
+    for line in head.splitlines()[:200]:
+        stripped = line.strip()
+        for name, (prefix, _, _) in sorted(LINE_FORMATS.items(), key=lambda kv: -len(kv[1][0])):
+            if stripped.startswith(prefix):
+                return name
+    return None
+
+
+@dataclass
+class LineRecording:
+    """Samples of a line-format file, counts."""
+
+    time: np.ndarray
+    accel: np.ndarray
+    gyro: np.ndarray
+    mag: np.ndarray | None
+    fmt: str
+    notes: list[str] = field(default_factory=list)
+    lines: int = 0
+    skipped: int = 0
+    malformed: int = 0
+    first_malformed: str | None = None
+
+
+def read_serial_lines(
+    path: str | os.PathLike, rate_hz: float | None, fmt: str | None = None
+) -> LineRecording:
+    """Read a MotionCal or i2cdevlib log (format detected when ``fmt`` is None).
+
+    Raises
+    ------
+    InputError
+        Unreadable file, no known line, no ``rate_hz``.
+    """
+    src = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8", errors="replace")
+    except OSError as exc:
+        raise InputError(f"{src}: cannot read ({exc.strerror or exc})") from None
+    fmt = fmt or detect_line_format(text)
+    if fmt is None or fmt not in LINE_FORMATS:
+        raise InputError(f"{src}: no MotionCal 'Raw:' or i2cdevlib 'a/g:' line found")
+    if rate_hz is None:
+        raise InputError(f"{src}: {LINE_FORMATS[fmt][2]} lines carry no time: pass --rate "
+                         "(the sketch's sample rate, Hz)")  # fmt: skip
+    prefix, count, what = LINE_FORMATS[fmt]
+    rec = LineRecording(np.empty(0), np.empty((0, 3)), np.empty((0, 3)), None, fmt)
+    rows = []
+    for number, line in enumerate(text.splitlines(), 1):
+        stripped = line.strip()
+        if not stripped:
+            continue
+        rec.lines += 1
+        if not stripped.startswith(prefix) or (prefix == "a/g:" and stripped.startswith("a/g/m:")):
+            rec.skipped += 1
+            continue
+        fields = [f for f in _SPLIT.split(stripped[len(prefix):].strip()) if f]
+        try:
+            values = [float(f) for f in fields]
+        except ValueError:
+            values = []
+        if len(values) != count or not np.all(np.isfinite(values)):
+            rec.malformed += 1
+            rec.first_malformed = rec.first_malformed or f"{src}:{number}"
+            continue
+        rows.append(values)
+    if not rows:
+        raise InputError(f"{src}: no complete {prefix} line ({count} numbers)")
+    data = np.asarray(rows, np.float64)
+    rec.time = np.arange(len(data)) / float(rate_hz)
+    rec.accel, rec.gyro = data[:, 0:3], data[:, 3:6]
+    rec.mag = data[:, 6:9] if count == 9 else None
+    rec.notes.append(f"{what}; time = sample / {rate_hz:g} Hz")
+    if fmt == "motioncal":
+        rec.notes.append("MotionCal's sketches scale to 8192 counts per g, 16 per deg/s, 10 per "
+                         "uT")  # fmt: skip
+    return rec

@@ -1,0 +1,192 @@
+"""WitMotion's binary protocol (WT901, JY901, HWT905 ...): 11-byte frames ``0x55 TYPE D0..D7
+SUM``, ``SUM`` the low byte of the sum of the first ten bytes, ``D`` four little-endian int16.
+
+=====  ================================  =================================================
+TYPE   content                           nominal scale (WitMotion's manual)
+=====  ================================  =================================================
+0x50   time: YY MM DD hh mm ss ms(u16)   (a sample's time when the device sends it)
+0x51   acceleration x y z, temperature   16 g / 32768 per count; temperature / 100 = deg C
+0x52   angular velocity x y z            2000 deg/s / 32768 per count
+0x54   magnetic field x y z              counts (the part's own scale)
+=====  ================================  =================================================
+
+The raw int16 counts are kept (never rescaled: the session's units are ``counts``; the nominal
+scales above are what a calibration should find).  Frames of other types (angles,
+quaternions, pressure ...) are counted and skipped; a frame whose checksum fails is counted as
+malformed and the decoder resynchronises on the next ``0x55``.  A sample is one ``0x51`` frame
+with the ``0x52`` (and ``0x54``, ``0x50``) frames that follow it before the next ``0x51``.
+:class:`WitMotionDecoder` is shared by the importer and by ``capture``'s binary protocol
+(:class:`imucal_cli.capture.stream.WitMotionProtocol`).
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from imucal_cli.errors import InputError
+
+__all__ = ["FRAME", "WitMotionDecoder", "WitSample", "looks_like_witmotion", "read_witmotion"]
+
+FRAME = 11
+HEAD = 0x55
+TIME, ACCEL, GYRO, MAG = 0x50, 0x51, 0x52, 0x54
+NOMINAL = {"accel_g_per_count": 16.0 / 32768.0, "gyro_dps_per_count": 2000.0 / 32768.0}
+
+
+@dataclass
+class WitSample:
+    """One sample: int16 counts as sent (gyro and mag None when the device sent none)."""
+
+    accel: tuple[int, int, int]
+    temperature: float
+    gyro: tuple[int, int, int] | None = None
+    mag: tuple[int, int, int] | None = None
+    device_time: float | None = None  # s since midnight, from a 0x50 frame
+
+
+@dataclass
+class WitMotionDecoder:
+    """Frames out of a byte stream, fed in pieces of any size.
+
+    Attributes
+    ----------
+    stats : dict
+        ``frames`` (good frames), ``samples`` (completed), ``skipped`` (frames of other types),
+        ``malformed`` (checksum failures and bytes skipped to resynchronise), ``bytes``.
+    """
+
+    stats: dict = field(default_factory=lambda: {"frames": 0, "samples": 0, "skipped": 0,
+                                                  "malformed": 0, "bytes": 0})  # fmt: skip
+    _buffer: bytearray = field(default_factory=bytearray)
+    _current: WitSample | None = None
+    _time: float | None = None
+
+    def feed(self, data: bytes) -> list[WitSample]:
+        """Decode the complete frames of ``data`` (after what was left over); return the
+        samples completed by them (a sample completes when the next ``0x51`` arrives)."""
+        self.stats["bytes"] += len(data)
+        buf = self._buffer
+        buf += data
+        out: list[WitSample] = []
+        i = 0
+        while len(buf) - i >= FRAME:
+            if buf[i] != HEAD:
+                nxt = buf.find(HEAD, i + 1)
+                skipped = (nxt if nxt >= 0 else len(buf)) - i
+                self.stats["malformed"] += 1
+                i += skipped
+                continue
+            frame = bytes(buf[i : i + FRAME])
+            if sum(frame[:10]) & 0xFF != frame[10]:
+                self.stats["malformed"] += 1
+                i += 1  # resynchronise on the next 0x55
+                continue
+            i += FRAME
+            self.stats["frames"] += 1
+            self._frame(frame[1], frame[2:10], out)
+        del buf[:i]
+        return out
+
+    def flush(self) -> list[WitSample]:
+        """The sample in progress at the end of the stream."""
+        done = [self._current] if self._current is not None else []
+        self._current = None
+        self.stats["samples"] += len(done)
+        return done
+
+    def _frame(self, kind: int, payload: bytes, out: list[WitSample]) -> None:
+        values = struct.unpack("<hhhh", payload)
+        if kind == ACCEL:
+            if self._current is not None:
+                out.append(self._current)
+                self.stats["samples"] += 1
+            self._current = WitSample(values[:3], values[3] / 100.0, device_time=self._time)
+        elif kind == GYRO and self._current is not None:
+            self._current.gyro = values[:3]
+        elif kind == MAG and self._current is not None:
+            self._current.mag = values[:3]
+        elif kind == TIME:
+            _, _, _, hh, mm, ss = payload[:6]
+            ms = payload[6] | payload[7] << 8
+            self._time = hh * 3600 + mm * 60 + ss + ms / 1000.0
+        else:
+            self.stats["skipped"] += 1
+
+
+def looks_like_witmotion(head: bytes) -> bool:
+    """True when ``head`` (the first bytes of a file) holds at least 3 valid frames."""
+    good, i = 0, head.find(bytes([HEAD]))
+    while 0 <= i <= len(head) - FRAME:
+        frame = head[i : i + FRAME]
+        if sum(frame[:10]) & 0xFF == frame[10] and 0x50 <= frame[1] <= 0x5F:
+            good += 1
+            i += FRAME
+        else:
+            i = head.find(bytes([HEAD]), i + 1)
+    return good >= 3
+
+
+@dataclass
+class WitRecording:
+    """Decoded samples of a file: counts, with a time base."""
+
+    time: np.ndarray
+    accel: np.ndarray
+    gyro: np.ndarray | None
+    temperature: np.ndarray
+    mag: np.ndarray | None
+    notes: list[str]
+    stats: dict
+
+
+def read_witmotion(path: str | os.PathLike, rate_hz: float | None = None) -> WitRecording:
+    """Decode a file of WitMotion frames (a serial dump).
+
+    Time: the device's ``0x50`` time frames when every sample has one and they increase,
+    else ``i / rate_hz``.
+
+    Raises
+    ------
+    InputError
+        Unreadable file, no sample, or neither device time nor ``rate_hz``.
+    """
+    src = str(path)
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise InputError(f"{src}: cannot read ({exc.strerror or exc})") from None
+    dec = WitMotionDecoder()
+    samples = dec.feed(data) + dec.flush()
+    if not samples:
+        raise InputError(f"{src}: no WitMotion acceleration frame (0x55 0x51) found")
+    notes = [f"WitMotion frames: {dec.stats['frames']} good, {dec.stats['malformed']} "
+             f"malformed, {dec.stats['skipped']} of other types"]  # fmt: skip
+    accel = np.array([s.accel for s in samples], np.float64)
+    gyro_ok = all(s.gyro is not None for s in samples)
+    gyro = np.array([s.gyro for s in samples], np.float64) if gyro_ok else None
+    if not gyro_ok and any(s.gyro is not None for s in samples):
+        notes.append("some samples lack an angular-velocity frame: the gyro is left out")
+    mag_ok = all(s.mag is not None for s in samples)
+    mag = np.array([s.mag for s in samples], np.float64) if mag_ok else None
+    times = [s.device_time for s in samples]
+    dev = None
+    if all(t is not None for t in times):
+        dev = np.array(times, np.float64)
+        if not np.all(np.diff(dev) > 0):
+            dev = None
+    if dev is not None and rate_hz is None:
+        time = dev - dev[0]
+        notes.append("time from the device's 0x50 time frames")
+    elif rate_hz is not None:
+        time = np.arange(len(samples)) / float(rate_hz)
+        notes.append(f"time = sample / {rate_hz:g} Hz")
+    else:
+        raise InputError(f"{src}: the frames carry no increasing device time: pass --rate "
+                         "(the output rate set on the device)")  # fmt: skip
+    return WitRecording(time, accel, gyro, np.array([s.temperature for s in samples]), mag,
+                        notes, dec.stats)  # fmt: skip
