@@ -12,6 +12,10 @@ def plan_option(default: str | None, lead: str):
     return typer.Option(default, "--plan", metavar="NAME|FILE.toml", help=f"{lead} {plan_help()}")
 
 
-def hold_option(what: str):
-    """``--hold SECONDS``: how long each pose is held still."""
-    return typer.Option(2.0, "--hold", metavar="SECONDS", help=f"{what}, s.")
+def hold_option(what: str, note: str = "", then: str = ""):
+    """``--hold SECONDS``: how long each pose is held still (``note`` in brackets after the
+    unit, ``then`` a further sentence)."""
+    more = f" ({note})" if note else ""
+    return typer.Option(
+        2.0, "--hold", metavar="SECONDS", help=f"{what}, s{more}.{' ' + then if then else ''}"
+    )

@@ -39,8 +39,9 @@ def simulate(
     ),
     rate: float = typer.Option(100.0, "--rate", metavar="HZ", help="Sample rate, Hz."),
     hold: float = hold_option(
-        "Time held still in each pose (at least 10 samples; the iron plans' still periods "
-        "default to 3 s)"
+        "Time held still in each pose",
+        "at least 10 samples",
+        "The still periods of hwangbo-iron and hk-gyro default to 3 s.",
     ),
     accel_noise: float = typer.Option(
         0.01,
