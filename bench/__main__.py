@@ -6,9 +6,17 @@ import argparse
 
 from rich.console import Console
 
-from bench import capture, factorization, gravity, gyro, gyro_speed
+from bench import capture, factorization, gravity, gyro, gyro_speed, labelled, speed
 
-BENCHMARKS = ("gravity", "factorization", "gyro", "gyro-speed", "capture")
+BENCHMARKS = (
+    "gravity",
+    "labelled",
+    "factorization",
+    "gyro",
+    "gyro-speed",
+    "capture",
+    "speed",
+)
 
 
 def main() -> None:
@@ -16,11 +24,15 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=200, help="Monte-Carlo seeds per benchmark")
     parser.add_argument("--only", choices=BENCHMARKS, help="run only this benchmark")
     parser.add_argument("--quick", action="store_true", help="capture: 10 s instead of 60 s")
+    parser.add_argument("--runs", type=int, default=5, help="speed: runs per figure (median)")
+    parser.add_argument("--sessions", type=int, default=500, help="speed: production-line size")
     args = parser.parse_args()
     console = Console(width=160)
     ok = True
     if args.only in (None, "gravity"):
         ok = gravity.run(console, n_seeds=args.seeds) and ok
+    if args.only in (None, "labelled"):
+        ok = labelled.run(console, n_seeds=args.seeds) and ok
     if args.only in (None, "factorization"):
         ok = factorization.run(console, n_seeds=args.seeds) and ok
     if args.only in (None, "gyro"):
@@ -29,6 +41,8 @@ def main() -> None:
         ok = gyro_speed.run(console) and ok
     if args.only in (None, "capture"):
         ok = capture.run(console, quick=args.quick) and ok
+    if args.only in (None, "speed"):
+        ok = speed.run(console, runs=args.runs, n_sessions=args.sessions) and ok
     raise SystemExit(0 if ok else 1)
 
 

@@ -186,10 +186,28 @@ def test_bad_inputs_are_exit_2(tmp_path, sim18):
 
 
 def test_too_few_poses_refused_with_advice(tmp_path):
+    """The gravity solver, asked for explicitly, refuses six faces naming its model and
+    what would work: the labelled solver on these labels, or the edges."""
     session, _ = simulate(plan="six", seed=1, created=CREATED)
     path = tmp_path / "six.h5"
     write_session(path, session)
-    assert_one_line_error(run("calibrate", path), 2, "6 distinct", "at least 9", "edges")
+    cfg = tmp_path / "g.toml"
+    cfg.write_text('[accel]\nsolver = "gravity"\n')
+    assert_one_line_error(
+        run("calibrate", path, "--config", cfg), 2, "6 distinct", "at least 9", "edges"
+    )
+
+
+def test_six_labelled_faces_calibrate_by_default_and_say_why(tmp_path):
+    session, _ = simulate(plan="six", seed=1, created=CREATED)
+    path = tmp_path / "six.h5"
+    write_session(path, session)
+    proc = run("calibrate", path, "--no-store")
+    assert proc.returncode == 0, proc.stderr
+    assert "labelled" in proc.stdout and "solver chosen" in proc.stdout
+    cal = read_calibration(tmp_path / "six.cal.json")
+    assert cal.accel.solver == "labelled"
+    assert cal.accel.extra["choice"]["by"] == "auto"
 
 
 def test_poses_all_near_one_direction_refused(tmp_path):

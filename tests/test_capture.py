@@ -40,7 +40,7 @@ def test_columns_default_and_skips():
         ("t,t,ax,ay,az", "appears twice"),
         ("t,ax,ay", "at least 3 channels"),
         ("t,ax,ay,az,a5", "without gaps"),
-        ("t,temp", "no accelerometer or gyroscope"),
+        ("t,temp", "no accelerometer, gyroscope or magnetometer"),
         ("", "no fields"),
     ],
 )
@@ -271,6 +271,45 @@ def test_recorder_records_every_sample_until_the_device_is_gone(tmp_path):
     assert s.source == "serial:/dev/fake@115200" and s.segments[0].label == "first"
     assert messages[0] == "waiting for data on /dev/fake at 115200 baud"
     assert rec.stats["comments"] == 1 and rec.stats["samples"] == n
+
+
+def test_recorder_writes_the_device_clock_rate(tmp_path):
+    """Issue 10.5: the lines arrive all at once (host clock: thousands of Hz); the session's
+    sample_rate_hz is the device's 250 Hz from its own time stamps."""
+    chunks, n = lines_of(rate=250.0)
+    rec = Recorder(tmp_path / "r.h5", ScriptedSource(chunks), proto())
+    got = sum(len(b) for b in rec.blocks())
+    rec.close()
+    assert got == n
+    assert read_session(tmp_path / "r.h5").sample_rate_hz == pytest.approx(250.0, rel=1e-9)
+
+
+def test_recorder_ends_when_the_device_clock_is_off_by_a_unit(tmp_path, monkeypatch):
+    """Issue 10.5: ms stamps read as seconds run 1000x the host clock: the capture ends with a
+    reason naming --time-unit ms; stamps in the right unit pass the same check."""
+    import time
+
+    from imucal_cli.capture import recorder as recorder_module
+
+    monkeypatch.setattr(recorder_module, "CLOCK_CHECK_S", 0.2)
+    t, a, g = stream_arrays("six", rate_hz=100.0, hold_s=1.2, move_s=0.8)
+    lines = [f"{1000 * ti:.3f},{','.join(f'{v:.6f}' for v in (*ai, *gi))}\n".encode()
+             for ti, ai, gi in zip(t, a, g, strict=True)]  # fmt: skip
+    chunks = [b"".join(lines[i : i + 10]) for i in range(0, len(lines), 10)]
+    src = ScriptedSource(chunks, on_read=lambda _n: time.sleep(0.1))
+    rec = Recorder(tmp_path / "r.h5", src, proto())  # unit "s": wrong
+    for _ in rec.blocks():
+        pass
+    rec.close()
+    assert rec.end_kind == "clock", (rec.end_kind, rec.end_reason)
+    assert "--time-unit ms" in rec.end_reason
+    slow = ScriptedSource(list(chunks), on_read=lambda _n: time.sleep(0.1))
+    fine = Recorder(tmp_path / "ok.h5", slow, proto(unit="ms"))
+    for _ in fine.blocks():
+        if fine.n_samples >= 100:
+            fine.stop()
+    fine.close()
+    assert fine.end_kind == "done"
 
 
 def test_recorder_no_data_times_out_without_a_file(tmp_path):

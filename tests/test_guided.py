@@ -431,3 +431,56 @@ def test_state_machine_redo_and_skip_by_command():
     assert state.prompt().step == 2 and state.prompt().serial == serial
     state.on_command("q")
     assert state.end_reason.startswith("finished by the person")
+
+
+# --------------------------------------------------------------------------------------------
+# Turns between poses, how long to hold, countdown (issue 12.3)
+# --------------------------------------------------------------------------------------------
+
+
+def test_turns_between_poses_are_rotation_segments():
+    order = ["face +Z up", "face -Y up", "face +X up"]
+    stream = poses([FACES[k] for k in order])
+    rec = FakeRecorder(stream)
+    summary = run_guided(rec, load_plan("six"), console=_console(), keys=ScriptedKeys([]))
+    assert summary.done == order
+    kinds = [s["kind"] for s in rec.segments]
+    assert kinds == ["static", "rotation", "static", "rotation", "static"]
+    turns = [s for s in rec.segments if s["kind"] == "rotation"]
+    for i, (seg, (a, b, _)) in enumerate(zip(turns, stream.moves, strict=True)):
+        assert seg["label"] == f"turn to {order[i + 1]}"
+        # the segment holds the whole motion (the detector's windows widen it a little)
+        assert seg["start"] <= a and b <= seg["stop"] and seg["stop"] - seg["start"] < 2 * (b - a)
+        assert seg["axis"] is None and seg["angle_deg"] is None  # not known: nothing claimed
+    _check_statics(rec, stream)
+
+
+def test_redo_keeps_the_turn_into_the_pose_taken_again():
+    order = ["face +Z up", "face -Z up", "face -Z up", "face +X up"]
+    stream = poses([FACES[k] for k in order], hold_s=3.0)
+    rec = FakeRecorder(stream)
+    second = stream.holds[1][0]
+    keys = ScriptedKeys([(second + 280, "r")], n_samples=lambda: rec.n_samples)
+    run_guided(rec, load_plan("six"), console=_console(), keys=keys)
+    turns = [s for s in rec.segments if s["kind"] == "rotation"]
+    statics = [s for s in rec.segments if s["kind"] == "static"]
+    assert [s["label"] for s in statics][:3] == ["face +Z up", "face -Z up", "face +X up"]
+    # the turn into -Z starts where the unit left +Z, though -Z was redone after a re-seat
+    assert turns[0]["label"] == "turn to face -Z up"
+    assert turns[0]["start"] <= stream.moves[0][0] and turns[0]["stop"] <= statics[1]["start"]
+    assert statics[1]["start"] >= stream.holds[2][0]  # the redone hold is the second seat
+
+
+def test_screen_says_how_long_to_hold_and_counts_down():
+    from imucal_cli.capture.guided.screen import countdown_tick
+
+    stream = poses([FACES["face +Z up"], FACES["face -X up"]], hold_s=3.0)
+    console = _console()
+    plan = Plan("two", [Step("static", k, up=FACES[k]) for k in ("face +Z up", "face -X up")])
+    run_guided(FakeRecorder(stream), plan, console=console, keys=ScriptedKeys([]), hold_s=2.5)
+    out = console.export_text()
+    assert "plan two: 2 poses; hold each pose still 2.5 s" in out and "5 s of holding" in out
+    assert out.count("Put face +Z up and hold still for 2.5 s") == 1  # the first prompt once
+    assert "still: holding 2.5 s ..." in out and "  2 s left" in out and "  1 s left" in out
+    assert [countdown_tick(x, 2.5) for x in (2.5, 2.2, 1.5, 0.4, 0.0)] == [None, None, 2, 1, None]
+    assert [countdown_tick(x, 600) for x in (599, 300.5, 59)] == [None, 360, 60]

@@ -10,6 +10,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from imucal_cli.formats.session import read_session
@@ -18,13 +19,14 @@ pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminal
 
 CLI = [sys.executable, "-m", "imucal_cli"]
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1", "COLUMNS": "200"}
+FACES = sorted(f"face {s}{a} up" for a in "XYZ" for s in "+-")
 
 
 def serve(*args: str) -> tuple[subprocess.Popen, str]:
-    # The virtual unit holds each pose 3.5 s: long enough for the guided hold (2 s) once the
-    # stillness detector has seen the unit settle, as a person would hold it.
+    """The virtual unit with the defaults (its timer holds each pose 4 s) unless ``args``."""
     proc = subprocess.Popen(
-        [*CLI, "simulate", "--serve", "--plan", "six", "--rate", "100", "--hold", "3.5", *args],
+        [*CLI, "simulate", "--serve", "--plan", "six", "--rate", "100", *args],
+        stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -46,23 +48,67 @@ def capture(port: str, out: Path) -> subprocess.Popen:
     )
 
 
-def test_guided_capture_completes_every_pose_through_the_virtual_port(tmp_path):
+def _check_session(out: Path) -> None:
+    """Every face held 2 s with its up, and the 5 turns between them as rotation segments that
+    the gyro saw turn."""
+    session = read_session(out)
+    static = session.static_segments()
+    assert sorted(s.label for s in static) == FACES
+    for s in static:
+        assert s.n_samples >= 190 and s.up is not None
+    turns = session.rotation_segments()
+    assert len(turns) == 5 and all(t.label.startswith("turn to face") for t in turns)
+    rest = session.gyro[static[0].start : static[0].stop].mean(axis=0)
+    for turn in turns:
+        swing = np.abs(session.gyro[turn.start : turn.stop] - rest).max()
+        assert swing > 100  # counts: the unit turned (noise is a few counts)
+
+
+def test_guided_capture_with_the_defaults_on_both_sides(tmp_path):
     server, port = serve()
     out = tmp_path / "guided.h5"
     try:
         proc = capture(port, out)
-        text, _ = proc.communicate(timeout=90)
+        text, _ = proc.communicate(timeout=120)
     finally:
         server.kill()
-        server.communicate()
+        _, served = server.communicate()
     assert proc.returncode == 0, text
-    assert "Put face +Z up and hold still" in text
     assert "6 of 6" in text and "complete" in text
-    session = read_session(out)
-    static = session.static_segments()
-    assert sorted(s.label for s in static) == sorted(f"face {s}{a} up" for a in "XYZ" for s in "+-")
-    for s in static:  # each hold is 2 s of still data, labelled with its up vector
-        assert s.n_samples >= 190 and s.up is not None
+    assert "plan six: 6 poses; hold each pose still 2 s" in text and "12 s of holding" in text
+    # the first prompt once, with how long to hold; a countdown
+    assert text.count("Put face +Z up and hold still for 2 s") == 1, text
+    assert "1 s left" in text
+    assert "6 static and 5 rotation segments" in text
+    assert "the plan runs on a timer, each pose held 4 s" in served
+    _check_session(out)
+
+
+def test_serve_stepped_by_enter(tmp_path):
+    """--step: each pose is held until Enter in the server's terminal (here: its stdin)."""
+    server, port = serve("--step")
+    out = tmp_path / "stepped.h5"
+    lines: list[str] = []
+    try:
+        proc = capture(port, out)
+        deadline = time.monotonic() + 120
+        for line in proc.stdout:
+            lines.append(line)
+            if line.startswith("recorded face"):
+                time.sleep(1.0)  # the unit stays put until told: longer than any timer here
+                server.stdin.write("\n")
+                server.stdin.flush()
+            if time.monotonic() > deadline:
+                break
+        proc.wait(timeout=30)
+    finally:
+        server.kill()
+        _, served = server.communicate()
+    text = "".join(lines)
+    assert proc.returncode == 0, text
+    assert "6 of 6" in text
+    assert "held until Enter here" in served
+    _check_session(out)
 
 
 def test_scripted_keys_skip_and_quit(tmp_path):

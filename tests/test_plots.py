@@ -104,3 +104,43 @@ def test_without_matplotlib_one_line_of_advice(tmp_path, capsys, monkeypatch):
     )
     _assert_one_line_error(code, out, err, PLOT_HINT)
     assert err.strip() == f"imucal: error: {PLOT_HINT}"
+
+
+def test_factorization_magnitude_panel_has_no_empty_series_and_shows_g(tmp_path):
+    """The factorization solver stores no |a| before calibration: no empty "before" series, and
+    the y axis includes the g line even when every pose lies on one side of it."""
+    pytest.importorskip("matplotlib")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from imucal_cli.formats.calibration import calibration_from_json
+    from imucal_cli.use.report import STANDARD_GRAVITY, build_report
+
+    document = full_calibration()
+    accel = document["accel"]
+    accel["solver"] = "factorization"
+    for i, pose in enumerate(accel["poses"]):
+        pose["magnitude_before"] = None
+        pose["magnitude_after"] = STANDARD_GRAVITY + 0.002 + 0.0001 * i  # all above g
+    accel.pop("rms_before")
+    report = build_report(calibration_from_json(json.dumps(document), "f.json"))
+    seen = []
+    real_close = plt.close
+
+    def spy(fig=None):
+        if fig is not None:
+            ax = fig.axes[0]
+            seen.append(([line.get_label() for line in ax.get_lines()], ax.get_ylim()))
+        real_close(fig)
+
+    plt.close = spy
+    try:
+        report_figure(report, tmp_path / "f.png")
+    finally:
+        plt.close = real_close
+    labels, (lo, hi) = seen[0]
+    assert "before calibration" not in labels and "after calibration" in labels
+    assert lo < STANDARD_GRAVITY < hi
+    assert hi - lo < 0.01  # still zoomed enough to see the spread of the poses

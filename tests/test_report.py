@@ -19,7 +19,7 @@ import pytest
 from rich.console import Console
 
 from imucal_cli.cli import main
-from imucal_cli.formats.calibration import calibration_from_json
+from imucal_cli.formats.calibration import calibration_from_json, calibration_to_json
 from imucal_cli.use.report import (
     STANDARD_GRAVITY,
     add_table,
@@ -170,6 +170,13 @@ def rendered(document: dict) -> str:
     return console.export_text()
 
 
+def terminal_width(report: dict) -> int:
+    """Widest line of the report drawn in a 100-column terminal (panels, wrapped prose)."""
+    console = Console(record=True, width=100, force_terminal=True)
+    render_report(report, console)
+    return max(len(line) for line in console.export_text().splitlines())
+
+
 def run_imucal(args: list[str], capsys, monkeypatch) -> tuple[int, str, str]:
     """Run the console entry point in-process; returns (exit code, stdout, stderr)."""
     monkeypatch.setattr(sys, "argv", ["imucal", *args])
@@ -218,8 +225,12 @@ def test_json_output_carries_the_stored_values(tmp_path, capsys, monkeypatch):
     assert accel["poses"][0]["residual_mg"] == pytest.approx(-0.0012 / G * 1000)
     assert accel["warnings"] == ["pose 0003 sits 3 sigma off"]
     assert accel["unavailable"] == []
-    assert report["reference"]["rms_before_g"] == 0.0129
-    assert report["reference"]["rms_after_g"] == 0.0014
+    assert report["reference"] is None  # the user's own sensor: no paper figures (issue 12)
+    simulated = build_report(
+        calibration_from_json(json.dumps({**full_calibration(), "source": "simulator"}), "s.json")
+    )
+    assert simulated["reference"]["rms_before_g"] == 0.0129
+    assert simulated["reference"]["rms_after_g"] == 0.0014
 
 
 def test_mg_figures_use_the_calibrations_gravity():
@@ -245,7 +256,10 @@ def test_render_shows_values_with_units_and_std():
     assert "raw counts -> calibrated m/s^2" in text
     assert "7 iterations; converged" in text
     assert "pose 0003 sits 3 sigma off" in text
-    assert max(len(line) for line in text.splitlines()) <= 100
+    assert (
+        terminal_width(build_report(calibration_from_json(json.dumps(full_calibration()), "x")))
+        <= 100
+    )
 
 
 def test_render_rms_before_after_held_out_with_improvement():
@@ -260,6 +274,8 @@ def test_render_rms_before_after_held_out_with_improvement():
     assert "0.002 m/s^2" in after and "0.204 mg" in after and "60.0 ×" in after
     held_out = line_with("held out")
     assert "0.0025 m/s^2" in held_out and "0.255 mg" in held_out and "48.0 ×" in held_out
+    assert not any("Qureshi" in line for line in lines)  # the user's own sensor
+    lines = rendered({**full_calibration(), "source": "simulator"}).splitlines()
     paper = line_with("paper: Qureshi & Golnaraghi")
     assert "0.0129 -> 0.0014 g" in paper and "12.9 -> 1.4 mg" in paper
 
@@ -581,7 +597,9 @@ def test_factorization_redundant_accel_renders_table_one(redundant_accel_cal):
         assert f"{row['linear']:.2f}" in line  # std ~0.03 deg: two decimals
         assert f"{row['refined']:.2f} ± {row['refined_std']:.2f}" in line
     gain = _line(text, "gain [counts per m/s^2]")
-    assert "|s1|" in gain and f"{rows['|s1|']['refined']:.3f} ± " in gain
+    s1 = rows["|s1|"]
+    decimals = 3 if f"{s1['refined_std']:.1e}"[0] == "1" else 2  # 2 digits of a std 1.x, else 1
+    assert "|s1|" in gain and f"{s1['refined']:.{decimals}f} ± " in gain
     assert "C_err RMS [g^2]" in text
     frame = _line(text, "matrix frame")
     assert "no labels: canonical frame" in frame
@@ -590,7 +608,7 @@ def test_factorization_redundant_accel_renders_table_one(redundant_accel_cal):
         assert channel in _line(text, "ch1")
     assert "paper: Qureshi & Golnaraghi" not in text  # that figure is the gravity solver's
     assert "linear solution in the subspace of the sensitivity axes" in text  # notes
-    assert max(len(line) for line in text.splitlines()) <= 100
+    assert terminal_width(build_report(redundant_accel_cal)) <= 100
 
 
 def test_factorization_triad_accel_with_labels_states_the_aligned_frame():
@@ -654,7 +672,7 @@ def test_factorization_gyro_turns_gains_and_frame(gyro_cal):
     assert f"{rows['|sx|']['refined']:.1f} ± " in gain
     assert "sysz" in text and "C_err RMS [(rad/s)^2]" in text
     assert "before calibration" not in text  # no gravity-pose RMS rows for a gyroscope
-    assert max(len(line) for line in text.splitlines()) <= 100
+    assert terminal_width(report) <= 100
 
 
 def test_factorization_reports_through_the_cli(tmp_path, capsys, monkeypatch, gyro_cal):
@@ -848,3 +866,114 @@ def test_history_compares_a_section_from_its_first_appearance():
     assert gyro_rows and all(row["reference"] == 1 for row in gyro_rows)
     assert all(row["change"][2] == pytest.approx(0.0, abs=1e-12) for row in gyro_rows)
     assert history["sensors"][0]["drifted"] == []
+
+
+# ---------------------------------------------------------------------------------------------
+# History compares like with like (issue 10.8)
+
+
+@pytest.fixture(scope="module")
+def one_session_three_ways():
+    """One simulated session calibrated with standard gravity, with g = 9.81 and with the
+    factorization solver: the sensor did not change between them."""
+    from imucal_cli.formats.config import config_from_dict
+    from imucal_cli.pipeline.calibrate import calibrate_session
+    from imucal_cli.simulate.triad import simulate
+
+    session, _ = simulate(seed=4, created="2026-11-20T10:00:00Z")
+    configs = ({}, {"gravity": 9.81}, {"accel": {"solver": "factorization"}})
+    cals = []
+    for i, config in enumerate(configs):
+        cal = calibrate_session(session, config_from_dict(config), name=f"run{i}.h5")
+        cal.created = f"2026-11-2{i}T10:05:00Z"
+        cals.append(cal)
+    return cals
+
+
+def test_history_does_not_report_another_gravity_as_drift(one_session_three_ways):
+    from imucal_cli.use.report import build_history
+
+    standard, g981, _ = one_session_three_ways
+    history = build_history([standard, g981])
+    (entry,) = history["sensors"]
+    section = entry["sections"]["accel"]
+    assert entry["drifted"] == []
+    assert section["bases"][0] != section["bases"][1] and "9.81" in section["bases"][1]
+    assert len(section["not_compared"]) == 1 and "run1.h5" in section["not_compared"][0]
+    sens = next(r for r in section["rows"] if r["name"] == "sensitivity x")
+    assert sens["compared_with"] == [0, 1] and sens["change"] == [0.0, 0.0]
+    # The same change within one basis is drift: the check above is not blind.
+    relabelled = calibration_from_json(
+        json.dumps({**json.loads(calibration_to_json(g981)),
+                    "accel": {**json.loads(calibration_to_json(g981))["accel"],
+                              "gravity": standard.accel.extra["gravity"]}}), "x.json",
+    )  # fmt: skip
+    drift = build_history([standard, relabelled])["sensors"][0]
+    assert "accel sensitivity x" in drift["drifted"]
+
+
+def test_history_does_not_compare_solvers_and_names_quantities_alike(one_session_three_ways):
+    from imucal_cli.use.report import build_history, render_history
+
+    standard, _, factorization = one_session_three_ways
+    history = build_history([standard, factorization])
+    (entry,) = history["sensors"]
+    rows = {r["name"]: r for r in entry["sections"]["accel"]["rows"]}
+    # one name per quantity: gain_x is the sensitivity, angles_deg give the misalignment
+    assert not any(name.startswith("gain_") for name in rows)
+    for name in ("b_x", "sensitivity x", "misalignment xy"):
+        assert all(v is not None for v in rows[name]["values"]), name
+        assert rows[name]["compared_with"] == [0, 1]
+    # the two solvers agree on the physical quantities to within their uncertainty
+    sens = rows["sensitivity x"]
+    assert abs(sens["values"][1] - sens["values"][0]) < 5 * max(sens["std"])
+    assert entry["drifted"] == []
+    console = Console(record=True, width=100)
+    render_history(history, console)
+    text = console.export_text()
+    assert "different basis" in text and "factorization" in text
+    assert "Drifted" not in text
+
+
+# ---------------------------------------------------------------------------------------------
+# No noise a user cannot act on (issue 12.1)
+
+
+def test_report_shows_only_the_options_of_the_solvers_that_ran():
+    config = {
+        "accel": {"solver": "gravity", "max_scale_error": 0.2,
+                  "gravity": {"model": "9", "init": "auto"},
+                  "factorization": {"use": "means", "refine": True}},
+        "gyro": {"solver": "none", "rotations": {"max_gap_s": 2.0}, "full": {"max_iterations": 9}},
+    }  # fmt: skip
+    document = {**full_calibration(), "config": config}
+    report = build_report(calibration_from_json(json.dumps(document), "x.json"))
+    assert report["config"] == {
+        "accel": {"solver": "gravity", "max_scale_error": 0.2,
+                  "gravity": {"model": "9", "init": "auto"}},
+    }  # fmt: skip
+    text = rendered(document)
+    options = _line(text, "options")
+    assert "accel.gravity.model=9" in options
+    assert "factorization" not in options and "gyro" not in options and "refine" not in options
+
+
+def test_gyro_options_are_those_of_its_solver(gyro_cal):
+    report = build_report(gyro_cal)
+    gyro = report["config"]["gyro"]
+    assert gyro["solver"] == "factorization" and "factorization" in gyro
+    assert "rotations" not in gyro and "full" not in gyro
+    assert "accel" not in report["config"]  # the accelerometer was not calibrated
+
+
+def test_optimiser_message_only_when_it_did_not_converge():
+    text = rendered(full_calibration())
+    assert "step below tolerance" not in text
+    assert "step below tolerance" in json.dumps(
+        build_report(calibration_from_json(json.dumps(full_calibration()), "x"))
+    )  # still in the JSON, for the record
+    document = full_calibration()
+    document["accel"] = {**document["accel"], "converged": False,
+                         "message": "maximum number of function evaluations"}  # fmt: skip
+    fit = _line(rendered(document), "solver:")
+    assert "NOT converged" in fit and "maximum number of function evaluations" in fit

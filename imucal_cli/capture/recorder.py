@@ -37,7 +37,15 @@ __all__ = ["END_KINDS", "FLUSH_INTERVAL_S", "CaptureEnded", "Recorder"]
 FLUSH_INTERVAL_S = 0.5
 """Longest time a received sample stays in memory before it is written and flushed."""
 
-END_KINDS = ("interrupted", "terminated", "device-gone", "timeout", "done")
+END_KINDS = ("interrupted", "terminated", "device-gone", "timeout", "done", "clock")
+
+CLOCK_CHECK_S = 3.0
+"""After this much host time with data, the device's time stamps are compared with the host
+clock (issue 10.5): a time unit off by a factor (ms stamps read as s) ends the capture."""
+
+CLOCK_TOLERANCE = 3.0
+"""Device and host elapsed times may differ by this factor (serial buffering); time units
+differ by 1000."""
 
 STATUS_REPEAT_S = 5.0
 """While waiting for data, the waiting message is repeated this often."""
@@ -74,8 +82,10 @@ class Recorder:
         :mod:`imucal_cli.capture.stream`.
     protocol : LineProtocol or similar
         ``feed(data, host_time) -> SampleBlock`` and ``stats``.
-    sensor, accel_units, gyro_units : str, optional
+    sensor, accel_units, gyro_units, mag_units : str, optional
         Root attributes of the session.
+    magnetic_field_uT : float, optional
+        Local field magnitude, microtesla (root attribute), where known.
     overwrite : bool
         Replace an existing file.
     wait_timeout_s : float
@@ -103,6 +113,8 @@ class Recorder:
         sensor: str | None = None,
         accel_units: str | None = None,
         gyro_units: str | None = None,
+        mag_units: str | None = None,
+        magnetic_field_uT: float | None = None,
         overwrite: bool = False,
         wait_timeout_s: float = 10.0,
         read_timeout_s: float = 5.0,
@@ -117,7 +129,8 @@ class Recorder:
             raise InputError(f"{path} exists: use --force to overwrite it")
         self.source = source
         self.protocol = protocol
-        self._meta = {"sensor": sensor, "accel_units": accel_units, "gyro_units": gyro_units}
+        self._meta = {"sensor": sensor, "accel_units": accel_units, "gyro_units": gyro_units,
+                      "mag_units": mag_units, "magnetic_field_uT": magnetic_field_uT}  # fmt: skip
         self.accel_units = accel_units  #: raw accelerometer units as the user gave them
         self.gyro_units = gyro_units  #: raw gyroscope units as the user gave them
         self._overwrite = overwrite
@@ -133,6 +146,9 @@ class Recorder:
         self._t0: float | None = None
         self._t_first: float | None = None
         self._t_last_sample: float | None = None
+        self._device_first: float | None = None  # time stamp of the first sample, s
+        self._device_last: float | None = None
+        self._clock_checked = False
         self._t_end: float | None = None
         self._closed = False
         self._segments: list[dict] = []
@@ -201,6 +217,7 @@ class Recorder:
             source=getattr(self.source, "uri", None),
             accel_channels=None if block.accel is None else block.accel.shape[1],
             gyro_channels=None if block.gyro is None else block.gyro.shape[1],
+            mag_channels=None if block.mag is None else block.mag.shape[1],
             temperature=block.temperature is not None,
             flush_interval_s=FLUSH_INTERVAL_S,
             overwrite=self._overwrite,
@@ -210,7 +227,10 @@ class Recorder:
     def _append(self, block: SampleBlock) -> None:
         if self._writer is None:
             self._open_writer(block)
-        self._writer.append(block.time, block.accel, block.gyro, block.temperature)
+        self._writer.append(block.time, block.accel, block.gyro, block.temperature, block.mag)
+        if self._device_first is None:
+            self._device_first = float(block.time[0])
+        self._device_last = float(block.time[-1])
 
     def _check_end(self, now: float) -> CaptureEnded | None:
         what = self.source.describe()
@@ -301,6 +321,12 @@ class Recorder:
                     self._t_last_sample = now
                     self._append(block)
                     dirty = True
+                    if not self._clock_checked and now - self._t_first >= CLOCK_CHECK_S:
+                        self._clock_checked = True
+                        problem = self._clock_problem(now - self._t_first)
+                        if problem is not None:
+                            self.end_kind, self.end_reason = "clock", problem
+                            break
                 elif self._t_first is None and now - last_status >= STATUS_REPEAT_S:
                     last_status = now
                     self._status(
@@ -386,8 +412,48 @@ class Recorder:
         try:
             if self._writer is not None:
                 self._writer.close()
+                self._write_rate()
         finally:
             self.source.close()
+
+    def _clock_problem(self, host_s: float) -> str | None:
+        """Why the device's time stamps cannot be right (None: they agree with the host clock
+        within :data:`CLOCK_TOLERANCE`, at a rate of 1 Hz to 10 kHz); the message names the
+        ``--time-unit`` that fits when a unit factor explains it."""
+        columns = getattr(self.protocol, "columns", None)
+        if getattr(columns, "time", None) is None or self._device_first is None:
+            return None  # host-stamped: nothing to compare
+        from imucal_cli.formats.columns import TIME_UNITS
+
+        device_s = self._device_last - self._device_first
+        rate = (self.n_samples - 1) / device_s if device_s > 0 else float("inf")
+        ratio = device_s / host_s
+        if 1 / CLOCK_TOLERANCE <= ratio <= CLOCK_TOLERANCE and 1.0 <= rate <= 10_000.0:
+            return None
+        unit = columns.time_unit
+        said = (
+            f"the device's time stamps (read in {unit}) advanced {device_s:.4g} s in "
+            f"{host_s:.3g} s of host time ({rate:.4g} Hz)"
+        )
+        stamps = device_s / TIME_UNITS[unit]
+        fits = [u for u, f in TIME_UNITS.items()
+                if u != unit and 1 / CLOCK_TOLERANCE <= stamps * f / host_s <= CLOCK_TOLERANCE]
+        if fits:
+            return f"{said}: they look like {fits[0]}; capture again with --time-unit {fits[0]}"
+        return f"{said}: check the t column (--columns) and --time-unit"
+
+    def _write_rate(self) -> None:
+        """``sample_rate_hz`` from the samples' own time stamps (the device clock where the
+        protocol has one), not from when the host received them (issue 10.5)."""
+        if self._device_first is None or self.n_samples < 2:
+            return
+        span = self._device_last - self._device_first
+        if not span > 0:
+            return
+        from imucal_cli.formats.session.h5open import open_for_update
+
+        with open_for_update(self.path, str(self.path)) as file:
+            file.attrs["sample_rate_hz"] = (self.n_samples - 1) / span
 
     def __enter__(self) -> Recorder:
         return self

@@ -2,12 +2,16 @@
 
 Each command lives in its own module and registers itself on :data:`app`.
 :func:`main` turns an :class:`~imucal_cli.errors.ImucalError` into one line on stderr and its
-exit code, so a user mistake never shows a traceback.
+exit code, so a user mistake never shows a traceback.  When stdout is a pipe whose reader has
+gone (``imucal report X | head``), the rest of the output is dropped quietly and the command
+still finishes and exits with its own status.
 """
 
 from __future__ import annotations
 
+import io
 import os
+import stat
 import sys
 
 from imucal_cli.errors import ImucalError
@@ -18,18 +22,73 @@ from . import calibrate as _calibrate  # noqa: E402,F401
 from . import capture as _capture  # noqa: E402,F401
 from . import export as _export  # noqa: E402,F401
 from . import import_ as _import  # noqa: E402,F401
+from . import label as _label  # noqa: E402,F401
 from . import noise as _noise  # noqa: E402,F401
 from . import report as _report  # noqa: E402,F401
 from . import simulate as _simulate  # noqa: E402,F401
 from .app import app
 
 
+class _PipeWriter(io.RawIOBase):
+    """File descriptor 1 where a closed pipe (EPIPE) swallows the rest of the output."""
+
+    def __init__(self, fd: int) -> None:
+        super().__init__()
+        self.fd = fd
+        self.broken = False
+
+    def writable(self) -> bool:
+        return True
+
+    def fileno(self) -> int:
+        return self.fd
+
+    def isatty(self) -> bool:
+        return False
+
+    def write(self, data) -> int:
+        n = len(data)
+        if self.broken:
+            return n
+        try:
+            return os.write(self.fd, data)
+        except BrokenPipeError:
+            self.broken = True  # the reader has gone: drop the rest, the command goes on
+            return n
+
+
+def _guard_stdout():
+    """Replace ``sys.stdout`` by an EPIPE-safe stream when it is a pipe; returns the original."""
+    original = sys.stdout
+    try:
+        if original is not sys.__stdout__ or not stat.S_ISFIFO(os.fstat(1).st_mode):
+            return None
+        original.flush()
+    except (AttributeError, OSError, ValueError):
+        return None
+    sys.stdout = io.TextIOWrapper(
+        io.BufferedWriter(_PipeWriter(1)),
+        encoding=original.encoding,
+        errors=original.errors,
+        line_buffering=original.line_buffering,
+    )
+    return original
+
+
 def main() -> None:
     """Console-script entry point (``imucal``): run, then exit with the command's status."""
-    code = _run()
+    original = _guard_stdout()
+    try:
+        code = _run()
+    finally:
+        if original is not None:
+            try:
+                sys.stdout.flush()
+            finally:
+                sys.stdout = original
     try:
         sys.stdout.flush()
-    except BrokenPipeError:  # `imucal report ... | head`: the reader has gone; so do we
+    except BrokenPipeError:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     sys.exit(code)
 
@@ -51,12 +110,12 @@ def _run() -> int:
         if type(exc).__name__ == "NoArgsIsHelpError" and ctx is not None:
             print(ctx.get_help(), file=sys.stderr)  # bare `imucal`: the help, as usual
             return 2
-        where = f"{ctx.command_path}: " if ctx is not None else ""
         hint = f" (see `{ctx.command_path} --help`)" if ctx is not None else ""
-        print(f"imucal: error: {where}{exc.format_message()}{hint}", file=sys.stderr)
+        message = _one_line(exc.format_message()).rstrip(".")
+        print(f"imucal: error: {message}{hint}", file=sys.stderr)
         return getattr(exc, "exit_code", 2)
     except ImucalError as exc:
-        print(f"imucal: error: {exc}", file=sys.stderr)
+        print(f"imucal: error: {_one_line(str(exc))}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:
         print("imucal: interrupted", file=sys.stderr)
@@ -65,3 +124,12 @@ def _run() -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     return code if isinstance(code, int) else 0
+
+
+def _one_line(message: str) -> str:
+    """The message on one line, without a prefix the caller already gives."""
+    text = " ".join(message.split())
+    for prefix in ("imucal: error: ", "imucal: ", "Error: "):
+        if text.startswith(prefix):
+            text = text[len(prefix) :]
+    return text

@@ -7,40 +7,62 @@ from pathlib import Path
 import typer
 from rich.console import Console
 
+from . import completion
 from .app import app
+from .console import make_console, print_json
 
 
 @app.command("apply")
 def apply_(
     calibration: Path = typer.Argument(
-        ..., help="Calibration JSON (from imucal calibrate).", show_default=False
+        ...,
+        metavar="CAL.json",
+        help="Calibration JSON (from imucal calibrate).",
+        show_default=False,
     ),
     input_file: Path = typer.Argument(
-        ..., metavar="INPUT", help="Session (.h5) or CSV of raw samples.", show_default=False
+        ...,
+        metavar="INPUT",
+        help="Session (.h5) or CSV of raw samples.",
+        show_default=False,
     ),
     output: Path = typer.Option(
         ...,
         "--output",
         "-o",
+        metavar="OUTPUT",
         help="File to write: .h5 (datasets /calibrated/time, accel, gyro) or .csv.",
         show_default=False,
     ),
     fmt: str | None = typer.Option(
-        None, "--format", "-f", help="h5 or csv [default: from OUTPUT's suffix]."
+        None,
+        "--format",
+        "-f",
+        metavar="h5|csv",
+        help="h5 or csv [default: from OUTPUT's suffix].",
+        autocompletion=completion.apply_formats,
     ),
     columns: str | None = typer.Option(
         None,
         "--columns",
+        metavar="SPEC",
         help="CSV input: fields of a line, as for imucal import (t,ax,ay,az,gx,gy,gz; _ skips) "
         "[default: from the header line].",
     ),
     time_unit: str = typer.Option(
-        "s", "--time-unit", help="CSV input: unit of the t column: s, ms or us."
+        "s",
+        "--time-unit",
+        metavar="s|ms|us",
+        help="CSV input: unit of the t column: s, ms or us.",
+        autocompletion=completion.time_units,
     ),
     rate: float | None = typer.Option(
-        None, "--rate", help="CSV input without a t column: sample rate in Hz."
+        None, "--rate", metavar="HZ", help="CSV input without a t column: sample rate in Hz."
     ),
     force: bool = typer.Option(False, "--force", help="Overwrite OUTPUT."),
+    json_output: bool = typer.Option(
+        False, "--json", help="Print what was written as JSON on stdout (nothing else)."
+    ),
 ) -> None:
     """Apply a calibration to every sample: calibrated = matrix @ (raw - bias).
 
@@ -93,6 +115,16 @@ def apply_(
     finally:
         if bar is not None:
             bar.stop()
+    if json_output:
+        print_json(
+            {"format": "imucal-apply", "format_version": 1, "output": str(output),
+             "output_format": summary.output_format, "input": str(input_file),
+             "calibration": str(calibration), "samples": int(summary.samples),
+             "duration_s": float(summary.duration_s), "sensors": list(summary.sensors),
+             "malformed": int(summary.malformed), "first_malformed": summary.first_malformed,
+             "nonfinite": int(summary.nonfinite)}
+        )  # fmt: skip
+        return
     skipped = ""
     if summary.malformed:
         skipped = (
@@ -103,10 +135,11 @@ def apply_(
             f"; warning: {summary.nonfinite} sample(s) had NaN or inf in the raw input and are "
             "NaN in the output"
         )
-    Console().print(
+    make_console().print(
         f"calibrated {summary.samples} samples ({summary.duration_s:.6g} s; "
         f"{', '.join(summary.sensors)}) from {input_file} with {calibration} "
         f"-> {output} ({summary.output_format}){skipped}",
+        markup=False,
         highlight=False,
         soft_wrap=True,
     )

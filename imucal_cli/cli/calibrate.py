@@ -2,33 +2,52 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 from .app import app
+from .console import make_console, print_json
 
 
 @app.command()
 def calibrate(
-    session: Path = typer.Argument(
-        ..., help="Session file (.h5) to calibrate.", show_default=False
+    sessions: list[Path] = typer.Argument(
+        ...,
+        metavar="SESSION.h5",
+        help="Session file(s) (.h5) to calibrate; several: each to SESSION.cal.json, one "
+        "summary table.",
+        show_default=False,
     ),
     config: Path | None = typer.Option(
-        None, "--config", "-c", help="TOML config choosing solvers and options (see README)."
+        None,
+        "--config",
+        "-c",
+        metavar="FILE.toml",
+        help="TOML config choosing solvers and options (see README, Config reference).",
     ),
     output: Path | None = typer.Option(
-        None, "--output", "-o", help="Calibration JSON to write [default: SESSION with .cal.json]."
+        None,
+        "--output",
+        "-o",
+        metavar="FILE.json",
+        help="Calibration JSON to write [default: SESSION with .cal.json].",
     ),
     model: str | None = typer.Option(
         None,
         "--model",
+        metavar="9|12",
         help="Gravity solver model: 9 (triangular, eqs. 3-8) or 12 (full matrix "
         "aligned to the labelled up directions). Overrides [accel.gravity] model.",
     ),
     gravity: float | None = typer.Option(
-        None, "--gravity", help="Local gravity in m/s^2 [default: the session's, else 9.80665]."
+        None,
+        "--gravity",
+        metavar="M/S^2",
+        help="Local gravity in m/s^2 [default: the session's, else 9.80665].",
     ),
     force: bool = typer.Option(
         False, "--force", help="Save a result that fails the physical-sense checks (with warnings)."
@@ -38,17 +57,25 @@ def calibrate(
         "--store/--no-store",
         help="Also store the calibration under the session's /calibrations.",
     ),
+    jobs: int = typer.Option(
+        1, "--jobs", "-j", metavar="N", help="Several sessions: worker processes (0: one per CPU)."
+    ),
+    json_output: bool = typer.Option(
+        False,
+        "--json",
+        help="Print the result as JSON on stdout (nothing else): where it was written and the "
+        "calibration itself; several sessions: one entry each (schema in the README).",
+    ),
 ) -> None:
-    """Calibrate the accelerometer of SESSION and write a calibration JSON.
+    """Calibrate the sensors of SESSION the config asks for and write a calibration JSON.
 
     Exit status: 0 saved; 2 bad input (unreadable file, bad config, poses that cannot
     determine the model); 1 the solver did not converge or the result is outside physical
-    sense (not saved unless --force).
+    sense (not saved unless --force).  Several sessions: the worst of theirs.
     """
-    from imucal_cli.formats.calibration import calibration_to_json, write_calibration
+    from imucal_cli.errors import InputError
     from imucal_cli.formats.config import load_config, validate
-    from imucal_cli.formats.session import read_session, store_calibration
-    from imucal_cli.pipeline.calibrate import calibrate_session, default_output, suspect_error
+    from imucal_cli.pipeline.batch import calibrate_file
 
     cfg = load_config(config)
     if model is not None:
@@ -57,24 +84,92 @@ def calibrate(
         cfg.gravity = gravity
     validate(cfg, "command line" if config is None else str(config))
 
-    sess = read_session(session)
-    cal = calibrate_session(sess, cfg, name=session.name)
-    problem = suspect_error(cal)
-    if problem is not None and not force:
-        raise problem
+    if len(sessions) > 1:
+        if output is not None:
+            raise InputError("--output names one file: with several sessions each goes to "
+                             "SESSION.cal.json")  # fmt: skip
+        raise typer.Exit(_many(sessions, cfg, jobs, force, store, json_output))
+    cal, out, stored = calibrate_file(sessions[0], cfg, output=output, force=force, store=store)
+    if json_output:
+        print_json(_result_json(cal, out, stored))
+        return
+    _summary(make_console(), cal, f"{out}{stored}")
 
-    out = output or default_output(session)
-    write_calibration(out, cal)
-    console = Console()
-    if store:
-        try:
-            name = store_calibration(session, calibration_to_json(cal))
-            stored = f" and {session}:/calibrations/{name}"
-        except OSError as exc:  # read-only session: the JSON is what matters
-            stored = f" (not stored in the session: {exc})"
-    else:
-        stored = ""
-    _summary(console, cal, f"{out}{stored}")
+
+def _result_json(cal, out: Path, stored: str) -> dict:
+    """The ``imucal-calibrate`` document (README); ``stored`` as :func:`calibrate_file` says it:
+    `` and SESSION:/calibrations/N``, `` (not stored in the session: why)`` or ``""``."""
+    from imucal_cli.formats.calibration import calibration_to_json
+
+    where, why = None, None
+    if stored.startswith(" and "):
+        where = stored[len(" and ") :]
+    elif stored.startswith(" (not stored in the session: "):
+        why = stored[len(" (not stored in the session: ") : -1]
+    warnings = [w for s in (cal.accel, cal.gyro) if s for w in s.extra.get("warnings", [])]
+    return {"format": "imucal-calibrate", "format_version": 1, "output": str(out),
+            "stored": where, "not_stored": why, "warnings": warnings,
+            "calibration": json.loads(calibration_to_json(cal))}  # fmt: skip
+
+
+def _many(
+    sessions: list[Path], cfg, jobs: int, force: bool, store: bool, json_output: bool = False
+) -> int:
+    """Calibrate several sessions with a progress bar; one table; the worst exit status."""
+    import resource
+    import time
+
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
+    from rich.table import Table
+
+    from imucal_cli.pipeline.batch import calibrate_many
+
+    console = make_console(stderr=json_output)
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    c_children = usage.ru_utime + usage.ru_stime
+    t0, c0 = time.perf_counter(), time.process_time()
+    with Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+        console=console,
+        transient=True,
+    ) as bar:
+        task = bar.add_task("calibrating", total=len(sessions))
+        results = calibrate_many(
+            sessions, cfg, jobs=jobs, force=force, store=store,
+            progress=lambda _r: bar.advance(task),
+        )  # fmt: skip
+    wall = time.perf_counter() - t0
+    if json_output:
+        rows = [{"session": r.session, "exit_code": r.exit_code, "error": r.error,
+                 "figures": r.figures} for r in results]  # fmt: skip
+        print_json({"format": "imucal-calibrate-many", "format_version": 1, "results": rows})
+        return max((r.exit_code for r in results), default=0)
+    table = Table(title=f"{len(sessions)} sessions")
+    for col in ("session", "result", "accel |a|-g RMS, m/s^2", "gyro turn RMS, deg", "warnings"):
+        table.add_column(col)
+    for r in results:
+        f = r.figures
+        table.add_row(
+            r.session,
+            "[green]saved[/]" if r.exit_code == 0 else f"[red]failed ({r.exit_code})[/]",
+            f"{f['accel_rms_after']:.4f}" if "accel_rms_after" in f else "",
+            f"{f['gyro_rms_deg']:.3f}" if "gyro_rms_deg" in f else "",
+            str(f.get("warnings", "")),
+        )
+    console.print(table)
+    failed = [r for r in results if r.exit_code]
+    for r in failed:
+        console.print(f"[red]failed[/]: {escape(r.error or '')}", soft_wrap=True)
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = time.process_time() - c0 + usage.ru_utime + usage.ru_stime - c_children
+    console.print(
+        f"{len(results) - len(failed)} saved, {len(failed)} failed in {wall:.1f} s, "
+        f"{cpu:.1f} s CPU ({len(results) / max(cpu, 1e-9):.1f} sessions per CPU second)"
+    )
+    return max((r.exit_code for r in failed), default=0)
 
 
 def _summary(console: Console, cal, where: str) -> None:
@@ -91,7 +186,10 @@ def _summary(console: Console, cal, where: str) -> None:
             how.append(f"{x['iterations']} iterations")
         if x.get("init"):
             how.append(f"init {x['init']}")
-        console.print(f"[bold]{name}[/]: " + ", ".join(how))
+        console.print(f"[bold]{name}[/]: " + escape(", ".join(how)))
+        choice = x.get("choice") or {}
+        if choice.get("by") == "auto":
+            console.print("  solver chosen: " + escape(choice["reason"]))
         if name == "accel" and x.get("rms_after") is not None:
             g = x["gravity"]
             before = x.get("rms_before")
@@ -110,7 +208,7 @@ def _summary(console: Console, cal, where: str) -> None:
         elif turns:
             for rot in turns[:3]:
                 console.print(
-                    f"  {rot['label'] or rot['segment']}: "
+                    f"  {escape(str(rot['label'] or rot['segment']))}: "
                     f"measured {rot['measured_angle_deg']:.3f} deg, "
                     f"known {rot['known_angle_deg']:.3f} deg"
                 )
@@ -123,5 +221,5 @@ def _summary(console: Console, cal, where: str) -> None:
             + f" {units} per {per}"
         )
         for w in x.get("warnings", []):
-            console.print(f"  [bold yellow]warning[/]: {w}")
-    console.print(f"wrote {where}")
+            console.print(f"  [bold yellow]warning[/]: {escape(w)}")
+    console.print(f"wrote {escape(where)}")

@@ -12,8 +12,10 @@ from rich.markup import escape
 
 from imucal_cli.errors import InputError
 
+from . import completion
 from .app import app
-from .options import hold_option, plan_option
+from .console import make_console, print_json
+from .options import plan_option
 
 EXIT_COMPLETE, EXIT_INCOMPLETE = 0, 3
 
@@ -26,7 +28,12 @@ def default_output() -> Path:
 @app.command()
 def capture(
     port: str = typer.Option(
-        ..., "--port", "-p", metavar="PORT", help="Serial port (/dev/ttyUSB0, COM3, a pty)."
+        ...,
+        "--port",
+        "-p",
+        metavar="PORT",
+        help="Serial port (/dev/ttyUSB0, COM3, a pty).",
+        autocompletion=completion.ports,
     ),
     baud: int = typer.Option(115200, "--baud", "-b", metavar="N", help="Baud rate."),
     plan: str | None = plan_option(
@@ -45,11 +52,16 @@ def capture(
         metavar="SPEC",
         help=(
             "Fields of a line, in order: t (device time), ax ay az (a4.. more), gx gy gz "
-            "(g4..), temp, _ (skip). Without t the host clock stamps each line."
+            "(g4..), mx my mz (magnetometer), temp, _ (skip). Without t the host clock stamps "
+            "each line."
         ),
     ),
     time_unit: str = typer.Option(
-        "s", "--time-unit", metavar="s|ms|us|ns", help="Unit of the t field."
+        "s",
+        "--time-unit",
+        metavar="s|ms|us|ns",
+        help="Unit of the t field.",
+        autocompletion=completion.time_units,
     ),
     protocol: str = typer.Option(
         "lines",
@@ -76,13 +88,33 @@ def capture(
         None, "--sensor", metavar="TEXT", help="Free text stored in the session (part, serial)."
     ),
     accel_units: str | None = typer.Option(
-        None, "--accel-units", metavar="UNITS", help="Units of the raw accel: counts, V, g, m/s^2."
+        None,
+        "--accel-units",
+        metavar="UNITS",
+        help="Units of the raw accel: counts, V, g, m/s^2.",
+        autocompletion=completion.accel_units,
     ),
     gyro_units: str | None = typer.Option(
         None,
         "--gyro-units",
         metavar="UNITS",
         help="Units of the raw gyro: counts, V, rad/s, deg/s.",
+        autocompletion=completion.gyro_units,
+    ),
+    mag_units: str | None = typer.Option(
+        None,
+        "--mag-units",
+        metavar="UNITS",
+        help="Units of the raw magnetometer: counts, uT, nT, gauss.",
+    ),
+    field_ut: float | None = typer.Option(
+        None,
+        "--field-uT",
+        metavar="UT",
+        help=(
+            "Local geomagnetic field magnitude, microtesla (from a geomagnetic model such as "
+            "the WMM for your place): the magnetometer calibration comes out in uT."
+        ),
     ),
     min_still: float = typer.Option(
         1.0, "--min-still", metavar="SECONDS", help="Shortest still period that counts."
@@ -96,14 +128,21 @@ def capture(
         metavar="SECONDS",
         help="End the capture when the data stops this long.",
     ),
-    hold: float = hold_option("Guided mode: time to hold each pose still"),
+    hold: float = typer.Option(
+        2.0, "--hold", metavar="SECONDS", help="Guided mode: seconds to hold each pose still."
+    ),
     force: bool = typer.Option(False, "--force", help="Overwrite the output file."),
+    json_output: bool = typer.Option(
+        False,
+        "--json",
+        help="Print the summary as JSON on stdout (nothing else; guided prompts go to stderr).",
+    ),
 ) -> None:
     """Record a calibration session from an IMU on a serial port.
 
-    Reads text lines of numbers (commas, spaces or tabs) and appends them to the session as
-    they arrive (flushed at least once a second).  Ctrl-C, SIGTERM, an unplugged device or a
-    stalled stream end the capture with a valid session holding every sample received.
+    Reads text lines of numbers (commas, semicolons, spaces or tabs) and appends them to the
+    session as they arrive (flushed at least once a second).  Ctrl-C, SIGTERM, an unplugged
+    device or a stalled stream end the capture with a valid session holding every sample.
 
     Exit status: 0 the session is complete; 3 the session is saved but incomplete (steps of
     the plan not seen, interrupted, device gone, data stopped); 2 bad input (no such port,
@@ -114,6 +153,7 @@ def capture(
     from imucal_cli.formats.columns import ColumnSpec
     from imucal_cli.plans import load_plan
 
+    check_mag_options(mag_units, field_ut)
     if protocol == "witmotion":
         stream_protocol = WitMotionProtocol()
         accel_units, gyro_units = accel_units or "counts", gyro_units or "counts"
@@ -143,8 +183,8 @@ def capture(
     if not out.parent.is_dir():
         raise InputError(f"{out}: directory {out.parent} does not exist")
 
-    console = Console()
-    err = Console(stderr=True, highlight=False)
+    console = make_console(stderr=json_output)  # with --json, stdout holds the JSON alone
+    err = make_console(stderr=True)
 
     def status(message: str) -> None:
         err.print(f"imucal: {escape(message)}", soft_wrap=True)
@@ -153,7 +193,8 @@ def capture(
     try:
         recorder = Recorder(
             out, source, stream_protocol, sensor=sensor, accel_units=accel_units,
-            gyro_units=gyro_units, overwrite=force, wait_timeout_s=wait_timeout,
+            gyro_units=gyro_units, mag_units=mag_units, magnetic_field_uT=field_ut,
+            overwrite=force, wait_timeout_s=wait_timeout,
             read_timeout_s=read_timeout, on_status=status,
         )  # fmt: skip
     except BaseException:
@@ -172,15 +213,48 @@ def capture(
             )
     finally:
         recorder.close()
+    if recorder.end_kind == "clock":  # issue 10.5: a time unit off by a factor
+        raise InputError(f"{recorder.end_reason} ({out} keeps the {recorder.n_samples} samples)")
     if not recorder.file_written:
         if recorder.end_kind == "timeout":
             raise InputError(recorder.end_reason)
         err.print(f"imucal: {escape(recorder.end_reason)} before any data: no file written")
         raise typer.Exit(EXIT_INCOMPLETE)
-    _print_summary(console, out, recorder, summary)
+    if json_output:
+        print_json(_summary_json(out, recorder, summary))
+    else:
+        _print_summary(console, out, recorder, summary)
     sys.stdout.flush()
     if not summary.complete:
         raise typer.Exit(EXIT_INCOMPLETE)
+
+
+def _summary_json(out: Path, recorder, summary) -> dict:
+    segs = recorder.segments
+    n_static = sum(1 for s in segs if s["kind"] == "static")
+    st = summary.stats
+    return {
+        "format": "imucal-capture", "format_version": 1, "output": str(out),
+        "complete": bool(summary.complete), "done": list(summary.done),
+        "skipped": list(summary.skipped), "missing": list(summary.missing),
+        "end": recorder.end_kind, "end_reason": summary.end_reason,
+        "samples": int(summary.samples), "static_segments": n_static,
+        "rotation_segments": len(segs) - n_static,
+        "labelled_segments": sum(1 for s in segs if "label" in s),
+        "lines": int(st.get("lines", 0)), "comments": int(st.get("comments", 0)),
+        "malformed": int(st.get("malformed", 0)), "duration_s": float(st.get("duration_s", 0.0)),
+        "rate_hz": float(st.get("rate_hz", 0.0)),
+    }  # fmt: skip
+
+
+def check_mag_options(mag_units: str | None, field_ut: float | None) -> None:
+    """Refuse unknown magnetometer units or a field that is not a positive number."""
+    from imucal_cli.formats.session import MAG_UNITS
+
+    if mag_units is not None and mag_units not in MAG_UNITS:
+        raise InputError(f"--mag-units {mag_units!r}: use {', '.join(MAG_UNITS)}")
+    if field_ut is not None and not (field_ut > 0 and field_ut < 1e4):
+        raise InputError(f"--field-uT must be a positive number of microtesla, got {field_ut:g}")
 
 
 def _print_summary(console: Console, out: Path, recorder, summary) -> None:

@@ -7,15 +7,17 @@ import os
 from pathlib import Path
 
 import typer
-from rich.console import Console
 
+from . import completion
 from .app import app
+from .console import make_console
 
 
 @app.command()
 def export(
     calibration: Path = typer.Argument(
         ...,
+        metavar="CAL.json",
         help="Calibration JSON (from imucal calibrate); for kalibr-imu and ros-imu a noise "
         "JSON (imucal noise --json) is enough.",
         show_default=False,
@@ -24,38 +26,51 @@ def export(
         None,
         "--format",
         "-f",
+        metavar="FORMAT",
+        autocompletion=completion.export_formats,
         help="c-header, yaml (ROS imu_calib), json, kalibr-imu (noise imu.yaml), kalibr "
         "(M, A, C_gyro_i), openvins, basalt, px4, ardupilot, fusion, ros-imu (covariances) "
         "[default: from OUTPUT's suffix .h/.yaml/.json/.params/.parm].",
     ),
     output: Path | None = typer.Option(
-        None, "--output", "-o", help="File to write [default: standard output]."
+        None, "--output", "-o", metavar="FILE", help="File to write [default: standard output]."
     ),
     noise: Path | None = typer.Option(
         None,
         "--noise",
+        metavar="NOISE.json",
         help="Noise figures from imucal noise SESSION --json (kalibr-imu, kalibr, openvins, "
         "ros-imu).",
     ),
     rate: float | None = typer.Option(
-        None, "--rate", help="Rate the target runs at, Hz [default: the noise recording's]."
+        None,
+        "--rate",
+        metavar="HZ",
+        help="Rate the target runs at, Hz [default: the noise recording's].",
     ),
-    topic: str = typer.Option("/imu0", "--topic", help="ROS topic of the IMU (Kalibr, OpenVINS)."),
+    topic: str = typer.Option(
+        "/imu0", "--topic", metavar="TOPIC", help="ROS topic of the IMU (Kalibr, OpenVINS)."
+    ),
     accel_scale: str | None = typer.Option(
         None,
         "--accel-scale",
+        metavar="SCALE",
         help="Driver's m/s^2 per raw unit, for a calibration of counts or V exported to targets "
         "that read SI (kalibr, openvins, basalt, px4, ardupilot), e.g. 9.80665/16384.",
     ),
     gyro_scale: str | None = typer.Option(
-        None, "--gyro-scale", help="Driver's rad/s per raw unit, as --accel-scale."
+        None, "--gyro-scale", metavar="SCALE", help="Driver's rad/s per raw unit, as --accel-scale."
     ),
     device_id: int | None = typer.Option(
-        None, "--device-id", help="px4: CAL_ACC0_ID/CAL_GYRO0_ID; ardupilot: INS_ACC_ID/INS_GYR_ID."
+        None,
+        "--device-id",
+        metavar="N",
+        help="px4: CAL_ACC0_ID/CAL_GYRO0_ID; ardupilot: INS_ACC_ID/INS_GYR_ID.",
     ),
     prefix: str | None = typer.Option(
         None,
         "--prefix",
+        metavar="NAME",
         help="c-header / fusion: name prefix, a C identifier [default: IMUCAL; fusion none].",
     ),
 ) -> None:
@@ -104,4 +119,4 @@ def export(
         for name, sec in (("accel", cal.accel), ("gyro", cal.gyro))
         if sec is not None
     ) if cal is not None else "noise figures"  # fmt: skip
-    Console(stderr=True).print(f"wrote {output} ({fmt}: {what})", highlight=False)
+    make_console(stderr=True).print(f"wrote {output} ({fmt}: {what})", markup=False)

@@ -5,9 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import typer
-from rich.console import Console
 
+from . import completion
 from .app import app
+from .console import make_console, print_json
 
 
 def default_output(first: Path) -> Path:
@@ -19,35 +20,101 @@ def default_output(first: Path) -> Path:
 def import_(
     files: list[Path] = typer.Argument(
         ...,
+        metavar="FILE",
         help="Recorded file(s): one CSV, or for imu_tk the accelerometer file then the "
         "gyroscope file.",
         show_default=False,
     ),
-    fmt: str = typer.Option("csv", "--format", "-f", help="csv or imu_tk."),
+    fmt: str = typer.Option(
+        "csv",
+        "--format",
+        "-f",
+        metavar="FORMAT",
+        help="csv or imu_tk.",
+        autocompletion=completion.import_formats,
+    ),
     columns: str | None = typer.Option(
         None,
         "--columns",
-        help="Fields of a line, e.g. t,ax,ay,az,gx,gy,gz or _,ax,ay,az (_ skips a field) "
+        metavar="SPEC",
+        help="Fields of a line, e.g. t,ax,ay,az,gx,gy,gz,mx,my,mz or _,ax,ay,az (_ skips a field) "
         "[default: from the header line].",
     ),
-    time_unit: str = typer.Option("s", "--time-unit", help="Unit of the t column: s, ms or us."),
+    time_unit: str = typer.Option(
+        "s",
+        "--time-unit",
+        metavar="s|ms|us",
+        help="Unit of the t column: s, ms or us.",
+        autocompletion=completion.time_units,
+    ),
     rate: float | None = typer.Option(
-        None, "--rate", help="Sample rate in Hz; required without a t column (time = row / rate)."
+        None,
+        "--rate",
+        metavar="HZ",
+        help="Sample rate in Hz; required without a t column (time = row / rate).",
     ),
     accel_units: str | None = typer.Option(
-        None, "--accel-units", help="Raw accelerometer units: counts, V, g or m/s^2."
+        None,
+        "--accel-units",
+        metavar="UNITS",
+        help="Raw accelerometer units: counts, V, g or m/s^2.",
+        autocompletion=completion.accel_units,
     ),
     gyro_units: str | None = typer.Option(
-        None, "--gyro-units", help="Raw gyroscope units: counts, V, rad/s or deg/s."
+        None,
+        "--gyro-units",
+        metavar="UNITS",
+        help="Raw gyroscope units: counts, V, rad/s or deg/s.",
+        autocompletion=completion.gyro_units,
+    ),
+    mag_units: str | None = typer.Option(
+        None,
+        "--mag-units",
+        metavar="UNITS",
+        help="Raw magnetometer units (columns mx,my,mz): counts, uT, nT or gauss.",
+    ),
+    field_ut: float | None = typer.Option(
+        None,
+        "--field-uT",
+        metavar="UT",
+        help="Local geomagnetic field magnitude, microtesla, where known.",
     ),
     skip_rows: int = typer.Option(
-        0, "--skip-rows", help="Lines to skip at the top of each file (headers are also detected)."
+        0,
+        "--skip-rows",
+        metavar="N",
+        help="Lines to skip at the top of each file (headers are also detected).",
     ),
-    sensor: str | None = typer.Option(None, "--sensor", help="Free text: part and serial number."),
+    sensor: str | None = typer.Option(
+        None, "--sensor", metavar="TEXT", help="Free text stored in the session (part, serial)."
+    ),
+    sections: str | None = typer.Option(
+        None,
+        "--sections",
+        metavar="FILE.json|COLUMN",
+        help="Labelled sections instead of automatic segmentation: a MaD Lab section list "
+        "(JSON {label: {start, end}}, rows end-exclusive) or the name of a column holding each "
+        "row's label (e.g. part). Ferraris labels x_p x_a y_p y_a z_p z_a become faces with "
+        "their up direction, x_rot y_rot z_rot 360-degree turns about that axis.",
+    ),
+    turn_angle: float | None = typer.Option(
+        None,
+        "--turn-angle",
+        metavar="DEG",
+        help="Signed angle of the sections' turns in degrees, e.g. -360 [default: 360 with the "
+        "sign of the gyro's own integral].",
+    ),
     output: Path | None = typer.Option(
-        None, "--output", "-o", help="Session file to write [default: FILE's name with .h5, here]."
+        None,
+        "--output",
+        "-o",
+        metavar="FILE.h5",
+        help="Session file to write [default: FILE's name with .h5, here].",
     ),
     force: bool = typer.Option(False, "--force", help="Overwrite the output file."),
+    json_output: bool = typer.Option(
+        False, "--json", help="Print what was read and written as JSON on stdout (nothing else)."
+    ),
 ) -> None:
     """Import recorded samples into a session and find its still poses and rotations.
 
@@ -69,33 +136,63 @@ def import_(
         accel_units=accel_units,
         gyro_units=gyro_units,
         sensor=sensor,
+        sections=sections,
+        turn_angle_deg=turn_angle,
+        mag_units=mag_units,
+        magnetic_field_uT=field_ut,
     )
     out = output or default_output(files[0])
     write_session(out, session, overwrite=force)
 
     stats = session.import_stats
     static = session.static_segments()
-    rotations = session.rotation_segments()
-    dt = 1.0 / session.sample_rate_hz
-    held = sum(s.n_samples for s in static) * dt
-    console = Console()
-    duration = session.time[-1] - session.time[0]
+    skipped = {"header": stats.header, "comments": stats.comments, "malformed": stats.malformed,
+               "first_malformed": stats.first_malformed, "unmatched": stats.unmatched}  # fmt: skip
+    result = {
+        "format": "imucal-import", "format_version": 1, "output": str(out),
+        "files": [str(f) for f in files], "samples": int(stats.samples),
+        "duration_s": float(session.time[-1] - session.time[0]),
+        "sample_rate_hz": float(session.sample_rate_hz),
+        "static_segments": len(static), "rotation_segments": len(session.rotation_segments()),
+        "still_s": float(sum(s.n_samples for s in static) / session.sample_rate_hz),
+        "skipped_lines": skipped, "notes": list(getattr(session, "import_notes", [])),
+        "mag_channels": None if session.mag is None else int(session.mag.shape[1]),
+        "mag_units": session.mag_units,
+    }  # fmt: skip
+    if json_output:
+        print_json(result)
+        return
+    _print_summary(result)
+
+
+def _print_summary(result: dict) -> None:
+    console = make_console()
+    files = ", ".join(result["files"])
     console.print(
-        f"read {stats.samples} samples ({duration:.1f} s at {session.sample_rate_hz:.4g} Hz) "
-        f"from {', '.join(str(f) for f in files)}"
+        f"read {result['samples']} samples ({result['duration_s']:.1f} s at "
+        f"{result['sample_rate_hz']:.4g} Hz) from {files}",
+        markup=False,
     )
+    s = result["skipped_lines"]
     skipped = []
-    if stats.header:
-        skipped.append(f"{stats.header} header")
-    if stats.comments:
-        skipped.append(f"{stats.comments} comment")
-    if stats.malformed:
-        skipped.append(f"{stats.malformed} malformed (first at {stats.first_malformed})")
-    if stats.unmatched:
-        skipped.append(f"{stats.unmatched} unmatched (no sample of that time in the other file)")
+    if s["header"]:
+        skipped.append(f"{s['header']} header")
+    if s["comments"]:
+        skipped.append(f"{s['comments']} comment")
+    if s["malformed"]:
+        skipped.append(f"{s['malformed']} malformed (first at {s['first_malformed']})")
+    if s["unmatched"]:
+        skipped.append(f"{s['unmatched']} unmatched (no sample of that time in the other file)")
     if skipped:
-        console.print("  skipped lines: " + ", ".join(skipped))
+        console.print("  skipped lines: " + ", ".join(skipped), markup=False)
     console.print(
-        f"  {len(static)} static segments ({held:.1f} s still), {len(rotations)} rotation segments"
+        f"  {result['static_segments']} static segments ({result['still_s']:.1f} s still), "
+        f"{result['rotation_segments']} rotation segments",
+        markup=False,
     )
-    console.print(f"wrote {out}")
+    for note in result["notes"]:
+        console.print(f"  {note}", markup=False)
+    if result["mag_channels"] is not None:
+        units = result["mag_units"] or "units not given"
+        console.print(f"  magnetometer: {result['mag_channels']} channels ({units})", markup=False)
+    console.print(f"wrote {result['output']}", markup=False)

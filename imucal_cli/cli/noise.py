@@ -9,17 +9,22 @@ import typer
 from rich.console import Console
 
 from .app import app
+from .console import make_console
 
 
 @app.command()
 def noise(
     session: Path = typer.Argument(
-        ..., help="A still recording (.h5), e.g. from capture --plan still:20.", show_default=False
+        ...,
+        metavar="SESSION.h5",
+        help="A still recording (.h5), e.g. from capture --plan still:20.",
+        show_default=False,
     ),
     calibration: Path | None = typer.Option(
         None,
         "--calibration",
         "-c",
+        metavar="CAL.json",
         help="Calibration JSON (or a session holding one) turning raw channels into SI; "
         "needed for counts or V.",
     ),
@@ -54,7 +59,7 @@ def noise(
     if json_output:
         typer.echo(json.dumps(result.to_dict(), indent=2))
         return
-    console = Console()
+    console = make_console()
     _render(console, result)
     if plot is not None:
         typer.echo(f"wrote {plot}")
@@ -80,9 +85,12 @@ def _render(console: Console, result) -> None:
     from rich.text import Text
 
     from imucal_cli.use.noise import figures
+    from imucal_cli.use.report.out import show_table
 
     sensor = f" ({result.sensor})" if result.sensor else ""
-    console.print(Text(f"{result.session}{sensor}: {result.span}, {result.limits()}"))
+    console.print(
+        Text(f"{result.session}{sensor}: {result.span}, {result.limits()}"), soft_wrap=True
+    )
     for s in result.sensors:
         table = Table(
             title=Text(f"{s.kind}: Allan deviation figures, raw -> {s.units} by {s.basis}"),
@@ -107,6 +115,6 @@ def _render(console: Console, result) -> None:
         notes = sorted({note for a in s.noise for note in a.notes})
         table.caption = Text("\n".join([_HOW[s.kind], *notes]))
         table.caption_justify = "left"
-        console.print(table)
+        show_table(console, table)
     for w in result.warnings:
-        console.print(f"[bold yellow]warning[/]: {w}")
+        console.print(Text.assemble(("warning", "bold yellow"), f": {w}"), soft_wrap=True)

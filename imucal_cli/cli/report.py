@@ -6,15 +6,16 @@ import json
 from pathlib import Path
 
 import typer
-from rich.console import Console
 
 from .app import app
+from .console import make_console
 
 
 @app.command()
 def report(
     paths: list[Path] = typer.Argument(
         ...,
+        metavar="CAL.json|SESSION.h5",
         help="A calibration JSON, or a session .h5 (its last stored calibration is shown). "
         "Several: the history of each sensor across them.",
         show_default=False,
@@ -48,7 +49,11 @@ def report(
 
     With several paths (or --history): calibrations are grouped by their sensor field; for
     each sensor with two or more, its parameters over time, the change from the first and a
-    "drifted" flag when a change exceeds 3 combined standard deviations.
+    "drifted" flag when a change exceeds 3 combined standard deviations; calibrations made
+    with another solver, model, units or gravity are not compared with each other.
+
+    Exit status: 0 shown; 2 bad input (missing or malformed file, a session without a stored
+    calibration, --plot with several calibrations or without matplotlib).
     """
     # Imported here so the other commands and `imucal --help` do not load the report stack.
     from imucal_cli.errors import InputError
@@ -68,7 +73,7 @@ def report(
         if json_output:
             typer.echo(json.dumps(result, indent=2))
         else:
-            render_history(result, Console())
+            render_history(result, make_console())
         return
 
     cal = load_for_report(paths[0])
@@ -80,6 +85,6 @@ def report(
     if json_output:
         typer.echo(json.dumps(result, indent=2))
     else:
-        render_report(result, Console())
+        render_report(result, make_console())
         if plot is not None:
             typer.echo(f"wrote {plot}")

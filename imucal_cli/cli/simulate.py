@@ -3,14 +3,40 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 
 import typer
 
 from imucal_cli.errors import InputError
 
+from . import completion
 from .app import app
-from .options import hold_option, plan_option
+from .console import print_json
+from .options import plan_option
+
+SERVE_HOLD_S = 4.0
+"""--serve's hold per pose when --hold is not given, s: capture's default hold (2 s) plus time for
+the stillness detector to see the unit settle after a turn."""
+
+
+def _enter_presses():
+    """A poll ``() -> bool`` that is True once per Enter typed on stdin, or None when stdin cannot
+    be read without stopping the process (a terminal of a background job: SIGTTIN)."""
+    import os
+    import sys
+
+    try:
+        if sys.stdin is None or sys.stdin.closed:
+            return None
+        if sys.stdin.isatty() and os.tcgetpgrp(sys.stdin.fileno()) != os.getpgrp():
+            return None
+    except (OSError, ValueError, AttributeError):
+        return None
+    from imucal_cli.capture.guided.keys import StdinKeys
+
+    keys = StdinKeys()
+    return lambda: keys.get() is not None
 
 
 def truth_path(session_path: Path) -> Path:
@@ -38,10 +64,12 @@ def simulate(
         help="Random seed (>= 0): the same seed and options give the same samples, in any units.",
     ),
     rate: float = typer.Option(100.0, "--rate", metavar="HZ", help="Sample rate, Hz."),
-    hold: float = hold_option(
-        "Time held still in each pose",
-        "at least 10 samples",
-        "The still periods of hwangbo-iron and hk-gyro default to 3 s.",
+    hold: float | None = typer.Option(
+        None,
+        "--hold",
+        metavar="SECONDS",
+        help="Time held still in each pose, s (at least 10 samples) [default: 2; with --serve 4, "
+        "so that a capture with its default 2 s hold has time to see the unit settle].",
     ),
     accel_noise: float = typer.Option(
         0.01,
@@ -66,12 +94,13 @@ def simulate(
             "Raw units: 'counts' (16-bit integers, 8192 LSB/g, 16.4 LSB per deg/s) or 'm/s^2' "
             "(a part of nominal gain 1; gyro in rad/s; no quantisation)."
         ),
+        autocompletion=completion.simulate_units,
     ),
     output: Path | None = typer.Option(
         None,
         "--output",
         "-o",
-        metavar="PATH.h5",
+        metavar="FILE.h5",
         help=(
             "Session file to write (default: sim-<plan>-seed<seed>.h5); the truth goes "
             "beside it as <name>.truth.json."
@@ -144,24 +173,61 @@ def simulate(
         115200, "--baud", metavar="N", help="--serve: emulated baud rate (bytes are paced)."
     ),
     loop: bool = typer.Option(False, "--loop", help="--serve: repeat the plan."),
+    step: bool = typer.Option(
+        False,
+        "--step",
+        help="--serve: hold each pose until Enter is pressed in this terminal (without it the "
+        "plan runs on a timer, --hold per pose, and Enter moves to the next pose early).",
+    ),
     duration: float | None = typer.Option(
         None, "--duration", metavar="SECONDS", help="--serve: stop streaming after this long."
     ),
     temp: bool = typer.Option(
         True, "--temp/--no-temp", help="--serve: print the temperature field (8 or 7 fields)."
     ),
-    move: float = typer.Option(1.5, "--move", hidden=True),
-    garbage: bool = typer.Option(False, "--garbage", hidden=True),
-    stall_after: float | None = typer.Option(None, "--stall-after", hidden=True),
-    vanish_after: float | None = typer.Option(None, "--vanish-after", hidden=True),
-    malformed_every: int | None = typer.Option(None, "--malformed-every", hidden=True),
+    move: float = typer.Option(
+        1.5, "--move", metavar="SECONDS", help="--serve: time each turn between poses takes, s."
+    ),
+    garbage: bool = typer.Option(
+        False,
+        "--garbage",
+        help="--serve, test fault: random bytes instead of lines (as a wrong baud rate shows).",
+    ),
+    stall_after: float | None = typer.Option(
+        None,
+        "--stall-after",
+        metavar="SECONDS",
+        help="--serve, test fault: stop sending after this long, keep the port open.",
+    ),
+    vanish_after: float | None = typer.Option(
+        None,
+        "--vanish-after",
+        metavar="SECONDS",
+        help="--serve, test fault: close the port after this long (the device is unplugged).",
+    ),
+    malformed_every: int | None = typer.Option(
+        None,
+        "--malformed-every",
+        metavar="N",
+        help="--serve, test fault: every N-th line loses its last two fields.",
+    ),
+    json_output: bool = typer.Option(
+        False,
+        "--json",
+        help="Print what was written (or, with --serve, sent) as JSON on stdout; with --serve "
+        "the device path still comes first, on its own line.",
+    ),
 ) -> None:
     """Simulate a calibration session of a cheap 16-bit MEMS IMU with known truth.
 
     Writes the session (HDF5) and the true calibration (JSON) of the simulated part; with
     --serve, streams it live on a pseudo-terminal instead (every plan; ends after the plan,
     --duration, or on Ctrl-C/SIGTERM).  Test faults of --serve: --garbage (random bytes, as a
-    wrong baud rate), --stall-after S, --vanish-after S (close the port), --malformed-every N.
+    wrong baud rate), --stall-after SECONDS, --vanish-after SECONDS (close the port),
+    --malformed-every N.
+
+    Exit status: 0 written (or streamed); 2 bad input (unknown plan, bad option, existing
+    output without --force).
     """
     from imucal_cli.plans import load_plan
 
@@ -171,7 +237,6 @@ def simulate(
 
     load_plan(plan)  # an unknown plan is refused first, with the list of plans
     options = {
-        "hold_s": hold if given("hold") else None,  # a plan's own default otherwise
         "accel_noise": accel_noise, "jitter_deg": jitter_deg, "still_s": still,
         "rotations_per_axis": rotations_per_axis if given("rotations_per_axis") else None,
         "peak_rate_dps": peak_rate, "sigma_counts": sigma_counts, "orientations": orientations,
@@ -179,10 +244,11 @@ def simulate(
     }  # fmt: skip
     if serve:
         _serve(
-            plan, rate, baud, seed=seed, move_s=move, units=units, temperature=temp,
-            loop=loop, duration_s=duration, garbage=garbage, stall_after_s=stall_after,
-            vanish_after_s=vanish_after, malformed_every=malformed_every,
-            hold_s=options.pop("hold_s"), plan_options=options,
+            plan, rate, baud, json_output, seed=seed, hold_s=SERVE_HOLD_S if hold is None else hold,
+            move_s=move, step=step, units=units, plan_options=options,
+            temperature=temp, loop=loop, duration_s=duration, garbage=garbage,
+            stall_after_s=stall_after, vanish_after_s=vanish_after,
+            malformed_every=malformed_every,
         )  # fmt: skip
         return
     from imucal_cli.formats.calibration import write_calibration
@@ -200,23 +266,32 @@ def simulate(
             if p.exists():
                 raise InputError(f"{p} exists: use --force to overwrite it")
     session, truth = simulate_plan(
-        plan, seed=seed, units=units, rate_hz=rate if given("rate") else None, move_s=move,
-        **options,
+        plan, seed=seed, units=units, rate_hz=rate if given("rate") else None, hold_s=hold,
+        move_s=move, **options,
     )  # fmt: skip
     rate = float(session.sample_rate_hz)
     truth = dataclasses.replace(truth, session=out.name)
     write_session(out, session, overwrite=force)
+    write_calibration(truth_out, truth)
     n_static = sum(1 for s in session.segments if s.kind == "static")
     n = len(session.time)
+    if json_output:
+        print_json(
+            {"format": "imucal-simulate", "format_version": 1, "output": str(out),
+             "truth": str(truth_out), "plan": plan, "seed": seed, "sensor": session.sensor,
+             "samples": n, "duration_s": n / rate, "sample_rate_hz": rate,
+             "static_segments": n_static, "rotation_segments": len(session.segments) - n_static,
+             "accel_units": session.accel_units, "gyro_units": session.gyro_units}
+        )  # fmt: skip
+        return
     typer.echo(
         f"wrote {out}: {n_static} poses, {n} samples ({n / rate:.1f} s at {rate:g} Hz), "
         f"{session.accel_units}"
     )
-    write_calibration(truth_out, truth)
     typer.echo(f"wrote {truth_out}: true calibration of {session.sensor}")
 
 
-def _serve(plan: str, rate: float, baud: int, **options) -> None:
+def _serve(plan: str, rate: float, baud: int, json_output: bool, **options) -> None:
     import sys
 
     from imucal_cli.simulate.device import serve
@@ -227,7 +302,22 @@ def _serve(plan: str, rate: float, baud: int, **options) -> None:
     def status(message: str) -> None:
         print(f"imucal: {message}", file=sys.stderr, flush=True)
 
-    result = serve(plan, rate, baud, announce=announce, status=status, **options)
+    enter = _enter_presses()
+    if options.get("step") and enter is None:
+        raise InputError("--step needs Enter from this terminal: run --serve in the foreground")
+    how = ("each pose is held until you press Enter here" if options.get("step") else
+           f"the plan runs on a timer, each pose held {options['hold_s']:g} s"
+           + ("; Enter here moves to the next pose now" if enter else ""))  # fmt: skip
+    status(how)
+    result = serve(plan, rate, baud, announce=announce, status=status, next_pose=enter,
+                   **options)  # fmt: skip
+    if json_output:
+        document = {"format": "imucal-serve", "format_version": 1, "path": result.path,
+                    "lines": result.lines, "malformed": result.malformed,
+                    "garbage_bytes": result.garbage_bytes, "seconds": result.seconds,
+                    "end": result.end}  # fmt: skip
+        print(json.dumps(document), flush=True)
+        return
     print(
         f"# sent {result.lines} lines, {result.malformed} malformed, "
         f"{result.garbage_bytes} garbage bytes, {result.seconds:.2f} s, end {result.end}",

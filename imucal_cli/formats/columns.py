@@ -9,6 +9,7 @@ name        meaning
 ``ax``      accelerometer channels 1, 2, 3 (``ay``, ``az``); a redundant unit adds
             ``a4``, ``a5``, ... (channel 4, 5, ...)
 ``gx``      gyroscope channels 1, 2, 3 (``gy``, ``gz``); more as ``g4``, ``g5``, ...
+``mx``      magnetometer channels 1, 2, 3 (``my``, ``mz``); more as ``m4``, ...
 ``temp``    temperature, degrees C
 ``_``       a field that is read but ignored (may repeat)
 ==========  =====================================================================
@@ -35,7 +36,7 @@ TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 """Device time units and their length in seconds."""
 
 _SEPARATORS = re.compile(r"[,\s;]+")
-_CHANNEL = re.compile(r"([ag])(x|y|z|\d+)")
+_CHANNEL = re.compile(r"([agm])(x|y|z|\d+)")
 _AXIS_NUMBER = {"x": 1, "y": 2, "z": 3}
 
 
@@ -52,6 +53,8 @@ class ColumnSpec:
     accel, gyro : tuple of int
         Field indices of the accelerometer / gyroscope channels, in channel order (empty:
         the device has no such sensor).
+    mag : tuple of int
+        Field indices of the magnetometer channels (empty: none).
     temperature : int or None
         Field index of the temperature.
     time_unit : str
@@ -64,6 +67,7 @@ class ColumnSpec:
     gyro: tuple[int, ...]
     temperature: int | None
     time_unit: str = "s"
+    mag: tuple[int, ...] = ()
 
     @property
     def n_fields(self) -> int:
@@ -106,7 +110,7 @@ class ColumnSpec:
         if not names:
             raise InputError(f"{where}: no fields (example: {DEFAULT_COLUMNS})")
         time = temperature = None
-        channels: dict[str, dict[int, int]] = {"a": {}, "g": {}}
+        channels: dict[str, dict[int, int]] = {"a": {}, "g": {}, "m": {}}
         seen: set[str] = set()
         for index, name in enumerate(names):
             if name == "_":
@@ -130,14 +134,14 @@ class ColumnSpec:
             if number is None:
                 raise InputError(
                     f"{where}: unknown field {name!r} (known: t, ax, ay, az, a4.., "
-                    "gx, gy, gz, g4.., temp, _ to skip)"
+                    "gx, gy, gz, g4.., mx, my, mz, temp, _ to skip)"
                 )
             sensor = channels[match.group(1)]
             if number in sensor:
                 raise InputError(f"{where}: field {name!r} appears twice")
             sensor[number] = index
         ordered = {}
-        for key, label in (("a", "accelerometer"), ("g", "gyroscope")):
+        for key, label in (("a", "accelerometer"), ("g", "gyroscope"), ("m", "magnetometer")):
             numbers = sorted(channels[key])
             if numbers and numbers != list(range(1, len(numbers) + 1)):
                 raise InputError(
@@ -147,9 +151,11 @@ class ColumnSpec:
             if numbers and len(numbers) < 3:
                 raise InputError(f"{where}: the {label} needs at least 3 channels ({key}x..{key}z)")
             ordered[key] = tuple(channels[key][n] for n in numbers)
-        if not ordered["a"] and not ordered["g"]:
-            raise InputError(f"{where}: no accelerometer or gyroscope channels (ax.. or gx..)")
-        return cls(names, time, ordered["a"], ordered["g"], temperature, time_unit)
+        if not ordered["a"] and not ordered["g"] and not ordered["m"]:
+            raise InputError(
+                f"{where}: no accelerometer, gyroscope or magnetometer channels (ax.., gx.., mx..)"
+            )
+        return cls(names, time, ordered["a"], ordered["g"], temperature, time_unit, ordered["m"])
 
     def to_block(self, rows: np.ndarray, host_time: np.ndarray | None = None):
         """Split parsed lines into a :class:`~imucal_cli.capture.stream.SampleBlock`.
@@ -179,6 +185,7 @@ class ColumnSpec:
             accel=rows[:, list(self.accel)] if self.accel else None,
             gyro=rows[:, list(self.gyro)] if self.gyro else None,
             temperature=rows[:, self.temperature] if self.temperature is not None else None,
+            mag=rows[:, list(self.mag)] if self.mag else None,
         )
 
 
@@ -201,12 +208,15 @@ class SampleBlock:
         Raw gyroscope channels.
     temperature : ndarray, shape (k,), or None
         Degrees C.
+    mag : ndarray, shape (k, nm), or None
+        Raw magnetometer channels.
     """
 
     time: np.ndarray
     accel: np.ndarray | None = None
     gyro: np.ndarray | None = None
     temperature: np.ndarray | None = None
+    mag: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.time.shape[0])
@@ -223,7 +233,7 @@ class SampleBlock:
             return None if a is None else a[mask]
 
         return SampleBlock(self.time[mask], pick(self.accel), pick(self.gyro),
-                           pick(self.temperature))  # fmt: skip
+                           pick(self.temperature), pick(self.mag))  # fmt: skip
 
     @staticmethod
     def concatenate(blocks: list[SampleBlock]) -> SampleBlock:
@@ -238,4 +248,4 @@ class SampleBlock:
                 return None
             return np.concatenate([getattr(b, name) for b in blocks])
 
-        return SampleBlock(cat("time"), cat("accel"), cat("gyro"), cat("temperature"))
+        return SampleBlock(cat("time"), cat("accel"), cat("gyro"), cat("temperature"), cat("mag"))

@@ -5,7 +5,9 @@ Example (every key optional; these are the defaults)::
     gravity = 9.80665            # m/s^2; default: the session's `gravity` attribute
 
     [accel]
-    solver = "gravity"           # "gravity" (Qureshi & Golnaraghi III-A), "factorization", "none"
+    solver = "auto"              # "auto" (the most accurate the session supports), "gravity"
+                                 # (Qureshi & Golnaraghi III-A), "labelled" (labelled poses,
+                                 # full matrix), "factorization" (Hwangbo & Kanade), "none"
     # nominal_sensitivity = 835.4  # raw units per m/s^2 (datasheet); default from the units
     # nominal_bias = 0.0           # raw units, scalar or one per channel
     # range = [-32768, 32767]      # raw output range; default inferred from the units/data
@@ -18,6 +20,11 @@ Example (every key optional; these are the defaults)::
     weighting = "noise"          # "noise": weight poses by their measured noise; "equal"
     max_iterations = 200
     leave_one_out = true         # held-out residual of each pose in the report
+
+    [accel.labelled]             # poses with `up` labels, each direction a nuisance parameter
+    # placement_deg = 2.0        # RMS angle between the true and the labelled up; default:
+                                 # estimated from the data (2 deg when too few poses)
+    max_iterations = 200
 
     [accel.factorization]        # Hwangbo & Kanade
     use = "means"                # constraints over per-pose "means" or individual "samples"
@@ -59,7 +66,7 @@ from typing import Any
 
 from imucal_cli.errors import ConfigError
 
-ACCEL_SOLVERS = ("gravity", "factorization", "none")
+ACCEL_SOLVERS = ("auto", "gravity", "labelled", "factorization", "none")
 GYRO_SOLVERS = ("none", "static", "dynamic", "full", "factorization")
 
 
@@ -72,6 +79,14 @@ class GravityOptions:
     weighting: str = "noise"
     max_iterations: int = 200
     leave_one_out: bool = True
+
+
+@dataclass
+class LabelledOptions:
+    """Options of the labelled-pose solver (``[accel.labelled]``)."""
+
+    placement_deg: float | None = None
+    max_iterations: int = 200
 
 
 @dataclass
@@ -100,13 +115,14 @@ class GyroFactorizationOptions:
 class AccelConfig:
     """``[accel]``: which solver, and what is nominal for the physical-sense checks."""
 
-    solver: str = "gravity"
+    solver: str = "auto"
     nominal_sensitivity: float | None = None
     nominal_bias: float | list[float] | None = None
     range: list[float] | None = None
     max_scale_error: float = 0.20
     min_separation_deg: float = 10.0
     gravity: GravityOptions = field(default_factory=GravityOptions)
+    labelled: LabelledOptions = field(default_factory=LabelledOptions)
     factorization: AccelFactorizationOptions = field(default_factory=AccelFactorizationOptions)
 
 
@@ -158,7 +174,7 @@ def _drop_none(d: Any) -> Any:
 
 
 #: Keys whose value is a number even though their default is None.
-_NUMBER_KEYS = {"gravity", "nominal_sensitivity", "fixture_tolerance_deg"}
+_NUMBER_KEYS = {"gravity", "nominal_sensitivity", "fixture_tolerance_deg", "placement_deg"}
 
 
 def _number(where: str, key: str, value: Any) -> float:
@@ -236,8 +252,15 @@ def validate(cfg: Config, where: str = "<config>") -> None:
     _one_of(
         where, "gyro.factorization", "linear", cfg.gyro.factorization.linear, ("subspace", "paper")
     )
+    pl = a.labelled.placement_deg
+    if pl is not None and not 0 < pl <= 45:
+        raise ConfigError(
+            f"{where}: [accel.labelled] placement_deg = {pl:g} must be above 0 and at most 45 "
+            "(degrees between the true and the labelled up)"
+        )
     for table, n in (
         ("accel.gravity", g.max_iterations),
+        ("accel.labelled", a.labelled.max_iterations),
         ("accel.factorization", f.max_iterations),
         ("gyro.factorization", cfg.gyro.factorization.max_iterations),
     ):

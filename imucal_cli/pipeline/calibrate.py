@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from imucal_cli import __version__
-from imucal_cli.errors import ConfigError, SolverError
+from imucal_cli.errors import ConfigError, DesignError, SolverError
 from imucal_cli.formats.calibration import Calibration, SensorCalibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session, utc_now_iso
@@ -23,15 +23,28 @@ from imucal_cli.pipeline.common import (  # noqa: F401 (re-exported for callers)
 )
 
 
-def calibrate_accel(session: Session, cfg: Config) -> SensorCalibration:
-    """Run the configured accelerometer solver (``[accel] solver``) on a session."""
-    if cfg.accel.solver == "factorization":
+def calibrate_accel(session: Session, cfg: Config) -> SensorCalibration | None:
+    """Run the configured accelerometer solver (``[accel] solver``) on a session; ``"auto"``
+    chooses (:mod:`imucal_cli.pipeline.choose`) and may find nothing to calibrate (None)."""
+    solver = cfg.accel.solver
+    if solver == "auto":
+        from imucal_cli.pipeline.choose import auto_accel
+
+        return auto_accel(session, cfg)
+    if solver == "factorization":
         from imucal_cli.pipeline.factorization import calibrate_accel_factorization
 
-        return calibrate_accel_factorization(session, cfg)
-    from imucal_cli.pipeline.gravity import calibrate_accel_gravity
+        sec = calibrate_accel_factorization(session, cfg)
+    elif solver == "labelled":
+        from imucal_cli.pipeline.labelled import calibrate_accel_labelled
 
-    return calibrate_accel_gravity(session, cfg)
+        sec = calibrate_accel_labelled(session, cfg)
+    else:
+        from imucal_cli.pipeline.gravity import calibrate_accel_gravity
+
+        sec = calibrate_accel_gravity(session, cfg)
+    sec.extra["choice"] = {"solver": sec.solver, "by": "config", "reason": "[accel] solver"}
+    return sec
 
 
 def calibrate_gyro(
@@ -69,12 +82,19 @@ def calibrate_session(session: Session, cfg: Config, *, name: str | None = None)
     session, segmented = with_segments(session)
     accel = calibrate_accel(session, cfg) if cfg.accel.solver != "none" else None
     gyro = calibrate_gyro(session, cfg, accel)
+    if accel is None and gyro is None:
+        raise DesignError(
+            f"{session_name(session)}: nothing to calibrate: no still poses with accelerometer "
+            "data, and [gyro] solver is none"
+        )
     for sec in (accel, gyro):
         if sec is not None and segmented:
             sec.extra.setdefault("notes", []).insert(0, segmented)
     extra = {"toolkit_version": __version__, "config": cfg.to_dict()}
     if session.sensor:
         extra["sensor"] = session.sensor
+    if session.source:  # "simulator", "serial:...": the report's context (paper figures or not)
+        extra["source"] = session.source
     return Calibration(
         accel=accel,
         gyro=gyro,

@@ -10,6 +10,8 @@ import numpy as np
 from imucal_cli.errors import DesignError
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Segment, Session
+from imucal_cli.solvers import holds
+from imucal_cli.solvers.holds import PooledNoise
 from imucal_cli.solvers.poses import count_distinct, describe_direction, spread_deg, unit
 
 #: Every pose within this angle of one direction cannot separate bias from scale.
@@ -26,12 +28,22 @@ class StaticPoses:
     ----------
     segments : list of Segment
     a_mean : ndarray, shape (N, na)
-        Mean raw accelerometer reading per pose, raw units.
+        Mean raw accelerometer reading per pose (spike samples left out), raw units.
     cov_mean : ndarray, shape (N, na, na)
-        Covariance of each mean (sample covariance / samples), raw units^2.
+        Covariance of each mean: the pooled per-sample noise over the samples used
+        (``noise.cov / samples``), raw units^2 (issue 10.7).
     up : ndarray, shape (N, 3)
         Labelled up directions, NaN rows where unlabelled.
     samples : ndarray of int, shape (N,)
+        Samples in each mean (spikes left out).
+    noise : PooledNoise
+        Per-sample noise pooled over the still holds (holds that moved left out).
+    spikes : ndarray of int, shape (N,)
+        Spike samples left out of each mean.
+    moved : ndarray of bool, shape (N,)
+        Holds with a significant trend (the unit moved slowly while "still").
+    drift : ndarray, shape (N, na)
+        Fitted change over each hold, raw units.
     """
 
     segments: list[Segment]
@@ -39,31 +51,68 @@ class StaticPoses:
     cov_mean: np.ndarray
     up: np.ndarray
     samples: np.ndarray
+    noise: PooledNoise | None = None
+    spikes: np.ndarray | None = None
+    moved: np.ndarray | None = None
+    drift: np.ndarray | None = None
+
+    def subset(self, keep: np.ndarray) -> StaticPoses:
+        """The poses selected by a boolean mask or index array (noise estimate kept)."""
+        idx = np.flatnonzero(keep) if np.asarray(keep).dtype == bool else np.asarray(keep)
+        pick = lambda a: None if a is None else a[idx]  # noqa: E731
+        return StaticPoses(
+            [self.segments[i] for i in idx],
+            self.a_mean[idx],
+            self.cov_mean[idx],
+            self.up[idx],
+            self.samples[idx],
+            self.noise,
+            pick(self.spikes),
+            pick(self.moved),
+            pick(self.drift),
+        )
 
 
 def static_poses(session: Session) -> StaticPoses:
-    """Mean and covariance of the accelerometer over each static segment."""
+    """Mean of the accelerometer over each static segment, with pooled noise and hold checks.
+
+    Spike samples (robust z-score against the pooled noise) are left out of the means; each
+    hold is tested for slow motion (a trend over time); the per-sample noise is pooled over
+    the holds that did not move, so every pose mean gets ``Sigma / n_k`` (issue 10.7).
+    """
     segs = session.static_segments()
     if not segs or session.accel is None:
         raise DesignError(
             f"{session_name(session)}: no static segments with accelerometer data; "
             "capture poses held still (e.g. `imucal capture --plan qureshi18`)"
         )
+    blocks = [session.accel[s.start : s.stop] for s in segs]
+    times = [session.time[s.start : s.stop] for s in segs]
     na = session.accel.shape[1]
-    a_mean = np.empty((len(segs), na))
-    cov_mean = np.zeros((len(segs), na, na))
+    step = holds.quantum(np.concatenate(blocks[: min(len(blocks), 50)]))
+    # Robust per-sample sigma (median absolute deviation, pooled by the median over holds)
+    # to find spikes before the covariance is pooled.
+    mad = np.array([np.median(np.abs(b - np.median(b, axis=0)), axis=0) for b in blocks])
+    sigma0 = np.maximum(1.4826 * np.median(mad, axis=0), max(step, 1e-12))
+    n_total = sum(len(b) for b in blocks)
+    masks = [holds.spike_mask(b, sigma0, n_total) for b in blocks]
+    clean = [b[~m] if (~m).sum() >= 2 else b for b, m in zip(blocks, masks, strict=True)]
+    ctimes = [t[~m] if (~m).sum() >= 2 else t for t, m in zip(times, masks, strict=True)]
+    noise = holds.pooled_noise(clean, step)
+    trends = [holds.trend(t, b, noise.cov, len(segs)) for t, b in zip(ctimes, clean, strict=True)]
+    moved = np.array([tr.moved for tr in trends])
+    if moved.any() and not moved.all():
+        noise = holds.pooled_noise([b for b, m in zip(clean, moved, strict=True) if not m], step)
+    samples = np.array([len(b) for b in clean], dtype=int)
+    a_mean = np.array([b.mean(axis=0) for b in clean]).reshape(len(segs), na)
+    cov_mean = noise.cov[None, :, :] / samples[:, None, None]
     up = np.full((len(segs), 3), np.nan)
-    samples = np.empty(len(segs), dtype=int)
     for k, s in enumerate(segs):
-        block = session.accel[s.start : s.stop]
-        n = len(block)
-        samples[k] = n
-        a_mean[k] = block.mean(axis=0)
-        if n > 1:
-            cov_mean[k] = np.cov(block, rowvar=False) / n
         if s.up is not None:
             up[k] = s.up
-    return StaticPoses(segs, a_mean, cov_mean, up, samples)
+    spikes = np.array([len(b) - len(c) for b, c in zip(blocks, clean, strict=True)], dtype=int)
+    drift = np.array([tr.change for tr in trends]).reshape(len(segs), na)
+    return StaticPoses(segs, a_mean, cov_mean, up, samples, noise, spikes, moved, drift)
 
 
 # --------------------------------------------------------------------------- nominal sensor
@@ -128,9 +177,14 @@ def fmt_bias(b: np.ndarray) -> str:
 
 
 def check_design(
-    poses: StaticPoses, nominal: Nominal, min_separation_deg: float, where: str
+    poses: StaticPoses,
+    nominal: Nominal,
+    min_separation_deg: float,
+    where: str,
+    model: str = "9",
 ) -> None:
-    """Refuse poses that cannot determine a triad's 9 parameters, with advice."""
+    """Refuse poses that cannot determine a triad's gravity-magnitude model, naming the model
+    (``"9"`` or ``"12"``) and what would work with what the session already has."""
     N = len(poses.a_mean)
     centre = nominal.bias
     if nominal.sensitivity is None and nominal.range is None:
@@ -138,11 +192,17 @@ def check_design(
         centre = (poses.a_mean.min(axis=0) + poses.a_mean.max(axis=0)) / 2
     directions = unit(poses.a_mean - centre)
     distinct = count_distinct(directions, min_separation_deg)
+    name = (
+        "the 9-parameter gravity-magnitude model"
+        if model == "9"
+        else "the 12-parameter gravity model (9 parameters from the magnitudes, the rotation "
+        "from the labels)"
+    )
     if distinct < 9:
         raise DesignError(
             f"{where}: {N} static poses give only {distinct} distinct gravity directions "
-            f"(>{min_separation_deg:g} deg apart); the 9-parameter model needs at least 9: "
-            "capture the 6 faces and the 45-degree edges (plan qureshi18)"
+            f"(>{min_separation_deg:g} deg apart); {name} needs at least 9"
+            + _what_would_work(poses)
         )
     spread = spread_deg(directions)
     if spread <= MIN_SPREAD_DEG:
@@ -151,6 +211,26 @@ def check_design(
             f"{where}: every pose is within {spread:.0f} deg of {mean_dir} up, which cannot "
             "separate bias from scale; turn the unit over: capture each face up, then the edges"
         )
+
+
+def labels_determine(up: np.ndarray) -> bool:
+    """Whether labelled up directions can separate bias from sensitivity: at least four
+    labels not in one plane (``[1, up_k]`` of rank 4)."""
+    lab = np.isfinite(up).all(axis=1)
+    if lab.sum() < 4:
+        return False
+    X = np.column_stack([np.ones(lab.sum()), up[lab]])
+    return bool(np.linalg.matrix_rank(X, tol=1e-6) == 4)
+
+
+def _what_would_work(poses: StaticPoses) -> str:
+    if labels_determine(poses.up):
+        return (
+            "; these poses carry `up` labels, which the labelled-pose solver uses: "
+            '[accel] solver = "labelled" (or the default "auto"), or capture the 45-degree '
+            "edges too (plan qureshi18)"
+        )
+    return ": capture the 6 faces and the 45-degree edges (plan qureshi18)"
 
 
 def physical_checks(

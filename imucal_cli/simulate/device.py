@@ -8,7 +8,7 @@ through the real tty layer.
 
 - Every plan of the registry and every plan file plays
   :func:`imucal_cli.simulate.play.simulate_plan`: the same seed and options give the same
-  samples as ``imucal simulate`` writes to a file; lines are sent when their time comes.
+  samples as ``imucal simulate`` writes to a file; its static segments are the holds.
 - A pseudo-terminal has no baud rate: the bytes are paced to ``baud / 10`` bytes per second
   (8N1), so a stream too fast for the baud rate falls behind as it would on a real line.
 - The first line is a comment ``# imucal virtual IMU ...``; then data lines.
@@ -19,6 +19,11 @@ through the real tty layer.
 The stream starts when a reader opens the port (plus :data:`SETTLE_S`, since pyserial flushes
 the input when it configures the port) and ends after the plan (or after ``duration_s``, with
 ``loop`` repeating the plan), when the reader closes the port, or on SIGINT/SIGTERM.
+
+Pacing: by default the device walks its plan on a timer (each pose held ``hold_s``, then the
+next).  ``next_pose`` (a callable, e.g. Enter typed in the device's own terminal) moves on at
+once, cutting the current hold short; with ``step`` every hold lasts until ``next_pose`` says
+so (the still samples keep coming, the time keeps increasing), as a person at the bench would.
 """
 
 from __future__ import annotations
@@ -37,13 +42,30 @@ import numpy as np
 from imucal_cli.errors import InputError
 from imucal_cli.plans import Plan
 
-__all__ = ["SETTLE_S", "ServeResult", "plan_motion", "serve", "stream_arrays"]
+__all__ = [
+    "SETTLE_S",
+    "Hold",
+    "ServeResult",
+    "plan_motion",
+    "serve",
+    "stream_arrays",
+    "stream_with_holds",
+]
 
 SETTLE_S = 0.3
 """Wait after a reader opened the port before the first byte (pyserial flushes its input)."""
 
 DRAIN_S = 0.3
 """Wait after the last byte before closing the pseudo-terminal, so the reader gets it all."""
+
+
+@dataclass(frozen=True)
+class Hold:
+    """A still pose of the stream: samples ``[start, stop)`` and what the pose is."""
+
+    start: int
+    stop: int
+    label: str
 
 
 @dataclass
@@ -106,7 +128,7 @@ def plan_motion(
 
 
 def stream_arrays(
-    plan: str, *, seed: int = 0, rate_hz: float = 100.0, hold_s: float | None = 2.0,
+    plan: str, *, seed: int = 0, rate_hz: float | None = 100.0, hold_s: float | None = 2.0,
     units: str = "counts", move_s: float = 1.5, **options,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:  # fmt: skip
     """Time (N,), raw accel (N, na) and raw gyro (N, 3) (None without one) of one pass through
@@ -118,12 +140,32 @@ def stream_arrays(
     InputError
         Unknown plan or bad options.
     """
+    time, accel, gyro, _ = stream_with_holds(
+        plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s, **options
+    )
+    return time, accel, gyro
+
+
+def stream_with_holds(
+    plan: str, *, seed: int = 0, rate_hz: float | None = 100.0, hold_s: float | None = 2.0,
+    units: str = "counts", move_s: float = 1.5, **options,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, list[Hold]]:  # fmt: skip
+    """As :func:`stream_arrays`, plus the still poses (:class:`Hold`, in time order): the
+    session's static segments, a still run across two of them one hold, the lead the first."""
     from imucal_cli.simulate.play import simulate_plan
 
     session, _ = simulate_plan(
         plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s, **options
     )
-    return session.time, session.accel, session.gyro
+    holds: list[Hold] = []
+    for i, seg in enumerate(session.static_segments()):
+        start, label = seg.start, seg.label or f"pose {i + 1}"
+        if holds and holds[-1].stop == start:  # the same pose still: one hold
+            start = holds.pop().start
+        holds.append(Hold(start, seg.stop, label))
+    if holds:  # the lead is the first pose held a little longer
+        holds[0] = Hold(0, holds[0].stop, holds[0].label)
+    return session.time, session.accel, session.gyro, holds
 
 
 def _columns(accel: np.ndarray, gyro: np.ndarray | None, temperature: bool) -> str:
@@ -176,6 +218,8 @@ def serve(
     stall_after_s: float | None = None,
     vanish_after_s: float | None = None,
     malformed_every: int | None = None,
+    step: bool = False,
+    next_pose: Callable[[], bool] | None = None,
     announce: Callable[[str], None] = print,
     status: Callable[[str], None] | None = None,
 ) -> ServeResult:
@@ -213,6 +257,10 @@ def serve(
         Close the pseudo-terminal after this long (the device is unplugged).
     malformed_every : int, optional
         Every N-th data line is sent with two fields missing.
+    step : bool
+        Hold every pose until ``next_pose`` says to move on (not on a timer).
+    next_pose : callable, optional
+        Polled for each line: True moves on to the next pose now (e.g. Enter was typed).
     announce : callable
         Called once with the slave device path, before anything else.
     status : callable, optional
@@ -228,12 +276,16 @@ def serve(
         raise InputError(f"baud rate must be a positive integer, got {baud!r}")
     if malformed_every is not None and malformed_every < 1:
         raise InputError(f"--malformed-every must be >= 1, got {malformed_every}")
-    time, accel, gyro = stream_arrays(
+    time, accel, gyro, holds = stream_with_holds(
         plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s,
         **(plan_options or {}),
     )  # fmt: skip
     lines = _format(time, accel, gyro, temperature, units == "counts")
     say = status or (lambda message: None)
+    if hold_s is None:  # the plan's own hold: as its first pose is held
+        hold_s = (holds[0].stop - holds[0].start) / rate_hz if holds else 0.0
+    schedule = _Schedule(len(lines), holds, loop=loop, step=step, next_pose=next_pose, say=say,
+                         hold_s=hold_s)  # fmt: skip
     stop = {"kind": None}
     old_handlers = {}
     if threading.current_thread() is threading.main_thread():
@@ -263,7 +315,7 @@ def serve(
             f"columns {fields}, seed {seed}\n"
         ).encode()
         line = _Line(
-            master, poller, stop, lines, time, rate_hz, baud, loop=loop, duration_s=duration_s,
+            master, poller, stop, lines, rate_hz, baud, schedule=schedule, duration_s=duration_s,
             garbage=garbage, stall_after_s=stall_after_s, vanish_after_s=vanish_after_s,
             malformed_every=malformed_every, rng=np.random.default_rng(seed + 1),
         )  # fmt: skip
@@ -293,25 +345,79 @@ def _wait_for_reader(poller, stop: dict, wait_reader_s: float | None) -> str:
     return ""
 
 
+class _Schedule:
+    """Which sample of the pass goes out next: the plan in order, holds cut short when
+    ``next_pose()`` says so, or (``step``) extended until it does by replaying the hold's own
+    samples; the time of every line is ``k / rate`` for the k-th line sent."""
+
+    def __init__(self, n: int, holds: list[Hold], *, loop: bool, step: bool, next_pose,
+                 say, hold_s: float) -> None:  # fmt: skip
+        self.n, self.holds, self.loop, self.step = n, holds, loop, step
+        self.next_pose = next_pose or (lambda: False)
+        self.say, self.hold_s = say, hold_s
+        self.i = 0  # next sample of the pass
+        self.k = 0  # lines handed out
+        self.replay = 0  # samples replayed in the current paused hold
+        self.paused: Hold | None = None
+        self.done = False
+
+    def _hold_at(self, i: int) -> Hold | None:
+        return next((h for h in self.holds if h.start <= i < h.stop), None)
+
+    def next_index(self) -> int | None:
+        """The sample of the pass to send next (None: the plan is over)."""
+        if self.next_pose():
+            self._advance()
+        if self.paused is not None:
+            h = self.paused
+            self.replay += 1
+            return h.start + (self.replay - 1) % (h.stop - h.start)
+        if self.i >= self.n:
+            if not self.loop:
+                self.done = True
+                return None
+            self.i = 0
+        h = self._hold_at(self.i)
+        if h is not None and self.i == h.start:
+            self._announce(h)
+        index = self.i
+        self.i += 1
+        if self.step and h is not None and self.i == h.stop:
+            self.paused, self.replay = h, 0  # hold until told to move on
+        return index
+
+    def _advance(self) -> None:
+        """Move on now: leave a paused hold, or cut the current one short."""
+        if self.paused is not None:
+            self.paused = None
+            return
+        h = self._hold_at(self.i)
+        if h is not None:
+            self.i = h.stop
+
+    def _announce(self, h: Hold) -> None:
+        n = self.holds.index(h) + 1
+        until = ("until Enter here" if self.step
+                 else f"{self.hold_s:g} s, then the next (Enter here: now)")  # fmt: skip
+        self.say(f"pose {n}/{len(self.holds)}: {h.label}: held {until}")
+
+
 class _Line:
     """The serial line: queues lines (or garbage) as their time comes, paced to the baud
     rate, writes them to the master side, and counts what was written completely."""
 
     def __init__(
-        self, master: int, poller, stop: dict, lines: list[bytes], time: np.ndarray,
-        rate_hz: float, baud: int, *, loop: bool, duration_s, garbage: bool, stall_after_s,
-        vanish_after_s, malformed_every, rng: np.random.Generator,
+        self, master: int, poller, stop: dict, lines: list[bytes], rate_hz: float, baud: int,
+        *, schedule: _Schedule, duration_s, garbage: bool, stall_after_s, vanish_after_s,
+        malformed_every, rng: np.random.Generator,
     ) -> None:  # fmt: skip
         self.master, self.poller, self.stop, self.lines = master, poller, stop, lines
-        self.baud, self.loop, self.garbage = baud, loop, garbage
+        self.rate_hz, self.baud, self.schedule, self.garbage = rate_hz, baud, schedule, garbage
         self.duration_s, self.stall_after_s = duration_s, stall_after_s
         self.vanish_after_s, self.malformed_every, self.rng = vanish_after_s, malformed_every, rng
-        self.when = np.asarray(time, float) - float(time[0])  # when each line is due, s
-        self.pass_s = float(self.when[-1]) + 1.0 / rate_hz
         self.out = bytearray()
         self.queued_bytes = 0  # bytes put into `out` (paced by the baud rate)
         self.line_ends: list[tuple[int, bool]] = []  # (byte offset after the line, malformed)
-        self.index = 0  # next line to queue, counting passes
         self.garbage_bytes = 0
 
     def why_end(self, now: float) -> str:
@@ -324,7 +430,7 @@ class _Line:
             return "vanished"
         if self.duration_s is not None and now >= self.duration_s:
             return "duration"
-        if not self.loop and self.index >= len(self.lines) and not self.out:
+        if self.schedule.done and not self.out:
             return "plan"
         return ""
 
@@ -338,25 +444,24 @@ class _Line:
             self.queued_bytes += k
             self.garbage_bytes += k
             return
-        n = len(self.lines)
-        passes = int(now // self.pass_s)
-        due = passes * n + int(np.searchsorted(self.when, now - passes * self.pass_s, "right"))
-        due = due if self.loop else min(n, due)
-        while self.index < due and budget > 0:
-            p, i = divmod(self.index, n)
+        due = int(now * self.rate_hz) + 1
+        while self.schedule.k < due and budget > 0:
+            i = self.schedule.next_index()
+            if i is None:
+                break
+            k = self.schedule.k
+            self.schedule.k += 1
             line = self.lines[i]
-            if p:
-                t_text, rest = line.split(b",", 1)
-                line = b"%.4f," % (float(t_text) + p * self.pass_s) + rest
+            if i != k:  # a later pass, a cut or a paused hold: the time goes on
+                line = b"%.4f," % (k / self.rate_hz) + line.split(b",", 1)[1]
             every = self.malformed_every
-            bad = every is not None and (self.index + 1) % every == 0
+            bad = every is not None and k % every == every - 1
             if bad:
                 line = _damage(line)
             self.out += line
             self.queued_bytes += len(line)
             budget -= len(line)
             self.line_ends.append((self.queued_bytes, bad))
-            self.index += 1
 
     def run(self, header: bytes, result: ServeResult) -> None:
         """Stream until the end; fill ``result`` (lines, malformed, garbage, seconds, end)."""

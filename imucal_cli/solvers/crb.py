@@ -137,3 +137,65 @@ def propagate(fun, x: np.ndarray, cov: np.ndarray, rel_step: float = 1e-7) -> np
         dx[k] = h
         J[:, k] = (np.asarray(fun(x + dx)) - np.asarray(fun(x - dx))) / (2 * h)
     return J @ cov @ J.T
+
+
+def labelled_crb(
+    M: np.ndarray,
+    B: np.ndarray,
+    u: np.ndarray,
+    g: float,
+    cov_mean: np.ndarray,
+    placement_deg: float,
+) -> np.ndarray:
+    """Cramér-Rao bound of the labelled-pose design with the labels as a prior.
+
+    The derivation is in :mod:`.labelled` (eqs. L4-L5): each pose's direction is a nuisance
+    parameter (two angles) with prior ``N(0, sigma_p^2 I)``, ``sigma_p = placement_deg /
+    sqrt(2)``; the bound on ``theta = (B, K, r)`` (``M = R(r) K``, K upper triangular) is the
+    Schur complement of the hybrid information, mapped to the solver's parameters.
+
+    Parameters
+    ----------
+    M : ndarray, shape (3, 3)
+        True calibration matrix (fixture frame), m/s^2 per raw unit.
+    B : ndarray, shape (3,)
+        True bias, raw units (the bound does not depend on it; kept for clarity).
+    u : ndarray, shape (N, 3)
+        True gravity direction of each pose (fixture frame).
+    g : float
+        Gravity, m/s^2.
+    cov_mean : ndarray, shape (N, 3, 3)
+        Covariance of each pose mean, raw units^2.
+    placement_deg : float
+        RMS angle between the true and the labelled up, degrees (``inf``: no labels).
+
+    Returns
+    -------
+    ndarray, shape (12, 12)
+        Bound on the covariance of the solver's parameters (:data:`.labelled.PARAM_NAMES`:
+        bias, sensitivities, angles between the axes minus 90 deg, rotation r in degrees).
+    """
+    from scipy.spatial.transform import Rotation
+
+    from .labelled_model import (
+        design_jacobian,
+        jacobian,
+        public_from_theta,
+        triangular_and_rotation,
+    )
+
+    Gt, Gd = design_jacobian(M, u, g)
+    prior = 0.0 if not np.isfinite(placement_deg) else 2.0 / np.radians(placement_deg) ** 2
+    A = np.zeros((12, 12))
+    for k in range(len(u)):
+        Wk = np.linalg.inv(cov_mean[k])
+        Dk = Gd[k].T @ Wk @ Gd[k] + prior * np.eye(2)
+        Ck = Gt[k].T @ Wk @ Gd[k]
+        A += Gt[k].T @ Wk @ Gt[k] - Ck @ np.linalg.solve(Dk, Ck.T)  # Schur complement, (L5)
+    diag = np.diag(A)
+    d = 1.0 / np.sqrt(np.where(diag > 0, diag, 1.0))  # equilibrate: decades apart
+    cov = d[:, None] * np.linalg.pinv(d[:, None] * A * d, rcond=1e-13, hermitian=True) * d
+    K, Q = triangular_and_rotation(M)
+    theta = np.concatenate([B, K[_UPPER], np.degrees(Rotation.from_matrix(Q).as_rotvec())])
+    T = jacobian(public_from_theta, theta)
+    return T @ cov @ T.T

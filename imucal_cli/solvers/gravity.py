@@ -36,6 +36,7 @@ from scipy.special import chdtri  # inverse survival function of chi^2 (lighter 
 from imucal_cli.errors import DesignError, SolverError
 
 from .ellipsoid import fit_ellipsoid
+from .outliers import Deletion, deletion
 from .poses import angle_deg
 
 #: Names of the 9 parameters of eq. (7), in order.
@@ -103,6 +104,12 @@ class GravityResult:
         degrees; NaN where unlabelled. The placement error of each pose.
     directions : ndarray, shape (N, 3)
         Calibrated unit gravity direction of each pose, in the output frame of ``matrix``.
+    deletion : Deletion
+        Deletion diagnostics of every pose (:mod:`.outliers`): parameter change and
+        studentized statistic when the pose is left out.
+    residual_loo : ndarray, shape (N,)
+        Held-out residual of each pose from the first-order deletion: ``|M_(-k) (a_k -
+        B_(-k))| - g``, m/s^2 (NaN where nothing else determines the pose).
     """
 
     bias: np.ndarray
@@ -126,6 +133,8 @@ class GravityResult:
     rotation_std_deg: float | None = None
     up_angle_deg: np.ndarray | None = None
     directions: np.ndarray | None = None
+    deletion: Deletion | None = None
+    residual_loo: np.ndarray | None = None
 
     @property
     def std(self) -> np.ndarray:
@@ -275,16 +284,40 @@ def fit_gravity(
         )
     if N < 9:
         raise DesignError(
-            f"{N} static poses cannot determine the 9 parameters; capture at least 9 "
-            "(the qureshi18 plan: 6 faces and 12 edges)"
+            f"{N} static poses cannot determine the 9 parameters of the gravity-magnitude model; "
+            "capture at least 9 (the qureshi18 plan: 6 faces and 12 edges)"
         )
     if variant not in ("9", "12"):
         raise ValueError(f"variant must be '9' or '12', not {variant!r}")
-    if up is not None:
-        up = np.asarray(up, dtype=float)
-    labelled = np.zeros(N, bool) if up is None else ~np.isnan(up).any(axis=1)
+    up = None if up is None else np.asarray(up, dtype=float)
+    starts = _starts(a_mean, g, up, init)
+    norm = _Normalised(a_mean, *next(iter(starts.values())))
+    w = np.ones(N)
+    if cov_mean is not None:  # weights from the measured noise (they depend on M: two passes)
+        cov_mean = np.asarray(cov_mean, dtype=float)
+        w = _weights_from_sigmas(_pose_sigmas(a_mean, cov_mean, *next(iter(starts.values())), g))
+    init_used, sol = _best_start(norm, g, w, starts, max_iterations)
+    if cov_mean is not None:
+        w = _weights_from_sigmas(_pose_sigmas(a_mean, cov_mean, *norm.model(sol.x), g))
+        sol2 = _solve(norm.a_n, g, w, sol.x, max_iterations)
+        sol = sol2 if sol2.status > 0 else sol
+    if sol.status <= 0:
+        raise SolverError(
+            f"the gravity fit did not converge in {max_iterations} iterations ({sol.message}); "
+            "check that the unit was still during each hold and capture more poses spread over "
+            "the sphere (faces and 45-degree edges)"
+        )
+    # gauge: upper triangular with positive diagonal (flip rows; |h| is unchanged)
+    Bn, Mn = params_to_model(sol.x)
+    x = model_to_params(Bn, np.diag(np.sign(np.diag(Mn))) @ Mn)
+    return _package(a_mean, g, up, variant, norm, x, w, cov_mean, init_used, sol)
 
-    # ---- starts
+
+def _starts(a_mean, g, up, init) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Closed-form starts that need no nominal sensitivity (issue 10.1): up/down pairs
+    (eqs. 13-14), the labels' linear fit, the algebraic ellipsoid (or sphere)."""
+    if init not in ("auto", "updown", "ellipsoid"):
+        raise ValueError(f"init must be 'auto', 'updown' or 'ellipsoid', not {init!r}")
     starts: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     if init in ("auto", "updown"):
         ud = init_updown(a_mean, up, g) if up is not None else None
@@ -295,112 +328,99 @@ def fit_gravity(
                 "the up/down start (eqs. 13-14) needs a labelled pose with each of +X, -X, +Y, -Y, "
                 '+Z, -Z up; capture the six faces or use init = "ellipsoid"'
             )
+    if init == "auto" and up is not None:
+        lin = _labels_start(a_mean, up, g)
+        if lin is not None:
+            starts["labels"] = lin
     if init in ("auto", "ellipsoid"):
         ell = fit_ellipsoid(a_mean, g)
         starts[ell.kind] = (ell.bias, ell.M)
-    if not starts:
-        raise ValueError(f"init must be 'auto', 'updown' or 'ellipsoid', not {init!r}")
+    return starts
 
-    # Normalised raw coordinates: a_n = (a - offset) / scale, so that all parameters are O(1).
-    B_ref, M_ref = next(iter(starts.values()))
-    offset = B_ref.copy()
-    scale = 1.0 / np.mean(np.abs(np.diag(M_ref))) if np.all(np.diag(M_ref) != 0) else 1.0
-    a_n = (a_mean - offset) / scale
 
-    def to_norm(B, M):
-        return model_to_params((B - offset) / scale, M * scale)
+def _labels_start(a_mean, up, g):
+    """``a_k = B + g S up_k`` solved linearly over the labelled poses, as ``(B, M upper)``."""
+    from .labelled_model import triangular_and_rotation
 
-    def from_norm(x):
+    lab = np.isfinite(up).all(axis=1)
+    X = np.column_stack([np.ones(lab.sum()), g * up[lab]])
+    if lab.sum() < 4 or np.linalg.matrix_rank(X, tol=1e-6 * g) < 4:
+        return None
+    sol, *_ = np.linalg.lstsq(X, a_mean[lab], rcond=None)
+    S = sol[1:].T
+    if abs(np.linalg.det(S)) < 1e-12 * np.abs(S).max() ** 3:
+        return None
+    K, _ = triangular_and_rotation(np.linalg.inv(S))
+    return sol[0], np.diag(np.sign(np.diag(K))) @ K
+
+
+class _Normalised:
+    """Raw coordinates ``a_n = (a - offset) / scale`` so that every parameter is O(1)."""
+
+    def __init__(self, a_mean, B_ref, M_ref):
+        self.offset = np.asarray(B_ref, float).copy()
+        d = np.abs(np.diag(M_ref))
+        self.scale = 1.0 / float(np.mean(d)) if np.all(d > 0) else 1.0
+        self.a_n = (a_mean - self.offset) / self.scale
+
+    def params(self, B, M):
+        return model_to_params((B - self.offset) / self.scale, M * self.scale)
+
+    def model(self, x):
         Bn, Mn = params_to_model(x)
-        return offset + scale * Bn, Mn / scale
+        return self.offset + self.scale * Bn, Mn / self.scale
 
-    # ---- weights: from the measured noise where given (two passes: weights depend on M)
-    weighting = "noise" if cov_mean is not None else "equal"
-    w = np.ones(N)
-    if cov_mean is not None:
-        cov_mean = np.asarray(cov_mean, dtype=float)
-        sig = _pose_sigmas(a_mean, cov_mean, B_ref, M_ref, g)
-        w = _weights_from_sigmas(sig)
 
+def _best_start(norm, g, w, starts, max_iterations):
+    """Levenberg-Marquardt from every start; the lowest cost wins."""
     best = None
     for name, (B0, M0) in starts.items():
-        sol = _solve(a_n, g, w, to_norm(B0, M0), max_iterations)
+        sol = _solve(norm.a_n, g, w, norm.params(B0, M0), max_iterations)
         if best is None or sol.cost < best[1].cost:
             best = (name, sol)
-    init_used, sol = best
-    if cov_mean is not None:  # second pass with weights at the solution
-        B1, M1 = from_norm(sol.x)
-        w = _weights_from_sigmas(_pose_sigmas(a_mean, cov_mean, B1, M1, g))
-        sol2 = _solve(a_n, g, w, sol.x, max_iterations)
-        sol = sol2 if sol2.status > 0 else sol
-    if sol.status <= 0:
-        raise SolverError(
-            f"the gravity fit did not converge in {max_iterations} iterations ({sol.message}); "
-            "check that the unit was still during each hold and capture more poses spread over "
-            "the sphere (faces and 45-degree edges)"
-        )
+    return best
 
-    # ---- gauge: upper triangular with positive diagonal (flip rows; |h| is unchanged)
-    Bn, Mn = params_to_model(sol.x)
-    Mn = np.diag(np.sign(np.diag(Mn))) @ Mn
-    x = model_to_params(Bn, Mn)
-    r_w, J = _residuals_and_jacobian(x, a_n, g, w)
-    B, M = from_norm(x)
 
-    # ---- covariance from the Jacobian, in normalised coordinates, then back to raw
+def _package(a_mean, g, up, variant, norm, x, w, cov_mean, init_used, sol) -> GravityResult:
+    """Covariance, residuals, deletion diagnostics and the label alignment of a solution."""
+    N = len(a_mean)
+    weighting = "noise" if cov_mean is not None else "equal"
+    r_w, J = _residuals_and_jacobian(x, norm.a_n, g, w)
+    B, M = norm.model(x)
     dof = N - 9
     chi2 = float(r_w @ r_w)
-    JtJ = J.T @ J
     svals = np.linalg.svd(J, compute_uv=False)
     if svals[-1] <= 1e-9 * svals[0]:
         raise DesignError(
             "the poses leave the 9-parameter model undetermined (they lie close to one plane "
             "or cone of gravity directions); capture poses with each face and 45-degree edge up"
         )
-    cov_n = np.linalg.inv(JtJ)
+    cov_n = np.linalg.inv(J.T @ J)
     if weighting == "noise":
         noise_scale = 1.0
         if dof > 0 and chi2 > chdtri(dof, 0.01):  # beyond the 99th percentile of chi^2(dof)
             noise_scale = chi2 / dof
     else:
         noise_scale = chi2 / dof if dof > 0 else float("nan")
-    T = np.diag(np.r_[np.full(3, scale), np.full(6, 1.0 / scale)])
+    T = np.diag(np.r_[np.full(3, norm.scale), np.full(6, 1.0 / norm.scale)])
     cov = noise_scale * (T @ cov_n @ T)
-
+    dele = deletion(J, r_w, [np.array([k]) for k in range(N)], cov_n)
+    loo = np.full(N, np.nan)
+    for k in np.flatnonzero(dele.rank):
+        Bk, Mk = norm.model(x + dele.dx[k])
+        loo[k] = np.linalg.norm(Mk @ (a_mean[k] - Bk)) - g
     h = (a_mean - B) @ M.T
     mag = np.linalg.norm(h, axis=1)
-    residuals = mag - g
-    cost_residuals = (mag**2 - g * g) / (2 * g)
     directions = h / mag[:, None]
-
-    # ---- rotation onto the labels (Wahba); the 12-parameter variant keeps it
-    R = np.eye(3)
-    R_cov = None
-    up_angle = np.full(N, np.nan)
-    n_lab = int(labelled.sum())
-    if n_lab >= 2 and np.linalg.matrix_rank(up[labelled], tol=0.1) >= 2:
-        rot, _ = Rotation.align_vectors(up[labelled], directions[labelled])
-        R = rot.as_matrix()
-        aligned = directions @ R.T
-        up_angle[labelled] = angle_deg(aligned[labelled], up[labelled])
-        R_cov = _rotation_cov(aligned[labelled], up[labelled])
-    elif variant == "12":
-        raise DesignError(
-            "the 12-parameter variant needs at least two labelled poses with different `up` "
-            'directions; label the poses or use model = "9"'
-        )
-
+    R, R_cov, up_angle = _align_to_labels(directions, up, variant)
     if variant == "9":
-        params = model_to_params(B, M)
-        names = list(PARAM_NAMES_9)
-        matrix = M
+        params, names, matrix = model_to_params(B, M), list(PARAM_NAMES_9), M
     else:
         matrix = R @ M
         directions = directions @ R.T
         params = np.concatenate([B, matrix.ravel()])
         names = list(PARAM_NAMES_12)
         cov = _cov_12(cov, M, R, R_cov)
-
     rot_std = None if R_cov is None else float(np.degrees(np.sqrt(np.trace(R_cov) / 3)))
     return GravityResult(
         bias=B,
@@ -409,8 +429,8 @@ def fit_gravity(
         param_names=names,
         params=params,
         cov=cov,
-        residuals=residuals,
-        cost_residuals=cost_residuals,
+        residuals=mag - g,
+        cost_residuals=(mag**2 - g * g) / (2 * g),
         chi2=chi2,
         dof=dof,
         noise_scale=float(noise_scale),
@@ -424,7 +444,42 @@ def fit_gravity(
         rotation_std_deg=rot_std,
         up_angle_deg=up_angle,
         directions=directions,
+        deletion=dele,
+        residual_loo=loo,
     )
+
+
+#: A labelled pose further than this from its label (after the alignment) is left out of the
+#: alignment: the label is wrong, not the placement.
+LABEL_OUTLIER_DEG = 20.0
+
+
+def _align_to_labels(directions, up, variant):
+    """Rotation (Wahba) of the calibrated directions onto the labels, its covariance and the
+    angle of each pose to its label. Labels far from their pose (a wrong label) are left out
+    of the alignment, so one bad label cannot rotate the frame."""
+    N = len(directions)
+    up_angle = np.full(N, np.nan)
+    labelled = np.zeros(N, bool) if up is None else np.isfinite(up).all(axis=1)
+    if labelled.sum() < 2 or np.linalg.matrix_rank(up[labelled], tol=0.1) < 2:
+        if variant == "12":
+            raise DesignError(
+                "the 12-parameter variant needs at least two labelled poses with different `up` "
+                'directions; label the poses or use model = "9"'
+            )
+        return np.eye(3), None, up_angle
+    use = labelled.copy()
+    for _ in range(3):
+        rot, _ = Rotation.align_vectors(up[use], directions[use])
+        ang = angle_deg(directions @ rot.as_matrix().T, np.where(labelled[:, None], up, 1.0))
+        keep = labelled & (ang <= max(LABEL_OUTLIER_DEG, 5 * np.median(ang[labelled])))
+        if keep.sum() < 2 or np.linalg.matrix_rank(up[keep], tol=0.1) < 2 or (keep == use).all():
+            break
+        use = keep
+    R = rot.as_matrix()
+    aligned = directions @ R.T
+    up_angle[labelled] = angle_deg(aligned[labelled], up[labelled])
+    return R, _rotation_cov(aligned[use], up[use]), up_angle
 
 
 def _weights_from_sigmas(sig: np.ndarray) -> np.ndarray:

@@ -46,9 +46,9 @@ above), ``source`` (the input file), ``calibration`` (the calibration file), ``c
 
 Output: CSV
 -----------
-A comment line naming the model, the calibration and the units, then the header
-``t,ax,ay,az,gx,gy,gz`` (the sensor columns of the calibrated sensors only) and one line per
-sample: time as Python's shortest round-trip repr, values with 10 significant digits.
+The header ``t,ax,ay,az,gx,gy,gz`` (the sensor columns of the calibrated sensors only), then a
+comment line (``#``, no commas) naming the model, the calibration and the units, then one line
+per sample: time as Python's shortest round-trip repr, values with 10 significant digits.
 """
 
 from __future__ import annotations
@@ -73,7 +73,7 @@ from imucal_cli.formats.calibration import (
 from imucal_cli.formats.importers.recording import TIME_UNITS
 from imucal_cli.formats.importers.text import (
     check_time,
-    infer_columns,
+    header_columns,
     parse_columns,
     parse_numbers,
     skipped_fields,
@@ -323,12 +323,7 @@ def _csv_blocks(
     def check_spec() -> None:
         nonlocal spec, spec_from_header
         if spec is None:
-            spec = infer_columns(header) if header else None
-            if spec is None:
-                raise InputError(
-                    f"{src}: cannot tell which field is which (no header naming the axes): "
-                    "pass --columns, e.g. --columns t,ax,ay,az,gx,gy,gz"
-                )
+            spec = header_columns(header, src)
             spec_from_header = True
         for name, sec in sections.items():
             axes = CSV_NAMES[name]
@@ -475,12 +470,13 @@ class _CsvWriter:
     ) -> None:
         self.handle = open(tmp, "w", encoding="utf-8", newline="\n")
         self.names = list(sections)
-        units = "; ".join(f"{','.join(CSV_NAMES[n])} {UNITS[n]}" for n in self.names)
-        self.handle.write(
-            f"# imucal apply: {MODEL_EQUATION} with {cal_src} on {input_path}; "
-            f"units: t s; {units}\n"
-        )
+        units = "; ".join(f"{' '.join(CSV_NAMES[n])} {UNITS[n]}" for n in self.names)
+        # The header first (readers such as numpy.genfromtxt(names=True) take the first line
+        # for the names), then one comment line without commas: what made the numbers.
         self.handle.write(",".join(["t", *(c for n in self.names for c in CSV_NAMES[n])]) + "\n")
+        comment = f"# imucal apply: {MODEL_EQUATION} with {cal_src} on {input_path}; units: "
+        comment += f"t s; {units}"
+        self.handle.write(comment.replace(",", " ") + "\n")
         self.row_fmt = ",".join(["%s", *([_VALUE_FMT] * (3 * len(self.names)))]) + "\n"
 
     def write(self, time: np.ndarray, values: dict[str, np.ndarray]) -> None:

@@ -62,24 +62,39 @@ def _pose_names(poses: list[dict[str, Any]]) -> list[str]:
 def _magnitude_panel(ax, section: dict[str, Any]) -> None:
     poses = section["poses"]
     x = np.arange(len(poses))
-    before = [np.nan if p["magnitude_before"] is None else p["magnitude_before"] for p in poses]
-    after = [np.nan if p["magnitude_after"] is None else p["magnitude_after"] for p in poses]
+    before = np.array([np.nan if p["magnitude_before"] is None else p["magnitude_before"]
+                       for p in poses])  # fmt: skip
+    after = np.array([np.nan if p["magnitude_after"] is None else p["magnitude_after"]
+                      for p in poses])  # fmt: skip
     unit = section["units_out"]
-    ax.plot(x, before, "o", color="tab:red", label="before calibration")
-    ax.plot(x, after, "s", color="tab:blue", label="after calibration")
+    if not np.all(np.isnan(before)):  # solvers without a "before" figure draw no empty series
+        ax.plot(x, before, "o", color="tab:red", label="before calibration")
+    if not np.all(np.isnan(after)):
+        ax.plot(x, after, "s", color="tab:blue", label="after calibration")
     if section["gravity"]:
         g = section["gravity"]["value"]
         ax.axhline(g, color="black", lw=1, ls="--", label=f"g = {g:.5g} {unit}")
+        _include(ax, g, np.concatenate([before, after]))
     rms = section["rms"]
     title = "|a| per pose"
     if rms["before_mg"] is not None and rms["after_mg"] is not None:
         title += f": RMS {rms['before_mg']:.3g} -> {rms['after_mg']:.3g} mg"
+    elif rms["after_mg"] is not None:
+        title += f": RMS {rms['after_mg']:.3g} mg"
     ax.set_title(title)
     ax.set_xlabel("pose")
     ax.xaxis.get_major_locator().set_params(integer=True)
     ax.set_ylabel(f"|a|  [{unit}]")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
+
+
+def _include(ax, g: float, values: np.ndarray) -> None:
+    """Y limits that show the g line with the points (axhline does not autoscale)."""
+    finite = values[np.isfinite(values)]
+    lo, hi = min(float(finite.min(initial=g)), g), max(float(finite.max(initial=g)), g)
+    pad = 0.1 * (hi - lo) if hi > lo else 1e-4 * abs(g) or 1e-3
+    ax.set_ylim(lo - pad, hi + pad)
 
 
 def _residual_panel(ax, section: dict[str, Any]) -> None:

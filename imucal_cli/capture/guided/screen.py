@@ -7,6 +7,7 @@ should do).  Nothing is printed per block in plain mode, so logs stay short.
 
 from __future__ import annotations
 
+import math
 import time as _time
 
 from rich.console import Console, Group
@@ -37,18 +38,23 @@ class Screen:
         self.refresh_hz = refresh_hz
         self.live: Live | None = None
         self.last_render = 0.0
-        self.plain_key: tuple | None = None
+        self.told: tuple | None = None  # (step, serial) whose instruction was printed
+        self.phase = ""
+        self.tick: float | None = None
 
     # ------------------------------------------------------------------------ lifecycle
     def start(self, state: GuidedState) -> None:
         if self.console.is_terminal:
+            # Transient: the last frame goes when the capture ends, the summary follows the
+            # messages.  Redirected: status lines printed on stdout/stderr while the view is up
+            # go above it instead of breaking it (the first frame would stay on the screen).
             self.live = Live(
                 self.render(state),
                 console=self.console,
                 auto_refresh=False,
-                transient=False,
-                redirect_stdout=False,
-                redirect_stderr=False,
+                transient=True,
+                redirect_stdout=True,
+                redirect_stderr=True,
             )
             self.live.start()
         self.show(state, force=True)
@@ -79,23 +85,28 @@ class Screen:
             target.print(Text(message.text, style=message.style), highlight=False)
 
     def plain_prompt(self, state: GuidedState) -> None:
-        """Plain mode: print the instruction once per change of what the person should do."""
+        """Plain mode: each step's instruction once, the start of each hold and its countdown,
+        the start of each turn."""
         p = state.prompt()
         if p.step is None:
             return
-        key = (p.step, p.phase, p.serial)
-        if key == self.plain_key:
-            return
-        self.plain_key = key
-        if p.phase == "move":
-            return  # the message after the pose already says to turn the unit
+        if p.phase != "move" and (p.step, p.serial) != self.told:
+            self.told = (p.step, p.serial)
+            self.line(f"step {p.step + 1}/{p.n_steps}: {p.text}", "bold")
         if p.phase == "hold":
-            line = Text(f"still: holding {p.hold_s:g} s ...")
-        elif p.phase == "turning":
-            line = Text("turning ...")
-        else:
-            line = Text(f"step {p.step + 1}/{p.n_steps}: {p.text}", style="bold")
-        self.console.print(line, highlight=False)
+            if self.phase != "hold":
+                self.line(f"still: holding {p.hold_s:g} s ...")
+                self.tick = None
+            tick = countdown_tick(p.hold_s - p.held_s, p.hold_s)
+            if tick is not None and tick != self.tick:
+                self.tick = tick
+                self.line(f"  {tick:g} s left")
+        elif p.phase == "turning" and self.phase != "turning":
+            self.line("turning ...")
+        self.phase = p.phase
+
+    def line(self, text: str, style: str = "") -> None:
+        self.console.print(Text(text, style=style), highlight=False)
 
     def render(self, state: GuidedState) -> Group:
         """The live view: instruction, live signal, hold progress, plan progress, commands."""
@@ -110,11 +121,23 @@ class Screen:
         rows.add_row(signal)
         if p.phase == "hold" and state.state is not None:
             bar = Table.grid(padding=(0, 1))
+            left = max(p.hold_s - p.held_s, 0.0)
             bar.add_row(
                 ProgressBar(total=p.hold_s, completed=p.held_s, width=40),
-                Text(f"{p.held_s:.1f}/{p.hold_s:g} s"),
+                Text(f"hold still: {left:.1f} s left of {p.hold_s:g} s", style="bold"),
             )
             rows.add_row(bar)
         rows.add_row(Text(state.progress_text(), style="dim"))
         rows.add_row(Text(COMMANDS, style="dim"))
         return Group(rows)
+
+
+def countdown_tick(left_s: float, hold_s: float) -> float | None:
+    """The countdown mark to print with ``left_s`` of a ``hold_s`` hold to go: whole seconds
+    for holds up to 10 s, tens of seconds up to 2 min, minutes beyond; None at the start (the
+    hold line already says it) and at the end."""
+    step = 1.0 if hold_s <= 10 else 10.0 if hold_s <= 120 else 60.0
+    if left_s <= 0:
+        return None
+    tick = math.ceil(left_s / step) * step
+    return None if tick >= hold_s else tick

@@ -50,6 +50,11 @@ class GuidedOptions:
             raise ValueError(f"hold_s must be > 0, got {self.hold_s!r}")
 
 
+def _duration(seconds: float) -> str:
+    """``12 s``, ``2.5 min``."""
+    return f"{seconds:g} s" if seconds < 120 else f"{seconds / 60:.3g} min"
+
+
 @dataclass(frozen=True)
 class Message:
     """One line for the person: ``text`` and a rich ``style`` (``""`` for plain)."""
@@ -72,11 +77,11 @@ class Prompt:
         ``"wait"`` (waiting for the unit to be still), ``"hold"`` (holding), ``"move"`` (turn
         the unit to the next pose), ``"pre"``/``"turning"`` (a rotation step), ``"done"``.
     text : str
-        The instruction line.
+        The instruction line (a static step says how long to hold).
     hold_s : float
         The current step's hold, s.
     held_s : float
-        Time held so far, s (``phase == "hold"``).
+        Time held so far, s (``phase == "hold"``); ``hold_s - held_s`` is the countdown.
     serial : int
         Changes whenever the instruction must be told again (a new step, a redo).
     """
@@ -135,6 +140,22 @@ class GuidedState:
         self.noise_told = False
         self.no_direction_told = False
         self.rotations = any(s.kind == "rotation" for s in self.steps)
+        self.turn_from: int | None = None  # where the unit left the last pose taken
+        self.say(self.plan_line(), "bold")
+
+    def plan_line(self) -> str:
+        """What the whole capture asks: the steps, how long each hold is and in total."""
+        holds = [float(s.hold_s) if s.hold_s else self.o.hold_s
+                 for s in self.steps if s.kind == "static"]  # fmt: skip
+        n_turns = len(self.steps) - len(holds)
+        text = f"plan {self.plan.name}: {len(holds)} poses"
+        if n_turns:
+            text += f" and {n_turns} turns"
+        if holds:
+            each = f"{holds[0]:g} s" if len(set(holds)) == 1 else "as long as each step says"
+            text += (f"; hold each pose still {each} (the count starts once the unit is still): "
+                     f"{_duration(sum(holds))} of holding in all")  # fmt: skip
+        return text
 
     # ------------------------------------------------------------------------ reading
     def say(self, text: str, style: str = "") -> None:
@@ -191,8 +212,10 @@ class GuidedState:
     def instruction_line(self, cur: int) -> str:
         step = self.steps[cur]
         text = instruction(step)
-        if step.kind == "static" and len(self.candidates()) > 1:
-            text += " (or any pose left, in any order)"
+        if step.kind == "static":
+            text += f" for {self.hold_s():g} s"
+            if len(self.candidates()) > 1:
+                text += " (or any pose left, in any order)"
         if step.kind == "rotation" and self.rot_phase == "pre":
             text = "Hold still first. " + text
         return text
@@ -287,6 +310,8 @@ class GuidedState:
             return
         self.uncommitted = None
         self.taken.remove(t)
+        if t.turn is not None:  # the unit left the pose before it at the same moment
+            self.turn_from = t.turn[0]
         self.status[t.step] = "pending"
         self.focus = t.step
         self.armed = True
@@ -322,7 +347,10 @@ class GuidedState:
         if t.start < self.committed_start:  # cannot happen with holds and turns in order
             self.say(f"{self.steps[t.step].label}: out of time order, not saved", "red")
             return
-        self.add_segment(t.kind, t.start, t.stop, **self.steps[t.step].segment_attrs())
+        step = self.steps[t.step]
+        if t.turn is not None:  # the motion that led into this pose, before it in time
+            self.add_segment("rotation", *t.turn, label=f"turn to {step.label}")
+        self.add_segment(t.kind, t.start, t.stop, **step.segment_attrs())
         self.committed_start = t.start
 
     # ------------------------------------------------------------------------ stream
@@ -370,6 +398,9 @@ class GuidedState:
                     self.hold_done(s0, e)
                 elif self.holding and dur >= self.o.warn_after_s:
                     self.say("the unit moved during the hold: hold it again", "bold yellow")
+            last = self.taken[-1] if self.taken else None
+            if last is not None and last.kind == "static" and s <= last.start < e:
+                self.turn_from = e  # the still run of the pose just taken ends: a turn starts
             self.holding = False
             self.armed = True  # the unit moved: the next still period is a new pose
             self.min_start = 0
@@ -425,7 +456,11 @@ class GuidedState:
         if refusal:
             self.say(refusal, "bold red")
             return
-        self.take(Taken(index, "static", s0, stop, direction))
+        turn = None
+        if self.turn_from is not None and self.turn_from < s0 and self.last_taken_static():
+            turn = (self.turn_from, s0)
+        self.turn_from = None
+        self.take(Taken(index, "static", s0, stop, direction, turn=turn))
         n_done = sum(st == "done" for st in self.status)
         where = "" if direction is None else f" (measured up {describe_direction(direction)})"
         self.say(
@@ -455,6 +490,10 @@ class GuidedState:
                 "yellow",
             )
         return direction
+
+    def last_taken_static(self) -> bool:
+        """The last step taken is a static one (a turn after it is a turn between poses)."""
+        return bool(self.taken) and self.taken[-1].kind == "static"
 
     def taken_poses(self) -> list[Taken]:
         return [
@@ -487,6 +526,7 @@ class GuidedState:
             self.o.gyro_units, self.o.gyro_scale,
         )  # fmt: skip
         self.take(Taken(cur, "rotation", a, b, measured=measured))
+        self.turn_from = None  # this turn is recorded as the plan's own step
         text = f"recorded {step.label} ({self.hist.t(b) - self.hist.t(a):.1f} s"
         if "angle_deg" in measured:
             text += f", {measured['angle_deg']:.0f} deg measured"

@@ -21,6 +21,7 @@ there is gyro data) from ``find_rotations``.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import os
 from collections.abc import Sequence
@@ -32,14 +33,18 @@ import numpy as np
 from imucal_cli.errors import InputError
 from imucal_cli.formats.session import Segment, Session
 from imucal_cli.solvers.segmentation import (
+    Interval,
+    NoiseEstimate,
     estimate_noise,
     find_rotations,
     find_static,
+    find_steps,
 )
 
 from .recording import (
     ACCEL_UNITS,
     GYRO_UNITS,
+    MAG_UNITS,
     TIME_UNITS,
     ImportStats,
     ReadOptions,
@@ -61,9 +66,12 @@ __all__ = [
     "FORMATS",
     "GYRO_UNITS",
     "ImportStats",
+    "MAG_UNITS",
     "ReadOptions",
     "Recording",
     "TIME_UNITS",
+    "RATE_RANGE_HZ",
+    "check_sample_rate",
     "check_time",
     "import_files",
     "infer_columns",
@@ -73,6 +81,7 @@ __all__ = [
     "reader",
     "segment_recording",
     "skipped_fields",
+    "split_steps",
     "split_fields",
 ]
 
@@ -153,13 +162,71 @@ def read_recording(
     time = np.asarray(rec.time, np.float64)
     rec.time = time
     rec.stats.samples = len(time)
+    where = " and ".join(str(p) for p in paths)
+    stamped = rate_hz is None or rec.columns.count("t") > 0
+    measured = float(1.0 / np.median(np.diff(time))) if len(time) >= 2 else float("nan")
+    if stamped and np.isfinite(measured):
+        check_sample_rate(measured, time_unit, where)
     if rate_hz is not None:
-        rec.rate_hz = float(rate_hz)
-    elif len(time) >= 2:
-        rec.rate_hz = float(1.0 / np.median(np.diff(time)))
-    else:
-        rec.rate_hz = float("nan")
+        check_sample_rate(rate_hz, None, where)
+        if stamped and np.isfinite(measured) and abs(measured / rate_hz - 1.0) > 0.1:
+            raise InputError(
+                f"{where}: the time stamps (read in {_UNIT_NAMES[time_unit]}) give "
+                f"{measured:.4g} Hz but --rate says {rate_hz:g} Hz: drop --rate, or fix "
+                "--time-unit"
+            )
+    rec.rate_hz = float(rate_hz) if rate_hz is not None else measured
     return rec
+
+
+RATE_RANGE_HZ = (1.0, 10_000.0)
+"""Sample rates plausible for an IMU, Hz: outside them, the time unit or ``--rate`` is wrong."""
+
+_UNIT_NAMES = {"s": "seconds", "ms": "milliseconds", "us": "microseconds"}
+
+
+def check_sample_rate(rate_hz: float, time_unit: str | None, where: str) -> None:
+    """Refuse a sample rate no IMU has (outside :data:`RATE_RANGE_HZ`).
+
+    Parameters
+    ----------
+    rate_hz : float
+        The rate, Hz: from the median step of time stamps read in ``time_unit``, or given
+        (``time_unit`` None: ``--rate``).
+    time_unit : str or None
+        The unit the stamps were read in; when another unit of :data:`TIME_UNITS` gives a
+        plausible rate, the message names ``--time-unit`` with it.
+    where : str
+        The file(s), for the message.
+
+    Raises
+    ------
+    InputError
+        The rate is implausible (the message says what to pass).
+    """
+    lo, hi = RATE_RANGE_HZ
+    if lo <= rate_hz <= hi:
+        return
+    plausible = f"an IMU samples at {lo:g} Hz to {hi / 1000:g} kHz"
+    if time_unit is None:
+        raise InputError(f"{where}: --rate {rate_hz:g} Hz is implausible ({plausible})")
+    scale = TIME_UNITS[time_unit]
+    fits = {
+        unit: rate_hz * scale / factor
+        for unit, factor in TIME_UNITS.items()
+        if unit != time_unit and lo <= rate_hz * scale / factor <= hi
+    }
+    step = 1.0 / rate_hz / scale
+    said = f"time stamps {step:.4g} apart read as {_UNIT_NAMES[time_unit]} give {rate_hz:.4g} Hz"
+    if fits:
+        unit, rate = min(fits.items(), key=lambda kv: abs(np.log10(kv[1] / 100.0)))
+        raise InputError(
+            f"{where}: {said} ({plausible}); the stamps look like {_UNIT_NAMES[unit]}: pass "
+            f"--time-unit {unit} ({rate:.4g} Hz)"
+        )
+    raise InputError(
+        f"{where}: {said} ({plausible}); check the t column and --time-unit, or pass --rate"
+    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -188,9 +255,12 @@ def segment_recording(
             f"{where}: too few samples ({n}, {duration:.3g} s) to hold a still period of "
             f"{min_still_s:g} s plus a {window_s:g} s window; record longer"
         )
-    static = find_static(rec.time, rec.accel, rec.gyro, min_still_s=min_still_s, window_s=window_s)
+    noise = estimate_noise(rec.time, rec.accel, rec.gyro, window_s=window_s)
+    static = find_static(
+        rec.time, rec.accel, rec.gyro, min_still_s=min_still_s, window_s=window_s, noise=noise
+    )
+    static = split_steps(static, rec.accel, noise, min_n=int(np.ceil(min_still_s * rec.rate_hz)))
     if not static:
-        noise = estimate_noise(rec.time, rec.accel, rec.gyro, window_s=window_s)
         shown = ", ".join(f"{s:.3g}" for s in noise.accel)
         raise InputError(
             f"{where}: no still period of at least {min_still_s:g} s found in {duration:.3g} s "
@@ -205,10 +275,26 @@ def segment_recording(
         for r in find_rotations(rec.time, rec.gyro, static):
             segments.append(Segment(name="", kind="rotation", start=r.start, stop=r.stop))
     segments.sort(key=lambda s: (s.start, s.kind))
-    return [
-        Segment(name=f"{i:04d}", kind=s.kind, start=s.start, stop=s.stop, label=s.label)
-        for i, s in enumerate(segments)
-    ]
+    return [dataclasses.replace(s, name=f"{i:04d}") for i, s in enumerate(segments)]
+
+
+def split_steps(
+    static: list[Interval], accel: np.ndarray, noise: NoiseEstimate, min_n: int
+) -> list[Interval]:
+    """Still periods cut where their level jumps (two poses with no motion between, as in
+    concatenated recordings): each part is kept, less half a window on each side of the step,
+    when it still lasts ``min_n`` samples; never one period averaging two poses."""
+    out: list[Interval] = []
+    half = max(1, noise.window // 2)
+    for s in static:
+        cuts = [s.start + k for k in find_steps(accel[s.start : s.stop], noise.accel, noise.window)]
+        bounds = [s.start, *cuts, s.stop]
+        for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
+            a2 = a + half if k > 0 else a
+            b2 = b - half if k < len(cuts) else b
+            if b2 - a2 >= max(min_n, 2):
+                out.append(Interval(a2, b2))
+    return out
 
 
 def import_files(
@@ -223,12 +309,21 @@ def import_files(
     gyro_units: str | None = None,
     sensor: str | None = None,
     min_still_s: float = _MIN_STILL_S,
+    sections: str | os.PathLike | None = None,
+    turn_angle_deg: float | None = None,
+    mag_units: str | None = None,
+    magnetic_field_uT: float | None = None,
 ) -> Session:
     """Read recorded text files and segment them into a session (not yet written).
 
     Parameters are those of :func:`read_recording`, plus the raw units (``accel_units`` from
-    :data:`ACCEL_UNITS`, ``gyro_units`` from :data:`GYRO_UNITS`), a ``sensor`` description and
-    the shortest still period kept, s.
+    :data:`ACCEL_UNITS`, ``gyro_units`` from :data:`GYRO_UNITS`, ``mag_units`` from
+    :data:`MAG_UNITS`), a ``sensor`` description, the shortest still period kept, s, and the
+    local field magnitude ``magnetic_field_uT`` where known.  A recording with a magnetometer
+    and no accelerometer has no segments (the magnetometer needs none).  ``sections``: a MaD
+    Lab section list (JSON file) or the name of a column holding each row's label, whose
+    labelled sections replace the automatic segmentation (:mod:`.sections`);
+    ``turn_angle_deg``: the signed angle of their turns.
 
     Returns
     -------
@@ -245,10 +340,30 @@ def import_files(
         raise InputError(f"--accel-units {accel_units!r}: use {', '.join(ACCEL_UNITS)}")
     if gyro_units is not None and gyro_units not in GYRO_UNITS:
         raise InputError(f"--gyro-units {gyro_units!r}: use {', '.join(GYRO_UNITS)}")
+    if mag_units is not None and mag_units not in MAG_UNITS:
+        raise InputError(f"--mag-units {mag_units!r}: use {', '.join(MAG_UNITS)}")
+    if magnetic_field_uT is not None and not (
+        np.isfinite(magnetic_field_uT) and magnetic_field_uT > 0
+    ):
+        raise InputError(f"--field-uT must be a positive number, got {magnetic_field_uT:g}")
     rec = read_recording(
         paths, fmt, columns, time_unit=time_unit, rate_hz=rate_hz, skip_rows=skip_rows
     )
-    segments = segment_recording(rec, min_still_s=min_still_s)
+    notes: list[str] = []
+    if sections is not None:
+        from .sections import labelled_segments, read_section_list, sections_of_column
+
+        where = " and ".join(rec.names)
+        spec = Path(sections)
+        if spec.suffix.lower() == ".json" or spec.is_file():
+            ranges = read_section_list(spec)
+        else:
+            ranges = sections_of_column(rec, Path(paths[0]), str(sections))
+        segments, notes = labelled_segments(rec, ranges, turn_angle_deg=turn_angle_deg, where=where)
+    elif rec.accel is None and rec.mag is not None:
+        segments = []
+    else:
+        segments = segment_recording(rec, min_still_s=min_still_s)
     try:
         mtime = os.path.getmtime(paths[0])
         created = datetime.fromtimestamp(mtime, UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
@@ -266,6 +381,10 @@ def import_files(
         sample_rate_hz=rec.rate_hz,
         accel_units=accel_units if rec.accel is not None else None,
         gyro_units=gyro_units if rec.gyro is not None else None,
+        mag=rec.mag,
+        mag_units=mag_units if rec.mag is not None else None,
+        magnetic_field_uT=magnetic_field_uT,
     )
     session.import_stats = rec.stats  # type: ignore[attr-defined]
+    session.import_notes = notes  # type: ignore[attr-defined]
     return session

@@ -2,8 +2,8 @@
 per file).
 
 The fields are named by a column spec (:func:`~.text.parse_columns`) or, when none is given, by
-a header line (``acc_x``/``ax``/``accel_x``, ``gyr_x``/``gx``/``gyro_x``, ``t``/``time``/
-``timestamp``, ...).  Without a ``t`` column, time is ``row / rate``.
+a header line (``acc_x``/``ax``/``accel_x``, ``gyr_x``/``gx``/``gyro_x``, ``mag_x``/``mx``,
+``t``/``time``/``timestamp``, ...).  Without a ``t`` column, time is ``row / rate``.
 """
 
 from __future__ import annotations
@@ -16,7 +16,16 @@ import numpy as np
 from imucal_cli.errors import InputError
 
 from .recording import TIME_UNITS, ImportStats, ReadOptions, Recording
-from .text import check_time, infer_columns, parse_columns, read_table, skipped_fields
+from .text import (
+    check_time,
+    first_fields,
+    header_columns,
+    infer_columns,
+    parse_columns,
+    parse_numbers,
+    read_table,
+    skipped_fields,
+)
 
 NAME = "csv"
 FILES = "one CSV or text file"
@@ -36,6 +45,10 @@ def read(paths: Sequence[Path], options: ReadOptions, stats: ImportStats) -> Rec
     path = paths[0]
     columns = options.columns
     spec = parse_columns(columns) if isinstance(columns, str) else columns
+    if spec is None:  # a header naming the axes also says which fields to skip (text labels)
+        first = first_fields(path, options.skip_rows)
+        if first is not None and parse_numbers(first) is None:
+            spec = infer_columns(first)
     data, lines, header = read_table(
         path,
         None if spec is None else len(spec),
@@ -44,12 +57,7 @@ def read(paths: Sequence[Path], options: ReadOptions, stats: ImportStats) -> Rec
         skip=skipped_fields(spec),
     )
     if spec is None:
-        spec = infer_columns(header) if header else None
-        if spec is None:
-            raise InputError(
-                f"{path}: cannot tell which field is which (no header naming the axes): "
-                "pass --columns, e.g. --columns t,ax,ay,az,gx,gy,gz"
-            )
+        spec = header_columns(header, str(path))
         if len(spec) != data.shape[1]:
             raise InputError(
                 f"{path}: the header names {len(spec)} fields but rows have "
@@ -71,6 +79,7 @@ def read(paths: Sequence[Path], options: ReadOptions, stats: ImportStats) -> Rec
         time = np.arange(len(data)) / options.rate_hz
     accel = data[:, [col(a) for a in ("ax", "ay", "az")]] if "ax" in used else None
     gyro = data[:, [col(g) for g in ("gx", "gy", "gz")]] if "gx" in used else None
+    mag = data[:, [col(m) for m in ("mx", "my", "mz")]] if "mx" in used else None
     temp = data[:, col("temp")] if "temp" in used else None
     return Recording(
         time=time,
@@ -81,4 +90,7 @@ def read(paths: Sequence[Path], options: ReadOptions, stats: ImportStats) -> Rec
         names=[path.name],
         columns=used,
         stats=stats,
+        lines=lines,
+        header=header,
+        mag=mag,
     )

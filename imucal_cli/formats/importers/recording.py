@@ -8,11 +8,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["ACCEL_UNITS", "GYRO_UNITS", "TIME_UNITS", "ImportStats", "ReadOptions", "Recording"]
+__all__ = [
+    "ACCEL_UNITS", "GYRO_UNITS", "MAG_UNITS", "TIME_UNITS", "ImportStats", "ReadOptions",
+    "Recording",
+]  # fmt: skip
 
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
 ACCEL_UNITS = ("counts", "V", "g", "m/s^2")
 GYRO_UNITS = ("counts", "V", "rad/s", "deg/s")
+MAG_UNITS = ("counts", "uT", "nT", "gauss")
 
 
 @dataclass(frozen=True)
@@ -91,6 +95,12 @@ class Recording:
     columns : list of (str or None)
         The fields of the (first) file, as used.
     stats : ImportStats
+    lines : ndarray of int, shape (N,), or None
+        Text formats: the 1-based line number of each sample in the (first) file.
+    header : list of str or None
+        Text formats: the fields of the header line, when there is one.
+    mag : ndarray, shape (N, 3), or None
+        Raw magnetometer values as read.
     """
 
     time: np.ndarray
@@ -101,3 +111,6 @@ class Recording:
     names: list[str]
     columns: list[str | None]
     stats: ImportStats = field(default_factory=ImportStats)
+    lines: np.ndarray | None = None
+    header: list[str] | None = None
+    mag: np.ndarray | None = None

@@ -10,7 +10,8 @@ and counted, never fatal unless nothing is left.
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,8 @@ __all__ = [
     "FIELDS",
     "HEADER_ALIASES",
     "check_time",
+    "first_fields",
+    "header_columns",
     "infer_columns",
     "parse_columns",
     "parse_numbers",
@@ -31,7 +34,7 @@ __all__ = [
     "split_fields",
 ]
 
-FIELDS = ("t", "ax", "ay", "az", "gx", "gy", "gz", "temp")
+FIELDS = ("t", "ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz", "temp")
 """Field names of a column spec; ``_`` skips a field."""
 
 #: Header names (lower case, without spaces, dashes and brackets) and the field they mean.
@@ -47,6 +50,8 @@ for _axis in "xyz":
         HEADER_ALIASES[_name.format(_axis)] = "a" + _axis
     for _name in ("g{}", "gyr_{}", "gyr{}", "gyro_{}", "gyro{}", "gyroscope_{}", "gyr_{}_raw"):
         HEADER_ALIASES[_name.format(_axis)] = "g" + _axis
+    for _name in ("m{}", "mag_{}", "mag{}", "magn_{}", "magnetometer_{}", "mag_{}_raw"):
+        HEADER_ALIASES[_name.format(_axis)] = "m" + _axis
 
 
 # --------------------------------------------------------------------------------------------
@@ -71,8 +76,8 @@ def parse_columns(text: str) -> list[str | None]:
     Raises
     ------
     InputError
-        An unknown or repeated name, an empty field, or an accelerometer or gyroscope with
-        some but not all of its three axes.
+        An unknown or repeated name, an empty field, or an accelerometer, gyroscope or
+        magnetometer with some but not all of its three axes.
     """
     names = [part.strip().lower() for part in str(text).split(",")]
     if not names or any(not n for n in names):
@@ -89,14 +94,16 @@ def parse_columns(text: str) -> list[str | None]:
         if n in out:
             raise InputError(f"--columns {text!r}: field {n!r} appears twice")
         out.append(n)
-    for sensor, what in (("a", "accelerometer"), ("g", "gyroscope")):
+    for sensor, what in (("a", "accelerometer"), ("g", "gyroscope"), ("m", "magnetometer")):
         have = [f"{sensor}{x}" in out for x in "xyz"]
         if any(have) and not all(have):
             raise InputError(
                 f"--columns {text!r}: the {what} needs all three of {sensor}x,{sensor}y,{sensor}z"
             )
-    if "ax" not in out and "gx" not in out:
-        raise InputError(f"--columns {text!r}: names no accelerometer (ax,ay,az) or gyroscope")
+    if "ax" not in out and "gx" not in out and "mx" not in out:
+        raise InputError(
+            f"--columns {text!r}: names no accelerometer (ax,ay,az), gyroscope or magnetometer"
+        )
     return out
 
 
@@ -113,13 +120,31 @@ def infer_columns(header: Sequence[str]) -> list[str | None] | None:
         name = re.sub(r"[\s\-]+", "_", name)
         f = HEADER_ALIASES.get(name)
         out.append(f if f is not None and f not in out else None)
-    for sensor in "ag":
+    for sensor in "agm":
         axes = [f"{sensor}{x}" for x in "xyz"]
         if not all(a in out for a in axes):
             out = [None if f in axes else f for f in out]
-    if not any(f in ("ax", "gx") for f in out):
+    if not any(f in ("ax", "gx", "mx") for f in out):
         return None
     return out
+
+
+def header_columns(header: Sequence[str] | None, src: str) -> list[str | None]:
+    """The fields a header line names (:func:`infer_columns`), or the error saying to pass
+    ``--columns``.
+
+    Raises
+    ------
+    InputError
+        No header, or one that names no sensor axis.
+    """
+    spec = infer_columns(header) if header else None
+    if spec is None:
+        raise InputError(
+            f"{src}: cannot tell which field is which (no header naming the axes): "
+            "pass --columns, e.g. --columns t,ax,ay,az,gx,gy,gz"
+        )
+    return spec
 
 
 # --------------------------------------------------------------------------------------------
@@ -152,18 +177,45 @@ def parse_numbers(parts: list[str], skip: frozenset[int] = frozenset()) -> list[
     return values
 
 
-def read_lines(path: Path) -> list[str]:
+def _read_bytes(path: Path) -> bytes:
     src = str(path)
     if not path.exists():
         raise InputError(f"{src}: no such file")
     if path.is_dir():
         raise InputError(f"{src}: is a directory, not a recording")
     try:
-        text = path.read_text(encoding="utf-8", errors="replace")
+        return path.read_bytes()
     except OSError as exc:
         raise InputError(f"{src}: cannot read ({exc.strerror or exc})") from None
+
+
+def first_fields(path: Path, skip_rows: int = 0) -> list[str] | None:
+    """The fields of the first line after ``skip_rows`` that is not blank or a comment (None:
+    no such line in the first 64 KiB, or the file cannot be read: the reader will say why)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(65536)
+    except OSError:
+        return None
+    lines = head.decode("utf-8", errors="replace").lstrip("\ufeff").splitlines()
+    for line in lines[skip_rows:-1] if len(head) == 65536 else lines[skip_rows:]:
+        line = line.strip()
+        if line and not line.startswith("#"):
+            return split_fields(line, "," in line)
+    return None
+
+
+def read_lines(path: Path, raw: bytes | None = None) -> list[str]:
+    """The lines of a text file (UTF-8, undecodable bytes replaced).
+
+    Raises
+    ------
+    InputError
+        Missing, unreadable or empty file, or a directory.
+    """
+    text = (_read_bytes(path) if raw is None else raw).decode("utf-8", errors="replace")
     if not text.strip():
-        raise InputError(f"{src}: empty file")
+        raise InputError(f"{path}: empty file")
     return text.splitlines()
 
 
@@ -177,13 +229,83 @@ def read_table(
 ) -> tuple[np.ndarray, np.ndarray, list[str] | None]:
     """Numeric rows of a text file.
 
-    Returns the rows (K, n_fields), their 1-based line numbers (K,) and the last header line's
-    fields (or None).  ``n_fields`` None: the most common field count of the numeric rows.
+    Lines before ``skip_rows`` and non-numeric lines before the first numeric one are header
+    lines; blank and ``#`` lines are counted; any later line that does not give ``n_fields``
+    finite numbers (fields in ``skip`` may hold anything and read as 0) is malformed: counted,
+    the first one's ``file:line`` kept, and skipped.  ``comma`` None: fields are separated by
+    commas when the first line read has one, else by white space.
+
+    The whole file is scanned with array operations (:func:`_scan_ascii`); files that are not
+    plain ASCII, or hold a token that is not a number where a number is due, are read line by
+    line (:func:`_scan_lines`), with the same result.
+
+    Returns
+    -------
+    data : ndarray, shape (K, n_fields)
+    lines : ndarray of int, shape (K,)
+        1-based line number of each row.
+    header : list of str or None
+        The fields of the last header line.
+
+    Raises
+    ------
+    InputError
+        Missing, unreadable or empty file, no numeric rows, no row with ``n_fields`` fields.
+        ``n_fields`` None: the most common field count of the numeric rows.
     """
-    src = str(path)
-    lines = read_lines(path)
-    stats.lines += len(lines)
-    header: list[str] | None = None
+    raw = _read_bytes(path)
+    scan = _scan_ascii(raw, skip_rows, comma, skip)
+    if scan is None:
+        scan = _scan_lines(read_lines(path, raw), skip_rows, comma, skip)
+    stats.lines += scan.n_lines
+    stats.header += scan.header
+    stats.blank += scan.blank
+    stats.comments += scan.comments
+    if not len(scan.numbers):
+        raise InputError(f"{path}: no numeric rows (only header or text lines)")
+    lengths = scan.lengths
+    if n_fields is None:
+        n_fields = int(np.argmax(np.bincount(lengths)))
+    keep = lengths == n_fields
+    if not keep.any():
+        found = ", ".join(str(v) for v in np.unique(lengths)[:5].tolist())
+        raise InputError(
+            f"{path}: no row has the {n_fields} fields the columns name (rows have {found}); "
+            "fix --columns"
+        )
+    bad = np.concatenate([scan.bad, scan.numbers[~keep]])
+    if len(bad):
+        stats.malformed += len(bad)
+        if stats.first_malformed is None:
+            stats.first_malformed = f"{path.name}:{int(bad.min())}"
+    return scan.rows(keep, n_fields), scan.numbers[keep], scan.header_fields
+
+
+@dataclass
+class _Scan:
+    """What one pass over a text file found (both scanners fill it alike).
+
+    ``numbers`` (1-based line numbers) and ``lengths`` (field counts) of the numeric rows;
+    ``bad``: line numbers of non-numeric lines after the first numeric one; ``rows(keep, n)``:
+    the kept numeric rows as an array (K, n)."""
+
+    n_lines: int
+    header: int
+    blank: int
+    comments: int
+    header_fields: list[str] | None
+    numbers: np.ndarray
+    lengths: np.ndarray
+    bad: np.ndarray
+    rows: Callable[[np.ndarray, int], np.ndarray]
+
+
+def _scan_lines(
+    lines: list[str], skip_rows: int, comma: bool | None, skip: frozenset[int]
+) -> _Scan:
+    """Line by line: the reference reader, for any text."""
+    header = blank = comments = 0
+    header_fields: list[str] | None = None
     rows: list[list[float]] = []
     numbers: list[int] = []
     bad: list[int] = []
@@ -191,13 +313,13 @@ def read_table(
     for i, raw in enumerate(lines):
         line = raw.strip().lstrip("\ufeff")
         if i < skip_rows:
-            stats.header += 1
+            header += 1
             continue
         if not line:
-            stats.blank += 1
+            blank += 1
             continue
         if line.startswith("#"):
-            stats.comments += 1
+            comments += 1
             continue
         if comma is None:
             comma = "," in line
@@ -205,34 +327,184 @@ def read_table(
         values = parse_numbers(parts, skip)
         if values is None:
             if not seen_data:
-                stats.header += 1
-                header = parts
+                header += 1
+                header_fields = parts
             else:
                 bad.append(i + 1)
             continue
         seen_data = True
         rows.append(values)
         numbers.append(i + 1)
-    if not rows:
-        raise InputError(f"{src}: no numeric rows (only header or text lines)")
-    lengths = np.array([len(r) for r in rows])
-    if n_fields is None:
-        counts = np.bincount(lengths)
-        n_fields = int(np.argmax(counts))
-    keep = lengths == n_fields
-    if not keep.any():
-        found = ", ".join(str(v) for v in sorted(set(lengths.tolist()))[:5])
-        raise InputError(
-            f"{src}: no row has the {n_fields} fields the columns name (rows have {found}); "
-            "fix --columns"
-        )
-    bad.extend(np.asarray(numbers)[~keep].tolist())
-    if bad:
-        stats.malformed += len(bad)
-        if stats.first_malformed is None:
-            stats.first_malformed = f"{path.name}:{min(bad)}"
-    data = np.array([r for r, k in zip(rows, keep, strict=True) if k], dtype=np.float64)
-    return data, np.asarray(numbers)[keep], header
+
+    def take(keep: np.ndarray, n: int) -> np.ndarray:
+        out = np.array([r for r, k in zip(rows, keep, strict=True) if k], dtype=np.float64)
+        return out.reshape(-1, n)
+
+    return _Scan(
+        n_lines=len(lines),
+        header=header,
+        blank=blank,
+        comments=comments,
+        header_fields=header_fields,
+        numbers=np.asarray(numbers, dtype=np.int64),
+        lengths=np.asarray([len(r) for r in rows], dtype=np.int64),
+        bad=np.asarray(bad, dtype=np.int64),
+        rows=take,
+    )
+
+
+# Byte classes of the array scanner; white space and line breaks first (content is > _CR).
+_SPACE, _LF, _CR, _OTHER, _COMMA, _HASH, _DIGIT, _INVALID = range(8)
+_CLASS = np.full(256, _INVALID, dtype=np.uint8)
+_CLASS[32:127] = _OTHER
+_CLASS[[ord(" "), ord("\t")]] = _SPACE
+_CLASS[ord("\n")] = _LF
+_CLASS[ord("\r")] = _CR
+_CLASS[ord(",")] = _COMMA
+_CLASS[np.frombuffer(b"0123456789+-.eE", np.uint8)] = _DIGIT
+_CLASS[ord("#")] = _HASH
+_BOM = b"\xef\xbb\xbf"
+
+
+def _runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Start indices and one-past-end indices of the runs of True in ``mask``."""
+    edge = np.flatnonzero(mask[1:] != mask[:-1]) + 1
+    if mask[0]:
+        edge = np.r_[0, edge]
+    if mask[-1]:
+        edge = np.r_[edge, len(mask)]
+    return edge[0::2], edge[1::2]
+
+
+def _ranges(starts: np.ndarray, stops: np.ndarray) -> np.ndarray:
+    """All indices of the ranges ``[starts[k], stops[k])``, concatenated."""
+    lengths = stops - starts
+    offsets = np.repeat(starts - np.r_[0, np.cumsum(lengths)[:-1]], lengths)
+    return offsets + np.arange(int(lengths.sum()))
+
+
+def _scan_ascii(
+    raw: bytes, skip_rows: int, comma: bool | None, skip: frozenset[int]
+) -> _Scan | None:
+    """The whole file at once with array operations (no Python loop per line).
+
+    Same result as :func:`_scan_lines`; None (use that) when the file is not plain ASCII
+    (other line breaks, undecodable bytes) or a token where a number is due is not a number
+    NumPy's parser reads alike (then the line-by-line reader decides)."""
+    if raw.startswith(_BOM):
+        raw = raw[len(_BOM) :]
+    b = np.frombuffer(raw, dtype=np.uint8)
+    n = len(b)
+    if n == 0:
+        return None
+    cls = np.take(_CLASS, b)
+    if cls.max() == _INVALID:
+        return None
+    # Line breaks: LF, CR LF (the CR is then white space), lone CR; as str.splitlines.
+    breaks = np.flatnonzero(cls == _LF)
+    cr = np.flatnonzero(cls == _CR)
+    if len(cr):
+        lone = cr[(cr + 1 == n) | (b[np.minimum(cr + 1, n - 1)] != ord("\n"))]
+        breaks = np.union1d(breaks, lone)
+    n_lines = len(breaks) + int(len(breaks) == 0 or breaks[-1] != n - 1)
+    line_start = np.r_[0, breaks + 1][:n_lines]
+    line_end = np.r_[breaks, n][:n_lines]
+    # Runs of content (white space separated); the first of a line says what the line is.
+    content = cls > _CR
+    rs, re_ = _runs(content)
+    if len(rs) == 0:
+        return None
+    r_line = np.searchsorted(breaks, rs)
+    first = np.r_[True, r_line[1:] != r_line[:-1]]
+    kind = np.zeros(n_lines, dtype=np.int8)  # 0 blank, 1 comment, 2 candidate
+    kind[r_line[first]] = np.where(cls[rs[first]] == _HASH, 1, 2)
+    after = np.arange(n_lines) >= skip_rows
+    blank = int(np.count_nonzero((kind == 0) & after))
+    comments = int(np.count_nonzero((kind == 1) & after))
+    candidate = (kind == 2) & after
+    cand_lines = np.flatnonzero(candidate)
+    if comma is None and len(cand_lines):
+        j = cand_lines[0]
+        comma = raw.find(b",", line_start[j], line_end[j]) >= 0
+    # Tokens: the runs themselves (white space separated), or runs of content but commas.
+    if comma:
+        is_comma = cls == _COMMA
+        ts, te = _runs(content & ~is_comma)
+        t_line = np.searchsorted(breaks, ts)
+        commas = np.flatnonzero(is_comma)
+        before = np.searchsorted(commas, line_start)
+        length = np.searchsorted(commas, line_end) - before + 1
+        field = np.searchsorted(commas, ts) - before[t_line]
+    else:
+        ts, te, t_line = rs, re_, r_line
+        length = np.bincount(t_line, minlength=n_lines)
+        field = np.arange(len(ts)) - np.searchsorted(t_line, t_line)
+    # Tokens that must be numbers: on a candidate line, not in a skipped field.
+    used = candidate[t_line]
+    if skip:
+        used &= ~np.isin(field, list(skip))
+    # A line is numeric when each field but the skipped ones is one number token.
+    ok = candidate.copy()
+    odd = content & (cls != _DIGIT)
+    odd = np.flatnonzero(odd & (cls != _COMMA) if comma else odd)
+    if len(odd):
+        odd_token = np.searchsorted(ts, odd, side="right") - 1
+        ok[t_line[odd_token[used[odd_token]]]] = False
+    if comma:
+        u_line, u_field = t_line[used], field[used]
+        repeated = (u_line[1:] == u_line[:-1]) & (u_field[1:] == u_field[:-1])
+        ok[u_line[1:][repeated]] = False
+        need = length - np.searchsorted(np.array(sorted(skip), dtype=np.int64), length)
+        ok &= np.bincount(u_line, minlength=n_lines) == need
+    keep_tok = used & ok[t_line]
+    values = np.zeros(0)
+    if keep_tok.any():
+        text = raw.replace(b",", b" ") if comma else raw
+        drop = np.flatnonzero(~keep_tok)
+        if len(drop):  # header, comment and malformed lines, skipped fields
+            blanked = np.frombuffer(text, dtype=np.uint8).copy()
+            blanked[_ranges(ts[drop], te[drop])] = ord(" ")
+            text = blanked.tobytes()
+        try:
+            values = np.fromstring(text, sep=" ")  # text mode: not deprecated
+        except ValueError:
+            return None
+        if len(values) != np.count_nonzero(keep_tok):
+            return None
+    v_line, v_field = t_line[keep_tok], field[keep_tok]
+    ok[v_line[~np.isfinite(values)]] = False
+    numeric = np.flatnonzero(ok)
+    first_data = numeric[0] if len(numeric) else n_lines
+    head = cand_lines[cand_lines < first_data]
+    later = cand_lines[cand_lines > first_data]
+    header_fields = None
+    if len(head):
+        j = head[-1]
+        header_fields = split_fields(raw[line_start[j] : line_end[j]].decode().strip(), comma)
+    v_keep = ok[v_line]
+    v_line, v_field, values = v_line[v_keep], v_field[v_keep], values[v_keep]
+
+    def take(keep: np.ndarray, n_fields: int) -> np.ndarray:
+        row_of_line = np.full(n_lines, -1, dtype=np.int64)
+        kept = numeric[keep]
+        row_of_line[kept] = np.arange(len(kept))
+        row = row_of_line[v_line]
+        sel = row >= 0
+        out = np.zeros((len(kept), n_fields))
+        out[row[sel], v_field[sel]] = values[sel]
+        return out
+
+    return _Scan(
+        n_lines=n_lines,
+        header=min(skip_rows, n_lines) + len(head),
+        blank=blank,
+        comments=comments,
+        header_fields=header_fields,
+        numbers=numeric + 1,
+        lengths=length[numeric].astype(np.int64),
+        bad=later[~ok[later]] + 1,
+        rows=take,
+    )
 
 
 def check_time(time: np.ndarray, lines: np.ndarray, src: str) -> None:

@@ -38,7 +38,9 @@ from .model import (
     FORMAT,
     FORMAT_VERSION,
     GRAVITY_DEFAULT,
+    MAG_UNITS,
     SEGMENT_KINDS,
+    UT_PER_MAG_UNIT,
     Segment,
     Session,
     as_float,
@@ -50,6 +52,7 @@ from .model import (
     utc_now_iso,
 )
 from .reader import read_session
+from .relabel import ROOT_LABELS, rewrite_labels
 from .store import store_calibration
 from .writer import SessionWriter, write_session
 
@@ -57,6 +60,8 @@ __all__ = [
     "FORMAT",
     "FORMAT_VERSION",
     "GRAVITY_DEFAULT",
+    "MAG_UNITS",
+    "ROOT_LABELS",
     "SEGMENT_KINDS",
     "Segment",
     "Session",
@@ -69,8 +74,10 @@ __all__ = [
     "one_line",
     "open_for_reading",
     "read_session",
+    "rewrite_labels",
     "show",
     "store_calibration",
+    "UT_PER_MAG_UNIT",
     "utc_now_iso",
     "write_session",
 ]

@@ -11,7 +11,7 @@ import h5py
 
 from imucal_cli.errors import SessionError
 
-from .model import one_line
+from .model import FORMAT, as_str, one_line
 
 
 def check_session_file(path: Path, src: str) -> None:
@@ -44,6 +44,25 @@ def open_for_reading(path: Path, src: str) -> tuple[h5py.File, bool]:
             f"{src}: cannot open the HDF5 file ({one_line(exc)}); if the program that wrote "
             f"it was killed, `h5clear -s {src}` clears the flag"
         ) from None
+
+
+def open_for_update(path: Path, src: str) -> h5py.File:
+    """Open an existing session to change what it says about its samples (``r+``).
+
+    Raises
+    ------
+    SessionError
+        Not a file, cannot be opened for writing, or not an imucal session.
+    """
+    check_session_file(path, src)
+    try:
+        file = h5py.File(path, "r+")
+    except OSError as exc:
+        raise SessionError(f"{src}: cannot open for writing ({one_line(exc)})") from None
+    if as_str(file.attrs.get("format")) != FORMAT:
+        file.close()
+        raise SessionError(f"{src}: not an imucal session (format is not {FORMAT!r})")
+    return file
 
 
 def get_attr(attrs: h5py.AttributeManager, name: str, src: str, where: str) -> Any:

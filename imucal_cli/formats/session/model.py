@@ -15,6 +15,10 @@ FORMAT = "imucal-session"
 FORMAT_VERSION = 1
 GRAVITY_DEFAULT = 9.80665
 SEGMENT_KINDS = ("static", "rotation")
+#: Units of ``/raw/mag`` the format names (root attribute ``mag_units``).
+MAG_UNITS = ("counts", "uT", "nT", "gauss")
+#: Microtesla per raw unit of each physical ``mag_units``.
+UT_PER_MAG_UNIT = {"uT": 1.0, "nT": 1e-3, "gauss": 100.0}
 
 LOG_GROUP = "capture_log"
 LOG_DATASET = "capture_log/segments"
@@ -119,6 +123,9 @@ class Session:
         Raw accelerometer channels (na >= 3) in ``accel_units``.
     gyro : ndarray, shape (N, ng), or None
         Raw gyroscope channels (ng >= 3) in ``gyro_units``.
+    mag : ndarray, shape (N, nm), or None
+        Raw magnetometer channels (nm >= 3) in ``mag_units``; rows may hold NaN where the
+        magnetometer gave no reading.
     temperature : ndarray, shape (N,), or None
         Degrees C.
     segments : list of Segment
@@ -133,6 +140,10 @@ class Session:
         Local gravity magnitude in m/s^2 (9.80665 when the file does not say).
     accel_units, gyro_units : str or None
         Units of the raw channels as recorded (``counts``, ``V``, ``g``, ``m/s^2``, ...).
+    mag_units : str or None
+        Units of ``/raw/mag``: one of :data:`MAG_UNITS`.
+    magnetic_field_uT : float or None
+        Local geomagnetic field magnitude, microtesla, where known.
     path : Path or None
         The file the session was read from.
     calibrations : dict of str to str
@@ -153,6 +164,9 @@ class Session:
     gyro_units: str | None = None
     path: Path | None = None
     calibrations: dict[str, str] = field(default_factory=dict)
+    mag: np.ndarray | None = None
+    mag_units: str | None = None
+    magnetic_field_uT: float | None = None
 
     def static_segments(self) -> list[Segment]:
         """Return the static segments, in time order."""

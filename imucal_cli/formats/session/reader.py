@@ -20,6 +20,7 @@ from .model import (
     FORMAT_VERSION,
     GRAVITY_DEFAULT,
     LOG_DATASET,
+    MAG_UNITS,
     SEGMENT_ATTRS,
     SEGMENT_KINDS,
     Segment,
@@ -70,7 +71,7 @@ def _read_open_file(file: h5py.File, src: str, unclosed: bool) -> Session:
         name: get_attr(file.attrs, name, src, "root ")
         for name in (
             "format", "format_version", "created", "sensor", "source", "sample_rate_hz",
-            "gravity", "accel_units", "gyro_units",
+            "gravity", "accel_units", "gyro_units", "mag_units", "magnetic_field_uT",
         )
     }  # fmt: skip
     fmt = root["format"]
@@ -93,19 +94,24 @@ def _read_open_file(file: h5py.File, src: str, unclosed: bool) -> Session:
         problem = "is missing" if root["created"] is None else "is not a string"
         raise SessionError(f"{src}: root attribute 'created' {problem}")
     text = {}
-    for name in ("sensor", "source", "accel_units", "gyro_units"):
+    for name in ("sensor", "source", "accel_units", "gyro_units", "mag_units"):
         text[name] = None if root[name] is None else as_str(root[name])
         if root[name] is not None and text[name] is None:
             raise SessionError(f"{src}: root attribute {name!r} is not a string")
+    if text["mag_units"] is not None and text["mag_units"] not in MAG_UNITS:
+        raise SessionError(
+            f"{src}: root attribute 'mag_units' is {text['mag_units']!r}, expected one of "
+            f"{', '.join(MAG_UNITS)}"
+        )
     numbers = {}
-    for name in ("sample_rate_hz", "gravity"):
+    for name in ("sample_rate_hz", "gravity", "magnetic_field_uT"):
         numbers[name] = None if root[name] is None else as_float(root[name])
         if root[name] is not None and (numbers[name] is None or numbers[name] <= 0):
             raise SessionError(
                 f"{src}: root attribute {name!r} must be a positive number, got {show(root[name])}"
             )
 
-    time, accel, gyro, temperature = _read_raw(file, src, unclosed)
+    time, accel, gyro, temperature, mag = _read_raw(file, src, unclosed)
     segments = _read_segments(file, src, len(time), accel, gyro, unclosed)
     return Session(
         time=time,
@@ -121,15 +127,17 @@ def _read_open_file(file: h5py.File, src: str, unclosed: bool) -> Session:
         accel_units=text["accel_units"],
         gyro_units=text["gyro_units"],
         calibrations=_read_calibrations(file),
+        mag=mag,
+        mag_units=text["mag_units"],
+        magnetic_field_uT=numbers["magnetic_field_uT"],
     )
 
 
-def _read_raw(
-    file: h5py.File, src: str, unclosed: bool
-) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+def _read_raw(file: h5py.File, src: str, unclosed: bool) -> tuple[np.ndarray | None, ...]:
+    """``time, accel, gyro, temperature, mag`` of ``/raw`` (None where absent), validated."""
     raw = file.get("raw")
     datasets: dict[str, h5py.Dataset] = {}
-    for name in ("time", "accel", "gyro", "temperature"):
+    for name in ("time", "accel", "gyro", "temperature", "mag"):
         obj = raw.get(name) if isinstance(raw, h5py.Group) else None
         if obj is None:
             continue
@@ -146,7 +154,7 @@ def _read_raw(
     if unclosed:
         # An interrupted flush may have grown some datasets and not others.
         n = min(ds.shape[0] for ds in datasets.values() if ds.ndim >= 1)
-    for name in ("accel", "gyro"):
+    for name in ("accel", "gyro", "mag"):
         ds = datasets.get(name)
         if ds is not None and (ds.ndim != 2 or ds.shape[0] < n or ds.shape[1] < 3):
             raise SessionError(
@@ -175,7 +183,7 @@ def _read_raw(
             f"{src}: /raw/time is not strictly increasing "
             f"(sample {i}: {float(time[i])!r} s after {float(time[i - 1])!r} s)"
         )
-    return time, load("accel"), load("gyro"), load("temperature")
+    return time, load("accel"), load("gyro"), load("temperature"), load("mag")
 
 
 def _read_segments(

@@ -11,8 +11,7 @@ import h5py
 
 from imucal_cli.errors import SessionError
 
-from .h5open import check_session_file
-from .model import FORMAT, as_str, one_line
+from .h5open import open_for_update
 
 
 def store_calibration(path: str | os.PathLike, json_text: str, name: str | None = None) -> str:
@@ -48,14 +47,7 @@ def store_calibration(path: str | os.PathLike, json_text: str, name: str | None 
         raise SessionError(f"{src}: calibration to store is not valid JSON ({exc})") from None
     if name is not None and (not isinstance(name, str) or not name or "/" in name or name == "."):
         raise SessionError(f"{src}: {name!r} is not a valid calibration name")
-    check_session_file(path, src)
-    try:
-        file = h5py.File(path, "r+")
-    except OSError as exc:
-        raise SessionError(f"{src}: cannot open for writing ({one_line(exc)})") from None
-    with file:
-        if as_str(file.attrs.get("format")) != FORMAT:
-            raise SessionError(f"{src}: not an imucal session (format is not {FORMAT!r})")
+    with open_for_update(path, src) as file:
         group = file.get("calibrations")
         if group is None:
             group = file.create_group("calibrations")

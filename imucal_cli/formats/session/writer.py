@@ -21,6 +21,7 @@ from .model import (
     LOG_DATASET,
     LOG_GROUP,
     LOG_ITEM_BYTES,
+    MAG_UNITS,
     SEGMENT_ATTRS,
     SEGMENT_KINDS,
     Session,
@@ -50,14 +51,16 @@ class SessionWriter:
         The file to create.
     created : str, optional
         ISO 8601 UTC start time; default now.
-    sensor, source, accel_units, gyro_units : str, optional
-        Root attributes, written only when given.
+    sensor, source, accel_units, gyro_units, mag_units : str, optional
+        Root attributes, written only when given (``mag_units`` one of ``MAG_UNITS``).
     sample_rate_hz : float, optional
         Nominal rate in Hz, written only when given.
     gravity : float, optional
         Local gravity in m/s^2, written only when given.
-    accel_channels, gyro_channels : int or None
-        Raw channels per sample (>= 3); None records no such sensor.
+    magnetic_field_uT : float, optional
+        Local geomagnetic field magnitude in microtesla, written only when given.
+    accel_channels, gyro_channels, mag_channels : int or None
+        Raw channels per sample (>= 3); None records no such sensor (default: no magnetometer).
     temperature : bool
         Whether samples carry a temperature in degrees C.
     flush_interval_s : float
@@ -84,18 +87,29 @@ class SessionWriter:
         gyro_units: str | None = None,
         accel_channels: int | None = 3,
         gyro_channels: int | None = 3,
+        mag_channels: int | None = None,
+        mag_units: str | None = None,
+        magnetic_field_uT: float | None = None,
         temperature: bool = False,
         flush_interval_s: float = 1.0,
         overwrite: bool = False,
     ) -> None:
         self.path = Path(path)
         self._src = src = str(path)
-        channel_counts = {"accel_channels": accel_channels, "gyro_channels": gyro_channels}
+        channel_counts = {
+            "accel_channels": accel_channels, "gyro_channels": gyro_channels,
+            "mag_channels": mag_channels,
+        }  # fmt: skip
         for name, channels in channel_counts.items():
             valid = isinstance(channels, int | np.integer) and channels >= 3
             if channels is not None and not valid:
                 raise InputError(f"{src}: {name} must be an integer >= 3 or None, got {channels!r}")
-        for name, number in (("sample_rate_hz", sample_rate_hz), ("gravity", gravity)):
+        if mag_units is not None and mag_units not in MAG_UNITS:
+            raise InputError(f"{src}: mag_units must be one of {', '.join(MAG_UNITS)}, "
+                             f"got {mag_units!r}")  # fmt: skip
+        numbers = (("sample_rate_hz", sample_rate_hz), ("gravity", gravity),
+                   ("magnetic_field_uT", magnetic_field_uT))  # fmt: skip
+        for name, number in numbers:
             value = None if number is None else as_float(number)
             if number is not None and (value is None or value <= 0):
                 raise InputError(f"{src}: {name} must be a positive number, got {number!r}")
@@ -115,12 +129,15 @@ class SessionWriter:
             "gravity": None if gravity is None else float(gravity),
             "accel_units": accel_units,
             "gyro_units": gyro_units,
+            "mag_units": mag_units,
+            "magnetic_field_uT": None if magnetic_field_uT is None else float(magnetic_field_uT),
         }
         attrs.update({k: v for k, v in optional.items() if v is not None})
 
         self._widths: dict[str, int | None] = {
             "accel": None if accel_channels is None else int(accel_channels),
             "gyro": None if gyro_channels is None else int(gyro_channels),
+            "mag": None if mag_channels is None else int(mag_channels),
         }
         self._flush_interval_s = float(flush_interval_s)
         self._n_written = 0
@@ -139,7 +156,7 @@ class SessionWriter:
             raw = self._file.create_group("raw")
             # Written in this order at each flush; time last, so it is never longer than data.
             self._datasets: dict[str, h5py.Dataset] = {}
-            for name in ("accel", "gyro"):
+            for name in ("accel", "gyro", "mag"):
                 width = self._widths[name]
                 if width is not None:
                     self._datasets[name] = raw.create_dataset(
@@ -190,6 +207,7 @@ class SessionWriter:
         accel: np.ndarray | None = None,
         gyro: np.ndarray | None = None,
         temperature: float | np.ndarray | None = None,
+        mag: np.ndarray | None = None,
     ) -> None:
         """Append samples: a block of k, or a single one.
 
@@ -203,6 +221,9 @@ class SessionWriter:
             Raw gyroscope channels; required exactly when the writer records gyro.
         temperature : ndarray, shape (k,), or float
             Degrees C; required exactly when the writer records temperature.
+        mag : ndarray, shape (k, nm) or (nm,)
+            Raw magnetometer channels; required exactly when the writer records mag (NaN
+            where the magnetometer gave no reading).
 
         Raises
         ------
@@ -218,7 +239,7 @@ class SessionWriter:
             raise self._fail(f"append: time must be a number or 1-D, has shape {t.shape}")
         k = t.size
         block = {"time": t}
-        given = {"accel": accel, "gyro": gyro, "temperature": temperature}
+        given = {"accel": accel, "gyro": gyro, "temperature": temperature, "mag": mag}
         for name, value in given.items():
             expected = (k,) if name == "temperature" else (k, self._widths[name])
             recorded = name in self._datasets
@@ -429,7 +450,7 @@ def write_session(path: str | os.PathLike, session: Session, *, overwrite: bool 
     InputError
         The file exists or cannot be written, or the session breaks the format (SessionError).
     """
-    accel, gyro = session.accel, session.gyro
+    accel, gyro, mag = session.accel, session.gyro, session.mag
     with SessionWriter(
         path,
         created=session.created,
@@ -441,10 +462,13 @@ def write_session(path: str | os.PathLike, session: Session, *, overwrite: bool 
         gyro_units=session.gyro_units,
         accel_channels=None if accel is None else np.shape(accel)[1],
         gyro_channels=None if gyro is None else np.shape(gyro)[1],
+        mag_channels=None if mag is None else np.shape(mag)[1],
+        mag_units=session.mag_units,
+        magnetic_field_uT=session.magnetic_field_uT,
         temperature=session.temperature is not None,
         overwrite=overwrite,
     ) as writer:
-        writer.append(session.time, accel, gyro, session.temperature)
+        writer.append(session.time, accel, gyro, session.temperature, mag)
         for segment in sorted(session.segments, key=lambda s: s.start):
             writer.add_segment(
                 segment.kind,

@@ -80,9 +80,11 @@ def build_report(cal: Calibration) -> dict[str, Any]:
     -------
     dict
         ``format``, ``format_version``, ``session``, ``created``, ``sensor``,
-        ``toolkit_version``, ``config`` (solver options used, if recorded), ``sensors``
+        ``toolkit_version``, ``config`` (the solver options that shaped this calibration, if
+        recorded: those of solvers that did not run are left out), ``sensors``
         (``{"accel": ..., "gyro": ...}``, only those present, see :func:`_section_report`) and
-        ``reference`` (the paper's published RMS before/after, for context).
+        ``reference`` (the paper's published RMS before/after, for context: only for a
+        simulated session calibrated by the gravity solver, else ``None``).
     """
     extra = cal.extra or {}
     sections = {"accel": cal.accel, "gyro": cal.gyro}
@@ -93,14 +95,47 @@ def build_report(cal: Calibration) -> dict[str, Any]:
         "created": cal.created,
         "sensor": as_text(extra.get("sensor")),
         "toolkit_version": as_text(extra.get("toolkit_version")),
-        "config": extra.get("config") if isinstance(extra.get("config"), dict) else None,
+        "config": _relevant_config(extra.get("config"), cal),
         "sensors": {
             kind: _section_report(kind, section)
             for kind, section in sections.items()
             if section is not None
         },
-        "reference": dict(PAPER_REFERENCE),
+        "reference": dict(PAPER_REFERENCE) if _paper_context(cal) else None,
     }
+
+
+# Option tables shared by several solvers of a section (the others are named after their solver).
+_SHARED_OPTIONS = {"rotations": ("static", "dynamic", "full")}
+
+
+def _relevant_config(config: Any, cal: Calibration) -> dict[str, Any] | None:
+    """The options that shaped this calibration: the root keys, and per section present its own
+    keys and the table of the solver that ran (not every solver's defaults)."""
+    if not isinstance(config, dict):
+        return None
+    out: dict[str, Any] = {}
+    for key, value in config.items():
+        sec = getattr(cal, key) if key in ("accel", "gyro") else None
+        if not isinstance(value, dict) or key not in ("accel", "gyro"):
+            out[key] = value
+        elif sec is not None:  # else the sensor was not calibrated
+            solver = sec.solver.removeprefix(f"{key}-")
+            out[key] = {
+                name: option
+                for name, option in value.items()
+                if not isinstance(option, dict)
+                or name == solver
+                or solver in _SHARED_OPTIONS.get(name, ())
+            }
+    return out
+
+
+def _paper_context(cal: Calibration) -> bool:
+    """Qureshi & Golnaraghi's published figure is context for a simulation of their design
+    calibrated by their solver, not for the user's own sensor."""
+    source = as_text((cal.extra or {}).get("source"))
+    return cal.accel is not None and cal.accel.solver == "gravity" and source == "simulator"
 
 
 def _section_report(kind: str, sec: SensorCalibration) -> dict[str, Any]:

@@ -5,11 +5,36 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-import h5py
-
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import Calibration, calibration_from_json
-from imucal_cli.formats.session import read_session
+
+_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def is_hdf5(path: Path) -> bool:
+    """Whether ``path`` is an HDF5 file, without importing h5py for a JSON file (start-up time
+    of ``imucal report CAL.json``): a file starting with the HDF5 signature is one, a file
+    starting with ``{`` is not; anything else asks h5py (the superblock may follow a user
+    block)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(8)
+    except OSError:
+        return False
+    if head == _HDF5_SIGNATURE:
+        return True
+    if head.lstrip()[:1] == b"{" or head.startswith(b"\xef\xbb\xbf{"):
+        return False
+    import h5py
+
+    return bool(h5py.is_hdf5(path))
+
+
+def read_session(path):
+    """:func:`imucal_cli.formats.session.read_session`, imported when a session is read."""
+    from imucal_cli.formats.session import read_session as read
+
+    return read(path)
 
 
 def load_for_report(path: str | os.PathLike[str]) -> Calibration:
@@ -38,7 +63,7 @@ def load_for_report(path: str | os.PathLike[str]) -> Calibration:
         raise InputError(f"{path}: no such file")
     if path.is_dir():
         raise InputError(f"{path}: is a directory, expected a calibration JSON or a session .h5")
-    if h5py.is_hdf5(path):
+    if is_hdf5(path):
         return _last_stored_calibration(path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -87,7 +112,7 @@ def load_all_for_history(paths: list[str | os.PathLike[str]]) -> list[Calibratio
     out: list[Calibration] = []
     for item in paths:
         path = Path(item)
-        if path.exists() and not path.is_dir() and h5py.is_hdf5(path):
+        if path.exists() and not path.is_dir() and is_hdf5(path):
             session = read_session(path)
             if not session.calibrations:
                 raise InputError(

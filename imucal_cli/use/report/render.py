@@ -19,6 +19,7 @@ from rich.text import Text
 
 from .coverage_map import coverage_map
 from .fmt import MISSING, axis_name, fixed, fmt, fmt_like, fmt_std
+from .out import show_bullets, show_fields, show_table, show_text
 
 # rms key -> (row name, key of its improvement factor)
 _RMS_ROWS = {
@@ -39,47 +40,67 @@ def render_report(report: dict[str, Any], console: Console) -> None:
     console
         Where to draw; the layout fits 100 columns.
     """
-    console.print(_header(report))
+    show_fields(console, _header_rows(report), "imucal calibration report")
     for kind, section in report["sensors"].items():
         console.print(Rule(Text(_section_title(kind, section)), style="bold"))
-        if section["warnings"]:
-            console.print(bullet_panel(section["warnings"], "Warnings", "bold yellow"))
-        console.print(_model_grid(section))
-        console.print(_matrix_table(section))
-        if section["parameters"]:
-            console.print(_parameter_table(section["parameters"]))
-        factorization = section["factorization"]
-        if factorization is not None:
-            console.print(_table_one(section))
-            if section["misalignment_deg"]:  # another tool's extra field: still shown
-                console.print(_angle_sensitivity_table({**section, "sensitivity": None}))
-        else:
-            angles = _angle_sensitivity_table(section)
-            if angles is not None:
-                console.print(angles)
-        # The factorization's residual_rms is its constraint RMS, shown in the Table I layout.
-        rms_rows = [k for k in _RMS_ROWS if factorization is None or k != "residual_rms"]
-        if kind == "gyro":  # before/after/held out are gravity-pose figures: no rows of dashes
-            rms_rows = [k for k in rms_rows if section["rms"][k] is not None]
-        if any(section["rms"][key] is not None for key in rms_rows):
-            reference = report["reference"] if _shows_paper_reference(kind, section) else None
-            console.print(_rms_table(section, reference, rms_rows))
-        if section["fit"]:
-            console.print(_fit_line(section["fit"]))
-        if section["rotations"]:
-            console.print(_rotations_table(section["rotations"]))
-        if section["poses"]:
-            console.print(_pose_table(section))
-        if section["coverage"] or any(p["direction"] for p in section["poses"]):
-            console.print(_coverage_panel(section))
-        for spec in section.get("tables", []):
-            console.print(_generic_table(spec))
-        if section["notes"]:
-            console.print(bullet_panel(section["notes"], "Notes", "dim"))
-        if section["unavailable"]:
-            console.print(bullet_panel(section["unavailable"], "Not in this calibration", "dim"))
+        _render_section(kind, section, report, console)
     if not report["sensors"]:
-        console.print(Text("The calibration holds no sensor section.", style="yellow"))
+        show_text(console, Text("The calibration holds no sensor section.", style="yellow"))
+
+
+def _render_section(kind: str, section: dict[str, Any], report: dict[str, Any], console) -> None:
+    """One sensor section, in a fixed order (see the module notes)."""
+    if section["warnings"]:
+        show_bullets(console, section["warnings"], "Warnings", "bold yellow")
+    show_fields(console, _model_rows(section))
+    show_table(console, _matrix_table(section))
+    if section["parameters"]:
+        show_table(console, _parameter_table(section["parameters"]))
+    factorization = section["factorization"]
+    if factorization is not None:
+        show_table(console, _table_one(section))
+        if section["misalignment_deg"]:  # another tool's extra field: still shown
+            _show_angles(console, {**section, "sensitivity": None})
+    else:
+        _show_angles(console, section)
+    # The factorization's residual_rms is its constraint RMS, shown in the Table I layout.
+    rms_rows = [k for k in _RMS_ROWS if factorization is None or k != "residual_rms"]
+    if kind == "gyro":  # before/after/held out are gravity-pose figures: no rows of dashes
+        rms_rows = [k for k in rms_rows if section["rms"][k] is not None]
+    if any(section["rms"][key] is not None for key in rms_rows):
+        reference = report.get("reference") if _shows_paper_reference(kind, section) else None
+        show_table(console, _rms_table(section, reference, rms_rows))
+    if section["fit"]:
+        show_text(console, _fit_line(section["fit"]))
+    if section["rotations"]:
+        show_table(console, _rotations_table(section["rotations"]))
+    if section["poses"]:
+        show_table(console, _pose_table(section))
+    if section["coverage"] or any(p["direction"] for p in section["poses"]):
+        _show_coverage(console, section)
+    for spec in section.get("tables", []):
+        show_table(console, _generic_table(spec))
+    if section["notes"]:
+        show_bullets(console, section["notes"], "Notes", "dim")
+    if section["unavailable"]:
+        show_bullets(console, section["unavailable"], "Not in this calibration", "dim")
+
+
+def _show_angles(console: Console, section: dict[str, Any]) -> None:
+    """Misalignment angles and sensitivities side by side in a terminal, one after the other
+    elsewhere (so their titles are whole lines)."""
+    parts = _angle_sensitivity_tables(section)
+    if not parts:
+        return
+    if not console.is_terminal:
+        for part in parts:
+            show_table(console, part)
+        return
+    grid = Table.grid(padding=(0, 4))
+    for _ in parts:
+        grid.add_column()
+    grid.add_row(*parts)
+    console.print(grid)
 
 
 def _generic_table(spec: dict[str, Any]) -> Table:
@@ -104,22 +125,20 @@ def _generic_table(spec: dict[str, Any]) -> Table:
     return table
 
 
-def _header(report: dict[str, Any]) -> Panel:
-    grid = Table.grid(padding=(0, 2))
-    grid.add_column(style="bold")
-    grid.add_column()
-    for name, value in (
-        ("session", report["session"]),
-        ("created", report["created"]),
-        ("sensor", report["sensor"]),
-        ("toolkit", report["toolkit_version"]),
-    ):
-        if value:
-            grid.add_row(name, Text(str(value)))
+def _header_rows(report: dict[str, Any]) -> list[tuple[str, str]]:
+    rows = [
+        (name, str(value))
+        for name, value in (
+            ("session", report["session"]),
+            ("created", report["created"]),
+            ("sensor", report["sensor"]),
+            ("toolkit", report["toolkit_version"]),
+        )
+        if value
+    ]
     if report["config"]:
-        options = ", ".join(f"{k}={v}" for k, v in _flatten(report["config"]))
-        grid.add_row("options", Text(options))
-    return Panel(grid, title="imucal calibration report", expand=False)
+        rows.append(("options", ", ".join(f"{k}={v}" for k, v in _flatten(report["config"]))))
+    return rows
 
 
 def _flatten(options: dict[str, Any], prefix: str = "") -> list[tuple[str, Any]]:
@@ -147,11 +166,8 @@ def _section_title(kind: str, section: dict[str, Any]) -> str:
     return title
 
 
-def _model_grid(section: dict[str, Any]) -> Table:
+def _model_rows(section: dict[str, Any]) -> list[tuple[str, str]]:
     """Model equation, units in and out, gauge and gravity, one per line."""
-    grid = Table.grid(padding=(0, 2))
-    grid.add_column(style="bold")
-    grid.add_column()
     units_in = section["units_in"] or "raw units (not stated)"
     rows = [
         ("model", section["model"]),
@@ -171,9 +187,7 @@ def _model_grid(section: dict[str, Any]) -> Table:
         gravity = section["gravity"]
         origin = "local, from the calibration" if gravity["stated"] else "standard, not stated"
         rows.append(("gravity", f"{gravity['value']:.6g} {section['units_out']} ({origin})"))
-    for name, value in rows:
-        grid.add_row(name, Text(value))
-    return grid
+    return rows
 
 
 def _design_text(factorization: dict[str, Any]) -> str:
@@ -230,7 +244,7 @@ def _parameter_table(parameters: list[dict[str, Any]]) -> Table:
     return _value_table("parameters", "name", rows)
 
 
-def _angle_sensitivity_table(section: dict[str, Any]) -> Table | None:
+def _angle_sensitivity_tables(section: dict[str, Any]) -> list[Table]:
     """Misalignment angles and sensitivities side by side (either may be absent)."""
     parts = []
     if section["misalignment_deg"]:
@@ -243,13 +257,7 @@ def _angle_sensitivity_table(section: dict[str, Any]) -> Table | None:
         stds = sens["std"] or [None] * len(values)
         rows = list(zip(names, values, stds, [sens["unit"]] * len(values), strict=True))
         parts.append(_value_table("sensitivity", "axis", rows))
-    if not parts:
-        return None
-    grid = Table.grid(padding=(0, 4))
-    for _ in parts:
-        grid.add_column()
-    grid.add_row(*parts)
-    return grid
+    return parts
 
 
 def _rms_table(
@@ -388,7 +396,7 @@ def _fit_line(fit: dict[str, Any]) -> Text:
         parts.append(f"chi2 {fit['chi2']:.3g} for {fit['dof']} dof")
     if fit["noise_scale"] is not None:
         parts.append(f"noise scale {fit['noise_scale']:.3g} (applied to covariances)")
-    if fit["message"]:
+    if fit["message"] and fit["converged"] is False:  # the optimiser's words only when they matter
         parts.append(fit["message"])
     return Text("solver: " + "; ".join(parts))
 
@@ -436,7 +444,7 @@ def _pose_table(section: dict[str, Any]) -> Table:
     return table
 
 
-def _coverage_panel(section: dict[str, Any]) -> Panel:
+def _show_coverage(console: Console, section: dict[str, Any]) -> None:
     """Equal-area maps of the two hemispheres with a mark per pose, the coverage figures beside."""
     directions = [p["direction"] for p in section["poses"] if p["direction"]]
     coverage = section["coverage"] or {}
@@ -460,12 +468,9 @@ def _coverage_panel(section: dict[str, Any]) -> Panel:
     grid.add_column()
     map_text = "\n".join(coverage_map(directions)) if directions else ""
     grid.add_row(Text(map_text), Text("\n".join(["", *facts])))
-    return Panel(grid, title="coverage of measured gravity directions", expand=False)
-
-
-def bullet_panel(items: list[str], title: str, style: str) -> Panel:
-    body = Text("\n".join(f"- {item}" for item in items))
-    return Panel(body, title=title, border_style=style, expand=False)
-
-
-# Coverage map
+    title = "coverage of measured gravity directions"
+    if console.is_terminal:
+        console.print(Panel(grid, title=title, expand=False))
+    else:
+        show_text(console, Text(title, style="bold"))
+        console.print(grid)

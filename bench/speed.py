@@ -1,0 +1,216 @@
+"""Speed (issue 14): CPU seconds per process, median of several runs, wall time beside it.
+
+The machine may be shared, so the figure that counts is the CPU time (user + system, from the
+process's own rusage, start-up included) and the median of ``--runs`` runs; wall time and peak
+resident memory are printed beside it.
+
+* Xsens recording (``../shared/data/imu_tk_xsens``, 51,175 samples): ``imucal import`` then
+  ``imucal calibrate`` with the gyro ``full`` model, whole processes (target: under 0.4 s CPU
+  in total, peak memory under 75 MiB);
+* in-process: parsing the 51k lines of ``xsens_acc.mat`` (target under 0.1 s) and segmenting
+  the recording (target under 0.05 s);
+* start-up: ``imucal --help`` (0.15 s), ``imucal report CAL.json`` (0.3 s), ``imucal
+  calibrate`` of the demo session (0.5 s);
+* scale: a simulated 1-hour 100 Hz session calibrated (0.5 s);
+* production line: ``imucal calibrate *.h5 --jobs 2`` over ``--sessions`` (500) simulated
+  qureshi18 sessions: sessions per second per core (CPU seconds of the whole pool).
+"""
+
+from __future__ import annotations
+
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from rich.console import Console
+from rich.table import Table
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT.parent / "shared" / "data"
+XSENS = [DATA / "imu_tk_xsens" / "xsens_acc.mat", DATA / "imu_tk_xsens" / "xsens_gyro.mat"]
+CLI = [sys.executable, "-m", "imucal_cli"]
+
+
+@dataclass
+class Timing:
+    """Medians over runs: CPU (user + system) and wall seconds; the largest peak RSS, MiB."""
+
+    cpu_s: float
+    wall_s: float
+    rss_mib: float
+    ok: bool = True
+    note: str = ""
+
+
+# Peak memory must be the command's own: a child forked (or vforked) from this large process
+# inherits its high-water mark.  A small trampoline forks the command and reports its rusage.
+_TRAMPOLINE = """
+import os, sys
+pid = os.fork()
+if pid == 0:
+    os.execv(sys.argv[1], sys.argv[1:])
+_, status, ru = os.wait4(pid, 0)
+sys.stderr.write(f"\\nRUSAGE {ru.ru_utime + ru.ru_stime} {ru.ru_maxrss} "
+                 f"{os.waitstatus_to_exitcode(status)}\\n")
+"""
+
+
+def run_process(args: list[str], runs: int, cwd: Path) -> Timing:
+    """Run ``args`` ``runs`` times; CPU (user + system, start-up included) and peak RSS from
+    the command's own rusage; wall from here."""
+    cpu, wall, rss = [], [], []
+    note = ""
+    ok = True
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        proc = subprocess.run(
+            [sys.executable, "-S", "-c", _TRAMPOLINE, *args],
+            cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+        )  # fmt: skip
+        wall.append(time.perf_counter() - t0)
+        err, _, last = proc.stderr.rstrip().rpartition("\n")
+        _, used, peak, code = last.split()
+        cpu.append(float(used))
+        rss.append(int(peak) / 1024.0)
+        if int(code) != 0:
+            ok = False
+            note = (err.strip().splitlines() or ["failed"])[-1][:70]
+    return Timing(statistics.median(cpu), statistics.median(wall), max(rss), ok, note)
+
+
+def run_inprocess(fn, runs: int) -> Timing:
+    """Median CPU (process time) and wall of ``fn()`` over ``runs`` calls (after one warm-up)."""
+    fn()
+    cpu, wall = [], []
+    for _ in range(runs):
+        c0, t0 = time.process_time(), time.perf_counter()
+        fn()
+        cpu.append(time.process_time() - c0)
+        wall.append(time.perf_counter() - t0)
+    return Timing(statistics.median(cpu), statistics.median(wall), float("nan"))
+
+
+def _row(table: Table, what: str, t: Timing, target: float | None, mem: float | None = None):
+    passed = t.ok and (target is None or t.cpu_s < target) and (mem is None or t.rss_mib < mem)
+    verdict = "[green]PASS[/]" if passed else "[red]FAIL[/]"
+    if target is None:
+        verdict = "" if t.ok else "[red]FAIL[/]"
+    goal = "" if target is None else f"< {target:g} s"
+    if mem is not None:
+        goal += f", < {mem:g} MiB"
+    rss = "" if t.rss_mib != t.rss_mib else f"{t.rss_mib:.0f}"
+    table.add_row(what, f"{t.cpu_s:.3f}", f"{t.wall_s:.3f}", rss, goal, verdict, t.note)
+    return passed
+
+
+def run(console: Console, runs: int = 5, n_sessions: int = 500) -> bool:
+    """Run the benchmark, print its table; return whether every target is met."""
+    console.rule("[bold]Speed: CPU s per process (median of runs), wall and peak memory beside")
+    table = Table(title=f"imucal speed, median of {runs} runs")
+    for col in ("what", "CPU s", "wall s", "peak MiB", "target (CPU)", "", "note"):
+        table.add_column(col)
+    ok = True
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        config = tmp / "full.toml"
+        config.write_text('[gyro]\nsolver = "full"\n')
+        demo = tmp / "demo.h5"
+        shutil.copy(ROOT / "sessions" / "qureshi18-seed1.h5", demo)
+        subprocess.run(
+            [*CLI, "calibrate", str(demo), "-o", str(tmp / "demo.cal.json"), "--no-store"],
+            check=True, capture_output=True,
+        )  # fmt: skip
+        ok &= _row(table, "imucal --help", run_process([*CLI, "--help"], runs, tmp), 0.15)
+        t = run_process([*CLI, "report", str(tmp / "demo.cal.json")], runs, tmp)
+        ok &= _row(table, "imucal report demo.cal.json", t, 0.3)
+        t = run_process(
+            [*CLI, "calibrate", str(demo), "-o", str(tmp / "d2.json"), "--no-store"], runs, tmp
+        )
+        ok &= _row(table, "imucal calibrate demo (qureshi18, 18 poses)", t, 0.5)
+        ok &= _xsens(table, tmp, config, runs)
+        ok &= _hour(table, tmp, runs)
+        _line(table, tmp, n_sessions)
+    console.print(table)
+    return bool(ok)
+
+
+def _xsens(table: Table, tmp: Path, config: Path, runs: int) -> bool:
+    if not all(p.exists() for p in XSENS):
+        table.add_row("Xsens", "", "", "", "", "", f"{XSENS[0].parent} not found: skipped")
+        return True
+    from imucal_cli.formats.importers import read_recording, segment_recording
+    from imucal_cli.formats.importers.recording import ImportStats
+    from imucal_cli.formats.importers.text import read_table
+
+    ok = _row(
+        table,
+        "parse xsens_acc.mat (51,175 lines, in process)",
+        run_inprocess(lambda: read_table(XSENS[0], 4, 0, ImportStats()), runs),
+        0.1,
+    )
+    rec = read_recording(XSENS, "imu_tk")
+    ok &= _row(
+        table,
+        "segment the Xsens recording (in process)",
+        run_inprocess(lambda: segment_recording(rec), runs),
+        0.05,
+    )
+    session = tmp / "xsens.h5"
+    imp = run_process(
+        [*CLI, "import", *map(str, XSENS), "-f", "imu_tk", "--accel-units", "counts",
+         "--gyro-units", "counts", "-o", str(session), "--force"], runs, tmp,
+    )  # fmt: skip
+    _row(table, "Xsens: imucal import (imu_tk pair)", imp, None)
+    cal = run_process(
+        [*CLI, "calibrate", str(session), "-c", str(config), "-o", str(tmp / "x.json"),
+         "--no-store", "--force"], runs, tmp,
+    )  # fmt: skip
+    _row(table, "Xsens: imucal calibrate (accel + gyro full)", cal, None)
+    total = Timing(
+        imp.cpu_s + cal.cpu_s,
+        imp.wall_s + cal.wall_s,
+        max(imp.rss_mib, cal.rss_mib),
+        imp.ok and cal.ok,
+        "imu_tk (C++): 0.83 s CPU, 1.4 s wall, 75 MiB",
+    )
+    ok &= _row(table, "Xsens: import + calibrate, total", total, 0.4, 75.0)
+    return ok
+
+
+def _hour(table: Table, tmp: Path, runs: int) -> bool:
+    session = tmp / "hour.h5"
+    made = subprocess.run(
+        [*CLI, "simulate", "--plan", "random:200", "--hold", "18", "--rate", "100",
+         "--seed", "1", "-o", str(session), "--force"], capture_output=True, text=True,
+    )  # fmt: skip
+    if made.returncode != 0:
+        table.add_row("1-hour session", "", "", "", "", "[red]FAIL", made.stderr[-70:])
+        return False
+    t = run_process(
+        [*CLI, "calibrate", str(session), "-o", str(tmp / "hour.json"), "--no-store"], runs, tmp
+    )
+    return _row(table, "calibrate a 1-hour 100 Hz session (200 poses)", t, 0.5)
+
+
+def _line(table: Table, tmp: Path, n: int) -> None:
+    """``imucal calibrate`` of ``n`` sessions with ``--jobs 2``: sessions per CPU second."""
+    if n <= 0:
+        return
+    from imucal_cli.formats.session import write_session
+    from imucal_cli.simulate.triad import simulate
+
+    folder = tmp / "line"
+    folder.mkdir()
+    for seed in range(n):
+        session, _ = simulate("qureshi18", seed=seed, created="2026-01-01T00:00:00Z")
+        write_session(folder / f"unit{seed:04d}.h5", session)
+    paths = sorted(str(p) for p in folder.glob("*.h5"))
+    t = run_process([*CLI, "calibrate", *paths, "--jobs", "2", "--no-store"], 1, tmp)
+    rate = n / t.cpu_s if t.cpu_s > 0 else float("nan")
+    t.note = f"{rate:.1f} sessions per CPU second (per core); {n / t.wall_s:.1f} per wall second"
+    _row(table, f"production line: {n} sessions, --jobs 2 (all processes)", t, None)

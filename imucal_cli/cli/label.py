@@ -1,0 +1,169 @@
+"""`imucal label`: set or correct the labels of an existing session (never its raw data)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from imucal_cli.errors import InputError
+
+from . import completion
+from .app import app
+from .console import make_console, print_json
+
+
+def _vector(text: str | None, option: str):
+    if text is None:
+        return None
+    import numpy as np
+
+    try:
+        v = np.array([float(p) for p in text.replace(" ", "").split(",")])
+    except ValueError:
+        v = np.zeros(0)
+    if v.shape != (3,) or not np.all(np.isfinite(v)) or not np.any(v):
+        raise InputError(f"{option} {text!r}: give 3 numbers, not all zero, e.g. 0,0,1")
+    return v / np.linalg.norm(v)
+
+
+@app.command("label")
+def label(
+    session: Path = typer.Argument(
+        ..., metavar="SESSION.h5", help="Session file (.h5) to relabel.", show_default=False
+    ),
+    faces: bool = typer.Option(
+        False,
+        "--faces",
+        help="Label each static segment within --tolerance of a +-axis as that face (up = what "
+        "the accelerometer reads, divided by g).",
+    ),
+    tolerance: float = typer.Option(
+        15.0, "--tolerance", metavar="DEG", help="--faces: largest angle from a +-axis, degrees."
+    ),
+    calibration: Path | None = typer.Option(
+        None,
+        "--calibration",
+        metavar="CAL.json",
+        help="--faces: calibration JSON turning raw readings into directions [default: the "
+        "session's last stored one; else the raw units, or a fit to the poses themselves].",
+    ),
+    segment: str | None = typer.Option(
+        None, "--segment", metavar="NAME", help="Segment to change by hand (its name, e.g. 0003)."
+    ),
+    text: str | None = typer.Option(
+        None, "--label", metavar="TEXT", help="--segment: its new label."
+    ),
+    up: str | None = typer.Option(
+        None, "--up", metavar="X,Y,Z", help="--segment: its up, e.g. 0,0,1."
+    ),
+    axis: str | None = typer.Option(
+        None, "--axis", metavar="X,Y,Z", help="--segment: its turn axis, e.g. 0,0,1."
+    ),
+    angle: float | None = typer.Option(
+        None,
+        "--angle",
+        metavar="DEG",
+        help="--segment: its known turn angle, degrees (signed, right hand).",
+    ),
+    sensor: str | None = typer.Option(
+        None, "--sensor", metavar="TEXT", help="Part and serial number."
+    ),
+    accel_units: str | None = typer.Option(
+        None,
+        "--accel-units",
+        metavar="UNITS",
+        help="Raw accelerometer units: counts, V, g or m/s^2.",
+        autocompletion=completion.accel_units,
+    ),
+    gyro_units: str | None = typer.Option(
+        None,
+        "--gyro-units",
+        metavar="UNITS",
+        help="Raw gyroscope units: counts, V, rad/s or deg/s.",
+        autocompletion=completion.gyro_units,
+    ),
+    gravity: float | None = typer.Option(
+        None, "--gravity", metavar="M/S^2", help="Local gravity, m/s^2."
+    ),
+    dry_run: bool = typer.Option(False, "--dry-run", help="Show the labels, write nothing."),
+    json_output: bool = typer.Option(
+        False, "--json", help="Print the labels found and what changed as JSON on stdout."
+    ),
+) -> None:
+    """Set or correct the labels of SESSION: faces from the measured directions, one segment
+    by hand, the sensor, units and gravity.
+
+    Only /segments and root attributes change; /raw is never rewritten.
+    Exit status: 0 written (or shown with --dry-run); 2 bad input.
+    """
+    from imucal_cli.formats.calibration import calibration_from_json, read_calibration
+    from imucal_cli.formats.importers import ACCEL_UNITS, GYRO_UNITS
+    from imucal_cli.formats.labels import call_faces, face_label, set_segment
+    from imucal_cli.formats.session import read_session, rewrite_labels
+
+    for name, value, allowed in (("--accel-units", accel_units, ACCEL_UNITS),
+                                 ("--gyro-units", gyro_units, GYRO_UNITS)):  # fmt: skip
+        if value is not None and value not in allowed:
+            raise InputError(f"{name} {value!r}: use {', '.join(allowed)}")
+    if gravity is not None and not 9.7 <= gravity <= 9.9:
+        raise InputError(f"--gravity {gravity:g} m/s^2: gravity on earth is 9.78 to 9.84")
+    by_hand = (text, up, axis, angle)
+    if segment is None and any(v is not None for v in by_hand):
+        raise InputError("--label, --up, --axis and --angle change one segment: pass --segment")
+    s = read_session(session)
+    attrs = {k: v for k, v in (("sensor", sensor), ("accel_units", accel_units),
+             ("gyro_units", gyro_units), ("gravity", gravity)) if v is not None}  # fmt: skip
+    if accel_units is not None:
+        s.accel_units = accel_units
+    segments = list(s.segments)
+    console = make_console(stderr=json_output)  # with --json, stdout holds the JSON alone
+    found: list[dict] = []
+    if faces:
+        cal = None
+        if calibration is not None:
+            cal = read_calibration(calibration).accel
+        elif s.calibrations:
+            last = sorted(s.calibrations)[-1]
+            cal = calibration_from_json(s.calibrations[last], f"{session}:{last}").accel
+        calls, basis = call_faces(s, tolerance_deg=tolerance, calibration=cal)
+        console.print(f"directions from {basis}; faces within {tolerance:g} deg of an axis:")
+        named = {c.segment: c for c in calls}
+        for i, seg in enumerate(segments):
+            c = named.get(seg.name)
+            if c is None:
+                continue
+            d = ", ".join(f"{v:+.3f}" for v in c.direction)
+            found.append({"segment": seg.name, "direction": [float(v) for v in c.direction],
+                          "off_deg": float(c.off_deg),
+                          "label": None if c.up is None else face_label(c.up)})  # fmt: skip
+            if c.up is None:
+                console.print(f"  {seg.name}  [{d}]  {c.off_deg:5.1f} deg off: no face (kept)")
+                continue
+            new = face_label(c.up)
+            console.print(f"  {seg.name}  [{d}]  {c.off_deg:5.1f} deg off: {new}")
+            segments[i] = set_segment([seg], seg.name, label=new, up=c.up)[0]
+    if segment is not None:
+        segments = set_segment(
+            segments,
+            segment,
+            label=text,
+            up=_vector(up, "--up"),
+            axis=_vector(axis, "--axis"),
+            angle_deg=angle,
+        )
+    if not faces and segment is None and not attrs:
+        raise InputError("nothing to change: pass --faces, --segment ..., or a root label")
+    changed = sum(a != b for a, b in zip(segments, s.segments, strict=True))
+    if not dry_run:
+        rewrite_labels(session, segments, attrs)
+    if json_output:
+        print_json({"format": "imucal-label", "format_version": 1, "session": str(session),
+                    "dry_run": dry_run, "faces": found, "changed_segments": changed,
+                    "attributes": attrs})  # fmt: skip
+        return
+    if dry_run:
+        console.print("dry run: nothing written")
+        return
+    extra = f" and {', '.join(attrs)}" if attrs else ""
+    console.print(f"relabelled {changed} segment(s){extra} in {session} (raw data untouched)")

@@ -1,0 +1,158 @@
+"""What every accelerometer section shares, whichever solver filled it: the |a| before
+calibration, sensitivities and angles between axes with their std, the parameter list, the
+per-pose table, coverage and the common fields of DEVELOPERS.md."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from imucal_cli.formats.calibration import MODEL_EQUATION
+from imucal_cli.solvers.poses import count_distinct, coverage
+
+from .common import Nominal, StaticPoses, num, rms
+
+PAIRS = ((0, 1), (0, 2), (1, 2))
+
+
+def magnitude_before(poses: StaticPoses, nominal: Nominal, g: float) -> np.ndarray:
+    """|a| of each pose as an uncalibrated user would read it (nominal sensitivity and
+    offset, or one scale fitted to the raw magnitudes), m/s^2."""
+    raw = np.linalg.norm(poses.a_mean - nominal.bias, axis=1)
+    if nominal.sensitivity is not None:
+        return raw / nominal.sensitivity
+    return raw * (g / np.median(raw))
+
+
+def axes_summary(matrix: np.ndarray) -> np.ndarray:
+    """(gain x, y, z in raw units per m/s^2; angle between axes xy, xz, yz minus 90 deg)."""
+    S = np.linalg.inv(matrix)  # rows: each channel's sensitivity axis
+    gains = np.linalg.norm(S, axis=1)
+    s = S / gains[:, None]
+    ang = [np.degrees(np.arccos(np.clip(s[i] @ s[j], -1, 1))) - 90.0 for i, j in PAIRS]
+    return np.r_[gains, ang]
+
+
+def axes_summary_with_std(
+    matrix_of: Callable[[np.ndarray], np.ndarray], params: np.ndarray, cov: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`axes_summary` of ``matrix_of(params)`` and its std (delta method)."""
+    f0 = axes_summary(matrix_of(params))
+    J = np.empty((len(f0), len(params)))
+    for i in range(len(params)):
+        step = 1e-6 * max(abs(params[i]), 1e-12)
+        dp = np.zeros_like(params)
+        dp[i] = step
+        J[:, i] = (axes_summary(matrix_of(params + dp)) - axes_summary(matrix_of(params - dp))) / (
+            2 * step
+        )
+    return f0, np.sqrt(np.clip(np.diag(J @ cov @ J.T), 0, None))
+
+
+def parameter_rows(
+    names: list[str],
+    values: np.ndarray,
+    std: np.ndarray,
+    units: list[str],
+    ci95: np.ndarray | None = None,
+) -> list[dict]:
+    """The ``parameters`` list: name, value, std, unit (and the 95 % half-width if given)."""
+    rows = []
+    for k, (n, v, s, u) in enumerate(zip(names, values, std, units, strict=True)):
+        row = {"name": n, "value": float(v), "std": float(s), "unit": u}
+        if ci95 is not None:
+            row["ci95"] = float(ci95[k])
+        rows.append(row)
+    return rows
+
+
+@dataclass
+class PoseFit:
+    """What a solver says about each pose (arrays of length N)."""
+
+    residuals: np.ndarray  # |h_k| - g, m/s^2
+    directions: np.ndarray  # (N, 3) calibrated unit gravity direction
+    up_angle_deg: np.ndarray | None = None
+    residual_loo: np.ndarray | None = None
+    extra: dict[str, np.ndarray] = field(default_factory=dict)  # more per-pose columns
+
+
+def pose_rows(poses: StaticPoses, fit: PoseFit, mag_before: np.ndarray, g: float) -> list[dict]:
+    """The ``poses`` table of the section."""
+    rows = []
+    for k, s in enumerate(poses.segments):
+        row = {
+            "segment": s.name,
+            "label": s.label,
+            "up": None if s.up is None else [float(x) for x in s.up],
+            "samples": int(poses.samples[k]),
+            "magnitude_before": float(mag_before[k]),
+            "magnitude_after": float(fit.residuals[k] + g),
+            "residual": float(fit.residuals[k]),
+            "residual_loo": None if fit.residual_loo is None else num(fit.residual_loo[k]),
+            "angle_to_up_deg": None if fit.up_angle_deg is None else num(fit.up_angle_deg[k]),
+            "direction": [float(x) for x in fit.directions[k]],
+        }
+        if poses.spikes is not None and poses.spikes[k]:
+            row["spikes_left_out"] = int(poses.spikes[k])
+        for key, col in fit.extra.items():
+            row[key] = num(col[k])
+        rows.append(row)
+    return rows
+
+
+def coverage_dict(directions: np.ndarray, n_poses: int, min_separation_deg: float) -> dict:
+    cover = coverage(directions)
+    return {
+        "fraction": cover.fraction,
+        "cap_deg": cover.cap_deg,
+        "largest_gap_deg": cover.largest_gap_deg,
+        "weakest_direction": [float(x) for x in cover.weakest_direction],
+        "n_poses": n_poses,
+        "n_distinct": count_distinct(directions, min_separation_deg),
+    }
+
+
+def common_extra(
+    *,
+    units_in: str,
+    g: float,
+    summary: tuple[np.ndarray, np.ndarray],
+    poses: StaticPoses,
+    fit: PoseFit,
+    nominal: Nominal,
+    min_separation_deg: float,
+) -> dict:
+    """The fields of DEVELOPERS.md every accelerometer solver fills the same way."""
+    derived, derived_std = summary
+    mag_before = magnitude_before(poses, nominal, g)
+    loo = fit.residual_loo
+    noise = poses.noise
+    extra = {
+        "model": MODEL_EQUATION,
+        "units_in": units_in,
+        "gravity": g,
+        "sensitivity": [float(x) for x in derived[:3]],
+        "sensitivity_std": [float(x) for x in derived_std[:3]],
+        "sensitivity_unit": f"{units_in} per m/s^2",
+        "misalignment_deg": dict(zip(("xy", "xz", "yz"), map(float, derived[3:]), strict=True)),
+        "misalignment_std_deg": dict(
+            zip(("xy", "xz", "yz"), map(float, derived_std[3:]), strict=True)
+        ),
+        "rms_before": rms(mag_before - g),
+        "rms_after": rms(fit.residuals),
+        "rms_loo": rms(loo) if loo is not None and np.isfinite(loo).any() else None,
+        "before_basis": nominal.basis,
+        "coverage": coverage_dict(fit.directions, len(poses.segments), min_separation_deg),
+        "poses": pose_rows(poses, fit, mag_before, g),
+    }
+    if noise is not None:
+        extra["noise"] = {
+            "per_sample_std": [float(x) for x in np.sqrt(np.diag(noise.cov))],
+            "unit": units_in,
+            "dof": int(noise.dof),
+            "basis": "pooled over every still hold (each pose mean weighted by noise / samples)",
+        }
+    return extra

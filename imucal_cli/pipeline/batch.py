@@ -1,0 +1,182 @@
+"""Calibrating many sessions (a production line): ``imucal calibrate *.h5 --jobs N``.
+
+Each session goes through exactly what ``imucal calibrate SESSION`` does (read, calibrate, the
+physical-sense check, write ``SESSION.cal.json``, store it in the session); a session that
+fails is reported with its one-line error and does not stop the others.  With ``jobs > 1`` the
+sessions are shared out to a pool of worker processes (forked after the solvers are imported,
+so no worker pays the import again).
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from imucal_cli.errors import ImucalError
+from imucal_cli.formats.calibration import Calibration, calibration_to_json, write_calibration
+from imucal_cli.formats.config import Config
+from imucal_cli.formats.session import read_session, store_calibration
+
+from .calibrate import calibrate_session, default_output, suspect_error
+
+__all__ = ["SessionResult", "calibrate_file", "calibrate_many", "default_jobs"]
+
+
+@dataclass
+class SessionResult:
+    """What calibrating one session gave.
+
+    Attributes
+    ----------
+    session : str
+        The session file.
+    exit_code : int
+        0 saved; 2 bad input; 1 solver failure or outside physical sense (as ``calibrate``).
+    output : str or None
+        The calibration JSON written.
+    error : str or None
+        The one-line error when not saved.
+    figures : dict
+        ``accel_solver``, ``accel_rms_after`` (m/s^2), ``gyro_solver``, ``gyro_rms_deg``,
+        ``warnings`` (count), where present.
+    """
+
+    session: str
+    exit_code: int = 0
+    output: str | None = None
+    error: str | None = None
+    stored: str | None = None
+    figures: dict = field(default_factory=dict)
+
+
+def calibrate_file(
+    path: Path, cfg: Config, *, output: Path | None = None, force: bool = False, store: bool = True
+) -> tuple[Calibration, Path, str]:
+    """Calibrate one session file, write its JSON and store it in the session.
+
+    Returns
+    -------
+    cal : Calibration
+    out : Path
+        The JSON written.
+    stored : str
+        Where it was also stored (``" and S:/calibrations/0001"``), or why not, or ``""``.
+
+    Raises
+    ------
+    ImucalError
+        Whatever reading, calibrating or the physical-sense check (unless ``force``) refuses.
+    """
+    session = read_session(path)
+    cal = calibrate_session(session, cfg, name=path.name)
+    problem = suspect_error(cal)
+    if problem is not None and not force:
+        raise problem
+    out = output or default_output(path)
+    write_calibration(out, cal)
+    stored = ""
+    if store:
+        try:
+            name = store_calibration(path, calibration_to_json(cal))
+            stored = f" and {path}:/calibrations/{name}"
+        except (OSError, ImucalError) as exc:  # read-only session: the JSON is what matters
+            stored = f" (not stored in the session: {exc})"
+    return cal, out, stored
+
+
+def _figures(cal: Calibration) -> dict:
+    out: dict = {}
+    for name, sec in (("accel", cal.accel), ("gyro", cal.gyro)):
+        if sec is None:
+            continue
+        out[f"{name}_solver"] = sec.solver
+        x = sec.extra
+        if name == "accel" and x.get("rms_after") is not None:
+            out["accel_rms_after"] = float(x["rms_after"])
+        if name == "gyro" and x.get("rotation_rms_deg") is not None:
+            out["gyro_rms_deg"] = float(x["rotation_rms_deg"])
+        out["warnings"] = out.get("warnings", 0) + len(x.get("warnings", []))
+    return out
+
+
+def _one(args: tuple[str, Config, bool, bool]) -> SessionResult:
+    path, cfg, force, store = args
+    result = SessionResult(session=path)
+    try:
+        cal, out, stored = calibrate_file(Path(path), cfg, force=force, store=store)
+    except ImucalError as exc:
+        result.exit_code, result.error = exc.exit_code, str(exc)
+        return result
+    except Exception as exc:  # noqa: BLE001  one bad file must not stop a production line
+        result.exit_code, result.error = 1, f"{path}: internal error: {type(exc).__name__}: {exc}"
+        return result
+    result.output, result.stored, result.figures = str(out), stored, _figures(cal)
+    return result
+
+
+def calibrate_many(
+    paths: Sequence[Path],
+    cfg: Config,
+    *,
+    jobs: int = 1,
+    force: bool = False,
+    store: bool = True,
+    progress: Callable[[SessionResult], None] | None = None,
+) -> list[SessionResult]:
+    """Calibrate every session; one result per session, in the order given.
+
+    Parameters
+    ----------
+    paths : sequence of Path
+        Session files.
+    cfg : Config
+        The (validated) configuration, the same for all.
+    jobs : int
+        Worker processes (1: in this process; 0: one per CPU).
+    force, store : bool
+        As ``imucal calibrate``.
+    progress : callable, optional
+        Called with each result as it completes (any order).
+
+    Raises
+    ------
+    InputError
+        ``jobs`` < 0.
+    """
+    from imucal_cli.errors import InputError
+
+    if jobs < 0:
+        raise InputError(f"--jobs must be 0 (one per CPU) or more, got {jobs}")
+    jobs = jobs or default_jobs()
+    tasks = [(str(p), cfg, force, store) for p in paths]
+    if jobs == 1 or len(tasks) == 1:
+        results = map(_one, tasks)
+        pool = None
+    else:
+        method = "fork" if "fork" in multiprocessing.get_all_start_methods() else None
+        context = multiprocessing.get_context(method)
+        pool = ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=context)
+        chunk = max(1, len(tasks) // (jobs * 8))
+        results = pool.map(_one, tasks, chunksize=chunk)
+    try:
+        out = []
+        for r in results:
+            out.append(r)
+            if progress is not None:
+                progress(r)
+    finally:
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
+    return out
+
+
+def default_jobs() -> int:
+    """CPUs this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return max(1, os.cpu_count() or 1)

@@ -1,0 +1,161 @@
+"""``[accel] solver = "auto"`` (the default): the most accurate accelerometer solver the session
+supports, and why (issue 9.1, point 2 of the accel work package).
+
+* a redundant unit (4 or more channels): the factorization, which finds its biases without
+  labels (Hwangbo & Kanade);
+* a triad with 9 or more distinct poses: the gravity-magnitude solver (Qureshi & Golnaraghi
+  III-A), which needs no labels; unless the poses carry labels placed so well that using them
+  makes the fit measurably more precise (predicted from the Cramér-Rao bounds of both designs
+  at the gravity solution, with the placement the labels showed), then the labelled solver;
+* a triad with fewer distinct poses whose labels determine the model (six faces): the
+  labelled-pose solver;
+* otherwise a refusal that names what would work with what the user already has.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from imucal_cli.errors import DesignError
+from imucal_cli.formats.calibration import SensorCalibration
+from imucal_cli.formats.config import Config
+from imucal_cli.formats.session import Session
+from imucal_cli.solvers.crb import gravity_crb, labelled_crb
+from imucal_cli.solvers.labelled_model import jacobian, public_from_theta
+from imucal_cli.solvers.poses import count_distinct, unit
+
+from .common import (
+    StaticPoses,
+    check_design,
+    labels_determine,
+    nominal_sensor,
+    session_name,
+    static_poses,
+)
+
+#: The labelled solver replaces the gravity solver only when its predicted variance of the
+#: gauge-free parameters (bias and K) is below this fraction of the gravity solver's.
+LABELS_WORTH = 0.8
+
+
+def auto_accel(session: Session, cfg: Config) -> SensorCalibration | None:
+    """Choose, run and annotate the accelerometer solver (None: nothing to calibrate)."""
+    if session.accel is None or not session.static_segments():
+        return None
+    na = session.accel.shape[1]
+    if na >= 4:
+        from .factorization import calibrate_accel_factorization
+
+        sec = calibrate_accel_factorization(session, cfg)
+        reason = (
+            f"a redundant unit of {na} channels: the factorization finds its biases without "
+            "labels (Hwangbo & Kanade)"
+        )
+        return _annotate(sec, "factorization", reason)
+    g = cfg.gravity or session.gravity
+    poses = static_poses(session)
+    nominal = nominal_sensor(session, cfg, g)
+    where = session_name(session)
+    from .labelled import labelled_section
+
+    try:
+        check_design(poses, nominal, cfg.accel.min_separation_deg, where)
+        gravity_ok = None
+    except DesignError as exc:
+        gravity_ok = exc
+    n_lab = int(np.isfinite(poses.up).all(axis=1).sum())
+    if gravity_ok is None:
+        from .gravity import gravity_section
+
+        sec = gravity_section(session, cfg, poses, g, nominal)
+        better = _labels_worth_it(sec, poses, g) if labels_determine(poses.up) else None
+        if better is None:
+            return _annotate(sec, "gravity", _gravity_reason(sec, n_lab))
+        ratio, placement = better
+        lab = labelled_section(session, cfg, poses, g, nominal)
+        reason = (
+            f"the labels are placed within {placement:.2g} deg RMS: using them makes bias and "
+            f"gains {1 / np.sqrt(ratio):.1f}x more precise than gravity magnitude alone"
+        )
+        return _annotate(lab, "labelled", reason)
+    if labels_determine(poses.up):
+        sec = labelled_section(session, cfg, poses, g, nominal)
+        distinct = sec.extra["coverage"]["n_distinct"]
+        reason = (
+            f"{distinct} distinct directions are too few for the gravity-magnitude model (9 "
+            f"parameters), but the {n_lab} labelled poses determine bias and the full matrix, "
+            "each pose's placement a nuisance parameter"
+        )
+        return _annotate(sec, "labelled", reason)
+    raise DesignError(_refusal(session, poses, nominal, gravity_ok, where))
+
+
+def _annotate(sec: SensorCalibration, solver: str, reason: str) -> SensorCalibration:
+    sec.extra["choice"] = {"solver": solver, "by": "auto", "reason": reason}
+    return sec
+
+
+def _gravity_reason(sec: SensorCalibration, n_lab: int) -> str:
+    x = sec.extra
+    text = (
+        f"{x['coverage']['n_distinct']} distinct poses determine the 9-parameter "
+        "gravity-magnitude model, which needs no labels"
+    )
+    if n_lab:
+        angles = [p["angle_to_up_deg"] for p in x["poses"] if p["angle_to_up_deg"] is not None]
+        if angles:
+            text += (
+                f"; the labels (poses within {np.sqrt(np.mean(np.square(angles))):.2g} deg RMS "
+                "of them) would not make it measurably more precise"
+            )
+    return text
+
+
+def _labels_worth_it(sec: SensorCalibration, poses: StaticPoses, g: float):
+    """``(variance ratio, placement deg)`` when the labelled solver is predicted to be
+    measurably more precise than the gravity solver on bias and K, else None."""
+    x = sec.extra
+    lab = np.isfinite(poses.up).all(axis=1)
+    if lab.sum() < 4 or not lab.all():
+        return None
+    angles = np.array([p["angle_to_up_deg"] for p in x["poses"]], float)
+    placement = float(np.sqrt(np.nanmean(angles**2)))
+    if not np.isfinite(placement):
+        return None
+    # Both bounds at the gravity solution, directions in its (triangular) frame.
+    from imucal_cli.solvers.gravity import params_to_model
+
+    if x["variant"] != "9-parameter":
+        return None
+    theta = np.array([p["value"] for p in x["parameters"]])
+    B, M = params_to_model(theta)
+    u = unit((poses.a_mean - B) @ M.T)
+    # both bounds on (bias, sensitivities, angles between the axes)
+    T = jacobian(public_from_theta, np.r_[theta, np.zeros(3)])[:9, :9]
+    grav = np.diag(T @ gravity_crb(M, B, u, g, poses.cov_mean) @ T.T)
+    # The labels' frame differs from the triangular one by a rotation, which changes neither
+    # bound on bias and K: both are evaluated in the triangular frame.
+    lab_crb = np.diag(labelled_crb(M, B, u, g, poses.cov_mean, max(placement, 1e-3)))[:9]
+    ratio = float(np.mean(lab_crb / grav))
+    return (ratio, placement) if ratio < LABELS_WORTH else None
+
+
+def _refusal(session: Session, poses: StaticPoses, nominal, exc: DesignError, where: str) -> str:
+    """What would work with what the user already has, before a new capture (issue 9.6)."""
+    centre = nominal.bias
+    if nominal.sensitivity is None and nominal.range is None:
+        centre = (poses.a_mean.min(axis=0) + poses.a_mean.max(axis=0)) / 2
+    directions = unit(poses.a_mean - centre)
+    N = len(directions)
+    distinct = count_distinct(directions, 10.0)
+    near_axes = int(np.sum(np.max(np.abs(directions), axis=1) > np.cos(np.radians(15.0))))
+    text = str(exc).removeprefix(f"{where}: ")
+    if distinct < 9 and near_axes >= 4:
+        return (
+            f"{where}: {N} static poses give only {distinct} distinct gravity directions, too few "
+            f"for the gravity-magnitude model (9 parameters), and no `up` labels; {near_axes} "
+            "of them lie within 15 deg of a face: label them (`imucal label SESSION --faces`) "
+            "and the labelled-pose solver calibrates them, or capture the 45-degree edges too "
+            "(plan qureshi18)"
+        )
+    return f"{where}: {text}"

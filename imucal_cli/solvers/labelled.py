@@ -1,0 +1,493 @@
+"""Labelled-pose accelerometer calibration: bias and full 3x3 matrix from static poses whose
+``up`` labels are known up to how well the unit was placed (issue 9.1).
+
+The six-face procedure of PX4, ArduPilot and Ferraris et al. (the start of Qureshi &
+Golnaraghi's section III-A, eqs. 13-14) knows which face is up in each pose, but a block on a
+table is never exactly level. This solver treats each pose's true gravity direction as a
+nuisance parameter with a prior around its label, and fits everything by maximum likelihood.
+
+Model
+-----
+Pose k (k = 1..N) is held still with true unit gravity direction ``u_k`` (pointing away from
+the earth, fixture frame). Its label ``up_k`` is where it should be; the placement error is a
+small rotation of the label, two tangent angles ``delta_k`` (rad)::
+
+    u_k = Exp(T_k delta_k) up_k,     delta_k ~ N(0, sigma_p^2 I_2),               (L1)
+
+``T_k`` (3x2) an orthonormal basis of the plane perpendicular to ``up_k``, ``Exp`` the
+exponential map of the sphere, and ``sigma_p = placement_deg / sqrt(2)`` per angle, so
+``placement_deg`` is the RMS angle between the true and the labelled up. The mean raw reading
+of pose k, ``n_k`` samples, is (Qureshi eq. 4 with a full matrix)::
+
+    a_k = B + g S u_k + e_k,         e_k ~ N(0, Sigma / n_k),                       (L2)
+
+``S = M^-1`` the 3x3 sensitivity (raw units per m/s^2), ``B`` the bias (raw units) and
+``Sigma`` the per-sample noise pooled over all holds. The calibration is
+``calibrated = M (raw - B)``; unlike the gravity-magnitude model (Qureshi eq. 3, upper
+triangular) the labels fix the rotation, so ``M`` is a full matrix in the fixture frame.
+Poses without a label get a free direction (no prior): they add one magnitude equation each,
+exactly as in the gravity solver.
+
+Estimate
+--------
+Maximum a posteriori over ``theta = (B, S)`` and all ``delta_k`` (the maximum-likelihood
+estimate of ``theta`` with the labels as a Gaussian prior), Levenberg-Marquardt on::
+
+    sum_k |Sigma_k^-1/2 (a_k - B - g S u_k(delta_k))|^2 + sum_k |delta_k|^2 / sigma_p^2.  (L3)
+
+Start: ``delta = 0`` makes (L2) linear in ``(B, S)``: one least-squares solve over the
+labelled poses (needs no nominal sensitivity; issue 10.1). ``sigma_p`` is estimated from the
+data where the degrees of freedom allow (Helmert variance-component estimation: the prior
+rows' residual sum of squares over their redundancy ``r_p = sum (1 - h_ii)``), else taken from
+the config.
+
+Cramér-Rao bound with the labels as a prior
+-------------------------------------------
+The hybrid information matrix of ``phi = (theta, delta_1..delta_N)`` is::
+
+    J = sum_k G_k^T Sigma_k^-1 G_k + diag(0_12, sigma_p^-2 I_2N),                   (L4)
+    G_k = d a_k / d phi = [ I_3 | g (I_3 kron u_k^T) | 0 .. g S T_k .. 0 ],
+
+and ``Cov(theta_hat) >= [J^-1]_theta``. Each pose's angles enter only its own block, so
+``J = [[A, C], [C^T, D]]`` with ``D`` block diagonal (``D_k = g^2 T_k^T S^T Sigma_k^-1 S T_k +
+I / sigma_p^2``) and the bound is the Schur complement::
+
+    CRB(theta) = (A - sum_k C_k D_k^-1 C_k^T)^-1.                                   (L5)
+
+Limits: ``sigma_p -> 0`` (a perfect fixture) gives the bound of the linear fit with known
+directions; ``sigma_p -> infinity`` drops the labels and leaves the gravity-magnitude bound
+(Qureshi III-A, see :mod:`.crb`), singular along the rotation that magnitude cannot see.
+The solver's parameters are ``theta = (B, K, r)`` with ``M = R(r) K``, ``K`` upper triangular
+(Qureshi eq. 3) and ``r`` a rotation vector: the rotation separates what the labels determine
+(the frame) from what gravity magnitude determines (``K``), so neither carries the other's
+error at second order. The estimator's covariance is (L4) evaluated at the estimate, so it
+includes the placement error.
+
+Second order
+------------
+Where the labels, not the data, fix a direction (six faces: bias, cross-axis terms and each
+pose's tilt are confounded), the Gaussian approximation at the estimate misses two effects of
+size ``sigma_p^2``: the reading along a tilted pose is ``g cos|delta|``, shorter on average by
+``E|delta|^2 / 2``, and ``K`` is a curved function of the label-limited cross-axis terms. The
+fit marginalises the first (each prediction's mean and variance over ``delta_k``'s remaining
+uncertainty, :meth:`.labelled_model.Problem.marginalise`) and corrects the second (the
+second-order bias and variance of ``K`` over the covariance of ``S``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+from scipy.special import chdtri, stdtrit
+
+from imucal_cli.errors import DesignError, SolverError
+
+from .gravity import _UPPER
+from .labelled_model import (
+    Problem,
+    jacobian,
+    public_from_theta,
+    public_params,  # noqa: F401 (re-exported: the truth in these parameters)
+    rotation_matrix,
+    second_order,
+    sphere_exp,
+    triangular_and_rotation,
+)
+from .outliers import Deletion, deletion
+
+#: Parameters: bias (raw units), the sensitivity of each axis (raw units per m/s^2, the
+#: norms of the rows of ``S = M^-1``), the angles between the sensitivity axes minus 90 deg,
+#: and the rotation vector (deg) turning the sensor's frame (``M = R(r) K``, K upper
+#: triangular, Qureshi eq. 3) onto the labelled fixture frame.
+PARAM_NAMES = [
+    "b_x",
+    "b_y",
+    "b_z",
+    "s_x",
+    "s_y",
+    "s_z",
+    "a_xy",
+    "a_xz",
+    "a_yz",
+    "r_x",
+    "r_y",
+    "r_z",
+]
+
+#: Placement error (RMS angle, degrees) assumed when the data cannot estimate it.
+DEFAULT_PLACEMENT_DEG = 2.0
+#: Redundancy of the prior rows needed to estimate the placement error from the data.
+MIN_PLACEMENT_DOF = 2.0
+#: The placement estimate never goes below this (a perfect fixture), degrees.
+MIN_PLACEMENT_DEG = 1e-3
+#: Above this many poses the Jacobian is handed to the solver as a sparse matrix.
+DENSE_MAX_POSES = 150
+
+
+@dataclass
+class LabelledResult:
+    """Result of :func:`fit_labelled`.
+
+    Attributes
+    ----------
+    bias : ndarray, shape (3,)
+        ``B``, raw units.
+    matrix : ndarray, shape (3, 3)
+        ``M = S^-1``: ``calibrated = matrix @ (raw - bias)``, m/s^2 per raw unit, fixture frame.
+    param_names, params, cov
+        :data:`PARAM_NAMES`: bias, sensitivities, angles between the axes and the rotation
+        onto the labels; their covariance (12, 12) includes the placement error.
+    t_dof : ndarray, shape (12,)
+        Effective degrees of freedom of each parameter's variance (Satterthwaite: the
+        placement part is estimated from ``placement_dof`` equations); ``inf`` when the
+        variance is known.
+    ci95 : ndarray, shape (12,)
+        Half-width of each parameter's 95 % interval, ``t_0.975(t_dof) * std``.
+    residuals : ndarray, shape (N,)
+        ``|M (a_k - B)| - g`` per pose, m/s^2.
+    residual_vectors : ndarray, shape (N, 3)
+        ``M (a_k - B) - g u_k``, m/s^2 (what (L2) leaves unexplained, calibrated units).
+    directions : ndarray, shape (N, 3)
+        Estimated true gravity direction ``u_k`` of each pose, fixture frame.
+    up_angle_deg : ndarray, shape (N,)
+        Angle between ``u_k`` and the label, degrees (the placement error; NaN unlabelled).
+    placement_deg : float
+        RMS placement angle used in the prior, degrees.
+    placement_source : str
+        ``"estimated"`` (from the data), ``"config"`` (given), or ``"default"``
+        (:data:`DEFAULT_PLACEMENT_DEG`, too few equations to estimate it).
+    placement_dof : float
+        Redundancy of the prior equations (what the placement estimate rests on).
+    chi2, dof : float, int
+        Weighted sum of squares of (L3) and its degrees of freedom ``N + 2 L - 12``
+        (L labelled poses).
+    noise_scale : float
+        Factor on the measurement variance: 1 when the residuals agree with the measured
+        noise, the excess otherwise (significant at 1 %).
+    residual_loo : ndarray, shape (N,)
+        Held-out residual ``|M_(-k) (a_k - B_(-k))| - g`` of each pose, m/s^2: the fit
+        without the pose (its rows deleted, first order; :mod:`.outliers`).
+    deletion : Deletion
+        Deletion diagnostics of every pose (studentized statistic for the outlier test).
+    init : str
+        ``"linear"``: the closed-form start with every ``delta = 0``.
+    iterations, nfev : int
+    converged : bool
+    message : str
+    """
+
+    bias: np.ndarray
+    matrix: np.ndarray
+    param_names: list[str]
+    params: np.ndarray
+    cov: np.ndarray
+    t_dof: np.ndarray
+    ci95: np.ndarray
+    residuals: np.ndarray
+    residual_vectors: np.ndarray
+    directions: np.ndarray
+    up_angle_deg: np.ndarray
+    placement_deg: float
+    placement_source: str
+    placement_dof: float
+    chi2: float
+    dof: int
+    noise_scale: float
+    residual_loo: np.ndarray
+    deletion: Deletion
+    init: str
+    iterations: int
+    nfev: int
+    converged: bool
+    message: str
+
+    @property
+    def std(self) -> np.ndarray:
+        """Standard deviations of ``params``."""
+        return np.sqrt(np.clip(np.diag(self.cov), 0, None))
+
+
+# --------------------------------------------------------------------------- start
+
+
+def init_linear(a_mean: np.ndarray, up: np.ndarray, g: float) -> tuple[np.ndarray, np.ndarray]:
+    """Closed-form start: (L2) with every ``delta = 0`` is linear in ``(B, S)``.
+
+    Parameters
+    ----------
+    a_mean : ndarray, shape (N, 3)
+        Pose means, raw units.
+    up : ndarray, shape (N, 3)
+        Labels (NaN rows where unlabelled; those poses are not used).
+    g : float
+        Gravity, m/s^2.
+
+    Returns
+    -------
+    B : ndarray, shape (3,)
+    S : ndarray, shape (3, 3)
+        Raw units per m/s^2.
+
+    Raises
+    ------
+    DesignError
+        The labelled directions do not span the affine space ``[1, up]`` (fewer than four
+        labels not in one plane): bias and sensitivity cannot be told apart.
+    """
+    lab = np.isfinite(up).all(axis=1)
+    X = np.column_stack([np.ones(lab.sum()), g * up[lab]])  # a_k^T = [1, g up_k^T] [B; S^T]
+    if np.linalg.matrix_rank(X, tol=1e-6 * g) < 4:
+        raise DesignError(
+            f"{int(lab.sum())} labelled poses whose up directions lie in one plane cannot tell "
+            "bias from sensitivity"
+        )
+    sol, *_ = np.linalg.lstsq(X, a_mean[lab], rcond=None)
+    return sol[0], sol[1:].T
+
+
+# --------------------------------------------------------------------------- the fit
+
+
+def _solve(prob: Problem, x0, max_iterations):
+    sparse = prob.N > DENSE_MAX_POSES
+    return least_squares(
+        prob.residuals,
+        x0,
+        jac=lambda x: prob.jacobian(x, sparse=sparse),
+        method="trf" if sparse else "lm",
+        tr_solver="lsmr" if sparse else "exact",
+        x_scale=1.0,
+        xtol=1e-12,
+        ftol=1e-12,
+        gtol=1e-12,
+        max_nfev=max_iterations,
+    )
+
+
+def _hat_diag(J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Diagonal of the hat matrix ``J (J^T J)^-1 J^T`` and ``(J^T J)^-1``."""
+    Q, R = np.linalg.qr(J)
+    P = np.linalg.inv(R)
+    return np.sum(Q * Q, axis=1), P @ P.T
+
+
+@dataclass
+class _State:
+    sol: object
+    prob: Problem
+    placement_dof: float
+    meas_dof: float
+    chi2_meas: float
+    hat: np.ndarray
+    P: np.ndarray
+    J: np.ndarray
+    r: np.ndarray
+
+
+def _evaluate(prob: Problem, sol) -> _State:
+    J = prob.jacobian(sol.x)
+    h, P = _hat_diag(J)
+    r = prob.residuals(sol.x)
+    n_meas = 3 * prob.N
+    return _State(
+        sol,
+        prob,
+        float(np.sum(1 - h[n_meas:])),
+        float(np.sum(1 - h[:n_meas])),
+        float(r[:n_meas] @ r[:n_meas]),
+        h,
+        P,
+        J,
+        r,
+    )
+
+
+def _variance_components(prob, x0, max_iterations, estimate_placement, n_iter=30):
+    """Fit (L3), re-estimating ``sigma_p`` (Helmert) and the measurement scale until stable."""
+    sol = _solve(prob, x0, max_iterations)
+    st = _evaluate(prob, sol)
+    for _ in range(n_iter):
+        old = (prob.sigma_p, prob.meas_scale)
+        prob.marginalise(sol.x, st.P)
+        if estimate_placement and st.placement_dof >= MIN_PLACEMENT_DOF:
+            d = prob.split(sol.x)[3][prob.lab]
+            sp2 = float(np.sum(d * d)) / st.placement_dof
+            prob.sigma_p = max(np.sqrt(sp2), np.radians(MIN_PLACEMENT_DEG) / np.sqrt(2))
+        chi2_m = st.chi2_meas * prob.meas_scale**2  # in units of the measured noise
+        if st.meas_dof >= 1 and chi2_m > chdtri(st.meas_dof, 0.01):
+            prob.meas_scale = np.sqrt(chi2_m / st.meas_dof)
+        else:
+            prob.meas_scale = 1.0
+        sol = _solve(prob, sol.x, max_iterations)
+        st = _evaluate(prob, sol)
+        if abs(prob.sigma_p / old[0] - 1) < 1e-3 and abs(prob.meas_scale / old[1] - 1) < 1e-3:
+            break
+    return st
+
+
+def fit_labelled(
+    a_mean: np.ndarray,
+    up: np.ndarray,
+    g: float,
+    cov_mean: np.ndarray,
+    *,
+    placement_deg: float | None = None,
+    noise_dof: float = np.inf,
+    max_iterations: int = 200,
+) -> LabelledResult:
+    """Calibrate a triad accelerometer from labelled static poses (module docstring).
+
+    Parameters
+    ----------
+    a_mean : ndarray, shape (N, 3)
+        Mean raw reading of each pose, raw units.
+    up : ndarray, shape (N, 3)
+        Labelled up direction of each pose, fixture frame (NaN rows where unlabelled).
+    g : float
+        Local gravity, m/s^2.
+    cov_mean : ndarray, shape (N, 3, 3)
+        Covariance of each pose mean, raw units^2 (pooled noise / samples).
+    placement_deg : float, optional
+        RMS placement error of the poses, degrees. Omitted: estimated from the data when the
+        prior equations have at least :data:`MIN_PLACEMENT_DOF` of redundancy, else
+        :data:`DEFAULT_PLACEMENT_DEG`.
+    noise_dof : float
+        Degrees of freedom of the pooled noise estimate (for the parameters' t intervals).
+    max_iterations : int
+        Function evaluations of each Levenberg-Marquardt run.
+
+    Returns
+    -------
+    LabelledResult
+
+    Raises
+    ------
+    DesignError
+        Fewer than four labelled poses spanning 3-D, or a design the fit cannot determine.
+    SolverError
+        No convergence.
+    """
+    a_mean = np.asarray(a_mean, float)
+    up = np.asarray(up, float)
+    N = len(a_mean)
+    labelled = np.isfinite(up).all(axis=1)
+    B0, S0 = init_linear(a_mean, up, g)
+    # Normalised raw coordinates: every parameter O(1).
+    offset = B0.copy()
+    scale = float(np.mean(np.abs(np.diag(S0)))) * g or 1.0
+    a_n = (a_mean - offset) / scale
+    cov_n = np.asarray(cov_mean, float) / scale**2
+    K0, Q0 = triangular_and_rotation(np.linalg.inv(S0))
+    u0 = np.where(labelled[:, None], up, 0.0)
+    if not labelled.all():  # unlabelled poses start at their measured direction
+        est = (a_mean[~labelled] - B0) @ np.linalg.inv(S0).T
+        u0[~labelled] = est / np.linalg.norm(est, axis=1, keepdims=True)
+    u0 = u0 / np.linalg.norm(u0, axis=1, keepdims=True)
+    source = "config" if placement_deg is not None else "estimated"
+    sigma_p = np.radians(placement_deg if placement_deg is not None else DEFAULT_PLACEMENT_DEG)
+    prob = Problem(a_n, cov_n, u0, labelled, g, max(sigma_p, 1e-9) / np.sqrt(2))
+    phi0 = Rotation.from_matrix(Q0).as_rotvec()
+    x0 = np.concatenate([np.zeros(3), (K0 * scale)[_UPPER], phi0, np.zeros(2 * N)])
+    st = _variance_components(prob, x0, max_iterations, placement_deg is None)
+    if source == "estimated" and st.placement_dof < MIN_PLACEMENT_DOF:
+        source = "default"
+    if st.sol.status <= 0:
+        raise SolverError(
+            f"the labelled-pose fit did not converge in {max_iterations} iterations "
+            f"({st.sol.message}); check that the unit was still during each hold and that the "
+            "labels name the face that was up"
+        )
+    return _result(st, offset, scale, a_mean, up, labelled, g, source, noise_dof)
+
+
+def _result(st: _State, offset, scale, a_mean, up, labelled, g, source, noise_dof):
+    prob = st.prob
+    svals = np.linalg.svd(st.J, compute_uv=False)
+    if svals[-1] <= 1e-10 * svals[0]:
+        raise DesignError(
+            "the poses and labels leave the matrix undetermined; label more poses (each face up)"
+        )
+    x12 = st.sol.x[:12]
+
+    def theta(v):  # (B raw, K raw, r deg) from normalised x
+        return np.concatenate([offset + scale * v[:3], v[3:9] / scale, np.degrees(v[9:12])])
+
+    T = jacobian(lambda v: public_from_theta(theta(v)), x12)
+    cov = T @ st.P[:12, :12] @ T.T
+    # Second order: the sensitivities and angles are curved functions of K, whose cross-axis
+    # terms the labels (not the data) fix on six faces: remove that bias, add that variance.
+    axes_of = lambda k: public_from_theta(np.r_[np.zeros(3), k, np.zeros(3)])[3:9]  # noqa: E731
+    bias2, extra2 = second_order(axes_of, x12[3:9], st.P[3:9, 3:9])
+    cov[3:9, 3:9] += extra2
+    params = public_from_theta(theta(x12))
+    params[3:9] -= bias2
+    Kn = np.zeros((3, 3))
+    Kn[_UPPER] = x12[3:9] - np.linalg.solve(jacobian(axes_of, x12[3:9]), bias2)
+    B = offset + scale * x12[:3]
+    M = rotation_matrix(x12[9:12]) @ Kn / scale
+    t_dof = _t_dof(st, T, extra2, source, noise_dof)
+    std = np.sqrt(np.clip(np.diag(cov), 0, None))
+    q = np.where(np.isfinite(t_dof), stdtrit(np.minimum(t_dof, 1e6), 0.975), 1.959964)
+    u, _ = sphere_exp(prob.u0, prob.T, prob.split(st.sol.x)[3])
+    h = (a_mean - B) @ M.T
+    mag = np.linalg.norm(h, axis=1)
+    up_angle = np.full(prob.N, np.nan)
+    cosang = np.clip(np.sum(u[labelled] * up[labelled], axis=1), -1, 1)
+    up_angle[labelled] = np.degrees(np.arccos(cosang))
+    dele = deletion(st.J, st.r, prob.groups(), st.P)
+    return LabelledResult(
+        bias=B,
+        matrix=M,
+        param_names=list(PARAM_NAMES),
+        params=params,
+        cov=cov,
+        t_dof=t_dof,
+        ci95=q * std,
+        residuals=mag - g,
+        residual_vectors=h - g * u,
+        directions=u,
+        up_angle_deg=up_angle,
+        placement_deg=float(np.degrees(prob.sigma_p) * np.sqrt(2)),
+        placement_source=source,
+        placement_dof=st.placement_dof,
+        chi2=float(st.r @ st.r),
+        dof=prob.N + 2 * int(labelled.sum()) - 12,
+        noise_scale=float(prob.meas_scale**2),
+        residual_loo=_held_out(prob, st, dele, offset, scale, a_mean, g),
+        deletion=dele,
+        init="linear",
+        iterations=int(st.sol.njev or 0),
+        nfev=int(st.sol.nfev),
+        converged=True,
+        message=str(st.sol.message),
+    )
+
+
+def _held_out(prob: Problem, st: _State, dele: Deletion, offset, scale, a_mean, g):
+    """Gravity-magnitude residual of each pose under the fit without it, m/s^2."""
+    out = np.full(prob.N, np.nan)
+    for k in range(prob.N):
+        if dele.rank[k] == 0:
+            continue
+        Bn, Kn, phi, _ = prob.split(st.sol.x + dele.dx[k])
+        M = rotation_matrix(phi) @ Kn / scale
+        out[k] = np.linalg.norm(M @ (a_mean[k] - offset - scale * Bn)) - g
+    return out
+
+
+def _t_dof(st: _State, T: np.ndarray, extra: np.ndarray, source: str, noise_dof: float):
+    """Effective degrees of freedom of each parameter's variance (Satterthwaite): the
+    measurement part rests on ``noise_dof``, the placement part on the prior's redundancy."""
+    n_meas = 3 * st.prob.N
+    Jm, Jp = st.J[:n_meas], st.J[n_meas:]
+    Pt = st.P[:, :12]
+    v_meas = np.diag(T @ (Pt.T @ Jm.T @ Jm @ Pt) @ T)
+    v_place = np.diag(T @ (Pt.T @ Jp.T @ Jp @ Pt) @ T).copy()
+    v_place[3:9] += np.diag(extra)
+    nu_p = st.placement_dof if source == "estimated" else np.inf
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_dof = (v_meas + v_place) ** 2 / (v_place**2 / nu_p + v_meas**2 / noise_dof)
+    return np.where(np.isfinite(t_dof), np.maximum(t_dof, 1.0), np.inf)

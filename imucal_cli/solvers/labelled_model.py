@@ -1,0 +1,290 @@
+"""The model of the labelled-pose solver (see :mod:`.labelled`): geometry of the directions,
+the parameterisation ``M = R(r) K``, and the whitened residuals and Jacobian of (L3) with the
+second-order marginalisation over the placement."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .gravity import _UPPER
+
+PAIRS = ((0, 1), (0, 2), (1, 2))
+
+
+def tangent_bases(u: np.ndarray) -> np.ndarray:
+    """Orthonormal bases of the planes perpendicular to unit vectors ``u`` (N, 3): (N, 3, 2)."""
+    u = np.atleast_2d(np.asarray(u, float))
+    helper = np.eye(3)[np.argmin(np.abs(u), axis=1)]
+    t1 = np.cross(u, helper)
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    t2 = np.cross(u, t1)
+    return np.stack([t1, t2], axis=2)
+
+
+def sphere_exp(u0: np.ndarray, T: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``u = Exp(T d) u0`` (L1) and ``du/dd``, vectorised: shapes (N, 3) and (N, 3, 2)."""
+    v = np.einsum("nij,nj->ni", T, d)
+    th = np.linalg.norm(d, axis=1)
+    small = th < 1e-6
+    ths = np.where(small, 1.0, th)
+    sinc = np.where(small, 1.0 - th * th / 6.0, np.sin(ths) / ths)
+    dsinc = np.where(small, -1.0 / 3.0, (ths * np.cos(ths) - np.sin(ths)) / ths**3)  # sinc'/th
+    u = np.cos(th)[:, None] * u0 + sinc[:, None] * v
+    du = (
+        sinc[:, None, None] * (T - u0[:, :, None] * d[:, None, :])
+        + dsinc[:, None, None] * v[:, :, None] * d[:, None, :]
+    )
+    return u, du
+
+
+def rotation_matrix(phi: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a rotation vector (Rodrigues), rad."""
+    th = float(np.linalg.norm(phi))
+    X = np.array([[0.0, -phi[2], phi[1]], [phi[2], 0.0, -phi[0]], [-phi[1], phi[0], 0.0]])
+    if th < 1e-8:
+        return np.eye(3) + X + 0.5 * X @ X
+    return np.eye(3) + np.sin(th) / th * X + (1 - np.cos(th)) / th**2 * X @ X
+
+
+def triangular_and_rotation(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``M = Q K`` with ``K`` upper triangular (positive diagonal where ``det M > 0``) and
+    ``Q`` a rotation. A mirrored matrix (``det M < 0``: labels in a left-handed frame
+    relative to the sensor) keeps ``Q`` proper and gives ``K`` a negative ``k_z``."""
+    Q, K = np.linalg.qr(M)
+    D = np.diag(np.sign(np.diag(K)))
+    Q, K = Q @ D, D @ K
+    if np.linalg.det(Q) < 0:
+        F = np.diag([1.0, 1.0, -1.0])
+        Q, K = Q @ F, F @ K
+    return K, Q
+
+
+def axes(S: np.ndarray) -> np.ndarray:
+    """Sensitivities and angles of a sensitivity matrix ``S`` (rows: each channel's axis,
+    raw units per m/s^2): ``(s_x, s_y, s_z, a_xy, a_xz, a_yz)``, the row norms and the angles
+    between rows minus 90 degrees. Invariant to a rotation of the frame (``S R^T``)."""
+    gains = np.linalg.norm(S, axis=1)
+    n = S / gains[:, None]
+    ang = [np.degrees(np.arccos(np.clip(n[i] @ n[j], -1, 1))) - 90.0 for i, j in PAIRS]
+    return np.r_[gains, ang]
+
+
+def public_params(B: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """:data:`.labelled.PARAM_NAMES` from ``B`` and ``S = M^-1``: bias, sensitivities, angles
+    between the sensitivity axes minus 90 deg, and the rotation vector (deg) of ``M = R(r) K``
+    (``K`` upper triangular)."""
+    _, Q = triangular_and_rotation(np.linalg.inv(S))
+    return np.concatenate([B, axes(S), np.degrees(Rotation.from_matrix(Q).as_rotvec())])
+
+
+def public_from_theta(theta: np.ndarray) -> np.ndarray:
+    """Public parameters from ``theta = (B, K upper, r in degrees)``."""
+    K = np.zeros((3, 3))
+    K[_UPPER] = theta[3:9]
+    return np.concatenate([theta[:3], axes(np.linalg.inv(K)), theta[9:12]])
+
+
+def jacobian(f, x: np.ndarray, rel: float = 1e-6) -> np.ndarray:
+    """Central-difference Jacobian of a small vector function."""
+    f0 = np.asarray(f(x))
+    J = np.empty((len(f0), len(x)))
+    for k in range(len(x)):
+        h = rel * max(abs(x[k]), 1e-12)
+        e = np.zeros(len(x))
+        e[k] = h
+        J[:, k] = (np.asarray(f(x + e)) - np.asarray(f(x - e))) / (2 * h)
+    return J
+
+
+def second_order(f, x: np.ndarray, cov: np.ndarray, rel: float = 1e-4):
+    """Second-order moments of ``f(x_hat)`` when ``x_hat ~ N(x, cov)``: the bias
+    ``tr(cov H_i) / 2`` and the extra covariance ``tr(H_i cov H_j cov) / 2`` (``H_i`` the
+    Hessian of output i, central differences)."""
+    n = len(x)
+    h = rel * np.maximum(np.abs(x), 1e-12)
+    f0 = np.asarray(f(x))
+    H = np.empty((len(f0), n, n))
+    for i in range(n):
+        for j in range(i, n):
+            ei, ej = np.zeros(n), np.zeros(n)
+            ei[i], ej[j] = h[i], h[j]
+            if i == j:
+                d2 = (f(x + ei) - 2 * f0 + f(x - ei)) / h[i] ** 2
+            else:
+                d2 = (f(x + ei + ej) - f(x + ei - ej) - f(x - ei + ej) + f(x - ei - ej)) / (
+                    4 * h[i] * h[j]
+                )
+            H[:, i, j] = H[:, j, i] = d2
+    HC = H @ cov
+    return 0.5 * np.einsum("iab,ba->i", H, cov), 0.5 * np.einsum("iab,jba->ij", HC, HC)
+
+
+def whitening(cov_mean: np.ndarray) -> np.ndarray:
+    """``W_k`` with ``W_k^T W_k = Sigma_k^-1``, shape (N, 3, 3)."""
+    L = np.linalg.cholesky(np.linalg.inv(cov_mean))
+    return np.transpose(L, (0, 2, 1))
+
+
+class Problem:
+    """Whitened residuals and Jacobian of (L3) in normalised raw coordinates.
+
+    ``x = (B_n (3), K_n upper (6), phi (3, rad), delta (2N))`` with ``a_n = (a - offset) /
+    scale``, ``B_n = (B - offset) / scale``, ``K_n = scale K`` and the prediction of pose k
+    ``f_k = B_n + g K_n^-1 R(phi)^T u_k(delta_k)`` (L2 with ``S = K^-1 R^T``). The explicit
+    rotation keeps the frame's uncertainty a rotation: no spurious second-order effect of the
+    (label-limited) frame on the (noise-limited) gains.
+    """
+
+    def __init__(self, a_n, cov_n, u0, labelled, g, sigma_p, meas_scale=1.0):
+        self.a_n, self.cov_n, self.u0, self.g = a_n, cov_n, u0, g
+        self.W = whitening(cov_n)
+        self.offset = np.zeros_like(a_n)  # second-order mean of each prediction (marginalise)
+        self.T = tangent_bases(u0)
+        self.lab = np.flatnonzero(labelled)
+        self.N = len(a_n)
+        self.sigma_p = sigma_p
+        self.meas_scale = meas_scale  # measurement sigma multiplier (noise_scale ** 0.5)
+
+    @property
+    def n_rows(self) -> int:
+        return 3 * self.N + 2 * len(self.lab)
+
+    def split(self, x):
+        K = np.zeros((3, 3))
+        K[_UPPER] = x[3:9]
+        return x[:3], K, x[9:12], x[12:].reshape(self.N, 2)
+
+    def predict(self, x):
+        """``f_k`` (N, 3) and ``d f_k / d z_k`` (N, 3, 11), ``z_k = (K upper, phi, delta_k)``."""
+        _, K, phi, d = self.split(x)
+        Kinv = np.linalg.inv(K)
+        R = rotation_matrix(phi)
+        u, du = sphere_exp(self.u0, self.T, d)
+        w = u @ R  # R^T u_k, rows
+        z = w @ Kinv.T  # K^-1 w_k
+        f = self.g * z
+        D = np.empty((self.N, 3, 11))
+        for c, (i, j) in enumerate(zip(*_UPPER, strict=True)):
+            D[:, :, c] = -self.g * Kinv[:, i][None, :] * z[:, j][:, None]  # d K^-1 = -K^-1 E K^-1
+        h = 1e-6
+        for c in range(3):
+            e = np.zeros(3)
+            e[c] = h
+            dR = (rotation_matrix(phi + e) - rotation_matrix(phi - e)) / (2 * h)
+            D[:, :, 6 + c] = self.g * (u @ dR) @ Kinv.T
+        D[:, :, 9:] = self.g * np.einsum("ij,kj,nkc->nic", Kinv, R, du)  # g K^-1 R^T du
+        return f, D
+
+    def residuals(self, x):
+        B, _, _, d = self.split(x)
+        f, _ = self.predict(x)
+        e = self.a_n - B - f - self.offset
+        r_meas = np.einsum("nij,nj->ni", self.W, e).ravel() / self.meas_scale
+        return np.concatenate([r_meas, d[self.lab].ravel() / self.sigma_p])
+
+    def jacobian(self, x, sparse=False):
+        _, D = self.predict(x)
+        N, L = self.N, len(self.lab)
+        W = self.W / self.meas_scale
+        Jt = np.empty((N, 3, 12))
+        Jt[:, :, :3] = -W
+        Jt[:, :, 3:] = -np.einsum("nij,njc->nic", W, D[:, :, :9])
+        Jd = -np.einsum("nij,njc->nic", W, D[:, :, 9:])
+        rows_d = np.arange(3 * N).reshape(N, 3)[:, :, None].repeat(2, axis=2)
+        cols_d = (12 + 2 * np.arange(N)[:, None, None] + np.arange(2)[None, None, :]).repeat(
+            3, axis=1
+        )
+        pr_rows = 3 * N + np.arange(2 * L)
+        pr_cols = 12 + (2 * self.lab[:, None] + np.arange(2)).ravel()
+        if sparse:
+            from scipy.sparse import coo_matrix
+
+            r = np.concatenate([np.repeat(np.arange(3 * N), 12), rows_d.ravel(), pr_rows])
+            c = np.concatenate([np.tile(np.arange(12), 3 * N), cols_d.ravel(), pr_cols])
+            v = np.concatenate([Jt.ravel(), Jd.ravel(), np.full(2 * L, 1.0 / self.sigma_p)])
+            return coo_matrix((v, (r, c)), shape=(self.n_rows, 12 + 2 * N)).tocsr()
+        J = np.zeros((self.n_rows, 12 + 2 * N))
+        J[: 3 * N, :12] = Jt.reshape(3 * N, 12)
+        J[rows_d.ravel(), cols_d.ravel()] = Jd.ravel()
+        J[pr_rows, pr_cols] = 1.0 / self.sigma_p
+        return J
+
+    def marginalise(self, x, P):
+        """Second-order marginalisation over the placement (what the Gaussian approximation at
+        the estimate misses). Only the directions are random (the prior); given the frame
+        rotation ``phi``, which the labels fix as a whole (a gauge of the data), ``delta_k``
+        keeps an uncertainty ``P_k``. The prediction ``f_k`` then has mean ``f_k(delta_hat) +
+        tr(P_k H_a) / 2`` and an extra covariance ``tr(H_a P_k H_b P_k) / 2`` (``H_a`` the
+        Hessian of component a over ``delta_k``). Matters where the labels, not the data, fix a
+        direction: on six faces the gains are otherwise biased by about ``sigma_p^2``
+        (``E cos|delta| = 1 - E|delta|^2 / 2``)."""
+        N = self.N
+        cols = 12 + 2 * np.arange(N)[:, None] + np.arange(2)
+        H = np.empty((N, 3, 2, 2))
+        h = 1e-5
+        for v in range(2):
+            xp, xm = x.copy(), x.copy()
+            xp[cols[:, v]] += h
+            xm[cols[:, v]] -= h
+            H[:, :, :, v] = (self.predict(xp)[1][:, :, 9:] - self.predict(xm)[1][:, :, 9:]) / (
+                2 * h
+            )
+        H = 0.5 * (H + np.swapaxes(H, 2, 3))
+        Pdd = P[cols[:, :, None], cols[:, None, :]]
+        Pdf = P[cols[:, :, None], np.arange(9, 12)[None, None, :]]
+        Pk = Pdd - Pdf @ np.linalg.solve(P[9:12, 9:12], np.swapaxes(Pdf, 1, 2))
+        self.offset = 0.5 * np.einsum("npq,naqp->na", Pk, H)
+        HP = np.einsum("naij,njk->naik", H, Pk)
+        extra = 0.5 * np.einsum("naij,nbji->nab", HP, HP)
+        self.W = whitening(self.cov_n + extra)
+
+    def gauge_modes(self, x) -> np.ndarray:
+        """The three directions of ``x`` that leave every prediction unchanged (a rotation of
+        the frame ``phi`` and every direction together), (n_x, 3)."""
+        _, _, phi, d = self.split(x)
+        u, du = sphere_exp(self.u0, self.T, d)
+        G = np.zeros((len(x), 3))
+        h = 1e-6
+        for c in range(3):
+            w = np.zeros(3)
+            w[c] = h
+            rp = (Rotation.from_rotvec(w) * Rotation.from_rotvec(phi)).as_rotvec()
+            rm = (Rotation.from_rotvec(-w) * Rotation.from_rotvec(phi)).as_rotvec()
+            G[9:12, c] = (rp - rm) / (2 * h)
+            move = np.cross(np.eye(3)[c], u)  # d u_k / d omega_c
+            G[12:, c] = np.einsum("nij,nj->ni", np.linalg.pinv(du), move).ravel()
+        return G
+
+    def without_gauge(self, x, P) -> np.ndarray:
+        """``P`` less its part along the gauge modes (what only the labels as a whole fix)."""
+        G = self.gauge_modes(x)
+        J = self.jacobian(x)
+        JG = J @ G
+        return P - G @ np.linalg.solve(JG.T @ JG, G.T)
+
+    def groups(self) -> list[np.ndarray]:
+        """Rows of each pose: its 3 measurement rows and, if labelled, its 2 prior rows."""
+        out = [np.arange(3 * k, 3 * k + 3) for k in range(self.N)]
+        for j, k in enumerate(self.lab):
+            out[k] = np.r_[out[k], 3 * self.N + 2 * j, 3 * self.N + 2 * j + 1]
+        return out
+
+
+def design_jacobian(M: np.ndarray, u: np.ndarray, g: float) -> tuple[np.ndarray, np.ndarray]:
+    """``d a_k / d theta`` and ``d a_k / d delta_k`` of (L2) at directions ``u`` (delta = 0).
+
+    ``theta = (B, K upper, r)`` with ``M = R(r) K`` (r in degrees, as :data:`PARAM_NAMES`).
+    Returns arrays (N, 3, 12) and (N, 3, 2), raw units per parameter unit."""
+    K, Q = triangular_and_rotation(M)
+    u = np.atleast_2d(np.asarray(u, float))
+    N = len(u)
+    prob = Problem(np.zeros((N, 3)), np.tile(np.eye(3), (N, 1, 1)), u, np.ones(N, bool), g, 1.0)
+    phi = Rotation.from_matrix(Q).as_rotvec()
+    x = np.concatenate([np.zeros(3), K[_UPPER], phi, np.zeros(2 * N)])
+    _, D = prob.predict(x)
+    Gt = np.empty((N, 3, 12))
+    Gt[:, :, :3] = np.eye(3)
+    Gt[:, :, 3:9] = D[:, :, :6]
+    Gt[:, :, 9:] = D[:, :, 6:9] * np.radians(1.0)
+    return Gt, D[:, :, 9:]

@@ -1,0 +1,97 @@
+"""Which poses disagree with the rest: deletion diagnostics of a weighted least-squares fit.
+
+For a fit with whitened residuals ``r`` (unit variance when the weights are right) and
+Jacobian ``J`` at the solution, deleting the rows ``k`` of one pose changes the parameters by
+(to first order, exact for a linear model)::
+
+    dx_k = P J_k^T (I - H_kk)^+ r_k,       P = (J^T J)^-1,  H_kk = J_k P J_k^T,
+
+and lowers the sum of squares by the pose's studentized statistic::
+
+    T_k = r_k^T (I - H_kk)^+ r_k  ~  chi^2(rank(I - H_kk))   if the pose agrees with the rest.
+
+``T_k`` is tested against the measured noise, scaled by ``s^2 = max(1, median-based estimate
+of the residual variance)`` so that a recording whose noise is a little above what its holds
+show (correlated noise, a slightly nonlinear part) does not flag every pose, while one bad
+pose cannot hide: the median ignores it. The threshold is Bonferroni over the poses.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import chdtri
+
+#: Family-wise probability of flagging a pose of a good session.
+OUTLIER_ALPHA = 1e-3
+
+
+@dataclass(frozen=True)
+class Deletion:
+    """Deletion diagnostics of every pose.
+
+    Attributes
+    ----------
+    dx : ndarray, shape (N, p)
+        Change of the parameter vector when the pose is left out.
+    T : ndarray, shape (N,)
+        Studentized statistic (chi^2 drop when the pose is left out), in units of the
+        measured noise.
+    rank : ndarray of int, shape (N,)
+        Its degrees of freedom (0: the pose cannot be checked: nothing else determines it).
+    """
+
+    dx: np.ndarray
+    T: np.ndarray
+    rank: np.ndarray
+
+
+def deletion(J: np.ndarray, r: np.ndarray, groups: list[np.ndarray], P: np.ndarray) -> Deletion:
+    """Deletion diagnostics (module docstring) of the row groups of a whitened fit."""
+    N, p = len(groups), J.shape[1]
+    dx = np.zeros((N, p))
+    T = np.zeros(N)
+    rank = np.zeros(N, dtype=int)
+    for k, rows in enumerate(groups):
+        Jk = J[rows]
+        A = np.eye(len(rows)) - Jk @ P @ Jk.T
+        w, V = np.linalg.eigh(0.5 * (A + A.T))
+        keep = w > 1e-8
+        rank[k] = int(keep.sum())
+        if not rank[k]:
+            continue
+        z = V[:, keep].T @ r[rows]
+        T[k] = float(z @ (z / w[keep]))
+        dx[k] = P @ (Jk.T @ (V[:, keep] @ (z / w[keep])))
+    return Deletion(dx, T, rank)
+
+
+def noise_excess(T: np.ndarray, rank: np.ndarray) -> float:
+    """Robust factor by which the residual variance exceeds the measured noise (>= 1): the
+    median of ``T_k`` over the median of ``chi^2(rank_k)``."""
+    ok = rank > 0
+    if ok.sum() < 3:
+        return 1.0
+    medians = chdtri(rank[ok].astype(float), 0.5)
+    return float(max(1.0, np.median(T[ok]) / np.median(medians)))
+
+
+def flag(T: np.ndarray, rank: np.ndarray, alpha: float = OUTLIER_ALPHA) -> np.ndarray:
+    """Poses whose statistic exceeds the Bonferroni threshold, worst first (indices)."""
+    ok = rank > 0
+    if not ok.any():
+        return np.zeros(0, dtype=int)
+    s2 = noise_excess(T, rank)
+    limit = np.full(len(T), np.inf)
+    limit[ok] = chdtri(rank[ok].astype(float), alpha / ok.sum())
+    ratio = T / (s2 * limit)
+    bad = np.flatnonzero(ratio > 1.0)
+    return bad[np.argsort(-ratio[bad])]
+
+
+def significance(T: float, rank: int, n_tested: int, s2: float = 1.0) -> float:
+    """Family-wise p-value of one pose's statistic among ``n_tested`` (Bonferroni)."""
+    from scipy.special import chdtrc
+
+    return float(min(1.0, n_tested * chdtrc(rank, T / s2))) if rank > 0 else 1.0

@@ -1,0 +1,201 @@
+"""CLI conformance (issue 12): every command's --help without a terminal, piped into a reader
+that goes away, and with NO_COLOR; --version, -h, one-line errors, the exit-status table.
+
+Each command runs as the installed ``imucal`` in a subprocess, so the streams, pipes and exit
+codes are the real ones a shell script sees.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from imucal_cli import __version__
+from imucal_cli.cli import app
+from imucal_cli.cli.app import EXIT_CODES
+
+from .cli_helpers import IMUCAL, run
+
+pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX pipes")
+
+COMMANDS = sorted(c.name or c.callback.__name__ for c in app.registered_commands)
+ENV = {**os.environ, "NO_COLOR": "1", "COLUMNS": "80"}
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+def _help(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([IMUCAL, *args], capture_output=True, text=True, env=ENV, timeout=60)
+
+
+def _closed_pipe(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    """Run with stdout a pipe whose reader is already gone: every write meets EPIPE."""
+    read, write = os.pipe()
+    os.close(read)
+    try:
+        return subprocess.run([IMUCAL, *args], stdout=write, stderr=subprocess.PIPE, text=True,
+                              cwd=cwd, env=ENV, timeout=120)  # fmt: skip
+    finally:
+        os.close(write)
+
+
+@pytest.mark.parametrize("command", ["", *COMMANDS])
+def test_help_without_a_terminal(command):
+    args = [command] if command else []
+    proc = _help(*args, "--help")
+    assert proc.returncode == 0 and proc.stderr == ""
+    text = proc.stdout
+    assert "\x1b[" not in text  # NO_COLOR, and no colour codes into a pipe anyway
+    assert _help(*args, "-h").stdout == text  # -h is --help
+    # metavars a person can read: no Python types, no {braces}
+    assert not re.search(r"<(str|int|float|bool|path|list)", text), text
+    assert not re.search(r"\{[A-Za-z_.|]+\}", text.splitlines()[0]), text.splitlines()[0]
+    # not hard-wrapped at 80 columns although COLUMNS=80: one line per option, defaults whole
+    options = []
+    for line in text[text.index("Options:") :].splitlines()[1:]:
+        if line and not line.startswith(" "):
+            break  # the next section
+        options.append(line)
+    for line in options:
+        assert not line or line.startswith("  -"), f"wrapped: {line!r}"
+    # the reader going away after the first line is no error
+    piped = _closed_pipe(*args, "--help", cwd=Path.cwd())
+    assert piped.returncode == 0 and piped.stderr == "", piped.stderr
+
+
+def test_help_keeps_square_brackets_and_shows_what_the_readme_says():
+    capture = _help("capture", "--help").stdout
+    assert "[[step]]" in capture
+    assert "[default: capture-<date>-<time>.h5]" in capture
+    assert "[default: 115200]" in capture and "[default: t,ax,ay,az,gx,gy,gz,temp]" in capture
+    assert "semicolons" in capture  # the separators the README names
+    assert "pip install 'imucal-cli[plot]'" in _help("report", "--help").stdout
+    simulate = _help("simulate", "--help").stdout
+    for fault in ("--garbage", "--stall-after SECONDS", "--vanish-after SECONDS",
+                  "--malformed-every N"):  # fmt: skip
+        assert re.search(rf"^\s+{re.escape(fault)}\s", simulate, re.M), fault
+    for command in COMMANDS:  # every command states its exit status
+        assert "Exit status" in _help(command, "--help").stdout, command
+
+
+def test_version_and_exit_status_table():
+    for flag in ("--version", "-V"):
+        proc = run(flag)
+        assert proc.returncode == 0 and proc.stdout.strip() == f"imucal {__version__}"
+    root = _help("--help").stdout
+    readme = README.read_text(encoding="utf-8")
+    for code, what in EXIT_CODES:
+        assert re.search(rf"^\s*{code}\s+{re.escape(what)}$", root, re.M), (code, root)
+        assert f"| {code} | {what} |" in readme, (code, "README exit-status table")
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [(["capture"], ["Missing option '--port'", "imucal capture --help"]),
+     (["report"], ["Missing argument", "imucal report --help"]),
+     (["calibrate", "--model"], ["--model", "requires an argument"]),
+     (["simulate", "--bogus"], ["No such option: --bogus"])],
+)  # fmt: skip
+def test_usage_errors_are_one_line_without_a_doubled_prefix(args, words):
+    proc = run(*args)
+    assert proc.returncode == 2 and proc.stdout == ""
+    err = proc.stderr.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("imucal: error: "), err
+    assert "imucal: error: imucal" not in err and "Error:" not in err
+    for word in words:
+        assert word in err, (word, err)
+
+
+@pytest.fixture(scope="module")
+def calibrated(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("conformance")
+    proc = run("simulate", "--plan", "qureshi18", "--seed", "3", "-o", folder / "s.h5")
+    assert proc.returncode == 0, proc.stderr
+    proc = run("calibrate", folder / "s.h5", "-o", folder / "s.cal.json")
+    assert proc.returncode == 0, proc.stderr
+    return folder
+
+
+def test_epipe_keeps_the_commands_own_status(calibrated):
+    """`imucal report X | head -1`: the reader goes away; the command still ends with its own
+    status, quietly; a command that writes files still writes them."""
+    report = _closed_pipe("report", "s.cal.json", cwd=calibrated)
+    assert report.returncode == 0 and report.stderr == "", report.stderr
+    out = calibrated / "again.cal.json"
+    again = _closed_pipe("calibrate", "s.h5", "-o", out.name, "--no-store", cwd=calibrated)
+    assert again.returncode == 0 and again.stderr == "" and out.exists()
+    missing = _closed_pipe("report", "nothing.json", cwd=calibrated)
+    assert missing.returncode == 2 and missing.stderr.startswith("imucal: error: ")
+    head = subprocess.run(f"set -o pipefail; {IMUCAL} report s.cal.json | head -1", shell=True,
+                          executable="/bin/bash", cwd=calibrated, capture_output=True,
+                          text=True, env=ENV, timeout=120)  # fmt: skip
+    assert head.returncode == 0 and head.stderr == "" and len(head.stdout.splitlines()) == 1
+
+
+def test_output_into_a_pipe_is_not_hard_wrapped(calibrated):
+    document = json.loads((calibrated / "s.cal.json").read_text())
+    warning = "a warning long enough to be wrapped at eighty columns: " + "word " * 30
+    document["accel"]["warnings"] = [warning.strip()]
+    (calibrated / "w.cal.json").write_text(json.dumps(document))
+    proc = subprocess.run([IMUCAL, "report", "w.cal.json"], capture_output=True, text=True,
+                          cwd=calibrated, env=ENV, timeout=120)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert f"- {warning.strip()}" in proc.stdout.splitlines()  # one whole line, grep finds it
+    assert "\x1b[" not in proc.stdout
+
+
+def test_every_command_that_prints_results_has_json(calibrated, tmp_path):
+    """--json: one JSON document on stdout, nothing else, with a format name (README schemas)."""
+    csv = tmp_path / "raw.csv"
+    csv.write_text("t,ax,ay,az\n" + "".join(f"{i / 100},0,0,{9.8 + (i % 3) * 1e-3}\n"
+                                             for i in range(600)))  # fmt: skip
+    cases = {
+        "imucal-simulate": ["simulate", "--plan", "six", "-o", tmp_path / "j.h5", "--json"],
+        "imucal-calibrate": ["calibrate", calibrated / "s.h5", "-o", tmp_path / "j.cal.json",
+                             "--no-store", "--json"],
+        "imucal-report": ["report", calibrated / "s.cal.json", "--json"],
+        "imucal-apply": ["apply", calibrated / "s.cal.json", calibrated / "s.h5", "-o",
+                         tmp_path / "o.h5", "--json"],
+    }  # fmt: skip
+    for name, args in cases.items():
+        proc = run(*args)
+        assert proc.returncode == 0, (name, proc.stderr)
+        document = json.loads(proc.stdout)
+        assert document["format"] == name, name
+        assert f"`{name}`" in README.read_text(encoding="utf-8"), f"{name}: schema in the README"
+    calibrate = json.loads(run(*cases["imucal-calibrate"][:-1], "--force", "--json").stdout)
+    assert calibrate["calibration"]["accel"]["solver"] == "gravity"
+
+
+def _complete(line: str) -> list[str]:
+    """What bash completion offers for ``line`` (the word after the last space)."""
+    words = line.split()
+    cword = len(words) if line.endswith(" ") else len(words) - 1
+    env = {**ENV, "COMP_WORDS": line, "COMP_CWORD": str(cword), "_IMUCAL_COMPLETE": "complete_bash"}
+    proc = subprocess.run([IMUCAL], capture_output=True, text=True, env=env, timeout=60)
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr
+    return proc.stdout.split()
+
+
+def test_shell_completion_of_commands_options_plans_and_values():
+    assert "--install-completion" in _help("--help").stdout
+    assert _complete("imucal cal") == ["calibrate"]
+    assert set(_complete("imucal ")) >= set(COMMANDS)
+    assert "--json" in _complete("imucal report --js")
+    # capture and simulate complete the same plans (one registry, issue 9.4)
+    assert _complete("imucal capture --plan q") == ["qureshi18", "qureshi-axes"]
+    assert set(_complete("imucal simulate --plan hk")) == {"hk-redundant", "hk-gyro"}
+    assert _complete("imucal capture --plan st") == _complete("imucal simulate --plan st")
+    assert _complete("imucal capture --plan st") == ["still:"]
+    assert _complete("imucal capture --accel-units ") == ["counts", "V", "g", "m/s^2"]
+    assert _complete("imucal export --format y") == ["yaml"]
+    # a path: nothing offered, so the shell completes file names (complete -o default)
+    assert _complete("imucal calibrate ") == []
+    script = subprocess.run([IMUCAL, "--show-completion", "bash"], capture_output=True,
+                            text=True, env=ENV, timeout=60)  # fmt: skip
+    assert script.returncode == 0 and "complete -o default" in script.stdout

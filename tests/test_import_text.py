@@ -1,0 +1,122 @@
+"""The text reader of `imucal import` (formats/importers/text.py): the array scanner gives
+exactly what the line-by-line reader gives (counts, line numbers, header, values), on messy
+files of every kind; the line numbers of malformed lines and of time errors are right."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from imucal_cli.errors import InputError
+from imucal_cli.formats.importers.recording import ImportStats
+from imucal_cli.formats.importers.text import _scan_ascii, _scan_lines, read_table
+
+TOKENS = ["abc", "1.2.3", "-", "nan", "1e999", "1,,2", " ,", "1 2,3", "+5", ".5", "5.", "1e5",
+          "e", "x#", "a b", "-.5", "1E-3", "#"]  # fmt: skip
+
+
+def messy_text(rng: np.random.Generator) -> str:
+    """A random text table: header, comments, blank lines, odd tokens, short and long rows,
+    any line break and separator."""
+    nf = int(rng.integers(2, 6))
+    comma = rng.random() < 0.5
+    sep = "," if comma else str(rng.choice([" ", "\t", "  "]))
+    lines = [sep.join(["t", "ax", "ay", "az", "gx"][:nf])] if rng.random() < 0.5 else []
+    for i in range(int(rng.integers(0, 40))):
+        r = rng.random()
+        if r < 0.05:
+            lines.append("")
+        elif r < 0.1:
+            lines.append(f"  # comment {i}")
+        elif r < 0.15:
+            lines.append(sep.join(["1"] * int(rng.integers(1, 7))))
+        elif r < 0.2:
+            lines.append(str(rng.choice(TOKENS)))
+        else:
+            fields = []
+            for _ in range(nf):
+                u = rng.random()
+                if u < 0.85:
+                    fields.append(f"{rng.normal():.{int(rng.integers(1, 17))}g}")
+                elif u < 0.9:
+                    fields.append(f" {rng.normal() * 1e3:.6e} " if comma else "7")
+                else:
+                    fields.append(str(rng.choice(TOKENS)))
+            lines.append(sep.join(fields))
+    eol = str(rng.choice(["\n", "\r\n", "\r"]))
+    return eol.join(lines) + (eol if rng.random() < 0.7 else "")
+
+
+def same_scan(a, b) -> None:
+    for key in ("n_lines", "header", "blank", "comments", "header_fields"):
+        assert getattr(a, key) == getattr(b, key), key
+    for key in ("numbers", "lengths", "bad"):
+        np.testing.assert_array_equal(getattr(a, key), getattr(b, key), err_msg=key)
+    if len(a.numbers):
+        n = int(np.argmax(np.bincount(a.lengths)))
+        keep = a.lengths == n
+        np.testing.assert_array_equal(a.rows(keep, n), b.rows(keep, n))  # bit for bit
+
+
+def test_array_scanner_equals_line_reader_on_messy_files():
+    rng = np.random.default_rng(2026)
+    fast = 0
+    for _ in range(600):
+        text = messy_text(rng)
+        skip_rows = int(rng.integers(0, 3))
+        comma = [None, False, True][int(rng.integers(0, 3))]
+        skip = frozenset([int(rng.integers(0, 4))]) if rng.random() < 0.3 else frozenset()
+        if not text.strip():
+            continue
+        reference = _scan_lines(text.splitlines(), skip_rows, comma, skip)
+        scan = _scan_ascii(text.encode(), skip_rows, comma, skip)
+        if scan is not None:
+            fast += 1
+            same_scan(scan, reference)
+    assert fast > 300  # the array path serves files with header, comments, odd rows too
+
+
+def test_values_are_read_exactly_as_python_reads_them():
+    rng = np.random.default_rng(5)
+    values = np.r_[rng.normal(size=500) * 10.0 ** rng.integers(-30, 30, 500), 0.1, 1 / 3]
+    text = "\n".join(f"{i},{float(v)!r},{v:.17e},{v:.6g}" for i, v in enumerate(values)) + "\n"
+    scan = _scan_ascii(text.encode(), 0, None, frozenset())
+    rows = scan.rows(np.ones(len(values), bool), 4)
+    expected = [[float(p) for p in line.split(",")] for line in text.splitlines()]
+    np.testing.assert_array_equal(rows, np.array(expected))
+
+
+def test_malformed_lines_are_counted_with_their_line_numbers(tmp_path):
+    path = tmp_path / "r.csv"
+    rows = [f"{i * 0.01:.2f},{i},2,3" for i in range(200)]
+    rows[50] = "0.50,1,2"  # a field short
+    rows[120] = "1.20,1,oops,3"  # text
+    rows[121] = "1.21,1,2,nan"  # not finite
+    path.write_bytes(("t,ax,ay,az\r\n# a comment\r\n" + "\r\n".join(rows) + "\r\n").encode())
+    stats = ImportStats()
+    data, lines, header = read_table(path, None, 0, stats)
+    assert header == ["t", "ax", "ay", "az"]
+    assert (stats.lines, stats.header, stats.comments, stats.malformed) == (202, 1, 1, 3)
+    assert stats.first_malformed == "r.csv:53"  # the short row: line 3 + 50
+    assert data.shape == (197, 4) and lines[0] == 3 and lines[-1] == 202
+    assert 53 not in lines and 123 not in lines and 124 not in lines
+
+
+def test_non_ascii_files_read_line_by_line_alike(tmp_path):
+    rows = "\n".join(f"{i},{i * 2}.5,{-i}e-3" for i in range(50))
+    plain, fancy = tmp_path / "plain.csv", tmp_path / "fancy.csv"
+    plain.write_text("t,ax,ay\n" + rows + "\n")
+    fancy.write_text("\ufefft [s],ax [m/s²],ay\n" + rows + "\n", encoding="utf-8")
+    a = read_table(plain, None, 0, ImportStats())
+    b = read_table(fancy, None, 0, ImportStats())
+    np.testing.assert_array_equal(a[0], b[0])
+    np.testing.assert_array_equal(a[1], b[1])
+    assert b[2] == ["t [s]", "ax [m/s²]", "ay"]
+
+
+@pytest.mark.parametrize("content", ["", "  \n\n \t\n"])
+def test_empty_files_are_refused(tmp_path, content):
+    path = tmp_path / "e.csv"
+    path.write_text(content)
+    with pytest.raises(InputError, match="empty file"):
+        read_table(path, None, 0, ImportStats())

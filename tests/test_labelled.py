@@ -1,0 +1,219 @@
+"""The labelled-pose solver (issue 9.1): bias and full matrix from static poses whose `up`
+labels are known up to the placement, its Cramér-Rao bound, and the default solver choice."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from imucal_cli.errors import ConfigError, DesignError
+from imucal_cli.formats.config import Config, config_from_dict
+from imucal_cli.pipeline.calibrate import calibrate_session, static_poses
+from imucal_cli.simulate.triad import simulate
+from imucal_cli.solvers.crb import gravity_crb, labelled_crb
+from imucal_cli.solvers.labelled import fit_labelled, public_params
+from imucal_cli.solvers.labelled_model import (
+    design_jacobian,
+    jacobian,
+    public_from_theta,
+    triangular_and_rotation,
+)
+
+CREATED = "2026-01-01T00:00:00Z"
+G0 = 9.80665
+
+
+def _truth_params(truth):
+    return public_params(truth.accel.bias, np.linalg.inv(truth.accel.matrix))
+
+
+def _fit(plan, seed, **sim):
+    session, truth = simulate(plan=plan, seed=seed, created=CREATED, **sim)
+    p = static_poses(session)
+    res = fit_labelled(p.a_mean, p.up, G0, p.cov_mean, noise_dof=p.noise.dof)
+    return res, truth, p
+
+
+@pytest.mark.parametrize("plan, seed", [("six", 1), ("six", 2), ("qureshi18", 3)])
+def test_recovers_the_truth_within_its_stated_uncertainty(plan, seed):
+    res, truth, _ = _fit(plan, seed)
+    z = (res.params - _truth_params(truth)) / res.std
+    # 12 parameters, each |z| < 4.5 has p ~ 1e-4 for a t with >= 6 dof
+    assert np.all(np.abs(z) < 4.5), z
+    # the calibration maps each pose onto its estimated true direction, |g| within noise
+    assert np.allclose(res.matrix, np.array(res.matrix), atol=0)
+    assert res.placement_source == "estimated"
+    assert np.all(np.isfinite(res.residual_loo))
+
+
+def test_placement_error_is_estimated_from_the_data():
+    """18 labelled poses leave ~30 degrees of freedom for the placement: its estimate is
+    within the chi^2 spread of the simulated RMS angle."""
+    for jitter in (0.5, 4.0):
+        res, _, _ = _fit("qureshi18", 5, jitter_deg=jitter)
+        assert res.placement_dof > 20
+        assert 0.6 * jitter < res.placement_deg < 1.5 * jitter, (jitter, res.placement_deg)
+
+
+def test_a_given_placement_is_used_and_not_estimated():
+    session, _ = simulate(plan="six", seed=4, created=CREATED)
+    p = static_poses(session)
+    res = fit_labelled(p.a_mean, p.up, G0, p.cov_mean, placement_deg=0.7)
+    assert res.placement_source == "config" and res.placement_deg == pytest.approx(0.7)
+    assert np.all(np.isinf(res.t_dof[9:]))  # nothing estimated: normal intervals
+
+
+def test_unlabelled_poses_add_their_magnitude_only():
+    """Poses without a label get a free direction: six labelled faces plus random unlabelled
+    poses still calibrate, and the unlabelled ones report no angle to a label."""
+    six, truth = simulate(plan="six", seed=6, created=CREATED)
+    rnd, truth2 = simulate(plan="random:8", seed=6, created=CREATED)
+    assert np.allclose(truth.accel.matrix, truth2.accel.matrix)
+    p6, pr = static_poses(six), static_poses(rnd)
+    a = np.vstack([p6.a_mean, pr.a_mean])
+    up = np.vstack([p6.up, pr.up])
+    cov = np.concatenate([p6.cov_mean, pr.cov_mean])
+    res = fit_labelled(a, up, G0, cov)
+    assert np.all(np.isnan(res.up_angle_deg[6:])) and np.all(np.isfinite(res.up_angle_deg[:6]))
+    z = (res.params - _truth_params(truth)) / res.std
+    assert np.all(np.abs(z) < 4.5), z
+
+
+def test_labels_in_one_plane_are_refused():
+    session, _ = simulate(plan="six", seed=1, created=CREATED)
+    p = static_poses(session)
+    keep = np.abs(p.up[:, 2]) < 0.5  # the four faces with z horizontal
+    with pytest.raises(DesignError, match="one plane"):
+        fit_labelled(p.a_mean[keep], p.up[keep], G0, p.cov_mean[keep])
+
+
+# --------------------------------------------------------------------------- the bound
+
+
+def _design(seed=0, n=18):
+    session, truth = simulate(plan="qureshi18", seed=seed, created=CREATED)
+    p = static_poses(session)
+    M, B = truth.accel.matrix, truth.accel.bias
+    u = np.array(truth.accel.extra["true_up"])
+    return M, B, u, p.cov_mean
+
+
+def _to_public(M, B):
+    """Jacobian from ``theta = (B, K upper, r deg)`` to the solver's parameters."""
+    from scipy.spatial.transform import Rotation
+
+    from imucal_cli.solvers.gravity import _UPPER
+
+    K, Q = triangular_and_rotation(M)
+    theta = np.concatenate([B, K[_UPPER], np.degrees(Rotation.from_matrix(Q).as_rotvec())])
+    return jacobian(public_from_theta, theta)
+
+
+def test_bound_with_a_perfect_fixture_is_the_known_direction_fit():
+    """sigma_p -> 0: the directions are known and (L2) is linear; the bound is its
+    least-squares covariance."""
+    M, B, u, cov = _design()
+    Gt, _ = design_jacobian(M, u, G0)
+    info = sum(G.T @ np.linalg.inv(c) @ G for G, c in zip(Gt, cov, strict=True))
+    T = _to_public(M, B)
+    np.testing.assert_allclose(
+        np.diag(labelled_crb(M, B, u, G0, cov, 1e-7)),
+        np.diag(T @ np.linalg.inv(info) @ T.T),
+        rtol=1e-4,
+    )
+
+
+def test_bound_without_labels_is_the_gravity_magnitude_bound():
+    """sigma_p -> infinity: only the magnitudes inform bias and K; the bound on them is the
+    gravity-magnitude bound (in its triangular frame, which the labels only rotate)."""
+    M, B, u, cov = _design()
+    K, Q = triangular_and_rotation(M)
+    u_k = u @ Q  # directions in the triangular frame
+    T = _to_public(M, B)[:9, :9]
+    grav = np.diag(T @ gravity_crb(K, B, u_k, G0, cov) @ T.T)
+    lab = np.diag(labelled_crb(M, B, u, G0, cov, np.inf))[:9]
+    np.testing.assert_allclose(lab, grav, rtol=1e-3)
+
+
+def test_bound_shrinks_as_the_placement_improves():
+    M, B, u, cov = _design()
+    b = [np.diag(labelled_crb(M, B, u, G0, cov, pl)) for pl in (5.0, 2.0, 0.5)]
+    assert np.all(b[1] <= b[0] * (1 + 1e-9)) and np.all(b[2] <= b[1] * (1 + 1e-9))
+    assert b[2][9] < 0.2 * b[0][9]  # the frame rotation is label-limited
+
+
+# --------------------------------------------------------------------------- the pipeline
+
+
+def test_labelled_and_gravity_agree_on_qureshi18_within_their_stated_std():
+    """Where both solvers can run they estimate the same biases, sensitivities and angles
+    between the axes: they agree far within either's stated std, and state the same std."""
+    for seed in (1, 2):
+        session, _ = simulate(plan="qureshi18", seed=seed, created=CREATED)
+        a = calibrate_session(session, config_from_dict({"accel": {"solver": "gravity"}})).accel
+        b = calibrate_session(session, config_from_dict({"accel": {"solver": "labelled"}})).accel
+        pa = {p["name"]: p for p in a.extra["parameters"]}
+        pb = {p["name"]: p for p in b.extra["parameters"]}
+        pairs = [
+            (pa[n]["value"], pa[n]["std"], pb[n]["value"], pb[n]["std"])
+            for n in "b_x b_y b_z".split()
+        ]
+        for key, std_key in (("sensitivity", "sensitivity_std"),):
+            pairs += zip(
+                a.extra[key], a.extra[std_key], b.extra[key], b.extra[std_key], strict=True
+            )
+        for axes in ("xy", "xz", "yz"):
+            pairs.append(
+                (
+                    a.extra["misalignment_deg"][axes],
+                    a.extra["misalignment_std_deg"][axes],
+                    b.extra["misalignment_deg"][axes],
+                    b.extra["misalignment_std_deg"][axes],
+                )
+            )
+        for va, sa, vb, sb in pairs:
+            assert abs(va - vb) < 0.2 * min(sa, sb), (va, vb, sa, sb)
+            assert sb == pytest.approx(sa, rel=0.2)
+
+
+def test_labelled_section_fields():
+    session, _ = simulate(plan="six", seed=2, created=CREATED)
+    acc = calibrate_session(session, config_from_dict({"accel": {"solver": "labelled"}})).accel
+    x = acc.extra
+    assert acc.solver == "labelled" and x["choice"]["by"] == "config"
+    names = [p["name"] for p in x["parameters"]]
+    assert names == "b_x b_y b_z s_x s_y s_z a_xy a_xz a_yz r_x r_y r_z".split()
+    assert x["sensitivity"] == [p["value"] for p in x["parameters"][3:6]]
+    assert all("ci95" in p and p["ci95"] >= 1.9 * p["std"] for p in x["parameters"])
+    assert x["placement"]["source"] == "estimated" and 0.5 < x["placement"]["rms_deg"] < 5
+    assert len(x["poses"]) == 6 and all(p["angle_to_up_deg"] is not None for p in x["poses"])
+    assert x["noise"]["dof"] > 1000
+
+
+def test_auto_chooses_by_what_the_session_supports():
+    q18, _ = simulate(plan="qureshi18", seed=1, created=CREATED)
+    acc = calibrate_session(q18, Config()).accel
+    assert acc.solver == "gravity" and "distinct poses" in acc.extra["choice"]["reason"]
+    rnd, _ = simulate(plan="random:20", seed=1, created=CREATED)
+    assert calibrate_session(rnd, Config()).accel.solver == "gravity"
+    six, _ = simulate(plan="six", seed=1, created=CREATED)
+    acc = calibrate_session(six, Config()).accel
+    assert acc.solver == "labelled" and "too few" in acc.extra["choice"]["reason"]
+
+
+def test_auto_picks_the_labels_when_they_make_the_fit_more_precise():
+    """A fixture placed far better than the noise: the labelled solver's bound on bias and
+    gains is well below gravity magnitude's, so auto runs it and says by how much."""
+    session, _ = simulate(
+        plan="qureshi18", seed=2, jitter_deg=0.0, accel_noise=0.05, created=CREATED
+    )
+    acc = calibrate_session(session, Config()).accel
+    assert acc.solver == "labelled", acc.extra["choice"]
+    assert "more precise" in acc.extra["choice"]["reason"]
+
+
+def test_placement_config_is_validated():
+    with pytest.raises(ConfigError, match="placement_deg"):
+        config_from_dict({"accel": {"labelled": {"placement_deg": -1}}})
+    cfg = config_from_dict({"accel": {"solver": "labelled", "labelled": {"placement_deg": 1}}})
+    assert cfg.accel.labelled.placement_deg == 1.0
