@@ -141,3 +141,55 @@ def test_simulate_command_writes_the_new_plans(tmp_path):
         assert res.exit_code == 0, res.output
         session = read_session(out)
         assert len(session.segments) == len(load_plan(name).steps)
+
+
+# Names each command must treat alike: every registry plan (with and without its argument,
+# in other cases, with spaces), a TOML plan file, and the refusals.
+SAME_NAMES = [*EXAMPLES.values(), "SIX", " qureshi18 ", "Random:5", "qureshi-axes", "still:1",
+              "free", "six:2", "random:x", "random:0", "still:-1", "seven", "qureshi-axes:0",
+              "missing.toml", "PLAN_FILE"]  # fmt: skip
+
+
+def test_capture_and_simulate_accept_exactly_the_same_plan_names(tmp_path):
+    """``capture --plan X`` (guided and --no-prompt) and ``simulate --plan X`` (file and
+    --serve) accept the same names and refuse the others with the same message.  The output
+    goes to a folder that does not exist, which every command checks after the plan: an
+    accepted plan ends there, before any port is opened or any sample simulated."""
+    from typer.testing import CliRunner
+
+    from imucal_cli.cli import app
+
+    plan_file = tmp_path / "mine.toml"
+    plan_file.write_text('name = "mine"\n[[step]]\nkind = "static"\nlabel = "flat"\n'
+                         'up = [0, 0, 1]\n')  # fmt: skip
+    out = str(tmp_path / "no-such-folder" / "x.h5")
+    commands = {
+        "capture": ["capture", "--port", str(tmp_path / "no-port"), "-o", out],
+        "capture --no-prompt": [
+            "capture",
+            "--port",
+            str(tmp_path / "no-port"),
+            "--no-prompt",
+            "-o",
+            out,
+        ],  # fmt: skip
+        "simulate": ["simulate", "-o", out],
+    }
+    accepted = {}
+    for name in SAME_NAMES:
+        name = str(plan_file) if name == "PLAN_FILE" else name
+        errors = {}
+        for what, args in commands.items():
+            res = CliRunner().invoke(app, [*args, "--plan", name])
+            assert isinstance(res.exception, InputError), (what, name, res.output)
+            errors[what] = str(res.exception)
+        refused = {what: "does not exist" not in e for what, e in errors.items()}
+        assert len(set(refused.values())) == 1, (name, errors)
+        if any(refused.values()):  # the same refusal, word for word
+            assert len(set(errors.values())) == 1, (name, errors)
+        accepted[name] = not any(refused.values())
+    assert all(accepted[n] for n in EXAMPLES.values())
+    assert accepted["SIX"] and accepted[str(plan_file)] and not accepted["seven"]
+    # --serve takes the same path: the plan is checked before the pseudo-terminal opens
+    res = CliRunner().invoke(app, ["simulate", "--serve", "--plan", "seven"])
+    assert isinstance(res.exception, InputError) and "is unknown" in str(res.exception)
