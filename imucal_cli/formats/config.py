@@ -13,6 +13,8 @@ Example (every key optional; these are the defaults)::
     # range = [-32768, 32767]      # raw output range; default inferred from the units/data
     max_scale_error = 0.20       # flag a sensitivity further than this from nominal
     min_separation_deg = 10.0    # poses closer than this count as one direction
+    outliers = "exclude"         # poses that disagree with the rest (a bump, motion during the
+                                 # hold, a wrong label): "exclude", "downweight" or "keep"
 
     [accel.gravity]
     model = "9"                  # "9": eqs. (3)-(8); "12": full matrix aligned to the labels
@@ -126,6 +128,7 @@ class AccelConfig:
     range: list[float] | None = None
     max_scale_error: float = 0.20
     min_separation_deg: float = 10.0
+    outliers: str = "exclude"
     gravity: GravityOptions = field(default_factory=GravityOptions)
     labelled: LabelledOptions = field(default_factory=LabelledOptions)
     factorization: AccelFactorizationOptions = field(default_factory=AccelFactorizationOptions)
@@ -249,6 +252,7 @@ def validate(cfg: Config, where: str = "<config>") -> None:
     """Check values (after flags have overridden the file); raises :class:`ConfigError`."""
     a = cfg.accel
     _one_of(where, "accel", "solver", a.solver, ACCEL_SOLVERS)
+    _one_of(where, "accel", "outliers", a.outliers, ("exclude", "downweight", "keep"))
     g = a.gravity
     _one_of(where, "accel.gravity", "model", g.model, ("9", "12"))
     _one_of(where, "accel.gravity", "init", g.init, ("auto", "updown", "ellipsoid"))
