@@ -175,3 +175,22 @@ def test_units_not_stated_are_inferred_and_said():
     si, _ = simulate(plan="qureshi18", seed=6, created=CREATED, units="m/s^2")
     x = calibrate_session(replace(si, accel_units=None), _cfg("gravity")).accel.extra
     assert x["units_in"] == "m/s^2"
+
+
+def test_deletion_diagnostics_batched_equal_the_per_group_formula():
+    """The vectorised deletion (groups of one size) is the module docstring's formula."""
+    from imucal_cli.solvers.outliers import deletion
+
+    rng = np.random.default_rng(1)
+    for L in (1, 3):
+        N, p = 12, 7
+        J, r = rng.normal(size=(N * L, p)), rng.normal(size=N * L)
+        P = np.linalg.inv(J.T @ J)
+        groups = [np.arange(k * L, (k + 1) * L) for k in range(N)]
+        d = deletion(J, r, groups, P)
+        for k, rows in enumerate(groups):
+            A = np.eye(L) - J[rows] @ P @ J[rows].T
+            T = r[rows] @ np.linalg.solve(A, r[rows])
+            dx = P @ J[rows].T @ np.linalg.solve(A, r[rows])
+            assert d.T[k] == pytest.approx(T, rel=1e-9) and d.rank[k] == L
+            np.testing.assert_allclose(d.dx[k], dx, rtol=1e-8, atol=1e-12)

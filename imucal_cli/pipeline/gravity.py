@@ -78,11 +78,8 @@ def held_out(
     return res.residual_loo, "first-order deletion of each pose"
 
 
-def gravity_section(
-    session: Session, cfg: Config, poses: StaticPoses, g: float, nominal
-) -> SensorCalibration:
-    """Fit the gravity solver to ``poses`` (outliers handled) and build the accel section."""
-    where = session_name(session)
+def design_check(nominal, cfg: Config, where: str):
+    """Whether a reduced set of poses (outliers left out) still determines the model."""
 
     def design_ok(p: StaticPoses) -> bool:
         try:
@@ -91,8 +88,37 @@ def gravity_section(
             return False
         return True
 
+    return design_ok
+
+
+def solver_fields(res: gravity_solver.GravityResult, units: list[str]) -> dict:
+    """The fields of the section that describe the gravity solver's fit."""
+    return {
+        "variant": res.variant,
+        "gauge": GAUGE_9 if res.variant == "9-parameter" else GAUGE_12,
+        "parameters": parameter_rows(res.param_names, res.params, res.std, units),
+        "init": res.init,
+        "weighting": res.weighting,
+        "iterations": res.iterations,
+        "function_evaluations": res.nfev,
+        "converged": res.converged,
+        "message": res.message,
+        "chi2": res.chi2,
+        "dof": res.dof,
+        "noise_scale": res.noise_scale,
+        "rotation_std_deg": res.rotation_std_deg,
+    }
+
+
+def gravity_section(
+    session: Session, cfg: Config, poses: StaticPoses, g: float, nominal
+) -> SensorCalibration:
+    """Fit the gravity solver to ``poses`` (outliers handled) and build the accel section."""
     res, used, outliers = robust_fit(
-        lambda p: fit_poses(p, g, cfg), poses, cfg.accel.outliers, design_ok
+        lambda p: fit_poses(p, g, cfg),
+        poses,
+        cfg.accel.outliers,
+        design_check(nominal, cfg, session_name(session)),
     )
     used_index = np.array([poses.segments.index(s) for s in used.segments])
     loo, loo_method = held_out(used, g, res, cfg)
@@ -135,19 +161,7 @@ def gravity_section(
     )
     extra.update(
         {
-            "variant": res.variant,
-            "gauge": GAUGE_9 if res.variant == "9-parameter" else GAUGE_12,
-            "parameters": parameter_rows(res.param_names, res.params, res.std, units),
-            "init": res.init,
-            "weighting": res.weighting,
-            "iterations": res.iterations,
-            "function_evaluations": res.nfev,
-            "converged": res.converged,
-            "message": res.message,
-            "chi2": res.chi2,
-            "dof": res.dof,
-            "noise_scale": res.noise_scale,
-            "rotation_std_deg": res.rotation_std_deg,
+            **solver_fields(res, units),
             "loo_method": loo_method,
             **check_fields(
                 q,

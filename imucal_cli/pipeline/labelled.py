@@ -34,6 +34,11 @@ GAUGE = (
 )
 
 
+def design_ok(p: StaticPoses) -> bool:
+    """Whether a reduced set of poses (outliers left out) still determines the model."""
+    return labels_determine(p.up) and len(p.segments) >= 5
+
+
 def used_up(poses: StaticPoses, used: StaticPoses, used_index: np.ndarray) -> np.ndarray:
     """The labels as the final fit used them (a wrong label dropped), for every pose."""
     up = poses.up.copy()
@@ -89,9 +94,6 @@ def labelled_section(
 ) -> SensorCalibration:
     """Fit the labelled solver to ``poses`` (outliers handled) and build the accel section."""
 
-    def design_ok(p: StaticPoses) -> bool:
-        return labels_determine(p.up) and len(p.segments) >= 5
-
     relabelled, wrong = drop_wrong_labels(poses, g)
     screened, screen = screen_by_magnitude(relabelled, g, cfg, nominal, design_ok)
     res, used, outliers = robust_fit(
@@ -120,7 +122,6 @@ def labelled_section(
         min_separation_deg=cfg.accel.min_separation_deg,
     )
     units = [units_in] * 3 + [f"{units_in} per m/s^2"] * 3 + ["deg"] * 6
-    r_std = res.std[9:12]
     physical = physical_checks(
         res.bias, summary[0][:3], rms(res.residuals), nominal, cfg, units_in, g,
     )  # fmt: skip
@@ -137,27 +138,8 @@ def labelled_section(
     )
     extra.update(
         {
-            "variant": "12-parameter (labelled poses)",
-            "gauge": GAUGE,
-            "parameters": parameter_rows(res.param_names, res.params, res.std, units, res.ci95),
-            "placement": {
-                "rms_deg": res.placement_deg,
-                "source": res.placement_source,
-                "dof": res.placement_dof,
-                "meaning": "RMS angle between each pose's true up and its label",
-            },
-            "init": res.init,
-            "weighting": "noise",
-            "iterations": res.iterations,
-            "function_evaluations": res.nfev,
-            "converged": res.converged,
-            "message": res.message,
-            "chi2": res.chi2,
-            "dof": res.dof,
-            "noise_scale": res.noise_scale,
-            "rotation_std_deg": float(np.sqrt(np.mean(r_std**2))),
-            "loo_method": "first-order deletion of each pose",
-            **check_fields(q, outliers, physical, [] + ([units_note] if units_note else [])),
+            **solver_fields(res, units),
+            **check_fields(q, outliers, physical, [units_note] if units_note else []),
         }
     )
     return SensorCalibration(
@@ -168,6 +150,33 @@ def labelled_section(
         residual_rms=rms(res.residuals),
         extra=extra,
     )
+
+
+def solver_fields(res: labelled_solver.LabelledResult, units: list[str]) -> dict:
+    """The fields of the section that describe the labelled solver's fit."""
+    r_std = res.std[9:12]
+    return {
+        "variant": "12-parameter (labelled poses)",
+        "gauge": GAUGE,
+        "parameters": parameter_rows(res.param_names, res.params, res.std, units, res.ci95),
+        "placement": {
+            "rms_deg": res.placement_deg,
+            "source": res.placement_source,
+            "dof": res.placement_dof,
+            "meaning": "RMS angle between each pose's true up and its label",
+        },
+        "init": res.init,
+        "weighting": "noise",
+        "iterations": res.iterations,
+        "function_evaluations": res.nfev,
+        "converged": res.converged,
+        "message": res.message,
+        "chi2": res.chi2,
+        "dof": res.dof,
+        "noise_scale": res.noise_scale,
+        "rotation_std_deg": float(np.sqrt(np.mean(r_std**2))),
+        "loo_method": "first-order deletion of each pose",
+    }
 
 
 def calibrate_accel_labelled(session: Session, cfg: Config) -> SensorCalibration:
