@@ -8,7 +8,7 @@ import pytest
 
 from imucal_cli.capture.recorder import Recorder
 from imucal_cli.capture.unattended import run_unattended
-from imucal_cli.errors import InputError
+from imucal_cli.errors import ImucalError, InputError
 from imucal_cli.formats.session import read_session
 from imucal_cli.plans import BUILTIN_PLANS, PLANS, find_plan, load_plan, plan_help
 from imucal_cli.simulate.device import _columns, _format, stream_arrays
@@ -181,7 +181,7 @@ def test_capture_and_simulate_accept_exactly_the_same_plan_names(tmp_path):
         errors = {}
         for what, args in commands.items():
             res = CliRunner().invoke(app, [*args, "--plan", name])
-            assert isinstance(res.exception, InputError), (what, name, res.output)
+            assert isinstance(res.exception, ImucalError), (what, name, res.output)
             errors[what] = str(res.exception)
         refused = {what: "does not exist" not in e for what, e in errors.items()}
         assert len(set(refused.values())) == 1, (name, errors)

@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.markup import escape
 
 from imucal_cli.errors import InputError
+from imucal_cli.formats.output import check_output
 
 from . import completion
 from .app import app
@@ -177,11 +178,7 @@ def capture(
             from imucal_cli.capture import guided
         except ImportError:
             raise InputError("guided mode not available yet: use --no-prompt") from None
-    out = output if output is not None else default_output()
-    if out.exists() and not force:
-        raise InputError(f"{out} exists: use --force to overwrite it")
-    if not out.parent.is_dir():
-        raise InputError(f"{out}: directory {out.parent} does not exist")
+    out = check_output(output if output is not None else default_output(), force=force)
 
     console = make_console(stderr=json_output)  # with --json, stdout holds the JSON alone
     err = make_console(stderr=True)
@@ -200,6 +197,12 @@ def capture(
     except BaseException:
         source.close()
         raise
+    if accel_units is None:  # issue 10.4 (said once the port opened: errors stay one line)
+        status(
+            "warning: accelerometer units not stated (--accel-units counts, g or m/s^2); "
+            "calibrate will infer them from the magnitude, or set them later with `imucal "
+            "label SESSION --accel-units UNITS`"
+        )
     try:
         if no_prompt:
             from imucal_cli.capture.unattended import run_unattended

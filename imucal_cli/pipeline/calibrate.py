@@ -19,6 +19,7 @@ from imucal_cli.pipeline.common import (  # noqa: F401 (re-exported for callers)
     nominal_sensor,
     session_name,
     static_poses,
+    stored_accel_hint,
     with_segments,
 )
 
@@ -26,6 +27,16 @@ from imucal_cli.pipeline.common import (  # noqa: F401 (re-exported for callers)
 def calibrate_accel(session: Session, cfg: Config) -> SensorCalibration | None:
     """Run the configured accelerometer solver (``[accel] solver``) on a session; ``"auto"``
     chooses (:mod:`imucal_cli.pipeline.choose`) and may find nothing to calibrate (None)."""
+    try:
+        return _run_accel(session, cfg)
+    except DesignError as exc:  # name what the user already has (issue 9.6)
+        hint = stored_accel_hint(session)
+        if not hint:
+            raise
+        raise DesignError(f"{exc}{hint}") from None
+
+
+def _run_accel(session: Session, cfg: Config) -> SensorCalibration | None:
     solver = cfg.accel.solver
     if solver == "auto":
         from imucal_cli.pipeline.choose import auto_accel
@@ -221,8 +232,16 @@ def calibrate_session(
 
 
 def suspect_error(cal: Calibration) -> SolverError | None:
-    """A :class:`SolverError` describing the physical-sense warnings, or None when clean."""
-    warnings = [w for sec in (cal.accel, cal.gyro) if sec for w in sec.extra.get("warnings", [])]
+    """A :class:`SolverError` describing what stops a save (results outside physical sense, a
+    fit far above the noise), or None when clean. A section that lists ``blocking`` warnings
+    stops on those only (its other warnings are said, not refused); otherwise every warning
+    stops it."""
+    warnings = [
+        w
+        for sec in (cal.accel, cal.gyro)
+        if sec
+        for w in sec.extra.get("blocking", sec.extra.get("warnings", []))
+    ]
     if not warnings:
         return None
     more = f" (and {len(warnings) - 1} more)" if len(warnings) > 1 else ""

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from imucal_cli.errors import DesignError
-from imucal_cli.formats.config import Config
+from imucal_cli.formats.config import Config, per_channel
 from imucal_cli.formats.session import Segment, Session
 from imucal_cli.solvers import holds
 from imucal_cli.solvers.holds import PooledNoise
@@ -96,6 +96,12 @@ def static_poses(session: Session) -> StaticPoses:
     sigma0 = np.maximum(1.4826 * np.median(mad, axis=0), max(step, 1e-12))
     n_total = sum(len(b) for b in blocks)
     masks = [holds.spike_mask(b, sigma0, n_total) for b in blocks]
+    # A hold that drifts (the unit tilting slowly) puts its ends far from its median: those
+    # samples are motion, not spikes; the trend test below flags the hold instead.
+    cov0 = np.diag(sigma0**2)
+    for k, (t, b, m) in enumerate(zip(times, blocks, masks, strict=True)):
+        if m.sum() > 2 and holds.trend(t, b, cov0, len(segs)).moved:
+            masks[k] = np.zeros(len(b), bool)
     clean = [b[~m] if (~m).sum() >= 2 else b for b, m in zip(blocks, masks, strict=True)]
     ctimes = [t[~m] if (~m).sum() >= 2 else t for t, m in zip(times, masks, strict=True)]
     noise = holds.pooled_noise(clean, step)
@@ -139,10 +145,48 @@ def adc_range(data_min: float, data_max: float) -> tuple[float, float] | None:
     return None
 
 
+def infer_accel_units(accel: np.ndarray, g: float) -> str | None:
+    """The raw units an accelerometer's readings are plausibly in, from their magnitude
+    (issue 10.4): ``"m/s^2"`` when |a| is near g, ``"g"`` near 1, ``"counts"`` for integer
+    readings or magnitudes far above g; None when nothing fits."""
+    finite = accel[np.isfinite(accel).all(axis=1)]
+    if not len(finite) or accel.shape[1] != 3:
+        return None
+    mag = float(np.median(np.linalg.norm(finite, axis=1)))
+    if 0.7 * g < mag < 1.3 * g:
+        return "m/s^2"
+    if 0.7 < mag < 1.3:
+        return "g"
+    sample = finite[:: max(1, len(finite) // 2000)]
+    if mag > 3 * g or np.all(sample == np.round(sample)):
+        return "counts"
+    return None
+
+
+def accel_units(session: Session, g: float) -> tuple[str, str | None]:
+    """The accelerometer's raw units and, when the session does not state them, a note saying
+    what was assumed from the magnitude and how to state them (issue 10.4)."""
+    if session.accel_units:
+        return session.accel_units, None
+    how = (
+        "state them with `imucal label SESSION --accel-units UNITS` (or --accel-units at "
+        "import/capture)"
+    )
+    guess = infer_accel_units(session.accel, g)
+    if guess is None:
+        return "raw units", f"the session does not state the accelerometer units; {how}"
+    finite = session.accel[np.isfinite(session.accel).all(axis=1)]
+    mag = float(np.median(np.linalg.norm(finite, axis=1)))
+    return guess, (
+        f"the session does not state the accelerometer units: |a| at rest is about {mag:.4g}, "
+        f"so they are taken as {guess}; {how}"
+    )
+
+
 def nominal_sensor(session: Session, cfg: Config, g: float) -> Nominal:
     """Nominal sensitivity, bias and range from the config, else from the units and data."""
     a = cfg.accel
-    units = session.accel_units or "unknown units"
+    units = accel_units(session, g)[0]
     accel = session.accel
     n = accel.shape[1]
     sens = a.nominal_sensitivity
@@ -157,7 +201,7 @@ def nominal_sensor(session: Session, cfg: Config, g: float) -> Nominal:
             finite = accel[np.isfinite(accel).all(axis=1)]
             rng = adc_range(float(finite.min()), float(finite.max())) if len(finite) else None
     if a.nominal_bias is not None:
-        bias = np.broadcast_to(np.asarray(a.nominal_bias, float), (n,)).copy()
+        bias = np.array(per_channel(a.nominal_bias, n, "accel.nominal_bias"))
     elif rng is not None and rng[0] == 0.0 and units == "counts":
         bias = np.full(n, (rng[1] + 1) / 2)  # unsigned ADC: zero-g at mid-scale
     else:
@@ -202,7 +246,7 @@ def check_design(
         raise DesignError(
             f"{where}: {N} static poses give only {distinct} distinct gravity directions "
             f"(>{min_separation_deg:g} deg apart); {name} needs at least 9"
-            + _what_would_work(poses)
+            + _what_would_work(poses, directions)
         )
     spread = spread_deg(directions)
     if spread <= MIN_SPREAD_DEG:
@@ -223,14 +267,40 @@ def labels_determine(up: np.ndarray) -> bool:
     return bool(np.linalg.matrix_rank(X, tol=1e-6) == 4)
 
 
-def _what_would_work(poses: StaticPoses) -> str:
+def _what_would_work(poses: StaticPoses, directions: np.ndarray) -> str:
+    """What would calibrate these poses, before a new capture (issue 9.6)."""
     if labels_determine(poses.up):
         return (
             "; these poses carry `up` labels, which the labelled-pose solver uses: "
             '[accel] solver = "labelled" (or the default "auto"), or capture the 45-degree '
             "edges too (plan qureshi18)"
         )
+    near = int(np.sum(np.max(np.abs(directions), axis=1) > np.cos(np.radians(15.0))))
+    if near >= 4:
+        return (
+            f"; {near} poses lie within 15 deg of a face: label them (`imucal label SESSION "
+            '--faces`) and the labelled-pose solver ([accel] solver = "auto") calibrates them, '
+            "or capture the 45-degree edges too (plan qureshi18)"
+        )
     return ": capture the 6 faces and the 45-degree edges (plan qureshi18)"
+
+
+def stored_accel_hint(session: Session) -> str:
+    """A pointer to an accelerometer calibration already stored in the session, or ''."""
+    import json
+
+    for name in sorted(session.calibrations, reverse=True):
+        try:
+            accel = json.loads(session.calibrations[name]).get("accel")
+        except (ValueError, AttributeError):
+            continue
+        if isinstance(accel, dict):
+            solver = accel.get("solver", "an earlier")
+            return (
+                f"; this session already stores an accelerometer calibration "
+                f"(/calibrations/{name}, {solver} solver): `imucal report SESSION` shows it"
+            )
+    return ""
 
 
 def physical_checks(
