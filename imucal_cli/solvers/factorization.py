@@ -31,10 +31,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg
-from scipy.optimize import least_squares
 from scipy.special import chdtri
 
 from imucal_cli.errors import DesignError
+
+from .lsq import least_squares
 
 
 @dataclass(frozen=True)
@@ -630,7 +631,6 @@ def refine(
     sol = least_squares(
         residuals,
         x0,
-        method="trf",
         x_scale=x_scale,
         xtol=1e-12,
         ftol=1e-12,
