@@ -31,9 +31,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg
-from scipy.special import chdtri
 
 from imucal_cli.errors import DesignError
+from imucal_cli.solvers.quantiles import chdtri
 
 from .lsq import least_squares
 

@@ -29,10 +29,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial.transform import Rotation
-from scipy.special import chdtri  # inverse survival function of chi^2 (lighter than scipy.stats)
 
 from imucal_cli.errors import DesignError, SolverError
+from imucal_cli.solvers.quantiles import chdtri  # inverse survival function of chi^2
+from imucal_cli.solvers.rotation import Rotation
 
 from .ellipsoid import fit_ellipsoid
 from .lsq import least_squares

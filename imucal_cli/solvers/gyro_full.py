@@ -34,13 +34,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.special import chdtri, fdtrc
 
 from imucal_cli.errors import DesignError, SolverError
 from imucal_cli.solvers.gyro_integration import integrate_rotations
 from imucal_cli.solvers.gyro_model import Problem, Rotations, Stills
 from imucal_cli.solvers.gyro_start import Start, start_values
 from imucal_cli.solvers.lsq import least_squares
+from imucal_cli.solvers.quantiles import chdtri, fdtrc
 
 #: A fit leaving a turn's gravity direction further off than this did not find the turns'
 #: minimum: the next start is tried.

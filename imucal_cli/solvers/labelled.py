@@ -79,10 +79,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
-from scipy.special import chdtri, stdtrit
 
 from imucal_cli.errors import DesignError, SolverError
+from imucal_cli.solvers.quantiles import chdtri, stdtrit
+from imucal_cli.solvers.rotation import Rotation
 
 from .gravity import _UPPER
 from .labelled_model import (

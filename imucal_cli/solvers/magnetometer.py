@@ -51,10 +51,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial.transform import Rotation
-from scipy.special import chdtri
 
 from imucal_cli.errors import DesignError, SolverError
+from imucal_cli.solvers.quantiles import chdtri
+from imucal_cli.solvers.rotation import Rotation
 
 from .ellipsoid import fit_ellipsoid
 from .lsq import least_squares
