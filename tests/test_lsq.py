@@ -160,3 +160,37 @@ def test_factorization_and_gyro_full_families(with_scipy, cfg):
         vals = np.array([p["value"] for p in a.extra["parameters"]])
         vals_ref = np.array([p["value"] for p in r.extra["parameters"]])
         _agree(vals, vals_ref, std)
+
+
+def test_bounded_scalar_minimum_matches_scipy():
+    from imucal_cli.solvers.scalar_min import minimize_bounded
+
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        c, s, w = rng.uniform(-2, 2), rng.uniform(0.3, 3), rng.uniform(0, 2)
+
+        def f(x, c=c, s=s, w=w):
+            return s * (x - c) ** 2 + 0.1 * w * np.sin(3 * x) + abs(x - c) ** 3
+
+        ref = scipy.optimize.minimize_scalar(f, bounds=(-3, 3), method="bounded",
+                                             options={"xatol": 2e-3})  # fmt: skip
+        x, fx, n = minimize_bounded(f, -3, 3, xatol=2e-3)
+        assert abs(x - ref.x) < 1e-9 and fx == pytest.approx(ref.fun) and n == ref.nfev
+
+
+def test_pencil_roots_match_scipy_generalised_eigenvalues():
+    import scipy.linalg
+
+    from imucal_cli.solvers.factorization import _pencil_roots
+
+    rng = np.random.default_rng(1)
+    for k in range(4):
+        A, B = (rng.standard_normal((4, 4)) for _ in range(2))
+        A, B = A + A.T, B + B.T
+        if k == 3:  # a singular B: one root at infinity
+            B[:, 0] = B[0, :] = 0
+        ours, ref = _pencil_roots(A, B), scipy.linalg.eigvals(A, -B)
+        finite = np.isfinite(ref)
+        assert np.sum(~np.isfinite(ours)) == np.sum(~finite)
+        for r in ref[finite]:  # each root found (conjugate pairs in any order)
+            assert np.min(np.abs(ours[np.isfinite(ours)] - r)) < 1e-9 * max(1, abs(r))
