@@ -15,6 +15,7 @@ scalars or arrays.
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 
 import numpy as np
 
@@ -57,6 +58,7 @@ def _gamma_p_q(a: float, x: float) -> tuple[float, float]:
     return 1.0 - q, q
 
 
+@lru_cache(maxsize=1024)  # the solvers ask for the same few quantiles per pose
 def _chi2_quantile(dof: float, prob: float, upper: bool) -> float:
     """``x`` with ``P(chi2_dof <= x) = prob`` (``upper``: ``P(chi2_dof > x) = prob``)."""
     if upper and prob > 0.5:  # the lower tail is the small one: no cancellation in 1 - Q

@@ -201,9 +201,9 @@ def _read_segments(
             obj = group.get(name)
             if isinstance(obj, h5py.Group):
                 where = f"/segments/{name}"
-                get = _attr_getter(obj.attrs, src, where)
-                segment = _parse_segment(name, get, src, where, n, accel, gyro)
-                segment.extra.update(_extra_attrs(obj.attrs.items()))
+                attrs = _read_attrs(obj.attrs, src, where)  # each attribute read once
+                segment = _parse_segment(name, attrs.get, src, where, n, accel, gyro)
+                segment.extra.update(_extra_attrs(attrs.items()))
                 segments.append(segment)
     log = file.get(LOG_DATASET)
     if not segments and isinstance(log, h5py.Dataset):
@@ -241,8 +241,16 @@ def _extra_attrs(items) -> dict[str, Any]:
     return extra
 
 
-def _attr_getter(attrs: h5py.AttributeManager, src: str, where: str) -> Callable[[str], Any]:
-    return lambda name: get_attr(attrs, name, src, f"{where}: ")
+def _read_attrs(attrs: h5py.AttributeManager, src: str, where: str) -> dict[str, Any]:
+    """Every attribute of an object, read once (h5py reads cost ~0.1 ms each: a long session
+    has thousands); an unreadable value is an error naming it."""
+    out = {}
+    for name in attrs:
+        try:
+            out[name] = attrs[name]
+        except (OSError, TypeError, ValueError):
+            out[name] = get_attr(attrs, name, src, f"{where}: ")  # raises the named error
+    return out
 
 
 def _parse_segment(
