@@ -83,7 +83,8 @@ def reverse_cuthill_mckee(row: np.ndarray, col: np.ndarray, n: int) -> np.ndarra
     least degree in each connected part, neighbours in increasing degree, then reversed."""
     off = row != col
     r, c = np.concatenate([row[off], col[off]]), np.concatenate([col[off], row[off]])
-    pairs = np.unique(np.stack([r, c], 1), axis=0) if len(r) else np.zeros((0, 2), int)
+    key = np.unique(r.astype(np.int64) * n + c)  # distinct pairs, by row (a 1-D sort: fast)
+    pairs = np.stack([key // n, key % n], 1)
     degree = np.bincount(pairs[:, 0], minlength=n) if len(pairs) else np.zeros(n, int)
     starts = np.r_[0, np.cumsum(degree)]
     # neighbours of each node sorted by their degree (then index)
