@@ -69,3 +69,18 @@ def test_align_vectors_matches_scipy(n, weighted):
     # antiparallel single pair: a half turn taking b onto a
     r, _ = Rotation.align_vectors([[0, 0, -1.0]], [[0, 0, 1.0]])
     np.testing.assert_allclose(r.apply([0, 0, 1.0]), [0, 0, -1.0], atol=1e-12)
+
+
+def test_align_vectors_with_a_primary_pair_matches_scipy():
+    rng = np.random.default_rng(11)
+    b = rng.standard_normal((5, 3))
+    b /= np.linalg.norm(b, axis=1, keepdims=True)
+    a = SciRotation.random(random_state=rng).apply(b) + 0.05 * rng.standard_normal((5, 3))
+    w = np.array([np.inf, 1.0, 2.0, 0.5, 1.0])
+    ours, rssd = Rotation.align_vectors(a, b, weights=w)
+    ref, rssd_ref = SciRotation.align_vectors(a, b, weights=w)
+    np.testing.assert_allclose(ours.as_matrix(), ref.as_matrix(), atol=1e-10)
+    assert rssd == pytest.approx(rssd_ref, rel=1e-9)
+    # the primary pair is aligned exactly
+    p = ours.apply(b[0])
+    np.testing.assert_allclose(p / np.linalg.norm(p), a[0] / np.linalg.norm(a[0]), atol=1e-12)

@@ -68,8 +68,12 @@ class Rotation:
         if a.shape != b.shape or a.shape[-1] != 3:
             raise ValueError(f"align_vectors needs two (N, 3) arrays, got {a.shape}, {b.shape}")
         w = np.ones(len(a)) if weights is None else np.asarray(weights, float)
-        if len(a) == 1:
-            R = _shortest(a[0] / np.linalg.norm(a[0]), b[0] / np.linalg.norm(b[0]))
+        primary = np.flatnonzero(np.isinf(w))
+        if len(primary) > 1:
+            raise ValueError("only one infinite weight (the primary vector pair) is allowed")
+        if len(a) == 1 or len(primary):
+            R = _primary_secondary(a, b, w, int(primary[0]) if len(primary) else 0)
+            w = np.where(np.isinf(w), 0.0, w)  # scipy's rssd leaves the primary pair out
         else:
             H = (w[:, None] * a).T @ b  # attitude profile matrix B = sum w a b^T
             U, _, Vt = np.linalg.svd(H)
@@ -120,6 +124,21 @@ class Rotation:
         if self._m.ndim == 2:
             raise TypeError("a single rotation has no len()")
         return len(self._m)
+
+
+def _primary_secondary(a: np.ndarray, b: np.ndarray, w: np.ndarray, p: int) -> np.ndarray:
+    """Pair ``p`` aligned exactly (the shortest rotation), then the turn about ``a_p`` that
+    best aligns the other pairs (weights ``w``): scipy's rule for one infinite weight."""
+    u = a[p] / np.linalg.norm(a[p])
+    R1 = _shortest(u, b[p] / np.linalg.norm(b[p]))
+    rest = np.arange(len(a)) != p
+    if not rest.any():
+        return R1
+    c, t, ws = b[rest] @ R1.T, a[rest], w[rest]
+    # a . R(theta) c = cos(theta) (a.c - (u.a)(u.c)) + sin(theta) a.(u x c) + constant
+    S = float(np.sum(ws * np.sum(t * np.cross(u, c), axis=1)))
+    C = float(np.sum(ws * (np.sum(t * c, axis=1) - (t @ u) * (c @ u))))
+    return Rotation.from_rotvec(u * np.arctan2(S, C)).as_matrix() @ R1
 
 
 def _shortest(a: np.ndarray, b: np.ndarray) -> np.ndarray:
