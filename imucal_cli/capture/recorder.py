@@ -219,6 +219,7 @@ class Recorder:
             gyro_channels=None if block.gyro is None else block.gyro.shape[1],
             mag_channels=None if block.mag is None else block.mag.shape[1],
             temperature=block.temperature is not None,
+            host_time=block.host_time is not None,
             flush_interval_s=FLUSH_INTERVAL_S,
             overwrite=self._overwrite,
             **self._meta,
@@ -227,7 +228,8 @@ class Recorder:
     def _append(self, block: SampleBlock) -> None:
         if self._writer is None:
             self._open_writer(block)
-        self._writer.append(block.time, block.accel, block.gyro, block.temperature, block.mag)
+        self._writer.append(block.time, block.accel, block.gyro, block.temperature, block.mag,
+                            host_time=block.host_time)  # fmt: skip
         if self._device_first is None:
             self._device_first = float(block.time[0])
         self._device_last = float(block.time[-1])

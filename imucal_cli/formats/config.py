@@ -59,6 +59,16 @@ Example (every key optional; these are the defaults)::
     # fixture_tolerance_deg = 0.0  # how square the turns are; default: from the data
     max_iterations = 200
 
+    [temperature]                # each channel's bias a polynomial in temperature (issue 17.1)
+    model = "auto"               # "auto": when the still periods span min_span_c or more;
+                                 # "on": always (refused when the data cannot give it); "off"
+    max_degree = 3               # highest degree tried; the data choose (F-tests)
+    min_span_c = 10.0            # narrowest temperature span fitted, C (at least 10)
+
+    [clock]                      # the device's sample clock against the host's (issue 17.2)
+    model = "auto"               # "auto": estimated and corrected when the session records host
+                                 # arrival times (/raw/host_time); "off"
+
 Unknown keys and wrong types are errors (a typo must not silently fall back to a default).
 """
 
@@ -163,12 +173,30 @@ class GyroConfig:
 
 
 @dataclass
+class TemperatureConfig:
+    """``[temperature]``: the bias temperature model (issue 17.1)."""
+
+    model: str = "auto"
+    max_degree: int = 3
+    min_span_c: float = 10.0
+
+
+@dataclass
+class ClockConfig:
+    """``[clock]``: the device's sample clock against the host's (issue 17.2)."""
+
+    model: str = "auto"
+
+
+@dataclass
 class Config:
     """The whole configuration."""
 
     gravity: float | None = None
     accel: AccelConfig = field(default_factory=AccelConfig)
     gyro: GyroConfig = field(default_factory=GyroConfig)
+    temperature: TemperatureConfig = field(default_factory=TemperatureConfig)
+    clock: ClockConfig = field(default_factory=ClockConfig)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict (for recording in the calibration JSON); None values dropped."""
@@ -279,6 +307,15 @@ def validate(cfg: Config, where: str = "<config>") -> None:
     ):
         if n < 1:
             raise ConfigError(f"{where}: [{table}] max_iterations must be at least 1")
+    t = cfg.temperature
+    _one_of(where, "temperature", "model", t.model, ("auto", "on", "off"))
+    _one_of(where, "clock", "model", cfg.clock.model, ("auto", "off"))
+    if not 1 <= t.max_degree <= 3:
+        raise ConfigError(f"{where}: [temperature] max_degree must be 1, 2 or 3")
+    if not t.min_span_c >= 10.0:
+        raise ConfigError(f"{where}: [temperature] min_span_c must be at least 10 (C): over a "
+                          "narrower span the bias change is of the order of the noise and of "
+                          "run-to-run drift")  # fmt: skip
     if cfg.gyro.factorization.samples_per_segment < 3:
         raise ConfigError(f"{where}: [gyro.factorization] samples_per_segment must be at least 3")
     if cfg.gravity is not None and not 9.0 < cfg.gravity < 10.5:

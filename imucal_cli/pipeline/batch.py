@@ -55,9 +55,13 @@ class SessionResult:
 
 def calibrate_file(
     path: Path, cfg: Config, *, output: Path | None = None, force: bool = False, store: bool = True,
-    accel=None,
+    accel=None, warmup: list[Path] | None = None, also: list[Path] | None = None,
 ) -> tuple[Calibration, Path, str]:
     """Calibrate one session file, write its JSON and store it in the session.
+
+    ``warmup``: still warm-up recordings of the unit (the bias temperature model); ``also``:
+    more sessions of the unit, merged with this one (:func:`~imucal_cli.pipeline.temperature.
+    merge_sessions`).
 
     Returns
     -------
@@ -73,7 +77,14 @@ def calibrate_file(
         Whatever reading, calibrating or the physical-sense check (unless ``force``) refuses.
     """
     session = read_session(path)
-    cal = calibrate_session(session, cfg, name=path.name, accel=accel)
+    if also:
+        from imucal_cli.pipeline.temperature import merge_sessions
+
+        session = merge_sessions([session, *(read_session(p) for p in also)])
+    warm = [read_session(p) for p in warmup] if warmup else None
+    cal = calibrate_session(session, cfg, name=path.name, accel=accel, warmup=warm)
+    if also:
+        cal.extra["sessions"] = [path.name, *(p.name for p in also)]
     problem = suspect_error(cal)
     if problem is not None and not force:
         raise problem

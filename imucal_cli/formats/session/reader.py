@@ -111,7 +111,7 @@ def _read_open_file(file: h5py.File, src: str, unclosed: bool) -> Session:
                 f"{src}: root attribute {name!r} must be a positive number, got {show(root[name])}"
             )
 
-    time, accel, gyro, temperature, mag = _read_raw(file, src, unclosed)
+    time, accel, gyro, temperature, mag, host_time = _read_raw(file, src, unclosed)
     segments = _read_segments(file, src, len(time), accel, gyro, unclosed)
     return Session(
         time=time,
@@ -130,14 +130,16 @@ def _read_open_file(file: h5py.File, src: str, unclosed: bool) -> Session:
         mag=mag,
         mag_units=text["mag_units"],
         magnetic_field_uT=numbers["magnetic_field_uT"],
+        host_time=host_time,
     )
 
 
 def _read_raw(file: h5py.File, src: str, unclosed: bool) -> tuple[np.ndarray | None, ...]:
-    """``time, accel, gyro, temperature, mag`` of ``/raw`` (None where absent), validated."""
+    """``time, accel, gyro, temperature, mag, host_time`` of ``/raw`` (None where absent),
+    validated; a ``/raw/host_time`` of another length than ``/raw/time`` is ignored."""
     raw = file.get("raw")
     datasets: dict[str, h5py.Dataset] = {}
-    for name in ("time", "accel", "gyro", "temperature", "mag"):
+    for name in ("time", "accel", "gyro", "temperature", "mag", "host_time"):
         obj = raw.get(name) if isinstance(raw, h5py.Group) else None
         if obj is None:
             continue
@@ -151,9 +153,14 @@ def _read_raw(file: h5py.File, src: str, unclosed: bool) -> tuple[np.ndarray | N
     if datasets["time"].ndim != 1:
         raise SessionError(f"{src}: /raw/time must be 1-D, has shape {datasets['time'].shape}")
     n = datasets["time"].shape[0]
+    host = datasets.pop("host_time", None)
     if unclosed:
         # An interrupted flush may have grown some datasets and not others.
         n = min(ds.shape[0] for ds in datasets.values() if ds.ndim >= 1)
+    if host is not None and (host.ndim != 1 or host.shape[0] < n):
+        host = None  # an extra the toolkit can do without
+    elif host is not None:
+        datasets["host_time"] = host
     for name in ("accel", "gyro", "mag"):
         ds = datasets.get(name)
         if ds is not None and (ds.ndim != 2 or ds.shape[0] < n or ds.shape[1] < 3):
@@ -183,7 +190,7 @@ def _read_raw(file: h5py.File, src: str, unclosed: bool) -> tuple[np.ndarray | N
             f"{src}: /raw/time is not strictly increasing "
             f"(sample {i}: {float(time[i])!r} s after {float(time[i - 1])!r} s)"
         )
-    return time, load("accel"), load("gyro"), load("temperature"), load("mag")
+    return time, load("accel"), load("gyro"), load("temperature"), load("mag"), load("host_time")
 
 
 def _read_segments(

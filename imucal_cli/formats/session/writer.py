@@ -63,6 +63,9 @@ class SessionWriter:
         Raw channels per sample (>= 3); None records no such sensor (default: no magnetometer).
     temperature : bool
         Whether samples carry a temperature in degrees C.
+    host_time : bool
+        Whether samples carry the host's arrival time beside the device's (``/raw/host_time``,
+        seconds of the host's clock; an extra dataset the spec allows, issue 17.2).
     flush_interval_s : float
         Longest time in seconds appended samples stay in memory.
     overwrite : bool
@@ -91,6 +94,7 @@ class SessionWriter:
         mag_units: str | None = None,
         magnetic_field_uT: float | None = None,
         temperature: bool = False,
+        host_time: bool = False,
         flush_interval_s: float = 1.0,
         overwrite: bool = False,
     ) -> None:
@@ -163,7 +167,7 @@ class SessionWriter:
                         name, shape=(0, width), maxshape=(None, width),
                         chunks=(_CHUNK_ROWS, width), dtype="f8",
                     )  # fmt: skip
-            shapes = {"temperature": temperature, "time": True}
+            shapes = {"temperature": temperature, "host_time": host_time, "time": True}
             for name, wanted in shapes.items():
                 if wanted:
                     self._datasets[name] = raw.create_dataset(
@@ -208,6 +212,7 @@ class SessionWriter:
         gyro: np.ndarray | None = None,
         temperature: float | np.ndarray | None = None,
         mag: np.ndarray | None = None,
+        host_time: float | np.ndarray | None = None,
     ) -> None:
         """Append samples: a block of k, or a single one.
 
@@ -224,6 +229,9 @@ class SessionWriter:
         mag : ndarray, shape (k, nm) or (nm,)
             Raw magnetometer channels; required exactly when the writer records mag (NaN
             where the magnetometer gave no reading).
+        host_time : ndarray, shape (k,), or float
+            The host's arrival time of each sample, s; required exactly when the writer
+            records it.
 
         Raises
         ------
@@ -239,9 +247,11 @@ class SessionWriter:
             raise self._fail(f"append: time must be a number or 1-D, has shape {t.shape}")
         k = t.size
         block = {"time": t}
-        given = {"accel": accel, "gyro": gyro, "temperature": temperature, "mag": mag}
+        given = {"accel": accel, "gyro": gyro, "temperature": temperature, "mag": mag,
+                 "host_time": host_time}  # fmt: skip
         for name, value in given.items():
-            expected = (k,) if name == "temperature" else (k, self._widths[name])
+            flat = name in ("temperature", "host_time")
+            expected = (k,) if flat else (k, self._widths[name])
             recorded = name in self._datasets
             if value is None and recorded:
                 raise self._fail(f"append: {name} is missing (this writer records {name})")
@@ -251,7 +261,7 @@ class SessionWriter:
                 continue
             array = np.asarray(value, dtype=np.float64)
             if single:
-                array = array.reshape((1, -1) if name != "temperature" else (1,))
+                array = array.reshape((1, -1) if not flat else (1,))
             if array.shape != expected:
                 raise self._fail(f"append: {name} has shape {array.shape}, expected {expected}")
             block[name] = array
@@ -466,9 +476,11 @@ def write_session(path: str | os.PathLike, session: Session, *, overwrite: bool 
         mag_units=session.mag_units,
         magnetic_field_uT=session.magnetic_field_uT,
         temperature=session.temperature is not None,
+        host_time=session.host_time is not None,
         overwrite=overwrite,
     ) as writer:
-        writer.append(session.time, accel, gyro, session.temperature, mag)
+        writer.append(session.time, accel, gyro, session.temperature, mag,
+                      host_time=session.host_time)  # fmt: skip
         for segment in sorted(session.segments, key=lambda s: s.start):
             writer.add_segment(
                 segment.kind,
