@@ -131,7 +131,8 @@ def test_c_header_applies_the_temperature_dependent_bias(warm, tmp_path):
     exe = _c_apply_program(tmp_path, header, 200)
     idx = np.linspace(0, len(session.time) - 1, 200).astype(int)
     raw, temp = session.accel[idx], session.temperature[idx]
-    text = "\n".join(f"{a:.9g} {b:.9g} {c:.9g} {t:.9g}" for (a, b, c), t in zip(raw, temp))
+    rows = np.column_stack([raw, temp])
+    text = "\n".join(" ".join(f"{v:.9g}" for v in row) for row in rows)
     proc = subprocess.run([str(exe)], input=text + "\n", capture_output=True, text=True,
                           timeout=60)  # fmt: skip
     out = np.array([[float(v) for v in line.split()] for line in proc.stdout.splitlines()])
