@@ -6,7 +6,17 @@ import argparse
 
 from rich.console import Console
 
-from bench import capture, factorization, gravity, gyro, gyro_speed, labelled, speed, trust_gyro
+from bench import (
+    capture,
+    factorization,
+    gravity,
+    gyro,
+    gyro_speed,
+    labelled,
+    speed,
+    temperature,
+    trust_gyro,
+)
 
 BENCHMARKS = (
     "gravity",
@@ -17,6 +27,7 @@ BENCHMARKS = (
     "trust-gyro",
     "capture",
     "speed",
+    "temperature",
 )
 
 
@@ -46,6 +57,8 @@ def main() -> None:
         ok = capture.run(console, quick=args.quick) and ok
     if args.only in (None, "speed"):
         ok = speed.run(console, runs=args.runs, n_sessions=args.sessions) and ok
+    if args.only in (None, "temperature"):
+        ok = temperature.run(console, n_seeds=max(2, args.seeds // 50)) and ok
     raise SystemExit(0 if ok else 1)
 
 

@@ -201,6 +201,11 @@ def simulate(
         "warm-up, or :linear for a hair-dryer or chamber ramp); its biases follow it and the "
         "truth holds temperature_ref and bias_tempco.",
     ),
+    clock_ppm: float | None = typer.Option(
+        None, "--clock-ppm", metavar="PPM",
+        help="The part's sample clock runs PPM parts per million fast (negative: slow): the "
+        "session records its device times and the host's arrival times (/raw/host_time).",
+    ),
     temp: bool = typer.Option(
         True, "--temp/--no-temp", help="--serve: print the temperature field (8 or 7 fields)."
     ),
@@ -263,6 +268,14 @@ def simulate(
             raise InputError("--ramp works for written sessions of plans six, qureshi18, "
                              "random:N, qureshi-axes and free:N")  # fmt: skip
         thermal = parse_ramp(ramp)
+    clock = None
+    if clock_ppm is not None:
+        from imucal_cli.simulate.clock import check_ppm
+
+        if serve or hk:
+            raise InputError("--clock-ppm works for written sessions of plans six, qureshi18, "
+                             "random:N, qureshi-axes and free:N")  # fmt: skip
+        clock = check_ppm(clock_ppm)
     if serve:
         _serve(
             plan, rate, baud, json_output, seed=seed, hold_s=SERVE_HOLD_S if hold is None else hold,
@@ -328,6 +341,7 @@ def simulate(
             jitter_deg=jitter_deg,
             units=units,
             temperature=thermal,
+            clock_scale=clock,
         )
     else:
         session, truth = run(
@@ -339,6 +353,7 @@ def simulate(
             jitter_deg=jitter_deg,
             units=units,
             temperature=thermal,
+            clock_scale=clock,
         )
     truth = dataclasses.replace(truth, session=out.name)
     write_session(out, session, overwrite=force)

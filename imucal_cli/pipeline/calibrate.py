@@ -232,6 +232,7 @@ def calibrate_session(
     attach(gyro, models.get("gyro"))
     if gyro is not None and "scale" in root.get("sample_clock", {}):
         gyro.extra["sample_clock_scale"] = root["sample_clock"]["scale"]
+        gyro.extra["sample_clock"] = root["sample_clock"]
     extra = {"toolkit_version": __version__, "config": cfg.to_dict(), **root}
     if gyro_note:
         extra["gyro_note"] = gyro_note

@@ -82,7 +82,7 @@ def sample_temperature(session: Session) -> np.ndarray | None:
     return t if ok.all() else np.interp(session.time, session.time[ok], t[ok])
 
 
-def _blocks(session: Session, block_s: float) -> list[tuple[int, int, int]]:
+def still_blocks(session: Session, block_s: float) -> list[tuple[int, int, int]]:
     """``(start, stop, still period)`` of blocks of about ``block_s`` in each still period."""
     rate = 1.0 / float(np.median(np.diff(session.time))) if len(session.time) > 1 else 1.0
     n = max(int(round(block_s * rate)), 2)
@@ -99,7 +99,7 @@ def _points(session: Session, name: str, block_s: float):
     """Block means of sensor ``name`` with their temperature, noise and still period."""
     data = getattr(session, name)
     temp = sample_temperature(session)
-    blocks = _blocks(session, block_s)
+    blocks = still_blocks(session, block_s)
     if data is None or temp is None or not blocks:
         return None
     values = np.array([data[a:b].mean(axis=0) for a, b, _ in blocks])
@@ -160,40 +160,64 @@ def warmup_models(warmups: list[Session], cfg: Config, t_ref: float) -> dict:
     return models
 
 
-def joint_models(session: Session, cfg: Config, t_ref: float) -> dict:
-    """Each sensor's model from the session's own still periods (joint with the gravity model
-    for the accelerometer)."""
+def _joint_accel(session: Session, cfg: Config, t_ref: float) -> TemperatureModel | None:
+    """The accelerometer's model fitted jointly with its gravity-magnitude model."""
     from imucal_cli.solvers.gravity import fit_gravity
     from imucal_cli.solvers.temperature_joint import fit_gravity_tempco
 
-    opt = cfg.temperature
-    where = session_name(session)
-    models = {}
     pts = _points(session, "accel", BLOCK_S)
-    if pts is not None and session.accel.shape[1] == 3:
-        values, temps, sigma, _ = pts
-        g = cfg.gravity or session.gravity
-        start = fit_gravity(values, g)
-        cov = np.array([np.diag(s**2) for s in sigma])
-        joint = fit_gravity_tempco(values, temps, g, (start.bias, start.M), cov_mean=cov,
-                                   temperature_ref=t_ref, max_degree=opt.max_degree,
-                                   min_span_c=opt.min_span_c, what=f"{where} (accel)")  # fmt: skip
-        models["accel"] = TemperatureModel(
-            t_ref, joint.tempco, joint.tempco_std, joint.degree, joint.t_min, joint.t_max,
-            "the session's still periods, jointly with the gravity-magnitude model",
-            joint.bias_var_extra,
-            {"points": len(temps), "selection": joint.tests, "noise_scale": joint.noise_scale,
-             "chi2": joint.chi2, "dof": joint.dof},
-        )  # fmt: skip
+    if pts is None or session.accel.shape[1] != 3:
+        return None
+    opt = cfg.temperature
+    values, temps, sigma, _ = pts
+    g = cfg.gravity or session.gravity
+    start = fit_gravity(values, g)
+    cov = np.array([np.diag(s**2) for s in sigma])
+    joint = fit_gravity_tempco(values, temps, g, (start.bias, start.M), cov_mean=cov,
+                               temperature_ref=t_ref, max_degree=opt.max_degree,
+                               min_span_c=opt.min_span_c,
+                               what=f"{session_name(session)} (accel)")  # fmt: skip
+    return TemperatureModel(
+        t_ref, joint.tempco, joint.tempco_std, joint.degree, joint.t_min, joint.t_max,
+        "the session's still periods, jointly with the gravity-magnitude model",
+        joint.bias_var_extra,
+        {"points": len(temps), "selection": joint.tests, "noise_scale": joint.noise_scale,
+         "chi2": joint.chi2, "dof": joint.dof},
+    )  # fmt: skip
+
+
+def _joint_gyro(session: Session, cfg: Config, t_ref: float) -> TemperatureModel | None:
+    """The gyroscope's model from its still periods (each reads the bias at its temperature)."""
     pts = _points(session, "gyro", BLOCK_S)
-    if pts is not None:
-        values, temps, sigma, _ = pts
-        fit = fit_tempco(temps, values, sigma=sigma, temperature_ref=t_ref,
-                         max_degree=opt.max_degree, min_span_c=opt.min_span_c, serial=True,
-                         what=f"{where} (gyro still periods)")  # fmt: skip
-        models["gyro"] = _from_fit(fit, t_ref, "the session's still periods (gyro bias "
-                                   "read at each temperature)")  # fmt: skip
-    return models
+    if pts is None:
+        return None
+    opt = cfg.temperature
+    values, temps, sigma, _ = pts
+    fit = fit_tempco(temps, values, sigma=sigma, temperature_ref=t_ref,
+                     max_degree=opt.max_degree, min_span_c=opt.min_span_c, serial=True,
+                     what=f"{session_name(session)} (gyro still periods)")  # fmt: skip
+    return _from_fit(fit, t_ref, "the session's still periods (gyro bias read at each "
+                     "temperature)")  # fmt: skip
+
+
+def joint_models(
+    session: Session, cfg: Config, t_ref: float, strict: bool
+) -> tuple[dict, list[str]]:  # fmt: skip
+    """Each sensor's model from the session's own still periods. ``strict`` (``model =
+    "on"``): a sensor whose data cannot give one is refused; else it is left without, with a
+    note why."""
+    models, notes = {}, []
+    for name, fit in (("accel", _joint_accel), ("gyro", _joint_gyro)):
+        try:
+            model = fit(session, cfg, t_ref)
+        except DesignError as exc:
+            if strict:
+                raise
+            notes.append(f"no {name} temperature model: {exc}")
+            continue
+        if model is not None:
+            models[name] = model
+    return models, notes
 
 
 def still_span(session: Session) -> float | None:
@@ -245,7 +269,8 @@ def temperature_models(
     elif span < opt.min_span_c:
         return {}, (f"no temperature model: the still periods span {span:.1f} C, and a bias "
                     f"model needs at least {opt.min_span_c:g} C")  # fmt: skip
-    return joint_models(session, cfg, float(np.mean(temp))), None
+    models, notes = joint_models(session, cfg, float(np.mean(temp)), opt.model == "on")
+    return models, "; ".join(notes) or None
 
 
 def compensate(session: Session, models: dict) -> Session:
@@ -293,7 +318,8 @@ def attach(sec: SensorCalibration | None, model: TemperatureModel | None) -> Non
 
 def merge_sessions(sessions: list[Session]) -> Session:
     """Several sessions of one unit as one: each segmented (if it was not), then their samples
-    and segments one after the other in time. Refused when they differ in channels or units."""
+    and segments one after the other in time. Refused when they differ in channels or units.
+    Host arrival times are dropped (each session's clock would need its own estimate)."""
     parts = [with_segments(s)[0] for s in sessions]
     first = parts[0]
     for p in parts[1:]:
@@ -318,5 +344,6 @@ def merge_sessions(sessions: list[Session]) -> Session:
         return None if any(v is None for v in vals) else np.concatenate(vals)
 
     return replace(first, time=np.concatenate(times), accel=cat("accel"), gyro=cat("gyro"),
-                   temperature=cat("temperature"), mag=cat("mag"), segments=segs)  # fmt: skip
+                   temperature=cat("temperature"), mag=cat("mag"), segments=segs,
+                   host_time=None)  # fmt: skip
 

@@ -213,6 +213,7 @@ def simulate_gyro_rotations(
     created: str | None = None,
     count: int | None = None,
     temperature: Ramp | None = None,
+    clock_scale: float | None = None,
 ) -> tuple[Session, Calibration]:
     """Simulate hand rotations for gyroscope calibration; return the session and its truth.
 
@@ -273,6 +274,9 @@ def simulate_gyro_rotations(
     temperature : Ramp, optional
         The part's temperature through the session: its biases follow it
         (:mod:`imucal_cli.simulate.temperature`) and the reading is recorded.
+    clock_scale : float, optional
+        The part's clock runs this many device seconds per true second: device times and
+        the host's arrival times are recorded (:mod:`imucal_cli.simulate.clock`).
 
     Returns
     -------
@@ -345,12 +349,20 @@ def simulate_gyro_rotations(
         truth = thermal_part(truth, opt["seed"])
         thermal = temperatures(temperature, np.arange(n_total) / opt["rate_hz"], opt["seed"])
         opt["temperature"] = temperature.options()
-    return truth.session_and_truth(
+    if clock_scale is not None:
+        opt["clock_scale"] = float(clock_scale)
+    session, cal = truth.session_and_truth(
         {"accel": force, "gyro": rate}, tl.segments, noise_seed=noise_ss, options=opt,
         sensor=sensor_name(opt["seed"]), created=created, root={"jitter_deg": opt["jitter_deg"]},
         extras={"accel": accel_extra, "gyro": {"design": design, **_turn_record(rec, opt)}},
         temperature=thermal,
     )  # fmt: skip
+    if clock_scale is not None:
+        from imucal_cli.simulate.clock import with_clock
+
+        session = with_clock(session, clock_scale, opt["seed"])
+        cal.gyro.extra["sample_clock_scale"] = float(clock_scale)
+    return session, cal
 
 
 def _floats(a) -> list:

@@ -347,13 +347,16 @@ def truth_calibration(stream: SimulatedStream, created: str | None = None) -> Ca
 
 
 def simulate(
-    plan: str = "qureshi18", seed: int = 0, *, created: str | None = None, **options
-) -> tuple[Session, Calibration]:
+    plan: str = "qureshi18", seed: int = 0, *, created: str | None = None,
+    clock_scale: float | None = None, **options,
+) -> tuple[Session, Calibration]:  # fmt: skip
     """Simulate a calibration session and return it with its truth.
 
     Parameters are those of :func:`simulate_stream` (``options``: ``rate_hz``, ``hold_s``,
     ...); ``created`` (ISO 8601 UTC) defaults to now.  The raw arrays are identical bit for
-    bit for the same seed and options.
+    bit for the same seed and options.  ``clock_scale``: the part's clock runs this many
+    device seconds per true second; the session records device times and the host's arrival
+    times (:mod:`imucal_cli.simulate.clock`), the truth ``sample_clock_scale``.
 
     Returns
     -------
@@ -380,4 +383,11 @@ def simulate(
         accel_units=stream.truth.accel_units,
         gyro_units=stream.truth.gyro_units,
     )
-    return session, truth_calibration(stream, created)
+    truth = truth_calibration(stream, created)
+    if clock_scale is not None:
+        from imucal_cli.simulate.clock import with_clock
+
+        session = with_clock(session, clock_scale, seed)
+        truth.gyro.extra["sample_clock_scale"] = float(clock_scale)
+        truth.extra["simulator"]["clock_scale"] = float(clock_scale)
+    return session, truth

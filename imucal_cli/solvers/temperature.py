@@ -350,6 +350,27 @@ def _fit_channel(dt, y, w, groups, n_groups, max_degree, known_sigma, serial, se
     )  # fmt: skip
 
 
+def _clean(temperature, values, sigma, groups, max_degree):
+    """Validated ``(T (N,), Y (N, n), groups (N,), sigma (N, n) or None)``, non-finite rows
+    left out."""
+    T = np.asarray(temperature, float)
+    Y = np.asarray(values, float)
+    Y = Y[:, None] if Y.ndim == 1 else Y
+    if not 1 <= max_degree <= MAX_DEGREE:
+        raise ValueError(f"max_degree must be 1 .. {MAX_DEGREE}, not {max_degree}")
+    if T.ndim != 1 or len(T) != len(Y):
+        raise ValueError("temperature must be (N,) and values (N, n)")
+    ok = np.isfinite(T) & np.isfinite(Y).all(axis=1)
+    g = np.zeros(len(T), int) if groups is None else np.asarray(groups, int)
+    sig = None
+    if sigma is not None:
+        sig = np.asarray(sigma, float)
+        sig = np.broadcast_to(sig[:, None] if sig.ndim == 1 else sig, Y.shape)
+        ok &= np.isfinite(sig).all(axis=1) & (sig > 0).all(axis=1)
+        sig = sig[ok]
+    return T[ok], Y[ok], g[ok], sig
+
+
 def fit_tempco(
     temperature: np.ndarray,
     values: np.ndarray,
@@ -402,20 +423,7 @@ def fit_tempco(
         Fewer than 3 points, a span under ``min_span_c``, or points that determine no
         polynomial.
     """
-    T = np.asarray(temperature, float)
-    Y = np.asarray(values, float)
-    Y = Y[:, None] if Y.ndim == 1 else Y
-    if not 1 <= max_degree <= MAX_DEGREE:
-        raise ValueError(f"max_degree must be 1 .. {MAX_DEGREE}, not {max_degree}")
-    if T.ndim != 1 or len(T) != len(Y):
-        raise ValueError("temperature must be (N,) and values (N, n)")
-    ok = np.isfinite(T) & np.isfinite(Y).all(axis=1)
-    g = np.zeros(len(T), int) if groups is None else np.asarray(groups, int)
-    if sigma is not None:
-        sig = np.asarray(sigma, float)
-        sig = np.broadcast_to(sig[:, None] if sig.ndim == 1 else sig, Y.shape)
-        ok &= np.isfinite(sig).all(axis=1) & (sig > 0).all(axis=1)
-    T, Y, g = T[ok], Y[ok], g[ok]
+    T, Y, g, sig = _clean(temperature, values, sigma, groups, max_degree)
     if len(T) < 3:
         raise DesignError(f"{what}: {len(T)} points with a temperature cannot determine a "
                           "temperature model")  # fmt: skip
@@ -426,7 +434,7 @@ def fit_tempco(
     dt = T - t_ref
     channels = []
     for i in range(Y.shape[1]):
-        w = np.ones(len(T)) if sigma is None else 1.0 / sig[ok][:, i]
+        w = np.ones(len(T)) if sig is None else 1.0 / sig[:, i]
         try:
             channels.append(_fit_channel(dt, Y[:, i], w, g, G, max_degree, sigma is not None,
                                          serial, select_p))  # fmt: skip
