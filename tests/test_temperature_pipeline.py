@@ -122,3 +122,21 @@ def test_cli_warmup_and_refusals(tmp_path):
     proc = run("calibrate", tmp_path / "room.h5", "--warmup", tmp_path / "room.h5",
                "--no-store", "--force")  # fmt: skip
     assert_one_line_error(proc, "spans only", "at least 10 C")
+
+
+def test_given_accel_with_temperature_terms_calibrates_the_gyro(ramp_cal, tmp_path):
+    """--accel CAL.json whose bias depends on temperature: the gyro-only calibration applies
+    it at each sample's temperature (the accelerometer section is copied unchanged)."""
+    from imucal_cli.simulate.rotations import simulate_gyro_rotations
+
+    _, _, cal = ramp_cal
+    turns, truth = simulate_gyro_rotations(plan="qureshi-axes", seed=5, rotations_per_axis=6,
+                                           temperature=Ramp(20.0, 32.0, "linear"))  # fmt: skip
+    out = calibrate_session(turns, Config(), accel=truth.accel)
+    assert out.accel.temperature_terms is not None  # the given section, unchanged
+    assert out.accel.extra["bias_tempco"] == truth.accel.extra["bias_tempco"]
+    sv = np.linalg.svd(out.gyro.matrix @ np.linalg.inv(truth.gyro.matrix), compute_uv=False)
+    assert np.max(np.abs(sv - 1)) < 0.005
+    no_temp = turns.__class__(**{**turns.__dict__, "temperature": None})
+    with pytest.raises(DesignError, match="records no temperature"):
+        calibrate_session(no_temp, Config(), accel=truth.accel)

@@ -222,10 +222,14 @@ def calibrate_session(
         raise ConfigError("the config calibrates nothing: [accel] and [gyro] solver are both none")
     session, segmented = with_segments(session)
     session, models, root = _prepare(session, cfg, warmup)
+    given = accel
     if accel is None:
         accel = _accel_or_hint(session, cfg)
         segmented_accel = True
     else:
+        from imucal_cli.pipeline.temperature import given_accel
+
+        session, accel = given_accel(session, accel)
         segmented_accel = False
     if cfg.gyro.solver == "auto":
         gyro, gyro_note = calibrate_gyro_auto(session, cfg, accel)
@@ -252,7 +256,7 @@ def calibrate_session(
     if session.source:  # "simulator", "serial:...": the report's context (paper figures or not)
         extra["source"] = session.source
     return Calibration(
-        accel=accel,
+        accel=accel if given is None else given,
         gyro=gyro,
         session=name or session_name(session),
         created=utc_now_iso(),

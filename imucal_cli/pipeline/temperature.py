@@ -35,7 +35,8 @@ from imucal_cli.solvers.temperature import TempcoFit, check_span, fit_tempco, re
 
 from .common import channel_names, session_name, with_segments
 
-__all__ = ["TemperatureModel", "attach", "compensate", "merge_sessions", "temperature_models"]
+__all__ = ["TemperatureModel", "attach", "compensate", "given_accel", "merge_sessions",
+           "temperature_models"]
 
 #: Length of the blocks each still period is averaged over, s.
 BLOCK_S = 5.0
@@ -282,6 +283,27 @@ def compensate(session: Session, models: dict) -> Session:
         if data is not None:
             changes[name] = np.asarray(data, float) - model.change(temp)
     return replace(session, **changes)
+
+
+def given_accel(session: Session, accel: SensorCalibration) -> tuple[Session, SensorCalibration]:
+    """An earlier accelerometer calibration (``--accel``) with temperature terms: the session's
+    accelerometer data moved to its ``temperature_ref`` and a copy of it without the terms,
+    for the gyro solvers that apply it to those data."""
+    from dataclasses import replace as copy_with
+
+    terms = accel.temperature_terms
+    if terms is None or session.accel is None:
+        return session, accel
+    temp = sample_temperature(session)
+    if temp is None:
+        raise DesignError(
+            f"{session_name(session)}: records no temperature, but the given accelerometer "
+            "calibration's bias depends on it (bias_tempco)"
+        )
+    moved = session.accel - (accel.bias_at(temp) - accel.bias)
+    plain = copy_with(accel, extra={k: v for k, v in accel.extra.items()
+                                    if k not in ("temperature_ref", "bias_tempco")})  # fmt: skip
+    return replace(session, accel=moved), plain
 
 
 def attach(sec: SensorCalibration | None, model: TemperatureModel | None) -> None:
