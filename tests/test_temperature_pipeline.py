@@ -44,6 +44,12 @@ def test_joint_model_by_default_when_the_session_spans_10_c(ramp_cal):
     np.testing.assert_allclose(acc.bias, truth.accel.bias_at(t_ref)[0], atol=4.0)
     rows = {r["name"]: r for r in acc.extra["parameters"]}
     assert any(name.startswith("tc1_") for name in rows)
+    from imucal_cli.use.report.build import build_report
+
+    table = [t for t in build_report(cal)["sensors"]["accel"]["tables"]
+             if t["title"] == "bias temperature model"][0]  # fmt: skip
+    assert [r[0] for r in table["rows"]] == ["x", "y", "z"]
+    assert table["rows"][0][1] == model["degree"][0] and "fitted over" in table["caption"]
     # the gyro bias from its still periods: the same change as the truth's
     gyro = cal.gyro
     assert gyro is not None and gyro.temperature_terms is not None

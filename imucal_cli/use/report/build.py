@@ -206,17 +206,20 @@ def _terms_tables(report: dict[str, Any], extra: dict[str, Any]) -> None:
         std = np.asarray(model.get("bias_tempco_std", np.zeros_like(tc)), dtype=float)
         unit = as_text(model.get("unit")) or "raw units per C^k"
         rows = []
-        for i, deg in enumerate(as_list(model.get("degree"))):
-            cells = [f"ch {i}", deg]
+        degrees = as_list(model.get("degree"))
+        names = "xyz" if len(degrees) == 3 else [str(i) for i in range(len(degrees))]
+        for i, deg in enumerate(degrees):
+            cells = [names[i], deg]
             for k in range(3):
                 cells += [float(tc[k, i]) if k < len(tc) else None,
                           float(std[k, i]) if k < len(std) else None]  # fmt: skip
             rows.append(cells)
-        lo, hi = (as_list(model.get("range_c")) + [None, None])[:2]
+        lo, hi = (as_list(model.get("range_c")) + [float("nan")] * 2)[:2]
         add_table(report, "bias temperature model", ["channel", "degree", "c1", "c1 std", "c2",
                   "c2 std", "c3", "c3 std"], rows,  # fmt: skip
-                  caption=f"bias(T) = bias + sum_k c_k (T - {extra.get('temperature_ref')} C)^k, "
-                  f"{unit}; fitted over {lo} .. {hi} C from {as_text(model.get('source'))}")
+                  caption=f"bias(T) = bias + sum_k c_k (T - {float(extra['temperature_ref']):.2f}"
+                  f" C)^k, {unit}; fitted over {float(lo):.1f} .. {float(hi):.1f} C from "
+                  f"{as_text(model.get('source'))}")  # fmt: skip
     clock = extra.get("sample_clock")
     if isinstance(clock, dict) and "ppm" in clock:
         add_table(report, "sample clock", ["scale [device s per s]", "error [ppm]",
