@@ -248,6 +248,44 @@ def init_linear(a_mean: np.ndarray, up: np.ndarray, g: float) -> tuple[np.ndarra
     return sol[0], sol[1:].T
 
 
+def contradicted_labels(
+    a_mean: np.ndarray, up: np.ndarray, g: float, limit_deg: float = 20.0, max_fraction=0.25
+) -> list[tuple[int, float]]:
+    """Labelled poses whose reading contradicts their label (issue 10.6: a pose labelled with
+    the wrong face): each labelled pose is predicted by the linear start (:func:`init_linear`)
+    of the others; the pose furthest from its label, if further than ``limit_deg``, is taken
+    out and the test repeated (at most ``max_fraction`` of the labels).
+
+    Returns
+    -------
+    list of (index, angle_deg)
+        The contradicted poses and the angle between their measured and labelled up.
+    """
+    up = np.array(up, dtype=float)
+    found: list[tuple[int, float]] = []
+    n_lab = int(np.isfinite(up).all(axis=1).sum())
+    while len(found) < max(1, int(max_fraction * n_lab)):
+        lab = np.flatnonzero(np.isfinite(up).all(axis=1))
+        worst, worst_angle = -1, limit_deg
+        for k in lab:
+            others = up.copy()
+            others[k] = np.nan
+            try:
+                B, S = init_linear(a_mean, others, g)
+                u = np.linalg.solve(S, a_mean[k] - B)
+            except (DesignError, np.linalg.LinAlgError):
+                continue
+            cos = float(u @ up[k] / max(np.linalg.norm(u), 1e-300))
+            angle = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+            if angle > worst_angle:
+                worst, worst_angle = int(k), angle
+        if worst < 0:
+            break
+        found.append((worst, worst_angle))
+        up[worst] = np.nan
+    return found
+
+
 # --------------------------------------------------------------------------- the fit
 
 
