@@ -195,6 +195,17 @@ def simulate(
     duration: float | None = typer.Option(
         None, "--duration", metavar="SECONDS", help="--serve: stop streaming after this long."
     ),
+    ramp: str | None = typer.Option(
+        None, "--ramp", metavar="FROM:TO[:linear]",
+        help="The part's temperature runs from FROM to TO degrees C through the session (a "
+        "warm-up, or :linear for a hair-dryer or chamber ramp); its biases follow it and the "
+        "truth holds temperature_ref and bias_tempco.",
+    ),
+    clock_ppm: float | None = typer.Option(
+        None, "--clock-ppm", metavar="PPM",
+        help="The part's sample clock runs PPM parts per million fast (negative: slow): the "
+        "session records its device times and the host's arrival times (/raw/host_time).",
+    ),
     temp: bool = typer.Option(
         True, "--temp/--no-temp", help="--serve: print the temperature field (8 or 7 fields)."
     ),
@@ -249,6 +260,22 @@ def simulate(
     gyro = is_gyro_plan(plan)
     if serve and (hk or gyro):
         raise InputError(f"--serve does not stream plan {plan!r}: write a session file instead")
+    thermal = None
+    if ramp is not None:
+        from imucal_cli.simulate.temperature import parse_ramp
+
+        if serve or hk:
+            raise InputError("--ramp works for written sessions of plans six, qureshi18, "
+                             "random:N, qureshi-axes and free:N")  # fmt: skip
+        thermal = parse_ramp(ramp)
+    clock = None
+    if clock_ppm is not None:
+        from imucal_cli.simulate.clock import check_ppm
+
+        if serve or hk:
+            raise InputError("--clock-ppm works for written sessions of plans six, qureshi18, "
+                             "random:N, qureshi-axes and free:N")  # fmt: skip
+        clock = check_ppm(clock_ppm)
     if serve:
         _serve(
             plan, rate, baud, json_output, seed=seed, hold_s=SERVE_HOLD_S if hold is None else hold,
@@ -310,6 +337,8 @@ def simulate(
             accel_noise=accel_noise,
             jitter_deg=jitter_deg,
             units=units,
+            temperature=thermal,
+            clock_scale=clock,
         )
     else:
         session, truth = run(
@@ -320,6 +349,8 @@ def simulate(
             accel_noise=accel_noise,
             jitter_deg=jitter_deg,
             units=units,
+            temperature=thermal,
+            clock_scale=clock,
         )
     truth = dataclasses.replace(truth, session=out.name)
     write_session(out, session, overwrite=force)
