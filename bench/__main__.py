@@ -15,6 +15,7 @@ from bench import (
     labelled,
     reliability,
     speed,
+    temperature,
     trust,
     trust_gyro,
 )
@@ -30,6 +31,7 @@ BENCHMARKS = (
     "capture",
     "speed",
     "reliability",
+    "temperature",
 )
 
 
@@ -67,6 +69,8 @@ def main() -> None:
         ok = speed.run(console, runs=args.runs, n_sessions=args.sessions) and ok
     if args.only in (None, "reliability"):
         ok = reliability.run(console, quick=args.quick) and ok
+    if args.only in (None, "temperature"):
+        ok = temperature.run(console, n_seeds=max(2, args.seeds // 50)) and ok
     raise SystemExit(0 if ok else 1)
 
 

@@ -231,6 +231,7 @@ class Recorder:
             gyro_channels=None if block.gyro is None else block.gyro.shape[1],
             mag_channels=None if block.mag is None else block.mag.shape[1],
             temperature=block.temperature is not None,
+            host_time=block.host_time is not None,
             flush_interval_s=FLUSH_INTERVAL_S,
             overwrite=self._overwrite,
             publish_early=True,
@@ -242,7 +243,8 @@ class Recorder:
         if self._writer is None:
             self._open_writer(block)
         try:
-            self._writer.append(block.time, block.accel, block.gyro, block.temperature, block.mag)
+            self._writer.append(block.time, block.accel, block.gyro, block.temperature, block.mag,
+                                host_time=block.host_time)  # fmt: skip
         except WriteFailed as exc:
             return self._write_failed(exc)
         if self._device_first is None:

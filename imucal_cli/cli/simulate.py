@@ -182,6 +182,17 @@ def simulate(
     duration: float | None = typer.Option(
         None, "--duration", metavar="SECONDS", help="--serve: stop streaming after this long."
     ),
+    ramp: str | None = typer.Option(
+        None, "--ramp", metavar="FROM:TO[:linear]",
+        help="The part's temperature runs from FROM to TO degrees C through the session (a "
+        "warm-up, or :linear for a hair-dryer or chamber ramp); its biases follow it and the "
+        "truth holds temperature_ref and bias_tempco.",
+    ),
+    clock_ppm: float | None = typer.Option(
+        None, "--clock-ppm", metavar="PPM",
+        help="The part's sample clock runs PPM parts per million fast (negative: slow): the "
+        "session records its device times and the host's arrival times (/raw/host_time).",
+    ),
     temp: bool = typer.Option(
         True, "--temp/--no-temp", help="--serve: print the temperature field (8 or 7 fields)."
     ),
@@ -229,7 +240,7 @@ def simulate(
     Exit status: 0 written (or streamed); 2 bad input (unknown plan, bad option, existing
     output without --force).
     """
-    from imucal_cli.plans import load_plan
+    from imucal_cli.plans import find_plan, load_plan
 
     def given(name: str) -> bool:
         source = ctx.get_parameter_source(name)
@@ -242,6 +253,24 @@ def simulate(
         "peak_rate_dps": peak_rate, "sigma_counts": sigma_counts, "orientations": orientations,
         "samples": samples, "labelled": labelled, "mountings": mountings,
     }  # fmt: skip
+    thermal = None
+    if ramp is not None:
+        from imucal_cli.simulate.temperature import parse_ramp
+
+        if serve or find_plan(plan)[0] is None or find_plan(plan)[0].simulator not in (
+            "poses", "rotations"):
+            raise InputError("--ramp works for written sessions of plans six, qureshi18, "
+                             "random:N, qureshi-axes and free:N")  # fmt: skip
+        thermal = parse_ramp(ramp)
+    clock = None
+    if clock_ppm is not None:
+        from imucal_cli.simulate.clock import check_ppm
+
+        if serve or find_plan(plan)[0] is None or find_plan(plan)[0].simulator not in (
+            "poses", "rotations"):
+            raise InputError("--clock-ppm works for written sessions of plans six, qureshi18, "
+                             "random:N, qureshi-axes and free:N")  # fmt: skip
+        clock = check_ppm(clock_ppm)
     if serve:
         _serve(
             plan, rate, baud, json_output, seed=seed, hold_s=SERVE_HOLD_S if hold is None else hold,
@@ -264,7 +293,7 @@ def simulate(
         check_output(p, force=force)
     session, truth = simulate_plan(
         plan, seed=seed, units=units, rate_hz=rate if given("rate") else None, hold_s=hold,
-        move_s=move, **options,
+        move_s=move, temperature=thermal, clock_scale=clock, **options,
     )  # fmt: skip
     rate = float(session.sample_rate_hz)
     truth = dataclasses.replace(truth, session=out.name)

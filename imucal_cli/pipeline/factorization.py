@@ -11,7 +11,6 @@ are orthogonal (``h_ik = 0``); one turn of known angle fixes the global scale (e
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from imucal_cli.errors import DesignError
 from imucal_cli.formats.calibration import MODEL_EQUATION, SensorCalibration
@@ -20,6 +19,7 @@ from imucal_cli.formats.session import Segment, Session
 from imucal_cli.solvers import factorization as fz
 from imucal_cli.solvers.crb import invariant_summary, propagate
 from imucal_cli.solvers.poses import angle_deg, count_distinct, coverage
+from imucal_cli.solvers.rotation import Rotation
 
 from .common import (
     accel_units,

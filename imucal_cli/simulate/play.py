@@ -50,6 +50,8 @@ def simulate_plan(
     labelled: bool = False,
     mountings: int = 2,
     created: str | None = None,
+    temperature=None,
+    clock_scale: float | None = None,
 ) -> tuple[Session, Calibration]:
     """Simulate ``plan`` (a registry name or a TOML plan file); return the session and truth.
 
@@ -63,6 +65,11 @@ def simulate_plan(
         Unknown plan, or a bad option.
     """
     spec, arg = find_plan(plan)
+    extras = {k: v for k, v in (("temperature", temperature), ("clock_scale", clock_scale))
+              if v is not None}  # fmt: skip
+    if extras and (spec is None or spec.simulator not in ("poses", "rotations")):
+        raise InputError("a temperature ramp or clock error works for plans six, qureshi18, "
+                         "random:N, qureshi-axes and free:N")  # fmt: skip
     rate = 100.0 if rate_hz is None else rate_hz
     common = {"seed": seed, "units": units, "accel_noise": accel_noise, "created": created}
     if spec is None or spec.simulator == "steps":
@@ -77,7 +84,7 @@ def simulate_plan(
 
         return simulate(plan=spec.build(arg).name, rate_hz=rate, move_s=move_s,
                         hold_s=2.0 if hold_s is None else hold_s, jitter_deg=jitter_deg,
-                        gravity=gravity, **common)  # fmt: skip
+                        gravity=gravity, **extras, **common)  # fmt: skip
     if spec.simulator == "rotations":
         from imucal_cli.simulate.rotations import simulate_gyro_rotations
 
@@ -85,7 +92,7 @@ def simulate_plan(
         return simulate_gyro_rotations(
             plan=spec.key if spec.key != "free" else f"free:{arg}", rate_hz=rate,
             rotations_per_axis=rpa, peak_rate_dps=peak_rate_dps, still_s=still_s,
-            jitter_deg=jitter_deg, gravity=gravity, **common,
+            jitter_deg=jitter_deg, gravity=gravity, **extras, **common,
         )  # fmt: skip
     from imucal_cli.simulate.redundant import simulate_hk_gyro, simulate_redundant_accel
 

@@ -49,6 +49,7 @@ from imucal_cli.simulate.motion import (
     up_to_vertical,
 )
 from imucal_cli.simulate.sensor import G0, UNITS, random_imu, spawn
+from imucal_cli.simulate.temperature import Ramp, temperatures, thermal_part
 from imucal_cli.simulate.triad import sensor_name
 
 __all__ = [
@@ -208,6 +209,8 @@ def simulate_gyro_rotations(
     gravity: float = G0,
     created: str | None = None,
     count: int | None = None,
+    temperature: Ramp | None = None,
+    clock_scale: float | None = None,
 ) -> tuple[Session, Calibration]:
     """Simulate hand rotations for gyroscope calibration; return the session and its truth.
 
@@ -265,6 +268,12 @@ def simulate_gyro_rotations(
         ISO 8601 UTC creation time; default now.
     count : int, optional
         Number of turns of plan ``free`` (the N of ``free:N``; both may be given if equal).
+    temperature : Ramp, optional
+        The part's temperature through the session: its biases follow it
+        (:mod:`imucal_cli.simulate.temperature`) and the reading is recorded.
+    clock_scale : float, optional
+        The part's clock runs this many device seconds per true second: device times and
+        the host's arrival times are recorded (:mod:`imucal_cli.simulate.clock`).
 
     Returns
     -------
@@ -332,11 +341,25 @@ def simulate_gyro_rotations(
         "true_up": _floats(unit(np.array([u for u, _ in stills]))),
         "labelled_up": [lab for _, lab in stills],
     }
-    return truth.session_and_truth(
+    thermal = None
+    if temperature is not None:
+        truth = thermal_part(truth, opt["seed"])
+        thermal = temperatures(temperature, np.arange(n_total) / opt["rate_hz"], opt["seed"])
+        opt["temperature"] = temperature.options()
+    if clock_scale is not None:
+        opt["clock_scale"] = float(clock_scale)
+    session, cal = truth.session_and_truth(
         {"accel": force, "gyro": rate}, tl.segments, noise_seed=noise_ss, options=opt,
         sensor=sensor_name(opt["seed"]), created=created, root={"jitter_deg": opt["jitter_deg"]},
         extras={"accel": accel_extra, "gyro": {"design": design, **_turn_record(rec, opt)}},
+        temperature=thermal,
     )  # fmt: skip
+    if clock_scale is not None:
+        from imucal_cli.simulate.clock import with_clock
+
+        session = with_clock(session, clock_scale, opt["seed"])
+        cal.gyro.extra["sample_clock_scale"] = float(clock_scale)
+    return session, cal
 
 
 def _floats(a) -> list:

@@ -29,13 +29,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
-from scipy.special import chdtri  # inverse survival function of chi^2 (lighter than scipy.stats)
 
 from imucal_cli.errors import DesignError, SolverError
+from imucal_cli.solvers.quantiles import chdtri  # inverse survival function of chi^2
+from imucal_cli.solvers.rotation import Rotation
 
 from .ellipsoid import fit_ellipsoid
+from .lsq import least_squares
 from .outliers import Deletion, deletion
 from .poses import angle_deg
 
@@ -211,7 +211,6 @@ def _solve(a_n, g, w, x0, max_iterations):
         fun,
         x0,
         jac=jac,
-        method="lm",
         xtol=1e-12,
         ftol=1e-12,
         gtol=1e-12,

@@ -79,11 +79,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
-from scipy.special import chdtri, stdtrit
 
 from imucal_cli.errors import DesignError, SolverError
+from imucal_cli.solvers.quantiles import chdtri, stdtrit
+from imucal_cli.solvers.rotation import Rotation
 
 from .gravity import _UPPER
 from .labelled_model import (
@@ -96,6 +95,7 @@ from .labelled_model import (
     sphere_exp,
     triangular_and_rotation,
 )
+from .lsq import least_squares
 from .outliers import Deletion, deletion
 
 #: Parameters: bias (raw units), the sensitivity of each axis (raw units per m/s^2, the
@@ -291,12 +291,18 @@ def contradicted_labels(
 
 def _solve(prob: Problem, x0, max_iterations):
     sparse = prob.N > DENSE_MAX_POSES
+    if sparse:  # hundreds of placement parameters: scipy's sparse trust region (lsmr)
+        from scipy.optimize import least_squares as sparse_least_squares
+
+        return sparse_least_squares(
+            prob.residuals, x0, jac=lambda x: prob.jacobian(x, sparse=True), method="trf",
+            tr_solver="lsmr", x_scale=1.0, xtol=1e-12, ftol=1e-12, gtol=1e-12,
+            max_nfev=max_iterations,
+        )  # fmt: skip
     return least_squares(
         prob.residuals,
         x0,
-        jac=lambda x: prob.jacobian(x, sparse=sparse),
-        method="trf" if sparse else "lm",
-        tr_solver="lsmr" if sparse else "exact",
+        jac=prob.jacobian,
         x_scale=1.0,
         xtol=1e-12,
         ftol=1e-12,

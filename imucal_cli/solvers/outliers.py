@@ -21,7 +21,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import chdtri
+
+from imucal_cli.solvers.quantiles import chdtri
 
 #: Family-wise probability of flagging a pose of a good session.
 OUTLIER_ALPHA = 1e-3
@@ -108,6 +109,6 @@ def flag(T: np.ndarray, rank: np.ndarray, alpha: float = OUTLIER_ALPHA) -> np.nd
 
 def significance(T: float, rank: int, n_tested: int, s2: float = 1.0) -> float:
     """Family-wise p-value of one pose's statistic among ``n_tested`` (Bonferroni)."""
-    from scipy.special import chdtrc
+    from .quantiles import chdtrc
 
     return float(min(1.0, n_tested * chdtrc(rank, T / s2))) if rank > 0 else 1.0
