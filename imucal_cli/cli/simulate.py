@@ -39,6 +39,17 @@ def _enter_presses():
     return lambda: keys.get() is not None
 
 
+def _written_poses_or_turns(flag: str, plan: str, serve: bool) -> None:
+    """Refuse ``flag`` (a temperature ramp, a clock error) but for written sessions of the pose
+    and hand-rotation plans, the experiments that model it."""
+    from imucal_cli.plans import find_plan
+
+    spec = find_plan(plan)[0]
+    if serve or spec is None or spec.simulator not in ("poses", "rotations"):
+        raise InputError(f"{flag} works for written sessions of plans six, qureshi18, "
+                         "random:N, qureshi-axes and free:N")  # fmt: skip
+
+
 def truth_path(session_path: Path) -> Path:
     """Where the truth goes: ``x.h5`` -> ``x.truth.json`` (beside the session)."""
     return session_path.with_suffix(".truth.json")
@@ -240,7 +251,7 @@ def simulate(
     Exit status: 0 written (or streamed); 2 bad input (unknown plan, bad option, existing
     output without --force).
     """
-    from imucal_cli.plans import find_plan, load_plan
+    from imucal_cli.plans import load_plan
 
     def given(name: str) -> bool:
         source = ctx.get_parameter_source(name)
@@ -257,19 +268,13 @@ def simulate(
     if ramp is not None:
         from imucal_cli.simulate.temperature import parse_ramp
 
-        if serve or find_plan(plan)[0] is None or find_plan(plan)[0].simulator not in (
-            "poses", "rotations"):
-            raise InputError("--ramp works for written sessions of plans six, qureshi18, "
-                             "random:N, qureshi-axes and free:N")  # fmt: skip
+        _written_poses_or_turns("--ramp", plan, serve)
         thermal = parse_ramp(ramp)
     clock = None
     if clock_ppm is not None:
         from imucal_cli.simulate.clock import check_ppm
 
-        if serve or find_plan(plan)[0] is None or find_plan(plan)[0].simulator not in (
-            "poses", "rotations"):
-            raise InputError("--clock-ppm works for written sessions of plans six, qureshi18, "
-                             "random:N, qureshi-axes and free:N")  # fmt: skip
+        _written_poses_or_turns("--clock-ppm", plan, serve)
         clock = check_ppm(clock_ppm)
     if serve:
         _serve(
