@@ -49,6 +49,7 @@ from imucal_cli.simulate.sensor import (  # noqa: F401 (the part's figures, re-e
     random_imu,
     spawn,
 )
+from imucal_cli.simulate.temperature import Ramp, temperatures, thermal_part
 
 __all__ = ["SimulatedStream", "random_imu", "sensor_name", "simulate", "simulate_stream",
            "stream_session", "truth_calibration"]  # fmt: skip
@@ -98,6 +99,8 @@ class SimulatedStream:
     truth: Imu
     options: dict
     attitudes: Rotation | None = None
+    temperature: np.ndarray | None = None
+    true_temperature: np.ndarray | None = None
 
 
 def _stream_options(plan, seed, rate_hz, hold_s, accel_noise, jitter_deg, units, gravity,
@@ -198,6 +201,7 @@ def simulate_stream(
     lead_s: float = 1.0,
     lift_m: float = 0.03,
     tumble_s: float = 0.0,
+    temperature: Ramp | None = None,
 ) -> SimulatedStream:
     """Generate the raw stream of a calibration session and its truth, as arrays.
 
@@ -242,6 +246,10 @@ def simulate_stream(
     tumble_s : float
         Before each move, the unit tumbles this long through random attitudes (one per
         second, drawn from a fifth generator of the seed), s; 0: none.
+    temperature : Ramp, optional
+        The part's temperature through the session
+        (:mod:`imucal_cli.simulate.temperature`): the part's biases then follow it
+        (:func:`~imucal_cli.simulate.temperature.thermal_part`) and the reading is recorded.
 
     Returns
     -------
@@ -284,9 +292,16 @@ def simulate_stream(
     rotvecs = np.zeros((max(k_poses - 1, 0), 3))
     for k in range(k_poses - 1):
         rotvecs[k] = (orient[k].inv() * orient[k + 1]).as_rotvec()
-    raw = truth.sample({"accel": force, "gyro": rate}, np.random.default_rng(noise_ss))
+    time = np.arange(n_total) / rate_hz
+    true_c = reading_c = None
+    if temperature is not None:
+        truth = thermal_part(truth, opt["seed"])
+        true_c, reading_c = temperatures(temperature, time, opt["seed"])
+        opt["temperature"] = temperature.options()
+    raw = truth.sample({"accel": force, "gyro": rate}, np.random.default_rng(noise_ss),
+                       temperature=true_c)  # fmt: skip
     return SimulatedStream(
-        time=np.arange(n_total) / rate_hz,
+        time=time,
         accel=raw["accel"],
         gyro=raw["gyro"],
         specific_force=force,
@@ -299,6 +314,8 @@ def simulate_stream(
         truth=truth,
         options=opt,
         attitudes=tl.attitudes(),
+        temperature=reading_c,
+        true_temperature=true_c,
     )
 
 
@@ -358,13 +375,16 @@ def truth_calibration(stream: SimulatedStream, created: str | None = None) -> Ca
 
 
 def simulate(
-    plan: str = "qureshi18", seed: int = 0, *, created: str | None = None, **options
-) -> tuple[Session, Calibration]:
+    plan: str = "qureshi18", seed: int = 0, *, created: str | None = None,
+    clock_scale: float | None = None, **options,
+) -> tuple[Session, Calibration]:  # fmt: skip
     """Simulate a calibration session and return it with its truth.
 
     Parameters are those of :func:`simulate_stream` (``options``: ``rate_hz``, ``hold_s``,
     ...); ``created`` (ISO 8601 UTC) defaults to now.  The raw arrays are identical bit for
-    bit for the same seed and options.
+    bit for the same seed and options.  ``clock_scale``: the part's clock runs this many
+    device seconds per true second; the session records device times and the host's arrival
+    times (:mod:`imucal_cli.simulate.clock`), the truth ``sample_clock_scale``.
 
     Returns
     -------
@@ -377,7 +397,15 @@ def simulate(
     """
     stream = simulate_stream(plan=plan, seed=seed, **options)
     created = created or utc_now_iso()
-    return stream_session(stream, created), truth_calibration(stream, created)
+    session = stream_session(stream, created)
+    truth = truth_calibration(stream, created)
+    if clock_scale is not None:
+        from imucal_cli.simulate.clock import with_clock
+
+        session = with_clock(session, clock_scale, seed)
+        truth.gyro.extra["sample_clock_scale"] = float(clock_scale)
+        truth.extra["simulator"]["clock_scale"] = float(clock_scale)
+    return session, truth
 
 
 def stream_session(stream: SimulatedStream, created: str) -> Session:
@@ -386,7 +414,7 @@ def stream_session(stream: SimulatedStream, created: str) -> Session:
         time=stream.time,
         accel=stream.accel,
         gyro=stream.gyro,
-        temperature=None,
+        temperature=stream.temperature,
         segments=stream.segments,
         created=created,
         sensor=sensor_name(stream.options["seed"]),
