@@ -44,6 +44,9 @@ Example (every key optional; these are the defaults)::
     max_scale_error = 0.20
     max_residual_ratio = 10.0    # refuse when turns' residuals exceed this many times the
                                  # noise (and the other turns' level); --force saves anyway
+    max_rate_std = 0.01          # refuse (auto: leave the gyro out) when the turns determine
+                                 # its rates only to this fraction (1 std, worst direction,
+                                 # the accelerometer calibration's uncertainty included)
 
     [gyro.rotations]             # static, dynamic and full
     max_gap_s = 2.0              # still data must end/start this close to a rotation
@@ -157,6 +160,7 @@ class GyroConfig:
     range: list[float] | None = None
     max_scale_error: float = 0.20
     max_residual_ratio: float = 10.0
+    max_rate_std: float = 0.01
     factorization: GyroFactorizationOptions = field(default_factory=GyroFactorizationOptions)
     rotations: GyroRotationOptions = field(default_factory=GyroRotationOptions)
     full: GyroFullOptions = field(default_factory=GyroFullOptions)
@@ -264,6 +268,8 @@ def validate(cfg: Config, where: str = "<config>") -> None:
             ("auto", "on", "off"))  # fmt: skip
     if not cfg.gyro.max_residual_ratio > 1:
         raise ConfigError(f"{where}: [gyro] max_residual_ratio must be above 1")
+    if not cfg.gyro.max_rate_std > 0:
+        raise ConfigError(f"{where}: [gyro] max_rate_std must be above 0")
     pl = a.labelled.placement_deg
     if pl is not None and not 0 < pl <= 45:
         raise ConfigError(

@@ -116,6 +116,9 @@ def calibrate_gyro_auto(
             raise  # turns captured on purpose: say why they cannot calibrate
         return None, ("gyro not calibrated: no usable rotations (the gyro needs turns "
                       "between still periods)")  # fmt: skip
+    if sec is not None and sec.extra.get("undetermined"):  # issue 10.2: not saved silently
+        return None, (f"gyro not calibrated: {sec.extra['undetermined']} (to save it with these "
+                      'std: [gyro] solver = "full" and --force)')  # fmt: skip
     sec.extra.setdefault("notes", []).insert(0, f'solver "{choice}" chosen by [gyro] solver = '
                                                 f'"auto": {why}')  # fmt: skip
     sec.extra["choice"] = {"solver": choice, "by": "auto", "reason": why}

@@ -11,7 +11,13 @@ from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
 from imucal_cli.solvers import gravity as gravity_solver
 
-from .accel import PoseFit, axes_summary_with_std, common_extra, parameter_rows
+from .accel import (
+    PoseFit,
+    axes_summary_with_std,
+    common_extra,
+    model_covariance,
+    parameter_rows,
+)
 from .common import (
     StaticPoses,
     check_design,
@@ -37,6 +43,12 @@ def _matrix_of(variant: str):
     if variant == "9-parameter":
         return lambda p: gravity_solver.params_to_model(p)[1]
     return lambda p: p[3:].reshape(3, 3)
+
+
+def _params_of(variant: str):
+    if variant == "9-parameter":
+        return gravity_solver.model_to_params
+    return lambda B, M: np.r_[B, M.ravel()]
 
 
 def fit_poses(poses: StaticPoses, g: float, cfg: Config) -> gravity_solver.GravityResult:
@@ -92,6 +104,8 @@ def gravity_section(
             "variant": res.variant,
             "gauge": GAUGE_9 if res.variant == "9-parameter" else GAUGE_12,
             "parameters": parameter_rows(res.param_names, res.params, res.std, units),
+            "covariance": model_covariance(_params_of(res.variant), res.bias, res.matrix,
+                                           res.cov),  # fmt: skip
             "init": res.init,
             "weighting": res.weighting,
             "iterations": res.iterations,

@@ -52,6 +52,7 @@ class Still:
     g_sigma: float  # direction noise of the mean, rad
     z_mean: np.ndarray  # raw gyro mean
     z_sigma: float  # noise of the raw gyro mean, per channel
+    a_raw: np.ndarray  # raw accel mean (what the accelerometer calibration turned into g)
 
 
 def _segments(session: Session, where: str) -> tuple[list[Segment], list[Segment], str]:
@@ -78,11 +79,12 @@ def _segments(session: Session, where: str) -> tuple[list[Segment], list[Segment
 def _stills_and_turns(session, accel_cal, cfg, where):
     statics, turns, source = _segments(session, where)
     g = cfg.gravity or session.gravity
-    a_means, z_means, counts, a_var, z_var = [], [], [], 0.0, 0.0
+    a_means, z_means, counts, raw_means, a_var, z_var = [], [], [], [], 0.0, 0.0
     for s in statics:
         a = accel_cal.apply(session.accel[s.start : s.stop])
         z = session.gyro[s.start : s.stop]
         a_means.append(a.mean(axis=0))
+        raw_means.append(session.accel[s.start : s.stop].mean(axis=0))
         z_means.append(z.mean(axis=0))
         counts.append(len(a))
         if len(a) > 1:  # pooled within-still variances (issue 10.7), per channel
@@ -93,8 +95,8 @@ def _stills_and_turns(session, accel_cal, cfg, where):
     # Each mean's noise from the pooled per-sample noise: one hold's few samples can make its
     # own estimate small by chance, and its weight too large (stated std below the bound).
     stills = [
-        Still(s, am, max(a_sigma / (g * np.sqrt(n)), 1e-6), zm, float(z_sigma / np.sqrt(n)))
-        for s, am, zm, n in zip(statics, a_means, z_means, counts, strict=True)
+        Still(s, am, max(a_sigma / (g * np.sqrt(n)), 1e-6), zm, float(z_sigma / np.sqrt(n)), ar)
+        for s, am, zm, n, ar in zip(statics, a_means, z_means, counts, raw_means, strict=True)
     ]
     gap = cfg.gyro.rotations.max_gap_s
     usable, skipped = [], []

@@ -11,8 +11,9 @@ from imucal_cli.formats.calibration import SensorCalibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
 from imucal_cli.solvers import labelled as labelled_solver
+from imucal_cli.solvers.labelled_model import public_params
 
-from .accel import PoseFit, common_extra, parameter_rows
+from .accel import PoseFit, common_extra, model_covariance, parameter_rows
 from .common import (
     StaticPoses,
     labels_determine,
@@ -69,6 +70,9 @@ def labelled_section(
             "variant": "12-parameter (labelled poses)",
             "gauge": GAUGE,
             "parameters": parameter_rows(res.param_names, res.params, res.std, units, res.ci95),
+            "covariance": model_covariance(
+                lambda B, M: public_params(B, np.linalg.inv(M)), res.bias, res.matrix, res.cov
+            ),
             "placement": {
                 "rms_deg": res.placement_deg,
                 "source": res.placement_source,
