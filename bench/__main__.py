@@ -6,7 +6,17 @@ import argparse
 
 from rich.console import Console
 
-from bench import capture, factorization, gravity, gyro, gyro_speed, labelled, speed, trust_gyro
+from bench import (
+    capture,
+    factorization,
+    gravity,
+    gyro,
+    gyro_speed,
+    labelled,
+    mad,
+    speed,
+    trust_gyro,
+)
 
 BENCHMARKS = (
     "gravity",
@@ -15,6 +25,7 @@ BENCHMARKS = (
     "gyro",
     "gyro-speed",
     "trust-gyro",
+    "mad",
     "capture",
     "speed",
 )
@@ -42,6 +53,8 @@ def main() -> None:
         ok = gyro_speed.run(console) and ok
     if args.only in (None, "trust-gyro"):
         ok = trust_gyro.run(console, n_seeds=max(5, args.seeds // 20)) and ok
+    if args.only in (None, "mad"):
+        ok = mad.run(console) and ok
     if args.only in (None, "capture"):
         ok = capture.run(console, quick=args.quick) and ok
     if args.only in (None, "speed"):

@@ -25,8 +25,8 @@ from tests.cli_helpers import run
 def test_shipped_session_gyro_error_is_covered_by_its_std(name):
     r = row(name, SESSIONS / f"{name}.h5", SESSIONS / f"{name}.truth.json")
     assert r.z_params < COVERED and np.all(np.abs(r.z_gains) < COVERED), (r.z_params, r.z_gains)
-    # Saved exactly when its rates are determined to 1 % (the default max_rate_std).
-    assert r.saved == (r.rate_std <= 0.01), (r.saved, r.rate_std, r.note)
+    # Saved exactly when its rates are determined to 5 % (the default max_rate_std).
+    assert r.saved == (r.rate_std <= 0.05), (r.saved, r.rate_std, r.note)
 
 
 @pytest.mark.parametrize("plan", ["free:12", "qureshi-axes:6"])
@@ -34,7 +34,7 @@ def test_plan_gyro_error_is_covered_by_its_std(plan):
     (r,) = plan_rows(plan, [5])
     assert r.saved, r.note
     assert r.z_params < COVERED and np.all(np.abs(r.z_gains) < COVERED), (r.z_params, r.z_gains)
-    assert r.rate_std < 0.01
+    assert r.rate_std < 0.01  # far better than the limit
 
 
 def test_six_faces_gyro_is_not_saved_silently(tmp_path):

@@ -37,14 +37,15 @@ Example (every key optional; these are the defaults)::
     solver = "auto"              # "auto": the most accurate solver the session supports
                                  # (none when it has no gyro or no rotations); "none";
                                  # "static", "dynamic" (Qureshi III-B), "full" (12 or 21
-                                 # parameters), or "factorization" (Hwangbo & Kanade)
+                                 # parameters), "known" (turns of a known angle, with
+                                 # the others), or "factorization" (Hwangbo & Kanade)
     # nominal_sensitivity = 938.7  # raw units per rad/s (datasheet); default from the units
     # range = [-32768, 32767]      # raw output range: turns reaching it are clipped and left
                                    # out; default: the ADC word of counts data, else none
     max_scale_error = 0.20
     max_residual_ratio = 10.0    # refuse when turns' residuals exceed this many times the
                                  # noise (and the other turns' level); --force saves anyway
-    max_rate_std = 0.01          # refuse (auto: leave the gyro out) when the turns determine
+    max_rate_std = 0.05          # refuse (auto: leave the gyro out) when the turns determine
                                  # its rates only to this fraction (1 std, worst direction,
                                  # the accelerometer calibration's uncertainty included)
 
@@ -55,6 +56,10 @@ Example (every key optional; these are the defaults)::
     [gyro.full]
     max_iterations = 100
     g_sensitivity = "auto"       # "auto" (kept when significant and determined), "on", "off"
+
+    [gyro.known]                 # turns of a known angle (angle_deg on the rotation segments)
+    angle_std_deg = 1.0          # how well each known angle is met (a hand turn back onto the
+                                 # same face: about a degree; a turntable: far better)
 
     [gyro.factorization]
     samples_per_segment = 40     # samples of each rotation used in the constraints
@@ -75,7 +80,7 @@ from typing import Any
 from imucal_cli.errors import ConfigError
 
 ACCEL_SOLVERS = ("auto", "gravity", "labelled", "factorization", "none")
-GYRO_SOLVERS = ("auto", "none", "static", "dynamic", "full", "factorization")
+GYRO_SOLVERS = ("auto", "none", "static", "dynamic", "full", "known", "factorization")
 
 
 @dataclass
@@ -151,6 +156,13 @@ class GyroFullOptions:
 
 
 @dataclass
+class GyroKnownOptions:
+    """Turns of a known angle (``[gyro.known]``), for the known and auto solvers."""
+
+    angle_std_deg: float = 1.0
+
+
+@dataclass
 class GyroConfig:
     """``[gyro]``: which solver (``"auto"``: the most accurate the session supports;
     ``"none"``: the gyroscope is not calibrated)."""
@@ -160,10 +172,11 @@ class GyroConfig:
     range: list[float] | None = None
     max_scale_error: float = 0.20
     max_residual_ratio: float = 10.0
-    max_rate_std: float = 0.01
+    max_rate_std: float = 0.05
     factorization: GyroFactorizationOptions = field(default_factory=GyroFactorizationOptions)
     rotations: GyroRotationOptions = field(default_factory=GyroRotationOptions)
     full: GyroFullOptions = field(default_factory=GyroFullOptions)
+    known: GyroKnownOptions = field(default_factory=GyroKnownOptions)
 
 
 @dataclass
@@ -268,6 +281,8 @@ def validate(cfg: Config, where: str = "<config>") -> None:
             ("auto", "on", "off"))  # fmt: skip
     if not cfg.gyro.max_residual_ratio > 1:
         raise ConfigError(f"{where}: [gyro] max_residual_ratio must be above 1")
+    if not 0 < cfg.gyro.known.angle_std_deg <= 90:
+        raise ConfigError(f"{where}: [gyro.known] angle_std_deg must be in (0, 90]")
     if not cfg.gyro.max_rate_std > 0:
         raise ConfigError(f"{where}: [gyro] max_rate_std must be above 0")
     pl = a.labelled.placement_deg

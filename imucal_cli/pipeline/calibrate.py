@@ -62,12 +62,16 @@ def calibrate_gyro(
         from imucal_cli.pipeline.factorization import calibrate_gyro_factorization
 
         return calibrate_gyro_factorization(session, cfg)
-    if solver in ("static", "dynamic", "full"):
+    if solver in ("static", "dynamic", "full", "known"):
         if accel is None:
             raise ConfigError(
                 f"[gyro] solver = {solver!r} measures each rotation with the calibrated "
                 "accelerometer: set an [accel] solver too"
             )
+        if solver == "known":
+            from imucal_cli.pipeline.gyro_known import calibrate_gyro_known
+
+            return calibrate_gyro_known(session, cfg, accel)
         from imucal_cli.pipeline.gyro import calibrate_gyro_rotations
 
         return calibrate_gyro_rotations(session, cfg, accel)
@@ -107,6 +111,9 @@ def calibrate_gyro_auto(
     elif accel is None:
         return None, ("gyro not calibrated: the full gyro model needs the accelerometer "
                       "calibrated (an [accel] solver, or --accel CAL.json)")  # fmt: skip
+    elif any(s.angle_deg is not None for s in session.rotation_segments()):
+        choice, why = "known", ("turns of a known angle (with any turns between still periods), "
+                                "accelerometer calibrated")  # fmt: skip
     else:
         choice, why = "full", "turns between still periods, accelerometer calibrated"
     try:

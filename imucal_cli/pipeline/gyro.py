@@ -76,8 +76,9 @@ def _segments(session: Session, where: str) -> tuple[list[Segment], list[Segment
     return found_statics, found_turns, "found in the stream (motion between still periods)"
 
 
-def _stills_and_turns(session, accel_cal, cfg, where):
-    statics, turns, source = _segments(session, where)
+def still_periods(session, accel_cal, cfg, statics) -> tuple[list[Still], float]:
+    """Each still period's calibrated accel mean and raw gyro mean, with noise pooled over all
+    of them (issue 10.7); and the pooled per-sample gyro noise, raw units."""
     g = cfg.gravity or session.gravity
     a_means, z_means, counts, raw_means, a_var, z_var = [], [], [], [], 0.0, 0.0
     for s in statics:
@@ -98,7 +99,12 @@ def _stills_and_turns(session, accel_cal, cfg, where):
         Still(s, am, max(a_sigma / (g * np.sqrt(n)), 1e-6), zm, float(z_sigma / np.sqrt(n)), ar)
         for s, am, zm, n, ar in zip(statics, a_means, z_means, counts, raw_means, strict=True)
     ]
-    gap = cfg.gyro.rotations.max_gap_s
+    return stills, float(z_sigma)
+
+
+def turns_between(session, stills, turns, gap) -> tuple[list[Turn], list[str]]:
+    """The turns with a still period right before and after (within ``gap`` s), and the
+    names of the others."""
     usable, skipped = [], []
     for r in turns:
         t0, t1 = session.time[r.start], session.time[r.stop - 1]
@@ -116,12 +122,20 @@ def _stills_and_turns(session, accel_cal, cfg, where):
             usable.append(Turn(r, before[-1], after[0]))
         else:
             skipped.append(r.label or r.name)
+    return usable, skipped
+
+
+def _stills_and_turns(session, accel_cal, cfg, where):
+    statics, turns, source = _segments(session, where)
+    stills, z_sigma = still_periods(session, accel_cal, cfg, statics)
+    gap = cfg.gyro.rotations.max_gap_s
+    usable, skipped = turns_between(session, stills, turns, gap)
     if not usable:
         raise DesignError(
             f"{where}: no rotation has still data right before and after it (within "
             f"{gap:g} s): hold the unit still for a few seconds before and after every turn"
         )
-    return stills, usable, skipped, source, float(z_sigma)
+    return stills, usable, skipped, source, z_sigma
 
 
 def _saturated(session: Session, turn: Turn, limit: tuple[float, float] | None) -> bool:

@@ -164,14 +164,14 @@ def add_accel_uncertainty(data: GyroData, rot, st, res) -> dict:
     return out
 
 
-def design_warning(data: GyroData, uncertainty: dict) -> str | None:
+def design_warning(data: GyroData, uncertainty: dict, n_turns: int | None = None) -> str | None:
     """A warning when the turns do not determine the gyro to ``[gyro] max_rate_std``, naming
     the cause and what would work."""
     limit = data.cfg.gyro.max_rate_std
     total, acc = uncertainty["total"], uncertainty["accel_calibration"] or 0.0
     if total <= limit:
         return None
-    K = len(data.turns)
+    K = len(data.turns) if n_turns is None else n_turns
     head = (f"{K} turns determine the gyro's rates only to {100 * total:.2g} % (1 std, worst "
             f"direction; more than [gyro] max_rate_std = {limit:g})")  # fmt: skip
     if acc > uncertainty["noise"]:
