@@ -136,3 +136,19 @@ def test_annotated_session_agrees_with_mad_snapshot(tmp_path):
     ours = np.asarray(gyro.extra["sensitivity"]) * np.pi / 180
     std = np.asarray(gyro.extra["sensitivity_std"]) * np.pi / 180
     assert np.all(np.abs(ours - mad) < 3 * std), (ours, mad, std)
+
+
+def test_gyro_refusals_name_what_the_session_already_has():
+    """Issue 9.6 (gyro): the full model cannot use 360-degree turns without still data around
+    them; its refusal names the known-angle solver for those turns, and where the angles are
+    not stated, the labelling step that states them."""
+    session, _, _ = _ferraris_like(5)
+    cfg = Config()
+    full = replace(cfg, gyro=replace(cfg.gyro, solver="full"))
+    # without the still periods after the turns, none has still data before and after it
+    moved = [s for s in session.segments if not s.label.startswith("after")]
+    with pytest.raises(DesignError, match='solver = "known"'):
+        calibrate_session(replace(session, segments=moved), full)
+    unknown = [replace(s, angle_deg=None) for s in moved]
+    with pytest.raises(DesignError, match="imucal label .* --angle DEG"):
+        calibrate_session(replace(session, segments=unknown), full)

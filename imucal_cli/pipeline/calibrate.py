@@ -79,13 +79,19 @@ def calibrate_gyro(
                 f"[gyro] solver = {solver!r} measures each rotation with the calibrated "
                 "accelerometer: set an [accel] solver too"
             )
-        if solver == "known":
-            from imucal_cli.pipeline.gyro_known import calibrate_gyro_known
+        from imucal_cli.pipeline.gyro import calibrate_gyro_rotations, gyro_alternatives
+        from imucal_cli.pipeline.gyro_known import calibrate_gyro_known
 
-            return calibrate_gyro_known(session, cfg, accel)
-        from imucal_cli.pipeline.gyro import calibrate_gyro_rotations
-
-        return calibrate_gyro_rotations(session, cfg, accel)
+        try:
+            if solver == "known":
+                return calibrate_gyro_known(session, cfg, accel)
+            return calibrate_gyro_rotations(session, cfg, accel)
+        except DesignError as exc:  # issue 9.6: what would work with what the session has
+            alternatives = gyro_alternatives(session, solver)
+            if not alternatives:
+                raise
+            raise DesignError(f"{exc}; with what this session has: "
+                              f"{'; or '.join(alternatives)}") from None  # fmt: skip
     return None
 
 

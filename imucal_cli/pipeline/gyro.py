@@ -295,6 +295,25 @@ def full_problem(session: Session, cfg: Config, accel_cal: SensorCalibration):
     return rot, st, data.noise
 
 
+def gyro_alternatives(session: Session, solver: str) -> list[str]:
+    """What would calibrate the gyro from this session when ``solver`` refused it (issue 9.6):
+    another solver for turns it already has, or a labelling step, before a new capture."""
+    turns = session.rotation_segments()
+    known = [s for s in turns if s.angle_deg is not None]
+    path = session.path or "SESSION.h5"
+    out = []
+    if solver != "known" and len(known) >= 3:
+        out.append(f'its {len(known)} turns of known angle: [gyro] solver = "known"')
+    if solver != "factorization" and sum(s.axis is not None for s in turns) >= 3:
+        out.append('its turns about labelled axes: [gyro] solver = "factorization" (Hwangbo & '
+                   "Kanade; needs no accelerometer)")  # fmt: skip
+    if turns and len(known) < 3:
+        out.append(f"if its turns were of a known angle (a full turn flat on a table, a "
+                   f"turntable), say so: imucal label {path} --segment NAME --angle DEG --axis "
+                   "X,Y,Z for each (three axes), and the known-angle solver uses them")  # fmt: skip
+    return out
+
+
 def gyro_checks(session, cfg, gains, units) -> list[str]:
     """Sensitivities far from nominal (units or config)."""
     nominal = cfg.gyro.nominal_sensitivity or {"rad/s": 1.0, "deg/s": 180 / np.pi}.get(
