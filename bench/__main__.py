@@ -14,6 +14,7 @@ from bench import (
     gyro_speed,
     labelled,
     mad,
+    reliability,
     speed,
     trust_gyro,
 )
@@ -28,6 +29,7 @@ BENCHMARKS = (
     "mad",
     "capture",
     "speed",
+    "reliability",
 )
 
 
@@ -35,7 +37,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(prog="python -m bench", description=__doc__)
     parser.add_argument("--seeds", type=int, default=200, help="Monte-Carlo seeds per benchmark")
     parser.add_argument("--only", choices=BENCHMARKS, help="run only this benchmark")
-    parser.add_argument("--quick", action="store_true", help="capture: 10 s instead of 60 s")
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="capture: 10 s instead of 60 s; reliability: 1,000 fuzzed import files, not 10,000",
+    )
     parser.add_argument("--runs", type=int, default=5, help="speed: runs per figure (median)")
     parser.add_argument("--sessions", type=int, default=500, help="speed: production-line size")
     args = parser.parse_args()
@@ -59,6 +65,8 @@ def main() -> None:
         ok = capture.run(console, quick=args.quick) and ok
     if args.only in (None, "speed"):
         ok = speed.run(console, runs=args.runs, n_sessions=args.sessions) and ok
+    if args.only in (None, "reliability"):
+        ok = reliability.run(console, quick=args.quick) and ok
     raise SystemExit(0 if ok else 1)
 
 

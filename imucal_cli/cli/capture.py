@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.markup import escape
 
 from imucal_cli.errors import InputError
+from imucal_cli.formats.output import check_output
 
 from . import completion
 from .app import app
@@ -183,11 +184,7 @@ def capture(
             from imucal_cli.capture import guided
         except ImportError:
             raise InputError("guided mode not available yet: use --no-prompt") from None
-    out = output if output is not None else default_output()
-    if out.exists() and not force:
-        raise InputError(f"{out} exists: use --force to overwrite it")
-    if not out.parent.is_dir():
-        raise InputError(f"{out}: directory {out.parent} does not exist")
+    out = check_output(output if output is not None else default_output(), force=force)
 
     console = make_console(stderr=json_output)  # with --json, stdout holds the JSON alone
     err = make_console(stderr=True)
