@@ -231,6 +231,7 @@ class Recorder:
             gyro_channels=None if block.gyro is None else block.gyro.shape[1],
             mag_channels=None if block.mag is None else block.mag.shape[1],
             temperature=block.temperature is not None,
+            host_time=block.host_time is not None,
             flush_interval_s=FLUSH_INTERVAL_S,
             overwrite=self._overwrite,
             publish_early=True,
@@ -242,7 +243,8 @@ class Recorder:
         if self._writer is None:
             self._open_writer(block)
         try:
-            self._writer.append(block.time, block.accel, block.gyro, block.temperature, block.mag)
+            self._writer.append(block.time, block.accel, block.gyro, block.temperature, block.mag,
+                                host_time=block.host_time)  # fmt: skip
         except WriteFailed as exc:
             return self._write_failed(exc)
         if self._device_first is None:
@@ -423,6 +425,7 @@ class Recorder:
         up: np.ndarray | None = None,
         axis: np.ndarray | None = None,
         angle_deg: float | None = None,
+        extra: dict | None = None,
     ) -> str:
         """Mark samples ``[start, stop)`` as a segment (see
         :meth:`imucal_cli.formats.session.SessionWriter.add_segment`); return its name.
@@ -439,7 +442,8 @@ class Recorder:
             raise SessionError(f"{self.path}: no samples recorded, so no segment can be added")
         try:
             return self._writer.add_segment(
-                kind, start, stop, label=label, up=up, axis=axis, angle_deg=angle_deg
+                kind, start, stop, label=label, up=up, axis=axis, angle_deg=angle_deg,
+                extra=extra,
             )
         except WriteFailed as exc:
             ended = self._write_failed(exc)
