@@ -141,3 +141,46 @@ def test_scripted_keys_skip_and_quit(tmp_path):
     session = read_session(out)
     assert len(session.static_segments()) == 2
     assert "missing" in text
+
+
+def test_interrupted_capture_is_resumed_into_the_same_file(tmp_path):
+    """Ctrl-C after two poses (exit 3, saved), then `capture --resume` with the unit served
+    again from its first pose: the two poses already there are not taken twice, the other
+    four are appended, the session ends complete."""
+    import signal
+
+    out = tmp_path / "resumed.h5"
+    server, port = serve("--hold", "3", "--move", "1")
+    try:
+        proc = capture(port, out)
+        seen = 0
+        for line in proc.stdout:
+            seen += line.startswith("recorded face")
+            if seen == 2:
+                proc.send_signal(signal.SIGINT)
+                break
+        rest, _ = proc.communicate(timeout=30)
+    finally:
+        server.kill()
+        server.communicate()
+    assert proc.returncode == 3, rest
+    first = read_session(out)
+    assert len(first.static_segments()) == 2
+    server, port = serve("--hold", "3", "--move", "1")
+    try:
+        proc = subprocess.Popen(
+            [*CLI, "capture", "--port", port, "--plan", "six", "--resume", str(out)],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+            text=True, env=ENV,
+        )  # fmt: skip
+        text, _ = proc.communicate(timeout=120)
+    finally:
+        server.kill()
+        server.communicate()
+    assert proc.returncode == 0, text
+    assert "resumed: 2 of 6 steps already in the session" in text and "too close" in text
+    assert f"continued after the {len(first.time)} samples already there" in text
+    session = read_session(out)
+    assert sorted(s.label for s in session.static_segments()) == FACES
+    np.testing.assert_array_equal(session.accel[: len(first.time)], first.accel)
+    assert np.all(np.diff(session.time) > 0)

@@ -119,13 +119,14 @@ class Recorder:
         wait_timeout_s: float = 10.0,
         read_timeout_s: float = 5.0,
         on_status: Callable[[str], None] | None = None,
+        resume: bool = False,
     ) -> None:
         self.path = Path(path)
         if self.path.is_dir():
             raise InputError(f"{path}: is a directory")
         if not self.path.parent.is_dir():
             raise InputError(f"{path}: directory {self.path.parent} does not exist")
-        if self.path.exists() and not overwrite:
+        if self.path.exists() and not overwrite and not resume:
             raise InputError(f"{path} exists: use --force to overwrite it")
         self.source = source
         self.protocol = protocol
@@ -152,6 +153,22 @@ class Recorder:
         self._t_end: float | None = None
         self._closed = False
         self._segments: list[dict] = []
+        self.resumed_from = 0  #: samples the session held before this capture (``resume``)
+        self._time_offset: float | None = None  # added to this capture's time stamps (resume)
+        self._resume_gap_s = 0.0
+        if resume:
+            self._reopen()
+
+    def _reopen(self) -> None:
+        """``resume``: continue the session; its samples and segments stay, new ones follow."""
+        from imucal_cli.formats.session import SessionWriter
+
+        if not self.path.is_file():
+            raise InputError(f"{self.path}: no such session to resume")
+        gap_s = max(_time.time() - self.path.stat().st_mtime, 0.0)  # since its last flush
+        self._writer = SessionWriter.reopen(self.path, flush_interval_s=FLUSH_INTERVAL_S)
+        self.resumed_from = self._writer.n_samples
+        self._resume_gap_s = gap_s
 
     # status ------------------------------------------------------------------------------------
     def _status(self, message: str) -> None:
@@ -179,7 +196,8 @@ class Recorder:
         span = 0.0
         if self._t_first is not None and self._t_last_sample is not None:
             span = self._t_last_sample - self._t_first
-        out["rate_hz"] = (self.n_samples - 1) / span if span > 0 and self.n_samples > 1 else 0.0
+        new = self.n_samples - self.resumed_from
+        out["rate_hz"] = (new - 1) / span if span > 0 and new > 1 else 0.0
         return out
 
     # signals -----------------------------------------------------------------------------------
@@ -227,7 +245,15 @@ class Recorder:
     def _append(self, block: SampleBlock) -> None:
         if self._writer is None:
             self._open_writer(block)
-        self._writer.append(block.time, block.accel, block.gyro, block.temperature, block.mag)
+        time = block.time
+        if self.resumed_from:
+            if self._time_offset is None:
+                # The device's clock restarts: the new samples follow the old ones after the
+                # time the capture was stopped (the file's last flush), on the old time axis.
+                gap = max(self._resume_gap_s, 1e-3)
+                self._time_offset = self._writer.last_time + gap - float(time[0])
+            time = time + self._time_offset
+        self._writer.append(time, block.accel, block.gyro, block.temperature, block.mag)
         if self._device_first is None:
             self._device_first = float(block.time[0])
         self._device_last = float(block.time[-1])
@@ -425,7 +451,7 @@ class Recorder:
         from imucal_cli.formats.columns import TIME_UNITS
 
         device_s = self._device_last - self._device_first
-        rate = (self.n_samples - 1) / device_s if device_s > 0 else float("inf")
+        rate = (self.n_samples - self.resumed_from - 1) / device_s if device_s > 0 else float("inf")
         ratio = device_s / host_s
         if 1 / CLOCK_TOLERANCE <= ratio <= CLOCK_TOLERANCE and 1.0 <= rate <= 10_000.0:
             return None
@@ -435,8 +461,11 @@ class Recorder:
             f"{host_s:.3g} s of host time ({rate:.4g} Hz)"
         )
         stamps = device_s / TIME_UNITS[unit]
-        fits = [u for u, f in TIME_UNITS.items()
-                if u != unit and 1 / CLOCK_TOLERANCE <= stamps * f / host_s <= CLOCK_TOLERANCE]
+        fits = [
+            u
+            for u, f in TIME_UNITS.items()
+            if u != unit and 1 / CLOCK_TOLERANCE <= stamps * f / host_s <= CLOCK_TOLERANCE
+        ]
         if fits:
             return f"{said}: they look like {fits[0]}; capture again with --time-unit {fits[0]}"
         return f"{said}: check the t column (--columns) and --time-unit"
@@ -452,7 +481,7 @@ class Recorder:
         from imucal_cli.formats.session.h5open import open_for_update
 
         with open_for_update(self.path, str(self.path)) as file:
-            file.attrs["sample_rate_hz"] = (self.n_samples - 1) / span
+            file.attrs["sample_rate_hz"] = (self.n_samples - self.resumed_from - 1) / span
 
     def __enter__(self) -> Recorder:
         return self
