@@ -6,7 +6,7 @@ import argparse
 
 from rich.console import Console
 
-from bench import capture, factorization, gravity, gyro, gyro_speed, labelled, speed
+from bench import capture, factorization, gravity, gyro, gyro_speed, labelled, speed, trust_gyro
 
 BENCHMARKS = (
     "gravity",
@@ -14,6 +14,7 @@ BENCHMARKS = (
     "factorization",
     "gyro",
     "gyro-speed",
+    "trust-gyro",
     "capture",
     "speed",
 )
@@ -39,6 +40,8 @@ def main() -> None:
         ok = gyro.run(console, n_seeds=max(20, args.seeds // 2)) and ok
     if args.only in (None, "gyro-speed"):
         ok = gyro_speed.run(console) and ok
+    if args.only in (None, "trust-gyro"):
+        ok = trust_gyro.run(console, n_seeds=max(5, args.seeds // 20)) and ok
     if args.only in (None, "capture"):
         ok = capture.run(console, quick=args.quick) and ok
     if args.only in (None, "speed"):

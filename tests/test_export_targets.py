@@ -471,3 +471,14 @@ def test_cli_export_targets(cal, tmp_path, noise):
     assert_one_line_error(run("export", path, "--format", "px4", "--accel-scale", "x/2"),
                           "--accel-scale")  # fmt: skip
     assert_one_line_error(run("export", path, "--format", "nope"), "kalibr-imu")
+
+
+def test_cli_export_output_is_safe(cal, tmp_path):
+    path = tmp_path / "cal.json"
+    write_calibration(path, cal)
+    out = tmp_path / "cal.h"
+    assert run("export", path, "-o", out).returncode == 0
+    assert_one_line_error(run("export", path, "-o", out), "--force")
+    proc = run("export", path, "-o", out, "--force", "--format", "fusion")
+    assert proc.returncode == 0 and "FusionCalibrationInertial" in out.read_text()
+    assert_one_line_error(run("export", path, "-o", path, "--force", "--format", "json"), "input")

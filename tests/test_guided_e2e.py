@@ -92,9 +92,13 @@ def test_serve_stepped_by_enter(tmp_path):
     try:
         proc = capture(port, out)
         deadline = time.monotonic() + 120
+        recorded = 0
         for line in proc.stdout:
             lines.append(line)
             if line.startswith("recorded face"):
+                recorded += 1
+                if recorded == len(FACES):
+                    continue  # the plan is over: the capture closes the port and the unit ends
                 time.sleep(1.0)  # the unit stays put until told: longer than any timer here
                 server.stdin.write("\n")
                 server.stdin.flush()

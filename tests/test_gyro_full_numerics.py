@@ -15,7 +15,6 @@ from imucal_cli.formats.config import config_from_dict
 from imucal_cli.pipeline.calibrate import calibrate_accel, with_segments
 from imucal_cli.pipeline.gyro import full_problem
 from imucal_cli.simulate.rotations import simulate_gyro_rotations
-from imucal_cli.solvers import gyro_full
 from imucal_cli.solvers.banded import BandedWhitener
 from imucal_cli.solvers.gyro_integration import (
     Stack,
@@ -24,6 +23,7 @@ from imucal_cli.solvers.gyro_integration import (
     integrate_rotations,
     matrix_rows,
 )
+from imucal_cli.solvers.gyro_model import Problem
 
 CREATED = "2026-01-01T00:00:00Z"
 
@@ -113,7 +113,7 @@ def problem():
 
 def test_jacobian_matches_finite_differences(problem):
     rot, still, noise, truth = problem
-    prob = gyro_full._Problem(rot, still, noise)
+    prob = Problem(rot, still, noise)
     x = np.r_[truth.gyro.bias, truth.gyro.matrix.ravel()] * (1 + 1e-3)
     r, J = prob.residuals_and_jacobian(x)
     np.testing.assert_allclose(prob.raw_residuals(x), r, atol=1e-12)
@@ -128,7 +128,7 @@ def test_jacobian_matches_finite_differences(problem):
 
 def test_whitening_equals_the_dense_inverse_covariance(problem):
     rot, still, noise, truth = problem
-    prob = gyro_full._Problem(rot, still, noise)
+    prob = Problem(rot, still, noise)
     x = np.r_[truth.gyro.bias, truth.gyro.matrix.ravel()]
     cov = prob.rotation_covariance(x)
     W = BandedWhitener(cov, ridge=0.0)
@@ -163,7 +163,7 @@ def test_information_is_linear_in_the_number_of_turns_structure():
         cfg = config_from_dict({"gyro": {"solver": "full"}})
         session, _ = with_segments(session)
         rot, still, noise = full_problem(session, cfg, calibrate_accel(session, cfg))
-        prob = gyro_full._Problem(rot, still, noise)
+        prob = Problem(rot, still, noise)
         x = np.r_[truth.gyro.bias, truth.gyro.matrix.ravel()]
         widths.append(BandedWhitener(prob.rotation_covariance(x)).bandwidth)
     assert widths[0] == widths[1] <= 3

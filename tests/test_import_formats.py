@@ -34,8 +34,10 @@ def samples(n=400, seed=0):
     return t, a, w
 
 
-def write_bag(path: Path, kind: str, topics=("/imu/data",), mag=True, temp=True, stamp=True):
-    """A bag written with rosbags: ``kind`` ros1, ros2 (sqlite3) or mcap (rosbag2 storage)."""
+def write_bag(path: Path, kind: str, topics=("/imu/data",), mag=True, temp=True, stamp=True,
+              data=None):  # fmt: skip
+    """A bag written with rosbags: ``kind`` ros1, ros2 (sqlite3) or mcap (rosbag2 storage);
+    ``data`` (t, a, w) or random samples."""
     from rosbags.rosbag1 import Writer as Writer1
     from rosbags.rosbag2 import StoragePlugin
     from rosbags.rosbag2 import Writer as Writer2
@@ -55,7 +57,7 @@ def write_bag(path: Path, kind: str, topics=("/imu/data",), mag=True, temp=True,
     else:
         plugin = StoragePlugin.MCAP if kind == "mcap" else StoragePlugin.SQLITE3
         writer, ser = Writer2(path, version=9, storage_plugin=plugin), ts.serialize_cdr
-    t, a, w = samples()
+    t, a, w = samples() if data is None else data
     with writer:
         conns = {name: writer.add_connection(name, "sensor_msgs/msg/Imu", typestore=ts)
                  for name in topics}  # fmt: skip
@@ -321,3 +323,99 @@ def test_capture_refuses_an_unknown_protocol(tmp_path):
     assert_one_line_error(run("capture", "--port", "/dev/null", "--protocol", "nope",
                               "--no-prompt", "--duration", "1", "-o", tmp_path / "x.h5"),
                           "--protocol")  # fmt: skip
+
+
+# --------------------------------------------------------------------------------------------
+# imucal import: every format detected by itself and segmented into a session
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def six():
+    """The six faces of a simulated unit at 100 Hz: time, accel and gyro counts."""
+    from imucal_cli.simulate.device import stream_arrays
+
+    t, a, g = stream_arrays("six", rate_hz=100.0, hold_s=1.5, move_s=1.0)
+    return t + 1700000000.0, np.round(a), np.round(g)
+
+
+def write_format(kind: str, tmp_path: Path, six) -> Path:
+    t, a, g = six
+    if kind in ("ros1", "mcap"):
+        path = tmp_path / ("six.bag" if kind == "ros1" else "six")
+        write_bag(path, kind, mag=False, temp=False, data=(t, a / 835.0, g / 939.7))
+        return next(path.glob("*.mcap")) if kind == "mcap" else path
+    if kind == "ulog":
+        path = tmp_path / "six.ulg"
+        t_us = np.round((t - t[0]) * 1e6 + 1e6).astype(np.uint64)
+        acc, gyr = (a / 835.0).astype(np.float32), (g / 939.7).astype(np.float32)
+        write_ulog(path, [("sensor_accel", 0, SENSOR_FIELDS, ulog_columns(t_us, acc, 7)),
+                          ("sensor_gyro", 0, SENSOR_FIELDS, ulog_columns(t_us, gyr, 8))])
+        return path
+    if kind == "motioncal":
+        path = tmp_path / "six.txt"
+        path.write_text("".join("Raw:" + ",".join(f"{v:.0f}" for v in (*ra, *rg, 10, 20, 30))
+                                + "\n" for ra, rg in zip(a, g, strict=True)))  # fmt: skip
+        return path
+    if kind == "i2cdevlib":
+        path = tmp_path / "six.txt"
+        path.write_text("".join("a/g:\t" + "\t".join(f"{v:.0f}" for v in (*ra, *rg)) + "\n"
+                                for ra, rg in zip(a, g, strict=True)))  # fmt: skip
+        return path
+    path = tmp_path / "six.bin"
+    path.write_bytes(b"".join(wit_frame(0x51, [*ra.astype(int), 2500])
+                              + wit_frame(0x52, [*rg.astype(int), 0])
+                              for ra, rg in zip(a, g, strict=True)))  # fmt: skip
+    return path
+
+
+@pytest.mark.parametrize(
+    ("kind", "units", "extra"),
+    [("ros1", "m/s^2", []), ("mcap", "m/s^2", []), ("ulog", "m/s^2", []),
+     ("motioncal", "counts", ["--rate", "100"]), ("i2cdevlib", "counts", ["--rate", "100"]),
+     ("witmotion", "counts", ["--rate", "100"])],
+)  # fmt: skip
+def test_import_detects_the_format_and_segments(kind, units, extra, tmp_path, six):
+    from imucal_cli.formats.session import read_session
+
+    from .cli_helpers import run
+
+    path = write_format(kind, tmp_path, six)
+    out = tmp_path / "s.h5"
+    proc = run("import", path, "-o", out, *extra)
+    assert proc.returncode == 0, proc.stderr
+    s = read_session(out)
+    assert len(s.static_segments()) == 6, proc.stdout
+    assert s.accel_units == units and len(s.time) >= len(six[0]) - 1
+    if kind == "motioncal":  # the magnetometer is stored with its units
+        assert s.mag_units == "counts" and np.all(s.mag[:, 0] == 10.0)
+
+
+def test_import_topic_option_and_refusals(tmp_path, six):
+    from .cli_helpers import assert_one_line_error, run
+
+    t, a, g = six
+    path = tmp_path / "two.bag"
+    write_bag(path, "ros1", topics=("/a/imu", "/b/imu"), mag=False, temp=False,
+              data=(t, a / 835.0, g / 939.7))  # fmt: skip
+    assert_one_line_error(run("import", path, "-o", tmp_path / "x.h5"), "--topic", "/a/imu")
+    proc = run("import", path, "--topic", "/b/imu", "-o", tmp_path / "b.h5")
+    assert proc.returncode == 0, proc.stderr
+    assert_one_line_error(run("import", path, "--columns", "t,ax,ay,az", "-o",
+                              tmp_path / "y.h5"), "--columns does not apply")  # fmt: skip
+    motion = write_format("motioncal", tmp_path, six)
+    assert_one_line_error(run("import", motion, "-o", tmp_path / "z.h5"), "--rate")
+
+
+@pytest.mark.parametrize(
+    ("module", "reader", "name", "extra"),
+    [("rosbags.highlevel", read_ros, "x.bag", "[ros]"),
+     ("mcap.reader", read_ros, "x.mcap", "[mcap]"),
+     ("pyulog", read_ulog, "x.ulg", "[px4]")],
+)  # fmt: skip
+def test_missing_library_names_the_extra(monkeypatch, tmp_path, module, reader, name, extra):
+    path = tmp_path / name
+    path.write_bytes(b"data")
+    monkeypatch.setitem(__import__("sys").modules, module, None)  # as if not installed
+    with pytest.raises(InputError, match=rf"pip install 'imucal-cli\{extra}'"):
+        reader(path)

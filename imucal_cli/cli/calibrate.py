@@ -57,6 +57,13 @@ def calibrate(
         "--store/--no-store",
         help="Also store the calibration under the session's /calibrations.",
     ),
+    accel: Path | None = typer.Option(
+        None,
+        "--accel",
+        metavar="CAL.json",
+        help="Use this earlier accelerometer calibration (a calibration JSON, or a session .h5 "
+        "with a stored one) instead of calibrating the accelerometer: a gyro-only session.",
+    ),
     jobs: int = typer.Option(
         1, "--jobs", "-j", metavar="N", help="Several sessions: worker processes (0: one per CPU)."
     ),
@@ -83,13 +90,19 @@ def calibrate(
     if gravity is not None:
         cfg.gravity = gravity
     validate(cfg, "command line" if config is None else str(config))
+    accel_cal = None
+    if accel is not None:
+        from imucal_cli.pipeline.calibrate import load_accel
+
+        accel_cal = load_accel(accel)
 
     if len(sessions) > 1:
         if output is not None:
             raise InputError("--output names one file: with several sessions each goes to "
                              "SESSION.cal.json")  # fmt: skip
-        raise typer.Exit(_many(sessions, cfg, jobs, force, store, json_output))
-    cal, out, stored = calibrate_file(sessions[0], cfg, output=output, force=force, store=store)
+        raise typer.Exit(_many(sessions, cfg, jobs, force, store, json_output, accel_cal))
+    cal, out, stored = calibrate_file(sessions[0], cfg, output=output, force=force, store=store,
+                                      accel=accel_cal)  # fmt: skip
     if json_output:
         print_json(_result_json(cal, out, stored))
         return
@@ -113,7 +126,8 @@ def _result_json(cal, out: Path, stored: str) -> dict:
 
 
 def _many(
-    sessions: list[Path], cfg, jobs: int, force: bool, store: bool, json_output: bool = False
+    sessions: list[Path], cfg, jobs: int, force: bool, store: bool, json_output: bool = False,
+    accel=None,
 ) -> int:
     """Calibrate several sessions with a progress bar; one table; the worst exit status."""
     import resource
@@ -138,7 +152,7 @@ def _many(
     ) as bar:
         task = bar.add_task("calibrating", total=len(sessions))
         results = calibrate_many(
-            sessions, cfg, jobs=jobs, force=force, store=store,
+            sessions, cfg, jobs=jobs, force=force, store=store, accel=accel,
             progress=lambda _r: bar.advance(task),
         )  # fmt: skip
     wall = time.perf_counter() - t0
@@ -222,4 +236,6 @@ def _summary(console: Console, cal, where: str) -> None:
         )
         for w in x.get("warnings", []):
             console.print(f"  [bold yellow]warning[/]: {escape(w)}")
+    if cal.extra.get("gyro_note"):
+        console.print(f"[bold]gyro[/]: {escape(cal.extra['gyro_note'])}")
     console.print(f"wrote {escape(where)}")

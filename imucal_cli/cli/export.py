@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import typer
@@ -73,6 +72,7 @@ def export(
         metavar="NAME",
         help="c-header / fusion: name prefix, a C identifier [default: IMUCAL; fusion none].",
     ),
+    force: bool = typer.Option(False, "--force", help="Overwrite the output file."),
 ) -> None:
     """Export a calibration for firmware, ROS, estimators or scripts.
 
@@ -85,6 +85,7 @@ def export(
     from imucal_cli.errors import InputError
     from imucal_cli.formats.exporters import ExportOptions, parse_scale
     from imucal_cli.formats.noise import read_noise
+    from imucal_cli.formats.output import check_output, write_output
     from imucal_cli.use.export import FORMATS, format_for_suffix, load_input
     from imucal_cli.use.export import export as export_text
 
@@ -98,6 +99,8 @@ def export(
     for name, text in (("accel", accel_scale), ("gyro", gyro_scale)):
         if text is not None:
             scale[name] = parse_scale(text, f"--{name}-scale")
+    if output is not None:
+        check_output(output, force=force, inputs=[calibration, noise])
     cal, noise_in = load_input(calibration)
     if noise is not None:
         noise_in = read_noise(noise)
@@ -107,13 +110,7 @@ def export(
     if output is None:
         typer.echo(text, nl=False)
         return
-    tmp = output.with_name(output.name + ".tmp")
-    try:
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, output)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise InputError(f"{output}: cannot write ({exc.strerror or exc})") from None
+    write_output(output, text, force=force, inputs=[calibration, noise])
     what = ", ".join(
         f"{name} 3x{sec.bias.shape[0]}"
         for name, sec in (("accel", cal.accel), ("gyro", cal.gyro))

@@ -25,13 +25,20 @@ def import_(
         "gyroscope file.",
         show_default=False,
     ),
-    fmt: str = typer.Option(
-        "csv",
+    fmt: str | None = typer.Option(
+        None,
         "--format",
         "-f",
         metavar="FORMAT",
-        help="csv or imu_tk.",
+        help="csv, imu_tk, ros (.bag, ROS 2 bag folder, .mcap), ulog (.ulg), lines (MotionCal "
+        "Raw:, i2cdevlib a/g:) or witmotion (0x55 frames) [default: recognised from the file].",
         autocompletion=completion.import_formats,
+    ),
+    topic: str | None = typer.Option(
+        None,
+        "--topic",
+        metavar="TOPIC",
+        help="ros: the sensor_msgs/Imu topic (listed when several); ulog: the IMU instance N.",
     ),
     columns: str | None = typer.Option(
         None,
@@ -140,6 +147,7 @@ def import_(
         turn_angle_deg=turn_angle,
         mag_units=mag_units,
         magnetic_field_uT=field_ut,
+        topic=topic,
     )
     out = output or default_output(files[0])
     write_session(out, session, overwrite=force)

@@ -34,12 +34,16 @@ Example (every key optional; these are the defaults)::
     max_iterations = 200
 
     [gyro]
-    solver = "none"              # "none"; "static", "dynamic" (Qureshi III-B), "full"
-                                 # (12 parameters), or "factorization" (Hwangbo & Kanade)
+    solver = "auto"              # "auto": the most accurate solver the session supports
+                                 # (none when it has no gyro or no rotations); "none";
+                                 # "static", "dynamic" (Qureshi III-B), "full" (12 or 21
+                                 # parameters), or "factorization" (Hwangbo & Kanade)
     # nominal_sensitivity = 938.7  # raw units per rad/s (datasheet); default from the units
     # range = [-32768, 32767]      # raw output range: turns reaching it are clipped and left
                                    # out; default: the ADC word of counts data, else none
     max_scale_error = 0.20
+    max_residual_ratio = 10.0    # refuse when turns' residuals exceed this many times the
+                                 # noise (and the other turns' level); --force saves anyway
 
     [gyro.rotations]             # static, dynamic and full
     max_gap_s = 2.0              # still data must end/start this close to a rotation
@@ -47,6 +51,7 @@ Example (every key optional; these are the defaults)::
 
     [gyro.full]
     max_iterations = 100
+    g_sensitivity = "auto"       # "auto" (kept when significant and determined), "on", "off"
 
     [gyro.factorization]
     samples_per_segment = 40     # samples of each rotation used in the constraints
@@ -67,7 +72,7 @@ from typing import Any
 from imucal_cli.errors import ConfigError
 
 ACCEL_SOLVERS = ("auto", "gravity", "labelled", "factorization", "none")
-GYRO_SOLVERS = ("none", "static", "dynamic", "full", "factorization")
+GYRO_SOLVERS = ("auto", "none", "static", "dynamic", "full", "factorization")
 
 
 @dataclass
@@ -139,16 +144,19 @@ class GyroFullOptions:
     """Options of the 12-parameter gyro model (``[gyro.full]``)."""
 
     max_iterations: int = 100
+    g_sensitivity: str = "auto"
 
 
 @dataclass
 class GyroConfig:
-    """``[gyro]``: which solver (``"none"``: the gyroscope is not calibrated)."""
+    """``[gyro]``: which solver (``"auto"``: the most accurate the session supports;
+    ``"none"``: the gyroscope is not calibrated)."""
 
-    solver: str = "none"
+    solver: str = "auto"
     nominal_sensitivity: float | None = None
     range: list[float] | None = None
     max_scale_error: float = 0.20
+    max_residual_ratio: float = 10.0
     factorization: GyroFactorizationOptions = field(default_factory=GyroFactorizationOptions)
     rotations: GyroRotationOptions = field(default_factory=GyroRotationOptions)
     full: GyroFullOptions = field(default_factory=GyroFullOptions)
@@ -252,6 +260,10 @@ def validate(cfg: Config, where: str = "<config>") -> None:
     _one_of(
         where, "gyro.factorization", "linear", cfg.gyro.factorization.linear, ("subspace", "paper")
     )
+    _one_of(where, "gyro.full", "g_sensitivity", cfg.gyro.full.g_sensitivity,
+            ("auto", "on", "off"))  # fmt: skip
+    if not cfg.gyro.max_residual_ratio > 1:
+        raise ConfigError(f"{where}: [gyro] max_residual_ratio must be above 1")
     pl = a.labelled.placement_deg
     if pl is not None and not 0 < pl <= 45:
         raise ConfigError(
@@ -263,6 +275,7 @@ def validate(cfg: Config, where: str = "<config>") -> None:
         ("accel.labelled", a.labelled.max_iterations),
         ("accel.factorization", f.max_iterations),
         ("gyro.factorization", cfg.gyro.factorization.max_iterations),
+        ("gyro.full", cfg.gyro.full.max_iterations),
     ):
         if n < 1:
             raise ConfigError(f"{where}: [{table}] max_iterations must be at least 1")

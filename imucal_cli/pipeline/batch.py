@@ -54,7 +54,8 @@ class SessionResult:
 
 
 def calibrate_file(
-    path: Path, cfg: Config, *, output: Path | None = None, force: bool = False, store: bool = True
+    path: Path, cfg: Config, *, output: Path | None = None, force: bool = False, store: bool = True,
+    accel=None,
 ) -> tuple[Calibration, Path, str]:
     """Calibrate one session file, write its JSON and store it in the session.
 
@@ -72,7 +73,7 @@ def calibrate_file(
         Whatever reading, calibrating or the physical-sense check (unless ``force``) refuses.
     """
     session = read_session(path)
-    cal = calibrate_session(session, cfg, name=path.name)
+    cal = calibrate_session(session, cfg, name=path.name, accel=accel)
     problem = suspect_error(cal)
     if problem is not None and not force:
         raise problem
@@ -103,11 +104,11 @@ def _figures(cal: Calibration) -> dict:
     return out
 
 
-def _one(args: tuple[str, Config, bool, bool]) -> SessionResult:
-    path, cfg, force, store = args
+def _one(args: tuple) -> SessionResult:
+    path, cfg, force, store, accel = args
     result = SessionResult(session=path)
     try:
-        cal, out, stored = calibrate_file(Path(path), cfg, force=force, store=store)
+        cal, out, stored = calibrate_file(Path(path), cfg, force=force, store=store, accel=accel)
     except ImucalError as exc:
         result.exit_code, result.error = exc.exit_code, str(exc)
         return result
@@ -126,6 +127,7 @@ def calibrate_many(
     force: bool = False,
     store: bool = True,
     progress: Callable[[SessionResult], None] | None = None,
+    accel=None,
 ) -> list[SessionResult]:
     """Calibrate every session; one result per session, in the order given.
 
@@ -139,6 +141,8 @@ def calibrate_many(
         Worker processes (1: in this process; 0: one per CPU).
     force, store : bool
         As ``imucal calibrate``.
+    accel : SensorCalibration, optional
+        An accelerometer calibrated earlier (``--accel``), used for every session.
     progress : callable, optional
         Called with each result as it completes (any order).
 
@@ -152,7 +156,7 @@ def calibrate_many(
     if jobs < 0:
         raise InputError(f"--jobs must be 0 (one per CPU) or more, got {jobs}")
     jobs = jobs or default_jobs()
-    tasks = [(str(p), cfg, force, store) for p in paths]
+    tasks = [(str(p), cfg, force, store, accel) for p in paths]
     if jobs == 1 or len(tasks) == 1:
         results = map(_one, tasks)
         pool = None

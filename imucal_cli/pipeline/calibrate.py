@@ -56,6 +56,8 @@ def calibrate_gyro(
     they need ``accel``, calibrated in the same run.
     """
     solver = cfg.gyro.solver
+    if solver == "auto":
+        return calibrate_gyro_auto(session, cfg, accel)[0]
     if solver == "factorization":
         from imucal_cli.pipeline.factorization import calibrate_gyro_factorization
 
@@ -72,25 +74,139 @@ def calibrate_gyro(
     return None
 
 
-def calibrate_session(session: Session, cfg: Config, *, name: str | None = None) -> Calibration:
+def calibrate_gyro_auto(
+    session: Session, cfg: Config, accel: SensorCalibration | None
+) -> tuple[SensorCalibration | None, str | None]:
+    """``[gyro] solver = "auto"``: the most accurate solver the session supports.
+
+    The full model (bias, scale, misalignment, g-sensitivity when significant) wherever the
+    turns and a calibrated accelerometer allow it; Hwangbo & Kanade's factorization for a
+    redundant gyro (more than 3 channels) or turns about labelled axes without an
+    accelerometer calibration; None when the session has no gyro, or no rotations that it
+    did not capture on purpose. A session with rotation segments that no solver can use is
+    refused with the full model's reason.
+
+    Returns
+    -------
+    section : SensorCalibration or None
+    note : str or None
+        Why the gyro was left uncalibrated (None when it was calibrated).
+    """
+    from dataclasses import replace
+
+    from imucal_cli.errors import ImucalError
+
+    if session.gyro is None:
+        return None, "gyro not calibrated: the session has no /raw/gyro"
+    labelled = [s for s in session.rotation_segments() if s.axis is not None]
+    if session.gyro.shape[1] != 3 or (accel is None and labelled):
+        choice, why = "factorization", (
+            f"a redundant gyro ({session.gyro.shape[1]} channels)" if session.gyro.shape[1] != 3
+            else "turns about labelled axes and no accelerometer calibration"
+        )
+    elif accel is None:
+        return None, ("gyro not calibrated: the full gyro model needs the accelerometer "
+                      "calibrated (an [accel] solver, or --accel CAL.json)")  # fmt: skip
+    else:
+        choice, why = "full", "turns between still periods, accelerometer calibrated"
+    try:
+        sec = calibrate_gyro(session, replace(cfg, gyro=replace(cfg.gyro, solver=choice)), accel)
+    except ImucalError:
+        if session.rotation_segments():
+            raise  # turns captured on purpose: say why they cannot calibrate
+        return None, ("gyro not calibrated: no usable rotations (the gyro needs turns "
+                      "between still periods)")  # fmt: skip
+    sec.extra.setdefault("notes", []).insert(0, f'solver "{choice}" chosen by [gyro] solver = '
+                                                f'"auto": {why}')  # fmt: skip
+    sec.extra["choice"] = {"solver": choice, "by": "auto", "reason": why}
+    return sec, None
+
+
+def load_accel(path: str | Path) -> SensorCalibration:
+    """The accelerometer section of an earlier calibration (issue 9.5): a calibration JSON, or
+    a session file whose newest stored calibration has one.
+
+    Raises
+    ------
+    InputError
+        Unreadable file, or no accelerometer section in it.
+    """
+    from imucal_cli.errors import InputError
+    from imucal_cli.formats.calibration import calibration_from_json, read_calibration
+
+    path = Path(path)
+    if path.suffix.lower() in (".h5", ".hdf5"):
+        from imucal_cli.formats.session import read_session
+
+        stored = read_session(path).calibrations
+        found = [calibration_from_json(stored[k], f"{path}:/calibrations/{k}").accel
+                 for k in sorted(stored)]  # fmt: skip
+        found = [a for a in found if a is not None]
+        if not found:
+            raise InputError(f"{path}: no stored calibration with an accelerometer section")
+        accel = found[-1]
+    else:
+        accel = read_calibration(path).accel
+        if accel is None:
+            raise InputError(f"{path}: this calibration has no accelerometer section")
+    accel.extra = {**accel.extra, "notes": [f"from {path} (not re-calibrated here)"]
+                   + list(accel.extra.get("notes", [])), "warnings": []}  # fmt: skip
+    return accel
+
+
+def _accel_or_hint(session: Session, cfg: Config) -> SensorCalibration | None:
+    """The accelerometer calibrated here; when the session cannot do that but has turns for
+    the gyro, the refusal says what would work with what the user has (issue 9.6)."""
+    from imucal_cli.errors import DesignError
+
+    if cfg.accel.solver == "none":
+        return None
+    try:
+        return calibrate_accel(session, cfg)
+    except DesignError as exc:
+        if session.gyro is None or cfg.gyro.solver == "none" or not (
+            session.rotation_segments() or cfg.gyro.solver in ("full", "static", "dynamic")
+        ):
+            raise
+        raise DesignError(
+            f"{exc}; to calibrate only the gyro from this session, pass an earlier calibration "
+            "of this unit's accelerometer: --accel CAL.json (or a session file that stores one)"
+        ) from None
+
+
+def calibrate_session(
+    session: Session, cfg: Config, *, name: str | None = None,
+    accel: SensorCalibration | None = None,
+) -> Calibration:  # fmt: skip
     """Calibrate every sensor the config asks for; returns the calibration (not yet saved).
 
     ``name`` is what the calibration records as its session (default: the session's path).
+    ``accel``: an accelerometer calibrated earlier (``--accel``): used as it is, and copied
+    into the result, instead of calibrating the accelerometer from this session.
     """
-    if cfg.accel.solver == "none" and cfg.gyro.solver == "none":
+    if cfg.accel.solver == "none" and cfg.gyro.solver == "none" and accel is None:
         raise ConfigError("the config calibrates nothing: [accel] and [gyro] solver are both none")
     session, segmented = with_segments(session)
-    accel = calibrate_accel(session, cfg) if cfg.accel.solver != "none" else None
-    gyro = calibrate_gyro(session, cfg, accel)
+    if accel is None:
+        accel = _accel_or_hint(session, cfg)
+        segmented_accel = True
+    else:
+        segmented_accel = False
+    if cfg.gyro.solver == "auto":
+        gyro, gyro_note = calibrate_gyro_auto(session, cfg, accel)
+    else:
+        gyro, gyro_note = calibrate_gyro(session, cfg, accel), None
     if accel is None and gyro is None:
         raise DesignError(
             f"{session_name(session)}: nothing to calibrate: no still poses with accelerometer "
-            "data, and [gyro] solver is none"
+            f"data, and the gyro was not calibrated ({gyro_note or '[gyro] solver is none'})"
         )
-    for sec in (accel, gyro):
+    for sec in (accel if segmented_accel else None, gyro):
         if sec is not None and segmented:
             sec.extra.setdefault("notes", []).insert(0, segmented)
     extra = {"toolkit_version": __version__, "config": cfg.to_dict()}
+    if gyro_note:
+        extra["gyro_note"] = gyro_note
     if session.sensor:
         extra["sensor"] = session.sensor
     if session.source:  # "simulator", "serial:...": the report's context (paper figures or not)

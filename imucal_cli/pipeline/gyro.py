@@ -5,8 +5,13 @@ run, measures the gravity direction in both, and so how far the unit turned. Thr
 
 * ``static``  (Qureshi & Golnaraghi eq. 18): bias from the still periods, scale per axis;
 * ``dynamic`` (eqs. 19-21): scale and bias per axis from the rotations alone;
-* ``full``: 12 parameters (bias, scale and misalignment relative to the accelerometer frame)
-  from arbitrary rotations, by integrating the gyro and matching the gravity direction.
+* ``full``: 12 parameters (bias, scale and misalignment relative to the accelerometer frame),
+  21 with the g-sensitivity, from arbitrary rotations, by integrating the gyro and matching
+  the gravity direction.
+
+This module finds the turns and the still periods around them, with noise pooled over all
+still periods (issue 10.7), and builds the gyro section; the per-axis solvers are in
+:mod:`.gyro_axes`, the full model in :mod:`.gyro_full`.
 
 Rotation segments come from the session; where it has none, they are found in the stream
 (motion between two still periods, thresholds from the data's own noise).
@@ -14,7 +19,7 @@ Rotation segments come from the session; where it has none, they are found in th
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -22,17 +27,11 @@ from imucal_cli.errors import DesignError
 from imucal_cli.formats.calibration import MODEL_EQUATION, SensorCalibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Segment, Session
-from imucal_cli.solvers import gyro_axes, gyro_full
 from imucal_cli.solvers.segmentation import find_rotations, find_static
 
-from .common import num, rms, session_name, with_segments
+from .common import rms, session_name, with_segments
 
 AXES = "xyz"
-#: Per-axis (static/dynamic) solvers: a turn whose axis is further than this from the sensor
-#: axis it is attributed to is left out (the full model takes any turn).
-MAX_AXIS_ERROR_DEG = 15.0
-#: Per-axis solvers: rotation residuals above this RMS mean the per-axis model does not fit.
-MAX_PER_AXIS_RMS_DEG = 1.0
 
 
 @dataclass
@@ -46,6 +45,8 @@ class Turn:
 
 @dataclass
 class Still:
+    """One still period: its calibrated accelerometer mean and its raw gyro mean."""
+
     segment: Segment
     g: np.ndarray  # calibrated accel mean, m/s^2
     g_sigma: float  # direction noise of the mean, rad
@@ -77,16 +78,24 @@ def _segments(session: Session, where: str) -> tuple[list[Segment], list[Segment
 def _stills_and_turns(session, accel_cal, cfg, where):
     statics, turns, source = _segments(session, where)
     g = cfg.gravity or session.gravity
-    stills = []
+    a_means, z_means, counts, a_var, z_var = [], [], [], 0.0, 0.0
     for s in statics:
         a = accel_cal.apply(session.accel[s.start : s.stop])
         z = session.gyro[s.start : s.stop]
-        n = len(a)
-        a_noise = float(np.sqrt(np.mean(np.var(a, axis=0)))) if n > 1 else 0.0
-        stills.append(Still(
-            s, a.mean(axis=0), max(a_noise / (g * np.sqrt(n)), 1e-6), z.mean(axis=0),
-            float(np.sqrt(np.mean(np.var(z, axis=0)) / n)) if n > 1 else 0.0,
-        ))  # fmt: skip
+        a_means.append(a.mean(axis=0))
+        z_means.append(z.mean(axis=0))
+        counts.append(len(a))
+        if len(a) > 1:  # pooled within-still variances (issue 10.7), per channel
+            a_var += np.mean(np.var(a, axis=0)) * len(a)
+            z_var += np.mean(np.var(z, axis=0)) * len(z)
+    dof = max(sum(n - 1 for n in counts), 1)
+    a_sigma, z_sigma = np.sqrt(a_var / dof), np.sqrt(z_var / dof)
+    # Each mean's noise from the pooled per-sample noise: one hold's few samples can make its
+    # own estimate small by chance, and its weight too large (stated std below the bound).
+    stills = [
+        Still(s, am, max(a_sigma / (g * np.sqrt(n)), 1e-6), zm, float(z_sigma / np.sqrt(n)))
+        for s, am, zm, n in zip(statics, a_means, z_means, counts, strict=True)
+    ]
     gap = cfg.gyro.rotations.max_gap_s
     usable, skipped = [], []
     for r in turns:
@@ -110,7 +119,7 @@ def _stills_and_turns(session, accel_cal, cfg, where):
             f"{where}: no rotation has still data right before and after it (within "
             f"{gap:g} s): hold the unit still for a few seconds before and after every turn"
         )
-    return stills, usable, skipped, source
+    return stills, usable, skipped, source, float(z_sigma)
 
 
 def _saturated(session: Session, turn: Turn, limit: tuple[float, float] | None) -> bool:
@@ -139,249 +148,135 @@ def _saturation_limit(session: Session, cfg: Config) -> tuple[float, float] | No
     return rng[0] + margin, rng[1] - margin
 
 
-def _integral(session: Session, seg: Segment) -> tuple[np.ndarray, float]:
-    t = session.time[seg.start : seg.stop]
-    return np.trapezoid(session.gyro[seg.start : seg.stop], t, axis=0), float(t[-1] - t[0])
+@dataclass
+class GyroData:
+    """What every rotation solver starts from: the usable turns, the still periods around
+    them, the pooled gyro noise and bias, and the notes and warnings so far."""
+
+    session: Session
+    cfg: Config
+    where: str
+    accel_cal: SensorCalibration
+    stills: list[Still]
+    turns: list[Turn]
+    noise: float  # per-sample gyro noise pooled over the still periods, raw units
+    bias_still: np.ndarray  # mean of every still sample, raw units
+    b_still_std: float
+    units_in: str
+    notes: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
 
 
-def _axis_of(turn: Turn, x: np.ndarray, bias: np.ndarray, T: float) -> int:
-    """The gyro axis a turn is about: its labelled axis, else the dominant raw channel."""
-    if turn.segment.axis is not None:
-        return int(np.argmax(np.abs(turn.segment.axis)))
-    return int(np.argmax(np.abs(x - bias * T)))
+@dataclass
+class GyroFit:
+    """A rotation solver's result, before it becomes the gyro section."""
+
+    bias: np.ndarray
+    matrix: np.ndarray
+    parameters: list[dict]
+    rotations: list[dict]
+    residual_rad: np.ndarray
+    gains: np.ndarray  # raw units per rad/s of each axis, for the physical-sense checks
+    extra: dict
+
+
+def gyro_data(session: Session, cfg: Config, accel_cal: SensorCalibration) -> GyroData:
+    """Turns with still data around them, clipped turns left out (with a warning)."""
+    where = session_name(session)
+    if session.gyro is None:
+        raise DesignError(f"{where}: no /raw/gyro in this session")
+    stills, turns, skipped, source, noise = _stills_and_turns(session, accel_cal, cfg, where)
+    data = GyroData(session, cfg, where, accel_cal, stills, turns, max(noise, 1e-12),
+                    np.zeros(3), 0.0, session.gyro_units or "unknown",
+                    notes=[f"rotations: {source}"])  # fmt: skip
+    if skipped:
+        data.notes.append(f"{len(skipped)} rotation(s) without still data before and after: "
+                          "skipped")  # fmt: skip
+    limit = _saturation_limit(session, cfg)
+    clipped = [t for t in turns if _saturated(session, t, limit)]
+    if clipped:
+        data.warnings.append(
+            f"{len(clipped)} rotation(s) reach the end of the gyro's range (raw "
+            f"{limit[0]:.6g} .. {limit[1]:.6g}): left out; turn more slowly"
+        )
+        data.turns = [t for t in turns if t not in clipped]
+    if not data.turns:
+        raise DesignError(f"{where}: every rotation is clipped: turn the unit more slowly")
+    n = sum(s.segment.stop - s.segment.start for s in stills)
+    data.bias_still = np.sum([s.z_mean * (s.segment.stop - s.segment.start) for s in stills],
+                             axis=0) / n  # fmt: skip
+    data.b_still_std = data.noise / np.sqrt(n)
+    return data
+
+
+VARIANTS = {
+    "static": "Qureshi static-bias approach (eq. 18)",
+    "dynamic": "Qureshi dynamic approach (eqs. 19-21)",
+    "full": "12 parameters from integrated rotations",
+    "full-g": "21 parameters (with g-sensitivity) from integrated rotations",
+}
 
 
 def calibrate_gyro_rotations(session: Session, cfg: Config, accel_cal: SensorCalibration):
     """Gyro calibration with the ``static``, ``dynamic`` or ``full`` solver."""
-    where = session_name(session)
-    if session.gyro is None:
-        raise DesignError(f"{where}: no /raw/gyro in this session")
+    data = gyro_data(session, cfg, accel_cal)
     solver = cfg.gyro.solver
-    stills, turns, skipped, source = _stills_and_turns(session, accel_cal, cfg, where)
-    notes = [f"rotations: {source}"]
-    warnings = []
-    if skipped:
-        notes.append(f"{len(skipped)} rotation(s) without still data before and after: skipped")
-    limit = _saturation_limit(session, cfg)
-    clipped = [t for t in turns if _saturated(session, t, limit)]
-    if clipped:
-        warnings.append(
-            f"{len(clipped)} rotation(s) reach the end of the gyro's range (raw "
-            f"{limit[0]:.6g} .. {limit[1]:.6g}): left out; turn more slowly"
-        )
-        turns = [t for t in turns if t not in clipped]
-    if not turns:
-        raise DesignError(f"{where}: every rotation is clipped: turn the unit more slowly")
-    z_still = np.vstack([session.gyro[s.segment.start : s.segment.stop] for s in stills])
-    bias_still = z_still.mean(axis=0)
-    gyro_noise = float(np.sqrt(np.mean(np.var(z_still, axis=0))))
-    b_still_std = gyro_noise / np.sqrt(len(z_still))
-    units_in = session.gyro_units or "unknown"
-
-    rotations = []
     if solver in ("static", "dynamic"):
-        # Pass 1 reads each angle about the nominal axis; pass 2 about the turn's own axis,
-        # the rotation vector that the pass-1 calibration integrates (a hand is never exact).
-        k = b = None
-        for _ in range(2):
-            k, b, k_std, b_std, rotations = _per_axis(
-                session, solver, turns, stills, bias_still, b_still_std, cfg, where,
-                notes if k is None else [], None if k is None else (k, b),
-            )  # fmt: skip
-        matrix = np.diag(k)
-        parameters = [
-            {"name": f"b_{a}", "value": float(b[i]), "std": num(b_std[i]), "unit": units_in}
-            for i, a in enumerate(AXES)
-        ] + [
-            {"name": f"k_{a}", "value": float(k[i]), "std": num(k_std[i]),
-             "unit": f"rad/s per {units_in}"}
-            for i, a in enumerate(AXES)
-        ]  # fmt: skip
-        residual = np.radians([r["angle_error_deg"] for r in rotations])
-        if np.degrees(rms(residual)) > MAX_PER_AXIS_RMS_DEG:
-            warnings.append(
-                f"the per-axis model does not fit these turns (angle residual RMS "
-                f"{np.degrees(rms(residual)):.2f} deg): turn about one sensor axis at a time "
-                '(x and y with z up, z on its side), or use [gyro] solver = "full"'
-            )
-        extra = {"model_paper": "omega = K (omega_s - B), eq. (15)", "approach": solver}
-        scale_for_checks = 1 / np.abs(k)
+        from .gyro_axes import fit_per_axis
+
+        fit = fit_per_axis(data, solver)
     else:
-        rot, st = _full_problem(session, stills, turns)
-        res = gyro_full.fit_full(
-            rot, st, max(gyro_noise, 1e-12), bias_still,
-            max_iterations=cfg.gyro.full.max_iterations,
-        )  # fmt: skip
-        notes += res.notes
-        b, matrix = res.b, res.M
-        names = [f"m_{r}{c}" for r in AXES for c in AXES]
-        parameters = [
-            {"name": f"b_{a}", "value": float(b[i]), "std": num(res.std[i]), "unit": units_in}
-            for i, a in enumerate(AXES)
-        ] + [
-            {"name": n, "value": float(v), "std": num(s), "unit": f"rad/s per {units_in}"}
-            for n, v, s in zip(names, matrix.ravel(), res.std[3:], strict=True)
-        ]
-        for t, r_deg, a_deg in zip(turns, res.angle_residual_deg, res.rotation_angle_deg,
-                                   strict=True):  # fmt: skip
-            rotations.append({
-                "segment": t.segment.name, "label": t.segment.label,
-                "known_angle_deg": None, "measured_angle_deg": float(a_deg),
-                "angle_error_deg": float(r_deg),
-            })  # fmt: skip
-        residual = np.radians(res.angle_residual_deg)
-        S = np.linalg.inv(matrix)
-        s_axes = S / np.linalg.norm(S, axis=1, keepdims=True)
-        extra = {
-            "approach": "full",
-            # Angles between the gyro's sensitivity axes, minus 90 (as for the accelerometer)...
-            "misalignment_deg": {
-                f"{AXES[i]}{AXES[j]}": float(np.degrees(np.arccos(s_axes[i] @ s_axes[j])) - 90)
-                for i, j in ((0, 1), (0, 2), (1, 2))
-            },
-            # ...and of each sensitivity axis from the accelerometer's axis of the same name.
-            "axis_to_accel_frame_deg": {
-                a: float(np.degrees(np.arccos(np.clip(s_axes[i, i], -1, 1))))
-                for i, a in enumerate(AXES)
-            },
-            "iterations": res.iterations, "chi2": res.chi2, "dof": res.dof,
-            "noise_scale": res.noise_scale,
-        }  # fmt: skip
-        scale_for_checks = np.linalg.norm(S, axis=1)
-    warnings += gyro_checks(session, cfg, scale_for_checks, units_in)
+        from .gyro_full import fit_full_model
+
+        fit = fit_full_model(data)
+    data.warnings += gyro_checks(session, cfg, fit.gains, data.units_in)
+    extra = dict(fit.extra)
+    variant = "full-g" if extra.get("g_sensitivity") is not None else solver
     extra.update({
-        "model": MODEL_EQUATION,
-        "units_in": units_in,
-        "variant": {"static": "Qureshi static-bias approach (eq. 18)",
-                    "dynamic": "Qureshi dynamic approach (eqs. 19-21)",
-                    "full": "12 parameters from integrated rotations"}[solver],
-        "frame": "the calibrated accelerometer's frame",
-        "parameters": parameters,
-        "sensitivity": [float(x) for x in scale_for_checks],
-        "sensitivity_unit": f"{units_in} per rad/s",
-        "rotations": rotations,
-        "rotation_rms_deg": float(np.degrees(rms(residual))),
-        "gyro_noise_raw": gyro_noise,
-        "notes": notes,
-        "warnings": warnings,
+        "model": MODEL_EQUATION if variant != "full-g" else MODEL_EQUATION_G,
+        "units_in": data.units_in,
+        "variant": VARIANTS[variant],
+        "frame": _frame(data.accel_cal),
+        "parameters": fit.parameters,
+        "sensitivity": [float(x) for x in fit.gains],
+        "sensitivity_unit": f"{data.units_in} per rad/s",
+        "rotations": fit.rotations,
+        "rotation_rms_deg": float(np.degrees(rms(fit.residual_rad))),
+        "gyro_noise_raw": data.noise,
+        "noise_basis": "pooled over the still periods",
+        "notes": data.notes,
+        "warnings": data.warnings,
     })  # fmt: skip
     return SensorCalibration(
         solver=f"gyro-{solver}",
         units="rad/s",
-        bias=np.asarray(b, float),
-        matrix=np.asarray(matrix, float),
-        residual_rms=rms(residual),
+        bias=np.asarray(fit.bias, float),
+        matrix=np.asarray(fit.matrix, float),
+        residual_rms=rms(fit.residual_rad),
         extra=extra,
     )
 
 
-def _per_axis(session, solver, turns, stills, bias_still, b_still_std, cfg, where, notes, first):
-    """Per-axis fits (static or dynamic) of every axis; ``first`` = (k, b) of a previous pass
-    whose calibration gives each turn's actual axis."""
-    k, b, k_std, b_std = np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)
-    min_lev = np.sin(np.radians(cfg.gyro.rotations.min_tilt_deg)) ** 2
-    per_axis = {i: [] for i in range(3)}
-    oblique = 0
-    for turn in turns:
-        x, T = _integral(session, turn.segment)
-        i = _axis_of(turn, x, bias_still, T)
-        sign = np.sign(turn.segment.axis[i]) if turn.segment.axis is not None else 1.0
-        axis = np.eye(3)[i] * sign
-        # The per-axis model holds for turns about one sensor axis only: the turn's own axis
-        # (raw integral in pass 1, calibrated in pass 2) must be near it.
-        turned = (x - bias_still * T) if first is None else first[0] * (x - first[1] * T)
-        off = np.degrees(np.arccos(min(1.0, abs(turned[i]) / max(np.linalg.norm(turned), 1e-300))))
-        if off > MAX_AXIS_ERROR_DEG:
-            oblique += 1
-            notes.append(
-                f"{turn.segment.label or turn.segment.name}: turned {off:.0f} deg away from the "
-                f"{AXES[i]} axis, not about one sensor axis: left out of the per-axis fit"
-            )
-            continue
-        if first is not None:
-            rotvec = first[0] * (x - first[1] * T)
-            axis = rotvec / np.linalg.norm(rotvec) * np.sign(rotvec[i]) * sign
-        angle, lev = gyro_axes.rotation_angle_about_axis(
-            stills[turn.before].g, stills[turn.after].g, axis
-        )
-        if lev < min_lev:
-            notes.append(
-                f"{turn.segment.label or turn.segment.name}: axis within "
-                f"{cfg.gyro.rotations.min_tilt_deg:g} deg of vertical, invisible to gravity: "
-                "skipped"
-            )
-            continue
-        # Channel i sees the rotation vector's component along i: the angle times the axis's
-        # i-th component (1 for a turn exactly about the axis; the paper assumes that).
-        per_axis[i].append((turn, x[i], T, sign * angle * abs(axis[i])))
-    rotations = []
-    for i in range(3):
-        rows = per_axis[i]
-        if len(rows) < (2 if solver == "static" else 3):
-            raise DesignError(
-                f"{where}: {len(rows)} usable rotation(s) about {AXES[i]}; the {solver} "
-                f"approach needs {'2' if solver == 'static' else '3'} or more per axis (the "
-                f"paper turns 18 times per axis; {AXES[i]} turns need {AXES[i]} horizontal)"
-                + (
-                    f"; {oblique} turn(s) not about one sensor axis were left out: "
-                    '[gyro] solver = "full" takes any turn'
-                    if oblique
-                    else ""
-                )
-            )
-        x = np.array([r[1] for r in rows])
-        T = np.array([r[2] for r in rows])
-        ang = _unwrap(np.array([r[3] for r in rows]), x - bias_still[i] * T)
-        if solver == "static":
-            fit = gyro_axes.fit_axis_static(x, T, ang, bias_still[i], b_still_std)
-        else:
-            fit = gyro_axes.fit_axis_dynamic(x, T, ang)
-        k[i], b[i], k_std[i], b_std[i] = fit.k, fit.b, fit.k_std, fit.b_std
-        for (turn, xi, Ti, ai), res in zip(rows, fit.residuals_rad, strict=True):
-            rotations.append({
-                "segment": turn.segment.name, "label": turn.segment.label, "axis": AXES[i],
-                "known_angle_deg": float(np.degrees(ai)),
-                "measured_angle_deg": float(np.degrees(fit.k * (xi - fit.b * Ti))),
-                "angle_error_deg": float(np.degrees(-res)),
-            })  # fmt: skip
-    return k, b, k_std, b_std, rotations
+def _frame(accel: SensorCalibration) -> str:
+    """The frame the gyro is calibrated in: the accelerometer's, which its solver and model
+    fix (another accelerometer solver is another frame: not drift)."""
+    how = ", ".join(x for x in (accel.solver, accel.extra.get("variant")) if x)
+    return f"the calibrated accelerometer's frame ({how})"
 
 
-def _unwrap(angle: np.ndarray, integral: np.ndarray) -> np.ndarray:
-    """Gravity gives each angle only modulo 360 degrees: a turn of 179 degrees may read -181.
-    Take the branch nearest the gyro's own estimate (a rough scale from the turns clear of
-    +-180 degrees times each turn's bias-free integral)."""
-    clear = np.abs(angle) < np.radians(150)
-    if not clear.any():
-        return angle
-    k = np.median(angle[clear] / integral[clear])
-    return angle + 2 * np.pi * np.round((k * integral - angle) / (2 * np.pi))
-
-
-def _full_problem(session, stills, turns) -> tuple[gyro_full.Rotations, gyro_full.Stills]:
-    rot = gyro_full.Rotations(
-        t=[session.time[t.segment.start : t.segment.stop] for t in turns],
-        z=[session.gyro[t.segment.start : t.segment.stop] for t in turns],
-        before=np.array([t.before for t in turns]),
-        after=np.array([t.after for t in turns]),
-    )
-    st = gyro_full.Stills(
-        g=np.array([s.g for s in stills]),
-        g_sigma=np.array([s.g_sigma for s in stills]),
-        z_mean=np.array([s.z_mean for s in stills]),
-        z_sigma=np.array([max(s.z_sigma, 1e-12) for s in stills]),
-    )
-    return rot, st
+#: The model equation of a gyro section with g-sensitivity (spec: optional term).
+MODEL_EQUATION_G = "calibrated = matrix @ (raw - bias - g_sensitivity @ a)"
 
 
 def full_problem(session: Session, cfg: Config, accel_cal: SensorCalibration):
     """The full model's data for a session, as :func:`calibrate_gyro_rotations` builds it:
     ``(Rotations, Stills, per-sample gyro noise)`` (for the Cramér-Rao bound of a design)."""
+    from .gyro_full import rotations_and_stills
+
     session, _ = with_segments(session)
-    stills, turns, _, _ = _stills_and_turns(session, accel_cal, cfg, session_name(session))
-    z = np.vstack([session.gyro[s.segment.start : s.segment.stop] for s in stills])
-    rot, st = _full_problem(session, stills, turns)
-    return rot, st, float(np.sqrt(np.mean(np.var(z, axis=0))))
+    data = gyro_data(session, cfg, accel_cal)
+    rot, st = rotations_and_stills(data)
+    return rot, st, data.noise
 
 
 def gyro_checks(session, cfg, gains, units) -> list[str]:

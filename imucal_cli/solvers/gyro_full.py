@@ -18,7 +18,15 @@ design (:func:`full_information`). The covariance is sparse (a still period is s
 turn before and the turn after it) and is whitened through its banded Cholesky factor
 (:mod:`imucal_cli.solvers.banded`): time and memory are linear in the number of turns.
 
-Start values come from the data alone (:mod:`imucal_cli.solvers.gyro_start`).
+Start values come from the data alone (:mod:`imucal_cli.solvers.gyro_start`); the model's
+residuals, Jacobian and covariance are in :mod:`imucal_cli.solvers.gyro_model`.
+
+**g-sensitivity** (issue 10.7): a MEMS gyro also responds to specific force. The model can
+include ``G`` (3 x 3, raw units per m/s^2, Kalibr's ``A``): ``omega = M (z - b - G a)``. Still
+periods in several orientations see it as a bias that changes with the gravity direction;
+turns see it in their integral. With ``g_sensitivity="auto"`` the 21-parameter model is kept
+when the design determines ``G`` and the fit improves significantly (F-test of the
+likelihood ratio against the 12-parameter model, which allows for excess noise).
 """
 
 from __future__ import annotations
@@ -26,71 +34,32 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import sparse
 from scipy.optimize import least_squares
-from scipy.special import chdtri
+from scipy.special import chdtri, fdtrc
 
 from imucal_cli.errors import DesignError, SolverError
-from imucal_cli.solvers.banded import BandedWhitener
-from imucal_cli.solvers.gyro_integration import (
-    Stack,
-    attitudes,
-    end_sensitivity,
-    integrate_rotations,
-    matrix_rows,
-    quat_to_matrix,
-)
+from imucal_cli.solvers.gyro_integration import integrate_rotations
+from imucal_cli.solvers.gyro_model import Problem, Rotations, Stills
 from imucal_cli.solvers.gyro_start import Start, start_values
 
 #: A fit leaving a turn's gravity direction further off than this did not find the turns'
 #: minimum: the next start is tried.
 MAX_TURN_RESIDUAL_DEG = 10.0
+#: g-sensitivity "auto": included when the F-test's p-value is below this.
+G_SELECT_P = 1e-3
+#: A model whose whitened Jacobian has a singular value below this fraction of the largest
+#: leaves a combination of its parameters undetermined.
+UNDETERMINED = 1e-8
+AXES = "xyz"
 
 __all__ = ["FullResult", "Rotations", "Stills", "fit_full", "full_information",
-           "integrate_rotations"]  # fmt: skip
+           "integrate_rotations", "parameter_names", "refit_without"]  # fmt: skip
 
 
-@dataclass
-class Rotations:
-    """The rotation segments of a session.
-
-    Attributes
-    ----------
-    t : list of ndarray (n_k,)
-        Sample times of each rotation, s (including the still samples at both ends is fine).
-    z : list of ndarray (n_k, 3)
-        Raw gyro samples.
-    before, after : ndarray of int (K,)
-        Index of the still period before and after each rotation (into :class:`Stills`).
-    """
-
-    t: list[np.ndarray]
-    z: list[np.ndarray]
-    before: np.ndarray
-    after: np.ndarray
-
-
-@dataclass
-class Stills:
-    """The still periods around the rotations.
-
-    Attributes
-    ----------
-    g : ndarray (P, 3)
-        Calibrated accelerometer mean of each still period (any units; only the direction
-        counts).
-    g_sigma : ndarray (P,)
-        Standard deviation of each mean's direction, per tangent component, rad.
-    z_mean : ndarray (P, 3)
-        Raw gyro mean of each still period.
-    z_sigma : ndarray (P,)
-        Standard deviation of each gyro mean, per channel, raw units.
-    """
-
-    g: np.ndarray
-    g_sigma: np.ndarray
-    z_mean: np.ndarray
-    z_sigma: np.ndarray
+def parameter_names(n: int) -> list[str]:
+    """Names of the 12 (or 21) parameters: ``b_x..``, ``m_xx..``, ``g_xx..`` (row-major)."""
+    names = [f"b_{a}" for a in AXES] + [f"m_{r}{c}" for r in AXES for c in AXES]
+    return names + [f"g_{r}{c}" for r in AXES for c in AXES] if n == 21 else names
 
 
 @dataclass
@@ -102,15 +71,26 @@ class FullResult:
     b : ndarray (3,)
         Bias, raw units.
     M : ndarray (3, 3)
-        ``omega [rad/s] = M (z - b)``.
-    cov : ndarray (12, 12)
-        Covariance of ``(b, vec(M))`` (row-major), after ``noise_scale``.
+        ``omega [rad/s] = M (z - b - G a)``.
+    G : ndarray (3, 3) or None
+        g-sensitivity, raw units per m/s^2 (None when the model leaves it out).
+    cov : ndarray (12, 12) or (21, 21)
+        Covariance of ``(b, vec(M)[, vec(G)])`` (row-major), after ``noise_scale``.
     angle_residual_deg : ndarray (K,)
         Angle between the predicted and the measured gravity direction after each rotation.
     rotation_angle_deg : ndarray (K,)
         Angle of each integrated rotation.
     chi2, dof, noise_scale, iterations, converged, message
         Fit statistics; ``noise_scale`` is ``chi2/dof`` when that is significantly above 1.
+    turn_chi2 : ndarray (K,)
+        Each turn's squared residual in its own noise, ``r_k^T Sigma_kk^-1 r_k`` (2 degrees of
+        freedom when the noise model holds).
+    turn_sigma_deg : ndarray (K,)
+        The residual angle each turn's noise predicts (one standard deviation), degrees.
+    still_chi2 : ndarray (P,)
+        Each still period's squared gyro-mean residual in its noise (3 degrees of freedom).
+    g_test : dict or None
+        The g-sensitivity decision: ``included``, ``observable``, ``F``, ``dof``, ``p_value``.
     """
 
     b: np.ndarray
@@ -125,154 +105,26 @@ class FullResult:
     converged: bool
     message: str
     notes: list[str] = field(default_factory=list)
+    G: np.ndarray | None = None
+    turn_chi2: np.ndarray | None = None
+    turn_sigma_deg: np.ndarray | None = None
+    still_chi2: np.ndarray | None = None
+    g_test: dict | None = None
 
     @property
     def std(self) -> np.ndarray:
         return np.sqrt(np.clip(np.diag(self.cov), 0, None))
 
 
-# --------------------------------------------------------------------------- the model
-
-
-def _tangent(u: np.ndarray) -> np.ndarray:
-    """(P, 3, 2) orthonormal bases of the planes normal to unit vectors ``u`` (P, 3)."""
-    helper = np.eye(3)[np.argmin(np.abs(u), axis=1)]
-    t1 = np.cross(u, helper)
-    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-    t2 = np.cross(u, t1)
-    return np.stack([t1, t2], axis=2)
-
-
-def _skew(p: np.ndarray) -> np.ndarray:
-    """(K, 3, 3) cross-product matrices ``[p]x`` of (K, 3) vectors."""
-    out = np.zeros((len(p), 3, 3))
-    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -p[:, 2], p[:, 1], -p[:, 0]
-    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = p[:, 2], -p[:, 1], p[:, 0]
-    return out
-
-
-class _Problem:
-    """Residuals of the full model, their Jacobian, and their noise covariance.
-
-    Parameters ``x = (b, vec(M))`` (row-major). Residuals: two per rotation (the predicted
-    gravity direction after it, ``p = R^T u_before``, minus the measured one, in the tangent
-    plane of the measured one), then three per still period (gyro mean minus bias).
-    """
-
-    def __init__(self, rot: Rotations, still: Stills, gyro_sigma: float, clock: float = 1.0):
-        self.rot, self.still, self.clock = rot, still, clock
-        self.stack = Stack.of(rot.t)
-        self.z = np.ascontiguousarray(np.concatenate(rot.z).T, dtype=float)  # (3, N)
-        self.u = still.g / np.linalg.norm(still.g, axis=1, keepdims=True)
-        self.B = _tangent(self.u)
-        self.gyro_sigma = gyro_sigma
-        self.K, self.P = len(rot.t), len(still.g)
-        # Integrated white gyro noise over a rotation: sigma * sqrt(sum dt^2) per axis (raw).
-        h2 = (clock * np.diff(self.stack.t)) ** 2
-        h2[self.stack.stop[:-1] - 1] = 0.0
-        self.int_noise = gyro_sigma * np.sqrt(np.add.reduceat(np.r_[h2, 0.0], self.stack.start))
-        self._last = (None, None)
-
-    def _attitudes(self, x):
-        """Every sample's attitude in its rotation (4, N); the last evaluation is kept (the
-        solver asks for residuals, Jacobian and noise model at one point in turn)."""
-        key = x.tobytes()
-        if self._last[0] != key:
-            b, M = x[:3], x[3:12].reshape(3, 3)
-            self._last = (key, attitudes(self.stack, M @ (self.z - b[:, None]), self.clock))
-        return self._last[1]
-
-    def predicted(self, x):
-        """Predicted gravity direction after each rotation (K, 3) and the rotations (K, 3, 3)."""
-        q = self._attitudes(x)
-        R = quat_to_matrix(q[:, self.stack.stop - 1])
-        return np.einsum("kji,kj->ki", R, self.u[self.rot.before]), R  # R^T u0
-
-    def _rotation_residuals(self, p):
-        B1 = self.B[self.rot.after]
-        return np.einsum("kij,ki->kj", B1, p - self.u[self.rot.after]).ravel()
-
-    def raw_residuals(self, x):
-        p, _ = self.predicted(x)
-        return np.concatenate([self._rotation_residuals(p), (self.still.z_mean - x[:3]).ravel()])
-
-    def residuals_and_jacobian(self, x):
-        """Raw residuals and their analytic Jacobian (first order in the rate perturbation).
-
-        A rate error ``d omega(t)`` rotates the end of a turn by
-        ``d phi = integral R(t -> end) d omega(t) dt`` (body frame at the end), which moves the
-        predicted gravity direction by ``d p = [p]x d phi``.
-        """
-        b, M = x[:3], x[3:12].reshape(3, 3)
-        st, K = self.stack, self.K
-        R = matrix_rows(self._attitudes(x))
-        R_end = R[:, st.stop - 1].T.reshape(K, 3, 3)
-        p = np.einsum("kji,kj->ki", R_end, self.u[self.rot.before])
-        r = np.concatenate([self._rotation_residuals(p), (self.still.z_mean - b).ravel()])
-        dphi_db = -end_sensitivity(st, R, clock=self.clock) @ M  # d omega_i = -M d b
-        dphi_dM = end_sensitivity(st, R, self.z - b[:, None], self.clock).reshape(K, 3, 9)  # dM d_i
-        G = np.einsum("kai,kab->kib", self.B[self.rot.after], _skew(p))  # B1^T [p]x
-        J = np.zeros((2 * K + 3 * self.P, 12))
-        J[: 2 * K, :3] = (G @ dphi_db).reshape(2 * K, 3)
-        J[: 2 * K, 3:] = (G @ dphi_dM).reshape(2 * K, 9)
-        J[2 * K :, :3] = -np.tile(np.eye(3), (self.P, 1))
-        return r, J
-
-    def rotation_covariance(self, x) -> sparse.csr_matrix:
-        """Covariance of the rotation residuals (2K x 2K, sparse): each rotation's from the
-        gravity directions before and after it (shared with its neighbours) and its
-        integrated gyro noise."""
-        p, R = self.predicted(x)
-        M = x[3:12].reshape(3, 3)
-        K, P = self.K, self.P
-        i0, i1 = self.rot.before, self.rot.after
-        B1 = self.B[i1]
-        g_sigma = self.still.g_sigma
-        # u_before perturbed in its tangent plane: d p = R^T B0 e
-        c0 = np.einsum("kai,kba,kbj->kij", B1, R, self.B[i0]) * g_sigma[i0, None, None]
-        # u_after perturbed: d(-u1) projected (B1 is fixed from the data, to first order)
-        c1 = -np.broadcast_to(np.eye(2), (K, 2, 2)) * g_sigma[i1, None, None]
-        # Integrated gyro noise: a small rotation eps (body, end) -> d p = [p]x eps
-        cg = np.einsum("kai,kab,bc->kic", B1, _skew(p), M) * self.int_noise[:, None, None]
-        rows = 2 * np.arange(K)[:, None, None] + np.arange(2)[None, :, None]
-        blocks = [(c0, 2 * i0), (c1, 2 * i1), (cg, 2 * P + 3 * np.arange(K))]
-        data, rr, cc = [], [], []
-        for c, col0 in blocks:
-            n = c.shape[2]
-            cols = col0[:, None, None] + np.arange(n)[None, None, :]
-            data.append(c.ravel())
-            rr.append(np.broadcast_to(rows, c.shape).ravel())
-            cc.append(np.broadcast_to(cols, c.shape).ravel())
-        C = sparse.csr_matrix(
-            (np.concatenate(data), (np.concatenate(rr), np.concatenate(cc))),
-            shape=(2 * K, 2 * P + 3 * K),
-        )
-        return C @ C.T
-
-    def whitener(self, x) -> _Whitener:
-        return _Whitener(BandedWhitener(self.rotation_covariance(x)), self)
-
-
-class _Whitener:
-    """Whitens the stacked residuals: rotation rows by the banded factor, still rows by their
-    standard deviation."""
-
-    def __init__(self, rot: BandedWhitener, prob: _Problem):
-        self.rot, self.n_rot = rot, 2 * prob.K
-        self.zero_sigma = np.repeat(prob.still.z_sigma, 3)
-
-    def __call__(self, a: np.ndarray) -> np.ndarray:
-        top = self.rot(a[: self.n_rot])
-        bottom = a[self.n_rot :] / (self.zero_sigma if a.ndim == 1 else self.zero_sigma[:, None])
-        return np.concatenate([top, bottom])
-
-
-def full_information(x: np.ndarray, rot: Rotations, still: Stills, gyro_sigma: float) -> np.ndarray:
-    """Fisher information of ``(b, vec(M))`` for a design (first order), shape (12, 12).
+def full_information(
+    x: np.ndarray, rot: Rotations, still: Stills, gyro_sigma: float, clock: float = 1.0
+) -> np.ndarray:
+    """Fisher information of ``(b, vec(M)[, vec(G)])`` for a design (first order), shape
+    (12, 12), or (21, 21) when ``x`` holds ``G``.
 
     Its inverse is the Cramér-Rao bound when ``x`` and the data are the truth.
     """
-    prob = _Problem(rot, still, gyro_sigma)
+    prob = Problem(rot, still, gyro_sigma, clock, g_sensitivity=len(x) == 21)
     J = prob.whitener(x)(prob.residuals_and_jacobian(x)[1])
     return J.T @ J
 
@@ -293,10 +145,13 @@ class _Solved:
         return float(self.f @ self.f)
 
 
-def _solve(prob: _Problem, x0: np.ndarray, max_iterations: int, start: str) -> _Solved | None:
+def _solve(prob: Problem, x0: np.ndarray, max_iterations: int, start: str) -> _Solved | None:
     """Generalised least squares from ``x0``: solve with the noise model at the start, again
     with the noise model at that solution. None when it does not converge."""
-    scale = np.r_[np.full(3, max(np.std(prob.z), 1e-9)), np.full(9, np.abs(x0[3:]).max())]
+    m_scale = np.abs(x0[3:12]).max()
+    scale = np.r_[np.full(3, max(np.std(prob.z), 1e-9)), np.full(9, m_scale)]
+    if prob.with_g:  # 1e-3 rad/s per m/s^2 in raw units
+        scale = np.r_[scale, np.full(9, 1e-3 / m_scale)]
     W = prob.whitener(x0)
     jac_at = {}
 
@@ -324,12 +179,36 @@ def _solve(prob: _Problem, x0: np.ndarray, max_iterations: int, start: str) -> _
                    start)  # fmt: skip
 
 
-def _explains(prob: _Problem, solved: _Solved) -> bool:
+def _explains(prob: Problem, solved: _Solved) -> bool:
     """A fit that explains the turns: no rotation residual beyond what the fit's own noise
     level makes plausible (a start in the wrong basin leaves residuals of tens of degrees)."""
     p, _ = prob.predicted(solved.x)
     resid = np.arccos(np.clip(np.sum(p * prob.u[prob.rot.after], axis=1), -1, 1))
     return bool(np.degrees(resid).max() < MAX_TURN_RESIDUAL_DEG)
+
+
+def _multistart(prob: Problem, b0, M0, max_iterations: int) -> tuple[_Solved, int]:
+    """Gauss-Newton from each start in turn until one explains the turns; the best fit."""
+    rot, still = prob.rot, prob.still
+    if M0 is not None:
+        starts = iter([Start(np.asarray(M0, float), 0.0, np.eye(3), 0.0, "given start")])
+    else:
+        starts = start_values(rot.t, rot.z, still.g[rot.before], still.g[rot.after], b0,
+                              clock=prob.clock)  # fmt: skip
+    best, tried = None, 0
+    for start in starts:  # lazily: the next start is computed only when needed
+        tried += 1
+        solved = _solve(prob, np.r_[b0, start.M.ravel()], max_iterations, start.describe)
+        if solved is not None and (best is None or solved.chi2 < best.chi2):
+            best = solved
+        if best is not None and _explains(prob, best):
+            break
+    if best is None:
+        raise SolverError(
+            f"the full gyro model did not converge from {tried} start(s); capture more rotations "
+            "about different axes with the unit still before and after each"
+        )
+    return best, tried
 
 
 def fit_full(
@@ -341,8 +220,9 @@ def fit_full(
     *,
     max_iterations: int = 100,
     clock: float = 1.0,
+    g_sensitivity: str = "off",
 ) -> FullResult:
-    """Estimate the 12 parameters from rotations between still periods.
+    """Estimate the 12 (or 21) parameters from rotations between still periods.
 
     Parameters
     ----------
@@ -360,6 +240,10 @@ def fit_full(
         Function evaluations of each solve (each integrates every rotation).
     clock : float
         Factor on every sample interval (sample-clock correction).
+    g_sensitivity : {"off", "on", "auto"}
+        Include the g-sensitivity ``G`` (needs ``rot.a``): never, always (refused when the
+        design cannot determine it), or when the data call for it (F-test, reported in
+        ``g_test``).
 
     Raises
     ------
@@ -376,49 +260,124 @@ def fit_full(
             "for the 9 of the matrix); turn the unit at least 5 times (better 10 or more) about "
             "different axes, still before and after each"
         )
-    prob = _Problem(rot, still, gyro_sigma, clock)
-    if M0 is not None:
-        starts = iter([Start(np.asarray(M0, float), 0.0, np.eye(3), 0.0, "given start")])
-    else:
-        starts = start_values(rot.t, rot.z, still.g[rot.before], still.g[rot.after], b0,
-                              clock=clock)  # fmt: skip
-    best, tried = None, 0
-    for start in starts:  # lazily: the next start is computed only when needed
-        tried += 1
-        solved = _solve(prob, np.r_[b0, start.M.ravel()], max_iterations, start.describe)
-        if solved is not None and (best is None or solved.chi2 < best.chi2):
-            best = solved
-        if best is not None and _explains(prob, best):
-            break
-    if best is None:
-        raise SolverError(
-            f"the full gyro model did not converge from {tried} start(s); capture more rotations "
-            "about different axes with the unit still before and after each"
+    prob = Problem(rot, still, gyro_sigma, clock)
+    best, tried = _multistart(prob, b0, M0, max_iterations)
+    result = _result(prob, best, tried)
+    if g_sensitivity == "off":
+        return result
+    prob_g = Problem(rot, still, gyro_sigma, clock, g_sensitivity=True)
+    solved_g = _solve(prob_g, np.r_[best.x, np.zeros(9)], max_iterations, best.start)
+    test = _g_test(result, solved_g)
+    result.g_test = test
+    if g_sensitivity == "on" and not test["observable"]:
+        raise DesignError(
+            "the still periods and turns cannot determine the gyro's g-sensitivity: hold the "
+            "unit still with each face up (opposite faces), or set [gyro.full] "
+            'g_sensitivity = "off"'
         )
-    return _result(prob, best, tried)
+    if g_sensitivity == "on" or test["included"]:
+        with_g = _result(prob_g, solved_g, tried)
+        with_g.g_test = test
+        return with_g
+    return result
 
 
-def _result(prob: _Problem, solved: _Solved, tried: int) -> FullResult:
+def _g_test(without: FullResult, solved_g: _Solved | None) -> dict:
+    """Does the g-sensitivity belong in the model? Observable (the 21-parameter fit converged
+    and its information has full rank) and significant (F-test of the chi^2 drop over the 9
+    parameters against the 21-parameter fit's own noise level)."""
+    if solved_g is None:
+        return {"included": False, "observable": False, "reason": "the fit with it did not "
+                "converge"}  # fmt: skip
+    sv = np.linalg.svd(solved_g.J, compute_uv=False)
+    observable = bool(sv[-1] >= UNDETERMINED * sv[0])
+    dof = max(len(solved_g.f) - 21, 1)
+    drop = without.chi2 - solved_g.chi2
+    F = float(max(drop, 0.0) / 9 / (solved_g.chi2 / dof))
+    p = float(fdtrc(9, dof, F))
+    included = observable and p < G_SELECT_P
+    return {"included": included, "observable": observable, "F": F, "dof": [9, dof],
+            "p_value": p, "chi2_without": without.chi2, "chi2_with": solved_g.chi2,
+            "criterion": f"F-test of the chi^2 drop, included when p < {G_SELECT_P:g}"}  # fmt: skip
+
+
+def _diagonal_blocks(cov, K: int) -> np.ndarray:
+    """The (K, 2, 2) diagonal blocks of a sparse (2K, 2K) covariance."""
+    d = cov.diagonal()
+    off = cov.diagonal(1)[::2]
+    return np.stack([np.stack([d[0::2], off], -1), np.stack([off, d[1::2]], -1)], 1)
+
+
+def _turn_statistics(prob: Problem, x: np.ndarray):
+    """Per turn: the gravity residual angle (deg), the integrated rotation angle (deg), the
+    residual's chi^2 in its own noise (2 x 2 block of the covariance) and that noise (deg)."""
+    p, R = prob.predicted(x)
+    u1 = prob.u[prob.rot.after]
+    resid = np.degrees(np.arccos(np.clip(np.sum(p * u1, axis=1), -1, 1)))
+    angles = np.degrees(np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1) / 2, -1, 1)))
+    blocks = _diagonal_blocks(prob.rotation_covariance(x), prob.K)
+    r_rot = prob.raw_residuals(x)[: 2 * prob.K].reshape(-1, 2)
+    turn_chi2 = np.einsum("ki,ki->k", r_rot, np.linalg.solve(blocks, r_rot[:, :, None])[:, :, 0])
+    return resid, angles, turn_chi2, np.degrees(np.sqrt(np.trace(blocks, axis1=1, axis2=2)))
+
+
+def refit_without(
+    rot: Rotations,
+    still: Stills,
+    gyro_sigma: float,
+    result: FullResult,
+    drop: list[int],
+    *,
+    max_iterations: int = 100,
+    clock: float = 1.0,
+) -> tuple[FullResult, np.ndarray, np.ndarray]:
+    """The same model refitted without the turns ``drop`` (from ``result``'s solution), and
+    every turn's chi^2 and residual angle (deg) under the refit: for the dropped turns an
+    out-of-sample check that the rest cannot pull towards them.
+
+    Raises
+    ------
+    DesignError, SolverError
+        As :func:`fit_full` (the remaining turns may not determine the model).
+    """
+    keep = np.setdiff1d(np.arange(len(rot.t)), drop)
+    sub = Rotations(
+        [rot.t[k] for k in keep], [rot.z[k] for k in keep], rot.before[keep], rot.after[keep],
+        None if rot.a is None else [rot.a[k] for k in keep],
+    )
+    x0 = np.r_[result.b, result.M.ravel(), [] if result.G is None else result.G.ravel()]
+    with_g = result.G is not None
+    prob = Problem(sub, still, gyro_sigma, clock, g_sensitivity=with_g)
+    solved = _solve(prob, x0, max_iterations, "refit")
+    if solved is None:
+        raise SolverError("the gyro model did not converge without the disagreeing turns")
+    refit = _result(prob, solved, 1)
+    every = Problem(rot, still, gyro_sigma, clock, g_sensitivity=with_g)
+    resid, _, chi2, _ = _turn_statistics(every, solved.x)
+    return refit, chi2, resid
+
+
+def _result(prob: Problem, solved: _Solved, tried: int) -> FullResult:
     """Covariance and diagnostics of a solution."""
     J = solved.J
+    n = prob.n_params
     sv = np.linalg.svd(J, compute_uv=False)
-    if sv[-1] < 1e-8 * sv[0]:
+    if sv[-1] < UNDETERMINED * sv[0]:
         raise DesignError(
             "the rotations leave the gyro model undetermined: turn the unit about at least two "
             "different horizontal axes (a turn about the vertical is invisible to gravity)"
         )
-    dof = max(len(solved.f) - 12, 1)
+    dof = max(len(solved.f) - n, 1)
     chi2 = solved.chi2
     noise_scale = chi2 / dof if chi2 > chdtri(dof, 0.01) else 1.0
     cov = noise_scale * np.linalg.inv(J.T @ J)
-    p, R = prob.predicted(solved.x)
-    u1 = prob.u[prob.rot.after]
-    resid = np.degrees(np.arccos(np.clip(np.sum(p * u1, axis=1), -1, 1)))
-    angles = np.degrees(np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1) / 2, -1, 1)))
+    resid, angles, turn_chi2, sigma = _turn_statistics(prob, solved.x)
+    b, M, G = prob.split(solved.x)
     notes = [solved.start + (f" (best of {tried} starts)" if tried > 1 else "")]
     return FullResult(
-        b=solved.x[:3],
-        M=solved.x[3:].reshape(3, 3),
+        b=b.copy(),
+        M=M.copy(),
+        G=G.copy() if prob.with_g else None,
         cov=cov,
         angle_residual_deg=resid,
         rotation_angle_deg=angles,
@@ -429,4 +388,7 @@ def _result(prob: _Problem, solved: _Solved, tried: int) -> FullResult:
         converged=True,
         message=solved.message,
         notes=notes,
+        turn_chi2=turn_chi2,
+        still_chi2=np.sum(solved.f[2 * prob.K :].reshape(-1, 3) ** 2, axis=1),
+        turn_sigma_deg=sigma,
     )

@@ -378,6 +378,25 @@ def diagonal_fit(pub: Published, with_scale: bool) -> DiagonalFit:
     return DiagonalFit(pub.bias.copy(), scale, nonorth, axis_angle, worst_angle, worst_error, gs)
 
 
+def offset_scale_fits(
+    cal: Calibration, target: str, opts: ExportOptions
+) -> tuple[list[str], list[tuple[str, Published, DiagonalFit]]]:
+    """PX4 and ArduPilot: per sensor present, its :func:`diagonal_fit` (the accelerometer with
+    a scale, the gyro an offset only), and the comment lines saying what each loses."""
+    require(cal, ("accel", "gyro"), target)
+    comments: list[str] = []
+    fits: list[tuple[str, Published, DiagonalFit]] = []
+    for name in SENSORS:
+        pub = published(cal, name, target, opts.scale)
+        if pub is None:
+            comments.append(f"{name}: not in the calibration, its parameters are not written")
+            continue
+        fit = diagonal_fit(pub, with_scale=name == "accel")
+        comments += [f"{name}: p = {pub.basis}", *fit.lines(pub, target)]
+        fits.append((name, pub, fit))
+    return comments, fits
+
+
 def model_lines() -> list[str]:
     """imucal's own model, for the header of every file."""
     return [f"imucal's model: {MODEL_EQUATION} (raw as the device reports it; bias in raw "

@@ -23,12 +23,10 @@ import numpy as np
 from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.exporters import (
     ExportOptions,
-    diagonal_fit,
     fmt,
     model_lines,
+    offset_scale_fits,
     provenance,
-    published,
-    require,
 )
 
 __all__ = ["export_ardupilot"]
@@ -40,23 +38,17 @@ _MAX_OFFSET = 3.5  # m/s^2
 def export_ardupilot(cal: Calibration, opts: ExportOptions) -> str:
     """ArduPilot ``INS_ACCOFFS_*``, ``INS_ACCSCAL_*``, ``INS_GYROFFS_*`` as ``NAME,VALUE``."""
     target = "ArduPilot"
-    require(cal, ("accel", "gyro"), target)
+    lost, fits = offset_scale_fits(cal, target, opts)
     comments = provenance(cal, "ArduPilot parameters (.parm: Mission Planner 'Load from "
                           "file', MAVProxy 'param load')") + [  # fmt: skip
         "ArduPilot applies: accel = R_board @ ((p - INS_ACCOFFS_x) * INS_ACCSCAL_x) per axis, "
         "gyro = R_board @ (p - INS_GYROFFS_x);",
         "p as the driver reports it (m/s^2, rad/s); offsets in those units, scales unitless.",
         *model_lines(),
+        *lost,
     ]
     params: list[tuple[str, str]] = []
-    for name in ("accel", "gyro"):
-        pub = published(cal, name, target, opts.scale)
-        if pub is None:
-            comments.append(f"{name}: not in the calibration, its parameters are not written")
-            continue
-        fit = diagonal_fit(pub, with_scale=name == "accel")
-        comments.append(f"{name}: p = {pub.basis}")
-        comments += fit.lines(pub, target)
+    for name, _, fit in fits:
         if name == "accel":
             if opts.device_id is not None:
                 params.append(("INS_ACC_ID", str(int(opts.device_id))))

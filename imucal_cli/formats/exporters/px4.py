@@ -23,12 +23,10 @@ from __future__ import annotations
 from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.exporters import (
     ExportOptions,
-    diagonal_fit,
     fmt,
     model_lines,
+    offset_scale_fits,
     provenance,
-    published,
-    require,
 )
 
 __all__ = ["export_px4"]
@@ -39,23 +37,18 @@ _FLOAT, _INT32 = 9, 6
 def export_px4(cal: Calibration, opts: ExportOptions) -> str:
     """PX4 ``CAL_ACC0_*``/``CAL_GYRO0_*`` parameters in QGroundControl's ``.params`` format."""
     target = "PX4"
-    require(cal, ("accel", "gyro"), target)
+    lost, fits = offset_scale_fits(cal, target, opts)
     comments = provenance(cal, "PX4 parameters (QGroundControl: Parameters > Tools > Load "
                           "from file)") + [  # fmt: skip
         "PX4 applies: accel = R_rot @ ((p - CAL_ACC0_xOFF) * CAL_ACC0_xSCALE) per axis, "
         "gyro = R_rot @ (p - CAL_GYRO0_xOFF);",
         "p as the driver publishes it (m/s^2, rad/s); offsets in those units, scales unitless.",
         *model_lines(),
+        *lost,
     ]
     params: list[tuple[str, float | int, int]] = []
-    for name, prefix in (("accel", "CAL_ACC0"), ("gyro", "CAL_GYRO0")):
-        pub = published(cal, name, target, opts.scale)
-        if pub is None:
-            comments.append(f"{name}: not in the calibration, its parameters are not written")
-            continue
-        fit = diagonal_fit(pub, with_scale=name == "accel")
-        comments.append(f"{name}: p = {pub.basis}")
-        comments += fit.lines(pub, target)
+    for name, _, fit in fits:
+        prefix = "CAL_ACC0" if name == "accel" else "CAL_GYRO0"
         if opts.device_id is not None:
             params.append((f"{prefix}_ID", int(opts.device_id), _INT32))
         for i, axis in enumerate("XYZ"):

@@ -73,6 +73,7 @@ __all__ = [
     "RATE_RANGE_HZ",
     "check_sample_rate",
     "check_time",
+    "detect_format",
     "import_files",
     "infer_columns",
     "parse_columns",
@@ -88,6 +89,12 @@ __all__ = [
 FORMATS: dict[str, str] = {
     "csv": "csv",
     "imu_tk": "imu_tk",
+    "ros": "ros",
+    "ulog": "ulog",
+    "lines": "serial_lines",
+    "motioncal": "serial_lines",
+    "i2cdevlib": "serial_lines",
+    "witmotion": "witmotion",
 }
 """``--format`` names and the sibling module that reads each."""
 
@@ -107,14 +114,49 @@ def reader(fmt: str):
     return importlib.import_module(f"{__name__}.{FORMATS[fmt]}")
 
 
+def detect_format(paths: Sequence[str | os.PathLike]) -> str:
+    """The format of ``paths`` by suffix, then by content: a ROS 2 bag folder, ``.bag``,
+    ``.mcap``, ``.db3`` (``ros``); ``.ulg`` or the ULog magic (``ulog``); WitMotion frames
+    (``witmotion``); MotionCal or i2cdevlib lines (``lines``); else ``csv`` (two files:
+    ``imu_tk`` must be asked for)."""
+    if len(paths) != 1:
+        return "csv"
+    path = Path(paths[0])
+    if path.is_dir():
+        return "ros" if (path / "metadata.yaml").is_file() else "csv"
+    suffix = path.suffix.lower()
+    if suffix in (".bag", ".mcap", ".db3"):
+        return "ros"
+    if suffix == ".ulg":
+        return "ulog"
+    try:
+        with open(path, "rb") as f:
+            head = f.read(8192)
+    except OSError:
+        return "csv"  # the csv reader names the problem
+    if head.startswith(b"ULog\x01\x12\x35"):
+        return "ulog"
+    if head.startswith((b"#ROSBAG", b"\x89MCAP")):
+        return "ros"
+    from .serial_lines import detect_line_format
+    from .witmotion import looks_like_witmotion
+
+    if looks_like_witmotion(head):
+        return "witmotion"
+    if detect_line_format(head.decode("utf-8", errors="replace")) is not None:
+        return "lines"
+    return "csv"
+
+
 def read_recording(
     paths: Sequence[str | os.PathLike],
-    fmt: str = "csv",
+    fmt: str | None = "csv",
     columns: str | Sequence[str | None] | None = None,
     *,
     time_unit: str = "s",
     rate_hz: float | None = None,
     skip_rows: int = 0,
+    topic: str | None = None,
 ) -> Recording:
     """Read the samples of a recording in format ``fmt``.
 
@@ -148,7 +190,7 @@ def read_recording(
         time and no rate, time that does not increase: the message gives the line).
     """
     paths = [Path(p) for p in paths]
-    read = reader(fmt).read
+    read = reader(detect_format(paths) if fmt is None else fmt).read
     if time_unit not in TIME_UNITS:
         raise InputError(f"unknown time unit {time_unit!r}: use s, ms or us")
     if rate_hz is not None and not (np.isfinite(rate_hz) and rate_hz > 0):
@@ -156,7 +198,7 @@ def read_recording(
     if skip_rows < 0:
         raise InputError(f"--skip-rows must be >= 0, got {skip_rows}")
     options = ReadOptions(
-        columns=columns, time_unit=time_unit, rate_hz=rate_hz, skip_rows=skip_rows
+        columns=columns, time_unit=time_unit, rate_hz=rate_hz, skip_rows=skip_rows, topic=topic
     )
     rec = read(paths, options, ImportStats())
     time = np.asarray(rec.time, np.float64)
@@ -299,7 +341,7 @@ def split_steps(
 
 def import_files(
     paths: Sequence[str | os.PathLike],
-    fmt: str = "csv",
+    fmt: str | None = "csv",
     columns: str | Sequence[str | None] | None = None,
     *,
     time_unit: str = "s",
@@ -313,6 +355,7 @@ def import_files(
     turn_angle_deg: float | None = None,
     mag_units: str | None = None,
     magnetic_field_uT: float | None = None,
+    topic: str | None = None,
 ) -> Session:
     """Read recorded text files and segment them into a session (not yet written).
 
@@ -347,9 +390,13 @@ def import_files(
     ):
         raise InputError(f"--field-uT must be a positive number, got {magnetic_field_uT:g}")
     rec = read_recording(
-        paths, fmt, columns, time_unit=time_unit, rate_hz=rate_hz, skip_rows=skip_rows
+        paths, fmt, columns, time_unit=time_unit, rate_hz=rate_hz, skip_rows=skip_rows,
+        topic=topic,
     )
-    notes: list[str] = []
+    accel_units = accel_units or rec.accel_units
+    gyro_units = gyro_units or rec.gyro_units
+    mag_units = mag_units or rec.mag_units
+    notes: list[str] = list(rec.notes)
     if sections is not None:
         from .sections import labelled_segments, read_section_list, sections_of_column
 
@@ -359,7 +406,10 @@ def import_files(
             ranges = read_section_list(spec)
         else:
             ranges = sections_of_column(rec, Path(paths[0]), str(sections))
-        segments, notes = labelled_segments(rec, ranges, turn_angle_deg=turn_angle_deg, where=where)
+        segments, section_notes = labelled_segments(
+            rec, ranges, turn_angle_deg=turn_angle_deg, where=where
+        )
+        notes += section_notes
     elif rec.accel is None and rec.mag is not None:
         segments = []
     else:

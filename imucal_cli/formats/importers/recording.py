@@ -34,12 +34,15 @@ class ReadOptions:
         Sample rate, Hz, for recordings without time stamps.
     skip_rows : int
         Text formats: lines skipped at the top of each file.
+    topic : str, optional
+        Logs of several streams: the one to read (ROS topic, ULog instance).
     """
 
     columns: str | list[str | None] | None = None
     time_unit: str = "s"
     rate_hz: float | None = None
     skip_rows: int = 0
+    topic: str | None = None
 
 
 @dataclass
@@ -101,6 +104,11 @@ class Recording:
         Text formats: the fields of the header line, when there is one.
     mag : ndarray, shape (N, 3), or None
         Raw magnetometer values as read.
+    accel_units, gyro_units, mag_units : str or None
+        Units the format itself fixes (ROS: m/s^2, rad/s, uT; ULog: m/s^2, rad/s, gauss;
+        binary and serial formats: counts); ``--accel-units`` ... override them.
+    notes : list of str
+        What the reader chose or left out (topic, time base, pairing), for the summary.
     """
 
     time: np.ndarray
@@ -114,3 +122,7 @@ class Recording:
     lines: np.ndarray | None = None
     header: list[str] | None = None
     mag: np.ndarray | None = None
+    accel_units: str | None = None
+    gyro_units: str | None = None
+    mag_units: str | None = None
+    notes: list[str] = field(default_factory=list)

@@ -273,3 +273,47 @@ def read_ros(path: str | os.PathLike, topic: str | None = None) -> Channels:
     if p.suffix.lower() == ".mcap" and p.is_file():
         return read_mcap(p, topic)
     return read_rosbag(p, topic)
+
+
+# --------------------------------------------------------------------------------------------
+# The importer interface (``imucal import --format ros``)
+# --------------------------------------------------------------------------------------------
+
+NAME = "ros"
+FILES = "one ROS 1 bag (.bag), ROS 2 bag (its folder) or MCAP file (.mcap)"
+
+
+def one_file(paths, options, name: str, files: str) -> Path:
+    """The single path of a format that reads one file and has named channels.
+
+    Raises
+    ------
+    InputError
+        Not one path, or a ``--columns`` spec.
+    """
+    if len(paths) != 1:
+        raise InputError(f"--format {name} takes {files}; got {len(paths)} paths")
+    if options.columns is not None:
+        raise InputError(f"--columns does not apply to --format {name} (its channels are named)")
+    return Path(paths[0])
+
+
+def to_recording(ch: Channels, paths, stats, columns: list[str] | None = None):
+    """A :class:`~.recording.Recording` of ``ch`` (the importers' common return)."""
+    from .recording import Recording
+
+    stats.samples = len(ch.time)
+    stats.malformed += ch.dropped
+    return Recording(
+        time=ch.time, accel=ch.accel, gyro=ch.gyro, temperature=ch.temperature,
+        rate_hz=float("nan"), names=[Path(p).name for p in paths],
+        columns=columns or ["t", "ax", "ay", "az", "gx", "gy", "gz"], stats=stats,
+        accel_units=ch.accel_units, gyro_units=ch.gyro_units, mag=ch.mag,
+        mag_units=ch.mag_units, notes=list(ch.notes),
+    )  # fmt: skip
+
+
+def read(paths, options, stats):
+    """``imucal import --format ros``: :func:`read_ros` of the one path, ``--topic``."""
+    path = one_file(paths, options, NAME, FILES)
+    return to_recording(read_ros(path, options.topic), paths, stats)

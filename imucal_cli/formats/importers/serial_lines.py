@@ -116,3 +116,21 @@ def read_serial_lines(
         rec.notes.append("MotionCal's sketches scale to 8192 counts per g, 16 per deg/s, 10 per "
                          "uT")  # fmt: skip
     return rec
+
+
+NAME = "lines"
+FILES = "one MotionCal (Raw:) or i2cdevlib (a/g:) serial log"
+
+
+def read(paths, options, stats):
+    """``imucal import --format lines`` (or ``motioncal``, ``i2cdevlib``): the format of the
+    lines is detected; the rate is ``--rate``."""
+    from .ros import Channels, one_file, to_recording
+
+    path = one_file(paths, options, NAME, FILES)
+    rec = read_serial_lines(path, options.rate_hz)
+    stats.lines, stats.malformed = rec.lines, rec.malformed
+    stats.first_malformed, stats.comments = rec.first_malformed, rec.skipped
+    ch = Channels(rec.time, rec.accel, rec.gyro, "counts", "counts", mag=rec.mag,
+                  mag_units=None if rec.mag is None else "counts", notes=rec.notes)  # fmt: skip
+    return to_recording(ch, paths, stats)

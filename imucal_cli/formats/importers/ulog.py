@@ -134,3 +134,15 @@ def read_ulog(path: str | os.PathLike, topic: str | None = None) -> Channels:
         ch.mag_units = "gauss"
         notes.append(f"sensor_mag instance {m.multi_id} (gauss), latest per sample")
     return ch
+
+
+NAME = "ulog"
+FILES = "one PX4 ULog (.ulg)"
+
+
+def read(paths, options, stats):
+    """``imucal import --format ulog``: :func:`read_ulog` of the one path, ``--topic N``."""
+    from .ros import one_file, to_recording
+
+    path = one_file(paths, options, NAME, FILES)
+    return to_recording(read_ulog(path, options.topic), paths, stats)

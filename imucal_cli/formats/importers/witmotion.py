@@ -190,3 +190,22 @@ def read_witmotion(path: str | os.PathLike, rate_hz: float | None = None) -> Wit
                          "(the output rate set on the device)")  # fmt: skip
     return WitRecording(time, accel, gyro, np.array([s.temperature for s in samples]), mag,
                         notes, dec.stats)  # fmt: skip
+
+
+NAME = "witmotion"
+FILES = "one file of WitMotion 0x55 frames (a serial dump)"
+
+
+def read(paths, options, stats):
+    """``imucal import --format witmotion``: :func:`read_witmotion`; ``--rate`` when the
+    frames carry no time."""
+    from .ros import Channels, one_file, to_recording
+
+    path = one_file(paths, options, NAME, FILES)
+    rec = read_witmotion(path, options.rate_hz)
+    stats.lines, stats.malformed = rec.stats["frames"], rec.stats["malformed"]
+    stats.comments = rec.stats["skipped"]
+    ch = Channels(rec.time, rec.accel, rec.gyro, "counts", "counts", temperature=rec.temperature,
+                  mag=rec.mag, mag_units=None if rec.mag is None else "counts",
+                  notes=rec.notes)  # fmt: skip
+    return to_recording(ch, paths, stats)

@@ -132,6 +132,9 @@ def _basis(kind: str, sec: SensorCalibration) -> str:
     gravity = as_number(extra.get("gravity"))
     if kind == "accel" and gravity is not None:
         parts.append(f"g = {gravity:.6g} m/s^2")
+    frame = as_text(extra.get("frame"))
+    if kind == "gyro" and frame:  # the gyro is calibrated in the accelerometer's frame
+        parts.append(f"in {frame}")
     return ", ".join(parts)
 
 

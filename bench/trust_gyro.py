@@ -1,0 +1,218 @@
+"""Trust, gyro rows (issue 10): what a gyro calibration does with faults, how often its stated
+uncertainty covers the truth, and whether it ever saves a wrong result from real data.
+
+* **Fault injection** (simulated, ``free:24``): a g-sensitive gyro (5e-4 rad/s per m/s^2, every
+  entry of ``G`` drawn in +-that), a knock of 3 degrees inside one turn, and a bias that moves
+  while the unit turns. For each: refused (a warning: ``calibrate`` does not save it without
+  ``--force``), absorbed (g-sensitivity included) or undetected, the last only where harmless
+  (bias error under 2 bounds); and the bias error against the Cramér-Rao bound of what is
+  saved, beside the error with g-sensitivity off and no checks. Before this work: the
+  g-sensitive gyro gave bias errors 23-33x the bound, no warning.
+* **Coverage**: share of the full model's 95 % intervals (1.96 std) that hold the truth, over
+  seeds of clean ``free:24`` and ``qureshi-axes`` sessions (target 93-97 %).
+* **Leave one rotation out** over the real recordings in ``../shared/data``: each subset fit
+  is converged (within 5 of its std of the full fit), refused (a warning or an error naming
+  the cause) or saved wrong (neither: must be 0). Before: Xsens 13 / 21 / 3.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from imucal_cli.errors import ImucalError
+from imucal_cli.formats.config import config_from_dict
+from imucal_cli.pipeline.calibrate import (
+    calibrate_accel,
+    calibrate_gyro,
+    calibrate_session,
+    with_segments,
+)
+from imucal_cli.pipeline.gyro import full_problem
+from imucal_cli.simulate.rotations import simulate_gyro_rotations
+from imucal_cli.solvers.gyro_full import full_information
+
+DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
+CREATED = "2026-01-01T00:00:00Z"
+G_LEVEL = 5e-4  # rad/s per m/s^2
+DEFAULT = config_from_dict({"accel": {"gravity": {"leave_one_out": False}}})
+G_OFF = config_from_dict({
+    "accel": {"gravity": {"leave_one_out": False}},
+    "gyro": {"solver": "full", "full": {"g_sensitivity": "off"}},
+})
+LOO_Z = 5.0
+
+
+def _truth_x(cal, truth, G_raw=None) -> np.ndarray:
+    """The true parameters in the calibrated accelerometer's frame (the frame fits report)."""
+    R = cal.accel.matrix @ np.linalg.inv(truth.accel.matrix)
+    U, _, Vt = np.linalg.svd(R)
+    Rot = U @ Vt
+    x = np.r_[truth.gyro.bias, (Rot @ truth.gyro.matrix).ravel()]
+    return x if G_raw is None else np.r_[x, (G_raw @ Rot.T).ravel()]
+
+
+def _faults(session, truth, seed):
+    """(name, faulty session, G_raw or None) for each injected fault."""
+    rng = np.random.default_rng(seed)
+    S = np.linalg.inv(truth.gyro.matrix)
+    f = truth.accel.apply(session.accel)
+    G_raw = S @ (G_LEVEL * rng.uniform(-1, 1, (3, 3)))
+    out = [("g-sensitive gyro, 5e-4 rad/s per m/s^2", replace(session, gyro=session.gyro
+                                                                + f @ G_raw.T), G_raw)]  # fmt: skip
+    turns = session.rotation_segments()
+    knock = session.gyro.copy()
+    t = turns[len(turns) // 2]
+    knock[(t.start + t.stop) // 2] += S @ (np.radians(3.0) / 0.01 * rng.normal(size=3)
+                                           / np.sqrt(3))  # fmt: skip
+    out.append(("a 3-degree knock inside one turn", replace(session, gyro=knock), None))
+    moving = session.gyro.copy()
+    for t in turns:
+        moving[t.start : t.stop] += S @ np.full(3, 0.02)
+    out.append(("bias 0.02 rad/s higher while turning", replace(session, gyro=moving), None))
+    return out
+
+
+def _bias_error_over_bound(session, cal, truth, G_raw) -> float:
+    """RMS over the three axes of (bias error / sqrt(CRB)), the bound of the fitted model."""
+    with_g = cal.gyro.extra.get("g_sensitivity") is not None
+    x = _truth_x(cal, truth, G_raw if with_g else None)
+    if with_g and G_raw is None:
+        x = np.r_[x, np.zeros(9)]
+    rot, still, noise = full_problem(session, DEFAULT, cal.accel)
+    crb = np.diag(np.linalg.inv(full_information(x, rot, still, noise)))[:3]
+    return float(np.sqrt(np.mean((cal.gyro.bias - truth.gyro.bias) ** 2 / crb)))
+
+
+#: An undetected fault must not move the bias by more than this many times its bound.
+HARMLESS = 2.0
+
+
+def fault_rows(n_seeds: int) -> list[tuple]:
+    rows = {}
+    for seed in range(n_seeds):
+        session, truth = simulate_gyro_rotations(plan="free:24", seed=100 + seed,
+                                                 created=CREATED)  # fmt: skip
+        for name, bad, G_raw in _faults(session, truth, seed):
+            r = rows.setdefault(name, {"refused": 0, "absorbed": 0, "missed": 0, "harmful": 0,
+                                       "with": [], "without": []})  # fmt: skip
+            handled = calibrate_session(bad, DEFAULT)
+            plain = calibrate_session(bad, G_OFF)
+            g = handled.gyro
+            err = _bias_error_over_bound(bad, handled, truth, G_raw)
+            if g.extra["warnings"]:
+                r["refused"] += 1
+            elif g.extra.get("g_sensitivity") is not None and G_raw is not None:
+                r["absorbed"] += 1
+                r["with"].append(err)
+            else:
+                r["missed"] += 1
+                r["harmful"] += err > HARMLESS
+                r["with"].append(err)
+            r["without"].append(_bias_error_over_bound(bad, plain, truth, None))
+    return [(name, r["refused"], r["absorbed"], r["missed"], r["harmful"],
+             float(np.median(r["with"])) if r["with"] else None,
+             float(np.median(r["without"]))) for name, r in rows.items()]  # fmt: skip
+
+
+def coverage_rows(n_seeds: int) -> list[tuple]:
+    out = []
+    for plan in ("free:24", "qureshi-axes"):
+        hits, n = 0, 0
+        for seed in range(n_seeds):
+            session, truth = simulate_gyro_rotations(plan=plan, seed=200 + seed, created=CREATED)
+            cal = calibrate_session(session, DEFAULT)
+            g = cal.gyro
+            est = np.array([p["value"] for p in g.extra["parameters"]])
+            std = np.array([p["std"] for p in g.extra["parameters"]])
+            G = np.zeros((3, 3)) if len(est) == 21 else None
+            x = _truth_x(cal, truth, G)
+            hits += int(np.sum(np.abs(est - x) <= 1.96 * std))
+            n += len(est)
+        out.append((plan, n_seeds, hits / n))
+    return out
+
+
+REAL = {
+    "imu_tk Xsens": (["imu_tk_xsens/xsens_acc.mat", "imu_tk_xsens/xsens_gyro.mat"], "imu_tk",
+                     dict(accel_units="counts", gyro_units="counts")),
+    **{f"mikoff imu{i}": ([f"mikoff_mpu9150/imu{i}.log"], "csv",
+                          dict(columns="ax,ay,az,gx,gy,gz", rate_hz=100.0, accel_units="m/s^2",
+                               gyro_units="rad/s")) for i in range(5)},
+    "tomisuarez2 MPU-6050": (["tomisuarez2_mpu6050/example_data_calibration.csv"], "csv",
+                             dict(columns="ax,ay,az,gx,gy,gz", rate_hz=100.0,
+                                  accel_units="counts", gyro_units="counts")),
+}  # fmt: skip
+
+
+def loo_rows() -> list[tuple]:
+    from imucal_cli.formats.importers import import_files
+
+    out = []
+    for name, (files, fmt, opts) in REAL.items():
+        if not all((DATA / f).exists() for f in files):
+            continue
+        session, _ = with_segments(import_files([DATA / f for f in files], fmt, **opts))
+        accel = calibrate_accel(session, DEFAULT)
+        full = calibrate_gyro(session, DEFAULT, accel)
+        ref = {p["name"]: p["value"] for p in full.extra["parameters"]}
+        counts = {"converged": 0, "refused": 0, "saved wrong": 0}
+        for turn in session.rotation_segments():
+            sub = replace(session, segments=[s for s in session.segments if s is not turn])
+            try:
+                g = calibrate_gyro(sub, DEFAULT, accel)
+            except ImucalError:
+                counts["refused"] += 1
+                continue
+            if g.extra["warnings"]:
+                counts["refused"] += 1
+                continue
+            same = [p["name"] for p in g.extra["parameters"]] == list(ref)
+            z = [abs(p["value"] - ref[p["name"]]) / p["std"] for p in g.extra["parameters"]
+                 if p["name"] in ref]  # fmt: skip
+            counts["converged" if same and max(z) < LOO_Z else "saved wrong"] += 1
+        full_state = "refused: " + full.extra["warnings"][0][:50] if full.extra["warnings"] \
+            else "saved"  # fmt: skip
+        out.append((name, len(session.rotation_segments()), full_state, counts))
+    return out
+
+
+def run(console: Console, n_seeds: int = 10) -> bool:
+    console.rule("[bold]Trust, gyro rows (issue 10)")
+    t = Table(title=f"Fault injection, free:24, {n_seeds} seeds: bias error / Cramér-Rao bound "
+                    "(median over seeds)")  # fmt: skip
+    for col in ("fault", "refused (warning)", "absorbed (g-sensitivity)", "undetected",
+                f"undetected and > {HARMLESS:g} x bound (must be 0)",
+                "error/bound of what is saved", "error/bound, g-sensitivity off, no checks "
+                "(before: 23-33 for the g-sensitive gyro)"):  # fmt: skip
+        t.add_column(col, justify="right")
+    faults = fault_rows(n_seeds)
+    for name, refused, absorbed, missed, harmful, w, wo in faults:
+        t.add_row(name, str(refused), str(absorbed), str(missed), str(harmful),
+                  "-" if w is None else f"{w:.2f}", f"{wo:.1f}")  # fmt: skip
+    console.print(t)
+    t = Table(title="Coverage of the full model's 95 % intervals (all parameters)")
+    for col in ("plan", "seeds", "coverage (target 93-97 %)"):
+        t.add_column(col, justify="right")
+    cov = coverage_rows(4 * n_seeds)
+    for plan, n, c in cov:
+        t.add_row(plan, str(n), f"{100 * c:.1f} %")
+    console.print(t)
+    t = Table(title="Leave one rotation out, real recordings (default config)")
+    for col in ("recording", "rotations", "full fit", "converged", "refused",
+                "saved wrong (must be 0)"):  # fmt: skip
+        t.add_column(col, justify="right")
+    loo = loo_rows()
+    for name, k, state, c in loo:
+        t.add_row(name, str(k), state, str(c["converged"]), str(c["refused"]),
+                  str(c["saved wrong"]))  # fmt: skip
+    console.print(t)
+    ok = (all(row[4] == 0 for row in faults)
+          and all(0.93 <= c <= 0.97 for _, _, c in cov)
+          and all(c["saved wrong"] == 0 for *_, c in loo))  # fmt: skip
+    console.print("gyro trust: " + ("[green]PASS[/]" if ok else "[red]FAIL[/]"))
+    return bool(ok)

@@ -1,0 +1,181 @@
+"""The full gyro model in the calibrate step: 12 parameters (bias, scale and misalignment in
+the accelerometer's frame), or 21 with the g-sensitivity when the data call for it
+(:mod:`imucal_cli.solvers.gyro_full`).
+
+A fit is checked against the noise (issue 10.2): when the turns' gravity residuals are far
+above what the noise predicts, all of them (the model does not match the sensor) or some of
+them (those turns disagree with the rest), the section gets a warning naming the segments, so
+that ``calibrate`` refuses to save it without ``--force``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from imucal_cli.errors import ImucalError
+from imucal_cli.solvers import gyro_full
+
+from .common import num
+from .gyro import AXES, GyroData, GyroFit
+
+#: Medians of the chi-square distribution with 2 (a turn's two residuals) and 3 (a still
+#: period's gyro mean) degrees of freedom.
+CHI2_2_MEDIAN, CHI2_3_MEDIAN = 2 * np.log(2), 2.365974
+
+
+def rotations_and_stills(data: GyroData) -> tuple[gyro_full.Rotations, gyro_full.Stills]:
+    """The solver's view of the turns and still periods (calibrated accel in each turn)."""
+    session, turns = data.session, data.turns
+    rot = gyro_full.Rotations(
+        t=[session.time[t.segment.start : t.segment.stop] for t in turns],
+        z=[session.gyro[t.segment.start : t.segment.stop] for t in turns],
+        before=np.array([t.before for t in turns]),
+        after=np.array([t.after for t in turns]),
+        a=[data.accel_cal.apply(session.accel[t.segment.start : t.segment.stop]) for t in turns],
+    )
+    st = gyro_full.Stills(
+        g=np.array([s.g for s in data.stills]),
+        g_sigma=np.array([s.g_sigma for s in data.stills]),
+        z_mean=np.array([s.z_mean for s in data.stills]),
+        z_sigma=np.array([max(s.z_sigma, 1e-12) for s in data.stills]),
+    )
+    return rot, st
+
+
+def fit_full_model(data: GyroData, g_sensitivity: str | None = None) -> GyroFit:
+    """Fit the full model (g-sensitivity per ``[gyro.full] g_sensitivity`` unless given)."""
+    cfg = data.cfg
+    rot, st = rotations_and_stills(data)
+    res = gyro_full.fit_full(
+        rot, st, data.noise, data.bias_still,
+        max_iterations=cfg.gyro.full.max_iterations,
+        g_sensitivity=g_sensitivity or cfg.gyro.full.g_sensitivity,
+    )  # fmt: skip
+    data.notes.extend(res.notes)
+    units = data.units_in
+    n = len(res.std)
+    unit = [units] * 3 + [f"rad/s per {units}"] * 9 + [f"{units} per m/s^2"] * 9
+    values = np.r_[res.b, res.M.ravel(), [] if res.G is None else res.G.ravel()]
+    parameters = [
+        {"name": name, "value": float(v), "std": num(s), "unit": u}
+        for name, v, s, u in zip(gyro_full.parameter_names(n), values, res.std, unit[:n],
+                                 strict=True)  # fmt: skip
+    ]
+    rotations = [
+        {"segment": t.segment.name, "label": t.segment.label, "known_angle_deg": None,
+         "measured_angle_deg": float(a), "angle_error_deg": float(r),
+         "noise_deg": float(s)}
+        for t, r, a, s in zip(data.turns, res.angle_residual_deg, res.rotation_angle_deg,
+                              res.turn_sigma_deg, strict=True)
+    ]  # fmt: skip
+    data.warnings.extend(residual_warnings(data, res, rot, st))
+    S = np.linalg.inv(res.M)
+    s_axes = S / np.linalg.norm(S, axis=1, keepdims=True)
+    extra = {
+        "approach": "full",
+        # Angles between the gyro's sensitivity axes, minus 90 (as for the accelerometer)...
+        "misalignment_deg": {
+            f"{AXES[i]}{AXES[j]}": float(np.degrees(np.arccos(s_axes[i] @ s_axes[j])) - 90)
+            for i, j in ((0, 1), (0, 2), (1, 2))
+        },
+        # ...and of each sensitivity axis from the accelerometer's axis of the same name.
+        "axis_to_accel_frame_deg": {
+            a: float(np.degrees(np.arccos(np.clip(s_axes[i, i], -1, 1))))
+            for i, a in enumerate(AXES)
+        },
+        "iterations": res.iterations, "chi2": res.chi2, "dof": res.dof,
+        "noise_scale": res.noise_scale,
+    }  # fmt: skip
+    if res.G is not None:
+        extra["g_sensitivity"] = res.G.tolist()
+        extra["g_sensitivity_unit"] = f"{units} per m/s^2 (raw - bias - g_sensitivity @ a)"
+    if res.g_test is not None:
+        extra["g_sensitivity_test"] = res.g_test
+        data.notes.append(_g_note(res.g_test))
+    return GyroFit(res.b, res.M, parameters, rotations, np.radians(res.angle_residual_deg),
+                   np.linalg.norm(S, axis=1), extra)  # fmt: skip
+
+
+def _g_note(test: dict) -> str:
+    if not test.get("observable"):
+        return ("g-sensitivity: not determined by these still periods and turns (hold the unit "
+                "still with opposite faces up to measure it): left out")  # fmt: skip
+    verdict = "included" if test["included"] else "not significant: left out"
+    return (f"g-sensitivity: {verdict} (F = {test['F']:.3g} on {test['dof'][0]} and "
+            f"{test['dof'][1]} dof, p = {test['p_value']:.2g})")  # fmt: skip
+
+
+def residual_warnings(data: GyroData, res, rot, st) -> list[str]:
+    """Turns whose gravity residual is far above what the noise predicts (issue 10.2).
+
+    The level of the fit is the turns' robust RMS ratio to their predicted noise
+    (``sqrt(median chi^2 / median of chi^2_2)``); the fit is refused when that level exceeds
+    ``[gyro] max_residual_ratio`` (the model does not match the sensor), or when turns exceed
+    that ratio times the level of the others. A bad turn pulls the fit towards itself and
+    raises the others' residuals, so the worst turns are also checked out of sample: refitted
+    without them, do they still disagree by that much?
+    """
+    limit = data.cfg.gyro.max_residual_ratio
+    level = _level(res.turn_chi2)
+    names = [t.segment.label or t.segment.name for t in data.turns]
+    tested = res.G is not None or (res.g_test or {}).get("observable")
+    if level > limit:
+        g = "" if tested else 'g-sensitivity ([gyro.full] g_sensitivity = "on"), '
+        worst = _describe(np.argsort(-res.turn_chi2), names, res.angle_residual_deg, res)
+        return [
+            f"the turns' gravity residuals are {level:.0f} times what the noise predicts "
+            f"(worst: {worst}): the model does not match this sensor or these turns ({g}a "
+            "wrong time base, motion during the still periods)"
+        ]
+    outliers, resid = _outliers(data, res, rot, st, level, limit)
+    if outliers:
+        return [
+            f"{len(outliers)} turn(s) disagree with the others: "
+            f"{_describe(outliers, names, resid, res)}, more than {limit:g} times the others' "
+            "level even when fitted without them: the unit moved during the still before or "
+            "after, or the turn was clipped; re-capture or remove those segments"
+        ]
+    still_level = float(np.sqrt(np.median(res.still_chi2) / CHI2_3_MEDIAN))
+    if still_level > limit:
+        hint = ("the bias drifted between them" if tested else
+                'the gyro is g-sensitive ([gyro.full] g_sensitivity = "on"), or the bias drifted')
+        return [
+            f"the gyro's still readings differ between the still periods by {still_level:.0f} "
+            f"times their noise: {hint}"
+        ]
+    return []
+
+
+#: Outlier candidates: turns beyond this share of the limit (times the level) are checked out of
+#: sample; at most this many at once.
+CANDIDATE_SHARE, MAX_CANDIDATES = 0.3, 3
+
+
+def _level(chi2: np.ndarray) -> float:
+    return float(np.sqrt(np.median(chi2) / CHI2_2_MEDIAN))
+
+
+def _outliers(data, res, rot, st, level, limit) -> tuple[list[int], np.ndarray]:
+    """Turns that disagree with the rest out of sample (refit without them)."""
+    ratio = np.sqrt(res.turn_chi2 / 2)
+    order = np.argsort(-ratio)
+    candidates = [int(k) for k in order[:MAX_CANDIDATES]
+                  if ratio[k] > CANDIDATE_SHARE * limit * max(level, 1.0)]  # fmt: skip
+    if not candidates or len(data.turns) - len(candidates) < 5:
+        return [], res.angle_residual_deg
+    try:
+        refit, chi2, resid = gyro_full.refit_without(
+            rot, st, data.noise, res, candidates, max_iterations=data.cfg.gyro.full.max_iterations
+        )
+    except ImucalError:
+        return [], res.angle_residual_deg
+    others = _level(np.delete(chi2, candidates))
+    out = [k for k in candidates if np.sqrt(chi2[k] / 2) > limit * max(others, 1.0)]
+    return out, resid
+
+
+def _describe(idx, names, resid, res, n=3) -> str:
+    idx = list(idx)
+    more = f" and {len(idx) - n} more" if len(idx) > n else ""
+    return ", ".join(f"{names[i]} ({resid[i]:.2f} deg where the noise predicts "
+                     f"{res.turn_sigma_deg[i]:.2f})" for i in idx[:n]) + more  # fmt: skip

@@ -1,0 +1,242 @@
+"""The full gyro model's residuals, Jacobian and noise covariance (used by
+:mod:`imucal_cli.solvers.gyro_full`).
+
+Model: ``omega = M (z - b - G a)``: raw rate ``z``, bias ``b``, matrix ``M`` (rad/s per raw
+unit) and, optionally, the g-sensitivity ``G`` (raw units per m/s^2, Kalibr's ``A`` in raw
+terms) times the calibrated specific force ``a`` of the same sample. Parameters
+``x = (b, vec(M), vec(G))`` (row-major; 12 without ``G``, 21 with it).
+
+Residuals: two per rotation (the predicted gravity direction after it, ``p = R^T u_before``,
+minus the measured one ``u_after``, in the tangent plane of the measured one), then three per
+still period (gyro mean minus ``b + G a``: the gyro reads zero rate when still).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import sparse
+
+from imucal_cli.solvers.banded import BandedWhitener
+from imucal_cli.solvers.gyro_integration import (
+    Stack,
+    attitudes,
+    end_sensitivity,
+    matrix_rows,
+    quat_to_matrix,
+)
+
+
+@dataclass
+class Rotations:
+    """The rotation segments of a session.
+
+    Attributes
+    ----------
+    t : list of ndarray (n_k,)
+        Sample times of each rotation, s (including the still samples at both ends is fine).
+    z : list of ndarray (n_k, 3)
+        Raw gyro samples.
+    before, after : ndarray of int (K,)
+        Index of the still period before and after each rotation (into :class:`Stills`).
+    a : list of ndarray (n_k, 3), optional
+        Calibrated accelerometer samples, m/s^2 (needed for the g-sensitivity term only).
+    """
+
+    t: list[np.ndarray]
+    z: list[np.ndarray]
+    before: np.ndarray
+    after: np.ndarray
+    a: list[np.ndarray] | None = None
+
+
+@dataclass
+class Stills:
+    """The still periods around the rotations.
+
+    Attributes
+    ----------
+    g : ndarray (P, 3)
+        Calibrated accelerometer mean of each still period, m/s^2 (only the direction counts
+        for the rotations; the g-sensitivity term uses the vector).
+    g_sigma : ndarray (P,)
+        Standard deviation of each mean's direction, per tangent component, rad.
+    z_mean : ndarray (P, 3)
+        Raw gyro mean of each still period.
+    z_sigma : ndarray (P,)
+        Standard deviation of each gyro mean, per channel, raw units.
+    """
+
+    g: np.ndarray
+    g_sigma: np.ndarray
+    z_mean: np.ndarray
+    z_sigma: np.ndarray
+
+
+def tangent(u: np.ndarray) -> np.ndarray:
+    """(P, 3, 2) orthonormal bases of the planes normal to unit vectors ``u`` (P, 3)."""
+    helper = np.eye(3)[np.argmin(np.abs(u), axis=1)]
+    t1 = np.cross(u, helper)
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    t2 = np.cross(u, t1)
+    return np.stack([t1, t2], axis=2)
+
+
+def skew(p: np.ndarray) -> np.ndarray:
+    """(K, 3, 3) cross-product matrices ``[p]x`` of (K, 3) vectors."""
+    out = np.zeros((len(p), 3, 3))
+    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -p[:, 2], p[:, 1], -p[:, 0]
+    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = p[:, 2], -p[:, 1], p[:, 0]
+    return out
+
+
+class Problem:
+    """Residuals of the full model, their Jacobian, and their noise covariance.
+
+    Parameters
+    ----------
+    rot, still : Rotations, Stills
+    gyro_sigma : float
+        Per-sample gyro noise, raw units.
+    clock : float
+        Factor on every sample interval (sample-clock correction).
+    g_sensitivity : bool
+        Include the 9 parameters of ``G`` (needs ``rot.a``).
+    """
+
+    def __init__(self, rot: Rotations, still: Stills, gyro_sigma: float, clock: float = 1.0,
+                 g_sensitivity: bool = False):  # fmt: skip
+        self.rot, self.still, self.clock = rot, still, clock
+        self.stack = Stack.of(rot.t)
+        self.z = np.ascontiguousarray(np.concatenate(rot.z).T, dtype=float)  # (3, N)
+        self.with_g = g_sensitivity
+        if g_sensitivity and rot.a is None:
+            raise ValueError("the g-sensitivity term needs the accelerometer samples of the turns")
+        self.a = np.ascontiguousarray(np.concatenate(rot.a).T, dtype=float) if g_sensitivity \
+            else None  # fmt: skip
+        self.n_params = 21 if g_sensitivity else 12
+        self.u = still.g / np.linalg.norm(still.g, axis=1, keepdims=True)
+        self.B = tangent(self.u)
+        self.gyro_sigma = gyro_sigma
+        self.K, self.P = len(rot.t), len(still.g)
+        # Integrated white gyro noise over a rotation: sigma * sqrt(sum dt^2) per axis (raw).
+        h2 = (clock * np.diff(self.stack.t)) ** 2
+        h2[self.stack.stop[:-1] - 1] = 0.0
+        self.int_noise = gyro_sigma * np.sqrt(np.add.reduceat(np.r_[h2, 0.0], self.stack.start))
+        self._last = (None, None)
+
+    def split(self, x):
+        """``(b, M, G)`` from a parameter vector (``G`` zero without the term)."""
+        G = x[12:21].reshape(3, 3) if self.with_g else np.zeros((3, 3))
+        return x[:3], x[3:12].reshape(3, 3), G
+
+    def _bias_free(self, x):
+        """``z - b - G a`` of every turn sample, (3, N)."""
+        b, _, G = self.split(x)
+        d = self.z - b[:, None]
+        return d - G @ self.a if self.with_g else d
+
+    def _still_residuals(self, x):
+        b, _, G = self.split(x)
+        return (self.still.z_mean - b - self.still.g @ G.T).ravel()
+
+    def _attitudes(self, x):
+        """Every sample's attitude in its rotation (4, N); the last evaluation is kept (the
+        solver asks for residuals, Jacobian and noise model at one point in turn)."""
+        key = x.tobytes()
+        if self._last[0] != key:
+            M = x[3:12].reshape(3, 3)
+            self._last = (key, attitudes(self.stack, M @ self._bias_free(x), self.clock))
+        return self._last[1]
+
+    def predicted(self, x):
+        """Predicted gravity direction after each rotation (K, 3) and the rotations (K, 3, 3)."""
+        q = self._attitudes(x)
+        R = quat_to_matrix(q[:, self.stack.stop - 1])
+        return np.einsum("kji,kj->ki", R, self.u[self.rot.before]), R  # R^T u0
+
+    def _rotation_residuals(self, p):
+        B1 = self.B[self.rot.after]
+        return np.einsum("kij,ki->kj", B1, p - self.u[self.rot.after]).ravel()
+
+    def raw_residuals(self, x):
+        p, _ = self.predicted(x)
+        return np.concatenate([self._rotation_residuals(p), self._still_residuals(x)])
+
+    def residuals_and_jacobian(self, x):
+        """Raw residuals and their analytic Jacobian (first order in the rate perturbation).
+
+        A rate error ``d omega(t)`` rotates the end of a turn by
+        ``d phi = integral R(t -> end) d omega(t) dt`` (body frame at the end), which moves the
+        predicted gravity direction by ``d p = [p]x d phi``.
+        """
+        _, M, _ = self.split(x)
+        st, K, P = self.stack, self.K, self.P
+        R = matrix_rows(self._attitudes(x))
+        R_end = R[:, st.stop - 1].T.reshape(K, 3, 3)
+        p = np.einsum("kji,kj->ki", R_end, self.u[self.rot.before])
+        r = np.concatenate([self._rotation_residuals(p), self._still_residuals(x)])
+        dphi = [
+            -end_sensitivity(st, R, clock=self.clock) @ M,  # d omega_i = -M d b
+            end_sensitivity(st, R, self._bias_free(x), self.clock).reshape(K, 3, 9),  # dM d_i
+        ]
+        if self.with_g:  # d omega_i = -M dG a_i
+            S_a = end_sensitivity(st, R, self.a, self.clock)
+            dphi.append(-np.einsum("kxyj,yc->kxcj", S_a, M).reshape(K, 3, 9))
+        Gp = np.einsum("kai,kab->kib", self.B[self.rot.after], skew(p))  # B1^T [p]x
+        J = np.zeros((2 * K + 3 * P, self.n_params))
+        J[: 2 * K] = (Gp @ np.concatenate(dphi, axis=2)).reshape(2 * K, self.n_params)
+        J[2 * K :, :3] = -np.tile(np.eye(3), (P, 1))
+        if self.with_g:  # still rows: d(-G a_p) / dG[r, j] = -a_p[j] in row r
+            for r_ in range(3):
+                J[2 * K + r_ :: 3, 12 + 3 * r_ : 15 + 3 * r_] = -self.still.g
+        return r, J
+
+    def rotation_covariance(self, x) -> sparse.csr_matrix:
+        """Covariance of the rotation residuals (2K x 2K, sparse): each rotation's from the
+        gravity directions before and after it (shared with its neighbours) and its
+        integrated gyro noise."""
+        p, R = self.predicted(x)
+        M = x[3:12].reshape(3, 3)
+        K, P = self.K, self.P
+        i0, i1 = self.rot.before, self.rot.after
+        B1 = self.B[i1]
+        g_sigma = self.still.g_sigma
+        # u_before perturbed in its tangent plane: d p = R^T B0 e
+        c0 = np.einsum("kai,kba,kbj->kij", B1, R, self.B[i0]) * g_sigma[i0, None, None]
+        # u_after perturbed: d(-u1) projected (B1 is fixed from the data, to first order)
+        c1 = -np.broadcast_to(np.eye(2), (K, 2, 2)) * g_sigma[i1, None, None]
+        # Integrated gyro noise: a small rotation eps (body, end) -> d p = [p]x eps
+        cg = np.einsum("kai,kab,bc->kic", B1, skew(p), M) * self.int_noise[:, None, None]
+        rows = 2 * np.arange(K)[:, None, None] + np.arange(2)[None, :, None]
+        blocks = [(c0, 2 * i0), (c1, 2 * i1), (cg, 2 * P + 3 * np.arange(K))]
+        data, rr, cc = [], [], []
+        for c, col0 in blocks:
+            n = c.shape[2]
+            cols = col0[:, None, None] + np.arange(n)[None, None, :]
+            data.append(c.ravel())
+            rr.append(np.broadcast_to(rows, c.shape).ravel())
+            cc.append(np.broadcast_to(cols, c.shape).ravel())
+        C = sparse.csr_matrix(
+            (np.concatenate(data), (np.concatenate(rr), np.concatenate(cc))),
+            shape=(2 * K, 2 * P + 3 * K),
+        )
+        return C @ C.T
+
+    def whitener(self, x) -> Whitener:
+        return Whitener(BandedWhitener(self.rotation_covariance(x)), self)
+
+
+class Whitener:
+    """Whitens the stacked residuals: rotation rows by the banded factor, still rows by their
+    standard deviation."""
+
+    def __init__(self, rot: BandedWhitener, prob: Problem):
+        self.rot, self.n_rot = rot, 2 * prob.K
+        self.zero_sigma = np.repeat(prob.still.z_sigma, 3)
+
+    def __call__(self, a: np.ndarray) -> np.ndarray:
+        top = self.rot(a[: self.n_rot])
+        bottom = a[self.n_rot :] / (self.zero_sigma if a.ndim == 1 else self.zero_sigma[:, None])
+        return np.concatenate([top, bottom])
