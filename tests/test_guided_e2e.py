@@ -15,6 +15,8 @@ import pytest
 
 from imucal_cli.formats.session import read_session
 
+from .cli_helpers import spawn
+
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminals are POSIX")
 
 CLI = [sys.executable, "-m", "imucal_cli"]
@@ -24,7 +26,7 @@ FACES = sorted(f"face {s}{a} up" for a in "XYZ" for s in "+-")
 
 def serve(*args: str) -> tuple[subprocess.Popen, str]:
     """The virtual unit with the defaults (its timer holds each pose 4 s) unless ``args``."""
-    proc = subprocess.Popen(
+    proc = spawn(
         [*CLI, "simulate", "--serve", "--plan", "six", "--rate", "100", *args],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
@@ -38,7 +40,7 @@ def serve(*args: str) -> tuple[subprocess.Popen, str]:
 
 
 def capture(port: str, out: Path) -> subprocess.Popen:
-    return subprocess.Popen(
+    return spawn(
         [*CLI, "capture", "--port", port, "--plan", "six", "--output", str(out)],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
@@ -172,7 +174,7 @@ def test_interrupted_capture_is_resumed_into_the_same_file(tmp_path):
     assert len(first.static_segments()) == 2
     server, port = serve("--hold", "3", "--move", "1")
     try:
-        proc = subprocess.Popen(
+        proc = spawn(
             [*CLI, "capture", "--port", port, "--plan", "six", "--resume", str(out)],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
             text=True, env=ENV,
