@@ -217,3 +217,47 @@ def test_placement_config_is_validated():
         config_from_dict({"accel": {"labelled": {"placement_deg": -1}}})
     cfg = config_from_dict({"accel": {"solver": "labelled", "labelled": {"placement_deg": 1}}})
     assert cfg.accel.labelled.placement_deg == 1.0
+
+
+# --------------------------------------------------------------------------- refusals (9.6)
+
+
+def _unlabelled(session):
+    from dataclasses import replace
+
+    return replace(session, segments=[replace(s, up=None) for s in session.segments])
+
+
+def test_refusals_name_the_model_that_refused_and_what_would_work():
+    six, _ = simulate(plan="six", seed=1, created=CREATED)
+    cfg12 = config_from_dict({"accel": {"solver": "gravity", "gravity": {"model": "12"}}})
+    with pytest.raises(DesignError, match="12-parameter") as exc:
+        calibrate_session(six, cfg12)
+    assert "labelled-pose solver" in str(exc.value)  # these poses carry labels
+    cfg9 = config_from_dict({"accel": {"solver": "gravity"}})
+    with pytest.raises(DesignError, match="9-parameter") as exc:
+        calibrate_session(_unlabelled(six), cfg9)
+    assert "imucal label SESSION --faces" in str(exc.value)  # poses near faces, no labels
+    with pytest.raises(DesignError, match="imucal label SESSION --faces"):
+        calibrate_session(_unlabelled(six), Config())
+
+
+def test_refusal_points_to_a_calibration_already_stored_in_the_session():
+    import json
+    from dataclasses import replace
+
+    six, _ = simulate(plan="six", seed=1, created=CREATED)
+    stored = json.dumps({"accel": {"solver": "labelled", "bias": [0, 0, 0]}})
+    session = replace(_unlabelled(six), calibrations={"0000": stored})
+    with pytest.raises(DesignError, match=r"/calibrations/0000, labelled solver"):
+        calibrate_session(session, Config())
+
+
+def test_a_redundant_unit_is_refused_by_the_triad_solvers_naming_the_factorization():
+    from imucal_cli.simulate.redundant import simulate_redundant_accel
+
+    session, _ = simulate_redundant_accel(seed=1)
+    for solver in ("gravity", "labelled"):
+        with pytest.raises(DesignError, match='solver = "factorization"'):
+            calibrate_session(session, config_from_dict({"accel": {"solver": solver}}))
+    assert calibrate_session(session, Config()).accel.solver == "factorization"

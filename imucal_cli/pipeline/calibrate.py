@@ -19,6 +19,7 @@ from imucal_cli.pipeline.common import (  # noqa: F401 (re-exported for callers)
     nominal_sensor,
     session_name,
     static_poses,
+    stored_accel_hint,
     with_segments,
 )
 
@@ -26,6 +27,16 @@ from imucal_cli.pipeline.common import (  # noqa: F401 (re-exported for callers)
 def calibrate_accel(session: Session, cfg: Config) -> SensorCalibration | None:
     """Run the configured accelerometer solver (``[accel] solver``) on a session; ``"auto"``
     chooses (:mod:`imucal_cli.pipeline.choose`) and may find nothing to calibrate (None)."""
+    try:
+        return _run_accel(session, cfg)
+    except DesignError as exc:  # name what the user already has (issue 9.6)
+        hint = stored_accel_hint(session)
+        if not hint:
+            raise
+        raise DesignError(f"{exc}{hint}") from None
+
+
+def _run_accel(session: Session, cfg: Config) -> SensorCalibration | None:
     solver = cfg.accel.solver
     if solver == "auto":
         from imucal_cli.pipeline.choose import auto_accel

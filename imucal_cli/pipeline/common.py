@@ -202,7 +202,7 @@ def check_design(
         raise DesignError(
             f"{where}: {N} static poses give only {distinct} distinct gravity directions "
             f"(>{min_separation_deg:g} deg apart); {name} needs at least 9"
-            + _what_would_work(poses)
+            + _what_would_work(poses, directions)
         )
     spread = spread_deg(directions)
     if spread <= MIN_SPREAD_DEG:
@@ -223,14 +223,40 @@ def labels_determine(up: np.ndarray) -> bool:
     return bool(np.linalg.matrix_rank(X, tol=1e-6) == 4)
 
 
-def _what_would_work(poses: StaticPoses) -> str:
+def _what_would_work(poses: StaticPoses, directions: np.ndarray) -> str:
+    """What would calibrate these poses, before a new capture (issue 9.6)."""
     if labels_determine(poses.up):
         return (
             "; these poses carry `up` labels, which the labelled-pose solver uses: "
             '[accel] solver = "labelled" (or the default "auto"), or capture the 45-degree '
             "edges too (plan qureshi18)"
         )
+    near = int(np.sum(np.max(np.abs(directions), axis=1) > np.cos(np.radians(15.0))))
+    if near >= 4:
+        return (
+            f"; {near} poses lie within 15 deg of a face: label them (`imucal label SESSION "
+            '--faces`) and the labelled-pose solver ([accel] solver = "auto") calibrates them, '
+            "or capture the 45-degree edges too (plan qureshi18)"
+        )
     return ": capture the 6 faces and the 45-degree edges (plan qureshi18)"
+
+
+def stored_accel_hint(session: Session) -> str:
+    """A pointer to an accelerometer calibration already stored in the session, or ''."""
+    import json
+
+    for name in sorted(session.calibrations, reverse=True):
+        try:
+            accel = json.loads(session.calibrations[name]).get("accel")
+        except (ValueError, AttributeError):
+            continue
+        if isinstance(accel, dict):
+            solver = accel.get("solver", "an earlier")
+            return (
+                f"; this session already stores an accelerometer calibration "
+                f"(/calibrations/{name}, {solver} solver): `imucal report SESSION` shows it"
+            )
+    return ""
 
 
 def physical_checks(

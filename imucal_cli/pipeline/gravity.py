@@ -149,7 +149,8 @@ def calibrate_accel_gravity(session: Session, cfg: Config) -> SensorCalibration:
     if na != 3:
         raise DesignError(
             f"{where}: the gravity solver calibrates a triad (3 accelerometer channels); this "
-            f"session has {na}: use a solver for redundant units"
+            f'session has {na}: [accel] solver = "factorization" (or the default "auto") '
+            "calibrates a redundant unit"
         )
     nominal = nominal_sensor(session, cfg, g)
     check_design(poses, nominal, cfg.accel.min_separation_deg, where, cfg.accel.gravity.model)

@@ -124,7 +124,8 @@ def calibrate_accel_labelled(session: Session, cfg: Config) -> SensorCalibration
     if na != 3:
         raise DesignError(
             f"{where}: the labelled-pose solver calibrates a triad (3 accelerometer channels); "
-            f'this session has {na}: use [accel] solver = "factorization"'
+            f'this session has {na}: [accel] solver = "factorization" (or the default "auto") '
+            "calibrates a redundant unit"
         )
     if not labels_determine(poses.up):
         n_lab = int(np.isfinite(poses.up).all(axis=1).sum())

@@ -284,8 +284,9 @@ def fit_gravity(
         )
     if N < 9:
         raise DesignError(
-            f"{N} static poses cannot determine the 9 parameters of the gravity-magnitude model; "
-            "capture at least 9 (the qureshi18 plan: 6 faces and 12 edges)"
+            f"{N} static poses cannot determine the {variant}-parameter gravity-magnitude model "
+            "(9 parameters from the magnitudes); capture at least 9 (the qureshi18 plan: 6 "
+            "faces and 12 edges), or label the poses for the labelled-pose solver"
         )
     if variant not in ("9", "12"):
         raise ValueError(f"variant must be '9' or '12', not {variant!r}")
