@@ -411,7 +411,10 @@ class _Port:
         status.register(self.master, select.POLLPRI | select.POLLIN)
         end = _time.monotonic() + FLUSH_WAIT_S
         while _time.monotonic() < end and stop["kind"] is None:
-            if status.poll(50) and _flushed(self.master):
+            events = status.poll(50)
+            if any(ev & select.POLLHUP for _, ev in events):
+                break  # the reader closed again: the stream sees it at once
+            if events and _flushed(self.master):
                 break
         self.packets = _packet_mode(self.master, False)
         return ""
