@@ -16,6 +16,7 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	mkdir -p out
 	cp sessions/qureshi18-seed1.h5 out/demo.h5
+	rm -f out/demo.cal.json
 	$(BIN)/imucal calibrate out/demo.h5 --output out/demo.cal.json
 	$(BIN)/imucal report out/demo.cal.json
 

@@ -6,7 +6,17 @@ import argparse
 
 from rich.console import Console
 
-from bench import capture, factorization, gravity, gyro, gyro_speed, labelled, speed, trust_gyro
+from bench import (
+    capture,
+    factorization,
+    gravity,
+    gyro,
+    gyro_speed,
+    labelled,
+    reliability,
+    speed,
+    trust_gyro,
+)
 
 BENCHMARKS = (
     "gravity",
@@ -17,6 +27,7 @@ BENCHMARKS = (
     "trust-gyro",
     "capture",
     "speed",
+    "reliability",
 )
 
 
@@ -24,7 +35,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(prog="python -m bench", description=__doc__)
     parser.add_argument("--seeds", type=int, default=200, help="Monte-Carlo seeds per benchmark")
     parser.add_argument("--only", choices=BENCHMARKS, help="run only this benchmark")
-    parser.add_argument("--quick", action="store_true", help="capture: 10 s instead of 60 s")
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="capture: 10 s instead of 60 s; reliability: 1,000 fuzzed import files, not 10,000",
+    )
     parser.add_argument("--runs", type=int, default=5, help="speed: runs per figure (median)")
     parser.add_argument("--sessions", type=int, default=500, help="speed: production-line size")
     args = parser.parse_args()
@@ -46,6 +61,8 @@ def main() -> None:
         ok = capture.run(console, quick=args.quick) and ok
     if args.only in (None, "speed"):
         ok = speed.run(console, runs=args.runs, n_sessions=args.sessions) and ok
+    if args.only in (None, "reliability"):
+        ok = reliability.run(console, quick=args.quick) and ok
     raise SystemExit(0 if ok else 1)
 
 

@@ -25,6 +25,23 @@ class SessionError(InputError):
     """A session file that does not follow the session format (message names the file)."""
 
 
+class WriteFailed(SessionError):
+    """Samples could not be written to a session (disk full, I/O error).
+
+    Attributes
+    ----------
+    pending : int
+        Samples appended but not written (still in memory, or given up when closing).
+    reason : str
+        Why, in a few words (``No space left on device``).
+    """
+
+    def __init__(self, message: str, pending: int = 0, reason: str = "") -> None:
+        super().__init__(message)
+        self.pending = pending
+        self.reason = reason or message
+
+
 class CalibrationFileError(InputError):
     """A calibration JSON that does not follow the calibration format."""
 
@@ -45,3 +62,9 @@ class SolverError(ImucalError):
     outside physical sense).  Exit code 1."""
 
     exit_code = 1
+
+
+class ImucalWarning(UserWarning):
+    """Something the user should know that does not stop the command (a file repaired, data
+    dropped).  Library code issues it with :func:`warnings.warn`; the CLI prints it on one line
+    as ``imucal: warning: ...``."""

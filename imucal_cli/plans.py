@@ -297,10 +297,13 @@ def _load_file(path: Path) -> Plan:
     src = str(path)
     if not path.is_file():
         raise InputError(f"{src}: no such plan file")
+    from imucal_cli.formats.inputs import read_text_input
+
+    text = read_text_input(path, what="plan file", max_bytes=1 << 20)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{src}: cannot read ({' '.join(str(exc).split())})") from None
+        data = tomllib.loads(text)
+    except RecursionError:
+        raise InputError(f"{src}: not valid TOML (nested too deeply)") from None
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{src}: not valid TOML ({exc})") from None
     unknown = sorted(set(data) - {"name", "step"})

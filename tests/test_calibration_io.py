@@ -247,5 +247,5 @@ def test_write_refuses_a_calibration_it_could_not_read_back(tmp_path):
     with pytest.raises(CalibrationFileError, match=f"^{path}: accel.bias"):
         write_calibration(path, cal)
     assert not path.exists()
-    with pytest.raises(CalibrationFileError, match="cannot write"):
+    with pytest.raises(InputError, match="missing-dir does not exist"):
         write_calibration(tmp_path / "missing-dir" / "c.json", make_calibration())

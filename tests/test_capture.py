@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import signal
 
+import h5py
 import numpy as np
 import pytest
 
@@ -341,7 +342,8 @@ def test_recorder_stall_after_data_keeps_the_samples(tmp_path):
 
 
 @pytest.mark.parametrize(("signum", "kind"), [(signal.SIGINT, "interrupted"),
-                                              (signal.SIGTERM, "terminated")])  # fmt: skip
+                                              (signal.SIGTERM, "terminated"),
+                                              (signal.SIGHUP, "hangup")])  # fmt: skip
 def test_recorder_signals_end_cleanly(tmp_path, signum, kind):
     chunks, n = lines_of()
 
@@ -355,11 +357,13 @@ def test_recorder_signals_end_cleanly(tmp_path, signum, kind):
     rec.close()
     assert rec.end_kind == kind and signal.getsignal(signum) is before
     assert len(read_session(tmp_path / "r.h5").time) == rec.n_samples == 200
+    with h5py.File(tmp_path / "r.h5", "r") as plain:  # closed cleanly: plain HDF5 opens it
+        assert plain["raw/time"].shape == (200,)
 
 
 def test_recorder_refuses_existing_file(tmp_path):
     (tmp_path / "r.h5").write_bytes(b"x")
-    with pytest.raises(InputError, match="exists: use --force"):
+    with pytest.raises(InputError, match="already exists"):
         Recorder(tmp_path / "r.h5", ScriptedSource([]), proto())
 
 

@@ -44,14 +44,14 @@ def test_the_input_is_never_replaced_even_with_force(tmp_path):
     data = tmp_path / "s.h5"
     data.write_bytes(b"recording")
     for target in (data, tmp_path / "." / "s.h5"):
-        with pytest.raises(OutputError, match="is an input"):
+        with pytest.raises(OutputError, match="is the input"):
             write_output(target, "{}", force=True, inputs=[data])
     hard = tmp_path / "alias.h5"
     os.link(data, hard)
     link = tmp_path / "link.h5"
     link.symlink_to(data)
     for target in (hard, link):
-        with pytest.raises(OutputError, match="is an input"):
+        with pytest.raises(OutputError, match="is the input"):
             write_output(target, "{}", force=True, inputs=[data])
     assert data.read_bytes() == b"recording"
 

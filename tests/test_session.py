@@ -14,7 +14,7 @@ import h5py
 import numpy as np
 import pytest
 
-from imucal_cli.errors import InputError, SessionError
+from imucal_cli.errors import ImucalWarning, InputError, SessionError
 from imucal_cli.formats.session import (
     GRAVITY_DEFAULT,
     Segment,
@@ -114,7 +114,7 @@ def test_empty_session_round_trip(tmp_path):
 def test_write_session_refuses_existing_file_unless_overwrite(tmp_path):
     path = tmp_path / "s.h5"
     write_session(path, make_session())
-    with pytest.raises(InputError, match=f"^{path}: file exists"):
+    with pytest.raises(InputError, match=f"^{path}: already exists"):
         write_session(path, make_session())
     write_session(path, make_session(n=90), overwrite=True)
     assert read_session(path).time.size == 90
@@ -271,7 +271,9 @@ import sys, time
 import numpy as np
 from imucal_cli.formats.session import SessionWriter
 
-with SessionWriter(sys.argv[1], gyro_channels=None, sample_rate_hz=1000.0) as w:
+with SessionWriter(
+    sys.argv[1], gyro_channels=None, sample_rate_hz=1000.0, publish_early=True
+) as w:
     n = 0
     while True:
         t = (n + np.arange(10)) * 0.001
@@ -306,7 +308,12 @@ def test_kill_9_leaves_a_readable_file(tmp_path):
     progress = [line.split() for line in out.splitlines()]
     must_have = max(int(n) for n, t in progress if float(t) < killed_at - 1.2)
 
-    s = read_session(path)
+    with pytest.raises(OSError):
+        h5py.File(path, "r")  # the writer's "open for writing" flag is still set
+    with pytest.warns(ImucalWarning, match="did not close it.*repaired"):
+        s = read_session(path)
+    with h5py.File(path, "r") as plain:  # repaired: plain HDF5 opens it
+        assert plain["raw/time"].shape[0] >= s.time.size
     n = s.time.size
     assert n >= must_have > 0
     np.testing.assert_allclose(s.time, np.arange(n) * 0.001)
@@ -318,7 +325,7 @@ def test_kill_9_leaves_a_readable_file(tmp_path):
 def test_writer_refuses_to_overwrite(tmp_path):
     path = tmp_path / "w.h5"
     path.write_bytes(b"precious")
-    with pytest.raises(InputError, match=f"^{path}: file exists"):
+    with pytest.raises(InputError, match=f"^{path}: already exists"):
         SessionWriter(path)
     assert path.read_bytes() == b"precious"
     with SessionWriter(path, overwrite=True) as w:
@@ -328,7 +335,7 @@ def test_writer_refuses_to_overwrite(tmp_path):
 
 def test_writer_cannot_create_in_missing_directory(tmp_path):
     path = tmp_path / "nope" / "w.h5"
-    with pytest.raises(InputError, match=f"^{path}: cannot create"):
+    with pytest.raises(InputError, match=f"^{path}: folder .* does not exist"):
         SessionWriter(path)
 
 

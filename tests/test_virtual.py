@@ -142,7 +142,8 @@ def test_signal_saves_every_sample_received(tmp_path, server_factory, signum, wo
 
 
 def test_device_vanishes(tmp_path, server_factory):
-    server = server_factory("--plan", "six", "--vanish-after", "2.5")
+    # the port closes 6 s after the capture opened it: enough for a first sample under load
+    server = server_factory("--plan", "six", "--vanish-after", "6")
     out = tmp_path / "gone.h5"
     cap = start_capture(server.path, out, "--duration", "60")
     stdout, stderr = cap.communicate(timeout=120)

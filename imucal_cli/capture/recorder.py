@@ -5,8 +5,13 @@
 counts the data show) and hands the blocks to the user interface through :meth:`Recorder.blocks`.
 The capture ends, always with a valid session holding every sample received, on:
 
-- Ctrl-C (SIGINT) or SIGTERM: handlers installed while recording set a flag (the previous
-  handlers are restored afterwards); ``end_kind`` ``"interrupted"`` / ``"terminated"``;
+- Ctrl-C (SIGINT), SIGTERM or SIGHUP (the terminal closed): handlers installed while recording
+  set a flag (the previous handlers are restored afterwards); ``end_kind`` ``"interrupted"`` /
+  ``"terminated"`` / ``"hangup"``;
+- the disk full (or any write error): the capture stops, the file is closed cleanly with every
+  sample written so far (space set aside at the start, :data:`RESERVE_BYTES`, is freed to let
+  the last samples and the segments reach the file); ``"disk-full"``, and
+  :attr:`Recorder.samples_lost` says how many received samples could not be written;
 - the device disappearing (unplugged, pseudo-terminal closed): ``"device-gone"``;
 - no valid line for ``wait_timeout_s`` at the start, or for ``read_timeout_s`` once data
   flowed: ``"timeout"``;
@@ -29,15 +34,29 @@ from pathlib import Path
 import numpy as np
 
 from imucal_cli.capture.stream import DeviceGone
-from imucal_cli.errors import InputError, SessionError
+from imucal_cli.errors import InputError, SessionError, WriteFailed
 from imucal_cli.formats.columns import SampleBlock
+from imucal_cli.formats.output import check_output
 
 __all__ = ["END_KINDS", "FLUSH_INTERVAL_S", "CaptureEnded", "Recorder"]
 
 FLUSH_INTERVAL_S = 0.5
 """Longest time a received sample stays in memory before it is written and flushed."""
 
-END_KINDS = ("interrupted", "terminated", "device-gone", "timeout", "done", "clock")
+END_KINDS = (
+    "interrupted", "terminated", "hangup", "device-gone", "disk-full", "timeout", "done", "clock",
+)  # fmt: skip
+
+RESERVE_BYTES = 4 << 20
+"""Disk space set aside next to the session while recording, freed when a write fails."""
+
+_SIGNALS = {
+    signal.SIGINT: ("interrupted", "Ctrl-C"),
+    signal.SIGTERM: ("terminated", "SIGTERM"),
+    **(
+        {signal.SIGHUP: ("hangup", "SIGHUP (terminal closed)")} if hasattr(signal, "SIGHUP") else {}
+    ),
+}
 
 CLOCK_CHECK_S = 3.0
 """After this much host time with data, the device's time stamps are compared with the host
@@ -121,13 +140,10 @@ class Recorder:
         on_status: Callable[[str], None] | None = None,
         resume: bool = False,
     ) -> None:
-        self.path = Path(path)
-        if self.path.is_dir():
-            raise InputError(f"{path}: is a directory")
-        if not self.path.parent.is_dir():
-            raise InputError(f"{path}: directory {self.path.parent} does not exist")
-        if self.path.exists() and not overwrite and not resume:
-            raise InputError(f"{path} exists: use --force to overwrite it")
+        if resume:
+            self.path = Path(path)  # continued in place (SessionWriter.reopen checks it)
+        else:
+            self.path = check_output(path, force=overwrite)
         self.source = source
         self.protocol = protocol
         self._meta = {"sensor": sensor, "accel_units": accel_units, "gyro_units": gyro_units,
@@ -152,10 +168,11 @@ class Recorder:
         self._clock_checked = False
         self._t_end: float | None = None
         self._closed = False
-        self._segments: list[dict] = []
+        self.samples_lost = 0  #: samples received but not written (disk full)
         self.resumed_from = 0  #: samples the session held before this capture (``resume``)
         self._time_offset: float | None = None  # added to this capture's time stamps (resume)
         self._resume_gap_s = 0.0
+        self._segments_before = 0  # the resumed session's own segments (not this capture's)
         if resume:
             self._reopen()
 
@@ -168,6 +185,7 @@ class Recorder:
         gap_s = max(_time.time() - self.path.stat().st_mtime, 0.0)  # since its last flush
         self._writer = SessionWriter.reopen(self.path, flush_interval_s=FLUSH_INTERVAL_S)
         self.resumed_from = self._writer.n_samples
+        self._segments_before = len(self._writer.segments)
         self._resume_gap_s = gap_s
 
     # status ------------------------------------------------------------------------------------
@@ -206,9 +224,9 @@ class Recorder:
             return
 
         def handler(signum, frame):  # noqa: ARG001
-            self._signal_kind = "interrupted" if signum == signal.SIGINT else "terminated"
+            self._signal_kind = signum
 
-        for signum in (signal.SIGINT, signal.SIGTERM):
+        for signum in _SIGNALS:
             try:
                 self._old_handlers[signum] = signal.signal(signum, handler)
             except (ValueError, OSError):
@@ -239,10 +257,12 @@ class Recorder:
             temperature=block.temperature is not None,
             flush_interval_s=FLUSH_INTERVAL_S,
             overwrite=self._overwrite,
+            publish_early=True,
+            reserve_bytes=RESERVE_BYTES,
             **self._meta,
         )
 
-    def _append(self, block: SampleBlock) -> None:
+    def _append(self, block: SampleBlock) -> CaptureEnded | None:
         if self._writer is None:
             self._open_writer(block)
         time = block.time
@@ -253,16 +273,45 @@ class Recorder:
                 gap = max(self._resume_gap_s, 1e-3)
                 self._time_offset = self._writer.last_time + gap - float(time[0])
             time = time + self._time_offset
-        self._writer.append(time, block.accel, block.gyro, block.temperature, block.mag)
+        try:
+            self._writer.append(time, block.accel, block.gyro, block.temperature, block.mag)
+        except WriteFailed as exc:
+            return self._write_failed(exc)
         if self._device_first is None:
             self._device_first = float(block.time[0])
         self._device_last = float(block.time[-1])
+        return None
+
+    def _flush(self) -> CaptureEnded | None:
+        try:
+            self._writer.flush()
+        except WriteFailed as exc:
+            return self._write_failed(exc)
+        return None
+
+    def _write_failed(self, exc: WriteFailed) -> CaptureEnded:
+        """Free the reserve and try once more; else give up the samples not written."""
+        writer = self._writer
+        writer.release_reserve()
+        try:
+            writer.flush()
+        except WriteFailed:
+            self.samples_lost += writer.drop_pending()
+        lost = (
+            f"{self.samples_lost} received samples could not be written"
+            if self.samples_lost
+            else "every sample received was written"
+        )
+        return CaptureEnded(
+            "disk-full",
+            f"cannot write ({exc.reason}): stopped; {lost}, the session holds {writer.n_written}",
+        )
 
     def _check_end(self, now: float) -> CaptureEnded | None:
         what = self.source.describe()
         if self._signal_kind is not None:
-            name = "Ctrl-C" if self._signal_kind == "interrupted" else "SIGTERM"
-            return CaptureEnded(self._signal_kind, f"stopped by {name}")
+            kind, name = _SIGNALS[self._signal_kind]
+            return CaptureEnded(kind, f"stopped by {name}")
         if self._stop:
             return CaptureEnded("done", "done")
         if self._t_last_sample is None:
@@ -341,18 +390,11 @@ class Recorder:
                 now = _time.monotonic()
                 block = self.protocol.feed(data, now - self._t0) if data else SampleBlock.empty()
                 if len(block):
-                    if self._t_first is None:
-                        self._t_first = now
-                        self._status(f"receiving data from {what}")
-                    self._t_last_sample = now
-                    self._append(block)
+                    ended = self._received(block, now, what)
+                    if ended is not None:
+                        self.end_kind, self.end_reason = ended.kind, ended.reason
+                        break
                     dirty = True
-                    if not self._clock_checked and now - self._t_first >= CLOCK_CHECK_S:
-                        self._clock_checked = True
-                        problem = self._clock_problem(now - self._t_first)
-                        if problem is not None:
-                            self.end_kind, self.end_reason = "clock", problem
-                            break
                 elif self._t_first is None and now - last_status >= STATUS_REPEAT_S:
                     last_status = now
                     self._status(
@@ -360,23 +402,47 @@ class Recorder:
                         f"{self.protocol.stats.get('bytes', 0)} bytes received)"
                     )
                 if dirty and now - last_flush >= FLUSH_INTERVAL_S:
-                    self._writer.flush()
+                    ended = self._flush()
+                    if ended is not None:
+                        self.end_kind, self.end_reason = ended.kind, ended.reason
+                        break
                     last_flush, dirty = now, False
                 if len(block) or now - last_yield >= tick_s:
                     last_yield = now
                     yield block
                     now = _time.monotonic()
         finally:
-            self._t_end = _time.monotonic()
-            if self.end_kind is None:  # the consumer closed the generator
-                self.end_kind, self.end_reason = "done", "done"
-            self._restore_signals()
-            self.source.close()  # nothing more is read: let the device see it at once
-            if self._writer is not None:
-                try:
-                    self._writer.flush()
-                except SessionError:
-                    pass
+            self._finish()
+
+    def _received(self, block: SampleBlock, now: float, what: str) -> CaptureEnded | None:
+        """Append a block that arrived at ``now``; check the device clock once enough time
+        has passed.  Returns why the capture ends, or None."""
+        if self._t_first is None:
+            self._t_first = now
+            self._status(f"receiving data from {what}")
+        self._t_last_sample = now
+        ended = self._append(block)
+        if ended is not None:
+            return ended
+        if not self._clock_checked and now - self._t_first >= CLOCK_CHECK_S:
+            self._clock_checked = True
+            problem = self._clock_problem(now - self._t_first)
+            if problem is not None:
+                return CaptureEnded("clock", problem)
+        return None
+
+    def _finish(self) -> None:
+        """After the recording loop, however it ended: restore the signals, close the source
+        and flush what is still pending (a full disk keeps its reason)."""
+        self._t_end = _time.monotonic()
+        if self.end_kind is None:  # the consumer closed the generator
+            self.end_kind, self.end_reason = "done", "done"
+        self._restore_signals()
+        self.source.close()  # nothing more is read: let the device see it at once
+        if self._writer is not None and self._writer.n_samples > self._writer.n_written:
+            ended = self._flush()
+            if ended is not None and self.end_kind != "disk-full":
+                self.end_kind, self.end_reason = ended.kind, ended.reason
 
     # segments and closing ----------------------------------------------------------------------
     def add_segment(
@@ -403,19 +469,22 @@ class Recorder:
         """
         if self._writer is None:
             raise SessionError(f"{self.path}: no samples recorded, so no segment can be added")
-        name = self._writer.add_segment(
-            kind, start, stop, label=label, up=up, axis=axis, angle_deg=angle_deg
-        )
-        entry = {"name": name, "kind": kind, "start": int(start), "stop": int(stop)}
-        extra = {"label": label, "up": up, "axis": axis, "angle_deg": angle_deg}
-        entry.update({k: v for k, v in extra.items() if v is not None})
-        self._segments.append(entry)
-        return name
+        try:
+            return self._writer.add_segment(
+                kind, start, stop, label=label, up=up, axis=axis, angle_deg=angle_deg
+            )
+        except WriteFailed as exc:
+            ended = self._write_failed(exc)
+            if self.end_kind in (None, "done"):
+                self.end_kind, self.end_reason = ended.kind, ended.reason
+            self.stop()
+            return f"{len(self._writer.segments) - 1:04d}"
 
     @property
     def segments(self) -> list[dict]:
-        """The segments added so far (name, kind, start, stop, and the optional attributes)."""
-        return [dict(s) for s in self._segments]
+        """The segments this capture added so far (name, kind, start, stop, and the optional
+        attributes; with ``resume`` not those the session held already)."""
+        return [] if self._writer is None else self._writer.segments[self._segments_before :]
 
     @property
     def file_written(self) -> bool:
@@ -425,10 +494,9 @@ class Recorder:
     def close(self) -> None:
         """Write everything and close the session and the source.  Closing twice does nothing.
 
-        Raises
-        ------
-        SessionError
-            The file cannot be written.
+        A write that fails while closing (disk full) does not raise: the file is closed with
+        what was written, :attr:`end_kind` becomes ``"disk-full"`` and :attr:`samples_lost`
+        counts what was not.
         """
         if self._closed:
             return
@@ -436,10 +504,29 @@ class Recorder:
         self._restore_signals()
         try:
             if self._writer is not None:
-                self._writer.close()
-                self._write_rate()
+                try:
+                    self._writer.close()
+                except WriteFailed as exc:
+                    self._close_failed(exc)
+                try:
+                    self._write_rate()
+                except SessionError:
+                    pass  # the nominal rate is optional; the samples are what matter
         finally:
             self.source.close()
+
+    def _close_failed(self, exc: WriteFailed) -> None:
+        was_full = self.end_kind == "disk-full"
+        self.samples_lost += exc.pending
+        self.end_kind = "disk-full"
+        more = f", {exc.pending} more samples not written" if exc.pending else ""
+        if was_full:
+            self.end_reason += f"; closing: cannot write ({exc.reason}){more}"
+        else:
+            self.end_reason = (
+                f"cannot write ({exc.reason}) when closing: {exc.pending} samples could not be "
+                f"written, the session holds {self._writer.n_written}"
+            )
 
     def _clock_problem(self, host_s: float) -> str | None:
         """Why the device's time stamps cannot be right (None: they agree with the host clock

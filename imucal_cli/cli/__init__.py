@@ -9,12 +9,14 @@ still finishes and exits with its own status.
 
 from __future__ import annotations
 
+import errno
 import io
 import os
 import stat
 import sys
+import warnings
 
-from imucal_cli.errors import ImucalError
+from imucal_cli.errors import ImucalError, ImucalWarning
 
 # Importing the command modules registers their commands on ``app``.
 from . import apply as _apply  # noqa: E402,F401
@@ -27,6 +29,22 @@ from . import noise as _noise  # noqa: E402,F401
 from . import report as _report  # noqa: E402,F401
 from . import simulate as _simulate  # noqa: E402,F401
 from .app import app
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Warnings of the library (:class:`ImucalWarning`) on one line; others as Python does."""
+    if issubclass(category, ImucalWarning):
+        from imucal_cli.formats.text import clean_text
+
+        try:
+            print(f"imucal: warning: {clean_text(str(message))}", file=sys.stderr, flush=True)
+        except OSError:
+            pass
+    else:
+        _python_showwarning(message, category, filename, lineno, file, line)
+
+
+_python_showwarning = warnings.showwarning
 
 
 class _PipeWriter(io.RawIOBase):
@@ -77,6 +95,8 @@ def _guard_stdout():
 
 def main() -> None:
     """Console-script entry point (``imucal``): run, then exit with the command's status."""
+    warnings.showwarning = _show_warning
+    warnings.simplefilter("always", ImucalWarning)
     original = _guard_stdout()
     try:
         code = _run()
@@ -91,6 +111,13 @@ def main() -> None:
     except BrokenPipeError:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     sys.exit(code)
+
+
+def _print_error(text: str) -> None:
+    try:
+        print(text, file=sys.stderr)
+    except OSError:
+        pass
 
 
 def _run() -> int:
@@ -115,14 +142,23 @@ def _run() -> int:
         print(f"imucal: error: {message}{hint}", file=sys.stderr)
         return getattr(exc, "exit_code", 2)
     except ImucalError as exc:
-        print(f"imucal: error: {_one_line(str(exc))}", file=sys.stderr)
+        from imucal_cli.formats.text import clean_text
+
+        _print_error(f"imucal: error: {_one_line(clean_text(str(exc)))}")
         return exc.exit_code
+    except MemoryError:
+        _print_error("imucal: error: not enough memory for this input")
+        return 1
     except KeyboardInterrupt:
         print("imucal: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+    except OSError as exc:
+        if exc.errno == errno.EIO:  # the terminal hung up (SIGHUP): nobody reads the output
+            return 129
+        raise
     return code if isinstance(code, int) else 0
 
 

@@ -50,7 +50,10 @@ def calibrate(
         help="Local gravity in m/s^2 [default: the session's, else 9.80665].",
     ),
     force: bool = typer.Option(
-        False, "--force", help="Save a result that fails the physical-sense checks (with warnings)."
+        False,
+        "--force",
+        help="Replace an existing OUTPUT, and save a result that fails the physical-sense "
+        "checks (with warnings).",
     ),
     store: bool = typer.Option(
         True,
@@ -76,13 +79,15 @@ def calibrate(
 ) -> None:
     """Calibrate the sensors of SESSION the config asks for and write a calibration JSON.
 
-    Exit status: 0 saved; 2 bad input (unreadable file, bad config, poses that cannot
-    determine the model); 1 the solver did not converge or the result is outside physical
-    sense (not saved unless --force).  Several sessions: the worst of theirs.
+    Exit status: 0 saved; 2 bad input, nothing saved (unreadable file, bad config, poses that
+    cannot determine the model, OUTPUT exists without --force or is the session); 1 the solver
+    did not converge or the result is outside physical sense (not saved unless --force), or
+    saved but not stored in the session (the reason is printed).  Several sessions: the worst
+    of theirs.
     """
     from imucal_cli.errors import InputError
     from imucal_cli.formats.config import load_config, validate
-    from imucal_cli.pipeline.batch import calibrate_file
+    from imucal_cli.pipeline.batch import NOT_STORED, calibrate_file
 
     cfg = load_config(config)
     if model is not None:
@@ -101,12 +106,21 @@ def calibrate(
             raise InputError("--output names one file: with several sessions each goes to "
                              "SESSION.cal.json")  # fmt: skip
         raise typer.Exit(_many(sessions, cfg, jobs, force, store, json_output, accel_cal))
-    cal, out, stored = calibrate_file(sessions[0], cfg, output=output, force=force, store=store,
-                                      accel=accel_cal)  # fmt: skip
+    cal, out, stored = calibrate_file(
+        sessions[0], cfg, output=output, force=force, store=store, inputs=[config, accel],
+        accel=accel_cal,
+    )  # fmt: skip
+    # Saved: from here on the exit status is 0, or 1 with the reason (never 2).
     if json_output:
         print_json(_result_json(cal, out, stored))
-        return
-    _summary(make_console(), cal, f"{out}{stored}")
+    else:
+        _summary(make_console(), cal, f"{out}{stored}")
+    if stored.startswith(NOT_STORED):
+        make_console(stderr=True).print(
+            f"imucal: error: saved {escape(str(out))} but could not store it in the session "
+            f"({escape(stored[len(NOT_STORED) : -1])}); pass --no-store not to store it"
+        )
+        raise typer.Exit(1)
 
 
 def _result_json(cal, out: Path, stored: str) -> dict:

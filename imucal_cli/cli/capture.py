@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.markup import escape
 
 from imucal_cli.errors import InputError
+from imucal_cli.formats.output import check_output
 
 from . import completion
 from .app import app
@@ -255,12 +256,10 @@ def _output_path(output: Path | None, resume: Path | None, force: bool) -> Path:
             raise InputError(f"{resume}: no such session to resume")
         return resume
     out = output if output is not None else default_output()
-    if out.exists() and not force:
+    if out.is_file() and not force:
         raise InputError(f"{out} exists: use --force to overwrite it, or --resume {out} to "
                          "continue it")  # fmt: skip
-    if not out.parent.is_dir():
-        raise InputError(f"{out}: directory {out.parent} does not exist")
-    return out
+    return check_output(out, force=force)
 
 
 def _done_before(path: Path, guided: bool) -> list:

@@ -80,7 +80,7 @@ def export(
     ardupilot hold only an offset and a diagonal scale: the file says how much misalignment
     (degrees) is lost. Targets reading SI values (kalibr, openvins, basalt, px4, ardupilot)
     need raw data in m/s^2, g, rad/s or deg/s, or --accel-scale/--gyro-scale.
-    Exit status: 0 written; 2 bad input.
+    An existing OUTPUT is replaced only with --force. Exit status: 0 written; 2 bad input.
     """
     from imucal_cli.errors import InputError
     from imucal_cli.formats.exporters import ExportOptions, parse_scale

@@ -131,8 +131,10 @@ def import_(
     no time and no --rate, time that does not increase, no still period).
     """
     from imucal_cli.formats.importers import import_files
+    from imucal_cli.formats.output import check_output
     from imucal_cli.formats.session import write_session
 
+    out = check_output(output or default_output(files[0]), force=force, inputs=files)
     session = import_files(
         files,
         fmt,
@@ -149,8 +151,7 @@ def import_(
         magnetic_field_uT=field_ut,
         topic=topic,
     )
-    out = output or default_output(files[0])
-    write_session(out, session, overwrite=force)
+    write_session(out, session, overwrite=force, inputs=files)
 
     stats = session.import_stats
     static = session.static_segments()

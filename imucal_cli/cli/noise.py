@@ -37,6 +37,7 @@ def noise(
     json_output: bool = typer.Option(
         False, "--json", help="Print the figures and curves as JSON on stdout (nothing else)."
     ),
+    force: bool = typer.Option(False, "--force", help="Replace an existing --plot file."),
 ) -> None:
     """Noise figures of a still recording for your filter: Allan deviation per axis.
 
@@ -49,13 +50,18 @@ def noise(
     from imucal_cli.formats.session import read_session
     from imucal_cli.use.noise import analyse_noise, load_calibration
 
+    inputs = [session, calibration]
+    if plot is not None:
+        from imucal_cli.formats.output import check_output
+
+        check_output(plot, force=force, inputs=inputs)
     sess = read_session(session)
     cal = None if calibration is None else load_calibration(calibration)
     result = analyse_noise(sess, cal)
     if plot is not None:
         from imucal_cli.use.plots import noise_figure
 
-        noise_figure(result, plot)
+        noise_figure(result, plot, force=force, inputs=inputs)
     if json_output:
         typer.echo(json.dumps(result.to_dict(), indent=2))
         return

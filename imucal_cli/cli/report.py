@@ -32,6 +32,7 @@ def report(
         help="Also draw |a| per pose before/after, residuals, rotation angle errors and the "
         "pose directions to a PNG (needs matplotlib: pip install 'imucal-cli[plot]').",
     ),
+    force: bool = typer.Option(False, "--force", help="Replace an existing --plot file."),
     history: bool = typer.Option(
         False,
         "--history",
@@ -76,12 +77,16 @@ def report(
             render_history(result, make_console())
         return
 
+    if plot is not None:
+        from imucal_cli.formats.output import check_output
+
+        check_output(plot, force=force, inputs=paths)
     cal = load_for_report(paths[0])
     result = build_report(cal)
     if plot is not None:
         from imucal_cli.use.plots import report_figure
 
-        report_figure(result, plot)
+        report_figure(result, plot, force=force, inputs=paths)
     if json_output:
         typer.echo(json.dumps(result, indent=2))
     else:

@@ -259,6 +259,7 @@ def simulate(
         )  # fmt: skip
         return
     from imucal_cli.formats.calibration import write_calibration
+    from imucal_cli.formats.output import check_output
     from imucal_cli.formats.session import write_session
     from imucal_cli.plans import plan_poses
     from imucal_cli.simulate.triad import simulate as run
@@ -276,12 +277,8 @@ def simulate(
     truth_out = truth_path(out)
     if out.resolve() == truth_out.resolve():
         raise InputError(f"{out}: the session name must not end in .truth.json")
-    if not out.parent.is_dir():
-        raise InputError(f"{out}: directory {out.parent} does not exist")
-    if not force:
-        for p in (out, truth_out):
-            if p.exists():
-                raise InputError(f"{p} exists: use --force to overwrite it")
+    for p in (out, truth_out):
+        check_output(p, force=force)
     if hk:
 
         def given(name: str) -> bool:
@@ -326,7 +323,7 @@ def simulate(
         )
     truth = dataclasses.replace(truth, session=out.name)
     write_session(out, session, overwrite=force)
-    write_calibration(truth_out, truth)
+    write_calibration(truth_out, truth, force=force)
     n_static = sum(1 for s in session.segments if s.kind == "static")
     n = len(session.time)
     if json_output:

@@ -60,72 +60,248 @@ Example (every key optional; these are the defaults)::
     max_iterations = 200
 
 Unknown keys and wrong types are errors (a typo must not silently fall back to a default).
+Every value is checked against the rule of its key (:func:`setting`: finite, within bounds, one
+of the choices, the right length) and a mistake is one line naming the key.
 """
 
 from __future__ import annotations
 
+import math
 import tomllib
-from dataclasses import asdict, dataclass, field, fields, is_dataclass
+from dataclasses import MISSING, asdict, dataclass, field, fields, is_dataclass
 from pathlib import Path
 from typing import Any
 
 from imucal_cli.errors import ConfigError
+from imucal_cli.formats.inputs import read_text_input
 
 ACCEL_SOLVERS = ("auto", "gravity", "labelled", "factorization", "none")
 GYRO_SOLVERS = ("auto", "none", "static", "dynamic", "full", "factorization")
+
+#: Largest whole number a count (iterations, samples) may take.
+MAX_COUNT = 1_000_000
+
+
+# --------------------------------------------------------------------------------------------
+# Rules: every key is checked against the rule of its field (declared with `setting`)
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Rule:
+    """What one config value may be.
+
+    Attributes
+    ----------
+    kind : str
+        ``"number"`` (a finite float), ``"count"`` (a whole number), ``"bool"``, ``"text"``,
+        ``"range"`` (``[min, max]``, two finite numbers, min < max) or ``"numbers"`` (a finite
+        number, or a list of them: one per channel).
+    gt, ge, lt, le : float, optional
+        Bounds: greater than, at least, less than, at most.
+    choices : tuple of str, optional
+        The values a text may take.
+    min_len : int
+        ``numbers``: the fewest values a list may hold (3: a sensor has at least 3 channels).
+    unit : str
+        Printed after the bounds in messages (``"m/s^2"``).
+    """
+
+    kind: str
+    gt: float | None = None
+    ge: float | None = None
+    lt: float | None = None
+    le: float | None = None
+    choices: tuple[str, ...] | None = None
+    unit: str = ""
+    min_len: int = 1
+
+    def bounds(self) -> str:
+        parts = []
+        for op, bound in ((">", self.gt), (">=", self.ge), ("<", self.lt), ("<=", self.le)):
+            if bound is not None:
+                parts.append(f"{op} {bound:g}")
+        text = " and ".join(parts)
+        return f"{text} {self.unit}".rstrip() if text else ""
+
+    def within(self, x: float) -> bool:
+        return not (
+            (self.gt is not None and not x > self.gt)
+            or (self.ge is not None and not x >= self.ge)
+            or (self.lt is not None and not x < self.lt)
+            or (self.le is not None and not x <= self.le)
+        )
+
+
+def setting(default: Any, kind: str, **rule: Any) -> Any:
+    """A config field with its rule: ``max_iterations: int = setting(200, "count", ge=1)``.
+
+    Every field of the config dataclasses should be declared this way; a field declared
+    without one still gets a rule inferred from its type (a finite number, a whole number in
+    ``[0, MAX_COUNT]``, a bool, a string), so a key added without a rule is never unchecked.
+    """
+    return field(default=default, metadata={"rule": Rule(kind, **rule)})
+
+
+_KIND_FROM_TYPE = (
+    ("list[float]", "numbers"), ("bool", "bool"), ("int", "count"), ("float", "number"),
+    ("str", "text"),
+)  # fmt: skip
+
+
+def rule_of(f) -> Rule:
+    """The rule of a dataclass field: declared with :func:`setting`, else from its type."""
+    rule = f.metadata.get("rule")
+    if rule is not None:
+        return rule
+    annotation = str(f.type)
+    for token, kind in _KIND_FROM_TYPE:
+        if token in annotation:
+            return Rule(kind, ge=0, le=MAX_COUNT) if kind == "count" else Rule(kind)
+    raise TypeError(f"config field {f.name!r} has no rule and an unknown type {annotation!r}")
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _finite(value: Any) -> bool:
+    try:
+        return _is_number(value) and math.isfinite(value)
+    except OverflowError:  # an integer past the float range
+        return False
+
+
+def check_value(rule: Rule, value: Any, key: str, where: str) -> Any:
+    """Check and convert one value; raise :class:`ConfigError` naming ``key``."""
+
+    def fail(what: str) -> ConfigError:
+        return ConfigError(f"{where}: `{key}` must be {what}, not {value!r}")
+
+    kind = rule.kind
+    bounds = rule.bounds()
+    number = "a finite number" + (f" {bounds}" if bounds else "")
+    if kind == "number":
+        if not _finite(value) or not rule.within(value):
+            raise fail(number)
+        return float(value)
+    if kind == "count":
+        if isinstance(value, bool) or not isinstance(value, int) or not rule.within(value):
+            raise fail("a whole number" + (f" {bounds}" if bounds else ""))
+        return value
+    if kind == "bool":
+        if not isinstance(value, bool):
+            raise fail("true or false")
+        return value
+    if kind == "text":
+        if _is_number(value) and isinstance(value, int):
+            value = str(value)  # model = 9 is as good as model = "9"
+        if not isinstance(value, str):
+            raise fail("a string" + (f" ({', '.join(rule.choices)})" if rule.choices else ""))
+        if rule.choices is not None and value not in rule.choices:
+            raise ConfigError(
+                f"{where}: `{key}` = {value!r} is not known (choose: {', '.join(rule.choices)})"
+            )
+        return value
+    if kind == "range":
+        if not (isinstance(value, list) and len(value) == 2 and all(map(_finite, value))):
+            raise fail("[min, max] in raw units, two finite numbers")
+        if not value[0] < value[1]:
+            raise ConfigError(f"{where}: `{key}` minimum must be below its maximum, not {value!r}")
+        return [float(v) for v in value]
+    if kind == "numbers":
+        if isinstance(value, list):
+            if len(value) < rule.min_len or not all(map(_finite, value)):
+                raise fail(
+                    f"a finite number or a list of at least {rule.min_len} finite numbers "
+                    "(one per channel)"
+                )
+            return [float(v) for v in value]
+        if not _finite(value):
+            raise fail("a finite number or a list of finite numbers (one per channel)")
+        return float(value)
+    raise TypeError(f"unknown rule kind {kind!r}")
+
+
+def per_channel(value: float | list[float] | None, n: int, key: str) -> list[float] | None:
+    """A ``numbers`` value (one, or one per channel) as ``n`` values; None stays None.
+
+    Raises
+    ------
+    ConfigError
+        A list whose length is not ``n`` (the message names the key and both lengths).
+    """
+    if value is None:
+        return None
+    if isinstance(value, list):
+        if len(value) != n:
+            raise ConfigError(
+                f"config: `{key}` has {len(value)} values but the session has {n} channels "
+                "(give one value, or one per channel)"
+            )
+        return [float(v) for v in value]
+    return [float(value)] * n
+
+
+# --------------------------------------------------------------------------------------------
+# The configuration
+# --------------------------------------------------------------------------------------------
+
+_ITERATIONS = {"ge": 1, "le": MAX_COUNT}
+_DEG = "deg"
 
 
 @dataclass
 class GravityOptions:
     """Options of the gravity-magnitude solver (``[accel.gravity]``)."""
 
-    model: str = "9"
-    init: str = "auto"
-    weighting: str = "noise"
-    max_iterations: int = 200
-    leave_one_out: bool = True
+    model: str = setting("9", "text", choices=("9", "12"))
+    init: str = setting("auto", "text", choices=("auto", "updown", "ellipsoid"))
+    weighting: str = setting("noise", "text", choices=("noise", "equal"))
+    max_iterations: int = setting(200, "count", **_ITERATIONS)
+    leave_one_out: bool = setting(True, "bool")
 
 
 @dataclass
 class LabelledOptions:
     """Options of the labelled-pose solver (``[accel.labelled]``)."""
 
-    placement_deg: float | None = None
-    max_iterations: int = 200
+    placement_deg: float | None = setting(None, "number", gt=0, le=45, unit=_DEG)
+    max_iterations: int = setting(200, "count", **_ITERATIONS)
 
 
 @dataclass
 class AccelFactorizationOptions:
     """Options of the factorization solver for accelerometers (``[accel.factorization]``)."""
 
-    use: str = "means"
-    linear: str = "subspace"
-    refine: bool = True
-    fixture_tolerance_deg: float | None = None
-    max_iterations: int = 200
+    use: str = setting("means", "text", choices=("means", "samples"))
+    linear: str = setting("subspace", "text", choices=("subspace", "paper"))
+    refine: bool = setting(True, "bool")
+    fixture_tolerance_deg: float | None = setting(None, "number", ge=0, lt=45, unit=_DEG)
+    max_iterations: int = setting(200, "count", **_ITERATIONS)
 
 
 @dataclass
 class GyroFactorizationOptions:
     """Options of the factorization solver for gyroscopes (``[gyro.factorization]``)."""
 
-    samples_per_segment: int = 40
-    linear: str = "subspace"
-    refine: bool = True
-    fixture_tolerance_deg: float | None = None
-    max_iterations: int = 200
+    samples_per_segment: int = setting(40, "count", ge=3, le=MAX_COUNT)
+    linear: str = setting("subspace", "text", choices=("subspace", "paper"))
+    refine: bool = setting(True, "bool")
+    fixture_tolerance_deg: float | None = setting(None, "number", ge=0, lt=45, unit=_DEG)
+    max_iterations: int = setting(200, "count", **_ITERATIONS)
 
 
 @dataclass
 class AccelConfig:
     """``[accel]``: which solver, and what is nominal for the physical-sense checks."""
 
-    solver: str = "auto"
-    nominal_sensitivity: float | None = None
-    nominal_bias: float | list[float] | None = None
-    range: list[float] | None = None
-    max_scale_error: float = 0.20
-    min_separation_deg: float = 10.0
+    solver: str = setting("auto", "text", choices=ACCEL_SOLVERS)
+    nominal_sensitivity: float | None = setting(None, "number", gt=0)
+    nominal_bias: float | list[float] | None = setting(None, "numbers", min_len=3)
+    range: list[float] | None = setting(None, "range")
+    max_scale_error: float = setting(0.20, "number", gt=0, lt=1)
+    min_separation_deg: float = setting(10.0, "number", gt=0, lt=90, unit=_DEG)
     gravity: GravityOptions = field(default_factory=GravityOptions)
     labelled: LabelledOptions = field(default_factory=LabelledOptions)
     factorization: AccelFactorizationOptions = field(default_factory=AccelFactorizationOptions)
@@ -135,16 +311,16 @@ class AccelConfig:
 class GyroRotationOptions:
     """How rotations are used (``[gyro.rotations]``), for the static/dynamic/full solvers."""
 
-    max_gap_s: float = 2.0
-    min_tilt_deg: float = 30.0
+    max_gap_s: float = setting(2.0, "number", gt=0, le=3600, unit="s")
+    min_tilt_deg: float = setting(30.0, "number", ge=0, lt=90, unit=_DEG)
 
 
 @dataclass
 class GyroFullOptions:
     """Options of the 12-parameter gyro model (``[gyro.full]``)."""
 
-    max_iterations: int = 100
-    g_sensitivity: str = "auto"
+    max_iterations: int = setting(100, "count", **_ITERATIONS)
+    g_sensitivity: str = setting("auto", "text", choices=("auto", "on", "off"))
 
 
 @dataclass
@@ -152,11 +328,11 @@ class GyroConfig:
     """``[gyro]``: which solver (``"auto"``: the most accurate the session supports;
     ``"none"``: the gyroscope is not calibrated)."""
 
-    solver: str = "auto"
-    nominal_sensitivity: float | None = None
-    range: list[float] | None = None
-    max_scale_error: float = 0.20
-    max_residual_ratio: float = 10.0
+    solver: str = setting("auto", "text", choices=GYRO_SOLVERS)
+    nominal_sensitivity: float | None = setting(None, "number", gt=0)
+    range: list[float] | None = setting(None, "range")
+    max_scale_error: float = setting(0.20, "number", gt=0, lt=1)
+    max_residual_ratio: float = setting(10.0, "number", gt=1)
     factorization: GyroFactorizationOptions = field(default_factory=GyroFactorizationOptions)
     rotations: GyroRotationOptions = field(default_factory=GyroRotationOptions)
     full: GyroFullOptions = field(default_factory=GyroFullOptions)
@@ -166,7 +342,7 @@ class GyroConfig:
 class Config:
     """The whole configuration."""
 
-    gravity: float | None = None
+    gravity: float | None = setting(None, "number", gt=9.0, lt=10.5, unit="m/s^2")
     accel: AccelConfig = field(default_factory=AccelConfig)
     gyro: GyroConfig = field(default_factory=GyroConfig)
 
@@ -181,114 +357,48 @@ def _drop_none(d: Any) -> Any:
     return d
 
 
-#: Keys whose value is a number even though their default is None.
-_NUMBER_KEYS = {"gravity", "nominal_sensitivity", "fixture_tolerance_deg", "placement_deg"}
+def _is_table(f) -> bool:
+    return (
+        f.default is MISSING
+        and f.default_factory is not MISSING
+        and is_dataclass(f.default_factory)
+    )
 
 
-def _number(where: str, key: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ConfigError(f"{where}: `{key}` must be a number, not {value!r}")
-    return float(value)
-
-
-def _convert(where: str, key: str, value: Any, default: Any) -> Any:
-    """Check ``value`` against the type of the key's default and convert it."""
-    if key in _NUMBER_KEYS or isinstance(default, float):
-        return _number(where, key, value)
-    if key == "nominal_bias":
-        if isinstance(value, list):
-            return [_number(where, key, v) for v in value]
-        return _number(where, key, value)
-    if key == "range":
-        if not (isinstance(value, list) and len(value) == 2):
-            raise ConfigError(f"{where}: `range` must be [min, max] in raw units, not {value!r}")
-        value = [_number(where, key, v) for v in value]
-        if value[0] >= value[1]:
-            raise ConfigError(f"{where}: `range` minimum must be below its maximum")
-        return value
-    if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise ConfigError(f"{where}: `{key}` must be true or false, not {value!r}")
-        return value
-    if isinstance(default, int):
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{where}: `{key}` must be a whole number, not {value!r}")
-        return value
-    if isinstance(default, str):
-        if isinstance(value, int) and not isinstance(value, bool):
-            value = str(value)  # model = 9 is as good as model = "9"
-        if not isinstance(value, str):
-            raise ConfigError(f"{where}: `{key}` must be a string, not {value!r}")
-        return value
-    return value
-
-
-def _fill(obj: Any, table: dict[str, Any], where: str) -> None:
+def _fill(obj: Any, table: dict[str, Any], where: str, path: str = "") -> None:
     """Set the fields of dataclass ``obj`` from a TOML table; nested dataclasses are tables."""
-    known = {f.name for f in fields(obj)}
+    by_name = {f.name: f for f in fields(obj)}
     for key, value in table.items():
-        if key not in known:
-            raise ConfigError(f"{where}: unknown key `{key}` (known: {', '.join(sorted(known))})")
-        default = getattr(obj, key)
-        if is_dataclass(default):
+        f = by_name.get(key)
+        if f is None:
+            raise ConfigError(
+                f"{where}: unknown key `{key}` in [{path or 'top level'}] "
+                f"(known: {', '.join(sorted(by_name))})"
+            )
+        if _is_table(f):
             if not isinstance(value, dict):
                 raise ConfigError(f"{where}: `{key}` must be a table ([...{key}])")
-            _fill(default, value, f"{where} [{key}]")
+            _fill(getattr(obj, key), value, where, f"{path}.{key}".lstrip("."))
         else:
-            setattr(obj, key, _convert(where, key, value, default))
+            name = f"{path}.{key}".lstrip(".")
+            setattr(obj, key, check_value(rule_of(f), value, name, where))
 
 
-def _one_of(where: str, table: str, key: str, value: str, allowed: tuple[str, ...]) -> None:
-    if value not in allowed:
-        raise ConfigError(
-            f"{where}: [{table}] {key} = {value!r} is not known (choose: {', '.join(allowed)})"
-        )
+def _check_all(obj: Any, where: str, path: str = "") -> None:
+    """Check every value against its rule (after flags have overridden the file)."""
+    for f in fields(obj):
+        value = getattr(obj, f.name)
+        name = f"{path}.{f.name}".lstrip(".")
+        if _is_table(f):
+            _check_all(value, where, name)
+        elif value is not None:
+            check_value(rule_of(f), value, name, where)
 
 
 def validate(cfg: Config, where: str = "<config>") -> None:
-    """Check values (after flags have overridden the file); raises :class:`ConfigError`."""
-    a = cfg.accel
-    _one_of(where, "accel", "solver", a.solver, ACCEL_SOLVERS)
-    g = a.gravity
-    _one_of(where, "accel.gravity", "model", g.model, ("9", "12"))
-    _one_of(where, "accel.gravity", "init", g.init, ("auto", "updown", "ellipsoid"))
-    _one_of(where, "accel.gravity", "weighting", g.weighting, ("noise", "equal"))
-    f = a.factorization
-    _one_of(where, "accel.factorization", "use", f.use, ("means", "samples"))
-    _one_of(where, "accel.factorization", "linear", f.linear, ("subspace", "paper"))
-    _one_of(where, "gyro", "solver", cfg.gyro.solver, GYRO_SOLVERS)
-    _one_of(
-        where, "gyro.factorization", "linear", cfg.gyro.factorization.linear, ("subspace", "paper")
-    )
-    _one_of(where, "gyro.full", "g_sensitivity", cfg.gyro.full.g_sensitivity,
-            ("auto", "on", "off"))  # fmt: skip
-    if not cfg.gyro.max_residual_ratio > 1:
-        raise ConfigError(f"{where}: [gyro] max_residual_ratio must be above 1")
-    pl = a.labelled.placement_deg
-    if pl is not None and not 0 < pl <= 45:
-        raise ConfigError(
-            f"{where}: [accel.labelled] placement_deg = {pl:g} must be above 0 and at most 45 "
-            "(degrees between the true and the labelled up)"
-        )
-    for table, n in (
-        ("accel.gravity", g.max_iterations),
-        ("accel.labelled", a.labelled.max_iterations),
-        ("accel.factorization", f.max_iterations),
-        ("gyro.factorization", cfg.gyro.factorization.max_iterations),
-        ("gyro.full", cfg.gyro.full.max_iterations),
-    ):
-        if n < 1:
-            raise ConfigError(f"{where}: [{table}] max_iterations must be at least 1")
-    if cfg.gyro.factorization.samples_per_segment < 3:
-        raise ConfigError(f"{where}: [gyro.factorization] samples_per_segment must be at least 3")
-    if cfg.gravity is not None and not 9.0 < cfg.gravity < 10.5:
-        raise ConfigError(f"{where}: gravity = {cfg.gravity} m/s^2 is not a gravity on Earth")
-    for table, sens in (("accel", a.nominal_sensitivity), ("gyro", cfg.gyro.nominal_sensitivity)):
-        if sens is not None and sens <= 0:
-            raise ConfigError(f"{where}: [{table}] nominal_sensitivity must be positive")
-    for table, err in (("accel", a.max_scale_error), ("gyro", cfg.gyro.max_scale_error)):
-        if not 0 < err < 1:
-            raise ConfigError(f"{where}: [{table}] max_scale_error must be between 0 and 1")
+    """Check every value (after flags have overridden the file); raises :class:`ConfigError`
+    with one line naming the key."""
+    _check_all(cfg, where)
 
 
 def config_from_dict(data: dict[str, Any], where: str = "<config>") -> Config:
@@ -305,19 +415,17 @@ def load_config(path: str | Path | None) -> Config:
     Raises
     ------
     ConfigError
-        Missing file, TOML syntax error, unknown key or bad value (one line, naming the file).
+        Missing file, not a regular file, not UTF-8, TOML syntax error, unknown key or bad
+        value (one line, naming the file and the key).
     """
     if path is None:
         return Config()
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: config file not found") from None
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read config ({exc.strerror})") from None
+    text = read_text_input(path, what="config file", max_bytes=1 << 20, error=ConfigError)
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+        raise ConfigError(f"{path}: not valid TOML ({' '.join(str(exc).split())})") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: not valid TOML (nested too deeply)") from None
     return config_from_dict(data, str(path))

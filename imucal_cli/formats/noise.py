@@ -30,7 +30,6 @@ import json
 import math
 import os
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -222,15 +221,14 @@ def read_noise(path: str | os.PathLike) -> NoiseFigures:
     InputError
         Missing or unreadable file, invalid JSON, or not a noise document.
     """
+    from imucal_cli.formats.inputs import read_text_input
+
     src = str(path)
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError(f"{src}: no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{src}: cannot read ({getattr(exc, 'strerror', None) or exc})") from None
+    text = read_text_input(path, what="noise file")
     try:
         doc = json.loads(text)
     except json.JSONDecodeError as exc:
         raise InputError(f"{src}: invalid JSON at line {exc.lineno}: {exc.msg}") from None
+    except (ValueError, RecursionError) as exc:
+        raise InputError(f"{src}: invalid JSON ({' '.join(str(exc).split())[:120]})") from None
     return noise_from_dict(doc, src)

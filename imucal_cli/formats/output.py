@@ -108,7 +108,7 @@ def check_output(
     src = str(path)
     for item in inputs:
         if item is not None and same_file(path, item):
-            raise OutputError(f"{src}: is an input of this command; choose another output file")
+            raise OutputError(f"{src}: is the input {item}; choose another output file")
     try:
         st = os.lstat(path)
     except FileNotFoundError:

@@ -19,11 +19,12 @@ from pathlib import Path
 from imucal_cli.errors import ImucalError
 from imucal_cli.formats.calibration import Calibration, calibration_to_json, write_calibration
 from imucal_cli.formats.config import Config
+from imucal_cli.formats.output import check_output
 from imucal_cli.formats.session import read_session, store_calibration
 
 from .calibrate import calibrate_session, default_output, suspect_error
 
-__all__ = ["SessionResult", "calibrate_file", "calibrate_many", "default_jobs"]
+__all__ = ["NOT_STORED", "SessionResult", "calibrate_file", "calibrate_many", "default_jobs"]
 
 
 @dataclass
@@ -53,11 +54,24 @@ class SessionResult:
     figures: dict = field(default_factory=dict)
 
 
+NOT_STORED = " (not stored in the session: "
+
+
 def calibrate_file(
-    path: Path, cfg: Config, *, output: Path | None = None, force: bool = False, store: bool = True,
+    path: Path,
+    cfg: Config,
+    *,
+    output: Path | None = None,
+    force: bool = False,
+    store: bool = True,
+    inputs: Sequence[Path | None] = (),
     accel=None,
 ) -> tuple[Calibration, Path, str]:
     """Calibrate one session file, write its JSON and store it in the session.
+
+    The output is refused before anything is solved when it exists (without ``force``) or is
+    the session or one of ``inputs``; it is written through
+    :func:`imucal_cli.formats.output.write_output`.
 
     Returns
     -------
@@ -65,27 +79,33 @@ def calibrate_file(
     out : Path
         The JSON written.
     stored : str
-        Where it was also stored (``" and S:/calibrations/0001"``), or why not, or ``""``.
+        Where it was also stored (``" and S:/calibrations/0001"``), or why not
+        (:data:`NOT_STORED` ``+ reason + ")"``), or ``""``.
 
     Raises
     ------
     ImucalError
         Whatever reading, calibrating or the physical-sense check (unless ``force``) refuses.
     """
+    out = output or default_output(path)
+    inputs = [path, *inputs]
+    check_output(out, force=force, inputs=inputs)  # refuse before solving, not after
     session = read_session(path)
     cal = calibrate_session(session, cfg, name=path.name, accel=accel)
     problem = suspect_error(cal)
     if problem is not None and not force:
         raise problem
-    out = output or default_output(path)
-    write_calibration(out, cal)
+    write_calibration(out, cal, force=force, inputs=inputs)
     stored = ""
     if store:
         try:
             name = store_calibration(path, calibration_to_json(cal))
             stored = f" and {path}:/calibrations/{name}"
-        except (OSError, ImucalError) as exc:  # read-only session: the JSON is what matters
-            stored = f" (not stored in the session: {exc})"
+        except Exception as exc:  # noqa: BLE001  the JSON is saved: exit 1 with the reason
+            reason = str(exc)
+            if not isinstance(exc, OSError | ImucalError):
+                reason = f"{type(exc).__name__}: {reason}"
+            stored = f"{NOT_STORED}{' '.join(reason.split())})"
     return cal, out, stored
 
 
@@ -116,6 +136,11 @@ def _one(args: tuple) -> SessionResult:
         result.exit_code, result.error = 1, f"{path}: internal error: {type(exc).__name__}: {exc}"
         return result
     result.output, result.stored, result.figures = str(out), stored, _figures(cal)
+    if stored.startswith(NOT_STORED):
+        result.exit_code = 1
+        result.error = (
+            f"{path}: saved {out} but not stored in the session: {stored[len(NOT_STORED) : -1]}"
+        )
     return result
 
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from imucal_cli.errors import DesignError
-from imucal_cli.formats.config import Config
+from imucal_cli.formats.config import Config, per_channel
 from imucal_cli.formats.session import Segment, Session
 from imucal_cli.solvers import holds
 from imucal_cli.solvers.holds import PooledNoise
@@ -157,7 +157,7 @@ def nominal_sensor(session: Session, cfg: Config, g: float) -> Nominal:
             finite = accel[np.isfinite(accel).all(axis=1)]
             rng = adc_range(float(finite.min()), float(finite.max())) if len(finite) else None
     if a.nominal_bias is not None:
-        bias = np.broadcast_to(np.asarray(a.nominal_bias, float), (n,)).copy()
+        bias = np.array(per_channel(a.nominal_bias, n, "accel.nominal_bias"))
     elif rng is not None and rng[0] == 0.0 and units == "counts":
         bias = np.full(n, (rng[1] + 1) / 2)  # unsigned ADC: zero-g at mid-scale
     else:

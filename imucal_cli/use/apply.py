@@ -26,7 +26,8 @@ channels as its ``bias`` has.
 
 Output: HDF5 (``imucal-calibrated``, version 1)
 -----------------------------------------------
-A new file (written to ``OUTPUT.tmp`` and renamed when complete):
+A new file (written to a fresh temporary file next to it and renamed when complete, see
+:mod:`imucal_cli.formats.output`):
 
 ======================  ============  =====================================================
 dataset                 shape, dtype  meaning
@@ -59,7 +60,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
-import h5py
 import numpy as np
 
 from imucal_cli import __version__
@@ -72,6 +72,7 @@ from imucal_cli.formats.calibration import (
 )
 from imucal_cli.formats.importers.recording import TIME_UNITS
 from imucal_cli.formats.importers.text import (
+    BLANK,
     check_time,
     header_columns,
     parse_columns,
@@ -79,9 +80,13 @@ from imucal_cli.formats.importers.text import (
     skipped_fields,
     split_fields,
 )
+from imucal_cli.formats.inputs import is_hdf5_file
+from imucal_cli.formats.output import OutputFile, check_output
 from imucal_cli.formats.session import FORMAT as SESSION_FORMAT
 from imucal_cli.formats.session import FORMAT_VERSION as SESSION_FORMAT_VERSION
 from imucal_cli.formats.session import as_int, as_str, one_line, open_for_reading, utc_now_iso
+from imucal_cli.formats.session.reader import check_time as check_session_time
+from imucal_cli.formats.session.reader import raw_datasets
 
 __all__ = [
     "DEFAULT_CHUNK_ROWS",
@@ -220,25 +225,14 @@ def _session_blocks(
                 f"{src}: unsupported session format_version {version!r} "
                 f"(this reader reads version {SESSION_FORMAT_VERSION})"
             )
-        raw = file.get("raw")
-        if not isinstance(raw, h5py.Group):
-            raise InputError(f"{src}: /raw is missing")
-        time_ds = raw.get("time")
-        if not isinstance(time_ds, h5py.Dataset) or time_ds.dtype.kind not in "iuf":
-            raise InputError(f"{src}: /raw/time is missing or not numeric")
-        if time_ds.ndim != 1:
-            raise InputError(f"{src}: /raw/time must be 1-D, has shape {time_ds.shape}")
+        found, n = raw_datasets(file, src, unclosed)
+        time_ds = found["time"]
         datasets = {}
         for name, sec in sections.items():
-            ds = raw.get(name)
-            if not isinstance(ds, h5py.Dataset):
+            ds = found.get(name)
+            if ds is None:
                 raise InputError(
                     f"{src} has no {name} data (/raw/{name}), but {cal_src} calibrates the {name}"
-                )
-            if ds.dtype.kind not in "iuf" or ds.ndim != 2:
-                raise InputError(
-                    f"{src}: /raw/{name} must be numeric with shape (N, channels), "
-                    f"has shape {ds.shape}"
                 )
             n_cal = sec.bias.shape[0]
             if ds.shape[1] != n_cal:
@@ -247,12 +241,6 @@ def _session_blocks(
                     f"{ds.shape[1]} (/raw/{name} shape {ds.shape})"
                 )
             datasets[name] = ds
-        n = time_ds.shape[0]
-        if unclosed:
-            n = min([n, *(ds.shape[0] for ds in datasets.values())])
-        for name, ds in datasets.items():
-            if ds.shape[0] != n:
-                raise InputError(f"{src}: /raw/{name} has {ds.shape[0]} rows, /raw/time has {n}")
         units = {name: as_str(file.attrs.get(f"{name}_units")) for name in sections}
     except BaseException:
         file.close()
@@ -269,18 +257,7 @@ def _session_blocks(
                 }
             except (OSError, KeyError, RuntimeError) as exc:
                 raise InputError(f"{src}: damaged HDF5 file ({one_line(exc)})") from None
-            bad = np.flatnonzero(~np.isfinite(t))
-            if bad.size:
-                raise InputError(f"{src}: /raw/time is {t[bad[0]]} at sample {start + bad[0]}")
-            previous = t if last is None else np.concatenate(([last], t))
-            bad = np.flatnonzero(np.diff(previous) <= 0)
-            if bad.size:
-                i = int(bad[0])
-                sample = start + i + (0 if last is None else -1) + 1
-                raise InputError(
-                    f"{src}: /raw/time is not strictly increasing (sample {sample}: "
-                    f"{float(previous[i + 1])!r} s after {float(previous[i])!r} s)"
-                )
+            check_session_time(t, src, first=start, before=last)
             last = float(t[-1])
             yield _Block(time=t, raw=values, done=stop)
 
@@ -365,7 +342,7 @@ def _csv_blocks(
     seen_data = False
     for number, raw_line in enumerate(handle, start=1):
         done += len(raw_line)
-        line = raw_line.decode("utf-8", errors="replace").strip().lstrip("\ufeff")
+        line = raw_line.decode("utf-8", errors="replace").lstrip("\ufeff").strip(BLANK)
         if not line or line.startswith("#"):
             continue
         if comma is None:
@@ -411,14 +388,14 @@ def _csv_blocks(
 class _H5Writer:
     def __init__(
         self,
-        tmp: Path,
+        out: OutputFile,
         sections: dict[str, SensorCalibration],
         cal: Calibration,
         cal_src: str,
         input_path: Path,
         units_in: dict[str, str | None],
     ) -> None:
-        self.file = h5py.File(tmp, "w")
+        self.file = out.h5()
         self.n = 0
         attrs = self.file.attrs
         attrs["format"] = FORMAT
@@ -466,9 +443,13 @@ class _H5Writer:
 
 class _CsvWriter:
     def __init__(
-        self, tmp: Path, sections: dict[str, SensorCalibration], cal_src: str, input_path: Path
+        self,
+        out: OutputFile,
+        sections: dict[str, SensorCalibration],
+        cal_src: str,
+        input_path: Path,
     ) -> None:
-        self.handle = open(tmp, "w", encoding="utf-8", newline="\n")
+        self.handle = out.open("w")
         self.names = list(sections)
         units = "; ".join(f"{' '.join(CSV_NAMES[n])} {UNITS[n]}" for n in self.names)
         # The header first (readers such as numpy.genfromtxt(names=True) take the first line
@@ -495,11 +476,23 @@ class _CsvWriter:
 # --------------------------------------------------------------------------------------------
 
 
-def _same_file(a: Path, b: Path) -> bool:
+def _write_block(writer, block: _Block, sections, summary: ApplySummary, output_path) -> None:
+    values: dict[str, np.ndarray] = {}
+    for name, sec in sections.items():  # accel first: the gyro's g_sensitivity needs it
+        values[name] = sec.apply(block.raw[name], accel=values.get("accel"))
+    bad = np.zeros(len(block.time), dtype=bool)
+    for raw in block.raw.values():
+        bad |= ~np.isfinite(raw).all(axis=1)
+    summary.nonfinite += int(bad.sum())
     try:
-        return a.exists() and b.exists() and os.path.samefile(a, b)
-    except OSError:
-        return False
+        writer.write(block.time, values)
+    except (OSError, RuntimeError) as exc:
+        raise InputError(f"{output_path}: cannot write ({one_line(exc)})") from None
+    if summary._first_time is None:
+        summary._first_time = float(block.time[0])
+    summary.samples += len(block.time)
+    summary.duration_s = float(block.time[-1]) - summary._first_time
+    summary.chunks += 1
 
 
 def apply_calibration(
@@ -526,7 +519,8 @@ def apply_calibration(
         An HDF5 session, or a CSV (any file that is not HDF5).
     output_path : path-like
         The file to write (see the module docstring for the formats).  Written to
-        ``<output>.tmp`` first and renamed when complete, so a failure leaves no partial file.
+        a fresh temporary file first and renamed when complete, so a failure leaves no partial
+        file (:mod:`imucal_cli.formats.output`).
     cal_source : str
         Name of the calibration file, for messages and the output's attributes.
     fmt : {"h5", "csv"}, optional
@@ -572,12 +566,7 @@ def apply_calibration(
         raise InputError(f"{src}: no such file")
     if input_path.is_dir():
         raise InputError(f"{src}: is a directory, not a session or CSV file")
-    if _same_file(input_path, output_path):
-        raise InputError(f"{output_path}: is the input file; choose another --output")
-    if output_path.is_dir():
-        raise InputError(f"{output_path}: is a directory; give a file name as --output")
-    if output_path.exists() and not overwrite:
-        raise InputError(f"{output_path}: already exists (pass --force to replace it)")
+    check_output(output_path, force=overwrite, inputs=[input_path, cal_source])
     # Blocks of one row take numpy's matrix-vector path, which may round differently from
     # the matrix-matrix path of longer blocks (see _chunk_bounds): at least 2 rows per block.
     chunk_rows = max(chunk_rows, 2)
@@ -589,7 +578,7 @@ def apply_calibration(
             "accelerometer calibration to give the specific force it needs"
         )
 
-    is_session = h5py.is_hdf5(input_path)
+    is_session = is_hdf5_file(input_path, what="session or CSV file")
     if not is_session and input_path.suffix.lower() in (".h5", ".hdf5", ".hdf"):
         raise InputError(f"{src}: not an HDF5 file")
     summary = ApplySummary(
@@ -642,40 +631,26 @@ def apply_calibration(
         units_in = {}
         close_input = handle.close
 
-    tmp = output_path.with_name(output_path.name + ".tmp")
     writer: _H5Writer | _CsvWriter | None = None
+    out: OutputFile | None = None
     try:
         try:
+            out = OutputFile(output_path, force=overwrite, inputs=[input_path, cal_source])
             if out_fmt == "h5":
-                writer = _H5Writer(tmp, sections, cal, cal_source, input_path, units_in)
+                writer = _H5Writer(out, sections, cal, cal_source, input_path, units_in)
             else:
-                writer = _CsvWriter(tmp, sections, cal_source, input_path)
+                writer = _CsvWriter(out, sections, cal_source, input_path)
         except OSError as exc:
             raise InputError(f"{output_path}: cannot write ({one_line(exc)})") from None
         for block in blocks:
-            values: dict[str, np.ndarray] = {}
-            for name, sec in sections.items():  # accel first: the gyro's g_sensitivity needs it
-                values[name] = sec.apply(block.raw[name], accel=values.get("accel"))
-            bad = np.zeros(len(block.time), dtype=bool)
-            for raw in block.raw.values():
-                bad |= ~np.isfinite(raw).all(axis=1)
-            summary.nonfinite += int(bad.sum())
-            try:
-                writer.write(block.time, values)
-            except OSError as exc:
-                raise InputError(f"{output_path}: cannot write ({one_line(exc)})") from None
-            if summary._first_time is None:
-                summary._first_time = float(block.time[0])
-            summary.samples += len(block.time)
-            summary.duration_s = float(block.time[-1]) - summary._first_time
-            summary.chunks += 1
+            _write_block(writer, block, sections, summary, output_path)
             if progress is not None:
                 progress(block.done, total)
         if summary.samples == 0:
             raise InputError(f"{src}: no samples to calibrate")
         writer.close()
         writer = None
-        os.replace(tmp, output_path)
+        out.commit()
     except OSError as exc:
         raise InputError(f"{output_path}: cannot write ({one_line(exc)})") from None
     finally:
@@ -685,7 +660,8 @@ def apply_calibration(
                 writer.close()
             except OSError:
                 pass
-        tmp.unlink(missing_ok=True)
+        if out is not None and not out.published:
+            out.discard()
     summary.malformed = csv_state.malformed
     summary.first_malformed = csv_state.first_malformed
     return summary

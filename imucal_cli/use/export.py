@@ -30,6 +30,7 @@ from imucal_cli.formats.exporters.openvins import export_openvins
 from imucal_cli.formats.exporters.px4 import export_px4
 from imucal_cli.formats.exporters.ros_imu import export_ros_imu
 from imucal_cli.formats.noise import NOISE_FORMAT, NoiseFigures, noise_from_dict
+from imucal_cli.formats.text import has_control
 
 __all__ = [
     "EXPORT_FORMATS",
@@ -116,7 +117,10 @@ def export(
     if cal is None and target.needs_calibration:
         raise InputError(f"--format {fmt} needs a calibration (imucal calibrate's JSON), "
                          "not only noise figures")  # fmt: skip
-    return target.write(cal, opts)
+    text = target.write(cal, opts)
+    if has_control(text):  # belt and braces (issue 11.5): strings were cleaned when read
+        raise InputError(f"the {fmt} export would hold control characters; refusing it")
+    return text
 
 
 def load_input(path: str | os.PathLike) -> tuple[Calibration | None, NoiseFigures | None]:
@@ -127,14 +131,16 @@ def load_input(path: str | os.PathLike) -> tuple[Calibration | None, NoiseFigure
     CalibrationFileError, InputError
         Neither, or a file that does not follow its format.
     """
-    from imucal_cli.formats.calibration import read_calibration
+    from imucal_cli.errors import CalibrationFileError
+    from imucal_cli.formats.calibration import calibration_from_json
+    from imucal_cli.formats.inputs import read_text_input
 
     src = str(path)
+    text = read_text_input(path, what="calibration file", error=CalibrationFileError)
     try:
-        with open(path, encoding="utf-8") as f:
-            doc = json.load(f)
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        doc = None  # read_calibration gives the one-line reason
+        doc = json.loads(text)
+    except (ValueError, RecursionError):
+        doc = None  # calibration_from_json gives the one-line reason
     if isinstance(doc, dict) and doc.get("format") == NOISE_FORMAT:
         return None, noise_from_dict(doc, src)
-    return read_calibration(path), None
+    return calibration_from_json(text, src), None

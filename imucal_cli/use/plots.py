@@ -42,11 +42,15 @@ def _pyplot():
     return plt
 
 
-def _save(fig, path: str | os.PathLike[str]) -> Path:
+def _save(fig, path: str | os.PathLike[str], force: bool = False, inputs=()) -> Path:
+    """Write the figure as PNG through the safe-output helper (see formats/output.py)."""
+    from imucal_cli.formats.output import safe_output
+
     path = Path(path)
     try:
-        fig.savefig(path, dpi=110)
-    except (OSError, ValueError) as exc:
+        with safe_output(path, force=force, inputs=inputs) as out, out.open("wb") as handle:
+            fig.savefig(handle, dpi=110, format="png")
+    except ValueError as exc:
         raise InputError(f"{path}: cannot write the plot ({exc})") from None
     finally:
         import matplotlib.pyplot as plt
@@ -154,7 +158,9 @@ def _sphere_panel(ax, section: dict[str, Any]) -> None:
     ax.set_box_aspect((1, 1, 1))
 
 
-def report_figure(report: dict[str, Any], path: str | os.PathLike[str]) -> Path:
+def report_figure(
+    report: dict[str, Any], path: str | os.PathLike[str], *, force: bool = False, inputs=()
+) -> Path:
     """Draw the report's per-pose and per-rotation data to a PNG.
 
     Parameters
@@ -203,10 +209,10 @@ def report_figure(report: dict[str, Any], path: str | os.PathLike[str]) -> Path:
         if report.get(key):
             title += f" | {report[key]}"
     fig.suptitle(title)
-    return _save(fig, path)
+    return _save(fig, path, force, inputs)
 
 
-def noise_figure(result, path: str | os.PathLike[str]) -> Path:
+def noise_figure(result, path: str | os.PathLike[str], *, force: bool = False, inputs=()) -> Path:
     """Allan deviation per axis (one panel per sensor) with the fitted lines.
 
     Parameters
@@ -248,4 +254,4 @@ def noise_figure(result, path: str | os.PathLike[str]) -> Path:
         f"{result.session}: {result.span}, {result.duration_s / 60:.1f} min at "
         f"{result.rate_hz:.4g} Hz"
     )
-    return _save(fig, path)
+    return _save(fig, path, force, inputs)

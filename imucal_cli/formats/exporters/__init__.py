@@ -25,6 +25,7 @@ from imucal_cli import __version__
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import MODEL_EQUATION, Calibration, SensorCalibration
 from imucal_cli.formats.noise import NoiseFigures
+from imucal_cli.formats.text import clean_text
 
 SENSORS = ("accel", "gyro")
 STANDARD_GRAVITY = 9.80665
@@ -74,11 +75,37 @@ def units_in(sec: SensorCalibration) -> str:
 
 
 def one_line(text: object) -> str:
-    return " ".join(str(text).split())
+    """Free text (a sensor name, a solver) for a comment in an export: one printable line,
+    control characters written as escapes (see :mod:`imucal_cli.formats.text`)."""
+    return " ".join(clean_text(str(text)).split())
+
+
+def check_finite(name: str, what: str, values: np.ndarray) -> np.ndarray:
+    """Refuse NaN or infinite numbers (a matrix of 1e200 times a bias overflows to inf): an
+    export must never carry a number the target would read as inf or nan."""
+    values = np.asarray(values, dtype=np.float64)
+    bad = values[~np.isfinite(values)]
+    if bad.size:
+        raise InputError(
+            f"the {name} {what} has a value that is not a finite number ({bad[0]!r}); "
+            "refusing to export it"
+        )
+    return values
 
 
 def fmt(value: float) -> str:
-    """Shortest round-trip repr of a float that YAML 1.1, JSON and C parsers read as a float."""
+    """Shortest round-trip repr of a float that YAML 1.1, JSON and C parsers read as a float.
+
+    Raises
+    ------
+    InputError
+        NaN or infinite (a calibration of 1e200 overflows): never exported as ``inf``.
+    """
+    if not math.isfinite(value):
+        raise InputError(
+            f"refusing to export {float(value)!r}: a number of the calibration, or one derived "
+            "from it, is not finite (values too large?)"
+        )
     text = repr(float(value) + 0.0)  # + 0.0: no "-0.0"
     mantissa, e, exponent = text.partition("e")
     if e and "." not in mantissa:

@@ -22,7 +22,7 @@ from imucal_cli.formats.calibration import (
     Calibration,
     SensorCalibration,
 )
-from imucal_cli.formats.exporters import one_line, sections, units_in
+from imucal_cli.formats.exporters import check_finite, one_line, sections, units_in
 
 __all__ = ["export_yaml"]
 
@@ -47,7 +47,9 @@ def _imu_calib_arrays(name: str, sec: SensorCalibration) -> tuple[np.ndarray, np
             f"the {name} calibration has {n} raw channels (a redundant unit); imu_calib's "
             "YAML holds a 3 x 3 SM matrix only: export it with --format c-header or json"
         )
-    return sec.matrix, sec.matrix @ sec.bias
+    with np.errstate(all="ignore"):
+        bias = sec.matrix @ sec.bias
+    return check_finite(name, "matrix", sec.matrix), check_finite(name, "matrix @ bias", bias)
 
 
 def export_yaml(cal: Calibration) -> str:

@@ -20,11 +20,13 @@ from __future__ import annotations
 import os
 import re
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from imucal_cli.errors import InputError
+from imucal_cli.formats.inputs import read_input
+
+from .text import BLANK, MAX_RECORDING_BYTES, NUMBER, split_lines
 
 __all__ = ["LINE_FORMATS", "LineRecording", "detect_line_format", "read_serial_lines"]
 
@@ -34,7 +36,7 @@ LINE_FORMATS = {
     "i2cdevlib": ("a/g:", 6, "i2cdevlib a/g: accel, gyro counts"),
     "i2cdevlib-mag": ("a/g/m:", 9, "i2cdevlib a/g/m: accel, gyro, mag counts"),
 }
-_SPLIT = re.compile(r"[\s,;]+")
+_SPLIT = re.compile(r"[ \t,;]+")
 
 
 def detect_line_format(head: str) -> str | None:
@@ -74,10 +76,8 @@ def read_serial_lines(
         Unreadable file, no known line, no ``rate_hz``.
     """
     src = str(path)
-    try:
-        text = Path(path).read_text(encoding="utf-8", errors="replace")
-    except OSError as exc:
-        raise InputError(f"{src}: cannot read ({exc.strerror or exc})") from None
+    data = read_input(path, what="recording", max_bytes=MAX_RECORDING_BYTES)
+    text = data.decode("utf-8", errors="replace")
     fmt = fmt or detect_line_format(text)
     if fmt is None or fmt not in LINE_FORMATS:
         raise InputError(f"{src}: no MotionCal 'Raw:' or i2cdevlib 'a/g:' line found")
@@ -87,16 +87,18 @@ def read_serial_lines(
     prefix, count, what = LINE_FORMATS[fmt]
     rec = LineRecording(np.empty(0), np.empty((0, 3)), np.empty((0, 3)), None, fmt)
     rows = []
-    for number, line in enumerate(text.splitlines(), 1):
-        stripped = line.strip()
+    for number, line in enumerate(split_lines(text), 1):
+        stripped = line.strip(BLANK)
         if not stripped:
             continue
         rec.lines += 1
         if not stripped.startswith(prefix) or (prefix == "a/g:" and stripped.startswith("a/g/m:")):
             rec.skipped += 1
             continue
-        fields = [f for f in _SPLIT.split(stripped[len(prefix):].strip()) if f]
+        fields = [f for f in _SPLIT.split(stripped[len(prefix) :].strip(BLANK)) if f]
         try:
+            if not all(NUMBER.match(f) for f in fields):
+                raise ValueError(f"not a number in {fields!r}")
             values = [float(f) for f in fields]
         except ValueError:
             values = []

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from imucal_cli.errors import InputError
+from imucal_cli.formats.inputs import read_head, read_input
 
 from .recording import ImportStats
 
@@ -32,6 +33,7 @@ __all__ = [
     "read_table",
     "skipped_fields",
     "split_fields",
+    "split_lines",
 ]
 
 FIELDS = ("t", "ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz", "temp")
@@ -152,10 +154,32 @@ def header_columns(header: Sequence[str] | None, src: str) -> list[str | None]:
 # --------------------------------------------------------------------------------------------
 
 
+#: A number as a recording writes it: ASCII digits, an optional sign, point and exponent.
+#: Python's float() also takes ``1_000.5``, non-ASCII digits (``"١٢"``), ``inf`` and ``nan``:
+#: none of those is a sample (issue 11.2, found by the import fuzzer).
+NUMBER = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?\Z")
+_BLANKS = re.compile(r"[ \t]+")
+#: What may surround a line or a field: ASCII blanks only (a vertical tab, U+2028 or another
+#: control character inside a line makes it malformed, never two lines or a cut number).
+BLANK = " \t\r\n"
+
+
 def split_fields(line: str, comma: bool) -> list[str]:
+    """The fields of a line: comma-separated, or separated by spaces and tabs."""
     if comma:
-        return [p.strip() for p in line.split(",")]
-    return line.split()
+        return [p.strip(BLANK) for p in line.split(",")]
+    return [p for p in _BLANKS.split(line.strip(BLANK)) if p]
+
+
+def split_lines(text: str) -> list[str]:
+    """Lines split at ``\n`` (``\r\n`` too; at ``\r`` only in a file without ``\n``, as a
+    classic Mac file).  ``str.splitlines`` would also split at a vertical tab, a form feed,
+    U+0085, U+2028 and U+2029, and a lone ``\r``, and keep the halves of a cut number as two
+    lines."""
+    lines = text.split("\n" if "\n" in text or "\r" not in text else "\r")
+    if lines and lines[-1] == "":
+        lines.pop()
+    return [line[:-1] if line.endswith("\r") else line for line in lines]
 
 
 def skipped_fields(spec) -> frozenset[int]:
@@ -168,38 +192,38 @@ def skipped_fields(spec) -> frozenset[int]:
 def parse_numbers(parts: list[str], skip: frozenset[int] = frozenset()) -> list[float] | None:
     """The fields of a line as numbers, or None when one is not a finite number. Fields at
     the positions in ``skip`` (``_`` in a column spec) may hold anything; they read as 0."""
-    try:
-        values = [0.0 if j in skip else float(p) for j, p in enumerate(parts)]
-    except ValueError:
-        return None
-    if not all(np.isfinite(values)):
+    values = []
+    for j, part in enumerate(parts):
+        if j in skip:
+            values.append(0.0)
+        elif NUMBER.match(part):
+            values.append(float(part))
+        else:
+            return None
+    if not all(np.isfinite(values)):  # 1e999
         return None
     return values
 
 
+#: A recording read whole is bounded by this (a day at 1 kHz as CSV is about 7 GB).
+MAX_RECORDING_BYTES = 16 << 30
+
+
 def _read_bytes(path: Path) -> bytes:
-    src = str(path)
-    if not path.exists():
-        raise InputError(f"{src}: no such file")
-    if path.is_dir():
-        raise InputError(f"{src}: is a directory, not a recording")
-    try:
-        return path.read_bytes()
-    except OSError as exc:
-        raise InputError(f"{src}: cannot read ({exc.strerror or exc})") from None
+    """The bytes of a recording: a regular file (a FIFO would block), bounded in size."""
+    return read_input(path, what="recording", max_bytes=MAX_RECORDING_BYTES)
 
 
 def first_fields(path: Path, skip_rows: int = 0) -> list[str] | None:
     """The fields of the first line after ``skip_rows`` that is not blank or a comment (None:
     no such line in the first 64 KiB, or the file cannot be read: the reader will say why)."""
     try:
-        with open(path, "rb") as f:
-            head = f.read(65536)
-    except OSError:
+        head = read_head(path, 65536, what="recording")
+    except InputError:
         return None
-    lines = head.decode("utf-8", errors="replace").lstrip("\ufeff").splitlines()
+    lines = split_lines(head.decode("utf-8", errors="replace").lstrip("\ufeff"))
     for line in lines[skip_rows:-1] if len(head) == 65536 else lines[skip_rows:]:
-        line = line.strip()
+        line = line.strip(BLANK)
         if line and not line.startswith("#"):
             return split_fields(line, "," in line)
     return None
@@ -216,7 +240,7 @@ def read_lines(path: Path, raw: bytes | None = None) -> list[str]:
     text = (_read_bytes(path) if raw is None else raw).decode("utf-8", errors="replace")
     if not text.strip():
         raise InputError(f"{path}: empty file")
-    return text.splitlines()
+    return split_lines(text)
 
 
 def read_table(
@@ -311,7 +335,7 @@ def _scan_lines(
     bad: list[int] = []
     seen_data = False
     for i, raw in enumerate(lines):
-        line = raw.strip().lstrip("\ufeff")
+        line = raw.lstrip("\ufeff").strip(BLANK)
         if i < skip_rows:
             header += 1
             continue
@@ -400,11 +424,15 @@ def _scan_ascii(
     cls = np.take(_CLASS, b)
     if cls.max() == _INVALID:
         return None
-    # Line breaks: LF, CR LF (the CR is then white space), lone CR; as str.splitlines.
+    # Line breaks as split_lines: LF, CR LF (the CR is then white space), and lone CR only in
+    # a file without LF (classic Mac).  A lone CR among LF lines could cut a number in two:
+    # the line-by-line reader makes that line malformed.
     breaks = np.flatnonzero(cls == _LF)
     cr = np.flatnonzero(cls == _CR)
     if len(cr):
         lone = cr[(cr + 1 == n) | (b[np.minimum(cr + 1, n - 1)] != ord("\n"))]
+        if len(lone) and len(breaks):
+            return None
         breaks = np.union1d(breaks, lone)
     n_lines = len(breaks) + int(len(breaks) == 0 or breaks[-1] != n - 1)
     line_start = np.r_[0, breaks + 1][:n_lines]

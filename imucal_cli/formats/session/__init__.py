@@ -22,13 +22,21 @@ A clean :meth:`SessionWriter.close` removes the log.  When a writer was killed, 
 no segment groups but still holds the log, and :func:`read_session` reads the segments from it.
 
 A file whose SWMR writer was killed keeps the HDF5 "open for writing" flag.  Plain HDF5 readers
-(``h5py.File(path)``, ``h5dump``) refuse such a file until ``h5clear -s FILE`` clears the flag;
-:func:`read_session` opens it in SWMR read mode instead and reads every ``/raw`` dataset up to
-the shortest one (the datasets of an interrupted flush may differ in length).
+(``h5py.File(path)``, ``h5dump``) refuse such a file until the flag is cleared.  The writer
+records its process (``/capture_log`` attributes); :func:`read_session` (through
+:func:`open_for_reading`) clears the flag of a file whose capture is gone, with a warning, and
+reads a file still being written in SWMR mode (few metadata read attempts, so a damaged file
+fails at once), every ``/raw`` dataset up to the shortest one and up to the last time written.
+
+Safety (issue 11): the superblock is checked before HDF5 opens a file (truncated: one line at
+once); links, external storage and virtual datasets are refused; dataset sizes are bounded by
+the file's; ``/raw`` datasets carry Fletcher32 checksums and NaN fill; outputs are written
+through :mod:`imucal_cli.formats.output`.
 
 Modules: :mod:`.model` (``Session``, ``Segment``, constants, attribute values), :mod:`.h5open`
-(opening a file for reading), :mod:`.reader`, :mod:`.writer`, :mod:`.store`.  Import the public
-names from here (``from imucal_cli.formats.session import read_session``).
+(opening a file for reading), :mod:`.superblock`, :mod:`.reader`, :mod:`.writer`,
+:mod:`.store`.  Import the public names from here (``from imucal_cli.formats.session import
+read_session``).
 """
 
 from __future__ import annotations

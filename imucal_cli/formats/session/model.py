@@ -4,6 +4,8 @@ conversions of HDF5 attribute values (str or bytes, numpy scalars or 1-element a
 from __future__ import annotations
 
 import math
+import os
+import re
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -250,4 +252,18 @@ def show(value: Any) -> str:
 
 
 def one_line(exc: BaseException) -> str:
+    """The exception's message on one line (its class name when it has none)."""
     return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def io_reason(exc: BaseException) -> str:
+    """A short reason for a failed read or write: ``No space left on device``, not HDF5's
+    multi-clause report."""
+    number = getattr(exc, "errno", None)
+    if isinstance(number, int) and number > 0:
+        return os.strerror(number)
+    found = re.search(r"error message = '([^']+)'", str(exc))
+    if found:
+        return found.group(1)
+    text = one_line(exc)
+    return text if len(text) <= 160 else text[:157] + "..."

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -12,14 +13,16 @@ from typing import Any
 import h5py
 import numpy as np
 
-from imucal_cli.errors import SessionError
+from imucal_cli.errors import ImucalWarning, SessionError
+from imucal_cli.formats.text import clean_text, clean_tree
 
-from .h5open import get_attr, open_for_reading
+from .h5open import check_dataset, file_size, get_attr, member, open_for_reading
 from .model import (
     FORMAT,
     FORMAT_VERSION,
     GRAVITY_DEFAULT,
     LOG_DATASET,
+    LOG_GROUP,
     MAG_UNITS,
     SEGMENT_ATTRS,
     SEGMENT_KINDS,
@@ -58,8 +61,10 @@ def read_session(path: str | os.PathLike) -> Session:
     file, unclosed = open_for_reading(path, src)
     try:
         session = _read_open_file(file, src, unclosed)
-    except (OSError, KeyError, RuntimeError) as exc:
+    except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
         raise SessionError(f"{src}: damaged HDF5 file ({one_line(exc)})") from None
+    except MemoryError:
+        raise SessionError(f"{src}: too large to read into memory") from None
     finally:
         file.close()
     session.path = path
@@ -67,6 +72,27 @@ def read_session(path: str | os.PathLike) -> Session:
 
 
 def _read_open_file(file: h5py.File, src: str, unclosed: bool) -> Session:
+    created, text, numbers = _root_attributes(file, src)
+    raw = _read_raw(file, src, unclosed)
+    segments = _read_segments(file, src, len(raw["time"]), raw["accel"], raw["gyro"], unclosed)
+    return Session(
+        **raw,
+        segments=segments,
+        created=created,
+        sensor=text["sensor"],
+        source=text["source"],
+        sample_rate_hz=numbers["sample_rate_hz"],
+        gravity=GRAVITY_DEFAULT if numbers["gravity"] is None else numbers["gravity"],
+        accel_units=text["accel_units"],
+        gyro_units=text["gyro_units"],
+        calibrations=_read_calibrations(file, src),
+        mag_units=text["mag_units"],
+        magnetic_field_uT=numbers["magnetic_field_uT"],
+    )
+
+
+def _root_attributes(file: h5py.File, src: str) -> tuple[str, dict, dict]:
+    """The root attributes, checked: ``created``, the texts (cleaned) and the numbers."""
     root = {
         name: get_attr(file.attrs, name, src, "root ")
         for name in (
@@ -90,12 +116,15 @@ def _read_open_file(file: h5py.File, src: str, unclosed: bool) -> Session:
             f"version {FORMAT_VERSION})"
         )
     created = as_str(root["created"])
+    created = None if created is None else clean_text(created)
     if created is None:
         problem = "is missing" if root["created"] is None else "is not a string"
         raise SessionError(f"{src}: root attribute 'created' {problem}")
     text = {}
     for name in ("sensor", "source", "accel_units", "gyro_units", "mag_units"):
         text[name] = None if root[name] is None else as_str(root[name])
+        if text[name] is not None:
+            text[name] = clean_text(text[name])
         if root[name] is not None and text[name] is None:
             raise SessionError(f"{src}: root attribute {name!r} is not a string")
     if text["mag_units"] is not None and text["mag_units"] not in MAG_UNITS:
@@ -111,40 +140,39 @@ def _read_open_file(file: h5py.File, src: str, unclosed: bool) -> Session:
                 f"{src}: root attribute {name!r} must be a positive number, got {show(root[name])}"
             )
 
-    time, accel, gyro, temperature, mag = _read_raw(file, src, unclosed)
-    segments = _read_segments(file, src, len(time), accel, gyro, unclosed)
-    return Session(
-        time=time,
-        accel=accel,
-        gyro=gyro,
-        temperature=temperature,
-        segments=segments,
-        created=created,
-        sensor=text["sensor"],
-        source=text["source"],
-        sample_rate_hz=numbers["sample_rate_hz"],
-        gravity=GRAVITY_DEFAULT if numbers["gravity"] is None else numbers["gravity"],
-        accel_units=text["accel_units"],
-        gyro_units=text["gyro_units"],
-        calibrations=_read_calibrations(file),
-        mag=mag,
-        mag_units=text["mag_units"],
-        magnetic_field_uT=numbers["magnetic_field_uT"],
-    )
+    return created, text, numbers
 
 
-def _read_raw(file: h5py.File, src: str, unclosed: bool) -> tuple[np.ndarray | None, ...]:
-    """``time, accel, gyro, temperature, mag`` of ``/raw`` (None where absent), validated."""
-    raw = file.get("raw")
+#: The ``/raw`` datasets read, each with its shape: 0 for one value per sample ``(N,)``, k for
+#: ``(N, >=k)`` channels.  A channel added to the format (and a :class:`Session` field of the
+#: same name) is one entry here: every check and read below is generic.
+RAW_CHANNELS: dict[str, int] = {"time": 0, "accel": 3, "gyro": 3, "temperature": 0, "mag": 3}
+RAW_NAMES = tuple(RAW_CHANNELS)
+
+
+def raw_datasets(file: h5py.File, src: str, unclosed: bool) -> tuple[dict[str, h5py.Dataset], int]:
+    """Validate the ``/raw`` datasets present (of :data:`RAW_NAMES`); return them and the
+    number of samples N to read.
+
+    Shapes are checked (:data:`RAW_CHANNELS`), and each dataset with
+    :func:`~.h5open.check_dataset` (no links, no external or virtual data, size bounded by the
+    file's).  For a file whose writer did not close it, N is the shortest dataset (an
+    interrupted flush may have grown some and not others).
+    """
+    raw = member(file, "raw", src)
+    if raw is not None and not isinstance(raw, h5py.Group):
+        raise SessionError(f"{src}: /raw is not a group")
+    limit = file_size(file)
     datasets: dict[str, h5py.Dataset] = {}
-    for name in ("time", "accel", "gyro", "temperature", "mag"):
-        obj = raw.get(name) if isinstance(raw, h5py.Group) else None
+    for name in RAW_NAMES:
+        obj = None if raw is None else member(raw, name, src)
         if obj is None:
             continue
         if not isinstance(obj, h5py.Dataset):
             raise SessionError(f"{src}: /raw/{name} is not a dataset")
         if obj.dtype.kind not in "iuf":
             raise SessionError(f"{src}: /raw/{name} is not numeric (dtype {obj.dtype})")
+        check_dataset(obj, src, limit=limit, complete=not unclosed)
         datasets[name] = obj
     if "time" not in datasets:
         raise SessionError(f"{src}: /raw/time is missing")
@@ -152,38 +180,81 @@ def _read_raw(file: h5py.File, src: str, unclosed: bool) -> tuple[np.ndarray | N
         raise SessionError(f"{src}: /raw/time must be 1-D, has shape {datasets['time'].shape}")
     n = datasets["time"].shape[0]
     if unclosed:
-        # An interrupted flush may have grown some datasets and not others.
         n = min(ds.shape[0] for ds in datasets.values() if ds.ndim >= 1)
-    for name in ("accel", "gyro", "mag"):
-        ds = datasets.get(name)
-        if ds is not None and (ds.ndim != 2 or ds.shape[0] < n or ds.shape[1] < 3):
-            raise SessionError(
-                f"{src}: /raw/{name} must have shape (N, >=3) with N = {n} samples, "
-                f"has shape {ds.shape}"
-            )
-        if ds is not None and not unclosed and ds.shape[0] != n:
-            raise SessionError(f"{src}: /raw/{name} has {ds.shape[0]} rows, /raw/time has {n}")
-    ds = datasets.get("temperature")
-    if ds is not None and (ds.shape != (n,) and (not unclosed or ds.ndim != 1)):
-        raise SessionError(f"{src}: /raw/temperature must have shape ({n},), has shape {ds.shape}")
+    for name, ds in datasets.items():
+        _check_shape(name, ds, n, RAW_CHANNELS[name], src, unclosed)
+    kept = written_length(datasets["time"], n)
+    if kept < n:
+        warnings.warn(
+            f"{src}: the last {n - kept} of {n} samples were never written (the capture "
+            f"stopped: disk full or killed); reading the first {kept}",
+            ImucalWarning,
+            stacklevel=3,
+        )
+    return datasets, kept
 
-    def load(name: str) -> np.ndarray | None:
-        if name not in datasets:
-            return None
-        return np.asarray(datasets[name][:n], dtype=np.float64)
 
-    time = load("time")
+def check_time(time: np.ndarray, src: str, first: int = 0, before: float | None = None) -> None:
+    """Raise SessionError unless ``time`` (samples ``first`` on, after ``before`` s) is finite
+    and strictly increasing."""
     bad = np.flatnonzero(~np.isfinite(time))
     if bad.size:
-        raise SessionError(f"{src}: /raw/time is {time[bad[0]]} at sample {bad[0]}")
-    bad = np.flatnonzero(np.diff(time) <= 0)
+        raise SessionError(f"{src}: /raw/time is {time[bad[0]]} at sample {first + bad[0]}")
+    previous = time if before is None else np.concatenate(([before], time))
+    bad = np.flatnonzero(np.diff(previous) <= 0)
     if bad.size:
-        i = int(bad[0]) + 1
+        i = int(bad[0])
+        sample = first + i + (0 if before is None else -1) + 1
         raise SessionError(
-            f"{src}: /raw/time is not strictly increasing "
-            f"(sample {i}: {float(time[i])!r} s after {float(time[i - 1])!r} s)"
+            f"{src}: /raw/time is not strictly increasing (sample {sample}: "
+            f"{float(previous[i + 1])!r} s after {float(previous[i])!r} s)"
         )
-    return time, load("accel"), load("gyro"), load("temperature"), load("mag")
+
+
+def written_length(dataset: h5py.Dataset, n: int) -> int:
+    """Rows of a 1-D dataset before its trailing run of NaN fill values: rows the writer grew
+    but never wrote (it writes ``/raw/time`` last, so these samples are incomplete).  Only for
+    datasets whose fill value is NaN (what :class:`~.writer.SessionWriter` sets); a binary
+    search, so a few small reads."""
+    try:
+        fill = float(dataset.fillvalue)
+    except (TypeError, ValueError):
+        return n
+    if n == 0 or not np.isnan(fill) or not np.isnan(dataset[n - 1]):
+        return n
+    lo, hi = 0, n - 1  # dataset[hi] is NaN
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if np.isnan(dataset[mid]):
+            hi = mid
+        else:
+            lo = mid + 1
+    return lo
+
+
+def _check_shape(name: str, ds: h5py.Dataset, n: int, width: int, src: str,
+                 unclosed: bool) -> None:  # fmt: skip
+    """``(n,)`` (``width`` 0) or ``(n, >=width)``; a file left open may hold more rows."""
+    if width == 0:
+        if ds.shape != (n,) and (not unclosed or ds.ndim != 1 or ds.shape[0] < n):
+            raise SessionError(f"{src}: /raw/{name} must have shape ({n},), has shape {ds.shape}")
+        return
+    if ds.ndim != 2 or ds.shape[0] < n or ds.shape[1] < width:
+        raise SessionError(
+            f"{src}: /raw/{name} must have shape (N, >={width}) with N = {n} samples, "
+            f"has shape {ds.shape}"
+        )
+    if not unclosed and ds.shape[0] != n:
+        raise SessionError(f"{src}: /raw/{name} has {ds.shape[0]} rows, /raw/time has {n}")
+
+
+def _read_raw(file: h5py.File, src: str, unclosed: bool) -> dict[str, np.ndarray | None]:
+    """Every channel of :data:`RAW_CHANNELS` (None where absent), validated, as float64."""
+    datasets, n = raw_datasets(file, src, unclosed)
+    raw = {name: None if name not in datasets else
+           np.asarray(datasets[name][:n], dtype=np.float64) for name in RAW_CHANNELS}  # fmt: skip
+    check_time(raw["time"], src)
+    return raw
 
 
 def _read_segments(
@@ -195,24 +266,31 @@ def _read_segments(
     unclosed: bool,
 ) -> list[Segment]:
     segments = []
-    group = file.get("segments")
+    group = member(file, "segments", src)
     if isinstance(group, h5py.Group):
         for name in group:
-            obj = group.get(name)
+            obj = member(group, name, src)
             if isinstance(obj, h5py.Group):
                 where = f"/segments/{name}"
                 get = _attr_getter(obj.attrs, src, where)
                 segment = _parse_segment(name, get, src, where, n, accel, gyro)
-                segment.extra.update(_extra_attrs(obj.attrs.items()))
+                extra = ((key, get(key)) for key in obj.attrs if key not in SEGMENT_ATTRS)
+                segment.extra.update(_extra_attrs(extra))
                 segments.append(segment)
-    log = file.get(LOG_DATASET)
+    log_group = member(file, LOG_GROUP, src)
+    log = member(log_group, "segments", src) if isinstance(log_group, h5py.Group) else None
     if not segments and isinstance(log, h5py.Dataset):
         # The writer was killed before it wrote the segment groups: use its SWMR-safe log.
+        check_dataset(log, src, limit=file_size(file), complete=not unclosed)
+        if log.dtype.kind != "S" or log.ndim != 1:
+            raise SessionError(f"{src}: /{LOG_DATASET} is not a list of JSON strings")
         for row, item in enumerate(log[()]):
             where = f"/{LOG_DATASET}[{row}]"
+            if not bytes(item).strip(b"\0"):
+                continue  # a row grown but never written (the flush failed)
             try:
                 entry = json.loads(bytes(item).decode("utf-8"))
-            except (UnicodeDecodeError, json.JSONDecodeError):
+            except (UnicodeDecodeError, ValueError, RecursionError):
                 raise SessionError(f"{src}: {where} is not a JSON object") from None
             if not isinstance(entry, dict) or not isinstance(entry.get("name"), str):
                 raise SessionError(f"{src}: {where} is not a segment")
@@ -237,7 +315,7 @@ def _extra_attrs(items) -> dict[str, Any]:
             value = value.tolist()
         elif isinstance(value, np.generic):
             value = value.item()
-        extra[key] = value
+        extra[clean_text(str(key))] = clean_tree(value)
     return extra
 
 
@@ -276,7 +354,7 @@ def _parse_segment(
     label = get("label")
     if label is not None and as_str(label) is None:
         raise fail("attribute 'label' is not a string")
-    label = None if label is None else as_str(label)
+    label = None if label is None else clean_text(as_str(label))
 
     up = axis = angle_deg = None
     if kind == "static":
@@ -306,14 +384,14 @@ def _parse_segment(
     return Segment(name, kind, start, stop, label, up, axis, angle_deg)
 
 
-def _read_calibrations(file: h5py.File) -> dict[str, str]:
+def _read_calibrations(file: h5py.File, src: str) -> dict[str, str]:
     calibrations = {}
-    group = file.get("calibrations")
+    group = member(file, "calibrations", src)
     if isinstance(group, h5py.Group):
         for name in group:
-            obj = group.get(name)
-            if isinstance(obj, h5py.Group) and "json" in obj.attrs:
-                text = as_str(obj.attrs["json"])
+            obj = member(group, name, src)
+            if isinstance(obj, h5py.Group):
+                text = as_str(get_attr(obj.attrs, "json", src, f"/calibrations/{name}: "))
                 if text is not None:
                     calibrations[name] = text
     return calibrations

@@ -102,5 +102,5 @@ def rewrite_labels(
                     file.attrs.pop(key, None)
                 else:
                     file.attrs[key] = value
-        except (OSError, TypeError, ValueError) as exc:
+        except (OSError, RuntimeError, TypeError, ValueError) as exc:
             raise SessionError(f"{src}: cannot write the labels ({one_line(exc)})") from None

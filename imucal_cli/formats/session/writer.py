@@ -1,5 +1,16 @@
 """Writing sessions: :class:`SessionWriter` records one while it is captured; :func:`write_session`
-writes a complete :class:`~.model.Session` in one go (through the writer)."""
+writes a complete :class:`~.model.Session` in one go (through the writer).
+
+Safety (issue 11): the file is created through :class:`~imucal_cli.formats.output.OutputFile`
+(a fresh temporary file in the target's folder, renamed into place: at once for a capture,
+``publish_early``, so that ``kill -9`` loses at most the last flush; when complete otherwise).
+The ``/raw`` datasets carry Fletcher32 checksums (corruption is detected on read) and NaN as
+fill value (rows grown but never written read as NaN, never as made-up zeros).  A write that
+fails (disk full: h5py raises ``OSError`` or ``RuntimeError``) raises :class:`WriteFailed`
+and keeps the samples in memory, so that :meth:`SessionWriter.flush` can be tried again once
+space is freed, or :meth:`SessionWriter.drop_pending` gives them up and shrinks the datasets
+back to what was written.
+"""
 
 from __future__ import annotations
 
@@ -13,12 +24,13 @@ from typing import Any
 import h5py
 import numpy as np
 
-from imucal_cli.errors import InputError, SessionError
+from imucal_cli.errors import InputError, SessionError, WriteFailed
 
+from ..output import OutputFile
+from .h5open import writer_identity
 from .model import (
     FORMAT,
     FORMAT_VERSION,
-    LOG_DATASET,
     LOG_GROUP,
     LOG_ITEM_BYTES,
     MAG_UNITS,
@@ -27,13 +39,101 @@ from .model import (
     Session,
     as_float,
     as_unit_vector,
-    one_line,
+    io_reason,
     utc_now_iso,
 )
-from .store import store_calibration
+from .store import check_calibration_entry
 
 _CHUNK_ROWS = 1024  # samples per HDF5 chunk of the /raw datasets
 _MAX_PENDING_ROWS = 65536  # the writer writes out earlier than its flush interval past this
+_WRITE_ERRORS = (OSError, RuntimeError)  # h5py raises RuntimeError for some ENOSPC failures
+
+
+def _check_options(
+    src: str, channels: dict[str, Any], numbers: dict[str, Any], mag_units: str | None
+) -> None:
+    if mag_units is not None and mag_units not in MAG_UNITS:
+        raise InputError(
+            f"{src}: mag_units must be one of {', '.join(MAG_UNITS)}, got {mag_units!r}"
+        )
+    for name, value in channels.items():
+        valid = isinstance(value, int | np.integer) and not isinstance(value, bool) and value >= 3
+        if value is not None and not valid:
+            raise InputError(f"{src}: {name} must be an integer >= 3 or None, got {value!r}")
+    for name, number in numbers.items():
+        value = None if number is None else as_float(number)
+        if number is not None and (value is None or value <= 0):
+            raise InputError(f"{src}: {name} must be a positive number, got {number!r}")
+
+
+def segment_entry(
+    name: str,
+    kind: str,
+    start: Any,
+    stop: Any,
+    n_samples: int,
+    *,
+    label: str | None = None,
+    up: Any = None,
+    axis: Any = None,
+    angle_deg: Any = None,
+    extra: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Validate one segment and return it as the attributes the format stores (plain JSON
+    values; ``up``/``axis`` scaled to unit length).  Raises ``ValueError`` with the problem."""
+    if kind not in SEGMENT_KINDS:
+        raise ValueError(f"unknown kind {kind!r} (expected 'static' or 'rotation')")
+    try:
+        start, stop = operator.index(start), operator.index(stop)
+    except TypeError:
+        raise ValueError(f"start and stop must be integers, got {start!r}, {stop!r}") from None
+    if not 0 <= start < stop <= n_samples:
+        raise ValueError(
+            f"samples [{start}, {stop}) are not a non-empty range within the "
+            f"{n_samples} samples appended so far"
+        )
+    if label is not None and not isinstance(label, str):
+        raise ValueError(f"label must be a string, got {label!r}")
+    entry: dict[str, Any] = {"name": name, "kind": kind, "start": start, "stop": stop}
+    if label is not None:
+        entry["label"] = label
+    for key, value in (extra or {}).items():
+        if key in SEGMENT_ATTRS or key == "name":
+            raise ValueError(f"extra attribute {key!r} is one the format defines")
+        if not isinstance(value, int | float | str | list):
+            raise ValueError(f"extra attribute {key!r} must be a number, string or list")
+        entry[key] = value
+    wrong = {"up": up} if kind == "rotation" else {"axis": axis, "angle_deg": angle_deg}
+    for option, value in wrong.items():
+        if value is not None:
+            raise ValueError(f"{option!r} does not apply to a {kind} segment")
+    for option, value in (("up", up), ("axis", axis)):
+        if value is not None:
+            vector = as_unit_vector(value)
+            if vector is None:
+                raise ValueError(
+                    f"{option!r} must be 3 finite numbers, not all zero, got {value!r}"
+                )
+            entry[option] = vector.tolist()
+    if angle_deg is not None:
+        if as_float(angle_deg) is None:
+            raise ValueError(f"'angle_deg' must be a finite number, got {angle_deg!r}")
+        entry["angle_deg"] = float(angle_deg)
+    return entry
+
+
+def _root_attrs(created: str | None, **optional: Any) -> dict[str, Any]:
+    """The root attributes of a new session: format, version, creation time, then the
+    optional ones that were given (numbers as floats)."""
+    attrs: dict[str, Any] = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "created": created if created is not None else utc_now_iso(),
+    }
+    for key, value in optional.items():
+        if value is not None:
+            attrs[key] = float(value) if isinstance(value, int | float) else value
+    return attrs
 
 
 class SessionWriter:
@@ -42,8 +142,9 @@ class SessionWriter:
     Samples are buffered and written to chunked, resizable ``/raw`` datasets, followed by an
     HDF5 flush, at least every ``flush_interval_s`` while :meth:`append` is called.  The file
     is in SWMR mode, so :func:`read_session` can read it while it is written, and a writer
-    killed with ``kill -9`` leaves a readable file (see the module notes).  Segments are
-    written as ``/segments/NNNN`` groups on :meth:`close`.
+    killed with ``kill -9`` leaves a readable file (see the package notes; the next reader
+    repairs its "open for writing" flag).  Segments are written as ``/segments/NNNN`` groups
+    on :meth:`close`.
 
     Parameters
     ----------
@@ -67,11 +168,20 @@ class SessionWriter:
         Longest time in seconds appended samples stay in memory.
     overwrite : bool
         Replace an existing file instead of refusing.
+    inputs : iterable of path-like
+        Files never to replace (the command's inputs).
+    publish_early : bool
+        Give the file its name at once (a capture); otherwise only :meth:`close` does, and a
+        writer that fails leaves nothing at ``path``.
+    reserve_bytes : int
+        Disk space set aside next to the file at the start and freed when a write fails, so
+        that the file can still be closed cleanly on a full disk.
 
     Raises
     ------
     InputError
-        The file exists (and ``overwrite`` is false) or cannot be created, or an option is bad.
+        The file exists (and ``overwrite`` is false), is an input, cannot be created, or an
+        option is bad.
     """
 
     def __init__(
@@ -93,47 +203,31 @@ class SessionWriter:
         temperature: bool = False,
         flush_interval_s: float = 1.0,
         overwrite: bool = False,
+        inputs=(),
+        publish_early: bool = False,
+        reserve_bytes: int = 0,
     ) -> None:
         self.path = Path(path)
-        self._src = src = str(path)
-        channel_counts = {
-            "accel_channels": accel_channels, "gyro_channels": gyro_channels,
-            "mag_channels": mag_channels,
-        }  # fmt: skip
-        for name, channels in channel_counts.items():
-            valid = isinstance(channels, int | np.integer) and channels >= 3
-            if channels is not None and not valid:
-                raise InputError(f"{src}: {name} must be an integer >= 3 or None, got {channels!r}")
-        if mag_units is not None and mag_units not in MAG_UNITS:
-            raise InputError(f"{src}: mag_units must be one of {', '.join(MAG_UNITS)}, "
-                             f"got {mag_units!r}")  # fmt: skip
-        numbers = (("sample_rate_hz", sample_rate_hz), ("gravity", gravity),
-                   ("magnetic_field_uT", magnetic_field_uT))  # fmt: skip
-        for name, number in numbers:
-            value = None if number is None else as_float(number)
-            if number is not None and (value is None or value <= 0):
-                raise InputError(f"{src}: {name} must be a positive number, got {number!r}")
-        if self.path.is_dir():
-            raise InputError(f"{src}: is a directory")
-        if self.path.exists() and not overwrite:
-            raise InputError(f"{src}: file exists (refusing to overwrite it)")
-        attrs: dict[str, Any] = {
-            "format": FORMAT,
-            "format_version": FORMAT_VERSION,
-            "created": created if created is not None else utc_now_iso(),
-        }
-        optional = {
-            "sensor": sensor,
-            "source": source,
-            "sample_rate_hz": None if sample_rate_hz is None else float(sample_rate_hz),
-            "gravity": None if gravity is None else float(gravity),
-            "accel_units": accel_units,
-            "gyro_units": gyro_units,
-            "mag_units": mag_units,
-            "magnetic_field_uT": None if magnetic_field_uT is None else float(magnetic_field_uT),
-        }
-        attrs.update({k: v for k, v in optional.items() if v is not None})
-
+        self._src = str(path)
+        _check_options(
+            self._src,
+            {
+                "accel_channels": accel_channels,
+                "gyro_channels": gyro_channels,
+                "mag_channels": mag_channels,
+            },
+            {
+                "sample_rate_hz": sample_rate_hz,
+                "gravity": gravity,
+                "magnetic_field_uT": magnetic_field_uT,
+            },
+            mag_units,
+        )
+        attrs = _root_attrs(
+            created, sensor=sensor, source=source, sample_rate_hz=sample_rate_hz,
+            gravity=gravity, accel_units=accel_units, gyro_units=gyro_units,
+            mag_units=mag_units, magnetic_field_uT=magnetic_field_uT,
+        )  # fmt: skip
         self._widths: dict[str, int | None] = {
             "accel": None if accel_channels is None else int(accel_channels),
             "gyro": None if gyro_channels is None else int(gyro_channels),
@@ -144,41 +238,71 @@ class SessionWriter:
         self._pending: list[dict[str, np.ndarray]] = []
         self._n_pending = 0
         self._last_time: float | None = None
+        self._last_written_time: float | None = None
+        self._calibrations: dict[str, str] = {}
         self._nonfinite: dict[str, list[np.ndarray]] = {"accel": [], "gyro": []}
         self._segments: list[dict[str, Any]] = []
         self._pending_log: list[bytes] = []
-        try:
-            self._file: h5py.File | None = h5py.File(self.path, "w", libver="latest")
-        except OSError as exc:
-            raise InputError(f"{src}: cannot create the file ({one_line(exc)})") from None
-        try:
-            self._file.attrs.update(attrs)
-            raw = self._file.create_group("raw")
-            # Written in this order at each flush; time last, so it is never longer than data.
-            self._datasets: dict[str, h5py.Dataset] = {}
-            for name in ("accel", "gyro", "mag"):
-                width = self._widths[name]
-                if width is not None:
-                    self._datasets[name] = raw.create_dataset(
-                        name, shape=(0, width), maxshape=(None, width),
-                        chunks=(_CHUNK_ROWS, width), dtype="f8",
-                    )  # fmt: skip
-            shapes = {"temperature": temperature, "time": True}
-            for name, wanted in shapes.items():
-                if wanted:
-                    self._datasets[name] = raw.create_dataset(
-                        name, shape=(0,), maxshape=(None,), chunks=(_CHUNK_ROWS,), dtype="f8"
-                    )
-            self._file.create_group("segments")
-            self._log = self._file.create_dataset(
-                LOG_DATASET, shape=(0,), maxshape=(None,), chunks=(16,),
-                dtype=f"S{LOG_ITEM_BYTES}",
-            )  # fmt: skip
-            self._file.swmr_mode = True
-        except OSError as exc:
-            self._file.close()
-            raise InputError(f"{src}: cannot write ({one_line(exc)})") from None
+        self._file: h5py.File | None = None
+        self._out = OutputFile(self.path, force=overwrite, inputs=inputs)
+        self._reserve = _Reserve(self.path, 0)
+        self._open(attrs, temperature, publish_early, reserve_bytes)
         self._last_flush = _time.monotonic()
+
+    def _open(self, attrs: dict[str, Any], temperature: bool, publish_early: bool,
+              reserve_bytes: int) -> None:  # fmt: skip
+        """Create the file's layout in its temporary file; nothing is left when that fails."""
+        try:
+            self._file = self._out.h5(libver="latest")
+            self._create_layout(attrs, temperature)
+            self._file.swmr_mode = True
+            if publish_early:
+                self._out.publish()
+            self._reserve = _Reserve(self.path, reserve_bytes)
+        except BaseException as exc:
+            self._abandon()
+            if isinstance(exc, _WRITE_ERRORS):
+                raise InputError(f"{self._src}: cannot write ({io_reason(exc)})") from None
+            raise
+
+    def _create_layout(self, attrs: dict[str, Any], temperature: bool) -> None:
+        file = self._file
+        file.attrs.update(attrs)
+        raw = file.create_group("raw")
+        # Written in this order at each flush; time last, so it is never longer than data.
+        self._datasets: dict[str, h5py.Dataset] = {}
+        shapes = {
+            "accel": self._widths["accel"],
+            "gyro": self._widths["gyro"],
+            "mag": self._widths["mag"],
+            "temperature": 0 if temperature else None,
+            "time": 0,
+        }
+        for name, width in shapes.items():
+            if width is None:
+                continue
+            tail = (width,) if width else ()
+            self._datasets[name] = raw.create_dataset(
+                name, shape=(0, *tail), maxshape=(None, *tail), chunks=(_CHUNK_ROWS, *tail),
+                dtype="f8", fillvalue=np.nan, fletcher32=True,
+            )  # fmt: skip
+        file.create_group("segments")
+        log_group = file.create_group(LOG_GROUP)
+        log_group.attrs.update(writer_identity())
+        self._log = log_group.create_dataset(
+            "segments", shape=(0,), maxshape=(None,), chunks=(16,), dtype=f"S{LOG_ITEM_BYTES}"
+        )
+
+    def _abandon(self) -> None:
+        """Close and remove a file that never became a session (a failed start)."""
+        if self._file is not None:
+            try:
+                self._file.close()
+            except _WRITE_ERRORS:
+                pass
+            self._file = None
+        self._out.discard()
+        self._reserve.release()
 
     # continuing a capture ------------------------------------------------------------------
     @classmethod
@@ -203,7 +327,7 @@ class SessionWriter:
         try:
             self._file = h5py.File(self.path, "r+", libver="latest")
         except OSError as exc:
-            raise InputError(f"{path}: cannot open it to continue ({one_line(exc)})") from None
+            raise InputError(f"{path}: cannot open it to continue ({io_reason(exc)})") from None
         try:
             self._reopen_datasets(len(session.time))
             self._reopen_segments(session)
@@ -213,10 +337,14 @@ class SessionWriter:
             self._file.close()
             if isinstance(exc, InputError):
                 raise
-            raise InputError(f"{path}: cannot continue it ({one_line(exc)})") from None
+            raise InputError(f"{path}: cannot continue it ({io_reason(exc)})") from None
         self._flush_interval_s = float(flush_interval_s)
         self._n_written, self._pending, self._n_pending = len(session.time), [], 0
         self._last_time = float(session.time[-1]) if len(session.time) else None
+        self._last_written_time = self._last_time
+        self._calibrations = {}
+        self._out = _InPlace(self.path)  # the file keeps its name: nothing to publish
+        self._reserve = _Reserve(self.path, 0)
         self._nonfinite = {
             name: [np.flatnonzero(~np.isfinite(data).all(axis=1))] if data is not None else []
             for name, data in (("accel", session.accel), ("gyro", session.gyro))
@@ -256,8 +384,10 @@ class SessionWriter:
             del group[name]
         if LOG_GROUP in self._file:
             del self._file[LOG_GROUP]
-        self._log = self._file.create_dataset(
-            LOG_DATASET, shape=(0,), maxshape=(None,), chunks=(16,), dtype=f"S{LOG_ITEM_BYTES}"
+        log_group = self._file.create_group(LOG_GROUP)
+        log_group.attrs.update(writer_identity())
+        self._log = log_group.create_dataset(
+            "segments", shape=(0,), maxshape=(None,), chunks=(16,), dtype=f"S{LOG_ITEM_BYTES}"
         )
         self._segments, self._pending_log = [], []
         for seg in session.segments:
@@ -277,13 +407,30 @@ class SessionWriter:
     def __enter__(self) -> SessionWriter:
         return self
 
-    def __exit__(self, *exc_info: object) -> None:
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is not None and not self._out.published:
+            self._abandon()  # write_session failed half-way: leave nothing behind
+            return
         self.close()
 
     @property
     def n_samples(self) -> int:
         """Samples appended so far (written to the file or still buffered)."""
         return self._n_written + self._n_pending
+
+    @property
+    def n_written(self) -> int:
+        """Samples written to the file."""
+        return self._n_written
+
+    @property
+    def segments(self) -> list[dict[str, Any]]:
+        """The segments added so far, as stored (name, kind, start, stop, optional attributes)."""
+        return [dict(entry) for entry in self._segments]
+
+    def _write_failed(self, exc: BaseException, pending: int, what: str = "write") -> WriteFailed:
+        reason = io_reason(exc)
+        return WriteFailed(f"{self._src}: cannot {what} ({reason})", pending, reason)
 
     def _fail(self, problem: str) -> SessionError:
         return SessionError(f"{self._src}: {problem}")
@@ -323,8 +470,27 @@ class SessionWriter:
         SessionError
             Wrong shapes, a missing or unexpected sensor, or times that are not finite and
             strictly increasing.  Nothing of the block is kept then.
+        WriteFailed
+            The block was kept but writing what is due failed (see :meth:`flush`).
         """
         self._check_open()
+        given = {"accel": accel, "gyro": gyro, "temperature": temperature, "mag": mag}
+        block = self._block(time, given)
+        t = block["time"]
+        if t.size == 0:
+            return
+        self._check_times(t)
+        for name in ("accel", "gyro"):
+            if name in block:
+                rows = np.flatnonzero(~np.isfinite(block[name]).all(axis=1))
+                if rows.size:
+                    self._nonfinite[name].append(rows + self.n_samples)
+        self._pending.append(block)
+        self._n_pending += t.size
+        self._last_time = float(t[-1])
+        self._flush_if_due()
+
+    def _block(self, time: Any, given: dict[str, Any]) -> dict[str, np.ndarray]:
         t = np.asarray(time, dtype=np.float64)
         single = t.ndim == 0
         t = t.reshape(-1) if single else t
@@ -332,7 +498,6 @@ class SessionWriter:
             raise self._fail(f"append: time must be a number or 1-D, has shape {t.shape}")
         k = t.size
         block = {"time": t}
-        given = {"accel": accel, "gyro": gyro, "temperature": temperature, "mag": mag}
         for name, value in given.items():
             expected = (k,) if name == "temperature" else (k, self._widths[name])
             recorded = name in self._datasets
@@ -348,8 +513,9 @@ class SessionWriter:
             if array.shape != expected:
                 raise self._fail(f"append: {name} has shape {array.shape}, expected {expected}")
             block[name] = array
-        if k == 0:
-            return
+        return block
+
+    def _check_times(self, t: np.ndarray) -> None:
         bad = np.flatnonzero(~np.isfinite(t))
         if bad.size:
             raise self._fail(f"append: time is {t[bad[0]]} at sample {self.n_samples + bad[0]}")
@@ -362,15 +528,6 @@ class SessionWriter:
                 f"append: time is not strictly increasing "
                 f"(sample {index}: {float(previous[i + 1])!r} s after {float(previous[i])!r} s)"
             )
-        for name in ("accel", "gyro"):
-            if name in block:
-                rows = np.flatnonzero(~np.isfinite(block[name]).all(axis=1))
-                if rows.size:
-                    self._nonfinite[name].append(rows + self.n_samples)
-        self._pending.append(block)
-        self._n_pending += k
-        self._last_time = float(t[-1])
-        self._flush_if_due()
 
     def _flush_if_due(self) -> None:
         due = _time.monotonic() - self._last_flush >= self._flush_interval_s
@@ -378,7 +535,15 @@ class SessionWriter:
             self.flush()
 
     def flush(self) -> None:
-        """Write buffered samples and segments to the file and flush it to disk (HDF5 flush)."""
+        """Write buffered samples and segments to the file and flush it to disk (HDF5 flush).
+
+        Raises
+        ------
+        WriteFailed
+            The write failed (disk full, I/O error).  The samples stay buffered: call
+            :meth:`flush` again (after freeing space, e.g. :meth:`release_reserve`) or give
+            them up with :meth:`drop_pending`.
+        """
         file = self._check_open()
         try:
             if self._pending:
@@ -386,17 +551,61 @@ class SessionWriter:
                 for name, dataset in self._datasets.items():
                     dataset.resize(stop, axis=0)
                     dataset[start:stop] = np.concatenate([block[name] for block in self._pending])
-                self._pending = []
-                self._n_written, self._n_pending = stop, 0
             if self._pending_log:
                 start = self._log.shape[0]
                 self._log.resize(start + len(self._pending_log), axis=0)
                 self._log[start:] = np.array(self._pending_log, dtype=f"S{LOG_ITEM_BYTES}")
-                self._pending_log = []
             file.flush()
-        except OSError as exc:
-            raise self._fail(f"cannot write ({one_line(exc)})") from None
+        except _WRITE_ERRORS as exc:
+            raise self._write_failed(exc, self._n_pending) from None
+        if self._pending:
+            self._last_written_time = float(self._pending[-1]["time"][-1])
+        self._pending = []
+        self._n_written += self._n_pending
+        self._n_pending = 0
+        self._pending_log = []
         self._last_flush = _time.monotonic()
+
+    def release_reserve(self) -> bool:
+        """Free the disk space set aside at the start; return whether there was any."""
+        return self._reserve.release()
+
+    def drop_pending(self) -> int:
+        """Write what still fits of the samples not written, chunk by chunk, then give up the
+        rest: shrink ``/raw`` back to what was written and drop segments that reach past it.
+        Returns the number of samples given up."""
+        self._salvage()
+        dropped = self._n_pending
+        self._pending, self._n_pending = [], 0
+        for dataset in self._datasets.values():
+            try:
+                dataset.resize(self._n_written, axis=0)
+            except _WRITE_ERRORS:
+                pass
+        self._last_time = self._last_written_time
+        kept = self._n_written
+        self._segments = [s for s in self._segments if s["stop"] <= kept]
+        self._pending_log = [row for row in self._pending_log if json.loads(row)["stop"] <= kept]
+        return dropped
+
+    def _salvage(self) -> None:
+        if not self._pending:
+            return
+        rows = {name: np.concatenate([b[name] for b in self._pending]) for name in self._datasets}
+        done = 0
+        for start in range(0, self._n_pending, _CHUNK_ROWS):
+            stop = min(start + _CHUNK_ROWS, self._n_pending)
+            part = {name: rows[name][start:stop] for name in rows}
+            self._pending, n_before = [part], self._n_pending
+            self._n_pending = stop - start
+            try:
+                self.flush()
+            except WriteFailed:
+                self._n_pending = n_before - done
+                break
+            done = stop
+            self._n_pending = n_before - done
+        self._pending = [{name: rows[name][done:] for name in rows}] if self._n_pending else []
 
     # segments ------------------------------------------------------------------------------
     def add_segment(
@@ -443,53 +652,22 @@ class SessionWriter:
         def fail(problem: str) -> SessionError:
             return self._fail(f"segment {name}: {problem}")
 
-        if kind not in SEGMENT_KINDS:
-            raise fail(f"unknown kind {kind!r} (expected 'static' or 'rotation')")
+        options = {"label": label, "up": up, "axis": axis, "angle_deg": angle_deg}
         try:
-            start, stop = operator.index(start), operator.index(stop)
-        except TypeError:
-            raise fail(f"start and stop must be integers, got {start!r}, {stop!r}") from None
-        if not 0 <= start < stop <= self.n_samples:
+            entry = segment_entry(name, kind, start, stop, self.n_samples, extra=extra, **options)
+        except ValueError as exc:
+            raise fail(str(exc)) from None
+        if self._segments and entry["start"] < self._segments[-1]["start"]:
             raise fail(
-                f"samples [{start}, {stop}) are not a non-empty range within the "
-                f"{self.n_samples} samples appended so far"
+                f"segments must be added in time order (start {entry['start']} is before the "
+                f"previous segment's start {self._segments[-1]['start']})"
             )
-        if self._segments and start < self._segments[-1]["start"]:
-            raise fail(
-                f"segments must be added in time order (start {start} is before the previous "
-                f"segment's start {self._segments[-1]['start']})"
-            )
-        if label is not None and not isinstance(label, str):
-            raise fail(f"label must be a string, got {label!r}")
-        entry: dict[str, Any] = {"name": name, "kind": kind, "start": start, "stop": stop}
-        if label is not None:
-            entry["label"] = label
-        for key, value in (extra or {}).items():
-            if key in SEGMENT_ATTRS or key == "name":
-                raise fail(f"extra attribute {key!r} is one the format defines")
-            if not isinstance(value, int | float | str | list):
-                raise fail(f"extra attribute {key!r} must be a number, string or list")
-            entry[key] = value
         sensor = "accel" if kind == "static" else "gyro"
-        wrong = {"up": up} if kind == "rotation" else {"axis": axis, "angle_deg": angle_deg}
-        for option, value in wrong.items():
-            if value is not None:
-                raise fail(f"{option!r} does not apply to a {kind} segment")
-        for option, value in (("up", up), ("axis", axis)):
-            if value is not None:
-                vector = as_unit_vector(value)
-                if vector is None:
-                    raise fail(f"{option!r} must be 3 finite numbers, not all zero, got {value!r}")
-                entry[option] = vector.tolist()
-        if angle_deg is not None:
-            if as_float(angle_deg) is None:
-                raise fail(f"'angle_deg' must be a finite number, got {angle_deg!r}")
-            entry["angle_deg"] = float(angle_deg)
         if self._widths[sensor] is None:
             raise fail(f"a {kind} segment needs {sensor}, which this writer does not record")
         if self._nonfinite[sensor]:
             rows = np.concatenate(self._nonfinite[sensor])
-            inside = rows[(rows >= start) & (rows < stop)]
+            inside = rows[(rows >= entry["start"]) & (rows < entry["stop"])]
             if inside.size:
                 raise fail(f"/raw/{sensor} has NaN or inf at sample {inside.min()}")
         logged = json.dumps(entry).encode("utf-8")
@@ -502,31 +680,128 @@ class SessionWriter:
 
     # closing -------------------------------------------------------------------------------
     def close(self) -> None:
-        """Flush, end SWMR mode and write the segment groups.  Closing twice does nothing."""
+        """Flush, end SWMR mode, write the segment groups and give the file its name.
+
+        Closing twice does nothing.  Samples that cannot be written stay out (a
+        :class:`WriteFailed` is raised after the file was closed with what was written).
+        """
         if self._file is None:
             return
+        failed: WriteFailed | None = None
         try:
             self.flush()
-        finally:
+        except WriteFailed:
+            self.release_reserve()
+            try:
+                self.flush()
+            except WriteFailed as exc:
+                failed = WriteFailed(str(exc), self.drop_pending(), exc.reason)
+        try:
             self._file.close()
+        except _WRITE_ERRORS as exc:
+            failed = failed or self._write_failed(exc, 0, "close")
+        finally:
             self._file = None
         try:
-            with h5py.File(self.path, "r+", libver="latest") as file:
-                group = file["segments"]
-                for entry in self._segments:
-                    attrs = group.create_group(entry["name"]).attrs
-                    for key, value in entry.items():
-                        if key in ("up", "axis"):
-                            attrs[key] = np.asarray(value, dtype=np.float64)
-                        elif key != "name":
-                            attrs[key] = value
-                del file[LOG_GROUP]
-        except OSError as exc:
-            raise self._fail(f"cannot write the segments ({one_line(exc)})") from None
+            self._write_segment_groups()
+        except _WRITE_ERRORS as exc:  # the log stays; readers use it
+            failed = failed or self._write_failed(exc, 0, "write the segments")
+        self._reserve.release()
+        self._out.commit()
+        if failed is not None:
+            raise failed
+
+    def _write_segment_groups(self) -> None:
+        with h5py.File(self._out.tmp if not self._out.published else self.path, "r+") as file:
+            group = file["segments"]
+            for entry in self._segments:
+                attrs = group.create_group(entry["name"]).attrs
+                for key, value in entry.items():
+                    if key in ("up", "axis"):
+                        attrs[key] = np.asarray(value, dtype=np.float64)
+                    elif key != "name":
+                        attrs[key] = value
+            del file[LOG_GROUP]
+            if self._calibrations:
+                calibrations = file.create_group("calibrations")
+                for name, text in self._calibrations.items():
+                    calibrations.create_group(name).attrs["json"] = text
+
+    def add_calibration(self, name: str, json_text: str) -> None:
+        """Store a calibration JSON as ``/calibrations/<name>`` when the file is closed.
+
+        Raises
+        ------
+        SessionError
+            ``json_text`` is not JSON, or ``name`` is taken or not a valid name.
+        """
+        check_calibration_entry(self._src, json_text, name)
+        if name in self._calibrations:
+            raise self._fail(f"/calibrations/{name} already exists")
+        self._calibrations[name] = json_text
 
 
-def write_session(path: str | os.PathLike, session: Session, *, overwrite: bool = False) -> None:
+class _InPlace:
+    """The output of a reopened session (``SessionWriter.reopen``): the file is updated where it
+    is, so there is no temporary file to publish, commit or discard."""
+
+    published = True
+
+    def __init__(self, path: Path) -> None:
+        self.tmp = path
+
+    def commit(self) -> None:
+        pass
+
+    def discard(self) -> None:
+        pass
+
+
+class _Reserve:
+    """Disk space held in a hidden file next to the session, freed when a write fails."""
+
+    def __init__(self, path: Path, nbytes: int) -> None:
+        self._path: Path | None = None
+        try:
+            st = os.statvfs(path.parent)
+            nbytes = min(nbytes, st.f_bavail * st.f_frsize // 4)  # never most of what is left
+        except OSError:
+            pass
+        if nbytes <= 0:
+            return
+        reserve = path.with_name(f".{path.name}.{os.getpid()}.reserve.tmp")
+        try:
+            fd = os.open(reserve, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
+        except OSError:
+            return
+        self._path = reserve
+        try:
+            os.posix_fallocate(fd, 0, nbytes)
+        except (OSError, AttributeError):
+            try:
+                os.write(fd, bytes(nbytes))
+            except OSError:
+                pass
+        finally:
+            os.close(fd)
+
+    def release(self) -> bool:
+        if self._path is None:
+            return False
+        try:
+            os.unlink(self._path)
+        except OSError:
+            pass
+        self._path = None
+        return True
+
+
+def write_session(
+    path: str | os.PathLike, session: Session, *, overwrite: bool = False, inputs=()
+) -> None:
     """Write a complete session file, including ``session.calibrations``.
+
+    The file appears at ``path`` only when complete (see :mod:`imucal_cli.formats.output`).
 
     Parameters
     ----------
@@ -537,6 +812,8 @@ def write_session(path: str | os.PathLike, session: Session, *, overwrite: bool 
         ``0000``, ``0001``, ...; ``up``/``axis`` are stored scaled to unit length.
     overwrite : bool
         Replace an existing file instead of refusing.
+    inputs : iterable of path-like
+        Files never to replace (the command's inputs).
 
     Raises
     ------
@@ -544,7 +821,7 @@ def write_session(path: str | os.PathLike, session: Session, *, overwrite: bool 
         The file exists or cannot be written, or the session breaks the format (SessionError).
     """
     accel, gyro, mag = session.accel, session.gyro, session.mag
-    with SessionWriter(
+    writer = SessionWriter(
         path,
         created=session.created,
         sensor=session.sensor,
@@ -560,7 +837,9 @@ def write_session(path: str | os.PathLike, session: Session, *, overwrite: bool 
         magnetic_field_uT=session.magnetic_field_uT,
         temperature=session.temperature is not None,
         overwrite=overwrite,
-    ) as writer:
+        inputs=inputs,
+    )
+    with writer:
         writer.append(session.time, accel, gyro, session.temperature, mag)
         for segment in sorted(session.segments, key=lambda s: s.start):
             writer.add_segment(
@@ -573,5 +852,5 @@ def write_session(path: str | os.PathLike, session: Session, *, overwrite: bool 
                 angle_deg=segment.angle_deg,
                 extra=segment.extra,
             )
-    for name, text in session.calibrations.items():
-        store_calibration(path, text, name)
+        for name, text in session.calibrations.items():
+            writer.add_calibration(name, text)

@@ -22,8 +22,8 @@ def fmt_std(value: float | None, std: float | None, unit: str | None = None) -> 
     if value is None:
         return MISSING
     suffix = f" {unit}" if unit else ""
-    if std is None:
-        return f"{value:.5g} ± n/a{suffix}"
+    if std is None or not math.isfinite(std) or std < 0 or not math.isfinite(value):
+        return f"{value:.5g} ± n/a{suffix}"  # also a std a file got wrong (negative, inf)
     if std == 0:
         return f"{value:.5g} ± 0{suffix}"
     scale = max(abs(value), std)

@@ -7,34 +7,18 @@ from pathlib import Path
 
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import Calibration, calibration_from_json
-
-_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
-
-
-def is_hdf5(path: Path) -> bool:
-    """Whether ``path`` is an HDF5 file, without importing h5py for a JSON file (start-up time
-    of ``imucal report CAL.json``): a file starting with the HDF5 signature is one, a file
-    starting with ``{`` is not; anything else asks h5py (the superblock may follow a user
-    block)."""
-    try:
-        with open(path, "rb") as f:
-            head = f.read(8)
-    except OSError:
-        return False
-    if head == _HDF5_SIGNATURE:
-        return True
-    if head.lstrip()[:1] == b"{" or head.startswith(b"\xef\xbb\xbf{"):
-        return False
-    import h5py
-
-    return bool(h5py.is_hdf5(path))
+from imucal_cli.formats.inputs import is_hdf5_file, read_input
 
 
 def read_session(path):
-    """:func:`imucal_cli.formats.session.read_session`, imported when a session is read."""
+    """:func:`imucal_cli.formats.session.read_session`, imported when a session is read (a
+    report of a JSON file does not load h5py: start-up time)."""
     from imucal_cli.formats.session import read_session as read
 
     return read(path)
+
+
+_WHAT = "calibration JSON or session .h5"
 
 
 def load_for_report(path: str | os.PathLike[str]) -> Calibration:
@@ -59,20 +43,15 @@ def load_for_report(path: str | os.PathLike[str]) -> Calibration:
         from the readers for malformed files.
     """
     path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: no such file")
-    if path.is_dir():
-        raise InputError(f"{path}: is a directory, expected a calibration JSON or a session .h5")
-    if is_hdf5(path):
+    if is_hdf5_file(path, what=_WHAT):
         return _last_stored_calibration(path)
+    data = read_input(path, what=_WHAT)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = data.decode("utf-8")
     except UnicodeDecodeError:
         raise InputError(
             f"{path}: neither a session (HDF5) nor a calibration (JSON) file"
         ) from None
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
     return calibration_from_json(text, str(path))
 
 
@@ -112,7 +91,7 @@ def load_all_for_history(paths: list[str | os.PathLike[str]]) -> list[Calibratio
     out: list[Calibration] = []
     for item in paths:
         path = Path(item)
-        if path.exists() and not path.is_dir() and is_hdf5(path):
+        if is_hdf5_file(path, what=_WHAT):
             session = read_session(path)
             if not session.calibrations:
                 raise InputError(

@@ -1,0 +1,605 @@
+"""Reliability (issue 11.6): hostile inputs and capture faults, and what became of each.
+
+Rows:
+
+* malformed sessions, configs and calibration JSONs (``tests/hostile.py``, read in-process);
+* 10,000 fuzzed import files (fixed seed): a recording with one to three mutations each (a
+  control character, ``_`` or a non-ASCII digit inside a number, ``nan``, non-UTF-8 bytes,
+  CRLF, a BOM, a cut, a duplicated or swapped line, an extra or missing field, a long line),
+  read in-process (one in ten imported whole, with segmentation); the first 10 also through
+  ``imucal import`` for the real exit status;
+* capture faults through the virtual serial port (``imucal simulate --serve`` ->
+  ``imucal capture``): clean, garbage, malformed lines, a stall, the device vanishing, Ctrl-C,
+  SIGTERM, SIGHUP, ``kill -9``;
+* a full disk: a capture into a small tmpfs (root), else an injected ENOSPC in-process;
+* concurrent calibrations of one session.
+
+Columns: cases; handled (a one-line error with the right exit status, or a right result);
+traceback; hang (over 2 s for a file, or a process that does not end); wrong exit; silent wrong
+(a read that succeeds with values the file does not hold); data lost (samples received or
+flushed that are not in the session, beyond what the tool reported).  The last five must be 0.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import warnings
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # tests/hostile.py: the cases the fast suite runs too
+
+from tests.hostile import (  # noqa: E402
+    BASE_SESSION,
+    calibration_cases,
+    config_cases,
+    session_cases,
+)
+
+CLI = [sys.executable, "-m", "imucal_cli"]
+HANG_S = 2.0
+COLUMNS = ("handled", "traceback", "hang", "wrong exit", "silent wrong", "data lost")
+
+
+@dataclass
+class Row:
+    name: str
+    counts: Counter = field(default_factory=Counter)
+    examples: list[str] = field(default_factory=list)
+
+    def add(self, verdict: str, example: str = "") -> None:
+        self.counts["cases"] += 1
+        self.counts[verdict] += 1
+        if verdict != "handled" and len(self.examples) < 3:
+            self.examples.append(f"{verdict}: {example}"[:160])
+
+
+def _timed(call):
+    """(kind, value, seconds): kind "error" (ImucalError), "ok" or "crash".  A call over
+    :data:`HANG_S` runs once more and the shorter time counts: a real hang (HDF5 retrying a
+    damaged file) repeats, a machine busy with other work for a moment does not."""
+    kind, value, seconds = _timed_once(call)
+    if seconds > HANG_S and kind != "crash":
+        seconds = min(seconds, _timed_once(call)[2])
+    return kind, value, seconds
+
+
+def _timed_once(call):
+    from imucal_cli.errors import ImucalError
+
+    start = time.monotonic()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            value = call()
+    except ImucalError as exc:
+        return "error", exc, time.monotonic() - start
+    except Exception as exc:  # noqa: BLE001 - counted as a traceback
+        return "crash", exc, time.monotonic() - start
+    return "ok", value, time.monotonic() - start
+
+
+def _verdict(kind, value, seconds, expect: str, check_ok=None) -> str:
+    if kind == "crash":
+        return "traceback"
+    if seconds > HANG_S:
+        return "hang"
+    if kind == "error":
+        if "\n" in str(value):
+            return "wrong exit"  # not one line
+        return "handled" if expect != "ok" else "wrong exit"
+    if expect == "error":
+        return "silent wrong"
+    if check_ok is not None and not check_ok(value):
+        return "silent wrong"
+    return "handled"
+
+
+# --------------------------------------------------------------------------------------------
+# Hostile files (the cases of the fast suite, with their timings)
+# --------------------------------------------------------------------------------------------
+
+
+def _same_data(a, b) -> bool:
+    def eq(x, y):
+        return (x is None and y is None) or (
+            x is not None and y is not None and x.shape == y.shape and np.array_equal(x, y)
+        )
+
+    return all(eq(getattr(a, k), getattr(b, k)) for k in ("time", "accel", "gyro", "temperature"))
+
+
+def hostile_rows(folder: Path) -> list[Row]:
+    from imucal_cli.formats.calibration import calibration_to_json, read_calibration
+    from imucal_cli.formats.config import Config, load_config
+    from imucal_cli.formats.session import read_session
+    from imucal_cli.pipeline.calibrate import calibrate_session
+
+    sessions = Row("malformed sessions")
+    original = None
+    for name, make, expect in session_cases():
+        path = make(folder)
+        if original is None:
+            original = read_session(folder / "base.h5")
+        kind, value, seconds = _timed(lambda p=path: read_session(p))
+        check = (lambda s, o=original: _same_data(s, o)) if expect == "either" else None
+        sessions.add(_verdict(kind, value, seconds, expect, check), f"{name}: {value}")
+
+    configs = Row("malformed configs")
+    for name, content, expect in config_cases():
+        path = folder / "c.toml"
+        path.write_bytes(content)
+        kind, value, seconds = _timed(lambda p=path: load_config(p))
+        configs.add(_verdict(kind, value, seconds, expect), f"{name}: {value}")
+
+    cal = calibrate_session(read_session(BASE_SESSION.with_name("qureshi18-seed1.h5")), Config())
+    jsons = Row("malformed calibration JSONs")
+    for name, content, expect in calibration_cases(calibration_to_json(cal)):
+        path = folder / "c.json"
+        path.write_bytes(content)
+        kind, value, seconds = _timed(lambda p=path: read_calibration(p))
+        jsons.add(_verdict(kind, value, seconds, expect), f"{name}: {value}")
+    return [sessions, configs, jsons]
+
+
+# --------------------------------------------------------------------------------------------
+# Import fuzzer
+# --------------------------------------------------------------------------------------------
+
+_REJECT_KINDS = ("control", "underscore", "digit", "special", "garbage")
+_STRUCT_KINDS = ("crlf", "bom", "blanks", "comment", "duplicate", "swap", "extra_field",
+                 "missing_field", "long_line", "cut", "empty", "no_header")  # fmt: skip
+_CONTROLS = ["\v", "\f", "\x1c", "\x1d", "\x1e", "\x85", "\u2028", "\u2029", "\x00", "\x1b",
+             "\x7f", "\r"]  # fmt: skip
+_DIGITS = ["\u0660", "\uff10", "\u0966", "\u06f0"]  # Arabic-Indic, fullwidth, Devanagari, ...
+
+
+def base_recording(folder: Path) -> tuple[Path, list[str]]:
+    """A short recording (six poses, 25 Hz) as CSV: a header, then one line per sample."""
+    from imucal_cli.simulate.device import stream_arrays
+
+    t, a, g = stream_arrays("six", rate_hz=25.0, hold_s=1.6, move_s=0.6)
+    lines = ["t,ax,ay,az,gx,gy,gz"] + [
+        f"{ti:.3f}," + ",".join(f"{v:.6g}" for v in (*ai, *gi))
+        for ti, ai, gi in zip(t, a, g, strict=True)
+    ]
+    path = folder / "base.csv"
+    path.write_text("\n".join(lines) + "\n")
+    return path, lines
+
+
+def _time_of(line: str) -> float | None:
+    try:
+        return round(float(line.split(",")[0]), 3)
+    except ValueError:
+        return None
+
+
+def _mutate(lines: list[str], rng: np.random.Generator) -> tuple[str, set[float], list[str]]:
+    """(text, times of the sample lines mutated, kinds applied)."""
+    lines = list(lines)
+    touched: set[float] = set()
+    kinds = []
+    for _ in range(int(rng.integers(1, 4))):
+        kind = str(rng.choice(_REJECT_KINDS + _STRUCT_KINDS))
+        kinds.append(kind)
+        i = int(rng.integers(1, len(lines)))
+        t = _time_of(lines[i])
+        if t is not None and kind not in ("blanks", "comment", "long_line"):
+            touched.add(t)
+        fields = lines[i].split(",")
+        j = int(rng.integers(0, len(fields)))
+        f = fields[j]
+        digits = [k for k, c in enumerate(f) if c.isdigit()]
+        if kind in _REJECT_KINDS:
+            k = int(rng.choice(digits)) if digits else 0
+            if kind == "control":
+                fields[j] = f[:k] + str(rng.choice(_CONTROLS)) + f[k:]
+            elif kind == "underscore":
+                fields[j] = f[: max(k, 1)] + "_" + f[max(k, 1) :]
+            elif kind == "digit" and digits:
+                fields[j] = f[:k] + _DIGITS[int(rng.integers(0, 4))] + f[k + 1 :]
+            elif kind == "special":
+                fields[j] = str(rng.choice(["nan", "inf", "-inf", "1e999", "0x10", "NaN", ""]))
+            else:
+                fields[j] = f + "\udcff\udcfe"  # non-UTF-8 bytes (written with surrogateescape)
+            lines[i] = ",".join(fields)
+        elif kind == "duplicate":
+            lines.insert(i, lines[i])
+        elif kind == "swap" and i + 1 < len(lines):
+            touched.add(_time_of(lines[i + 1]))
+            lines[i], lines[i + 1] = lines[i + 1], lines[i]
+        elif kind == "extra_field":
+            lines[i] += ",1.5"
+        elif kind == "missing_field":
+            lines[i] = ",".join(fields[:-1])
+        elif kind == "long_line":
+            lines.insert(i, "9" * 200_000)
+        elif kind == "blanks":
+            lines[i] = "  " + lines[i] + " \t"
+        elif kind == "comment":
+            lines.insert(i, "# " + lines[i])
+        elif kind == "no_header":
+            lines[0] = "1,2,3"
+    text = "\n".join(lines) + "\n"
+    if "crlf" in kinds:
+        text = text.replace("\n", "\r\n")
+    if "bom" in kinds:
+        text = "\ufeff" + text
+    if "cut" in kinds:
+        text = text[: int(rng.integers(0, len(text)))]
+    if "empty" in kinds:
+        text = ""
+    return text, touched, kinds
+
+
+def fuzz_imports(folder: Path, n_files: int, seed: int = 20261123) -> Row:
+    """Each file is read by the import's reader (every file) and segmented into a session
+    (one file in ten, the full ``import_files``); the first 10 also through ``imucal import``."""
+    from imucal_cli.formats.importers import import_files, read_recording
+
+    base, lines = base_recording(folder)
+    truth = {}
+    for line in lines[1:]:
+        values = [float(v) for v in line.split(",")]
+        truth[values[0]] = values[1:]
+    row = Row(f"fuzzed import files (seed {seed})")
+    rng = np.random.default_rng(seed)
+    cli_left = 10
+    for n in range(n_files):
+        text, touched, kinds = _mutate(lines, rng)
+        path = folder / f"f{n % 4}.csv"
+        path.write_bytes(text.encode("utf-8", "surrogateescape"))
+        columns = None if n % 2 else "t,ax,ay,az,gx,gy,gz"
+        read = import_files if n % 10 == 0 else read_recording
+        kind, value, seconds = _timed(lambda p=path, c=columns, r=read: r([p], "csv", c))
+        where = f"file {n} ({'+'.join(kinds)}): {str(value)[:80]}"
+        if kind == "ok":
+            verdict = _check_import(value, truth, touched, kinds)
+            if verdict != "handled":
+                row.add(verdict, where)
+                continue
+        if kind == "error" and getattr(value, "exit_code", 2) != 2:
+            row.add("wrong exit", where)
+            continue
+        verdict = _verdict(kind, value, seconds, "either")
+        if verdict == "handled" and cli_left > 0:
+            cli_left -= 1
+            verdict = _cli_import(path, columns, kind if read is import_files else "unknown")
+        row.add(verdict, where)
+    return row
+
+
+def _check_import(rec, truth, touched, kinds) -> str:
+    """Every sample read must be one of the file's intact lines, unchanged; none lost."""
+    cut_last = "cut" in kinds
+    kept_times = rec.time
+    for k, t in enumerate(kept_times):
+        expected = truth.get(round(float(t), 3))
+        got = [*rec.accel[k], *rec.gyro[k]]
+        if expected is None or got != expected:
+            if cut_last and k == len(kept_times) - 1:
+                continue  # the last line of a cut file may be cut inside a number
+            return "silent wrong"
+    if cut_last or "empty" in kinds:
+        return "handled"
+    kept = {round(float(t), 3) for t in kept_times}
+    missing = set(truth) - kept - touched
+    return "data lost" if missing else "handled"
+
+
+def _cli_import(path: Path, columns: str | None, kind: str) -> str:
+    args = [*CLI, "import", str(path), "-o", str(path.with_suffix(".h5")), "--force"]
+    if columns:
+        args += ["--columns", columns]
+    try:
+        proc = subprocess.run(args, capture_output=True, text=True, timeout=60)
+    except subprocess.TimeoutExpired:
+        return "hang"
+    if "Traceback" in proc.stderr:
+        return "traceback"
+    want = {"ok": (0,), "error": (2,)}.get(kind, (0, 2))
+    if proc.returncode not in want:
+        return "wrong exit"
+    if proc.returncode == 2 and len(proc.stderr.strip().splitlines()) != 1:
+        return "wrong exit"
+    return "handled"
+
+
+# --------------------------------------------------------------------------------------------
+# Capture faults through the virtual serial port
+# --------------------------------------------------------------------------------------------
+
+
+def _server(*args: str) -> tuple[subprocess.Popen, str]:
+    proc = subprocess.Popen([*CLI, "simulate", "--serve", "--rate", "200", *args],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    return proc, proc.stdout.readline().strip()
+
+
+def _sent(server: subprocess.Popen) -> dict | None:
+    try:
+        out, _ = server.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        server.kill()
+        out, _ = server.communicate()
+    m = re.search(r"# sent (\d+) lines, (\d+) malformed", out)
+    return None if m is None else {"lines": int(m[1]), "malformed": int(m[2])}
+
+
+def _capture_case(folder: Path, name: str, server_args, signum=None, after_s=2.5) -> tuple:
+    """Run one capture; return (verdict, detail)."""
+    import h5py
+
+    from imucal_cli.formats.session import read_session
+
+    out = folder / f"{name}.h5"
+    server, port = _server(*server_args)
+    cap = subprocess.Popen([*CLI, "capture", "--port", port, "--output", str(out), "--no-prompt",
+                            "--duration", "30", "--read-timeout", "1.5"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    if signum is not None:
+        end = time.monotonic() + 20
+        while not out.exists() and time.monotonic() < end and cap.poll() is None:
+            time.sleep(0.05)
+        time.sleep(after_s)
+        cap.send_signal(signum)
+    try:
+        stdout, stderr = cap.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        cap.kill()
+        server.kill()
+        return "hang", f"{name}: capture did not end"
+    if signum is not None:
+        server.kill()
+        server.communicate()
+        sent = None
+    else:
+        sent = _sent(server)
+    if "Traceback" in stderr:
+        return "traceback", f"{name}: {stderr.strip()[-120:]}"
+    killed = signum == signal.SIGKILL
+    want = {None: (0, 3), signal.SIGKILL: (-9,)}.get(signum, (3,))
+    if cap.returncode not in want:
+        return "wrong exit", f"{name}: exit {cap.returncode}: {stderr.strip()[-120:]}"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            n_file = read_session(out).time.size
+        except Exception as exc:  # noqa: BLE001
+            return "data lost", f"{name}: unreadable after the capture: {exc}"
+    if not killed:
+        with h5py.File(out, "r"):
+            pass  # closed cleanly: plain HDF5 opens it
+        m = re.search(r"saved (\d+) samples", stdout)
+        if m is None or int(m[1]) != n_file:
+            return "data lost", f"{name}: summary {m and m[1]} vs file {n_file}"
+    if sent is not None and n_file != sent["lines"] - sent["malformed"]:
+        return "data lost", f"{name}: sent {sent}, file {n_file}"
+    return "handled", f"{name}: {n_file} samples"
+
+
+def capture_rows(folder: Path) -> list[Row]:
+    row = Row("capture faults (virtual port)")
+    cases = [
+        ("clean", ["--plan", "six", "--hold", "1", "--vanish-after", "4"], None),
+        ("garbage", ["--plan", "six", "--garbage", "--vanish-after", "4"], None),
+        ("malformed", ["--plan", "six", "--malformed-every", "7", "--vanish-after", "4"], None),
+        ("stall", ["--plan", "six", "--stall-after", "3"], None),
+        ("ctrl-c", ["--plan", "six", "--loop"], signal.SIGINT),
+        ("sigterm", ["--plan", "six", "--loop"], signal.SIGTERM),
+        ("sighup", ["--plan", "six", "--loop"], signal.SIGHUP),
+        ("kill -9", ["--plan", "six", "--loop"], signal.SIGKILL),
+    ]
+    for name, args, signum in cases:
+        verdict, detail = _capture_case(folder, name.replace(" ", ""), args, signum)
+        row.add(verdict, detail)
+    return [row]
+
+
+# --------------------------------------------------------------------------------------------
+# A full disk
+# --------------------------------------------------------------------------------------------
+
+
+def _mount_tmpfs(path: Path, size: str) -> bool:
+    if os.geteuid() != 0 or shutil.which("mount") is None:
+        return False
+    path.mkdir(exist_ok=True)
+    proc = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)],
+                          capture_output=True)  # fmt: skip
+    return proc.returncode == 0
+
+
+def disk_full_rows(folder: Path) -> list[Row]:
+    """Captures into a tmpfs too small for them (or with ENOSPC injected when it cannot be
+    mounted): the capture must stop, exit 3, keep every sample it says it saved, and count
+    the ones it could not write."""
+    import h5py
+
+    from imucal_cli.formats.session import read_session
+
+    mount = folder / "small"
+    real = _mount_tmpfs(mount, "2m")
+    row = Row("disk full (" + ("2 MiB tmpfs" if real else "injected ENOSPC") + ")")
+    try:
+        for k in range(3):
+            if not real:
+                row.add(*_injected_disk_full(folder, k))
+                continue
+            out = mount / f"full{k}.h5"
+            server, port = _server("--plan", "six", "--loop", "--rate", "1000",
+                                   "--baud", "921600")  # fmt: skip
+            cap = subprocess.run([*CLI, "capture", "--port", port, "--baud", "921600",
+                                  "--output", str(out), "--no-prompt", "--duration", "120",
+                                  "--columns", "t,ax,ay,az,gx,gy,gz,temp"],
+                                 capture_output=True, text=True, timeout=180)  # fmt: skip
+            server.kill()
+            server.communicate()
+            detail = f"run {k}: exit {cap.returncode}: {cap.stdout.strip()[-160:]}"
+            if "Traceback" in cap.stderr:
+                row.add("traceback", cap.stderr[-160:])
+                continue
+            if cap.returncode != 3 or "disk-full" not in cap.stdout:
+                row.add("wrong exit", detail)
+                continue
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                n = read_session(out).time.size
+            with h5py.File(out, "r"):
+                pass
+            saved = re.search(r"saved (\d+) samples", cap.stdout)
+            lines = re.search(r"lines (\d+), comments (\d+), malformed (\d+)", cap.stdout)
+            lost = re.search(r"(\d+) received samples could not be written", cap.stdout)
+            received = int(lines[1]) - int(lines[2]) - int(lines[3])
+            lost_n = int(lost[1]) if lost else 0
+            ok = saved and int(saved[1]) == n and received - lost_n == n
+            row.add("handled" if ok else "data lost", detail)
+            out.unlink()
+    finally:
+        if real:
+            subprocess.run(["umount", str(mount)], check=False)
+    return [row]
+
+
+def _injected_disk_full(folder: Path, k: int) -> tuple[str, str]:
+    import h5py
+
+    from imucal_cli.capture.recorder import Recorder
+    from imucal_cli.capture.stream import LineProtocol
+    from imucal_cli.formats.columns import ColumnSpec
+    from imucal_cli.formats.session import read_session
+
+    state = {"reads": 0}
+    original = h5py.Dataset.__setitem__
+
+    def setitem(ds, key, value):
+        if state["reads"] > 20 + 10 * k and ds.name.startswith("/raw"):
+            raise OSError(28, "No space left on device")
+        return original(ds, key, value)
+
+    class Source:
+        uri = "bench"
+
+        def read(self):
+            state["reads"] += 1
+            n0 = state["reads"] * 50
+            return b"".join(f"{(n0 + i) * 0.001:.3f},0,0,9.8,0,0,0\n".encode() for i in range(50))
+
+        def close(self):
+            pass
+
+        def describe(self):
+            return "bench source"
+
+    out = folder / f"injected{k}.h5"
+    h5py.Dataset.__setitem__ = setitem
+    try:
+        rec = Recorder(out, Source(), LineProtocol(ColumnSpec.parse("t,ax,ay,az,gx,gy,gz")))
+        for _ in rec.blocks():
+            if state["reads"] > 200:
+                rec.stop()
+        rec.close()
+    finally:
+        h5py.Dataset.__setitem__ = original
+    received = rec.protocol.stats["samples"]
+    n = read_session(out).time.size
+    if rec.end_kind != "disk-full":
+        return "wrong exit", f"injected {k}: ended {rec.end_kind}"
+    ok = n == received - rec.samples_lost
+    return ("handled" if ok else "data lost"), f"injected {k}: {n} of {received}"
+
+
+# --------------------------------------------------------------------------------------------
+# Concurrent calibrations
+# --------------------------------------------------------------------------------------------
+
+
+def concurrent_rows(folder: Path, n: int = 8) -> list[Row]:
+    from imucal_cli.formats.session import read_session
+
+    session = Path(shutil.copy(BASE_SESSION.with_name("qureshi18-seed1.h5"), folder / "q.h5"))
+    before = read_session(session)
+    procs = [subprocess.Popen([*CLI, "calibrate", str(session), "-o", str(folder / f"c{i}.json")],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for i in range(n)]  # fmt: skip
+    row = Row(f"concurrent calibrations ({n} of one session)")
+    results = []
+    for p in procs:
+        try:
+            out, err = p.communicate(timeout=300)
+            results.append((p.returncode, err))
+        except subprocess.TimeoutExpired:
+            p.kill()
+            results.append((None, "timeout"))
+    after = read_session(session)
+    stored = len(after.calibrations)
+    for code, err in results:
+        if code is None:
+            row.add("hang", err)
+        elif "Traceback" in err:
+            row.add("traceback", err[-160:])
+        elif code != 0:
+            row.add("wrong exit", f"exit {code}: {err.strip()}")
+        else:
+            row.add("handled")
+    if stored != n or not _same_data(before, after):
+        row.counts["data lost"] += 1
+        row.examples.append(f"data lost: {stored} of {n} stored")
+    return [row]
+
+
+# --------------------------------------------------------------------------------------------
+
+
+def run(console: Console, quick: bool = False) -> bool:
+    """Run every part, print the table; return whether the last five columns are all 0."""
+    n_files = 1000 if quick else 10_000
+    rows: list[Row] = []
+    timings = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        for name, part in [
+            ("hostile files", lambda: hostile_rows(folder)),
+            ("import fuzzer", lambda: [fuzz_imports(folder, n_files)]),
+            ("capture faults", lambda: capture_rows(folder)),
+            ("disk full", lambda: disk_full_rows(folder)),
+            ("concurrent", lambda: concurrent_rows(folder)),
+        ]:
+            start = time.monotonic()
+            rows += part()
+            timings[name] = time.monotonic() - start
+    table = Table(title="Reliability (issue 11.6): what became of each hostile input or fault")
+    table.add_column("suite")
+    table.add_column("cases", justify="right")
+    for column in COLUMNS:
+        table.add_column(column, justify="right")
+    for row in rows:
+        table.add_row(row.name, str(row.counts["cases"]),
+                      *(str(row.counts[c]) for c in COLUMNS))  # fmt: skip
+    console.print(table)
+    console.print(
+        "time: " + ", ".join(f"{k} {v:.0f} s" for k, v in timings.items()),
+        highlight=False,
+    )
+    bad = [(row, ex) for row in rows for ex in row.examples]
+    for row, example in bad:
+        console.print(f"  {row.name}: {example}", highlight=False, markup=False)
+    return all(row.counts[c] == 0 for row in rows for c in COLUMNS[1:])
+
+
+if __name__ == "__main__":
+    raise SystemExit(0 if run(Console(width=160), quick="--quick" in sys.argv) else 1)
