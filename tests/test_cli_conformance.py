@@ -163,6 +163,9 @@ def test_every_command_that_prints_results_has_json(calibrated, tmp_path):
     csv = tmp_path / "raw.csv"
     csv.write_text("t,ax,ay,az\n" + "".join(f"{i / 100},0,0,{9.8 + (i % 3) * 1e-3}\n"
                                              for i in range(600)))  # fmt: skip
+    many = [tmp_path / "a.h5", tmp_path / "b.h5"]  # results beside them, none there yet
+    for copy in many:
+        copy.write_bytes((calibrated / "s.h5").read_bytes())
     cases = {
         "imucal-simulate": ["simulate", "--plan", "six", "-o", tmp_path / "j.h5", "--json"],
         "imucal-calibrate": ["calibrate", calibrated / "s.h5", "-o", tmp_path / "j.cal.json",
@@ -172,8 +175,7 @@ def test_every_command_that_prints_results_has_json(calibrated, tmp_path):
                          tmp_path / "o.h5", "--json"],
         "imucal-import": ["import", csv, "-o", tmp_path / "raw.h5", "--json"],
         "imucal-label": ["label", calibrated / "s.h5", "--faces", "--dry-run", "--json"],
-        "imucal-calibrate-many": ["calibrate", calibrated / "s.h5", calibrated / "s.h5",
-                                  "--no-store", "--json"],
+        "imucal-calibrate-many": ["calibrate", *many, "--no-store", "--json"],
         "imucal-history": ["report", calibrated / "s.cal.json", calibrated / "s.cal.json",
                            "--json"],
     }  # fmt: skip
