@@ -15,6 +15,8 @@ from bench import (
     labelled,
     reliability,
     speed,
+    temperature,
+    trust,
     trust_gyro,
 )
 
@@ -24,10 +26,12 @@ BENCHMARKS = (
     "factorization",
     "gyro",
     "gyro-speed",
+    "trust",
     "trust-gyro",
     "capture",
     "speed",
     "reliability",
+    "temperature",
 )
 
 
@@ -55,6 +59,8 @@ def main() -> None:
         ok = gyro.run(console, n_seeds=max(20, args.seeds // 2)) and ok
     if args.only in (None, "gyro-speed"):
         ok = gyro_speed.run(console) and ok
+    if args.only in (None, "trust"):
+        ok = trust.run(console, n_seeds=max(5, args.seeds // 20)) and ok
     if args.only in (None, "trust-gyro"):
         ok = trust_gyro.run(console, n_seeds=max(5, args.seeds // 20)) and ok
     if args.only in (None, "capture"):
@@ -63,6 +69,8 @@ def main() -> None:
         ok = speed.run(console, runs=args.runs, n_sessions=args.sessions) and ok
     if args.only in (None, "reliability"):
         ok = reliability.run(console, quick=args.quick) and ok
+    if args.only in (None, "temperature"):
+        ok = temperature.run(console, n_seeds=max(2, args.seeds // 50)) and ok
     raise SystemExit(0 if ok else 1)
 
 

@@ -171,6 +171,7 @@ class Recorder:
         self.samples_lost = 0  #: samples received but not written (disk full)
         self.resumed_from = 0  #: samples the session held before this capture (``resume``)
         self._time_offset: float | None = None  # added to this capture's time stamps (resume)
+        self._host_offset: float | None = None  # the same for host arrival times (resume)
         self._resume_gap_s = 0.0
         self._segments_before = 0  # the resumed session's own segments (not this capture's)
         if resume:
@@ -255,6 +256,7 @@ class Recorder:
             gyro_channels=None if block.gyro is None else block.gyro.shape[1],
             mag_channels=None if block.mag is None else block.mag.shape[1],
             temperature=block.temperature is not None,
+            host_time=block.host_time is not None,
             flush_interval_s=FLUSH_INTERVAL_S,
             overwrite=self._overwrite,
             publish_early=True,
@@ -265,16 +267,23 @@ class Recorder:
     def _append(self, block: SampleBlock) -> CaptureEnded | None:
         if self._writer is None:
             self._open_writer(block)
-        time = block.time
+        time, host = block.time, block.host_time
+        if not self._writer.records_host_time:
+            host = None  # a resumed session recorded without host arrival times
         if self.resumed_from:
+            gap = max(self._resume_gap_s, 1e-3)
             if self._time_offset is None:
                 # The device's clock restarts: the new samples follow the old ones after the
                 # time the capture was stopped (the file's last flush), on the old time axis.
-                gap = max(self._resume_gap_s, 1e-3)
                 self._time_offset = self._writer.last_time + gap - float(time[0])
             time = time + self._time_offset
+            if host is not None and self._writer.resumed_host_time is not None:
+                if self._host_offset is None:  # the host clock too: after the same gap
+                    self._host_offset = self._writer.resumed_host_time + gap - float(host[0])
+                host = host + self._host_offset
         try:
-            self._writer.append(time, block.accel, block.gyro, block.temperature, block.mag)
+            self._writer.append(time, block.accel, block.gyro, block.temperature, block.mag,
+                                host_time=host)  # fmt: skip
         except WriteFailed as exc:
             return self._write_failed(exc)
         if self._device_first is None:
@@ -455,6 +464,7 @@ class Recorder:
         up: np.ndarray | None = None,
         axis: np.ndarray | None = None,
         angle_deg: float | None = None,
+        extra: dict | None = None,
     ) -> str:
         """Mark samples ``[start, stop)`` as a segment (see
         :meth:`imucal_cli.formats.session.SessionWriter.add_segment`); return its name.
@@ -471,7 +481,8 @@ class Recorder:
             raise SessionError(f"{self.path}: no samples recorded, so no segment can be added")
         try:
             return self._writer.add_segment(
-                kind, start, stop, label=label, up=up, axis=axis, angle_deg=angle_deg
+                kind, start, stop, label=label, up=up, axis=axis, angle_deg=angle_deg,
+                extra=extra,
             )
         except WriteFailed as exc:
             ended = self._write_failed(exc)

@@ -164,6 +164,7 @@ class LineProtocol:
             block = self.columns.to_block(rows, self._host_stamps(rows.shape[0], host_time))
         else:
             block = self.columns.to_block(rows)
+            block.host_time = np.full(len(block), float(host_time))  # arrival, host clock
             keep = self._accept_device_times(block.time)
             if keep is not None:
                 block = block.take(keep)

@@ -67,6 +67,21 @@ def calibrate(
         help="Use this earlier accelerometer calibration (a calibration JSON, or a session .h5 "
         "with a stored one) instead of calibrating the accelerometer: a gyro-only session.",
     ),
+    warmup: list[Path] | None = typer.Option(
+        None,
+        "--warmup",
+        metavar="WARMUP.h5",
+        help="A still recording of the same unit through a warm-up or cool-down (repeatable): "
+        "its temperature curve gives each channel's bias as a polynomial in temperature "
+        "(bias_tempco; at least 10 C of span). Capture one with --plan warmup:MINUTES.",
+    ),
+    also: list[Path] | None = typer.Option(
+        None,
+        "--with",
+        metavar="OTHER.h5",
+        help="Another session of the same unit at another temperature (repeatable): its still "
+        "periods and turns join SESSION's, so that the temperature model spans them all.",
+    ),
     jobs: int = typer.Option(
         1, "--jobs", "-j", metavar="N", help="Several sessions: worker processes (0: one per CPU)."
     ),
@@ -101,14 +116,18 @@ def calibrate(
 
         accel_cal = load_accel(accel)
 
+    if len(sessions) > 1 and (warmup or also):
+        raise InputError("--warmup and --with go with one SESSION (give the other sessions of "
+                         "the unit with --with)")  # fmt: skip
     if len(sessions) > 1:
         if output is not None:
             raise InputError("--output names one file: with several sessions each goes to "
                              "SESSION.cal.json")  # fmt: skip
         raise typer.Exit(_many(sessions, cfg, jobs, force, store, json_output, accel_cal))
     cal, out, stored = calibrate_file(
-        sessions[0], cfg, output=output, force=force, store=store, inputs=[config, accel],
-        accel=accel_cal,
+        sessions[0], cfg, output=output, force=force, store=store,
+        inputs=[config, accel, *(warmup or []), *(also or [])], accel=accel_cal, warmup=warmup,
+        also=also,
     )  # fmt: skip
     # Saved: from here on the exit status is 0, or 1 with the reason (never 2).
     if json_output:
@@ -248,8 +267,31 @@ def _summary(console: Console, cal, where: str) -> None:
             + ", ".join(f"{v:.5g}" for v in x.get("sensitivity", []))
             + f" {units} per {per}"
         )
+        _temperature_line(console, x, units)
         for w in x.get("warnings", []):
             console.print(f"  [bold yellow]warning[/]: {escape(w)}")
     if cal.extra.get("gyro_note"):
         console.print(f"[bold]gyro[/]: {escape(cal.extra['gyro_note'])}")
+    if cal.extra.get("temperature_note"):
+        console.print(f"[bold]temperature[/]: {escape(cal.extra['temperature_note'])}")
+    clock = cal.extra.get("sample_clock") or {}
+    if "ppm" in clock:
+        console.print(f"[bold]sample clock[/]: {clock['ppm']:+.1f} ± {clock['ppm_std']:.1f} ppm "
+                      f"(device s per true s - 1, over {clock['duration_s']:.0f} s; gyro "
+                      "corrected)")  # fmt: skip
+    elif clock.get("note"):
+        console.print(f"[bold]sample clock[/]: {escape(clock['note'])}")
     console.print(f"wrote {escape(where)}")
+
+
+def _temperature_line(console: Console, x: dict, units: str) -> None:
+    """The bias temperature model of a section, when it has one."""
+    model = x.get("temperature_model")
+    if not model or "bias_tempco" not in x:
+        return
+    lo, hi = model["range_c"]
+    console.print(
+        f"  temperature: bias polynomial of degree {', '.join(map(str, model['degree']))} per "
+        f"channel about {x['temperature_ref']:.1f} C, fitted over {lo:.1f} .. {hi:.1f} C "
+        f"({escape(model['source'])}); {units} per C^k"
+    )

@@ -92,7 +92,63 @@ class SensorCalibration:
             raise CalibrationFileError(f"g_sensitivity must be {n} x 3 finite numbers")
         return g if g.any() else None
 
-    def apply(self, raw: np.ndarray, accel: np.ndarray | None = None) -> np.ndarray:
+    @property
+    def temperature_terms(self) -> tuple[float, np.ndarray] | None:
+        """The optional ``temperature_ref`` (degrees C) and ``bias_tempco`` (K x n, raw units
+        per C^k) terms, None when absent (or K = 0).
+
+        Raises
+        ------
+        CalibrationFileError
+            One without the other, or not finite numbers of the right shape.
+        """
+        return _temperature_terms(self.extra, self.bias.shape[0])
+
+    @property
+    def sample_clock_scale(self) -> float | None:
+        """The optional ``sample_clock_scale`` (device seconds per true second), or None.
+
+        Raises
+        ------
+        CalibrationFileError
+            Present but not a finite number between 0.5 and 2.
+        """
+        value = self.extra.get("sample_clock_scale")
+        if value is None:
+            return None
+        if not (_is_number(value) and math.isfinite(value) and 0.5 < value < 2.0):
+            raise CalibrationFileError(
+                f"sample_clock_scale must be a number of device seconds per true second "
+                f"(near 1), got {value!r}"
+            )
+        return float(value)
+
+    def bias_at(self, temperature: np.ndarray | float | None = None) -> np.ndarray:
+        """The bias at each temperature, (N, n) raw units (``bias`` alone, shape (n,), when the
+        section has no temperature terms):
+        ``bias + sum_k bias_tempco[k-1] (T - temperature_ref)^k``.
+
+        Raises
+        ------
+        CalibrationFileError
+            The section has temperature terms and ``temperature`` is None.
+        """
+        terms = self.temperature_terms
+        if terms is None:
+            return self.bias
+        if temperature is None:
+            raise CalibrationFileError(
+                "the calibration holds bias_tempco (a temperature-dependent bias): it needs "
+                "the temperature of each sample"
+            )
+        t_ref, tempco = terms
+        dt = np.atleast_1d(np.asarray(temperature, dtype=np.float64)) - t_ref
+        return self.bias + (dt[:, None] ** np.arange(1, len(tempco) + 1)) @ tempco
+
+    def apply(
+        self, raw: np.ndarray, accel: np.ndarray | None = None,
+        temperature: np.ndarray | None = None,
+    ) -> np.ndarray:  # fmt: skip
         """Calibrate raw samples.
 
         Parameters
@@ -102,6 +158,9 @@ class SensorCalibration:
         accel : ndarray, shape (N, 3) or (3,), optional
             The calibrated accelerometer of the same samples, m/s^2: needed when the section
             holds ``g_sensitivity``, subtracted as ``raw - bias - g_sensitivity @ accel``.
+        temperature : ndarray, shape (N,) or float, optional
+            Degrees C of each sample: needed when the section holds ``bias_tempco``
+            (:meth:`bias_at`); a NaN temperature gives a NaN output.
 
         Returns
         -------
@@ -112,7 +171,8 @@ class SensorCalibration:
         ------
         CalibrationFileError
             ``raw`` does not have n channels in its last axis, or the section holds
-            ``g_sensitivity`` and ``accel`` is not given.
+            ``g_sensitivity`` and ``accel`` is not given, or ``bias_tempco`` and
+            ``temperature`` is not given.
         """
         raw = np.asarray(raw, dtype=np.float64)
         n = self.bias.shape[0]
@@ -121,14 +181,21 @@ class SensorCalibration:
                 f"cannot apply a calibration for {n} raw channels to data of shape {raw.shape}"
             )
         gs = self.g_sensitivity
+        bias = self.bias
+        if self.temperature_terms is not None:
+            bias = self.bias_at(temperature)
+            if raw.ndim == 1 and len(bias) == 1:
+                bias = bias[0]
+            elif len(bias) not in (1, raw.shape[0]) or raw.ndim == 1:
+                raise CalibrationFileError(f"{len(bias)} temperatures for {len(raw)} samples")
         if gs is None:
-            return (raw - self.bias) @ self.matrix.T
+            return (raw - bias) @ self.matrix.T
         if accel is None:
             raise CalibrationFileError(
                 "the gyro calibration holds g_sensitivity: it needs the calibrated "
                 "accelerometer of the same samples"
             )
-        return (raw - self.bias - np.asarray(accel, dtype=np.float64) @ gs.T) @ self.matrix.T
+        return (raw - bias - np.asarray(accel, dtype=np.float64) @ gs.T) @ self.matrix.T
 
     def to_dict(self) -> dict:
         """Return the JSON section: standard fields first, then ``extra``."""
@@ -239,6 +306,27 @@ def _is_finite_list(value: Any) -> bool:
     return isinstance(value, list) and all(_is_number(v) and math.isfinite(v) for v in value)
 
 
+def _temperature_terms(extra: dict, n: int) -> tuple[float, np.ndarray] | None:
+    """``(temperature_ref, bias_tempco (K, n))`` of a section's fields, None when absent."""
+    ref, tempco = extra.get("temperature_ref"), extra.get("bias_tempco")
+    if ref is None and tempco is None:
+        return None
+    if ref is None or tempco is None:
+        have, miss = ("temperature_ref", "bias_tempco") if tempco is None else (
+            "bias_tempco", "temperature_ref")  # fmt: skip
+        raise CalibrationFileError(f"{have} without {miss}: the temperature model is incomplete")
+    if not (_is_number(ref) and math.isfinite(ref)):
+        raise CalibrationFileError(f"temperature_ref must be a finite number (C), got {ref!r}")
+    if not (isinstance(tempco, list) and all(_is_finite_list(v) and len(v) == n
+                                              for v in tempco)):  # fmt: skip
+        raise CalibrationFileError(
+            f"bias_tempco must be a list of vectors of {n} finite numbers (one per bias entry)"
+        )
+    if not tempco:
+        return None
+    return float(ref), np.array(tempco, dtype=np.float64).reshape(len(tempco), n)
+
+
 def _parse_section(section: Any, name: str, fail) -> SensorCalibration:
     if not isinstance(section, dict):
         raise fail(f"{name!r} must be an object, got {type(section).__name__}")
@@ -262,7 +350,7 @@ def _parse_section(section: Any, name: str, fail) -> SensorCalibration:
     rms = section.get("residual_rms")
     if rms is not None and not (_is_number(rms) and math.isfinite(rms)):
         raise fail(f"{name}.residual_rms must be a finite number or null, got {rms!r}")
-    return SensorCalibration(
+    sec = SensorCalibration(
         solver=section["solver"],
         units=section["units"],
         bias=np.array(bias, dtype=np.float64),
@@ -270,6 +358,12 @@ def _parse_section(section: Any, name: str, fail) -> SensorCalibration:
         residual_rms=None if rms is None else float(rms),
         extra={k: v for k, v in section.items() if k not in _SECTION_FIELDS},
     )
+    try:  # the optional terms of the spec: refused here when malformed
+        sec.temperature_terms  # noqa: B018
+        sec.sample_clock_scale  # noqa: B018
+    except CalibrationFileError as exc:
+        raise fail(f"{name}.{exc}") from None
+    return sec
 
 
 def _jsonable(value: Any) -> Any:

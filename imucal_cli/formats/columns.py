@@ -210,6 +210,9 @@ class SampleBlock:
         Degrees C.
     mag : ndarray, shape (k, nm), or None
         Raw magnetometer channels.
+    host_time : ndarray, shape (k,), or None
+        When ``time`` is the device's clock: the host's clock when each sample arrived, s
+        (recorded as ``/raw/host_time``: it measures the device clock, issue 17.2).
     """
 
     time: np.ndarray
@@ -217,6 +220,7 @@ class SampleBlock:
     gyro: np.ndarray | None = None
     temperature: np.ndarray | None = None
     mag: np.ndarray | None = None
+    host_time: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.time.shape[0])
@@ -233,7 +237,8 @@ class SampleBlock:
             return None if a is None else a[mask]
 
         return SampleBlock(self.time[mask], pick(self.accel), pick(self.gyro),
-                           pick(self.temperature), pick(self.mag))  # fmt: skip
+                           pick(self.temperature), pick(self.mag),
+                           pick(self.host_time))  # fmt: skip
 
     @staticmethod
     def concatenate(blocks: list[SampleBlock]) -> SampleBlock:
@@ -248,4 +253,5 @@ class SampleBlock:
                 return None
             return np.concatenate([getattr(b, name) for b in blocks])
 
-        return SampleBlock(cat("time"), cat("accel"), cat("gyro"), cat("temperature"), cat("mag"))
+        return SampleBlock(cat("time"), cat("accel"), cat("gyro"), cat("temperature"), cat("mag"),
+                           cat("host_time"))  # fmt: skip

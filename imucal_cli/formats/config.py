@@ -13,6 +13,8 @@ Example (every key optional; these are the defaults)::
     # range = [-32768, 32767]      # raw output range; default inferred from the units/data
     max_scale_error = 0.20       # flag a sensitivity further than this from nominal
     min_separation_deg = 10.0    # poses closer than this count as one direction
+    outliers = "exclude"         # poses that disagree with the rest (a bump, motion during the
+                                 # hold, a wrong label): "exclude", "downweight" or "keep"
 
     [accel.gravity]
     model = "9"                  # "9": eqs. (3)-(8); "12": full matrix aligned to the labels
@@ -58,6 +60,16 @@ Example (every key optional; these are the defaults)::
     refine = true
     # fixture_tolerance_deg = 0.0  # how square the turns are; default: from the data
     max_iterations = 200
+
+    [temperature]                # each channel's bias a polynomial in temperature (issue 17.1)
+    model = "auto"               # "auto": when the still periods span min_span_c or more;
+                                 # "on": always (refused when the data cannot give it); "off"
+    max_degree = 3               # highest degree tried; the data choose (F-tests)
+    min_span_c = 10.0            # narrowest temperature span fitted, C (at least 10)
+
+    [clock]                      # the device's sample clock against the host's (issue 17.2)
+    model = "auto"               # "auto": estimated and corrected when the session records host
+                                 # arrival times (/raw/host_time); "off"
 
 Unknown keys and wrong types are errors (a typo must not silently fall back to a default).
 Every value is checked against the rule of its key (:func:`setting`: finite, within bounds, one
@@ -302,6 +314,7 @@ class AccelConfig:
     range: list[float] | None = setting(None, "range")
     max_scale_error: float = setting(0.20, "number", gt=0, lt=1)
     min_separation_deg: float = setting(10.0, "number", gt=0, lt=90, unit=_DEG)
+    outliers: str = setting("exclude", "text", choices=("exclude", "downweight", "keep"))
     gravity: GravityOptions = field(default_factory=GravityOptions)
     labelled: LabelledOptions = field(default_factory=LabelledOptions)
     factorization: AccelFactorizationOptions = field(default_factory=AccelFactorizationOptions)
@@ -339,12 +352,30 @@ class GyroConfig:
 
 
 @dataclass
+class TemperatureConfig:
+    """``[temperature]``: the bias temperature model (issue 17.1)."""
+
+    model: str = setting("auto", "text", choices=("auto", "on", "off"))
+    max_degree: int = setting(3, "count", ge=1, le=3)
+    min_span_c: float = setting(10.0, "number", ge=10.0, le=200.0, unit="C")
+
+
+@dataclass
+class ClockConfig:
+    """``[clock]``: the device's sample clock against the host's (issue 17.2)."""
+
+    model: str = setting("auto", "text", choices=("auto", "off"))
+
+
+@dataclass
 class Config:
     """The whole configuration."""
 
     gravity: float | None = setting(None, "number", gt=9.0, lt=10.5, unit="m/s^2")
     accel: AccelConfig = field(default_factory=AccelConfig)
     gyro: GyroConfig = field(default_factory=GyroConfig)
+    temperature: TemperatureConfig = field(default_factory=TemperatureConfig)
+    clock: ClockConfig = field(default_factory=ClockConfig)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict (for recording in the calibration JSON); None values dropped."""

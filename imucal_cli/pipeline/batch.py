@@ -66,12 +66,16 @@ def calibrate_file(
     store: bool = True,
     inputs: Sequence[Path | None] = (),
     accel=None,
+    warmup: list[Path] | None = None,
+    also: list[Path] | None = None,
 ) -> tuple[Calibration, Path, str]:
     """Calibrate one session file, write its JSON and store it in the session.
 
     The output is refused before anything is solved when it exists (without ``force``) or is
     the session or one of ``inputs``; it is written through
-    :func:`imucal_cli.formats.output.write_output`.
+    :func:`imucal_cli.formats.output.write_output`.  ``warmup``: still warm-up recordings of
+    the unit (the bias temperature model); ``also``: more sessions of the unit, merged with this
+    one (:func:`~imucal_cli.pipeline.temperature.merge_sessions`).
 
     Returns
     -------
@@ -91,7 +95,14 @@ def calibrate_file(
     inputs = [path, *inputs]
     check_output(out, force=force, inputs=inputs)  # refuse before solving, not after
     session = read_session(path)
-    cal = calibrate_session(session, cfg, name=path.name, accel=accel)
+    if also:
+        from imucal_cli.pipeline.temperature import merge_sessions
+
+        session = merge_sessions([session, *(read_session(p) for p in also)])
+    warm = [read_session(p) for p in warmup] if warmup else None
+    cal = calibrate_session(session, cfg, name=path.name, accel=accel, warmup=warm)
+    if also:
+        cal.extra["sessions"] = [path.name, *(p.name for p in also)]
     problem = suspect_error(cal)
     if problem is not None and not force:
         raise problem

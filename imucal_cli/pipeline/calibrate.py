@@ -185,23 +185,51 @@ def _accel_or_hint(session: Session, cfg: Config) -> SensorCalibration | None:
         ) from None
 
 
+def _prepare(
+    session: Session, cfg: Config, warmup: list[Session] | None
+) -> tuple[Session, dict, dict]:  # fmt: skip
+    """The session the solvers see: the sample clock corrected (issue 17.2) and the raw data
+    compensated to the temperature model's reference (issue 17.1). Returns it, the
+    temperature models per sensor, and root fields (the clock estimate, notes)."""
+    from imucal_cli.pipeline.clock import correct_clock
+    from imucal_cli.pipeline.temperature import compensate, temperature_models
+
+    session, clock = correct_clock(session, cfg)
+    models, note = temperature_models(session, cfg, warmup)
+    root: dict = {}
+    if clock is not None:
+        root["sample_clock"] = clock
+    if note:
+        root["temperature_note"] = note
+    return (compensate(session, models) if models else session), models, root
+
+
 def calibrate_session(
     session: Session, cfg: Config, *, name: str | None = None,
-    accel: SensorCalibration | None = None,
+    accel: SensorCalibration | None = None, warmup: list[Session] | None = None,
 ) -> Calibration:  # fmt: skip
     """Calibrate every sensor the config asks for; returns the calibration (not yet saved).
 
     ``name`` is what the calibration records as its session (default: the session's path).
     ``accel``: an accelerometer calibrated earlier (``--accel``): used as it is, and copied
     into the result, instead of calibrating the accelerometer from this session.
+    ``warmup``: still warm-up recordings of the same unit that give the bias temperature
+    model (:mod:`imucal_cli.pipeline.temperature`).
     """
+    from imucal_cli.pipeline.temperature import attach
+
     if cfg.accel.solver == "none" and cfg.gyro.solver == "none" and accel is None:
         raise ConfigError("the config calibrates nothing: [accel] and [gyro] solver are both none")
     session, segmented = with_segments(session)
+    session, models, root = _prepare(session, cfg, warmup)
+    given = accel
     if accel is None:
         accel = _accel_or_hint(session, cfg)
         segmented_accel = True
     else:
+        from imucal_cli.pipeline.temperature import given_accel
+
+        session, accel = given_accel(session, accel)
         segmented_accel = False
     if cfg.gyro.solver == "auto":
         gyro, gyro_note = calibrate_gyro_auto(session, cfg, accel)
@@ -215,7 +243,12 @@ def calibrate_session(
     for sec in (accel if segmented_accel else None, gyro):
         if sec is not None and segmented:
             sec.extra.setdefault("notes", []).insert(0, segmented)
-    extra = {"toolkit_version": __version__, "config": cfg.to_dict()}
+    attach(accel if segmented_accel else None, models.get("accel"))
+    attach(gyro, models.get("gyro"))
+    if gyro is not None and "scale" in root.get("sample_clock", {}):
+        gyro.extra["sample_clock_scale"] = root["sample_clock"]["scale"]
+        gyro.extra["sample_clock"] = root["sample_clock"]
+    extra = {"toolkit_version": __version__, "config": cfg.to_dict(), **root}
     if gyro_note:
         extra["gyro_note"] = gyro_note
     if session.sensor:
@@ -223,7 +256,7 @@ def calibrate_session(
     if session.source:  # "simulator", "serial:...": the report's context (paper figures or not)
         extra["source"] = session.source
     return Calibration(
-        accel=accel,
+        accel=accel if given is None else given,
         gyro=gyro,
         session=name or session_name(session),
         created=utc_now_iso(),
@@ -232,8 +265,16 @@ def calibrate_session(
 
 
 def suspect_error(cal: Calibration) -> SolverError | None:
-    """A :class:`SolverError` describing the physical-sense warnings, or None when clean."""
-    warnings = [w for sec in (cal.accel, cal.gyro) if sec for w in sec.extra.get("warnings", [])]
+    """A :class:`SolverError` describing what stops a save (results outside physical sense, a
+    fit far above the noise), or None when clean. A section that lists ``blocking`` warnings
+    stops on those only (its other warnings are said, not refused); otherwise every warning
+    stops it."""
+    warnings = [
+        w
+        for sec in (cal.accel, cal.gyro)
+        if sec
+        for w in sec.extra.get("blocking", sec.extra.get("warnings", []))
+    ]
     if not warnings:
         return None
     more = f" (and {len(warnings) - 1} more)" if len(warnings) > 1 else ""

@@ -38,6 +38,7 @@ from scipy.spatial.transform import Rotation
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.session import Session
+from imucal_cli.plans import load_plan
 from imucal_cli.simulate.motion import (
     EZ,
     Timeline,
@@ -48,10 +49,10 @@ from imucal_cli.simulate.motion import (
     up_to_vertical,
 )
 from imucal_cli.simulate.sensor import G0, UNITS, random_imu, spawn
+from imucal_cli.simulate.temperature import Ramp, temperatures, thermal_part
 from imucal_cli.simulate.triad import sensor_name
 
 __all__ = [
-    "GYRO_PLANS",
     "LEVELLING",
     "MAX_PEAK_RATE_DPS",
     "MIN_TURN_DEG",
@@ -60,9 +61,6 @@ __all__ = [
     "parse_gyro_plan",
     "simulate_gyro_rotations",
 ]
-
-GYRO_PLANS = ("qureshi-axes", "free:N")
-"""Plan names of ``imucal simulate`` served by this module."""
 
 SMOOTHERSTEP_PEAK = 1.875
 """Peak of the smootherstep rate ``30 tau^2 (1 - tau)^2``: peak rate = 1.875 angle / duration."""
@@ -211,6 +209,8 @@ def simulate_gyro_rotations(
     gravity: float = G0,
     created: str | None = None,
     count: int | None = None,
+    temperature: Ramp | None = None,
+    clock_scale: float | None = None,
 ) -> tuple[Session, Calibration]:
     """Simulate hand rotations for gyroscope calibration; return the session and its truth.
 
@@ -268,6 +268,12 @@ def simulate_gyro_rotations(
         ISO 8601 UTC creation time; default now.
     count : int, optional
         Number of turns of plan ``free`` (the N of ``free:N``; both may be given if equal).
+    temperature : Ramp, optional
+        The part's temperature through the session: its biases follow it
+        (:mod:`imucal_cli.simulate.temperature`) and the reading is recorded.
+    clock_scale : float, optional
+        The part's clock runs this many device seconds per true second: device times and
+        the host's arrival times are recorded (:mod:`imucal_cli.simulate.clock`).
 
     Returns
     -------
@@ -335,11 +341,25 @@ def simulate_gyro_rotations(
         "true_up": _floats(unit(np.array([u for u, _ in stills]))),
         "labelled_up": [lab for _, lab in stills],
     }
-    return truth.session_and_truth(
+    thermal = None
+    if temperature is not None:
+        truth = thermal_part(truth, opt["seed"])
+        thermal = temperatures(temperature, np.arange(n_total) / opt["rate_hz"], opt["seed"])
+        opt["temperature"] = temperature.options()
+    if clock_scale is not None:
+        opt["clock_scale"] = float(clock_scale)
+    session, cal = truth.session_and_truth(
         {"accel": force, "gyro": rate}, tl.segments, noise_seed=noise_ss, options=opt,
         sensor=sensor_name(opt["seed"]), created=created, root={"jitter_deg": opt["jitter_deg"]},
         extras={"accel": accel_extra, "gyro": {"design": design, **_turn_record(rec, opt)}},
+        temperature=thermal,
     )  # fmt: skip
+    if clock_scale is not None:
+        from imucal_cli.simulate.clock import with_clock
+
+        session = with_clock(session, clock_scale, opt["seed"])
+        cal.gyro.extra["sample_clock_scale"] = float(clock_scale)
+    return session, cal
 
 
 def _floats(a) -> list:
@@ -428,32 +448,30 @@ def _draw_turns(prng: np.random.Generator, groups: list, opt: dict) -> tuple[lis
 
 def _turn_timeline(opt, groups, starts, timed, n_still, n_move):
     """The motion: per starting face a move to it (after the first), then still, turn,
-    still, ...  Returns the timeline, the per-turn record and (true up, labelled up) of each
-    still."""
-    eye = np.eye(3)
+    still, ...; each segment is the registry plan's step (:func:`imucal_cli.plans.load_plan`).
+    Returns the timeline, the per-turn record and (true up, labelled up) of each still."""
+    steps = iter(load_plan(opt["plan"] if opt["count"] else f"qureshi-axes:"
+                           f"{opt['rotations_per_axis']}").steps)  # fmt: skip
     tl = Timeline(opt["rate_hz"], opt["gravity"], starts[0])
     stills: list[tuple[np.ndarray, list[float] | None]] = []
     rec = {k: [] for k in ("seg", "label", "axis_name", "angle", "axis", "nominal", "peak", "dur")}
 
-    def still(label: str, up: np.ndarray | None) -> None:
-        tl.segment("static", tl.hold(n_still), label, up=up)
-        stills.append((tl.att.inv().apply(EZ), None if up is None else _floats(up)))
+    def still() -> None:
+        seg = tl.segment("static", tl.hold(n_still), **next(steps).segment_attrs())
+        stills.append((tl.att.inv().apply(EZ), None if seg.up is None else _floats(seg.up)))
 
-    for g, ((axis_name, face, face_label), turns) in enumerate(zip(groups, timed, strict=True)):
+    for g, ((axis_name, _, _), turns) in enumerate(zip(groups, timed, strict=True)):
         if g > 0:  # lay the unit on the next starting face (unsegmented move)
             tl.move(starts[g], n_move)
-        tag = f"{axis_name} turn" if axis_name else "turn"
-        for k, (nominal, u, a, n, dur) in enumerate(turns, start=1):
-            where = f", {face_label} up" if k == 1 else ""
-            still(f"still before {tag} {k}{where}", eye[face] if k == 1 else None)
-            label = f"turn {k} about {axis_name}" if axis_name else f"turn {k}"
-            seg = tl.segment("rotation", tl.smooth_turn(u, a, n), label, axis=nominal)
+        for nominal, u, a, n, dur in turns:
+            still()
+            seg = tl.segment("rotation", tl.smooth_turn(u, a, n), **next(steps).segment_attrs())
             for key, value in zip(
-                rec, (seg.name, label, axis_name, a, u, nominal, SMOOTHERSTEP_PEAK * abs(a) / dur,
-                      dur), strict=True,
+                rec, (seg.name, seg.label, axis_name, a, u, nominal,
+                      SMOOTHERSTEP_PEAK * abs(a) / dur, dur), strict=True,
             ):  # fmt: skip
                 rec[key].append(value)
-        still(f"still after {tag} {len(turns)}", None)
+        still()
     return tl, rec, stills
 
 

@@ -5,13 +5,16 @@ a magnetometer or a temperature-dependent term is one more group or one more fie
 mapping a physical 3-vector ``x`` (fixture frame, in the group's ``input_unit``) to its raw
 channels::
 
-    raw = clip(quantise(S @ (x + n_in) + b + n_out), low, high)
+    raw = clip(quantise(S @ (x + n_in) + b + sum_k c_k (T - T_ref)^k + n_out), low, high)
 
 ``S`` (n x 3) is the sensitivity (row i = channel i's sensitivity axis times its gain, raw units
 per input unit), ``b`` (n,) the bias in raw units, ``n_in`` white input-referred noise (input
 units, per axis) and ``n_out`` white output-referred noise (raw units, per channel, e.g. an
 ADC's).  A group declares which noise it has; each declared noise is drawn, in group order, from
 one generator (:meth:`Imu.sample`), so the same generator state gives the same samples.
+The bias follows the part's temperature ``T`` where the group has ``tempco`` (``c_k``, raw units
+per C^k about ``temperature_ref``; :mod:`imucal_cli.simulate.temperature` draws them and the
+temperature ramp); the truth then holds ``temperature_ref`` and ``bias_tempco``.
 
 The truth calibration of a group is ``matrix = to_si * S^-1`` (pseudo-inverse for a redundant
 unit), ``bias = b``: ``matrix @ (raw - bias)`` gives ``x`` in SI units up to noise and
@@ -138,6 +141,8 @@ class ChannelGroup:
     limits: tuple[float, float] = (-np.inf, np.inf)
     scale_error: np.ndarray = field(default_factory=lambda: np.zeros(3))
     datasheet: dict[str, Any] = field(default_factory=dict)
+    tempco: np.ndarray | None = None
+    temperature_ref: float = 25.0
 
     @property
     def channels(self) -> int:
@@ -146,16 +151,20 @@ class ChannelGroup:
 
     def raw(
         self, x: np.ndarray, noise_in: np.ndarray | None = None,
-        noise_out: np.ndarray | None = None,
+        noise_out: np.ndarray | None = None, temperature: np.ndarray | None = None,
     ) -> np.ndarray:  # fmt: skip
         """Raw samples (N, n) from the true input ``x`` (N, 3) and drawn noise.
 
         ``noise_in`` (N, 3) is in input units, ``noise_out`` (N, n) in raw units; either may be
-        None (no noise of that kind).
+        None (no noise of that kind). ``temperature`` (N,), degrees C: the part's true
+        temperature, which moves the bias by ``tempco`` (ignored without it).
         """
         if noise_in is not None:
             x = x + noise_in
         raw = x @ self.S.T + self.b
+        if temperature is not None and self.tempco is not None:
+            dt = np.asarray(temperature, float) - self.temperature_ref
+            raw = raw + (dt[:, None] ** np.arange(1, len(self.tempco) + 1)) @ self.tempco
         if noise_out is not None:
             raw = raw + noise_out
         if self.quantise:
@@ -183,6 +192,9 @@ class ChannelGroup:
         """The true calibration: ``matrix @ (raw - bias)`` is ``x`` in SI units."""
         to_si = _SI[self.input_unit][1]
         inverse = np.linalg.inv if self.S.shape == (3, 3) else np.linalg.pinv
+        if self.tempco is not None:
+            extra = {"temperature_ref": float(self.temperature_ref),
+                     "bias_tempco": _floats(self.tempco), **extra}  # fmt: skip
         return SensorCalibration(
             solver="truth",
             units=self.si_unit,
@@ -261,37 +273,43 @@ class Imu:
         """Every group rounds to integers."""
         return all(g.quantise for g in self.groups)
 
-    def sample(self, inputs: dict[str, np.ndarray], rng: np.random.Generator) -> dict:
-        """Raw samples of every group from its true input (N, 3); noise drawn in group order."""
+    def sample(
+        self, inputs: dict[str, np.ndarray], rng: np.random.Generator,
+        temperature: np.ndarray | None = None,
+    ) -> dict:  # fmt: skip
+        """Raw samples of every group from its true input (N, 3); noise drawn in group order;
+        ``temperature`` (N,), degrees C, moves the biases of groups with a ``tempco``."""
         out = {}
         for g in self.groups:
             x = inputs[g.name]
-            out[g.name] = g.raw(x, *g.draw_noise(rng, len(x)))
+            out[g.name] = g.raw(x, *g.draw_noise(rng, len(x)), temperature=temperature)
         return out
 
     def record(
         self, inputs: dict[str, np.ndarray], segments: list[Segment], *,
         noise_seed: np.random.SeedSequence, rate_hz: float, gravity: float, sensor: str,
         created: str | None = None, time: np.ndarray | None = None,
+        temperature: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> Session:  # fmt: skip
         """A session of the part going through a motion: the true inputs (fixture frame, (N,
-        3) each) through the sensor model with noise from one generator (``noise_seed``)."""
-        raw = self.sample(inputs, np.random.default_rng(noise_seed))
+        3) each) through the sensor model with noise from one generator (``noise_seed``).
+        ``temperature``: the part's true temperature and the reading recorded, (N,) each."""
+        true_c, reading_c = (None, None) if temperature is None else temperature
+        raw = self.sample(inputs, np.random.default_rng(noise_seed), temperature=true_c)
         n = len(next(iter(inputs.values())))
-        accel, gyro = raw.get("accel"), raw.get("gyro")
+        channels: dict = {"accel": None, "gyro": None, "accel_units": None, "gyro_units": None}
+        for g in self.groups:  # each group fills its dataset and units (mag: mag, mag_units)
+            channels[g.name], channels[f"{g.name}_units"] = raw[g.name], g.units
         return Session(
             time=np.arange(n) / rate_hz if time is None else time,
-            accel=accel,
-            gyro=gyro,
-            temperature=None,
+            temperature=reading_c,
             segments=segments,
             created=created or utc_now_iso(),
             sensor=sensor,
             source="simulator",
             sample_rate_hz=rate_hz,
             gravity=gravity,
-            accel_units=None if accel is None else self.group("accel").units,
-            gyro_units=None if gyro is None else self.group("gyro").units,
+            **channels,
         )
 
     def truth_sections(self, extras: dict[str, dict]) -> dict[str, SensorCalibration]:
@@ -306,24 +324,25 @@ class Imu:
         self, inputs: dict[str, np.ndarray], segments: list[Segment], *,
         noise_seed: np.random.SeedSequence, options: dict, sensor: str, extras: dict,
         created: str | None = None, time: np.ndarray | None = None, root: dict | None = None,
+        temperature: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> tuple[Session, Calibration]:  # fmt: skip
         """What a simulator returns: the recorded session (:meth:`record`) and its truth.
 
         ``options`` are the simulator's (JSON-ready; ``seed``, ``plan``, ``rate_hz`` and
         ``gravity`` are used), ``extras`` each group's truth record (:meth:`truth_sections`),
-        ``root`` more root fields of the truth (before ``simulator``, the options).
+        ``root`` more root fields of the truth (before ``simulator``, the options),
+        ``temperature`` the true and recorded temperature (:meth:`record`).
         """
         created = created or utc_now_iso()
         session = self.record(
             inputs, segments, noise_seed=noise_seed, rate_hz=options["rate_hz"],
             gravity=options["gravity"], sensor=sensor, created=created, time=time,
+            temperature=temperature,
         )  # fmt: skip
-        sections = self.truth_sections(extras)
+        sections = self.truth_sections(extras)  # one calibration section per group
         head = {"sensor": sensor, "seed": options["seed"], "plan": options["plan"]}
         extra = {**head, **(root or {}), "simulator": options}
-        return session, Calibration(
-            accel=sections.get("accel"), gyro=sections.get("gyro"), extra=extra, created=created
-        )
+        return session, Calibration(**sections, extra=extra, created=created)
 
 
 def _unit(v: np.ndarray) -> np.ndarray:

@@ -49,6 +49,7 @@ from imucal_cli.simulate.sensor import (  # noqa: F401 (the part's figures, re-e
     random_imu,
     spawn,
 )
+from imucal_cli.simulate.temperature import Ramp, temperatures, thermal_part
 
 __all__ = ["SimulatedStream", "random_imu", "sensor_name", "simulate", "simulate_stream",
            "truth_calibration"]  # fmt: skip
@@ -95,6 +96,8 @@ class SimulatedStream:
     rotvec: np.ndarray
     truth: Imu
     options: dict
+    temperature: np.ndarray | None = None
+    true_temperature: np.ndarray | None = None
 
 
 def _stream_options(plan, seed, rate_hz, hold_s, accel_noise, jitter_deg, units, gravity,
@@ -175,6 +178,7 @@ def simulate_stream(
     move_s: float = 1.5,
     lead_s: float = 1.0,
     lift_m: float = 0.03,
+    temperature: Ramp | None = None,
 ) -> SimulatedStream:
     """Generate the raw stream of a calibration session and its truth, as arrays.
 
@@ -216,6 +220,10 @@ def simulate_stream(
         Still time before the first hold, s.
     lift_m : float
         Height the unit is lifted during each move, m (vertical linear acceleration).
+    temperature : Ramp, optional
+        The part's temperature through the session
+        (:mod:`imucal_cli.simulate.temperature`): the part's biases then follow it
+        (:func:`~imucal_cli.simulate.temperature.thermal_part`) and the reading is recorded.
 
     Returns
     -------
@@ -257,9 +265,16 @@ def simulate_stream(
     rotvecs = np.zeros((max(k_poses - 1, 0), 3))
     for k in range(k_poses - 1):
         rotvecs[k] = (orient[k].inv() * orient[k + 1]).as_rotvec()
-    raw = truth.sample({"accel": force, "gyro": rate}, np.random.default_rng(noise_ss))
+    time = np.arange(n_total) / rate_hz
+    true_c = reading_c = None
+    if temperature is not None:
+        truth = thermal_part(truth, opt["seed"])
+        true_c, reading_c = temperatures(temperature, time, opt["seed"])
+        opt["temperature"] = temperature.options()
+    raw = truth.sample({"accel": force, "gyro": rate}, np.random.default_rng(noise_ss),
+                       temperature=true_c)  # fmt: skip
     return SimulatedStream(
-        time=np.arange(n_total) / rate_hz,
+        time=time,
         accel=raw["accel"],
         gyro=raw["gyro"],
         specific_force=force,
@@ -271,6 +286,8 @@ def simulate_stream(
         rotvec=rotvecs,
         truth=truth,
         options=opt,
+        temperature=reading_c,
+        true_temperature=true_c,
     )
 
 
@@ -330,13 +347,16 @@ def truth_calibration(stream: SimulatedStream, created: str | None = None) -> Ca
 
 
 def simulate(
-    plan: str = "qureshi18", seed: int = 0, *, created: str | None = None, **options
-) -> tuple[Session, Calibration]:
+    plan: str = "qureshi18", seed: int = 0, *, created: str | None = None,
+    clock_scale: float | None = None, **options,
+) -> tuple[Session, Calibration]:  # fmt: skip
     """Simulate a calibration session and return it with its truth.
 
     Parameters are those of :func:`simulate_stream` (``options``: ``rate_hz``, ``hold_s``,
     ...); ``created`` (ISO 8601 UTC) defaults to now.  The raw arrays are identical bit for
-    bit for the same seed and options.
+    bit for the same seed and options.  ``clock_scale``: the part's clock runs this many
+    device seconds per true second; the session records device times and the host's arrival
+    times (:mod:`imucal_cli.simulate.clock`), the truth ``sample_clock_scale``.
 
     Returns
     -------
@@ -353,7 +373,7 @@ def simulate(
         time=stream.time,
         accel=stream.accel,
         gyro=stream.gyro,
-        temperature=None,
+        temperature=stream.temperature,
         segments=stream.segments,
         created=created,
         sensor=sensor_name(seed),
@@ -363,4 +383,11 @@ def simulate(
         accel_units=stream.truth.accel_units,
         gyro_units=stream.truth.gyro_units,
     )
-    return session, truth_calibration(stream, created)
+    truth = truth_calibration(stream, created)
+    if clock_scale is not None:
+        from imucal_cli.simulate.clock import with_clock
+
+        session = with_clock(session, clock_scale, seed)
+        truth.gyro.extra["sample_clock_scale"] = float(clock_scale)
+        truth.extra["simulator"]["clock_scale"] = float(clock_scale)
+    return session, truth

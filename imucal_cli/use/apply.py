@@ -4,6 +4,11 @@ For each sensor the calibration holds, every raw sample becomes::
 
     calibrated = matrix @ (raw - bias)          # m/s^2 (accel), rad/s (gyro)
 
+with the optional terms of the formats page applied: a ``bias_tempco`` section's bias at
+each sample's temperature (``/raw/temperature``, or the CSV's ``temp`` column; refused when
+the input has none), and a ``sample_clock_scale`` corrects the output times to true seconds
+(``t0 + (t - t0) / scale``).
+
 The input is read and the output written one block of ``chunk_rows`` samples at a time
 (default 65536), so memory stays constant however long the file is.
 
@@ -137,7 +142,11 @@ class ApplySummary:
     chunks : int
         Blocks read and written.
     nonfinite : int
-        Samples whose raw input held NaN or inf (a dropout): written as NaN, never as a number.
+        Samples whose raw input (or temperature, for a temperature-dependent bias) held NaN or
+        inf (a dropout): written as NaN, never as a number.
+    clock_scale : float or None
+        The calibration's ``sample_clock_scale``: output times are true seconds,
+        ``t0 + (t - t0) / scale``.
     """
 
     input: Path
@@ -151,6 +160,7 @@ class ApplySummary:
     first_malformed: str | None = None
     chunks: int = 0
     nonfinite: int = 0
+    clock_scale: float | None = None
     _first_time: float | None = field(default=None, repr=False)
 
 
@@ -159,6 +169,27 @@ class _Block:
     time: np.ndarray
     raw: dict[str, np.ndarray]
     done: int  # progress units consumed up to the end of this block
+    temperature: np.ndarray | None = None  # degrees C, when a section's bias depends on it
+
+
+def _needs_temperature(sections: dict[str, SensorCalibration]) -> list[str]:
+    """The sensors whose calibration holds ``bias_tempco`` (issue 17.1)."""
+    return [name for name, sec in sections.items() if sec.temperature_terms is not None]
+
+
+def _clock_scale(sections: dict[str, SensorCalibration]) -> float | None:
+    """``sample_clock_scale`` of the calibration (the gyro's first), or None."""
+    for sec in sections.values():
+        if sec.sample_clock_scale is not None:
+            return sec.sample_clock_scale
+    return None
+
+
+def _no_temperature(src: str, cal_src: str, names: list[str], where: str) -> InputError:
+    return InputError(
+        f"{src} has no temperature ({where}), but {cal_src} holds a temperature-dependent "
+        f"{' and '.join(names)} bias (bias_tempco) that needs the temperature of each sample"
+    )
 
 
 def output_format(path: str | os.PathLike, fmt: str | None = None) -> str:
@@ -241,6 +272,12 @@ def _session_blocks(
                     f"{ds.shape[1]} (/raw/{name} shape {ds.shape})"
                 )
             datasets[name] = ds
+        if _needs_temperature(sections):
+            temp_ds = found.get("temperature")
+            if temp_ds is None:
+                raise _no_temperature(src, cal_src, _needs_temperature(sections),
+                                      "/raw/temperature")  # fmt: skip
+            datasets["temperature"] = temp_ds
         units = {name: as_str(file.attrs.get(f"{name}_units")) for name in sections}
     except BaseException:
         file.close()
@@ -255,11 +292,12 @@ def _session_blocks(
                     name: np.asarray(ds[start:stop], dtype=np.float64)
                     for name, ds in datasets.items()
                 }
+                temp = values.pop("temperature", None)
             except (OSError, KeyError, RuntimeError) as exc:
                 raise InputError(f"{src}: damaged HDF5 file ({one_line(exc)})") from None
             check_session_time(t, src, first=start, before=last)
             last = float(t[-1])
-            yield _Block(time=t, raw=values, done=stop)
+            yield _Block(time=t, raw=values, done=stop, temperature=temp)
 
     return blocks(), n, units, file.close
 
@@ -315,6 +353,9 @@ def _csv_blocks(
                     f"{cal_src} calibrates {sec.bias.shape[0]} {name} channels but {src} has 3 "
                     f"({','.join(axes)})"
                 )
+        if _needs_temperature(sections) and col("temp") is None:
+            raise _no_temperature(src, cal_src, _needs_temperature(sections),
+                                  "no temp column")  # fmt: skip
         if col("t") is None and rate_hz is None:
             raise InputError(
                 f"{src}: no time column (t) in the columns: pass --rate HZ to stamp row i "
@@ -337,7 +378,8 @@ def _csv_blocks(
         n_kept += k
         last_time, last_line = float(t[-1]), int(numbers[-1])
         raw = {name: data[:, [col(a) for a in CSV_NAMES[name]]] for name in sections}
-        return _Block(time=t, raw=raw, done=done)
+        temp = data[:, col("temp")] if _needs_temperature(sections) else None
+        return _Block(time=t, raw=raw, done=done, temperature=temp)
 
     seen_data = False
     for number, raw_line in enumerate(handle, start=1):
@@ -479,17 +521,23 @@ class _CsvWriter:
 def _write_block(writer, block: _Block, sections, summary: ApplySummary, output_path) -> None:
     values: dict[str, np.ndarray] = {}
     for name, sec in sections.items():  # accel first: the gyro's g_sensitivity needs it
-        values[name] = sec.apply(block.raw[name], accel=values.get("accel"))
+        values[name] = sec.apply(block.raw[name], accel=values.get("accel"),
+                                 temperature=block.temperature)  # fmt: skip
     bad = np.zeros(len(block.time), dtype=bool)
     for raw in block.raw.values():
         bad |= ~np.isfinite(raw).all(axis=1)
+    if block.temperature is not None:
+        bad |= ~np.isfinite(block.temperature)
     summary.nonfinite += int(bad.sum())
-    try:
-        writer.write(block.time, values)
-    except (OSError, RuntimeError) as exc:
-        raise InputError(f"{output_path}: cannot write ({one_line(exc)})") from None
     if summary._first_time is None:
         summary._first_time = float(block.time[0])
+    time = block.time
+    if summary.clock_scale is not None:  # device seconds to true seconds (sample_clock_scale)
+        time = summary._first_time + (block.time - summary._first_time) / summary.clock_scale
+    try:
+        writer.write(time, values)
+    except (OSError, RuntimeError) as exc:
+        raise InputError(f"{output_path}: cannot write ({one_line(exc)})") from None
     summary.samples += len(block.time)
     summary.duration_s = float(block.time[-1]) - summary._first_time
     summary.chunks += 1
@@ -589,6 +637,8 @@ def apply_calibration(
         sensors=tuple(sections),
     )
     csv_state = _CsvState()
+    clock = _clock_scale(sections)
+    summary.clock_scale = clock
     if is_session:
         if columns is not None:
             raise InputError(f"{src}: --columns applies to CSV input, not to a session")

@@ -54,15 +54,18 @@ class ExportFormat:
     what: str
     needs_calibration: bool = True
     uses_prefix: bool = False
+    holds_tempco: bool = False
 
 
 FORMATS: dict[str, ExportFormat] = {
     f.name: f
     for f in (
         ExportFormat("c-header", lambda c, o: export_c_header(c, prefix=o.prefix or "IMUCAL"),
-                     "C99 constants and inline apply functions", uses_prefix=True),
+                     "C99 constants and inline apply functions", uses_prefix=True,
+                     holds_tempco=True),
         ExportFormat("yaml", lambda c, o: export_yaml(c), "ROS imu_calib: SM, bias"),
-        ExportFormat("json", lambda c, o: export_json(c), "imucal's standard fields, one line"),
+        ExportFormat("json", lambda c, o: export_json(c), "imucal's standard fields, one line",
+                     holds_tempco=True),
         ExportFormat("kalibr-imu", export_kalibr_imu,
                      "Kalibr imu.yaml: noise densities and random walks (needs --noise)",
                      needs_calibration=False),
@@ -72,9 +75,11 @@ FORMATS: dict[str, ExportFormat] = {
                      "OpenVINS kalibr_imu_chain.yaml: Tw, Ta, R_IMUtoGYRO, R_IMUtoACC, Tg "
                      "(needs --noise)"),
         ExportFormat("basalt", export_basalt, "Basalt calib_accel_bias, calib_gyro_bias"),
-        ExportFormat("px4", export_px4, "PX4 CAL_ACC0_*, CAL_GYRO0_* (offset, diagonal scale)"),
+        ExportFormat("px4", export_px4, "PX4 CAL_ACC0_*, CAL_GYRO0_* (offset, diagonal scale), "
+                     "TC_* (temperature)", holds_tempco=True),
         ExportFormat("ardupilot", export_ardupilot,
-                     "ArduPilot .parm INS_ACCOFFS_*, INS_ACCSCAL_*, INS_GYROFFS_*"),
+                     "ArduPilot .parm INS_ACCOFFS_*, INS_ACCSCAL_*, INS_GYROFFS_*, INS_TCAL1_* "
+                     "(temperature)", holds_tempco=True),
         ExportFormat("fusion", export_fusion,
                      "x-io Fusion: misalignment, sensitivity, offset per sensor (C)",
                      uses_prefix=True),
@@ -117,10 +122,26 @@ def export(
     if cal is None and target.needs_calibration:
         raise InputError(f"--format {fmt} needs a calibration (imucal calibrate's JSON), "
                          "not only noise figures")  # fmt: skip
+    if cal is not None and target.needs_calibration and not target.holds_tempco:
+        refuse_tempco(cal, fmt)
     text = target.write(cal, opts)
     if has_control(text):  # belt and braces (issue 11.5): strings were cleaned when read
         raise InputError(f"the {fmt} export would hold control characters; refusing it")
     return text
+
+
+def refuse_tempco(cal: Calibration, fmt: str) -> None:
+    """Refuse to export a temperature-dependent bias to a format that cannot hold it (the
+    formats page: a reader that cannot apply a term refuses rather than ignores it)."""
+    names = [n for n in ("accel", "gyro")
+             if getattr(cal, n) is not None and getattr(cal, n).temperature_terms is not None]
+    if names:
+        holders = ", ".join(f.name for f in FORMATS.values() if f.holds_tempco)
+        raise InputError(
+            f"the {' and '.join(names)} calibration has a temperature-dependent bias "
+            f"(bias_tempco) that --format {fmt} cannot hold: export to {holders}, or calibrate "
+            "again with [temperature] model = \"off\" for a bias at one temperature"
+        )
 
 
 def load_input(path: str | os.PathLike) -> tuple[Calibration | None, NoiseFigures | None]:

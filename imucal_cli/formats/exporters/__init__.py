@@ -142,6 +142,63 @@ def require(cal: Calibration, names: tuple[str, ...], target: str) -> None:
 
 
 @dataclass
+class TemperatureTerms:
+    """A section's ``temperature_ref`` and ``bias_tempco`` (issue 17.1) in the units of the
+    exported bias: ``bias(T) = bias + sum_k tempco[k-1] (T - t_ref)^k``.
+
+    Attributes
+    ----------
+    t_ref : float
+        Degrees C.
+    tempco : ndarray (K, n)
+        Units of the bias per C^k.
+    t_min, t_max : float or None
+        Range of temperatures the model was fitted over (``temperature_range_c``), degrees C.
+    """
+
+    t_ref: float
+    tempco: np.ndarray
+    t_min: float | None
+    t_max: float | None
+
+    def about(self, t_new: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(d0, d)``: the same polynomial about ``t_new``, ``d0`` its value there."""
+        from imucal_cli.solvers.temperature import reexpand
+
+        return reexpand(self.tempco, self.t_ref, t_new)
+
+    def range_text(self) -> str:
+        if self.t_min is None or self.t_max is None:
+            return "fitted range not stated"
+        return f"fitted over {self.t_min:.1f} .. {self.t_max:.1f} C"
+
+
+def temperature_terms(sec: SensorCalibration, factor: float = 1.0) -> TemperatureTerms | None:
+    """The section's temperature model with its coefficients times ``factor`` (SI units per
+    raw unit, for a published bias), or None."""
+    terms = sec.temperature_terms
+    if terms is None:
+        return None
+    t_ref, tempco = terms
+    rng = sec.extra.get("temperature_range_c")
+    lo = hi = None
+    if isinstance(rng, list) and len(rng) == 2 and all(isinstance(v, int | float) for v in rng):
+        lo, hi = float(rng[0]), float(rng[1])
+    return TemperatureTerms(t_ref, tempco * factor, lo, hi)
+
+
+def clock_lines(cal: Calibration) -> list[str]:
+    """Comment lines on a ``sample_clock_scale``: already in the gyro matrix; timestamps."""
+    for _, sec in sections(cal):
+        scale = sec.sample_clock_scale
+        if scale is not None:
+            return [f"sample clock: the device's clock runs {(scale - 1) * 1e6:+.1f} ppm "
+                    "(sample_clock_scale); the gyro values here are per true second already; "
+                    "correct device timestamps as t / sample_clock_scale"]  # fmt: skip
+    return []
+
+
+@dataclass
 class Published:
     """One sensor's calibration in terms of what a driver publishes, ``p = factor * raw``.
 
@@ -156,6 +213,7 @@ class Published:
     factor: float
     raw_units: str
     basis: str
+    temperature: TemperatureTerms | None = None
 
     @property
     def unit(self) -> str:
@@ -212,6 +270,7 @@ def published(
         factor=factor,
         raw_units=raw_units,
         basis=basis,
+        temperature=temperature_terms(sec, factor),
     )
 
 

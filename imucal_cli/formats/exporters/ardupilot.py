@@ -12,6 +12,16 @@ rotation).  Offset and diagonal scale only: the misalignment of imucal's full ca
 the gyro's scale) is lost, and the file says how much
 (:func:`~imucal_cli.formats.exporters.diagonal_fit`).  ArduPilot's own accel calibration
 refuses scales outside 0.8 .. 1.2 and offsets beyond 3.5 m/s^2; values outside are flagged.
+A temperature-dependent bias (``bias_tempco``, issue 17.1) goes into ArduPilot's temperature
+calibration of the first IMU (``AP_InertialSensor_tempcal.cpp``), applied before the offset::
+
+    p' = p - P(T - 35) + P(CALTEMP - 35),   P(x) = (c1 x + c2 x^2 + c3 x^3) * 1e-6
+
+with ``T`` and ``CALTEMP`` clamped to ``INS_TCAL1_TMIN`` .. ``TMAX``: ``INS_TCAL1_ENABLE`` = 1,
+``INS_TCAL1_ACCk_[XYZ]``/``GYRk_[XYZ]`` the polynomial re-expanded about ArduPilot's fixed 35 C
+(times 1e6), and ``INS_ACC1_CALTEMP``/``INS_GYR1_CALTEMP`` = ``temperature_ref``, the
+temperature the offsets hold for.
+
 ``--device-id`` writes ``INS_ACC_ID``/``INS_GYR_ID`` (ArduPilot resets the calibration of a
 device whose id changed).
 """
@@ -20,9 +30,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.exporters import (
     ExportOptions,
+    Published,
+    clock_lines,
     fmt,
     model_lines,
     offset_scale_fits,
@@ -32,6 +45,8 @@ from imucal_cli.formats.exporters import (
 __all__ = ["export_ardupilot"]
 
 _SCALE_RANGE = (0.8, 1.2)
+_TCAL_REF_C = 35.0  # ArduPilot's TEMP_REFERENCE
+_TCAL_SCALE = 1e6  # ArduPilot's SCALE_FACTOR of the INS_TCAL coefficients
 _MAX_OFFSET = 3.5  # m/s^2
 
 
@@ -68,6 +83,38 @@ def export_ardupilot(cal: Calibration, opts: ExportOptions) -> str:
                 params.append(("INS_GYR_ID", str(int(opts.device_id))))
             params += [(f"INS_GYROFFS_{a}", fmt(v)) for a, v in zip("XYZ", fit.offset,
                                                                      strict=True)]  # fmt: skip
+    params += _thermal(fits, comments)
+    comments += clock_lines(cal)
     lines = ["# " + c for c in comments]
     lines += [f"{n},{v}" for n, v in params]
     return "\n".join(lines) + "\n"
+
+
+def _thermal(fits: list, comments: list[str]) -> list[tuple[str, str]]:
+    """``INS_TCAL1_*`` and ``INS_*1_CALTEMP`` of the temperature-dependent biases, if any."""
+    terms: dict[str, Published] = {n: p for n, p, _ in fits if p.temperature is not None}
+    if not terms:
+        return []
+    ranges = [(p.temperature.t_min, p.temperature.t_max) for p in terms.values()]
+    if any(lo is None for lo, _ in ranges):
+        t_ref = next(iter(terms.values())).temperature.t_ref
+        lo, hi = t_ref - 30.0, t_ref + 30.0
+    else:
+        lo, hi = min(r[0] for r in ranges), max(r[1] for r in ranges)
+    out = [("INS_TCAL1_ENABLE", "1"), ("INS_TCAL1_TMIN", fmt(lo)), ("INS_TCAL1_TMAX", fmt(hi))]
+    for name, pub in terms.items():
+        tt = pub.temperature
+        if tt.tempco.shape[0] > 3:
+            raise InputError(f"the {name} bias polynomial has degree {tt.tempco.shape[0]}: "
+                             "ArduPilot holds at most 3")  # fmt: skip
+        _, d = tt.about(_TCAL_REF_C)
+        key, cal = ("ACC", "INS_ACC1_CALTEMP") if name == "accel" else ("GYR", "INS_GYR1_CALTEMP")
+        for k in range(1, 4):
+            for i, axis in enumerate("XYZ"):
+                value = d[k - 1, i] * _TCAL_SCALE if k <= d.shape[0] else 0.0
+                out.append((f"INS_TCAL1_{key}{k}_{axis}", fmt(value)))
+        out.append((cal, fmt(tt.t_ref)))
+        comments.append(f"{name}: temperature-dependent bias in INS_TCAL1_{key}k_* "
+                        f"({tt.range_text()}), about ArduPilot's 35 C, x 1e6; the offsets hold "
+                        f"at {cal} = {tt.t_ref:.2f} C")  # fmt: skip
+    return out

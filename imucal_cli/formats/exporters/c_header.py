@@ -3,7 +3,10 @@
 with 9 significant digits, which round-trip float32 exactly), ``#define <P>_ACCEL_CHANNELS N``
 and ``static inline void <p>_accel_apply(const float raw[N], float out[3])`` computing
 ``out = M (raw - b)`` in float; the same for ``GYRO``.  No dynamic memory, no libm, no other
-header.  The arithmetic is plain float: subtract the bias, then for each output axis sum
+header.  A section with a temperature-dependent bias (``bias_tempco``) also gets
+``<P>_ACCEL_TEMPCO[K][N]``, ``<P>_ACCEL_TEMPERATURE_REF_C`` (and the fitted range), and its
+apply function takes the temperature: ``<p>_accel_apply(raw, temperature_c, out)``.  The
+arithmetic is plain float: subtract the bias, then for each output axis sum
 ``M[i][j] * d[j]`` for j = 0..N-1 in order, so a compiler that does not contract to FMA
 gives exactly what numpy does in float32 in the same order.
 """
@@ -16,10 +19,14 @@ import numpy as np
 
 from imucal_cli import __version__
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import (
-    Calibration,
+from imucal_cli.formats.calibration import Calibration, SensorCalibration
+from imucal_cli.formats.exporters import (
+    TemperatureTerms,
+    one_line,
+    sections,
+    temperature_terms,
+    units_in,
 )
-from imucal_cli.formats.exporters import one_line, sections, units_in
 
 __all__ = ["c_comment", "c_float", "check_prefix", "export_c_header"]
 
@@ -122,26 +129,37 @@ def export_c_header(cal: Calibration, *, prefix: str = "IMUCAL") -> str:
         "",
     ]
     for name, sec in sections(cal):
-        n = sec.bias.shape[0]
-        const = f"{upper}_{name.upper()}"
-        channels = f"{const}_CHANNELS"
-        matrix_rows = [
-            "    { "
-            + ", ".join(c_float(v, f"{name}.matrix[{i}][{j}]") for j, v in enumerate(row))
-            + " }"
-            for i, row in enumerate(sec.matrix.tolist())
-        ]
-        bias = ", ".join(c_float(v, f"{name}.bias[{j}]") for j, v in enumerate(sec.bias))
+        lines += _section_lines(name, sec, upper, lower)
+    lines += [f"#endif /* {guard} */", ""]
+    return "\n".join(lines)
+
+
+def _section_lines(name: str, sec: SensorCalibration, upper: str, lower: str) -> list[str]:
+    """One sensor's constants and apply function (with the temperature terms, if any)."""
+    n = sec.bias.shape[0]
+    const = f"{upper}_{name.upper()}"
+    channels = f"{const}_CHANNELS"
+    matrix_rows = [
+        "    { "
+        + ", ".join(c_float(v, f"{name}.matrix[{i}][{j}]") for j, v in enumerate(row))
+        + " }"
+        for i, row in enumerate(sec.matrix.tolist())
+    ]
+    bias = ", ".join(c_float(v, f"{name}.bias[{j}]") for j, v in enumerate(sec.bias))
+    terms = temperature_terms(sec)
+    lines = [
+        f"/* {name}: {n} raw channels ({c_comment(units_in(sec))}) -> {sec.units} */",
+        f"#define {channels} {n}",
+        "",
+        f"static const float {const}_MATRIX[3][{channels}] = {{",
+        ",\n".join(matrix_rows),
+        "};",
+        "",
+        f"static const float {const}_BIAS[{channels}] = {{ {bias} }};",
+        "",
+    ]
+    if terms is None:
         lines += [
-            f"/* {name}: {n} raw channels ({c_comment(units_in(sec))}) -> {sec.units} */",
-            f"#define {channels} {n}",
-            "",
-            f"static const float {const}_MATRIX[3][{channels}] = {{",
-            ",\n".join(matrix_rows),
-            "};",
-            "",
-            f"static const float {const}_BIAS[{channels}] = {{ {bias} }};",
-            "",
             f"/* out = {const}_MATRIX (raw - {const}_BIAS), in {sec.units}. */",
             f"static inline void {lower}_{name}_apply(const float raw[{channels}], float out[3])",
             "{",
@@ -151,15 +169,60 @@ def export_c_header(cal: Calibration, *, prefix: str = "IMUCAL") -> str:
             f"    for (j = 0; j < {channels}; ++j) {{",
             f"        d[j] = raw[j] - {const}_BIAS[j];",
             "    }",
-            "    for (i = 0; i < 3; ++i) {",
-            "        float sum = 0.0f;",
-            f"        for (j = 0; j < {channels}; ++j) {{",
-            f"            sum += {const}_MATRIX[i][j] * d[j];",
-            "        }",
-            "        out[i] = sum;",
-            "    }",
-            "}",
-            "",
         ]
-    lines += [f"#endif /* {guard} */", ""]
-    return "\n".join(lines)
+    else:
+        lines += _tempco_lines(name, const, channels, lower, terms, sec.units)
+    return lines + [
+        "    for (i = 0; i < 3; ++i) {",
+        "        float sum = 0.0f;",
+        f"        for (j = 0; j < {channels}; ++j) {{",
+        f"            sum += {const}_MATRIX[i][j] * d[j];",
+        "        }",
+        "        out[i] = sum;",
+        "    }",
+        "}",
+        "",
+    ]
+
+
+def _tempco_lines(name, const, channels, lower, terms: TemperatureTerms, units) -> list[str]:
+    """The temperature terms' constants and the head of the apply function that takes the
+    temperature: ``b(T) = b + sum_k TEMPCO[k-1] (T - TREF)^k`` (Horner, in float)."""
+    K = terms.tempco.shape[0]
+    rows = ",\n".join(
+        "    { " + ", ".join(c_float(v, f"{name}.bias_tempco[{k}][{j}]") for j, v in
+                         enumerate(row)) + " }"
+        for k, row in enumerate(terms.tempco.tolist())
+    )  # fmt: skip
+    lines = [
+        f"/* Temperature-dependent bias: b(T) = {const}_BIAS + sum_k {const}_TEMPCO[k-1] "
+        f"(T - {const}_TEMPERATURE_REF_C)^k, T in degrees C ({terms.range_text()}; "
+        "outside it the polynomial extrapolates: clamp T to the range if you prefer). */",
+        f"#define {const}_TEMPCO_ORDER {K}",
+        f"#define {const}_TEMPERATURE_REF_C {c_float(terms.t_ref, f'{name}.temperature_ref')}",
+    ]
+    if terms.t_min is not None and terms.t_max is not None:
+        lines += [f"#define {const}_TEMPERATURE_MIN_C {c_float(terms.t_min, 'range')}",
+                  f"#define {const}_TEMPERATURE_MAX_C {c_float(terms.t_max, 'range')}"]  # fmt: skip
+    return lines + [
+        f"static const float {const}_TEMPCO[{const}_TEMPCO_ORDER][{channels}] = {{",
+        rows,
+        "};",
+        "",
+        f"/* out = {const}_MATRIX (raw - b(temperature_c)), in {units}. */",
+        f"static inline void {lower}_{name}_apply(const float raw[{channels}], "
+        "float temperature_c, float out[3])",
+        "{",
+        f"    float d[{channels}];",
+        f"    const float dt = temperature_c - {const}_TEMPERATURE_REF_C;",
+        "    int i;",
+        "    int j;",
+        "    int k;",
+        f"    for (j = 0; j < {channels}; ++j) {{",
+        "        float b = 0.0f;",
+        f"        for (k = {const}_TEMPCO_ORDER - 1; k >= 0; --k) {{",
+        f"            b = (b + {const}_TEMPCO[k][j]) * dt;",
+        "        }",
+        f"        d[j] = raw[j] - ({const}_BIAS[j] + b);",
+        "    }",
+    ]

@@ -17,7 +17,10 @@ from imucal_cli.formats.calibration import (
 )
 from imucal_cli.formats.exporters import sections
 
-__all__ = ["export_json"]
+__all__ = ["OPTIONAL_TERMS", "export_json"]
+
+#: The formats page's optional terms: a reader must apply them or refuse the file.
+OPTIONAL_TERMS = ("temperature_ref", "bias_tempco", "g_sensitivity", "sample_clock_scale")
 
 
 def _finite_or_none(value: float | None) -> float | None:
@@ -29,7 +32,8 @@ def export_json(cal: Calibration) -> str:
 
     Keys in a fixed order: ``format``, ``format_version``, ``session`` (when known),
     ``created``, then ``accel``/``gyro`` each with ``solver``, ``units``, ``model``, ``bias``,
-    ``matrix``, ``residual_rms``.  Numbers are written so that they read back bit for bit.
+    ``matrix``, ``residual_rms``, and the optional terms present (:data:`OPTIONAL_TERMS`).
+    Numbers are written so that they read back bit for bit.
     """
     doc: dict = {"format": FORMAT, "format_version": FORMAT_VERSION}
     if cal.session is not None:
@@ -44,4 +48,7 @@ def export_json(cal: Calibration) -> str:
             "matrix": [[float(v) for v in row] for row in sec.matrix],
             "residual_rms": _finite_or_none(sec.residual_rms),
         }
+        for key in OPTIONAL_TERMS:  # the formats page's optional terms, applied before matrix
+            if sec.extra.get(key) is not None:
+                doc[name][key] = sec.extra[key]
     return json.dumps(doc, separators=(",", ":"), allow_nan=False) + "\n"

@@ -14,15 +14,28 @@ diagonal scale for the accelerometer and an offset only for the gyroscope: the m
 device whose id is in ``CAL_ACC0_ID``/``CAL_GYRO0_ID``: pass ``--device-id`` (the
 ``device_id`` of ``sensor_accel`` in a ULog) or set it on the vehicle.
 
+A temperature-dependent bias (``bias_tempco``, issue 17.1) goes into PX4's thermal
+compensation (``src/lib/temperature_compensation``), which subtracts before the offset above::
+
+    p' = p - (X0 + X1 dT + X2 dT^2 + X3 dT^3),   dT = clamp(T, TMIN, TMAX) - TREF
+
+as ``TC_A_ENABLE``/``TC_G_ENABLE`` = 1, ``TC_A0_TREF`` = ``temperature_ref``, ``TC_A0_X0_i`` = 0
+(the offset at ``TREF`` stays in ``CAL_ACC0_xOFF``), ``TC_A0_Xk_i`` the coefficients in m/s^2
+per C^k, ``TC_A0_TMIN``/``TMAX`` the fitted range (the same for ``TC_G0_*``, rad/s).  PX4
+matches the set to a sensor by ``TC_A0_ID``/``TC_G0_ID``: written with ``--device-id``.
+
 File format: ``#`` comments, then one tab-separated line per parameter, ``vehicle-id
 component-id name value type`` (type 9 float, 6 int32), as QGroundControl saves and loads.
 """
 
 from __future__ import annotations
 
+from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.exporters import (
     ExportOptions,
+    Published,
+    clock_lines,
     fmt,
     model_lines,
     offset_scale_fits,
@@ -56,12 +69,42 @@ def export_px4(cal: Calibration, opts: ExportOptions) -> str:
         if name == "accel":
             for i, axis in enumerate("XYZ"):
                 params.append((f"{prefix}_{axis}SCALE", float(fit.scale[i]), _FLOAT))
+    for name, pub, _ in fits:
+        params += _thermal(name, pub, opts, comments)
+    comments += clock_lines(cal)
     if opts.device_id is None:
-        comments.append("CAL_ACC0_ID / CAL_GYRO0_ID not written (no --device-id): PX4 uses "
-                        "these values only for the device whose id they hold")  # fmt: skip
+        comments.append("CAL_ACC0_ID / CAL_GYRO0_ID (and TC_*0_ID) not written (no "
+                        "--device-id): PX4 uses these values only for the device whose id they "
+                        "hold")  # fmt: skip
     lines = ["# " + c for c in comments]
     lines.append("# Vehicle-Id\tComponent-Id\tName\tValue\tType")
     for pname, value, ptype in params:
         text = str(value) if ptype == _INT32 else fmt(value)
         lines.append(f"1\t1\t{pname}\t{text}\t{ptype}")
     return "\n".join(lines) + "\n"
+
+
+def _thermal(name: str, pub: Published, opts: ExportOptions, comments: list[str]) -> list:
+    """``TC_A*``/``TC_G*`` parameters of a temperature-dependent bias (none without one)."""
+    tt = pub.temperature
+    if tt is None:
+        return []
+    if tt.tempco.shape[0] > 3:
+        raise InputError(f"the {name} bias polynomial has degree {tt.tempco.shape[0]}: PX4 "
+                         "holds at most 3")  # fmt: skip
+    tc = "TC_A" if name == "accel" else "TC_G"
+    unit = pub.unit
+    comments.append(f"{name}: temperature-dependent bias in {tc}0_* ({tt.range_text()}): "
+                    f"{tc}0_Xk_i in {unit} per C^k about {tc}0_TREF")  # fmt: skip
+    lo = tt.t_ref - 50.0 if tt.t_min is None else tt.t_min
+    hi = tt.t_ref + 50.0 if tt.t_max is None else tt.t_max
+    out: list[tuple[str, float | int, int]] = [(f"{tc}_ENABLE", 1, _INT32)]
+    if opts.device_id is not None:
+        out.append((f"{tc}0_ID", int(opts.device_id), _INT32))
+    out += [(f"{tc}0_TREF", tt.t_ref, _FLOAT), (f"{tc}0_TMIN", lo, _FLOAT),
+            (f"{tc}0_TMAX", hi, _FLOAT)]  # fmt: skip
+    for k in range(3, -1, -1):
+        for i in range(3):
+            value = 0.0 if k == 0 or k > tt.tempco.shape[0] else float(tt.tempco[k - 1, i])
+            out.append((f"{tc}0_X{k}_{i}", value, _FLOAT))
+    return out

@@ -148,6 +148,9 @@ class Session:
         Local geomagnetic field magnitude, microtesla, where known.
     path : Path or None
         The file the session was read from.
+    host_time : ndarray, shape (N,), or None
+        The host's arrival time of each sample, s (``/raw/host_time``, an extra dataset):
+        beside the device's ``time``, it measures the device's sample clock (issue 17.2).
     calibrations : dict of str to str
         ``/calibrations/<name>`` -> its calibration JSON text.
     """
@@ -169,6 +172,7 @@ class Session:
     mag: np.ndarray | None = None
     mag_units: str | None = None
     magnetic_field_uT: float | None = None
+    host_time: np.ndarray | None = None
 
     def static_segments(self) -> list[Segment]:
         """Return the static segments, in time order."""

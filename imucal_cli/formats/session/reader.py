@@ -146,7 +146,10 @@ def _root_attributes(file: h5py.File, src: str) -> tuple[str, dict, dict]:
 #: The ``/raw`` datasets read, each with its shape: 0 for one value per sample ``(N,)``, k for
 #: ``(N, >=k)`` channels.  A channel added to the format (and a :class:`Session` field of the
 #: same name) is one entry here: every check and read below is generic.
-RAW_CHANNELS: dict[str, int] = {"time": 0, "accel": 3, "gyro": 3, "temperature": 0, "mag": 3}
+RAW_CHANNELS: dict[str, int] = {"time": 0, "accel": 3, "gyro": 3, "temperature": 0, "mag": 3,
+                                "host_time": 0}  # fmt: skip
+#: Extras the toolkit can do without: left out (not refused) when their shape is wrong.
+OPTIONAL_RAW = ("host_time",)
 RAW_NAMES = tuple(RAW_CHANNELS)
 
 
@@ -179,6 +182,12 @@ def raw_datasets(file: h5py.File, src: str, unclosed: bool) -> tuple[dict[str, h
     if datasets["time"].ndim != 1:
         raise SessionError(f"{src}: /raw/time must be 1-D, has shape {datasets['time'].shape}")
     n = datasets["time"].shape[0]
+    for name in OPTIONAL_RAW:
+        ds = datasets.get(name)
+        n_time = datasets["time"].shape[0]
+        if ds is not None and (ds.ndim != 1 or ds.shape[0] < n_time
+                               or (ds.shape[0] != n_time and not unclosed)):  # fmt: skip
+            del datasets[name]
     if unclosed:
         n = min(ds.shape[0] for ds in datasets.values() if ds.ndim >= 1)
     for name, ds in datasets.items():

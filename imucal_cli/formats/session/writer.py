@@ -164,6 +164,9 @@ class SessionWriter:
         Raw channels per sample (>= 3); None records no such sensor (default: no magnetometer).
     temperature : bool
         Whether samples carry a temperature in degrees C.
+    host_time : bool
+        Whether samples carry the host's arrival time beside the device's (``/raw/host_time``,
+        seconds of the host's clock; an extra dataset the spec allows, issue 17.2).
     flush_interval_s : float
         Longest time in seconds appended samples stay in memory.
     overwrite : bool
@@ -201,6 +204,7 @@ class SessionWriter:
         mag_units: str | None = None,
         magnetic_field_uT: float | None = None,
         temperature: bool = False,
+        host_time: bool = False,
         flush_interval_s: float = 1.0,
         overwrite: bool = False,
         inputs=(),
@@ -246,10 +250,10 @@ class SessionWriter:
         self._file: h5py.File | None = None
         self._out = OutputFile(self.path, force=overwrite, inputs=inputs)
         self._reserve = _Reserve(self.path, 0)
-        self._open(attrs, temperature, publish_early, reserve_bytes)
+        self._open(attrs, (temperature, host_time), publish_early, reserve_bytes)
         self._last_flush = _time.monotonic()
 
-    def _open(self, attrs: dict[str, Any], temperature: bool, publish_early: bool,
+    def _open(self, attrs: dict[str, Any], temperature: tuple[bool, bool], publish_early: bool,
               reserve_bytes: int) -> None:  # fmt: skip
         """Create the file's layout in its temporary file; nothing is left when that fails."""
         try:
@@ -265,7 +269,9 @@ class SessionWriter:
                 raise InputError(f"{self._src}: cannot write ({io_reason(exc)})") from None
             raise
 
-    def _create_layout(self, attrs: dict[str, Any], temperature: bool) -> None:
+    def _create_layout(self, attrs: dict[str, Any], temperature: tuple[bool, bool]) -> None:
+        """``temperature``: whether ``/raw/temperature`` and ``/raw/host_time`` are recorded."""
+        temperature, host_time = temperature
         file = self._file
         file.attrs.update(attrs)
         raw = file.create_group("raw")
@@ -276,6 +282,7 @@ class SessionWriter:
             "gyro": self._widths["gyro"],
             "mag": self._widths["mag"],
             "temperature": 0 if temperature else None,
+            "host_time": 0 if host_time else None,
             "time": 0,
         }
         for name, width in shapes.items():
@@ -342,6 +349,8 @@ class SessionWriter:
         self._n_written, self._pending, self._n_pending = len(session.time), [], 0
         self._last_time = float(session.time[-1]) if len(session.time) else None
         self._last_written_time = self._last_time
+        host = session.host_time
+        self.resumed_host_time = float(host[-1]) if host is not None and len(host) else None
         self._calibrations = {}
         self._out = _InPlace(self.path)  # the file keeps its name: nothing to publish
         self._reserve = _Reserve(self.path, 0)
@@ -353,6 +362,14 @@ class SessionWriter:
         self.flush()
         return self
 
+    resumed_host_time: float | None = None
+    """A reopened session's last ``/raw/host_time``, s (None: new, or not recorded)."""
+
+    @property
+    def records_host_time(self) -> bool:
+        """Whether samples carry ``host_time`` (``/raw/host_time``)."""
+        return "host_time" in self._datasets
+
     @property
     def last_time(self) -> float | None:
         """Time of the last sample appended (or already in a reopened session), s."""
@@ -362,7 +379,7 @@ class SessionWriter:
         """The /raw datasets of a reopened file, cut to the ``n`` samples it holds whole."""
         raw = self._file["raw"]
         self._datasets = {}
-        for name in ("accel", "gyro", "mag", "temperature", "time"):  # time last, as written
+        for name in ("accel", "gyro", "mag", "temperature", "host_time", "time"):  # time last
             ds = raw.get(name)
             if ds is None:
                 continue
@@ -448,6 +465,7 @@ class SessionWriter:
         gyro: np.ndarray | None = None,
         temperature: float | np.ndarray | None = None,
         mag: np.ndarray | None = None,
+        host_time: float | np.ndarray | None = None,
     ) -> None:
         """Append samples: a block of k, or a single one.
 
@@ -464,6 +482,9 @@ class SessionWriter:
         mag : ndarray, shape (k, nm) or (nm,)
             Raw magnetometer channels; required exactly when the writer records mag (NaN
             where the magnetometer gave no reading).
+        host_time : ndarray, shape (k,), or float
+            The host's arrival time of each sample, s (``/raw/host_time``, issue 17.2);
+            required exactly when the writer records it.
 
         Raises
         ------
@@ -474,7 +495,8 @@ class SessionWriter:
             The block was kept but writing what is due failed (see :meth:`flush`).
         """
         self._check_open()
-        given = {"accel": accel, "gyro": gyro, "temperature": temperature, "mag": mag}
+        given = {"accel": accel, "gyro": gyro, "temperature": temperature, "mag": mag,
+                 "host_time": host_time}  # fmt: skip
         block = self._block(time, given)
         t = block["time"]
         if t.size == 0:
@@ -499,7 +521,8 @@ class SessionWriter:
         k = t.size
         block = {"time": t}
         for name, value in given.items():
-            expected = (k,) if name == "temperature" else (k, self._widths[name])
+            flat = name in ("temperature", "host_time")
+            expected = (k,) if flat else (k, self._widths[name])
             recorded = name in self._datasets
             if value is None and recorded:
                 raise self._fail(f"append: {name} is missing (this writer records {name})")
@@ -509,7 +532,7 @@ class SessionWriter:
                 continue
             array = np.asarray(value, dtype=np.float64)
             if single:
-                array = array.reshape((1, -1) if name != "temperature" else (1,))
+                array = array.reshape((1, -1) if not flat else (1,))
             if array.shape != expected:
                 raise self._fail(f"append: {name} has shape {array.shape}, expected {expected}")
             block[name] = array
@@ -836,11 +859,13 @@ def write_session(
         mag_units=session.mag_units,
         magnetic_field_uT=session.magnetic_field_uT,
         temperature=session.temperature is not None,
+        host_time=session.host_time is not None,
         overwrite=overwrite,
         inputs=inputs,
     )
     with writer:
-        writer.append(session.time, accel, gyro, session.temperature, mag)
+        writer.append(session.time, accel, gyro, session.temperature, mag,
+                      host_time=session.host_time)  # fmt: skip
         for segment in sorted(session.segments, key=lambda s: s.start):
             writer.add_segment(
                 segment.kind,

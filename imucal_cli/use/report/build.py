@@ -218,6 +218,7 @@ def _section_report(kind: str, sec: SensorCalibration) -> dict[str, Any]:
         add_table(report, f"g-sensitivity [{g_sensitivity['unit']}]", ["", "a_x", "a_y", "a_z"],
                   rows, caption="raw - bias - g_sensitivity @ a, with a the calibrated "
                   "acceleration in m/s^2")  # fmt: skip
+    _terms_tables(report, extra)
     report["unavailable"] = _unavailable(kind, report)
     return report
 
@@ -233,6 +234,41 @@ def _g_sensitivity(sec: SensorCalibration, units_in: str | None) -> dict[str, An
     unit = as_text(sec.extra.get("g_sensitivity_unit"))
     unit = unit.split(" (")[0] if unit else f"{units_in or 'raw units'} per m/s^2"
     return {"matrix": np.asarray(matrix, dtype=float).tolist(), "unit": unit}
+
+
+def _terms_tables(report: dict[str, Any], extra: dict[str, Any]) -> None:
+    """Tables of the optional terms (issue 17): the bias temperature model and the sample
+    clock, when the section has them."""
+    model = extra.get("temperature_model")
+    if isinstance(model, dict) and isinstance(extra.get("bias_tempco"), list):
+        tc = np.asarray(extra["bias_tempco"], dtype=float)
+        std = np.asarray(model.get("bias_tempco_std", np.zeros_like(tc)), dtype=float)
+        unit = as_text(model.get("unit")) or "raw units per C^k"
+        rows = []
+        degrees = as_list(model.get("degree"))
+        names = "xyz" if len(degrees) == 3 else [str(i) for i in range(len(degrees))]
+        for i, deg in enumerate(degrees):
+            cells = [names[i], deg]
+            for k in range(3):
+                cells += [float(tc[k, i]) if k < len(tc) else None,
+                          float(std[k, i]) if k < len(std) else None]  # fmt: skip
+            rows.append(cells)
+        lo, hi = (as_list(model.get("range_c")) + [float("nan")] * 2)[:2]
+        add_table(report, "bias temperature model", ["channel", "degree", "c1", "c1 std", "c2",
+                  "c2 std", "c3", "c3 std"], rows,  # fmt: skip
+                  caption=f"bias(T) = bias + sum_k c_k (T - {float(extra['temperature_ref']):.2f}"
+                  f" C)^k, {unit}; fitted over {float(lo):.1f} .. {float(hi):.1f} C from "
+                  f"{as_text(model.get('source'))}")  # fmt: skip
+    clock = extra.get("sample_clock")
+    if isinstance(clock, dict) and "ppm" in clock:
+        add_table(report, "sample clock", ["scale [device s per s]", "error [ppm]",
+                  "std [ppm]", "host jitter [ms]", "recording [s]"],  # fmt: skip
+                  [[clock.get("scale"), clock.get("ppm"), clock.get("ppm_std"),
+                    1000 * float(clock.get("jitter_s") or 0.0), clock.get("duration_s")]],
+                  caption=f"the device's sample clock runs {clock['ppm']:+.1f} ± "
+                  f"{clock.get('ppm_std', float('nan')):.2g} ppm against the host's arrival "
+                  "times (error and std in ppm, jitter in ms, recording in s); the gyro was "
+                  "calibrated in true seconds (corrected by it)")  # fmt: skip
 
 
 def add_table(
@@ -290,8 +326,14 @@ def _rms_report(sec: SensorCalibration, mg_per_unit: float | None) -> dict[str, 
     }
     for key, value in figures.items():
         rms[f"{key}_mg"] = scaled(value, mg_per_unit)
-    rms["improvement"] = ratio(figures["before"], figures["after"])
+    exact = extra.get("rms_after_below_noise") is True  # no factor of a fit below the noise
+    rms["improvement"] = None if exact else ratio(figures["before"], figures["after"])
     rms["improvement_held_out"] = ratio(figures["before"], figures["held_out"])
+    if exact:
+        rms["after_note"] = (
+            "the fit residual is below what the noise allows (too few spare equations): it "
+            "says nothing about the accuracy; see the held-out figure"
+        )
     rms["before_basis"] = as_text(extra.get("before_basis"))
     rms["held_out_method"] = as_text(extra.get("loo_method"))
     return rms

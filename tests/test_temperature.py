@@ -1,0 +1,205 @@
+"""Issue 17.1: the temperature ramp of the simulator and the bias-vs-temperature solvers."""
+
+import math
+
+import numpy as np
+import pytest
+
+from imucal_cli.errors import DesignError, InputError
+from imucal_cli.simulate.temperature import Ramp, parse_ramp
+from imucal_cli.simulate.triad import simulate
+from imucal_cli.solvers.gravity import fit_gravity
+from imucal_cli.solvers.temperature import (
+    MIN_SPAN_C,
+    check_span,
+    f1_pvalue,
+    fit_tempco,
+    polynomial_bound,
+    reexpand,
+)
+from imucal_cli.solvers.temperature_joint import fit_gravity_tempco
+
+G0 = 9.80665
+
+
+def test_ramp_session_records_temperature_and_truth_holds_the_polynomial():
+    plain, truth0 = simulate(seed=11, plan="six")
+    warm, truth = simulate(seed=11, plan="six", temperature=Ramp(5.0, 40.0, "linear"))
+    assert plain.temperature is None
+    t = warm.temperature
+    assert t.shape == warm.time.shape
+    assert abs(t[0] - 5.0) < 0.2 and abs(t[-1] - 40.0) < 0.2
+    for name in ("accel", "gyro"):
+        sec = getattr(truth, name)
+        assert sec.extra["temperature_ref"] == 25.0
+        tc = np.array(sec.extra["bias_tempco"])
+        assert tc.shape == (3, 3) and np.all(tc[0] != 0)
+        # the same seed is the same part: the bias at T_ref is unchanged by the ramp
+        np.testing.assert_array_equal(sec.bias, getattr(truth0, name).bias)
+    # the raw data move by the truth's polynomial at the true temperature (same noise draws)
+    tc = np.array(truth.accel.extra["bias_tempco"])
+    true_c = Ramp(5.0, 40.0, "linear").true_c(warm.time)
+    dt = true_c - 25.0
+    change = (dt[:, None] ** np.arange(1, 4)) @ tc
+    np.testing.assert_allclose(warm.accel - plain.accel, change, atol=1.01)  # quantised counts
+
+
+def test_ramp_is_reproducible_and_warmup_shape_is_front_loaded():
+    a, _ = simulate(seed=5, plan="six", temperature=Ramp(10.0, 30.0))
+    b, _ = simulate(seed=5, plan="six", temperature=Ramp(10.0, 30.0))
+    np.testing.assert_array_equal(a.temperature, b.temperature)
+    np.testing.assert_array_equal(a.accel, b.accel)
+    true_c = Ramp(10.0, 30.0).true_c(a.time)
+    assert true_c[len(true_c) // 2] > 25.0  # a warm-up makes most of its change early
+
+
+@pytest.mark.parametrize("text", ["5", "a:b", "5:5", "5:40:zigzag", "-100:20"])
+def test_parse_ramp_refuses_nonsense(text):
+    with pytest.raises(InputError, match="--ramp"):
+        parse_ramp(text)
+
+
+def test_parse_ramp_reads_shape():
+    assert parse_ramp("5:45") == Ramp(5.0, 45.0, "warmup")
+    assert parse_ramp("40:20:linear") == Ramp(40.0, 20.0, "linear")
+
+
+def test_f1_pvalue_matches_closed_forms():
+    # F(1, 1) is the square of a Cauchy variable: P(F > x) = 1 - 2/pi atan(sqrt x)
+    for x in (0.1, 1.0, 7.5, 300.0):
+        assert f1_pvalue(x, 1.0) == pytest.approx(1 - 2 / math.pi * math.atan(math.sqrt(x)),
+                                                  rel=1e-10)  # fmt: skip
+    # F(1, 2): P(F > x) = 1 - sqrt(x / (x + 2))
+    for x in (0.3, 4.0, 99.0):
+        assert f1_pvalue(x, 2.0) == pytest.approx(1 - math.sqrt(x / (x + 2)), rel=1e-10)
+    # large dof: the chi-square(1) tail, P(Z^2 > 3.8415) = 0.05
+    assert f1_pvalue(3.841459, 1e7) == pytest.approx(0.05, rel=1e-4)
+    assert f1_pvalue(0.0, 5) == 1.0
+
+
+def test_span_under_minimum_is_refused_saying_why():
+    with pytest.raises(DesignError, match=r"spans only 6.0 C .*at least 10 C"):
+        check_span(np.linspace(20, 26, 50), "warm.h5")
+    with pytest.raises(DesignError, match="no temperature readings"):
+        check_span(np.full(5, np.nan), "warm.h5")
+    assert check_span(np.linspace(20, 20 + MIN_SPAN_C, 5), "x") == pytest.approx(MIN_SPAN_C)
+
+
+def _points(coef, n=200, sigma=0.5, seed=0, span=(0.0, 40.0)):
+    rng = np.random.default_rng(seed)
+    T = np.linspace(*span, n)
+    y = np.polyval(coef[::-1], T - 20.0) + sigma * rng.standard_normal(n)
+    return T, y
+
+
+@pytest.mark.parametrize("coef,degree", [
+    ([3.0, 0.0], 0),
+    ([3.0, 0.4], 1),
+    ([3.0, 0.4, 0.01], 2),
+    ([3.0, 0.4, 0.01, 0.0008], 3),
+])  # fmt: skip
+def test_degree_is_chosen_by_the_data(coef, degree):
+    T, y = _points(np.array(coef))
+    fit = fit_tempco(T, y, sigma=np.full(len(T), 0.5), temperature_ref=20.0)
+    assert fit.channels[0].degree == degree
+    if degree:
+        est, std = fit.tempco[:, 0], fit.tempco_std[:, 0]
+        assert np.all(np.abs(est - coef[1 : degree + 1]) < 4.5 * std)
+        # with the noise given, the standard deviations are the bound's
+        crb = polynomial_bound(T, 0.5, degree, 20.0)
+        np.testing.assert_allclose(std, np.sqrt(np.diag(crb)[1:]), rtol=1e-9)
+    assert fit.channels[0].level[0] == pytest.approx(3.0, abs=0.3)
+
+
+def test_groups_share_the_curve_and_keep_their_levels():
+    T, y = _points(np.array([0.0, 0.3]), n=120, sigma=0.2, seed=3)
+    g = np.arange(len(T)) % 3
+    y = y + np.array([100.0, -50.0, 7.0])[g]
+    fit = fit_tempco(T, np.column_stack([y, 2 * y]), groups=g, temperature_ref=20.0)
+    np.testing.assert_allclose(fit.level[:, 0], [100.0, -50.0, 7.0], atol=0.2)
+    assert fit.tempco[0, 0] == pytest.approx(0.3, abs=0.01)
+    assert fit.tempco[0, 1] == pytest.approx(0.6, abs=0.02)
+
+
+def test_serial_correlation_inflates_the_standard_deviation():
+    rng = np.random.default_rng(7)
+    T = np.linspace(0, 30, 300)
+    e = np.zeros(len(T))
+    for i in range(1, len(T)):  # AR(1) wander, rho = 0.9
+        e[i] = 0.9 * e[i - 1] + 0.1 * rng.standard_normal()
+    y = 0.2 * (T - 15) + e
+    red = fit_tempco(T, y, serial=True)
+    assert red.channels[0].correlation > 0.7
+    assert red.degree[0] == 1  # the wander does not pass for a higher degree
+    white = fit_tempco(T, y, max_degree=1)
+    assert red.tempco_std[0, 0] > 3 * white.tempco_std[0, 0]  # sqrt((1 + rho) / (1 - rho))
+    assert abs(red.tempco[0, 0] - 0.2) < 3 * red.tempco_std[0, 0]
+
+
+def test_fit_refuses_narrow_span_and_too_few_points():
+    with pytest.raises(DesignError, match="at least 10 C"):
+        fit_tempco(np.linspace(20, 25, 30), np.zeros(30), what="warm.h5")
+    with pytest.raises(DesignError, match="2 points"):
+        fit_tempco(np.array([0.0, 30.0]), np.zeros(2))
+
+
+def test_reexpand_keeps_the_polynomial():
+    rng = np.random.default_rng(1)
+    c = rng.normal(size=(3, 2))
+    d0, d = reexpand(c, 25.0, 31.0)
+    T = np.linspace(0, 50, 7)
+    old = ((T - 25.0)[:, None] ** np.arange(1, 4)) @ c
+    new = d0 + ((T - 31.0)[:, None] ** np.arange(1, 4)) @ d
+    np.testing.assert_allclose(new, old, atol=1e-9)
+
+
+def _pose_means(session):
+    segs = session.static_segments()
+    a = np.array([session.accel[s.start : s.stop].mean(0) for s in segs])
+    T = np.array([session.temperature[s.start : s.stop].mean() for s in segs])
+    cov = np.array([np.cov(session.accel[s.start : s.stop].T) / (s.stop - s.start)
+                    for s in segs])  # fmt: skip
+    return a, T, cov
+
+
+@pytest.mark.parametrize("seed", [5, 8])
+def test_joint_gravity_fit_recovers_the_bias_change_over_the_span(seed):
+    session, truth = simulate(seed=seed, plan="qureshi18", temperature=Ramp(5.0, 40.0, "linear"))
+    a, T, cov = _pose_means(session)
+    plain = fit_gravity(a, G0)
+    joint = fit_gravity_tempco(a, T, G0, (plain.bias, plain.M), cov_mean=cov)
+    tc_true = np.array(truth.accel.extra["bias_tempco"])
+    grid = np.array([T.min(), T.max()])
+    true_change = ((grid - 25.0)[:, None] ** np.arange(1, 4)) @ tc_true
+    est = ((grid - joint.temperature_ref)[:, None] ** np.arange(1, joint.tempco.shape[0] + 1)
+           ) @ joint.tempco  # fmt: skip
+    # the change of bias across the span (about 100 counts): within 20 % of the truth's
+    np.testing.assert_allclose(est[1] - est[0], true_change[1] - true_change[0],
+                               rtol=0.2, atol=5.0)  # fmt: skip
+    # the joint fit explains the poses: residuals at the noise, far below the plain fit's
+    assert np.sqrt(np.mean(joint.residuals**2)) < 0.5 * np.sqrt(np.mean(plain.residuals**2))
+    assert np.all(joint.degree <= 3) and joint.tempco_std.shape == joint.tempco.shape
+
+
+def test_joint_fit_refuses_a_narrow_span():
+    session, _ = simulate(seed=4, plan="qureshi18", temperature=Ramp(20.0, 26.0, "linear"))
+    a, T, cov = _pose_means(session)
+    plain = fit_gravity(a, G0)
+    with pytest.raises(DesignError, match="at least 10 C"):
+        fit_gravity_tempco(a, T, G0, (plain.bias, plain.M), cov_mean=cov)
+
+
+def test_cli_simulate_ramp_writes_temperature_and_truth(tmp_path):
+    from imucal_cli.formats.calibration import read_calibration
+    from imucal_cli.formats.session import read_session
+
+    from .cli_helpers import assert_one_line_error, run
+
+    out = tmp_path / "warm.h5"
+    proc = run("simulate", "--plan", "six", "--seed", "3", "--ramp", "10:35:linear", "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    s = read_session(out)
+    assert s.temperature.min() < 10.2 and s.temperature.max() > 34.8
+    truth = read_calibration(tmp_path / "warm.truth.json")
+    assert len(truth.accel.extra["bias_tempco"]) == 3
+    assert_one_line_error(run("simulate", "--ramp", "20", "-o", tmp_path / "x.h5"), "--ramp")

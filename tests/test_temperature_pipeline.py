@@ -1,0 +1,148 @@
+"""Issue 17.1 in the calibrate step: joint (a session spanning >= 10 C), warm-up recordings,
+several sessions merged; a narrow span refused saying why."""
+
+import numpy as np
+import pytest
+
+from imucal_cli.errors import DesignError
+from imucal_cli.formats.calibration import read_calibration
+from imucal_cli.formats.config import Config, config_from_dict
+from imucal_cli.formats.session import write_session
+from imucal_cli.pipeline.calibrate import calibrate_session
+from imucal_cli.pipeline.temperature import merge_sessions
+from imucal_cli.simulate.temperature import Ramp
+from imucal_cli.simulate.triad import simulate
+
+from .cli_helpers import assert_one_line_error, run
+
+
+def _change(sec_or_truth, t_lo, t_hi):
+    """Bias change from t_lo to t_hi, (3,) raw units."""
+    b = sec_or_truth.bias_at(np.array([t_lo, t_hi]))
+    return b[1] - b[0]
+
+
+@pytest.fixture(scope="module")
+def ramp_cal():
+    session, truth = simulate(seed=5, plan="qureshi18", temperature=Ramp(5.0, 40.0, "linear"))
+    return session, truth, calibrate_session(session, Config())
+
+
+def test_joint_model_by_default_when_the_session_spans_10_c(ramp_cal):
+    session, truth, cal = ramp_cal
+    acc = cal.accel
+    assert acc.temperature_terms is not None
+    model = acc.extra["temperature_model"]
+    assert "gravity-magnitude" in model["source"] and max(model["degree"]) <= 3
+    assert np.array(model["bias_tempco_std"]).shape == np.array(acc.extra["bias_tempco"]).shape
+    lo, hi = acc.extra["temperature_range_c"]
+    assert lo < 7 and hi > 38
+    np.testing.assert_allclose(_change(acc, lo, hi), _change(truth.accel, lo, hi), rtol=0.2,
+                               atol=5.0)  # fmt: skip
+    # the bias at the reference is the truth's there (a few counts: the noise of 18 poses)
+    t_ref = acc.extra["temperature_ref"]
+    np.testing.assert_allclose(acc.bias, truth.accel.bias_at(t_ref)[0], atol=4.0)
+    rows = {r["name"]: r for r in acc.extra["parameters"]}
+    assert any(name.startswith("tc1_") for name in rows)
+    from imucal_cli.use.report.build import build_report
+
+    table = [t for t in build_report(cal)["sensors"]["accel"]["tables"]
+             if t["title"] == "bias temperature model"][0]  # fmt: skip
+    assert [r[0] for r in table["rows"]] == ["x", "y", "z"]
+    assert table["rows"][0][1] == model["degree"][0] and "fitted over" in table["caption"]
+    # the gyro bias from its still periods: the same change as the truth's
+    gyro = cal.gyro
+    assert gyro is not None and gyro.temperature_terms is not None
+    np.testing.assert_allclose(_change(gyro, lo, hi), _change(truth.gyro, lo, hi), rtol=0.15,
+                               atol=3.0)  # fmt: skip
+
+
+def test_compensated_calibration_beats_the_plain_one(ramp_cal):
+    session, truth, cal = ramp_cal
+    plain = calibrate_session(session, config_from_dict({"temperature": {"model": "off"}}))
+    assert plain.accel.temperature_terms is None
+    segs = session.static_segments()
+
+    def rms(cal, comp):
+        errs = []
+        for s in segs:
+            t = session.temperature[s.start : s.stop]
+            v = cal.accel.apply(session.accel[s.start : s.stop], temperature=t if comp else None)
+            errs.append(np.linalg.norm(v, axis=1).mean() - 9.80665)
+        return np.sqrt(np.mean(np.square(errs)))
+
+    assert rms(cal, True) < 0.5 * rms(plain, False)
+
+
+def test_narrow_span_gives_no_model_and_says_why():
+    session, _ = simulate(seed=6, plan="six", temperature=Ramp(20.0, 26.0, "linear"))
+    cal = calibrate_session(session, Config())
+    assert cal.accel.temperature_terms is None
+    assert "at least 10 C" in cal.extra["temperature_note"]
+    with pytest.raises(DesignError, match=r"spans only .* at least 10 C"):
+        calibrate_session(session, config_from_dict({"temperature": {"model": "on"}}))
+
+
+def test_warmup_recording_gives_the_curve(tmp_path):
+    """A still warm-up (six long holds through 5 -> 40 C) and a calibration session of the same
+    part at room temperature: the bias follows the truth's curve across the warm-up's span."""
+    warm, truth = simulate(seed=8, plan="six", hold_s=40.0, temperature=Ramp(5.0, 40.0))
+    room, _ = simulate(seed=8, plan="qureshi18", temperature=Ramp(24.0, 26.0, "linear"))
+    cal = calibrate_session(room, Config(), warmup=[warm])
+    acc = cal.accel
+    assert "warm-up" in acc.extra["temperature_model"]["source"]
+    np.testing.assert_allclose(_change(acc, 8.0, 38.0), _change(truth.accel, 8.0, 38.0),
+                               rtol=0.1, atol=3.0)  # fmt: skip
+    np.testing.assert_allclose(_change(cal.gyro, 8.0, 38.0), _change(truth.gyro, 8.0, 38.0),
+                               rtol=0.1, atol=3.0)  # fmt: skip
+    # a warm-up that spans too little is refused, saying why
+    short, _ = simulate(seed=8, plan="six", hold_s=20.0, temperature=Ramp(22.0, 27.0))
+    with pytest.raises(DesignError, match="at least 10 C"):
+        calibrate_session(room, Config(), warmup=[short])
+
+
+def test_sessions_at_two_temperatures_merge_into_one_model():
+    cold, truth = simulate(seed=9, plan="qureshi18", temperature=Ramp(9.0, 11.0, "linear"))
+    hot, _ = simulate(seed=9, plan="qureshi18", temperature=Ramp(34.0, 36.0, "linear"))
+    merged = merge_sessions([cold, hot])
+    assert len(merged.time) == len(cold.time) + len(hot.time)
+    assert np.all(np.diff(merged.time) > 0)
+    assert len(merged.static_segments()) == 2 * len(cold.static_segments())
+    cal = calibrate_session(merged, Config())
+    np.testing.assert_allclose(_change(cal.gyro, 10.0, 35.0), _change(truth.gyro, 10.0, 35.0),
+                               rtol=0.15, atol=3.0)  # fmt: skip
+    assert cal.accel.temperature_terms is not None
+
+
+def test_cli_warmup_and_refusals(tmp_path):
+    warm, _ = simulate(seed=8, plan="six", hold_s=40.0, temperature=Ramp(5.0, 40.0))
+    room, _ = simulate(seed=8, plan="six", temperature=Ramp(24.0, 26.0, "linear"))
+    write_session(tmp_path / "warm.h5", warm)
+    write_session(tmp_path / "room.h5", room)
+    proc = run("calibrate", tmp_path / "room.h5", "--warmup", tmp_path / "warm.h5",
+               "--no-store")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert "temperature: bias polynomial" in proc.stdout
+    cal = read_calibration(tmp_path / "room.cal.json")
+    assert cal.accel.temperature_terms is not None
+    proc = run("calibrate", tmp_path / "room.h5", "--warmup", tmp_path / "room.h5",
+               "--no-store", "--force")  # fmt: skip
+    assert_one_line_error(proc, "spans only", "at least 10 C")
+
+
+def test_given_accel_with_temperature_terms_calibrates_the_gyro(ramp_cal, tmp_path):
+    """--accel CAL.json whose bias depends on temperature: the gyro-only calibration applies
+    it at each sample's temperature (the accelerometer section is copied unchanged)."""
+    from imucal_cli.simulate.rotations import simulate_gyro_rotations
+
+    _, _, cal = ramp_cal
+    turns, truth = simulate_gyro_rotations(plan="qureshi-axes", seed=5, rotations_per_axis=6,
+                                           temperature=Ramp(20.0, 32.0, "linear"))  # fmt: skip
+    out = calibrate_session(turns, Config(), accel=truth.accel)
+    assert out.accel.temperature_terms is not None  # the given section, unchanged
+    assert out.accel.extra["bias_tempco"] == truth.accel.extra["bias_tempco"]
+    sv = np.linalg.svd(out.gyro.matrix @ np.linalg.inv(truth.gyro.matrix), compute_uv=False)
+    assert np.max(np.abs(sv - 1)) < 0.005
+    no_temp = turns.__class__(**{**turns.__dict__, "temperature": None})
+    with pytest.raises(DesignError, match="records no temperature"):
+        calibrate_session(no_temp, Config(), accel=truth.accel)
