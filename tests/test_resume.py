@@ -59,7 +59,7 @@ def test_recorder_continues_a_session(tmp_path):
     # the host's arrival times (/raw/host_time) go on too, after the same gap
     assert s.host_time is not None and len(s.host_time) == len(s.time)
     np.testing.assert_array_equal(s.host_time[:first], before.host_time)
-    assert np.all(np.diff(s.host_time) > 0)
+    assert np.all(np.diff(s.host_time) >= 0)  # arrival per block: non-decreasing
     assert 2.5 < s.host_time[first] - s.host_time[first - 1] < 10
     assert [x.label for x in s.segments] == ["face +Z up", "face -Z up", "face +X up"]
     with h5py.File(path) as f:
