@@ -87,6 +87,7 @@ def run_guided(
     axis_tolerance_deg: float = 30.0,
     tick_s: float = 0.1,
     mag_goal: float = 0.9,
+    done_before: list | None = None,
 ) -> CaptureSummary:
     """Guide a person through ``plan`` while ``recorder`` records; return what was done.
 
@@ -134,6 +135,9 @@ def run_guided(
         With a magnetometer in the stream: the fraction of the field directions (100 equal
         areas, :mod:`.magnetic`) it must have seen; after the plan's last step the capture goes
         on, showing where to point the unit, until it has (or ``q``).
+    done_before : list, optional
+        Continuing a capture: the session's segments, ``(kind, label, mean raw accel or
+        None)`` in time order; the steps they fulfil are done (see :meth:`GuidedState.resume`).
 
     Returns
     -------
@@ -155,6 +159,8 @@ def run_guided(
         mag_goal=float(mag_goal),
     )  # fmt: skip
     state = GuidedState(plan, opt, int(recorder.n_samples), recorder.add_segment)
+    if done_before:
+        state.resume(done_before)
     return drive(state, Screen(console, opt.refresh_hz), recorder, keys, opt.tick_s)
 
 
@@ -163,7 +169,7 @@ def drive(state: GuidedState, screen: Screen, recorder, keys: KeySource, tick_s:
     gen = recorder.blocks(tick_s)
     screen.start(state)
     try:
-        for block in gen:
+        for block in gen if state.end_reason is None else ():  # resumed when complete: no need
             state.on_block(block)
             while state.end_reason is None and (line := keys.get()) is not None:
                 state.on_command(line)
