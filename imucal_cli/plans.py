@@ -17,6 +17,10 @@ Built-in plans (:func:`load_plan`):
 ``still:MINUTES``
     One static step held for MINUTES minutes (``hold_s`` = 60 * MINUTES), no ``up``: a still
     recording for ``imucal noise`` (Allan deviation; bias instability needs tens of minutes).
+``warmup:MINUTES``
+    One static step held for MINUTES minutes through a warm-up or cool-down (a cold start, a
+    hair-dryer ramp), the temperature logged (``capture`` refuses columns without ``temp``):
+    the recording for ``imucal calibrate --warmup`` (issue 17.3).
 
 A TOML plan file::
 
@@ -46,9 +50,11 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 
-__all__ = ["BUILTIN_PLANS", "CaptureSummary", "Plan", "Step", "load_plan", "plan_poses"]
+__all__ = ["BUILTIN_PLANS", "CaptureSummary", "Plan", "Step", "load_plan", "needs_temperature",
+           "plan_poses"]
 
-BUILTIN_PLANS = ("six", "qureshi18", "gyro-axes", "hwangbo-iron", "random:N", "still:MINUTES")
+BUILTIN_PLANS = ("six", "qureshi18", "gyro-axes", "hwangbo-iron", "random:N", "still:MINUTES",
+                 "warmup:MINUTES")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -175,7 +181,8 @@ def plan_poses(plan: str) -> list[tuple[str, np.ndarray | None]]:
     plan : str
         ``six`` (the 6 faces of a cube), ``qureshi18`` (6 faces + 12 edges at 45 degrees,
         Qureshi & Golnaraghi section IV-B) or ``random:N`` (N unlabelled poses; the simulator
-        draws their directions uniformly on the sphere).
+        draws their directions uniformly on the sphere); ``warmup:MINUTES`` is one pose, flat
+        (+Z up), held as long as the simulator's hold.
 
     Returns
     -------
@@ -200,6 +207,9 @@ def plan_poses(plan: str) -> list[tuple[str, np.ndarray | None]]:
         if not 1 <= n <= MAX_RANDOM_POSES:
             raise InputError(f"plan {plan!r}: N must be between 1 and {MAX_RANDOM_POSES}")
         return [(f"pose {k + 1}", None) for k in range(n)]
+    if name.startswith("warmup:"):
+        _minutes(name)
+        return [("warm-up, +Z up", np.array([0.0, 0.0, 1.0]))]
     raise InputError(f"plan {plan!r} is unknown: use six, qureshi18 or random:N (N poses)")
 
 
@@ -233,17 +243,38 @@ def _hwangbo_iron() -> Plan:
     return Plan("hwangbo-iron", faces + turns)
 
 
-def _still(key: str) -> Plan:
-    """``still:MINUTES``: one static step held for the whole recording."""
-    text = key.split(":", 1)[1].strip()
+def _minutes(key: str) -> float:
+    """The MINUTES of ``still:MINUTES`` / ``warmup:MINUTES``; refused unless positive."""
+    name, _, text = key.partition(":")
     try:
-        minutes = float(text)
+        minutes = float(text.strip())
     except ValueError:
         minutes = float("nan")
     if not math.isfinite(minutes) or minutes <= 0:
-        raise InputError(f"plan still:{text}: MINUTES must be a positive number, e.g. still:20")
+        raise InputError(f"plan {name}:{text.strip()}: MINUTES must be a positive number, e.g. "
+                         f"{name}:20")  # fmt: skip
+    return minutes
+
+
+def _still(key: str) -> Plan:
+    """``still:MINUTES``: one static step held for the whole recording."""
+    minutes = _minutes(key)
     step = Step("static", f"hold still for {minutes:g} min (noise)", hold_s=60.0 * minutes)
     return Plan(f"still:{minutes:g}", (step,))
+
+
+def _warmup(key: str) -> Plan:
+    """``warmup:MINUTES`` (issue 17.3): one still step through a warm-up or cool-down, the
+    temperature logged; for ``imucal calibrate --warmup``."""
+    minutes = _minutes(key)
+    step = Step("static", f"leave it still for {minutes:g} min while it warms up or cools down "
+                "(temperature logged)", hold_s=60.0 * minutes)  # fmt: skip
+    return Plan(f"warmup:{minutes:g}", (step,))
+
+
+def needs_temperature(plan: Plan) -> bool:
+    """A plan whose recording is useless without the temperature (``warmup:MINUTES``)."""
+    return plan.name.startswith("warmup:")
 
 
 def _unit_or_none(v) -> np.ndarray | None:
@@ -284,12 +315,14 @@ def load_plan(name_or_path: str) -> Plan:
         return _hwangbo_iron()
     if key.startswith("still:"):
         return _still(key)
+    if key.startswith("warmup:"):
+        return _warmup(key)
     path = Path(text)
     if path.suffix.lower() == ".toml" or path.exists():
         return _load_file(path)
     raise InputError(
         f"plan {text!r} is unknown: use six, qureshi18, random:N, gyro-axes, hwangbo-iron, "
-        "still:MINUTES or a .toml plan file"
+        "still:MINUTES, warmup:MINUTES or a .toml plan file"
     )
 
 

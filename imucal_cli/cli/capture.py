@@ -42,7 +42,9 @@ def capture(
         metavar="NAME|FILE.toml",
         help=(
             "Steps to go through: six, qureshi18 (the default when guided), random:N, gyro-axes, "
-            "hwangbo-iron, or a TOML plan file ([[step]] kind, label, up, axis, angle_deg)."
+            "hwangbo-iron, still:MINUTES (noise), warmup:MINUTES (a still warm-up, temperature "
+            "logged, for calibrate --warmup), or a TOML plan file ([[step]] kind, label, up, "
+            "axis, angle_deg)."
         ),
         autocompletion=completion.capture_plan,
     ),
@@ -158,7 +160,7 @@ def capture(
     from imucal_cli.capture.recorder import Recorder
     from imucal_cli.capture.stream import LineProtocol, SerialSource, WitMotionProtocol
     from imucal_cli.formats.columns import ColumnSpec
-    from imucal_cli.plans import load_plan
+    from imucal_cli.plans import load_plan, needs_temperature
 
     check_mag_options(mag_units, field_ut)
     if protocol == "witmotion":
@@ -184,6 +186,11 @@ def capture(
             from imucal_cli.capture import guided
         except ImportError:
             raise InputError("guided mode not available yet: use --no-prompt") from None
+    if plan_obj is not None and needs_temperature(plan_obj) and (
+        protocol == "lines" and stream_protocol.columns.temperature is None
+    ):
+        raise InputError(f"plan {plan_obj.name} records the temperature through the warm-up: "
+                         "add temp to --columns (e.g. t,ax,ay,az,gx,gy,gz,temp)")  # fmt: skip
     out = check_output(output if output is not None else default_output(), force=force)
 
     console = make_console(stderr=json_output)  # with --json, stdout holds the JSON alone

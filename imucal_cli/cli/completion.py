@@ -10,7 +10,8 @@ import nothing heavy: they run on every Tab.
 from __future__ import annotations
 
 # Plan names as the person types them (``random:N`` etc. complete to their prefix).
-CAPTURE_PLANS = ("six", "qureshi18", "random:", "gyro-axes", "hwangbo-iron", "still:")
+CAPTURE_PLANS = ("six", "qureshi18", "random:", "gyro-axes", "hwangbo-iron", "still:",
+                 "warmup:")  # fmt: skip
 SIMULATE_PLANS = ("six", "qureshi18", "random:", "gyro-axes", "hwangbo-iron", "hk-redundant",
                   "hk-gyro", "qureshi-axes", "free:")  # fmt: skip
 ACCEL_UNITS = ("counts", "V", "g", "m/s^2")

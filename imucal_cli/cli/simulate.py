@@ -341,6 +341,10 @@ def simulate(
             clock_scale=clock,
         )
     else:
+        if hold is None and plan.strip().lower().startswith("warmup:"):
+            from imucal_cli.plans import load_plan
+
+            hold = load_plan(plan).steps[0].hold_s  # the whole warm-up, held still
         session, truth = run(
             plan=plan,
             seed=seed,
