@@ -16,6 +16,7 @@ from bench import (
     reliability,
     speed,
     temperature,
+    trust,
     trust_gyro,
 )
 
@@ -25,6 +26,7 @@ BENCHMARKS = (
     "factorization",
     "gyro",
     "gyro-speed",
+    "trust",
     "trust-gyro",
     "capture",
     "speed",
@@ -57,6 +59,8 @@ def main() -> None:
         ok = gyro.run(console, n_seeds=max(20, args.seeds // 2)) and ok
     if args.only in (None, "gyro-speed"):
         ok = gyro_speed.run(console) and ok
+    if args.only in (None, "trust"):
+        ok = trust.run(console, n_seeds=max(5, args.seeds // 20)) and ok
     if args.only in (None, "trust-gyro"):
         ok = trust_gyro.run(console, n_seeds=max(5, args.seeds // 20)) and ok
     if args.only in (None, "capture"):

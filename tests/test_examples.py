@@ -40,7 +40,10 @@ def test_six_faces_example_calibrates_with_the_labelled_solver():
     acc = calibrate_session(session, Config()).accel
     assert acc.solver == "labelled"
     assert acc.extra["choice"]["by"] == "auto" and "too few" in acc.extra["choice"]["reason"]
-    assert acc.extra["warnings"] == []
+    # Saved, with the one thing six faces cannot do said out loud (issue 10.3): no face is
+    # checked by the others (its held-out error is many times the fit error).
+    assert acc.extra["blocking"] == [] and acc.extra["outliers"] == []
+    assert [w.split(" ")[0] for w in acc.extra["warnings"]] == ["held-out"], acc.extra["warnings"]
     # The fixture-frame matrix: every entry within 4.5 std of the truth (std from the fit).
     from imucal_cli.solvers.labelled import public_params
 

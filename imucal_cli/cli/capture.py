@@ -210,6 +210,12 @@ def capture(
     except BaseException:
         source.close()
         raise
+    if accel_units is None:  # issue 10.4 (said once the port opened: errors stay one line)
+        status(
+            "warning: accelerometer units not stated (--accel-units counts, g or m/s^2); "
+            "calibrate will infer them from the magnitude, or set them later with `imucal "
+            "label SESSION --accel-units UNITS`"
+        )
     try:
         if no_prompt:
             from imucal_cli.capture.unattended import run_unattended

@@ -167,11 +167,20 @@ def import_(
         "skipped_lines": skipped, "notes": list(getattr(session, "import_notes", [])),
         "mag_channels": None if session.mag is None else int(session.mag.shape[1]),
         "mag_units": session.mag_units,
+        "warnings": [UNITS_WARNING] if session.accel is not None and not session.accel_units
+        else [],
     }  # fmt: skip
     if json_output:
         print_json(result)
         return
     _print_summary(result)
+
+
+#: Issue 10.4: said when an import leaves the accelerometer units unstated.
+UNITS_WARNING = (
+    "accelerometer units not stated (--accel-units counts, g or m/s^2): calibrate will infer "
+    "them from the magnitude; set them with `imucal label SESSION --accel-units UNITS`"
+)
 
 
 def _print_summary(result: dict) -> None:
@@ -201,6 +210,8 @@ def _print_summary(result: dict) -> None:
     )
     for note in result["notes"]:
         console.print(f"  {note}", markup=False)
+    for warning in result["warnings"]:
+        console.print(f"  warning: {warning}", markup=False)
     if result["mag_channels"] is not None:
         units = result["mag_units"] or "units not given"
         console.print(f"  magnetometer: {result['mag_channels']} channels ({units})", markup=False)

@@ -13,6 +13,8 @@ Example (every key optional; these are the defaults)::
     # range = [-32768, 32767]      # raw output range; default inferred from the units/data
     max_scale_error = 0.20       # flag a sensitivity further than this from nominal
     min_separation_deg = 10.0    # poses closer than this count as one direction
+    outliers = "exclude"         # poses that disagree with the rest (a bump, motion during the
+                                 # hold, a wrong label): "exclude", "downweight" or "keep"
 
     [accel.gravity]
     model = "9"                  # "9": eqs. (3)-(8); "12": full matrix aligned to the labels
@@ -312,6 +314,7 @@ class AccelConfig:
     range: list[float] | None = setting(None, "range")
     max_scale_error: float = setting(0.20, "number", gt=0, lt=1)
     min_separation_deg: float = setting(10.0, "number", gt=0, lt=90, unit=_DEG)
+    outliers: str = setting("exclude", "text", choices=("exclude", "downweight", "keep"))
     gravity: GravityOptions = field(default_factory=GravityOptions)
     labelled: LabelledOptions = field(default_factory=LabelledOptions)
     factorization: AccelFactorizationOptions = field(default_factory=AccelFactorizationOptions)

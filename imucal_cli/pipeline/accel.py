@@ -77,6 +77,49 @@ class PoseFit:
     up_angle_deg: np.ndarray | None = None
     residual_loo: np.ndarray | None = None
     extra: dict[str, np.ndarray] = field(default_factory=dict)  # more per-pose columns
+    excluded: np.ndarray | None = None  # bool: left out of the fit as an outlier
+
+    @property
+    def used(self) -> np.ndarray:
+        n = len(self.residuals)
+        return np.ones(n, bool) if self.excluded is None else ~self.excluded
+
+
+def with_excluded(
+    fit: PoseFit,
+    used_index: np.ndarray,
+    a_all: np.ndarray,
+    up_all: np.ndarray,
+    bias: np.ndarray,
+    matrix: np.ndarray,
+    g: float,
+    frame: np.ndarray | None = None,
+    output_aligned: bool = False,
+) -> PoseFit:
+    """Extend a fit over the poses it used to every pose of the session: a left-out pose gets
+    its residual under the final calibration (which is also held out: the fit never saw it),
+    its direction (``frame`` rotates ``matrix``'s output onto the labels) and its angle to its
+    label."""
+    N = len(a_all)
+    if len(used_index) == N:
+        return fit
+    h = (a_all - bias) @ matrix.T
+    mag = np.linalg.norm(h, axis=1)
+    dirs = h / mag[:, None]
+    aligned = dirs if frame is None else dirs @ frame.T
+    lab = np.isfinite(up_all).all(axis=1)
+    angle = np.full(N, np.nan)
+    angle[lab] = np.degrees(np.arccos(np.clip(np.sum(aligned[lab] * up_all[lab], axis=1), -1, 1)))
+    out_dirs = aligned if output_aligned else dirs
+    out = PoseFit(mag - g, out_dirs, angle, (mag - g).copy(), excluded=np.ones(N, bool))
+    out.residuals[used_index] = fit.residuals
+    out.directions[used_index] = fit.directions
+    if fit.up_angle_deg is not None:
+        out.up_angle_deg[used_index] = fit.up_angle_deg
+    if fit.residual_loo is not None:
+        out.residual_loo[used_index] = fit.residual_loo
+    out.excluded[used_index] = False
+    return out
 
 
 def pose_rows(poses: StaticPoses, fit: PoseFit, mag_before: np.ndarray, g: float) -> list[dict]:
@@ -97,10 +140,49 @@ def pose_rows(poses: StaticPoses, fit: PoseFit, mag_before: np.ndarray, g: float
         }
         if poses.spikes is not None and poses.spikes[k]:
             row["spikes_left_out"] = int(poses.spikes[k])
+        if fit.excluded is not None and fit.excluded[k]:
+            row["excluded"] = True
         for key, col in fit.extra.items():
             row[key] = num(col[k])
         rows.append(row)
     return rows
+
+
+def label_warnings(fit: PoseFit, poses: StaticPoses, limit_deg: float = 20.0) -> list[str]:
+    """Poses whose measured up is far from their label (more than ``limit_deg`` and five times
+    the median placement): the label is wrong."""
+    ang = fit.up_angle_deg
+    if ang is None or not np.isfinite(ang).any():
+        return []
+    limit = max(limit_deg, 5 * float(np.nanmedian(ang)))
+    out = []
+    for k in np.flatnonzero(np.nan_to_num(ang, nan=0.0) > limit):
+        s = poses.segments[k]
+        name = f"segment {s.name}" + (f" ({s.label})" if s.label else "")
+        out.append(
+            f"{name}: the measured up is {ang[k]:.0f} deg from its label, the others are within "
+            f"{float(np.nanmedian(ang)):.1f} deg: the label is wrong (relabel with `imucal label "
+            "SESSION --faces`)"
+        )
+    return out
+
+
+def check_fields(quality, outliers, physical: list[str], more: list[str]) -> dict:
+    """The warning fields of a section: ``warnings`` (everything said out loud), ``blocking``
+    (the subset that stops a save without --force), the outliers and the fit quality."""
+    return {
+        "warnings": physical
+        + quality.blocking
+        + [o.warning() for o in outliers]
+        + more
+        + quality.warnings,
+        "blocking": physical + quality.blocking,
+        "outliers": [o.as_dict() for o in outliers],
+        "spare_equations": int(quality.spare),
+        "rms_expected": float(quality.expected_rms),
+        "noise_excess": None if not np.isfinite(quality.excess) else float(quality.excess),
+        "rms_after_below_noise": bool(quality.below_noise),
+    }
 
 
 def coverage_dict(directions: np.ndarray, n_poses: int, min_separation_deg: float) -> dict:
@@ -128,7 +210,8 @@ def common_extra(
     """The fields of DEVELOPERS.md every accelerometer solver fills the same way."""
     derived, derived_std = summary
     mag_before = magnitude_before(poses, nominal, g)
-    loo = fit.residual_loo
+    used = fit.used
+    loo = None if fit.residual_loo is None else fit.residual_loo[used]
     noise = poses.noise
     extra = {
         "model": MODEL_EQUATION,
@@ -141,12 +224,22 @@ def common_extra(
         "misalignment_std_deg": dict(
             zip(("xy", "xz", "yz"), map(float, derived_std[3:]), strict=True)
         ),
-        "rms_before": rms(mag_before - g),
-        "rms_after": rms(fit.residuals),
+        "rms_before": rms(mag_before[used] - g),
+        "rms_after": rms(fit.residuals[used]),
         "rms_loo": rms(loo) if loo is not None and np.isfinite(loo).any() else None,
         "before_basis": nominal.basis,
-        "coverage": coverage_dict(fit.directions, len(poses.segments), min_separation_deg),
+        "coverage": coverage_dict(fit.directions[used], int(used.sum()), min_separation_deg),
         "poses": pose_rows(poses, fit, mag_before, g),
+        "notes": [
+            f"{int(n)} spike sample(s) left out of the mean of segment {s.name}"
+            + (f" ({s.label})" if s.label else "")
+            for s, n in zip(
+                poses.segments,
+                poses.spikes if poses.spikes is not None else [0] * len(poses.segments),
+                strict=True,
+            )
+            if n
+        ],
     }
     if noise is not None:
         extra["noise"] = {

@@ -265,8 +265,16 @@ def calibrate_session(
 
 
 def suspect_error(cal: Calibration) -> SolverError | None:
-    """A :class:`SolverError` describing the physical-sense warnings, or None when clean."""
-    warnings = [w for sec in (cal.accel, cal.gyro) if sec for w in sec.extra.get("warnings", [])]
+    """A :class:`SolverError` describing what stops a save (results outside physical sense, a
+    fit far above the noise), or None when clean. A section that lists ``blocking`` warnings
+    stops on those only (its other warnings are said, not refused); otherwise every warning
+    stops it."""
+    warnings = [
+        w
+        for sec in (cal.accel, cal.gyro)
+        if sec
+        for w in sec.extra.get("blocking", sec.extra.get("warnings", []))
+    ]
     if not warnings:
         return None
     more = f" (and {len(warnings) - 1} more)" if len(warnings) > 1 else ""

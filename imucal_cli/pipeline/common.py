@@ -96,6 +96,12 @@ def static_poses(session: Session) -> StaticPoses:
     sigma0 = np.maximum(1.4826 * np.median(mad, axis=0), max(step, 1e-12))
     n_total = sum(len(b) for b in blocks)
     masks = [holds.spike_mask(b, sigma0, n_total) for b in blocks]
+    # A hold that drifts (the unit tilting slowly) puts its ends far from its median: those
+    # samples are motion, not spikes; the trend test below flags the hold instead.
+    cov0 = np.diag(sigma0**2)
+    for k, (t, b, m) in enumerate(zip(times, blocks, masks, strict=True)):
+        if m.sum() > 2 and holds.trend(t, b, cov0, len(segs)).moved:
+            masks[k] = np.zeros(len(b), bool)
     clean = [b[~m] if (~m).sum() >= 2 else b for b, m in zip(blocks, masks, strict=True)]
     ctimes = [t[~m] if (~m).sum() >= 2 else t for t, m in zip(times, masks, strict=True)]
     noise = holds.pooled_noise(clean, step)
@@ -139,10 +145,48 @@ def adc_range(data_min: float, data_max: float) -> tuple[float, float] | None:
     return None
 
 
+def infer_accel_units(accel: np.ndarray, g: float) -> str | None:
+    """The raw units an accelerometer's readings are plausibly in, from their magnitude
+    (issue 10.4): ``"m/s^2"`` when |a| is near g, ``"g"`` near 1, ``"counts"`` for integer
+    readings or magnitudes far above g; None when nothing fits."""
+    finite = accel[np.isfinite(accel).all(axis=1)]
+    if not len(finite) or accel.shape[1] != 3:
+        return None
+    mag = float(np.median(np.linalg.norm(finite, axis=1)))
+    if 0.7 * g < mag < 1.3 * g:
+        return "m/s^2"
+    if 0.7 < mag < 1.3:
+        return "g"
+    sample = finite[:: max(1, len(finite) // 2000)]
+    if mag > 3 * g or np.all(sample == np.round(sample)):
+        return "counts"
+    return None
+
+
+def accel_units(session: Session, g: float) -> tuple[str, str | None]:
+    """The accelerometer's raw units and, when the session does not state them, a note saying
+    what was assumed from the magnitude and how to state them (issue 10.4)."""
+    if session.accel_units:
+        return session.accel_units, None
+    how = (
+        "state them with `imucal label SESSION --accel-units UNITS` (or --accel-units at "
+        "import/capture)"
+    )
+    guess = infer_accel_units(session.accel, g)
+    if guess is None:
+        return "raw units", f"the session does not state the accelerometer units; {how}"
+    finite = session.accel[np.isfinite(session.accel).all(axis=1)]
+    mag = float(np.median(np.linalg.norm(finite, axis=1)))
+    return guess, (
+        f"the session does not state the accelerometer units: |a| at rest is about {mag:.4g}, "
+        f"so they are taken as {guess}; {how}"
+    )
+
+
 def nominal_sensor(session: Session, cfg: Config, g: float) -> Nominal:
     """Nominal sensitivity, bias and range from the config, else from the units and data."""
     a = cfg.accel
-    units = session.accel_units or "unknown units"
+    units = accel_units(session, g)[0]
     accel = session.accel
     n = accel.shape[1]
     sens = a.nominal_sensitivity

@@ -11,7 +11,6 @@ are orthogonal (``h_ik = 0``); one turn of known angle fixes the global scale (e
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from imucal_cli.errors import DesignError
 from imucal_cli.formats.calibration import MODEL_EQUATION, SensorCalibration
@@ -20,8 +19,10 @@ from imucal_cli.formats.session import Segment, Session
 from imucal_cli.solvers import factorization as fz
 from imucal_cli.solvers.crb import invariant_summary, propagate
 from imucal_cli.solvers.poses import angle_deg, count_distinct, coverage
+from imucal_cli.solvers.rotation import Rotation
 
 from .common import (
+    accel_units,
     channel_names,
     nominal_sensor,
     num,
@@ -233,7 +234,7 @@ def calibrate_accel_factorization(session: Session, cfg: Config) -> SensorCalibr
         )
     res, lin = fz.align(res, R), fz.align(lin, R)
 
-    units_in = session.accel_units or "unknown"
+    units_in, units_note = accel_units(session, g)
     gains, gains_std, extra = _factorization_extra(lin, res, units_in, "m/s^2", g)
     matrix = g * res.T  # motions are in g: calibrated m/s^2 = g T (z - b)
     f_pose = (poses.a_mean - res.b) @ matrix.T
@@ -259,7 +260,8 @@ def calibrate_accel_factorization(session: Session, cfg: Config) -> SensorCalibr
         for a, v, s in zip(channel_names(n), gains, gains_std, strict=True)
     ]
     cover = coverage(directions)
-    warnings = physical_checks(res.b, gains, rms(residuals), nominal, cfg, units_in, g)
+    blocking = physical_checks(res.b, gains, rms(residuals), nominal, cfg, units_in, g)
+    warnings = blocking + ([units_note] if units_note else [])
     extra.update(
         {
             "model": MODEL_EQUATION,
@@ -300,6 +302,7 @@ def calibrate_accel_factorization(session: Session, cfg: Config) -> SensorCalibr
                 for k, s in enumerate(poses.segments)
             ],
             "warnings": warnings,
+            "blocking": blocking,
         }
     )
     extra["notes"] = notes + extra["notes"]

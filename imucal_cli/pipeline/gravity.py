@@ -11,9 +11,19 @@ from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
 from imucal_cli.solvers import gravity as gravity_solver
 
-from .accel import PoseFit, axes_summary_with_std, common_extra, parameter_rows
+from .accel import (
+    PoseFit,
+    axes_summary_with_std,
+    check_fields,
+    common_extra,
+    label_warnings,
+    parameter_rows,
+    with_excluded,
+)
+from .accel_checks import pose_sigmas, quality, robust_fit
 from .common import (
     StaticPoses,
+    accel_units,
     check_design,
     nominal_sensor,
     physical_checks,
@@ -68,15 +78,63 @@ def held_out(
     return res.residual_loo, "first-order deletion of each pose"
 
 
+def design_check(nominal, cfg: Config, where: str):
+    """Whether a reduced set of poses (outliers left out) still determines the model."""
+
+    def design_ok(p: StaticPoses) -> bool:
+        try:
+            check_design(p, nominal, cfg.accel.min_separation_deg, where, cfg.accel.gravity.model)
+        except DesignError:
+            return False
+        return True
+
+    return design_ok
+
+
+def solver_fields(res: gravity_solver.GravityResult, units: list[str]) -> dict:
+    """The fields of the section that describe the gravity solver's fit."""
+    return {
+        "variant": res.variant,
+        "gauge": GAUGE_9 if res.variant == "9-parameter" else GAUGE_12,
+        "parameters": parameter_rows(res.param_names, res.params, res.std, units),
+        "init": res.init,
+        "weighting": res.weighting,
+        "iterations": res.iterations,
+        "function_evaluations": res.nfev,
+        "converged": res.converged,
+        "message": res.message,
+        "chi2": res.chi2,
+        "dof": res.dof,
+        "noise_scale": res.noise_scale,
+        "rotation_std_deg": res.rotation_std_deg,
+    }
+
+
 def gravity_section(
     session: Session, cfg: Config, poses: StaticPoses, g: float, nominal
 ) -> SensorCalibration:
-    """Fit the gravity solver to ``poses`` and build the accel section."""
-    res = fit_poses(poses, g, cfg)
-    loo, loo_method = held_out(poses, g, res, cfg)
-    units_in = session.accel_units or "unknown"
+    """Fit the gravity solver to ``poses`` (outliers handled) and build the accel section."""
+    res, used, outliers = robust_fit(
+        lambda p: fit_poses(p, g, cfg),
+        poses,
+        cfg.accel.outliers,
+        design_check(nominal, cfg, session_name(session)),
+    )
+    used_index = np.array([poses.segments.index(s) for s in used.segments])
+    loo, loo_method = held_out(used, g, res, cfg)
+    units_in, units_note = accel_units(session, g)
     summary = axes_summary_with_std(_matrix_of(res.variant), res.params, res.cov)
-    fit = PoseFit(res.residuals, res.directions, res.up_angle_deg, loo)
+    fit = with_excluded(
+        PoseFit(res.residuals, res.directions, res.up_angle_deg, loo),
+        used_index,
+        poses.a_mean,
+        poses.up,
+        res.bias,
+        res.M,
+        g,
+        frame=res.rotation,
+        output_aligned=res.variant == "12-parameter",
+    )
     extra = common_extra(
         units_in=units_in,
         g=g,
@@ -87,30 +145,29 @@ def gravity_section(
         min_separation_deg=cfg.accel.min_separation_deg,
     )
     units = [units_in] * 3 + [f"m/s^2 per {units_in}"] * (len(res.params) - 3)
+    physical = physical_checks(
+        res.bias, summary[0][:3], rms(res.residuals), nominal, cfg, units_in, g,
+    )  # fmt: skip
+    q = quality(
+        used,
+        res.residuals,
+        pose_sigmas(used, res.M, res.bias),
+        res.dof,
+        9,
+        rms(loo) if loo is not None else None,
+        g,
+        extra["coverage"],
+        excess=float(np.sqrt(res.chi2 / res.dof)) if res.dof > 0 else None,
+    )
     extra.update(
         {
-            "variant": res.variant,
-            "gauge": GAUGE_9 if res.variant == "9-parameter" else GAUGE_12,
-            "parameters": parameter_rows(res.param_names, res.params, res.std, units),
-            "init": res.init,
-            "weighting": res.weighting,
-            "iterations": res.iterations,
-            "function_evaluations": res.nfev,
-            "converged": res.converged,
-            "message": res.message,
-            "chi2": res.chi2,
-            "dof": res.dof,
-            "noise_scale": res.noise_scale,
-            "rotation_std_deg": res.rotation_std_deg,
+            **solver_fields(res, units),
             "loo_method": loo_method,
-            "warnings": physical_checks(
-                res.bias,
-                summary[0][:3],
-                rms(res.residuals),
-                nominal,
-                cfg,
-                session.accel_units or "raw units",
-                g,
+            **check_fields(
+                q,
+                outliers,
+                physical,
+                label_warnings(fit, poses) + ([units_note] if units_note else []),
             ),
         }
     )

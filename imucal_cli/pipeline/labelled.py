@@ -6,15 +6,19 @@ from __future__ import annotations
 
 import numpy as np
 
-from imucal_cli.errors import DesignError
+from imucal_cli.errors import DesignError, SolverError
 from imucal_cli.formats.calibration import SensorCalibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
+from imucal_cli.solvers import gravity as gravity_solver
 from imucal_cli.solvers import labelled as labelled_solver
 
-from .accel import PoseFit, common_extra, parameter_rows
+from .accel import PoseFit, check_fields, common_extra, parameter_rows, with_excluded
+from .accel_checks import drop_wrong_labels, pose_sigmas, quality, robust_fit
 from .common import (
     StaticPoses,
+    accel_units,
+    check_design,
     labels_determine,
     nominal_sensor,
     physical_checks,
@@ -28,6 +32,46 @@ GAUGE = (
     "(Qureshi eq. 3, set by the sensitivities s_* and angles a_*) and r the rotation vector "
     "(deg) onto the labelled up directions"
 )
+
+
+def design_ok(p: StaticPoses) -> bool:
+    """Whether a reduced set of poses (outliers left out) still determines the model."""
+    return labels_determine(p.up) and len(p.segments) >= 5
+
+
+def used_up(poses: StaticPoses, used: StaticPoses, used_index: np.ndarray) -> np.ndarray:
+    """The labels as the final fit used them (a wrong label dropped), for every pose."""
+    up = poses.up.copy()
+    up[used_index] = used.up
+    return up
+
+
+def screen_by_magnitude(
+    poses: StaticPoses, g: float, cfg: Config, nominal, design_ok
+) -> tuple[StaticPoses, list]:
+    """Poses whose gravity magnitude disagrees with the rest (a bump along gravity), found by
+    the gravity-magnitude fit where the poses determine it (>= 9 distinct directions).
+
+    The labelled fit rescales its measurement noise to a bad pose's misfit, which then hides
+    among the others; the magnitude fit keeps the measured noise as its weights, so a pose
+    that disagrees stands out (issue 10.6). Returns the poses to fit and the outliers found.
+    """
+    try:
+        check_design(poses, nominal, cfg.accel.min_separation_deg, "", "9")
+    except DesignError:
+        return poses, []
+
+    def fit(p: StaticPoses):
+        return gravity_solver.fit_gravity(
+            p.a_mean, g, cov_mean=p.cov_mean, variant="9", init="ellipsoid",
+            max_iterations=cfg.accel.gravity.max_iterations,
+        )  # fmt: skip
+
+    try:
+        _, used, found = robust_fit(fit, poses, cfg.accel.outliers, design_ok)
+    except (DesignError, SolverError):
+        return poses, []
+    return used, [o for o in found if o.action != "kept"]
 
 
 def fit_poses(poses: StaticPoses, g: float, cfg: Config) -> labelled_solver.LabelledResult:
@@ -48,11 +92,26 @@ def fit_poses(poses: StaticPoses, g: float, cfg: Config) -> labelled_solver.Labe
 def labelled_section(
     session: Session, cfg: Config, poses: StaticPoses, g: float, nominal
 ) -> SensorCalibration:
-    """Fit the labelled solver to ``poses`` and build the accel section."""
-    res = fit_poses(poses, g, cfg)
-    units_in = session.accel_units or "unknown"
+    """Fit the labelled solver to ``poses`` (outliers handled) and build the accel section."""
+
+    relabelled, wrong = drop_wrong_labels(poses, g)
+    screened, screen = screen_by_magnitude(relabelled, g, cfg, nominal, design_ok)
+    res, used, outliers = robust_fit(
+        lambda p: fit_poses(p, g, cfg), screened, cfg.accel.outliers, design_ok, labelled=True
+    )
+    outliers = wrong + screen + outliers
+    used_index = np.array([poses.segments.index(s) for s in used.segments])
+    units_in, units_note = accel_units(session, g)
     summary = (res.params[3:9], res.std[3:9])  # sensitivities and angles are parameters
-    fit = PoseFit(res.residuals, res.directions, res.up_angle_deg, res.residual_loo)
+    fit = with_excluded(
+        PoseFit(res.residuals, res.directions, res.up_angle_deg, res.residual_loo),
+        used_index,
+        poses.a_mean,
+        used_up(poses, used, used_index),
+        res.bias,
+        res.matrix,
+        g,
+    )
     extra = common_extra(
         units_in=units_in,
         g=g,
@@ -63,38 +122,24 @@ def labelled_section(
         min_separation_deg=cfg.accel.min_separation_deg,
     )
     units = [units_in] * 3 + [f"{units_in} per m/s^2"] * 3 + ["deg"] * 6
-    r_std = res.std[9:12]
+    physical = physical_checks(
+        res.bias, summary[0][:3], rms(res.residuals), nominal, cfg, units_in, g,
+    )  # fmt: skip
+    q = quality(
+        used,
+        res.residuals,
+        pose_sigmas(used, res.matrix, res.bias),
+        res.dof,
+        12,
+        rms(res.residual_loo),
+        g,
+        extra["coverage"],
+        excess=float(np.sqrt(res.noise_scale)),
+    )
     extra.update(
         {
-            "variant": "12-parameter (labelled poses)",
-            "gauge": GAUGE,
-            "parameters": parameter_rows(res.param_names, res.params, res.std, units, res.ci95),
-            "placement": {
-                "rms_deg": res.placement_deg,
-                "source": res.placement_source,
-                "dof": res.placement_dof,
-                "meaning": "RMS angle between each pose's true up and its label",
-            },
-            "init": res.init,
-            "weighting": "noise",
-            "iterations": res.iterations,
-            "function_evaluations": res.nfev,
-            "converged": res.converged,
-            "message": res.message,
-            "chi2": res.chi2,
-            "dof": res.dof,
-            "noise_scale": res.noise_scale,
-            "rotation_std_deg": float(np.sqrt(np.mean(r_std**2))),
-            "loo_method": "first-order deletion of each pose",
-            "warnings": physical_checks(
-                res.bias,
-                summary[0][:3],
-                rms(res.residuals),
-                nominal,
-                cfg,
-                session.accel_units or "raw units",
-                g,
-            ),
+            **solver_fields(res, units),
+            **check_fields(q, outliers, physical, [units_note] if units_note else []),
         }
     )
     return SensorCalibration(
@@ -105,6 +150,33 @@ def labelled_section(
         residual_rms=rms(res.residuals),
         extra=extra,
     )
+
+
+def solver_fields(res: labelled_solver.LabelledResult, units: list[str]) -> dict:
+    """The fields of the section that describe the labelled solver's fit."""
+    r_std = res.std[9:12]
+    return {
+        "variant": "12-parameter (labelled poses)",
+        "gauge": GAUGE,
+        "parameters": parameter_rows(res.param_names, res.params, res.std, units, res.ci95),
+        "placement": {
+            "rms_deg": res.placement_deg,
+            "source": res.placement_source,
+            "dof": res.placement_dof,
+            "meaning": "RMS angle between each pose's true up and its label",
+        },
+        "init": res.init,
+        "weighting": "noise",
+        "iterations": res.iterations,
+        "function_evaluations": res.nfev,
+        "converged": res.converged,
+        "message": res.message,
+        "chi2": res.chi2,
+        "dof": res.dof,
+        "noise_scale": res.noise_scale,
+        "rotation_std_deg": float(np.sqrt(np.mean(r_std**2))),
+        "loo_method": "first-order deletion of each pose",
+    }
 
 
 def calibrate_accel_labelled(session: Session, cfg: Config) -> SensorCalibration:

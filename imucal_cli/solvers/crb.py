@@ -175,14 +175,13 @@ def labelled_crb(
         Bound on the covariance of the solver's parameters (:data:`.labelled.PARAM_NAMES`:
         bias, sensitivities, angles between the axes minus 90 deg, rotation r in degrees).
     """
-    from scipy.spatial.transform import Rotation
-
     from .labelled_model import (
         design_jacobian,
         jacobian,
         public_from_theta,
         triangular_and_rotation,
     )
+    from .rotation import Rotation
 
     Gt, Gd = design_jacobian(M, u, g)
     prior = 0.0 if not np.isfinite(placement_deg) else 2.0 / np.radians(placement_deg) ** 2

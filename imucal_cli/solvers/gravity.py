@@ -29,13 +29,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
-from scipy.special import chdtri  # inverse survival function of chi^2 (lighter than scipy.stats)
 
 from imucal_cli.errors import DesignError, SolverError
+from imucal_cli.solvers.quantiles import chdtri  # inverse survival function of chi^2
+from imucal_cli.solvers.rotation import Rotation
 
 from .ellipsoid import fit_ellipsoid
+from .lsq import least_squares
 from .outliers import Deletion, deletion
 from .poses import angle_deg
 
@@ -211,7 +211,6 @@ def _solve(a_n, g, w, x0, max_iterations):
         fun,
         x0,
         jac=jac,
-        method="lm",
         xtol=1e-12,
         ftol=1e-12,
         gtol=1e-12,
@@ -276,20 +275,8 @@ def fit_gravity(
     SolverError
         No convergence within ``max_iterations``.
     """
-    a_mean = np.asarray(a_mean, dtype=float)
+    a_mean = _checked(a_mean, variant)
     N = len(a_mean)
-    if a_mean.ndim != 2 or a_mean.shape[1] != 3:
-        raise DesignError(
-            f"the gravity solver needs 3 accelerometer channels, got {a_mean.shape[1:]}"
-        )
-    if N < 9:
-        raise DesignError(
-            f"{N} static poses cannot determine the {variant}-parameter gravity-magnitude model "
-            "(9 parameters from the magnitudes); capture at least 9 (the qureshi18 plan: 6 "
-            "faces and 12 edges), or label the poses for the labelled-pose solver"
-        )
-    if variant not in ("9", "12"):
-        raise ValueError(f"variant must be '9' or '12', not {variant!r}")
     up = None if up is None else np.asarray(up, dtype=float)
     starts = _starts(a_mean, g, up, init)
     norm = _Normalised(a_mean, *next(iter(starts.values())))
@@ -312,6 +299,25 @@ def fit_gravity(
     Bn, Mn = params_to_model(sol.x)
     x = model_to_params(Bn, np.diag(np.sign(np.diag(Mn))) @ Mn)
     return _package(a_mean, g, up, variant, norm, x, w, cov_mean, init_used, sol)
+
+
+def _checked(a_mean, variant: str) -> np.ndarray:
+    """The pose means as floats, or the error that says why they cannot be fitted."""
+    a_mean = np.asarray(a_mean, dtype=float)
+    if a_mean.ndim != 2 or a_mean.shape[1] != 3:
+        raise DesignError(
+            f"the gravity solver needs 3 accelerometer channels, got {a_mean.shape[1:]}"
+        )
+    if len(a_mean) < 9:
+        raise DesignError(
+            f"{len(a_mean)} static poses cannot determine the {variant}-parameter "
+            "gravity-magnitude model (9 parameters from the magnitudes); capture at least 9 "
+            "(the qureshi18 plan: 6 faces and 12 edges), or label the poses for the "
+            "labelled-pose solver"
+        )
+    if variant not in ("9", "12"):
+        raise ValueError(f"variant must be '9' or '12', not {variant!r}")
+    return a_mean
 
 
 def _starts(a_mean, g, up, init) -> dict[str, tuple[np.ndarray, np.ndarray]]:

@@ -16,9 +16,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import sparse
 
-from imucal_cli.solvers.banded import BandedWhitener
+from imucal_cli.solvers.banded import BandedWhitener, Coo
 from imucal_cli.solvers.gyro_integration import (
     Stack,
     attitudes,
@@ -193,7 +192,7 @@ class Problem:
                 J[2 * K + r_ :: 3, 12 + 3 * r_ : 15 + 3 * r_] = -self.still.g
         return r, J
 
-    def rotation_covariance(self, x) -> sparse.csr_matrix:
+    def rotation_covariance(self, x) -> Coo:
         """Covariance of the rotation residuals (2K x 2K, sparse): each rotation's from the
         gravity directions before and after it (shared with its neighbours) and its
         integrated gyro noise."""
@@ -218,11 +217,9 @@ class Problem:
             data.append(c.ravel())
             rr.append(np.broadcast_to(rows, c.shape).ravel())
             cc.append(np.broadcast_to(cols, c.shape).ravel())
-        C = sparse.csr_matrix(
-            (np.concatenate(data), (np.concatenate(rr), np.concatenate(cc))),
-            shape=(2 * K, 2 * P + 3 * K),
-        )
-        return C @ C.T
+        C = Coo(np.concatenate(rr), np.concatenate(cc), np.concatenate(data),
+                (2 * K, 2 * P + 3 * K))  # fmt: skip
+        return C.gram()
 
     def whitener(self, x) -> Whitener:
         return Whitener(BandedWhitener(self.rotation_covariance(x)), self)

@@ -29,10 +29,10 @@ from dataclasses import dataclass
 from itertools import permutations, product
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
 from imucal_cli.errors import DesignError
 from imucal_cli.solvers.gyro_integration import Stack, compose, quat_to_matrix
+from imucal_cli.solvers.scalar_min import minimize_bounded
 
 #: Turns that gravity sees by less than this carry no scale information for the start.
 MIN_SEEN_DEG = 10.0
@@ -191,6 +191,6 @@ def _refine_scale(turns: _Turns, O: np.ndarray, lam: float) -> tuple[float, floa
     values = [cost(g) for g in grid]
     i = int(np.argmin(values))
     a, b = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
-    res = minimize_scalar(cost, bounds=(a, b), method="bounded", options={"xatol": 2e-3})
-    best = (res.x, res.fun) if res.fun <= values[i] else (grid[i], values[i])
+    x, fx, _ = minimize_bounded(cost, a, b, xatol=2e-3)
+    best = (x, fx) if fx <= values[i] else (grid[i], values[i])
     return float(np.exp(best[0])), float(best[1])

@@ -19,7 +19,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import chdtri, ndtri
+
+from imucal_cli.solvers.quantiles import chdtri, ndtri
 
 #: Family-wise false-alarm probability of the spike test over a whole session.
 SPIKE_ALPHA = 1e-3

@@ -79,11 +79,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
-from scipy.special import chdtri, stdtrit
 
 from imucal_cli.errors import DesignError, SolverError
+from imucal_cli.solvers.quantiles import chdtri, stdtrit
+from imucal_cli.solvers.rotation import Rotation
 
 from .gravity import _UPPER
 from .labelled_model import (
@@ -96,6 +95,7 @@ from .labelled_model import (
     sphere_exp,
     triangular_and_rotation,
 )
+from .lsq import least_squares
 from .outliers import Deletion, deletion
 
 #: Parameters: bias (raw units), the sensitivity of each axis (raw units per m/s^2, the
@@ -248,17 +248,61 @@ def init_linear(a_mean: np.ndarray, up: np.ndarray, g: float) -> tuple[np.ndarra
     return sol[0], sol[1:].T
 
 
+def contradicted_labels(
+    a_mean: np.ndarray, up: np.ndarray, g: float, limit_deg: float = 20.0, max_fraction=0.25
+) -> list[tuple[int, float]]:
+    """Labelled poses whose reading contradicts their label (issue 10.6: a pose labelled with
+    the wrong face): each labelled pose is predicted by the linear start (:func:`init_linear`)
+    of the others; the pose furthest from its label, if further than ``limit_deg``, is taken
+    out and the test repeated (at most ``max_fraction`` of the labels).
+
+    Returns
+    -------
+    list of (index, angle_deg)
+        The contradicted poses and the angle between their measured and labelled up.
+    """
+    up = np.array(up, dtype=float)
+    found: list[tuple[int, float]] = []
+    n_lab = int(np.isfinite(up).all(axis=1).sum())
+    while len(found) < max(1, int(max_fraction * n_lab)):
+        lab = np.flatnonzero(np.isfinite(up).all(axis=1))
+        worst, worst_angle = -1, limit_deg
+        for k in lab:
+            others = up.copy()
+            others[k] = np.nan
+            try:
+                B, S = init_linear(a_mean, others, g)
+                u = np.linalg.solve(S, a_mean[k] - B)
+            except (DesignError, np.linalg.LinAlgError):
+                continue
+            cos = float(u @ up[k] / max(np.linalg.norm(u), 1e-300))
+            angle = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+            if angle > worst_angle:
+                worst, worst_angle = int(k), angle
+        if worst < 0:
+            break
+        found.append((worst, worst_angle))
+        up[worst] = np.nan
+    return found
+
+
 # --------------------------------------------------------------------------- the fit
 
 
 def _solve(prob: Problem, x0, max_iterations):
     sparse = prob.N > DENSE_MAX_POSES
+    if sparse:  # hundreds of placement parameters: scipy's sparse trust region (lsmr)
+        from scipy.optimize import least_squares as sparse_least_squares
+
+        return sparse_least_squares(
+            prob.residuals, x0, jac=lambda x: prob.jacobian(x, sparse=True), method="trf",
+            tr_solver="lsmr", x_scale=1.0, xtol=1e-12, ftol=1e-12, gtol=1e-12,
+            max_nfev=max_iterations,
+        )  # fmt: skip
     return least_squares(
         prob.residuals,
         x0,
-        jac=lambda x: prob.jacobian(x, sparse=sparse),
-        method="trf" if sparse else "lm",
-        tr_solver="lsmr" if sparse else "exact",
+        jac=prob.jacobian,
         x_scale=1.0,
         xtol=1e-12,
         ftol=1e-12,

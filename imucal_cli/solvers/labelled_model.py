@@ -5,7 +5,8 @@ second-order marginalisation over the placement."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+
+from imucal_cli.solvers.rotation import Rotation
 
 from .gravity import _UPPER
 

@@ -51,13 +51,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
-from scipy.special import chdtri
 
 from imucal_cli.errors import DesignError, SolverError
+from imucal_cli.solvers.quantiles import chdtri
+from imucal_cli.solvers.rotation import Rotation
 
 from .ellipsoid import fit_ellipsoid
+from .lsq import least_squares
 
 __all__ = [
     "PARAM_NAMES_ALIGNED",
@@ -354,7 +354,7 @@ class _Problem:
             return cache[key]
 
         return least_squares(
-            lambda x: both(x)[0], x0, jac=lambda x: both(x)[1], method="lm",
+            lambda x: both(x)[0], x0, jac=lambda x: both(x)[1],
             xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=max_nfev,
         )  # fmt: skip
 

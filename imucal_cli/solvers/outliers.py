@@ -21,7 +21,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import chdtri
+
+from imucal_cli.solvers.quantiles import chdtri
 
 #: Family-wise probability of flagging a pose of a good session.
 OUTLIER_ALPHA = 1e-3
@@ -50,6 +51,8 @@ class Deletion:
 def deletion(J: np.ndarray, r: np.ndarray, groups: list[np.ndarray], P: np.ndarray) -> Deletion:
     """Deletion diagnostics (module docstring) of the row groups of a whitened fit."""
     N, p = len(groups), J.shape[1]
+    if N and len({len(g) for g in groups}) == 1:
+        return _deletion_batched(J, r, np.array(groups), P)
     dx = np.zeros((N, p))
     T = np.zeros(N)
     rank = np.zeros(N, dtype=int)
@@ -65,6 +68,20 @@ def deletion(J: np.ndarray, r: np.ndarray, groups: list[np.ndarray], P: np.ndarr
         T[k] = float(z @ (z / w[keep]))
         dx[k] = P @ (Jk.T @ (V[:, keep] @ (z / w[keep])))
     return Deletion(dx, T, rank)
+
+
+def _deletion_batched(J: np.ndarray, r: np.ndarray, idx: np.ndarray, P: np.ndarray) -> Deletion:
+    """:func:`deletion` for groups of equal size, all at once (idx: (N, L) row indices)."""
+    Jg = J[idx]  # (N, L, p)
+    L = idx.shape[1]
+    A = np.eye(L) - np.einsum("nip,pq,njq->nij", Jg, P, Jg)
+    w, V = np.linalg.eigh(0.5 * (A + np.swapaxes(A, 1, 2)))
+    keep = w > 1e-8
+    z = np.einsum("nij,ni->nj", V, r[idx])
+    zw = np.where(keep, z / np.where(keep, w, 1.0), 0.0)
+    T = np.sum(z * zw, axis=1)
+    dx = np.einsum("pq,niq,nij,nj->np", P, Jg, V, zw)
+    return Deletion(dx, T, keep.sum(axis=1))
 
 
 def noise_excess(T: np.ndarray, rank: np.ndarray) -> float:
@@ -92,6 +109,6 @@ def flag(T: np.ndarray, rank: np.ndarray, alpha: float = OUTLIER_ALPHA) -> np.nd
 
 def significance(T: float, rank: int, n_tested: int, s2: float = 1.0) -> float:
     """Family-wise p-value of one pose's statistic among ``n_tested`` (Bonferroni)."""
-    from scipy.special import chdtrc
+    from .quantiles import chdtrc
 
     return float(min(1.0, n_tested * chdtrc(rank, T / s2))) if rank > 0 else 1.0

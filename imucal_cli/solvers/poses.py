@@ -29,12 +29,13 @@ def angle_deg(u: np.ndarray, v: np.ndarray) -> np.ndarray:
 def count_distinct(directions: np.ndarray, min_separation_deg: float = 10.0) -> int:
     """Number of directions that differ from every other counted one by more than
     ``min_separation_deg`` (greedy clustering, in the given order)."""
-    kept: list[np.ndarray] = []
+    u = unit(directions)
     cos_min = np.cos(np.radians(min_separation_deg))
-    for d in unit(directions):
-        if all(float(d @ k) < cos_min for k in kept):
-            kept.append(d)
-    return len(kept)
+    near = (u @ u.T) >= cos_min  # near[i, j]: j within the separation of i
+    kept = np.zeros(len(u), bool)
+    for i in range(len(u)):  # greedy in order: i counts unless a counted one is near it
+        kept[i] = not np.any(near[i, :i] & kept[:i])
+    return int(kept.sum())
 
 
 def spread_deg(directions: np.ndarray) -> float:

@@ -21,13 +21,14 @@ from cumulative sums, so a one-hour 100 Hz recording is segmented in a fraction 
 
 from __future__ import annotations
 
-import math
 import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from imucal_cli.errors import InputError
+
+from .quantiles import chi2_isf, chi2_ppf  # noqa: F401 (chi2_* also imported from here)
 
 __all__ = [
     "DEFAULT_ALPHA",
@@ -110,107 +111,6 @@ class NoiseEstimate:
 # --------------------------------------------------------------------------------------------
 # Helpers
 # --------------------------------------------------------------------------------------------
-
-
-def _gamma_p_q(a: float, x: float) -> tuple[float, float]:
-    """Regularised incomplete gamma functions ``(P(a, x), Q(a, x))``: the series below
-    ``a + 1``, Lentz's continued fraction for ``Q`` above (Numerical Recipes 6.2)."""
-    if x <= 0.0:
-        return 0.0, 1.0
-    log_front = -x + a * math.log(x) - math.lgamma(a)
-    if x < a + 1.0:
-        term = total = 1.0 / a
-        n = a
-        for _ in range(10_000):
-            n += 1.0
-            term *= x / n
-            total += term
-            if abs(term) < abs(total) * 1e-17:
-                break
-        p = total * math.exp(log_front)
-        return p, 1.0 - p
-    tiny = 1e-300
-    b = x + 1.0 - a
-    c = 1.0 / tiny
-    d = 1.0 / b
-    h = d
-    for i in range(1, 10_000):
-        an = -i * (i - a)
-        b += 2.0
-        d = an * d + b
-        d = tiny if abs(d) < tiny else d
-        c = b + an / c
-        c = tiny if abs(c) < tiny else c
-        d = 1.0 / d
-        delta = d * c
-        h *= delta
-        if abs(delta - 1.0) < 1e-16:
-            break
-    q = math.exp(log_front) * h
-    return 1.0 - q, q
-
-
-def _chi2_quantile(dof: float, prob: float, upper: bool) -> float:
-    """``x`` with ``P(chi2_dof <= x) = prob`` (``upper``: ``P(chi2_dof > x) = prob``)."""
-    a = dof / 2.0
-    # Wilson-Hilferty start, then safeguarded Newton on the tail that is not near 1.
-    z = _normal_quantile(prob if not upper else 1.0 - prob) if 0 < prob < 1 else 0.0
-    if upper:
-        z = -_normal_quantile(prob)
-    h = 2.0 / (9.0 * dof)
-    x = max(dof * (1.0 - h + z * math.sqrt(h)) ** 3, 1e-8) / 2.0
-    lo, hi = 0.0, math.inf
-    for _ in range(200):
-        p, q = _gamma_p_q(a, x)
-        f = (q - prob) if upper else (p - prob)
-        if (f > 0) != upper:
-            hi = x
-        else:
-            lo = x
-        density = math.exp(-x + (a - 1.0) * math.log(x) - math.lgamma(a))
-        step = f / density * (-1.0 if upper else 1.0)
-        new = x - step
-        if not (lo < new < hi):
-            new = (lo + hi) / 2.0 if math.isfinite(hi) else 2.0 * x
-        if abs(new - x) <= 1e-15 * x:
-            x = new
-            break
-        x = new
-    return 2.0 * x
-
-
-def _normal_quantile(p: float) -> float:
-    """Standard normal quantile (Acklam's rational approximation, about 1e-9): a start only."""
-    a = (-3.969683028665376e01, 2.209460984245205e02, -2.759285104469687e02,
-         1.383577518672690e02, -3.066479806614716e01, 2.506628277459239e00)
-    b = (-5.447609879822406e01, 1.615858368580409e02, -1.556989798598866e02,
-         6.680131188771972e01, -1.328068155288572e01)
-    c = (-7.784894002430293e-03, -3.223964580411365e-01, -2.400758277161838e00,
-         -2.549732539343734e00, 4.374664141464968e00, 2.938163982698783e00)
-    d = (7.784695709041462e-03, 3.224671290700398e-01, 2.445134137142996e00,
-         3.754408661907416e00)  # fmt: skip
-    if p < 0.02425:
-        t = math.sqrt(-2.0 * math.log(p))
-        num = ((((c[0] * t + c[1]) * t + c[2]) * t + c[3]) * t + c[4]) * t + c[5]
-        return num / ((((d[0] * t + d[1]) * t + d[2]) * t + d[3]) * t + 1.0)
-    if p > 1.0 - 0.02425:
-        return -_normal_quantile(1.0 - p)
-    t = (p - 0.5) ** 2
-    num = (((((a[0] * t + a[1]) * t + a[2]) * t + a[3]) * t + a[4]) * t + a[5]) * (p - 0.5)
-    return num / (((((b[0] * t + b[1]) * t + b[2]) * t + b[3]) * t + b[4]) * t + 1.0)
-
-
-def chi2_ppf(q: float, dof: float) -> float:
-    """Quantile ``q`` of the chi-square distribution with ``dof`` degrees of freedom (lower
-    tail), to about 1e-13 relative: inverse of the regularised incomplete gamma function by
-    safeguarded Newton.  Here rather than from ``scipy.special``, whose import costs
-    ``imucal import`` about 0.3 s of start-up for three numbers (tested against scipy)."""
-    return _chi2_quantile(float(dof), float(q), upper=False)
-
-
-def chi2_isf(p: float, dof: float) -> float:
-    """Upper-tail quantile: ``x`` with ``P(chi2_dof > x) = p`` (accurate for tiny ``p``)."""
-    return _chi2_quantile(float(dof), float(p), upper=True)
 
 
 def _rate_hz(time: np.ndarray) -> float:

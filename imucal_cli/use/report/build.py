@@ -287,8 +287,14 @@ def _rms_report(sec: SensorCalibration, mg_per_unit: float | None) -> dict[str, 
     }
     for key, value in figures.items():
         rms[f"{key}_mg"] = scaled(value, mg_per_unit)
-    rms["improvement"] = ratio(figures["before"], figures["after"])
+    exact = extra.get("rms_after_below_noise") is True  # no factor of a fit below the noise
+    rms["improvement"] = None if exact else ratio(figures["before"], figures["after"])
     rms["improvement_held_out"] = ratio(figures["before"], figures["held_out"])
+    if exact:
+        rms["after_note"] = (
+            "the fit residual is below what the noise allows (too few spare equations): it "
+            "says nothing about the accuracy; see the held-out figure"
+        )
     rms["before_basis"] = as_text(extra.get("before_basis"))
     rms["held_out_method"] = as_text(extra.get("loo_method"))
     return rms

@@ -295,6 +295,8 @@ def _rms_table(
         notes.append(f"before = {rms['before_basis']}")
     if rms["held_out_method"]:
         notes.append(f"held out = {rms['held_out_method']}")
+    if rms.get("after_note"):
+        notes.append(f"after: {rms['after_note']}")
     if notes:
         table.caption = Text("\n".join(notes))
         table.caption_justify = "left"
