@@ -157,7 +157,9 @@ def run(console: Console, runs: int = 5, n_sessions: int = 500) -> bool:
         t = run_process([*CLI, "report", str(tmp / "demo.cal.json")], runs, tmp)
         ok &= _row(table, "imucal report demo.cal.json", t, 0.3)
         t = run_process(
-            [*CLI, "calibrate", str(demo), "-o", str(tmp / "d2.json"), "--no-store"], runs, tmp
+            [*CLI, "calibrate", str(demo), "-o", str(tmp / "d2.json"), "--no-store", "--force"],
+            runs,
+            tmp,
         )
         ok &= _row(table, "imucal calibrate demo (qureshi18, 18 poses)", t, 0.5)
         ok &= _xsens(table, tmp, config, runs)
@@ -221,7 +223,9 @@ def _hour(table: Table, tmp: Path, runs: int) -> bool:
         table.add_row("1-hour session", "", "", "", "", "[red]FAIL", made.stderr[-70:])
         return False
     t = run_process(
-        [*CLI, "calibrate", str(session), "-o", str(tmp / "hour.json"), "--no-store"], runs, tmp
+        [*CLI, "calibrate", str(session), "-o", str(tmp / "hour.json"), "--no-store", "--force"],
+        runs,
+        tmp,
     )
     return _row(table, "calibrate a 1-hour 100 Hz session (200 poses)", t, 0.5)
 

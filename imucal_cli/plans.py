@@ -1,26 +1,39 @@
 """Capture plans: the steps a person (or a bench script) goes through, and what was done.
 
-Built-in plans (:func:`load_plan`):
+One registry (:data:`PLANS`) names every protocol imucal offers; ``imucal capture`` (guided,
+unattended), ``imucal simulate`` (file and ``--serve``) and the virtual device all take their
+plan names and steps from it (:func:`load_plan`, :func:`find_plan`):
 
 ``six``
     The 6 faces of a cube, static, with ``up`` (``"face +Z up"``, ...).
 ``qureshi18``
     6 faces + 12 edges at 45 degrees (Qureshi & Golnaraghi section IV-B), static, with ``up``.
 ``random:N``
-    N static poses, unlabelled (no ``up``), as the simulator's plan of that name.
+    N static poses, unlabelled (no ``up``).
 ``gyro-axes``
-    For each axis X, Y, Z: a still period, then a turn about that axis (rotation steps with
-    ``axis``, angle free); a final still period.  The still periods have no ``up``.
+    For each of +Z, +X, +Y: the unit flat on that face against a ruler (``up``), one full turn
+    (360 degrees, known) about the vertical face normal back against the ruler, a still period.
 ``hwangbo-iron``
-    Hwangbo & Kanade's right-angle iron: the 6 faces as static steps, then a 90-degree turn
-    about each face normal (rotation steps with ``axis`` and ``angle_deg = 90``).
+    Hwangbo & Kanade's right-angle iron: the 6 faces, then the gyroscope procedure of
+    ``hk-gyro``.
+``hk-gyro``
+    Hwangbo & Kanade section IV-B: still, then sweeps about the +Z, +X, +Y face normals of the
+    iron in mounting 1, the same in mounting 2 (the IMU re-mounted in the iron), and one
+    ruler-guided 90-degree turn; every step carries its ``mounting``.
+``hk-redundant``
+    Hwangbo & Kanade section V: 20 unlabelled orientations of a redundant accelerometer unit.
+``qureshi-axes[:N]``
+    Qureshi & Golnaraghi Fig. 2: N (default 18) hand turns about x and about y with +Z up, then
+    about z with +X up, each between still periods (angles free).
+``free:N``
+    N hand turns about any axes between still periods, starting flat with +Z up.
 ``still:MINUTES``
     One static step held for MINUTES minutes (``hold_s`` = 60 * MINUTES), no ``up``: a still
     recording for ``imucal noise`` (Allan deviation; bias instability needs tens of minutes).
 ``warmup:MINUTES``
-    One static step held for MINUTES minutes through a warm-up or cool-down (a cold start, a
-    hair-dryer ramp), the temperature logged (``capture`` refuses columns without ``temp``):
-    the recording for ``imucal calibrate --warmup`` (issue 17.3).
+    One static step, flat (+Z up), held for MINUTES minutes through a warm-up or cool-down (a
+    cold start, a hair-dryer ramp), the temperature logged (``capture`` refuses columns without
+    ``temp``): the recording for ``imucal calibrate --warmup`` (issue 17.3).
 
 A TOML plan file::
 
@@ -34,6 +47,7 @@ A TOML plan file::
     label = "turn about +Z"
     axis = [0, 0, 1]                 # rotation only, optional
     angle_deg = 90                   # rotation only, optional
+    mounting = 1                     # optional: the unit's mounting in the fixture (1, 2, ...)
 
 ``up`` and ``axis`` are scaled to unit length.
 """
@@ -43,18 +57,34 @@ from __future__ import annotations
 import math
 import re
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from imucal_cli.errors import InputError
 
-__all__ = ["BUILTIN_PLANS", "CaptureSummary", "Plan", "Step", "load_plan", "needs_temperature",
-           "plan_poses"]
+if TYPE_CHECKING:
+    import numpy as np
 
-BUILTIN_PLANS = ("six", "qureshi18", "gyro-axes", "hwangbo-iron", "random:N", "still:MINUTES",
-                 "warmup:MINUTES")  # fmt: skip
+# numpy is imported where arrays are made, not with the module: the registry's names and
+# summaries serve `imucal --help`, which must not wait for numpy.
+
+__all__ = [
+    "BUILTIN_PLANS",
+    "PLANS",
+    "CaptureSummary",
+    "Plan",
+    "PlanSpec",
+    "Step",
+    "find_plan",
+    "hk_gyro_steps",
+    "load_plan",
+    "needs_temperature",
+    "plan_help",
+    "plan_list",
+    "plan_poses",
+]
 
 
 @dataclass(frozen=True)
@@ -76,6 +106,9 @@ class Step:
     hold_s : float or None
         Static: how long this step is held, s; None uses the capture's ``--hold`` (the
         ``still:MINUTES`` plan sets it to its full duration).
+    mounting : int or None
+        The unit's mounting in the fixture (1, 2, ...), stored as the segment attribute
+        ``mounting``: constraints that hold within one mounting only (Hwangbo & Kanade).
     """
 
     kind: str
@@ -84,6 +117,22 @@ class Step:
     axis: np.ndarray | None = field(default=None, compare=False)
     angle_deg: float | None = None
     hold_s: float | None = None
+    mounting: int | None = None
+
+    def segment_attrs(self) -> dict[str, Any]:
+        """The attributes of the segment that records this step: ``label``, ``up`` (static)
+        or ``axis`` and ``angle_deg`` (rotation), and ``extra`` (``{"mounting": m}``)."""
+        import numpy as np
+
+        out: dict[str, Any] = {"label": self.label}
+        if self.kind == "static":
+            out["up"] = None if self.up is None else np.asarray(self.up, float)
+        else:
+            out["axis"] = None if self.axis is None else np.asarray(self.axis, float)
+            out["angle_deg"] = self.angle_deg
+        if self.mounting is not None:
+            out["extra"] = {"mounting": int(self.mounting)}
+        return out
 
 
 @dataclass(frozen=True)
@@ -143,46 +192,56 @@ class CaptureSummary:
 # --------------------------------------------------------------------------------------------
 
 _AXES = "XYZ"
-_RANDOM_RE = re.compile(r"random:(\d+)")
 MAX_RANDOM_POSES = 10000
+MAX_TURNS = 1000
+QURESHI_TURNS_PER_AXIS = 18
+HK_ORIENTATIONS = 20
+HK_MOUNTINGS = 2
+GYRO_AXES_TURN_DEG = 360.0
+RULER_TURN_DEG = 90.0
+HK_FACES = ((2, "+Z"), (0, "+X"), (1, "+Y"))
+"""Face normals the iron is swept about, in the order visited (Hwangbo & Kanade IV-B)."""
 
 
 def _sign(s: float) -> str:
     return "+" if s > 0 else "-"
 
 
-def _faces() -> list[tuple[str, np.ndarray]]:
+def _axis(i: int, scale: float = 1.0) -> tuple[float, float, float]:
+    """``scale`` times the unit vector of axis ``i`` (0, 1, 2 = X, Y, Z)."""
+    return tuple(scale if k == i else 0.0 for k in range(3))
+
+
+def _faces() -> list[tuple[str, tuple]]:
     out = []
     for i in (2, 0, 1):  # +Z first: the unit starts flat on the table
         for s in (1.0, -1.0):
-            up = np.zeros(3)
-            up[i] = s
-            out.append((f"face {_sign(s)}{_AXES[i]} up", up))
+            out.append((f"face {_sign(s)}{_AXES[i]} up", _axis(i, s)))
     return out
 
 
-def _edges() -> list[tuple[str, np.ndarray]]:
+def _edges() -> list[tuple[str, tuple]]:
     out = []
+    r = math.sqrt(2.0)
     for i, j in ((0, 1), (0, 2), (1, 2)):
         for si in (1.0, -1.0):
             for sj in (1.0, -1.0):
-                up = np.zeros(3)
-                up[i], up[j] = si, sj
+                up = [0.0, 0.0, 0.0]
+                up[i], up[j] = si / r, sj / r
                 label = f"edge {_sign(si)}{_AXES[i]}{_sign(sj)}{_AXES[j]} up"
-                out.append((label, up / np.sqrt(2.0)))
+                out.append((label, tuple(up)))
     return out
 
 
 def plan_poses(plan: str) -> list[tuple[str, np.ndarray | None]]:
-    """The poses of a plan, in the order they are visited.
+    """The poses of a static plan, in the order they are visited.
 
     Parameters
     ----------
     plan : str
         ``six`` (the 6 faces of a cube), ``qureshi18`` (6 faces + 12 edges at 45 degrees,
         Qureshi & Golnaraghi section IV-B) or ``random:N`` (N unlabelled poses; the simulator
-        draws their directions uniformly on the sphere); ``warmup:MINUTES`` is one pose, flat
-        (+Z up), held as long as the simulator's hold.
+        draws their directions uniformly on the sphere).
 
     Returns
     -------
@@ -194,92 +253,260 @@ def plan_poses(plan: str) -> list[tuple[str, np.ndarray | None]]:
     Raises
     ------
     InputError
-        Unknown plan, or N outside 1..10000.
+        Not a static plan, or N outside 1..10000.
     """
-    name = plan.strip().lower()
-    if name == "six":
-        return list(_faces())
-    if name == "qureshi18":
-        return list(_faces()) + _edges()
-    m = _RANDOM_RE.fullmatch(name)
-    if m:
-        n = int(m.group(1))
-        if not 1 <= n <= MAX_RANDOM_POSES:
-            raise InputError(f"plan {plan!r}: N must be between 1 and {MAX_RANDOM_POSES}")
-        return [(f"pose {k + 1}", None) for k in range(n)]
-    if name.startswith("warmup:"):
-        _minutes(name)
-        return [("warm-up, +Z up", np.array([0.0, 0.0, 1.0]))]
-    raise InputError(f"plan {plan!r} is unknown: use six, qureshi18 or random:N (N poses)")
+    spec, arg = find_plan(plan)
+    if spec is None or spec.simulator != "poses":
+        raise InputError(f"plan {plan!r} is unknown: use six, qureshi18 or random:N (N poses)")
+    return [(s.label, s.up) for s in spec.build(arg).steps]
 
 
+def _frozen(v) -> np.ndarray | None:
+    """A read-only copy of a built-in unit vector (exact as written: not re-normalised)."""
+    if v is None:
+        return None
+    import numpy as np
+
+    out = np.array(v, dtype=np.float64).reshape(3)
+    out.flags.writeable = False
+    return out
 
 
-def _from_poses(name: str) -> Plan:
-    steps = tuple(Step("static", label, up=_unit_or_none(up)) for label, up in plan_poses(name))
-    return Plan(name.strip().lower(), steps)
+def _static(label: str, up=None, **kw) -> Step:
+    return Step("static", label, up=_frozen(up), **kw)
 
 
-def _gyro_axes() -> Plan:
+def _rotation(label: str, axis=None, **kw) -> Step:
+    return Step("rotation", label, axis=_frozen(axis), **kw)
+
+
+def _six(_arg=None) -> tuple[Step, ...]:
+    return tuple(_static(label, up) for label, up in _faces())
+
+
+def _qureshi18(_arg=None) -> tuple[Step, ...]:
+    return tuple(_static(label, up) for label, up in _faces() + _edges())
+
+
+def _random(n: int) -> tuple[Step, ...]:
+    return tuple(_static(f"pose {k + 1}") for k in range(n))
+
+
+def _gyro_axes(_arg=None) -> tuple[Step, ...]:
+    """For +Z, +X, +Y: flat on that face, one full turn about the vertical, still again."""
     steps = []
-    for i, a in enumerate(_AXES):
-        steps.append(Step("static", f"hold still before the turn about +{a}"))
-        steps.append(Step("rotation", f"turn about +{a}", axis=np.eye(3)[i].copy()))
-    steps.append(Step("static", "hold still after the last turn"))
-    return Plan("gyro-axes", tuple(steps))
+    for i in (2, 0, 1):
+        a = _AXES[i]
+        steps.append(_static(f"face +{a} up, against a ruler", _axis(i)))
+        turn = f"turn about +{a} by {GYRO_AXES_TURN_DEG:g} deg, back against the ruler"
+        steps.append(_rotation(turn, _axis(i), angle_deg=GYRO_AXES_TURN_DEG))
+        steps.append(_static(f"still after the turn about +{a}"))
+    return tuple(steps)
 
 
-def _hwangbo_iron() -> Plan:
-    faces = _from_poses("six").steps
-    turns = tuple(
-        Step(
-            "rotation",
-            f"turn 90 deg about the {f.label.split()[1]} face normal",
-            axis=f.up,
-            angle_deg=90.0,
-        )
-        for f in faces
-    )
-    return Plan("hwangbo-iron", faces + turns)
+def hk_gyro_steps(
+    mountings: int = HK_MOUNTINGS, faces: bool = False, ruler_deg: float = RULER_TURN_DEG
+) -> tuple[Step, ...]:
+    """Hwangbo & Kanade IV-B: sweeps about three orthogonal faces per mounting, a ruler turn
+    of ``ruler_deg``; with ``faces``, the 6 faces of the iron first (plan ``hwangbo-iron``).
+
+    ``up`` is known in mounting 1 only (there the sensor is aligned with the iron)."""
+    eye, ez = [_axis(i) for i in range(3)], _axis(2)
+    steps = [_static(label, up, mounting=1) for label, up in _faces()] if faces else []
+    steps.append(_static("mounting 1: still, +Z up (biases)", ez, mounting=1))
+    for m in range(1, mountings + 1):
+        for k, (face, name) in enumerate(HK_FACES):
+            up = eye[face] if m == 1 else None
+            if m > 1 or k > 0:
+                steps.append(_static(f"mounting {m}: still, {name} up", up, mounting=m))
+            steps.append(_rotation(f"mounting {m}: sweep about {name}", eye[face], mounting=m))
+            steps.append(
+                _static(f"mounting {m}: still after the sweep about {name}", up, mounting=m)
+            )
+    ruler = f"mounting 1: ruler-guided {ruler_deg:g}-degree turn about +Z"
+    steps += [
+        _static("mounting 1: still, +Z up, iron against the ruler", ez, mounting=1),
+        _rotation(ruler, ez, angle_deg=float(ruler_deg), mounting=1),
+        _static("mounting 1: still, +Z up, after the ruler turn", ez, mounting=1),
+    ]
+    return tuple(steps)
 
 
-def _minutes(key: str) -> float:
-    """The MINUTES of ``still:MINUTES`` / ``warmup:MINUTES``; refused unless positive."""
-    name, _, text = key.partition(":")
-    try:
-        minutes = float(text.strip())
-    except ValueError:
-        minutes = float("nan")
-    if not math.isfinite(minutes) or minutes <= 0:
-        raise InputError(f"plan {name}:{text.strip()}: MINUTES must be a positive number, e.g. "
-                         f"{name}:20")  # fmt: skip
-    return minutes
+def _hk_redundant(_arg=None) -> tuple[Step, ...]:
+    return tuple(_static(f"orientation {k + 1}") for k in range(HK_ORIENTATIONS))
 
 
-def _still(key: str) -> Plan:
+def _qureshi_axes(n: int | None) -> tuple[Step, ...]:
+    """Qureshi & Golnaraghi Fig. 2: turns about x and y with +Z up, about z with +X up."""
+    n = QURESHI_TURNS_PER_AXIS if n is None else n
+    steps = []
+    for i, face, face_label in ((0, 2, "+Z"), (1, 2, "+Z"), (2, 0, "+X")):
+        tag = f"{'xyz'[i]} turn"
+        for k in range(1, n + 1):
+            where = f", {face_label} up" if k == 1 else ""
+            up = _axis(face) if k == 1 else None
+            steps.append(_static(f"still before {tag} {k}{where}", up))
+            steps.append(_rotation(f"turn {k} about {'xyz'[i]}", _axis(i)))
+        steps.append(_static(f"still after {tag} {n}"))
+    return tuple(steps)
+
+
+def _free(n: int) -> tuple[Step, ...]:
+    steps = []
+    for k in range(1, n + 1):
+        up = _axis(2) if k == 1 else None
+        steps.append(_static(f"still before turn {k}" + (", +Z up" if k == 1 else ""), up))
+        steps.append(_rotation(f"turn {k}"))
+    steps.append(_static(f"still after turn {n}"))
+    return tuple(steps)
+
+
+def _still(minutes: float) -> tuple[Step, ...]:
     """``still:MINUTES``: one static step held for the whole recording."""
-    minutes = _minutes(key)
-    step = Step("static", f"hold still for {minutes:g} min (noise)", hold_s=60.0 * minutes)
-    return Plan(f"still:{minutes:g}", (step,))
+    return (Step("static", f"hold still for {minutes:g} min (noise)", hold_s=60.0 * minutes),)
 
 
-def _warmup(key: str) -> Plan:
-    """``warmup:MINUTES`` (issue 17.3): one still step through a warm-up or cool-down, the
-    temperature logged; for ``imucal calibrate --warmup``."""
-    minutes = _minutes(key)
-    step = Step("static", f"leave it still for {minutes:g} min while it warms up or cools down "
-                "(temperature logged)", hold_s=60.0 * minutes)  # fmt: skip
-    return Plan(f"warmup:{minutes:g}", (step,))
+def _warmup(minutes: float) -> tuple[Step, ...]:
+    """``warmup:MINUTES`` (issue 17.3): one still step, flat, through a warm-up or cool-down."""
+    label = f"leave it still, +Z up, for {minutes:g} min while it warms up or cools down " \
+        "(temperature logged)"
+    return (_static(label, (0.0, 0.0, 1.0), hold_s=60.0 * minutes),)
+
+
+@dataclass(frozen=True)
+class PlanSpec:
+    """One built-in plan of the registry.
+
+    Attributes
+    ----------
+    name : str
+        What the user types, with its argument's name: ``"six"``, ``"random:N"``,
+        ``"qureshi-axes[:N]"``.
+    summary : str
+        One line for ``--help`` and error messages.
+    simulator : str
+        Which virtual experiment of :mod:`imucal_cli.simulate` plays it: ``"poses"`` (the
+        triad on poses), ``"rotations"`` (hand turns), ``"iron"`` (Hwangbo & Kanade's iron),
+        ``"redundant"`` (the redundant unit) or ``"steps"`` (any list of steps).
+    steps : callable
+        ``steps(arg) -> tuple of Step`` from the parsed argument (None when absent).
+    arg : str or None
+        ``"count"`` (an integer, required), ``"count?"`` (optional), ``"minutes"`` or None.
+    temperature : bool
+        The recording is useless without the temperature (``capture`` refuses a stream
+        without it).
+    """
+
+    name: str
+    summary: str
+    simulator: str
+    steps: Callable[[Any], tuple[Step, ...]]
+    arg: str | None = None
+    temperature: bool = False
+
+    @property
+    def key(self) -> str:
+        """The name without its argument: ``random``, ``qureshi-axes``."""
+        return self.name.split(":")[0].split("[")[0]
+
+    def build(self, arg=None) -> Plan:
+        """The plan for a parsed argument (see :func:`find_plan`)."""
+        name = self.key if arg is None else f"{self.key}:{arg:g}"
+        return Plan(name, self.steps(arg))
+
+
+PLANS: tuple[PlanSpec, ...] = (
+    PlanSpec("six", "the 6 faces of a cube", "poses", _six),
+    PlanSpec("qureshi18", "6 faces + 12 edges at 45 degrees, Qureshi & Golnaraghi", "poses",
+             _qureshi18),
+    PlanSpec("random:N", "N unlabelled static poses", "poses", _random, "count"),
+    PlanSpec("gyro-axes", "a 360-degree turn on the table about each of +Z, +X, +Y", "steps",
+             _gyro_axes),
+    PlanSpec("hwangbo-iron", "the 6 faces, then the hk-gyro procedure",
+             "iron", lambda _arg: hk_gyro_steps(faces=True)),
+    PlanSpec("hk-gyro", "sweeps about 3 faces of a right-angle iron in 2 mountings, then a "
+             "ruler-guided 90-degree turn, Hwangbo & Kanade IV-B", "iron",
+             lambda _arg: hk_gyro_steps()),
+    PlanSpec("hk-redundant", "20 unlabelled orientations of a redundant accelerometer unit, "
+             "Hwangbo & Kanade V", "redundant", _hk_redundant),
+    PlanSpec("qureshi-axes[:N]", "N hand turns, default 18, about x and y with +Z up, then "
+             "about z with +X up, Qureshi & Golnaraghi Fig. 2", "rotations", _qureshi_axes,
+             "count?"),
+    PlanSpec("free:N", "N hand turns about any axes, still between turns", "rotations", _free,
+             "count"),
+    PlanSpec("still:MINUTES", "one still hold of MINUTES minutes, for imucal noise", "steps",
+             _still, "minutes"),
+    PlanSpec("warmup:MINUTES", "one still hold, flat, through a warm-up or cool-down of MINUTES "
+             "minutes, temperature logged, for imucal calibrate --warmup", "poses", _warmup,
+             "minutes", temperature=True),
+)  # fmt: skip
+"""Every built-in plan, in the order they are listed to the user."""
+
+BUILTIN_PLANS = tuple(spec.name for spec in PLANS)
+
+
+def plan_list() -> str:
+    """The plan names for a message: ``six, qureshi18, random:N, ...``."""
+    return ", ".join(BUILTIN_PLANS)
+
+
+def plan_help() -> str:
+    """Every plan with its summary, for ``--help``: ``six: the 6 faces of a cube; ...``."""
+    items = "; ".join(f"{p.name}: {p.summary}" for p in PLANS)
+    return f"{items}; or a TOML plan file ([[step]] kind, label, up, axis, angle_deg, mounting)."
+
+
+def find_plan(name: str) -> tuple[PlanSpec | None, Any]:
+    """The registry entry of a plan name and its parsed argument; (None, None) when the name
+    is no built-in plan (it may be a plan file).
+
+    Raises
+    ------
+    InputError
+        A built-in plan with a bad argument (``random:0``, ``still:abc``, ``free`` without N).
+    """
+    text = str(name).strip()
+    key, colon, arg_text = text.lower().partition(":")
+    spec = next((p for p in PLANS if p.key == key), None)
+    if spec is None:
+        return None, None
+    if not colon:
+        if spec.arg in ("count", "minutes"):
+            raise InputError(f"plan {text!r}: say how many, as in {spec.name}")
+        return spec, None
+    if spec.arg is None:
+        raise InputError(f"plan {text!r}: {spec.key} takes no argument")
+    arg_text = arg_text.strip()
+    if spec.arg == "minutes":
+        try:
+            minutes = float(arg_text)
+        except ValueError:
+            minutes = float("nan")
+        if not math.isfinite(minutes) or minutes <= 0:
+            raise InputError(f"plan {spec.key}:{arg_text}: MINUTES must be a positive number, "
+                             f"e.g. {spec.key}:20")  # fmt: skip
+        return spec, minutes
+    high = MAX_RANDOM_POSES if spec.key == "random" else MAX_TURNS
+    if not re.fullmatch(r"\d+", arg_text) or not 1 <= int(arg_text) <= high:
+        raise InputError(f"plan {text!r}: N must be between 1 and {high}")
+    return spec, int(arg_text)
 
 
 def needs_temperature(plan: Plan) -> bool:
-    """A plan whose recording is useless without the temperature (``warmup:MINUTES``)."""
-    return plan.name.startswith("warmup:")
+    """A registry plan whose recording is useless without the temperature
+    (``warmup:MINUTES``); plan files never are."""
+    try:
+        spec, _ = find_plan(plan.name)
+    except InputError:
+        return False
+    return spec is not None and spec.temperature
 
 
 def _unit_or_none(v) -> np.ndarray | None:
     if v is None:
         return None
+    import numpy as np
+
     v = np.asarray(v, dtype=np.float64).reshape(3)
     out = v / np.linalg.norm(v)
     out.flags.writeable = False
@@ -287,14 +514,13 @@ def _unit_or_none(v) -> np.ndarray | None:
 
 
 def load_plan(name_or_path: str) -> Plan:
-    """A built-in plan by name, or a TOML plan file.
+    """A built-in plan by name (:data:`PLANS`), or a TOML plan file.
 
     Parameters
     ----------
     name_or_path : str
-        ``six``, ``qureshi18``, ``random:N``, ``gyro-axes``, ``hwangbo-iron``, ``still:MINUTES``,
-        or a path to a
-        ``.toml`` file (see the module notes).
+        A name of :data:`BUILTIN_PLANS` (``six``, ``random:12``, ``still:20``, ...), or a path
+        to a ``.toml`` file (see the module notes).
 
     Returns
     -------
@@ -306,24 +532,13 @@ def load_plan(name_or_path: str) -> Plan:
         Unknown plan, unreadable file or a bad step (one line naming the file and the step).
     """
     text = str(name_or_path).strip()
-    key = text.lower()
-    if key in ("six", "qureshi18") or key.startswith("random:"):
-        return _from_poses(key)
-    if key == "gyro-axes":
-        return _gyro_axes()
-    if key == "hwangbo-iron":
-        return _hwangbo_iron()
-    if key.startswith("still:"):
-        return _still(key)
-    if key.startswith("warmup:"):
-        return _warmup(key)
+    spec, arg = find_plan(text)
+    if spec is not None:
+        return spec.build(arg)
     path = Path(text)
     if path.suffix.lower() == ".toml" or path.exists():
         return _load_file(path)
-    raise InputError(
-        f"plan {text!r} is unknown: use six, qureshi18, random:N, gyro-axes, hwangbo-iron, "
-        "still:MINUTES, warmup:MINUTES or a .toml plan file"
-    )
+    raise InputError(f"plan {text!r} is unknown: use {plan_list()} or a .toml plan file")
 
 
 def _load_file(path: Path) -> Plan:
@@ -356,10 +571,11 @@ def _parse_step(src: str, number: int, item) -> Step:
     where = f"{src}: step {number}"
     if not isinstance(item, dict):
         raise InputError(f"{where}: must be a table ([[step]])")
-    unknown = sorted(set(item) - {"kind", "label", "up", "axis", "angle_deg"})
+    unknown = sorted(set(item) - {"kind", "label", "up", "axis", "angle_deg", "mounting"})
     if unknown:
         raise InputError(
-            f"{where}: unknown key {unknown[0]!r} (expected kind, label, up, axis, angle_deg)"
+            f"{where}: unknown key {unknown[0]!r} "
+            "(expected kind, label, up, axis, angle_deg, mounting)"
         )
     kind = item.get("kind")
     if kind not in ("static", "rotation"):
@@ -384,14 +600,21 @@ def _parse_step(src: str, number: int, item) -> Step:
         ):
             raise InputError(f"{where}: angle_deg must be a finite number, got {angle!r}")
         angle = float(angle)
+    mounting = item.get("mounting")
+    if mounting is not None and (
+        isinstance(mounting, bool) or not isinstance(mounting, int) or mounting < 1
+    ):
+        raise InputError(f"{where}: mounting must be an integer >= 1, got {mounting!r}")
     return Step(kind, label.strip(), up=vectors.get("up"), axis=vectors.get("axis"),
-                angle_deg=angle)  # fmt: skip
+                angle_deg=angle, mounting=mounting)  # fmt: skip
 
 
 def _vector(where: str, key: str, value) -> np.ndarray:
     ok = isinstance(value, list) and len(value) == 3
     ok = ok and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
     if ok:
+        import numpy as np
+
         v = np.asarray(value, dtype=np.float64)
         if np.isfinite(v).all() and np.linalg.norm(v) > 0:
             return _unit_or_none(v)

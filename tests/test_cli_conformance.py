@@ -187,8 +187,11 @@ def test_shell_completion_of_commands_options_plans_and_values():
     assert _complete("imucal cal") == ["calibrate"]
     assert set(_complete("imucal ")) >= set(COMMANDS)
     assert "--json" in _complete("imucal report --js")
-    assert _complete("imucal capture --plan q") == ["qureshi18"]
+    # capture and simulate complete the same plans (one registry, issue 9.4)
+    assert _complete("imucal capture --plan q") == ["qureshi18", "qureshi-axes"]
     assert set(_complete("imucal simulate --plan hk")) == {"hk-redundant", "hk-gyro"}
+    assert _complete("imucal capture --plan st") == _complete("imucal simulate --plan st")
+    assert _complete("imucal capture --plan st") == ["still:"]
     assert _complete("imucal capture --accel-units ") == ["counts", "V", "g", "m/s^2"]
     assert _complete("imucal export --format y") == ["yaml"]
     # a path: nothing offered, so the shell completes file names (complete -o default)

@@ -344,9 +344,10 @@ def test_instruction_words():
     assert instruction(plan.steps[0]) == "Put face +Z up and hold still"
     assert instruction(plan.steps[6]).startswith("Put edge ")
     iron = load_plan("hwangbo-iron")
-    assert instruction(iron.steps[6]) == "Turn about +Z by 90 degrees, then hold still"
+    ruler = next(s for s in iron.steps if s.angle_deg == 90.0)
+    assert instruction(ruler) == "Turn about +Z by 90 degrees, then hold still"
     axes = load_plan("gyro-axes")
-    assert instruction(axes.steps[0]) == "Hold still before the turn about +X"
+    assert instruction(axes.steps[1]) == "Turn about +Z by 360 degrees, then hold still"
     assert "new orientation" in instruction(load_plan("random:3").steps[0])
 
 

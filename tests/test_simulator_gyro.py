@@ -370,7 +370,8 @@ def test_command_refuses_bad_gyro_options(tmp_path, monkeypatch, capsys):
         ["--plan", "free:0"],
         ["--plan", "qureshi-axes", "--peak-rate", "-3"],
         ["--plan", "qureshi-axes", "--still", "0.01"],
-        ["--plan", "qureshi-axes", "--serve"],
+        ["--plan", "qureshi-axes:0"],
+        ["--plan", "qureshi-axes:4", "--rotations-per-axis", "5"],
     ):
         code, _, err = _run_main(monkeypatch, capsys, ["simulate", *args, "-o", str(out)])
         assert code == 2, args

@@ -425,6 +425,7 @@ class Recorder:
         up: np.ndarray | None = None,
         axis: np.ndarray | None = None,
         angle_deg: float | None = None,
+        extra: dict | None = None,
     ) -> str:
         """Mark samples ``[start, stop)`` as a segment (see
         :meth:`imucal_cli.formats.session.SessionWriter.add_segment`); return its name.
@@ -441,7 +442,8 @@ class Recorder:
             raise SessionError(f"{self.path}: no samples recorded, so no segment can be added")
         try:
             return self._writer.add_segment(
-                kind, start, stop, label=label, up=up, axis=axis, angle_deg=angle_deg
+                kind, start, stop, label=label, up=up, axis=axis, angle_deg=angle_deg,
+                extra=extra,
             )
         except WriteFailed as exc:
             ended = self._write_failed(exc)

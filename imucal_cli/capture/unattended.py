@@ -137,15 +137,24 @@ def _directions_usable(stills: list[_Still]) -> bool:
     return max(norms) / min(norms) <= MAX_MAGNITUDE_RATIO
 
 
-def _match_still(step_ups: list[tuple[int, np.ndarray]], direction: np.ndarray) -> int | None:
-    close = [i for i, up in step_ups if _angle_deg(direction, up) <= MATCH_DEG]
-    return close[0] if len(close) == 1 else None
+def _match_still(
+    step_ups: list[tuple[int, np.ndarray]], direction: np.ndarray, used: set[int]
+) -> int | None:
+    """The first labelled step in plan order, not taken by an earlier still, whose ``up`` is
+    within :data:`MATCH_DEG`; a still on a face already taken (the still after a turn on the
+    table) is left for the plan's unlabelled steps."""
+    close = [i for i, up in step_ups if i not in used and _angle_deg(direction, up) <= MATCH_DEG]
+    if close:
+        used.add(close[0])
+    return close[0] if close else None
 
 
 def _motion_rotvec(
     time: np.ndarray, gyro: np.ndarray, before: _Still, after: _Still
-) -> np.ndarray | None:
-    """Integrated bias-free gyro over the motion between two still periods (raw units * s)."""
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Integrated bias-free gyro over the motion between two still periods (raw units * s),
+    and the principal axis of its rate (unit, signed like the integral): the axis of a sweep
+    that ends where it began, whose integral is nearly zero."""
     if before.mean_gyro is None or after.mean_gyro is None or after.start <= before.stop:
         return None
     bias = 0.5 * (before.mean_gyro + after.mean_gyro)
@@ -153,19 +162,33 @@ def _motion_rotvec(
     dt = np.diff(time[a - 1 : b + 1])
     g = gyro[a:b] - bias
     rv = (g * 0.5 * (dt[:-1] + dt[1:])[:, None]).sum(axis=0)
-    return rv if np.linalg.norm(rv) > 0 else None
+    if not np.linalg.norm(rv) > 0 or g.shape[1] != 3:
+        return None
+    axis = np.linalg.eigh(g.T @ g)[1][:, -1]
+    return rv, axis * (1.0 if axis @ rv >= 0 else -1.0)
+
+
+def _axis_checkable(step: Step) -> bool:
+    """A rotation step whose axis the gyro can check: it has one, in the sensor's own frame
+    (mounting 1, where the unit is square in the fixture)."""
+    return step.axis is not None and (step.mounting or 1) == 1
 
 
 def _match_motion(
-    steps: list[tuple[int, Step]], rotvec: np.ndarray, before: _Still, after: _Still,
-    use_directions: bool,
+    steps: list[tuple[int, Step]], motion: tuple[np.ndarray, np.ndarray], before: _Still,
+    after: _Still, use_directions: bool, used: set[int], after_step: int | None,
 ) -> int | None:  # fmt: skip
+    """The first rotation step in plan order, not matched yet, that the motion fits; right
+    after a still matched to step j, only step j + 1 (the plan's turn after that pose)."""
+    rotvec, principal = motion
     close = []
     for i, step in steps:
-        if step.axis is None:
+        if i in used or not _axis_checkable(step):
             continue
-        angle = _angle_deg(rotvec, step.axis)
-        if step.angle_deg is None:
+        if after_step is not None and i != after_step + 1:
+            continue
+        if step.angle_deg is None:  # a turn of any angle, or a sweep back and forth
+            angle = _angle_deg(principal, step.axis)
             ok = min(angle, 180.0 - angle) <= MATCH_DEG
         else:
             ok = _angle_deg(rotvec * np.sign(step.angle_deg), step.axis) <= MATCH_DEG
@@ -175,25 +198,31 @@ def _match_motion(
                 ok = _angle_deg(predicted, after.mean_accel) <= MATCH_DEG
         if ok:
             close.append(i)
-    return close[0] if len(close) == 1 else None
+    if close:
+        used.add(close[0])
+    return close[0] if close else None
 
 
 def _match(plan: Plan, stills: list[_Still], time: np.ndarray, gyro: np.ndarray | None) -> _Matches:
     use_directions = _directions_usable(stills)
     steps = plan.steps
     step_ups = [(i, s.up) for i, s in enumerate(steps) if s.kind == "static" and s.up is not None]
+    used: set[int] = set()
     still = [
-        _match_still(step_ups, s.mean_accel)
+        _match_still(step_ups, s.mean_accel, used)
         if use_directions and s.mean_accel is not None
         else None
         for s in stills
     ]
     rot_steps = [(i, s) for i, s in enumerate(plan.steps) if s.kind == "rotation"]
     motion: list[int | None] = []
-    for before, after in zip(stills[:-1], stills[1:], strict=True):
-        rv = None if gyro is None else _motion_rotvec(time, gyro, before, after)
+    used_turns: set[int] = set()
+    for k, (before, after) in enumerate(zip(stills[:-1], stills[1:], strict=True)):
+        mv = None if gyro is None else _motion_rotvec(time, gyro, before, after)
         motion.append(
-            None if rv is None else _match_motion(rot_steps, rv, before, after, use_directions)
+            None
+            if mv is None
+            else _match_motion(rot_steps, mv, before, after, use_directions, used_turns, still[k])
         )
     return _Matches(still, motion, use_directions)
 
@@ -204,12 +233,12 @@ def _progress(plan: Plan, stills: list[_Still], matches: _Matches, has_gyro: boo
     statics = [i for i, s in enumerate(plan.steps) if s.kind == "static"]
     rotations = [i for i, s in enumerate(plan.steps) if s.kind == "rotation"]
     # Steps that can only be counted: static steps without up (or when directions are not
-    # usable), rotation steps without axis (or without a gyro).
+    # usable), rotation steps without an axis the gyro can check (or without a gyro).
     counted_static = [i for i in statics if plan.steps[i].up is None or not matches.directions_used]
     spare_stills = sum(1 for m in matches.still if m is None)
     for i in counted_static[:spare_stills]:
         seen.add(i)
-    counted_rot = [i for i in rotations if plan.steps[i].axis is None or not has_gyro]
+    counted_rot = [i for i in rotations if not _axis_checkable(plan.steps[i]) or not has_gyro]
     spare_motions = sum(1 for m in matches.motion if m is None)
     for i in counted_rot[:spare_motions]:
         seen.add(i)
@@ -421,20 +450,8 @@ def run_unattended(
     if time is not None and len(time) >= 2:
         entries, done, missing = segment_recording(time, accel, gyro, plan, min_still_s=min_still_s)
         for e in entries:
-            step = e.step
-            if e.kind == "static":
-                recorder.add_segment(
-                    "static", e.start, e.stop,
-                    label=None if step is None else step.label,
-                    up=None if step is None else step.up,
-                )  # fmt: skip
-            else:
-                recorder.add_segment(
-                    "rotation", e.start, e.stop,
-                    label=None if step is None else step.label,
-                    axis=None if step is None else step.axis,
-                    angle_deg=None if step is None else step.angle_deg,
-                )  # fmt: skip
+            attrs = {} if e.step is None else e.step.segment_attrs()
+            recorder.add_segment(e.kind, e.start, e.stop, **attrs)
     complete = not missing if plan is not None else reached_duration
     return CaptureSummary(
         complete=complete,

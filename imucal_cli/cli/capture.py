@@ -16,6 +16,7 @@ from imucal_cli.formats.output import check_output
 from . import completion
 from .app import app
 from .console import make_console, print_json
+from .options import plan_option
 
 EXIT_COMPLETE, EXIT_INCOMPLETE = 0, 3
 
@@ -36,17 +37,8 @@ def capture(
         autocompletion=completion.ports,
     ),
     baud: int = typer.Option(115200, "--baud", "-b", metavar="N", help="Baud rate."),
-    plan: str | None = typer.Option(
-        None,
-        "--plan",
-        metavar="NAME|FILE.toml",
-        help=(
-            "Steps to go through: six, qureshi18 (the default when guided), random:N, gyro-axes, "
-            "hwangbo-iron, still:MINUTES (noise), warmup:MINUTES (a still warm-up, temperature "
-            "logged, for calibrate --warmup), or a TOML plan file ([[step]] kind, label, up, "
-            "axis, angle_deg)."
-        ),
-        autocompletion=completion.capture_plan,
+    plan: str | None = plan_option(
+        None, "Steps to go through (qureshi18 when guided; the same plans as imucal simulate):"
     ),
     output: Path | None = typer.Option(
         None,

@@ -9,11 +9,6 @@ import nothing heavy: they run on every Tab.
 
 from __future__ import annotations
 
-# Plan names as the person types them (``random:N`` etc. complete to their prefix).
-CAPTURE_PLANS = ("six", "qureshi18", "random:", "gyro-axes", "hwangbo-iron", "still:",
-                 "warmup:")  # fmt: skip
-SIMULATE_PLANS = ("six", "qureshi18", "random:", "gyro-axes", "hwangbo-iron", "hk-redundant",
-                  "hk-gyro", "qureshi-axes", "free:")  # fmt: skip
 ACCEL_UNITS = ("counts", "V", "g", "m/s^2")
 GYRO_UNITS = ("counts", "V", "rad/s", "deg/s")
 TIME_UNITS = ("s", "ms", "us", "ns")
@@ -23,12 +18,13 @@ def _matching(values, incomplete: str) -> list[str]:
     return [v for v in values if v.startswith(incomplete)]
 
 
-def capture_plan(incomplete: str) -> list[str]:
-    return _matching(CAPTURE_PLANS, incomplete)
+def plans(incomplete: str) -> list[str]:
+    """Plan names of the registry as the person types them (``random:N`` completes to
+    ``random:``); capture and simulate know the same plans."""
+    from imucal_cli.plans import PLANS  # the registry; no numpy at its import
 
-
-def simulate_plan(incomplete: str) -> list[str]:
-    return _matching(SIMULATE_PLANS, incomplete)
+    names = [p.key + (":" if p.arg in ("count", "minutes") else "") for p in PLANS]
+    return _matching(names, incomplete)
 
 
 def accel_units(incomplete: str) -> list[str]:

@@ -13,6 +13,7 @@ from imucal_cli.errors import InputError
 from . import completion
 from .app import app
 from .console import print_json
+from .options import plan_option
 
 SERVE_HOLD_S = 4.0
 """--serve's hold per pose when --hold is not given, s: capture's default hold (2 s) plus time for
@@ -38,6 +39,17 @@ def _enter_presses():
     return lambda: keys.get() is not None
 
 
+def _written_poses_or_turns(flag: str, plan: str, serve: bool) -> None:
+    """Refuse ``flag`` (a temperature ramp, a clock error) but for written sessions of the pose
+    and hand-rotation plans, the experiments that model it."""
+    from imucal_cli.plans import find_plan
+
+    spec = find_plan(plan)[0]
+    if serve or spec is None or spec.simulator not in ("poses", "rotations"):
+        raise InputError(f"{flag} works for written sessions of plans six, qureshi18, "
+                         "random:N, warmup:MINUTES, qureshi-axes and free:N")  # fmt: skip
+
+
 def truth_path(session_path: Path) -> Path:
     """Where the truth goes: ``x.h5`` -> ``x.truth.json`` (beside the session)."""
     return session_path.with_suffix(".truth.json")
@@ -51,24 +63,10 @@ def default_output(plan: str, seed: int) -> Path:
 @app.command()
 def simulate(
     ctx: typer.Context,
-    plan: str = typer.Option(
+    plan: str = plan_option(
         "qureshi18",
-        "--plan",
-        metavar="PLAN",
-        help=(
-            "Poses to visit: 'six' (the 6 faces of a cube), 'qureshi18' (6 faces + 12 edges "
-            "at 45 degrees, Qureshi & Golnaraghi) or 'random:N' (N unlabelled poses, "
-            "directions uniform on the sphere); or the Hwangbo & Kanade designs "
-            "'hk-redundant' (two dual-axis accelerometers, n = 4 channels, 11-bit ADC codes "
-            "0..2047 = -2.5..2.5 g, held still in random orientations; 50 Hz unless --rate) and "
-            "'hk-gyro' (sinusoidal sweeps about 3 orthogonal faces of a right-angle iron in each "
-            "mounting, then one ruler-guided 90-degree turn; --hold sets the still periods, "
-            "default 3 s); or hand rotations for the gyroscope: 'qureshi-axes' (Qureshi & "
-            "Golnaraghi Fig. 2: --rotations-per-axis turns about x and y with +Z up, then about z "
-            "with +X up, different angles within +-180 degrees) and 'free:N' (N turns about "
-            "random axes); --peak-rate and --still shape the turns."
-        ),
-        autocompletion=completion.simulate_plan,
+        "What the virtual IMU goes through (the same plans as imucal capture; --serve streams "
+        "them live):",
     ),
     seed: int = typer.Option(
         0,
@@ -245,41 +243,43 @@ def simulate(
     """Simulate a calibration session of a cheap 16-bit MEMS IMU with known truth.
 
     Writes the session (HDF5) and the true calibration (JSON) of the simulated part; with
-    --serve, streams it live on a pseudo-terminal instead (plans six, qureshi18, random:N,
-    gyro-axes, hwangbo-iron or a TOML plan file; ends after the plan, --duration, or on
-    Ctrl-C/SIGTERM).  Test faults of --serve: --garbage (random bytes, as a wrong baud rate),
-    --stall-after SECONDS, --vanish-after SECONDS (close the port), --malformed-every N.
+    --serve, streams it live on a pseudo-terminal instead (every plan; ends after the plan,
+    --duration, or on Ctrl-C/SIGTERM).  Test faults of --serve: --garbage (random bytes, as a
+    wrong baud rate), --stall-after SECONDS, --vanish-after SECONDS (close the port),
+    --malformed-every N.
 
     Exit status: 0 written (or streamed); 2 bad input (unknown plan, bad option, existing
     output without --force).
     """
-    from imucal_cli.simulate.redundant import HK_PLANS, simulate_hk_plan
-    from imucal_cli.simulate.rotations import is_gyro_plan, simulate_gyro_rotations
+    from imucal_cli.plans import load_plan
 
-    hk = plan.strip().lower() in HK_PLANS
-    gyro = is_gyro_plan(plan)
-    if serve and (hk or gyro):
-        raise InputError(f"--serve does not stream plan {plan!r}: write a session file instead")
+    def given(name: str) -> bool:
+        source = ctx.get_parameter_source(name)
+        return source is not None and source.name != "DEFAULT"
+
+    load_plan(plan)  # an unknown plan is refused first, with the list of plans
+    options = {
+        "accel_noise": accel_noise, "jitter_deg": jitter_deg, "still_s": still,
+        "rotations_per_axis": rotations_per_axis if given("rotations_per_axis") else None,
+        "peak_rate_dps": peak_rate, "sigma_counts": sigma_counts, "orientations": orientations,
+        "samples": samples, "labelled": labelled, "mountings": mountings,
+    }  # fmt: skip
     thermal = None
     if ramp is not None:
         from imucal_cli.simulate.temperature import parse_ramp
 
-        if serve or hk:
-            raise InputError("--ramp works for written sessions of plans six, qureshi18, "
-                             "random:N, qureshi-axes and free:N")  # fmt: skip
+        _written_poses_or_turns("--ramp", plan, serve)
         thermal = parse_ramp(ramp)
     clock = None
     if clock_ppm is not None:
         from imucal_cli.simulate.clock import check_ppm
 
-        if serve or hk:
-            raise InputError("--clock-ppm works for written sessions of plans six, qureshi18, "
-                             "random:N, qureshi-axes and free:N")  # fmt: skip
+        _written_poses_or_turns("--clock-ppm", plan, serve)
         clock = check_ppm(clock_ppm)
     if serve:
         _serve(
             plan, rate, baud, json_output, seed=seed, hold_s=SERVE_HOLD_S if hold is None else hold,
-            move_s=move, step=step, units=units,
+            move_s=move, step=step, units=units, plan_options=options,
             temperature=temp, loop=loop, duration_s=duration, garbage=garbage,
             stall_after_s=stall_after, vanish_after_s=vanish_after,
             malformed_every=malformed_every,
@@ -288,17 +288,7 @@ def simulate(
     from imucal_cli.formats.calibration import write_calibration
     from imucal_cli.formats.output import check_output
     from imucal_cli.formats.session import write_session
-    from imucal_cli.plans import plan_poses
-    from imucal_cli.simulate.triad import simulate as run
-
-    if not (hk or gyro):
-        try:
-            plan_poses(plan)
-        except InputError:
-            raise InputError(
-                f"plan {plan!r} is unknown: use six, qureshi18, random:N (poses), qureshi-axes, "
-                "free:N (hand rotations), hk-redundant or hk-gyro (Hwangbo & Kanade)"
-            ) from None
+    from imucal_cli.simulate.play import simulate_plan
 
     out = output if output is not None else default_output(plan, seed)
     truth_out = truth_path(out)
@@ -306,56 +296,11 @@ def simulate(
         raise InputError(f"{out}: the session name must not end in .truth.json")
     for p in (out, truth_out):
         check_output(p, force=force)
-    if hk:
-
-        def given(name: str) -> bool:
-            source = ctx.get_parameter_source(name)
-            return source is not None and source.name != "DEFAULT"
-
-        session, truth = simulate_hk_plan(
-            plan,
-            seed=seed,
-            rate_hz=rate if given("rate") else None,
-            units=units,
-            hold_s=hold,
-            accel_noise=accel_noise,
-            sigma_counts=sigma_counts,
-            orientations=orientations,
-            samples=samples,
-            labelled=labelled,
-            mountings=mountings,
-        )
-        rate = float(session.sample_rate_hz)
-    elif gyro:
-        session, truth = simulate_gyro_rotations(
-            plan=plan,
-            seed=seed,
-            rate_hz=rate,
-            rotations_per_axis=rotations_per_axis,
-            peak_rate_dps=peak_rate,
-            still_s=still,
-            accel_noise=accel_noise,
-            jitter_deg=jitter_deg,
-            units=units,
-            temperature=thermal,
-            clock_scale=clock,
-        )
-    else:
-        if hold is None and plan.strip().lower().startswith("warmup:"):
-            from imucal_cli.plans import load_plan
-
-            hold = load_plan(plan).steps[0].hold_s  # the whole warm-up, held still
-        session, truth = run(
-            plan=plan,
-            seed=seed,
-            rate_hz=rate,
-            hold_s=2.0 if hold is None else hold,
-            accel_noise=accel_noise,
-            jitter_deg=jitter_deg,
-            units=units,
-            temperature=thermal,
-            clock_scale=clock,
-        )
+    session, truth = simulate_plan(
+        plan, seed=seed, units=units, rate_hz=rate if given("rate") else None, hold_s=hold,
+        move_s=move, temperature=thermal, clock_scale=clock, **options,
+    )  # fmt: skip
+    rate = float(session.sample_rate_hz)
     truth = dataclasses.replace(truth, session=out.name)
     write_session(out, session, overwrite=force)
     write_calibration(truth_out, truth, force=force)

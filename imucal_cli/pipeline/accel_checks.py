@@ -19,9 +19,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.special import chdtrc
 
 from imucal_cli.solvers import outliers as out
+from imucal_cli.solvers.quantiles import chdtrc
 
 from .common import StaticPoses
 

@@ -1,15 +1,14 @@
 """A virtual serial IMU: ``imucal simulate --serve`` streams a simulated IMU on a pseudo-terminal.
 
 :func:`serve` opens a pseudo-terminal pair, announces the device path of its slave side, waits
-for a reader to open it, and writes the text lines of a simulated 6-axis IMU performing a plan
-in real time, ``t,ax,ay,az,gx,gy,gz,temp`` (``t`` in seconds, raw counts), so that
-``imucal capture --port PATH`` reads it through the real tty layer.
+for a reader to open it, and writes the text lines of a simulated IMU performing a plan in real
+time, ``t,ax,ay,az,gx,gy,gz,temp`` (``t`` in seconds, raw counts; the redundant unit of
+``hk-redundant``: ``t,ax,ay,az,a4,temp``), so that ``imucal capture --port PATH`` reads it
+through the real tty layer.
 
-- Plans ``six``, ``qureshi18`` and ``random:N`` play
-  :func:`imucal_cli.simulate.triad.simulate_stream`
-  (same seed, same samples as ``imucal simulate``).  Any other plan (``gyro-axes``,
-  ``hwangbo-iron``, a TOML file) plays :func:`plan_motion`: still, a smooth turn about each
-  rotation step's axis, still again, with the simulator's sensor model.
+- Every plan of the registry and every plan file plays
+  :func:`imucal_cli.simulate.play.simulate_plan`: the same seed and options give the same
+  samples as ``imucal simulate`` writes to a file; its static segments are the holds.
 - A pseudo-terminal has no baud rate: the bytes are paced to ``baud / 10`` bytes per second
   (8N1), so a stream too fast for the baud rate falls behind as it would on a real line.
 - The first line is a comment ``# imucal virtual IMU ...``; then data lines.
@@ -39,12 +38,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from imucal_cli.errors import InputError
-from imucal_cli.plans import Plan, load_plan
-from imucal_cli.simulate.motion import Timeline, smootherstep, unit, up_to_vertical
-from imucal_cli.simulate.sensor import random_imu
+from imucal_cli.plans import Plan
 
 __all__ = [
     "SETTLE_S",
@@ -61,8 +57,6 @@ SETTLE_S = 0.3
 
 DRAIN_S = 0.3
 """Wait after the last byte before closing the pseudo-terminal, so the reader gets it all."""
-
-_SIMULATOR_PLANS = ("six", "qureshi18")
 
 
 @dataclass(frozen=True)
@@ -109,80 +103,37 @@ class ServeResult:
 
 
 def plan_motion(
-    plan: Plan,
-    *,
-    seed: int = 0,
-    rate_hz: float = 100.0,
-    hold_s: float = 2.0,
-    move_s: float = 1.5,
-    lead_s: float = 1.0,
-    units: str = "counts",
-    gravity: float = 9.80665,
-    accel_noise: float = 0.01,
-    gyro_noise: float = 0.005,
-    holds: list[Hold] | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Raw samples of a simple motion through any plan: still, smooth turns, still.
-
-    Static steps with ``up`` turn the unit (a smootherstep slerp of ``move_s``) to that
-    pose, then hold ``hold_s``; static steps without ``up`` hold where the unit is.  Rotation
-    steps turn about the body ``axis`` by ``angle_deg`` (90 degrees when the plan leaves it
-    free), then hold ``hold_s`` when the next step is not a static one.  The sensor is
-    :func:`imucal_cli.simulate.sensor.random_imu` drawn from ``seed``.
-
-    Returns
-    -------
-    time, accel, gyro : ndarray
-        ``(N,)`` seconds, ``(N, 3)`` raw accelerometer and gyroscope samples.
-
-    ``holds``, when given, receives a :class:`Hold` per still pose (the lead joins the first).
+    plan: Plan, *, seed: int = 0, rate_hz: float = 100.0, hold_s: float = 2.0,
+    move_s: float = 1.5, units: str = "counts",
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """Time (N,), raw accel (N, 3) and raw gyro (N, 3) of the virtual IMU going through a
+    :class:`~imucal_cli.plans.Plan`: a registry plan (by its name) as ``imucal simulate`` plays
+    it, any other step by step (:func:`imucal_cli.simulate.steps.simulate_steps`).
     """
-    truth_ss, noise_ss = np.random.SeedSequence(int(seed)).spawn(2)
-    truth = random_imu(np.random.default_rng(truth_ss), units, accel_noise, gyro_noise)
-    n_hold = max(2, int(round(hold_s * rate_hz)))
-    n_move = max(2, int(round(move_s * rate_hz)))
-    first_up = next((s.up for s in plan.steps if s.kind == "static" and s.up is not None), None)
-    start = Rotation.identity() if first_up is None else up_to_vertical(unit(first_up))
-    tl = Timeline(rate_hz, gravity, start)
+    from imucal_cli.plans import find_plan, load_plan
+    from imucal_cli.simulate.steps import simulate_steps
 
-    def turn(rotvec: np.ndarray) -> None:
-        s, ds = smootherstep(n_move, (n_move + 1) / rate_hz)
-        tl.turn(rotvec, s, ds, angle=1.0)
-
-    found: list[Hold] = [] if holds is None else holds
-
-    def hold(label: str) -> None:
-        start, stop = tl.hold(n_hold)
-        if found and found[-1].stop == start:  # the same pose still: one hold
-            start = found.pop().start
-        found.append(Hold(start, stop, label))
-
-    lead = tl.hold(max(1, int(round(lead_s * rate_hz))))
-    found.append(Hold(*lead, "start"))
-    steps = plan.steps
-    for i, step in enumerate(steps):
-        if step.kind == "static":
-            if step.up is not None:
-                rv = (tl.att.inv() * up_to_vertical(unit(step.up))).as_rotvec()
-                if np.linalg.norm(rv) > np.radians(1.0):
-                    turn(rv)
-            hold(step.label)
-        else:
-            axis = np.array([0.0, 0.0, 1.0]) if step.axis is None else np.asarray(step.axis)
-            angle = 90.0 if step.angle_deg is None else step.angle_deg
-            turn(axis / np.linalg.norm(axis) * np.radians(angle))
-            if i + 1 == len(steps) or steps[i + 1].kind != "static":
-                hold(f"after {step.label}")
-    force, rate = tl.arrays()
-    raw = truth.sample({"accel": force, "gyro": rate}, np.random.default_rng(noise_ss))
-    return np.arange(len(force)) / rate_hz, raw["accel"], raw["gyro"]
+    try:
+        spec, _ = find_plan(plan.name)
+    except InputError:
+        spec = None
+    if spec is not None and load_plan(plan.name) == plan:
+        return stream_arrays(
+            plan.name, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s
+        )
+    session, _ = simulate_steps(
+        plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s, move_s=move_s, units=units
+    )
+    return session.time, session.accel, session.gyro
 
 
 def stream_arrays(
-    plan: str, *, seed: int = 0, rate_hz: float = 100.0, hold_s: float = 2.0,
-    units: str = "counts", move_s: float = 1.5,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
-    """Time (N,), raw accel (N, 3) and raw gyro (N, 3) of one pass through ``plan``.
+    plan: str, *, seed: int = 0, rate_hz: float | None = 100.0, hold_s: float | None = 2.0,
+    units: str = "counts", move_s: float = 1.5, **options,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:  # fmt: skip
+    """Time (N,), raw accel (N, na) and raw gyro (N, 3) (None without one) of one pass through
+    ``plan``, as :func:`imucal_cli.simulate.play.simulate_plan` simulates it (``options``: its
+    other options).
 
     Raises
     ------
@@ -190,44 +141,49 @@ def stream_arrays(
         Unknown plan or bad options.
     """
     time, accel, gyro, _ = stream_with_holds(
-        plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s
+        plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s, **options
     )
     return time, accel, gyro
 
 
 def stream_with_holds(
-    plan: str, *, seed: int = 0, rate_hz: float = 100.0, hold_s: float = 2.0,
-    units: str = "counts", move_s: float = 1.5,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[Hold]]:  # fmt: skip
-    """As :func:`stream_arrays`, plus the still poses (:class:`Hold`, in time order)."""
-    key = plan.strip().lower()
-    if key in _SIMULATOR_PLANS or key.startswith("random:"):
-        from imucal_cli.simulate.triad import simulate_stream
+    plan: str, *, seed: int = 0, rate_hz: float | None = 100.0, hold_s: float | None = 2.0,
+    units: str = "counts", move_s: float = 1.5, **options,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, list[Hold]]:  # fmt: skip
+    """As :func:`stream_arrays`, plus the still poses (:class:`Hold`, in time order): the
+    session's static segments, a still run across two of them one hold, the lead the first."""
+    from imucal_cli.simulate.play import simulate_plan
 
-        s = simulate_stream(
-            plan=key, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s
-        )
-        holds = [Hold(seg.start, seg.stop, seg.label or f"pose {i + 1}")
-                 for i, seg in enumerate(x for x in s.segments if x.kind == "static")]  # fmt: skip
-        if holds:  # the lead is the first pose held a little longer
-            holds[0] = Hold(0, holds[0].stop, holds[0].label)
-        return s.time, s.accel, s.gyro, holds
-    if not rate_hz > 0 or not hold_s > 0 or not move_s > 0:
-        raise InputError("rate, hold and move time must be positive")
+    session, _ = simulate_plan(
+        plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s, **options
+    )
     holds: list[Hold] = []
-    time, accel, gyro = plan_motion(
-        load_plan(plan), seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units,
-        move_s=move_s, holds=holds,
-    )  # fmt: skip
-    return time, accel, gyro, holds
+    for i, seg in enumerate(session.static_segments()):
+        start, label = seg.start, seg.label or f"pose {i + 1}"
+        if holds and holds[-1].stop == start:  # the same pose still: one hold
+            start = holds.pop().start
+        holds.append(Hold(start, seg.stop, label))
+    if holds:  # the lead is the first pose held a little longer
+        holds[0] = Hold(0, holds[0].stop, holds[0].label)
+    return session.time, session.accel, session.gyro, holds
+
+
+def _columns(accel: np.ndarray, gyro: np.ndarray | None, temperature: bool) -> str:
+    """The field names of a line: ``t,ax,ay,az[,a4..],gx,gy,gz[,temp]``."""
+    names = ["t", "ax", "ay", "az"] + [f"a{k}" for k in range(4, accel.shape[1] + 1)]
+    if gyro is not None:
+        names += ["gx", "gy", "gz"] + [f"g{k}" for k in range(4, gyro.shape[1] + 1)]
+    return ",".join(names + (["temp"] if temperature else []))
 
 
 def _format(
-    time: np.ndarray, accel: np.ndarray, gyro: np.ndarray, temperature: bool, counts: bool
-) -> list[bytes]:
+    time: np.ndarray, accel: np.ndarray, gyro: np.ndarray | None, temperature: bool,
+    counts: bool,
+) -> list[bytes]:  # fmt: skip
+    columns = [time, accel] + ([] if gyro is None else [gyro])
+    n_values = sum(c.shape[1] for c in columns[1:])
     value = "%.0f" if counts else "%.6f"
-    fmt = ",".join(["%.4f"] + [value] * 6 + (["%.2f"] if temperature else []))
-    columns = [time, accel, gyro]
+    fmt = ",".join(["%.4f"] + [value] * n_values + (["%.2f"] if temperature else []))
     if temperature:
         columns.append((25.0 + 0.01 * time)[:, None])
     rows = np.column_stack(columns).tolist()
@@ -250,9 +206,10 @@ def serve(
     baud: int = 115200,
     *,
     seed: int = 0,
-    hold_s: float = 2.0,
+    hold_s: float | None = 2.0,
     move_s: float = 1.5,
     units: str = "counts",
+    plan_options: dict | None = None,
     temperature: bool = True,
     loop: bool = False,
     duration_s: float | None = None,
@@ -280,8 +237,11 @@ def serve(
         As for ``imucal simulate``.
     move_s : float
         Duration of each move between poses, s.
+    plan_options : dict, optional
+        More options of :func:`imucal_cli.simulate.play.simulate_plan` (``still_s``,
+        ``rotations_per_axis``, ``mountings``, ...).
     temperature : bool
-        Print the temperature field (8 fields per line, else 7).
+        Print the temperature field (the last field of a line).
     loop : bool
         Repeat the plan (time keeps increasing) until ``duration_s`` or a signal.
     duration_s : float, optional
@@ -317,10 +277,13 @@ def serve(
     if malformed_every is not None and malformed_every < 1:
         raise InputError(f"--malformed-every must be >= 1, got {malformed_every}")
     time, accel, gyro, holds = stream_with_holds(
-        plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s
-    )
+        plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s,
+        **(plan_options or {}),
+    )  # fmt: skip
     lines = _format(time, accel, gyro, temperature, units == "counts")
     say = status or (lambda message: None)
+    if hold_s is None:  # the plan's own hold: as its first pose is held
+        hold_s = (holds[0].stop - holds[0].start) / rate_hz if holds else 0.0
     schedule = _Schedule(len(lines), holds, loop=loop, step=step, next_pose=next_pose, say=say,
                          hold_s=hold_s)  # fmt: skip
     stop = {"kind": None}
@@ -342,7 +305,7 @@ def serve(
     poller.register(master, select.POLLHUP)
     try:
         announce(path)
-        fields = "t,ax,ay,az,gx,gy,gz" + (",temp" if temperature else "")
+        fields = _columns(accel, gyro, temperature)
         say(f"serving plan {plan} at {rate_hz:g} Hz, {baud} baud on {path}; waiting for a reader")
         result.end = _wait_for_reader(poller, stop, wait_reader_s)
         if result.end:

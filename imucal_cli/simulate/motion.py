@@ -26,6 +26,7 @@ __all__ = [
     "check_int",
     "check_positive",
     "check_seed",
+    "draw_mountings",
     "fixed_axis",
     "smootherstep",
     "unit",
@@ -71,6 +72,42 @@ def fixed_axis(
 ) -> tuple[Rotation, np.ndarray]:
     """Attitudes ``att Exp(theta axis)`` (N rotations) and body rates ``dtheta axis`` (N, 3)."""
     return att * Rotation.from_rotvec(theta[:, None] * axis), dtheta[:, None] * axis
+
+
+# --------------------------------------------------------------------------------------------
+# Mountings of the unit in a fixture (Hwangbo & Kanade's right-angle iron)
+# --------------------------------------------------------------------------------------------
+
+CUBE_GROUP = Rotation.create_group("O")
+"""The 24 rotations that take a cube (the iron) onto itself."""
+
+
+def orbit_distance_deg(a: Rotation, b: Rotation) -> np.ndarray:
+    """Smallest angle between ``b`` and ``a * G`` over the iron's 24 symmetries ``G``, degrees.
+
+    ``b`` may hold several rotations (one distance each).  Two mountings whose distance is near
+    0 put the swept face normals onto the same sensor axes (up to sign and order), so they add
+    no new constraints.
+    """
+    rel = np.atleast_3d((a.inv() * b).as_matrix()).reshape(-1, 3, 3)  # a^T b
+    group = CUBE_GROUP.as_matrix()  # (24, 3, 3)
+    # angle of G^T rel: cos = (trace(G^T rel) - 1) / 2, trace(G^T R) = sum(G * R)
+    cos = (np.einsum("gij,kij->kg", group, rel) - 1.0) / 2.0
+    return np.degrees(np.arccos(np.clip(cos.max(axis=1), -1.0, 1.0)))
+
+
+def draw_mountings(rng: np.random.Generator, count: int) -> list[Rotation]:
+    """Mounting 1 = identity; each further mounting the best of 256 uniform random rotations.
+
+    "Best" maximises the distance (:func:`orbit_distance_deg`) to every earlier mounting, so
+    the swept axes of each mounting point in new directions of the sensor frame.
+    """
+    out = [Rotation.identity()]
+    for _ in range(count - 1):
+        cands = Rotation.random(256, random_state=rng)
+        scores = np.min([orbit_distance_deg(m, cands) for m in out], axis=0)
+        out.append(cands[int(np.argmax(scores))])
+    return out
 
 
 # --------------------------------------------------------------------------------------------

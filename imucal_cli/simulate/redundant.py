@@ -31,7 +31,7 @@ from scipy.spatial.transform import Rotation
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.session import Session
-from imucal_cli.plans import plan_poses
+from imucal_cli.plans import HK_FACES, hk_gyro_steps, plan_poses
 from imucal_cli.simulate.motion import (
     MAX_SAMPLES,
     Timeline,
@@ -39,6 +39,7 @@ from imucal_cli.simulate.motion import (
     check_positive,
     check_samples,
     check_seed,
+    draw_mountings,
     unit,
     up_to_vertical,
 )
@@ -48,17 +49,12 @@ __all__ = [
     "ADC_MAX",
     "ADC_VOLTS",
     "COUNTS_PER_VOLT",
-    "HK_PLANS",
     "NOMINAL_AXES",
     "QUANTISATION_COUNTS",
     "pairwise_angles_deg",
     "simulate_hk_gyro",
-    "simulate_hk_plan",
     "simulate_redundant_accel",
 ]
-
-HK_PLANS = ("hk-redundant", "hk-gyro")
-"""Plan names of ``imucal simulate`` served by this module."""
 
 ADC_MAX = 2047
 """Largest ADC code; codes run 0..2047 (paper, section V)."""
@@ -335,37 +331,6 @@ def _redundant_part(
 # Section IV-B: the gyroscope procedure
 # --------------------------------------------------------------------------------------------
 
-_FACES = ((2, "+Z"), (0, "+X"), (1, "+Y"))  # swept face normals, in the order visited
-_CUBE_GROUP = Rotation.create_group("O")  # the 24 rotations taking the iron onto itself
-
-
-def _orbit_distance_deg(a: Rotation, b: Rotation) -> np.ndarray:
-    """Smallest angle between ``b`` and ``a * G`` over the iron's 24 symmetries ``G``, degrees.
-
-    ``b`` may hold several rotations (one distance each).  Two mountings whose distance is near
-    0 put the swept face normals onto the same sensor axes (up to sign and order), so they add
-    no new constraints.
-    """
-    rel = np.atleast_3d((a.inv() * b).as_matrix()).reshape(-1, 3, 3)  # a^T b
-    group = _CUBE_GROUP.as_matrix()  # (24, 3, 3)
-    # angle of G^T rel: cos = (trace(G^T rel) - 1) / 2, trace(G^T R) = sum(G * R)
-    cos = (np.einsum("gij,kij->kg", group, rel) - 1.0) / 2.0
-    return np.degrees(np.arccos(np.clip(cos.max(axis=1), -1.0, 1.0)))
-
-
-def _draw_mountings(rng: np.random.Generator, count: int) -> list[Rotation]:
-    """Mounting 1 = identity; each further mounting the best of 256 uniform random rotations.
-
-    "Best" maximises the distance (:func:`_orbit_distance_deg`) to every earlier mounting, so
-    the swept axes of each mounting point in new directions of the sensor frame.
-    """
-    out = [Rotation.identity()]
-    for _ in range(count - 1):
-        cands = Rotation.random(256, random_state=rng)
-        scores = np.min([_orbit_distance_deg(m, cands) for m in out], axis=0)
-        out.append(cands[int(np.argmax(scores))])
-    return out
-
 
 def simulate_hk_gyro(
     seed: int = 0,
@@ -383,6 +348,7 @@ def simulate_hk_gyro(
     move_s: float = 1.5,
     turn_s: float = 2.0,
     gravity: float = G0,
+    faces: bool = False,
 ) -> tuple[Session, Calibration]:
     """Simulate the gyroscope procedure of Hwangbo & Kanade, section IV-B (Fig. 3 f-j, Fig. 5).
 
@@ -394,8 +360,11 @@ def simulate_hk_gyro(
     frames agree; mounting 2, 3, ... are random rotations drawn from the seed, far from the
     iron's symmetries and from each other.
 
-    Timeline (every event separated by ``still_s`` of stillness, each a static segment):
+    Timeline (every event separated by ``still_s`` of stillness, each a static segment; the
+    segments are the steps of :func:`imucal_cli.plans.hk_gyro_steps`):
 
+    0. with ``faces`` (plan ``hwangbo-iron``): the iron on each of its 6 faces in turn (labelled
+       ``"face +Z up"``, ...), ``still_s`` each, for the accelerometer;
     1. still, +Z up, mounting 1 (the biases);
     2. for each mounting: for the face normals +Z, +X, +Y in turn, the iron is put on the
        opposite face (a smootherstep move of ``move_s``, unsegmented) and swept by hand about
@@ -441,6 +410,8 @@ def simulate_hk_gyro(
         Duration of the ruler-guided turn, s.
     gravity : float
         Local gravity, m/s^2.
+    faces : bool
+        Begin with the 6 faces of the iron (plan ``hwangbo-iron``).
 
     Returns
     -------
@@ -465,13 +436,15 @@ def simulate_hk_gyro(
     InputError
         A bad value.
     """
-    opt = _hk_options(seed, mountings, rate_hz, sweep_s, peak_rate, still_s, noise, units,
-                      ruler_angle_deg, periods, accel_noise, move_s, turn_s, gravity)  # fmt: skip
+    opt = _hk_options(
+        seed, mountings, rate_hz, sweep_s, peak_rate, still_s, noise, units, ruler_angle_deg,
+        periods, accel_noise, move_s, turn_s, gravity, faces,
+    )  # fmt: skip
     truth_ss, pose_ss, noise_ss = spawn(opt["seed"])
     truth = random_imu(np.random.default_rng(truth_ss), opt["units"],
                        accel_noise=opt["accel_noise"], gyro_noise=opt["noise"])  # fmt: skip
     prng = np.random.default_rng(pose_ss)
-    mounts = _draw_mountings(prng, opt["mountings"])
+    mounts = draw_mountings(prng, opt["mountings"])
     tl, sweep_axes, ruler_seg = _hk_timeline(opt, prng, mounts)
     force, rate = tl.arrays()
     assert len(force) == opt["n_total"], (len(force), opt["n_total"])
@@ -504,12 +477,12 @@ def simulate_hk_gyro(
 
 def _hk_options(
     seed, mountings, rate_hz, sweep_s, peak_rate, still_s, noise, units, ruler_angle_deg,
-    periods, accel_noise, move_s, turn_s, gravity,
+    periods, accel_noise, move_s, turn_s, gravity, faces,
 ) -> dict:  # fmt: skip
     """The options of :func:`simulate_hk_gyro`, checked, as a JSON-ready dict (plus the
     sample count ``n_total``)."""
     opt = {
-        "plan": "hk-gyro",
+        "plan": "hwangbo-iron" if faces else "hk-gyro",
         "seed": check_seed(seed),
         "mountings": check_int("mountings", mountings, 1, 8),
         "rate_hz": check_positive("rate", rate_hz, "Hz"),
@@ -525,6 +498,8 @@ def _hk_options(
         "turn_s": check_positive("turn time", turn_s, "s"),
         "gravity": check_positive("gravity", gravity, "m/s^2"),
     }
+    if faces:
+        opt["faces"] = True
     ruler, rate_hz, periods = opt["ruler_angle_deg"], opt["rate_hz"], opt["periods"]
     if not np.isfinite(ruler) or ruler == 0.0 or abs(ruler) > 180:
         raise InputError(f"ruler angle must be non-zero, within +-180 deg, got {ruler}")
@@ -542,6 +517,7 @@ def _hk_options(
         + n_sweep * 3 * m
         + max(2, int(round(opt["move_s"] * rate_hz))) * (3 * m)
         + max(2, int(round(opt["turn_s"] * rate_hz)))
+        + (6 * (n_still + max(2, int(round(opt["move_s"] * rate_hz)))) if faces else 0)
     )
     check_samples(n_total, "lower the rate, the sweep or still time, or the mountings")
     opt["n_total"] = n_total
@@ -557,117 +533,53 @@ def _hk_timeline(opt: dict, prng: np.random.Generator, mounts: list[Rotation]):
     n_still = int(round(opt["still_s"] * rate_hz))
     n_sweep = int(round(opt["sweep_s"] * rate_hz)) - 1
     n_move = max(2, int(round(opt["move_s"] * rate_hz)))
+    faces = opt.get("faces", False)
+    steps = iter(hk_gyro_steps(opt["mountings"], faces, opt["ruler_angle_deg"]))
     sweep_axes: dict[str, list[float]] = {}
 
-    def iron_pose(face: int) -> Rotation:
+    def iron_pose(face: int, sign: float = 1.0) -> Rotation:
         heading = Rotation.from_rotvec([0.0, 0.0, prng.uniform(0.0, 2.0 * np.pi)])
-        return heading * up_to_vertical(eye[face])
+        return heading * up_to_vertical(sign * eye[face])
 
-    tl = Timeline(rate_hz, opt["gravity"], iron_pose(2) * mounts[0])
+    def still() -> None:
+        tl.segment("static", tl.hold(n_still), **next(steps).segment_attrs())
 
-    def still(label: str, m: int, up: np.ndarray | None) -> None:
-        tl.segment("static", tl.hold(n_still), label, up=up, extra={"mounting": m})
+    def sweep(axis_sensor) -> str:
+        span = tl.turn(axis_sensor, theta, dtheta)
+        return tl.segment("rotation", span, **next(steps).segment_attrs()).name
 
+    tl = None
+    if faces:  # 0. the iron on its 6 faces, mounting 1 (the accelerometer)
+        for face, sign in ((f, s) for f in (2, 0, 1) for s in (1.0, -1.0)):
+            pose = iron_pose(face, sign) * mounts[0]
+            if tl is None:
+                tl = Timeline(rate_hz, opt["gravity"], pose)
+            else:
+                tl.move(pose, n_move)
+            still()
+        tl.move(iron_pose(2) * mounts[0], n_move)
+    else:
+        tl = Timeline(rate_hz, opt["gravity"], iron_pose(2) * mounts[0])
     # 1. initial still, mounting 1, +Z up.
-    still("mounting 1: still, +Z up (biases)", 1, ez)
+    still()
     # 2. sweeps about three orthogonal face normals, per mounting.
     omega = 2.0 * np.pi * opt["periods"] / opt["sweep_s"]
     t_sweep = np.arange(1, n_sweep + 1) / rate_hz
     theta = opt["peak_rate"] / omega * (1.0 - np.cos(omega * t_sweep))
     dtheta = opt["peak_rate"] * np.sin(omega * t_sweep)
     for m, mount in enumerate(mounts, start=1):
-        mount_m = mount.as_matrix()
-        for k, (face, name) in enumerate(_FACES):
-            up = eye[face] if m == 1 else None  # in mounting 1 the sensor is aligned with the iron
+        for k, (face, _) in enumerate(HK_FACES):
             if m > 1 or k > 0:
                 tl.move(iron_pose(face) * mount, n_move)
-                still(f"mounting {m}: still, {name} up", m, up)
-            axis_sensor = mount_m.T @ eye[face]
-            span = tl.turn(axis_sensor, theta, dtheta)
-            seg = tl.segment("rotation", span, f"mounting {m}: sweep about {name}",
-                             axis=eye[face], extra={"mounting": m})  # fmt: skip
-            sweep_axes[seg.name] = _floats(axis_sensor)
-            still(f"mounting {m}: still after the sweep about {name}", m, up)
+                still()
+            axis_sensor = mount.as_matrix().T @ eye[face]
+            sweep_axes[sweep(axis_sensor)] = _floats(axis_sensor)
+            still()
     # 3. ruler-guided turn in mounting 1, +Z up.
     tl.move(iron_pose(2) * mounts[0], n_move)
-    still("mounting 1: still, +Z up, iron against the ruler", 1, ez)
-    angle_deg = opt["ruler_angle_deg"]
-    span = tl.smooth_turn(ez, np.radians(angle_deg), max(2, int(round(opt["turn_s"] * rate_hz))))
-    ruler = tl.segment("rotation", span, f"mounting 1: ruler-guided {angle_deg:g}-degree turn "
-                       "about +Z", axis=ez, angle_deg=angle_deg, extra={"mounting": 1})  # fmt: skip
-    still("mounting 1: still, +Z up, after the ruler turn", 1, ez)
-    return tl, sweep_axes, ruler.name
-
-
-def simulate_hk_plan(
-    plan: str,
-    seed: int = 0,
-    rate_hz: float | None = None,
-    units: str = "counts",
-    hold_s: float | None = None,
-    accel_noise: float = 0.01,
-    sigma_counts: float = 0.7,
-    orientations: int | None = None,
-    samples: int = 10,
-    labelled: bool = False,
-    mountings: int = 2,
-    created: str | None = None,
-) -> tuple[Session, Calibration]:
-    """Run one of :data:`HK_PLANS` with the options of ``imucal simulate``.
-
-    Parameters
-    ----------
-    plan : {"hk-redundant", "hk-gyro"}
-        The design.
-    seed : int
-        Non-negative seed.
-    rate_hz : float, optional
-        Sample rate, Hz (default 50 for hk-redundant, 100 for hk-gyro).
-    units : str
-        ``counts`` (hk-redundant accepts nothing else); hk-gyro also ``m/s^2``.
-    hold_s : float, optional
-        hk-gyro: duration of each still period, s (default 3).
-    accel_noise : float
-        hk-gyro: accelerometer noise, m/s^2 per axis per sample.
-    sigma_counts, orientations, samples, labelled
-        hk-redundant: see :func:`simulate_redundant_accel`.
-    mountings : int
-        hk-gyro: number of IMU mountings in the iron.
-    created : str, optional
-        ISO 8601 UTC creation time; default now.
-
-    Returns
-    -------
-    (Session, Calibration)
-
-    Raises
-    ------
-    InputError
-        Unknown plan, or a bad value.
-    """
-    name = plan.strip().lower()
-    if name == "hk-redundant":
-        if units != "counts":
-            raise InputError(
-                f"plan hk-redundant records 11-bit ADC codes: units must be counts, not {units!r}"
-            )
-        return simulate_redundant_accel(
-            seed=seed,
-            sigma_counts=sigma_counts,
-            orientations=orientations,
-            samples=samples,
-            rate_hz=50.0 if rate_hz is None else rate_hz,
-            labelled=labelled,
-            created=created,
-        )
-    if name == "hk-gyro":
-        return simulate_hk_gyro(
-            seed=seed,
-            mountings=mountings,
-            rate_hz=100.0 if rate_hz is None else rate_hz,
-            still_s=3.0 if hold_s is None else hold_s,
-            units=units,
-            accel_noise=accel_noise,
-            created=created,
-        )
-    raise InputError(f"plan {plan!r} is not one of {', '.join(HK_PLANS)}")
+    still()
+    n_turn = max(2, int(round(opt["turn_s"] * rate_hz)))
+    span = tl.smooth_turn(ez, np.radians(opt["ruler_angle_deg"]), n_turn)
+    ruler = tl.segment("rotation", span, **next(steps).segment_attrs()).name
+    still()
+    return tl, sweep_axes, ruler

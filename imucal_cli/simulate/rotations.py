@@ -38,6 +38,7 @@ from scipy.spatial.transform import Rotation
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.session import Session
+from imucal_cli.plans import load_plan
 from imucal_cli.simulate.motion import (
     EZ,
     Timeline,
@@ -52,7 +53,6 @@ from imucal_cli.simulate.temperature import Ramp, temperatures, thermal_part
 from imucal_cli.simulate.triad import sensor_name
 
 __all__ = [
-    "GYRO_PLANS",
     "LEVELLING",
     "MAX_PEAK_RATE_DPS",
     "MIN_TURN_DEG",
@@ -61,9 +61,6 @@ __all__ = [
     "parse_gyro_plan",
     "simulate_gyro_rotations",
 ]
-
-GYRO_PLANS = ("qureshi-axes", "free:N")
-"""Plan names of ``imucal simulate`` served by this module."""
 
 SMOOTHERSTEP_PEAK = 1.875
 """Peak of the smootherstep rate ``30 tau^2 (1 - tau)^2``: peak rate = 1.875 angle / duration."""
@@ -451,32 +448,30 @@ def _draw_turns(prng: np.random.Generator, groups: list, opt: dict) -> tuple[lis
 
 def _turn_timeline(opt, groups, starts, timed, n_still, n_move):
     """The motion: per starting face a move to it (after the first), then still, turn,
-    still, ...  Returns the timeline, the per-turn record and (true up, labelled up) of each
-    still."""
-    eye = np.eye(3)
+    still, ...; each segment is the registry plan's step (:func:`imucal_cli.plans.load_plan`).
+    Returns the timeline, the per-turn record and (true up, labelled up) of each still."""
+    steps = iter(load_plan(opt["plan"] if opt["count"] else f"qureshi-axes:"
+                           f"{opt['rotations_per_axis']}").steps)  # fmt: skip
     tl = Timeline(opt["rate_hz"], opt["gravity"], starts[0])
     stills: list[tuple[np.ndarray, list[float] | None]] = []
     rec = {k: [] for k in ("seg", "label", "axis_name", "angle", "axis", "nominal", "peak", "dur")}
 
-    def still(label: str, up: np.ndarray | None) -> None:
-        tl.segment("static", tl.hold(n_still), label, up=up)
-        stills.append((tl.att.inv().apply(EZ), None if up is None else _floats(up)))
+    def still() -> None:
+        seg = tl.segment("static", tl.hold(n_still), **next(steps).segment_attrs())
+        stills.append((tl.att.inv().apply(EZ), None if seg.up is None else _floats(seg.up)))
 
-    for g, ((axis_name, face, face_label), turns) in enumerate(zip(groups, timed, strict=True)):
+    for g, ((axis_name, _, _), turns) in enumerate(zip(groups, timed, strict=True)):
         if g > 0:  # lay the unit on the next starting face (unsegmented move)
             tl.move(starts[g], n_move)
-        tag = f"{axis_name} turn" if axis_name else "turn"
-        for k, (nominal, u, a, n, dur) in enumerate(turns, start=1):
-            where = f", {face_label} up" if k == 1 else ""
-            still(f"still before {tag} {k}{where}", eye[face] if k == 1 else None)
-            label = f"turn {k} about {axis_name}" if axis_name else f"turn {k}"
-            seg = tl.segment("rotation", tl.smooth_turn(u, a, n), label, axis=nominal)
+        for nominal, u, a, n, dur in turns:
+            still()
+            seg = tl.segment("rotation", tl.smooth_turn(u, a, n), **next(steps).segment_attrs())
             for key, value in zip(
-                rec, (seg.name, label, axis_name, a, u, nominal, SMOOTHERSTEP_PEAK * abs(a) / dur,
-                      dur), strict=True,
+                rec, (seg.name, seg.label, axis_name, a, u, nominal,
+                      SMOOTHERSTEP_PEAK * abs(a) / dur, dur), strict=True,
             ):  # fmt: skip
                 rec[key].append(value)
-        still(f"still after {tag} {len(turns)}", None)
+        still()
     return tl, rec, stills
 
 

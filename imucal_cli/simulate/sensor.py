@@ -297,11 +297,11 @@ class Imu:
         true_c, reading_c = (None, None) if temperature is None else temperature
         raw = self.sample(inputs, np.random.default_rng(noise_seed), temperature=true_c)
         n = len(next(iter(inputs.values())))
-        accel, gyro = raw.get("accel"), raw.get("gyro")
+        channels: dict = {"accel": None, "gyro": None, "accel_units": None, "gyro_units": None}
+        for g in self.groups:  # each group fills its dataset and units (mag: mag, mag_units)
+            channels[g.name], channels[f"{g.name}_units"] = raw[g.name], g.units
         return Session(
             time=np.arange(n) / rate_hz if time is None else time,
-            accel=accel,
-            gyro=gyro,
             temperature=reading_c,
             segments=segments,
             created=created or utc_now_iso(),
@@ -309,8 +309,7 @@ class Imu:
             source="simulator",
             sample_rate_hz=rate_hz,
             gravity=gravity,
-            accel_units=None if accel is None else self.group("accel").units,
-            gyro_units=None if gyro is None else self.group("gyro").units,
+            **channels,
         )
 
     def truth_sections(self, extras: dict[str, dict]) -> dict[str, SensorCalibration]:
@@ -340,12 +339,10 @@ class Imu:
             gravity=options["gravity"], sensor=sensor, created=created, time=time,
             temperature=temperature,
         )  # fmt: skip
-        sections = self.truth_sections(extras)
+        sections = self.truth_sections(extras)  # one calibration section per group
         head = {"sensor": sensor, "seed": options["seed"], "plan": options["plan"]}
         extra = {**head, **(root or {}), "simulator": options}
-        return session, Calibration(
-            accel=sections.get("accel"), gyro=sections.get("gyro"), extra=extra, created=created
-        )
+        return session, Calibration(**sections, extra=extra, created=created)
 
 
 def _unit(v: np.ndarray) -> np.ndarray:

@@ -350,13 +350,7 @@ class GuidedState:
         step = self.steps[t.step]
         if t.turn is not None:  # the motion that led into this pose, before it in time
             self.add_segment("rotation", *t.turn, label=f"turn to {step.label}")
-        if t.kind == "static":
-            up = None if step.up is None else np.asarray(step.up, float)
-            self.add_segment("static", t.start, t.stop, label=step.label, up=up)
-        else:
-            axis = None if step.axis is None else np.asarray(step.axis, float)
-            self.add_segment("rotation", t.start, t.stop, label=step.label, axis=axis,
-                             angle_deg=step.angle_deg)  # fmt: skip
+        self.add_segment(t.kind, t.start, t.stop, **step.segment_attrs())
         self.committed_start = t.start
 
     # ------------------------------------------------------------------------ stream

@@ -1,0 +1,109 @@
+"""Issue 13.5: the imports follow the package map in DEVELOPERS.md.
+
+The map's table lists the packages from the bottom layer up, each with what it may import.
+Every ``import`` in ``imucal_cli/`` (also those inside functions, the lazy ones) must go to a
+package that its row names, and every row may name only packages listed above it: a lower layer
+never imports a higher one (solvers importing formats or cli, formats importing pipeline, ...),
+and the table cannot describe a circle.  A new package, or a new dependency, is a change of
+the map: make it in DEVELOPERS.md, where the next engineer reads it.
+"""
+
+from __future__ import annotations
+
+import ast
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "imucal_cli"
+#: Importable from anywhere: the package's own ``__init__`` (its version), ``__main__``, and
+#: ``errors``, the bottom row (every layer raises its errors).
+FREE = {"imucal_cli", "__main__", "errors"}
+
+
+def layer_table() -> list[tuple[str, str]]:
+    """``(package, what it may import)`` per row of DEVELOPERS.md's layout table, in order."""
+    text = (ROOT / "DEVELOPERS.md").read_text(encoding="utf-8")
+    section = text.split("## Layout", 1)[1].split("\n## ", 1)[0]
+    rows = []
+    for line in section.splitlines():
+        m = re.match(r"\| `imucal_cli/([a-z_]+)(?:\.py|/)` \|.*\| ([^|]*) \|\s*$", line)
+        if m:
+            rows.append((m.group(1), m.group(2)))
+    return rows
+
+
+def _allowed(rows: list[tuple[str, str]]) -> dict[str, set[str]]:
+    names = [name for name, _ in rows]
+    out = {}
+    for name, may in rows:
+        if may.strip() == "everything":
+            out[name] = set(names) - {name}
+        else:
+            out[name] = {n for n in names if re.search(rf"\b{n}\b", may)}
+    return out
+
+
+def _package_of(module: str) -> str:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else parts[0]
+
+
+def _imports(path: Path, text: str | None = None) -> list[tuple[int, str]]:
+    """``(line, imported imucal_cli module)`` of every import in one file (its ``text``, by
+    default read), relative ones resolved."""
+    here = list(path.relative_to(ROOT).with_suffix("").parts[:-1])  # the module's package
+    found = []
+    tree = ast.parse(path.read_text(encoding="utf-8") if text is None else text)
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found += [(node.lineno, a.name) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = here[: len(here) - node.level + 1] if node.level else []
+            module = ".".join(base + ([node.module] if node.module else []))
+            found += [(node.lineno, f"{module}.{a.name}") for a in node.names]
+    return [(line, m) for line, m in found if m.split(".")[0] == "imucal_cli"]
+
+
+def test_the_map_lists_every_package_once_and_only_downwards():
+    rows = layer_table()
+    names = [name for name, _ in rows]
+    assert len(names) == len(set(names)), names
+    on_disk = {
+        p.stem for p in PACKAGE.iterdir() if p.suffix == ".py" or (p / "__init__.py").exists()
+    }
+    missing = on_disk - {"imucal_cli", "__main__", "__init__"} - set(names)
+    assert not missing, f"DEVELOPERS.md: {sorted(missing)} not in the map"
+    allowed = _allowed(rows)
+    for i, name in enumerate(names):
+        upward = allowed[name] - set(names[:i])
+        assert not upward, f"DEVELOPERS.md: {name} may import {sorted(upward)}, listed above it"
+
+
+def test_no_layer_imports_a_higher_one():
+    allowed = _allowed(layer_table())
+    packages = set(allowed) | FREE
+    wrong = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        source = _package_of(".".join(path.relative_to(ROOT).with_suffix("").parts))
+        if source in FREE or source == "__init__":
+            continue
+        for line, module in _imports(path):
+            target = _package_of(module)
+            if target not in packages:  # a name of the root package (its __version__)
+                target = "imucal_cli"
+            if target != source and target not in FREE and target not in allowed[source]:
+                wrong.append(f"{path.relative_to(ROOT)}:{line} imports {module}")
+    assert not wrong, wrong
+
+
+def test_the_check_sees_lazy_and_relative_imports():
+    """What the check reads: function-level and relative imports, resolved to their package."""
+    text = ("import numpy\nfrom imucal_cli import __version__, plans\n\n\ndef f():\n"
+            "    from ..pipeline.calibrate import calibrate_session\n"
+            "    from . import session\n    from .session import Session\n")  # fmt: skip
+    got = [m for _, m in _imports(PACKAGE / "formats" / "x.py", text)]
+    assert got == ["imucal_cli.__version__", "imucal_cli.plans",
+                   "imucal_cli.pipeline.calibrate.calibrate_session", "imucal_cli.formats.session",
+                   "imucal_cli.formats.session.Session"]  # fmt: skip
+    assert "pipeline" not in _allowed(layer_table())["formats"]
