@@ -13,6 +13,7 @@ from bench import (
     gyro,
     gyro_speed,
     labelled,
+    mad,
     reliability,
     speed,
     temperature,
@@ -28,6 +29,7 @@ BENCHMARKS = (
     "gyro-speed",
     "trust",
     "trust-gyro",
+    "mad",
     "capture",
     "speed",
     "reliability",
@@ -63,6 +65,8 @@ def main() -> None:
         ok = trust.run(console, n_seeds=max(5, args.seeds // 20)) and ok
     if args.only in (None, "trust-gyro"):
         ok = trust_gyro.run(console, n_seeds=max(5, args.seeds // 20)) and ok
+    if args.only in (None, "mad"):
+        ok = mad.run(console) and ok
     if args.only in (None, "capture"):
         ok = capture.run(console, quick=args.quick) and ok
     if args.only in (None, "speed"):

@@ -24,6 +24,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from bench import gyro_table
 from imucal_cli.errors import ImucalError
 from imucal_cli.formats.config import config_from_dict
 from imucal_cli.pipeline.calibrate import (
@@ -211,7 +212,8 @@ def run(console: Console, n_seeds: int = 10) -> bool:
         t.add_row(name, str(k), state, str(c["converged"]), str(c["refused"]),
                   str(c["saved wrong"]))  # fmt: skip
     console.print(t)
-    ok = (all(row[4] == 0 for row in faults)
+    covered = gyro_table.run(console, n_seeds=max(3, n_seeds // 2))
+    ok = covered and (all(row[4] == 0 for row in faults)
           and all(0.93 <= c <= 0.97 for _, _, c in cov)
           and all(c["saved wrong"] == 0 for *_, c in loo))  # fmt: skip
     console.print("gyro trust: " + ("[green]PASS[/]" if ok else "[red]FAIL[/]"))

@@ -319,6 +319,24 @@ def test_terminal_mode_renders_live():
     assert "recorded face -Z up" in out
 
 
+def test_last_live_frame_is_erased_before_the_summary():
+    """In a terminal the live view goes when the capture ends (issue 12): the summary printed
+    next is not under a stale frame."""
+    stream = poses([FACES["face +Z up"], FACES["face -Z up"]], hold_s=2.5)
+    buf = io.StringIO()
+    console = Console(file=buf, force_terminal=True, width=120)
+    run_guided(FakeRecorder(stream), load_plan("six"), console=console, keys=ScriptedKeys([]),
+               refresh_hz=1000)  # fmt: skip
+    console.print("SUMMARY")
+    raw = buf.getvalue()
+    stop = raw.rindex("\x1b[?25h")  # the live view stops (the cursor comes back)
+    frame = raw[:stop].split("\x1b[2K")[-1]  # the last frame drawn
+    assert "commands:" in frame and frame.count("\n") >= 2
+    erase = "\r" + "\x1b[1A\x1b[2K" * frame.count("\n")
+    assert raw[stop:].startswith("\x1b[?25h" + erase), repr(raw[stop : stop + 80])
+    assert "commands:" not in raw[stop:] and raw.rstrip().endswith("SUMMARY")
+
+
 def test_parse_command_and_keys():
     plan = load_plan("six")
     assert parse_command("", plan).action == "continue"

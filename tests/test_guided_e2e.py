@@ -15,6 +15,8 @@ import pytest
 
 from imucal_cli.formats.session import read_session
 
+from .cli_helpers import spawn
+
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminals are POSIX")
 
 CLI = [sys.executable, "-m", "imucal_cli"]
@@ -24,7 +26,7 @@ FACES = sorted(f"face {s}{a} up" for a in "XYZ" for s in "+-")
 
 def serve(*args: str) -> tuple[subprocess.Popen, str]:
     """The virtual unit with the defaults (its timer holds each pose 4 s) unless ``args``."""
-    proc = subprocess.Popen(
+    proc = spawn(
         [*CLI, "simulate", "--serve", "--plan", "six", "--rate", "100", *args],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
@@ -38,7 +40,7 @@ def serve(*args: str) -> tuple[subprocess.Popen, str]:
 
 
 def capture(port: str, out: Path) -> subprocess.Popen:
-    return subprocess.Popen(
+    return spawn(
         [*CLI, "capture", "--port", port, "--plan", "six", "--output", str(out)],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
@@ -145,3 +147,46 @@ def test_scripted_keys_skip_and_quit(tmp_path):
     session = read_session(out)
     assert len(session.static_segments()) == 2
     assert "missing" in text
+
+
+def test_interrupted_capture_is_resumed_into_the_same_file(tmp_path):
+    """Ctrl-C after two poses (exit 3, saved), then `capture --resume` with the unit served
+    again from its first pose: the two poses already there are not taken twice, the other
+    four are appended, the session ends complete."""
+    import signal
+
+    out = tmp_path / "resumed.h5"
+    server, port = serve("--hold", "3", "--move", "1")
+    try:
+        proc = capture(port, out)
+        seen = 0
+        for line in proc.stdout:
+            seen += line.startswith("recorded face")
+            if seen == 2:
+                proc.send_signal(signal.SIGINT)
+                break
+        rest, _ = proc.communicate(timeout=30)
+    finally:
+        server.kill()
+        server.communicate()
+    assert proc.returncode == 3, rest
+    first = read_session(out)
+    assert len(first.static_segments()) == 2
+    server, port = serve("--hold", "3", "--move", "1")
+    try:
+        proc = spawn(
+            [*CLI, "capture", "--port", port, "--plan", "six", "--resume", str(out)],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+            text=True, env=ENV,
+        )  # fmt: skip
+        text, _ = proc.communicate(timeout=120)
+    finally:
+        server.kill()
+        server.communicate()
+    assert proc.returncode == 0, text
+    assert "resumed: 2 of 6 steps already in the session" in text and "too close" in text
+    assert f"continued after the {len(first.time)} samples already there" in text
+    session = read_session(out)
+    assert sorted(s.label for s in session.static_segments()) == FACES
+    np.testing.assert_array_equal(session.accel[: len(first.time)], first.accel)
+    assert np.all(np.diff(session.time) > 0)

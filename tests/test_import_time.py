@@ -25,6 +25,8 @@ def write_stamped(path, step: float, n: int = 400):
         (10_000.0, "s", ["0.0001 Hz", "--time-unit us (100 Hz)"]),  # us read as s
         (0.01, "ms", ["1e+05 Hz", "--time-unit s (100 Hz)"]),  # s read as ms
         (2500.0, "us", ["400 Hz", ""]),  # fine: 2.5 ms steps
+        (1e7, "s", ["1e-07 Hz", "nanoseconds", "--time-unit ns (100 Hz)"]),  # ROS stamps
+        (2.5e6, "ns", ["400 Hz", ""]),  # fine: nanoseconds, as capture reads them
     ],
 )
 def test_a_unit_factor_off_is_named(tmp_path, step, unit, words):
@@ -51,7 +53,7 @@ def test_implausible_rates_without_a_fitting_unit(tmp_path):
     with pytest.raises(InputError, match="--time-unit ms"):
         read_recording([path], "csv", "t,ax,ay,az")
     with pytest.raises(InputError, match="check the t column"):
-        check_sample_rate(1e-9, "s", "x.csv")  # no unit makes that an IMU
+        check_sample_rate(1e-12, "s", "x.csv")  # no unit (down to ns) makes that an IMU
     with pytest.raises(InputError, match="--rate 0.5 Hz is implausible"):
         read_recording([path], "csv", "_,ax,ay,az", rate_hz=0.5)
 

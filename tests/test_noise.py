@@ -155,6 +155,7 @@ def test_counts_need_a_calibration(tmp_path, monkeypatch, capsys):
     )  # fmt: skip
     assert code == 0, err
     d = json.loads(out)
+    assert d["format"] == "imucal-noise" and d["format_version"] == 1  # README schema
     assert list(d["sensors"]) == ["accel"] and "calibration" in d["sensors"]["accel"]["basis"]
     assert any("gyro in counts skipped" in w for w in d["warnings"])
     for row in d["sensors"]["accel"]["axes"]:

@@ -79,12 +79,7 @@ def _z(*terms: float) -> float:
 # hand turns of ~1.5-3 s and ~1-3 rad; the iron's sweeps 6 s of ~1 rad, known to the solver's
 # orthogonality to about 1e-3.
 CASES = [
-    Case("six", (), accel="labelled", gyro=None,
-         needs="gyro (gyro2, 10.2/10.3): the full model's residual check predicts the 5 moves' "
-         "gravity residuals from the noise alone; after a six-face (labelled) accelerometer fit "
-         "the directions carry its placement-limited shape error (~1 deg), so 0.5-1 deg "
-         "residuals are refused (seed 11: 12x) and the whole run with them: include the accel "
-         "calibration's covariance, or leave the gyro out with a note"),
+    Case("six", (), accel="labelled", gyro=None),
     Case("qureshi18", (), accel="magnitude", gyro=None),
     Case("random:N", ("--plan", "random:20"), accel="magnitude", gyro=None),
     Case("gyro-axes", (), accel=None,

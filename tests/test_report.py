@@ -977,3 +977,47 @@ def test_optimiser_message_only_when_it_did_not_converge():
                          "message": "maximum number of function evaluations"}  # fmt: skip
     fit = _line(rendered(document), "solver:")
     assert "NOT converged" in fit and "maximum number of function evaluations" in fit
+
+
+def test_imported_calibration_says_where_from_and_shows_its_g_sensitivity(tmp_path):
+    """Another tool's calibration (MaD Lab's Turntable JSON): the report names the format and
+    the file, what its date is, and the gyro's g-sensitivity with its unit and in its model."""
+    from imucal_cli.formats.calibration import read_calibration
+
+    doc = {"acc_unit": "g", "gyr_unit": "deg/s", "from_acc_unit": "a.u.",
+           "from_gyr_unit": "a.u.", "K_a": np.diag([2048.0, 2050.0, 2046.0]).tolist(),
+           "R_a": np.eye(3).tolist(), "b_a": [1.0, 2.0, 3.0],
+           "K_g": np.diag([16.4, 16.4, 16.4]).tolist(), "R_g": np.eye(3).tolist(),
+           "K_ga": [[0.5, 0, 0], [0, 0.25, 0], [0, 0, -0.125]], "b_g": [0.0, 0.0, 0.0],
+           "cal_type": "Turntable", "_format_version": "2.0"}  # fmt: skip
+    path = tmp_path / "madlab.json"
+    path.write_text(json.dumps(doc))
+    report = build_report(read_calibration(path))
+    assert report["imported_from"]["file"] == str(path) and report["imported_from"]["format"]
+    assert "modification time" in report["created_basis"]
+    gyro = report["sensors"]["gyro"]
+    assert gyro["model"] == "calibrated = matrix @ (raw - bias - g_sensitivity @ a)"
+    # K_ga acts on the acceleration in g: per m/s^2 it is K_ga / g
+    np.testing.assert_allclose(np.diag(gyro["g_sensitivity"]["matrix"]),
+                               np.array([0.5, 0.25, -0.125]) / G)  # fmt: skip
+    assert gyro["g_sensitivity"]["unit"] == "counts per m/s^2"
+    assert report["sensors"]["accel"]["g_sensitivity"] is None
+    json.dumps(report, allow_nan=False)
+    text = _render_cal(read_calibration(path))
+    assert _line(text, "imported from:").endswith(f"file {path}")
+    assert "modification time" in _line(text, "created:")
+    assert "g-sensitivity [counts per m/s^2]" in text
+    assert f"{-0.125 / G:.5g}" in text.split("g-sensitivity")[1]
+
+
+def test_native_g_sensitivity_is_not_drawn_twice(gyro_cal):
+    """The full model lists g_xx among its parameters (with std): no second table."""
+    document = json.loads(calibration_to_json(gyro_cal))
+    gyro = document["gyro"]
+    gyro["g_sensitivity"] = np.eye(3).tolist()
+    gyro["parameters"] = [*gyro.get("parameters", []),
+                          {"name": "g_xx", "value": 1.0, "std": 0.1, "unit": "counts per m/s^2"}]
+    report = build_report(calibration_from_json(json.dumps(document), "x"))
+    section = report["sensors"]["gyro"]
+    assert section["g_sensitivity"] is not None
+    assert not any(t["title"].startswith("g-sensitivity") for t in section["tables"])

@@ -29,11 +29,12 @@ import signal
 import threading
 import time as _time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import numpy as np
 
 from imucal_cli.capture.stream import DeviceGone
-from imucal_cli.errors import SessionError, WriteFailed
+from imucal_cli.errors import InputError, SessionError, WriteFailed
 from imucal_cli.formats.columns import SampleBlock
 from imucal_cli.formats.output import check_output
 
@@ -137,8 +138,12 @@ class Recorder:
         wait_timeout_s: float = 10.0,
         read_timeout_s: float = 5.0,
         on_status: Callable[[str], None] | None = None,
+        resume: bool = False,
     ) -> None:
-        self.path = check_output(path, force=overwrite)
+        if resume:
+            self.path = Path(path)  # continued in place (SessionWriter.reopen checks it)
+        else:
+            self.path = check_output(path, force=overwrite)
         self.source = source
         self.protocol = protocol
         self._meta = {"sensor": sensor, "accel_units": accel_units, "gyro_units": gyro_units,
@@ -164,6 +169,25 @@ class Recorder:
         self._t_end: float | None = None
         self._closed = False
         self.samples_lost = 0  #: samples received but not written (disk full)
+        self.resumed_from = 0  #: samples the session held before this capture (``resume``)
+        self._time_offset: float | None = None  # added to this capture's time stamps (resume)
+        self._host_offset: float | None = None  # the same for host arrival times (resume)
+        self._resume_gap_s = 0.0
+        self._segments_before = 0  # the resumed session's own segments (not this capture's)
+        if resume:
+            self._reopen()
+
+    def _reopen(self) -> None:
+        """``resume``: continue the session; its samples and segments stay, new ones follow."""
+        from imucal_cli.formats.session import SessionWriter
+
+        if not self.path.is_file():
+            raise InputError(f"{self.path}: no such session to resume")
+        gap_s = max(_time.time() - self.path.stat().st_mtime, 0.0)  # since its last flush
+        self._writer = SessionWriter.reopen(self.path, flush_interval_s=FLUSH_INTERVAL_S)
+        self.resumed_from = self._writer.n_samples
+        self._segments_before = len(self._writer.segments)
+        self._resume_gap_s = gap_s
 
     # status ------------------------------------------------------------------------------------
     def _status(self, message: str) -> None:
@@ -191,7 +215,8 @@ class Recorder:
         span = 0.0
         if self._t_first is not None and self._t_last_sample is not None:
             span = self._t_last_sample - self._t_first
-        out["rate_hz"] = (self.n_samples - 1) / span if span > 0 and self.n_samples > 1 else 0.0
+        new = self.n_samples - self.resumed_from
+        out["rate_hz"] = (new - 1) / span if span > 0 and new > 1 else 0.0
         return out
 
     # signals -----------------------------------------------------------------------------------
@@ -242,9 +267,23 @@ class Recorder:
     def _append(self, block: SampleBlock) -> CaptureEnded | None:
         if self._writer is None:
             self._open_writer(block)
+        time, host = block.time, block.host_time
+        if not self._writer.records_host_time:
+            host = None  # a resumed session recorded without host arrival times
+        if self.resumed_from:
+            gap = max(self._resume_gap_s, 1e-3)
+            if self._time_offset is None:
+                # The device's clock restarts: the new samples follow the old ones after the
+                # time the capture was stopped (the file's last flush), on the old time axis.
+                self._time_offset = self._writer.last_time + gap - float(time[0])
+            time = time + self._time_offset
+            if host is not None and self._writer.resumed_host_time is not None:
+                if self._host_offset is None:  # the host clock too: after the same gap
+                    self._host_offset = self._writer.resumed_host_time + gap - float(host[0])
+                host = host + self._host_offset
         try:
-            self._writer.append(block.time, block.accel, block.gyro, block.temperature, block.mag,
-                                host_time=block.host_time)  # fmt: skip
+            self._writer.append(time, block.accel, block.gyro, block.temperature, block.mag,
+                                host_time=host)  # fmt: skip
         except WriteFailed as exc:
             return self._write_failed(exc)
         if self._device_first is None:
@@ -454,8 +493,9 @@ class Recorder:
 
     @property
     def segments(self) -> list[dict]:
-        """The segments added so far (name, kind, start, stop, and the optional attributes)."""
-        return [] if self._writer is None else self._writer.segments
+        """The segments this capture added so far (name, kind, start, stop, and the optional
+        attributes; with ``resume`` not those the session held already)."""
+        return [] if self._writer is None else self._writer.segments[self._segments_before :]
 
     @property
     def file_written(self) -> bool:
@@ -509,7 +549,7 @@ class Recorder:
         from imucal_cli.formats.columns import TIME_UNITS
 
         device_s = self._device_last - self._device_first
-        rate = (self.n_samples - 1) / device_s if device_s > 0 else float("inf")
+        rate = (self.n_samples - self.resumed_from - 1) / device_s if device_s > 0 else float("inf")
         ratio = device_s / host_s
         if 1 / CLOCK_TOLERANCE <= ratio <= CLOCK_TOLERANCE and 1.0 <= rate <= 10_000.0:
             return None
@@ -539,7 +579,7 @@ class Recorder:
         from imucal_cli.formats.session.h5open import open_for_update
 
         with open_for_update(self.path, str(self.path)) as file:
-            file.attrs["sample_rate_hz"] = (self.n_samples - 1) / span
+            file.attrs["sample_rate_hz"] = (self.n_samples - self.resumed_from - 1) / span
 
     def __enter__(self) -> Recorder:
         return self

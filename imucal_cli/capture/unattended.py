@@ -392,6 +392,7 @@ def run_unattended(
     *,
     min_still_s: float = 1.0,
     on_status: Callable[[str], None] | None = None,
+    done_before: list[str] | None = None,
 ) -> CaptureSummary:
     """Record without a keyboard, then segment the recording; see the module notes.
 
@@ -407,6 +408,10 @@ def run_unattended(
         Shortest still period that counts, s.
     on_status : callable, optional
         Called with progress messages.
+    done_before : list of str, optional
+        Continuing a capture (``recorder.resumed_from`` samples already in the session): the
+        labels of the steps its segments already hold; only the other steps are looked for,
+        and the new segments follow the old samples.
 
     Returns
     -------
@@ -417,6 +422,20 @@ def run_unattended(
     if plan is None and duration_s is None:
         raise ValueError("run_unattended needs a plan or a duration")
     say = on_status or (lambda message: None)
+    before = list(done_before or [])
+    if plan is not None and before:
+        left, matched = list(plan.steps), []
+        for label in before:
+            i = next((i for i, s in enumerate(left) if s.label == label), None)
+            if i is not None:
+                matched.append(left.pop(i).label)
+        before, plan = matched, Plan(plan.name, tuple(left))
+        say(f"resumed: {len(matched)} steps already in the session, {len(left)} left")
+        if not left:
+            return CaptureSummary(complete=True, done=before, skipped=[], missing=[],
+                                  end_reason="every step of the plan was already in the session",
+                                  samples=recorder.n_samples, stats=recorder.stats)  # fmt: skip
+    base = int(getattr(recorder, "resumed_from", 0))
     buffer = _Buffer()
     watcher = None if plan is None else _PlanWatcher(plan, min_still_s)
     first = None
@@ -451,11 +470,11 @@ def run_unattended(
         entries, done, missing = segment_recording(time, accel, gyro, plan, min_still_s=min_still_s)
         for e in entries:
             attrs = {} if e.step is None else e.step.segment_attrs()
-            recorder.add_segment(e.kind, e.start, e.stop, **attrs)
+            recorder.add_segment(e.kind, base + e.start, base + e.stop, **attrs)
     complete = not missing if plan is not None else reached_duration
     return CaptureSummary(
         complete=complete,
-        done=done,
+        done=[label for label in before if plan is None or label not in missing] + done,
         skipped=[],
         missing=missing,
         end_reason=recorder.end_reason,

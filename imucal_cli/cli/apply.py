@@ -52,8 +52,8 @@ def apply_(
     time_unit: str = typer.Option(
         "s",
         "--time-unit",
-        metavar="s|ms|us",
-        help="CSV input: unit of the t column: s, ms or us.",
+        metavar="s|ms|us|ns",
+        help="CSV input: unit of the t column: s, ms, us or ns.",
         autocompletion=completion.time_units,
     ),
     rate: float | None = typer.Option(

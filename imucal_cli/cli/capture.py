@@ -133,6 +133,13 @@ def capture(
         2.0, "--hold", metavar="SECONDS", help="Guided mode: seconds to hold each pose still."
     ),
     force: bool = typer.Option(False, "--force", help="Overwrite the output file."),
+    resume: Path | None = typer.Option(
+        None,
+        "--resume",
+        metavar="SESSION.h5",
+        help="Continue an interrupted capture into SESSION (give the same --plan): new samples "
+        "are appended after its own, and the steps its segments hold count as done.",
+    ),
     json_output: bool = typer.Option(
         False,
         "--json",
@@ -144,6 +151,9 @@ def capture(
     Reads text lines of numbers (commas, semicolons, spaces or tabs) and appends them to the
     session as they arrive (flushed at least once a second).  Ctrl-C, SIGTERM, an unplugged
     device or a stalled stream end the capture with a valid session holding every sample.
+
+    An interrupted capture goes on with --resume SESSION: the same file, the plan's progress
+    taken from the segments already there.
 
     Exit status: 0 the session is complete; 3 the session is saved but incomplete (steps of
     the plan not seen, interrupted, device gone, data stopped); 2 bad input (no such port,
@@ -183,7 +193,8 @@ def capture(
     ):
         raise InputError(f"plan {plan_obj.name} records the temperature through the warm-up: "
                          "add temp to --columns (e.g. t,ax,ay,az,gx,gy,gz,temp)")  # fmt: skip
-    out = check_output(output if output is not None else default_output(), force=force)
+    out = _output_path(output, resume, force)
+    done_before = None if resume is None else _done_before(resume, guided is not None)
 
     console = make_console(stderr=json_output)  # with --json, stdout holds the JSON alone
     err = make_console(stderr=True)
@@ -197,7 +208,7 @@ def capture(
             out, source, stream_protocol, sensor=sensor, accel_units=accel_units,
             gyro_units=gyro_units, mag_units=mag_units, magnetic_field_uT=field_ut,
             overwrite=force, wait_timeout_s=wait_timeout,
-            read_timeout_s=read_timeout, on_status=status,
+            read_timeout_s=read_timeout, on_status=status, resume=resume is not None,
         )  # fmt: skip
     except BaseException:
         source.close()
@@ -213,12 +224,14 @@ def capture(
             from imucal_cli.capture.unattended import run_unattended
 
             summary = run_unattended(
-                recorder, plan_obj, duration, min_still_s=min_still, on_status=status
-            )
+                recorder, plan_obj, duration, min_still_s=min_still, on_status=status,
+                done_before=done_before,
+            )  # fmt: skip
         else:
             summary = guided.run_guided(
-                recorder, plan_obj, console=console, keys=guided.StdinKeys(), hold_s=hold
-            )
+                recorder, plan_obj, console=console, keys=guided.StdinKeys(), hold_s=hold,
+                done_before=done_before,
+            )  # fmt: skip
     finally:
         recorder.close()
     if recorder.end_kind == "clock":  # issue 10.5: a time unit off by a factor
@@ -237,6 +250,37 @@ def capture(
         raise typer.Exit(EXIT_INCOMPLETE)
 
 
+def _output_path(output: Path | None, resume: Path | None, force: bool) -> Path:
+    """The session to write: --output (new), --resume (continued) or a dated name."""
+    if resume is not None:
+        if output is not None and output.resolve() != resume.resolve():
+            raise InputError("--resume continues SESSION in place: leave out --output")
+        if force:
+            raise InputError("--resume keeps what SESSION holds: leave out --force")
+        if not resume.is_file():
+            raise InputError(f"{resume}: no such session to resume")
+        return resume
+    out = output if output is not None else default_output()
+    if out.is_file() and not force:
+        raise InputError(f"{out} exists: use --force to overwrite it, or --resume {out} to "
+                         "continue it")  # fmt: skip
+    return check_output(out, force=force)
+
+
+def _done_before(path: Path, guided: bool) -> list:
+    """What an interrupted session already holds: for the guided mode ``(kind, label, mean raw
+    accel of a static segment or None)`` per segment, for the unattended mode the labels."""
+    from imucal_cli.formats.session import read_session
+
+    session = read_session(path)
+    if not guided:
+        return [s.label for s in session.segments if s.label]
+    return [(s.kind, s.label,
+             session.accel[s.start : s.stop].mean(axis=0)
+             if s.kind == "static" and session.accel is not None else None)
+            for s in session.segments if s.label]  # fmt: skip
+
+
 def _summary_json(out: Path, recorder, summary) -> dict:
     segs = recorder.segments
     n_static = sum(1 for s in segs if s["kind"] == "static")
@@ -252,6 +296,7 @@ def _summary_json(out: Path, recorder, summary) -> dict:
         "lines": int(st.get("lines", 0)), "comments": int(st.get("comments", 0)),
         "malformed": int(st.get("malformed", 0)), "duration_s": float(st.get("duration_s", 0.0)),
         "rate_hz": float(st.get("rate_hz", 0.0)),
+        "resumed_from": int(recorder.resumed_from),
     }  # fmt: skip
 
 
@@ -273,12 +318,16 @@ def _print_summary(console: Console, out: Path, recorder, summary) -> None:
     n_labelled = sum(1 for s in segs if "label" in s)
     kind = recorder.end_kind
     why = "" if kind == "done" else f": {summary.end_reason}"
+    new = " new" if recorder.resumed_from else ""
     console.print(
-        f"saved {summary.samples} samples to {escape(str(out))}: {n_static} static and "
-        f"{n_rot} rotation segments ({n_labelled} labelled)",
+        f"saved {summary.samples} samples to {escape(str(out))}: {n_static}{new} static and "
+        f"{n_rot}{new} rotation segments ({n_labelled} labelled)",
         highlight=False,
         soft_wrap=True,
     )
+    if recorder.resumed_from:
+        console.print(f"  continued after the {recorder.resumed_from} samples already there, "
+                      "their segments kept", highlight=False, soft_wrap=True)  # fmt: skip
     console.print(
         f"  lines {st.get('lines', 0)}, comments {st.get('comments', 0)}, malformed "
         f"{st.get('malformed', 0)}; {st.get('duration_s', 0.0):.1f} s, "

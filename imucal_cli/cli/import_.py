@@ -50,8 +50,8 @@ def import_(
     time_unit: str = typer.Option(
         "s",
         "--time-unit",
-        metavar="s|ms|us",
-        help="Unit of the t column: s, ms or us.",
+        metavar="s|ms|us|ns",
+        help="Unit of the t column: s, ms, us or ns.",
         autocompletion=completion.time_units,
     ),
     rate: float | None = typer.Option(

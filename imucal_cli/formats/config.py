@@ -39,13 +39,17 @@ Example (every key optional; these are the defaults)::
     solver = "auto"              # "auto": the most accurate solver the session supports
                                  # (none when it has no gyro or no rotations); "none";
                                  # "static", "dynamic" (Qureshi III-B), "full" (12 or 21
-                                 # parameters), or "factorization" (Hwangbo & Kanade)
+                                 # parameters), "known" (turns of a known angle, with
+                                 # the others), or "factorization" (Hwangbo & Kanade)
     # nominal_sensitivity = 938.7  # raw units per rad/s (datasheet); default from the units
     # range = [-32768, 32767]      # raw output range: turns reaching it are clipped and left
                                    # out; default: the ADC word of counts data, else none
     max_scale_error = 0.20
     max_residual_ratio = 10.0    # refuse when turns' residuals exceed this many times the
                                  # noise (and the other turns' level); --force saves anyway
+    max_rate_std = 0.05          # refuse (auto: leave the gyro out) when the turns determine
+                                 # its rates only to this fraction (1 std, worst direction,
+                                 # the accelerometer calibration's uncertainty included)
 
     [gyro.rotations]             # static, dynamic and full
     max_gap_s = 2.0              # still data must end/start this close to a rotation
@@ -54,6 +58,10 @@ Example (every key optional; these are the defaults)::
     [gyro.full]
     max_iterations = 100
     g_sensitivity = "auto"       # "auto" (kept when significant and determined), "on", "off"
+
+    [gyro.known]                 # turns of a known angle (angle_deg on the rotation segments)
+    angle_std_deg = 1.0          # how well each known angle is met (a hand turn back onto the
+                                 # same face: about a degree; a turntable: far better)
 
     [gyro.factorization]
     samples_per_segment = 40     # samples of each rotation used in the constraints
@@ -88,7 +96,7 @@ from imucal_cli.errors import ConfigError
 from imucal_cli.formats.inputs import read_text_input
 
 ACCEL_SOLVERS = ("auto", "gravity", "labelled", "factorization", "none")
-GYRO_SOLVERS = ("auto", "none", "static", "dynamic", "full", "factorization")
+GYRO_SOLVERS = ("auto", "none", "static", "dynamic", "full", "known", "factorization")
 
 #: Largest whole number a count (iterations, samples) may take.
 MAX_COUNT = 1_000_000
@@ -337,6 +345,13 @@ class GyroFullOptions:
 
 
 @dataclass
+class GyroKnownOptions:
+    """Turns of a known angle (``[gyro.known]``), for the known and auto solvers."""
+
+    angle_std_deg: float = setting(1.0, "number", gt=0, le=90)
+
+
+@dataclass
 class GyroConfig:
     """``[gyro]``: which solver (``"auto"``: the most accurate the session supports;
     ``"none"``: the gyroscope is not calibrated)."""
@@ -346,9 +361,11 @@ class GyroConfig:
     range: list[float] | None = setting(None, "range")
     max_scale_error: float = setting(0.20, "number", gt=0, lt=1)
     max_residual_ratio: float = setting(10.0, "number", gt=1)
+    max_rate_std: float = setting(0.05, "number", gt=0, le=1)
     factorization: GyroFactorizationOptions = field(default_factory=GyroFactorizationOptions)
     rotations: GyroRotationOptions = field(default_factory=GyroRotationOptions)
     full: GyroFullOptions = field(default_factory=GyroFullOptions)
+    known: GyroKnownOptions = field(default_factory=GyroKnownOptions)
 
 
 @dataclass

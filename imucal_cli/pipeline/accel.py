@@ -51,6 +51,38 @@ def axes_summary_with_std(
     return f0, np.sqrt(np.clip(np.diag(J @ cov @ J.T), 0, None))
 
 
+#: What the ``covariance`` field of an accel section is the covariance of.
+COVARIANCE_OF = "bias (3, raw units) then matrix row-major (9, m/s^2 per raw unit)"
+
+
+def model_covariance(
+    params_of: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    bias: np.ndarray,
+    matrix: np.ndarray,
+    cov: np.ndarray,
+) -> dict:
+    """The ``covariance`` field: the covariance of ``(bias, matrix row-major)`` from a solver's
+    parameter covariance ``cov``, where ``params_of(bias, matrix)`` gives the solver's
+    parameters (delta method through the pseudo-inverse of that map's Jacobian: a gauge the
+    solver fixes, such as an upper-triangular matrix, has no variance). What uses the
+    calibration's directions (the gyro's turns) propagates it (issue 10.2)."""
+    x0 = np.r_[bias, np.ravel(matrix)].astype(float)
+    step = np.r_[np.full(3, 1e-6 * max(np.abs(bias).max(), 1.0)),
+                 np.full(9, 1e-6 * np.abs(matrix).max())]  # fmt: skip
+
+    def f(x):
+        return np.asarray(params_of(x[:3], x[3:].reshape(3, 3)), float)
+
+    J = np.empty((len(f(x0)), 12))
+    for i in range(12):
+        e = np.zeros(12)
+        e[i] = step[i]
+        J[:, i] = (f(x0 + e) - f(x0 - e)) / (2 * step[i])
+    Ji = np.linalg.pinv(J)
+    C = Ji @ cov @ Ji.T
+    return {"of": COVARIANCE_OF, "values": ((C + C.T) / 2).tolist()}
+
+
 def parameter_rows(
     names: list[str],
     values: np.ndarray,

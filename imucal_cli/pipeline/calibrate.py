@@ -73,15 +73,25 @@ def calibrate_gyro(
         from imucal_cli.pipeline.factorization import calibrate_gyro_factorization
 
         return calibrate_gyro_factorization(session, cfg)
-    if solver in ("static", "dynamic", "full"):
+    if solver in ("static", "dynamic", "full", "known"):
         if accel is None:
             raise ConfigError(
                 f"[gyro] solver = {solver!r} measures each rotation with the calibrated "
                 "accelerometer: set an [accel] solver too"
             )
-        from imucal_cli.pipeline.gyro import calibrate_gyro_rotations
+        from imucal_cli.pipeline.gyro import calibrate_gyro_rotations, gyro_alternatives
+        from imucal_cli.pipeline.gyro_known import calibrate_gyro_known
 
-        return calibrate_gyro_rotations(session, cfg, accel)
+        try:
+            if solver == "known":
+                return calibrate_gyro_known(session, cfg, accel)
+            return calibrate_gyro_rotations(session, cfg, accel)
+        except DesignError as exc:  # issue 9.6: what would work with what the session has
+            alternatives = gyro_alternatives(session, solver)
+            if not alternatives:
+                raise
+            raise DesignError(f"{exc}; with what this session has: "
+                              f"{'; or '.join(alternatives)}") from None  # fmt: skip
     return None
 
 
@@ -118,6 +128,9 @@ def calibrate_gyro_auto(
     elif accel is None:
         return None, ("gyro not calibrated: the full gyro model needs the accelerometer "
                       "calibrated (an [accel] solver, or --accel CAL.json)")  # fmt: skip
+    elif any(s.angle_deg is not None for s in session.rotation_segments()):
+        choice, why = "known", ("turns of a known angle (with any turns between still periods), "
+                                "accelerometer calibrated")  # fmt: skip
     else:
         choice, why = "full", "turns between still periods, accelerometer calibrated"
     try:
@@ -127,6 +140,9 @@ def calibrate_gyro_auto(
             raise  # turns captured on purpose: say why they cannot calibrate
         return None, ("gyro not calibrated: no usable rotations (the gyro needs turns "
                       "between still periods)")  # fmt: skip
+    if sec is not None and sec.extra.get("undetermined"):  # issue 10.2: not saved silently
+        return None, (f"gyro not calibrated: {sec.extra['undetermined']} (to save it with these "
+                      'std: [gyro] solver = "full" and --force)')  # fmt: skip
     sec.extra.setdefault("notes", []).insert(0, f'solver "{choice}" chosen by [gyro] solver = '
                                                 f'"auto": {why}')  # fmt: skip
     sec.extra["choice"] = {"solver": choice, "by": "auto", "reason": why}

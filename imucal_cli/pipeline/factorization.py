@@ -10,6 +10,8 @@ are orthogonal (``h_ik = 0``); one turn of known angle fixes the global scale (e
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from imucal_cli.errors import DesignError
@@ -369,7 +371,9 @@ def _pick_rows(z: np.ndarray, bias: np.ndarray, count: int, noise: float) -> np.
 
 
 def calibrate_gyro_factorization(session: Session, cfg: Config) -> SensorCalibration:
-    """Hwangbo & Kanade for a gyroscope unit from turns about labelled axes (section IV-B)."""
+    """Hwangbo & Kanade for a gyroscope unit from turns about labelled axes (section IV-B):
+    orthogonality constraints between turns (IV-B.1-3), the linear factorization scaled by a
+    known turn and refined (III-B, IV-C), the rotation fixed by the labelled axes (IV-B.5)."""
     where = session_name(session)
     opts = cfg.gyro.factorization
     if session.gyro is None:
@@ -380,9 +384,18 @@ def calibrate_gyro_factorization(session: Session, cfg: Config) -> SensorCalibra
             f"{where}: the gyroscope factorization needs rotation segments with an `axis` "
             "(turns about the faces of a square block)"
         )
-    n = session.gyro.shape[1]
     bias, noise = _gyro_bias(session, where)
+    Z, seg_of_row, c = _gyro_constraints(session, turns, bias, noise, opts, where)
+    lin, res, ref = _gyro_solve(session, turns, Z, seg_of_row, c, bias, noise, opts, where)
+    R = _gyro_rotation(res, turns, seg_of_row, ref)
+    res, lin = fz.align(res, R), fz.align(lin, R)
+    return _gyro_section(session, cfg, lin, res, ref, c, noise)
 
+
+def _gyro_constraints(session, turns, bias, noise, opts, where):
+    """Rows of ``Z`` (samples of each turn) and the orthogonality constraints between turns
+    about orthogonal axes of one mounting (section IV-B.1-3); refused when they cannot give
+    the metric upgrade its 5 independent constraints."""
     rows, seg_of_row = [], []
     for k, s in enumerate(turns):  # every turn, known-angle ones too, gives orthogonality
         z = session.gyro[s.start : s.stop]
@@ -422,8 +435,22 @@ def calibrate_gyro_factorization(session: Session, cfg: Config) -> SensorCalibra
             "metric upgrade needs 5: the constraints are not independent enough; repeat the "
             "three turns with the unit in a second mounting inside the block (section IV-B)"
         )
-    c = fz.Constraints(np.array(i), np.array(k), np.zeros(len(i)))
+    return Z, seg_of_row, fz.Constraints(np.array(i), np.array(k), np.zeros(len(i)))
 
+
+@dataclass
+class _KnownTurn:
+    """The turn of known angle that fixes the gyro's scale (eq. 31)."""
+
+    segment: Segment
+    w_raw: np.ndarray  # raw integral over the turn
+    duration: float
+    w: np.ndarray  # integral less the still periods' bias
+
+
+def _gyro_solve(session, turns, Z, seg_of_row, c, bias, noise, opts, where):
+    """The linear factorization with the known turn's scale (section III-B, eq. 31), then the
+    nonlinear refinement with the still readings and the known turn (section IV-C)."""
     known = [s for s in turns if s.angle_deg is not None]
     if not known:
         raise DesignError(
@@ -460,11 +487,15 @@ def calibrate_gyro_factorization(session: Session, cfg: Config) -> SensorCalibra
             fixture_tolerance=_tolerance(opts),
             max_iterations=opts.max_iterations,
         )
+    return lin, res, _KnownTurn(ref_seg, w_raw, duration, w)
 
-    # Rotation ambiguity, as the paper's step IV-B.5: the known turn's rotation vector along
-    # its labelled axis, and the turns of mounting 1 along their labelled axes.
+
+def _gyro_rotation(res, turns, seg_of_row, ref: _KnownTurn) -> np.ndarray:
+    """The rotation that section IV-B.5 leaves: the known turn along its labelled axis, the
+    other turns of its mounting along theirs."""
+    ref_seg = ref.segment
     target = np.sign(ref_seg.angle_deg) * ref_seg.axis
-    primary = res.T @ w
+    primary = res.T @ ref.w
     lines_src, lines_dst = [primary / np.linalg.norm(primary)], [target]
     weights = [np.inf]
     for kk, s in enumerate(turns):
@@ -492,15 +523,22 @@ def calibrate_gyro_factorization(session: Session, cfg: Config) -> SensorCalibra
         np.sign(np.diag((R @ res.T)[:, :3]))
     ):
         R = half @ R
-    res, lin = fz.align(res, R), fz.align(lin, R)
-    rotation = (
-        "the known-angle turn along its labelled axis, the other turns of its mounting along "
-        "theirs (step IV-B.5)"
-    )
+    return R
 
+
+#: How the factorization's rotation is fixed (step IV-B.5).
+GYRO_ROTATION = ("the known-angle turn along its labelled axis, the other turns of its mounting "
+                 "along theirs (step IV-B.5)")  # fmt: skip
+
+
+def _gyro_section(session, cfg, lin, res, ref: _KnownTurn, c, noise) -> SensorCalibration:
+    """The gyro section of the factorization: gains and biases with their std, the known
+    turn's measured angle."""
+    n = session.gyro.shape[1]
+    ref_seg, rotation = ref.segment, GYRO_ROTATION
     units_in = session.gyro_units or "unknown"
     gains, gains_std, extra = _factorization_extra(lin, res, units_in, "rad/s", 1.0)
-    measured = np.degrees(np.linalg.norm(res.T @ (w_raw - duration * res.b)))
+    measured = np.degrees(np.linalg.norm(res.T @ (ref.w_raw - ref.duration * res.b)))
     bias_std = _invariants_with_std(res)[1][:n]
     parameters = [
         {"name": f"b_{a}", "value": float(b), "std": num(s), "unit": units_in}

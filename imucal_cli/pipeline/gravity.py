@@ -17,6 +17,7 @@ from .accel import (
     check_fields,
     common_extra,
     label_warnings,
+    model_covariance,
     parameter_rows,
     with_excluded,
 )
@@ -47,6 +48,12 @@ def _matrix_of(variant: str):
     if variant == "9-parameter":
         return lambda p: gravity_solver.params_to_model(p)[1]
     return lambda p: p[3:].reshape(3, 3)
+
+
+def _params_of(variant: str):
+    if variant == "9-parameter":
+        return gravity_solver.model_to_params
+    return lambda B, M: np.r_[B, M.ravel()]
 
 
 def fit_poses(poses: StaticPoses, g: float, cfg: Config) -> gravity_solver.GravityResult:
@@ -97,6 +104,7 @@ def solver_fields(res: gravity_solver.GravityResult, units: list[str]) -> dict:
         "variant": res.variant,
         "gauge": GAUGE_9 if res.variant == "9-parameter" else GAUGE_12,
         "parameters": parameter_rows(res.param_names, res.params, res.std, units),
+        "covariance": model_covariance(_params_of(res.variant), res.bias, res.matrix, res.cov),
         "init": res.init,
         "weighting": res.weighting,
         "iterations": res.iterations,

@@ -52,6 +52,7 @@ class Still:
     g_sigma: float  # direction noise of the mean, rad
     z_mean: np.ndarray  # raw gyro mean
     z_sigma: float  # noise of the raw gyro mean, per channel
+    a_raw: np.ndarray  # raw accel mean (what the accelerometer calibration turned into g)
 
 
 def _segments(session: Session, where: str) -> tuple[list[Segment], list[Segment], str]:
@@ -75,14 +76,16 @@ def _segments(session: Session, where: str) -> tuple[list[Segment], list[Segment
     return found_statics, found_turns, "found in the stream (motion between still periods)"
 
 
-def _stills_and_turns(session, accel_cal, cfg, where):
-    statics, turns, source = _segments(session, where)
+def still_periods(session, accel_cal, cfg, statics) -> tuple[list[Still], float]:
+    """Each still period's calibrated accel mean and raw gyro mean, with noise pooled over all
+    of them (issue 10.7); and the pooled per-sample gyro noise, raw units."""
     g = cfg.gravity or session.gravity
-    a_means, z_means, counts, a_var, z_var = [], [], [], 0.0, 0.0
+    a_means, z_means, counts, raw_means, a_var, z_var = [], [], [], [], 0.0, 0.0
     for s in statics:
         a = accel_cal.apply(session.accel[s.start : s.stop])
         z = session.gyro[s.start : s.stop]
         a_means.append(a.mean(axis=0))
+        raw_means.append(session.accel[s.start : s.stop].mean(axis=0))
         z_means.append(z.mean(axis=0))
         counts.append(len(a))
         if len(a) > 1:  # pooled within-still variances (issue 10.7), per channel
@@ -93,10 +96,15 @@ def _stills_and_turns(session, accel_cal, cfg, where):
     # Each mean's noise from the pooled per-sample noise: one hold's few samples can make its
     # own estimate small by chance, and its weight too large (stated std below the bound).
     stills = [
-        Still(s, am, max(a_sigma / (g * np.sqrt(n)), 1e-6), zm, float(z_sigma / np.sqrt(n)))
-        for s, am, zm, n in zip(statics, a_means, z_means, counts, strict=True)
+        Still(s, am, max(a_sigma / (g * np.sqrt(n)), 1e-6), zm, float(z_sigma / np.sqrt(n)), ar)
+        for s, am, zm, n, ar in zip(statics, a_means, z_means, counts, raw_means, strict=True)
     ]
-    gap = cfg.gyro.rotations.max_gap_s
+    return stills, float(z_sigma)
+
+
+def turns_between(session, stills, turns, gap) -> tuple[list[Turn], list[str]]:
+    """The turns with a still period right before and after (within ``gap`` s), and the
+    names of the others."""
     usable, skipped = [], []
     for r in turns:
         t0, t1 = session.time[r.start], session.time[r.stop - 1]
@@ -114,12 +122,20 @@ def _stills_and_turns(session, accel_cal, cfg, where):
             usable.append(Turn(r, before[-1], after[0]))
         else:
             skipped.append(r.label or r.name)
+    return usable, skipped
+
+
+def _stills_and_turns(session, accel_cal, cfg, where):
+    statics, turns, source = _segments(session, where)
+    stills, z_sigma = still_periods(session, accel_cal, cfg, statics)
+    gap = cfg.gyro.rotations.max_gap_s
+    usable, skipped = turns_between(session, stills, turns, gap)
     if not usable:
         raise DesignError(
             f"{where}: no rotation has still data right before and after it (within "
             f"{gap:g} s): hold the unit still for a few seconds before and after every turn"
         )
-    return stills, usable, skipped, source, float(z_sigma)
+    return stills, usable, skipped, source, z_sigma
 
 
 def _saturated(session: Session, turn: Turn, limit: tuple[float, float] | None) -> bool:
@@ -277,6 +293,25 @@ def full_problem(session: Session, cfg: Config, accel_cal: SensorCalibration):
     data = gyro_data(session, cfg, accel_cal)
     rot, st = rotations_and_stills(data)
     return rot, st, data.noise
+
+
+def gyro_alternatives(session: Session, solver: str) -> list[str]:
+    """What would calibrate the gyro from this session when ``solver`` refused it (issue 9.6):
+    another solver for turns it already has, or a labelling step, before a new capture."""
+    turns = session.rotation_segments()
+    known = [s for s in turns if s.angle_deg is not None]
+    path = session.path or "SESSION.h5"
+    out = []
+    if solver != "known" and len(known) >= 3:
+        out.append(f'its {len(known)} turns of known angle: [gyro] solver = "known"')
+    if solver != "factorization" and sum(s.axis is not None for s in turns) >= 3:
+        out.append('its turns about labelled axes: [gyro] solver = "factorization" (Hwangbo & '
+                   "Kanade; needs no accelerometer)")  # fmt: skip
+    if turns and len(known) < 3:
+        out.append(f"if its turns were of a known angle (a full turn flat on a table, a "
+                   f"turntable), say so: imucal label {path} --segment NAME --angle DEG --axis "
+                   "X,Y,Z for each (three axes), and the known-angle solver uses them")  # fmt: skip
+    return out
 
 
 def gyro_checks(session, cfg, gains, units) -> list[str]:

@@ -52,6 +52,7 @@ def fit_full_model(data: GyroData, g_sensitivity: str | None = None) -> GyroFit:
         g_sensitivity=g_sensitivity or cfg.gyro.full.g_sensitivity,
     )  # fmt: skip
     data.notes.extend(res.notes)
+    uncertainty = add_accel_uncertainty(data, rot, st, res)
     units = data.units_in
     n = len(res.std)
     unit = [units] * 3 + [f"rad/s per {units}"] * 9 + [f"{units} per m/s^2"] * 9
@@ -85,7 +86,13 @@ def fit_full_model(data: GyroData, g_sensitivity: str | None = None) -> GyroFit:
         },
         "iterations": res.iterations, "chi2": res.chi2, "dof": res.dof,
         "noise_scale": res.noise_scale,
+        "rate_std": uncertainty,
+        "sensitivity_std": gain_std(res.M, res.cov[3:12, 3:12]).tolist(),
     }  # fmt: skip
+    undetermined = design_warning(data, uncertainty)
+    if undetermined:
+        extra["undetermined"] = undetermined
+        data.warnings.append(undetermined)
     if res.G is not None:
         extra["g_sensitivity"] = res.G.tolist()
         extra["g_sensitivity_unit"] = f"{units} per m/s^2 (raw - bias - g_sensitivity @ a)"
@@ -94,6 +101,89 @@ def fit_full_model(data: GyroData, g_sensitivity: str | None = None) -> GyroFit:
         data.notes.append(_g_note(res.g_test))
     return GyroFit(res.b, res.M, parameters, rotations, np.radians(res.angle_residual_deg),
                    np.linalg.norm(S, axis=1), extra)  # fmt: skip
+
+
+def accel_derivative(stills, accel_cal) -> np.ndarray | None:
+    """(P, 3, 12): how each still period's calibrated accel mean ``A (raw - B)`` moves with
+    the accelerometer's ``(B, A row-major)``; None when the accelerometer is not a triad."""
+    A, B = np.asarray(accel_cal.matrix, float), np.asarray(accel_cal.bias, float)
+    if A.shape != (3, 3):
+        return None
+    d = np.array([s.a_raw for s in stills]) - B  # (P, 3)
+    out = np.zeros((len(stills), 3, 12))
+    out[:, :, :3] = -A
+    for i in range(3):
+        out[:, i, 3 + 3 * i : 6 + 3 * i] = d
+    return out
+
+
+def gain_std(M: np.ndarray, cov_M: np.ndarray) -> np.ndarray:
+    """Std of the gains (row norms of ``M^-1``, raw units per rad/s): delta method."""
+    S = np.linalg.inv(M)
+    gains = np.linalg.norm(S, axis=1)
+    # d(M^-1) = -S dM S, so d g_i = u_i . d s_i = -sum_kl S_ik dM_kl (S_l . u_i)
+    J = np.array([-np.outer(S[i], S @ (S[i] / gains[i])).ravel() for i in range(3)])
+    return np.sqrt(np.clip(np.diag(J @ cov_M @ J.T), 0, None))
+
+
+def rate_std(M: np.ndarray, cov_M: np.ndarray) -> float:
+    """Relative std of a calibrated rate in its worst direction: ``omega`` is off by
+    ``dM M^-1 omega``; the largest eigenvalue of ``E[(dM M^-1)^T (dM M^-1)]``."""
+    K = np.kron(np.eye(3), np.linalg.inv(M).T)  # vec(dM M^-1) = K vec(dM), row-major
+    C = K @ cov_M @ K.T
+    Q = sum(C[3 * i : 3 * i + 3, 3 * i : 3 * i + 3] for i in range(3))
+    return float(np.sqrt(max(np.linalg.eigvalsh(Q)[-1], 0.0)))
+
+
+def add_accel_uncertainty(data: GyroData, rot, st, res) -> dict:
+    """Add the accelerometer calibration's uncertainty to the fit's covariance (issue 10.2).
+
+    The turns are measured against gravity directions that the calibrated accelerometer
+    gives: its error moves every direction together and does not average out over turns.
+    Where the design leaves the gyro barely determined (the 5 moves between six faces), it
+    dominates: ignoring it stated the gains 20 times too precise. Returns the rate std
+    (relative, worst direction) in total, from the noise and from the accelerometer."""
+    noise_only = rate_std(res.M, res.cov[3:12, 3:12])
+    cov = data.accel_cal.extra.get("covariance")
+    dg = accel_derivative(data.stills, data.accel_cal)
+    out = {"total": noise_only, "noise": noise_only, "accel_calibration": None,
+           "meaning": "relative std of a calibrated rate in its worst direction"}  # fmt: skip
+    if cov is None or dg is None:
+        data.notes.append("the accelerometer calibration states no covariance: the gyro's std "
+                          "leave out its uncertainty")  # fmt: skip
+        return out
+    C = np.asarray(cov["values"], float)
+    A = gyro_full.accel_sensitivity(rot, st, data.noise, res, dg)
+    cov_a = A @ C @ A.T
+    res.cov = res.cov + cov_a
+    out["accel_calibration"] = rate_std(res.M, cov_a[3:12, 3:12])
+    out["total"] = rate_std(res.M, res.cov[3:12, 3:12])
+    data.notes.append("std include the accelerometer calibration's uncertainty (the turns are "
+                      f"measured with it): rates to {100 * out['total']:.2g} % (1 std), "
+                      f"{100 * out['accel_calibration']:.2g} % of it from the accelerometer")
+    return out
+
+
+def design_warning(data: GyroData, uncertainty: dict, n_turns: int | None = None) -> str | None:
+    """A warning when the turns do not determine the gyro to ``[gyro] max_rate_std``, naming
+    the cause and what would work."""
+    limit = data.cfg.gyro.max_rate_std
+    total, acc = uncertainty["total"], uncertainty["accel_calibration"] or 0.0
+    if total <= limit:
+        return None
+    K = len(data.turns) if n_turns is None else n_turns
+    head = (f"{K} turns determine the gyro's rates only to {100 * total:.2g} % (1 std, worst "
+            f"direction; more than [gyro] max_rate_std = {limit:g})")  # fmt: skip
+    if acc > uncertainty["noise"]:
+        ang = data.accel_cal.extra.get("misalignment_std_deg") or {}
+        worst = max(ang.values(), default=None)
+        axes = "" if worst is None else f", its axes' angles known to {worst:.2g} deg"
+        return (f"{head}: mostly from the accelerometer calibration that measures each turn "
+                f"({100 * acc:.2g} %{axes}); use a better one: --accel CAL.json from a "
+                "session with more poses (plan qureshi18 or random:N), or turn the unit 10 or "
+                "more times about different axes (plan free:N)")  # fmt: skip
+    return (f"{head}: too few or too small turns for the 12 parameters; turn the unit 10 or "
+            "more times, about different axes, still before and after each (plan free:N)")
 
 
 def _g_note(test: dict) -> str:

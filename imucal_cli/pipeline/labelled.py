@@ -12,8 +12,16 @@ from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
 from imucal_cli.solvers import gravity as gravity_solver
 from imucal_cli.solvers import labelled as labelled_solver
+from imucal_cli.solvers.labelled_model import public_params
 
-from .accel import PoseFit, check_fields, common_extra, parameter_rows, with_excluded
+from .accel import (
+    PoseFit,
+    check_fields,
+    common_extra,
+    model_covariance,
+    parameter_rows,
+    with_excluded,
+)
 from .accel_checks import drop_wrong_labels, pose_sigmas, quality, robust_fit
 from .common import (
     StaticPoses,
@@ -159,6 +167,9 @@ def solver_fields(res: labelled_solver.LabelledResult, units: list[str]) -> dict
         "variant": "12-parameter (labelled poses)",
         "gauge": GAUGE,
         "parameters": parameter_rows(res.param_names, res.params, res.std, units, res.ci95),
+        "covariance": model_covariance(
+            lambda B, M: public_params(B, np.linalg.inv(M)), res.bias, res.matrix, res.cov
+        ),
         "placement": {
             "rms_deg": res.placement_deg,
             "source": res.placement_source,

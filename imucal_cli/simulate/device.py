@@ -16,9 +16,12 @@ through the real tty layer.
   shows), ``stall_after_s`` (stop sending, keep the port open), ``vanish_after_s`` (close the
   pseudo-terminal: the device is unplugged), ``malformed_every`` (every N-th line loses fields).
 
-The stream starts when a reader opens the port (plus :data:`SETTLE_S`, since pyserial flushes
-the input when it configures the port) and ends after the plan (or after ``duration_s``, with
-``loop`` repeating the plan), when the reader closes the port, or on SIGINT/SIGTERM.
+The stream starts when a reader opens the port and has flushed its input (pyserial does when it
+configures the port: the pseudo-terminal's packet mode shows it; a reader that never flushes
+waits at most :data:`FLUSH_WAIT_S`), and ends after the plan (or after ``duration_s``, with
+``loop`` repeating the plan), when the reader closes the port, or on SIGINT/SIGTERM.  Before the
+port closes the reader is given time to read every byte sent (at most :data:`DRAIN_MAX_S`), and
+what it did not read is not counted as sent: the count is right however loaded the machine.
 
 Pacing: by default the device walks its plan on a timer (each pose held ``hold_s``, then the
 next).  ``next_pose`` (a callable, e.g. Enter typed in the device's own terminal) moves on at
@@ -28,9 +31,12 @@ so (the still samples keep coming, the time keeps increasing), as a person at th
 
 from __future__ import annotations
 
+import fcntl
 import os
 import select
 import signal
+import struct
+import termios
 import threading
 import time as _time
 import tty
@@ -53,10 +59,14 @@ __all__ = [
 ]
 
 SETTLE_S = 0.3
-"""Wait after a reader opened the port before the first byte (pyserial flushes its input)."""
+"""Wait after a reader opened the port before the first byte, where the reader's flush of its
+input cannot be seen (no packet mode)."""
 
-DRAIN_S = 0.3
-"""Wait after the last byte before closing the pseudo-terminal, so the reader gets it all."""
+FLUSH_WAIT_S = 2.0
+"""Longest wait for a new reader to flush its input before the first byte, s."""
+
+DRAIN_MAX_S = 10.0
+"""Longest wait, at the end, for the reader to read what was sent, s."""
 
 
 @dataclass(frozen=True)
@@ -296,18 +306,14 @@ def serve(
         for signum in (signal.SIGINT, signal.SIGTERM):
             old_handlers[signum] = signal.signal(signum, handler)
 
-    master, slave = os.openpty()
-    tty.setraw(slave)
-    path = os.ttyname(slave)
-    os.close(slave)  # the reader's open is seen as the end of the master's POLLHUP
-    result = ServeResult(path=path)
-    poller = select.poll()
-    poller.register(master, select.POLLHUP)
+    port = _Port()
+    result = ServeResult(path=port.path)
     try:
-        announce(path)
+        announce(port.path)
         fields = _columns(accel, gyro, temperature)
-        say(f"serving plan {plan} at {rate_hz:g} Hz, {baud} baud on {path}; waiting for a reader")
-        result.end = _wait_for_reader(poller, stop, wait_reader_s)
+        say(f"serving plan {plan} at {rate_hz:g} Hz, {baud} baud on {port.path}; "
+            "waiting for a reader")  # fmt: skip
+        result.end = port.wait_for_reader(stop, wait_reader_s)
         if result.end:
             return result
         header = (
@@ -315,34 +321,116 @@ def serve(
             f"columns {fields}, seed {seed}\n"
         ).encode()
         line = _Line(
-            master, poller, stop, lines, rate_hz, baud, schedule=schedule, duration_s=duration_s,
-            garbage=garbage, stall_after_s=stall_after_s, vanish_after_s=vanish_after_s,
-            malformed_every=malformed_every, rng=np.random.default_rng(seed + 1),
+            port.master, port.poller, stop, lines, rate_hz, baud, schedule=schedule,
+            duration_s=duration_s, garbage=garbage, stall_after_s=stall_after_s,
+            vanish_after_s=vanish_after_s, malformed_every=malformed_every,
+            rng=np.random.default_rng(seed + 1),
         )  # fmt: skip
         line.run(header, result)
         if result.end in ("plan", "duration", "signal", "vanished"):
-            _time.sleep(DRAIN_S)
+            line.tally(result, unread=port.drain(DRAIN_MAX_S))
         say(
             f"sent {result.lines} lines ({result.malformed} malformed) in "
             f"{result.seconds:.1f} s; end: {result.end}"
         )
         return result
     finally:
-        os.close(master)
+        port.close()
         for signum, old in old_handlers.items():
             signal.signal(signum, old)
 
 
-def _wait_for_reader(poller, stop: dict, wait_reader_s: float | None) -> str:
-    """Wait until a reader opened the port (then :data:`SETTLE_S`); "" or why it gave up."""
-    waited = _time.monotonic()
-    while any(ev & select.POLLHUP for _, ev in poller.poll(50)):
-        if stop["kind"] is not None:
-            return "signal"
-        if wait_reader_s is not None and _time.monotonic() - waited > wait_reader_s:
-            return "no-reader"
-    _time.sleep(SETTLE_S)
-    return ""
+def _int_ioctl(fd: int, request: int, value: int = 0) -> int:
+    return struct.unpack("i", fcntl.ioctl(fd, request, struct.pack("i", value)))[0]
+
+
+class _Port:
+    """The pseudo-terminal: its master side (ours) and the path of its slave side (the
+    reader's).  The slave is closed at once: a reader's open is seen as the end of the master's
+    POLLHUP, its close as POLLHUP again.  In packet mode (while waiting for the reader) a flush of
+    the reader's input shows on the master as a ``TIOCPKT_FLUSHREAD`` status byte."""
+
+    def __init__(self) -> None:
+        self.master, slave = os.openpty()
+        tty.setraw(slave)  # flushes: before packet mode, so that flush is not the reader's
+        self.path = os.ttyname(slave)
+        os.close(slave)
+        self.poller = select.poll()
+        self.poller.register(self.master, select.POLLHUP)
+        self.packets = _packet_mode(self.master, True)
+
+    def wait_for_reader(self, stop: dict, wait_reader_s: float | None) -> str:
+        """Wait until a reader opened the port and flushed its input; "" or why it gave up."""
+        waited = _time.monotonic()
+        while any(ev & select.POLLHUP for _, ev in self.poller.poll(50)):
+            if stop["kind"] is not None:
+                return "signal"
+            if wait_reader_s is not None and _time.monotonic() - waited > wait_reader_s:
+                return "no-reader"
+        if not self.packets:
+            _time.sleep(SETTLE_S)
+            return ""
+        status = select.poll()
+        status.register(self.master, select.POLLPRI | select.POLLIN)
+        end = _time.monotonic() + FLUSH_WAIT_S
+        while _time.monotonic() < end and stop["kind"] is None:
+            events = status.poll(50)
+            if any(ev & select.POLLHUP for _, ev in events):
+                break  # the reader closed again: the stream sees it at once
+            if events and _flushed(self.master):
+                break
+        self.packets = _packet_mode(self.master, False)
+        return ""
+
+    def drain(self, limit_s: float) -> int:
+        """Wait until the reader has read every byte written (at most ``limit_s``, or until it
+        closes the port); the number of bytes it has not read (lost when the port closes)."""
+        end = _time.monotonic() + limit_s
+        while True:
+            unread = self._unread()
+            gone = any(ev & select.POLLHUP for _, ev in self.poller.poll(0))
+            if not unread or gone or _time.monotonic() >= end:
+                return unread
+            _time.sleep(0.01)
+
+    def _unread(self) -> int:
+        """Bytes waiting in the reader's input queue.  The slave is opened only for the query:
+        held open, it would hide the reader's close (POLLHUP)."""
+        try:
+            fd = os.open(self.path, os.O_RDONLY | os.O_NOCTTY | os.O_NONBLOCK)
+        except OSError:
+            return 0
+        try:
+            return _int_ioctl(fd, termios.FIONREAD)
+        except OSError:
+            return 0
+        finally:
+            os.close(fd)
+
+    def close(self) -> None:
+        os.close(self.master)
+
+
+def _packet_mode(master: int, on: bool) -> bool:
+    """Switch the master's packet mode; whether it is on."""
+    request = getattr(termios, "TIOCPKT", None)
+    if request is None:
+        return False
+    try:
+        _int_ioctl(master, request, int(on))
+    except OSError:
+        return False
+    return on
+
+
+def _flushed(master: int) -> bool:
+    """Read the master's pending packets: did one say the reader flushed its input?"""
+    flush = getattr(termios, "TIOCPKT_FLUSHREAD", 1)
+    try:
+        packet = os.read(master, 4096)
+    except OSError:
+        return False
+    return bool(packet) and packet[0] != 0 and bool(packet[0] & flush)
 
 
 class _Schedule:
@@ -419,6 +507,7 @@ class _Line:
         self.queued_bytes = 0  # bytes put into `out` (paced by the baud rate)
         self.line_ends: list[tuple[int, bool]] = []  # (byte offset after the line, malformed)
         self.garbage_bytes = 0
+        self.written_total = 0  # bytes the master took
 
     def why_end(self, now: float) -> str:
         """Why streaming ends now, or ""."""
@@ -490,8 +579,14 @@ class _Line:
                 del self.out[:written]
                 written_total += written
             _time.sleep(0.004)
-        done = [bad for offset, bad in self.line_ends if offset <= written_total]
-        result.lines, result.malformed = len(done), sum(done)
+        self.written_total = written_total
+        self.tally(result)
         result.garbage_bytes = self.garbage_bytes
         result.seconds = _time.monotonic() - t0
         result.end = end
+
+    def tally(self, result: ServeResult, unread: int = 0) -> None:
+        """Count the lines the reader got whole: written, less ``unread`` bytes at the end."""
+        delivered = self.written_total - unread
+        done = [bad for offset, bad in self.line_ends if offset <= delivered]
+        result.lines, result.malformed = len(done), sum(done)

@@ -307,66 +307,10 @@ def factorize(
     if linear == "subspace" and n >= 4:
         return _factorize_subspace(Z, constraints, bias, scale_reference)
     if n >= 4:
-        p = 4
-        U, sv, Vt = np.linalg.svd(Z, full_matrices=False)
-        if m < p or sv[p - 1] <= 1e-9 * sv[0]:
-            raise DesignError(
-                f"the measurement matrix Z has rank {int(np.sum(sv > 1e-9 * sv[0]))}, below the "
-                f"{p} of the affine model: capture motions in more directions"
-            )
-        # Rank-p truncation and the canonical factors (eqs. 7-9).
-        F_hat = U[:, :p] * np.sqrt(sv[:p])
-        S_hat = np.sqrt(sv[:p])[:, None] * Vt[:p]
-        a4 = np.linalg.pinv(F_hat) @ np.ones(m)  # eq. (18)
-        L = _ell(F_hat[constraints.i], F_hat[constraints.k])  # eqs. (20)-(22)
-        _check_constraint_rank(L, case, p)
-        Q, notes = _solve_q(L, constraints.h, case, p)
-        Q0, q1 = Q[:3, :3], Q[:3, 3]  # eq. (23)
-        try:
-            C = np.linalg.cholesky(Q0)  # eq. (25)
-        except np.linalg.LinAlgError:
-            raise DesignError(
-                "the metric upgrade failed (Q0 is not positive definite): the constraints are "
-                "too noisy or too few; capture more orientations"
-            ) from None
-        u = np.linalg.solve(C, q1)  # eq. (26)
-        A = np.zeros((p, p))
-        A[:3, :3] = C
-        A[3, :3] = u
-        A[:, 3] = a4  # A = [A13 | a4], eq. (16)
-        F_b = F_hat @ A  # eq. (11)
-        S_b = np.linalg.solve(A, S_hat)  # eq. (12)
-        F, S, b = F_b[:, :3], S_b[:3], S_b[3]
+        F, S, b, sv, notes = _factorize_redundant(Z, constraints)
         configuration = "redundant"
     else:
-        p = 3
-        if bias is None:
-            raise DesignError(
-                "a triad needs its biases first (eq. 14): capture at least one pair of opposite "
-                "poses (a face up and the same face down), or still periods for a gyroscope"
-            )
-        b = np.asarray(bias, dtype=float)
-        D = Z - b  # eq. (13)
-        U, sv, Vt = np.linalg.svd(D, full_matrices=False)
-        if m < p or sv[p - 1] <= 1e-9 * sv[0]:
-            raise DesignError(
-                "the bias-free measurements span fewer than 3 directions: capture motions along "
-                "every axis"
-            )
-        F_hat = U * np.sqrt(sv)
-        S_hat = np.sqrt(sv)[:, None] * Vt
-        L = _ell(F_hat[constraints.i], F_hat[constraints.k])  # eqs. (27)-(28)
-        _check_constraint_rank(L, case, p)
-        Q, notes = _solve_q(L, constraints.h, case, p)
-        try:
-            A = np.linalg.cholesky(Q)  # A = chol(Q), up to a rotation
-        except np.linalg.LinAlgError:
-            raise DesignError(
-                "the metric upgrade failed (Q is not positive definite): the constraints are too "
-                "noisy or too few; capture more orientations"
-            ) from None
-        F = F_hat @ A
-        S = np.linalg.solve(A, S_hat)
+        F, S, b, sv, notes = _factorize_triad(Z, constraints, bias)
         configuration = "triad"
 
     T = np.linalg.pinv(S.T)
@@ -385,6 +329,82 @@ def factorize(
         singular_values=sv,
         notes=notes,
     )
+
+
+def _factorize_redundant(Z: np.ndarray, constraints: Constraints):
+    """Section III-A, a redundant unit (n >= 4): rank-4 factorization of ``Z`` (eqs. 7-9),
+    then the metric upgrade ``A`` from the constraints (eqs. 16-26). Returns ``(F, S, b,
+    singular values, notes)``."""
+    m, _ = Z.shape
+    case = constraints.kind
+    p = 4
+    U, sv, Vt = np.linalg.svd(Z, full_matrices=False)
+    if m < p or sv[p - 1] <= 1e-9 * sv[0]:
+        raise DesignError(
+            f"the measurement matrix Z has rank {int(np.sum(sv > 1e-9 * sv[0]))}, below the "
+            f"{p} of the affine model: capture motions in more directions"
+        )
+    # Rank-p truncation and the canonical factors (eqs. 7-9).
+    F_hat = U[:, :p] * np.sqrt(sv[:p])
+    S_hat = np.sqrt(sv[:p])[:, None] * Vt[:p]
+    a4 = np.linalg.pinv(F_hat) @ np.ones(m)  # eq. (18)
+    L = _ell(F_hat[constraints.i], F_hat[constraints.k])  # eqs. (20)-(22)
+    _check_constraint_rank(L, case, p)
+    Q, notes = _solve_q(L, constraints.h, case, p)
+    Q0, q1 = Q[:3, :3], Q[:3, 3]  # eq. (23)
+    try:
+        C = np.linalg.cholesky(Q0)  # eq. (25)
+    except np.linalg.LinAlgError:
+        raise DesignError(
+            "the metric upgrade failed (Q0 is not positive definite): the constraints are "
+            "too noisy or too few; capture more orientations"
+        ) from None
+    u = np.linalg.solve(C, q1)  # eq. (26)
+    A = np.zeros((p, p))
+    A[:3, :3] = C
+    A[3, :3] = u
+    A[:, 3] = a4  # A = [A13 | a4], eq. (16)
+    F_b = F_hat @ A  # eq. (11)
+    S_b = np.linalg.solve(A, S_hat)  # eq. (12)
+    F, S, b = F_b[:, :3], S_b[:3], S_b[3]
+    return F, S, b, sv, notes
+
+
+def _factorize_triad(Z: np.ndarray, constraints: Constraints, bias):
+    """Section III-B, a triad (n = 3): the biases first (eq. 14, given), the bias-free
+    measurements factorized (eq. 13) and upgraded by ``A = chol(Q)`` (eqs. 27-28). Returns
+    ``(F, S, b, singular values, notes)``."""
+    m, _ = Z.shape
+    case = constraints.kind
+    p = 3
+    if bias is None:
+        raise DesignError(
+            "a triad needs its biases first (eq. 14): capture at least one pair of opposite "
+            "poses (a face up and the same face down), or still periods for a gyroscope"
+        )
+    b = np.asarray(bias, dtype=float)
+    D = Z - b  # eq. (13)
+    U, sv, Vt = np.linalg.svd(D, full_matrices=False)
+    if m < p or sv[p - 1] <= 1e-9 * sv[0]:
+        raise DesignError(
+            "the bias-free measurements span fewer than 3 directions: capture motions along "
+            "every axis"
+        )
+    F_hat = U * np.sqrt(sv)
+    S_hat = np.sqrt(sv)[:, None] * Vt
+    L = _ell(F_hat[constraints.i], F_hat[constraints.k])  # eqs. (27)-(28)
+    _check_constraint_rank(L, case, p)
+    Q, notes = _solve_q(L, constraints.h, case, p)
+    try:
+        A = np.linalg.cholesky(Q)  # A = chol(Q), up to a rotation
+    except np.linalg.LinAlgError:
+        raise DesignError(
+            "the metric upgrade failed (Q is not positive definite): the constraints are too "
+            "noisy or too few; capture more orientations"
+        ) from None
+    F = F_hat @ A
+    S = np.linalg.solve(A, S_hat)
+    return F, S, b, sv, notes
 
 
 def _factorize_subspace(Z, constraints, bias, scale_reference) -> FactorizationResult:
@@ -554,93 +574,16 @@ def refine(
         result = refine(Z, constraints, first, fixture_tolerance=tol, **again)
         result.notes.append(f"fixture tolerance estimated from the data: {np.degrees(tol):.3f} deg")
         return result
-    Z = np.asarray(Z, float)
-    m, n = Z.shape
-    sig = np.ones(m) if sigma is None else np.broadcast_to(np.asarray(sigma, float), (m,))
-    owner = np.arange(m) if row_owner is None else np.asarray(row_owner, int)
-    rows = np.unique(np.r_[constraints.i, constraints.k])
-    redundant = n > 3
-    ci, ck, h = constraints.i, constraints.k, constraints.h
-    same = ci == ck
-    jitter = (~same) & (owner[ci] != owner[ck]) & (fixture_tolerance > 0)
-    Z0 = s0 = None
-    if zero_motion is not None:
-        Z0, s0 = np.asarray(zero_motion[0], float), np.asarray(zero_motion[1], float)
-    ref_sigma = None
-    if scale_reference is not None:
-        ref_sigma = scale_reference.sigma or 1e-3 * abs(scale_reference.magnitude)
-
-    def parts(x):
-        b, T = _unpack(x, n)
-        D = Z - b
-        F = D @ T.T
-        G = F @ T  # rows: T^T f_i, the gradient of f_i . (anything) with respect to z_i
-        dot = np.sum(F[ci] * F[ck], axis=1)
-        var = sig[ci] ** 2 * np.sum(G[ck] ** 2, 1) + sig[ck] ** 2 * np.sum(G[ci] ** 2, 1)
-        var = np.where(same, 4 * sig[ci] ** 2 * np.sum(G[ci] ** 2, 1), var)  # d|f|^2 = 2 f.T dz
-        cross = np.cross(F[ci], F[ck])
-        var = var + np.where(jitter, fixture_tolerance**2 * np.sum(cross**2, 1), 0.0)
-        return b, T, D, F, G, cross, np.sqrt(np.maximum(var, 1e-300)), dot
-
-    def residuals(x):
-        b, T, D, F, G, cross, sd, dot = parts(x)
-        out = [(dot - h) / sd]
-        if redundant:
-            P = np.linalg.pinv(T) @ T  # orthogonal projector onto the span of the axes
-            out.append(((D[rows] - D[rows] @ P.T) / sig[rows, None]).ravel())
-        if Z0 is not None:
-            out.append(((Z0 - b) / s0[:, None]).ravel())
-        if scale_reference is not None:
-            w = np.asarray(scale_reference.w, float) - scale_reference.duration * b
-            out.append(
-                np.atleast_1d((np.linalg.norm(T @ w) - scale_reference.magnitude) / ref_sigma)
-            )
-        return np.concatenate(out)
-
-    def noise_jacobian(x) -> np.ndarray:
-        """d residuals / d (every noise source, in units of its standard deviation)."""
-        b, T, D, F, G, cross, sd, dot = parts(x)
-        poses = np.unique(owner)
-        pose_col = {p: k for k, p in enumerate(poses)}
-        n_res = len(residuals(x))
-        n_noise = m * n + 3 * len(poses) + (0 if Z0 is None else Z0.size) + (ref_sigma is not None)
-        C = np.zeros((n_res, n_noise))
-        K = len(h)
-        for j in range(K):
-            i, k = ci[j], ck[j]
-            if i == k:
-                C[j, i * n : (i + 1) * n] += 2 * sig[i] * G[i] / sd[j]
-                continue
-            C[j, i * n : (i + 1) * n] += sig[i] * G[k] / sd[j]
-            C[j, k * n : (k + 1) * n] += sig[k] * G[i] / sd[j]
-            if jitter[j]:
-                base = m * n
-                pi, pk = pose_col[owner[i]], pose_col[owner[k]]
-                amp = fixture_tolerance / np.sqrt(2)
-                C[j, base + 3 * pi : base + 3 * pi + 3] += amp * cross[j] / sd[j]
-                C[j, base + 3 * pk : base + 3 * pk + 3] -= amp * cross[j] / sd[j]
-        r0 = K
-        if redundant:
-            P = np.linalg.pinv(T) @ T
-            for row in rows:
-                C[r0 : r0 + n, row * n : (row + 1) * n] = np.eye(n) - P
-                r0 += n
-        c0 = m * n + 3 * len(poses)
-        if Z0 is not None:
-            C[r0 : r0 + Z0.size, c0 : c0 + Z0.size] = np.eye(Z0.size)
-            r0 += Z0.size
-            c0 += Z0.size
-        if ref_sigma is not None:
-            C[r0, c0] = 1.0
-        return C
-
+    prob = _Refinement(Z, constraints, sigma, scale_reference, zero_motion, row_owner,
+                       fixture_tolerance)  # fmt: skip
+    Z, n = prob.Z, prob.n
     x0 = np.concatenate([initial.b, initial.T.ravel()])
     # Scale the parameters to O(1) for the solver: biases by the raw spread, T by its size.
     x_scale = np.concatenate(
         [np.full(n, np.std(Z) + 1e-12), np.full(3 * n, np.abs(initial.T).max())]
     )
     sol = least_squares(
-        residuals,
+        prob.residuals,
         x0,
         x_scale=x_scale,
         xtol=1e-12,
@@ -648,21 +591,8 @@ def refine(
         gtol=1e-12,
         max_nfev=max_iterations,
     )
-    J, r = sol.jac, sol.fun
-    A_inv = _gauge_free_inverse(J, gauge=3)
-    C = noise_jacobian(sol.x)
-    JC = J.T @ C
-    cov = A_inv @ (JC @ JC.T) @ A_inv  # sandwich: Cov = A^+ J^T (C C^T) J A^+
-    # Expected chi^2 of correlated residuals: trace((I - H) C C^T), H the hat matrix.
-    H = J @ A_inv @ J.T
-    dof = max(float(np.sum(C * C) - np.sum((H @ C) * C)), 1.0)
-    chi2 = float(r @ r)
-    if sigma is None:
-        noise_scale = chi2 / dof  # noise unknown: estimated from the residuals
-    else:  # noise given: inflate only when the residuals are clearly larger than it
-        noise_scale = chi2 / dof if chi2 > chdtri(dof, 0.01) else 1.0
-    cov = noise_scale * cov
-
+    cov, noise_scale = _sandwich_covariance(sol.jac, sol.fun, prob.noise_jacobian(sol.x),
+                                            sigma is None)  # fmt: skip
     b, T = _unpack(sol.x, n)
     S = np.linalg.pinv(T).T
     if np.linalg.det(T[:, :3]) < 0:  # right-handed channels; flip the cov of the flipped row
@@ -688,6 +618,124 @@ def refine(
         notes=list(initial.notes),
         fixture_tolerance=float(fixture_tolerance),
     )
+
+
+def _sandwich_covariance(J: np.ndarray, r: np.ndarray, C: np.ndarray, noise_unknown: bool):
+    """Covariance of the refined ``(b, vec(T))`` (section IV-C's residuals are correlated: one
+    row of ``Z`` enters many constraints): ``A^+ J^T (C C^T) J A^+`` with ``C`` how each
+    residual depends on each noise source; scaled by chi^2 over its expected value when the
+    noise is unknown, or clearly above the given noise. Returns ``(cov, noise_scale)``."""
+    A_inv = _gauge_free_inverse(J, gauge=3)
+    JC = J.T @ C
+    cov = A_inv @ (JC @ JC.T) @ A_inv
+    # Expected chi^2 of correlated residuals: trace((I - H) C C^T), H the hat matrix.
+    H = J @ A_inv @ J.T
+    dof = max(float(np.sum(C * C) - np.sum((H @ C) * C)), 1.0)
+    chi2 = float(r @ r)
+    if noise_unknown:
+        noise_scale = chi2 / dof  # estimated from the residuals
+    else:  # noise given: inflate only when the residuals are clearly larger than it
+        noise_scale = chi2 / dof if chi2 > chdtri(dof, 0.01) else 1.0
+    return noise_scale * cov, noise_scale
+
+
+class _Refinement:
+    """The residuals of section IV-C and how they depend on every noise source (for
+    :func:`refine`): constraint errors ``(f_i^T f_k - h_ik) / sd``, the part of each
+    ``z_i - b`` outside the span of the axes (n > 3), still readings and the scale reference."""
+
+    def __init__(self, Z, constraints, sigma, scale_reference, zero_motion, row_owner,
+                 fixture_tolerance):  # fmt: skip
+        Z = np.asarray(Z, float)
+        m, n = Z.shape
+        self.Z, self.m, self.n = Z, m, n
+        self.sig = np.ones(m) if sigma is None else np.broadcast_to(np.asarray(sigma, float),
+                                                                      (m,))  # fmt: skip
+        self.owner = np.arange(m) if row_owner is None else np.asarray(row_owner, int)
+        self.rows = np.unique(np.r_[constraints.i, constraints.k])
+        self.redundant = n > 3
+        self.ci, self.ck, self.h = constraints.i, constraints.k, constraints.h
+        self.same = self.ci == self.ck
+        self.tol = fixture_tolerance
+        self.jitter = (~self.same) & (self.owner[self.ci] != self.owner[self.ck]) & (
+            fixture_tolerance > 0
+        )
+        self.Z0 = self.s0 = None
+        if zero_motion is not None:
+            self.Z0 = np.asarray(zero_motion[0], float)
+            self.s0 = np.asarray(zero_motion[1], float)
+        self.ref, self.ref_sigma = scale_reference, None
+        if scale_reference is not None:
+            self.ref_sigma = scale_reference.sigma or 1e-3 * abs(scale_reference.magnitude)
+
+    def parts(self, x):
+        b, T = _unpack(x, self.n)
+        D = self.Z - b
+        F = D @ T.T
+        G = F @ T  # rows: T^T f_i, the gradient of f_i . (anything) with respect to z_i
+        dot = np.sum(F[self.ci] * F[self.ck], axis=1)
+        ci, ck, sig = self.ci, self.ck, self.sig
+        var = sig[ci] ** 2 * np.sum(G[ck] ** 2, 1) + sig[ck] ** 2 * np.sum(G[ci] ** 2, 1)
+        # d|f|^2 = 2 f.T dz
+        var = np.where(self.same, 4 * sig[ci] ** 2 * np.sum(G[ci] ** 2, 1), var)
+        cross = np.cross(F[ci], F[ck])
+        var = var + np.where(self.jitter, self.tol**2 * np.sum(cross**2, 1), 0.0)
+        return b, T, D, F, G, cross, np.sqrt(np.maximum(var, 1e-300)), dot
+
+    def residuals(self, x):
+        b, T, D, F, G, cross, sd, dot = self.parts(x)
+        out = [(dot - self.h) / sd]
+        if self.redundant:
+            P = np.linalg.pinv(T) @ T  # orthogonal projector onto the span of the axes
+            out.append(((D[self.rows] - D[self.rows] @ P.T) / self.sig[self.rows, None]).ravel())
+        if self.Z0 is not None:
+            out.append(((self.Z0 - b) / self.s0[:, None]).ravel())
+        if self.ref is not None:
+            w = np.asarray(self.ref.w, float) - self.ref.duration * b
+            out.append(
+                np.atleast_1d((np.linalg.norm(T @ w) - self.ref.magnitude) / self.ref_sigma)
+            )
+        return np.concatenate(out)
+
+    def noise_jacobian(self, x) -> np.ndarray:
+        """d residuals / d (every noise source, in units of its standard deviation)."""
+        b, T, D, F, G, cross, sd, dot = self.parts(x)
+        m, n = self.m, self.n
+        poses = np.unique(self.owner)
+        pose_col = {p: k for k, p in enumerate(poses)}
+        n_res = len(self.residuals(x))
+        n_noise = (m * n + 3 * len(poses) + (0 if self.Z0 is None else self.Z0.size)
+                   + (self.ref_sigma is not None))  # fmt: skip
+        C = np.zeros((n_res, n_noise))
+        K = len(self.h)
+        for j in range(K):
+            i, k = self.ci[j], self.ck[j]
+            if i == k:
+                C[j, i * n : (i + 1) * n] += 2 * self.sig[i] * G[i] / sd[j]
+                continue
+            C[j, i * n : (i + 1) * n] += self.sig[i] * G[k] / sd[j]
+            C[j, k * n : (k + 1) * n] += self.sig[k] * G[i] / sd[j]
+            if self.jitter[j]:
+                base = m * n
+                pi, pk = pose_col[self.owner[i]], pose_col[self.owner[k]]
+                amp = self.tol / np.sqrt(2)
+                C[j, base + 3 * pi : base + 3 * pi + 3] += amp * cross[j] / sd[j]
+                C[j, base + 3 * pk : base + 3 * pk + 3] -= amp * cross[j] / sd[j]
+        r0 = K
+        if self.redundant:
+            P = np.linalg.pinv(T) @ T
+            for row in self.rows:
+                C[r0 : r0 + n, row * n : (row + 1) * n] = np.eye(n) - P
+                r0 += n
+        c0 = m * n + 3 * len(poses)
+        if self.Z0 is not None:
+            C[r0 : r0 + self.Z0.size, c0 : c0 + self.Z0.size] = np.eye(self.Z0.size)
+            r0 += self.Z0.size
+            c0 += self.Z0.size
+        if self.ref_sigma is not None:
+            C[r0, c0] = 1.0
+        return C
+
 
 
 def estimate_fixture_tolerance(

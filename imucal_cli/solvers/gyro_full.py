@@ -31,7 +31,7 @@ likelihood ratio against the 12-parameter model, which allows for excess noise).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -52,8 +52,9 @@ G_SELECT_P = 1e-3
 UNDETERMINED = 1e-8
 AXES = "xyz"
 
-__all__ = ["FullResult", "Rotations", "Stills", "fit_full", "full_information",
-           "integrate_rotations", "parameter_names", "refit_without"]  # fmt: skip
+__all__ = ["FullResult", "Rotations", "Stills", "accel_sensitivity", "fit_full",
+           "full_information", "integrate_rotations", "parameter_names",
+           "refit_without"]  # fmt: skip
 
 
 def parameter_names(n: int) -> list[str]:
@@ -392,3 +393,56 @@ def _result(prob: Problem, solved: _Solved, tried: int) -> FullResult:
         still_chi2=np.sum(solved.f[2 * prob.K :].reshape(-1, 3) ** 2, axis=1),
         turn_sigma_deg=sigma,
     )
+
+
+def accel_sensitivity(
+    rot: Rotations,
+    still: Stills,
+    gyro_sigma: float,
+    result: FullResult,
+    dg: np.ndarray,
+    *,
+    clock: float = 1.0,
+) -> np.ndarray:
+    """How the estimate moves with the accelerometer calibration it measured gravity with.
+
+    The turns are referenced to the still periods' gravity directions, which the calibrated
+    accelerometer gives; an error of that calibration moves every direction together (not
+    noise: it does not average out over turns). To first order (implicit function theorem on
+    the normal equations), ``d x_hat = -(J^T J)^-1 J^T (d f / d theta) d theta`` with ``f`` the
+    whitened residuals at the solution and ``theta`` the accelerometer's parameters.
+
+    Parameters
+    ----------
+    rot, still, gyro_sigma, clock
+        As given to :func:`fit_full`.
+    result : FullResult
+        The fit.
+    dg : ndarray (P, 3, m)
+        Change of each still period's calibrated accelerometer mean per unit of each of the
+        ``m`` parameters, m/s^2.
+
+    Returns
+    -------
+    ndarray (12 or 21, m)
+        ``d x_hat / d theta``: the covariance of ``x_hat`` from the accelerometer calibration's
+        covariance ``C`` is ``A C A^T``.
+    """
+    with_g = result.G is not None
+    x = np.r_[result.b, result.M.ravel(), result.G.ravel() if with_g else []]
+    prob = Problem(rot, still, gyro_sigma, clock, g_sensitivity=with_g)
+    W = prob.whitener(x)
+    J = W(prob.residuals_and_jacobian(x)[1])
+    m = dg.shape[2]
+    F = np.empty((len(J), m))
+    g_norm = float(np.median(np.linalg.norm(still.g, axis=1)))
+    for j in range(m):
+        size = np.abs(dg[:, :, j]).max()
+        if size == 0:
+            F[:, j] = 0.0
+            continue
+        h = 1e-6 * g_norm / size  # moves a direction by about 1e-6 rad
+        f = [W(Problem(rot, replace(still, g=still.g + s * h * dg[:, :, j]), gyro_sigma, clock,
+                       g_sensitivity=with_g).raw_residuals(x)) for s in (1, -1)]  # fmt: skip
+        F[:, j] = (f[0] - f[1]) / (2 * h)
+    return -np.linalg.lstsq(J, F, rcond=None)[0]

@@ -607,7 +607,7 @@ def apply_calibration(
     if isinstance(chunk_rows, bool) or not isinstance(chunk_rows, int) or chunk_rows < 1:
         raise InputError(f"chunk size must be a positive number of rows, got {chunk_rows!r}")
     if time_unit not in TIME_UNITS:
-        raise InputError(f"unknown time unit {time_unit!r}: use s, ms or us")
+        raise InputError(f"unknown time unit {time_unit!r}: use {', '.join(TIME_UNITS)}")
     if rate_hz is not None and not (np.isfinite(rate_hz) and rate_hz > 0):
         raise InputError(f"--rate must be a positive number of Hz, got {rate_hz:g}")
     if not input_path.exists():

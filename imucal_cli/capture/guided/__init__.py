@@ -86,6 +86,7 @@ def run_guided(
     settle_s: float = 0.5,
     axis_tolerance_deg: float = 30.0,
     tick_s: float = 0.1,
+    done_before: list | None = None,
 ) -> CaptureSummary:
     """Guide a person through ``plan`` while ``recorder`` records; return what was done.
 
@@ -129,6 +130,9 @@ def run_guided(
         Warn when a turn's measured axis is further than this from the plan's.
     tick_s : float
         Passed to ``recorder.blocks``.
+    done_before : list, optional
+        Continuing a capture: the session's segments, ``(kind, label, mean raw accel or
+        None)`` in time order; the steps they fulfil are done (see :meth:`GuidedState.resume`).
 
     Returns
     -------
@@ -149,6 +153,8 @@ def run_guided(
         axis_tolerance_deg=float(axis_tolerance_deg), tick_s=float(tick_s),
     )  # fmt: skip
     state = GuidedState(plan, opt, int(recorder.n_samples), recorder.add_segment)
+    if done_before:
+        state.resume(done_before)
     return drive(state, Screen(console, opt.refresh_hz), recorder, keys, opt.tick_s)
 
 
@@ -157,7 +163,7 @@ def drive(state: GuidedState, screen: Screen, recorder, keys: KeySource, tick_s:
     gen = recorder.blocks(tick_s)
     screen.start(state)
     try:
-        for block in gen:
+        for block in gen if state.end_reason is None else ():  # resumed when complete: no need
             state.on_block(block)
             while state.end_reason is None and (line := keys.get()) is not None:
                 state.on_command(line)

@@ -143,6 +143,33 @@ class GuidedState:
         self.turn_from: int | None = None  # where the unit left the last pose taken
         self.say(self.plan_line(), "bold")
 
+    def resume(self, done: list[tuple[str, str, np.ndarray | None]]) -> None:
+        """Continue a capture: mark the steps the session already holds as done.
+
+        ``done`` lists the session's segments in time order, ``(kind, label, mean raw accel)``
+        (the mean of a static segment, else None).  A segment fulfils the first pending step of
+        its kind and label; its measured direction joins the coverage and the "too close" check.
+        """
+        for kind, label, mean in done:
+            i = next((i for i, s in enumerate(self.steps) if self.status[i] == "pending"
+                      and s.kind == kind and s.label == label), None)  # fmt: skip
+            if i is None:
+                continue
+            direction = None
+            if kind == "static" and mean is not None:
+                direction = estimate_direction(mean, self.o.accel_units,
+                                               nominal_bias=self.o.nominal_bias,
+                                               nominal_scale=self.o.nominal_scale)  # fmt: skip
+            self.status[i] = "done"
+            self.taken.append(Taken(i, kind, -1, -1, direction))  # in the file already
+        n = sum(st == "done" for st in self.status)
+        self.say(f"resumed: {n} of {len(self.steps)} steps already in the session; "
+                 + ("left: " + ", ".join(self.left_labels()) if self.left_labels()
+                    else "nothing left"), "bold")  # fmt: skip
+        self.serial += 1
+        if self.current() is None:
+            self.end_reason = "every step of the plan done or skipped"
+
     def plan_line(self) -> str:
         """What the whole capture asks: the steps, how long each hold is and in total."""
         holds = [float(s.hold_s) if s.hold_s else self.o.hold_s

@@ -192,7 +192,7 @@ def read_recording(
     paths = [Path(p) for p in paths]
     read = reader(detect_format(paths) if fmt is None else fmt).read
     if time_unit not in TIME_UNITS:
-        raise InputError(f"unknown time unit {time_unit!r}: use s, ms or us")
+        raise InputError(f"unknown time unit {time_unit!r}: use {', '.join(TIME_UNITS)}")
     if rate_hz is not None and not (np.isfinite(rate_hz) and rate_hz > 0):
         raise InputError(f"--rate must be a positive number of Hz, got {rate_hz:g}")
     if skip_rows < 0:
@@ -224,7 +224,7 @@ def read_recording(
 RATE_RANGE_HZ = (1.0, 10_000.0)
 """Sample rates plausible for an IMU, Hz: outside them, the time unit or ``--rate`` is wrong."""
 
-_UNIT_NAMES = {"s": "seconds", "ms": "milliseconds", "us": "microseconds"}
+_UNIT_NAMES = {"s": "seconds", "ms": "milliseconds", "us": "microseconds", "ns": "nanoseconds"}
 
 
 def check_sample_rate(rate_hz: float, time_unit: str | None, where: str) -> None:

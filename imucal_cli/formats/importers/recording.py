@@ -8,12 +8,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from imucal_cli.formats.columns import TIME_UNITS as COLUMN_TIME_UNITS
+
 __all__ = [
     "ACCEL_UNITS", "GYRO_UNITS", "MAG_UNITS", "TIME_UNITS", "ImportStats", "ReadOptions",
     "Recording",
 ]  # fmt: skip
 
-TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
+TIME_UNITS = COLUMN_TIME_UNITS  # one table for capture, import and apply (s, ms, us, ns)
 ACCEL_UNITS = ("counts", "V", "g", "m/s^2")
 GYRO_UNITS = ("counts", "V", "rad/s", "deg/s")
 MAG_UNITS = ("counts", "uT", "nT", "gauss")

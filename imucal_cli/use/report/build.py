@@ -84,7 +84,9 @@ def build_report(cal: Calibration) -> dict[str, Any]:
         recorded: those of solvers that did not run are left out), ``sensors``
         (``{"accel": ..., "gyro": ...}``, only those present, see :func:`_section_report`) and
         ``reference`` (the paper's published RMS before/after, for context: only for a
-        simulated session calibrated by the gravity solver, else ``None``).
+        simulated session calibrated by the gravity solver, else ``None``); for a calibration
+        another tool made, ``imported_from`` (``format``, ``file``) and ``created_basis`` (what
+        ``created`` is, when the format records no date), else ``None``.
     """
     extra = cal.extra or {}
     sections = {"accel": cal.accel, "gyro": cal.gyro}
@@ -93,6 +95,8 @@ def build_report(cal: Calibration) -> dict[str, Any]:
         "format_version": REPORT_FORMAT_VERSION,
         "session": cal.session,
         "created": cal.created,
+        "created_basis": as_text(extra.get("created_basis")),
+        "imported_from": _imported_from(extra.get("imported_from")),
         "sensor": as_text(extra.get("sensor")),
         "toolkit_version": as_text(extra.get("toolkit_version")),
         "config": _relevant_config(extra.get("config"), cal),
@@ -103,6 +107,14 @@ def build_report(cal: Calibration) -> dict[str, Any]:
         },
         "reference": dict(PAPER_REFERENCE) if _paper_context(cal) else None,
     }
+
+
+def _imported_from(raw: Any) -> dict[str, str | None] | None:
+    """``{"format", "file"}`` of a calibration read from another tool's file, else None."""
+    if not isinstance(raw, dict):
+        return None
+    found = {"format": as_text(raw.get("format")), "file": as_text(raw.get("file"))}
+    return found if any(found.values()) else None
 
 
 # Option tables shared by several solvers of a section (the others are named after their solver).
@@ -152,7 +164,9 @@ def _section_report(kind: str, sec: SensorCalibration) -> dict[str, Any]:
     ``residual_mg``, ``residual_loo_mg``), ``rotation`` (the frame the matrix is in, as the
     solver states it), ``factorization`` (see :func:`_factorization`; ``None`` for other
     solvers), ``rotations`` (turns of known angle: ``segment``, ``label``,
-    ``known_angle_deg``, ``measured_angle_deg``, ``angle_error_deg``), ``tables`` (further
+    ``known_angle_deg``, ``measured_angle_deg``, ``angle_error_deg``), ``g_sensitivity``
+    (``matrix`` n x 3, ``unit``: the gyro's response to the calibrated acceleration, or
+    ``None``; drawn as a table when the parameters do not list it), ``tables`` (further
     tables, drawn as they are: ``title``, ``columns``, ``rows`` of cells, optional ``caption``;
     new report content is added here as data, see :func:`add_table`), ``notes``, ``warnings``
     and ``unavailable`` (what this calibration does not carry).  Non-finite numbers read as
@@ -162,11 +176,15 @@ def _section_report(kind: str, sec: SensorCalibration) -> dict[str, Any]:
     units_in = as_text(extra.get("units_in"))
     gravity = _gravity(kind, sec)
     mg_per_unit = 1000.0 / gravity["value"] if gravity else None
+    g_sensitivity = _g_sensitivity(sec, units_in)
+    model = as_text(extra.get("model")) or "calibrated = matrix @ (raw - bias)"
+    if g_sensitivity is not None and "g_sensitivity" not in model:
+        model = "calibrated = matrix @ (raw - bias - g_sensitivity @ a)"
     report: dict[str, Any] = {
         "solver": sec.solver,
         "variant": as_text(extra.get("variant")),
         "gauge": as_text(extra.get("gauge")),
-        "model": as_text(extra.get("model")) or "calibrated = matrix @ (raw - bias)",
+        "model": model,
         "units_in": units_in,
         "units_out": sec.units,
         "matrix": np.asarray(sec.matrix, dtype=float).tolist(),
@@ -188,13 +206,34 @@ def _section_report(kind: str, sec: SensorCalibration) -> dict[str, Any]:
         "rotation": as_text(extra.get("rotation")),
         "factorization": _factorization(kind, sec),
         "rotations": _rotations(extra.get("rotations")),
+        "g_sensitivity": g_sensitivity,
         "tables": [],
         "notes": [str(n) for n in as_list(extra.get("notes"))],
         "warnings": [str(w) for w in as_list(extra.get("warnings"))],
     }
+    if g_sensitivity is not None and not any(
+        p["name"].startswith("g_") for p in report["parameters"]
+    ):  # the matrix alone (another tool's file): as a table
+        rows = [[axis, *row] for axis, row in zip("xyz", g_sensitivity["matrix"], strict=False)]
+        add_table(report, f"g-sensitivity [{g_sensitivity['unit']}]", ["", "a_x", "a_y", "a_z"],
+                  rows, caption="raw - bias - g_sensitivity @ a, with a the calibrated "
+                  "acceleration in m/s^2")  # fmt: skip
     _terms_tables(report, extra)
     report["unavailable"] = _unavailable(kind, report)
     return report
+
+
+def _g_sensitivity(sec: SensorCalibration, units_in: str | None) -> dict[str, Any] | None:
+    """The section's g-sensitivity matrix and its unit, or None (absent or malformed)."""
+    try:
+        matrix = sec.g_sensitivity
+    except Exception:  # noqa: BLE001  (a malformed optional field reads as missing)
+        return None
+    if matrix is None:
+        return None
+    unit = as_text(sec.extra.get("g_sensitivity_unit"))
+    unit = unit.split(" (")[0] if unit else f"{units_in or 'raw units'} per m/s^2"
+    return {"matrix": np.asarray(matrix, dtype=float).tolist(), "unit": unit}
 
 
 def _terms_tables(report: dict[str, Any], extra: dict[str, Any]) -> None:

@@ -126,11 +126,16 @@ def _generic_table(spec: dict[str, Any]) -> Table:
 
 
 def _header_rows(report: dict[str, Any]) -> list[tuple[str, str]]:
+    imported = report.get("imported_from")
+    created = report["created"]
+    if created and report.get("created_basis"):
+        created = f"{created}, {report['created_basis']}"
     rows = [
         (name, str(value))
         for name, value in (
+            ("imported from", imported and " file ".join(filter(None, imported.values()))),
             ("session", report["session"]),
-            ("created", report["created"]),
+            ("created", created),
             ("sensor", report["sensor"]),
             ("toolkit", report["toolkit_version"]),
         )
