@@ -30,6 +30,10 @@ plan names and steps from it (:func:`load_plan`, :func:`find_plan`):
 ``still:MINUTES``
     One static step held for MINUTES minutes (``hold_s`` = 60 * MINUTES), no ``up``: a still
     recording for ``imucal noise`` (Allan deviation; bias instability needs tens of minutes).
+``warmup:MINUTES``
+    One static step, flat (+Z up), held for MINUTES minutes through a warm-up or cool-down (a
+    cold start, a hair-dryer ramp), the temperature logged (``capture`` refuses columns without
+    ``temp``): the recording for ``imucal calibrate --warmup`` (issue 17.3).
 
 A TOML plan file::
 
@@ -76,6 +80,7 @@ __all__ = [
     "find_plan",
     "hk_gyro_steps",
     "load_plan",
+    "needs_temperature",
     "plan_help",
     "plan_list",
     "plan_poses",
@@ -361,6 +366,13 @@ def _still(minutes: float) -> tuple[Step, ...]:
     return (Step("static", f"hold still for {minutes:g} min (noise)", hold_s=60.0 * minutes),)
 
 
+def _warmup(minutes: float) -> tuple[Step, ...]:
+    """``warmup:MINUTES`` (issue 17.3): one still step, flat, through a warm-up or cool-down."""
+    label = f"leave it still, +Z up, for {minutes:g} min while it warms up or cools down " \
+        "(temperature logged)"
+    return (_static(label, (0.0, 0.0, 1.0), hold_s=60.0 * minutes),)
+
+
 @dataclass(frozen=True)
 class PlanSpec:
     """One built-in plan of the registry.
@@ -380,6 +392,9 @@ class PlanSpec:
         ``steps(arg) -> tuple of Step`` from the parsed argument (None when absent).
     arg : str or None
         ``"count"`` (an integer, required), ``"count?"`` (optional), ``"minutes"`` or None.
+    temperature : bool
+        The recording is useless without the temperature (``capture`` refuses a stream
+        without it).
     """
 
     name: str
@@ -387,6 +402,7 @@ class PlanSpec:
     simulator: str
     steps: Callable[[Any], tuple[Step, ...]]
     arg: str | None = None
+    temperature: bool = False
 
     @property
     def key(self) -> str:
@@ -420,6 +436,9 @@ PLANS: tuple[PlanSpec, ...] = (
              "count"),
     PlanSpec("still:MINUTES", "one still hold of MINUTES minutes, for imucal noise", "steps",
              _still, "minutes"),
+    PlanSpec("warmup:MINUTES", "one still hold, flat, through a warm-up or cool-down of MINUTES "
+             "minutes, temperature logged, for imucal calibrate --warmup", "poses", _warmup,
+             "minutes", temperature=True),
 )  # fmt: skip
 """Every built-in plan, in the order they are listed to the user."""
 
@@ -464,14 +483,23 @@ def find_plan(name: str) -> tuple[PlanSpec | None, Any]:
         except ValueError:
             minutes = float("nan")
         if not math.isfinite(minutes) or minutes <= 0:
-            raise InputError(
-                f"plan still:{arg_text}: MINUTES must be a positive number, e.g. still:20"
-            )
+            raise InputError(f"plan {spec.key}:{arg_text}: MINUTES must be a positive number, "
+                             f"e.g. {spec.key}:20")  # fmt: skip
         return spec, minutes
     high = MAX_RANDOM_POSES if spec.key == "random" else MAX_TURNS
     if not re.fullmatch(r"\d+", arg_text) or not 1 <= int(arg_text) <= high:
         raise InputError(f"plan {text!r}: N must be between 1 and {high}")
     return spec, int(arg_text)
+
+
+def needs_temperature(plan: Plan) -> bool:
+    """A registry plan whose recording is useless without the temperature
+    (``warmup:MINUTES``); plan files never are."""
+    try:
+        spec, _ = find_plan(plan.name)
+    except InputError:
+        return False
+    return spec is not None and spec.temperature
 
 
 def _unit_or_none(v) -> np.ndarray | None:

@@ -3,7 +3,8 @@
 Each plan of the registry is simulated (``imucal simulate``), then calibrated with no config
 (``imucal calibrate``): exit 0, and each sensor the plan determines within tolerances of the
 truth derived from the simulated noise and placement error (``still:MINUTES`` goes through
-``imucal noise`` instead, its purpose).
+``imucal noise`` instead, its purpose; ``warmup:MINUTES`` through ``imucal calibrate --warmup``,
+its bias-against-temperature curve checked against the truth's).
 
 Comparison: ``y = matrix @ (raw - bias)`` of the calibration against the true input ``x`` in 200
 directions (raw made with the truth), the largest error relative to ``|x|``.  What a design
@@ -232,7 +233,8 @@ def test_plan_calibrates_with_the_default_config(case, tmp_path):
 def test_the_matrix_covers_every_plan():
     from imucal_cli.plans import BUILTIN_PLANS
 
-    assert {c.plan for c in CASES} | {"still:MINUTES"} == set(BUILTIN_PLANS)
+    # still:MINUTES and warmup:MINUTES have their own checks below (noise; temperature)
+    assert {c.plan for c in CASES} | {"still:MINUTES", "warmup:MINUTES"} == set(BUILTIN_PLANS)
 
 
 def test_still_plan_gives_the_noise_of_the_part(tmp_path):
@@ -251,3 +253,63 @@ def test_still_plan_gives_the_noise_of_the_part(tmp_path):
         want = np.hypot(sigma, 1.0 / np.sqrt(12.0) / lsb[kind]) / np.sqrt(RATE_HZ)
         got = np.array([axis[key] for axis in sensors[kind]["axes"]])
         np.testing.assert_allclose(got, want, rtol=0.1)
+
+
+def _warmup_shape_bound(session, grid: np.ndarray, t_ref: float) -> dict[str, float]:
+    """RMS over ``grid`` of the Cramer-Rao standard deviation of a cubic bias curve's shape
+    (its change from ``t_ref``) fitted to the still blocks of ``session``, white noise (the
+    per-sample noise measured from the session), in counts."""
+    from imucal_cli.pipeline.temperature import BLOCK_S, still_blocks
+    from imucal_cli.solvers.temperature import polynomial_bound, powers
+
+    blocks = still_blocks(session, BLOCK_S)
+    out = {}
+    for name in ("accel", "gyro"):
+        data = getattr(session, name)
+        sigma = float(np.std(np.diff(data, axis=0)) / np.sqrt(2.0))
+        T = np.array([session.temperature[a:b].mean() for a, b, _ in blocks])
+        sig = np.array([sigma / np.sqrt(b - a) for a, b, _ in blocks])
+        cov = polynomial_bound(T, sig, 3, t_ref, np.array([k for _, _, k in blocks]))[-3:, -3:]
+        X = powers(grid, t_ref, 3)
+        out[name] = float(np.sqrt(np.mean(np.einsum("nj,jk,nk->n", X, cov, X))))
+    return out
+
+
+def test_warmup_plan_gives_the_temperature_curve(tmp_path):
+    """warmup:MINUTES is for ``imucal calibrate --warmup``: a simulated warm-up (--ramp 5:40)
+    and a qureshi18 session at room temperature give each sensor's bias curve; its shape (the
+    change from 25 C) is within Z Cramer-Rao standard deviations of a cubic on the warm-up's
+    still blocks (RMS over the span), and the compensated bias is closer to the truth over the
+    span than the constant bias of the same session calibrated without the warm-up."""
+    warm, room = tmp_path / "warm.h5", tmp_path / "room.h5"
+    sim = run("simulate", "--plan", "warmup:4", "--ramp", "5:40", "--seed", SEED, "-o", warm)
+    assert sim.returncode == 0, sim.stderr
+    sim = run("simulate", "--plan", "qureshi18", "--ramp", "24:26:linear", "--seed", SEED,
+              "-o", room)  # fmt: skip
+    assert sim.returncode == 0, sim.stderr
+    with_warmup, plain = tmp_path / "w.cal.json", tmp_path / "p.cal.json"
+    proc = run("calibrate", room, "--warmup", warm, "-o", with_warmup)
+    assert proc.returncode == 0, proc.stderr
+    config = tmp_path / "off.toml"
+    config.write_text('[temperature]\nmodel = "off"\n')
+    proc = run("calibrate", room, "--config", config, "-o", plain)
+    assert proc.returncode == 0, proc.stderr
+    cal, off = read_calibration(with_warmup), read_calibration(plain)
+    truth = read_calibration(tmp_path / "warm.truth.json")
+    session = read_session(warm)
+    t = session.temperature
+    grid = np.linspace(t.min() + 1.0, t.max() - 1.0, 41)
+    bound = _warmup_shape_bound(session, grid, 25.0)
+    problems = []
+    for name in ("accel", "gyro"):
+        sec, true = getattr(cal, name), getattr(truth, name)
+        assert sec.temperature_terms is not None, name
+        err = sec.bias_at(grid) - true.bias_at(grid)
+        shape = err - (sec.bias_at(25.0) - true.bias_at(25.0))
+        rms = float(np.sqrt(np.mean(np.square(shape))))
+        if rms > Z * bound[name]:
+            problems.append(f"{name}: curve shape error {rms:.3g} > {Z:g} x {bound[name]:.3g}")
+        before = np.tile(getattr(off, name).bias, (len(grid), 1)) - true.bias_at(grid)
+        if not np.sqrt(np.mean(np.square(err))) < np.sqrt(np.mean(np.square(before))):
+            problems.append(f"{name}: the warm-up does not improve the bias over the span")
+    assert not problems, problems

@@ -29,6 +29,7 @@ EXAMPLES = {
     "qureshi-axes[:N]": "qureshi-axes:2",
     "free:N": "free:3",
     "still:MINUTES": "still:0.2",
+    "warmup:MINUTES": "warmup:0.2",
 }
 FAST = {"hold_s": None, "still_s": 1.0}
 

@@ -162,7 +162,7 @@ def capture(
     from imucal_cli.capture.recorder import Recorder
     from imucal_cli.capture.stream import LineProtocol, SerialSource, WitMotionProtocol
     from imucal_cli.formats.columns import ColumnSpec
-    from imucal_cli.plans import load_plan
+    from imucal_cli.plans import load_plan, needs_temperature
 
     check_mag_options(mag_units, field_ut)
     if protocol == "witmotion":
@@ -188,6 +188,11 @@ def capture(
             from imucal_cli.capture import guided
         except ImportError:
             raise InputError("guided mode not available yet: use --no-prompt") from None
+    if plan_obj is not None and needs_temperature(plan_obj) and (
+        protocol == "lines" and stream_protocol.columns.temperature is None
+    ):
+        raise InputError(f"plan {plan_obj.name} records the temperature through the warm-up: "
+                         "add temp to --columns (e.g. t,ax,ay,az,gx,gy,gz,temp)")  # fmt: skip
     out = _output_path(output, resume, force)
     done_before = None if resume is None else _done_before(resume, guided is not None)
 

@@ -47,7 +47,7 @@ def _written_poses_or_turns(flag: str, plan: str, serve: bool) -> None:
     spec = find_plan(plan)[0]
     if serve or spec is None or spec.simulator not in ("poses", "rotations"):
         raise InputError(f"{flag} works for written sessions of plans six, qureshi18, "
-                         "random:N, qureshi-axes and free:N")  # fmt: skip
+                         "random:N, warmup:MINUTES, qureshi-axes and free:N")  # fmt: skip
 
 
 def _mag_plan(plan: str, serve: bool, thermal_or_clock: bool) -> None:

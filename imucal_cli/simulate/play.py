@@ -1,7 +1,8 @@
 """Simulate any plan by name: the registry's plans (:data:`imucal_cli.plans.PLANS`) or a TOML plan
 file, each played by its virtual experiment (the registry's ``simulator``):
 
-- ``poses`` (six, qureshi18, random:N): :func:`imucal_cli.simulate.triad.simulate`;
+- ``poses`` (six, qureshi18, random:N, warmup:MINUTES):
+  :func:`imucal_cli.simulate.triad.simulate`;
 - ``rotations`` (qureshi-axes[:N], free:N):
   :func:`imucal_cli.simulate.rotations.simulate_gyro_rotations`;
 - ``iron`` (hwangbo-iron, hk-gyro): :func:`imucal_cli.simulate.redundant.simulate_hk_gyro`;
@@ -69,7 +70,7 @@ def simulate_plan(
               if v is not None}  # fmt: skip
     if extras and (spec is None or spec.simulator not in ("poses", "rotations")):
         raise InputError("a temperature ramp or clock error works for plans six, qureshi18, "
-                         "random:N, qureshi-axes and free:N")  # fmt: skip
+                         "random:N, warmup:MINUTES, qureshi-axes and free:N")  # fmt: skip
     rate = 100.0 if rate_hz is None else rate_hz
     common = {"seed": seed, "units": units, "accel_noise": accel_noise, "created": created}
     if spec is None or spec.simulator == "steps":
@@ -82,7 +83,11 @@ def simulate_plan(
     if spec.simulator == "poses":
         from imucal_cli.simulate.triad import simulate
 
-        return simulate(plan=spec.build(arg).name, rate_hz=rate, move_s=move_s,
+        built = spec.build(arg)
+        own = {step.hold_s for step in built.steps}  # a plan's own hold wins, as in steps
+        if len(own) == 1 and None not in own:
+            hold_s = own.pop()
+        return simulate(plan=built.name, rate_hz=rate, move_s=move_s,
                         hold_s=2.0 if hold_s is None else hold_s, jitter_deg=jitter_deg,
                         gravity=gravity, **extras, **common)  # fmt: skip
     if spec.simulator == "rotations":

@@ -31,7 +31,6 @@ polynomial extrapolated outside its span grows as ``(distance / span)^degree``.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from math import comb
 
@@ -39,7 +38,7 @@ import numpy as np
 
 from imucal_cli.errors import DesignError
 
-from .segmentation import chi2_isf
+from .quantiles import betainc, chi2_isf
 
 __all__ = [
     "MAX_DEGREE",
@@ -63,44 +62,12 @@ MIN_SPAN_C = 10.0
 SELECT_P = 0.01
 
 
-def _beta_cf(a: float, b: float, x: float) -> float:
-    """Continued fraction of the regularised incomplete beta function (Lentz's method)."""
-    tiny = 1e-300
-    c, d = 1.0, 1.0 - (a + b) * x / (a + 1.0)
-    d = 1.0 / (tiny if abs(d) < tiny else d)
-    h = d
-    for m in range(1, 10_000):
-        for num in (m * (b - m) * x / ((a + 2 * m - 1) * (a + 2 * m)),
-                    -(a + m) * (a + b + m) * x / ((a + 2 * m) * (a + 2 * m + 1))):  # fmt: skip
-            d = 1.0 + num * d
-            d = 1.0 / (tiny if abs(d) < tiny else d)
-            c = 1.0 + num / c
-            c = tiny if abs(c) < tiny else c
-            h *= d * c
-        if abs(d * c - 1.0) < 1e-15:
-            break
-    return h
-
-
-def _beta_inc(a: float, b: float, x: float) -> float:
-    """Regularised incomplete beta function ``I_x(a, b)``."""
-    if x <= 0.0:
-        return 0.0
-    if x >= 1.0:
-        return 1.0
-    front = math.exp(math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b)
-                     + a * math.log(x) + b * math.log1p(-x))  # fmt: skip
-    if x < (a + 1.0) / (a + b + 2.0):
-        return front * _beta_cf(a, b, x) / a
-    return 1.0 - front * _beta_cf(b, a, 1.0 - x) / b
-
-
 def f1_pvalue(F: float, dof: float) -> float:
     """Upper tail ``P(F(1, dof) > F)`` of Fisher's F with one numerator degree of freedom:
     ``I_{dof / (dof + F)}(dof / 2, 1 / 2)`` (``dof`` may be fractional)."""
     if F <= 0.0:
         return 1.0
-    return _beta_inc(dof / 2.0, 0.5, dof / (dof + F))
+    return betainc(dof / 2.0, 0.5, dof / (dof + F))
 
 
 def check_span(temperature: np.ndarray, what: str, min_span_c: float = MIN_SPAN_C) -> float:
