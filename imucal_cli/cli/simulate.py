@@ -55,7 +55,7 @@ def _mag_plan(plan: str, serve: bool, thermal_or_clock: bool) -> None:
     from imucal_cli.plans import find_plan
 
     spec = find_plan(plan)[0]
-    if serve or spec is None or spec.simulator != "poses":
+    if serve or spec is None or spec.simulator != "poses" or spec.key == "warmup":
         raise InputError(
             "--mag simulates pose plans written to a file (six, qureshi18, random:N), not "
             f"{'--serve' if serve else repr(plan)}"
