@@ -136,3 +136,12 @@ def test_cli_writes_a_redundant_calibration(tmp_path):
     cal = read_calibration(tmp_path / "r.cal.json")
     assert cal.accel.solver == "factorization" and np.shape(cal.accel.matrix) == (3, 4)
     assert cal.accel.extra["use"] == "samples"
+
+
+@pytest.mark.parametrize("solver, name", [("gravity", "gravity solver"),
+                                          ("labelled", "labelled-pose solver")])  # fmt: skip
+def test_triad_solvers_refuse_a_redundant_unit_naming_the_factorization(solver, name):
+    session, _ = simulate_redundant_accel(seed=5, labelled=True, created=CREATED)
+    cfg = config_from_dict({"accel": {"solver": solver}, "gyro": {"solver": "none"}})
+    with pytest.raises(DesignError, match=f"the {name} calibrates a triad .* has 4: .*factoriz"):
+        calibrate_session(session, cfg)

@@ -20,6 +20,7 @@ from .accel import (
     label_warnings,
     model_covariance,
     parameter_rows,
+    triad_poses,
     with_excluded,
 )
 from .accel_checks import pose_sigmas, quality, robust_fit
@@ -31,7 +32,6 @@ from .common import (
     physical_checks,
     rms,
     session_name,
-    static_poses,
 )
 
 #: Exact refits for the held-out residuals up to this many poses; above it, the first-order
@@ -200,16 +200,7 @@ def calibrate_accel_gravity(session: Session, cfg: Config) -> SensorCalibration:
     SolverError
         No convergence.
     """
-    where = session_name(session)
-    g = cfg.gravity or session.gravity
-    poses = static_poses(session)
-    na = poses.a_mean.shape[1]
-    if na != 3:
-        raise DesignError(
-            f"{where}: the gravity solver calibrates a triad (3 accelerometer channels); this "
-            f'session has {na}: [accel] solver = "factorization" (or the default "auto") '
-            "calibrates a redundant unit"
-        )
+    where, g, poses = triad_poses(session, cfg, "gravity solver")
     nominal = nominal_sensor(session, cfg, g)
     check_design(poses, nominal, cfg.accel.min_separation_deg, where, cfg.accel.gravity.model)
     return gravity_section(session, cfg, poses, g, nominal)

@@ -54,14 +54,7 @@ def fit_full_model(data: GyroData, g_sensitivity: str | None = None) -> GyroFit:
     data.notes.extend(res.notes)
     uncertainty = add_accel_uncertainty(data, rot, st, res)
     units = data.units_in
-    n = len(res.std)
-    unit = [units] * 3 + [f"rad/s per {units}"] * 9 + [f"{units} per m/s^2"] * 9
-    values = np.r_[res.b, res.M.ravel(), [] if res.G is None else res.G.ravel()]
-    parameters = [
-        {"name": name, "value": float(v), "std": num(s), "unit": u}
-        for name, v, s, u in zip(gyro_full.parameter_names(n), values, res.std, unit[:n],
-                                 strict=True)  # fmt: skip
-    ]
+    parameters = parameter_rows(res, units)
     rotations = [
         {"segment": t.segment.name, "label": t.segment.label, "known_angle_deg": None,
          "measured_angle_deg": float(a), "angle_error_deg": float(r),
@@ -101,6 +94,19 @@ def fit_full_model(data: GyroData, g_sensitivity: str | None = None) -> GyroFit:
         data.notes.append(_g_note(res.g_test))
     return GyroFit(res.b, res.M, parameters, rotations, np.radians(res.angle_residual_deg),
                    np.linalg.norm(S, axis=1), extra)  # fmt: skip
+
+
+def parameter_rows(res, units: str) -> list[dict]:
+    """The section's parameter rows of a full-model result ``res`` (``b``, ``M``, optional
+    ``G``, ``std``): bias in raw ``units``, matrix in rad/s per raw unit, g-sensitivity."""
+    n = len(res.std)
+    unit = [units] * 3 + [f"rad/s per {units}"] * 9 + [f"{units} per m/s^2"] * 9
+    values = np.r_[res.b, res.M.ravel(), [] if res.G is None else res.G.ravel()]
+    return [
+        {"name": name, "value": float(v), "std": num(s), "unit": u}
+        for name, v, s, u in zip(gyro_full.parameter_names(n), values, res.std, unit[:n],
+                                 strict=True)  # fmt: skip
+    ]
 
 
 def accel_derivative(stills, accel_cal) -> np.ndarray | None:

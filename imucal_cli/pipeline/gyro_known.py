@@ -18,7 +18,7 @@ from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
 from imucal_cli.solvers import gyro_full, gyro_known
 
-from .common import num, rms, session_name, with_segments
+from .common import rms, session_name, with_segments
 from .gyro import (
     AXES,
     MODEL_EQUATION_G,
@@ -29,7 +29,13 @@ from .gyro import (
     still_periods,
     turns_between,
 )
-from .gyro_full import design_warning, gain_std, rate_std, rotations_and_stills
+from .gyro_full import (
+    design_warning,
+    gain_std,
+    parameter_rows,
+    rate_std,
+    rotations_and_stills,
+)
 
 #: A turn whose measured gravity direction stays within this RMS angle of its mean (deg) is
 #: about the vertical: its axis is measured.
@@ -243,15 +249,8 @@ def _refit(session, cfg, accel_cal, segs, statics, res, data, rot, x) -> np.ndar
 
 
 def _section(data: GyroData, res, known, used, g_test, uncertainty) -> SensorCalibration:
-    units = data.units_in
-    n = len(res.std)
-    unit = [units] * 3 + [f"rad/s per {units}"] * 9 + [f"{units} per m/s^2"] * 9
-    values = np.r_[res.b, res.M.ravel(), [] if res.G is None else res.G.ravel()]
-    parameters = [
-        {"name": name, "value": float(v), "std": num(s), "unit": u}
-        for name, v, s, u in zip(gyro_full.parameter_names(n), values, res.std, unit[:n],
-                                 strict=True)  # fmt: skip
-    ]
+    units, n = data.units_in, len(res.std)
+    parameters = parameter_rows(res, units)
     sigma = np.degrees(np.sqrt(known.angle_sigma**2 + (known.axis_sigma * known.angle) ** 2))
     rotations = [
         {"segment": s.name, "label": s.label, "known_angle_deg": float(s.angle_deg),

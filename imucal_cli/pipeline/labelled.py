@@ -21,6 +21,7 @@ from .accel import (
     fit_fields,
     model_covariance,
     parameter_rows,
+    triad_poses,
     with_excluded,
 )
 from .accel_checks import drop_wrong_labels, pose_sigmas, quality, robust_fit
@@ -32,8 +33,6 @@ from .common import (
     nominal_sensor,
     physical_checks,
     rms,
-    session_name,
-    static_poses,
 )
 
 GAUGE = (
@@ -193,16 +192,7 @@ def calibrate_accel_labelled(session: Session, cfg: Config) -> SensorCalibration
     SolverError
         No convergence.
     """
-    where = session_name(session)
-    g = cfg.gravity or session.gravity
-    poses = static_poses(session)
-    na = poses.a_mean.shape[1]
-    if na != 3:
-        raise DesignError(
-            f"{where}: the labelled-pose solver calibrates a triad (3 accelerometer channels); "
-            f'this session has {na}: [accel] solver = "factorization" (or the default "auto") '
-            "calibrates a redundant unit"
-        )
+    where, g, poses = triad_poses(session, cfg, "labelled-pose solver")
     if not labels_determine(poses.up):
         n_lab = int(np.isfinite(poses.up).all(axis=1).sum())
         raise DesignError(
