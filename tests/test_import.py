@@ -206,6 +206,8 @@ def test_errors_one_line_exit_2(tmp_path, sim, capsys, monkeypatch):
     out = tmp_path / "o.h5"
     cases = [
         ((tmp_path / "nope.csv", "--rate", 100), ["nope.csv", "no such file"]),
+        ((tmp_path / "nope.bag",), ["nope.bag", "no such file"]),  # not a reader's wording
+        ((tmp_path / "nope.ulg",), ["nope.ulg", "no such file"]),
         ((empty, "--rate", 100), ["empty file"]),
         ((text, "--rate", 100), ["no numeric rows"]),
         ((good, "--columns", "t,ax,ay,az"), ["4 fields", "--columns"]),

@@ -190,6 +190,9 @@ def read_recording(
         time and no rate, time that does not increase: the message gives the line).
     """
     paths = [Path(p) for p in paths]
+    for p in paths:
+        if not (p.exists() or p.is_symlink()):  # before a reader library's own wording
+            raise InputError(f"{p}: no such file")
     read = reader(detect_format(paths) if fmt is None else fmt).read
     if time_unit not in TIME_UNITS:
         raise InputError(f"unknown time unit {time_unit!r}: use {', '.join(TIME_UNITS)}")
