@@ -153,6 +153,7 @@ def _result_json(cal, out: Path, stored: str) -> dict:
     elif stored.startswith(" (not stored in the session: "):
         why = stored[len(" (not stored in the session: ") : -1]
     warnings = [w for s in (cal.accel, cal.gyro) if s for w in s.extra.get("warnings", [])]
+    warnings += [cal.extra["accel_note"]] if cal.extra.get("accel_note") else []
     return {"format": "imucal-calibrate", "format_version": 1, "output": str(out),
             "stored": where, "not_stored": why, "warnings": warnings,
             "calibration": json.loads(calibration_to_json(cal))}  # fmt: skip
@@ -280,6 +281,8 @@ def _summary(console: Console, cal, where: str) -> None:
             console.print(f"  [bold yellow]warning[/]: {escape(w)}")
     if cal.extra.get("gyro_note"):
         console.print(f"[bold]gyro[/]: {escape(cal.extra['gyro_note'])}")
+    if cal.extra.get("accel_note"):
+        console.print(f"[bold yellow]warning[/]: {escape(cal.extra['accel_note'])}")
     if cal.mag is not None:
         for line in mag_summary(cal.mag):
             console.print(line, highlight=False, soft_wrap=True)

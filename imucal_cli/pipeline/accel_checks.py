@@ -231,30 +231,32 @@ def quality(
     g: float,
     coverage: dict,
     excess: float | None = None,
+    distinct: int | None = None,
+    instead: str | None = None,
 ) -> Quality:
     """The checks of 10.2 and 10.3 on a finished fit (module docstring). ``excess`` is the
-    solver's own sqrt(chi^2 / dof) against the measured noise; default: from the magnitudes."""
+    solver's own sqrt(chi^2 / dof) against the measured noise; default: from the magnitudes.
+
+    ``distinct``: for a fit of one magnitude equation per pose (gravity solver), the number
+    of distinct directions among the poses. A pose repeating a direction repeats its
+    equation: it averages the noise (``spare`` still counts it for the noise) but checks
+    nothing of the model, so the spare equations said in the warning and in
+    ``spare_equations`` are ``min(spare, distinct - n_params)``. ``instead``: what would
+    work with what the session has (another solver), said before a new capture (9.6)."""
+    stat_spare = spare
+    if distinct is not None:
+        spare = min(spare, distinct - n_params)
     N = len(residuals)
     rms_after = float(np.sqrt(np.mean(residuals**2)))
     sig = float(np.sqrt(np.mean(sigmas**2)))
-    expected = sig * np.sqrt(max(spare, 0) / N)
+    expected = sig * np.sqrt(max(stat_spare, 0) / N)
     if excess is None:
         chi2 = float(np.sum((residuals / np.maximum(sigmas, 1e-12)) ** 2))
-        excess = float(np.sqrt(chi2 / spare)) if spare > 0 else float("nan")
+        excess = float(np.sqrt(chi2 / stat_spare)) if stat_spare > 0 else float("nan")
     warnings, blocking = [], []
-    below = spare <= 0 or rms_after < 0.5 * expected
+    below = stat_spare <= 0 or rms_after < 0.5 * expected
     if spare < MIN_SPARE:
-        more = max(18 - N, 3)
-        what = (
-            "the fit is exact and cannot check itself: its residual says nothing about the accuracy"
-            if spare <= 0
-            else "the fit can hardly check itself (one bad pose would go unnoticed)"
-        )
-        warnings.append(
-            f"only {max(spare, 0)} spare equations ({N} poses for {n_params} parameters): "
-            f"{what}; capture {more} or more further poses spread over the sphere (the "
-            "45-degree edges: plan qureshi18)"
-        )
+        warnings.append(_spare_warning(spare, N, n_params, distinct, instead))
     if rms_loo is not None and np.isfinite(rms_loo):
         ratio = rms_loo / max(rms_after, expected, 1e-12)
         if ratio > HELD_OUT_RATIO:
@@ -272,7 +274,7 @@ def quality(
                 "by the others and a bump or a misplaced pose would go unnoticed; capture more "
                 f"poses spread over the sphere (the 12 edges of plan qureshi18){where}"
             )
-    if spare > 0 and excess > MISFIT_SIGMAS and 1000 * rms_after / g > MISFIT_FLOOR_MG:
+    if stat_spare > 0 and excess > MISFIT_SIGMAS and 1000 * rms_after / g > MISFIT_FLOOR_MG:
         worst = np.argsort(-np.abs(residuals / np.maximum(sigmas, 1e-12)))[:3]
         names = ", ".join(
             poses.segments[k].name
@@ -285,3 +287,23 @@ def quality(
             f"{names}: was the unit still during each hold, and is each label right?"
         )
     return Quality(spare, n_params, expected, excess, below, warnings, blocking)
+
+
+def _spare_warning(
+    spare: int, N: int, n_params: int, distinct: int | None, instead: str | None
+) -> str:
+    """The 10.3 warning of a fit with fewer than :data:`MIN_SPARE` spare equations."""
+    more = max(18 - (N if distinct is None else distinct), 3)
+    what = (
+        "the fit is exact and cannot check itself: its residual says nothing about the accuracy"
+        if spare <= 0
+        else "the fit can hardly check itself (one bad pose would go unnoticed)"
+    )
+    poses = f"{N} poses for {n_params} parameters" if distinct is None or distinct >= N else (
+        f"{N} poses in {distinct} distinct directions for {n_params} parameters; a repeated "
+        "direction checks the noise, not the model")  # fmt: skip
+    return (
+        f"only {max(spare, 0)} spare equations ({poses}): "
+        f"{what}; {instead + ', or ' if instead else ''}capture {more} or more further poses "
+        "in new directions spread over the sphere (the 45-degree edges: plan qureshi18)"
+    )

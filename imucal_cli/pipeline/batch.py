@@ -44,7 +44,7 @@ class SessionResult:
     figures : dict
         ``accel_solver``, ``accel_rms_after`` (m/s^2), ``gyro_solver``, ``gyro_rms_deg``,
         ``mag_solver``, ``mag_rms_after`` (in ``mag_units``), ``mag_quality`` (pass/recapture),
-        ``warnings`` (count), where present.
+        ``warnings`` (count), ``accel_note`` (why the accel was left out), where present.
     """
 
     session: str
@@ -137,6 +137,9 @@ def _figures(cal: Calibration) -> dict:
             if isinstance(x.get("quality"), dict):
                 out["mag_quality"] = x["quality"].get("verdict")
         out["warnings"] = out.get("warnings", 0) + len(x.get("warnings", []))
+    if cal.extra.get("accel_note"):  # the accel left out (issue 9.4): one more warning
+        out["warnings"] = out.get("warnings", 0) + 1
+        out["accel_note"] = cal.extra["accel_note"]
     return out
 
 

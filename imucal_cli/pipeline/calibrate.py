@@ -64,7 +64,8 @@ def calibrate_gyro(
     """Run the configured gyroscope solver (``[gyro] solver``); None when it is ``"none"``.
 
     The static, dynamic and full solvers measure each rotation with the accelerometer, so
-    they need ``accel``, calibrated in the same run.
+    they need ``accel``, calibrated in the same run; the known-angle solver needs it only for
+    turns whose axis is not labelled (it measures the vertical), the factorization not at all.
     """
     solver = cfg.gyro.solver
     if solver == "auto":
@@ -74,7 +75,7 @@ def calibrate_gyro(
 
         return calibrate_gyro_factorization(session, cfg)
     if solver in ("static", "dynamic", "full", "known"):
-        if accel is None:
+        if accel is None and solver != "known":  # known: labelled axes need no accelerometer
             raise ConfigError(
                 f"[gyro] solver = {solver!r} measures each rotation with the calibrated "
                 "accelerometer: set an [accel] solver too"
@@ -107,17 +108,60 @@ def calibrate_mag(
     return run(session, cfg, accel)
 
 
+def _hk_design(turns) -> bool:
+    """Hwangbo & Kanade IV-B: turns about labelled axes whose orthogonal pairs, per mounting,
+    give the metric upgrade its 5 independent constraints, and one turn of known angle among
+    them for the scale (eq. 31). Sweeps about the vertical there: gravity cannot see them."""
+    from imucal_cli.pipeline.factorization import independent_constraints
+
+    if not any(s.angle_deg is not None and s.axis is not None for s in turns):
+        return False
+    return independent_constraints(turns) >= 5
+
+
+def _known_axes(turns) -> bool:
+    """Turns of known angle about labelled axes that span three dimensions (the Ferraris
+    360-degree turns flat on each face): they determine the matrix without an accelerometer."""
+    import numpy as np
+
+    axes = [s.axis for s in turns if s.angle_deg is not None and s.axis is not None]
+    return len(axes) >= 3 and np.linalg.matrix_rank(np.array(axes, float), tol=1e-3) == 3
+
+
+def gyro_choice(session: Session, accel: SensorCalibration | None) -> tuple[str | None, str]:
+    """``[gyro] solver = "auto"``: the solver for this session's turns, and why; ``(None,
+    note)`` when none can run. Most accurate first (issue 10.7): a redundant gyro or Hwangbo
+    & Kanade's sweeps in mountings (whose turns about the vertical gravity cannot measure):
+    the factorization; turns of known angle: the known-angle solver (with the accelerometer,
+    or on labelled axes without it); other turns with the accelerometer: the full model."""
+    turns = session.rotation_segments()
+    if session.gyro.shape[1] != 3:
+        return "factorization", f"a redundant gyro ({session.gyro.shape[1]} channels)"
+    if _hk_design(turns):
+        return "factorization", ("turns about labelled axes in several mountings and one of "
+                                 "known angle (Hwangbo & Kanade IV-B): the factorization uses "
+                                 "their axes, which gravity cannot measure")  # fmt: skip
+    if accel is None and _known_axes(turns):
+        return "known", ("turns of a known angle about labelled axes spanning three "
+                         "dimensions: their axes are the labels, no accelerometer needed")
+    if accel is None and any(s.axis is not None for s in turns):
+        return "factorization", "turns about labelled axes and no accelerometer calibration"
+    if accel is None:
+        return None, ("gyro not calibrated: the full gyro model needs the accelerometer "
+                      "calibrated (an [accel] solver, or --accel CAL.json)")  # fmt: skip
+    if any(s.angle_deg is not None for s in turns):
+        return "known", ("turns of a known angle (with any turns between still periods), "
+                         "accelerometer calibrated")  # fmt: skip
+    return "full", "turns between still periods, accelerometer calibrated"
+
+
 def calibrate_gyro_auto(
     session: Session, cfg: Config, accel: SensorCalibration | None
 ) -> tuple[SensorCalibration | None, str | None]:
-    """``[gyro] solver = "auto"``: the most accurate solver the session supports.
-
-    The full model (bias, scale, misalignment, g-sensitivity when significant) wherever the
-    turns and a calibrated accelerometer allow it; Hwangbo & Kanade's factorization for a
-    redundant gyro (more than 3 channels) or turns about labelled axes without an
-    accelerometer calibration; None when the session has no gyro, or no rotations that it
-    did not capture on purpose. A session with rotation segments that no solver can use is
-    refused with the full model's reason.
+    """``[gyro] solver = "auto"``: the most accurate solver the session supports
+    (:func:`gyro_choice`); None when the session has no gyro, or no rotations that it did not
+    capture on purpose. A session with rotation segments that no solver can use is refused
+    with the chosen solver's reason.
 
     Returns
     -------
@@ -131,20 +175,9 @@ def calibrate_gyro_auto(
 
     if session.gyro is None:
         return None, "gyro not calibrated: the session has no /raw/gyro"
-    labelled = [s for s in session.rotation_segments() if s.axis is not None]
-    if session.gyro.shape[1] != 3 or (accel is None and labelled):
-        choice, why = "factorization", (
-            f"a redundant gyro ({session.gyro.shape[1]} channels)" if session.gyro.shape[1] != 3
-            else "turns about labelled axes and no accelerometer calibration"
-        )
-    elif accel is None:
-        return None, ("gyro not calibrated: the full gyro model needs the accelerometer "
-                      "calibrated (an [accel] solver, or --accel CAL.json)")  # fmt: skip
-    elif any(s.angle_deg is not None for s in session.rotation_segments()):
-        choice, why = "known", ("turns of a known angle (with any turns between still periods), "
-                                "accelerometer calibrated")  # fmt: skip
-    else:
-        choice, why = "full", "turns between still periods, accelerometer calibrated"
+    choice, why = gyro_choice(session, accel)
+    if choice is None:
+        return None, why
     try:
         sec = calibrate_gyro(session, replace(cfg, gyro=replace(cfg.gyro, solver=choice)), accel)
     except ImucalError:
@@ -154,7 +187,7 @@ def calibrate_gyro_auto(
                       "between still periods)")  # fmt: skip
     if sec is not None and sec.extra.get("undetermined"):  # issue 10.2: not saved silently
         return None, (f"gyro not calibrated: {sec.extra['undetermined']} (to save it with these "
-                      'std: [gyro] solver = "full" and --force)')  # fmt: skip
+                      f'std: [gyro] solver = "{choice}" and --force)')  # fmt: skip
     sec.extra.setdefault("notes", []).insert(0, f'solver "{choice}" chosen by [gyro] solver = '
                                                 f'"auto": {why}')  # fmt: skip
     sec.extra["choice"] = {"solver": choice, "by": "auto", "reason": why}
@@ -193,24 +226,52 @@ def load_accel(path: str | Path) -> SensorCalibration:
     return accel
 
 
-def _accel_or_hint(session: Session, cfg: Config) -> SensorCalibration | None:
-    """The accelerometer calibrated here; when the session cannot do that but has turns for
-    the gyro, the refusal says what would work with what the user has (issue 9.6)."""
-    from imucal_cli.errors import DesignError
-
+def _accel_or_refusal(session: Session, cfg: Config):
+    """The accelerometer calibrated here, or ``(None, refusal)`` when ``[accel] solver =
+    "auto"`` finds the poses cannot determine it but the gyro may calibrate without it (the
+    facade calibrates what the session determines, issue 9.4); any other refusal is raised."""
     if cfg.accel.solver == "none":
-        return None
+        return None, None
     try:
-        return calibrate_accel(session, cfg)
+        return calibrate_accel(session, cfg), None
     except DesignError as exc:
         if session.gyro is None or cfg.gyro.solver == "none" or not (
             session.rotation_segments() or cfg.gyro.solver in ("full", "static", "dynamic")
         ):
             raise
-        raise DesignError(
+        refusal = DesignError(
             f"{exc}; to calibrate only the gyro from this session, pass an earlier calibration "
             "of this unit's accelerometer: --accel CAL.json (or a session file that stores one)"
-        ) from None
+        )
+        if cfg.accel.solver != "auto":
+            raise refusal from None
+        return None, (exc, refusal)
+
+
+def _gyro_without_accel(session: Session, cfg: Config, refusal):
+    """The gyro of a session whose accelerometer ``"auto"`` could not determine: the gyro
+    section and the note that says why the accelerometer was left out and what would
+    determine it (issue 9.6); the accelerometer's refusal when the gyro cannot do without
+    it either."""
+    from imucal_cli.errors import ImucalError
+
+    exc, raised = refusal
+    try:
+        if cfg.gyro.solver == "auto":
+            gyro, _ = calibrate_gyro_auto(session, cfg, None)
+        else:
+            gyro = calibrate_gyro(session, cfg, None)
+    except ImucalError:
+        gyro = None
+    if gyro is None:
+        raise raised from None
+    where = session_name(session)
+    reason = str(exc).removeprefix(f"{where}: ")
+    frame = gyro.extra.get("frame") or "the frame of the turns' labelled axes"
+    note = (f"accel not calibrated; the gyro was calibrated without it, in {frame}. To "
+            "calibrate the accelerometer with this session, pass an earlier calibration of "
+            f"this unit's: --accel CAL.json. Why: {reason}")  # fmt: skip
+    return gyro, note
 
 
 def _prepare(
@@ -253,17 +314,19 @@ def calibrate_session(
         raise ConfigError("the config calibrates nothing: [accel] and [gyro] solver are both none")
     session, segmented = with_segments(session)
     session, models, root = _prepare(session, cfg, warmup)
-    given = accel
+    given, refusal, accel_note = accel, None, None
     if accel is None:
         run_accel = cfg.accel.solver != "none" and not (session.accel is None and with_mag)
-        accel = _accel_or_hint(session, cfg) if run_accel else None
+        accel, refusal = _accel_or_refusal(session, cfg) if run_accel else (None, None)
         segmented_accel = True
     else:
         from imucal_cli.pipeline.temperature import given_accel
 
         session, accel = given_accel(session, accel)
         segmented_accel = False
-    if cfg.gyro.solver == "auto":
+    if refusal is not None:
+        (gyro, accel_note), gyro_note = _gyro_without_accel(session, cfg, refusal), None
+    elif cfg.gyro.solver == "auto":
         gyro, gyro_note = calibrate_gyro_auto(session, cfg, accel)
     else:
         gyro, gyro_note = calibrate_gyro(session, cfg, accel), None
@@ -284,6 +347,8 @@ def calibrate_session(
     extra = {"toolkit_version": __version__, "config": cfg.to_dict(), **root}
     if gyro_note:
         extra["gyro_note"] = gyro_note
+    if accel_note:
+        extra["accel_note"] = accel_note
     if session.sensor:
         extra["sensor"] = session.sensor
     if session.source:  # "simulator", "serial:...": the report's context (paper figures or not)

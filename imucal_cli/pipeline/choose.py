@@ -6,7 +6,11 @@ supports, and why (issue 9.1, point 2 of the accel work package).
 * a triad with 9 or more distinct poses: the gravity-magnitude solver (Qureshi & Golnaraghi
   III-A), which needs no labels; unless the poses carry labels placed so well that using them
   makes the fit measurably more precise (predicted from the Cramér-Rao bounds of both designs
-  at the gravity solution, with the placement the labels showed), then the labelled solver;
+  at the gravity solution, with the placement the labels showed), then the labelled solver.
+  Where only some poses are labelled (Hwangbo & Kanade's iron: the second mounting has no
+  `up`) the labelled solver fits the unlabelled ones by their magnitude (a free direction), so
+  its bound is the gravity bound with the labelled poses' priors added: on 9 distinct
+  directions (no spare equation for the gravity fit) the labels decide the axes;
 * a triad with fewer distinct poses whose labels determine the model (six faces): the
   labelled-pose solver;
 * otherwise a refusal that names what would work with what the user already has.
@@ -71,11 +75,16 @@ def auto_accel(session: Session, cfg: Config) -> SensorCalibration | None:
         better = _labels_worth_it(sec, poses, g) if labels_determine(poses.up) else None
         if better is None:
             return _annotate(sec, "gravity", _gravity_reason(sec, n_lab))
-        ratio, placement = better
+        ratios, placement = better
         lab = labelled_section(session, cfg, poses, g, nominal)
+        some = "" if n_lab == len(poses.segments) else (
+            f" ({n_lab} of {len(poses.segments)} poses labelled; the others enter by their "
+            "magnitude, as in the gravity fit)")  # fmt: skip
         reason = (
-            f"the labels are placed within {placement:.2g} deg RMS: using them makes bias and "
-            f"gains {1 / np.sqrt(ratio):.1f}x more precise than gravity magnitude alone"
+            f"the labels are placed within {placement:.2g} deg RMS{some}: using them makes the "
+            f"bias {1 / np.sqrt(np.mean(ratios[:3])):.1f}x and the gains and axes "
+            f"{1 / np.sqrt(np.mean(ratios[3:])):.1f}x more precise than gravity magnitude alone "
+            "(Cramer-Rao bounds of both designs)"
         )
         return _annotate(lab, "labelled", reason)
     if labels_determine(poses.up):
@@ -112,16 +121,28 @@ def _gravity_reason(sec: SensorCalibration, n_lab: int) -> str:
 
 
 def _labels_worth_it(sec: SensorCalibration, poses: StaticPoses, g: float):
-    """``(variance ratio, placement deg)`` when the labelled solver is predicted to be
-    measurably more precise than the gravity solver on bias and K, else None."""
+    """``(variance ratios (9,), placement deg)`` when the labelled solver is predicted to be
+    measurably more precise than the gravity solver on bias and K (the mean of the ratios of
+    bias, gain and axis-angle variances below :data:`LABELS_WORTH`), else None.
+
+    Where only some poses are labelled (the second mounting of Hwangbo & Kanade's iron has
+    no `up`), the labelled solver is the maximum-likelihood fit of all of them: a labelled
+    pose gives its vector equation with the placement error as a prior (L2, L3), an
+    unlabelled one its magnitude equation with a free direction, exactly as in the gravity
+    solver. Its bound (L5) then has the prior on the labelled poses only and is never above
+    the gravity-magnitude bound; using the labelled poses alone would throw the others'
+    magnitude equations away. The placement is the RMS angle between the labelled poses'
+    gravity-fit directions and their labels: where the gravity fit is poorly determined its
+    frame error inflates that angle, which only understates what the labels are worth."""
     x = sec.extra
     lab = np.isfinite(poses.up).all(axis=1)
-    if lab.sum() < 4 or not lab.all():
+    if lab.sum() < 4:
         return None
-    angles = np.array([p["angle_to_up_deg"] for p in x["poses"]], float)
-    placement = float(np.sqrt(np.nanmean(angles**2)))
-    if not np.isfinite(placement):
+    angles = np.array([np.nan if p["angle_to_up_deg"] is None else p["angle_to_up_deg"]
+                       for p in x["poses"]], float)  # fmt: skip
+    if len(angles) != len(lab) or not np.isfinite(angles[lab]).any():
         return None
+    placement = float(np.sqrt(np.nanmean(angles[lab] ** 2)))
     # Both bounds at the gravity solution, directions in its (triangular) frame.
     from imucal_cli.solvers.gravity import params_to_model
 
@@ -135,9 +156,22 @@ def _labels_worth_it(sec: SensorCalibration, poses: StaticPoses, g: float):
     grav = np.diag(T @ gravity_crb(M, B, u, g, poses.cov_mean) @ T.T)
     # The labels' frame differs from the triangular one by a rotation, which changes neither
     # bound on bias and K: both are evaluated in the triangular frame.
-    lab_crb = np.diag(labelled_crb(M, B, u, g, poses.cov_mean, max(placement, 1e-3)))[:9]
-    ratio = float(np.mean(lab_crb / grav))
-    return (ratio, placement) if ratio < LABELS_WORTH else None
+    per_pose = np.where(lab, max(placement, 1e-3), np.inf)  # unlabelled: a free direction
+    lab_crb = np.diag(labelled_crb(M, B, u, g, poses.cov_mean, per_pose))[:9]
+    ratios = lab_crb / grav
+    return (ratios, placement) if float(np.mean(ratios)) < LABELS_WORTH else None
+
+
+def _faces(directions: np.ndarray, up: np.ndarray) -> list[str]:
+    """The faces (``+Z``, ...) the poses lie on: each pose's label, else its raw direction
+    within 15 deg of an axis (raw axes named as the body's)."""
+    faces = set()
+    for d, u in zip(directions, up, strict=True):
+        v = u if np.isfinite(u).all() else d
+        i = int(np.argmax(np.abs(v)))
+        if abs(v[i]) > np.cos(np.radians(15.0)):
+            faces.add(("+" if v[i] > 0 else "-") + "XYZ"[i])
+    return sorted(faces, key=lambda f: ("XYZ".index(f[1]), f[0]))
 
 
 def _refusal(session: Session, poses: StaticPoses, nominal, exc: DesignError, where: str) -> str:
@@ -148,14 +182,21 @@ def _refusal(session: Session, poses: StaticPoses, nominal, exc: DesignError, wh
     directions = unit(poses.a_mean - centre)
     N = len(directions)
     distinct = count_distinct(directions, 10.0)
-    near_axes = int(np.sum(np.max(np.abs(directions), axis=1) > np.cos(np.radians(15.0))))
+    faces = _faces(directions, poses.up)
+    n_lab = int(np.isfinite(poses.up).all(axis=1).sum())
+    labels = f"{n_lab} of them labelled" if n_lab else "no `up` labels"
     text = str(exc).removeprefix(f"{where}: ")
-    if distinct < 9 and near_axes >= 4:
-        return (
-            f"{where}: {N} static poses give only {distinct} distinct gravity directions, too few "
-            f"for the gravity-magnitude model (9 parameters), and no `up` labels; {near_axes} "
-            "of them lie within 15 deg of a face: label them (`imucal label SESSION --faces`) "
-            "and the labelled-pose solver calibrates them, or capture the 45-degree edges too "
-            "(plan qureshi18)"
-        )
-    return f"{where}: {text}"
+    if distinct >= 9:
+        return f"{where}: {text}"
+    head = (f"{where}: {N} static poses give only {distinct} distinct gravity directions, too "
+            f"few for the gravity-magnitude model (9 parameters), {labels}")  # fmt: skip
+    face_up = np.array([np.eye(3)["XYZ".index(f[1])] * (1 if f[0] == "+" else -1)
+                        for f in faces]).reshape(-1, 3)  # fmt: skip
+    if labels_determine(face_up):  # labels on these faces would determine the labelled model
+        return (f"{head}; they lie on {len(faces)} faces ({', '.join(faces)}): label them "
+                "(`imucal label SESSION --faces`) and the labelled-pose solver calibrates them, "
+                "or capture the 45-degree edges too (plan qureshi18)")  # fmt: skip
+    on = f" ({', '.join(faces)})" if faces else ""
+    return (f"{head}; they lie on {len(faces)} faces{on}, and the labelled-pose solver needs "
+            "4 faces (not only the 4 around one axis): capture the other faces too (plan "
+            "six), or the 45-degree edges (plan qureshi18)")  # fmt: skip

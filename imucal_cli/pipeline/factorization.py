@@ -342,6 +342,17 @@ def _orthogonal_pairs(turns: list[Segment]) -> int:
     return sum(abs(a @ b) < 1e-3 for n, a in enumerate(axes) for b in axes[n + 1 :])
 
 
+def independent_constraints(turns: list[Segment]) -> int:
+    """Independent orthogonality constraints that turns about labelled axes give (section
+    IV-B): structure, not numerics: one mounting gives at most 3 (its three axes); the metric
+    upgrade needs 5."""
+    labelled = [s for s in turns if s.axis is not None]
+    return sum(
+        min(3, _orthogonal_pairs([s for s in labelled if _mounting(s) == mt]))
+        for mt in {_mounting(s) for s in labelled}
+    )
+
+
 def _orthogonality_rms(res: fz.FactorizationResult, c: fz.Constraints) -> float:
     """RMS, in rad/s, of each turn's rate along the other turn's axis (f_i . f_k / |f_k|)."""
     F = res.F
@@ -423,12 +434,7 @@ def _gyro_constraints(session, turns, bias, noise, opts, where):
             f"{where}: no two turns about orthogonal axes in one mounting: turn the block on "
             "three orthogonal faces"
         )
-    # Structure, not numerics: one mounting gives at most 3 independent orthogonality
-    # constraints (its three axes), and the metric upgrade needs 5 (section IV-B).
-    independent = sum(
-        min(3, _orthogonal_pairs([s for s in turns if _mounting(s) == mt]))
-        for mt in {_mounting(s) for s in turns}
-    )
+    independent = independent_constraints(turns)
     if independent < 5:
         raise DesignError(
             f"{where}: the turns give {independent} independent orthogonality constraints, the "

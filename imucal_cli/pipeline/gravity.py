@@ -28,6 +28,7 @@ from .common import (
     StaticPoses,
     accel_units,
     check_design,
+    labels_determine,
     nominal_sensor,
     physical_checks,
     rms,
@@ -111,6 +112,12 @@ def solver_fields(res: gravity_solver.GravityResult, units: list[str]) -> dict:
     }
 
 
+#: What a gravity fit with too few spare equations could use instead when its poses carry
+#: labels that determine the labelled-pose fit (issue 9.6).
+LABELS_INSTEAD = ('its `up` labels determine the labelled-pose fit, which checks itself: '
+                  '[accel] solver = "labelled" (or the default "auto")')  # fmt: skip
+
+
 def gravity_section(
     session: Session, cfg: Config, poses: StaticPoses, g: float, nominal
 ) -> SensorCalibration:
@@ -159,6 +166,8 @@ def gravity_section(
         g,
         extra["coverage"],
         excess=float(np.sqrt(res.chi2 / res.dof)) if res.dof > 0 else None,
+        distinct=extra["coverage"]["n_distinct"],  # a repeated direction checks no model term
+        instead=LABELS_INSTEAD if labels_determine(used.up) else None,
     )
     extra.update(
         {

@@ -78,25 +78,36 @@ def _segments(session: Session, where: str) -> tuple[list[Segment], list[Segment
 
 def still_periods(session, accel_cal, cfg, statics) -> tuple[list[Still], float]:
     """Each still period's calibrated accel mean and raw gyro mean, with noise pooled over all
-    of them (issue 10.7); and the pooled per-sample gyro noise, raw units."""
+    of them (issue 10.7); and the pooled per-sample gyro noise, raw units.
+
+    Without an accelerometer calibration (``accel_cal`` None: the known-angle solver with
+    labelled axes) each period's ``g``, ``g_sigma`` and ``a_raw`` are NaN: only the gyro means
+    and their noise are known."""
     g = cfg.gravity or session.gravity
     a_means, z_means, counts, raw_means, a_var, z_var = [], [], [], [], 0.0, 0.0
+    nan3 = np.full(3, np.nan)
     for s in statics:
-        a = accel_cal.apply(session.accel[s.start : s.stop])
         z = session.gyro[s.start : s.stop]
-        a_means.append(a.mean(axis=0))
-        raw_means.append(session.accel[s.start : s.stop].mean(axis=0))
+        if accel_cal is not None:
+            a = accel_cal.apply(session.accel[s.start : s.stop])
+            a_means.append(a.mean(axis=0))
+            raw_means.append(session.accel[s.start : s.stop].mean(axis=0))
+        else:
+            a = None
+            a_means.append(nan3)
+            raw_means.append(nan3)
         z_means.append(z.mean(axis=0))
-        counts.append(len(a))
-        if len(a) > 1:  # pooled within-still variances (issue 10.7), per channel
-            a_var += np.mean(np.var(a, axis=0)) * len(a)
+        counts.append(len(z))
+        if len(z) > 1:  # pooled within-still variances (issue 10.7), per channel
+            a_var += 0.0 if a is None else np.mean(np.var(a, axis=0)) * len(a)
             z_var += np.mean(np.var(z, axis=0)) * len(z)
     dof = max(sum(n - 1 for n in counts), 1)
     a_sigma, z_sigma = np.sqrt(a_var / dof), np.sqrt(z_var / dof)
     # Each mean's noise from the pooled per-sample noise: one hold's few samples can make its
     # own estimate small by chance, and its weight too large (stated std below the bound).
     stills = [
-        Still(s, am, max(a_sigma / (g * np.sqrt(n)), 1e-6), zm, float(z_sigma / np.sqrt(n)), ar)
+        Still(s, am, max(a_sigma / (g * np.sqrt(n)), 1e-6) if accel_cal is not None else np.nan,
+              zm, float(z_sigma / np.sqrt(n)), ar)
         for s, am, zm, n, ar in zip(statics, a_means, z_means, counts, raw_means, strict=True)
     ]
     return stills, float(z_sigma)
@@ -172,7 +183,7 @@ class GyroData:
     session: Session
     cfg: Config
     where: str
-    accel_cal: SensorCalibration
+    accel_cal: SensorCalibration | None  # None: the known-angle solver on labelled axes only
     stills: list[Still]
     turns: list[Turn]
     noise: float  # per-sample gyro noise pooled over the still periods, raw units
@@ -273,9 +284,12 @@ def calibrate_gyro_rotations(session: Session, cfg: Config, accel_cal: SensorCal
     )
 
 
-def _frame(accel: SensorCalibration) -> str:
+def _frame(accel: SensorCalibration | None) -> str:
     """The frame the gyro is calibrated in: the accelerometer's, which its solver and model
-    fix (another accelerometer solver is another frame: not drift)."""
+    fix (another accelerometer solver is another frame: not drift); without one, the frame
+    of the turns' labelled axes."""
+    if accel is None:
+        return "the labelled axes of the turns (no accelerometer calibration)"
     how = ", ".join(x for x in (accel.solver, accel.extra.get("variant")) if x)
     return f"the calibrated accelerometer's frame ({how})"
 

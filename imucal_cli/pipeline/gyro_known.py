@@ -6,6 +6,11 @@ the Ferraris 360-degree turns, a turntable), the gravity direction the accelerom
 during it; otherwise its labelled ``axis``, where the accelerometer's frame is the labels' (the
 labelled-pose solver) and with the placement error as its uncertainty. The turns between still
 periods whose angle is not given join the same fit (gravity measures them).
+
+Without an accelerometer calibration (a session whose poses cannot determine it: plan
+gyro-axes) the labelled axes are the frame: each turn's axis is its label, with the configured
+(or default) placement error, the bias comes from the still periods, and no g-sensitivity or
+gravity-measured turn is fitted.
 """
 
 from __future__ import annotations
@@ -67,50 +72,68 @@ def _vertical_axis(d: np.ndarray, mag: np.ndarray, g: float, duration: float):
     return u, spread, sigma
 
 
-def _placement(cfg: Config, accel_cal: SensorCalibration) -> float:
+def _placement(cfg: Config, accel_cal: SensorCalibration | None) -> float:
     """Std of a labelled axis per tangent component (rad): how well the unit sits square to
     its labels, as the accelerometer's labelled poses measured it (a turn flat on a table
     is about the face's normal as well as a pose on that face is up), else the config's."""
-    est = (accel_cal.extra.get("placement") or {}).get("rms_deg")
+    est = None if accel_cal is None else (accel_cal.extra.get("placement") or {}).get("rms_deg")
     deg = est or cfg.accel.labelled.placement_deg or PLACEMENT_DEG
     return float(np.radians(deg) / np.sqrt(2))
 
 
-def known_turns(session: Session, cfg: Config, accel_cal: SensorCalibration, segments, b0):
+def _turn_axis(seg, acc, raw, tt, g, cfg, accel_cal):
+    """A known turn's unit axis, its std (rad), how it was found, and whether that std is
+    assumed (no accelerometer: the config's or the default placement, nothing measured it;
+    with one, its labelled poses measured the placement, or the vertical is measured).
+    None when neither a label in the accelerometer's frame nor the measured vertical gives
+    it (see :func:`known_turns`). ``acc``: the turn's calibrated accel (None without one)."""
+    lab = None if seg.axis is None else np.asarray(seg.axis, float) / np.linalg.norm(seg.axis)
+    if acc is None:  # no accelerometer: the labels' frame is the gyro's, the axis body-fixed
+        if lab is None:
+            return None
+        return lab, _placement(cfg, None), "labelled (the frame of the labels)", True
+    mag = np.linalg.norm(acc, axis=1)
+    u, spread, sigma = _vertical_axis(acc / mag[:, None], mag, g, tt[-1] - tt[0])
+    vertical = spread < VERTICAL_DEG
+    off = None if lab is None else float(np.degrees(np.arccos(min(abs(u @ lab), 1.0))))
+    if lab is not None and _labels_frame(accel_cal) and (not vertical or off < MAX_LABEL_OFF_DEG):
+        return lab, _placement(cfg, accel_cal), "labelled", False
+    if not vertical:
+        return None
+    if lab is not None:  # the labelled axis gives the sign
+        n = u if float(u @ lab) >= 0 else -u
+    else:  # the gyro's own sign (raw axes named as the accelerometer's)
+        n = u * np.sign(float(u @ np.trapezoid(raw, tt, axis=0))) * np.sign(seg.angle_deg)
+    return n, sigma, f"the measured vertical (the turn within {spread:.1f} deg RMS of it)", False
+
+
+def known_turns(session: Session, cfg: Config, accel_cal: SensorCalibration | None, segments,
+                b0):  # fmt: skip
     """The solver's view of the known-angle turns, and notes on how each axis was found.
 
     A labelled axis is used where the accelerometer's frame is the labels' and the turn is
     about it (within MAX_LABEL_OFF_DEG of the vertical it turned about, or not about the
     vertical at all): a unit turned flat on a table turns about its face's normal. Otherwise
-    the measured vertical of a turn about the vertical."""
+    the measured vertical of a turn about the vertical. Without an accelerometer calibration
+    (``accel_cal`` None) only labelled axes, in the labels' frame: a turn about a body-fixed
+    axis integrates to ``angle * axis`` whatever the attitude, so no accelerometer is needed."""
     keep, t, z, a, ang, axis, ax_sigma, notes = [], [], [], [], [], [], [], []
+    assumed = False
     g = cfg.gravity or session.gravity
-    labels = _labels_frame(accel_cal)
     for seg in segments:
         sl = slice(seg.start, seg.stop)
-        acc = accel_cal.apply(session.accel[sl])
-        mag = np.linalg.norm(acc, axis=1)
-        d = acc / mag[:, None]
+        acc = None if accel_cal is None else accel_cal.apply(session.accel[sl])
         tt = session.time[sl]
-        raw = session.gyro[sl] - b0
-        name = seg.label or seg.name
-        u, spread, sigma = _vertical_axis(d, mag, g, tt[-1] - tt[0])
-        vertical = spread < VERTICAL_DEG
-        lab = None if seg.axis is None else np.asarray(seg.axis, float) / np.linalg.norm(seg.axis)
-        off = None if lab is None else float(np.degrees(np.arccos(min(abs(u @ lab), 1.0))))
-        if lab is not None and labels and (not vertical or off < MAX_LABEL_OFF_DEG):
-            n, sigma, how = lab, _placement(cfg, accel_cal), "labelled"
-        elif vertical:
-            if lab is not None:  # the labelled axis gives the sign
-                n = u if float(u @ lab) >= 0 else -u
-            else:  # the gyro's own sign (raw axes named as the accelerometer's)
-                n = u * np.sign(float(u @ np.trapezoid(raw, tt, axis=0))) \
-                    * np.sign(seg.angle_deg)  # fmt: skip
-            how = f"the measured vertical (the turn within {spread:.1f} deg RMS of it)"
-        else:
-            notes.append(f"turn {name}: known angle but neither about the vertical nor with an "
-                         "axis in the accelerometer's frame: left out")  # fmt: skip
+        found = _turn_axis(seg, acc, session.gyro[sl] - b0, tt, g, cfg, accel_cal)
+        name = seg.label or f"turn {seg.name}"
+        if found is None:
+            why = ("no labelled axis, and no accelerometer calibration to measure the vertical"
+                   if accel_cal is None else "neither about the vertical nor with an axis in "
+                   "the accelerometer's frame")  # fmt: skip
+            notes.append(f"{name}: known angle but {why}: left out")
             continue
+        n, sigma, how, guess = found
+        assumed |= guess
         keep.append(seg)
         t.append(tt)
         z.append(session.gyro[sl])
@@ -118,12 +141,13 @@ def known_turns(session: Session, cfg: Config, accel_cal: SensorCalibration, seg
         ang.append(np.radians(seg.angle_deg))
         axis.append(n)
         ax_sigma.append(max(sigma, 1e-6))
-        notes.append(f"turn {name}: {seg.angle_deg:g} deg, axis {how}")
+        notes.append(f"{name}: {seg.angle_deg:g} deg, axis {how}")
     known = gyro_known.KnownTurns(
         t, z, np.array(ang), np.array(axis).reshape(-1, 3), np.array(ax_sigma),
-        np.full(len(t), np.radians(cfg.gyro.known.angle_std_deg)), a,
+        np.full(len(t), np.radians(cfg.gyro.known.angle_std_deg)),
+        None if accel_cal is None else a,
     )  # fmt: skip
-    return known, keep, notes
+    return known, keep, notes, assumed
 
 
 def _g_choice(cfg, fit):
@@ -147,19 +171,30 @@ def _g_choice(cfg, fit):
     return (with_g if test["included"] else base), test
 
 
-def calibrate_gyro_known(session: Session, cfg: Config, accel_cal: SensorCalibration):
-    """Gyro calibration from turns of known angle, with the session's other turns between
-    still periods in the same fit.
+def _g_choice_without_accel(cfg, fit, data):
+    """No accelerometer calibration: the g-sensitivity cannot be measured (refused when
+    ``[gyro.full] g_sensitivity = "on"``)."""
+    if cfg.gyro.full.g_sensitivity == "on":
+        raise DesignError(f"{data.where}: [gyro.full] g_sensitivity = \"on\" needs the "
+                          "accelerometer calibrated (an [accel] solver, or --accel CAL.json)")
+    data.notes.append("g-sensitivity: not estimated (no accelerometer calibration)")
+    return fit(False), None
 
-    Raises
-    ------
-    DesignError
-        No turn of known angle, or the turns do not determine the model.
-    """
-    where = session_name(session)
-    session, _ = with_segments(session)
-    if session.gyro is None or session.accel is None:
-        raise DesignError(f"{where}: turns of known angle need /raw/gyro and /raw/accel")
+
+def _stills(stills) -> gyro_full.Stills:
+    return gyro_full.Stills(
+        g=np.array([s.g for s in stills]), g_sigma=np.array([s.g_sigma for s in stills]),
+        z_mean=np.array([s.z_mean for s in stills]),
+        z_sigma=np.array([max(s.z_sigma, 1e-12) for s in stills]),
+    )  # fmt: skip
+
+
+def _known_data(session, cfg, accel_cal, where):
+    """The known-angle turns, the still periods and the other turns between still periods
+    (measured by gravity; only with an accelerometer calibration)."""
+    if session.gyro is None or (accel_cal is not None and session.accel is None):
+        raise DesignError(f"{where}: turns of known angle need /raw/gyro"
+                          + ("" if accel_cal is None else " and /raw/accel"))  # fmt: skip
     segs = [s for s in session.rotation_segments() if s.angle_deg is not None]
     if not segs:
         raise DesignError(f"{where}: no rotation segment states its angle (angle_deg)")
@@ -169,24 +204,53 @@ def calibrate_gyro_known(session: Session, cfg: Config, accel_cal: SensorCalibra
     stills, noise = still_periods(session, accel_cal, cfg, statics)
     n = sum(s.segment.stop - s.segment.start for s in stills)
     b0 = np.sum([s.z_mean * (s.segment.stop - s.segment.start) for s in stills], axis=0) / n
-    known, used, notes = known_turns(session, cfg, accel_cal, segs, b0)
-    limit = _saturation_limit(session, cfg)
+    known, used, notes, assumed = known_turns(session, cfg, accel_cal, segs, b0)
+    if accel_cal is None and len(used) < 3:
+        raise DesignError(
+            f"{where}: {len(used)} of {len(segs)} turns of known angle have a labelled axis; "
+            "without an accelerometer calibration a turn's axis is its label: label them "
+            "(imucal label SESSION --segment NAME --axis X,Y,Z, three different axes), or "
+            "pass an earlier accelerometer calibration: --accel CAL.json"
+        )
     others = [s for s in session.rotation_segments() if s not in used]
-    turns, _ = turns_between(session, stills, others, cfg.gyro.rotations.max_gap_s)
+    if accel_cal is None:
+        turns = []
+        if others:
+            notes.append(f"{len(others)} other turn(s) left out: measuring a turn of unknown "
+                         "angle needs the accelerometer calibrated (--accel CAL.json)")
+        notes.insert(0, "no accelerometer calibration: the turns' axes are their labels (the "
+                        "gyro is calibrated in the labels' frame), the bias from the still "
+                        "periods")  # fmt: skip
+    else:
+        turns, _ = turns_between(session, stills, others, cfg.gyro.rotations.max_gap_s)
     data = GyroData(session, cfg, where, accel_cal, stills, turns, max(noise, 1e-12), b0,
                     noise / np.sqrt(n), session.gyro_units or "unknown",
                     notes=[f"{len(known.t)} turn(s) of known angle, {len(turns)} between still "
                            "periods measured by gravity"] + notes)  # fmt: skip
+    limit = _saturation_limit(session, cfg)
     if limit is not None and any(np.any((z <= limit[0]) | (z >= limit[1])) for z in known.z):
         data.warnings.append("a turn of known angle reaches the end of the gyro's range: its "
                              "integral is wrong; turn more slowly")  # fmt: skip
-    rot, st = rotations_and_stills(data) if turns else (None, None)
-    if st is None:
-        st = gyro_full.Stills(
-            g=np.array([s.g for s in stills]), g_sigma=np.array([s.g_sigma for s in stills]),
-            z_mean=np.array([s.z_mean for s in stills]),
-            z_sigma=np.array([max(s.z_sigma, 1e-12) for s in stills]),
-        )  # fmt: skip
+    return data, known, used, segs, statics, assumed
+
+
+def calibrate_gyro_known(
+    session: Session, cfg: Config, accel_cal: SensorCalibration | None
+) -> SensorCalibration:  # fmt: skip
+    """Gyro calibration from turns of known angle, with the session's other turns between
+    still periods in the same fit. Without an accelerometer calibration (``accel_cal``
+    None) the turns' labelled axes give the frame and the still periods the bias.
+
+    Raises
+    ------
+    DesignError
+        No turn of known angle, or the turns do not determine the model.
+    """
+    where = session_name(session)
+    session, _ = with_segments(session)
+    data, known, used, segs, statics, assumed = _known_data(session, cfg, accel_cal, where)
+    turns, b0 = data.turns, data.bias_still
+    rot, st = rotations_and_stills(data) if turns else (None, _stills(data.stills))
     x0 = None
     if len(known.t) < 3 and rot is not None and 2 * len(turns) >= 9:
         full = gyro_full.fit_full(rot, st, data.noise, b0)
@@ -196,14 +260,19 @@ def calibrate_gyro_known(session: Session, cfg: Config, accel_cal: SensorCalibra
         return gyro_known.fit_known(known, st, data.noise, b0, rot=rot, x0=x0,
                                     g_sensitivity=with_g)  # fmt: skip
 
-    res, g_test = _g_choice(cfg, fit)
+    if accel_cal is None:
+        res, g_test = _g_choice_without_accel(cfg, fit, data)
+        cov_a = np.zeros_like(res.cov)
+    else:
+        res, g_test = _g_choice(cfg, fit)
+        cov_a = _accel_part(session, cfg, accel_cal, segs, statics, res, data, rot)
     noise_total = rate_std(res.M, res.cov[3:12, 3:12])
-    cov_a = _accel_part(session, cfg, accel_cal, segs, statics, res, data, rot)
     res.cov = res.cov + cov_a
     uncertainty = {"total": rate_std(res.M, res.cov[3:12, 3:12]), "noise": noise_total,
-                   "accel_calibration": rate_std(res.M, cov_a[3:12, 3:12]),
+                   "accel_calibration": None if accel_cal is None
+                   else rate_std(res.M, cov_a[3:12, 3:12]),
                    "meaning": "relative std of a calibrated rate in its worst direction"}
-    return _section(data, res, known, used, g_test, uncertainty)
+    return _section(data, res, known, used, g_test, uncertainty, assumed)
 
 
 def _accel_part(session, cfg, accel_cal, segs, statics, res, data, rot) -> np.ndarray:
@@ -237,18 +306,41 @@ def _accel_part(session, cfg, accel_cal, segs, statics, res, data, rot) -> np.nd
 
 def _refit(session, cfg, accel_cal, segs, statics, res, data, rot, x) -> np.ndarray:
     stills, _ = still_periods(session, accel_cal, cfg, statics)
-    known, _, _ = known_turns(session, cfg, accel_cal, segs, data.bias_still)
-    st = gyro_full.Stills(
-        g=np.array([s.g for s in stills]), g_sigma=np.array([s.g_sigma for s in stills]),
-        z_mean=np.array([s.z_mean for s in stills]),
-        z_sigma=np.array([max(s.z_sigma, 1e-12) for s in stills]),
-    )  # fmt: skip
+    known, _, _, _ = known_turns(session, cfg, accel_cal, segs, data.bias_still)
+    st = _stills(stills)
     fit = gyro_known.fit_known(known, st, data.noise, data.bias_still, rot=rot, x0=x[:12],
                                g_sensitivity=res.G is not None)  # fmt: skip
     return np.r_[fit.b, fit.M.ravel(), [] if fit.G is None else fit.G.ravel()]
 
 
-def _section(data: GyroData, res, known, used, g_test, uncertainty) -> SensorCalibration:
+#: Fewer spare equations than this in the known turns alone: they cannot check each other.
+MIN_SPARE = 3
+
+
+def _spare_text(data: GyroData, known, used, assumed: bool) -> str | None:
+    """Issue 10.3: known turns alone (no turns measured by gravity) with too few spare
+    equations (3 per turn, 9 terms of the matrix; the still periods give the bias): their
+    residuals cannot show a wrong angle or axis. A warning where the axes' std are assumed
+    (no accelerometer): then nothing in the data checks the stated std; a note where the
+    accelerometer measured them."""
+    if data.turns:
+        return None
+    spare = 3 * len(used) - 9
+    if spare >= MIN_SPARE:
+        return None
+    axis_deg = float(np.degrees(np.sqrt(2) * np.max(known.axis_sigma)))
+    angle_deg = float(np.degrees(np.max(known.angle_sigma)))
+    basis = (f"the assumed errors (axis {axis_deg:.2g} deg, angle {angle_deg:.2g} deg), not on "
+             "the data" if assumed else "the measured axes and the stated angle error "
+             f"({angle_deg:.2g} deg)")  # fmt: skip
+    return (f"{len(used)} turns of known angle for the 9 terms of the gyro's matrix: "
+            f"{max(spare, 0)} spare equations, so the turns cannot check each other (a wrong "
+            f"angle or axis would go unnoticed) and the stated std rest on {basis}; turn "
+            "about each axis once more (or add turns between still periods) to check them")
+
+
+def _section(data: GyroData, res, known, used, g_test, uncertainty, assumed: bool
+             ) -> SensorCalibration:  # fmt: skip
     units, n = data.units_in, len(res.std)
     parameters = parameter_rows(res, units)
     sigma = np.degrees(np.sqrt(known.angle_sigma**2 + (known.axis_sigma * known.angle) ** 2))
@@ -274,6 +366,11 @@ def _section(data: GyroData, res, known, used, g_test, uncertainty) -> SensorCal
     data.warnings += gyro_checks(data.session, data.cfg, gains, units)
     if undetermined:
         data.warnings.append(undetermined)
+    blocking = list(data.warnings)  # the rest are said, not refused (issue 10.3)
+    spare = _spare_text(data, known, used, assumed)
+    if spare and not assumed:  # std measured (the accelerometer's placement, the vertical)
+        data.notes.append(spare)
+        spare = None
     s_axes = S / gains[:, None]
     extra = {
         "approach": "known-angle turns" + (" and turns between still periods" if data.turns
@@ -299,7 +396,8 @@ def _section(data: GyroData, res, known, used, g_test, uncertainty) -> SensorCal
         "gyro_noise_raw": data.noise,
         "noise_basis": "pooled over the still periods",
         "notes": data.notes,
-        "warnings": data.warnings,
+        "warnings": data.warnings + ([spare] if spare else []),
+        "blocking": blocking,
     }  # fmt: skip
     if undetermined:
         extra["undetermined"] = undetermined

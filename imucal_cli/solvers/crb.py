@@ -145,7 +145,7 @@ def labelled_crb(
     u: np.ndarray,
     g: float,
     cov_mean: np.ndarray,
-    placement_deg: float,
+    placement_deg: float | np.ndarray,
 ) -> np.ndarray:
     """Cramér-Rao bound of the labelled-pose design with the labels as a prior.
 
@@ -166,8 +166,10 @@ def labelled_crb(
         Gravity, m/s^2.
     cov_mean : ndarray, shape (N, 3, 3)
         Covariance of each pose mean, raw units^2.
-    placement_deg : float
-        RMS angle between the true and the labelled up, degrees (``inf``: no labels).
+    placement_deg : float or ndarray, shape (N,)
+        RMS angle between the true and the labelled up, degrees, for every pose or per pose
+        (``inf``: no label, the pose's direction free: it adds one magnitude equation, as in
+        the labelled solver's unlabelled poses).
 
     Returns
     -------
@@ -184,11 +186,14 @@ def labelled_crb(
     from .rotation import Rotation
 
     Gt, Gd = design_jacobian(M, u, g)
-    prior = 0.0 if not np.isfinite(placement_deg) else 2.0 / np.radians(placement_deg) ** 2
+    placement = np.broadcast_to(np.asarray(placement_deg, float), (len(u),))
+    finite = np.isfinite(placement)
+    prior = np.zeros(len(u))
+    prior[finite] = 2.0 / np.radians(placement[finite]) ** 2
     A = np.zeros((12, 12))
     for k in range(len(u)):
         Wk = np.linalg.inv(cov_mean[k])
-        Dk = Gd[k].T @ Wk @ Gd[k] + prior * np.eye(2)
+        Dk = Gd[k].T @ Wk @ Gd[k] + prior[k] * np.eye(2)
         Ck = Gt[k].T @ Wk @ Gd[k]
         A += Gt[k].T @ Wk @ Gt[k] - Ck @ np.linalg.solve(Dk, Ck.T)  # Schur complement, (L5)
     diag = np.diag(A)

@@ -9,6 +9,10 @@ With ``omega = M (z - b - G a)``:
     e_k = M (Z_k - b T_k - G A_k) - theta_k n_k,     Z_k = integral z dt, A_k = integral a dt
 
 three residuals per turn (trapezoid integrals over the turn's samples; ``T_k`` its duration).
+The axis ``n_k`` need not come from an accelerometer: a turn about an axis fixed in the body
+(a unit turned flat on a table about a labelled face's normal) has the same body axis for the
+whole turn, so ``integral omega dt = theta_k n_k`` holds in the frame of the labels, and three
+such turns about independent axes determine ``M``, the still periods ``b``.
 A turn about the vertical is one that gravity cannot see, but its axis is measured all the
 same: the accelerometer reads gravity along it for the whole turn. Each residual's noise is
 the integrated gyro noise (``M`` times ``sigma sqrt(sum dt^2)`` per raw axis), the angle's own
@@ -51,7 +55,9 @@ class KnownTurns:
     angle : ndarray (K,)
         Known angle of each turn, rad (signed: right-handed about ``axis``).
     axis : ndarray (K, 3)
-        Unit axis of each turn in the calibrated accelerometer's frame.
+        Unit axis of each turn in the calibrated accelerometer's frame, or, without an
+        accelerometer calibration, in the frame of the labels (a turn about a body-fixed
+        labelled axis integrates to ``theta_k n_k`` whatever the unit's attitude).
     axis_sigma : ndarray (K,)
         Std of each axis' direction, per tangent component, rad.
     angle_sigma : ndarray (K,)
@@ -164,9 +170,9 @@ def closed_form(known: KnownTurns, b: np.ndarray) -> np.ndarray:
     """
     Z = np.array([_integrals(t, z) for t, z in zip(known.t, known.z, strict=True)])
     T = np.array([t[-1] - t[0] for t in known.t])
-    W = (Z - T[:, None] * b).T  # (3, K)
+    W = (Z.reshape(-1, 3) - T[:, None] * b).T  # (3, K)
     Y = (known.angle[:, None] * known.axis).T  # (3, K)
-    sv = np.linalg.svd(W, compute_uv=False)
+    sv = np.linalg.svd(W, compute_uv=False) if len(known.t) >= 3 else np.zeros(1)
     if len(known.t) < 3 or sv[-1] < 1e-6 * sv[0]:
         raise DesignError(
             f"{len(known.t)} turn(s) of known angle cannot determine the gyro's matrix: turn "
@@ -214,7 +220,10 @@ class _Stacked:
 
     def _still_rows(self, x):
         b, _, G = self.kp.split(x)
-        r = ((self.still.z_mean - b - self.still.g @ G.T) / self.still.z_sigma[:, None]).ravel()
+        # without the g-sensitivity term the still periods' gravity is not used (it may be
+        # unknown: no accelerometer calibration, turns about labelled axes)
+        g_term = self.still.g @ G.T if self.with_g else 0.0
+        r = ((self.still.z_mean - b - g_term) / self.still.z_sigma[:, None]).ravel()
         P = len(self.still.z_mean)
         J = np.zeros((3 * P, self.n_params))
         J[:, :3] = -np.repeat(1 / self.still.z_sigma, 3)[:, None] * np.tile(np.eye(3), (P, 1))

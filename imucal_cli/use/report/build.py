@@ -89,7 +89,8 @@ def build_report(cal: Calibration) -> dict[str, Any]:
         ``reference`` (the paper's published RMS before/after, for context: only for a
         simulated session calibrated by the gravity solver, else ``None``); for a calibration
         another tool made, ``imported_from`` (``format``, ``file``) and ``created_basis`` (what
-        ``created`` is, when the format records no date), else ``None``.
+        ``created`` is, when the format records no date), else ``None``; ``left_out``: the
+        sensors the calibrate step left out, with why (``{"accel": note}``; empty when none).
     """
     extra = cal.extra or {}
     sections = cal.sections()
@@ -109,6 +110,11 @@ def build_report(cal: Calibration) -> dict[str, Any]:
             if section is not None
         },
         "reference": dict(PAPER_REFERENCE) if _paper_context(cal) else None,
+        "left_out": {
+            kind: as_text(extra.get(f"{kind}_note"))
+            for kind in ("accel", "gyro")
+            if extra.get(f"{kind}_note") and sections.get(kind) is None
+        },
     }
 
 

@@ -41,6 +41,9 @@ def render_report(report: dict[str, Any], console: Console) -> None:
         Where to draw; the layout fits 100 columns.
     """
     show_fields(console, _header_rows(report), "imucal calibration report")
+    left_out = report.get("left_out") or {}
+    if left_out:
+        show_bullets(console, list(left_out.values()), "Not calibrated", "bold yellow")
     for kind, section in report["sensors"].items():
         console.print(Rule(Text(_section_title(kind, section)), style="bold"))
         _render_section(kind, section, report, console)
