@@ -5,8 +5,19 @@ within +-180 degrees, up to 150 deg/s, 5 s still before and after, 2-degree plac
 errors): scale and bias errors of the static, dynamic and full solvers against the truth
 (expressed in the calibrated accelerometer's frame, the frame every solver reports in), the
 full model's misalignment error in degrees and its ratio to the Cramér-Rao bound, beside the
-paper's comparison with its rate table. Then the real recordings in ``../shared/data`` that
-hold rotations: imported, calibrated with the full model, and their per-rotation residuals.
+paper's comparison with its rate table. The bound is the gyro's own plus the accelerometer
+calibration's covariance propagated through the turns (``pipeline.gyro.full_bound``): the error
+is against the truth, and the accelerometer that measures every turn is calibrated from the
+same session (its share is small here, 57 poses: up to 4 % of the variance). Then the real
+recordings in ``../shared/data`` that hold rotations: imported, calibrated with the full model,
+and their per-rotation residuals.
+
+Each error/bound is an estimate from the seeds, with a sampling error of about
+``1 / sqrt(2 N)`` (16 % at 20 seeds, 7 % at 100): the table states it (delta method on the
+seeds' squared errors) with a 95 % interval, and each coverage with its binomial std. At 20
+seeds an estimator exactly at the bound shows some parameter above 1.2 more often than not
+(12 parameters; issue 10's "m_yz 1.31" was such a draw: 1.02 at 100 seeds), so the verdict is
+taken on at least :data:`MIN_SEEDS` seeds.
 """
 
 from __future__ import annotations
@@ -17,19 +28,59 @@ from pathlib import Path
 import numpy as np
 from rich.console import Console
 from rich.table import Table
+from scipy.stats import chi2
 
 from imucal_cli.errors import ImucalError
 from imucal_cli.formats.config import config_from_dict
 from imucal_cli.pipeline.calibrate import calibrate_session
-from imucal_cli.pipeline.gyro import full_problem
+from imucal_cli.pipeline.gyro import full_bound
 from imucal_cli.simulate.rotations import simulate_gyro_rotations
-from imucal_cli.solvers.gyro_full import full_information
 
 CREATED = "2026-01-01T00:00:00Z"
 SOLVERS = ("static", "dynamic", "full")
 #: Qureshi & Golnaraghi Table III-B: mean deviation of the scale factors from the rate table.
 PAPER_MEAN_DEVIATION_PCT = {"static": 0.1409, "dynamic": 0.4060}
-DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
+#: The verdict (error/bound <= 1.2 for each of 12 parameters) needs this many seeds: an
+#: estimator at the bound then passes 97 % of the time (at 20 seeds: 32 %).
+MIN_SEEDS = 100
+TARGET_RATIO, TARGET_COVERAGE = 1.2, (0.93, 0.97)
+
+
+def shared_data() -> Path:
+    """``shared/data`` beside the checkout (or beside the folder of a git worktree)."""
+    here = Path(__file__).resolve().parent.parent
+    for parent in here.parents:
+        if (parent / "shared" / "data").is_dir():
+            return parent / "shared" / "data"
+    return here.parent / "shared" / "data"
+
+
+DATA = shared_data()
+
+
+def error_over_bound(err: np.ndarray, crb: np.ndarray) -> dict:
+    """RMS error over seeds / sqrt(mean CRB) per parameter, with its sampling uncertainty.
+
+    ``err`` (N, p) the seeds' errors, ``crb`` (N, p) each seed's bound (variance). Returns
+    ``ratio``, ``se`` (delta method on the seeds' squared errors: no Gaussian assumption),
+    ``lo``/``hi`` (95 % interval, chi-square with N degrees of freedom: Gaussian errors) and
+    ``p_any_above`` (the chance that an estimator exactly at the bound shows some parameter
+    above :data:`TARGET_RATIO` with N seeds, parameters taken independent)."""
+    n = len(err)
+    q = err**2 / np.mean(crb, axis=0)
+    ratio = np.sqrt(np.mean(q, axis=0))
+    se = np.std(q, axis=0, ddof=1) / (2 * ratio * np.sqrt(n))
+    lo = ratio * np.sqrt(n / chi2.ppf(0.975, n))
+    hi = ratio * np.sqrt(n / chi2.ppf(0.025, n))
+    p_one = chi2.sf(n * TARGET_RATIO**2, n)
+    return {"ratio": ratio, "se": se, "lo": lo, "hi": hi, "n": n,
+            "p_any_above": float(1 - (1 - p_one) ** err.shape[1])}  # fmt: skip
+
+
+def coverage(hits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Share of intervals holding the truth (over axis 0) and its binomial std."""
+    c = np.mean(hits, axis=0)
+    return c, np.sqrt(c * (1 - c) / len(hits))
 
 
 def _truth_in_accel_frame(cal, truth) -> np.ndarray:
@@ -67,10 +118,10 @@ def one_seed(seed: int) -> dict:
             x_hat = np.r_[g.bias, g.matrix.ravel()]
             x_true = np.r_[truth.gyro.bias, M_true.ravel()]
             out["full"]["err"] = x_hat - x_true
-            out["full"]["std"] = np.array([p["std"] for p in g.extra["parameters"]])
+            out["full"]["std"] = np.array([p["std"] for p in g.extra["parameters"]])[:12]
             out["full"]["axes_deg"] = _axes_angles_deg(g.matrix, M_true)
-            rot, still, noise = full_problem(session, cfg, cal.accel)
-            out["full"]["crb"] = np.diag(np.linalg.inv(full_information(x_true, rot, still, noise)))
+            crb, total = full_bound(session, cfg, cal.accel, x_true)
+            out["full"]["crb_gyro"], out["full"]["crb"] = np.diag(crb), np.diag(total)
     return out
 
 
@@ -101,25 +152,40 @@ def simulated(console: Console, n_seeds: int) -> bool:
     console.print(t)
     err = np.array([r["full"]["err"] for r in runs])
     crb = np.array([r["full"]["crb"] for r in runs])
+    accel_share = 1 - np.mean([r["full"]["crb_gyro"] for r in runs], axis=0) / np.mean(crb, axis=0)
     std = np.array([r["full"]["std"] for r in runs])
-    ratio = np.sqrt(np.mean(err**2, axis=0) / np.mean(crb, axis=0))
-    cover = np.mean(np.abs(err) <= 1.96 * std, axis=0)
+    stats = error_over_bound(err, crb)
+    ratio = stats["ratio"]
+    hits = np.abs(err) <= 1.96 * std
+    cover, cover_se = coverage(hits)
+    pooled, pooled_se = coverage(hits.ravel())  # seeds x parameters, taken independent
     axes = np.array([r["full"]["axes_deg"] for r in runs])
     names = ["b_x", "b_y", "b_z"] + [f"m_{a}{b}" for a in "xyz" for b in "xyz"]
-    t2 = Table(title="Full 12-parameter model against its Cramér-Rao bound")
-    for col in ("parameter", "RMS error", "sqrt(CRB)", "error/bound", "95% coverage"):
+    t2 = Table(title=f"Full 12-parameter model against its Cramér-Rao bound, {n_seeds} seeds "
+                     "(± sampling std of the estimate over the seeds)")  # fmt: skip
+    for col in ("parameter", "RMS error", "sqrt(CRB)", "accel's share of CRB", "error/bound",
+                "95 % interval", "95% coverage"):  # fmt: skip
         t2.add_column(col, justify="right")
     for i, n in enumerate(names):
         rms_err, bound = np.sqrt(np.mean(err[:, i] ** 2)), np.sqrt(np.mean(crb[:, i]))
-        t2.add_row(n, f"{rms_err:.4g}", f"{bound:.4g}",
-                   f"{ratio[i]:.2f}", f"{100 * cover[i]:.0f}%")  # fmt: skip
+        t2.add_row(n, f"{rms_err:.4g}", f"{bound:.4g}", f"{100 * accel_share[i]:.1f} %",
+                   f"{ratio[i]:.2f} ± {stats['se'][i]:.2f}",
+                   f"{stats['lo'][i]:.2f}-{stats['hi'][i]:.2f}",
+                   f"{100 * cover[i]:.0f} ± {100 * cover_se[i]:.0f} %")  # fmt: skip
+    t2.add_row("all", "", "", "", f"{ratio.min():.2f}-{ratio.max():.2f}", "",
+               f"{100 * pooled:.1f} ± {100 * pooled_se:.1f} %")  # fmt: skip
     console.print(t2)
-    ok = ratio.max() <= 1.2 and worst_scale < 0.1
+    enough = n_seeds >= MIN_SEEDS
+    ok = (enough and ratio.max() <= TARGET_RATIO and worst_scale < 0.1
+          and TARGET_COVERAGE[0] <= pooled <= TARGET_COVERAGE[1])  # fmt: skip
     console.print(
         f"full model: sensitivity-axis (misalignment) error RMS "
         f"{', '.join(f'{v:.4f}' for v in np.sqrt(np.mean(axes**2, axis=0)))} deg (x, y, z); "
-        f"error/bound max {ratio.max():.2f} (target <= 1.2); worst scale error RMS "
-        f"{worst_scale:.4f} % (target < 0.1 %): {'[green]PASS' if ok else '[red]FAIL'}[/]"
+        f"error/bound max {ratio.max():.2f} (target <= {TARGET_RATIO}; an estimator at the bound "
+        f"exceeds it on some parameter with {n_seeds} seeds {100 * stats['p_any_above']:.0f} % "
+        f"of the time); 95 % coverage {100 * pooled:.1f} % (target 93-97 %); worst scale error "
+        f"RMS {worst_scale:.4f} % (target < 0.1 %): {'[green]PASS' if ok else '[red]FAIL'}[/]"
+        + ("" if enough else f" (not decided: fewer than {MIN_SEEDS} seeds)")
     )
     return bool(ok)
 
@@ -201,8 +267,9 @@ def _known_turn(console: Console) -> None:
     )
 
 
-def run(console: Console, n_seeds: int = 100) -> bool:
+def run(console: Console, n_seeds: int = MIN_SEEDS) -> bool:
+    """The tables; at least :data:`MIN_SEEDS` seeds (0.5 s each), fewer cannot decide."""
     console.rule("[bold]Gyroscope from hand rotations (Qureshi III-B and the full model)")
-    ok = simulated(console, n_seeds)
+    ok = simulated(console, max(n_seeds, MIN_SEEDS))
     real_data(console)
     return ok

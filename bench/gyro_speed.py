@@ -11,19 +11,19 @@ from __future__ import annotations
 
 import time
 import tracemalloc
-from pathlib import Path
 
 import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from bench.gyro import shared_data
 from imucal_cli.formats.config import config_from_dict
 from imucal_cli.pipeline.calibrate import calibrate_accel, with_segments
 from imucal_cli.pipeline.gyro import full_problem
 from imucal_cli.simulate.rotations import simulate_gyro_rotations
 from imucal_cli.solvers.gyro_full import fit_full
 
-DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
+DATA = shared_data()
 CREATED = "2026-01-01T00:00:00Z"
 #: Before the rewrite (issue 14): dense noise Jacobian, dense Cholesky and inverse.
 BEFORE = {"Xsens": "2.8 s", 600: "17.7 s, 750 MB", 1800: "198 s, 5.1 GB"}

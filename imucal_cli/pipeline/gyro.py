@@ -309,6 +309,35 @@ def full_problem(session: Session, cfg: Config, accel_cal: SensorCalibration):
     return rot, st, data.noise
 
 
+def full_bound(session: Session, cfg: Config, accel_cal: SensorCalibration,
+               x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """The Cramér-Rao bound of the full model's ``(b, vec(M)[, vec(G)])`` at ``x`` for a
+    session, as :func:`calibrate_gyro_rotations` builds its data: the gyro's own (the
+    accelerometer calibration taken as exact), and with the accelerometer calibration's
+    covariance propagated through the turns (what an error against the truth is to be
+    measured against when the accelerometer is calibrated from the same session: its own
+    error moves the gyro's too). Both (n, n); the second equals the first without an
+    accelerometer covariance."""
+    from types import SimpleNamespace
+
+    from imucal_cli.solvers.gyro_full import accel_sensitivity, full_information
+
+    from .gyro_full import accel_derivative, rotations_and_stills
+
+    session, _ = with_segments(session)
+    data = gyro_data(session, cfg, accel_cal)
+    rot, st = rotations_and_stills(data)
+    crb = np.linalg.inv(full_information(x, rot, st, data.noise))
+    cov = accel_cal.extra.get("covariance")
+    dg = accel_derivative(data.stills, accel_cal)
+    if cov is None or dg is None:
+        return crb, crb
+    at = SimpleNamespace(b=x[:3], M=x[3:12].reshape(3, 3),
+                         G=x[12:21].reshape(3, 3) if len(x) == 21 else None)  # fmt: skip
+    A = accel_sensitivity(rot, st, data.noise, at, dg)
+    return crb, crb + A @ np.asarray(cov["values"], float) @ A.T
+
+
 def gyro_alternatives(session: Session, solver: str) -> list[str]:
     """What would calibrate the gyro from this session when ``solver`` refused it (issue 9.6):
     another solver for turns it already has, or a labelling step, before a new capture."""
