@@ -15,6 +15,11 @@ from .console import make_console
 from .options import Force, calibration_argument, format_option, output_option, rate_option
 
 
+def _scale_option(sensor: str, help: str):
+    """``--<sensor>-scale SCALE``: the driver's SI units per raw unit of one sensor."""
+    return typer.Option(None, f"--{sensor}-scale", metavar="SCALE", help=help)
+
+
 @app.command()
 def export(
     calibration: Path = calibration_argument(
@@ -39,19 +44,19 @@ def export(
     topic: str = typer.Option(
         "/imu0", "--topic", metavar="TOPIC", help="ROS topic of the IMU (Kalibr, OpenVINS)."
     ),
-    accel_scale: str | None = typer.Option(
-        None, "--accel-scale", metavar="SCALE",
-        help="Driver's m/s^2 per raw unit, for a calibration of counts or V exported to targets "
+    accel_scale: str | None = _scale_option(
+        "accel",
+        "Driver's m/s^2 per raw unit, for a calibration of counts or V exported to targets "
         "that read SI (kalibr, openvins, basalt, px4, ardupilot), e.g. 9.80665/16384.",
-    ),  # fmt: skip
-    gyro_scale: str | None = typer.Option(
-        None, "--gyro-scale", metavar="SCALE", help="Driver's rad/s per raw unit, as --accel-scale."
     ),
-    mag_scale: str | None = typer.Option(
-        None, "--mag-scale", metavar="SCALE",
-        help="Driver's uT per raw unit, for a magnetometer calibrated in counts exported to px4 "
+    gyro_scale: str | None = _scale_option(
+        "gyro", "Driver's rad/s per raw unit, as --accel-scale."
+    ),
+    mag_scale: str | None = _scale_option(
+        "mag",
+        "Driver's uT per raw unit, for a magnetometer calibrated in counts exported to px4 "
         "or ardupilot, e.g. 0.15 (AK8963, 16-bit).",
-    ),  # fmt: skip
+    ),
     device_id: int | None = typer.Option(
         None, "--device-id", metavar="N",
         help="px4: CAL_ACC0_ID/CAL_GYRO0_ID; ardupilot: INS_ACC_ID/INS_GYR_ID.",

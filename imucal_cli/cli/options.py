@@ -27,6 +27,7 @@ __all__ = [
     "ForcePlot",
     "GyroUnits",
     "SensorText",
+    "argument",
     "calibration_argument",
     "columns_option",
     "field_ut_option",
@@ -141,11 +142,16 @@ def plot_option(help: str):
     return typer.Option(None, "--plot", metavar="FILE.png", help=help)
 
 
+def argument(metavar: str, help: str):
+    """A required argument shown as ``metavar`` (no default)."""
+    return typer.Argument(..., metavar=metavar, help=help, show_default=False)
+
+
 def session_argument(help: str):
     """``SESSION.h5``: the session file(s) a command reads."""
-    return typer.Argument(..., metavar="SESSION.h5", help=help, show_default=False)
+    return argument("SESSION.h5", help)
 
 
 def calibration_argument(help: str):
     """``CAL.json``: the calibration a command reads."""
-    return typer.Argument(..., metavar="CAL.json", help=help, show_default=False)
+    return argument("CAL.json", help)

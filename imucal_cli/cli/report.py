@@ -9,17 +9,15 @@ import typer
 
 from .app import app
 from .console import make_console
-from .options import ForcePlot, json_option, plot_option
+from .options import ForcePlot, argument, json_option, plot_option
 
 
 @app.command()
 def report(
-    paths: list[Path] = typer.Argument(
-        ...,
-        metavar="CAL.json|SESSION.h5",
-        help="A calibration JSON, or a session .h5 (its last stored calibration is shown). "
+    paths: list[Path] = argument(
+        "CAL.json|SESSION.h5",
+        "A calibration JSON, or a session .h5 (its last stored calibration is shown). "
         "Several: the history of each sensor across them.",
-        show_default=False,
     ),
     json_output: bool = json_option(
         "Print the report (or the history) as JSON on stdout (nothing else), not tables."
