@@ -424,18 +424,49 @@ def run_unattended(
     say = on_status or (lambda message: None)
     before = list(done_before or [])
     if plan is not None and before:
-        left, matched = list(plan.steps), []
-        for label in before:
-            i = next((i for i, s in enumerate(left) if s.label == label), None)
-            if i is not None:
-                matched.append(left.pop(i).label)
-        before, plan = matched, Plan(plan.name, tuple(left))
-        say(f"resumed: {len(matched)} steps already in the session, {len(left)} left")
-        if not left:
+        before, plan = _left_to_do(plan, before, say)
+        if not plan.steps:
             return CaptureSummary(complete=True, done=before, skipped=[], missing=[],
                                   end_reason="every step of the plan was already in the session",
                                   samples=recorder.n_samples, stats=recorder.stats)  # fmt: skip
-    base = int(getattr(recorder, "resumed_from", 0))
+    base = int(getattr(recorder, "resumed_from", 0))  # the new segments follow the old
+    buffer, reached_duration = _record(recorder, plan, duration_s, min_still_s, say)
+    done: list[str] = []
+    missing: list[str] = [] if plan is None else [s.label for s in plan.steps]
+    time, accel, gyro = buffer.get("time"), buffer.get("accel"), buffer.get("gyro")
+    if time is not None and len(time) >= 2:
+        entries, done, missing = segment_recording(time, accel, gyro, plan, min_still_s=min_still_s)
+        for e in entries:
+            attrs = {} if e.step is None else e.step.segment_attrs()
+            recorder.add_segment(e.kind, base + e.start, base + e.stop, **attrs)
+    complete = not missing if plan is not None else reached_duration
+    return CaptureSummary(
+        complete=complete,
+        done=[label for label in before if plan is None or label not in missing] + done,
+        skipped=[],
+        missing=missing,
+        end_reason=recorder.end_reason,
+        samples=recorder.n_samples,
+        stats=recorder.stats,
+    )
+
+
+def _left_to_do(plan: Plan, before: list[str], say) -> tuple[list[str], Plan]:
+    """Continuing a capture: the labels of ``before`` that are steps of ``plan`` (each step
+    once), and the plan of the steps left."""
+    left, matched = list(plan.steps), []
+    for label in before:
+        i = next((i for i, s in enumerate(left) if s.label == label), None)
+        if i is not None:
+            matched.append(left.pop(i).label)
+    say(f"resumed: {len(matched)} steps already in the session, {len(left)} left")
+    return matched, Plan(plan.name, tuple(left))
+
+
+def _record(recorder, plan: Plan | None, duration_s: float | None, min_still_s: float, say):
+    """Record until ``duration_s`` after the first sample, or until every step of ``plan`` is
+    seen (checked every :data:`CHECK_EVERY_S`), or the recorder ends; returns the samples and
+    whether the duration was reached."""
     buffer = _Buffer()
     watcher = None if plan is None else _PlanWatcher(plan, min_still_s)
     first = None
@@ -463,21 +494,4 @@ def run_unattended(
                 reported = watcher.missing
                 n_done = len(plan.steps) - len(watcher.missing)
                 say(f"{n_done} of {len(plan.steps)} steps seen")
-    time, accel, gyro = buffer.get("time"), buffer.get("accel"), buffer.get("gyro")
-    done: list[str] = []
-    missing: list[str] = [] if plan is None else [s.label for s in plan.steps]
-    if time is not None and len(time) >= 2:
-        entries, done, missing = segment_recording(time, accel, gyro, plan, min_still_s=min_still_s)
-        for e in entries:
-            attrs = {} if e.step is None else e.step.segment_attrs()
-            recorder.add_segment(e.kind, base + e.start, base + e.stop, **attrs)
-    complete = not missing if plan is not None else reached_duration
-    return CaptureSummary(
-        complete=complete,
-        done=[label for label in before if plan is None or label not in missing] + done,
-        skipped=[],
-        missing=missing,
-        end_reason=recorder.end_reason,
-        samples=recorder.n_samples,
-        stats=recorder.stats,
-    )
+    return buffer, reached_duration

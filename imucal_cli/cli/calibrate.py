@@ -11,85 +11,61 @@ from rich.markup import escape
 
 from .app import app
 from .console import make_console, print_json
+from .options import gravity_option, json_option, output_option, session_argument
 
 
 @app.command()
 def calibrate(
-    sessions: list[Path] = typer.Argument(
-        ...,
-        metavar="SESSION.h5",
-        help="Session file(s) (.h5) to calibrate; several: each to SESSION.cal.json, one "
-        "summary table.",
-        show_default=False,
+    sessions: list[Path] = session_argument(
+        "Session file(s) (.h5) to calibrate; several: each to SESSION.cal.json, one summary "
+        "table."
     ),
     config: Path | None = typer.Option(
-        None,
-        "--config",
-        "-c",
-        metavar="FILE.toml",
+        None, "--config", "-c", metavar="FILE.toml",
         help="TOML config choosing solvers and options (see README, Config reference).",
-    ),
-    output: Path | None = typer.Option(
-        None,
-        "--output",
-        "-o",
-        metavar="FILE.json",
-        help="Calibration JSON to write [default: SESSION with .cal.json].",
+    ),  # fmt: skip
+    output: Path | None = output_option(
+        "FILE.json", "Calibration JSON to write [default: SESSION with .cal.json]."
     ),
     model: str | None = typer.Option(
-        None,
-        "--model",
-        metavar="9|12",
+        None, "--model", metavar="9|12",
         help="Gravity solver model: 9 (triangular, eqs. 3-8) or 12 (full matrix "
         "aligned to the labelled up directions). Overrides [accel.gravity] model.",
-    ),
-    gravity: float | None = typer.Option(
-        None,
-        "--gravity",
-        metavar="M/S^2",
-        help="Local gravity in m/s^2 [default: the session's, else 9.80665].",
+    ),  # fmt: skip
+    gravity: float | None = gravity_option(
+        "Local gravity in m/s^2 [default: the session's, else 9.80665]."
     ),
     force: bool = typer.Option(
-        False,
-        "--force",
+        False, "--force",
         help="Replace an existing OUTPUT, and save a result that fails the physical-sense "
         "checks (with warnings).",
-    ),
+    ),  # fmt: skip
     store: bool = typer.Option(
-        True,
-        "--store/--no-store",
+        True, "--store/--no-store",
         help="Also store the calibration under the session's /calibrations.",
-    ),
+    ),  # fmt: skip
     accel: Path | None = typer.Option(
-        None,
-        "--accel",
-        metavar="CAL.json",
+        None, "--accel", metavar="CAL.json",
         help="Use this earlier accelerometer calibration (a calibration JSON, or a session .h5 "
         "with a stored one) instead of calibrating the accelerometer: a gyro-only session.",
-    ),
+    ),  # fmt: skip
     warmup: list[Path] | None = typer.Option(
-        None,
-        "--warmup",
-        metavar="WARMUP.h5",
+        None, "--warmup", metavar="WARMUP.h5",
         help="A still recording of the same unit through a warm-up or cool-down (repeatable): "
         "its temperature curve gives each channel's bias as a polynomial in temperature "
         "(bias_tempco; at least 10 C of span). Capture one with --plan warmup:MINUTES.",
-    ),
+    ),  # fmt: skip
     also: list[Path] | None = typer.Option(
-        None,
-        "--with",
-        metavar="OTHER.h5",
+        None, "--with", metavar="OTHER.h5",
         help="Another session of the same unit at another temperature (repeatable): its still "
         "periods and turns join SESSION's, so that the temperature model spans them all.",
-    ),
+    ),  # fmt: skip
     jobs: int = typer.Option(
         1, "--jobs", "-j", metavar="N", help="Several sessions: worker processes (0: one per CPU)."
     ),
-    json_output: bool = typer.Option(
-        False,
-        "--json",
-        help="Print the result as JSON on stdout (nothing else): where it was written and the "
-        "calibration itself; several sessions: one entry each (schema in the README).",
+    json_output: bool = json_option(
+        "Print the result as JSON on stdout (nothing else): where it was written and the "
+        "calibration itself; several sessions: one entry each (schema in the README)."
     ),
 ) -> None:
     """Calibrate the sensors of SESSION the config asks for and write a calibration JSON.
@@ -100,34 +76,40 @@ def calibrate(
     saved but not stored in the session (the reason is printed).  Several sessions: the worst
     of theirs.
     """
-    from imucal_cli.errors import InputError
-    from imucal_cli.formats.config import load_config, validate
-    from imucal_cli.pipeline.batch import NOT_STORED, calibrate_file
-
-    cfg = load_config(config)
-    if model is not None:
-        cfg.accel.gravity.model = model
-    if gravity is not None:
-        cfg.gravity = gravity
-    validate(cfg, "command line" if config is None else str(config))
+    cfg = _config(config, model, gravity)
     accel_cal = None
     if accel is not None:
         from imucal_cli.pipeline.calibrate import load_accel
 
         accel_cal = load_accel(accel)
+    if len(sessions) > 1:
+        _one_file_options(output, warmup, also)
+        raise typer.Exit(_many(sessions, cfg, jobs, force, store, json_output, accel_cal))
+    inputs = [config, accel, *(warmup or []), *(also or [])]
+    _one(sessions[0], cfg, output, force, store, json_output, accel_cal, inputs=inputs,
+         warmup=warmup, also=also)  # fmt: skip
 
-    if len(sessions) > 1 and (warmup or also):
+
+def _one_file_options(output: Path | None, warmup, also) -> None:
+    """Refuse the options that go with one SESSION when several are given."""
+    from imucal_cli.errors import InputError
+
+    if warmup or also:
         raise InputError("--warmup and --with go with one SESSION (give the other sessions of "
                          "the unit with --with)")  # fmt: skip
-    if len(sessions) > 1:
-        if output is not None:
-            raise InputError("--output names one file: with several sessions each goes to "
-                             "SESSION.cal.json")  # fmt: skip
-        raise typer.Exit(_many(sessions, cfg, jobs, force, store, json_output, accel_cal))
+    if output is not None:
+        raise InputError("--output names one file: with several sessions each goes to "
+                         "SESSION.cal.json")  # fmt: skip
+
+
+def _one(session: Path, cfg, output: Path | None, force: bool, store: bool, json_output: bool,
+         accel, *, inputs: list, warmup, also) -> None:  # fmt: skip
+    """Calibrate one session, write (and store) it, and say what came out."""
+    from imucal_cli.pipeline.batch import NOT_STORED, calibrate_file
+
     cal, out, stored = calibrate_file(
-        sessions[0], cfg, output=output, force=force, store=store,
-        inputs=[config, accel, *(warmup or []), *(also or [])], accel=accel_cal, warmup=warmup,
-        also=also,
+        session, cfg, output=output, force=force, store=store, inputs=inputs, accel=accel,
+        warmup=warmup, also=also,
     )  # fmt: skip
     # Saved: from here on the exit status is 0, or 1 with the reason (never 2).
     if json_output:
@@ -140,6 +122,19 @@ def calibrate(
             f"({escape(stored[len(NOT_STORED) : -1])}); pass --no-store not to store it"
         )
         raise typer.Exit(1)
+
+
+def _config(config: Path | None, model: str | None, gravity: float | None):
+    """The config file (or the defaults) with ``--model`` and ``--gravity`` over it, checked."""
+    from imucal_cli.formats.config import load_config, validate
+
+    cfg = load_config(config)
+    if model is not None:
+        cfg.accel.gravity.model = model
+    if gravity is not None:
+        cfg.gravity = gravity
+    validate(cfg, "command line" if config is None else str(config))
+    return cfg
 
 
 def _result_json(cal, out: Path, stored: str) -> dict:

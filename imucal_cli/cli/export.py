@@ -7,79 +7,65 @@ from pathlib import Path
 
 import typer
 
+from imucal_cli.errors import InputError
+
 from . import completion
 from .app import app
 from .console import make_console
+from .options import Force, calibration_argument, format_option, output_option, rate_option
+
+
+def _scale_option(sensor: str, help: str):
+    """``--<sensor>-scale SCALE``: the driver's SI units per raw unit of one sensor."""
+    return typer.Option(None, f"--{sensor}-scale", metavar="SCALE", help=help)
 
 
 @app.command()
 def export(
-    calibration: Path = typer.Argument(
-        ...,
-        metavar="CAL.json",
-        help="Calibration JSON (from imucal calibrate); for kalibr-imu and ros-imu a noise "
-        "JSON (imucal noise --json) is enough.",
-        show_default=False,
+    calibration: Path = calibration_argument(
+        "Calibration JSON (from imucal calibrate); for kalibr-imu and ros-imu a noise JSON "
+        "(imucal noise --json) is enough."
     ),
-    fmt: str | None = typer.Option(
-        None,
-        "--format",
-        "-f",
-        metavar="FORMAT",
-        autocompletion=completion.export_formats,
-        help="c-header, yaml (ROS imu_calib), json, kalibr-imu (noise imu.yaml), kalibr "
+    fmt: str | None = format_option(
+        "c-header, yaml (ROS imu_calib), json, kalibr-imu (noise imu.yaml), kalibr "
         "(M, A, C_gyro_i), openvins, basalt, px4, ardupilot, fusion, ros-imu (covariances) "
         "[default: from OUTPUT's suffix .h/.yaml/.json/.params/.parm].",
+        completion.export_formats,
     ),
-    output: Path | None = typer.Option(
-        None, "--output", "-o", metavar="FILE", help="File to write [default: standard output]."
-    ),
+    output: Path | None = output_option("FILE", "File to write [default: standard output]."),
     noise: Path | None = typer.Option(
-        None,
-        "--noise",
-        metavar="NOISE.json",
+        None, "--noise", metavar="NOISE.json",
         help="Noise figures from imucal noise SESSION --json (kalibr-imu, kalibr, openvins, "
         "ros-imu).",
-    ),
-    rate: float | None = typer.Option(
-        None,
-        "--rate",
-        metavar="HZ",
-        help="Rate the target runs at, Hz [default: the noise recording's].",
+    ),  # fmt: skip
+    rate: float | None = rate_option(
+        "Rate the target runs at, Hz [default: the noise recording's]."
     ),
     topic: str = typer.Option(
         "/imu0", "--topic", metavar="TOPIC", help="ROS topic of the IMU (Kalibr, OpenVINS)."
     ),
-    accel_scale: str | None = typer.Option(
-        None,
-        "--accel-scale",
-        metavar="SCALE",
-        help="Driver's m/s^2 per raw unit, for a calibration of counts or V exported to targets "
+    accel_scale: str | None = _scale_option(
+        "accel",
+        "Driver's m/s^2 per raw unit, for a calibration of counts or V exported to targets "
         "that read SI (kalibr, openvins, basalt, px4, ardupilot), e.g. 9.80665/16384.",
     ),
-    gyro_scale: str | None = typer.Option(
-        None, "--gyro-scale", metavar="SCALE", help="Driver's rad/s per raw unit, as --accel-scale."
+    gyro_scale: str | None = _scale_option(
+        "gyro", "Driver's rad/s per raw unit, as --accel-scale."
     ),
-    mag_scale: str | None = typer.Option(
-        None,
-        "--mag-scale",
-        metavar="SCALE",
-        help="Driver's uT per raw unit, for a magnetometer calibrated in counts exported to px4 "
+    mag_scale: str | None = _scale_option(
+        "mag",
+        "Driver's uT per raw unit, for a magnetometer calibrated in counts exported to px4 "
         "or ardupilot, e.g. 0.15 (AK8963, 16-bit).",
     ),
     device_id: int | None = typer.Option(
-        None,
-        "--device-id",
-        metavar="N",
+        None, "--device-id", metavar="N",
         help="px4: CAL_ACC0_ID/CAL_GYRO0_ID; ardupilot: INS_ACC_ID/INS_GYR_ID.",
-    ),
+    ),  # fmt: skip
     prefix: str | None = typer.Option(
-        None,
-        "--prefix",
-        metavar="NAME",
+        None, "--prefix", metavar="NAME",
         help="c-header / fusion: name prefix, a C identifier [default: IMUCAL; fusion none].",
-    ),
-    force: bool = typer.Option(False, "--force", help="Overwrite the output file."),
+    ),  # fmt: skip
+    force: Force = False,
 ) -> None:
     """Export a calibration for firmware, ROS, estimators or scripts.
 
@@ -90,23 +76,16 @@ def export(
     uT, nT or gauss, or --mag-scale).
     An existing OUTPUT is replaced only with --force. Exit status: 0 written; 2 bad input.
     """
-    from imucal_cli.errors import InputError
-    from imucal_cli.formats.exporters import ExportOptions, parse_scale
+    from imucal_cli.formats.exporters import ExportOptions
     from imucal_cli.formats.noise import read_noise
     from imucal_cli.formats.output import check_output, write_output
-    from imucal_cli.use.export import FORMATS, format_for_suffix, load_input
     from imucal_cli.use.export import export as export_text
+    from imucal_cli.use.export import load_input
 
-    if fmt is None:
-        fmt = format_for_suffix(output) if output is not None else None
-        if fmt is None:
-            raise InputError(f"pass --format ({', '.join(FORMATS)})")
+    fmt = _format(fmt, output)
     if rate is not None and not rate > 0:
         raise InputError(f"--rate {rate}: must be a positive number of Hz")
-    scale = {}
-    for name, text in (("accel", accel_scale), ("gyro", gyro_scale), ("mag", mag_scale)):
-        if text is not None:
-            scale[name] = parse_scale(text, f"--{name}-scale")
+    scale = _scales(accel_scale, gyro_scale, mag_scale)
     if output is not None:
         check_output(output, force=force, inputs=[calibration, noise])
     cal, noise_in = load_input(calibration)
@@ -119,9 +98,37 @@ def export(
         typer.echo(text, nl=False)
         return
     write_output(output, text, force=force, inputs=[calibration, noise])
-    what = ", ".join(
+    make_console(stderr=True).print(f"wrote {output} ({fmt}: {_what(cal)})", markup=False)
+
+
+def _what(cal) -> str:
+    """What an export holds: ``accel 3x3, gyro 3x3``, or the noise figures alone."""
+    if cal is None:
+        return "noise figures"
+    return ", ".join(
         f"{name} 3x{sec.bias.shape[0]}"
         for name, sec in (("accel", cal.accel), ("gyro", cal.gyro))
         if sec is not None
-    ) if cal is not None else "noise figures"  # fmt: skip
-    make_console(stderr=True).print(f"wrote {output} ({fmt}: {what})", markup=False)
+    )
+
+
+def _format(fmt: str | None, output: Path | None) -> str:
+    """``--format``, else the one ``output``'s suffix names; refused when neither says."""
+    from imucal_cli.use.export import FORMATS, format_for_suffix
+
+    if fmt is None:
+        fmt = format_for_suffix(output) if output is not None else None
+        if fmt is None:
+            raise InputError(f"pass --format ({', '.join(FORMATS)})")
+    return fmt
+
+
+def _scales(accel_scale: str | None, gyro_scale: str | None, mag_scale: str | None) -> dict:
+    """The drivers' scales given (``--accel-scale`` ...), per sensor, parsed."""
+    from imucal_cli.formats.exporters import parse_scale
+
+    scale = {}
+    for name, text in (("accel", accel_scale), ("gyro", gyro_scale), ("mag", mag_scale)):
+        if text is not None:
+            scale[name] = parse_scale(text, f"--{name}-scale")
+    return scale

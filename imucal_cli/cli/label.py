@@ -8,9 +8,9 @@ import typer
 
 from imucal_cli.errors import InputError
 
-from . import completion
 from .app import app
 from .console import make_console, print_json
+from .options import AccelUnits, GyroUnits, gravity_option, json_option, session_argument
 
 
 def _vector(text: str | None, option: str):
@@ -29,9 +29,7 @@ def _vector(text: str | None, option: str):
 
 @app.command("label")
 def label(
-    session: Path = typer.Argument(
-        ..., metavar="SESSION.h5", help="Session file (.h5) to relabel.", show_default=False
-    ),
+    session: Path = session_argument("Session file (.h5) to relabel."),
     faces: bool = typer.Option(
         False,
         "--faces",
@@ -61,35 +59,17 @@ def label(
         None, "--axis", metavar="X,Y,Z", help="--segment: its turn axis, e.g. 0,0,1."
     ),
     angle: float | None = typer.Option(
-        None,
-        "--angle",
-        metavar="DEG",
+        None, "--angle", metavar="DEG",
         help="--segment: its known turn angle, degrees (signed, right hand).",
-    ),
+    ),  # fmt: skip
     sensor: str | None = typer.Option(
         None, "--sensor", metavar="TEXT", help="Part and serial number."
     ),
-    accel_units: str | None = typer.Option(
-        None,
-        "--accel-units",
-        metavar="UNITS",
-        help="Raw accelerometer units: counts, V, g or m/s^2.",
-        autocompletion=completion.accel_units,
-    ),
-    gyro_units: str | None = typer.Option(
-        None,
-        "--gyro-units",
-        metavar="UNITS",
-        help="Raw gyroscope units: counts, V, rad/s or deg/s.",
-        autocompletion=completion.gyro_units,
-    ),
-    gravity: float | None = typer.Option(
-        None, "--gravity", metavar="M/S^2", help="Local gravity, m/s^2."
-    ),
+    accel_units: AccelUnits = None,
+    gyro_units: GyroUnits = None,
+    gravity: float | None = gravity_option("Local gravity, m/s^2."),
     dry_run: bool = typer.Option(False, "--dry-run", help="Show the labels, write nothing."),
-    json_output: bool = typer.Option(
-        False, "--json", help="Print the labels found and what changed as JSON on stdout."
-    ),
+    json_output: bool = json_option("Print the labels found and what changed as JSON on stdout."),
 ) -> None:
     """Set or correct the labels of SESSION: faces from the measured directions, one segment
     by hand, the sensor, units and gravity.
@@ -97,10 +77,48 @@ def label(
     Only /segments and root attributes change; /raw is never rewritten.
     Exit status: 0 written (or shown with --dry-run); 2 bad input.
     """
-    from imucal_cli.formats.calibration import calibration_from_json, read_calibration
-    from imucal_cli.formats.importers import ACCEL_UNITS, GYRO_UNITS
-    from imucal_cli.formats.labels import call_faces, face_label, set_segment
+    from imucal_cli.formats.labels import set_segment
     from imucal_cli.formats.session import read_session, rewrite_labels
+
+    attrs = _root_attributes(sensor, accel_units, gyro_units, gravity)
+    if segment is None and any(v is not None for v in (text, up, axis, angle)):
+        raise InputError("--label, --up, --axis and --angle change one segment: pass --segment")
+    s = read_session(session)
+    if accel_units is not None:
+        s.accel_units = accel_units
+    segments = list(s.segments)
+    console = make_console(stderr=json_output)  # with --json, stdout holds the JSON alone
+    found: list[dict] = []
+    if faces:
+        segments, found = _faces(s, session, segments, tolerance, calibration, console)
+    if segment is not None:
+        segments = set_segment(segments, segment, label=text, up=_vector(up, "--up"),
+                               axis=_vector(axis, "--axis"), angle_deg=angle)  # fmt: skip
+    if not faces and segment is None and not attrs:
+        raise InputError("nothing to change: pass --faces, --segment ..., or a root label")
+    changed = sum(a != b for a, b in zip(segments, s.segments, strict=True))
+    if not dry_run:
+        rewrite_labels(session, segments, attrs)
+    _say(console, session, json_output, dry_run, found, changed, attrs)
+
+
+def _say(console, session: Path, json_output: bool, dry_run: bool, found: list[dict],
+         changed: int, attrs: dict) -> None:  # fmt: skip
+    """What was found and changed: JSON on stdout, or a line."""
+    if json_output:
+        print_json({"format": "imucal-label", "format_version": 1, "session": str(session),
+                    "dry_run": dry_run, "faces": found, "changed_segments": changed,
+                    "attributes": attrs})  # fmt: skip
+    elif dry_run:
+        console.print("dry run: nothing written")
+    else:
+        extra = f" and {', '.join(attrs)}" if attrs else ""
+        console.print(f"relabelled {changed} segment(s){extra} in {session} (raw data untouched)")
+
+
+def _root_attributes(sensor, accel_units, gyro_units, gravity) -> dict:
+    """The root attributes to set (those given), each checked."""
+    from imucal_cli.formats.importers import ACCEL_UNITS, GYRO_UNITS
 
     for name, value, allowed in (("--accel-units", accel_units, ACCEL_UNITS),
                                  ("--gyro-units", gyro_units, GYRO_UNITS)):  # fmt: skip
@@ -108,62 +126,40 @@ def label(
             raise InputError(f"{name} {value!r}: use {', '.join(allowed)}")
     if gravity is not None and not 9.7 <= gravity <= 9.9:
         raise InputError(f"--gravity {gravity:g} m/s^2: gravity on earth is 9.78 to 9.84")
-    by_hand = (text, up, axis, angle)
-    if segment is None and any(v is not None for v in by_hand):
-        raise InputError("--label, --up, --axis and --angle change one segment: pass --segment")
-    s = read_session(session)
-    attrs = {k: v for k, v in (("sensor", sensor), ("accel_units", accel_units),
-             ("gyro_units", gyro_units), ("gravity", gravity)) if v is not None}  # fmt: skip
-    if accel_units is not None:
-        s.accel_units = accel_units
-    segments = list(s.segments)
-    console = make_console(stderr=json_output)  # with --json, stdout holds the JSON alone
-    found: list[dict] = []
-    if faces:
-        cal = None
-        if calibration is not None:
-            cal = read_calibration(calibration).accel
-        elif s.calibrations:
-            last = sorted(s.calibrations)[-1]
-            cal = calibration_from_json(s.calibrations[last], f"{session}:{last}").accel
-        calls, basis = call_faces(s, tolerance_deg=tolerance, calibration=cal)
-        console.print(f"directions from {basis}; faces within {tolerance:g} deg of an axis:")
-        named = {c.segment: c for c in calls}
-        for i, seg in enumerate(segments):
-            c = named.get(seg.name)
-            if c is None:
-                continue
-            d = ", ".join(f"{v:+.3f}" for v in c.direction)
-            found.append({"segment": seg.name, "direction": [float(v) for v in c.direction],
-                          "off_deg": float(c.off_deg),
-                          "label": None if c.up is None else face_label(c.up)})  # fmt: skip
-            if c.up is None:
-                console.print(f"  {seg.name}  [{d}]  {c.off_deg:5.1f} deg off: no face (kept)")
-                continue
-            new = face_label(c.up)
-            console.print(f"  {seg.name}  [{d}]  {c.off_deg:5.1f} deg off: {new}")
-            segments[i] = set_segment([seg], seg.name, label=new, up=c.up)[0]
-    if segment is not None:
-        segments = set_segment(
-            segments,
-            segment,
-            label=text,
-            up=_vector(up, "--up"),
-            axis=_vector(axis, "--axis"),
-            angle_deg=angle,
-        )
-    if not faces and segment is None and not attrs:
-        raise InputError("nothing to change: pass --faces, --segment ..., or a root label")
-    changed = sum(a != b for a, b in zip(segments, s.segments, strict=True))
-    if not dry_run:
-        rewrite_labels(session, segments, attrs)
-    if json_output:
-        print_json({"format": "imucal-label", "format_version": 1, "session": str(session),
-                    "dry_run": dry_run, "faces": found, "changed_segments": changed,
-                    "attributes": attrs})  # fmt: skip
-        return
-    if dry_run:
-        console.print("dry run: nothing written")
-        return
-    extra = f" and {', '.join(attrs)}" if attrs else ""
-    console.print(f"relabelled {changed} segment(s){extra} in {session} (raw data untouched)")
+    return {k: v for k, v in (("sensor", sensor), ("accel_units", accel_units),
+            ("gyro_units", gyro_units), ("gravity", gravity)) if v is not None}  # fmt: skip
+
+
+def _faces(s, session: Path, segments: list, tolerance: float, calibration: Path | None,
+           console) -> tuple[list, list[dict]]:  # fmt: skip
+    """``--faces``: each static segment within ``tolerance`` of an axis labelled as that
+    face (directions through ``calibration``, else the session's last stored one, else the raw
+    units); prints each call. Returns the segments and what was found."""
+    from imucal_cli.formats.calibration import calibration_from_json, read_calibration
+    from imucal_cli.formats.labels import call_faces, face_label, set_segment
+
+    cal = None
+    if calibration is not None:
+        cal = read_calibration(calibration).accel
+    elif s.calibrations:
+        last = sorted(s.calibrations)[-1]
+        cal = calibration_from_json(s.calibrations[last], f"{session}:{last}").accel
+    calls, basis = call_faces(s, tolerance_deg=tolerance, calibration=cal)
+    console.print(f"directions from {basis}; faces within {tolerance:g} deg of an axis:")
+    named = {c.segment: c for c in calls}
+    segments, found = list(segments), []
+    for i, seg in enumerate(segments):
+        c = named.get(seg.name)
+        if c is None:
+            continue
+        d = ", ".join(f"{v:+.3f}" for v in c.direction)
+        found.append({"segment": seg.name, "direction": [float(v) for v in c.direction],
+                      "off_deg": float(c.off_deg),
+                      "label": None if c.up is None else face_label(c.up)})  # fmt: skip
+        if c.up is None:
+            console.print(f"  {seg.name}  [{d}]  {c.off_deg:5.1f} deg off: no face (kept)")
+            continue
+        new = face_label(c.up)
+        console.print(f"  {seg.name}  [{d}]  {c.off_deg:5.1f} deg off: {new}")
+        segments[i] = set_segment([seg], seg.name, label=new, up=c.up)[0]
+    return segments, found

@@ -9,36 +9,29 @@ import typer
 
 from .app import app
 from .console import make_console
+from .options import ForcePlot, argument, json_option, plot_option
 
 
 @app.command()
 def report(
-    paths: list[Path] = typer.Argument(
-        ...,
-        metavar="CAL.json|SESSION.h5",
-        help="A calibration JSON, or a session .h5 (its last stored calibration is shown). "
+    paths: list[Path] = argument(
+        "CAL.json|SESSION.h5",
+        "A calibration JSON, or a session .h5 (its last stored calibration is shown). "
         "Several: the history of each sensor across them.",
-        show_default=False,
     ),
-    json_output: bool = typer.Option(
-        False,
-        "--json",
-        help="Print the report (or the history) as JSON on stdout (nothing else), not tables.",
+    json_output: bool = json_option(
+        "Print the report (or the history) as JSON on stdout (nothing else), not tables."
     ),
-    plot: Path | None = typer.Option(
-        None,
-        "--plot",
-        metavar="FILE.png",
-        help="Also draw |a| per pose before/after, residuals, rotation angle errors and the "
-        "pose directions to a PNG (needs matplotlib: pip install 'imucal-cli[plot]').",
+    plot: Path | None = plot_option(
+        "Also draw |a| per pose before/after, residuals, rotation angle errors and the "
+        "pose directions to a PNG (needs matplotlib: pip install 'imucal-cli[plot]')."
     ),
-    force: bool = typer.Option(False, "--force", help="Replace an existing --plot file."),
+    force: ForcePlot = False,
     history: bool = typer.Option(
-        False,
-        "--history",
+        False, "--history",
         help="Show how the parameters of each sensor drift across its calibrations (every "
         "calibration stored in a session counts); implied by several paths.",
-    ),
+    ),  # fmt: skip
 ) -> None:
     """Report a calibration: parameters ± std, RMS before/after/held-out, poses, coverage.
 
@@ -70,13 +63,8 @@ def report(
     if history or len(paths) > 1:
         if plot is not None:
             raise InputError("--plot draws one calibration: give one path without --history")
-        result = build_history(load_all_for_history(paths))
-        if json_output:
-            typer.echo(json.dumps(result, indent=2))
-        else:
-            render_history(result, make_console())
+        _show(build_history(load_all_for_history(paths)), json_output, render_history)
         return
-
     if plot is not None:
         from imucal_cli.formats.output import check_output
 
@@ -87,9 +75,14 @@ def report(
         from imucal_cli.use.plots import report_figure
 
         report_figure(result, plot, force=force, inputs=paths)
+    _show(result, json_output, render_report)
+    if plot is not None and not json_output:
+        typer.echo(f"wrote {plot}")
+
+
+def _show(result: dict, json_output: bool, render) -> None:
+    """A report (or history) as JSON on stdout, or drawn by ``render``."""
     if json_output:
         typer.echo(json.dumps(result, indent=2))
     else:
-        render_report(result, make_console())
-        if plot is not None:
-            typer.echo(f"wrote {plot}")
+        render(result, make_console())

@@ -10,6 +10,8 @@ from __future__ import annotations
 import errno
 import os
 import stat
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 from imucal_cli.errors import InputError
 
@@ -50,6 +52,19 @@ def _open_regular(path: str | os.PathLike, what: str, error: type[InputError]) -
     return fd
 
 
+@contextmanager
+def _reading(path: str | os.PathLike, what: str, error: type[InputError]) -> Iterator[int]:
+    """A descriptor on a regular file (:func:`_open_regular`) while it is read: an ``OSError``
+    in the block becomes one line of ``error``; the descriptor is closed after."""
+    fd = _open_regular(path, what, error)
+    try:
+        yield fd
+    except OSError as exc:
+        raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
+    finally:
+        os.close(fd)
+
+
 def is_hdf5_file(
     path: str | os.PathLike, *, what: str = "file", error: type[InputError] = InputError
 ) -> bool:
@@ -61,8 +76,7 @@ def is_hdf5_file(
     error
         Missing, a directory, not a regular file, or unreadable.
     """
-    fd = _open_regular(path, what, error)
-    try:
+    with _reading(path, what, error) as fd:
         size = os.fstat(fd).st_size
         offset = 0
         while offset + len(SIGNATURE) <= size:
@@ -70,10 +84,6 @@ def is_hdf5_file(
                 return True
             offset = 512 if offset == 0 else offset * 2
         return False
-    except OSError as exc:
-        raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
-    finally:
-        os.close(fd)
 
 
 def read_head(
@@ -86,13 +96,8 @@ def read_head(
     error
         Missing, a directory, not a regular file, or unreadable.
     """
-    fd = _open_regular(path, what, error)
-    try:
+    with _reading(path, what, error) as fd:
         return os.pread(fd, n, 0)
-    except OSError as exc:
-        raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
-    finally:
-        os.close(fd)
 
 
 def read_input(
@@ -119,8 +124,7 @@ def read_input(
         Missing, a directory, not a regular file, unreadable, or too large; one line.
     """
     src = str(path)
-    fd = _open_regular(path, what, error)
-    try:
+    with _reading(path, what, error) as fd:
         st = os.fstat(fd)
         if st.st_size > max_bytes:
             raise error(f"{src}: {st.st_size} bytes is too large for a {what}")
@@ -134,10 +138,6 @@ def read_input(
                 raise error(f"{src}: too large for a {what}")
             chunks.append(chunk)
         return b"".join(chunks)
-    except OSError as exc:
-        raise error(f"{src}: cannot read ({exc.strerror or exc})") from None
-    finally:
-        os.close(fd)
 
 
 def read_text_input(

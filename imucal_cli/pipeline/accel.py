@@ -15,7 +15,16 @@ from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
 from imucal_cli.solvers.poses import count_distinct, coverage
 
-from .common import Nominal, StaticPoses, num, rms, session_name, static_poses
+from .common import (
+    Nominal,
+    StaticPoses,
+    accel_units,
+    num,
+    physical_checks,
+    rms,
+    session_name,
+    static_poses,
+)
 
 PAIRS = ((0, 1), (0, 2), (1, 2))
 
@@ -317,3 +326,21 @@ def common_extra(
             "basis": "pooled over every still hold (each pose mean weighted by noise / samples)",
         }
     return extra
+
+
+def triad_extra(
+    session: Session, cfg: Config, poses: StaticPoses, g: float, nominal: Nominal,
+    summary: tuple[np.ndarray, np.ndarray], fit: PoseFit, bias: np.ndarray,
+    residuals: np.ndarray,
+) -> tuple[dict, str, str | None, list[str]]:  # fmt: skip
+    """What a triad fit's section (gravity, labelled) starts from: the common fields
+    (:func:`common_extra`), the raw units and a note when they were inferred, and the
+    physical-sense checks of ``bias``, the sensitivities and the fit's ``residuals``.
+    Returns ``(extra, units_in, units_note, physical)``."""
+    units_in, units_note = accel_units(session, g)
+    extra = common_extra(
+        units_in=units_in, g=g, summary=summary, poses=poses, fit=fit, nominal=nominal,
+        min_separation_deg=cfg.accel.min_separation_deg,
+    )  # fmt: skip
+    physical = physical_checks(bias, summary[0][:3], rms(residuals), nominal, cfg, units_in, g)
+    return extra, units_in, units_note, physical

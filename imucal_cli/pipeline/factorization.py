@@ -20,9 +20,10 @@ from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Segment, Session
 from imucal_cli.solvers import factorization as fz
 from imucal_cli.solvers.crb import invariant_summary, propagate
-from imucal_cli.solvers.poses import angle_deg, count_distinct, coverage
+from imucal_cli.solvers.poses import angle_deg, count_distinct
 from imucal_cli.solvers.rotation import Rotation
 
+from .accel import coverage_dict
 from .common import (
     accel_units,
     channel_names,
@@ -196,54 +197,76 @@ def _factorization_extra(lin, res, units_in: str, motion_unit: str, to_si: float
     )
 
 
+def _parameters(res: fz.FactorizationResult, gains, gains_std, units_in: str, per: str):
+    """The section's parameter rows: each channel's bias and gain (``units_in`` per ``per``)
+    with their standard deviations."""
+    n = len(res.b)
+    bias_std = _invariants_with_std(res)[1][:n]
+    return [
+        {"name": f"b_{a}", "value": float(b), "std": num(s), "unit": units_in}
+        for a, b, s in zip(channel_names(n), res.b, bias_std, strict=True)
+    ] + [
+        {"name": f"gain_{a}", "value": float(v), "std": num(s), "unit": f"{units_in} per {per}"}
+        for a, v, s in zip(channel_names(n), gains, gains_std, strict=True)
+    ]
+
+
 def calibrate_accel_factorization(session: Session, cfg: Config) -> SensorCalibration:
-    """Hwangbo & Kanade for an accelerometer unit (triad or redundant) from static poses."""
+    """Hwangbo & Kanade for an accelerometer unit (triad or redundant) from static poses:
+    the constraints of section IV-A, the linear solution and its refinement (IV-C), the
+    rotation ambiguity resolved on purpose, and the section."""
     where = session_name(session)
-    g = cfg.gravity or session.gravity
     opts = cfg.accel.factorization
     poses, Z, owner, sigma, pooled = _accel_rows(session, opts.use)
-    n = Z.shape[1]
     if len(poses.a_mean) < 3 or count_distinct(poses.a_mean - np.median(poses.a_mean, 0)) < 3:
         raise DesignError(f"{where}: too few distinct static poses for the factorization")
-    c = accel_constraints(poses.up, owner, opts.use)
+    c = accel_constraints(poses.up, owner, opts.use)  # eq. (15)
     bias = None
     notes = []
-    if n == 3:
+    if Z.shape[1] == 3:  # a triad's biases first: D = Z - b (eq. 13)
         bias, pairs = opposite_pair_bias(poses, where)
         notes.append(f"triad biases from {pairs} opposite pair(s) (eq. 14)")
-    lin = fz.factorize(Z, c, bias=bias, linear=opts.linear)
+    lin = fz.factorize(Z, c, bias=bias, linear=opts.linear)  # eqs. (7)-(28)
     res = lin
-    if opts.refine:
-        res = fz.refine(
-            Z,
-            c,
-            lin,
-            sigma=sigma,
-            row_owner=owner,
-            fixture_tolerance=_tolerance(opts),
-            max_iterations=opts.max_iterations,
-        )
-
-    # The rotation ambiguity (eq. 25: C up to R), resolved on purpose.
-    R = _rotation_to_labels(res.F, poses.up, owner)
-    if R is not None:
-        rotation = "aligned to the labelled up directions of the fixture (Wahba's problem)"
-    else:
-        R = _canonical_rotation(res.T)
-        rotation = (
-            "no labels: canonical frame (calibrated x, y, z make the first three channels' "
-            "matrix upper triangular)"
-        )
+    if opts.refine:  # section IV-C
+        res = fz.refine(Z, c, lin, sigma=sigma, row_owner=owner,
+                        fixture_tolerance=_tolerance(opts),
+                        max_iterations=opts.max_iterations)  # fmt: skip
+    R, rotation = _accel_rotation(res, poses.up, owner)
     res, lin = fz.align(res, R), fz.align(lin, R)
+    extra = _accel_extra(session, cfg, poses, lin, res, rotation, len(c), pooled)
+    extra["notes"] = notes + extra["notes"]
+    g = extra["gravity"]
+    return SensorCalibration(
+        solver="factorization",
+        units="m/s^2",
+        bias=res.b,
+        matrix=g * res.T,  # motions are in g: calibrated m/s^2 = g T (z - b)
+        # In output units: the constraint errors are in g^2; |f|^2 - 1 ~ 2 (|f| - 1).
+        residual_rms=g * res.constraint_rms / 2,
+        extra=extra,
+    )
 
-    units_in, units_note = accel_units(session, g)
-    gains, gains_std, extra = _factorization_extra(lin, res, units_in, "m/s^2", g)
-    matrix = g * res.T  # motions are in g: calibrated m/s^2 = g T (z - b)
-    f_pose = (poses.a_mean - res.b) @ matrix.T
+
+def _accel_rotation(res: fz.FactorizationResult, up: np.ndarray, owner: np.ndarray):
+    """The rotation ambiguity (eq. 25: C up to R), resolved on purpose: onto the labels, or
+    a canonical frame; returns the rotation and how it was fixed."""
+    R = _rotation_to_labels(res.F, up, owner)
+    if R is not None:
+        return R, "aligned to the labelled up directions of the fixture (Wahba's problem)"
+    return _canonical_rotation(res.T), (
+        "no labels: canonical frame (calibrated x, y, z make the first three channels' "
+        "matrix upper triangular)"
+    )
+
+
+def _magnitudes(poses, res: fz.FactorizationResult, g: float, nominal) -> dict:
+    """Per pose: |a| before (nominal sensor, a triad only) and after calibration, m/s^2, the
+    calibrated direction and its angle to the label."""
+    f_pose = (poses.a_mean - res.b) @ (g * res.T).T
     mag_after = np.linalg.norm(f_pose, axis=1)
     directions = f_pose / mag_after[:, None]
-    nominal = nominal_sensor(session, cfg, g)
-    if n == 3 and nominal.sensitivity is not None:
+    if len(res.b) == 3 and nominal.sensitivity is not None:
         mag_before = np.linalg.norm(poses.a_mean - nominal.bias, axis=1) / nominal.sensitivity
         before_basis = nominal.basis
     else:
@@ -252,18 +275,41 @@ def calibrate_accel_factorization(session: Session, cfg: Config) -> SensorCalibr
     up_angle = np.where(
         np.isfinite(poses.up).all(axis=1), angle_deg(directions, np.nan_to_num(poses.up)), np.nan
     )
-    residuals = mag_after - g
-    bias_std = _invariants_with_std(res)[1][:n]
-    parameters = [
-        {"name": f"b_{a}", "value": float(b), "std": num(s), "unit": units_in}
-        for a, b, s in zip(channel_names(n), res.b, bias_std, strict=True)
-    ] + [
-        {"name": f"gain_{a}", "value": float(v), "std": num(s), "unit": f"{units_in} per m/s^2"}
-        for a, v, s in zip(channel_names(n), gains, gains_std, strict=True)
+    return {"before": mag_before, "before_basis": before_basis, "after": mag_after,
+            "directions": directions, "up_angle": up_angle}  # fmt: skip
+
+
+def _pose_rows(poses, mag: dict, residuals: np.ndarray) -> list[dict]:
+    """The ``poses`` table of the factorization's accel section."""
+    return [
+        {
+            "segment": s.name,
+            "label": s.label,
+            "up": None if s.up is None else [float(x) for x in s.up],
+            "samples": int(poses.samples[k]),
+            "magnitude_before": num(mag["before"][k]),
+            "magnitude_after": float(mag["after"][k]),
+            "residual": float(residuals[k]),
+            "residual_loo": None,
+            "angle_to_up_deg": num(mag["up_angle"][k]),
+            "direction": [float(x) for x in mag["directions"][k]],
+        }
+        for k, s in enumerate(poses.segments)
     ]
-    cover = coverage(directions)
+
+
+def _accel_extra(session, cfg: Config, poses, lin, res, rotation: str, n_constraints: int,
+                 pooled: float) -> dict:  # fmt: skip
+    """The accel section's fields (DEVELOPERS.md), diagnostics per pose and coverage;
+    ``pooled`` is the raw noise per sample."""
+    n = len(res.b)
+    g = cfg.gravity or session.gravity
+    units_in, units_note = accel_units(session, g)
+    gains, gains_std, extra = _factorization_extra(lin, res, units_in, "m/s^2", g)
+    nominal = nominal_sensor(session, cfg, g)
+    mag = _magnitudes(poses, res, g, nominal)
+    residuals = mag["after"] - g
     blocking = physical_checks(res.b, gains, rms(residuals), nominal, cfg, units_in, g)
-    warnings = blocking + ([units_note] if units_note else [])
     extra.update(
         {
             "model": MODEL_EQUATION,
@@ -272,51 +318,22 @@ def calibrate_accel_factorization(session: Session, cfg: Config) -> SensorCalibr
             "gauge": rotation,
             "rotation": rotation,
             "gravity": g,
-            "use": opts.use,
-            "constraints": len(c),
+            "use": cfg.accel.factorization.use,
+            "constraints": n_constraints,
             "noise_raw": pooled,
-            "parameters": parameters,
-            "rms_before": rms(mag_before - g) if np.isfinite(mag_before).any() else None,
+            "parameters": _parameters(res, gains, gains_std, units_in, "m/s^2"),
+            "rms_before": rms(mag["before"] - g) if np.isfinite(mag["before"]).any() else None,
             "rms_after": rms(residuals),
             "rms_loo": None,
-            "before_basis": before_basis,
-            "coverage": {
-                "fraction": cover.fraction,
-                "cap_deg": cover.cap_deg,
-                "largest_gap_deg": cover.largest_gap_deg,
-                "weakest_direction": [float(x) for x in cover.weakest_direction],
-                "n_poses": len(poses.segments),
-                "n_distinct": count_distinct(directions, cfg.accel.min_separation_deg),
-            },
-            "poses": [
-                {
-                    "segment": s.name,
-                    "label": s.label,
-                    "up": None if s.up is None else [float(x) for x in s.up],
-                    "samples": int(poses.samples[k]),
-                    "magnitude_before": num(mag_before[k]),
-                    "magnitude_after": float(mag_after[k]),
-                    "residual": float(residuals[k]),
-                    "residual_loo": None,
-                    "angle_to_up_deg": num(up_angle[k]),
-                    "direction": [float(x) for x in directions[k]],
-                }
-                for k, s in enumerate(poses.segments)
-            ],
-            "warnings": warnings,
+            "before_basis": mag["before_basis"],
+            "coverage": coverage_dict(mag["directions"], len(poses.segments),
+                                      cfg.accel.min_separation_deg),  # fmt: skip
+            "poses": _pose_rows(poses, mag, residuals),
+            "warnings": blocking + ([units_note] if units_note else []),
             "blocking": blocking,
         }
     )
-    extra["notes"] = notes + extra["notes"]
-    return SensorCalibration(
-        solver="factorization",
-        units="m/s^2",
-        bias=res.b,
-        matrix=matrix,
-        # In output units: the constraint errors are in g^2; |f|^2 - 1 ~ 2 (|f| - 1).
-        residual_rms=g * res.constraint_rms / 2,
-        extra=extra,
-    )
+    return extra
 
 
 # --------------------------------------------------------------------------- gyroscopes
@@ -482,17 +499,9 @@ def _gyro_solve(session, turns, Z, seg_of_row, c, bias, noise, opts, where):
             w_raw, ref.magnitude, duration, sigma=float(np.linalg.norm(lin.T, 2) * integ)
         )
         zero = (still.mean(axis=0)[None, :], np.array([noise / np.sqrt(len(still))]))
-        res = fz.refine(
-            Z,
-            c,
-            lin,
-            sigma=noise,
-            scale_reference=ref,
-            zero_motion=zero,
-            row_owner=seg_of_row,
-            fixture_tolerance=_tolerance(opts),
-            max_iterations=opts.max_iterations,
-        )
+        res = fz.refine(Z, c, lin, sigma=noise, scale_reference=ref, zero_motion=zero,
+                        row_owner=seg_of_row, fixture_tolerance=_tolerance(opts),
+                        max_iterations=opts.max_iterations)  # fmt: skip
     return lin, res, _KnownTurn(ref_seg, w_raw, duration, w)
 
 
@@ -545,14 +554,7 @@ def _gyro_section(session, cfg, lin, res, ref: _KnownTurn, c, noise) -> SensorCa
     units_in = session.gyro_units or "unknown"
     gains, gains_std, extra = _factorization_extra(lin, res, units_in, "rad/s", 1.0)
     measured = np.degrees(np.linalg.norm(res.T @ (ref.w_raw - ref.duration * res.b)))
-    bias_std = _invariants_with_std(res)[1][:n]
-    parameters = [
-        {"name": f"b_{a}", "value": float(b), "std": num(s), "unit": units_in}
-        for a, b, s in zip(channel_names(n), res.b, bias_std, strict=True)
-    ] + [
-        {"name": f"gain_{a}", "value": float(v), "std": num(s), "unit": f"{units_in} per rad/s"}
-        for a, v, s in zip(channel_names(n), gains, gains_std, strict=True)
-    ]
+    parameters = _parameters(res, gains, gains_std, units_in, "rad/s")
     extra.update(
         {
             "model": MODEL_EQUATION,

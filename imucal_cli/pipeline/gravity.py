@@ -15,22 +15,20 @@ from .accel import (
     PoseFit,
     axes_summary_with_std,
     check_fields,
-    common_extra,
     fit_fields,
     label_warnings,
     model_covariance,
     parameter_rows,
+    triad_extra,
     triad_poses,
     with_excluded,
 )
 from .accel_checks import pose_sigmas, quality, robust_fit
 from .common import (
     StaticPoses,
-    accel_units,
     check_design,
     labels_determine,
     nominal_sensor,
-    physical_checks,
     rms,
     session_name,
 )
@@ -130,7 +128,6 @@ def gravity_section(
     )
     used_index = np.array([poses.segments.index(s) for s in used.segments])
     loo, loo_method = held_out(used, g, res, cfg)
-    units_in, units_note = accel_units(session, g)
     summary = axes_summary_with_std(_matrix_of(res.variant), res.params, res.cov)
     fit = with_excluded(
         PoseFit(res.residuals, res.directions, res.up_angle_deg, loo),
@@ -143,19 +140,10 @@ def gravity_section(
         frame=res.rotation,
         output_aligned=res.variant == "12-parameter",
     )
-    extra = common_extra(
-        units_in=units_in,
-        g=g,
-        summary=summary,
-        poses=poses,
-        fit=fit,
-        nominal=nominal,
-        min_separation_deg=cfg.accel.min_separation_deg,
+    extra, units_in, units_note, physical = triad_extra(
+        session, cfg, poses, g, nominal, summary, fit, res.bias, res.residuals
     )
     units = [units_in] * 3 + [f"m/s^2 per {units_in}"] * (len(res.params) - 3)
-    physical = physical_checks(
-        res.bias, summary[0][:3], rms(res.residuals), nominal, cfg, units_in, g,
-    )  # fmt: skip
     q = quality(
         used,
         res.residuals,

@@ -17,21 +17,19 @@ from imucal_cli.solvers.labelled_model import public_params
 from .accel import (
     PoseFit,
     check_fields,
-    common_extra,
     fit_fields,
     model_covariance,
     parameter_rows,
+    triad_extra,
     triad_poses,
     with_excluded,
 )
 from .accel_checks import drop_wrong_labels, pose_sigmas, quality, robust_fit
 from .common import (
     StaticPoses,
-    accel_units,
     check_design,
     labels_determine,
     nominal_sensor,
-    physical_checks,
     rms,
 )
 
@@ -109,7 +107,6 @@ def labelled_section(
     )
     outliers = wrong + screen + outliers
     used_index = np.array([poses.segments.index(s) for s in used.segments])
-    units_in, units_note = accel_units(session, g)
     summary = (res.params[3:9], res.std[3:9])  # sensitivities and angles are parameters
     fit = with_excluded(
         PoseFit(res.residuals, res.directions, res.up_angle_deg, res.residual_loo),
@@ -120,19 +117,10 @@ def labelled_section(
         res.matrix,
         g,
     )
-    extra = common_extra(
-        units_in=units_in,
-        g=g,
-        summary=summary,
-        poses=poses,
-        fit=fit,
-        nominal=nominal,
-        min_separation_deg=cfg.accel.min_separation_deg,
+    extra, units_in, units_note, physical = triad_extra(
+        session, cfg, poses, g, nominal, summary, fit, res.bias, res.residuals
     )
     units = [units_in] * 3 + [f"{units_in} per m/s^2"] * 3 + ["deg"] * 6
-    physical = physical_checks(
-        res.bias, summary[0][:3], rms(res.residuals), nominal, cfg, units_in, g,
-    )  # fmt: skip
     q = quality(
         used,
         res.residuals,

@@ -17,7 +17,7 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 
-__all__ = ["BATCH_S", "JITTER_S", "host_arrivals", "with_clock"]
+__all__ = ["BATCH_S", "JITTER_S", "clocked", "host_arrivals", "with_clock"]
 
 #: Host delivery batches, s (a USB full-speed frame is 1 ms; serial drivers deliver ~10 ms).
 BATCH_S = 0.01
@@ -51,3 +51,14 @@ def with_clock(session, scale: float, seed: int):
     rate = None if session.sample_rate_hz is None else session.sample_rate_hz / scale
     return replace(session, time=true_time * scale, host_time=host_arrivals(true_time, seed),
                    sample_rate_hz=rate)  # fmt: skip
+
+
+def clocked(session, truth, scale: float | None, seed: int):
+    """A simulator's ``session`` recorded by a clock of ``scale`` (:func:`with_clock`; None:
+    as it is); the truth ``Calibration`` records the scale (gyro ``sample_clock_scale``, the
+    simulator's ``clock_scale``)."""
+    if scale is None:
+        return session
+    truth.gyro.extra["sample_clock_scale"] = float(scale)
+    truth.extra["simulator"]["clock_scale"] = float(scale)
+    return with_clock(session, scale, seed)

@@ -24,10 +24,19 @@ __all__ = [
     "MAX_SAMPLES",
     "Timeline",
     "check_int",
+    "check_jitter",
     "check_positive",
     "check_seed",
     "draw_mountings",
     "fixed_axis",
+    "heading",
+    "hold_samples",
+    "move_samples",
+    "place",
+    "placed",
+    "placement_tilts",
+    "samples",
+    "still_samples",
     "smootherstep",
     "unit",
     "up_to_vertical",
@@ -65,6 +74,34 @@ def smootherstep(n: int, dur: float) -> tuple[np.ndarray, np.ndarray]:
     s = tau**3 * (10.0 - 15.0 * tau + 6.0 * tau**2)
     ds = 30.0 * tau**2 * (1.0 - tau) ** 2 / dur
     return s, ds
+
+
+def heading(rng: np.random.Generator) -> Rotation:
+    """A uniform random turn about the world vertical (draws 1 number)."""
+    return Rotation.from_rotvec([0.0, 0.0, rng.uniform(0.0, 2.0 * np.pi)])
+
+
+def placement_tilts(rng: np.random.Generator, jitter_deg: float, count: int) -> np.ndarray:
+    """Horizontal tilt vectors (count, 3) of hand placements, rad: the two horizontal
+    components iid normal with std ``jitter_deg / sqrt(2)`` (RMS tilt ``jitter_deg``)."""
+    tilt = np.zeros((count, 3))
+    tilt[:, :2] = rng.standard_normal((count, 2)) * np.radians(jitter_deg) / np.sqrt(2.0)
+    return tilt
+
+
+def placed(up: np.ndarray, turn: Rotation, tilt: np.ndarray | None = None) -> Rotation:
+    """Attitude (body -> world) of a unit put down with body ``up`` (unit) vertical, turned
+    by ``turn`` about the vertical, then tilted by the rotation vector ``tilt``."""
+    if tilt is not None:
+        turn = Rotation.from_rotvec(tilt) * turn  # (tilt turn) up-to-vertical, in this order
+    return turn * up_to_vertical(up)
+
+
+def place(rng: np.random.Generator, up: np.ndarray, jitter_deg: float) -> Rotation:
+    """A hand placement on the face ``up``: a random tilt (:func:`placement_tilts`, RMS
+    ``jitter_deg``), then a random heading (draws 3 numbers, in that order)."""
+    tilt = placement_tilts(rng, jitter_deg, 1)[0]
+    return placed(up, heading(rng), tilt)
 
 
 def fixed_axis(
@@ -141,6 +178,48 @@ def check_int(name: str, value, low: int, high: int) -> int:
     ):
         raise InputError(f"{name} must be an integer from {low} to {high}, got {value!r}")
     return int(value)
+
+
+def samples(seconds: float, rate_hz: float) -> int:
+    """Whole samples in ``seconds`` at ``rate_hz``."""
+    return int(round(seconds * rate_hz))
+
+
+def move_samples(seconds: float, rate_hz: float) -> int:
+    """Interior samples of a move lasting about ``seconds`` (at least 2)."""
+    return max(2, samples(seconds, rate_hz))
+
+
+MIN_HOLD_SAMPLES = 10
+"""Fewest samples of a hold (a pose) or a still period."""
+
+
+def hold_samples(hold_s: float, rate_hz: float) -> int:
+    """Samples per pose of a ``hold_s`` hold, refused below :data:`MIN_HOLD_SAMPLES`."""
+    n = samples(hold_s, rate_hz)
+    if n < MIN_HOLD_SAMPLES:
+        raise InputError(
+            f"hold {hold_s:g} s at {rate_hz:g} Hz gives {n} samples per pose; "
+            f"at least {MIN_HOLD_SAMPLES} are needed"
+        )
+    return n
+
+
+def still_samples(still_s: float, rate_hz: float) -> int:
+    """Samples of a ``still_s`` still period, refused below :data:`MIN_HOLD_SAMPLES`."""
+    n = samples(still_s, rate_hz)
+    if n < MIN_HOLD_SAMPLES:
+        raise InputError(
+            f"still {still_s:g} s at {rate_hz:g} Hz gives {n} samples: >= {MIN_HOLD_SAMPLES}"
+        )
+    return n
+
+
+def check_jitter(opt: dict, *keys: tuple[str, str]) -> None:
+    """Refuse a placement or axis error over 45 degrees: ``keys`` are (name, option key)."""
+    for name, key in keys or (("jitter", "jitter_deg"),):
+        if opt[key] > 45.0:
+            raise InputError(f"{name} must be at most 45 deg, got {opt[key]:g}")
 
 
 def check_samples(n_total: int, advice: str) -> None:

@@ -76,20 +76,12 @@ def simulate_plan(
     if spec is None or spec.simulator == "steps":
         from imucal_cli.simulate.steps import simulate_steps
 
-        steps = load_plan(plan)
-        hold = 2.0 if hold_s is None else hold_s
-        return simulate_steps(steps, rate_hz=rate, hold_s=hold, move_s=move_s,
-                              jitter_deg=jitter_deg, gravity=gravity, **common)  # fmt: skip
+        return simulate_steps(load_plan(plan), rate_hz=rate, hold_s=2.0 if hold_s is None
+                              else hold_s, move_s=move_s, jitter_deg=jitter_deg,
+                              gravity=gravity, **common)  # fmt: skip
     if spec.simulator == "poses":
-        from imucal_cli.simulate.triad import simulate
-
-        built = spec.build(arg)
-        own = {step.hold_s for step in built.steps}  # a plan's own hold wins, as in steps
-        if len(own) == 1 and None not in own:
-            hold_s = own.pop()
-        return simulate(plan=built.name, rate_hz=rate, move_s=move_s,
-                        hold_s=2.0 if hold_s is None else hold_s, jitter_deg=jitter_deg,
-                        gravity=gravity, **extras, **common)  # fmt: skip
+        return _poses(spec.build(arg), hold_s, rate_hz=rate, move_s=move_s,
+                      jitter_deg=jitter_deg, gravity=gravity, **extras, **common)  # fmt: skip
     if spec.simulator == "rotations":
         from imucal_cli.simulate.rotations import simulate_gyro_rotations
 
@@ -99,19 +91,36 @@ def simulate_plan(
             rotations_per_axis=rpa, peak_rate_dps=peak_rate_dps, still_s=still_s,
             jitter_deg=jitter_deg, gravity=gravity, **extras, **common,
         )  # fmt: skip
-    from imucal_cli.simulate.redundant import simulate_hk_gyro, simulate_redundant_accel
-
     if spec.simulator == "iron":
+        from imucal_cli.simulate.redundant import simulate_hk_gyro
+
         return simulate_hk_gyro(
             mountings=mountings, rate_hz=rate, still_s=3.0 if hold_s is None else hold_s,
             gravity=gravity, faces=spec.key == "hwangbo-iron", **common,
         )  # fmt: skip
+    return _redundant(units, seed=seed, sigma_counts=sigma_counts, orientations=orientations,
+                      samples=samples, rate_hz=50.0 if rate_hz is None else rate_hz,
+                      labelled=labelled, gravity=gravity, created=created)  # fmt: skip
+
+
+def _poses(built, hold_s: float | None, **options) -> tuple[Session, Calibration]:
+    """A pose plan (:func:`imucal_cli.simulate.triad.simulate`); a plan's own hold wins over
+    ``hold_s``, as in the steps (default 2 s)."""
+    from imucal_cli.simulate.triad import simulate
+
+    own = {step.hold_s for step in built.steps}
+    if len(own) == 1 and None not in own:
+        hold_s = own.pop()
+    return simulate(plan=built.name, hold_s=2.0 if hold_s is None else hold_s, **options)
+
+
+def _redundant(units: str, **options) -> tuple[Session, Calibration]:
+    """Plan hk-redundant (:func:`imucal_cli.simulate.redundant.simulate_redundant_accel`):
+    11-bit ADC codes, so ``units`` must be counts."""
+    from imucal_cli.simulate.redundant import simulate_redundant_accel
+
     if units != "counts":
         raise InputError(
             f"plan hk-redundant records 11-bit ADC codes: units must be counts, not {units!r}"
         )
-    return simulate_redundant_accel(
-        seed=seed, sigma_counts=sigma_counts, orientations=orientations, samples=samples,
-        rate_hz=50.0 if rate_hz is None else rate_hz, labelled=labelled, gravity=gravity,
-        created=created,
-    )  # fmt: skip
+    return simulate_redundant_accel(**options)

@@ -19,6 +19,53 @@ seed reproduces a session bit for bit.
 Segments of the gyroscope session carry the IMU mounting as the extra segment attribute
 ``mounting`` (an integer, 1 = the unit square in the iron) and in their label (``"mounting 2:
 sweep about +Y"``); the truth repeats the mapping (``gyro.extra["segment_mounting"]``).
+
+Section V, the redundant unit's session and truth
+-------------------------------------------------
+The session: ``accel_units="counts"``, ``/raw/accel`` (N, 4), no gyro; one static segment per
+orientation labelled ``"orientation 7"`` (1-based), or the pose name (``"face +Z up"``) with
+``up`` when labelled.  The truth: an accel section only, ``matrix`` (3, 4) = 9.80665 *
+pinv(S^T) with ``S`` (3, 4) the sensitivity axes in counts per g as columns, ``bias`` (4,)
+counts; so ``matrix @ (raw - bias)`` is the specific force in m/s^2.  Extras:
+``S_counts_per_g``, ``gains_V_per_g``, ``bias_V``, ``angles_deg`` (Table I order),
+``noise_counts``, ``quantisation_counts``, ``noise_total_counts``, ``counts_per_volt``,
+``true_up`` (one unit vector per orientation, in segment order), ``segments``, ``labels``.
+
+Section IV-B, the gyroscope procedure
+-------------------------------------
+Frames: the *iron* frame (the fixture frame of the session's ``axis``/``up``) and the *sensor*
+frame, the IMU housing.  Mounting ``m`` is the rotation ``M_m`` (sensor -> iron); mounting 1 is
+the identity, so there the two frames agree; mounting 2, 3, ... are random rotations drawn from
+the seed, far from the iron's symmetries and from each other.  Every event is separated by
+``still_s`` of stillness, each a static segment; the segments are the steps of
+:func:`imucal_cli.plans.hk_gyro_steps`:
+
+0. with ``faces`` (plan ``hwangbo-iron``): the iron on each of its 6 faces in turn (labelled
+   ``"face +Z up"``, ...), ``still_s`` each, for the accelerometer;
+1. still, +Z up, mounting 1 (the biases);
+2. for each mounting: for the face normals +Z, +X, +Y in turn, the iron is put on the opposite
+   face (a smootherstep move of ``move_s``, unsegmented) and swept by hand about the vertical
+   normal: rate ``normal * peak_rate * sin(2 pi t / (sweep_s / periods))`` for ``sweep_s``
+   (``periods`` whole periods, so it ends where it started); the IMU is re-mounted between
+   mountings (an unsegmented move);
+3. back in mounting 1, +Z up, one ruler-guided turn of ``ruler_angle_deg`` about +Z with a
+   smootherstep profile of ``turn_s``.
+
+The attitude is integrated exactly (fixed-axis motions), so the accelerometer sees gravity turn
+consistently; moves add no linear acceleration.  The earth rate is left out.
+
+The session: raw accel and gyro (N, 3).  Static segments for the still periods, labelled
+``"mounting 1: still, +Z up"``, with ``up`` (iron frame) in mounting 1 only (in other mountings
+the sensor is not aligned with the iron).  Rotation segments for the sweeps, labelled
+``"mounting 2: sweep about +Y"``, with ``axis`` = the face normal in the iron frame; the ruler
+turn labelled ``"mounting 1: ruler-guided 90-degree turn about +Z"`` with ``axis`` and
+``angle_deg``.  Orthogonality holds only between sweeps of one mounting: every segment has the
+attribute ``mounting`` (int).  The truth: ``gyro``: ``matrix = inv(S_g)``, ``bias = b_g`` with
+``S_g`` the sensitivity in the sensor frame (= the iron frame of mounting 1).  Extras:
+``mounting_rotvec_deg`` (one rotation vector per mounting, sensor -> iron, degrees),
+``segment_mounting`` (segment name -> mounting, every segment), ``sweep_axes_sensor`` (sweep
+segment name -> unit axis in the sensor frame), ``ruler`` (segment, axes, angle), ``noise``.
+``accel``: the accelerometer's truth in the same sensor frame.
 """
 
 from __future__ import annotations
@@ -40,10 +87,14 @@ from imucal_cli.simulate.motion import (
     check_samples,
     check_seed,
     draw_mountings,
+    heading,
+    move_samples,
+    placed,
+    samples,
+    still_samples,
     unit,
-    up_to_vertical,
 )
-from imucal_cli.simulate.sensor import G0, ChannelGroup, Imu, random_imu, spawn
+from imucal_cli.simulate.sensor import G0, ChannelGroup, Imu, draw_part, floats, spawn
 
 __all__ = [
     "ADC_MAX",
@@ -133,17 +184,10 @@ def _lean(rng: np.random.Generator, axes: np.ndarray, max_deg: float) -> np.ndar
 
 
 def simulate_redundant_accel(
-    seed: int = 0,
-    sigma_counts: float = 0.7,
-    orientations: int | None = None,
-    samples: int = 10,
-    rate_hz: float = 50.0,
-    labelled: bool = False,
-    gravity: float = G0,
-    created: str | None = None,
-    perturb: bool = False,
-    gap_s: float = 2.0,
-) -> tuple[Session, Calibration]:
+    seed: int = 0, sigma_counts: float = 0.7, orientations: int | None = None,
+    samples: int = 10, rate_hz: float = 50.0, labelled: bool = False, gravity: float = G0,
+    created: str | None = None, perturb: bool = False, gap_s: float = 2.0,
+) -> tuple[Session, Calibration]:  # fmt: skip
     """Simulate the redundant accelerometer unit of Hwangbo & Kanade, section V (Table I).
 
     Sensor model, channel j = 1..4, ``f`` the specific force in g (standard gravity, so a still
@@ -190,16 +234,8 @@ def simulate_redundant_accel(
     Returns
     -------
     session : imucal_cli.formats.session.Session
-        ``accel_units="counts"``, ``/raw/accel`` (N, 4), no gyro; one static segment per
-        orientation labelled ``"orientation 7"`` (1-based), or the pose name (``"face +Z up"``)
-        with ``up`` when ``labelled``.
     truth : imucal_cli.formats.calibration.Calibration
-        Accel section only: ``matrix`` (3, 4) = 9.80665 * pinv(S^T) with ``S`` (3, 4) the
-        sensitivity axes in counts per g as columns, ``bias`` (4,) counts; so ``matrix @ (raw
-        - bias)`` is the specific force in m/s^2.  Extras: ``S_counts_per_g``,
-        ``gains_V_per_g``, ``bias_V``, ``angles_deg`` (Table I order), ``noise_counts``,
-        ``quantisation_counts``, ``noise_total_counts``, ``counts_per_volt``, ``true_up``
-        (one unit vector per orientation, in segment order), ``segments``, ``labels``.
+        Both as the module notes say (section V).
 
     Raises
     ------
@@ -208,38 +244,56 @@ def simulate_redundant_accel(
     """
     opt = _redundant_options(seed, sigma_counts, orientations, samples, rate_hz, labelled,
                              gravity, perturb, gap_s)  # fmt: skip
-    k_poses, samples, rate_hz = opt["orientations"], opt["samples"], opt["rate_hz"]
+    k_poses, samples = opt["orientations"], opt["samples"]
     truth_ss, pose_ss, noise_ss = spawn(opt["seed"])
     group, gains, bias_v = _redundant_part(truth_ss, perturb, opt["sigma_counts"])
-
-    # Orientations (pose generator).
-    if labelled:
-        poses = plan_poses("qureshi18")[:k_poses]
-        labels = [label for label, _ in poses]
-        up = np.array([u for _, u in poses], dtype=float)
-    else:
-        up = unit(np.random.default_rng(pose_ss).standard_normal((k_poses, 3)))
-        labels = [f"orientation {k + 1}" for k in range(k_poses)]
-
-    hold_s = samples / rate_hz
-    time = (
-        np.arange(k_poses)[:, None] * (hold_s + opt["gap_s"])
-        + np.arange(samples)[None, :] / rate_hz
-    ).ravel()
-    tl = Timeline(rate_hz, opt["gravity"], Rotation.identity())
+    labels, up = _orientations(opt, pose_ss)
+    tl = Timeline(opt["rate_hz"], opt["gravity"], Rotation.identity())
     for k in range(k_poses):
         span = (k * samples, (k + 1) * samples)
         tl.segment("static", span, labels[k], up=up[k] if labelled else None)
     f_g = np.repeat(up * (opt["gravity"] / G0), samples, axis=0)  # (N, 3) in g
+    extra = _redundant_extra(opt, group, gains, bias_v)
+    extra.update(segments=[s.name for s in tl.segments], labels=labels, true_up=floats(up))
+    return Imu(groups=(group,)).session_and_truth(
+        {"accel": f_g}, tl.segments, noise_seed=noise_ss, options=opt, time=_hold_times(opt),
+        sensor=f"sim-hk-redundant (2 x dual-axis, 45 deg) seed {opt['seed']}",
+        extras={"accel": extra}, created=created,
+    )  # fmt: skip
+
+
+def _orientations(opt: dict, pose_ss) -> tuple[list[str], np.ndarray]:
+    """Labels and true up directions (K, 3) of the orientations: the iron's first poses when
+    labelled (nothing drawn), else random directions from the pose generator."""
+    k_poses = opt["orientations"]
+    if opt["labelled"]:
+        poses = plan_poses("qureshi18")[:k_poses]
+        return [label for label, _ in poses], np.array([u for _, u in poses], dtype=float)
+    up = unit(np.random.default_rng(pose_ss).standard_normal((k_poses, 3)))
+    return [f"orientation {k + 1}" for k in range(k_poses)], up
+
+
+def _hold_times(opt: dict) -> np.ndarray:
+    """Sample times: ``samples`` per hold at ``rate_hz``, holds ``gap_s`` apart, s."""
+    samples, rate_hz = opt["samples"], opt["rate_hz"]
+    hold_s = samples / rate_hz
+    return (
+        np.arange(opt["orientations"])[:, None] * (hold_s + opt["gap_s"])
+        + np.arange(samples)[None, :] / rate_hz
+    ).ravel()
+
+
+def _redundant_extra(opt: dict, group: ChannelGroup, gains, bias_v) -> dict:
+    """The accel truth's record of the redundant part (the module notes, section V)."""
     S = group.S.T  # (3, 4) counts per g, columns s_j
-    extra = {
+    return {
         "design": "Hwangbo & Kanade section V: two dual-axis accelerometers, n = 4, 45 deg",
         "gravity": opt["gravity"],
         "g_unit": "standard gravity 9.80665 m/s^2 (of V/g and counts per g)",
-        "S_counts_per_g": _floats(S),
+        "S_counts_per_g": floats(S),
         "S_layout": "3 x 4, column j = gain_j * counts_per_volt * unit sensitivity axis s_j",
-        "gains_V_per_g": _floats(gains),
-        "bias_V": _floats(bias_v),
+        "gains_V_per_g": floats(gains),
+        "bias_V": floats(bias_v),
         "angles_deg": pairwise_angles_deg(S),
         "counts_per_volt": COUNTS_PER_VOLT,
         "adc_range_counts": [0, ADC_MAX],
@@ -249,20 +303,8 @@ def simulate_redundant_accel(
         "noise_total_counts": float(np.hypot(opt["sigma_counts"], QUANTISATION_COUNTS)),
         "noise_unit": "counts per channel per sample (Gaussian before rounding; rounding adds "
         "about 1/sqrt(12))",
-        "perturbed": bool(perturb),
-        "segments": [s.name for s in tl.segments],
-        "labels": labels,
-        "true_up": _floats(up),
+        "perturbed": bool(opt["perturb"]),
     }
-    return Imu(groups=(group,)).session_and_truth(
-        {"accel": f_g}, tl.segments, noise_seed=noise_ss, options=opt, time=time,
-        sensor=f"sim-hk-redundant (2 x dual-axis, 45 deg) seed {opt['seed']}",
-        extras={"accel": extra}, created=created,
-    )  # fmt: skip
-
-
-def _floats(a) -> list:
-    return np.asarray(a, dtype=float).tolist()
 
 
 def _redundant_options(seed, sigma_counts, orientations, samples, rate_hz, labelled, gravity,
@@ -333,49 +375,19 @@ def _redundant_part(
 
 
 def simulate_hk_gyro(
-    seed: int = 0,
-    mountings: int = 2,
-    rate_hz: float = 100.0,
-    sweep_s: float = 6.0,
-    peak_rate: float = 2.0,
-    still_s: float = 3.0,
-    noise: float = 0.005,
-    units: str = "counts",
-    ruler_angle_deg: float = 90.0,
-    created: str | None = None,
-    periods: int = 3,
-    accel_noise: float = 0.01,
-    move_s: float = 1.5,
-    turn_s: float = 2.0,
-    gravity: float = G0,
+    seed: int = 0, mountings: int = 2, rate_hz: float = 100.0, sweep_s: float = 6.0,
+    peak_rate: float = 2.0, still_s: float = 3.0, noise: float = 0.005, units: str = "counts",
+    ruler_angle_deg: float = 90.0, created: str | None = None, periods: int = 3,
+    accel_noise: float = 0.01, move_s: float = 1.5, turn_s: float = 2.0, gravity: float = G0,
     faces: bool = False,
-) -> tuple[Session, Calibration]:
+) -> tuple[Session, Calibration]:  # fmt: skip
     """Simulate the gyroscope procedure of Hwangbo & Kanade, section IV-B (Fig. 3 f-j, Fig. 5).
 
     The part is :func:`imucal_cli.simulate.triad.random_imu` (16.4 LSB per deg/s gyroscope with
     1-3 % scale errors, axes off by up to 1 degree, bias up to 3 deg/s; plus its
-    accelerometer), fixed in a right-angle iron.  Frames: the *iron* frame (the fixture frame
-    of the session's ``axis``/``up``) and the *sensor* frame, the IMU housing.  Mounting ``m``
-    is the rotation ``M_m`` (sensor -> iron); mounting 1 is the identity, so there the two
-    frames agree; mounting 2, 3, ... are random rotations drawn from the seed, far from the
-    iron's symmetries and from each other.
-
-    Timeline (every event separated by ``still_s`` of stillness, each a static segment; the
-    segments are the steps of :func:`imucal_cli.plans.hk_gyro_steps`):
-
-    0. with ``faces`` (plan ``hwangbo-iron``): the iron on each of its 6 faces in turn (labelled
-       ``"face +Z up"``, ...), ``still_s`` each, for the accelerometer;
-    1. still, +Z up, mounting 1 (the biases);
-    2. for each mounting: for the face normals +Z, +X, +Y in turn, the iron is put on the
-       opposite face (a smootherstep move of ``move_s``, unsegmented) and swept by hand about
-       the vertical normal: rate ``normal * peak_rate * sin(2 pi t / (sweep_s / periods))``
-       for ``sweep_s`` (``periods`` whole periods, so it ends where it started); the IMU is
-       re-mounted between mountings (an unsegmented move);
-    3. back in mounting 1, +Z up, one ruler-guided turn of ``ruler_angle_deg`` about +Z with a
-       smootherstep profile of ``turn_s``.
-
-    The attitude is integrated exactly (fixed-axis motions), so the accelerometer sees gravity
-    turn consistently; moves add no linear acceleration.  The earth rate is left out.
+    accelerometer), fixed in a right-angle iron in ``mountings`` ways and put through the
+    procedure of the module notes (section IV-B): sweeps about three faces per mounting, then
+    a ruler-guided turn.
 
     Parameters
     ----------
@@ -385,29 +397,23 @@ def simulate_hk_gyro(
         Number of IMU mountings in the iron (1..8; the paper used 2).
     rate_hz : float
         Sample rate, Hz.
-    sweep_s : float
-        Duration of each sinusoidal sweep, s.
+    sweep_s, periods : float, int
+        Duration of each sinusoidal sweep, s, and the whole sine periods in it.
     peak_rate : float
         Peak angular rate of a sweep, rad/s (the swing is +-peak_rate * period / pi rad).
     still_s : float
         Duration of each still period, s (at least 10 samples).
-    noise : float
-        Gyroscope white noise per axis per sample, rad/s (input-referred).
+    noise, accel_noise : float
+        White noise per axis per sample (input-referred): gyroscope rad/s, accelerometer m/s^2.
     units : {"counts", "m/s^2"}
         Raw units of the part (``"rad/s"`` is accepted for ``"m/s^2"``): 16-bit counts, or a
         part of nominal gain 1 reading m/s^2 and rad/s.
-    ruler_angle_deg : float
-        Signed angle of the ruler-guided turn, degrees (right hand about +Z).
+    ruler_angle_deg, turn_s : float
+        Signed angle of the ruler-guided turn, degrees (right hand about +Z), and its duration, s.
     created : str, optional
         ISO 8601 UTC creation time; default now.
-    periods : int
-        Whole sine periods per sweep.
-    accel_noise : float
-        Accelerometer white noise per axis per sample, m/s^2.
     move_s : float
         Duration of each unsegmented move (turning the iron to a face, re-mounting), s.
-    turn_s : float
-        Duration of the ruler-guided turn, s.
     gravity : float
         Local gravity, m/s^2.
     faces : bool
@@ -416,20 +422,8 @@ def simulate_hk_gyro(
     Returns
     -------
     session : imucal_cli.formats.session.Session
-        Raw accel and gyro (N, 3).  Static segments for the still periods, labelled
-        ``"mounting 1: still, +Z up"``, with ``up`` (iron frame) in mounting 1 only (in other
-        mountings the sensor is not aligned with the iron).  Rotation segments for the sweeps,
-        labelled ``"mounting 2: sweep about +Y"``, with ``axis`` = the face normal in the iron
-        frame; the ruler turn labelled ``"mounting 1: ruler-guided 90-degree turn about +Z"``
-        with ``axis`` and ``angle_deg``.  Orthogonality holds only between sweeps of one
-        mounting: every segment has the attribute ``mounting`` (int).
     truth : imucal_cli.formats.calibration.Calibration
-        ``gyro``: ``matrix = inv(S_g)``, ``bias = b_g`` with ``S_g`` the sensitivity in the
-        sensor frame (= the iron frame of mounting 1).  Extras: ``mounting_rotvec_deg`` (one
-        rotation vector per mounting, sensor -> iron, degrees), ``segment_mounting``
-        (segment name -> mounting, every segment), ``sweep_axes_sensor`` (sweep segment name
-        -> unit axis in the sensor frame), ``ruler`` (segment, axes, angle), ``noise``.
-        ``accel``: the accelerometer's truth in the same sensor frame.
+        Both as the module notes say (section IV-B).
 
     Raises
     ------
@@ -440,22 +434,31 @@ def simulate_hk_gyro(
         seed, mountings, rate_hz, sweep_s, peak_rate, still_s, noise, units, ruler_angle_deg,
         periods, accel_noise, move_s, turn_s, gravity, faces,
     )  # fmt: skip
-    truth_ss, pose_ss, noise_ss = spawn(opt["seed"])
-    truth = random_imu(np.random.default_rng(truth_ss), opt["units"],
-                       accel_noise=opt["accel_noise"], gyro_noise=opt["noise"])  # fmt: skip
+    truth, pose_ss, noise_ss = draw_part(opt["seed"], opt["units"], opt["accel_noise"],
+                                         opt["noise"])  # fmt: skip
     prng = np.random.default_rng(pose_ss)
     mounts = draw_mountings(prng, opt["mountings"])
     tl, sweep_axes, ruler_seg = _hk_timeline(opt, prng, mounts)
     force, rate = tl.arrays()
     assert len(force) == opt["n_total"], (len(force), opt["n_total"])
     del opt["n_total"]
-
     frame = "sensor frame (= the iron frame in mounting 1)"
-    gyro_extra = {
+    return truth.session_and_truth(
+        {"accel": force, "gyro": rate}, tl.segments, noise_seed=noise_ss, options=opt,
+        sensor=f"sim-16bit seed {opt['seed']} (hk-gyro)", created=created,
+        extras={"accel": {"frame": frame, "gravity": opt["gravity"]},
+                "gyro": _hk_gyro_extra(opt, frame, mounts, tl, sweep_axes, ruler_seg)},
+    )  # fmt: skip
+
+
+def _hk_gyro_extra(opt: dict, frame: str, mounts: list[Rotation], tl: Timeline,
+                   sweep_axes: dict, ruler_seg: str) -> dict:  # fmt: skip
+    """The gyro truth's record of the procedure (the module notes, section IV-B)."""
+    return {
         "design": "Hwangbo & Kanade section IV-B: sweeps about 3 orthogonal iron faces per "
         "mounting, one ruler-guided turn",
         "frame": frame,
-        "mounting_rotvec_deg": [_floats(np.degrees(r.as_rotvec())) for r in mounts],
+        "mounting_rotvec_deg": [floats(np.degrees(r.as_rotvec())) for r in mounts],
         "mounting_rotvec_note": "rotation vector of each mounting, sensor -> iron frame",
         "segment_mounting": {s.name: s.extra["mounting"] for s in tl.segments},
         "sweep_axes_sensor": sweep_axes,
@@ -468,11 +471,6 @@ def simulate_hk_gyro(
             "angle_deg": opt["ruler_angle_deg"],
         },
     }
-    return truth.session_and_truth(
-        {"accel": force, "gyro": rate}, tl.segments, noise_seed=noise_ss, options=opt,
-        sensor=f"sim-16bit seed {opt['seed']} (hk-gyro)", created=created,
-        extras={"accel": {"frame": frame, "gravity": opt["gravity"]}, "gyro": gyro_extra},
-    )  # fmt: skip
 
 
 def _hk_options(
@@ -503,21 +501,19 @@ def _hk_options(
     ruler, rate_hz, periods = opt["ruler_angle_deg"], opt["rate_hz"], opt["periods"]
     if not np.isfinite(ruler) or ruler == 0.0 or abs(ruler) > 180:
         raise InputError(f"ruler angle must be non-zero, within +-180 deg, got {ruler}")
-    n_still = int(round(opt["still_s"] * rate_hz))
-    if n_still < 10:
-        raise InputError(f"still {still_s:g} s at {rate_hz:g} Hz gives {n_still} samples: >= 10")
-    n_sweep = int(round(opt["sweep_s"] * rate_hz)) - 1  # interior samples: rate 0 at both ends
+    n_still = still_samples(opt["still_s"], rate_hz)
+    n_sweep = samples(opt["sweep_s"], rate_hz) - 1  # interior samples: rate 0 at both ends
     if n_sweep < 4 * periods:
         raise InputError(
             f"sweep {sweep_s:g} s at {rate_hz:g} Hz is too short for {periods} periods"
         )
-    m = opt["mountings"]
+    m, n_move = opt["mountings"], move_samples(opt["move_s"], rate_hz)
     n_total = (
         n_still * (6 * m + 2)
         + n_sweep * 3 * m
-        + max(2, int(round(opt["move_s"] * rate_hz))) * (3 * m)
-        + max(2, int(round(opt["turn_s"] * rate_hz)))
-        + (6 * (n_still + max(2, int(round(opt["move_s"] * rate_hz)))) if faces else 0)
+        + n_move * (3 * m)
+        + move_samples(opt["turn_s"], rate_hz)
+        + (6 * (n_still + n_move) if faces else 0)
     )
     check_samples(n_total, "lower the rate, the sweep or still time, or the mountings")
     opt["n_total"] = n_total
@@ -525,21 +521,20 @@ def _hk_options(
 
 
 def _hk_timeline(opt: dict, prng: np.random.Generator, mounts: list[Rotation]):
-    """The iron procedure (see :func:`simulate_hk_gyro`): returns the timeline, the sweep axes
+    """The iron procedure (the module notes, steps 0-3): returns the timeline, the sweep axes
     in the sensor frame per segment, and the ruler turn's segment name."""
     eye = np.eye(3)
     ez = eye[2]
     rate_hz = opt["rate_hz"]
-    n_still = int(round(opt["still_s"] * rate_hz))
-    n_sweep = int(round(opt["sweep_s"] * rate_hz)) - 1
-    n_move = max(2, int(round(opt["move_s"] * rate_hz)))
+    n_still = samples(opt["still_s"], rate_hz)
+    n_sweep = samples(opt["sweep_s"], rate_hz) - 1
+    n_move = move_samples(opt["move_s"], rate_hz)
     faces = opt.get("faces", False)
     steps = iter(hk_gyro_steps(opt["mountings"], faces, opt["ruler_angle_deg"]))
     sweep_axes: dict[str, list[float]] = {}
 
     def iron_pose(face: int, sign: float = 1.0) -> Rotation:
-        heading = Rotation.from_rotvec([0.0, 0.0, prng.uniform(0.0, 2.0 * np.pi)])
-        return heading * up_to_vertical(sign * eye[face])
+        return placed(sign * eye[face], heading(prng))  # the iron stands square: no tilt
 
     def still() -> None:
         tl.segment("static", tl.hold(n_still), **next(steps).segment_attrs())
@@ -573,12 +568,12 @@ def _hk_timeline(opt: dict, prng: np.random.Generator, mounts: list[Rotation]):
                 tl.move(iron_pose(face) * mount, n_move)
                 still()
             axis_sensor = mount.as_matrix().T @ eye[face]
-            sweep_axes[sweep(axis_sensor)] = _floats(axis_sensor)
+            sweep_axes[sweep(axis_sensor)] = floats(axis_sensor)
             still()
     # 3. ruler-guided turn in mounting 1, +Z up.
     tl.move(iron_pose(2) * mounts[0], n_move)
     still()
-    n_turn = max(2, int(round(opt["turn_s"] * rate_hz)))
+    n_turn = move_samples(opt["turn_s"], rate_hz)
     span = tl.smooth_turn(ez, np.radians(opt["ruler_angle_deg"]), n_turn)
     ruler = tl.segment("rotation", span, **next(steps).segment_attrs()).name
     still()

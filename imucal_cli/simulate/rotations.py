@@ -26,6 +26,44 @@ about a fixed axis ``u`` (body frame) with angle profile ``theta(t)``, so the at
 ``R(t) = R0 Exp(theta(t) u)`` and the body rate ``theta'(t) u`` are exact in closed form; the
 accelerometer reads ``R(t)^T (0, 0, g)`` (no linear acceleration: the unit turns about its own
 centre) and the gyroscope the body rate.  The earth rate is left out.
+
+The turns (:func:`simulate_gyro_rotations`).  Plan ``qureshi-axes`` (Qureshi & Golnaraghi,
+Fig. 2; III-B; IV-B.2): for the x, then y axis the unit is placed flat, +Z up, and turned
+``rotations_per_axis`` times about that axis; for z it is laid on its side, +X up, and turned
+about z.  Each starting pose is the labelled one tilted by a random horizontal rotation vector
+(RMS angle ``jitter_deg``) at a random heading; the move that lays the unit on the next starting
+face (``MOVE_S``, a smootherstep slerp) is not a segment.  Turn angles are uniform within +-180
+degrees, at least 20 degrees in magnitude and at least ~10 degrees from each other on one axis.
+The hand turns about the nominal body axis, steered half-way back to level (:data:`LEVELLING`),
+tilted by a random error perpendicular to it (RMS angle ``axis_jitter_deg``, fresh for every
+turn): the true axis is a few degrees off the body axis (recorded in the truth), and the body
+axis stays within about 10 degrees of level.  Plan ``free:N``: the unit starts flat, +Z up
+(with placement jitter), then N turns about body axes uniform on the sphere by angles within
++-180 degrees (|angle| >= 20 degrees).
+
+Every turn has a smootherstep angle profile (zero rate and angular acceleration at both ends);
+its peak rate is drawn uniformly in 50-100 % of ``peak_rate_dps`` and sets the duration (at
+least ``MIN_TURN_S``; the duration is then rounded to whole samples, and the true peak rate is
+recomputed and recorded).  ``still_s`` of stillness comes before the first turn, between turns
+(the still after one turn is the still before the next) and after the last.
+
+The session: raw accel and gyro (N, 3).  Segments in time order, alternating: a static segment
+per still period, labelled ``"still before x turn 3"`` (``"still after x turn 18"`` for the
+last of an axis; ``"still before turn 3"`` for free:N), with ``up`` only on the first still of
+each starting face (``[0, 0, 1]`` or ``[1, 0, 0]``, labelled ``"still before z turn 1, +X
+up"``); and a rotation segment per turn spanning its moving samples, labelled ``"turn 3 about
+x"`` with ``axis`` = the nominal body axis (qureshi-axes), or ``"turn 3"`` without ``axis``
+(free:N).  No segment has ``angle_deg``: the angle is unknown to the person; the accelerometer
+measures it.
+
+The truth: ``accel`` and ``gyro``: ``matrix = inv(S)``, ``bias = b`` (fixture frame), as
+:func:`imucal_cli.simulate.triad.truth_calibration`.  ``gyro.extra``: per turn, in order,
+``turn_segments`` (segment names), ``turn_labels``, ``turn_axis_names`` (qureshi-axes: x/y/z),
+``true_angle_deg``, ``true_axis`` (unit, body frame), ``true_rotvec`` (rad, body frame:
+``R_after = R_before Exp(rotvec)``), ``nominal_axis`` (or None), ``axis_error_deg``,
+``peak_rate_dps``, ``duration_s``; ``noise``.  ``accel.extra``: per still, ``segments``,
+``labels``, ``true_up`` (unit, fixture frame), ``labelled_up`` (or None); ``noise``,
+``gravity``.
 """
 
 from __future__ import annotations
@@ -39,17 +77,22 @@ from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.session import Session
 from imucal_cli.plans import load_plan
+from imucal_cli.simulate.clock import clocked
 from imucal_cli.simulate.motion import (
     EZ,
     Timeline,
+    check_jitter,
     check_positive,
     check_samples,
     check_seed,
+    move_samples,
+    place,
+    samples,
+    still_samples,
     unit,
-    up_to_vertical,
 )
-from imucal_cli.simulate.sensor import G0, UNITS, random_imu, spawn
-from imucal_cli.simulate.temperature import Ramp, temperatures, thermal_part
+from imucal_cli.simulate.sensor import G0, check_units, draw_part, floats
+from imucal_cli.simulate.temperature import Ramp, ramp_part
 from imucal_cli.simulate.triad import sensor_name
 
 __all__ = [
@@ -195,46 +238,16 @@ def _towards_level(att: Rotation, axis: np.ndarray, fraction: float) -> np.ndarr
 
 
 def simulate_gyro_rotations(
-    plan: str = "qureshi-axes",
-    seed: int = 0,
-    rate_hz: float = 100.0,
-    rotations_per_axis: int = 18,
-    peak_rate_dps: float = 150.0,
-    still_s: float = 5.0,
-    accel_noise: float = 0.01,
-    gyro_noise: float = 0.005,
-    jitter_deg: float = 2.0,
-    axis_jitter_deg: float = 2.0,
-    units: str = "counts",
-    gravity: float = G0,
-    created: str | None = None,
-    count: int | None = None,
-    temperature: Ramp | None = None,
+    plan: str = "qureshi-axes", seed: int = 0, rate_hz: float = 100.0,
+    rotations_per_axis: int = 18, peak_rate_dps: float = 150.0, still_s: float = 5.0,
+    accel_noise: float = 0.01, gyro_noise: float = 0.005, jitter_deg: float = 2.0,
+    axis_jitter_deg: float = 2.0, units: str = "counts", gravity: float = G0,
+    created: str | None = None, count: int | None = None, temperature: Ramp | None = None,
     clock_scale: float | None = None,
-) -> tuple[Session, Calibration]:
+) -> tuple[Session, Calibration]:  # fmt: skip
     """Simulate hand rotations for gyroscope calibration; return the session and its truth.
 
-    Plan ``qureshi-axes`` (Qureshi & Golnaraghi, Fig. 2; III-B; IV-B.2): for the x, then y
-    axis the unit is placed flat, +Z up, and turned ``rotations_per_axis`` times about that
-    axis; for z it is laid on its side, +X up, and turned about z.  Each starting pose is the
-    labelled one tilted by a random horizontal rotation vector (RMS angle ``jitter_deg``) at a
-    random heading; the move that lays the unit on the next starting face (``MOVE_S``, a
-    smootherstep slerp) is not a segment.  Turn angles are uniform within +-180 degrees, at
-    least 20 degrees in magnitude and at least ~10 degrees from each other on one axis.  The
-    hand turns about the nominal body axis, steered half-way back to level (:data:`LEVELLING`),
-    tilted by a random error perpendicular to it (RMS angle ``axis_jitter_deg``, fresh for
-    every turn): the true axis is a few degrees off the body axis (recorded in the truth), and
-    the body axis stays within about 10 degrees of level.
-
-    Plan ``free:N``: the unit starts flat, +Z up (with placement jitter), then N turns about
-    body axes uniform on the sphere by angles within +-180 degrees (|angle| >= 20 degrees).
-
-    Every turn has a smootherstep angle profile (zero rate and angular acceleration at both
-    ends); its peak rate is drawn uniformly in 50-100 % of ``peak_rate_dps`` and sets the
-    duration (at least ``MIN_TURN_S``; the duration is then rounded to whole samples, and the
-    true peak rate is recomputed and recorded).  ``still_s`` of stillness comes before the
-    first turn, between turns (the still after one turn is the still before the next) and
-    after the last.
+    The turns, their placement, axes, angles and rates are the module notes'.
 
     Parameters
     ----------
@@ -243,23 +256,17 @@ def simulate_gyro_rotations(
     seed : int
         Non-negative seed; the same seed and options give the same samples bit for bit.  The
         part is the one :func:`imucal_cli.simulate.triad.simulate` draws for this seed.
-    rate_hz : float
-        Sample rate, Hz.
+    rate_hz, still_s : float
+        Sample rate, Hz; still period before and after each turn, s (at least 10 samples).
     rotations_per_axis : int
         qureshi-axes: turns per axis (1..1000; the paper used 18).
     peak_rate_dps : float
         Largest peak rate of a turn, deg/s (<= 1000; the paper kept hand turns under 150).
-    still_s : float
-        Still period before and after each turn, s (at least 10 samples).
-    accel_noise : float
-        Accelerometer white noise per axis per sample, m/s^2.
-    gyro_noise : float
-        Gyroscope white noise per axis per sample, rad/s.
-    jitter_deg : float
-        RMS placement error of each starting face, degrees (<= 45).
-    axis_jitter_deg : float
-        RMS angle between each turn's true axis and its nominal body axis (qureshi-axes),
-        degrees (<= 45).
+    accel_noise, gyro_noise : float
+        White noise per axis per sample: accelerometer m/s^2, gyroscope rad/s.
+    jitter_deg, axis_jitter_deg : float
+        RMS placement error of each starting face, and RMS angle between each turn's true axis
+        and its nominal body axis (qureshi-axes), degrees (<= 45 each).
     units : {"counts", "m/s^2"}
         Raw units of the part (see :func:`imucal_cli.simulate.triad.random_imu`).
     gravity : float
@@ -269,8 +276,8 @@ def simulate_gyro_rotations(
     count : int, optional
         Number of turns of plan ``free`` (the N of ``free:N``; both may be given if equal).
     temperature : Ramp, optional
-        The part's temperature through the session: its biases follow it
-        (:mod:`imucal_cli.simulate.temperature`) and the reading is recorded.
+        The part's temperature through the session: its biases follow it and the reading is
+        recorded (:func:`~imucal_cli.simulate.temperature.ramp_part`).
     clock_scale : float, optional
         The part's clock runs this many device seconds per true second: device times and
         the host's arrival times are recorded (:mod:`imucal_cli.simulate.clock`).
@@ -278,24 +285,8 @@ def simulate_gyro_rotations(
     Returns
     -------
     session : imucal_cli.formats.session.Session
-        Raw accel and gyro (N, 3).  Segments in time order, alternating: a static segment
-        per still period, labelled ``"still before x turn 3"`` (``"still after x turn 18"``
-        for the last of an axis; ``"still before turn 3"`` for free:N), with ``up`` only on
-        the first still of each starting face (``[0, 0, 1]`` or ``[1, 0, 0]``, labelled
-        ``"still before z turn 1, +X up"``); and a rotation
-        segment per turn spanning its moving samples, labelled ``"turn 3 about x"`` with
-        ``axis`` = the nominal body axis (qureshi-axes), or ``"turn 3"`` without ``axis``
-        (free:N).  No segment has ``angle_deg``: the angle is unknown to the person; the
-        accelerometer measures it.
     truth : imucal_cli.formats.calibration.Calibration
-        ``accel`` and ``gyro``: ``matrix = inv(S)``, ``bias = b`` (fixture frame), as
-        :func:`imucal_cli.simulate.triad.truth_calibration`.  ``gyro.extra``: per turn, in order,
-        ``turn_segments`` (segment names), ``turn_labels``, ``turn_axis_names`` (qureshi-axes:
-        x/y/z), ``true_angle_deg``, ``true_axis`` (unit, body frame), ``true_rotvec`` (rad,
-        body frame: ``R_after = R_before Exp(rotvec)``), ``nominal_axis`` (or None),
-        ``axis_error_deg``, ``peak_rate_dps``, ``duration_s``; ``noise``.  ``accel.extra``:
-        per still, ``segments``, ``labels``, ``true_up`` (unit, fixture frame), ``labelled_up``
-        (or None); ``noise``, ``gravity``.
+        Both as the module notes say.
 
     Raises
     ------
@@ -307,63 +298,35 @@ def simulate_gyro_rotations(
         kind, n_free, seed, rate_hz, rotations_per_axis, peak_rate_dps, still_s,
         accel_noise, gyro_noise, jitter_deg, axis_jitter_deg, units, gravity,
     )  # fmt: skip
-    truth_ss, pose_ss, noise_ss = spawn(opt["seed"])
-    truth = random_imu(np.random.default_rng(truth_ss), units, accel_noise=opt["accel_noise"],
-                       gyro_noise=opt["gyro_noise"])  # fmt: skip
-    groups = (
-        [(_AXIS_NAMES[i], face, label) for i, face, label in _QURESHI_AXES]
-        if kind == "qureshi-axes"
-        else [(None, 2, "+Z")]
-    )
+    truth, pose_ss, noise_ss = draw_part(opt["seed"], units, opt["accel_noise"],
+                                         opt["gyro_noise"])  # fmt: skip
+    groups = _START_FACES[kind]
     starts, timed = _draw_turns(np.random.default_rng(pose_ss), groups, opt)
-    n_still = int(round(opt["still_s"] * opt["rate_hz"]))
-    n_move = max(2, int(round(MOVE_S * opt["rate_hz"])))
-    n_total = sum(n_still * (len(t) + 1) + sum(x[3] for x in t) for t in timed)
-    n_total += n_move * (len(groups) - 1)
-    check_samples(n_total, "lower the rate, the still time or the number of rotations")
-    tl, rec, stills = _turn_timeline(opt, groups, starts, timed, n_still, n_move)
+    n_total = _turn_samples(opt, timed)
+    tl, rec, stills = _turn_timeline(opt, groups, starts, timed)
     force, rate = tl.arrays()
     assert len(force) == n_total, (len(force), n_total)
-
-    design = (
-        "Qureshi & Golnaraghi Fig. 2: turns about x and y with +Z up, about z with +X up"
-        if kind == "qureshi-axes"
-        else "hand turns about random axes (uniform on the sphere)"
-    )
-    static = [s for s in tl.segments if s.kind == "static"]
-    accel_extra = {
-        "frame": "fixture (body) frame",
-        "gravity": opt["gravity"],
-        "mount_rotvec_deg": _floats(np.degrees(truth.mount_rotvec)),
-        "jitter_deg": opt["jitter_deg"],
-        "segments": [s.name for s in static],
-        "labels": [s.label for s in static],
-        "true_up": _floats(unit(np.array([u for u, _ in stills]))),
-        "labelled_up": [lab for _, lab in stills],
-    }
-    thermal = None
-    if temperature is not None:
-        truth = thermal_part(truth, opt["seed"])
-        thermal = temperatures(temperature, np.arange(n_total) / opt["rate_hz"], opt["seed"])
-        opt["temperature"] = temperature.options()
-    if clock_scale is not None:
-        opt["clock_scale"] = float(clock_scale)
+    truth, thermal = ramp_part(truth, temperature, np.arange(n_total) / opt["rate_hz"], opt)
     session, cal = truth.session_and_truth(
         {"accel": force, "gyro": rate}, tl.segments, noise_seed=noise_ss, options=opt,
         sensor=sensor_name(opt["seed"]), created=created, root={"jitter_deg": opt["jitter_deg"]},
-        extras={"accel": accel_extra, "gyro": {"design": design, **_turn_record(rec, opt)}},
+        extras={"accel": _still_record(tl, stills, opt, truth.mount_rotvec),
+                "gyro": {"design": _DESIGN[kind], **_turn_record(rec, opt)}},
         temperature=thermal,
     )  # fmt: skip
-    if clock_scale is not None:
-        from imucal_cli.simulate.clock import with_clock
-
-        session = with_clock(session, clock_scale, opt["seed"])
-        cal.gyro.extra["sample_clock_scale"] = float(clock_scale)
-    return session, cal
+    return clocked(session, cal, clock_scale, opt["seed"]), cal
 
 
-def _floats(a) -> list:
-    return np.asarray(a, dtype=float).tolist()
+_START_FACES = {  # per starting face: the axis turned about (None: any), nominal up, its label
+    "qureshi-axes": [(_AXIS_NAMES[i], face, label) for i, face, label in _QURESHI_AXES],
+    "free": [(None, 2, "+Z")],
+}
+
+_DESIGN = {
+    "qureshi-axes": "Qureshi & Golnaraghi Fig. 2: turns about x and y with +Z up, about z with "
+    "+X up",
+    "free": "hand turns about random axes (uniform on the sphere)",
+}
 
 
 def _gyro_options(
@@ -372,8 +335,7 @@ def _gyro_options(
 ) -> dict:  # fmt: skip
     """The options of :func:`simulate_gyro_rotations`, checked, as a JSON-ready dict."""
     seed = check_seed(seed)
-    if units not in UNITS:
-        raise InputError(f"units {units!r} are not supported: use counts or m/s^2")
+    check_units(units)
     rate_hz = check_positive("rate", rate_hz, "Hz")
     if kind == "qureshi-axes":
         r = rotations_per_axis
@@ -399,13 +361,19 @@ def _gyro_options(
         "gravity": check_positive("gravity", gravity, "m/s^2"),
         "move_s": MOVE_S,
     }
-    for name, key in (("jitter", "jitter_deg"), ("axis jitter", "axis_jitter_deg")):
-        if opt[key] > 45.0:
-            raise InputError(f"{name} must be at most 45 deg, got {opt[key]:g}")
-    n_still = int(round(opt["still_s"] * rate_hz))
-    if n_still < 10:
-        raise InputError(f"still {still_s:g} s at {rate_hz:g} Hz gives {n_still} samples: >= 10")
+    check_jitter(opt, ("jitter", "jitter_deg"), ("axis jitter", "axis_jitter_deg"))
+    still_samples(opt["still_s"], rate_hz)
     return opt
+
+
+def _turn_samples(opt: dict, timed: list) -> int:
+    """Samples of the session: per starting face a still before every turn and one after the
+    last, the turns, and the moves between the faces; refused beyond the largest session."""
+    n_still = samples(opt["still_s"], opt["rate_hz"])
+    n_total = sum(n_still * (len(t) + 1) + sum(x[3] for x in t) for t in timed)
+    n_total += move_samples(MOVE_S, opt["rate_hz"]) * (len(timed) - 1)
+    check_samples(n_total, "lower the rate, the still time or the number of rotations")
+    return n_total
 
 
 def _draw_turns(prng: np.random.Generator, groups: list, opt: dict) -> tuple[list, list]:
@@ -418,10 +386,7 @@ def _draw_turns(prng: np.random.Generator, groups: list, opt: dict) -> tuple[lis
     eye = np.eye(3)
     starts, timed = [], []
     for axis_name, face, _ in groups:
-        tilt = np.zeros(3)
-        tilt[:2] = prng.standard_normal(2) * np.radians(opt["jitter_deg"]) / np.sqrt(2.0)
-        heading = Rotation.from_rotvec([0.0, 0.0, prng.uniform(0.0, 2.0 * np.pi)])
-        att = Rotation.from_rotvec(tilt) * heading * up_to_vertical(eye[face])
+        att = place(prng, eye[face], opt["jitter_deg"])
         starts.append(att)
         if axis_name is not None:
             nominal = eye[_AXIS_NAMES.index(axis_name)]
@@ -446,19 +411,21 @@ def _draw_turns(prng: np.random.Generator, groups: list, opt: dict) -> tuple[lis
     return starts, timed
 
 
-def _turn_timeline(opt, groups, starts, timed, n_still, n_move):
+def _turn_timeline(opt, groups, starts, timed):
     """The motion: per starting face a move to it (after the first), then still, turn,
     still, ...; each segment is the registry plan's step (:func:`imucal_cli.plans.load_plan`).
     Returns the timeline, the per-turn record and (true up, labelled up) of each still."""
     steps = iter(load_plan(opt["plan"] if opt["count"] else f"qureshi-axes:"
                            f"{opt['rotations_per_axis']}").steps)  # fmt: skip
+    n_still = samples(opt["still_s"], opt["rate_hz"])
+    n_move = move_samples(MOVE_S, opt["rate_hz"])
     tl = Timeline(opt["rate_hz"], opt["gravity"], starts[0])
     stills: list[tuple[np.ndarray, list[float] | None]] = []
     rec = {k: [] for k in ("seg", "label", "axis_name", "angle", "axis", "nominal", "peak", "dur")}
 
     def still() -> None:
         seg = tl.segment("static", tl.hold(n_still), **next(steps).segment_attrs())
-        stills.append((tl.att.inv().apply(EZ), None if seg.up is None else _floats(seg.up)))
+        stills.append((tl.att.inv().apply(EZ), None if seg.up is None else floats(seg.up)))
 
     for g, ((axis_name, _, _), turns) in enumerate(zip(groups, timed, strict=True)):
         if g > 0:  # lay the unit on the next starting face (unsegmented move)
@@ -475,8 +442,23 @@ def _turn_timeline(opt, groups, starts, timed, n_still, n_move):
     return tl, rec, stills
 
 
+def _still_record(tl: Timeline, stills: list, opt: dict, mount_rotvec: np.ndarray) -> dict:
+    """The accel truth's per-still record (the module notes)."""
+    static = [s for s in tl.segments if s.kind == "static"]
+    return {
+        "frame": "fixture (body) frame",
+        "gravity": opt["gravity"],
+        "mount_rotvec_deg": floats(np.degrees(mount_rotvec)),
+        "jitter_deg": opt["jitter_deg"],
+        "segments": [s.name for s in static],
+        "labels": [s.label for s in static],
+        "true_up": floats(unit(np.array([u for u, _ in stills]))),
+        "labelled_up": [lab for _, lab in stills],
+    }
+
+
 def _turn_record(rec: dict, opt: dict) -> dict:
-    """The gyro truth's per-turn record (see :func:`simulate_gyro_rotations`)."""
+    """The gyro truth's per-turn record (the module notes)."""
     angles = np.array(rec["angle"])
     axes = np.array(rec["axis"])
     axis_err = [
@@ -488,13 +470,13 @@ def _turn_record(rec: dict, opt: dict) -> dict:
         "turn_segments": rec["seg"],
         "turn_labels": rec["label"],
         "turn_axis_names": rec["axis_name"],
-        "true_angle_deg": _floats(np.degrees(angles)),
-        "true_axis": _floats(axes),
-        "true_rotvec": _floats(angles[:, None] * axes),
+        "true_angle_deg": floats(np.degrees(angles)),
+        "true_axis": floats(axes),
+        "true_rotvec": floats(angles[:, None] * axes),
         "true_rotvec_unit": "rad, body (fixture) frame: R_after = R_before Exp(rotvec)",
-        "nominal_axis": [None if v is None else _floats(v) for v in rec["nominal"]],
+        "nominal_axis": [None if v is None else floats(v) for v in rec["nominal"]],
         "axis_error_deg": axis_err,
-        "peak_rate_dps": _floats(np.degrees(rec["peak"])),
-        "duration_s": _floats(rec["dur"]),
+        "peak_rate_dps": floats(np.degrees(rec["peak"])),
+        "duration_s": floats(rec["dur"]),
         "axis_jitter_deg": opt["axis_jitter_deg"],
     }

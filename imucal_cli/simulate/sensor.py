@@ -36,6 +36,7 @@ from scipy.spatial.transform import Rotation
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import Calibration, SensorCalibration
 from imucal_cli.formats.session import Segment, Session, utc_now_iso
+from imucal_cli.simulate.motion import unit
 
 __all__ = [
     "ACCEL_LSB_PER_G",
@@ -46,6 +47,9 @@ __all__ = [
     "UNITS",
     "ChannelGroup",
     "Imu",
+    "check_units",
+    "draw_part",
+    "floats",
     "random_imu",
     "spawn",
 ]
@@ -82,7 +86,8 @@ def spawn(seed: int) -> tuple[np.random.SeedSequence, ...]:
     return tuple(np.random.SeedSequence(int(seed)).spawn(3))
 
 
-def _floats(a) -> list:
+def floats(a) -> list:
+    """``a`` as a (nested) list of floats, for a JSON truth record."""
     return np.asarray(a, dtype=float).tolist()
 
 
@@ -194,7 +199,7 @@ class ChannelGroup:
         inverse = np.linalg.inv if self.S.shape == (3, 3) else np.linalg.pinv
         if self.tempco is not None:
             extra = {"temperature_ref": float(self.temperature_ref),
-                     "bias_tempco": _floats(self.tempco), **extra}  # fmt: skip
+                     "bias_tempco": floats(self.tempco), **extra}  # fmt: skip
         return SensorCalibration(
             solver="truth",
             units=self.si_unit,
@@ -208,20 +213,20 @@ class ChannelGroup:
         noise = None if self.noise_in is None else np.asarray(self.noise_in, float)
         out: dict[str, Any] = {"units_in": self.units}
         if noise is not None:
-            out["noise"] = float(noise[0]) if np.all(noise == noise[0]) else _floats(noise)
+            out["noise"] = float(noise[0]) if np.all(noise == noise[0]) else floats(noise)
             out["noise_unit"] = f"{self.input_unit} per axis per sample (white, input-referred)"
-        out["sensitivity"] = _floats(np.linalg.norm(self.S, axis=1))
+        out["sensitivity"] = floats(np.linalg.norm(self.S, axis=1))
         out["sensitivity_unit"] = f"{self.units} per {self.input_unit}"
         out["nominal_sensitivity"] = float(self.nominal)
-        out["scale_error"] = _floats(self.scale_error)
+        out["scale_error"] = floats(self.scale_error)
         if self.S.shape == (3, 3):
             out["misalignment_deg"] = misalignment_deg(self.S)
         for key, value in self.datasheet.items():
             if key == "bias_g":
-                out["bias_mg"] = _floats(1000.0 * np.asarray(value))
+                out["bias_mg"] = floats(1000.0 * np.asarray(value))
             else:
-                out[key] = _floats(value)
-        out["S"] = _floats(self.S)
+                out[key] = floats(value)
+        out["S"] = floats(self.S)
         return out
 
 
@@ -345,11 +350,6 @@ class Imu:
         return session, Calibration(**sections, extra=extra, created=created)
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
-    v = np.asarray(v, dtype=float)
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
-
-
 def tilted_axes(rng: np.random.Generator, max_deg: float) -> np.ndarray:
     """Three sensitivity axes, each leaning from its chip axis by up to ``max_deg``.
 
@@ -364,6 +364,29 @@ def tilted_axes(rng: np.random.Generator, max_deg: float) -> np.ndarray:
         lean = np.cos(phase[i]) * p + np.sin(phase[i]) * q
         rows.append(np.cos(tilt[i]) * eye[i] + np.sin(tilt[i]) * lean)
     return np.array(rows)
+
+
+def check_units(units: str) -> str:
+    """The raw ``units`` of a simulated part (a key of :data:`UNITS`), else a one-line error."""
+    if units not in UNITS:
+        raise InputError(f"units {units!r} are not supported: use counts or m/s^2")
+    return units
+
+
+def _manufacturing_errors(rng: np.random.Generator) -> dict[str, Any]:
+    """The part's errors in relative terms, drawn in this order whatever the units: accel
+    scale, axes, bias (g); gyro scale, axes, bias (deg/s); the chip's mounting rotation."""
+    out = {
+        "a_scale": rng.uniform(-ACCEL_SCALE_ERROR_MAX, ACCEL_SCALE_ERROR_MAX, 3),
+        "a_axes": tilted_axes(rng, AXIS_TILT_MAX_DEG),
+        "a_bias_g": rng.uniform(-ACCEL_BIAS_MAX_G, ACCEL_BIAS_MAX_G, 3),
+        "g_scale": rng.uniform(*GYRO_SCALE_ERROR_RANGE, 3) * rng.choice([-1.0, 1.0], 3),
+        "g_axes": tilted_axes(rng, AXIS_TILT_MAX_DEG),
+        "g_bias_dps": rng.uniform(-GYRO_BIAS_MAX_DPS, GYRO_BIAS_MAX_DPS, 3),
+    }
+    mount_axis = unit(rng.standard_normal(3))
+    out["mount_rotvec"] = mount_axis * np.radians(rng.uniform(0.0, MOUNT_MAX_DEG))
+    return out
 
 
 def random_imu(
@@ -400,38 +423,27 @@ def random_imu(
     Imu
         Groups ``accel`` (datasheet ``bias_g``) and ``gyro`` (datasheet ``bias_dps``).
     """
-    if units not in UNITS:
-        raise InputError(f"units {units!r} are not supported: use counts or m/s^2")
-    # Every draw happens, in this order, whatever the units.
-    a_scale = rng.uniform(-ACCEL_SCALE_ERROR_MAX, ACCEL_SCALE_ERROR_MAX, 3)
-    a_axes = tilted_axes(rng, AXIS_TILT_MAX_DEG)
-    a_bias_g = rng.uniform(-ACCEL_BIAS_MAX_G, ACCEL_BIAS_MAX_G, 3)
-    g_scale = rng.uniform(*GYRO_SCALE_ERROR_RANGE, 3) * rng.choice([-1.0, 1.0], 3)
-    g_axes = tilted_axes(rng, AXIS_TILT_MAX_DEG)
-    g_bias_dps = rng.uniform(-GYRO_BIAS_MAX_DPS, GYRO_BIAS_MAX_DPS, 3)
-    mount_axis = _unit(rng.standard_normal(3))
-    mount_angle = np.radians(rng.uniform(0.0, MOUNT_MAX_DEG))
-    mount_rotvec = mount_axis * mount_angle
-    chip_to_fixture_T = Rotation.from_rotvec(mount_rotvec).as_matrix().T
-
+    check_units(units)
+    e = _manufacturing_errors(rng)
+    chip_to_fixture_T = Rotation.from_rotvec(e["mount_rotvec"]).as_matrix().T
     a_counts = ACCEL_LSB_PER_G / G0  # counts per m/s^2
     g_counts = GYRO_LSB_PER_DPS * 180.0 / np.pi  # counts per rad/s
     if units == "counts":
         a_nom, g_nom, quantise = a_counts, g_counts, True
-        a_bias = a_bias_g * ACCEL_LSB_PER_G
-        g_bias = g_bias_dps * GYRO_LSB_PER_DPS
+        a_bias = e["a_bias_g"] * ACCEL_LSB_PER_G
+        g_bias = e["g_bias_dps"] * GYRO_LSB_PER_DPS
         a_units, g_units = "counts", "counts"
     else:
         a_nom, g_nom, quantise = 1.0, 1.0, False
-        a_bias = a_bias_g * G0
-        g_bias = np.radians(g_bias_dps)
+        a_bias = e["a_bias_g"] * G0
+        g_bias = np.radians(e["g_bias_dps"])
         a_units, g_units = "m/s^2", "rad/s"
 
     specs = (  # name, input unit, nominal, scale error, axes, bias, units, noise, per SI, sheet
-        ("accel", "m/s^2", a_nom, a_scale, a_axes, a_bias, a_units, accel_noise, a_counts,
-         {"bias_g": a_bias_g}),
-        ("gyro", "rad/s", g_nom, g_scale, g_axes, g_bias, g_units, gyro_noise, g_counts,
-         {"bias_dps": g_bias_dps}),
+        ("accel", "m/s^2", a_nom, e["a_scale"], e["a_axes"], a_bias, a_units, accel_noise,
+         a_counts, {"bias_g": e["a_bias_g"]}),
+        ("gyro", "rad/s", g_nom, e["g_scale"], e["g_axes"], g_bias, g_units, gyro_noise,
+         g_counts, {"bias_dps": e["g_bias_dps"]}),
     )  # fmt: skip
     groups = tuple(
         ChannelGroup(
@@ -450,7 +462,15 @@ def random_imu(
         )
         for name, input_unit, nom, scale, axes, bias, raw_units, noise, per_si, sheet in specs
     )
-    return Imu(
-        groups=groups,
-        mount_rotvec=mount_rotvec,
-    )
+    return Imu(groups=groups, mount_rotvec=e["mount_rotvec"])
+
+
+def draw_part(
+    seed: int, units: str, accel_noise: float, gyro_noise: float
+) -> tuple[Imu, np.random.SeedSequence, np.random.SeedSequence]:
+    """The part of a simulation and the seeds of the rest: :func:`random_imu` from the first
+    of the three generators of ``seed`` (:func:`spawn`), then the pose and noise seeds."""
+    truth_ss, pose_ss, noise_ss = spawn(seed)
+    imu = random_imu(np.random.default_rng(truth_ss), units, accel_noise=accel_noise,
+                     gyro_noise=gyro_noise)  # fmt: skip
+    return imu, pose_ss, noise_ss

@@ -30,21 +30,25 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.session import Session
 from imucal_cli.plans import Plan, Step
 from imucal_cli.simulate.motion import (
     EZ,
     Timeline,
+    check_jitter,
     check_positive,
     check_samples,
     check_seed,
     draw_mountings,
+    heading,
+    hold_samples,
+    move_samples,
+    place,
+    samples,
     unit,
-    up_to_vertical,
 )
-from imucal_cli.simulate.sensor import G0, UNITS, random_imu, spawn
+from imucal_cli.simulate.sensor import G0, check_units, draw_part, floats
 from imucal_cli.simulate.triad import sensor_name
 
 __all__ = ["PEAK_RATE_DPS", "TABLE_TURN_DEG", "simulate_steps"]
@@ -61,8 +65,7 @@ FREE_TURN_DEG = (45.0, 180.0)
 
 def _options(seed, rate_hz, hold_s, move_s, lead_s, units, accel_noise, gyro_noise, jitter_deg,
              gravity) -> dict:  # fmt: skip
-    if units not in UNITS:
-        raise InputError(f"units {units!r} are not supported: use counts or m/s^2")
+    check_units(units)
     opt = {
         "seed": check_seed(seed),
         "rate_hz": check_positive("rate", rate_hz, "Hz"),
@@ -75,14 +78,8 @@ def _options(seed, rate_hz, hold_s, move_s, lead_s, units, accel_noise, gyro_noi
         "jitter_deg": check_positive("jitter", jitter_deg, "deg", allow_zero=True),
         "gravity": check_positive("gravity", gravity, "m/s^2"),
     }
-    if opt["jitter_deg"] > 45.0:
-        raise InputError(f"jitter must be at most 45 deg, got {opt['jitter_deg']:g}")
-    n_hold = int(round(opt["hold_s"] * opt["rate_hz"]))
-    if n_hold < 10:
-        raise InputError(
-            f"hold {opt['hold_s']:g} s at {opt['rate_hz']:g} Hz gives {n_hold} samples per "
-            "pose; at least 10 are needed"
-        )
+    check_jitter(opt)
+    hold_samples(opt["hold_s"], opt["rate_hz"])
     return opt
 
 
@@ -91,8 +88,8 @@ class _Player:
 
     def __init__(self, opt: dict, prng: np.random.Generator) -> None:
         self.opt, self.prng = opt, prng
-        self.n_hold = int(round(opt["hold_s"] * opt["rate_hz"]))
-        self.n_move = max(2, int(round(opt["move_s"] * opt["rate_hz"])))
+        self.n_hold = samples(opt["hold_s"], opt["rate_hz"])
+        self.n_move = move_samples(opt["move_s"], opt["rate_hz"])
         self.mounts: list[Rotation] = [Rotation.identity()]
         self.mounting = 1
         self.face: np.ndarray | None = None  # nominal up the unit stands on
@@ -102,10 +99,7 @@ class _Player:
 
     def placement(self, up: np.ndarray) -> Rotation:
         """Fixture attitude on a labelled face: tilt * heading * up-to-vertical (draws 3)."""
-        tilt = np.zeros(3)
-        tilt[:2] = self.prng.standard_normal(2) * np.radians(self.opt["jitter_deg"]) / np.sqrt(2)
-        heading = Rotation.from_rotvec([0.0, 0.0, self.prng.uniform(0.0, 2.0 * np.pi)])
-        return Rotation.from_rotvec(tilt) * heading * up_to_vertical(unit(up))
+        return place(self.prng, unit(up), self.opt["jitter_deg"])
 
     def start(self, steps: tuple[Step, ...]) -> None:
         count = max((s.mounting or 1) for s in steps)
@@ -113,11 +107,11 @@ class _Player:
             self.mounts = draw_mountings(self.prng, count)
         first = next((s for s in steps if s.kind == "static" and s.up is not None), None)
         if first is None:
-            att = Rotation.from_rotvec([0.0, 0.0, self.prng.uniform(0.0, 2.0 * np.pi)])
+            att = heading(self.prng)
         else:
             att, self.face = self.placement(first.up), np.asarray(first.up, float)
         self.tl = Timeline(self.opt["rate_hz"], self.opt["gravity"], att)
-        self.tl.hold(int(round(self.opt["lead_s"] * self.opt["rate_hz"])))
+        self.tl.hold(samples(self.opt["lead_s"], self.opt["rate_hz"]))
 
     def remount(self, m: int) -> None:
         """Put the unit in mounting ``m`` of the fixture (an unsegmented move)."""
@@ -132,7 +126,7 @@ class _Player:
         ):
             tl.move(self.placement(step.up) * self.mounts[self.mounting - 1], self.n_move)
             self.face = np.asarray(step.up, float)
-        n = self.n_hold if not step.hold_s else int(round(step.hold_s * self.opt["rate_hz"]))
+        n = self.n_hold if not step.hold_s else samples(step.hold_s, self.opt["rate_hz"])
         tl.segment("static", tl.hold(n), **step.segment_attrs())
         self.true_up.append(tl.att.inv().apply(EZ))
 
@@ -210,14 +204,13 @@ def simulate_steps(
                    jitter_deg, gravity)  # fmt: skip
     opt["plan"] = plan.name
     n_est = sum(
-        int(round((s.hold_s or opt["hold_s"] if s.kind == "static" else 4.0) * opt["rate_hz"]))
-        + int(round(opt["move_s"] * opt["rate_hz"]))
+        samples(s.hold_s or opt["hold_s"] if s.kind == "static" else 4.0, opt["rate_hz"])
+        + samples(opt["move_s"], opt["rate_hz"])
         for s in plan.steps
     )
     check_samples(n_est, "lower the rate, the hold or the number of steps")
-    truth_ss, pose_ss, noise_ss = spawn(opt["seed"])
-    imu = random_imu(np.random.default_rng(truth_ss), units, accel_noise=opt["accel_noise"],
-                     gyro_noise=opt["gyro_noise"])  # fmt: skip
+    imu, pose_ss, noise_ss = draw_part(opt["seed"], units, opt["accel_noise"],
+                                       opt["gyro_noise"])  # fmt: skip
     player = _Player(opt, np.random.default_rng(pose_ss))
     player.start(plan.steps)
     for i, step in enumerate(plan.steps):
@@ -236,10 +229,6 @@ def simulate_steps(
     )  # fmt: skip
 
 
-def _floats(a) -> list:
-    return np.asarray(a, dtype=float).tolist()
-
-
 def _extras(player: _Player) -> dict:
     segs = player.tl.segments
     static = [s for s in segs if s.kind == "static"]
@@ -253,16 +242,16 @@ def _extras(player: _Player) -> dict:
             "jitter_deg": player.opt["jitter_deg"],
             "segments": [s.name for s in static],
             "labels": [s.label for s in static],
-            "true_up": _floats(unit(np.array(player.true_up).reshape(-1, 3))),
-            "labelled_up": [None if s.up is None else _floats(s.up) for s in static],
+            "true_up": floats(unit(np.array(player.true_up).reshape(-1, 3))),
+            "labelled_up": [None if s.up is None else floats(s.up) for s in static],
         },
         "gyro": {
             "frame": "sensor frame (= the fixture frame in mounting 1)",
             "turn_segments": [t["segment"] for t in turns],
-            "true_angle_deg": _floats(np.degrees(angles)),
-            "true_axis": _floats(axes),
-            "true_rotvec": _floats(angles[:, None] * axes),
+            "true_angle_deg": floats(np.degrees(angles)),
+            "true_axis": floats(axes),
+            "true_rotvec": floats(angles[:, None] * axes),
             "true_rotvec_unit": "rad, sensor frame: R_after = R_before Exp(rotvec)",
-            "mounting_rotvec_deg": [_floats(np.degrees(r.as_rotvec())) for r in player.mounts],
+            "mounting_rotvec_deg": [floats(np.degrees(r.as_rotvec())) for r in player.mounts],
         },
     }

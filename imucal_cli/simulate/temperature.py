@@ -26,8 +26,8 @@ from imucal_cli.errors import InputError
 
 from .sensor import ACCEL_LSB_PER_G, G0, GYRO_LSB_PER_DPS, Imu
 
-__all__ = ["ACCEL_MG_PER_C", "GYRO_DPS_PER_C", "T_REF", "Ramp", "parse_ramp", "temperatures",
-           "thermal_part"]  # fmt: skip
+__all__ = ["ACCEL_MG_PER_C", "GYRO_DPS_PER_C", "T_REF", "Ramp", "parse_ramp", "ramp_part",
+           "temperatures", "thermal_part"]  # fmt: skip
 
 T_REF = 25.0
 """Reference temperature of the simulated part's bias polynomials, degrees C."""
@@ -144,3 +144,15 @@ def temperatures(
     rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(SPAWN_KEY, 1)))
     true_c = ramp.true_c(time)
     return true_c, ramp.reading_c(true_c, rng)
+
+
+def ramp_part(
+    imu: Imu, ramp: Ramp | None, time: np.ndarray, opt: dict
+) -> tuple[Imu, tuple[np.ndarray, np.ndarray] | None]:  # fmt: skip
+    """A simulator's part through ``ramp`` (None: as it is, no temperature): the part with its
+    bias polynomials (:func:`thermal_part`) and the true and recorded temperature at ``time``
+    (:func:`temperatures`); the ramp goes into the simulator's options ``opt`` (``seed``)."""
+    if ramp is None:
+        return imu, None
+    opt["temperature"] = ramp.options()
+    return thermal_part(imu, opt["seed"]), temperatures(ramp, time, opt["seed"])

@@ -12,6 +12,18 @@ frame, SI input, raw output: ``raw = S @ (x + n) + b``, rounded and clipped to 1
 ``units="counts"``; the truth calibration ``matrix = inv(S)``, ``bias = b``); the motion is
 built with :class:`imucal_cli.simulate.motion.Timeline`.
 
+Timeline (:func:`simulate_stream`): ``lead_s`` still in the first pose (unlabelled), then for
+every pose a static segment of ``hold_s`` and, between poses, a rotation segment of about
+``move_s``: a slerp from one true orientation to the next with a smootherstep profile (zero rate
+and angular acceleration at both ends) while the unit is lifted by ``lift_m`` and put down
+again.
+
+Each pose's true orientation is the labelled one tilted by a random horizontal rotation vector
+(2 components iid normal, std ``jitter_deg / sqrt(2)``, so the RMS angle between the true and
+the labelled up is ``jitter_deg``) and turned to a uniform random heading about the vertical.
+A still accelerometer reads ``+gravity * up`` (specific force points away from the earth).  The
+gyro reads the body angular rate; the earth rate (7e-5 rad/s, buried in the noise) is left out.
+
 Randomness: three generators spawned from ``numpy.random.SeedSequence(seed)``: the sensor
 truth, the poses (random directions, headings, placement tilt) and the noise.  The truth is
 drawn in relative terms (scale errors, angles, bias in g and deg/s) and the noise in SI, so one
@@ -25,18 +37,23 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.session import Segment, Session, utc_now_iso
 from imucal_cli.plans import plan_poses
+from imucal_cli.simulate.clock import clocked
 from imucal_cli.simulate.motion import (
     EZ,
     Timeline,
+    check_jitter,
     check_positive,
     check_samples,
     check_seed,
+    hold_samples,
+    move_samples,
+    placed,
+    placement_tilts,
+    samples,
     unit,
-    up_to_vertical,
 )
 from imucal_cli.simulate.sensor import (  # noqa: F401 (the part's figures, re-exported)
     ACCEL_LSB_PER_G,
@@ -46,10 +63,13 @@ from imucal_cli.simulate.sensor import (  # noqa: F401 (the part's figures, re-e
     RAW_MIN,
     UNITS,
     Imu,
+    check_units,
+    draw_part,
+    floats,
     random_imu,
     spawn,
 )
-from imucal_cli.simulate.temperature import Ramp, temperatures, thermal_part
+from imucal_cli.simulate.temperature import Ramp, ramp_part
 
 __all__ = ["SimulatedStream", "random_imu", "sensor_name", "simulate", "simulate_stream",
            "stream_session", "truth_calibration"]  # fmt: skip
@@ -106,8 +126,7 @@ class SimulatedStream:
 def _stream_options(plan, seed, rate_hz, hold_s, accel_noise, jitter_deg, units, gravity,
                     gyro_noise, move_s, lead_s, lift_m, tumble_s) -> dict:  # fmt: skip
     """The options of :func:`simulate_stream`, checked, as a JSON-ready dict."""
-    if units not in UNITS:
-        raise InputError(f"units {units!r} are not supported: use counts or m/s^2")
+    check_units(units)
     opt = {
         "plan": plan.strip().lower(),
         "seed": check_seed(seed),
@@ -123,9 +142,23 @@ def _stream_options(plan, seed, rate_hz, hold_s, accel_noise, jitter_deg, units,
         "lift_m": check_positive("lift", lift_m, "m", allow_zero=True),
         "tumble_s": check_positive("tumble", tumble_s, "s", allow_zero=True),
     }
-    if opt["jitter_deg"] > 45.0:
-        raise InputError(f"jitter must be at most 45 deg, got {opt['jitter_deg']:g}")
+    check_jitter(opt)
     return opt
+
+
+def _stream_samples(opt: dict, k_poses: int) -> int:
+    """Samples of the session: lead, ``k_poses`` holds (at least 10 samples each), the moves
+    and tumbles between them; refused beyond :data:`~imucal_cli.simulate.motion.MAX_SAMPLES`."""
+    rate_hz = opt["rate_hz"]
+    n_hold = hold_samples(opt["hold_s"], rate_hz)
+    n_way, n_step = _tumble_steps(opt)
+    n_total = (
+        samples(opt["lead_s"], rate_hz)
+        + k_poses * n_hold
+        + (k_poses - 1) * (move_samples(opt["move_s"], rate_hz) + n_way * n_step)
+    )
+    check_samples(n_total, "lower the rate, the hold or the number of poses")
+    return n_total
 
 
 def _orientations(
@@ -141,12 +174,9 @@ def _orientations(
     else:
         nominal_up = np.array(nominal)
     heading = rng.uniform(0.0, 2.0 * np.pi, k_poses)
-    tilt_vec = np.zeros((k_poses, 3))
-    tilt_vec[:, :2] = rng.standard_normal((k_poses, 2)) * np.radians(jitter_deg) / np.sqrt(2.0)
+    tilt_vec = placement_tilts(rng, jitter_deg, k_poses)
     orient = [  # body -> world
-        Rotation.from_rotvec(tilt_vec[k])
-        * Rotation.from_rotvec([0.0, 0.0, heading[k]])
-        * up_to_vertical(nominal_up[k])
+        placed(nominal_up[k], Rotation.from_rotvec([0.0, 0.0, heading[k]]), tilt_vec[k])
         for k in range(k_poses)
     ]
     true_up = unit(np.array([r.inv().apply(EZ) for r in orient]))
@@ -169,12 +199,12 @@ def _pose_timeline(opt: dict, poses: list, nominal_up, orient, true_up) -> Timel
     """Lead, then per pose a labelled hold and a lifted move to the next pose (through random
     attitudes first when ``tumble_s`` > 0: the motion then sweeps the sphere)."""
     rate_hz, g = opt["rate_hz"], opt["gravity"]
-    n_hold = int(round(opt["hold_s"] * rate_hz))
-    n_move = max(2, int(round(opt["move_s"] * rate_hz)))
+    n_hold = samples(opt["hold_s"], rate_hz)
+    n_move = move_samples(opt["move_s"], rate_hz)
     n_way, n_step = _tumble_steps(opt)
     tumble_rng = np.random.default_rng(np.random.SeedSequence(opt["seed"]).spawn(5)[4])
     tl = Timeline(rate_hz, g, orient[0])
-    tl.hold(int(round(opt["lead_s"] * rate_hz)), g * true_up[0])
+    tl.hold(samples(opt["lead_s"], rate_hz), g * true_up[0])
     for k, (label, up) in enumerate(poses):
         span = tl.hold(n_hold, g * true_up[k])
         tl.segment("static", span, label, up=None if up is None else nominal_up[k].copy())
@@ -188,34 +218,14 @@ def _pose_timeline(opt: dict, poses: list, nominal_up, orient, true_up) -> Timel
 
 
 def simulate_stream(
-    plan: str = "qureshi18",
-    seed: int = 0,
-    rate_hz: float = 100.0,
-    hold_s: float = 2.0,
-    accel_noise: float = 0.01,
-    jitter_deg: float = 2.0,
-    units: str = "counts",
-    gravity: float = G0,
-    gyro_noise: float = 0.005,
-    move_s: float = 1.5,
-    lead_s: float = 1.0,
-    lift_m: float = 0.03,
-    tumble_s: float = 0.0,
-    temperature: Ramp | None = None,
-) -> SimulatedStream:
+    plan: str = "qureshi18", seed: int = 0, rate_hz: float = 100.0, hold_s: float = 2.0,
+    accel_noise: float = 0.01, jitter_deg: float = 2.0, units: str = "counts",
+    gravity: float = G0, gyro_noise: float = 0.005, move_s: float = 1.5, lead_s: float = 1.0,
+    lift_m: float = 0.03, tumble_s: float = 0.0, temperature: Ramp | None = None,
+) -> SimulatedStream:  # fmt: skip
     """Generate the raw stream of a calibration session and its truth, as arrays.
 
-    Timeline: ``lead_s`` still in the first pose (unlabelled), then for every pose a static
-    segment of ``hold_s`` and, between poses, a rotation segment of about ``move_s``: a slerp
-    from one true orientation to the next with a smootherstep profile (zero rate and angular
-    acceleration at both ends) while the unit is lifted by ``lift_m`` and put down again.
-
-    Each pose's true orientation is the labelled one tilted by a random horizontal rotation
-    vector (2 components iid normal, std ``jitter_deg / sqrt(2)``, so the RMS angle between the
-    true and the labelled up is ``jitter_deg``) and turned to a uniform random heading about
-    the vertical.  A still accelerometer reads ``+gravity * up`` (specific force points away
-    from the earth).  The gyro reads the body angular rate; the earth rate (7e-5 rad/s,
-    buried in the noise) is left out.
+    The motion is the module's timeline: a lead, a hold per pose, a lifted move between poses.
 
     Parameters
     ----------
@@ -223,33 +233,25 @@ def simulate_stream(
         ``six``, ``qureshi18`` or ``random:N`` (see :func:`plan_poses`).
     seed : int
         Non-negative seed; the same seed and options give the same arrays bit for bit.
-    rate_hz : float
-        Sample rate, Hz.
-    hold_s : float
-        Hold per pose, s; must give at least 10 samples.
-    accel_noise : float
-        Accelerometer white noise per axis per sample, m/s^2.
+    rate_hz, hold_s : float
+        Sample rate, Hz; hold per pose, s (at least 10 samples).
+    accel_noise, gyro_noise : float
+        White noise per axis per sample: accelerometer m/s^2, gyroscope rad/s.
     jitter_deg : float
         RMS placement error of the up direction, degrees.
     units : {"counts", "m/s^2"}
         Raw units of the simulated part (see :func:`random_imu`).
     gravity : float
         Local gravity, m/s^2.
-    gyro_noise : float
-        Gyroscope white noise per axis per sample, rad/s.
-    move_s : float
-        Duration of each move between poses, s.
-    lead_s : float
-        Still time before the first hold, s.
-    lift_m : float
-        Height the unit is lifted during each move, m (vertical linear acceleration).
+    move_s, lead_s, lift_m : float
+        Duration of each move between poses, s; still time before the first hold, s; height
+        the unit is lifted during each move, m (a vertical linear acceleration).
     tumble_s : float
         Before each move, the unit tumbles this long through random attitudes (one per
         second, drawn from a fifth generator of the seed), s; 0: none.
     temperature : Ramp, optional
-        The part's temperature through the session
-        (:mod:`imucal_cli.simulate.temperature`): the part's biases then follow it
-        (:func:`~imucal_cli.simulate.temperature.thermal_part`) and the reading is recorded.
+        The part's temperature through the session: its biases follow it and the reading is
+        recorded (:func:`~imucal_cli.simulate.temperature.ramp_part`).
 
     Returns
     -------
@@ -263,25 +265,9 @@ def simulate_stream(
     poses = plan_poses(plan)
     opt = _stream_options(plan, seed, rate_hz, hold_s, accel_noise, jitter_deg, units, gravity,
                           gyro_noise, move_s, lead_s, lift_m, tumble_s)  # fmt: skip
-    rate_hz = opt["rate_hz"]
-    n_hold = int(round(opt["hold_s"] * rate_hz))
-    if n_hold < 10:
-        raise InputError(
-            f"hold {opt['hold_s']:g} s at {rate_hz:g} Hz gives {n_hold} samples per pose; "
-            "at least 10 are needed"
-        )
-    k_poses = len(poses)
-    n_way, n_step = _tumble_steps(opt)
-    n_total = (
-        int(round(opt["lead_s"] * rate_hz))
-        + k_poses * n_hold
-        + (k_poses - 1) * (max(2, int(round(opt["move_s"] * rate_hz))) + n_way * n_step)
-    )
-    check_samples(n_total, "lower the rate, the hold or the number of poses")
-
-    truth_ss, pose_ss, noise_ss = spawn(opt["seed"])
-    truth = random_imu(np.random.default_rng(truth_ss), units, accel_noise=opt["accel_noise"],
-                       gyro_noise=opt["gyro_noise"])  # fmt: skip
+    n_total = _stream_samples(opt, len(poses))
+    truth, pose_ss, noise_ss = draw_part(opt["seed"], units, opt["accel_noise"],
+                                         opt["gyro_noise"])  # fmt: skip
     nominal = [up for _, up in poses]
     nominal_up, orient, true_up, tilt_vec = _orientations(
         np.random.default_rng(pose_ss), nominal, opt["jitter_deg"]
@@ -289,43 +275,32 @@ def simulate_stream(
     tl = _pose_timeline(opt, poses, nominal_up, orient, true_up)
     force, rate = tl.arrays()
     assert len(force) == n_total
-    rotvecs = np.zeros((max(k_poses - 1, 0), 3))
-    for k in range(k_poses - 1):
-        rotvecs[k] = (orient[k].inv() * orient[k + 1]).as_rotvec()
-    time = np.arange(n_total) / rate_hz
-    true_c = reading_c = None
-    if temperature is not None:
-        truth = thermal_part(truth, opt["seed"])
-        true_c, reading_c = temperatures(temperature, time, opt["seed"])
-        opt["temperature"] = temperature.options()
+    time = np.arange(n_total) / opt["rate_hz"]
+    truth, thermal = ramp_part(truth, temperature, time, opt)
+    true_c, reading_c = (None, None) if thermal is None else thermal
     raw = truth.sample({"accel": force, "gyro": rate}, np.random.default_rng(noise_ss),
                        temperature=true_c)  # fmt: skip
     return SimulatedStream(
-        time=time,
-        accel=raw["accel"],
-        gyro=raw["gyro"],
-        specific_force=force,
-        rate=rate,
-        segments=tl.segments,
-        true_up=true_up,
+        time=time, accel=raw["accel"], gyro=raw["gyro"], specific_force=force, rate=rate,
+        segments=tl.segments, true_up=true_up,
         labelled_up=[None if u is None else np.asarray(u, float).copy() for u in nominal],
-        tilt_deg=np.degrees(np.linalg.norm(tilt_vec, axis=1)),
-        rotvec=rotvecs,
-        truth=truth,
-        options=opt,
-        attitudes=tl.attitudes(),
-        temperature=reading_c,
+        tilt_deg=np.degrees(np.linalg.norm(tilt_vec, axis=1)), rotvec=_move_rotvecs(orient),
+        truth=truth, options=opt, attitudes=tl.attitudes(), temperature=reading_c,
         true_temperature=true_c,
-    )
+    )  # fmt: skip
+
+
+def _move_rotvecs(orient: list[Rotation]) -> np.ndarray:
+    """True rotation of each move between the poses (K-1, 3), body frame rotation vectors."""
+    rotvecs = np.zeros((max(len(orient) - 1, 0), 3))
+    for k in range(len(orient) - 1):
+        rotvecs[k] = (orient[k].inv() * orient[k + 1]).as_rotvec()
+    return rotvecs
 
 
 # --------------------------------------------------------------------------------------------
 # Session and truth objects
 # --------------------------------------------------------------------------------------------
-
-
-def _floats(a) -> list:
-    return np.asarray(a, dtype=float).tolist()
 
 
 def sensor_name(seed: int) -> str:
@@ -348,17 +323,17 @@ def truth_calibration(stream: SimulatedStream, created: str | None = None) -> Ca
     sections = t.truth_sections({
         "accel": {
             "gravity": float(opt["gravity"]),
-            "mount_rotvec_deg": _floats(np.degrees(t.mount_rotvec)),
+            "mount_rotvec_deg": floats(np.degrees(t.mount_rotvec)),
             "jitter_deg": float(opt["jitter_deg"]),
             "segments": [s.name for s in static],
             "labels": [s.label for s in static],
-            "true_up": _floats(stream.true_up),
-            "labelled_up": [None if u is None else _floats(u) for u in stream.labelled_up],
-            "tilt_deg": _floats(stream.tilt_deg),
+            "true_up": floats(stream.true_up),
+            "labelled_up": [None if u is None else floats(u) for u in stream.labelled_up],
+            "tilt_deg": floats(stream.tilt_deg),
         },
         "gyro": {
             "segments": [s.name for s in moves],
-            "true_rotvec": _floats(stream.rotvec),
+            "true_rotvec": floats(stream.rotvec),
             "true_rotvec_unit": "rad, body (fixture) frame",
         },
     })  # fmt: skip
@@ -397,15 +372,8 @@ def simulate(
     """
     stream = simulate_stream(plan=plan, seed=seed, **options)
     created = created or utc_now_iso()
-    session = stream_session(stream, created)
     truth = truth_calibration(stream, created)
-    if clock_scale is not None:
-        from imucal_cli.simulate.clock import with_clock
-
-        session = with_clock(session, clock_scale, seed)
-        truth.gyro.extra["sample_clock_scale"] = float(clock_scale)
-        truth.extra["simulator"]["clock_scale"] = float(clock_scale)
-    return session, truth
+    return clocked(stream_session(stream, created), truth, clock_scale, seed), truth
 
 
 def stream_session(stream: SimulatedStream, created: str) -> Session:

@@ -562,62 +562,60 @@ def refine(
         ``method="nonlinear"``, with ``cov`` of ``(b, vec(T))``.
     """
     if fixture_tolerance is None:
-        again = dict(
-            sigma=sigma,
-            scale_reference=scale_reference,
-            zero_motion=zero_motion,
-            row_owner=row_owner,
-            max_iterations=max_iterations,
-        )
-        first = refine(Z, constraints, initial, fixture_tolerance=0.0, **again)
-        tol = estimate_fixture_tolerance(Z, constraints, first, sigma, row_owner)
-        result = refine(Z, constraints, first, fixture_tolerance=tol, **again)
-        result.notes.append(f"fixture tolerance estimated from the data: {np.degrees(tol):.3f} deg")
-        return result
+        return _refine_with_estimated_tolerance(
+            Z, constraints, initial, sigma=sigma, scale_reference=scale_reference,
+            zero_motion=zero_motion, row_owner=row_owner, max_iterations=max_iterations,
+        )  # fmt: skip
     prob = _Refinement(Z, constraints, sigma, scale_reference, zero_motion, row_owner,
                        fixture_tolerance)  # fmt: skip
-    Z, n = prob.Z, prob.n
-    x0 = np.concatenate([initial.b, initial.T.ravel()])
-    # Scale the parameters to O(1) for the solver: biases by the raw spread, T by its size.
-    x_scale = np.concatenate(
-        [np.full(n, np.std(Z) + 1e-12), np.full(3 * n, np.abs(initial.T).max())]
-    )
-    sol = least_squares(
-        prob.residuals,
-        x0,
-        x_scale=x_scale,
-        xtol=1e-12,
-        ftol=1e-12,
-        gtol=1e-12,
-        max_nfev=max_iterations,
-    )
+    sol = _solve(prob, initial, max_iterations)  # IV-C: the weighted constraint errors
     cov, noise_scale = _sandwich_covariance(sol.jac, sol.fun, prob.noise_jacobian(sol.x),
                                             sigma is None)  # fmt: skip
-    b, T = _unpack(sol.x, n)
+    b, T, S, cov = _handed(sol.x, prob.n, cov)
+    F = (prob.Z - b) @ T.T  # eq. (13): the motions the refined calibration sees
+    return FactorizationResult(
+        S=S, b=b, T=T, F=F, configuration=initial.configuration, case=initial.case,
+        constraint_rms=_constraint_rms(F, constraints), singular_values=initial.singular_values,
+        method="nonlinear", iterations=int(sol.nfev), converged=sol.status > 0,
+        message=str(sol.message), cov=cov, noise_scale=float(noise_scale),
+        notes=list(initial.notes), fixture_tolerance=float(fixture_tolerance),
+    )  # fmt: skip
+
+
+def _refine_with_estimated_tolerance(Z, constraints, initial, **options) -> FactorizationResult:
+    """:func:`refine` with ``fixture_tolerance=None``: refine trusting the fixture, estimate its
+    tolerance from that fit's cross-constraint errors (:func:`estimate_fixture_tolerance`),
+    and refine again from there with it."""
+    first = refine(Z, constraints, initial, fixture_tolerance=0.0, **options)
+    tol = estimate_fixture_tolerance(Z, constraints, first, options["sigma"],
+                                     options["row_owner"])  # fmt: skip
+    result = refine(Z, constraints, first, fixture_tolerance=tol, **options)
+    result.notes.append(f"fixture tolerance estimated from the data: {np.degrees(tol):.3f} deg")
+    return result
+
+
+def _solve(prob: _Refinement, initial: FactorizationResult, max_iterations: int):
+    """Levenberg-Marquardt on ``prob``'s residuals from the linear solution ``initial``, the
+    parameters ``(b, vec(T))`` scaled to O(1): biases by the raw spread, T by its size."""
+    n = prob.n
+    x0 = np.concatenate([initial.b, initial.T.ravel()])
+    x_scale = np.concatenate(
+        [np.full(n, np.std(prob.Z) + 1e-12), np.full(3 * n, np.abs(initial.T).max())]
+    )
+    return least_squares(prob.residuals, x0, x_scale=x_scale, xtol=1e-12, ftol=1e-12,
+                         gtol=1e-12, max_nfev=max_iterations)  # fmt: skip
+
+
+def _handed(x: np.ndarray, n: int, cov: np.ndarray):
+    """``b``, ``T``, ``S = pinv(T)^T`` and ``cov`` of the refined parameters ``x``, with the
+    channels made right-handed (the row of T flipped, and its covariance)."""
+    b, T = _unpack(x, n)
     S = np.linalg.pinv(T).T
     if np.linalg.det(T[:, :3]) < 0:  # right-handed channels; flip the cov of the flipped row
         flip = np.r_[np.ones(n + 2 * n), -np.ones(n)]
         cov = cov * np.outer(flip, flip)
     T, S, _ = _right_handed(T, S, np.zeros((0, 3)))
-    F = (Z - b) @ T.T
-    return FactorizationResult(
-        S=S,
-        b=b,
-        T=T,
-        F=F,
-        configuration=initial.configuration,
-        case=initial.case,
-        constraint_rms=_constraint_rms(F, constraints),
-        singular_values=initial.singular_values,
-        method="nonlinear",
-        iterations=int(sol.nfev),
-        converged=sol.status > 0,
-        message=str(sol.message),
-        cov=cov,
-        noise_scale=float(noise_scale),
-        notes=list(initial.notes),
-        fixture_tolerance=float(fixture_tolerance),
-    )
+    return b, T, S, cov
 
 
 def _sandwich_covariance(J: np.ndarray, r: np.ndarray, C: np.ndarray, noise_unknown: bool):

@@ -304,16 +304,28 @@ def fit_known(
     SolverError
         No finite solution.
     """
-    if x0 is None:
+    if x0 is None:  # initialisation: the known turns' closed form at the still bias
         x0 = np.r_[b0, closed_form(known, b0).ravel()]
     x = np.r_[x0[:12], np.zeros(9)] if g_sensitivity else np.asarray(x0[:12], float)
     prob = _Stacked(known, still, gyro_sigma, rot, g_sensitivity)
-    x, it1 = _gauss_newton(prob, x, max_iterations)
+    x, it1 = _gauss_newton(prob, x, max_iterations)  # solve: the whitened e_k and still rows
     x, it2 = _gauss_newton(prob, x, max_iterations)  # the noise model at the solution
     if not np.all(np.isfinite(x)):
         raise SolverError("the known-angle gyro fit did not converge")
     prob.freeze(x)
     f, J = prob.f_and_J(x)
+    _check_determined(J, g_sensitivity)
+    cov, noise_scale = _covariance(f, J, prob.kp.K, prob.n_params, rot is None)
+    b, M, G = prob.kp.split(x)
+    return KnownResult(
+        b=b.copy(), M=M.copy(), G=G.copy() if g_sensitivity else None, cov=cov,
+        chi2=float(f @ f), dof=max(len(f) - prob.n_params, 1), noise_scale=float(noise_scale),
+        iterations=it1 + it2, **_turn_errors(prob.kp, known, x, f),
+    )  # fmt: skip
+
+
+def _check_determined(J: np.ndarray, g_sensitivity: bool) -> None:
+    """Refuse a design whose whitened Jacobian leaves a combination of parameters free."""
     sv = np.linalg.svd(J, compute_uv=False)
     if sv[-1] < UNDETERMINED * sv[0]:
         what = "the g-sensitivity (hold opposite faces up) or " if g_sensitivity else ""
@@ -321,14 +333,15 @@ def fit_known(
             f"the turns leave {what}the gyro's matrix undetermined: turn the unit by a known "
             "angle about three different axes, or 10 or more times between still periods"
         )
-    n = prob.n_params
-    dof = max(len(f) - n, 1)
-    chi2 = float(f @ f)
-    # The excess of each group of rows over its noise scales that group only: still periods
-    # that disagree (a drifting bias) say nothing about the known turns' axes.
-    kp = prob.kp
-    groups = [slice(0, 3 * kp.K), slice(3 * kp.K, len(f))]
-    free = [3 * kp.K - (9 if rot is None else 0), len(f) - 3 * kp.K - (n - 9)]
+
+
+def _covariance(f: np.ndarray, J: np.ndarray, K: int, n: int, known_only: bool):
+    """Covariance of the parameters and the largest noise scale.  The excess of each group of
+    rows (the K known turns' 3 K; the still periods and gravity-referenced turns) over its
+    noise scales that group only: still periods that disagree (a drifting bias) say nothing
+    about the known turns' axes."""
+    groups = [slice(0, 3 * K), slice(3 * K, len(f))]
+    free = [3 * K - (9 if known_only else 0), len(f) - 3 * K - (n - 9)]
     row_scale = np.ones(len(f))
     scales = []
     for sl, d in zip(groups, free, strict=True):
@@ -337,18 +350,19 @@ def fit_known(
         row_scale[sl] = s_
         scales.append(s_)
     Jw = J / np.sqrt(row_scale)[:, None]
-    cov = np.linalg.inv(Jw.T @ Jw)
-    noise_scale = max(scales)
-    kp = prob.kp
+    return np.linalg.inv(Jw.T @ Jw), max(scales)
+
+
+def _turn_errors(kp: KnownProblem, known: KnownTurns, x: np.ndarray, f: np.ndarray) -> dict:
+    """Diagnostics of each known turn: the integrated angle about (and axis off) the known
+    axis, and its squared whitened residual (3 dof)."""
     integ = kp.integrated(x)
     along = np.sum(integ * known.axis, axis=1)
     cosang = np.clip(along / np.linalg.norm(integ, axis=1), -1, 1)
     fk = f[: 3 * kp.K].reshape(kp.K, 3)
-    b, M, G = kp.split(x)
-    return KnownResult(
-        b=b.copy(), M=M.copy(), G=G.copy() if g_sensitivity else None, cov=cov, chi2=chi2,
-        dof=dof, noise_scale=float(noise_scale), iterations=it1 + it2,
-        angle_error_deg=np.degrees(along - known.angle),
-        axis_error_deg=np.degrees(np.arccos(np.abs(cosang))),
-        measured_angle_deg=np.degrees(along), known_chi2=np.sum(fk**2, axis=1),
-    )  # fmt: skip
+    return {
+        "angle_error_deg": np.degrees(along - known.angle),
+        "axis_error_deg": np.degrees(np.arccos(np.abs(cosang))),
+        "measured_angle_deg": np.degrees(along),
+        "known_chi2": np.sum(fk**2, axis=1),
+    }

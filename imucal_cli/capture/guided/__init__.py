@@ -103,38 +103,11 @@ def run_guided(
         Where to talk.  A terminal gets a live display; anything else plain lines.
     keys : KeySource
         Commands: ``r`` redo, ``s`` skip, ``q`` finish, Enter continue, a step number or label.
-    hold_s : float
-        Length of each static hold, s; a step's own ``hold_s`` (the ``still:MINUTES`` plan)
-        takes precedence.
-    min_separation_deg : float
-        A pose closer than this to one already taken is refused (unless the plan itself asks
-        for that direction again).
-    nominal_bias, nominal_scale : optional
-        How a raw accel mean becomes a gravity direction (see :func:`estimate_direction`).
-    refresh_hz : float
-        Live display refresh rate (terminal only).
-    match_tolerance_deg : float
-        A hold is matched to the nearest pending static step whose ``up`` is within this angle.
-    accel_units, gyro_units : str, optional
-        Raw units; default the recorder's.
-    gyro_scale : float, optional
-        Raw gyro units per rad/s, to show measured turn angles for ``counts``/``V``.
-    detector : StillnessDetector, optional
-        Default ``StillnessDetector()`` (0.25 s windows, false alarm 1e-4 per window).
-    warn_after_s : float
-        A hold interrupted by motion after this long is reported ("moved during the hold");
-        shorter still moments are handling.
-    pre_still_s, settle_s : float
-        A turn needs the unit still this long before it, and counts as ended when the unit is
-        still again this long.
-    axis_tolerance_deg : float
-        Warn when a turn's measured axis is further than this from the plan's.
-    tick_s : float
-        Passed to ``recorder.blocks``.
-    mag_goal : float
-        With a magnetometer in the stream: the fraction of the field directions (100 equal
-        areas, :mod:`.magnetic`) it must have seen; after the plan's last step the capture goes
-        on, showing where to point the unit, until it has (or ``q``).
+    hold_s, min_separation_deg, nominal_bias, nominal_scale, refresh_hz, match_tolerance_deg,
+    accel_units, gyro_units, gyro_scale, detector, warn_after_s, pre_still_s, settle_s,
+    axis_tolerance_deg, tick_s, mag_goal
+        The options of the capture (:class:`GuidedOptions`); ``accel_units`` and
+        ``gyro_units`` default to the recorder's.
     done_before : list, optional
         Continuing a capture: the session's segments, ``(kind, label, mean raw accel or
         None)`` in time order; the steps they fulfil are done (see :meth:`GuidedState.resume`).

@@ -28,7 +28,44 @@ from .words import fmt_vec, instruction
 
 @dataclass(frozen=True)
 class GuidedOptions:
-    """The options of a guided capture (see :func:`~imucal_cli.capture.guided.run_guided`)."""
+    """The options of a guided capture (:func:`~imucal_cli.capture.guided.run_guided`).
+
+    Attributes
+    ----------
+    hold_s : float
+        Length of each static hold, s; a step's own ``hold_s`` (the ``still:MINUTES`` plan)
+        takes precedence.
+    min_separation_deg : float
+        A pose closer than this to one already taken is refused (unless the plan itself asks
+        for that direction again).
+    nominal_bias, nominal_scale : optional
+        How a raw accel mean becomes a gravity direction
+        (:func:`~imucal_cli.capture.guided.direction.estimate_direction`).
+    refresh_hz : float
+        Live display refresh rate (terminal only).
+    match_tolerance_deg : float
+        A hold is matched to the nearest pending static step whose ``up`` is within this angle.
+    accel_units, gyro_units : str, optional
+        Raw units.
+    gyro_scale : float, optional
+        Raw gyro units per rad/s, to show measured turn angles for ``counts``/``V``.
+    detector : StillnessDetector, optional
+        Default ``StillnessDetector()`` (0.25 s windows, false alarm 1e-4 per window).
+    warn_after_s : float
+        A hold interrupted by motion after this long is reported ("moved during the hold");
+        shorter still moments are handling.
+    pre_still_s, settle_s : float
+        A turn needs the unit still this long before it, and counts as ended when the unit is
+        still again this long.
+    axis_tolerance_deg : float
+        Warn when a turn's measured axis is further than this from the plan's.
+    tick_s : float
+        Passed to ``recorder.blocks``.
+    mag_goal : float
+        With a magnetometer in the stream: the fraction of the field directions (100 equal
+        areas, :mod:`.magnetic`) it must have seen; after the plan's last step the capture goes
+        on, showing where to point the unit, until it has (or ``q``).
+    """
 
     hold_s: float = 2.0
     min_separation_deg: float = 15.0

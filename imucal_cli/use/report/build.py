@@ -22,6 +22,7 @@ from .fields import (
     as_text,
     as_vector,
     ratio,
+    read_fields,
     read_misalignment,
     read_parameters,
     read_sensitivity,
@@ -367,14 +368,8 @@ def _fit(extra: dict[str, Any]) -> dict[str, Any] | None:
 def _coverage(raw: Any) -> dict[str, Any] | None:
     if not isinstance(raw, dict):
         return None
-    return {
-        "fraction": as_number(raw.get("fraction")),
-        "largest_gap_deg": as_number(raw.get("largest_gap_deg")),
-        "n_poses": as_int(raw.get("n_poses")),
-        "n_distinct": as_int(raw.get("n_distinct")),
-        "cap_deg": as_number(raw.get("cap_deg")),
-        "weakest_direction": as_vector(raw.get("weakest_direction")),
-    }
+    return read_fields(raw, fraction=as_number, largest_gap_deg=as_number, n_poses=as_int,
+                       n_distinct=as_int, cap_deg=as_number, weakest_direction=as_vector)
 
 
 def _poses(raw: Any, mg_per_unit: float | None) -> list[dict[str, Any]]:

@@ -11,6 +11,11 @@ import math
 from typing import Any
 
 
+def read_fields(raw: dict, **readers) -> dict[str, Any]:
+    """``{key: reader(raw.get(key))}`` for each ``key=reader`` given, in that order."""
+    return {key: read(raw.get(key)) for key, read in readers.items()}
+
+
 def as_number(value: Any) -> float | None:
     """A finite number, else ``None`` (NaN marks "not determined" in solver output)."""
     if isinstance(value, bool) or not isinstance(value, int | float):

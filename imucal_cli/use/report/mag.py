@@ -8,7 +8,7 @@ from typing import Any
 
 from imucal_cli.formats.calibration import SensorCalibration
 
-from .fields import as_list, as_number, as_text, as_vector
+from .fields import as_list, as_number, as_text, as_vector, read_fields
 
 
 def as_bool(value: Any) -> bool | None:
@@ -30,37 +30,24 @@ def mag_report(sec: SensorCalibration) -> dict[str, Any]:
     checks = []
     for c in as_list(quality.get("checks") if quality else None):
         if isinstance(c, dict):
-            checks.append({
-                "name": as_text(c.get("name")), "value_pct": as_number(c.get("value_pct")),
-                "limit_pct": as_number(c.get("limit_pct")), "meaning": as_text(c.get("meaning")),
-                "ok": as_bool(c.get("ok")),
-            })  # fmt: skip
+            checks.append(read_fields(c, name=as_text, value_pct=as_number, limit_pct=as_number,
+                                      meaning=as_text, ok=as_bool))  # fmt: skip
     coverage = x.get("coverage") if isinstance(x.get("coverage"), dict) else {}
     poses = []
     for p in as_list(x.get("poses")):
         if isinstance(p, dict):
-            poses.append({
-                "segment": as_text(p.get("segment")), "label": as_text(p.get("label")),
-                "samples": as_number(p.get("samples")),
-                "magnitude_after": as_number(p.get("magnitude_after")),
-                "residual": as_number(p.get("residual")),
-                "dip_residual_deg": as_number(p.get("dip_residual_deg")),
-            })  # fmt: skip
+            poses.append(read_fields(
+                p, segment=as_text, label=as_text, samples=as_number, magnitude_after=as_number,
+                residual=as_number, dip_residual_deg=as_number,
+            ))  # fmt: skip
     return {
-        "field_uT": as_number(x.get("field_uT")),
-        "field_source": as_text(x.get("field_source")),
-        "field_estimate_uT": as_number(x.get("field_estimate_uT")),
-        "inclination_deg": as_number(x.get("inclination_deg")),
-        "inclination_std_deg": as_number(x.get("inclination_std_deg")),
-        "aligned": as_bool(x.get("aligned")),
-        "frame": as_text(x.get("frame")),
+        **read_fields(x, field_uT=as_number, field_source=as_text, field_estimate_uT=as_number,
+                      inclination_deg=as_number, inclination_std_deg=as_number, aligned=as_bool,
+                      frame=as_text),
         "axes": [str(a) for a in as_list(x.get("axes"))],
-        "rotation_std_deg": as_number(x.get("rotation_std_deg")),
-        "hard_iron_out": as_vector(x.get("hard_iron_out")),
-        "hard_iron_out_magnitude": as_number(x.get("hard_iron_out_magnitude")),
-        "soft_iron_axis_ratio_pct": as_number(x.get("soft_iron_axis_ratio_pct")),
-        "variance_before_pct": as_number(x.get("variance_before_pct")),
-        "dip_rms_deg": as_number(x.get("dip_rms_deg")),
+        **read_fields(x, rotation_std_deg=as_number, hard_iron_out=as_vector,
+                      hard_iron_out_magnitude=as_number, soft_iron_axis_ratio_pct=as_number,
+                      variance_before_pct=as_number, dip_rms_deg=as_number),
         "readings": x.get("readings") if isinstance(x.get("readings"), dict) else None,
         "quality": None if quality is None else {
             "verdict": as_text(quality.get("verdict")),
