@@ -247,8 +247,14 @@ class Recorder:
         self._stop = True
 
     def _open_writer(self, block: SampleBlock) -> None:
+        """The session, at the first block: its units those given, else those the protocol's
+        format fixes (MotionCal and i2cdevlib lines: counts)."""
         from imucal_cli.formats.session import SessionWriter
 
+        meta = dict(self._meta)
+        for key, unit in getattr(self.protocol, "units", {}).items():
+            if meta.get(key) is None:
+                meta[key] = unit
         self._writer = SessionWriter(
             self.path,
             source=getattr(self.source, "uri", None),
@@ -261,7 +267,7 @@ class Recorder:
             overwrite=self._overwrite,
             publish_early=True,
             reserve_bytes=RESERVE_BYTES,
-            **self._meta,
+            **meta,
         )
 
     def _append(self, block: SampleBlock) -> CaptureEnded | None:
