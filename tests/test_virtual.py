@@ -208,6 +208,22 @@ def test_wrong_baud_rate_garbage(tmp_path, server_factory):
     assert not out.exists()
 
 
+def test_garbage_then_unplugged_says_what_came(tmp_path, server_factory):
+    """Only garbage, then the device is gone before the wait ends: no file, exit 3, and the
+    one line says what arrived (not only that the device went)."""
+    server = server_factory("--garbage", "--vanish-after", "2")
+    out = tmp_path / "garbage.h5"
+    cap = start_capture(server.path, out, "--duration", "30", "--wait-timeout", "20")
+    stdout, stderr = cap.communicate(timeout=120)
+    sent = server.finish()
+    assert cap.returncode == 3, (stdout, stderr)
+    assert sent["lines"] == 0 and sent["garbage"] > 0 and not out.exists()
+    last = stderr.splitlines()[-1]
+    assert last.startswith("imucal: ") and "the device is gone" in last, last
+    assert "before any data; received " in last and "wrong baud rate?" in last, last
+    assert last.endswith(": no file written") and "Traceback" not in stderr
+
+
 def test_no_such_port(tmp_path):
     r = subprocess.run(
         [*CLI, "capture", "--port", "/dev/ttyIMUCAL_NOPE", "--no-prompt", "--duration", "1",

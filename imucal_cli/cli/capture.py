@@ -244,7 +244,9 @@ def capture(
     if not recorder.file_written:
         if recorder.end_kind == "timeout":
             raise InputError(recorder.end_reason)
-        err.print(f"imucal: {escape(recorder.end_reason)} before any data: no file written")
+        received = recorder.received_note()  # e.g. bytes that were no line: wrong baud rate?
+        said = f"{recorder.end_reason} before any data" + (f"; {received}" if received else "")
+        err.print(f"imucal: {escape(said)}: no file written", soft_wrap=True)
         raise typer.Exit(EXIT_INCOMPLETE)
     if json_output:
         print_json(_summary_json(out, recorder, summary))
