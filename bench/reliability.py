@@ -64,19 +64,6 @@ HANG_S = 2.0
 COLUMNS = ("handled", "traceback", "hang", "wrong exit", "silent wrong", "data lost")
 
 
-@dataclass
-class Row:
-    name: str
-    counts: Counter = field(default_factory=Counter)
-    examples: list[str] = field(default_factory=list)
-
-    def add(self, verdict: str, example: str = "") -> None:
-        self.counts["cases"] += 1
-        self.counts[verdict] += 1
-        if verdict != "handled" and len(self.examples) < 3:
-            self.examples.append(f"{verdict}: {example}"[:160])
-
-
 def _queued_s() -> float | None:
     """Seconds this process has waited for a CPU (Linux schedstat), or None."""
     try:
@@ -97,7 +84,9 @@ class Took:
     @property
     def blocked(self) -> float:
         """Wall time neither running nor waiting for a CPU (the wall time when unknown)."""
-        return self.wall if self.queued is None else self.wall - self.cpu - self.queued
+        if self.queued is None:
+            return self.wall
+        return max(self.wall - self.cpu - self.queued, 0.0)  # clock granularity: never < 0
 
     @property
     def hung(self) -> bool:
@@ -105,6 +94,26 @@ class Took:
 
     def __str__(self) -> str:
         return f"{self.cpu:.2f} s CPU, {self.blocked:.2f} s blocked, {self.wall:.2f} s wall"
+
+
+@dataclass
+class Row:
+    name: str
+    counts: Counter = field(default_factory=Counter)
+    examples: list[str] = field(default_factory=list)
+    slowest: Took | None = None  # the file read that ran longest (CPU)
+    most_blocked: Took | None = None
+
+    def add(self, verdict: str, example: str = "", took: Took | None = None) -> None:
+        self.counts["cases"] += 1
+        self.counts[verdict] += 1
+        if verdict != "handled" and len(self.examples) < 3:
+            self.examples.append(f"{verdict}: {example}"[:160])
+        if took is not None:
+            if self.slowest is None or took.cpu > self.slowest.cpu:
+                self.slowest = took
+            if self.most_blocked is None or took.blocked > self.most_blocked.blocked:
+                self.most_blocked = took
 
 
 def _timed(call):
@@ -173,14 +182,15 @@ def hostile_rows(folder: Path) -> list[Row]:
             original = read_session(folder / "base.h5")
         kind, value, took = _timed(lambda p=path: read_session(p))
         check = (lambda s, o=original: _same_data(s, o)) if expect == "either" else None
-        sessions.add(_verdict(kind, value, took, expect, check), f"{name} ({took}): {value}")
+        sessions.add(_verdict(kind, value, took, expect, check), f"{name} ({took}): {value}",
+                     took)  # fmt: skip
 
     configs = Row("malformed configs")
     for name, content, expect in config_cases():
         path = folder / "c.toml"
         path.write_bytes(content)
         kind, value, took = _timed(lambda p=path: load_config(p))
-        configs.add(_verdict(kind, value, took, expect), f"{name} ({took}): {value}")
+        configs.add(_verdict(kind, value, took, expect), f"{name} ({took}): {value}", took)
 
     cal = calibrate_session(read_session(BASE_SESSION.with_name("qureshi18-seed1.h5")), Config())
     jsons = Row("malformed calibration JSONs")
@@ -188,7 +198,7 @@ def hostile_rows(folder: Path) -> list[Row]:
         path = folder / "c.json"
         path.write_bytes(content)
         kind, value, took = _timed(lambda p=path: read_calibration(p))
-        jsons.add(_verdict(kind, value, took, expect), f"{name} ({took}): {value}")
+        jsons.add(_verdict(kind, value, took, expect), f"{name} ({took}): {value}", took)
     return [sessions, configs, jsons]
 
 
@@ -307,16 +317,16 @@ def fuzz_imports(folder: Path, n_files: int, seed: int = 20261123) -> Row:
         if kind == "ok":
             verdict = _check_import(value, truth, touched, kinds)
             if verdict != "handled":
-                row.add(verdict, where)
+                row.add(verdict, where, took)
                 continue
         if kind == "error" and getattr(value, "exit_code", 2) != 2:
-            row.add("wrong exit", where)
+            row.add("wrong exit", where, took)
             continue
         verdict = _verdict(kind, value, took, "either")
         if verdict == "handled" and cli_left > 0:
             cli_left -= 1
             verdict = _cli_import(path, columns, kind if read is import_files else "unknown")
-        row.add(verdict, where)
+        row.add(verdict, where, took)
     return row
 
 
@@ -646,6 +656,11 @@ def run(console: Console, quick: bool = False) -> bool:
         "time: " + ", ".join(f"{k} {v:.0f} s" for k, v in timings.items()),
         highlight=False,
     )
+    for row in rows:
+        if row.slowest is not None:
+            console.print(f"  {row.name}: slowest read {row.slowest}; most blocked "
+                          f"{row.most_blocked} (a hang: over {HANG_S:g} s of either)",
+                          highlight=False, markup=False)  # fmt: skip
     bad = [(row, ex) for row in rows for ex in row.examples]
     for row, example in bad:
         console.print(f"  {row.name}: {example}", highlight=False, markup=False)
