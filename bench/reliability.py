@@ -517,11 +517,16 @@ def disk_full_rows(folder: Path) -> list[Row]:
             if cap.returncode != 3 or "disk-full" not in cap.stdout:
                 row.add("wrong exit", detail)
                 continue
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                n = read_session(out).time.size
-            with h5py.File(out, "r"):
-                pass
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    n = read_session(out).time.size
+                with h5py.File(out, "r"):
+                    pass
+            except Exception as exc:  # noqa: BLE001 - a session that cannot be read is lost
+                row.add("data lost", f"run {k}: unreadable after the capture: {exc}")
+                _keep_for_study(out, folder)
+                continue
             saved = re.search(r"saved (\d+) samples", cap.stdout)
             lines = re.search(r"lines (\d+), comments (\d+), malformed (\d+)", cap.stdout)
             lost = re.search(r"(\d+) received samples could not be written", cap.stdout)
@@ -534,6 +539,14 @@ def disk_full_rows(folder: Path) -> list[Row]:
         if real:
             subprocess.run(["umount", str(mount)], check=False)
     return [row]
+
+
+def _keep_for_study(path: Path, folder: Path) -> None:
+    """A session the bench found damaged is copied out of the temporary folders (the path is
+    printed), so that it can be looked at after the run."""
+    keep = Path(tempfile.gettempdir()) / f"imucal-bench-{folder.name}-{path.name}"
+    shutil.copy(path, keep)
+    print(f"  kept {keep}", file=sys.stderr)
 
 
 def _injected_disk_full(folder: Path, k: int) -> tuple[str, str]:
