@@ -520,7 +520,8 @@ def disk_full_rows(folder: Path) -> list[Row]:
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
-                    n = read_session(out).time.size
+                    held = read_session(out)
+                n = held.time.size
                 with h5py.File(out, "r"):
                     pass
             except Exception as exc:  # noqa: BLE001 - a session that cannot be read is lost
@@ -532,7 +533,9 @@ def disk_full_rows(folder: Path) -> list[Row]:
             lost = re.search(r"(\d+) received samples could not be written", cap.stdout)
             received = int(lines[1]) - int(lines[2]) - int(lines[3])
             lost_n = int(lost[1]) if lost else 0
-            ok = saved and int(saved[1]) == n and received - lost_n == n
+            holes = int((~np.isfinite(held.accel)).any(axis=1).sum())  # NaN: fill, not data
+            ok = saved and int(saved[1]) == n and received - lost_n == n and holes == 0
+            detail += f"; {holes} NaN rows" if holes else ""
             row.add("handled" if ok else "data lost", detail)
             out.unlink()
     finally:
