@@ -1,7 +1,8 @@
 """Issue 15.1: readers of ROS 1/2 bags and MCAP (files written by rosbags), PX4 ULog (written to
 the ULog specification and read with pyulog), MotionCal / i2cdevlib lines and WitMotion's binary
-frames: the values, times and companions (magnetometer, temperature) come back as written, the
-topic is chosen or the choice is asked for, bad frames are counted."""
+frames (MAVLink and DataFlash logs: ``test_import_mavlink.py``; here through ``imucal
+import``): the values, times and companions (magnetometer, temperature) come back as written,
+the topic is chosen or the choice is asked for, bad frames are counted."""
 
 from __future__ import annotations
 
@@ -352,6 +353,14 @@ def write_format(kind: str, tmp_path: Path, six) -> Path:
         write_ulog(path, [("sensor_accel", 0, SENSOR_FIELDS, ulog_columns(t_us, acc, 7)),
                           ("sensor_gyro", 0, SENSOR_FIELDS, ulog_columns(t_us, gyr, 8))])
         return path
+    if kind == "tlog":
+        from .mavlink_fixture import write_tlog_six
+
+        return write_tlog_six(tmp_path / "six.tlog", six)
+    if kind in ("dataflash", "dataflash-acc"):
+        from .mavlink_fixture import write_dataflash_six
+
+        return write_dataflash_six(tmp_path / "six.bin", six, acc_gyr=kind == "dataflash-acc")
     if kind == "motioncal":
         path = tmp_path / "six.txt"
         path.write_text("".join("Raw:" + ",".join(f"{v:.0f}" for v in (*ra, *rg, 10, 20, 30))
@@ -372,6 +381,7 @@ def write_format(kind: str, tmp_path: Path, six) -> Path:
 @pytest.mark.parametrize(
     ("kind", "units", "extra"),
     [("ros1", "m/s^2", []), ("mcap", "m/s^2", []), ("ulog", "m/s^2", []),
+     ("tlog", "m/s^2", []), ("dataflash", "m/s^2", []), ("dataflash-acc", "m/s^2", []),
      ("motioncal", "counts", ["--rate", "100"]), ("i2cdevlib", "counts", ["--rate", "100"]),
      ("witmotion", "counts", ["--rate", "100"])],
 )  # fmt: skip
@@ -389,6 +399,9 @@ def test_import_detects_the_format_and_segments(kind, units, extra, tmp_path, si
     assert s.accel_units == units and len(s.time) >= len(six[0]) - 1
     if kind == "motioncal":  # the magnetometer is stored with its units
         assert s.mag_units == "counts" and np.all(s.mag[:, 0] == 10.0)
+    if kind == "tlog":  # HIGHRES_IMU's magnetometer (gauss) and temperature
+        assert s.mag_units == "gauss" and np.allclose(s.mag[:, 2], 0.4)
+        assert np.all(s.temperature == 30.0)
 
 
 def test_import_topic_option_and_refusals(tmp_path, six):

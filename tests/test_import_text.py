@@ -120,3 +120,25 @@ def test_empty_files_are_refused(tmp_path, content):
     path.write_text(content)
     with pytest.raises(InputError, match="empty file"):
         read_table(path, None, 0, ImportStats())
+
+
+def test_a_long_run_of_digits_fails_in_one_pass(tmp_path):
+    """A field of 20,000 digits that ends in a stray byte (the fuzzer's long line and garbage on
+    one line): malformed at once.  The number pattern used to try every split of the digits
+    (quadratic: about 10 s here, minutes for 200,000 digits)."""
+    import time
+
+    from imucal_cli.formats.importers.text import NUMBER
+
+    field = "9" * 20_000 + "\udcff"
+    start = time.process_time()
+    assert NUMBER.match(field) is None and NUMBER.match("9" * 20_000 + "x1") is None
+    path = tmp_path / "long.csv"
+    rows = [f"{i * 0.01:.2f},{i},2,3" for i in range(200)]
+    rows[7] = "0.07," + field
+    path.write_bytes(("t,ax,ay,az\n" + "\n".join(rows) + "\n").encode("utf-8", "surrogateescape"))
+    stats = ImportStats()
+    data, _, _ = read_table(path, None, 0, stats)
+    assert time.process_time() - start < 1.0
+    assert stats.malformed == 1 and data.shape == (199, 4)
+    assert NUMBER.match("9" * 20_000) and NUMBER.match("12.5e-3") and not NUMBER.match("1.2.3")

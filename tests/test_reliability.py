@@ -193,3 +193,31 @@ def test_concurrent_calibrations_of_one_session(tmp_path):
     assert same_data(before, after)
     for i in range(6):
         assert (tmp_path / f"c{i}.json").exists()
+
+
+@pytest.mark.skipif(
+    not (hasattr(os, "sched_setaffinity") and os.path.exists("/proc/self/schedstat")),
+    reason="needs Linux CPU affinity and schedstat",
+)
+def test_bench_times_a_read_by_what_it_does_not_by_a_busy_machine():
+    """bench/reliability.py's hang verdict: a read that waits for a CPU held by another
+    process is not blocked (a loaded machine is no hang); a read that sleeps is."""
+    import sys
+
+    from bench.reliability import _timed
+
+    cpu = min(os.sched_getaffinity(0))
+    before = os.sched_getaffinity(0)
+    busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        os.sched_setaffinity(busy.pid, {cpu})
+        os.sched_setaffinity(0, {cpu})  # this process shares that CPU with the busy one
+        _, _, took = _timed(lambda: sum(range(6_000_000)))
+    finally:
+        os.sched_setaffinity(0, before)
+        busy.kill()
+        busy.wait()
+    assert took.wall > 1.5 * took.cpu  # it did wait for the CPU ...
+    assert took.blocked < 0.2 * took.wall  # ... and that wait is not counted as blocked
+    _, _, slept = _timed(lambda: time.sleep(0.3))
+    assert 0.25 < slept.blocked < 1.0 and slept.cpu < 0.05

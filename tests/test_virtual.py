@@ -208,6 +208,22 @@ def test_wrong_baud_rate_garbage(tmp_path, server_factory):
     assert not out.exists()
 
 
+def test_garbage_then_unplugged_says_what_came(tmp_path, server_factory):
+    """Only garbage, then the device is gone before the wait ends: no file, exit 3, and the
+    one line says what arrived (not only that the device went)."""
+    server = server_factory("--garbage", "--vanish-after", "2")
+    out = tmp_path / "garbage.h5"
+    cap = start_capture(server.path, out, "--duration", "30", "--wait-timeout", "20")
+    stdout, stderr = cap.communicate(timeout=120)
+    sent = server.finish()
+    assert cap.returncode == 3, (stdout, stderr)
+    assert sent["lines"] == 0 and sent["garbage"] > 0 and not out.exists()
+    last = stderr.splitlines()[-1]
+    assert last.startswith("imucal: ") and "the device is gone" in last, last
+    assert "before any data; received " in last and "wrong baud rate?" in last, last
+    assert last.endswith(": no file written") and "Traceback" not in stderr
+
+
 def test_no_such_port(tmp_path):
     r = subprocess.run(
         [*CLI, "capture", "--port", "/dev/ttyIMUCAL_NOPE", "--no-prompt", "--duration", "1",
@@ -225,3 +241,39 @@ def test_no_prompt_needs_a_duration_or_a_plan(tmp_path):
     r = subprocess.run([*CLI, "capture", "--port", "/dev/null", "--no-prompt"],
                        capture_output=True, text=True)  # fmt: skip
     assert r.returncode == 2 and "--no-prompt needs --duration" in r.stderr
+
+
+@pytest.mark.parametrize(("protocol", "capture_args"),
+                         [("motioncal", []), ("i2cdevlib", ["--protocol", "i2cdevlib"])])
+def test_sketch_lines_captured_end_to_end(tmp_path, server_factory, protocol, capture_args):
+    """The virtual IMU prints MotionCal's Raw: lines (recognised by themselves) or i2cdevlib's
+    a/g: lines (asked for): every line sent arrives with its counts, the faces are found."""
+    import numpy as np
+
+    from imucal_cli.simulate.device import HARD_IRON_COUNTS, stream_arrays
+
+    # 2 s holds: the host clock stamps these lines, in bursts as they arrive, which leaves a
+    # 1.5 s hold's still period at the edge of --min-still 1 s
+    server = server_factory("--plan", "six", "--hold", "2", "--move", "0.8", "--baud",
+                            "460800", "--protocol", protocol, "--malformed-every", "97")
+    out = tmp_path / f"{protocol}.h5"
+    cap = start_capture(server.path, out, "--plan", "six", *capture_args)
+    stdout, stderr = cap.communicate(timeout=120)
+    sent = server.finish()
+    assert cap.returncode == 0, (stdout, stderr)
+    session = read_session(out)
+    n = len(session.time)
+    assert n == saved_samples(stdout) == sent["lines"] - sent["malformed"] > 0
+    assert f"malformed {sent['malformed']};" in stdout and sent["malformed"] > 0
+    _, accel, gyro = stream_arrays("six", rate_hz=RATE, hold_s=2.0, move_s=0.8)
+    kept = np.flatnonzero(np.arange(len(accel)) % 97 != 96)[:n]  # the lines sent whole
+    np.testing.assert_array_equal(session.accel, np.round(accel[kept]))
+    np.testing.assert_array_equal(session.gyro, np.round(gyro[kept]))
+    assert session.accel_units == session.gyro_units == "counts"
+    assert len(session.static_segments()) == 6 and "complete (6 steps seen)" in stdout
+    if protocol == "motioncal":
+        assert "recognised MotionCal Raw:" in stderr and session.mag_units == "counts"
+        field_uT = np.linalg.norm(session.mag - HARD_IRON_COUNTS, axis=1) / 10.0
+        np.testing.assert_allclose(field_uT, 48.0, atol=0.1)  # the earth's field, any pose
+    else:
+        assert session.mag is None

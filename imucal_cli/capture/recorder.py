@@ -247,8 +247,14 @@ class Recorder:
         self._stop = True
 
     def _open_writer(self, block: SampleBlock) -> None:
+        """The session, at the first block: its units those given, else those the protocol's
+        format fixes (MotionCal and i2cdevlib lines: counts)."""
         from imucal_cli.formats.session import SessionWriter
 
+        meta = dict(self._meta)
+        for key, unit in getattr(self.protocol, "units", {}).items():
+            if meta.get(key) is None:
+                meta[key] = unit
         self._writer = SessionWriter(
             self.path,
             source=getattr(self.source, "uri", None),
@@ -261,7 +267,7 @@ class Recorder:
             overwrite=self._overwrite,
             publish_early=True,
             reserve_bytes=RESERVE_BYTES,
-            **self._meta,
+            **meta,
         )
 
     def _append(self, block: SampleBlock) -> CaptureEnded | None:
@@ -334,27 +340,35 @@ class Recorder:
             )
         return None
 
-    def _no_data_reason(self, what: str) -> str:
+    def _no_data_reason(self, what: str, within: str | None = None) -> str:
+        """Why no sample came from ``what`` (``within``: " in 10 s", the wait by default)."""
         stats = self.protocol.stats
-        wait = f"{self.wait_timeout_s:g} s"
+        within = f" in {self.wait_timeout_s:g} s" if within is None else within
         if stats.get("bytes", 0) == 0:
             return (
-                f"no data from {what} in {wait}: check the port, the baud rate and that "
+                f"no data from {what}{within}: check the port, the baud rate and that "
                 "the sketch prints lines"
             )
         if stats.get("lines", 0) == stats.get("comments", 0) and stats.get("malformed", 0) == 0:
             return (
-                f"received {stats['bytes']} bytes from {what} in {wait} but no data line "
+                f"received {stats['bytes']} bytes from {what}{within} but no data line "
                 f"({stats.get('comments', 0)} comment lines): check that the sketch prints "
                 "numbers"
             )
         columns = getattr(self.protocol, "columns", None)
         expected = f", {columns.n_fields} fields per line expected" if columns else ""
         return (
-            f"received {stats['bytes']} bytes from {what} in {wait} but no valid line "
+            f"received {stats['bytes']} bytes from {what}{within} but no valid line "
             f"({stats.get('malformed', 0)} malformed{expected}): wrong baud rate? "
             "(or check --columns)"
         )
+
+    def received_note(self) -> str:
+        """For a capture that ended before its first sample: what did arrive and why none of
+        it was a sample ("" when nothing arrived)."""
+        if self.n_samples > self.resumed_from or self.protocol.stats.get("bytes", 0) == 0:
+            return ""
+        return self._no_data_reason(self.source.describe(), within="")
 
     def blocks(self, tick_s: float = 0.1) -> Iterator[SampleBlock]:
         """Record; yield every block of samples after it was appended to the session.

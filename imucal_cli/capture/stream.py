@@ -6,9 +6,12 @@ The capture pipeline has three replaceable parts:
   pseudo-terminal of ``imucal simulate --serve`` is one too).  Anything with ``read() -> bytes``
   (empty after a short wait with no data; :class:`DeviceGone` when the device disappears),
   ``close()``, ``describe() -> str`` and ``uri -> str`` can stand in for it.
-- a **protocol** turns bytes into samples: :class:`LineProtocol` parses text lines.  A binary
-  protocol is one new class with the same two members, ``feed(data, host_time) ->
-  SampleBlock`` and ``stats``.
+- a **protocol** turns bytes into samples: :class:`LineProtocol` parses text lines of numbers,
+  :class:`PrefixedLineProtocol` MotionCal's ``Raw:`` and i2cdevlib's ``a/g:`` lines (with the
+  importer's own line parser), :class:`AutoLineProtocol` tells which of the two a device
+  prints from its first lines, :class:`WitMotionProtocol` WitMotion's binary frames.  A
+  protocol is one class with two members, ``feed(data, host_time) -> SampleBlock`` and
+  ``stats``; it may say the raw ``units`` its format fixes.
 - a :class:`SampleBlock` holds k samples as arrays, the unit that the recorder appends to the
   session and that user interfaces look at.
 """
@@ -22,10 +25,14 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 from imucal_cli.formats.columns import ColumnSpec, SampleBlock
+from imucal_cli.formats.importers.serial_lines import LINE_FORMATS, line_format, parse_line
+from imucal_cli.formats.importers.text import BLANK, NUMBER
 
 __all__ = [
+    "AutoLineProtocol",
     "DeviceGone",
     "LineProtocol",
+    "PrefixedLineProtocol",
     "MAX_LINE_BYTES",
     "RESYNC_SAMPLES",
     "SampleBlock",
@@ -217,6 +224,181 @@ class LineProtocol:
                 keep[i], last, self._behind = True, float(t[i]), 0
         self.stats["malformed"] += int((~keep).sum())
         return keep
+
+
+# --------------------------------------------------------------------------------------------
+# MotionCal and i2cdevlib lines
+# --------------------------------------------------------------------------------------------
+
+_COUNTERS = ("lines", "samples", "comments", "malformed", "bytes")
+
+
+def _complete_lines(buffer: bytes, stats: dict) -> tuple[list[bytes], bytes]:
+    """The complete lines of ``buffer`` (ended by ``\n``, ``\r\n`` or ``\r``) and the partial
+    line left (dropped, and counted malformed, past :data:`MAX_LINE_BYTES`)."""
+    cut = max(buffer.rfind(b"\n"), buffer.rfind(b"\r"))
+    partial = buffer[cut + 1 :]
+    if len(partial) > MAX_LINE_BYTES:
+        stats["malformed"] += 1
+        partial = b""
+    if cut < 0:
+        return [], partial
+    return buffer[:cut].replace(b"\r", b"\n").split(b"\n"), partial
+
+
+class PrefixedLineProtocol:
+    """MotionCal's ``Raw:ax,ay,az,gx,gy,gz,mx,my,mz`` and i2cdevlib's ``a/g:`` / ``a/g/m:``
+    lines (:data:`~imucal_cli.formats.importers.serial_lines.LINE_FORMATS`), each read by the
+    importer's :func:`~imucal_cli.formats.importers.serial_lines.parse_line`, so that a line
+    means the same live and from a file.
+
+    The format is that of the first line with a known prefix among ``formats``; the values
+    are raw counts (accel, gyro, and the magnetometer where the format has one).  Other lines
+    (MotionCal's ``Uni:`` and ``Cal1:``, a sketch's banner, another format's lines) are counted
+    as ``comments``; lines of the format without its numbers as ``malformed``.  The lines
+    carry no time: the host clock stamps them as for text lines without ``t``.
+
+    Attributes
+    ----------
+    fmt : str or None
+        The format seen (None before the first line of one).
+    stats : dict
+        As :class:`LineProtocol`'s.
+    """
+
+    def __init__(self, formats: tuple[str, ...] = tuple(LINE_FORMATS)) -> None:
+        unknown = [f for f in formats if f not in LINE_FORMATS]
+        if unknown or not formats:
+            raise InputError(f"unknown line format {unknown}: use {', '.join(LINE_FORMATS)}")
+        self.formats = tuple(formats)
+        self.fmt: str | None = None
+        self.stats = dict.fromkeys(_COUNTERS, 0)
+        self._partial = b""
+        self._last_host: float | None = None
+        self._last_time: float | None = None
+
+    @property
+    def units(self) -> dict[str, str]:
+        """The raw units the format fixes: counts (the magnetometer's only where it has one)."""
+        units = {"accel_units": "counts", "gyro_units": "counts"}
+        if self.fmt is not None and LINE_FORMATS[self.fmt][1] == 9:
+            units["mag_units"] = "counts"
+        return units
+
+    def feed(self, data: bytes, host_time: float) -> SampleBlock:
+        """Parse the complete lines of ``data``; return their samples (host-clock times)."""
+        stats = self.stats
+        stats["bytes"] += len(data)
+        lines, self._partial = _complete_lines(self._partial + data, stats)
+        rows = []
+        for raw in lines:
+            text = raw.decode("utf-8", errors="replace")
+            if not text.strip(BLANK):
+                continue
+            stats["lines"] += 1
+            fmt = line_format(text, self.formats)
+            if fmt is None or fmt != (self.fmt or fmt):
+                stats["comments"] += 1
+                continue
+            self.fmt = fmt
+            values = parse_line(fmt, text)
+            if values is None:
+                stats["malformed"] += 1
+            else:
+                rows.append(values)
+        if not rows:
+            return SampleBlock.empty()
+        values = np.array(rows, dtype=np.float64)
+        time, self._last_host = host_stamps(len(rows), host_time, self._last_host,
+                                            self._last_time)  # fmt: skip
+        self._last_time = float(time[-1])
+        stats["samples"] += len(rows)
+        return SampleBlock(time=time, accel=values[:, 0:3], gyro=values[:, 3:6],
+                           mag=values[:, 6:9] if values.shape[1] == 9 else None)  # fmt: skip
+
+
+class AutoLineProtocol:
+    """Text lines, either kind: MotionCal or i2cdevlib lines when a line with their prefix
+    comes first (:class:`PrefixedLineProtocol`), else lines of numbers as ``columns`` says
+    (:class:`LineProtocol`).  ``imucal capture``'s default ``--protocol lines``.
+
+    The first bytes are held until one line has a known prefix, or two lines are numbers
+    only (the first may be cut: the port opened mid-line), or :data:`DECIDE_LINES` other
+    lines (a banner; a wrong baud rate) or :data:`DECIDE_BYTES` came; then the chosen protocol
+    reads them all, so its counters cover every byte.
+
+    Parameters
+    ----------
+    columns : ColumnSpec
+        The fields of a line of numbers.
+    on_choice : callable, optional
+        Called once with what was recognised, for the user.
+    """
+
+    DECIDE_LINES = 20
+    DECIDE_BYTES = 4 * MAX_LINE_BYTES
+
+    def __init__(self, columns: ColumnSpec, on_choice=None) -> None:
+        self._columns = columns
+        self._on_choice = on_choice
+        self._chosen: LineProtocol | PrefixedLineProtocol | None = None
+        self._held = bytearray()
+        self._own = dict.fromkeys(_COUNTERS, 0)
+
+    @property
+    def stats(self) -> dict:
+        return self._own if self._chosen is None else self._chosen.stats
+
+    @property
+    def columns(self) -> ColumnSpec | None:
+        """The ``--columns`` spec while lines of numbers are read (or not yet told apart)."""
+        return self._columns if not isinstance(self._chosen, PrefixedLineProtocol) else None
+
+    @property
+    def units(self) -> dict[str, str]:
+        return getattr(self._chosen, "units", {})
+
+    def feed(self, data: bytes, host_time: float) -> SampleBlock:
+        """As the chosen protocol's ``feed`` (nothing while the first lines are told apart)."""
+        if self._chosen is not None:
+            return self._chosen.feed(data, host_time)
+        self._held += data
+        self._own["bytes"] += len(data)
+        kind = self._decide(bytes(self._held))
+        if kind is None:
+            return SampleBlock.empty()
+        if kind == "numbers":
+            self._chosen = LineProtocol(self._columns)
+        else:
+            self._chosen = PrefixedLineProtocol()
+        held, self._held = bytes(self._held), bytearray()
+        block = self._chosen.feed(held, host_time)
+        if self._on_choice is not None and kind != "numbers":
+            self._on_choice(f"recognised {LINE_FORMATS[kind][2]} lines (host-clock time; "
+                            "--columns not used)")  # fmt: skip
+        return block
+
+    def _decide(self, held: bytes) -> str | None:
+        """``"numbers"``, a :data:`LINE_FORMATS` name, or None (not yet told apart)."""
+        lines, _ = _complete_lines(held, dict.fromkeys(_COUNTERS, 0))
+        numeric = other = 0
+        for raw in lines:
+            text = raw.decode("utf-8", errors="replace").strip(BLANK)
+            if not text or text.startswith("#"):
+                continue
+            fmt = line_format(text)
+            if fmt is not None:
+                return fmt
+            fields = text.replace(",", " ").replace(";", " ").split()
+            if all(NUMBER.match(f) for f in fields):
+                numeric += 1
+                if numeric >= 2:
+                    return "numbers"
+            else:
+                other += 1
+        if other >= self.DECIDE_LINES or len(held) > self.DECIDE_BYTES:
+            return "numbers"  # LineProtocol counts what it cannot read
+        return None
 
 
 # --------------------------------------------------------------------------------------------

@@ -67,9 +67,13 @@ def capture(
     protocol: str = typer.Option(
         "lines",
         "--protocol",
-        metavar="lines|witmotion",
-        help="lines: text lines of numbers (--columns); witmotion: WitMotion's binary 0x55 "
-        "frames (WT901, JY901: accel, gyro, temperature as int16 counts, host-clock time).",
+        metavar="NAME",
+        help="lines: text lines of numbers (--columns), or MotionCal/i2cdevlib lines when the "
+        "first lines carry their prefix; motioncal: MotionCal's Raw:ax,ay,az,gx,gy,gz,mx,my,mz "
+        "lines; i2cdevlib: i2cdevlib's a/g: (a/g/m:) lines (both counts, host-clock time); "
+        "witmotion: WitMotion's binary 0x55 frames (WT901, JY901: accel, gyro, temperature as "
+        "int16 counts, host-clock time).",
+        autocompletion=completion.capture_protocols,
     ),
     no_prompt: bool = typer.Option(
         False,
@@ -148,9 +152,11 @@ def capture(
 ) -> None:
     """Record a calibration session from an IMU on a serial port.
 
-    Reads text lines of numbers (commas, semicolons, spaces or tabs) and appends them to the
-    session as they arrive (flushed at least once a second).  Ctrl-C, SIGTERM, an unplugged
-    device or a stalled stream end the capture with a valid session holding every sample.
+    Reads text lines of numbers (commas, semicolons, spaces or tabs; MotionCal's Raw: and
+    i2cdevlib's a/g: lines are recognised by themselves) or WitMotion frames, and appends the
+    samples to the session as they arrive (flushed at least once a second).  Ctrl-C, SIGTERM,
+    an unplugged device or a stalled stream end the capture with a valid session holding
+    every sample.
 
     An interrupted capture goes on with --resume SESSION: the same file, the plan's progress
     taken from the segments already there.
@@ -160,18 +166,21 @@ def capture(
     bad --columns or plan, no data at all: nothing saved).
     """
     from imucal_cli.capture.recorder import Recorder
-    from imucal_cli.capture.stream import LineProtocol, SerialSource, WitMotionProtocol
+    from imucal_cli.capture.stream import SerialSource
     from imucal_cli.formats.columns import ColumnSpec
     from imucal_cli.plans import load_plan, needs_temperature
 
+    console = make_console(stderr=json_output)  # with --json, stdout holds the JSON alone
+    err = make_console(stderr=True)
+
+    def status(message: str) -> None:
+        err.print(f"imucal: {escape(message)}", soft_wrap=True)
+
     check_mag_options(mag_units, field_ut)
-    if protocol == "witmotion":
-        stream_protocol = WitMotionProtocol()
+    stream_protocol = _stream_protocol(protocol, lambda: ColumnSpec.parse(columns, time_unit),
+                                       status)  # fmt: skip
+    if protocol != "lines":  # the format fixes the units (counts)
         accel_units, gyro_units = accel_units or "counts", gyro_units or "counts"
-    elif protocol == "lines":
-        stream_protocol = LineProtocol(ColumnSpec.parse(columns, time_unit))
-    else:
-        raise InputError(f"--protocol {protocol!r}: use lines or witmotion")
     limits = {"--duration": duration, "--min-still": min_still,
               "--wait-timeout": wait_timeout, "--read-timeout": read_timeout}  # fmt: skip
     for name, value in limits.items():
@@ -188,19 +197,15 @@ def capture(
             from imucal_cli.capture import guided
         except ImportError:
             raise InputError("guided mode not available yet: use --no-prompt") from None
-    if plan_obj is not None and needs_temperature(plan_obj) and (
-        protocol == "lines" and stream_protocol.columns.temperature is None
-    ):
-        raise InputError(f"plan {plan_obj.name} records the temperature through the warm-up: "
-                         "add temp to --columns (e.g. t,ax,ay,az,gx,gy,gz,temp)")  # fmt: skip
+    if plan_obj is not None and needs_temperature(plan_obj):
+        if protocol in ("motioncal", "i2cdevlib"):
+            raise InputError(f"plan {plan_obj.name} records the temperature through the "
+                             f"warm-up: {protocol} lines carry none")  # fmt: skip
+        if protocol == "lines" and stream_protocol.columns.temperature is None:
+            raise InputError(f"plan {plan_obj.name} records the temperature through the warm-up: "
+                             "add temp to --columns (e.g. t,ax,ay,az,gx,gy,gz,temp)")  # fmt: skip
     out = _output_path(output, resume, force)
     done_before = None if resume is None else _done_before(resume, guided is not None)
-
-    console = make_console(stderr=json_output)  # with --json, stdout holds the JSON alone
-    err = make_console(stderr=True)
-
-    def status(message: str) -> None:
-        err.print(f"imucal: {escape(message)}", soft_wrap=True)
 
     source = SerialSource(port, baud)
     try:
@@ -239,7 +244,9 @@ def capture(
     if not recorder.file_written:
         if recorder.end_kind == "timeout":
             raise InputError(recorder.end_reason)
-        err.print(f"imucal: {escape(recorder.end_reason)} before any data: no file written")
+        received = recorder.received_note()  # e.g. bytes that were no line: wrong baud rate?
+        said = f"{recorder.end_reason} before any data" + (f"; {received}" if received else "")
+        err.print(f"imucal: {escape(said)}: no file written", soft_wrap=True)
         raise typer.Exit(EXIT_INCOMPLETE)
     if json_output:
         print_json(_summary_json(out, recorder, summary))
@@ -248,6 +255,26 @@ def capture(
     sys.stdout.flush()
     if not summary.complete:
         raise typer.Exit(EXIT_INCOMPLETE)
+
+
+PROTOCOLS = completion.CAPTURE_PROTOCOLS
+"""``--protocol`` choices: what the device sends."""
+
+
+def _stream_protocol(protocol: str, columns, status):
+    """The capture protocol of ``--protocol`` (``columns()``: the --columns spec, parsed only
+    for lines of numbers)."""
+    from imucal_cli.capture import stream
+
+    if protocol == "lines":
+        return stream.AutoLineProtocol(columns(), on_choice=status)
+    if protocol == "motioncal":
+        return stream.PrefixedLineProtocol(("motioncal",))
+    if protocol == "i2cdevlib":
+        return stream.PrefixedLineProtocol(("i2cdevlib", "i2cdevlib-mag"))
+    if protocol == "witmotion":
+        return stream.WitMotionProtocol()
+    raise InputError(f"--protocol {protocol!r}: use {', '.join(PROTOCOLS)}")
 
 
 def _output_path(output: Path | None, resume: Path | None, force: bool) -> Path:

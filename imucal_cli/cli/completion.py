@@ -12,6 +12,8 @@ from __future__ import annotations
 ACCEL_UNITS = ("counts", "V", "g", "m/s^2")
 GYRO_UNITS = ("counts", "V", "rad/s", "deg/s")
 TIME_UNITS = ("s", "ms", "us", "ns")
+CAPTURE_PROTOCOLS = ("lines", "motioncal", "i2cdevlib", "witmotion")  # capture --protocol
+SERVE_PROTOCOLS = ("lines", "motioncal", "i2cdevlib")  # simulate --serve --protocol
 
 
 def _matching(values, incomplete: str) -> list[str]:
@@ -47,6 +49,14 @@ def import_formats(incomplete: str) -> list[str]:
     from imucal_cli.formats.importers import FORMATS  # the registry: new readers appear here
 
     return _matching(FORMATS, incomplete)
+
+
+def capture_protocols(incomplete: str) -> list[str]:
+    return _matching(CAPTURE_PROTOCOLS, incomplete)
+
+
+def serve_protocols(incomplete: str) -> list[str]:
+    return _matching(SERVE_PROTOCOLS, incomplete)
 
 
 def apply_formats(incomplete: str) -> list[str]:

@@ -30,15 +30,18 @@ def import_(
         "--format",
         "-f",
         metavar="FORMAT",
-        help="csv, imu_tk, ros (.bag, ROS 2 bag folder, .mcap), ulog (.ulg), lines (MotionCal "
-        "Raw:, i2cdevlib a/g:) or witmotion (0x55 frames) [default: recognised from the file].",
+        help="csv, imu_tk, ros (.bag, ROS 2 bag folder, .mcap), ulog (.ulg), mavlink (.tlog, "
+        "ArduPilot DataFlash .bin), lines (MotionCal Raw:, i2cdevlib a/g:) or witmotion (0x55 "
+        "frames) [default: recognised from the file].",
         autocompletion=completion.import_formats,
     ),
     topic: str | None = typer.Option(
         None,
         "--topic",
         metavar="TOPIC",
-        help="ros: the sensor_msgs/Imu topic (listed when several); ulog: the IMU instance N.",
+        help="ros: the sensor_msgs/Imu topic (listed when several); ulog: the IMU instance N; "
+        "mavlink: the message and instance (RAW_IMU.0, SCALED_IMU2, HIGHRES_IMU, IMU.1, ACC.0; "
+        "listed when several).",
     ),
     columns: str | None = typer.Option(
         None,

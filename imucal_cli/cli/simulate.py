@@ -197,6 +197,15 @@ def simulate(
     baud: int = typer.Option(
         115200, "--baud", metavar="N", help="--serve: emulated baud rate (bytes are paced)."
     ),
+    protocol: str = typer.Option(
+        "lines",
+        "--protocol",
+        metavar="NAME",
+        help="--serve: what a line is: lines (t,ax,ay,az,gx,gy,gz,temp), motioncal (MotionCal's "
+        "Raw:ax,ay,az,gx,gy,gz,mx,my,mz, a magnetometer in the earth's field) or i2cdevlib "
+        "(a/g:<TAB>ax...gz), counts without a time, as those Arduino sketches print them.",
+        autocompletion=completion.serve_protocols,
+    ),
     loop: bool = typer.Option(False, "--loop", help="--serve: repeat the plan."),
     step: bool = typer.Option(
         False,
@@ -336,13 +345,15 @@ def simulate(
         clock = check_ppm(clock_ppm)
     if mag:
         _mag_plan(plan, serve, thermal is not None or clock is not None)
+    if given("protocol") and not serve:
+        raise InputError("--protocol is what --serve prints: add --serve")
     if serve:
         _serve(
             plan, rate, baud, json_output, seed=seed, hold_s=SERVE_HOLD_S if hold is None else hold,
             move_s=move, step=step, units=units, plan_options=options,
             temperature=temp, loop=loop, duration_s=duration, garbage=garbage,
             stall_after_s=stall_after, vanish_after_s=vanish_after,
-            malformed_every=malformed_every,
+            malformed_every=malformed_every, protocol=protocol,
         )  # fmt: skip
         return
     from imucal_cli.formats.calibration import write_calibration

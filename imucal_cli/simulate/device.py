@@ -11,7 +11,12 @@ through the real tty layer.
   samples as ``imucal simulate`` writes to a file; its static segments are the holds.
 - A pseudo-terminal has no baud rate: the bytes are paced to ``baud / 10`` bytes per second
   (8N1), so a stream too fast for the baud rate falls behind as it would on a real line.
-- The first line is a comment ``# imucal virtual IMU ...``; then data lines.
+- The first line is a comment ``# imucal virtual IMU ...``; then data lines: numbers
+  (``protocol="lines"``), or as the Arduino sketches print them (:data:`SERVE_PROTOCOLS`):
+  MotionCal's ``Raw:ax,ay,az,gx,gy,gz,mx,my,mz`` (the magnetometer: a 48 uT field at 60
+  degrees inclination seen through the unit's tilt, the heading fixed, 10 counts per uT as
+  MotionCal's sketches scale it, plus a hard iron of :data:`HARD_IRON_COUNTS`) and i2cdevlib's
+  ``a/g:\tax\tay\taz\tgx\tgy\tgz``, counts without a time.
 - Faults for tests: ``garbage`` (random bytes at the same byte rate, as a wrong baud rate
   shows), ``stall_after_s`` (stop sending, keep the port open), ``vanish_after_s`` (close the
   pseudo-terminal: the device is unplugged), ``malformed_every`` (every N-th line loses fields).
@@ -49,6 +54,8 @@ from imucal_cli.errors import InputError
 from imucal_cli.plans import Plan
 
 __all__ = [
+    "HARD_IRON_COUNTS",
+    "SERVE_PROTOCOLS",
     "SETTLE_S",
     "Hold",
     "ServeResult",
@@ -67,6 +74,12 @@ FLUSH_WAIT_S = 2.0
 
 DRAIN_MAX_S = 10.0
 """Longest wait, at the end, for the reader to read what was sent, s."""
+
+SERVE_PROTOCOLS = ("lines", "motioncal", "i2cdevlib")
+"""What the virtual IMU can print: numbers (``t,ax,...``), MotionCal or i2cdevlib lines."""
+
+HARD_IRON_COUNTS = (150.0, -90.0, 60.0)
+"""The offset of the virtual magnetometer of MotionCal lines, counts."""
 
 
 @dataclass(frozen=True)
@@ -200,9 +213,54 @@ def _format(
     return [(fmt % tuple(r) + "\n").encode() for r in rows]
 
 
+def _tilted_field(accel: np.ndarray, field_uT: float = 48.0,
+                  inclination_deg: float = 60.0) -> np.ndarray:  # fmt: skip
+    """The earth's field (north along world x, ``inclination_deg`` below the horizontal) read
+    by a unit whose accelerometer points along ``accel`` (world up), its heading fixed: the
+    smallest rotation taking world up (z) to the measured up, applied to the field, uT."""
+    inc = np.radians(inclination_deg)
+    h = field_uT * np.array([np.cos(inc), 0.0, -np.sin(inc)])
+    up = accel / np.linalg.norm(accel, axis=1, keepdims=True)
+    v = np.cross([0.0, 0.0, 1.0], up)  # axis * sin(angle)
+    c = up[:, 2]  # cos(angle)
+    flipped = c < -1 + 1e-9  # upside down: a half turn about x
+    scale = np.where(flipped, 0.0, 1.0 / np.where(flipped, 1.0, 1.0 + c))
+    vxh = np.cross(v, h)
+    out = h + vxh + np.cross(v, vxh) * scale[:, None]
+    out[flipped] = h * [1.0, -1.0, -1.0]
+    return out
+
+
+def _format_sketch(protocol: str, accel: np.ndarray, gyro: np.ndarray | None) -> list[bytes]:
+    """Lines as MotionCal's or i2cdevlib's sketches print them (integer counts, no time)."""
+    if accel.shape[1] != 3 or gyro is None:
+        raise InputError(f"--protocol {protocol} prints a 3-axis accelerometer and gyroscope "
+                         "(not a redundant unit)")  # fmt: skip
+    values = [np.round(accel), np.round(gyro)]
+    if protocol == "motioncal":
+        values.append(np.round(_tilted_field(accel) * 10.0 + HARD_IRON_COUNTS))
+        fmt = "Raw:" + ",".join(["%d"] * 9)
+    else:
+        fmt = "a/g:\t" + "\t".join(["%d"] * 6)
+    rows = np.column_stack(values).astype(np.int64).tolist()
+    return [(fmt % tuple(r) + "\n").encode() for r in rows]
+
+
+def _lines(protocol: str, time, accel, gyro, temperature: bool, units: str) -> list[bytes]:
+    """The data lines of ``protocol`` (:data:`SERVE_PROTOCOLS`)."""
+    if protocol == "lines":
+        return _format(time, accel, gyro, temperature, units == "counts")
+    if protocol not in SERVE_PROTOCOLS:
+        raise InputError(f"--protocol {protocol!r}: use {', '.join(SERVE_PROTOCOLS)}")
+    if units != "counts":
+        raise InputError(f"--protocol {protocol} prints counts: leave out --units {units}")
+    return _format_sketch(protocol, accel, gyro)
+
+
 def _damage(line: bytes) -> bytes:
     """A malformed version of a data line: its last two fields are lost."""
-    return b",".join(line.rstrip(b"\n").split(b",")[:-2]) + b"\n"
+    sep = b"\t" if b"\t" in line else b","
+    return sep.join(line.rstrip(b"\n").split(sep)[:-2]) + b"\n"
 
 
 # --------------------------------------------------------------------------------------------
@@ -232,6 +290,7 @@ def serve(
     next_pose: Callable[[], bool] | None = None,
     announce: Callable[[str], None] = print,
     status: Callable[[str], None] | None = None,
+    protocol: str = "lines",
 ) -> ServeResult:
     """Stream a simulated IMU on a new pseudo-terminal until the plan ends; see the module notes.
 
@@ -275,6 +334,9 @@ def serve(
         Called once with the slave device path, before anything else.
     status : callable, optional
         Called with progress messages.
+    protocol : str
+        What a data line is (:data:`SERVE_PROTOCOLS`): ``lines`` (``t,ax,...``), ``motioncal``
+        or ``i2cdevlib`` (see the module notes; ``temperature`` does not apply).
 
     Returns
     -------
@@ -290,7 +352,7 @@ def serve(
         plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s,
         **(plan_options or {}),
     )  # fmt: skip
-    lines = _format(time, accel, gyro, temperature, units == "counts")
+    lines = _lines(protocol, time, accel, gyro, temperature, units)
     say = status or (lambda message: None)
     if hold_s is None:  # the plan's own hold: as its first pose is held
         hold_s = (holds[0].stop - holds[0].start) / rate_hz if holds else 0.0
@@ -310,7 +372,8 @@ def serve(
     result = ServeResult(path=port.path)
     try:
         announce(port.path)
-        fields = _columns(accel, gyro, temperature)
+        fields = (_columns(accel, gyro, temperature) if protocol == "lines"
+                  else f"{protocol} lines")  # fmt: skip
         say(f"serving plan {plan} at {rate_hz:g} Hz, {baud} baud on {port.path}; "
             "waiting for a reader")  # fmt: skip
         result.end = port.wait_for_reader(stop, wait_reader_s)
@@ -324,7 +387,7 @@ def serve(
             port.master, port.poller, stop, lines, rate_hz, baud, schedule=schedule,
             duration_s=duration_s, garbage=garbage, stall_after_s=stall_after_s,
             vanish_after_s=vanish_after_s, malformed_every=malformed_every,
-            rng=np.random.default_rng(seed + 1),
+            rng=np.random.default_rng(seed + 1), timed=protocol == "lines",
         )  # fmt: skip
         line.run(header, result)
         if result.end in ("plan", "duration", "signal", "vanished"):
@@ -497,12 +560,13 @@ class _Line:
     def __init__(
         self, master: int, poller, stop: dict, lines: list[bytes], rate_hz: float, baud: int,
         *, schedule: _Schedule, duration_s, garbage: bool, stall_after_s, vanish_after_s,
-        malformed_every, rng: np.random.Generator,
+        malformed_every, rng: np.random.Generator, timed: bool = True,
     ) -> None:  # fmt: skip
         self.master, self.poller, self.stop, self.lines = master, poller, stop, lines
         self.rate_hz, self.baud, self.schedule, self.garbage = rate_hz, baud, schedule, garbage
         self.duration_s, self.stall_after_s = duration_s, stall_after_s
         self.vanish_after_s, self.malformed_every, self.rng = vanish_after_s, malformed_every, rng
+        self.timed = timed  # a line starts with its time (rewritten for a replayed sample)
         self.out = bytearray()
         self.queued_bytes = 0  # bytes put into `out` (paced by the baud rate)
         self.line_ends: list[tuple[int, bool]] = []  # (byte offset after the line, malformed)
@@ -541,7 +605,7 @@ class _Line:
             k = self.schedule.k
             self.schedule.k += 1
             line = self.lines[i]
-            if i != k:  # a later pass, a cut or a paused hold: the time goes on
+            if i != k and self.timed:  # a later pass, a cut or a paused hold: time goes on
                 line = b"%.4f," % (k / self.rate_hz) + line.split(b",", 1)[1]
             every = self.malformed_every
             bad = every is not None and k % every == every - 1

@@ -95,6 +95,9 @@ FORMATS: dict[str, str] = {
     "motioncal": "serial_lines",
     "i2cdevlib": "serial_lines",
     "witmotion": "witmotion",
+    "mavlink": "mavlink",
+    "tlog": "mavlink",
+    "dataflash": "mavlink",
 }
 """``--format`` names and the sibling module that reads each."""
 
@@ -116,7 +119,8 @@ def reader(fmt: str):
 
 def detect_format(paths: Sequence[str | os.PathLike]) -> str:
     """The format of ``paths`` by suffix, then by content: a ROS 2 bag folder, ``.bag``,
-    ``.mcap``, ``.db3`` (``ros``); ``.ulg`` or the ULog magic (``ulog``); WitMotion frames
+    ``.mcap``, ``.db3`` (``ros``); ``.ulg`` or the ULog magic (``ulog``); ``.tlog``, a
+    DataFlash log's first FMT message or telemetry-log records (``mavlink``); WitMotion frames
     (``witmotion``); MotionCal or i2cdevlib lines (``lines``); else ``csv`` (two files:
     ``imu_tk`` must be asked for)."""
     if len(paths) != 1:
@@ -129,6 +133,8 @@ def detect_format(paths: Sequence[str | os.PathLike]) -> str:
         return "ros"
     if suffix == ".ulg":
         return "ulog"
+    if suffix == ".tlog":
+        return "mavlink"
     try:
         with open(path, "rb") as f:
             head = f.read(8192)
@@ -138,9 +144,12 @@ def detect_format(paths: Sequence[str | os.PathLike]) -> str:
         return "ulog"
     if head.startswith((b"#ROSBAG", b"\x89MCAP")):
         return "ros"
+    from .mavlink import looks_like_dataflash, looks_like_tlog
     from .serial_lines import detect_line_format
     from .witmotion import looks_like_witmotion
 
+    if looks_like_dataflash(head) or looks_like_tlog(head):
+        return "mavlink"
     if looks_like_witmotion(head):
         return "witmotion"
     if detect_line_format(head.decode("utf-8", errors="replace")) is not None:

@@ -12,7 +12,8 @@ The values are raw counts (MotionCal's convention: 8192 per g, 16 per deg/s, 10 
 sketches scale them; i2cdevlib: the part's registers).  Other lines (MotionCal's ``Uni:`` and
 ``Cal1:``, banners, partial lines) are counted and skipped.  Neither format carries a time, so
 the rate is needed (``--rate``).  :func:`detect_line_format` tells the format from the first
-lines, so ``imucal import`` needs no ``--format`` for them.
+lines, so ``imucal import`` needs no ``--format`` for them; :func:`line_format` and
+:func:`parse_line` read one line, for the importer and for ``imucal capture`` alike.
 """
 
 from __future__ import annotations
@@ -28,7 +29,10 @@ from imucal_cli.formats.inputs import read_input
 
 from .text import BLANK, MAX_RECORDING_BYTES, NUMBER, split_lines
 
-__all__ = ["LINE_FORMATS", "LineRecording", "detect_line_format", "read_serial_lines"]
+__all__ = [
+    "LINE_FORMATS", "LineRecording", "detect_line_format", "line_format", "parse_line",
+    "read_serial_lines",
+]  # fmt: skip
 
 # name -> (prefix, number of values, what the values are)
 LINE_FORMATS = {
@@ -37,16 +41,42 @@ LINE_FORMATS = {
     "i2cdevlib-mag": ("a/g/m:", 9, "i2cdevlib a/g/m: accel, gyro, mag counts"),
 }
 _SPLIT = re.compile(r"[ \t,;]+")
+_LONGEST_FIRST = sorted(LINE_FORMATS, key=lambda name: -len(LINE_FORMATS[name][0]))
+
+
+def line_format(line: str, formats=tuple(LINE_FORMATS)) -> str | None:
+    """The :data:`LINE_FORMATS` name (among ``formats``) whose prefix starts ``line`` (blanks
+    around it ignored; ``a/g/m:`` before ``a/g:``), else None."""
+    stripped = line.strip(BLANK)
+    for name in _LONGEST_FIRST:
+        if name in formats and stripped.startswith(LINE_FORMATS[name][0]):
+            return name
+    return None
 
 
 def detect_line_format(head: str) -> str | None:
     """The :data:`LINE_FORMATS` name of the first line with a known prefix, else None."""
     for line in head.splitlines()[:200]:
-        stripped = line.strip()
-        for name, (prefix, _, _) in sorted(LINE_FORMATS.items(), key=lambda kv: -len(kv[1][0])):
-            if stripped.startswith(prefix):
-                return name
+        name = line_format(line)
+        if name is not None:
+            return name
     return None
+
+
+def parse_line(fmt: str, line: str) -> list[float] | None:
+    """The values of one line of format ``fmt``: a list of its count of finite numbers; None
+    for a line of the format that does not hold them (malformed: cut, a field that is not a
+    number, a control character).  Call it on lines whose :func:`line_format` is ``fmt``.
+
+    Shared by the importer (:func:`read_serial_lines`) and ``imucal capture`` (its MotionCal
+    and i2cdevlib protocol), so that a line means the same live and from a file.
+    """
+    prefix, count, _ = LINE_FORMATS[fmt]
+    fields = [f for f in _SPLIT.split(line.strip(BLANK)[len(prefix) :].strip(BLANK)) if f]
+    if len(fields) != count or not all(NUMBER.match(f) for f in fields):
+        return None
+    values = [float(f) for f in fields]
+    return values if all(np.isfinite(values)) else None
 
 
 @dataclass
@@ -88,21 +118,14 @@ def read_serial_lines(
     rec = LineRecording(np.empty(0), np.empty((0, 3)), np.empty((0, 3)), None, fmt)
     rows = []
     for number, line in enumerate(split_lines(text), 1):
-        stripped = line.strip(BLANK)
-        if not stripped:
+        if not line.strip(BLANK):
             continue
         rec.lines += 1
-        if not stripped.startswith(prefix) or (prefix == "a/g:" and stripped.startswith("a/g/m:")):
+        if line_format(line) != fmt:
             rec.skipped += 1
             continue
-        fields = [f for f in _SPLIT.split(stripped[len(prefix) :].strip(BLANK)) if f]
-        try:
-            if not all(NUMBER.match(f) for f in fields):
-                raise ValueError(f"not a number in {fields!r}")
-            values = [float(f) for f in fields]
-        except ValueError:
-            values = []
-        if len(values) != count or not np.all(np.isfinite(values)):
+        values = parse_line(fmt, line)
+        if values is None:
             rec.malformed += 1
             rec.first_malformed = rec.first_malformed or f"{src}:{number}"
             continue

@@ -24,7 +24,7 @@ import numpy as np
 from imucal_cli.errors import InputError
 from imucal_cli.formats.importers.ros import Channels, hold_latest
 
-__all__ = ["read_ulog"]
+__all__ = ["pair_by_time", "read_ulog"]
 
 TOPICS = ("sensor_accel", "sensor_gyro", "sensor_mag")
 
@@ -47,8 +47,9 @@ def _times(d: Any) -> np.ndarray:
     return np.asarray(t, np.float64) * 1e-6
 
 
-def _pair(t_a: np.ndarray, t_g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Indices pairing accel and gyro samples by time (see the module notes)."""
+def pair_by_time(t_a: np.ndarray, t_g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Indices ``(ia, ig)`` pairing accel and gyro samples by time (see the module notes; the
+    DataFlash reader pairs ACC and GYR the same way)."""
     common, ia, ig = np.intersect1d(t_a, t_g, return_indices=True)
     if len(common) >= 0.9 * min(len(t_a), len(t_g)):
         return ia, ig
@@ -105,7 +106,7 @@ def read_ulog(path: str | os.PathLike, topic: str | None = None) -> Channels:
                          f"accel {sorted(accel)}, gyro {sorted(gyro)}")  # fmt: skip
     a, g = accel[wanted], gyro[wanted]
     t_a, t_g = _times(a), _times(g)
-    ia, ig = _pair(t_a, t_g)
+    ia, ig = pair_by_time(t_a, t_g)
     if len(ia) == 0:
         raise InputError(f"{src}: sensor_accel and sensor_gyro share no time")
     time = t_a[ia] if np.median(np.diff(t_a)) >= np.median(np.diff(t_g)) else t_g[ig]

@@ -568,6 +568,7 @@ class SessionWriter:
             them up with :meth:`drop_pending`.
         """
         file = self._check_open()
+        log_rows = self._log.shape[0]
         try:
             if self._pending:
                 start, stop = self._n_written, self._n_written + self._n_pending
@@ -580,6 +581,7 @@ class SessionWriter:
                 self._log[start:] = np.array(self._pending_log, dtype=f"S{LOG_ITEM_BYTES}")
             file.flush()
         except _WRITE_ERRORS as exc:
+            self._roll_back(log_rows)
             raise self._write_failed(exc, self._n_pending) from None
         if self._pending:
             self._last_written_time = float(self._pending[-1]["time"][-1])
@@ -588,6 +590,21 @@ class SessionWriter:
         self._n_pending = 0
         self._pending_log = []
         self._last_flush = _time.monotonic()
+
+    def _roll_back(self, log_rows: int) -> None:
+        """After a failed write, shrink ``/raw`` and the log back to what was written.  HDF5
+        keeps a chunk it could not allocate (a full disk) as if it were written: rows written
+        into it again on a retry were lost when the file closed (read back as the NaN fill
+        value).  Shrinking drops that chunk, so the retry writes fresh ones."""
+        for dataset in self._datasets.values():
+            try:
+                dataset.resize(self._n_written, axis=0)
+            except _WRITE_ERRORS:
+                pass
+        try:
+            self._log.resize(log_rows, axis=0)
+        except _WRITE_ERRORS:
+            pass
 
     def release_reserve(self) -> bool:
         """Free the disk space set aside at the start; return whether there was any."""

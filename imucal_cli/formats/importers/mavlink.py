@@ -1,0 +1,475 @@
+"""MAVLink telemetry logs (``.tlog``) and ArduPilot DataFlash logs (``.bin``), read with
+``pymavlink`` (``pip install 'imucal-cli[mavlink]'``).
+
+What is read, in the units each message states (never rescaled but for the factor that turns
+a unit the session format does not name into one it does):
+
+=================  =======================================  =====================================
+log: message       accel, gyro, mag                         time; temperature
+=================  =======================================  =====================================
+tlog: RAW_IMU      counts, counts, counts                   ``time_usec``; ``temperature`` cdegC
+tlog: SCALED_IMU,  mG, mrad/s, mgauss: stored as g, rad/s,  ``time_boot_ms``; ``temperature``
+SCALED_IMU2, 3     gauss (/ 1000)                           cdegC
+tlog: HIGHRES_IMU  m/s^2, rad/s, gauss                      ``time_usec``; ``temperature`` degC
+DataFlash: IMU     ``AccX..`` m/s^2, ``GyrX..`` rad/s        ``TimeUS``; ``T`` (``Temp``) degC
+DataFlash: ACC +   ``AccX..`` m/s^2, ``GyrX..`` rad/s,       ``SampleUS``; the IMU's ``T``
+GYR                paired by ``SampleUS``
+DataFlash: MAG     ``MagX..`` mGauss, stored as gauss        ``TimeUS``, latest per sample
+=================  =======================================  =====================================
+
+A temperature of 0 in RAW_IMU/SCALED_IMU means "not sent" (MAVLink's definition) and is NaN;
+a magnetometer reading of exactly (0, 0, 0) is no reading (NaN).  Telemetry logs: time from the
+message's own time field when it is set and strictly increasing, else from the log's receive
+stamps.  Several streams (message, instance ``id``/``I``, sending system when there are
+several) are listed and one is chosen with ``topic`` (``--topic RAW_IMU``, ``IMU.1``), as for
+ROS topics.  ArduPilot logs IMU/ACC/GYR/MAG after applying its own calibration (INS_ACCOFFS,
+INS_ACCSCAL, INS_GYROFFS, COMPASS_OFS ..., the board rotation), and fills RAW_IMU with its
+calibrated values in mG and mrad/s: the notes say so.
+
+pymavlink's DataFlash reader loops forever on a format of length 0 with no fields (a damaged
+or hostile file); :class:`_Guarded` stops it at the first message that does not move on.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import re
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from imucal_cli.errors import InputError
+
+from .ros import Channels, hold_latest
+
+__all__ = ["choose_stream", "looks_like_dataflash", "looks_like_tlog", "read_mavlink"]
+
+NAME = "mavlink"
+FILES = "one MAVLink telemetry log (.tlog) or ArduPilot DataFlash log (.bin)"
+DATAFLASH_HEAD = b"\xa3\x95\x80"  # the first message of a DataFlash log: FMT (type 128)
+
+
+@dataclass(frozen=True)
+class _Message:
+    """How a telemetry message carries a sample: its time field and its units."""
+
+    time_field: str
+    time_scale: float  # s per unit
+    units: tuple[str, str, str]  # accel, gyro, mag as stored
+    scale: float  # stored = sent * scale
+    temp_scale: float  # deg C per unit
+    zero_temp_missing: bool
+    sent: str  # the units as sent, for the notes
+
+
+_CENTI = dict(temp_scale=0.01, zero_temp_missing=True)
+TLOG_MESSAGES = {
+    "RAW_IMU": _Message("time_usec", 1e-6, ("counts", "counts", "counts"), 1.0, **_CENTI,
+                        sent="raw counts"),
+    "SCALED_IMU": _Message("time_boot_ms", 1e-3, ("g", "rad/s", "gauss"), 1e-3, **_CENTI,
+                           sent="mG, mrad/s, mgauss"),
+    "HIGHRES_IMU": _Message("time_usec", 1e-6, ("m/s^2", "rad/s", "gauss"), 1.0, 1.0, False,
+                            sent="m/s^2, rad/s, gauss"),
+}  # fmt: skip
+TLOG_MESSAGES["SCALED_IMU2"] = TLOG_MESSAGES["SCALED_IMU3"] = TLOG_MESSAGES["SCALED_IMU"]
+_WITH_ID = ("RAW_IMU", "HIGHRES_IMU")  # messages with an instance field `id`
+_DF_NAME = re.compile(r"(IMU|ACC|GYR|MAG)([1-3]?)")
+
+
+# --------------------------------------------------------------------------------------------
+# Recognising the files
+# --------------------------------------------------------------------------------------------
+
+
+def looks_like_dataflash(head: bytes) -> bool:
+    """True when ``head`` starts as a DataFlash log does: an FMT message (0xA3 0x95 0x80)."""
+    return head.startswith(DATAFLASH_HEAD)
+
+
+def looks_like_tlog(head: bytes, need: int = 3) -> bool:
+    """True when ``head`` starts with ``need`` telemetry-log records: an 8-byte big-endian
+    time (microseconds since 1970, 2001-2100) then a MAVLink 1 (0xFE) or 2 (0xFD) packet."""
+    pos = found = 0
+    while found < need and pos + 12 <= len(head):
+        (stamp_us,) = struct.unpack(">Q", head[pos : pos + 8])
+        magic, length = head[pos + 8], head[pos + 9]
+        if not 1e15 <= stamp_us <= 4.1e15 or magic not in (0xFD, 0xFE):
+            return False
+        signed = magic == 0xFD and head[pos + 10] & 0x01
+        pos += 8 + length + (12 + 13 * signed if magic == 0xFD else 8)
+        found += 1
+    return found >= need or (found > 0 and pos == len(head))
+
+
+# --------------------------------------------------------------------------------------------
+# Choosing a stream
+# --------------------------------------------------------------------------------------------
+
+
+def choose_stream(labels: list[str], wanted: str | None, src: str, what: str) -> str:
+    """The stream to read: ``wanted`` (its label, or the message name alone when one stream
+    has it), or the only stream.
+
+    Raises
+    ------
+    InputError
+        No stream, several and none chosen, or ``wanted`` names none or several; the message
+        lists the streams.
+    """
+    listed = ", ".join(labels)
+    if not labels:
+        raise InputError(f"{src}: no {what} messages in the log")
+    if wanted is None:
+        if len(labels) == 1:
+            return labels[0]
+        raise InputError(f"{src}: several IMU streams: {listed}; choose one with --topic")
+    matches = [
+        label for label in labels
+        if wanted in (label, label.partition("@")[0], label.partition("@")[0].partition(".")[0])
+    ]  # fmt: skip
+    if len(matches) == 1:
+        return matches[0]
+    if wanted in labels:
+        return wanted
+    said = "matches several streams" if matches else "is not in the log"
+    raise InputError(f"{src}: --topic {wanted} {said}; IMU streams: {listed}")
+
+
+def _increasing(time: np.ndarray, finite: np.ndarray) -> np.ndarray:
+    """Rows to keep: finite, and later than every row before them."""
+    t = np.where(finite, time, -np.inf)
+    before = np.maximum.accumulate(np.concatenate([[-np.inf], t[:-1]]))
+    return finite & (t > before)
+
+
+def _zero_is_none(values: np.ndarray) -> np.ndarray | None:
+    """Rows of exactly 0 become NaN (not sent); None when no row holds a value."""
+    values = np.asarray(values, np.float64)
+    none = np.all(values == 0, axis=-1) if values.ndim > 1 else values == 0
+    if none.all():
+        return None
+    return np.where(none[..., None] if values.ndim > 1 else none, np.nan, values)
+
+
+# --------------------------------------------------------------------------------------------
+# pymavlink
+# --------------------------------------------------------------------------------------------
+
+
+def _pymavlink():
+    """``(mavutil, DFReader)``, or the one-line error naming the extra."""
+    try:
+        from pymavlink import DFReader, mavutil
+    except ImportError:
+        raise InputError("reading a MAVLink log needs pymavlink: pip install "
+                         "'imucal-cli[mavlink]'") from None  # fmt: skip
+    return mavutil, DFReader
+
+
+@contextlib.contextmanager
+def _quiet():
+    """pymavlink prints what it skips, in Python and (its compiled DataFlash indexer) on file
+    descriptor 2; library code never prints (errors are one line, --json owns stdout)."""
+    import sys
+    import tempfile
+
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with tempfile.TemporaryFile() as sink:
+            os.dup2(sink.fileno(), 2)
+            with contextlib.redirect_stdout(io.StringIO()), \
+                    contextlib.redirect_stderr(io.StringIO()):  # fmt: skip
+                yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+class _Stuck(Exception):
+    """pymavlink's DataFlash reader did not move on (a format of length 0)."""
+
+
+def _guarded(DFReader):  # noqa: N803 - the module's own name
+    """pymavlink's ``DFReader_binary`` that raises :class:`_Stuck` instead of reading the same
+    message for ever."""
+
+    class _Guarded(DFReader.DFReader_binary):
+        def _parse_next(self):
+            before = self.offset
+            message = super()._parse_next()
+            if message is not None and self.offset <= before:
+                raise _Stuck(f"a message format of length 0 at byte {before}")
+            return message
+
+    return _Guarded
+
+
+# --------------------------------------------------------------------------------------------
+# Telemetry logs
+# --------------------------------------------------------------------------------------------
+
+
+def _tlog_rows(path: Path, mavutil) -> tuple[dict[tuple, list], int]:
+    """Rows ``(receive s, device time, ax..az, gx..gz, mx..mz, temp)`` per stream key
+    ``(message, id, system, component)``, and the count of bad data."""
+    log = mavutil.mavlogfile(str(path), robust_parsing=True)
+    rows: dict[tuple, list] = {}
+    bad = 0
+    try:
+        while (m := log.recv_msg()) is not None:
+            name = m.get_type()
+            if name == "BAD_DATA":
+                bad += 1
+                continue
+            spec = TLOG_MESSAGES.get(name)
+            if spec is None:
+                continue
+            key = (name, int(getattr(m, "id", 0) or 0) if name in _WITH_ID else None,
+                   m.get_srcSystem(), m.get_srcComponent())  # fmt: skip
+            rows.setdefault(key, []).append((
+                m._timestamp, getattr(m, spec.time_field), m.xacc, m.yacc, m.zacc, m.xgyro,
+                m.ygyro, m.zgyro, m.xmag, m.ymag, m.zmag, getattr(m, "temperature", 0),
+            ))  # fmt: skip
+    finally:
+        log.close()
+    return rows, bad
+
+
+def _tlog_labels(keys: list[tuple]) -> dict[str, tuple]:
+    """Stream labels: ``RAW_IMU.0``, ``SCALED_IMU2``; ``@system/component`` when the log holds
+    IMU messages of several senders."""
+    several = len({k[2:] for k in keys}) > 1
+    out = {}
+    for name, ident, system, component in sorted(keys, key=lambda k: (k[0], k[1] or 0, k[2:])):
+        label = name if ident is None else f"{name}.{ident}"
+        out[label + (f"@{system}/{component}" if several else "")] = (name, ident, system,
+                                                                      component)  # fmt: skip
+    return out
+
+
+def _tlog_channels(label: str, name: str, rows: list) -> Channels:
+    """Channels of one telemetry stream (see the module's table)."""
+    spec = TLOG_MESSAGES[name]
+    data = np.asarray(rows, np.float64)
+    received, device = data[:, 0], data[:, 1] * spec.time_scale
+    use_device = bool(np.all(device > 0) and np.all(np.diff(device) > 0))
+    time = device if use_device else received
+    values = data[:, 2:11] * spec.scale
+    keep = _increasing(time, np.isfinite(values[:, :6]).all(axis=1))
+    a_units, g_units, m_units = spec.units
+    notes = [
+        f"{label}: {spec.sent}" + (f", stored as {a_units}, {g_units}, {m_units}"
+                                    if spec.scale != 1 else ""),
+        f"time from {spec.time_field}" if use_device else
+        f"time from the log's receive stamps ({spec.time_field} unset or not increasing)",
+    ]  # fmt: skip
+    ch = Channels(time=time[keep], accel=values[keep, 0:3], gyro=values[keep, 3:6],
+                  accel_units=a_units, gyro_units=g_units, notes=notes,
+                  dropped=int((~keep).sum()))  # fmt: skip
+    mag = _zero_is_none(values[keep, 6:9])
+    if mag is not None:
+        ch.mag, ch.mag_units = mag, m_units
+    temp = data[keep, 11] * spec.temp_scale
+    temp = _zero_is_none(temp) if spec.zero_temp_missing else temp
+    if temp is not None and np.any(temp != 0):
+        ch.temperature = temp
+    if name == "RAW_IMU":
+        notes.append("ArduPilot fills RAW_IMU with its calibrated values (mG, mrad/s, mgauss), "
+                     "PX4 with the sensor's counts")  # fmt: skip
+    return ch
+
+
+def read_tlog(path: str | os.PathLike, topic: str | None = None) -> Channels:
+    """Accelerometer, gyroscope, magnetometer and temperature of a MAVLink telemetry log.
+
+    Raises
+    ------
+    InputError
+        pymavlink not installed (names the extra), an unreadable log, no IMU message, or
+        several streams and none chosen (listed).
+    """
+    mavutil, _ = _pymavlink()
+    src = str(path)
+    try:
+        with _quiet():
+            rows, bad = _tlog_rows(Path(path), mavutil)
+    except Exception as exc:  # noqa: BLE001 - pymavlink raises plain exceptions
+        raise InputError(f"{src}: not a readable MAVLink telemetry log "
+                         f"({' '.join(str(exc).split())[:200]})") from None  # fmt: skip
+    labels = _tlog_labels(list(rows))
+    label = choose_stream(list(labels), topic, src, "RAW_IMU, SCALED_IMU or HIGHRES_IMU")
+    key = labels[label]
+    ch = _tlog_channels(label, key[0], rows[key])
+    if bad:
+        ch.notes.append(f"{bad} stretches of bytes that were no MAVLink packet skipped")
+    return ch
+
+
+# --------------------------------------------------------------------------------------------
+# DataFlash logs
+# --------------------------------------------------------------------------------------------
+
+
+def _df_instance(message, name: str, digit: str) -> int:
+    """The sensor instance: the ``I`` field, else the name's digit (IMU2 -> 1, ACC1 -> 0)."""
+    if "I" in message.fmt.colhash:
+        return int(message.I)
+    return int(digit) - 1 if digit else 0
+
+
+def _df_time_us(message, *fields: str) -> float:
+    for field in fields:
+        if field in message.fmt.colhash:
+            return float(getattr(message, field)) * (1000.0 if field == "TimeMS" else 1.0)
+    return float("nan")
+
+
+def _df_temperature(message) -> float:
+    for field in ("T", "Temp"):
+        if field in message.fmt.colhash:
+            return float(getattr(message, field))
+    return float("nan")
+
+
+def _df_rows(path: Path, DFReader) -> dict[tuple[str, int], list]:  # noqa: N803
+    """Rows per ``(kind, instance)``: IMU ``(us, ax..az, gx..gz, temp)``, ACC/GYR ``(sample
+    us, x, y, z)``, MAG ``(us, x, y, z)``."""
+    log = _guarded(DFReader)(str(path))
+    names = [n for n in log.name_to_id if _DF_NAME.fullmatch(n)]
+    rows: dict[tuple[str, int], list] = {}
+    try:
+        while names and (m := log.recv_match(type=names)) is not None:
+            kind, digit = _DF_NAME.fullmatch(m.get_type()).groups()
+            key = (kind, _df_instance(m, kind, digit))
+            if kind == "IMU":
+                row = (_df_time_us(m, "TimeUS", "TimeMS"), m.AccX, m.AccY, m.AccZ, m.GyrX,
+                       m.GyrY, m.GyrZ, _df_temperature(m))  # fmt: skip
+            elif kind == "MAG":
+                row = (_df_time_us(m, "TimeUS", "TimeMS"), m.MagX, m.MagY, m.MagZ)
+            else:
+                axis = "Acc" if kind == "ACC" else "Gyr"
+                row = (_df_time_us(m, "SampleUS", "TimeUS"), getattr(m, axis + "X"),
+                       getattr(m, axis + "Y"), getattr(m, axis + "Z"))  # fmt: skip
+            rows.setdefault(key, []).append(row)
+    finally:
+        log.close()
+    return rows
+
+
+def _df_series(rows: list, n_values: int = 3) -> tuple[np.ndarray, np.ndarray, int]:
+    """Time (s) and values of one DataFlash series, strictly increasing, the first
+    ``n_values`` values finite (the temperature may be NaN); dropped rows."""
+    data = np.asarray(rows, np.float64)
+    keep = _increasing(data[:, 0] * 1e-6, np.isfinite(data[:, : 1 + n_values]).all(axis=1))
+    return data[keep, 0] * 1e-6, data[keep, 1:], int((~keep).sum())
+
+
+def _df_imu(rows: dict, instance: int) -> Channels:
+    time, values, dropped = _df_series(rows[("IMU", instance)], 6)
+    ch = Channels(time=time, accel=values[:, 0:3], gyro=values[:, 3:6], accel_units="m/s^2",
+                  gyro_units="rad/s", dropped=dropped,
+                  notes=[f"DataFlash IMU instance {instance} (m/s^2, rad/s), time from TimeUS"])
+    if np.isfinite(values[:, 6]).any():
+        ch.temperature = values[:, 6]
+    return ch
+
+
+def _df_acc_gyr(rows: dict, instance: int) -> Channels:
+    from .ulog import pair_by_time
+
+    t_a, acc, drop_a = _df_series(rows[("ACC", instance)])
+    t_g, gyr, drop_g = _df_series(rows[("GYR", instance)])
+    if min(len(t_a), len(t_g)) < 2:
+        raise InputError(f"ACC and GYR instance {instance}: too few samples ({len(t_a)}, "
+                         f"{len(t_g)})")  # fmt: skip
+    ia, ig = pair_by_time(t_a, t_g)
+    if len(ia) == 0:
+        raise InputError(f"ACC and GYR instance {instance} share no SampleUS")
+    time = t_a[ia] if np.median(np.diff(t_a)) >= np.median(np.diff(t_g)) else t_g[ig]
+    ch = Channels(time=time, accel=acc[ia], gyro=gyr[ig], accel_units="m/s^2",
+                  gyro_units="rad/s", dropped=drop_a + drop_g + len(t_a) + len(t_g) - 2 * len(ia),
+                  notes=[f"DataFlash ACC and GYR instance {instance} (m/s^2, rad/s) paired by "
+                         f"SampleUS: {len(ia)} of {len(t_a)} and {len(t_g)} samples"])  # fmt: skip
+    if ("IMU", instance) in rows:
+        t_i, imu, _ = _df_series(rows[("IMU", instance)], 6)
+        if np.isfinite(imu[:, 6]).any():
+            ch.temperature = hold_latest(t_i, imu[:, 6], time)
+            ch.notes.append(f"temperature: IMU instance {instance}'s T, latest per sample")
+    return ch
+
+
+def read_dataflash(path: str | os.PathLike, topic: str | None = None) -> Channels:
+    """Accelerometer, gyroscope, magnetometer and temperature of an ArduPilot DataFlash log.
+
+    Raises
+    ------
+    InputError
+        pymavlink not installed (names the extra), an unreadable log, no IMU or ACC/GYR
+        messages, or several streams and none chosen (listed).
+    """
+    _, DFReader = _pymavlink()  # noqa: N806
+    src = str(path)
+    try:
+        with _quiet():
+            rows = _df_rows(Path(path), DFReader)
+    except Exception as exc:  # noqa: BLE001 - pymavlink raises plain exceptions
+        raise InputError(f"{src}: not a readable DataFlash log "
+                         f"({' '.join(str(exc).split())[:200]})") from None  # fmt: skip
+    imu = sorted(i for kind, i in rows if kind == "IMU")
+    acc = sorted(i for kind, i in rows if kind == "ACC" and ("GYR", i) in rows)
+    labels = [f"IMU.{i}" for i in imu] + [f"ACC.{i}" for i in acc]
+    label = choose_stream(labels, topic, src, "IMU or ACC/GYR")
+    kind, instance = label.split(".")[0], int(label.split(".")[1])
+    try:
+        ch = _df_imu(rows, instance) if kind == "IMU" else _df_acc_gyr(rows, instance)
+    except InputError as exc:
+        raise InputError(f"{src}: {exc}") from None
+    ch.notes.append("ArduPilot logs IMU, ACC and GYR after its own offsets and scales "
+                    "(INS_ACCOFFS, INS_ACCSCAL, INS_GYROFFS) and board rotation")  # fmt: skip
+    mags = sorted(i for k, i in rows if k == "MAG")
+    if mags:
+        m = instance if instance in mags else mags[0]
+        t_m, values, _ = _df_series(rows[("MAG", m)])
+        mag = _zero_is_none(values)
+        if mag is not None and len(t_m):
+            ch.mag, ch.mag_units = hold_latest(t_m, mag * 1e-3, ch.time), "gauss"
+            ch.notes.append(f"MAG instance {m} (mGauss, stored as gauss; after ArduPilot's "
+                            "COMPASS_OFS, DIA, ODI), latest per sample")  # fmt: skip
+    return ch
+
+
+# --------------------------------------------------------------------------------------------
+# The importer interface (``imucal import --format mavlink``)
+# --------------------------------------------------------------------------------------------
+
+
+def read_mavlink(path: str | os.PathLike, topic: str | None = None) -> Channels:
+    """A DataFlash log (by its first bytes) with :func:`read_dataflash`, anything else with
+    :func:`read_tlog`.
+
+    Raises
+    ------
+    InputError
+        Not a regular file, empty, or what the reader refuses.
+    """
+    from imucal_cli.formats.inputs import read_head
+
+    head = read_head(path, 64, what="MAVLink log")
+    if not head:
+        raise InputError(f"{path}: empty file, not a MAVLink log")
+    if looks_like_dataflash(head):
+        return read_dataflash(path, topic)
+    return read_tlog(path, topic)
+
+
+def read(paths, options, stats):
+    """``imucal import --format mavlink``: :func:`read_mavlink` of the one path, ``--topic``."""
+    from .ros import one_file, to_recording
+
+    path = one_file(paths, options, NAME, FILES)
+    return to_recording(read_mavlink(path, options.topic), paths, stats)
