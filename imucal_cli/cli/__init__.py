@@ -93,8 +93,26 @@ def _guard_stdout():
     return original
 
 
+def _reuse_freed_memory() -> None:
+    """Serve numpy's temporaries (a few hundred kB to a few MB per block of samples) from
+    memory the process freed before, instead of fresh pages from the kernel each time: glibc
+    maps every allocation over 128 kB anew, and zeroing those pages cost 0.1-0.3 s of CPU over
+    a day-long ``apply`` or ``noise`` and 0.05 s of a calibration (issue 14).  glibc only;
+    elsewhere nothing changes."""
+    import ctypes
+
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):
+        return
+    m_trim_threshold, m_mmap_threshold = -1, -3  # glibc's malloc.h
+    mallopt(m_mmap_threshold, 32 << 20)
+    mallopt(m_trim_threshold, 64 << 20)
+
+
 def main() -> None:
     """Console-script entry point (``imucal``): run, then exit with the command's status."""
+    _reuse_freed_memory()
     warnings.showwarning = _show_warning
     warnings.simplefilter("always", ImucalWarning)
     original = _guard_stdout()

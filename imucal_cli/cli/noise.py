@@ -47,7 +47,7 @@ def noise(
     segment of SESSION, or the whole recording when it has none.  Exit status: 0 done; 2 bad
     input (raw units without --calibration, a recording too short or not still).
     """
-    from imucal_cli.formats.session import read_session
+    from imucal_cli.formats.session import open_samples
     from imucal_cli.use.noise import analyse_noise, load_calibration
 
     inputs = [session, calibration]
@@ -55,9 +55,9 @@ def noise(
         from imucal_cli.formats.output import check_output
 
         check_output(plot, force=force, inputs=inputs)
-    sess = read_session(session)
-    cal = None if calibration is None else load_calibration(calibration)
-    result = analyse_noise(sess, cal)
+    with open_samples(session) as samples:
+        cal = None if calibration is None else load_calibration(calibration)
+        result = analyse_noise(samples, cal)
     if plot is not None:
         from imucal_cli.use.plots import noise_figure
 

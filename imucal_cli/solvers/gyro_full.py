@@ -442,7 +442,7 @@ def accel_sensitivity(
             F[:, j] = 0.0
             continue
         h = 1e-6 * g_norm / size  # moves a direction by about 1e-6 rad
-        f = [W(Problem(rot, replace(still, g=still.g + s * h * dg[:, :, j]), gyro_sigma, clock,
-                       g_sensitivity=with_g).raw_residuals(x)) for s in (1, -1)]  # fmt: skip
+        f = [W(prob.with_still(replace(still, g=still.g + s * h * dg[:, :, j])).raw_residuals(x))
+             for s in (1, -1)]  # fmt: skip
         F[:, j] = (f[0] - f[1]) / (2 * h)
     return -np.linalg.lstsq(J, F, rcond=None)[0]

@@ -13,6 +13,7 @@ still period (gyro mean minus ``b + G a``: the gyro reads zero rate when still).
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -124,6 +125,16 @@ class Problem:
         h2[self.stack.stop[:-1] - 1] = 0.0
         self.int_noise = gyro_sigma * np.sqrt(np.add.reduceat(np.r_[h2, 0.0], self.stack.start))
         self._last = (None, None)
+
+    def with_still(self, still: Stills) -> Problem:
+        """The same turns with other still periods' gravity (the attitudes, which depend on
+        the turns and the parameters only, and their last evaluation are shared)."""
+        other = copy.copy(self)
+        other.still = still
+        other.P = len(still.g)
+        other.u = still.g / np.linalg.norm(still.g, axis=1, keepdims=True)
+        other.B = tangent(other.u)
+        return other
 
     def split(self, x):
         """``(b, M, G)`` from a parameter vector (``G`` zero without the term)."""

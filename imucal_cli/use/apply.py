@@ -284,16 +284,23 @@ def _session_blocks(
         raise
 
     def blocks() -> Iterator[_Block]:
+        # Each block is read into the same arrays (no new memory per block; a block is used
+        # up before the next is read).
+        bounds = _chunk_bounds(n, chunk_rows)
+        rows = max((b - a for a, b in bounds), default=0)
+        buffers = {name: np.empty((rows, *ds.shape[1:])) for name, ds in
+                   [("time", time_ds), *datasets.items()]}  # fmt: skip
         last = None
-        for start, stop in _chunk_bounds(n, chunk_rows):
+        for start, stop in bounds:
             try:
-                t = np.asarray(time_ds[start:stop], dtype=np.float64)
-                values = {
-                    name: np.asarray(ds[start:stop], dtype=np.float64)
-                    for name, ds in datasets.items()
-                }
+                values = {}
+                for name, ds in [("time", time_ds), *datasets.items()]:
+                    out = buffers[name][: stop - start]
+                    ds.read_direct(out, np.s_[start:stop], np.s_[0 : stop - start])
+                    values[name] = out
+                t = values.pop("time")
                 temp = values.pop("temperature", None)
-            except (OSError, KeyError, RuntimeError) as exc:
+            except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
                 raise InputError(f"{src}: damaged HDF5 file ({one_line(exc)})") from None
             check_session_time(t, src, first=start, before=last)
             last = float(t[-1])
@@ -523,12 +530,12 @@ def _write_block(writer, block: _Block, sections, summary: ApplySummary, output_
     for name, sec in sections.items():  # accel first: the gyro's g_sensitivity needs it
         values[name] = sec.apply(block.raw[name], accel=values.get("accel"),
                                  temperature=block.temperature)  # fmt: skip
-    bad = np.zeros(len(block.time), dtype=bool)
-    for raw in block.raw.values():
-        bad |= ~np.isfinite(raw).all(axis=1)
-    if block.temperature is not None:
-        bad |= ~np.isfinite(block.temperature)
-    summary.nonfinite += int(bad.sum())
+    inputs = [*block.raw.values(), *([] if block.temperature is None else [block.temperature])]
+    if not all(np.isfinite(x).all() for x in inputs):  # a dropout: count its samples
+        bad = np.zeros(len(block.time), dtype=bool)
+        for x in inputs:
+            bad |= ~np.isfinite(x).reshape(len(x), -1).all(axis=1)
+        summary.nonfinite += int(bad.sum())
     if summary._first_time is None:
         summary._first_time = float(block.time[0])
     time = block.time

@@ -1,16 +1,21 @@
 """The noise step (``imucal noise``): a still recording -> Allan deviation -> noise figures.
 
 1. The samples: the longest static segment of the session, or the whole recording when the
-   session has no segments.  :func:`~imucal_cli.solvers.segmentation.find_static` checks that
-   they are still (thresholds from the data's own noise): a recording mostly moving is refused,
-   one that moved for more than :data:`MOVED_WARN_FRACTION` of its duration is analysed with a
-   warning (motion inflates every figure).
+   session has no segments, read once, block by block (memory stays constant: a day at 100 Hz
+   in under 200 MiB).  :class:`~imucal_cli.solvers.segmentation.StaticStream` checks that they
+   are still as :func:`~imucal_cli.solvers.segmentation.find_static` does (thresholds from the
+   data's own noise, estimated from the span, or from :data:`NOISE_PIECES` pieces of it when
+   it is longer than :data:`NOISE_SAMPLES`): a recording mostly moving is refused, one that
+   moved for more than :data:`MOVED_WARN_FRACTION` of its duration is analysed with a warning
+   (motion inflates every figure).
 2. Raw -> SI: with a calibration, ``calibrated = matrix @ (raw - bias)`` per sensor; without,
    the session's nominal units (``m/s^2``, ``g``; ``rad/s``, ``deg/s``).  ``counts`` or ``V``
    need a calibration: such a sensor is skipped with a warning, and when no sensor is left the
    step refuses with advice.
-3. Per axis: :func:`imucal_cli.solvers.allan.axis_noise` (random walk, bias instability, rate
-   random walk), converted to the units people put in their filters.
+3. Per axis: the overlapping Allan deviation summed block by block
+   (:class:`imucal_cli.solvers.allan.AllanAccumulator`), and the random walk, bias instability
+   and rate random walk read from it (:func:`~imucal_cli.solvers.allan.noise_from_curve`),
+   converted to the units people put in their filters.
 
 :func:`analyse_noise` returns a :class:`NoiseReport`; :meth:`NoiseReport.to_dict` is the
 ``imucal noise --json`` output.
@@ -20,6 +25,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,8 +35,8 @@ import numpy as np
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import Calibration, SensorCalibration
 from imucal_cli.formats.noise import NOISE_FORMAT
-from imucal_cli.formats.session import Session
-from imucal_cli.solvers.allan import AxisNoise, axis_noise
+from imucal_cli.formats.session import Session, SessionSamples, samples_of
+from imucal_cli.solvers.allan import AllanAccumulator, AxisNoise, noise_from_curve
 
 __all__ = [
     "MIN_DURATION_S",
@@ -204,55 +210,86 @@ class NoiseReport:
         }
 
 
-def _span(session: Session) -> tuple[int, int, str]:
+NOISE_SAMPLES = 1 << 16
+"""Samples the still test's noise is estimated from: the whole span when it is no longer (the
+noise :func:`~imucal_cli.solvers.segmentation.find_static` estimates), else
+:data:`NOISE_PIECES` pieces spread evenly over it."""
+
+NOISE_PIECES = 16
+
+
+def _span(samples: SessionSamples) -> tuple[int, int, str]:
     """The longest static segment, or the whole recording when there are no segments."""
-    if not session.segments:
-        return 0, len(session.time), "whole recording (no segments)"
-    statics = [s for s in session.segments if s.kind == "static"]
+    if not samples.segments:
+        return 0, samples.n, "whole recording (no segments)"
+    statics = [s for s in samples.segments if s.kind == "static"]
     if not statics:
         raise InputError(
-            f"{session.path or 'session'}: no static segment to analyse; record the unit still "
+            f"{samples.path or 'session'}: no static segment to analyse; record the unit still "
             "(imucal capture --plan still:20)"
         )
-    best = max(statics, key=lambda s: session.time[s.stop - 1] - session.time[s.start])
+
+    def length(s) -> float:
+        return float(samples.read("time", s.stop - 1, s.stop)[0]
+                     - samples.read("time", s.start, s.start + 1)[0])  # fmt: skip
+
+    best = max(statics, key=length)
     label = f" ({best.label})" if best.label else ""
     return best.start, best.stop, f"segment {best.name}{label}, the longest still one"
 
 
-def _to_si(
-    kind: str, raw: np.ndarray, units: str | None, cal: SensorCalibration | None,
+def _si_transform(
+    kind: str, width: int, units: str | None, cal: SensorCalibration | None,
     gravity: float, where: str,
-) -> tuple[np.ndarray, str]:  # fmt: skip
-    """Raw channels -> SI rate (N, 3 or n) and how."""
+) -> tuple[Callable[[np.ndarray], np.ndarray], int, str]:  # fmt: skip
+    """Raw channels -> SI rate: the function, its number of output channels, and how."""
     if cal is not None:
         bias = np.asarray(cal.bias, float)
         matrix = np.asarray(cal.matrix, float)
-        if matrix.shape[1] != raw.shape[1]:
+        if matrix.shape[1] != width:
             raise InputError(
                 f"{where}: the calibration's {kind} takes {matrix.shape[1]} channels, the "
-                f"session has {raw.shape[1]}"
+                f"session has {width}"
             )
-        return (raw - bias) @ matrix.T, f"calibration ({cal.solver})"
+        return (lambda raw: (raw - bias) @ matrix.T), matrix.shape[0], \
+            f"calibration ({cal.solver})"  # fmt: skip
     table = _NOMINAL[kind]
     if units not in table:
         raise _NeedsCalibration(f"{kind} in {units or 'unstated units'}")
     factor = table[units] if table[units] is not None else gravity
-    return raw * factor, f"nominal units ({units})"
+    return (lambda raw: raw * factor), width, f"nominal units ({units})"
 
 
 class _NeedsCalibration(Exception):
     pass
 
 
+def _noise_sample(samples: SessionSamples, names: tuple[str, ...], start: int,
+                  stop: int) -> list[np.ndarray]:  # fmt: skip
+    """``names`` over the whole span when it holds at most :data:`NOISE_SAMPLES` samples, else
+    over :data:`NOISE_PIECES` pieces spread evenly over it (concatenated)."""
+    n = stop - start
+    if n <= NOISE_SAMPLES:
+        pieces = [(start, stop)]
+    else:
+        size = NOISE_SAMPLES // NOISE_PIECES
+        pieces = [(a, a + size) for a in (start + (n - size) * i // (NOISE_PIECES - 1)
+                                          for i in range(NOISE_PIECES))]  # fmt: skip
+    return [np.concatenate([samples.read(name, a, b) for a, b in pieces]) for name in names]
+
+
 def analyse_noise(
-    session: Session, calibration: Calibration | None = None, *,
+    session: Session | SessionSamples, calibration: Calibration | None = None, *,
     max_tau_fraction: float = MAX_TAU_FRACTION,
 ) -> NoiseReport:  # fmt: skip
     """Allan deviation of a still recording and the noise figures per axis.
 
+    The samples are read once, block by block (:func:`~imucal_cli.formats.session.open_samples`
+    gives a file that way): memory stays constant however long the recording.
+
     Parameters
     ----------
-    session : Session
+    session : Session or SessionSamples
         A still recording (``imucal capture --plan still:MINUTES``, or any session: its
         longest static segment is used).
     calibration : Calibration, optional
@@ -269,31 +306,70 @@ def analyse_noise(
     InputError
         No usable sensor (raw units need a calibration), a recording too short, or not still.
     """
-    from imucal_cli.solvers.segmentation import find_static
+    from imucal_cli.solvers.segmentation import StaticStream, estimate_noise
 
-    where = str(session.path) if session.path else "session"
-    start, stop, span = _span(session)
-    time = np.asarray(session.time[start:stop], float)
-    n = len(time)
-    duration = float(time[-1] - time[0]) if n > 1 else 0.0
+    samples = session if isinstance(session, SessionSamples) else samples_of(session)
+    where = str(samples.path) if samples.path else "session"
+    start, stop, span = _span(samples)
+    n = stop - start
+    duration = 0.0
+    if n > 1:
+        duration = float(samples.read("time", stop - 1, stop)[0]
+                         - samples.read("time", start, start + 1)[0])  # fmt: skip
     if duration < MIN_DURATION_S:
         raise InputError(
             f"{where}: {span} lasts {duration:.1f} s, too short for an Allan deviation; record "
             f"at least {MIN_DURATION_S:g} s, better tens of minutes (capture --plan still:20)"
         )
     rate = (n - 1) / duration
+    sensors_in = tuple(kind for kind in ("accel", "gyro") if kind in samples.channels)
+
+    # Raw -> SI per sensor (or why not), before any sample is read.
+    analysed: dict[str, tuple] = {}
+    skipped: list[str] = []
+    for kind in sensors_in:
+        units = samples.accel_units if kind == "accel" else samples.gyro_units
+        cal = None if calibration is None else getattr(calibration, kind)
+        try:
+            to_si, width, basis = _si_transform(kind, samples.channels[kind], units, cal,
+                                                samples.gravity, where)  # fmt: skip
+        except _NeedsCalibration as exc:
+            skipped.append(str(exc))
+            continue
+        allan = AllanAccumulator(n, rate, width, max_tau_fraction=max_tau_fraction)
+        analysed[kind] = (to_si, allan, basis)
+
+    # The still test's noise first (find_static's, from the span or pieces of it), then one
+    # pass over the samples: the still test, the Allan sums and the longest time step.
+    sample = _noise_sample(samples, ("time", *sensors_in), start, stop)
+    noise = estimate_noise(*_by_sensor(sample[0], sensors_in, sample[1:]))
+    steps = np.diff(sample[0])
+    if n > NOISE_SAMPLES:  # leave out the steps between pieces
+        size = NOISE_SAMPLES // NOISE_PIECES
+        steps = np.delete(steps, np.arange(size - 1, len(steps), size))
+    still = StaticStream(n, noise, accel="accel" in sensors_in, gyro="gyro" in sensors_in,
+                         min_still_s=1.0)  # fmt: skip
+    longest_step, last = 0.0, None
+    for block in samples.blocks(("time", *sensors_in), start, stop):
+        time, raw = block[0], dict(zip(sensors_in, block[1:], strict=True))
+        edge = time if last is None else np.concatenate([[last], time])
+        if len(edge) > 1:
+            longest_step = max(longest_step, float(np.max(np.diff(edge))))
+        last = float(time[-1])
+        still.add(*(raw[kind] for kind in sensors_in))
+        for kind, (to_si, allan, _) in analysed.items():
+            allan.add(to_si(raw[kind]))
+    if start > 0 or stop < samples.n:  # the rest of /raw/time, as read_session checks it
+        samples.check_time(0, start)
+        samples.check_time(stop, samples.n)
+
     warnings: list[str] = []
-    dt = np.diff(time)
-    if dt.max() > 5 * np.median(dt):
+    if longest_step > 5 * np.median(steps):
         warnings.append(
-            f"the sampling has gaps (longest {dt.max():.3g} s at {rate:.4g} Hz): the Allan "
+            f"the sampling has gaps (longest {longest_step:.3g} s at {rate:.4g} Hz): the Allan "
             "deviation assumes even samples"
         )
-    accel = None if session.accel is None else np.asarray(session.accel[start:stop], float)
-    gyro = None if session.gyro is None else np.asarray(session.gyro[start:stop], float)
-
-    still = find_static(time, accel, gyro, min_still_s=1.0)
-    still_fraction = sum(iv.stop - iv.start for iv in still) / n
+    still_fraction = sum(iv.stop - iv.start for iv in still.intervals()) / n
     moved = 1.0 - still_fraction
     if moved > MOVED_REFUSE_FRACTION:
         raise InputError(
@@ -307,22 +383,11 @@ def analyse_noise(
         )
 
     sensors: list[SensorNoise] = []
-    skipped: list[str] = []
-    for kind, raw, units in (("accel", accel, session.accel_units),
-                             ("gyro", gyro, session.gyro_units)):  # fmt: skip
-        if raw is None:
-            continue
-        cal = None if calibration is None else getattr(calibration, kind)
-        try:
-            si, basis = _to_si(kind, raw, units, cal, session.gravity, where)
-        except _NeedsCalibration as exc:
-            skipped.append(str(exc))
-            continue
-        axes = list("xyz") if si.shape[1] == 3 else [f"ch{i}" for i in range(si.shape[1])]
-        noise = [axis_noise(si[:, i], rate, max_tau_fraction=max_tau_fraction)
-                 for i in range(si.shape[1])]  # fmt: skip
+    for kind, (_, allan, basis) in analysed.items():
+        curves = allan.curves()
+        axes = list("xyz") if len(curves) == 3 else [f"ch{i}" for i in range(len(curves))]
         sensors.append(SensorNoise(kind, "m/s^2" if kind == "accel" else "rad/s", basis,
-                                   axes, noise))  # fmt: skip
+                                   axes, [noise_from_curve(c) for c in curves]))  # fmt: skip
     if not sensors:
         what = " and ".join(skipped) if skipped else "no accelerometer or gyroscope data"
         raise InputError(
@@ -332,8 +397,8 @@ def analyse_noise(
     for item in skipped:
         warnings.append(f"{item} skipped: raw units need --calibration CAL.json")
     return NoiseReport(
-        session=Path(session.path).name if session.path else where,
-        sensor=session.sensor,
+        session=Path(samples.path).name if samples.path else where,
+        sensor=samples.sensor,
         span=span,
         start=int(start),
         stop=int(stop),
@@ -343,6 +408,12 @@ def analyse_noise(
         sensors=sensors,
         warnings=warnings,
     )
+
+
+def _by_sensor(time: np.ndarray, kinds: tuple[str, ...], arrays: list[np.ndarray]):
+    """``(time, accel, gyro)`` with None for a sensor absent."""
+    given = dict(zip(kinds, arrays, strict=True))
+    return time, given.get("accel"), given.get("gyro")
 
 
 def load_calibration(path: str | os.PathLike[str]) -> Calibration:

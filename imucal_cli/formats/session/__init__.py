@@ -35,7 +35,8 @@ through :mod:`imucal_cli.formats.output`.
 
 Modules: :mod:`.model` (``Session``, ``Segment``, constants, attribute values), :mod:`.h5open`
 (opening a file for reading), :mod:`.superblock`, :mod:`.reader`, :mod:`.writer`,
-:mod:`.store`.  Import the public names from here (``from imucal_cli.formats.session import
+:mod:`.store`, :mod:`.stream` (a session read block by block: ``open_samples``).  Import the
+public names from here (``from imucal_cli.formats.session import
 read_session``).
 """
 
@@ -62,6 +63,7 @@ from .model import (
 from .reader import read_session
 from .relabel import ROOT_LABELS, rewrite_labels
 from .store import store_calibration
+from .stream import SessionSamples, open_samples, samples_of
 from .writer import SessionWriter, write_session
 
 __all__ = [
@@ -73,6 +75,7 @@ __all__ = [
     "SEGMENT_KINDS",
     "Segment",
     "Session",
+    "SessionSamples",
     "SessionWriter",
     "as_float",
     "as_int",
@@ -81,8 +84,10 @@ __all__ = [
     "check_session_file",
     "one_line",
     "open_for_reading",
+    "open_samples",
     "read_session",
     "rewrite_labels",
+    "samples_of",
     "show",
     "store_calibration",
     "UT_PER_MAG_UNIT",

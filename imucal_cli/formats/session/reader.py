@@ -387,10 +387,25 @@ def _parse_segment(
         data, dataset = gyro, "/raw/gyro"
     if data is None:
         raise fail(f"{kind} segment but the file has no {dataset}")
-    bad = np.flatnonzero(~np.isfinite(data[start:stop]).all(axis=1))
-    if bad.size:
-        raise fail(f"{dataset} has NaN or inf at sample {start + int(bad[0])}, inside the segment")
+    bad = first_nonfinite_row(data, start, stop)
+    if bad is not None:
+        raise fail(f"{dataset} has NaN or inf at sample {bad}, inside the segment")
     return Segment(name, kind, start, stop, label, up, axis, angle_deg)
+
+
+CHECK_ROWS = 1 << 16
+"""Rows read at a time where a check of a long range of an HDF5 dataset must not read it all."""
+
+
+def first_nonfinite_row(data, start: int, stop: int) -> int | None:
+    """The first row in ``[start, stop)`` of ``data`` (an array, or an HDF5 dataset read
+    :data:`CHECK_ROWS` rows at a time) holding NaN or inf, or None."""
+    step = stop - start if isinstance(data, np.ndarray) else CHECK_ROWS
+    for a in range(start, stop, max(step, 1)):
+        rows = np.asarray(data[a : min(a + step, stop)])
+        if not np.isfinite(rows).all():
+            return a + int(np.flatnonzero(~np.isfinite(rows).all(axis=1))[0])
+    return None
 
 
 def _read_calibrations(file: h5py.File, src: str) -> dict[str, str]:
