@@ -22,7 +22,7 @@ points' mean): it holds the nonlinear shift too, and the centre point's weight d
 Linear ``x`` gives ``A C A^T`` exactly. Only the accelerometer directions that matter are
 refitted: the square root's columns are rotated (SVD of the whitened ``A L``) so that each moves
 the gyro independently, measured in the gyro's own noise std; those that move it by less than
-:data:`SMALL` of that std keep their first-order part.
+that std (:data:`GATE`) keep their first-order part, by the argument of point 1 below.
 
 When the first order is doubtful, measurably (:func:`propagate`):
 
@@ -54,8 +54,6 @@ GATE = 1.0
 #: Sigma points that change no std (of any combination of the parameters) by more than this
 #: share keep the first order.
 LINEAR_TOLERANCE = 0.1
-#: Directions moving the gyro by less than this share of its noise std keep their first order.
-SMALL = 0.1
 
 
 @dataclass
@@ -132,7 +130,7 @@ def propagate(
     C: np.ndarray,
     A: np.ndarray,
     cov_noise: np.ndarray,
-    refit: Callable[[np.ndarray], np.ndarray | None],
+    refit: Callable[[np.ndarray, np.ndarray], np.ndarray | None],
 ) -> SigmaPropagation:
     """The accelerometer's part of the gyro covariance, by first order or sigma points.
 
@@ -147,8 +145,9 @@ def propagate(
     cov_noise : ndarray (p, p)
         The gyro's own covariance (the accelerometer taken as exact): the scale of "matters".
     refit : callable
-        ``refit(theta)``: the gyro refitted with the accelerometer at ``theta`` (warm-started
-        from ``x_hat``), or None when it does not converge.
+        ``refit(theta, x_start)``: the gyro refitted with the accelerometer at ``theta``,
+        started from ``x_start`` (the first-order prediction), or None when it does not
+        converge.
     """
     linear = A @ C @ A.T
     L = square_root(C)
@@ -168,11 +167,11 @@ def propagate(
     refits = failed = used = 0
     for k in range(len(s)):
         g = A @ D[:, k]
-        if s[k] < SMALL:  # moves the gyro by less than SMALL of its noise std: first order
+        if s[k] < GATE:  # moves the gyro by less than its noise: first order, as the gate
             cov += np.outer(g, g)
             continue
         used += 1
-        got = [refit(theta_hat + sign * h * D[:, k]) for sign in (1, -1)]
+        got = [refit(theta_hat + sign * h * D[:, k], x_hat + sign * h * g) for sign in (1, -1)]
         refits += 2
         failed += sum(p is None for p in got)
         got = [p for p in got if p is not None]
