@@ -21,7 +21,7 @@ from imucal_cli.formats.config import Config, config_from_dict
 from imucal_cli.pipeline.calibrate import calibrate_session, suspect_error
 from imucal_cli.simulate.play import simulate_plan
 from imucal_cli.simulate.rotations import simulate_gyro_rotations
-from imucal_cli.solvers.gyro_sigma import GATE, SIGMA_SPREAD, envelope, propagate
+from imucal_cli.solvers.gyro_sigma import GATE, envelope, propagate
 
 # --- the propagation on functions whose moments are known -----------------------------------
 
@@ -133,7 +133,7 @@ def test_a_clean_design_keeps_the_first_order():
     direction, so the sigma points check it, and keep the first order (changes of 1e-3)."""
     session, _ = simulate_gyro_rotations(plan="free:12", seed=3, created="x")
     cfg = config_from_dict({"accel": {"gravity": {"leave_one_out": False}},
-                            "gyro": {"solver": "full", "full": {"g_sensitivity": "off"}}})  # fmt: skip
+                            "gyro": {"solver": "full", "full": {"g_sensitivity": "off"}}})
     g = calibrate_session(session, cfg).gyro
     prop = g.extra["rate_std"]["accel_propagation"]
     assert prop["method"] == "first order" and prop["refits"] > 0, prop

@@ -85,13 +85,11 @@ def fit_full_model(data: GyroData, g_sensitivity: str | None = None) -> GyroFit:
         "sensitivity_std": gain_std(res.M, res.cov[3:12, 3:12]).tolist(),
     }  # fmt: skip
     undetermined = design_warning(data, uncertainty)
-    if undetermined:
-        data.warnings.append(undetermined)
-    # Std that only sigma points could state, roughly: left out by auto like an undetermined
-    # gyro (its warning is already among the section's).
-    undetermined = undetermined or (uncertainty.get("accel_propagation") or {}).get("warning")
-    if undetermined:
-        extra["undetermined"] = undetermined
+    nonlinear = (uncertainty.get("accel_propagation") or {}).get("warning")
+    data.warnings.extend(w for w in (undetermined, nonlinear) if w)
+    # Std that sigma points can state only roughly: left out by auto like an undetermined gyro.
+    if undetermined or nonlinear:
+        extra["undetermined"] = undetermined or nonlinear
     if res.G is not None:
         extra["g_sensitivity"] = res.G.tolist()
         extra["g_sensitivity_unit"] = f"{units} per m/s^2 (raw - bias - g_sensitivity @ a)"
@@ -187,9 +185,8 @@ def add_accel_uncertainty(data: GyroData, rot, st, res) -> dict:
         how = (f" (by refitting at {prop.refits} sigma points: the first order gave "
                f"{100 * linear_total:.2g} %)")
         warning = nonlinear_warning(ratios, prop)
-        if warning:
+        if warning:  # added to the section's warnings after the design's own
             out["accel_propagation"]["warning"] = warning
-            data.warnings.append(warning)
     data.notes.append("std include the accelerometer calibration's uncertainty (the turns are "
                       f"measured with it): rates to {100 * out['total']:.2g} % (1 std), "
                       f"{100 * out['accel_calibration']:.2g} % of it from the accelerometer"

@@ -56,6 +56,12 @@ GATE = 1.0
 LINEAR_TOLERANCE = 0.1
 
 
+MEANING = ("how the accelerometer calibration's covariance was carried into the gyro's: "
+           "first order (linear), or by refitting the gyro at sigma points where the first "
+           "order is doubtful; effect: largest movement of the gyro by one accelerometer std, "
+           "in the gyro's own noise std")
+
+
 @dataclass
 class SigmaPropagation:
     """The accelerometer's part of a gyro covariance and how it was obtained.
@@ -97,7 +103,8 @@ class SigmaPropagation:
     std_ratio: tuple[float, float] | None = None
 
     def summary(self) -> dict:
-        out = {"method": self.method, "reason": self.reason, "effect": self.effect,
+        out = {"method": self.method, "meaning": MEANING, "reason": self.reason,
+               "effect": self.effect,
                "nonlinearity": self.nonlinearity, "refits": self.refits,
                "failed": self.failed, "directions": self.directions}  # fmt: skip
         if self.std_ratio is not None:
@@ -188,8 +195,8 @@ def propagate(
                                 f"refits at {refits} sigma points change no std by more than "
                                 f"{100 * change:.2g} % (at most {100 * LINEAR_TOLERANCE:g} %)",
                                 effect, change, refits, failed, used, (lo, hi))  # fmt: skip
-    why = (f"refits at {refits} sigma points change the std by {100 * (lo - 1):+.2g} to "
-           f"{100 * (hi - 1):+.2g} % (beyond {100 * LINEAR_TOLERANCE:g} %)"
+    why = (f"refits at {refits} sigma points change the std of combinations of the parameters "
+           f"by a factor {lo:.2g} to {hi:.2g} (beyond {100 * LINEAR_TOLERANCE:g} %)"
            + (f"; {failed} refit(s) did not converge" if failed else ""))  # fmt: skip
     total = envelope(cov_noise + linear, cov_noise + cov)
     return SigmaPropagation(total - cov_noise, linear, "sigma points", why, effect, change,
