@@ -103,7 +103,7 @@ class SigmaPropagation:
     linear: np.ndarray
     method: str
     reason: str
-    effect: float
+    effect: float | None
     nonlinearity: float | None = None
     refits: int = 0
     failed: int = 0
@@ -169,7 +169,11 @@ def propagate(
     if L.shape[1] == 0:
         return SigmaPropagation(linear, linear, "first order", "no accelerometer covariance",
                                 0.0)  # fmt: skip
-    W = _whitener(cov_noise)
+    try:
+        W = _whitener(cov_noise)
+    except np.linalg.LinAlgError:  # a gyro covariance not positive definite: nothing to scale by
+        return SigmaPropagation(linear, linear, "first order", "the gyro's own covariance is "
+                                "singular: no scale for a check", None)  # fmt: skip
     _, s, Vt = np.linalg.svd(W @ A @ L, full_matrices=False)
     D = L @ Vt.T  # accelerometer directions, each at one std, moving the gyro independently
     effect = float(s[0])
