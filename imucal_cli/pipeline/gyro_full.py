@@ -10,10 +10,12 @@ that ``calibrate`` refuses to save it without ``--force``.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from imucal_cli.errors import ImucalError
-from imucal_cli.solvers import gyro_full
+from imucal_cli.solvers import gyro_full, gyro_sigma
 
 from .common import num
 from .gyro import AXES, GyroData, GyroFit
@@ -83,9 +85,11 @@ def fit_full_model(data: GyroData, g_sensitivity: str | None = None) -> GyroFit:
         "sensitivity_std": gain_std(res.M, res.cov[3:12, 3:12]).tolist(),
     }  # fmt: skip
     undetermined = design_warning(data, uncertainty)
-    if undetermined:
-        extra["undetermined"] = undetermined
-        data.warnings.append(undetermined)
+    nonlinear = (uncertainty.get("accel_propagation") or {}).get("warning")
+    data.warnings.extend(w for w in (undetermined, nonlinear) if w)
+    # Std that sigma points can state only roughly: left out by auto like an undetermined gyro.
+    if undetermined or nonlinear:
+        extra["undetermined"] = undetermined or nonlinear
     if res.G is not None:
         extra["g_sensitivity"] = res.G.tolist()
         extra["g_sensitivity_unit"] = f"{units} per m/s^2 (raw - bias - g_sensitivity @ a)"
@@ -160,14 +164,80 @@ def add_accel_uncertainty(data: GyroData, rot, st, res) -> dict:
         return out
     C = np.asarray(cov["values"], float)
     A = gyro_full.accel_sensitivity(rot, st, data.noise, res, dg)
-    cov_a = A @ C @ A.T
-    res.cov = res.cov + cov_a
+    prop = accel_propagation(data, rot, st, res, C, A)
+    cov_a = prop.cov
+    own = res.cov
+    linear_total = rate_std(res.M, (own + prop.linear)[3:12, 3:12])
+    res.cov = own + cov_a
     out["accel_calibration"] = rate_std(res.M, cov_a[3:12, 3:12])
     out["total"] = rate_std(res.M, res.cov[3:12, 3:12])
+    out["accel_propagation"] = prop.summary()
+    how = ""
+    if prop.method == "sigma points":
+        first = own + prop.linear
+        ratios = {
+            "parameters": float(np.max(np.sqrt(np.diag(res.cov) / np.diag(first)))),
+            "gains": float(np.max(gain_std(res.M, res.cov[3:12, 3:12])
+                                  / gain_std(res.M, first[3:12, 3:12]))),
+            "rate": out["total"] / linear_total,
+        }  # fmt: skip
+        out["accel_propagation"].update(first_order_total=linear_total, std_ratio=ratios)
+        how = (f" (by refitting at {prop.refits} sigma points: the first order gave "
+               f"{100 * linear_total:.2g} %)")
+        warning = nonlinear_warning(ratios, prop)
+        if warning:  # added to the section's warnings after the design's own
+            out["accel_propagation"]["warning"] = warning
     data.notes.append("std include the accelerometer calibration's uncertainty (the turns are "
                       f"measured with it): rates to {100 * out['total']:.2g} % (1 std), "
-                      f"{100 * out['accel_calibration']:.2g} % of it from the accelerometer")
+                      f"{100 * out['accel_calibration']:.2g} % of it from the accelerometer"
+                      f"{how}")
     return out
+
+
+def accel_propagation(data: GyroData, rot, st, res, C: np.ndarray, A: np.ndarray):
+    """The accelerometer calibration's part of the gyro covariance: first order, or by
+    refitting the gyro at sigma points of the accelerometer's parameters where the first
+    order is doubtful (:func:`imucal_cli.solvers.gyro_sigma.propagate`)."""
+    acc = data.accel_cal
+    a_raw = np.array([s.a_raw for s in data.stills])
+    with_g = res.G is not None
+    turn_raw = ([data.session.accel[t.segment.start : t.segment.stop] for t in data.turns]
+                if with_g else None)  # fmt: skip
+    x_hat = np.r_[res.b, res.M.ravel(), res.G.ravel() if with_g else []]
+    theta_hat = np.r_[np.asarray(acc.bias, float), np.ravel(acc.matrix)]
+
+    def refit(theta: np.ndarray, x_start: np.ndarray) -> np.ndarray | None:
+        B, Am = theta[:3], theta[3:].reshape(3, 3)
+        moved_st = replace(st, g=(a_raw - B) @ Am.T)
+        moved_rot = rot if not with_g else replace(rot, a=[(r - B) @ Am.T for r in turn_raw])
+        return gyro_full.refit_moved(moved_rot, moved_st, data.noise, res, x_start,
+                                     max_iterations=data.cfg.gyro.full.max_iterations)
+
+    return gyro_sigma.propagate(x_hat, theta_hat, C, A, res.cov, refit)
+
+
+#: The sigma-point std of a parameter, a gain or the rate this many times the first order's
+#: (or less than its inverse), or a sigma-point refit that fails: the std rest on a strongly
+#: nonlinear dependence and are too approximate to save unasked.
+NONLINEAR_RATIO = 1.5
+
+
+def nonlinear_warning(ratios: dict, prop) -> str | None:
+    """A warning when the gyro depends on the accelerometer calibration so nonlinearly that its
+    std (by sigma points) are only a rough guide: far from the first order, or refits that
+    fail (issue 10)."""
+    what, worst = max(ratios.items(), key=lambda kv: max(kv[1], 1 / max(kv[1], 1e-300)))
+    if max(worst, 1 / max(worst, 1e-300)) <= NONLINEAR_RATIO and not prop.failed:
+        return None
+    names = {"parameters": "a parameter's", "gains": "a gain's", "rate": "the rate's"}
+    failed = (f"; {prop.failed} of {prop.refits} refits did not converge" if prop.failed
+              else "")  # fmt: skip
+    return (f"the gyro depends nonlinearly on the accelerometer calibration that measures its "
+            f"turns: refitted at sigma points of the accelerometer's uncertainty, "
+            f"{names[what]} std is {worst:.2g} times the first-order one{failed}; the std "
+            "stated are the sigma points' and only approximate; calibrate the accelerometer "
+            "better (--accel CAL.json from a session with more poses) or turn the unit 10 or "
+            "more times about different axes (plan free:N)")
 
 
 def design_warning(data: GyroData, uncertainty: dict, n_turns: int | None = None) -> str | None:

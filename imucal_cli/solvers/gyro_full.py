@@ -54,7 +54,7 @@ AXES = "xyz"
 
 __all__ = ["FullResult", "Rotations", "Stills", "accel_sensitivity", "fit_full",
            "full_information", "integrate_rotations", "parameter_names",
-           "refit_without"]  # fmt: skip
+           "refit_moved", "refit_without"]  # fmt: skip
 
 
 def parameter_names(n: int) -> list[str]:
@@ -356,6 +356,31 @@ def refit_without(
     every = Problem(rot, still, gyro_sigma, clock, g_sensitivity=with_g)
     resid, _, chi2, _ = _turn_statistics(every, solved.x)
     return refit, chi2, resid
+
+
+def refit_moved(
+    rot: Rotations,
+    still: Stills,
+    gyro_sigma: float,
+    result: FullResult,
+    x0: np.ndarray | None = None,
+    *,
+    max_iterations: int = 100,
+    clock: float = 1.0,
+) -> np.ndarray | None:
+    """The same model refitted with the still periods (and the turns' specific force) that
+    another accelerometer calibration gives, from ``x0`` (default: ``result``'s solution; the
+    first-order prediction saves iterations): the parameter vector ``(b, vec(M)[, vec(G)])``,
+    or None when it does not converge or leaves a turn unexplained. For the sigma points of
+    :mod:`imucal_cli.solvers.gyro_sigma`."""
+    with_g = result.G is not None
+    if x0 is None:
+        x0 = np.r_[result.b, result.M.ravel(), result.G.ravel() if with_g else []]
+    prob = Problem(rot, still, gyro_sigma, clock, g_sensitivity=with_g)
+    solved = _solve(prob, np.asarray(x0, float), max_iterations, "sigma point")
+    if solved is None or not _explains(prob, solved):
+        return None
+    return solved.x
 
 
 def _result(prob: Problem, solved: _Solved, tried: int) -> FullResult:
