@@ -36,6 +36,7 @@ __all__ = [
     "argument",
     "baud_option",
     "calibration_argument",
+    "calibration_option",
     "columns_option",
     "duration_option",
     "field_ut_option",
@@ -187,6 +188,11 @@ def duration_option(help: str):
 def hold_option(help: str, default: float | None):
     """``--hold SECONDS``: time held still in each pose."""
     return typer.Option(default, "--hold", metavar="SECONDS", help=help)
+
+
+def calibration_option(help: str, *short: str):
+    """``--calibration CAL.json``: a calibration a command uses beside its input."""
+    return typer.Option(None, "--calibration", *short, metavar="CAL.json", help=help)
 
 
 def argument(metavar: str, help: str):
