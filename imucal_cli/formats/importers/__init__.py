@@ -415,6 +415,7 @@ def import_files(
         mag=rec.mag,
         mag_units=mag_units if rec.mag is not None else None,
         magnetic_field_uT=magnetic_field_uT,
+        host_time=rec.host_time,
     )
     session.import_stats = rec.stats  # type: ignore[attr-defined]
     session.import_notes = notes  # type: ignore[attr-defined]
