@@ -106,6 +106,34 @@ def test_telemetry_log_mavlink1_and_receive_time(tmp_path):
     np.testing.assert_allclose(ch.accel, acc / 1000.0, rtol=1e-15)
 
 
+def test_telemetry_log_receive_stamps_are_the_host_time(tmp_path):
+    """A telemetry log's receive stamps are when the ground station (the host) received each
+    packet: beside the device's own time they are the session's /raw/host_time (the sample
+    clock's reference, issue 17.2); when they are the time itself, there is no host_time."""
+    from imucal_cli.formats.importers import import_files
+    from imucal_cli.formats.session import read_session, write_session
+    from imucal_cli.simulate.device import stream_arrays
+
+    from .mavlink_fixture import write_tlog_six
+
+    t, a, g = stream_arrays("six", rate_hz=100.0, hold_s=1.5, move_s=1.0)
+    path = write_tlog_six(tmp_path / "six.tlog", (t, a, g))
+    t_us = np.round((t - t[0]) * 1e6 + 1e6)
+    received = (EPOCH_US + t_us + 2000) * 1e-6
+    ch = read_mavlink(path)
+    np.testing.assert_allclose(ch.time, t_us * 1e-6, rtol=0, atol=1e-9)  # the device's time
+    np.testing.assert_allclose(ch.host_time, received, rtol=0, atol=2e-6)
+    session = import_files([path], None)
+    np.testing.assert_array_equal(session.host_time, ch.host_time)
+    write_session(tmp_path / "six.h5", session)
+    np.testing.assert_array_equal(read_session(tmp_path / "six.h5").host_time, ch.host_time)
+    writer = TlogWriter(version=1)  # a device clock that stands still: receive stamps as time
+    acc, gyr, _ = sensor(2)
+    for k in range(N):
+        writer.add(EPOCH_US + 30_000 * k, "scaled_imu", 5000, *acc[k], *gyr[k], 0, 0, 0)
+    assert read_mavlink(writer.write(tmp_path / "v1.tlog")).host_time is None
+
+
 def test_telemetry_logs_of_two_senders_are_not_mixed(tmp_path):
     writer_a, writer_b = TlogWriter(system=1), TlogWriter(system=2)
     acc, gyr, mag = sensor(3)

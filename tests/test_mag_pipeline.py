@@ -275,3 +275,18 @@ def test_a_ros_import_without_magnetometer_values_before_its_first_message():
     none = dataclasses.replace(session, mag=np.full_like(mag, np.nan))
     with pytest.raises(DesignError, match="no reading with a value"):
         calibrate_session(none, Config())
+
+
+def test_command_line_mag_without_hold_takes_the_default_hold(tmp_path):
+    """``simulate --plan six --mag`` without ``--hold`` holds each pose the default 2 s (it
+    crashed with a TypeError: hold None reached the simulator)."""
+    from imucal_cli.formats.session import read_session
+
+    out = tmp_path / "six.h5"
+    proc = run("simulate", "--plan", "six", "--mag", "--seed", "4", "--tumble", "0", "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    session = read_session(out)
+    expected, _ = simulate_mag("six", 4, tumble_s=0.0, hold_s=2.0, rate_hz=100.0)
+    np.testing.assert_array_equal(session.mag, expected.mag)
+    np.testing.assert_array_equal(session.accel, expected.accel)
+    assert [s.n_samples for s in session.static_segments()] == [200] * 6

@@ -209,19 +209,39 @@ def test_wrong_baud_rate_garbage(tmp_path, server_factory):
 
 
 def test_garbage_then_unplugged_says_what_came(tmp_path, server_factory):
-    """Only garbage, then the device is gone before the wait ends: no file, exit 3, and the
-    one line says what arrived (not only that the device went)."""
+    """Only garbage, then the device is gone before the wait ends: no file, exit 2 (the
+    README's "nothing was written"; 3 is "saved but incomplete"), and the one line says what
+    arrived (not only that the device went)."""
     server = server_factory("--garbage", "--vanish-after", "2")
     out = tmp_path / "garbage.h5"
     cap = start_capture(server.path, out, "--duration", "30", "--wait-timeout", "20")
     stdout, stderr = cap.communicate(timeout=120)
     sent = server.finish()
-    assert cap.returncode == 3, (stdout, stderr)
+    assert cap.returncode == 2, (stdout, stderr)
     assert sent["lines"] == 0 and sent["garbage"] > 0 and not out.exists()
     last = stderr.splitlines()[-1]
-    assert last.startswith("imucal: ") and "the device is gone" in last, last
+    assert last.startswith("imucal: error: ") and "the device is gone" in last, last
     assert "before any data; received " in last and "wrong baud rate?" in last, last
     assert last.endswith(": no file written") and "Traceback" not in stderr
+
+
+@pytest.mark.parametrize(("signum", "code", "words"), [
+    (signal.SIGINT, 130, "imucal: stopped by Ctrl-C before any data"),
+    (signal.SIGTERM, 2, "imucal: error: stopped by SIGTERM before any data"),
+])  # fmt: skip
+def test_signal_before_any_data_saves_nothing(tmp_path, server_factory, signum, code, words):
+    """Stopped before a sample came: no file, and the README's status for nothing saved (130
+    after Ctrl-C, else 2), never 3 ("saved but incomplete")."""
+    server = server_factory("--plan", "six", "--stall-after", "0")
+    out = tmp_path / "none.h5"
+    cap = start_capture(server.path, out, "--duration", "30", "--wait-timeout", "20")
+    time.sleep(2.0)
+    cap.send_signal(signum)
+    stdout, stderr = cap.communicate(timeout=60)
+    assert cap.returncode == code, (stdout, stderr)
+    last = stderr.splitlines()[-1]
+    assert last.startswith(words) and last.endswith(": no file written"), last
+    assert not out.exists() and "Traceback" not in stderr
 
 
 def test_no_such_port(tmp_path):

@@ -31,8 +31,6 @@ import time as _time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-import numpy as np
-
 from imucal_cli.capture.stream import DeviceGone
 from imucal_cli.errors import InputError, SessionError, WriteFailed
 from imucal_cli.formats.columns import SampleBlock
@@ -468,20 +466,10 @@ class Recorder:
                 self.end_kind, self.end_reason = ended.kind, ended.reason
 
     # segments and closing ----------------------------------------------------------------------
-    def add_segment(
-        self,
-        kind: str,
-        start: int,
-        stop: int,
-        *,
-        label: str | None = None,
-        up: np.ndarray | None = None,
-        axis: np.ndarray | None = None,
-        angle_deg: float | None = None,
-        extra: dict | None = None,
-    ) -> str:
-        """Mark samples ``[start, stop)`` as a segment (see
-        :meth:`imucal_cli.formats.session.SessionWriter.add_segment`); return its name.
+    def add_segment(self, kind: str, start: int, stop: int, **attributes) -> str:
+        """Mark samples ``[start, stop)`` as a segment; return its name.  ``attributes``
+        (``label``, ``up``, ``axis``, ``angle_deg``, ``extra``) and the rules are those of
+        :meth:`imucal_cli.formats.session.SessionWriter.add_segment`.
 
         Segments are added in time order.  While recording they are logged in the file at the
         next flush; :meth:`close` writes them as ``/segments`` groups.
@@ -494,10 +482,7 @@ class Recorder:
         if self._writer is None:
             raise SessionError(f"{self.path}: no samples recorded, so no segment can be added")
         try:
-            return self._writer.add_segment(
-                kind, start, stop, label=label, up=up, axis=axis, angle_deg=angle_deg,
-                extra=extra,
-            )
+            return self._writer.add_segment(kind, start, stop, **attributes)
         except WriteFailed as exc:
             ended = self._write_failed(exc)
             if self.end_kind in (None, "done"):

@@ -4,65 +4,43 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import typer
 from rich.console import Console
 
 from . import completion
 from .app import app
 from .console import make_console, print_json
+from .options import (
+    argument,
+    calibration_argument,
+    columns_option,
+    force_option,
+    format_option,
+    json_option,
+    output_option,
+    rate_option,
+    time_unit_option,
+)
 
 
 @app.command("apply")
 def apply_(
-    calibration: Path = typer.Argument(
-        ...,
-        metavar="CAL.json",
-        help="Calibration JSON (from imucal calibrate).",
-        show_default=False,
+    calibration: Path = calibration_argument("Calibration JSON (from imucal calibrate)."),
+    input_file: Path = argument("INPUT", "Session (.h5) or CSV of raw samples."),
+    output: Path = output_option(
+        "OUTPUT", "File to write: .h5 (datasets /calibrated/time, accel, gyro, mag) or .csv.",
+        required=True,
+    ),  # fmt: skip
+    fmt: str | None = format_option(
+        "h5 or csv [default: from OUTPUT's suffix].", completion.apply_formats, metavar="h5|csv"
     ),
-    input_file: Path = typer.Argument(
-        ...,
-        metavar="INPUT",
-        help="Session (.h5) or CSV of raw samples.",
-        show_default=False,
+    columns: str | None = columns_option(
+        "CSV input: fields of a line, as for imucal import (t,ax,ay,az,gx,gy,gz; _ skips) "
+        "[default: from the header line]."
     ),
-    output: Path = typer.Option(
-        ...,
-        "--output",
-        "-o",
-        metavar="OUTPUT",
-        help="File to write: .h5 (datasets /calibrated/time, accel, gyro, mag) or .csv.",
-        show_default=False,
-    ),
-    fmt: str | None = typer.Option(
-        None,
-        "--format",
-        "-f",
-        metavar="h5|csv",
-        help="h5 or csv [default: from OUTPUT's suffix].",
-        autocompletion=completion.apply_formats,
-    ),
-    columns: str | None = typer.Option(
-        None,
-        "--columns",
-        metavar="SPEC",
-        help="CSV input: fields of a line, as for imucal import (t,ax,ay,az,gx,gy,gz; _ skips) "
-        "[default: from the header line].",
-    ),
-    time_unit: str = typer.Option(
-        "s",
-        "--time-unit",
-        metavar="s|ms|us|ns",
-        help="CSV input: unit of the t column: s, ms, us or ns.",
-        autocompletion=completion.time_units,
-    ),
-    rate: float | None = typer.Option(
-        None, "--rate", metavar="HZ", help="CSV input without a t column: sample rate in Hz."
-    ),
-    force: bool = typer.Option(False, "--force", help="Overwrite OUTPUT."),
-    json_output: bool = typer.Option(
-        False, "--json", help="Print what was written as JSON on stdout (nothing else)."
-    ),
+    time_unit: str = time_unit_option("CSV input: unit of the t column: s, ms, us or ns."),
+    rate: float | None = rate_option("CSV input without a t column: sample rate in Hz."),
+    force: bool = force_option("Overwrite OUTPUT."),
+    json_output: bool = json_option("Print what was written as JSON on stdout (nothing else)."),
 ) -> None:
     """Apply a calibration to every sample: calibrated = matrix @ (raw - bias).
 
@@ -71,50 +49,15 @@ def apply_(
     any length needs the same memory. Exit status: 0 written; 2 bad input (missing file, missing
     sensor, channel count or units that differ, time not increasing, OUTPUT exists).
     """
-    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
     from imucal_cli.formats.calibration import read_calibration
     from imucal_cli.use.apply import apply_calibration
 
     cal = read_calibration(calibration)
-    err = Console(stderr=True)
-    bar: Progress | None = None
-    task = None
-
-    def progress(done: int, total: int) -> None:
-        nonlocal bar, task
-        if bar is None:
-            # A bar only on a terminal and for inputs longer than one block.
-            if not err.is_terminal or done >= total:
-                return
-            bar = Progress(
-                TextColumn("applying"),
-                BarColumn(),
-                TextColumn("{task.percentage:>3.0f}%"),
-                TimeRemainingColumn(),
-                console=err,
-                transient=True,
-            )
-            bar.start()
-            task = bar.add_task("apply", total=total)
-        bar.update(task, completed=done)
-
-    try:
+    with _ProgressBar() as bar:
         summary = apply_calibration(
-            cal,
-            input_file,
-            output,
-            cal_source=str(calibration),
-            fmt=fmt,
-            columns=columns,
-            time_unit=time_unit,
-            rate_hz=rate,
-            overwrite=force,
-            progress=progress,
-        )
-    finally:
-        if bar is not None:
-            bar.stop()
+            cal, input_file, output, cal_source=str(calibration), fmt=fmt, columns=columns,
+            time_unit=time_unit, rate_hz=rate, overwrite=force, progress=bar.update,
+        )  # fmt: skip
     if json_output:
         print_json(
             {"format": "imucal-apply", "format_version": 1, "output": str(output),
@@ -125,6 +68,45 @@ def apply_(
              "nonfinite": int(summary.nonfinite)}
         )  # fmt: skip
         return
+    _print_summary(summary, input_file, calibration, output)
+
+
+class _ProgressBar:
+    """A progress bar on stderr, shown only on a terminal and for inputs longer than one block;
+    ``update(done, total)`` is :func:`~imucal_cli.use.apply.apply_calibration`'s ``progress``."""
+
+    def __init__(self) -> None:
+        self.err = Console(stderr=True)
+        self.bar = None
+        self.task = None
+
+    def update(self, done: int, total: int) -> None:
+        if self.bar is None:
+            if not self.err.is_terminal or done >= total:
+                return
+            from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+            self.bar = Progress(
+                TextColumn("applying"),
+                BarColumn(),
+                TextColumn("{task.percentage:>3.0f}%"),
+                TimeRemainingColumn(),
+                console=self.err,
+                transient=True,
+            )
+            self.bar.start()
+            self.task = self.bar.add_task("apply", total=total)
+        self.bar.update(self.task, completed=done)
+
+    def __enter__(self) -> _ProgressBar:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        if self.bar is not None:
+            self.bar.stop()
+
+
+def _print_summary(summary, input_file: Path, calibration: Path, output: Path) -> None:
     skipped = ""
     if summary.malformed:
         skipped = (

@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 from datetime import datetime
 from pathlib import Path
+from typing import Annotated
 
 import typer
 from rich.console import Console
@@ -16,9 +17,28 @@ from imucal_cli.formats.output import check_output
 from . import completion
 from .app import app
 from .console import make_console, print_json
-from .options import plan_option
+from .options import (
+    Force,
+    SensorText,
+    alias,
+    baud_option,
+    columns_option,
+    duration_option,
+    field_ut_option,
+    hold_option,
+    json_option,
+    mag_units_option,
+    output_option,
+    plan_option,
+    protocol_option,
+    time_unit_option,
+    units_option,
+)
 
-EXIT_COMPLETE, EXIT_INCOMPLETE = 0, 3
+EXIT_COMPLETE, EXIT_INCOMPLETE, EXIT_INTERRUPTED = 0, 3, 130
+"""Exit statuses of the README's table: the session is complete; saved but incomplete; Ctrl-C
+before anything was saved.  Nothing saved otherwise (bad input, no data at all) is an
+``InputError``: 2."""
 
 
 def default_output() -> Path:
@@ -26,129 +46,96 @@ def default_output() -> Path:
     return Path(datetime.now().strftime("capture-%Y%m%d-%H%M%S.h5"))
 
 
+# The options, in the order --help lists them -------------------------------------------------
+
+Port = Annotated[str, typer.Option(
+    "--port", "-p", metavar="PORT", help="Serial port (/dev/ttyUSB0, COM3, a pty).",
+    autocompletion=completion.ports,
+)]  # fmt: skip
+Baud = alias(int, baud_option("Baud rate.", "-b"))
+Plan = alias(str | None, plan_option(
+    None, "Steps to go through (qureshi18 when guided; the same plans as imucal simulate):"
+))  # fmt: skip
+Output = alias(Path | None, output_option(
+    "FILE.h5", "Session file to write [default: capture-<date>-<time>.h5]."
+))  # fmt: skip
+Columns = alias(str, columns_option(
+    "Fields of a line, in order: t (device time), ax ay az (a4.. more), gx gy gz (g4..), mx my "
+    "mz (magnetometer), temp, _ (skip). Without t the host clock stamps each line."
+))  # fmt: skip
+TimeUnit = alias(str, time_unit_option("Unit of the t field."))
+Protocol = alias(str, protocol_option(
+    "lines: text lines of numbers (--columns), or MotionCal/i2cdevlib lines when the first "
+    "lines carry their prefix; motioncal: MotionCal's Raw:ax,ay,az,gx,gy,gz,mx,my,mz lines; "
+    "i2cdevlib: i2cdevlib's a/g: (a/g/m:) lines (both counts, host-clock time); witmotion: "
+    "WitMotion's binary 0x55 frames (WT901, JY901: accel, gyro, temperature as int16 counts, "
+    "host-clock time).",
+    completion.capture_protocols,
+))  # fmt: skip
+NoPrompt = Annotated[bool, typer.Option(
+    "--no-prompt",
+    help="Unattended (bench scripts): no keyboard; record for --duration or until every step "
+    "of --plan was seen in the motion, then segment the recording by itself.",
+)]  # fmt: skip
+Duration = alias(float | None, duration_option(
+    "Stop this long after the first sample (at the latest)."
+))  # fmt: skip
+AccelUnits = alias(str | None, units_option(
+    "accel", "Units of the raw accel: counts, V, g, m/s^2."
+))  # fmt: skip
+GyroUnits = alias(str | None, units_option(
+    "gyro", "Units of the raw gyro: counts, V, rad/s, deg/s."
+))  # fmt: skip
+MagUnits = alias(str | None, mag_units_option(
+    "Units of the raw magnetometer: counts, uT, nT, gauss."
+))  # fmt: skip
+FieldUt = alias(float | None, field_ut_option(
+    "Local geomagnetic field magnitude, microtesla (from a geomagnetic model such as the WMM "
+    "for your place): the magnetometer calibration comes out in uT."
+))  # fmt: skip
+MinStill = Annotated[float, typer.Option(
+    "--min-still", metavar="SECONDS", help="Shortest still period that counts."
+)]  # fmt: skip
+WaitTimeout = Annotated[float, typer.Option(
+    "--wait-timeout", metavar="SECONDS", help="Give up when no line came this long."
+)]  # fmt: skip
+ReadTimeout = Annotated[float, typer.Option(
+    "--read-timeout", metavar="SECONDS", help="End the capture when the data stops this long."
+)]  # fmt: skip
+Hold = alias(float, hold_option("Guided mode: seconds to hold each pose still.", 2.0))
+Resume = Annotated[Path | None, typer.Option(
+    "--resume", metavar="SESSION.h5",
+    help="Continue an interrupted capture into SESSION (give the same --plan): new samples are "
+    "appended after its own, and the steps its segments hold count as done.",
+)]  # fmt: skip
+JsonOutput = alias(bool, json_option(
+    "Print the summary as JSON on stdout (nothing else; guided prompts go to stderr)."
+))  # fmt: skip
+
+
 @app.command()
 def capture(
-    port: str = typer.Option(
-        ...,
-        "--port",
-        "-p",
-        metavar="PORT",
-        help="Serial port (/dev/ttyUSB0, COM3, a pty).",
-        autocompletion=completion.ports,
-    ),
-    baud: int = typer.Option(115200, "--baud", "-b", metavar="N", help="Baud rate."),
-    plan: str | None = plan_option(
-        None, "Steps to go through (qureshi18 when guided; the same plans as imucal simulate):"
-    ),
-    output: Path | None = typer.Option(
-        None,
-        "--output",
-        "-o",
-        metavar="FILE.h5",
-        help="Session file to write [default: capture-<date>-<time>.h5].",
-    ),
-    columns: str = typer.Option(
-        "t,ax,ay,az,gx,gy,gz,temp",
-        "--columns",
-        metavar="SPEC",
-        help=(
-            "Fields of a line, in order: t (device time), ax ay az (a4.. more), gx gy gz "
-            "(g4..), mx my mz (magnetometer), temp, _ (skip). Without t the host clock stamps "
-            "each line."
-        ),
-    ),
-    time_unit: str = typer.Option(
-        "s",
-        "--time-unit",
-        metavar="s|ms|us|ns",
-        help="Unit of the t field.",
-        autocompletion=completion.time_units,
-    ),
-    protocol: str = typer.Option(
-        "lines",
-        "--protocol",
-        metavar="NAME",
-        help="lines: text lines of numbers (--columns), or MotionCal/i2cdevlib lines when the "
-        "first lines carry their prefix; motioncal: MotionCal's Raw:ax,ay,az,gx,gy,gz,mx,my,mz "
-        "lines; i2cdevlib: i2cdevlib's a/g: (a/g/m:) lines (both counts, host-clock time); "
-        "witmotion: WitMotion's binary 0x55 frames (WT901, JY901: accel, gyro, temperature as "
-        "int16 counts, host-clock time).",
-        autocompletion=completion.capture_protocols,
-    ),
-    no_prompt: bool = typer.Option(
-        False,
-        "--no-prompt",
-        help=(
-            "Unattended (bench scripts): no keyboard; record for --duration or until every "
-            "step of --plan was seen in the motion, then segment the recording by itself."
-        ),
-    ),
-    duration: float | None = typer.Option(
-        None,
-        "--duration",
-        metavar="SECONDS",
-        help="Stop this long after the first sample (at the latest).",
-    ),
-    sensor: str | None = typer.Option(
-        None, "--sensor", metavar="TEXT", help="Free text stored in the session (part, serial)."
-    ),
-    accel_units: str | None = typer.Option(
-        None,
-        "--accel-units",
-        metavar="UNITS",
-        help="Units of the raw accel: counts, V, g, m/s^2.",
-        autocompletion=completion.accel_units,
-    ),
-    gyro_units: str | None = typer.Option(
-        None,
-        "--gyro-units",
-        metavar="UNITS",
-        help="Units of the raw gyro: counts, V, rad/s, deg/s.",
-        autocompletion=completion.gyro_units,
-    ),
-    mag_units: str | None = typer.Option(
-        None,
-        "--mag-units",
-        metavar="UNITS",
-        help="Units of the raw magnetometer: counts, uT, nT, gauss.",
-    ),
-    field_ut: float | None = typer.Option(
-        None,
-        "--field-uT",
-        metavar="UT",
-        help=(
-            "Local geomagnetic field magnitude, microtesla (from a geomagnetic model such as "
-            "the WMM for your place): the magnetometer calibration comes out in uT."
-        ),
-    ),
-    min_still: float = typer.Option(
-        1.0, "--min-still", metavar="SECONDS", help="Shortest still period that counts."
-    ),
-    wait_timeout: float = typer.Option(
-        10.0, "--wait-timeout", metavar="SECONDS", help="Give up when no line came this long."
-    ),
-    read_timeout: float = typer.Option(
-        5.0,
-        "--read-timeout",
-        metavar="SECONDS",
-        help="End the capture when the data stops this long.",
-    ),
-    hold: float = typer.Option(
-        2.0, "--hold", metavar="SECONDS", help="Guided mode: seconds to hold each pose still."
-    ),
-    force: bool = typer.Option(False, "--force", help="Overwrite the output file."),
-    resume: Path | None = typer.Option(
-        None,
-        "--resume",
-        metavar="SESSION.h5",
-        help="Continue an interrupted capture into SESSION (give the same --plan): new samples "
-        "are appended after its own, and the steps its segments hold count as done.",
-    ),
-    json_output: bool = typer.Option(
-        False,
-        "--json",
-        help="Print the summary as JSON on stdout (nothing else; guided prompts go to stderr).",
-    ),
+    port: Port,
+    baud: Baud = 115200,
+    plan: Plan = None,
+    output: Output = None,
+    columns: Columns = "t,ax,ay,az,gx,gy,gz,temp",
+    time_unit: TimeUnit = "s",
+    protocol: Protocol = "lines",
+    no_prompt: NoPrompt = False,
+    duration: Duration = None,
+    sensor: SensorText = None,
+    accel_units: AccelUnits = None,
+    gyro_units: GyroUnits = None,
+    mag_units: MagUnits = None,
+    field_ut: FieldUt = None,
+    min_still: MinStill = 1.0,
+    wait_timeout: WaitTimeout = 10.0,
+    read_timeout: ReadTimeout = 5.0,
+    hold: Hold = 2.0,
+    force: Force = False,
+    resume: Resume = None,
+    json_output: JsonOutput = False,
 ) -> None:
     """Record a calibration session from an IMU on a serial port.
 
@@ -165,10 +152,7 @@ def capture(
     the plan not seen, interrupted, device gone, data stopped); 2 bad input (no such port,
     bad --columns or plan, no data at all: nothing saved).
     """
-    from imucal_cli.capture.recorder import Recorder
-    from imucal_cli.capture.stream import SerialSource
     from imucal_cli.formats.columns import ColumnSpec
-    from imucal_cli.plans import load_plan, needs_temperature
 
     console = make_console(stderr=json_output)  # with --json, stdout holds the JSON alone
     err = make_console(stderr=True)
@@ -181,73 +165,22 @@ def capture(
                                        status)  # fmt: skip
     if protocol != "lines":  # the format fixes the units (counts)
         accel_units, gyro_units = accel_units or "counts", gyro_units or "counts"
-    limits = {"--duration": duration, "--min-still": min_still,
-              "--wait-timeout": wait_timeout, "--read-timeout": read_timeout}  # fmt: skip
-    for name, value in limits.items():
-        if value is not None and not value > 0:
-            raise InputError(f"{name} must be > 0 s, got {value:g}")
-    guided = None
-    if no_prompt:
-        if plan is None and duration is None:
-            raise InputError("--no-prompt needs --duration SECONDS or --plan NAME (or both)")
-        plan_obj = None if plan is None else load_plan(plan)
-    else:
-        plan_obj = load_plan(plan or "qureshi18")
-        try:
-            from imucal_cli.capture import guided
-        except ImportError:
-            raise InputError("guided mode not available yet: use --no-prompt") from None
-    if plan_obj is not None and needs_temperature(plan_obj):
-        if protocol in ("motioncal", "i2cdevlib"):
-            raise InputError(f"plan {plan_obj.name} records the temperature through the "
-                             f"warm-up: {protocol} lines carry none")  # fmt: skip
-        if protocol == "lines" and stream_protocol.columns.temperature is None:
-            raise InputError(f"plan {plan_obj.name} records the temperature through the warm-up: "
-                             "add temp to --columns (e.g. t,ax,ay,az,gx,gy,gz,temp)")  # fmt: skip
+    _check_limits({"--duration": duration, "--min-still": min_still,
+                   "--wait-timeout": wait_timeout, "--read-timeout": read_timeout})  # fmt: skip
+    plan_obj, guided = _plan_and_mode(plan, no_prompt, duration)
+    _check_temperature(plan_obj, protocol, stream_protocol)
     out = _output_path(output, resume, force)
     done_before = None if resume is None else _done_before(resume, guided is not None)
-
-    source = SerialSource(port, baud)
+    recorder = _recorder(port, baud, out, stream_protocol, status, sensor=sensor,
+                         accel_units=accel_units, gyro_units=gyro_units, mag_units=mag_units,
+                         magnetic_field_uT=field_ut, overwrite=force, wait_timeout_s=wait_timeout,
+                         read_timeout_s=read_timeout, resume=resume is not None)  # fmt: skip
     try:
-        recorder = Recorder(
-            out, source, stream_protocol, sensor=sensor, accel_units=accel_units,
-            gyro_units=gyro_units, mag_units=mag_units, magnetic_field_uT=field_ut,
-            overwrite=force, wait_timeout_s=wait_timeout,
-            read_timeout_s=read_timeout, on_status=status, resume=resume is not None,
-        )  # fmt: skip
-    except BaseException:
-        source.close()
-        raise
-    if accel_units is None:  # issue 10.4 (said once the port opened: errors stay one line)
-        status(
-            "warning: accelerometer units not stated (--accel-units counts, g or m/s^2); "
-            "calibrate will infer them from the magnitude, or set them later with `imucal "
-            "label SESSION --accel-units UNITS`"
-        )
-    try:
-        if no_prompt:
-            from imucal_cli.capture.unattended import run_unattended
-
-            summary = run_unattended(
-                recorder, plan_obj, duration, min_still_s=min_still, on_status=status,
-                done_before=done_before,
-            )  # fmt: skip
-        else:
-            summary = guided.run_guided(
-                recorder, plan_obj, console=console, keys=guided.StdinKeys(), hold_s=hold,
-                done_before=done_before,
-            )  # fmt: skip
+        summary = _record(recorder, plan_obj, guided, console, status, duration=duration,
+                          min_still_s=min_still, hold_s=hold, done_before=done_before)
     finally:
         recorder.close()
-    if recorder.end_kind == "clock":  # issue 10.5: a time unit off by a factor
-        raise InputError(f"{recorder.end_reason} ({out} keeps the {recorder.n_samples} samples)")
-    if not recorder.file_written:
-        if recorder.end_kind == "timeout":
-            raise InputError(recorder.end_reason)
-        received = recorder.received_note()  # e.g. bytes that were no line: wrong baud rate?
-        said = f"{recorder.end_reason} before any data" + (f"; {received}" if received else "")
-        err.print(f"imucal: {escape(said)}: no file written", soft_wrap=True)
-        raise typer.Exit(EXIT_INCOMPLETE)
+    _nothing_saved(recorder, out, err)
     if json_output:
         print_json(_summary_json(out, recorder, summary))
     else:
@@ -255,6 +188,96 @@ def capture(
     sys.stdout.flush()
     if not summary.complete:
         raise typer.Exit(EXIT_INCOMPLETE)
+
+
+def _check_limits(limits: dict[str, float | None]) -> None:
+    """Refuse a time limit that is not a positive number of seconds."""
+    for name, value in limits.items():
+        if value is not None and not value > 0:
+            raise InputError(f"{name} must be > 0 s, got {value:g}")
+
+
+def _plan_and_mode(plan: str | None, no_prompt: bool, duration: float | None):
+    """The plan (None: an unattended capture for a duration) and the guided mode's package
+    (None: unattended)."""
+    from imucal_cli.plans import load_plan
+
+    if no_prompt:
+        if plan is None and duration is None:
+            raise InputError("--no-prompt needs --duration SECONDS or --plan NAME (or both)")
+        return (None if plan is None else load_plan(plan)), None
+    plan_obj = load_plan(plan or "qureshi18")
+    try:
+        from imucal_cli.capture import guided
+    except ImportError:
+        raise InputError("guided mode not available yet: use --no-prompt") from None
+    return plan_obj, guided
+
+
+def _check_temperature(plan, protocol: str, stream_protocol) -> None:
+    """Refuse a plan that records the temperature (a warm-up) with a stream that has none."""
+    from imucal_cli.plans import needs_temperature
+
+    if plan is None or not needs_temperature(plan):
+        return
+    if protocol in ("motioncal", "i2cdevlib"):
+        raise InputError(f"plan {plan.name} records the temperature through the "
+                         f"warm-up: {protocol} lines carry none")  # fmt: skip
+    if protocol == "lines" and stream_protocol.columns.temperature is None:
+        raise InputError(f"plan {plan.name} records the temperature through the warm-up: "
+                         "add temp to --columns (e.g. t,ax,ay,az,gx,gy,gz,temp)")  # fmt: skip
+
+
+def _recorder(port: str, baud: int, out: Path, stream_protocol, status, **options):
+    """The port opened and a recorder on it (the port closed again when that fails); the
+    accelerometer units, when not stated, said once the port opened (issue 10.4: errors stay
+    one line)."""
+    from imucal_cli.capture.recorder import Recorder
+    from imucal_cli.capture.stream import SerialSource
+
+    source = SerialSource(port, baud)
+    try:
+        recorder = Recorder(out, source, stream_protocol, on_status=status, **options)
+    except BaseException:
+        source.close()
+        raise
+    if options["accel_units"] is None:
+        status(
+            "warning: accelerometer units not stated (--accel-units counts, g or m/s^2); "
+            "calibrate will infer them from the magnitude, or set them later with `imucal "
+            "label SESSION --accel-units UNITS`"
+        )
+    return recorder
+
+
+def _record(recorder, plan, guided, console: Console, status, *, duration: float | None,
+            min_still_s: float, hold_s: float, done_before):  # fmt: skip
+    """Run the capture: guided (the guided package given) or unattended."""
+    if guided is None:
+        from imucal_cli.capture.unattended import run_unattended
+
+        return run_unattended(recorder, plan, duration, min_still_s=min_still_s,
+                              on_status=status, done_before=done_before)  # fmt: skip
+    return guided.run_guided(recorder, plan, console=console, keys=guided.StdinKeys(),
+                             hold_s=hold_s, done_before=done_before)  # fmt: skip
+
+
+def _nothing_saved(recorder, out: Path, err: Console) -> None:
+    """End a capture that has no session to show: time stamps off by a unit (the file keeps
+    its samples), or no sample came at all (no file: exit 2, as for bad input, or 130 after
+    Ctrl-C, the README's statuses for nothing saved)."""
+    if recorder.end_kind == "clock":  # issue 10.5: a time unit off by a factor
+        raise InputError(f"{recorder.end_reason} ({out} keeps the {recorder.n_samples} samples)")
+    if recorder.file_written:
+        return
+    if recorder.end_kind == "timeout":
+        raise InputError(recorder.end_reason)
+    received = recorder.received_note()  # e.g. bytes that were no line: wrong baud rate?
+    said = f"{recorder.end_reason} before any data" + (f"; {received}" if received else "")
+    if recorder.end_kind != "interrupted":
+        raise InputError(f"{said}: no file written")
+    err.print(f"imucal: {escape(said)}: no file written", soft_wrap=True)
+    raise typer.Exit(EXIT_INTERRUPTED)
 
 
 PROTOCOLS = completion.CAPTURE_PROTOCOLS

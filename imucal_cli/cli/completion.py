@@ -29,44 +29,37 @@ def plans(incomplete: str) -> list[str]:
     return _matching(names, incomplete)
 
 
-def accel_units(incomplete: str) -> list[str]:
-    return _matching(ACCEL_UNITS, incomplete)
+def _choices(values):
+    """The completion of one option's values: ``values``, or what ``values()`` returns (a
+    registry, imported only when Tab is pressed)."""
+
+    def complete(incomplete: str) -> list[str]:
+        return _matching(values() if callable(values) else values, incomplete)
+
+    return complete
 
 
-def gyro_units(incomplete: str) -> list[str]:
-    return _matching(GYRO_UNITS, incomplete)
-
-
-def time_units(incomplete: str) -> list[str]:
-    return _matching(TIME_UNITS, incomplete)
-
-
-def simulate_units(incomplete: str) -> list[str]:
-    return _matching(("counts", "m/s^2"), incomplete)
-
-
-def import_formats(incomplete: str) -> list[str]:
+def _import_formats():
     from imucal_cli.formats.importers import FORMATS  # the registry: new readers appear here
 
-    return _matching(FORMATS, incomplete)
+    return FORMATS
 
 
-def capture_protocols(incomplete: str) -> list[str]:
-    return _matching(CAPTURE_PROTOCOLS, incomplete)
-
-
-def serve_protocols(incomplete: str) -> list[str]:
-    return _matching(SERVE_PROTOCOLS, incomplete)
-
-
-def apply_formats(incomplete: str) -> list[str]:
-    return _matching(("h5", "csv"), incomplete)
-
-
-def export_formats(incomplete: str) -> list[str]:
+def _export_formats():
     from imucal_cli.use.export import EXPORT_FORMATS  # the registry
 
-    return _matching(EXPORT_FORMATS, incomplete)
+    return EXPORT_FORMATS
+
+
+accel_units = _choices(ACCEL_UNITS)
+gyro_units = _choices(GYRO_UNITS)
+time_units = _choices(TIME_UNITS)
+simulate_units = _choices(("counts", "m/s^2"))
+import_formats = _choices(_import_formats)
+capture_protocols = _choices(CAPTURE_PROTOCOLS)
+serve_protocols = _choices(SERVE_PROTOCOLS)
+apply_formats = _choices(("h5", "csv"))
+export_formats = _choices(_export_formats)
 
 
 def ports(incomplete: str) -> list[str]:

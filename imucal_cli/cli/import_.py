@@ -9,6 +9,21 @@ import typer
 from . import completion
 from .app import app
 from .console import make_console, print_json
+from .options import (
+    AccelUnits,
+    Force,
+    GyroUnits,
+    SensorText,
+    argument,
+    columns_option,
+    field_ut_option,
+    format_option,
+    json_option,
+    mag_units_option,
+    output_option,
+    rate_option,
+    time_unit_option,
+)
 
 
 def default_output(first: Path) -> Path:
@@ -18,112 +33,61 @@ def default_output(first: Path) -> Path:
 
 @app.command("import")
 def import_(
-    files: list[Path] = typer.Argument(
-        ...,
-        metavar="FILE",
-        help="Recorded file(s): one CSV, or for imu_tk the accelerometer file then the "
+    files: list[Path] = argument(
+        "FILE", "Recorded file(s): one CSV, or for imu_tk the accelerometer file then the "
         "gyroscope file.",
-        show_default=False,
-    ),
-    fmt: str | None = typer.Option(
-        None,
-        "--format",
-        "-f",
-        metavar="FORMAT",
-        help="csv, imu_tk, ros (.bag, ROS 2 bag folder, .mcap), ulog (.ulg), mavlink (.tlog, "
+    ),  # fmt: skip
+    fmt: str | None = format_option(
+        "csv, imu_tk, ros (.bag, ROS 2 bag folder, .mcap), ulog (.ulg), mavlink (.tlog, "
         "ArduPilot DataFlash .bin), lines (MotionCal Raw:, i2cdevlib a/g:) or witmotion (0x55 "
         "frames) [default: recognised from the file].",
-        autocompletion=completion.import_formats,
+        completion.import_formats,
     ),
     topic: str | None = typer.Option(
-        None,
-        "--topic",
-        metavar="TOPIC",
+        None, "--topic", metavar="TOPIC",
         help="ros: the sensor_msgs/Imu topic (listed when several); ulog: the IMU instance N; "
         "mavlink: the message and instance (RAW_IMU.0, SCALED_IMU2, HIGHRES_IMU, IMU.1, ACC.0; "
         "listed when several).",
+    ),  # fmt: skip
+    columns: str | None = columns_option(
+        "Fields of a line, e.g. t,ax,ay,az,gx,gy,gz,mx,my,mz or _,ax,ay,az (_ skips a field) "
+        "[default: from the header line]."
     ),
-    columns: str | None = typer.Option(
-        None,
-        "--columns",
-        metavar="SPEC",
-        help="Fields of a line, e.g. t,ax,ay,az,gx,gy,gz,mx,my,mz or _,ax,ay,az (_ skips a field) "
-        "[default: from the header line].",
+    time_unit: str = time_unit_option("Unit of the t column: s, ms, us or ns."),
+    rate: float | None = rate_option(
+        "Sample rate in Hz; required without a t column (time = row / rate)."
     ),
-    time_unit: str = typer.Option(
-        "s",
-        "--time-unit",
-        metavar="s|ms|us|ns",
-        help="Unit of the t column: s, ms, us or ns.",
-        autocompletion=completion.time_units,
+    accel_units: AccelUnits = None,
+    gyro_units: GyroUnits = None,
+    mag_units: str | None = mag_units_option(
+        "Raw magnetometer units (columns mx,my,mz): counts, uT, nT or gauss."
     ),
-    rate: float | None = typer.Option(
-        None,
-        "--rate",
-        metavar="HZ",
-        help="Sample rate in Hz; required without a t column (time = row / rate).",
-    ),
-    accel_units: str | None = typer.Option(
-        None,
-        "--accel-units",
-        metavar="UNITS",
-        help="Raw accelerometer units: counts, V, g or m/s^2.",
-        autocompletion=completion.accel_units,
-    ),
-    gyro_units: str | None = typer.Option(
-        None,
-        "--gyro-units",
-        metavar="UNITS",
-        help="Raw gyroscope units: counts, V, rad/s or deg/s.",
-        autocompletion=completion.gyro_units,
-    ),
-    mag_units: str | None = typer.Option(
-        None,
-        "--mag-units",
-        metavar="UNITS",
-        help="Raw magnetometer units (columns mx,my,mz): counts, uT, nT or gauss.",
-    ),
-    field_ut: float | None = typer.Option(
-        None,
-        "--field-uT",
-        metavar="UT",
-        help="Local geomagnetic field magnitude, microtesla, where known.",
+    field_ut: float | None = field_ut_option(
+        "Local geomagnetic field magnitude, microtesla, where known."
     ),
     skip_rows: int = typer.Option(
-        0,
-        "--skip-rows",
-        metavar="N",
+        0, "--skip-rows", metavar="N",
         help="Lines to skip at the top of each file (headers are also detected).",
-    ),
-    sensor: str | None = typer.Option(
-        None, "--sensor", metavar="TEXT", help="Free text stored in the session (part, serial)."
-    ),
+    ),  # fmt: skip
+    sensor: SensorText = None,
     sections: str | None = typer.Option(
-        None,
-        "--sections",
-        metavar="FILE.json|COLUMN",
+        None, "--sections", metavar="FILE.json|COLUMN",
         help="Labelled sections instead of automatic segmentation: a MaD Lab section list "
         "(JSON {label: {start, end}}, rows end-exclusive) or the name of a column holding each "
         "row's label (e.g. part). Ferraris labels x_p x_a y_p y_a z_p z_a become faces with "
         "their up direction, x_rot y_rot z_rot 360-degree turns about that axis.",
-    ),
+    ),  # fmt: skip
     turn_angle: float | None = typer.Option(
-        None,
-        "--turn-angle",
-        metavar="DEG",
+        None, "--turn-angle", metavar="DEG",
         help="Signed angle of the sections' turns in degrees, e.g. -360 [default: 360 with the "
         "sign of the gyro's own integral].",
+    ),  # fmt: skip
+    output: Path | None = output_option(
+        "FILE.h5", "Session file to write [default: FILE's name with .h5, here]."
     ),
-    output: Path | None = typer.Option(
-        None,
-        "--output",
-        "-o",
-        metavar="FILE.h5",
-        help="Session file to write [default: FILE's name with .h5, here].",
-    ),
-    force: bool = typer.Option(False, "--force", help="Overwrite the output file."),
-    json_output: bool = typer.Option(
-        False, "--json", help="Print what was read and written as JSON on stdout (nothing else)."
+    force: Force = False,
+    json_output: bool = json_option(
+        "Print what was read and written as JSON on stdout (nothing else)."
     ),
 ) -> None:
     """Import recorded samples into a session and find its still poses and rotations.
@@ -139,28 +103,21 @@ def import_(
 
     out = check_output(output or default_output(files[0]), force=force, inputs=files)
     session = import_files(
-        files,
-        fmt,
-        columns,
-        time_unit=time_unit,
-        rate_hz=rate,
-        skip_rows=skip_rows,
-        accel_units=accel_units,
-        gyro_units=gyro_units,
-        sensor=sensor,
-        sections=sections,
-        turn_angle_deg=turn_angle,
-        mag_units=mag_units,
-        magnetic_field_uT=field_ut,
-        topic=topic,
-    )
+        files, fmt, columns, time_unit=time_unit, rate_hz=rate, skip_rows=skip_rows,
+        accel_units=accel_units, gyro_units=gyro_units, sensor=sensor, sections=sections,
+        turn_angle_deg=turn_angle, mag_units=mag_units, magnetic_field_uT=field_ut, topic=topic,
+    )  # fmt: skip
     write_session(out, session, overwrite=force, inputs=files)
+    _print_result(_result_json(out, files, session), json_output)
 
+
+def _result_json(out: Path, files: list[Path], session) -> dict:
+    """What was read and written (``--json``, and the summary's figures)."""
     stats = session.import_stats
     static = session.static_segments()
     skipped = {"header": stats.header, "comments": stats.comments, "malformed": stats.malformed,
                "first_malformed": stats.first_malformed, "unmatched": stats.unmatched}  # fmt: skip
-    result = {
+    return {
         "format": "imucal-import", "format_version": 1, "output": str(out),
         "files": [str(f) for f in files], "samples": int(stats.samples),
         "duration_s": float(session.time[-1] - session.time[0]),
@@ -173,10 +130,6 @@ def import_(
         "warnings": [UNITS_WARNING] if session.accel is not None and not session.accel_units
         else [],
     }  # fmt: skip
-    if json_output:
-        print_json(result)
-        return
-    _print_summary(result)
 
 
 #: Issue 10.4: said when an import leaves the accelerometer units unstated.
@@ -186,7 +139,11 @@ UNITS_WARNING = (
 )
 
 
-def _print_summary(result: dict) -> None:
+def _print_result(result: dict, json_output: bool) -> None:
+    """The result as JSON (``--json``), or a summary for people."""
+    if json_output:
+        print_json(result)
+        return
     console = make_console()
     files = ", ".join(result["files"])
     console.print(

@@ -10,7 +10,14 @@ from imucal_cli.errors import InputError
 
 from .app import app
 from .console import make_console, print_json
-from .options import AccelUnits, GyroUnits, gravity_option, json_option, session_argument
+from .options import (
+    AccelUnits,
+    GyroUnits,
+    calibration_option,
+    gravity_option,
+    json_option,
+    session_argument,
+)
 
 
 def _vector(text: str | None, option: str):
@@ -39,12 +46,9 @@ def label(
     tolerance: float = typer.Option(
         15.0, "--tolerance", metavar="DEG", help="--faces: largest angle from a +-axis, degrees."
     ),
-    calibration: Path | None = typer.Option(
-        None,
-        "--calibration",
-        metavar="CAL.json",
-        help="--faces: calibration JSON turning raw readings into directions [default: the "
-        "session's last stored one; else the raw units, or a fit to the poses themselves].",
+    calibration: Path | None = calibration_option(
+        "--faces: calibration JSON turning raw readings into directions [default: the "
+        "session's last stored one; else the raw units, or a fit to the poses themselves]."
     ),
     segment: str | None = typer.Option(
         None, "--segment", metavar="NAME", help="Segment to change by hand (its name, e.g. 0003)."

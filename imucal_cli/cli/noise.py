@@ -10,34 +10,22 @@ from rich.console import Console
 
 from .app import app
 from .console import make_console
+from .options import ForcePlot, calibration_option, json_option, plot_option, session_argument
 
 
 @app.command()
 def noise(
-    session: Path = typer.Argument(
-        ...,
-        metavar="SESSION.h5",
-        help="A still recording (.h5), e.g. from capture --plan still:20.",
-        show_default=False,
-    ),
-    calibration: Path | None = typer.Option(
-        None,
-        "--calibration",
+    session: Path = session_argument("A still recording (.h5), e.g. from capture --plan still:20."),
+    calibration: Path | None = calibration_option(
+        "Calibration JSON (or a session holding one) turning raw channels into SI; needed for "
+        "counts or V.",
         "-c",
-        metavar="CAL.json",
-        help="Calibration JSON (or a session holding one) turning raw channels into SI; "
-        "needed for counts or V.",
     ),
-    plot: Path | None = typer.Option(
-        None,
-        "--plot",
-        metavar="FILE.png",
-        help="Also draw the Allan deviation curves (needs matplotlib).",
+    plot: Path | None = plot_option("Also draw the Allan deviation curves (needs matplotlib)."),
+    json_output: bool = json_option(
+        "Print the figures and curves as JSON on stdout (nothing else)."
     ),
-    json_output: bool = typer.Option(
-        False, "--json", help="Print the figures and curves as JSON on stdout (nothing else)."
-    ),
-    force: bool = typer.Option(False, "--force", help="Replace an existing --plot file."),
+    force: ForcePlot = False,
 ) -> None:
     """Noise figures of a still recording for your filter: Allan deviation per axis.
 

@@ -8,11 +8,16 @@ Two forms, both read by typer:
   form, metavar and completion stay the same): ``json_output: bool = json_option("Print ...")``,
   ``output: Path | None = output_option("FILE.h5", "Session file to write ...")``.
 
+A command with many options (capture, simulate) declares each as an ``Annotated`` alias beside
+it, and a factory's option becomes one with :func:`alias`: ``Rate = alias(float,
+rate_option("Sample rate, Hz."))``, then ``rate: Rate = 100.0`` (the default after ``=``).
+
 A command that adopts one keeps its ``--help`` byte for byte (tests/test_cli_conformance.py).
 """
 
 from __future__ import annotations
 
+from copy import copy
 from typing import Annotated
 
 import typer
@@ -27,43 +32,65 @@ __all__ = [
     "ForcePlot",
     "GyroUnits",
     "SensorText",
+    "alias",
     "argument",
+    "baud_option",
     "calibration_argument",
+    "calibration_option",
     "columns_option",
+    "duration_option",
     "field_ut_option",
+    "force_option",
     "format_option",
     "gravity_option",
+    "hold_option",
     "json_option",
     "mag_units_option",
     "output_option",
     "plan_option",
     "plot_option",
+    "protocol_option",
     "rate_option",
     "session_argument",
     "time_unit_option",
+    "units_option",
 ]
 
-Force = Annotated[bool, typer.Option("--force", help="Overwrite the output file.")]
+def alias(kind, option):
+    """``Annotated[kind, option]`` of a factory's ``option``: the same flags, metavar, help and
+    completion, its default left to the parameter's ``=`` (as typer wants with ``Annotated``)."""
+    info = copy(option)
+    info.default = ...
+    return Annotated[kind, info]
+
+
+def force_option(help: str):
+    """``--force``: replace what exists; ``help`` says what."""
+    return typer.Option(False, "--force", help=help)
+
+
+Force = alias(bool, force_option("Overwrite the output file."))
 """``--force`` of a command writing one file (capture, import, export)."""
 
-ForcePlot = Annotated[bool, typer.Option("--force", help="Replace an existing --plot file.")]
+ForcePlot = alias(bool, force_option("Replace an existing --plot file."))
 """``--force`` of a command whose only file is its ``--plot`` (report, noise)."""
 
-def _raw_units(flag: str, sensor: str, units: str, complete):
-    """``--<sensor>-units UNITS`` stored into a session: the raw units of one sensor."""
-    help_ = f"Raw {sensor} units: {units}."
-    return Annotated[
-        str | None, typer.Option(flag, metavar="UNITS", help=help_, autocompletion=complete)
-    ]
+_UNITS_COMPLETION = {"accel": completion.accel_units, "gyro": completion.gyro_units}
 
 
-AccelUnits = _raw_units(
-    "--accel-units", "accelerometer", "counts, V, g or m/s^2", completion.accel_units
+def units_option(sensor: str, help: str):
+    """``--<sensor>-units UNITS`` (``accel`` or ``gyro``): the raw units of one sensor."""
+    return typer.Option(None, f"--{sensor}-units", metavar="UNITS", help=help,
+                        autocompletion=_UNITS_COMPLETION[sensor])  # fmt: skip
+
+
+AccelUnits = alias(
+    str | None, units_option("accel", "Raw accelerometer units: counts, V, g or m/s^2.")
 )
 """``--accel-units`` stored into a session (import, label)."""
 
-GyroUnits = _raw_units(
-    "--gyro-units", "gyroscope", "counts, V, rad/s or deg/s", completion.gyro_units
+GyroUnits = alias(
+    str | None, units_option("gyro", "Raw gyroscope units: counts, V, rad/s or deg/s.")
 )
 """``--gyro-units`` stored into a session (import, label)."""
 
@@ -140,6 +167,32 @@ def gravity_option(help: str):
 def plot_option(help: str):
     """``--plot FILE.png``: also draw a figure (matplotlib)."""
     return typer.Option(None, "--plot", metavar="FILE.png", help=help)
+
+
+def baud_option(help: str, *short: str):
+    """``--baud N``: the serial line's baud rate (default 115200)."""
+    return typer.Option(115200, "--baud", *short, metavar="N", help=help)
+
+
+def protocol_option(help: str, autocompletion):
+    """``--protocol NAME``: what a line of the serial stream is (default ``lines``)."""
+    return typer.Option("lines", "--protocol", metavar="NAME", help=help,
+                        autocompletion=autocompletion)  # fmt: skip
+
+
+def duration_option(help: str):
+    """``--duration SECONDS``: how long at the most (default: no limit)."""
+    return typer.Option(None, "--duration", metavar="SECONDS", help=help)
+
+
+def hold_option(help: str, default: float | None):
+    """``--hold SECONDS``: time held still in each pose."""
+    return typer.Option(default, "--hold", metavar="SECONDS", help=help)
+
+
+def calibration_option(help: str, *short: str):
+    """``--calibration CAL.json``: a calibration a command uses beside its input."""
+    return typer.Option(None, "--calibration", *short, metavar="CAL.json", help=help)
 
 
 def argument(metavar: str, help: str):

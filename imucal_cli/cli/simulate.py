@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
@@ -13,7 +14,20 @@ from imucal_cli.errors import InputError
 from . import completion
 from .app import app
 from .console import print_json
-from .options import plan_option
+from .options import (
+    alias,
+    baud_option,
+    duration_option,
+    field_ut_option,
+    force_option,
+    hold_option,
+    json_option,
+    mag_units_option,
+    output_option,
+    plan_option,
+    protocol_option,
+    rate_option,
+)
 
 SERVE_HOLD_S = 4.0
 """--serve's hold per pose when --hold is not given, s: capture's default hold (2 s) plus time for
@@ -74,238 +88,216 @@ def default_output(plan: str, seed: int) -> Path:
     return Path(f"sim-{plan.strip().lower().replace(':', '-')}-seed{seed}.h5")
 
 
+# The options, in the order --help lists them -------------------------------------------------
+
+Plan = alias(str, plan_option(
+    None, "What the virtual IMU goes through (the same plans as imucal capture; --serve streams "
+    "them live):",
+))  # fmt: skip
+Seed = Annotated[int, typer.Option(
+    "--seed", metavar="INT",
+    help="Random seed (>= 0): the same seed and options give the same samples, in any units.",
+)]  # fmt: skip
+Rate = alias(float, rate_option("Sample rate, Hz."))
+Hold = alias(float | None, hold_option(
+    "Time held still in each pose, s (at least 10 samples) [default: 2; with --serve 4, so "
+    "that a capture with its default 2 s hold has time to see the unit settle].", None,
+))  # fmt: skip
+AccelNoise = Annotated[float, typer.Option(
+    "--accel-noise", metavar="M/S^2",
+    help="Accelerometer white noise, m/s^2 per axis per sample (std).",
+)]  # fmt: skip
+JitterDeg = Annotated[float, typer.Option(
+    "--jitter-deg", metavar="DEG",
+    help="Placement error: RMS angle, degrees, between each pose's true and labelled up "
+    "direction (the heading about the vertical is random anyway).",
+)]  # fmt: skip
+Units = Annotated[str, typer.Option(
+    "--units", metavar="counts|m/s^2", autocompletion=completion.simulate_units,
+    help="Raw units: 'counts' (16-bit integers, 8192 LSB/g, 16.4 LSB per deg/s) or 'm/s^2' "
+    "(a part of nominal gain 1; gyro in rad/s; no quantisation).",
+)]  # fmt: skip
+Output = alias(Path | None, output_option(
+    "FILE.h5", "Session file to write (default: sim-<plan>-seed<seed>.h5); the truth goes "
+    "beside it as <name>.truth.json.",
+))  # fmt: skip
+Force = alias(bool, force_option("Overwrite existing output files."))
+
+# the experiments' own options
+RotationsPerAxis = Annotated[int, typer.Option(
+    "--rotations-per-axis", metavar="N",
+    help="qureshi-axes: hand turns per axis, each a different angle (the paper used 18).",
+)]  # fmt: skip
+PeakRate = Annotated[float, typer.Option(
+    "--peak-rate", metavar="DEG/S",
+    help="qureshi-axes, free:N: largest peak rate of a turn, deg/s (each turn's peak is drawn "
+    "in 50-100 % of it; smooth smootherstep profiles).",
+)]  # fmt: skip
+Still = Annotated[float, typer.Option(
+    "--still", metavar="SECONDS",
+    help="qureshi-axes, free:N: still period before and after each turn, s.",
+)]  # fmt: skip
+SigmaCounts = Annotated[float, typer.Option(
+    "--sigma-counts", metavar="COUNTS",
+    help="hk-redundant: Gaussian noise per channel per sample, ADC counts, before rounding to "
+    "integer codes (the paper used 0.7 and 1.5).",
+)]  # fmt: skip
+Orientations = Annotated[int | None, typer.Option(
+    "--orientations", metavar="N",
+    help="hk-redundant: number of orientations (default 20 random, or 18 with --labelled).",
+)]  # fmt: skip
+Samples = Annotated[int, typer.Option(
+    "--samples", metavar="N", help="hk-redundant: readings held still per orientation."
+)]  # fmt: skip
+Labelled = Annotated[bool, typer.Option(
+    "--labelled",
+    help="hk-redundant: put the block on its 6 faces and 12 edges and record each pose's up "
+    "direction, instead of unlabelled random directions.",
+)]  # fmt: skip
+Mountings = Annotated[int, typer.Option(
+    "--mountings", metavar="N",
+    help="hk-gyro: IMU mountings in the iron (1..8), each swept about 3 orthogonal faces.",
+)]  # fmt: skip
+
+# --serve
+Serve = Annotated[bool, typer.Option(
+    "--serve",
+    help="Instead of writing a file, be a virtual serial IMU: open a pseudo-terminal, print "
+    "its device path, and stream the plan in real time as text lines t,ax,ay,az,gx,gy,gz,temp "
+    "(t in s, raw counts) for 'imucal capture --port PATH'.",
+)]  # fmt: skip
+Baud = alias(int, baud_option("--serve: emulated baud rate (bytes are paced)."))
+Protocol = alias(str, protocol_option(
+    "--serve: what a line is: lines (t,ax,ay,az,gx,gy,gz,temp), motioncal (MotionCal's "
+    "Raw:ax,ay,az,gx,gy,gz,mx,my,mz, a magnetometer in the earth's field) or i2cdevlib "
+    "(a/g:<TAB>ax...gz), counts without a time, as those Arduino sketches print them.",
+    completion.serve_protocols,
+))  # fmt: skip
+Loop = Annotated[bool, typer.Option("--loop", help="--serve: repeat the plan.")]
+Step = Annotated[bool, typer.Option(
+    "--step",
+    help="--serve: hold each pose until Enter is pressed in this terminal (without it the "
+    "plan runs on a timer, --hold per pose, and Enter moves to the next pose early).",
+)]  # fmt: skip
+Duration = alias(float | None, duration_option("--serve: stop streaming after this long."))
+
+# a temperature ramp, a clock error
+Ramp = Annotated[str | None, typer.Option(
+    "--ramp", metavar="FROM:TO[:linear]",
+    help="The part's temperature runs from FROM to TO degrees C through the session (a "
+    "warm-up, or :linear for a hair-dryer or chamber ramp); its biases follow it and the "
+    "truth holds temperature_ref and bias_tempco.",
+)]  # fmt: skip
+ClockPpm = Annotated[float | None, typer.Option(
+    "--clock-ppm", metavar="PPM",
+    help="The part's sample clock runs PPM parts per million fast (negative: slow): the "
+    "session records its device times and the host's arrival times (/raw/host_time).",
+)]  # fmt: skip
+Temp = Annotated[bool, typer.Option(
+    "--temp/--no-temp", help="--serve: print the temperature field (8 or 7 fields)."
+)]  # fmt: skip
+
+# --mag
+Mag = Annotated[bool, typer.Option(
+    "--mag",
+    help="Pose plans (six, qureshi18, random:N): add a magnetometer (an AK8963-like part: hard "
+    "and soft iron, axes x/y swapped and z reversed relative to the accelerometer) and tumble "
+    "the unit through random attitudes between the holds (--tumble).",
+)]  # fmt: skip
+FieldUt = alias(float, field_ut_option("--mag: local field magnitude, microtesla."))
+Inclination = Annotated[float, typer.Option(
+    "--inclination-deg", metavar="DEG",
+    help="--mag: inclination of the field below the horizontal, degrees (-90..90).",
+)]  # fmt: skip
+MagUnits = alias(str, mag_units_option(
+    "--mag: raw magnetometer units (counts: 0.15 uT per LSB, integers).",
+    metavar="counts|uT|nT|gauss",
+))  # fmt: skip
+MagNoise = Annotated[float, typer.Option(
+    "--mag-noise", metavar="UT", help="--mag: white noise per axis per sample, uT."
+)]  # fmt: skip
+MagLayout = Annotated[str, typer.Option(
+    "--mag-layout", metavar="ak8963|aligned",
+    help="--mag: the magnetometer's axes relative to the accelerometer's.",
+)]  # fmt: skip
+FieldUnknown = Annotated[bool, typer.Option(
+    "--field-unknown",
+    help="--mag: leave the field magnitude out of the session (no magnetic_field_uT).",
+)]  # fmt: skip
+Tumble = Annotated[float, typer.Option(
+    "--tumble", metavar="SECONDS",
+    help="--mag: tumble through random attitudes this long between holds (0: plain moves).",
+)]  # fmt: skip
+
+# --serve: the moves and the test faults
+Move = Annotated[float, typer.Option(
+    "--move", metavar="SECONDS", help="--serve: time each turn between poses takes, s."
+)]  # fmt: skip
+Garbage = Annotated[bool, typer.Option(
+    "--garbage",
+    help="--serve, test fault: random bytes instead of lines (as a wrong baud rate shows).",
+)]  # fmt: skip
+StallAfter = Annotated[float | None, typer.Option(
+    "--stall-after", metavar="SECONDS",
+    help="--serve, test fault: stop sending after this long, keep the port open.",
+)]  # fmt: skip
+VanishAfter = Annotated[float | None, typer.Option(
+    "--vanish-after", metavar="SECONDS",
+    help="--serve, test fault: close the port after this long (the device is unplugged).",
+)]  # fmt: skip
+MalformedEvery = Annotated[int | None, typer.Option(
+    "--malformed-every", metavar="N",
+    help="--serve, test fault: every N-th line loses its last two fields.",
+)]  # fmt: skip
+JsonOutput = alias(bool, json_option(
+    "Print what was written (or, with --serve, sent) as JSON on stdout; with --serve the "
+    "device path still comes first, on its own line."
+))  # fmt: skip
+
+
 @app.command()
 def simulate(
     ctx: typer.Context,
-    plan: str = plan_option(
-        "qureshi18",
-        "What the virtual IMU goes through (the same plans as imucal capture; --serve streams "
-        "them live):",
-    ),
-    seed: int = typer.Option(
-        0,
-        "--seed",
-        metavar="INT",
-        help="Random seed (>= 0): the same seed and options give the same samples, in any units.",
-    ),
-    rate: float = typer.Option(100.0, "--rate", metavar="HZ", help="Sample rate, Hz."),
-    hold: float | None = typer.Option(
-        None,
-        "--hold",
-        metavar="SECONDS",
-        help="Time held still in each pose, s (at least 10 samples) [default: 2; with --serve 4, "
-        "so that a capture with its default 2 s hold has time to see the unit settle].",
-    ),
-    accel_noise: float = typer.Option(
-        0.01,
-        "--accel-noise",
-        metavar="M/S^2",
-        help="Accelerometer white noise, m/s^2 per axis per sample (std).",
-    ),
-    jitter_deg: float = typer.Option(
-        2.0,
-        "--jitter-deg",
-        metavar="DEG",
-        help=(
-            "Placement error: RMS angle, degrees, between each pose's true and labelled up "
-            "direction (the heading about the vertical is random anyway)."
-        ),
-    ),
-    units: str = typer.Option(
-        "counts",
-        "--units",
-        metavar="counts|m/s^2",
-        help=(
-            "Raw units: 'counts' (16-bit integers, 8192 LSB/g, 16.4 LSB per deg/s) or 'm/s^2' "
-            "(a part of nominal gain 1; gyro in rad/s; no quantisation)."
-        ),
-        autocompletion=completion.simulate_units,
-    ),
-    output: Path | None = typer.Option(
-        None,
-        "--output",
-        "-o",
-        metavar="FILE.h5",
-        help=(
-            "Session file to write (default: sim-<plan>-seed<seed>.h5); the truth goes "
-            "beside it as <name>.truth.json."
-        ),
-    ),
-    force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
-    rotations_per_axis: int = typer.Option(
-        18,
-        "--rotations-per-axis",
-        metavar="N",
-        help="qureshi-axes: hand turns per axis, each a different angle (the paper used 18).",
-    ),
-    peak_rate: float = typer.Option(
-        150.0,
-        "--peak-rate",
-        metavar="DEG/S",
-        help=(
-            "qureshi-axes, free:N: largest peak rate of a turn, deg/s (each turn's peak is "
-            "drawn in 50-100 % of it; smooth smootherstep profiles)."
-        ),
-    ),
-    still: float = typer.Option(
-        5.0,
-        "--still",
-        metavar="SECONDS",
-        help="qureshi-axes, free:N: still period before and after each turn, s.",
-    ),
-    sigma_counts: float = typer.Option(
-        0.7,
-        "--sigma-counts",
-        metavar="COUNTS",
-        help=(
-            "hk-redundant: Gaussian noise per channel per sample, ADC counts, before rounding to "
-            "integer codes (the paper used 0.7 and 1.5)."
-        ),
-    ),
-    orientations: int | None = typer.Option(
-        None,
-        "--orientations",
-        metavar="N",
-        help="hk-redundant: number of orientations (default 20 random, or 18 with --labelled).",
-    ),
-    samples: int = typer.Option(
-        10, "--samples", metavar="N", help="hk-redundant: readings held still per orientation."
-    ),
-    labelled: bool = typer.Option(
-        False,
-        "--labelled",
-        help=(
-            "hk-redundant: put the block on its 6 faces and 12 edges and record each pose's up "
-            "direction, instead of unlabelled random directions."
-        ),
-    ),
-    mountings: int = typer.Option(
-        2,
-        "--mountings",
-        metavar="N",
-        help="hk-gyro: IMU mountings in the iron (1..8), each swept about 3 orthogonal faces.",
-    ),
-    serve: bool = typer.Option(
-        False,
-        "--serve",
-        help=(
-            "Instead of writing a file, be a virtual serial IMU: open a pseudo-terminal, print "
-            "its device path, and stream the plan in real time as text lines "
-            "t,ax,ay,az,gx,gy,gz,temp (t in s, raw counts) for 'imucal capture --port PATH'."
-        ),
-    ),
-    baud: int = typer.Option(
-        115200, "--baud", metavar="N", help="--serve: emulated baud rate (bytes are paced)."
-    ),
-    protocol: str = typer.Option(
-        "lines",
-        "--protocol",
-        metavar="NAME",
-        help="--serve: what a line is: lines (t,ax,ay,az,gx,gy,gz,temp), motioncal (MotionCal's "
-        "Raw:ax,ay,az,gx,gy,gz,mx,my,mz, a magnetometer in the earth's field) or i2cdevlib "
-        "(a/g:<TAB>ax...gz), counts without a time, as those Arduino sketches print them.",
-        autocompletion=completion.serve_protocols,
-    ),
-    loop: bool = typer.Option(False, "--loop", help="--serve: repeat the plan."),
-    step: bool = typer.Option(
-        False,
-        "--step",
-        help="--serve: hold each pose until Enter is pressed in this terminal (without it the "
-        "plan runs on a timer, --hold per pose, and Enter moves to the next pose early).",
-    ),
-    duration: float | None = typer.Option(
-        None, "--duration", metavar="SECONDS", help="--serve: stop streaming after this long."
-    ),
-    ramp: str | None = typer.Option(
-        None, "--ramp", metavar="FROM:TO[:linear]",
-        help="The part's temperature runs from FROM to TO degrees C through the session (a "
-        "warm-up, or :linear for a hair-dryer or chamber ramp); its biases follow it and the "
-        "truth holds temperature_ref and bias_tempco.",
-    ),
-    clock_ppm: float | None = typer.Option(
-        None, "--clock-ppm", metavar="PPM",
-        help="The part's sample clock runs PPM parts per million fast (negative: slow): the "
-        "session records its device times and the host's arrival times (/raw/host_time).",
-    ),
-    temp: bool = typer.Option(
-        True, "--temp/--no-temp", help="--serve: print the temperature field (8 or 7 fields)."
-    ),
-    mag: bool = typer.Option(
-        False,
-        "--mag",
-        help=(
-            "Pose plans (six, qureshi18, random:N): add a magnetometer (an AK8963-like part: "
-            "hard and soft iron, axes x/y swapped and z reversed relative to the accelerometer) "
-            "and tumble the unit through random attitudes between the holds (--tumble)."
-        ),
-    ),
-    field_ut: float = typer.Option(
-        48.0, "--field-uT", metavar="UT", help="--mag: local field magnitude, microtesla."
-    ),
-    inclination: float = typer.Option(
-        60.0,
-        "--inclination-deg",
-        metavar="DEG",
-        help="--mag: inclination of the field below the horizontal, degrees (-90..90).",
-    ),
-    mag_units: str = typer.Option(
-        "counts",
-        "--mag-units",
-        metavar="counts|uT|nT|gauss",
-        help="--mag: raw magnetometer units (counts: 0.15 uT per LSB, integers).",
-    ),
-    mag_noise: float = typer.Option(
-        0.4, "--mag-noise", metavar="UT", help="--mag: white noise per axis per sample, uT."
-    ),
-    mag_layout: str = typer.Option(
-        "ak8963",
-        "--mag-layout",
-        metavar="ak8963|aligned",
-        help="--mag: the magnetometer's axes relative to the accelerometer's.",
-    ),
-    field_unknown: bool = typer.Option(
-        False,
-        "--field-unknown",
-        help="--mag: leave the field magnitude out of the session (no magnetic_field_uT).",
-    ),
-    tumble: float = typer.Option(
-        4.0,
-        "--tumble",
-        metavar="SECONDS",
-        help="--mag: tumble through random attitudes this long between holds (0: plain moves).",
-    ),
-    move: float = typer.Option(
-        1.5, "--move", metavar="SECONDS", help="--serve: time each turn between poses takes, s."
-    ),
-    garbage: bool = typer.Option(
-        False,
-        "--garbage",
-        help="--serve, test fault: random bytes instead of lines (as a wrong baud rate shows).",
-    ),
-    stall_after: float | None = typer.Option(
-        None,
-        "--stall-after",
-        metavar="SECONDS",
-        help="--serve, test fault: stop sending after this long, keep the port open.",
-    ),
-    vanish_after: float | None = typer.Option(
-        None,
-        "--vanish-after",
-        metavar="SECONDS",
-        help="--serve, test fault: close the port after this long (the device is unplugged).",
-    ),
-    malformed_every: int | None = typer.Option(
-        None,
-        "--malformed-every",
-        metavar="N",
-        help="--serve, test fault: every N-th line loses its last two fields.",
-    ),
-    json_output: bool = typer.Option(
-        False,
-        "--json",
-        help="Print what was written (or, with --serve, sent) as JSON on stdout; with --serve "
-        "the device path still comes first, on its own line.",
-    ),
+    plan: Plan = "qureshi18",
+    seed: Seed = 0,
+    rate: Rate = 100.0,
+    hold: Hold = None,
+    accel_noise: AccelNoise = 0.01,
+    jitter_deg: JitterDeg = 2.0,
+    units: Units = "counts",
+    output: Output = None,
+    force: Force = False,
+    rotations_per_axis: RotationsPerAxis = 18,
+    peak_rate: PeakRate = 150.0,
+    still: Still = 5.0,
+    sigma_counts: SigmaCounts = 0.7,
+    orientations: Orientations = None,
+    samples: Samples = 10,
+    labelled: Labelled = False,
+    mountings: Mountings = 2,
+    serve: Serve = False,
+    baud: Baud = 115200,
+    protocol: Protocol = "lines",
+    loop: Loop = False,
+    step: Step = False,
+    duration: Duration = None,
+    ramp: Ramp = None,
+    clock_ppm: ClockPpm = None,
+    temp: Temp = True,
+    mag: Mag = False,
+    field_ut: FieldUt = 48.0,
+    inclination: Inclination = 60.0,
+    mag_units: MagUnits = "counts",
+    mag_noise: MagNoise = 0.4,
+    mag_layout: MagLayout = "ak8963",
+    field_unknown: FieldUnknown = False,
+    tumble: Tumble = 4.0,
+    move: Move = 1.5,
+    garbage: Garbage = False,
+    stall_after: StallAfter = None,
+    vanish_after: VanishAfter = None,
+    malformed_every: MalformedEvery = None,
+    json_output: JsonOutput = False,
 ) -> None:
     """Simulate a calibration session of a cheap 16-bit MEMS IMU with known truth.
 
@@ -318,19 +310,51 @@ def simulate(
     Exit status: 0 written (or streamed); 2 bad input (unknown plan, bad option, existing
     output without --force).
     """
-    from imucal_cli.plans import load_plan
-
-    def given(name: str) -> bool:
-        source = ctx.get_parameter_source(name)
-        return source is not None and source.name != "DEFAULT"
-
-    load_plan(plan)  # an unknown plan is refused first, with the list of plans
+    given = _given(ctx)
+    thermal, clock = _checked(plan, serve, ramp, clock_ppm, mag, given("protocol"))
     options = {
         "accel_noise": accel_noise, "jitter_deg": jitter_deg, "still_s": still,
         "rotations_per_axis": rotations_per_axis if given("rotations_per_axis") else None,
         "peak_rate_dps": peak_rate, "sigma_counts": sigma_counts, "orientations": orientations,
         "samples": samples, "labelled": labelled, "mountings": mountings,
     }  # fmt: skip
+    if serve:
+        _serve(plan, rate, baud, json_output, seed=seed, units=units, move_s=move, step=step,
+               hold_s=SERVE_HOLD_S if hold is None else hold, plan_options=options,
+               temperature=temp, loop=loop, duration_s=duration, garbage=garbage,
+               stall_after_s=stall_after, vanish_after_s=vanish_after,
+               malformed_every=malformed_every, protocol=protocol)  # fmt: skip
+        return
+    out, truth_out = _outputs(output, plan, seed, force)
+    if mag:
+        session, truth = _simulate_mag(
+            plan, seed, units, rate, hold, accel_noise, jitter_deg, field_uT=field_ut,
+            inclination_deg=inclination, mag_units=mag_units, mag_noise=mag_noise,
+            layout=mag_layout, field_known=not field_unknown, tumble_s=tumble,
+        )  # fmt: skip
+    else:
+        session, truth = _simulate_plan(plan, seed, units, rate if given("rate") else None,
+                                        hold, move, thermal, clock, options)  # fmt: skip
+    _write(out, truth_out, session, truth, force, plan, seed, json_output)
+
+
+def _given(ctx: typer.Context):
+    """``given(name)``: whether the option ``name`` was on the command line (not its default)."""
+
+    def given(name: str) -> bool:
+        source = ctx.get_parameter_source(name)
+        return source is not None and source.name != "DEFAULT"
+
+    return given
+
+
+def _checked(plan: str, serve: bool, ramp: str | None, clock_ppm: float | None, mag: bool,
+             protocol: bool):  # fmt: skip
+    """Refuse what does not go together, an unknown plan first (with the list of plans);
+    return the temperature ramp and the clock scale asked for (None: not asked)."""
+    from imucal_cli.plans import load_plan
+
+    load_plan(plan)
     thermal = None
     if ramp is not None:
         from imucal_cli.simulate.temperature import parse_ramp
@@ -345,21 +369,14 @@ def simulate(
         clock = check_ppm(clock_ppm)
     if mag:
         _mag_plan(plan, serve, thermal is not None or clock is not None)
-    if given("protocol") and not serve:
+    if protocol and not serve:
         raise InputError("--protocol is what --serve prints: add --serve")
-    if serve:
-        _serve(
-            plan, rate, baud, json_output, seed=seed, hold_s=SERVE_HOLD_S if hold is None else hold,
-            move_s=move, step=step, units=units, plan_options=options,
-            temperature=temp, loop=loop, duration_s=duration, garbage=garbage,
-            stall_after_s=stall_after, vanish_after_s=vanish_after,
-            malformed_every=malformed_every, protocol=protocol,
-        )  # fmt: skip
-        return
-    from imucal_cli.formats.calibration import write_calibration
+    return thermal, clock
+
+
+def _outputs(output: Path | None, plan: str, seed: int, force: bool) -> tuple[Path, Path]:
+    """The session and its truth beside it, both checked before anything is simulated."""
     from imucal_cli.formats.output import check_output
-    from imucal_cli.formats.session import write_session
-    from imucal_cli.simulate.play import simulate_plan
 
     out = output if output is not None else default_output(plan, seed)
     truth_out = truth_path(out)
@@ -367,20 +384,34 @@ def simulate(
         raise InputError(f"{out}: the session name must not end in .truth.json")
     for p in (out, truth_out):
         check_output(p, force=force)
-    if mag:
-        from imucal_cli.simulate.magnetometer import simulate_mag
+    return out, truth_out
 
-        session, truth = simulate_mag(
-            plan, seed, field_uT=field_ut, inclination_deg=inclination, mag_units=mag_units,
-            mag_noise=mag_noise, layout=mag_layout, field_known=not field_unknown, tumble_s=tumble,
-            rate_hz=rate, hold_s=hold, accel_noise=accel_noise, jitter_deg=jitter_deg,
-            units=units,
-        )  # fmt: skip
-    else:
-        session, truth = simulate_plan(
-            plan, seed=seed, units=units, rate_hz=rate if given("rate") else None, hold_s=hold,
-            move_s=move, temperature=thermal, clock_scale=clock, **options,
-        )  # fmt: skip
+
+def _simulate_mag(plan: str, seed: int, units: str, rate: float, hold: float | None,
+                  accel_noise: float, jitter_deg: float, **mag):  # fmt: skip
+    """A pose plan with a magnetometer (``--mag``); without --hold the simulator's own hold."""
+    from imucal_cli.simulate.magnetometer import simulate_mag
+
+    held = {} if hold is None else {"hold_s": hold}
+    return simulate_mag(plan, seed, **mag, rate_hz=rate, accel_noise=accel_noise,
+                        jitter_deg=jitter_deg, units=units, **held)  # fmt: skip
+
+
+def _simulate_plan(plan: str, seed: int, units: str, rate: float | None, hold: float | None,
+                   move: float, thermal, clock, options: dict):  # fmt: skip
+    """Any plan, by the experiment that plays it."""
+    from imucal_cli.simulate.play import simulate_plan
+
+    return simulate_plan(plan, seed=seed, units=units, rate_hz=rate, hold_s=hold, move_s=move,
+                         temperature=thermal, clock_scale=clock, **options)  # fmt: skip
+
+
+def _write(out: Path, truth_out: Path, session, truth, force: bool, plan: str, seed: int,
+           json_output: bool) -> None:  # fmt: skip
+    """Write the session and its truth, and say what was written."""
+    from imucal_cli.formats.calibration import write_calibration
+    from imucal_cli.formats.session import write_session
+
     rate = float(session.sample_rate_hz)
     truth = dataclasses.replace(truth, session=out.name)
     write_session(out, session, overwrite=force)

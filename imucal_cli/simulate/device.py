@@ -36,6 +36,7 @@ so (the still samples keep coming, the time keeps increasing), as a person at th
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import os
 import select
@@ -269,29 +270,15 @@ def _damage(line: bytes) -> bytes:
 
 
 def serve(
-    plan: str = "six",
-    rate_hz: float = 100.0,
-    baud: int = 115200,
-    *,
-    seed: int = 0,
-    hold_s: float | None = 2.0,
-    move_s: float = 1.5,
-    units: str = "counts",
-    plan_options: dict | None = None,
-    temperature: bool = True,
-    loop: bool = False,
-    duration_s: float | None = None,
-    wait_reader_s: float | None = None,
-    garbage: bool = False,
-    stall_after_s: float | None = None,
-    vanish_after_s: float | None = None,
-    malformed_every: int | None = None,
-    step: bool = False,
-    next_pose: Callable[[], bool] | None = None,
-    announce: Callable[[str], None] = print,
-    status: Callable[[str], None] | None = None,
-    protocol: str = "lines",
-) -> ServeResult:
+    plan: str = "six", rate_hz: float = 100.0, baud: int = 115200, *, seed: int = 0,
+    hold_s: float | None = 2.0, move_s: float = 1.5, units: str = "counts",
+    plan_options: dict | None = None, temperature: bool = True, loop: bool = False,
+    duration_s: float | None = None, wait_reader_s: float | None = None, garbage: bool = False,
+    stall_after_s: float | None = None, vanish_after_s: float | None = None,
+    malformed_every: int | None = None, step: bool = False,
+    next_pose: Callable[[], bool] | None = None, announce: Callable[[str], None] = print,
+    status: Callable[[str], None] | None = None, protocol: str = "lines",
+) -> ServeResult:  # fmt: skip
     """Stream a simulated IMU on a new pseudo-terminal until the plan ends; see the module notes.
 
     Parameters
@@ -317,23 +304,18 @@ def serve(
         Stop streaming after this long, s.
     wait_reader_s : float, optional
         Give up when no reader opened the port within this long (default: wait forever).
-    garbage : bool
-        Send random bytes instead of lines (a wrong baud rate).
-    stall_after_s : float, optional
-        Stop sending after this long but keep the port open (until a signal or the reader
-        closes it).
-    vanish_after_s : float, optional
-        Close the pseudo-terminal after this long (the device is unplugged).
-    malformed_every : int, optional
-        Every N-th data line is sent with two fields missing.
-    step : bool
-        Hold every pose until ``next_pose`` says to move on (not on a timer).
-    next_pose : callable, optional
-        Polled for each line: True moves on to the next pose now (e.g. Enter was typed).
-    announce : callable
-        Called once with the slave device path, before anything else.
-    status : callable, optional
-        Called with progress messages.
+    garbage, stall_after_s, vanish_after_s, malformed_every
+        The test faults of the module notes: send random bytes instead of lines; stop sending
+        after ``stall_after_s`` but keep the port open (until a signal or the reader closes
+        it); close the pseudo-terminal after ``vanish_after_s``; send every N-th data line
+        with two fields missing.
+    step, next_pose
+        The pacing of the module notes: ``next_pose()``, polled for each line, True moves on
+        to the next pose now (e.g. Enter was typed); with ``step`` every pose is held until
+        it does (not on a timer).
+    announce, status : callable
+        Called once with the slave device path, before anything else; called with progress
+        messages (optional).
     protocol : str
         What a data line is (:data:`SERVE_PROTOCOLS`): ``lines`` (``t,ax,...``), ``motioncal``
         or ``i2cdevlib`` (see the module notes; ``temperature`` does not apply).
@@ -342,23 +324,64 @@ def serve(
     -------
     ServeResult
     """
+    _check_line(rate_hz, baud, malformed_every)
+    say = status or (lambda message: None)
+    lines, schedule, fields = _plan_lines(
+        plan, protocol, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s,
+        plan_options=plan_options or {}, temperature=temperature, loop=loop, step=step,
+        next_pose=next_pose, say=say,
+    )  # fmt: skip
+    header = (f"# imucal virtual IMU: plan {plan}, {rate_hz:g} Hz, {units}, "
+              f"columns {fields}, seed {seed}\n").encode()  # fmt: skip
+    stop = {"kind": None}
+    with _stop_on_signals(stop):
+        port = _Port()
+        try:
+            announce(port.path)
+            say(f"serving plan {plan} at {rate_hz:g} Hz, {baud} baud on {port.path}; "
+                "waiting for a reader")  # fmt: skip
+            line = _Line(
+                port.master, port.poller, stop, lines, rate_hz, baud, schedule=schedule,
+                duration_s=duration_s, garbage=garbage, stall_after_s=stall_after_s,
+                vanish_after_s=vanish_after_s, malformed_every=malformed_every,
+                rng=np.random.default_rng(seed + 1), timed=protocol == "lines",
+            )  # fmt: skip
+            return _stream(port, line, header, stop, wait_reader_s, say)
+        finally:
+            port.close()
+
+
+def _plan_lines(plan: str, protocol: str, *, seed: int, rate_hz: float, hold_s: float | None,
+                units: str, move_s: float, plan_options: dict, temperature: bool, loop: bool,
+                step: bool, next_pose, say) -> tuple[list[bytes], _Schedule, str]:  # fmt: skip
+    """The plan's data lines, the schedule that hands them out, and what a line holds."""
+    time, accel, gyro, holds = stream_with_holds(
+        plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s,
+        **plan_options,
+    )  # fmt: skip
+    lines = _lines(protocol, time, accel, gyro, temperature, units)
+    if hold_s is None:  # the plan's own hold: as its first pose is held
+        hold_s = (holds[0].stop - holds[0].start) / rate_hz if holds else 0.0
+    schedule = _Schedule(len(lines), holds, loop=loop, step=step, next_pose=next_pose, say=say,
+                         hold_s=hold_s)  # fmt: skip
+    fields = _columns(accel, gyro, temperature) if protocol == "lines" else f"{protocol} lines"
+    return lines, schedule, fields
+
+
+def _check_line(rate_hz: float, baud: int, malformed_every: int | None) -> None:
+    """Refuse a rate, baud rate or fault period the line cannot have."""
     if not rate_hz > 0:
         raise InputError(f"rate must be > 0 Hz, got {rate_hz:g}")
     if not isinstance(baud, int) or baud <= 0:
         raise InputError(f"baud rate must be a positive integer, got {baud!r}")
     if malformed_every is not None and malformed_every < 1:
         raise InputError(f"--malformed-every must be >= 1, got {malformed_every}")
-    time, accel, gyro, holds = stream_with_holds(
-        plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s,
-        **(plan_options or {}),
-    )  # fmt: skip
-    lines = _lines(protocol, time, accel, gyro, temperature, units)
-    say = status or (lambda message: None)
-    if hold_s is None:  # the plan's own hold: as its first pose is held
-        hold_s = (holds[0].stop - holds[0].start) / rate_hz if holds else 0.0
-    schedule = _Schedule(len(lines), holds, loop=loop, step=step, next_pose=next_pose, say=say,
-                         hold_s=hold_s)  # fmt: skip
-    stop = {"kind": None}
+
+
+@contextlib.contextmanager
+def _stop_on_signals(stop: dict):
+    """While serving (in the main thread), SIGINT and SIGTERM set ``stop["kind"]`` to
+    ``"signal"``; the previous handlers are restored after."""
     old_handlers = {}
     if threading.current_thread() is threading.main_thread():
 
@@ -367,40 +390,28 @@ def serve(
 
         for signum in (signal.SIGINT, signal.SIGTERM):
             old_handlers[signum] = signal.signal(signum, handler)
-
-    port = _Port()
-    result = ServeResult(path=port.path)
     try:
-        announce(port.path)
-        fields = (_columns(accel, gyro, temperature) if protocol == "lines"
-                  else f"{protocol} lines")  # fmt: skip
-        say(f"serving plan {plan} at {rate_hz:g} Hz, {baud} baud on {port.path}; "
-            "waiting for a reader")  # fmt: skip
-        result.end = port.wait_for_reader(stop, wait_reader_s)
-        if result.end:
-            return result
-        header = (
-            f"# imucal virtual IMU: plan {plan}, {rate_hz:g} Hz, {units}, "
-            f"columns {fields}, seed {seed}\n"
-        ).encode()
-        line = _Line(
-            port.master, port.poller, stop, lines, rate_hz, baud, schedule=schedule,
-            duration_s=duration_s, garbage=garbage, stall_after_s=stall_after_s,
-            vanish_after_s=vanish_after_s, malformed_every=malformed_every,
-            rng=np.random.default_rng(seed + 1), timed=protocol == "lines",
-        )  # fmt: skip
-        line.run(header, result)
-        if result.end in ("plan", "duration", "signal", "vanished"):
-            line.tally(result, unread=port.drain(DRAIN_MAX_S))
-        say(
-            f"sent {result.lines} lines ({result.malformed} malformed) in "
-            f"{result.seconds:.1f} s; end: {result.end}"
-        )
-        return result
+        yield
     finally:
-        port.close()
         for signum, old in old_handlers.items():
             signal.signal(signum, old)
+
+
+def _stream(port: _Port, line: _Line, header: bytes, stop: dict, wait_reader_s: float | None,
+            say: Callable[[str], None]) -> ServeResult:  # fmt: skip
+    """Wait for a reader, then run the line until it ends; count what the reader got."""
+    result = ServeResult(path=port.path)
+    result.end = port.wait_for_reader(stop, wait_reader_s)
+    if result.end:
+        return result
+    line.run(header, result)
+    if result.end in ("plan", "duration", "signal", "vanished"):
+        line.tally(result, unread=port.drain(DRAIN_MAX_S))
+    say(
+        f"sent {result.lines} lines ({result.malformed} malformed) in "
+        f"{result.seconds:.1f} s; end: {result.end}"
+    )
+    return result
 
 
 def _int_ioctl(fd: int, request: int, value: int = 0) -> int:

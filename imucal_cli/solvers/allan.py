@@ -58,6 +58,8 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 
+from .blocks import check_all_given, check_not_more
+
 __all__ = [
     "AllanAccumulator",
     "AllanCurve",
@@ -282,8 +284,7 @@ class AllanAccumulator:
         k = len(y)
         if k == 0:
             return
-        if self._seen + k > self.n:
-            raise InputError(f"more than the {self.n} samples announced")
+        check_not_more(self._seen, k, self.n)
         if self.centre is None:
             self.centre = y.mean(axis=0)
         first = self._seen == 0  # the phase starts with x_0 = 0
@@ -345,8 +346,7 @@ class AllanAccumulator:
         InputError
             Fewer samples were given than announced.
         """
-        if self._seen != self.n:
-            raise InputError(f"{self._seen} of the {self.n} samples announced were given")
+        check_all_given(self._seen, self.n)
         if self._end > self._kept:
             self._terms()
         sums = self._sums.copy()
@@ -410,21 +410,9 @@ def _fixed_slope_fit(tau, adev, slope: float, tau_read: float) -> float:
 
 
 def axis_noise(y: np.ndarray, rate_hz: float, *, max_tau_fraction: float = 0.1) -> AxisNoise:
-    """Allan deviation of one axis and the noise parameters read from it (module notes).
-
-    Parameters
-    ----------
-    y : ndarray, shape (N,)
-        Rate samples in SI (m/s^2 or rad/s).
-    rate_hz : float
-        Sample rate, Hz.
-    max_tau_fraction : float
-        Longest tau as a fraction of the recording.
-
-    Returns
-    -------
-    AxisNoise
-    """
+    """The noise parameters of one axis (module notes): :func:`noise_from_curve` of the
+    :func:`allan_deviation` of ``y``, rate samples in SI (m/s^2 or rad/s), with its
+    parameters."""
     return noise_from_curve(allan_deviation(y, rate_hz, max_tau_fraction=max_tau_fraction))
 
 

@@ -164,7 +164,6 @@ def least_squares(
     if max_nfev is None:
         max_nfev = 100 * n
     f = np.asarray(fun(x), dtype=float).ravel()
-    nfev, njev = 1, 0
 
     def jacobian(x, f):
         return _dense(jac(x)) if jac is not None else _forward_difference(fun, x, f)
@@ -174,9 +173,26 @@ def least_squares(
         raise ValueError(f"x_scale must be 'jac' or numbers, not {x_scale!r}")
     D = None if by_jac else 1.0 / np.broadcast_to(np.asarray(x_scale, float), (n,)).copy()
     if len(f) < n or (D is not None and not np.all(np.isfinite(D) & (D > 0))):
-        return _result(x, f, np.full((len(f), n), np.nan), nfev, njev, -1)
+        return _result(x, f, np.full((len(f), n), np.nan), 1, 0, -1)
+    x, f, J, J_at_x, nfev, njev, status = _iterate(
+        fun, jacobian, x, f, D, (ftol, xtol, gtol), max_nfev
+    )
+    if not J_at_x:  # the Jacobian at the solution (not counted in njev, as in scipy's "lm")
+        J = jacobian(x, f)
+    return _result(x, f, J, nfev, njev, status)
+
+
+def _iterate(fun, jacobian, x: np.ndarray, f: np.ndarray, D: np.ndarray | None, tols,
+             max_nfev: int):  # fmt: skip
+    """Moré's iteration from ``x`` (``fun(x) = f``; ``D`` None: scaled by the Jacobian's
+    column norms, MINPACK's mode 1): a Jacobian and its SVD, then damped steps in the trust
+    region until one reduces the cost, until a test ends the solve.  Returns ``x, f``, the
+    last Jacobian and whether it is at ``x``, the evaluation counts and the status."""
+    ftol, xtol, gtol = tols
+    by_jac = D is None
+    nfev, njev = 1, 0
     fnorm = np.linalg.norm(f)
-    status, par, Delta, xnorm = 0, 0.0, 0.0, 0.0
+    par, Delta, xnorm = 0.0, 0.0, 0.0
     first = True
     while True:
         J, J_at_x = jacobian(x, f), True
@@ -190,8 +206,7 @@ def least_squares(
             Delta = 100.0 * xnorm if xnorm > 0 else 100.0
         g = J.T @ f
         if fnorm == 0 or np.max(np.abs(g) / np.where(col > 0, col, np.inf)) <= gtol * fnorm:
-            status = 1
-            break
+            return x, f, J, J_at_x, nfev, njev, 1
         U, s, Vt = np.linalg.svd(J / D, full_matrices=False)
         c = U.T @ f
         while True:  # until a step reduces the cost (or a test ends the solve)
@@ -205,40 +220,58 @@ def least_squares(
             nfev += 1
             fnorm_new = np.linalg.norm(f_new) if np.all(np.isfinite(f_new)) else np.inf
             actred = 1.0 - (fnorm_new / fnorm) ** 2 if 0.1 * fnorm_new < fnorm else -1.0
-            t1 = np.linalg.norm(J @ p) / fnorm
-            t2 = np.sqrt(par) * pnorm / fnorm
-            prered = t1 * t1 + 2.0 * t2 * t2
-            dirder = -(t1 * t1 + t2 * t2)
+            prered, dirder = _predicted(J, p, pnorm, par, fnorm)
             ratio = actred / prered if prered != 0 else 0.0
-            if ratio <= 0.25:  # shrink the trust region
-                temp = 0.5 if actred >= 0 else 0.5 * dirder / (dirder + 0.5 * actred)
-                if 0.1 * fnorm_new >= fnorm or temp < 0.1:
-                    temp = 0.1
-                Delta = temp * min(Delta, pnorm / 0.1)
-                par /= temp
-            elif par == 0 or ratio >= 0.75:
-                Delta = pnorm / 0.5
-                par *= 0.5
+            Delta, par = _new_radius(ratio, actred, dirder, (fnorm_new, fnorm), Delta, pnorm, par)
             accepted = ratio >= 1e-4
             if accepted:
                 x, f, fnorm, J_at_x = x_new, f_new, fnorm_new, False
                 xnorm = np.linalg.norm(D * x)
             first = False
-            f_ok = abs(actred) <= ftol and prered <= ftol and 0.5 * ratio <= 1
-            x_ok = Delta <= xtol * xnorm
-            if f_ok or x_ok:
-                status = 4 if (f_ok and x_ok) else (2 if f_ok else 3)
-            elif nfev >= max_nfev:
-                status = 0
-            else:
-                status = None
-            if status is not None or accepted:
+            status = _status(actred, prered, ratio, Delta <= xtol * xnorm, ftol, nfev, max_nfev)
+            if status is not None:
+                return x, f, J, J_at_x, nfev, njev, status
+            if accepted:
                 break
-        if status is not None:
-            break
-    if not J_at_x:  # the Jacobian at the solution (not counted in njev, as in scipy's "lm")
-        J = jacobian(x, f)
-    return _result(x, f, J, nfev, njev, status)
+
+
+def _predicted(J: np.ndarray, p: np.ndarray, pnorm: float, par: float,
+               fnorm: float) -> tuple[float, float]:  # fmt: skip
+    """Moré's predicted relative reduction of the cost by the step ``p`` (``pnorm`` its
+    scaled length, ``par`` its damping) and the directional derivative, as MINPACK's lmder."""
+    t1 = np.linalg.norm(J @ p) / fnorm
+    t2 = np.sqrt(par) * pnorm / fnorm
+    return t1 * t1 + 2.0 * t2 * t2, -(t1 * t1 + t2 * t2)
+
+
+def _new_radius(ratio: float, actred: float, dirder: float, norms: tuple[float, float],
+                Delta: float, pnorm: float, par: float) -> tuple[float, float]:  # fmt: skip
+    """The trust radius and damping after a step, from the ratio of actual to predicted
+    reduction (lmder): shrunk when it is at most 1/4, doubled when at least 3/4 (or
+    undamped); ``norms``: the residual norms after and before the step."""
+    fnorm_new, fnorm = norms
+    if ratio <= 0.25:  # shrink the trust region
+        temp = 0.5 if actred >= 0 else 0.5 * dirder / (dirder + 0.5 * actred)
+        if 0.1 * fnorm_new >= fnorm or temp < 0.1:
+            temp = 0.1
+        Delta = temp * min(Delta, pnorm / 0.1)
+        par /= temp
+    elif par == 0 or ratio >= 0.75:
+        Delta = pnorm / 0.5
+        par *= 0.5
+    return Delta, par
+
+
+def _status(actred: float, prered: float, ratio: float, x_ok: bool, ftol: float, nfev: int,
+            max_nfev: int) -> int | None:  # fmt: skip
+    """MINPACK's tests after a step: scipy's status (2 ftol, 3 xtol, 4 both, 0 the
+    evaluations used up), or None to go on."""
+    f_ok = abs(actred) <= ftol and prered <= ftol and 0.5 * ratio <= 1
+    if f_ok or x_ok:
+        return 4 if (f_ok and x_ok) else (2 if f_ok else 3)
+    if nfev >= max_nfev:
+        return 0
+    return None
 
 
 def _result(x, f, J, nfev, njev, status) -> LsqResult:

@@ -28,6 +28,7 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 
+from .blocks import check_all_given
 from .quantiles import chi2_isf, chi2_ppf  # noqa: F401 (chi2_* also imported from here)
 
 __all__ = [
@@ -418,36 +419,62 @@ def find_static(
     if noise is None:
         sigma, _ = _noise_of(x, n, NOISE_QUANTILE, var)
     else:
-        parts = [s for s, given in ((noise.accel, accel), (noise.gyro, gyro)) if given is not None]
-        if any(p is None for p in parts):
-            raise InputError("the noise estimate lacks a sensor that is given")
-        sigma = np.concatenate([np.asarray(p, float) for p in parts])
+        sigma = _given_noise(noise, accel, gyro)
     for name, value in (("k", k), ("gyro_k", gyro_k)):
         if value is not None and not value > 0:
             raise InputError(f"{name} must be > 0, got {value:g}")
-    margin = int(round((window_s / 2 if margin_s is None else margin_s) * rate))
-    if margin < 0:
-        raise InputError(f"margin must be >= 0 s, got {margin_s:g}")
-    min_n = int(np.ceil(min_still_s * rate - 1e-9))
+    margin, min_n = _trim(rate, window_s, margin_s, min_still_s)
+    still_window = _still_windows(var / (sigma * sigma), na, accel is not None, gyro is not None,
+                                  k, gyro_k, n, alpha)  # fmt: skip
+    return _still_periods(_runs(_covered(still_window, N, n)), N, n, margin, min_n)
 
-    normalised = var / (sigma * sigma)
-    still_window = np.ones(N - n + 1, dtype=bool)
-    groups = []
-    if accel is not None:
+
+def _still_windows(normalised: np.ndarray, na: int, has_accel: bool, has_gyro: bool,
+                   k: float | None, gyro_k: float | None, n: int, alpha: float) -> np.ndarray:
+    """Step 2 of :func:`find_static`: the windows whose mean normalised variance (channels
+    ``:na`` the accelerometer's, the rest the gyroscope's) is at most its sensor's threshold,
+    for every sensor given (``k``, ``gyro_k``; None: the sensor's tolerance times the
+    chi-square multiple of :func:`still_threshold`)."""  # fmt: skip
+    groups = []  # (channels, threshold or None, tolerance) per sensor given
+    if has_accel:
         groups.append((slice(0, na), k, HOLD_TOLERANCE))
-    if gyro is not None:
-        groups.append((slice(na, x.shape[1]), gyro_k, GYRO_TOLERANCE))
+    if has_gyro:
+        groups.append((slice(na, normalised.shape[1]), gyro_k, GYRO_TOLERANCE))
+    still_window = np.ones(len(normalised), dtype=bool)
     for cols, limit, tolerance in groups:
         channels = cols.stop - cols.start
         if limit is None:
             limit = tolerance * still_threshold(n, channels, alpha)
         still_window &= np.mean(normalised[:, cols], axis=1) <= limit  # NaN: not still
-    # A sample is still when a still window covers it: dilate window starts by n - 1.
+    return still_window
+
+
+def _given_noise(noise: NoiseEstimate, accel, gyro) -> np.ndarray:
+    """Step 1 of :func:`find_static` with the noise given: its channels of the sensors given."""
+    parts = [s for s, given in ((noise.accel, accel), (noise.gyro, gyro)) if given is not None]
+    if any(p is None for p in parts):
+        raise InputError("the noise estimate lacks a sensor that is given")
+    return np.concatenate([np.asarray(p, float) for p in parts])
+
+
+def _trim(rate: float, window_s: float, margin_s: float | None,
+          min_still_s: float) -> tuple[int, int]:  # fmt: skip
+    """Samples trimmed from each end of a still run (``margin_s``, default half a window) and
+    the fewest samples a still period keeps (``min_still_s``), at ``rate``."""
+    margin = int(round((window_s / 2 if margin_s is None else margin_s) * rate))
+    if margin < 0:
+        raise InputError(f"margin must be >= 0 s, got {margin_s:g}")
+    return margin, int(np.ceil(min_still_s * rate - 1e-9))
+
+
+def _covered(still_window: np.ndarray, N: int, n: int) -> np.ndarray:
+    """Step 3 of :func:`find_static`: a sample is still when a still window covers it (the
+    window starts dilated by ``n - 1``)."""
     cover = np.zeros(N + 1, dtype=np.int64)
     starts = np.flatnonzero(still_window)
     cover[starts] += 1  # indices unique within each of the two updates
     cover[starts + n] -= 1
-    return _still_periods(_runs(np.cumsum(cover[:N]) > 0), N, n, margin, min_n)
+    return np.cumsum(cover[:N]) > 0
 
 
 def _still_periods(runs, N: int, n: int, margin: int, min_n: int) -> list[Interval]:
@@ -504,10 +531,7 @@ class StaticStream:
         rate = noise.rate_hz
         self.N = int(n_samples)
         self.n = _window_samples(window_s, rate)
-        self.margin = int(round((window_s / 2 if margin_s is None else margin_s) * rate))
-        if self.margin < 0:
-            raise InputError(f"margin must be >= 0 s, got {margin_s:g}")
-        self.min_n = int(np.ceil(min_still_s * rate - 1e-9))
+        self.margin, self.min_n = _trim(rate, window_s, margin_s, min_still_s)
         self.groups = []  # (weights per channel, threshold) per sensor given
         for given, sigma, tolerance in ((accel, noise.accel, HOLD_TOLERANCE),
                                         (gyro, noise.gyro, GYRO_TOLERANCE)):  # fmt: skip
@@ -615,8 +639,7 @@ class StaticStream:
         InputError
             Fewer samples were given than announced.
         """
-        if self._seen != self.N:
-            raise InputError(f"{self._seen} of the {self.N} samples announced were given")
+        check_all_given(self._seen, self.N)
         runs = [(a, min(b, self.N)) for a, b in self._runs]
         return _still_periods(runs, self.N, self.n, self.margin, self.min_n)
 

@@ -309,48 +309,43 @@ def _session_blocks(
     return blocks(), n, units, file.close
 
 
-@dataclass
-class _CsvState:
-    malformed: int = 0
-    first_malformed: str | None = None
+class _CsvBlocks:
+    """Blocks of a CSV read line by line (the ``imucal import`` column rules); iterate once.
 
+    ``malformed`` and ``first_malformed`` count the lines skipped so far."""
 
-def _csv_blocks(
-    path: Path,
-    handle: IO[bytes],
-    sections: dict[str, SensorCalibration],
-    cal_src: str,
-    columns: str | None,
-    time_unit: str,
-    rate_hz: float | None,
-    chunk_rows: int,
-    state: _CsvState,
-) -> Iterator[_Block]:
-    """Blocks of a CSV read line by line (the ``imucal import`` column rules)."""
-    src = str(path)
-    spec = None if columns is None else parse_columns(columns)
-    spec_from_header = False
-    comma: bool | None = None
-    header: list[str] | None = None
-    rows: list[list[float]] = []
-    lines: list[int] = []
-    done = 0
-    n_kept = 0
-    last_time: float | None = None
-    last_line = 0
+    def __init__(self, path: Path, handle: IO[bytes], sections: dict[str, SensorCalibration],
+                 cal_src: str, columns: str | None, time_unit: str, rate_hz: float | None,
+                 chunk_rows: int) -> None:  # fmt: skip
+        self.path, self.src, self.handle = path, str(path), handle
+        self.sections, self.cal_src = sections, cal_src
+        self.time_unit, self.rate_hz, self.chunk_rows = time_unit, rate_hz, chunk_rows
+        self.spec = None if columns is None else parse_columns(columns)
+        self.spec_from_header = False
+        self.header: list[str] | None = None
+        self.rows: list[list[float]] = []
+        self.lines: list[int] = []
+        self.done = 0  # bytes read
+        self.n_kept = 0
+        self.last_time: float | None = None
+        self.last_line = 0
+        self.malformed = 0
+        self.first_malformed: str | None = None
 
-    def col(name: str) -> int | None:
-        return spec.index(name) if name in spec else None
+    def _col(self, name: str) -> int | None:
+        return self.spec.index(name) if name in self.spec else None
 
-    def check_spec() -> None:
-        nonlocal spec, spec_from_header
-        if spec is None:
-            spec = header_columns(header, src)
-            spec_from_header = True
-        for name, sec in sections.items():
+    def _check_spec(self) -> None:
+        """At the first numeric row: the columns (from the header unless given) hold every
+        sensor the calibration needs, the temperature it needs, and a time or a rate."""
+        src, cal_src = self.src, self.cal_src
+        if self.spec is None:
+            self.spec = header_columns(self.header, src)
+            self.spec_from_header = True
+        for name, sec in self.sections.items():
             axes = CSV_NAMES[name]
-            if axes[0] not in spec:
-                how = "--columns" if not spec_from_header else "the header"
+            if axes[0] not in self.spec:
+                how = "--columns" if not self.spec_from_header else "the header"
                 raise InputError(
                     f"{src} has no {name} columns ({','.join(axes)} in {how}), but {cal_src} "
                     f"calibrates the {name}"
@@ -360,73 +355,80 @@ def _csv_blocks(
                     f"{cal_src} calibrates {sec.bias.shape[0]} {name} channels but {src} has 3 "
                     f"({','.join(axes)})"
                 )
-        if _needs_temperature(sections) and col("temp") is None:
-            raise _no_temperature(src, cal_src, _needs_temperature(sections),
+        if _needs_temperature(self.sections) and self._col("temp") is None:
+            raise _no_temperature(src, cal_src, _needs_temperature(self.sections),
                                   "no temp column")  # fmt: skip
-        if col("t") is None and rate_hz is None:
+        if self._col("t") is None and self.rate_hz is None:
             raise InputError(
                 f"{src}: no time column (t) in the columns: pass --rate HZ to stamp row i "
                 "at i / rate"
             )
 
-    def make_block(k: int) -> _Block:
-        nonlocal rows, lines, n_kept, last_time, last_line
-        data = np.array(rows[:k], dtype=np.float64)
-        numbers = np.array(lines[:k])
-        del rows[:k], lines[:k]
-        if col("t") is not None:
-            t = data[:, col("t")] * TIME_UNITS[time_unit]
-            if last_time is None:
-                check_time(t, numbers, src)
+    def _block(self, k: int) -> _Block:
+        """The first ``k`` rows kept, as a block (times checked against the block before)."""
+        data = np.array(self.rows[:k], dtype=np.float64)
+        numbers = np.array(self.lines[:k])
+        del self.rows[:k], self.lines[:k]
+        t_col = self._col("t")
+        if t_col is not None:
+            t = data[:, t_col] * TIME_UNITS[self.time_unit]
+            if self.last_time is None:
+                check_time(t, numbers, self.src)
             else:
-                check_time(np.r_[last_time, t], np.r_[last_line, numbers], src)
+                check_time(np.r_[self.last_time, t], np.r_[self.last_line, numbers], self.src)
         else:
-            t = np.arange(n_kept, n_kept + k) / rate_hz
-        n_kept += k
-        last_time, last_line = float(t[-1]), int(numbers[-1])
-        raw = {name: data[:, [col(a) for a in CSV_NAMES[name]]] for name in sections}
-        temp = data[:, col("temp")] if _needs_temperature(sections) else None
-        return _Block(time=t, raw=raw, done=done, temperature=temp)
+            t = np.arange(self.n_kept, self.n_kept + k) / self.rate_hz
+        self.n_kept += k
+        self.last_time, self.last_line = float(t[-1]), int(numbers[-1])
+        raw = {name: data[:, [self._col(a) for a in CSV_NAMES[name]]] for name in self.sections}
+        temp = data[:, self._col("temp")] if _needs_temperature(self.sections) else None
+        return _Block(time=t, raw=raw, done=self.done, temperature=temp)
 
-    seen_data = False
-    for number, raw_line in enumerate(handle, start=1):
-        done += len(raw_line)
-        line = raw_line.decode("utf-8", errors="replace").lstrip("\ufeff").strip(BLANK)
-        if not line or line.startswith("#"):
-            continue
-        if comma is None:
-            comma = "," in line
-        parts = split_fields(line, comma)
-        values = parse_numbers(parts, skipped_fields(spec))
-        if values is None and not seen_data:
-            header = parts
-            continue
-        if not seen_data and values is not None:
-            seen_data = True
-            check_spec()
-            if spec_from_header and len(values) != len(spec):
-                raise InputError(
-                    f"{src}: the header names {len(spec)} fields but rows have "
-                    f"{len(values)}: pass --columns"
-                )
-        if values is None or len(values) != len(spec):
-            state.malformed += 1
-            if state.first_malformed is None:
-                state.first_malformed = f"{path.name}:{number}"
-            continue
-        rows.append(values)
-        lines.append(number)
-        # Keep at least 2 rows back so that the last block never has a single row.
-        if len(rows) >= chunk_rows + 2:
-            yield make_block(chunk_rows)
-    if not seen_data:
-        raise InputError(f"{src}: no numeric rows (only header or text lines)")
-    if n_kept == 0 and not rows:
-        raise InputError(
-            f"{src}: no row has the {len(spec)} fields the columns name; fix --columns"
-        )
-    if rows:
-        yield make_block(len(rows))
+    def _skip(self, number: int) -> None:
+        self.malformed += 1
+        if self.first_malformed is None:
+            self.first_malformed = f"{self.path.name}:{number}"
+
+    def __iter__(self) -> Iterator[_Block]:
+        comma: bool | None = None
+        seen_data = False
+        for number, raw_line in enumerate(self.handle, start=1):
+            self.done += len(raw_line)
+            line = raw_line.decode("utf-8", errors="replace").lstrip("\ufeff").strip(BLANK)
+            if not line or line.startswith("#"):
+                continue
+            if comma is None:
+                comma = "," in line
+            parts = split_fields(line, comma)
+            values = parse_numbers(parts, skipped_fields(self.spec))
+            if values is None and not seen_data:
+                self.header = parts
+                continue
+            if not seen_data and values is not None:
+                seen_data = True
+                self._check_spec()
+                if self.spec_from_header and len(values) != len(self.spec):
+                    raise InputError(
+                        f"{self.src}: the header names {len(self.spec)} fields but rows have "
+                        f"{len(values)}: pass --columns"
+                    )
+            if values is None or len(values) != len(self.spec):
+                self._skip(number)
+                continue
+            self.rows.append(values)
+            self.lines.append(number)
+            # Keep at least 2 rows back so that the last block never has a single row.
+            if len(self.rows) >= self.chunk_rows + 2:
+                yield self._block(self.chunk_rows)
+        if not seen_data:
+            raise InputError(f"{self.src}: no numeric rows (only header or text lines)")
+        if self.n_kept == 0 and not self.rows:
+            raise InputError(
+                f"{self.src}: no row has the {len(self.spec)} fields the columns name; fix "
+                "--columns"
+            )
+        if self.rows:
+            yield self._block(len(self.rows))
 
 
 # --------------------------------------------------------------------------------------------
@@ -609,8 +611,68 @@ def apply_calibration(
         ``overwrite``), is the input, or cannot be written.
     """
     input_path, output_path = Path(input_path), Path(output_path)
-    src = str(input_path)
+    summary, sections = _prepare(cal, input_path, output_path, cal_source, fmt, chunk_rows,
+                                 time_unit, rate_hz, overwrite)  # fmt: skip
+    # Blocks of one row take numpy's matrix-vector path, which may round differently from
+    # the matrix-matrix path of longer blocks (see _chunk_bounds): at least 2 rows per block.
+    chunk_rows = max(chunk_rows, 2)
+    blocks, total, units_in, close_input = _open_input(summary, sections, cal_source, columns,
+                                                       time_unit, rate_hz, chunk_rows)  # fmt: skip
+    try:
+        _write_all(blocks, total, summary, sections, cal, cal_source, units_in, overwrite,
+                   progress)  # fmt: skip
+    finally:
+        close_input()
+    if isinstance(blocks, _CsvBlocks):
+        summary.malformed, summary.first_malformed = blocks.malformed, blocks.first_malformed
+    return summary
+
+
+def _prepare(cal: Calibration, input_path: Path, output_path: Path, cal_source: str,
+             fmt: str | None, chunk_rows, time_unit: str, rate_hz: float | None,
+             overwrite: bool) -> tuple[ApplySummary, dict[str, SensorCalibration]]:  # fmt: skip
+    """Every check before a sample is read (options, the input, the output, what the
+    calibration holds); the summary to fill and the sections to apply."""
     out_fmt = output_format(output_path, fmt)
+    _check_options(chunk_rows, time_unit, rate_hz, input_path)
+    check_output(output_path, force=overwrite, inputs=[input_path, cal_source])
+    sections = _sections(cal)
+    gyro = sections.get("gyro")
+    if gyro is not None and gyro.g_sensitivity is not None and "accel" not in sections:
+        raise InputError(
+            f"{cal_source}: the gyro calibration holds g_sensitivity but there is no "
+            "accelerometer calibration to give the specific force it needs"
+        )
+    is_session = is_hdf5_file(input_path, what="session or CSV file")
+    if not is_session and input_path.suffix.lower() in (".h5", ".hdf5", ".hdf"):
+        raise InputError(f"{input_path}: not an HDF5 file")
+    summary = ApplySummary(
+        input=input_path,
+        output=output_path,
+        input_kind="session" if is_session else "csv",
+        output_format=out_fmt,
+        sensors=tuple(sections),
+        clock_scale=_clock_scale(sections),
+    )
+    return summary, sections
+
+
+def _open_input(summary: ApplySummary, sections: dict[str, SensorCalibration], cal_source: str,
+                columns: str | None, time_unit: str, rate_hz: float | None, chunk_rows: int):
+    """The input's blocks, its size (rows of a session, bytes of a CSV), raw units (a
+    session's) and closer."""  # fmt: skip
+    if summary.input_kind == "session":
+        if columns is not None:
+            raise InputError(f"{summary.input}: --columns applies to CSV input, not to a session")
+        return _session_input(summary.input, sections, cal_source, chunk_rows)
+    blocks, total, close = _csv_input(summary.input, sections, cal_source, columns, time_unit,
+                                      rate_hz, chunk_rows)  # fmt: skip
+    return blocks, total, {}, close
+
+
+def _check_options(chunk_rows, time_unit: str, rate_hz: float | None, input_path: Path) -> None:
+    """Refuse a bad block size, time unit or rate, and an input that is no file."""
+    src = str(input_path)
     if isinstance(chunk_rows, bool) or not isinstance(chunk_rows, int) or chunk_rows < 1:
         raise InputError(f"chunk size must be a positive number of rows, got {chunk_rows!r}")
     if time_unit not in TIME_UNITS:
@@ -621,79 +683,57 @@ def apply_calibration(
         raise InputError(f"{src}: no such file")
     if input_path.is_dir():
         raise InputError(f"{src}: is a directory, not a session or CSV file")
-    check_output(output_path, force=overwrite, inputs=[input_path, cal_source])
-    # Blocks of one row take numpy's matrix-vector path, which may round differently from
-    # the matrix-matrix path of longer blocks (see _chunk_bounds): at least 2 rows per block.
-    chunk_rows = max(chunk_rows, 2)
-    sections = _sections(cal)
-    gyro = sections.get("gyro")
-    if gyro is not None and gyro.g_sensitivity is not None and "accel" not in sections:
-        raise InputError(
-            f"{cal_source}: the gyro calibration holds g_sensitivity but there is no "
-            "accelerometer calibration to give the specific force it needs"
-        )
 
-    is_session = is_hdf5_file(input_path, what="session or CSV file")
-    if not is_session and input_path.suffix.lower() in (".h5", ".hdf5", ".hdf"):
-        raise InputError(f"{src}: not an HDF5 file")
-    summary = ApplySummary(
-        input=input_path,
-        output=output_path,
-        input_kind="session" if is_session else "csv",
-        output_format=out_fmt,
-        sensors=tuple(sections),
-    )
-    csv_state = _CsvState()
-    clock = _clock_scale(sections)
-    summary.clock_scale = clock
-    if is_session:
-        if columns is not None:
-            raise InputError(f"{src}: --columns applies to CSV input, not to a session")
-        blocks, total, units_in, close_input = _session_blocks(
-            input_path, sections, cal_source, chunk_rows
-        )
-        for name, sec in sections.items():
-            want = sec.extra.get("units_in")
-            have = units_in.get(name)
-            if (
-                isinstance(want, str)
-                and have is not None
-                and "unknown" not in (want, have)
-                and want != have
-            ):
-                close_input()
-                raise InputError(
-                    f"{src} records the {name} in {have} but {cal_source} was made for {want}"
-                )
-    else:
-        try:
-            handle = open(input_path, "rb")
-            total = os.fstat(handle.fileno()).st_size
-        except OSError as exc:
-            raise InputError(f"{src}: cannot read ({exc.strerror or exc})") from None
-        if total == 0:
-            handle.close()
-            raise InputError(f"{src}: empty file")
-        blocks = _csv_blocks(
-            input_path,
-            handle,
-            sections,
-            cal_source,
-            columns,
-            time_unit,
-            rate_hz,
-            chunk_rows,
-            csv_state,
-        )
-        units_in = {}
-        close_input = handle.close
 
+def _session_input(path: Path, sections: dict[str, SensorCalibration], cal_source: str,
+                   chunk_rows: int):  # fmt: skip
+    """A session's blocks, rows, raw units and closer; refused when a sensor's raw units
+    differ from those the calibration was made for."""
+    blocks, total, units_in, close_input = _session_blocks(path, sections, cal_source, chunk_rows)
+    for name, sec in sections.items():
+        want = sec.extra.get("units_in")
+        have = units_in.get(name)
+        if (
+            isinstance(want, str)
+            and have is not None
+            and "unknown" not in (want, have)
+            and want != have
+        ):
+            close_input()
+            raise InputError(
+                f"{path} records the {name} in {have} but {cal_source} was made for {want}"
+            )
+    return blocks, total, units_in, close_input
+
+
+def _csv_input(path: Path, sections: dict[str, SensorCalibration], cal_source: str,
+               columns: str | None, time_unit: str, rate_hz: float | None, chunk_rows: int):
+    """A CSV's blocks (:class:`_CsvBlocks`), its size in bytes and its closer."""  # fmt: skip
+    try:
+        handle = open(path, "rb")
+        total = os.fstat(handle.fileno()).st_size
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if total == 0:
+        handle.close()
+        raise InputError(f"{path}: empty file")
+    blocks = _CsvBlocks(path, handle, sections, cal_source, columns, time_unit, rate_hz,
+                        chunk_rows)  # fmt: skip
+    return blocks, total, handle.close
+
+
+def _write_all(blocks, total: int, summary: ApplySummary, sections, cal: Calibration,
+               cal_source: str, units_in: dict, overwrite: bool,
+               progress: Progress | None) -> None:  # fmt: skip
+    """Calibrate and write every block into a fresh output (committed when complete,
+    discarded on any failure)."""
+    input_path, output_path = summary.input, summary.output
     writer: _H5Writer | _CsvWriter | None = None
     out: OutputFile | None = None
     try:
         try:
             out = OutputFile(output_path, force=overwrite, inputs=[input_path, cal_source])
-            if out_fmt == "h5":
+            if summary.output_format == "h5":
                 writer = _H5Writer(out, sections, cal, cal_source, input_path, units_in)
             else:
                 writer = _CsvWriter(out, sections, cal_source, input_path)
@@ -704,14 +744,13 @@ def apply_calibration(
             if progress is not None:
                 progress(block.done, total)
         if summary.samples == 0:
-            raise InputError(f"{src}: no samples to calibrate")
+            raise InputError(f"{input_path}: no samples to calibrate")
         writer.close()
         writer = None
         out.commit()
     except OSError as exc:
         raise InputError(f"{output_path}: cannot write ({one_line(exc)})") from None
     finally:
-        close_input()
         if writer is not None:
             try:
                 writer.close()
@@ -719,6 +758,3 @@ def apply_calibration(
                 pass
         if out is not None and not out.published:
             out.discard()
-    summary.malformed = csv_state.malformed
-    summary.first_malformed = csv_state.first_malformed
-    return summary

@@ -306,16 +306,11 @@ def analyse_noise(
     InputError
         No usable sensor (raw units need a calibration), a recording too short, or not still.
     """
-    from imucal_cli.solvers.segmentation import StaticStream, estimate_noise
-
     samples = session if isinstance(session, SessionSamples) else samples_of(session)
     where = str(samples.path) if samples.path else "session"
     start, stop, span = _span(samples)
     n = stop - start
-    duration = 0.0
-    if n > 1:
-        duration = float(samples.read("time", stop - 1, stop)[0]
-                         - samples.read("time", start, start + 1)[0])  # fmt: skip
+    duration = _duration(samples, start, stop)
     if duration < MIN_DURATION_S:
         raise InputError(
             f"{where}: {span} lasts {duration:.1f} s, too short for an Allan deviation; record "
@@ -323,8 +318,53 @@ def analyse_noise(
         )
     rate = (n - 1) / duration
     sensors_in = tuple(kind for kind in ("accel", "gyro") if kind in samples.channels)
+    analysed, skipped = _analysers(samples, sensors_in, calibration, n, rate, max_tau_fraction,
+                                   where)  # fmt: skip
+    still, longest_step, steps = _one_pass(samples, sensors_in, analysed, start, stop)
+    warnings: list[str] = []
+    if longest_step > 5 * np.median(steps):
+        warnings.append(
+            f"the sampling has gaps (longest {longest_step:.3g} s at {rate:.4g} Hz): the Allan "
+            "deviation assumes even samples"
+        )
+    still_fraction = sum(iv.stop - iv.start for iv in still.intervals()) / n
+    warnings += _motion_warnings(1.0 - still_fraction, where, span)
+    sensors = _sensor_noise(analysed)
+    if not sensors:
+        what = " and ".join(skipped) if skipped else "no accelerometer or gyroscope data"
+        raise InputError(
+            f"{where}: {what}: raw units need a calibration to give noise in SI units; "
+            "pass --calibration CAL.json (from imucal calibrate)"
+        )
+    for item in skipped:
+        warnings.append(f"{item} skipped: raw units need --calibration CAL.json")
+    return NoiseReport(
+        session=Path(samples.path).name if samples.path else where,
+        sensor=samples.sensor,
+        span=span,
+        start=int(start),
+        stop=int(stop),
+        duration_s=duration,
+        rate_hz=rate,
+        still_fraction=float(still_fraction),
+        sensors=sensors,
+        warnings=warnings,
+    )
 
-    # Raw -> SI per sensor (or why not), before any sample is read.
+
+def _duration(samples: SessionSamples, start: int, stop: int) -> float:
+    """Seconds from sample ``start`` to sample ``stop - 1`` (0 for fewer than two)."""
+    if stop - start <= 1:
+        return 0.0
+    return float(samples.read("time", stop - 1, stop)[0]
+                 - samples.read("time", start, start + 1)[0])  # fmt: skip
+
+
+def _analysers(samples: SessionSamples, sensors_in: tuple[str, ...],
+               calibration: Calibration | None, n: int, rate: float, max_tau_fraction: float,
+               where: str) -> tuple[dict[str, tuple], list[str]]:  # fmt: skip
+    """Step 2, before any sample is read: per sensor its raw -> SI transform, an Allan
+    accumulator and how raw became SI; the sensors left out (raw units, no calibration)."""
     analysed: dict[str, tuple] = {}
     skipped: list[str] = []
     for kind in sensors_in:
@@ -338,9 +378,17 @@ def analyse_noise(
             continue
         allan = AllanAccumulator(n, rate, width, max_tau_fraction=max_tau_fraction)
         analysed[kind] = (to_si, allan, basis)
+    return analysed, skipped
 
-    # The still test's noise first (find_static's, from the span or pieces of it), then one
-    # pass over the samples: the still test, the Allan sums and the longest time step.
+
+def _one_pass(samples: SessionSamples, sensors_in: tuple[str, ...], analysed: dict[str, tuple],
+              start: int, stop: int):  # fmt: skip
+    """The still test's noise first (find_static's, from the span or pieces of it), then one
+    pass over the samples: the still test, the Allan sums and the longest time step.  Returns
+    the still test, the longest step and the steps of the noise sample."""
+    from imucal_cli.solvers.segmentation import StaticStream, estimate_noise
+
+    n = stop - start
     sample = _noise_sample(samples, ("time", *sensors_in), start, stop)
     noise = estimate_noise(*_by_sensor(sample[0], sensors_in, sample[1:]))
     steps = np.diff(sample[0])
@@ -362,52 +410,31 @@ def analyse_noise(
     if start > 0 or stop < samples.n:  # the rest of /raw/time, as read_session checks it
         samples.check_time(0, start)
         samples.check_time(stop, samples.n)
+    return still, longest_step, steps
 
-    warnings: list[str] = []
-    if longest_step > 5 * np.median(steps):
-        warnings.append(
-            f"the sampling has gaps (longest {longest_step:.3g} s at {rate:.4g} Hz): the Allan "
-            "deviation assumes even samples"
-        )
-    still_fraction = sum(iv.stop - iv.start for iv in still.intervals()) / n
-    moved = 1.0 - still_fraction
+
+def _motion_warnings(moved: float, where: str, span: str) -> list[str]:
+    """Refuse a recording mostly moving; warn when more than a tenth of it moved."""
     if moved > MOVED_REFUSE_FRACTION:
         raise InputError(
             f"{where}: {span} is not still ({100 * moved:.0f} % of it moved); record the unit "
             "untouched on a steady table (imucal capture --plan still:20)"
         )
     if moved > MOVED_WARN_FRACTION:
-        warnings.append(
-            f"{100 * moved:.0f} % of the recording moved: the figures include that motion "
-            "and are too large"
-        )
+        return [f"{100 * moved:.0f} % of the recording moved: the figures include that motion "
+                "and are too large"]  # fmt: skip
+    return []
 
+
+def _sensor_noise(analysed: dict[str, tuple]) -> list[SensorNoise]:
+    """Step 3: each sensor's Allan curves and the noise figures read from them."""
     sensors: list[SensorNoise] = []
     for kind, (_, allan, basis) in analysed.items():
         curves = allan.curves()
         axes = list("xyz") if len(curves) == 3 else [f"ch{i}" for i in range(len(curves))]
         sensors.append(SensorNoise(kind, "m/s^2" if kind == "accel" else "rad/s", basis,
                                    axes, [noise_from_curve(c) for c in curves]))  # fmt: skip
-    if not sensors:
-        what = " and ".join(skipped) if skipped else "no accelerometer or gyroscope data"
-        raise InputError(
-            f"{where}: {what}: raw units need a calibration to give noise in SI units; "
-            "pass --calibration CAL.json (from imucal calibrate)"
-        )
-    for item in skipped:
-        warnings.append(f"{item} skipped: raw units need --calibration CAL.json")
-    return NoiseReport(
-        session=Path(samples.path).name if samples.path else where,
-        sensor=samples.sensor,
-        span=span,
-        start=int(start),
-        stop=int(stop),
-        duration_s=duration,
-        rate_hz=rate,
-        still_fraction=float(still_fraction),
-        sensors=sensors,
-        warnings=warnings,
-    )
+    return sensors
 
 
 def _by_sensor(time: np.ndarray, kinds: tuple[str, ...], arrays: list[np.ndarray]):

@@ -391,6 +391,40 @@ def import_files(
     InputError
         See :func:`read_recording` and :func:`segment_recording`; unknown units.
     """
+    _check_units(accel_units, gyro_units, mag_units, magnetic_field_uT)
+    rec = read_recording(
+        paths, fmt, columns, time_unit=time_unit, rate_hz=rate_hz, skip_rows=skip_rows,
+        topic=topic,
+    )
+    accel_units = accel_units or rec.accel_units
+    gyro_units = gyro_units or rec.gyro_units
+    mag_units = mag_units or rec.mag_units
+    segments, notes = _segments(rec, Path(paths[0]), sections, turn_angle_deg, min_still_s)
+    session = Session(
+        time=rec.time,
+        accel=rec.accel,
+        gyro=rec.gyro,
+        temperature=rec.temperature,
+        segments=segments,
+        created=_created(paths[0]),
+        sensor=sensor,
+        source="import:" + ",".join(rec.names),
+        sample_rate_hz=rec.rate_hz,
+        accel_units=accel_units if rec.accel is not None else None,
+        gyro_units=gyro_units if rec.gyro is not None else None,
+        mag=rec.mag,
+        mag_units=mag_units if rec.mag is not None else None,
+        magnetic_field_uT=magnetic_field_uT,
+        host_time=rec.host_time,
+    )
+    session.import_stats = rec.stats  # type: ignore[attr-defined]
+    session.import_notes = notes  # type: ignore[attr-defined]
+    return session
+
+
+def _check_units(accel_units: str | None, gyro_units: str | None, mag_units: str | None,
+                 magnetic_field_uT: float | None) -> None:  # fmt: skip
+    """Refuse units the session format does not name, and a field that is no magnitude."""
     if accel_units is not None and accel_units not in ACCEL_UNITS:
         raise InputError(f"--accel-units {accel_units!r}: use {', '.join(ACCEL_UNITS)}")
     if gyro_units is not None and gyro_units not in GYRO_UNITS:
@@ -401,13 +435,14 @@ def import_files(
         np.isfinite(magnetic_field_uT) and magnetic_field_uT > 0
     ):
         raise InputError(f"--field-uT must be a positive number, got {magnetic_field_uT:g}")
-    rec = read_recording(
-        paths, fmt, columns, time_unit=time_unit, rate_hz=rate_hz, skip_rows=skip_rows,
-        topic=topic,
-    )
-    accel_units = accel_units or rec.accel_units
-    gyro_units = gyro_units or rec.gyro_units
-    mag_units = mag_units or rec.mag_units
+
+
+def _segments(
+    rec: Recording, first: Path, sections: str | os.PathLike | None,
+    turn_angle_deg: float | None, min_still_s: float,
+) -> tuple[list[Segment], list[str]]:  # fmt: skip
+    """The recording's segments and the reader's notes: the labelled sections given
+    (:mod:`.sections`), none for a magnetometer alone, else found by the data itself."""
     notes: list[str] = list(rec.notes)
     if sections is not None:
         from .sections import labelled_segments, read_section_list, sections_of_column
@@ -417,36 +452,21 @@ def import_files(
         if spec.suffix.lower() == ".json" or spec.is_file():
             ranges = read_section_list(spec)
         else:
-            ranges = sections_of_column(rec, Path(paths[0]), str(sections))
+            ranges = sections_of_column(rec, first, str(sections))
         segments, section_notes = labelled_segments(
             rec, ranges, turn_angle_deg=turn_angle_deg, where=where
         )
-        notes += section_notes
-    elif rec.accel is None and rec.mag is not None:
-        segments = []
-    else:
-        segments = segment_recording(rec, min_still_s=min_still_s)
+        return segments, notes + section_notes
+    if rec.accel is None and rec.mag is not None:
+        return [], notes
+    return segment_recording(rec, min_still_s=min_still_s), notes
+
+
+def _created(path: str | os.PathLike) -> str:
+    """When the recording was made, as the session's ``created``: its file's modification
+    time (now, when that cannot be read)."""
     try:
-        mtime = os.path.getmtime(paths[0])
-        created = datetime.fromtimestamp(mtime, UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+        mtime = os.path.getmtime(path)
+        return datetime.fromtimestamp(mtime, UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
     except OSError:
-        created = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
-    session = Session(
-        time=rec.time,
-        accel=rec.accel,
-        gyro=rec.gyro,
-        temperature=rec.temperature,
-        segments=segments,
-        created=created,
-        sensor=sensor,
-        source="import:" + ",".join(rec.names),
-        sample_rate_hz=rec.rate_hz,
-        accel_units=accel_units if rec.accel is not None else None,
-        gyro_units=gyro_units if rec.gyro is not None else None,
-        mag=rec.mag,
-        mag_units=mag_units if rec.mag is not None else None,
-        magnetic_field_uT=magnetic_field_uT,
-    )
-    session.import_stats = rec.stats  # type: ignore[attr-defined]
-    session.import_notes = notes  # type: ignore[attr-defined]
-    return session
+        return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")

@@ -20,7 +20,9 @@ DataFlash: MAG     ``MagX..`` mGauss, stored as gauss        ``TimeUS``, latest 
 A temperature of 0 in RAW_IMU/SCALED_IMU means "not sent" (MAVLink's definition) and is NaN;
 a magnetometer reading of exactly (0, 0, 0) is no reading (NaN).  Telemetry logs: time from the
 message's own time field when it is set and strictly increasing, else from the log's receive
-stamps.  Several streams (message, instance ``id``/``I``, sending system when there are
+stamps; beside the message's own time the receive stamps (when the ground station, the host,
+received each packet) are the session's ``/raw/host_time``, the reference of the sample clock
+(issue 17.2).  Several streams (message, instance ``id``/``I``, sending system when there are
 several) are listed and one is chosen with ``topic`` (``--topic RAW_IMU``, ``IMU.1``), as for
 ROS topics.  ArduPilot logs IMU/ACC/GYR/MAG after applying its own calibration (INS_ACCOFFS,
 INS_ACCSCAL, INS_GYROFFS, COMPASS_OFS ..., the board rotation), and fills RAW_IMU with its
@@ -271,6 +273,9 @@ def _tlog_channels(label: str, name: str, rows: list) -> Channels:
     ch = Channels(time=time[keep], accel=values[keep, 0:3], gyro=values[keep, 3:6],
                   accel_units=a_units, gyro_units=g_units, notes=notes,
                   dropped=int((~keep).sum()))  # fmt: skip
+    if use_device:  # when the ground station received each sample: the host's clock
+        ch.host_time = received[keep]
+        notes.append("the log's receive stamps kept as /raw/host_time (the host's clock)")
     mag = _zero_is_none(values[keep, 6:9])
     if mag is not None:
         ch.mag, ch.mag_units = mag, m_units

@@ -111,6 +111,10 @@ class Recording:
         binary and serial formats: counts); ``--accel-units`` ... override them.
     notes : list of str
         What the reader chose or left out (topic, time base, pairing), for the summary.
+    host_time : ndarray, shape (N,), or None
+        When the host received each sample, s of its clock, where the format records it beside
+        the device's own time (a MAVLink telemetry log's receive stamps): the session's
+        ``/raw/host_time``.
     """
 
     time: np.ndarray
@@ -128,3 +132,4 @@ class Recording:
     gyro_units: str | None = None
     mag_units: str | None = None
     notes: list[str] = field(default_factory=list)
+    host_time: np.ndarray | None = None

@@ -51,6 +51,9 @@ class Channels:
         What was chosen and what was left out, for the import summary.
     dropped : int
         Samples dropped (time not increasing, non-finite values).
+    host_time : ndarray (N,) or None
+        When the host received each sample, s of its clock, beside a ``time`` from the
+        device's clock (``/raw/host_time``); None when there is no device time.
     """
 
     time: np.ndarray
@@ -63,6 +66,7 @@ class Channels:
     mag_units: str | None = None
     notes: list[str] = field(default_factory=list)
     dropped: int = 0
+    host_time: np.ndarray | None = None
 
 
 def _normal(msgtype: str) -> str:
@@ -309,7 +313,7 @@ def to_recording(ch: Channels, paths, stats, columns: list[str] | None = None):
         rate_hz=float("nan"), names=[Path(p).name for p in paths],
         columns=columns or ["t", "ax", "ay", "az", "gx", "gy", "gz"], stats=stats,
         accel_units=ch.accel_units, gyro_units=ch.gyro_units, mag=ch.mag,
-        mag_units=ch.mag_units, notes=list(ch.notes),
+        mag_units=ch.mag_units, notes=list(ch.notes), host_time=ch.host_time,
     )  # fmt: skip
 
 

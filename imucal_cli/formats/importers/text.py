@@ -410,6 +410,30 @@ def _ranges(starts: np.ndarray, stops: np.ndarray) -> np.ndarray:
     return offsets + np.arange(int(lengths.sum()))
 
 
+@dataclass
+class _Lines:
+    """The lines of a file scanned as bytes: ``breaks`` (offsets of the line breaks), each
+    line's ``start`` and ``end`` offsets (end exclusive, without its break), their count."""
+
+    breaks: np.ndarray
+    start: np.ndarray
+    end: np.ndarray
+    n: int
+
+
+@dataclass
+class _Tokens:
+    """The tokens of a file (runs of content: white space separated, or but commas): their
+    ``start``/``end`` offsets, ``line``, ``field`` (index on its line) and each line's field
+    count ``length``."""
+
+    start: np.ndarray
+    end: np.ndarray
+    line: np.ndarray
+    field: np.ndarray
+    length: np.ndarray
+
+
 def _scan_ascii(
     raw: bytes, skip_rows: int, comma: bool | None, skip: frozenset[int]
 ) -> _Scan | None:
@@ -421,15 +445,64 @@ def _scan_ascii(
     if raw.startswith(_BOM):
         raw = raw[len(_BOM) :]
     b = np.frombuffer(raw, dtype=np.uint8)
-    n = len(b)
-    if n == 0:
+    if len(b) == 0:
         return None
     cls = np.take(_CLASS, b)
     if cls.max() == _INVALID:
         return None
-    # Line breaks as split_lines: LF, CR LF (the CR is then white space), and lone CR only in
-    # a file without LF (classic Mac).  A lone CR among LF lines could cut a number in two:
-    # the line-by-line reader makes that line malformed.
+    lines = _lines_of(b, cls)
+    if lines is None:
+        return None
+    # Runs of content (white space separated); the first of a line says what the line is.
+    content = cls > _CR
+    rs, re_ = _runs(content)
+    if len(rs) == 0:
+        return None
+    r_line = np.searchsorted(lines.breaks, rs)
+    first = np.r_[True, r_line[1:] != r_line[:-1]]
+    kind = np.zeros(lines.n, dtype=np.int8)  # 0 blank, 1 comment, 2 candidate
+    kind[r_line[first]] = np.where(cls[rs[first]] == _HASH, 1, 2)
+    after = np.arange(lines.n) >= skip_rows
+    candidate = (kind == 2) & after
+    cand_lines = np.flatnonzero(candidate)
+    if comma is None and len(cand_lines):
+        j = cand_lines[0]
+        comma = raw.find(b",", lines.start[j], lines.end[j]) >= 0
+    tokens = _tokens(cls, content, lines, (rs, re_, r_line), comma)
+    ok, keep_tok = _numeric_lines(cls, content, tokens, candidate, comma, skip)
+    values = _parse_values(raw, tokens, keep_tok, comma)
+    if values is None:
+        return None
+    v_line, v_field = tokens.line[keep_tok], tokens.field[keep_tok]
+    ok[v_line[~np.isfinite(values)]] = False
+    numeric = np.flatnonzero(ok)
+    first_data = numeric[0] if len(numeric) else lines.n
+    head = cand_lines[cand_lines < first_data]
+    later = cand_lines[cand_lines > first_data]
+    header_fields = None
+    if len(head):
+        j = head[-1]
+        header_fields = split_fields(raw[lines.start[j] : lines.end[j]].decode().strip(), comma)
+    v_keep = ok[v_line]
+    return _Scan(
+        n_lines=lines.n,
+        header=min(skip_rows, lines.n) + len(head),
+        blank=int(np.count_nonzero((kind == 0) & after)),
+        comments=int(np.count_nonzero((kind == 1) & after)),
+        header_fields=header_fields,
+        numbers=numeric + 1,
+        lengths=tokens.length[numeric].astype(np.int64),
+        bad=later[~ok[later]] + 1,
+        rows=_rows_taker(lines.n, numeric, v_line[v_keep], v_field[v_keep], values[v_keep]),
+    )
+
+
+def _lines_of(b: np.ndarray, cls: np.ndarray) -> _Lines | None:
+    """Line breaks as :func:`split_lines` makes them: LF, CR LF (the CR is then white space),
+    and a lone CR only in a file without LF (classic Mac).  None when a lone CR stands among
+    LF lines: it could cut a number in two (the line-by-line reader makes that line
+    malformed)."""
+    n = len(b)
     breaks = np.flatnonzero(cls == _LF)
     cr = np.flatnonzero(cls == _CR)
     if len(cr):
@@ -438,82 +511,79 @@ def _scan_ascii(
             return None
         breaks = np.union1d(breaks, lone)
     n_lines = len(breaks) + int(len(breaks) == 0 or breaks[-1] != n - 1)
-    line_start = np.r_[0, breaks + 1][:n_lines]
-    line_end = np.r_[breaks, n][:n_lines]
-    # Runs of content (white space separated); the first of a line says what the line is.
-    content = cls > _CR
-    rs, re_ = _runs(content)
-    if len(rs) == 0:
-        return None
-    r_line = np.searchsorted(breaks, rs)
-    first = np.r_[True, r_line[1:] != r_line[:-1]]
-    kind = np.zeros(n_lines, dtype=np.int8)  # 0 blank, 1 comment, 2 candidate
-    kind[r_line[first]] = np.where(cls[rs[first]] == _HASH, 1, 2)
-    after = np.arange(n_lines) >= skip_rows
-    blank = int(np.count_nonzero((kind == 0) & after))
-    comments = int(np.count_nonzero((kind == 1) & after))
-    candidate = (kind == 2) & after
-    cand_lines = np.flatnonzero(candidate)
-    if comma is None and len(cand_lines):
-        j = cand_lines[0]
-        comma = raw.find(b",", line_start[j], line_end[j]) >= 0
-    # Tokens: the runs themselves (white space separated), or runs of content but commas.
+    return _Lines(breaks, np.r_[0, breaks + 1][:n_lines], np.r_[breaks, n][:n_lines], n_lines)
+
+
+def _tokens(cls: np.ndarray, content: np.ndarray, lines: _Lines, runs, comma: bool) -> _Tokens:
+    """The tokens: the runs of content themselves (``runs``: their starts, ends and lines),
+    or, with ``comma``, runs of content but commas, each field counted between commas."""
     if comma:
         is_comma = cls == _COMMA
         ts, te = _runs(content & ~is_comma)
-        t_line = np.searchsorted(breaks, ts)
+        t_line = np.searchsorted(lines.breaks, ts)
         commas = np.flatnonzero(is_comma)
-        before = np.searchsorted(commas, line_start)
-        length = np.searchsorted(commas, line_end) - before + 1
+        before = np.searchsorted(commas, lines.start)
+        length = np.searchsorted(commas, lines.end) - before + 1
         field = np.searchsorted(commas, ts) - before[t_line]
     else:
-        ts, te, t_line = rs, re_, r_line
-        length = np.bincount(t_line, minlength=n_lines)
+        ts, te, t_line = runs
+        length = np.bincount(t_line, minlength=lines.n)
         field = np.arange(len(ts)) - np.searchsorted(t_line, t_line)
-    # Tokens that must be numbers: on a candidate line, not in a skipped field.
-    used = candidate[t_line]
+    return _Tokens(ts, te, t_line, field, length)
+
+
+def _numeric_lines(
+    cls: np.ndarray, content: np.ndarray, tokens: _Tokens, candidate: np.ndarray, comma: bool,
+    skip: frozenset[int],
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Which candidate lines are numeric (each field but the skipped ones one number token:
+    no character that cannot be in a number, with commas no field empty or split), and which
+    tokens hold their numbers."""
+    t_line, field = tokens.line, tokens.field
+    used = candidate[t_line]  # tokens that must be numbers: not in a skipped field
     if skip:
         used &= ~np.isin(field, list(skip))
-    # A line is numeric when each field but the skipped ones is one number token.
     ok = candidate.copy()
     odd = content & (cls != _DIGIT)
     odd = np.flatnonzero(odd & (cls != _COMMA) if comma else odd)
     if len(odd):
-        odd_token = np.searchsorted(ts, odd, side="right") - 1
+        odd_token = np.searchsorted(tokens.start, odd, side="right") - 1
         ok[t_line[odd_token[used[odd_token]]]] = False
     if comma:
         u_line, u_field = t_line[used], field[used]
         repeated = (u_line[1:] == u_line[:-1]) & (u_field[1:] == u_field[:-1])
         ok[u_line[1:][repeated]] = False
-        need = length - np.searchsorted(np.array(sorted(skip), dtype=np.int64), length)
-        ok &= np.bincount(u_line, minlength=n_lines) == need
-    keep_tok = used & ok[t_line]
-    values = np.zeros(0)
-    if keep_tok.any():
-        text = raw.replace(b",", b" ") if comma else raw
-        drop = np.flatnonzero(~keep_tok)
-        if len(drop):  # header, comment and malformed lines, skipped fields
-            blanked = np.frombuffer(text, dtype=np.uint8).copy()
-            blanked[_ranges(ts[drop], te[drop])] = ord(" ")
-            text = blanked.tobytes()
-        try:
-            values = np.fromstring(text, sep=" ")  # text mode: not deprecated
-        except ValueError:
-            return None
-        if len(values) != np.count_nonzero(keep_tok):
-            return None
-    v_line, v_field = t_line[keep_tok], field[keep_tok]
-    ok[v_line[~np.isfinite(values)]] = False
-    numeric = np.flatnonzero(ok)
-    first_data = numeric[0] if len(numeric) else n_lines
-    head = cand_lines[cand_lines < first_data]
-    later = cand_lines[cand_lines > first_data]
-    header_fields = None
-    if len(head):
-        j = head[-1]
-        header_fields = split_fields(raw[line_start[j] : line_end[j]].decode().strip(), comma)
-    v_keep = ok[v_line]
-    v_line, v_field, values = v_line[v_keep], v_field[v_keep], values[v_keep]
+        need = tokens.length - np.searchsorted(np.array(sorted(skip), dtype=np.int64),
+                                               tokens.length)  # fmt: skip
+        ok &= np.bincount(u_line, minlength=len(candidate)) == need
+    return ok, used & ok[t_line]
+
+
+def _parse_values(raw: bytes, tokens: _Tokens, keep: np.ndarray, comma: bool) -> np.ndarray | None:
+    """The numbers of the ``keep`` tokens, in file order: every other token (header, comment
+    and malformed lines, skipped fields) blanked and the text parsed once; None when NumPy's
+    parser does not read one number per kept token."""
+    if not keep.any():
+        return np.zeros(0)
+    text = raw.replace(b",", b" ") if comma else raw
+    drop = np.flatnonzero(~keep)
+    if len(drop):
+        blanked = np.frombuffer(text, dtype=np.uint8).copy()
+        blanked[_ranges(tokens.start[drop], tokens.end[drop])] = ord(" ")
+        text = blanked.tobytes()
+    try:
+        values = np.fromstring(text, sep=" ")  # text mode: not deprecated
+    except ValueError:
+        return None
+    if len(values) != np.count_nonzero(keep):
+        return None
+    return values
+
+
+def _rows_taker(
+    n_lines: int, numeric: np.ndarray, v_line: np.ndarray, v_field: np.ndarray, values: np.ndarray
+) -> Callable[[np.ndarray, int], np.ndarray]:
+    """``take(keep, n_fields)``: the kept numeric lines' values as an array (K, n_fields)."""
 
     def take(keep: np.ndarray, n_fields: int) -> np.ndarray:
         row_of_line = np.full(n_lines, -1, dtype=np.int64)
@@ -525,17 +595,7 @@ def _scan_ascii(
         out[row[sel], v_field[sel]] = values[sel]
         return out
 
-    return _Scan(
-        n_lines=n_lines,
-        header=min(skip_rows, n_lines) + len(head),
-        blank=blank,
-        comments=comments,
-        header_fields=header_fields,
-        numbers=numeric + 1,
-        lengths=length[numeric].astype(np.int64),
-        bad=later[~ok[later]] + 1,
-        rows=take,
-    )
+    return take
 
 
 def check_time(time: np.ndarray, lines: np.ndarray, src: str) -> None:

@@ -34,7 +34,8 @@ the file's; ``/raw`` datasets carry Fletcher32 checksums and NaN fill; outputs a
 through :mod:`imucal_cli.formats.output`.
 
 Modules: :mod:`.model` (``Session``, ``Segment``, constants, attribute values), :mod:`.h5open`
-(opening a file for reading), :mod:`.superblock`, :mod:`.reader`, :mod:`.writer`,
+(opening a file for reading), :mod:`.superblock`, :mod:`.reader`, :mod:`.writer` (the samples),
+:mod:`.segments` (the segments and calibrations a writer keeps until it closes, and their log),
 :mod:`.store`, :mod:`.stream` (a session read block by block: ``open_samples``).  Import the
 public names from here (``from imucal_cli.formats.session import
 read_session``).

@@ -63,6 +63,17 @@ def _rot(x: int, k: int) -> int:
     return ((x << k) | (x >> (32 - k))) & _M32
 
 
+def _mix_half(a: int, b: int, c: int, k1: int, k2: int, k3: int) -> tuple[int, int, int]:
+    """Half of lookup3's ``mix()``: three subtract, xor and rotate steps (by ``k1, k2, k3``)."""
+    a = (a - c) & _M32 ^ _rot(c, k1)
+    c = (c + b) & _M32
+    b = (b - a) & _M32 ^ _rot(a, k2)
+    a = (a + c) & _M32
+    c = (c - b) & _M32 ^ _rot(b, k3)
+    b = (b + a) & _M32
+    return a, b, c
+
+
 def lookup3(data: bytes, initval: int = 0) -> int:
     """Bob Jenkins' lookup3 ``hashlittle``, HDF5's metadata checksum (``H5_checksum_lookup3``)."""
     n = len(data)
@@ -72,18 +83,8 @@ def lookup3(data: bytes, initval: int = 0) -> int:
         a = (a + int.from_bytes(data[i : i + 4], "little")) & _M32
         b = (b + int.from_bytes(data[i + 4 : i + 8], "little")) & _M32
         c = (c + int.from_bytes(data[i + 8 : i + 12], "little")) & _M32
-        a = (a - c) & _M32 ^ _rot(c, 4)
-        c = (c + b) & _M32
-        b = (b - a) & _M32 ^ _rot(a, 6)
-        a = (a + c) & _M32
-        c = (c - b) & _M32 ^ _rot(b, 8)
-        b = (b + a) & _M32
-        a = (a - c) & _M32 ^ _rot(c, 16)
-        c = (c + b) & _M32
-        b = (b - a) & _M32 ^ _rot(a, 19)
-        a = (a + c) & _M32
-        c = (c - b) & _M32 ^ _rot(b, 4)
-        b = (b + a) & _M32
+        a, b, c = _mix_half(a, b, c, 4, 6, 8)  # lookup3's mix(): two halves
+        a, b, c = _mix_half(a, b, c, 16, 19, 4)
         n -= 12
         i += 12
     if n == 0:

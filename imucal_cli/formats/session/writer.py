@@ -14,8 +14,6 @@ back to what was written.
 
 from __future__ import annotations
 
-import json
-import operator
 import os
 import time as _time
 from pathlib import Path
@@ -27,22 +25,16 @@ import numpy as np
 from imucal_cli.errors import InputError, SessionError, WriteFailed
 
 from ..output import OutputFile
-from .h5open import writer_identity
 from .model import (
     FORMAT,
     FORMAT_VERSION,
-    LOG_GROUP,
-    LOG_ITEM_BYTES,
     MAG_UNITS,
-    SEGMENT_ATTRS,
-    SEGMENT_KINDS,
     Session,
     as_float,
-    as_unit_vector,
     io_reason,
     utc_now_iso,
 )
-from .store import check_calibration_entry
+from .segments import SegmentLog, entry_of, segment_entry
 
 _CHUNK_ROWS = 1024  # samples per HDF5 chunk of the /raw datasets
 _MAX_PENDING_ROWS = 65536  # the writer writes out earlier than its flush interval past this
@@ -64,62 +56,6 @@ def _check_options(
         value = None if number is None else as_float(number)
         if number is not None and (value is None or value <= 0):
             raise InputError(f"{src}: {name} must be a positive number, got {number!r}")
-
-
-def segment_entry(
-    name: str,
-    kind: str,
-    start: Any,
-    stop: Any,
-    n_samples: int,
-    *,
-    label: str | None = None,
-    up: Any = None,
-    axis: Any = None,
-    angle_deg: Any = None,
-    extra: dict[str, Any] | None = None,
-) -> dict[str, Any]:
-    """Validate one segment and return it as the attributes the format stores (plain JSON
-    values; ``up``/``axis`` scaled to unit length).  Raises ``ValueError`` with the problem."""
-    if kind not in SEGMENT_KINDS:
-        raise ValueError(f"unknown kind {kind!r} (expected 'static' or 'rotation')")
-    try:
-        start, stop = operator.index(start), operator.index(stop)
-    except TypeError:
-        raise ValueError(f"start and stop must be integers, got {start!r}, {stop!r}") from None
-    if not 0 <= start < stop <= n_samples:
-        raise ValueError(
-            f"samples [{start}, {stop}) are not a non-empty range within the "
-            f"{n_samples} samples appended so far"
-        )
-    if label is not None and not isinstance(label, str):
-        raise ValueError(f"label must be a string, got {label!r}")
-    entry: dict[str, Any] = {"name": name, "kind": kind, "start": start, "stop": stop}
-    if label is not None:
-        entry["label"] = label
-    for key, value in (extra or {}).items():
-        if key in SEGMENT_ATTRS or key == "name":
-            raise ValueError(f"extra attribute {key!r} is one the format defines")
-        if not isinstance(value, int | float | str | list):
-            raise ValueError(f"extra attribute {key!r} must be a number, string or list")
-        entry[key] = value
-    wrong = {"up": up} if kind == "rotation" else {"axis": axis, "angle_deg": angle_deg}
-    for option, value in wrong.items():
-        if value is not None:
-            raise ValueError(f"{option!r} does not apply to a {kind} segment")
-    for option, value in (("up", up), ("axis", axis)):
-        if value is not None:
-            vector = as_unit_vector(value)
-            if vector is None:
-                raise ValueError(
-                    f"{option!r} must be 3 finite numbers, not all zero, got {value!r}"
-                )
-            entry[option] = vector.tolist()
-    if angle_deg is not None:
-        if as_float(angle_deg) is None:
-            raise ValueError(f"'angle_deg' must be a finite number, got {angle_deg!r}")
-        entry["angle_deg"] = float(angle_deg)
-    return entry
 
 
 def _root_attrs(created: str | None, **optional: Any) -> dict[str, Any]:
@@ -243,10 +179,7 @@ class SessionWriter:
         self._n_pending = 0
         self._last_time: float | None = None
         self._last_written_time: float | None = None
-        self._calibrations: dict[str, str] = {}
         self._nonfinite: dict[str, list[np.ndarray]] = {"accel": [], "gyro": []}
-        self._segments: list[dict[str, Any]] = []
-        self._pending_log: list[bytes] = []
         self._file: h5py.File | None = None
         self._out = OutputFile(self.path, force=overwrite, inputs=inputs)
         self._reserve = _Reserve(self.path, 0)
@@ -294,11 +227,7 @@ class SessionWriter:
                 dtype="f8", fillvalue=np.nan, fletcher32=True,
             )  # fmt: skip
         file.create_group("segments")
-        log_group = file.create_group(LOG_GROUP)
-        log_group.attrs.update(writer_identity())
-        self._log = log_group.create_dataset(
-            "segments", shape=(0,), maxshape=(None,), chunks=(16,), dtype=f"S{LOG_ITEM_BYTES}"
-        )
+        self._log = SegmentLog(file)
 
     def _abandon(self) -> None:
         """Close and remove a file that never became a session (a failed start)."""
@@ -351,7 +280,6 @@ class SessionWriter:
         self._last_written_time = self._last_time
         host = session.host_time
         self.resumed_host_time = float(host[-1]) if host is not None and len(host) else None
-        self._calibrations = {}
         self._out = _InPlace(self.path)  # the file keeps its name: nothing to publish
         self._reserve = _Reserve(self.path, 0)
         self._nonfinite = {
@@ -399,26 +327,8 @@ class SessionWriter:
         group = self._file.require_group("segments")
         for name in list(group):
             del group[name]
-        if LOG_GROUP in self._file:
-            del self._file[LOG_GROUP]
-        log_group = self._file.create_group(LOG_GROUP)
-        log_group.attrs.update(writer_identity())
-        self._log = log_group.create_dataset(
-            "segments", shape=(0,), maxshape=(None,), chunks=(16,), dtype=f"S{LOG_ITEM_BYTES}"
-        )
-        self._segments, self._pending_log = [], []
-        for seg in session.segments:
-            entry: dict[str, Any] = {"name": f"{len(self._segments):04d}", "kind": seg.kind,
-                                     "start": int(seg.start), "stop": int(seg.stop)}  # fmt: skip
-            optional = {
-                "label": seg.label,
-                "angle_deg": seg.angle_deg,
-                "up": None if seg.up is None else np.asarray(seg.up).tolist(),
-                "axis": None if seg.axis is None else np.asarray(seg.axis).tolist(),
-            }
-            entry.update({k: v for k, v in optional.items() if v is not None}, **seg.extra)
-            self._segments.append(entry)
-            self._pending_log.append(json.dumps(entry).encode("utf-8"))
+        self._log = SegmentLog(self._file, [entry_of(seg, f"{i:04d}")
+                                            for i, seg in enumerate(session.segments)])  # fmt: skip
 
     # context manager ---------------------------------------------------------------------
     def __enter__(self) -> SessionWriter:
@@ -443,7 +353,7 @@ class SessionWriter:
     @property
     def segments(self) -> list[dict[str, Any]]:
         """The segments added so far, as stored (name, kind, start, stop, optional attributes)."""
-        return [dict(entry) for entry in self._segments]
+        return [dict(entry) for entry in self._log.entries]
 
     def _write_failed(self, exc: BaseException, pending: int, what: str = "write") -> WriteFailed:
         reason = io_reason(exc)
@@ -568,17 +478,14 @@ class SessionWriter:
             them up with :meth:`drop_pending`.
         """
         file = self._check_open()
-        log_rows = self._log.shape[0]
+        log_rows = self._log.dataset.shape[0]
         try:
             if self._pending:
                 start, stop = self._n_written, self._n_written + self._n_pending
                 for name, dataset in self._datasets.items():
                     dataset.resize(stop, axis=0)
                     dataset[start:stop] = np.concatenate([block[name] for block in self._pending])
-            if self._pending_log:
-                start = self._log.shape[0]
-                self._log.resize(start + len(self._pending_log), axis=0)
-                self._log[start:] = np.array(self._pending_log, dtype=f"S{LOG_ITEM_BYTES}")
+            self._log.flush()
             file.flush()
         except _WRITE_ERRORS as exc:
             self._roll_back(log_rows)
@@ -588,7 +495,7 @@ class SessionWriter:
         self._pending = []
         self._n_written += self._n_pending
         self._n_pending = 0
-        self._pending_log = []
+        self._log.flushed()
         self._last_flush = _time.monotonic()
 
     def _roll_back(self, log_rows: int) -> None:
@@ -601,10 +508,7 @@ class SessionWriter:
                 dataset.resize(self._n_written, axis=0)
             except _WRITE_ERRORS:
                 pass
-        try:
-            self._log.resize(log_rows, axis=0)
-        except _WRITE_ERRORS:
-            pass
+        self._log.roll_back(log_rows)
 
     def release_reserve(self) -> bool:
         """Free the disk space set aside at the start; return whether there was any."""
@@ -624,8 +528,7 @@ class SessionWriter:
                 pass
         self._last_time = self._last_written_time
         kept = self._n_written
-        self._segments = [s for s in self._segments if s["stop"] <= kept]
-        self._pending_log = [row for row in self._pending_log if json.loads(row)["stop"] <= kept]
+        self._log.drop_beyond(kept)
         return dropped
 
     def _salvage(self) -> None:
@@ -687,7 +590,8 @@ class SessionWriter:
             not record, or NaN/inf samples inside the segment.
         """
         self._check_open()
-        name = f"{len(self._segments):04d}"
+        segments = self._log.entries
+        name = f"{len(segments):04d}"
 
         def fail(problem: str) -> SessionError:
             return self._fail(f"segment {name}: {problem}")
@@ -697,10 +601,10 @@ class SessionWriter:
             entry = segment_entry(name, kind, start, stop, self.n_samples, extra=extra, **options)
         except ValueError as exc:
             raise fail(str(exc)) from None
-        if self._segments and entry["start"] < self._segments[-1]["start"]:
+        if segments and entry["start"] < segments[-1]["start"]:
             raise fail(
                 f"segments must be added in time order (start {entry['start']} is before the "
-                f"previous segment's start {self._segments[-1]['start']})"
+                f"previous segment's start {segments[-1]['start']})"
             )
         sensor = "accel" if kind == "static" else "gyro"
         if self._widths[sensor] is None:
@@ -710,11 +614,10 @@ class SessionWriter:
             inside = rows[(rows >= entry["start"]) & (rows < entry["stop"])]
             if inside.size:
                 raise fail(f"/raw/{sensor} has NaN or inf at sample {inside.min()}")
-        logged = json.dumps(entry).encode("utf-8")
-        if len(logged) > LOG_ITEM_BYTES:
-            raise fail(f"label too long ({len(label or '')} characters)")
-        self._segments.append(entry)
-        self._pending_log.append(logged)
+        try:
+            self._log.add(entry)
+        except ValueError:
+            raise fail(f"label too long ({len(label or '')} characters)") from None
         self._flush_if_due()
         return name
 
@@ -752,20 +655,7 @@ class SessionWriter:
             raise failed
 
     def _write_segment_groups(self) -> None:
-        with h5py.File(self._out.tmp if not self._out.published else self.path, "r+") as file:
-            group = file["segments"]
-            for entry in self._segments:
-                attrs = group.create_group(entry["name"]).attrs
-                for key, value in entry.items():
-                    if key in ("up", "axis"):
-                        attrs[key] = np.asarray(value, dtype=np.float64)
-                    elif key != "name":
-                        attrs[key] = value
-            del file[LOG_GROUP]
-            if self._calibrations:
-                calibrations = file.create_group("calibrations")
-                for name, text in self._calibrations.items():
-                    calibrations.create_group(name).attrs["json"] = text
+        self._log.write(self._out.tmp if not self._out.published else self.path)
 
     def add_calibration(self, name: str, json_text: str) -> None:
         """Store a calibration JSON as ``/calibrations/<name>`` when the file is closed.
@@ -775,10 +665,7 @@ class SessionWriter:
         SessionError
             ``json_text`` is not JSON, or ``name`` is taken or not a valid name.
         """
-        check_calibration_entry(self._src, json_text, name)
-        if name in self._calibrations:
-            raise self._fail(f"/calibrations/{name} already exists")
-        self._calibrations[name] = json_text
+        self._log.add_calibration(self._src, name, json_text)
 
 
 class _InPlace:
