@@ -443,12 +443,12 @@ def _capture_case(folder: Path, name: str, server_args, signum=None, after_s=2.5
 
 def _nothing_sent(name: str, code: int, stderr: str, out: Path) -> tuple[str, str]:
     """A device that sent no line (garbage: a wrong baud rate) has no sample to lose: the
-    capture must write no file and say in one line what came (exit 2 when the wait ran out,
-    3 when the device went first)."""
+    capture must write no file, say in one line what came and exit 2 (nothing saved), whether
+    the wait ran out or the device went first."""
     last = stderr.strip().splitlines()[-1] if stderr.strip() else ""
     if out.exists():
         return "silent wrong", f"{name}: no line sent, yet {out.name} was written"
-    if code not in (2, 3) or not last.startswith("imucal: ") or "wrong baud rate?" not in last:
+    if code != 2 or not last.startswith("imucal: ") or "wrong baud rate?" not in last:
         return "wrong exit", f"{name}: exit {code}: {last[-120:]}"
     return "handled", f"{name}: no line sent, no file, exit {code}"
 
