@@ -80,10 +80,11 @@ that the data leave to the labels (six faces: the three strains of the faces' fr
 its rotation), the fit moves on a curved set of equally good solutions: the gravity
 magnitudes fix some combinations of gains, angles and biases to the noise, but only given
 the strains, and to second order in them. Relative to the estimate's tangent the truth lies
-off by ``~ g S sigma_p^2`` (about 2e-4 of the gains at 2 degrees), 3-30 times the noise
-that (L4) states for those combinations: each parameter's variance is right, their joint
-covariance is not (normalised error squared of 60-1000 for 12 parameters on six faces). So
-the placement's label-limited directions are propagated through the fit itself::
+off by a relative ``~ sigma_p^2`` (6e-4 at 2 degrees RMS), up to 30 times the noise that
+(L4) states for those combinations: each parameter's variance is right, their joint
+covariance is not (normalised error squared 60-1000 for 12 parameters on six faces at 2
+degrees; 16 at 0.5, 1560 at 5). So the placement's label-limited directions are propagated
+through the fit itself::
 
     Cov(theta) = [J^-1]_theta + E_z[(p(z) - p_hat)(p(z) - p_hat)^T] - G G^T,       (L6)
 
