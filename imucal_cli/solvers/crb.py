@@ -181,6 +181,7 @@ def labelled_crb(
         design_jacobian,
         jacobian,
         public_from_theta,
+        theta_floor,
         triangular_and_rotation,
     )
     from .rotation import Rotation
@@ -201,5 +202,5 @@ def labelled_crb(
     cov = d[:, None] * np.linalg.pinv(d[:, None] * A * d, rcond=1e-13, hermitian=True) * d
     K, Q = triangular_and_rotation(M)
     theta = np.concatenate([B, K[_UPPER], np.degrees(Rotation.from_matrix(Q).as_rotvec())])
-    T = jacobian(public_from_theta, theta)
+    T = jacobian(public_from_theta, theta, floor=theta_floor(theta))
     return T @ cov @ T.T

@@ -72,11 +72,38 @@ size ``sigma_p^2``: the reading along a tilted pose is ``g cos|delta|``, shorter
 fit marginalises the first (each prediction's mean and variance over ``delta_k``'s remaining
 uncertainty, :meth:`.labelled_model.Problem.marginalise`) and corrects the second (the
 second-order bias and variance of ``K`` over the covariance of ``S``).
+
+Placement beyond first order (the joint covariance)
+---------------------------------------------------
+(L4) at the estimate is the first-order covariance. Along the directions of the placement
+that the data leave to the labels (six faces: the three strains of the faces' frame besides
+its rotation), the fit moves on a curved set of equally good solutions: the gravity
+magnitudes fix some combinations of gains, angles and biases to the noise, but only given
+the strains, and to second order in them. Relative to the estimate's tangent the truth lies
+off by a relative ``~ sigma_p^2`` (6e-4 at 2 degrees RMS), up to 30 times the noise that
+(L4) states for those combinations: each parameter's variance is right, their joint
+covariance is not (normalised error squared 60-1000 for 12 parameters on six faces at 2
+degrees; 16 at 0.5, 1560 at 5). So the placement's label-limited directions are propagated
+through the fit itself::
+
+    Cov(theta) = [J^-1]_theta + E_z[(p(z) - p_hat)(p(z) - p_hat)^T] - G G^T,       (L6)
+
+``z`` the placement's posterior (the labelled ``delta`` ~ ``N(delta_hat, P_delta)``) in the
+``m`` directions whose variance is above :data:`LABEL_LIMITED` of the prior's, less the
+frame's rotation (the gauge: it turns the frame and every direction together, which (L4)
+holds exactly); ``p(z)`` the parameters refitted to the measurements with those placements
+held, ``G`` its first-order part (already in (L4)). The expectation is a fully symmetric
+fifth-degree rule (exact for a quadratic ``p``: ``2 m^2 + 1`` refits; six faces m = 3,
+qureshi18 m = 0). The expectation is over the placement given the data, so where a
+parameter's error is the product of a label-limited quantity and an unknown one (a gain's
+error is its axis's true misalignment times the error of its angle) the stated std is that
+of a sensor of unknown misalignment: for nearly orthogonal axes the gains' std is
+conservative, up to twice the error on six faces.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -93,6 +120,7 @@ from .labelled_model import (
     rotation_matrix,
     second_order,
     sphere_exp,
+    theta_floor,
     triangular_and_rotation,
 )
 from .lsq import least_squares
@@ -123,8 +151,15 @@ DEFAULT_PLACEMENT_DEG = 2.0
 MIN_PLACEMENT_DOF = 2.0
 #: The placement estimate never goes below this (a perfect fixture), degrees.
 MIN_PLACEMENT_DEG = 1e-3
-#: Above this many poses the Jacobian is handed to the solver as a sparse matrix.
+#: Above this many poses the Jacobian is handed to the solver as a sparse matrix (and the
+#: placement is propagated to first order only).
 DENSE_MAX_POSES = 150
+#: A placement direction is label-limited (propagated beyond first order, eq. L6) where the
+#: fit leaves it more than this fraction of the prior's variance.
+LABEL_LIMITED = 0.01
+#: Up to this many label-limited directions the fifth-degree rule (2 m^2 + 1 refits), above
+#: it the third-degree one (2 m refits: the mean of a quadratic, not all of its variance).
+MAX_FIFTH_DEGREE = 8
 
 
 @dataclass
@@ -139,7 +174,8 @@ class LabelledResult:
         ``M = S^-1``: ``calibrated = matrix @ (raw - bias)``, m/s^2 per raw unit, fixture frame.
     param_names, params, cov
         :data:`PARAM_NAMES`: bias, sensitivities, angles between the axes and the rotation
-        onto the labels; their covariance (12, 12) includes the placement error.
+        onto the labels; their covariance (12, 12) includes the placement error, beyond
+        first order where the labels limit it (eq. L6).
     t_dof : ndarray, shape (12,)
         Effective degrees of freedom of each parameter's variance (Satterthwaite: the
         placement part is estimated from ``placement_dof`` equations); ``inf`` when the
@@ -177,6 +213,11 @@ class LabelledResult:
     iterations, nfev : int
     converged : bool
     message : str
+    cov_parts : dict
+        ``cov`` by where it comes from, (12, 12) each, summing to it: ``"measurement"`` (the
+        noise), ``"placement"`` (first order, scales with ``placement_deg^2``) and
+        ``"placement_second_order"`` (eq. L6, scales with ``placement_deg^4``); with
+        ``"label_limited"``, the number ``m`` of placement directions propagated.
     """
 
     bias: np.ndarray
@@ -203,6 +244,7 @@ class LabelledResult:
     nfev: int
     converged: bool
     message: str
+    cov_parts: dict = field(default_factory=dict)
 
     @property
     def std(self) -> np.ndarray:
@@ -459,20 +501,34 @@ def _result(st: _State, offset, scale, a_mean, up, labelled, g, source, noise_do
     def theta(v):  # (B raw, K raw, r deg) from normalised x
         return np.concatenate([offset + scale * v[:3], v[3:9] / scale, np.degrees(v[9:12])])
 
-    T = jacobian(lambda v: public_from_theta(theta(v)), x12)
-    cov = T @ st.P[:12, :12] @ T.T
+    def public(v):
+        return public_from_theta(theta(v))
+
+    T = jacobian(public, x12, floor=theta_floor(x12))
+    n_meas = 3 * prob.N
+    Pt = st.P[:, :12]
+    Jm, Jp = st.J[:n_meas], st.J[n_meas:]
+    parts = {
+        "measurement": T @ (Pt.T @ Jm.T @ Jm @ Pt) @ T.T,
+        "placement": T @ (Pt.T @ Jp.T @ Jp @ Pt) @ T.T,  # the two sum to T P T^T
+    }
     # Second order: the sensitivities and angles are curved functions of K, whose cross-axis
-    # terms the labels (not the data) fix on six faces: remove that bias, add that variance.
+    # terms the labels (not the data) fix on six faces: remove that bias, add that variance
+    # (unless the placement's propagation (L6) below, which includes it, runs).
     axes_of = lambda k: public_from_theta(np.r_[np.zeros(3), k, np.zeros(3)])[3:9]  # noqa: E731
     bias2, extra2 = second_order(axes_of, x12[3:9], st.P[3:9, 3:9])
-    cov[3:9, 3:9] += extra2
-    params = public_from_theta(theta(x12))
+    params = public(x12)
     params[3:9] -= bias2
+    extra, m = _placement_beyond_first_order(st, public, params)
+    if m == 0:
+        extra[3:9, 3:9] += extra2
+    parts["placement_second_order"] = extra
+    cov = parts["measurement"] + parts["placement"] + extra
     Kn = np.zeros((3, 3))
     Kn[_UPPER] = x12[3:9] - np.linalg.solve(jacobian(axes_of, x12[3:9]), bias2)
     B = offset + scale * x12[:3]
     M = rotation_matrix(x12[9:12]) @ Kn / scale
-    t_dof = _t_dof(st, T, extra2, source, noise_dof)
+    t_dof = _t_dof(parts, st.placement_dof, source, noise_dof)
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
     q = np.where(np.isfinite(t_dof), stdtrit(np.minimum(t_dof, 1e6), 0.975), 1.959964)
     u, _ = sphere_exp(prob.u0, prob.T, prob.split(st.sol.x)[3])
@@ -507,6 +563,7 @@ def _result(st: _State, offset, scale, a_mean, up, labelled, g, source, noise_do
         nfev=int(st.sol.nfev),
         converged=True,
         message=str(st.sol.message),
+        cov_parts={**parts, "label_limited": m},
     )
 
 
@@ -522,16 +579,110 @@ def _held_out(prob: Problem, st: _State, dele: Deletion, offset, scale, a_mean, 
     return out
 
 
-def _t_dof(st: _State, T: np.ndarray, extra: np.ndarray, source: str, noise_dof: float):
+def _t_dof(parts: dict, placement_dof: float, source: str, noise_dof: float):
     """Effective degrees of freedom of each parameter's variance (Satterthwaite): the
     measurement part rests on ``noise_dof``, the placement part on the prior's redundancy."""
-    n_meas = 3 * st.prob.N
-    Jm, Jp = st.J[:n_meas], st.J[n_meas:]
-    Pt = st.P[:, :12]
-    v_meas = np.diag(T @ (Pt.T @ Jm.T @ Jm @ Pt) @ T)
-    v_place = np.diag(T @ (Pt.T @ Jp.T @ Jp @ Pt) @ T).copy()
-    v_place[3:9] += np.diag(extra)
-    nu_p = st.placement_dof if source == "estimated" else np.inf
+    v_meas = np.diag(parts["measurement"])
+    v_place = np.diag(parts["placement"]) + np.diag(parts["placement_second_order"])
+    nu_p = placement_dof if source == "estimated" else np.inf
     with np.errstate(divide="ignore", invalid="ignore"):
         t_dof = (v_meas + v_place) ** 2 / (v_place**2 / nu_p + v_meas**2 / noise_dof)
     return np.where(np.isfinite(t_dof), np.maximum(t_dof, 1.0), np.inf)
+
+
+# --------------------------------------------------------------------------- (L6)
+
+
+def symmetric_rule(m: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """Nodes (n, m) and weights (n,) of a fully symmetric rule for ``N(0, I_m)``, and the
+    distance ``a`` of its axis nodes ``+-a e_i`` (nodes 1..2m, in the order +e_1, -e_1, ...).
+
+    Up to :data:`MAX_FIFTH_DEGREE` dimensions the fifth-degree rule (exact for polynomials of
+    degree 5, so for the mean and covariance of a quadratic): the centre, ``+-sqrt(3) e_i``
+    and ``+-sqrt(3) e_i +- sqrt(3) e_j`` (i < j), weights ``1 + (m^2 - 7 m) / 18``,
+    ``(4 - m) / 18`` and ``1 / 36`` (for m = 1 Gauss-Hermite's three points); above, the
+    third-degree one (``+-sqrt(m) e_i``, weights ``1 / 2m``)."""
+    if m > MAX_FIFTH_DEGREE:
+        a = np.sqrt(m)
+        nodes = np.vstack([np.zeros(m), *[s * a * np.eye(m)[i] for i in range(m) for s in (1, -1)]])
+        return nodes, np.r_[0.0, np.full(2 * m, 0.5 / m)], a
+    a = np.sqrt(3.0)
+    nodes, weights = [np.zeros(m)], [1.0 + (m * m - 7 * m) / 18.0]
+    for i in range(m):
+        for s in (1, -1):
+            nodes.append(s * a * np.eye(m)[i])
+            weights.append((4 - m) / 18.0)
+    for i in range(m):
+        for j in range(i + 1, m):
+            for si in (1, -1):
+                for sj in (1, -1):
+                    nodes.append(a * (si * np.eye(m)[i] + sj * np.eye(m)[j]))
+                    weights.append(1.0 / 36.0)
+    return np.array(nodes), np.array(weights), a
+
+
+def _label_limited(st: _State) -> tuple[np.ndarray, np.ndarray]:
+    """Columns of ``x`` of the labelled placements and the label-limited directions of their
+    posterior, less the gauge (eq. L6): ``(cols, V)`` with ``delta = delta_hat + V xi``,
+    ``xi ~ N(0, I_m)``."""
+    prob, x = st.prob, st.sol.x
+    cols = (12 + 2 * prob.lab[:, None] + np.arange(2)).ravel()
+    lam, V = np.linalg.eigh(st.P[np.ix_(cols, cols)])
+    big = lam > LABEL_LIMITED * prob.sigma_p**2
+    if not big.any():
+        return cols, np.zeros((len(cols), 0))
+    Vb = V[:, big] * np.sqrt(lam[big])
+    # The gauge (a rotation of the frame and every direction together) in these whitened
+    # coordinates; (L4) holds it exactly, so it is left out.
+    gauge = (V[:, big] / np.sqrt(lam[big])).T @ prob.gauge_modes(x)[cols]
+    Q, _ = np.linalg.qr(gauge, mode="complete")
+    return cols, Vb @ Q[:, gauge.shape[1] :]
+
+
+def _refit(prob: Problem, x: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """``x`` with its ``free`` coordinates refitted to the measurements (the others held)."""
+    n_meas = 3 * prob.N
+
+    def whole(v):
+        y = x.copy()
+        y[free] = v
+        return y
+
+    sol = least_squares(
+        lambda v: prob.residuals(whole(v))[:n_meas],
+        x[free],
+        jac=lambda v: prob.jacobian(whole(v))[:n_meas][:, free],
+        x_scale=1.0,
+        xtol=1e-10,
+        ftol=1e-10,
+        gtol=1e-10,
+        max_nfev=50,
+    )
+    return whole(sol.x)
+
+
+def _placement_beyond_first_order(st: _State, public, p_hat: np.ndarray):
+    """Eq. (L6): the parameters' covariance from the label-limited placement beyond (L4)'s
+    first order, (12, 12), and the number of directions propagated. Each node of
+    :func:`symmetric_rule` holds the labelled placements there and refits the rest (bias,
+    matrix and the unlabelled poses' directions) to the measurements."""
+    prob, x = st.prob, st.sol.x
+    if prob.N > DENSE_MAX_POSES:
+        return np.zeros((12, 12)), 0
+    cols, V = _label_limited(st)
+    m = V.shape[1]
+    if m == 0:
+        return np.zeros((12, 12)), 0
+    held = np.zeros(len(x), bool)
+    held[cols] = True
+    free = np.flatnonzero(~held)
+    nodes, w, a = symmetric_rule(m)
+    Y = np.empty((len(nodes), 12))
+    for i, xi in enumerate(nodes):
+        y = x.copy()
+        y[cols] += V @ xi
+        Y[i] = public(_refit(prob, y, free)[:12]) - p_hat
+    G = (Y[1 : 2 * m + 1 : 2] - Y[2 : 2 * m + 1 : 2]) / (2 * a)  # first order, (m, 12)
+    extra = (Y * w[:, None]).T @ Y - G.T @ G
+    ev, U = np.linalg.eigh((extra + extra.T) / 2)
+    return (U * np.clip(ev, 0, None)) @ U.T, m

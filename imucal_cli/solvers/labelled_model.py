@@ -86,12 +86,27 @@ def public_from_theta(theta: np.ndarray) -> np.ndarray:
     return np.concatenate([theta[:3], axes(np.linalg.inv(K)), theta[9:12]])
 
 
-def jacobian(f, x: np.ndarray, rel: float = 1e-6) -> np.ndarray:
-    """Central-difference Jacobian of a small vector function."""
+def theta_floor(theta: np.ndarray) -> np.ndarray:
+    """Smallest magnitudes the difference steps of ``theta = (B, K upper, r)`` are scaled to
+    (:func:`jacobian`): ``K``'s entries to a thousandth of its largest diagonal entry (an
+    off-diagonal entry near zero would otherwise get a step near zero, and its derivatives
+    rounding noise); the bias and the rotation, on which the parameters depend linearly, to
+    the bias's size and to 1."""
+    theta = np.asarray(theta, float)
+    out = np.ones(len(theta))
+    out[:3] = max(float(np.max(np.abs(theta[:3]))), 1.0)
+    out[3:9] = 1e-3 * float(np.max(np.abs(theta[3:6])))
+    return out
+
+
+def jacobian(f, x: np.ndarray, rel: float = 1e-6, floor=1e-12) -> np.ndarray:
+    """Central-difference Jacobian of a small vector function; step ``rel * max(|x_k|,
+    floor_k)`` (``floor`` a number or one per coordinate, e.g. :func:`theta_floor`)."""
     f0 = np.asarray(f(x))
     J = np.empty((len(f0), len(x)))
+    floor = np.broadcast_to(np.asarray(floor, float), (len(x),))
     for k in range(len(x)):
-        h = rel * max(abs(x[k]), 1e-12)
+        h = rel * max(abs(x[k]), floor[k])
         e = np.zeros(len(x))
         e[k] = h
         J[:, k] = (np.asarray(f(x + e)) - np.asarray(f(x - e))) / (2 * h)
@@ -101,9 +116,12 @@ def jacobian(f, x: np.ndarray, rel: float = 1e-6) -> np.ndarray:
 def second_order(f, x: np.ndarray, cov: np.ndarray, rel: float = 1e-4):
     """Second-order moments of ``f(x_hat)`` when ``x_hat ~ N(x, cov)``: the bias
     ``tr(cov H_i) / 2`` and the extra covariance ``tr(H_i cov H_j cov) / 2`` (``H_i`` the
-    Hessian of output i, central differences)."""
+    Hessian of output i, central differences). ``x`` is one block in one unit (``K``): each
+    step is at least ``rel`` times a thousandth of its largest entry, so that an entry near
+    zero does not get a step near zero (its second differences would be rounding noise over
+    ``h^2``: a 1.8e-6 off-diagonal entry once gave angles of 24000 degrees)."""
     n = len(x)
-    h = rel * np.maximum(np.abs(x), 1e-12)
+    h = rel * np.maximum(np.abs(x), 1e-3 * max(float(np.max(np.abs(x))), 1e-300))
     f0 = np.asarray(f(x))
     H = np.empty((len(f0), n, n))
     for i in range(n):
