@@ -54,7 +54,7 @@ AXES = "xyz"
 
 __all__ = ["FullResult", "Rotations", "Stills", "accel_sensitivity", "fit_full",
            "full_information", "integrate_rotations", "parameter_names",
-           "refit_moved", "refit_without"]  # fmt: skip
+           "refit_moved", "refit_without", "step_moved"]  # fmt: skip
 
 
 def parameter_names(n: int) -> list[str]:
@@ -381,6 +381,30 @@ def refit_moved(
     if solved is None or not _explains(prob, solved):
         return None
     return solved.x
+
+
+def step_moved(
+    rot: Rotations,
+    still: Stills,
+    gyro_sigma: float,
+    result: FullResult,
+    x0: np.ndarray,
+    *,
+    clock: float = 1.0,
+) -> np.ndarray | None:
+    """One Gauss-Newton step of :func:`refit_moved` from ``x0`` (the noise model at ``x0``):
+    the refit's solution to second order when ``x0`` is the first-order prediction, at the cost
+    of one integration of the turns (a refit makes five to eight). None when ``x0`` leaves a
+    turn unexplained or the step is not finite. For the pre-check of
+    :mod:`imucal_cli.solvers.gyro_sigma`."""
+    prob = Problem(rot, still, gyro_sigma, clock, g_sensitivity=result.G is not None)
+    x0 = np.asarray(x0, float)
+    if not _explains(prob, _Solved(x0, np.zeros(0), np.zeros((0, len(x0))), 0, "", "step")):
+        return None
+    W = prob.whitener(x0)
+    r, J = prob.residuals_and_jacobian(x0)
+    x = x0 - np.linalg.lstsq(W(J), W(r), rcond=None)[0]
+    return x if np.all(np.isfinite(x)) else None
 
 
 def _result(prob: Problem, solved: _Solved, tried: int) -> FullResult:
