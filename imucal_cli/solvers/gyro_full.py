@@ -111,6 +111,9 @@ class FullResult:
     turn_sigma_deg: np.ndarray | None = None
     still_chi2: np.ndarray | None = None
     g_test: dict | None = None
+    #: The problem solved (its last evaluation, at the solution, saves the integration of the
+    #: turns to :func:`accel_sensitivity`).
+    problem: Problem | None = field(default=None, repr=False, compare=False)
 
     @property
     def std(self) -> np.ndarray:
@@ -267,6 +270,7 @@ def fit_full(
     if g_sensitivity == "off":
         return result
     prob_g = Problem(rot, still, gyro_sigma, clock, g_sensitivity=True)
+    prob_g.share_without_g(prob, best.x)  # the attitudes at the start: the same rates
     solved_g = _solve(prob_g, np.r_[best.x, np.zeros(9)], max_iterations, best.start)
     test = _g_test(result, solved_g)
     result.g_test = test
@@ -441,6 +445,7 @@ def _result(prob: Problem, solved: _Solved, tried: int) -> FullResult:
         turn_chi2=turn_chi2,
         still_chi2=np.sum(solved.f[2 * prob.K :].reshape(-1, 3) ** 2, axis=1),
         turn_sigma_deg=sigma,
+        problem=prob,
     )
 
 
@@ -480,6 +485,8 @@ def accel_sensitivity(
     with_g = result.G is not None
     x = np.r_[result.b, result.M.ravel(), result.G.ravel() if with_g else []]
     prob = Problem(rot, still, gyro_sigma, clock, g_sensitivity=with_g)
+    if getattr(result, "problem", None) is not None:
+        prob.share(result.problem)  # the attitudes at the solution, already integrated
     W = prob.whitener(x)
     J = W(prob.residuals_and_jacobian(x)[1])
     m = dg.shape[2]

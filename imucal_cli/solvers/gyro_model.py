@@ -136,6 +136,20 @@ class Problem:
         other.B = tangent(other.u)
         return other
 
+    def share(self, other: Problem) -> None:
+        """Start from ``other``'s last evaluation (the same turns and clock: ``other``'s
+        last point is then evaluated without integrating again)."""
+        if other.rot is self.rot and other.clock == self.clock and other.with_g == self.with_g:
+            self._last = other._last
+
+    def share_without_g(self, other: Problem, x: np.ndarray) -> None:
+        """Start this g-sensitive problem from ``other``'s (without ``G``) evaluation at
+        ``x``: the same rates at ``(x, G = 0)``, when the turns' specific force is finite."""
+        if (other.rot is self.rot and other.clock == self.clock and self.with_g
+                and not other.with_g and other._last[0] == np.asarray(x, float).tobytes()
+                and np.all(np.isfinite(self.a))):  # fmt: skip
+            self._last = (np.r_[x, np.zeros(9)].tobytes(), other._last[1])
+
     def split(self, x):
         """``(b, M, G)`` from a parameter vector (``G`` zero without the term)."""
         G = x[12:21].reshape(3, 3) if self.with_g else np.zeros((3, 3))
