@@ -125,6 +125,7 @@ class Problem:
         h2[self.stack.stop[:-1] - 1] = 0.0
         self.int_noise = gyro_sigma * np.sqrt(np.add.reduceat(np.r_[h2, 0.0], self.stack.start))
         self._last = (None, None)
+        self._order = None
 
     def with_still(self, still: Stills) -> Problem:
         """The same turns with other still periods' gravity (the attitudes, which depend on
@@ -141,6 +142,8 @@ class Problem:
         last point is then evaluated without integrating again)."""
         if other.rot is self.rot and other.clock == self.clock and other.with_g == self.with_g:
             self._last = other._last
+        if other.rot is self.rot and other.P == self.P:
+            self._order = other._order  # the same sparsity of the noise covariance
 
     def share_without_g(self, other: Problem, x: np.ndarray) -> None:
         """Start this g-sensitive problem from ``other``'s (without ``G``) evaluation at
@@ -149,6 +152,8 @@ class Problem:
                 and not other.with_g and other._last[0] == np.asarray(x, float).tobytes()
                 and np.all(np.isfinite(self.a))):  # fmt: skip
             self._last = (np.r_[x, np.zeros(9)].tobytes(), other._last[1])
+        if other.rot is self.rot and other.P == self.P:
+            self._order = other._order
 
     def split(self, x):
         """``(b, M, G)`` from a parameter vector (``G`` zero without the term)."""
@@ -247,7 +252,11 @@ class Problem:
         return C.gram()
 
     def whitener(self, x) -> Whitener:
-        return Whitener(BandedWhitener(self.rotation_covariance(x)), self)
+        # The covariance's sparsity depends on the turns' still periods only: its ordering is
+        # found once per problem (with_still copies share it).
+        banded = BandedWhitener(self.rotation_covariance(x), order=self._order)
+        self._order = banded.perm
+        return Whitener(banded, self)
 
 
 class Whitener:
