@@ -292,7 +292,9 @@ def _read_segments(
                 where = f"/segments/{name}"
                 attrs = Attributes(obj, src, f"{where}: ")
                 segment = _parse_segment(name, attrs.get, src, where, n, accel, gyro)
-                extra = ((key, attrs.get(key)) for key in attrs if key not in SEGMENT_ATTRS)
+                others = attrs.names - SEGMENT_ATTRS  # in order, asked only when there are
+                extra = ((key, attrs.get(key)) for key in (attrs if others else ())
+                         if key in others)  # fmt: skip
                 segment.extra.update(_extra_attrs(extra))
                 segments.append(segment)
     log_group = member(file, LOG_GROUP, src)
