@@ -424,7 +424,7 @@ def _scan_ascii(
     n = len(b)
     if n == 0:
         return None
-    cls = np.take(_CLASS, b)
+    cls = _CLASS[b]  # np.take would first copy b to 8-byte indices (8 bytes a byte)
     if cls.max() == _INVALID:
         return None
     # Line breaks as split_lines: LF, CR LF (the CR is then white space), and lone CR only in
