@@ -202,8 +202,8 @@ def nominal_sensor(session: Session, cfg: Config, g: float) -> Nominal:
         if units in ("m/s^2", "g"):
             full = SI_RANGE_G * (g if units == "m/s^2" else 1.0)
             rng = (-full, full)
-        elif units == "counts":
-            finite = accel[np.isfinite(accel).all(axis=1)]
+        elif units == "counts":  # the finite rows copied only when some are not
+            finite = accel if np.isfinite(accel).all() else accel[np.isfinite(accel).all(axis=1)]
             rng = adc_range(float(finite.min()), float(finite.max())) if len(finite) else None
     if a.nominal_bias is not None:
         bias = np.array(per_channel(a.nominal_bias, n, "accel.nominal_bias"))
