@@ -67,13 +67,23 @@ def matrix_rows(q: np.ndarray) -> np.ndarray:
     w_, x, y, z = q
     xx, yy, zz, xy, xz, yz = x * x, y * y, z * z, x * y, x * z, y * z
     wx, wy, wz = w_ * x, w_ * y, w_ * z
-    R = np.array(
-        [
-            1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy),
-            2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx),
-            2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy),
-        ]
-    )  # fmt: skip
+    R = np.empty((9,) + q.shape[1:])
+    # Written into R row by row (no list of nine temporaries stacked afterwards):
+    # 1 - 2 (yy + zz), 2 (xy - wz), 2 (xz + wy), 2 (xy + wz), 1 - 2 (xx + zz), 2 (yz - wx),
+    # 2 (xz - wy), 2 (yz + wx), 1 - 2 (xx + yy)
+    for row, (a, b, op) in enumerate(
+        [(yy, zz, None), (xy, wz, np.subtract), (xz, wy, np.add),
+         (xy, wz, np.add), (xx, zz, None), (yz, wx, np.subtract),
+         (xz, wy, np.subtract), (yz, wx, np.add), (xx, yy, None)]
+    ):  # fmt: skip
+        out = R[row : row + 1]  # a view also where q is one quaternion (4,)
+        if op is None:  # 1 - 2 (a + b)
+            np.add(a, b, out=out)
+            out *= 2
+            np.subtract(1, out, out=out)
+        else:  # 2 (a -+ b)
+            op(a, b, out=out)
+            out *= 2
     return R
 
 

@@ -124,7 +124,7 @@ class Problem:
         h2 = (clock * np.diff(self.stack.t)) ** 2
         h2[self.stack.stop[:-1] - 1] = 0.0
         self.int_noise = gyro_sigma * np.sqrt(np.add.reduceat(np.r_[h2, 0.0], self.stack.start))
-        self._last = (None, None)
+        self._cache: tuple = ()  # (key, attitudes, end rotations or None), newest first
         self._order = None
 
     def with_still(self, still: Stills) -> Problem:
@@ -141,17 +141,19 @@ class Problem:
         """Start from ``other``'s last evaluation (the same turns and clock: ``other``'s
         last point is then evaluated without integrating again)."""
         if other.rot is self.rot and other.clock == self.clock and other.with_g == self.with_g:
-            self._last = other._last
+            self._cache = other._cache
         if other.rot is self.rot and other.P == self.P:
             self._order = other._order  # the same sparsity of the noise covariance
 
     def share_without_g(self, other: Problem, x: np.ndarray) -> None:
         """Start this g-sensitive problem from ``other``'s (without ``G``) evaluation at
         ``x``: the same rates at ``(x, G = 0)``, when the turns' specific force is finite."""
+        key = np.asarray(x, float).tobytes()
+        entry = next((e for e in other._cache if e[0] == key), None)
         if (other.rot is self.rot and other.clock == self.clock and self.with_g
-                and not other.with_g and other._last[0] == np.asarray(x, float).tobytes()
+                and not other.with_g and entry is not None
                 and np.all(np.isfinite(self.a))):  # fmt: skip
-            self._last = (np.r_[x, np.zeros(9)].tobytes(), other._last[1])
+            self._cache = ([np.r_[x, np.zeros(9)].tobytes(), entry[1], entry[2]],)
         if other.rot is self.rot and other.P == self.P:
             self._order = other._order
 
@@ -170,19 +172,29 @@ class Problem:
         b, _, G = self.split(x)
         return (self.still.z_mean - b - self.still.g @ G.T).ravel()
 
-    def _attitudes(self, x):
-        """Every sample's attitude in its rotation (4, N); the last evaluation is kept (the
-        solver asks for residuals, Jacobian and noise model at one point in turn)."""
+    def _entry(self, x) -> list:
+        """The integration at ``x``: ``[key, attitudes (4, N), end rotations or None]``. The
+        last two points evaluated are kept (the solver asks for residuals, Jacobian and noise
+        model at one point in turn, and comes back to its best point after a rejected step)."""
         key = x.tobytes()
-        if self._last[0] != key:
-            M = x[3:12].reshape(3, 3)
-            self._last = (key, attitudes(self.stack, M @ self._bias_free(x), self.clock))
-        return self._last[1]
+        for entry in self._cache:
+            if entry[0] == key:
+                return entry
+        M = x[3:12].reshape(3, 3)
+        entry = [key, attitudes(self.stack, M @ self._bias_free(x), self.clock), None]
+        self._cache = (entry, *self._cache[:1])
+        return entry
+
+    def _attitudes(self, x):
+        """Every sample's attitude in its rotation (4, N)."""
+        return self._entry(x)[1]
 
     def predicted(self, x):
         """Predicted gravity direction after each rotation (K, 3) and the rotations (K, 3, 3)."""
-        q = self._attitudes(x)
-        R = quat_to_matrix(q[:, self.stack.stop - 1])
+        entry = self._entry(x)
+        if entry[2] is None:
+            entry[2] = quat_to_matrix(entry[1][:, self.stack.stop - 1])
+        R = entry[2]
         return np.einsum("kji,kj->ki", R, self.u[self.rot.before]), R  # R^T u0
 
     def _rotation_residuals(self, p):

@@ -42,6 +42,10 @@ SCALE_QUANTILE = 0.9
 SCALE_BRACKET = (0.7, 3.0)
 #: The coarse integrator of the start composes blocks of samples at about this rate.
 COARSE_RATE_HZ = 25.0
+#: Scales integrated together by the coarse integrator (the turns repeated once per scale) up
+#: to this many samples in all: one pass for several where per-pass costs dominate (short
+#: recordings), bounded memory where the samples do (thousands of turns).
+BATCH_SAMPLES = 1 << 18
 
 
 @dataclass
@@ -103,7 +107,7 @@ class _Turns:
             coarse_t.append(tk[keep])
             self.x[k] = cum[-1]
         self.stack = Stack.of(coarse_t)
-        self.coarse_t, self._stacks = coarse_t, {1: self.stack}
+        self.coarse_t = coarse_t
         self.steps = np.concatenate(steps).T  # (3, n_coarse): raw integral of each block
         self.u0 = g_before / np.linalg.norm(g_before, axis=1, keepdims=True)
         self.u1 = g_after / np.linalg.norm(g_after, axis=1, keepdims=True)
@@ -114,12 +118,16 @@ class _Turns:
 
     def rotations_at(self, scales) -> np.ndarray:
         """(S, K, 3, 3) rotations of the turns with ``M = scale * I`` for each of ``S``
-        scales, integrated together (the turns repeated once per scale: one pass for all)."""
-        n = len(scales)
-        if n not in self._stacks:
-            self._stacks[n] = Stack.of(self.coarse_t * n)
-        phi = np.concatenate([s * self.steps for s in scales], axis=1)
-        return quat_to_matrix(compose_ends(self._stacks[n], phi)).reshape(n, -1, 3, 3)
+        scales, integrated together (the turns repeated once per scale: one pass for several,
+        up to :data:`BATCH_SAMPLES` coarse samples at a time)."""
+        per = max(1, BATCH_SAMPLES // len(self.stack.t))
+        out = []
+        for i in range(0, len(scales), per):
+            part = scales[i : i + per]
+            stack = self.stack if len(part) == 1 else Stack.of(self.coarse_t * len(part))
+            phi = np.concatenate([s * self.steps for s in part], axis=1)
+            out.append(quat_to_matrix(compose_ends(stack, phi)).reshape(len(part), -1, 3, 3))
+        return np.concatenate(out)
 
     def mismatch(self, R: np.ndarray, O: np.ndarray) -> np.ndarray:
         """Gravity mismatch of each orientation ``O`` (n, 3, 3) given the turns' rotations
