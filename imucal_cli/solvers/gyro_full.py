@@ -269,7 +269,7 @@ def fit_full(
     result = _result(prob, best, tried)
     if g_sensitivity == "off":
         return result
-    prob_g = Problem(rot, still, gyro_sigma, clock, g_sensitivity=True)
+    prob_g = Problem(rot, still, gyro_sigma, clock, g_sensitivity=True, like=prob)
     prob_g.share_without_g(prob, best.x)  # the attitudes at the start: the same rates
     solved_g = _solve(prob_g, np.r_[best.x, np.zeros(9)], max_iterations, best.start)
     test = _g_test(result, solved_g)
@@ -357,7 +357,7 @@ def refit_without(
     if solved is None:
         raise SolverError("the gyro model did not converge without the disagreeing turns")
     refit = _result(prob, solved, 1)
-    every = Problem(rot, still, gyro_sigma, clock, g_sensitivity=with_g)
+    every = Problem(rot, still, gyro_sigma, clock, g_sensitivity=with_g, like=result.problem)
     resid, _, chi2, _ = _turn_statistics(every, solved.x)
     return refit, chi2, resid
 
@@ -380,7 +380,7 @@ def refit_moved(
     with_g = result.G is not None
     if x0 is None:
         x0 = np.r_[result.b, result.M.ravel(), result.G.ravel() if with_g else []]
-    prob = Problem(rot, still, gyro_sigma, clock, g_sensitivity=with_g)
+    prob = Problem(rot, still, gyro_sigma, clock, g_sensitivity=with_g, like=result.problem)
     solved = _solve(prob, np.asarray(x0, float), max_iterations, "sigma point")
     if solved is None or not _explains(prob, solved):
         return None
@@ -401,7 +401,8 @@ def step_moved(
     of one integration of the turns (a refit makes five to eight). None when ``x0`` leaves a
     turn unexplained or the step is not finite. For the pre-check of
     :mod:`imucal_cli.solvers.gyro_sigma`."""
-    prob = Problem(rot, still, gyro_sigma, clock, g_sensitivity=result.G is not None)
+    prob = Problem(rot, still, gyro_sigma, clock, g_sensitivity=result.G is not None,
+                   like=result.problem)  # fmt: skip
     x0 = np.asarray(x0, float)
     if not _explains(prob, _Solved(x0, np.zeros(0), np.zeros((0, len(x0))), 0, "", "step")):
         return None
@@ -484,9 +485,10 @@ def accel_sensitivity(
     """
     with_g = result.G is not None
     x = np.r_[result.b, result.M.ravel(), result.G.ravel() if with_g else []]
-    prob = Problem(rot, still, gyro_sigma, clock, g_sensitivity=with_g)
-    if getattr(result, "problem", None) is not None:
-        prob.share(result.problem)  # the attitudes at the solution, already integrated
+    like = getattr(result, "problem", None)
+    prob = Problem(rot, still, gyro_sigma, clock, g_sensitivity=with_g, like=like)
+    if like is not None:
+        prob.share(like)  # the attitudes at the solution, already integrated
     W = prob.whitener(x)
     J = W(prob.residuals_and_jacobian(x)[1])
     m = dg.shape[2]

@@ -103,12 +103,16 @@ class Problem:
         Factor on every sample interval (sample-clock correction).
     g_sensitivity : bool
         Include the 9 parameters of ``G`` (needs ``rot.a``).
+    like : Problem, optional
+        A problem of the same turns' sample times (``like.rot.t is rot.t``): its stacked layout
+        (and the blocked product's, computed once) is reused.
     """
 
     def __init__(self, rot: Rotations, still: Stills, gyro_sigma: float, clock: float = 1.0,
-                 g_sensitivity: bool = False):  # fmt: skip
+                 g_sensitivity: bool = False, like: Problem | None = None):  # fmt: skip
         self.rot, self.still, self.clock = rot, still, clock
-        self.stack = Stack.of(rot.t)
+        same_t = like is not None and like.rot.t is rot.t
+        self.stack = like.stack if same_t else Stack.of(rot.t)
         self.z = np.ascontiguousarray(np.concatenate(rot.z).T, dtype=float)  # (3, N)
         self.with_g = g_sensitivity
         if g_sensitivity and rot.a is None:

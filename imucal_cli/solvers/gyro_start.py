@@ -107,7 +107,7 @@ class _Turns:
             coarse_t.append(tk[keep])
             self.x[k] = cum[-1]
         self.stack = Stack.of(coarse_t)
-        self.coarse_t = coarse_t
+        self.coarse_t, self._stacks = coarse_t, {1: self.stack}
         self.steps = np.concatenate(steps).T  # (3, n_coarse): raw integral of each block
         self.u0 = g_before / np.linalg.norm(g_before, axis=1, keepdims=True)
         self.u1 = g_after / np.linalg.norm(g_after, axis=1, keepdims=True)
@@ -124,7 +124,9 @@ class _Turns:
         out = []
         for i in range(0, len(scales), per):
             part = scales[i : i + per]
-            stack = self.stack if len(part) == 1 else Stack.of(self.coarse_t * len(part))
+            if len(part) not in self._stacks:  # at most BATCH_SAMPLES rows each
+                self._stacks[len(part)] = Stack.of(self.coarse_t * len(part))
+            stack = self._stacks[len(part)]
             phi = np.concatenate([s * self.steps for s in part], axis=1)
             out.append(quat_to_matrix(compose_ends(stack, phi)).reshape(len(part), -1, 3, 3))
         return np.concatenate(out)
