@@ -391,6 +391,7 @@ _CLASS[ord(",")] = _COMMA
 _CLASS[np.frombuffer(b"0123456789+-.eE", np.uint8)] = _DIGIT
 _CLASS[ord("#")] = _HASH
 _BOM = b"\xef\xbb\xbf"
+_CLASS_TABLE = _CLASS.tobytes()  # the same classes as a bytes.translate table
 
 
 def _runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -424,7 +425,7 @@ def _scan_ascii(
     n = len(b)
     if n == 0:
         return None
-    cls = _CLASS[b]  # np.take would first copy b to 8-byte indices (8 bytes a byte)
+    cls = np.frombuffer(raw.translate(_CLASS_TABLE), dtype=np.uint8)  # not np.take: 8 B a byte
     if cls.max() == _INVALID:
         return None
     # Line breaks as split_lines: LF, CR LF (the CR is then white space), and lone CR only in
