@@ -674,3 +674,22 @@ def test_attributes_read_as_h5py_reads_them(tmp_path, monkeypatch, track_order):
             assert attrs.get("absent") is None
             with pytest.raises(SessionError, match="attribute 'huge' declares .* refused"):
                 attrs.get("huge")
+
+
+def test_attributes_that_cannot_be_listed_are_read_through_h5py(tmp_path, monkeypatch):
+    """Where the low-level listing fails, Attributes reads through obj.attrs (get_attr)."""
+    from imucal_cli.formats.session.h5open import Attributes
+
+    path = tmp_path / "a.h5"
+    with h5py.File(path, "w") as f:
+        f.create_group("g").attrs.update({"kind": "static", "start": 3})
+
+    def fail(*_):
+        raise RuntimeError("unlistable")
+
+    with h5py.File(path, "r") as f:
+        monkeypatch.setattr(h5py.h5a, "get_num_attrs", fail)
+        for obj in (f["g"], f["g"].id):
+            attrs = Attributes(obj, "a.h5", "/g: ")
+            assert attrs.get("kind") == "static" and attrs.get("start") == 3
+            assert attrs.get("absent") is None and sorted(attrs) == ["kind", "start"]

@@ -26,6 +26,7 @@ import stat
 import time
 import warnings
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import h5py
@@ -408,8 +409,7 @@ class Attributes:
                 ids[_decode_name(aid.name)] = aid
             self._ids = ids
         except (OSError, TypeError, ValueError, KeyError, RuntimeError):
-            self._attrs = h5py.AttributeManager(obj) if isinstance(obj, _ObjectID) \
-                else obj.attrs  # fmt: skip  (as h5py's high-level API reads them)
+            self._attrs = _attribute_manager(self._obj)  # as h5py's high-level API reads them
 
     @property
     def names(self) -> set:
@@ -421,7 +421,7 @@ class Attributes:
         try:  # obj.attrs lists by creation order where the object tracks it
             tracked = self._obj.get_create_plist().get_attr_creation_order()
         except (OSError, TypeError, ValueError, KeyError, RuntimeError):
-            return iter(h5py.AttributeManager(self._obj))
+            return iter(_attribute_manager(self._obj))
         if not tracked & h5py.h5p.CRT_ORDER_TRACKED or len(self._ids) < 2:
             return iter(list(self._ids))
         opened = (h5py.h5a.open(self._obj, index=i, index_type=h5py.h5.INDEX_CRT_ORDER)
@@ -443,6 +443,11 @@ class Attributes:
             raise SessionError(
                 f"{self.src}: {self.where}attribute {name!r} cannot be read ({one_line(exc)})"
             ) from None
+
+
+def _attribute_manager(oid) -> h5py.AttributeManager:
+    """h5py's ``obj.attrs`` of a low-level id (it keeps only its parent's ``id``)."""
+    return h5py.AttributeManager(SimpleNamespace(id=oid))
 
 
 #: HDF5 types seen, with their numpy dtype and h5py's memory type for it (a session holds a
