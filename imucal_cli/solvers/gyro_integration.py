@@ -3,7 +3,9 @@
 All rotations are stacked end to end (:class:`Stack`); one pass computes every sample
 interval's rotation increment, and a segmented prefix product (``ceil(log2 L)`` vectorised
 passes for segments of at most ``L`` samples) gives each sample's attitude relative to the
-start of its rotation. Time and memory are linear in the number of samples.
+start of its rotation. Time and memory are linear in the number of samples. The products
+are taken on quaternions held as pairs of complex numbers (:func:`qmul`: four numpy passes
+a product where sixteen real products and twelve sums took 28).
 
 Increment over one sample interval ``h`` with the rate linear between samples ``w0``, ``w1``
 (Bortz's rotation-vector equation to second order, the "two-sample coning" form):
@@ -43,11 +45,6 @@ def qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     np.multiply(a1, b2, out=out[1])
     out[1] += b1 * a2.conj()
     return out
-
-
-def to_pairs(q: np.ndarray) -> np.ndarray:
-    """(4, N) quaternions ``[w, x, y, z]`` -> (2, N) complex pairs (:func:`qmul`)."""
-    return q[0::2] + 1j * q[1::2]
 
 
 def from_pairs(c: np.ndarray) -> np.ndarray:
@@ -180,21 +177,26 @@ class Stack:
             self._blocks = (block, flat, bpos, int(n_blocks.max()))
         return self._blocks
 
-    def gather(self, a: np.ndarray) -> np.ndarray:
-        """Per-row values (k, N) laid out as the blocked product wants them, (k, BLOCK, nb)
-        (a gather: cheaper than scattering into that layout); the padding after each
-        segment's last row repeats some row and is to be overwritten (:meth:`padding`)."""
+    def _gathering(self) -> None:
+        """Each slot of the (BLOCK, nb) layout's source row (computed once), and the padding."""
         if self._src is None:
-            block, flat, bpos, _ = self.blocks()
+            _, flat, bpos, _ = self.blocks()
             src = np.zeros(BLOCK * len(bpos), dtype=np.int64)
             filled = np.zeros(len(src), bool)
             src[flat], filled[flat] = np.arange(len(flat)), True
             self._src, self._pad = src, np.flatnonzero(~filled)
+
+    def gather(self, a: np.ndarray) -> np.ndarray:
+        """Per-row values (k, N) laid out as the blocked product wants them, (k, BLOCK, nb)
+        (a gather: cheaper than scattering into that layout); the padding after each
+        segment's last row repeats some row and is to be overwritten (:attr:`padding`)."""
+        self._gathering()
         return a.take(self._src, axis=1).reshape(len(a), BLOCK, -1)
 
     @property
     def padding(self) -> np.ndarray:
-        """Flat indices of the padding in the (BLOCK, nb) layout (after :meth:`gather`)."""
+        """Flat indices of the padding slots in the (BLOCK, nb) layout."""
+        self._gathering()
         return self._pad
 
 
