@@ -479,9 +479,12 @@ def _scan_ascii(
     ok = candidate.copy()
     odd = content & (cls != _DIGIT)
     odd = np.flatnonzero(odd & (cls != _COMMA) if comma else odd)
+    del content, cls  # the per-byte arrays are done with: less held at the peak below
     if len(odd):
         odd_token = np.searchsorted(ts, odd, side="right") - 1
         ok[t_line[odd_token[used[odd_token]]]] = False
+        del odd_token
+    del odd
     if comma:
         u_line, u_field = t_line[used], field[used]
         repeated = (u_line[1:] == u_line[:-1]) & (u_field[1:] == u_field[:-1])
