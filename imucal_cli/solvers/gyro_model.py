@@ -105,7 +105,8 @@ class Problem:
         Include the 9 parameters of ``G`` (needs ``rot.a``).
     like : Problem, optional
         A problem of the same turns' sample times (``like.rot.t is rot.t``): its stacked layout
-        (and the blocked product's, computed once) is reused.
+        (and the blocked product's, computed once) is reused, and with the same still periods
+        around the turns its noise covariance's ordering.
     """
 
     def __init__(self, rot: Rotations, still: Stills, gyro_sigma: float, clock: float = 1.0,
@@ -130,6 +131,9 @@ class Problem:
         self.int_noise = gyro_sigma * np.sqrt(np.add.reduceat(np.r_[h2, 0.0], self.stack.start))
         self._cache: tuple = ()  # (key, attitudes, end rotations or None), newest first
         self._order = None
+        if (same_t and like.rot.before is rot.before and like.rot.after is rot.after
+                and like.P == self.P):  # fmt: skip
+            self._order = like._order  # the same sparsity of the noise covariance
 
     def with_still(self, still: Stills) -> Problem:
         """The same turns with other still periods' gravity (the attitudes, which depend on
