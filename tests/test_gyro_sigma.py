@@ -21,7 +21,7 @@ from imucal_cli.formats.config import Config, config_from_dict
 from imucal_cli.pipeline.calibrate import calibrate_session, suspect_error
 from imucal_cli.simulate.play import simulate_plan
 from imucal_cli.simulate.rotations import simulate_gyro_rotations
-from imucal_cli.solvers.gyro_sigma import GATE, envelope, propagate
+from imucal_cli.solvers.gyro_sigma import GATE, PRECHECK, envelope, propagate
 
 # --- the propagation on functions whose moments are known -----------------------------------
 
@@ -61,6 +61,32 @@ def test_a_quadratic_dependence_gets_its_exact_second_moment():
     e = np.random.default_rng(1).normal(0, s, 400_000)
     assert np.mean((e + b * e**2) ** 2) == pytest.approx(out.cov[0, 0], rel=0.01)
     assert out.cov[1, 1] == pytest.approx(1e-6)  # below the gate: its first order
+
+
+def test_a_step_that_finds_the_first_order_adequate_saves_the_refits():
+    """The pre-check: one Gauss-Newton step per sigma point (here exact) that changes no std
+    by more than PRECHECK keeps the first order without a refit."""
+    rng = np.random.default_rng(0)
+    A = rng.normal(size=(4, 3))
+    C = np.diag([1.0, 4.0, 0.25])
+    x0 = rng.normal(size=4)
+    refit, calls = _counting(lambda th: x0 + A @ th)
+    step, steps = _counting(lambda th: x0 + A @ th + 1e-6 * th[0] ** 2)
+    out = propagate(x0, np.zeros(3), C, A, 1e-4 * np.eye(4), refit, step)
+    assert out.method == "first order" and not calls and steps and out.refits == 0
+    assert out.nonlinearity <= PRECHECK and "no refit" in out.reason
+    np.testing.assert_array_equal(out.cov, A @ C @ A.T)
+
+
+def test_a_step_that_finds_a_nonlinearity_leaves_it_to_the_refits():
+    """Above PRECHECK the refits decide, as without the pre-check (the same result)."""
+    s, b = 0.5, 1.5
+    C = np.diag([s**2, 1e-6])
+    fn = lambda th, _: np.array([th[0] + b * th[0] ** 2, th[1]])  # noqa: E731
+    without = propagate(np.zeros(2), np.zeros(2), C, np.eye(2), 1e-6 * np.eye(2), fn)
+    out = propagate(np.zeros(2), np.zeros(2), C, np.eye(2), 1e-6 * np.eye(2), fn, fn)
+    assert out.method == "sigma points" and out.refits == without.refits > 0
+    np.testing.assert_array_equal(out.cov, without.cov)
 
 
 def test_an_accelerometer_weaker_than_the_noise_is_not_refitted():
@@ -130,12 +156,14 @@ def test_six_faces_seed_9_names_the_nonlinearity_and_is_not_saved_unasked(six_se
 
 def test_a_clean_design_keeps_the_first_order():
     """free:12: the accelerometer (13 poses) moves the gyro by more than its noise in one
-    direction, so the sigma points check it, and keep the first order (changes of 1e-3)."""
+    direction, so the sigma points check it: a Gauss-Newton step at each finds changes of
+    3e-4 (the refits found the same), and the first order is kept without refits."""
     session, _ = simulate_gyro_rotations(plan="free:12", seed=3, created="x")
     cfg = config_from_dict({"accel": {"gravity": {"leave_one_out": False}},
                             "gyro": {"solver": "full", "full": {"g_sensitivity": "off"}}})
     g = calibrate_session(session, cfg).gyro
     prop = g.extra["rate_std"]["accel_propagation"]
-    assert prop["method"] == "first order" and prop["refits"] > 0, prop
+    assert prop["method"] == "first order" and prop["effect"] > GATE, prop
+    assert prop["refits"] == 0 and "no refit" in prop["reason"], prop
     assert prop["nonlinearity"] < 0.01
     assert not g.extra["warnings"]

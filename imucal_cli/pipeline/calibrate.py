@@ -81,10 +81,11 @@ def calibrate_gyro(
                 "accelerometer: set an [accel] solver too"
             )
         from imucal_cli.pipeline.gyro import calibrate_gyro_rotations, gyro_alternatives
-        from imucal_cli.pipeline.gyro_known import calibrate_gyro_known
 
         try:
             if solver == "known":
+                from imucal_cli.pipeline.gyro_known import calibrate_gyro_known
+
                 return calibrate_gyro_known(session, cfg, accel)
             return calibrate_gyro_rotations(session, cfg, accel)
         except DesignError as exc:  # issue 9.6: what would work with what the session has
@@ -112,10 +113,10 @@ def _hk_design(turns) -> bool:
     """Hwangbo & Kanade IV-B: turns about labelled axes whose orthogonal pairs, per mounting,
     give the metric upgrade its 5 independent constraints, and one turn of known angle among
     them for the scale (eq. 31). Sweeps about the vertical there: gravity cannot see them."""
-    from imucal_cli.pipeline.factorization import independent_constraints
-
     if not any(s.angle_deg is not None and s.axis is not None for s in turns):
         return False
+    from imucal_cli.pipeline.factorization import independent_constraints
+
     return independent_constraints(turns) >= 5
 
 

@@ -60,8 +60,6 @@ def auto_accel(session: Session, cfg: Config) -> SensorCalibration | None:
     poses = static_poses(session)
     nominal = nominal_sensor(session, cfg, g)
     where = session_name(session)
-    from .labelled import labelled_section
-
     try:
         check_design(poses, nominal, cfg.accel.min_separation_deg, where)
         gravity_ok = None
@@ -76,6 +74,8 @@ def auto_accel(session: Session, cfg: Config) -> SensorCalibration | None:
         if better is None:
             return _annotate(sec, "gravity", _gravity_reason(sec, n_lab))
         ratios, placement = better
+        from .labelled import labelled_section
+
         lab = labelled_section(session, cfg, poses, g, nominal)
         some = "" if n_lab == len(poses.segments) else (
             f" ({n_lab} of {len(poses.segments)} poses labelled; the others enter by their "
@@ -88,6 +88,8 @@ def auto_accel(session: Session, cfg: Config) -> SensorCalibration | None:
         )
         return _annotate(lab, "labelled", reason)
     if labels_determine(poses.up):
+        from .labelled import labelled_section
+
         sec = labelled_section(session, cfg, poses, g, nominal)
         distinct = sec.extra["coverage"]["n_distinct"]
         reason = (

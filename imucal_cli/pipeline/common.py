@@ -92,10 +92,11 @@ def static_poses(session: Session) -> StaticPoses:
     step = holds.quantum(np.concatenate(blocks[: min(len(blocks), 50)]))
     # Robust per-sample sigma (median absolute deviation, pooled by the median over holds)
     # to find spikes before the covariance is pooled.
-    mad = np.array([np.median(np.abs(b - np.median(b, axis=0)), axis=0) for b in blocks])
+    medians = [np.median(b, axis=0) for b in blocks]
+    mad = np.array([np.median(np.abs(b - m), axis=0) for b, m in zip(blocks, medians, strict=True)])
     sigma0 = np.maximum(1.4826 * np.median(mad, axis=0), max(step, 1e-12))
     n_total = sum(len(b) for b in blocks)
-    masks = [holds.spike_mask(b, sigma0, n_total) for b in blocks]
+    masks = [holds.spike_mask(b, sigma0, n_total, m) for b, m in zip(blocks, medians, strict=True)]
     # A hold that drifts (the unit tilting slowly) puts its ends far from its median: those
     # samples are motion, not spikes; the trend test below flags the hold instead.
     cov0 = np.diag(sigma0**2)
@@ -104,13 +105,17 @@ def static_poses(session: Session) -> StaticPoses:
             masks[k] = np.zeros(len(b), bool)
     clean = [b[~m] if (~m).sum() >= 2 else b for b, m in zip(blocks, masks, strict=True)]
     ctimes = [t[~m] if (~m).sum() >= 2 else t for t, m in zip(times, masks, strict=True)]
-    noise = holds.pooled_noise(clean, step)
-    trends = [holds.trend(t, b, noise.cov, len(segs)) for t, b in zip(ctimes, clean, strict=True)]
+    means = [b.mean(axis=0) for b in clean]  # each hold's mean, used thrice
+    noise = holds.pooled_noise(clean, step, means)
+    limit = holds.trend_limit(na, len(segs))
+    trends = [holds.trend(t, b, noise.cov, len(segs), mean=mu, limit=limit)
+              for t, b, mu in zip(ctimes, clean, means, strict=True)]  # fmt: skip
     moved = np.array([tr.moved for tr in trends])
     if moved.any() and not moved.all():
-        noise = holds.pooled_noise([b for b, m in zip(clean, moved, strict=True) if not m], step)
+        still = np.flatnonzero(~moved)
+        noise = holds.pooled_noise([clean[k] for k in still], step, [means[k] for k in still])
     samples = np.array([len(b) for b in clean], dtype=int)
-    a_mean = np.array([b.mean(axis=0) for b in clean]).reshape(len(segs), na)
+    a_mean = np.array(means).reshape(len(segs), na)
     cov_mean = noise.cov[None, :, :] / samples[:, None, None]
     up = np.full((len(segs), 3), np.nan)
     for k, s in enumerate(segs):
@@ -197,8 +202,8 @@ def nominal_sensor(session: Session, cfg: Config, g: float) -> Nominal:
         if units in ("m/s^2", "g"):
             full = SI_RANGE_G * (g if units == "m/s^2" else 1.0)
             rng = (-full, full)
-        elif units == "counts":
-            finite = accel[np.isfinite(accel).all(axis=1)]
+        elif units == "counts":  # the finite rows copied only when some are not
+            finite = accel if np.isfinite(accel).all() else accel[np.isfinite(accel).all(axis=1)]
             rng = adc_range(float(finite.min()), float(finite.max())) if len(finite) else None
     if a.nominal_bias is not None:
         bias = np.array(per_channel(a.nominal_bias, n, "accel.nominal_bias"))

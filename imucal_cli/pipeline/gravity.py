@@ -126,7 +126,10 @@ def gravity_section(
         cfg.accel.outliers,
         design_check(nominal, cfg, session_name(session)),
     )
-    used_index = np.array([poses.segments.index(s) for s in used.segments])
+    first = {}  # each segment's first index among the poses, as list.index finds it
+    for k, s in enumerate(poses.segments):
+        first.setdefault(s, k)
+    used_index = np.array([first[s] for s in used.segments])
     loo, loo_method = held_out(used, g, res, cfg)
     summary = axes_summary_with_std(_matrix_of(res.variant), res.params, res.cov)
     fit = with_excluded(

@@ -90,17 +90,19 @@ def still_periods(session, accel_cal, cfg, statics) -> tuple[list[Still], float]
         z = session.gyro[s.start : s.stop]
         if accel_cal is not None:
             a = accel_cal.apply(session.accel[s.start : s.stop])
-            a_means.append(a.mean(axis=0))
+            a_mean = a.mean(axis=0, keepdims=True)  # np.var's own mean, computed once
+            a_means.append(a_mean[0])
             raw_means.append(session.accel[s.start : s.stop].mean(axis=0))
         else:
             a = None
             a_means.append(nan3)
             raw_means.append(nan3)
-        z_means.append(z.mean(axis=0))
+        z_mean = z.mean(axis=0, keepdims=True)
+        z_means.append(z_mean[0])
         counts.append(len(z))
         if len(z) > 1:  # pooled within-still variances (issue 10.7), per channel
-            a_var += 0.0 if a is None else np.mean(np.var(a, axis=0)) * len(a)
-            z_var += np.mean(np.var(z, axis=0)) * len(z)
+            a_var += 0.0 if a is None else np.mean(np.var(a, axis=0, mean=a_mean)) * len(a)
+            z_var += np.mean(np.var(z, axis=0, mean=z_mean)) * len(z)
     dof = max(sum(n - 1 for n in counts), 1)
     a_sigma, z_sigma = np.sqrt(a_var / dof), np.sqrt(z_var / dof)
     # Each mean's noise from the pooled per-sample noise: one hold's few samples can make its
@@ -117,20 +119,16 @@ def turns_between(session, stills, turns, gap) -> tuple[list[Turn], list[str]]:
     """The turns with a still period right before and after (within ``gap`` s), and the
     names of the others."""
     usable, skipped = [], []
+    time = session.time
+    start = np.array([s.segment.start for s in stills], dtype=np.int64)
+    stop = np.array([s.segment.stop for s in stills], dtype=np.int64)
+    t_start, t_end = time[start], time[stop - 1]
     for r in turns:
-        t0, t1 = session.time[r.start], session.time[r.stop - 1]
-        before = [
-            k
-            for k, s in enumerate(stills)
-            if s.segment.stop <= r.start + 1 and t0 - session.time[s.segment.stop - 1] <= gap
-        ]
-        after = [
-            k
-            for k, s in enumerate(stills)
-            if s.segment.start >= r.stop - 1 and session.time[s.segment.start] - t1 <= gap
-        ]
-        if before and after:
-            usable.append(Turn(r, before[-1], after[0]))
+        t0, t1 = time[r.start], time[r.stop - 1]
+        before = np.flatnonzero((stop <= r.start + 1) & (t0 - t_end <= gap))
+        after = np.flatnonzero((start >= r.stop - 1) & (t_start - t1 <= gap))
+        if len(before) and len(after):
+            usable.append(Turn(r, int(before[-1]), int(after[0])))
         else:
             skipped.append(r.label or r.name)
     return usable, skipped
@@ -167,7 +165,8 @@ def _saturation_limit(session: Session, cfg: Config) -> tuple[float, float] | No
         return None
     from .common import adc_range
 
-    finite = session.gyro[np.isfinite(session.gyro).all(axis=1)]
+    gyro = session.gyro
+    finite = gyro if np.isfinite(gyro).all() else gyro[np.isfinite(gyro).all(axis=1)]
     rng = adc_range(float(finite.min()), float(finite.max()))
     if rng is None:
         return None

@@ -206,14 +206,20 @@ def accel_propagation(data: GyroData, rot, st, res, C: np.ndarray, A: np.ndarray
     x_hat = np.r_[res.b, res.M.ravel(), res.G.ravel() if with_g else []]
     theta_hat = np.r_[np.asarray(acc.bias, float), np.ravel(acc.matrix)]
 
-    def refit(theta: np.ndarray, x_start: np.ndarray) -> np.ndarray | None:
+    def moved(theta: np.ndarray):
         B, Am = theta[:3], theta[3:].reshape(3, 3)
         moved_st = replace(st, g=(a_raw - B) @ Am.T)
         moved_rot = rot if not with_g else replace(rot, a=[(r - B) @ Am.T for r in turn_raw])
-        return gyro_full.refit_moved(moved_rot, moved_st, data.noise, res, x_start,
+        return moved_rot, moved_st
+
+    def refit(theta: np.ndarray, x_start: np.ndarray) -> np.ndarray | None:
+        return gyro_full.refit_moved(*moved(theta), data.noise, res, x_start,
                                      max_iterations=data.cfg.gyro.full.max_iterations)
 
-    return gyro_sigma.propagate(x_hat, theta_hat, C, A, res.cov, refit)
+    def step(theta: np.ndarray, x_start: np.ndarray) -> np.ndarray | None:
+        return gyro_full.step_moved(*moved(theta), data.noise, res, x_start)
+
+    return gyro_sigma.propagate(x_hat, theta_hat, C, A, res.cov, refit, step)
 
 
 #: The sigma-point std of a parameter, a gain or the rate this many times the first order's

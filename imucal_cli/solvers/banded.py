@@ -116,9 +116,12 @@ class BandedWhitener:
     ridge : float
         Relative regularisation: ``ridge * trace(Sigma) / n`` is added to the diagonal (keeps
         the factor finite when a noise source is exactly zero).
+    order : ndarray of int, optional
+        The ordering of a covariance of the same sparsity pattern (:attr:`perm` of an earlier
+        whitener): the reverse Cuthill-McKee search is skipped.
     """
 
-    def __init__(self, cov, ridge: float = 1e-12):
+    def __init__(self, cov, ridge: float = 1e-12, order: np.ndarray | None = None):
         row, col, data, n = _triplets(cov)
         self.n = n
         if n == 0:
@@ -128,7 +131,7 @@ class BandedWhitener:
         diag = np.arange(n)
         row, col = np.concatenate([row, diag]), np.concatenate([col, diag])
         data = np.concatenate([data, np.full(n, ridge * trace / n)])
-        self.perm = reverse_cuthill_mckee(row, col, n)
+        self.perm = reverse_cuthill_mckee(row, col, n) if order is None else order
         where = np.empty(n, int)
         where[self.perm] = np.arange(n)
         pr, pc = where[row], where[col]

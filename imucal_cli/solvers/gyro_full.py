@@ -54,7 +54,7 @@ AXES = "xyz"
 
 __all__ = ["FullResult", "Rotations", "Stills", "accel_sensitivity", "fit_full",
            "full_information", "integrate_rotations", "parameter_names",
-           "refit_moved", "refit_without"]  # fmt: skip
+           "refit_moved", "refit_without", "step_moved"]  # fmt: skip
 
 
 def parameter_names(n: int) -> list[str]:
@@ -111,6 +111,9 @@ class FullResult:
     turn_sigma_deg: np.ndarray | None = None
     still_chi2: np.ndarray | None = None
     g_test: dict | None = None
+    #: The problem solved (its last evaluation, at the solution, saves the integration of the
+    #: turns to :func:`accel_sensitivity`).
+    problem: Problem | None = field(default=None, repr=False, compare=False)
 
     @property
     def std(self) -> np.ndarray:
@@ -266,7 +269,8 @@ def fit_full(
     result = _result(prob, best, tried)
     if g_sensitivity == "off":
         return result
-    prob_g = Problem(rot, still, gyro_sigma, clock, g_sensitivity=True)
+    prob_g = Problem(rot, still, gyro_sigma, clock, g_sensitivity=True, like=prob)
+    prob_g.share_without_g(prob, best.x)  # the attitudes at the start: the same rates
     solved_g = _solve(prob_g, np.r_[best.x, np.zeros(9)], max_iterations, best.start)
     test = _g_test(result, solved_g)
     result.g_test = test
@@ -353,7 +357,7 @@ def refit_without(
     if solved is None:
         raise SolverError("the gyro model did not converge without the disagreeing turns")
     refit = _result(prob, solved, 1)
-    every = Problem(rot, still, gyro_sigma, clock, g_sensitivity=with_g)
+    every = Problem(rot, still, gyro_sigma, clock, g_sensitivity=with_g, like=result.problem)
     resid, _, chi2, _ = _turn_statistics(every, solved.x)
     return refit, chi2, resid
 
@@ -376,11 +380,36 @@ def refit_moved(
     with_g = result.G is not None
     if x0 is None:
         x0 = np.r_[result.b, result.M.ravel(), result.G.ravel() if with_g else []]
-    prob = Problem(rot, still, gyro_sigma, clock, g_sensitivity=with_g)
+    prob = Problem(rot, still, gyro_sigma, clock, g_sensitivity=with_g, like=result.problem)
     solved = _solve(prob, np.asarray(x0, float), max_iterations, "sigma point")
     if solved is None or not _explains(prob, solved):
         return None
     return solved.x
+
+
+def step_moved(
+    rot: Rotations,
+    still: Stills,
+    gyro_sigma: float,
+    result: FullResult,
+    x0: np.ndarray,
+    *,
+    clock: float = 1.0,
+) -> np.ndarray | None:
+    """One Gauss-Newton step of :func:`refit_moved` from ``x0`` (the noise model at ``x0``):
+    the refit's solution to second order when ``x0`` is the first-order prediction, at the cost
+    of one integration of the turns (a refit makes five to eight). None when ``x0`` leaves a
+    turn unexplained or the step is not finite. For the pre-check of
+    :mod:`imucal_cli.solvers.gyro_sigma`."""
+    prob = Problem(rot, still, gyro_sigma, clock, g_sensitivity=result.G is not None,
+                   like=result.problem)  # fmt: skip
+    x0 = np.asarray(x0, float)
+    if not _explains(prob, _Solved(x0, np.zeros(0), np.zeros((0, len(x0))), 0, "", "step")):
+        return None
+    W = prob.whitener(x0)
+    r, J = prob.residuals_and_jacobian(x0)
+    x = x0 - np.linalg.lstsq(W(J), W(r), rcond=None)[0]
+    return x if np.all(np.isfinite(x)) else None
 
 
 def _result(prob: Problem, solved: _Solved, tried: int) -> FullResult:
@@ -417,6 +446,7 @@ def _result(prob: Problem, solved: _Solved, tried: int) -> FullResult:
         turn_chi2=turn_chi2,
         still_chi2=np.sum(solved.f[2 * prob.K :].reshape(-1, 3) ** 2, axis=1),
         turn_sigma_deg=sigma,
+        problem=prob,
     )
 
 
@@ -455,7 +485,10 @@ def accel_sensitivity(
     """
     with_g = result.G is not None
     x = np.r_[result.b, result.M.ravel(), result.G.ravel() if with_g else []]
-    prob = Problem(rot, still, gyro_sigma, clock, g_sensitivity=with_g)
+    like = getattr(result, "problem", None)
+    prob = Problem(rot, still, gyro_sigma, clock, g_sensitivity=with_g, like=like)
+    if like is not None:
+        prob.share(like)  # the attitudes at the solution, already integrated
     W = prob.whitener(x)
     J = W(prob.residuals_and_jacobian(x)[1])
     m = dg.shape[2]

@@ -103,12 +103,17 @@ class Problem:
         Factor on every sample interval (sample-clock correction).
     g_sensitivity : bool
         Include the 9 parameters of ``G`` (needs ``rot.a``).
+    like : Problem, optional
+        A problem of the same turns' sample times (``like.rot.t is rot.t``): its stacked layout
+        (and the blocked product's, computed once) is reused, and with the same still periods
+        around the turns its noise covariance's ordering.
     """
 
     def __init__(self, rot: Rotations, still: Stills, gyro_sigma: float, clock: float = 1.0,
-                 g_sensitivity: bool = False):  # fmt: skip
+                 g_sensitivity: bool = False, like: Problem | None = None):  # fmt: skip
         self.rot, self.still, self.clock = rot, still, clock
-        self.stack = Stack.of(rot.t)
+        same_t = like is not None and like.rot.t is rot.t
+        self.stack = like.stack if same_t else Stack.of(rot.t)
         self.z = np.ascontiguousarray(np.concatenate(rot.z).T, dtype=float)  # (3, N)
         self.with_g = g_sensitivity
         if g_sensitivity and rot.a is None:
@@ -124,7 +129,11 @@ class Problem:
         h2 = (clock * np.diff(self.stack.t)) ** 2
         h2[self.stack.stop[:-1] - 1] = 0.0
         self.int_noise = gyro_sigma * np.sqrt(np.add.reduceat(np.r_[h2, 0.0], self.stack.start))
-        self._last = (None, None)
+        self._cache: tuple = ()  # (key, attitudes, end rotations or None), newest first
+        self._order = None
+        if (same_t and like.rot.before is rot.before and like.rot.after is rot.after
+                and like.P == self.P):  # fmt: skip
+            self._order = like._order  # the same sparsity of the noise covariance
 
     def with_still(self, still: Stills) -> Problem:
         """The same turns with other still periods' gravity (the attitudes, which depend on
@@ -135,6 +144,26 @@ class Problem:
         other.u = still.g / np.linalg.norm(still.g, axis=1, keepdims=True)
         other.B = tangent(other.u)
         return other
+
+    def share(self, other: Problem) -> None:
+        """Start from ``other``'s last evaluation (the same turns and clock: ``other``'s
+        last point is then evaluated without integrating again)."""
+        if other.rot is self.rot and other.clock == self.clock and other.with_g == self.with_g:
+            self._cache = other._cache
+        if other.rot is self.rot and other.P == self.P:
+            self._order = other._order  # the same sparsity of the noise covariance
+
+    def share_without_g(self, other: Problem, x: np.ndarray) -> None:
+        """Start this g-sensitive problem from ``other``'s (without ``G``) evaluation at
+        ``x``: the same rates at ``(x, G = 0)``, when the turns' specific force is finite."""
+        key = np.asarray(x, float).tobytes()
+        entry = next((e for e in other._cache if e[0] == key), None)
+        if (other.rot is self.rot and other.clock == self.clock and self.with_g
+                and not other.with_g and entry is not None
+                and np.all(np.isfinite(self.a))):  # fmt: skip
+            self._cache = ([np.r_[x, np.zeros(9)].tobytes(), entry[1], entry[2]],)
+        if other.rot is self.rot and other.P == self.P:
+            self._order = other._order
 
     def split(self, x):
         """``(b, M, G)`` from a parameter vector (``G`` zero without the term)."""
@@ -151,19 +180,29 @@ class Problem:
         b, _, G = self.split(x)
         return (self.still.z_mean - b - self.still.g @ G.T).ravel()
 
-    def _attitudes(self, x):
-        """Every sample's attitude in its rotation (4, N); the last evaluation is kept (the
-        solver asks for residuals, Jacobian and noise model at one point in turn)."""
+    def _entry(self, x) -> list:
+        """The integration at ``x``: ``[key, attitudes (4, N), end rotations or None]``. The
+        last two points evaluated are kept (the solver asks for residuals, Jacobian and noise
+        model at one point in turn, and comes back to its best point after a rejected step)."""
         key = x.tobytes()
-        if self._last[0] != key:
-            M = x[3:12].reshape(3, 3)
-            self._last = (key, attitudes(self.stack, M @ self._bias_free(x), self.clock))
-        return self._last[1]
+        for entry in self._cache:
+            if entry[0] == key:
+                return entry
+        M = x[3:12].reshape(3, 3)
+        entry = [key, attitudes(self.stack, M @ self._bias_free(x), self.clock), None]
+        self._cache = (entry, *self._cache[:1])
+        return entry
+
+    def _attitudes(self, x):
+        """Every sample's attitude in its rotation (4, N)."""
+        return self._entry(x)[1]
 
     def predicted(self, x):
         """Predicted gravity direction after each rotation (K, 3) and the rotations (K, 3, 3)."""
-        q = self._attitudes(x)
-        R = quat_to_matrix(q[:, self.stack.stop - 1])
+        entry = self._entry(x)
+        if entry[2] is None:
+            entry[2] = quat_to_matrix(entry[1][:, self.stack.stop - 1])
+        R = entry[2]
         return np.einsum("kji,kj->ki", R, self.u[self.rot.before]), R  # R^T u0
 
     def _rotation_residuals(self, p):
@@ -233,7 +272,11 @@ class Problem:
         return C.gram()
 
     def whitener(self, x) -> Whitener:
-        return Whitener(BandedWhitener(self.rotation_covariance(x)), self)
+        # The covariance's sparsity depends on the turns' still periods only: its ordering is
+        # found once per problem (with_still copies share it).
+        banded = BandedWhitener(self.rotation_covariance(x), order=self._order)
+        self._order = banded.perm
+        return Whitener(banded, self)
 
 
 class Whitener:

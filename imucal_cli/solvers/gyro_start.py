@@ -31,7 +31,7 @@ from itertools import permutations, product
 import numpy as np
 
 from imucal_cli.errors import DesignError
-from imucal_cli.solvers.gyro_integration import Stack, compose, quat_to_matrix
+from imucal_cli.solvers.gyro_integration import Stack, compose_ends, quat_to_matrix
 from imucal_cli.solvers.scalar_min import minimize_bounded
 
 #: Turns that gravity sees by less than this carry no scale information for the start.
@@ -42,6 +42,10 @@ SCALE_QUANTILE = 0.9
 SCALE_BRACKET = (0.7, 3.0)
 #: The coarse integrator of the start composes blocks of samples at about this rate.
 COARSE_RATE_HZ = 25.0
+#: Scales integrated together by the coarse integrator (the turns repeated once per scale) up
+#: to this many samples in all: one pass for several where per-pass costs dominate (short
+#: recordings), bounded memory where the samples do (thousands of turns).
+BATCH_SAMPLES = 1 << 18
 
 
 @dataclass
@@ -103,14 +107,29 @@ class _Turns:
             coarse_t.append(tk[keep])
             self.x[k] = cum[-1]
         self.stack = Stack.of(coarse_t)
+        self.coarse_t, self._stacks = coarse_t, {1: self.stack}
         self.steps = np.concatenate(steps).T  # (3, n_coarse): raw integral of each block
         self.u0 = g_before / np.linalg.norm(g_before, axis=1, keepdims=True)
         self.u1 = g_after / np.linalg.norm(g_after, axis=1, keepdims=True)
 
     def rotations(self, scale: float) -> np.ndarray:
         """(K, 3, 3) rotations of the turns with ``M = scale * I``."""
-        q = compose(self.stack, scale * self.steps)
-        return quat_to_matrix(q[:, self.stack.stop - 1])
+        return self.rotations_at([scale])[0]
+
+    def rotations_at(self, scales) -> np.ndarray:
+        """(S, K, 3, 3) rotations of the turns with ``M = scale * I`` for each of ``S``
+        scales, integrated together (the turns repeated once per scale: one pass for several,
+        up to :data:`BATCH_SAMPLES` coarse samples at a time)."""
+        per = max(1, BATCH_SAMPLES // len(self.stack.t))
+        out = []
+        for i in range(0, len(scales), per):
+            part = scales[i : i + per]
+            if len(part) not in self._stacks:  # at most BATCH_SAMPLES rows each
+                self._stacks[len(part)] = Stack.of(self.coarse_t * len(part))
+            stack = self._stacks[len(part)]
+            phi = np.concatenate([s * self.steps for s in part], axis=1)
+            out.append(quat_to_matrix(compose_ends(stack, phi)).reshape(len(part), -1, 3, 3))
+        return np.concatenate(out)
 
     def mismatch(self, R: np.ndarray, O: np.ndarray) -> np.ndarray:
         """Gravity mismatch of each orientation ``O`` (n, 3, 3) given the turns' rotations
@@ -170,10 +189,10 @@ def start_values(
     O = signed_permutations()
     proper = np.linalg.det(O) > 0
     score = np.full(len(O), np.inf)
-    for f in (1.0, 1.4, 2.0):  # the first scale is a lower bound: look a little above it
-        for sign, which in ((1.0, proper), (-1.0, ~proper)):
-            R = turns.rotations(sign * f * lam)
-            score[which] = np.minimum(score[which], turns.mismatch(R, O[which]))
+    trials = [(sign * f * lam, which) for f in (1.0, 1.4, 2.0)  # the first scale is a lower
+              for sign, which in ((1.0, proper), (-1.0, ~proper))]  # bound: look a little above
+    for R, (_, which) in zip(turns.rotations_at([s for s, _ in trials]), trials, strict=True):
+        score[which] = np.minimum(score[which], turns.mismatch(R, O[which]))
     for i in np.argsort(score)[:n_best]:
         scale, mismatch = _refine_scale(turns, O[i], lam)
         yield Start(scale * O[i], scale, O[i], mismatch)
@@ -188,7 +207,8 @@ def _refine_scale(turns: _Turns, O: np.ndarray, lam: float) -> tuple[float, floa
 
     lo, hi = np.log(lam * SCALE_BRACKET[0]), np.log(lam * SCALE_BRACKET[1])
     grid = np.linspace(lo, hi, 9)
-    values = [cost(g) for g in grid]
+    R = turns.rotations_at(sign * np.exp(grid))  # the grid integrated at once
+    values = [float(turns.mismatch(Rg, O[None])[0]) for Rg in R]
     i = int(np.argmin(values))
     a, b = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
     x, fx, _ = minimize_bounded(cost, a, b, xatol=2e-3)

@@ -55,7 +55,7 @@ def quantum(values: np.ndarray) -> float:
     values of a channel (0 when the data look continuous)."""
     steps = []
     for col in np.atleast_2d(np.asarray(values, float).T):
-        v = np.unique(col[np.isfinite(col)])
+        v = _distinct(col[np.isfinite(col)])
         if len(v) < 2:
             continue
         d = np.diff(v)
@@ -68,7 +68,19 @@ def quantum(values: np.ndarray) -> float:
     return float(min(steps)) if steps else 0.0
 
 
-def pooled_noise(blocks: list[np.ndarray], step: float = 0.0) -> PooledNoise:
+def _distinct(v: np.ndarray) -> np.ndarray:
+    """``np.unique(v)``: for whole numbers over a moderate range (counts) by counting them,
+    a pass instead of a sort."""
+    if len(v) > 64:
+        lo, hi = v.min(), v.max()
+        if hi - lo < 4 * len(v) + 1024 and np.array_equal(v, np.round(v)):
+            counts = np.bincount((v - lo).astype(np.int64))
+            return np.flatnonzero(counts) + lo
+    return np.unique(v)
+
+
+def pooled_noise(blocks: list[np.ndarray], step: float = 0.0,
+                 means: list[np.ndarray] | None = None) -> PooledNoise:  # fmt: skip
     """Pool the sample covariance of several holds.
 
     Parameters
@@ -78,6 +90,8 @@ def pooled_noise(blocks: list[np.ndarray], step: float = 0.0) -> PooledNoise:
     step : float
         Quantisation step of the raw data (see :func:`quantum`); the covariance diagonal is
         floored at ``step^2 / 12`` so a hold that never changed still has a finite weight.
+    means : list of ndarray, optional
+        Each block's ``mean(axis=0)``, when the caller has them.
 
     Returns
     -------
@@ -86,10 +100,10 @@ def pooled_noise(blocks: list[np.ndarray], step: float = 0.0) -> PooledNoise:
     n = blocks[0].shape[1]
     scatter = np.zeros((n, n))
     dof = 0
-    for b in blocks:
+    for k, b in enumerate(blocks):
         if len(b) < 2:
             continue
-        d = b - b.mean(axis=0)
+        d = b - (b.mean(axis=0) if means is None else means[k])
         scatter += d.T @ d
         dof += len(b) - 1
     cov = scatter / dof if dof > 0 else np.zeros((n, n))
@@ -103,7 +117,8 @@ def pooled_noise(blocks: list[np.ndarray], step: float = 0.0) -> PooledNoise:
     return PooledNoise(cov, dof, step)
 
 
-def spike_mask(block: np.ndarray, sigma: np.ndarray, n_total: int) -> np.ndarray:
+def spike_mask(block: np.ndarray, sigma: np.ndarray, n_total: int,
+               median: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
     """Samples of one hold that are spikes: further from the hold's median than the
     Bonferroni threshold of a Gaussian over all ``n_total`` samples of the session.
 
@@ -114,6 +129,8 @@ def spike_mask(block: np.ndarray, sigma: np.ndarray, n_total: int) -> np.ndarray
         Pooled per-sample noise per channel, raw units.
     n_total : int
         Samples tested in the whole session (sets the threshold).
+    median : ndarray, shape (n,), optional
+        The block's ``median(axis=0)``, when the caller has it.
 
     Returns
     -------
@@ -124,7 +141,7 @@ def spike_mask(block: np.ndarray, sigma: np.ndarray, n_total: int) -> np.ndarray
     # Never below 5 sigma, and a little above the quantisation so a hold sitting exactly on
     # two codes is not a spike.
     z_max = max(z_max, 5.0)
-    dev = np.abs(block - np.median(block, axis=0)) / sigma
+    dev = np.abs(block - (np.median(block, axis=0) if median is None else median)) / sigma
     return np.any(dev > z_max + 0.5, axis=1)
 
 
@@ -148,17 +165,25 @@ class Trend:
     moved: bool
 
 
-def trend(time: np.ndarray, block: np.ndarray, cov: np.ndarray, n_holds: int) -> Trend:
-    """Test one hold for slow motion: a linear trend of its samples over time."""
+def trend_limit(n: int, n_holds: int) -> float:
+    """The chi^2 (``n`` degrees of freedom) a hold's trend must exceed: family-wise
+    :data:`TREND_ALPHA` over ``n_holds``."""
+    return float(chdtri(n, TREND_ALPHA / max(n_holds, 1)))
+
+
+def trend(time: np.ndarray, block: np.ndarray, cov: np.ndarray, n_holds: int, *,
+          mean: np.ndarray | None = None, limit: float | None = None) -> Trend:  # fmt: skip
+    """Test one hold for slow motion: a linear trend of its samples over time (``mean``: the
+    block's ``mean(axis=0)``, ``limit``: :func:`trend_limit`, when the caller has them)."""
     n = block.shape[1]
     t = np.asarray(time, float)
     if len(t) < 3 or t[-1] <= t[0]:
         return Trend(np.zeros(n), 0.0, False)
     tc = t - t.mean()
     stt = float(tc @ tc)
-    slope = tc @ (block - block.mean(axis=0)) / stt  # raw units per s
+    slope = tc @ (block - (block.mean(axis=0) if mean is None else mean)) / stt  # per s
     chi2 = float(slope @ np.linalg.solve(cov / stt, slope))
     change = slope * (t[-1] - t[0])
-    limit = float(chdtri(n, TREND_ALPHA / max(n_holds, 1)))
+    limit = trend_limit(n, n_holds) if limit is None else limit
     size = float(np.sqrt(change @ np.linalg.solve(cov, change)))
     return Trend(change, chi2, chi2 > limit and size > TREND_MIN_SIGMAS)

@@ -178,11 +178,23 @@ def window_variance(x: np.ndarray, n: int) -> np.ndarray:
             centre = np.nan_to_num(np.nanmedian(sample, axis=0))
     xc = np.where(finite, x - centre, 0.0)
     zero = np.zeros((1, x.shape[1]))
-    s1 = np.concatenate([zero, np.cumsum(xc, axis=0)])
-    s2 = np.concatenate([zero, np.cumsum(xc * xc, axis=0)])
+    # The same arithmetic in place (a few arrays of the input's size, not a dozen).
+    s1 = np.zeros((len(x) + 1, x.shape[1]))
+    np.cumsum(xc, axis=0, out=s1[1:])
+    xc *= xc
+    s2 = np.zeros_like(s1)
+    np.cumsum(xc, axis=0, out=s2[1:])
+    del xc
     sum1 = s1[n:] - s1[:-n]
-    sum2 = s2[n:] - s2[:-n]
-    var = np.maximum(sum2 - sum1 * sum1 / n, 0.0) / (n - 1)
+    del s1
+    var = s2[n:] - s2[:-n]  # sum2
+    del s2
+    sum1 *= sum1
+    sum1 /= n
+    var -= sum1
+    del sum1
+    np.maximum(var, 0.0, out=var)
+    var /= n - 1
     if not finite.all():
         bad = np.concatenate([zero, np.cumsum(~finite, axis=0)])
         var[(bad[n:] - bad[:-n]) > 0] = np.nan

@@ -16,7 +16,15 @@ import numpy as np
 from imucal_cli.errors import ImucalWarning, SessionError
 from imucal_cli.formats.text import clean_text, clean_tree
 
-from .h5open import check_dataset, file_size, get_attr, member, open_for_reading
+from .h5open import (
+    Attributes,
+    check_dataset,
+    file_size,
+    get_attr,
+    member,
+    member_id,
+    open_for_reading,
+)
 from .model import (
     FORMAT,
     FORMAT_VERSION,
@@ -93,8 +101,9 @@ def _read_open_file(file: h5py.File, src: str, unclosed: bool) -> Session:
 
 def _root_attributes(file: h5py.File, src: str) -> tuple[str, dict, dict]:
     """The root attributes, checked: ``created``, the texts (cleaned) and the numbers."""
+    attrs = Attributes(file, src, "root ")
     root = {
-        name: get_attr(file.attrs, name, src, "root ")
+        name: attrs.get(name)
         for name in (
             "format", "format_version", "created", "sensor", "source", "sample_rate_hz",
             "gravity", "accel_units", "gyro_units", "mag_units", "magnetic_field_uT",
@@ -278,12 +287,14 @@ def _read_segments(
     group = member(file, "segments", src)
     if isinstance(group, h5py.Group):
         for name in group:
-            obj = member(group, name, src)
-            if isinstance(obj, h5py.Group):
+            obj = member_id(group, name, src)
+            if isinstance(obj, (h5py.Group, h5py.h5g.GroupID)):
                 where = f"/segments/{name}"
-                get = _attr_getter(obj.attrs, src, where)
-                segment = _parse_segment(name, get, src, where, n, accel, gyro)
-                extra = ((key, get(key)) for key in obj.attrs if key not in SEGMENT_ATTRS)
+                attrs = Attributes(obj, src, f"{where}: ")
+                segment = _parse_segment(name, attrs.get, src, where, n, accel, gyro)
+                others = attrs.names - SEGMENT_ATTRS  # in order, asked only when there are
+                extra = ((key, attrs.get(key)) for key in (attrs if others else ())
+                         if key in others)  # fmt: skip
                 segment.extra.update(_extra_attrs(extra))
                 segments.append(segment)
     log_group = member(file, LOG_GROUP, src)
@@ -326,10 +337,6 @@ def _extra_attrs(items) -> dict[str, Any]:
             value = value.item()
         extra[clean_text(str(key))] = clean_tree(value)
     return extra
-
-
-def _attr_getter(attrs: h5py.AttributeManager, src: str, where: str) -> Callable[[str], Any]:
-    return lambda name: get_attr(attrs, name, src, f"{where}: ")
 
 
 def _parse_segment(
