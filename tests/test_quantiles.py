@@ -25,9 +25,10 @@ def test_chi2_and_t_quantiles(dof):
 
 
 def test_large_dof_and_normal():
-    # lgamma cancellation limits huge dof to about 1e-9 relative (ample for tests and intervals)
+    # the Cornish-Fisher expansion serves huge dof (the incomplete beta's lgamma cancellation
+    # once limited them to about 1e-9 relative)
     for p in (0.01, 0.975):
-        assert q.stdtrit(1e6, p) == pytest.approx(sp.stdtrit(1e6, p), rel=1e-9)
+        assert q.stdtrit(1e6, p) == pytest.approx(sp.stdtrit(1e6, p), rel=1e-14)
     for p in [1e-300, 1e-20, 1e-8, 0.001, 0.3, 0.5, 0.7, 0.999, 1 - 1e-12]:
         assert q.ndtri(p) == pytest.approx(sp.ndtri(p), rel=1e-12, abs=1e-15)
     assert q.ndtri(0.0) == -np.inf and q.stdtrit(3, 0.5) == 0.0
@@ -39,3 +40,23 @@ def test_arrays_broadcast_like_scipy():
     np.testing.assert_allclose(q.stdtrit(np.minimum(dof, 1e6), 0.975),
                                sp.stdtrit(dof, 0.975), rtol=1e-11)  # fmt: skip
     assert isinstance(q.chdtri(3, 0.5), float) and q.chdtri(dof, 0.5).shape == (3,)
+
+
+def test_t_expansion_where_used():
+    """The t quantile's Cornish-Fisher expansion, wherever it serves (df >= 1000 and its
+    last term small), agrees with scipy.stats.t.ppf to rounding (target 1e-10; it is about
+    1e-15), and leaves the far tails at df near 1000 to Newton."""
+    from scipy.stats import t as student_t
+
+    probs = [1e-12, 1e-9, 1e-6, 1e-3, 0.01, 0.025, 0.1, 0.3, 0.7, 0.9, 0.975, 0.99, 0.999,
+             1 - 1e-6, 1 - 1e-9]  # fmt: skip
+    used = 0
+    for df in [1000, 1500, 3000, 1e4, 34627.07678841758, 1e5, 1e6, 1e7, 1e9]:
+        for p in probs:
+            if q._t_upper_expansion(min(p, 1 - p), df) is None:
+                continue
+            used += 1
+            assert q.stdtrit(df, p) == pytest.approx(student_t.ppf(p, df), rel=1e-14)
+    assert used > 100
+    assert q._t_upper_expansion(1e-12, 1000) is None  # far tail at df 1000: Newton
+    assert q._t_upper_expansion(0.025, 999) is None

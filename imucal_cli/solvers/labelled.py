@@ -160,6 +160,8 @@ LABEL_LIMITED = 0.01
 #: Up to this many label-limited directions the fifth-degree rule (2 m^2 + 1 refits), above
 #: it the third-degree one (2 m refits: the mean of a quadratic, not all of its variance).
 MAX_FIFTH_DEGREE = 8
+#: The gauge of the placements: a rotation of the frame and every direction together.
+GAUGE_MODES = 3
 
 
 @dataclass
@@ -374,9 +376,11 @@ class _State:
 
 
 def _evaluate(prob: Problem, sol) -> _State:
-    J = prob.jacobian(sol.x)
+    if isinstance(sol.jac, np.ndarray):  # least_squares' residuals and Jacobian at sol.x
+        J, r = sol.jac, sol.fun
+    else:  # scipy's sparse solve
+        J, r = prob.jacobian(sol.x), prob.residuals(sol.x)
     h, P = _hat_diag(J)
-    r = prob.residuals(sol.x)
     n_meas = 3 * prob.N
     return _State(
         sol,
@@ -629,7 +633,7 @@ def _label_limited(st: _State) -> tuple[np.ndarray, np.ndarray]:
     cols = (12 + 2 * prob.lab[:, None] + np.arange(2)).ravel()
     lam, V = np.linalg.eigh(st.P[np.ix_(cols, cols)])
     big = lam > LABEL_LIMITED * prob.sigma_p**2
-    if not big.any():
+    if big.sum() <= GAUGE_MODES:  # nothing beyond the gauge (qureshi18-like designs)
         return cols, np.zeros((len(cols), 0))
     Vb = V[:, big] * np.sqrt(lam[big])
     # The gauge (a rotation of the frame and every direction together) in these whitened

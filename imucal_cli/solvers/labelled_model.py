@@ -164,6 +164,10 @@ class Problem:
         self.N = len(a_n)
         self.sigma_p = sigma_p
         self.meas_scale = meas_scale  # measurement sigma multiplier (noise_scale ** 0.5)
+        # The last prediction and where it was made: a Levenberg-Marquardt step evaluates
+        # the residuals at a point, then (accepted) the Jacobian at the same point.
+        self._last: tuple[bytes, tuple[np.ndarray, np.ndarray]] | None = None
+        self._layout: tuple | None = None
 
     @property
     def n_rows(self) -> int:
@@ -175,7 +179,16 @@ class Problem:
         return x[:3], K, x[9:12], x[12:].reshape(self.N, 2)
 
     def predict(self, x):
-        """``f_k`` (N, 3) and ``d f_k / d z_k`` (N, 3, 11), ``z_k = (K upper, phi, delta_k)``."""
+        """``f_k`` (N, 3) and ``d f_k / d z_k`` (N, 3, 11), ``z_k = (K upper, phi, delta_k)``
+        (the arrays of the last call again when ``x`` is the same: not to be modified)."""
+        key = np.asarray(x, float).tobytes()
+        if self._last is not None and self._last[0] == key:
+            return self._last[1]
+        out = self._predict(x)
+        self._last = (key, out)
+        return out
+
+    def _predict(self, x):
         _, K, phi, d = self.split(x)
         Kinv = np.linalg.inv(K)
         R = rotation_matrix(phi)
@@ -210,12 +223,7 @@ class Problem:
         Jt[:, :, :3] = -W
         Jt[:, :, 3:] = -np.einsum("nij,njc->nic", W, D[:, :, :9])
         Jd = -np.einsum("nij,njc->nic", W, D[:, :, 9:])
-        rows_d = np.arange(3 * N).reshape(N, 3)[:, :, None].repeat(2, axis=2)
-        cols_d = (12 + 2 * np.arange(N)[:, None, None] + np.arange(2)[None, None, :]).repeat(
-            3, axis=1
-        )
-        pr_rows = 3 * N + np.arange(2 * L)
-        pr_cols = 12 + (2 * self.lab[:, None] + np.arange(2)).ravel()
+        rows_d, cols_d, pr_rows, pr_cols = self.layout()
         if sparse:
             from scipy.sparse import coo_matrix
 
@@ -228,6 +236,20 @@ class Problem:
         J[rows_d.ravel(), cols_d.ravel()] = Jd.ravel()
         J[pr_rows, pr_cols] = 1.0 / self.sigma_p
         return J
+
+    def layout(self):
+        """Rows and columns of the Jacobian's placement entries: each pose's 3 x 2 block
+        ``(rows_d, cols_d)``, (N, 3, 2) each, and the prior rows' ``(pr_rows, pr_cols)``."""
+        if self._layout is None:
+            N, L = self.N, len(self.lab)
+            rows_d = np.arange(3 * N).reshape(N, 3)[:, :, None].repeat(2, axis=2)
+            cols_d = (12 + 2 * np.arange(N)[:, None, None] + np.arange(2)[None, None, :]).repeat(
+                3, axis=1
+            )
+            pr_rows = 3 * N + np.arange(2 * L)
+            pr_cols = 12 + (2 * self.lab[:, None] + np.arange(2)).ravel()
+            self._layout = (rows_d, cols_d, pr_rows, pr_cols)
+        return self._layout
 
     def marginalise(self, x, P):
         """Second-order marginalisation over the placement (what the Gaussian approximation at

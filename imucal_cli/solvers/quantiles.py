@@ -5,7 +5,8 @@ numbers per calibration: chi-square quantiles for the noise checks, a normal qua
 Student t quantile for confidence intervals, chi-square and F tail probabilities. Each is
 computed here to about 1e-12 relative (tested against scipy in ``tests/test_quantiles.py``):
 the regularised incomplete gamma and beta functions (Numerical Recipes 6.2 and 6.4: series
-and Lentz's continued fractions), inverted by safeguarded Newton.
+and Lentz's continued fractions), inverted by safeguarded Newton; the Student t quantile at
+1000 or more degrees of freedom by its Cornish-Fisher expansion (about 1e-16 there).
 
 The names and argument orders of ``scipy.special`` are kept (``chdtri(v, p)``,
 ``chdtrc(v, x)``, ``ndtri(p)``, ``stdtrit(df, p)``, ``fdtrc(dfn, dfd, x)``); they take
@@ -199,14 +200,52 @@ def _t_sf(t: float, df: float) -> float:
 
 
 def _t_ppf(p: float, df: float) -> float:
-    """Student t quantile: Newton on the upper tail (bisection where Newton leaves the
-    bracket), started from the normal quantile."""
+    """Student t quantile: at large ``df`` Cornish-Fisher's expansion where it is exact to
+    rounding (:func:`_t_upper_expansion`), else Newton on the upper tail (bisection where
+    Newton leaves the bracket), started from the normal quantile."""
     if not 0.0 < p < 1.0:
         return -math.inf if p == 0.0 else (math.inf if p == 1.0 else math.nan)
     if p == 0.5:
         return 0.0
     sign, q = (-1.0, p) if p < 0.5 else (1.0, 1.0 - p)  # find t > 0 with P(T > t) = q
-    return sign * _t_upper(q, df)
+    t = _t_upper_expansion(q, df)
+    return sign * (t if t is not None else _t_upper(q, df))
+
+
+#: The expansion serves from this many degrees of freedom up ...
+T_EXPANSION_MIN_DF = 1000.0
+#: ... where its last term is at most this fraction of the quantile (the first term left out
+#: is then below 1e-15 of it: 3e-19 at df = 1000 and p = 0.975, 4e-15 at df = 1000 and
+#: p = 1 - 1e-7, which the bound sends to Newton; checked against mpmath in the tests).
+T_EXPANSION_LAST_TERM = 1e-13
+
+
+def _t_upper_expansion(q: float, df: float) -> float | None:
+    """``t > 0`` with ``P(T_df > t) = q < 0.5`` by the Cornish-Fisher expansion of the t
+    quantile about the normal one ``z`` (Abramowitz & Stegun 26.7.5, Hill 1970), five terms::
+
+        t = z + g1/df + g2/df^2 + g3/df^3 + g4/df^4 + g5/df^5,
+
+    or None where the last term shows that five are not enough (small ``df``, far tails).
+    The Newton solve it replaces needs 20 evaluations of the incomplete beta function, each
+    a continued fraction of ``sqrt(df)`` terms: 1.3 ms at 35,000 degrees of freedom (the
+    labelled solver's t intervals), here 10 us. It is also the more accurate there (the
+    incomplete beta's prefactor, from lgamma of ``df / 2``, loses about 1e-11 at 35,000)."""
+    if df < T_EXPANSION_MIN_DF:
+        return None
+    z = -_normal_ppf(q)
+    z2 = z * z
+    g1 = (z2 + 1.0) * z / 4.0
+    g2 = ((5.0 * z2 + 16.0) * z2 + 3.0) * z / 96.0
+    g3 = (((3.0 * z2 + 19.0) * z2 + 17.0) * z2 - 15.0) * z / 384.0
+    g4 = ((((79.0 * z2 + 776.0) * z2 + 1482.0) * z2 - 1920.0) * z2 - 945.0) * z / 92160.0
+    g5 = (((((27.0 * z2 + 339.0) * z2 + 930.0) * z2 - 1782.0) * z2 - 765.0) * z2
+          + 17955.0) * z / 368640.0  # fmt: skip
+    v = 1.0 / df
+    last = g5 * v**5
+    if not abs(last) <= T_EXPANSION_LAST_TERM * z:
+        return None
+    return z + v * (g1 + v * (g2 + v * (g3 + v * (g4 + v * g5))))
 
 
 def _t_upper(q: float, df: float) -> float:
