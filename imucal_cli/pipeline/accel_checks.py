@@ -175,7 +175,7 @@ def _flagged(res, poses: StaticPoses, done: set[int], index: np.ndarray) -> np.n
     """Poses flagged by their statistic or by motion during the hold, worst first, not yet
     handled."""
     d = res.deletion
-    bad = list(out.flag(d.T, d.rank))
+    bad = list(out.flag(d.T, d.rank, chi2=d.chi2, dof=d.dof))
     if poses.moved is not None:
         bad += [k for k in np.flatnonzero(poses.moved) if k not in bad]
     return np.array([k for k in bad if int(index[k]) not in done], dtype=int)
@@ -183,7 +183,7 @@ def _flagged(res, poses: StaticPoses, done: set[int], index: np.ndarray) -> np.n
 
 def _describe(res, poses: StaticPoses, k: int, index: np.ndarray) -> Outlier:
     d = res.deletion
-    s2 = out.noise_excess(d.T, d.rank)
+    s2 = out.noise_excess(d.T, d.rank, d.chi2, d.dof)
     rank = max(int(d.rank[k]), 1)
     excess = float(np.sqrt(max(d.T[k], 0.0) / rank))  # against the measured noise
     n = int(np.sum(d.rank > 0)) or 1

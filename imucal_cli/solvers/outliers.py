@@ -10,15 +10,19 @@ and lowers the sum of squares by the pose's studentized statistic::
 
     T_k = r_k^T (I - H_kk)^+ r_k  ~  chi^2(rank(I - H_kk))   if the pose agrees with the rest.
 
-``T_k`` is tested against the measured noise, scaled by ``s^2 = max(1, median-based estimate
-of the residual variance)`` so that a recording whose noise is a little above what its holds
-show (correlated noise, a slightly nonlinear part) does not flag every pose, while one bad
-pose cannot hide: the median ignores it. The threshold is Bonferroni over the poses.
+``T_k`` is tested against the measured noise, scaled by ``s^2``, an estimate of the residual
+variance (>= 1) so that a recording whose noise is a little above what its holds show
+(correlated noise, a slightly nonlinear part) does not flag every pose, while one bad pose
+cannot hide. ``s^2`` is the smaller of two estimates: the median of ``T_k`` over the median of
+``chi^2(rank_k)``, which one bad pose of ordinary leverage does not move; and the variance
+left once the worst pose is deleted, ``(chi^2 - T_max) / (dof - rank_max)``, for a bad pose
+of high leverage (a bumped edge pose of Qureshi's 18) that drags the fit and with it every
+other pose's ``T_k``. The threshold is Bonferroni over the poses.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -41,18 +45,25 @@ class Deletion:
         measured noise.
     rank : ndarray of int, shape (N,)
         Its degrees of freedom (0: the pose cannot be checked: nothing else determines it).
+    chi2 : float
+        The whole fit's sum of squared whitened residuals (NaN: not known).
+    dof : int
+        Its degrees of freedom (equations minus parameters).
     """
 
     dx: np.ndarray
     T: np.ndarray
     rank: np.ndarray
+    chi2: float = float("nan")
+    dof: int = 0
 
 
 def deletion(J: np.ndarray, r: np.ndarray, groups: list[np.ndarray], P: np.ndarray) -> Deletion:
     """Deletion diagnostics (module docstring) of the row groups of a whitened fit."""
     N, p = len(groups), J.shape[1]
+    whole = dict(chi2=float(r @ r), dof=len(r) - p)
     if N and len({len(g) for g in groups}) == 1:
-        return _deletion_batched(J, r, np.array(groups), P)
+        return replace(_deletion_batched(J, r, np.array(groups), P), **whole)
     dx = np.zeros((N, p))
     T = np.zeros(N)
     rank = np.zeros(N, dtype=int)
@@ -67,7 +78,7 @@ def deletion(J: np.ndarray, r: np.ndarray, groups: list[np.ndarray], P: np.ndarr
         z = V[:, keep].T @ r[rows]
         T[k] = float(z @ (z / w[keep]))
         dx[k] = P @ (Jk.T @ (V[:, keep] @ (z / w[keep])))
-    return Deletion(dx, T, rank)
+    return Deletion(dx, T, rank, **whole)
 
 
 def _deletion_batched(J: np.ndarray, r: np.ndarray, idx: np.ndarray, P: np.ndarray) -> Deletion:
@@ -84,22 +95,34 @@ def _deletion_batched(J: np.ndarray, r: np.ndarray, idx: np.ndarray, P: np.ndarr
     return Deletion(dx, T, keep.sum(axis=1))
 
 
-def noise_excess(T: np.ndarray, rank: np.ndarray) -> float:
+def noise_excess(
+    T: np.ndarray, rank: np.ndarray, chi2: float = float("nan"), dof: int = 0
+) -> float:
     """Robust factor by which the residual variance exceeds the measured noise (>= 1): the
-    median of ``T_k`` over the median of ``chi^2(rank_k)``."""
+    smaller of the median of ``T_k`` over the median of ``chi^2(rank_k)`` and, where the
+    fit's ``chi2`` and ``dof`` are given, the variance left without the worst pose (module
+    docstring)."""
     ok = rank > 0
     if ok.sum() < 3:
         return 1.0
     medians = chdtri(rank[ok].astype(float), 0.5)
-    return float(max(1.0, np.median(T[ok]) / np.median(medians)))
+    s2 = float(np.median(T[ok]) / np.median(medians))
+    worst = int(np.argmax(np.where(ok, T, -np.inf)))
+    rest_dof = dof - int(rank[worst])
+    if np.isfinite(chi2) and rest_dof > 0:
+        s2 = min(s2, max(chi2 - float(T[worst]), 0.0) / rest_dof)
+    return float(max(1.0, s2))
 
 
-def flag(T: np.ndarray, rank: np.ndarray, alpha: float = OUTLIER_ALPHA) -> np.ndarray:
+def flag(
+    T: np.ndarray, rank: np.ndarray, alpha: float = OUTLIER_ALPHA, chi2: float = float("nan"),
+    dof: int = 0,
+) -> np.ndarray:  # fmt: skip
     """Poses whose statistic exceeds the Bonferroni threshold, worst first (indices)."""
     ok = rank > 0
     if not ok.any():
         return np.zeros(0, dtype=int)
-    s2 = noise_excess(T, rank)
+    s2 = noise_excess(T, rank, chi2, dof)
     limit = np.full(len(T), np.inf)
     limit[ok] = chdtri(rank[ok].astype(float), alpha / ok.sum())
     ratio = T / (s2 * limit)
