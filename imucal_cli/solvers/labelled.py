@@ -114,8 +114,9 @@ from imucal_cli.solvers.rotation import Rotation
 from .gravity import _UPPER
 from .labelled_model import (
     Problem,
+    axes_many,
     jacobian,
-    public_from_theta,
+    public_from_thetas,
     public_params,  # noqa: F401 (re-exported: the truth in these parameters)
     rotation_matrix,
     second_order,
@@ -352,6 +353,7 @@ def _solve(prob: Problem, x0, max_iterations):
         ftol=1e-12,
         gtol=1e-12,
         max_nfev=max_iterations,
+        blocks=(12, 2),  # each pose's two angles enter only its own rows
     )
 
 
@@ -495,20 +497,20 @@ def fit_labelled(
 
 def _result(st: _State, offset, scale, a_mean, up, labelled, g, source, noise_dof):
     prob = st.prob
-    svals = np.linalg.svd(st.J, compute_uv=False)
-    if svals[-1] <= 1e-10 * svals[0]:
+    if _undetermined(st):
         raise DesignError(
             "the poses and labels leave the matrix undetermined; label more poses (each face up)"
         )
     x12 = st.sol.x[:12]
 
-    def theta(v):  # (B raw, K raw, r deg) from normalised x
-        return np.concatenate([offset + scale * v[:3], v[3:9] / scale, np.degrees(v[9:12])])
+    def public(v):  # public parameters of normalised x (n, 12): (B raw, K raw, r deg) first
+        v = np.atleast_2d(v)
+        return public_from_thetas(
+            np.concatenate([offset + scale * v[:, :3], v[:, 3:9] / scale,
+                            np.degrees(v[:, 9:12])], axis=1)
+        )  # fmt: skip
 
-    def public(v):
-        return public_from_theta(theta(v))
-
-    T = jacobian(public, x12, floor=theta_floor(x12))
+    T = jacobian(public, x12, floor=theta_floor(x12), many=True)
     n_meas = 3 * prob.N
     Pt = st.P[:, :12]
     Jm, Jp = st.J[:n_meas], st.J[n_meas:]
@@ -519,9 +521,9 @@ def _result(st: _State, offset, scale, a_mean, up, labelled, g, source, noise_do
     # Second order: the sensitivities and angles are curved functions of K, whose cross-axis
     # terms the labels (not the data) fix on six faces: remove that bias, add that variance
     # (unless the placement's propagation (L6) below, which includes it, runs).
-    axes_of = lambda k: public_from_theta(np.r_[np.zeros(3), k, np.zeros(3)])[3:9]  # noqa: E731
-    bias2, extra2 = second_order(axes_of, x12[3:9], st.P[3:9, 3:9])
-    params = public(x12)
+    axes_of = lambda k: axes_many(_matrices(k))  # noqa: E731
+    bias2, extra2 = second_order(axes_of, x12[3:9], st.P[3:9, 3:9], many=True)
+    params = public(x12)[0]
     params[3:9] -= bias2
     extra, m = _placement_beyond_first_order(st, public, params)
     if m == 0:
@@ -529,7 +531,7 @@ def _result(st: _State, offset, scale, a_mean, up, labelled, g, source, noise_do
     parts["placement_second_order"] = extra
     cov = parts["measurement"] + parts["placement"] + extra
     Kn = np.zeros((3, 3))
-    Kn[_UPPER] = x12[3:9] - np.linalg.solve(jacobian(axes_of, x12[3:9]), bias2)
+    Kn[_UPPER] = x12[3:9] - np.linalg.solve(jacobian(axes_of, x12[3:9], many=True), bias2)
     B = offset + scale * x12[:3]
     M = rotation_matrix(x12[9:12]) @ Kn / scale
     t_dof = _t_dof(parts, st.placement_dof, source, noise_dof)
@@ -569,6 +571,23 @@ def _result(st: _State, offset, scale, a_mean, up, labelled, g, source, noise_do
         message=str(st.sol.message),
         cov_parts={**parts, "label_limited": m},
     )
+
+
+def _matrices(k: np.ndarray) -> np.ndarray:
+    """``K^-1`` of each row of upper-triangle entries ``k`` (n, 6): (n, 3, 3)."""
+    K = np.zeros((len(k), 3, 3))
+    K[:, _UPPER[0], _UPPER[1]] = k
+    return np.linalg.inv(K)
+
+
+def _undetermined(st: _State) -> bool:
+    """Whether the Jacobian's condition number is at least 1e10. ``tr(J^T J) tr(P)`` bounds its
+    square from above: where that bound is below 1e18 the singular values are not needed."""
+    bound = float(np.sum(st.J * st.J)) * float(np.trace(st.P))
+    if np.isfinite(bound) and bound < 1e18:
+        return False
+    svals = np.linalg.svd(st.J, compute_uv=False)
+    return bool(svals[-1] <= 1e-10 * svals[0])
 
 
 def _held_out(prob: Problem, st: _State, dele: Deletion, offset, scale, a_mean, g):
@@ -645,6 +664,15 @@ def _label_limited(st: _State) -> tuple[np.ndarray, np.ndarray]:
 
 def _refit(prob: Problem, x: np.ndarray, free: np.ndarray) -> np.ndarray:
     """``x`` with its ``free`` coordinates refitted to the measurements (the others held)."""
+    if len(free) == 12:  # every direction held: linear
+        y = _refit_linear(prob, x)
+        if y is not None:
+            return y
+    return _refit_iterative(prob, x, free)
+
+
+def _refit_iterative(prob: Problem, x: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """:func:`_refit` by Levenberg-Marquardt from ``x``."""
     n_meas = 3 * prob.N
 
     def whole(v):
@@ -663,6 +691,34 @@ def _refit(prob: Problem, x: np.ndarray, free: np.ndarray) -> np.ndarray:
         max_nfev=50,
     )
     return whole(sol.x)
+
+
+def _refit_linear(prob: Problem, x: np.ndarray) -> np.ndarray | None:
+    """:func:`_refit` of ``(B, K, phi)`` with every direction held. The prediction (L2) is then
+    linear in ``B`` and ``M' = g K^-1 R(phi)^T``::
+
+        W_k (a_k - o_k) = W_k B + W_k M' u_k,      (o_k: the marginalisation's offset)
+
+    one weighted linear least-squares solve; ``R K = g M'^-1`` gives ``K`` and ``phi`` back
+    (:func:`triangular_and_rotation`). None where that lands on another branch than ``x``
+    (signs of ``K``'s diagonal, the rotation vector's wrap): the iterative refit then."""
+    _, K_x, phi_x, d = prob.split(x)
+    u, _ = sphere_exp(prob.u0, prob.T, d)
+    N = prob.N
+    X = np.zeros((N, 3, 12))  # [B | M' row-major] per pose
+    X[:, :, :3] = np.eye(3)
+    for i in range(3):
+        X[:, i, 3 + 3 * i : 6 + 3 * i] = u
+    A = np.einsum("nij,njc->nic", prob.W, X).reshape(3 * N, 12)
+    y = np.einsum("nij,nj->ni", prob.W, prob.a_n - prob.offset).ravel()
+    sol, *_ = np.linalg.lstsq(A, y, rcond=None)
+    K, Q = triangular_and_rotation(prob.g * np.linalg.inv(sol[3:].reshape(3, 3)))
+    phi = Rotation.from_matrix(Q).as_rotvec()
+    if np.any(np.sign(np.diag(K)) != np.sign(np.diag(K_x))) or np.linalg.norm(phi - phi_x) > 1:
+        return None
+    out = x.copy()
+    out[:3], out[3:9], out[9:12] = sol[:3], K[_UPPER], phi
+    return out
 
 
 def _placement_beyond_first_order(st: _State, public, p_hat: np.ndarray):
@@ -685,7 +741,8 @@ def _placement_beyond_first_order(st: _State, public, p_hat: np.ndarray):
     for i, xi in enumerate(nodes):
         y = x.copy()
         y[cols] += V @ xi
-        Y[i] = public(_refit(prob, y, free)[:12]) - p_hat
+        Y[i] = _refit(prob, y, free)[:12]
+    Y = public(Y) - p_hat
     G = (Y[1 : 2 * m + 1 : 2] - Y[2 : 2 * m + 1 : 2]) / (2 * a)  # first order, (m, 12)
     extra = (Y * w[:, None]).T @ Y - G.T @ G
     ev, U = np.linalg.eigh((extra + extra.T) / 2)

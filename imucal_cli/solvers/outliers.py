@@ -85,13 +85,14 @@ def _deletion_batched(J: np.ndarray, r: np.ndarray, idx: np.ndarray, P: np.ndarr
     """:func:`deletion` for groups of equal size, all at once (idx: (N, L) row indices)."""
     Jg = J[idx]  # (N, L, p)
     L = idx.shape[1]
-    A = np.eye(L) - np.einsum("nip,pq,njq->nij", Jg, P, Jg)
+    JgP = Jg @ P.T  # (P J_k^T)^T
+    A = np.eye(L) - JgP @ np.swapaxes(Jg, 1, 2)  # I - H_kk, transposed (symmetrised below)
     w, V = np.linalg.eigh(0.5 * (A + np.swapaxes(A, 1, 2)))
     keep = w > 1e-8
     z = np.einsum("nij,ni->nj", V, r[idx])
     zw = np.where(keep, z / np.where(keep, w, 1.0), 0.0)
     T = np.sum(z * zw, axis=1)
-    dx = np.einsum("pq,niq,nij,nj->np", P, Jg, V, zw)
+    dx = np.einsum("nip,ni->np", JgP, np.einsum("nij,nj->ni", V, zw))  # P J_k^T V (z / w)
     return Deletion(dx, T, keep.sum(axis=1))
 
 
