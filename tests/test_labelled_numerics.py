@@ -113,23 +113,24 @@ def test_linear_refit_is_the_iterative_refit(monkeypatch):
     """Six faces (every direction labelled): each node's refit of (B, K, phi) by the linear
     solve equals Levenberg-Marquardt's from the node."""
     calls = []
-    original = labelled._refit
+    original = labelled._refit_linear
 
-    def record(prob, x, free):
-        calls.append((prob, x.copy(), free))
-        return original(prob, x, free)
+    def record(prob, X):
+        calls.append((prob, X.copy()))
+        return original(prob, X)
 
-    monkeypatch.setattr(labelled, "_refit", record)
+    monkeypatch.setattr(labelled, "_refit_linear", record)
     session, _ = simulate(plan="six", seed=2, created=CREATED)
     p = static_poses(session)
     res = labelled.fit_labelled(p.a_mean, p.up, G0, p.cov_mean, placement_deg=2.0)
-    assert res.cov_parts["label_limited"] == 3 and len(calls) == 2 * 3**2 + 1
-    for prob, x, free in calls[:5]:
-        linear = labelled._refit_linear(prob, x)
-        assert linear is not None
-        iterative = labelled._refit_iterative(prob, x, free)
-        np.testing.assert_allclose(linear[:12], iterative[:12], rtol=1e-9, atol=1e-12)
-        np.testing.assert_array_equal(linear[12:], x[12:])  # the directions held
+    assert res.cov_parts["label_limited"] == 3 and len(calls) == 1
+    prob, X = calls[0]
+    assert len(X) == 2 * 3**2 + 1
+    linear = original(prob, X)
+    for x, lin in zip(X, linear, strict=True):
+        iterative = labelled._refit_iterative(prob, x, np.arange(12))
+        np.testing.assert_allclose(lin[:12], iterative[:12], rtol=1e-9, atol=1e-12)
+        np.testing.assert_array_equal(lin[12:], x[12:])  # the directions held
 
 
 def test_values_are_the_predictions():
@@ -151,3 +152,22 @@ def test_values_are_the_predictions():
     f = prob.values(x).copy()
     np.testing.assert_array_equal(f, prob.predict(x)[0])
     assert res.converged
+
+
+def test_deletion_of_groups_of_two_sizes_is_the_per_group_formula():
+    """Labelled and unlabelled poses (5 and 3 rows) batched by size: the module formula."""
+    from imucal_cli.solvers.outliers import deletion
+
+    rng = np.random.default_rng(6)
+    sizes = [5, 3, 5, 5, 3, 3, 5, 5, 3, 5]
+    starts = np.concatenate([[0], np.cumsum(sizes)])
+    groups = [np.arange(a, a + n) for a, n in zip(starts, sizes, strict=False)]
+    J, r = rng.normal(size=(starts[-1], 9)), rng.normal(size=starts[-1])
+    P = np.linalg.inv(J.T @ J)
+    d = deletion(J, r, groups, P)
+    for k, rows in enumerate(groups):
+        A = np.eye(len(rows)) - J[rows] @ P @ J[rows].T
+        T = r[rows] @ np.linalg.solve(A, r[rows])
+        dx = P @ J[rows].T @ np.linalg.solve(A, r[rows])
+        assert d.T[k] == pytest.approx(T, rel=1e-9) and d.rank[k] == len(rows)
+        np.testing.assert_allclose(d.dx[k], dx, rtol=1e-8, atol=1e-12)

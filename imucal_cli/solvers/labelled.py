@@ -662,17 +662,9 @@ def _label_limited(st: _State) -> tuple[np.ndarray, np.ndarray]:
     return cols, Vb @ Q[:, gauge.shape[1] :]
 
 
-def _refit(prob: Problem, x: np.ndarray, free: np.ndarray) -> np.ndarray:
-    """``x`` with its ``free`` coordinates refitted to the measurements (the others held)."""
-    if len(free) == 12:  # every direction held: linear
-        y = _refit_linear(prob, x)
-        if y is not None:
-            return y
-    return _refit_iterative(prob, x, free)
-
-
 def _refit_iterative(prob: Problem, x: np.ndarray, free: np.ndarray) -> np.ndarray:
-    """:func:`_refit` by Levenberg-Marquardt from ``x``."""
+    """``x`` with its ``free`` coordinates refitted to the measurements (the others held), by
+    Levenberg-Marquardt from ``x``."""
     n_meas = 3 * prob.N
 
     def whole(v):
@@ -693,31 +685,39 @@ def _refit_iterative(prob: Problem, x: np.ndarray, free: np.ndarray) -> np.ndarr
     return whole(sol.x)
 
 
-def _refit_linear(prob: Problem, x: np.ndarray) -> np.ndarray | None:
-    """:func:`_refit` of ``(B, K, phi)`` with every direction held. The prediction (L2) is then
-    linear in ``B`` and ``M' = g K^-1 R(phi)^T``::
+def _refit_linear(prob: Problem, X: np.ndarray) -> np.ndarray:
+    """:func:`_refit_iterative` of ``(B, K, phi)`` with every direction held, at each row of ``X``
+    (n, len(x)). The prediction (L2) is then linear in ``B`` and ``M' = g K^-1 R(phi)^T``::
 
         W_k (a_k - o_k) = W_k B + W_k M' u_k,      (o_k: the marginalisation's offset)
 
-    one weighted linear least-squares solve; ``R K = g M'^-1`` gives ``K`` and ``phi`` back
-    (:func:`triangular_and_rotation`). None where that lands on another branch than ``x``
-    (signs of ``K``'s diagonal, the rotation vector's wrap): the iterative refit then."""
-    _, K_x, phi_x, d = prob.split(x)
-    u, _ = sphere_exp(prob.u0, prob.T, d)
-    N = prob.N
-    X = np.zeros((N, 3, 12))  # [B | M' row-major] per pose
-    X[:, :, :3] = np.eye(3)
+    one weighted linear least-squares solve (QR) per row; ``R K = g M'^-1`` gives ``K`` and
+    ``phi`` back (as :func:`triangular_and_rotation`). NaN rows where that lands on another
+    branch than the row (signs of ``K``'s diagonal, the rotation vector's wrap): those are
+    for the iterative refit."""
+    n, N = len(X), prob.N
+    u, _ = sphere_exp(np.tile(prob.u0, (n, 1)), np.tile(prob.T, (n, 1, 1)),
+                      X[:, 12:].reshape(n * N, 2))  # fmt: skip
+    D = np.zeros((n, N, 3, 12))  # d prediction / d [B | M' row-major], per pose
+    D[..., :3] = np.eye(3)
     for i in range(3):
-        X[:, i, 3 + 3 * i : 6 + 3 * i] = u
-    A = np.einsum("nij,njc->nic", prob.W, X).reshape(3 * N, 12)
-    y = np.einsum("nij,nj->ni", prob.W, prob.a_n - prob.offset).ravel()
-    sol, *_ = np.linalg.lstsq(A, y, rcond=None)
-    K, Q = triangular_and_rotation(prob.g * np.linalg.inv(sol[3:].reshape(3, 3)))
-    phi = Rotation.from_matrix(Q).as_rotvec()
-    if np.any(np.sign(np.diag(K)) != np.sign(np.diag(K_x))) or np.linalg.norm(phi - phi_x) > 1:
-        return None
-    out = x.copy()
-    out[:3], out[3:9], out[9:12] = sol[:3], K[_UPPER], phi
+        D[:, :, i, 3 + 3 * i : 6 + 3 * i] = u.reshape(n, N, 3)
+    A = np.einsum("kij,nkjc->nkic", prob.W, D).reshape(n, 3 * N, 12)
+    y = np.einsum("kij,kj->ki", prob.W, prob.a_n - prob.offset).ravel()
+    Q, R = np.linalg.qr(A)
+    sol = np.linalg.solve(R, np.swapaxes(Q, 1, 2) @ y[:, None])[..., 0]
+    Qm, K = np.linalg.qr(prob.g * np.linalg.inv(sol[:, 3:].reshape(n, 3, 3)))  # M = Q K
+    sign = np.sign(np.diagonal(K, axis1=1, axis2=2))
+    Qm, K = Qm * sign[:, None, :], K * sign[:, :, None]
+    mirrored = np.linalg.det(Qm) < 0  # a proper rotation, k_z negative
+    Qm[mirrored, :, 2] *= -1
+    K[mirrored, 2, :] *= -1
+    phi = Rotation.from_matrix(Qm).as_rotvec()
+    out = X.copy()
+    out[:, :3], out[:, 3:9], out[:, 9:12] = sol[:, :3], K[:, _UPPER[0], _UPPER[1]], phi
+    other = np.any(np.sign(out[:, 3:6]) != np.sign(X[:, 3:6]), axis=1)  # K's diagonal
+    other |= np.linalg.norm(phi - X[:, 9:12], axis=1) > 1
+    out[other] = np.nan
     return out
 
 
@@ -737,12 +737,12 @@ def _placement_beyond_first_order(st: _State, public, p_hat: np.ndarray):
     held[cols] = True
     free = np.flatnonzero(~held)
     nodes, w, a = symmetric_rule(m)
-    Y = np.empty((len(nodes), 12))
-    for i, xi in enumerate(nodes):
-        y = x.copy()
-        y[cols] += V @ xi
-        Y[i] = _refit(prob, y, free)[:12]
-    Y = public(Y) - p_hat
+    X = np.tile(x, (len(nodes), 1))
+    X[:, cols] += nodes @ V.T
+    Y = _refit_linear(prob, X) if len(free) == 12 else np.full(X.shape, np.nan)
+    for i in np.flatnonzero(~np.isfinite(Y).all(axis=1)):  # not linear: iteratively
+        Y[i] = _refit_iterative(prob, X[i], free)
+    Y = public(Y[:, :12]) - p_hat
     G = (Y[1 : 2 * m + 1 : 2] - Y[2 : 2 * m + 1 : 2]) / (2 * a)  # first order, (m, 12)
     extra = (Y * w[:, None]).T @ Y - G.T @ G
     ev, U = np.linalg.eigh((extra + extra.T) / 2)
