@@ -171,3 +171,30 @@ def test_deletion_of_groups_of_two_sizes_is_the_per_group_formula():
         dx = P @ J[rows].T @ np.linalg.solve(A, r[rows])
         assert d.T[k] == pytest.approx(T, rel=1e-9) and d.rank[k] == len(rows)
         np.testing.assert_allclose(d.dx[k], dx, rtol=1e-8, atol=1e-12)
+
+
+def test_held_out_residuals_are_the_per_pose_formula():
+    """``|M_(-k) (a_k - B_(-k))| - g`` with each pose's deletion step, pose by pose."""
+    from imucal_cli.solvers.labelled_model import rotation_matrix as R
+
+    six, _ = simulate(plan="six", seed=6, created=CREATED)
+    rnd, _ = simulate(plan="random:8", seed=6, created=CREATED)
+    p6, pr = static_poses(six), static_poses(rnd)
+    a = np.vstack([p6.a_mean, pr.a_mean])
+    states = []
+    original = labelled._held_out
+
+    def record(prob, st, dele, offset, scale, a_mean, g):
+        states.append((prob, st, dele, offset, scale))
+        return original(prob, st, dele, offset, scale, a_mean, g)
+
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(labelled, "_held_out", record)
+        res = labelled.fit_labelled(
+            a, np.vstack([p6.up, pr.up]), G0, np.concatenate([p6.cov_mean, pr.cov_mean])
+        )
+    prob, st, dele, offset, scale = states[0]
+    for k in range(len(a)):
+        Bn, Kn, phi, _ = prob.split(st.sol.x + dele.dx[k])
+        expected = np.linalg.norm(R(phi) @ Kn / scale @ (a[k] - offset - scale * Bn)) - G0
+        assert res.residual_loo[k] == pytest.approx(expected, rel=1e-9, abs=1e-12)

@@ -118,6 +118,7 @@ from .labelled_model import (
     jacobian,
     public_from_thetas,
     public_params,  # noqa: F401 (re-exported: the truth in these parameters)
+    rotation_matrices,
     rotation_matrix,
     second_order,
     sphere_exp,
@@ -592,14 +593,12 @@ def _undetermined(st: _State) -> bool:
 
 def _held_out(prob: Problem, st: _State, dele: Deletion, offset, scale, a_mean, g):
     """Gravity-magnitude residual of each pose under the fit without it, m/s^2."""
-    out = np.full(prob.N, np.nan)
-    for k in range(prob.N):
-        if dele.rank[k] == 0:
-            continue
-        Bn, Kn, phi, _ = prob.split(st.sol.x + dele.dx[k])
-        M = rotation_matrix(phi) @ Kn / scale
-        out[k] = np.linalg.norm(M @ (a_mean[k] - offset - scale * Bn)) - g
-    return out
+    X = st.sol.x[:12] + dele.dx[:, :12]  # (B, K, phi) without each pose
+    Kn = np.zeros((prob.N, 3, 3))
+    Kn[:, _UPPER[0], _UPPER[1]] = X[:, 3:9]
+    M = rotation_matrices(X[:, 9:12]) @ Kn / scale
+    h = np.einsum("nij,nj->ni", M, a_mean - offset - scale * X[:, :3])
+    return np.where(dele.rank > 0, np.linalg.norm(h, axis=1) - g, np.nan)
 
 
 def _t_dof(parts: dict, placement_dof: float, source: str, noise_dof: float):
