@@ -11,9 +11,11 @@ The method is Moré's (1978) trust-region Levenberg-Marquardt, as in MINPACK's `
 the Jacobian's column norms (``x_scale="jac"``, MINPACK's ``mode=1``), the damping ``lambda``
 found so that the scaled step ``||D p||`` meets the trust radius (Moré's eqs. 3.5-5.5, here
 on the SVD of ``J D^-1``, which also gives the minimum-norm step when ``J`` is rank
-deficient), the radius updated from the ratio of actual to predicted reduction, and
-MINPACK's three tests (``ftol``, ``xtol``, ``gtol``). The parameter counts we solve are tens,
-the residual counts up to tens of thousands: one thin SVD per Jacobian is cheap.
+deficient; or, for a Jacobian with per-block nuisance columns (``blocks``), on the Schur
+complement of the normal equations where ``J`` is well-conditioned), the radius updated
+from the ratio of actual to predicted reduction, and MINPACK's three tests (``ftol``,
+``xtol``, ``gtol``). The parameter counts we solve are tens, the residual counts up to tens
+of thousands: one thin SVD per Jacobian is cheap.
 
 Status codes are scipy's: ``0`` iteration limit, ``1`` gtol, ``2`` ftol, ``3`` xtol,
 ``4`` ftol and xtol; ``-1`` improper input.
