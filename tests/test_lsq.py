@@ -23,7 +23,9 @@ SOLVER_MODULES = (gravity, labelled, magnetometer, gyro_full, factorization)
 
 
 def scipy_least_squares(fun, x0, jac=None, *, x_scale="jac", **kw):
-    """scipy's solver behind our signature (trf: it takes x_scale="jac" and arrays alike)."""
+    """scipy's solver behind our signature (trf: it takes x_scale="jac" and arrays alike;
+    ``blocks``, our hint on the Jacobian's structure, has no counterpart)."""
+    kw.pop("blocks", None)
     return scipy.optimize.least_squares(
         fun, x0, jac="2-point" if jac is None else jac, x_scale=x_scale, method="trf", **kw
     )

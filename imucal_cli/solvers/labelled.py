@@ -114,9 +114,11 @@ from imucal_cli.solvers.rotation import Rotation
 from .gravity import _UPPER
 from .labelled_model import (
     Problem,
+    axes_many,
     jacobian,
-    public_from_theta,
+    public_from_thetas,
     public_params,  # noqa: F401 (re-exported: the truth in these parameters)
+    rotation_matrices,
     rotation_matrix,
     second_order,
     sphere_exp,
@@ -352,6 +354,7 @@ def _solve(prob: Problem, x0, max_iterations):
         ftol=1e-12,
         gtol=1e-12,
         max_nfev=max_iterations,
+        blocks=(12, 2),  # each pose's two angles enter only its own rows
     )
 
 
@@ -495,20 +498,20 @@ def fit_labelled(
 
 def _result(st: _State, offset, scale, a_mean, up, labelled, g, source, noise_dof):
     prob = st.prob
-    svals = np.linalg.svd(st.J, compute_uv=False)
-    if svals[-1] <= 1e-10 * svals[0]:
+    if _undetermined(st):
         raise DesignError(
             "the poses and labels leave the matrix undetermined; label more poses (each face up)"
         )
     x12 = st.sol.x[:12]
 
-    def theta(v):  # (B raw, K raw, r deg) from normalised x
-        return np.concatenate([offset + scale * v[:3], v[3:9] / scale, np.degrees(v[9:12])])
+    def public(v):  # public parameters of normalised x (n, 12): (B raw, K raw, r deg) first
+        v = np.atleast_2d(v)
+        return public_from_thetas(
+            np.concatenate([offset + scale * v[:, :3], v[:, 3:9] / scale,
+                            np.degrees(v[:, 9:12])], axis=1)
+        )  # fmt: skip
 
-    def public(v):
-        return public_from_theta(theta(v))
-
-    T = jacobian(public, x12, floor=theta_floor(x12))
+    T = jacobian(public, x12, floor=theta_floor(x12), many=True)
     n_meas = 3 * prob.N
     Pt = st.P[:, :12]
     Jm, Jp = st.J[:n_meas], st.J[n_meas:]
@@ -519,9 +522,9 @@ def _result(st: _State, offset, scale, a_mean, up, labelled, g, source, noise_do
     # Second order: the sensitivities and angles are curved functions of K, whose cross-axis
     # terms the labels (not the data) fix on six faces: remove that bias, add that variance
     # (unless the placement's propagation (L6) below, which includes it, runs).
-    axes_of = lambda k: public_from_theta(np.r_[np.zeros(3), k, np.zeros(3)])[3:9]  # noqa: E731
-    bias2, extra2 = second_order(axes_of, x12[3:9], st.P[3:9, 3:9])
-    params = public(x12)
+    axes_of = lambda k: axes_many(_matrices(k))  # noqa: E731
+    bias2, extra2 = second_order(axes_of, x12[3:9], st.P[3:9, 3:9], many=True)
+    params = public(x12)[0]
     params[3:9] -= bias2
     extra, m = _placement_beyond_first_order(st, public, params)
     if m == 0:
@@ -529,7 +532,7 @@ def _result(st: _State, offset, scale, a_mean, up, labelled, g, source, noise_do
     parts["placement_second_order"] = extra
     cov = parts["measurement"] + parts["placement"] + extra
     Kn = np.zeros((3, 3))
-    Kn[_UPPER] = x12[3:9] - np.linalg.solve(jacobian(axes_of, x12[3:9]), bias2)
+    Kn[_UPPER] = x12[3:9] - np.linalg.solve(jacobian(axes_of, x12[3:9], many=True), bias2)
     B = offset + scale * x12[:3]
     M = rotation_matrix(x12[9:12]) @ Kn / scale
     t_dof = _t_dof(parts, st.placement_dof, source, noise_dof)
@@ -571,16 +574,31 @@ def _result(st: _State, offset, scale, a_mean, up, labelled, g, source, noise_do
     )
 
 
+def _matrices(k: np.ndarray) -> np.ndarray:
+    """``K^-1`` of each row of upper-triangle entries ``k`` (n, 6): (n, 3, 3)."""
+    K = np.zeros((len(k), 3, 3))
+    K[:, _UPPER[0], _UPPER[1]] = k
+    return np.linalg.inv(K)
+
+
+def _undetermined(st: _State) -> bool:
+    """Whether the Jacobian's condition number is at least 1e10. ``tr(J^T J) tr(P)`` bounds its
+    square from above: where that bound is below 1e18 the singular values are not needed."""
+    bound = float(np.sum(st.J * st.J)) * float(np.trace(st.P))
+    if np.isfinite(bound) and bound < 1e18:
+        return False
+    svals = np.linalg.svd(st.J, compute_uv=False)
+    return bool(svals[-1] <= 1e-10 * svals[0])
+
+
 def _held_out(prob: Problem, st: _State, dele: Deletion, offset, scale, a_mean, g):
     """Gravity-magnitude residual of each pose under the fit without it, m/s^2."""
-    out = np.full(prob.N, np.nan)
-    for k in range(prob.N):
-        if dele.rank[k] == 0:
-            continue
-        Bn, Kn, phi, _ = prob.split(st.sol.x + dele.dx[k])
-        M = rotation_matrix(phi) @ Kn / scale
-        out[k] = np.linalg.norm(M @ (a_mean[k] - offset - scale * Bn)) - g
-    return out
+    X = st.sol.x[:12] + dele.dx[:, :12]  # (B, K, phi) without each pose
+    Kn = np.zeros((prob.N, 3, 3))
+    Kn[:, _UPPER[0], _UPPER[1]] = X[:, 3:9]
+    M = rotation_matrices(X[:, 9:12]) @ Kn / scale
+    h = np.einsum("nij,nj->ni", M, a_mean - offset - scale * X[:, :3])
+    return np.where(dele.rank > 0, np.linalg.norm(h, axis=1) - g, np.nan)
 
 
 def _t_dof(parts: dict, placement_dof: float, source: str, noise_dof: float):
@@ -643,8 +661,9 @@ def _label_limited(st: _State) -> tuple[np.ndarray, np.ndarray]:
     return cols, Vb @ Q[:, gauge.shape[1] :]
 
 
-def _refit(prob: Problem, x: np.ndarray, free: np.ndarray) -> np.ndarray:
-    """``x`` with its ``free`` coordinates refitted to the measurements (the others held)."""
+def _refit_iterative(prob: Problem, x: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """``x`` with its ``free`` coordinates refitted to the measurements (the others held), by
+    Levenberg-Marquardt from ``x``."""
     n_meas = 3 * prob.N
 
     def whole(v):
@@ -665,6 +684,42 @@ def _refit(prob: Problem, x: np.ndarray, free: np.ndarray) -> np.ndarray:
     return whole(sol.x)
 
 
+def _refit_linear(prob: Problem, X: np.ndarray) -> np.ndarray:
+    """:func:`_refit_iterative` of ``(B, K, phi)`` with every direction held, at each row of ``X``
+    (n, len(x)). The prediction (L2) is then linear in ``B`` and ``M' = g K^-1 R(phi)^T``::
+
+        W_k (a_k - o_k) = W_k B + W_k M' u_k,      (o_k: the marginalisation's offset)
+
+    one weighted linear least-squares solve (QR) per row; ``R K = g M'^-1`` gives ``K`` and
+    ``phi`` back (as :func:`triangular_and_rotation`). NaN rows where that lands on another
+    branch than the row (signs of ``K``'s diagonal, the rotation vector's wrap): those are
+    for the iterative refit."""
+    n, N = len(X), prob.N
+    u, _ = sphere_exp(np.tile(prob.u0, (n, 1)), np.tile(prob.T, (n, 1, 1)),
+                      X[:, 12:].reshape(n * N, 2))  # fmt: skip
+    D = np.zeros((n, N, 3, 12))  # d prediction / d [B | M' row-major], per pose
+    D[..., :3] = np.eye(3)
+    for i in range(3):
+        D[:, :, i, 3 + 3 * i : 6 + 3 * i] = u.reshape(n, N, 3)
+    A = np.einsum("kij,nkjc->nkic", prob.W, D).reshape(n, 3 * N, 12)
+    y = np.einsum("kij,kj->ki", prob.W, prob.a_n - prob.offset).ravel()
+    Q, R = np.linalg.qr(A)
+    sol = np.linalg.solve(R, np.swapaxes(Q, 1, 2) @ y[:, None])[..., 0]
+    Qm, K = np.linalg.qr(prob.g * np.linalg.inv(sol[:, 3:].reshape(n, 3, 3)))  # M = Q K
+    sign = np.sign(np.diagonal(K, axis1=1, axis2=2))
+    Qm, K = Qm * sign[:, None, :], K * sign[:, :, None]
+    mirrored = np.linalg.det(Qm) < 0  # a proper rotation, k_z negative
+    Qm[mirrored, :, 2] *= -1
+    K[mirrored, 2, :] *= -1
+    phi = Rotation.from_matrix(Qm).as_rotvec()
+    out = X.copy()
+    out[:, :3], out[:, 3:9], out[:, 9:12] = sol[:, :3], K[:, _UPPER[0], _UPPER[1]], phi
+    other = np.any(np.sign(out[:, 3:6]) != np.sign(X[:, 3:6]), axis=1)  # K's diagonal
+    other |= np.linalg.norm(phi - X[:, 9:12], axis=1) > 1
+    out[other] = np.nan
+    return out
+
+
 def _placement_beyond_first_order(st: _State, public, p_hat: np.ndarray):
     """Eq. (L6): the parameters' covariance from the label-limited placement beyond (L4)'s
     first order, (12, 12), and the number of directions propagated. Each node of
@@ -681,11 +736,12 @@ def _placement_beyond_first_order(st: _State, public, p_hat: np.ndarray):
     held[cols] = True
     free = np.flatnonzero(~held)
     nodes, w, a = symmetric_rule(m)
-    Y = np.empty((len(nodes), 12))
-    for i, xi in enumerate(nodes):
-        y = x.copy()
-        y[cols] += V @ xi
-        Y[i] = public(_refit(prob, y, free)[:12]) - p_hat
+    X = np.tile(x, (len(nodes), 1))
+    X[:, cols] += nodes @ V.T
+    Y = _refit_linear(prob, X) if len(free) == 12 else np.full(X.shape, np.nan)
+    for i in np.flatnonzero(~np.isfinite(Y).all(axis=1)):  # not linear: iteratively
+        Y[i] = _refit_iterative(prob, X[i], free)
+    Y = public(Y[:, :12]) - p_hat
     G = (Y[1 : 2 * m + 1 : 2] - Y[2 : 2 * m + 1 : 2]) / (2 * a)  # first order, (m, 12)
     extra = (Y * w[:, None]).T @ Y - G.T @ G
     ev, U = np.linalg.eigh((extra + extra.T) / 2)

@@ -48,6 +48,20 @@ def rotation_matrix(phi: np.ndarray) -> np.ndarray:
     return np.eye(3) + np.sin(th) / th * X + (1 - np.cos(th)) / th**2 * X @ X
 
 
+def rotation_matrices(phi: np.ndarray) -> np.ndarray:
+    """:func:`rotation_matrix` of each row of ``phi`` (n, 3), the same numbers, (n, 3, 3)."""
+    phi = np.asarray(phi, float)
+    th = [float(np.sqrt(p.dot(p))) for p in phi]  # as np.linalg.norm
+    X = np.zeros((len(phi), 3, 3))
+    X[:, 0, 1], X[:, 0, 2], X[:, 1, 2] = -phi[:, 2], phi[:, 1], -phi[:, 0]
+    X[:, 1, 0], X[:, 2, 0], X[:, 2, 1] = phi[:, 2], -phi[:, 1], phi[:, 0]
+    sin, cos = np.sin(th), np.cos(th)
+    # Python's float power, as rotation_matrix's (numpy's square can differ in the last bit)
+    a = np.array([1.0 if t < 1e-8 else sin[k] / t for k, t in enumerate(th)])[:, None, None]
+    b = np.array([0.5 if t < 1e-8 else (1 - cos[k]) / t**2 for k, t in enumerate(th)])
+    return np.eye(3) + a * X + (b[:, None, None] * X) @ X
+
+
 def triangular_and_rotation(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``M = Q K`` with ``K`` upper triangular (positive diagonal where ``det M > 0``) and
     ``Q`` a rotation. A mirrored matrix (``det M < 0``: labels in a left-handed frame
@@ -86,6 +100,22 @@ def public_from_theta(theta: np.ndarray) -> np.ndarray:
     return np.concatenate([theta[:3], axes(np.linalg.inv(K)), theta[9:12]])
 
 
+def axes_many(S: np.ndarray) -> np.ndarray:
+    """:func:`axes` of a stack of matrices (n, 3, 3): (n, 6)."""
+    gains = np.linalg.norm(S, axis=-1)
+    n = S / gains[..., None]
+    cos = np.stack([np.sum(n[:, i] * n[:, j], axis=-1) for i, j in PAIRS], axis=-1)
+    return np.concatenate([gains, np.degrees(np.arccos(np.clip(cos, -1, 1))) - 90.0], axis=-1)
+
+
+def public_from_thetas(theta: np.ndarray) -> np.ndarray:
+    """:func:`public_from_theta` of each row of ``theta`` (n, 12): (n, 12)."""
+    theta = np.asarray(theta, float)
+    K = np.zeros((len(theta), 3, 3))
+    K[:, _UPPER[0], _UPPER[1]] = theta[:, 3:9]
+    return np.concatenate([theta[:, :3], axes_many(np.linalg.inv(K)), theta[:, 9:12]], axis=1)
+
+
 def theta_floor(theta: np.ndarray) -> np.ndarray:
     """Smallest magnitudes the difference steps of ``theta = (B, K upper, r)`` are scaled to
     (:func:`jacobian`): ``K``'s entries to a thousandth of its largest diagonal entry (an
@@ -99,42 +129,49 @@ def theta_floor(theta: np.ndarray) -> np.ndarray:
     return out
 
 
-def jacobian(f, x: np.ndarray, rel: float = 1e-6, floor=1e-12) -> np.ndarray:
+def jacobian(f, x: np.ndarray, rel: float = 1e-6, floor=1e-12, many=False) -> np.ndarray:
     """Central-difference Jacobian of a small vector function; step ``rel * max(|x_k|,
-    floor_k)`` (``floor`` a number or one per coordinate, e.g. :func:`theta_floor`)."""
-    f0 = np.asarray(f(x))
-    J = np.empty((len(f0), len(x)))
-    floor = np.broadcast_to(np.asarray(floor, float), (len(x),))
-    for k in range(len(x)):
-        h = rel * max(abs(x[k]), floor[k])
-        e = np.zeros(len(x))
-        e[k] = h
-        J[:, k] = (np.asarray(f(x + e)) - np.asarray(f(x - e))) / (2 * h)
-    return J
+    floor_k)`` (``floor`` a number or one per coordinate, e.g. :func:`theta_floor`).
+    ``many``: ``f`` maps a stack of points (p, n) to their values (p, m) in one call."""
+    x = np.asarray(x, float)
+    n = len(x)
+    floor = np.broadcast_to(np.asarray(floor, float), (n,))
+    h = np.array([rel * max(abs(x[k]), floor[k]) for k in range(n)])
+    E = np.diag(h)
+    points = np.concatenate([x + E, x - E])  # x + h_k e_k, then x - h_k e_k
+    F = _evaluate(f, points, many)
+    return ((F[:n] - F[n:]) / (2 * h)[:, None]).T
 
 
-def second_order(f, x: np.ndarray, cov: np.ndarray, rel: float = 1e-4):
+def _evaluate(f, points: np.ndarray, many: bool) -> np.ndarray:
+    """``f`` at each row of ``points``, (p, m)."""
+    if many:
+        return np.asarray(f(points), float)
+    return np.array([np.asarray(f(p), float) for p in points])
+
+
+def second_order(f, x: np.ndarray, cov: np.ndarray, rel: float = 1e-4, many=False):
     """Second-order moments of ``f(x_hat)`` when ``x_hat ~ N(x, cov)``: the bias
     ``tr(cov H_i) / 2`` and the extra covariance ``tr(H_i cov H_j cov) / 2`` (``H_i`` the
     Hessian of output i, central differences). ``x`` is one block in one unit (``K``): each
     step is at least ``rel`` times a thousandth of its largest entry, so that an entry near
     zero does not get a step near zero (its second differences would be rounding noise over
-    ``h^2``: a 1.8e-6 off-diagonal entry once gave angles of 24000 degrees)."""
+    ``h^2``: a 1.8e-6 off-diagonal entry once gave angles of 24000 degrees). ``many`` as
+    :func:`jacobian`'s."""
     n = len(x)
     h = rel * np.maximum(np.abs(x), 1e-3 * max(float(np.max(np.abs(x))), 1e-300))
-    f0 = np.asarray(f(x))
+    E = np.diag(h)
+    iu, ju = np.triu_indices(n, 1)
+    # x; x +- h_i e_i; then x + s_i h_i e_i + s_j h_j e_j (i < j) for (s_i, s_j) = ++, +-, -+, --
+    points = [x[None], x + E, x - E]
+    points += [x + si * E[iu] + sj * E[ju] for si in (1, -1) for sj in (1, -1)]
+    F = _evaluate(f, np.concatenate(points), many)
+    f0, fp, fm = F[0], F[1 : n + 1], F[n + 1 : 2 * n + 1]
+    fpp, fpm, fmp, fmm = F[2 * n + 1 :].reshape(4, len(iu), -1)
     H = np.empty((len(f0), n, n))
-    for i in range(n):
-        for j in range(i, n):
-            ei, ej = np.zeros(n), np.zeros(n)
-            ei[i], ej[j] = h[i], h[j]
-            if i == j:
-                d2 = (f(x + ei) - 2 * f0 + f(x - ei)) / h[i] ** 2
-            else:
-                d2 = (f(x + ei + ej) - f(x + ei - ej) - f(x - ei + ej) + f(x - ei - ej)) / (
-                    4 * h[i] * h[j]
-                )
-            H[:, i, j] = H[:, j, i] = d2
+    H[:, np.arange(n), np.arange(n)] = ((fp - 2 * f0 + fm) / (h**2)[:, None]).T
+    off = ((fpp - fpm - fmp + fmm) / (4 * h[iu] * h[ju])[:, None]).T
+    H[:, iu, ju] = H[:, ju, iu] = off
     HC = H @ cov
     return 0.5 * np.einsum("iab,ba->i", H, cov), 0.5 * np.einsum("iab,jba->ij", HC, HC)
 
@@ -167,6 +204,11 @@ class Problem:
         # The last prediction and where it was made: a Levenberg-Marquardt step evaluates
         # the residuals at a point, then (accepted) the Jacobian at the same point.
         self._last: tuple[bytes, tuple[np.ndarray, np.ndarray]] | None = None
+        self._last_f: tuple[bytes, np.ndarray] | None = None  # the last prediction alone
+        # The directions (L1) and the rotation with its difference quotients, by argument:
+        # refits hold the directions, the marginalisation the rotation.
+        self._dirs: tuple[bytes, tuple[np.ndarray, np.ndarray]] | None = None
+        self._rot: tuple[bytes, np.ndarray, list | None] | None = None
         self._layout: tuple | None = None
 
     @property
@@ -188,29 +230,61 @@ class Problem:
         self._last = (key, out)
         return out
 
+    def values(self, x) -> np.ndarray:
+        """``f_k`` (N, 3) alone, the same numbers as :meth:`predict`'s (what a residual
+        evaluation needs; not to be modified)."""
+        key = np.asarray(x, float).tobytes()
+        if self._last is not None and self._last[0] == key:
+            return self._last[1][0]
+        if self._last_f is None or self._last_f[0] != key:
+            _, K, phi, d = self.split(x)
+            u, _ = self._directions(d)
+            self._last_f = (key, self._values(np.linalg.inv(K), self._rotation(phi)[0], u))
+        return self._last_f[1]
+
+    def _values(self, Kinv, R, u):
+        w = u @ R  # R^T u_k, rows
+        return self.g * (w @ Kinv.T)  # g K^-1 w_k
+
+    def _directions(self, d):
+        """:func:`sphere_exp` at ``d`` (N, 2), cached."""
+        key = d.tobytes()
+        if self._dirs is None or self._dirs[0] != key:
+            self._dirs = (key, sphere_exp(self.u0, self.T, d))
+        return self._dirs[1]
+
+    def _rotation(self, phi, derivative=False):
+        """``R(phi)`` and, with ``derivative``, its central differences ``dR / dphi_c`` (a
+        list of three 3x3), cached for the last ``phi``."""
+        key = phi.tobytes()
+        if self._rot is None or self._rot[0] != key:
+            self._rot = (key, rotation_matrix(phi), None)
+        if derivative and self._rot[2] is None:
+            h = 1e-6
+            steps = np.repeat(h * np.eye(3), 2, axis=0) * np.array([1.0, -1.0] * 3)[:, None]
+            Rs = rotation_matrices(phi + steps)  # phi + h e_c, phi - h e_c for c = 0, 1, 2
+            dR = [(Rs[2 * c] - Rs[2 * c + 1]) / (2 * h) for c in range(3)]
+            self._rot = (key, self._rot[1], dR)
+        return self._rot[1], self._rot[2]
+
     def _predict(self, x):
         _, K, phi, d = self.split(x)
         Kinv = np.linalg.inv(K)
-        R = rotation_matrix(phi)
-        u, du = sphere_exp(self.u0, self.T, d)
-        w = u @ R  # R^T u_k, rows
-        z = w @ Kinv.T  # K^-1 w_k
-        f = self.g * z
+        R, dR = self._rotation(phi, derivative=True)
+        u, du = self._directions(d)
+        z = (u @ R) @ Kinv.T  # K^-1 R^T u_k
+        f = self.g * z  # as _values
         D = np.empty((self.N, 3, 11))
         for c, (i, j) in enumerate(zip(*_UPPER, strict=True)):
             D[:, :, c] = -self.g * Kinv[:, i][None, :] * z[:, j][:, None]  # d K^-1 = -K^-1 E K^-1
-        h = 1e-6
         for c in range(3):
-            e = np.zeros(3)
-            e[c] = h
-            dR = (rotation_matrix(phi + e) - rotation_matrix(phi - e)) / (2 * h)
-            D[:, :, 6 + c] = self.g * (u @ dR) @ Kinv.T
+            D[:, :, 6 + c] = self.g * (u @ dR[c]) @ Kinv.T
         D[:, :, 9:] = self.g * np.einsum("ij,kj,nkc->nic", Kinv, R, du)  # g K^-1 R^T du
         return f, D
 
     def residuals(self, x):
         B, _, _, d = self.split(x)
-        f, _ = self.predict(x)
+        f = self.values(x)
         e = self.a_n - B - f - self.offset
         r_meas = np.einsum("nij,nj->ni", self.W, e).ravel() / self.meas_scale
         return np.concatenate([r_meas, d[self.lab].ravel() / self.sigma_p])

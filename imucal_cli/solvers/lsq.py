@@ -11,9 +11,11 @@ The method is Moré's (1978) trust-region Levenberg-Marquardt, as in MINPACK's `
 the Jacobian's column norms (``x_scale="jac"``, MINPACK's ``mode=1``), the damping ``lambda``
 found so that the scaled step ``||D p||`` meets the trust radius (Moré's eqs. 3.5-5.5, here
 on the SVD of ``J D^-1``, which also gives the minimum-norm step when ``J`` is rank
-deficient), the radius updated from the ratio of actual to predicted reduction, and
-MINPACK's three tests (``ftol``, ``xtol``, ``gtol``). The parameter counts we solve are tens,
-the residual counts up to tens of thousands: one thin SVD per Jacobian is cheap.
+deficient; or, for a Jacobian with per-block nuisance columns (``blocks``), on the Schur
+complement of the normal equations where ``J`` is well-conditioned), the radius updated
+from the ratio of actual to predicted reduction, and MINPACK's three tests (``ftol``,
+``xtol``, ``gtol``). The parameter counts we solve are tens, the residual counts up to tens
+of thousands: one thin SVD per Jacobian is cheap.
 
 Status codes are scipy's: ``0`` iteration limit, ``1`` gtol, ``2`` ftol, ``3`` xtol,
 ``4`` ftol and xtol; ``-1`` improper input.
@@ -81,30 +83,148 @@ def _forward_difference(fun: Callable, x: np.ndarray, f: np.ndarray) -> np.ndarr
     return J
 
 
-def _lm_step(s, V, c, Delta, par):
-    """Moré's damped step in scaled variables, ``q = -V diag(s / (s^2 + lambda)) c``, with
-    ``lambda >= 0`` such that ``||q||`` is within 10% of ``Delta`` (``lambda = 0`` when the
-    Gauss-Newton step is already inside). ``par`` is the previous ``lambda`` (a start).
-    Returns ``(q, lambda)``."""
-    s_max = s[0] if len(s) else 0.0
-    keep = s > EPS * max(len(s), 1) * max(len(c), 1) * s_max  # numerical rank
-    gn = np.zeros_like(c)
-    gn[keep] = c[keep] / s[keep]
-    gn_norm = np.linalg.norm(gn)
-    sc = s * c
-    if gn_norm <= 1.1 * Delta or not np.any(sc):
-        return -(V @ gn), 0.0
+class _SvdSteps:
+    """Damped steps ``q(lambda) = -(A^T A + lambda I)^-1 A^T f`` of the scaled Jacobian
+    ``A = J D^-1`` from its thin SVD ``A = U diag(s) V^T``: ``q = -V diag(s / (s^2 + lambda))
+    c``, ``c = U^T f`` (Moré's eqs. 3.5-5.5; the minimum-norm step when ``A`` is rank
+    deficient)."""
 
-    def norm_and_derivative(lam):
-        d = s * s + lam
-        t = sc / d
+    def __init__(self, A: np.ndarray, f: np.ndarray):
+        U, self.s, Vt = np.linalg.svd(A, full_matrices=False)
+        self.V = Vt.T
+        self.c = U.T @ f
+        self.sc = self.s * self.c  # A^T f in the basis V
+
+    def gauss_newton(self) -> tuple[np.ndarray, float, bool]:
+        """The undamped step, its norm and whether ``A`` has full (numerical) rank."""
+        s, c = self.s, self.c
+        s_max = s[0] if len(s) else 0.0
+        keep = s > EPS * max(len(s), 1) * max(len(c), 1) * s_max  # numerical rank
+        gn = np.zeros_like(c)
+        gn[keep] = c[keep] / s[keep]
+        return -(self.V @ gn), float(np.linalg.norm(gn)), bool(keep.all())
+
+    def gradient(self) -> tuple[float, bool]:
+        """``||A^T f||`` and whether ``A^T f`` is nonzero."""
+        return float(np.linalg.norm(self.sc)), bool(np.any(self.sc))
+
+    def norm_and_derivative(self, lam: float) -> tuple[float, float]:
+        """``||q(lambda)||`` and its derivative in ``lambda``."""
+        d = self.s * self.s + lam
+        t = self.sc / d
         n = np.linalg.norm(t)
-        return n, -float(np.sum(t * t / d)) / n  # ||q||, d||q||/dlambda
+        return n, -float(np.sum(t * t / d)) / n
 
+    def step(self, lam: float) -> np.ndarray:
+        return -(self.V @ (self.sc / (self.s * self.s + lam)))
+
+
+class _BlockSteps:
+    """:class:`_SvdSteps`' damped steps from the normal equations, for a Jacobian whose
+    columns after the first ``n0`` come in groups of ``b`` that share no row (per-pose
+    nuisance parameters): ``N = A^T A = [[U, W], [W^T, V]]`` with ``V`` block diagonal, and
+    each step eliminates those blocks (the Schur complement, an ``n0 x n0`` solve)::
+
+        (U + lambda I - W (V + lambda I)^-1 W^T) q_0 = -g_0 + W (V + lambda I)^-1 g_V,
+        q_V = -(V + lambda I)^-1 (g_V + W^T q_0),            g = A^T f.
+
+    Only for a well-conditioned ``A`` (:meth:`usable`), whose steps the normal equations give
+    to rounding noise; the iteration's fixed point, ``A^T f = 0``, is the same."""
+
+    #: Largest ``tr(N) tr(N^-1)`` (a bound on cond(A)^2) accepted: cond(A) <= 1e6.
+    MAX_COND2 = 1e12
+
+    def __init__(self, A: np.ndarray, f: np.ndarray, blocks: tuple[int, int]):
+        n0, b = blocks
+        self.n0, self.b = n0, b
+        self.nb = (A.shape[1] - n0) // b
+        N = A.T @ A
+        self.trace = float(np.trace(N))
+        self.U = N[:n0, :n0]
+        self.W = N[:n0, n0:]
+        ar = np.arange(self.nb)
+        self.V = N[n0:, n0:].reshape(self.nb, b, self.nb, b)[ar, :, ar, :]  # (nb, b, b)
+        self.Wb = self.W.reshape(n0, self.nb, b).transpose(1, 0, 2)  # (nb, n0, b)
+        self.g = A.T @ f
+        self._lam: float | None = None
+
+    def _factor(self, lam: float) -> None:
+        """``(V + lambda I)^-1`` and the Schur complement's Cholesky factor at ``lam``."""
+        if self._lam == lam:
+            return
+        self.Vinv = np.linalg.inv(self.V + lam * np.eye(self.b))
+        Z = (self.Wb @ self.Vinv).transpose(1, 0, 2).reshape(self.n0, -1)  # W (V + lam)^-1
+        self.Z = Z
+        self.L = np.linalg.cholesky(self.U - Z @ self.W.T + lam * np.eye(self.n0))
+        self._lam = lam
+
+    def _solve(self, r: np.ndarray, lam: float) -> np.ndarray:
+        """``(N + lambda I)^-1 r``."""
+        self._factor(lam)
+        r0, rV = r[: self.n0], r[self.n0 :]
+        y = rV.reshape(self.nb, self.b)
+        rhs = r0 - self.Z @ rV
+        q0 = np.linalg.solve(self.L.T, np.linalg.solve(self.L, rhs))
+        qV = np.einsum("kij,kj->ki", self.Vinv, y - (self.Wb.transpose(0, 2, 1) @ q0))
+        return np.concatenate([q0, qV.ravel()])
+
+    def usable(self) -> bool:
+        """Whether ``N`` is positive definite with ``tr(N) tr(N^-1) <= MAX_COND2``
+        (``tr(N^-1) = tr(S^-1) + tr(V^-1) + tr(S^-1 Z Z^T)``, ``S`` the Schur complement,
+        ``Z = W V^-1``)."""
+        if not np.all(np.isfinite(self.g)) or self.trace <= 0:
+            return False
+        try:
+            self._factor(0.0)
+        except np.linalg.LinAlgError:
+            return False
+        Linv = np.linalg.inv(self.L)
+        Sinv = Linv.T @ Linv
+        tr_inv = np.trace(Sinv) + np.trace(self.Vinv, axis1=1, axis2=2).sum()
+        tr_inv += float(np.sum(Sinv * (self.Z @ self.Z.T)))
+        return bool(np.all(np.linalg.eigvalsh(self.V) > 0)) and (
+            0 < self.trace * tr_inv <= self.MAX_COND2
+        )
+
+    def gauss_newton(self) -> tuple[np.ndarray, float, bool]:
+        q = -self._solve(self.g, 0.0)
+        return q, float(np.linalg.norm(q)), True
+
+    def gradient(self) -> tuple[float, bool]:
+        return float(np.linalg.norm(self.g)), bool(np.any(self.g))
+
+    def norm_and_derivative(self, lam: float) -> tuple[float, float]:
+        q = self._solve(self.g, lam)
+        n = np.linalg.norm(q)
+        return n, -float(q @ self._solve(q, lam)) / n
+
+    def step(self, lam: float) -> np.ndarray:
+        return -self._solve(self.g, lam)
+
+
+def _steps(A: np.ndarray, f: np.ndarray, blocks: tuple[int, int] | None):
+    """The damped steps of ``A``: by blocks where given and well-conditioned, else the SVD."""
+    if blocks is not None:
+        steps = _BlockSteps(A, f, blocks)
+        if steps.usable():
+            return steps
+    return _SvdSteps(A, f)
+
+
+def _lm_step(steps, Delta, par):
+    """Moré's damped step in scaled variables (``steps``: :class:`_SvdSteps` or
+    :class:`_BlockSteps`), with ``lambda >= 0`` such that ``||q||`` is within 10% of
+    ``Delta`` (``lambda = 0`` when the Gauss-Newton step is already inside). ``par`` is the
+    previous ``lambda`` (a start). Returns ``(q, lambda)``."""
+    gn, gn_norm, full_rank = steps.gauss_newton()
+    grad, nonzero = steps.gradient()
+    if gn_norm <= 1.1 * Delta or not nonzero:
+        return gn, 0.0
+    norm_and_derivative = steps.norm_and_derivative
     # lambda is bracketed: below by the Newton step from 0 (full rank), above by ||A^T f||/Delta
-    hi = np.linalg.norm(sc) / Delta
+    hi = grad / Delta
     lo = 0.0
-    if keep.all():
+    if full_rank:
         n0, d0 = norm_and_derivative(0.0)
         lo = max(0.0, -(n0 - Delta) / Delta * n0 / d0)
     lam = par if lo < par < hi else max(lo, 1e-3 * hi)
@@ -121,7 +241,7 @@ def _lm_step(s, V, c, Delta, par):
         lam = lam + (1.0 / n - 1.0 / Delta) * n * n / dn  # Newton on 1/||q|| - 1/Delta (eq. 5.5)
         if not lo < lam < hi:
             lam = max(np.sqrt(lo * hi), 1e-3 * hi)
-    return -(V @ (sc / (s * s + lam))), lam
+    return steps.step(lam), lam
 
 
 def least_squares(
@@ -134,6 +254,7 @@ def least_squares(
     xtol: float = 1e-8,
     gtol: float = 1e-8,
     max_nfev: int | None = None,
+    blocks: tuple[int, int] | None = None,
 ) -> LsqResult:
     """Minimise ``0.5 * ||fun(x)||^2`` by Levenberg-Marquardt.
 
@@ -154,6 +275,11 @@ def least_squares(
         ``jac`` below ``gtol``.
     max_nfev : int, optional
         Limit on evaluations of ``fun`` (default ``100 n``, scipy's for ``"lm"``).
+    blocks : (n0, b), optional
+        The Jacobian's columns after the first ``n0`` come in groups of ``b`` that share no
+        row (e.g. per-pose nuisance parameters): the damped steps are then solved by
+        eliminating those groups (a Schur complement, :class:`_BlockSteps`) instead of an SVD
+        of the whole Jacobian, unless it is ill-conditioned. Same iterates to rounding noise.
 
     Returns
     -------
@@ -175,7 +301,7 @@ def least_squares(
     if len(f) < n or (D is not None and not np.all(np.isfinite(D) & (D > 0))):
         return _result(x, f, np.full((len(f), n), np.nan), 1, 0, -1)
     x, f, J, J_at_x, nfev, njev, status = _iterate(
-        fun, jacobian, x, f, D, (ftol, xtol, gtol), max_nfev
+        fun, jacobian, x, f, D, (ftol, xtol, gtol), max_nfev, blocks
     )
     if not J_at_x:  # the Jacobian at the solution (not counted in njev, as in scipy's "lm")
         J = jacobian(x, f)
@@ -183,7 +309,7 @@ def least_squares(
 
 
 def _iterate(fun, jacobian, x: np.ndarray, f: np.ndarray, D: np.ndarray | None, tols,
-             max_nfev: int):  # fmt: skip
+             max_nfev: int, blocks: tuple[int, int] | None = None):  # fmt: skip
     """Moré's iteration from ``x`` (``fun(x) = f``; ``D`` None: scaled by the Jacobian's
     column norms, MINPACK's mode 1): a Jacobian and its SVD, then damped steps in the trust
     region until one reduces the cost, until a test ends the solve.  Returns ``x, f``, the
@@ -207,10 +333,9 @@ def _iterate(fun, jacobian, x: np.ndarray, f: np.ndarray, D: np.ndarray | None, 
         g = J.T @ f
         if fnorm == 0 or np.max(np.abs(g) / np.where(col > 0, col, np.inf)) <= gtol * fnorm:
             return x, f, J, J_at_x, nfev, njev, 1
-        U, s, Vt = np.linalg.svd(J / D, full_matrices=False)
-        c = U.T @ f
+        steps = _steps(J / D, f, blocks)
         while True:  # until a step reduces the cost (or a test ends the solve)
-            q, par = _lm_step(s, Vt.T, c, Delta, par)
+            q, par = _lm_step(steps, Delta, par)
             p = q / D
             pnorm = np.linalg.norm(q)
             if first:

@@ -62,22 +62,18 @@ def deletion(J: np.ndarray, r: np.ndarray, groups: list[np.ndarray], P: np.ndarr
     """Deletion diagnostics (module docstring) of the row groups of a whitened fit."""
     N, p = len(groups), J.shape[1]
     whole = dict(chi2=float(r @ r), dof=len(r) - p)
-    if N and len({len(g) for g in groups}) == 1:
+    sizes = np.array([len(g) for g in groups], dtype=int)
+    if N and np.all(sizes == sizes[0]):
         return replace(_deletion_batched(J, r, np.array(groups), P), **whole)
     dx = np.zeros((N, p))
     T = np.zeros(N)
     rank = np.zeros(N, dtype=int)
-    for k, rows in enumerate(groups):
-        Jk = J[rows]
-        A = np.eye(len(rows)) - Jk @ P @ Jk.T
-        w, V = np.linalg.eigh(0.5 * (A + A.T))
-        keep = w > 1e-8
-        rank[k] = int(keep.sum())
-        if not rank[k]:
+    for size in np.unique(sizes):  # the groups of each size at once
+        which = np.flatnonzero(sizes == size)
+        if size == 0:
             continue
-        z = V[:, keep].T @ r[rows]
-        T[k] = float(z @ (z / w[keep]))
-        dx[k] = P @ (Jk.T @ (V[:, keep] @ (z / w[keep])))
+        part = _deletion_batched(J, r, np.array([groups[k] for k in which]), P)
+        dx[which], T[which], rank[which] = part.dx, part.T, part.rank
     return Deletion(dx, T, rank, **whole)
 
 
@@ -85,13 +81,14 @@ def _deletion_batched(J: np.ndarray, r: np.ndarray, idx: np.ndarray, P: np.ndarr
     """:func:`deletion` for groups of equal size, all at once (idx: (N, L) row indices)."""
     Jg = J[idx]  # (N, L, p)
     L = idx.shape[1]
-    A = np.eye(L) - np.einsum("nip,pq,njq->nij", Jg, P, Jg)
+    JgP = Jg @ P.T  # (P J_k^T)^T
+    A = np.eye(L) - JgP @ np.swapaxes(Jg, 1, 2)  # I - H_kk, transposed (symmetrised below)
     w, V = np.linalg.eigh(0.5 * (A + np.swapaxes(A, 1, 2)))
     keep = w > 1e-8
     z = np.einsum("nij,ni->nj", V, r[idx])
     zw = np.where(keep, z / np.where(keep, w, 1.0), 0.0)
     T = np.sum(z * zw, axis=1)
-    dx = np.einsum("pq,niq,nij,nj->np", P, Jg, V, zw)
+    dx = np.einsum("nip,ni->np", JgP, np.einsum("nij,nj->ni", V, zw))  # P J_k^T V (z / w)
     return Deletion(dx, T, keep.sum(axis=1))
 
 
