@@ -142,3 +142,105 @@ def test_a_long_run_of_digits_fails_in_one_pass(tmp_path):
     assert time.process_time() - start < 1.0
     assert stats.malformed == 1 and data.shape == (199, 4)
     assert NUMBER.match("9" * 20_000) and NUMBER.match("12.5e-3") and not NUMBER.match("1.2.3")
+
+
+# The array scanner reads a file in pieces (text.SCAN_PIECE bytes, each ending after a line
+# break): any piece size must give exactly what one scan of the whole file gives.  Tiny pieces
+# cut a file at nearly every line: headers, comments and malformed lines before and after the
+# first numeric line, skipped rows, the separator decided by a line in an earlier piece.
+PIECES = (1, 16, 37, 64)
+WHOLE = 1 << 40
+
+
+def same_or_none(a, b) -> None:
+    assert (a is None) == (b is None)
+    if a is not None:
+        same_scan(a, b)
+
+
+def read_result(path, piece, monkeypatch, *args):
+    """What read_table gives (data, line numbers, header, every counter) or the error it
+    raises, with the given piece size."""
+    import dataclasses
+
+    from imucal_cli.formats.importers import text
+
+    monkeypatch.setattr(text, "SCAN_PIECE", piece)
+    stats = ImportStats()
+    try:
+        data, lines, header = read_table(path, *args[:2], stats, *args[2:])
+    except InputError as e:
+        return "error", str(e), dataclasses.asdict(stats)
+    return data.tobytes(), data.shape, lines.tolist(), header, dataclasses.asdict(stats)
+
+
+def test_scanning_in_pieces_equals_scanning_whole_on_messy_files():
+    rng = np.random.default_rng(1411)
+    served = 0
+    for _ in range(300):
+        raw = messy_text(rng).encode()
+        skip_rows = int(rng.integers(0, 3))
+        comma = [None, False, True][int(rng.integers(0, 3))]
+        skip = frozenset([int(rng.integers(0, 4))]) if rng.random() < 0.3 else frozenset()
+        if rng.random() < 0.1:
+            raw = b"\xef\xbb\xbf" + raw
+        whole = _scan_ascii(raw, skip_rows, comma, skip, piece=WHOLE)
+        served += whole is not None
+        for piece in PIECES:
+            same_or_none(_scan_ascii(raw, skip_rows, comma, skip, piece=piece), whole)
+    assert served > 150
+
+
+def test_reading_in_pieces_equals_reading_whole_on_the_tests_files(tmp_path, monkeypatch):
+    rows = [f"{i * 0.01:.2f},{i},2,3" for i in range(200)]
+    rows[50], rows[120], rows[121] = "0.50,1,2", "1.20,1,oops,3", "1.21,1,2,nan"
+    rows[7] = "0.07," + "9" * 2_000 + "\udcff"
+    values = "\n".join(f"{i},{i * 2}.5,{-i}e-3" for i in range(50)) + "\n"
+    files = {
+        "crlf.csv": "t,ax,ay,az\r\n# a comment\r\n" + "\r\n".join(rows[8:]) + "\r\n",
+        "long.csv": "t,ax,ay,az\n" + "\n".join(rows) + "\n",
+        "plain.csv": "t,ax,ay\n" + values,
+        "bom.csv": "\ufefft [s],ax [m/s²],ay\n" + values,
+        "empty.csv": "",
+        "blank.csv": "  \n\n \t\n",
+        "mac.csv": "t ax ay\r\r1 2 3\r4 5 6\rx y\r7 8 9",
+        "lone_cr.csv": "t ax ay\n1 2 3\n4 5\r6\n",
+        "lone_cr_last.csv": "t ax ay\n1 2 3\n4 5 6\r7 8 9",  # the last piece has no LF
+        "text.csv": "a,b\nc,d\n\n",
+        "late.csv": "\n\n# c\n\nt;x\n" * 5 + "1 2 3 4\n" * 3 + "x y z w\n1 2 3\n" + "5 6 7 8\n",
+        "counts.csv": "1 2\n3 4 5\n6 7\n8 9 10 11\n",
+    }
+    for name, text in files.items():
+        path = tmp_path / name
+        path.write_bytes(text.encode("utf-8", "surrogateescape"))
+        for args in [(None, 0), (None, 2), (4, 0, False), (3, 1, None, frozenset([1]))]:
+            whole = read_result(path, WHOLE, monkeypatch, *args)
+            for piece in PIECES:
+                assert read_result(path, piece, monkeypatch, *args) == whole, (name, args, piece)
+
+
+def test_reading_in_pieces_equals_reading_whole_on_fuzzed_recordings(tmp_path, monkeypatch):
+    """Files mutated as the import fuzzer mutates them (bench/reliability.py)."""
+    from bench.reliability import _mutate, base_recording
+
+    _, lines = base_recording(tmp_path)
+    lines = lines[:60]  # short files: tiny pieces make many scans
+    rng = np.random.default_rng(20261127)
+    path = tmp_path / "f.csv"
+    served = 0
+    for n in range(300):
+        text, _, _ = _mutate(lines, rng)
+        path.write_bytes(text.encode("utf-8", "surrogateescape"))
+        n_fields, skip_rows, comma, skip = [
+            (None, 0, None, frozenset()), (7, 0, None, frozenset()), (None, 1, True, frozenset()),
+            (7, 0, None, frozenset([0])),
+        ][n % 4]  # fmt: skip
+        args = (n_fields, skip_rows, comma, skip)
+        whole = read_result(path, WHOLE, monkeypatch, *args)
+        raw = path.read_bytes()
+        scan_whole = _scan_ascii(raw, skip_rows, comma, skip, piece=WHOLE)
+        served += scan_whole is not None
+        for piece in PIECES[1:] if n % 3 else PIECES:
+            assert read_result(path, piece, monkeypatch, *args) == whole, (n, text[:200], piece)
+            same_or_none(_scan_ascii(raw, skip_rows, comma, skip, piece=piece), scan_whole)
+    assert served > 100  # not all read line by line (non-ASCII, a lone CR)

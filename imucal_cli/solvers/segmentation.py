@@ -232,6 +232,15 @@ def _quantile(x: np.ndarray, q: float) -> np.ndarray:
     return np.nanquantile(x, q, axis=0) if np.isnan(x).any() else np.quantile(x, q, axis=0)
 
 
+def _differences(x: np.ndarray) -> np.ndarray:
+    """The first differences of ``x`` (N, C) along time, the last repeated: N rows, in one
+    array (``np.vstack`` of ``np.diff`` held two at the peak of an import, issue 14.1)."""
+    d = np.empty(x.shape, dtype=x.dtype)
+    np.subtract(x[1:], x[:-1], out=d[:-1])
+    d[-1] = d[-2]
+    return d
+
+
 def _noise_of(
     x: np.ndarray, n: int, quantile: float, var: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -244,8 +253,11 @@ def _noise_of(
     q_factor = chi2_ppf(quantile, dof) / dof
     sigma2_window = _quantile(var, quantile) / q_factor
     # First differences: mean square of the differences in each window, over 2.
-    d = np.diff(x, axis=0)
-    d2 = window_variance(np.vstack([d, d[-1:]]), n) if len(d) >= n else var
+    if len(x) > n:
+        var = None  # free (unless the caller's) before the differences' variances: less memory
+        d2 = window_variance(_differences(x), n)
+    else:
+        d2 = var
     # window_variance of differences ~ 2 sigma^2 for white noise (mean of d is ~0 when still)
     sigma2_diff = _quantile(d2, quantile) / q_factor / 2.0
     sigma2 = np.minimum(sigma2_window, DIFF_CAP**2 * sigma2_diff)

@@ -262,9 +262,9 @@ def read_table(
     the first one's ``file:line`` kept, and skipped.  ``comma`` None: fields are separated by
     commas when the first line read has one, else by white space.
 
-    The whole file is scanned with array operations (:func:`_scan_ascii`); files that are not
-    plain ASCII, or hold a token that is not a number where a number is due, are read line by
-    line (:func:`_scan_lines`), with the same result.
+    The file is scanned with array operations, in pieces (:func:`_scan_ascii`); files that are
+    not plain ASCII, or hold a token that is not a number where a number is due, are read line
+    by line (:func:`_scan_lines`), with the same result.
 
     Returns
     -------
@@ -435,35 +435,118 @@ class _Tokens:
     length: np.ndarray
 
 
+#: Bytes of a file scanned at once by :func:`_scan_ascii` (each piece then cut just after a line
+#: break): bounds the scanner's per-byte and per-token temporaries, several times the piece,
+#: whatever the file's size (issue 14.1: 26 MiB of them for a 3.3 MB file scanned whole).
+SCAN_PIECE = 512 << 10
+
+
 def _scan_ascii(
-    raw: bytes, skip_rows: int, comma: bool | None, skip: frozenset[int]
+    raw: bytes, skip_rows: int, comma: bool | None, skip: frozenset[int], piece: int | None = None
 ) -> _Scan | None:
-    """The whole file at once with array operations (no Python loop per line).
+    """The whole file with array operations (no Python loop per line), in pieces.
 
     Same result as :func:`_scan_lines`; None (use that) when the file is not plain ASCII
     (other line breaks, undecodable bytes) or a token where a number is due is not a number
-    NumPy's parser reads alike (then the line-by-line reader decides)."""
+    NumPy's parser reads alike (then the line-by-line reader decides).
+
+    Pieces of about ``piece`` bytes (None: :data:`SCAN_PIECE`), each ending just after a line
+    break, are scanned in turn (:func:`_scan_piece`) and joined: the result is the one a scan
+    of the whole file at once gives, for any piece size.
+    """
     if raw.startswith(_BOM):
         raw = raw[len(_BOM) :]
-    b = np.frombuffer(raw, dtype=np.uint8)
-    if len(b) == 0:
+    if len(raw) == 0:
         return None
+    has_lf = b"\n" in raw
+    brk = b"\n" if has_lf else b"\r"  # a file without LF breaks at CR (classic Mac)
+    size = max(1, SCAN_PIECE if piece is None else piece)
+    pieces: list[_Piece] = []
+    at = line0 = 0
+    seen = False  # a numeric line in an earlier piece
+    while at < len(raw):
+        cut = raw.find(brk, at + size - 1)
+        stop = len(raw) if cut < 0 else cut + 1
+        text = raw if (at, stop) == (0, len(raw)) else raw[at:stop]
+        part = _scan_piece(text, line0, skip_rows, comma, skip, seen, has_lf)
+        if part is None:
+            return None
+        pieces.append(part)
+        comma = part.comma
+        seen = seen or len(part.scan.numbers) > 0
+        line0 += part.scan.n_lines
+        at = stop
+    if not any(p.content for p in pieces):
+        return None
+    return _join_pieces([p.scan for p in pieces])
+
+
+@dataclass
+class _Piece:
+    """A piece of a file scanned: its ``scan`` (line numbers those of the whole file), the
+    ``comma`` separator decided so far (None: no candidate line yet), and whether the piece
+    holds any ``content`` (anything but white space and line breaks)."""
+
+    scan: _Scan
+    comma: bool | None
+    content: bool
+
+
+def _join_pieces(scans: list[_Scan]) -> _Scan:
+    """The scans of consecutive pieces of a file as one scan of the whole file."""
+    if len(scans) == 1:
+        return scans[0]
+    counts = np.cumsum([0] + [len(s.numbers) for s in scans])
+    fields = [s.header_fields for s in scans if s.header_fields is not None]
+
+    def take(keep: np.ndarray, n_fields: int) -> np.ndarray:
+        out = np.zeros((np.count_nonzero(keep), n_fields))
+        row = 0
+        for s, a, b in zip(scans, counts[:-1], counts[1:], strict=True):
+            k = int(np.count_nonzero(keep[a:b]))
+            if k:
+                out[row : row + k] = s.rows(keep[a:b], n_fields)
+                row += k
+        return out
+
+    return _Scan(
+        n_lines=sum(s.n_lines for s in scans),
+        header=sum(s.header for s in scans),
+        blank=sum(s.blank for s in scans),
+        comments=sum(s.comments for s in scans),
+        header_fields=fields[-1] if fields else None,
+        numbers=np.concatenate([s.numbers for s in scans]),
+        lengths=np.concatenate([s.lengths for s in scans]),
+        bad=np.concatenate([s.bad for s in scans]),
+        rows=take,
+    )
+
+
+def _scan_piece(
+    raw: bytes, line0: int, skip_rows: int, comma: bool | None, skip: frozenset[int],
+    seen: bool, has_lf: bool,
+) -> _Piece | None:  # fmt: skip
+    """One piece of a file (whole lines, ``line0`` lines before it), as :func:`_scan_ascii`.
+
+    ``seen``: an earlier piece has a numeric line (every non-numeric candidate line is then
+    malformed, none a header line); ``has_lf``: the file has an LF (a lone CR is then no line
+    break: None).  None when the piece is not plain ASCII or NumPy's parser does not read its
+    numbers alike."""
+    b = np.frombuffer(raw, dtype=np.uint8)
     cls = np.frombuffer(raw.translate(_CLASS_TABLE), dtype=np.uint8)  # not np.take: 8 B a byte
     if cls.max() == _INVALID:
         return None
-    lines = _lines_of(b, cls)
+    lines = _lines_of(b, cls, has_lf)
     if lines is None:
         return None
     # Runs of content (white space separated); the first of a line says what the line is.
     content = cls > _CR
     rs, re_ = _runs(content)
-    if len(rs) == 0:
-        return None
     r_line = np.searchsorted(lines.breaks, rs)
-    first = np.r_[True, r_line[1:] != r_line[:-1]]
+    first = np.diff(r_line, prepend=-1) != 0
     kind = np.zeros(lines.n, dtype=np.int8)  # 0 blank, 1 comment, 2 candidate
     kind[r_line[first]] = np.where(cls[rs[first]] == _HASH, 1, 2)
-    after = np.arange(lines.n) >= skip_rows
+    after = np.arange(line0, line0 + lines.n) >= skip_rows
     candidate = (kind == 2) & after
     cand_lines = np.flatnonzero(candidate)
     if comma is None and len(cand_lines):
@@ -477,7 +560,7 @@ def _scan_ascii(
     v_line, v_field = tokens.line[keep_tok], tokens.field[keep_tok]
     ok[v_line[~np.isfinite(values)]] = False
     numeric = np.flatnonzero(ok)
-    first_data = numeric[0] if len(numeric) else lines.n
+    first_data = -1 if seen else numeric[0] if len(numeric) else lines.n
     head = cand_lines[cand_lines < first_data]
     later = cand_lines[cand_lines > first_data]
     header_fields = None
@@ -485,30 +568,31 @@ def _scan_ascii(
         j = head[-1]
         header_fields = split_fields(raw[lines.start[j] : lines.end[j]].decode().strip(), comma)
     v_keep = ok[v_line]
-    return _Scan(
+    scan = _Scan(
         n_lines=lines.n,
-        header=min(skip_rows, lines.n) + len(head),
+        header=min(max(skip_rows - line0, 0), lines.n) + len(head),
         blank=int(np.count_nonzero((kind == 0) & after)),
         comments=int(np.count_nonzero((kind == 1) & after)),
         header_fields=header_fields,
-        numbers=numeric + 1,
+        numbers=numeric + (line0 + 1),
         lengths=tokens.length[numeric].astype(np.int64),
-        bad=later[~ok[later]] + 1,
+        bad=later[~ok[later]] + (line0 + 1),
         rows=_rows_taker(lines.n, numeric, v_line[v_keep], v_field[v_keep], values[v_keep]),
     )
+    return _Piece(scan, comma, len(rs) > 0)
 
 
-def _lines_of(b: np.ndarray, cls: np.ndarray) -> _Lines | None:
+def _lines_of(b: np.ndarray, cls: np.ndarray, has_lf: bool) -> _Lines | None:
     """Line breaks as :func:`split_lines` makes them: LF, CR LF (the CR is then white space),
-    and a lone CR only in a file without LF (classic Mac).  None when a lone CR stands among
-    LF lines: it could cut a number in two (the line-by-line reader makes that line
-    malformed)."""
+    and a lone CR only in a file without LF (classic Mac; ``has_lf``: the file, of which ``b``
+    may be a piece, has an LF).  None when a lone CR stands among LF lines: it could cut a
+    number in two (the line-by-line reader makes that line malformed)."""
     n = len(b)
     breaks = np.flatnonzero(cls == _LF)
     cr = np.flatnonzero(cls == _CR)
     if len(cr):
         lone = cr[(cr + 1 == n) | (b[np.minimum(cr + 1, n - 1)] != ord("\n"))]
-        if len(lone) and len(breaks):
+        if len(lone) and has_lf:
             return None
         breaks = np.union1d(breaks, lone)
     n_lines = len(breaks) + int(len(breaks) == 0 or breaks[-1] != n - 1)
