@@ -198,8 +198,7 @@ def propagate(
                                 f"of its noise std (below {GATE:g})", effect)  # fmt: skip
     if step is not None:
         cov, n, failed, used = _sigma_moment(x_hat, theta_hat, A, D, s, step)
-        lo, hi = std_ratio(cov_noise + linear, cov_noise + cov)
-        change = max(hi - 1, 1 - lo)
+        lo, hi, change = _std_change(cov_noise, linear, cov)
         if change <= PRECHECK and not failed:
             return SigmaPropagation(linear, linear, "first order",
                                     f"a Gauss-Newton step from the first-order prediction at "
@@ -208,8 +207,7 @@ def propagate(
                                     f"{100 * PRECHECK:g} %)", effect, change, 0, 0, used,
                                     (lo, hi))  # fmt: skip
     cov, refits, failed, used = _sigma_moment(x_hat, theta_hat, A, D, s, refit)
-    lo, hi = std_ratio(cov_noise + linear, cov_noise + cov)
-    change = max(hi - 1, 1 - lo)
+    lo, hi, change = _std_change(cov_noise, linear, cov)
     if change <= LINEAR_TOLERANCE and not failed:
         return SigmaPropagation(linear, linear, "first order",
                                 f"refits at {refits} sigma points change no std by more than "
@@ -260,6 +258,15 @@ def envelope(first: np.ndarray, other: np.ndarray) -> np.ndarray:
     Wi = np.linalg.inv(W)
     out = Wi @ (U * np.maximum(lam, 1.0)) @ U.T @ Wi.T
     return (out + out.T) / 2
+
+
+def _std_change(
+    cov_noise: np.ndarray, linear: np.ndarray, cov: np.ndarray
+) -> tuple[float, float, float]:
+    """:func:`std_ratio` of the total covariance with the accelerometer's part ``cov`` to that
+    with its first-order part ``linear``, and the largest relative change of a std."""
+    lo, hi = std_ratio(cov_noise + linear, cov_noise + cov)
+    return lo, hi, max(hi - 1, 1 - lo)
 
 
 def std_ratio(first: np.ndarray, other: np.ndarray) -> tuple[float, float]:
