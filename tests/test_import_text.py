@@ -244,3 +244,15 @@ def test_reading_in_pieces_equals_reading_whole_on_fuzzed_recordings(tmp_path, m
             assert read_result(path, piece, monkeypatch, *args) == whole, (n, text[:200], piece)
             same_or_none(_scan_ascii(raw, skip_rows, comma, skip, piece=piece), scan_whole)
     assert served > 100  # not all read line by line (non-ASCII, a lone CR)
+
+
+def test_one_number_pattern_for_the_cli_and_the_importers():
+    """The CLI's argument coercion reads numbers with the importers' pattern (the one without
+    catastrophic backtracking), not a copy of its own."""
+    from imucal_cli.cli import coercion
+    from imucal_cli.formats.importers import text
+    from imucal_cli.formats.number import NUMBER
+
+    assert coercion.NUMBER is NUMBER and text.NUMBER is NUMBER
+    assert NUMBER.match("-1.5e3") and NUMBER.match(".5") and not NUMBER.match("1_000")
+    assert NUMBER.match("1" * 20000 + "x") is None

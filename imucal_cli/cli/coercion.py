@@ -26,8 +26,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, get_args, get_origin
 
+from imucal_cli.formats.number import NUMBER
+
 _INT = re.compile(r"[+-]?[0-9]+")
-_FLOAT = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?")
 
 
 class _Undecided(Exception):
@@ -57,7 +58,7 @@ def _to_int(value: Any) -> int:
 def _to_float(value: Any) -> float:
     if type(value) in (float, int):  # a default
         return float(value)
-    if isinstance(value, str) and _FLOAT.fullmatch(value):
+    if isinstance(value, str) and NUMBER.match(value):
         return float(value)
     raise _Undecided
 

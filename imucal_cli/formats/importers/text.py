@@ -18,6 +18,7 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 from imucal_cli.formats.inputs import read_head, read_input
+from imucal_cli.formats.number import NUMBER
 
 from .recording import ImportStats
 
@@ -160,7 +161,6 @@ def header_columns(header: Sequence[str] | None, src: str) -> list[str | None]:
 #: point are matched only after a point: ``[0-9]+\.?[0-9]*`` splits a run of n digits n ways
 #: before it fails on what follows, so a 200,000-digit field ending in a stray byte took
 #: minutes (found by the 10,000-file fuzzer); this form fails in one pass.
-NUMBER = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?\Z")
 _BLANKS = re.compile(r"[ \t]+")
 #: What may surround a line or a field: ASCII blanks only (a vertical tab, U+2028 or another
 #: control character inside a line makes it malformed, never two lines or a cut number).
