@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import errno
 import os
-import secrets
 import stat
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
@@ -164,7 +163,7 @@ class OutputFile:
         self._done = False
         folder = self.target.parent
         for _ in range(16):
-            tmp = folder / f".{self.target.name}.{secrets.token_hex(4)}.tmp"
+            tmp = folder / f".{self.target.name}.{os.urandom(4).hex()}.tmp"
             try:
                 self._fd = os.open(tmp, _OPEN_FLAGS | _CLOEXEC, 0o666)
                 break

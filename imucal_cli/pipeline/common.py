@@ -92,8 +92,7 @@ def static_poses(session: Session) -> StaticPoses:
     step = holds.quantum(np.concatenate(blocks[: min(len(blocks), 50)]))
     # Robust per-sample sigma (median absolute deviation, pooled by the median over holds)
     # to find spikes before the covariance is pooled.
-    medians = [np.median(b, axis=0) for b in blocks]
-    mad = np.array([np.median(np.abs(b - m), axis=0) for b, m in zip(blocks, medians, strict=True)])
+    medians, mad = holds.medians_and_spread(blocks)
     sigma0 = np.maximum(1.4826 * np.median(mad, axis=0), max(step, 1e-12))
     n_total = sum(len(b) for b in blocks)
     masks = [holds.spike_mask(b, sigma0, n_total, m) for b, m in zip(blocks, medians, strict=True)]
@@ -103,13 +102,13 @@ def static_poses(session: Session) -> StaticPoses:
     for k, (t, b, m) in enumerate(zip(times, blocks, masks, strict=True)):
         if m.sum() > 2 and holds.trend(t, b, cov0, len(segs)).moved:
             masks[k] = np.zeros(len(b), bool)
-    clean = [b[~m] if (~m).sum() >= 2 else b for b, m in zip(blocks, masks, strict=True)]
-    ctimes = [t[~m] if (~m).sum() >= 2 else t for t, m in zip(times, masks, strict=True)]
+    # Spike-free holds (most) are used as they are, not copied.
+    keep = [None if not m.any() or (~m).sum() < 2 else ~m for m in masks]
+    clean = [b if k is None else b[k] for b, k in zip(blocks, keep, strict=True)]
+    ctimes = [t if k is None else t[k] for t, k in zip(times, keep, strict=True)]
     means = [b.mean(axis=0) for b in clean]  # each hold's mean, used thrice
     noise = holds.pooled_noise(clean, step, means)
-    limit = holds.trend_limit(na, len(segs))
-    trends = [holds.trend(t, b, noise.cov, len(segs), mean=mu, limit=limit)
-              for t, b, mu in zip(ctimes, clean, means, strict=True)]  # fmt: skip
+    trends = holds.trends(ctimes, clean, noise.cov, len(segs), means=means)
     moved = np.array([tr.moved for tr in trends])
     if moved.any() and not moved.all():
         still = np.flatnonzero(~moved)

@@ -21,7 +21,6 @@ import errno
 import fcntl
 import math
 import os
-import socket
 import stat
 import time
 import warnings
@@ -76,9 +75,14 @@ def boot_id() -> str:
         return ""
 
 
+def _hostname() -> str:
+    """This machine's name (``socket.gethostname()`` on Unix, without importing socket)."""
+    return os.uname().nodename
+
+
 def writer_identity() -> dict[str, Any]:
     """The attributes a writer stores so that a reader can tell whether it is still running."""
-    return {WRITER_PID: os.getpid(), WRITER_HOST: socket.gethostname(), WRITER_BOOT: boot_id()}
+    return {WRITER_PID: os.getpid(), WRITER_HOST: _hostname(), WRITER_BOOT: boot_id()}
 
 
 def _writer_state(file: h5py.File) -> str:
@@ -92,7 +96,7 @@ def _writer_state(file: h5py.File) -> str:
         host, boot = as_str(attrs.get(WRITER_HOST)), as_str(attrs.get(WRITER_BOOT))
     except (OSError, KeyError, RuntimeError, ValueError, TypeError):
         return "unknown"
-    if pid is None or host != socket.gethostname():
+    if pid is None or host != _hostname():
         return "unknown"
     if boot and boot_id() and boot != boot_id():
         return "gone"  # written before this machine restarted
