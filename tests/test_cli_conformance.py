@@ -220,3 +220,25 @@ def test_shell_completion_of_commands_options_plans_and_values():
         script = subprocess.run([IMUCAL], capture_output=True, text=True, timeout=60,
                                 env={**ENV, "_IMUCAL_COMPLETE": f"source_{shell}"})  # fmt: skip
         assert script.returncode == 0 and words in script.stdout, (shell, script.stdout)
+
+
+@pytest.mark.parametrize(
+    "args", [["calibrate", "--help"], ["report", "--bogus"], ["import"], ["calibrat", "x"]]
+)
+def test_running_only_the_named_command_changes_no_output(args, monkeypatch):
+    """The process builds only the command its command line names (start-up, issue 14.4):
+    help and usage errors read as those of the whole app, and ``app`` keeps every command."""
+    from typer.testing import CliRunner
+
+    from imucal_cli.cli import _only_the_named_command
+
+    monkeypatch.setenv("COLUMNS", "100")
+    monkeypatch.setenv("NO_COLOR", "1")
+    before = list(app.registered_commands)
+    whole = CliRunner().invoke(app, args, prog_name="imucal")
+    with _only_the_named_command(["imucal", *args]):
+        assert len(app.registered_commands) == (len(before) if args[0] == "calibrat" else 1)
+        only = CliRunner().invoke(app, args, prog_name="imucal")
+    assert app.registered_commands == before
+    assert only.exit_code == whole.exit_code == (0 if args[-1] == "--help" else 2)
+    assert only.output == whole.output and "Usage: imucal" in only.output
