@@ -21,7 +21,6 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from imucal_cli.solvers import outliers as out
-from imucal_cli.solvers.quantiles import chdtrc
 
 from .common import StaticPoses
 
@@ -175,7 +174,7 @@ def _flagged(res, poses: StaticPoses, done: set[int], index: np.ndarray) -> np.n
     """Poses flagged by their statistic or by motion during the hold, worst first, not yet
     handled."""
     d = res.deletion
-    bad = list(out.flag(d.T, d.rank, chi2=d.chi2, dof=d.dof))
+    bad = list(out.flag(d))
     if poses.moved is not None:
         bad += [k for k in np.flatnonzero(poses.moved) if k not in bad]
     return np.array([k for k in bad if int(index[k]) not in done], dtype=int)
@@ -183,11 +182,9 @@ def _flagged(res, poses: StaticPoses, done: set[int], index: np.ndarray) -> np.n
 
 def _describe(res, poses: StaticPoses, k: int, index: np.ndarray) -> Outlier:
     d = res.deletion
-    s2 = out.noise_excess(d.T, d.rank, d.chi2, d.dof)
     rank = max(int(d.rank[k]), 1)
     excess = float(np.sqrt(max(d.T[k], 0.0) / rank))  # against the measured noise
-    n = int(np.sum(d.rank > 0)) or 1
-    p = float(min(1.0, n * chdtrc(rank, d.T[k] / s2)))
+    p = out.significance(d, k)
     up_angle = None if res.up_angle_deg is None else float(res.up_angle_deg[k])
     finite = res.up_angle_deg is not None and np.isfinite(res.up_angle_deg).any()
     placement = float(np.nanmedian(res.up_angle_deg)) if finite else 0.0

@@ -92,43 +92,42 @@ def _deletion_batched(J: np.ndarray, r: np.ndarray, idx: np.ndarray, P: np.ndarr
     return Deletion(dx, T, keep.sum(axis=1))
 
 
-def noise_excess(
-    T: np.ndarray, rank: np.ndarray, chi2: float = float("nan"), dof: int = 0
-) -> float:
+def noise_excess(d: Deletion) -> float:
     """Robust factor by which the residual variance exceeds the measured noise (>= 1): the
     smaller of the median of ``T_k`` over the median of ``chi^2(rank_k)`` and, where the
-    fit's ``chi2`` and ``dof`` are given, the variance left without the worst pose (module
+    fit's ``chi2`` and ``dof`` are known, the variance left without the worst pose (module
     docstring)."""
+    T, rank = d.T, d.rank
     ok = rank > 0
     if ok.sum() < 3:
         return 1.0
     medians = chdtri(rank[ok].astype(float), 0.5)
     s2 = float(np.median(T[ok]) / np.median(medians))
     worst = int(np.argmax(np.where(ok, T, -np.inf)))
-    rest_dof = dof - int(rank[worst])
-    if np.isfinite(chi2) and rest_dof > 0:
-        s2 = min(s2, max(chi2 - float(T[worst]), 0.0) / rest_dof)
+    rest_dof = d.dof - int(rank[worst])
+    if np.isfinite(d.chi2) and rest_dof > 0:
+        s2 = min(s2, max(d.chi2 - float(T[worst]), 0.0) / rest_dof)
     return float(max(1.0, s2))
 
 
-def flag(
-    T: np.ndarray, rank: np.ndarray, alpha: float = OUTLIER_ALPHA, chi2: float = float("nan"),
-    dof: int = 0,
-) -> np.ndarray:  # fmt: skip
+def flag(d: Deletion, alpha: float = OUTLIER_ALPHA) -> np.ndarray:
     """Poses whose statistic exceeds the Bonferroni threshold, worst first (indices)."""
-    ok = rank > 0
+    ok = d.rank > 0
     if not ok.any():
         return np.zeros(0, dtype=int)
-    s2 = noise_excess(T, rank, chi2, dof)
-    limit = np.full(len(T), np.inf)
-    limit[ok] = chdtri(rank[ok].astype(float), alpha / ok.sum())
-    ratio = T / (s2 * limit)
+    limit = np.full(len(d.T), np.inf)
+    limit[ok] = chdtri(d.rank[ok].astype(float), alpha / ok.sum())
+    ratio = d.T / (noise_excess(d) * limit)
     bad = np.flatnonzero(ratio > 1.0)
     return bad[np.argsort(-ratio[bad])]
 
 
-def significance(T: float, rank: int, n_tested: int, s2: float = 1.0) -> float:
-    """Family-wise p-value of one pose's statistic among ``n_tested`` (Bonferroni)."""
+def significance(d: Deletion, k: int) -> float:
+    """Family-wise p-value of pose ``k``'s statistic among the poses that can be checked
+    (Bonferroni), against the noise scaled by :func:`noise_excess`; a pose that cannot be
+    checked (rank 0: flagged for another reason) is tested as one degree of freedom."""
     from .quantiles import chdtrc
 
-    return float(min(1.0, n_tested * chdtrc(rank, T / s2))) if rank > 0 else 1.0
+    n = int(np.sum(d.rank > 0)) or 1
+    rank = max(int(d.rank[k]), 1)
+    return float(min(1.0, n * chdtrc(rank, d.T[k] / noise_excess(d))))
