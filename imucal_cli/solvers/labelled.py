@@ -705,12 +705,7 @@ def _refit_linear(prob: Problem, X: np.ndarray) -> np.ndarray:
     y = np.einsum("kij,kj->ki", prob.W, prob.a_n - prob.offset).ravel()
     Q, R = np.linalg.qr(A)
     sol = np.linalg.solve(R, np.swapaxes(Q, 1, 2) @ y[:, None])[..., 0]
-    Qm, K = np.linalg.qr(prob.g * np.linalg.inv(sol[:, 3:].reshape(n, 3, 3)))  # M = Q K
-    sign = np.sign(np.diagonal(K, axis1=1, axis2=2))
-    Qm, K = Qm * sign[:, None, :], K * sign[:, :, None]
-    mirrored = np.linalg.det(Qm) < 0  # a proper rotation, k_z negative
-    Qm[mirrored, :, 2] *= -1
-    K[mirrored, 2, :] *= -1
+    K, Qm = triangular_and_rotation(prob.g * np.linalg.inv(sol[:, 3:].reshape(n, 3, 3)))
     phi = Rotation.from_matrix(Qm).as_rotvec()
     out = X.copy()
     out[:, :3], out[:, 3:9], out[:, 9:12] = sol[:, :3], K[:, _UPPER[0], _UPPER[1]], phi

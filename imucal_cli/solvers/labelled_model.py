@@ -64,14 +64,15 @@ def rotation_matrices(phi: np.ndarray) -> np.ndarray:
 
 def triangular_and_rotation(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``M = Q K`` with ``K`` upper triangular (positive diagonal where ``det M > 0``) and
-    ``Q`` a rotation. A mirrored matrix (``det M < 0``: labels in a left-handed frame
-    relative to the sensor) keeps ``Q`` proper and gives ``K`` a negative ``k_z``."""
+    ``Q`` a rotation, for one matrix (3, 3) or a stack (..., 3, 3). A mirrored matrix
+    (``det M < 0``: labels in a left-handed frame relative to the sensor) keeps ``Q`` proper
+    and gives ``K`` a negative ``k_z``."""
     Q, K = np.linalg.qr(M)
-    D = np.diag(np.sign(np.diag(K)))
-    Q, K = Q @ D, D @ K
-    if np.linalg.det(Q) < 0:
-        F = np.diag([1.0, 1.0, -1.0])
-        Q, K = Q @ F, F @ K
+    sign = np.sign(np.diagonal(K, axis1=-2, axis2=-1))
+    Q, K = Q * sign[..., None, :], K * sign[..., :, None]
+    flip = np.where(np.linalg.det(Q) < 0, -1.0, 1.0)
+    Q[..., :, 2] *= flip[..., None]
+    K[..., 2, :] *= flip[..., None]
     return K, Q
 
 
