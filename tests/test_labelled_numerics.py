@@ -12,7 +12,6 @@ from imucal_cli.solvers import labelled, lsq
 from imucal_cli.solvers.labelled_model import (
     jacobian,
     public_from_theta,
-    public_from_thetas,
     rotation_matrices,
     rotation_matrix,
     second_order,
@@ -22,23 +21,39 @@ CREATED = "2026-01-01T00:00:00Z"
 G0 = 9.80665
 
 
-def test_rotation_matrices_are_rotation_matrix_bit_for_bit():
+def test_rotation_matrices_are_rodrigues_of_each_row():
+    from scipy.spatial.transform import Rotation
+
     rng = np.random.default_rng(1)
     phi = rng.normal(size=(500, 3)) * 10.0 ** rng.uniform(-10, 0.5, size=(500, 1))
     phi[0] = 0.0
-    expected = np.array([rotation_matrix(p) for p in phi])
-    assert np.array_equal(rotation_matrices(phi), expected)
+    stacked = rotation_matrices(phi)
+    np.testing.assert_allclose(stacked, Rotation.from_rotvec(phi).as_matrix(), atol=2e-15)
+    assert np.array_equal(rotation_matrix(phi[7]), stacked[7])  # one is the stack of one
 
 
-def test_public_from_thetas_is_public_from_theta_of_each_row():
+def _public_reference(t):
+    """Bias, row norms of S = K^-1, angles between its rows minus 90 deg, the rotation."""
+    K = np.zeros((3, 3))
+    K[[0, 1, 2, 0, 0, 1], [0, 1, 2, 1, 2, 2]] = t[3:9]  # the diagonal, then xy, xz, yz
+    S = np.linalg.inv(K)
+    gains = np.linalg.norm(S, axis=1)
+    n = S / gains[:, None]
+    angles = [np.degrees(np.arccos(n[i] @ n[j])) - 90.0 for i, j in ((0, 1), (0, 2), (1, 2))]
+    return np.concatenate([t[:3], gains, angles, t[9:]])
+
+
+def test_public_from_theta_of_a_stack_is_that_of_each_row():
     rng = np.random.default_rng(2)
     theta = np.zeros((50, 12))
     theta[:, :3] = rng.normal(size=(50, 3)) * 100
     theta[:, 3:6] = 1e-3 * (1 + 0.05 * rng.normal(size=(50, 3)))  # K diagonal
     theta[:, 6:9] = 1e-5 * rng.normal(size=(50, 3))
     theta[:, 9:] = rng.normal(size=(50, 3))
-    expected = np.array([public_from_theta(t) for t in theta])
-    np.testing.assert_allclose(public_from_thetas(theta), expected, rtol=1e-13, atol=1e-12)
+    expected = np.array([_public_reference(t) for t in theta])
+    stacked = public_from_theta(theta)
+    np.testing.assert_allclose(stacked, expected, rtol=1e-12, atol=1e-10)
+    assert np.array_equal(public_from_theta(theta[3]), stacked[3])
 
 
 def test_batched_differences_equal_the_pointwise_ones():

@@ -114,9 +114,9 @@ from imucal_cli.solvers.rotation import Rotation
 from .gravity import _UPPER
 from .labelled_model import (
     Problem,
-    axes_many,
+    axes,
     jacobian,
-    public_from_thetas,
+    public_from_theta,
     public_params,  # noqa: F401 (re-exported: the truth in these parameters)
     rotation_matrices,
     rotation_matrix,
@@ -506,7 +506,7 @@ def _result(st: _State, offset, scale, a_mean, up, labelled, g, source, noise_do
 
     def public(v):  # public parameters of normalised x (n, 12): (B raw, K raw, r deg) first
         v = np.atleast_2d(v)
-        return public_from_thetas(
+        return public_from_theta(
             np.concatenate([offset + scale * v[:, :3], v[:, 3:9] / scale,
                             np.degrees(v[:, 9:12])], axis=1)
         )  # fmt: skip
@@ -522,7 +522,7 @@ def _result(st: _State, offset, scale, a_mean, up, labelled, g, source, noise_do
     # Second order: the sensitivities and angles are curved functions of K, whose cross-axis
     # terms the labels (not the data) fix on six faces: remove that bias, add that variance
     # (unless the placement's propagation (L6) below, which includes it, runs).
-    axes_of = lambda k: axes_many(_matrices(k))  # noqa: E731
+    axes_of = lambda k: axes(_matrices(k))  # noqa: E731
     bias2, extra2 = second_order(axes_of, x12[3:9], st.P[3:9, 3:9], many=True)
     params = public(x12)[0]
     params[3:9] -= bias2

@@ -40,23 +40,21 @@ def sphere_exp(u0: np.ndarray, T: np.ndarray, d: np.ndarray) -> tuple[np.ndarray
 
 
 def rotation_matrix(phi: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a rotation vector (Rodrigues), rad."""
-    th = float(np.linalg.norm(phi))
-    X = np.array([[0.0, -phi[2], phi[1]], [phi[2], 0.0, -phi[0]], [-phi[1], phi[0], 0.0]])
-    if th < 1e-8:
-        return np.eye(3) + X + 0.5 * X @ X
-    return np.eye(3) + np.sin(th) / th * X + (1 - np.cos(th)) / th**2 * X @ X
+    """Rotation matrix of a rotation vector (Rodrigues), rad: :func:`rotation_matrices` of one."""
+    return rotation_matrices(np.asarray(phi, float)[None])[0]
 
 
 def rotation_matrices(phi: np.ndarray) -> np.ndarray:
-    """:func:`rotation_matrix` of each row of ``phi`` (n, 3), the same numbers, (n, 3, 3)."""
+    """Rotation matrix of each rotation vector (Rodrigues, rad), a row of ``phi`` (n, 3):
+    (n, 3, 3); second order in ``phi`` below 1e-8 rad."""
     phi = np.asarray(phi, float)
-    th = [float(np.sqrt(p.dot(p))) for p in phi]  # as np.linalg.norm
+    th = [float(np.sqrt(p.dot(p))) for p in phi]
     X = np.zeros((len(phi), 3, 3))
     X[:, 0, 1], X[:, 0, 2], X[:, 1, 2] = -phi[:, 2], phi[:, 1], -phi[:, 0]
     X[:, 1, 0], X[:, 2, 0], X[:, 2, 1] = phi[:, 2], -phi[:, 1], phi[:, 0]
     sin, cos = np.sin(th), np.cos(th)
-    # Python's float power, as rotation_matrix's (numpy's square can differ in the last bit)
+    # Python's float power, as the single matrix's formula (numpy's square can differ in the
+    # last bit)
     a = np.array([1.0 if t < 1e-8 else sin[k] / t for k, t in enumerate(th)])[:, None, None]
     b = np.array([0.5 if t < 1e-8 else (1 - cos[k]) / t**2 for k, t in enumerate(th)])
     return np.eye(3) + a * X + (b[:, None, None] * X) @ X
@@ -78,12 +76,13 @@ def triangular_and_rotation(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def axes(S: np.ndarray) -> np.ndarray:
     """Sensitivities and angles of a sensitivity matrix ``S`` (rows: each channel's axis,
-    raw units per m/s^2): ``(s_x, s_y, s_z, a_xy, a_xz, a_yz)``, the row norms and the angles
-    between rows minus 90 degrees. Invariant to a rotation of the frame (``S R^T``)."""
-    gains = np.linalg.norm(S, axis=1)
-    n = S / gains[:, None]
-    ang = [np.degrees(np.arccos(np.clip(n[i] @ n[j], -1, 1))) - 90.0 for i, j in PAIRS]
-    return np.r_[gains, ang]
+    raw units per m/s^2), (3, 3) or a stack (..., 3, 3): ``(s_x, s_y, s_z, a_xy, a_xz,
+    a_yz)``, (6,) or (..., 6), the row norms and the angles between rows minus 90 degrees.
+    Invariant to a rotation of the frame (``S R^T``)."""
+    gains = np.linalg.norm(S, axis=-1)
+    n = S / gains[..., None]
+    cos = np.stack([np.sum(n[..., i, :] * n[..., j, :], axis=-1) for i, j in PAIRS], axis=-1)
+    return np.concatenate([gains, np.degrees(np.arccos(np.clip(cos, -1, 1))) - 90.0], axis=-1)
 
 
 def public_params(B: np.ndarray, S: np.ndarray) -> np.ndarray:
@@ -95,26 +94,12 @@ def public_params(B: np.ndarray, S: np.ndarray) -> np.ndarray:
 
 
 def public_from_theta(theta: np.ndarray) -> np.ndarray:
-    """Public parameters from ``theta = (B, K upper, r in degrees)``."""
-    K = np.zeros((3, 3))
-    K[_UPPER] = theta[3:9]
-    return np.concatenate([theta[:3], axes(np.linalg.inv(K)), theta[9:12]])
-
-
-def axes_many(S: np.ndarray) -> np.ndarray:
-    """:func:`axes` of a stack of matrices (n, 3, 3): (n, 6)."""
-    gains = np.linalg.norm(S, axis=-1)
-    n = S / gains[..., None]
-    cos = np.stack([np.sum(n[:, i] * n[:, j], axis=-1) for i, j in PAIRS], axis=-1)
-    return np.concatenate([gains, np.degrees(np.arccos(np.clip(cos, -1, 1))) - 90.0], axis=-1)
-
-
-def public_from_thetas(theta: np.ndarray) -> np.ndarray:
-    """:func:`public_from_theta` of each row of ``theta`` (n, 12): (n, 12)."""
+    """Public parameters from ``theta = (B, K upper, r in degrees)``, (12,) or a stack
+    (..., 12)."""
     theta = np.asarray(theta, float)
-    K = np.zeros((len(theta), 3, 3))
-    K[:, _UPPER[0], _UPPER[1]] = theta[:, 3:9]
-    return np.concatenate([theta[:, :3], axes_many(np.linalg.inv(K)), theta[:, 9:12]], axis=1)
+    K = np.zeros((*theta.shape[:-1], 3, 3))
+    K[..., _UPPER[0], _UPPER[1]] = theta[..., 3:9]
+    return np.concatenate([theta[..., :3], axes(np.linalg.inv(K)), theta[..., 9:12]], axis=-1)
 
 
 def theta_floor(theta: np.ndarray) -> np.ndarray:
