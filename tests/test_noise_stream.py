@@ -79,6 +79,20 @@ def test_accumulator_refusals():
         acc.curves()
 
 
+def test_static_stream_refusals():
+    session, _ = simulate("qureshi18", seed=3, created="2026-01-01T00:00:00Z")
+    t, a, g = session.time, session.accel, session.gyro
+    stream = StaticStream(1000, estimate_noise(t, a, g))
+    stream.add(a[:600], g[:600])
+    with pytest.raises(InputError, match="more than the 1000 samples announced"):
+        stream.add(a[600:1001], g[600:1001])  # refused at once, not only at the end
+    with pytest.raises(InputError, match="differ in length"):
+        stream.add(a[600:700], g[600:699])
+    stream.add(a[600:900], g[600:900])
+    with pytest.raises(InputError, match="900 of the 1000"):
+        stream.intervals()
+
+
 def _static_stream(time, accel, gyro, block):
     noise = estimate_noise(time, accel, gyro)
     stream = StaticStream(len(time), noise, accel=accel is not None, gyro=gyro is not None)

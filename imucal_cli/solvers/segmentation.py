@@ -28,7 +28,7 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 
-from .blocks import check_all_given
+from .blocks import check_all_given, check_not_more
 from .quantiles import chi2_isf, chi2_ppf  # noqa: F401 (chi2_* also imported from here)
 
 __all__ = [
@@ -580,6 +580,9 @@ class StaticStream:
         if len(blocks) != len(self.groups):
             raise InputError(f"expected {len(self.groups)} sensors, got {len(blocks)}")
         k = len(blocks[0])
+        if any(len(b) != k for b in blocks):
+            raise InputError("the sensors' blocks differ in length")
+        check_not_more(self._seen, k, self.N)
         if k == 0:
             return
         if self._centre is None:  # any constant; a typical value keeps the sums small
