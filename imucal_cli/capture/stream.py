@@ -131,13 +131,11 @@ class LineProtocol:
         """
         stats = self.stats
         stats["bytes"] += len(data)
-        buffer = self._partial + data if self._partial else data
-        cut = max(buffer.rfind(b"\n"), buffer.rfind(b"\r"))
-        if cut < 0:
-            self._partial = self._bounded(buffer)
+        text, self._partial = _complete_text(self._partial + data if self._partial else data,
+                                             stats)  # fmt: skip
+        if text is None:
             return SampleBlock.empty()
-        self._partial = self._bounded(buffer[cut + 1 :])
-        text = buffer[:cut].replace(b"\r", b"\n").translate(_SEPARATORS)
+        text = text.translate(_SEPARATORS)
         n_fields = self.columns.n_fields
         tokens: list[bytes] = []
         n_good = 0
@@ -181,12 +179,6 @@ class LineProtocol:
         return block
 
     # helpers ---------------------------------------------------------------------------------
-    def _bounded(self, partial: bytes) -> bytes:
-        if len(partial) > MAX_LINE_BYTES:
-            self.stats["malformed"] += 1
-            return b""
-        return partial
-
     def _rows_one_by_one(self, tokens: list[bytes], n_fields: int) -> np.ndarray:
         rows = []
         for i in range(0, len(tokens), n_fields):
@@ -233,17 +225,24 @@ class LineProtocol:
 _COUNTERS = ("lines", "samples", "comments", "malformed", "bytes")
 
 
-def _complete_lines(buffer: bytes, stats: dict) -> tuple[list[bytes], bytes]:
-    """The complete lines of ``buffer`` (ended by ``\n``, ``\r\n`` or ``\r``) and the partial
-    line left (dropped, and counted malformed, past :data:`MAX_LINE_BYTES`)."""
+def _complete_text(buffer: bytes, stats: dict) -> tuple[bytes | None, bytes]:
+    """The complete lines of ``buffer`` (ended by ``\n``, ``\r\n`` or ``\r``) as one text
+    with ``\n`` between them (None when there is no line end), and the partial line left
+    (dropped, and counted malformed, past :data:`MAX_LINE_BYTES`)."""
     cut = max(buffer.rfind(b"\n"), buffer.rfind(b"\r"))
     partial = buffer[cut + 1 :]
     if len(partial) > MAX_LINE_BYTES:
         stats["malformed"] += 1
         partial = b""
     if cut < 0:
-        return [], partial
-    return buffer[:cut].replace(b"\r", b"\n").split(b"\n"), partial
+        return None, partial
+    return buffer[:cut].replace(b"\r", b"\n"), partial
+
+
+def _complete_lines(buffer: bytes, stats: dict) -> tuple[list[bytes], bytes]:
+    """:func:`_complete_text`, split into its lines (none without a line end)."""
+    text, partial = _complete_text(buffer, stats)
+    return ([] if text is None else text.split(b"\n")), partial
 
 
 class PrefixedLineProtocol:
