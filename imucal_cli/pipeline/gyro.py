@@ -82,37 +82,82 @@ def still_periods(session, accel_cal, cfg, statics) -> tuple[list[Still], float]
 
     Without an accelerometer calibration (``accel_cal`` None: the known-angle solver with
     labelled axes) each period's ``g``, ``g_sigma`` and ``a_raw`` are NaN: only the gyro means
-    and their noise are known."""
+    and their noise are known. All periods at once: their rows stacked end to end
+    (:func:`stacked_rows`), segmented sums (:func:`segment_moments`)."""
     g = cfg.gravity or session.gravity
-    a_means, z_means, counts, raw_means, a_var, z_var = [], [], [], [], 0.0, 0.0
-    nan3 = np.full(3, np.nan)
-    for s in statics:
-        z = session.gyro[s.start : s.stop]
-        if accel_cal is not None:
-            a = accel_cal.apply(session.accel[s.start : s.stop])
-            a_mean = a.mean(axis=0, keepdims=True)  # np.var's own mean, computed once
-            a_means.append(a_mean[0])
-            raw_means.append(session.accel[s.start : s.stop].mean(axis=0))
-        else:
-            a = None
-            a_means.append(nan3)
-            raw_means.append(nan3)
-        z_mean = z.mean(axis=0, keepdims=True)
-        z_means.append(z_mean[0])
-        counts.append(len(z))
-        if len(z) > 1:  # pooled within-still variances (issue 10.7), per channel
-            a_var += 0.0 if a is None else np.mean(np.var(a, axis=0, mean=a_mean)) * len(a)
-            z_var += np.mean(np.var(z, axis=0, mean=z_mean)) * len(z)
-    dof = max(sum(n - 1 for n in counts), 1)
+    rows, counts = stacked_rows([s.start for s in statics], [s.stop for s in statics])
+    z_means, z_ss = segment_moments(session.gyro.take(rows, axis=0), counts)
+    if accel_cal is not None:
+        a_raw = session.accel.take(rows, axis=0)
+        raw_means, _ = segment_moments(a_raw, counts, deviations=False)
+        a_means, a_ss = segment_moments(accel_cal.apply(a_raw), counts)
+        a_var = float(np.sum(a_ss.mean(axis=1)))
+    else:
+        a_means = raw_means = np.full((len(statics), 3), np.nan)
+        a_var = 0.0
+    # Pooled within-still variances (issue 10.7), per channel: a one-sample period adds 0.
+    z_var = float(np.sum(z_ss.mean(axis=1)))
+    dof = max(int(np.sum(counts - 1)), 1)
     a_sigma, z_sigma = np.sqrt(a_var / dof), np.sqrt(z_var / dof)
     # Each mean's noise from the pooled per-sample noise: one hold's few samples can make its
     # own estimate small by chance, and its weight too large (stated std below the bound).
     stills = [
         Still(s, am, max(a_sigma / (g * np.sqrt(n)), 1e-6) if accel_cal is not None else np.nan,
               zm, float(z_sigma / np.sqrt(n)), ar)
-        for s, am, zm, n, ar in zip(statics, a_means, z_means, counts, raw_means, strict=True)
+        for s, am, zm, n, ar in zip(statics, a_means, z_means, counts.tolist(), raw_means,
+                                    strict=True)  # fmt: skip
     ]
     return stills, float(z_sigma)
+
+
+def stacked_rows(start, stop) -> tuple[np.ndarray, np.ndarray]:
+    """The rows of segments ``[start, stop)`` stacked end to end (for ``take``), and each
+    segment's length.
+
+    Raises
+    ------
+    ValueError
+        A segment is empty (``stop <= start``).
+    """
+    start, stop = np.asarray(start, np.int64), np.asarray(stop, np.int64)
+    counts = stop - start
+    if np.any(counts <= 0):
+        raise ValueError("every segment needs at least one sample")
+    offsets = np.cumsum(counts) - counts
+    return np.arange(int(counts.sum())) + np.repeat(start - offsets, counts), counts
+
+
+def segment_moments(x: np.ndarray, counts: np.ndarray, *,
+                    deviations: bool = True) -> tuple[np.ndarray, np.ndarray | None]:  # fmt: skip
+    """Mean and sum of squared deviations from it of each segment of ``x``, per column, for
+    segments stacked end to end (:func:`stacked_rows`): two segmented sums
+    (:func:`numpy.add.reduceat`), the second of the deviations from each segment's own mean
+    (the two-pass variance).
+
+    Parameters
+    ----------
+    x : ndarray (N, c)
+        The segments' rows, the first ``counts[0]`` rows the first segment's, and so on.
+    counts : ndarray of int (S,)
+        Each segment's length, at least 1; they sum to ``N``.
+    deviations : bool
+        Also the sums of squared deviations (else ``ss`` is None).
+
+    Returns
+    -------
+    mean, ss : ndarray (S, c)
+        Each segment's ``mean(axis=0)`` and ``((rows - mean) ** 2).sum(axis=0)``.
+    """
+    x = np.asarray(x, float)
+    if len(counts) == 0:
+        return np.zeros((0, x.shape[1])), np.zeros((0, x.shape[1])) if deviations else None
+    offsets = np.cumsum(counts) - counts
+    mean = np.add.reduceat(x, offsets, axis=0) / counts[:, None]
+    if not deviations:
+        return mean, None
+    d = x - np.repeat(mean, counts, axis=0)
+    np.multiply(d, d, out=d)
+    return mean, np.add.reduceat(d, offsets, axis=0)
 
 
 def turns_between(session, stills, turns, gap) -> tuple[list[Turn], list[str]]:

@@ -1,0 +1,111 @@
+"""Vectorised steps of the gyro calibration against straightforward per-segment references."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from imucal_cli.formats.calibration import SensorCalibration
+from imucal_cli.formats.session import Segment
+from imucal_cli.pipeline.gyro import segment_moments, stacked_rows, still_periods
+
+
+def _reference_moments(x, start, stop):
+    mean = np.array([x[a:b].mean(axis=0) for a, b in zip(start, stop, strict=True)])
+    ss = np.array([((x[a:b] - x[a:b].mean(axis=0)) ** 2).sum(axis=0)
+                   for a, b in zip(start, stop, strict=True)])  # fmt: skip
+    return mean, ss
+
+
+def _reference_still_periods(session, accel_cal, g, statics):
+    """The per-period loop that :func:`still_periods` replaced."""
+    a_means, z_means, counts, raw_means, a_var, z_var = [], [], [], [], 0.0, 0.0
+    for s in statics:
+        z = session.gyro[s.start : s.stop]
+        a = accel_cal.apply(session.accel[s.start : s.stop])
+        a_means.append(a.mean(axis=0))
+        raw_means.append(session.accel[s.start : s.stop].mean(axis=0))
+        z_means.append(z.mean(axis=0))
+        counts.append(len(z))
+        if len(z) > 1:
+            a_var += np.mean(np.var(a, axis=0)) * len(a)
+            z_var += np.mean(np.var(z, axis=0)) * len(z)
+    dof = max(sum(n - 1 for n in counts), 1)
+    a_sigma, z_sigma = np.sqrt(a_var / dof), np.sqrt(z_var / dof)
+    g_sigma = [max(a_sigma / (g * np.sqrt(n)), 1e-6) for n in counts]
+    z_sig = [z_sigma / np.sqrt(n) for n in counts]
+    return (np.array(a_means), np.array(g_sigma), np.array(z_means), np.array(z_sig),
+            np.array(raw_means), z_sigma)  # fmt: skip
+
+
+CASES = {
+    "unequal": ([0, 7, 30, 31], [5, 30, 31, 60]),  # includes a one-row segment
+    "single": ([3], [50]),
+    "whole": ([0], [60]),
+    "unordered, overlapping": ([40, 0, 10], [60, 25, 45]),
+    "one row each": ([0, 1, 2], [1, 2, 3]),
+}
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_segment_moments_match_per_segment_numpy(case):
+    rng = np.random.default_rng(7)
+    x = rng.normal(1e3, 5.0, (60, 4))  # a large mean: the two-pass variance keeps its digits
+    start, stop = CASES[case]
+    rows, counts = stacked_rows(start, stop)
+    np.testing.assert_array_equal(counts, np.subtract(stop, start))
+    ref_rows = [np.arange(a, b) for a, b in zip(start, stop, strict=True)]
+    np.testing.assert_array_equal(rows, np.concatenate(ref_rows))
+    mean, ss = segment_moments(x[rows], counts)
+    ref_mean, ref_ss = _reference_moments(x, start, stop)
+    np.testing.assert_allclose(mean, ref_mean, rtol=1e-14)
+    np.testing.assert_allclose(ss, ref_ss, rtol=1e-10, atol=1e-20)
+    only_mean, none = segment_moments(x[rows], counts, deviations=False)
+    assert none is None
+    np.testing.assert_array_equal(only_mean, mean)
+
+
+def test_segment_moments_of_constant_segments_are_exact():
+    x = np.repeat(np.array([[1.5, -2.0], [3.25, 0.0]]), [4, 9], axis=0)
+    mean, ss = segment_moments(x, np.array([4, 9]))
+    np.testing.assert_array_equal(mean, [[1.5, -2.0], [3.25, 0.0]])
+    np.testing.assert_array_equal(ss, 0.0)
+
+
+def test_no_segments_and_empty_segments():
+    rows, counts = stacked_rows([], [])
+    assert rows.shape == (0,) and counts.shape == (0,)
+    mean, ss = segment_moments(np.zeros((0, 3)), counts)
+    assert mean.shape == ss.shape == (0, 3)
+    with pytest.raises(ValueError):
+        stacked_rows([0, 5], [5, 5])
+
+
+@pytest.mark.parametrize("case", ["unequal", "single", "unordered, overlapping"])
+def test_still_periods_match_the_per_period_loop(case):
+    rng = np.random.default_rng(3)
+    n = 60
+    session = SimpleNamespace(gyro=rng.normal(30.0, 4.0, (n, 3)),
+                              accel=rng.normal([100.0, -50.0, 2000.0], 3.0, (n, 3)),
+                              gravity=9.81)  # fmt: skip
+    matrix = np.diag([4.9e-3, 5.0e-3, 4.8e-3]) + rng.normal(0, 1e-5, (3, 3))
+    acc = SensorCalibration("x", "m/s^2", rng.normal(0, 10, 3), matrix)
+    start, stop = CASES[case]
+    statics = [Segment(f"s{i}", "static", a, b)
+               for i, (a, b) in enumerate(zip(start, stop, strict=True))]  # fmt: skip
+    stills, z_sigma = still_periods(session, acc, SimpleNamespace(gravity=None), statics)
+    a_means, g_sigma, z_means, z_sig, raw_means, ref_sigma = _reference_still_periods(
+        session, acc, 9.81, statics)
+    np.testing.assert_allclose([s.g for s in stills], a_means, rtol=1e-13)
+    np.testing.assert_allclose([s.g_sigma for s in stills], g_sigma, rtol=1e-12)
+    np.testing.assert_allclose([s.z_mean for s in stills], z_means, rtol=1e-13)
+    np.testing.assert_allclose([s.z_sigma for s in stills], z_sig, rtol=1e-12)
+    np.testing.assert_allclose([s.a_raw for s in stills], raw_means, rtol=1e-13)
+    np.testing.assert_allclose(z_sigma, ref_sigma, rtol=1e-12)
+    assert [s.segment for s in stills] == statics
+
+    bare, bare_sigma = still_periods(session, None, SimpleNamespace(gravity=None), statics)
+    assert np.isnan([s.g for s in bare]).all() and np.isnan([s.a_raw for s in bare]).all()
+    assert np.isnan([s.g_sigma for s in bare]).all()
+    np.testing.assert_allclose([s.z_mean for s in bare], z_means, rtol=1e-13)
+    assert bare_sigma == z_sigma
