@@ -109,3 +109,51 @@ def test_still_periods_match_the_per_period_loop(case):
     assert np.isnan([s.g_sigma for s in bare]).all()
     np.testing.assert_allclose([s.z_mean for s in bare], z_means, rtol=1e-13)
     assert bare_sigma == z_sigma
+
+
+def _reference_turns(t, z, b0, clock):
+    """The per-turn loop that :class:`imucal_cli.solvers.gyro_start._Turns` replaced: the
+    block integrals of the coarse integrator and each turn's raw integral."""
+    from imucal_cli.solvers.gyro_start import COARSE_RATE_HZ
+
+    steps, coarse_t, x = [], [], np.zeros((len(t), 3))
+    dt = np.median(np.concatenate([np.diff(tk) for tk in t]))
+    m = max(1, int(round(1 / (COARSE_RATE_HZ * max(clock * dt, 1e-12)))))
+    for k, (tk, zk) in enumerate(zip(t, z, strict=True)):
+        h = clock * np.diff(tk)[:, None]
+        d = np.asarray(zk, float) - b0
+        cum = np.vstack([np.zeros(3), np.cumsum(h * (d[:-1] + d[1:]) / 2, axis=0)])
+        keep = np.unique(np.r_[np.arange(0, len(tk), m), len(tk) - 1])
+        steps.append(np.diff(cum[keep], axis=0, prepend=np.zeros((1, 3))))
+        coarse_t.append(tk[keep])
+        x[k] = cum[-1]
+    return np.concatenate(steps).T, coarse_t, x
+
+
+TURN_LENGTHS = {
+    "unequal": [37, 2, 4, 5, 120, 9],  # shorter and longer than a block, and 2 samples
+    "single": [61],
+    "last row on a block start": [5, 9, 13],  # kept once, as every m-th row and as the last
+}
+
+
+@pytest.mark.parametrize("case", TURN_LENGTHS)
+@pytest.mark.parametrize("clock", [1.0, 1.0021])
+def test_coarse_turns_match_the_per_turn_loop(case, clock):
+    from imucal_cli.solvers.gyro_start import _Turns
+
+    rng = np.random.default_rng(11)
+    t, z, t0 = [], [], 0.0
+    for n in TURN_LENGTHS[case]:
+        t.append(t0 + np.cumsum(rng.uniform(0.0099, 0.0101, n)))  # 100 Hz with jitter
+        z.append(rng.normal(0, 300.0, (n, 3)))
+        t0 = t[-1][-1] + 5.0
+    g = rng.normal(0, 1, (len(t), 3))
+    b0 = np.array([1.5, -2.0, 0.25])
+    turns = _Turns(t, z, g, -g, b0, clock)
+    steps, coarse_t, x = _reference_turns(t, z, b0, clock)
+    assert len(turns.coarse_t) == len(coarse_t)
+    for a, b in zip(turns.coarse_t, coarse_t, strict=True):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_allclose(turns.steps, steps, rtol=1e-12, atol=1e-12 * np.abs(steps).max())
+    np.testing.assert_allclose(turns.x, x, rtol=1e-12, atol=1e-12 * np.abs(x).max())
