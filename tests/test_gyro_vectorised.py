@@ -157,3 +157,62 @@ def test_coarse_turns_match_the_per_turn_loop(case, clock):
         np.testing.assert_array_equal(a, b)
     np.testing.assert_allclose(turns.steps, steps, rtol=1e-12, atol=1e-12 * np.abs(steps).max())
     np.testing.assert_allclose(turns.x, x, rtol=1e-12, atol=1e-12 * np.abs(x).max())
+
+
+def _reference_turns_between(time, stills, turns, gap):
+    """The per-turn loop that :func:`turns_between` replaced."""
+    start = np.array([s.segment.start for s in stills], dtype=np.int64)
+    stop = np.array([s.segment.stop for s in stills], dtype=np.int64)
+    t_start, t_end = time[start], time[stop - 1]
+    usable, skipped = [], []
+    for r in turns:
+        t0, t1 = time[r.start], time[r.stop - 1]
+        before = np.flatnonzero((stop <= r.start + 1) & (t0 - t_end <= gap))
+        after = np.flatnonzero((start >= r.stop - 1) & (t_start - t1 <= gap))
+        if len(before) and len(after):
+            usable.append((r.name, int(before[-1]), int(after[0])))
+        else:
+            skipped.append(r.name)
+    return usable, skipped
+
+
+@pytest.mark.parametrize("pairs", [1 << 18, 7, 1])  # one chunk, several, one turn at a time
+@pytest.mark.parametrize("order", ["sorted", "shuffled"])
+def test_turns_between_match_the_per_turn_loop(monkeypatch, pairs, order):
+    import imucal_cli.pipeline.gyro as pg
+
+    monkeypatch.setattr(pg, "PAIRS", pairs)
+    rng = np.random.default_rng(5)
+    time = np.cumsum(rng.uniform(0.009, 0.011, 3000))
+    time[1500:] += 20.0  # a long pause: the turns around it lack a near still period
+    bounds = np.sort(rng.choice(np.arange(1, 3000), 40, replace=False))
+    parts = list(zip(np.r_[0, bounds], np.r_[bounds, 3000], strict=True))
+    statics = [Segment(f"s{i}", "static", int(a), int(b)) for i, (a, b) in enumerate(parts[::2])]
+    turns = [Segment(f"r{i}", "rotation", int(a), int(b)) for i, (a, b) in enumerate(parts[1::2])]
+    turns.append(Segment("first", "rotation", 0, 10))  # nothing before it
+    if order == "shuffled":
+        statics = [statics[i] for i in rng.permutation(len(statics))]
+    stills = [SimpleNamespace(segment=s) for s in statics]
+    session = SimpleNamespace(time=time)
+    for gap in (0.0, 0.05, 3.0):
+        usable, skipped = pg.turns_between(session, stills, turns, gap)
+        ref_usable, ref_skipped = _reference_turns_between(time, stills, turns, gap)
+        assert [(u.segment.name, u.before, u.after) for u in usable] == ref_usable
+        assert skipped == ref_skipped
+    assert pg.turns_between(session, [], turns, 3.0) == ([], [t.name for t in turns])
+    assert pg.turns_between(session, stills, [], 3.0) == ([], [])
+
+
+@pytest.mark.parametrize("limit", [None, (-900.0, 900.0), (-2000.0, 2000.0), (-1.0, 1.0)])
+def test_clipped_turns_match_the_per_turn_check(limit):
+    from imucal_cli.pipeline.gyro import Turn, _clipped
+
+    rng = np.random.default_rng(9)
+    gyro = rng.normal(0, 300.0, (500, 3))
+    bounds = [(0, 7), (7, 8), (20, 90), (90, 300), (450, 500)]
+    turns = [Turn(Segment(f"r{i}", "rotation", a, b), 0, 0) for i, (a, b) in enumerate(bounds)]
+    got = _clipped(SimpleNamespace(gyro=gyro), turns, limit)
+    ref = [limit is not None and bool(np.any((gyro[a:b] <= limit[0]) | (gyro[a:b] >= limit[1])))
+           for a, b in bounds]  # fmt: skip
+    assert got.tolist() == ref
+    assert _clipped(SimpleNamespace(gyro=gyro), [], limit).tolist() == []

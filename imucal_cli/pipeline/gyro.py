@@ -162,21 +162,37 @@ def segment_moments(x: np.ndarray, counts: np.ndarray, *,
 
 def turns_between(session, stills, turns, gap) -> tuple[list[Turn], list[str]]:
     """The turns with a still period right before and after (within ``gap`` s), and the
-    names of the others."""
-    usable, skipped = [], []
+    names of the others: for each turn the last still period that ends by its first sample
+    and the first that starts at its last, compared with all still periods at once (in
+    chunks of turns: memory bounded by :data:`PAIRS`)."""
     time = session.time
     start = np.array([s.segment.start for s in stills], dtype=np.int64)
     stop = np.array([s.segment.stop for s in stills], dtype=np.int64)
     t_start, t_end = time[start], time[stop - 1]
-    for r in turns:
-        t0, t1 = time[r.start], time[r.stop - 1]
-        before = np.flatnonzero((stop <= r.start + 1) & (t0 - t_end <= gap))
-        after = np.flatnonzero((start >= r.stop - 1) & (t_start - t1 <= gap))
-        if len(before) and len(after):
-            usable.append(Turn(r, int(before[-1]), int(after[0])))
+    r_start = np.array([r.start for r in turns], dtype=np.int64)
+    r_stop = np.array([r.stop for r in turns], dtype=np.int64)
+    P = len(stills)
+    before = np.full(len(turns), -1)
+    after = np.full(len(turns), -1)
+    step = max(1, PAIRS // max(P, 1))
+    for i in range(0, len(turns) if P else 0, step):
+        rs, re = r_start[i : i + step, None], r_stop[i : i + step, None]
+        ok_before = (stop <= rs + 1) & (time[rs] - t_end <= gap)  # (turns, stills)
+        ok_after = (start >= re - 1) & (t_start - time[re - 1] <= gap)
+        last = P - 1 - np.argmax(ok_before[:, ::-1], axis=1)
+        before[i : i + step] = np.where(ok_before.any(axis=1), last, -1)
+        after[i : i + step] = np.where(ok_after.any(axis=1), np.argmax(ok_after, axis=1), -1)
+    usable, skipped = [], []
+    for r, b, a in zip(turns, before.tolist(), after.tolist(), strict=True):
+        if b >= 0 and a >= 0:
+            usable.append(Turn(r, b, a))
         else:
             skipped.append(r.label or r.name)
     return usable, skipped
+
+
+#: Turn-still pairs compared at once by :func:`turns_between`.
+PAIRS = 1 << 18
 
 
 def _stills_and_turns(session, accel_cal, cfg, where):
@@ -192,11 +208,16 @@ def _stills_and_turns(session, accel_cal, cfg, where):
     return stills, usable, skipped, source, z_sigma
 
 
-def _saturated(session: Session, turn: Turn, limit: tuple[float, float] | None) -> bool:
-    if limit is None:
-        return False
-    z = session.gyro[turn.segment.start : turn.segment.stop]
-    return bool(np.any((z <= limit[0]) | (z >= limit[1])))
+def _clipped(session: Session, turns: list[Turn], limit: tuple[float, float] | None
+             ) -> np.ndarray:  # fmt: skip
+    """Whether each turn reaches ``limit`` (the gyro's clipping levels) in any channel."""
+    if limit is None or not turns:
+        return np.zeros(len(turns), bool)
+    rows, counts = stacked_rows([t.segment.start for t in turns],
+                                [t.segment.stop for t in turns])  # fmt: skip
+    z = session.gyro.take(rows, axis=0)
+    hit = np.any((z <= limit[0]) | (z >= limit[1]), axis=1)
+    return np.logical_or.reduceat(hit, np.cumsum(counts) - counts)
 
 
 def _saturation_limit(session: Session, cfg: Config) -> tuple[float, float] | None:
@@ -264,13 +285,14 @@ def gyro_data(session: Session, cfg: Config, accel_cal: SensorCalibration) -> Gy
         data.notes.append(f"{len(skipped)} rotation(s) without still data before and after: "
                           "skipped")  # fmt: skip
     limit = _saturation_limit(session, cfg)
-    clipped = [t for t in turns if _saturated(session, t, limit)]
+    is_clipped = _clipped(session, turns, limit)
+    clipped = [t for t, c in zip(turns, is_clipped.tolist(), strict=True) if c]
     if clipped:
         data.warnings.append(
             f"{len(clipped)} rotation(s) reach the end of the gyro's range (raw "
             f"{limit[0]:.6g} .. {limit[1]:.6g}): left out; turn more slowly"
         )
-        data.turns = [t for t in turns if t not in clipped]
+        data.turns = [t for t, c in zip(turns, is_clipped.tolist(), strict=True) if not c]
     if not data.turns:
         raise DesignError(f"{where}: every rotation is clipped: turn the unit more slowly")
     n = sum(s.segment.stop - s.segment.start for s in stills)
