@@ -216,3 +216,16 @@ def test_clipped_turns_match_the_per_turn_check(limit):
            for a, b in bounds]  # fmt: skip
     assert got.tolist() == ref
     assert _clipped(SimpleNamespace(gyro=gyro), [], limit).tolist() == []
+
+
+@pytest.mark.parametrize("n", [1, 2, 17, 4000])
+def test_normalised_quaternion_pairs_match_the_einsum_norm(n):
+    from imucal_cli.solvers.gyro_integration import _normalised
+
+    rng = np.random.default_rng(n)
+    q = rng.normal(size=(2, n)) + 1j * rng.normal(size=(2, n))
+    re = q.view(float).reshape(2, -1, 2)
+    ref = q / np.sqrt(np.einsum("cnk,cnk->n", re, re))
+    out = _normalised(q.copy())
+    np.testing.assert_allclose(out.view(float), ref.view(float), rtol=4e-16, atol=4e-16)
+    np.testing.assert_allclose(np.abs(out[0]) ** 2 + np.abs(out[1]) ** 2, 1.0, rtol=1e-15)

