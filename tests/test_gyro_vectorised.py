@@ -63,6 +63,12 @@ def test_segment_moments_match_per_segment_numpy(case):
     only_mean, none = segment_moments(x[rows], counts, deviations=False)
     assert none is None
     np.testing.assert_array_equal(only_mean, mean)
+    # The deviations of an affine map of the rows.
+    A = rng.normal(0, 1, (3, 4))
+    mapped_mean, mapped_ss = segment_moments(x[rows], counts, matrix=A)
+    np.testing.assert_array_equal(mapped_mean, mean)
+    _, ref_mapped = _reference_moments(x @ A.T + 5.0, start, stop)
+    np.testing.assert_allclose(mapped_ss, ref_mapped, rtol=1e-9, atol=1e-12 * ref_mapped.max())
 
 
 def test_segment_moments_of_constant_segments_are_exact():

@@ -88,9 +88,11 @@ def still_periods(session, accel_cal, cfg, statics) -> tuple[list[Still], float]
     rows, counts = stacked_rows([s.start for s in statics], [s.stop for s in statics])
     z_means, z_ss = segment_moments(session.gyro.take(rows, axis=0), counts)
     if accel_cal is not None:
-        a_raw = session.accel.take(rows, axis=0)
-        raw_means, _ = segment_moments(a_raw, counts, deviations=False)
-        a_means, a_ss = segment_moments(accel_cal.apply(a_raw), counts)
+        # The calibration is affine: the calibrated mean is the calibrated raw mean, and the
+        # calibrated deviations are the raw ones times its matrix.
+        raw_means, a_ss = segment_moments(session.accel.take(rows, axis=0), counts,
+                                          matrix=np.asarray(accel_cal.matrix, float))  # fmt: skip
+        a_means = accel_cal.apply(raw_means)
         a_var = float(np.sum(a_ss.mean(axis=1)))
     else:
         a_means = raw_means = np.full((len(statics), 3), np.nan)
@@ -127,8 +129,8 @@ def stacked_rows(start, stop) -> tuple[np.ndarray, np.ndarray]:
     return np.arange(int(counts.sum())) + np.repeat(start - offsets, counts), counts
 
 
-def segment_moments(x: np.ndarray, counts: np.ndarray, *,
-                    deviations: bool = True) -> tuple[np.ndarray, np.ndarray | None]:  # fmt: skip
+def segment_moments(x: np.ndarray, counts: np.ndarray, *, deviations: bool = True,
+                    matrix: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """Mean and sum of squared deviations from it of each segment of ``x``, per column, for
     segments stacked end to end (:func:`stacked_rows`): two segmented sums
     (:func:`numpy.add.reduceat`), the second of the deviations from each segment's own mean
@@ -142,20 +144,26 @@ def segment_moments(x: np.ndarray, counts: np.ndarray, *,
         Each segment's length, at least 1; they sum to ``N``.
     deviations : bool
         Also the sums of squared deviations (else ``ss`` is None).
+    matrix : ndarray (d, c), optional
+        The squared deviations of ``x @ matrix.T + const`` instead (an affine map of the
+        rows: ``(x - mean) @ matrix.T``), ``ss`` of shape (S, d).
 
     Returns
     -------
-    mean, ss : ndarray (S, c)
+    mean, ss : ndarray (S, c), (S, c or d)
         Each segment's ``mean(axis=0)`` and ``((rows - mean) ** 2).sum(axis=0)``.
     """
     x = np.asarray(x, float)
+    d_out = x.shape[1] if matrix is None else matrix.shape[0]
     if len(counts) == 0:
-        return np.zeros((0, x.shape[1])), np.zeros((0, x.shape[1])) if deviations else None
+        return np.zeros((0, x.shape[1])), np.zeros((0, d_out)) if deviations else None
     offsets = np.cumsum(counts) - counts
     mean = np.add.reduceat(x, offsets, axis=0) / counts[:, None]
     if not deviations:
         return mean, None
     d = x - np.repeat(mean, counts, axis=0)
+    if matrix is not None:
+        d = d @ matrix.T
     np.multiply(d, d, out=d)
     return mean, np.add.reduceat(d, offsets, axis=0)
 
