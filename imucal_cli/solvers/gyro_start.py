@@ -141,9 +141,10 @@ class _Turns:
     def mismatch(self, R: np.ndarray, O: np.ndarray) -> np.ndarray:
         """Gravity mismatch of each orientation ``O`` (n, 3, 3) given the turns' rotations
         ``R`` integrated with ``det(O) * scale``: shape (n,)."""
-        v = np.einsum("oba,kb->oka", O, self.u0)  # O^T u0
-        v = np.einsum("kba,okb->oka", R, v)  # R^T O^T u0
-        p = np.einsum("oab,okb->oka", O, v)  # O R^T O^T u0
+        # Stacked matrix products (an einsum of these shapes took 4 times as long).
+        v = self.u0 @ O  # (n, K, 3): O^T u0
+        v = (v[:, :, None, :] @ R)[:, :, 0]  # R^T O^T u0
+        p = v @ O.transpose(0, 2, 1)  # O R^T O^T u0
         return np.sum((p - self.u1) ** 2, axis=(1, 2))
 
 
