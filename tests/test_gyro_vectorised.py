@@ -235,3 +235,23 @@ def test_normalised_quaternion_pairs_match_the_einsum_norm(n):
     out = _normalised(q.copy())
     np.testing.assert_allclose(out.view(float), ref.view(float), rtol=4e-16, atol=4e-16)
     np.testing.assert_allclose(np.abs(out[0]) ** 2 + np.abs(out[1]) ** 2, 1.0, rtol=1e-15)
+
+
+@pytest.mark.parametrize("size", [0.0, 1e-12, 1e-4, 0.02, 0.2, 0.3, 2.0, 10.0])
+def test_rotvec_quaternions_match_sin_and_cos(size):
+    """The series of the half-angle factors equals numpy's sin and cos to rounding, below and
+    above :data:`SERIES_MAX`, at zero and at the boundary."""
+    from imucal_cli.solvers.gyro_integration import SERIES_MAX, _rotvec_pairs
+
+    rng = np.random.default_rng(int(size * 1000))
+    phi = rng.normal(0, size, (3, 3000))
+    phi[:, 0] = 0.0
+    phi[:, 1] = [SERIES_MAX, 0.0, 0.0]
+    phi[:, 2] = [0.0, np.nextafter(SERIES_MAX, 1.0), 0.0]
+    theta = np.linalg.norm(phi, axis=0)
+    half = theta / 2
+    s = np.divide(np.sin(half), theta, out=np.full_like(theta, 0.5), where=theta > 0)
+    ref = np.array([np.cos(half), phi[0] * s, phi[1] * s, phi[2] * s])
+    got = _rotvec_pairs(phi)
+    np.testing.assert_allclose(got.view(float).reshape(2, -1, 2).transpose(0, 2, 1).reshape(4, -1),
+                               ref, rtol=0, atol=3e-16)  # fmt: skip

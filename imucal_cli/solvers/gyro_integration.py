@@ -26,6 +26,7 @@ clock correction scales the whole integration through that one factor.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from math import factorial
 
 import numpy as np
 
@@ -90,16 +91,41 @@ def rotvec_to_quat(phi: np.ndarray) -> np.ndarray:
 
 
 def _rotvec_pairs(phi: np.ndarray) -> np.ndarray:
-    """(3, N) rotation vectors -> (2, N) unit quaternions as complex pairs (:func:`qmul`)."""
+    """(3, N) rotation vectors -> (2, N) unit quaternions as complex pairs (:func:`qmul`):
+    ``(cos(theta/2), sin(theta/2)/theta phi)``, both factors by their Taylor series in
+    ``(theta/2)^2`` (:data:`SERIES_MAX`; numpy's sin and cos, several times slower, for the
+    rare longer steps)."""
     theta = np.sqrt(np.einsum("in,in->n", phi, phi))
-    half = theta / 2
-    s = np.sin(half)
-    np.divide(s, theta, out=s, where=theta > 0)  # sin(theta/2) / theta, 1/2 at 0
-    s[theta == 0] = 0.5
+    x2 = theta * theta / 4
+    c, s = _series(x2, COS_SERIES), _series(x2, SIN_SERIES)
+    big = np.flatnonzero(theta > SERIES_MAX)
+    if len(big):
+        half = theta[big] / 2
+        c[big] = np.cos(half)
+        s[big] = np.sin(half) / theta[big]
     out = np.empty((2, phi.shape[1]), dtype=complex)
-    out.real[0], out.imag[0] = np.cos(half), phi[0] * s
+    out.real[0], out.imag[0] = c, phi[0] * s
     out.real[1], out.imag[1] = phi[1] * s, phi[2] * s
     return out
+
+
+#: Rotation angles (rad) up to which :func:`_rotvec_pairs` sums the series: the first term
+#: left out, ``(theta/2)^14 / 14!``, is below 1e-19 (a hand turn at 100 Hz moves about 0.05
+#: rad a sample, the start's coarse integrator four times as much).
+SERIES_MAX = 0.5
+#: ``cos(x) = sum_k (-1)^k x^2k / (2k)!`` and ``sin(x) / (2x) = sum_k (-1)^k x^2k / (2k+1)! / 2``
+#: (``sin(theta/2) / theta`` with ``x = theta/2``), k = 0..6.
+COS_SERIES = tuple((-1) ** k / factorial(2 * k) for k in range(7))
+SIN_SERIES = tuple((-1) ** k / factorial(2 * k + 1) / 2 for k in range(7))
+
+
+def _series(x2: np.ndarray, coef: tuple[float, ...]) -> np.ndarray:
+    """``sum_k coef[k] x2^k`` by Horner's rule, in place on one array."""
+    p = np.full_like(x2, coef[-1])
+    for c in coef[-2::-1]:
+        p *= x2
+        p += c
+    return p
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
