@@ -87,8 +87,12 @@ def test_no_segments_and_empty_segments():
         stacked_rows([0, 5], [5, 5])
 
 
+@pytest.mark.parametrize("chunk", [1 << 16, 30, 1])  # one chunk; several; a segment each
 @pytest.mark.parametrize("case", ["unequal", "single", "unordered, overlapping"])
-def test_still_periods_match_the_per_period_loop(case):
+def test_still_periods_match_the_per_period_loop(monkeypatch, case, chunk):
+    import imucal_cli.pipeline.gyro as pg
+
+    monkeypatch.setattr(pg, "CHUNK_ROWS", chunk)
     rng = np.random.default_rng(3)
     n = 60
     session = SimpleNamespace(gyro=rng.normal(30.0, 4.0, (n, 3)),
@@ -255,3 +259,21 @@ def test_rotvec_quaternions_match_sin_and_cos(size):
     got = _rotvec_pairs(phi)
     np.testing.assert_allclose(got.view(float).reshape(2, -1, 2).transpose(0, 2, 1).reshape(4, -1),
                                ref, rtol=0, atol=3e-16)  # fmt: skip
+
+
+@pytest.mark.parametrize("chunk", [1 << 16, 25, 1])
+@pytest.mark.parametrize("case", CASES)
+def test_moments_in_chunks_equal_the_whole(monkeypatch, case, chunk):
+    import imucal_cli.pipeline.gyro as pg
+
+    rng = np.random.default_rng(2)
+    x = rng.normal(0, 1, (60, 3))
+    start, stop = (np.array(v) for v in CASES[case])
+    rows, counts = stacked_rows(start, stop)
+    whole = segment_moments(x[rows], counts, matrix=np.eye(2, 3))
+    monkeypatch.setattr(pg, "CHUNK_ROWS", chunk)
+    parts = pg.moments_in_chunks(x, start, stop, matrix=np.eye(2, 3))
+    np.testing.assert_allclose(parts[0], whole[0], rtol=1e-15)
+    np.testing.assert_allclose(parts[1], whole[1], rtol=1e-13)
+    empty = pg.moments_in_chunks(x, np.zeros(0, int), np.zeros(0, int), matrix=np.eye(2, 3))
+    assert empty[0].shape == (0, 3) and empty[1].shape == (0, 2)
