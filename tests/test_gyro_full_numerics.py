@@ -197,3 +197,43 @@ def test_numpy_sparse_gram_and_ordering_match_scipy():
     assert width(reverse_cuthill_mckee(A.row, A.col, n)) <= width(
         scipy_rcm(A.tocsr(), symmetric_mode=True))
     assert width(reverse_cuthill_mckee(A.row, A.col, n)) < width(np.arange(n)) / 10
+
+
+def test_kept_jacobian_and_covariance_equal_fresh_ones(problem):
+    """The residuals, Jacobian and noise covariance kept with an integration are what a fresh
+    problem computes, read-only, and not handed to a problem with other still periods."""
+    from dataclasses import replace
+
+    rot, still, noise, truth = problem
+    x = np.r_[truth.gyro.bias, truth.gyro.matrix.ravel()] * (1 + 1e-4)
+    prob = Problem(rot, still, noise)
+    r, J = prob.residuals_and_jacobian(x)
+    assert prob.residuals_and_jacobian(x.copy())[1] is J  # kept
+    assert not J.flags.writeable and not r.flags.writeable
+    fresh_r, fresh_J = Problem(rot, still, noise).residuals_and_jacobian(x)
+    np.testing.assert_array_equal(r, fresh_r)
+    np.testing.assert_array_equal(J, fresh_J)
+    C = prob.rotation_covariance(x)
+    assert prob.rotation_covariance(x) is C
+    np.testing.assert_array_equal(C.toarray(), Problem(rot, still, noise).rotation_covariance(x)
+                                  .toarray())  # fmt: skip
+    # With G = 0 the 21-parameter problem's covariance is the 12-parameter one's.
+    with_g = Problem(rot, still, noise, g_sensitivity=True, like=prob)
+    with_g.share_without_g(prob, x)
+    x_g = np.r_[x, np.zeros(9)]
+    assert with_g.rotation_covariance(x_g) is prob.rotation_covariance(x)
+    assert with_g.residuals_and_jacobian(x_g)[1].shape == (len(r), 21)
+    # Another still period's gravity: the same integration, its own residuals and covariance
+    # (what it keeps replaces the first problem's: recomputed there when asked again).
+    moved = prob.with_still(replace(still, g=still.g * 1.001 + 0.01))
+    r2, J2 = moved.residuals_and_jacobian(x)
+    assert J2 is not J
+    np.testing.assert_array_equal(
+        r2, Problem(rot, moved.still, noise).residuals_and_jacobian(x)[0])
+    assert moved.rotation_covariance(x) is not C
+    np.testing.assert_array_equal(prob.residuals_and_jacobian(x)[1], J)
+    # Another noise level: its own covariance.
+    other = Problem(rot, still, 2 * noise)
+    other.share(prob)
+    np.testing.assert_array_equal(other.rotation_covariance(x).toarray(),
+                                  Problem(rot, still, 2 * noise).rotation_covariance(x).toarray())

@@ -82,56 +82,157 @@ def still_periods(session, accel_cal, cfg, statics) -> tuple[list[Still], float]
 
     Without an accelerometer calibration (``accel_cal`` None: the known-angle solver with
     labelled axes) each period's ``g``, ``g_sigma`` and ``a_raw`` are NaN: only the gyro means
-    and their noise are known."""
+    and their noise are known. Many periods at once: their rows stacked end to end
+    (:func:`moments_in_chunks`)."""
     g = cfg.gravity or session.gravity
-    a_means, z_means, counts, raw_means, a_var, z_var = [], [], [], [], 0.0, 0.0
-    nan3 = np.full(3, np.nan)
-    for s in statics:
-        z = session.gyro[s.start : s.stop]
-        if accel_cal is not None:
-            a = accel_cal.apply(session.accel[s.start : s.stop])
-            a_mean = a.mean(axis=0, keepdims=True)  # np.var's own mean, computed once
-            a_means.append(a_mean[0])
-            raw_means.append(session.accel[s.start : s.stop].mean(axis=0))
-        else:
-            a = None
-            a_means.append(nan3)
-            raw_means.append(nan3)
-        z_mean = z.mean(axis=0, keepdims=True)
-        z_means.append(z_mean[0])
-        counts.append(len(z))
-        if len(z) > 1:  # pooled within-still variances (issue 10.7), per channel
-            a_var += 0.0 if a is None else np.mean(np.var(a, axis=0, mean=a_mean)) * len(a)
-            z_var += np.mean(np.var(z, axis=0, mean=z_mean)) * len(z)
-    dof = max(sum(n - 1 for n in counts), 1)
+    start = np.array([s.start for s in statics], dtype=np.int64)
+    stop = np.array([s.stop for s in statics], dtype=np.int64)
+    counts = stop - start
+    z_means, z_ss = moments_in_chunks(session.gyro, start, stop)
+    if accel_cal is not None:
+        # The calibration is affine: the calibrated mean is the calibrated raw mean, and the
+        # calibrated deviations are the raw ones times its matrix.
+        raw_means, a_ss = moments_in_chunks(session.accel, start, stop,
+                                            matrix=np.asarray(accel_cal.matrix, float))  # fmt: skip
+        a_means = accel_cal.apply(raw_means)
+        a_var = float(np.sum(a_ss.mean(axis=1)))
+    else:
+        a_means = raw_means = np.full((len(statics), 3), np.nan)
+        a_var = 0.0
+    # Pooled within-still variances (issue 10.7), per channel: a one-sample period adds 0.
+    z_var = float(np.sum(z_ss.mean(axis=1)))
+    dof = max(int(np.sum(counts - 1)), 1)
     a_sigma, z_sigma = np.sqrt(a_var / dof), np.sqrt(z_var / dof)
     # Each mean's noise from the pooled per-sample noise: one hold's few samples can make its
     # own estimate small by chance, and its weight too large (stated std below the bound).
     stills = [
         Still(s, am, max(a_sigma / (g * np.sqrt(n)), 1e-6) if accel_cal is not None else np.nan,
               zm, float(z_sigma / np.sqrt(n)), ar)
-        for s, am, zm, n, ar in zip(statics, a_means, z_means, counts, raw_means, strict=True)
+        for s, am, zm, n, ar in zip(statics, a_means, z_means, counts.tolist(), raw_means,
+                                    strict=True)  # fmt: skip
     ]
     return stills, float(z_sigma)
 
 
+#: Rows gathered at a time by :func:`moments_in_chunks` (temporaries of about 1.5 MB, reused
+#: from chunk to chunk: the whole still data at once took fresh pages, 8 ms more in a process).
+CHUNK_ROWS = 1 << 16
+
+
+def moments_in_chunks(x: np.ndarray, start: np.ndarray, stop: np.ndarray, *,
+                      matrix: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`segment_moments` of the segments ``x[start:stop]``, the rows of consecutive
+    segments gathered (:func:`stacked_rows`) about :data:`CHUNK_ROWS` at a time (a longer
+    segment alone).
+
+    Returns
+    -------
+    mean, ss : ndarray (S, c), (S, c or d)
+    """
+    counts = np.asarray(stop, np.int64) - np.asarray(start, np.int64)
+    ends = np.cumsum(counts)
+    means, sss, i = [], [], 0
+    while i < len(counts):
+        j = max(i + 1, int(np.searchsorted(ends, ends[i] - counts[i] + CHUNK_ROWS, "right")))
+        rows, c = stacked_rows(start[i:j], stop[i:j])
+        mean, ss = segment_moments(x.take(rows, axis=0), c, matrix=matrix)
+        means.append(mean)
+        sss.append(ss)
+        i = j
+    if not means:
+        return segment_moments(np.zeros((0, x.shape[1])), counts, matrix=matrix)
+    return np.concatenate(means), np.concatenate(sss)
+
+
+def stacked_rows(start, stop) -> tuple[np.ndarray, np.ndarray]:
+    """The rows of segments ``[start, stop)`` stacked end to end (for ``take``), and each
+    segment's length.
+
+    Raises
+    ------
+    ValueError
+        A segment is empty (``stop <= start``).
+    """
+    start, stop = np.asarray(start, np.int64), np.asarray(stop, np.int64)
+    counts = stop - start
+    if np.any(counts <= 0):
+        raise ValueError("every segment needs at least one sample")
+    offsets = np.cumsum(counts) - counts
+    return np.arange(int(counts.sum())) + np.repeat(start - offsets, counts), counts
+
+
+def segment_moments(x: np.ndarray, counts: np.ndarray, *, deviations: bool = True,
+                    matrix: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Mean and sum of squared deviations from it of each segment of ``x``, per column, for
+    segments stacked end to end (:func:`stacked_rows`): two segmented sums
+    (:func:`numpy.add.reduceat`), the second of the deviations from each segment's own mean
+    (the two-pass variance).
+
+    Parameters
+    ----------
+    x : ndarray (N, c)
+        The segments' rows, the first ``counts[0]`` rows the first segment's, and so on.
+    counts : ndarray of int (S,)
+        Each segment's length, at least 1; they sum to ``N``.
+    deviations : bool
+        Also the sums of squared deviations (else ``ss`` is None).
+    matrix : ndarray (d, c), optional
+        The squared deviations of ``x @ matrix.T + const`` instead (an affine map of the
+        rows: ``(x - mean) @ matrix.T``), ``ss`` of shape (S, d).
+
+    Returns
+    -------
+    mean, ss : ndarray (S, c), (S, c or d)
+        Each segment's ``mean(axis=0)`` and ``((rows - mean) ** 2).sum(axis=0)``.
+    """
+    x = np.asarray(x, float)
+    d_out = x.shape[1] if matrix is None else matrix.shape[0]
+    if len(counts) == 0:
+        return np.zeros((0, x.shape[1])), np.zeros((0, d_out)) if deviations else None
+    offsets = np.cumsum(counts) - counts
+    mean = np.add.reduceat(x, offsets, axis=0) / counts[:, None]
+    if not deviations:
+        return mean, None
+    d = x - np.repeat(mean, counts, axis=0)
+    if matrix is not None:
+        d = d @ matrix.T
+    np.multiply(d, d, out=d)
+    return mean, np.add.reduceat(d, offsets, axis=0)
+
+
 def turns_between(session, stills, turns, gap) -> tuple[list[Turn], list[str]]:
     """The turns with a still period right before and after (within ``gap`` s), and the
-    names of the others."""
-    usable, skipped = [], []
+    names of the others: for each turn the last still period that ends by its first sample
+    and the first that starts at its last, compared with all still periods at once (in
+    chunks of turns: memory bounded by :data:`PAIRS`)."""
     time = session.time
     start = np.array([s.segment.start for s in stills], dtype=np.int64)
     stop = np.array([s.segment.stop for s in stills], dtype=np.int64)
     t_start, t_end = time[start], time[stop - 1]
-    for r in turns:
-        t0, t1 = time[r.start], time[r.stop - 1]
-        before = np.flatnonzero((stop <= r.start + 1) & (t0 - t_end <= gap))
-        after = np.flatnonzero((start >= r.stop - 1) & (t_start - t1 <= gap))
-        if len(before) and len(after):
-            usable.append(Turn(r, int(before[-1]), int(after[0])))
+    r_start = np.array([r.start for r in turns], dtype=np.int64)
+    r_stop = np.array([r.stop for r in turns], dtype=np.int64)
+    P = len(stills)
+    before = np.full(len(turns), -1)
+    after = np.full(len(turns), -1)
+    step = max(1, PAIRS // max(P, 1))
+    for i in range(0, len(turns) if P else 0, step):
+        rs, re = r_start[i : i + step, None], r_stop[i : i + step, None]
+        ok_before = (stop <= rs + 1) & (time[rs] - t_end <= gap)  # (turns, stills)
+        ok_after = (start >= re - 1) & (t_start - time[re - 1] <= gap)
+        last = P - 1 - np.argmax(ok_before[:, ::-1], axis=1)
+        before[i : i + step] = np.where(ok_before.any(axis=1), last, -1)
+        after[i : i + step] = np.where(ok_after.any(axis=1), np.argmax(ok_after, axis=1), -1)
+    usable, skipped = [], []
+    for r, b, a in zip(turns, before.tolist(), after.tolist(), strict=True):
+        if b >= 0 and a >= 0:
+            usable.append(Turn(r, b, a))
         else:
             skipped.append(r.label or r.name)
     return usable, skipped
+
+
+#: Turn-still pairs compared at once by :func:`turns_between`.
+PAIRS = 1 << 18
 
 
 def _stills_and_turns(session, accel_cal, cfg, where):
@@ -147,11 +248,16 @@ def _stills_and_turns(session, accel_cal, cfg, where):
     return stills, usable, skipped, source, z_sigma
 
 
-def _saturated(session: Session, turn: Turn, limit: tuple[float, float] | None) -> bool:
-    if limit is None:
-        return False
-    z = session.gyro[turn.segment.start : turn.segment.stop]
-    return bool(np.any((z <= limit[0]) | (z >= limit[1])))
+def _clipped(session: Session, turns: list[Turn], limit: tuple[float, float] | None
+             ) -> np.ndarray:  # fmt: skip
+    """Whether each turn reaches ``limit`` (the gyro's clipping levels) in any channel."""
+    if limit is None or not turns:
+        return np.zeros(len(turns), bool)
+    rows, counts = stacked_rows([t.segment.start for t in turns],
+                                [t.segment.stop for t in turns])  # fmt: skip
+    z = session.gyro.take(rows, axis=0)
+    hit = np.any((z <= limit[0]) | (z >= limit[1]), axis=1)
+    return np.logical_or.reduceat(hit, np.cumsum(counts) - counts)
 
 
 def _saturation_limit(session: Session, cfg: Config) -> tuple[float, float] | None:
@@ -219,13 +325,14 @@ def gyro_data(session: Session, cfg: Config, accel_cal: SensorCalibration) -> Gy
         data.notes.append(f"{len(skipped)} rotation(s) without still data before and after: "
                           "skipped")  # fmt: skip
     limit = _saturation_limit(session, cfg)
-    clipped = [t for t in turns if _saturated(session, t, limit)]
+    is_clipped = _clipped(session, turns, limit)
+    clipped = [t for t, c in zip(turns, is_clipped.tolist(), strict=True) if c]
     if clipped:
         data.warnings.append(
             f"{len(clipped)} rotation(s) reach the end of the gyro's range (raw "
             f"{limit[0]:.6g} .. {limit[1]:.6g}): left out; turn more slowly"
         )
-        data.turns = [t for t in turns if t not in clipped]
+        data.turns = [t for t, c in zip(turns, is_clipped.tolist(), strict=True) if not c]
     if not data.turns:
         raise DesignError(f"{where}: every rotation is clipped: turn the unit more slowly")
     n = sum(s.segment.stop - s.segment.start for s in stills)

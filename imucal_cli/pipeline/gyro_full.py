@@ -18,7 +18,7 @@ from imucal_cli.errors import ImucalError
 from imucal_cli.solvers import gyro_full, gyro_sigma
 
 from .common import num
-from .gyro import AXES, GyroData, GyroFit
+from .gyro import AXES, GyroData, GyroFit, stacked_rows
 
 #: Medians of the chi-square distribution with 2 (a turn's two residuals) and 3 (a still
 #: period's gyro mean) degrees of freedom.
@@ -26,14 +26,18 @@ CHI2_2_MEDIAN, CHI2_3_MEDIAN = 2 * np.log(2), 2.365974
 
 
 def rotations_and_stills(data: GyroData) -> tuple[gyro_full.Rotations, gyro_full.Stills]:
-    """The solver's view of the turns and still periods (calibrated accel in each turn)."""
+    """The solver's view of the turns and still periods (calibrated accel in each turn: the
+    calibration applied once to all turns' samples)."""
     session, turns = data.session, data.turns
+    rows, counts = stacked_rows([t.segment.start for t in turns],
+                                [t.segment.stop for t in turns])  # fmt: skip
+    a = data.accel_cal.apply(session.accel.take(rows, axis=0))
     rot = gyro_full.Rotations(
         t=[session.time[t.segment.start : t.segment.stop] for t in turns],
         z=[session.gyro[t.segment.start : t.segment.stop] for t in turns],
         before=np.array([t.before for t in turns]),
         after=np.array([t.after for t in turns]),
-        a=[data.accel_cal.apply(session.accel[t.segment.start : t.segment.stop]) for t in turns],
+        a=np.split(a, np.cumsum(counts)[:-1]),
     )
     st = gyro_full.Stills(
         g=np.array([s.g for s in data.stills]),

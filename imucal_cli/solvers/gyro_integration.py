@@ -26,6 +26,7 @@ clock correction scales the whole integration through that one factor.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from math import factorial
 
 import numpy as np
 
@@ -90,16 +91,41 @@ def rotvec_to_quat(phi: np.ndarray) -> np.ndarray:
 
 
 def _rotvec_pairs(phi: np.ndarray) -> np.ndarray:
-    """(3, N) rotation vectors -> (2, N) unit quaternions as complex pairs (:func:`qmul`)."""
+    """(3, N) rotation vectors -> (2, N) unit quaternions as complex pairs (:func:`qmul`):
+    ``(cos(theta/2), sin(theta/2)/theta phi)``, both factors by their Taylor series in
+    ``(theta/2)^2`` (:data:`SERIES_MAX`; numpy's sin and cos, several times slower, for the
+    rare longer steps)."""
     theta = np.sqrt(np.einsum("in,in->n", phi, phi))
-    half = theta / 2
-    s = np.sin(half)
-    np.divide(s, theta, out=s, where=theta > 0)  # sin(theta/2) / theta, 1/2 at 0
-    s[theta == 0] = 0.5
+    x2 = theta * theta / 4
+    c, s = _series(x2, COS_SERIES), _series(x2, SIN_SERIES)
+    big = np.flatnonzero(theta > SERIES_MAX)
+    if len(big):
+        half = theta[big] / 2
+        c[big] = np.cos(half)
+        s[big] = np.sin(half) / theta[big]
     out = np.empty((2, phi.shape[1]), dtype=complex)
-    out.real[0], out.imag[0] = np.cos(half), phi[0] * s
+    out.real[0], out.imag[0] = c, phi[0] * s
     out.real[1], out.imag[1] = phi[1] * s, phi[2] * s
     return out
+
+
+#: Rotation angles (rad) up to which :func:`_rotvec_pairs` sums the series: the first term
+#: left out, ``(theta/2)^14 / 14!``, is below 1e-19 (a hand turn at 100 Hz moves about 0.05
+#: rad a sample, the start's coarse integrator four times as much).
+SERIES_MAX = 0.5
+#: ``cos(x) = sum_k (-1)^k x^2k / (2k)!`` and ``sin(x) / (2x) = sum_k (-1)^k x^2k / (2k+1)! / 2``
+#: (``sin(theta/2) / theta`` with ``x = theta/2``), k = 0..6.
+COS_SERIES = tuple((-1) ** k / factorial(2 * k) for k in range(7))
+SIN_SERIES = tuple((-1) ** k / factorial(2 * k + 1) / 2 for k in range(7))
+
+
+def _series(x2: np.ndarray, coef: tuple[float, ...]) -> np.ndarray:
+    """``sum_k coef[k] x2^k`` by Horner's rule, in place on one array."""
+    p = np.full_like(x2, coef[-1])
+    for c in coef[-2::-1]:
+        p *= x2
+        p += c
+    return p
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -242,10 +268,7 @@ def compose_ends(stack: Stack, phi: np.ndarray) -> np.ndarray:
     while Qb.shape[1] > 1:  # adjacent pairs, in order
         Qb = qmul(Qb[:, 0::2], Qb[:, 1::2])
     T = _block_scan(Qb[:, 0], bpos, n_blocks)
-    out = T.take(block[stack.stop - 1], axis=1)
-    re = out.view(float).reshape(2, -1, 2)
-    re /= np.sqrt(np.einsum("cnk,cnk->n", re, re))[None, :, None]
-    return from_pairs(out)
+    return from_pairs(_normalised(T.take(block[stack.stop - 1], axis=1)))
 
 
 def _block_scan(T: np.ndarray, bpos: np.ndarray, n_blocks: int) -> np.ndarray:
@@ -287,9 +310,19 @@ def _prefix_product(stack: Stack, phi: np.ndarray) -> np.ndarray:
     later = np.flatnonzero(bpos > 0)
     before[:, 0, later] = T[:, later - 1]
     out = qmul(np.broadcast_to(before, Qb.shape), Qb).reshape(2, -1).take(flat, axis=1)
-    re = out.view(float).reshape(2, -1, 2)  # (w, x) and (y, z) pairs
-    re /= np.sqrt(np.einsum("cnk,cnk->n", re, re))[None, :, None]
-    return out
+    return _normalised(out)
+
+
+def _normalised(q: np.ndarray) -> np.ndarray:
+    """Quaternions as complex pairs (2, N) scaled to unit norm, in place: ``(w^2 + x^2) +
+    (y^2 + z^2)`` from one pass of squares (an einsum over the strided pairs took 4 times
+    as long)."""
+    re = q.view(float).reshape(2, -1, 2)  # (w, x) and (y, z) pairs
+    sq = re * re
+    norm2 = sq[0, :, 0] + sq[0, :, 1]
+    norm2 += sq[1, :, 0] + sq[1, :, 1]
+    re /= np.sqrt(norm2)[None, :, None]
+    return q
 
 
 def end_sensitivity(

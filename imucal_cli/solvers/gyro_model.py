@@ -129,7 +129,8 @@ class Problem:
         h2 = (clock * np.diff(self.stack.t)) ** 2
         h2[self.stack.stop[:-1] - 1] = 0.0
         self.int_noise = gyro_sigma * np.sqrt(np.add.reduceat(np.r_[h2, 0.0], self.stack.start))
-        self._cache: tuple = ()  # (key, attitudes, end rotations or None), newest first
+        # [key, attitudes, end rotations or None, derived values], newest first (:meth:`_entry`)
+        self._cache: tuple = ()
         self._order = None
         if (same_t and like.rot.before is rot.before and like.rot.after is rot.after
                 and like.P == self.P):  # fmt: skip
@@ -161,7 +162,9 @@ class Problem:
         if (other.rot is self.rot and other.clock == self.clock and self.with_g
                 and not other.with_g and entry is not None
                 and np.all(np.isfinite(self.a))):  # fmt: skip
-            self._cache = ([np.r_[x, np.zeros(9)].tobytes(), entry[1], entry[2]],)
+            # The noise covariance depends on the rates and M only: the same at G = 0.
+            kept = {k: v for k, v in entry[3].items() if k == "covariance"}
+            self._cache = ([np.r_[x, np.zeros(9)].tobytes(), entry[1], entry[2], kept],)
         if other.rot is self.rot and other.P == self.P:
             self._order = other._order
 
@@ -181,17 +184,30 @@ class Problem:
         return (self.still.z_mean - b - self.still.g @ G.T).ravel()
 
     def _entry(self, x) -> list:
-        """The integration at ``x``: ``[key, attitudes (4, N), end rotations or None]``. The
-        last two points evaluated are kept (the solver asks for residuals, Jacobian and noise
-        model at one point in turn, and comes back to its best point after a rejected step)."""
+        """The integration at ``x``: ``[key, attitudes (4, N), end rotations or None,
+        derived]``, ``derived`` what was computed from it (:meth:`_derived`). The last two
+        points evaluated are kept (the solver asks for residuals, Jacobian and noise model at
+        one point in turn, and comes back to its best point after a rejected step)."""
         key = x.tobytes()
         for entry in self._cache:
             if entry[0] == key:
                 return entry
         M = x[3:12].reshape(3, 3)
-        entry = [key, attitudes(self.stack, M @ self._bias_free(x), self.clock), None]
+        entry = [key, attitudes(self.stack, M @ self._bias_free(x), self.clock), None, {}]
         self._cache = (entry, *self._cache[:1])
         return entry
+
+    def _derived(self, x, name: str, numbers: tuple, compute):
+        """``compute()`` at ``x``, kept with the integration at ``x`` under ``name`` for these
+        still periods (the same object) and ``numbers``: problems that share the integration
+        (:meth:`share`, :meth:`with_still`) may differ in their still periods or noise."""
+        derived = self._entry(x)[3]
+        held = derived.get(name)
+        if held is not None and held[0] is self.still and held[1] == numbers:
+            return held[2]
+        value = compute()
+        derived[name] = (self.still, numbers, value)
+        return value
 
     def _attitudes(self, x):
         """Every sample's attitude in its rotation (4, N)."""
@@ -219,7 +235,14 @@ class Problem:
         A rate error ``d omega(t)`` rotates the end of a turn by
         ``d phi = integral R(t -> end) d omega(t) dt`` (body frame at the end), which moves the
         predicted gravity direction by ``d p = [p]x d phi``.
+
+        Kept with the integration at ``x`` (read-only): the solver asks for it again at the
+        same point under another noise model, and the covariance at the solution.
         """
+        return self._derived(x, "jacobian", (self.n_params, self.clock),
+                             lambda: self._residuals_and_jacobian(x))  # fmt: skip
+
+    def _residuals_and_jacobian(self, x):
         _, M, _ = self.split(x)
         st, K, P = self.stack, self.K, self.P
         R = matrix_rows(self._attitudes(x))
@@ -240,12 +263,19 @@ class Problem:
         if self.with_g:  # still rows: d(-G a_p) / dG[r, j] = -a_p[j] in row r
             for r_ in range(3):
                 J[2 * K + r_ :: 3, 12 + 3 * r_ : 15 + 3 * r_] = -self.still.g
+        r.setflags(write=False)
+        J.setflags(write=False)
         return r, J
 
     def rotation_covariance(self, x) -> Coo:
         """Covariance of the rotation residuals (2K x 2K, sparse): each rotation's from the
         gravity directions before and after it (shared with its neighbours) and its
-        integrated gyro noise."""
+        integrated gyro noise. Kept with the integration at ``x`` (the fit's statistics and
+        the next noise model ask for it at the same point)."""
+        return self._derived(x, "covariance", (self.gyro_sigma, self.clock),
+                             lambda: self._rotation_covariance(x))  # fmt: skip
+
+    def _rotation_covariance(self, x) -> Coo:
         p, R = self.predicted(x)
         M = x[3:12].reshape(3, 3)
         K, P = self.K, self.P
