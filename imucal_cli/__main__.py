@@ -1,3 +1,3 @@
-from imucal_cli.cli import main
+from imucal_cli.cli import run
 
-main()
+run()

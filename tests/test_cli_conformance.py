@@ -242,3 +242,45 @@ def test_running_only_the_named_command_changes_no_output(args, monkeypatch):
     assert app.registered_commands == before
     assert only.exit_code == whole.exit_code == (0 if args[-1] == "--help" else 2)
     assert only.output == whole.output and "Usage: imucal" in only.output
+
+
+def _python(code: str, tmp_path: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          cwd=tmp_path, timeout=120)  # fmt: skip
+
+
+def test_run_leaves_quickly_yet_flushes_output_and_runs_exit_handlers(tmp_path):
+    """``imucal`` (cli.run) skips the interpreter's teardown (issue 14): the output still
+    arrives whole through a pipe, exit handlers still run, the status is the command's."""
+    code = (
+        "import atexit, pathlib, sys\n"
+        "atexit.register(lambda: pathlib.Path('handler-ran').write_text('yes'))\n"
+        "from imucal_cli.cli import run\n"
+        "sys.argv = ['imucal', *sys.argv[1:]]\n"
+    )
+    ok = _python(code + "sys.argv = ['imucal', '--help']\nrun()\n", tmp_path)
+    assert ok.returncode == 0 and "calibrate" in ok.stdout and ok.stdout.endswith("\n")
+    assert (tmp_path / "handler-ran").read_text() == "yes"
+    (tmp_path / "handler-ran").unlink()
+    bad = _python(code + "sys.argv = ['imucal', 'report', 'missing.json']\nrun()\n", tmp_path)
+    assert bad.returncode == 2 and bad.stderr.startswith("imucal: error: ")
+    assert (tmp_path / "handler-ran").exists()
+
+
+def test_run_exits_as_usual_while_an_hdf5_file_is_open(tmp_path):
+    """A file still open for writing at exit is flushed by the HDF5 library's own exit: the
+    quick exit is not taken then, and the file reads back whole."""
+    code = (
+        "import sys, h5py, numpy as np\n"
+        "f = h5py.File('open.h5', 'w')\n"
+        "f.create_dataset('x', data=np.arange(1000.0))\n"
+        "from imucal_cli.cli import run\n"
+        "sys.argv = ['imucal', '--version']\n"
+        "run()\n"
+    )
+    proc = _python(code, tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    import h5py
+
+    with h5py.File(tmp_path / "open.h5", "r") as f:
+        assert f["x"][-1] == 999.0
