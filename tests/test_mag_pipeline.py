@@ -290,3 +290,22 @@ def test_command_line_mag_without_hold_takes_the_default_hold(tmp_path):
     np.testing.assert_array_equal(session.mag, expected.mag)
     np.testing.assert_array_equal(session.accel, expected.accel)
     assert [s.n_samples for s in session.static_segments()] == [200] * 6
+
+
+def test_calibrate_summary_prints_the_config_section_name_in_brackets():
+    """``[mag]`` in a summary line is text, not a rich style tag that would vanish."""
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    from imucal_cli.cli.calibrate import mag_summary
+
+    sec = SimpleNamespace(
+        solver="ellipsoid", bias=[1.0, 2.0, 3.0],
+        extra={"readings": {"motion": 500, "poses": 0}, "rms_after": 0.01, "field_uT": None,
+               "field_estimate_uT": 48.0, "units_in": "counts"},
+    )  # fmt: skip
+    console = Console(color_system=None, record=True, width=200)
+    for line in mag_summary(sec):
+        console.print(line, highlight=False, soft_wrap=True)
+    assert "give [mag] field_uT for uT" in console.export_text()

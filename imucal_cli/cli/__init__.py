@@ -138,7 +138,8 @@ def run() -> None:
     Python's exit frees every module and object one by one (40 ms of a 0.5 s calibration,
     issue 14); the operating system frees a process's memory at once. The exit handlers still
     run and the output is flushed; while an HDF5 file is still open (the library would flush
-    it at exit) or the status is not a number, Python exits as usual. :func:`main` itself
+    it at exit), the status is not a number or a profiler or debugger is attached (it reports
+    after the program returns), Python exits as usual. :func:`main` itself
     raises ``SystemExit`` as usual, for callers in the same process (the tests)."""
     try:
         main()
@@ -149,7 +150,7 @@ def run() -> None:
     import atexit
 
     atexit._run_exitfuncs()  # what a normal exit runs first (weakref finalizers among them)
-    if type(code) is not int or _hdf5_files_open():
+    if type(code) is not int or _hdf5_files_open() or sys.getprofile() or sys.gettrace():
         sys.exit(code)
     try:
         sys.stdout.flush()

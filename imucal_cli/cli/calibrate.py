@@ -321,7 +321,7 @@ def mag_summary(sec) -> list[str]:
         lines.append(
             "  field magnitude unknown: output in units of the local field (|B| = 1)"
             + (f", about {est:.3g} uT" if est else "")
-            + "; give [mag] field_uT for uT"
+            + escape("; give [mag] field_uT for uT")  # literal brackets, not a style
         )
     text = "  hard iron " + ", ".join(f"{b:.5g}" for b in sec.bias) + f" {x.get('units_in')}"
     if x.get("axes"):
