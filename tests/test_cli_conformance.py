@@ -284,3 +284,46 @@ def test_run_exits_as_usual_while_an_hdf5_file_is_open(tmp_path):
 
     with h5py.File(tmp_path / "open.h5", "r") as f:
         assert f["x"][-1] == 999.0
+
+
+def test_summaries_off_a_terminal_do_not_load_rich(calibrated, tmp_path):
+    """``calibrate`` and ``import`` print their summary lines off a terminal without importing
+    rich (0.02 s of start-up, issue 14), and the lines read as before."""
+    session = calibrated / "s.h5"
+    code = (
+        "import sys\n"
+        "from imucal_cli.cli import main\n"
+        f"sys.argv = ['imucal', 'calibrate', {str(session)!r}, '-o', 'out.json', '--no-store']\n"
+        "try:\n"
+        "    main()\n"
+        "except SystemExit as exc:\n"
+        "    assert exc.code == 0, exc.code\n"
+        "sys.stderr.write(f'RICH={\"rich\" in sys.modules}')\n"
+    )
+    env = {k: v for k, v in ENV.items() if k not in ("FORCE_COLOR", "TTY_COMPATIBLE")}
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          cwd=tmp_path, env=env, timeout=120)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert "RICH=False" in proc.stderr
+    lines = proc.stdout.splitlines()
+    assert lines[0].startswith("accel: gravity (9-parameter), 18 poses")
+    assert lines[-1] == "wrote out.json" and "[" not in proc.stdout.replace("[mag]", "")
+
+
+def test_lines_go_through_rich_where_rich_would_style_them(monkeypatch, capsys):
+    from imucal_cli.cli.console import Lines
+
+    monkeypatch.delenv("FORCE_COLOR", raising=False)
+    monkeypatch.setenv("TTY_COMPATIBLE", "0")
+    plain = Lines()
+    assert plain._console is None
+    plain(("accel", "bold"), ": [not a tag] 1.5 m/s^2")
+    assert capsys.readouterr().out == "accel: [not a tag] 1.5 m/s^2\n"
+    monkeypatch.setenv("TTY_COMPATIBLE", "1")
+    monkeypatch.setenv("NO_COLOR", "1")
+    styled = Lines()
+    assert styled._console is not None
+    styled(("accel", "bold"), ": [not a tag] 1.5 m/s^2")
+    out = capsys.readouterr().out
+    assert out.startswith("\x1b[1maccel")  # bold, by rich
+    assert re.sub(r"\x1b\[[0-9;]*m", "", out) == "accel: [not a tag] 1.5 m/s^2\n"

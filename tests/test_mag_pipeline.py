@@ -270,8 +270,9 @@ def test_a_ros_import_without_magnetometer_values_before_its_first_message():
                and "all before its first value" in n for n in cal.mag.extra["notes"])
     assert cal.mag.extra["quality"]["verdict"] == "pass"
     from imucal_cli.cli.calibrate import mag_summary
+    from imucal_cli.cli.console import plain_text
 
-    assert f"({first} rows without a value left out)" in mag_summary(cal.mag)[0]
+    assert f"({first} rows without a value left out)" in plain_text(mag_summary(cal.mag)[0])
     none = dataclasses.replace(session, mag=np.full_like(mag, np.nan))
     with pytest.raises(DesignError, match="no reading with a value"):
         calibrate_session(none, Config())
@@ -292,20 +293,27 @@ def test_command_line_mag_without_hold_takes_the_default_hold(tmp_path):
     assert [s.n_samples for s in session.static_segments()] == [200] * 6
 
 
-def test_calibrate_summary_prints_the_config_section_name_in_brackets():
-    """``[mag]`` in a summary line is text, not a rich style tag that would vanish."""
+def test_calibrate_summary_prints_the_config_section_name_in_brackets(monkeypatch, capsys):
+    """``[mag]`` in a summary line is text, not a rich style tag that would vanish: on a
+    terminal (rich) as off it (plain text)."""
     from types import SimpleNamespace
 
     from rich.console import Console
 
     from imucal_cli.cli.calibrate import mag_summary
+    from imucal_cli.cli.console import Lines, plain_text
 
     sec = SimpleNamespace(
         solver="ellipsoid", bias=[1.0, 2.0, 3.0],
         extra={"readings": {"motion": 500, "poses": 0}, "rms_after": 0.01, "field_uT": None,
                "field_estimate_uT": 48.0, "units_in": "counts"},
     )  # fmt: skip
-    console = Console(color_system=None, record=True, width=200)
-    for line in mag_summary(sec):
-        console.print(line, highlight=False, soft_wrap=True)
-    assert "give [mag] field_uT for uT" in console.export_text()
+    lines = mag_summary(sec)
+    assert any("give [mag] field_uT for uT" in plain_text(line) for line in lines)
+    monkeypatch.setenv("TTY_COMPATIBLE", "1")  # as on a terminal: through rich
+    monkeypatch.setenv("NO_COLOR", "1")
+    styled = Lines()
+    assert isinstance(styled._console, Console)
+    for line in lines:
+        styled(*line)
+    assert "give [mag] field_uT for uT" in capsys.readouterr().out

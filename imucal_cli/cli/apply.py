@@ -4,8 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from rich.console import Console
-
 from . import completion
 from .app import app
 from .console import make_console, print_json
@@ -76,6 +74,8 @@ class _ProgressBar:
     ``update(done, total)`` is :func:`~imucal_cli.use.apply.apply_calibration`'s ``progress``."""
 
     def __init__(self) -> None:
+        from rich.console import Console
+
         self.err = Console(stderr=True)
         self.bar = None
         self.task = None

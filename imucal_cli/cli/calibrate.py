@@ -6,11 +6,9 @@ import json
 from pathlib import Path
 
 import typer
-from rich.console import Console
-from rich.markup import escape
 
 from .app import app
-from .console import make_console, print_json
+from .console import Lines, Piece, make_console, print_json
 from .options import gravity_option, json_option, output_option, session_argument
 
 
@@ -115,11 +113,11 @@ def _one(session: Path, cfg, output: Path | None, force: bool, store: bool, json
     if json_output:
         print_json(_result_json(cal, out, stored))
     else:
-        _summary(make_console(), cal, f"{out}{stored}")
+        _summary(Lines(), cal, f"{out}{stored}")
     if stored.startswith(NOT_STORED):
-        make_console(stderr=True).print(
-            f"imucal: error: saved {escape(str(out))} but could not store it in the session "
-            f"({escape(stored[len(NOT_STORED) : -1])}); pass --no-store not to store it"
+        Lines(stderr=True)(
+            f"imucal: error: saved {out} but could not store it in the session "
+            f"({stored[len(NOT_STORED) : -1]}); pass --no-store not to store it"
         )
         raise typer.Exit(1)
 
@@ -162,6 +160,7 @@ def _many(
     import resource
     import time
 
+    from rich.markup import escape
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
     from rich.table import Table
 
@@ -223,7 +222,10 @@ def _many(
     return max((r.exit_code for r in failed), default=0)
 
 
-def _summary(console: Console, cal, where: str) -> None:
+BOLD, WARN = "bold", "bold yellow"
+
+
+def _summary(line: Lines, cal, where: str) -> None:
     """A few lines per calibrated sensor: what ran, the residuals, bias and sensitivity."""
     for name, sec in (("accel", cal.accel), ("gyro", cal.gyro)):
         if sec is None:
@@ -237,10 +239,10 @@ def _summary(console: Console, cal, where: str) -> None:
             how.append(f"{x['iterations']} iterations")
         if x.get("init"):
             how.append(f"init {x['init']}")
-        console.print(f"[bold]{name}[/]: " + escape(", ".join(how)))
+        line((name, BOLD), ": " + ", ".join(how))
         choice = x.get("choice") or {}
         if choice.get("by") == "auto":
-            console.print("  solver chosen: " + escape(choice["reason"]))
+            line("  solver chosen: " + choice["reason"])
         if name == "accel" and x.get("rms_after") is not None:
             g = x["gravity"]
             before = x.get("rms_before")
@@ -250,52 +252,52 @@ def _summary(console: Console, cal, where: str) -> None:
             text += f"after {x['rms_after']:.4f} m/s^2 ({1000 * x['rms_after'] / g:.3f} mg)"
             if x.get("rms_loo") is not None:
                 text += f", held out {x['rms_loo']:.4f} m/s^2"
-            console.print(text)
+            line(text)
         turns = x.get("rotations", [])
         if turns and x.get("rotation_rms_deg") is not None:
-            console.print(
-                f"  {len(turns)} rotations, angle residual RMS {x['rotation_rms_deg']:.3f} deg"
-            )
+            line(f"  {len(turns)} rotations, angle residual RMS {x['rotation_rms_deg']:.3f} deg")
         elif turns:
             for rot in turns[:3]:
-                console.print(
-                    f"  {escape(str(rot['label'] or rot['segment']))}: "
+                line(
+                    f"  {rot['label'] or rot['segment']}: "
                     f"measured {rot['measured_angle_deg']:.3f} deg, "
                     f"known {rot['known_angle_deg']:.3f} deg"
                 )
         per = "m/s^2" if name == "accel" else "rad/s"
-        console.print(
+        line(
             "  bias "
             + ", ".join(f"{b:.5g}" for b in sec.bias)
             + f" {units}; sensitivity "
             + ", ".join(f"{v:.5g}" for v in x.get("sensitivity", []))
             + f" {units} per {per}"
         )
-        _temperature_line(console, x, units)
+        _temperature_line(line, x, units)
         for w in x.get("warnings", []):
-            console.print(f"  [bold yellow]warning[/]: {escape(w)}")
+            line("  ", ("warning", WARN), f": {w}")
     if cal.extra.get("gyro_note"):
-        console.print(f"[bold]gyro[/]: {escape(cal.extra['gyro_note'])}")
+        line(("gyro", BOLD), f": {cal.extra['gyro_note']}")
     if cal.extra.get("accel_note"):
-        console.print(f"[bold yellow]warning[/]: {escape(cal.extra['accel_note'])}")
+        line(("warning", WARN), f": {cal.extra['accel_note']}")
     if cal.mag is not None:
-        for line in mag_summary(cal.mag):
-            console.print(line, highlight=False, soft_wrap=True)
+        for pieces in mag_summary(cal.mag):
+            line(*pieces)
     if cal.extra.get("temperature_note"):
-        console.print(f"[bold]temperature[/]: {escape(cal.extra['temperature_note'])}")
+        line(("temperature", BOLD), f": {cal.extra['temperature_note']}")
     clock = cal.extra.get("sample_clock") or {}
     if "ppm" in clock:
-        console.print(f"[bold]sample clock[/]: {clock['ppm']:+.1f} ± {clock['ppm_std']:.1f} ppm "
-                      f"(device s per true s - 1, over {clock['duration_s']:.0f} s; gyro "
-                      "corrected)")  # fmt: skip
+        line(
+            ("sample clock", BOLD),
+            f": {clock['ppm']:+.1f} ± {clock['ppm_std']:.1f} ppm (device s per true s - 1, "
+            f"over {clock['duration_s']:.0f} s; gyro corrected)",
+        )
     elif clock.get("note"):
-        console.print(f"[bold]sample clock[/]: {escape(clock['note'])}")
-    console.print(f"wrote {escape(where)}")
+        line(("sample clock", BOLD), f": {clock['note']}")
+    line(f"wrote {where}")
 
 
-def mag_summary(sec) -> list[str]:
-    """The magnetometer's lines: what ran, |B| residuals, inclination, hard iron, axes, the
-    quality verdict and the warnings."""
+def mag_summary(sec) -> list[tuple[Piece, ...]]:
+    """The magnetometer's lines (each a tuple of :data:`.console.Piece`): what ran, |B|
+    residuals, inclination, hard iron, axes, the quality verdict and the warnings."""
     x = sec.extra
     rd = x.get("readings", {})
     how = [sec.solver, f"{rd.get('motion', 0)} motion readings + {rd.get('poses', 0)} poses"]
@@ -305,7 +307,7 @@ def mag_summary(sec) -> list[str]:
     if x.get("iterations"):
         how.append(f"{x['iterations']} iterations")
     how.append("aligned to the accelerometer" if x.get("aligned") else "own axes (not aligned)")
-    lines = ["[bold]mag[/]: " + ", ".join(how)]
+    lines: list[tuple[Piece, ...]] = [(("mag", BOLD), ": " + ", ".join(how))]
     field = x.get("field_uT")
     unit = "uT" if field else "x local field"
     text = f"  |B| residual RMS {x['rms_after']:.4g} {unit}"
@@ -315,39 +317,39 @@ def mag_summary(sec) -> list[str]:
         text += f", held out {x['rms_held_out']:.4g} {unit}"
     if x.get("inclination_deg") is not None:
         text += f"; inclination {x['inclination_deg']:.2f} ± {x['inclination_std_deg']:.2f} deg"
-    lines.append(text)
+    lines.append((text,))
     if not field:
         est = x.get("field_estimate_uT")
-        lines.append(
+        lines.append((
             "  field magnitude unknown: output in units of the local field (|B| = 1)"
             + (f", about {est:.3g} uT" if est else "")
-            + escape("; give [mag] field_uT for uT")  # literal brackets, not a style
-        )
+            + "; give [mag] field_uT for uT",
+        ))  # fmt: skip
     text = "  hard iron " + ", ".join(f"{b:.5g}" for b in sec.bias) + f" {x.get('units_in')}"
     if x.get("axes"):
         text += "; axes " + ", ".join(x["axes"])
-    lines.append(text)
+    lines.append((text,))
     q = x.get("quality")
     if q:
         figs = ", ".join(
             f"{c['name']} {c['value_pct']:.1f} %" if c["value_pct"] is not None
             else f"{c['name']} -" for c in q["checks"]
         )  # fmt: skip
-        verdict = "pass" if q["verdict"] == "pass" else "[bold yellow]recapture[/]"
-        lines.append(f"  quality: {verdict} ({figs})")
+        verdict: Piece = "pass" if q["verdict"] == "pass" else ("recapture", WARN)
+        lines.append(("  quality: ", verdict, f" ({figs})"))
     for w in x.get("warnings", []):
-        lines.append(f"  [bold yellow]warning[/]: {escape(w)}")
+        lines.append(("  ", ("warning", WARN), f": {w}"))
     return lines
 
 
-def _temperature_line(console: Console, x: dict, units: str) -> None:
+def _temperature_line(line: Lines, x: dict, units: str) -> None:
     """The bias temperature model of a section, when it has one."""
     model = x.get("temperature_model")
     if not model or "bias_tempco" not in x:
         return
     lo, hi = model["range_c"]
-    console.print(
+    line(
         f"  temperature: bias polynomial of degree {', '.join(map(str, model['degree']))} per "
         f"channel about {x['temperature_ref']:.1f} C, fitted over {lo:.1f} .. {hi:.1f} C "
-        f"({escape(model['source'])}); {units} per C^k"
+        f"({model['source']}); {units} per C^k"
     )

@@ -5,11 +5,9 @@ from __future__ import annotations
 import sys
 from datetime import datetime
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
-from rich.console import Console
-from rich.markup import escape
 
 from imucal_cli.errors import InputError
 from imucal_cli.formats.output import check_output
@@ -34,6 +32,9 @@ from .options import (
     time_unit_option,
     units_option,
 )
+
+if TYPE_CHECKING:
+    from rich.console import Console
 
 EXIT_COMPLETE, EXIT_INCOMPLETE, EXIT_INTERRUPTED = 0, 3, 130
 """Exit statuses of the README's table: the session is complete; saved but incomplete; Ctrl-C
@@ -158,6 +159,8 @@ def capture(
     err = make_console(stderr=True)
 
     def status(message: str) -> None:
+        from rich.markup import escape
+
         err.print(f"imucal: {escape(message)}", soft_wrap=True)
 
     check_mag_options(mag_units, field_ut)
@@ -266,6 +269,8 @@ def _nothing_saved(recorder, out: Path, err: Console) -> None:
     """End a capture that has no session to show: time stamps off by a unit (the file keeps
     its samples), or no sample came at all (no file: exit 2, as for bad input, or 130 after
     Ctrl-C, the README's statuses for nothing saved)."""
+    from rich.markup import escape
+
     if recorder.end_kind == "clock":  # issue 10.5: a time unit off by a factor
         raise InputError(f"{recorder.end_reason} ({out} keeps the {recorder.n_samples} samples)")
     if recorder.file_written:
@@ -361,6 +366,8 @@ def check_mag_options(mag_units: str | None, field_ut: float | None) -> None:
 
 
 def _print_summary(console: Console, out: Path, recorder, summary) -> None:
+    from rich.markup import escape
+
     st = summary.stats
     segs = recorder.segments
     n_static = sum(1 for s in segs if s["kind"] == "static")

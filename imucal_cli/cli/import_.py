@@ -8,7 +8,7 @@ import typer
 
 from . import completion
 from .app import app
-from .console import make_console, print_json
+from .console import Lines, print_json
 from .options import (
     AccelUnits,
     Force,
@@ -144,12 +144,11 @@ def _print_result(result: dict, json_output: bool) -> None:
     if json_output:
         print_json(result)
         return
-    console = make_console()
+    line = Lines()
     files = ", ".join(result["files"])
-    console.print(
+    line(
         f"read {result['samples']} samples ({result['duration_s']:.1f} s at "
-        f"{result['sample_rate_hz']:.4g} Hz) from {files}",
-        markup=False,
+        f"{result['sample_rate_hz']:.4g} Hz) from {files}"
     )
     s = result["skipped_lines"]
     skipped = []
@@ -162,17 +161,16 @@ def _print_result(result: dict, json_output: bool) -> None:
     if s["unmatched"]:
         skipped.append(f"{s['unmatched']} unmatched (no sample of that time in the other file)")
     if skipped:
-        console.print("  skipped lines: " + ", ".join(skipped), markup=False)
-    console.print(
+        line("  skipped lines: " + ", ".join(skipped))
+    line(
         f"  {result['static_segments']} static segments ({result['still_s']:.1f} s still), "
-        f"{result['rotation_segments']} rotation segments",
-        markup=False,
+        f"{result['rotation_segments']} rotation segments"
     )
     for note in result["notes"]:
-        console.print(f"  {note}", markup=False)
+        line(f"  {note}")
     for warning in result["warnings"]:
-        console.print(f"  warning: {warning}", markup=False)
+        line(f"  warning: {warning}")
     if result["mag_channels"] is not None:
         units = result["mag_units"] or "units not given"
-        console.print(f"  magnetometer: {result['mag_channels']} channels ({units})", markup=False)
-    console.print(f"wrote {result['output']}", markup=False)
+        line(f"  magnetometer: {result['mag_channels']} channels ({units})")
+    line(f"wrote {result['output']}")

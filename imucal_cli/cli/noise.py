@@ -4,13 +4,16 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
-from rich.console import Console
 
 from .app import app
 from .console import make_console
 from .options import ForcePlot, calibration_option, json_option, plot_option, session_argument
+
+if TYPE_CHECKING:
+    from rich.console import Console
 
 
 @app.command()
