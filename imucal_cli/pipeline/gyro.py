@@ -27,6 +27,7 @@ from imucal_cli.errors import DesignError
 from imucal_cli.formats.calibration import MODEL_EQUATION, SensorCalibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Segment, Session
+from imucal_cli.solvers.order import median
 from imucal_cli.solvers.segmentation import find_rotations, find_static
 
 from .common import rms, session_name, with_segments
@@ -469,7 +470,7 @@ def gyro_checks(session, cfg, gains, units) -> list[str]:
         session.gyro_units or ""
     )
     if nominal is None:
-        ref, what = np.median(gains), "the median of the three axes"
+        ref, what = median(gains), "the median of the three axes"
     else:
         ref, what = nominal, "nominal"
     out = []

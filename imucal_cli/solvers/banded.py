@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from imucal_cli.solvers.order import distinct
+
 #: Smallest block of the block-tridiagonal factorisation (fewer, larger numpy steps).
 MIN_BLOCK = 16
 
@@ -83,7 +85,7 @@ def reverse_cuthill_mckee(row: np.ndarray, col: np.ndarray, n: int) -> np.ndarra
     least degree in each connected part, neighbours in increasing degree, then reversed."""
     off = row != col
     r, c = np.concatenate([row[off], col[off]]), np.concatenate([col[off], row[off]])
-    key = np.unique(r.astype(np.int64) * n + c)  # distinct pairs, by row (a 1-D sort: fast)
+    key = distinct(r.astype(np.int64) * n + c)  # distinct pairs, by row (a 1-D sort: fast)
     pairs = np.stack([key // n, key % n], 1)
     degree = np.bincount(pairs[:, 0], minlength=n) if len(pairs) else np.zeros(n, int)
     starts = np.r_[0, np.cumsum(degree)]

@@ -40,6 +40,7 @@ from imucal_cli.solvers.gyro_integration import integrate_rotations
 from imucal_cli.solvers.gyro_model import Problem, Rotations, Stills
 from imucal_cli.solvers.gyro_start import Start, start_values
 from imucal_cli.solvers.lsq import least_squares
+from imucal_cli.solvers.order import median
 from imucal_cli.solvers.quantiles import chdtri, fdtrc
 
 #: A fit leaving a turn's gravity direction further off than this did not find the turns'
@@ -493,7 +494,7 @@ def accel_sensitivity(
     J = W(prob.residuals_and_jacobian(x)[1])
     m = dg.shape[2]
     F = np.empty((len(J), m))
-    g_norm = float(np.median(np.linalg.norm(still.g, axis=1)))
+    g_norm = float(median(np.linalg.norm(still.g, axis=1)))
     for j in range(m):
         size = np.abs(dg[:, :, j]).max()
         if size == 0:

@@ -32,6 +32,7 @@ import numpy as np
 
 from imucal_cli.errors import DesignError
 from imucal_cli.solvers.gyro_integration import Stack, compose_ends, quat_to_matrix
+from imucal_cli.solvers.order import median, quantile
 from imucal_cli.solvers.scalar_min import minimize_bounded
 
 #: Turns that gravity sees by less than this carry no scale information for the start.
@@ -97,7 +98,7 @@ class _Turns:
         full = Stack.of(t)  # every turn's samples end to end
         h = clock * np.diff(full.t)
         inside = full.pos[1:] > 0  # the interval from row i to i + 1 lies within a turn
-        dt = np.median(np.diff(full.t)[inside])
+        dt = median(np.diff(full.t)[inside])
         m = max(1, int(round(1 / (COARSE_RATE_HZ * max(clock * dt, 1e-12)))))
         # Each interval's trapezoid integral of the bias-free rate (zero across two turns).
         d = np.concatenate(z).astype(float) - np.asarray(b0, float)
@@ -158,7 +159,7 @@ def first_scale(turns: _Turns) -> float:
             f"no rotation turns the gravity direction by {MIN_SEEN_DEG:g} degrees or more: the "
             "accelerometer cannot see the turns; turn the unit about horizontal axes"
         )
-    return float(np.quantile(seen[ok] / raw[ok], SCALE_QUANTILE))
+    return float(quantile(seen[ok] / raw[ok], SCALE_QUANTILE))
 
 
 def start_values(

@@ -21,6 +21,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from imucal_cli.solvers.order import distinct
 from imucal_cli.solvers.quantiles import chdtri, ndtri
 
 #: Family-wise false-alarm probability of the spike test over a whole session.
@@ -77,7 +78,7 @@ def _distinct(v: np.ndarray) -> np.ndarray:
         if hi - lo < 4 * len(v) + 1024 and np.array_equal(v, np.round(v)):
             counts = np.bincount((v - lo).astype(np.int64))
             return np.flatnonzero(counts) + lo
-    return np.unique(v)
+    return distinct(v)
 
 
 def medians_and_spread(blocks: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

@@ -28,6 +28,8 @@ import numpy as np
 
 from imucal_cli.solvers.quantiles import chdtri
 
+from .order import median
+
 #: Family-wise probability of flagging a pose of a good session.
 OUTLIER_ALPHA = 1e-3
 
@@ -102,7 +104,7 @@ def noise_excess(d: Deletion) -> float:
     if ok.sum() < 3:
         return 1.0
     medians = chdtri(rank[ok].astype(float), 0.5)
-    s2 = float(np.median(T[ok]) / np.median(medians))
+    s2 = float(median(T[ok]) / median(medians))
     worst = int(np.argmax(np.where(ok, T, -np.inf)))
     rest_dof = d.dof - int(rank[worst])
     if np.isfinite(d.chi2) and rest_dof > 0:
