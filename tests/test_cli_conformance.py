@@ -327,3 +327,21 @@ def test_lines_go_through_rich_where_rich_would_style_them(monkeypatch, capsys):
     out = capsys.readouterr().out
     assert out.startswith("\x1b[1maccel")  # bold, by rich
     assert re.sub(r"\x1b\[[0-9;]*m", "", out) == "accel: [not a tag] 1.5 m/s^2\n"
+
+
+def test_run_waits_for_a_running_thread_as_python_does(tmp_path):
+    """A non-daemon thread still working when the command returns finishes its work (the
+    quick exit is not taken then)."""
+    code = (
+        "import pathlib, sys, threading, time\n"
+        "def work():\n"
+        "    time.sleep(0.5)\n"
+        "    pathlib.Path('thread-done').write_text('yes')\n"
+        "threading.Thread(target=work).start()\n"
+        "from imucal_cli.cli import run\n"
+        "sys.argv = ['imucal', '--version']\n"
+        "run()\n"
+    )
+    proc = _python(code, tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "thread-done").read_text() == "yes"

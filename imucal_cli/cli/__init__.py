@@ -137,27 +137,41 @@ def run() -> None:
 
     Python's exit frees every module and object one by one (40 ms of a 0.5 s calibration,
     issue 14); the operating system frees a process's memory at once. The exit handlers still
-    run and the output is flushed; while an HDF5 file is still open (the library would flush
-    it at exit), the status is not a number or a profiler or debugger is attached (it reports
-    after the program returns), Python exits as usual. :func:`main` itself
-    raises ``SystemExit`` as usual, for callers in the same process (the tests)."""
+    run and the output is flushed. Python exits as usual where that would differ: while a
+    thread other than daemons runs (Python waits for it), an HDF5 file is still open (the
+    library flushes it at exit), the status is not a number, or a profiler or debugger is
+    attached (it reports after the program returns). :func:`main` itself raises
+    ``SystemExit`` as usual, for callers in the same process (the tests)."""
     try:
         main()
     except SystemExit as exc:
         code = exc.code
     else:
         code = 0
+    if type(code) is not int or _threads_running() or sys.getprofile() or sys.gettrace():
+        sys.exit(code)
     import atexit
 
-    atexit._run_exitfuncs()  # what a normal exit runs first (weakref finalizers among them)
-    if type(code) is not int or _hdf5_files_open() or sys.getprofile() or sys.gettrace():
-        sys.exit(code)
+    atexit._run_exitfuncs()  # what a normal exit runs next (weakref finalizers among them)
+    if _hdf5_files_open():
+        sys.exit(code)  # the handlers have run (and are cleared): HDF5 closes its files
     try:
         sys.stdout.flush()
         sys.stderr.flush()
     except (OSError, ValueError):
         sys.exit(code)  # as Python reports a failed flush at exit
     os._exit(code)
+
+
+def _threads_running() -> bool:
+    """Whether a thread other than the main one, and not a daemon, is still running (a normal
+    exit waits for it)."""
+    threading = sys.modules.get("threading")
+    if threading is None:
+        return False
+    main_thread = threading.main_thread()
+    return any(t is not main_thread and not t.daemon and t.is_alive()
+               for t in threading.enumerate())  # fmt: skip
 
 
 def _hdf5_files_open() -> bool:
