@@ -284,6 +284,17 @@ def test_run_exits_as_usual_while_an_hdf5_file_is_open(tmp_path):
 
     with h5py.File(tmp_path / "open.h5", "r") as f:
         assert f["x"][-1] == 999.0
+    # The same when only a dataset of the file is kept (its File object dropped).
+    kept = code.replace(
+        "f = h5py.File('open.h5', 'w')\nf.create_dataset('x', data=np.arange(1000.0))\n",
+        "def make():\n    return h5py.File('kept.h5', 'w').create_dataset('x', "
+        "data=np.arange(1000.0))\nkeep = make()\n",
+    )
+    assert "kept.h5" in kept
+    proc = _python(kept, tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    with h5py.File(tmp_path / "kept.h5", "r") as f:
+        assert f["x"][-1] == 999.0
 
 
 def test_summaries_off_a_terminal_do_not_load_rich(calibrated, tmp_path):
@@ -319,6 +330,8 @@ def test_lines_go_through_rich_where_rich_would_style_them(monkeypatch, capsys):
     assert plain._console is None
     plain(("accel", "bold"), ": [not a tag] 1.5 m/s^2")
     assert capsys.readouterr().out == "accel: [not a tag] 1.5 m/s^2\n"
+    plain("a\tb\rc\x07d\x08e\x0bf\x0cg")  # as rich prints it: controls out, tabs expanded
+    assert capsys.readouterr().out == "a       bcdefg\n"
     monkeypatch.setenv("TTY_COMPATIBLE", "1")
     monkeypatch.setenv("NO_COLOR", "1")
     styled = Lines()
@@ -345,3 +358,14 @@ def test_run_waits_for_a_running_thread_as_python_does(tmp_path):
     proc = _python(code, tmp_path)
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "thread-done").read_text() == "yes"
+
+
+def test_several_sessions_table_prints_bracketed_names_as_they_are(calibrated, tmp_path):
+    import shutil
+
+    for name in ("[red]a.h5", "b.h5"):
+        shutil.copy(calibrated / "s.h5", tmp_path / name)
+    proc = subprocess.run([IMUCAL, "calibrate", "[red]a.h5", "b.h5", "--no-store"], cwd=tmp_path,
+                          capture_output=True, text=True, env=ENV, timeout=120)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert "│ [red]a.h5 │" in proc.stdout  # the name, not a style tag

@@ -86,3 +86,14 @@ def test_trends_of_many_holds_equal_each_hold_alone():
         assert holds.trend(t, b, cov, len(blocks)).moved == is_moved
         moved += is_moved
     assert 0 < moved < len(blocks)  # both outcomes exercised
+
+
+def test_medians_and_spread_of_integer_and_signed_zero_holds_as_numpy():
+    blocks = [np.array([[3, -2, 7], [1, 5, -7], [2, 2, 0], [9, -1, 4]], dtype=np.int16),
+              np.array([[-0.0, 1.0, -0.0], [-0.0, -3.0, 2.0]])]  # fmt: skip
+    median, mad = holds.medians_and_spread(blocks)
+    for k, b in enumerate(blocks):
+        ref = np.median(b, axis=0)
+        assert np.array_equal(median[k], ref)
+        assert np.array_equal(np.signbit(median[k]), np.signbit(ref))
+        assert np.array_equal(mad[k], np.median(np.abs(b - ref), axis=0))

@@ -26,9 +26,11 @@ def _cases(seed, n_cases=1500):
 
 
 def _same(a, b):
-    return type(a) is type(b) and np.shape(a) == np.shape(b) and np.array_equal(
-        np.asarray(a), np.asarray(b), equal_nan=True
-    )
+    """The same type, shape and values, NaN where NaN and the sign of zeros too."""
+    a, b = (np.asarray(v) for v in (a, b)) if type(a) is type(b) else (None, np.zeros(1))
+    return (a is not None and a.shape == b.shape and a.dtype == b.dtype
+            and np.array_equal(a, b, equal_nan=True)
+            and np.array_equal(np.signbit(a), np.signbit(b)))  # fmt: skip
 
 
 @pytest.mark.parametrize("axis", [None, 0])
@@ -78,3 +80,15 @@ def test_a_calibration_does_not_load_numpys_masked_arrays(tmp_path):
                           cwd=tmp_path, timeout=120)  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == "False"
+
+
+def test_signed_zeros_integers_and_other_float_types_as_numpy():
+    cases = [np.array([-0.0]), np.array([-0.0, -0.0]), np.array([-0.0, 1.0, -0.0]),
+             np.array([[-0.0, 1.0, -0.0], [2.0, -0.0, -5.0]]),
+             np.array([3, 1, 2, 8], dtype=np.int16),
+             np.array([1.5, -2.25, 7.0, 0.1], dtype=np.float32)]  # fmt: skip
+    for x in cases:
+        for axis in (None, 0, -1):
+            assert _same(median(x, axis=axis), np.median(x, axis=axis)), (x, axis)
+        assert _same(nanmedian(x), np.nanmedian(x)), x
+        assert _same(quantile(x, 0.3), np.quantile(x, 0.3)), x

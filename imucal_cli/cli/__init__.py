@@ -126,7 +126,8 @@ def main() -> None:
             finally:
                 sys.stdout = original
     try:
-        sys.stdout.flush()
+        if sys.stdout is not None:  # None: started with stdout closed (`imucal ... >&-`)
+            sys.stdout.flush()
     except BrokenPipeError:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     sys.exit(code)
@@ -156,8 +157,9 @@ def run() -> None:
     if _hdf5_files_open():
         sys.exit(code)  # the handlers have run (and are cleared): HDF5 closes its files
     try:
-        sys.stdout.flush()
-        sys.stderr.flush()
+        for stream in (sys.stdout, sys.stderr):
+            if stream is not None:  # None: started with the descriptor closed
+                stream.flush()
     except (OSError, ValueError):
         sys.exit(code)  # as Python reports a failed flush at exit
     os._exit(code)
@@ -180,7 +182,10 @@ def _hdf5_files_open() -> bool:
     if h5py is None:
         return False
     try:
-        return h5py.h5f.get_obj_count(h5py.h5f.OBJ_ALL, h5py.h5f.OBJ_FILE) > 0
+        # A file stays open while any of its objects does (a dataset kept after its File was
+        # dropped): count those too (not OBJ_ALL types: h5py keeps datatypes of its own).
+        kinds = h5py.h5f.OBJ_FILE | h5py.h5f.OBJ_DATASET | h5py.h5f.OBJ_GROUP | h5py.h5f.OBJ_ATTR
+        return h5py.h5f.get_obj_count(h5py.h5f.OBJ_ALL, kinds) > 0
     except Exception:  # noqa: BLE001  unsure: exit as usual
         return True
 

@@ -198,7 +198,7 @@ def _many(
     for r in results:
         f = r.figures
         cells = [
-            r.session,
+            escape(r.session),  # a file name, not markup
             "[green]saved[/]" if r.exit_code == 0 else f"[red]failed ({r.exit_code})[/]",
             f"{f['accel_rms_after']:.4f}" if "accel_rms_after" in f else "",
             f"{f['gyro_rms_deg']:.3f}" if "gyro_rms_deg" in f else "",
@@ -208,7 +208,7 @@ def _many(
                 f"{f['mag_rms_after']:.4g} {f['mag_units']}" if "mag_rms_after" in f else "",
                 f.get("mag_quality") or "",
             ]
-        table.add_row(*cells, str(f.get("warnings", "")))
+        table.add_row(*cells, escape(str(f.get("warnings", ""))))
     console.print(table)
     failed = [r for r in results if r.exit_code]
     for r in failed:

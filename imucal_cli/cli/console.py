@@ -46,9 +46,15 @@ class Lines:
         print(plain_text(pieces), file=sys.stderr if self.stderr else sys.stdout)
 
 
+#: What rich leaves out of text it prints: bell, backspace, vertical tab, form feed, CR.
+_CONTROL = dict.fromkeys((7, 8, 11, 12, 13))
+
+
 def plain_text(pieces) -> str:
-    """A line of :data:`Piece` s as plain text (the styles dropped)."""
-    return "".join(p if isinstance(p, str) else p[0] for p in pieces)
+    """A line of :data:`Piece` s as plain text, as rich prints it without styles: the control
+    characters it drops left out, tabs expanded to its 8-column stops."""
+    text = "".join(p if isinstance(p, str) else p[0] for p in pieces)
+    return text.translate(_CONTROL).expandtabs(8)
 
 
 def _styled(stream) -> bool:

@@ -100,7 +100,7 @@ def medians_and_spread(blocks: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray
     n = blocks[0].shape[1] if blocks else 0
     median, mad = np.empty((len(blocks), n)), np.empty((len(blocks), n))
     for k, b in enumerate(blocks):
-        work = b.T.copy()  # (n, n_k), each channel contiguous
+        work = b.T.astype(np.float64)  # a copy (n, n_k), each channel contiguous
         if not np.isfinite(work).all():
             median[k] = np.median(b, axis=0)
             mad[k] = np.median(np.abs(b - median[k]), axis=0)
@@ -117,11 +117,11 @@ def _middle(work: np.ndarray) -> np.ndarray:
     the middle element, or the mean of the two middle ones."""
     m = work.shape[1]
     h = m // 2
-    if m % 2:
+    if m % 2:  # numpy's mean of the middle value(s) starts from +0.0 (-0.0 becomes 0.0)
         work.partition(h, axis=1)
-        return work[:, h].copy()
+        return work[:, h] + 0.0
     work.partition((h - 1, h), axis=1)
-    return (work[:, h - 1] + work[:, h]) / 2.0
+    return (0.0 + work[:, h - 1] + work[:, h]) / 2.0
 
 
 def pooled_noise(blocks: list[np.ndarray], step: float = 0.0,

@@ -3,7 +3,8 @@
 ``np.median``, ``np.nanmedian`` and ``np.quantile`` import ``numpy.ma`` on their first call, 0.01 s
 of a command's start-up (issue 14). These select the order statistics with ``np.partition`` and
 combine them with numpy's own arithmetic, so they return numpy's numbers bit for bit
-(``tests/test_order.py``); an empty input is left to numpy (its NaN and warning).
+(``tests/test_order.py``) for float64 (and, for the median, integer) input; an empty input or
+another type is left to numpy.
 """
 
 from __future__ import annotations
@@ -26,7 +27,10 @@ def median(a, axis: int | None = None):
     -------
     float64 scalar, or ndarray of the shape of ``a`` without ``axis``
     """
-    a = np.asarray(a, dtype=np.float64)
+    a = np.asarray(a)
+    if a.dtype != np.float64 and a.dtype.kind not in "iu":
+        return np.median(a, axis=axis)  # float32, longdouble...: numpy keeps their type
+    a = a.astype(np.float64, copy=False)
     if axis is None:
         a, axis = a.ravel(), 0
     n = a.shape[axis]
@@ -36,10 +40,11 @@ def median(a, axis: int | None = None):
     h = n // 2
     kth = [h - 1, h] if n % 2 == 0 else [h]
     part = np.partition(a, [*kth, n - 1], axis=-1)  # the last: NaN sorts there
+    # numpy's mean of the middle value(s): a sum that starts from +0.0 (so -0.0 becomes 0.0)
     if n % 2:
-        out = part[..., h]
+        out = part[..., h] + 0.0
     else:
-        out = (part[..., h - 1] + part[..., h]) / 2.0
+        out = (0.0 + part[..., h - 1] + part[..., h]) / 2.0
     nan = np.isnan(part[..., -1])
     if np.any(nan):
         out = np.where(nan, np.nan, out)
@@ -48,7 +53,10 @@ def median(a, axis: int | None = None):
 
 def nanmedian(a):
     """``np.nanmedian(a)`` of the flattened array: the median of its values that are not NaN."""
-    a = np.asarray(a, dtype=np.float64).ravel()
+    a = np.asarray(a)
+    if a.dtype != np.float64:
+        return np.nanmedian(a)
+    a = a.ravel()
     kept = a[~np.isnan(a)]
     return median(kept) if len(kept) else np.nanmedian(a)
 
@@ -56,10 +64,11 @@ def nanmedian(a):
 def quantile(a, q: float):
     """``np.quantile(a, q)`` (its default, linear interpolation) of the flattened array, for
     one ``q`` in [0, 1]; NaN when a NaN is present."""
-    a = np.asarray(a, dtype=np.float64).ravel()
-    n = len(a)
-    if n == 0 or not 0.0 <= q <= 1.0:
+    a = np.asarray(a)
+    if a.dtype != np.float64 or a.size == 0 or not 0.0 <= q <= 1.0:
         return np.quantile(a, q)
+    a = a.ravel()
+    n = len(a)
     virtual = (n - 1) * q
     if virtual >= n - 1:
         below = above = n - 1
