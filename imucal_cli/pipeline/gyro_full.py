@@ -17,9 +17,10 @@ import numpy as np
 from imucal_cli.errors import ImucalError
 from imucal_cli.solvers import gyro_full, gyro_sigma
 from imucal_cli.solvers.order import median
+from imucal_cli.solvers.segmented import stacked_rows
 
 from .common import num
-from .gyro import AXES, GyroData, GyroFit, stacked_rows
+from .gyro import AXES, GyroData, GyroFit
 
 #: Medians of the chi-square distribution with 2 (a turn's two residuals) and 3 (a still
 #: period's gyro mean) degrees of freedom.

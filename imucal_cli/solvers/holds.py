@@ -21,7 +21,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from imucal_cli.solvers.order import distinct
+from imucal_cli.solvers import order
 from imucal_cli.solvers.quantiles import chdtri, ndtri
 
 #: Family-wise false-alarm probability of the spike test over a whole session.
@@ -78,7 +78,7 @@ def _distinct(v: np.ndarray) -> np.ndarray:
         if hi - lo < 4 * len(v) + 1024 and np.array_equal(v, np.round(v)):
             counts = np.bincount((v - lo).astype(np.int64))
             return np.flatnonzero(counts) + lo
-    return distinct(v)
+    return order.distinct(v)
 
 
 def medians_and_spread(blocks: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -102,26 +102,14 @@ def medians_and_spread(blocks: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray
     for k, b in enumerate(blocks):
         work = b.T.astype(np.float64)  # a copy (n, n_k), each channel contiguous
         if not np.isfinite(work).all():
-            median[k] = np.median(b, axis=0)
-            mad[k] = np.median(np.abs(b - median[k]), axis=0)
+            median[k] = order.median(b, axis=0)  # NaN where a NaN is
+            mad[k] = order.median(np.abs(b - median[k]), axis=0)
             continue
-        median[k] = _middle(work)
+        median[k] = order.middle_in_place(work)
         work -= median[k][:, None]
         np.abs(work, out=work)
-        mad[k] = _middle(work)
+        mad[k] = order.middle_in_place(work)
     return median, mad
-
-
-def _middle(work: np.ndarray) -> np.ndarray:
-    """The median of each row of ``work`` (partitioned in place), as ``np.median`` makes it:
-    the middle element, or the mean of the two middle ones."""
-    m = work.shape[1]
-    h = m // 2
-    if m % 2:  # numpy's mean of the middle value(s) starts from +0.0 (-0.0 becomes 0.0)
-        work.partition(h, axis=1)
-        return work[:, h] + 0.0
-    work.partition((h - 1, h), axis=1)
-    return (0.0 + work[:, h - 1] + work[:, h]) / 2.0
 
 
 def pooled_noise(blocks: list[np.ndarray], step: float = 0.0,

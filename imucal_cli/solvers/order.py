@@ -36,19 +36,34 @@ def median(a, axis: int | None = None):
     n = a.shape[axis]
     if n == 0:
         return np.median(a, axis=axis)
-    a = np.moveaxis(a, axis, -1)
-    h = n // 2
-    kth = [h - 1, h] if n % 2 == 0 else [h]
-    part = np.partition(a, [*kth, n - 1], axis=-1)  # the last: NaN sorts there
-    # numpy's mean of the middle value(s): a sum that starts from +0.0 (so -0.0 becomes 0.0)
-    if n % 2:
-        out = part[..., h] + 0.0
-    else:
-        out = (0.0 + part[..., h - 1] + part[..., h]) / 2.0
+    part = np.partition(np.moveaxis(a, axis, -1), [*_kth(n), n - 1], axis=-1)  # NaN sorts last
+    out = _middle(part)
     nan = np.isnan(part[..., -1])
     if np.any(nan):
         out = np.where(nan, np.nan, out)
     return out[()]  # a scalar where numpy gives one (``[..., h]`` of 1-D is 0-d)
+
+
+def middle_in_place(work: np.ndarray) -> np.ndarray:
+    """The median of each row of ``work`` (float64, without NaN), as ``np.median(work,
+    axis=-1)`` gives it, by partitioning ``work`` in place (no copy: the caller's own)."""
+    work.partition(_kth(work.shape[-1]), axis=-1)
+    return _middle(work)
+
+
+def _kth(n: int) -> list[int]:
+    """The order statistics a median of ``n`` values needs."""
+    return [n // 2] if n % 2 else [n // 2 - 1, n // 2]
+
+
+def _middle(part: np.ndarray) -> np.ndarray:
+    """The median of each row of ``part``, partitioned at :func:`_kth`: numpy's mean of the
+    middle value(s), a sum that starts from +0.0 (so -0.0 becomes 0.0)."""
+    n = part.shape[-1]
+    h = n // 2
+    if n % 2:
+        return part[..., h] + 0.0
+    return (0.0 + part[..., h - 1] + part[..., h]) / 2.0
 
 
 def nanmedian(a):

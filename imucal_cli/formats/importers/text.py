@@ -19,6 +19,7 @@ import numpy as np
 from imucal_cli.errors import InputError
 from imucal_cli.formats.inputs import read_head, read_input
 from imucal_cli.formats.number import NUMBER
+from imucal_cli.solvers.segmented import stacked_rows
 
 from .recording import ImportStats
 
@@ -404,13 +405,6 @@ def _runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return edge[0::2], edge[1::2]
 
 
-def _ranges(starts: np.ndarray, stops: np.ndarray) -> np.ndarray:
-    """All indices of the ranges ``[starts[k], stops[k])``, concatenated."""
-    lengths = stops - starts
-    offsets = np.repeat(starts - np.r_[0, np.cumsum(lengths)[:-1]], lengths)
-    return offsets + np.arange(int(lengths.sum()))
-
-
 @dataclass
 class _Lines:
     """The lines of a file scanned as bytes: ``breaks`` (offsets of the line breaks), each
@@ -657,7 +651,7 @@ def _parse_values(raw: bytes, tokens: _Tokens, keep: np.ndarray, comma: bool) ->
     drop = np.flatnonzero(~keep)
     if len(drop):
         blanked = np.frombuffer(text, dtype=np.uint8).copy()
-        blanked[_ranges(tokens.start[drop], tokens.end[drop])] = ord(" ")
+        blanked[stacked_rows(tokens.start[drop], tokens.end[drop])[0]] = ord(" ")
         text = blanked.tobytes()
     try:
         values = np.fromstring(text, sep=" ")  # text mode: not deprecated
