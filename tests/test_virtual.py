@@ -291,8 +291,11 @@ def test_no_prompt_needs_a_duration_or_a_plan(tmp_path):
     assert r.returncode == 2 and "--no-prompt needs --duration" in r.stderr
 
 
-@pytest.mark.parametrize(("protocol", "capture_args"),
-                         [("motioncal", []), ("i2cdevlib", ["--protocol", "i2cdevlib"])])
+@pytest.mark.parametrize(("protocol", "capture_args"), [
+    ("motioncal", []),
+    # the same path with the other sketch's lines (parsed alike: tests/test_capture_lines.py)
+    pytest.param("i2cdevlib", ["--protocol", "i2cdevlib"], marks=pytest.mark.slow),
+])  # fmt: skip
 def test_sketch_lines_captured_end_to_end(tmp_path, server_factory, protocol, capture_args):
     """The virtual IMU prints MotionCal's Raw: lines (recognised by themselves) or i2cdevlib's
     a/g: lines (asked for): every line sent arrives with its counts, the faces are found."""

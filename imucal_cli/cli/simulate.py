@@ -96,7 +96,8 @@ Plan = alias(str, plan_option(
 ))  # fmt: skip
 Seed = Annotated[int, typer.Option(
     "--seed", metavar="INT",
-    help="Random seed (>= 0): the same seed and options give the same samples, in any units.",
+    help="Random seed (>= 0): the same seed and options draw the same part, poses and noise "
+    "(the samples agree to the last bits of the arithmetic on another CPU, one count at most).",
 )]  # fmt: skip
 Rate = alias(float, rate_option("Sample rate, Hz."))
 Hold = alias(float | None, hold_option(
