@@ -126,6 +126,8 @@ def differences(got, want, where: str = "") -> list[str]:
         if set(got) != set(want):
             return [f"{where}: keys {sorted(set(got) ^ set(want))} differ"]
         return [d for k in want for d in differences(got[k], want[k], f"{where}.{k}")]
+    if _numeric(want) and _numeric(got):
+        return _numbers_differences(got, want, where)
     if isinstance(want, list) and isinstance(got, list):
         if len(got) != len(want):
             return [f"{where}: {len(got)} items, recorded {len(want)}"]
@@ -139,6 +141,31 @@ def differences(got, want, where: str = "") -> list[str]:
         return [f"{where}: {got!r}, recorded {want!r}"]
     if got != want or type(got) is not type(want):
         return [f"{where}: {got!r}, recorded {want!r}"]
+    return []
+
+
+def _numeric(value) -> bool:
+    """A (nested) list of numbers, such as a matrix of the truth JSON."""
+    if not isinstance(value, list) or not value:
+        return False
+    return all(_numeric(v) if isinstance(v, list) else
+               isinstance(v, int | float) and not isinstance(v, bool) for v in value)  # fmt: skip
+
+
+def _numbers_differences(got: list, want: list, where: str) -> list[str]:
+    """A vector or matrix, to 1e-9 of its largest entry: an entry that is zero but for the
+    rounding (1e-18 beside entries of 1) may have another sign elsewhere."""
+    try:
+        g, w = np.array(got, dtype=float), np.array(want, dtype=float)
+    except ValueError:  # ragged
+        return [] if got == want else [f"{where}: {got!r}, recorded {want!r}"]
+    if g.shape != w.shape:
+        return [f"{where}: shape {g.shape}, recorded {w.shape}"]
+    scale = RTOL * np.nanmax(np.abs(w), initial=0.0)
+    bad = ~((np.abs(g - w) <= scale + RTOL * np.abs(w)) | (np.isnan(g) & np.isnan(w)))
+    if bad.any():
+        i = np.unravel_index(int(np.flatnonzero(bad)[0]), w.shape)
+        return [f"{where}{list(i)}: {g[i]!r}, recorded {w[i]!r}"]
     return []
 
 
