@@ -200,7 +200,7 @@ def test_held_out_residuals_are_the_per_pose_formula():
     from imucal_cli.solvers.labelled_model import rotation_matrix as R
 
     six, _ = simulate(plan="six", seed=6, created=CREATED)
-    rnd, _ = simulate(plan="random:8", seed=6, created=CREATED)
+    rnd, _ = simulate(plan="random:9", seed=6, created=CREATED)
     p6, pr = static_poses(six), static_poses(rnd)
     a = np.vstack([p6.a_mean, pr.a_mean])
     states = []

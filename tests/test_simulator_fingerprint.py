@@ -39,7 +39,8 @@ arithmetic (about 1e-16 per operation), far below a change of the simulation."""
 CASES: dict[str, dict] = {
     "six": {"plan": "six"},
     "qureshi18": {"plan": "qureshi18"},
-    "random:5": {"plan": "random:5"},
+    "random:9": {"plan": "random:9"},
+    "ferraris": {"plan": "ferraris"},
     "gyro-axes": {"plan": "gyro-axes"},
     "hwangbo-iron": {"plan": "hwangbo-iron"},
     "hk-gyro:3": {"plan": "hk-gyro", "mountings": 3},

@@ -313,6 +313,7 @@ def simulate(
     """
     given = _given(ctx)
     thermal, clock = _checked(plan, serve, ramp, clock_ppm, mag, given("protocol"))
+    _warn_without_mag(mag, given)
     options = {
         "accel_noise": accel_noise, "jitter_deg": jitter_deg, "still_s": still,
         "rotations_per_axis": rotations_per_axis if given("rotations_per_axis") else None,
@@ -373,6 +374,26 @@ def _checked(plan: str, serve: bool, ramp: str | None, clock_ppm: float | None, 
     if protocol and not serve:
         raise InputError("--protocol is what --serve prints: add --serve")
     return thermal, clock
+
+
+#: The options of the simulated magnetometer, as ``--help`` names them.
+MAG_OPTIONS = {"field_ut": "--field-uT", "inclination": "--inclination-deg",
+               "mag_units": "--mag-units", "mag_noise": "--mag-noise",
+               "mag_layout": "--mag-layout", "field_unknown": "--field-unknown",
+               "tumble": "--tumble"}  # fmt: skip
+
+
+def _warn_without_mag(mag: bool, given) -> None:
+    """Options of the magnetometer given without ``--mag`` change nothing: say so (issue
+    24.7)."""
+    unused = [flag for name, flag in MAG_OPTIONS.items() if given(name)]
+    if unused and not mag:
+        import warnings
+
+        from imucal_cli.errors import ImucalWarning
+
+        warnings.warn(f"{', '.join(unused)} go with --mag (a simulated magnetometer): ignored "
+                      "without it", ImucalWarning, stacklevel=2)  # fmt: skip
 
 
 def _outputs(output: Path | None, plan: str, seed: int, force: bool) -> tuple[Path, Path]:

@@ -42,7 +42,9 @@ class SessionResult:
     figures : dict
         ``accel_solver``, ``accel_rms_after`` (m/s^2), ``gyro_solver``, ``gyro_rms_deg``,
         ``mag_solver``, ``mag_rms_after`` (in ``mag_units``), ``mag_quality`` (pass/recapture),
-        ``warnings`` (count), ``accel_note`` (why the accel was left out), where present.
+        ``warnings`` (count), ``accel_note`` (why the accel was left out), where present;
+        ``complete`` (false when a sensor of the session was left out) and ``left_out`` (their
+        names) when saved.
     """
 
     session: str
@@ -138,6 +140,10 @@ def _figures(cal: Calibration) -> dict:
     if cal.extra.get("accel_note"):  # the accel left out (issue 9.4): one more warning
         out["warnings"] = out.get("warnings", 0) + 1
         out["accel_note"] = cal.extra["accel_note"]
+    left_out = cal.extra.get("left_out") or {}
+    out["complete"] = not left_out  # issue 24.2
+    if left_out:
+        out["left_out"] = sorted(left_out)
     return out
 
 

@@ -19,7 +19,7 @@ Rotation segments come from the session; where it has none, they are found in th
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -117,34 +117,79 @@ def still_periods(session, accel_cal, cfg, statics) -> tuple[list[Still], float]
 
 
 def turns_between(session, stills, turns, gap) -> tuple[list[Turn], list[str]]:
-    """The turns with a still period right before and after (within ``gap`` s), and the
-    names of the others: for each turn the last still period that ends by its first sample
-    and the first that starts at its last, compared with all still periods at once (in
-    chunks of turns: memory bounded by :data:`PAIRS`)."""
+    """The turns with a still period right before and after, and the names of the others.
+
+    For each turn: the last still period that ends by its first sample and the first that
+    starts at its last. The samples between a still period and its turn (a person who held
+    the pose longer than the capture needed, a pause before turning) are integrated with the
+    turn when they are continuous (:func:`_bridges`): the turn's segment is extended to the
+    still periods, so that any motion there is measured. What cannot be bridged (a hole in
+    the time stamps, another turn) must be at most ``gap`` s long, as the rule always was.
+    All still periods are compared at once, in chunks of turns (memory bounded by
+    :data:`PAIRS`).
+    """
     time = session.time
     start = np.array([s.segment.start for s in stills], dtype=np.int64)
     stop = np.array([s.segment.stop for s in stills], dtype=np.int64)
     t_start, t_end = time[start], time[stop - 1]
     r_start = np.array([r.start for r in turns], dtype=np.int64)
     r_stop = np.array([r.stop for r in turns], dtype=np.int64)
+    low, high = _bridges(session, turns, r_start, r_stop)
     P = len(stills)
     before = np.full(len(turns), -1)
     after = np.full(len(turns), -1)
     step = max(1, PAIRS // max(P, 1))
     for i in range(0, len(turns) if P else 0, step):
         rs, re = r_start[i : i + step, None], r_stop[i : i + step, None]
-        ok_before = (stop <= rs + 1) & (time[rs] - t_end <= gap)  # (turns, stills)
-        ok_after = (start >= re - 1) & (t_start - time[re - 1] <= gap)
-        last = P - 1 - np.argmax(ok_before[:, ::-1], axis=1)
-        before[i : i + step] = np.where(ok_before.any(axis=1), last, -1)
+        # where the integration can start (end) for each still period, (turns, stills): at
+        # the still period when continuous samples reach it, else at the turn
+        first = np.where((stop >= low[i : i + step, None]) & (stop < rs), stop, rs)
+        last = np.where((start <= high[i : i + step, None]) & (start > re), start, re)
+        ok_before = (stop <= rs + 1) & (time[first] - t_end <= gap)
+        ok_after = (start >= re - 1) & (t_start - time[last - 1] <= gap)
+        last_b = P - 1 - np.argmax(ok_before[:, ::-1], axis=1)
+        before[i : i + step] = np.where(ok_before.any(axis=1), last_b, -1)
         after[i : i + step] = np.where(ok_after.any(axis=1), np.argmax(ok_after, axis=1), -1)
     usable, skipped = [], []
-    for r, b, a in zip(turns, before.tolist(), after.tolist(), strict=True):
-        if b >= 0 and a >= 0:
-            usable.append(Turn(r, b, a))
-        else:
+    for k, (r, b, a) in enumerate(zip(turns, before.tolist(), after.tolist(), strict=True)):
+        if b < 0 or a < 0:
             skipped.append(r.label or r.name)
+            continue
+        s0 = int(stop[b]) if low[k] <= stop[b] < r.start else r.start
+        s1 = int(start[a]) if r.stop < start[a] <= high[k] else r.stop
+        usable.append(Turn(r if (s0, s1) == (r.start, r.stop) else replace(r, start=s0, stop=s1),
+                           b, a))  # fmt: skip
     return usable, skipped
+
+
+def _bridges(session, turns, r_start: np.ndarray, r_stop: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """How far back (``low``, an index) and forward (``high``, exclusive) each turn may be
+    extended through continuous samples: to the nearest hole in the time stamps (a step
+    longer than :data:`HOLE_STEPS` median sample periods) or the nearest other turn (of
+    ``turns`` and of the session's rotation segments), whichever comes first."""
+    time = np.asarray(session.time)
+    n = len(time)
+    if n < 2 or not len(r_start):
+        return r_start.copy(), r_stop.copy()
+    dt = np.diff(time)
+    holes = np.flatnonzero(dt > HOLE_STEPS * median(dt)) + 1  # first sample after a hole
+    h = np.r_[0, holes, n]
+    low = h[np.searchsorted(h, r_start, side="right") - 1]
+    high = h[np.searchsorted(h, r_stop - 1, side="right")]
+    segments = list(turns) + list(getattr(session, "rotation_segments", list)())
+    starts = np.unique([s.start for s in segments])
+    stops = np.unique([s.stop for s in segments])
+    k = np.searchsorted(stops, r_start, side="right") - 1  # the latest other turn's end
+    low = np.maximum(low, np.where(k >= 0, stops[np.maximum(k, 0)], 0))
+    k = np.searchsorted(starts, r_stop, side="left")  # the next other turn's start
+    high = np.minimum(high, np.where(k < len(starts), starts[np.minimum(k, len(starts) - 1)], n))
+    return low, high
+
+
+#: A step between time stamps longer than this many median sample periods is a hole in the
+#: data: a turn is not extended across it (the unit may have moved unseen).
+HOLE_STEPS = 5.0
 
 
 #: Turn-still pairs compared at once by :func:`turns_between`.
@@ -159,9 +204,26 @@ def _stills_and_turns(session, accel_cal, cfg, where):
     if not usable:
         raise DesignError(
             f"{where}: no rotation has still data right before and after it (within "
-            f"{gap:g} s): hold the unit still for a few seconds before and after every turn"
+            f"{gap:g} s, or continuous samples between them): hold the unit still for a few "
+            "seconds before and after every turn"
         )
     return stills, usable, skipped, source, z_sigma
+
+
+def bridged_note(session, turns: list[Segment], usable: list[Turn]) -> list[str]:
+    """Say how many turns were extended to their still periods (:func:`turns_between`)."""
+    orig = {r.name: r for r in turns}
+    added = [(orig[u.segment.name].start - u.segment.start,
+              u.segment.stop - orig[u.segment.name].stop)
+             for u in usable if u.segment.name in orig]  # fmt: skip
+    added = [(a, b) for a, b in added if a or b]
+    if not added:
+        return []
+    rate = session.sample_rate_hz or 1.0 / float(median(np.diff(session.time)))
+    longest = max(a + b for a, b in added) / rate
+    return [f"{len(added)} turn(s) extended through continuous samples to the still periods "
+            f"around them (up to {longest:.1f} s: the unit held a pose longer than its segment, "
+            "or paused before turning) and integrated whole"]  # fmt: skip
 
 
 def _clipped(session: Session, turns: list[Turn], limit: tuple[float, float] | None
@@ -237,6 +299,7 @@ def gyro_data(session: Session, cfg: Config, accel_cal: SensorCalibration) -> Gy
     data = GyroData(session, cfg, where, accel_cal, stills, turns, max(noise, 1e-12),
                     np.zeros(3), 0.0, session.gyro_units or "unknown",
                     notes=[f"rotations: {source}"])  # fmt: skip
+    data.notes += bridged_note(session, session.rotation_segments(), turns)
     if skipped:
         data.notes.append(f"{len(skipped)} rotation(s) without still data before and after: "
                           "skipped")  # fmt: skip
