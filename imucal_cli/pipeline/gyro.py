@@ -141,12 +141,12 @@ def turns_between(session, stills, turns, gap) -> tuple[list[Turn], list[str]]:
     step = max(1, PAIRS // max(P, 1))
     for i in range(0, len(turns) if P else 0, step):
         rs, re = r_start[i : i + step, None], r_stop[i : i + step, None]
-        # where the integration can start (end) for each still period, (turns, stills): at
-        # the still period when continuous samples reach it, else at the turn
-        first = np.where((stop >= low[i : i + step, None]) & (stop < rs), stop, rs)
-        last = np.where((start <= high[i : i + step, None]) & (start > re), start, re)
-        ok_before = (stop <= rs + 1) & (time[first] - t_end <= gap)
-        ok_after = (start >= re - 1) & (t_start - time[last - 1] <= gap)
+        # (turns, stills): continuous samples reach the still period (integrated with the
+        # turn), or it is within ``gap`` of the turn (the rule for what cannot be bridged)
+        reach_b = (stop - 1 >= low[i : i + step, None]) & (stop <= rs)
+        reach_a = (start < high[i : i + step, None]) & (start >= re)
+        ok_before = (stop <= rs + 1) & (reach_b | (time[rs] - t_end <= gap))
+        ok_after = (start >= re - 1) & (reach_a | (t_start - time[re - 1] <= gap))
         last_b = P - 1 - np.argmax(ok_before[:, ::-1], axis=1)
         before[i : i + step] = np.where(ok_before.any(axis=1), last_b, -1)
         after[i : i + step] = np.where(ok_after.any(axis=1), np.argmax(ok_after, axis=1), -1)
@@ -155,8 +155,8 @@ def turns_between(session, stills, turns, gap) -> tuple[list[Turn], list[str]]:
         if b < 0 or a < 0:
             skipped.append(r.label or r.name)
             continue
-        s0 = int(stop[b]) if low[k] <= stop[b] < r.start else r.start
-        s1 = int(start[a]) if r.stop < start[a] <= high[k] else r.stop
+        s0 = int(stop[b]) if low[k] <= stop[b] - 1 and stop[b] < r.start else r.start
+        s1 = int(start[a]) if r.stop < start[a] < high[k] else r.stop
         usable.append(Turn(r if (s0, s1) == (r.start, r.stop) else replace(r, start=s0, stop=s1),
                            b, a))  # fmt: skip
     return usable, skipped
