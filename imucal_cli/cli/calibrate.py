@@ -68,11 +68,16 @@ def calibrate(
 ) -> None:
     """Calibrate the sensors of SESSION the config asks for and write a calibration JSON.
 
-    Exit status: 0 saved; 2 bad input, nothing saved (unreadable file, bad config, poses that
-    cannot determine the model, OUTPUT exists without --force or is the session); 1 the solver
-    did not converge or the result is outside physical sense (not saved unless --force), or
-    saved but not stored in the session (the reason is printed).  Several sessions: the worst
-    of theirs.
+    A sensor the session cannot determine (too few turns for the gyro, too little of the sphere
+    for the magnetometer) is left out, saying why and what to capture, and the others are
+    saved: a partial calibration ("complete": false and "left_out" in the JSON).  A solver
+    named in the config makes its sensor required.
+
+    Exit status: 0 saved (complete or partial); 2 bad input, nothing saved (unreadable file,
+    bad config, a session that cannot determine any sensor, or a required one; OUTPUT exists
+    without --force or is the session); 1 the solver did not converge or the result is outside
+    physical sense (not saved unless --force), or saved but not stored in the session (the
+    reason is printed).  Several sessions: the worst of theirs.
     """
     cfg = _config(config, model, gravity)
     accel_cal = None

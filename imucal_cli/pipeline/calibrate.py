@@ -303,6 +303,31 @@ def _mag_or_note(session: Session, cfg: Config, accel: SensorCalibration | None)
         return None, f"mag not calibrated: {_reason(session, exc)}", exc
 
 
+def _gyro_and_mag(session: Session, cfg: Config, accel, refusal, with_mag: bool):
+    """The gyro and magnetometer sections (each None when left out) and the notes per sensor
+    (``{"accel", "gyro", "mag"}``: why it was left out); the most telling refusal when
+    nothing at all calibrates (issue 24.2: otherwise what calibrates is saved)."""
+    gyro_refusal, accel_note = None, None
+    if refusal is not None:
+        (gyro, accel_note), gyro_note = _gyro_without_accel(session, cfg, refusal), None
+        if gyro is None and cfg.gyro.solver != "none":
+            gyro_note = ("gyro not calibrated: its turns are measured with the accelerometer, "
+                         "which this session does not determine (see accel): pass an earlier "
+                         "calibration of it, --accel CAL.json")  # fmt: skip
+    else:
+        gyro, gyro_note, gyro_refusal = _gyro_or_note(session, cfg, accel)
+    mag, mag_note, mag_refusal = _mag_or_note(session, cfg, accel) if with_mag else (None,) * 3
+    if accel is None and gyro is None and mag is None:
+        for failed in (refusal and refusal[1], gyro_refusal, mag_refusal):
+            if failed is not None:
+                raise failed from None
+        raise DesignError(
+            f"{session_name(session)}: nothing to calibrate: no still poses with accelerometer "
+            f"data, and the gyro was not calibrated ({gyro_note or '[gyro] solver is none'})"
+        )
+    return gyro, mag, {"accel": accel_note, "gyro": gyro_note, "mag": mag_note}
+
+
 def _prepare(
     session: Session, cfg: Config, warmup: list[Session] | None
 ) -> tuple[Session, dict, dict]:  # fmt: skip
@@ -344,7 +369,7 @@ def calibrate_session(
         raise ConfigError("the config calibrates nothing: [accel] and [gyro] solver are both none")
     session, segmented = with_segments(session)
     session, models, root = _prepare(session, cfg, warmup)
-    given, refusal, accel_note = accel, None, None
+    given, refusal = accel, None
     if accel is None:
         run_accel = cfg.accel.solver != "none" and not (session.accel is None and with_mag)
         accel, refusal = _accel_or_refusal(session, cfg) if run_accel else (None, None)
@@ -354,24 +379,7 @@ def calibrate_session(
 
         session, accel = given_accel(session, accel)
         segmented_accel = False
-    gyro_refusal = None
-    if refusal is not None:
-        (gyro, accel_note), gyro_note = _gyro_without_accel(session, cfg, refusal), None
-        if gyro is None and cfg.gyro.solver != "none":
-            gyro_note = ("gyro not calibrated: its turns are measured with the accelerometer, "
-                         "which this session does not determine (see accel): pass an earlier "
-                         "calibration of it, --accel CAL.json")  # fmt: skip
-    else:
-        gyro, gyro_note, gyro_refusal = _gyro_or_note(session, cfg, accel)
-    mag, mag_note, mag_refusal = _mag_or_note(session, cfg, accel) if with_mag else (None,) * 3
-    if accel is None and gyro is None and mag is None:
-        for failed in (refusal and refusal[1], gyro_refusal, mag_refusal):
-            if failed is not None:
-                raise failed from None
-        raise DesignError(
-            f"{session_name(session)}: nothing to calibrate: no still poses with accelerometer "
-            f"data, and the gyro was not calibrated ({gyro_note or '[gyro] solver is none'})"
-        )
+    gyro, mag, notes = _gyro_and_mag(session, cfg, accel, refusal, with_mag)
     for sec in (accel if segmented_accel else None, gyro, mag):
         if sec is not None and segmented:
             sec.extra.setdefault("notes", []).insert(0, segmented)
@@ -381,7 +389,6 @@ def calibrate_session(
         gyro.extra["sample_clock_scale"] = root["sample_clock"]["scale"]
         gyro.extra["sample_clock"] = root["sample_clock"]
     extra = {"toolkit_version": __version__, "config": cfg.to_dict(), **root}
-    notes = {"accel": accel_note, "gyro": gyro_note, "mag": mag_note}
     for kind, note in notes.items():
         if note:
             extra[f"{kind}_note"] = note
