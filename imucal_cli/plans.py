@@ -203,6 +203,12 @@ MAX_RANDOM_POSES = 10000
 RANDOM_MINIMUM = 9
 """Fewest poses of ``random:N``: N unlabelled poses give at most N distinct gravity directions,
 and the gravity-magnitude model has 9 parameters (Qureshi & Golnaraghi eqs. 3-8)."""
+GYRO_MIN_TURNS = 5
+"""Fewest turns of the turn plans: the gyro's 12-parameter model has 9 matrix entries, and a
+turn measured by gravity gives 2 equations on them."""
+_TURNS_WHY = (f"the gyro's 12-parameter model needs {GYRO_MIN_TURNS} turns (each gives 2 "
+              "equations for the 9 of its matrix; with an accelerometer calibrated earlier, "
+              "calibrate --accel CAL.json)")
 FERRARIS_TURN_DEG = -360.0
 """MaD Lab's Ferraris turns: one full turn about the vertical axis, clockwise seen from above
 (``imucal``'s default ``expected_angle``)."""
@@ -470,9 +476,11 @@ PLANS: tuple[PlanSpec, ...] = (
              "Hwangbo & Kanade V", "redundant", _hk_redundant),
     PlanSpec("qureshi-axes[:N]", "N hand turns, default 18, about x and y with +Z up, then "
              "about z with +X up, Qureshi & Golnaraghi Fig. 2", "rotations", _qureshi_axes,
-             "count?"),
-    PlanSpec("free:N", "N hand turns about any axes, still between turns", "rotations", _free,
-             "count"),
+             "count?", minimum=(2, f"3 N turns, and {_TURNS_WHY}")),
+    PlanSpec("free:N", f"N hand turns about any axes, still between turns (N >= "
+             f"{GYRO_MIN_TURNS})", "rotations", _free, "count",
+             minimum=(GYRO_MIN_TURNS, f"{_TURNS_WHY}; 12 or more let its still periods "
+                      "calibrate the accelerometer too")),
     PlanSpec("still:MINUTES", "one still hold of MINUTES minutes, for imucal noise", "steps",
              _still, "minutes"),
     PlanSpec("warmup:MINUTES", "one still hold, flat, through a warm-up or cool-down of MINUTES "

@@ -393,7 +393,7 @@ def test_segment_recording_labels_faces():
 
 
 @pytest.mark.parametrize(
-    "name", ["gyro-axes", "hwangbo-iron", "hk-gyro", "qureshi-axes:3", "free:4", "still:0.1"]
+    "name", ["gyro-axes", "hwangbo-iron", "hk-gyro", "qureshi-axes:3", "free:5", "still:0.1"]
 )
 def test_segment_recording_rotation_plans(name):
     plan = load_plan(name)

@@ -28,7 +28,7 @@ EXAMPLES = {
     "hk-gyro": "hk-gyro",
     "hk-redundant": "hk-redundant",
     "qureshi-axes[:N]": "qureshi-axes:2",
-    "free:N": "free:3",
+    "free:N": "free:5",
     "still:MINUTES": "still:0.2",
     "warmup:MINUTES": "warmup:0.2",
 }
@@ -76,7 +76,9 @@ def test_plan_arguments_and_refusals():
     assert load_plan("random:009").name == "random:9"
     assert load_plan("still:0.5").steps[0].hold_s == 30.0
     for bad, words in (("free", "say how many"), ("six:2", "takes no argument"),
-                       ("qureshi-axes:0", "between 1 and"), ("random:x", "between 9 and"),
+                       ("qureshi-axes:0", "between 2 and"),
+                       ("free:4", "at least 5: the gyro's 12-parameter model needs 5 turns"),
+                       ("qureshi-axes:1", "at least 2: 3 N turns"), ("random:x", "between 9 and"),
                        ("random:8", "at least 9: the gravity-magnitude model has 9 param"),
                        ("still:-1", "positive number"), ("seven", "is unknown")):  # fmt: skip
         with pytest.raises(InputError, match=words):

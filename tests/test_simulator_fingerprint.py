@@ -52,7 +52,7 @@ CASES: dict[str, dict] = {
     "still:1": {"plan": "still:1"},
     "warmup:2": {"plan": "warmup:2"},
     "qureshi18 ramp": {"plan": "qureshi18", "ramp": "20:40"},
-    "free:4 clock ramp": {"plan": "free:4", "clock_ppm": 50.0, "ramp": "25:35:linear"},
+    "free:5 clock ramp": {"plan": "free:5", "clock_ppm": 50.0, "ramp": "25:35:linear"},
     "six m/s^2 jitter 5": {"plan": "six", "units": "m/s^2", "jitter_deg": 5.0},
     "six mag": {"plan": "six", "mag": True},
 }

@@ -198,7 +198,7 @@ def _refusal(session: Session, poses: StaticPoses, nominal, exc: DesignError, wh
         return (f"{head}; they lie on {len(faces)} faces ({', '.join(faces)}): label them "
                 "(`imucal label SESSION --faces`) and the labelled-pose solver calibrates them, "
                 "or capture the 45-degree edges too (plan qureshi18)")  # fmt: skip
-    if not n_lab and len(faces) < 4:  # random poses, not faces (issue 24.7)
+    if len(faces) < 4 and _on_faces(directions, poses.up) < N / 2:  # not faces (issue 24.7)
         return (f"{head}{_near_poses(poses, directions, 10.0)}; capture {9 - distinct} or more "
                 "poses in new directions, each more than 10 deg from the others (12 or more "
                 "in all let the fit check itself against the noise: plan random:12), or the "
@@ -207,6 +207,13 @@ def _refusal(session: Session, poses: StaticPoses, nominal, exc: DesignError, wh
     return (f"{head}; they lie on {len(faces)} faces{on}, and the labelled-pose solver needs "
             "4 faces (not only the 4 around one axis): capture the other faces too (plan "
             "six), or the 45-degree edges (plan qureshi18)")  # fmt: skip
+
+
+def _on_faces(directions: np.ndarray, up: np.ndarray) -> int:
+    """How many poses lie on a face (their label, else their direction, within 15 deg of an
+    axis), as :func:`_faces` sees them."""
+    v = np.where(np.isfinite(up).all(axis=1, keepdims=True), up, directions)
+    return int(np.sum(np.max(np.abs(v), axis=1) > np.cos(np.radians(15.0))))
 
 
 def _near_poses(poses: StaticPoses, directions: np.ndarray, min_deg: float) -> str:

@@ -123,10 +123,10 @@ def turns_between(session, stills, turns, gap) -> tuple[list[Turn], list[str]]:
     starts at its last. The samples between a still period and its turn (a person who held
     the pose longer than the capture needed, a pause before turning) are integrated with the
     turn when they are continuous (:func:`_bridges`): the turn's segment is extended to the
-    still periods, so that any motion there is measured. What cannot be bridged (a hole in
-    the time stamps, another turn) must be at most ``gap`` s long, as the rule always was.
-    All still periods are compared at once, in chunks of turns (memory bounded by
-    :data:`PAIRS`).
+    still periods, so that any motion there is measured. A still period that cannot be
+    reached so (a hole in the time stamps, or another turn, between) must end (start) within
+    ``gap`` s of the turn, as the rule always was. All still periods are compared at once, in
+    chunks of turns (memory bounded by :data:`PAIRS`).
     """
     time = session.time
     start = np.array([s.segment.start for s in stills], dtype=np.int64)
