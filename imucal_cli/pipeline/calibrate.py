@@ -363,7 +363,7 @@ def calibrate_session(
     """
     from imucal_cli.pipeline.temperature import attach
 
-    warn_absent_sensors(session, cfg, accel_given=accel is not None)
+    warn_absent_sensors(session, cfg, accel_given=accel is not None, warmup=bool(warmup))
     with_mag = session.mag is not None and cfg.mag.solver != "none"
     if cfg.accel.solver == "none" and cfg.gyro.solver == "none" and accel is None and not with_mag:
         raise ConfigError("the config calibrates nothing: [accel] and [gyro] solver are both none")
@@ -419,12 +419,14 @@ def _changed(value, default, path: str = "") -> list[str]:
     return [] if value == default else [path]
 
 
-def warn_absent_sensors(session: Session, cfg: Config, *, accel_given: bool = False) -> None:
+def warn_absent_sensors(session: Session, cfg: Config, *, accel_given: bool = False,
+                        warmup: bool = False) -> None:
     """Warn (:class:`ImucalWarning`, ``imucal: warning: ...``) about options for a sensor the
     session has no data for (issue 24.7): a ``[gyro]`` section for a session without
     ``/raw/gyro``, ``[mag] field_uT`` without ``/raw/mag``, ``--model`` or ``gravity`` without
     an accelerometer, ``--accel CAL.json`` for a session with neither a gyro nor a
-    magnetometer (nothing uses it). They change nothing; the user should know."""
+    magnetometer (nothing uses it). They change nothing; the user should know. With
+    ``warmup`` recordings the ``[temperature]`` options shape their model: not warned."""
     import warnings
 
     from imucal_cli.errors import ImucalWarning
@@ -439,8 +441,8 @@ def warn_absent_sensors(session: Session, cfg: Config, *, accel_given: bool = Fa
     checks = [("accel", session.accel, cfg.accel, AccelConfig(), "accelerometer"),
               ("gyro", session.gyro, cfg.gyro, GyroConfig(), "gyroscope"),
               ("mag", session.mag, cfg.mag, MagConfig(), "magnetometer"),
-              ("temperature", session.temperature, cfg.temperature, TemperatureConfig(),
-               "temperature")]  # fmt: skip
+              ("temperature", session.temperature if not warmup else True, cfg.temperature,
+               TemperatureConfig(), "temperature")]  # fmt: skip
     flags = {"accel.gravity.model": " (--model)"}
     for name, data, section, default, what in checks:
         keys = [f"[{name}] {k}{flags.get(f'{name}.{k}', '')}" for k in _changed(section, default)]
