@@ -178,8 +178,8 @@ def _bridges(session, turns, r_start: np.ndarray, r_stop: np.ndarray
     low = h[np.searchsorted(h, r_start, side="right") - 1]
     high = h[np.searchsorted(h, r_stop - 1, side="right")]
     segments = list(turns) + list(getattr(session, "rotation_segments", list)())
-    starts = np.unique([s.start for s in segments])
-    stops = np.unique([s.stop for s in segments])
+    starts = np.sort(np.array([s.start for s in segments], dtype=np.int64))
+    stops = np.sort(np.array([s.stop for s in segments], dtype=np.int64))
     k = np.searchsorted(stops, r_start, side="right") - 1  # the latest other turn's end
     low = np.maximum(low, np.where(k >= 0, stops[np.maximum(k, 0)], 0))
     k = np.searchsorted(starts, r_stop, side="left")  # the next other turn's start
