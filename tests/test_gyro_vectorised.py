@@ -172,16 +172,17 @@ def test_coarse_turns_match_the_per_turn_loop(case, clock):
 
 def _reference_turns_between(time, stills, turns, gap):
     """The per-turn loop of :func:`turns_between`: a still period reached through continuous
-    samples (no step over 5 median periods, no other turn), or within ``gap`` s."""
+    samples (their span at most 5 periods longer than their count makes it, no other turn),
+    or within ``gap`` s."""
     start = np.array([s.segment.start for s in stills], dtype=np.int64)
     stop = np.array([s.segment.stop for s in stills], dtype=np.int64)
     t_start, t_end = time[start], time[stop - 1]
-    dt = np.diff(time)
-    hole = dt > 5 * np.median(dt)  # hole[i]: between samples i and i + 1
+    period = np.median((time[50:] - time[:-50]) / 50)
 
     def reach(a: int, b: int, r) -> bool:  # samples a .. b continuous, no other turn in them
-        return not hole[a:b].any() and not any(o is not r and o.start < b and o.stop > a
-                                               for o in turns)  # fmt: skip
+        lost = (time[b] - time[a]) - (b - a) * period > 5 * period
+        return not lost and not any(o is not r and o.start < b and o.stop > a
+                                    for o in turns)  # fmt: skip
 
     usable, skipped = [], []
     for r in turns:

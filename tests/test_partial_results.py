@@ -153,12 +153,16 @@ def test_a_pose_held_longer_than_its_segment_keeps_its_turn():
     assert "5 turns determine the gyro's rates" in cal.extra["left_out"]["gyro"]  # not fewer
 
 
-def _bridge_case(hole_s: float = 0.0, other_turn: bool = False):
+def _bridge_case(hole_s: float = 0.0, other_turn: bool = False, stall_s: float = 0.0):
     """A still period [0, 100), 300 still samples, a turn [400, 500), a still period
-    [500, 600) at 100 Hz; a hole of ``hole_s`` in the time stamps at sample 250, or another
-    turn at [100, 200)."""
+    [500, 600) at 100 Hz; a hole of ``hole_s`` in the time stamps at sample 250 (samples
+    lost), or another turn at [100, 200), or a host that stamps lines as it reads them
+    stalled ``stall_s`` there (a late stamp, then the lines it held in a burst)."""
     time = np.arange(600) / 100.0
     time[250:] += hole_s
+    held = int(stall_s * 100)
+    time[250 : 250 + held] = time[250 + held] - (held - np.arange(held)) * 1e-5
+    assert np.all(np.diff(time) > 0)
     stills = [SimpleNamespace(segment=Segment("s0", "static", 0, 100)),
               SimpleNamespace(segment=Segment("s1", "static", 500, 600))]  # fmt: skip
     turns = [Segment("r0", "rotation", 400, 500)]
@@ -180,6 +184,10 @@ def test_turns_are_extended_only_through_continuous_samples():
     session, stills, turns = _bridge_case(hole_s=0.5)
     assert turns_between(session, stills, turns, 2.0) == ([], ["r0"])
     assert len(turns_between(session, stills, turns, 5.0)[0]) == 1  # within: the old rule
+    # a host that stalled 0.8 s and then read the lines it held: nothing lost, bridged
+    session, stills, turns = _bridge_case(stall_s=0.8)
+    usable, skipped = turns_between(session, stills, turns, 2.0)
+    assert skipped == [] and [(u.segment.start, u.segment.stop) for u in usable] == [(100, 500)]
     # another turn between the still period and the turn: neither integrated across the other
     session, stills, turns = _bridge_case(other_turn=True)
     usable, skipped = turns_between(session, stills, turns, 2.0)

@@ -122,11 +122,11 @@ def turns_between(session, stills, turns, gap) -> tuple[list[Turn], list[str]]:
     For each turn: the last still period that ends by its first sample and the first that
     starts at its last. The samples between a still period and its turn (a person who held
     the pose longer than the capture needed, a pause before turning) are integrated with the
-    turn when they are continuous (:func:`_bridges`): the turn's segment is extended to the
-    still periods, so that any motion there is measured. A still period that cannot be
-    reached so (a hole in the time stamps, or another turn, between) must end (start) within
-    ``gap`` s of the turn, as the rule always was. All still periods are compared at once, in
-    chunks of turns (memory bounded by :data:`PAIRS`).
+    turn when they are continuous (:func:`_continuous`, no other turn between): the turn's
+    segment is extended to the still periods, so that any motion there is measured. A still
+    period that cannot be reached so must end (start) within ``gap`` s of the turn, as the
+    rule always was. All still periods are compared at once, in chunks of turns (memory
+    bounded by :data:`PAIRS`).
     """
     time = session.time
     start = np.array([s.segment.start for s in stills], dtype=np.int64)
@@ -134,62 +134,83 @@ def turns_between(session, stills, turns, gap) -> tuple[list[Turn], list[str]]:
     t_start, t_end = time[start], time[stop - 1]
     r_start = np.array([r.start for r in turns], dtype=np.int64)
     r_stop = np.array([r.stop for r in turns], dtype=np.int64)
-    low, high = _bridges(session, turns, r_start, r_stop)
+    low, high = _other_turns(session, turns, r_start, r_stop)
+    period = _mean_period(time)
     P = len(stills)
     before = np.full(len(turns), -1)
     after = np.full(len(turns), -1)
+    reach = np.zeros((len(turns), 2), bool)
     step = max(1, PAIRS // max(P, 1))
     for i in range(0, len(turns) if P else 0, step):
         rs, re = r_start[i : i + step, None], r_stop[i : i + step, None]
         # (turns, stills): continuous samples reach the still period (integrated with the
         # turn), or it is within ``gap`` of the turn (the rule for what cannot be bridged)
-        reach_b = (stop - 1 >= low[i : i + step, None]) & (stop <= rs)
-        reach_a = (start < high[i : i + step, None]) & (start >= re)
+        reach_b = (stop <= rs) & (stop >= low[i : i + step, None]) & _continuous(
+            time, np.maximum(stop - 1, 0), rs, period)
+        reach_a = (start >= re) & (start <= high[i : i + step, None]) & _continuous(
+            time, re - 1, start, period)
         ok_before = (stop <= rs + 1) & (reach_b | (time[rs] - t_end <= gap))
         ok_after = (start >= re - 1) & (reach_a | (t_start - time[re - 1] <= gap))
         last_b = P - 1 - np.argmax(ok_before[:, ::-1], axis=1)
         before[i : i + step] = np.where(ok_before.any(axis=1), last_b, -1)
         after[i : i + step] = np.where(ok_after.any(axis=1), np.argmax(ok_after, axis=1), -1)
+        rows = np.arange(len(rs))
+        reach[i : i + step, 0] = reach_b[rows, before[i : i + step]]
+        reach[i : i + step, 1] = reach_a[rows, after[i : i + step]]
     usable, skipped = [], []
     for k, (r, b, a) in enumerate(zip(turns, before.tolist(), after.tolist(), strict=True)):
         if b < 0 or a < 0:
             skipped.append(r.label or r.name)
             continue
-        s0 = int(stop[b]) if low[k] <= stop[b] - 1 and stop[b] < r.start else r.start
-        s1 = int(start[a]) if r.stop < start[a] < high[k] else r.stop
+        s0 = int(stop[b]) if reach[k, 0] else r.start
+        s1 = int(start[a]) if reach[k, 1] else r.stop
         usable.append(Turn(r if (s0, s1) == (r.start, r.stop) else replace(r, start=s0, stop=s1),
                            b, a))  # fmt: skip
     return usable, skipped
 
 
-def _bridges(session, turns, r_start: np.ndarray, r_stop: np.ndarray
-             ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """How far back (``low``, an index) and forward (``high``, exclusive) each turn may be
-    extended through continuous samples: to the nearest hole in the time stamps (a step
-    longer than :data:`HOLE_STEPS` median sample periods) or the nearest other turn (of
-    ``turns`` and of the session's rotation segments), whichever comes first."""
-    time = np.asarray(session.time)
-    n = len(time)
-    if n < 2 or not len(r_start):
-        return r_start.copy(), r_stop.copy()
-    dt = np.diff(time)
-    holes = np.flatnonzero(dt > HOLE_STEPS * median(dt)) + 1  # first sample after a hole
-    h = np.r_[0, holes, n]
-    low = h[np.searchsorted(h, r_start, side="right") - 1]
-    high = h[np.searchsorted(h, r_stop - 1, side="right")]
+def _mean_period(time: np.ndarray) -> float:
+    """The session's sample period, s: the median over the recording of the mean step in
+    :data:`PERIOD_WINDOW` samples (a host's read bursts and stalls average out within a
+    window, and a hole in the data moves only the windows that hold it)."""
+    w = min(PERIOD_WINDOW, len(time) - 1)
+    if w < 1:
+        return 0.0
+    return float(median((time[w:] - time[:-w]) / w))
+
+
+def _continuous(time: np.ndarray, a, b, period: float) -> np.ndarray:
+    """Whether samples ``a`` .. ``b`` are continuous: their time span is at most
+    :data:`HOLE_PERIODS` sample periods longer than their count makes it. A hole in the data
+    (samples never received) stays in the span; a host that stamps lines as it reads them
+    and stalled shows a late stamp and then a burst of early ones, which the span forgives."""
+    return (time[b] - time[a]) - (b - a) * period <= HOLE_PERIODS * period
+
+
+def _other_turns(session, turns, r_start: np.ndarray, r_stop: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """For each turn the end of the latest other turn before it (``low``, 0 when none) and the
+    start of the next after it (``high``, N when none), of ``turns`` and of the session's
+    rotation segments: a turn is not extended across another."""
+    n = len(session.time)
     segments = list(turns) + list(getattr(session, "rotation_segments", list)())
+    if not segments:
+        return np.zeros(len(r_start), np.int64), np.full(len(r_start), n, np.int64)
     starts = np.sort(np.array([s.start for s in segments], dtype=np.int64))
     stops = np.sort(np.array([s.stop for s in segments], dtype=np.int64))
-    k = np.searchsorted(stops, r_start, side="right") - 1  # the latest other turn's end
-    low = np.maximum(low, np.where(k >= 0, stops[np.maximum(k, 0)], 0))
-    k = np.searchsorted(starts, r_stop, side="left")  # the next other turn's start
-    high = np.minimum(high, np.where(k < len(starts), starts[np.minimum(k, len(starts) - 1)], n))
+    k = np.searchsorted(stops, r_start, side="right") - 1
+    low = np.where(k >= 0, stops[np.maximum(k, 0)], 0)
+    k = np.searchsorted(starts, r_stop, side="left")
+    high = np.where(k < len(starts), starts[np.minimum(k, len(starts) - 1)], n)
     return low, high
 
 
-#: A step between time stamps longer than this many median sample periods is a hole in the
-#: data: a turn is not extended across it (the unit may have moved unseen).
-HOLE_STEPS = 5.0
+#: Samples between a still period and its turn whose time span exceeds their count by more than
+#: this many sample periods have a hole (samples lost): the turn is not extended across it
+#: (the unit may have moved unseen).
+HOLE_PERIODS = 5.0
+#: Samples over which a step is averaged for the sample period (:func:`_mean_period`).
+PERIOD_WINDOW = 50
 
 
 #: Turn-still pairs compared at once by :func:`turns_between`.
