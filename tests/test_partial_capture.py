@@ -132,7 +132,7 @@ def test_guided_ferraris_capture_calibrates(tmp_path):
 
 
 def test_capture_warns_about_options_for_a_sensor_the_device_does_not_send(tmp_path):
-    server, port = serve("--plan", "six", "--duration", "3")
+    server, port = serve("--plan", "six", "--loop")  # streams until killed below
     out = tmp_path / "w.h5"
     try:
         proc = spawn([*CLI, "capture", "--port", port, "--no-prompt", "--duration", "1",
