@@ -233,10 +233,13 @@ def gyro_data(session: Session, cfg: Config, accel_cal: SensorCalibration) -> Gy
     where = session_name(session)
     if session.gyro is None:
         raise DesignError(f"{where}: no /raw/gyro in this session")
+    from .turn_windows import settle_turns
+
+    session, settled = settle_turns(session)  # issue 24.5: each turn from rest to rest
     stills, turns, skipped, source, noise = _stills_and_turns(session, accel_cal, cfg, where)
     data = GyroData(session, cfg, where, accel_cal, stills, turns, max(noise, 1e-12),
                     np.zeros(3), 0.0, session.gyro_units or "unknown",
-                    notes=[f"rotations: {source}"])  # fmt: skip
+                    notes=[f"rotations: {source}"] + ([settled] if settled else []))  # fmt: skip
     if skipped:
         data.notes.append(f"{len(skipped)} rotation(s) without still data before and after: "
                           "skipped")  # fmt: skip
