@@ -38,6 +38,7 @@ from .gyro import (
     turns_between,
 )
 from .gyro_full import (
+    accel_derivative,
     design_warning,
     gain_std,
     parameter_rows,
@@ -165,8 +166,9 @@ def known_turns(session: Session, cfg: Config, accel_cal: SensorCalibration | No
 
 def _g_choice(cfg, fit):
     """The fit with or without g-sensitivity per ``[gyro.full] g_sensitivity``. ``fit(with_g,
-    tau)``: both fits weigh the turns measured by gravity with the excess ``tau`` estimated
-    without g-sensitivity, so that their chi^2 compare."""
+    tau)``: the F-test weighs the turns measured by gravity with the excess ``tau`` estimated
+    without g-sensitivity in both fits, so that their chi^2 compare; the model kept has its
+    own excess (a g-sensitivity left out shows as excess)."""
     mode = cfg.gyro.full.g_sensitivity
     base = fit(False, None)
     if mode == "off":
@@ -183,7 +185,11 @@ def _g_choice(cfg, fit):
     p = float(gyro_full.fdtrc(9, dof, F))
     test = {"included": mode == "on" or p < gyro_full.G_SELECT_P, "observable": True, "F": F,
             "dof": [9, dof], "p_value": p}  # fmt: skip
-    return (with_g if test["included"] else base), test
+    if not test["included"]:
+        return base, test
+    if base.tau > 0:  # the excess of the model with g-sensitivity: what it leaves unexplained
+        with_g = fit(True, None)
+    return with_g, test
 
 
 def _g_choice_without_accel(cfg, fit, data):
@@ -283,10 +289,13 @@ def calibrate_gyro_known(
         full = gyro_full.fit_full(rot, st, data.noise, b0)
         x0 = np.r_[full.b, full.M.ravel()]
 
+    accel_dirs = _accel_dirs(data)
+
     def fitter(rot_):
         def fit(with_g, tau=None, known_=known):
             return gyro_known.fit_known(known_, st, data.noise, b0, rot=rot_, x0=x0,
-                                        g_sensitivity=with_g, tau=tau)  # fmt: skip
+                                        g_sensitivity=with_g, tau=tau,
+                                        accel_dirs=accel_dirs)  # fmt: skip
         return fit
 
     def vertical_known():  # the axis a check tries: the measured vertical of each such turn
@@ -298,23 +307,25 @@ def calibrate_gyro_known(
             return None
         return alt
 
-    joint, rot_used = None, rot
+    joint, rot_used, why_out = None, rot, None
     if accel_cal is None:
         res, g_test = _g_choice_without_accel(cfg, fitter(None), data)
     else:
         res, g_test = _g_choice(cfg, fitter(rot))
-        if rot is not None and res.gravity_level > cfg.gyro.max_residual_ratio \
-                and checks.known_alone(known, b0):  # fmt: skip
-            joint, rot_used = res, None  # the turns between still periods miss the model
-            res, g_test = _g_choice(cfg, fitter(None))
+        if rot is not None and res.tau > 0 and checks.known_alone(known, b0):
+            alone, g_alone = _g_choice(cfg, fitter(None))
+            why_out = checks.leave_out(cfg, known, st, data.noise, rot, res, alone, accel_dirs)
+            if why_out:
+                joint, rot_used = res, None  # the turns between still periods: left out
+                res, g_test = alone, g_alone
     verdict = checks.judge(data, res, known, used, joint, rot, rot_used, fitter(rot_used),
-                           g_test, vertical_known)  # fmt: skip
+                           g_test, vertical_known, accel_dirs, why_out)  # fmt: skip
     res, g_test, rot = verdict.result, verdict.g_test, rot_used
     if accel_cal is None:
         cov_a = np.zeros_like(res.cov)
     else:
         cov_a = _accel_part(session, cfg, accel_cal, segs, statics, res, data, rot,
-                            verdict.known)  # fmt: skip
+                            verdict.known, in_weights=accel_dirs is not None and rot is not None)
     noise_total = rate_std(res.M, res.cov[3:12, 3:12])
     res.cov = res.cov + cov_a
     uncertainty = {"total": rate_std(res.M, res.cov[3:12, 3:12]), "noise": noise_total,
@@ -322,6 +333,19 @@ def calibrate_gyro_known(
                    else rate_std(res.M, cov_a[3:12, 3:12]),
                    "meaning": "relative std of a calibrated rate in its worst direction"}
     return _section(data, res, verdict.known, used, g_test, uncertainty, assumed, verdict)
+
+
+def _accel_dirs(data: GyroData) -> np.ndarray | None:
+    """(P, 3, m): the still periods' calibrated gravity vectors moved along each square-root
+    direction of the accelerometer calibration's covariance (None without one)."""
+    cal = data.accel_cal
+    cov = None if cal is None else cal.extra.get("covariance")
+    dg = None if cov is None else accel_derivative(data.stills, cal)
+    if dg is None:
+        return None
+    C = np.asarray(cov["values"], float)
+    lam, V = np.linalg.eigh((C + C.T) / 2)
+    return dg @ (V * np.sqrt(np.clip(lam, 0, None)))
 
 
 def _without_known_turns(session, cfg, accel_cal, data, segs) -> SensorCalibration:
@@ -353,14 +377,22 @@ def _without_known_turns(session, cfg, accel_cal, data, segs) -> SensorCalibrati
     )
 
 
-def _accel_part(session, cfg, accel_cal, segs, statics, res, data, rot, known) -> np.ndarray:
+def _accel_part(session, cfg, accel_cal, segs, statics, res, data, rot, known,
+                in_weights: bool = False) -> np.ndarray:  # fmt: skip
     """Covariance from the accelerometer calibration (it measures the axes and the still
-    directions): refits with its parameters moved by one std along each eigenvector."""
+    directions): refits with its parameters moved by one std along each eigenvector.
+
+    ``in_weights``: the fit already weighed the turns between still periods with the
+    accelerometer calibration's part of their noise (its covariance then holds that part);
+    only the axes the accelerometer measures (turns about the vertical) are moved, the still
+    periods' gravity held (nothing at all when every axis is a label)."""
     cov = accel_cal.extra.get("covariance")
     n = len(res.cov)
     if cov is None or np.shape(accel_cal.matrix) != (3, 3):
         data.notes.append("the accelerometer calibration states no covariance: the gyro's std "
                           "leave out its uncertainty")  # fmt: skip
+        return np.zeros((n, n))
+    if in_weights and not any("measured vertical" in note for note in data.notes):
         return np.zeros((n, n))
     C = np.asarray(cov["values"], float)
     lam, V = np.linalg.eigh((C + C.T) / 2)
@@ -376,16 +408,19 @@ def _accel_part(session, cfg, accel_cal, segs, statics, res, data, rot, known) -
             moved = SensorCalibration(solver=accel_cal.solver, units=accel_cal.units,
                                       bias=th[:3], matrix=th[3:].reshape(3, 3),
                                       extra={"gauge": accel_cal.extra.get("gauge")})  # fmt: skip
-            d.append(_refit(session, cfg, moved, segs, statics, res, data, rot, x, known))
+            d.append(_refit(session, cfg, moved, segs, statics, res, data, rot, x, known,
+                            in_weights))  # fmt: skip
         dx = (d[0] - d[1]) / 2
         out += np.outer(dx, dx)
     return out
 
 
-def _refit(session, cfg, accel_cal, segs, statics, res, data, rot, x, known0) -> np.ndarray:
+def _refit(session, cfg, accel_cal, segs, statics, res, data, rot, x, known0,
+           axes_only: bool = False) -> np.ndarray:  # fmt: skip
     """The fit again with another accelerometer calibration: the same turns, axes' sources
-    and excess ``tau`` (the stills' gravity and the measured axes move with it)."""
-    stills, _ = still_periods(session, accel_cal, cfg, statics)
+    and excess ``tau`` (the stills' gravity, unless ``axes_only``, and the measured axes move
+    with it)."""
+    stills, _ = still_periods(session, data.accel_cal if axes_only else accel_cal, cfg, statics)
     known, _, _, _ = known_turns(session, cfg, accel_cal, segs, data.bias_still)
     if len(known.t) != len(known0.t):  # a turn's axis source changed: keep the first one's
         known = known0

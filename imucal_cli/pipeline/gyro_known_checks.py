@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
-from imucal_cli.errors import DesignError
+from imucal_cli.errors import DesignError, SolverError
 from imucal_cli.solvers import gyro_known
 
 #: The known turns disagree with the rest of the fit below this p-value of their chi^2.
@@ -57,12 +57,43 @@ def known_alone(known: gyro_known.KnownTurns, b0: np.ndarray) -> bool:
     return True
 
 
+#: Cross-validate the turns between still periods only up to this many (each is one refit).
+MAX_HELD_OUT = 40
+
+
+def leave_out(cfg, known, still, noise, rot, joint, alone, accel_dirs) -> str | None:
+    """Why the turns between still periods, which scatter beyond their noise (``joint.tau``
+    > 0), are left out of a fit the known turns determine alone, or None to keep them. Out
+    when they miss the model by more than ``[gyro] max_residual_ratio`` times their noise (the
+    full model refuses such turns), or when they do not predict one another better than the
+    known turns alone predict them (each turn held out of the joint fit in turn: mean squared
+    gravity residual): their scatter is then not noise the fit averages but something the
+    model lacks, and weighing them in moves the gains away from the known angles for
+    nothing."""
+    limit = cfg.gyro.max_residual_ratio
+    if joint.gravity_level > limit:
+        return f"more than [gyro] max_residual_ratio = {limit:g}"
+    if len(rot.t) > MAX_HELD_OUT:
+        return None
+    try:
+        held = gyro_known.held_out_turns(known, still, noise, rot, joint, accel_dirs=accel_dirs)
+    except (DesignError, SolverError):
+        return None
+    by_known = gyro_known.predict_gravity(rot, still, noise, alone, accel_dirs)
+    rms_held = float(np.sqrt(np.mean(held**2)))
+    rms_known = float(np.sqrt(np.mean(by_known["gravity_residual_deg"] ** 2)))
+    if rms_held < rms_known:
+        return None
+    return (f"and each held out of the fit with the others is predicted to {rms_held:.2g} deg "
+            f"RMS, no better than by the known turns alone ({rms_known:.2g} deg)")
+
+
 def _names(items) -> list[str]:
     return [s.label or s.name for s in items]
 
 
-def judge(data, res, known, used, joint, rot, rot_used, fit, g_test, vertical_known
-          ) -> Verdict:  # fmt: skip
+def judge(data, res, known, used, joint, rot, rot_used, fit, g_test, vertical_known,
+          accel_dirs=None, why_out: str | None = None) -> Verdict:  # fmt: skip
     """Check a known-angle fit (module notes).
 
     Parameters
@@ -80,12 +111,17 @@ def judge(data, res, known, used, joint, rot, rot_used, fit, g_test, vertical_kn
     g_test : dict or None
     vertical_known : callable
         The known turns with the measured vertical as the axis of every turn about it.
+    accel_dirs : ndarray, optional
+        The accelerometer calibration's error as it moves the still periods' gravity
+        (:func:`imucal_cli.solvers.gyro_known.accel_blocks`).
+    why_out : str, optional
+        Why the turns between still periods were left out (:func:`leave_out`).
     """
     v = Verdict(res, g_test, known)
     limit = data.cfg.gyro.max_residual_ratio
     gravity_names = _names([t.segment for t in data.turns])
     if joint is not None:
-        _left_out(v, data, joint, rot, gravity_names, limit, len(used))
+        _left_out(v, data, joint, rot, gravity_names, why_out, len(used), accel_dirs)
     elif rot_used is not None:
         _weighed(v, data, res, gravity_names, limit)
     _known_check(v, data, used, fit, vertical_known, limit)
@@ -106,27 +142,28 @@ def _worst(names, values, unit="deg", n=3) -> str:
     return ", ".join(f"{names[k]} {values[k]:.2f} {unit}" for k in order)
 
 
-def _left_out(v: Verdict, data, joint, rot, names, limit, n_known) -> None:
-    """The turns between still periods missed the model by more than the limit: said, with
-    how the known turns alone predict them."""
+def _left_out(v: Verdict, data, joint, rot, names, why, n_known, accel_dirs) -> None:
+    """The turns between still periods were left out (:func:`leave_out`): said, with how the
+    known turns alone predict them."""
     from imucal_cli.pipeline.gyro_known import _stills
 
     st = _stills(data.stills)
-    pred = gyro_known.predict_gravity(rot, st, data.noise, v.result)
+    pred = gyro_known.predict_gravity(rot, st, data.noise, v.result, accel_dirs)
     v.gravity_rows = _gravity_rows(names, [t.segment for t in data.turns], pred, used=False)
     miss = pred["gravity_residual_deg"]
+    tau = float(np.degrees(joint.tau))
     v.comparison.update({"turns_between_still_periods": "left out",
-                         "their_level": joint.gravity_level,
-                         "their_excess_deg": float(np.degrees(joint.tau)),
-                         "their_rms_under_known_deg": float(np.sqrt(np.mean(miss**2)))})
+                         "their_level": joint.gravity_level, "their_excess_deg": tau,
+                         "their_rms_under_known_deg": float(np.sqrt(np.mean(miss**2))),
+                         "why_left_out": why})  # fmt: skip
     v.said.append(
         f"the {len(names)} turns between still periods miss the gravity direction by "
-        f"{joint.gravity_level:.0f} times their noise ({np.degrees(joint.tau):.2g} deg per turn "
-        f"beyond it), more than [gyro] max_residual_ratio = {limit:g}: they do not match the "
-        "gyro model (a hand flip moves the unit in ways a rate integral between still periods "
-        "does not hold to their noise, or the unit moved while still), so they are left out "
-        f"and the gyro rests on the {n_known} turns of known angle; under those the turns "
-        f"between still periods miss by {np.sqrt(np.mean(miss**2)):.2g} deg RMS (worst: "
+        f"{joint.gravity_level:.1f} times their noise (the still periods', the gyro's and the "
+        f"accelerometer calibration's; {tau:.2g} deg per turn beyond it), {why}: they do not "
+        "match the gyro model to their noise (a hand flip moves the unit in ways a rate "
+        "integral between still periods does not hold, or the unit moved while still), so "
+        f"they are left out and the gyro rests on the {n_known} turns of known angle; under "
+        f"those they miss by {np.sqrt(np.mean(miss**2)):.2g} deg RMS (worst: "
         f"{_worst(names, miss)})"
     )
 

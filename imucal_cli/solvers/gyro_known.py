@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from scipy.linalg import solve_triangular
 from scipy.optimize import brentq
 from scipy.stats import chi2 as chi2_dist
 
@@ -251,10 +252,12 @@ class _Stacked:
     ``tau`` the excess std of each gravity-referenced turn's residual per tangent component
     (rad, see the module notes)."""
 
-    def __init__(self, known, still, gyro_sigma, rot, with_g, tau: float = 0.0):
+    def __init__(self, known, still, gyro_sigma, rot, with_g, tau: float = 0.0,
+                 accel_dirs: np.ndarray | None = None):  # fmt: skip
         self.kp = KnownProblem(known, still, gyro_sigma, with_g) if len(known.t) else None
         self.gp = None if rot is None else Problem(rot, still, gyro_sigma, g_sensitivity=with_g)
         self.still, self.with_g, self.tau = still, with_g, float(tau)
+        self.accel_dirs = accel_dirs
         self.n_params = 21 if with_g else 12
         self.n_known = 3 * len(known.t)
 
@@ -277,7 +280,10 @@ class _Stacked:
                    C.shape)  # fmt: skip
 
     def _gravity_whitener(self, x) -> Whitener:
-        return Whitener(BandedWhitener(self.gravity_covariance(x)), self.gp)
+        if self.accel_dirs is None:
+            return Whitener(BandedWhitener(self.gravity_covariance(x)), self.gp)
+        F = accel_factor(self.gp, x, self.accel_dirs).reshape(2 * self.gp.K, -1)
+        return Whitener(_DenseWhitener(self.gravity_covariance(x).toarray() + F @ F.T), self.gp)
 
     def _still_rows(self, x):
         b, _, G = self.split(x)
@@ -310,7 +316,9 @@ class _Stacked:
         """``tau`` from the gravity-referenced turns' scatter at ``x`` (module notes): their
         chi^2 with the excess equal to their redundancy. The redundancy is taken at the
         current ``tau``, each turn's own 2 x 2 noise block for the chi^2 (the correlation
-        through a shared still period is small beside an excess that matters)."""
+        through a shared still period is small beside an excess that matters), that block
+        with the accelerometer calibration's part (:func:`accel_blocks`): scatter that its
+        uncertainty explains is no excess (its effect on the gyro is propagated apart)."""
         self.freeze(x)
         f, J = self.f_and_J(x)
         K = self.gp.K
@@ -320,6 +328,7 @@ class _Stacked:
         raw, _ = self.gp.residuals_and_jacobian(x)
         r = raw[: 2 * K].reshape(K, 2)
         blocks = _diagonal_blocks(self.gp.rotation_covariance(x), K)
+        blocks = blocks + accel_blocks(self.gp, x, self.accel_dirs)
         lam, V = np.linalg.eigh(blocks)  # (K, 2), (K, 2, 2)
         w = np.einsum("kij,ki->kj", V, r) ** 2  # squared residual along each eigenvector
 
@@ -369,6 +378,7 @@ def fit_known(
     g_sensitivity: bool = False,
     max_iterations: int = 50,
     tau: float | None = None,
+    accel_dirs: np.ndarray | None = None,
 ) -> KnownResult:
     """Bias, matrix (and g-sensitivity) from turns of known angle and the still periods, with
     the gravity-referenced turns ``rot`` in the same fit when given.
@@ -392,6 +402,11 @@ def fit_known(
     tau : float, optional
         Excess std of each gravity-referenced turn per tangent component (rad); default:
         estimated from their scatter (module notes).
+    accel_dirs : ndarray (P, 3, m), optional
+        How the still periods' calibrated gravity vectors move with the accelerometer
+        calibration's error: column j is their change along the j-th square-root direction of
+        its covariance (m/s^2). The turns' residuals then count its part of their scatter as
+        noise, not excess (:func:`accel_blocks`).
 
     Raises
     ------
@@ -405,7 +420,8 @@ def fit_known(
     if x0 is None:  # initialisation: the known turns' closed form at the still bias
         x0 = np.r_[b0, closed_form(known, b0).ravel()]
     x = np.r_[x0[:12], np.zeros(9)] if g_sensitivity else np.asarray(x0[:12], float)
-    prob = _Stacked(known, still, gyro_sigma, rot, g_sensitivity, tau=tau or 0.0)
+    prob = _Stacked(known, still, gyro_sigma, rot, g_sensitivity, tau=tau or 0.0,
+                    accel_dirs=accel_dirs)  # fmt: skip
     x, it = _gauss_newton(prob, x, max_iterations)  # solve: the whitened e_k and still rows
     x, it2 = _gauss_newton(prob, x, max_iterations)  # the noise model at the solution
     it += it2
@@ -505,20 +521,63 @@ def _gravity_turns(prob: _Stacked, x: np.ndarray, J: np.ndarray) -> dict:
     if prob.gp is None:
         return {}
     rows = slice(prob.n_known, prob.n_known + 2 * prob.gp.K)
-    return {**gravity_statistics(prob.gp, x, prob.tau),
+    return {**gravity_statistics(prob.gp, x, prob.tau, prob.accel_dirs),
             "gravity_redundancy": _redundancy(J, rows)}  # fmt: skip
 
 
-def gravity_statistics(gp: Problem, x: np.ndarray, tau: float = 0.0) -> dict:
+class _DenseWhitener:
+    """``L^-1 a`` for a dense covariance ``L L^T`` (the accelerometer calibration's part
+    couples every turn whose still periods it measures)."""
+
+    def __init__(self, cov: np.ndarray):
+        n = len(cov)
+        cov = cov + 1e-12 * np.trace(cov) / max(n, 1) * np.eye(n)
+        self.L = np.linalg.cholesky(cov)
+
+    def __call__(self, a: np.ndarray) -> np.ndarray:
+        return solve_triangular(self.L, a, lower=True)
+
+
+def accel_factor(gp: Problem, x: np.ndarray, accel_dirs: np.ndarray) -> np.ndarray:
+    """(K, 2, m): each turn's residual change as the still periods' gravity vectors move by
+    ``accel_dirs[:, :, j]`` (to first order: ``du = (I - u u^T) dg / |g|``, ``dp = R^T
+    du_before``, ``dr = B_after^T (dp - du_after)``)."""
+    g = gp.still.g
+    norm = np.linalg.norm(g, axis=1)
+    u = g / norm[:, None]
+    proj = (np.eye(3)[None] - np.einsum("pi,pj->pij", u, u)) / norm[:, None, None]
+    du = np.einsum("pij,pjm->pim", proj, accel_dirs)  # (P, 3, m)
+    _, R = gp.predicted(x)
+    i0, i1 = gp.rot.before, gp.rot.after
+    dp = np.einsum("kji,kjm->kim", R, du[i0])  # R^T du_before
+    return np.einsum("kia,kim->kam", gp.B[i1], dp - du[i1])
+
+
+def accel_blocks(gp: Problem, x: np.ndarray, accel_dirs: np.ndarray | None) -> np.ndarray:
+    """(K, 2, 2): each turn's residual covariance from the accelerometer calibration's error,
+    which moves the measured gravity before and after it: ``F_k F_k^T`` with column j of
+    ``F_k`` the residual's change as the still periods' gravity vectors move by
+    ``accel_dirs[:, :, j]`` (to first order: ``du = (I - u u^T) dg / |g|``, ``dp = R^T
+    du_before``, ``dr = B_after^T (dp - du_after)``). Zero without ``accel_dirs``."""
+    if accel_dirs is None:
+        return np.zeros((gp.K, 2, 2))
+    F = accel_factor(gp, x, accel_dirs)
+    return np.einsum("kam,kbm->kab", F, F)
+
+
+def gravity_statistics(gp: Problem, x: np.ndarray, tau: float = 0.0,
+                       accel_dirs: np.ndarray | None = None) -> dict:  # fmt: skip
     """Per gravity-referenced turn at ``x``: its residual angle and rotation angle (deg), its
-    chi^2 (2 dof) in its noise with the excess ``tau`` (rad) and without, and that noise
+    chi^2 (2 dof) in its noise with the excess ``tau`` (rad) and in the noise the model
+    predicts (``gravity_chi2_stated``: the still periods' and the gyro's noise, and the
+    accelerometer calibration's part, :func:`accel_blocks`), and its noise with the excess
     (deg, the root of the trace of its 2 x 2 covariance)."""
     K = gp.K
     p, R = gp.predicted(x)
     u1 = gp.u[gp.rot.after]
     resid = np.degrees(np.arccos(np.clip(np.sum(p * u1, axis=1), -1, 1)))
     angles = np.degrees(np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1) / 2, -1, 1)))
-    stated = _diagonal_blocks(gp.rotation_covariance(x), K)
+    stated = _diagonal_blocks(gp.rotation_covariance(x), K) + accel_blocks(gp, x, accel_dirs)
     full = stated + tau**2 * np.eye(2)
     r = gp.raw_residuals(x)[: 2 * K].reshape(K, 2)
 
@@ -530,12 +589,42 @@ def gravity_statistics(gp: Problem, x: np.ndarray, tau: float = 0.0) -> dict:
             "gravity_sigma_deg": np.degrees(np.sqrt(np.trace(full, axis1=1, axis2=2)))}
 
 
-def predict_gravity(rot: Rotations, still: Stills, gyro_sigma: float, res: KnownResult
-                    ) -> dict:  # fmt: skip
+def predict_gravity(rot: Rotations, still: Stills, gyro_sigma: float, res: KnownResult,
+                    accel_dirs: np.ndarray | None = None) -> dict:  # fmt: skip
     """:func:`gravity_statistics` of turns between still periods that ``res`` did not use:
     how well the result predicts them (the excess ``res.tau`` of the fit, zero when it used
     no such turn)."""
     with_g = res.G is not None
     gp = Problem(rot, still, gyro_sigma, g_sensitivity=with_g)
     x = np.r_[res.b, res.M.ravel(), res.G.ravel() if with_g else []]
-    return gravity_statistics(gp, x, res.tau)
+    return gravity_statistics(gp, x, res.tau, accel_dirs)
+
+
+def held_out_turns(known: KnownTurns, still: Stills, gyro_sigma: float, rot: Rotations,
+                   res: KnownResult, *, accel_dirs: np.ndarray | None = None,
+                   max_iterations: int = 50) -> np.ndarray:  # fmt: skip
+    """Each gravity-referenced turn's residual angle (deg) predicted by the fit refitted
+    without it (``res``'s model and excess ``tau``, from its solution): how well the turns
+    predict one another, for :func:`imucal_cli.pipeline.gyro_known_checks`' choice whether
+    they add anything the known turns do not (the bench's held-out check, done on the
+    session itself).
+
+    Raises
+    ------
+    DesignError, SolverError
+        As :func:`fit_known` (the rest may not determine the model).
+    """
+    with_g = res.G is not None
+    x0 = np.r_[res.b, res.M.ravel()]
+    out = np.zeros(len(rot.t))
+    for k in range(len(rot.t)):
+        keep = np.setdiff1d(np.arange(len(rot.t)), [k])
+        sub = Rotations([rot.t[i] for i in keep], [rot.z[i] for i in keep], rot.before[keep],
+                        rot.after[keep], None if rot.a is None else [rot.a[i] for i in keep])
+        refit = fit_known(known, still, gyro_sigma, x0[:3], rot=sub, x0=x0,
+                          g_sensitivity=with_g, tau=res.tau, accel_dirs=accel_dirs,
+                          max_iterations=max_iterations)  # fmt: skip
+        one = Rotations([rot.t[k]], [rot.z[k]], rot.before[[k]], rot.after[[k]],
+                        None if rot.a is None else [rot.a[k]])  # fmt: skip
+        out[k] = predict_gravity(one, still, gyro_sigma, refit)["gravity_residual_deg"][0]
+    return out
