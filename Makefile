@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench lint clean
+.PHONY: demo test test-all bench lint clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -21,6 +21,10 @@ demo: $(STAMP)
 	$(BIN)/imucal report out/demo.cal.json
 
 test: $(STAMP)
+	$(BIN)/python -m pytest -n 2 -q -m "not slow"
+
+# Everything, the Monte-Carlo tests marked slow too.
+test-all: $(STAMP)
 	$(BIN)/python -m pytest -n 2 -q
 
 # The benchmarks also compare with MaD Lab's `imucal` package (the `bench` extra).

@@ -291,10 +291,11 @@ def calibrate_gyro_known(
 
     accel_dirs = _accel_dirs(data)
 
-    def fitter(rot_):
+    def fitter(rot_, tau_fixed=None):
         def fit(with_g, tau=None, known_=known):
             return gyro_known.fit_known(known_, st, data.noise, b0, rot=rot_, x0=x0,
-                                        g_sensitivity=with_g, tau=tau,
+                                        g_sensitivity=with_g,
+                                        tau=tau_fixed if tau is None else tau,
                                         accel_dirs=accel_dirs)  # fmt: skip
         return fit
 
@@ -307,19 +308,28 @@ def calibrate_gyro_known(
             return None
         return alt
 
-    joint, rot_used, why_out = None, rot, None
+    joint, rot_used, why_out, rot_fit = None, rot, None, None
     if accel_cal is None:
         res, g_test = _g_choice_without_accel(cfg, fitter(None), data)
     else:
         res, g_test = _g_choice(cfg, fitter(rot))
+        own = None if rot is None else checks.own_excess(st, data.noise, rot, res, accel_dirs)
+        if own is not None:  # their excess from themselves: a wrong known turn cannot raise it
+            res, g_test = _g_choice(cfg, fitter(rot, own.tau))
+            rot_fit = fitter(rot, own.tau)
+        else:
+            rot_fit = fitter(rot)
+        level = res.gravity_level if own is None else own.gravity_level
         if rot is not None and res.tau > 0 and checks.known_alone(known, b0):
             alone, g_alone = _g_choice(cfg, fitter(None))
-            why_out = checks.leave_out(cfg, known, st, data.noise, rot, res, alone, accel_dirs)
+            why_out = checks.leave_out(cfg, known, st, data.noise, rot, res, alone, accel_dirs,
+                                       level)  # fmt: skip
             if why_out:
                 joint, rot_used = res, None  # the turns between still periods: left out
                 res, g_test = alone, g_alone
-    verdict = checks.judge(data, res, known, used, joint, rot, rot_used, fitter(rot_used),
-                           g_test, vertical_known, accel_dirs, why_out)  # fmt: skip
+    verdict = checks.judge(data, res, known, used, joint, rot, rot_used,
+                           fitter(None) if rot_used is None else rot_fit, g_test,
+                           vertical_known, accel_dirs, why_out)  # fmt: skip
     res, g_test, rot = verdict.result, verdict.g_test, rot_used
     if accel_cal is None:
         cov_a = np.zeros_like(res.cov)
@@ -356,9 +366,9 @@ def _without_known_turns(session, cfg, accel_cal, data, segs) -> SensorCalibrati
     why = "; ".join(reasons[:3]) + (f" (and {len(reasons) - 3} more)" if len(reasons) > 3
                                     else "")  # fmt: skip
     if accel_cal is not None and 2 * len(data.turns) >= 9:
-        from .gyro import calibrate_gyro_rotations
-
         from dataclasses import replace
+
+        from .gyro import calibrate_gyro_rotations
 
         sec = calibrate_gyro_rotations(session, replace(cfg, gyro=replace(cfg.gyro,
                                                                           solver="full")),

@@ -61,17 +61,37 @@ def known_alone(known: gyro_known.KnownTurns, b0: np.ndarray) -> bool:
 MAX_HELD_OUT = 40
 
 
-def leave_out(cfg, known, still, noise, rot, joint, alone, accel_dirs) -> str | None:
+def own_excess(still, noise, rot, res, accel_dirs):
+    """The turns between still periods fitted on their own (from ``res``'s solution, its
+    model): their excess ``tau`` and level as they scatter about a model of their own, so
+    that a wrong known turn, which pulls the joint fit away from them, is not taken for their
+    scatter. None where they cannot determine the model alone (fewer than 5, or a design
+    they leave undetermined)."""
+    if 2 * len(rot.t) < 9:
+        return None
+    empty = gyro_known.KnownTurns([], [], np.zeros(0), np.zeros((0, 3)), np.zeros(0),
+                                  np.zeros(0))  # fmt: skip
+    x0 = np.r_[res.b, res.M.ravel()]
+    try:
+        return gyro_known.fit_known(empty, still, noise, res.b, rot=rot, x0=x0,
+                                    g_sensitivity=res.G is not None, accel_dirs=accel_dirs)
+    except (DesignError, SolverError, np.linalg.LinAlgError):
+        return None
+
+
+def leave_out(cfg, known, still, noise, rot, joint, alone, accel_dirs, level=None
+              ) -> str | None:  # fmt: skip
     """Why the turns between still periods, which scatter beyond their noise (``joint.tau``
     > 0), are left out of a fit the known turns determine alone, or None to keep them. Out
-    when they miss the model by more than ``[gyro] max_residual_ratio`` times their noise (the
-    full model refuses such turns), or when they do not predict one another better than the
+    when they miss the model by more than ``[gyro] max_residual_ratio`` times their noise
+    (``level``: fitted on their own where they can be, :func:`own_excess`; the full model
+    refuses such turns), or when they do not predict one another better than the
     known turns alone predict them (each turn held out of the joint fit in turn: mean squared
     gravity residual): their scatter is then not noise the fit averages but something the
     model lacks, and weighing them in moves the gains away from the known angles for
     nothing."""
     limit = cfg.gyro.max_residual_ratio
-    if joint.gravity_level > limit:
+    if (joint.gravity_level if level is None else level) > limit:
         return f"more than [gyro] max_residual_ratio = {limit:g}"
     if len(rot.t) > MAX_HELD_OUT:
         return None

@@ -44,7 +44,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-
 from scipy.linalg import solve_triangular
 from scipy.optimize import brentq
 from scipy.stats import chi2 as chi2_dist

@@ -778,6 +778,9 @@ def _placement_rows(st: _State, labelled: np.ndarray) -> dict:
 #: Placement residuals of two poses correlated at least this much are one group: the fit
 #: cannot tell which of them is off.
 TIED = 0.5
+#: A group whose placement test against the rest's spread reaches only this family-wise
+#: p-value is named when it also sits off by more than a hand placement allows.
+MARGINAL = 0.05
 
 
 def placement_outliers(res: LabelledResult, *, alpha: float = 0.01,
@@ -789,7 +792,10 @@ def placement_outliers(res: LabelledResult, *, alpha: float = 0.01,
     attribute the disagreement, both faces of a pair on six faces) are tested against the
     placement spread of the rest (Helmert, without the group's rows): ``F = (S_G / R_G) /
     (S_rest / R_rest)`` with ``S`` the squared prior residuals and ``R`` their redundancy,
-    against ``F(R_G, R_rest)``, Bonferroni over the groups; where the config states the
+    against ``F(R_G, R_rest)``, Bonferroni over the groups; where that test is marginal (the
+    rest's spread rests on few equations: 4 on six faces), up to :data:`MARGINAL`, the group
+    is also named when it sits off its labels by more than a hand placement
+    (:data:`DEFAULT_PLACEMENT_DEG` RMS) allows at ``alpha``. Where the config states the
     placement (``[accel.labelled] placement_deg``) it is trusted: ``S_G`` against
     ``chi^2(R_G)``. A group whose rows are nearly all
     leverage (redundancy below ``min_redundancy``) cannot be judged: the design cannot
@@ -808,11 +814,16 @@ def placement_outliers(res: LabelledResult, *, alpha: float = 0.01,
         R_rest = R - R_G
         if R_G < min_redundancy or (not given and (R_rest < 1 or S - S_G <= 0)):
             continue
+        n = len(groups)
         if given:
-            p = float(chi2_dist.sf(S_G, R_G))
+            p = min(float(chi2_dist.sf(S_G, R_G)) * n, 1.0)
         else:
-            p = float(f_dist.sf((S_G / R_G) / ((S - S_G) / R_rest), R_G, R_rest))
-        p = min(p * len(groups), 1.0)
+            p = min(float(f_dist.sf((S_G / R_G) / ((S - S_G) / R_rest), R_G, R_rest)) * n, 1.0)
+            # the rest's spread rests on few equations (six faces: 4): a group off by more
+            # than a hand placement allows (DEFAULT_PLACEMENT_DEG) is named at MARGINAL
+            hand = S_G * (res.placement_deg / DEFAULT_PLACEMENT_DEG) ** 2
+            if p >= alpha and p < MARGINAL and float(chi2_dist.sf(hand, R_G)) * n < alpha:
+                p = alpha * 0.999
         if p < alpha:
             out.append((idx, p))
     return sorted(out, key=lambda gp: gp[1])

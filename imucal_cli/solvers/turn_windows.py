@@ -10,14 +10,14 @@ turn (its integral misses them: a 360-degree turn read as 359) nor, correctly, t
 period (its gravity direction and gyro mean move with them).
 
 :func:`settled_bounds` finds, at each end of a still period, the samples whose gyro reading
-departs from the period's own middle by more than :data:`MOTION_SIGMAS` times the pooled
-per-sample noise on any axis (or whose :data:`SMOOTH`-sample mean departs by that many of its
-own std: a smooth turn's first and last tenth of a second), walking inward while such samples follow each other within
-:data:`SETTLE_RUN` samples; the still period keeps the rest (at least half of itself) and the
-turn next to it is integrated from there. Samples of a resting unit cross the threshold with a
-probability of about 1e-4 per sample (three axes), and a stray one at an edge moves the edge by
-a few samples at most: the turn then integrates a little more rest (zero rate, its bias
-removed), which changes nothing but its noise.
+departs from the period's own middle by more than :data:`MOTION_SIGMAS` times the pooled per-
+sample noise on any axis (or whose :data:`SMOOTH`-sample mean departs by that many of its own
+std: a smooth turn's first and last tenth of a second), walking inward while such samples
+follow each other within :data:`SETTLE_RUN` samples; the still period keeps the rest (at least
+half of itself) and the turn next to it is integrated from there. Samples of a resting unit
+cross the threshold with a probability of about 1e-4 per sample (three axes), and a stray one
+at an edge moves the edge by a few samples at most: the turn then integrates a little more rest
+(zero rate, its bias removed), which changes nothing but its noise.
 """
 
 from __future__ import annotations
