@@ -177,8 +177,11 @@ def _clipped(session: Session, turns: list[Turn], limit: tuple[float, float] | N
 
 
 def _saturation_limit(session: Session, cfg: Config) -> tuple[float, float] | None:
-    """Raw levels at which the gyro clips: the configured range, else a counts gyro's ADC word,
-    less 0.5 % of the span at both ends."""
+    """Raw levels at which the gyro clips: the configured range less 0.5 % of the span at
+    both ends, else the ends of a counts gyro's ADC word themselves (the word is the smallest
+    that holds the data: a 16-bit gyro whose turns stay within +-2047 counts would otherwise
+    be taken for a 12-bit one clipping at its 0.5 % margin; a clipped reading sits on the
+    end, issue 24.6)."""
     if cfg.gyro.range is not None:
         lo, hi = cfg.gyro.range
         margin = 0.005 * (hi - lo)
@@ -190,10 +193,7 @@ def _saturation_limit(session: Session, cfg: Config) -> tuple[float, float] | No
     gyro = session.gyro
     finite = gyro if np.isfinite(gyro).all() else gyro[np.isfinite(gyro).all(axis=1)]
     rng = adc_range(float(finite.min()), float(finite.max()))
-    if rng is None:
-        return None
-    margin = 0.005 * (rng[1] - rng[0])
-    return rng[0] + margin, rng[1] - margin
+    return rng
 
 
 @dataclass
