@@ -194,7 +194,7 @@ ClockPpm = Annotated[float | None, typer.Option(
     "session records its device times and the host's arrival times (/raw/host_time).",
 )]  # fmt: skip
 GSensitivity = Annotated[float | None, typer.Option(
-    "--g-sensitivity", metavar="RAD/S PER M/S^2",
+    "--g-sensitivity", metavar="LEVEL",
     help="A g-sensitive gyro: each entry of its g-sensitivity matrix drawn within +-this (rad/s "
     "per m/s^2 of specific force, e.g. 5e-4); the truth holds g_sensitivity.",
 )]  # fmt: skip
