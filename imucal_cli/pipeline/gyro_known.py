@@ -308,8 +308,29 @@ def calibrate_gyro_known(
             return None
         return alt
 
-    joint, rot_used, why_out, rot_fit = None, rot, None, None
+    verdict, rot = _choose(cfg, data, known, used, st, rot, b0, fitter, vertical_known,
+                           accel_dirs)  # fmt: skip
+    res, g_test = verdict.result, verdict.g_test
     if accel_cal is None:
+        cov_a = np.zeros_like(res.cov)
+    else:
+        cov_a = _accel_part(session, cfg, accel_cal, segs, statics, res, data, rot,
+                            verdict.known, in_weights=accel_dirs is not None and rot is not None)
+    noise_total = rate_std(res.M, res.cov[3:12, 3:12])
+    res.cov = res.cov + cov_a
+    uncertainty = {"total": rate_std(res.M, res.cov[3:12, 3:12]), "noise": noise_total,
+                   "accel_calibration": None if accel_cal is None
+                   else rate_std(res.M, cov_a[3:12, 3:12]),
+                   "meaning": "relative std of a calibrated rate in its worst direction"}
+    return _section(data, res, verdict.known, used, g_test, uncertainty, assumed, verdict)
+
+
+def _choose(cfg, data, known, used, st, rot, b0, fitter, vertical_known, accel_dirs):
+    """The fit kept and its checks (:mod:`.gyro_known_checks`): the turns between still
+    periods weighed with their own excess, or left out; returns the verdict and the turns
+    between still periods in the fit kept (None: none)."""
+    joint, rot_used, why_out, rot_fit = None, rot, None, None
+    if data.accel_cal is None:
         res, g_test = _g_choice_without_accel(cfg, fitter(None), data)
     else:
         res, g_test = _g_choice(cfg, fitter(rot))
@@ -330,19 +351,7 @@ def calibrate_gyro_known(
     verdict = checks.judge(data, res, known, used, joint, rot, rot_used,
                            fitter(None) if rot_used is None else rot_fit, g_test,
                            vertical_known, accel_dirs, why_out)  # fmt: skip
-    res, g_test, rot = verdict.result, verdict.g_test, rot_used
-    if accel_cal is None:
-        cov_a = np.zeros_like(res.cov)
-    else:
-        cov_a = _accel_part(session, cfg, accel_cal, segs, statics, res, data, rot,
-                            verdict.known, in_weights=accel_dirs is not None and rot is not None)
-    noise_total = rate_std(res.M, res.cov[3:12, 3:12])
-    res.cov = res.cov + cov_a
-    uncertainty = {"total": rate_std(res.M, res.cov[3:12, 3:12]), "noise": noise_total,
-                   "accel_calibration": None if accel_cal is None
-                   else rate_std(res.M, cov_a[3:12, 3:12]),
-                   "meaning": "relative std of a calibrated rate in its worst direction"}
-    return _section(data, res, verdict.known, used, g_test, uncertainty, assumed, verdict)
+    return verdict, rot_used
 
 
 def _accel_dirs(data: GyroData) -> np.ndarray | None:
