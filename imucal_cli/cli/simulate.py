@@ -194,6 +194,11 @@ ClockPpm = Annotated[float | None, typer.Option(
     help="The part's sample clock runs PPM parts per million fast (negative: slow): the "
     "session records its device times and the host's arrival times (/raw/host_time).",
 )]  # fmt: skip
+GSensitivity = Annotated[float | None, typer.Option(
+    "--g-sensitivity", metavar="LEVEL",
+    help="A g-sensitive gyro: each entry of its g-sensitivity matrix drawn within +-this (rad/s "
+    "per m/s^2 of specific force, e.g. 5e-4); the truth holds g_sensitivity.",
+)]  # fmt: skip
 Temp = Annotated[bool, typer.Option(
     "--temp/--no-temp", help="--serve: print the temperature field (8 or 7 fields)."
 )]  # fmt: skip
@@ -284,6 +289,7 @@ def simulate(
     duration: Duration = None,
     ramp: Ramp = None,
     clock_ppm: ClockPpm = None,
+    g_sensitivity: GSensitivity = None,
     temp: Temp = True,
     mag: Mag = False,
     field_ut: FieldUt = 48.0,
@@ -320,6 +326,10 @@ def simulate(
         "peak_rate_dps": peak_rate, "sigma_counts": sigma_counts, "orientations": orientations,
         "samples": samples, "labelled": labelled, "mountings": mountings,
     }  # fmt: skip
+    if g_sensitivity is not None:
+        if not 0 < g_sensitivity <= 0.1 or mag:
+            raise InputError("--g-sensitivity must be in (0, 0.1] rad/s per m/s^2, without --mag")
+        options["g_sensitivity"] = g_sensitivity
     if serve:
         _serve(plan, rate, baud, json_output, seed=seed, units=units, move_s=move, step=step,
                hold_s=SERVE_HOLD_S if hold is None else hold, plan_options=options,

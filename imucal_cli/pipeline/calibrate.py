@@ -367,6 +367,9 @@ def calibrate_session(
     with_mag = session.mag is not None and cfg.mag.solver != "none"
     if cfg.accel.solver == "none" and cfg.gyro.solver == "none" and accel is None and not with_mag:
         raise ConfigError("the config calibrates nothing: [accel] and [gyro] solver are both none")
+    from imucal_cli.pipeline.channels import check_channels
+
+    check_channels(session, cfg, skip=("accel",) if accel is not None else ())  # issue 24.6
     session, segmented = with_segments(session)
     session, models, root = _prepare(session, cfg, warmup)
     given, refusal = accel, None

@@ -260,8 +260,11 @@ def _clipped(session: Session, turns: list[Turn], limit: tuple[float, float] | N
 
 
 def _saturation_limit(session: Session, cfg: Config) -> tuple[float, float] | None:
-    """Raw levels at which the gyro clips: the configured range, else a counts gyro's ADC word,
-    less 0.5 % of the span at both ends."""
+    """Raw levels at which the gyro clips: the configured range less 0.5 % of the span at
+    both ends, else the ends of a counts gyro's ADC word themselves (the word is the smallest
+    that holds the data: a 16-bit gyro whose turns stay within +-2047 counts would otherwise
+    be taken for a 12-bit one clipping at its 0.5 % margin; a clipped reading sits on the
+    end, issue 24.6)."""
     if cfg.gyro.range is not None:
         lo, hi = cfg.gyro.range
         margin = 0.005 * (hi - lo)
@@ -273,10 +276,7 @@ def _saturation_limit(session: Session, cfg: Config) -> tuple[float, float] | No
     gyro = session.gyro
     finite = gyro if np.isfinite(gyro).all() else gyro[np.isfinite(gyro).all(axis=1)]
     rng = adc_range(float(finite.min()), float(finite.max()))
-    if rng is None:
-        return None
-    margin = 0.005 * (rng[1] - rng[0])
-    return rng[0] + margin, rng[1] - margin
+    return rng
 
 
 @dataclass
@@ -316,10 +316,13 @@ def gyro_data(session: Session, cfg: Config, accel_cal: SensorCalibration) -> Gy
     where = session_name(session)
     if session.gyro is None:
         raise DesignError(f"{where}: no /raw/gyro in this session")
+    from .turn_windows import settle_turns
+
+    session, settled = settle_turns(session)  # issue 24.5: each turn from rest to rest
     stills, turns, skipped, source, noise = _stills_and_turns(session, accel_cal, cfg, where)
     data = GyroData(session, cfg, where, accel_cal, stills, turns, max(noise, 1e-12),
                     np.zeros(3), 0.0, session.gyro_units or "unknown",
-                    notes=[f"rotations: {source}"])  # fmt: skip
+                    notes=[f"rotations: {source}"] + ([settled] if settled else []))  # fmt: skip
     data.notes += bridged_note(session, session.rotation_segments(), turns)
     if skipped:
         data.notes.append(f"{len(skipped)} rotation(s) without still data before and after: "
