@@ -538,6 +538,14 @@ def _write_block(writer, block: _Block, sections, summary: ApplySummary, output_
         for x in inputs:
             bad |= ~np.isfinite(x).reshape(len(x), -1).all(axis=1)
         summary.nonfinite += int(bad.sum())
+    else:
+        bad = np.zeros(len(block.time), dtype=bool)
+    for name, out in values.items():  # finite in, not finite out: the numbers overflowed
+        over = ~np.isfinite(out).all(axis=1) & ~bad
+        if over.any():
+            raise InputError(f"{summary.input}: the {name} calibration turns sample "
+                             f"{summary.samples + int(np.argmax(over))} into a number past the "
+                             "float range (its bias or matrix is no calibration)")  # fmt: skip
     if summary._first_time is None:
         summary._first_time = float(block.time[0])
     time = block.time
