@@ -81,6 +81,7 @@ from imucal_cli.formats.importers.text import (
     BLANK,
     check_time,
     header_columns,
+    is_delimited,
     parse_columns,
     parse_numbers,
     skipped_fields,
@@ -398,7 +399,7 @@ class _CsvBlocks:
             if not line or line.startswith("#"):
                 continue
             if comma is None:
-                comma = "," in line
+                comma = is_delimited(line)
             parts = split_fields(line, comma)
             values = parse_numbers(parts, skipped_fields(self.spec))
             if values is None and not seen_data:

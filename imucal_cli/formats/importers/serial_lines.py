@@ -19,7 +19,6 @@ lines, so ``imucal import`` needs no ``--format`` for them; :func:`line_format` 
 from __future__ import annotations
 
 import os
-import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -27,7 +26,7 @@ import numpy as np
 from imucal_cli.errors import InputError
 from imucal_cli.formats.inputs import read_input
 
-from .text import BLANK, MAX_RECORDING_BYTES, NUMBER, split_lines
+from .text import BLANK, MAX_RECORDING_BYTES, NUMBER, is_delimited, split_fields, split_lines
 
 __all__ = [
     "LINE_FORMATS", "LineRecording", "detect_line_format", "line_format", "parse_line",
@@ -40,7 +39,6 @@ LINE_FORMATS = {
     "i2cdevlib": ("a/g:", 6, "i2cdevlib a/g: accel, gyro counts"),
     "i2cdevlib-mag": ("a/g/m:", 9, "i2cdevlib a/g/m: accel, gyro, mag counts"),
 }
-_SPLIT = re.compile(r"[ \t,;]+")
 _LONGEST_FIRST = sorted(LINE_FORMATS, key=lambda name: -len(LINE_FORMATS[name][0]))
 
 
@@ -66,13 +64,18 @@ def detect_line_format(head: str) -> str | None:
 def parse_line(fmt: str, line: str) -> list[float] | None:
     """The values of one line of format ``fmt``: a list of its count of finite numbers; None
     for a line of the format that does not hold them (malformed: cut, a field that is not a
-    number, a control character).  Call it on lines whose :func:`line_format` is ``fmt``.
+    number or is empty, a control character).  Call it on lines whose :func:`line_format` is
+    ``fmt``.
 
     Shared by the importer (:func:`read_serial_lines`) and ``imucal capture`` (its MotionCal
     and i2cdevlib protocol), so that a line means the same live and from a file.
     """
     prefix, count, _ = LINE_FORMATS[fmt]
-    fields = [f for f in _SPLIT.split(line.strip(BLANK)[len(prefix) :].strip(BLANK)) if f]
+    rest = line.strip(BLANK)[len(prefix) :].strip(BLANK)
+    # MotionCal's sketches separate by commas, i2cdevlib's by tabs: one kind of separator per
+    # line, and an empty field between two is malformed (issue 26: ``a/g:\t179\t8673\t,392``
+    # kept az = +392), as is a carriage return inside the line.
+    fields = split_fields(rest, is_delimited(rest))
     if len(fields) != count or not all(NUMBER.match(f) for f in fields):
         return None
     values = [float(f) for f in fields]
