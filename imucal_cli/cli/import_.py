@@ -116,7 +116,8 @@ def _result_json(out: Path, files: list[Path], session) -> dict:
     stats = session.import_stats
     static = session.static_segments()
     skipped = {"header": stats.header, "comments": stats.comments, "malformed": stats.malformed,
-               "first_malformed": stats.first_malformed, "unmatched": stats.unmatched}  # fmt: skip
+               "first_malformed": stats.first_malformed, "unmatched": stats.unmatched,
+               "unpaired": stats.unpaired, "dropped": stats.dropped}  # fmt: skip
     return {
         "format": "imucal-import", "format_version": 1, "output": str(out),
         "files": [str(f) for f in files], "samples": int(stats.samples),
@@ -127,8 +128,8 @@ def _result_json(out: Path, files: list[Path], session) -> dict:
         "skipped_lines": skipped, "notes": list(getattr(session, "import_notes", [])),
         "mag_channels": None if session.mag is None else int(session.mag.shape[1]),
         "mag_units": session.mag_units,
-        "warnings": [UNITS_WARNING] if session.accel is not None and not session.accel_units
-        else [],
+        "warnings": list(getattr(session, "import_warnings", []))
+        + ([UNITS_WARNING] if session.accel is not None and not session.accel_units else []),
     }  # fmt: skip
 
 
@@ -162,6 +163,15 @@ def _print_result(result: dict, json_output: bool) -> None:
         skipped.append(f"{s['unmatched']} unmatched (no sample of that time in the other file)")
     if skipped:
         line("  skipped lines: " + ", ".join(skipped))
+    left = []
+    if s["unpaired"]:
+        left.append(f"{s['unpaired']} unpaired (an accelerometer or gyroscope sample with no "
+                    "sample of the other sensor at its time)")  # fmt: skip
+    if s["dropped"]:
+        left.append(f"{s['dropped']} whose time did not follow the previous sample's or whose "
+                    "values were not finite")  # fmt: skip
+    if left:
+        line("  samples left out: " + ", ".join(left))
     line(
         f"  {result['static_segments']} static segments ({result['still_s']:.1f} s still), "
         f"{result['rotation_segments']} rotation segments"

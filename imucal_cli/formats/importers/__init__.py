@@ -419,7 +419,30 @@ def import_files(
     )
     session.import_stats = rec.stats  # type: ignore[attr-defined]
     session.import_notes = notes  # type: ignore[attr-defined]
+    session.import_warnings = rec.warnings + _gap_warnings(rec, segments)  # type: ignore[attr-defined]
     return session
+
+
+def _gap_warnings(rec: Recording, segments: list[Segment]) -> list[str]:
+    """Gaps in the sample times (:func:`~imucal_cli.solvers.gaps.find_gaps`), said at import:
+    inside a rotation segment the turn cannot be integrated (calibrate leaves it out)."""
+    from imucal_cli.solvers.gaps import find_gaps, gaps_within
+
+    gaps = find_gaps(rec.time)
+    if not gaps:
+        return []
+    step = float(np.median(np.diff(rec.time)))
+    worst = max(gaps, key=lambda g: g.length_s)
+    out = [f"{len(gaps)} gap(s) in the sample times longer than 5 sample intervals "
+           f"({step * 1e3:.3g} ms); the longest {worst.length_s:.3g} s after {worst.time_s:.6g} s"]
+    for seg in segments:
+        inside = gaps_within(gaps, seg.start, seg.stop) if seg.kind == "rotation" else []
+        if inside:
+            g = max(inside, key=lambda g: g.length_s)
+            out.append(f"rotation segment {seg.name} has a gap of {g.length_s:.3g} s after "
+                       f"{g.time_s:.6g} s: the turn is unknown across it (calibrate leaves it "
+                       "out); turn again without losing samples")  # fmt: skip
+    return out
 
 
 def _check_units(accel_units: str | None, gyro_units: str | None, mag_units: str | None,

@@ -46,6 +46,7 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 
+from .recording import STAMPS_KEPT, choose_time, increasing
 from .ros import Channels, hold_latest
 
 __all__ = ["choose_stream", "looks_like_dataflash", "looks_like_tlog", "read_mavlink"]
@@ -139,13 +140,6 @@ def choose_stream(labels: list[str], wanted: str | None, src: str, what: str) ->
         return wanted
     said = "matches several streams" if matches else "is not in the log"
     raise InputError(f"{src}: --topic {wanted} {said}; IMU streams: {listed}")
-
-
-def _increasing(time: np.ndarray, finite: np.ndarray) -> np.ndarray:
-    """Rows to keep: finite, and later than every row before them."""
-    t = np.where(finite, time, -np.inf)
-    before = np.maximum.accumulate(np.concatenate([[-np.inf], t[:-1]]))
-    return finite & (t > before)
 
 
 def _zero_is_none(values: np.ndarray) -> np.ndarray | None:
@@ -259,16 +253,19 @@ def _tlog_channels(label: str, name: str, rows: list) -> Channels:
     spec = TLOG_MESSAGES[name]
     data = np.asarray(rows, np.float64)
     received, device = data[:, 0], data[:, 1] * spec.time_scale
-    use_device = bool(np.all(device > 0) and np.all(np.diff(device) > 0))
-    time = device if use_device else received
     values = data[:, 2:11] * spec.scale
-    keep = _increasing(time, np.isfinite(values[:, :6]).all(axis=1))
+    finite = np.isfinite(values[:, :6]).all(axis=1)
+    time, use_device, out_of_order = choose_time(device, received, finite)
+    keep = increasing(time, finite)
     a_units, g_units, m_units = spec.units
     notes = [
         f"{label}: {spec.sent}" + (f", stored as {a_units}, {g_units}, {m_units}"
                                     if spec.scale != 1 else ""),
-        f"time from {spec.time_field}" if use_device else
-        f"time from the log's receive stamps ({spec.time_field} unset or not increasing)",
+        (f"time from {spec.time_field}" + (f" ({out_of_order} messages whose {spec.time_field} "
+                                           "did not follow the previous one left out)"
+                                           if out_of_order else "")) if use_device else
+        f"time from the log's receive stamps ({spec.time_field} unset, or not increasing for "
+        f"{100 * STAMPS_KEPT:g} % of the messages)",
     ]  # fmt: skip
     ch = Channels(time=time[keep], accel=values[keep, 0:3], gyro=values[keep, 3:6],
                   accel_units=a_units, gyro_units=g_units, notes=notes,
@@ -370,7 +367,7 @@ def _df_series(rows: list, n_values: int = 3) -> tuple[np.ndarray, np.ndarray, i
     """Time (s) and values of one DataFlash series, strictly increasing, the first
     ``n_values`` values finite (the temperature may be NaN); dropped rows."""
     data = np.asarray(rows, np.float64)
-    keep = _increasing(data[:, 0] * 1e-6, np.isfinite(data[:, : 1 + n_values]).all(axis=1))
+    keep = increasing(data[:, 0] * 1e-6, np.isfinite(data[:, : 1 + n_values]).all(axis=1))
     return data[keep, 0] * 1e-6, data[keep, 1:], int((~keep).sum())
 
 
@@ -397,7 +394,8 @@ def _df_acc_gyr(rows: dict, instance: int) -> Channels:
         raise InputError(f"ACC and GYR instance {instance} share no SampleUS")
     time = t_a[ia] if np.median(np.diff(t_a)) >= np.median(np.diff(t_g)) else t_g[ig]
     ch = Channels(time=time, accel=acc[ia], gyro=gyr[ig], accel_units="m/s^2",
-                  gyro_units="rad/s", dropped=drop_a + drop_g + len(t_a) + len(t_g) - 2 * len(ia),
+                  gyro_units="rad/s", dropped=drop_a + drop_g,
+                  unpaired=len(t_a) + len(t_g) - 2 * len(ia),
                   notes=[f"DataFlash ACC and GYR instance {instance} (m/s^2, rad/s) paired by "
                          f"SampleUS: {len(ia)} of {len(t_a)} and {len(t_g)} samples"])  # fmt: skip
     if ("IMU", instance) in rows:

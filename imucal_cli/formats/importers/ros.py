@@ -25,6 +25,8 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 
+from .recording import STAMPS_KEPT, choose_time, increasing
+
 __all__ = ["Channels", "choose_topic", "hold_latest", "read_mcap", "read_ros", "read_rosbag"]
 
 IMU = "sensor_msgs/msg/Imu"
@@ -54,6 +56,11 @@ class Channels:
     host_time : ndarray (N,) or None
         When the host received each sample, s of its clock, beside a ``time`` from the
         device's clock (``/raw/host_time``); None when there is no device time.
+    unpaired : int
+        Accelerometer and gyroscope samples with no partner of the other sensor (logs that
+        carry the two in separate messages).
+    warnings : list of str
+        What the user should know (see :class:`~.recording.Recording`).
     """
 
     time: np.ndarray
@@ -67,6 +74,8 @@ class Channels:
     notes: list[str] = field(default_factory=list)
     dropped: int = 0
     host_time: np.ndarray | None = None
+    unpaired: int = 0
+    warnings: list[str] = field(default_factory=list)
 
 
 def _normal(msgtype: str) -> str:
@@ -169,17 +178,14 @@ def build(
         raise InputError(f"{source}: topic {imu_topic} holds no messages")
     rows = np.asarray(imu_rows, np.float64)
     stamps_a, logged_a = np.asarray(stamps), np.asarray(logged)
-    use_stamp = np.all(stamps_a > 0) and np.all(np.diff(stamps_a) > 0)
-    time = stamps_a if use_stamp else logged_a
-    notes.append("time from header.stamp" if use_stamp else
-                 "time from the recording's receive time (header.stamp unset or not increasing)")
-    keep = np.isfinite(rows).all(axis=1)
-    last = -np.inf  # drop samples whose time does not follow the last kept one
-    for i in np.flatnonzero(keep):
-        if time[i] <= last:
-            keep[i] = False
-        else:
-            last = time[i]
+    finite = np.isfinite(rows).all(axis=1)
+    time, use_stamp, out_of_order = choose_time(stamps_a, logged_a, finite)
+    notes.append(("time from header.stamp" + (f" ({out_of_order} messages whose stamp did not "
+                                              "follow the previous one left out)"
+                                              if out_of_order else "")) if use_stamp else
+                 "time from the recording's receive time (header.stamp unset, or not increasing "
+                 f"for {100 * STAMPS_KEPT:g} % of the messages)")  # fmt: skip
+    keep = increasing(time, finite)  # drop samples whose time does not follow the last kept one
     dropped = int((~keep).sum())
     time, rows = time[keep], rows[keep]
     ch = Channels(time=time, accel=rows[:, :3], gyro=rows[:, 3:], accel_units="m/s^2",
@@ -307,13 +313,15 @@ def to_recording(ch: Channels, paths, stats, columns: list[str] | None = None):
     from .recording import Recording
 
     stats.samples = len(ch.time)
-    stats.malformed += ch.dropped
+    stats.dropped += ch.dropped
+    stats.unpaired += ch.unpaired
     return Recording(
         time=ch.time, accel=ch.accel, gyro=ch.gyro, temperature=ch.temperature,
         rate_hz=float("nan"), names=[Path(p).name for p in paths],
         columns=columns or ["t", "ax", "ay", "az", "gx", "gy", "gz"], stats=stats,
         accel_units=ch.accel_units, gyro_units=ch.gyro_units, mag=ch.mag,
         mag_units=ch.mag_units, notes=list(ch.notes), host_time=ch.host_time,
+        warnings=list(ch.warnings),
     )  # fmt: skip
 
 
