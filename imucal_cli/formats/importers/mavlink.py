@@ -34,8 +34,6 @@ or hostile file); :class:`_Guarded` stops it at the first message that does not 
 
 from __future__ import annotations
 
-import contextlib
-import io
 import os
 import re
 import struct
@@ -46,6 +44,7 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 
+from .library import quiet
 from .recording import STAMPS_KEPT, choose_time, increasing
 from .ros import Channels, hold_latest
 
@@ -166,26 +165,6 @@ def _pymavlink():
     return mavutil, DFReader
 
 
-@contextlib.contextmanager
-def _quiet():
-    """pymavlink prints what it skips, in Python and (its compiled DataFlash indexer) on file
-    descriptor 2; library code never prints (errors are one line, --json owns stdout)."""
-    import sys
-    import tempfile
-
-    sys.stderr.flush()
-    saved = os.dup(2)
-    try:
-        with tempfile.TemporaryFile() as sink:
-            os.dup2(sink.fileno(), 2)
-            with contextlib.redirect_stdout(io.StringIO()), \
-                    contextlib.redirect_stderr(io.StringIO()):  # fmt: skip
-                yield
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
-
-
 class _Stuck(Exception):
     """pymavlink's DataFlash reader did not move on (a format of length 0)."""
 
@@ -298,7 +277,7 @@ def read_tlog(path: str | os.PathLike, topic: str | None = None) -> Channels:
     mavutil, _ = _pymavlink()
     src = str(path)
     try:
-        with _quiet():
+        with quiet():
             rows, bad = _tlog_rows(Path(path), mavutil)
     except Exception as exc:  # noqa: BLE001 - pymavlink raises plain exceptions
         raise InputError(f"{src}: not a readable MAVLink telemetry log "
@@ -418,7 +397,7 @@ def read_dataflash(path: str | os.PathLike, topic: str | None = None) -> Channel
     _, DFReader = _pymavlink()  # noqa: N806
     src = str(path)
     try:
-        with _quiet():
+        with quiet():
             rows = _df_rows(Path(path), DFReader)
     except Exception as exc:  # noqa: BLE001 - pymavlink raises plain exceptions
         raise InputError(f"{src}: not a readable DataFlash log "

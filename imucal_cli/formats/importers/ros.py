@@ -1,5 +1,7 @@
-"""ROS recordings: ROS 1 bags and ROS 2 bags (``rosbags``, no ROS install) and MCAP files
-(``mcap`` with ``mcap-ros2-support``).  ``pip install 'imucal-cli[ros]'`` / ``[mcap]``.
+"""ROS recordings: ROS 1 bags and ROS 2 bags (``rosbags``, no ROS install) and MCAP files of
+ROS 2 or ROS 1 messages (``mcap`` with ``mcap-ros2-support`` and ``mcap-ros1-support``).
+``pip install 'imucal-cli[ros]'`` / ``[mcap]``.  A damaged file is one line and exit 2,
+whatever the library raises (:func:`damaged_as_input_error`).
 
 What is read:
 
@@ -25,6 +27,7 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 
+from .library import damaged_as_input_error, quiet
 from .recording import STAMPS_KEPT, choose_time, increasing
 
 __all__ = ["Channels", "choose_topic", "hold_latest", "read_mcap", "read_ros", "read_rosbag"]
@@ -125,11 +128,18 @@ def _companion(topics: dict[str, str], kind: str, imu_topic: str) -> tuple[str |
 
 
 def _stamp(msg: Any) -> float:
+    """``header.stamp`` in s: ROS 2 ``sec``/``nanosec``, rosbags' ROS 1 ``sec``/``nanosec``,
+    genpy's (mcap-ros1-support) ``secs``/``nsecs``."""
     stamp = msg.header.stamp
+    sec = getattr(stamp, "sec", None)
+    if sec is None:
+        sec = getattr(stamp, "secs", 0)
     nanosec = getattr(stamp, "nanosec", None)
     if nanosec is None:
-        nanosec = getattr(stamp, "nsec", 0)
-    return stamp.sec + nanosec * 1e-9
+        nanosec = getattr(stamp, "nsec", None)
+    if nanosec is None:
+        nanosec = getattr(stamp, "nsecs", 0)
+    return sec + nanosec * 1e-9
 
 
 def hold_latest(times: np.ndarray, values: np.ndarray, at: np.ndarray) -> np.ndarray:
@@ -163,17 +173,28 @@ def build(
     read = [t for t in (imu_topic, mag_topic, temp_topic) if t is not None]
     imu_rows, stamps, logged = [], [], []
     mag_t, mag_v, temp_t, temp_v = [], [], [], []
-    for topic, log_ns, msg in messages(read):
-        if topic == imu_topic:
-            imu_rows.append((*_vector(msg.linear_acceleration), *_vector(msg.angular_velocity)))
-            stamps.append(_stamp(msg))
-            logged.append(log_ns * 1e-9)
-        elif topic == mag_topic:
-            mag_t.append(_stamp(msg) or log_ns * 1e-9)
-            mag_v.append(_vector(msg.magnetic_field))
-        elif topic == temp_topic:
-            temp_t.append(_stamp(msg) or log_ns * 1e-9)
-            temp_v.append(msg.temperature)
+    def fields():  # a damaged schema makes a type without these fields: damaged too
+        for topic, log_ns, msg in messages(read):
+            if topic == imu_topic:
+                yield topic, log_ns, (*_vector(msg.linear_acceleration),
+                                      *_vector(msg.angular_velocity)), _stamp(msg)  # fmt: skip
+            elif topic == mag_topic:
+                yield topic, log_ns, _vector(msg.magnetic_field), _stamp(msg)
+            elif topic == temp_topic:
+                yield topic, log_ns, float(msg.temperature), _stamp(msg)
+
+    with quiet():  # mcap-ros2-support prints the schema lines it cannot parse
+        for topic, log_ns, values, stamp in damaged_as_input_error(fields(), source):
+            if topic == imu_topic:
+                imu_rows.append(values)
+                stamps.append(stamp)
+                logged.append(log_ns * 1e-9)
+            elif topic == mag_topic:
+                mag_t.append(stamp or log_ns * 1e-9)
+                mag_v.append(values)
+            else:
+                temp_t.append(stamp or log_ns * 1e-9)
+                temp_v.append(values)
     if not imu_rows:
         raise InputError(f"{source}: topic {imu_topic} holds no messages")
     rows = np.asarray(imu_rows, np.float64)
@@ -234,23 +255,84 @@ def read_rosbag(path: str | os.PathLike, topic: str | None = None) -> Channels:
 
         return build(topics, messages, topic, src)
     finally:
-        reader.close()
+        try:
+            reader.close()
+        except Exception:  # noqa: BLE001, S110 - closing a damaged bag: the error is said above
+            pass
+
+
+#: MCAP message encodings read, and the package whose decoder reads each.
+MCAP_DECODERS = {"cdr": ("mcap_ros2.decoder", "mcap-ros2-support"),
+                 "ros1": ("mcap_ros1.decoder", "mcap-ros1-support")}  # fmt: skip
+
+
+def _decoder_factories() -> dict[str, Any]:
+    """MCAP decoders of ROS 2 (CDR, ``mcap-ros2-support``) and ROS 1 messages (``ros1msg``
+    schemas, what ``mcap convert x.bag`` and ``mcap-ros1-support`` write), by encoding: the
+    ones installed."""
+    import importlib
+
+    factories = {}
+    for encoding, (module, _) in MCAP_DECODERS.items():
+        try:
+            factories[encoding] = importlib.import_module(module).DecoderFactory()
+        except ImportError:
+            pass
+    return factories
+
+
+def _mcap_readers(handle, factories: list):
+    """``(seeking, passes)``: ``seeking`` the reader of a file with a summary section (None
+    without one), and ``passes()`` a reader of every message from the start (a fresh stream
+    reader per pass for a file without a summary, a valid MCAP that ends without one).  Both
+    check the chunk CRCs and bound a record by the file's size: a damaged length is refused,
+    never an allocation of gigabytes."""
+    from mcap.reader import NonSeekingReader, SeekingReader
+
+    size = os.fstat(handle.fileno()).st_size
+    options = dict(validate_crcs=True, decoder_factories=factories, record_size_limit=size)
+    seeking = SeekingReader(handle, **options)
+    if seeking.get_summary() is not None:
+        return seeking, lambda: seeking
+
+    def passes():
+        handle.seek(0)
+        return NonSeekingReader(handle, **options)
+
+    return None, passes
+
+
+def _mcap_topics(seeking, passes, src: str) -> dict[str, tuple[str, str]]:
+    """Topic -> (schema name, message encoding): from the summary section, or, for a file
+    without one, from the channels its messages use."""
+    if seeking is not None:
+        summary = seeking.get_summary()
+        schemas = summary.schemas
+        return {ch.topic: (schemas[ch.schema_id].name, ch.message_encoding)
+                for ch in summary.channels.values() if ch.schema_id in schemas}  # fmt: skip
+    topics: dict[str, tuple[str, str]] = {}
+    for schema, channel, _ in damaged_as_input_error(passes().iter_messages(), src):
+        if schema is not None and channel.topic not in topics:
+            topics[channel.topic] = (schema.name, channel.message_encoding)
+    return topics
 
 
 def read_mcap(path: str | os.PathLike, topic: str | None = None) -> Channels:
-    """An MCAP file of ROS 2 messages (``ros2msg`` schemas, CDR), read with ``mcap`` and
-    ``mcap-ros2-support``.
+    """An MCAP file of ROS 2 (``ros2msg`` schemas, CDR) or ROS 1 messages (``ros1msg``), read
+    with ``mcap`` and ``mcap-ros2-support`` / ``mcap-ros1-support``; with or without a
+    summary section; chunk CRCs checked (a damaged chunk is refused, never read as numbers).
 
     Raises
     ------
     InputError
-        The libraries not installed (names the extra), an unreadable file, or the topic choice.
+        The libraries not installed (names the extra), an unreadable or damaged file, a
+        message encoding no decoder reads, or the topic choice.
     """
     try:
-        from mcap.reader import make_reader
-        from mcap_ros2.decoder import DecoderFactory
+        import mcap.reader  # noqa: F401
     except ImportError:
         raise _missing("mcap", "mcap and mcap-ros2-support") from None
+    factories = _decoder_factories()
     src = str(path)
     try:
         handle = open(path, "rb")
@@ -258,19 +340,29 @@ def read_mcap(path: str | os.PathLike, topic: str | None = None) -> Channels:
         raise InputError(f"{src}: cannot read ({exc.strerror or exc})") from None
     with handle:
         try:
-            reader = make_reader(handle, decoder_factories=[DecoderFactory()])
-            summary = reader.get_summary()
-            if summary is None:
-                raise ValueError("no summary section")
-            schemas = summary.schemas
-            topics = {ch.topic: schemas[ch.schema_id].name for ch in summary.channels.values()
-                      if ch.schema_id in schemas}  # fmt: skip
+            seeking, passes = _mcap_readers(handle, list(factories.values()))
+            found = _mcap_topics(seeking, passes, src)
+        except InputError:
+            raise
+        except MemoryError:
+            raise InputError(f"{src}: damaged MCAP file (a record asks for more memory than "
+                             "there is)") from None  # fmt: skip
         except Exception as exc:  # noqa: BLE001 - mcap raises its own error types
             raise InputError(f"{src}: not a readable MCAP file "
-                             f"({' '.join(str(exc).split())})") from None  # fmt: skip
+                             f"({' '.join(str(exc).split())[:160]})") from None  # fmt: skip
+        topics = {name: schema for name, (schema, _) in found.items()}
+        encodings = {name: enc for name, (_, enc) in found.items()}
 
         def messages(wanted: list[str]) -> Iterator[tuple[str, int, Any]]:
-            for _, channel, message, decoded in reader.iter_decoded_messages(topics=wanted):
+            for name in wanted:
+                encoding = encodings.get(name)
+                if encoding in factories:
+                    continue
+                if encoding in MCAP_DECODERS:
+                    raise _missing("mcap", MCAP_DECODERS[encoding][1])
+                raise InputError(f"{src}: topic {name} has message encoding {encoding!r}; "
+                                 "ROS 2 (cdr) and ROS 1 (ros1) messages are read")  # fmt: skip
+            for _, channel, message, decoded in passes().iter_decoded_messages(topics=wanted):
                 yield channel.topic, message.log_time, decoded
 
         return build(topics, messages, topic, src)
