@@ -49,6 +49,12 @@ def import_(
         "mavlink: the message and instance (RAW_IMU.0, SCALED_IMU2, HIGHRES_IMU, IMU.1, ACC.0; "
         "listed when several).",
     ),  # fmt: skip
+    mag_topic: str | None = typer.Option(
+        None, "--mag-topic", metavar="TOPIC",
+        help="The magnetometer to read with the IMU when the log has several: ros: a "
+        "sensor_msgs/MagneticField topic; ulog: the sensor_mag instance N; mavlink: MAG.N "
+        "[default: the one in the IMU's namespace or of its instance].",
+    ),  # fmt: skip
     columns: str | None = columns_option(
         "Fields of a line, e.g. t,ax,ay,az,gx,gy,gz,mx,my,mz or _,ax,ay,az (_ skips a field) "
         "[default: from the header line]."
@@ -106,6 +112,7 @@ def import_(
         files, fmt, columns, time_unit=time_unit, rate_hz=rate, skip_rows=skip_rows,
         accel_units=accel_units, gyro_units=gyro_units, sensor=sensor, sections=sections,
         turn_angle_deg=turn_angle, mag_units=mag_units, magnetic_field_uT=field_ut, topic=topic,
+        mag_topic=mag_topic,
     )  # fmt: skip
     write_session(out, session, overwrite=force, inputs=files)
     _print_result(_result_json(out, files, session), json_output)

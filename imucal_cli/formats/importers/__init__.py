@@ -166,6 +166,7 @@ def read_recording(
     rate_hz: float | None = None,
     skip_rows: int = 0,
     topic: str | None = None,
+    mag_topic: str | None = None,
 ) -> Recording:
     """Read the samples of a recording in format ``fmt``.
 
@@ -209,9 +210,8 @@ def read_recording(
         raise InputError(f"--rate must be a positive number of Hz, got {rate_hz:g}")
     if skip_rows < 0:
         raise InputError(f"--skip-rows must be >= 0, got {skip_rows}")
-    options = ReadOptions(
-        columns=columns, time_unit=time_unit, rate_hz=rate_hz, skip_rows=skip_rows, topic=topic
-    )
+    options = ReadOptions(columns=columns, time_unit=time_unit, rate_hz=rate_hz,
+                          skip_rows=skip_rows, topic=topic, mag_topic=mag_topic)  # fmt: skip
     rec = read(paths, options, ImportStats())
     time = np.asarray(rec.time, np.float64)
     rec.time = time
@@ -368,6 +368,7 @@ def import_files(
     mag_units: str | None = None,
     magnetic_field_uT: float | None = None,
     topic: str | None = None,
+    mag_topic: str | None = None,
 ) -> Session:
     """Read recorded text files and segment them into a session (not yet written).
 
@@ -394,7 +395,7 @@ def import_files(
     _check_units(accel_units, gyro_units, mag_units, magnetic_field_uT)
     rec = read_recording(
         paths, fmt, columns, time_unit=time_unit, rate_hz=rate_hz, skip_rows=skip_rows,
-        topic=topic,
+        topic=topic, mag_topic=mag_topic,
     )
     accel_units = accel_units or rec.accel_units
     gyro_units = gyro_units or rec.gyro_units

@@ -385,7 +385,8 @@ def _df_acc_gyr(rows: dict, instance: int) -> Channels:
     return ch
 
 
-def read_dataflash(path: str | os.PathLike, topic: str | None = None) -> Channels:
+def read_dataflash(path: str | os.PathLike, topic: str | None = None,
+                   mag_topic: str | None = None) -> Channels:  # fmt: skip
     """Accelerometer, gyroscope, magnetometer and temperature of an ArduPilot DataFlash log.
 
     Raises
@@ -414,6 +415,12 @@ def read_dataflash(path: str | os.PathLike, topic: str | None = None) -> Channel
     ch.notes.append("ArduPilot logs IMU, ACC and GYR after its own offsets and scales "
                     "(INS_ACCOFFS, INS_ACCSCAL, INS_GYROFFS) and board rotation")  # fmt: skip
     mags = sorted(i for k, i in rows if k == "MAG")
+    if mag_topic is not None:
+        number = mag_topic.rpartition(".")[2]
+        if not number.isdigit() or int(number) not in mags:
+            raise InputError(f"{src}: --mag-topic {mag_topic}: MAG instances in the log: "
+                             f"{', '.join(f'MAG.{i}' for i in mags) or 'none'}")  # fmt: skip
+        mags = [int(number)]
     if mags:
         m = instance if instance in mags else mags[0]
         t_m, values, _ = _df_series(rows[("MAG", m)])
@@ -430,7 +437,8 @@ def read_dataflash(path: str | os.PathLike, topic: str | None = None) -> Channel
 # --------------------------------------------------------------------------------------------
 
 
-def read_mavlink(path: str | os.PathLike, topic: str | None = None) -> Channels:
+def read_mavlink(path: str | os.PathLike, topic: str | None = None,
+                 mag_topic: str | None = None) -> Channels:  # fmt: skip
     """A DataFlash log (by its first bytes) with :func:`read_dataflash`, anything else with
     :func:`read_tlog`.
 
@@ -445,7 +453,10 @@ def read_mavlink(path: str | os.PathLike, topic: str | None = None) -> Channels:
     if not head:
         raise InputError(f"{path}: empty file, not a MAVLink log")
     if looks_like_dataflash(head):
-        return read_dataflash(path, topic)
+        return read_dataflash(path, topic, mag_topic)
+    if mag_topic is not None:
+        raise InputError(f"{path}: --mag-topic applies to DataFlash logs (MAG.N); a telemetry "
+                         "log's magnetometer is that of the IMU message")  # fmt: skip
     return read_tlog(path, topic)
 
 
@@ -454,4 +465,4 @@ def read(paths, options, stats):
     from .ros import one_file, to_recording
 
     path = one_file(paths, options, NAME, FILES)
-    return to_recording(read_mavlink(path, options.topic), paths, stats)
+    return to_recording(read_mavlink(path, options.topic, options.mag_topic), paths, stats)

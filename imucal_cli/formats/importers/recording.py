@@ -38,6 +38,9 @@ class ReadOptions:
         Text formats: lines skipped at the top of each file.
     topic : str, optional
         Logs of several streams: the one to read (ROS topic, ULog instance).
+    mag_topic : str, optional
+        Logs of several magnetometers: the one to read with the IMU (ROS topic, ULog
+        ``sensor_mag`` instance, DataFlash ``MAG`` instance).
     """
 
     columns: str | list[str | None] | None = None
@@ -45,6 +48,7 @@ class ReadOptions:
     rate_hz: float | None = None
     skip_rows: int = 0
     topic: str | None = None
+    mag_topic: str | None = None
 
 
 @dataclass

@@ -113,9 +113,18 @@ def choose_topic(topics: dict[str, str], wanted: str | None, source: str) -> str
                      "with --topic")  # fmt: skip
 
 
-def _companion(topics: dict[str, str], kind: str, imu_topic: str) -> tuple[str | None, str]:
-    """The one topic of ``kind`` to read with ``imu_topic`` (or the one sharing its namespace)."""
+def _companion(topics: dict[str, str], kind: str, imu_topic: str,
+               wanted: str | None = None, source: str = "") -> tuple[str | None, str]:  # fmt: skip
+    """The topic of ``kind`` to read with ``imu_topic``: ``wanted`` (``--mag-topic``), the only
+    one, or the one sharing its namespace; with several elsewhere none, and a note naming
+    them and the option."""
     found = sorted(t for t, ty in topics.items() if _normal(ty) == kind)
+    if wanted is not None:
+        if wanted not in found:
+            raise InputError(f"{source}: --mag-topic {wanted} is not a "
+                             f"{kind.rpartition('/')[2]} topic; they are: "
+                             f"{', '.join(found) or 'none'}")  # fmt: skip
+        return wanted, ""
     if len(found) == 1:
         return found[0], ""
     namespace = imu_topic.rpartition("/")[0]
@@ -123,7 +132,9 @@ def _companion(topics: dict[str, str], kind: str, imu_topic: str) -> tuple[str |
     if len(near) == 1:
         return near[0], ""
     if found:
-        return None, f"{kind.rpartition('/')[2]} topics {', '.join(found)} left out (ambiguous)"
+        option = "; choose one with --mag-topic" if kind == MAG else ""
+        return None, (f"{kind.rpartition('/')[2]} topics {', '.join(found)} left out (none in "
+                      f"{imu_topic}'s namespace){option}")  # fmt: skip
     return None, ""
 
 
@@ -162,12 +173,13 @@ def build(
     messages: Callable[[list[str]], Iterable[tuple[str, int, Any]]],
     wanted: str | None,
     source: str,
+    mag_wanted: str | None = None,
 ) -> Channels:
     """Channels from a log given its ``topics`` (name -> type) and ``messages(topics)``, an
     iterator of ``(topic, log_time_ns, decoded message)``."""
     imu_topic = choose_topic(topics, wanted, source)
     notes = [f"sensor_msgs/Imu from {imu_topic}"]
-    mag_topic, mag_note = _companion(topics, MAG, imu_topic)
+    mag_topic, mag_note = _companion(topics, MAG, imu_topic, mag_wanted, source)
     temp_topic, temp_note = _companion(topics, TEMP, imu_topic)
     notes += [n for n in (mag_note, temp_note) if n]
     read = [t for t in (imu_topic, mag_topic, temp_topic) if t is not None]
@@ -225,7 +237,8 @@ def _missing(extra: str, module: str) -> InputError:
     return InputError(f"reading this file needs {module}: pip install 'imucal-cli[{extra}]'")
 
 
-def read_rosbag(path: str | os.PathLike, topic: str | None = None) -> Channels:
+def read_rosbag(path: str | os.PathLike, topic: str | None = None,
+                mag_topic: str | None = None) -> Channels:  # fmt: skip
     """A ROS 1 bag (``.bag``) or a ROS 2 bag (a directory with ``metadata.yaml``), read with
     ``rosbags``.
 
@@ -253,7 +266,7 @@ def read_rosbag(path: str | os.PathLike, topic: str | None = None) -> Channels:
             for conn, log_ns, raw in reader.messages(connections=conns):
                 yield conn.topic, log_ns, reader.deserialize(raw, conn.msgtype)
 
-        return build(topics, messages, topic, src)
+        return build(topics, messages, topic, src, mag_topic)
     finally:
         try:
             reader.close()
@@ -317,7 +330,8 @@ def _mcap_topics(seeking, passes, src: str) -> dict[str, tuple[str, str]]:
     return topics
 
 
-def read_mcap(path: str | os.PathLike, topic: str | None = None) -> Channels:
+def read_mcap(path: str | os.PathLike, topic: str | None = None,
+              mag_topic: str | None = None) -> Channels:  # fmt: skip
     """An MCAP file of ROS 2 (``ros2msg`` schemas, CDR) or ROS 1 messages (``ros1msg``), read
     with ``mcap`` and ``mcap-ros2-support`` / ``mcap-ros1-support``; with or without a
     summary section; chunk CRCs checked (a damaged chunk is refused, never read as numbers).
@@ -365,16 +379,17 @@ def read_mcap(path: str | os.PathLike, topic: str | None = None) -> Channels:
             for _, channel, message, decoded in passes().iter_decoded_messages(topics=wanted):
                 yield channel.topic, message.log_time, decoded
 
-        return build(topics, messages, topic, src)
+        return build(topics, messages, topic, src, mag_topic)
 
 
-def read_ros(path: str | os.PathLike, topic: str | None = None) -> Channels:
+def read_ros(path: str | os.PathLike, topic: str | None = None,
+             mag_topic: str | None = None) -> Channels:  # fmt: skip
     """A ``.mcap`` file with :func:`read_mcap`, anything else (``.bag``, a ROS 2 bag folder)
     with :func:`read_rosbag`."""
     p = Path(path)
     if p.suffix.lower() == ".mcap" and p.is_file():
-        return read_mcap(p, topic)
-    return read_rosbag(p, topic)
+        return read_mcap(p, topic, mag_topic)
+    return read_rosbag(p, topic, mag_topic)
 
 
 # --------------------------------------------------------------------------------------------
@@ -420,4 +435,4 @@ def to_recording(ch: Channels, paths, stats, columns: list[str] | None = None):
 def read(paths, options, stats):
     """``imucal import --format ros``: :func:`read_ros` of the one path, ``--topic``."""
     path = one_file(paths, options, NAME, FILES)
-    return to_recording(read_ros(path, options.topic), paths, stats)
+    return to_recording(read_ros(path, options.topic, options.mag_topic), paths, stats)
