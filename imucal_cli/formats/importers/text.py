@@ -51,6 +51,9 @@ for _field, _names in {
     for _name in _names:
         HEADER_ALIASES[_name] = _field
 for _axis in "xyz":
+    # EuRoC MAV / TUM-VI imu0/data.csv: w_RS_S_x [rad s^-1], a_RS_S_x [m s^-2]
+    HEADER_ALIASES[f"a_rs_s_{_axis}"] = "a" + _axis
+    HEADER_ALIASES[f"w_rs_s_{_axis}"] = "g" + _axis
     for _name in ("a{}", "acc_{}", "acc{}", "accel_{}", "accel{}", "acceleration_{}", "acc_{}_raw"):
         HEADER_ALIASES[_name.format(_axis)] = "a" + _axis
     for _name in ("g{}", "gyr_{}", "gyr{}", "gyro_{}", "gyro{}", "gyroscope_{}", "gyr_{}_raw"):
