@@ -144,11 +144,11 @@ def detect_format(paths: Sequence[str | os.PathLike]) -> str:
         return "ulog"
     if head.startswith((b"#ROSBAG", b"\x89MCAP")):
         return "ros"
-    from .mavlink import looks_like_dataflash, looks_like_tlog
+    from .mavlink import looks_like_dataflash, looks_like_dataflash_text, looks_like_tlog
     from .serial_lines import detect_line_format
     from .witmotion import looks_like_witmotion
 
-    if looks_like_dataflash(head) or looks_like_tlog(head):
+    if looks_like_dataflash(head) or looks_like_tlog(head) or looks_like_dataflash_text(head):
         return "mavlink"
     if looks_like_witmotion(head):
         return "witmotion"
