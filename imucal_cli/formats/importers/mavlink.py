@@ -497,7 +497,8 @@ def read_dataflash(path: str | os.PathLike, topic: str | None = None,
         raise InputError(f"{src}: damaged {what} (a message asks for more memory than there "
                          "is)") from None  # fmt: skip
     except Exception as exc:  # noqa: BLE001 - pymavlink raises plain exceptions
-        raise InputError(f"{src}: not a readable {what} ({one_line_reason(exc, 200)})") from None
+        why = str(exc) if isinstance(exc, _Stuck) else one_line_reason(exc, 200)
+        raise InputError(f"{src}: not a readable {what} ({why})") from None
     imu = sorted(i for kind, i in rows if kind == "IMU")
     acc = sorted(i for kind, i in rows if kind == "ACC" and ("GYR", i) in rows)
     batches = sorted(i for sensor, i in isb if sensor == "accel")
