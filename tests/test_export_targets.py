@@ -225,13 +225,14 @@ def test_openvins_needs_noise(cal):
 # --------------------------------------------------------------------------------------------
 
 
-def test_basalt_reader_reproduces_apply(cal, raw):
+def test_basalt_reader_reproduces_apply(cal, raw, noise):
     no_gs = Calibration(accel=cal.accel, gyro=SensorCalibration(
         cal.gyro.solver, "rad/s", cal.gyro.bias, cal.gyro.matrix, None,
         {"units_in": "deg/s"}), created=cal.created)  # fmt: skip
     a_true, w_true = raw
     raw_a, raw_w = raw_from_truth(no_gs, a_true, w_true)
-    doc = json.loads(export(no_gs, "basalt", options=ExportOptions(scale={"accel": ACCEL_SCALE})))
+    doc = json.loads(export(no_gs, "basalt", options=ExportOptions(scale={"accel": ACCEL_SCALE},
+                                                                noise=noise)))  # fmt: skip
     ab, gb = np.array(doc["value0"]["calib_accel_bias"]), np.array(doc["value0"]["calib_gyro_bias"])
     assert ab.shape == (9,) and gb.shape == (12,)
     # Basalt (calib_bias.hpp): a = (I + S_a) p - b, S_a lower [s1 0 0; s2 s4 0; s3 s5 s6];
@@ -248,11 +249,11 @@ def test_basalt_reader_reproduces_apply(cal, raw):
     assert not any("g-sensitivity dropped" in n for n in doc["value0"]["imucal_notes"])
 
 
-def test_basalt_refuses_or_states_the_dropped_g_sensitivity(cal):
+def test_basalt_refuses_or_states_the_dropped_g_sensitivity(cal, noise):
     with pytest.raises(InputError, match="g_sensitivity .* --format basalt cannot hold"):
-        export(cal, "basalt", options=ExportOptions(scale={"accel": ACCEL_SCALE}))
+        export(cal, "basalt", options=ExportOptions(scale={"accel": ACCEL_SCALE}, noise=noise))
     doc = json.loads(export(cal, "basalt", options=ExportOptions(
-        scale={"accel": ACCEL_SCALE}, drop=frozenset({"g-sensitivity"}))))  # fmt: skip
+        scale={"accel": ACCEL_SCALE}, drop=frozenset({"g-sensitivity"}), noise=noise)))  # fmt: skip
     note = [n for n in doc["value0"]["imucal_notes"] if "g-sensitivity dropped" in n]
     G = np.asarray(cal.gyro.extra["g_sensitivity"]) * D2R
     assert note and f"{np.linalg.norm(G, 2) * G0:.4g} rad/s" in note[0]

@@ -28,7 +28,8 @@ def export(
     ),
     fmt: str | None = format_option(
         "c-header, yaml (ROS imu_calib), json, kalibr-imu (noise imu.yaml), kalibr "
-        "(M, A, C_gyro_i), openvins, basalt, px4, ardupilot, fusion, ros-imu (covariances) "
+        "(M, A, C_gyro_i), openvins, basalt, px4, ardupilot, fusion, vins, orbslam3, ros-imu "
+        "(covariances) "
         "[default: from OUTPUT's suffix .h/.yaml/.json/.params/.parm].",
         completion.export_formats,
     ),
@@ -36,7 +37,7 @@ def export(
     noise: Path | None = typer.Option(
         None, "--noise", metavar="NOISE.json",
         help="Noise figures from imucal noise SESSION --json (kalibr-imu, kalibr, openvins, "
-        "ros-imu).",
+        "basalt, vins, orbslam3, ros-imu).",
     ),  # fmt: skip
     rate: float | None = rate_option(
         "Rate the target runs at, Hz [default: the noise recording's]."

@@ -26,6 +26,7 @@ from imucal_cli.formats.exporters import STANDARD_GRAVITY, ExportOptions
 from imucal_cli.formats.exporters.ardupilot import export_ardupilot
 from imucal_cli.formats.exporters.basalt import export_basalt
 from imucal_cli.formats.exporters.c_header import export_c_header
+from imucal_cli.formats.exporters.estimators import export_orbslam3, export_vins
 from imucal_cli.formats.exporters.fusion import export_fusion
 from imucal_cli.formats.exporters.imu_calib import export_yaml
 from imucal_cli.formats.exporters.imucal_json import export_json
@@ -80,7 +81,9 @@ FORMATS: dict[str, ExportFormat] = {
         ExportFormat("openvins", export_openvins,
                      "OpenVINS kalibr_imu_chain.yaml: Tw, Ta, R_IMUtoGYRO, R_IMUtoACC, Tg "
                      "(needs --noise)", holds_g_sensitivity=True),
-        ExportFormat("basalt", export_basalt, "Basalt calib_accel_bias, calib_gyro_bias"),
+        ExportFormat("basalt", export_basalt,
+                     "Basalt calibration.json, complete: calib_accel_bias, calib_gyro_bias, "
+                     "noise, rate, no camera (needs --noise)"),
         ExportFormat("px4", export_px4, "PX4 CAL_ACC0_*, CAL_GYRO0_* (offset, diagonal scale), "
                      "CAL_MAG0_* (offset, symmetric scale), TC_* (temperature)",
                      holds_tempco=True),
@@ -92,6 +95,12 @@ FORMATS: dict[str, ExportFormat] = {
                      "x-io Fusion: misalignment, sensitivity, offset per sensor; softIronMatrix, "
                      "hardIronOffset (C)",
                      uses_prefix=True),
+        ExportFormat("vins", export_vins,
+                     "VINS-Mono / VINS-Fusion IMU keys acc_n, gyr_n, acc_w, gyr_w, g_norm "
+                     "(needs --noise)", needs_calibration=False),
+        ExportFormat("orbslam3", export_orbslam3,
+                     "ORB-SLAM3 settings IMU.NoiseGyro, NoiseAcc, GyroWalk, AccWalk, Frequency "
+                     "(needs --noise)", needs_calibration=False),
         ExportFormat("ros-imu", export_ros_imu,
                      "sensor_msgs/Imu covariances from the noise (needs --noise)",
                      needs_calibration=False),
