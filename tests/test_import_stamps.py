@@ -57,8 +57,12 @@ def test_the_rule_between_device_and_receive_time():
     restart = np.r_[device[:500], device[:500]]  # the device rebooted half way
     assert not choose_time(restart, received, finite)[1]
     unset = device.copy()
-    unset[0] = 0.0
-    assert not choose_time(unset, received, finite)[1]
+    unset[0] = 0.0  # one unset stamp is left out like a repeated one
+    assert choose_time(unset, received, finite)[1:] == (True, 1)
+    assert not choose_time(np.zeros(1000), received, finite)[1]  # no stamps: receive time
+    spike = device.copy()
+    spike[3] = 1e9  # a damaged stamp far ahead: the one sample, not all after it
+    assert choose_time(spike, received, finite)[1:] == (True, 1)
 
 
 def test_one_repeated_time_usec_keeps_the_device_time_and_host_time(tmp_path):

@@ -165,6 +165,19 @@ are left out (counted).  One repeated stamp switched a whole recording to receiv
 (issue 26)."""
 
 
+def _spikes(t: np.ndarray, k: int = 2) -> np.ndarray:
+    """Stamps far from the median of their ``2 k`` neighbours (more than 100 median steps): a
+    damaged stamp far ahead would otherwise leave out every sample after it."""
+    n = len(t)
+    if n < 2 * k + 1:
+        return np.zeros(n, bool)
+    step = float(np.median(np.abs(np.diff(t))))
+    padded = np.pad(t, k, mode="reflect")
+    windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * k + 1)
+    around = np.median(np.delete(windows, k, axis=1), axis=1)
+    return np.abs(t - around) > 100.0 * max(step, 1e-12) + 1e-9 * np.abs(around)
+
+
 def choose_time(device: np.ndarray, received: np.ndarray | None,
                 finite: np.ndarray) -> tuple[np.ndarray, bool, int]:  # fmt: skip
     """The time base of a log that records both the device's stamps and when each message was
@@ -182,17 +195,18 @@ def choose_time(device: np.ndarray, received: np.ndarray | None,
     Returns
     -------
     time : ndarray (N,)
-        ``device`` when its stamps are set and increasing for :data:`STAMPS_KEPT` of the finite
-        rows (all but two at least), else ``received`` (``device`` when there is none).
+        ``device`` (unset stamps as -inf, so that they are left out) when its stamps are set
+        and increasing for :data:`STAMPS_KEPT` of the finite rows (all but two at least), else
+        ``received`` (``device`` when there is none).
     use_device : bool
     out_of_order : int
-        Finite rows whose device stamp does not follow the previous one (left out), when the
-        device's time is used.
+        Finite rows whose device stamp is unset or does not follow the previous one (left
+        out), when the device's time is used.
     """
     n = int(np.count_nonzero(finite))
-    if received is None or (np.all(device > 0) and n > 0):
-        keep = increasing(device, finite)
+    if n > 0:  # unset stamps (0) and lone spikes are left out like repeated ones, when as few
+        keep = increasing(device, finite & (device > 0) & ~_spikes(device))
         kept = int(np.count_nonzero(keep))
         if received is None or n - kept <= max((1.0 - STAMPS_KEPT) * n, 2):
-            return device, True, n - kept
-    return received, False, 0
+            return np.where(device > 0, device, -np.inf), True, n - kept
+    return (device, True, 0) if received is None else (received, False, 0)

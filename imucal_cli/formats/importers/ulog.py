@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.importers.library import one_line_reason
+from imucal_cli.formats.importers.library import one_line_reason, quiet
 from imucal_cli.formats.importers.ros import Channels, hold_latest
 
 __all__ = ["KINDS", "pair_by_time", "read_ulog"]
@@ -184,7 +184,8 @@ def _load(path: str | os.PathLike, src: str):
     except ImportError:
         raise InputError("reading a ULog needs pyulog: pip install 'imucal-cli[px4]'") from None
     try:
-        log = ULog(str(path), message_name_filter_list=list(TOPICS))
+        with quiet():  # pyulog prints what it skips in a damaged log
+            log = ULog(str(path), message_name_filter_list=list(TOPICS))
     except MemoryError:
         raise InputError(f"{src}: damaged ULog (a message asks for more memory than there "
                          "is)") from None  # fmt: skip
