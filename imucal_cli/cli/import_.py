@@ -38,16 +38,18 @@ def import_(
         "gyroscope file.",
     ),  # fmt: skip
     fmt: str | None = format_option(
-        "csv, imu_tk, ros (.bag, ROS 2 bag folder, .mcap), ulog (.ulg), mavlink (.tlog, "
-        "ArduPilot DataFlash .bin), lines (MotionCal Raw:, i2cdevlib a/g:) or witmotion (0x55 "
-        "frames) [default: recognised from the file].",
+        "csv (also EuRoC / TUM-VI imu0/data.csv), imu_tk, ros (.bag, ROS 2 bag folder, .mcap "
+        "of ROS 2 or ROS 1 messages), ulog (.ulg), mavlink (.tlog, ArduPilot DataFlash .bin or "
+        "its text .log), lines (MotionCal Raw:, i2cdevlib a/g:) or witmotion (0x55 frames) "
+        "[default: recognised from the file].",
         completion.import_formats,
     ),
     topic: str | None = typer.Option(
         None, "--topic", metavar="TOPIC",
-        help="ros: the sensor_msgs/Imu topic (listed when several); ulog: the IMU instance N; "
-        "mavlink: the message and instance (RAW_IMU.0, SCALED_IMU2, HIGHRES_IMU, IMU.1, ACC.0; "
-        "listed when several).",
+        help="ros: the sensor_msgs/Imu topic (listed when several); ulog: the topic and "
+        "instance (sensor_accel_fifo, sensor_accel, vehicle_imu, sensor_combined; .N or N alone "
+        "for an instance); mavlink: the message and instance (RAW_IMU.0, SCALED_IMU2, "
+        "HIGHRES_IMU, IMU.1, ACC.0, ISB.0 for batch samples; listed when several).",
     ),  # fmt: skip
     mag_topic: str | None = typer.Option(
         None, "--mag-topic", metavar="TOPIC",
