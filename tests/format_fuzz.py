@@ -181,8 +181,12 @@ def _dataflash(folder: Path, kind: str) -> Base:
         values, window = np.hstack([a32, w32]).astype(float), (-24, 16)
     else:  # ISB: one accel and one gyro batch over the same time, 32 samples per ISBD
         raws = [rng.integers(-3000, 3000, (N, 3)) for _ in range(2)]
+        logged = int(t_us[0] + N / RATE * 1e6 + 1000)  # the header: logged once complete
+        heads = []
         for number, (sensor, raw, mul) in enumerate(((0, raws[0], 208), (1, raws[1], 938))):
-            writer.add("ISBH", [int(t_us[0]), number, sensor, 0, mul, N, int(t_us[0]), RATE])
+            head = [logged, number, sensor, 0, mul, N, int(t_us[0]), RATE]
+            writer.add("ISBH", head)
+            heads.append(struct.pack("<QHBBHHQf", *head))
             for seqno in range(N // 32 + 1):
                 part = np.vstack([raw[32 * seqno : 32 * seqno + 32], np.zeros((32, 3), int)])[:32]
                 writer.add("ISBD", [int(t_us[0]) + seqno, number, seqno,
@@ -190,7 +194,7 @@ def _dataflash(folder: Path, kind: str) -> Base:
         values = np.hstack([raws[0] / 208, raws[1] / 938])
         sigs = [[struct.pack("<32h", *np.vstack([raws[s][32 * (i // 32) : 32 * (i // 32) + 32],
                                                  np.zeros((32, 3), int)])[:32, 0])
-                 for s in (0, 1)] for i in range(N)]  # fmt: skip
+                 for s in (0, 1)] + heads for i in range(N)]  # fmt: skip
         window = (-16, 200)
         t_us = t_us[0] + np.round(np.arange(N) / RATE * 1e6)
     path = writer.write(folder / f"df_{kind}.bin")

@@ -24,9 +24,10 @@ pytest.importorskip("pymavlink")
 MUL_ACCEL, MUL_GYRO = 208, 938  # INT16_MAX / (16 g), INT16_MAX / radians(2000)
 
 
-def write_batches(writer, number, sensor, count, start_us, rate, raw):
-    writer.add("ISBH", [start_us, number, sensor, 0, MUL_ACCEL if sensor == 0 else MUL_GYRO,
-                        count, start_us, rate])  # fmt: skip
+def write_batches(writer, number, sensor, count, start_us, rate, raw, sample_us=None):
+    logged = int(start_us + count / rate * 1e6 + 500)  # ArduPilot logs the header once complete
+    writer.add("ISBH", [logged, number, sensor, 0, MUL_ACCEL if sensor == 0 else MUL_GYRO,
+                        count, start_us if sample_us is None else sample_us, rate])  # fmt: skip
     for seqno in range((count + 31) // 32):
         part = raw[32 * seqno : 32 * seqno + 32]
         part = np.vstack([part, np.zeros((32 - len(part), 3), int)])
@@ -64,6 +65,17 @@ def test_batches_that_do_not_overlap_give_the_accelerometer_alone(tmp_path):
     np.testing.assert_allclose(ch.time[512:], 4.0 + np.arange(512) / 1000.0, rtol=0, atol=1e-12)
     with pytest.raises(Exception, match="several IMU streams: IMU.0, ISB.0"):
         read_mavlink(path)
+
+
+def test_a_damaged_batch_header_leaves_its_batch_out(tmp_path):
+    rng = np.random.default_rng(3)
+    acc, acc2 = rng.integers(-3000, 3000, (256, 3)), rng.integers(-3000, 3000, (256, 3))
+    writer = DataFlashWriter()
+    write_batches(writer, 0, 0, 256, 2_000_000, 1000.0, acc)
+    write_batches(writer, 1, 0, 256, 3_000_000, 1000.0, acc2,
+                  sample_us=9_000_000_000_000)  # damaged: sampled long after it was logged
+    ch = read_mavlink(writer.write(tmp_path / "isb.bin"))
+    np.testing.assert_allclose(ch.accel, acc / MUL_ACCEL, rtol=1e-15)
 
 
 def test_a_text_log_reads_as_its_binary_log(tmp_path):

@@ -352,7 +352,7 @@ def _df_rows(path: Path, DFReader, text: bool = False) -> dict[tuple[str, int], 
             if kind == "ISBH":
                 rows.setdefault(("ISBH", int(m.N)), []).append(
                     (int(m.type), int(m.instance), float(m.mul), int(m.smp_cnt),
-                     float(m.SampleUS), float(m.smp_rate)))  # fmt: skip
+                     float(m.SampleUS), float(m.smp_rate), float(m.TimeUS)))  # fmt: skip
                 continue
             if kind == "ISBD":
                 rows.setdefault(("ISBD", int(m.N)), []).append(
@@ -421,16 +421,28 @@ def _df_acc_gyr(rows: dict, instance: int) -> Channels:
 _ISB_TYPES = {0: "accel", 1: "gyro"}
 
 
+def _plausible_batch(count: int, sample_us: float, rate: float, logged_us: float) -> bool:
+    """A batch header whose numbers can be: a sample rate an IMU has, and a batch sampled
+    before its header was logged (ArduPilot logs the header when the batch is complete) and
+    less than ten minutes before; a damaged header (no checksum) mostly fails this."""
+    if not (10.0 <= rate <= 1e5 and 0 < count <= 1 << 16):
+        return False
+    end_us = sample_us + (count - 1) / rate * 1e6
+    return end_us <= logged_us + 1.0 and logged_us - sample_us <= 600e6
+
+
 def _isb_series(rows: dict) -> dict[tuple[str, int], tuple[np.ndarray, np.ndarray]]:
     """The batch sampler's samples per ``(sensor, instance)``: times (s) and values (SI), from
-    every batch whose header is in the log; a batch's samples past its ``smp_cnt`` or not
-    finite, and data messages of a lost header, are left out."""
+    every batch whose header is in the log and plausible (:func:`_plausible_batch`); a batch's
+    samples past its ``smp_cnt`` or not finite, and data messages of a lost header, are left
+    out."""
     parts: dict[tuple[str, int], list] = {}
     for (kind, number), heads in rows.items():
         if kind != "ISBH" or ("ISBD", number) not in rows:
             continue
-        sensor_type, instance, mul, count, sample_us, rate = heads[0]
-        if sensor_type not in _ISB_TYPES or not (mul > 0 and rate > 0 and count > 0):
+        sensor_type, instance, mul, count, sample_us, rate, logged_us = heads[0]
+        if sensor_type not in _ISB_TYPES or not mul > 0 or \
+                not _plausible_batch(count, sample_us, rate, logged_us):  # fmt: skip
             continue
         t_list, v_list = [], []
         for seqno, x, y, z in rows[("ISBD", number)]:
