@@ -43,7 +43,7 @@ def test_one_repeated_header_stamp_keeps_the_device_time(tmp_path, kind):
 
 
 def test_the_rule_between_device_and_receive_time():
-    from imucal_cli.formats.importers.recording import choose_time
+    from imucal_cli.formats.importers.recording import choose_time, increasing
 
     device = 10.0 + np.arange(1000) * 0.005
     received = device + 0.003
@@ -62,7 +62,12 @@ def test_the_rule_between_device_and_receive_time():
     assert not choose_time(np.zeros(1000), received, finite)[1]  # no stamps: receive time
     spike = device.copy()
     spike[3] = 1e9  # a damaged stamp far ahead: the one sample, not all after it
-    assert choose_time(spike, received, finite)[1:] == (True, 1)
+    time, use, left_out = choose_time(spike, received, finite)
+    assert use and left_out == 1
+    assert np.count_nonzero(increasing(time, finite)) == 999  # what the readers keep
+    gap = np.r_[device[:500], device[500:] + 60.0]  # a minute's pause is no spike: all kept
+    time, use, left_out = choose_time(gap, gap + 0.003, finite)
+    assert use and left_out == 0 and np.count_nonzero(increasing(time, finite)) == 1000
 
 
 def test_one_repeated_time_usec_keeps_the_device_time_and_host_time(tmp_path):

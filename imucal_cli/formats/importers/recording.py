@@ -166,8 +166,9 @@ are left out (counted).  One repeated stamp switched a whole recording to receiv
 
 
 def _spikes(t: np.ndarray, k: int = 2) -> np.ndarray:
-    """Stamps far from the median of their ``2 k`` neighbours (more than 100 median steps): a
-    damaged stamp far ahead would otherwise leave out every sample after it."""
+    """Stamps out of order with a neighbour and far from the median of their ``2 k``
+    neighbours (more than 100 median steps): a damaged stamp far ahead would otherwise leave
+    out every sample after it."""
     n = len(t)
     if n < 2 * k + 1:
         return np.zeros(n, bool)
@@ -175,7 +176,11 @@ def _spikes(t: np.ndarray, k: int = 2) -> np.ndarray:
     padded = np.pad(t, k, mode="reflect")
     windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * k + 1)
     around = np.median(np.delete(windows, k, axis=1), axis=1)
-    return np.abs(t - around) > 100.0 * max(step, 1e-12) + 1e-9 * np.abs(around)
+    far = np.abs(t - around) > 100.0 * max(step, 1e-12) + 1e-9 * np.abs(around)
+    out_of_order = np.zeros(n, bool)  # a gap in a recording is in order: its edges are kept
+    out_of_order[:-1] |= t[:-1] >= t[1:]
+    out_of_order[1:] |= t[1:] <= t[:-1]
+    return far & out_of_order
 
 
 def choose_time(device: np.ndarray, received: np.ndarray | None,
@@ -195,7 +200,8 @@ def choose_time(device: np.ndarray, received: np.ndarray | None,
     Returns
     -------
     time : ndarray (N,)
-        ``device`` (unset stamps as -inf, so that they are left out) when its stamps are set
+        ``device`` (unset stamps and lone spikes as -inf, so that they are left out) when its
+        stamps are set
         and increasing for :data:`STAMPS_KEPT` of the finite rows (all but two at least), else
         ``received`` (``device`` when there is none).
     use_device : bool
@@ -205,8 +211,9 @@ def choose_time(device: np.ndarray, received: np.ndarray | None,
     """
     n = int(np.count_nonzero(finite))
     if n > 0:  # unset stamps (0) and lone spikes are left out like repeated ones, when as few
-        keep = increasing(device, finite & (device > 0) & ~_spikes(device))
+        usable = (device > 0) & ~_spikes(device)
+        keep = increasing(device, finite & usable)
         kept = int(np.count_nonzero(keep))
         if received is None or n - kept <= max((1.0 - STAMPS_KEPT) * n, 2):
-            return np.where(device > 0, device, -np.inf), True, n - kept
+            return np.where(usable, device, -np.inf), True, n - kept
     return (device, True, 0) if received is None else (received, False, 0)
