@@ -143,6 +143,12 @@ def test_mag_topic_picks_the_ulog_magnetometer(tmp_path):
     assert read_ulog(path, mag_topic="sensor_mag.3").mag[-1, 0] == 3.25
     with pytest.raises(InputError, match=r"--mag-topic 5: sensor_mag instances in the log: \[2, 3"):
         read_ulog(path, mag_topic="5")
+    from imucal_cli.formats.importers import read_recording
+
+    csv = tmp_path / "r.csv"
+    csv.write_text("t,ax,ay,az\n0,0,0,9\n0.01,0,0,9\n")
+    with pytest.raises(InputError, match="--mag-topic applies to ros, ulog and mavlink"):
+        read_recording([csv], None, mag_topic="x")
 
 
 def test_mag_topic_picks_a_ros_magnetometer_outside_the_imu_namespace(tmp_path):

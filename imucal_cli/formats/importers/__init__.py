@@ -203,7 +203,10 @@ def read_recording(
     for p in paths:
         if not (p.exists() or p.is_symlink()):  # before a reader library's own wording
             raise InputError(f"{p}: no such file")
-    read = reader(detect_format(paths) if fmt is None else fmt).read
+    fmt = detect_format(paths) if fmt is None else fmt
+    read = reader(fmt).read
+    if mag_topic is not None and FORMATS[fmt] not in ("ros", "ulog", "mavlink"):
+        raise InputError(f"--mag-topic applies to ros, ulog and mavlink logs, not --format {fmt}")
     if time_unit not in TIME_UNITS:
         raise InputError(f"unknown time unit {time_unit!r}: use {', '.join(TIME_UNITS)}")
     if rate_hz is not None and not (np.isfinite(rate_hz) and rate_hz > 0):
