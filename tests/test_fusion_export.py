@@ -165,19 +165,23 @@ def test_magnetometer_compiled_against_fusion_gives_what_imucal_apply_gives(tmp_
 def test_g_sensitivity_is_refused_or_dropped_knowingly(tmp_path, calibrated):
     import json
 
+    from imucal_cli.errors import InputError
+    from imucal_cli.formats.exporters import ExportOptions
+    from imucal_cli.use.export import export
+
     _, cal_path, _ = calibrated
     doc = json.loads(Path(cal_path).read_text())
     doc["gyro"]["g_sensitivity"] = [[2.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.5]]
     gs = tmp_path / "gs.json"
     gs.write_text(json.dumps(doc))
     assert_one_line_error(run("export", gs, "--format", "fusion"), "--drop g-sensitivity")
-    proc = run("export", gs, "--format", "fusion", "--drop", "g-sensitivity")
-    assert proc.returncode == 0 and "g-sensitivity dropped" in proc.stdout
-    worst = float(proc.stdout.split("up to ")[1].split(" rad/s")[0])
     cal = read_calibration(gs)
+    text = export(cal, "fusion", options=ExportOptions(drop=frozenset({"g-sensitivity"})))
+    assert "g-sensitivity dropped" in text
+    worst = float(text.split("up to ")[1].split(" rad/s")[0])
     assert worst == pytest.approx(np.linalg.norm(cal.gyro.matrix @ cal.gyro.g_sensitivity, 2)
                                   * G0, rel=1e-3)  # fmt: skip
     assert math.isfinite(worst)
     assert_one_line_error(run("export", gs, "--format", "fusion", "--drop", "bias"), "--drop")
-    assert_one_line_error(run("export", cal_path, "--format", "fusion", "--fusion-version",
-                              "1.1"), "1.3 or 1.2")  # fmt: skip
+    with pytest.raises(InputError, match="1.3 or 1.2"):
+        export(read_calibration(cal_path), "fusion", options=ExportOptions(fusion_version="1.1"))
