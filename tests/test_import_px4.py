@@ -182,3 +182,28 @@ def test_mag_topic_picks_a_ros_magnetometer_outside_the_imu_namespace(tmp_path):
     np.testing.assert_allclose(read_ros(path, mag_topic="/compass/b").mag[:, 0], 2.0)
     with pytest.raises(InputError, match="--mag-topic /nope is not a MagneticField topic"):
         read_ros(path, mag_topic="/nope")
+
+
+def test_one_unset_timestamp_sample_and_a_damaged_field_name(tmp_path):
+    """Found by the format fuzzer: one zeroed timestamp_sample moved every sample to its
+    publication time; a flipped bit in a field's name raised a KeyError."""
+    rng = np.random.default_rng(7)
+    t = T0 + np.arange(200) * 5000.0
+    acc, gyr = slow_topic(t, rng), slow_topic(t, rng)
+    acc["timestamp_sample"] = acc["timestamp_sample"].copy()
+    acc["timestamp_sample"][50] = 0
+    path = tmp_path / "zero.ulg"
+    write_ulog(path, [("sensor_accel", 0, SENSOR_FIELDS, acc),
+                      ("sensor_gyro", 0, SENSOR_FIELDS, gyr)])  # fmt: skip
+    ch = read_ulog(path)
+    np.testing.assert_allclose(ch.time, np.delete(t, 50) * 1e-6, rtol=0, atol=1e-9)
+    assert ch.dropped == 1
+    acc_cols, _, _ = fifo_topic(rng, 40, 1000.0, 0.01)
+    gyr_cols, _, _ = fifo_topic(rng, 40, 1000.0, 0.001)
+    fifo = tmp_path / "fifo.ulg"
+    write_ulog(fifo, [("sensor_accel_fifo", 0, FIFO_FIELDS, acc_cols),
+                      ("sensor_gyro_fifo", 0, FIFO_FIELDS, gyr_cols)])  # fmt: skip
+    assert len(read_ulog(fifo).time) > 100  # as written: read
+    fifo.write_bytes(fifo.read_bytes().replace(b"uint8_t samples;", b"uint8_t sampmes;"))
+    with pytest.raises(InputError, match="damaged ULog"):
+        read_ulog(fifo)

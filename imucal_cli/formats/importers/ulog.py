@@ -100,13 +100,18 @@ def _topic_choice(wanted: str | None) -> tuple[str | None, int | None]:
 
 
 def _times(d: Any) -> np.ndarray:
+    """A topic's sample times, s: ``timestamp_sample`` where the topic has it (a row where it
+    is unset is NaN, left out: one damaged row must not move every sample to ``timestamp``,
+    the time of publication), else ``timestamp``."""
     t = d.data.get("timestamp_sample")
-    if t is None or not np.all(t > 0):
-        t = d.data["timestamp"]
-    return np.asarray(t, np.float64) * 1e-6
+    if t is None or np.count_nonzero(np.asarray(t) > 0) < 0.5 * len(t):
+        return np.asarray(d.data["timestamp"], np.float64) * 1e-6
+    t = np.asarray(t, np.float64)
+    return np.where(t > 0, t, np.nan) * 1e-6
 
 
 def _rate(t: np.ndarray) -> float:
+    t = t[np.isfinite(t)]
     return float(1.0 / np.median(np.diff(t))) if len(t) >= 2 and np.median(np.diff(t)) > 0 \
         else 0.0  # fmt: skip
 
@@ -276,8 +281,19 @@ def read_ulog(path: str | os.PathLike, topic: str | None = None,
     """
     src = str(path)
     found = _load(path, src)
+    try:
+        return _read(found, topic, mag_topic, src)
+    except (KeyError, IndexError, ValueError) as exc:  # a damaged format definition
+        raise InputError(f"{src}: damaged ULog (a topic lacks a field its message has: "
+                         f"{one_line_reason(exc)})") from None  # fmt: skip
+
+
+def _read(found: dict, topic: str | None, mag_topic: str | None, src: str) -> Channels:
     kind, instance, warnings = _choose(found, topic, src)
     t_a, acc, t_g, gyr = _samples(found, kind, instance)
+    ok_a, ok_g = np.isfinite(t_a), np.isfinite(t_g)  # a row whose sample time was unset
+    unset = int((~ok_a).sum() + (~ok_g).sum())
+    t_a, acc, t_g, gyr = t_a[ok_a], acc[ok_a], t_g[ok_g], gyr[ok_g]
     if min(len(t_a), len(t_g)) < 2:
         raise InputError(f"{src}: {kind.name} instance {instance} holds {min(len(t_a), len(t_g))} "
                          "samples")  # fmt: skip
@@ -303,7 +319,7 @@ def read_ulog(path: str | os.PathLike, topic: str | None = None,
         notes.append(f"{kind.name} holds PX4's calibrated values: a calibration of them is "
                      "what remains after PX4's own")  # fmt: skip
     ch = Channels(time=time[keep], accel=acc[keep], gyro=gyr[keep], accel_units="m/s^2",
-                  gyro_units="rad/s", notes=notes, dropped=int((~keep).sum()),
+                  gyro_units="rad/s", notes=notes, dropped=int((~keep).sum()) + unset,
                   unpaired=int(len(t_a) + len(t_g) - 2 * len(ia)), warnings=warnings)  # fmt: skip
     rate = _rate(ch.time)
     if rate < MIN_RATE_HZ:
