@@ -116,6 +116,7 @@ def test_prefixed_lines_count_an_empty_field_as_malformed(tmp_path, fmt, make, b
     assert rec.malformed == 1 and len(rec.accel) == N - 1
     keep = np.delete(np.arange(N), 40)
     np.testing.assert_array_equal(np.hstack([rec.accel, rec.gyro]), data[keep, 1:])
+    np.testing.assert_allclose(rec.time, keep / 100.0)  # the lost line leaves its gap
     proto = PrefixedLineProtocol()  # capture reads the line alike
     block = proto.feed(("\n".join(lines) + "\n").encode(), 1.0)
     assert proto.stats["malformed"] == 1 and len(block) == N - 1

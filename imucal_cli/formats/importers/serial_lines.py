@@ -119,7 +119,8 @@ def read_serial_lines(
                          "(the sketch's sample rate, Hz)")  # fmt: skip
     prefix, count, what = LINE_FORMATS[fmt]
     rec = LineRecording(np.empty(0), np.empty((0, 3)), np.empty((0, 3)), None, fmt)
-    rows = []
+    rows, slots = [], []
+    slot = 0  # each line of the format is one sample period, a malformed one too
     for number, line in enumerate(split_lines(text), 1):
         if not line.strip(BLANK):
             continue
@@ -128,18 +129,21 @@ def read_serial_lines(
             rec.skipped += 1
             continue
         values = parse_line(fmt, line)
+        slot += 1
         if values is None:
             rec.malformed += 1
             rec.first_malformed = rec.first_malformed or f"{src}:{number}"
             continue
         rows.append(values)
+        slots.append(slot - 1)
     if not rows:
         raise InputError(f"{src}: no complete {prefix} line ({count} numbers)")
     data = np.asarray(rows, np.float64)
-    rec.time = np.arange(len(data)) / float(rate_hz)
+    rec.time = np.asarray(slots, np.float64) / float(rate_hz)  # a malformed line leaves a gap
     rec.accel, rec.gyro = data[:, 0:3], data[:, 3:6]
     rec.mag = data[:, 6:9] if count == 9 else None
-    rec.notes.append(f"{what}; time = sample / {rate_hz:g} Hz")
+    rec.notes.append(f"{what}; time = line of the format / {rate_hz:g} Hz (a malformed line "
+                     "leaves its gap)")
     if fmt == "motioncal":
         rec.notes.append("MotionCal's sketches scale to 8192 counts per g, 16 per deg/s, 10 per "
                          "uT")  # fmt: skip
