@@ -105,7 +105,9 @@ IMPORTS = (
         ("test_import_formats.py::test_motioncal_and_i2cdevlib_lines",
          "test_line_fields.py::test_prefixed_lines_count_an_empty_field_as_malformed"),
         "raw counts, time = line of the format / --rate (a malformed line leaves its gap)",
-        "other lines (Uni:, Cal1:, banners); a line with an empty field (counted)"),
+        # the format has no time: lines merged by damage (a lost line break) cannot be told
+        "other lines (Uni:, Cal1:, banners); a line with an empty field (counted); no time of "
+        "its own: lines merged by a lost line break shift the later times"),
     Row("import", "witmotion", "WitMotion 0x55 frames (0x50 time, 0x51 accel, 0x52 gyro, 0x54 "
         "mag)",
         (("numpy", "2.0"),),

@@ -222,7 +222,7 @@ def _text_lines(folder: Path, kind: str) -> Base:
     path.write_text("\n".join(lines) + "\n")
     data = path.read_bytes()
     return Base(f"{kind} lines", "lines", [path], path, np.arange(N) / RATE,
-                np.hstack([ra, rw]).astype(float), True, False,
+                np.hstack([ra, rw]).astype(float), False, False,  # no time of their own
                 _anchors(data, [[(ln + "\n").encode()] for ln in lines]), (0, 70),
                 {"rate_hz": RATE})  # fmt: skip
 
