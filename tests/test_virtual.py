@@ -235,9 +235,14 @@ def test_signal_before_any_data_saves_nothing(tmp_path, server_factory, signum, 
     server = server_factory("--plan", "six", "--stall-after", "0")
     out = tmp_path / "none.h5"
     cap = start_capture(server.path, out, "--duration", "30", "--wait-timeout", "20")
-    time.sleep(2.0)
+    said = []  # wait for the capture to say it waits (a fixed sleep lost the race under load)
+    while not said or "waiting for data" not in said[-1]:
+        line = cap.stderr.readline()
+        assert line, ("the capture ended before waiting", said)
+        said.append(line)
     cap.send_signal(signum)
-    stdout, stderr = cap.communicate(timeout=60)
+    stdout, rest = cap.communicate(timeout=60)
+    stderr = "".join(said) + rest
     assert cap.returncode == code, (stdout, stderr)
     last = stderr.splitlines()[-1]
     assert last.startswith(words) and last.endswith(": no file written"), last
