@@ -8,6 +8,14 @@ Rows:
   CRLF, a BOM, a cut, a duplicated or swapped line, an extra or missing field, a long line),
   read in-process (one in ten imported whole, with segmentation); the first 10 also through
   ``imucal import`` for the real exit status;
+* every other importer (issue 26): 400 damaged copies per format (60 with ``--quick``) of a
+  file its own writer library made (ROS 1/2 bags, MCAP of ROS 1 and 2 with and without a
+  summary, ULog raw and FIFO topics, telemetry logs, DataFlash IMU, ACC/GYR, ISBH/ISBD and text
+  logs, MotionCal and i2cdevlib lines, WitMotion frames, imu_tk pairs, EuRoC CSV): bits
+  flipped, bytes set, lengths set to 0x7fffffff, blocks zeroed or copied, cuts; each accepted
+  file's rows checked against the values and times written (``tests/format_fuzz.py``): a row
+  that is not the file's own is silently wrong, unless the format has no checksum over it and
+  the damage hit that sample's bytes (counted as "read as damaged");
 * capture faults through the virtual serial port (``imucal simulate --serve`` ->
   ``imucal capture``): clean, garbage, malformed lines, a stall, the device vanishing, Ctrl-C,
   SIGTERM, SIGHUP, ``kill -9``;
@@ -367,6 +375,79 @@ def _cli_import(path: Path, columns: str | None, kind: str) -> str:
 
 
 # --------------------------------------------------------------------------------------------
+# Every other importer: damaged files of each format (tests/format_fuzz.py), judged by the oracle
+# --------------------------------------------------------------------------------------------
+
+
+def fuzz_formats(folder: Path, n_files: int, seed: int = 26) -> list[Row]:
+    """Per format (:data:`tests.format_fuzz.MAKERS`), ``n_files`` damaged copies of a file its
+    writer library made, each read by ``imucal import``'s reader in-process (the first two
+    also through ``imucal import`` for the real exit status) and judged: a one-line error with
+    exit 2, or values that are the file's own (:func:`tests.format_fuzz.judge`; rows read from
+    bytes the damage hit, in a format without a checksum, are counted as read as damaged)."""
+    from imucal_cli.formats.importers import read_recording
+    from tests.format_fuzz import MAKERS, judge, mutate, place
+
+    rows = []
+    for name, make in MAKERS.items():
+        work = folder / f"fmt-{name}"
+        (work / "base").mkdir(parents=True)
+        base = make(work / "base")
+        row = Row(f"damaged {base.name}")
+        kind, value, took = _timed(lambda b=base: read_recording(b.paths, b.fmt, **b.options))
+        if kind != "ok" or judge(base, value, []).verdict != "handled":
+            row.add("silent wrong" if kind == "ok" else "traceback", f"the undamaged file: {value}")
+        original = base.target.read_bytes()
+        rng = np.random.default_rng(seed)
+        damaged_rows = wrong_rows = 0
+        for n in range(n_files):
+            data, ranges, what = mutate(original, rng)
+            paths = place(base, data, work)
+            kind, value, took = _timed(
+                lambda p=paths, b=base: read_recording(p, b.fmt, **b.options))
+            where = f"file {n} ({what}, {took}): {str(value)[:100]}"
+            if kind == "ok":
+                verdict = judge(base, value, ranges)
+                damaged_rows += verdict.damaged
+                wrong_rows += verdict.wrong
+                if verdict.verdict != "handled":
+                    row.add(verdict.verdict, f"{where}: {verdict.detail}", took)
+                    continue
+            if kind == "error" and getattr(value, "exit_code", 2) != 2:
+                row.add("wrong exit", where, took)
+                continue
+            verdict = _verdict(kind, value, took, "either")
+            if verdict == "handled" and n < 2:
+                verdict = _cli_format(paths, base, kind)
+            row.add(verdict, where, took)
+        row.name += f" ({damaged_rows} rows read as damaged, {wrong_rows} silently wrong)"
+        rows.append(row)
+    return rows
+
+
+def _cli_format(paths: list[Path], base, kind: str) -> str:
+    """``imucal import`` of a damaged file: exit 0 when the reader accepted it (or 2 when the
+    segmentation finds no still period in what is left), else exit 2 with one line."""
+    args = [*CLI, "import", *map(str, paths), "-o", str(paths[0].with_suffix(".h5")), "--force",
+            "--format", base.fmt]  # fmt: skip
+    if "rate_hz" in base.options:
+        args += ["--rate", str(base.options["rate_hz"])]
+    if "topic" in base.options:
+        args += ["--topic", base.options["topic"]]
+    try:
+        proc = subprocess.run(args, capture_output=True, text=True, timeout=120)
+    except subprocess.TimeoutExpired:
+        return "hang"
+    if "Traceback" in proc.stderr:
+        return "traceback"
+    if proc.returncode not in ((0, 2) if kind == "ok" else (2,)):
+        return "wrong exit"
+    if proc.returncode == 2 and len(proc.stderr.strip().splitlines()) != 1:
+        return "wrong exit"
+    return "handled"
+
+
+# --------------------------------------------------------------------------------------------
 # Capture faults through the virtual serial port
 # --------------------------------------------------------------------------------------------
 
@@ -652,6 +733,7 @@ def run(console: Console, quick: bool = False) -> bool:
         for name, part in [
             ("hostile files", lambda: hostile_rows(folder)),
             ("import fuzzer", lambda: [fuzz_imports(folder, n_files)]),
+            ("format fuzzer", lambda: fuzz_formats(folder, 60 if quick else 400)),
             ("capture faults", lambda: capture_rows(folder)),
             ("disk full", lambda: disk_full_rows(folder)),
             ("concurrent", lambda: concurrent_rows(folder)),

@@ -19,6 +19,7 @@ The capture pipeline has three replaceable parts:
 from __future__ import annotations
 
 import errno
+import re
 import time as _time
 
 import numpy as np
@@ -71,10 +72,25 @@ def host_stamps(
 _SEPARATORS = bytes.maketrans(b",;\t", b"   ")
 
 
+#: Two separators around an empty field: a comma or semicolon, blanks, another one; or two
+#: tabs with only spaces between (issue 26: ``1,,3`` must not become the fields 1 and 3).
+_EMPTY_FIELD = re.compile(rb"[,;][ \t]*[,;]|\t *\t")
+
+
+def _lines_with_empty_fields(text: bytes) -> frozenset[int]:
+    """Indices of the ``\n``-separated lines of ``text`` that hold an empty field."""
+    found = [m.start() for m in _EMPTY_FIELD.finditer(text)]
+    if not found:
+        return frozenset()
+    breaks = np.flatnonzero(np.frombuffer(text, np.uint8) == ord("\n"))
+    return frozenset(np.searchsorted(breaks, found).tolist())
+
+
 class LineProtocol:
     """Text lines of numbers, as Arduino and ESP32 sketches print them.
 
-    A line is numbers separated by commas, semicolons, spaces or tabs (any mix), ended by
+    A line is numbers separated by commas, semicolons, spaces or tabs (any mix; two separators
+    around an empty field make it malformed), ended by
     ``\\n``, ``\\r\\n`` or ``\\r``; :class:`~imucal_cli.formats.columns.ColumnSpec` says which
     number is which channel.  Nothing in a line is ever fatal:
 
@@ -135,18 +151,19 @@ class LineProtocol:
                                              stats)  # fmt: skip
         if text is None:
             return SampleBlock.empty()
+        empty = _lines_with_empty_fields(text)
         text = text.translate(_SEPARATORS)
         n_fields = self.columns.n_fields
         tokens: list[bytes] = []
         n_good = 0
-        for line in text.split(b"\n"):
+        for k, line in enumerate(text.split(b"\n")):
             fields = line.split()
             if not fields:
                 continue
             stats["lines"] += 1
             if fields[0][:1] == b"#":
                 stats["comments"] += 1
-            elif len(fields) != n_fields:
+            elif len(fields) != n_fields or k in empty:
                 stats["malformed"] += 1
             else:
                 if self._skipped:  # `_` fields may hold anything (a text tag): read as 0
