@@ -487,61 +487,99 @@ def _mount_tmpfs(path: Path, size: str) -> bool:
 
 def disk_full_rows(folder: Path) -> list[Row]:
     """Captures into a tmpfs too small for them (or with ENOSPC injected when it cannot be
-    mounted): the capture must stop, exit 3, keep every sample it says it saved, and count
-    the ones it could not write."""
-    import h5py
+    mounted).  A capture that fills the disk must stop in time (issue 24.3): exit 3 with
+    ``ended: disk-full``, the file closed cleanly (plain HDF5 opens it) holding every sample
+    it received and every segment it reported, and ``capture --resume`` must continue it once
+    there is space (the tmpfs grown).  Injected write failures (another program filling the
+    disk) must lose nothing when freeing the reserve is enough, and otherwise keep every
+    sample written before and say how many were lost."""
+    mount = folder / "small"
+    row = Row("disk full")
+    for k, size in enumerate(("96k", "256k", "2m")):
+        real = _mount_tmpfs(mount, size)
+        if not real:
+            break
+        row.name = "disk full (tmpfs 96 KiB .. 2 MiB, resumed; injected ENOSPC)"
+        try:
+            row.add(*_tmpfs_disk_full(mount, k, size))
+        finally:
+            subprocess.run(["umount", str(mount)], check=False)
+    if row.counts["cases"] == 0:
+        row.name = "disk full (injected ENOSPC; tmpfs needs root)"
+    for k, mode in enumerate(("transient", "permanent", "permanent")):
+        row.add(*_injected_disk_full(folder, k, mode))
+    return [row]
 
+
+def _tmpfs_disk_full(mount: Path, k: int, size: str) -> tuple[str, str]:
+    """One capture into a ``size`` tmpfs (a 1 kHz stream: it fills), then resumed (run 0)."""
+    out = mount / f"full{k}.h5"
+    cap = _serve_and_capture(out, "--duration", "120")
+    detail = f"{size}: exit {cap.returncode}: {cap.stdout.strip()[-160:]}"
+    if "Traceback" in cap.stderr:
+        return "traceback", cap.stderr[-160:]
+    if cap.returncode != 3 or "disk-full" not in cap.stdout:
+        return "wrong exit", detail
+    found = _session_as_said(out, cap.stdout)
+    if found is not None:
+        _keep_for_study(out, mount.parent)
+        return "data lost", f"{size}: {found}; {detail}"
+    if k == 0:  # space freed: the capture goes on in the same file
+        before = _held(out).time.size
+        subprocess.run(["mount", "-o", "remount,size=8m", str(mount)], check=False)
+        more = _serve_and_capture(out, "--duration", "3", resume=True)
+        if more.returncode not in (0, 3) or "Traceback" in more.stderr:
+            return "wrong exit", f"{size}: resumed: exit {more.returncode}: {more.stderr[-160:]}"
+        after = _held(out).time.size
+        if after <= before:
+            return "data lost", f"{size}: resumed: {before} -> {after} samples"
+        detail += f"; resumed: {before} -> {after} samples"
+    return "handled", detail
+
+
+def _serve_and_capture(out: Path, *args: str, resume: bool = False):
+    server, port = _server("--plan", "six", "--loop", "--rate", "1000", "--baud", "921600")
+    target = ["--resume", str(out)] if resume else ["--output", str(out)]
+    try:
+        return subprocess.run([*CLI, "capture", "--port", port, "--baud", "921600", *target,
+                               "--no-prompt", *args, "--columns", "t,ax,ay,az,gx,gy,gz,temp"],
+                              capture_output=True, text=True, timeout=180)  # fmt: skip
+    finally:
+        server.kill()
+        server.communicate()
+
+
+def _held(path: Path):
     from imucal_cli.formats.session import read_session
 
-    mount = folder / "small"
-    real = _mount_tmpfs(mount, "2m")
-    row = Row("disk full (" + ("2 MiB tmpfs" if real else "injected ENOSPC") + ")")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return read_session(path)
+
+
+def _session_as_said(out: Path, stdout: str) -> str | None:
+    """What is wrong with a session against the capture's summary (None: nothing): closed
+    cleanly, every sample received in it, no NaN row, the segments it reported."""
+    import h5py
+
     try:
-        for k in range(3):
-            if not real:
-                row.add(*_injected_disk_full(folder, k))
-                continue
-            out = mount / f"full{k}.h5"
-            server, port = _server("--plan", "six", "--loop", "--rate", "1000",
-                                   "--baud", "921600")  # fmt: skip
-            cap = subprocess.run([*CLI, "capture", "--port", port, "--baud", "921600",
-                                  "--output", str(out), "--no-prompt", "--duration", "120",
-                                  "--columns", "t,ax,ay,az,gx,gy,gz,temp"],
-                                 capture_output=True, text=True, timeout=180)  # fmt: skip
-            server.kill()
-            server.communicate()
-            detail = f"run {k}: exit {cap.returncode}: {cap.stdout.strip()[-160:]}"
-            if "Traceback" in cap.stderr:
-                row.add("traceback", cap.stderr[-160:])
-                continue
-            if cap.returncode != 3 or "disk-full" not in cap.stdout:
-                row.add("wrong exit", detail)
-                continue
-            try:
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")
-                    held = read_session(out)
-                n = held.time.size
-                with h5py.File(out, "r"):
-                    pass
-            except Exception as exc:  # noqa: BLE001 - a session that cannot be read is lost
-                row.add("data lost", f"run {k}: unreadable after the capture: {exc}")
-                _keep_for_study(out, folder)
-                continue
-            saved = re.search(r"saved (\d+) samples", cap.stdout)
-            lines = re.search(r"lines (\d+), comments (\d+), malformed (\d+)", cap.stdout)
-            lost = re.search(r"(\d+) received samples could not be written", cap.stdout)
-            received = int(lines[1]) - int(lines[2]) - int(lines[3])
-            lost_n = int(lost[1]) if lost else 0
-            holes = int((~np.isfinite(held.accel)).any(axis=1).sum())  # NaN: fill, not data
-            ok = saved and int(saved[1]) == n and received - lost_n == n and holes == 0
-            detail += f"; {holes} NaN rows" if holes else ""
-            row.add("handled" if ok else "data lost", detail)
-            out.unlink()
-    finally:
-        if real:
-            subprocess.run(["umount", str(mount)], check=False)
-    return [row]
+        held = _held(out)
+        with h5py.File(out, "r"):
+            pass  # closed cleanly: plain HDF5 opens it
+    except Exception as exc:  # noqa: BLE001 - a session that cannot be read is lost
+        return f"unreadable after the capture: {exc}"
+    n = held.time.size
+    saved = re.search(r"saved (\d+) samples", stdout)
+    lines = re.search(r"lines (\d+), comments (\d+), malformed (\d+)", stdout)
+    segments = re.search(r"(\d+) static and (\d+) rotation segments", stdout)
+    received = int(lines[1]) - int(lines[2]) - int(lines[3])
+    holes = int((~np.isfinite(held.accel)).any(axis=1).sum())  # NaN: fill, not data
+    said_segments = int(segments[1]) + int(segments[2])
+    if not saved or int(saved[1]) != n or received != n or holes:
+        return f"received {received}, said {saved and saved[1]}, file {n}, {holes} NaN rows"
+    if len(held.segments) != said_segments or "could not be written" in stdout:
+        return f"{said_segments} segments said, {len(held.segments)} in the file"
+    return None
 
 
 def _keep_for_study(path: Path, folder: Path) -> None:
@@ -552,19 +590,23 @@ def _keep_for_study(path: Path, folder: Path) -> None:
     print(f"  kept {keep}", file=sys.stderr)
 
 
-def _injected_disk_full(folder: Path, k: int) -> tuple[str, str]:
+def _injected_disk_full(folder: Path, k: int, mode: str) -> tuple[str, str]:
+    """ENOSPC from the ``/raw`` writes after 40 reads: ``transient`` fails once (freeing the
+    reserve makes room: nothing may be lost), ``permanent`` always (what was written before
+    stays, the rest is counted as lost, a segment over it is left out, none raises)."""
     import h5py
 
     from imucal_cli.capture.recorder import Recorder
     from imucal_cli.capture.stream import LineProtocol
     from imucal_cli.formats.columns import ColumnSpec
-    from imucal_cli.formats.session import read_session
 
-    state = {"reads": 0}
+    state = {"reads": 0, "failures": 0}
     original = h5py.Dataset.__setitem__
 
     def setitem(ds, key, value):
-        if state["reads"] > 20 + 10 * k and ds.name.startswith("/raw"):
+        failing = mode == "permanent" or state["failures"] == 0
+        if state["reads"] > 40 + 10 * k and ds.name.startswith("/raw") and failing:
+            state["failures"] += 1
             raise OSError(28, "No space left on device")
         return original(ds, key, value)
 
@@ -573,6 +615,7 @@ def _injected_disk_full(folder: Path, k: int) -> tuple[str, str]:
 
         def read(self):
             state["reads"] += 1
+            time.sleep(0.02)  # 50 lines at 1 kHz every 20 ms or more: flushed as it goes
             n0 = state["reads"] * 50
             return b"".join(f"{(n0 + i) * 0.001:.3f},0,0,9.8,0,0,0\n".encode() for i in range(50))
 
@@ -587,17 +630,25 @@ def _injected_disk_full(folder: Path, k: int) -> tuple[str, str]:
     try:
         rec = Recorder(out, Source(), LineProtocol(ColumnSpec.parse("t,ax,ay,az,gx,gy,gz")))
         for _ in rec.blocks():
-            if state["reads"] > 200:
+            if state["reads"] > 80:
                 rec.stop()
+        rec.add_segment("static", 0, 50, label="before")
+        rec.add_segment("static", rec.n_samples - 50 + rec.samples_lost, rec.n_samples
+                        + rec.samples_lost, label="after")  # fmt: skip
         rec.close()
+    except Exception as exc:  # noqa: BLE001 - counted as a traceback
+        return "traceback", f"injected {k} ({mode}): {type(exc).__name__}: {exc}"[:160]
     finally:
         h5py.Dataset.__setitem__ = original
     received = rec.protocol.stats["samples"]
-    n = read_session(out).time.size
+    held = _held(out)
+    n = held.time.size
+    detail = f"injected {k} ({mode}): {n} of {received}, {len(held.segments)} segments"
     if rec.end_kind != "disk-full":
-        return "wrong exit", f"injected {k}: ended {rec.end_kind}"
-    ok = n == received - rec.samples_lost
-    return ("handled" if ok else "data lost"), f"injected {k}: {n} of {received}"
+        return "wrong exit", f"{detail}: ended {rec.end_kind}"
+    lost_ok = rec.samples_lost == 0 if mode == "transient" else n > 0
+    ok = n == received - rec.samples_lost and lost_ok and len(held.segments) >= 1
+    return ("handled" if ok else "data lost"), detail
 
 
 # --------------------------------------------------------------------------------------------

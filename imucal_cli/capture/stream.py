@@ -506,6 +506,7 @@ class SerialSource:
             self._serial = serial.Serial(self.port, self.baud, timeout=timeout_s)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise _open_error(self.port, self.baud, exc) from None
+        self.opened_at = _time.monotonic()  #: when the port opened (host monotonic clock), s
 
     @property
     def uri(self) -> str:

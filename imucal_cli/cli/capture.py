@@ -182,14 +182,17 @@ def capture(
         summary = _record(recorder, plan_obj, guided, console, status, duration=duration,
                           min_still_s=min_still, hold_s=hold, done_before=done_before)
     finally:
-        recorder.close()
+        if recorder.end_kind == "clock":  # stamps in the wrong unit: no session (exit 2)
+            recorder.discard()
+        else:
+            recorder.close()
     _nothing_saved(recorder, out, err)
     if json_output:
         print_json(_summary_json(out, recorder, summary))
     else:
         _print_summary(console, out, recorder, summary)
     sys.stdout.flush()
-    if not summary.complete:
+    if not _complete(recorder, summary):
         raise typer.Exit(EXIT_INCOMPLETE)
 
 
@@ -266,13 +269,15 @@ def _record(recorder, plan, guided, console: Console, status, *, duration: float
 
 
 def _nothing_saved(recorder, out: Path, err: Console) -> None:
-    """End a capture that has no session to show: time stamps off by a unit (the file keeps
-    its samples), or no sample came at all (no file: exit 2, as for bad input, or 130 after
+    """End a capture that has no session to show: time stamps off by a unit (what it recorded
+    was discarded), or no sample came at all (no file: exit 2, as for bad input, or 130 after
     Ctrl-C, the README's statuses for nothing saved)."""
     from rich.markup import escape
 
     if recorder.end_kind == "clock":  # issue 10.5: a time unit off by a factor
-        raise InputError(f"{recorder.end_reason} ({out} keeps the {recorder.n_samples} samples)")
+        kept = (f"{out} keeps only its {recorder.resumed_from} earlier samples"
+                if recorder.resumed_from else "nothing saved")  # fmt: skip
+        raise InputError(f"{recorder.end_reason} ({kept})")
     if recorder.file_written:
         return
     if recorder.end_kind == "timeout":
@@ -337,22 +342,31 @@ def _done_before(path: Path, guided: bool) -> list:
 
 
 def _summary_json(out: Path, recorder, summary) -> dict:
+    """The summary for scripts and benches: rates and durations in device time, how the
+    capture ended, and this capture's samples received, written and lost."""
     segs = recorder.segments
     n_static = sum(1 for s in segs if s["kind"] == "static")
-    st = summary.stats
+    st = recorder.stats
     return {
         "format": "imucal-capture", "format_version": 1, "output": str(out),
-        "complete": bool(summary.complete), "done": list(summary.done),
+        "complete": _complete(recorder, summary), "done": list(summary.done),
         "skipped": list(summary.skipped), "missing": list(summary.missing),
-        "end": recorder.end_kind, "end_reason": summary.end_reason,
-        "samples": int(summary.samples), "static_segments": n_static,
+        "end": recorder.end_kind, "end_reason": recorder.end_reason or summary.end_reason,
+        "samples": int(recorder.n_samples), "static_segments": n_static,
         "rotation_segments": len(segs) - n_static,
         "labelled_segments": sum(1 for s in segs if "label" in s),
         "lines": int(st.get("lines", 0)), "comments": int(st.get("comments", 0)),
-        "malformed": int(st.get("malformed", 0)), "duration_s": float(st.get("duration_s", 0.0)),
-        "rate_hz": float(st.get("rate_hz", 0.0)),
+        "malformed": int(st.get("malformed", 0)), "duration_s": float(st["duration_s"]),
+        "rate_hz": float(st["rate_hz"]), "wall_s": float(st["wall_s"]),
+        "samples_received": int(st["received"]), "samples_written": int(st["written"]),
+        "samples_lost": int(st["lost"]), "segments_left_out": int(recorder.segments_left_out),
         "resumed_from": int(recorder.resumed_from),
     }  # fmt: skip
+
+
+def _complete(recorder, summary) -> bool:
+    """Complete: every step seen, and nothing of it lost to a full disk."""
+    return bool(summary.complete) and not recorder.samples_lost and not recorder.segments_left_out
 
 
 def check_mag_options(mag_units: str | None, field_ut: float | None) -> None:
@@ -368,16 +382,16 @@ def check_mag_options(mag_units: str | None, field_ut: float | None) -> None:
 def _print_summary(console: Console, out: Path, recorder, summary) -> None:
     from rich.markup import escape
 
-    st = summary.stats
+    st = recorder.stats  # after closing: what the file holds
     segs = recorder.segments
     n_static = sum(1 for s in segs if s["kind"] == "static")
     n_rot = len(segs) - n_static
     n_labelled = sum(1 for s in segs if "label" in s)
     kind = recorder.end_kind
-    why = "" if kind == "done" else f": {summary.end_reason}"
+    why = "" if kind == "done" else f": {recorder.end_reason or summary.end_reason}"
     new = " new" if recorder.resumed_from else ""
     console.print(
-        f"saved {summary.samples} samples to {escape(str(out))}: {n_static}{new} static and "
+        f"saved {recorder.n_samples} samples to {escape(str(out))}: {n_static}{new} static and "
         f"{n_rot}{new} rotation segments ({n_labelled} labelled)",
         highlight=False,
         soft_wrap=True,
@@ -392,7 +406,10 @@ def _print_summary(console: Console, out: Path, recorder, summary) -> None:
         highlight=False,
         soft_wrap=True,
     )
-    if summary.complete:
+    if recorder.segments_left_out:
+        console.print(f"  {recorder.segments_left_out} segments left out: their samples could "
+                      "not be written", highlight=False, soft_wrap=True)  # fmt: skip
+    if _complete(recorder, summary):
         done = f" ({len(summary.done)} steps seen)" if summary.done else ""
         console.print(f"  complete{done}", highlight=False, soft_wrap=True)
     else:
