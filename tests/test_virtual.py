@@ -76,6 +76,16 @@ def wait_for_file(path: Path, proc: subprocess.Popen, timeout: float = 120.0) ->
         time.sleep(0.05)
 
 
+def wait_for_line(stream, words: str) -> str:
+    """Read ``stream`` (a process's text output) until a line holds ``words``; what was read."""
+    read = ""
+    for line in stream:
+        read += line
+        if words in line:
+            return read
+    raise AssertionError(f"never said {words!r}: {read}")
+
+
 def saved_samples(stdout: str) -> int:
     m = re.search(r"saved (\d+) samples", stdout)
     assert m, stdout
@@ -235,9 +245,10 @@ def test_signal_before_any_data_saves_nothing(tmp_path, server_factory, signum, 
     server = server_factory("--plan", "six", "--stall-after", "0")
     out = tmp_path / "none.h5"
     cap = start_capture(server.path, out, "--duration", "30", "--wait-timeout", "20")
-    time.sleep(2.0)
+    said = wait_for_line(cap.stderr, "waiting for data on")  # recording, no sample yet
     cap.send_signal(signum)
     stdout, stderr = cap.communicate(timeout=60)
+    stderr = said + stderr
     assert cap.returncode == code, (stdout, stderr)
     last = stderr.splitlines()[-1]
     assert last.startswith(words) and last.endswith(": no file written"), last

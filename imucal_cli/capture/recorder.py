@@ -66,6 +66,9 @@ _SIGNALS = {
     ),
 }
 
+NOTE_MIN_BYTES = 512
+"""Bytes without a complete line before a capture that ended says what they were."""
+
 STATUS_REPEAT_S = 5.0
 """While waiting for data, the waiting message is repeated this often."""
 
@@ -402,13 +405,18 @@ class Recorder:
             f"cannot write ({exc.reason}): stopped; {lost}, the session holds {writer.n_written}",
         )
 
-    def _check_end(self, now: float) -> CaptureEnded | None:
+    def _check_end(self, now: float, idle: bool) -> CaptureEnded | None:
+        """Why the recording ends now, or None.  The timeouts are judged only after a read
+        that brought no sample (``idle``): a host that did not read for a while (busy,
+        suspended) finds the samples waiting, not a stalled device."""
         what = self.source.describe()
         if self._signal_kind is not None:
             kind, name = _SIGNALS[self._signal_kind]
             return CaptureEnded(kind, f"stopped by {name}")
         if self._stop:
             return CaptureEnded("done", "done")
+        if not idle:
+            return None
         if self._t_last_sample is None:
             if now - self._t0 >= self.wait_timeout_s:
                 return CaptureEnded("timeout", self._no_data_reason(what))
@@ -446,8 +454,11 @@ class Recorder:
     def received_note(self) -> str:
         """For a capture that ended before its first sample: what did arrive and why none of
         it was a sample ("" when nothing arrived)."""
-        if self.n_samples > self.resumed_from or self.protocol.stats.get("bytes", 0) == 0:
+        stats = self.protocol.stats
+        if self.n_samples > self.resumed_from or stats.get("bytes", 0) == 0:
             return ""
+        if stats.get("lines", 0) == 0 and stats.get("bytes", 0) < NOTE_MIN_BYTES:
+            return ""  # the first bytes of a first line: too early to tell anything
         return self._no_data_reason(self.source.describe(), within="")
 
     def blocks(self, tick_s: float = 0.1) -> Iterator[SampleBlock]:
@@ -478,10 +489,10 @@ class Recorder:
         self._status(f"waiting for data on {what}")
         last_yield = last_status = now
         last_flush = now
-        dirty = False
+        dirty, idle = False, True
         try:
             while True:
-                ended = self._check_end(now)
+                ended = self._check_end(now, idle)
                 if ended is not None:
                     self.end_kind, self.end_reason = ended.kind, ended.reason
                     break
@@ -493,6 +504,7 @@ class Recorder:
                     break
                 now = _time.monotonic()
                 block = self.protocol.feed(data, now - self._t0) if data else SampleBlock.empty()
+                idle = not len(block)
                 if len(block):
                     ended = self._received(block, now, what)
                     if ended is not None:

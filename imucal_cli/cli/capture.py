@@ -186,6 +186,7 @@ def capture(
             recorder.discard()
         else:
             recorder.close()
+        _saved_stays_saved(recorder)
     _nothing_saved(recorder, out, err)
     if json_output:
         print_json(_summary_json(out, recorder, summary))
@@ -266,6 +267,16 @@ def _record(recorder, plan, guided, console: Console, status, *, duration: float
                               on_status=status, done_before=done_before)  # fmt: skip
     return guided.run_guided(recorder, plan, console=console, keys=guided.StdinKeys(),
                              hold_s=hold_s, done_before=done_before)  # fmt: skip
+
+
+def _saved_stays_saved(recorder) -> None:
+    """Once the session is saved and closed, Ctrl-C no longer changes the outcome: the
+    summary is printed and the status is the README's for what was saved (never 130)."""
+    import signal
+    import threading
+
+    if recorder.file_written and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, lambda signum, frame: None)
 
 
 def _nothing_saved(recorder, out: Path, err: Console) -> None:
