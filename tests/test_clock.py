@@ -48,7 +48,7 @@ def test_a_host_stall_is_left_out():
     h = h.copy()
     h[5000:5150] += 1.5  # the host stopped reading for 1.5 s; the samples came late
     est = estimate_clock_scale(d, h)
-    assert est.bins_dropped >= 1
+    assert est.backlog_reads >= 100  # the late reads, before the host caught up
     assert abs(est.ppm - 2000.0) < 4.5 * est.ppm_std + 1.0
 
 

@@ -485,6 +485,9 @@ class Recorder:
             raise RuntimeError("Recorder.blocks() runs once")
         self._t0 = now = _time.monotonic()
         what = self.source.describe()
+        set_origin = getattr(self.protocol, "set_origin", None)
+        if set_origin is not None:  # host-stamped lines: none was sent before the port opened
+            set_origin(min(self._t_open - self._t0, 0.0))
         self._install_signals()
         self._status(f"waiting for data on {what}")
         last_yield = last_status = now

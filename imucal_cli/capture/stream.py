@@ -114,6 +114,12 @@ class LineProtocol:
         self._behind = 0  # consecutive samples not after the last kept one
         self._dt = 0.0  # recent sample interval, s (for a resync)
 
+    def set_origin(self, host_time: float) -> None:
+        """When the stream could start (the port opened), host clock, s: the first lines,
+        host-stamped, are spread from there to their arrival (not crowded before it)."""
+        if self._last_host is None:
+            self._last_host = float(host_time)
+
     def feed(self, data: bytes, host_time: float) -> SampleBlock:
         """Parse the complete lines of ``data`` (after what was left over by the last call).
 
@@ -276,6 +282,12 @@ class PrefixedLineProtocol:
         self._last_host: float | None = None
         self._last_time: float | None = None
 
+    def set_origin(self, host_time: float) -> None:
+        """When the stream could start (the port opened), host clock, s: the first lines,
+        host-stamped, are spread from there to their arrival (not crowded before it)."""
+        if self._last_host is None:
+            self._last_host = float(host_time)
+
     @property
     def units(self) -> dict[str, str]:
         """The raw units the format fixes: counts (the magnetometer's only where it has one)."""
@@ -343,6 +355,11 @@ class AutoLineProtocol:
         self._chosen: LineProtocol | PrefixedLineProtocol | None = None
         self._held = bytearray()
         self._own = dict.fromkeys(_COUNTERS, 0)
+        self._origin: float | None = None
+
+    def set_origin(self, host_time: float) -> None:
+        """As :meth:`LineProtocol.set_origin` (passed on to the protocol chosen)."""
+        self._origin = float(host_time)
 
     @property
     def stats(self) -> dict:
@@ -371,6 +388,8 @@ class AutoLineProtocol:
         else:
             self._chosen = PrefixedLineProtocol()
         held, self._held = bytes(self._held), bytearray()
+        if self._origin is not None:
+            self._chosen.set_origin(self._origin)
         block = self._chosen.feed(held, host_time)
         if self._on_choice is not None and kind != "numbers":
             self._on_choice(f"recognised {LINE_FORMATS[kind][2]} lines (host-clock time; "
@@ -451,6 +470,12 @@ class WitMotionProtocol:
         self._last_host: float | None = None
         self._last_time: float | None = None
 
+    def set_origin(self, host_time: float) -> None:
+        """When the stream could start (the port opened), host clock, s: the first lines,
+        host-stamped, are spread from there to their arrival (not crowded before it)."""
+        if self._last_host is None:
+            self._last_host = float(host_time)
+
     def feed(self, data: bytes, host_time: float) -> SampleBlock:
         """Decode the frames of ``data``; return the samples they complete."""
         dec = self._decoder
@@ -472,6 +497,19 @@ class WitMotionProtocol:
             gyro=np.array([s.gyro for s in full], np.float64),
             temperature=np.array([s.temperature for s in full], np.float64),
         )
+
+
+DRAIN_MAX_S = 0.5
+"""Longest a read keeps reading a backlog, s (the capture's screen stays live)."""
+
+DRAIN_MAX_BYTES = 4 << 20
+"""Most bytes a read returns while it drains a backlog."""
+
+DRAIN_WAIT_S = 0.1
+"""After a read that filled the tty buffer, how long the next part of a backlog may take, s."""
+
+TTY_BUFFER_BYTES = 4000
+"""A read this long found the kernel's tty buffer (4 KiB) full: more of a backlog follows."""
 
 
 class SerialSource:
@@ -520,6 +558,11 @@ class SerialSource:
     def read(self) -> bytes:
         """Bytes received so far, or b"" after ``timeout_s`` with none.
 
+        A backlog (the host did not read for a while) is read whole, up to
+        :data:`DRAIN_MAX_S`: the serial buffer hands out a few kilobytes a read, and a drain
+        cut into reads would give its lines arrival times far closer together than they were
+        sent (host-clock stamps, the sample clock's estimate).
+
         Raises
         ------
         DeviceGone
@@ -529,15 +572,45 @@ class SerialSource:
         try:
             waiting = ser.in_waiting
             if waiting:
-                return ser.read(waiting)
+                return self._drain(ser.read(waiting))
             first = ser.read(1)
             if not first:
                 return b""
             _time.sleep(self.batch_s)
             waiting = ser.in_waiting
-            return first + ser.read(waiting) if waiting else first
+            return self._drain(first + ser.read(waiting)) if waiting else first
         except (OSError, TypeError, AttributeError) as exc:  # SerialException is an OSError
             raise DeviceGone(" ".join(str(exc).split()) or type(exc).__name__) from None
+
+    def _drain(self, data: bytes) -> bytes:
+        """``data`` and, when it filled the kernel's tty buffer (a backlog), the rest of the
+        backlog: read until no more comes within :data:`DRAIN_WAIT_S` (the next part comes a
+        moment after a read: the kernel's flip buffers, a sender blocked on the full line) or
+        only the trickle of a stream read as it comes; at most :data:`DRAIN_MAX_S`,
+        :data:`DRAIN_MAX_BYTES`."""
+        if len(data) < TTY_BUFFER_BYTES:
+            return data
+        ser, end = self._serial, _time.monotonic() + DRAIN_MAX_S
+        parts, size = [data], len(data)
+        while size < DRAIN_MAX_BYTES and _time.monotonic() < end:
+            waiting = self._wait_waiting(DRAIN_WAIT_S)
+            if not waiting:
+                break
+            more = ser.read(waiting)
+            parts.append(more)
+            size += len(more)
+            if len(more) < TTY_BUFFER_BYTES // 4 and not self._wait_waiting(self.batch_s):
+                break  # caught up
+        return b"".join(parts)
+
+    def _wait_waiting(self, limit_s: float) -> int:
+        """Bytes waiting, polled for up to ``limit_s`` until there are some (0: none came)."""
+        end = _time.monotonic() + limit_s
+        while True:
+            waiting = self._serial.in_waiting
+            if waiting or _time.monotonic() >= end:
+                return waiting
+            _time.sleep(0.001)
 
     def close(self) -> None:
         """Close the port (never raises)."""
