@@ -398,7 +398,7 @@ class Recorder:
         lost = (
             f"{self.samples_lost} received samples could not be written"
             if self.samples_lost
-            else "every sample received is written"
+            else "every sample received was written"
         )
         return CaptureEnded(
             "disk-full",

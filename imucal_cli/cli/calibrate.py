@@ -285,8 +285,8 @@ def _summary(line: Lines, cal, where: str) -> None:
         line(("temperature", BOLD), f": {cal.extra['temperature_note']}")
     clock = cal.extra.get("sample_clock") or {}
     if "ppm" in clock:
-        done = ("gyro corrected" if clock.get("applied", True) else
-                f"within {clock.get('threshold_ppm', 0.0):.3g} ppm of none: not corrected")  # fmt: skip
+        within = f"within {clock.get('threshold_ppm', 0.0):.3g} ppm of none: not corrected"
+        done = "gyro corrected" if clock.get("applied", True) else within
         line(
             ("sample clock", BOLD),
             f": {clock['ppm']:+.1f} ± {clock['ppm_std']:.1f} ppm (device s per true s - 1, "

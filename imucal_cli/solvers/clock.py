@@ -24,11 +24,11 @@ minimum-delay skew estimator (1999): the recording is cut into windows of device
 (:data:`WINDOW_S` or longer, at most :data:`MAX_WINDOWS`), the arrival with the least latency
 in each window is taken (latency against the current line; two passes; of the samples one
 read delivered together, only the newest counts: the others waited in a backlog), and a
-straight line is fitted to those minima by least squares.  While the host drains a backlog
-(the serial buffer hands it out a few kilobytes a read) even a read's newest sample is late;
-those reads are recognised as later than a read after them and left out.  A window whose least latency is far above the
-others (the host did not read at all through it: :data:`OUTLIER_MAD` median absolute
-deviations) is left out.
+straight line is fitted to those minima (Theil-Sen's median of slopes, then least squares).
+While the host drains a backlog (the serial buffer hands it out a few kilobytes a read) even
+a read's newest sample is late; those reads are recognised as later than a read after them
+and left out.  A window whose least latency is far above the others (the host did not read
+at all through it: :data:`OUTLIER_MAD` median absolute deviations) is left out.
 
 Uncertainty: the slope's standard deviation comes from the scatter of the window minima about
 the line -- the jitter of the latency floor and every window a burst or a stall lifted, as
