@@ -10,7 +10,8 @@ Rows:
   ``imucal import`` for the real exit status;
 * capture faults through the virtual serial port (``imucal simulate --serve`` ->
   ``imucal capture``): clean, garbage, malformed lines, a stall, the device vanishing, Ctrl-C,
-  SIGTERM, SIGHUP, ``kill -9``;
+  SIGTERM, SIGHUP, ``kill -9``; a busy host (two CPU burners beside, and a start-up starved
+  for seconds: the capture stopped from the device's first pose to its fourth);
 * a full disk: a capture into a small tmpfs (root), else an injected ENOSPC in-process;
 * concurrent calibrations of one session.
 
@@ -468,7 +469,72 @@ def capture_rows(folder: Path) -> list[Row]:
     for name, args, signum in cases:
         verdict, detail = _capture_case(folder, name.replace(" ", ""), args, signum)
         row.add(verdict, detail)
-    return [row]
+    busy = Row("busy host (two CPU burners; virtual port)")
+    for k, stall in enumerate((None, None, ("pose 1/6", "pose 4/6"), ("pose 1/6", "pose 4/6"))):
+        busy.add(*_busy_case(folder, f"busy{k}", stall))
+    return [row, busy]
+
+
+def _busy_case(folder: Path, name: str, stall) -> tuple[str, str]:
+    """Plan six captured unattended beside two CPU burners; with ``stall`` the capture gets no
+    CPU from the device's first status line to its second (a start-up at load 40: seconds of
+    samples wait).  Handled: complete (exit 0), every line sent in the session, the summary's
+    rate the device's (issue 24.3: 'advanced 9.17 s in 3 s of host time', exit 2, before)."""
+    import json
+
+    out = folder / f"{name}.h5"
+    burners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
+    try:
+        server, port = _server("--plan", "six", "--hold", "2", "--move", "1")
+        args = ["--port", port, "--output", str(out), "--no-prompt", "--plan", "six", "--json"]
+        cap = subprocess.Popen([*CLI, "capture", *args], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)  # fmt: skip
+        said = _stall(server, cap, stall)
+        try:
+            stdout, stderr = cap.communicate(timeout=120)
+        except subprocess.TimeoutExpired:
+            cap.kill()
+            server.kill()
+            return "hang", f"{name}: capture did not end"
+        said.join(timeout=60)
+        out_text, _ = server.communicate(timeout=60)
+    finally:
+        for b in burners:
+            b.kill()
+    m = re.search(r"# sent (\d+) lines, (\d+) malformed", out_text)
+    if "Traceback" in stderr:
+        return "traceback", f"{name}: {stderr.strip()[-120:]}"
+    if cap.returncode != 0:
+        return "wrong exit", f"{name}: exit {cap.returncode}: {stderr.strip()[-120:]}"
+    summary = json.loads(stdout)
+    n = len(_held(out).time)
+    if m is None or n != int(m[1]) - int(m[2]) or summary["samples"] != n:
+        return "data lost", f"{name}: sent {m and m[1]}, file {n}, said {summary['samples']}"
+    if abs(summary["rate_hz"] - 200.0) > 0.2:
+        return "silent wrong", f"{name}: {summary['rate_hz']:.1f} Hz said for a 200 Hz stream"
+    return "handled", f"{name}: {n} samples, {summary['rate_hz']:.1f} Hz"
+
+
+def _stall(server: subprocess.Popen, cap: subprocess.Popen, stall):
+    """Read the server's status lines in a thread; SIGSTOP the capture at ``stall[0]`` and
+    SIGCONT it at ``stall[1]`` (None: no stall).  Returns the thread."""
+    import threading
+
+    def follow():
+        stopped = False
+        for line in server.stderr:
+            if stall and not stopped and stall[0] in line:
+                cap.send_signal(signal.SIGSTOP)
+                stopped = True
+            elif stall and stopped and stall[1] in line:
+                cap.send_signal(signal.SIGCONT)
+                stopped = False
+        if stopped:
+            cap.send_signal(signal.SIGCONT)
+
+    thread = threading.Thread(target=follow, daemon=True)
+    thread.start()
+    return thread
 
 
 # --------------------------------------------------------------------------------------------
