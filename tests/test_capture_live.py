@@ -243,14 +243,11 @@ def small_disk(tmp_path):
     subprocess.run(["umount", str(mount)], check=False)
 
 
-def test_a_full_disk_saves_every_sample_and_segment_and_resumes(small_disk):
-    """Issue 24.3: with 96 KiB free the file held 0 of 287 samples, exit 2 and no
-    `ended: disk-full`; with 200 KiB no segments, the file left open, and `--resume` refused
-    it for ever.  Now: exit 3, ended disk-full, every sample received and every segment in a
-    closed file, and the capture goes on with --resume once there is space."""
-    out = small_disk / "full.h5"
-    device = Device("--plan", "six", "--rate", "400", "--baud", "921600", "--hold", "1",
-                    "--move", "0.5", "--loop")  # fmt: skip
+def _fill(disk: Path) -> tuple[Path, dict]:
+    """A capture of a fast stream into ``disk`` until it is full; its file and summary."""
+    out = disk / "full.h5"
+    device = Device("--plan", "six", "--rate", "1000", "--baud", "921600", "--hold", "0.3",
+                    "--move", "0.2", "--loop")  # fmt: skip
     try:
         cap = capture(device.path, out, "--baud", "921600", "--plan", "six", "--json")
         stdout, stderr = finished(cap)
@@ -258,19 +255,35 @@ def test_a_full_disk_saves_every_sample_and_segment_and_resumes(small_disk):
         device.stop()
     summary = json.loads(stdout)
     assert cap.returncode == 3 and summary["end"] == "disk-full", (summary, stderr)
+    return out, summary
+
+
+def test_a_full_disk_saves_every_sample_and_segment(small_disk):
+    """Issue 24.3: with 96 KiB free the file held 0 of 287 samples, exit 2 and no
+    `ended: disk-full`; with 200 KiB no segments, and the file left open.  Now: exit 3, ended
+    disk-full, every sample received and every segment in a closed file."""
+    out, summary = _fill(small_disk)
     assert summary["samples_lost"] == 0 and summary["segments_left_out"] == 0
     with h5py.File(out, "r") as plain:  # closed cleanly: plain HDF5 opens it
         n = plain["raw/time"].shape[0]
-    before = read_session(out)
-    assert n == len(before.time) == summary["samples_received"] == summary["samples_written"]
-    assert len(before.segments) == summary["static_segments"] + summary["rotation_segments"]
-    assert np.isfinite(before.accel).all()
+    held = read_session(out)
+    assert n == len(held.time) == summary["samples_received"] == summary["samples_written"]
+    assert len(held.segments) == summary["static_segments"] + summary["rotation_segments"]
+    assert np.isfinite(held.accel).all()
 
+
+@pytest.mark.slow
+def test_a_capture_the_disk_stopped_resumes_once_there_is_space(small_disk):
+    """`capture --resume` refused such a file for ever ('1 of 1 chunks never written'); now
+    it goes on in the same file once the disk has room, the old samples kept."""
+    out, _ = _fill(small_disk)
+    before = read_session(out)
+    n = len(before.time)
     subprocess.run(["mount", "-o", "remount,size=8m", str(small_disk)], check=True)
-    device = Device("--plan", "six", "--rate", "400", "--baud", "921600", "--loop")
+    device = Device("--plan", "six", "--rate", "1000", "--baud", "921600", "--loop")
     try:
         cap = spawn([*CLI, "capture", "--port", device.path, "--baud", "921600", "--resume",
-                     str(out), "--no-prompt", "--duration", "1", "--json"],
+                     str(out), "--no-prompt", "--duration", "0.5", "--json"],
                     stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                     text=True, env=ENV)  # fmt: skip
         stdout, stderr = finished(cap)
@@ -291,7 +304,7 @@ def test_a_served_warm_up_is_captured_as_simulated(tmp_path):
     """Issue 24.7: warm-up plans could not be served (no ramp on the port, the temperature a
     constant 25 C plus 0.01 C/s).  Served with --ramp, the captured session is the simulated
     one: the same samples, the temperature through the warm-up (printed to 0.01 C)."""
-    opts = ["--plan", "warmup:0.05", "--ramp", "8:40", "--seed", "2"]
+    opts = ["--plan", "warmup:0.02", "--ramp", "8:40", "--seed", "2"]
     written = tmp_path / "w.h5"
     proc = subprocess.run([*CLI, "simulate", *opts, "-o", str(written)], capture_output=True,
                           text=True, timeout=120)  # fmt: skip
@@ -299,7 +312,7 @@ def test_a_served_warm_up_is_captured_as_simulated(tmp_path):
     device = Device(*opts)
     try:
         out = tmp_path / "served.h5"
-        cap = capture(device.path, out, "--plan", "warmup:0.05")
+        cap = capture(device.path, out, "--plan", "warmup:0.02")
         finished(cap)
     finally:
         device.stop()
@@ -364,3 +377,33 @@ def test_the_clock_fit_of_a_capture_beside_two_burners(tmp_path, burners, ppm):
     else:
         assert clock["applied"] is True and abs(clock["ppm"] - ppm) < 4.5 * clock["ppm_std"]
         assert scale_error(cals["auto"]) < scale_error(cals["off"]) / 5
+
+
+def test_a_mode_that_fails_after_saving_exits_3_not_2(tmp_path, monkeypatch, capsys):
+    """The README's table holds in every case: a segment the mode cannot add (here: made to
+    fail) after samples were saved is a warning, the session kept, exit 3 (never 2)."""
+    from imucal_cli.capture import unattended
+    from imucal_cli.cli import main
+    from imucal_cli.errors import SessionError
+
+    def failing(recorder, plan, duration_s, **options):
+        for _ in recorder.blocks():
+            if recorder.n_samples >= 50:
+                recorder.stop()
+        raise SessionError(f"{recorder.path}: segment 0000: made to fail")
+
+    monkeypatch.setattr(unattended, "run_unattended", failing)
+    device = Device("--plan", "six", "--loop")
+    try:
+        out = tmp_path / "f.h5"
+        monkeypatch.setattr(sys, "argv", ["imucal", "capture", "--port", device.path,
+                                          "--output", str(out), "--no-prompt", "--duration",
+                                          "30"])  # fmt: skip
+        with pytest.raises(SystemExit) as ended:
+            main()
+    finally:
+        device.stop()
+    captured = capsys.readouterr()
+    assert ended.value.code == 3, captured
+    assert "imucal: warning: " in captured.err and "made to fail" in captured.err
+    assert "saved " in captured.out and len(read_session(out).time) >= 50

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from imucal_cli.errors import InputError
+from imucal_cli.errors import ImucalError, InputError
 from imucal_cli.formats.output import check_output
 
 from . import completion
@@ -179,8 +179,13 @@ def capture(
                          magnetic_field_uT=field_ut, overwrite=force, wait_timeout_s=wait_timeout,
                          read_timeout_s=read_timeout, resume=resume is not None)  # fmt: skip
     try:
-        summary = _record(recorder, plan_obj, guided, console, status, duration=duration,
-                          min_still_s=min_still, hold_s=hold, done_before=done_before)
+        try:
+            summary = _record(recorder, plan_obj, guided, console, status, duration=duration,
+                              min_still_s=min_still, hold_s=hold, done_before=done_before)
+        except ImucalError as exc:  # a saved session is never "nothing saved" (exit 2)
+            if not recorder.file_written:
+                raise
+            summary = _cut_short(recorder, plan_obj, exc, status)
     finally:
         if recorder.end_kind == "clock":  # stamps in the wrong unit: no session (exit 2)
             recorder.discard()
@@ -267,6 +272,18 @@ def _record(recorder, plan, guided, console: Console, status, *, duration: float
                               on_status=status, done_before=done_before)  # fmt: skip
     return guided.run_guided(recorder, plan, console=console, keys=guided.StdinKeys(),
                              hold_s=hold_s, done_before=done_before)  # fmt: skip
+
+
+def _cut_short(recorder, plan, exc: Exception, status):
+    """The summary of a capture whose mode failed after samples were saved (a segment it
+    could not add): said as a warning, the session kept, incomplete (exit 3)."""
+    from imucal_cli.plans import CaptureSummary
+
+    status(f"warning: {exc}")
+    missing = [] if plan is None else [s.label for s in plan.steps]
+    return CaptureSummary(complete=False, done=[], skipped=[], missing=missing,
+                          end_reason=str(exc), samples=recorder.n_samples,
+                          stats=recorder.stats)  # fmt: skip
 
 
 def _saved_stays_saved(recorder) -> None:
