@@ -1,5 +1,6 @@
 """What the recorder checks while it records (issue 24.3): the device's time stamps against the
-host clock, and the disk's free space against what the session still needs.
+host clock, and the disk's free space against what the session still needs; and what to say
+when no sample came.
 
 **Time stamps.** A time unit off by a factor (ms stamps read as s) makes every rate and
 integrated angle wrong by that factor; :func:`clock_problem` tells it from a healthy stream on a
@@ -29,16 +30,19 @@ every sample received is written.
 from __future__ import annotations
 
 import math
+import time as _time
 
 __all__ = [
     "CLOCK_CHECK_S",
     "CLOCK_TOLERANCE",
     "CLOSE_BYTES",
+    "DiskRoom",
     "OPEN_SLACK_S",
     "SEGMENTS_PER_S",
     "SEGMENT_BYTES",
     "clock_problem",
     "headroom",
+    "no_data_reason",
 ]
 
 CLOCK_CHECK_S = 3.0
@@ -158,3 +162,75 @@ def headroom(
     rows = pending + max(rate_hz, 1.0) * max(GAP_MARGIN * gap_s, MIN_GAP_S)
     chunks = math.ceil(rows / max(chunk_rows, 1)) + 1
     return int(chunks * chunk_bytes + SEGMENT_BYTES * max(segments_to_come, 0.0) + CLOSE_BYTES)
+
+
+class DiskRoom:
+    """The free space against what the rest of a capture needs, checked with every block:
+    remembers the longest time between two checks (a busy host checks less often) and the
+    samples' arrival rate over the last second (a backlog arrives faster than the device
+    samples)."""
+
+    def __init__(self) -> None:
+        self.longest_gap_s = 0.0
+        self.arrival_rate_hz = 0.0  # samples per host second over the last second
+        self._last: float | None = None  # host time of the last check
+        self._reference: tuple[float, int] | None = None  # host time and samples, a second ago
+
+    def short(
+        self, room: int | None, *, samples: int, arriving: int, device_rate_hz: float,
+        pending: int, chunk_rows: int, chunk_bytes: int, since_segment_s: float,
+    ) -> int | None:  # fmt: skip
+        """``room`` (bytes free) when it is less than :func:`headroom` (the capture must end
+        now), else None.
+
+        Parameters
+        ----------
+        room : int or None
+            Bytes free for the session (None: unknown, never short).
+        samples, arriving, pending : int
+            Samples appended so far, arriving now, and not written yet (``arriving`` not
+            counted).
+        device_rate_hz : float
+            Samples per device second (0: not known yet, 100 Hz assumed).
+        chunk_rows, chunk_bytes : int
+            The session's HDF5 chunk: rows, and bytes of a chunk of every ``/raw`` dataset.
+        since_segment_s : float
+            Device time since the last segment was added (segments come at
+            :data:`SEGMENTS_PER_S` at most).
+        """
+        now, n = _time.monotonic(), samples + arriving
+        if self._last is not None:
+            self.longest_gap_s = max(self.longest_gap_s, now - self._last)
+        self._last = now
+        t_ref, n_ref = self._reference or (now, samples)
+        if now - t_ref >= 1.0:
+            self.arrival_rate_hz = (n - n_ref) / (now - t_ref)
+            t_ref, n_ref = now, n
+        self._reference = t_ref, n_ref
+        if room is None:
+            return None
+        rate = max(device_rate_hz or 100.0, self.arrival_rate_hz)
+        segments = SEGMENTS_PER_S * since_segment_s + 1
+        need = headroom(rate, self.longest_gap_s, chunk_rows, chunk_bytes, segments,
+                        pending=pending + arriving)  # fmt: skip
+        return int(room) if room < need else None
+
+
+def no_data_reason(stats: dict, where: str, n_fields: int | None) -> str:
+    """Why no sample came, from the protocol's counters (``stats``); ``where``: the source and
+    the wait (``"/dev/ttyUSB0 at 115200 baud in 10 s"``); ``n_fields``: the fields a line of
+    ``--columns`` has (None: not lines of numbers)."""
+    if stats.get("bytes", 0) == 0:
+        return (f"no data from {where}: check the port, the baud rate and that the sketch "
+                "prints lines")  # fmt: skip
+    if stats.get("lines", 0) == stats.get("comments", 0) and stats.get("malformed", 0) == 0:
+        return (
+            f"received {stats['bytes']} bytes from {where} but no data line "
+            f"({stats.get('comments', 0)} comment lines): check that the sketch prints numbers"
+        )
+    expected = f", {n_fields} fields per line expected" if n_fields else ""
+    return (
+        f"received {stats['bytes']} bytes from {where} but no valid line "
+        f"({stats.get('malformed', 0)} malformed{expected}): wrong baud rate? "
+        "(or check --columns)"
+    )

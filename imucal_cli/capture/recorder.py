@@ -9,8 +9,8 @@ The capture ends, always with a valid session holding every sample received, on:
   of the recording until :meth:`Recorder.close` set a flag (the previous handlers are restored
   then), so a signal while the segments are being added ends nothing half-way; ``end_kind``
   ``"interrupted"`` / ``"terminated"`` / ``"hangup"``;
-- the disk nearly full: the free space is checked at every flush against what the rest of the
-  capture needs (:func:`~imucal_cli.capture.checks.headroom`: the next seconds of samples,
+- the disk nearly full: the free space is checked with every block against what the rest of
+  the capture needs (:func:`~imucal_cli.capture.checks.headroom`: the next seconds of samples,
   the segments still to come, closing the file); below it the capture stops, and the file is
   closed cleanly with every sample received and every segment (``"disk-full"``).  A write that
   fails all the same (another program filled the disk) frees the space set aside at the start
@@ -22,7 +22,8 @@ The capture ends, always with a valid session holding every sample received, on:
   (:meth:`Recorder.discard`);
 - the device disappearing (unplugged, pseudo-terminal closed): ``"device-gone"``;
 - no valid line for ``wait_timeout_s`` at the start, or for ``read_timeout_s`` once data
-  flowed: ``"timeout"``;
+  flowed, judged after a read that found nothing (a host away longer reads what waited):
+  ``"timeout"``;
 - :meth:`Recorder.stop` (the UI is done): ``"done"``.
 
 Samples reach the file at least every :data:`FLUSH_INTERVAL_S` (the writer flushes on append;
@@ -39,7 +40,7 @@ import time as _time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from imucal_cli.capture.checks import CLOCK_CHECK_S, SEGMENTS_PER_S, clock_problem, headroom
+from imucal_cli.capture.checks import CLOCK_CHECK_S, DiskRoom, clock_problem, no_data_reason
 from imucal_cli.capture.stream import DeviceGone
 from imucal_cli.errors import InputError, SessionError, WriteFailed
 from imucal_cli.formats.columns import SampleBlock
@@ -180,10 +181,7 @@ class Recorder:
         self._closed = False
         self.samples_lost = 0  #: samples received but not written (disk full)
         self.segments_left_out = 0  #: segments over samples that could not be written
-        self._last_room_check: float | None = None  # host time of the last free-space check
-        self._arrivals: tuple[float, int] | None = None  # host time and samples, a second ago
-        self._arrival_rate = 0.0  # samples per host second over the last second
-        self._room_gap_s = 0.0  # longest host time between two checks of the free space
+        self._room = DiskRoom()
         self._device_at_segment: float | None = None  # device time of the last segment added
         self._discarded = False
         self.resumed_from = 0  #: samples the session held before this capture (``resume``)
@@ -358,29 +356,18 @@ class Recorder:
     def _room_problem(self, arriving: int) -> CaptureEnded | None:
         """Whether to end the capture now, while the disk still holds the ``arriving``
         samples, those not written yet, and what closing needs (the module notes)."""
-        now, n = _time.monotonic(), self.n_samples + arriving
-        if self._last_room_check is not None:  # a busy host checks less often
-            self._room_gap_s = max(self._room_gap_s, now - self._last_room_check)
-        self._last_room_check = now
-        t_ref, n_ref = self._arrivals or (now, n - arriving)
-        if now - t_ref >= 1.0:  # a backlog arrives faster than the device samples
-            self._arrival_rate = (n - n_ref) / (now - t_ref)
-            t_ref, n_ref = now, n
-        self._arrivals = t_ref, n_ref
-        rate = max(self.rate_hz or 100.0, self._arrival_rate)
-        room = self._writer.room()
-        if room is None:
-            return None
+        writer = self._writer
         since = 0.0
         if self._device_last is not None and self._device_at_segment is not None:
             since = self._device_last - self._device_at_segment
-        pending = self._writer.n_samples - self._writer.n_written + arriving
-        need = headroom(rate, self._room_gap_s, self._writer.chunk_rows,
-                        self._writer.chunk_bytes, SEGMENTS_PER_S * since + 1,
-                        pending=pending)  # fmt: skip
-        if room >= need:
+        room = self._room.short(writer.room(), samples=self.n_samples, arriving=arriving,
+                                device_rate_hz=self.rate_hz,
+                                pending=writer.n_samples - writer.n_written,
+                                chunk_rows=writer.chunk_rows, chunk_bytes=writer.chunk_bytes,
+                                since_segment_s=since)  # fmt: skip
+        if room is None:
             return None
-        self._writer.release_reserve()
+        writer.release_reserve()
         return CaptureEnded(
             "disk-full",
             f"the disk is nearly full ({room // 1024} KiB left where {self.path.name} is): "
@@ -430,26 +417,10 @@ class Recorder:
 
     def _no_data_reason(self, what: str, within: str | None = None) -> str:
         """Why no sample came from ``what`` (``within``: " in 10 s", the wait by default)."""
-        stats = self.protocol.stats
         within = f" in {self.wait_timeout_s:g} s" if within is None else within
-        if stats.get("bytes", 0) == 0:
-            return (
-                f"no data from {what}{within}: check the port, the baud rate and that "
-                "the sketch prints lines"
-            )
-        if stats.get("lines", 0) == stats.get("comments", 0) and stats.get("malformed", 0) == 0:
-            return (
-                f"received {stats['bytes']} bytes from {what}{within} but no data line "
-                f"({stats.get('comments', 0)} comment lines): check that the sketch prints "
-                "numbers"
-            )
         columns = getattr(self.protocol, "columns", None)
-        expected = f", {columns.n_fields} fields per line expected" if columns else ""
-        return (
-            f"received {stats['bytes']} bytes from {what}{within} but no valid line "
-            f"({stats.get('malformed', 0)} malformed{expected}): wrong baud rate? "
-            "(or check --columns)"
-        )
+        return no_data_reason(self.protocol.stats, what + within,
+                              None if columns is None else columns.n_fields)  # fmt: skip
 
     def received_note(self) -> str:
         """For a capture that ended before its first sample: what did arrive and why none of

@@ -245,7 +245,7 @@ def _recorder(port: str, baud: int, out: Path, stream_protocol, status, **option
     accelerometer units, when not stated, said once the port opened (issue 10.4: errors stay
     one line)."""
     from imucal_cli.capture.recorder import Recorder
-    from imucal_cli.capture.stream import SerialSource
+    from imucal_cli.capture.serial_port import SerialSource
 
     source = SerialSource(port, baud)
     try:
