@@ -244,9 +244,12 @@ def small_disk(tmp_path):
 
 
 def _fill(disk: Path) -> tuple[Path, dict]:
-    """A capture of a fast stream into ``disk`` until it is full; its file and summary."""
+    """A capture into ``disk`` until it is full; its file and summary.  200 Hz: a capture
+    that starts late on a busy host finds seconds of samples waiting, and they must fit
+    (96 KiB hold about 6 s; at 1 kHz a 2 s backlog alone would not, and the summary would
+    rightly count samples lost)."""
     out = disk / "full.h5"
-    device = Device("--plan", "six", "--rate", "1000", "--baud", "921600", "--hold", "0.3",
+    device = Device("--plan", "six", "--rate", "200", "--baud", "921600", "--hold", "0.3",
                     "--move", "0.2", "--loop")  # fmt: skip
     try:
         cap = capture(device.path, out, "--baud", "921600", "--plan", "six", "--json")

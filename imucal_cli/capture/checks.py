@@ -177,19 +177,19 @@ class DiskRoom:
         self._reference: tuple[float, int] | None = None  # host time and samples, a second ago
 
     def short(
-        self, room: int | None, *, samples: int, arriving: int, device_rate_hz: float,
-        pending: int, chunk_rows: int, chunk_bytes: int, since_segment_s: float,
-    ) -> int | None:  # fmt: skip
-        """``room`` (bytes free) when it is less than :func:`headroom` (the capture must end
-        now), else None.
+        self, room: int | None, *, written: int, pending: int, arriving: int,
+        device_rate_hz: float, chunk_rows: int, chunk_bytes: int, since_segment_s: float,
+    ) -> tuple[int, int] | None:  # fmt: skip
+        """``(room, fits)`` when ``room`` (bytes free) is less than :func:`headroom` (the
+        capture must end now; ``fits``: how many of the ``arriving`` samples can still be
+        written, leaving room for the segments and closing), else None.
 
         Parameters
         ----------
         room : int or None
             Bytes free for the session (None: unknown, never short).
-        samples, arriving, pending : int
-            Samples appended so far, arriving now, and not written yet (``arriving`` not
-            counted).
+        written, pending, arriving : int
+            Samples in the file, received and not written yet, arriving now.
         device_rate_hz : float
             Samples per device second (0: not known yet, 100 Hz assumed).
         chunk_rows, chunk_bytes : int
@@ -198,11 +198,11 @@ class DiskRoom:
             Device time since the last segment was added (segments come at
             :data:`SEGMENTS_PER_S` at most).
         """
-        now, n = _time.monotonic(), samples + arriving
+        now, n = _time.monotonic(), written + pending + arriving
         if self._last is not None:
             self.longest_gap_s = max(self.longest_gap_s, now - self._last)
         self._last = now
-        t_ref, n_ref = self._reference or (now, samples)
+        t_ref, n_ref = self._reference or (now, n - arriving)
         if now - t_ref >= 1.0:
             self.arrival_rate_hz = (n - n_ref) / (now - t_ref)
             t_ref, n_ref = now, n
@@ -210,10 +210,15 @@ class DiskRoom:
         if room is None:
             return None
         rate = max(device_rate_hz or 100.0, self.arrival_rate_hz)
-        segments = SEGMENTS_PER_S * since_segment_s + 1
-        need = headroom(rate, self.longest_gap_s, chunk_rows, chunk_bytes, segments,
-                        pending=pending + arriving)  # fmt: skip
-        return int(room) if room < need else None
+        segments = SEGMENT_BYTES * (SEGMENTS_PER_S * since_segment_s + 1)
+        need = headroom(rate, self.longest_gap_s, chunk_rows, chunk_bytes, 0.0,
+                        pending=pending + arriving) + int(segments)  # fmt: skip
+        if room >= need:
+            return None
+        # what still fits: the rest of the chunk being filled, and whole new chunks
+        chunks = max(int((room - segments - CLOSE_BYTES) // chunk_bytes), 0)
+        rows = (-(written + pending)) % chunk_rows + chunks * chunk_rows
+        return int(room), int(min(max(rows, 0), arriving))
 
 
 def no_data_reason(stats: dict, where: str, n_fields: int | None) -> str:

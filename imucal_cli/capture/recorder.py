@@ -40,6 +40,8 @@ import time as _time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+import numpy as np
+
 from imucal_cli.capture.checks import CLOCK_CHECK_S, DiskRoom, clock_problem, no_data_reason
 from imucal_cli.capture.stream import DeviceGone
 from imucal_cli.errors import InputError, SessionError, WriteFailed
@@ -321,6 +323,17 @@ class Recorder:
         if self._writer is None:
             self._open_writer(block)
         nearly_full = self._room_problem(len(block))
+        if nearly_full is not None and nearly_full[1] < len(block):  # no room for all of them
+            fits, nearly_full = nearly_full[1], nearly_full[0]
+            self.samples_lost += len(block) - fits
+            nearly_full.reason = nearly_full.reason.replace(
+                "every sample received is written",
+                f"{self.samples_lost} received samples could not be written (no room)")
+            block = block.take(np.arange(len(block)) < fits)
+            if not fits:
+                return nearly_full
+        elif nearly_full is not None:
+            nearly_full = nearly_full[0]
         time, host = block.time, block.host_time
         if not self._writer.records_host_time:
             host = None  # a resumed session recorded without host arrival times
@@ -353,26 +366,29 @@ class Recorder:
             return self._write_failed(exc)
         return None
 
-    def _room_problem(self, arriving: int) -> CaptureEnded | None:
+    def _room_problem(self, arriving: int) -> tuple[CaptureEnded, int] | None:
         """Whether to end the capture now, while the disk still holds the ``arriving``
-        samples, those not written yet, and what closing needs (the module notes)."""
+        samples, those not written yet, and what closing needs (the module notes): why, and
+        how many of the ``arriving`` still fit."""
         writer = self._writer
         since = 0.0
         if self._device_last is not None and self._device_at_segment is not None:
             since = self._device_last - self._device_at_segment
-        room = self._room.short(writer.room(), samples=self.n_samples, arriving=arriving,
-                                device_rate_hz=self.rate_hz,
-                                pending=writer.n_samples - writer.n_written,
-                                chunk_rows=writer.chunk_rows, chunk_bytes=writer.chunk_bytes,
-                                since_segment_s=since)  # fmt: skip
-        if room is None:
+        short = self._room.short(writer.room(), written=writer.n_written,
+                                 pending=writer.n_samples - writer.n_written, arriving=arriving,
+                                 device_rate_hz=self.rate_hz, chunk_rows=writer.chunk_rows,
+                                 chunk_bytes=writer.chunk_bytes,
+                                 since_segment_s=since)  # fmt: skip
+        if short is None:
             return None
+        room, fits = short
         writer.release_reserve()
-        return CaptureEnded(
+        ended = CaptureEnded(
             "disk-full",
             f"the disk is nearly full ({room // 1024} KiB left where {self.path.name} is): "
             "stopped in time, every sample received is written",
         )
+        return ended, fits
 
     def _write_failed(self, exc: WriteFailed) -> CaptureEnded:
         """Free the reserve and try once more; else give up the samples not written."""

@@ -64,6 +64,7 @@ class SerialSource:
         except (serial.SerialException, OSError, ValueError) as exc:
             raise _open_error(self.port, self.baud, exc) from None
         self.opened_at = _time.monotonic()  #: when the port opened (host monotonic clock), s
+        self._gone: DeviceGone | None = None  # the device went after the last bytes returned
 
     @property
     def uri(self) -> str:
@@ -85,21 +86,30 @@ class SerialSource:
         Raises
         ------
         DeviceGone
-            The port cannot be read any more (unplugged, pseudo-terminal closed).
+            The port cannot be read any more (unplugged, pseudo-terminal closed); bytes read
+            before it went are returned first, this is raised at the next read.
         """
-        ser = self._serial
+        if self._gone is not None:
+            raise self._gone
+        ser, got = self._serial, b""
         try:
             waiting = ser.in_waiting
             if waiting:
-                return self._drain(ser.read(waiting))
-            first = ser.read(1)
-            if not first:
+                got = ser.read(waiting)
+                return self._drain(got)
+            got = ser.read(1)
+            if not got:
                 return b""
             _time.sleep(self.batch_s)
             waiting = ser.in_waiting
-            return self._drain(first + ser.read(waiting)) if waiting else first
+            if waiting:
+                got += ser.read(waiting)
+            return self._drain(got)
         except (OSError, TypeError, AttributeError) as exc:  # SerialException is an OSError
-            raise DeviceGone(" ".join(str(exc).split()) or type(exc).__name__) from None
+            self._gone = DeviceGone(" ".join(str(exc).split()) or type(exc).__name__)
+            if got:
+                return got
+            raise self._gone from None
 
     def _drain(self, data: bytes) -> bytes:
         """``data`` and, when it filled the kernel's tty buffer (a backlog), the rest of the
@@ -111,15 +121,18 @@ class SerialSource:
             return data
         ser, end = self._serial, _time.monotonic() + DRAIN_MAX_S
         parts, size = [data], len(data)
-        while size < DRAIN_MAX_BYTES and _time.monotonic() < end:
-            waiting = self._wait_waiting(DRAIN_WAIT_S)
-            if not waiting:
-                break
-            more = ser.read(waiting)
-            parts.append(more)
-            size += len(more)
-            if len(more) < TTY_BUFFER_BYTES // 4 and not self._wait_waiting(self.batch_s):
-                break  # caught up
+        try:
+            while size < DRAIN_MAX_BYTES and _time.monotonic() < end:
+                waiting = self._wait_waiting(DRAIN_WAIT_S)
+                if not waiting:
+                    break
+                more = ser.read(waiting)
+                parts.append(more)
+                size += len(more)
+                if len(more) < TTY_BUFFER_BYTES // 4 and not self._wait_waiting(self.batch_s):
+                    break  # caught up
+        except (OSError, TypeError, AttributeError):
+            pass  # the device went while draining: what was read is kept, the next read says
         return b"".join(parts)
 
     def _wait_waiting(self, limit_s: float) -> int:
