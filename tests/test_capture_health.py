@@ -22,7 +22,7 @@ from imucal_cli.capture.checks import CLOCK_TOLERANCE, clock_problem, headroom
 from imucal_cli.capture.recorder import Recorder
 from imucal_cli.capture.stream import LineProtocol, PrefixedLineProtocol
 from imucal_cli.formats.columns import ColumnSpec
-from imucal_cli.formats.session import SessionWriter, read_session
+from imucal_cli.formats.session import read_session
 from imucal_cli.formats.session.writer import chunk_rows
 
 from .test_capture import ScriptedSource, lines_of
@@ -190,11 +190,14 @@ def test_chunks_shrink_on_a_nearly_full_disk():
 
 
 class FreeSpace:
-    """The file system's free space as the writer sees it, shrinking as the file grows."""
+    """The file system's free space as the writer sees it (its chunk size, its room),
+    shrinking as the file grows."""
 
     def __init__(self, monkeypatch, path, free: int) -> None:
+        from imucal_cli.formats.session import writer as writer_module
+
         self.path, self.free = path, free
-        monkeypatch.setattr(SessionWriter, "room", lambda writer: self.left())
+        monkeypatch.setattr(writer_module, "free_bytes", lambda folder: self.left())
 
     def left(self) -> int:
         return self.free - (self.path.stat().st_size if self.path.exists() else 0)
@@ -222,6 +225,27 @@ def test_a_nearly_full_disk_stops_in_time_with_every_sample_and_segment(tmp_path
     session = read_session(path)
     assert len(session.time) == rec.protocol.stats["samples"] == n
     assert len(session.segments) == len(range(0, n - 20, 20))
+
+
+def test_a_backlog_larger_than_the_disk_keeps_what_fits_and_counts_the_rest(
+    tmp_path, monkeypatch
+):
+    """A capture that starts late finds more samples waiting than the disk can ever hold:
+    the first are written as long as closing still fits, the rest counted as lost (said, and
+    exit 3), never a failed write that leaves the file without them."""
+    path = tmp_path / "r.h5"
+    FreeSpace(monkeypatch, path, free=80 * 1024)
+    lines = _lines(3000, rate=1000.0)
+    rec = Recorder(path, ScriptedSource([b"".join(lines)]), _proto())
+    for _ in rec.blocks():
+        pass
+    rec.close()
+    assert rec.end_kind == "disk-full" and "could not be written (no room)" in rec.end_reason
+    held = read_session(path)
+    assert 0 < len(held.time) == rec.n_samples and rec.samples_lost == 3000 - rec.n_samples
+    np.testing.assert_allclose(held.time, np.arange(rec.n_samples) / 1000.0, atol=1e-9)
+    with h5py.File(path, "r"):
+        pass
 
 
 def test_segments_over_samples_a_full_disk_lost_are_left_out(tmp_path, monkeypatch):

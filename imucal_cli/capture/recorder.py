@@ -322,18 +322,17 @@ class Recorder:
         and written when the capture ends."""
         if self._writer is None:
             self._open_writer(block)
-        nearly_full = self._room_problem(len(block))
-        if nearly_full is not None and nearly_full[1] < len(block):  # no room for all of them
-            fits, nearly_full = nearly_full[1], nearly_full[0]
-            self.samples_lost += len(block) - fits
-            nearly_full.reason = nearly_full.reason.replace(
-                "every sample received is written",
-                f"{self.samples_lost} received samples could not be written (no room)")
-            block = block.take(np.arange(len(block)) < fits)
-            if not fits:
-                return nearly_full
-        elif nearly_full is not None:
-            nearly_full = nearly_full[0]
+        nearly_full, short = None, self._room_problem(len(block))
+        if short is not None:
+            nearly_full, fits = short
+            if fits < len(block):  # no room for all of them: the first are kept
+                self.samples_lost += len(block) - fits
+                nearly_full.reason = nearly_full.reason.replace(
+                    "every sample received is written",
+                    f"{self.samples_lost} received samples could not be written (no room)")
+                block = block.take(np.arange(len(block)) < fits)
+                if not fits:
+                    return nearly_full
         time, host = block.time, block.host_time
         if not self._writer.records_host_time:
             host = None  # a resumed session recorded without host arrival times
