@@ -150,8 +150,9 @@ def capture(
     taken from the segments already there.
 
     Exit status: 0 the session is complete; 3 the session is saved but incomplete (steps of
-    the plan not seen, interrupted, device gone, data stopped); 2 bad input (no such port,
-    bad --columns or plan, no data at all: nothing saved).
+    the plan not seen, interrupted, device gone, data stopped, the disk full: stopped in time
+    with every sample); 2 bad input (no such port, bad --columns or plan, time stamps in the
+    wrong --time-unit, no data at all: nothing saved); 130 Ctrl-C before any data.
     """
     from imucal_cli.formats.columns import ColumnSpec
 
