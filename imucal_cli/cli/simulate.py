@@ -186,12 +186,13 @@ Ramp = Annotated[str | None, typer.Option(
     "--ramp", metavar="FROM:TO[:linear]",
     help="The part's temperature runs from FROM to TO degrees C through the session (a "
     "warm-up, or :linear for a hair-dryer or chamber ramp); its biases follow it and the "
-    "truth holds temperature_ref and bias_tempco.",
+    "truth holds temperature_ref and bias_tempco. With --serve the temp field follows it.",
 )]  # fmt: skip
 ClockPpm = Annotated[float | None, typer.Option(
     "--clock-ppm", metavar="PPM",
     help="The part's sample clock runs PPM parts per million fast (negative: slow): the "
-    "session records its device times and the host's arrival times (/raw/host_time).",
+    "session records its device times and the host's arrival times (/raw/host_time); with "
+    "--serve the lines carry its time stamps.",
 )]  # fmt: skip
 Temp = Annotated[bool, typer.Option(
     "--temp/--no-temp", help="--serve: print the temperature field (8 or 7 fields)."
