@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench lint clean
+.PHONY: demo test test-all bench lint clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -20,7 +20,12 @@ demo: $(STAMP)
 	$(BIN)/imucal calibrate out/demo.h5 --output out/demo.cal.json
 	$(BIN)/imucal report out/demo.cal.json
 
+# The suite without its Monte-Carlo and long-session cases (marked `slow`): minutes on 2 cores.
 test: $(STAMP)
+	$(BIN)/python -m pytest -n 2 -q -m "not slow"
+
+# Everything, the slow cases too.
+test-all: $(STAMP)
 	$(BIN)/python -m pytest -n 2 -q
 
 # The benchmarks also compare with MaD Lab's `imucal` package (the `bench` extra).

@@ -10,6 +10,13 @@ plan names and steps from it (:func:`load_plan`, :func:`find_plan`):
     6 faces + 12 edges at 45 degrees (Qureshi & Golnaraghi section IV-B), static, with ``up``.
 ``random:N``
     N static poses, unlabelled (no ``up``).
+``random:N`` needs N >= 9 (:data:`RANDOM_MINIMUM`): the gravity-magnitude model has 9
+    parameters.
+``ferraris``
+    MaD Lab's Ferraris protocol (Ferraris et al. 1995, as the ``imucal`` package records it):
+    for each of X, Y, Z the face with that axis up (``x_p``), one full turn on the table about
+    it (-360 degrees: clockwise seen from above, ``x_rot``) back against a ruler, a still
+    period, and the opposite face (``x_a``).
 ``gyro-axes``
     For each of +Z, +X, +Y: the unit flat on that face against a ruler (``up``), one full turn
     (360 degrees, known) about the vertical face normal back against the ruler, a still period.
@@ -193,6 +200,18 @@ class CaptureSummary:
 
 _AXES = "XYZ"
 MAX_RANDOM_POSES = 10000
+RANDOM_MINIMUM = 9
+"""Fewest poses of ``random:N``: N unlabelled poses give at most N distinct gravity directions,
+and the gravity-magnitude model has 9 parameters (Qureshi & Golnaraghi eqs. 3-8)."""
+GYRO_MIN_TURNS = 5
+"""Fewest turns of the turn plans: the gyro's 12-parameter model has 9 matrix entries, and a
+turn measured by gravity gives 2 equations on them."""
+_TURNS_WHY = (f"the gyro's 12-parameter model needs {GYRO_MIN_TURNS} turns (each gives 2 "
+              "equations for the 9 of its matrix; with an accelerometer calibrated earlier, "
+              "calibrate --accel CAL.json)")
+FERRARIS_TURN_DEG = -360.0
+"""MaD Lab's Ferraris turns: one full turn about the vertical axis, clockwise seen from above
+(``imucal``'s default ``expected_angle``)."""
 MAX_TURNS = 1000
 QURESHI_TURNS_PER_AXIS = 18
 HK_ORIENTATIONS = 20
@@ -304,6 +323,21 @@ def _gyro_axes(_arg=None) -> tuple[Step, ...]:
     return tuple(steps)
 
 
+def _ferraris(_arg=None) -> tuple[Step, ...]:
+    """MaD Lab's Ferraris protocol: per axis its ``_p`` face, the full turn about it on the
+    table (``_rot``), a still period, then its ``_a`` face."""
+    steps = []
+    for i in (0, 1, 2):
+        a, name = _AXES[i], _AXES[i].lower()
+        steps.append(_static(f"face +{a} up ({name}_p), against a ruler", _axis(i)))
+        turn = (f"turn about +{a} (up) by {FERRARIS_TURN_DEG:g} deg: one full turn clockwise "
+                f"seen from above, back against the ruler ({name}_rot)")  # fmt: skip
+        steps.append(_rotation(turn, _axis(i), angle_deg=FERRARIS_TURN_DEG))
+        steps.append(_static(f"still after the turn about +{a}"))
+        steps.append(_static(f"face -{a} up ({name}_a)", _axis(i, -1.0)))
+    return tuple(steps)
+
+
 def hk_gyro_steps(
     mountings: int = HK_MOUNTINGS, faces: bool = False, ruler_deg: float = RULER_TURN_DEG
 ) -> tuple[Step, ...]:
@@ -395,6 +429,9 @@ class PlanSpec:
     temperature : bool
         The recording is useless without the temperature (``capture`` refuses a stream
         without it).
+    minimum : int and str
+        The smallest count the plan calibrates with, and why (a smaller one is refused by
+        :func:`find_plan`, so by capture and simulate, with the minimum stated).
     """
 
     name: str
@@ -403,6 +440,7 @@ class PlanSpec:
     steps: Callable[[Any], tuple[Step, ...]]
     arg: str | None = None
     temperature: bool = False
+    minimum: tuple[int, str] = (1, "")
 
     @property
     def key(self) -> str:
@@ -419,7 +457,14 @@ PLANS: tuple[PlanSpec, ...] = (
     PlanSpec("six", "the 6 faces of a cube", "poses", _six),
     PlanSpec("qureshi18", "6 faces + 12 edges at 45 degrees, Qureshi & Golnaraghi", "poses",
              _qureshi18),
-    PlanSpec("random:N", "N unlabelled static poses", "poses", _random, "count"),
+    PlanSpec("random:N", f"N unlabelled static poses (N >= {RANDOM_MINIMUM})", "poses",
+             _random, "count",
+             minimum=(RANDOM_MINIMUM, "the gravity-magnitude model has 9 parameters, and N "
+                      "unlabelled poses give at most N distinct directions (12 or more let the "
+                      "fit check itself against the noise; plan six or qureshi18 for labelled "
+                      "faces)")),
+    PlanSpec("ferraris", "MaD Lab's Ferraris protocol: the 6 faces and a 360-degree turn on "
+             "the table about each axis", "steps", _ferraris),
     PlanSpec("gyro-axes", "a 360-degree turn on the table about each of +Z, +X, +Y", "steps",
              _gyro_axes),
     PlanSpec("hwangbo-iron", "the 6 faces, then the hk-gyro procedure",
@@ -431,9 +476,11 @@ PLANS: tuple[PlanSpec, ...] = (
              "Hwangbo & Kanade V", "redundant", _hk_redundant),
     PlanSpec("qureshi-axes[:N]", "N hand turns, default 18, about x and y with +Z up, then "
              "about z with +X up, Qureshi & Golnaraghi Fig. 2", "rotations", _qureshi_axes,
-             "count?"),
-    PlanSpec("free:N", "N hand turns about any axes, still between turns", "rotations", _free,
-             "count"),
+             "count?", minimum=(2, f"3 N turns, and {_TURNS_WHY}")),
+    PlanSpec("free:N", f"N hand turns about any axes, still between turns (N >= "
+             f"{GYRO_MIN_TURNS})", "rotations", _free, "count",
+             minimum=(GYRO_MIN_TURNS, f"{_TURNS_WHY}; 12 or more let its still periods "
+                      "calibrate the accelerometer too")),
     PlanSpec("still:MINUTES", "one still hold of MINUTES minutes, for imucal noise", "steps",
              _still, "minutes"),
     PlanSpec("warmup:MINUTES", "one still hold, flat, through a warm-up or cool-down of MINUTES "
@@ -488,7 +535,10 @@ def find_plan(name: str) -> tuple[PlanSpec | None, Any]:
         return spec, minutes
     high = MAX_RANDOM_POSES if spec.key == "random" else MAX_TURNS
     if not re.fullmatch(r"\d+", arg_text) or not 1 <= int(arg_text) <= high:
-        raise InputError(f"plan {text!r}: N must be between 1 and {high}")
+        raise InputError(f"plan {text!r}: N must be between {spec.minimum[0]} and {high}")
+    low, why = spec.minimum
+    if int(arg_text) < low:
+        raise InputError(f"plan {text!r}: N must be at least {low}: {why}")
     return spec, int(arg_text)
 
 

@@ -67,8 +67,48 @@ def reap(*procs: subprocess.Popen) -> None:
 
 
 def run(*args) -> subprocess.CompletedProcess:
-    """``imucal ARGS...`` as a subprocess (real exit codes and streams)."""
-    return subprocess.run([IMUCAL, *map(str, args)], capture_output=True, text=True, timeout=120)
+    """``imucal ARGS...`` in this process: :func:`imucal_cli.cli.main` with ``sys.argv`` set,
+    its stdout and stderr captured, its exit status returned, as a subprocess would give them
+    (without the 0.3-1 s of a new interpreter). What only a process shows (signals, a closed
+    pipe, the program's exit path) is tested with :func:`run_process`."""
+    import io
+    import warnings
+    from contextlib import redirect_stderr, redirect_stdout
+
+    from imucal_cli.cli import main
+
+    argv = ["imucal", *map(str, args)]
+    out = io.TextIOWrapper(io.BytesIO(), encoding="utf-8", write_through=True)
+    err = io.TextIOWrapper(io.BytesIO(), encoding="utf-8", write_through=True)
+    saved_argv, saved_showwarning = sys.argv, warnings.showwarning
+    code: object = 0
+    try:
+        sys.argv = argv
+        with warnings.catch_warnings(), redirect_stdout(out), redirect_stderr(err):
+            try:
+                main()
+            except SystemExit as exc:
+                code = exc.code
+    finally:
+        sys.argv, warnings.showwarning = saved_argv, saved_showwarning
+    if code is None:
+        code = 0
+    elif not isinstance(code, int):
+        err.write(f"{code}\n")
+        code = 1
+    return subprocess.CompletedProcess(argv, code, _text(out), _text(err))
+
+
+def _text(stream) -> str:
+    stream.flush()
+    return stream.buffer.getvalue().decode("utf-8", errors="replace")
+
+
+def run_process(*args, **kwargs) -> subprocess.CompletedProcess:
+    """``imucal ARGS...`` as a subprocess (real exit codes and streams, the program's own exit
+    path)."""
+    return subprocess.run([IMUCAL, *map(str, args)], capture_output=True, text=True,
+                          timeout=kwargs.pop("timeout", 300), **kwargs)  # fmt: skip
 
 
 def assert_one_line_error(proc, *words: str) -> None:
@@ -79,3 +119,67 @@ def assert_one_line_error(proc, *words: str) -> None:
     assert len(err.splitlines()) == 1 and err.startswith("imucal: error:"), err
     for w in words:
         assert w in err, (w, err)
+
+
+class LineReader:
+    """Lines of a process's text stream, read as they come, waited for by content.
+
+    ``wait_for(predicate)`` returns the first line (from the start, or after the last one it
+    returned) for which ``predicate`` is true, waiting at most ``timeout`` seconds for it: a
+    test waits for what the process prints, never for a fixed time.  A thread reads the
+    stream to its end; :meth:`text` is everything read once the process has ended."""
+
+    def __init__(self, stream) -> None:
+        import queue
+        import threading
+
+        self.lines: list[str] = []
+        self._queue: queue.Queue = queue.Queue()
+        self._seen = 0
+        self._thread = threading.Thread(target=self._read, args=(stream,), daemon=True)
+        self._thread.start()
+
+    def _read(self, stream) -> None:
+        try:
+            for line in stream:
+                self._queue.put(line)
+        except (OSError, ValueError):
+            pass
+        self._queue.put(None)
+
+    def _pull(self, timeout: float) -> bool:
+        """One more line into :attr:`lines`; False at the end of the stream."""
+        import queue
+
+        try:
+            line = self._queue.get(timeout=timeout)
+        except queue.Empty:
+            return True
+        if line is None:
+            self._queue.put(None)
+            return False
+        self.lines.append(line)
+        return True
+
+    def wait_for(self, predicate, timeout: float = 120.0) -> str:
+        import time
+
+        end = time.monotonic() + timeout
+        while True:
+            while self._seen < len(self.lines):
+                line = self.lines[self._seen]
+                self._seen += 1
+                if predicate(line):
+                    return line
+            left = end - time.monotonic()
+            assert left > 0, f"waited {timeout} s for a line; got:\n{''.join(self.lines)}"
+            if not self._pull(min(left, 1.0)):
+                raise AssertionError(f"the stream ended first; got:\n{''.join(self.lines)}")
+
+    def text(self, timeout: float = 120.0) -> str:
+        """Everything the stream carried, once it has ended."""
+        self._thread.join(timeout)
+        assert not self._thread.is_alive(), f"the stream did not end within {timeout} s"
+        while self._pull(0.0):  # the queue ends with the end marker
+            pass
+        return "".join(self.lines)

@@ -2,9 +2,17 @@
 
 from __future__ import annotations
 
-import pytest
+import os
 
-from .cli_helpers import reap
+# One BLAS thread, as the `imucal` program runs (imucal_cli/__init__.py), set before any test
+# module imports numpy: the solvers' matrices are small, and two OpenBLAS threads that spin
+# while the other core is busy make a test up to 10x slower on a loaded 2-core machine.
+for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import pytest  # noqa: E402
+
+from .cli_helpers import reap  # noqa: E402
 
 
 @pytest.fixture(autouse=True)

@@ -172,7 +172,7 @@ def test_builtin_plans():
     assert len(h.static_steps) == 6 + 14 and len(h.rotation_steps) == 7
     assert [s.angle_deg for s in h.rotation_steps] == [None] * 6 + [90.0]
     assert {s.mounting for s in h.steps} == {1, 2}
-    assert len(load_plan("random:4").steps) == 4
+    assert len(load_plan("random:9").steps) == 9
     with pytest.raises(InputError, match="plan 'nope' is unknown"):
         load_plan("nope")
 
@@ -393,7 +393,7 @@ def test_segment_recording_labels_faces():
 
 
 @pytest.mark.parametrize(
-    "name", ["gyro-axes", "hwangbo-iron", "hk-gyro", "qureshi-axes:3", "free:4", "still:0.1"]
+    "name", ["gyro-axes", "hwangbo-iron", "hk-gyro", "qureshi-axes:3", "free:5", "still:0.1"]
 )
 def test_segment_recording_rotation_plans(name):
     plan = load_plan(name)

@@ -169,16 +169,21 @@ def test_refinement_recovers_exactly_from_a_perturbed_start():
     same_calibration(r, S4, B4, tol=1e-7)
 
 
-@pytest.mark.parametrize("sigma", [1.5])
-def test_linear_subspace_and_refined_reach_the_bound_on_the_papers_design(sigma):
-    """Monte Carlo of Table I's design (20 orientations x 10 samples): RMS errors of biases,
-    gains and angles within 25 % of the Cramér-Rao bound for the subspace-linear and the
-    refined solutions (the bench runs more seeds with the 1.2 target)."""
+@pytest.mark.parametrize(("n_seeds", "band"), [
+    (20, (0.55, 1.5)),  # RMS of 20 errors: about 16 % sampling std
+    pytest.param(80, (0.7, 1.3), marks=pytest.mark.slow),
+])  # fmt: skip
+def test_linear_subspace_and_refined_reach_the_bound_on_the_papers_design(n_seeds, band):
+    """Monte Carlo of Table I's design (20 orientations x 10 samples, noise 1.5): RMS errors of
+    biases, gains and angles at the Cramér-Rao bound, within the sampling error of ``n_seeds``
+    seeds, for the subspace-linear and the refined solutions (the bench runs more seeds with
+    the 1.2 target)."""
+    sigma = 1.5
     rng = np.random.default_rng(8)
     x_true = np.r_[B4, S4.ravel()]
     truth = invariant_summary(S4, B4)
     err_lin, err_nl, bound = [], [], []
-    for _ in range(80):
+    for _ in range(n_seeds):
         u = Rotation.random(20, random_state=rng.integers(2**31)).apply([0, 0, 1])
         Z = np.repeat(u, 10, axis=0) @ S4 + B4 + sigma * rng.standard_normal((200, 4))
         c = magnitude_constraints(200)
@@ -193,7 +198,7 @@ def test_linear_subspace_and_refined_reach_the_bound_on_the_papers_design(sigma)
     b = np.sqrt(np.mean(bound, axis=0))
     for err in (err_lin, err_nl):
         ratio = np.sqrt(np.mean(np.square(err), axis=0)) / b
-        assert np.all(ratio < 1.3) and np.all(ratio > 0.7), ratio
+        assert np.all(ratio < band[1]) and np.all(ratio > band[0]), ratio
 
 
 def test_align_rotates_the_frame_only():

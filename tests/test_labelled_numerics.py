@@ -121,7 +121,14 @@ def test_least_squares_by_blocks_converges_to_the_same_point():
     plain = lsq.least_squares(fun2, x0, jac2, **kw)
     blocks = lsq.least_squares(fun2, x0, jac2, blocks=(5, 2), **kw)
     assert plain.success and blocks.success
-    np.testing.assert_allclose(blocks.x, plain.x, rtol=1e-10, atol=1e-12)
+    # Both stop by the same rules, not at the same bits: within the stopping tolerance of the
+    # minimum, ftol * cost in the cost, so ||J dx|| <= 2 sqrt(2 ftol cost) between the two
+    # points (another CPU's arithmetic stops them 6e-9 apart in x; the bound here is 4e-7)
+    np.testing.assert_allclose(blocks.cost, plain.cost, rtol=1e-12)
+    J = jac2(plain.x)
+    assert np.linalg.norm(J @ (blocks.x - plain.x)) <= 2 * np.sqrt(2 * kw["ftol"] * plain.cost)
+    # and a real difference is seen: a point off by 1e-5 is outside that bound
+    assert np.linalg.norm(J @ np.full_like(x0, 1e-5)) > 2 * np.sqrt(2 * kw["ftol"] * plain.cost)
 
 
 def test_linear_refit_is_the_iterative_refit(monkeypatch):
@@ -193,7 +200,7 @@ def test_held_out_residuals_are_the_per_pose_formula():
     from imucal_cli.solvers.labelled_model import rotation_matrix as R
 
     six, _ = simulate(plan="six", seed=6, created=CREATED)
-    rnd, _ = simulate(plan="random:8", seed=6, created=CREATED)
+    rnd, _ = simulate(plan="random:9", seed=6, created=CREATED)
     p6, pr = static_poses(six), static_poses(rnd)
     a = np.vstack([p6.a_mean, pr.a_mean])
     states = []

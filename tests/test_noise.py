@@ -16,7 +16,7 @@ from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import Calibration, SensorCalibration, write_calibration
 from imucal_cli.formats.columns import SampleBlock
 from imucal_cli.formats.session import Segment, Session, read_session, write_session
-from imucal_cli.plans import load_plan
+from imucal_cli.plans import Plan, Step, load_plan
 from imucal_cli.solvers.allan import axis_noise
 from imucal_cli.use.noise import analyse_noise
 
@@ -246,4 +246,4 @@ def test_unattended_still_plan_waits_for_its_duration():
     assert not _PlanWatcher(plan, 1.0).update(buffer(4.0))
     assert _PlanWatcher(plan, 1.0).update(buffer(7.5))
     # Plans without their own hold still finish on a short still period.
-    assert _PlanWatcher(load_plan("random:1"), 1.0).update(buffer(4.0))
+    assert _PlanWatcher(Plan("one pose", (Step("static", "pose 1"),)), 1.0).update(buffer(4.0))

@@ -88,6 +88,10 @@ CASES = [
     # their magnitude) and the factorization.
     Case("gyro-axes", (), accel=None,
          gyro=Gyro(_z(turn_rel(4.5, 2 * np.pi, 3, 9), place_rel(3)), frame=True)),
+    # ferraris (MaD Lab): the 6 labelled faces; the gyro from the 3 known full turns about
+    # labelled axes, each axis placed with the jitter, as gyro-axes
+    Case("ferraris", (), accel="labelled",
+         gyro=Gyro(_z(turn_rel(4.5, 2 * np.pi, 3, 9), place_rel(3)), frame=True)),
     Case("hwangbo-iron", (), accel="labelled", gyro=Gyro(_z(turn_rel(6.0, 1.0, 6, 9), 1e-3))),
     Case("hk-gyro", (), accel=None, gyro=Gyro(_z(turn_rel(6.0, 1.0, 6, 9), 1e-3))),
     Case("hk-redundant", (), accel="magnitude", gyro=None),

@@ -22,12 +22,13 @@ EXAMPLES = {
     "six": "six",
     "qureshi18": "qureshi18",
     "random:N": "random:12",
+    "ferraris": "ferraris",
     "gyro-axes": "gyro-axes",
     "hwangbo-iron": "hwangbo-iron",
     "hk-gyro": "hk-gyro",
     "hk-redundant": "hk-redundant",
     "qureshi-axes[:N]": "qureshi-axes:2",
-    "free:N": "free:3",
+    "free:N": "free:5",
     "still:MINUTES": "still:0.2",
     "warmup:MINUTES": "warmup:0.2",
 }
@@ -72,10 +73,13 @@ def test_plan_arguments_and_refusals():
     assert load_plan("qureshi-axes").name == "qureshi-axes"
     assert len(load_plan("qureshi-axes").rotation_steps) == 54
     assert len(load_plan("qureshi-axes:4").rotation_steps) == 12
-    assert load_plan("random:007").name == "random:7"
+    assert load_plan("random:009").name == "random:9"
     assert load_plan("still:0.5").steps[0].hold_s == 30.0
     for bad, words in (("free", "say how many"), ("six:2", "takes no argument"),
-                       ("qureshi-axes:0", "between 1 and"), ("random:x", "between 1 and"),
+                       ("qureshi-axes:0", "between 2 and"),
+                       ("free:4", "at least 5: the gyro's 12-parameter model needs 5 turns"),
+                       ("qureshi-axes:1", "at least 2: 3 N turns"), ("random:x", "between 9 and"),
+                       ("random:8", "at least 9: the gravity-magnitude model has 9 param"),
                        ("still:-1", "positive number"), ("seven", "is unknown")):  # fmt: skip
         with pytest.raises(InputError, match=words):
             load_plan(bad)

@@ -164,6 +164,41 @@ def test_calibrate_waits_for_a_transient_lock(session, tmp_path):
     assert "/calibrations/0000" in proc.stdout
 
 
+WRITER_MID_FLIGHT = """
+import fcntl, os, sys, time
+path = sys.argv[1]
+whole = open(path, 'rb').read()
+fd = os.open(path, os.O_RDWR)
+fcntl.flock(fd, fcntl.LOCK_EX)   # HDF5's lock while a writer has the file open
+os.truncate(fd, len(whole) - 4096)  # its header declares space not yet written
+print('held', flush=True)
+time.sleep(1.0)
+os.pwrite(fd, whole, 0)
+fcntl.flock(fd, fcntl.LOCK_UN)
+os.close(fd)
+"""
+
+
+def test_a_writer_mid_flight_is_waited_for_not_taken_for_truncation(session, tmp_path):
+    """A concurrent calibration storing its result holds HDF5's lock while the file is shorter
+    than its header says: a reader waits for the lock instead of calling the file truncated
+    (seen under load: one of six concurrent calibrations failed to store)."""
+    holder = subprocess.Popen([sys.executable, "-c", WRITER_MID_FLIGHT, str(session)],
+                              stdout=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        got = read_session(session)
+    finally:
+        holder.wait(timeout=60)
+        holder.stdout.close()
+    assert len(got.time) > 0
+    # a file truncated for good (nobody holds it) is still refused at once
+    with open(session, "r+b") as f:
+        f.truncate(os.path.getsize(session) - 4096)
+    with pytest.raises(SessionError, match="truncated"):
+        read_session(session)
+
+
 def test_markup_in_a_path_after_the_results_are_written(session, tmp_path):
     folder = tmp_path / "a["
     folder.mkdir()

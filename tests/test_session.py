@@ -7,7 +7,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import h5py
@@ -293,20 +292,34 @@ def test_kill_9_leaves_a_readable_file(tmp_path):
     proc = subprocess.Popen(
         [sys.executable, "-c", CHILD, str(path)], stdout=subprocess.PIPE, text=True, cwd=ROOT
     )
+    printed: list[tuple[int, float]] = []
+
+    def run_until(seconds: float) -> None:
+        """Read the child's progress until it has run ``seconds`` (its own clock) past the
+        segment at sample 200: a flush (at least one a second) has happened since."""
+        for line in proc.stdout:
+            n, t = line.split()
+            printed.append((int(n), float(t)))
+            segment_at = next((t for n, t in printed if n >= 200), None)
+            if segment_at is not None and printed[-1][1] - segment_at >= seconds:
+                return
+        raise AssertionError("the writer stopped")
+
     try:
-        assert proc.stdout.readline()  # recording
-        time.sleep(1.6)
+        run_until(1.6)
         live = read_session(path)  # opens while the writer has it open
         assert live.time.size > 0 and len(live.segments) == 1
-        time.sleep(1.0)
-        killed_at = time.monotonic()
+        run_until(2.6)
         os.kill(proc.pid, signal.SIGKILL)
     finally:
         proc.kill()
         out, _ = proc.communicate()
     assert proc.returncode == -signal.SIGKILL
-    progress = [line.split() for line in out.splitlines()]
-    must_have = max(int(n) for n, t in progress if float(t) < killed_at - 1.2)
+    printed += [(int(n), float(t)) for n, t in (line.split() for line in out.splitlines())]
+    # what the child had appended more than 1.2 s (of its own running) before its last line
+    # was flushed: it flushes at least once a second while appending
+    last = printed[-1][1]
+    must_have = max(n for n, t in printed if t < last - 1.2)
 
     with pytest.raises(OSError):
         h5py.File(path, "r")  # the writer's "open for writing" flag is still set

@@ -106,8 +106,8 @@ def test_qureshi18_plan_is_faces_and_45_degree_edges():
 
 
 def test_random_plan_is_unlabelled():
-    poses = plan_poses("random:7")
-    assert [label for label, _ in poses] == [f"pose {k}" for k in range(1, 8)]
+    poses = plan_poses("random:9")
+    assert [label for label, _ in poses] == [f"pose {k}" for k in range(1, 10)]
     assert all(up is None for _, up in poses)
 
 
@@ -428,11 +428,11 @@ def test_command_writes_session_and_truth(tmp_path, monkeypatch, capsys):
 
 def test_command_default_output_name(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    code, _, err = _run_main(monkeypatch, capsys, ["simulate", "--plan", "random:4", "--seed", "3"])
+    code, _, err = _run_main(monkeypatch, capsys, ["simulate", "--plan", "random:9", "--seed", "3"])
     assert code in (0, None), err
-    assert (tmp_path / "sim-random-4-seed3.h5").exists()
-    assert (tmp_path / "sim-random-4-seed3.truth.json").exists()
-    session = session_mod.read_session(tmp_path / "sim-random-4-seed3.h5")
+    assert (tmp_path / "sim-random-9-seed3.h5").exists()
+    assert (tmp_path / "sim-random-9-seed3.truth.json").exists()
+    session = session_mod.read_session(tmp_path / "sim-random-9-seed3.h5")
     assert all(s.up is None for s in session.segments)
 
 

@@ -19,7 +19,7 @@ import pytest
 
 from imucal_cli.formats.session import read_session
 
-from .cli_helpers import spawn
+from .cli_helpers import LineReader, spawn
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminals are POSIX")
 
@@ -68,22 +68,39 @@ def start_capture(port: str, output: Path, *args: str) -> subprocess.Popen:
     )
 
 
-def wait_for_file(path: Path, proc: subprocess.Popen, timeout: float = 120.0) -> None:
+class Watched:
+    """A capture whose stdout and stderr are read as they come (:class:`LineReader`)."""
+
+    def __init__(self, proc: subprocess.Popen) -> None:
+        self.proc = proc
+        self.out, self.err = LineReader(proc.stdout), LineReader(proc.stderr)
+
+    def wait_status(self, words: str) -> None:
+        """Until the capture's status line (stderr) says ``words``."""
+        self.err.wait_for(lambda line: words in line)
+
+    def finish(self, timeout: float = 120.0) -> tuple[str, str]:
+        self.proc.wait(timeout=timeout)
+        return self.out.text(), self.err.text()
+
+
+def wait_for_samples(path: Path, proc: subprocess.Popen, n: int, timeout: float = 120.0) -> None:
+    """Until the session being written holds ``n`` samples (it flushes once a second)."""
+    import warnings
+
     end = time.monotonic() + timeout
-    while not path.exists():
-        assert proc.poll() is None, proc.communicate()
-        assert time.monotonic() < end, "the capture wrote no file"
-        time.sleep(0.05)
-
-
-def wait_for_line(stream, words: str) -> str:
-    """Read ``stream`` (a process's text output) until a line holds ``words``; what was read."""
-    read = ""
-    for line in stream:
-        read += line
-        if words in line:
-            return read
-    raise AssertionError(f"never said {words!r}: {read}")
+    while True:
+        assert proc.poll() is None, "the capture ended"
+        if path.exists():
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    if len(read_session(path).time) >= n:
+                        return
+            except Exception:  # noqa: BLE001  not yet readable: created, not yet flushed
+                pass
+        assert time.monotonic() < end, f"the capture did not save {n} samples"
+        time.sleep(0.1)  # polling what the process writes, not waiting a fixed time
 
 
 def saved_samples(stdout: str) -> int:
@@ -134,11 +151,11 @@ def test_unattended_complete_session(tmp_path, server_factory):
 def test_signal_saves_every_sample_received(tmp_path, server_factory, signum, words):
     server = server_factory("--plan", "six", "--loop")
     out = tmp_path / "sig.h5"
-    cap = start_capture(server.path, out, "--duration", "60")
-    wait_for_file(out, cap)
-    time.sleep(1.5)
-    cap.send_signal(signum)
-    stdout, stderr = cap.communicate(timeout=120)
+    cap = Watched(start_capture(server.path, out, "--duration", "60"))
+    cap.wait_status("receiving data from")
+    cap.proc.send_signal(signum)
+    stdout, stderr = cap.finish()
+    cap = cap.proc
     sent = server.finish()
     assert cap.returncode == 3, (stdout, stderr)
     assert f"stopped by {words}" in stdout and "Traceback" not in stderr
@@ -196,15 +213,16 @@ def test_kill_9_loses_at_most_the_last_second(tmp_path, server_factory):
     server = server_factory("--plan", "six", "--loop")
     out = tmp_path / "killed.h5"
     cap = start_capture(server.path, out, "--duration", "60")
-    wait_for_file(out, cap)
-    time.sleep(2.5)
+    wait_for_samples(out, cap, int(1.6 * RATE))
     cap.kill()
     cap.communicate()
     sent = server.finish()
     session = read_session(out)
     missing = sent["lines"] - len(session.time)
-    assert 0 <= missing <= 1.0 * RATE + 0.2 * RATE  # the last second, and the lines in flight
-    assert len(session.time) > 1.5 * RATE
+    # the last second (one flush a second), and the lines in flight: a pseudo-terminal's
+    # buffer (4 KiB, lines of 40 bytes and more)
+    assert 0 <= missing <= 1.0 * RATE + 4096 // 40
+    assert len(session.time) >= 1.6 * RATE
 
 
 def test_wrong_baud_rate_garbage(tmp_path, server_factory):
@@ -244,12 +262,11 @@ def test_signal_before_any_data_saves_nothing(tmp_path, server_factory, signum, 
     after Ctrl-C, else 2), never 3 ("saved but incomplete")."""
     server = server_factory("--plan", "six", "--stall-after", "0")
     out = tmp_path / "none.h5"
-    cap = start_capture(server.path, out, "--duration", "30", "--wait-timeout", "20")
-    said = wait_for_line(cap.stderr, "waiting for data on")  # recording, no sample yet
-    cap.send_signal(signum)
-    stdout, stderr = cap.communicate(timeout=60)
-    stderr = said + stderr
-    assert cap.returncode == code, (stdout, stderr)
+    cap = Watched(start_capture(server.path, out, "--duration", "30", "--wait-timeout", "20"))
+    cap.wait_status("waiting for data on")  # its signal handlers are in place
+    cap.proc.send_signal(signum)
+    stdout, stderr = cap.finish()
+    assert cap.proc.returncode == code, (stdout, stderr)
     last = stderr.splitlines()[-1]
     assert last.startswith(words) and last.endswith(": no file written"), last
     assert not out.exists() and "Traceback" not in stderr
@@ -274,8 +291,11 @@ def test_no_prompt_needs_a_duration_or_a_plan(tmp_path):
     assert r.returncode == 2 and "--no-prompt needs --duration" in r.stderr
 
 
-@pytest.mark.parametrize(("protocol", "capture_args"),
-                         [("motioncal", []), ("i2cdevlib", ["--protocol", "i2cdevlib"])])
+@pytest.mark.parametrize(("protocol", "capture_args"), [
+    ("motioncal", []),
+    # the same path with the other sketch's lines (parsed alike: tests/test_capture_lines.py)
+    pytest.param("i2cdevlib", ["--protocol", "i2cdevlib"], marks=pytest.mark.slow),
+])  # fmt: skip
 def test_sketch_lines_captured_end_to_end(tmp_path, server_factory, protocol, capture_args):
     """The virtual IMU prints MotionCal's Raw: lines (recognised by themselves) or i2cdevlib's
     a/g: lines (asked for): every line sent arrives with its counts, the faces are found."""

@@ -21,7 +21,11 @@ NO_WRAP_WIDTH = 100_000
 """Help width when stdout is not a terminal: nothing is wrapped."""
 
 EXIT_CODES = (
-    (0, "done: the result was written or printed (capture: the session is complete)"),
+    (
+        0,
+        "done: the result was written or printed (capture: the session is complete; "
+        "calibrate: saved, complete or partial: `complete` in its JSON)",
+    ),
     (
         1,
         "calibrate: the solver failed or the result is outside physical sense (not saved "

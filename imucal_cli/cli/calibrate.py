@@ -68,11 +68,16 @@ def calibrate(
 ) -> None:
     """Calibrate the sensors of SESSION the config asks for and write a calibration JSON.
 
-    Exit status: 0 saved; 2 bad input, nothing saved (unreadable file, bad config, poses that
-    cannot determine the model, OUTPUT exists without --force or is the session); 1 the solver
-    did not converge or the result is outside physical sense (not saved unless --force), or
-    saved but not stored in the session (the reason is printed).  Several sessions: the worst
-    of theirs.
+    A sensor the session cannot determine (too few turns for the gyro, too little of the sphere
+    for the magnetometer) is left out, saying why and what to capture, and the others are
+    saved: a partial calibration ("complete": false and "left_out" in the JSON).  A solver
+    named in the config makes its sensor required.
+
+    Exit status: 0 saved (complete or partial); 2 bad input, nothing saved (unreadable file,
+    bad config, a session that cannot determine any sensor, or a required one; OUTPUT exists
+    without --force or is the session); 1 the solver did not converge or the result is outside
+    physical sense (not saved unless --force), or saved but not stored in the session (the
+    reason is printed).  Several sessions: the worst of theirs.
     """
     cfg = _config(config, model, gravity)
     accel_cal = None
@@ -145,10 +150,13 @@ def _result_json(cal, out: Path, stored: str) -> dict:
         where = stored[len(" and ") :]
     elif stored.startswith(" (not stored in the session: "):
         why = stored[len(" (not stored in the session: ") : -1]
-    warnings = [w for s in (cal.accel, cal.gyro) if s for w in s.extra.get("warnings", [])]
-    warnings += [cal.extra["accel_note"]] if cal.extra.get("accel_note") else []
+    warnings = [w for s in (cal.accel, cal.gyro, cal.mag) if s
+                for w in s.extra.get("warnings", [])]  # fmt: skip
+    left_out = dict(cal.extra.get("left_out") or {})
+    warnings += list(left_out.values())
     return {"format": "imucal-calibrate", "format_version": 1, "output": str(out),
-            "stored": where, "not_stored": why, "warnings": warnings,
+            "stored": where, "not_stored": why, "complete": not left_out,
+            "left_out": left_out, "warnings": warnings,
             "calibration": json.loads(calibration_to_json(cal))}  # fmt: skip
 
 
@@ -199,7 +207,9 @@ def _many(
         f = r.figures
         cells = [
             escape(r.session),  # a file name, not markup
-            "[green]saved[/]" if r.exit_code == 0 else f"[red]failed ({r.exit_code})[/]",
+            ("[green]saved[/]" if f.get("complete", True) else
+             f"[yellow]saved, {', '.join(f['left_out'])} left out[/]")
+            if r.exit_code == 0 else f"[red]failed ({r.exit_code})[/]",
             f"{f['accel_rms_after']:.4f}" if "accel_rms_after" in f else "",
             f"{f['gyro_rms_deg']:.3f}" if "gyro_rms_deg" in f else "",
         ]
@@ -281,6 +291,8 @@ def _summary(line: Lines, cal, where: str) -> None:
     if cal.mag is not None:
         for pieces in mag_summary(cal.mag):
             line(*pieces)
+    elif cal.extra.get("mag_note"):
+        line(("warning", WARN), f": {cal.extra['mag_note']}")
     if cal.extra.get("temperature_note"):
         line(("temperature", BOLD), f": {cal.extra['temperature_note']}")
     clock = cal.extra.get("sample_clock") or {}
@@ -294,6 +306,9 @@ def _summary(line: Lines, cal, where: str) -> None:
         )
     elif clock.get("note"):
         line(("sample clock", BOLD), f": {clock['note']}")
+    left_out = cal.extra.get("left_out") or {}
+    if left_out:  # issue 24.2: saved, but not every sensor of the session is in it
+        where += f" (partial: {', '.join(left_out)} left out, see above)"
     line(f"wrote {where}")
 
 

@@ -194,6 +194,10 @@ def capture(
             recorder.close()
         _saved_stays_saved(recorder)
     _nothing_saved(recorder, out, err)
+    _warn_absent_channels(out, {"--accel-units": ("accel", accel_units),
+                                "--gyro-units": ("gyro", gyro_units),
+                                "--mag-units": ("mag", mag_units),
+                                "--field-uT": ("mag", field_ut)})  # fmt: skip
     if json_output:
         print_json(_summary_json(out, recorder, summary))
     else:
@@ -396,6 +400,28 @@ def _summary_json(out: Path, recorder, summary) -> dict:
 def _complete(recorder, summary) -> bool:
     """Complete: every step seen, and nothing of it lost to a full disk."""
     return bool(summary.complete) and not recorder.samples_lost and not recorder.segments_left_out
+
+
+def _warn_absent_channels(out: Path, options: dict[str, tuple[str, object]]) -> None:
+    """Options for a sensor the device did not send (``--mag-units`` and no magnetometer in
+    the lines): a warning each (issue 24.7), once the session says which channels it has."""
+    given = {flag: raw for flag, (raw, value) in options.items() if value is not None}
+    if not given:
+        return
+    import warnings
+
+    from imucal_cli.errors import ImucalWarning
+    from imucal_cli.formats.session import open_samples
+
+    with open_samples(out) as samples:
+        present = set(samples.channels)
+    names = {"accel": "accelerometer", "gyro": "gyroscope", "mag": "magnetometer"}
+    for raw in dict.fromkeys(given.values()):
+        if raw not in present:
+            flags = ", ".join(f for f, r in given.items() if r == raw)
+            warnings.warn(f"{flags}: the device sent no {names[raw]} data "
+                          f"(the session has no /raw/{raw}): ignored", ImucalWarning,
+                          stacklevel=2)  # fmt: skip
 
 
 def check_mag_options(mag_units: str | None, field_ut: float | None) -> None:

@@ -96,7 +96,8 @@ Plan = alias(str, plan_option(
 ))  # fmt: skip
 Seed = Annotated[int, typer.Option(
     "--seed", metavar="INT",
-    help="Random seed (>= 0): the same seed and options give the same samples, in any units.",
+    help="Random seed (>= 0): the same seed and options draw the same part, poses and noise "
+    "(the samples agree to the last bits of the arithmetic on another CPU, one count at most).",
 )]  # fmt: skip
 Rate = alias(float, rate_option("Sample rate, Hz."))
 Hold = alias(float | None, hold_option(
@@ -194,6 +195,11 @@ ClockPpm = Annotated[float | None, typer.Option(
     "session records its device times and the host's arrival times (/raw/host_time); with "
     "--serve the lines carry its time stamps.",
 )]  # fmt: skip
+GSensitivity = Annotated[float | None, typer.Option(
+    "--g-sensitivity", metavar="LEVEL",
+    help="A g-sensitive gyro: each entry of its g-sensitivity matrix drawn within +-this (rad/s "
+    "per m/s^2 of specific force, e.g. 5e-4); the truth holds g_sensitivity.",
+)]  # fmt: skip
 Temp = Annotated[bool, typer.Option(
     "--temp/--no-temp", help="--serve: print the temperature field (8 or 7 fields)."
 )]  # fmt: skip
@@ -284,6 +290,7 @@ def simulate(
     duration: Duration = None,
     ramp: Ramp = None,
     clock_ppm: ClockPpm = None,
+    g_sensitivity: GSensitivity = None,
     temp: Temp = True,
     mag: Mag = False,
     field_ut: FieldUt = 48.0,
@@ -313,12 +320,17 @@ def simulate(
     """
     given = _given(ctx)
     thermal, clock = _checked(plan, serve, ramp, clock_ppm, mag, given("protocol"))
+    _warn_without_mag(mag, given)
     options = {
         "accel_noise": accel_noise, "jitter_deg": jitter_deg, "still_s": still,
         "rotations_per_axis": rotations_per_axis if given("rotations_per_axis") else None,
         "peak_rate_dps": peak_rate, "sigma_counts": sigma_counts, "orientations": orientations,
         "samples": samples, "labelled": labelled, "mountings": mountings,
     }  # fmt: skip
+    if g_sensitivity is not None:
+        if not 0 < g_sensitivity <= 0.1 or mag:
+            raise InputError("--g-sensitivity must be in (0, 0.1] rad/s per m/s^2, without --mag")
+        options["g_sensitivity"] = g_sensitivity
     if serve:
         extras = {"temperature": thermal, "clock_scale": clock}
         options.update({k: v for k, v in extras.items() if v is not None})
@@ -375,6 +387,26 @@ def _checked(plan: str, serve: bool, ramp: str | None, clock_ppm: float | None, 
     if protocol and not serve:
         raise InputError("--protocol is what --serve prints: add --serve")
     return thermal, clock
+
+
+#: The options of the simulated magnetometer, as ``--help`` names them.
+MAG_OPTIONS = {"field_ut": "--field-uT", "inclination": "--inclination-deg",
+               "mag_units": "--mag-units", "mag_noise": "--mag-noise",
+               "mag_layout": "--mag-layout", "field_unknown": "--field-unknown",
+               "tumble": "--tumble"}  # fmt: skip
+
+
+def _warn_without_mag(mag: bool, given) -> None:
+    """Options of the magnetometer given without ``--mag`` change nothing: say so (issue
+    24.7)."""
+    unused = [flag for name, flag in MAG_OPTIONS.items() if given(name)]
+    if unused and not mag:
+        import warnings
+
+        from imucal_cli.errors import ImucalWarning
+
+        warnings.warn(f"{', '.join(unused)} go with --mag (a simulated magnetometer): ignored "
+                      "without it", ImucalWarning, stacklevel=2)  # fmt: skip
 
 
 def _outputs(output: Path | None, plan: str, seed: int, force: bool) -> tuple[Path, Path]:

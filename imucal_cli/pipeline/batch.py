@@ -14,7 +14,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from imucal_cli.errors import ImucalError
+import numpy as np
+
+from imucal_cli.errors import ImucalError, SolverError
 from imucal_cli.formats.calibration import Calibration, calibration_to_json, write_calibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.output import check_output
@@ -42,7 +44,9 @@ class SessionResult:
     figures : dict
         ``accel_solver``, ``accel_rms_after`` (m/s^2), ``gyro_solver``, ``gyro_rms_deg``,
         ``mag_solver``, ``mag_rms_after`` (in ``mag_units``), ``mag_quality`` (pass/recapture),
-        ``warnings`` (count), ``accel_note`` (why the accel was left out), where present.
+        ``warnings`` (count), ``accel_note`` (why the accel was left out), where present;
+        ``complete`` (false when a sensor of the session was left out) and ``left_out`` (their
+        names) when saved.
     """
 
     session: str
@@ -99,7 +103,13 @@ def calibrate_file(
 
         session = merge_sessions([session, *(read_session(p) for p in also)])
     warm = [read_session(p) for p in warmup] if warmup else None
-    cal = calibrate_session(session, cfg, name=path.name, accel=accel, warmup=warm)
+    try:
+        cal = calibrate_session(session, cfg, name=path.name, accel=accel, warmup=warm)
+    except np.linalg.LinAlgError as exc:  # issue 24.6: a one-line refusal, never a traceback
+        raise SolverError(
+            f"{path.name}: a solver met a singular system ({exc}): the data do not determine "
+            "the model; check each sensor's readings (an axis that barely moves) and the poses"
+        ) from None
     if also:
         cal.extra["sessions"] = [path.name, *(p.name for p in also)]
     problem = suspect_error(cal)
@@ -138,6 +148,10 @@ def _figures(cal: Calibration) -> dict:
     if cal.extra.get("accel_note"):  # the accel left out (issue 9.4): one more warning
         out["warnings"] = out.get("warnings", 0) + 1
         out["accel_note"] = cal.extra["accel_note"]
+    left_out = cal.extra.get("left_out") or {}
+    out["complete"] = not left_out  # issue 24.2
+    if left_out:
+        out["left_out"] = sorted(left_out)
     return out
 
 

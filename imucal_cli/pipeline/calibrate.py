@@ -251,12 +251,12 @@ def _accel_or_refusal(session: Session, cfg: Config):
 
 def _gyro_without_accel(session: Session, cfg: Config, refusal):
     """The gyro of a session whose accelerometer ``"auto"`` could not determine: the gyro
-    section and the note that says why the accelerometer was left out and what would
-    determine it (issue 9.6); the accelerometer's refusal when the gyro cannot do without
-    it either."""
+    section (None when it cannot do without the accelerometer either: the facade then raises
+    the accelerometer's refusal) and the note that says why the accelerometer was left out
+    and what would determine it (issue 9.6)."""
     from imucal_cli.errors import ImucalError
 
-    exc, raised = refusal
+    exc, _ = refusal
     try:
         if cfg.gyro.solver == "auto":
             gyro, _ = calibrate_gyro_auto(session, cfg, None)
@@ -264,15 +264,68 @@ def _gyro_without_accel(session: Session, cfg: Config, refusal):
             gyro = calibrate_gyro(session, cfg, None)
     except ImucalError:
         gyro = None
+    reason = _reason(session, exc)
     if gyro is None:
-        raise raised from None
-    where = session_name(session)
-    reason = str(exc).removeprefix(f"{where}: ")
+        return None, (f"accel not calibrated: {reason}; with an earlier calibration of this "
+                      "unit's accelerometer (--accel CAL.json) the rest of the session may "
+                      "calibrate the gyro")  # fmt: skip
     frame = gyro.extra.get("frame") or "the frame of the turns' labelled axes"
     note = (f"accel not calibrated; the gyro was calibrated without it, in {frame}. To "
             "calibrate the accelerometer with this session, pass an earlier calibration of "
             f"this unit's: --accel CAL.json. Why: {reason}")  # fmt: skip
     return gyro, note
+
+
+def _reason(session: Session, exc: Exception) -> str:
+    """A refusal's message without the session's name in front."""
+    return str(exc).removeprefix(f"{session_name(session)}: ")
+
+
+def _gyro_or_note(session: Session, cfg: Config, accel: SensorCalibration | None):
+    """The gyro (``[gyro] solver``), or, with ``"auto"``, ``(None, note, refusal)`` when the
+    session's turns cannot determine it (issue 24.2: the other sensors are still saved; the
+    note says why and which capture would add it)."""
+    if cfg.gyro.solver != "auto":
+        return calibrate_gyro(session, cfg, accel), None, None
+    try:
+        gyro, note = calibrate_gyro_auto(session, cfg, accel)
+    except DesignError as exc:
+        return None, f"gyro not calibrated: {_reason(session, exc)}", exc
+    return gyro, note, None
+
+
+def _mag_or_note(session: Session, cfg: Config, accel: SensorCalibration | None):
+    """The magnetometer, or ``(None, note, refusal)`` when its readings cannot determine it
+    (too little of the sphere, clipped, in one plane): the other sensors are still saved."""
+    try:
+        return calibrate_mag(session, cfg, accel), None, None
+    except DesignError as exc:
+        return None, f"mag not calibrated: {_reason(session, exc)}", exc
+
+
+def _gyro_and_mag(session: Session, cfg: Config, accel, refusal, with_mag: bool):
+    """The gyro and magnetometer sections (each None when left out) and the notes per sensor
+    (``{"accel", "gyro", "mag"}``: why it was left out); the most telling refusal when
+    nothing at all calibrates (issue 24.2: otherwise what calibrates is saved)."""
+    gyro_refusal, accel_note = None, None
+    if refusal is not None:
+        (gyro, accel_note), gyro_note = _gyro_without_accel(session, cfg, refusal), None
+        if gyro is None and cfg.gyro.solver != "none":
+            gyro_note = ("gyro not calibrated: its turns are measured with the accelerometer, "
+                         "which this session does not determine (see accel): pass an earlier "
+                         "calibration of it, --accel CAL.json")  # fmt: skip
+    else:
+        gyro, gyro_note, gyro_refusal = _gyro_or_note(session, cfg, accel)
+    mag, mag_note, mag_refusal = _mag_or_note(session, cfg, accel) if with_mag else (None,) * 3
+    if accel is None and gyro is None and mag is None:
+        for failed in (refusal and refusal[1], gyro_refusal, mag_refusal):
+            if failed is not None:
+                raise failed from None
+        raise DesignError(
+            f"{session_name(session)}: nothing to calibrate: no still poses with accelerometer "
+            f"data, and the gyro was not calibrated ({gyro_note or '[gyro] solver is none'})"
+        )
+    return gyro, mag, {"accel": accel_note, "gyro": gyro_note, "mag": mag_note}
 
 
 def _prepare(
@@ -310,12 +363,16 @@ def calibrate_session(
     """
     from imucal_cli.pipeline.temperature import attach
 
+    warn_absent_sensors(session, cfg, accel_given=accel is not None, warmup=bool(warmup))
     with_mag = session.mag is not None and cfg.mag.solver != "none"
     if cfg.accel.solver == "none" and cfg.gyro.solver == "none" and accel is None and not with_mag:
         raise ConfigError("the config calibrates nothing: [accel] and [gyro] solver are both none")
+    from imucal_cli.pipeline.channels import check_channels
+
+    check_channels(session, cfg, skip=("accel",) if accel is not None else ())  # issue 24.6
     session, segmented = with_segments(session)
     session, models, root = _prepare(session, cfg, warmup)
-    given, refusal, accel_note = accel, None, None
+    given, refusal = accel, None
     if accel is None:
         run_accel = cfg.accel.solver != "none" and not (session.accel is None and with_mag)
         accel, refusal = _accel_or_refusal(session, cfg) if run_accel else (None, None)
@@ -325,18 +382,7 @@ def calibrate_session(
 
         session, accel = given_accel(session, accel)
         segmented_accel = False
-    if refusal is not None:
-        (gyro, accel_note), gyro_note = _gyro_without_accel(session, cfg, refusal), None
-    elif cfg.gyro.solver == "auto":
-        gyro, gyro_note = calibrate_gyro_auto(session, cfg, accel)
-    else:
-        gyro, gyro_note = calibrate_gyro(session, cfg, accel), None
-    mag = calibrate_mag(session, cfg, accel)
-    if accel is None and gyro is None and mag is None:
-        raise DesignError(
-            f"{session_name(session)}: nothing to calibrate: no still poses with accelerometer "
-            f"data, and the gyro was not calibrated ({gyro_note or '[gyro] solver is none'})"
-        )
+    gyro, mag, notes = _gyro_and_mag(session, cfg, accel, refusal, with_mag)
     for sec in (accel if segmented_accel else None, gyro, mag):
         if sec is not None and segmented:
             sec.extra.setdefault("notes", []).insert(0, segmented)
@@ -346,10 +392,11 @@ def calibrate_session(
         gyro.extra["sample_clock_scale"] = root["sample_clock"]["scale"]
         gyro.extra["sample_clock"] = root["sample_clock"]
     extra = {"toolkit_version": __version__, "config": cfg.to_dict(), **root}
-    if gyro_note:
-        extra["gyro_note"] = gyro_note
-    if accel_note:
-        extra["accel_note"] = accel_note
+    for kind, note in notes.items():
+        if note:
+            extra[f"{kind}_note"] = note
+    extra.update(completeness(session, {"accel": accel if given is None else given,
+                                        "gyro": gyro, "mag": mag}, notes))  # fmt: skip
     if session.sensor:
         extra["sensor"] = session.sensor
     if session.source:  # "simulator", "serial:...": the report's context (paper figures or not)
@@ -362,6 +409,67 @@ def calibrate_session(
         created=utc_now_iso(),
         extra=extra,
     )
+
+
+def _changed(value, default, path: str = "") -> list[str]:
+    """The dotted keys where a config (a dataclass) differs from its defaults."""
+    from dataclasses import fields, is_dataclass
+
+    if is_dataclass(value):
+        return [k for f in fields(value)
+                for k in _changed(getattr(value, f.name), getattr(default, f.name),
+                                  f"{path}.{f.name}" if path else f.name)]  # fmt: skip
+    return [] if value == default else [path]
+
+
+def warn_absent_sensors(session: Session, cfg: Config, *, accel_given: bool = False,
+                        warmup: bool = False) -> None:
+    """Warn (:class:`ImucalWarning`, ``imucal: warning: ...``) about options for a sensor the
+    session has no data for (issue 24.7): a ``[gyro]`` section for a session without
+    ``/raw/gyro``, ``[mag] field_uT`` without ``/raw/mag``, ``--model`` or ``gravity`` without
+    an accelerometer, ``--accel CAL.json`` for a session with neither a gyro nor a
+    magnetometer (nothing uses it). They change nothing; the user should know. With
+    ``warmup`` recordings the ``[temperature]`` options shape their model: not warned."""
+    import warnings
+
+    from imucal_cli.errors import ImucalWarning
+    from imucal_cli.formats.config import (
+        AccelConfig,
+        GyroConfig,
+        MagConfig,
+        TemperatureConfig,
+    )
+
+    where = session_name(session)
+    checks = [("accel", session.accel, cfg.accel, AccelConfig(), "accelerometer"),
+              ("gyro", session.gyro, cfg.gyro, GyroConfig(), "gyroscope"),
+              ("mag", session.mag, cfg.mag, MagConfig(), "magnetometer"),
+              ("temperature", session.temperature if not warmup else True, cfg.temperature,
+               TemperatureConfig(), "temperature")]  # fmt: skip
+    flags = {"accel.gravity.model": " (--model)"}
+    for name, data, section, default, what in checks:
+        keys = [f"[{name}] {k}{flags.get(f'{name}.{k}', '')}" for k in _changed(section, default)]
+        if name == "accel" and cfg.gravity is not None:
+            keys.append("gravity (--gravity)")
+        if data is None and keys:
+            raw = "raw/temperature" if name == "temperature" else f"raw/{name}"
+            warnings.warn(f"{where} has no {what} (/{raw}): {', '.join(keys)} ignored",
+                          ImucalWarning, stacklevel=2)  # fmt: skip
+    if accel_given and session.gyro is None and session.mag is None:
+        warnings.warn(f"{where} has neither a gyroscope nor a magnetometer: --accel CAL.json "
+                      "(used to measure turns and align a magnetometer) is only copied into "
+                      "the calibration", ImucalWarning, stacklevel=2)  # fmt: skip
+
+
+def completeness(session: Session, sections: dict, notes: dict) -> dict:
+    """``{"complete": bool, "left_out": {sensor: note}}`` (issue 24.2): a sensor the session
+    has data for (``/raw/accel``, ``/raw/gyro``, ``/raw/mag``) that was asked for (its solver
+    is not ``"none"``) and is not in the calibration is left out, with the note that says why
+    and which capture would add it. ``complete`` is true when none is."""
+    has = {"accel": session.accel, "gyro": session.gyro, "mag": session.mag}
+    left = {kind: note for kind, note in notes.items()
+            if note and sections.get(kind) is None and has[kind] is not None}  # fmt: skip
+    return {"complete": not left, "left_out": left}
 
 
 def suspect_error(cal: Calibration) -> SolverError | None:

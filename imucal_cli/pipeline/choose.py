@@ -198,7 +198,43 @@ def _refusal(session: Session, poses: StaticPoses, nominal, exc: DesignError, wh
         return (f"{head}; they lie on {len(faces)} faces ({', '.join(faces)}): label them "
                 "(`imucal label SESSION --faces`) and the labelled-pose solver calibrates them, "
                 "or capture the 45-degree edges too (plan qureshi18)")  # fmt: skip
+    if len(faces) < 4 and _on_faces(directions, poses.up) < N / 2:  # not faces (issue 24.7)
+        return (f"{head}{_near_poses(poses, directions, 10.0)}; capture {9 - distinct} or more "
+                "poses in new directions, each more than 10 deg from the others (12 or more "
+                "in all let the fit check itself against the noise: plan random:12), or the "
+                "6 faces and 12 edges of plan qureshi18")  # fmt: skip
     on = f" ({', '.join(faces)})" if faces else ""
     return (f"{head}; they lie on {len(faces)} faces{on}, and the labelled-pose solver needs "
             "4 faces (not only the 4 around one axis): capture the other faces too (plan "
             "six), or the 45-degree edges (plan qureshi18)")  # fmt: skip
+
+
+def _on_faces(directions: np.ndarray, up: np.ndarray) -> int:
+    """How many poses lie on a face (their label, else their direction, within 15 deg of an
+    axis), as :func:`_faces` sees them."""
+    v = np.where(np.isfinite(up).all(axis=1, keepdims=True), up, directions)
+    return int(np.sum(np.max(np.abs(v), axis=1) > np.cos(np.radians(15.0))))
+
+
+def _near_poses(poses: StaticPoses, directions: np.ndarray, min_deg: float) -> str:
+    """Which poses count as one direction (within ``min_deg`` of one counted before them, as
+    :func:`count_distinct` counts), at most three pairs: ``"; pose 7 is 4 deg from pose 2"``."""
+    cos = np.clip(directions @ directions.T, -1.0, 1.0)
+    near = cos >= np.cos(np.radians(min_deg))
+    kept, pairs = [], []
+    for i in range(len(directions)):
+        j = next((j for j in kept if near[i, j]), None)
+        if j is None:
+            kept.append(i)
+        else:
+            pairs.append((i, j))
+    if not pairs:
+        return ""
+
+    def name(k: int) -> str:
+        seg = poses.segments[k]
+        return seg.label or f"segment {seg.name}"
+
+    said = [f"{name(i)} is {np.degrees(np.arccos(cos[i, j])):.0f} deg from {name(j)}"
+            for i, j in pairs[:3]]  # fmt: skip
+    return "; " + ", ".join(said) + (f" (and {len(pairs) - 3} more)" if len(pairs) > 3 else "")

@@ -19,7 +19,7 @@ Rotation segments come from the session; where it has none, they are found in th
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -117,34 +117,100 @@ def still_periods(session, accel_cal, cfg, statics) -> tuple[list[Still], float]
 
 
 def turns_between(session, stills, turns, gap) -> tuple[list[Turn], list[str]]:
-    """The turns with a still period right before and after (within ``gap`` s), and the
-    names of the others: for each turn the last still period that ends by its first sample
-    and the first that starts at its last, compared with all still periods at once (in
-    chunks of turns: memory bounded by :data:`PAIRS`)."""
+    """The turns with a still period right before and after, and the names of the others.
+
+    For each turn: the last still period that ends by its first sample and the first that
+    starts at its last. The samples between a still period and its turn (a person who held
+    the pose longer than the capture needed, a pause before turning) are integrated with the
+    turn when they are continuous (:func:`_continuous`, no other turn between): the turn's
+    segment is extended to the still periods, so that any motion there is measured. A still
+    period that cannot be reached so must end (start) within ``gap`` s of the turn, as the
+    rule always was. All still periods are compared at once, in chunks of turns (memory
+    bounded by :data:`PAIRS`).
+    """
     time = session.time
     start = np.array([s.segment.start for s in stills], dtype=np.int64)
     stop = np.array([s.segment.stop for s in stills], dtype=np.int64)
     t_start, t_end = time[start], time[stop - 1]
     r_start = np.array([r.start for r in turns], dtype=np.int64)
     r_stop = np.array([r.stop for r in turns], dtype=np.int64)
+    low, high = _other_turns(session, turns, r_start, r_stop)
+    period = _mean_period(time)
     P = len(stills)
     before = np.full(len(turns), -1)
     after = np.full(len(turns), -1)
+    reach = np.zeros((len(turns), 2), bool)
     step = max(1, PAIRS // max(P, 1))
     for i in range(0, len(turns) if P else 0, step):
         rs, re = r_start[i : i + step, None], r_stop[i : i + step, None]
-        ok_before = (stop <= rs + 1) & (time[rs] - t_end <= gap)  # (turns, stills)
-        ok_after = (start >= re - 1) & (t_start - time[re - 1] <= gap)
-        last = P - 1 - np.argmax(ok_before[:, ::-1], axis=1)
-        before[i : i + step] = np.where(ok_before.any(axis=1), last, -1)
+        # (turns, stills): continuous samples reach the still period (integrated with the
+        # turn), or it is within ``gap`` of the turn (the rule for what cannot be bridged)
+        reach_b = (stop <= rs) & (stop >= low[i : i + step, None]) & _continuous(
+            time, np.maximum(stop - 1, 0), rs, period)
+        reach_a = (start >= re) & (start <= high[i : i + step, None]) & _continuous(
+            time, re - 1, start, period)
+        ok_before = (stop <= rs + 1) & (reach_b | (time[rs] - t_end <= gap))
+        ok_after = (start >= re - 1) & (reach_a | (t_start - time[re - 1] <= gap))
+        last_b = P - 1 - np.argmax(ok_before[:, ::-1], axis=1)
+        before[i : i + step] = np.where(ok_before.any(axis=1), last_b, -1)
         after[i : i + step] = np.where(ok_after.any(axis=1), np.argmax(ok_after, axis=1), -1)
+        rows = np.arange(len(rs))
+        reach[i : i + step, 0] = reach_b[rows, before[i : i + step]]
+        reach[i : i + step, 1] = reach_a[rows, after[i : i + step]]
     usable, skipped = [], []
-    for r, b, a in zip(turns, before.tolist(), after.tolist(), strict=True):
-        if b >= 0 and a >= 0:
-            usable.append(Turn(r, b, a))
-        else:
+    for k, (r, b, a) in enumerate(zip(turns, before.tolist(), after.tolist(), strict=True)):
+        if b < 0 or a < 0:
             skipped.append(r.label or r.name)
+            continue
+        s0 = int(stop[b]) if reach[k, 0] else r.start
+        s1 = int(start[a]) if reach[k, 1] else r.stop
+        usable.append(Turn(r if (s0, s1) == (r.start, r.stop) else replace(r, start=s0, stop=s1),
+                           b, a))  # fmt: skip
     return usable, skipped
+
+
+def _mean_period(time: np.ndarray) -> float:
+    """The session's sample period, s: the median over the recording of the mean step in
+    :data:`PERIOD_WINDOW` samples (a host's read bursts and stalls average out within a
+    window, and a hole in the data moves only the windows that hold it)."""
+    w = min(PERIOD_WINDOW, len(time) - 1)
+    if w < 1:
+        return 0.0
+    return float(median((time[w:] - time[:-w]) / w))
+
+
+def _continuous(time: np.ndarray, a, b, period: float) -> np.ndarray:
+    """Whether samples ``a`` .. ``b`` are continuous: their time span is at most
+    :data:`HOLE_PERIODS` sample periods longer than their count makes it. A hole in the data
+    (samples never received) stays in the span; a host that stamps lines as it reads them
+    and stalled shows a late stamp and then a burst of early ones, which the span forgives."""
+    return (time[b] - time[a]) - (b - a) * period <= HOLE_PERIODS * period
+
+
+def _other_turns(session, turns, r_start: np.ndarray, r_stop: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """For each turn the end of the latest other turn before it (``low``, 0 when none) and the
+    start of the next after it (``high``, N when none), of ``turns`` and of the session's
+    rotation segments: a turn is not extended across another."""
+    n = len(session.time)
+    segments = list(turns) + list(getattr(session, "rotation_segments", list)())
+    if not segments:
+        return np.zeros(len(r_start), np.int64), np.full(len(r_start), n, np.int64)
+    starts = np.sort(np.array([s.start for s in segments], dtype=np.int64))
+    stops = np.sort(np.array([s.stop for s in segments], dtype=np.int64))
+    k = np.searchsorted(stops, r_start, side="right") - 1
+    low = np.where(k >= 0, stops[np.maximum(k, 0)], 0)
+    k = np.searchsorted(starts, r_stop, side="left")
+    high = np.where(k < len(starts), starts[np.minimum(k, len(starts) - 1)], n)
+    return low, high
+
+
+#: Samples between a still period and its turn whose time span exceeds their count by more than
+#: this many sample periods have a hole (samples lost): the turn is not extended across it
+#: (the unit may have moved unseen).
+HOLE_PERIODS = 5.0
+#: Samples over which a step is averaged for the sample period (:func:`_mean_period`).
+PERIOD_WINDOW = 50
 
 
 #: Turn-still pairs compared at once by :func:`turns_between`.
@@ -159,9 +225,26 @@ def _stills_and_turns(session, accel_cal, cfg, where):
     if not usable:
         raise DesignError(
             f"{where}: no rotation has still data right before and after it (within "
-            f"{gap:g} s): hold the unit still for a few seconds before and after every turn"
+            f"{gap:g} s, or continuous samples between them): hold the unit still for a few "
+            "seconds before and after every turn"
         )
     return stills, usable, skipped, source, z_sigma
+
+
+def bridged_note(session, turns: list[Segment], usable: list[Turn]) -> list[str]:
+    """Say how many turns were extended to their still periods (:func:`turns_between`)."""
+    orig = {r.name: r for r in turns}
+    added = [(orig[u.segment.name].start - u.segment.start,
+              u.segment.stop - orig[u.segment.name].stop)
+             for u in usable if u.segment.name in orig]  # fmt: skip
+    added = [(a, b) for a, b in added if a or b]
+    if not added:
+        return []
+    rate = session.sample_rate_hz or 1.0 / float(median(np.diff(session.time)))
+    longest = max(a + b for a, b in added) / rate
+    return [f"{len(added)} turn(s) extended through continuous samples to the still periods "
+            f"around them (up to {longest:.1f} s: the unit held a pose longer than its segment, "
+            "or paused before turning) and integrated whole"]  # fmt: skip
 
 
 def _clipped(session: Session, turns: list[Turn], limit: tuple[float, float] | None
@@ -177,8 +260,11 @@ def _clipped(session: Session, turns: list[Turn], limit: tuple[float, float] | N
 
 
 def _saturation_limit(session: Session, cfg: Config) -> tuple[float, float] | None:
-    """Raw levels at which the gyro clips: the configured range, else a counts gyro's ADC word,
-    less 0.5 % of the span at both ends."""
+    """Raw levels at which the gyro clips: the configured range less 0.5 % of the span at
+    both ends, else the ends of a counts gyro's ADC word themselves (the word is the smallest
+    that holds the data: a 16-bit gyro whose turns stay within +-2047 counts would otherwise
+    be taken for a 12-bit one clipping at its 0.5 % margin; a clipped reading sits on the
+    end, issue 24.6)."""
     if cfg.gyro.range is not None:
         lo, hi = cfg.gyro.range
         margin = 0.005 * (hi - lo)
@@ -190,10 +276,7 @@ def _saturation_limit(session: Session, cfg: Config) -> tuple[float, float] | No
     gyro = session.gyro
     finite = gyro if np.isfinite(gyro).all() else gyro[np.isfinite(gyro).all(axis=1)]
     rng = adc_range(float(finite.min()), float(finite.max()))
-    if rng is None:
-        return None
-    margin = 0.005 * (rng[1] - rng[0])
-    return rng[0] + margin, rng[1] - margin
+    return rng
 
 
 @dataclass
@@ -233,10 +316,14 @@ def gyro_data(session: Session, cfg: Config, accel_cal: SensorCalibration) -> Gy
     where = session_name(session)
     if session.gyro is None:
         raise DesignError(f"{where}: no /raw/gyro in this session")
+    from .turn_windows import settle_turns
+
+    session, settled = settle_turns(session)  # issue 24.5: each turn from rest to rest
     stills, turns, skipped, source, noise = _stills_and_turns(session, accel_cal, cfg, where)
     data = GyroData(session, cfg, where, accel_cal, stills, turns, max(noise, 1e-12),
                     np.zeros(3), 0.0, session.gyro_units or "unknown",
-                    notes=[f"rotations: {source}"])  # fmt: skip
+                    notes=[f"rotations: {source}"] + ([settled] if settled else []))  # fmt: skip
+    data.notes += bridged_note(session, session.rotation_segments(), turns)
     if skipped:
         data.notes.append(f"{len(skipped)} rotation(s) without still data before and after: "
                           "skipped")  # fmt: skip

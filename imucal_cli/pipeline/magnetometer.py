@@ -33,6 +33,12 @@ from .common import num, rms, session_name
 FOLD_BLOCK_S = 1.0
 #: A mean soft-iron gain further than this from 1 (physical units, known field) is suspect.
 MAX_GAIN_ERROR = 0.30
+#: The Earth's field at its surface, uT (the WMM: about 22 in the South Atlantic anomaly, 67
+#: near the south magnetic pole): a field outside it is most likely a unit slip.
+EARTH_FIELD_UT = (20.0, 70.0)
+#: ``[mag] field_uT`` and the session's ``magnetic_field_uT`` further apart than this fraction:
+#: one of them is wrong (issue 24.7).
+MAX_FIELD_MISMATCH = 0.10
 #: Fraction of exact repeats among motion rows above which the magnetometer is taken to be read
 #: faster than it updates (sample and hold): repeats are then left out everywhere.
 HOLD_REPEATS = 0.2
@@ -245,6 +251,7 @@ def calibrate_mag(
     sigmas = mag_solver.residual_sigmas(res, data)
     warnings = _field_checks(session, readings, res, sigmas, mcfg)
     warnings += _gain_check(res, units, units_in, field)
+    warnings += _stated_field_check(session, mcfg, field, units, field_source)
     figures = _quality_figures(quality, held, res, mcfg)
     extra = _section_extra(session, readings, res, units_in, field, units, field_source)
     extra.update({
@@ -386,6 +393,34 @@ def _gain_check(res, units: str, units_in: str, field: float) -> list[str]:
         f"{units_in} needs about 1, within {100 * MAX_GAIN_ERROR:.0f} %): are mag_units "
         f"({units_in}) and the field ({field:g} uT) right?"
     ]
+
+
+def _stated_field_check(session: Session, cfg: MagConfig, field: float, units: str,
+                        source: str) -> list[str]:  # fmt: skip
+    """The field magnitude the output is scaled to, checked (issue 24.7): ``[mag] field_uT``
+    against the session's ``magnetic_field_uT``, and either against the Earth's surface field
+    (:data:`EARTH_FIELD_UT`). Each finding is a warning, which stops the save without
+    ``--force``: a field 100 times too large makes every calibrated reading 100 times so."""
+    if units != "uT":
+        return []
+    out = []
+    stated = session.magnetic_field_uT
+    if cfg.field_uT is not None and stated is not None and stated > 0 and \
+            abs(cfg.field_uT / stated - 1.0) > MAX_FIELD_MISMATCH:  # fmt: skip
+        out.append(
+            f"[mag] field_uT = {cfg.field_uT:g} uT is {cfg.field_uT / stated:.3g} times the "
+            f"session's field ({stated:g} uT, magnetic_field_uT): the output would be scaled "
+            "by it; check the units (uT: 1 gauss = 100 uT, 1 uT = 1000 nT) and the place, or "
+            "leave field_uT out to use the session's"
+        )
+    lo, hi = EARTH_FIELD_UT
+    if not lo <= field <= hi:
+        out.append(
+            f"the field magnitude {field:g} uT ({source}) is outside the Earth's field at its "
+            f"surface ({lo:g} to {hi:g} uT): a unit slip (1 gauss = 100 uT, 1 uT = 1000 nT)? "
+            "Give the local field in uT (a geomagnetic model such as the WMM for your place)"
+        )
+    return out
 
 
 def _quality_figures(quality, held: np.ndarray, res, cfg: MagConfig) -> dict:

@@ -392,7 +392,8 @@ def simulate_hk_gyro(
     Parameters
     ----------
     seed : int
-        Non-negative seed; the same seed and options give the same samples bit for bit.
+        Non-negative seed; the same seed and options draw the same random numbers (the samples are
+        bit for bit the same on one machine, to the last bits of the arithmetic elsewhere).
     mountings : int
         Number of IMU mountings in the iron (1..8; the paper used 2).
     rate_hz : float

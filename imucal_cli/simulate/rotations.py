@@ -254,7 +254,8 @@ def simulate_gyro_rotations(
     plan : str
         ``qureshi-axes``, ``free:N``, or ``free`` with ``count``.
     seed : int
-        Non-negative seed; the same seed and options give the same samples bit for bit.  The
+        Non-negative seed; the same seed and options draw the same random numbers (the samples are
+        bit for bit the same on one machine, to the last bits of the arithmetic elsewhere).  The
         part is the one :func:`imucal_cli.simulate.triad.simulate` draws for this seed.
     rate_hz, still_s : float
         Sample rate, Hz; still period before and after each turn, s (at least 10 samples).

@@ -18,6 +18,12 @@ every pose a static segment of ``hold_s`` and, between poses, a rotation segment
 and angular acceleration at both ends) while the unit is lifted by ``lift_m`` and put down
 again.
 
+The directions of ``random:N`` are uniform on the sphere, each at least
+:func:`random_separation_deg` from the ones before (drawn again when closer): a person asked
+for poses in new directions spreads them, and the guided capture refuses a pose within 15 deg of
+one taken, so that N poses give N distinct directions (9 of them the 9 parameters of the
+gravity-magnitude model).
+
 Each pose's true orientation is the labelled one tilted by a random horizontal rotation vector
 (2 components iid normal, std ``jitter_deg / sqrt(2)``, so the RMS angle between the true and
 the labelled up is ``jitter_deg``) and turned to a uniform random heading about the vertical.
@@ -161,6 +167,27 @@ def _stream_samples(opt: dict, k_poses: int) -> int:
     return n_total
 
 
+def random_separation_deg(k: int) -> float:
+    """The least angle between two of ``k`` random pose directions, degrees: 25 (the guided
+    capture's 15 plus placement errors), less for many poses (100 / sqrt(k): a fifth of the
+    density at which random sequential placement on the sphere jams)."""
+    return float(min(25.0, 100.0 / np.sqrt(max(k, 1))))
+
+
+def spread_directions(rng: np.random.Generator, k: int, min_deg: float) -> np.ndarray:
+    """``k`` unit vectors (k, 3), each uniform on the sphere and at least ``min_deg`` from
+    every one before it (random sequential placement: a closer draw is drawn again)."""
+    cos_min = np.cos(np.radians(min_deg))
+    out = np.empty((k, 3))
+    n = 0
+    while n < k:
+        v = unit(rng.standard_normal(3))
+        if n == 0 or np.max(out[:n] @ v) < cos_min:
+            out[n] = v
+            n += 1
+    return out
+
+
 def _orientations(
     rng: np.random.Generator, nominal: list, jitter_deg: float
 ) -> tuple[np.ndarray, list[Rotation], np.ndarray, np.ndarray]:
@@ -170,7 +197,7 @@ def _orientations(
     """
     k_poses = len(nominal)
     if nominal[0] is None:
-        nominal_up = unit(rng.standard_normal((k_poses, 3)))
+        nominal_up = spread_directions(rng, k_poses, random_separation_deg(k_poses))
     else:
         nominal_up = np.array(nominal)
     heading = rng.uniform(0.0, 2.0 * np.pi, k_poses)

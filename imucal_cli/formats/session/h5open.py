@@ -186,6 +186,27 @@ def _open_waiting(path: Path, src: str, swmr: bool, mode: str = "r") -> h5py.Fil
 
 
 def _superblock(path: Path, src: str) -> Superblock:
+    """The file's HDF5 superblock, checked (:func:`read_superblock`).
+
+    While another process has the file open for writing (a concurrent ``imucal calibrate``
+    storing its result holds HDF5's lock), its header may declare space the library has not
+    written yet: that is waited for (up to :data:`LOCK_WAIT_S`), not taken for a truncated
+    file."""
+    deadline = time.monotonic() + LOCK_WAIT_S
+    delay = 0.02
+    while True:
+        try:
+            return _read_superblock(path, src)
+        except SessionError:
+            if not locked_by_other(path):
+                return _read_superblock(path, src)  # again: the writer may have just closed it
+            if time.monotonic() >= deadline:
+                raise
+        time.sleep(delay)
+        delay = min(delay * 2, 0.5)
+
+
+def _read_superblock(path: Path, src: str) -> Superblock:
     check_session_file(path, src)
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))

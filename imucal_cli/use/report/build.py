@@ -91,7 +91,9 @@ def build_report(cal: Calibration) -> dict[str, Any]:
         simulated session calibrated by the gravity solver, else ``None``); for a calibration
         another tool made, ``imported_from`` (``format``, ``file``) and ``created_basis`` (what
         ``created`` is, when the format records no date), else ``None``; ``left_out``: the
-        sensors the calibrate step left out, with why (``{"accel": note}``; empty when none).
+        sensors the calibrate step left out, with why (``{"accel": note}``; empty when none);
+        ``complete``: the calibrate step's verdict (no sensor of the session left out), None
+        when the calibration does not record it.
     """
     extra = cal.extra or {}
     sections = cal.sections()
@@ -113,10 +115,18 @@ def build_report(cal: Calibration) -> dict[str, Any]:
         "reference": dict(PAPER_REFERENCE) if _paper_context(cal) else None,
         "left_out": {
             kind: as_text(extra.get(f"{kind}_note"))
-            for kind in ("accel", "gyro")
+            for kind in ("accel", "gyro", "mag")
             if extra.get(f"{kind}_note") and sections.get(kind) is None
         },
+        "complete": _complete(extra),
     }
+
+
+def _complete(extra: dict) -> bool | None:
+    """The calibrate step's ``complete`` (issue 24.2: no sensor of the session left out), or
+    None for a calibration that does not record it (older, or another tool's)."""
+    value = extra.get("complete")
+    return value if isinstance(value, bool) else None
 
 
 def _imported_from(raw: Any) -> dict[str, str | None] | None:
