@@ -213,5 +213,5 @@ def run(console: Console, n_seeds: int = 4) -> bool:
     console.print(f"temperature bench: {time.perf_counter() - t0:.0f} s; "
                   f"{'OK' if ok else 'FAILED'} (after < before; a 0.5 % clock found, |z| < "
                   "4.5, the corrected scale error < 10 % of the uncorrected; a right clock "
-                  "never applied, the gyro that of [clock] off)")  # fmt: skip
+                  "never applied, the gyro that of the clock off)")  # fmt: skip
     return ok
