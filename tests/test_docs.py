@@ -29,7 +29,7 @@ README_MAX_BYTES = 20_000
 
 def _prose(text: str) -> str:
     """The text without fenced code blocks and inline code (links there are examples)."""
-    text = re.sub(r"^(```|~~~).*?^\1", "", text, flags=re.S | re.M)
+    text = re.sub(r"^[ \t]*(```|~~~).*?^[ \t]*\1", "", text, flags=re.S | re.M)
     return re.sub(r"`[^`\n]*`", "", text)
 
 
@@ -45,7 +45,8 @@ def _slug(heading: str) -> str:
 
 def _headings(path: Path) -> list[tuple[int, str]]:
     """(level, text) of every heading outside code blocks."""
-    text = re.sub(r"^(```|~~~).*?^\1", "", path.read_text(encoding="utf-8"), flags=re.S | re.M)
+    text = path.read_text(encoding="utf-8")
+    text = re.sub(r"^[ \t]*(```|~~~).*?^[ \t]*\1", "", text, flags=re.S | re.M)
     return [(len(m[1]), m[2].strip()) for m in re.finditer(r"^(#{1,6})\s+(.+?)\s*#*$", text, re.M)]
 
 
@@ -63,6 +64,7 @@ def _anchors(path: Path) -> set[str]:
 def _sections(path: Path, level: int) -> dict[str, str]:
     """Heading text -> the text under it, up to the next heading of this level or higher."""
     text = path.read_text(encoding="utf-8")
+    text = re.sub(r"^[ \t]*(```|~~~).*?^[ \t]*\1", "", text, flags=re.S | re.M)
     parts = re.split(rf"^(#{{1,{level}}}\s+.+)$", text, flags=re.M)
     out = {}
     for head, body in zip(parts[1::2], parts[2::2], strict=True):
@@ -188,3 +190,33 @@ def test_every_plan_format_and_benchmark_is_documented():
     headings = {text for _, text in _headings(DOCS / "accuracy.md")}
     for name in names:
         assert name in headings, f"docs/accuracy.md: no section for the {name} benchmark"
+
+
+def _command_lines(text: str):
+    """Every ``imucal COMMAND ...`` line of the code blocks (continuation lines joined,
+    comments and a ``$`` prompt dropped)."""
+    for block in re.findall(r"^[ \t]*```[^\n]*\n(.*?)^[ \t]*```", text, re.S | re.M):
+        for line in block.replace("\\\n", " ").splitlines():
+            line = line.split(" #")[0].strip().removeprefix("$ ")
+            for part in re.split(r"&&|\|", line):
+                words = part.split()
+                if len(words) >= 2 and words[0] == "imucal":
+                    yield words
+
+
+@pytest.mark.parametrize("page", USER_DOCS, ids=lambda p: p.relative_to(ROOT).as_posix())
+def test_every_command_line_shown_uses_real_commands_and_options(page):
+    commands = _commands()
+    wrong = []
+    for words in _command_lines(page.read_text(encoding="utf-8")):
+        name = words[1]
+        if name.startswith("-"):  # imucal --install-completion, --version
+            continue
+        command = commands.get(name)
+        if command is None:
+            wrong.append(f"imucal {name}: no such command")
+            continue
+        known = {o for p in command.params for o in p.opts + p.secondary_opts}
+        wrong += [f"imucal {name} {w}" for w in words[2:]
+                  if w.startswith("-") and w.split("=")[0] not in known]  # fmt: skip
+    assert not wrong, wrong
