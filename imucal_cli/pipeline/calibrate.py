@@ -388,7 +388,7 @@ def calibrate_session(
             sec.extra.setdefault("notes", []).insert(0, segmented)
     attach(accel if segmented_accel else None, models.get("accel"))
     attach(gyro, models.get("gyro"))
-    if gyro is not None and "scale" in root.get("sample_clock", {}):
+    if gyro is not None and root.get("sample_clock", {}).get("applied"):
         gyro.extra["sample_clock_scale"] = root["sample_clock"]["scale"]
         gyro.extra["sample_clock"] = root["sample_clock"]
     extra = {"toolkit_version": __version__, "config": cfg.to_dict(), **root}

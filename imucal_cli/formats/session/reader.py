@@ -315,8 +315,10 @@ def _read_segments(
     log_group = member(file, LOG_GROUP, src)
     log = member(log_group, "segments", src) if isinstance(log_group, h5py.Group) else None
     if not segments and isinstance(log, h5py.Dataset):
-        # The writer was killed before it wrote the segment groups: use its SWMR-safe log.
-        check_dataset(log, src, limit=file_size(file), complete=not unclosed)
+        # The writer was killed before it wrote the segment groups (or the disk was full):
+        # use its SWMR-safe log.  A row whose chunk was never written reads as empty bytes
+        # and is skipped below, so the log is never refused for it.
+        check_dataset(log, src, limit=file_size(file), complete=False)
         if log.dtype.kind != "S" or log.ndim != 1:
             raise SessionError(f"{src}: /{LOG_DATASET} is not a list of JSON strings")
         for row, item in enumerate(log[()]):
