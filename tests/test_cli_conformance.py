@@ -26,7 +26,9 @@ pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX pipes")
 
 COMMANDS = sorted(c.name or c.callback.__name__ for c in app.registered_commands)
 ENV = {**os.environ, "NO_COLOR": "1", "COLUMNS": "80"}
-README = Path(__file__).resolve().parents[1] / "README.md"
+DOCS = Path(__file__).resolve().parents[1] / "docs"
+COMMANDS_PAGE = DOCS / "commands.md"  # the exit statuses and the --json schemas
+CAPTURE_PAGE = DOCS / "capture.md"  # the columns of a line and their time units
 
 
 def _help(*args: str) -> subprocess.CompletedProcess:
@@ -73,7 +75,7 @@ def test_help_keeps_square_brackets_and_shows_what_the_readme_says():
     assert "[[step]]" in capture
     assert "[default: capture-<date>-<time>.h5]" in capture
     assert "[default: 115200]" in capture and "[default: t,ax,ay,az,gx,gy,gz,temp]" in capture
-    assert "semicolons" in capture  # the separators the README names
+    assert "semicolons" in capture  # the separators docs/capture.md names
     assert "pip install 'imucal-cli[plot]'" in _help("report", "--help").stdout
     simulate = _help("simulate", "--help").stdout
     for fault in ("--garbage", "--stall-after SECONDS", "--vanish-after SECONDS",
@@ -83,13 +85,13 @@ def test_help_keeps_square_brackets_and_shows_what_the_readme_says():
         assert "Exit status" in _help(command, "--help").stdout, command
 
 
-def test_every_command_names_the_same_time_units_as_the_readme():
+def test_every_command_names_the_same_time_units_as_the_docs():
     from imucal_cli.formats.columns import TIME_UNITS
 
     for command in ("capture", "import", "apply"):
         assert f"--time-unit {'|'.join(TIME_UNITS)} " in _help(command, "--help").stdout, command
     listed = "(" + ", ".join(f"`{u}`" for u in TIME_UNITS) + ")"
-    assert f"`--time-unit` {listed}" in " ".join(README.read_text(encoding="utf-8").split())
+    assert f"`--time-unit` {listed}" in " ".join(CAPTURE_PAGE.read_text(encoding="utf-8").split())
 
 
 def test_version_and_exit_status_table():
@@ -97,10 +99,10 @@ def test_version_and_exit_status_table():
         proc = run(flag)
         assert proc.returncode == 0 and proc.stdout.strip() == f"imucal {__version__}"
     root = _help("--help").stdout
-    readme = README.read_text(encoding="utf-8")
+    page = COMMANDS_PAGE.read_text(encoding="utf-8")
     for code, what in EXIT_CODES:
         assert re.search(rf"^\s*{code}\s+{re.escape(what)}$", root, re.M), (code, root)
-        assert f"| {code} | {what} |" in readme, (code, "README exit-status table")
+        assert f"| {code} | {what} |" in page, (code, "docs/commands.md exit-status table")
 
 
 @pytest.mark.parametrize(
@@ -159,7 +161,8 @@ def test_output_into_a_pipe_is_not_hard_wrapped(calibrated):
 
 
 def test_every_command_that_prints_results_has_json(calibrated, tmp_path):
-    """--json: one JSON document on stdout, nothing else, with a format name (README schemas)."""
+    """--json: one JSON document on stdout, nothing else, with a format name (schemas in
+    docs/commands.md)."""
     csv = tmp_path / "raw.csv"
     csv.write_text("t,ax,ay,az\n" + "".join(f"{i / 100},0,0,{9.8 + (i % 3) * 1e-3}\n"
                                              for i in range(600)))  # fmt: skip
@@ -184,7 +187,7 @@ def test_every_command_that_prints_results_has_json(calibrated, tmp_path):
         assert proc.returncode == 0, (name, proc.stderr)
         document = json.loads(proc.stdout)
         assert document["format"] == name and document["format_version"] >= 1, name
-        assert f"`{name}`" in README.read_text(encoding="utf-8"), f"{name}: schema in the README"
+        assert f"`{name}`" in COMMANDS_PAGE.read_text(encoding="utf-8"), f"{name}: schema in docs"
     calibrate = json.loads(run(*cases["imucal-calibrate"][:-1], "--force", "--json").stdout)
     assert calibrate["calibration"]["accel"]["solver"] == "gravity"
 
@@ -213,7 +216,7 @@ def test_shell_completion_of_commands_options_plans_and_values():
     assert _complete("imucal export --format y") == ["yaml"]
     # a path: nothing offered, so the shell completes file names (complete -o default)
     assert _complete("imucal calibrate ") == []
-    # The script for a named shell, as the README shows (no detection of the calling shell,
+    # The script for a named shell, as docs/commands.md shows (no detection of the calling shell,
     # which fails where the test runs under no shell: "Shell not supported")
     for shell, words in (("bash", "complete -o default"), ("zsh", "compdef"),
                          ("fish", "complete --command imucal")):  # fmt: skip

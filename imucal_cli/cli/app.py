@@ -39,7 +39,7 @@ EXIT_CODES = (
     ),
     (130, "interrupted (Ctrl-C) before anything was saved"),
 )
-"""The exit statuses of every command (the same table is in the README)."""
+"""The exit statuses of every command (the same table is in docs/commands.md)."""
 
 
 def exit_codes_help() -> str:
@@ -110,7 +110,7 @@ ROOT_HELP = (
     "Calibrate MEMS accelerometers and gyroscopes with no rate table: simulate or capture a "
     "session, calibrate it, report the result.\n\n"
     "Commands print results for people; those that print results take --json for scripts "
-    "(schemas in the README). Shell completion: imucal --install-completion.\n\n"
+    "(schemas: docs/commands.md). Shell completion: imucal --install-completion.\n\n"
     + exit_codes_help()
 )
 

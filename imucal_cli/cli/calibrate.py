@@ -20,7 +20,7 @@ def calibrate(
     ),
     config: Path | None = typer.Option(
         None, "--config", "-c", metavar="FILE.toml",
-        help="TOML config choosing solvers and options (see README, Config reference).",
+        help="TOML config choosing solvers and options (every key: docs/config.md).",
     ),  # fmt: skip
     output: Path | None = output_option(
         "FILE.json", "Calibration JSON to write [default: SESSION with .cal.json]."
@@ -63,7 +63,7 @@ def calibrate(
     ),
     json_output: bool = json_option(
         "Print the result as JSON on stdout (nothing else): where it was written and the "
-        "calibration itself; several sessions: one entry each (schema in the README)."
+        "calibration itself; several sessions: one entry each (schemas: docs/commands.md)."
     ),
 ) -> None:
     """Calibrate the sensors of SESSION the config asks for and write a calibration JSON.

@@ -90,7 +90,7 @@ def check_span(temperature: np.ndarray, what: str, min_span_c: float = MIN_SPAN_
             f"{what}: the temperature spans only {span:.1f} C ({lo:.1f} .. {hi:.1f} C); a bias "
             f"model fitted over less than {min_span_c:g} C is swamped by noise and run-to-run "
             "drift and grows wrong fast outside its span: record through at least "
-            f"{min_span_c:g} C (a cold start or a hair-dryer ramp, see the README)"
+            f"{min_span_c:g} C (a cold start or a hair-dryer ramp, see docs/temperature.md)"
         )
     return span
 
