@@ -21,7 +21,6 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from imucal_cli.solvers import outliers as out
-from imucal_cli.solvers.order import nanmedian
 
 from .common import StaticPoses
 
@@ -188,7 +187,7 @@ def _describe(res, poses: StaticPoses, k: int, index: np.ndarray) -> Outlier:
     p = out.significance(d, k)
     up_angle = None if res.up_angle_deg is None else float(res.up_angle_deg[k])
     finite = res.up_angle_deg is not None and np.isfinite(res.up_angle_deg).any()
-    placement = float(nanmedian(res.up_angle_deg)) if finite else 0.0
+    placement = float(np.nanmedian(res.up_angle_deg)) if finite else 0.0
     seg = poses.segments[k]
     return Outlier(
         int(index[k]), seg.name, seg.label, excess, p, _cause(poses, k, up_angle, placement), ""

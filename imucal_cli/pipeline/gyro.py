@@ -27,7 +27,6 @@ from imucal_cli.errors import DesignError
 from imucal_cli.formats.calibration import MODEL_EQUATION, SensorCalibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Segment, Session
-from imucal_cli.solvers.order import median
 from imucal_cli.solvers.segmentation import find_rotations, find_static
 from imucal_cli.solvers.segmented import moments_in_chunks, stacked_rows
 
@@ -176,7 +175,7 @@ def _mean_period(time: np.ndarray) -> float:
     w = min(PERIOD_WINDOW, len(time) - 1)
     if w < 1:
         return 0.0
-    return float(median((time[w:] - time[:-w]) / w))
+    return float(np.median((time[w:] - time[:-w]) / w))
 
 
 def _continuous(time: np.ndarray, a, b, period: float) -> np.ndarray:
@@ -240,7 +239,7 @@ def bridged_note(session, turns: list[Segment], usable: list[Turn]) -> list[str]
     added = [(a, b) for a, b in added if a or b]
     if not added:
         return []
-    rate = session.sample_rate_hz or 1.0 / float(median(np.diff(session.time)))
+    rate = session.sample_rate_hz or 1.0 / float(np.median(np.diff(session.time)))
     longest = max(a + b for a, b in added) / rate
     return [f"{len(added)} turn(s) extended through continuous samples to the still periods "
             f"around them (up to {longest:.1f} s: the unit held a pose longer than its segment, "
@@ -506,7 +505,7 @@ def gyro_checks(session, cfg, gains, units) -> list[str]:
         session.gyro_units or ""
     )
     if nominal is None:
-        ref, what = median(gains), "the median of the three axes"
+        ref, what = np.median(gains), "the median of the three axes"
     else:
         ref, what = nominal, "nominal"
     out = []

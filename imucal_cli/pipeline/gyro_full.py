@@ -16,7 +16,6 @@ import numpy as np
 
 from imucal_cli.errors import ImucalError
 from imucal_cli.solvers import gyro_full, gyro_sigma
-from imucal_cli.solvers.order import median
 from imucal_cli.solvers.segmented import stacked_rows
 
 from .common import num
@@ -313,7 +312,7 @@ def residual_warnings(data: GyroData, res, rot, st) -> list[str]:
             "level even when fitted without them: the unit moved during the still before or "
             "after, or the turn was clipped; re-capture or remove those segments"
         ]
-    still_level = float(np.sqrt(median(res.still_chi2) / CHI2_3_MEDIAN))
+    still_level = float(np.sqrt(np.median(res.still_chi2) / CHI2_3_MEDIAN))
     if still_level > limit:
         hint = ("the bias drifted between them" if tested else
                 'the gyro is g-sensitive ([gyro.full] g_sensitivity = "on"), or the bias drifted')
@@ -330,7 +329,7 @@ CANDIDATE_SHARE, MAX_CANDIDATES = 0.3, 3
 
 
 def _level(chi2: np.ndarray) -> float:
-    return float(np.sqrt(median(chi2) / CHI2_2_MEDIAN))
+    return float(np.sqrt(np.median(chi2) / CHI2_2_MEDIAN))
 
 
 def _outliers(data, res, rot, st, level, limit) -> tuple[list[int], np.ndarray]:

@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+from scipy.special import fdtrc
 
 from imucal_cli.errors import DesignError
 from imucal_cli.formats.calibration import MODEL_EQUATION, SensorCalibration
@@ -182,7 +183,7 @@ def _g_choice(cfg, fit):
     dof = with_g.dof
     drop = max(base.chi2 - with_g.chi2, 0.0)
     F = float(drop / 9 / (with_g.chi2 / dof))
-    p = float(gyro_full.fdtrc(9, dof, F))
+    p = float(fdtrc(9, dof, F))
     test = {"included": mode == "on" or p < gyro_full.G_SELECT_P, "observable": True, "F": F,
             "dof": [9, dof], "p_value": p}  # fmt: skip
     if not test["included"]:

@@ -16,6 +16,7 @@ directions through the Schur complement).
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from .gravity import _UPPER
 
@@ -184,7 +185,6 @@ def labelled_crb(
         theta_floor,
         triangular_and_rotation,
     )
-    from .rotation import Rotation
 
     Gt, Gd = design_jacobian(M, u, g)
     placement = np.broadcast_to(np.asarray(placement_deg, float), (len(u),))

@@ -29,14 +29,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+from scipy.special import chdtri  # inverse survival function of chi^2
 
 from imucal_cli.errors import DesignError, SolverError
-from imucal_cli.solvers.quantiles import chdtri  # inverse survival function of chi^2
-from imucal_cli.solvers.rotation import Rotation
 
 from .ellipsoid import fit_ellipsoid
-from .lsq import least_squares
-from .order import median
 from .outliers import Deletion, deletion
 from .poses import angle_deg
 
@@ -212,6 +211,8 @@ def _solve(a_n, g, w, x0, max_iterations):
         fun,
         x0,
         jac=jac,
+        method="lm",
+        x_scale="jac",
         xtol=1e-12,
         ftol=1e-12,
         gtol=1e-12,
@@ -480,7 +481,7 @@ def _align_to_labels(directions, up, variant):
     for _ in range(3):
         rot, _ = Rotation.align_vectors(up[use], directions[use])
         ang = angle_deg(directions @ rot.as_matrix().T, np.where(labelled[:, None], up, 1.0))
-        keep = labelled & (ang <= max(LABEL_OUTLIER_DEG, 5 * median(ang[labelled])))
+        keep = labelled & (ang <= max(LABEL_OUTLIER_DEG, 5 * np.median(ang[labelled])))
         if keep.sum() < 2 or np.linalg.matrix_rank(up[keep], tol=0.1) < 2 or (keep == use).all():
             break
         use = keep
@@ -493,7 +494,7 @@ def _align_to_labels(directions, up, variant):
 def _weights_from_sigmas(sig: np.ndarray) -> np.ndarray:
     # A pose whose samples never changed (noise below one quantisation step) would get an
     # infinite weight: floor each sigma at a tenth of the median.
-    floor = 0.1 * median(sig[sig > 0]) if np.any(sig > 0) else 1.0
+    floor = 0.1 * np.median(sig[sig > 0]) if np.any(sig > 0) else 1.0
     return 1.0 / np.maximum(sig, floor)
 
 

@@ -44,11 +44,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import sparse
 from scipy.optimize import brentq
 from scipy.stats import chi2 as chi2_dist
 
 from imucal_cli.errors import DesignError, SolverError
-from imucal_cli.solvers.banded import BandedWhitener, Coo
+from imucal_cli.solvers.banded import BandedWhitener
 from imucal_cli.solvers.gyro_full import _diagonal_blocks
 from imucal_cli.solvers.gyro_known_turns import (
     _DenseWhitener,
@@ -274,14 +275,12 @@ class _Stacked:
         self.L = None if self.kp is None else self.kp.whitening(x)
         self.W = None if self.gp is None else self._gravity_whitener(x)
 
-    def gravity_covariance(self, x) -> Coo:
+    def gravity_covariance(self, x) -> sparse.csr_array:
         """Covariance of the gravity-referenced turns' residuals with the excess ``tau``."""
         C = self.gp.rotation_covariance(x)
         if self.tau <= 0:
             return C
-        d = np.arange(C.shape[0])
-        return Coo(np.r_[C.row, d], np.r_[C.col, d], np.r_[C.data, np.full(len(d), self.tau**2)],
-                   C.shape)  # fmt: skip
+        return C + self.tau**2 * sparse.eye_array(C.shape[0], format="csr")
 
     def _gravity_whitener(self, x) -> Whitener:
         if self.accel_dirs is None:

@@ -29,11 +29,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.stats import chi2 as chi2_dist
 
 from imucal_cli.errors import DesignError, SolverError
 
 from .gravity import model_to_params, params_to_model
-from .segmentation import chi2_isf
 from .temperature import MAX_DEGREE, MIN_SPAN_C, SELECT_P, check_span, f1_pvalue
 
 __all__ = ["JointResult", "fit_gravity_tempco"]
@@ -321,7 +321,7 @@ def _package(model, fit, degree, T, tests, nfev, weighted) -> JointResult:
     dof = len(fit.f) - len(fit.x)
     chi2 = fit.chi2
     if weighted:
-        noise_scale = chi2 / dof if dof > 0 and chi2 > chi2_isf(0.01, dof) else 1.0
+        noise_scale = chi2 / dof if dof > 0 and chi2 > chi2_dist.isf(0.01, dof) else 1.0
     else:
         noise_scale = chi2 / dof
     D = model.to_raw_jacobian(degree)
