@@ -27,8 +27,8 @@ from imucal_cli.errors import DesignError
 from imucal_cli.formats.calibration import MODEL_EQUATION, SensorCalibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Segment, Session
+from imucal_cli.numerics.segmented import moments_in_chunks, stacked_rows
 from imucal_cli.solvers.segmentation import find_rotations, find_static
-from imucal_cli.solvers.segmented import moments_in_chunks, stacked_rows
 
 from .common import rms, session_name, with_segments
 

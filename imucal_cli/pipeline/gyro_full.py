@@ -15,8 +15,8 @@ from dataclasses import replace
 import numpy as np
 
 from imucal_cli.errors import ImucalError
+from imucal_cli.numerics.segmented import stacked_rows
 from imucal_cli.solvers import gyro_full, gyro_sigma
-from imucal_cli.solvers.segmented import stacked_rows
 
 from .common import num
 from .gyro import AXES, GyroData, GyroFit

@@ -28,8 +28,7 @@ import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
 from imucal_cli.errors import InputError
-
-from .blocks import check_all_given, check_not_more
+from imucal_cli.numerics.blocks import check_all_given, check_not_more
 
 __all__ = [
     "DEFAULT_ALPHA",
