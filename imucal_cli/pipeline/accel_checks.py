@@ -21,6 +21,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from imucal_cli.solvers import outliers as out
+from imucal_cli.solvers.labelled import contradicted_labels
 
 from .common import StaticPoses
 
@@ -158,7 +159,6 @@ def robust_fit(
 def drop_wrong_labels(poses: StaticPoses, g: float) -> tuple[StaticPoses, list[Outlier]]:
     """Labels the readings contradict (a pose labelled with the wrong face) dropped before the
     labelled-pose fit, which they would spoil or stop: the pose keeps its magnitude."""
-    from imucal_cli.solvers.labelled import contradicted_labels
 
     found = []
     up = poses.up.copy()

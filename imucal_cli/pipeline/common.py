@@ -3,7 +3,8 @@ uncalibrated user would assume, design checks and physical-sense checks."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import json
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -13,6 +14,7 @@ from imucal_cli.formats.session import Segment, Session
 from imucal_cli.solvers import holds
 from imucal_cli.solvers.holds import PooledNoise
 from imucal_cli.solvers.poses import count_distinct, describe_direction, spread_deg, unit
+from imucal_cli.solvers.segmentation import find_rotations, find_static
 
 #: Every pose within this angle of one direction cannot separate bias from scale.
 MIN_SPREAD_DEG = 20.0
@@ -291,7 +293,6 @@ def _what_would_work(poses: StaticPoses, directions: np.ndarray) -> str:
 
 def stored_accel_hint(session: Session) -> str:
     """A pointer to an accelerometer calibration already stored in the session, or ''."""
-    import json
 
     for name in sorted(session.calibrations, reverse=True):
         try:
@@ -373,10 +374,6 @@ def with_segments(session: Session) -> tuple[Session, str | None]:
     thresholds from the data's own noise. Returns a note saying so, or None."""
     if session.segments or session.accel is None:
         return session, None
-    from dataclasses import replace
-
-    from imucal_cli.formats.session import Segment
-    from imucal_cli.solvers.segmentation import find_rotations, find_static
 
     still = find_static(session.time, session.accel, session.gyro)
     segs = [Segment(f"{i:04d}", "static", iv.start, iv.stop) for i, iv in enumerate(still)]

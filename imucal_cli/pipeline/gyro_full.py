@@ -19,7 +19,7 @@ from imucal_cli.numerics.segmented import stacked_rows
 from imucal_cli.solvers import gyro_full, gyro_sigma
 
 from .common import num
-from .gyro import AXES, GyroData, GyroFit
+from .gyro_turns import AXES, GyroData, GyroFit, Still
 
 #: Medians of the chi-square distribution with 2 (a turn's two residuals) and 3 (a still
 #: period's gyro mean) degrees of freedom.
@@ -40,13 +40,18 @@ def rotations_and_stills(data: GyroData) -> tuple[gyro_full.Rotations, gyro_full
         after=np.array([t.after for t in turns]),
         a=np.split(a, np.cumsum(counts)[:-1]),
     )
-    st = gyro_full.Stills(
-        g=np.array([s.g for s in data.stills]),
-        g_sigma=np.array([s.g_sigma for s in data.stills]),
-        z_mean=np.array([s.z_mean for s in data.stills]),
-        z_sigma=np.array([max(s.z_sigma, 1e-12) for s in data.stills]),
+    return rot, solver_stills(data.stills)
+
+
+def solver_stills(stills: list[Still]) -> gyro_full.Stills:
+    """The solver's view of the still periods: calibrated gravity and its direction noise,
+    the raw gyro mean and its noise (floored at 1e-12: a quantised gyro can read constant)."""
+    return gyro_full.Stills(
+        g=np.array([s.g for s in stills]),
+        g_sigma=np.array([s.g_sigma for s in stills]),
+        z_mean=np.array([s.z_mean for s in stills]),
+        z_sigma=np.array([max(s.z_sigma, 1e-12) for s in stills]),
     )
-    return rot, st
 
 
 def fit_full_model(data: GyroData, g_sensitivity: str | None = None) -> GyroFit:

@@ -36,6 +36,8 @@ from scipy.special import chdtri
 
 from imucal_cli.errors import DesignError
 
+from .ellipsoid import fit_ellipsoid
+
 
 @dataclass(frozen=True)
 class Constraints:
@@ -398,7 +400,6 @@ def _factorize_triad(Z: np.ndarray, constraints: Constraints, bias):
 
 def _factorize_subspace(Z, constraints, bias, scale_reference) -> FactorizationResult:
     """Redundant unit: the affine 3-D subspace first, then the triad method inside it."""
-    from .ellipsoid import fit_ellipsoid
 
     z_bar = Z.mean(axis=0)
     _, sv, Vt = np.linalg.svd(Z - z_bar, full_matrices=False)

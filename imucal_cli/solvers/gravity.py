@@ -47,6 +47,20 @@ PARAM_NAMES_12 = ["b_x", "b_y", "b_z"] + [f"m_{r}{c}" for r in "xyz" for c in "x
 _UPPER = (np.array([0, 1, 2, 0, 0, 1]), np.array([0, 1, 2, 1, 2, 2]))  # k_x k_y k_z k_xy k_xz k_yz
 
 
+def triangular_and_rotation(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``M = Q K`` with ``K`` upper triangular (positive diagonal where ``det M > 0``) and
+    ``Q`` a rotation, for one matrix (3, 3) or a stack (..., 3, 3). A mirrored matrix
+    (``det M < 0``: labels in a left-handed frame relative to the sensor) keeps ``Q`` proper
+    and gives ``K`` a negative ``k_z``."""
+    Q, K = np.linalg.qr(M)
+    sign = np.sign(np.diagonal(K, axis1=-2, axis2=-1))
+    Q, K = Q * sign[..., None, :], K * sign[..., :, None]
+    flip = np.where(np.linalg.det(Q) < 0, -1.0, 1.0)
+    Q[..., :, 2] *= flip[..., None]
+    K[..., 2, :] *= flip[..., None]
+    return K, Q
+
+
 def params_to_model(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Split the 9-parameter vector ``X`` (eq. 7) into bias ``B`` (3,) and triangular ``M``."""
     M = np.zeros((3, 3))
@@ -349,7 +363,6 @@ def _starts(a_mean, g, up, init) -> dict[str, tuple[np.ndarray, np.ndarray]]:
 
 def _labels_start(a_mean, up, g):
     """``a_k = B + g S up_k`` solved linearly over the labelled poses, as ``(B, M upper)``."""
-    from .labelled_model import triangular_and_rotation
 
     lab = np.isfinite(up).all(axis=1)
     X = np.column_stack([np.ones(lab.sum()), g * up[lab]])

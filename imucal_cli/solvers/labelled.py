@@ -114,7 +114,7 @@ from scipy.stats import f as f_dist
 
 from imucal_cli.errors import DesignError, SolverError
 
-from .gravity import _UPPER
+from .gravity import _UPPER, triangular_and_rotation
 from .labelled_model import (
     Problem,
     axes,
@@ -124,7 +124,6 @@ from .labelled_model import (
     second_order,
     sphere_exp,
     theta_floor,
-    triangular_and_rotation,
 )
 from .outliers import Deletion, deletion
 

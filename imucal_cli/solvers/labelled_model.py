@@ -5,9 +5,10 @@ second-order marginalisation over the placement."""
 from __future__ import annotations
 
 import numpy as np
+from scipy.sparse import coo_matrix
 from scipy.spatial.transform import Rotation
 
-from .gravity import _UPPER
+from .gravity import _UPPER, triangular_and_rotation
 
 PAIRS = ((0, 1), (0, 2), (1, 2))
 
@@ -36,20 +37,6 @@ def sphere_exp(u0: np.ndarray, T: np.ndarray, d: np.ndarray) -> tuple[np.ndarray
         + dsinc[:, None, None] * v[:, :, None] * d[:, None, :]
     )
     return u, du
-
-
-def triangular_and_rotation(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``M = Q K`` with ``K`` upper triangular (positive diagonal where ``det M > 0``) and
-    ``Q`` a rotation, for one matrix (3, 3) or a stack (..., 3, 3). A mirrored matrix
-    (``det M < 0``: labels in a left-handed frame relative to the sensor) keeps ``Q`` proper
-    and gives ``K`` a negative ``k_z``."""
-    Q, K = np.linalg.qr(M)
-    sign = np.sign(np.diagonal(K, axis1=-2, axis2=-1))
-    Q, K = Q * sign[..., None, :], K * sign[..., :, None]
-    flip = np.where(np.linalg.det(Q) < 0, -1.0, 1.0)
-    Q[..., :, 2] *= flip[..., None]
-    K[..., 2, :] *= flip[..., None]
-    return K, Q
 
 
 def axes(S: np.ndarray) -> np.ndarray:
@@ -263,8 +250,6 @@ class Problem:
         Jd = -np.einsum("nij,njc->nic", W, D[:, :, 9:])
         rows_d, cols_d, pr_rows, pr_cols = self.layout()
         if sparse:
-            from scipy.sparse import coo_matrix
-
             r = np.concatenate([np.repeat(np.arange(3 * N), 12), rows_d.ravel(), pr_rows])
             c = np.concatenate([np.tile(np.arange(12), 3 * N), cols_d.ravel(), pr_cols])
             v = np.concatenate([Jt.ravel(), Jd.ravel(), np.full(2 * L, 1.0 / self.sigma_p)])
