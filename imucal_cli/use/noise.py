@@ -13,7 +13,7 @@
    need a calibration: such a sensor is skipped with a warning, and when no sensor is left the
    step refuses with advice.
 3. Per axis: the overlapping Allan deviation summed block by block
-   (:class:`imucal_cli.solvers.allan.AllanAccumulator`), and the random walk, bias instability
+   (:class:`imucal_cli.numerics.allan.AllanAccumulator`), and the random walk, bias instability
    and rate random walk read from it (:func:`~imucal_cli.solvers.allan.noise_from_curve`),
    converted to the units people put in their filters.
 
@@ -36,7 +36,8 @@ from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import Calibration, SensorCalibration
 from imucal_cli.formats.noise import NOISE_FORMAT
 from imucal_cli.formats.session import Session, SessionSamples, samples_of
-from imucal_cli.solvers.allan import AllanAccumulator, AxisNoise, noise_from_curve
+from imucal_cli.numerics.allan import AllanAccumulator
+from imucal_cli.solvers.allan import AxisNoise, noise_from_curve
 
 __all__ = [
     "MIN_DURATION_S",

@@ -19,7 +19,7 @@ import numpy as np
 from imucal_cli.errors import InputError
 from imucal_cli.formats.inputs import read_head, read_input
 from imucal_cli.formats.number import NUMBER
-from imucal_cli.solvers.segmented import stacked_rows
+from imucal_cli.numerics.segmented import stacked_rows
 
 from .recording import ImportStats
 
