@@ -1,3 +1,3 @@
-from imucal_cli.cli import run
+from imucal_cli.cli import main
 
-run()
+main()
