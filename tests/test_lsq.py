@@ -196,25 +196,3 @@ def test_pencil_roots_match_scipy_generalised_eigenvalues():
         assert np.sum(~np.isfinite(ours)) == np.sum(~finite)
         for r in ref[finite]:  # each root found (conjugate pairs in any order)
             assert np.min(np.abs(ours[np.isfinite(ours)] - r)) < 1e-9 * max(1, abs(r))
-
-
-def test_calibrate_imports_no_scipy(tmp_path):
-    """The calibrate path is numpy-only (scipy's import costs more than a calibration)."""
-    import shutil
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    demo = tmp_path / "demo.h5"
-    shutil.copy(Path(__file__).resolve().parents[1] / "sessions" / "qureshi18-seed1.h5", demo)
-    code = (
-        "import sys\nfrom imucal_cli.cli import main\n"
-        f"sys.argv = ['imucal', 'calibrate', {str(demo)!r}, '-o', {str(tmp_path / 'c.json')!r},"
-        " '--no-store']\n"
-        "try:\n    main()\nexcept SystemExit as e:\n    assert not e.code, e.code\n"
-        "print(sorted(m for m in sys.modules if m.split('.')[0] == 'scipy'))\n"
-    )
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          timeout=600)  # fmt: skip
-    assert proc.returncode == 0, proc.stderr
-    assert proc.stdout.strip().splitlines()[-1] == "[]", proc.stdout

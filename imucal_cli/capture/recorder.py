@@ -33,8 +33,10 @@ from pathlib import Path
 
 from imucal_cli.capture.stream import DeviceGone
 from imucal_cli.errors import InputError, SessionError, WriteFailed
-from imucal_cli.formats.columns import SampleBlock
+from imucal_cli.formats.columns import TIME_UNITS, SampleBlock
 from imucal_cli.formats.output import check_output
+from imucal_cli.formats.session import SessionWriter
+from imucal_cli.formats.session.h5open import open_for_update
 
 __all__ = ["END_KINDS", "FLUSH_INTERVAL_S", "CaptureEnded", "Recorder"]
 
@@ -177,8 +179,6 @@ class Recorder:
 
     def _reopen(self) -> None:
         """``resume``: continue the session; its samples and segments stay, new ones follow."""
-        from imucal_cli.formats.session import SessionWriter
-
         if not self.path.is_file():
             raise InputError(f"{self.path}: no such session to resume")
         gap_s = max(_time.time() - self.path.stat().st_mtime, 0.0)  # since its last flush
@@ -247,8 +247,6 @@ class Recorder:
     def _open_writer(self, block: SampleBlock) -> None:
         """The session, at the first block: its units those given, else those the protocol's
         format fixes (MotionCal and i2cdevlib lines: counts)."""
-        from imucal_cli.formats.session import SessionWriter
-
         meta = dict(self._meta)
         for key, unit in getattr(self.protocol, "units", {}).items():
             if meta.get(key) is None:
@@ -545,7 +543,6 @@ class Recorder:
         columns = getattr(self.protocol, "columns", None)
         if getattr(columns, "time", None) is None or self._device_first is None:
             return None  # host-stamped: nothing to compare
-        from imucal_cli.formats.columns import TIME_UNITS
 
         device_s = self._device_last - self._device_first
         rate = (self.n_samples - self.resumed_from - 1) / device_s if device_s > 0 else float("inf")
@@ -575,7 +572,6 @@ class Recorder:
         span = self._device_last - self._device_first
         if not span > 0:
             return
-        from imucal_cli.formats.session.h5open import open_for_update
 
         with open_for_update(self.path, str(self.path)) as file:
             file.attrs["sample_rate_hz"] = (self.n_samples - self.resumed_from - 1) / span

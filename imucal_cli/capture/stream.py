@@ -23,11 +23,14 @@ import re
 import time as _time
 
 import numpy as np
+import serial
+from serial.tools import list_ports
 
 from imucal_cli.errors import InputError
 from imucal_cli.formats.columns import ColumnSpec, SampleBlock
 from imucal_cli.formats.importers.serial_lines import LINE_FORMATS, line_format, parse_line
 from imucal_cli.formats.importers.text import BLANK, NUMBER
+from imucal_cli.formats.importers.witmotion import WitMotionDecoder
 
 __all__ = [
     "AutoLineProtocol",
@@ -429,8 +432,6 @@ class DeviceGone(Exception):
 def available_ports() -> list[str]:
     """Device paths of the serial ports the system lists (USB adapters, built-in UARTs)."""
     try:
-        from serial.tools import list_ports
-
         return sorted(p.device for p in list_ports.comports())
     except Exception:  # noqa: BLE001 - listing is a courtesy in an error message
         return []
@@ -460,8 +461,6 @@ class WitMotionProtocol:
     """
 
     def __init__(self) -> None:
-        from imucal_cli.formats.importers.witmotion import WitMotionDecoder
-
         self._decoder = WitMotionDecoder()
         self.stats = {"lines": 0, "samples": 0, "comments": 0, "malformed": 0, "bytes": 0}
         self._incomplete = 0
@@ -514,8 +513,6 @@ class SerialSource:
     """
 
     def __init__(self, port: str, baud: int, timeout_s: float = 0.05, batch_s: float = 0.005):
-        import serial
-
         if not isinstance(baud, int) or baud <= 0:
             raise InputError(f"baud rate must be a positive integer, got {baud!r}")
         self.port, self.baud, self.batch_s = str(port), int(baud), float(batch_s)

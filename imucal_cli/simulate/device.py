@@ -52,7 +52,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from imucal_cli.errors import InputError
-from imucal_cli.plans import Plan
+from imucal_cli.plans import Plan, find_plan, load_plan
+from imucal_cli.simulate.play import simulate_plan
+from imucal_cli.simulate.steps import simulate_steps
 
 __all__ = [
     "HARD_IRON_COUNTS",
@@ -134,9 +136,6 @@ def plan_motion(
     :class:`~imucal_cli.plans.Plan`: a registry plan (by its name) as ``imucal simulate`` plays
     it, any other step by step (:func:`imucal_cli.simulate.steps.simulate_steps`).
     """
-    from imucal_cli.plans import find_plan, load_plan
-    from imucal_cli.simulate.steps import simulate_steps
-
     try:
         spec, _ = find_plan(plan.name)
     except InputError:
@@ -176,8 +175,6 @@ def stream_with_holds(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, list[Hold]]:  # fmt: skip
     """As :func:`stream_arrays`, plus the still poses (:class:`Hold`, in time order): the
     session's static segments, a still run across two of them one hold, the lead the first."""
-    from imucal_cli.simulate.play import simulate_plan
-
     session, _ = simulate_plan(
         plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s, **options
     )
