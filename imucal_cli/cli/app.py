@@ -15,8 +15,6 @@ import typer
 
 from imucal_cli import __version__
 
-from .coercion import install as install_plain_coercion
-
 NO_WRAP_WIDTH = 100_000
 """Help width when stdout is not a terminal: nothing is wrapped."""
 
@@ -83,7 +81,6 @@ def _metavar_only(argument_class) -> None:
 
 
 _metavar_only(getattr(typer.core, "TyperArgument", object))
-install_plain_coercion()
 
 
 def _version(value: bool) -> None:

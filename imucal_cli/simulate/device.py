@@ -52,7 +52,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from imucal_cli.errors import InputError
-from imucal_cli.plans import Plan
+from imucal_cli.plans import Plan, find_plan, load_plan
+from imucal_cli.simulate.play import simulate_plan
+from imucal_cli.simulate.steps import simulate_steps
 
 __all__ = [
     "HARD_IRON_COUNTS",
@@ -136,9 +138,6 @@ def plan_motion(
     :class:`~imucal_cli.plans.Plan`: a registry plan (by its name) as ``imucal simulate`` plays
     it, any other step by step (:func:`imucal_cli.simulate.steps.simulate_steps`).
     """
-    from imucal_cli.plans import find_plan, load_plan
-    from imucal_cli.simulate.steps import simulate_steps
-
     try:
         spec, _ = find_plan(plan.name)
     except InputError:
@@ -186,8 +185,6 @@ def stream_with_holds(
 def _served_session(plan: str, **options):
     """The session :func:`~imucal_cli.simulate.play.simulate_plan` simulates for ``plan``
     (its device times, and temperatures where a ramp was asked for), and its holds."""
-    from imucal_cli.simulate.play import simulate_plan
-
     session, _ = simulate_plan(plan, **options)
     holds: list[Hold] = []
     for i, seg in enumerate(session.static_segments()):

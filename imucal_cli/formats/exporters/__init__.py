@@ -26,6 +26,7 @@ from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import MODEL_EQUATION, Calibration, SensorCalibration
 from imucal_cli.formats.noise import NoiseFigures
 from imucal_cli.formats.text import clean_text
+from imucal_cli.solvers.temperature import reexpand
 
 SENSORS = ("accel", "gyro")
 STANDARD_GRAVITY = 9.80665
@@ -183,8 +184,6 @@ class TemperatureTerms:
 
     def about(self, t_new: float) -> tuple[np.ndarray, np.ndarray]:
         """``(d0, d)``: the same polynomial about ``t_new``, ``d0`` its value there."""
-        from imucal_cli.solvers.temperature import reexpand
-
         return reexpand(self.tempco, self.t_ref, t_new)
 
     def range_text(self) -> str:
