@@ -1,0 +1,191 @@
+"""The calibration JSON of every plan's simulated session, and of the stored calibrations, kept
+in ``tests/data/calibrations/`` so that a change of the calibration model (issue 25.2) or of
+the solver choice (25.3) that changes a file is seen (``tests/test_calibration_cases.py``).
+
+Each case simulates a session with a fixed seed and calibrates it through the command line, as
+a user would; the stored calibrations (``sessions/*.truth.json``, the ones a session stores)
+are read and written back.  ``python -m tests.calibration_cases`` writes the fixtures anew
+(only after a change that is meant to change the files: say why in the commit).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import sys
+from pathlib import Path
+
+from tests.cli_helpers import run
+
+ROOT = Path(__file__).resolve().parents[1]
+FIXTURES = ROOT / "tests" / "data" / "calibrations"
+
+#: name -> (simulate options, calibrate options); ``{w}`` is a warm-up session simulated first.
+CASES: dict[str, tuple[list[str], list[str]]] = {
+    "six": (["--plan", "six"], []),
+    "qureshi18": (["--plan", "qureshi18"], []),
+    "qureshi18-model12": (["--plan", "qureshi18"], ["--model", "12"]),
+    "random12": (["--plan", "random:12"], []),
+    "ferraris": (["--plan", "ferraris"], []),
+    "gyro-axes": (["--plan", "gyro-axes"], []),
+    "qureshi-axes": (["--plan", "qureshi-axes"], []),
+    "free8": (["--plan", "free:8"], []),
+    "hwangbo-iron": (["--plan", "hwangbo-iron"], []),
+    "hk-gyro": (["--plan", "hk-gyro"], []),
+    "hk-redundant": (["--plan", "hk-redundant"], []),
+    "mag-qureshi18": (["--plan", "qureshi18", "--mag"], []),
+    "ramp-qureshi18": (["--plan", "qureshi18", "--ramp", "10:40"], []),
+    "warmup": (["--plan", "qureshi18", "--ramp", "24:26:linear"], ["--warmup", "{w}"]),
+    "clock-qureshi-axes": (["--plan", "qureshi-axes", "--clock-ppm", "400"], []),
+    "gsens-qureshi-axes": (["--plan", "qureshi-axes", "--g-sensitivity", "5e-4"], []),
+    "mag-unknown-random12": (["--plan", "random:12", "--mag", "--field-unknown"], []),
+    "given-accel": (["--plan", "qureshi-axes"], ["--accel", "{a}"]),
+    "config-labelled-known": (["--plan", "ferraris"], ["--config", "{c}"]),
+}
+#: The config of the case ``config-*``.
+CONFIG = '[accel]\nsolver = "labelled"\n[gyro]\nsolver = "known"\n'
+
+WARMUP = ["--plan", "warmup:4", "--ramp", "8:40"]
+
+#: Root fields that differ from run to run (not values of the calibration).
+VOLATILE = ("created", "toolkit_version")
+
+
+def simulated(name: str, folder: Path) -> tuple[dict, dict]:
+    """``(calibration, truth)`` documents of case ``name``, computed in ``folder``."""
+    sim, cal = CASES[name]
+    session = folder / f"{name}.h5"
+    warm = folder / f"{name}-warmup.h5"
+    if "{w}" in cal:
+        proc = run("simulate", *WARMUP, "--seed", "1", "--force", "-o", warm)
+        assert proc.returncode == 0, proc.stderr
+    proc = run("simulate", *sim, "--seed", "1", "--force", "-o", session)
+    assert proc.returncode == 0, proc.stderr
+    out = folder / f"{name}.cal.json"
+    if "{a}" in cal:  # an earlier calibration of the same unit: the qureshi18 case's
+        given, _ = simulated("qureshi18", folder)
+        (folder / "given.cal.json").write_text(json.dumps(given), encoding="utf-8")
+    (folder / "config.toml").write_text(CONFIG, encoding="utf-8")
+    subst = {"{w}": str(warm), "{a}": str(folder / "given.cal.json"),
+             "{c}": str(folder / "config.toml")}  # fmt: skip
+    args = [subst.get(a, a) for a in cal]
+    proc = run("calibrate", session, *args, "--no-store", "--force", "-o", out)
+    assert proc.returncode in (0, 1), proc.stderr
+    truth = session.with_suffix(".truth.json")
+
+    def load(path: Path) -> dict:  # the folder's name (in notes) as TMP
+        return json.loads(path.read_text(encoding="utf-8").replace(str(folder), "TMP"))
+
+    return (load(out) if out.exists() else {"exit": proc.returncode}), load(truth)
+
+
+def stored() -> dict[str, dict]:
+    """Every stored calibration of the repository, read and written back: the sessions'
+    truths, and the calibrations the shipped sessions store."""
+    from imucal_cli.formats.calibration import (
+        calibration_from_json,
+        calibration_to_json,
+        read_calibration,
+    )
+    from imucal_cli.formats.session import read_session
+
+    out = {}
+    for path in sorted((ROOT / "sessions").glob("*.json")):
+        out[f"sessions-{path.name}"] = json.loads(calibration_to_json(read_calibration(path)))
+    for path in sorted((ROOT / "sessions").glob("*.h5")):
+        for key, text in sorted(read_session(path).calibrations.items()):
+            cal = calibration_from_json(text, f"{path.name}:{key}")
+            out[f"sessions-{path.stem}-{key}"] = json.loads(calibration_to_json(cal))
+    return out
+
+
+def strip(doc):
+    """The document without its :data:`VOLATILE` root fields."""
+    return {k: v for k, v in doc.items() if k not in VOLATILE} if isinstance(doc, dict) else doc
+
+
+#: Numbers agree within this relative tolerance (or :data:`ATOL`): the fixtures were written
+#: on one machine, and another CPU's arithmetic (numpy's SIMD paths, BLAS) differs in the last
+#: bits, which a least-squares solve amplifies by its condition number (below 1e8 for these
+#: designs: 1e-16 x 1e8 is 1e-8); a change of the model or of a solver's arithmetic changes
+#: values by far more (a left-out pose, a moved term: the noise, 1e-4 relative and up).
+RTOL = 1e-6
+#: Absolute floor for numbers that are zero in exact arithmetic (a residual of 1e-17).
+ATOL = 1e-12
+_NUMBER = re.compile(r"-?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?")
+
+
+def differences(a, b, path: str = "", rel: float = RTOL) -> list[str]:
+    """Where two parsed documents differ (numbers within ``rel`` relative, or :data:`ATOL`,
+    agree; ``rel = 0``: identical): JSON paths, at most 20."""
+    out: list[str] = []
+    _diff(a, b, path, rel, out)
+    return out[:20]
+
+
+def _close(a: float, b: float, rel: float) -> bool:
+    return a == b or (rel > 0 and math.isclose(a, b, rel_tol=rel, abs_tol=ATOL))
+
+
+def _same_text(a: str, b: str, rel: float) -> bool:
+    """Strings agree: identical, or (``rel > 0``) the same words and the numbers in them
+    equal within ``rel`` or one unit of their last printed digit (a figure rounded for
+    people, e.g. ``5.6 %``, can round the other way on another CPU)."""
+    if a == b:
+        return True
+    if rel == 0 or _NUMBER.split(a) != _NUMBER.split(b):
+        return False
+    for x, y in zip(_NUMBER.findall(a), _NUMBER.findall(b), strict=True):
+        if _close(float(x), float(y), rel):
+            continue
+        if "." not in x or "e" in x.lower():  # counts, and exponents: exactly
+            return False
+        if abs(float(x) - float(y)) > 1.01 * 10.0 ** -len(x.split(".")[1]):
+            return False
+    return True
+
+
+def _diff(a, b, path, rel, out) -> None:
+    if len(out) >= 20:
+        return
+    if isinstance(a, dict) and isinstance(b, dict):
+        if list(a) != list(b):
+            out.append(f"{path or '.'}: keys {list(a)} != {list(b)}")
+        for k in a:
+            if k in b:
+                _diff(a[k], b[k], f"{path}.{k}", rel, out)
+    elif isinstance(a, list) and isinstance(b, list):
+        if len(a) != len(b):
+            out.append(f"{path}: length {len(a)} != {len(b)}")
+        for i, (x, y) in enumerate(zip(a, b, strict=False)):
+            _diff(x, y, f"{path}[{i}]", rel, out)
+    elif isinstance(a, float) and isinstance(b, float):
+        if not _close(a, b, rel):
+            out.append(f"{path}: {a!r} != {b!r}")
+    elif isinstance(a, str) and isinstance(b, str):
+        if not _same_text(a, b, rel):
+            out.append(f"{path}: {a!r} != {b!r}")
+    elif a != b or type(a) is not type(b):
+        out.append(f"{path}: {a!r} != {b!r}")
+
+
+def write_fixtures(folder: Path) -> None:
+    FIXTURES.mkdir(parents=True, exist_ok=True)
+    for name in CASES:
+        cal, truth = simulated(name, folder)
+        for kind, doc in (("cal", cal), ("truth", truth)):
+            (FIXTURES / f"{name}.{kind}.json").write_text(
+                json.dumps(strip(doc), indent=1) + "\n", encoding="utf-8"
+            )
+        print(name, file=sys.stderr)
+    for name, doc in stored().items():
+        (FIXTURES / f"{name}.json").write_text(json.dumps(strip(doc), indent=1) + "\n",
+                                               encoding="utf-8")  # fmt: skip
+
+
+if __name__ == "__main__":
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        write_fixtures(Path(tmp))
