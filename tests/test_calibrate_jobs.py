@@ -51,7 +51,7 @@ def test_in_process_results_in_order(sessions):
     results = calibrate_many(sessions, Config(), jobs=1, store=False, progress=seen.append)
     assert [r.session for r in results] == [str(p) for p in sessions]
     assert len(seen) == 3 and all(r.exit_code == 0 for r in results)
-    assert all(r.figures["accel_rms_after"] < 0.01 for r in results)
+    assert all(r.figures.accel_rms_after < 0.01 for r in results)
 
 
 def test_refusals(tmp_path, sessions):

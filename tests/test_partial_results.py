@@ -118,7 +118,9 @@ def test_cli_saves_a_partial_calibration_and_says_what_was_left_out(tmp_path, ma
     from imucal_cli.pipeline.batch import _figures
 
     figures = _figures(read_calibration(tmp_path / "m.cal.json"))
-    assert figures["complete"] is False and figures["left_out"] == ["gyro", "mag"]
+    assert figures.complete is False and figures.left_out == ("gyro", "mag")
+    as_json = figures.to_dict()
+    assert as_json["complete"] is False and as_json["left_out"] == ["gyro", "mag"]
 
 
 # ------------------------------------------------------------------- turns and still periods

@@ -125,8 +125,9 @@ def test_calibrate_many_saved_but_not_stored_is_exit_1(session, tmp_path):
         f["calibrations"] = np.zeros(2)
     bad, good = calibrate_many([session, other], Config(), jobs=1)
     assert bad.exit_code == 1 and "saved" in bad.error and "not stored" in bad.error
+    assert bad.stored.failed and "/calibrations is not a group" in bad.stored.why_not
     assert read_calibration(session.with_suffix(".cal.json")).accel is not None
-    assert good.exit_code == 0 and "/calibrations/0000" in good.stored
+    assert good.exit_code == 0 and good.stored.where.endswith("/calibrations/0000")
 
 
 def test_any_failure_to_store_after_saving_is_exit_1(session, monkeypatch):

@@ -16,7 +16,7 @@ from rich.table import Table
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import calibration_to_json
 from imucal_cli.formats.config import load_config, validate
-from imucal_cli.pipeline.batch import NOT_STORED, calibrate_file, calibrate_many
+from imucal_cli.pipeline.batch import Figures, Stored, calibrate_file, calibrate_many
 from imucal_cli.pipeline.calibrate import load_accel
 
 from .app import app
@@ -124,12 +124,12 @@ def _one(session: Path, cfg, output: Path | None, force: bool, store: bool, json
     if json_output:
         print_json(_result_json(cal, out, stored))
     else:
-        _summary(partial(print_line, make_console()), cal, f"{out}{stored}")
-    if stored.startswith(NOT_STORED):
+        _summary(partial(print_line, make_console()), cal, f"{out}{stored.words()}")
+    if stored.failed:
         print_line(
             make_console(stderr=True),
             f"imucal: error: saved {out} but could not store it in the session "
-            f"({stored[len(NOT_STORED) : -1]}); pass --no-store not to store it"
+            f"({stored.why_not}); pass --no-store not to store it"
         )
         raise typer.Exit(1)
 
@@ -145,20 +145,14 @@ def _config(config: Path | None, model: str | None, gravity: float | None):
     return cfg
 
 
-def _result_json(cal, out: Path, stored: str) -> dict:
-    """The ``imucal-calibrate`` document (README); ``stored`` as :func:`calibrate_file` says it:
-    `` and SESSION:/calibrations/N``, `` (not stored in the session: why)`` or ``""``."""
-    where, why = None, None
-    if stored.startswith(" and "):
-        where = stored[len(" and ") :]
-    elif stored.startswith(" (not stored in the session: "):
-        why = stored[len(" (not stored in the session: ") : -1]
+def _result_json(cal, out: Path, stored: Stored) -> dict:
+    """The ``imucal-calibrate`` document (docs/commands.md)."""
     warnings = [w for s in (cal.accel, cal.gyro, cal.mag) if s
                 for w in s.extra.get("warnings", [])]  # fmt: skip
     left_out = dict(cal.extra.get("left_out") or {})
     warnings += list(left_out.values())
     return {"format": "imucal-calibrate", "format_version": 1, "output": str(out),
-            "stored": where, "not_stored": why, "complete": not left_out,
+            "stored": stored.where, "not_stored": stored.why_not, "complete": not left_out,
             "left_out": left_out, "warnings": warnings,
             "calibration": json.loads(calibration_to_json(cal))}  # fmt: skip
 
@@ -188,31 +182,32 @@ def _many(
     wall = time.perf_counter() - t0
     if json_output:
         rows = [{"session": r.session, "exit_code": r.exit_code, "error": r.error,
-                 "figures": r.figures} for r in results]  # fmt: skip
+                 "figures": r.figures.to_dict() if r.figures else {}}
+                for r in results]  # fmt: skip
         print_json({"format": "imucal-calibrate-many", "format_version": 1, "results": rows})
         return max((r.exit_code for r in results), default=0)
     table = Table(title=f"{len(sessions)} sessions")
-    with_mag = any("mag_solver" in r.figures for r in results)
+    with_mag = any(r.figures and "mag" in r.figures.solvers for r in results)
     columns = ["session", "result", "accel |a|-g RMS, m/s^2", "gyro turn RMS, deg"]
     columns += ["mag |B| RMS", "mag quality"] if with_mag else []
     for col in (*columns, "warnings"):
         table.add_column(col)
     for r in results:
-        f = r.figures
+        f = r.figures or Figures()
         cells = [
             escape(r.session),  # a file name, not markup
-            ("[green]saved[/]" if f.get("complete", True) else
-             f"[yellow]saved, {', '.join(f['left_out'])} left out[/]")
+            ("[green]saved[/]" if f.complete else
+             f"[yellow]saved, {', '.join(f.left_out)} left out[/]")
             if r.exit_code == 0 else f"[red]failed ({r.exit_code})[/]",
-            f"{f['accel_rms_after']:.4f}" if "accel_rms_after" in f else "",
-            f"{f['gyro_rms_deg']:.3f}" if "gyro_rms_deg" in f else "",
+            "" if f.accel_rms_after is None else f"{f.accel_rms_after:.4f}",
+            "" if f.gyro_rms_deg is None else f"{f.gyro_rms_deg:.3f}",
         ]
         if with_mag:
             cells += [
-                f"{f['mag_rms_after']:.4g} {f['mag_units']}" if "mag_rms_after" in f else "",
-                f.get("mag_quality") or "",
+                "" if f.mag_rms_after is None else f"{f.mag_rms_after:.4g} {f.mag_units}",
+                f.mag_quality or "",
             ]
-        table.add_row(*cells, escape(str(f.get("warnings", ""))))
+        table.add_row(*cells, "" if r.figures is None else str(f.warnings))
     console.print(table)
     failed = [r for r in results if r.exit_code]
     for r in failed:

@@ -9,7 +9,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from imucal_cli.errors import DesignError
 from imucal_cli.formats.calibration import MODEL_EQUATION
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
@@ -22,27 +21,9 @@ from .common import (
     num,
     physical_checks,
     rms,
-    session_name,
-    static_poses,
 )
 
 PAIRS = ((0, 1), (0, 2), (1, 2))
-
-
-def triad_poses(session: Session, cfg: Config, solver: str) -> tuple[str, float, StaticPoses]:
-    """The session's name, gravity (m/s^2) and static poses for a triad ``solver`` (its name as
-    the refusal says it); a redundant unit is refused naming the factorization."""
-    where = session_name(session)
-    g = cfg.gravity or session.gravity
-    poses = static_poses(session)
-    na = poses.a_mean.shape[1]
-    if na != 3:
-        raise DesignError(
-            f"{where}: the {solver} calibrates a triad (3 accelerometer channels); this session "
-            f'has {na}: [accel] solver = "factorization" (or the default "auto") calibrates a '
-            "redundant unit"
-        )
-    return where, g, poses
 
 
 def magnitude_before(poses: StaticPoses, nominal: Nominal, g: float) -> np.ndarray:

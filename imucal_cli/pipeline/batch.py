@@ -27,7 +27,94 @@ from imucal_cli.pipeline.temperature import merge_sessions
 
 from .calibrate import calibrate_session, default_output, suspect_error
 
-__all__ = ["NOT_STORED", "SessionResult", "calibrate_file", "calibrate_many", "default_jobs"]
+__all__ = ["Figures", "SessionResult", "Stored", "calibrate_file", "calibrate_many",
+           "default_jobs"]  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Stored:
+    """Where a calibration was also stored in its session (``--store``), or why not.
+
+    Attributes
+    ----------
+    where : str or None
+        ``SESSION:/calibrations/NAME``.
+    why_not : str or None
+        Why it could not be stored (the JSON is saved: ``calibrate`` exits 1 with it).
+    """
+
+    where: str | None = None
+    why_not: str | None = None
+
+    @property
+    def failed(self) -> bool:
+        return self.why_not is not None
+
+    def words(self) -> str:
+        """What follows the output's name in ``wrote OUT...``: `` and S:/calibrations/N``,
+        `` (not stored in the session: why)`` or nothing."""
+        if self.where is not None:
+            return f" and {self.where}"
+        if self.why_not is not None:
+            return f" (not stored in the session: {self.why_not})"
+        return ""
+
+
+@dataclass(frozen=True)
+class Figures:
+    """A saved calibration's figures for the summary table of several sessions (and the
+    ``figures`` of ``calibrate --json`` with several: :meth:`to_dict`).
+
+    Attributes
+    ----------
+    solvers : dict
+        Each calibrated sensor's solver (``{"accel": "gravity", ...}``).
+    accel_rms_after : float or None
+        |a| - g RMS after calibration, m/s^2.
+    gyro_rms_deg : float or None
+        Turn angle residual RMS, deg.
+    mag_rms_after : float or None
+        |B| residual RMS, in ``mag_units``.
+    mag_units : str or None
+    mag_quality : str or None
+        ``"pass"`` or ``"recapture"``.
+    warnings : int
+        Warnings of every section (and one for an accelerometer left out).
+    accel_note : str or None
+        Why the accelerometer was left out (issue 9.4).
+    left_out : tuple of str
+        Sensors of the session left out (issue 24.2); ``complete`` when none.
+    """
+
+    solvers: dict[str, str] = field(default_factory=dict)
+    accel_rms_after: float | None = None
+    gyro_rms_deg: float | None = None
+    mag_rms_after: float | None = None
+    mag_units: str | None = None
+    mag_quality: str | None = None
+    warnings: int = 0
+    accel_note: str | None = None
+    left_out: tuple[str, ...] = ()
+
+    @property
+    def complete(self) -> bool:
+        return not self.left_out
+
+    def to_dict(self) -> dict:
+        """The JSON figures (docs/commands.md): ``accel_solver``, ... where present."""
+        out: dict = {f"{name}_solver": solver for name, solver in self.solvers.items()}
+        for key in ("accel_rms_after", "gyro_rms_deg", "mag_rms_after", "mag_units",
+                    "mag_quality"):  # fmt: skip
+            if getattr(self, key) is not None:
+                out[key] = getattr(self, key)
+        if self.solvers or self.accel_note:
+            out["warnings"] = self.warnings
+        if self.accel_note:
+            out["accel_note"] = self.accel_note
+        out["complete"] = self.complete
+        if self.left_out:
+            out["left_out"] = list(self.left_out)
+        return out
 
 
 @dataclass
@@ -44,23 +131,18 @@ class SessionResult:
         The calibration JSON written.
     error : str or None
         The one-line error when not saved.
-    figures : dict
-        ``accel_solver``, ``accel_rms_after`` (m/s^2), ``gyro_solver``, ``gyro_rms_deg``,
-        ``mag_solver``, ``mag_rms_after`` (in ``mag_units``), ``mag_quality`` (pass/recapture),
-        ``warnings`` (count), ``accel_note`` (why the accel was left out), where present;
-        ``complete`` (false when a sensor of the session was left out) and ``left_out`` (their
-        names) when saved.
+    stored : Stored or None
+        Where it was also stored in the session, or why not (None: not saved).
+    figures : Figures or None
+        The saved calibration's figures (None: not saved).
     """
 
     session: str
     exit_code: int = 0
     output: str | None = None
     error: str | None = None
-    stored: str | None = None
-    figures: dict = field(default_factory=dict)
-
-
-NOT_STORED = " (not stored in the session: "
+    stored: Stored | None = None
+    figures: Figures | None = None
 
 
 def calibrate_file(
@@ -88,9 +170,8 @@ def calibrate_file(
     cal : Calibration
     out : Path
         The JSON written.
-    stored : str
-        Where it was also stored (``" and S:/calibrations/0001"``), or why not
-        (:data:`NOT_STORED` ``+ reason + ")"``), or ``""``.
+    stored : Stored
+        Where it was also stored in the session, or why not (both None: not asked).
 
     Raises
     ------
@@ -117,43 +198,42 @@ def calibrate_file(
     if problem is not None and not force:
         raise problem
     write_calibration(out, cal, force=force, inputs=inputs)
-    stored = ""
+    stored = Stored()
     if store:
         try:
             name = store_calibration(path, calibration_to_json(cal))
-            stored = f" and {path}:/calibrations/{name}"
+            stored = Stored(where=f"{path}:/calibrations/{name}")
         except Exception as exc:  # noqa: BLE001  the JSON is saved: exit 1 with the reason
             reason = str(exc)
             if not isinstance(exc, OSError | ImucalError):
                 reason = f"{type(exc).__name__}: {reason}"
-            stored = f"{NOT_STORED}{' '.join(reason.split())})"
+            stored = Stored(why_not=" ".join(reason.split()))
     return cal, out, stored
 
 
-def _figures(cal: Calibration) -> dict:
-    out: dict = {}
+def _figures(cal: Calibration) -> Figures:
+    """The figures of a saved calibration."""
+    solvers, found, warnings = {}, {}, 0
     for name, sec in cal.sections().items():
-        out[f"{name}_solver"] = sec.solver
+        solvers[name] = sec.solver
         x = sec.extra
         if name == "accel" and x.get("rms_after") is not None:
-            out["accel_rms_after"] = float(x["rms_after"])
+            found["accel_rms_after"] = float(x["rms_after"])
         if name == "gyro" and x.get("rotation_rms_deg") is not None:
-            out["gyro_rms_deg"] = float(x["rotation_rms_deg"])
+            found["gyro_rms_deg"] = float(x["rotation_rms_deg"])
         if name == "mag":
             if x.get("rms_after") is not None:
-                out["mag_rms_after"] = float(x["rms_after"])
-                out["mag_units"] = sec.units
+                found["mag_rms_after"] = float(x["rms_after"])
+                found["mag_units"] = sec.units
             if isinstance(x.get("quality"), dict):
-                out["mag_quality"] = x["quality"].get("verdict")
-        out["warnings"] = out.get("warnings", 0) + len(x.get("warnings", []))
-    if cal.extra.get("accel_note"):  # the accel left out (issue 9.4): one more warning
-        out["warnings"] = out.get("warnings", 0) + 1
-        out["accel_note"] = cal.extra["accel_note"]
+                found["mag_quality"] = x["quality"].get("verdict")
+        warnings += len(x.get("warnings", []))
+    note = cal.extra.get("accel_note") or None
+    if note:  # the accel left out (issue 9.4): one more warning
+        warnings += 1
     left_out = cal.extra.get("left_out") or {}
-    out["complete"] = not left_out  # issue 24.2
-    if left_out:
-        out["left_out"] = sorted(left_out)
-    return out
+    return Figures(solvers, warnings=warnings, accel_note=note,
+                   left_out=tuple(sorted(left_out)), **found)  # fmt: skip
 
 
 def _one(args: tuple) -> SessionResult:
@@ -168,11 +248,9 @@ def _one(args: tuple) -> SessionResult:
         result.exit_code, result.error = 1, f"{path}: internal error: {type(exc).__name__}: {exc}"
         return result
     result.output, result.stored, result.figures = str(out), stored, _figures(cal)
-    if stored.startswith(NOT_STORED):
+    if stored.failed:
         result.exit_code = 1
-        result.error = (
-            f"{path}: saved {out} but not stored in the session: {stored[len(NOT_STORED) : -1]}"
-        )
+        result.error = f"{path}: saved {out} but not stored in the session: {stored.why_not}"
     return result
 
 

@@ -7,10 +7,8 @@ the sensor's section of the calibration JSON (layout in DEVELOPERS.md). Nothing 
 from __future__ import annotations
 
 import warnings
-from dataclasses import fields, is_dataclass, replace
+from dataclasses import dataclass, fields, is_dataclass
 from pathlib import Path
-
-import numpy as np
 
 from imucal_cli import __version__
 from imucal_cli.errors import (
@@ -35,9 +33,8 @@ from imucal_cli.formats.config import (
     TemperatureConfig,
 )
 from imucal_cli.formats.session import Session, read_session, utc_now_iso
-from imucal_cli.pipeline import magnetometer
+from imucal_cli.pipeline.accel_estimators import AccelDesign
 from imucal_cli.pipeline.channels import check_channels
-from imucal_cli.pipeline.choose import auto_accel
 from imucal_cli.pipeline.clock import correct_clock
 from imucal_cli.pipeline.common import (  # noqa: F401 (re-exported for callers)
     StaticPoses,
@@ -48,21 +45,16 @@ from imucal_cli.pipeline.common import (  # noqa: F401 (re-exported for callers)
     stored_accel_hint,
     with_segments,
 )
-from imucal_cli.pipeline.factorization import (
-    calibrate_accel_factorization,
-    calibrate_gyro_factorization,
-    independent_constraints,
-)
-from imucal_cli.pipeline.gravity import calibrate_accel_gravity
-from imucal_cli.pipeline.gyro import calibrate_gyro_rotations, gyro_alternatives
-from imucal_cli.pipeline.gyro_known import calibrate_gyro_known
-from imucal_cli.pipeline.labelled import calibrate_accel_labelled
+from imucal_cli.pipeline.gyro_estimators import GyroDesign
+from imucal_cli.pipeline.magnetometer import MagDesign
+from imucal_cli.pipeline.registry import NotChosen, choose
 from imucal_cli.pipeline.temperature import attach, compensate, given_accel, temperature_models
 
 
 def calibrate_accel(session: Session, cfg: Config) -> SensorCalibration | None:
     """Run the configured accelerometer solver (``[accel] solver``) on a session; ``"auto"``
-    chooses (:mod:`imucal_cli.pipeline.choose`) and may find nothing to calibrate (None)."""
+    chooses (:func:`~imucal_cli.pipeline.registry.choose`) and may find nothing to calibrate
+    (None)."""
     try:
         return _run_accel(session, cfg)
     except DesignError as exc:  # name what the user already has (issue 9.6)
@@ -74,15 +66,14 @@ def calibrate_accel(session: Session, cfg: Config) -> SensorCalibration | None:
 
 def _run_accel(session: Session, cfg: Config) -> SensorCalibration | None:
     solver = cfg.accel.solver
-    if solver == "auto":
-        return auto_accel(session, cfg)
-    if solver == "factorization":
-        sec = calibrate_accel_factorization(session, cfg)
-    elif solver == "labelled":
-        sec = calibrate_accel_labelled(session, cfg)
-    else:
-        sec = calibrate_accel_gravity(session, cfg)
-    sec.extra["choice"] = {"solver": sec.solver, "by": "config", "reason": "[accel] solver"}
+    if solver == "auto" and (session.accel is None or not session.static_segments()):
+        return None
+    design = AccelDesign(session, cfg)
+    chosen = choose("accel", design, solver, config_reason="[accel] solver")
+    if isinstance(chosen, NotChosen):
+        raise DesignError(design.refusal())
+    sec = chosen.estimator.fit(design)
+    sec.extra["choice"] = chosen.choice.to_dict()
     return sec
 
 
@@ -97,27 +88,11 @@ def calibrate_gyro(
     """
     solver = cfg.gyro.solver
     if solver == "auto":
-        return calibrate_gyro_auto(session, cfg, accel)[0]
-    if solver == "factorization":
-        return calibrate_gyro_factorization(session, cfg)
-    if solver in ("static", "dynamic", "full", "known"):
-        if accel is None and solver != "known":  # known: labelled axes need no accelerometer
-            raise ConfigError(
-                f"[gyro] solver = {solver!r} measures each rotation with the calibrated "
-                "accelerometer: set an [accel] solver too"
-            )
-
-        try:
-            if solver == "known":
-                return calibrate_gyro_known(session, cfg, accel)
-            return calibrate_gyro_rotations(session, cfg, accel)
-        except DesignError as exc:  # issue 9.6: what would work with what the session has
-            alternatives = gyro_alternatives(session, solver)
-            if not alternatives:
-                raise
-            raise DesignError(f"{exc}; with what this session has: "
-                              f"{'; or '.join(alternatives)}") from None  # fmt: skip
-    return None
+        return calibrate_gyro_auto(session, cfg, accel).section
+    if solver == "none":
+        return None
+    design = GyroDesign(session, cfg, accel)
+    return choose("gyro", design, solver).estimator.fit(design)
 
 
 def calibrate_mag(
@@ -127,89 +102,58 @@ def calibrate_mag(
     ``solver = "none"``); the accelerometer of the same run aligns it."""
     if session.mag is None or cfg.mag.solver == "none":
         return None
-
-    return magnetometer.calibrate_mag(session, cfg, accel)
-
-
-def _hk_design(turns) -> bool:
-    """Hwangbo & Kanade IV-B: turns about labelled axes whose orthogonal pairs, per mounting,
-    give the metric upgrade its 5 independent constraints, and one turn of known angle among
-    them for the scale (eq. 31). Sweeps about the vertical there: gravity cannot see them."""
-    if not any(s.angle_deg is not None and s.axis is not None for s in turns):
-        return False
-
-    return independent_constraints(turns) >= 5
+    design = MagDesign(session, cfg, accel)
+    return choose("mag", design, cfg.mag.solver).estimator.fit(design)
 
 
-def _known_axes(turns) -> bool:
-    """Turns of known angle about labelled axes that span three dimensions (the Ferraris
-    360-degree turns flat on each face): they determine the matrix without an accelerometer."""
+@dataclass(frozen=True)
+class Outcome:
+    """What calibrating one sensor gave: its section, or why it was left out.
 
-    axes = [s.axis for s in turns if s.angle_deg is not None and s.axis is not None]
-    return len(axes) >= 3 and np.linalg.matrix_rank(np.array(axes, float), tol=1e-3) == 3
+    Attributes
+    ----------
+    section : SensorCalibration or None
+    note : str or None
+        Why the sensor was left out (``"gyro not calibrated: ..."``), or said beside it.
+    refusal : ImucalError or None
+        The error to raise when nothing at all calibrates (the most telling one).
+    """
 
-
-def gyro_choice(session: Session, accel: SensorCalibration | None) -> tuple[str | None, str]:
-    """``[gyro] solver = "auto"``: the solver for this session's turns, and why; ``(None,
-    note)`` when none can run. Most accurate first (issue 10.7): a redundant gyro or Hwangbo
-    & Kanade's sweeps in mountings (whose turns about the vertical gravity cannot measure):
-    the factorization; turns of known angle: the known-angle solver (with the accelerometer,
-    or on labelled axes without it); other turns with the accelerometer: the full model."""
-    turns = session.rotation_segments()
-    if session.gyro.shape[1] != 3:
-        return "factorization", f"a redundant gyro ({session.gyro.shape[1]} channels)"
-    if _hk_design(turns):
-        return "factorization", ("turns about labelled axes in several mountings and one of "
-                                 "known angle (Hwangbo & Kanade IV-B): the factorization uses "
-                                 "their axes, which gravity cannot measure")  # fmt: skip
-    if accel is None and _known_axes(turns):
-        return "known", ("turns of a known angle about labelled axes spanning three "
-                         "dimensions: their axes are the labels, no accelerometer needed")
-    if accel is None and any(s.axis is not None for s in turns):
-        return "factorization", "turns about labelled axes and no accelerometer calibration"
-    if accel is None:
-        return None, ("gyro not calibrated: the full gyro model needs the accelerometer "
-                      "calibrated (an [accel] solver, or --accel CAL.json)")  # fmt: skip
-    if any(s.angle_deg is not None for s in turns):
-        return "known", ("turns of a known angle (with any turns between still periods), "
-                         "accelerometer calibrated")  # fmt: skip
-    return "full", "turns between still periods, accelerometer calibrated"
+    section: SensorCalibration | None = None
+    note: str | None = None
+    refusal: ImucalError | None = None
 
 
 def calibrate_gyro_auto(
     session: Session, cfg: Config, accel: SensorCalibration | None
-) -> tuple[SensorCalibration | None, str | None]:
+) -> Outcome:
     """``[gyro] solver = "auto"``: the most accurate solver the session supports
-    (:func:`gyro_choice`); None when the session has no gyro, or no rotations that it did not
-    capture on purpose. A session with rotation segments that no solver can use is refused
-    with the chosen solver's reason.
-
-    Returns
-    -------
-    section : SensorCalibration or None
-    note : str or None
-        Why the gyro was left uncalibrated (None when it was calibrated).
-    """
+    (:mod:`imucal_cli.pipeline.gyro_estimators`); no section when the session has no gyro, or
+    no rotations that it did not capture on purpose (the note says why). A session with
+    rotation segments that no solver can use is refused with the chosen solver's reason."""
 
     if session.gyro is None:
-        return None, "gyro not calibrated: the session has no /raw/gyro"
-    choice, why = gyro_choice(session, accel)
-    if choice is None:
-        return None, why
+        return Outcome(note="gyro not calibrated: the session has no /raw/gyro")
+    design = GyroDesign(session, cfg, accel)
+    chosen = choose("gyro", design, "auto")
+    if isinstance(chosen, NotChosen):
+        why = chosen.refusals["full"]
+        return Outcome(note=f"gyro not calibrated: {why.reason} ({why.capture})")
+    solver, why = chosen.choice.solver, chosen.choice.reason
     try:
-        sec = calibrate_gyro(session, replace(cfg, gyro=replace(cfg.gyro, solver=choice)), accel)
+        sec = chosen.estimator.fit(design)
     except ImucalError:
         if session.rotation_segments():
             raise  # turns captured on purpose: say why they cannot calibrate
-        return None, ("gyro not calibrated: no usable rotations (the gyro needs turns "
-                      "between still periods)")  # fmt: skip
-    if sec is not None and sec.extra.get("undetermined"):  # issue 10.2: not saved silently
-        return None, (f"gyro not calibrated: {sec.extra['undetermined']} (to save it with these "
-                      f'std: [gyro] solver = "{choice}" and --force)')  # fmt: skip
-    sec.extra.setdefault("notes", []).insert(0, f'solver "{choice}" chosen by [gyro] solver = '
+        return Outcome(note="gyro not calibrated: no usable rotations (the gyro needs turns "
+                            "between still periods)")  # fmt: skip
+    if sec.extra.get("undetermined"):  # issue 10.2: not saved silently
+        return Outcome(note=f"gyro not calibrated: {sec.extra['undetermined']} (to save it with "
+                            f'these std: [gyro] solver = "{solver}" and --force)')  # fmt: skip
+    sec.extra.setdefault("notes", []).insert(0, f'solver "{solver}" chosen by [gyro] solver = '
                                                 f'"auto": {why}')  # fmt: skip
-    sec.extra["choice"] = {"solver": choice, "by": "auto", "reason": why}
-    return sec, None
+    sec.extra["choice"] = chosen.choice.to_dict()
+    return Outcome(sec)
 
 
 def load_accel(path: str | Path) -> SensorCalibration:
@@ -240,14 +184,15 @@ def load_accel(path: str | Path) -> SensorCalibration:
     return accel
 
 
-def _accel_or_refusal(session: Session, cfg: Config):
-    """The accelerometer calibrated here, or ``(None, refusal)`` when ``[accel] solver =
-    "auto"`` finds the poses cannot determine it but the gyro may calibrate without it (the
-    facade calibrates what the session determines, issue 9.4); any other refusal is raised."""
+def _accel_outcome(session: Session, cfg: Config) -> Outcome:
+    """The accelerometer calibrated here; or, when ``[accel] solver = "auto"`` finds the poses
+    cannot determine it but the gyro may calibrate without it (the facade calibrates what the
+    session determines, issue 9.4), no section, the reason as its note and the refusal (raised
+    when nothing else calibrates); any other refusal is raised."""
     if cfg.accel.solver == "none":
-        return None, None
+        return Outcome()
     try:
-        return calibrate_accel(session, cfg), None
+        return Outcome(calibrate_accel(session, cfg))
     except DesignError as exc:
         if session.gyro is None or cfg.gyro.solver == "none" or not (
             session.rotation_segments() or cfg.gyro.solver in ("full", "static", "dynamic")
@@ -259,33 +204,38 @@ def _accel_or_refusal(session: Session, cfg: Config):
         )
         if cfg.accel.solver != "auto":
             raise refusal from None
-        return None, (exc, refusal)
+        return Outcome(note=_reason(session, exc), refusal=refusal)
 
 
-def _gyro_without_accel(session: Session, cfg: Config, refusal):
-    """The gyro of a session whose accelerometer ``"auto"`` could not determine: the gyro
-    section (None when it cannot do without the accelerometer either: the facade then raises
-    the accelerometer's refusal) and the note that says why the accelerometer was left out
-    and what would determine it (issue 9.6)."""
+def _gyro_without_accel(session: Session, cfg: Config, accel: Outcome
+                        ) -> tuple[Outcome, Outcome]:  # fmt: skip
+    """The accelerometer and gyro of a session whose accelerometer ``"auto"`` could not
+    determine: the gyro calibrated without it where it can (else left out: the facade then
+    raises the accelerometer's refusal), and the accelerometer's note saying why it was left
+    out and what would determine it (issue 9.6)."""
 
-    exc, _ = refusal
     try:
         if cfg.gyro.solver == "auto":
-            gyro, _ = calibrate_gyro_auto(session, cfg, None)
+            gyro = calibrate_gyro_auto(session, cfg, None).section
         else:
             gyro = calibrate_gyro(session, cfg, None)
     except ImucalError:
         gyro = None
-    reason = _reason(session, exc)
+    reason = accel.note
     if gyro is None:
-        return None, (f"accel not calibrated: {reason}; with an earlier calibration of this "
-                      "unit's accelerometer (--accel CAL.json) the rest of the session may "
-                      "calibrate the gyro")  # fmt: skip
+        return Outcome(
+            note=f"accel not calibrated: {reason}; with an earlier calibration of this unit's "
+            "accelerometer (--accel CAL.json) the rest of the session may calibrate the gyro",
+            refusal=accel.refusal,
+        ), Outcome(note=None if cfg.gyro.solver == "none" else (
+            "gyro not calibrated: its turns are measured with the accelerometer, which this "
+            "session does not determine (see accel): pass an earlier calibration of it, "
+            "--accel CAL.json"))  # fmt: skip
     frame = gyro.extra.get("frame") or "the frame of the turns' labelled axes"
     note = (f"accel not calibrated; the gyro was calibrated without it, in {frame}. To "
             "calibrate the accelerometer with this session, pass an earlier calibration of "
             f"this unit's: --accel CAL.json. Why: {reason}")  # fmt: skip
-    return gyro, note
+    return Outcome(note=note, refusal=accel.refusal), Outcome(gyro)
 
 
 def _reason(session: Session, exc: Exception) -> str:
@@ -293,51 +243,48 @@ def _reason(session: Session, exc: Exception) -> str:
     return str(exc).removeprefix(f"{session_name(session)}: ")
 
 
-def _gyro_or_note(session: Session, cfg: Config, accel: SensorCalibration | None):
-    """The gyro (``[gyro] solver``), or, with ``"auto"``, ``(None, note, refusal)`` when the
-    session's turns cannot determine it (issue 24.2: the other sensors are still saved; the
-    note says why and which capture would add it)."""
+def _gyro_outcome(session: Session, cfg: Config, accel: SensorCalibration | None) -> Outcome:
+    """The gyro (``[gyro] solver``), or, with ``"auto"``, no section, a note and the refusal
+    when the session's turns cannot determine it (issue 24.2: the other sensors are still
+    saved; the note says why and which capture would add it)."""
     if cfg.gyro.solver != "auto":
-        return calibrate_gyro(session, cfg, accel), None, None
+        return Outcome(calibrate_gyro(session, cfg, accel))
     try:
-        gyro, note = calibrate_gyro_auto(session, cfg, accel)
+        return calibrate_gyro_auto(session, cfg, accel)
     except DesignError as exc:
-        return None, f"gyro not calibrated: {_reason(session, exc)}", exc
-    return gyro, note, None
+        return Outcome(note=f"gyro not calibrated: {_reason(session, exc)}", refusal=exc)
 
 
-def _mag_or_note(session: Session, cfg: Config, accel: SensorCalibration | None):
-    """The magnetometer, or ``(None, note, refusal)`` when its readings cannot determine it
-    (too little of the sphere, clipped, in one plane): the other sensors are still saved."""
+def _mag_outcome(session: Session, cfg: Config, accel: SensorCalibration | None) -> Outcome:
+    """The magnetometer, or no section, a note and the refusal when its readings cannot
+    determine it (too little of the sphere, clipped, in one plane): the other sensors are
+    still saved."""
     try:
-        return calibrate_mag(session, cfg, accel), None, None
+        return Outcome(calibrate_mag(session, cfg, accel))
     except DesignError as exc:
-        return None, f"mag not calibrated: {_reason(session, exc)}", exc
+        return Outcome(note=f"mag not calibrated: {_reason(session, exc)}", refusal=exc)
 
 
-def _gyro_and_mag(session: Session, cfg: Config, accel, refusal, with_mag: bool):
-    """The gyro and magnetometer sections (each None when left out) and the notes per sensor
-    (``{"accel", "gyro", "mag"}``: why it was left out); the most telling refusal when
-    nothing at all calibrates (issue 24.2: otherwise what calibrates is saved)."""
-    gyro_refusal, accel_note = None, None
-    if refusal is not None:
-        (gyro, accel_note), gyro_note = _gyro_without_accel(session, cfg, refusal), None
-        if gyro is None and cfg.gyro.solver != "none":
-            gyro_note = ("gyro not calibrated: its turns are measured with the accelerometer, "
-                         "which this session does not determine (see accel): pass an earlier "
-                         "calibration of it, --accel CAL.json")  # fmt: skip
+def _outcomes(session: Session, cfg: Config, accel: Outcome, with_mag: bool
+              ) -> dict[str, Outcome]:  # fmt: skip
+    """Every sensor's outcome (``{"accel", "gyro", "mag"}``: its section, or why it was left
+    out), given the accelerometer's; the most telling refusal raised when nothing at all
+    calibrates (issue 24.2: otherwise what calibrates is saved)."""
+    if accel.refusal is not None:
+        accel, gyro = _gyro_without_accel(session, cfg, accel)
     else:
-        gyro, gyro_note, gyro_refusal = _gyro_or_note(session, cfg, accel)
-    mag, mag_note, mag_refusal = _mag_or_note(session, cfg, accel) if with_mag else (None,) * 3
-    if accel is None and gyro is None and mag is None:
-        for failed in (refusal and refusal[1], gyro_refusal, mag_refusal):
-            if failed is not None:
-                raise failed from None
+        gyro = _gyro_outcome(session, cfg, accel.section)
+    mag = _mag_outcome(session, cfg, accel.section) if with_mag else Outcome()
+    found = {"accel": accel, "gyro": gyro, "mag": mag}
+    if all(o.section is None for o in found.values()):
+        for o in found.values():
+            if o.refusal is not None:
+                raise o.refusal from None
         raise DesignError(
             f"{session_name(session)}: nothing to calibrate: no still poses with accelerometer "
-            f"data, and the gyro was not calibrated ({gyro_note or '[gyro] solver is none'})"
+            f"data, and the gyro was not calibrated ({gyro.note or '[gyro] solver is none'})"
         )
-    return gyro, mag, {"accel": accel_note, "gyro": gyro_note, "mag": mag_note}
+    return found
 
 
 def _prepare(
@@ -380,15 +327,17 @@ def calibrate_session(
     check_channels(session, cfg, skip=("accel",) if accel is not None else ())  # issue 24.6
     session, segmented = with_segments(session)
     session, models, root = _prepare(session, cfg, warmup)
-    given, refusal = accel, None
+    given = accel
     if accel is None:
         run_accel = cfg.accel.solver != "none" and not (session.accel is None and with_mag)
-        accel, refusal = _accel_or_refusal(session, cfg) if run_accel else (None, None)
+        found = _accel_outcome(session, cfg) if run_accel else Outcome()
         segmented_accel = True
     else:
         session, accel = given_accel(session, accel)
-        segmented_accel = False
-    gyro, mag, notes = _gyro_and_mag(session, cfg, accel, refusal, with_mag)
+        found, segmented_accel = Outcome(accel), False
+    outcomes = _outcomes(session, cfg, found, with_mag)
+    accel, gyro, mag = (outcomes[k].section for k in ("accel", "gyro", "mag"))
+    notes = {kind: o.note for kind, o in outcomes.items()}
     for sec in (accel if segmented_accel else None, gyro, mag):
         if sec is not None and segmented:
             sec.extra.setdefault("notes", []).insert(0, segmented)

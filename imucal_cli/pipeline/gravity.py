@@ -3,6 +3,8 @@ the accel section of the calibration, with uncertainties, residuals and checks."
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from imucal_cli.errors import DesignError
@@ -20,7 +22,6 @@ from .accel import (
     model_covariance,
     parameter_rows,
     triad_extra,
-    triad_poses,
     with_excluded,
 )
 from .accel_checks import pose_sigmas, quality, robust_fit
@@ -28,7 +29,6 @@ from .common import (
     StaticPoses,
     check_design,
     labels_determine,
-    nominal_sensor,
     rms,
     session_name,
 )
@@ -116,10 +116,40 @@ LABELS_INSTEAD = ('its `up` labels determine the labelled-pose fit, which checks
                   '[accel] solver = "labelled" (or the default "auto")')  # fmt: skip
 
 
-def gravity_section(
-    session: Session, cfg: Config, poses: StaticPoses, g: float, nominal
-) -> SensorCalibration:
-    """Fit the gravity solver to ``poses`` (outliers handled) and build the accel section."""
+@dataclass
+class GravityFit:
+    """The gravity solver's fit of a session's poses, before it becomes a section: what the
+    ``auto`` choice reads of it (:mod:`imucal_cli.pipeline.accel_estimators`: the bound at
+    its solution, the labels' placement) and what the section is built from.
+
+    Attributes
+    ----------
+    res : GravityResult
+        The fit of the poses used.
+    used : StaticPoses
+        The poses used (outliers left out).
+    outliers : list of Outlier
+    loo : ndarray or None
+        Held-out residual of each pose used, m/s^2; ``loo_method`` says how.
+    loo_method : str or None
+    summary : (ndarray (6,), ndarray (6,))
+        Gains and angles between the axes, with their std.
+    fit : PoseFit
+        Residual, direction and angle to the label of every pose (left-out ones too).
+    """
+
+    res: gravity_solver.GravityResult
+    used: StaticPoses
+    outliers: list
+    loo: np.ndarray | None
+    loo_method: str | None
+    summary: tuple[np.ndarray, np.ndarray]
+    fit: PoseFit
+
+
+def gravity_fit(session: Session, cfg: Config, poses: StaticPoses, g: float, nominal
+                ) -> GravityFit:  # fmt: skip
+    """Fit the gravity solver to ``poses``, outliers handled (:func:`robust_fit`)."""
     res, used, outliers = robust_fit(
         lambda p: fit_poses(p, g, cfg),
         poses,
@@ -143,8 +173,17 @@ def gravity_section(
         frame=res.rotation,
         output_aligned=res.variant == "12-parameter",
     )
+    return GravityFit(res, used, outliers, loo, loo_method, summary, fit)
+
+
+def gravity_section(
+    session: Session, cfg: Config, poses: StaticPoses, g: float, nominal, gf: GravityFit
+) -> SensorCalibration:
+    """The accel section of a gravity fit (:func:`gravity_fit`) of ``poses``."""
+    res, used, outliers, loo, loo_method, fit = (
+        gf.res, gf.used, gf.outliers, gf.loo, gf.loo_method, gf.fit)  # fmt: skip
     extra, units_in, units_note, physical = triad_extra(
-        session, cfg, poses, g, nominal, summary, fit, res.bias, res.residuals
+        session, cfg, poses, g, nominal, gf.summary, fit, res.bias, res.residuals
     )
     units = [units_in] * 3 + [f"m/s^2 per {units_in}"] * (len(res.params) - 3)
     q = quality(
@@ -182,25 +221,3 @@ def gravity_section(
         residual_rms=rms(res.cost_residuals),
         extra=extra,
     )
-
-
-def calibrate_accel_gravity(session: Session, cfg: Config) -> SensorCalibration:
-    """Run the gravity-magnitude solver on a session's static poses.
-
-    Returns
-    -------
-    SensorCalibration
-        With the fields of DEVELOPERS.md; ``extra["warnings"]`` lists results outside
-        physical sense (empty when none).
-
-    Raises
-    ------
-    DesignError
-        Poses that cannot determine the model (says what to capture).
-    SolverError
-        No convergence.
-    """
-    where, g, poses = triad_poses(session, cfg, "gravity solver")
-    nominal = nominal_sensor(session, cfg, g)
-    check_design(poses, nominal, cfg.accel.min_separation_deg, where, cfg.accel.gravity.model)
-    return gravity_section(session, cfg, poses, g, nominal)

@@ -23,7 +23,6 @@ from .accel import (
     model_covariance,
     parameter_rows,
     triad_extra,
-    triad_poses,
     with_excluded,
 )
 from .accel_checks import Outlier, drop_wrong_labels, pose_sigmas, quality, robust_fit
@@ -31,7 +30,6 @@ from .common import (
     StaticPoses,
     check_design,
     labels_determine,
-    nominal_sensor,
     rms,
 )
 
@@ -236,26 +234,3 @@ def solver_fields(res: labelled_solver.LabelledResult, units: list[str]) -> dict
         "rotation_std_deg": float(np.sqrt(np.mean(r_std**2))),
         "loo_method": "first-order deletion of each pose",
     }
-
-
-def calibrate_accel_labelled(session: Session, cfg: Config) -> SensorCalibration:
-    """Run the labelled-pose solver on a session's static poses.
-
-    Raises
-    ------
-    DesignError
-        Not a triad, or labels that cannot separate bias from sensitivity (says what would).
-    SolverError
-        No convergence.
-    """
-    where, g, poses = triad_poses(session, cfg, "labelled-pose solver")
-    if not labels_determine(poses.up):
-        n_lab = int(np.isfinite(poses.up).all(axis=1).sum())
-        raise DesignError(
-            f"{where}: the labelled-pose solver needs at least 4 poses whose `up` labels are not "
-            f"in one plane (this session has {n_lab} labelled of {len(poses.segments)}): label "
-            "the faces with `imucal label SESSION --faces`, or use the gravity solver (9 or more "
-            "distinct poses need no labels)"
-        )
-    nominal = nominal_sensor(session, cfg, g)
-    return labelled_section(session, cfg, poses, g, nominal)

@@ -13,7 +13,7 @@ other row is a motion reading.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -28,6 +28,7 @@ from imucal_cli.solvers.sphere_quality import sphere_quality, suggest_direction
 
 from .accel import fit_fields, parameter_rows
 from .common import num, rms, session_name
+from .registry import Determined, Needs, Refusal, register
 
 #: Folds of the held-out fit error: readings alternate between them in blocks of this length.
 FOLD_BLOCK_S = 1.0
@@ -527,3 +528,37 @@ def _thinned(directions: np.ndarray) -> list[list[float]]:
     """At most :data:`MAP_DIRECTIONS` directions, evenly spaced in the recording order."""
     idx = np.linspace(0, len(directions) - 1, min(MAP_DIRECTIONS, len(directions))).astype(int)
     return np.round(directions[idx], 4).tolist()
+
+
+@dataclass
+class MagDesign:
+    """A session's magnetometer readings and the accelerometer that aligns them."""
+
+    session: Session
+    cfg: Config
+    accel: SensorCalibration | None
+
+
+@dataclass(frozen=True)
+class MagEstimator:
+    """The maximum-likelihood magnitude fit (``"magnitude"``: soft iron, hard iron, aligned
+    to the accelerometer, eqs. 1-3) or the plain algebraic ellipsoid (``"ellipsoid"``)."""
+
+    name: str = "magnitude"
+    sensor: str = "mag"
+    needs: Needs = Needs()
+
+    def assess(self, design: MagDesign) -> Determined | Refusal:
+        if design.session.mag is None:
+            return Refusal("no /raw/mag in this session", "a session with the magnetometer")
+        if self.name == "ellipsoid":
+            return Determined("the plain algebraic ellipsoid (what the hobby tools do)", tier=1)
+        return Determined("readings of the field from every direction: the magnitude fit")
+
+    def fit(self, design: MagDesign) -> SensorCalibration:
+        cfg = replace(design.cfg, mag=replace(design.cfg.mag, solver=self.name))
+        return calibrate_mag(design.session, cfg, design.accel)
+
+
+for _estimator in (MagEstimator(), MagEstimator("ellipsoid")):
+    register(_estimator)
