@@ -41,16 +41,16 @@ PAPER = {
 
 def _table1_run(seed: int, sigma: float) -> dict:
     session, truth = simulate_redundant_accel(seed=seed, sigma_counts=sigma, created=CREATED)
-    cpv = truth.accel.extra["counts_per_volt"]
+    cpv = truth.accel.counts_per_volt
     rows = [session.accel[s.start : s.stop] for s in session.static_segments()]
     Z = np.vstack(rows)
     owner = np.repeat(np.arange(len(rows)), [len(r) for r in rows])
     c = fz.Constraints(np.arange(len(Z)), np.arange(len(Z)), np.ones(len(Z)))
-    S_true = np.array(truth.accel.extra["S_counts_per_g"])
+    S_true = np.array(truth.accel.S_counts_per_g)
     b_true = truth.accel.bias
     truth_v = invariant_summary(S_true, b_true)
     scale = np.r_[np.full(8, 1 / cpv), np.ones(6)]  # counts -> V for biases and gains
-    noise = float(truth.accel.extra["noise_total_counts"])  # noise and quantisation
+    noise = float(truth.accel.noise_total_counts)  # noise and quantisation
 
     out = {}
     t0 = time.perf_counter()
@@ -70,7 +70,7 @@ def _table1_run(seed: int, sigma: float) -> dict:
 
         cov = propagate(summary, np.r_[ref.b, ref.T.ravel()], ref.cov)
         out["std"] = np.sqrt(np.diag(cov)) * scale
-    u = np.array(truth.accel.extra["true_up"])
+    u = np.array(truth.accel.true_up)
     crb = factorization_crb(S_true, b_true, u, noise, 10)
     cov = propagate(
         lambda x: invariant_summary(x[4:].reshape(3, 4), x[:4]), np.r_[b_true, S_true.ravel()], crb
@@ -158,17 +158,17 @@ def side_by_side(console: Console, n_seeds: int) -> None:
         expected = np.r_[truth.accel.bias, gains]
         for name, cfg in cfgs.items():
             acc = calibrate_session(session, cfg).accel
-            got = np.r_[acc.bias, acc.extra["sensitivity"]]
-            std = np.r_[[p["std"] for p in acc.extra["parameters"][:3]],
-                        acc.extra["sensitivity_std"]]  # fmt: skip
+            got = np.r_[acc.bias, acc.sensitivity]
+            std = np.r_[[p.std for p in acc.parameters[:3]],
+                        acc.sensitivity_std]  # fmt: skip
             err[name].append(got - expected)
             cover[name].append(np.abs(got - expected) <= 1.96 * std)
         # The bound on biases and gains (rows of S) from the gravity design's CRB.
         M_true = np.linalg.qr(truth.accel.matrix)[1]
         M_true = np.diag(np.sign(np.diag(M_true))) @ M_true
         Q = truth.accel.matrix @ np.linalg.inv(M_true)
-        u = np.array(truth.accel.extra["true_up"]) @ Q
-        noise = truth.accel.extra["noise"] * gains.mean()
+        u = np.array(truth.accel.true_up) @ Q
+        noise = truth.accel.noise * gains.mean()
         cov_mean = np.repeat(((noise**2 + 1 / 12) / 200 * np.eye(3))[None], len(u), axis=0)
         crb = gravity_crb(M_true, truth.accel.bias, u, 9.80665, cov_mean)
 

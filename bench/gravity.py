@@ -53,13 +53,13 @@ def one_seed(seed: int) -> dict:
     b_true = truth.accel.bias
     M_true, Q = gauge(T_true)
     x_true = model_to_params(b_true, M_true)
-    x_hat = np.array([p["value"] for p in acc.extra["parameters"]])
-    std = np.array([p["std"] for p in acc.extra["parameters"]])
+    x_hat = np.array([p.value for p in acc.parameters])
+    std = np.array([p.std for p in acc.parameters])
 
     # Cramér-Rao bound of this design: true directions in the gauge frame, true noise of the means.
     poses = static_poses(session)
     S = np.linalg.inv(T_true)
-    u = np.array(truth.accel.extra["true_up"]) @ Q  # Q^T u_fixture, row-wise
+    u = np.array(truth.accel.true_up) @ Q  # Q^T u_fixture, row-wise
     sigma = session_noise(truth)
     n = poses.samples
     cov_mean = np.array([(sigma**2 * S @ S.T + quant_var(session)) / k for k in n])
@@ -86,14 +86,14 @@ def one_seed(seed: int) -> dict:
         solve_s=solve_s,
         rms_before=rms(before),
         rms_after=rms(after),
-        rms_loo=acc.extra["rms_loo"],
-        iterations=acc.extra["iterations"],
+        rms_loo=acc.rms_loo,
+        iterations=acc.fit.iterations,
     )
 
 
 def session_noise(truth) -> float:
     """The simulated accelerometer noise, m/s^2 per axis per sample."""
-    return float(truth.accel.extra["noise"])
+    return float(truth.accel.noise)
 
 
 def quant_var(session) -> np.ndarray:

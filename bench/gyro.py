@@ -112,13 +112,13 @@ def one_seed(seed: int) -> dict:
             "scale_pct": 100 * (np.diag(g.matrix) / np.diag(M_true) - 1),
             "bias": g.bias - truth.gyro.bias,
             "time": elapsed,
-            "rot_rms": g.extra["rotation_rms_deg"],
+            "rot_rms": g.rotation_rms_deg,
         }
         if solver == "full":
             x_hat = np.r_[g.bias, g.matrix.ravel()]
             x_true = np.r_[truth.gyro.bias, M_true.ravel()]
             out["full"]["err"] = x_hat - x_true
-            out["full"]["std"] = np.array([p["std"] for p in g.extra["parameters"]])[:12]
+            out["full"]["std"] = np.array([p.std for p in g.parameters])[:12]
             out["full"]["axes_deg"] = _axes_angles_deg(g.matrix, M_true)
             crb, total = full_bound(session, cfg, cal.accel, x_true)
             out["full"]["crb_gyro"], out["full"]["crb"] = np.diag(crb), np.diag(total)
@@ -218,10 +218,10 @@ def real_data(console: Console) -> None:
             session = import_files([DATA / f for f in files], fmt, **opts)
             cal = calibrate_session(session, cfg)
             g = cal.gyro
-            t.add_row(name, str(len(session.static_segments())), str(len(g.extra["rotations"])),
-                      f"{cal.accel.extra['rms_after']:.4f}", f"{g.extra['rotation_rms_deg']:.3f}",
-                      ", ".join(f"{v:.4g}" for v in g.extra["sensitivity"]),
-                      "; ".join(g.extra.get("warnings", []))[:60])  # fmt: skip
+            t.add_row(name, str(len(session.static_segments())), str(len(g.rotations)),
+                      f"{cal.accel.rms_after:.4f}", f"{g.rotation_rms_deg:.3f}",
+                      ", ".join(f"{v:.4g}" for v in g.sensitivity),
+                      "; ".join(g.warnings or [])[:60])  # fmt: skip
         except ImucalError as exc:
             t.add_row(name, "", "", "", "", "", f"refused: {str(exc)[:80]}")
     console.print(t)

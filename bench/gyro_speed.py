@@ -60,7 +60,7 @@ session, _ = with_segments(read_session(sys.argv[1]))
 data = gyro_data(session, cfg, calibrate_accel(session, cfg))
 c0 = time.process_time()
 fit = fit_full_model(data)
-print(time.process_time() - c0, fit.extra["iterations"], len(data.turns))
+print(time.process_time() - c0, fit.iterations, len(data.turns))
 """
 
 
@@ -88,7 +88,7 @@ def _measure(fn, runs: int, n_turns: int, samples: int) -> dict:
     fn()
     peak = tracemalloc.get_traced_memory()[1] / 2**20
     tracemalloc.stop()
-    nfev = res.iterations if hasattr(res, "iterations") else res.extra["iterations"]
+    nfev = res.iterations if hasattr(res, "iterations") else res.iterations
     return {"cpu": float(np.median(cpu)), "wall": float(np.median(wall)), "peak": peak,
             "nfev": nfev, "turns": n_turns, "samples": samples}  # fmt: skip
 

@@ -67,7 +67,7 @@ def truth_in_frame(accel, truth) -> np.ndarray:
     """The true ``(b, M row-major)`` of the gyro in the frame of the calibrated accelerometer
     ``accel`` (its gauge: upper-triangular, or the labels' frame)."""
     R = np.eye(3)
-    if "upper-triangular" in str(accel.extra.get("gauge", "")):
+    if "upper-triangular" in str(accel.gauge or ""):
         Q, U = np.linalg.qr(np.asarray(truth.accel.matrix, float))
         R = (Q * np.sign(np.diag(U))).T  # U with a positive diagonal: calibrated = R a_true
     return np.r_[truth.gyro.bias, (R @ np.asarray(truth.gyro.matrix, float)).ravel()]
@@ -78,9 +78,9 @@ def _gains(x: np.ndarray) -> np.ndarray:
 
 
 def _compare(gyro, x_true: np.ndarray) -> tuple[float, np.ndarray, float, float]:
-    params = gyro.extra["parameters"][:12]
-    x = np.array([p["value"] for p in params])
-    std = np.array([p["std"] for p in params])
+    params = gyro.parameters[:12]
+    x = np.array([p.value for p in params])
+    std = np.array([p.std for p in params])
     cov = np.diag(std**2)  # the gains' std: from the section's sensitivity_std when present
     J = np.empty((3, 12))
     for i in range(12):
@@ -88,9 +88,9 @@ def _compare(gyro, x_true: np.ndarray) -> tuple[float, np.ndarray, float, float]
         e = np.zeros(12)
         e[i] = h
         J[:, i] = (_gains(x + e) - _gains(x - e)) / (2 * h)
-    g_std = np.asarray(gyro.extra.get("sensitivity_std") or np.sqrt(np.diag(J @ cov @ J.T)))
+    g_std = np.asarray(gyro.sensitivity_std or np.sqrt(np.diag(J @ cov @ J.T)))
     z_g = (_gains(x) - _gains(x_true)) / g_std
-    rate = (gyro.extra.get("rate_std") or {}).get("total", np.nan)
+    rate = np.nan if gyro.rate_std is None else gyro.rate_std.total
     return (float(np.max(np.abs((x - x_true) / std))), z_g, float(rate),
             float(np.max(np.abs(_gains(x) / _gains(x_true) - 1))))  # fmt: skip
 
@@ -100,7 +100,7 @@ def row(name: str, session_path: Path, truth_path: Path) -> Row:
     session = read_session(session_path)
     truth = read_calibration(truth_path)
     cal = calibrate_session(session, Config())
-    saved, note, gyro = cal.gyro is not None, cal.extra.get("gyro_note", ""), cal.gyro
+    saved, note, gyro = cal.gyro is not None, cal.gyro_note or "", cal.gyro
     if gyro is None:
         cfg = Config()
         cfg = replace(cfg, gyro=replace(cfg.gyro, solver="full"))

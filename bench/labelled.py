@@ -95,9 +95,9 @@ def one_seed(plan: str, seed: int, jitter_deg: float) -> dict:
     res = fit_labelled(poses.a_mean, poses.up, G0, poses.cov_mean, noise_dof=poses.noise.dof)
     solve_s = time.perf_counter() - t0
     S = np.linalg.inv(truth.accel.matrix)
-    sigma = float(truth.accel.extra["noise"])
+    sigma = float(truth.accel.noise)
     cov_mean = np.array([(sigma**2 * S @ S.T + quant_var(session)) / n for n in poses.samples])
-    u = np.array(truth.accel.extra["true_up"])
+    u = np.array(truth.accel.true_up)
     crb = np.diag(labelled_crb(truth.accel.matrix, truth.accel.bias, u, G0, cov_mean, jitter_deg))
     x_true = public_params(truth.accel.bias, S)
     err = res.params - x_true

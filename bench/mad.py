@@ -40,6 +40,7 @@ import numpy as np
 
 from imucal_cli.formats.calibration import read_calibration
 from imucal_cli.formats.session import read_session
+from imucal_cli.model.gyro import KnownTurnCheck
 from imucal_cli.solvers.gyro_integration import integrate_rotations
 
 DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "imucal_ferraris"
@@ -169,16 +170,17 @@ def compare(name: str, folder: Path) -> dict:
     moves, skipped = _moves(session)
     out = {"session": name, "mad_source": None if mad is None else mad.source,
            "ours_solver": None if ours_gyro is None else ours_gyro.solver,
-           "ours_note": cal.extra.get("gyro_note"),
+           "ours_note": cal.gyro_note,
            "no_held_out": None if moves else _no_held_out(skipped)}  # fmt: skip
     if ours_gyro is not None:
         unit = np.pi / 180  # gains per deg/s
         S = np.linalg.inv(ours_gyro.matrix)
         out["ours"] = {"gyro_gain": (np.linalg.norm(S, axis=1) * unit).tolist(),
-                       "gyro_gain_std": (np.asarray(ours_gyro.extra.get("sensitivity_std"))
+                       "gyro_gain_std": (np.asarray(ours_gyro.sensitivity_std)
                                          * unit).tolist(),
                        "gyro_bias": ours_gyro.bias.tolist(), "gyro_axes_deg": _axes_deg(S),
-                       "rate_std": ours_gyro.extra.get("rate_std", {}).get("total")}  # fmt: skip
+                       "rate_std": None if ours_gyro.rate_std is None
+                       else ours_gyro.rate_std.total}  # fmt: skip
         out["ours_held_out"] = held_out(
             session, cal.accel.apply, lambda z, a: ours_gyro.apply(z, accel=a)).tolist()
     if mad is not None:
@@ -251,11 +253,11 @@ def leave_one_out(h5: Path, mad: MadCal | None) -> dict:
                                 lambda z, a, g=cal.gyro: g.apply(z, accel=a)))  # fmt: skip
         if mad is not None:
             theirs.append(_transition(session, turn, mad.accel, mad.gyro))
-    known = [r for r in full.gyro.extra["rotations"] if r.get("known_angle_deg") is not None]
+    known = [r for r in full.gyro.rotations if r.known_angle_deg is not None]
     return {"ours": np.array(ours), "mad": np.array(theirs) if theirs else None,
-            "turns": [(r["label"] or r["segment"], r["measured_angle_deg"],
-                       r["known_angle_deg"], r["noise_deg"]) for r in known],
-            "check": full.gyro.extra.get("known_turn_check", {})}  # fmt: skip
+            "turns": [(r.label or r.segment, r.measured_angle_deg,
+                       r.known_angle_deg, r.noise_deg) for r in known],
+            "check": full.gyro.known_turn_check or KnownTurnCheck()}  # fmt: skip
 
 
 def _loo_table(console, r: dict) -> bool:
@@ -278,7 +280,7 @@ def _loo_table(console, r: dict) -> bool:
         t.add_row(f"known turn {name}: integrated, deg (its std; before: y +3.8 off)",
                   f"{measured:+.2f} for {known:+.0f} ({noise:.2g})", "-")  # fmt: skip
     chk = r["check"]
-    t.add_row("turns between still periods", str(chk.get("turns_between_still_periods")),
+    t.add_row("turns between still periods", str(chk.turns_between_still_periods),
               "not used")  # fmt: skip
     console.print(t)
     within = all(abs(m - k) <= 2 * n for _, m, k, n in r["turns"])

@@ -56,7 +56,7 @@ def _crb(session, truth, cal, readings, W, aligned: bool) -> np.ndarray:
     """The bound of this seed's design at the truth ``W`` (output frame of the model)."""
     mag_t = truth.mag
     S = np.linalg.inv(mag_t.matrix)  # raw per uT, fixture frame
-    noise = float(mag_t.extra["noise"])
+    noise = float(mag_t.noise)
     cov = noise**2 * S @ S.T + (np.eye(3) / 12.0 if session.mag_units == "counts" else 0.0)
     data = readings.data
     dirs = _unit((data.samples - mag_t.bias) @ W.T)
@@ -68,9 +68,9 @@ def _crb(session, truth, cal, readings, W, aligned: bool) -> np.ndarray:
                                 aligned=False)  # fmt: skip
     to_acc = _accel_frame(cal, truth)
     static = [s.name for s in session.static_segments()]
-    true_up = np.array(truth.accel.extra["true_up"])
+    true_up = np.array(truth.accel.true_up)
     ups = np.array([true_up[static.index(seg.name)] for seg in readings.segments]) @ to_acc.T
-    sigma_a = float(truth.accel.extra["noise"]) / float(truth.accel.extra["gravity"])
+    sigma_a = float(truth.accel.noise) / float(truth.accel.gravity)
     up_cov = np.array([(np.eye(3) - np.outer(u, u)) * sigma_a**2 / k for u, k in zip(ups, n,
                                                                               strict=True)])
     return magnetometer_crb(W, FIELD, dirs, cov, pose_up=ups, pose_dirs=pose_dirs,
@@ -107,10 +107,10 @@ def one_seed(seed: int) -> dict:
     W_true = to_acc @ truth.mag.matrix
     s_true = -np.sin(np.radians(INCLINATION))
     x_true = np.r_[truth.mag.bias, W_true.ravel(), s_true]
-    names = [p["name"] for p in mag.extra["parameters"]]
-    std = {p["name"]: p["std"] for p in mag.extra["parameters"]}
-    s_std = np.radians(mag.extra["inclination_std_deg"]) * np.cos(np.radians(INCLINATION))
-    x_hat = np.r_[mag.bias, mag.matrix.ravel(), -np.sin(np.radians(mag.extra["inclination_deg"]))]
+    names = [p.name for p in mag.parameters]
+    std = {p.name: p.std for p in mag.parameters}
+    s_std = np.radians(mag.inclination_std_deg) * np.cos(np.radians(INCLINATION))
+    x_hat = np.r_[mag.bias, mag.matrix.ravel(), -np.sin(np.radians(mag.inclination_deg))]
     sd = np.r_[[std[n] for n in names], s_std]
     crb = np.diag(_crb(session, truth, cal, readings, W_true, aligned=True))
     # the rotation onto the accelerometer frame: angle error and its bound (delta method)
@@ -130,7 +130,7 @@ def one_seed(seed: int) -> dict:
     to_est = to_acc
     rng = np.random.default_rng(10_000 + seed)
     layout = LAYOUTS["ak8963"]
-    nominal = np.eye(3) / truth.mag.extra["nominal_sensitivity"]
+    nominal = np.eye(3) / truth.mag.nominal_sensitivity
     heading = {
         "imucal": _heading_rms(mag.matrix, mag.bias, truth, to_est, rng),
         "ellipsoid": _heading_rms(layout.T @ plain.matrix, plain.bias, truth, to_est, rng),
@@ -138,11 +138,11 @@ def one_seed(seed: int) -> dict:
     }
     return dict(
         err=x_hat - x_true, std=sd, crb=crb, rot_err=rot_err,
-        rot_std=mag.extra["rotation_std_deg"], solve_s=solve_s, heading=heading,
+        rot_std=mag.rotation_std_deg, solve_s=solve_s, heading=heading,
         b_err={"imucal": mag.bias - truth.mag.bias, "ellipsoid": plain.bias - truth.mag.bias},
         w_err={"imucal": soft(P_ml) - soft(P_true), "ellipsoid": soft(plain.matrix) - soft(P_true)},
-        crb_sym=crb_sym, verdict=mag.extra["quality"]["verdict"],
-        fit_error=mag.extra["quality"]["checks"][3]["value_pct"],
+        crb_sym=crb_sym, verdict=mag.quality.verdict,
+        fit_error=mag.quality.checks[3].value_pct,
     )  # fmt: skip
 
 

@@ -89,7 +89,7 @@ def _joint_bound(session, truth, sigma_counts) -> float:
     B = truth.accel.bias_at(25.0)[0]
     R = np.linalg.qr(truth.accel.matrix)[1]
     M = R * np.sign(np.diag(R))[:, None]  # |M a| = |matrix a|, upper triangular
-    tc = np.array(truth.accel.extra["bias_tempco"])
+    tc = np.array(truth.accel.bias_tempco)
     model = _Model(a, T, 25.0, G0, _pose_weights(a, cov, B, M), B, M)
     degree = [3, 3, 3]
     x = model.start(B, M, degree)
@@ -172,11 +172,11 @@ def _clock_rows(seeds: list[int]) -> list[list]:
                                        compute_uv=False)  # fmt: skip
                     res.append(100 * float(np.max(np.abs(sv - 1.0))))
                     cals.append(cal)
-                clock = cals[1].extra["sample_clock"]
-                z = (clock["ppm"] - (scale - 1) * 1e6) / clock["ppm_std"]
+                clock = cals[1].sample_clock
+                z = (clock.ppm - (scale - 1) * 1e6) / clock.ppm_std
                 same = bool(np.array_equal(cals[0].gyro.matrix, cals[1].gyro.matrix))
                 rows.append([f"{(scale - 1) * 1e6:+.0f}", host, seed, res[0], res[1],
-                             clock["ppm"], clock["ppm_std"], z, clock["applied"], same])
+                             clock.ppm, clock.ppm_std, z, clock.applied, same])
     return rows
 
 

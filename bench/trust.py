@@ -55,10 +55,10 @@ def _cfg(solver: str, outliers: str = "exclude"):
 def _values(sec) -> tuple[np.ndarray, np.ndarray]:
     """Bias and sensitivity of an accel section (gauge-free: the same in every solver) and
     their std."""
-    x = sec.extra
-    b = [p for p in x["parameters"] if p["name"] in ("b_x", "b_y", "b_z")]
-    v = np.r_[[p["value"] for p in b], x["sensitivity"]]
-    s = np.r_[[p["std"] for p in b], x["sensitivity_std"]]
+    x = sec
+    b = [p for p in x.parameters if p.name in ("b_x", "b_y", "b_z")]
+    v = np.r_[[p.value for p in b], x.sensitivity]
+    s = np.r_[[p.std for p in b], x.sensitivity_std]
     return v, s
 
 
@@ -68,11 +68,11 @@ def _truth(truth) -> np.ndarray:
 
 
 def _detected(cal, seg) -> bool:
-    x = cal.accel.extra
+    x = cal.accel
     return (
-        any(o["segment"] == seg.name for o in x["outliers"])
-        or any(f"segment {seg.name}" in w for w in x["warnings"])
-        or any(seg.name in n for n in x.get("notes", []))
+        any(o.segment == seg.name for o in x.outliers)
+        or any(f"segment {seg.name}" in w for w in x.warnings)
+        or any(seg.name in n for n in x.notes or [])
     )
 
 
@@ -143,14 +143,14 @@ def mislabel_rows(n_seeds: int) -> list[tuple]:
             seg = session.static_segments()[k]
             clean = calibrate_session(session, _cfg("labelled"))
             cal = calibrate_session(faults.wrong_label(session, k, angle), _cfg("labelled"))
-            x = cal.accel.extra
-            named += any(o["segment"] == seg.name for o in x["outliers"]) or any(
-                f"segment {seg.name}" in w for w in x["blocking"])
-            y = clean.accel.extra
-            false += any(o["action"] == "label ignored" for o in y["outliers"]) or any(
-                "disagree with each other" in w for w in y["warnings"])
+            x = cal.accel
+            named += any(o.segment == seg.name for o in x.outliers) or any(
+                f"segment {seg.name}" in w for w in x.blocking)
+            y = clean.accel
+            false += any(o.action == "label ignored" for o in y.outliers) or any(
+                "disagree with each other" in w for w in y.warnings)
             v0, s0 = _values(clean.accel)
-            if not x["blocking"]:
+            if not x.blocking:
                 errs.append(np.max(np.abs(_values(cal.accel)[0] - _truth(truth)) / s0))
         out.append((plan, angle, jitter, named, false, n_seeds,
                     float(np.median(errs)) if errs else None))  # fmt: skip
@@ -176,7 +176,7 @@ def loo_rows() -> list[tuple]:
             except ImucalError:
                 counts["refused"] += 1
                 continue
-            if sec.extra.get("blocking", sec.extra["warnings"]):
+            if sec.blocking or sec.warnings:
                 counts["refused"] += 1
                 continue
             v, s = _values(sec)

@@ -86,7 +86,7 @@ def _faults(session, truth, seed):
 
 def _bias_error_over_bound(session, cal, truth, G_raw) -> float:
     """RMS over the three axes of (bias error / sqrt(CRB)), the bound of the fitted model."""
-    with_g = cal.gyro.extra.get("g_sensitivity") is not None
+    with_g = cal.gyro.g_sensitivity is not None
     x = _truth_x(cal, truth, G_raw if with_g else None)
     if with_g and G_raw is None:
         x = np.r_[x, np.zeros(9)]
@@ -111,9 +111,9 @@ def fault_rows(n_seeds: int) -> list[tuple]:
             plain = calibrate_session(bad, G_OFF)
             g = handled.gyro
             err = _bias_error_over_bound(bad, handled, truth, G_raw)
-            if g.extra["warnings"]:
+            if g.warnings:
                 r["refused"] += 1
-            elif g.extra.get("g_sensitivity") is not None and G_raw is not None:
+            elif g.g_sensitivity is not None and G_raw is not None:
                 r["absorbed"] += 1
                 r["with"].append(err)
             else:
@@ -145,8 +145,8 @@ def coverage_rows(n_seeds: int) -> list[dict]:
                 _, session, G_raw = _faults(session, truth, seed)[0]
             cal = calibrate_session(session, DEFAULT)
             g = cal.gyro
-            est = np.array([p["value"] for p in g.extra["parameters"]])
-            std = np.array([p["std"] for p in g.extra["parameters"]])
+            est = np.array([p.value for p in g.parameters])
+            std = np.array([p.std for p in g.parameters])
             x = _truth_x(cal, truth, G_raw if g_sensitive else
                          np.zeros((3, 3)) if len(est) == 21 else None)  # fmt: skip
             hits.extend(np.abs(est - x[: len(est)]) <= 1.96 * std)
@@ -196,9 +196,9 @@ def captured_coverage_rows(n_seeds: int) -> list[dict]:
                     refused += 1
                     continue
                 g = cal.gyro
-                est = np.array([p["value"] for p in g.extra["parameters"]])
-                std = np.array([p["std"] for p in g.extra["parameters"]])
-                G_raw = np.asarray(truth.gyro.extra["g_sensitivity"], float)
+                est = np.array([p.value for p in g.parameters])
+                std = np.array([p.std for p in g.parameters])
+                G_raw = np.asarray(truth.gyro.g_sensitivity, float)
                 x = _truth_x(cal, truth, G_raw)
                 if len(est) < 21:  # left out: its truth is not zero, so every entry misses
                     no_g += 1
@@ -238,7 +238,7 @@ def loo_rows() -> list[tuple]:
         session, _ = with_segments(import_files([DATA / f for f in files], fmt, **opts))
         accel = calibrate_accel(session, DEFAULT)
         full = calibrate_gyro(session, DEFAULT, accel)
-        ref = {p["name"]: p["value"] for p in full.extra["parameters"]} if full else {}
+        ref = {p.name: p.value for p in full.parameters} if full else {}
         counts = {"converged": 0, "refused": 0, "saved wrong": 0}
         for turn in session.rotation_segments():
             sub = replace(session, segments=[s for s in session.segments if s is not turn])
@@ -247,18 +247,18 @@ def loo_rows() -> list[tuple]:
             except ImucalError:
                 counts["refused"] += 1
                 continue
-            if g is None or g.extra["warnings"]:  # None: auto left it out (undetermined)
+            if g is None or g.warnings:  # None: auto left it out (undetermined)
                 counts["refused"] += 1
                 continue
-            same = [p["name"] for p in g.extra["parameters"]] == list(ref)
-            z = [abs(p["value"] - ref[p["name"]]) / p["std"] for p in g.extra["parameters"]
+            same = [p.name for p in g.parameters] == list(ref)
+            z = [abs(p.value - ref[p.name]) / p.std for p in g.parameters
                  if p["name"] in ref]  # fmt: skip
             counts["converged" if same and max(z) < LOO_Z else "saved wrong"] += 1
         if full is None:
-            note = calibrate_session(session, DEFAULT).extra.get("gyro_note", "")
+            note = calibrate_session(session, DEFAULT).gyro_note or ""
             full_state = "left out: " + note.removeprefix("gyro not calibrated: ")[:50]
-        elif full.extra["warnings"]:
-            full_state = "refused: " + full.extra["warnings"][0][:50]
+        elif full.warnings:
+            full_state = "refused: " + full.warnings[0][:50]
         else:
             full_state = "saved"
         out.append((name, len(session.rotation_segments()), full_state, counts))

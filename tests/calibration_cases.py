@@ -149,9 +149,12 @@ def _same_text(a: str, b: str, rel: float) -> bool:
 def _diff(a, b, path, rel, out) -> None:
     if len(out) >= 20:
         return
-    if isinstance(a, dict) and isinstance(b, dict):
-        if list(a) != list(b):
-            out.append(f"{path or '.'}: keys {list(a)} != {list(b)}")
+    if isinstance(a, dict) and isinstance(b, dict):  # a JSON object's members have no order
+        if set(a) != set(b):
+            out.append(
+                f"{path or '.'}: keys {sorted(set(a) - set(b))} more, "
+                f"{sorted(set(b) - set(a))} fewer"
+            )
         for k in a:
             if k in b:
                 _diff(a[k], b[k], f"{path}.{k}", rel, out)

@@ -29,8 +29,8 @@ def _cfg(solver: str, outliers: str = "exclude"):
 
 
 def _params(cal) -> tuple[np.ndarray, np.ndarray]:
-    rows = cal.accel.extra["parameters"]
-    return np.array([r["value"] for r in rows]), np.array([r["std"] for r in rows])
+    rows = cal.accel.parameters
+    return np.array([r.value for r in rows]), np.array([r.std for r in rows])
 
 
 @pytest.fixture(scope="module")
@@ -54,12 +54,12 @@ def test_a_bumped_pose_is_named_and_left_out(q18, solver, offset, bad):
     bumped = faults.bump(session, truth, bad, offset)
     seg = session.static_segments()[bad]
     cal = calibrate_session(bumped, _cfg(solver))
-    x = cal.accel.extra
-    assert [o["segment"] for o in x["outliers"]] == [seg.name]
-    assert x["outliers"][0]["action"] == "left out"
-    text = " ".join(x["warnings"])
+    x = cal.accel
+    assert [o.segment for o in x.outliers] == [seg.name]
+    assert x.outliers[0].action == "left out"
+    text = " ".join(x.warnings)
     assert f"segment {seg.name} ({seg.label})" in text and "bump" in text
-    assert next(p for p in x["poses"] if p["segment"] == seg.name)["excluded"] is True
+    assert next(p for p in x.poses if p.segment == seg.name).excluded is True
     # exactly the fit of the session without that hold: the bump moves nothing
     clean = calibrate_session(_without_hold(session, bad), _cfg(solver))
     p, std = _params(cal)
@@ -94,7 +94,7 @@ def test_a_kept_bump_spoils_the_fit_and_is_refused_unless_forced(q18, tmp_path):
 def test_a_downweighted_bump_moves_no_parameter_by_its_std(q18):
     session, truth = q18
     cal = calibrate_session(faults.bump(session, truth, BAD, 0.5), _cfg("gravity", "downweight"))
-    assert cal.accel.extra["outliers"][0]["action"] == "down-weighted"
+    assert cal.accel.outliers[0].action == "down-weighted"
     p, std = _params(cal)
     p0, _ = _params(calibrate_session(session, _cfg("gravity")))
     assert np.all(np.abs(p - p0) < 1.5 * std)
@@ -104,9 +104,9 @@ def test_spike_samples_are_left_out_of_the_mean_and_named(q18):
     session, truth = q18
     seg = session.static_segments()[BAD]
     cal = calibrate_session(faults.spike(session, truth, BAD), _cfg("gravity"))
-    x = cal.accel.extra
-    assert any(seg.name in n and "spike" in n for n in x["notes"])
-    assert x["outliers"] == []
+    x = cal.accel
+    assert any(seg.name in n and "spike" in n for n in x.notes)
+    assert x.outliers == []
     p, std = _params(cal)
     p0, _ = _params(calibrate_session(session, _cfg("gravity")))
     assert np.all(np.abs(p - p0) < 0.3 * std)
@@ -117,10 +117,10 @@ def test_slow_motion_in_a_hold_is_found_and_named(q18, solver):
     session, truth = q18
     seg = session.static_segments()[BAD]
     cal = calibrate_session(faults.slow_motion(session, truth, BAD, 3.0), _cfg(solver))
-    x = cal.accel.extra
-    assert [o["segment"] for o in x["outliers"]] == [seg.name]
-    assert "moved during the hold" in x["outliers"][0]["cause"]
-    assert x["notes"] == []  # its drift is motion, not spike samples
+    x = cal.accel
+    assert [o.segment for o in x.outliers] == [seg.name]
+    assert "moved during the hold" in x.outliers[0].cause
+    assert x.notes == []  # its drift is motion, not spike samples
 
 
 @pytest.mark.parametrize("plan, solver", [("qureshi18", "gravity"), ("qureshi18", "labelled"),
@@ -129,11 +129,11 @@ def test_a_pose_labelled_178_degrees_wrong_is_flagged(plan, solver):
     session, truth = simulate(plan=plan, seed=11, created=CREATED)
     seg = session.static_segments()[BAD]
     cal = calibrate_session(faults.wrong_label(session, BAD, 178.0), _cfg(solver))
-    x = cal.accel.extra
-    wrong = [w for w in x["warnings"] if f"segment {seg.name}" in w and "label" in w]
-    assert wrong and "deg from its label" in wrong[0], x["warnings"]
+    x = cal.accel
+    wrong = [w for w in x.warnings if f"segment {seg.name}" in w and "label" in w]
+    assert wrong and "deg from its label" in wrong[0], x.warnings
     if solver == "labelled":  # the label is dropped, the fit goes on
-        assert x["outliers"][0]["action"] == "label ignored"
+        assert x.outliers[0].action == "label ignored"
         p, std = _params(cal)
         t = np.r_[truth.accel.bias]
         assert np.all(np.abs(p[:3] - t) < 5 * std[:3])
@@ -142,8 +142,8 @@ def test_a_pose_labelled_178_degrees_wrong_is_flagged(plan, solver):
 def test_clean_sessions_flag_nothing():
     for plan, seed in (("qureshi18", 1), ("qureshi18", 2), ("random:30", 3)):
         session, _ = simulate(plan=plan, seed=seed, created=CREATED)
-        x = calibrate_session(session, _cfg("auto")).accel.extra
-        assert x["outliers"] == [] and x["blocking"] == [], (plan, x["warnings"])
+        x = calibrate_session(session, _cfg("auto")).accel
+        assert x.outliers == [] and x.blocking == [], (plan, x.warnings)
 
 
 def test_nine_poses_are_an_exact_fit_said_out_loud():
@@ -154,9 +154,9 @@ def test_nine_poses_are_an_exact_fit_said_out_loud():
     nine = replace(session, segments=[s for s in session.segments if s.kind != "static"
                                       or s in keep])  # fmt: skip
     cal = calibrate_session(nine, _cfg("gravity"))
-    x = cal.accel.extra
-    assert x["spare_equations"] == 0 and x["rms_after_below_noise"] is True
-    assert any("0 spare equations" in w and "capture" in w for w in x["warnings"])
+    x = cal.accel
+    assert x.spare_equations == 0 and x.rms_after_below_noise is True
+    assert any("0 spare equations" in w and "capture" in w for w in x.warnings)
     assert suspect_error(cal) is None  # said, not refused
     rms = build_report(cal)["sensors"]["accel"]["rms"]
     assert rms["improvement"] is None and "below what the noise allows" in rms["after_note"]
@@ -164,20 +164,20 @@ def test_nine_poses_are_an_exact_fit_said_out_loud():
 
 def test_six_faces_say_what_their_held_out_error_means():
     session, _ = simulate(plan="six", seed=3, created=CREATED)
-    x = calibrate_session(session, _cfg("auto")).accel.extra
-    held = [w for w in x["warnings"] if w.startswith("held-out error")]
+    x = calibrate_session(session, _cfg("auto")).accel
+    held = [w for w in x.warnings if w.startswith("held-out error")]
     assert held and "no pose is checked by the others" in held[0] and "qureshi18" in held[0]
 
 
 def test_units_not_stated_are_inferred_and_said():
     session, _ = simulate(plan="qureshi18", seed=6, created=CREATED)
-    x = calibrate_session(replace(session, accel_units=None), _cfg("gravity")).accel.extra
-    assert x["units_in"] == "counts"
-    note = [w for w in x["warnings"] if "does not state the accelerometer units" in w]
+    x = calibrate_session(replace(session, accel_units=None), _cfg("gravity")).accel
+    assert x.units_in == "counts"
+    note = [w for w in x.warnings if "does not state the accelerometer units" in w]
     assert note and "--accel-units" in note[0] and "taken as counts" in note[0]
     si, _ = simulate(plan="qureshi18", seed=6, created=CREATED, units="m/s^2")
-    x = calibrate_session(replace(si, accel_units=None), _cfg("gravity")).accel.extra
-    assert x["units_in"] == "m/s^2"
+    x = calibrate_session(replace(si, accel_units=None), _cfg("gravity")).accel
+    assert x.units_in == "m/s^2"
 
 
 def test_deletion_diagnostics_batched_equal_the_per_group_formula():

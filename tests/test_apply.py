@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import Calibration, SensorCalibration, write_calibration
+from imucal_cli.formats.calibration import write_calibration
 from imucal_cli.formats.session import Session, write_session
+from imucal_cli.model.calibration import Calibration, SensorCalibration
 from imucal_cli.simulate.redundant import simulate_redundant_accel
 from imucal_cli.simulate.triad import simulate
 from imucal_cli.use.apply import FORMAT, apply_calibration
@@ -74,7 +75,7 @@ def test_session_to_h5_equals_apply_exactly(sim, tmp_path, chunk_rows):
     assert attrs["format"] == FORMAT and attrs["format_version"] == 1
     assert attrs["model"] == "calibrated = matrix @ (raw - bias)"
     assert attrs["calibration"] == str(cal_path) and attrs["source"] == str(h5)
-    assert attrs["sensor"] == truth.extra["sensor"]
+    assert attrs["sensor"] == truth.sensor
     assert got["units"] == {"time": "s", "accel": "m/s^2", "gyro": "rad/s"}
     assert not (tmp_path / "out.h5.tmp").exists()
 

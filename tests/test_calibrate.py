@@ -57,24 +57,24 @@ def test_recovers_truth_within_its_reported_uncertainty(sim18):
     cal = calibrate_session(read_session(path), Config())
     acc = cal.accel
     x_true = model_to_params(truth.accel.bias, gauge(truth.accel.matrix))
-    x = np.array([p["value"] for p in acc.extra["parameters"]])
-    std = np.array([p["std"] for p in acc.extra["parameters"]])
+    x = np.array([p.value for p in acc.parameters])
+    std = np.array([p.std for p in acc.parameters])
     # Tolerance from the noise: the reported std agrees with the bound (tested in the solver
     # tests), so each error must be within 4.5 sigma (p ~ 1e-5 per parameter).
     assert np.all(np.abs(x - x_true) < 4.5 * std), (x - x_true) / std
     # The std itself is what the noise implies: sigma_b ~ sigma / sqrt(n_poses * samples / 3)
-    sens = np.mean(truth.accel.extra["sensitivity"])
-    sigma_counts = truth.accel.extra["noise"] * sens
+    sens = np.mean(truth.accel.sensitivity)
+    sigma_counts = truth.accel.noise * sens
     expected_bias_std = sigma_counts / np.sqrt(18 * 200 / 3)
     assert np.allclose(std[:3], expected_bias_std, rtol=0.35)
     # Calibrated magnitudes match g to the noise of a pose mean.
-    assert acc.extra["rms_after"] < 3 * truth.accel.extra["noise"] / np.sqrt(200)
-    assert acc.extra["rms_before"] > 20 * acc.extra["rms_after"]
-    assert acc.extra["rms_loo"] > acc.extra["rms_after"]
-    assert acc.extra["warnings"] == []
-    assert cal.extra["sensor"] == "sim-16bit seed 3"
-    assert acc.extra["model"] == "calibrated = matrix @ (raw - bias)"
-    assert acc.extra["units_in"] == "counts" and acc.units == "m/s^2"
+    assert acc.rms_after < 3 * truth.accel.noise / np.sqrt(200)
+    assert acc.rms_before > 20 * acc.rms_after
+    assert acc.rms_loo > acc.rms_after
+    assert acc.warnings == []
+    assert cal.sensor == "sim-16bit seed 3"
+    assert acc.model == "calibrated = matrix @ (raw - bias)"
+    assert acc.units_in == "counts" and acc.units == "m/s^2"
 
 
 def test_same_answer_whatever_the_raw_units(tmp_path):
@@ -89,12 +89,12 @@ def test_same_answer_whatever_the_raw_units(tmp_path):
     (cal_c, f_c), (cal_s, f_s) = out["counts"], out["m/s^2"]
     # pose-mean noise 0.01/sqrt(200) = 0.0007 m/s^2, quantisation ~0.0012/sqrt(12*200)
     assert np.max(np.abs(f_c - f_s)) < 5 * 0.01 / np.sqrt(200)
-    gains_c = np.array(cal_c.accel.extra["sensitivity"])
-    gains_s = np.array(cal_s.accel.extra["sensitivity"])
+    gains_c = np.array(cal_c.accel.sensitivity)
+    gains_s = np.array(cal_s.accel.sensitivity)
     np.testing.assert_allclose(gains_c / gains_c.mean(), gains_s / gains_s.mean(), atol=2e-4)
     np.testing.assert_allclose(
-        list(cal_c.accel.extra["misalignment_deg"].values()),
-        list(cal_s.accel.extra["misalignment_deg"].values()),
+        list(cal_c.accel.misalignment_deg.values()),
+        list(cal_s.accel.misalignment_deg.values()),
         atol=0.02,
     )
 
@@ -103,10 +103,10 @@ def test_unlabelled_random_session_calibrates():
     session, truth = simulate(plan="random:24", seed=5, created=CREATED)
     assert all(s.up is None for s in session.static_segments())
     cal = calibrate_session(session, Config())
-    assert cal.accel.extra["init"] in ("ellipsoid", "sphere")
+    assert cal.accel.fit.init in ("ellipsoid", "sphere")
     x_true = model_to_params(truth.accel.bias, gauge(truth.accel.matrix))
-    x = np.array([p["value"] for p in cal.accel.extra["parameters"]])
-    std = np.array([p["std"] for p in cal.accel.extra["parameters"]])
+    x = np.array([p.value for p in cal.accel.parameters])
+    std = np.array([p.std for p in cal.accel.parameters])
     assert np.all(np.abs(x - x_true) < 4.5 * std)
 
 
@@ -114,11 +114,11 @@ def test_12_parameter_variant_from_config_is_close_to_the_full_truth():
     session, truth = simulate(plan="qureshi18", seed=8, jitter_deg=0.5, created=CREATED)
     cfg = config_from_dict({"accel": {"gravity": {"model": "12"}}})
     acc = calibrate_session(session, cfg).accel
-    assert acc.extra["variant"] == "12-parameter" and len(acc.extra["parameters"]) == 12
+    assert acc.variant == "12-parameter" and len(acc.parameters) == 12
     # The rotation is known to ~jitter/sqrt(18); the matrix error is that angle times the gain.
     err = np.abs(acc.matrix - truth.accel.matrix).max() / np.abs(truth.accel.matrix).max()
     assert err < 3 * np.radians(0.5) / np.sqrt(18) + 1e-4
-    assert acc.extra["rotation_std_deg"] < 0.5
+    assert acc.rotation_std_deg < 0.5
 
 
 def test_cli_writes_json_beside_the_session_and_stores_it(sim18, tmp_path):
@@ -147,7 +147,7 @@ def test_cli_config_and_output_options(sim18, tmp_path):
     proc = run("calibrate", path, "--config", cfg, "--output", out, "--no-store")
     assert proc.returncode == 0, proc.stderr
     acc = read_calibration(out).accel
-    assert acc.extra["variant"] == "12-parameter" and acc.extra["rms_loo"] is None
+    assert acc.variant == "12-parameter" and acc.rms_loo is None
 
 
 @pytest.mark.parametrize(
@@ -207,7 +207,7 @@ def test_six_labelled_faces_calibrate_by_default_and_say_why(tmp_path):
     assert "labelled" in proc.stdout and "solver chosen" in proc.stdout
     cal = read_calibration(tmp_path / "six.cal.json")
     assert cal.accel.solver == "labelled"
-    assert cal.accel.extra["choice"]["by"] == "auto"
+    assert cal.accel.choice.by == "auto"
 
 
 def test_poses_all_near_one_direction_refused(tmp_path):
@@ -258,14 +258,14 @@ def test_result_outside_physical_sense_is_not_saved_without_force(tmp_path):
     assert not out.exists()
     proc = run("calibrate", path, "--config", cfg, "--output", out, "--no-store", "--force")
     assert proc.returncode == 0 and "warning" in proc.stdout
-    assert len(read_calibration(out).accel.extra["warnings"]) == 3
+    assert len(read_calibration(out).accel.warnings) == 3
 
 
 def test_bias_outside_the_range_is_flagged(tmp_path):
     session, _ = simulate(plan="qureshi18", seed=4, created=CREATED)
     # Biases of this part are tens of mg (hundreds of counts): a +-10 count range excludes them.
     cfg = config_from_dict({"accel": {"range": [-10, 10]}})
-    warnings = calibrate_session(session, cfg).accel.extra["warnings"]
+    warnings = calibrate_session(session, cfg).accel.warnings
     assert any("outside the sensor's range" in w for w in warnings)
 
 
@@ -289,8 +289,8 @@ def test_reported_intervals_are_honest_over_simulated_seeds(n_seeds, band):
             session, config_from_dict({"accel": {"gravity": {"leave_one_out": False}}})
         ).accel
         x_true = model_to_params(truth.accel.bias, gauge(truth.accel.matrix))
-        x = np.array([p["value"] for p in acc.extra["parameters"]])
-        std = np.array([p["std"] for p in acc.extra["parameters"]])
+        x = np.array([p.value for p in acc.parameters])
+        std = np.array([p.std for p in acc.parameters])
         hits.append(np.abs(x - x_true) <= 1.96 * std)
     covered = np.mean(hits)
     assert band[0] <= covered <= band[1], covered

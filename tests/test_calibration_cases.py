@@ -1,8 +1,8 @@
 """Issue 25.2: the calibration JSON stays as it was through the typed calibration model and
 the solver registry: every plan's simulated session calibrates to the document recorded in
-``tests/data/calibrations/`` (:mod:`tests.calibration_cases`: every key, in order, every text
-and integer, numbers within the last bits of another CPU's arithmetic), and every stored
-calibration reads and writes back unchanged."""
+``tests/data/calibrations/`` (:mod:`tests.calibration_cases`: every member (a JSON object's
+have no order), every text and integer, numbers within the last bits of another CPU's
+arithmetic), and every stored calibration reads and writes back unchanged."""
 
 from __future__ import annotations
 

@@ -11,8 +11,10 @@ import numpy as np
 import pytest
 
 from imucal_cli.errors import CalibrationFileError, InputError
-from imucal_cli.formats.calibration import Calibration, SensorCalibration, read_calibration
+from imucal_cli.formats.calibration import read_calibration
 from imucal_cli.formats.exporters import ExportOptions
+from imucal_cli.model.calibration import Calibration
+from imucal_cli.model.gyro import GyroCalibration
 from imucal_cli.use.apply import apply_calibration
 from imucal_cli.use.export import export
 
@@ -31,8 +33,8 @@ def test_kalibr_export_reads_back_as_the_same_calibration(cal, raw, tmp_path):  
     path = tmp_path / "kalibr.yaml"
     path.write_text(export(cal, "kalibr", options=ExportOptions(scale={"accel": ACCEL_SCALE})))
     back = read_calibration(path)
-    assert back.accel.extra["units_in"] == "m/s^2" and back.gyro.extra["units_in"] == "rad/s"
-    assert back.extra["imported_from"]["format"] == "kalibr scale-misalignment"
+    assert back.accel.units_in == "m/s^2" and back.gyro.units_in == "rad/s"
+    assert back.imported_from.format == "kalibr scale-misalignment"
     a_ref, w_ref = truth(cal, raw_a, raw_w)
     a = back.accel.apply(raw_a * ACCEL_SCALE)
     w = back.gyro.apply(raw_w * D2R, accel=a)
@@ -94,8 +96,8 @@ def test_kalibr_result_follows_kalibrs_model(tmp_path):
     a_out = cal.accel.apply(p_a)
     np.testing.assert_allclose(a_out, a, atol=1e-12)
     np.testing.assert_allclose(cal.gyro.apply(p_w, accel=a_out), w, atol=1e-12)
-    assert any("Kalibr writes no fixed bias" in w for w in cal.accel.extra["warnings"])
-    assert cal.created.endswith("Z") and "modification time" in cal.extra["created_basis"]
+    assert any("Kalibr writes no fixed bias" in w for w in cal.accel.warnings)
+    assert cal.created.endswith("Z") and "modification time" in cal.created_basis
 
 
 @pytest.mark.parametrize(
@@ -134,7 +136,7 @@ def test_mad_lab_snapshot_applies_as_mad_lab_does(tmp_path):
     src = FERRARIS / "imucal_snapshot_example_cal.json"
     doc = json.loads(src.read_text())
     cal = read_calibration(src)
-    assert cal.accel.extra["units_in"] == "counts" and cal.gyro.extra["units_in"] == "counts"
+    assert cal.accel.units_in == "counts" and cal.gyro.units_in == "counts"
     rows = np.genfromtxt(FERRARIS / "annotated_session.csv", delimiter=",", skip_header=1,
                          usecols=range(2, 8))  # fmt: skip
     labels = np.genfromtxt(FERRARIS / "annotated_session.csv", delimiter=",", skip_header=1,
@@ -196,8 +198,7 @@ def test_mad_lab_units_convert_to_si(tmp_path):
 
 
 def test_apply_refuses_g_sensitivity_without_accel(tmp_path):
-    gyro = SensorCalibration("x", "rad/s", [0, 0, 0], np.eye(3), None,
-                             {"g_sensitivity": np.eye(3).tolist()})  # fmt: skip
+    gyro = GyroCalibration("x", "rad/s", [0, 0, 0], np.eye(3), None, g_sensitivity=np.eye(3))
     cal_path = tmp_path / "c.json"
     from imucal_cli.formats.calibration import write_calibration
 

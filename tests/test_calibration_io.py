@@ -9,16 +9,21 @@ import pytest
 
 from imucal_cli.errors import CalibrationFileError, InputError
 from imucal_cli.formats.calibration import (
-    FORMAT,
-    FORMAT_VERSION,
-    MODEL_EQUATION,
-    Calibration,
-    SensorCalibration,
     calibration_from_json,
     calibration_to_json,
     read_calibration,
     write_calibration,
 )
+from imucal_cli.model.accel import AccelCalibration, PoseRow
+from imucal_cli.model.calibration import (
+    FORMAT,
+    FORMAT_VERSION,
+    MODEL_EQUATION,
+    Calibration,
+    SensorCalibration,
+)
+from imucal_cli.model.codec import build
+from imucal_cli.model.gyro import GyroCalibration
 
 SPEC_EXAMPLE = """{
   "format": "imucal-calibration",
@@ -44,29 +49,30 @@ SPEC_EXAMPLE = """{
 
 def make_calibration() -> Calibration:
     rng = np.random.default_rng(3)
-    accel = SensorCalibration(
+    accel = build(
+        AccelCalibration,
         solver="gravity",
         units="m/s^2",
         bias=rng.normal(size=4) * 10,  # a redundant unit: 4 raw channels
         matrix=rng.normal(size=(3, 4)),
         residual_rms=np.float64(0.0021),
-        extra={
-            "model": MODEL_EQUATION,
-            "variant": "9-parameter",
-            "iterations": np.int64(7),
-            "converged": True,
-            "sensitivity": np.array([835.1, 830.2, 841.0]),
-            "rms_loo": float("nan"),
-            "poses": [{"segment": "0000", "up": (0, 0, 1), "residual": 0.0004}],
-        },
+        model=MODEL_EQUATION,
+        variant="9-parameter",
+        iterations=np.int64(7),
+        converged=True,
+        sensitivity=np.array([835.1, 830.2, 841.0]),
+        rms_loo=float("nan"),
+        poses=[PoseRow(segment="0000", up=(0, 0, 1), residual=0.0004)],
     )
-    gyro = SensorCalibration("gyro-dynamic", "rad/s", [0.1, 0.2, 0.3], np.eye(3) * 0.98)
+    gyro = GyroCalibration("gyro-dynamic", "rad/s", [0.1, 0.2, 0.3], np.eye(3) * 0.98)
     return Calibration(
         accel=accel,
         gyro=gyro,
         session="bench3-unit17.h5",
         created="2026-11-21T10:00:00Z",
-        extra={"sensor": "BNO055 #17", "toolkit_version": "0.1.0", "config": {"init": "updown"}},
+        sensor="BNO055 #17",
+        toolkit_version="0.1.0",
+        config={"init": "updown"},
     )
 
 
@@ -77,7 +83,10 @@ def test_spec_example_reads():
     np.testing.assert_array_equal(cal.accel.bias, [0.012, -0.031, 0.004])
     assert cal.accel.matrix.shape == (3, 3) and cal.accel.residual_rms == 0.0138
     assert cal.gyro.matrix[1, 1] == 0.983
-    assert cal.extra == {} and cal.accel.extra == {}
+    standard = {"solver", "units", "bias", "matrix", "residual_rms"}
+    assert set(cal.accel.to_dict()) == standard and set(cal.gyro.to_dict()) == standard
+    assert set(cal.to_dict()) == {"format", "format_version", "session", "created", "accel",
+                                  "gyro"}  # fmt: skip
 
 
 def test_round_trip_preserves_everything(tmp_path):
@@ -91,17 +100,25 @@ def test_round_trip_preserves_everything(tmp_path):
         np.testing.assert_array_equal(a.bias, b.bias)
         np.testing.assert_array_equal(a.matrix, b.matrix)
     assert back.session == cal.session and back.created == cal.created
-    assert back.extra == cal.extra
-    assert back.accel.extra == {
+    assert (back.sensor, back.toolkit_version, back.config) == (
+        cal.sensor, cal.toolkit_version, cal.config)  # fmt: skip
+    accel = back.accel.to_dict()
+    assert {k: v for k, v in accel.items() if k not in ("bias", "matrix")} == {
+        "solver": "gravity",
+        "units": "m/s^2",
+        "residual_rms": 0.0021,
         "model": MODEL_EQUATION,
         "variant": "9-parameter",
         "iterations": 7,
         "converged": True,
         "sensitivity": [835.1, 830.2, 841.0],
         "rms_loo": None,  # NaN is written as null
-        "poses": [{"segment": "0000", "up": [0, 0, 1], "residual": 0.0004}],
-    }
-    assert back.gyro.extra == {} and back.gyro.residual_rms is None
+        "poses": [{"segment": "0000", "label": None, "up": [0, 0, 1], "magnitude_before": None,
+                   "residual": 0.0004, "residual_loo": None,
+                   "angle_to_up_deg": None}],  # a table's columns are all written
+    }  # fmt: skip
+    assert back.accel.rms_loo is None and back.accel.fit.iterations == 7
+    assert back.gyro.residual_rms is None
     # Writing what was read gives the same text.
     assert calibration_to_json(back) == calibration_to_json(calibration_from_json(
         calibration_to_json(cal)))  # fmt: skip

@@ -375,12 +375,12 @@ def test_the_clock_fit_of_a_capture_beside_two_burners(tmp_path, burners, ppm):
         m = cal.gyro.matrix @ np.linalg.inv(truth.gyro.matrix)
         return np.abs(np.linalg.svd(m, compute_uv=False) - 1.0).max()
 
-    clock = cals["auto"].extra["sample_clock"]
+    clock = cals["auto"].sample_clock
     if ppm == 0:
-        assert clock["applied"] is False and abs(clock["ppm"]) < clock["threshold_ppm"], clock
+        assert clock.applied is False and abs(clock.ppm) < clock.threshold_ppm, clock
         np.testing.assert_array_equal(cals["auto"].gyro.matrix, cals["off"].gyro.matrix)
     else:
-        assert clock["applied"] is True and abs(clock["ppm"] - ppm) < 4.5 * clock["ppm_std"]
+        assert clock.applied is True and abs(clock.ppm - ppm) < 4.5 * clock.ppm_std
         assert scale_error(cals["auto"]) < scale_error(cals["off"]) / 5
 
 

@@ -25,11 +25,11 @@ def _z(plan: str, seed: int) -> np.ndarray:
     if suspect_error(cal) is not None:
         return np.full(21, np.nan)
     g = cal.gyro
-    est = np.array([p["value"] for p in g.extra["parameters"]])
-    std = np.array([p["std"] for p in g.extra["parameters"]])
+    est = np.array([p.value for p in g.parameters])
+    std = np.array([p.std for p in g.parameters])
     if len(est) < 21:  # g-sensitivity left out: its truth is not zero
         est, std = np.r_[est, np.zeros(9)], np.r_[std, np.zeros(9)]
-    x = _truth_x(cal, truth, np.asarray(truth.gyro.extra["g_sensitivity"]))
+    x = _truth_x(cal, truth, np.asarray(truth.gyro.g_sensitivity))
     return np.abs(est - x) / np.maximum(std, 1e-300)
 
 

@@ -103,16 +103,16 @@ def _scale_error(cal, truth):
 def test_calibrate_corrects_the_gyro_scale_by_the_clock():
     session, truth = simulate_gyro_rotations(plan="qureshi-axes", seed=3, clock_scale=1.005)
     cal = calibrate_session(session, config_from_dict({}))
-    clock = cal.extra["sample_clock"]
-    assert abs(clock["ppm"] - 5000.0) < max(4.5 * clock["ppm_std"], 2.0)
+    clock = cal.sample_clock
+    assert abs(clock.ppm - 5000.0) < max(4.5 * clock.ppm_std, 2.0)
     assert cal.gyro.sample_clock_scale == pytest.approx(1.005, abs=1e-5)
     assert np.max(np.abs(_scale_error(cal, truth))) < 0.001
     off = calibrate_session(session, config_from_dict({"clock": {"model": "off"}}))
-    assert "sample_clock" not in off.extra and off.gyro.sample_clock_scale is None
+    assert off.sample_clock is None and off.gyro.sample_clock_scale is None
     assert np.all(np.abs(_scale_error(off, truth) + 0.005) < 0.001)  # absorbed: 1/s
     table = [t for t in build_report(cal)["sensors"]["gyro"]["tables"]
              if t["title"] == "sample clock"]  # fmt: skip
-    assert table and table[0]["rows"][0][1] == pytest.approx(clock["ppm"])
+    assert table and table[0]["rows"][0][1] == pytest.approx(clock.ppm)
 
 
 def test_cli_reports_the_clock_in_ppm(tmp_path):
@@ -176,9 +176,9 @@ def test_an_insignificant_clock_leaves_the_gyro_as_it_is():
     calibrated with the clock off (before: corrected by noise, one gyro 4x worse)."""
     session, truth = simulate_gyro_rotations(plan="qureshi-axes", seed=5, clock_scale=1.0)
     cal = calibrate_session(session, config_from_dict({}))
-    clock = cal.extra["sample_clock"]
-    assert clock["applied"] is False and abs(clock["ppm"]) < clock["threshold_ppm"]
+    clock = cal.sample_clock
+    assert clock.applied is False and abs(clock.ppm) < clock.threshold_ppm
     assert cal.gyro.sample_clock_scale is None
     off = calibrate_session(session, config_from_dict({"clock": {"model": "off"}}))
     np.testing.assert_array_equal(cal.gyro.matrix, off.gyro.matrix)
-    assert "sample_clock" not in cal.gyro.extra  # the gyro was not corrected by it
+    assert cal.gyro.sample_clock is None  # the gyro was not corrected by it

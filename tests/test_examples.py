@@ -29,7 +29,7 @@ def test_example_calibrates_to_its_truth(name):
     mag = np.linalg.norm(cal.accel.apply(raw), axis=1)
     # 18+ poses of 200 samples at 0.01 m/s^2: the magnitude is known to ~1e-3 m/s^2.
     assert np.max(np.abs(mag - 9.80665)) < 4e-3
-    assert cal.accel.extra["warnings"] == []
+    assert cal.accel.warnings == []
 
 
 def test_six_faces_example_calibrates_with_the_labelled_solver():
@@ -39,17 +39,17 @@ def test_six_faces_example_calibrates_with_the_labelled_solver():
     truth = read_calibration(SESSIONS / "six-seed3.truth.json")
     acc = calibrate_session(session, Config()).accel
     assert acc.solver == "labelled"
-    assert acc.extra["choice"]["by"] == "auto" and "too few" in acc.extra["choice"]["reason"]
+    assert acc.choice.by == "auto" and "too few" in acc.choice.reason
     # Saved, with the one thing six faces cannot do said out loud (issue 10.3): no face is
     # checked by the others (its held-out error is many times the fit error).
-    assert acc.extra["blocking"] == [] and acc.extra["outliers"] == []
-    assert [w.split(" ")[0] for w in acc.extra["warnings"]] == ["held-out"], acc.extra["warnings"]
+    assert acc.blocking == [] and acc.outliers == []
+    assert [w.split(" ")[0] for w in acc.warnings] == ["held-out"], acc.warnings
     # The fixture-frame matrix: every entry within 4.5 std of the truth (std from the fit).
     from imucal_cli.solvers.labelled import public_params
 
     x_true = public_params(truth.accel.bias, np.linalg.inv(truth.accel.matrix))
-    x = np.array([p["value"] for p in acc.extra["parameters"]])
-    std = np.array([p["std"] for p in acc.extra["parameters"]])
+    x = np.array([p.value for p in acc.parameters])
+    std = np.array([p.std for p in acc.parameters])
     assert np.all(np.abs(x - x_true) < 4.5 * std), (x - x_true) / std
 
 

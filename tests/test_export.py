@@ -8,6 +8,7 @@ import json
 import math
 import shutil
 import subprocess
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -15,14 +16,11 @@ import pytest
 import yaml
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import (
-    Calibration,
-    SensorCalibration,
-    calibration_from_json,
-    write_calibration,
-)
+from imucal_cli.formats.calibration import calibration_from_json, write_calibration
 from imucal_cli.formats.exporters import ExportOptions
 from imucal_cli.formats.session import write_session
+from imucal_cli.model.accel import AccelCalibration
+from imucal_cli.model.calibration import Calibration, SensorCalibration
 from imucal_cli.simulate.redundant import simulate_redundant_accel
 from imucal_cli.simulate.triad import simulate
 from imucal_cli.use.export import export, export_c_header, export_json, export_yaml
@@ -169,7 +167,7 @@ def test_header_carries_the_gyro_g_sensitivity(sim, tmp_path):
     apply takes the calibrated accelerometer vector, and gives what imucal apply gives."""
     session, truth = sim
     truth = copy.deepcopy(truth)
-    truth.gyro.extra["g_sensitivity"] = [[2.0, -0.5, 0.3], [0.4, 1.0, -0.2], [0.1, 0.6, 0.5]]
+    truth.gyro.g_sensitivity = [[2.0, -0.5, 0.3], [0.4, 1.0, -0.2], [0.1, 0.6, 0.5]]
     header = export_c_header(truth)
     assert "IMUCAL_GYRO_G_SENSITIVITY[IMUCAL_GYRO_CHANNELS][3]" in header
     assert ("imucal_gyro_apply(const float raw[IMUCAL_GYRO_CHANNELS], const float accel[3], "
@@ -255,7 +253,7 @@ def test_bad_prefix_refused(sim, prefix):
 def test_comment_text_cannot_end_the_comment(sim):
     _, truth = sim
     cal = Calibration(accel=truth.accel, session="a */ b.h5", created=truth.created,
-                      extra={"sensor": "evil */ int x; /* \n second line"})  # fmt: skip
+                      sensor="evil */ int x; /* \n second line")  # fmt: skip
     text = export_c_header(cal)
     comment = text.split("#ifndef")[0]
     assert comment.count("*/") == 1 and comment.rstrip().endswith("*/")
@@ -299,7 +297,7 @@ def test_yaml_honours_the_scale_and_refuses_counts_without_it(sim):
     with pytest.raises(InputError, match=r"--gyro-scale .*0\.0174533/131 for a 16-bit \+-250"):
         export_yaml(truth, accel_only)
     unstated = copy.deepcopy(truth)
-    unstated.gyro.extra.pop("units_in", None)
+    unstated.gyro.units_in = None
     with pytest.raises(InputError, match="takes raw units it does not state") as err:
         export_yaml(unstated, accel_only)
     assert "raw raw" not in str(err.value)
@@ -312,7 +310,7 @@ def test_yaml_honours_the_scale_and_refuses_counts_without_it(sim):
 
 def test_yaml_refuses_a_g_sensitivity_it_cannot_hold(sim):
     truth = copy.deepcopy(sim[1])
-    truth.gyro.extra["g_sensitivity"] = [[2.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.5]]
+    truth.gyro.g_sensitivity = [[2.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.5]]
     with pytest.raises(InputError, match="g_sensitivity .* --format yaml cannot hold"):
         export(truth, "yaml", options=ExportOptions(scale=SCALES))
     text = export(truth, "yaml", options=ExportOptions(scale=SCALES,
@@ -321,8 +319,8 @@ def test_yaml_refuses_a_g_sensitivity_it_cannot_hold(sim):
 
 
 def test_yaml_small_numbers_read_as_floats():
-    sec = SensorCalibration("x", "m/s^2", [1e-5, 0.0, 2.0], [[1e-5, 0, 0], [0, 1e20, 0], [0, 0, 1]],
-                            extra={"units_in": "m/s^2"})  # fmt: skip
+    sec = AccelCalibration("x", "m/s^2", [1e-5, 0.0, 2.0], [[1e-5, 0, 0], [0, 1e20, 0], [0, 0, 1]],
+                           units_in="m/s^2")  # fmt: skip
     doc = yaml.safe_load(export_yaml(Calibration(accel=sec)))
     assert all(isinstance(v, float) for v in doc["SM"] + doc["bias"])
     np.testing.assert_array_equal(doc["SM"], sec.matrix.ravel())
@@ -342,8 +340,7 @@ def test_yaml_refuses_redundant_unit_and_gyro_only(sim, redundant):
 
 def test_json_standard_fields_round_trip(sim):
     _, truth = sim
-    truth = Calibration(accel=truth.accel, gyro=truth.gyro, session="s.h5",
-                        created=truth.created, extra=truth.extra)  # fmt: skip
+    truth = replace(truth, session="s.h5")
     truth.accel.residual_rms = 0.0123
     text = export_json(truth)
     assert text.count("\n") == 1 and text.endswith("\n") and ": " not in text
@@ -356,8 +353,12 @@ def test_json_standard_fields_round_trip(sim):
         np.testing.assert_array_equal(a.bias, b.bias)
         np.testing.assert_array_equal(a.matrix, b.matrix)
         assert (a.solver, a.units, a.residual_rms) == (b.solver, b.units, b.residual_rms)
-        assert b.extra == {"model": "calibrated = matrix @ (raw - bias)"}
-    assert (back.session, back.created, back.extra) == ("s.h5", truth.created, {})
+        assert set(b.to_dict()) == {"solver", "units", "model", "bias", "matrix",
+                                    "residual_rms"}  # fmt: skip
+        assert b.model == "calibrated = matrix @ (raw - bias)"
+    assert (back.session, back.created) == ("s.h5", truth.created)
+    assert set(back.to_dict()) == {"format", "format_version", "session", "created", "accel",
+                                   "gyro"}  # fmt: skip
     assert export_json(back) == text  # stable
 
 

@@ -17,9 +17,12 @@ import pytest
 import yaml
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import Calibration, SensorCalibration, write_calibration
+from imucal_cli.formats.calibration import write_calibration
 from imucal_cli.formats.exporters import ExportOptions, diagonal_fit, lq, published
 from imucal_cli.formats.noise import noise_from_dict
+from imucal_cli.model.accel import AccelCalibration
+from imucal_cli.model.calibration import Calibration
+from imucal_cli.model.gyro import GyroCalibration
 from imucal_cli.use.export import export
 from imucal_cli.use.noise import analyse_noise
 
@@ -57,15 +60,14 @@ def cal() -> Calibration:
                                  rotation([1, 2, 3], 2.0))  # fmt: skip
     S_g = misaligned_sensitivity([57.9, 56.1, 58.8], [-0.5, 0.9, 0.2],
                                  rotation([3, -1, 2], 4.0))  # fmt: skip
-    accel = SensorCalibration("gravity", "m/s^2", [35.0, -120.0, 410.0], np.linalg.inv(S_a),
-                              0.002, {"units_in": "counts"})  # fmt: skip
-    gyro = SensorCalibration("gyro-full", "rad/s", [0.9, -1.3, 0.4], np.linalg.inv(S_g) * D2R,
-                             0.001, {"units_in": "deg/s",
-                                     "g_sensitivity": [[0.002, -0.001, 0.0004],
-                                                       [0.0015, 0.003, -0.002],
-                                                       [-0.0007, 0.001, 0.0025]]})  # fmt: skip
+    accel = AccelCalibration("gravity", "m/s^2", [35.0, -120.0, 410.0], np.linalg.inv(S_a),
+                             0.002, units_in="counts")  # fmt: skip
+    gyro = GyroCalibration("gyro-full", "rad/s", [0.9, -1.3, 0.4], np.linalg.inv(S_g) * D2R,
+                           0.001, units_in="deg/s",
+                           g_sensitivity=[[0.002, -0.001, 0.0004], [0.0015, 0.003, -0.002],
+                                          [-0.0007, 0.001, 0.0025]])  # fmt: skip
     return Calibration(accel=accel, gyro=gyro, session="bench.h5",
-                       created="2026-01-01T00:00:00Z", extra={"sensor": "MPU-6050 #3"})  # fmt: skip
+                       created="2026-01-01T00:00:00Z", sensor="MPU-6050 #3")  # fmt: skip
 
 
 ACCEL_SCALE = G0 / 16384.0  # the driver's m/s^2 per count
@@ -84,7 +86,7 @@ def raw():
 def truth(cal: Calibration, raw_accel, raw_gyro):
     """imucal's apply: accel, then gyro with g-sensitivity subtracted (the spec's order)."""
     a = cal.accel.apply(raw_accel)
-    g = np.asarray(cal.gyro.extra.get("g_sensitivity", np.zeros((3, 3))), float)
+    g = np.zeros((3, 3)) if cal.gyro.g_sensitivity is None else cal.gyro.g_sensitivity
     w = (raw_gyro - cal.gyro.bias - a @ g.T) @ cal.gyro.matrix.T
     return a, w
 
@@ -92,7 +94,7 @@ def truth(cal: Calibration, raw_accel, raw_gyro):
 def raw_from_truth(cal: Calibration, a, w):
     """Raw samples whose calibrated values are ``a``, ``w``."""
     raw_a = a @ np.linalg.inv(cal.accel.matrix).T + cal.accel.bias
-    g = np.asarray(cal.gyro.extra.get("g_sensitivity", np.zeros((3, 3))), float)
+    g = np.zeros((3, 3)) if cal.gyro.g_sensitivity is None else cal.gyro.g_sensitivity
     raw_w = w @ np.linalg.inv(cal.gyro.matrix).T + cal.gyro.bias + a @ g.T
     return raw_a, raw_w
 
@@ -226,9 +228,9 @@ def test_openvins_needs_noise(cal):
 
 
 def test_basalt_reader_reproduces_apply(cal, raw, noise):
-    no_gs = Calibration(accel=cal.accel, gyro=SensorCalibration(
+    no_gs = Calibration(accel=cal.accel, gyro=GyroCalibration(
         cal.gyro.solver, "rad/s", cal.gyro.bias, cal.gyro.matrix, None,
-        {"units_in": "deg/s"}), created=cal.created)  # fmt: skip
+        units_in="deg/s"), created=cal.created)  # fmt: skip
     a_true, w_true = raw
     raw_a, raw_w = raw_from_truth(no_gs, a_true, w_true)
     doc = json.loads(export(no_gs, "basalt", options=ExportOptions(scale={"accel": ACCEL_SCALE},
@@ -255,7 +257,7 @@ def test_basalt_refuses_or_states_the_dropped_g_sensitivity(cal, noise):
     doc = json.loads(export(cal, "basalt", options=ExportOptions(
         scale={"accel": ACCEL_SCALE}, drop=frozenset({"g-sensitivity"}), noise=noise)))  # fmt: skip
     note = [n for n in doc["value0"]["imucal_notes"] if "g-sensitivity dropped" in n]
-    G = np.asarray(cal.gyro.extra["g_sensitivity"]) * D2R
+    G = np.asarray(cal.gyro.g_sensitivity) * D2R
     assert note and f"{np.linalg.norm(G, 2) * G0:.4g} rad/s" in note[0]
 
 
@@ -285,10 +287,10 @@ def si_cal(angles_deg, turn_deg=0.0) -> Calibration:
     S_a = misaligned_sensitivity([1.02, 0.97, 1.01], angles_deg, rotation([0, 0, 1], turn_deg))
     S_g = misaligned_sensitivity([1.05, 0.96, 1.0], angles_deg, np.eye(3))
     return Calibration(
-        accel=SensorCalibration("gravity", "m/s^2", [0.12, -0.3, 0.25], np.linalg.inv(S_a),
-                                None, {"units_in": "m/s^2"}),
-        gyro=SensorCalibration("gyro-full", "rad/s", [0.01, -0.02, 0.004], np.linalg.inv(S_g),
-                               None, {"units_in": "rad/s"}),
+        accel=AccelCalibration("gravity", "m/s^2", [0.12, -0.3, 0.25], np.linalg.inv(S_a),
+                               None, units_in="m/s^2"),
+        gyro=GyroCalibration("gyro-full", "rad/s", [0.01, -0.02, 0.004], np.linalg.inv(S_g),
+                             None, units_in="rad/s"),
         created="2026-01-01T00:00:00Z",
     )  # fmt: skip
 

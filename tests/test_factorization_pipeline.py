@@ -30,8 +30,8 @@ IMUCAL = str(Path(sys.executable).with_name("imucal"))
 def invariants_and_std(sec):
     """(biases, gains) and their reported standard deviations, in raw units."""
     n = len(sec.bias)
-    values = np.r_[sec.bias, sec.extra["sensitivity"]]
-    std = np.array([p["std"] for p in sec.extra["parameters"]], float)
+    values = np.r_[sec.bias, sec.sensitivity]
+    std = np.array([p.std for p in sec.parameters], float)
     return values, std, n
 
 
@@ -49,19 +49,20 @@ def test_redundant_unit_recovers_biases_gains_and_angles():
     assert n == 4 and acc.matrix.shape == (3, 4)
     expected, angles = true_invariants(truth.accel, 1.0)  # truth matrix is already in m/s^2
     assert np.all(np.abs(values - expected) < 4.5 * std), (values - expected) / std
-    got = np.array(acc.extra["angles_deg"])
+    got = np.array(acc.factorization.angles_deg)
     iu = np.triu_indices(4, 1)
-    angle_std = np.array(acc.extra["angles_std_deg"])[iu]
+    angle_std = np.array(acc.factorization.angles_std_deg)[iu]
     assert np.all(np.abs(got[iu] - angles) < 4.5 * angle_std)
-    assert acc.extra["configuration"] == "redundant" and acc.extra["case"] == "magnitude-only"
-    assert "canonical" in acc.extra["rotation"]  # unlabelled: the frame is a convention
+    fz = acc.factorization
+    assert fz.configuration == "redundant" and fz.case == "magnitude-only"
+    assert "canonical" in acc.factorization.rotation  # unlabelled: the frame is a convention
 
 
 def test_labelled_iron_sessions_are_aligned_to_the_fixture():
     session, truth = simulate_redundant_accel(seed=4, labelled=True, created=CREATED)
     acc = calibrate_session(session, ACCEL).accel
-    assert "labelled up" in acc.extra["rotation"]
-    assert acc.extra["case"] == "general"
+    assert "labelled up" in acc.factorization.rotation
+    assert acc.factorization.case == "general"
     err = np.abs(acc.matrix - truth.accel.matrix).max() / np.abs(truth.accel.matrix).max()
     assert err < 5e-3
 
@@ -73,9 +74,9 @@ def test_triad_from_opposite_pairs_matches_the_truth_within_its_std():
     gains = np.linalg.norm(np.linalg.inv(truth.accel.matrix), axis=1)
     expected = np.r_[truth.accel.bias, gains]
     assert np.all(np.abs(values - expected) < 4.5 * std), (values - expected) / std
-    assert any("opposite pair" in note for note in acc.extra["notes"])
+    assert any("opposite pair" in note for note in acc.notes)
     # Hand placement (2 degrees) is found in the data, not assumed away.
-    assert 0.5 < acc.extra["fixture_tolerance_deg"] < 4.0
+    assert 0.5 < acc.factorization.fixture_tolerance_deg < 4.0
 
 
 def test_gyroscope_procedure_of_section_IV_B():
@@ -88,8 +89,8 @@ def test_gyroscope_procedure_of_section_IV_B():
     # The frame: the known turn along its axis, mounting 1's turns along theirs.
     err = np.abs(gyr.matrix - truth.gyro.matrix).max() / np.abs(truth.gyro.matrix).max()
     assert err < 0.01
-    turn = gyr.extra["rotations"][0]
-    assert turn["known_angle_deg"] == 90.0 and abs(turn["angle_error_deg"]) < 0.05
+    turn = gyr.rotations[0]
+    assert turn.known_angle_deg == 90.0 and abs(turn.angle_error_deg) < 0.05
 
 
 def test_one_mounting_is_refused_with_advice():
@@ -135,7 +136,7 @@ def test_cli_writes_a_redundant_calibration(tmp_path):
     assert proc.returncode == 0, proc.stderr
     cal = read_calibration(tmp_path / "r.cal.json")
     assert cal.accel.solver == "factorization" and np.shape(cal.accel.matrix) == (3, 4)
-    assert cal.accel.extra["use"] == "samples"
+    assert cal.accel.factorization.use == "samples"
 
 
 @pytest.mark.parametrize("solver, name", [("gravity", "gravity solver"),

@@ -79,15 +79,15 @@ def test_solvers_recover_scale_and_bias(axes_session, solver):
     cal = calibrate_session(session, cfg(solver))
     g = cal.gyro
     assert g.solver == f"gyro-{solver}" and g.units == "rad/s"
-    std_b = np.array([p["std"] for p in g.extra["parameters"][:3]])
+    std_b = np.array([p.std for p in g.parameters[:3]])
     assert np.all(np.abs(g.bias - truth.gyro.bias) < 4.5 * std_b)
     M_true = gyro_truth_in_accel_frame(cal, truth)
     scale_err = np.abs(np.diag(g.matrix) / np.diag(M_true) - 1)
     # The per-axis model ignores misalignment (~0.5 deg here): its scale is good to ~0.1 %.
     assert np.all(scale_err < (2e-3 if solver != "full" else 5e-4)), scale_err
-    rot = g.extra["rotations"]
-    assert len(rot) >= 3 * 15 and all(np.isfinite(r["angle_error_deg"]) for r in rot)
-    assert g.extra["rotation_rms_deg"] < 0.5
+    rot = g.rotations
+    assert len(rot) >= 3 * 15 and all(np.isfinite(r.angle_error_deg) for r in rot)
+    assert g.rotation_rms_deg < 0.5
 
 
 def test_full_model_recovers_misalignment_from_free_rotations():
@@ -96,7 +96,7 @@ def test_full_model_recovers_misalignment_from_free_rotations():
     cal = calibrate_session(session, cfg("full"))
     g = cal.gyro
     M_true = gyro_truth_in_accel_frame(cal, truth)
-    std = np.array([p["std"] for p in g.extra["parameters"][3:]]).reshape(3, 3)
+    std = np.array([p.std for p in g.parameters[3:]]).reshape(3, 3)
     assert np.all(np.abs(g.matrix - M_true) < 4.5 * std + 1e-12)
 
 
@@ -106,7 +106,7 @@ def test_rotations_are_found_in_an_unsegmented_stream(axes_session):
     cal = calibrate_session(
         bare, config_from_dict({"accel": {"solver": "gravity"}, "gyro": {"solver": "full"}})
     )
-    assert any("found in the stream" in n for n in cal.gyro.extra["notes"])
+    assert any("found in the stream" in n for n in cal.gyro.notes)
     M_true = gyro_truth_in_accel_frame(cal, truth)
     assert np.all(np.abs(np.diag(cal.gyro.matrix) / np.diag(M_true) - 1) < 1e-3)
 
@@ -142,7 +142,7 @@ def test_clipped_rotations_are_left_out_with_a_warning(axes_session):
     gyro[turn.start + 5, 0] = 32767  # one sample at the end of the 16-bit range
     clipped = replace(session, gyro=gyro)
     g = calibrate_session(clipped, cfg("static")).gyro
-    assert any("range" in w for w in g.extra["warnings"])
+    assert any("range" in w for w in g.warnings)
 
 
 def test_gyro_solver_needs_an_accelerometer_calibration(axes_session):
@@ -159,8 +159,8 @@ def test_rates_beyond_the_configured_range_are_left_out(axes_session):
     g = calibrate_session(
         session, config_from_dict({"gyro": {"solver": "full", "range": [-0.6 * peak, 0.6 * peak]}})
     ).gyro
-    assert any("range" in w for w in g.extra["warnings"])
-    assert len(g.extra["rotations"]) < len(session.rotation_segments())
+    assert any("range" in w for w in g.warnings)
+    assert len(g.rotations) < len(session.rotation_segments())
 
 
 def test_per_axis_solvers_refuse_turns_that_are_not_about_one_axis():
@@ -171,4 +171,4 @@ def test_per_axis_solvers_refuse_turns_that_are_not_about_one_axis():
         calibrate_session(session, cfg("static"))
     # The full model takes them.
     g = calibrate_session(session, cfg("full")).gyro
-    assert g.extra["rotation_rms_deg"] < 0.5
+    assert g.rotation_rms_deg < 0.5

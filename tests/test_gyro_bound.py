@@ -34,8 +34,8 @@ def fitted():
 def test_stated_std_is_the_bound_with_the_accelerometer_propagated(fitted):
     session, _, cal, x = fitted
     g = cal.gyro
-    assert g.extra["noise_scale"] == 1.0  # residuals within the noise: no inflation
-    std = np.array([p["std"] for p in g.extra["parameters"]])
+    assert g.fit.noise_scale == 1.0  # residuals within the noise: no inflation
+    std = np.array([p.std for p in g.parameters])
     crb, total = (np.sqrt(np.diag(c)) for c in full_bound(session, CFG, cal.accel, x))
     # The accelerometer's share: none in the bias, up to 1.5 times the gyro's own bound in the
     # matrix here (13 poses calibrate the accelerometer; without it the std fell below).
@@ -52,7 +52,7 @@ def test_the_bound_uses_the_simulator_s_true_noise(fitted):
     session, truth, cal, _ = fitted
     _, _, noise = full_problem(session, CFG, cal.accel)
     S = np.linalg.inv(truth.gyro.matrix)
-    true_raw = truth.gyro.extra["noise"] * np.sqrt(np.trace(S @ S.T) / 3)
+    true_raw = truth.gyro.noise * np.sqrt(np.trace(S @ S.T) / 3)
     assert abs(noise / true_raw - 1) < 0.02
 
 

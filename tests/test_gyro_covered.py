@@ -50,8 +50,8 @@ def test_six_faces_gyro_is_not_saved_silently(tmp_path):
     cal = calibrate_session(session, replace(cfg, gyro=replace(cfg.gyro, solver="full")))
     err = suspect_error(cal)
     assert err is not None and "max_rate_std" in str(err)
-    share = cal.gyro.extra["rate_std"]
-    assert share["accel_calibration"] > share["noise"]  # the cause it names
+    share = cal.gyro.rate_std
+    assert share.accel_calibration > share.noise  # the cause it names
 
 
 def test_accel_sections_state_the_covariance_of_bias_and_matrix():
@@ -60,9 +60,9 @@ def test_accel_sections_state_the_covariance_of_bias_and_matrix():
     the lower triangle is the gauge, with no variance)."""
     session = read_session(SESSIONS / "qureshi18-seed1.h5")
     acc = calibrate_session(session, Config()).accel
-    C = np.array(acc.extra["covariance"]["values"])
+    C = np.array(acc.covariance.values)
     std = np.sqrt(np.diag(C))
-    params = {p["name"]: p["std"] for p in acc.extra["parameters"]}
+    params = {p.name: p.std for p in acc.parameters}
     assert std[:3] == pytest.approx([params[f"b_{a}"] for a in "xyz"], rel=1e-4)
     assert np.all(std[[6, 9, 10]] == 0)  # m_yx, m_zx, m_zy: upper-triangular gauge
     assert np.all(std[[3, 4, 5, 7, 8, 11]] > 0)

@@ -65,14 +65,14 @@ def test_known_turns_calibrate_the_gyro_by_default_within_their_std(seed):
     session, b_true, M_true = _ferraris_like(seed)
     gyro = calibrate_session(session, Config()).gyro
     assert gyro is not None and gyro.solver == "gyro-known"
-    assert gyro.extra["choice"]["solver"] == "known" and gyro.extra["warnings"] == []
-    x = np.array([p["value"] for p in gyro.extra["parameters"][:12]])
-    std = np.array([p["std"] for p in gyro.extra["parameters"][:12]])
+    assert gyro.choice.solver == "known" and gyro.warnings == []
+    x = np.array([p.value for p in gyro.parameters[:12]])
+    std = np.array([p.std for p in gyro.parameters[:12]])
     z = (x - np.r_[b_true, M_true.ravel()]) / std
     assert np.all(np.abs(z) < 4.5), z
     gains = np.linalg.norm(np.linalg.inv(M_true), axis=1)
-    assert np.allclose(gyro.extra["sensitivity"], gains, rtol=5e-3)
-    assert all(r["known_angle_deg"] == -360.0 for r in gyro.extra["rotations"])
+    assert np.allclose(gyro.sensitivity, gains, rtol=5e-3)
+    assert all(r.known_angle_deg == -360.0 for r in gyro.rotations)
 
 
 def test_two_known_turns_cannot_determine_the_matrix():
@@ -89,9 +89,9 @@ def test_a_turn_about_the_vertical_without_a_labelled_axis_is_measured():
     session, b_true, M_true = _ferraris_like(4)
     segs = [replace(s, axis=None) if s.kind == "rotation" else s for s in session.segments]
     gyro = calibrate_session(replace(session, segments=segs), Config()).gyro
-    assert any("measured vertical" in n for n in gyro.extra["notes"])
+    assert any("measured vertical" in n for n in gyro.notes)
     gains = np.linalg.norm(np.linalg.inv(M_true), axis=1)
-    assert np.allclose(gyro.extra["sensitivity"], gains, rtol=2e-2)
+    assert np.allclose(gyro.sensitivity, gains, rtol=2e-2)
 
 
 @pytest.mark.skipif(not FERRARIS.is_dir(), reason="../shared/data/imucal_ferraris absent")
@@ -133,8 +133,8 @@ def test_annotated_session_agrees_with_mad_snapshot(tmp_path):
     gyro = read_calibration(out).gyro
     snap = json.loads((FERRARIS / "imucal_snapshot_example_cal.json").read_text())
     mad = np.linalg.norm(np.asarray(snap["K_g"]) @ np.asarray(snap["R_g"]), axis=1)  # per deg/s
-    ours = np.asarray(gyro.extra["sensitivity"]) * np.pi / 180
-    std = np.asarray(gyro.extra["sensitivity_std"]) * np.pi / 180
+    ours = np.asarray(gyro.sensitivity) * np.pi / 180
+    std = np.asarray(gyro.sensitivity_std) * np.pi / 180
     assert np.all(np.abs(ours - mad) < 3 * std), (ours, mad, std)
 
 

@@ -142,15 +142,15 @@ def test_six_faces_seed_9_forced_states_std_that_cover_its_error(six_seed_9):
     assert gain_error > 1.0  # still a gain 129 % off: five near-180-degree turns
     assert z < COVERED and np.all(np.abs(z_gains) < COVERED), (z, z_gains)  # was 10.5
     assert rate_std > gain_error / COVERED  # stated 119 %; the first order said 36 %
-    prop = cal.gyro.extra["rate_std"]["accel_propagation"]
-    assert prop["method"] == "sigma points" and prop["first_order_total"] < 0.4
-    assert prop["refits"] <= 24  # only the accelerometer directions that move the gyro
+    prop = cal.gyro.rate_std.accel_propagation
+    assert prop.method == "sigma points" and prop.first_order_total < 0.4
+    assert prop.refits <= 24  # only the accelerometer directions that move the gyro
 
 
 def test_six_faces_seed_9_names_the_nonlinearity_and_is_not_saved_unasked(six_seed_9):
     cal, _ = six_seed_9
-    nonlinear = [w for w in cal.gyro.extra["warnings"] if "nonlinearly" in w]
-    assert len(nonlinear) == 1 and "sigma points" in nonlinear[0], cal.gyro.extra["warnings"]
+    nonlinear = [w for w in cal.gyro.warnings if "nonlinearly" in w]
+    assert len(nonlinear) == 1 and "sigma points" in nonlinear[0], cal.gyro.warnings
     assert suspect_error(cal) is not None
 
 
@@ -162,8 +162,8 @@ def test_a_clean_design_keeps_the_first_order():
     cfg = config_from_dict({"accel": {"gravity": {"leave_one_out": False}},
                             "gyro": {"solver": "full", "full": {"g_sensitivity": "off"}}})
     g = calibrate_session(session, cfg).gyro
-    prop = g.extra["rate_std"]["accel_propagation"]
-    assert prop["method"] == "first order" and prop["effect"] > GATE, prop
-    assert prop["refits"] == 0 and "no refit" in prop["reason"], prop
-    assert prop["nonlinearity"] < 0.01
-    assert not g.extra["warnings"]
+    prop = g.rate_std.accel_propagation
+    assert prop.method == "first order" and prop.effect > GATE, prop
+    assert prop.refits == 0 and "no refit" in prop.reason, prop
+    assert prop.nonlinearity < 0.01
+    assert not g.warnings

@@ -97,14 +97,14 @@ def test_every_leave_one_rotation_out_fit_agrees_with_the_full_fit(name):
     session, _ = with_segments(import_files([DATA / f for f in files], fmt, **opts))
     accel = calibrate_accel(session, FULL)
     full = calibrate_gyro(session, FULL, accel)
-    ref = {p["name"]: p["value"] for p in full.extra["parameters"]}
+    ref = {p.name: p.value for p in full.parameters}
     turns = session.rotation_segments()
     assert len(turns) >= 20
     for turn in turns:
         sub = replace(session, segments=[s for s in session.segments if s is not turn])
         g = calibrate_gyro(sub, FULL, accel)
         # The same model (g-sensitivity chosen the same way) and the same values.
-        assert [p["name"] for p in g.extra["parameters"]] == list(ref)
-        z = [abs(p["value"] - ref[p["name"]]) / p["std"] for p in g.extra["parameters"]]
+        assert [p.name for p in g.parameters] == list(ref)
+        z = [abs(p.value - ref[p.name]) / p.std for p in g.parameters]
         assert max(z) < LOO_Z, (turn.name, max(z))
-        assert not g.extra["warnings"], g.extra["warnings"]
+        assert not g.warnings, g.warnings

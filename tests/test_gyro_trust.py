@@ -39,7 +39,7 @@ def with_g_sensitivity(session, truth, G_phys):
 
 
 def std_of(sec, prefix):
-    return np.array([p["std"] for p in sec.extra["parameters"] if p["name"].startswith(prefix)])
+    return np.array([p.std for p in sec.parameters if p.name.startswith(prefix)])
 
 
 @pytest.fixture(scope="module")
@@ -53,17 +53,17 @@ def g_sensitive():
 def test_g_sensitivity_is_chosen_by_the_data_and_recovered(g_sensitive):
     session, truth, G_raw = g_sensitive
     g = calibrate_session(session, cfg()).gyro
-    test = g.extra["g_sensitivity_test"]
-    assert test["included"] and test["observable"] and test["p_value"] < 1e-6
-    assert any("g-sensitivity: included" in n for n in g.extra["notes"])
-    assert g.extra["variant"].startswith("21 parameters")
-    assert "g_sensitivity @ a" in g.extra["model"]
+    test = g.g_sensitivity_test
+    assert test.included and test.observable and test.p_value < 1e-6
+    assert any("g-sensitivity: included" in n for n in g.notes)
+    assert g.variant.startswith("21 parameters")
+    assert "g_sensitivity @ a" in g.model
     # G in raw units per m/s^2, in the accelerometer's frame (a degree from the fixture's at
     # most: 2 % of G), and the bias, within their std.
-    G = np.array(g.extra["g_sensitivity"])
+    G = np.array(g.g_sensitivity)
     assert np.all(np.abs(G - G_raw) < Z_MAX * std_of(g, "g_").reshape(3, 3) + 0.02 * abs(G_raw))
     assert np.all(np.abs(g.bias - truth.gyro.bias) < Z_MAX * std_of(g, "b_"))
-    assert not g.extra["warnings"]
+    assert not g.warnings
     # The calibration applies it: a still sample reads zero rate.
     still = session.static_segments()[3]
     a = calibrate_session(session, cfg()).accel.apply(session.accel[still.start : still.stop])
@@ -74,7 +74,7 @@ def test_g_sensitivity_is_chosen_by_the_data_and_recovered(g_sensitive):
 def test_leaving_g_sensitivity_out_of_a_g_sensitive_gyro_is_refused(g_sensitive):
     session, _, _ = g_sensitive
     cal = calibrate_session(session, cfg(full={"g_sensitivity": "off"}))
-    w = cal.gyro.extra["warnings"]
+    w = cal.gyro.warnings
     assert len(w) == 1 and "still readings differ" in w[0] and 'g_sensitivity = "on"' in w[0]
     assert suspect_error(cal) is not None
 
@@ -82,12 +82,12 @@ def test_leaving_g_sensitivity_out_of_a_g_sensitive_gyro_is_refused(g_sensitive)
 def test_no_g_sensitivity_is_left_out_and_said_so():
     session, _ = simulate_gyro_rotations(plan="free:24", seed=2, created=CREATED)
     g = calibrate_session(session, cfg()).gyro
-    test = g.extra["g_sensitivity_test"]
-    assert test["observable"] and not test["included"] and test["p_value"] > 1e-3
-    assert "g_sensitivity" not in g.extra and g.extra["variant"].startswith("12 parameters")
-    assert any("not significant: left out" in n for n in g.extra["notes"])
+    test = g.g_sensitivity_test
+    assert test.observable and not test.included and test.p_value > 1e-3
+    assert g.g_sensitivity is None and g.variant.startswith("12 parameters")
+    assert any("not significant: left out" in n for n in g.notes)
     on = calibrate_session(session, cfg(full={"g_sensitivity": "on"})).gyro
-    assert np.all(np.abs(np.array(on.extra["g_sensitivity"])) < Z_MAX * std_of(on, "g_")
+    assert np.all(np.abs(np.array(on.g_sensitivity)) < Z_MAX * std_of(on, "g_")
                   .reshape(3, 3))  # fmt: skip
 
 
@@ -105,7 +105,7 @@ def test_one_disturbed_turn_is_named_and_refused(axes_run, tmp_path):
     gyro[k, 0] += np.radians(3.0) / 0.01 / truth.gyro.matrix[0, 0]
     bad = replace(session, gyro=gyro)
     cal = calibrate_session(bad, cfg())
-    w = cal.gyro.extra["warnings"]
+    w = cal.gyro.warnings
     assert len(w) == 1 and "1 turn(s) disagree" in w[0] and (turn.label or turn.name) in w[0]
     path = tmp_path / "knock.h5"
     write_session(path, bad)
@@ -124,15 +124,15 @@ def test_turns_that_all_disagree_with_the_still_bias_are_refused(axes_run):
     for turn in session.rotation_segments():
         gyro[turn.start : turn.stop] += 0.02 / np.diag(truth.gyro.matrix)
     cal = calibrate_session(replace(session, gyro=gyro), cfg(full={"g_sensitivity": "off"}))
-    w = cal.gyro.extra["warnings"]
+    w = cal.gyro.warnings
     assert any("times what the noise predicts" in x and "worst:" in x for x in w), w
 
 
 def test_clean_sessions_fit_within_the_noise(axes_run):
     g = calibrate_session(axes_run[0], cfg()).gyro
-    assert not g.extra["warnings"]
-    rot = g.extra["rotations"]
-    ratio = np.array([r["angle_error_deg"] / r["noise_deg"] for r in rot])
+    assert not g.warnings
+    rot = g.rotations
+    ratio = np.array([r.angle_error_deg / r.noise_deg for r in rot])
     assert np.median(ratio) < 2 and ratio.max() < 6
 
 
@@ -161,16 +161,16 @@ def test_noise_is_pooled_over_the_still_periods(axes_run):
 def test_per_axis_solvers_state_the_misalignment_they_ignore(axes_run, solver):
     session, truth = axes_run
     g = calibrate_session(session, cfg(**{"solver": solver})).gyro
-    info = g.extra["ignored_misalignment"]
-    assert info["measured"]
-    said = [x for x in g.extra["notes"] + g.extra["warnings"] if "ignores the gyro's misal" in x]
+    info = g.ignored_misalignment
+    assert info.measured
+    said = [x for x in g.notes + g.warnings if "ignores the gyro's misal" in x]
     assert len(said) == 1 and "deg off the accelerometer's" in said[0] and "%" in said[0]
     # The stated gain shift is the per-axis gain against the full model's diagonal.
     full = calibrate_session(session, cfg()).gyro
     k = np.diag(g.matrix)
-    np.testing.assert_allclose(info["gain_shift"], k / np.diag(full.matrix) - 1, atol=1e-6)
+    np.testing.assert_allclose(info.gain_shift, k / np.diag(full.matrix) - 1, atol=1e-6)
     # Warned exactly when a gain moves by more than 3 of its std.
-    assert any(x in g.extra["warnings"] for x in said) == (max(info["gain_shift_std"]) > 3)
+    assert any(x in g.warnings for x in said) == (max(info.gain_shift_std) > 3)
 
 
 def test_per_axis_misalignment_of_2_degrees_is_a_warning(axes_run):
@@ -182,26 +182,26 @@ def test_per_axis_misalignment_of_2_degrees_is_a_warning(axes_run):
     # The gyro triad turned 2 degrees about x from the accelerometer: raw' - b = R^T (raw - b).
     tilted = replace(session, gyro=(session.gyro - b) @ R + b)
     g = calibrate_session(tilted, cfg(**{"solver": "static"})).gyro
-    assert any("ignores the gyro's misalignment" in w for w in g.extra["warnings"])
+    assert any("ignores the gyro's misalignment" in w for w in g.warnings)
 
 
 def test_auto_chooses_the_full_model_and_says_why():
     session, _ = simulate(plan="qureshi18", seed=3, created=CREATED)
     cal = calibrate_session(session, config_from_dict({}))
     assert cal.gyro is not None and cal.gyro.solver == "gyro-full"
-    assert 'chosen by [gyro] solver = "auto"' in cal.gyro.extra["notes"][0]
+    assert 'chosen by [gyro] solver = "auto"' in cal.gyro.notes[0]
 
 
 def test_auto_leaves_the_gyro_out_when_nothing_can_calibrate_it():
     session, _ = simulate(plan="qureshi18", seed=3, created=CREATED)
     no_gyro = replace(session, gyro=None, gyro_units=None)
     cal = calibrate_session(no_gyro, config_from_dict({}))
-    assert cal.gyro is None and "no /raw/gyro" in cal.extra["gyro_note"]
+    assert cal.gyro is None and "no /raw/gyro" in cal.gyro_note
     rng = np.random.default_rng(0)  # a still gyro: its noise (a constant one is stuck)
     still = replace(session, gyro=7.0 + rng.normal(0.0, 3.0, session.gyro.shape),
                     segments=[s for s in session.segments if s.kind == "static"])  # fmt: skip
     cal = calibrate_session(still, config_from_dict({}))
-    assert cal.gyro is None and "no usable rotations" in cal.extra["gyro_note"]
+    assert cal.gyro is None and "no usable rotations" in cal.gyro_note
     # Nothing at all to calibrate: refused, saying what would calibrate the gyro.
     with pytest.raises(DesignError, match="--accel CAL.json"):
         calibrate_session(session, config_from_dict({"accel": {"solver": "none"}}))

@@ -5,8 +5,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from imucal_cli.formats.calibration import SensorCalibration
 from imucal_cli.formats.session import Segment
+from imucal_cli.model.calibration import SensorCalibration
 from imucal_cli.numerics.segmented import segment_moments, stacked_rows
 from imucal_cli.pipeline.gyro import still_periods
 

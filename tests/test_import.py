@@ -85,10 +85,10 @@ def test_csv_round_trip_segments_and_calibrates_to_truth(tmp_path, sim):
     cal = calibrate_session(imported, Config())
     ref = calibrate_session(session, Config())
     # same poses (slightly shorter holds): same calibration within its own uncertainty
-    std = np.array([p["std"] for p in cal.accel.extra["parameters"]])
+    std = np.array([p.std for p in cal.accel.parameters])
     np.testing.assert_allclose(cal.accel.bias, ref.accel.bias, atol=4 * std[:3].max())
     np.testing.assert_allclose(cal.accel.bias, truth.accel.bias, atol=5 * std[:3].max() + 2)
-    assert cal.accel.extra["rms_after"] < 0.01
+    assert cal.accel.rms_after < 0.01
 
 
 def test_reordered_and_skipped_columns(tmp_path, sim):
@@ -257,16 +257,16 @@ def test_real_recordings_import_and_calibrate(tmp_path, name, files, args, n_sta
     session = read_session(out)
     assert len(session.static_segments()) == n_static
     cal = calibrate_session(session, Config())
-    x = cal.accel.extra
+    x = cal.accel
     if n_static > 10:
-        assert x["warnings"] == []
+        assert x.warnings == []
     else:  # 10 poses for 9 parameters: said out loud (issue 10.3), not refused
-        assert any("1 spare equations" in w for w in x["warnings"]), x["warnings"]
-        assert any(w.startswith("held-out error") for w in x["warnings"]), x["warnings"]
-        assert x["blocking"] == []
-    assert x["outliers"] == []
-    assert x["rms_after"] < 0.1 * x["rms_before"]
-    assert x["rms_loo"] < 0.01  # m/s^2, about 1 mg held out
+        assert any("1 spare equations" in w for w in x.warnings), x.warnings
+        assert any(w.startswith("held-out error") for w in x.warnings), x.warnings
+        assert x.blocking == []
+    assert x.outliers == []
+    assert x.rms_after < 0.1 * x.rms_before
+    assert x.rms_loo < 0.01  # m/s^2, about 1 mg held out
 
 
 @pytest.mark.skipif(not DATA.is_dir(), reason="shared/data recordings not present")
@@ -277,7 +277,7 @@ def test_xsens_matches_the_datasheet(tmp_path):
     )  # fmt: skip
     assert session.static_segments()[0].n_samples > 50 * 100  # the 51 s initial rest
     cal = calibrate_session(session, Config())
-    np.testing.assert_allclose(cal.accel.extra["sensitivity"], [415, 413, 415], rtol=0.005)
+    np.testing.assert_allclose(cal.accel.sensitivity, [415, 413, 415], rtol=0.005)
 
 
 @pytest.mark.skipif(not DATA.is_dir(), reason="shared/data recordings not present")

@@ -77,15 +77,15 @@ def test_a_captured_ferraris_session_calibrates_within_its_std(plan, seed):
 
     session, truth = _captured(plan, seed, g_sensitivity=G_LEVEL)
     cal = calibrate_session(session, Config())
-    assert suspect_error(cal) is None, cal.gyro.extra["warnings"]
+    assert suspect_error(cal) is None, cal.gyro.warnings
     g = cal.gyro
-    assert g.solver == "gyro-known" and g.extra.get("g_sensitivity") is not None
-    est = np.array([p["value"] for p in g.extra["parameters"]])
-    std = np.array([p["std"] for p in g.extra["parameters"]])
-    x = _truth_x(cal, truth, np.asarray(truth.gyro.extra["g_sensitivity"]))
+    assert g.solver == "gyro-known" and g.g_sensitivity is not None
+    est = np.array([p.value for p in g.parameters])
+    std = np.array([p.std for p in g.parameters])
+    x = _truth_x(cal, truth, np.asarray(truth.gyro.g_sensitivity))
     assert np.all(np.abs(est - x) < 4.5 * std), (est - x) / std
-    for r in (r for r in g.extra["rotations"] if r["known_angle_deg"] is not None):
-        assert abs(r["angle_error_deg"]) < 3 * r["noise_deg"], r
+    for r in (r for r in g.rotations if r.known_angle_deg is not None):
+        assert abs(r.angle_error_deg) < 3 * r.noise_deg, r
 
 
 def _mislabelled(plan_text: str, folder: Path, true_deg: float, seed: int):
@@ -106,9 +106,9 @@ def test_a_known_angle_off_by_degrees_is_stated(tmp_path):
     warning), not silently absorbed into the gains."""
     session = _mislabelled(FERRARIS_TOML, tmp_path, 352.0, seed=3)
     g = calibrate_session(session, Config()).gyro
-    said = [w for w in g.extra["warnings"] if "turns of known angle disagree" in w]
-    assert said and "360 about +Y" in said[0], g.extra["warnings"]
-    assert g.extra["known_turn_check"]["known_p_value"] < 1e-3
+    said = [w for w in g.warnings if "turns of known angle disagree" in w]
+    assert said and "360 about +Y" in said[0], g.warnings
+    assert g.known_turn_check.known_p_value < 1e-3
 
 
 def test_a_known_angle_far_off_is_refused(tmp_path):
@@ -137,7 +137,7 @@ def test_turns_of_a_known_90_degrees_never_crash(tmp_path):
         except DesignError as exc:
             assert "\n" not in str(exc)
             continue
-        notes = cal.gyro.extra["notes"]
+        notes = cal.gyro.notes
         assert any("neither about the vertical" in n for n in notes), notes
         assert cal.gyro.solver == "gyro-full"
 
@@ -161,9 +161,9 @@ def test_known_90_degree_turns_about_labelled_axes_calibrate(tmp_path):
     path.write_text("\n".join(steps) + "\n")
     session, _ = simulate_plan(str(path), seed=2, created=CREATED)
     g = calibrate_session(session, Config()).gyro
-    known = [r for r in g.extra["rotations"] if r["known_angle_deg"] is not None]
+    known = [r for r in g.rotations if r.known_angle_deg is not None]
     assert g.solver == "gyro-known" and len(known) == 10
-    assert all(abs(r["angle_error_deg"]) < 3 * r["noise_deg"] for r in known), known
+    assert all(abs(r.angle_error_deg) < 3 * r.noise_deg for r in known), known
 
 
 @pytest.mark.skipif(not FERRARIS.is_dir(), reason="../shared/data/imucal_ferraris absent")
@@ -192,9 +192,9 @@ def test_mad_lab_session_labelled_by_hand_keeps_its_known_angles(tmp_path):
     from imucal_cli.formats.calibration import read_calibration
 
     g = read_calibration(out).gyro
-    known = [r for r in g.extra["rotations"] if r["known_angle_deg"] is not None]
+    known = [r for r in g.rotations if r.known_angle_deg is not None]
     assert len(known) == 3
-    assert all(abs(r["angle_error_deg"]) < 2 * r["noise_deg"] for r in known), known
-    assert g.extra["known_turn_check"]["turns_between_still_periods"] == "left out"
+    assert all(abs(r.angle_error_deg) < 2 * r.noise_deg for r in known), known
+    assert g.known_turn_check.turns_between_still_periods == "left out"
     assert any("left out" in w and "turns between still periods" in w
-               for w in g.extra["warnings"])  # fmt: skip
+               for w in g.warnings)  # fmt: skip

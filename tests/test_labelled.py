@@ -94,7 +94,7 @@ def _design(seed=0, n=18):
     session, truth = simulate(plan="qureshi18", seed=seed, created=CREATED)
     p = static_poses(session)
     M, B = truth.accel.matrix, truth.accel.bias
-    u = np.array(truth.accel.extra["true_up"])
+    u = np.array(truth.accel.true_up)
     return M, B, u, p.cov_mean
 
 
@@ -152,23 +152,21 @@ def test_labelled_and_gravity_agree_on_qureshi18_within_their_stated_std():
         session, _ = simulate(plan="qureshi18", seed=seed, created=CREATED)
         a = calibrate_session(session, config_from_dict({"accel": {"solver": "gravity"}})).accel
         b = calibrate_session(session, config_from_dict({"accel": {"solver": "labelled"}})).accel
-        pa = {p["name"]: p for p in a.extra["parameters"]}
-        pb = {p["name"]: p for p in b.extra["parameters"]}
+        pa = {p.name: p for p in a.parameters}
+        pb = {p.name: p for p in b.parameters}
         pairs = [
-            (pa[n]["value"], pa[n]["std"], pb[n]["value"], pb[n]["std"])
+            (pa[n].value, pa[n].std, pb[n].value, pb[n].std)
             for n in "b_x b_y b_z".split()
         ]
-        for key, std_key in (("sensitivity", "sensitivity_std"),):
-            pairs += zip(
-                a.extra[key], a.extra[std_key], b.extra[key], b.extra[std_key], strict=True
-            )
+        pairs += zip(a.sensitivity, a.sensitivity_std, b.sensitivity, b.sensitivity_std,
+                     strict=True)  # fmt: skip
         for axes in ("xy", "xz", "yz"):
             pairs.append(
                 (
-                    a.extra["misalignment_deg"][axes],
-                    a.extra["misalignment_std_deg"][axes],
-                    b.extra["misalignment_deg"][axes],
-                    b.extra["misalignment_std_deg"][axes],
+                    a.misalignment_deg[axes],
+                    a.misalignment_std_deg[axes],
+                    b.misalignment_deg[axes],
+                    b.misalignment_std_deg[axes],
                 )
             )
         for va, sa, vb, sb in pairs:
@@ -179,26 +177,26 @@ def test_labelled_and_gravity_agree_on_qureshi18_within_their_stated_std():
 def test_labelled_section_fields():
     session, _ = simulate(plan="six", seed=2, created=CREATED)
     acc = calibrate_session(session, config_from_dict({"accel": {"solver": "labelled"}})).accel
-    x = acc.extra
-    assert acc.solver == "labelled" and x["choice"]["by"] == "config"
-    names = [p["name"] for p in x["parameters"]]
+    x = acc
+    assert acc.solver == "labelled" and x.choice.by == "config"
+    names = [p.name for p in x.parameters]
     assert names == "b_x b_y b_z s_x s_y s_z a_xy a_xz a_yz r_x r_y r_z".split()
-    assert x["sensitivity"] == [p["value"] for p in x["parameters"][3:6]]
-    assert all("ci95" in p and p["ci95"] >= 1.9 * p["std"] for p in x["parameters"])
-    assert x["placement"]["source"] == "estimated" and 0.5 < x["placement"]["rms_deg"] < 5
-    assert len(x["poses"]) == 6 and all(p["angle_to_up_deg"] is not None for p in x["poses"])
-    assert x["noise"]["dof"] > 1000
+    assert x.sensitivity == [p.value for p in x.parameters[3:6]]
+    assert all(p.ci95 is not None and p.ci95 >= 1.9 * p.std for p in x.parameters)
+    assert x.placement.source == "estimated" and 0.5 < x.placement.rms_deg < 5
+    assert len(x.poses) == 6 and all(p.angle_to_up_deg is not None for p in x.poses)
+    assert x.noise.dof > 1000
 
 
 def test_auto_chooses_by_what_the_session_supports():
     q18, _ = simulate(plan="qureshi18", seed=1, created=CREATED)
     acc = calibrate_session(q18, Config()).accel
-    assert acc.solver == "gravity" and "distinct poses" in acc.extra["choice"]["reason"]
+    assert acc.solver == "gravity" and "distinct poses" in acc.choice.reason
     rnd, _ = simulate(plan="random:20", seed=1, created=CREATED)
     assert calibrate_session(rnd, Config()).accel.solver == "gravity"
     six, _ = simulate(plan="six", seed=1, created=CREATED)
     acc = calibrate_session(six, Config()).accel
-    assert acc.solver == "labelled" and "too few" in acc.extra["choice"]["reason"]
+    assert acc.solver == "labelled" and "too few" in acc.choice.reason
 
 
 def test_auto_picks_the_labels_when_they_make_the_fit_more_precise():
@@ -208,8 +206,8 @@ def test_auto_picks_the_labels_when_they_make_the_fit_more_precise():
         plan="qureshi18", seed=2, jitter_deg=0.0, accel_noise=0.05, created=CREATED
     )
     acc = calibrate_session(session, Config()).accel
-    assert acc.solver == "labelled", acc.extra["choice"]
-    assert "more precise" in acc.extra["choice"]["reason"]
+    assert acc.solver == "labelled", acc.choice
+    assert "more precise" in acc.choice.reason
 
 
 def test_placement_config_is_validated():

@@ -12,15 +12,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import (
-    LOCAL_FIELD,
-    Calibration,
-    SensorCalibration,
-    calibration_from_json,
-    write_calibration,
-)
+from imucal_cli.formats.calibration import calibration_from_json, write_calibration
 from imucal_cli.formats.exporters import ExportOptions
 from imucal_cli.formats.session import write_session
+from imucal_cli.model.calibration import LOCAL_FIELD, Calibration
+from imucal_cli.model.mag import MagCalibration
 from imucal_cli.simulate.magnetometer import simulate_mag
 from imucal_cli.use.apply import apply_calibration
 from imucal_cli.use.export import export
@@ -37,10 +33,9 @@ def mag_cal(units_in="gauss", turn_deg=0.0, units="uT") -> Calibration:
     per_raw = {"gauss": 100.0, "uT": 1.0, "nT": 1e-3, "counts": 0.15}[units_in]
     W = R @ P * per_raw * (1.0 if units == "uT" else 1 / 48.0)
     bias = np.array([0.21, -0.35, 0.12]) * 100.0 / per_raw  # about 30 uT of hard iron
-    extra = {"units_in": units_in}
-    if units == LOCAL_FIELD:
-        extra["field_estimate_uT"] = 48.0
-    return Calibration(mag=SensorCalibration("magnetometer", units, bias, W, 0.4, extra),
+    estimate = 48.0 if units == LOCAL_FIELD else None
+    return Calibration(mag=MagCalibration("magnetometer", units, bias, W, 0.4, units_in=units_in,
+                                          field_estimate_uT=estimate),
                        created="2026-01-01T00:00:00Z")  # fmt: skip
 
 
@@ -105,7 +100,7 @@ def test_autopilot_units_refusals_and_the_local_field():
     local = mag_cal("gauss", units=LOCAL_FIELD)
     p4 = px4_params(export(local, "px4"))
     assert p4["CAL_MAG0_XSCALE"] == pytest.approx(1.04)  # scaled back by the field estimate
-    del local.mag.extra["field_estimate_uT"]
+    del local.mag.field_estimate_uT
     with pytest.raises(InputError, match="set \\[mag\\] field_uT"):
         export(local, "ardupilot")
     assert "COMPASS_OFFS_MAX" in export(_far_offset(), "ardupilot")

@@ -4,6 +4,7 @@ the report, and the command line."""
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
 import re
@@ -12,13 +13,11 @@ import numpy as np
 import pytest
 
 from imucal_cli.errors import DesignError
-from imucal_cli.formats.calibration import (
-    LOCAL_FIELD,
-    calibration_from_json,
-    calibration_to_json,
-)
+from imucal_cli.formats.calibration import calibration_from_json, calibration_to_json
 from imucal_cli.formats.config import Config, config_from_dict
 from imucal_cli.formats.session import write_session
+from imucal_cli.model.calibration import LOCAL_FIELD
+from imucal_cli.model.mag import MagCalibration, Readings
 from imucal_cli.pipeline.calibrate import calibrate_session, suspect_error
 from imucal_cli.simulate.magnetometer import earth_field, simulate_mag
 from imucal_cli.simulate.triad import simulate
@@ -51,7 +50,7 @@ def test_simulated_magnetometer_reads_the_field_through_its_truth():
     assert session.magnetic_field_uT == 48.0 and np.all(session.mag == np.rint(session.mag))
     h = truth.mag.apply(session.mag)
     assert abs(np.linalg.norm(h, axis=1).mean() - 48.0) < 0.05
-    assert truth.mag.units == "uT" and truth.mag.extra["layout"] == "ak8963"
+    assert truth.mag.units == "uT" and truth.mag.layout == "ak8963"
     again, _ = simulate_mag("random:10", 1, **FAST)
     assert np.array_equal(again.mag, session.mag) and np.array_equal(again.accel, session.accel)
     # the same part whatever the units; gauss has no quantisation
@@ -84,13 +83,13 @@ def test_calibration_recovers_the_part_in_the_accelerometer_frame(sim):
     session, truth, cal = sim
     mag = cal.mag
     assert mag is not None and mag.solver == "magnetometer" and mag.units == "uT"
-    x = mag.extra
-    assert x["aligned"] and x["field_uT"] == 48.0 and x["warnings"] == []
-    assert x["axes"][0].startswith("x -> +Y") and x["axes"][2].startswith("z -> -Z")
-    std = {p["name"]: p["std"] for p in x["parameters"]}
+    x = mag
+    assert x.aligned and x.field_uT == 48.0 and x.warnings == []
+    assert x.axes[0].startswith("x -> +Y") and x.axes[2].startswith("z -> -Z")
+    std = {p.name: p.std for p in x.parameters}
     err = mag.bias - truth.mag.bias
     assert np.all(np.abs(err) < 5 * np.array([std["b_x"], std["b_y"], std["b_z"]])), err
-    assert abs(x["inclination_deg"] - 60.0) < max(5 * x["inclination_std_deg"], 0.02)
+    assert abs(x.inclination_deg - 60.0) < max(5 * x.inclination_std_deg, 0.02)
     # the calibrated field of any reading points where the truth says, in the accel frame
     expected = _accel_frame(cal, truth) @ truth.mag.matrix
     raw = session.mag[::50]
@@ -99,8 +98,8 @@ def test_calibration_recovers_the_part_in_the_accelerometer_frame(sim):
     ang = np.degrees(np.arccos(np.clip(np.sum(a * b, 1) / np.linalg.norm(a, axis=1)
                                        / np.linalg.norm(b, axis=1), -1, 1)))  # fmt: skip
     assert ang.max() < 0.1, ang.max()
-    assert x["quality"]["verdict"] == "pass" and x["coverage"]["fraction"] > 0.9
-    assert 0.3 < x["rms_after"] < 0.5 and 0.3 < x["rms_held_out"] < 0.55  # noise 0.4 uT
+    assert x.quality.verdict == "pass" and x.coverage.fraction > 0.9
+    assert 0.3 < x.rms_after < 0.5 and 0.3 < x.rms_held_out < 0.55  # noise 0.4 uT
 
 
 def test_calibration_json_round_trip_keeps_the_mag_section(sim):
@@ -113,11 +112,11 @@ def test_calibration_json_round_trip_keeps_the_mag_section(sim):
 def test_unknown_field_gives_output_in_units_of_the_local_field():
     session, truth = simulate_mag("random:12", 6, field_known=False, mag_units="uT", **FAST)
     cal = calibrate_session(session, Config())
-    assert cal.mag.units == LOCAL_FIELD and cal.mag.extra["field_uT"] is None
+    assert cal.mag.units == LOCAL_FIELD and cal.mag.field_uT is None
     h = cal.mag.apply(session.mag[::20])
     assert abs(np.linalg.norm(h, axis=1).mean() - 1.0) < 0.002
     # raw uT taken at face value: the estimate is the field within the part's gain errors
-    assert abs(cal.mag.extra["field_estimate_uT"] / 48.0 - 1) < 0.1
+    assert abs(cal.mag.field_estimate_uT / 48.0 - 1) < 0.1
     cfg = config_from_dict({"mag": {"field_uT": 50.0}})
     assert calibrate_session(session, cfg).mag.units == "uT"
 
@@ -133,8 +132,8 @@ def test_solver_choices_and_sessions_without_an_accelerometer():
     assert np.allclose(plain.mag.matrix, plain.mag.matrix.T)
     alone = dataclasses.replace(session, accel=None, gyro=None, segments=[])
     cal = calibrate_session(alone, Config())
-    assert cal.accel is None and cal.mag is not None and not cal.mag.extra["aligned"]
-    assert any("no accelerometer calibrated" in n for n in cal.mag.extra["notes"])
+    assert cal.accel is None and cal.mag is not None and not cal.mag.aligned
+    assert any("no accelerometer calibrated" in n for n in cal.mag.notes)
 
 
 def test_repeated_and_missing_readings_are_left_out():
@@ -143,9 +142,9 @@ def test_repeated_and_missing_readings_are_left_out():
     held = np.repeat(mag[::4], 4, axis=0)[: len(mag)]  # read 4 times faster than it updates
     held[100:110] = np.nan
     cal = calibrate_session(dataclasses.replace(session, mag=held), Config())
-    left = cal.mag.extra["readings"]["left_out"]
-    assert left["nonfinite"] == 10 and left["repeated"] > 0.6 * len(mag)
-    assert cal.mag.extra["quality"]["verdict"] == "pass"
+    left = cal.mag.readings.left_out
+    assert left.nonfinite == 10 and left.repeated > 0.6 * len(mag)
+    assert cal.mag.quality.verdict == "pass"
 
 
 # ---------------------------------------------------------------------------- refusals
@@ -165,7 +164,7 @@ def test_a_field_that_changes_is_flagged_and_not_saved_without_force():
     S = np.linalg.inv(truth.mag.matrix)
     mag[lo:hi] += np.rint(S @ np.array([6.0, 0.0, 0.0]))
     cal = calibrate_session(dataclasses.replace(session, mag=mag), Config())
-    warnings = cal.mag.extra["warnings"]
+    warnings = cal.mag.warnings
     assert any("the field changes from place to place" in w and " at " in w
                for w in warnings), warnings  # fmt: skip
     assert "field changes" in str(suspect_error(cal))
@@ -182,7 +181,7 @@ def test_a_hold_near_steel_shows_in_the_gravity_field_angle():
     mag[seg.start : seg.stop] = turned @ S.T + truth.mag.bias  # the field's direction 5.7 deg off
     cal = calibrate_session(dataclasses.replace(session, mag=mag), Config())
     assert any("angle between gravity and the field is" in w and seg.label in w
-               for w in cal.mag.extra["warnings"])  # fmt: skip
+               for w in cal.mag.warnings)  # fmt: skip
 
 
 def test_saturation_is_refused_with_cause_and_advice():
@@ -208,7 +207,7 @@ def test_saturation_is_refused_with_cause_and_advice():
 
     flagged = clipped_rows(few.astype(float))
     assert 0 < flagged.sum() and np.all(few[flagged, 1] == few[:, 1].max())
-    assert cal.mag.extra["readings"]["left_out"]["clipped"] == flagged.sum()
+    assert cal.mag.readings.left_out.clipped == flagged.sum()
 
 
 def test_config_keys_are_checked():
@@ -230,10 +229,9 @@ def test_report_shows_field_alignment_quality_and_a_recapture_verdict(sim):
     titles = [t["title"] for t in rep["tables"]]
     assert "field and alignment" in titles and any(t.startswith("quality") for t in titles)
     assert rep["maps"][0]["directions"] and rep["poses"] == []
-    strict = dataclasses.replace(cal, mag=dataclasses.replace(cal.mag, extra=json.loads(
-        json.dumps(cal.mag.extra))))  # fmt: skip
-    q = strict.mag.extra["quality"]
-    q["checks"][1]["ok"], q["verdict"], q["failed"] = False, "recapture", ["variance"]
+    strict = copy.deepcopy(cal)
+    q = strict.mag.quality
+    q.checks[1].ok, q.verdict, q.failed = False, "recapture", ["variance"]
     rep2 = build_report(strict)["sensors"]["mag"]
     assert any("recapture" in w for w in rep2["warnings"])
 
@@ -275,11 +273,11 @@ def test_a_ros_import_without_magnetometer_values_before_its_first_message():
     first = int(np.argmax(np.isfinite(mag).all(axis=1)))
     assert first > 0.15 * len(t)
     cal = calibrate_session(dataclasses.replace(session, mag=mag), Config())
-    left = cal.mag.extra["readings"]["left_out"]
-    assert left["nonfinite"] == left["before_first"] == first
+    left = cal.mag.readings.left_out
+    assert left.nonfinite == left.before_first == first
     assert any(f"{first} of {len(t)} rows have no magnetometer value" in n
-               and "all before its first value" in n for n in cal.mag.extra["notes"])
-    assert cal.mag.extra["quality"]["verdict"] == "pass"
+               and "all before its first value" in n for n in cal.mag.notes)
+    assert cal.mag.quality.verdict == "pass"
     from rich.text import Text
 
     from imucal_cli.cli.calibrate import mag_summary
@@ -293,9 +291,9 @@ def test_a_ros_import_without_magnetometer_values_before_its_first_message():
 def _left_out_mag(session, cfg) -> str:
     """Why the magnetometer was left out of a calibration that saved the rest."""
     cal = calibrate_session(session, cfg)
-    assert cal.mag is None and cal.accel is not None and cal.extra["complete"] is False
-    note = cal.extra["left_out"]["mag"]
-    assert note == cal.extra["mag_note"] and note.startswith("mag not calibrated: ")
+    assert cal.mag is None and cal.accel is not None and cal.complete is False
+    note = cal.left_out["mag"]
+    assert note == cal.mag_note and note.startswith("mag not calibrated: ")
     return note
 
 
@@ -317,15 +315,13 @@ def test_command_line_mag_without_hold_takes_the_default_hold(tmp_path):
 def test_calibrate_summary_prints_the_config_section_name_in_brackets(monkeypatch, capsys):
     """``[mag]`` in a summary line is text, not a rich style tag that would vanish: on a
     terminal (styled by rich) as off it."""
-    from types import SimpleNamespace
 
     from imucal_cli.cli.calibrate import mag_summary
     from imucal_cli.cli.console import make_console, print_line
 
-    sec = SimpleNamespace(
-        solver="ellipsoid", bias=[1.0, 2.0, 3.0],
-        extra={"readings": {"motion": 500, "poses": 0}, "rms_after": 0.01, "field_uT": None,
-               "field_estimate_uT": 48.0, "units_in": "counts"},
+    sec = MagCalibration(
+        "ellipsoid", LOCAL_FIELD, [1.0, 2.0, 3.0], readings=Readings(motion=500, poses=0),
+        rms_after=0.01, field_uT=None, field_estimate_uT=48.0, units_in="counts",
     )  # fmt: skip
     lines = mag_summary(sec)
     monkeypatch.delenv("FORCE_COLOR", raising=False)

@@ -21,15 +21,15 @@ CFG = config_from_dict({"accel": {"solver": "labelled"}, "gyro": {"solver": "non
 
 
 def _named(cal, seg) -> bool:
-    x = cal.accel.extra
-    return any(o["segment"] == seg.name for o in x["outliers"]) or any(
-        f"segment {seg.name}" in w for w in x["blocking"])
+    x = cal.accel
+    return any(o.segment == seg.name for o in x.outliers) or any(
+        f"segment {seg.name}" in w for w in x.blocking)
 
 
 def _false_alarm(cal) -> bool:
-    x = cal.accel.extra
-    return any(o["action"] == "label ignored" for o in x["outliers"]) or any(
-        "disagree with each other" in w for w in x["warnings"])
+    x = cal.accel
+    return any(o.action == "label ignored" for o in x.outliers) or any(
+        "disagree with each other" in w for w in x.warnings)
 
 
 def _errors_over_std(cal, truth) -> float:
@@ -46,8 +46,8 @@ def test_a_pose_of_qureshi18_off_its_label_loses_the_label():
     k = 7
     seg = session.static_segments()[k]
     cal = calibrate_session(faults.wrong_label(session, k, 20.0), CFG)
-    hit = [o for o in cal.accel.extra["outliers"] if o["segment"] == seg.name]
-    assert hit and hit[0]["action"] == "label ignored" and "label" in hit[0]["cause"]
+    hit = [o for o in cal.accel.outliers if o.segment == seg.name]
+    assert hit and hit[0].action == "label ignored" and "label" in hit[0].cause
     assert _errors_over_std(cal, truth) < 4.0
     assert suspect_error(cal) is None
 

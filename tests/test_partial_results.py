@@ -52,9 +52,9 @@ def test_a_gyro_its_turns_cannot_determine_is_left_out_and_the_accel_saved(six):
     session, _ = six
     cal = calibrate_session(_without_turn(session, 2), Config())
     assert cal.accel is not None and cal.gyro is None
-    assert cal.extra["complete"] is False and list(cal.extra["left_out"]) == ["gyro"]
-    note = cal.extra["left_out"]["gyro"]
-    assert note == cal.extra["gyro_note"]
+    assert cal.complete is False and list(cal.left_out) == ["gyro"]
+    note = cal.left_out["gyro"]
+    assert note == cal.gyro_note
     assert "4 rotations cannot determine the 12-parameter gyro model" in note
     assert "turn the unit at least 5 times" in note  # the capture that would add it
     assert suspect_error(cal) is None  # saved as it is
@@ -70,11 +70,11 @@ def test_a_complete_calibration_says_so():
     session, _ = simulate_plan("qureshi18", seed=1, created=CREATED)
     cal = calibrate_session(session, Config())
     assert cal.accel is not None and cal.gyro is not None
-    assert cal.extra["complete"] is True and cal.extra["left_out"] == {}
+    assert cal.complete is True and cal.left_out == {}
     assert build_report(cal)["complete"] is True
     # a sensor turned off by the config is not left out: the config did not ask for it
     off = calibrate_session(session, config_from_dict({"gyro": {"solver": "none"}}))
-    assert off.gyro is None and off.extra["complete"] is True
+    assert off.gyro is None and off.complete is True
 
 
 @pytest.fixture(scope="module")
@@ -88,11 +88,11 @@ def test_a_magnetometer_that_saw_too_little_is_left_out_and_the_accel_saved(mag_
     session, _ = mag_six
     cal = calibrate_session(session, Config())
     assert cal.accel is not None and cal.mag is None
-    note = cal.extra["left_out"]["mag"]
+    note = cal.left_out["mag"]
     assert re.search(r"saw the field from \d+ % of the directions around it \(at least 50 % "
                      "needed", note), note  # fmt: skip
     assert "Turn the unit through every direction" in note  # what to capture
-    assert cal.extra["complete"] is False and build_report(cal)["left_out"]["mag"] == note
+    assert cal.complete is False and build_report(cal)["left_out"]["mag"] == note
     # nothing else to save: refused with the magnetometer's reason
     alone = config_from_dict({"accel": {"solver": "none"}, "gyro": {"solver": "none"}})
     with pytest.raises(DesignError, match="of the directions around it"):
@@ -152,7 +152,7 @@ def test_a_pose_held_longer_than_its_segment_keeps_its_turn():
     assert all(t.segment.start in stops for t in data.turns)  # integrated from the pose on
     cal = calibrate_session(guided, Config())
     assert cal.accel is not None
-    assert "5 turns determine the gyro's rates" in cal.extra["left_out"]["gyro"]  # not fewer
+    assert "5 turns determine the gyro's rates" in cal.left_out["gyro"]  # not fewer
 
 
 def _bridge_case(hole_s: float = 0.0, other_turn: bool = False, stall_s: float = 0.0):
@@ -252,7 +252,7 @@ def test_ferraris_is_a_plan_that_calibrates():
     session, truth = simulate_plan("ferraris", seed=2, created=CREATED)
     cal = calibrate_session(session, Config())
     assert cal.accel.solver == "labelled" and cal.gyro.solver == "gyro-known"
-    assert cal.extra["complete"] is True and suspect_error(cal) is None
+    assert cal.complete is True and suspect_error(cal) is None
     # each gain within 5 std of the truth's, in the labels' frame (2-degree placements)
     gains = np.linalg.norm(np.linalg.inv(cal.gyro.matrix), axis=1)
     true = np.linalg.norm(np.linalg.inv(truth.gyro.matrix), axis=1)
@@ -273,13 +273,13 @@ def test_a_field_100_times_the_sessions_is_refused_without_force(mag_q18):
     cal = calibrate_session(session, config_from_dict({"mag": {"field_uT": 4800.0}}))
     err = str(suspect_error(cal))
     assert "[mag] field_uT = 4800 uT is 100 times the session's field (48 uT" in err
-    assert any("outside the Earth's field" in w for w in cal.mag.extra["warnings"])
+    assert any("outside the Earth's field" in w for w in cal.mag.warnings)
     near = calibrate_session(session, config_from_dict({"mag": {"field_uT": 50.0}}))
-    assert not any("field_uT" in w for w in near.mag.extra["warnings"])  # 4 %: the place
+    assert not any("field_uT" in w for w in near.mag.warnings)  # 4 %: the place
     unstated = replace(session, magnetic_field_uT=None)
     far = calibrate_session(unstated, config_from_dict({"mag": {"field_uT": 0.48}}))
     assert any("0.48 uT (config [mag] field_uT) is outside the Earth's field" in w
-               for w in far.mag.extra["warnings"])  # fmt: skip
+               for w in far.mag.warnings)  # fmt: skip
 
 
 def test_cli_refuses_a_field_100_times_the_sessions(tmp_path, mag_q18):

@@ -19,6 +19,7 @@ import pytest
 
 from imucal_cli.errors import DesignError
 from imucal_cli.formats.config import Config, config_from_dict
+from imucal_cli.model.parts import By
 from imucal_cli.pipeline.calibrate import calibrate_session
 from imucal_cli.simulate.play import simulate_plan
 from imucal_cli.solvers.crb import gravity_crb, labelled_crb
@@ -65,13 +66,13 @@ def test_known_angle_gyro_needs_no_accelerometer_on_labelled_axes(seed):
     cal = calibrate_session(session, _cfg("none", "known"))
     gyro = cal.gyro
     assert cal.accel is None and gyro.solver == "gyro-known"
-    assert "no accelerometer calibration" in gyro.extra["frame"]
-    x = np.array([p["value"] for p in gyro.extra["parameters"][:12]])
-    std = np.array([p["std"] for p in gyro.extra["parameters"][:12]])
+    assert "no accelerometer calibration" in gyro.frame
+    x = np.array([p.value for p in gyro.parameters[:12]])
+    std = np.array([p.std for p in gyro.parameters[:12]])
     z = (x - np.r_[b_true, M_true.ravel()]) / std
     assert np.all(np.abs(z) < 4.5), z
-    assert any("0 spare equations" in w and "assumed" in w for w in gyro.extra["warnings"])
-    assert gyro.extra["blocking"] == []  # said, not refused
+    assert any("0 spare equations" in w and "assumed" in w for w in gyro.warnings)
+    assert gyro.blocking == []  # said, not refused
 
 
 def test_known_angle_gyro_without_accelerometer_refuses_unlabelled_axes():
@@ -85,9 +86,8 @@ def test_gyro_axes_calibrates_the_gyro_and_says_why_the_accel_is_left_out():
     session, _ = simulate_plan("gyro-axes", seed=3, created=CREATED)
     cal = calibrate_session(session, Config())
     assert cal.accel is None
-    assert cal.gyro.extra["choice"] == {"solver": "known", "by": "auto",
-                                        "reason": cal.gyro.extra["choice"]["reason"]}
-    note = cal.extra["accel_note"]
+    assert (cal.gyro.choice.solver, cal.gyro.choice.by) == ("known", By.AUTO)
+    note = cal.accel_note
     # what the user has (an earlier calibration) before a new capture (9.6)
     assert note.index("--accel CAL.json") < note.index("plan six")
     assert "3 faces" in note and "3 of them labelled" in note
@@ -100,11 +100,11 @@ def test_gyro_axes_calibrates_the_gyro_and_says_why_the_accel_is_left_out():
 def test_hk_gyro_auto_uses_the_factorization_with_or_without_the_accel():
     session, truth = simulate_plan("hk-gyro", seed=4, created=CREATED)
     cal = calibrate_session(session, Config())
-    assert cal.accel is None and "accel not calibrated" in cal.extra["accel_note"]
-    assert cal.gyro.extra["choice"]["solver"] == "factorization"
+    assert cal.accel is None and "accel not calibrated" in cal.accel_note
+    assert cal.gyro.choice.solver == "factorization"
     given = calibrate_session(session, Config(), accel=truth.accel)
-    assert given.gyro.extra["choice"]["solver"] == "factorization"
-    assert "accel_note" not in given.extra
+    assert given.gyro.choice.solver == "factorization"
+    assert given.accel_note is None
 
 
 def test_hwangbo_iron_uses_its_labels_and_the_other_mounting_by_magnitude():
@@ -113,15 +113,15 @@ def test_hwangbo_iron_uses_its_labels_and_the_other_mounting_by_magnitude():
     n = len(session.static_segments())
     assert 0 < n_lab < n
     cal = calibrate_session(session, Config())
-    x = cal.accel.extra
-    assert x["choice"]["solver"] == "labelled", x["choice"]
-    assert f"{n_lab} of {n} poses labelled" in x["choice"]["reason"]
-    assert x["coverage"]["n_poses"] == n  # the unlabelled poses are in the fit
-    assert cal.gyro.extra["choice"]["solver"] == "factorization"
+    x = cal.accel
+    assert x.choice.solver == "labelled", x.choice
+    assert f"{n_lab} of {n} poses labelled" in x.choice.reason
+    assert x.coverage.n_poses == n  # the unlabelled poses are in the fit
+    assert cal.gyro.choice.solver == "factorization"
     # the gravity fit, asked for: 9 distinct directions for 9 parameters, said out loud (10.3)
-    grav = calibrate_session(session, _cfg("gravity", "none")).accel.extra
-    assert grav["spare_equations"] == 0
-    spare = [w for w in grav["warnings"] if "0 spare equations" in w]
+    grav = calibrate_session(session, _cfg("gravity", "none")).accel
+    assert grav.spare_equations == 0
+    spare = [w for w in grav.warnings if "0 spare equations" in w]
     assert spare and "9 distinct directions" in spare[0] and 'solver = "labelled"' in spare[0]
 
 

@@ -62,7 +62,7 @@ def test_a_simulated_session_is_the_plans_steps(name):
         for a, b in ((seg.up, step.up), (seg.axis, step.axis)):
             assert (a is None) == (b is None) and (a is None or np.allclose(a, b))
         assert seg.extra.get("mounting") == step.mounting
-    assert truth.extra["plan"].startswith(find_plan(name)[0].key)
+    assert truth.plan.startswith(find_plan(name)[0].key)
     # the serve path streams exactly these samples
     t, a, g = stream_arrays(name, seed=1, rate_hz=None, **FAST)
     np.testing.assert_array_equal(a, session.accel)
@@ -100,15 +100,15 @@ def test_gyro_axes_turns_are_full_turns_on_the_table_about_each_face_normal():
     session, truth = simulate_plan("gyro-axes", seed=2, created=CREATED)
     turns = session.rotation_segments()
     assert [s.angle_deg for s in turns] == [360.0] * 3
-    extra = truth.gyro.extra
-    np.testing.assert_allclose(extra["true_angle_deg"], [360.0] * 3)
+    extra = truth.gyro
+    np.testing.assert_allclose(extra.true_angle_deg, [360.0] * 3)
     # the true axis is the vertical of the placed unit: its labelled face normal within the
     # placement error (2 deg RMS), not exactly it
-    cos = np.sum(np.array(extra["true_axis"]) * np.array([s.axis for s in turns]), axis=1)
+    cos = np.sum(np.array(extra.true_axis) * np.array([s.axis for s in turns]), axis=1)
     err = np.degrees(np.arccos(np.clip(np.abs(cos), 0.0, 1.0)))
     assert np.all(err < 8.0) and np.any(err > 0.01)
     w = truth.gyro.apply(session.gyro)  # calibrated rate integrates to the true rotation
-    for seg, rv in zip(turns, extra["true_rotvec"], strict=True):
+    for seg, rv in zip(turns, extra.true_rotvec, strict=True):
         got = w[seg.start - 1 : seg.stop + 1].sum(axis=0) / session.sample_rate_hz
         np.testing.assert_allclose(got, rv, atol=0.02)
 

@@ -375,7 +375,7 @@ def test_session_reports_its_last_stored_calibration(tmp_path, capsys, monkeypat
     newer = full_calibration()
     path = write_session(tmp_path / "s.h5", [older, newer])
     cal = load_for_report(path)
-    assert cal.accel.extra["rms_after"] == 0.002
+    assert cal.accel.rms_after == 0.002
 
     code, out, err = run_imucal(["report", str(path), "--json"], capsys, monkeypatch)
     assert code == 0, err
@@ -548,7 +548,7 @@ def _line(text: str, start: str) -> str:
 
 
 def test_factorization_redundant_accel_table_one(redundant_accel_cal):
-    extra = redundant_accel_cal.accel.extra
+    extra = redundant_accel_cal.accel
     report = build_report(redundant_accel_cal)
     json.dumps(report, allow_nan=False)
     accel = report["sensors"]["accel"]
@@ -560,20 +560,20 @@ def test_factorization_redundant_accel_table_one(redundant_accel_cal):
     rows = {row["name"]: row for row in fz["rows"]}
     # refined = the section's final values, linear = the stored linear solution
     assert rows["b3"]["refined"] == pytest.approx(redundant_accel_cal.accel.bias[2])
-    assert rows["b3"]["linear"] == pytest.approx(extra["linear"]["bias"][2])
-    assert rows["|s4|"]["refined"] == pytest.approx(extra["sensitivity"][3])
-    assert rows["|s4|"]["refined_std"] == pytest.approx(extra["sensitivity_std"][3])
+    assert rows["b3"]["linear"] == pytest.approx(extra.factorization.linear.bias[2])
+    assert rows["|s4|"]["refined"] == pytest.approx(extra.sensitivity[3])
+    assert rows["|s4|"]["refined_std"] == pytest.approx(extra.sensitivity_std[3])
     assert rows["|s4|"]["unit"] == "counts per m/s^2"
-    assert rows["s1s4"]["refined"] == pytest.approx(extra["angles_deg"][0][3])
-    assert rows["s1s4"]["refined_std"] == pytest.approx(extra["angles_std_deg"][0][3])
-    assert rows["s3s4"]["linear"] == pytest.approx(extra["linear"]["angles_deg"][2][3])
+    assert rows["s1s4"]["refined"] == pytest.approx(extra.factorization.angles_deg[0][3])
+    assert rows["s1s4"]["refined_std"] == pytest.approx(extra.factorization.angles_std_deg[0][3])
+    assert rows["s3s4"]["linear"] == pytest.approx(extra.factorization.linear.angles_deg[2][3])
     assert all(row["refined_std"] is not None and row["refined_std"] > 0 for row in fz["rows"])
     assert rows["s1s4"]["refined"] == pytest.approx(45.0, abs=0.5)  # Table I's 45-degree pair
     assert rows["s1s2"]["refined"] == pytest.approx(90.0, abs=0.5)
     crms = fz["constraint_rms"]
-    assert crms["linear"] == extra["linear"]["constraint_rms"]
-    assert crms["refined"] == extra["constraint_rms"]
-    assert accel["rotation"] == extra["rotation"]
+    assert crms["linear"] == extra.factorization.linear.constraint_rms
+    assert crms["refined"] == extra.factorization.constraint_rms
+    assert accel["rotation"] == extra.factorization.rotation
     assert "canonical frame" in accel["rotation"]  # no labels: the frame the solver chose
     assert accel["rms"]["quantity"] == "gravity-magnitude error"
     # angles replace the gravity solver's misalignment field
@@ -643,7 +643,7 @@ def test_factorization_without_refinement_shows_the_linear_column_only(tmp_path)
 
 
 def test_factorization_gyro_turns_gains_and_frame(gyro_cal):
-    extra = gyro_cal.gyro.extra
+    extra = gyro_cal.gyro
     report = build_report(gyro_cal)
     assert list(report["sensors"]) == ["gyro"]  # accel solver "none": no accel section
     gyro = report["sensors"]["gyro"]
@@ -654,10 +654,10 @@ def test_factorization_gyro_turns_gains_and_frame(gyro_cal):
     assert rows["|sy|"]["unit"] == "counts per rad/s"
     assert fz["constraint_rms"]["unit"] == "(rad/s)^2"
     turn = gyro["rotations"][0]
-    stored = extra["rotations"][0]
+    stored = extra.rotations[0]
     assert turn["known_angle_deg"] == 90.0
-    assert turn["measured_angle_deg"] == stored["measured_angle_deg"]
-    assert turn["angle_error_deg"] == stored["angle_error_deg"]
+    assert turn["measured_angle_deg"] == stored.measured_angle_deg
+    assert turn["angle_error_deg"] == stored.angle_error_deg
     assert "known-angle turn" in gyro["rotation"]
     assert gyro["unavailable"] == []
 
@@ -906,7 +906,7 @@ def test_history_does_not_report_another_gravity_as_drift(one_session_three_ways
     relabelled = calibration_from_json(
         json.dumps({**json.loads(calibration_to_json(g981)),
                     "accel": {**json.loads(calibration_to_json(g981))["accel"],
-                              "gravity": standard.accel.extra["gravity"]}}), "x.json",
+                              "gravity": standard.accel.gravity}}), "x.json",
     )  # fmt: skip
     drift = build_history([standard, relabelled])["sensors"][0]
     assert "accel sensitivity x" in drift["drifted"]

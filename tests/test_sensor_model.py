@@ -68,7 +68,7 @@ def test_session_and_truth_round_trip_the_motion():
     opt = {"plan": "test", "seed": 4, "rate_hz": 100.0, "gravity": G0}
     session, truth = imu.session_and_truth(
         {"accel": force, "gyro": rate}, tl.segments, noise_seed=np.random.SeedSequence(0),
-        options=opt, sensor="unit test", extras={"gyro": {"note": 1}},
+        options=opt, sensor="unit test", extras={"gyro": {"design": "unit test"}},
     )  # fmt: skip
     np.testing.assert_allclose(
         truth.accel.apply(session.accel[:20]), G0 * np.eye(3)[[0] * 20], atol=1e-12
@@ -76,7 +76,7 @@ def test_session_and_truth_round_trip_the_motion():
     np.testing.assert_allclose(truth.gyro.apply(session.gyro), rate, atol=1e-12)
     # the turn integrates to its angle: smootherstep rate over the interior samples
     assert np.sum(rate[20:, 0]) / 100.0 == pytest.approx(np.pi / 2, rel=1e-6)
-    assert truth.gyro.extra["note"] == 1 and truth.extra["simulator"] == opt
+    assert truth.gyro.design == "unit test" and truth.simulator == opt
     assert [s.name for s in session.segments] == ["0000", "0001"]
 
 

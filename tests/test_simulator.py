@@ -366,10 +366,10 @@ def test_simulate_returns_a_session_and_its_truth():
     assert len(static) == 18 and static[0].label == "face +Z up"
     np.testing.assert_array_equal(static[0].up, [0, 0, 1])
     assert truth.accel.solver == truth.gyro.solver == "truth"
-    assert truth.extra["seed"] == 1 and truth.extra["plan"] == "qureshi18"
-    assert truth.extra["jitter_deg"] == 2.0
-    assert len(truth.accel.extra["true_up"]) == 18
-    assert truth.accel.extra["noise"] == 0.01 and truth.gyro.extra["noise"] == 0.005
+    assert truth.seed == 1 and truth.plan == "qureshi18"
+    assert truth.jitter_deg == 2.0
+    assert len(truth.accel.true_up) == 18
+    assert truth.accel.noise == 0.01 and truth.gyro.noise == 0.005
     st = simulate_stream(plan="qureshi18", seed=1)
     np.testing.assert_array_equal(session.accel, st.accel)
     np.testing.assert_allclose(np.asarray(truth.accel.matrix), np.linalg.inv(st.truth.accel_S))

@@ -141,29 +141,29 @@ def test_qureshi_axes_segments(axes_run):
         np.testing.assert_array_equal(stills[0].up, up)
         assert all(s.up is None and s.axis is None for s in stills[1:])
         assert all(s.n_samples == 500 for s in stills)  # 5 s at 100 Hz
-    extra = truth.gyro.extra
-    assert extra["turn_segments"] == [s.name for s in rot]
-    assert extra["turn_labels"] == [s.label for s in rot]
-    assert extra["turn_axis_names"] == [a for a in "xyz" for _ in range(18)]
-    assert truth.accel.extra["segments"] == [s.name for s in static]
+    extra = truth.gyro
+    assert extra.turn_segments == [s.name for s in rot]
+    assert extra.turn_labels == [s.label for s in rot]
+    assert extra.turn_axis_names == [a for a in "xyz" for _ in range(18)]
+    assert truth.accel.segments == [s.name for s in static]
 
 
 def test_angles_within_180_distinct_and_peak_rates_bounded(axes_run):
     _, truth = axes_run
-    extra = truth.gyro.extra
-    angles = np.array(extra["true_angle_deg"]).reshape(3, 18)
+    extra = truth.gyro
+    angles = np.array(extra.true_angle_deg).reshape(3, 18)
     assert np.all(np.abs(angles) <= 180.0) and np.all(np.abs(angles) >= MIN_TURN_DEG)
     for per_axis in angles:
         gaps = np.abs(per_axis[:, None] - per_axis[None, :]) + 1000.0 * np.eye(18)
         assert gaps.min() >= 10.0 - 1e-9  # 18 different turns, as in the paper
         assert (per_axis > 0).any() and (per_axis < 0).any()
-    peak = np.array(extra["peak_rate_dps"])
+    peak = np.array(extra.peak_rate_dps)
     assert np.all(peak <= 150.0 + 1e-9) and np.all(peak > 0.0)
-    dur = np.array(extra["duration_s"])
+    dur = np.array(extra.duration_s)
     np.testing.assert_allclose(peak, SMOOTHERSTEP_PEAK * np.abs(angles.ravel()) / dur)
-    rv = np.array(extra["true_rotvec"])
+    rv = np.array(extra.true_rotvec)
     np.testing.assert_allclose(np.degrees(np.linalg.norm(rv, axis=1)), np.abs(angles.ravel()))
-    axis_err = np.array(extra["axis_error_deg"])
+    axis_err = np.array(extra.axis_error_deg)
     assert np.all(axis_err < 12.0) and np.median(axis_err) > 0.5  # a hand is never exact
 
 
@@ -177,14 +177,14 @@ def test_free_plan(free_run):
     assert static[0].label == "still before turn 1, +Z up"
     np.testing.assert_array_equal(static[0].up, [0.0, 0.0, 1.0])
     assert all(s.up is None for s in static[1:]) and static[-1].label == "still after turn 12"
-    extra = truth.gyro.extra
-    assert extra["nominal_axis"] == [None] * 12 and extra["axis_error_deg"] == [None] * 12
-    axes = np.array(extra["true_axis"])
+    extra = truth.gyro
+    assert extra.nominal_axis == [None] * 12 and extra.axis_error_deg == [None] * 12
+    axes = np.array(extra.true_axis)
     np.testing.assert_allclose(np.linalg.norm(axes, axis=1), 1.0)
     assert np.linalg.svd(axes, compute_uv=False)[-1] > 0.3  # axes span all directions
-    angles = np.array(extra["true_angle_deg"])
+    angles = np.array(extra.true_angle_deg)
     assert np.all((np.abs(angles) >= MIN_TURN_DEG) & (np.abs(angles) <= 180.0))
-    assert truth.extra["plan"] == "free:12"
+    assert truth.plan == "free:12"
     same, _ = simulate_gyro_rotations(plan="free", count=12, seed=3, created=CREATED)
     np.testing.assert_array_equal(same.gyro, session.gyro)
 
@@ -197,8 +197,8 @@ def test_free_plan(free_run):
 def test_gyro_integral_is_the_true_rotation_vector_exactly(clean_run):
     session, truth = clean_run
     _, w = _calibrated(session, truth)
-    extra = truth.gyro.extra
-    for name, rv in zip(extra["turn_segments"], extra["true_rotvec"], strict=True):
+    extra = truth.gyro
+    for name, rv in zip(extra.turn_segments, extra.true_rotvec, strict=True):
         _, turn, _ = _neighbours(session, name)
         integral, _ = _turn_integral(session, w, turn)
         np.testing.assert_allclose(integral, rv, atol=1e-6, rtol=0)  # Simpson error ~1e-7
@@ -209,9 +209,9 @@ def test_gyro_integral_matches_within_noise(axes_run, free_run):
         _, w = _calibrated(session, truth)
         g = truth.gyro
         sample_std = np.hypot(
-            g.extra["noise"], _quantisation_std(g.matrix, g.extra["quantised"])
+            g.noise, _quantisation_std(g.matrix, g.quantised)
         )  # rad/s per output axis
-        for name, rv in zip(g.extra["turn_segments"], g.extra["true_rotvec"], strict=True):
+        for name, rv in zip(g.turn_segments, g.true_rotvec, strict=True):
             _, turn, _ = _neighbours(session, name)
             integral, wnorm = _turn_integral(session, w, turn)
             z = (integral - np.array(rv)) / (sample_std * wnorm)
@@ -222,10 +222,10 @@ def test_gravity_before_and_after_each_turn_is_related_by_the_rotation(axes_run,
     for (session, truth), exact in ((axes_run, False), (clean_run, True)):
         f, _ = _calibrated(session, truth)
         a = truth.accel
-        sample_std = np.hypot(a.extra["noise"], _quantisation_std(a.matrix, a.extra["quantised"]))
-        ext = truth.gyro.extra
+        sample_std = np.hypot(a.noise, _quantisation_std(a.matrix, a.quantised))
+        ext = truth.gyro
         for name, rv, angle in zip(
-            ext["turn_segments"], ext["true_rotvec"], ext["true_angle_deg"], strict=True
+            ext.turn_segments, ext.true_rotvec, ext.true_angle_deg, strict=True
         ):
             before, turn, after = _neighbours(session, name)
             fb = f[before.start : before.stop].mean(axis=0)
@@ -261,11 +261,11 @@ def test_still_periods_are_still_and_turns_move(axes_run, clean_run):
     session, truth = axes_run
     _, w = _calibrated(session, truth)
     g = truth.gyro
-    sample_std = np.hypot(g.extra["noise"], _quantisation_std(g.matrix, True))
+    sample_std = np.hypot(g.noise, _quantisation_std(g.matrix, True))
     for s in session.static_segments():
         mean = w[s.start : s.stop].mean(axis=0)
         assert np.abs(mean / (sample_std / np.sqrt(s.n_samples))).max() < Z_MAX
-    peak = np.array(g.extra["peak_rate_dps"])
+    peak = np.array(g.peak_rate_dps)
     for s, p in zip(session.rotation_segments(), peak, strict=True):
         assert np.degrees(np.linalg.norm(w[s.start : s.stop], axis=1)).max() < p * 1.02 + 1.0
 
@@ -273,8 +273,8 @@ def test_still_periods_are_still_and_turns_move(axes_run, clean_run):
 def test_turn_axes_are_horizontal(axes_run):
     """x and y turned with z up, z turned with z horizontal (+X up): the axis stays level."""
     session, truth = axes_run
-    ups = np.array(truth.accel.extra["true_up"])  # per still, fixture frame
-    labels = truth.accel.extra["labels"]
+    ups = np.array(truth.accel.true_up)  # per still, fixture frame
+    labels = truth.accel.labels
     for k, axis in enumerate("xyz"):
         rows = [j for j, lab in enumerate(labels) if f" {axis} turn " in lab]
         assert len(rows) == 19
@@ -282,8 +282,8 @@ def test_turn_axes_are_horizontal(axes_run):
         assert elevation.max() < 15.0, (axis, elevation.max())
     z_first = next(j for j, lab in enumerate(labels) if lab.startswith("still before z turn 1"))
     assert ups[z_first] @ [1.0, 0.0, 0.0] > np.cos(np.radians(10.0))  # on its side, +X up
-    nominal = np.array([a for a in truth.gyro.extra["nominal_axis"]])
-    true_axis = np.array(truth.gyro.extra["true_axis"])
+    nominal = np.array([a for a in truth.gyro.nominal_axis])
+    true_axis = np.array(truth.gyro.true_axis)
     assert np.all(np.sum(nominal * true_axis, axis=1) > np.cos(np.radians(12.0)))
 
 
@@ -352,7 +352,7 @@ def test_command_writes_both_plans(tmp_path, monkeypatch, capsys):
     )
     np.testing.assert_array_equal(session.gyro, expected.gyro)
     assert len(session.rotation_segments()) == 18
-    assert max(truth.gyro.extra["peak_rate_dps"]) <= 90.0 and truth.session == "axes.h5"
+    assert max(truth.gyro.peak_rate_dps) <= 90.0 and truth.session == "axes.h5"
 
     free = tmp_path / "free.h5"
     args = ["simulate", "--plan", "free:5", "--units", "m/s^2", "--accel-noise", "0.02"]
@@ -361,7 +361,7 @@ def test_command_writes_both_plans(tmp_path, monkeypatch, capsys):
     session = session_mod.read_session(free)
     assert len(session.rotation_segments()) == 5 and session.gyro_units == "rad/s"
     truth = calibration_mod.read_calibration(tmp_path / "free.truth.json")
-    assert truth.accel.extra["noise"] == 0.02 and len(truth.gyro.extra["true_rotvec"]) == 5
+    assert truth.accel.noise == 0.02 and len(truth.gyro.true_rotvec) == 5
 
 
 def test_command_refuses_bad_gyro_options(tmp_path, monkeypatch, capsys):

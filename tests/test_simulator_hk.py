@@ -70,19 +70,19 @@ def test_redundant_layout_matches_the_paper(redundant):
 
     acc = truth.accel
     assert acc.matrix.shape == (3, 4) and acc.bias.shape == (4,)
-    ex = acc.extra
-    assert ex["angles_deg"] == pytest.approx(TABLE_I_ANGLES, abs=1e-9)
-    assert list(ex["angles_deg"]) == list(TABLE_I_ANGLES)  # Table I order
-    assert ex["gains_V_per_g"] == [1.0] * 4 and ex["bias_V"] == [2.5] * 4
-    assert ex["counts_per_volt"] == pytest.approx(2047 / 5) == COUNTS_PER_VOLT
+    ex = acc
+    assert ex.angles_deg == pytest.approx(TABLE_I_ANGLES, abs=1e-9)
+    assert list(ex.angles_deg) == list(TABLE_I_ANGLES)  # Table I order
+    assert ex.gains_V_per_g == [1.0] * 4 and ex.bias_V == [2.5] * 4
+    assert ex.counts_per_volt == pytest.approx(2047 / 5) == COUNTS_PER_VOLT
     np.testing.assert_allclose(acc.bias, 2.5 * 2047 / 5)
-    S = np.array(ex["S_counts_per_g"])
+    S = np.array(ex.S_counts_per_g)
     np.testing.assert_allclose(S, COUNTS_PER_VOLT * NOMINAL_AXES)
     np.testing.assert_allclose(acc.matrix, G0 * np.linalg.pinv(S.T))
     np.testing.assert_allclose(acc.matrix @ S.T, G0 * np.eye(3), atol=1e-9)
-    assert ex["noise_counts"] == 0.7
-    assert ex["quantisation_counts"] == pytest.approx(1 / np.sqrt(12))
-    assert np.array(ex["true_up"]).shape == (20, 3)
+    assert ex.noise_counts == 0.7
+    assert ex.quantisation_counts == pytest.approx(1 / np.sqrt(12))
+    assert np.array(ex.true_up).shape == (20, 3)
 
 
 def test_redundant_is_deterministic_per_seed():
@@ -95,17 +95,17 @@ def test_redundant_is_deterministic_per_seed():
     assert not np.array_equal(a.accel, c.accel)
     # perturb draws only from the truth generator: same poses and noise draws
     p, tp = simulate_redundant_accel(seed=9, perturb=True, created="x")
-    assert tp.accel.extra["true_up"] == ta.accel.extra["true_up"]
-    assert tp.accel.extra["gains_V_per_g"] != ta.accel.extra["gains_V_per_g"]
+    assert tp.accel.true_up == ta.accel.true_up
+    assert tp.accel.gains_V_per_g != ta.accel.gains_V_per_g
 
 
 @pytest.mark.parametrize("perturb", [False, True])
 def test_truth_turns_every_pose_into_gravity(perturb):
     session, truth = simulate_redundant_accel(seed=4, perturb=perturb, samples=20)
     acc = truth.accel
-    sigma = np.hypot(acc.extra["noise_counts"], QUANTISATION_COUNTS)
+    sigma = np.hypot(acc.noise_counts, QUANTISATION_COUNTS)
     cov = sigma**2 * acc.matrix @ acc.matrix.T  # per-sample calibrated noise, (m/s^2)^2
-    true_up = np.array(acc.extra["true_up"])
+    true_up = np.array(acc.true_up)
     for seg, up in zip(session.static_segments(), true_up, strict=True):
         mean = acc.apply(session.accel[seg.start : seg.stop]).mean(axis=0)
         std = np.sqrt(up @ cov @ up / seg.n_samples)
@@ -113,8 +113,8 @@ def test_truth_turns_every_pose_into_gravity(perturb):
         # and it points along the true up (3 components, same bound per component)
         bound = Z_MAX * np.sqrt(np.diag(cov) / seg.n_samples)
         assert np.all(np.abs(mean - session.gravity * up) < bound)
-    angles = acc.extra["angles_deg"]
-    assert angles == pairwise_angles_deg(np.array(acc.extra["S_counts_per_g"]))
+    angles = acc.angles_deg
+    assert angles == pairwise_angles_deg(np.array(acc.S_counts_per_g))
     for key, nominal in TABLE_I_ANGLES.items():
         assert abs(angles[key] - nominal) <= (2.0 if perturb else 1e-9)
 
@@ -122,7 +122,7 @@ def test_truth_turns_every_pose_into_gravity(perturb):
 def test_quantisation_adc_range_and_noise_level():
     # noise-free: exactly the rounded ADC codes of the documented model
     session, truth = simulate_redundant_accel(seed=1, sigma_counts=0.0, orientations=30)
-    up = np.repeat(np.array(truth.accel.extra["true_up"]), 10, axis=0)
+    up = np.repeat(np.array(truth.accel.true_up), 10, axis=0)
     expected = np.rint(COUNTS_PER_VOLT * (2.5 + up @ NOMINAL_AXES))
     np.testing.assert_array_equal(session.accel, expected)
     # +1 g on s1 (face +X up) is 3.5 V: code rint(409.4 * 3.5) = 1433
@@ -137,9 +137,9 @@ def test_quantisation_adc_range_and_noise_level():
     )
     raw = session.accel
     assert np.array_equal(raw, np.rint(raw)) and raw.min() >= 0 and raw.max() <= ADC_MAX
-    up = np.repeat(np.array(truth.accel.extra["true_up"]), 50, axis=0)
+    up = np.repeat(np.array(truth.accel.true_up), 50, axis=0)
     resid = raw - (COUNTS_PER_VOLT * (2.5 + up @ NOMINAL_AXES))
-    total = truth.accel.extra["noise_total_counts"]
+    total = truth.accel.noise_total_counts
     assert total == pytest.approx(np.hypot(sigma, 1 / np.sqrt(12)))
     # 40000 residuals: the variance is known to 0.7 % (1 sigma); allow 5 %
     assert resid.var() == pytest.approx(total**2, rel=0.05)
@@ -156,7 +156,7 @@ def test_labelled_uses_the_block_faces_and_edges():
     assert len(static) == 18
     assert static[0].label == "face +Z up" and static[-1].label.startswith("edge ")
     ups = np.array([s.up for s in static])
-    np.testing.assert_allclose(ups, np.array(truth.accel.extra["true_up"]))
+    np.testing.assert_allclose(ups, np.array(truth.accel.true_up))
     assert len({tuple(np.round(u, 6)) for u in ups}) == 18
     first6, _ = simulate_redundant_accel(labelled=True, orientations=6)
     assert [s.label for s in first6.segments] == [s.label for s in static[:6]]
@@ -189,7 +189,7 @@ def test_gyro_layout(gyro_run):
     session, truth = gyro_run
     rot = session.rotation_segments()
     assert len(rot) == 7  # 3 sweeps x 2 mountings + the ruler turn
-    seg_mount = truth.gyro.extra["segment_mounting"]
+    seg_mount = truth.gyro.segment_mounting
     assert set(seg_mount) == {s.name for s in session.segments}
     for s in session.segments:
         assert seg_mount[s.name] == _mounting(s.label)
@@ -203,8 +203,8 @@ def test_gyro_layout(gyro_run):
     ruler = rot[-1]
     assert ruler.angle_deg == 90.0 and seg_mount[ruler.name] == 1
     np.testing.assert_array_equal(ruler.axis, [0.0, 0.0, 1.0])
-    assert truth.gyro.extra["ruler"]["segment"] == ruler.name
-    rv = truth.gyro.extra["mounting_rotvec_deg"]
+    assert truth.gyro.ruler.segment == ruler.name
+    rv = truth.gyro.mounting_rotvec_deg
     assert rv[0] == [0.0, 0.0, 0.0] and np.linalg.norm(rv[1]) > 30.0
 
 
@@ -221,9 +221,9 @@ def test_gyro_is_deterministic_per_seed():
 def test_still_means_are_the_bias(gyro_run):
     session, truth = gyro_run
     g = truth.gyro
-    S = np.array(g.extra["S"])
+    S = np.array(g.S)
     # raw noise per sample: S n with n ~ N(0, noise^2 I), plus rounding
-    var = np.diag(S @ S.T) * g.extra["noise"] ** 2 + 1.0 / 12.0
+    var = np.diag(S @ S.T) * g.noise ** 2 + 1.0 / 12.0
     for seg in session.static_segments():
         mean = session.gyro[seg.start : seg.stop].mean(axis=0)
         assert np.all(np.abs(mean - g.bias) < Z_MAX * np.sqrt(var / seg.n_samples)), seg.label
@@ -237,7 +237,7 @@ def test_ruler_turn_integrates_to_the_stated_angle(units):
     w = truth.gyro.apply(session.gyro[ruler.start : ruler.stop])
     integral = w.sum(axis=0) * dt  # rad, sensor frame (= iron frame in mounting 1)
     # noise of the integral: noise * sqrt(n) * dt per axis
-    std = truth.gyro.extra["noise"] * np.sqrt(ruler.n_samples) * dt
+    std = truth.gyro.noise * np.sqrt(ruler.n_samples) * dt
     expected = np.radians(ruler.angle_deg) * ruler.axis
     assert np.all(np.abs(integral - expected) < Z_MAX * std + 1e-5)
     assert np.degrees(np.linalg.norm(integral)) == pytest.approx(90.0, abs=0.1)
@@ -245,8 +245,8 @@ def test_ruler_turn_integrates_to_the_stated_angle(units):
 
 def test_sweeps_of_one_mounting_are_orthogonal_in_the_sensor_frame(gyro_run):
     session, truth = gyro_run
-    seg_mount = truth.gyro.extra["segment_mounting"]
-    axes_truth = truth.gyro.extra["sweep_axes_sensor"]
+    seg_mount = truth.gyro.segment_mounting
+    axes_truth = truth.gyro.sweep_axes_sensor
     found = {}
     for seg in session.rotation_segments()[:-1]:
         w = truth.gyro.apply(session.gyro[seg.start : seg.stop])
@@ -272,13 +272,13 @@ def test_sweeps_of_one_mounting_are_orthogonal_in_the_sensor_frame(gyro_run):
 def test_accelerometer_sees_gravity_along_the_swept_axis(gyro_run):
     """Sweeps turn about the vertical: the accelerometer reads g along the sweep axis."""
     session, truth = gyro_run
-    axes = truth.gyro.extra["sweep_axes_sensor"]
+    axes = truth.gyro.sweep_axes_sensor
     for seg in session.rotation_segments()[:-1]:
         f = truth.accel.apply(session.accel[seg.start : seg.stop])
         np.testing.assert_allclose(
             f.mean(axis=0), session.gravity * np.array(axes[seg.name]), atol=0.01
         )
-        assert f.std(axis=0).max() < 3 * truth.accel.extra["noise"]
+        assert f.std(axis=0).max() < 3 * truth.accel.noise
     for seg in session.static_segments():
         if seg.up is not None:
             f = truth.accel.apply(session.accel[seg.start : seg.stop]).mean(axis=0)
@@ -338,7 +338,7 @@ def test_command_writes_the_redundant_plan(tmp_path, monkeypatch, capsys):
     np.testing.assert_array_equal(session.accel, expected.accel)
     assert session.accel.shape == (120, 4)
     assert truth.accel.matrix.shape == (3, 4) and truth.gyro is None
-    assert truth.session == "red.h5" and truth.accel.extra["noise_counts"] == 1.5
+    assert truth.session == "red.h5" and truth.accel.noise_counts == 1.5
 
     lab = tmp_path / "lab.h5"
     code, _, err = _run_main(
@@ -361,7 +361,7 @@ def test_command_writes_the_gyro_plan(tmp_path, monkeypatch, capsys):
     expected, _ = simulate_hk_gyro(seed=4, mountings=3)
     np.testing.assert_array_equal(session.gyro, expected.gyro)
     assert len(session.rotation_segments()) == 10
-    assert len(truth.gyro.extra["mounting_rotvec_deg"]) == 3
+    assert len(truth.gyro.mounting_rotvec_deg) == 3
 
 
 def test_command_refuses_bad_hk_options(tmp_path, monkeypatch, capsys):

@@ -31,13 +31,13 @@ def test_ramp_session_records_temperature_and_truth_holds_the_polynomial():
     assert abs(t[0] - 5.0) < 0.2 and abs(t[-1] - 40.0) < 0.2
     for name in ("accel", "gyro"):
         sec = getattr(truth, name)
-        assert sec.extra["temperature_ref"] == 25.0
-        tc = np.array(sec.extra["bias_tempco"])
+        assert sec.temperature_ref == 25.0
+        tc = np.array(sec.bias_tempco)
         assert tc.shape == (3, 3) and np.all(tc[0] != 0)
         # the same seed is the same part: the bias at T_ref is unchanged by the ramp
         np.testing.assert_array_equal(sec.bias, getattr(truth0, name).bias)
     # the raw data move by the truth's polynomial at the true temperature (same noise draws)
-    tc = np.array(truth.accel.extra["bias_tempco"])
+    tc = np.array(truth.accel.bias_tempco)
     true_c = Ramp(5.0, 40.0, "linear").true_c(warm.time)
     dt = true_c - 25.0
     change = (dt[:, None] ** np.arange(1, 4)) @ tc
@@ -168,7 +168,7 @@ def test_joint_gravity_fit_recovers_the_bias_change_over_the_span(seed):
     a, T, cov = _pose_means(session)
     plain = fit_gravity(a, G0)
     joint = fit_gravity_tempco(a, T, G0, (plain.bias, plain.M), cov_mean=cov)
-    tc_true = np.array(truth.accel.extra["bias_tempco"])
+    tc_true = np.array(truth.accel.bias_tempco)
     grid = np.array([T.min(), T.max()])
     true_change = ((grid - 25.0)[:, None] ** np.arange(1, 4)) @ tc_true
     est = ((grid - joint.temperature_ref)[:, None] ** np.arange(1, joint.tempco.shape[0] + 1)
@@ -201,5 +201,5 @@ def test_cli_simulate_ramp_writes_temperature_and_truth(tmp_path):
     s = read_session(out)
     assert s.temperature.min() < 10.2 and s.temperature.max() > 34.8
     truth = read_calibration(tmp_path / "warm.truth.json")
-    assert len(truth.accel.extra["bias_tempco"]) == 3
+    assert len(truth.accel.bias_tempco) == 3
     assert_one_line_error(run("simulate", "--ramp", "20", "-o", tmp_path / "x.h5"), "--ramp")

@@ -32,24 +32,24 @@ def test_joint_model_by_default_when_the_session_spans_10_c(ramp_cal):
     session, truth, cal = ramp_cal
     acc = cal.accel
     assert acc.temperature_terms is not None
-    model = acc.extra["temperature_model"]
-    assert "gravity-magnitude" in model["source"] and max(model["degree"]) <= 3
-    assert np.array(model["bias_tempco_std"]).shape == np.array(acc.extra["bias_tempco"]).shape
-    lo, hi = acc.extra["temperature_range_c"]
+    model = acc.temperature_model
+    assert "gravity-magnitude" in model.source and max(model.degree) <= 3
+    assert np.array(model.bias_tempco_std).shape == np.array(acc.bias_tempco).shape
+    lo, hi = acc.temperature_range_c
     assert lo < 7 and hi > 38
     np.testing.assert_allclose(_change(acc, lo, hi), _change(truth.accel, lo, hi), rtol=0.2,
                                atol=5.0)  # fmt: skip
     # the bias at the reference is the truth's there (a few counts: the noise of 18 poses)
-    t_ref = acc.extra["temperature_ref"]
+    t_ref = acc.temperature_ref
     np.testing.assert_allclose(acc.bias, truth.accel.bias_at(t_ref)[0], atol=4.0)
-    rows = {r["name"]: r for r in acc.extra["parameters"]}
+    rows = {r.name: r for r in acc.parameters}
     assert any(name.startswith("tc1_") for name in rows)
     from imucal_cli.use.report.build import build_report
 
     table = [t for t in build_report(cal)["sensors"]["accel"]["tables"]
              if t["title"] == "bias temperature model"][0]  # fmt: skip
     assert [r[0] for r in table["rows"]] == ["x", "y", "z"]
-    assert table["rows"][0][1] == model["degree"][0] and "fitted over" in table["caption"]
+    assert table["rows"][0][1] == model.degree[0] and "fitted over" in table["caption"]
     # the gyro bias from its still periods: the same change as the truth's
     gyro = cal.gyro
     assert gyro is not None and gyro.temperature_terms is not None
@@ -78,7 +78,7 @@ def test_narrow_span_gives_no_model_and_says_why():
     session, _ = simulate(seed=6, plan="six", temperature=Ramp(20.0, 26.0, "linear"))
     cal = calibrate_session(session, Config())
     assert cal.accel.temperature_terms is None
-    assert "at least 10 C" in cal.extra["temperature_note"]
+    assert "at least 10 C" in cal.temperature_note
     with pytest.raises(DesignError, match=r"spans only .* at least 10 C"):
         calibrate_session(session, config_from_dict({"temperature": {"model": "on"}}))
 
@@ -90,7 +90,7 @@ def test_warmup_recording_gives_the_curve(tmp_path):
     room, _ = simulate(seed=8, plan="qureshi18", temperature=Ramp(24.0, 26.0, "linear"))
     cal = calibrate_session(room, Config(), warmup=[warm])
     acc = cal.accel
-    assert "warm-up" in acc.extra["temperature_model"]["source"]
+    assert "warm-up" in acc.temperature_model.source
     np.testing.assert_allclose(_change(acc, 8.0, 38.0), _change(truth.accel, 8.0, 38.0),
                                rtol=0.1, atol=3.0)  # fmt: skip
     np.testing.assert_allclose(_change(cal.gyro, 8.0, 38.0), _change(truth.gyro, 8.0, 38.0),
@@ -140,7 +140,7 @@ def test_given_accel_with_temperature_terms_calibrates_the_gyro(ramp_cal, tmp_pa
                                            temperature=Ramp(20.0, 32.0, "linear"))  # fmt: skip
     out = calibrate_session(turns, Config(), accel=truth.accel)
     assert out.accel.temperature_terms is not None  # the given section, unchanged
-    assert out.accel.extra["bias_tempco"] == truth.accel.extra["bias_tempco"]
+    np.testing.assert_array_equal(out.accel.bias_tempco, truth.accel.bias_tempco)
     sv = np.linalg.svd(out.gyro.matrix @ np.linalg.inv(truth.gyro.matrix), compute_uv=False)
     assert np.max(np.abs(sv - 1)) < 0.005
     no_temp = turns.__class__(**{**turns.__dict__, "temperature": None})

@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 
 from imucal_cli.errors import CalibrationFileError, InputError
-from imucal_cli.formats.calibration import Calibration, calibration_to_json
+from imucal_cli.formats.calibration import calibration_to_json
 from imucal_cli.formats.exporters import ExportOptions
 from imucal_cli.formats.exporters.c_header import export_c_header
 from imucal_cli.formats.session import write_session
+from imucal_cli.model.calibration import Calibration
 from imucal_cli.simulate.temperature import Ramp
 from imucal_cli.simulate.triad import simulate
 from imucal_cli.use.apply import apply_calibration
@@ -34,7 +35,7 @@ def warm():
     session, truth = simulate(seed=21, plan="six", temperature=Ramp(5.0, 40.0, "linear"),
                               created="2026-01-01T00:00:00Z")  # fmt: skip
     for name in ("accel", "gyro"):
-        getattr(truth, name).extra["temperature_range_c"] = [5.0, 40.0]
+        getattr(truth, name).temperature_range_c = [5.0, 40.0]
     return session, truth
 
 
@@ -96,7 +97,7 @@ def test_apply_corrects_times_by_the_sample_clock(warm, tmp_path):
     session, truth = warm
     cal = copy.deepcopy(truth)
     for name in ("accel", "gyro"):
-        getattr(cal, name).extra["sample_clock_scale"] = 1.005
+        getattr(cal, name).sample_clock_scale = 1.005
     write_session(tmp_path / "s.h5", session)
     summary = apply_calibration(cal, tmp_path / "s.h5", tmp_path / "o.csv")
     assert summary.clock_scale == 1.005

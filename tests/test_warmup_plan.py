@@ -48,4 +48,4 @@ def test_simulated_warmup_gives_calibrate_its_curve(tmp_path):
     cal = read_calibration(tmp_path / "c.cal.json")
     for sec in (cal.accel, cal.gyro):
         assert sec.temperature_terms is not None
-        assert "warm-up" in sec.extra["temperature_model"]["source"]
+        assert "warm-up" in sec.temperature_model.source

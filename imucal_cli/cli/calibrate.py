@@ -16,6 +16,10 @@ from rich.table import Table
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import calibration_to_json
 from imucal_cli.formats.config import load_config, validate
+from imucal_cli.model.accel import AccelCalibration
+from imucal_cli.model.gyro import GyroCalibration
+from imucal_cli.model.mag import Readings
+from imucal_cli.model.parts import By
 from imucal_cli.pipeline.batch import Figures, Stored, calibrate_file, calibrate_many
 from imucal_cli.pipeline.calibrate import load_accel
 
@@ -148,8 +152,8 @@ def _config(config: Path | None, model: str | None, gravity: float | None):
 def _result_json(cal, out: Path, stored: Stored) -> dict:
     """The ``imucal-calibrate`` document (docs/commands.md)."""
     warnings = [w for s in (cal.accel, cal.gyro, cal.mag) if s
-                for w in s.extra.get("warnings", [])]  # fmt: skip
-    left_out = dict(cal.extra.get("left_out") or {})
+                for w in s.warnings or []]  # fmt: skip
+    left_out = dict(cal.left_out or {})
     warnings += list(left_out.values())
     return {"format": "imucal-calibrate", "format_version": 1, "output": str(out),
             "stored": stored.where, "not_stored": stored.why_not, "complete": not left_out,
@@ -228,135 +232,135 @@ def _summary(line, cal, where: str) -> None:
     """A few lines per calibrated sensor: what ran, the residuals, bias and sensitivity;
     ``line(*pieces)`` prints a line (:func:`.console.print_line`)."""
     for name, sec in (("accel", cal.accel), ("gyro", cal.gyro)):
-        if sec is None:
-            continue
-        x = sec.extra
-        units = x.get("units_in", "raw units")
-        how = [f"{sec.solver} ({x['variant']})" if "variant" in x else sec.solver]
-        if "coverage" in x:
-            how.append(f"{x['coverage']['n_poses']} poses")
-        if "iterations" in x:
-            how.append(f"{x['iterations']} iterations")
-        if x.get("init"):
-            how.append(f"init {x['init']}")
-        line((name, BOLD), ": " + ", ".join(how))
-        choice = x.get("choice") or {}
-        if choice.get("by") == "auto":
-            line("  solver chosen: " + choice["reason"])
-        if name == "accel" and x.get("rms_after") is not None:
-            g = x["gravity"]
-            before = x.get("rms_before")
-            text = "  |a| - g RMS: "
-            if before is not None:
-                text += f"before {before:.4f} m/s^2 ({1000 * before / g:.2f} mg) -> "
-            text += f"after {x['rms_after']:.4f} m/s^2 ({1000 * x['rms_after'] / g:.3f} mg)"
-            if x.get("rms_loo") is not None:
-                text += f", held out {x['rms_loo']:.4f} m/s^2"
-            line(text)
-        turns = x.get("rotations", [])
-        if turns and x.get("rotation_rms_deg") is not None:
-            line(f"  {len(turns)} rotations, angle residual RMS {x['rotation_rms_deg']:.3f} deg")
-        elif turns:
-            for rot in turns[:3]:
-                line(
-                    f"  {rot['label'] or rot['segment']}: "
-                    f"measured {rot['measured_angle_deg']:.3f} deg, "
-                    f"known {rot['known_angle_deg']:.3f} deg"
-                )
-        per = "m/s^2" if name == "accel" else "rad/s"
-        line(
-            "  bias "
-            + ", ".join(f"{b:.5g}" for b in sec.bias)
-            + f" {units}; sensitivity "
-            + ", ".join(f"{v:.5g}" for v in x.get("sensitivity", []))
-            + f" {units} per {per}"
-        )
-        _temperature_line(line, x, units)
-        for w in x.get("warnings", []):
-            line("  ", ("warning", WARN), f": {w}")
-    if cal.extra.get("gyro_note"):
-        line(("gyro", BOLD), f": {cal.extra['gyro_note']}")
-    if cal.extra.get("accel_note"):
-        line(("warning", WARN), f": {cal.extra['accel_note']}")
+        if sec is not None:
+            _section_lines(line, name, sec)
+    if cal.gyro_note:
+        line(("gyro", BOLD), f": {cal.gyro_note}")
+    if cal.accel_note:
+        line(("warning", WARN), f": {cal.accel_note}")
     if cal.mag is not None:
         for pieces in mag_summary(cal.mag):
             line(*pieces)
-    elif cal.extra.get("mag_note"):
-        line(("warning", WARN), f": {cal.extra['mag_note']}")
-    if cal.extra.get("temperature_note"):
-        line(("temperature", BOLD), f": {cal.extra['temperature_note']}")
-    clock = cal.extra.get("sample_clock") or {}
-    if "ppm" in clock:
-        within = f"within {clock.get('threshold_ppm', 0.0):.3g} ppm of none: not corrected"
-        done = "gyro corrected" if clock.get("applied", True) else within
+    elif cal.mag_note:
+        line(("warning", WARN), f": {cal.mag_note}")
+    if cal.temperature_note:
+        line(("temperature", BOLD), f": {cal.temperature_note}")
+    clock = cal.sample_clock
+    if clock is not None and clock.ppm is not None:
+        within = f"within {clock.threshold_ppm or 0.0:.3g} ppm of none: not corrected"
+        done = "gyro corrected" if clock.applied in (None, True) else within
         line(
             ("sample clock", BOLD),
-            f": {clock['ppm']:+.1f} ± {clock['ppm_std']:.1f} ppm (device s per true s - 1, "
-            f"over {clock['duration_s']:.0f} s; {done})",
+            f": {clock.ppm:+.1f} ± {clock.ppm_std:.1f} ppm (device s per true s - 1, "
+            f"over {clock.duration_s:.0f} s; {done})",
         )
-    elif clock.get("note"):
-        line(("sample clock", BOLD), f": {clock['note']}")
-    left_out = cal.extra.get("left_out") or {}
-    if left_out:  # issue 24.2: saved, but not every sensor of the session is in it
-        where += f" (partial: {', '.join(left_out)} left out, see above)"
+    elif clock is not None and clock.note:
+        line(("sample clock", BOLD), f": {clock.note}")
+    if cal.left_out:  # issue 24.2: saved, but not every sensor of the session is in it
+        where += f" (partial: {', '.join(cal.left_out)} left out, see above)"
     line(f"wrote {where}")
+
+
+def _section_lines(line, name: str, sec) -> None:
+    """The accelerometer's or gyro's lines of the summary."""
+    units = sec.units_in or "raw units"
+    how = [f"{sec.solver} ({sec.variant})" if sec.variant is not None else sec.solver]
+    if isinstance(sec, AccelCalibration) and sec.coverage is not None:
+        how.append(f"{sec.coverage.n_poses} poses")
+    fit = sec.fit
+    if fit is not None and fit.iterations is not None:
+        how.append(f"{fit.iterations} iterations")
+    if fit is not None and fit.init:
+        how.append(f"init {fit.init}")
+    line((name, BOLD), ": " + ", ".join(how))
+    if sec.choice is not None and sec.choice.by is By.AUTO:
+        line("  solver chosen: " + sec.choice.reason)
+    if isinstance(sec, AccelCalibration) and sec.rms_after is not None:
+        g, before = sec.gravity, sec.rms_before
+        text = "  |a| - g RMS: "
+        if before is not None:
+            text += f"before {before:.4f} m/s^2 ({1000 * before / g:.2f} mg) -> "
+        text += f"after {sec.rms_after:.4f} m/s^2 ({1000 * sec.rms_after / g:.3f} mg)"
+        if sec.rms_loo is not None:
+            text += f", held out {sec.rms_loo:.4f} m/s^2"
+        line(text)
+    turns = (sec.rotations or []) if isinstance(sec, GyroCalibration) else []
+    if turns and sec.rotation_rms_deg is not None:
+        line(f"  {len(turns)} rotations, angle residual RMS {sec.rotation_rms_deg:.3f} deg")
+    elif turns:
+        for rot in turns[:3]:
+            line(
+                f"  {rot.label or rot.segment}: "
+                f"measured {rot.measured_angle_deg:.3f} deg, "
+                f"known {rot.known_angle_deg:.3f} deg"
+            )
+    per = "m/s^2" if name == "accel" else "rad/s"
+    line(
+        "  bias "
+        + ", ".join(f"{b:.5g}" for b in sec.bias)
+        + f" {units}; sensitivity "
+        + ", ".join(f"{v:.5g}" for v in sec.sensitivity or [])
+        + f" {units} per {per}"
+    )
+    _temperature_line(line, sec, units)
+    for w in sec.warnings or []:
+        line("  ", ("warning", WARN), f": {w}")
 
 
 def mag_summary(sec) -> list[tuple[Piece, ...]]:
     """The magnetometer's lines (each a tuple of :data:`.console.Piece`): what ran, |B|
     residuals, inclination, hard iron, axes, the quality verdict and the warnings."""
-    x = sec.extra
-    rd = x.get("readings", {})
-    how = [sec.solver, f"{rd.get('motion', 0)} motion readings + {rd.get('poses', 0)} poses"]
-    missing = (rd.get("left_out") or {}).get("nonfinite") if isinstance(rd, dict) else None
+    rd = sec.readings or Readings()
+    how = [sec.solver, f"{rd.motion or 0} motion readings + {rd.poses or 0} poses"]
+    missing = rd.left_out.nonfinite if rd.left_out is not None else None
     if missing:
         how[-1] += f" ({missing} rows without a value left out)"
-    if x.get("iterations"):
-        how.append(f"{x['iterations']} iterations")
-    how.append("aligned to the accelerometer" if x.get("aligned") else "own axes (not aligned)")
+    if sec.fit is not None and sec.fit.iterations:
+        how.append(f"{sec.fit.iterations} iterations")
+    how.append("aligned to the accelerometer" if sec.aligned else "own axes (not aligned)")
     lines: list[tuple[Piece, ...]] = [(("mag", BOLD), ": " + ", ".join(how))]
-    field = x.get("field_uT")
+    field = sec.field_uT
     unit = "uT" if field else "x local field"
-    text = f"  |B| residual RMS {x['rms_after']:.4g} {unit}"
+    text = f"  |B| residual RMS {sec.rms_after:.4g} {unit}"
     if field:
-        text += f" ({100 * x['rms_after'] / field:.2f} % of {field:g} uT)"
-    if x.get("rms_held_out") is not None:
-        text += f", held out {x['rms_held_out']:.4g} {unit}"
-    if x.get("inclination_deg") is not None:
-        text += f"; inclination {x['inclination_deg']:.2f} ± {x['inclination_std_deg']:.2f} deg"
+        text += f" ({100 * sec.rms_after / field:.2f} % of {field:g} uT)"
+    if sec.rms_held_out is not None:
+        text += f", held out {sec.rms_held_out:.4g} {unit}"
+    if sec.inclination_deg is not None:
+        text += f"; inclination {sec.inclination_deg:.2f} ± {sec.inclination_std_deg:.2f} deg"
     lines.append((text,))
     if not field:
-        est = x.get("field_estimate_uT")
+        est = sec.field_estimate_uT
         lines.append((
             "  field magnitude unknown: output in units of the local field (|B| = 1)"
             + (f", about {est:.3g} uT" if est else "")
             + "; give [mag] field_uT for uT",
         ))  # fmt: skip
-    text = "  hard iron " + ", ".join(f"{b:.5g}" for b in sec.bias) + f" {x.get('units_in')}"
-    if x.get("axes"):
-        text += "; axes " + ", ".join(x["axes"])
+    text = "  hard iron " + ", ".join(f"{b:.5g}" for b in sec.bias) + f" {sec.units_in}"
+    if sec.axes:
+        text += "; axes " + ", ".join(sec.axes)
     lines.append((text,))
-    q = x.get("quality")
-    if q:
+    q = sec.quality
+    if q is not None:
         figs = ", ".join(
-            f"{c['name']} {c['value_pct']:.1f} %" if c["value_pct"] is not None
-            else f"{c['name']} -" for c in q["checks"]
+            f"{c.name} {c.value_pct:.1f} %" if c.value_pct is not None
+            else f"{c.name} -" for c in q.checks or []
         )  # fmt: skip
-        verdict: Piece = "pass" if q["verdict"] == "pass" else ("recapture", WARN)
+        verdict: Piece = "pass" if q.verdict == "pass" else ("recapture", WARN)
         lines.append(("  quality: ", verdict, f" ({figs})"))
-    for w in x.get("warnings", []):
+    for w in sec.warnings or []:
         lines.append(("  ", ("warning", WARN), f": {w}"))
     return lines
 
 
-def _temperature_line(line, x: dict, units: str) -> None:
+def _temperature_line(line, sec, units: str) -> None:
     """The bias temperature model of a section, when it has one."""
-    model = x.get("temperature_model")
-    if not model or "bias_tempco" not in x:
+    model = sec.temperature_model
+    if model is None or sec.bias_tempco is None:
         return
-    lo, hi = model["range_c"]
+    lo, hi = model.range_c
     line(
-        f"  temperature: bias polynomial of degree {', '.join(map(str, model['degree']))} per "
-        f"channel about {x['temperature_ref']:.1f} C, fitted over {lo:.1f} .. {hi:.1f} C "
-        f"({model['source']}); {units} per C^k"
+        f"  temperature: bias polynomial of degree {', '.join(map(str, model.degree))} per "
+        f"channel about {sec.temperature_ref:.1f} C, fitted over {lo:.1f} .. {hi:.1f} C "
+        f"({model.source}); {units} per C^k"
     )

@@ -1,6 +1,5 @@
 """Calibration JSON files (``shared/spec/session-format.md``, version 1): text to the model
-(:mod:`.calibration_model`: :class:`Calibration`, :class:`SensorCalibration`, given here too)
-and back.
+(:mod:`imucal_cli.model.calibration`: :class:`Calibration` and its sections) and back.
 
 :func:`calibration_from_json` (and :func:`read_calibration`) read imucal's JSON and the
 calibrations of other tools (:mod:`.foreign_calibration`: Kalibr YAML, MaD Lab imucal JSON);
@@ -16,55 +15,21 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from imucal_cli.errors import CalibrationFileError
-from imucal_cli.formats.calibration_model import (
-    FORMAT,
-    FORMAT_VERSION,
-    LOCAL_FIELD,
-    MODEL_EQUATION,
-    SENSOR_UNITS,
-    SENSORS,
-    Calibration,
-    SensorCalibration,
-)
 from imucal_cli.formats.foreign_calibration import foreign_calibration
 from imucal_cli.formats.inputs import read_text_input
 from imucal_cli.formats.output import write_output
 from imucal_cli.formats.text import clean_tree
+from imucal_cli.model.calibration import Calibration
+from imucal_cli.model.codec import jsonable
 
-__all__ = [
-    "FORMAT",
-    "FORMAT_VERSION",
-    "LOCAL_FIELD",
-    "MODEL_EQUATION",
-    "SENSORS",
-    "SENSOR_UNITS",
-    "Calibration",
-    "SensorCalibration",
-    "calibration_from_json",
-    "calibration_to_json",
-    "read_calibration",
-    "write_calibration",
-]
-
-def _jsonable(value: Any) -> Any:
-    """Convert numpy arrays/scalars and tuples to JSON types; NaN and inf become None."""
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple | np.ndarray):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
+__all__ = ["calibration_from_json", "calibration_to_json", "read_calibration",
+           "write_calibration"]  # fmt: skip
 
 
 def calibration_to_json(cal: Calibration) -> str:
     """Return the calibration as pretty JSON text (indent 2, NaN and inf written as null)."""
-    return json.dumps(_jsonable(cal.to_dict()), indent=2, allow_nan=False)
+    return json.dumps(jsonable(cal.to_dict()), indent=2, allow_nan=False)
 
 
 #: Nesting deeper than this is no calibration (and would exhaust Python's recursion).
@@ -133,14 +98,7 @@ def calibration_from_json(text: str, source: str = "<string>") -> Calibration:
 
 def _cleaned(cal: Calibration) -> Calibration:
     """Every free string of a calibration read from another tool's file made printable."""
-    cal.session = None if cal.session is None else clean_tree(cal.session)
-    cal.created = clean_tree(cal.created)
-    cal.extra = clean_tree(cal.extra)
-    for section in (cal.accel, cal.gyro):
-        if section is not None:
-            section.solver = clean_tree(section.solver)
-            section.extra = clean_tree(section.extra)
-    return cal
+    return Calibration.from_dict(clean_tree(jsonable(cal.to_dict())), "<imported>")
 
 
 def _first_infinite(value: Any, path: str = "") -> str | None:

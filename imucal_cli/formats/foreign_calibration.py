@@ -3,7 +3,7 @@
 
 :func:`~imucal_cli.formats.calibration.calibration_from_json` (so ``read_calibration`` and
 every reader of calibrations) calls :func:`foreign_calibration` first; both build the
-model of :mod:`~imucal_cli.formats.calibration_model`.  Two formats:
+model of :mod:`~imucal_cli.model.calibration`.  Two formats:
 
 **Kalibr results YAML** (``imu0:`` with ``model: scale-misalignment``; ``IccSensors.py``)::
 
@@ -50,7 +50,10 @@ import numpy as np
 import yaml
 
 from imucal_cli.errors import CalibrationFileError
-from imucal_cli.formats.calibration_model import MODEL_EQUATION, Calibration, SensorCalibration
+from imucal_cli.model.accel import AccelCalibration
+from imucal_cli.model.calibration import MODEL_EQUATION, Calibration
+from imucal_cli.model.gyro import GyroCalibration
+from imucal_cli.model.parts import ImportedFrom
 
 __all__ = ["foreign_calibration", "from_kalibr", "from_mad_lab"]
 
@@ -93,15 +96,13 @@ def _inverse(m: np.ndarray, key: str, fail) -> np.ndarray:
 
 
 def _imported(cal: Calibration, fmt: str, source: str, path, warnings: list[str]) -> Calibration:
-    cal.extra.update({
-        "imported_from": {"format": fmt, "file": source},
-        "created_basis": "the imported file's modification time (the format records no date)",
-    })  # fmt: skip
+    cal.imported_from = ImportedFrom(format=fmt, file=source)
+    cal.created_basis = "the imported file's modification time (the format records no date)"
     for name in ("accel", "gyro"):
         sec = getattr(cal, name)
         if sec is not None:
-            sec.extra.setdefault("model", MODEL_EQUATION)
-            sec.extra.setdefault("warnings", []).extend(warnings)
+            sec.model = sec.model or MODEL_EQUATION
+            sec.warnings = [*(sec.warnings or []), *warnings]
     return cal
 
 
@@ -161,19 +162,18 @@ def from_kalibr(doc: Any, source: str, path=None) -> Calibration:
     if any(np.any(np.asarray(acc.get(k, [0, 0, 0]), float)) for k in ("rx_i", "ry_i", "rz_i")):
         warnings.append("the size-effect lever arms (rx_i, ry_i, rz_i) are dropped: imucal's "
                         "model has no term for them")  # fmt: skip
-    accel = SensorCalibration(
+    accel = AccelCalibration(
         "kalibr", "m/s^2", biases.get("accelerometer_bias", np.zeros(3)),
-        np.linalg.inv(C_i_b) @ _inverse(M_a, "accelerometers.M", fail), None,
-        {"units_in": "m/s^2"},
+        np.linalg.inv(C_i_b) @ _inverse(M_a, "accelerometers.M", fail), None, units_in="m/s^2",
     )  # fmt: skip
-    gyro = SensorCalibration(
+    gyro = GyroCalibration(
         "kalibr", "rad/s", biases.get("gyroscope_bias", np.zeros(3)),
         np.linalg.inv(C_i_b) @ np.linalg.inv(C) @ _inverse(M_g, "gyroscopes.M", fail), None,
-        {"units_in": "rad/s"},
+        units_in="rad/s",
     )  # fmt: skip
     G = A @ C @ C_i_b
     if G.any():
-        gyro.extra["g_sensitivity"] = G.tolist()
+        gyro.g_sensitivity = G
     cal = Calibration(accel=accel, gyro=gyro, session=None, created=_mtime_iso(path))
     return _imported(cal, f"kalibr {model}", source, path, warnings)
 
@@ -215,22 +215,21 @@ def from_mad_lab(doc: dict, source: str, path=None) -> Calibration:
     b_a, b_g = _matrix(doc, "b_a", (3,), fail), _matrix(doc, "b_g", (3,), fail)
     K_ga = _matrix(doc, "K_ga", (3, 3), fail, default=np.zeros((3, 3)))
     cal_type = str(doc.get("cal_type", "imucal"))
-    accel = SensorCalibration(
+    accel = AccelCalibration(
         f"mad-lab-{cal_type.lower()}", "m/s^2", b_a,
         a_factor * _inverse(R_a, "R_a", fail) @ _inverse(K_a, "K_a", fail), None,
-        {"units_in": raw["from_acc_unit"]},
+        units_in=raw["from_acc_unit"],
     )  # fmt: skip
-    gyro = SensorCalibration(
+    gyro = GyroCalibration(
         f"mad-lab-{cal_type.lower()}", "rad/s", b_g,
         g_factor * _inverse(R_g, "R_g", fail) @ _inverse(K_g, "K_g", fail), None,
-        {"units_in": raw["from_gyr_unit"]},
+        units_in=raw["from_gyr_unit"],
     )  # fmt: skip
     if K_ga.any():
-        gyro.extra["g_sensitivity"] = (K_ga / a_factor).tolist()  # K_ga acts on acc in acc_unit
-    extra = {}
-    if isinstance(doc.get("comment"), str) and doc["comment"].strip():
-        extra["comment"] = doc["comment"]
-    cal = Calibration(accel=accel, gyro=gyro, session=None, created=_mtime_iso(path), extra=extra)
+        gyro.g_sensitivity = K_ga / a_factor  # K_ga acts on acc in acc_unit
+    comment = doc.get("comment")
+    cal = Calibration(accel=accel, gyro=gyro, session=None, created=_mtime_iso(path),
+                      comment=comment if isinstance(comment, str) and comment.strip() else None)
     return _imported(cal, f"mad-lab imucal {cal_type}", source, path, warnings)
 
 

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import SensorCalibration
 from imucal_cli.formats.session import Segment, Session
+from imucal_cli.model.calibration import SensorCalibration
 from imucal_cli.solvers.ellipsoid import fit_ellipsoid
 
 __all__ = ["FACE_TOLERANCE_DEG", "FaceCall", "call_faces", "face_label", "set_segment"]

@@ -5,13 +5,15 @@ per-pose table, coverage and the common fields of DEVELOPERS.md."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from imucal_cli.formats.calibration import MODEL_EQUATION
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
+from imucal_cli.model.accel import Coverage, PoseNoise, PoseRow
+from imucal_cli.model.calibration import MODEL_EQUATION
+from imucal_cli.model.parts import Covariance, Parameter
 from imucal_cli.solvers.poses import count_distinct, coverage
 
 from .common import (
@@ -69,7 +71,7 @@ def model_covariance(
     bias: np.ndarray,
     matrix: np.ndarray,
     cov: np.ndarray,
-) -> dict:
+) -> Covariance:
     """The ``covariance`` field: the covariance of ``(bias, matrix row-major)`` from a solver's
     parameter covariance ``cov``, where ``params_of(bias, matrix)`` gives the solver's
     parameters (delta method through the pseudo-inverse of that map's Jacobian: a gauge the
@@ -89,7 +91,7 @@ def model_covariance(
         J[:, i] = (f(x0 + e) - f(x0 - e)) / (2 * step[i])
     Ji = np.linalg.pinv(J)
     C = Ji @ cov @ Ji.T
-    return {"of": COVARIANCE_OF, "values": ((C + C.T) / 2).tolist()}
+    return Covariance(COVARIANCE_OF, (C + C.T) / 2)
 
 
 def parameter_rows(
@@ -98,21 +100,17 @@ def parameter_rows(
     std: np.ndarray,
     units: list[str],
     ci95: np.ndarray | None = None,
-) -> list[dict]:
+) -> list[Parameter]:
     """The ``parameters`` list: name, value, std, unit (and the 95 % half-width if given)."""
-    rows = []
-    for k, (n, v, s, u) in enumerate(zip(names, values, std, units, strict=True)):
-        row = {"name": n, "value": float(v), "std": float(s), "unit": u}
-        if ci95 is not None:
-            row["ci95"] = float(ci95[k])
-        rows.append(row)
-    return rows
+    return [Parameter(n, float(v), float(s), u, None if ci95 is None else float(ci95[k]))
+            for k, (n, v, s, u) in enumerate(zip(names, values, std, units, strict=True))]
 
 
 def fit_fields(res, weighting: str | None = None) -> dict:
-    """The fit's own fields of a section: ``init``, ``weighting``, ``iterations``,
+    """The fit's statistics as a section's members: ``init``, ``weighting``, ``iterations``,
     ``function_evaluations``, ``converged``, ``message``, ``chi2``, ``dof``, ``noise_scale``
-    (from a solver result with those attributes; ``nfev`` for the evaluations)."""
+    (from a solver result with those attributes; ``nfev`` for the evaluations), for
+    :func:`~imucal_cli.model.codec.build`."""
     return {
         "init": res.init,
         "weighting": res.weighting if weighting is None else weighting,
@@ -134,7 +132,6 @@ class PoseFit:
     directions: np.ndarray  # (N, 3) calibrated unit gravity direction
     up_angle_deg: np.ndarray | None = None
     residual_loo: np.ndarray | None = None
-    extra: dict[str, np.ndarray] = field(default_factory=dict)  # more per-pose columns
     excluded: np.ndarray | None = None  # bool: left out of the fit as an outlier
 
     @property
@@ -180,28 +177,27 @@ def with_excluded(
     return out
 
 
-def pose_rows(poses: StaticPoses, fit: PoseFit, mag_before: np.ndarray, g: float) -> list[dict]:
+def pose_rows(poses: StaticPoses, fit: PoseFit, mag_before: np.ndarray, g: float
+              ) -> list[PoseRow]:  # fmt: skip
     """The ``poses`` table of the section."""
     rows = []
     for k, s in enumerate(poses.segments):
-        row = {
-            "segment": s.name,
-            "label": s.label,
-            "up": None if s.up is None else [float(x) for x in s.up],
-            "samples": int(poses.samples[k]),
-            "magnitude_before": float(mag_before[k]),
-            "magnitude_after": float(fit.residuals[k] + g),
-            "residual": float(fit.residuals[k]),
-            "residual_loo": None if fit.residual_loo is None else num(fit.residual_loo[k]),
-            "angle_to_up_deg": None if fit.up_angle_deg is None else num(fit.up_angle_deg[k]),
-            "direction": [float(x) for x in fit.directions[k]],
-        }
+        row = PoseRow(
+            segment=s.name,
+            label=s.label,
+            up=None if s.up is None else [float(x) for x in s.up],
+            samples=int(poses.samples[k]),
+            magnitude_before=float(mag_before[k]),
+            magnitude_after=float(fit.residuals[k] + g),
+            residual=float(fit.residuals[k]),
+            residual_loo=None if fit.residual_loo is None else num(fit.residual_loo[k]),
+            angle_to_up_deg=None if fit.up_angle_deg is None else num(fit.up_angle_deg[k]),
+            direction=[float(x) for x in fit.directions[k]],
+        )
         if poses.spikes is not None and poses.spikes[k]:
-            row["spikes_left_out"] = int(poses.spikes[k])
+            row.spikes_left_out = int(poses.spikes[k])
         if fit.excluded is not None and fit.excluded[k]:
-            row["excluded"] = True
-        for key, col in fit.extra.items():
-            row[key] = num(col[k])
+            row.excluded = True
         rows.append(row)
     return rows
 
@@ -226,7 +222,7 @@ def label_warnings(fit: PoseFit, poses: StaticPoses, limit_deg: float = 20.0) ->
 
 
 def check_fields(quality, outliers, physical: list[str], more: list[str]) -> dict:
-    """The warning fields of a section: ``warnings`` (everything said out loud), ``blocking``
+    """The warning members of a section: ``warnings`` (everything said out loud), ``blocking``
     (the subset that stops a save without --force), the outliers and the fit quality."""
     return {
         "warnings": physical
@@ -235,7 +231,7 @@ def check_fields(quality, outliers, physical: list[str], more: list[str]) -> dic
         + more
         + quality.warnings,
         "blocking": physical + quality.blocking,
-        "outliers": [o.as_dict() for o in outliers],
+        "outliers": [o.row() for o in outliers],
         "spare_equations": int(quality.spare),
         "rms_expected": float(quality.expected_rms),
         "noise_excess": None if not np.isfinite(quality.excess) else float(quality.excess),
@@ -243,19 +239,20 @@ def check_fields(quality, outliers, physical: list[str], more: list[str]) -> dic
     }
 
 
-def coverage_dict(directions: np.ndarray, n_poses: int, min_separation_deg: float) -> dict:
+def coverage_of(directions: np.ndarray, n_poses: int, min_separation_deg: float) -> Coverage:
+    """How calibrated gravity ``directions`` (N, 3) cover the sphere."""
     cover = coverage(directions)
-    return {
-        "fraction": cover.fraction,
-        "cap_deg": cover.cap_deg,
-        "largest_gap_deg": cover.largest_gap_deg,
-        "weakest_direction": [float(x) for x in cover.weakest_direction],
-        "n_poses": n_poses,
-        "n_distinct": count_distinct(directions, min_separation_deg),
-    }
+    return Coverage(
+        fraction=cover.fraction,
+        cap_deg=cover.cap_deg,
+        largest_gap_deg=cover.largest_gap_deg,
+        weakest_direction=[float(x) for x in cover.weakest_direction],
+        n_poses=n_poses,
+        n_distinct=count_distinct(directions, min_separation_deg),
+    )
 
 
-def common_extra(
+def common_members(
     *,
     units_in: str,
     g: float,
@@ -265,13 +262,14 @@ def common_extra(
     nominal: Nominal,
     min_separation_deg: float,
 ) -> dict:
-    """The fields of DEVELOPERS.md every accelerometer solver fills the same way."""
+    """The members of DEVELOPERS.md every accelerometer solver fills the same way (for
+    :func:`~imucal_cli.model.codec.build`)."""
     derived, derived_std = summary
     mag_before = magnitude_before(poses, nominal, g)
     used = fit.used
     loo = None if fit.residual_loo is None else fit.residual_loo[used]
     noise = poses.noise
-    extra = {
+    members = {
         "model": MODEL_EQUATION,
         "units_in": units_in,
         "gravity": g,
@@ -286,7 +284,7 @@ def common_extra(
         "rms_after": rms(fit.residuals[used]),
         "rms_loo": rms(loo) if loo is not None and np.isfinite(loo).any() else None,
         "before_basis": nominal.basis,
-        "coverage": coverage_dict(fit.directions[used], int(used.sum()), min_separation_deg),
+        "coverage": coverage_of(fit.directions[used], int(used.sum()), min_separation_deg),
         "poses": pose_rows(poses, fit, mag_before, g),
         "notes": [
             f"{int(n)} spike sample(s) left out of the mean of segment {s.name}"
@@ -300,28 +298,28 @@ def common_extra(
         ],
     }
     if noise is not None:
-        extra["noise"] = {
-            "per_sample_std": [float(x) for x in np.sqrt(np.diag(noise.cov))],
-            "unit": units_in,
-            "dof": int(noise.dof),
-            "basis": "pooled over every still hold (each pose mean weighted by noise / samples)",
-        }
-    return extra
+        members["noise"] = PoseNoise(
+            per_sample_std=[float(x) for x in np.sqrt(np.diag(noise.cov))],
+            unit=units_in,
+            dof=int(noise.dof),
+            basis="pooled over every still hold (each pose mean weighted by noise / samples)",
+        )
+    return members
 
 
-def triad_extra(
+def triad_members(
     session: Session, cfg: Config, poses: StaticPoses, g: float, nominal: Nominal,
     summary: tuple[np.ndarray, np.ndarray], fit: PoseFit, bias: np.ndarray,
     residuals: np.ndarray,
 ) -> tuple[dict, str, str | None, list[str]]:  # fmt: skip
     """What a triad fit's section (gravity, labelled) starts from: the common fields
-    (:func:`common_extra`), the raw units and a note when they were inferred, and the
+    (:func:`common_members`), the raw units and a note when they were inferred, and the
     physical-sense checks of ``bias``, the sensitivities and the fit's ``residuals``.
-    Returns ``(extra, units_in, units_note, physical)``."""
+    Returns ``(members, units_in, units_note, physical)``."""
     units_in, units_note = accel_units(session, g)
-    extra = common_extra(
+    members = common_members(
         units_in=units_in, g=g, summary=summary, poses=poses, fit=fit, nominal=nominal,
         min_separation_deg=cfg.accel.min_separation_deg,
     )  # fmt: skip
     physical = physical_checks(bias, summary[0][:3], rms(residuals), nominal, cfg, units_in, g)
-    return extra, units_in, units_note, physical
+    return members, units_in, units_note, physical

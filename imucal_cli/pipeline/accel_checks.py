@@ -20,6 +20,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from imucal_cli.model.accel import Coverage, OutlierRow
 from imucal_cli.solvers import outliers as out
 from imucal_cli.solvers.labelled import contradicted_labels
 
@@ -51,15 +52,16 @@ class Outlier:
     cause: str
     action: str  # "left out", "down-weighted", "kept", "label ignored"
 
-    def as_dict(self) -> dict:
-        return {
-            "segment": self.segment,
-            "label": self.label,
-            "times_noise": float(self.excess) if np.isfinite(self.excess) else None,
-            "p_value": float(self.p_value),
-            "cause": self.cause,
-            "action": self.action,
-        }
+    def row(self) -> OutlierRow:
+        """Its row of the section's ``outliers`` table."""
+        return OutlierRow(
+            segment=self.segment,
+            label=self.label,
+            times_noise=float(self.excess) if np.isfinite(self.excess) else None,
+            p_value=float(self.p_value),
+            cause=self.cause,
+            action=self.action,
+        )
 
     def warning(self) -> str:
         name = f"segment {self.segment}" + (f" ({self.label})" if self.label else "")
@@ -226,7 +228,7 @@ def quality(
     n_params: int,
     rms_loo: float | None,
     g: float,
-    coverage: dict,
+    coverage: Coverage,
     excess: float | None = None,
     distinct: int | None = None,
     instead: str | None = None,
@@ -257,7 +259,7 @@ def quality(
     if rms_loo is not None and np.isfinite(rms_loo):
         ratio = rms_loo / max(rms_after, expected, 1e-12)
         if ratio > HELD_OUT_RATIO:
-            weak = coverage.get("weakest_direction")
+            weak = coverage.weakest_direction
             where = (
                 ""
                 if weak is None

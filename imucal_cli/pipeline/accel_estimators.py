@@ -28,9 +28,9 @@ from functools import cached_property
 import numpy as np
 
 from imucal_cli.errors import DesignError
-from imucal_cli.formats.calibration import SensorCalibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
+from imucal_cli.model.calibration import SensorCalibration
 from imucal_cli.solvers.crb import gravity_crb, labelled_crb
 from imucal_cli.solvers.gravity import params_to_model
 from imucal_cli.solvers.labelled_model import jacobian, public_from_theta

@@ -19,10 +19,14 @@ from pathlib import Path
 import numpy as np
 
 from imucal_cli.errors import ImucalError, InputError, SolverError
-from imucal_cli.formats.calibration import Calibration, calibration_to_json, write_calibration
+from imucal_cli.formats.calibration import calibration_to_json, write_calibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.output import check_output
 from imucal_cli.formats.session import read_session, store_calibration
+from imucal_cli.model.accel import AccelCalibration
+from imucal_cli.model.calibration import Calibration
+from imucal_cli.model.gyro import GyroCalibration
+from imucal_cli.model.mag import MagCalibration
 from imucal_cli.pipeline.temperature import merge_sessions
 
 from .calibrate import calibrate_session, default_output, suspect_error
@@ -193,7 +197,7 @@ def calibrate_file(
             "the model; check each sensor's readings (an axis that barely moves) and the poses"
         ) from None
     if also:
-        cal.extra["sessions"] = [path.name, *(p.name for p in also)]
+        cal.sessions = [path.name, *(p.name for p in also)]
     problem = suspect_error(cal)
     if problem is not None and not force:
         raise problem
@@ -216,22 +220,21 @@ def _figures(cal: Calibration) -> Figures:
     solvers, found, warnings = {}, {}, 0
     for name, sec in cal.sections().items():
         solvers[name] = sec.solver
-        x = sec.extra
-        if name == "accel" and x.get("rms_after") is not None:
-            found["accel_rms_after"] = float(x["rms_after"])
-        if name == "gyro" and x.get("rotation_rms_deg") is not None:
-            found["gyro_rms_deg"] = float(x["rotation_rms_deg"])
-        if name == "mag":
-            if x.get("rms_after") is not None:
-                found["mag_rms_after"] = float(x["rms_after"])
+        if isinstance(sec, AccelCalibration) and sec.rms_after is not None:
+            found["accel_rms_after"] = float(sec.rms_after)
+        if isinstance(sec, GyroCalibration) and sec.rotation_rms_deg is not None:
+            found["gyro_rms_deg"] = float(sec.rotation_rms_deg)
+        if isinstance(sec, MagCalibration):
+            if sec.rms_after is not None:
+                found["mag_rms_after"] = float(sec.rms_after)
                 found["mag_units"] = sec.units
-            if isinstance(x.get("quality"), dict):
-                found["mag_quality"] = x["quality"].get("verdict")
-        warnings += len(x.get("warnings", []))
-    note = cal.extra.get("accel_note") or None
+            if sec.quality is not None:
+                found["mag_quality"] = sec.quality.verdict
+        warnings += len(sec.warnings or [])
+    note = cal.accel_note or None
     if note:  # the accel left out (issue 9.4): one more warning
         warnings += 1
-    left_out = cal.extra.get("left_out") or {}
+    left_out = cal.left_out or {}
     return Figures(solvers, warnings=warnings, accel_note=note,
                    left_out=tuple(sorted(left_out)), **found)  # fmt: skip
 

@@ -19,12 +19,7 @@ from imucal_cli.errors import (
     InputError,
     SolverError,
 )
-from imucal_cli.formats.calibration import (
-    Calibration,
-    SensorCalibration,
-    calibration_from_json,
-    read_calibration,
-)
+from imucal_cli.formats.calibration import calibration_from_json, read_calibration
 from imucal_cli.formats.config import (
     AccelConfig,
     Config,
@@ -33,6 +28,8 @@ from imucal_cli.formats.config import (
     TemperatureConfig,
 )
 from imucal_cli.formats.session import Session, read_session, utc_now_iso
+from imucal_cli.model.calibration import Calibration, SensorCalibration
+from imucal_cli.model.codec import build
 from imucal_cli.pipeline.accel_estimators import AccelDesign
 from imucal_cli.pipeline.channels import check_channels
 from imucal_cli.pipeline.clock import correct_clock
@@ -73,7 +70,7 @@ def _run_accel(session: Session, cfg: Config) -> SensorCalibration | None:
     if isinstance(chosen, NotChosen):
         raise DesignError(design.refusal())
     sec = chosen.estimator.fit(design)
-    sec.extra["choice"] = chosen.choice.to_dict()
+    sec.choice = chosen.choice
     return sec
 
 
@@ -147,12 +144,12 @@ def calibrate_gyro_auto(
             raise  # turns captured on purpose: say why they cannot calibrate
         return Outcome(note="gyro not calibrated: no usable rotations (the gyro needs turns "
                             "between still periods)")  # fmt: skip
-    if sec.extra.get("undetermined"):  # issue 10.2: not saved silently
-        return Outcome(note=f"gyro not calibrated: {sec.extra['undetermined']} (to save it with "
+    if sec.undetermined:  # issue 10.2: not saved silently
+        return Outcome(note=f"gyro not calibrated: {sec.undetermined} (to save it with "
                             f'these std: [gyro] solver = "{solver}" and --force)')  # fmt: skip
-    sec.extra.setdefault("notes", []).insert(0, f'solver "{solver}" chosen by [gyro] solver = '
-                                                f'"auto": {why}')  # fmt: skip
-    sec.extra["choice"] = chosen.choice.to_dict()
+    sec.notes = [f'solver "{solver}" chosen by [gyro] solver = "auto": {why}',
+                 *(sec.notes or [])]  # fmt: skip
+    sec.choice = chosen.choice
     return Outcome(sec)
 
 
@@ -179,8 +176,8 @@ def load_accel(path: str | Path) -> SensorCalibration:
         accel = read_calibration(path).accel
         if accel is None:
             raise InputError(f"{path}: this calibration has no accelerometer section")
-    accel.extra = {**accel.extra, "notes": [f"from {path} (not re-calibrated here)"]
-                   + list(accel.extra.get("notes", [])), "warnings": []}  # fmt: skip
+    accel.notes = [f"from {path} (not re-calibrated here)", *(accel.notes or [])]
+    accel.warnings = []
     return accel
 
 
@@ -231,7 +228,7 @@ def _gyro_without_accel(session: Session, cfg: Config, accel: Outcome
             "gyro not calibrated: its turns are measured with the accelerometer, which this "
             "session does not determine (see accel): pass an earlier calibration of it, "
             "--accel CAL.json"))  # fmt: skip
-    frame = gyro.extra.get("frame") or "the frame of the turns' labelled axes"
+    frame = gyro.frame or "the frame of the turns' labelled axes"
     note = (f"accel not calibrated; the gyro was calibrated without it, in {frame}. To "
             "calibrate the accelerometer with this session, pass an earlier calibration of "
             f"this unit's: --accel CAL.json. Why: {reason}")  # fmt: skip
@@ -292,7 +289,8 @@ def _prepare(
 ) -> tuple[Session, dict, dict]:  # fmt: skip
     """The session the solvers see: the sample clock corrected (issue 17.2) and the raw data
     compensated to the temperature model's reference (issue 17.1). Returns it, the
-    temperature models per sensor, and root fields (the clock estimate, notes)."""
+    temperature models per sensor, and members of the calibration's root (the clock estimate,
+    notes)."""
 
     session, clock = correct_clock(session, cfg)
     models, note = temperature_models(session, cfg, warmup)
@@ -340,30 +338,29 @@ def calibrate_session(
     notes = {kind: o.note for kind, o in outcomes.items()}
     for sec in (accel if segmented_accel else None, gyro, mag):
         if sec is not None and segmented:
-            sec.extra.setdefault("notes", []).insert(0, segmented)
+            sec.notes = [segmented, *(sec.notes or [])]
     attach(accel if segmented_accel else None, models.get("accel"))
     attach(gyro, models.get("gyro"))
-    if gyro is not None and root.get("sample_clock", {}).get("applied"):
-        gyro.extra["sample_clock_scale"] = root["sample_clock"]["scale"]
-        gyro.extra["sample_clock"] = root["sample_clock"]
-    extra = {"toolkit_version": __version__, "config": cfg.to_dict(), **root}
-    for kind, note in notes.items():
-        if note:
-            extra[f"{kind}_note"] = note
-    extra.update(completeness(session, {"accel": accel if given is None else given,
-                                        "gyro": gyro, "mag": mag}, notes))  # fmt: skip
-    if session.sensor:
-        extra["sensor"] = session.sensor
-    if session.source:  # "simulator", "serial:...": the report's context (paper figures or not)
-        extra["source"] = session.source
-    return Calibration(
+    if gyro is not None and "sample_clock" in root and root["sample_clock"].applied:
+        gyro.sample_clock_scale = root["sample_clock"].scale
+        gyro.sample_clock = root["sample_clock"]
+    root.update({f"{kind}_note": note for kind, note in notes.items() if note})
+    root.update(completeness(session, {"accel": accel if given is None else given,
+                                       "gyro": gyro, "mag": mag}, notes))  # fmt: skip
+    cal = build(
+        Calibration,
         accel=accel if given is None else given,
         gyro=gyro,
         mag=mag,
         session=name or session_name(session),
         created=utc_now_iso(),
-        extra=extra,
+        toolkit_version=__version__,
+        config=cfg.to_dict(),
+        **root,
     )
+    cal.sensor = session.sensor or None
+    cal.source = session.source or None  # "simulator", "serial:...": the report's context
+    return cal
 
 
 def _changed(value, default, path: str = "") -> list[str]:
@@ -425,7 +422,7 @@ def suspect_error(cal: Calibration) -> SolverError | None:
     blocking = [
         w
         for sec in cal.sections().values()
-        for w in sec.extra.get("blocking", sec.extra.get("warnings", []))
+        for w in (sec.blocking if sec.blocking is not None else sec.warnings or [])
     ]
     if not blocking:
         return None

@@ -23,12 +23,14 @@ from dataclasses import replace
 from imucal_cli.errors import DesignError
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
+from imucal_cli.model.codec import build
+from imucal_cli.model.parts import SampleClock
 from imucal_cli.solvers.clock import estimate_clock_scale
 
 __all__ = ["correct_clock"]
 
 
-def correct_clock(session: Session, cfg: Config) -> tuple[Session, dict | None]:
+def correct_clock(session: Session, cfg: Config) -> tuple[Session, SampleClock | None]:
     """The session with its time in true seconds, and the estimate (None when the session has
     no host arrival times or the config turns it off; when the recording cannot give it, the
     estimate holds only a ``note`` saying why).  The time is corrected only when the estimate
@@ -39,15 +41,15 @@ def correct_clock(session: Session, cfg: Config) -> tuple[Session, dict | None]:
     try:
         est = estimate_clock_scale(session.time, host)
     except DesignError as exc:
-        return session, {"note": f"sample clock not estimated: {exc}"}
+        return session, SampleClock(note=f"sample clock not estimated: {exc}")
     found = {**est.to_dict(), "basis": "host arrival times (/raw/host_time)"}
     if not est.significant:
-        return session, {**found, "applied": False,
-                         "corrected": f"not corrected: within {est.threshold_ppm:.3g} ppm "
-                         "(3 standard deviations) of a clock that is right"}  # fmt: skip
+        return session, build(SampleClock, **found, applied=False,
+                              corrected=f"not corrected: within {est.threshold_ppm:.3g} ppm "
+                              "(3 standard deviations) of a clock that is right")  # fmt: skip
     t0 = float(session.time[0])
     time = t0 + (session.time - t0) / est.scale
     rate = None if session.sample_rate_hz is None else session.sample_rate_hz * est.scale
     out = replace(session, time=time, sample_rate_hz=rate)
-    return out, {**found, "applied": True,
-                 "corrected": "session time divided by the scale before calibrating"}  # fmt: skip
+    return out, build(SampleClock, **found, applied=True,
+                      corrected="session time divided by the scale before calibrating")

@@ -16,14 +16,18 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from imucal_cli.errors import DesignError
-from imucal_cli.formats.calibration import MODEL_EQUATION, SensorCalibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Segment, Session
+from imucal_cli.model.accel import AccelCalibration, PoseRow
+from imucal_cli.model.calibration import MODEL_EQUATION
+from imucal_cli.model.codec import build
+from imucal_cli.model.gyro import GyroCalibration, RotationRow
+from imucal_cli.model.parts import Linear, Parameter
 from imucal_cli.solvers import factorization as fz
 from imucal_cli.solvers.crb import invariant_summary, propagate
 from imucal_cli.solvers.poses import angle_deg, count_distinct
 
-from .accel import coverage_dict
+from .accel import coverage_of
 from .common import (
     accel_units,
     channel_names,
@@ -157,8 +161,8 @@ def _angle_matrix(values: np.ndarray, n: int) -> list[list[float | None]]:
     return [[num(v) for v in row] for row in A]
 
 
-def _factorization_extra(lin, res, units_in: str, motion_unit: str, to_si: float):
-    """Fields shared by accel and gyro sections: the linear and refined invariants."""
+def _factorization_members(lin, res, units_in: str, motion_unit: str, to_si: float):
+    """Members shared by accel and gyro sections: the linear and refined invariants."""
     n = len(res.b)
     values, std = _invariants_with_std(res)
     lin_values = invariant_summary(lin.S, lin.b)
@@ -178,13 +182,13 @@ def _factorization_extra(lin, res, units_in: str, motion_unit: str, to_si: float
             "angles_std_deg": _angle_matrix(std[2 * n :], n),
             "axis_names": names,
             "constraint_rms": res.constraint_rms,
-            "linear": {
-                "method": "subspace" if any("subspace" in s for s in lin.notes) else "paper",
-                "bias": [float(x) for x in lin_values[:n]],
-                "sensitivity": [float(x) for x in lin_values[n : 2 * n] / to_si],
-                "angles_deg": _angle_matrix(lin_values[2 * n :], n),
-                "constraint_rms": lin.constraint_rms,
-            },
+            "linear": Linear(
+                method="subspace" if any("subspace" in s for s in lin.notes) else "paper",
+                bias=[float(x) for x in lin_values[:n]],
+                sensitivity=[float(x) for x in lin_values[n : 2 * n] / to_si],
+                angles_deg=_angle_matrix(lin_values[2 * n :], n),
+                constraint_rms=lin.constraint_rms,
+            ),
             "refined": res.method == "nonlinear",
             "iterations": res.iterations,
             "converged": res.converged,
@@ -203,15 +207,15 @@ def _parameters(res: fz.FactorizationResult, gains, gains_std, units_in: str, pe
     n = len(res.b)
     bias_std = _invariants_with_std(res)[1][:n]
     return [
-        {"name": f"b_{a}", "value": float(b), "std": num(s), "unit": units_in}
+        Parameter(f"b_{a}", float(b), num(s), units_in)
         for a, b, s in zip(channel_names(n), res.b, bias_std, strict=True)
     ] + [
-        {"name": f"gain_{a}", "value": float(v), "std": num(s), "unit": f"{units_in} per {per}"}
+        Parameter(f"gain_{a}", float(v), num(s), f"{units_in} per {per}")
         for a, v, s in zip(channel_names(n), gains, gains_std, strict=True)
     ]
 
 
-def calibrate_accel_factorization(session: Session, cfg: Config) -> SensorCalibration:
+def calibrate_accel_factorization(session: Session, cfg: Config) -> AccelCalibration:
     """Hwangbo & Kanade for an accelerometer unit (triad or redundant) from static poses:
     the constraints of section IV-A, the linear solution and its refinement (IV-C), the
     rotation ambiguity resolved on purpose, and the section."""
@@ -234,17 +238,18 @@ def calibrate_accel_factorization(session: Session, cfg: Config) -> SensorCalibr
                         max_iterations=opts.max_iterations)  # fmt: skip
     R, rotation = _accel_rotation(res, poses.up, owner)
     res, lin = fz.align(res, R), fz.align(lin, R)
-    extra = _accel_extra(session, cfg, poses, lin, res, rotation, len(c), pooled)
-    extra["notes"] = notes + extra["notes"]
-    g = extra["gravity"]
-    return SensorCalibration(
+    members = _accel_members(session, cfg, poses, lin, res, rotation, len(c), pooled)
+    members["notes"] = notes + members["notes"]
+    g = members["gravity"]
+    return build(
+        AccelCalibration,
         solver="factorization",
         units="m/s^2",
         bias=res.b,
         matrix=g * res.T,  # motions are in g: calibrated m/s^2 = g T (z - b)
         # In output units: the constraint errors are in g^2; |f|^2 - 1 ~ 2 (|f| - 1).
         residual_rms=g * res.constraint_rms / 2,
-        extra=extra,
+        **members,
     )
 
 
@@ -279,42 +284,42 @@ def _magnitudes(poses, res: fz.FactorizationResult, g: float, nominal) -> dict:
             "directions": directions, "up_angle": up_angle}  # fmt: skip
 
 
-def _pose_rows(poses, mag: dict, residuals: np.ndarray) -> list[dict]:
+def _pose_rows(poses, mag: dict, residuals: np.ndarray) -> list[PoseRow]:
     """The ``poses`` table of the factorization's accel section."""
     return [
-        {
-            "segment": s.name,
-            "label": s.label,
-            "up": None if s.up is None else [float(x) for x in s.up],
-            "samples": int(poses.samples[k]),
-            "magnitude_before": num(mag["before"][k]),
-            "magnitude_after": float(mag["after"][k]),
-            "residual": float(residuals[k]),
-            "residual_loo": None,
-            "angle_to_up_deg": num(mag["up_angle"][k]),
-            "direction": [float(x) for x in mag["directions"][k]],
-        }
+        PoseRow(
+            segment=s.name,
+            label=s.label,
+            up=None if s.up is None else [float(x) for x in s.up],
+            samples=int(poses.samples[k]),
+            magnitude_before=num(mag["before"][k]),
+            magnitude_after=float(mag["after"][k]),
+            residual=float(residuals[k]),
+            residual_loo=None,
+            angle_to_up_deg=num(mag["up_angle"][k]),
+            direction=[float(x) for x in mag["directions"][k]],
+        )
         for k, s in enumerate(poses.segments)
     ]
 
 
-def _accel_extra(session, cfg: Config, poses, lin, res, rotation: str, n_constraints: int,
+def _accel_members(session, cfg: Config, poses, lin, res, rotation: str, n_constraints: int,
                  pooled: float) -> dict:  # fmt: skip
-    """The accel section's fields (DEVELOPERS.md), diagnostics per pose and coverage;
+    """The accel section's members (DEVELOPERS.md), diagnostics per pose and coverage;
     ``pooled`` is the raw noise per sample."""
     n = len(res.b)
     g = cfg.gravity or session.gravity
     units_in, units_note = accel_units(session, g)
-    gains, gains_std, extra = _factorization_extra(lin, res, units_in, "m/s^2", g)
+    gains, gains_std, members = _factorization_members(lin, res, units_in, "m/s^2", g)
     nominal = nominal_sensor(session, cfg, g)
     mag = _magnitudes(poses, res, g, nominal)
     residuals = mag["after"] - g
     blocking = physical_checks(res.b, gains, rms(residuals), nominal, cfg, units_in, g)
-    extra.update(
+    members.update(
         {
             "model": MODEL_EQUATION,
             "units_in": units_in,
-            "variant": f"factorization, {res.configuration} (n = {n}), {extra['case']} constraints",
+            "variant": f"factorization, {res.configuration} (n = {n}), {res.case} constraints",
             "gauge": rotation,
             "rotation": rotation,
             "gravity": g,
@@ -326,14 +331,14 @@ def _accel_extra(session, cfg: Config, poses, lin, res, rotation: str, n_constra
             "rms_after": rms(residuals),
             "rms_loo": None,
             "before_basis": mag["before_basis"],
-            "coverage": coverage_dict(mag["directions"], len(poses.segments),
-                                      cfg.accel.min_separation_deg),  # fmt: skip
+            "coverage": coverage_of(mag["directions"], len(poses.segments),
+                                    cfg.accel.min_separation_deg),  # fmt: skip
             "poses": _pose_rows(poses, mag, residuals),
             "warnings": blocking + ([units_note] if units_note else []),
             "blocking": blocking,
         }
     )
-    return extra
+    return members
 
 
 # --------------------------------------------------------------------------- gyroscopes
@@ -398,7 +403,7 @@ def _pick_rows(z: np.ndarray, bias: np.ndarray, count: int, noise: float) -> np.
     return moving[np.linspace(0, len(moving) - 1, min(count, len(moving))).astype(int)]
 
 
-def calibrate_gyro_factorization(session: Session, cfg: Config) -> SensorCalibration:
+def calibrate_gyro_factorization(session: Session, cfg: Config) -> GyroCalibration:
     """Hwangbo & Kanade for a gyroscope unit from turns about labelled axes (section IV-B):
     orthogonality constraints between turns (IV-B.1-3), the linear factorization scaled by a
     known turn and refined (III-B, IV-C), the rotation fixed by the labelled axes (IV-B.5)."""
@@ -546,16 +551,16 @@ GYRO_ROTATION = ("the known-angle turn along its labelled axis, the other turns 
                  "along theirs (step IV-B.5)")  # fmt: skip
 
 
-def _gyro_section(session, cfg, lin, res, ref: _KnownTurn, c, noise) -> SensorCalibration:
+def _gyro_section(session, cfg, lin, res, ref: _KnownTurn, c, noise) -> GyroCalibration:
     """The gyro section of the factorization: gains and biases with their std, the known
     turn's measured angle."""
     n = session.gyro.shape[1]
     ref_seg, rotation = ref.segment, GYRO_ROTATION
     units_in = session.gyro_units or "unknown"
-    gains, gains_std, extra = _factorization_extra(lin, res, units_in, "rad/s", 1.0)
+    gains, gains_std, members = _factorization_members(lin, res, units_in, "rad/s", 1.0)
     measured = np.degrees(np.linalg.norm(res.T @ (ref.w_raw - ref.duration * res.b)))
     parameters = _parameters(res, gains, gains_std, units_in, "rad/s")
-    extra.update(
+    members.update(
         {
             "model": MODEL_EQUATION,
             "units_in": units_in,
@@ -566,24 +571,25 @@ def _gyro_section(session, cfg, lin, res, ref: _KnownTurn, c, noise) -> SensorCa
             "constraints": len(c),
             "noise_raw": noise,
             "rotations": [
-                {
-                    "segment": ref_seg.name,
-                    "label": ref_seg.label,
-                    "known_angle_deg": ref_seg.angle_deg,
-                    "measured_angle_deg": float(np.sign(ref_seg.angle_deg) * measured),
-                    "angle_error_deg": float(
+                RotationRow(
+                    segment=ref_seg.name,
+                    label=ref_seg.label,
+                    known_angle_deg=ref_seg.angle_deg,
+                    measured_angle_deg=float(np.sign(ref_seg.angle_deg) * measured),
+                    angle_error_deg=float(
                         np.sign(ref_seg.angle_deg) * measured - ref_seg.angle_deg
                     ),
-                }
+                )
             ],
             "warnings": gyro_checks(session, cfg, gains, units_in),
         }
     )
-    return SensorCalibration(
+    return build(
+        GyroCalibration,
         solver="factorization",
         units="rad/s",
         bias=res.b,
         matrix=res.T,
         residual_rms=_orthogonality_rms(res, c),
-        extra=extra,
+        **members,
     )

@@ -8,9 +8,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from imucal_cli.errors import DesignError
-from imucal_cli.formats.calibration import SensorCalibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
+from imucal_cli.model.accel import AccelCalibration
+from imucal_cli.model.codec import build
 from imucal_cli.solvers import gravity as gravity_solver
 
 from .accel import (
@@ -21,7 +22,7 @@ from .accel import (
     label_warnings,
     model_covariance,
     parameter_rows,
-    triad_extra,
+    triad_members,
     with_excluded,
 )
 from .accel_checks import pose_sigmas, quality, robust_fit
@@ -99,7 +100,7 @@ def design_check(nominal, cfg: Config, where: str):
 
 
 def solver_fields(res: gravity_solver.GravityResult, units: list[str]) -> dict:
-    """The fields of the section that describe the gravity solver's fit."""
+    """The members of the section that describe the gravity solver's fit."""
     return {
         "variant": res.variant,
         "gauge": GAUGE_9 if res.variant == "9-parameter" else GAUGE_12,
@@ -178,11 +179,11 @@ def gravity_fit(session: Session, cfg: Config, poses: StaticPoses, g: float, nom
 
 def gravity_section(
     session: Session, cfg: Config, poses: StaticPoses, g: float, nominal, gf: GravityFit
-) -> SensorCalibration:
+) -> AccelCalibration:
     """The accel section of a gravity fit (:func:`gravity_fit`) of ``poses``."""
     res, used, outliers, loo, loo_method, fit = (
         gf.res, gf.used, gf.outliers, gf.loo, gf.loo_method, gf.fit)  # fmt: skip
-    extra, units_in, units_note, physical = triad_extra(
+    members, units_in, units_note, physical = triad_members(
         session, cfg, poses, g, nominal, gf.summary, fit, res.bias, res.residuals
     )
     units = [units_in] * 3 + [f"m/s^2 per {units_in}"] * (len(res.params) - 3)
@@ -194,12 +195,12 @@ def gravity_section(
         9,
         rms(loo) if loo is not None else None,
         g,
-        extra["coverage"],
+        members["coverage"],
         excess=float(np.sqrt(res.chi2 / res.dof)) if res.dof > 0 else None,
-        distinct=extra["coverage"]["n_distinct"],  # a repeated direction checks no model term
+        distinct=members["coverage"].n_distinct,  # a repeated direction checks no model term
         instead=LABELS_INSTEAD if labels_determine(used.up) else None,
     )
-    extra.update(
+    members.update(
         {
             **solver_fields(res, units),
             "loo_method": loo_method,
@@ -212,12 +213,6 @@ def gravity_section(
         }
     )
     if loo_method is None:
-        extra["rms_loo"] = None
-    return SensorCalibration(
-        solver="gravity",
-        units="m/s^2",
-        bias=res.bias,
-        matrix=res.matrix,
-        residual_rms=rms(res.cost_residuals),
-        extra=extra,
-    )
+        members["rms_loo"] = None
+    return build(AccelCalibration, solver="gravity", units="m/s^2", bias=res.bias,
+                 matrix=res.matrix, residual_rms=rms(res.cost_residuals), **members)

@@ -25,9 +25,11 @@ from types import SimpleNamespace
 import numpy as np
 
 from imucal_cli.errors import DesignError
-from imucal_cli.formats.calibration import MODEL_EQUATION, SensorCalibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Segment, Session
+from imucal_cli.model.calibration import MODEL_EQUATION, SensorCalibration
+from imucal_cli.model.codec import build
+from imucal_cli.model.gyro import GyroCalibration
 from imucal_cli.numerics.segmented import moments_in_chunks, stacked_rows
 from imucal_cli.solvers.gaps import find_gaps, gaps_within
 from imucal_cli.solvers.gyro_full import accel_sensitivity, full_information
@@ -341,9 +343,9 @@ def calibrate_gyro_rotations(session: Session, cfg: Config, accel_cal: SensorCal
     else:
         fit = fit_full_model(data)
     data.warnings += gyro_checks(session, cfg, fit.gains, data.units_in)
-    extra = dict(fit.extra)
-    variant = "full-g" if extra.get("g_sensitivity") is not None else solver
-    extra.update({
+    members = dict(fit.members)
+    variant = "full-g" if members.get("g_sensitivity") is not None else solver
+    members.update({
         "model": MODEL_EQUATION if variant != "full-g" else MODEL_EQUATION_G,
         "units_in": data.units_in,
         "variant": VARIANTS[variant],
@@ -359,14 +361,15 @@ def calibrate_gyro_rotations(session: Session, cfg: Config, accel_cal: SensorCal
         "warnings": data.warnings,
     })  # fmt: skip
     if data.said:
-        extra["blocking"] = [w for w in data.warnings if w not in data.said]
-    return SensorCalibration(
+        members["blocking"] = [w for w in data.warnings if w not in data.said]
+    return build(
+        GyroCalibration,
         solver=f"gyro-{solver}",
         units="rad/s",
         bias=np.asarray(fit.bias, float),
         matrix=np.asarray(fit.matrix, float),
         residual_rms=rms(fit.residual_rad),
-        extra=extra,
+        **members,
     )
 
 
@@ -376,7 +379,7 @@ def _frame(accel: SensorCalibration | None) -> str:
     of the turns' labelled axes."""
     if accel is None:
         return "the labelled axes of the turns (no accelerometer calibration)"
-    how = ", ".join(x for x in (accel.solver, accel.extra.get("variant")) if x)
+    how = ", ".join(x for x in (accel.solver, accel.variant) if x)
     return f"the calibrated accelerometer's frame ({how})"
 
 
@@ -404,14 +407,14 @@ def full_bound(session: Session, cfg: Config, accel_cal: SensorCalibration,
     data = gyro_data(session, cfg, accel_cal)
     rot, st = rotations_and_stills(data)
     crb = np.linalg.inv(full_information(x, rot, st, data.noise))
-    cov = accel_cal.extra.get("covariance")
+    cov = accel_cal.covariance
     dg = accel_derivative(data.stills, accel_cal)
-    if cov is None or dg is None:
+    if cov is None or cov.values is None or dg is None:
         return crb, crb
     at = SimpleNamespace(b=x[:3], M=x[3:12].reshape(3, 3),
                          G=x[12:21].reshape(3, 3) if len(x) == 21 else None)  # fmt: skip
     A = accel_sensitivity(rot, st, data.noise, at, dg)
-    return crb, crb + A @ np.asarray(cov["values"], float) @ A.T
+    return crb, crb + A @ np.asarray(cov.values, float) @ A.T
 
 
 def gyro_alternatives(session: Session, solver: str) -> list[str]:

@@ -13,6 +13,8 @@ import numpy as np
 
 from imucal_cli.errors import DesignError, ImucalError
 from imucal_cli.formats.session import Segment, Session
+from imucal_cli.model.gyro import IgnoredMisalignment, RotationRow
+from imucal_cli.model.parts import Parameter
 from imucal_cli.solvers import gyro_axes
 
 from .common import num, rms
@@ -39,26 +41,25 @@ def fit_per_axis(data: GyroData, solver: str) -> GyroFit:
         )
     units = data.units_in
     parameters = [
-        {"name": f"b_{a}", "value": float(b[i]), "std": num(b_std[i]), "unit": units}
-        for i, a in enumerate(AXES)
+        Parameter(f"b_{a}", float(b[i]), num(b_std[i]), units) for i, a in enumerate(AXES)
     ] + [
-        {"name": f"k_{a}", "value": float(k[i]), "std": num(k_std[i]),
-         "unit": f"rad/s per {units}"}
+        Parameter(f"k_{a}", float(k[i]), num(k_std[i]), f"rad/s per {units}")
         for i, a in enumerate(AXES)
     ]  # fmt: skip
-    residual = np.radians([r["angle_error_deg"] for r in rotations])
+    residual = np.radians([r.angle_error_deg for r in rotations])
     if np.degrees(rms(residual)) > MAX_PER_AXIS_RMS_DEG:
         data.warnings.append(
             f"the per-axis model does not fit these turns (angle residual RMS "
             f"{np.degrees(rms(residual)):.2f} deg): turn about one sensor axis at a time "
             '(x and y with z up, z on its side), or use [gyro] solver = "full"'
         )
-    extra = {"model_paper": "omega = K (omega_s - B), eq. (15)", "approach": solver,
-             "ignored_misalignment": _ignored_misalignment(data, k, k_std)}  # fmt: skip
-    return GyroFit(b, np.diag(k), parameters, rotations, residual, 1 / np.abs(k), extra)
+    members = {"model_paper": "omega = K (omega_s - B), eq. (15)", "approach": solver,
+               "ignored_misalignment": _ignored_misalignment(data, k, k_std)}  # fmt: skip
+    return GyroFit(b, np.diag(k), parameters, rotations, residual, 1 / np.abs(k), members)
 
 
-def _ignored_misalignment(data: GyroData, k: np.ndarray, k_std: np.ndarray) -> dict:
+def _ignored_misalignment(data: GyroData, k: np.ndarray, k_std: np.ndarray
+                          ) -> IgnoredMisalignment:  # fmt: skip
     """The full model on the same turns: the gyro axes' angles from the accelerometer's, and
     the shift of each per-axis gain that ignoring them causes (note; warning when large)."""
 
@@ -68,11 +69,11 @@ def _ignored_misalignment(data: GyroData, k: np.ndarray, k_std: np.ndarray) -> d
     except ImucalError as exc:
         data.notes.append(f"the per-axis model ignores the gyro's misalignment; these turns "
                           f"cannot measure it ({exc})")  # fmt: skip
-        return {"measured": False}
+        return IgnoredMisalignment(measured=False)
     M = full.matrix
     shift = k / np.diag(M) - 1
     in_std = np.abs(k - np.diag(M)) / k_std
-    angles = full.extra["axis_to_accel_frame_deg"]
+    angles = full.members["axis_to_accel_frame_deg"]
     text = (
         "the per-axis model ignores the gyro's misalignment: the full model on these turns puts "
         f"the x, y, z axes {', '.join(f'{angles[a]:.2f}' for a in AXES)} deg off the "
@@ -84,8 +85,9 @@ def _ignored_misalignment(data: GyroData, k: np.ndarray, k_std: np.ndarray) -> d
         data.warnings.append(text + '; [gyro] solver = "full" (or "auto") models it')
     else:
         data.notes.append(text)
-    return {"measured": True, "axis_to_accel_frame_deg": angles,
-            "gain_shift": [float(s) for s in shift], "gain_shift_std": [float(v) for v in in_std]}
+    return IgnoredMisalignment(measured=True, axis_to_accel_frame_deg=angles,
+                               gain_shift=[float(s) for s in shift],
+                               gain_shift_std=[float(v) for v in in_std])  # fmt: skip
 
 
 def _per_axis(data: GyroData, solver: str, notes: list[str], first):
@@ -153,12 +155,12 @@ def _per_axis(data: GyroData, solver: str, notes: list[str], first):
             fit = gyro_axes.fit_axis_dynamic(x, T, ang)
         k[i], b[i], k_std[i], b_std[i] = fit.k, fit.b, fit.k_std, fit.b_std
         for (turn, xi, Ti, ai), res in zip(rows, fit.residuals_rad, strict=True):
-            rotations.append({
-                "segment": turn.segment.name, "label": turn.segment.label, "axis": AXES[i],
-                "known_angle_deg": float(np.degrees(ai)),
-                "measured_angle_deg": float(np.degrees(fit.k * (xi - fit.b * Ti))),
-                "angle_error_deg": float(np.degrees(-res)),
-            })  # fmt: skip
+            rotations.append(RotationRow(
+                segment=turn.segment.name, label=turn.segment.label, axis=AXES[i],
+                known_angle_deg=float(np.degrees(ai)),
+                measured_angle_deg=float(np.degrees(fit.k * (xi - fit.b * Ti))),
+                angle_error_deg=float(np.degrees(-res)),
+            ))  # fmt: skip
     return k, b, k_std, b_std, rotations
 
 

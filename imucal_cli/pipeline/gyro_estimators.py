@@ -22,9 +22,9 @@ from functools import cached_property
 import numpy as np
 
 from imucal_cli.errors import ConfigError, DesignError
-from imucal_cli.formats.calibration import SensorCalibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Segment, Session
+from imucal_cli.model.calibration import SensorCalibration
 
 from .factorization import calibrate_gyro_factorization, independent_constraints
 from .gyro import calibrate_gyro_rotations, gyro_alternatives

@@ -15,6 +15,15 @@ from dataclasses import replace
 import numpy as np
 
 from imucal_cli.errors import ImucalError
+from imucal_cli.model.codec import build
+from imucal_cli.model.gyro import (
+    AccelPropagation,
+    GSensitivityTest,
+    RateStd,
+    RotationRow,
+    StdRatio,
+)
+from imucal_cli.model.parts import Parameter
 from imucal_cli.numerics.segmented import stacked_rows
 from imucal_cli.solvers import gyro_full, gyro_sigma
 
@@ -68,16 +77,16 @@ def fit_full_model(data: GyroData, g_sensitivity: str | None = None) -> GyroFit:
     units = data.units_in
     parameters = parameter_rows(res, units)
     rotations = [
-        {"segment": t.segment.name, "label": t.segment.label, "known_angle_deg": None,
-         "measured_angle_deg": float(a), "angle_error_deg": float(r),
-         "noise_deg": float(s)}
+        RotationRow(segment=t.segment.name, label=t.segment.label, known_angle_deg=None,
+                    measured_angle_deg=float(a), angle_error_deg=float(r),
+                    noise_deg=float(s))
         for t, r, a, s in zip(data.turns, res.angle_residual_deg, res.rotation_angle_deg,
                               res.turn_sigma_deg, strict=True)
     ]  # fmt: skip
     data.warnings.extend(residual_warnings(data, res, rot, st))
     S = np.linalg.inv(res.M)
     s_axes = S / np.linalg.norm(S, axis=1, keepdims=True)
-    extra = {
+    members = {
         "approach": "full",
         # Angles between the gyro's sensitivity axes, minus 90 (as for the accelerometer)...
         "misalignment_deg": {
@@ -95,29 +104,30 @@ def fit_full_model(data: GyroData, g_sensitivity: str | None = None) -> GyroFit:
         "sensitivity_std": gain_std(res.M, res.cov[3:12, 3:12]).tolist(),
     }  # fmt: skip
     undetermined = design_warning(data, uncertainty)
-    nonlinear = (uncertainty.get("accel_propagation") or {}).get("warning")
+    nonlinear = None if uncertainty.accel_propagation is None else (
+        uncertainty.accel_propagation.warning)  # fmt: skip
     data.warnings.extend(w for w in (undetermined, nonlinear) if w)
     # Std that sigma points can state only roughly: left out by auto like an undetermined gyro.
     if undetermined or nonlinear:
-        extra["undetermined"] = undetermined or nonlinear
+        members["undetermined"] = undetermined or nonlinear
     if res.G is not None:
-        extra["g_sensitivity"] = res.G.tolist()
-        extra["g_sensitivity_unit"] = f"{units} per m/s^2 (raw - bias - g_sensitivity @ a)"
+        members["g_sensitivity"] = res.G
+        members["g_sensitivity_unit"] = f"{units} per m/s^2 (raw - bias - g_sensitivity @ a)"
     if res.g_test is not None:
-        extra["g_sensitivity_test"] = res.g_test
+        members["g_sensitivity_test"] = build(GSensitivityTest, **res.g_test)
         data.notes.append(_g_note(res.g_test))
     return GyroFit(res.b, res.M, parameters, rotations, np.radians(res.angle_residual_deg),
-                   np.linalg.norm(S, axis=1), extra)  # fmt: skip
+                   np.linalg.norm(S, axis=1), members)  # fmt: skip
 
 
-def parameter_rows(res, units: str) -> list[dict]:
+def parameter_rows(res, units: str) -> list[Parameter]:
     """The section's parameter rows of a full-model result ``res`` (``b``, ``M``, optional
     ``G``, ``std``): bias in raw ``units``, matrix in rad/s per raw unit, g-sensitivity."""
     n = len(res.std)
     unit = [units] * 3 + [f"rad/s per {units}"] * 9 + [f"{units} per m/s^2"] * 9
     values = np.r_[res.b, res.M.ravel(), [] if res.G is None else res.G.ravel()]
     return [
-        {"name": name, "value": float(v), "std": num(s), "unit": u}
+        Parameter(name, float(v), num(s), u)
         for name, v, s, u in zip(gyro_full.parameter_names(n), values, res.std, unit[:n],
                                  strict=True)  # fmt: skip
     ]
@@ -155,7 +165,7 @@ def rate_std(M: np.ndarray, cov_M: np.ndarray) -> float:
     return float(np.sqrt(max(np.linalg.eigvalsh(Q)[-1], 0.0)))
 
 
-def add_accel_uncertainty(data: GyroData, rot, st, res) -> dict:
+def add_accel_uncertainty(data: GyroData, rot, st, res) -> RateStd:
     """Add the accelerometer calibration's uncertainty to the fit's covariance (issue 10.2).
 
     The turns are measured against gravity directions that the calibrated accelerometer
@@ -164,24 +174,24 @@ def add_accel_uncertainty(data: GyroData, rot, st, res) -> dict:
     dominates: ignoring it stated the gains 20 times too precise. Returns the rate std
     (relative, worst direction) in total, from the noise and from the accelerometer."""
     noise_only = rate_std(res.M, res.cov[3:12, 3:12])
-    cov = data.accel_cal.extra.get("covariance")
+    cov = data.accel_cal.covariance
     dg = accel_derivative(data.stills, data.accel_cal)
-    out = {"total": noise_only, "noise": noise_only, "accel_calibration": None,
-           "meaning": "relative std of a calibrated rate in its worst direction"}  # fmt: skip
-    if cov is None or dg is None:
+    out = RateStd(total=noise_only, noise=noise_only, accel_calibration=None,
+                  meaning="relative std of a calibrated rate in its worst direction")
+    if cov is None or cov.values is None or dg is None:
         data.notes.append("the accelerometer calibration states no covariance: the gyro's std "
                           "leave out its uncertainty")  # fmt: skip
         return out
-    C = np.asarray(cov["values"], float)
+    C = np.asarray(cov.values, float)
     A = gyro_full.accel_sensitivity(rot, st, data.noise, res, dg)
     prop = accel_propagation(data, rot, st, res, C, A)
     cov_a = prop.cov
     own = res.cov
     linear_total = rate_std(res.M, (own + prop.linear)[3:12, 3:12])
     res.cov = own + cov_a
-    out["accel_calibration"] = rate_std(res.M, cov_a[3:12, 3:12])
-    out["total"] = rate_std(res.M, res.cov[3:12, 3:12])
-    out["accel_propagation"] = prop.summary()
+    out.accel_calibration = rate_std(res.M, cov_a[3:12, 3:12])
+    out.total = rate_std(res.M, res.cov[3:12, 3:12])
+    out.accel_propagation = build(AccelPropagation, **prop.summary())
     how = ""
     if prop.method == "sigma points":
         first = own + prop.linear
@@ -189,17 +199,18 @@ def add_accel_uncertainty(data: GyroData, rot, st, res) -> dict:
             "parameters": float(np.max(np.sqrt(np.diag(res.cov) / np.diag(first)))),
             "gains": float(np.max(gain_std(res.M, res.cov[3:12, 3:12])
                                   / gain_std(res.M, first[3:12, 3:12]))),
-            "rate": out["total"] / linear_total,
+            "rate": out.total / linear_total,
         }  # fmt: skip
-        out["accel_propagation"].update(first_order_total=linear_total, std_ratio=ratios)
+        out.accel_propagation.first_order_total = linear_total
+        out.accel_propagation.std_ratio = StdRatio(**ratios)
         how = (f" (by refitting at {prop.refits} sigma points: the first order gave "
                f"{100 * linear_total:.2g} %)")
         warning = nonlinear_warning(ratios, prop)
         if warning:  # added to the section's warnings after the design's own
-            out["accel_propagation"]["warning"] = warning
+            out.accel_propagation.warning = warning
     data.notes.append("std include the accelerometer calibration's uncertainty (the turns are "
-                      f"measured with it): rates to {100 * out['total']:.2g} % (1 std), "
-                      f"{100 * out['accel_calibration']:.2g} % of it from the accelerometer"
+                      f"measured with it): rates to {100 * out.total:.2g} % (1 std), "
+                      f"{100 * out.accel_calibration:.2g} % of it from the accelerometer"
                       f"{how}")
     return out
 
@@ -256,18 +267,19 @@ def nonlinear_warning(ratios: dict, prop) -> str | None:
             "more times about different axes (plan free:N)")
 
 
-def design_warning(data: GyroData, uncertainty: dict, n_turns: int | None = None) -> str | None:
+def design_warning(data: GyroData, uncertainty: RateStd, n_turns: int | None = None
+                   ) -> str | None:  # fmt: skip
     """A warning when the turns do not determine the gyro to ``[gyro] max_rate_std``, naming
     the cause and what would work."""
     limit = data.cfg.gyro.max_rate_std
-    total, acc = uncertainty["total"], uncertainty["accel_calibration"] or 0.0
+    total, acc = uncertainty.total, uncertainty.accel_calibration or 0.0
     if total <= limit:
         return None
     K = len(data.turns) if n_turns is None else n_turns
     head = (f"{K} turns determine the gyro's rates only to {100 * total:.2g} % (1 std, worst "
             f"direction; more than [gyro] max_rate_std = {limit:g})")  # fmt: skip
-    if acc > uncertainty["noise"]:
-        ang = data.accel_cal.extra.get("misalignment_std_deg") or {}
+    if acc > uncertainty.noise:
+        ang = data.accel_cal.misalignment_std_deg or {}
         worst = max(ang.values(), default=None)
         axes = "" if worst is None else f", its axes' angles known to {worst:.2g} deg"
         return (f"{head}: mostly from the accelerometer calibration that measures each turn "

@@ -21,9 +21,17 @@ import numpy as np
 from scipy.special import fdtrc
 
 from imucal_cli.errors import DesignError
-from imucal_cli.formats.calibration import MODEL_EQUATION, SensorCalibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
+from imucal_cli.model.accel import AccelCalibration
+from imucal_cli.model.calibration import MODEL_EQUATION, SensorCalibration
+from imucal_cli.model.codec import build
+from imucal_cli.model.gyro import (
+    GSensitivityTest,
+    GyroCalibration,
+    RateStd,
+    RotationRow,
+)
 from imucal_cli.solvers import gyro_full, gyro_known
 
 from . import gyro_known_checks as checks
@@ -68,7 +76,7 @@ PLACEMENT_DEG = 2.0
 
 def _labels_frame(accel_cal: SensorCalibration) -> bool:
     """Is the accelerometer's frame the labels' (so that a labelled axis is in it)?"""
-    return "upper-triangular" not in str(accel_cal.extra.get("gauge", ""))
+    return "upper-triangular" not in (accel_cal.gauge or "")
 
 
 def _vertical_axis(d: np.ndarray, mag: np.ndarray, g: float, duration: float):
@@ -87,7 +95,8 @@ def _placement(cfg: Config, accel_cal: SensorCalibration | None) -> float:
     """Std of a labelled axis per tangent component (rad): how well the unit sits square to
     its labels, as the accelerometer's labelled poses measured it (a turn flat on a table
     is about the face's normal as well as a pose on that face is up), else the config's."""
-    est = None if accel_cal is None else (accel_cal.extra.get("placement") or {}).get("rms_deg")
+    placement = accel_cal.placement if isinstance(accel_cal, AccelCalibration) else None
+    est = None if placement is None else placement.rms_deg
     deg = est or cfg.accel.labelled.placement_deg or PLACEMENT_DEG
     return float(np.radians(deg) / np.sqrt(2))
 
@@ -311,10 +320,10 @@ def calibrate_gyro_known(
                             verdict.known, in_weights=accel_dirs is not None and rot is not None)
     noise_total = rate_std(res.M, res.cov[3:12, 3:12])
     res.cov = res.cov + cov_a
-    uncertainty = {"total": rate_std(res.M, res.cov[3:12, 3:12]), "noise": noise_total,
-                   "accel_calibration": None if accel_cal is None
-                   else rate_std(res.M, cov_a[3:12, 3:12]),
-                   "meaning": "relative std of a calibrated rate in its worst direction"}
+    uncertainty = RateStd(total=rate_std(res.M, res.cov[3:12, 3:12]), noise=noise_total,
+                          accel_calibration=None if accel_cal is None
+                          else rate_std(res.M, cov_a[3:12, 3:12]),
+                          meaning="relative std of a calibrated rate in its worst direction")
     return _section(data, res, verdict.known, used, g_test, uncertainty, assumed, verdict)
 
 
@@ -351,11 +360,11 @@ def _accel_dirs(data: GyroData) -> np.ndarray | None:
     """(P, 3, m): the still periods' calibrated gravity vectors moved along each square-root
     direction of the accelerometer calibration's covariance (None without one)."""
     cal = data.accel_cal
-    cov = None if cal is None else cal.extra.get("covariance")
+    cov = None if cal is None or cal.covariance is None else cal.covariance.values
     dg = None if cov is None else accel_derivative(data.stills, cal)
     if dg is None:
         return None
-    C = np.asarray(cov["values"], float)
+    C = np.asarray(cov, float)
     lam, V = np.linalg.eigh((C + C.T) / 2)
     return dg @ (V * np.sqrt(np.clip(lam, 0, None)))
 
@@ -371,7 +380,8 @@ def _without_known_turns(session, cfg, accel_cal, data, segs) -> SensorCalibrati
         sec = calibrate_gyro_rotations(session, replace(cfg, gyro=replace(cfg.gyro,
                                                                           solver="full")),
                                        accel_cal)  # fmt: skip
-        sec.extra.setdefault("notes", []).insert(
+        sec.notes = sec.notes or []
+        sec.notes.insert(
             0, f"none of the {len(segs)} turns of known angle could be used ({why}): the gyro "
                f"is calibrated by the full model from the {len(data.turns)} turns between still "
                "periods")  # fmt: skip
@@ -394,7 +404,7 @@ def _accel_part(session, cfg, accel_cal, segs, statics, res, data, rot, known,
     accelerometer calibration's part of their noise (its covariance then holds that part);
     only the axes the accelerometer measures (turns about the vertical) are moved, the still
     periods' gravity held (nothing at all when every axis is a label)."""
-    cov = accel_cal.extra.get("covariance")
+    cov = None if accel_cal.covariance is None else accel_cal.covariance.values
     n = len(res.cov)
     if cov is None or np.shape(accel_cal.matrix) != (3, 3):
         data.notes.append("the accelerometer calibration states no covariance: the gyro's std "
@@ -402,7 +412,7 @@ def _accel_part(session, cfg, accel_cal, segs, statics, res, data, rot, known,
         return np.zeros((n, n))
     if in_weights and not any("measured vertical" in note for note in data.notes):
         return np.zeros((n, n))
-    C = np.asarray(cov["values"], float)
+    C = np.asarray(cov, float)
     lam, V = np.linalg.eigh((C + C.T) / 2)
     x = np.r_[res.b, res.M.ravel(), [] if res.G is None else res.G.ravel()]
     th0 = np.r_[accel_cal.bias, np.ravel(accel_cal.matrix)]
@@ -413,9 +423,9 @@ def _accel_part(session, cfg, accel_cal, segs, statics, res, data, rot, known,
         d = []
         for sgn in (1, -1):
             th = th0 + sgn * np.sqrt(lam_i) * v
-            moved = SensorCalibration(solver=accel_cal.solver, units=accel_cal.units,
-                                      bias=th[:3], matrix=th[3:].reshape(3, 3),
-                                      extra={"gauge": accel_cal.extra.get("gauge")})  # fmt: skip
+            moved = AccelCalibration(solver=accel_cal.solver, units=accel_cal.units,
+                                     bias=th[:3], matrix=th[3:].reshape(3, 3),
+                                     gauge=accel_cal.gauge)  # fmt: skip
             d.append(_refit(session, cfg, moved, segs, statics, res, data, rot, x, known,
                             in_weights))  # fmt: skip
         dx = (d[0] - d[1]) / 2
@@ -473,9 +483,9 @@ def _section(data: GyroData, res, known, used, g_test, uncertainty, assumed: boo
     parameters = parameter_rows(res, units)
     across = np.degrees(known.axis_sigma * np.abs(known.angle))
     rotations = [
-        {"segment": s.name, "label": s.label, "known_angle_deg": float(s.angle_deg),
-         "measured_angle_deg": float(m), "angle_error_deg": float(e),
-         "axis_error_deg": float(ax), "noise_deg": float(sg), "axis_noise_deg": float(ac)}
+        RotationRow(segment=s.name, label=s.label, known_angle_deg=float(s.angle_deg),
+                    measured_angle_deg=float(m), angle_error_deg=float(e),
+                    axis_error_deg=float(ax), noise_deg=float(sg), axis_noise_deg=float(ac))
         for s, m, e, ax, sg, ac in zip(used, res.measured_angle_deg, res.angle_error_deg,
                                        res.axis_error_deg, res.angle_sigma_deg, across,
                                        strict=True)
@@ -489,13 +499,13 @@ def _section(data: GyroData, res, known, used, g_test, uncertainty, assumed: boo
     if undetermined:
         data.warnings.append(undetermined)
     blocking = list(data.warnings)  # the rest are said, not refused (issue 10.3)
-    with_gravity = verdict.comparison.get("turns_between_still_periods") == "used"
+    with_gravity = verdict.comparison.turns_between_still_periods == "used"
     spare = _spare_text(data, known, used, assumed, with_gravity)
     if spare and not assumed:  # std measured (the accelerometer's placement, the vertical)
         data.notes.append(spare)
         spare = None
     s_axes = S / gains[:, None]
-    extra = {
+    members = {
         "approach": "known-angle turns" + (" and turns between still periods" if with_gravity
                                            else ""),
         "model": MODEL_EQUATION if res.G is None else MODEL_EQUATION_G,
@@ -525,12 +535,12 @@ def _section(data: GyroData, res, known, used, g_test, uncertainty, assumed: boo
         "blocking": blocking,
     }  # fmt: skip
     if undetermined:
-        extra["undetermined"] = undetermined
+        members["undetermined"] = undetermined
     if res.G is not None:
-        extra["g_sensitivity"] = res.G.tolist()
-        extra["g_sensitivity_unit"] = f"{units} per m/s^2 (raw - bias - g_sensitivity @ a)"
+        members["g_sensitivity"] = res.G
+        members["g_sensitivity_unit"] = f"{units} per m/s^2 (raw - bias - g_sensitivity @ a)"
     if g_test is not None:
-        extra["g_sensitivity_test"] = g_test
-    return SensorCalibration(solver="gyro-known", units="rad/s", bias=np.asarray(res.b, float),
-                             matrix=np.asarray(res.M, float), residual_rms=rms(np.radians(
-                                 res.angle_error_deg)), extra=extra)  # fmt: skip
+        members["g_sensitivity_test"] = build(GSensitivityTest, **g_test)
+    return build(GyroCalibration, solver="gyro-known", units="rad/s",
+                 bias=np.asarray(res.b, float), matrix=np.asarray(res.M, float),
+                 residual_rms=rms(np.radians(res.angle_error_deg)), **members)  # fmt: skip

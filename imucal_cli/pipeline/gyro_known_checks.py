@@ -25,6 +25,8 @@ import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
 from imucal_cli.errors import DesignError, SolverError
+from imucal_cli.model.codec import nulls
+from imucal_cli.model.gyro import KnownTurnCheck, RotationRow
 from imucal_cli.pipeline.gyro_full import solver_stills
 from imucal_cli.solvers import gyro_known
 
@@ -45,8 +47,8 @@ class Verdict:
     blocking: list[str] = field(default_factory=list)
     said: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
-    gravity_rows: list[dict] = field(default_factory=list)
-    comparison: dict = field(default_factory=dict)
+    gravity_rows: list[RotationRow] = field(default_factory=list)
+    comparison: KnownTurnCheck = field(default_factory=KnownTurnCheck)
 
 
 def known_alone(known: gyro_known.KnownTurns, b0: np.ndarray) -> bool:
@@ -149,10 +151,10 @@ def judge(data, res, known, used, joint, rot, rot_used, fit, g_test, vertical_kn
     return v
 
 
-def _gravity_rows(names, segments, stats, used: bool) -> list[dict]:
-    return [{"segment": s.name, "label": s.label, "known_angle_deg": None,
-             "measured_angle_deg": float(a), "angle_error_deg": float(r), "noise_deg": float(sg),
-             "measured_by": "gravity", "used": used}
+def _gravity_rows(names, segments, stats, used: bool) -> list[RotationRow]:
+    return [RotationRow(segment=s.name, label=s.label, known_angle_deg=None,
+                        measured_angle_deg=float(a), angle_error_deg=float(r),
+                        noise_deg=float(sg), measured_by="gravity", used=used)
             for s, a, r, sg in zip(segments, stats["gravity_angle_deg"],
                                    stats["gravity_residual_deg"], stats["gravity_sigma_deg"],
                                    strict=True)]  # fmt: skip
@@ -172,10 +174,10 @@ def _left_out(v: Verdict, data, joint, rot, names, why, n_known, accel_dirs) -> 
     v.gravity_rows = _gravity_rows(names, [t.segment for t in data.turns], pred, used=False)
     miss = pred["gravity_residual_deg"]
     tau = float(np.degrees(joint.tau))
-    v.comparison.update({"turns_between_still_periods": "left out",
-                         "their_level": joint.gravity_level, "their_excess_deg": tau,
-                         "their_rms_under_known_deg": float(np.sqrt(np.mean(miss**2))),
-                         "why_left_out": why})  # fmt: skip
+    c = v.comparison
+    c.turns_between_still_periods, c.their_level, c.their_excess_deg = (
+        "left out", joint.gravity_level, tau)  # fmt: skip
+    c.their_rms_under_known_deg, c.why_left_out = float(np.sqrt(np.mean(miss**2))), why
     v.said.append(
         f"the {len(names)} turns between still periods miss the gravity direction by "
         f"{joint.gravity_level:.1f} times their noise (the still periods', the gyro's and the "
@@ -195,8 +197,8 @@ def _weighed(v: Verdict, data, res, names, limit) -> None:
                                        "gravity_angle_deg", "gravity_residual_deg",
                                        "gravity_sigma_deg")}, used=True)  # fmt: skip
     level, tau = res.gravity_level, float(np.degrees(res.tau))
-    v.comparison.update({"turns_between_still_periods": "used", "their_level": level,
-                         "their_excess_deg": tau})
+    c = v.comparison
+    c.turns_between_still_periods, c.their_level, c.their_excess_deg = "used", level, tau
     if level > limit:  # the known turns cannot do without them: as the full model, refused
         v.blocking.append(
             f"the turns' gravity residuals are {level:.0f} times what the noise predicts "
@@ -224,7 +226,8 @@ def _known_check(v: Verdict, data, used, fit: Callable, vertical_known: Callable
     names = _names(used)
     ratio = np.abs(res.angle_error_deg) / np.maximum(res.angle_sigma_deg, 1e-12)
     chi2, r, p = _known_p(res)
-    v.comparison.update({"known_chi2": chi2, "known_redundancy": r, "known_p_value": p})
+    v.comparison.known_chi2, v.comparison.known_redundancy, v.comparison.known_p_value = (
+        chi2, r, p)  # fmt: skip
     if r <= 0.5:
         return  # nothing checks them (said by the spare-equation note)
     if p >= P_DISAGREE and ratio.max() <= limit:
@@ -241,7 +244,7 @@ def _known_check(v: Verdict, data, used, fit: Callable, vertical_known: Callable
             "not explain (the turn's axis, a clipped reading, g-sensitivity): check each turn's "
             "angle and sign (angle_deg), that it ended against the same stop it started from, "
             "and that the unit was still before and after")  # fmt: skip
-    v.comparison["explained_by"] = None
+    nulls(v.comparison, "explained_by")  # checked, nothing explains it
     (v.blocking if ratio.max() > limit else v.said).append(text)
 
 
@@ -258,7 +261,7 @@ def _explain(v: Verdict, data, used, fit, vertical_known) -> str | None:
     does."""
     clipped = [w for w in data.warnings if "reaches the end of the gyro's range" in w]
     if clipped:
-        v.comparison["explained_by"] = "clipped"
+        v.comparison.explained_by = "clipped"
         return ("a turn of known angle reached the end of the gyro's range (its integral is "
                 "short): turn more slowly")  # fmt: skip
     res = v.result
@@ -276,7 +279,7 @@ def _explain(v: Verdict, data, used, fit, vertical_known) -> str | None:
             continue
         if _known_p(new)[2] >= P_DISAGREE:
             v.result = new
-            v.comparison["explained_by"] = name
+            v.comparison.explained_by = name
             if known is not None:
                 v.known = known
             if name == "g-sensitivity":

@@ -10,9 +10,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from imucal_cli.formats.calibration import SensorCalibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Segment, Session
+from imucal_cli.model.calibration import MODEL_EQUATION_G, SensorCalibration
+from imucal_cli.model.gyro import RotationRow
+from imucal_cli.model.parts import Parameter
 
 AXES = "xyz"
 
@@ -64,12 +66,12 @@ class GyroFit:
 
     bias: np.ndarray
     matrix: np.ndarray
-    parameters: list[dict]
-    rotations: list[dict]
+    parameters: list[Parameter]
+    rotations: list[RotationRow]
     residual_rad: np.ndarray
     gains: np.ndarray  # raw units per rad/s of each axis, for the physical-sense checks
-    extra: dict
+    members: dict  # more members of the section (for model.codec.build)
 
 
 #: The model equation of a gyro section with g-sensitivity (spec: optional term).
-MODEL_EQUATION_G = "calibrated = matrix @ (raw - bias - g_sensitivity @ a)"
+MODEL_EQUATION_G = MODEL_EQUATION_G

@@ -9,9 +9,10 @@ from dataclasses import replace
 import numpy as np
 
 from imucal_cli.errors import DesignError, SolverError
-from imucal_cli.formats.calibration import SensorCalibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
+from imucal_cli.model.accel import AccelCalibration, Placement
+from imucal_cli.model.codec import build
 from imucal_cli.solvers import gravity as gravity_solver
 from imucal_cli.solvers import labelled as labelled_solver
 from imucal_cli.solvers.labelled_model import public_params
@@ -22,7 +23,7 @@ from .accel import (
     fit_fields,
     model_covariance,
     parameter_rows,
-    triad_extra,
+    triad_members,
     with_excluded,
 )
 from .accel_checks import Outlier, drop_wrong_labels, pose_sigmas, quality, robust_fit
@@ -97,7 +98,7 @@ def fit_poses(poses: StaticPoses, g: float, cfg: Config) -> labelled_solver.Labe
 
 def labelled_section(
     session: Session, cfg: Config, poses: StaticPoses, g: float, nominal
-) -> SensorCalibration:
+) -> AccelCalibration:
     """Fit the labelled solver to ``poses`` (outliers handled) and build the accel section."""
 
     relabelled, wrong = drop_wrong_labels(poses, g)
@@ -120,7 +121,7 @@ def labelled_section(
         res.matrix,
         g,
     )
-    extra, units_in, units_note, physical = triad_extra(
+    members, units_in, units_note, physical = triad_members(
         session, cfg, poses, g, nominal, summary, fit, res.bias, res.residuals
     )
     units = [units_in] * 3 + [f"{units_in} per m/s^2"] * 3 + ["deg"] * 6
@@ -132,26 +133,20 @@ def labelled_section(
         12,
         rms(res.residual_loo),
         g,
-        extra["coverage"],
+        members["coverage"],
         excess=float(np.sqrt(res.noise_scale)),
     )
-    extra.update(
+    members.update(
         {
             **solver_fields(res, units),
             **check_fields(q, outliers, physical, [units_note] if units_note else []),
         }
     )
     if tied:  # issue 24.6: named, and not saved without --force (the design cannot say which)
-        extra["warnings"].insert(0, tied)
-        extra["blocking"].insert(0, tied)
-    return SensorCalibration(
-        solver="labelled",
-        units="m/s^2",
-        bias=res.bias,
-        matrix=res.matrix,
-        residual_rms=rms(res.residuals),
-        extra=extra,
-    )
+        members["warnings"].insert(0, tied)
+        members["blocking"].insert(0, tied)
+    return build(AccelCalibration, solver="labelled", units="m/s^2", bias=res.bias,
+                 matrix=res.matrix, residual_rms=rms(res.residuals), **members)
 
 
 #: At most this many labels are ignored for their placement.
@@ -224,12 +219,12 @@ def solver_fields(res: labelled_solver.LabelledResult, units: list[str]) -> dict
         "covariance": model_covariance(
             lambda B, M: public_params(B, np.linalg.inv(M)), res.bias, res.matrix, res.cov
         ),
-        "placement": {
-            "rms_deg": res.placement_deg,
-            "source": res.placement_source,
-            "dof": res.placement_dof,
-            "meaning": "RMS angle between each pose's true up and its label",
-        },
+        "placement": Placement(
+            rms_deg=res.placement_deg,
+            source=res.placement_source,
+            dof=res.placement_dof,
+            meaning="RMS angle between each pose's true up and its label",
+        ),
         **fit_fields(res, "noise"),
         "rotation_std_deg": float(np.sqrt(np.mean(r_std**2))),
         "loo_method": "first-order deletion of each pose",

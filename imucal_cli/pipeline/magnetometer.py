@@ -18,9 +18,19 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from imucal_cli.errors import DesignError, SolverError
-from imucal_cli.formats.calibration import LOCAL_FIELD, MODEL_EQUATION, SensorCalibration
 from imucal_cli.formats.config import Config, MagConfig
 from imucal_cli.formats.session import UT_PER_MAG_UNIT, Session
+from imucal_cli.model.calibration import LOCAL_FIELD, MODEL_EQUATION, SensorCalibration
+from imucal_cli.model.codec import build
+from imucal_cli.model.mag import (
+    MagCalibration,
+    MagCoverage,
+    MagPoseRow,
+    Quality,
+    QualityCheck,
+    Readings,
+    RowsLeftOut,
+)
 from imucal_cli.solvers import magnetometer as mag_solver
 from imucal_cli.solvers.clipping import clipped_rows
 from imucal_cli.solvers.poses import describe_direction
@@ -209,7 +219,7 @@ def _field(session: Session, cfg: MagConfig) -> tuple[float, str, str]:
 
 def calibrate_mag(
     session: Session, cfg: Config, accel: SensorCalibration | None
-) -> SensorCalibration:
+) -> MagCalibration:
     """Calibrate a session's magnetometer (``[mag]`` config); the accelerometer calibrated in
     the same run (or None) gives the static poses' up directions for the alignment.
 
@@ -253,28 +263,28 @@ def calibrate_mag(
     warnings = _field_checks(session, readings, res, sigmas, mcfg)
     warnings += _gain_check(res, units, units_in, field)
     warnings += _stated_field_check(session, mcfg, field, units, field_source)
-    figures = _quality_figures(quality, held, res, mcfg)
-    extra = _section_extra(session, readings, res, units_in, field, units, field_source)
-    extra.update({
-        "quality": figures,
-        "coverage": {
-            "fraction": quality.covered_fraction,
-            "gaps_pct": quality.gaps_pct,
-            "regions": 100,
-            "n_readings": len(data.points),
-            "n_poses": len(data.pose_mean),
-        },
+    members = _section_members(session, readings, res, units_in, field, units, field_source)
+    members.update({
+        "quality": _quality_figures(quality, held, res, mcfg),
+        "coverage": MagCoverage(
+            fraction=quality.covered_fraction,
+            gaps_pct=quality.gaps_pct,
+            regions=100,
+            n_readings=len(data.points),
+            n_poses=len(data.pose_mean),
+        ),
         "directions": _thinned(calibrated / np.linalg.norm(calibrated, axis=1, keepdims=True)),
         "rms_held_out": rms(held),
         "warnings": warnings,
     })  # fmt: skip
-    return SensorCalibration(
+    return build(
+        MagCalibration,
         solver="magnetometer" if mcfg.solver == "magnitude" else "mag-ellipsoid",
         units=units,
         bias=res.bias,
         matrix=res.matrix,
         residual_rms=rms(res.residuals),
-        extra=extra,
+        **members,
     )
 
 
@@ -424,7 +434,7 @@ def _stated_field_check(session: Session, cfg: MagConfig, field: float, units: s
     return out
 
 
-def _quality_figures(quality, held: np.ndarray, res, cfg: MagConfig) -> dict:
+def _quality_figures(quality, held: np.ndarray, res, cfg: MagConfig) -> Quality:
     """MotionCal's four figures (percent), each against its limit, and the verdict."""
     F = res.field
     fit_error = 100.0 * rms(held) / F if np.isfinite(held).any() else float("nan")
@@ -436,16 +446,12 @@ def _quality_figures(quality, held: np.ndarray, res, cfg: MagConfig) -> dict:
         ("fit error", fit_error, q.max_fit_error_pct, "held-out |B| residual RMS"),
     ]
     checks = [
-        {"name": n, "value_pct": num(v), "limit_pct": float(lim), "meaning": what,
-         "ok": bool(np.isfinite(v) and v <= lim)}
+        QualityCheck(name=n, value_pct=num(v), limit_pct=float(lim), meaning=what,
+                     ok=bool(np.isfinite(v) and v <= lim))
         for n, v, lim, what in rows
     ]  # fmt: skip
-    failed = [c["name"] for c in checks if not c["ok"]]
-    return {
-        "verdict": "pass" if not failed else "recapture",
-        "failed": failed,
-        "checks": checks,
-    }
+    failed = [c.name for c in checks if not c.ok]
+    return Quality(verdict="pass" if not failed else "recapture", failed=failed, checks=checks)
 
 
 def _axes_words(R: np.ndarray) -> list[str]:
@@ -459,8 +465,10 @@ def _axes_words(R: np.ndarray) -> list[str]:
     return out
 
 
-def _section_extra(session, readings: MagReadings, res, units_in, field, units, source) -> dict:
-    """The fields of the ``mag`` section beyond the standard ones (see DEVELOPERS.md)."""
+def _section_members(session, readings: MagReadings, res, units_in, field, units, source
+                     ) -> dict:  # fmt: skip
+    """The members of the ``mag`` section beyond the standard ones (see DEVELOPERS.md), for
+    :func:`~imucal_cli.model.codec.build`."""
     data = readings.data
     n_w = len(res.params) - 3 - (1 if res.aligned else 0)  # the dip s is told as an angle
     param_units = [units_in] * 3 + [f"{units} per {units_in}"] * n_w
@@ -471,7 +479,7 @@ def _section_extra(session, readings: MagReadings, res, units_in, field, units, 
     soft_pct = 100.0 * float(axis_gains[-1] / axis_gains[0] - 1.0)
     hard_out = res.matrix @ res.bias
     raw_mag = np.linalg.norm(data.points, axis=1)
-    extra = {
+    members = {
         "model": MODEL_EQUATION,
         "units_in": units_in,
         "field_uT": field if units == "uT" else None,
@@ -496,32 +504,32 @@ def _section_extra(session, readings: MagReadings, res, units_in, field, units, 
         "rms_after": rms(res.residuals),
         "dip_rms_deg": rms(res.dip_residuals_deg) if np.isfinite(res.dip_residuals_deg).any()
         else None,
-        "readings": {"motion": len(data.samples), "poses": len(data.pose_mean),
-                     "left_out": readings.dropped},  # fmt: skip
+        "readings": Readings(motion=len(data.samples), poses=len(data.pose_mean),
+                             left_out=RowsLeftOut(**readings.dropped)),  # fmt: skip
         "notes": list(res.notes),
     }
     if units == LOCAL_FIELD and units_in in UT_PER_MAG_UNIT:
         det = abs(np.linalg.det(res.matrix))
-        extra["field_estimate_uT"] = float(UT_PER_MAG_UNIT[units_in] / np.cbrt(det))
-        extra["field_estimate_basis"] = (
+        members["field_estimate_uT"] = float(UT_PER_MAG_UNIT[units_in] / np.cbrt(det))
+        members["field_estimate_basis"] = (
             "raw units taken at face value and the soft iron keeping the mean gain "
             "(|det matrix| = 1 in uT)"
         )
     if readings.clip_limits is not None:
-        extra["range"] = list(readings.clip_limits)
+        members["range"] = list(readings.clip_limits)
     n = len(data.samples)
-    extra["poses"] = [
-        {
-            "segment": seg.name,
-            "label": seg.label,
-            "samples": int(readings.pose_samples[k]),
-            "magnitude_after": float(res.residuals[n + k] + res.field),
-            "residual": float(res.residuals[n + k]),
-            "dip_residual_deg": num(res.dip_residuals_deg[k]),
-        }
+    members["poses"] = [
+        MagPoseRow(
+            segment=seg.name,
+            label=seg.label,
+            samples=int(readings.pose_samples[k]),
+            magnitude_after=float(res.residuals[n + k] + res.field),
+            residual=float(res.residuals[n + k]),
+            dip_residual_deg=num(res.dip_residuals_deg[k]),
+        )
         for k, seg in enumerate(readings.segments)
     ]
-    return extra
+    return members
 
 
 def _thinned(directions: np.ndarray) -> list[list[float]]:

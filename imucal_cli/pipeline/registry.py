@@ -16,44 +16,17 @@ the fit measurably more precise than gravity magnitude alone).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import StrEnum
 from typing import Any, Protocol
 
 import numpy as np
+
+from imucal_cli.model.parts import By, Choice
 
 #: A later estimator replaces an earlier one only when the mean ratio of their predicted
 #: variances (the key parameters, at the design) is below this.
 WORTH = 0.8
 
 SENSORS = ("accel", "gyro", "mag", "temperature", "clock")
-
-
-class By(StrEnum):
-    """Who chose an estimator: the ``auto`` choice from the design, or the config's name."""
-
-    AUTO = "auto"
-    CONFIG = "config"
-
-
-@dataclass(frozen=True)
-class Choice:
-    """The solver that calibrated a sensor, who chose it, and why (the section's ``choice``).
-
-    Attributes
-    ----------
-    solver : str
-        The estimator's name as the config names it (``"gravity"``, ``"full"``, ...).
-    by : By
-    reason : str
-        Words for the user: what in the design made the choice.
-    """
-
-    solver: str
-    by: By
-    reason: str
-
-    def to_dict(self) -> dict:
-        return {"solver": self.solver, "by": self.by.value, "reason": self.reason}
 
 
 @dataclass(frozen=True)

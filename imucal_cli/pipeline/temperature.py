@@ -29,9 +29,12 @@ from dataclasses import replace as copy_with
 import numpy as np
 
 from imucal_cli.errors import DesignError
-from imucal_cli.formats.calibration import SensorCalibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
+from imucal_cli.model.calibration import SensorCalibration
+from imucal_cli.model.codec import build
+from imucal_cli.model.parts import Parameter, SelectionRow
+from imucal_cli.model.parts import TemperatureModel as TemperatureModelRecord
 from imucal_cli.solvers.gravity import fit_gravity
 from imucal_cli.solvers.temperature import TempcoFit, check_span, fit_tempco, reexpand
 from imucal_cli.solvers.temperature_joint import fit_gravity_tempco
@@ -54,7 +57,8 @@ class TemperatureModel:
 
     ``tempco``/``tempco_std`` (K, n) raw units per C^k about ``temperature_ref``; ``degree``
     (n,); ``t_min``/``t_max`` the fitted range, C; ``bias_var_extra`` (n,) what the terms add
-    to the bias variance at ``T_ref``; ``details`` the solver's diagnostics (JSON-ready).
+    to the bias variance at ``T_ref``; ``details`` the solver's diagnostics (members of the
+    section's :class:`~imucal_cli.model.parts.TemperatureModel`).
     """
 
     temperature_ref: float
@@ -116,7 +120,8 @@ def _points(session: Session, name: str, block_s: float):
 def _from_fit(fit: TempcoFit, t_ref: float, source: str, extra_var=None) -> TemperatureModel:
     _, tempco = reexpand(fit.tempco, fit.temperature_ref, t_ref)
     n = len(fit.channels)
-    details = {"points": fit.n_points, "selection": [c.tests for c in fit.channels],
+    details = {"points": fit.n_points,
+               "selection": [[build(SelectionRow, **t) for t in c.tests] for c in fit.channels],
                "noise_scale": [c.noise_scale for c in fit.channels],
                "correlation": [c.correlation for c in fit.channels]}  # fmt: skip
     std = fit.tempco_std if abs(t_ref - fit.temperature_ref) < 1e-9 else _moved_std(fit, t_ref)
@@ -183,7 +188,8 @@ def _joint_accel(session: Session, cfg: Config, t_ref: float) -> TemperatureMode
         t_ref, joint.tempco, joint.tempco_std, joint.degree, joint.t_min, joint.t_max,
         "the session's still periods, jointly with the gravity-magnitude model",
         joint.bias_var_extra,
-        {"points": len(temps), "selection": joint.tests, "noise_scale": joint.noise_scale,
+        {"points": len(temps), "selection": [build(SelectionRow, **t) for t in joint.tests],
+         "noise_scale": joint.noise_scale,
          "chi2": joint.chi2, "dof": joint.dof},
     )  # fmt: skip
 
@@ -301,8 +307,7 @@ def given_accel(session: Session, accel: SensorCalibration) -> tuple[Session, Se
             "calibration's bias depends on it (bias_tempco)"
         )
     moved = session.accel - (accel.bias_at(temp) - accel.bias)
-    plain = copy_with(accel, extra={k: v for k, v in accel.extra.items()
-                                    if k not in ("temperature_ref", "bias_tempco")})  # fmt: skip
+    plain = copy_with(accel, temperature_ref=None, bias_tempco=None)
     return replace(session, accel=moved), plain
 
 
@@ -314,28 +319,30 @@ def attach(sec: SensorCalibration | None, model: TemperatureModel | None) -> Non
     n = sec.bias.shape[0]
     if model.tempco.shape[1] != n:
         return
-    sec.extra["temperature_ref"] = float(model.temperature_ref)
-    sec.extra["bias_tempco"] = model.tempco.tolist()
-    sec.extra["temperature_range_c"] = [float(model.t_min), float(model.t_max)]
-    unit = sec.extra.get("units_in", "raw units")
-    sec.extra["temperature_model"] = {
-        "source": model.source, "degree": model.degree.tolist(),
-        "bias_tempco_std": model.tempco_std.tolist(), "unit": f"{unit} per C^k",
-        "range_c": [float(model.t_min), float(model.t_max)], **model.details,
-    }  # fmt: skip
-    rows = sec.extra.setdefault("parameters", [])
+    sec.temperature_ref = float(model.temperature_ref)
+    sec.bias_tempco = np.asarray(model.tempco, float)
+    sec.temperature_range_c = [float(model.t_min), float(model.t_max)]
+    unit = sec.units_in or "raw units"
+    sec.temperature_model = build(
+        TemperatureModelRecord, source=model.source, degree=model.degree.tolist(),
+        bias_tempco_std=model.tempco_std.tolist(), unit=f"{unit} per C^k",
+        range_c=[float(model.t_min), float(model.t_max)], **model.details,
+    )  # fmt: skip
+    if sec.parameters is None:
+        sec.parameters = []
+    rows = sec.parameters
     names = channel_names(n)
     for k in range(len(model.tempco)):
         for i in range(n):
             if k < model.degree[i]:
-                rows.append({"name": f"tc{k + 1}_{names[i]}", "value": float(model.tempco[k, i]),
-                             "std": float(model.tempco_std[k, i]),
-                             "unit": f"{unit} {UNITS_PER_C[k + 1]}"})  # fmt: skip
+                rows.append(Parameter(f"tc{k + 1}_{names[i]}", float(model.tempco[k, i]),
+                                      float(model.tempco_std[k, i]),
+                                      f"{unit} {UNITS_PER_C[k + 1]}"))  # fmt: skip
     for row in rows:
-        nm = row.get("name", "")
-        if nm.startswith("b_") and nm[2:] in names and row.get("std") is not None:
+        nm = row.name or ""
+        if nm.startswith("b_") and nm[2:] in names and row.std is not None:
             i = names.index(nm[2:])
-            row["std"] = float(np.sqrt(row["std"] ** 2 + model.bias_var_extra[i]))
+            row.std = float(np.sqrt(row.std ** 2 + model.bias_var_extra[i]))
 
 
 def merge_sessions(sessions: list[Session]) -> Session:

@@ -77,6 +77,6 @@ def clocked(session, truth, scale: float | None, seed: int):
     simulator's ``clock_scale``)."""
     if scale is None:
         return session
-    truth.gyro.extra["sample_clock_scale"] = float(scale)
-    truth.extra["simulator"]["clock_scale"] = float(scale)
+    truth.gyro.sample_clock_scale = float(scale)
+    truth.simulator["clock_scale"] = float(scale)
     return with_clock(session, scale, seed)

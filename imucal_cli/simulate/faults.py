@@ -20,8 +20,8 @@ from dataclasses import replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.session import Session
+from imucal_cli.model.calibration import Calibration
 
 FAULTS = ("bump", "spike", "slow-motion", "wrong-label")
 
@@ -134,7 +134,6 @@ def g_sensitive(session: Session, truth: Calibration, level: float, seed: int = 
         dither = np.random.default_rng([int(seed), 24, 7]).uniform(-0.5, 0.5, gyro.shape)
         gyro = np.clip(np.rint(gyro + dither), -32768, 32767)
     gyro = gyro.astype(np.asarray(session.gyro).dtype, copy=False)
-    sec = replace(truth.gyro, extra={**truth.gyro.extra, "g_sensitivity": G.tolist(),
-                                     "g_sensitivity_physical": C.tolist(),
-                                     "g_sensitivity_unit": f"{session.gyro_units} per m/s^2"})
+    sec = replace(truth.gyro, g_sensitivity=G, g_sensitivity_physical=C.tolist(),
+                  g_sensitivity_unit=f"{session.gyro_units} per m/s^2")
     return replace(session, gyro=gyro), replace(truth, gyro=sec)

@@ -36,8 +36,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.session import MAG_UNITS, UT_PER_MAG_UNIT, Session
+from imucal_cli.model.calibration import Calibration
 from imucal_cli.simulate.motion import check_positive
 from imucal_cli.simulate.sensor import ChannelGroup, tilted_axes
 from imucal_cli.simulate.triad import simulate_stream, stream_session, truth_calibration
@@ -204,8 +204,8 @@ def simulate_mag(
         "tumble_s": float(tumble_s),
     })  # fmt: skip
     truth = replace(truth, mag=mag_truth)
-    truth.extra["simulator"] = {
-        **truth.extra["simulator"], "mag_units": mag_units, "mag_noise": float(mag_noise),
+    truth.simulator = {
+        **truth.simulator, "mag_units": mag_units, "mag_noise": float(mag_noise),
         "field_uT": float(field_uT), "inclination_deg": float(inclination_deg),
         "layout": layout, "field_known": bool(field_known), "tumble_s": float(tumble_s),
     }  # fmt: skip

@@ -17,8 +17,8 @@ a plan name means the same session whichever way it is asked for.
 from __future__ import annotations
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.session import Session
+from imucal_cli.model.calibration import Calibration
 from imucal_cli.plans import find_plan, load_plan
 from imucal_cli.simulate.faults import g_sensitive
 from imucal_cli.simulate.redundant import simulate_hk_gyro, simulate_redundant_accel

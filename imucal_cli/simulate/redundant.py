@@ -18,7 +18,7 @@ seed reproduces a session bit for bit.
 
 Segments of the gyroscope session carry the IMU mounting as the extra segment attribute
 ``mounting`` (an integer, 1 = the unit square in the iron) and in their label (``"mounting 2:
-sweep about +Y"``); the truth repeats the mapping (``gyro.extra["segment_mounting"]``).
+sweep about +Y"``); the truth repeats the mapping (``gyro.segment_mounting``).
 
 Section V, the redundant unit's session and truth
 -------------------------------------------------
@@ -76,8 +76,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.session import Session
+from imucal_cli.model.calibration import Calibration
+from imucal_cli.model.truth import Ruler
 from imucal_cli.plans import HK_FACES, hk_gyro_steps, plan_poses
 from imucal_cli.simulate.motion import (
     MAX_SAMPLES,
@@ -234,7 +235,7 @@ def simulate_redundant_accel(
     Returns
     -------
     session : imucal_cli.formats.session.Session
-    truth : imucal_cli.formats.calibration.Calibration
+    truth : imucal_cli.model.calibration.Calibration
         Both as the module notes say (section V).
 
     Raises
@@ -423,7 +424,7 @@ def simulate_hk_gyro(
     Returns
     -------
     session : imucal_cli.formats.session.Session
-    truth : imucal_cli.formats.calibration.Calibration
+    truth : imucal_cli.model.calibration.Calibration
         Both as the module notes say (section IV-B).
 
     Raises
@@ -465,12 +466,12 @@ def _hk_gyro_extra(opt: dict, frame: str, mounts: list[Rotation], tl: Timeline,
         "sweep_axes_sensor": sweep_axes,
         "peak_rate": opt["peak_rate"],
         "sweep_period_s": opt["sweep_s"] / opt["periods"],
-        "ruler": {
-            "segment": ruler_seg,
-            "axis_iron": [0.0, 0.0, 1.0],
-            "axis_sensor": [0.0, 0.0, 1.0],
-            "angle_deg": opt["ruler_angle_deg"],
-        },
+        "ruler": Ruler(
+            segment=ruler_seg,
+            axis_iron=[0.0, 0.0, 1.0],
+            axis_sensor=[0.0, 0.0, 1.0],
+            angle_deg=opt["ruler_angle_deg"],
+        ),
     }
 
 

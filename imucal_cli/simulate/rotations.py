@@ -57,11 +57,11 @@ x"`` with ``axis`` = the nominal body axis (qureshi-axes), or ``"turn 3"`` witho
 measures it.
 
 The truth: ``accel`` and ``gyro``: ``matrix = inv(S)``, ``bias = b`` (fixture frame), as
-:func:`imucal_cli.simulate.triad.truth_calibration`.  ``gyro.extra``: per turn, in order,
+:func:`imucal_cli.simulate.triad.truth_calibration`.  ``gyro`` (:class:`~imucal_cli.model.truth.GyroTruth`): per turn, in order,
 ``turn_segments`` (segment names), ``turn_labels``, ``turn_axis_names`` (qureshi-axes: x/y/z),
 ``true_angle_deg``, ``true_axis`` (unit, body frame), ``true_rotvec`` (rad, body frame:
 ``R_after = R_before Exp(rotvec)``), ``nominal_axis`` (or None), ``axis_error_deg``,
-``peak_rate_dps``, ``duration_s``; ``noise``.  ``accel.extra``: per still, ``segments``,
+``peak_rate_dps``, ``duration_s``; ``noise``.  ``accel`` (:class:`~imucal_cli.model.truth.AccelTruth`): per still, ``segments``,
 ``labels``, ``true_up`` (unit, fixture frame), ``labelled_up`` (or None); ``noise``,
 ``gravity``.
 """
@@ -74,8 +74,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.session import Session
+from imucal_cli.model.calibration import Calibration
 from imucal_cli.plans import load_plan
 from imucal_cli.simulate.clock import clocked
 from imucal_cli.simulate.motion import (
@@ -286,7 +286,7 @@ def simulate_gyro_rotations(
     Returns
     -------
     session : imucal_cli.formats.session.Session
-    truth : imucal_cli.formats.calibration.Calibration
+    truth : imucal_cli.model.calibration.Calibration
         Both as the module notes say.
 
     Raises

@@ -34,8 +34,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import Calibration, SensorCalibration
 from imucal_cli.formats.session import Segment, Session, utc_now_iso
+from imucal_cli.model.calibration import Calibration, SensorCalibration, section_class
+from imucal_cli.model.codec import build
 from imucal_cli.simulate.motion import unit
 
 __all__ = [
@@ -200,13 +201,9 @@ class ChannelGroup:
         if self.tempco is not None:
             extra = {"temperature_ref": float(self.temperature_ref),
                      "bias_tempco": floats(self.tempco), **extra}  # fmt: skip
-        return SensorCalibration(
-            solver="truth",
-            units=self.si_unit,
-            bias=np.array(self.b, dtype=float),
-            matrix=to_si * inverse(self.S),
-            extra=extra,
-        )
+        return build(section_class(self.name, "truth"), solver="truth", units=self.si_unit,
+                     bias=np.array(self.b, dtype=float), matrix=to_si * inverse(self.S),
+                     **extra)  # fmt: skip
 
     def describe(self) -> dict[str, Any]:
         """The part in the truth record's terms (a triad: misalignment and datasheet figures)."""
@@ -347,7 +344,7 @@ class Imu:
         sections = self.truth_sections(extras)  # one calibration section per group
         head = {"sensor": sensor, "seed": options["seed"], "plan": options["plan"]}
         extra = {**head, **(root or {}), "simulator": options}
-        return session, Calibration(**sections, extra=extra, created=created)
+        return session, build(Calibration, **sections, **extra, created=created)
 
 
 def tilted_axes(rng: np.random.Generator, max_deg: float) -> np.ndarray:

@@ -30,8 +30,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.session import Session
+from imucal_cli.model.calibration import Calibration
 from imucal_cli.plans import Plan, Step
 from imucal_cli.simulate.motion import (
     EZ,
@@ -195,8 +195,8 @@ def simulate_steps(
         One segment per step (label, ``up``/``axis``/``angle_deg`` and ``mounting`` as the
         step says).
     truth : Calibration
-        ``matrix = inv(S)``, ``bias = b`` per sensor; ``accel.extra``: ``segments``,
-        ``true_up`` (unit, body frame) per static step, ``labelled_up``; ``gyro.extra``:
+        ``matrix = inv(S)``, ``bias = b`` per sensor; ``accel``: ``segments``,
+        ``true_up`` (unit, body frame) per static step, ``labelled_up``; ``gyro``:
         ``turn_segments``, ``true_angle_deg``, ``true_axis`` (body frame), ``true_rotvec``,
         ``mounting_rotvec_deg`` (sensor -> fixture, per mounting).
     """

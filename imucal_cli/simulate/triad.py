@@ -4,7 +4,7 @@ The simulator plays the experiment of Qureshi & Golnaraghi (section III-A, IV-B)
 placed by hand in a list of poses (the 6 faces and 12 45-degree edges of a cube, or any other
 plan), held still in each for ``hold_s`` seconds, and turned smoothly from one pose to the
 next.  It returns the session exactly as a recorder would have written it, plus a truth
-:class:`~imucal_cli.formats.calibration.Calibration` that maps the raw channels back to the specific
+:class:`~imucal_cli.model.calibration.Calibration` that maps the raw channels back to the specific
 force and angular rate in the fixture frame.
 
 The part and its sensor model are :mod:`imucal_cli.simulate.sensor` (per sample, fixture
@@ -43,8 +43,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.session import Segment, Session, utc_now_iso
+from imucal_cli.model.calibration import Calibration
+from imucal_cli.model.codec import build
 from imucal_cli.plans import plan_poses
 from imucal_cli.simulate.clock import clocked
 from imucal_cli.simulate.motion import (
@@ -336,13 +337,13 @@ def sensor_name(seed: int) -> str:
 
 
 def truth_calibration(stream: SimulatedStream, created: str | None = None) -> Calibration:
-    """The truth of a simulated stream as a :class:`~imucal_cli.formats.calibration.Calibration`.
+    """The truth of a simulated stream as a :class:`~imucal_cli.model.calibration.Calibration`.
 
     ``matrix = inv(S)`` and ``bias = b`` in raw units, so ``matrix @ (raw - bias)`` gives the
     specific force (m/s^2) and angular rate (rad/s) in the fixture frame, up to noise and
     quantisation.  Extras record the generation: noise, seed, plan, jitter, the true up of
-    each static pose (``accel.extra["true_up"]``, in segment order) and the true rotation of
-    each move (``gyro.extra["true_rotvec"]``, rad).
+    each static pose (``accel.true_up``, in segment order) and the true rotation of
+    each move (``gyro.true_rotvec``, rad).
     """
     t, opt = stream.truth, stream.options
     static = [s for s in stream.segments if s.kind == "static"]
@@ -372,8 +373,8 @@ def truth_calibration(stream: SimulatedStream, created: str | None = None) -> Ca
         "simulator": dict(opt),
     }
     kwargs = {} if created is None else {"created": created}
-    return Calibration(accel=sections["accel"], gyro=sections["gyro"], extra=root_extra,
-                       **kwargs)  # fmt: skip
+    return build(Calibration, accel=sections["accel"], gyro=sections["gyro"], **root_extra,
+                 **kwargs)  # fmt: skip
 
 
 def simulate(
@@ -394,7 +395,7 @@ def simulate(
         ``source="simulator"``, ``sensor="sim-16bit seed <seed>"``, raw accel and gyro (N, 3)
         in ``accel_units``/``gyro_units``; segments ``0000``, ``0001``, ... alternating static
         holds (label and, except for ``random:N``, ``up``) and rotation segments (label only).
-    truth : imucal_cli.formats.calibration.Calibration
+    truth : imucal_cli.model.calibration.Calibration
         See :func:`truth_calibration`.
     """
     stream = simulate_stream(plan=plan, seed=seed, **options)

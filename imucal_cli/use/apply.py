@@ -70,12 +70,7 @@ import numpy as np
 
 from imucal_cli import __version__
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import (
-    MODEL_EQUATION,
-    Calibration,
-    SensorCalibration,
-    calibration_to_json,
-)
+from imucal_cli.formats.calibration import calibration_to_json
 from imucal_cli.formats.importers.recording import TIME_UNITS
 from imucal_cli.formats.importers.text import (
     BLANK,
@@ -94,6 +89,7 @@ from imucal_cli.formats.session import FORMAT_VERSION as SESSION_FORMAT_VERSION
 from imucal_cli.formats.session import as_int, as_str, one_line, open_for_reading, utc_now_iso
 from imucal_cli.formats.session.reader import check_time as check_session_time
 from imucal_cli.formats.session.reader import raw_datasets
+from imucal_cli.model.calibration import MODEL_EQUATION, Calibration, SensorCalibration
 
 __all__ = [
     "DEFAULT_CHUNK_ROWS",
@@ -460,8 +456,8 @@ class _H5Writer:
         attrs["calibration_created"] = cal.created
         if cal.session is not None:
             attrs["calibration_session"] = cal.session
-        if isinstance(cal.extra.get("sensor"), str):
-            attrs["sensor"] = cal.extra["sensor"]
+        if cal.sensor is not None:
+            attrs["sensor"] = cal.sensor
         attrs["toolkit_version"] = __version__
         group = self.file.create_group("calibrated")
         self.datasets = {
@@ -477,7 +473,7 @@ class _H5Writer:
             ds.attrs["units"] = sec.units
             ds.attrs["solver"] = sec.solver
             ds.attrs["channels_in"] = int(sec.bias.shape[0])
-            unit = units_in.get(name) or sec.extra.get("units_in")
+            unit = units_in.get(name) or sec.units_in
             if isinstance(unit, str) and unit != "unknown":
                 ds.attrs["units_in"] = unit
             self.datasets[name] = ds
@@ -647,7 +643,7 @@ def _prepare(cal: Calibration, input_path: Path, output_path: Path, cal_source: 
     check_output(output_path, force=overwrite, inputs=[input_path, cal_source])
     sections = _sections(cal)
     gyro = sections.get("gyro")
-    if gyro is not None and gyro.g_sensitivity is not None and "accel" not in sections:
+    if gyro is not None and gyro.g_term is not None and "accel" not in sections:
         raise InputError(
             f"{cal_source}: the gyro calibration holds g_sensitivity but there is no "
             "accelerometer calibration to give the specific force it needs"
@@ -700,7 +696,7 @@ def _session_input(path: Path, sections: dict[str, SensorCalibration], cal_sourc
     differ from those the calibration was made for."""
     blocks, total, units_in, close_input = _session_blocks(path, sections, cal_source, chunk_rows)
     for name, sec in sections.items():
-        want = sec.extra.get("units_in")
+        want = sec.units_in
         have = units_in.get(name)
         if (
             isinstance(want, str)

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from imucal_cli.errors import CalibrationFileError, InputError
-from imucal_cli.formats.calibration import Calibration, calibration_from_json
+from imucal_cli.formats.calibration import calibration_from_json
 from imucal_cli.formats.exporters import STANDARD_GRAVITY, ExportOptions
 from imucal_cli.formats.exporters.ardupilot import export_ardupilot
 from imucal_cli.formats.exporters.basalt import export_basalt
@@ -37,6 +37,7 @@ from imucal_cli.formats.exporters.ros_imu import export_ros_imu
 from imucal_cli.formats.inputs import read_text_input
 from imucal_cli.formats.noise import NOISE_FORMAT, NoiseFigures, noise_from_dict
 from imucal_cli.formats.text import has_control
+from imucal_cli.model.calibration import Calibration
 
 __all__ = [
     "EXPORT_FORMATS",
@@ -170,7 +171,7 @@ def refuse_g_sensitivity(cal: Calibration, fmt: str, drop: frozenset[str]) -> No
     lose it (``--drop g-sensitivity``; the file then says how large it was).  The formats
     page: a reader that cannot apply a term refuses rather than ignores it (issue 26: the
     imu_calib YAML and the C header ignored it, 0.0225 rad/s off ``imucal apply``)."""
-    gs = None if cal.gyro is None else cal.gyro.g_sensitivity
+    gs = None if cal.gyro is None else cal.gyro.g_term
     if gs is None or "g-sensitivity" in drop:
         return
     worst = float(np.linalg.norm(cal.gyro.matrix @ gs, 2) * STANDARD_GRAVITY)

@@ -33,9 +33,9 @@ from typing import Any
 import numpy as np
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import Calibration, SensorCalibration
 from imucal_cli.formats.noise import NOISE_FORMAT
 from imucal_cli.formats.session import Session, SessionSamples, samples_of
+from imucal_cli.model.calibration import Calibration, SensorCalibration
 from imucal_cli.numerics.allan import AllanAccumulator
 from imucal_cli.solvers.allan import AxisNoise, noise_from_curve
 from imucal_cli.solvers.segmentation import StaticStream, estimate_noise

@@ -1,6 +1,6 @@
 """Exporters: a calibration written in another tool's format, one module per format.
 
-Each exporter is a function of a :class:`~imucal_cli.formats.calibration.Calibration` (and,
+Each exporter is a function of a :class:`~imucal_cli.model.calibration.Calibration` (and,
 for the noise formats, :class:`~imucal_cli.formats.noise.NoiseFigures`) returning text;
 :mod:`imucal_cli.use.export` chooses one.  This module holds what they share:
 
@@ -23,9 +23,9 @@ import numpy as np
 
 from imucal_cli import __version__
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import MODEL_EQUATION, Calibration, SensorCalibration
 from imucal_cli.formats.noise import NoiseFigures
 from imucal_cli.formats.text import clean_text
+from imucal_cli.model.calibration import MODEL_EQUATION, Calibration, SensorCalibration
 from imucal_cli.solvers.temperature import reexpand
 
 SENSORS = ("accel", "gyro")
@@ -91,7 +91,7 @@ def all_sections(cal: Calibration) -> list[tuple[str, SensorCalibration]]:
 
 
 def units_in(sec: SensorCalibration) -> str:
-    unit = sec.extra.get("units_in")
+    unit = sec.units_in
     return unit if isinstance(unit, str) and unit != "unknown" else "raw units"
 
 
@@ -138,7 +138,7 @@ def provenance(cal: Calibration | None, target: str) -> list[str]:
     """Comment lines (without the comment marker) naming the source and the toolkit."""
     lines = [f"{target}, written by imucal {__version__} (imucal export)."]
     if cal is not None:
-        sensor = cal.extra.get("sensor")
+        sensor = cal.sensor
         lines.append(
             f"sensor: {one_line(sensor) if sensor else 'not stated'}; session: "
             f"{one_line(cal.session) if cal.session else 'not stated'}; calibration created "
@@ -199,7 +199,7 @@ def temperature_terms(sec: SensorCalibration, factor: float = 1.0) -> Temperatur
     if terms is None:
         return None
     t_ref, tempco = terms
-    rng = sec.extra.get("temperature_range_c")
+    rng = sec.temperature_range_c
     lo = hi = None
     if isinstance(rng, list) and len(rng) == 2 and all(isinstance(v, int | float) for v in rng):
         lo, hi = float(rng[0]), float(rng[1])
@@ -281,7 +281,7 @@ def published(
         )
     if abs(np.linalg.det(sec.matrix)) < 1e-300 or not np.isfinite(np.linalg.cond(sec.matrix)):
         raise InputError(f"the {name} matrix is singular: it cannot be inverted for {target}")
-    gs = sec.g_sensitivity if name == "gyro" else None
+    gs = sec.g_term if name == "gyro" else None
     return Published(
         name=name,
         matrix=sec.matrix / factor,

@@ -42,7 +42,6 @@ from __future__ import annotations
 import numpy as np
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.exporters import (
     ExportOptions,
     Published,
@@ -53,6 +52,7 @@ from imucal_cli.formats.exporters import (
     provenance,
 )
 from imucal_cli.formats.exporters.magnetic import mag_for_target
+from imucal_cli.model.calibration import Calibration
 
 __all__ = ["export_ardupilot"]
 

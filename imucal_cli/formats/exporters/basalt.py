@@ -29,7 +29,6 @@ import math
 import numpy as np
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.exporters import (
     STANDARD_GRAVITY,
     ExportOptions,
@@ -38,6 +37,7 @@ from imucal_cli.formats.exporters import (
     published,
 )
 from imucal_cli.formats.exporters.kalibr import frame_comments, frame_for
+from imucal_cli.model.calibration import Calibration
 
 __all__ = ["export_basalt"]
 

@@ -24,9 +24,9 @@ every axis in a comment.
 from __future__ import annotations
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.exporters import STANDARD_GRAVITY, ExportOptions, fmt, provenance
 from imucal_cli.formats.noise import WALK_UNITS, WHITE_UNITS, NoiseFigures
+from imucal_cli.model.calibration import Calibration
 
 __all__ = ["export_orbslam3", "export_vins"]
 
@@ -70,7 +70,7 @@ def _header(cal: Calibration | None, noise: NoiseFigures, target: str) -> list[s
 
 
 def _gravity(cal: Calibration | None) -> tuple[float, str]:
-    g = None if cal is None or cal.accel is None else cal.accel.extra.get("gravity")
+    g = None if cal is None or cal.accel is None else cal.accel.gravity
     if isinstance(g, int | float) and 9.0 < g < 10.5:
         return float(g), "the calibration's local gravity"
     return STANDARD_GRAVITY, "standard gravity (no calibration given)"

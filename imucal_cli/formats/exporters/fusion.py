@@ -44,7 +44,6 @@ import math
 import numpy as np
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.exporters import (
     STANDARD_GRAVITY,
     ExportOptions,
@@ -54,6 +53,7 @@ from imucal_cli.formats.exporters import (
     units_in,
 )
 from imucal_cli.formats.exporters.c_header import c_comment, c_float, check_prefix
+from imucal_cli.model.calibration import Calibration
 
 __all__ = ["FUSION_VERSIONS", "export_fusion", "fusion_arrays"]
 
@@ -138,7 +138,7 @@ def export_fusion(cal: Calibration, opts: ExportOptions) -> str:
         unit, _ = _UNITS[name]
         lines.append(f" * {name}: raw {c_comment(units_in(sec))} -> {unit}, solver "
                      f"{c_comment(sec.solver)}")  # fmt: skip
-        gs = sec.g_sensitivity if name == "gyro" else None
+        gs = sec.g_term if name == "gyro" else None
         if gs is not None:  # only with --drop g-sensitivity (use.export refuses it otherwise)
             worst = float(np.linalg.norm(sec.matrix @ gs, 2) * STANDARD_GRAVITY)
             lines.append(f" * gyro g-sensitivity dropped (Fusion has none; --drop "
@@ -153,7 +153,7 @@ def export_fusion(cal: Calibration, opts: ExportOptions) -> str:
             f" * magnetometer ({magnetic}):",
             " *   calibrated = softIronMatrix * (uncalibrated - hardIronOffset)",
             f" * mag: raw {c_comment(units_in(mag))} -> {c_comment(mag.units)}, solver "
-            f"{c_comment(mag.solver)}; {c_comment(mag.extra.get('frame') or '')}",
+            f"{c_comment(mag.solver)}; {c_comment(mag.frame or '')}",
         ]
     lines += [" */", '#include "Fusion.h"', "", *_layout_check(version)]
     for name, sec in sections(cal):

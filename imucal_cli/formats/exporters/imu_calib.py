@@ -21,11 +21,6 @@ import numpy as np
 
 from imucal_cli import __version__
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import (
-    MODEL_EQUATION,
-    Calibration,
-    SensorCalibration,
-)
 from imucal_cli.formats.exporters import (
     ExportOptions,
     Published,
@@ -33,6 +28,7 @@ from imucal_cli.formats.exporters import (
     one_line,
     published,
 )
+from imucal_cli.model.calibration import MODEL_EQUATION, Calibration, SensorCalibration
 
 __all__ = ["export_yaml"]
 
@@ -89,7 +85,7 @@ def export_yaml(cal: Calibration, opts: ExportOptions | None = None) -> str:
     scale = None if opts is None else opts.scale
     arrays = {name: _imu_calib_arrays(name, sec, scale) for name, sec in
               (("accel", cal.accel), ("gyro", cal.gyro)) if sec is not None}  # fmt: skip
-    sensor = cal.extra.get("sensor")
+    sensor = cal.sensor
     out = [
         "# IMU calibration for ROS imu_calib (apply_calib calib_file), written by imucal "
         + __version__,

@@ -9,13 +9,9 @@ from __future__ import annotations
 import json
 import math
 
-from imucal_cli.formats.calibration import (
-    FORMAT,
-    FORMAT_VERSION,
-    MODEL_EQUATION,
-    Calibration,
-)
 from imucal_cli.formats.exporters import all_sections
+from imucal_cli.model.calibration import FORMAT, FORMAT_VERSION, MODEL_EQUATION, Calibration
+from imucal_cli.model.codec import jsonable
 
 __all__ = ["OPTIONAL_TERMS", "export_json"]
 
@@ -50,6 +46,6 @@ def export_json(cal: Calibration) -> str:
             "residual_rms": _finite_or_none(sec.residual_rms),
         }
         for key in OPTIONAL_TERMS:  # the formats page's optional terms, applied before matrix
-            if sec.extra.get(key) is not None:
-                doc[name][key] = sec.extra[key]
+            if getattr(sec, key) is not None:
+                doc[name][key] = jsonable(getattr(sec, key))
     return json.dumps(doc, separators=(",", ":"), allow_nan=False) + "\n"

@@ -28,7 +28,6 @@ from __future__ import annotations
 import numpy as np
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.exporters import (
     ExportOptions,
     KalibrFrame,
@@ -41,6 +40,7 @@ from imucal_cli.formats.exporters import (
     rotation_angle_deg,
 )
 from imucal_cli.formats.noise import WALK_UNITS, WHITE_UNITS, NoiseFigures
+from imucal_cli.model.calibration import Calibration
 
 __all__ = [
     "export_kalibr",

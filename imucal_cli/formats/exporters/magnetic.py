@@ -25,8 +25,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import LOCAL_FIELD, Calibration
 from imucal_cli.formats.session import UT_PER_MAG_UNIT
+from imucal_cli.model.calibration import LOCAL_FIELD, Calibration
+from imucal_cli.model.mag import MagCalibration
 
 __all__ = ["TARGET_PER_UT", "MagForTarget", "mag_for_target"]
 
@@ -78,7 +79,7 @@ def mag_for_target(
     if sec.bias.shape[0] != 3:
         raise InputError(f"the mag calibration has {sec.bias.shape[0]} channels; {target} "
                          "holds a 3-axis magnetometer")  # fmt: skip
-    raw_units = sec.extra.get("units_in") or "raw units"
+    raw_units = sec.units_in or "raw units"
     if scale_uT is not None:
         if not (math.isfinite(scale_uT) and scale_uT > 0):
             raise InputError(f"--mag-scale must be a positive number of uT per raw unit, "
@@ -97,7 +98,7 @@ def mag_for_target(
     W = np.asarray(sec.matrix, float)
     lines = []
     if sec.units == LOCAL_FIELD:
-        estimate = sec.extra.get("field_estimate_uT")
+        estimate = sec.field_estimate_uT if isinstance(sec, MagCalibration) else None
         if not isinstance(estimate, int | float) or not estimate > 0:
             raise InputError(
                 f"the mag calibration is in units of the local field (no field magnitude was "
@@ -123,7 +124,7 @@ def mag_for_target(
         f"magnetometer is in the frame {target}'s driver publishes",
     ]
     if angle > LARGE_ROTATION_DEG:
-        axes = sec.extra.get("axes")
+        axes = sec.axes if isinstance(sec, MagCalibration) else None
         lines.append(
             f"WARNING: the magnetometer's axes are {angle:.0f} deg from the accelerometer's"
             + (f" ({', '.join(axes)})" if axes else "")

@@ -21,7 +21,6 @@ from __future__ import annotations
 import numpy as np
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.exporters import ExportOptions, provenance
 from imucal_cli.formats.exporters.kalibr import (
     frame_comments,
@@ -30,6 +29,7 @@ from imucal_cli.formats.exporters.kalibr import (
     yaml_matrix,
     yaml_vector,
 )
+from imucal_cli.model.calibration import Calibration
 
 __all__ = ["export_openvins"]
 

@@ -39,7 +39,6 @@ component-id name value type`` (type 9 float, 6 int32), as QGroundControl saves 
 from __future__ import annotations
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.exporters import (
     ExportOptions,
     Published,
@@ -50,6 +49,7 @@ from imucal_cli.formats.exporters import (
     provenance,
 )
 from imucal_cli.formats.exporters.magnetic import mag_for_target
+from imucal_cli.model.calibration import Calibration
 
 __all__ = ["export_px4"]
 

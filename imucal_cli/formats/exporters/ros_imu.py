@@ -16,9 +16,9 @@ from __future__ import annotations
 import numpy as np
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.exporters import ExportOptions, fmt, provenance
 from imucal_cli.formats.exporters.kalibr import yaml_vector
+from imucal_cli.model.calibration import Calibration
 
 __all__ = ["export_ros_imu", "imu_covariances"]
 

@@ -1,7 +1,7 @@
 """Calibration report: what a stored calibration says, as a JSON-ready dict and as rich tables.
 
 A report only *reads* results.  It takes a
-:class:`~imucal_cli.formats.calibration.Calibration` (from a calibration JSON, or the last one
+:class:`~imucal_cli.model.calibration.Calibration` (from a calibration JSON, or the last one
 stored under ``/calibrations`` of a session) and lays out what the solver wrote: the model and
 its parameters with standard deviations, misalignment angles, the gravity-magnitude RMS before /
 after / leave-one-pose-out, the per-pose residuals and how well the measured gravity directions

@@ -1,6 +1,6 @@
 """Building the report: what a stored calibration says, as a JSON-ready dict.
 
-:func:`build_report` reads a :class:`~imucal_cli.formats.calibration.Calibration` and lays out
+:func:`build_report` reads a :class:`~imucal_cli.model.calibration.Calibration` and lays out
 what the solver wrote, section by section (see :func:`_section_report` for the keys).  Nothing is
 re-solved; fields a calibration does not carry are ``None`` (or empty) and named in the
 section's ``unavailable``.  New report content goes here, as data: the renderer draws every
@@ -13,16 +13,17 @@ from typing import Any
 
 import numpy as np
 
-from imucal_cli.formats.calibration import Calibration, SensorCalibration
+from imucal_cli.model.accel import Coverage, PoseRow
+from imucal_cli.model.calibration import Calibration, SensorCalibration
+from imucal_cli.model.gyro import RotationRow
+from imucal_cli.model.parts import Factorization, FitStatistics, ImportedFrom, Linear
 
 from .fields import (
-    as_int,
     as_list,
     as_number,
-    as_text,
     as_vector,
+    member,
     ratio,
-    read_fields,
     read_misalignment,
     read_parameters,
     read_sensitivity,
@@ -95,18 +96,17 @@ def build_report(cal: Calibration) -> dict[str, Any]:
         ``complete``: the calibrate step's verdict (no sensor of the session left out), None
         when the calibration does not record it.
     """
-    extra = cal.extra or {}
     sections = cal.sections()
     return {
         "format": REPORT_FORMAT,
         "format_version": REPORT_FORMAT_VERSION,
         "session": cal.session,
         "created": cal.created,
-        "created_basis": as_text(extra.get("created_basis")),
-        "imported_from": _imported_from(extra.get("imported_from")),
-        "sensor": as_text(extra.get("sensor")),
-        "toolkit_version": as_text(extra.get("toolkit_version")),
-        "config": _relevant_config(extra.get("config"), cal),
+        "created_basis": cal.created_basis,
+        "imported_from": _imported_from(cal.imported_from),
+        "sensor": cal.sensor,
+        "toolkit_version": cal.toolkit_version,
+        "config": _relevant_config(cal.config, cal),
         "sensors": {
             kind: _section_report(kind, section)
             for kind, section in sections.items()
@@ -114,27 +114,19 @@ def build_report(cal: Calibration) -> dict[str, Any]:
         },
         "reference": dict(PAPER_REFERENCE) if _paper_context(cal) else None,
         "left_out": {
-            kind: as_text(extra.get(f"{kind}_note"))
+            kind: cal.note(kind)
             for kind in ("accel", "gyro", "mag")
-            if extra.get(f"{kind}_note") and sections.get(kind) is None
+            if cal.note(kind) and sections.get(kind) is None
         },
-        "complete": _complete(extra),
+        "complete": cal.complete,  # None: not recorded (older, or another tool's)
     }
 
 
-def _complete(extra: dict) -> bool | None:
-    """The calibrate step's ``complete`` (issue 24.2: no sensor of the session left out), or
-    None for a calibration that does not record it (older, or another tool's)."""
-    value = extra.get("complete")
-    return value if isinstance(value, bool) else None
-
-
-def _imported_from(raw: Any) -> dict[str, str | None] | None:
+def _imported_from(found: ImportedFrom | None) -> dict[str, str | None] | None:
     """``{"format", "file"}`` of a calibration read from another tool's file, else None."""
-    if not isinstance(raw, dict):
+    if found is None or not (found.format or found.file):
         return None
-    found = {"format": as_text(raw.get("format")), "file": as_text(raw.get("file"))}
-    return found if any(found.values()) else None
+    return {"format": found.format, "file": found.file}
 
 
 # Option tables shared by several solvers of a section (the others are named after their solver).
@@ -166,8 +158,7 @@ def _relevant_config(config: Any, cal: Calibration) -> dict[str, Any] | None:
 def _paper_context(cal: Calibration) -> bool:
     """Qureshi & Golnaraghi's published figure is context for a simulation of their design
     calibrated by their solver, not for the user's own sensor."""
-    source = as_text((cal.extra or {}).get("source"))
-    return cal.accel is not None and cal.accel.solver == "gravity" and source == "simulator"
+    return cal.accel is not None and cal.accel.solver == "gravity" and cal.source == "simulator"
 
 
 def _section_report(kind: str, sec: SensorCalibration) -> dict[str, Any]:
@@ -192,18 +183,17 @@ def _section_report(kind: str, sec: SensorCalibration) -> dict[str, Any]:
     and ``unavailable`` (what this calibration does not carry).  Non-finite numbers read as
     ``None`` (strict JSON).
     """
-    extra = sec.extra or {}
-    units_in = as_text(extra.get("units_in"))
+    units_in = sec.units_in
     gravity = _gravity(kind, sec)
     mg_per_unit = 1000.0 / gravity["value"] if gravity else None
     g_sensitivity = _g_sensitivity(sec, units_in)
-    model = as_text(extra.get("model")) or "calibrated = matrix @ (raw - bias)"
+    model = sec.model or "calibrated = matrix @ (raw - bias)"
     if g_sensitivity is not None and "g_sensitivity" not in model:
         model = "calibrated = matrix @ (raw - bias - g_sensitivity @ a)"
     report: dict[str, Any] = {
         "solver": sec.solver,
-        "variant": as_text(extra.get("variant")),
-        "gauge": as_text(extra.get("gauge")),
+        "variant": sec.variant,
+        "gauge": sec.gauge,
         "model": model,
         "units_in": units_in,
         "units_out": sec.units,
@@ -212,24 +202,21 @@ def _section_report(kind: str, sec: SensorCalibration) -> dict[str, Any]:
         "bias": np.asarray(sec.bias, dtype=float).tolist(),
         "bias_unit": units_in or "raw units",
         "gravity": gravity,
-        "parameters": read_parameters(extra.get("parameters")),
-        "misalignment_deg": read_misalignment(
-            extra.get("misalignment_deg"), extra.get("misalignment_std_deg")
-        ),
-        "sensitivity": read_sensitivity(
-            extra.get("sensitivity"), extra.get("sensitivity_std"), extra.get("sensitivity_unit")
-        ),
-        "fit": _fit(extra),
+        "parameters": read_parameters(sec.parameters),
+        "misalignment_deg": read_misalignment(sec.misalignment_deg, sec.misalignment_std_deg),
+        "sensitivity": read_sensitivity(sec.sensitivity, sec.sensitivity_std,
+                                        sec.sensitivity_unit),  # fmt: skip
+        "fit": _fit(sec.fit),
         "rms": _rms_report(sec, mg_per_unit),
-        "coverage": _coverage(extra.get("coverage")),
-        "poses": _poses(extra.get("poses"), mg_per_unit),
-        "rotation": as_text(extra.get("rotation")),
+        "coverage": _coverage(member(sec, "coverage") if kind == "accel" else None),
+        "poses": _poses(member(sec, "poses") if kind == "accel" else None, mg_per_unit),
+        "rotation": _frame_words(sec),
         "factorization": _factorization(kind, sec),
-        "rotations": _rotations(extra.get("rotations")),
+        "rotations": _rotations(member(sec, "rotations")),
         "g_sensitivity": g_sensitivity,
         "tables": [],
-        "notes": [str(n) for n in as_list(extra.get("notes"))],
-        "warnings": [str(w) for w in as_list(extra.get("warnings"))],
+        "notes": list(sec.notes or []),
+        "warnings": list(sec.warnings or []),
     }
     if kind == "mag":
         add_mag_content(report, sec, add_table)
@@ -240,7 +227,7 @@ def _section_report(kind: str, sec: SensorCalibration) -> dict[str, Any]:
         add_table(report, f"g-sensitivity [{g_sensitivity['unit']}]", ["", "a_x", "a_y", "a_z"],
                   rows, caption="raw - bias - g_sensitivity @ a, with a the calibrated "
                   "acceleration in m/s^2")  # fmt: skip
-    _terms_tables(report, extra)
+    _terms_tables(report, sec)
     report["unavailable"] = _unavailable(kind, report)
     return report
 
@@ -248,26 +235,27 @@ def _section_report(kind: str, sec: SensorCalibration) -> dict[str, Any]:
 def _g_sensitivity(sec: SensorCalibration, units_in: str | None) -> dict[str, Any] | None:
     """The section's g-sensitivity matrix and its unit, or None (absent or malformed)."""
     try:
-        matrix = sec.g_sensitivity
+        matrix = sec.g_term
     except Exception:  # noqa: BLE001  (a malformed optional field reads as missing)
         return None
     if matrix is None:
         return None
-    unit = as_text(sec.extra.get("g_sensitivity_unit"))
+    unit = sec.g_sensitivity_unit
     unit = unit.split(" (")[0] if unit else f"{units_in or 'raw units'} per m/s^2"
     return {"matrix": np.asarray(matrix, dtype=float).tolist(), "unit": unit}
 
 
-def _terms_tables(report: dict[str, Any], extra: dict[str, Any]) -> None:
+def _terms_tables(report: dict[str, Any], sec: SensorCalibration) -> None:
     """Tables of the optional terms (issue 17): the bias temperature model and the sample
     clock, when the section has them."""
-    model = extra.get("temperature_model")
-    if isinstance(model, dict) and isinstance(extra.get("bias_tempco"), list):
-        tc = np.asarray(extra["bias_tempco"], dtype=float)
-        std = np.asarray(model.get("bias_tempco_std", np.zeros_like(tc)), dtype=float)
-        unit = as_text(model.get("unit")) or "raw units per C^k"
+    model = sec.temperature_model
+    if model is not None and sec.bias_tempco is not None:
+        tc = np.asarray(sec.bias_tempco, dtype=float).reshape(-1, sec.bias.size)
+        std = np.asarray(model.bias_tempco_std if model.bias_tempco_std is not None
+                         else np.zeros_like(tc), dtype=float)  # fmt: skip
+        unit = model.unit or "raw units per C^k"
         rows = []
-        degrees = as_list(model.get("degree"))
+        degrees = list(model.degree or [])
         names = "xyz" if len(degrees) == 3 else [str(i) for i in range(len(degrees))]
         for i, deg in enumerate(degrees):
             cells = [names[i], deg]
@@ -275,24 +263,25 @@ def _terms_tables(report: dict[str, Any], extra: dict[str, Any]) -> None:
                 cells += [float(tc[k, i]) if k < len(tc) else None,
                           float(std[k, i]) if k < len(std) else None]  # fmt: skip
             rows.append(cells)
-        lo, hi = (as_list(model.get("range_c")) + [float("nan")] * 2)[:2]
+        lo, hi = (list(model.range_c or []) + [float("nan")] * 2)[:2]
         add_table(report, "bias temperature model", ["channel", "degree", "c1", "c1 std", "c2",
                   "c2 std", "c3", "c3 std"], rows,  # fmt: skip
-                  caption=f"bias(T) = bias + sum_k c_k (T - {float(extra['temperature_ref']):.2f}"
+                  caption=f"bias(T) = bias + sum_k c_k (T - {float(sec.temperature_ref):.2f}"
                   f" C)^k, {unit}; fitted over {float(lo):.1f} .. {float(hi):.1f} C from "
-                  f"{as_text(model.get('source'))}")  # fmt: skip
-    clock = extra.get("sample_clock")
-    if isinstance(clock, dict) and "ppm" in clock:
+                  f"{model.source}")  # fmt: skip
+    clock = member(sec, "sample_clock")
+    if clock is not None and clock.ppm is not None:
+        ppm_std = float("nan") if clock.ppm_std is None else clock.ppm_std
         add_table(report, "sample clock", ["scale [device s per s]", "error [ppm]",
                   "std [ppm]", "host jitter [ms]", "recording [s]"],  # fmt: skip
-                  [[clock.get("scale"), clock.get("ppm"), clock.get("ppm_std"),
-                    1000 * float(clock.get("jitter_s") or 0.0), clock.get("duration_s")]],
-                  caption=f"the device's sample clock runs {clock['ppm']:+.1f} ± "
-                  f"{clock.get('ppm_std', float('nan')):.2g} ppm against the host's arrival "
+                  [[clock.scale, clock.ppm, clock.ppm_std,
+                    1000 * float(clock.jitter_s or 0.0), clock.duration_s]],
+                  caption=f"the device's sample clock runs {clock.ppm:+.1f} ± "
+                  f"{ppm_std:.2g} ppm against the host's arrival "
                   "times (error and std in ppm, jitter in ms, recording in s); "
                   + ("the gyro was calibrated in true seconds (corrected by it)"
-                     if clock.get("applied", True) else "not corrected: within "
-                     f"{float(clock.get('threshold_ppm') or 0.0):.3g} ppm (3 std) of a clock "
+                     if clock.applied in (None, True) else "not corrected: within "
+                     f"{float(clock.threshold_ppm or 0.0):.3g} ppm (3 std) of a clock "
                      "that is right"))  # fmt: skip
 
 
@@ -318,7 +307,7 @@ def add_table(
 
 def _gravity(kind: str, sec: SensorCalibration) -> dict[str, Any] | None:
     """Gravity for milli-g figures: the calibration's own, else standard for an accelerometer."""
-    stated = as_number(sec.extra.get("gravity"))
+    stated = as_number(member(sec, "gravity"))
     if stated is not None and stated > 0:
         return {"value": stated, "stated": True}
     if kind == "accel" and sec.units == "m/s^2":
@@ -334,11 +323,10 @@ def _rms_report(sec: SensorCalibration, mg_per_unit: float | None) -> dict[str, 
     the solver minimised).  ``improvement`` = before / after, ``improvement_held_out`` =
     before / held_out.
     """
-    extra = sec.extra
     figures = {
-        "before": as_number(extra.get("rms_before")),
-        "after": as_number(extra.get("rms_after")),
-        "held_out": as_number(extra.get("rms_loo")),
+        "before": as_number(member(sec, "rms_before")),
+        "after": as_number(member(sec, "rms_after")),
+        "held_out": as_number(member(sec, "rms_loo")),
         "residual_rms": as_number(sec.residual_rms),
     }
     gravity_magnitude = sec.solver == "gravity" or (
@@ -351,7 +339,7 @@ def _rms_report(sec: SensorCalibration, mg_per_unit: float | None) -> dict[str, 
     }
     for key, value in figures.items():
         rms[f"{key}_mg"] = scaled(value, mg_per_unit)
-    exact = extra.get("rms_after_below_noise") is True  # no factor of a fit below the noise
+    exact = member(sec, "rms_after_below_noise") is True  # no factor of a fit below the noise
     rms["improvement"] = None if exact else ratio(figures["before"], figures["after"])
     rms["improvement_held_out"] = ratio(figures["before"], figures["held_out"])
     if exact:
@@ -359,48 +347,56 @@ def _rms_report(sec: SensorCalibration, mg_per_unit: float | None) -> dict[str, 
             "the fit residual is below what the noise allows (too few spare equations): it "
             "says nothing about the accuracy; see the held-out figure"
         )
-    rms["before_basis"] = as_text(extra.get("before_basis"))
-    rms["held_out_method"] = as_text(extra.get("loo_method"))
+    rms["before_basis"] = member(sec, "before_basis")
+    rms["held_out_method"] = member(sec, "loo_method")
     return rms
 
 
-def _fit(extra: dict[str, Any]) -> dict[str, Any] | None:
-    fit = {
-        "init": as_text(extra.get("init")),
-        "iterations": as_int(extra.get("iterations")),
-        "converged": extra.get("converged") if isinstance(extra.get("converged"), bool) else None,
-        "message": as_text(extra.get("message")),
-        "noise_scale": as_number(extra.get("noise_scale")),
-        "weighting": as_text(extra.get("weighting")),
-        "chi2": as_number(extra.get("chi2")),
-        "dof": as_int(extra.get("dof")),
-    }
-    return fit if any(v is not None for v in fit.values()) else None
+def _frame_words(sec: SensorCalibration) -> str | None:
+    """How the free rotation of a factorization was fixed (the section's ``rotation``)."""
+    found = member(sec, "factorization")
+    return None if found is None else found.rotation
 
 
-def _coverage(raw: Any) -> dict[str, Any] | None:
-    if not isinstance(raw, dict):
+def _fit(fit: FitStatistics | None) -> dict[str, Any] | None:
+    if fit is None:
         return None
-    return read_fields(raw, fraction=as_number, largest_gap_deg=as_number, n_poses=as_int,
-                       n_distinct=as_int, cap_deg=as_number, weakest_direction=as_vector)
+    out = {
+        "init": fit.init,
+        "iterations": fit.iterations,
+        "converged": fit.converged,
+        "message": fit.message,
+        "noise_scale": as_number(fit.noise_scale),
+        "weighting": fit.weighting,
+        "chi2": as_number(fit.chi2),
+        "dof": fit.dof,
+    }
+    return out if any(v is not None for v in out.values()) else None
 
 
-def _poses(raw: Any, mg_per_unit: float | None) -> list[dict[str, Any]]:
+def _coverage(cover: Coverage | None) -> dict[str, Any] | None:
+    if cover is None:
+        return None
+    return {"fraction": as_number(cover.fraction),
+            "largest_gap_deg": as_number(cover.largest_gap_deg), "n_poses": cover.n_poses,
+            "n_distinct": cover.n_distinct, "cap_deg": as_number(cover.cap_deg),
+            "weakest_direction": as_vector(cover.weakest_direction)}  # fmt: skip
+
+
+def _poses(poses: list[PoseRow] | None, mg_per_unit: float | None) -> list[dict[str, Any]]:
     rows = []
-    for item in as_list(raw):
-        if not isinstance(item, dict):
-            continue
+    for item in poses or []:
         row = {
-            "segment": as_text(item.get("segment")),
-            "label": as_text(item.get("label")),
-            "up": as_vector(item.get("up")),
-            "samples": as_int(item.get("samples")),
-            "magnitude_before": as_number(item.get("magnitude_before")),
-            "magnitude_after": as_number(item.get("magnitude_after")),
-            "residual": as_number(item.get("residual")),
-            "residual_loo": as_number(item.get("residual_loo")),
-            "angle_to_up_deg": as_number(item.get("angle_to_up_deg")),
-            "direction": as_vector(item.get("direction")),
+            "segment": item.segment,
+            "label": item.label,
+            "up": as_vector(item.up),
+            "samples": item.samples,
+            "magnitude_before": as_number(item.magnitude_before),
+            "magnitude_after": as_number(item.magnitude_after),
+            "residual": as_number(item.residual),
+            "residual_loo": as_number(item.residual_loo),
+            "angle_to_up_deg": as_number(item.angle_to_up_deg),
+            "direction": as_vector(item.direction),
         }
         row["residual_mg"] = scaled(row["residual"], mg_per_unit)
         row["residual_loo_mg"] = scaled(row["residual_loo"], mg_per_unit)
@@ -420,31 +416,31 @@ def _factorization(kind: str, sec: SensorCalibration) -> dict[str, Any] | None:
     ``{"group", "name", "unit", "linear", "refined", "refined_std"}``; without refinement
     ``refined`` and ``refined_std`` are ``None`` and ``linear`` holds the final values.
     """
-    extra = sec.extra or {}
-    linear = extra.get("linear")
-    if sec.solver != "factorization" and not isinstance(linear, dict):
+    fz = member(sec, "factorization")
+    if sec.solver != "factorization" and (fz is None or fz.linear is None):
         return None
-    linear = linear if isinstance(linear, dict) else {}
+    fz = fz or Factorization()
+    linear = fz.linear
     n = np.asarray(sec.bias, dtype=float).size
-    names = [str(a) for a in as_list(extra.get("axis_names"))]
+    names = list(fz.axis_names or [])
     if len(names) != n:
         names = list("xyz") if n == 3 else [str(i + 1) for i in range(n)]
-    refined = extra.get("refined") if isinstance(extra.get("refined"), bool) else bool(linear)
-    rows = _table_one_rows(sec, names, linear, refined)
-    final_rms = as_number(extra.get("constraint_rms"))
+    refined = fz.refined if fz.refined is not None else linear is not None
+    rows = _table_one_rows(sec, fz, names, refined)
+    final_rms = as_number(fz.constraint_rms)
     return {
-        "configuration": as_text(extra.get("configuration")),
-        "case": as_text(extra.get("case")),
-        "elements": as_int(extra.get("elements")) or n,
+        "configuration": fz.configuration,
+        "case": fz.case,
+        "elements": fz.elements or n,
         "axis_names": names,
         "refined": refined,
-        "linear_method": as_text(linear.get("method")),
-        "use": as_text(extra.get("use")),
-        "constraints": as_int(extra.get("constraints")),
-        "singular_values": [v for v in map(as_number, as_list(extra.get("singular_values")))],
+        "linear_method": None if linear is None else linear.method,
+        "use": fz.use,
+        "constraints": fz.constraints,
+        "singular_values": [as_number(v) for v in fz.singular_values or []],
         "rows": rows,
         "constraint_rms": {
-            "linear": as_number(linear.get("constraint_rms")) if linear else final_rms,
+            "linear": as_number(linear.constraint_rms) if linear else final_rms,
             "refined": final_rms if refined else None,
             "unit": "g^2" if kind == "accel" else f"({sec.units})^2",
         },
@@ -462,33 +458,33 @@ def _pair(matrix: Any, i: int, j: int) -> float | None:
 
 
 def _table_one_rows(
-    sec: SensorCalibration, names: list[str], linear: dict[str, Any], refined: bool
+    sec: SensorCalibration, fz: Factorization, names: list[str], refined: bool
 ) -> list[dict[str, Any]]:
     """Table I rows: per element its bias and gain, per pair the angle (see `_factorization`)."""
-    extra = sec.extra or {}
+    linear = fz.linear or Linear()
     bias = [as_number(v) for v in np.asarray(sec.bias, dtype=float).ravel()]
-    std_of = {p["name"]: p["std"] for p in read_parameters(extra.get("parameters"))}
-    units_in = as_text(extra.get("units_in")) or "raw units"
-    gain_unit = as_text(extra.get("sensitivity_unit")) or f"{units_in} per {sec.units}"
+    std_of = {p["name"]: p["std"] for p in read_parameters(sec.parameters)}
+    units_in = sec.units_in or "raw units"
+    gain_unit = sec.sensitivity_unit or f"{units_in} per {sec.units}"
     final = {
         "bias": lambda i: bias[i],
-        "gain": lambda i: _element(extra.get("sensitivity"), i),
-        "angle": lambda i, j: _pair(extra.get("angles_deg"), i, j),
+        "gain": lambda i: _element(sec.sensitivity, i),
+        "angle": lambda i, j: _pair(fz.angles_deg, i, j),
     }
     final_std = {
         "bias": lambda i: std_of.get(f"b_{names[i]}"),
-        "gain": lambda i: _element(extra.get("sensitivity_std"), i),
-        "angle": lambda i, j: _pair(extra.get("angles_std_deg"), i, j),
+        "gain": lambda i: _element(sec.sensitivity_std, i),
+        "angle": lambda i, j: _pair(fz.angles_std_deg, i, j),
     }
     first = {
-        "bias": lambda i: _element(linear.get("bias"), i),
-        "gain": lambda i: _element(linear.get("sensitivity"), i),
-        "angle": lambda i, j: _pair(linear.get("angles_deg"), i, j),
+        "bias": lambda i: _element(linear.bias, i),
+        "gain": lambda i: _element(linear.sensitivity, i),
+        "angle": lambda i, j: _pair(linear.angles_deg, i, j),
     }
     rows = []
 
     def add(group: str, name: str, unit: str, *index: int) -> None:
-        lin = first[group](*index) if linear else final[group](*index)
+        lin = first[group](*index) if fz.linear is not None else final[group](*index)
         rows.append(
             {
                 "group": group,
@@ -510,20 +506,12 @@ def _table_one_rows(
     return rows
 
 
-def _rotations(raw: Any) -> list[dict[str, Any]]:
-    rows = []
-    for item in as_list(raw):
-        if isinstance(item, dict):
-            rows.append(
-                {
-                    "segment": as_text(item.get("segment")),
-                    "label": as_text(item.get("label")),
-                    "known_angle_deg": as_number(item.get("known_angle_deg")),
-                    "measured_angle_deg": as_number(item.get("measured_angle_deg")),
-                    "angle_error_deg": as_number(item.get("angle_error_deg")),
-                }
-            )
-    return rows
+def _rotations(rotations: list[RotationRow] | None) -> list[dict[str, Any]]:
+    return [{"segment": r.segment, "label": r.label,
+             "known_angle_deg": as_number(r.known_angle_deg),
+             "measured_angle_deg": as_number(r.measured_angle_deg),
+             "angle_error_deg": as_number(r.angle_error_deg)}
+            for r in rotations or []]  # fmt: skip
 
 
 def _unavailable(kind: str, report: dict[str, Any]) -> list[str]:

@@ -11,6 +11,13 @@ import math
 from typing import Any
 
 
+def member(sec: Any, name: str) -> Any:
+    """A typed member of a section that only some classes hold (a magnetometer's
+    ``field_uT``, an accelerometer fit's ``coverage``), None where its class has none (a
+    truth section, another tool's calibration)."""
+    return getattr(sec, name, None)
+
+
 def read_fields(raw: dict, **readers) -> dict[str, Any]:
     """``{key: reader(raw.get(key))}`` for each ``key=reader`` given, in that order."""
     return {key: read(raw.get(key)) for key, read in readers.items()}
@@ -57,19 +64,10 @@ def ratio(num: float | None, den: float | None) -> float | None:
 # Rendering
 
 
-def read_parameters(raw: Any) -> list[dict[str, Any]]:
-    rows = []
-    for item in as_list(raw):
-        if isinstance(item, dict) and "name" in item:
-            rows.append(
-                {
-                    "name": str(item["name"]),
-                    "value": as_number(item.get("value")),
-                    "std": as_number(item.get("std")),
-                    "unit": as_text(item.get("unit")),
-                }
-            )
-    return rows
+def read_parameters(parameters: list | None) -> list[dict[str, Any]]:
+    """A section's named parameters (finite numbers, else None)."""
+    return [{"name": p.name, "value": as_number(p.value), "std": as_number(p.std),
+             "unit": p.unit} for p in parameters or [] if p.name is not None]  # fmt: skip
 
 
 def read_misalignment(angles: Any, stds: Any) -> list[dict[str, Any]]:

@@ -26,12 +26,12 @@ from rich.rule import Rule
 from rich.table import Table
 from rich.text import Text
 
-from imucal_cli.formats.calibration import Calibration, SensorCalibration
+from imucal_cli.model.calibration import Calibration, SensorCalibration
 
 from .fields import (
     as_list,
     as_number,
-    as_text,
+    member,
     read_misalignment,
     read_parameters,
     read_sensitivity,
@@ -53,7 +53,8 @@ as drifted."""
 
 def _axis_names(sec: SensorCalibration) -> list[str]:
     n = np.asarray(sec.bias, dtype=float).size
-    names = [str(a) for a in as_list((sec.extra or {}).get("axis_names"))]
+    fz = member(sec, "factorization")
+    names = list(fz.axis_names or []) if fz is not None else []
     if len(names) == n:
         return names
     return list("xyz") if n == 3 else [str(i + 1) for i in range(n)]
@@ -62,13 +63,12 @@ def _axis_names(sec: SensorCalibration) -> list[str]:
 def _history_rows(sec: SensorCalibration) -> list[dict[str, Any]]:
     """``name``, ``unit``, ``value``, ``std`` of each tracked figure of one section (see the
     module notes for the names); without named parameters, the bias and matrix elements."""
-    extra = sec.extra or {}
     rows = [
         {"name": p["name"], "unit": p["unit"], "value": p["value"], "std": p["std"]}
-        for p in read_parameters(extra.get("parameters"))
+        for p in read_parameters(sec.parameters)
     ]
     if not rows:
-        units_in = as_text(extra.get("units_in")) or "raw units"
+        units_in = sec.units_in or "raw units"
         rows += [
             {"name": f"b_{a}", "unit": units_in, "value": as_number(v), "std": None}
             for a, v in zip(_axis_names(sec), np.asarray(sec.bias, float).ravel(), strict=True)
@@ -85,11 +85,9 @@ def _history_rows(sec: SensorCalibration) -> list[dict[str, Any]]:
 
 def _sensitivity_rows(sec: SensorCalibration, rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Append ``sensitivity <axis>``; a ``gain_<axis>`` parameter is the same quantity."""
-    extra = sec.extra or {}
     gains = {r["name"][len("gain_") :]: r for r in rows if r["name"].startswith("gain_")}
     rows = [r for r in rows if not r["name"].startswith("gain_")]
-    sens = read_sensitivity(extra.get("sensitivity"), extra.get("sensitivity_std"),
-                            extra.get("sensitivity_unit"))  # fmt: skip
+    sens = read_sensitivity(sec.sensitivity, sec.sensitivity_std, sec.sensitivity_unit)
     names = _axis_names(sec)
     if sens is None or len(sens["values"]) != len(names):
         return rows + [{**r, "name": f"sensitivity {a}"} for a, r in gains.items()]
@@ -103,12 +101,14 @@ def _sensitivity_rows(sec: SensorCalibration, rows: list[dict[str, Any]]) -> lis
 
 def _misalignment_rows(sec: SensorCalibration) -> list[dict[str, Any]]:
     """``misalignment <pair>``, deg: stated angles, else the factorization's ``angles_deg``."""
-    extra = sec.extra or {}
-    stated = read_misalignment(extra.get("misalignment_deg"), extra.get("misalignment_std_deg"))
+    stated = read_misalignment(sec.misalignment_deg, sec.misalignment_std_deg)
     if stated:
         return [{"name": f"misalignment {m['axes']}", "unit": "deg", "value": m["angle"],
                  "std": m["std"]} for m in stated]  # fmt: skip
-    angles, stds = as_list(extra.get("angles_deg")), as_list(extra.get("angles_std_deg"))
+    fz = member(sec, "factorization")
+    if fz is None:
+        return []
+    angles, stds = as_list(fz.angles_deg), as_list(fz.angles_std_deg)
     names = _axis_names(sec)
     rows = []
     for i in range(min(len(names), len(angles))):
@@ -123,16 +123,14 @@ def _misalignment_rows(sec: SensorCalibration) -> list[dict[str, Any]]:
 
 def _basis(kind: str, sec: SensorCalibration) -> str:
     """What makes two calibrations of a section comparable: solver, model, units, gravity."""
-    extra = sec.extra or {}
     parts = [sec.solver]
-    model = as_text(extra.get("variant"))
-    if model:
-        parts.append(model)
-    parts.append(f"from {as_text(extra.get('units_in')) or 'raw units'}")
-    gravity = as_number(extra.get("gravity"))
+    if sec.variant:
+        parts.append(sec.variant)
+    parts.append(f"from {sec.units_in or 'raw units'}")
+    gravity = as_number(member(sec, "gravity"))
     if kind == "accel" and gravity is not None:
         parts.append(f"g = {gravity:.6g} m/s^2")
-    frame = as_text(extra.get("frame"))
+    frame = sec.frame
     if kind == "gyro" and frame:  # the gyro is calibrated in the accelerometer's frame
         parts.append(f"in {frame}")
     return ", ".join(parts)
@@ -171,7 +169,7 @@ def build_history(cals: list[Calibration]) -> dict[str, Any]:
     groups: dict[str, list[Calibration]] = {}
     without = 0
     for cal in cals:
-        sensor = as_text((cal.extra or {}).get("sensor"))
+        sensor = cal.sensor
         if not sensor:
             without += 1
             continue

@@ -6,9 +6,10 @@ import os
 from pathlib import Path
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import Calibration, calibration_from_json
+from imucal_cli.formats.calibration import calibration_from_json
 from imucal_cli.formats.inputs import is_hdf5_file, read_input
 from imucal_cli.formats.session import read_session
+from imucal_cli.model.calibration import Calibration
 
 _WHAT = "calibration JSON or session .h5"
 

@@ -6,17 +6,16 @@ from __future__ import annotations
 
 from typing import Any
 
-from imucal_cli.formats.calibration import SensorCalibration
+from imucal_cli.model.calibration import SensorCalibration
+from imucal_cli.model.codec import encode
+from imucal_cli.model.mag import MagCalibration, MagCoverage, RowsLeftOut
 
-from .fields import as_list, as_number, as_text, as_vector, read_fields
-
-
-def as_bool(value: Any) -> bool | None:
-    return value if isinstance(value, bool) else None
+from .fields import as_number, as_vector, member
 
 
 def mag_report(sec: SensorCalibration) -> dict[str, Any]:
-    """The ``mag`` fields of a section as stored (malformed fields read as ``None``).
+    """The ``mag`` fields of a section as stored (what its class does not hold, or the file
+    did not give, is ``None``).
 
     Keys: ``field_uT``, ``field_source``, ``field_estimate_uT``, ``inclination_deg``,
     ``inclination_std_deg``, ``aligned``, ``frame``, ``axes``, ``rotation_std_deg``,
@@ -25,39 +24,38 @@ def mag_report(sec: SensorCalibration) -> dict[str, Any]:
     ``failed``, ``checks``: ``name``, ``value_pct``, ``limit_pct``, ``meaning``, ``ok``),
     ``coverage`` (``fraction``, ``gaps_pct``), ``poses`` and ``directions``.
     """
-    x = sec.extra or {}
-    quality = x.get("quality") if isinstance(x.get("quality"), dict) else None
-    checks = []
-    for c in as_list(quality.get("checks") if quality else None):
-        if isinstance(c, dict):
-            checks.append(read_fields(c, name=as_text, value_pct=as_number, limit_pct=as_number,
-                                      meaning=as_text, ok=as_bool))  # fmt: skip
-    coverage = x.get("coverage") if isinstance(x.get("coverage"), dict) else {}
-    poses = []
-    for p in as_list(x.get("poses")):
-        if isinstance(p, dict):
-            poses.append(read_fields(
-                p, segment=as_text, label=as_text, samples=as_number, magnitude_after=as_number,
-                residual=as_number, dip_residual_deg=as_number,
-            ))  # fmt: skip
+    m = sec if isinstance(sec, MagCalibration) else MagCalibration(
+        field_uT=member(sec, "field_uT"), inclination_deg=member(sec, "inclination_deg"),
+        frame=sec.frame)  # a truth section: its field only  # fmt: skip
+    quality = m.quality
+    coverage = m.coverage or MagCoverage()
     return {
-        **read_fields(x, field_uT=as_number, field_source=as_text, field_estimate_uT=as_number,
-                      inclination_deg=as_number, inclination_std_deg=as_number, aligned=as_bool,
-                      frame=as_text),
-        "axes": [str(a) for a in as_list(x.get("axes"))],
-        **read_fields(x, rotation_std_deg=as_number, hard_iron_out=as_vector,
-                      hard_iron_out_magnitude=as_number, soft_iron_axis_ratio_pct=as_number,
-                      variance_before_pct=as_number, dip_rms_deg=as_number),
-        "readings": x.get("readings") if isinstance(x.get("readings"), dict) else None,
+        "field_uT": as_number(m.field_uT), "field_source": m.field_source,
+        "field_estimate_uT": as_number(m.field_estimate_uT),
+        "inclination_deg": as_number(m.inclination_deg),
+        "inclination_std_deg": as_number(m.inclination_std_deg), "aligned": m.aligned,
+        "frame": m.frame, "axes": list(m.axes or []),
+        "rotation_std_deg": as_number(m.rotation_std_deg),
+        "hard_iron_out": as_vector(m.hard_iron_out),
+        "hard_iron_out_magnitude": as_number(m.hard_iron_out_magnitude),
+        "soft_iron_axis_ratio_pct": as_number(m.soft_iron_axis_ratio_pct),
+        "variance_before_pct": as_number(m.variance_before_pct),
+        "dip_rms_deg": as_number(m.dip_rms_deg),
+        "readings": m.readings,
         "quality": None if quality is None else {
-            "verdict": as_text(quality.get("verdict")),
-            "failed": [str(f) for f in as_list(quality.get("failed"))],
-            "checks": checks,
+            "verdict": quality.verdict,
+            "failed": list(quality.failed or []),
+            "checks": [{"name": c.name, "value_pct": as_number(c.value_pct),
+                        "limit_pct": as_number(c.limit_pct), "meaning": c.meaning, "ok": c.ok}
+                       for c in quality.checks or []],
         },
-        "coverage": {"fraction": as_number(coverage.get("fraction")),
-                     "gaps_pct": as_number(coverage.get("gaps_pct"))},
-        "poses": poses,
-        "directions": [d for d in (as_vector(v) for v in as_list(x.get("directions"))) if d],
+        "coverage": {"fraction": as_number(coverage.fraction),
+                     "gaps_pct": as_number(coverage.gaps_pct)},
+        "poses": [{"segment": p.segment, "label": p.label, "samples": p.samples,
+                   "magnitude_after": as_number(p.magnitude_after),
+                   "residual": as_number(p.residual),
+                   "dip_residual_deg": as_number(p.dip_residual_deg)} for p in m.poses or []],
+        "directions": [d for d in (as_vector(v) for v in m.directions or []) if d],
     }  # fmt: skip
 
 
@@ -71,7 +69,7 @@ def add_mag_content(section: dict[str, Any], sec: SensorCalibration, add_table) 
     unit = sec.units
     rms = section["rms"]
     rms["quantity"] = "field-magnitude error |B| - F"
-    rms["held_out"] = as_number((sec.extra or {}).get("rms_held_out"))
+    rms["held_out"] = as_number(member(sec, "rms_held_out"))
     rms["held_out_method"] = "2-fold: alternate 1 s blocks and poses, each fitted without"
     _field_table(section, mag, unit, add_table)
     q = mag["quality"]
@@ -105,14 +103,15 @@ def add_mag_content(section: dict[str, Any], sec: SensorCalibration, add_table) 
             [[p["segment"], p["label"], p["samples"], p["magnitude_after"], p["residual"],
               p["dip_residual_deg"]] for p in mag["poses"]],
         )  # fmt: skip
-    readings = mag["readings"] or {}
-    left = readings.get("left_out") if isinstance(readings.get("left_out"), dict) else {}
-    if readings:
+    readings = mag["readings"]
+    if readings is not None:
+        left = readings.left_out or RowsLeftOut()
         section["notes"].append(
-            f"readings: {readings.get('motion')} in motion, {readings.get('poses')} static "
-            f"poses; left out {left.get('nonfinite', 0)} without a value, "
-            f"{left.get('clipped', 0)} clipped, {left.get('repeated', 0)} repeated"
+            f"readings: {readings.motion} in motion, {readings.poses} static "
+            f"poses; left out {left.nonfinite or 0} without a value, "
+            f"{left.clipped or 0} clipped, {left.repeated or 0} repeated"
         )
+        mag["readings"] = encode(readings)  # the report is JSON
     cov = mag["coverage"]
     facts = []
     if cov["fraction"] is not None:

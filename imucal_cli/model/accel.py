@@ -1,0 +1,144 @@
+"""The accelerometer's section: the triad fits (gravity magnitude, labelled poses) and the
+factorization of a unit, with their per-pose table, coverage, noise and checks (DEVELOPERS.md,
+"Calibration JSON: the accel section")."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .codec import Record, item
+from .parts import Factorization
+from .section import SensorCalibration
+
+
+@dataclass
+class PoseRow(Record):
+    """One static pose of the ``poses`` table.
+
+    Attributes
+    ----------
+    segment, label : str
+    up : list of float or None
+        Its labelled up direction.
+    samples : int
+        Samples in its mean (spikes left out).
+    magnitude_before, magnitude_after : float or None
+        |a| before (nominal sensor) and after calibration, m/s^2.
+    residual, residual_loo : float or None
+        ``|a| - g`` after calibration, and held out (the fit without the pose), m/s^2.
+    angle_to_up_deg : float or None
+        Between the calibrated direction and the label.
+    direction : list of float
+        Calibrated unit gravity direction.
+    spikes_left_out : int or None
+    excluded : bool or None
+        Left out of the fit as an outlier.
+    """
+
+    segment: str | None = None
+    label: str | None = item(always=True)
+    up: list[float] | None = item(always=True)
+    samples: int | None = None
+    magnitude_before: float | None = item(always=True)
+    magnitude_after: float | None = None
+    residual: float | None = None
+    residual_loo: float | None = item(always=True)
+    angle_to_up_deg: float | None = item(always=True)
+    direction: list[float] | None = None
+    spikes_left_out: int | None = None
+    excluded: bool | None = None
+
+
+@dataclass
+class OutlierRow(Record):
+    """A pose that disagrees with the rest, and what was done with it (issue 10)."""
+
+    segment: str | None = None
+    label: str | None = item(always=True)
+    times_noise: float | None = item(always=True)
+    p_value: float | None = None
+    cause: str | None = None
+    action: str | None = None
+
+
+@dataclass
+class Coverage(Record):
+    """How the poses' calibrated gravity directions cover the sphere."""
+
+    fraction: float | None = None
+    cap_deg: float | None = None
+    largest_gap_deg: float | None = None
+    weakest_direction: list[float] | None = None
+    n_poses: int | None = None
+    n_distinct: int | None = None
+
+
+@dataclass
+class PoseNoise(Record):
+    """The per-sample noise pooled over the still holds, behind the fit's weights."""
+
+    per_sample_std: list[float] | None = None
+    unit: str | None = None
+    dof: int | None = None
+    basis: str | None = None
+
+
+@dataclass
+class Placement(Record):
+    """How far the poses sat from their labels (the labelled fit's prior)."""
+
+    rms_deg: float | None = None
+    source: str | None = None
+    dof: float | None = None
+    meaning: str | None = None
+
+
+@dataclass
+class AccelCalibration(SensorCalibration):
+    """An accelerometer's section (module notes; the common members in
+    :class:`~.section.SensorCalibration`).
+
+    Attributes
+    ----------
+    gravity : float or None
+        The local gravity the fit used, m/s^2.
+    rms_before, rms_after, rms_loo : float or None
+        ``|a| - g`` RMS before calibration (nominal sensor, ``before_basis``), after, and held
+        out (``loo_method``), m/s^2.
+    coverage : Coverage or None
+    poses : list of PoseRow or None
+    noise : PoseNoise or None
+    placement : Placement or None
+        The labelled fit's.
+    rotation_std_deg : float or None
+        Std of the frame's rotation.
+    outliers : list of OutlierRow or None
+    spare_equations : int or None
+        Equations beyond the parameters.
+    rms_expected : float or None
+        The fit RMS the noise predicts, m/s^2.
+    noise_excess : float or None
+        ``sqrt(chi^2 / dof)`` against the measured noise.
+    rms_after_below_noise : bool or None
+        The fit RMS is below what the noise allows (an exact fit: no improvement factor).
+    factorization : Factorization or None
+        Hwangbo & Kanade's fields (members of the section).
+    """
+
+    gravity: float | None = None
+    rms_before: float | None = None
+    rms_after: float | None = None
+    rms_loo: float | None = None
+    before_basis: str | None = None
+    coverage: Coverage | None = None
+    poses: list[PoseRow] | None = None
+    noise: PoseNoise | None = None
+    placement: Placement | None = None
+    rotation_std_deg: float | None = None
+    loo_method: str | None = None
+    outliers: list[OutlierRow] | None = None
+    spare_equations: int | None = None
+    rms_expected: float | None = None
+    noise_excess: float | None = None
+    rms_after_below_noise: bool | None = None
+    factorization: Factorization | None = item(flat=True)
