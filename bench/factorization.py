@@ -17,12 +17,17 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from imucal_cli.calibrate.session import calibrate_session
+from imucal_cli.estimators import factorization as fz
+from imucal_cli.estimators.accel.crb import (
+    factorization_crb,
+    gravity_crb,
+    invariant_summary,
+    propagate,
+)
 from imucal_cli.formats.config import config_from_dict
-from imucal_cli.pipeline.calibrate import calibrate_session
 from imucal_cli.simulate.redundant import simulate_redundant_accel
 from imucal_cli.simulate.triad import simulate
-from imucal_cli.solvers import factorization as fz
-from imucal_cli.solvers.crb import factorization_crb, gravity_crb, invariant_summary, propagate
 
 CREATED = "2026-01-01T00:00:00Z"
 ROWS = ["b1", "b2", "b3", "b4", "|s1|", "|s2|", "|s3|", "|s4|",
@@ -173,12 +178,12 @@ def side_by_side(console: Console, n_seeds: int) -> None:
         crb = gravity_crb(M_true, truth.accel.bias, u, 9.80665, cov_mean)
 
         def bias_gain(x):
-            from imucal_cli.solvers.gravity import params_to_model
+            from imucal_cli.estimators.accel.gravity import params_to_model
 
             B, M = params_to_model(x)
             return np.r_[B, np.linalg.norm(np.linalg.inv(M), axis=1)]
 
-        from imucal_cli.solvers.gravity import model_to_params
+        from imucal_cli.estimators.accel.gravity import model_to_params
 
         bound.append(np.diag(propagate(bias_gain, model_to_params(truth.accel.bias, M_true), crb)))
     b = np.sqrt(np.mean(bound, axis=0))

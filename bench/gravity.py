@@ -24,12 +24,12 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from imucal_cli.calibrate.session import calibrate_session, static_poses
+from imucal_cli.estimators.accel.crb import gravity_crb
+from imucal_cli.estimators.accel.gravity import PARAM_NAMES_9, model_to_params
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import write_session
-from imucal_cli.pipeline.calibrate import calibrate_session, static_poses
 from imucal_cli.simulate.triad import ACCEL_LSB_PER_G, simulate
-from imucal_cli.solvers.crb import gravity_crb
-from imucal_cli.solvers.gravity import PARAM_NAMES_9, model_to_params
 
 G0 = 9.80665
 PAPER_RMS_G = (0.0129, 0.0014)  # Qureshi & Golnaraghi, Fig. 5: raw -> calibrated, in g

@@ -30,10 +30,10 @@ from rich.console import Console
 from rich.table import Table
 from scipy.stats import chi2
 
+from imucal_cli.calibrate.gyro.rotations import full_bound
+from imucal_cli.calibrate.session import calibrate_session
 from imucal_cli.errors import ImucalError
 from imucal_cli.formats.config import config_from_dict
-from imucal_cli.pipeline.calibrate import calibrate_session
-from imucal_cli.pipeline.gyro import full_bound
 from imucal_cli.simulate.rotations import simulate_gyro_rotations
 
 CREATED = "2026-01-01T00:00:00Z"
@@ -246,8 +246,8 @@ def _known_turn(console: Console) -> None:
     still = turn.static_segments()
     start, stop = still[0].stop, still[-1].start
     w = cal.gyro.apply(turn.gyro[start:stop])
-    from imucal_cli.solvers.gyro_axes import rotation_angle_about_axis
-    from imucal_cli.solvers.gyro_full import integrate_rotations
+    from imucal_cli.estimators.gyro.axes import rotation_angle_about_axis
+    from imucal_cli.estimators.gyro.full import integrate_rotations
 
     R = integrate_rotations([turn.time[start:stop]], [w])[0]
     rotvec = (

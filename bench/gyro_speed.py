@@ -31,12 +31,12 @@ from rich.console import Console
 from rich.table import Table
 
 from bench.gyro import shared_data
+from imucal_cli.calibrate.gyro.full import fit_full_model
+from imucal_cli.calibrate.gyro.rotations import full_problem, gyro_data
+from imucal_cli.calibrate.session import calibrate_accel, with_segments
+from imucal_cli.estimators.gyro.full import fit_full
 from imucal_cli.formats.config import config_from_dict
-from imucal_cli.pipeline.calibrate import calibrate_accel, with_segments
-from imucal_cli.pipeline.gyro import full_problem, gyro_data
-from imucal_cli.pipeline.gyro_full import fit_full_model
 from imucal_cli.simulate.rotations import simulate_gyro_rotations
-from imucal_cli.solvers.gyro_full import fit_full
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = shared_data()
@@ -52,9 +52,9 @@ _ONE_STEP = """
 import sys, time
 from imucal_cli.formats.config import config_from_dict
 from imucal_cli.formats.session import read_session
-from imucal_cli.pipeline.calibrate import calibrate_accel, with_segments
-from imucal_cli.pipeline.gyro import gyro_data
-from imucal_cli.pipeline.gyro_full import fit_full_model
+from imucal_cli.calibrate.session import calibrate_accel, with_segments
+from imucal_cli.calibrate.gyro.rotations import gyro_data
+from imucal_cli.calibrate.gyro.full import fit_full_model
 cfg = config_from_dict({"gyro": {"solver": "full"}})
 session, _ = with_segments(read_session(sys.argv[1]))
 data = gyro_data(session, cfg, calibrate_accel(session, cfg))

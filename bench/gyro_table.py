@@ -25,10 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
+from imucal_cli.calibrate.session import calibrate_session
 from imucal_cli.formats.calibration import read_calibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import read_session
-from imucal_cli.pipeline.calibrate import calibrate_session
 
 ROOT = Path(__file__).resolve().parent.parent
 SESSIONS = ROOT / "sessions"

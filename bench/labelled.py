@@ -7,8 +7,8 @@ for the gravity-magnitude model) and ``qureshi18`` (six faces and twelve 45-degr
 * parameter errors against the simulator's truth in the solver's parameters (bias, the
   sensitivity of each axis, the angles between the axes, the rotation r onto the labels);
 * the Cramér-Rao bound of the same design with the labels as a prior (each pose's direction a
-  nuisance parameter, :func:`imucal_cli.solvers.crb.labelled_crb`) and the ratio RMS error /
-  sqrt(bound) per parameter (target <= 1.2);
+  nuisance parameter, :func:`imucal_cli.estimators.accel.crb.labelled_crb`) and the ratio RMS
+  error / sqrt(bound) per parameter (target <= 1.2);
 * how often the reported 95 % intervals (Student t on the placement's degrees of freedom)
   cover the truth (target 93-97 %), and the same for +-1.96 std;
 * the joint normalised estimation error squared (NEES) ``e^T C^-1 e`` over the 12
@@ -46,10 +46,10 @@ from rich.table import Table
 from scipy.stats import chi2
 
 from bench.gravity import quant_var
-from imucal_cli.pipeline.common import static_poses
+from imucal_cli.calibrate.common import static_poses
+from imucal_cli.estimators.accel.crb import labelled_crb
+from imucal_cli.estimators.accel.labelled import PARAM_NAMES, fit_labelled, public_params
 from imucal_cli.simulate.triad import simulate
-from imucal_cli.solvers.crb import labelled_crb
-from imucal_cli.solvers.labelled import PARAM_NAMES, fit_labelled, public_params
 
 G0 = 9.80665
 DESIGN = dict(rate_hz=100.0, hold_s=2.0, accel_noise=0.01)

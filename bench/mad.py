@@ -4,7 +4,7 @@
 deg/s, a section list) and (B) ``annotated_session.csv`` (204.8 Hz, raw counts, a ``part``
 column). Each is imported with ``imucal import --sections`` (faces and three 360-degree turns)
 and calibrated with the default config (the labelled-pose accelerometer and the known-angle
-gyro, :mod:`imucal_cli.pipeline.gyro_known`); MaD's ``FerrarisCalibration`` (PyPI ``imucal``,
+gyro, :mod:`imucal_cli.calibrate.gyro.known`); MaD's ``FerrarisCalibration`` (PyPI ``imucal``,
 the ``[bench]`` extra) runs on the same sections. Without that package the stored snapshot of
 MaD's result for (B) (``imucal_snapshot_example_cal.json``) stands in, and the table says so.
 
@@ -38,10 +38,10 @@ from pathlib import Path
 
 import numpy as np
 
+from imucal_cli.estimators.gyro.integration import integrate_rotations
 from imucal_cli.formats.calibration import read_calibration
 from imucal_cli.formats.session import read_session
 from imucal_cli.model.gyro import KnownTurnCheck
-from imucal_cli.solvers.gyro_integration import integrate_rotations
 
 DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "imucal_ferraris"
 IMUCAL = str(Path(sys.executable).with_name("imucal"))
@@ -240,8 +240,8 @@ def leave_one_out(h5: Path, mad: MadCal | None) -> dict:
     angles as our full calibration integrates them."""
     from dataclasses import replace
 
+    from imucal_cli.calibrate.session import calibrate_session
     from imucal_cli.formats.config import Config
-    from imucal_cli.pipeline.calibrate import calibrate_session
 
     session = read_session(h5)
     full = calibrate_session(session, Config())

@@ -7,7 +7,7 @@ between the 2 s holds):
 
 * parameter errors of the ``[mag]`` solver (hard iron ``b``, the 9 entries of ``W`` in the
   accelerometer's calibrated frame, the dip ``s``) against the truth, beside the Cramér-Rao
-  bound of each seed's design (:func:`imucal_cli.solvers.magnetometer_crb.magnetometer_crb`:
+  bound of each seed's design (:func:`imucal_cli.estimators.mag.crb.magnetometer_crb`:
   the readings the solver used, their true field directions, the poses' up directions with
   the accelerometer's noise), and how often the reported 95 % intervals hold the truth;
 * side by side with a plain algebraic ellipsoid fit of the same readings (what MotionCal and
@@ -27,12 +27,12 @@ from rich.console import Console
 from rich.table import Table
 from scipy.spatial.transform import Rotation
 
+from imucal_cli.calibrate.mag import mag_readings
+from imucal_cli.calibrate.session import calibrate_session
+from imucal_cli.estimators.mag.crb import magnetometer_crb
+from imucal_cli.estimators.mag.magnetometer import PARAM_NAMES_ALIGNED, fit_plain_ellipsoid, polar
 from imucal_cli.formats.config import Config, config_from_dict
-from imucal_cli.pipeline.calibrate import calibrate_session
-from imucal_cli.pipeline.magnetometer import mag_readings
 from imucal_cli.simulate.magnetometer import LAYOUTS, earth_field, simulate_mag
-from imucal_cli.solvers.magnetometer import PARAM_NAMES_ALIGNED, fit_plain_ellipsoid, polar
-from imucal_cli.solvers.magnetometer_crb import magnetometer_crb
 
 FIELD, INCLINATION = 48.0, 60.0
 DESIGN = dict(hold_s=2.0, tumble_s=4.0, field_uT=FIELD, inclination_deg=INCLINATION)

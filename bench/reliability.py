@@ -178,10 +178,10 @@ def _same_data(a, b) -> bool:
 
 
 def hostile_rows(folder: Path) -> list[Row]:
+    from imucal_cli.calibrate.session import calibrate_session
     from imucal_cli.formats.calibration import calibration_to_json, read_calibration
     from imucal_cli.formats.config import Config, load_config
     from imucal_cli.formats.session import read_session
-    from imucal_cli.pipeline.calibrate import calibrate_session
 
     sessions = Row("malformed sessions")
     original = None

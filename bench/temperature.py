@@ -33,13 +33,13 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from imucal_cli.calibrate.session import calibrate_session
+from imucal_cli.calibrate.thermal import BLOCK_S, still_blocks
+from imucal_cli.estimators.thermal.temperature import polynomial_bound, powers
 from imucal_cli.formats.config import config_from_dict
-from imucal_cli.pipeline.calibrate import calibrate_session
-from imucal_cli.pipeline.temperature import BLOCK_S, still_blocks
 from imucal_cli.simulate.rotations import simulate_gyro_rotations
 from imucal_cli.simulate.temperature import Ramp
 from imucal_cli.simulate.triad import simulate
-from imucal_cli.solvers.temperature import polynomial_bound, powers
 
 G0 = 9.80665
 GRID = np.linspace(6.0, 39.0, 41)
@@ -80,7 +80,7 @@ def _joint_bound(session, truth, sigma_counts) -> float:
     """The same RMS for the accelerometer's joint fit: the Cramér-Rao bound of the
     gravity-magnitude model with cubic bias terms (upper-triangular ``M``), from its Jacobian
     at the truth on the block means the pipeline uses (white noise)."""
-    from imucal_cli.solvers.temperature_joint import _Model, _pose_weights
+    from imucal_cli.estimators.thermal.joint import _Model, _pose_weights
 
     blocks = still_blocks(session, BLOCK_S)
     a = np.array([session.accel[x:y].mean(axis=0) for x, y, _ in blocks])

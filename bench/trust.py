@@ -29,13 +29,13 @@ from rich.console import Console
 from rich.table import Table
 
 from bench.trust_gyro import DATA, REAL
+from imucal_cli.calibrate.common import static_poses
+from imucal_cli.calibrate.session import calibrate_accel, calibrate_session, with_segments
 from imucal_cli.errors import ImucalError
+from imucal_cli.estimators.accel.labelled import public_params
 from imucal_cli.formats.config import config_from_dict
-from imucal_cli.pipeline.calibrate import calibrate_accel, calibrate_session, with_segments
-from imucal_cli.pipeline.common import static_poses
 from imucal_cli.simulate import faults
 from imucal_cli.simulate.triad import simulate
-from imucal_cli.solvers.labelled import public_params
 
 CREATED = "2026-01-01T00:00:00Z"
 FAULTS = [("bump 0.5 m/s^2", "bump", 0.5), ("bump 0.05 m/s^2", "bump", 0.05),
@@ -190,10 +190,10 @@ def solver_speed() -> list[tuple[str, float, float]]:
     recording's poses (issue 14.3; labels for the labelled solver from the faces the poses are
     near, as `imucal label --faces` sets them). CPU time: the wall time on a loaded machine
     mostly measures the others."""
+    from imucal_cli.calibrate.accel.gravity import fit_poses
+    from imucal_cli.estimators.accel.labelled import fit_labelled
     from imucal_cli.formats.importers import import_files
-    from imucal_cli.formats.labels import call_faces
-    from imucal_cli.pipeline.gravity import fit_poses
-    from imucal_cli.solvers.labelled import fit_labelled
+    from imucal_cli.use.labels import call_faces
 
     files, fmt, opts = REAL["imu_tk Xsens"]
     if not all((DATA / f).exists() for f in files):

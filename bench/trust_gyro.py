@@ -31,17 +31,17 @@ from rich.table import Table
 
 from bench import gyro_table
 from bench.gyro import coverage, error_over_bound, shared_data
-from imucal_cli.errors import ImucalError
-from imucal_cli.formats.config import config_from_dict
-from imucal_cli.pipeline.calibrate import (
+from imucal_cli.calibrate.gyro.rotations import full_bound, full_problem
+from imucal_cli.calibrate.session import (
     calibrate_accel,
     calibrate_gyro,
     calibrate_session,
     with_segments,
 )
-from imucal_cli.pipeline.gyro import full_bound, full_problem
+from imucal_cli.errors import ImucalError
+from imucal_cli.estimators.gyro.full import full_information
+from imucal_cli.formats.config import config_from_dict
 from imucal_cli.simulate.rotations import simulate_gyro_rotations
-from imucal_cli.solvers.gyro_full import full_information
 
 DATA = shared_data()
 CREATED = "2026-01-01T00:00:00Z"
@@ -180,7 +180,7 @@ def captured_coverage_rows(n_seeds: int) -> list[dict]:
     from pathlib import Path
 
     from bench.captured import as_captured, ferraris_plan
-    from imucal_cli.pipeline.calibrate import suspect_error
+    from imucal_cli.calibrate.session import suspect_error
     from imucal_cli.simulate.play import simulate_plan
 
     out = []

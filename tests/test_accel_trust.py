@@ -9,9 +9,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from imucal_cli.calibrate.session import calibrate_session, suspect_error
 from imucal_cli.formats.config import config_from_dict
 from imucal_cli.formats.session import write_session
-from imucal_cli.pipeline.calibrate import calibrate_session, suspect_error
 from imucal_cli.simulate import faults
 from imucal_cli.simulate.triad import simulate
 from imucal_cli.use.report.build import build_report
@@ -49,7 +49,7 @@ def _without_hold(session, k):
 @pytest.mark.parametrize("bad", [BAD, 12])  # a face, and an edge pose of high leverage
 def test_a_bumped_pose_is_named_and_left_out(q18, solver, offset, bad):
     """An edge pose's bump drags the whole fit (every other pose's statistic rises with it):
-    it is still found, from the variance left without it (solvers/outliers.py)."""
+    it is still found, from the variance left without it (design/outliers.py)."""
     session, truth = q18
     bumped = faults.bump(session, truth, bad, offset)
     seg = session.static_segments()[bad]
@@ -182,7 +182,7 @@ def test_units_not_stated_are_inferred_and_said():
 
 def test_deletion_diagnostics_batched_equal_the_per_group_formula():
     """The vectorised deletion (groups of one size) is the module docstring's formula."""
-    from imucal_cli.solvers.outliers import deletion
+    from imucal_cli.design.outliers import deletion
 
     rng = np.random.default_rng(1)
     for L in (1, 3):

@@ -12,13 +12,13 @@ import h5py
 import numpy as np
 import pytest
 
+from imucal_cli.calibrate.session import calibrate_session, static_poses
 from imucal_cli.errors import ConfigError, DesignError
+from imucal_cli.estimators.accel.gravity import model_to_params
 from imucal_cli.formats.calibration import read_calibration
 from imucal_cli.formats.config import Config, config_from_dict
 from imucal_cli.formats.session import read_session, write_session
-from imucal_cli.pipeline.calibrate import calibrate_session, static_poses
 from imucal_cli.simulate.triad import simulate
-from imucal_cli.solvers.gravity import model_to_params
 
 IMUCAL = str(Path(sys.executable).with_name("imucal"))
 CREATED = "2026-01-01T00:00:00Z"

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from imucal_cli.calibrate.batch import calibrate_many
 from imucal_cli.formats.config import Config
-from imucal_cli.pipeline.batch import calibrate_many
 from tests.cli_helpers import assert_one_line_error, run
 
 ROOT = Path(__file__).resolve().parents[1]

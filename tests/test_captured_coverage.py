@@ -10,8 +10,8 @@ import pytest
 
 from bench.captured import as_captured, ferraris_plan
 from bench.trust_gyro import _truth_x
+from imucal_cli.calibrate.session import calibrate_session, suspect_error
 from imucal_cli.formats.config import Config
-from imucal_cli.pipeline.calibrate import calibrate_session, suspect_error
 from imucal_cli.simulate.play import simulate_plan
 
 G_LEVEL = 5e-4

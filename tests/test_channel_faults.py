@@ -9,12 +9,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from imucal_cli.calibrate.session import calibrate_session
+from imucal_cli.design.channel_faults import channel_faults
 from imucal_cli.errors import InputError
 from imucal_cli.formats.config import Config, config_from_dict
 from imucal_cli.formats.session import write_session
-from imucal_cli.pipeline.calibrate import calibrate_session
 from imucal_cli.simulate.play import simulate_plan
-from imucal_cli.solvers.channel_faults import channel_faults
 from tests.cli_helpers import assert_one_line_error, run
 
 CREATED = "2026-01-01T00:00:00Z"

@@ -4,16 +4,16 @@ estimated with its uncertainty, corrected in the gyro calibration and shown in p
 import numpy as np
 import pytest
 
+from imucal_cli.calibrate.session import calibrate_session
 from imucal_cli.capture.recorder import Recorder
 from imucal_cli.capture.stream import LineProtocol
 from imucal_cli.errors import DesignError
+from imucal_cli.estimators.clock.scale import estimate_clock_scale
 from imucal_cli.formats.columns import ColumnSpec
 from imucal_cli.formats.config import config_from_dict
 from imucal_cli.formats.session import read_session, write_session
-from imucal_cli.pipeline.calibrate import calibrate_session
 from imucal_cli.simulate.clock import busy_arrivals, host_arrivals
 from imucal_cli.simulate.rotations import simulate_gyro_rotations
-from imucal_cli.solvers.clock import estimate_clock_scale
 from imucal_cli.use.report.build import build_report
 
 from .cli_helpers import run

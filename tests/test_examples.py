@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from imucal_cli.calibrate.session import calibrate_session
 from imucal_cli.errors import DesignError
 from imucal_cli.formats.calibration import read_calibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import read_session
-from imucal_cli.pipeline.calibrate import calibrate_session
 
 SESSIONS = Path(__file__).resolve().parent.parent / "sessions"
 
@@ -45,7 +45,7 @@ def test_six_faces_example_calibrates_with_the_labelled_solver():
     assert acc.blocking == [] and acc.outliers == []
     assert [w.split(" ")[0] for w in acc.warnings] == ["held-out"], acc.warnings
     # The fixture-frame matrix: every entry within 4.5 std of the truth (std from the fit).
-    from imucal_cli.solvers.labelled import public_params
+    from imucal_cli.estimators.accel.labelled import public_params
 
     x_true = public_params(truth.accel.bias, np.linalg.inv(truth.accel.matrix))
     x = np.array([p.value for p in acc.parameters])

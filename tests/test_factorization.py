@@ -8,8 +8,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from imucal_cli.errors import DesignError
-from imucal_cli.solvers.crb import factorization_crb, invariant_summary, propagate
-from imucal_cli.solvers.factorization import (
+from imucal_cli.estimators.accel.crb import factorization_crb, invariant_summary, propagate
+from imucal_cli.estimators.factorization import (
     Constraints,
     ScaleReference,
     align,

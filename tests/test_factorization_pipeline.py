@@ -12,14 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from imucal_cli.calibrate.session import calibrate_session
 from imucal_cli.errors import DesignError
+from imucal_cli.estimators.accel.crb import invariant_summary
 from imucal_cli.formats.calibration import read_calibration
 from imucal_cli.formats.config import config_from_dict
 from imucal_cli.formats.session import write_session
-from imucal_cli.pipeline.calibrate import calibrate_session
 from imucal_cli.simulate.redundant import simulate_hk_gyro, simulate_redundant_accel
 from imucal_cli.simulate.triad import simulate
-from imucal_cli.solvers.crb import invariant_summary
 
 CREATED = "2026-01-01T00:00:00Z"
 ACCEL = config_from_dict({"accel": {"solver": "factorization"}})

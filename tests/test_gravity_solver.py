@@ -7,16 +7,16 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from imucal_cli.design.poses import count_distinct, coverage, spread_deg
 from imucal_cli.errors import DesignError, SolverError
-from imucal_cli.solvers.crb import gravity_crb
-from imucal_cli.solvers.ellipsoid import fit_ellipsoid
-from imucal_cli.solvers.gravity import (
+from imucal_cli.estimators.accel.crb import gravity_crb
+from imucal_cli.estimators.accel.gravity import (
     fit_gravity,
     leave_one_out,
     leave_one_out_press,
     model_to_params,
 )
-from imucal_cli.solvers.poses import count_distinct, coverage, spread_deg
+from imucal_cli.estimators.ellipsoid import fit_ellipsoid
 
 G = 9.80665
 SENS = 8192 / G  # counts per m/s^2

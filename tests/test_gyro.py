@@ -10,17 +10,17 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from imucal_cli.calibrate.session import calibrate_session
 from imucal_cli.errors import ConfigError, DesignError
-from imucal_cli.formats.config import config_from_dict
-from imucal_cli.pipeline.calibrate import calibrate_session
-from imucal_cli.simulate.rotations import simulate_gyro_rotations
-from imucal_cli.simulate.triad import simulate
-from imucal_cli.solvers.gyro_axes import (
+from imucal_cli.estimators.gyro.axes import (
     fit_axis_dynamic,
     fit_axis_static,
     rotation_angle_about_axis,
 )
-from imucal_cli.solvers.gyro_full import integrate_rotations
+from imucal_cli.estimators.gyro.full import integrate_rotations
+from imucal_cli.formats.config import config_from_dict
+from imucal_cli.simulate.rotations import simulate_gyro_rotations
+from imucal_cli.simulate.triad import simulate
 
 CREATED = "2026-01-01T00:00:00Z"
 

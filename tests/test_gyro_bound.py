@@ -15,9 +15,9 @@ import pytest
 
 from bench.gyro import MIN_SEEDS, error_over_bound
 from bench.gyro_table import truth_in_frame
+from imucal_cli.calibrate.gyro.rotations import full_bound, full_problem
+from imucal_cli.calibrate.session import calibrate_session
 from imucal_cli.formats.config import config_from_dict
-from imucal_cli.pipeline.calibrate import calibrate_session
-from imucal_cli.pipeline.gyro import full_bound, full_problem
 from imucal_cli.simulate.rotations import simulate_gyro_rotations
 
 CFG = config_from_dict({"accel": {"gravity": {"leave_one_out": False}},

@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from bench.gyro_table import COVERED, SESSIONS, SHIPPED, plan_rows, row
+from imucal_cli.calibrate.session import calibrate_session, suspect_error
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import read_session
-from imucal_cli.pipeline.calibrate import calibrate_session, suspect_error
 from tests.cli_helpers import run
 
 

@@ -11,19 +11,19 @@ import pytest
 from scipy import sparse
 from scipy.spatial.transform import Rotation
 
-from imucal_cli.formats.config import config_from_dict
-from imucal_cli.pipeline.calibrate import calibrate_accel, with_segments
-from imucal_cli.pipeline.gyro import full_problem
-from imucal_cli.simulate.rotations import simulate_gyro_rotations
-from imucal_cli.solvers.banded import BandedWhitener
-from imucal_cli.solvers.gyro_integration import (
+from imucal_cli.calibrate.gyro.rotations import full_problem
+from imucal_cli.calibrate.session import calibrate_accel, with_segments
+from imucal_cli.estimators.gyro.integration import (
     Stack,
     attitudes,
     end_sensitivity,
     integrate_rotations,
     matrix_rows,
 )
-from imucal_cli.solvers.gyro_model import Problem
+from imucal_cli.estimators.gyro.model import Problem
+from imucal_cli.formats.config import config_from_dict
+from imucal_cli.numerics.banded import BandedWhitener
+from imucal_cli.simulate.rotations import simulate_gyro_rotations
 
 CREATED = "2026-01-01T00:00:00Z"
 

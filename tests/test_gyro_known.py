@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from imucal_cli.calibrate.session import calibrate_session
 from imucal_cli.errors import DesignError
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Segment, Session, read_session
-from imucal_cli.pipeline.calibrate import calibrate_session
 from tests.cli_helpers import run
 
 FERRARIS = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "imucal_ferraris"

@@ -4,7 +4,7 @@ The six faces' 5 moves, each near 180 degrees, are measured with an acceleromete
 faces fix only to about 0.7 degree; forced with ``[gyro] solver = "full"``, seed 9 gave a gain
 129 % off while its rates were stated to 36 % (a parameter 10.5 std off): the first-order
 propagation of the accelerometer's covariance understated it. Now the accelerometer's part is
-refitted at sigma points where the first order is doubtful (``solvers/gyro_sigma.py``), the
+refitted at sigma points where the first order is doubtful (``estimators/gyro/sigma.py``), the
 result states std that cover its error, and a warning names the nonlinearity; clean designs
 keep the first order bit for bit.
 """
@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 
 from bench.gyro_table import COVERED, _compare, truth_in_frame
+from imucal_cli.calibrate.session import calibrate_session, suspect_error
+from imucal_cli.estimators.gyro.sigma import GATE, PRECHECK, envelope, propagate
 from imucal_cli.formats.config import Config, config_from_dict
-from imucal_cli.pipeline.calibrate import calibrate_session, suspect_error
 from imucal_cli.simulate.play import simulate_plan
 from imucal_cli.simulate.rotations import simulate_gyro_rotations
-from imucal_cli.solvers.gyro_sigma import GATE, PRECHECK, envelope, propagate
 
 # --- the propagation on functions whose moments are known -----------------------------------
 

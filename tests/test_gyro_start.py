@@ -13,13 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from imucal_cli.calibrate.gyro.rotations import full_problem
+from imucal_cli.calibrate.session import calibrate_accel, calibrate_gyro, with_segments
 from imucal_cli.errors import DesignError
+from imucal_cli.estimators.gyro.full import fit_full
+from imucal_cli.estimators.gyro.start import signed_permutations, start_values
 from imucal_cli.formats.config import config_from_dict
-from imucal_cli.pipeline.calibrate import calibrate_accel, calibrate_gyro, with_segments
-from imucal_cli.pipeline.gyro import full_problem
 from imucal_cli.simulate.rotations import simulate_gyro_rotations
-from imucal_cli.solvers.gyro_full import fit_full
-from imucal_cli.solvers.gyro_start import signed_permutations, start_values
 
 CREATED = "2026-01-01T00:00:00Z"
 DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data"

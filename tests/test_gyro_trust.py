@@ -12,10 +12,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from imucal_cli.calibrate.session import calibrate_session, suspect_error
 from imucal_cli.errors import DesignError
 from imucal_cli.formats.config import config_from_dict
 from imucal_cli.formats.session import write_session
-from imucal_cli.pipeline.calibrate import calibrate_session, suspect_error
 from imucal_cli.simulate.rotations import simulate_gyro_rotations
 from imucal_cli.simulate.triad import simulate
 
@@ -139,8 +139,8 @@ def test_clean_sessions_fit_within_the_noise(axes_run):
 def test_noise_is_pooled_over_the_still_periods(axes_run):
     """Each still mean's weight comes from one pooled per-sample noise, not from its own few
     samples: a hold cut to 10 samples gets sigma / sqrt(10) of the pooled sigma."""
-    from imucal_cli.pipeline.calibrate import calibrate_accel, with_segments
-    from imucal_cli.pipeline.gyro import gyro_data
+    from imucal_cli.calibrate.gyro.rotations import gyro_data
+    from imucal_cli.calibrate.session import calibrate_accel, with_segments
 
     session, _ = axes_run
     session, _ = with_segments(session)

@@ -5,10 +5,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from imucal_cli.calibrate.gyro.rotations import still_periods
 from imucal_cli.formats.session import Segment
 from imucal_cli.model.calibration import SensorCalibration
 from imucal_cli.numerics.segmented import segment_moments, stacked_rows
-from imucal_cli.pipeline.gyro import still_periods
 
 
 def _reference_moments(x, start, stop):
@@ -123,9 +123,9 @@ def test_still_periods_match_the_per_period_loop(monkeypatch, case, chunk):
 
 
 def _reference_turns(t, z, b0, clock):
-    """The per-turn loop that :class:`imucal_cli.solvers.gyro_start._Turns` replaced: the
+    """The per-turn loop that :class:`imucal_cli.estimators.gyro.start._Turns` replaced: the
     block integrals of the coarse integrator and each turn's raw integral."""
-    from imucal_cli.solvers.gyro_start import COARSE_RATE_HZ
+    from imucal_cli.estimators.gyro.start import COARSE_RATE_HZ
 
     steps, coarse_t, x = [], [], np.zeros((len(t), 3))
     dt = np.median(np.concatenate([np.diff(tk) for tk in t]))
@@ -151,7 +151,7 @@ TURN_LENGTHS = {
 @pytest.mark.parametrize("case", TURN_LENGTHS)
 @pytest.mark.parametrize("clock", [1.0, 1.0021])
 def test_coarse_turns_match_the_per_turn_loop(case, clock):
-    from imucal_cli.solvers.gyro_start import _Turns
+    from imucal_cli.estimators.gyro.start import _Turns
 
     rng = np.random.default_rng(11)
     t, z, t0 = [], [], 0.0
@@ -201,7 +201,7 @@ def _reference_turns_between(time, stills, turns, gap):
 @pytest.mark.parametrize("pairs", [1 << 18, 7, 1])  # one chunk, several, one turn at a time
 @pytest.mark.parametrize("order", ["sorted", "shuffled"])
 def test_turns_between_match_the_per_turn_loop(monkeypatch, pairs, order):
-    import imucal_cli.pipeline.gyro as pg
+    import imucal_cli.calibrate.gyro.rotations as pg
 
     monkeypatch.setattr(pg, "PAIRS", pairs)
     rng = np.random.default_rng(5)
@@ -231,7 +231,7 @@ def test_turns_between_match_the_per_turn_loop(monkeypatch, pairs, order):
 
 @pytest.mark.parametrize("limit", [None, (-900.0, 900.0), (-2000.0, 2000.0), (-1.0, 1.0)])
 def test_clipped_turns_match_the_per_turn_check(limit):
-    from imucal_cli.pipeline.gyro import Turn, _clipped
+    from imucal_cli.calibrate.gyro.rotations import Turn, _clipped
 
     rng = np.random.default_rng(9)
     gyro = rng.normal(0, 300.0, (500, 3))
@@ -246,7 +246,7 @@ def test_clipped_turns_match_the_per_turn_check(limit):
 
 @pytest.mark.parametrize("n", [1, 2, 17, 4000])
 def test_normalised_quaternion_pairs_match_the_einsum_norm(n):
-    from imucal_cli.solvers.gyro_integration import _normalised
+    from imucal_cli.estimators.gyro.integration import _normalised
 
     rng = np.random.default_rng(n)
     q = rng.normal(size=(2, n)) + 1j * rng.normal(size=(2, n))
@@ -261,7 +261,7 @@ def test_normalised_quaternion_pairs_match_the_einsum_norm(n):
 def test_rotvec_quaternions_match_sin_and_cos(size):
     """The series of the half-angle factors equals numpy's sin and cos to rounding, below and
     above :data:`SERIES_MAX`, at zero and at the boundary."""
-    from imucal_cli.solvers.gyro_integration import SERIES_MAX, _rotvec_pairs
+    from imucal_cli.estimators.gyro.integration import SERIES_MAX, _rotvec_pairs
 
     rng = np.random.default_rng(int(size * 1000))
     phi = rng.normal(0, size, (3, 3000))

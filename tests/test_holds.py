@@ -1,13 +1,13 @@
-"""The per-hold statistics of solvers/holds.py against their plain numpy definitions."""
+"""The per-hold statistics of design/holds.py against their plain numpy definitions."""
 
 import numpy as np
 import pytest
 
-from imucal_cli.solvers import holds
+from imucal_cli.design import holds
 
 
 def _reference_trend(t, b, cov, limit):
-    """The trend test written out for one hold (the definition in solvers/holds.py)."""
+    """The trend test written out for one hold (the definition in design/holds.py)."""
     if len(t) < 3 or t[-1] <= t[0]:
         return np.zeros(b.shape[1]), 0.0, False
     tc = t - t.mean()

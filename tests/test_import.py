@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from imucal_cli.calibrate.session import calibrate_session
 from imucal_cli.errors import InputError
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.importers import import_files, infer_columns, parse_columns
 from imucal_cli.formats.session import read_session
-from imucal_cli.pipeline.calibrate import calibrate_session
 from imucal_cli.simulate.triad import simulate
 from tests.cli_helpers import IMUCAL, assert_one_line_error, run  # noqa: F401
 

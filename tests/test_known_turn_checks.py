@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 
 from bench.captured import FERRARIS_TOML, as_captured, ferraris_plan
+from imucal_cli.calibrate.gyro.turn_windows import settle_turns
+from imucal_cli.calibrate.session import calibrate_session, suspect_error
 from imucal_cli.errors import DesignError
 from imucal_cli.formats.config import Config, config_from_dict
 from imucal_cli.formats.session import read_session
-from imucal_cli.pipeline.calibrate import calibrate_session, suspect_error
-from imucal_cli.pipeline.turn_windows import settle_turns
 from imucal_cli.simulate.play import simulate_plan
 from tests.cli_helpers import run
 

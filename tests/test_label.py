@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from imucal_cli.errors import InputError, SessionError
-from imucal_cli.formats.labels import call_faces
 from imucal_cli.formats.session import Segment, read_session, rewrite_labels
+from imucal_cli.use.labels import call_faces
 from tests.cli_helpers import assert_one_line_error, run
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -6,18 +6,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from imucal_cli.calibrate.session import calibrate_session, static_poses
 from imucal_cli.errors import ConfigError, DesignError
-from imucal_cli.formats.config import Config, config_from_dict
-from imucal_cli.pipeline.calibrate import calibrate_session, static_poses
-from imucal_cli.simulate.triad import simulate
-from imucal_cli.solvers.crb import gravity_crb, labelled_crb
-from imucal_cli.solvers.labelled import fit_labelled, public_params
-from imucal_cli.solvers.labelled_model import (
+from imucal_cli.estimators.accel.crb import gravity_crb, labelled_crb
+from imucal_cli.estimators.accel.labelled import fit_labelled, public_params
+from imucal_cli.estimators.accel.labelled_model import (
     design_jacobian,
     jacobian,
     public_from_theta,
     triangular_and_rotation,
 )
+from imucal_cli.formats.config import Config, config_from_dict
+from imucal_cli.simulate.triad import simulate
 
 CREATED = "2026-01-01T00:00:00Z"
 G0 = 9.80665
@@ -102,7 +102,7 @@ def _to_public(M, B):
     """Jacobian from ``theta = (B, K upper, r deg)`` to the solver's parameters."""
     from scipy.spatial.transform import Rotation
 
-    from imucal_cli.solvers.gravity import _UPPER
+    from imucal_cli.estimators.accel.gravity import _UPPER
 
     K, Q = triangular_and_rotation(M)
     theta = np.concatenate([B, K[_UPPER], np.degrees(Rotation.from_matrix(Q).as_rotvec())])
@@ -297,7 +297,7 @@ def test_no_label_limited_placement_left_on_qureshi18():
 
 @pytest.mark.parametrize("m", [1, 2, 3, 5, 8])
 def test_symmetric_rule_is_exact_to_fifth_degree(m):
-    from imucal_cli.solvers.labelled import symmetric_rule
+    from imucal_cli.estimators.accel.labelled import symmetric_rule
 
     nodes, w, a = symmetric_rule(m)
     assert len(nodes) == 2 * m * m + 1 and a == pytest.approx(np.sqrt(3))
@@ -311,7 +311,7 @@ def test_symmetric_rule_is_exact_to_fifth_degree(m):
 def test_second_order_steps_do_not_collapse_on_a_near_zero_entry():
     """A near-zero off-diagonal entry of K once got a near-zero difference step: the
     angles' second-order bias came out at 24000 degrees. Its result is now continuous."""
-    from imucal_cli.solvers.labelled_model import second_order
+    from imucal_cli.estimators.accel.labelled_model import second_order
 
     def axes_of(k):
         return public_from_theta(np.r_[np.zeros(3), k, np.zeros(3)])[3:9]

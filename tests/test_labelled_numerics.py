@@ -6,14 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from imucal_cli.pipeline.calibrate import static_poses
-from imucal_cli.simulate.triad import simulate
-from imucal_cli.solvers import labelled
-from imucal_cli.solvers.labelled_model import (
+from imucal_cli.calibrate.session import static_poses
+from imucal_cli.estimators.accel import labelled
+from imucal_cli.estimators.accel.labelled_model import (
     jacobian,
     public_from_theta,
     second_order,
 )
+from imucal_cli.simulate.triad import simulate
 
 CREATED = "2026-01-01T00:00:00Z"
 G0 = 9.80665
@@ -107,7 +107,7 @@ def test_values_are_the_predictions():
 
 def test_deletion_of_groups_of_two_sizes_is_the_per_group_formula():
     """Labelled and unlabelled poses (5 and 3 rows) batched by size: the module formula."""
-    from imucal_cli.solvers.outliers import deletion
+    from imucal_cli.design.outliers import deletion
 
     rng = np.random.default_rng(6)
     sizes = [5, 3, 5, 5, 3, 3, 5, 5, 3, 5]

@@ -100,10 +100,52 @@ def test_no_layer_imports_a_higher_one():
 def test_the_check_sees_lazy_and_relative_imports():
     """What the check reads: function-level and relative imports, resolved to their package."""
     text = ("import numpy\nfrom imucal_cli import __version__, plans\n\n\ndef f():\n"
-            "    from ..pipeline.calibrate import calibrate_session\n"
+            "    from ..calibrate.session import calibrate_session\n"
             "    from . import session\n    from .session import Session\n")  # fmt: skip
     got = [m for _, m in _imports(PACKAGE / "formats" / "x.py", text)]
     assert got == ["imucal_cli.__version__", "imucal_cli.plans",
-                   "imucal_cli.pipeline.calibrate.calibrate_session", "imucal_cli.formats.session",
+                   "imucal_cli.calibrate.session.calibrate_session", "imucal_cli.formats.session",
                    "imucal_cli.formats.session.Session"]  # fmt: skip
-    assert "pipeline" not in _allowed(layer_table())["formats"]
+    assert "calibrate" not in _allowed(layer_table())["formats"]
+
+
+#: What is not a sensor's in ``estimators/``: the estimators two sensors share.
+SHARED_ESTIMATORS = {"factorization", "ellipsoid"}
+SENSOR_FOLDERS = {"accel", "gyro", "mag", "thermal", "clock"}
+
+
+def test_estimators_are_grouped_by_sensor():
+    """Issue 25.4: an estimator lives in its sensor's folder (or is one two sensors share);
+    the design analysis, apart, imports no estimator (the layers above)."""
+    root = PACKAGE / "estimators"
+    stray = []
+    for path in sorted(root.rglob("*.py")):
+        rel = path.relative_to(root)
+        if rel.name == "__init__.py":
+            continue
+        if len(rel.parts) == 1 and rel.stem not in SHARED_ESTIMATORS:
+            stray.append(str(rel))
+        if len(rel.parts) > 1 and rel.parts[0] not in SENSOR_FOLDERS:
+            stray.append(str(rel))
+    assert not stray, stray
+    assert {p.name for p in root.iterdir() if p.is_dir() and p.name != "__pycache__"} == (
+        SENSOR_FOLDERS)  # fmt: skip
+
+
+def test_one_session_reader():
+    """Issue 25.4: sessions are read by ``formats/session`` only (``read_session``,
+    ``open_samples``): no module elsewhere opens one itself (``use/apply.py`` had its own)."""
+    inner = ("imucal_cli.formats.session.h5open", "imucal_cli.formats.session.reader")
+    wrong = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        rel = path.relative_to(PACKAGE)
+        if rel.parts[:2] == ("formats", "session"):
+            continue
+        for line, module in _imports(path):
+            if module.startswith(inner) or module.endswith((".open_for_reading",
+                                                            ".raw_datasets")):  # fmt: skip
+                wrong.append(f"{rel}:{line} imports {module}")
+        text = path.read_text(encoding="utf-8")
+        if "h5py.File(" in text and rel.parts[0] != "formats":
+            wrong.append(f"{rel}: opens an HDF5 file itself")
+    assert not wrong, wrong

@@ -132,8 +132,8 @@ def test_c_header_and_json_carry_the_magnetometer():
 def test_apply_writes_calibrated_mag_to_h5_and_csv(tmp_path):
     session, _ = simulate_mag("random:10", 1, hold_s=1.0, tumble_s=2.0)
     write_session(tmp_path / "s.h5", session)
+    from imucal_cli.calibrate.session import calibrate_session
     from imucal_cli.formats.config import Config
-    from imucal_cli.pipeline.calibrate import calibrate_session
 
     cal = calibrate_session(session, Config())
     write_calibration(tmp_path / "c.json", cal)

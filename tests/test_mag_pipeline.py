@@ -12,13 +12,13 @@ import re
 import numpy as np
 import pytest
 
+from imucal_cli.calibrate.session import calibrate_session, suspect_error
 from imucal_cli.errors import DesignError
 from imucal_cli.formats.calibration import calibration_from_json, calibration_to_json
 from imucal_cli.formats.config import Config, config_from_dict
 from imucal_cli.formats.session import write_session
 from imucal_cli.model.calibration import LOCAL_FIELD
 from imucal_cli.model.mag import MagCalibration, Readings
-from imucal_cli.pipeline.calibrate import calibrate_session, suspect_error
 from imucal_cli.simulate.magnetometer import earth_field, simulate_mag
 from imucal_cli.simulate.triad import simulate
 from imucal_cli.use.report import build_report
@@ -203,7 +203,7 @@ def test_saturation_is_refused_with_cause_and_advice():
     cal = calibrate_session(dataclasses.replace(session, mag=few), Config())
     # the flat top's readings taken while the unit turned (a still hold at the top is not a
     # sign of clipping) are left out, and only those
-    from imucal_cli.solvers.clipping import clipped_rows
+    from imucal_cli.design.clipping import clipped_rows
 
     flagged = clipped_rows(few.astype(float))
     assert 0 < flagged.sum() and np.all(few[flagged, 1] == few[:, 1].max())

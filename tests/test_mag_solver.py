@@ -1,4 +1,5 @@
-"""Magnetometer solver (solvers/magnetometer.py), its Cramér-Rao bound and the sphere figures."""
+"""Magnetometer solver (estimators/mag/magnetometer.py), its Cramér-Rao bound and the sphere
+figures."""
 
 from __future__ import annotations
 
@@ -7,16 +8,7 @@ import pytest
 from scipy.linalg import block_diag
 from scipy.spatial.transform import Rotation
 
-from imucal_cli.errors import DesignError
-from imucal_cli.solvers.magnetometer import (
-    MagData,
-    fit_magnetometer,
-    fit_plain_ellipsoid,
-    held_out_residuals,
-    polar,
-)
-from imucal_cli.solvers.magnetometer_crb import magnetometer_crb
-from imucal_cli.solvers.sphere_quality import (
+from imucal_cli.design.sphere_quality import (
     N_REGIONS,
     gaps_pct,
     region_centres,
@@ -24,6 +16,15 @@ from imucal_cli.solvers.sphere_quality import (
     region_index,
     sphere_quality,
     suggest_direction,
+)
+from imucal_cli.errors import DesignError
+from imucal_cli.estimators.mag.crb import magnetometer_crb
+from imucal_cli.estimators.mag.magnetometer import (
+    MagData,
+    fit_magnetometer,
+    fit_plain_ellipsoid,
+    held_out_residuals,
+    polar,
 )
 
 F = 48.0  # uT

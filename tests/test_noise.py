@@ -12,13 +12,13 @@ import pytest
 from imucal_cli.capture.guided import ScriptedKeys, run_guided
 from imucal_cli.capture.unattended import _Buffer, _PlanWatcher
 from imucal_cli.cli import main
+from imucal_cli.design.allan import axis_noise
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import write_calibration
 from imucal_cli.formats.columns import SampleBlock
 from imucal_cli.formats.session import Segment, Session, read_session, write_session
 from imucal_cli.model.calibration import Calibration, SensorCalibration
 from imucal_cli.plans import Plan, Step, load_plan
-from imucal_cli.solvers.allan import axis_noise
 from imucal_cli.use.noise import analyse_noise
 
 from .test_guided import FakeRecorder, _console, poses

@@ -8,11 +8,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from imucal_cli.design.segmentation import StaticStream, estimate_noise, find_static
 from imucal_cli.errors import InputError
 from imucal_cli.formats.session import open_samples, read_session, write_session
 from imucal_cli.numerics.allan import MAX_TERMS, AllanAccumulator, allan_deviation, log_taus
 from imucal_cli.simulate.triad import simulate
-from imucal_cli.solvers.segmentation import StaticStream, estimate_noise, find_static
 from imucal_cli.use.noise import analyse_noise
 
 from .test_noise import G0, RATE, still_session

@@ -83,9 +83,9 @@ def test_guided_six_faces_with_a_magnetometer_saves_what_it_determines(tmp_path)
     cal = doc["calibration"]
     assert cal["accel"]["solver"] == "labelled"
     # every turn reaches its still periods through the samples between (none before)
+    from imucal_cli.calibrate.gyro.rotations import gyro_data
     from imucal_cli.formats.calibration import read_calibration
     from imucal_cli.formats.config import Config
-    from imucal_cli.pipeline.gyro import gyro_data
 
     accel = read_calibration(out.with_suffix(".cal.json")).accel
     assert len(gyro_data(session, Config(), accel).turns) == 5

@@ -17,14 +17,14 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from imucal_cli.calibrate.session import calibrate_session, suspect_error
+from imucal_cli.design.poses import count_distinct, unit
 from imucal_cli.errors import DesignError, ImucalWarning, InputError
 from imucal_cli.formats.config import Config, config_from_dict
 from imucal_cli.formats.session import Segment, write_session
-from imucal_cli.pipeline.calibrate import calibrate_session, suspect_error
 from imucal_cli.plans import find_plan, load_plan
 from imucal_cli.simulate.magnetometer import simulate_mag
 from imucal_cli.simulate.play import simulate_plan
-from imucal_cli.solvers.poses import count_distinct, unit
 from imucal_cli.use.report.build import build_report
 
 from .cli_helpers import assert_one_line_error, run
@@ -114,8 +114,8 @@ def test_cli_saves_a_partial_calibration_and_says_what_was_left_out(tmp_path, ma
     assert "warning: mag not calibrated: the magnetometer saw the field" in text.stdout
     assert "(partial: gyro, mag left out, see above)" in text.stdout
     # calibrate A B ...: each session's figures say it (the batch's own function)
+    from imucal_cli.calibrate.batch import _figures
     from imucal_cli.formats.calibration import read_calibration
-    from imucal_cli.pipeline.batch import _figures
 
     figures = _figures(read_calibration(tmp_path / "m.cal.json"))
     assert figures.complete is False and figures.left_out == ("gyro", "mag")
@@ -141,7 +141,7 @@ def test_a_pose_held_longer_than_its_segment_keeps_its_turn():
     extended through those continuous samples and all five kept (before: none)."""
     session, _ = simulate_plan("six", seed=4, hold_s=5.0, created=CREATED)
     guided = _guided_like(session)
-    from imucal_cli.pipeline.gyro import gyro_data
+    from imucal_cli.calibrate.gyro.rotations import gyro_data
 
     accel = calibrate_session(guided, config_from_dict({"gyro": {"solver": "none"}})).accel
     data = gyro_data(guided, Config(), accel)
@@ -174,7 +174,7 @@ def _bridge_case(hole_s: float = 0.0, other_turn: bool = False, stall_s: float =
 
 
 def test_turns_are_extended_only_through_continuous_samples():
-    from imucal_cli.pipeline.gyro import turns_between
+    from imucal_cli.calibrate.gyro.rotations import turns_between
 
     session, stills, turns = _bridge_case()
     usable, skipped = turns_between(session, stills, turns, 2.0)

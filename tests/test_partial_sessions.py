@@ -17,12 +17,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from imucal_cli.calibrate.session import calibrate_session
 from imucal_cli.errors import DesignError
+from imucal_cli.estimators.accel.crb import gravity_crb, labelled_crb
 from imucal_cli.formats.config import Config, config_from_dict
 from imucal_cli.model.parts import By
-from imucal_cli.pipeline.calibrate import calibrate_session
 from imucal_cli.simulate.play import simulate_plan
-from imucal_cli.solvers.crb import gravity_crb, labelled_crb
 from imucal_cli.use.report.build import build_report
 from tests.cli_helpers import run
 from tests.test_gyro_known import _ferraris_like
@@ -37,8 +37,8 @@ def _cfg(accel: str, gyro: str):
 def test_labelled_bound_without_labels_is_the_gravity_bound_and_labels_only_help():
     """(L5) with an infinite placement on every pose is the gravity-magnitude bound on bias,
     gains and axes; labelling some poses lowers it, labelling all lowers it further."""
-    from imucal_cli.solvers.gravity import _UPPER, params_to_model
-    from imucal_cli.solvers.labelled_model import jacobian, public_from_theta
+    from imucal_cli.estimators.accel.gravity import _UPPER, params_to_model
+    from imucal_cli.estimators.accel.labelled_model import jacobian, public_from_theta
 
     rng = np.random.default_rng(0)
     K = np.triu(np.eye(3) / 835.0 + rng.normal(0, 2e-5, (3, 3)))

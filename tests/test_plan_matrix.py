@@ -255,8 +255,8 @@ def _warmup_shape_bound(session, grid: np.ndarray, t_ref: float) -> dict[str, fl
     """RMS over ``grid`` of the Cramer-Rao standard deviation of a cubic bias curve's shape
     (its change from ``t_ref``) fitted to the still blocks of ``session``, white noise (the
     per-sample noise measured from the session), in counts."""
-    from imucal_cli.pipeline.temperature import BLOCK_S, still_blocks
-    from imucal_cli.solvers.temperature import polynomial_bound, powers
+    from imucal_cli.calibrate.thermal import BLOCK_S, still_blocks
+    from imucal_cli.estimators.thermal.temperature import polynomial_bound, powers
 
     blocks = still_blocks(session, BLOCK_S)
     out = {}

@@ -6,12 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from imucal_cli.formats.config import ACCEL_SOLVERS, GYRO_SOLVERS, MAG_SOLVERS, Config
-from imucal_cli.pipeline import accel_estimators, gyro_estimators
-from imucal_cli.pipeline.accel_estimators import AccelDesign
-from imucal_cli.pipeline.calibrate import calibrate_accel, calibrate_gyro_auto
-from imucal_cli.pipeline.gyro_estimators import GyroDesign
-from imucal_cli.pipeline.registry import (
+from imucal_cli.calibrate.accel import estimators as accel_estimators
+from imucal_cli.calibrate.accel.estimators import AccelDesign
+from imucal_cli.calibrate.gyro import estimators as gyro_estimators
+from imucal_cli.calibrate.gyro.estimators import GyroDesign
+from imucal_cli.calibrate.registry import (
     REGISTRY,
     WORTH,
     Bound,
@@ -24,6 +23,8 @@ from imucal_cli.pipeline.registry import (
     choose,
     register,
 )
+from imucal_cli.calibrate.session import calibrate_accel, calibrate_gyro_auto
+from imucal_cli.formats.config import ACCEL_SOLVERS, GYRO_SOLVERS, MAG_SOLVERS, Config
 from imucal_cli.simulate.play import simulate_plan
 
 CREATED = "2026-01-01T00:00:00Z"

@@ -122,8 +122,8 @@ def test_malformed_config(tmp_path, name, content, expect):
 
 def _valid_calibration_text() -> str:
     """A full calibration (parameters, poses, coverage, ...) as calibrate writes it."""
+    from imucal_cli.calibrate.session import calibrate_session
     from imucal_cli.formats.config import Config
-    from imucal_cli.pipeline.calibrate import calibrate_session
 
     session = read_session(BASE_SESSION.with_name("qureshi18-seed1.h5"))
     return calibration_to_json(calibrate_session(session, Config(), name="qureshi18-seed1.h5"))

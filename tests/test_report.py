@@ -513,8 +513,8 @@ TABLE_I_ANGLES = ["s1s2", "s1s3", "s1s4", "s2s3", "s2s4", "s3s4"]
 
 
 def _calibrated(session, config: dict):
+    from imucal_cli.calibrate.session import calibrate_session
     from imucal_cli.formats.config import config_from_dict
-    from imucal_cli.pipeline.calibrate import calibrate_session
 
     return calibrate_session(session, config_from_dict(config))
 
@@ -733,9 +733,9 @@ def test_minimal_gyro_section_lists_only_gyro_items():
 def two_calibrations(tmp_path_factory):
     """The same simulated part (same seed: same truth) calibrated twice, the second session
     recorded with twice the accelerometer noise and a day later."""
+    from imucal_cli.calibrate.session import calibrate_session
     from imucal_cli.formats.calibration import write_calibration
     from imucal_cli.formats.config import config_from_dict
-    from imucal_cli.pipeline.calibrate import calibrate_session
     from imucal_cli.simulate.triad import simulate
 
     folder = tmp_path_factory.mktemp("history")
@@ -846,8 +846,8 @@ def test_history_refuses_plot_with_one_line(two_calibrations, tmp_path, capsys, 
 def test_history_compares_a_section_from_its_first_appearance():
     """The first calibration of a sensor may lack the gyro: later gyro runs are still compared
     with each other (the first one that has it is the reference)."""
+    from imucal_cli.calibrate.session import calibrate_session
     from imucal_cli.formats.config import config_from_dict
-    from imucal_cli.pipeline.calibrate import calibrate_session
     from imucal_cli.simulate.rotations import simulate_gyro_rotations
     from imucal_cli.use.report import build_history
 
@@ -876,8 +876,8 @@ def test_history_compares_a_section_from_its_first_appearance():
 def one_session_three_ways():
     """One simulated session calibrated with standard gravity, with g = 9.81 and with the
     factorization solver: the sensor did not change between them."""
+    from imucal_cli.calibrate.session import calibrate_session
     from imucal_cli.formats.config import config_from_dict
-    from imucal_cli.pipeline.calibrate import calibrate_session
     from imucal_cli.simulate.triad import simulate
 
     session, _ = simulate(seed=4, created="2026-11-20T10:00:00Z")

@@ -117,8 +117,8 @@ def test_calibrate_saved_but_not_stored_is_exit_1_with_the_reason(session, tmp_p
 
 def test_calibrate_many_saved_but_not_stored_is_exit_1(session, tmp_path):
     """--jobs/several sessions: one whose store fails is "saved, not stored" (1), not 2."""
+    from imucal_cli.calibrate.batch import calibrate_many
     from imucal_cli.formats.config import Config
-    from imucal_cli.pipeline.batch import calibrate_many
 
     other = Path(shutil.copy(session, tmp_path / "other.h5"))
     with h5py.File(session, "r+") as f:
@@ -131,8 +131,8 @@ def test_calibrate_many_saved_but_not_stored_is_exit_1(session, tmp_path):
 
 
 def test_any_failure_to_store_after_saving_is_exit_1(session, monkeypatch):
+    from imucal_cli.calibrate import batch
     from imucal_cli.formats.config import Config
-    from imucal_cli.pipeline import batch
 
     def broken(*_args):
         raise TypeError("an unforeseen\nfailure")

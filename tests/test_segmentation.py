@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from imucal_cli.simulate.triad import simulate_stream
-from imucal_cli.solvers.segmentation import (
+from imucal_cli.design.segmentation import (
     Interval,
     estimate_noise,
     find_rotations,
     find_static,
     still_threshold,
 )
+from imucal_cli.simulate.triad import simulate_stream
 
 
 def truth_static(stream) -> list[Interval]:
@@ -140,7 +140,7 @@ def test_threshold_is_a_chi_square_quantile():
     assert k == pytest.approx(stats.chi2.ppf(0.999, 147) / 147)
     # pure white noise: about alpha of the windows exceed k
     rng = np.random.default_rng(4)
-    from imucal_cli.solvers.segmentation import window_variance
+    from imucal_cli.design.segmentation import window_variance
 
     var = window_variance(rng.normal(0, 1, (200_000, 3)), 50)
     rate = np.mean(var.mean(axis=1) > still_threshold(50, 3, 0.01))

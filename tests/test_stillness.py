@@ -6,14 +6,14 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from imucal_cli.simulate.triad import simulate_stream
-from imucal_cli.solvers.stillness import (
+from imucal_cli.design.stillness import (
     StillnessDetector,
     integrate_rate,
     motion_span,
     rate_to_deg_s,
     still_level_threshold,
 )
+from imucal_cli.simulate.triad import simulate_stream
 
 
 def _feed(det, time, accel, gyro=None, block=10):

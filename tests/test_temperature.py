@@ -6,10 +6,9 @@ import numpy as np
 import pytest
 
 from imucal_cli.errors import DesignError, InputError
-from imucal_cli.simulate.temperature import Ramp, parse_ramp
-from imucal_cli.simulate.triad import simulate
-from imucal_cli.solvers.gravity import fit_gravity
-from imucal_cli.solvers.temperature import (
+from imucal_cli.estimators.accel.gravity import fit_gravity
+from imucal_cli.estimators.thermal.joint import fit_gravity_tempco
+from imucal_cli.estimators.thermal.temperature import (
     MIN_SPAN_C,
     check_span,
     f1_pvalue,
@@ -17,7 +16,8 @@ from imucal_cli.solvers.temperature import (
     polynomial_bound,
     reexpand,
 )
-from imucal_cli.solvers.temperature_joint import fit_gravity_tempco
+from imucal_cli.simulate.temperature import Ramp, parse_ramp
+from imucal_cli.simulate.triad import simulate
 
 G0 = 9.80665
 

@@ -4,12 +4,12 @@ several sessions merged; a narrow span refused saying why."""
 import numpy as np
 import pytest
 
+from imucal_cli.calibrate.session import calibrate_session
+from imucal_cli.calibrate.thermal import merge_sessions
 from imucal_cli.errors import DesignError
 from imucal_cli.formats.calibration import read_calibration
 from imucal_cli.formats.config import Config, config_from_dict
 from imucal_cli.formats.session import write_session
-from imucal_cli.pipeline.calibrate import calibrate_session
-from imucal_cli.pipeline.temperature import merge_sessions
 from imucal_cli.simulate.temperature import Ramp
 from imucal_cli.simulate.triad import simulate
 

@@ -2,7 +2,7 @@
 
 :func:`run_unattended` records until ``duration_s`` has passed since the first sample, or until
 every step of the plan has been seen in the motion itself, then segments the whole recording
-with :func:`imucal_cli.solvers.segmentation.find_static` / ``find_rotations`` and adds the
+with :func:`imucal_cli.design.segmentation.find_static` / ``find_rotations`` and adds the
 segments to the session.
 
 Seeing a plan
@@ -41,10 +41,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from imucal_cli.design.segmentation import find_rotations, find_static
 from imucal_cli.errors import InputError
 from imucal_cli.formats.columns import SampleBlock
 from imucal_cli.plans import CaptureSummary, Plan, Step
-from imucal_cli.solvers.segmentation import find_rotations, find_static
 
 __all__ = [
     "FINAL_HOLD_EXTRA_S",

@@ -13,6 +13,8 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
 from rich.table import Table
 
+from imucal_cli.calibrate.batch import Figures, Stored, calibrate_file, calibrate_many
+from imucal_cli.calibrate.session import load_accel
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import calibration_to_json
 from imucal_cli.formats.config import load_config, validate
@@ -20,8 +22,6 @@ from imucal_cli.model.accel import AccelCalibration
 from imucal_cli.model.gyro import GyroCalibration
 from imucal_cli.model.mag import Readings
 from imucal_cli.model.parts import By
-from imucal_cli.pipeline.batch import Figures, Stored, calibrate_file, calibrate_many
-from imucal_cli.pipeline.calibrate import load_accel
 
 from .app import app
 from .console import Piece, make_console, print_json, print_line

@@ -10,8 +10,8 @@ import typer
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import calibration_from_json, read_calibration
 from imucal_cli.formats.importers import ACCEL_UNITS, GYRO_UNITS
-from imucal_cli.formats.labels import call_faces, face_label, set_segment
 from imucal_cli.formats.session import read_session, rewrite_labels
+from imucal_cli.use.labels import call_faces, face_label, set_segment
 
 from .app import app
 from .console import make_console, print_json

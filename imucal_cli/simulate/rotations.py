@@ -57,13 +57,14 @@ x"`` with ``axis`` = the nominal body axis (qureshi-axes), or ``"turn 3"`` witho
 measures it.
 
 The truth: ``accel`` and ``gyro``: ``matrix = inv(S)``, ``bias = b`` (fixture frame), as
-:func:`imucal_cli.simulate.triad.truth_calibration`.  ``gyro`` (:class:`~imucal_cli.model.truth.GyroTruth`): per turn, in order,
-``turn_segments`` (segment names), ``turn_labels``, ``turn_axis_names`` (qureshi-axes: x/y/z),
-``true_angle_deg``, ``true_axis`` (unit, body frame), ``true_rotvec`` (rad, body frame:
-``R_after = R_before Exp(rotvec)``), ``nominal_axis`` (or None), ``axis_error_deg``,
-``peak_rate_dps``, ``duration_s``; ``noise``.  ``accel`` (:class:`~imucal_cli.model.truth.AccelTruth`): per still, ``segments``,
-``labels``, ``true_up`` (unit, fixture frame), ``labelled_up`` (or None); ``noise``,
-``gravity``.
+:func:`imucal_cli.simulate.triad.truth_calibration`.  ``gyro``
+(:class:`~imucal_cli.model.truth.GyroTruth`): per turn, in order, ``turn_segments`` (segment
+names), ``turn_labels``, ``turn_axis_names`` (qureshi-axes: x/y/z), ``true_angle_deg``,
+``true_axis`` (unit, body frame), ``true_rotvec`` (rad, body frame: ``R_after = R_before
+Exp(rotvec)``), ``nominal_axis`` (or None), ``axis_error_deg``, ``peak_rate_dps``,
+``duration_s``; ``noise``.  ``accel`` (:class:`~imucal_cli.model.truth.AccelTruth`): per still,
+``segments``, ``labels``, ``true_up`` (unit, fixture frame), ``labelled_up`` (or None);
+``noise``, ``gravity``.
 """
 
 from __future__ import annotations

@@ -84,11 +84,7 @@ from imucal_cli.formats.importers.text import (
 )
 from imucal_cli.formats.inputs import is_hdf5_file
 from imucal_cli.formats.output import OutputFile, check_output
-from imucal_cli.formats.session import FORMAT as SESSION_FORMAT
-from imucal_cli.formats.session import FORMAT_VERSION as SESSION_FORMAT_VERSION
-from imucal_cli.formats.session import as_int, as_str, one_line, open_for_reading, utc_now_iso
-from imucal_cli.formats.session.reader import check_time as check_session_time
-from imucal_cli.formats.session.reader import raw_datasets
+from imucal_cli.formats.session import one_line, open_samples, utc_now_iso
 from imucal_cli.model.calibration import MODEL_EQUATION, Calibration, SensorCalibration
 
 __all__ = [
@@ -236,74 +232,42 @@ def _chunk_bounds(n: int, chunk_rows: int) -> list[tuple[int, int]]:
 def _session_blocks(
     path: Path, sections: dict[str, SensorCalibration], cal_src: str, chunk_rows: int
 ) -> tuple[Iterator[_Block], int, dict[str, str | None], Callable[[], None]]:
-    """Open a session; return its block iterator, row count, raw units and a closer."""
+    """Open a session (:func:`~imucal_cli.formats.session.open_samples`, the one reader of
+    sessions block by block); return its block iterator, row count, raw units and a closer."""
     src = str(path)
-    file, unclosed = open_for_reading(path, src)
+    samples = open_samples(path)
     try:
-        fmt = file.attrs.get("format")
-        if as_str(fmt) != SESSION_FORMAT:
-            shown = "absent" if fmt is None else repr(as_str(fmt) or fmt)
-            raise InputError(
-                f"{src}: not an imucal session (format attribute {shown}, "
-                f"expected {SESSION_FORMAT!r})"
-            )
-        version = file.attrs.get("format_version")
-        if as_int(version) != SESSION_FORMAT_VERSION:
-            raise InputError(
-                f"{src}: unsupported session format_version {version!r} "
-                f"(this reader reads version {SESSION_FORMAT_VERSION})"
-            )
-        found, n = raw_datasets(file, src, unclosed)
-        time_ds = found["time"]
-        datasets = {}
+        names = list(sections)
         for name, sec in sections.items():
-            ds = found.get(name)
-            if ds is None:
+            width = samples.channels.get(name)
+            if width is None:
                 raise InputError(
                     f"{src} has no {name} data (/raw/{name}), but {cal_src} calibrates the {name}"
                 )
             n_cal = sec.bias.shape[0]
-            if ds.shape[1] != n_cal:
+            if width != n_cal:
                 raise InputError(
                     f"{cal_src} calibrates {n_cal} {name} channels but {src} has "
-                    f"{ds.shape[1]} (/raw/{name} shape {ds.shape})"
+                    f"{width} (/raw/{name} shape {(samples.n, width)})"
                 )
-            datasets[name] = ds
         if _needs_temperature(sections):
-            temp_ds = found.get("temperature")
-            if temp_ds is None:
+            if "temperature" not in samples.channels:
                 raise _no_temperature(src, cal_src, _needs_temperature(sections),
                                       "/raw/temperature")  # fmt: skip
-            datasets["temperature"] = temp_ds
-        units = {name: as_str(file.attrs.get(f"{name}_units")) for name in sections}
+            names.append("temperature")
+        units = {name: samples.units(name) for name in sections}
     except BaseException:
-        file.close()
+        samples.close()
         raise
 
     def blocks() -> Iterator[_Block]:
-        # Each block is read into the same arrays (no new memory per block; a block is used
-        # up before the next is read).
-        bounds = _chunk_bounds(n, chunk_rows)
-        rows = max((b - a for a, b in bounds), default=0)
-        buffers = {name: np.empty((rows, *ds.shape[1:])) for name, ds in
-                   [("time", time_ds), *datasets.items()]}  # fmt: skip
-        last = None
-        for start, stop in bounds:
-            try:
-                values = {}
-                for name, ds in [("time", time_ds), *datasets.items()]:
-                    out = buffers[name][: stop - start]
-                    ds.read_direct(out, np.s_[start:stop], np.s_[0 : stop - start])
-                    values[name] = out
-                t = values.pop("time")
-                temp = values.pop("temperature", None)
-            except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
-                raise InputError(f"{src}: damaged HDF5 file ({one_line(exc)})") from None
-            check_session_time(t, src, first=start, before=last)
-            last = float(t[-1])
-            yield _Block(time=t, raw=values, done=stop, temperature=temp)
+        for start, stop in _chunk_bounds(samples.n, chunk_rows):
+            block = next(samples.blocks(("time", *names), start, stop, rows=stop - start))
+            values = dict(zip(names, block[1:], strict=True))
+            temp = values.pop("temperature", None)
+            yield _Block(time=block[0], raw=values, done=stop, temperature=temp)
 
-    return blocks(), n, units, file.close
+    return blocks(), samples.n, units, samples.close
 
 
 class _CsvBlocks:

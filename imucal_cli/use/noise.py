@@ -2,8 +2,8 @@
 
 1. The samples: the longest static segment of the session, or the whole recording when the
    session has no segments, read once, block by block (memory stays constant: a day at 100 Hz
-   in under 200 MiB).  :class:`~imucal_cli.solvers.segmentation.StaticStream` checks that they
-   are still as :func:`~imucal_cli.solvers.segmentation.find_static` does (thresholds from the
+   in under 200 MiB).  :class:`~imucal_cli.design.segmentation.StaticStream` checks that they
+   are still as :func:`~imucal_cli.design.segmentation.find_static` does (thresholds from the
    data's own noise, estimated from the span, or from :data:`NOISE_PIECES` pieces of it when
    it is longer than :data:`NOISE_SAMPLES`): a recording mostly moving is refused, one that
    moved for more than :data:`MOVED_WARN_FRACTION` of its duration is analysed with a warning
@@ -14,7 +14,7 @@
    step refuses with advice.
 3. Per axis: the overlapping Allan deviation summed block by block
    (:class:`imucal_cli.numerics.allan.AllanAccumulator`), and the random walk, bias instability
-   and rate random walk read from it (:func:`~imucal_cli.solvers.allan.noise_from_curve`),
+   and rate random walk read from it (:func:`~imucal_cli.design.allan.noise_from_curve`),
    converted to the units people put in their filters.
 
 :func:`analyse_noise` returns a :class:`NoiseReport`; :meth:`NoiseReport.to_dict` is the
@@ -32,13 +32,13 @@ from typing import Any
 
 import numpy as np
 
+from imucal_cli.design.allan import AxisNoise, noise_from_curve
+from imucal_cli.design.segmentation import StaticStream, estimate_noise
 from imucal_cli.errors import InputError
 from imucal_cli.formats.noise import NOISE_FORMAT
 from imucal_cli.formats.session import Session, SessionSamples, samples_of
 from imucal_cli.model.calibration import Calibration, SensorCalibration
 from imucal_cli.numerics.allan import AllanAccumulator
-from imucal_cli.solvers.allan import AxisNoise, noise_from_curve
-from imucal_cli.solvers.segmentation import StaticStream, estimate_noise
 from imucal_cli.use.report import load_for_report
 
 __all__ = [
@@ -215,7 +215,7 @@ class NoiseReport:
 
 NOISE_SAMPLES = 1 << 16
 """Samples the still test's noise is estimated from: the whole span when it is no longer (the
-noise :func:`~imucal_cli.solvers.segmentation.find_static` estimates), else
+noise :func:`~imucal_cli.design.segmentation.find_static` estimates), else
 :data:`NOISE_PIECES` pieces spread evenly over it."""
 
 NOISE_PIECES = 16

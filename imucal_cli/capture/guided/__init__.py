@@ -6,7 +6,7 @@
 
 static step
     says what to do (``Put face +Z up and hold still``), shows the live signal and STILL/MOVING;
-    as soon as the :class:`~imucal_cli.solvers.stillness.StillnessDetector` calls the unit
+    as soon as the :class:`~imucal_cli.design.stillness.StillnessDetector` calls the unit
     still, the hold starts by itself and runs ``hold_s`` seconds under a progress bar.  Motion
     during the hold restarts it with a warning.  The finished hold is matched by its gravity
     direction to the nearest static step of the plan not yet taken (any order), refused when
@@ -14,7 +14,7 @@ static step
     and the steps left are shown.  After a pose the next hold waits for the unit to move.
 rotation step
     says ``Turn about +X by 90 degrees, then hold still``; waits for a still period, detects
-    the start and end of the turn from the gyro (:func:`~imucal_cli.solvers.stillness.motion_span`)
+    the start and end of the turn from the gyro (:func:`~imucal_cli.design.stillness.motion_span`)
     and records a ``rotation`` segment spanning it, with the plan's ``axis`` and ``angle_deg``.
 
 Commands (a line each, from a :class:`KeySource`): ``r`` redo the last step taken, ``s`` skip
@@ -40,8 +40,8 @@ from __future__ import annotations
 
 from rich.console import Console
 
+from imucal_cli.design.stillness import StillnessDetector
 from imucal_cli.plans import CaptureSummary, Plan
-from imucal_cli.solvers.stillness import StillnessDetector
 
 from .direction import estimate_direction
 from .keys import Command, KeySource, ScriptedKeys, StdinKeys, parse_command

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from imucal_cli.solvers.poses import unit
+from imucal_cli.design.poses import unit
 
 ADC_WORDS = (8, 10, 12, 14, 16, 18, 20, 24, 32)
 """Standard ADC word lengths, bits (for the mid-scale of an unsigned ADC)."""

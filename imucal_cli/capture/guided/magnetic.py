@@ -6,7 +6,7 @@ Readings sit on a sphere only once the hard iron is taken out, so the centre is 
 readings come (a sphere fit, linear in centre and radius; refitted every
 :data:`REFIT_EVERY` new readings); until the readings span enough of the sphere for that fit
 (:data:`MIN_SPAN`), the coverage is not told.  Coverage is that of the calibration's own
-figures (:mod:`imucal_cli.solvers.sphere_quality`): 100 regions of equal area, a region counts
+figures (:mod:`imucal_cli.design.sphere_quality`): 100 regions of equal area, a region counts
 once it holds 3 readings.  The next direction is the centre of the emptiest neighbourhood
 nearest to where the field is now, said as the side of the unit (in the magnetometer's axes)
 to point towards the field.
@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from imucal_cli.solvers.poses import describe_direction
-from imucal_cli.solvers.sphere_quality import (
+from imucal_cli.design.poses import describe_direction
+from imucal_cli.design.sphere_quality import (
     gaps_pct,
     region_centres,
     region_index,

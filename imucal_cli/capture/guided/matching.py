@@ -6,9 +6,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from imucal_cli.design.poses import angle_deg, describe_direction
+from imucal_cli.design.stillness import integrate_rate, motion_span, rate_to_deg_s
 from imucal_cli.plans import Step
-from imucal_cli.solvers.poses import angle_deg, describe_direction
-from imucal_cli.solvers.stillness import integrate_rate, motion_span, rate_to_deg_s
 
 from .samples import SampleHistory
 
@@ -116,7 +116,7 @@ def measure_turn(
     """The samples of a turn and what the gyro measured over them.
 
     The turn lies between the still run ``pre_run`` before it and the still run starting at
-    ``post_start`` after it; :func:`~imucal_cli.solvers.stillness.motion_span` narrows it to the
+    ``post_start`` after it; :func:`~imucal_cli.design.stillness.motion_span` narrows it to the
     motion seen by the gyro, whose bias-free rate is integrated over it.
 
     Returns

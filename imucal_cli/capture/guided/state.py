@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from imucal_cli.design.poses import coverage, describe_direction
+from imucal_cli.design.stillness import StillnessDetector, StillState
 from imucal_cli.plans import CaptureSummary, Plan
-from imucal_cli.solvers.poses import coverage, describe_direction
-from imucal_cli.solvers.stillness import StillnessDetector, StillState
 
 from .direction import estimate_direction
 from .keys import Command, parse_command

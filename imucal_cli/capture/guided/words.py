@@ -6,8 +6,8 @@ import re
 
 import numpy as np
 
+from imucal_cli.design.poses import describe_direction
 from imucal_cli.plans import Step
-from imucal_cli.solvers.poses import describe_direction
 
 
 def instruction(step: Step) -> str:

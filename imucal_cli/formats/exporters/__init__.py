@@ -23,10 +23,10 @@ import numpy as np
 
 from imucal_cli import __version__
 from imucal_cli.errors import InputError
+from imucal_cli.estimators.thermal.temperature import reexpand
 from imucal_cli.formats.noise import NoiseFigures
 from imucal_cli.formats.text import clean_text
 from imucal_cli.model.calibration import MODEL_EQUATION, Calibration, SensorCalibration
-from imucal_cli.solvers.temperature import reexpand
 
 SENSORS = ("accel", "gyro")
 STANDARD_GRAVITY = 9.80665

@@ -15,7 +15,7 @@ become the session's ``accel_units``/``gyro_units``.
 
 This module dispatches to the reader, checks what every format must satisfy (increasing time,
 a rate), and segments the recording: static segments from
-:func:`imucal_cli.solvers.segmentation.find_static`, the rotation segments between them (where
+:func:`imucal_cli.design.segmentation.find_static`, the rotation segments between them (where
 there is gyro data) from ``find_rotations``.
 """
 
@@ -29,10 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from imucal_cli.errors import InputError
-from imucal_cli.formats.session import Segment, Session
-from imucal_cli.solvers.gaps import find_gaps, gaps_within
-from imucal_cli.solvers.segmentation import (
+from imucal_cli.design.gaps import find_gaps, gaps_within
+from imucal_cli.design.segmentation import (
     Interval,
     NoiseEstimate,
     estimate_noise,
@@ -40,6 +38,8 @@ from imucal_cli.solvers.segmentation import (
     find_static,
     find_steps,
 )
+from imucal_cli.errors import InputError
+from imucal_cli.formats.session import Segment, Session
 
 from . import csv, imu_tk, mavlink, ros, serial_lines, ulog, witmotion
 from .mavlink import looks_like_dataflash, looks_like_dataflash_text, looks_like_tlog
@@ -430,7 +430,7 @@ def import_files(
 
 
 def _gap_warnings(rec: Recording, segments: list[Segment]) -> list[str]:
-    """Gaps in the sample times (:func:`~imucal_cli.solvers.gaps.find_gaps`), said at import:
+    """Gaps in the sample times (:func:`~imucal_cli.design.gaps.find_gaps`), said at import:
     inside a rotation segment the turn cannot be integrated (calibrate leaves it out)."""
     gaps = find_gaps(rec.time)
     if not gaps:

@@ -28,9 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
+from imucal_cli.design.segmentation import estimate_noise, find_steps
 from imucal_cli.errors import InputError
 from imucal_cli.formats.session import Segment
-from imucal_cli.solvers.segmentation import estimate_noise, find_steps
 
 from .recording import Recording
 from .text import is_delimited, split_fields

@@ -43,8 +43,13 @@ read_session``).
 
 from __future__ import annotations
 
-from .h5open import check_session_file, open_for_reading
-from .model import (
+from imucal_cli.formats.session.h5open import check_session_file, open_for_reading
+from imucal_cli.formats.session.reader import read_session
+from imucal_cli.formats.session.relabel import ROOT_LABELS, rewrite_labels
+from imucal_cli.formats.session.store import store_calibration
+from imucal_cli.formats.session.stream import SessionSamples, open_samples, samples_of
+from imucal_cli.formats.session.writer import SessionWriter, write_session
+from imucal_cli.model.session import (
     FORMAT,
     FORMAT_VERSION,
     GRAVITY_DEFAULT,
@@ -61,11 +66,6 @@ from .model import (
     show,
     utc_now_iso,
 )
-from .reader import read_session
-from .relabel import ROOT_LABELS, rewrite_labels
-from .store import store_calibration
-from .stream import SessionSamples, open_samples, samples_of
-from .writer import SessionWriter, write_session
 
 __all__ = [
     "FORMAT",

@@ -31,9 +31,13 @@ from typing import Any
 import h5py
 
 from imucal_cli.errors import ImucalWarning, SessionError
-
-from .model import FORMAT, LOG_GROUP, as_int, as_str, one_line
-from .superblock import Superblock, SuperblockError, clear_status_flags, read_superblock
+from imucal_cli.formats.session.superblock import (
+    Superblock,
+    SuperblockError,
+    clear_status_flags,
+    read_superblock,
+)
+from imucal_cli.model.session import FORMAT, LOG_GROUP, as_int, as_str, one_line
 
 #: Metadata read attempts in SWMR read mode (HDF5's default, 100, sleeps for minutes).
 SWMR_READ_ATTEMPTS = 8

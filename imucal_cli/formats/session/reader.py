@@ -16,10 +16,15 @@ import numpy as np
 
 from imucal_cli.errors import ImucalWarning, SessionError
 from imucal_cli.formats.config import GRAVITY_RANGE
+from imucal_cli.formats.session.h5open import (
+    check_dataset,
+    file_size,
+    get_attr,
+    member,
+    open_for_reading,
+)
 from imucal_cli.formats.text import clean_text, clean_tree
-
-from .h5open import check_dataset, file_size, get_attr, member, open_for_reading
-from .model import (
+from imucal_cli.model.session import (
     FORMAT,
     FORMAT_VERSION,
     GRAVITY_DEFAULT,

@@ -11,9 +11,8 @@ import h5py
 import numpy as np
 
 from imucal_cli.errors import SessionError
-
-from .h5open import open_for_update
-from .model import SEGMENT_ATTRS, SEGMENT_KINDS, Segment, as_unit_vector, one_line
+from imucal_cli.formats.session.h5open import open_for_update
+from imucal_cli.model.session import SEGMENT_ATTRS, SEGMENT_KINDS, Segment, as_unit_vector, one_line
 
 __all__ = ["ROOT_LABELS", "rewrite_labels"]
 

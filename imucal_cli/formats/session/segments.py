@@ -20,9 +20,9 @@ import h5py
 import numpy as np
 
 from imucal_cli.errors import SessionError
-
-from .h5open import writer_identity
-from .model import (
+from imucal_cli.formats.session.h5open import writer_identity
+from imucal_cli.formats.session.store import check_calibration_entry
+from imucal_cli.model.session import (
     LOG_GROUP,
     LOG_ITEM_BYTES,
     SEGMENT_ATTRS,
@@ -31,7 +31,6 @@ from .model import (
     as_float,
     as_unit_vector,
 )
-from .store import check_calibration_entry
 
 __all__ = ["SegmentLog", "segment_entry"]
 

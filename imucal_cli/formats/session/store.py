@@ -10,9 +10,8 @@ from pathlib import Path
 import h5py
 
 from imucal_cli.errors import SessionError
-
-from .h5open import member, open_for_update
-from .model import one_line
+from imucal_cli.formats.session.h5open import member, open_for_update
+from imucal_cli.model.session import one_line
 
 
 def check_calibration_entry(src: str, json_text: str, name: str | None) -> None:

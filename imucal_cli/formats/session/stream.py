@@ -17,10 +17,14 @@ from pathlib import Path
 import numpy as np
 
 from imucal_cli.errors import SessionError
-
-from .h5open import open_for_reading
-from .model import GRAVITY_DEFAULT, Segment, Session, one_line
-from .reader import _read_segments, _root_attributes, check_time, raw_datasets
+from imucal_cli.formats.session.h5open import open_for_reading
+from imucal_cli.formats.session.reader import (
+    _read_segments,
+    _root_attributes,
+    check_time,
+    raw_datasets,
+)
+from imucal_cli.model.session import GRAVITY_DEFAULT, Segment, Session, one_line
 
 __all__ = ["BLOCK_ROWS", "SessionSamples", "open_samples", "samples_of"]
 
@@ -37,7 +41,7 @@ class SessionSamples:
     n : int
         Samples.
     segments : list of Segment
-    sensor, accel_units, gyro_units : str or None
+    sensor, accel_units, gyro_units, mag_units : str or None
     gravity : float
     channels : dict of str to int
         The ``/raw`` channels present (``time``, ``accel``, ``gyro``, ...), each with its
@@ -50,8 +54,14 @@ class SessionSamples:
     sensor: str | None
     accel_units: str | None
     gyro_units: str | None
+    mag_units: str | None
     gravity: float
     channels: dict[str, int]
+
+    def units(self, name: str) -> str | None:
+        """The raw units of channel ``accel``, ``gyro`` or ``mag`` (None: not stated)."""
+        return {"accel": self.accel_units, "gyro": self.gyro_units,
+                "mag": self.mag_units}.get(name)  # fmt: skip
 
     def read(self, name: str, start: int, stop: int) -> np.ndarray:
         """Samples ``[start, stop)`` of channel ``name`` as float64."""
@@ -88,6 +98,7 @@ class _InMemory(SessionSamples):
         self.sensor = session.sensor
         self.accel_units = session.accel_units
         self.gyro_units = session.gyro_units
+        self.mag_units = session.mag_units
         self.gravity = session.gravity
         self.channels = {}
         for name in ("time", "accel", "gyro", "mag", "temperature"):
@@ -127,6 +138,7 @@ class _File(SessionSamples):
         self.sensor = text["sensor"]
         self.accel_units = text["accel_units"]
         self.gyro_units = text["gyro_units"]
+        self.mag_units = text["mag_units"]
         self.gravity = GRAVITY_DEFAULT if numbers["gravity"] is None else numbers["gravity"]
         self.channels = {name: 0 if ds.ndim == 1 else ds.shape[1]
                          for name, ds in datasets.items()}  # fmt: skip

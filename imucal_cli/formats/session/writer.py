@@ -23,9 +23,10 @@ import h5py
 import numpy as np
 
 from imucal_cli.errors import InputError, SessionError, WriteFailed
-
-from ..output import OutputFile
-from .model import (
+from imucal_cli.formats.output import OutputFile
+from imucal_cli.formats.session.reader import read_session
+from imucal_cli.formats.session.segments import SegmentLog, entry_of, segment_entry
+from imucal_cli.model.session import (
     FORMAT,
     FORMAT_VERSION,
     MAG_UNITS,
@@ -34,8 +35,6 @@ from .model import (
     io_reason,
     utc_now_iso,
 )
-from .reader import read_session
-from .segments import SegmentLog, entry_of, segment_entry
 
 _CHUNK_ROWS = 1024  # samples per HDF5 chunk of the /raw datasets
 _MIN_CHUNK_ROWS = 64  # on a nearly full disk: a chunk takes no more space than it must

@@ -1,0 +1,1 @@
+"""The accelerometer's calibrate step: its design, estimators and section."""

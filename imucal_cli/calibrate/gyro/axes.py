@@ -1,0 +1,188 @@
+"""Per-axis gyro solvers (Qureshi & Golnaraghi III-B): ``static`` (eq. 18) and ``dynamic``
+(eqs. 19-21), scale and bias per axis from turns about one sensor axis at a time.
+
+The per-axis model ``omega_i = k_i (z_i - b_i)`` ignores the gyro's misalignment. Where the
+session's turns also determine the full model, it is fitted too and the section says how far
+the gyro's axes are from the accelerometer's and how much that moves the per-axis gains,
+in their own standard deviations (issue 10.7).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from imucal_cli.calibrate.common import num, rms
+from imucal_cli.calibrate.gyro.full import fit_full_model
+from imucal_cli.calibrate.gyro.turns import AXES, GyroData, GyroFit, Turn
+from imucal_cli.errors import DesignError, ImucalError
+from imucal_cli.estimators.gyro import axes as gyro_axes
+from imucal_cli.formats.session import Segment, Session
+from imucal_cli.model.gyro import IgnoredMisalignment, RotationRow
+from imucal_cli.model.parts import Parameter
+
+#: A turn whose axis is further than this from the sensor axis it is attributed to is left out
+#: (the full model takes any turn).
+MAX_AXIS_ERROR_DEG = 15.0
+#: Rotation residuals above this RMS mean the per-axis model does not fit.
+MAX_PER_AXIS_RMS_DEG = 1.0
+#: The ignored misalignment is a warning when it moves a gain by more than this many std.
+MAX_GAIN_SHIFT_STD = 3.0
+
+
+def fit_per_axis(data: GyroData, solver: str) -> GyroFit:
+    """The static or dynamic solver on every axis, and what the misalignment it ignores does."""
+    # Pass 1 reads each angle about the nominal axis; pass 2 about the turn's own axis, the
+    # rotation vector that the pass-1 calibration integrates (a hand is never exact).
+    k = b = None
+    for _ in range(2):
+        k, b, k_std, b_std, rotations = _per_axis(
+            data, solver, data.notes if k is None else [], None if k is None else (k, b)
+        )
+    units = data.units_in
+    parameters = [
+        Parameter(f"b_{a}", float(b[i]), num(b_std[i]), units) for i, a in enumerate(AXES)
+    ] + [
+        Parameter(f"k_{a}", float(k[i]), num(k_std[i]), f"rad/s per {units}")
+        for i, a in enumerate(AXES)
+    ]  # fmt: skip
+    residual = np.radians([r.angle_error_deg for r in rotations])
+    if np.degrees(rms(residual)) > MAX_PER_AXIS_RMS_DEG:
+        data.warnings.append(
+            f"the per-axis model does not fit these turns (angle residual RMS "
+            f"{np.degrees(rms(residual)):.2f} deg): turn about one sensor axis at a time "
+            '(x and y with z up, z on its side), or use [gyro] solver = "full"'
+        )
+    members = {"model_paper": "omega = K (omega_s - B), eq. (15)", "approach": solver,
+               "ignored_misalignment": _ignored_misalignment(data, k, k_std)}  # fmt: skip
+    return GyroFit(b, np.diag(k), parameters, rotations, residual, 1 / np.abs(k), members)
+
+
+def _ignored_misalignment(data: GyroData, k: np.ndarray, k_std: np.ndarray
+                          ) -> IgnoredMisalignment:  # fmt: skip
+    """The full model on the same turns: the gyro axes' angles from the accelerometer's, and
+    the shift of each per-axis gain that ignoring them causes (note; warning when large)."""
+
+    try:
+        full = fit_full_model(GyroData(**{**vars(data), "notes": [], "warnings": []}),
+                              g_sensitivity="off")  # fmt: skip
+    except ImucalError as exc:
+        data.notes.append(f"the per-axis model ignores the gyro's misalignment; these turns "
+                          f"cannot measure it ({exc})")  # fmt: skip
+        return IgnoredMisalignment(measured=False)
+    M = full.matrix
+    shift = k / np.diag(M) - 1
+    in_std = np.abs(k - np.diag(M)) / k_std
+    angles = full.members["axis_to_accel_frame_deg"]
+    text = (
+        "the per-axis model ignores the gyro's misalignment: the full model on these turns puts "
+        f"the x, y, z axes {', '.join(f'{angles[a]:.2f}' for a in AXES)} deg off the "
+        f"accelerometer's, which moves the per-axis gains by "
+        f"{', '.join(f'{100 * s:+.3f}' for s in shift)} % ({', '.join(f'{v:.1f}' for v in in_std)}"
+        " std)"
+    )
+    if in_std.max() > MAX_GAIN_SHIFT_STD:
+        data.warnings.append(text + '; [gyro] solver = "full" (or "auto") models it')
+    else:
+        data.notes.append(text)
+    return IgnoredMisalignment(measured=True, axis_to_accel_frame_deg=angles,
+                               gain_shift=[float(s) for s in shift],
+                               gain_shift_std=[float(v) for v in in_std])  # fmt: skip
+
+
+def _per_axis(data: GyroData, solver: str, notes: list[str], first):
+    """Per-axis fits (static or dynamic) of every axis; ``first`` = (k, b) of a previous pass
+    whose calibration gives each turn's actual axis."""
+    session, turns, stills, cfg, where = data.session, data.turns, data.stills, data.cfg, data.where
+    bias_still, b_still_std = data.bias_still, data.b_still_std
+    k, b, k_std, b_std = np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)
+    min_lev = np.sin(np.radians(cfg.gyro.rotations.min_tilt_deg)) ** 2
+    per_axis = {i: [] for i in range(3)}
+    oblique = 0
+    for turn in turns:
+        x, T = _integral(session, turn.segment)
+        i = _axis_of(turn, x, bias_still, T)
+        sign = np.sign(turn.segment.axis[i]) if turn.segment.axis is not None else 1.0
+        axis = np.eye(3)[i] * sign
+        # The per-axis model holds for turns about one sensor axis only: the turn's own axis
+        # (raw integral in pass 1, calibrated in pass 2) must be near it.
+        turned = (x - bias_still * T) if first is None else first[0] * (x - first[1] * T)
+        off = np.degrees(np.arccos(min(1.0, abs(turned[i]) / max(np.linalg.norm(turned), 1e-300))))
+        if off > MAX_AXIS_ERROR_DEG:
+            oblique += 1
+            notes.append(
+                f"{turn.segment.label or turn.segment.name}: turned {off:.0f} deg away from the "
+                f"{AXES[i]} axis, not about one sensor axis: left out of the per-axis fit"
+            )
+            continue
+        if first is not None:
+            rotvec = first[0] * (x - first[1] * T)
+            axis = rotvec / np.linalg.norm(rotvec) * np.sign(rotvec[i]) * sign
+        angle, lev = gyro_axes.rotation_angle_about_axis(
+            stills[turn.before].g, stills[turn.after].g, axis
+        )
+        if lev < min_lev:
+            notes.append(
+                f"{turn.segment.label or turn.segment.name}: axis within "
+                f"{cfg.gyro.rotations.min_tilt_deg:g} deg of vertical, invisible to gravity: "
+                "skipped"
+            )
+            continue
+        # Channel i sees the rotation vector's component along i: the angle times the axis's
+        # i-th component (1 for a turn exactly about the axis; the paper assumes that).
+        per_axis[i].append((turn, x[i], T, sign * angle * abs(axis[i])))
+    rotations = []
+    for i in range(3):
+        rows = per_axis[i]
+        if len(rows) < (2 if solver == "static" else 3):
+            raise DesignError(
+                f"{where}: {len(rows)} usable rotation(s) about {AXES[i]}; the {solver} "
+                f"approach needs {'2' if solver == 'static' else '3'} or more per axis (the "
+                f"paper turns 18 times per axis; {AXES[i]} turns need {AXES[i]} horizontal)"
+                + (
+                    f"; {oblique} turn(s) not about one sensor axis were left out: "
+                    '[gyro] solver = "full" takes any turn'
+                    if oblique
+                    else ""
+                )
+            )
+        x = np.array([r[1] for r in rows])
+        T = np.array([r[2] for r in rows])
+        ang = _unwrap(np.array([r[3] for r in rows]), x - bias_still[i] * T)
+        if solver == "static":
+            fit = gyro_axes.fit_axis_static(x, T, ang, bias_still[i], b_still_std)
+        else:
+            fit = gyro_axes.fit_axis_dynamic(x, T, ang)
+        k[i], b[i], k_std[i], b_std[i] = fit.k, fit.b, fit.k_std, fit.b_std
+        for (turn, xi, Ti, ai), res in zip(rows, fit.residuals_rad, strict=True):
+            rotations.append(RotationRow(
+                segment=turn.segment.name, label=turn.segment.label, axis=AXES[i],
+                known_angle_deg=float(np.degrees(ai)),
+                measured_angle_deg=float(np.degrees(fit.k * (xi - fit.b * Ti))),
+                angle_error_deg=float(np.degrees(-res)),
+            ))  # fmt: skip
+    return k, b, k_std, b_std, rotations
+
+
+def _unwrap(angle: np.ndarray, integral: np.ndarray) -> np.ndarray:
+    """Gravity gives each angle only modulo 360 degrees: a turn of 179 degrees may read -181.
+    Take the branch nearest the gyro's own estimate (a rough scale from the turns clear of
+    +-180 degrees times each turn's bias-free integral)."""
+    clear = np.abs(angle) < np.radians(150)
+    if not clear.any():
+        return angle
+    k = np.median(angle[clear] / integral[clear])
+    return angle + 2 * np.pi * np.round((k * integral - angle) / (2 * np.pi))
+
+
+def _integral(session: Session, seg: Segment) -> tuple[np.ndarray, float]:
+    t = session.time[seg.start : seg.stop]
+    return np.trapezoid(session.gyro[seg.start : seg.stop], t, axis=0), float(t[-1] - t[0])
+
+
+def _axis_of(turn: Turn, x: np.ndarray, bias: np.ndarray, T: float) -> int:
+    """The gyro axis a turn is about: its labelled axis, else the dominant raw channel."""
+    if turn.segment.axis is not None:
+        return int(np.argmax(np.abs(turn.segment.axis)))
+    return int(np.argmax(np.abs(x - bias * T)))
+
+

@@ -1,0 +1,377 @@
+"""The calibrate step's temperature model: each channel's bias as a polynomial in temperature.
+
+Two sources (issue 17.1), one flow:
+
+* **joint** (``[temperature] model = "auto"`` when the session's still periods span
+  ``min_span_c`` (10 C) or more, or ``"on"``): the session's own still periods, and those of
+  the sessions given with ``--with`` (the same unit at other temperatures, merged into one;
+  :func:`merge_sessions`). The accelerometer's temperature terms are fitted jointly with its
+  gravity-magnitude model (:mod:`imucal_cli.estimators.thermal.joint`) on block means of the
+  still periods; the gyroscope's from the raw gyro block means, which read its bias at their
+  temperatures (:func:`imucal_cli.estimators.thermal.temperature.fit_tempco`).
+* **warm-up** (``--warmup FILE``, repeatable): still recordings through a warm-up or a
+  cool-down; each still period keeps its own level and the temperature curve is shared, so a
+  warm-up in a single orientation gives every channel's curve.
+
+Then the raw samples are compensated to ``T_ref`` (``raw - sum_k c_k (T - T_ref)^k``, each
+sample at its recorded temperature), the configured solvers calibrate the compensated session
+as usual, and each section gets the standard ``temperature_ref`` and ``bias_tempco`` fields,
+``temperature_range_c``, the model's diagnostics (``temperature_model``), one parameter row
+per term, and bias standard deviations that include the temperature terms' uncertainty.
+``T_ref`` is the session's mean temperature (its bias is measured there).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from dataclasses import replace as copy_with
+
+import numpy as np
+
+from imucal_cli.calibrate.common import channel_names, session_name, with_segments
+from imucal_cli.errors import DesignError
+from imucal_cli.estimators.accel.gravity import fit_gravity
+from imucal_cli.estimators.thermal.joint import fit_gravity_tempco
+from imucal_cli.estimators.thermal.temperature import TempcoFit, check_span, fit_tempco, reexpand
+from imucal_cli.formats.config import Config
+from imucal_cli.formats.session import Session
+from imucal_cli.model.calibration import SensorCalibration
+from imucal_cli.model.codec import build
+from imucal_cli.model.parts import Parameter, SelectionRow
+from imucal_cli.model.parts import TemperatureModel as TemperatureModelRecord
+
+__all__ = ["TemperatureModel", "attach", "compensate", "given_accel", "merge_sessions",
+           "temperature_models"]
+
+#: Length of the blocks each still period is averaged over, s.
+BLOCK_S = 5.0
+#: Fewest blocks a warm-up recording's still time is cut into (shorter blocks when short).
+MIN_BLOCKS = 30
+UNITS_PER_C = {1: "per C", 2: "per C^2", 3: "per C^3"}
+
+
+@dataclass
+class TemperatureModel:
+    """One sensor's bias temperature model, ready to compensate and to attach.
+
+    ``tempco``/``tempco_std`` (K, n) raw units per C^k about ``temperature_ref``; ``degree``
+    (n,); ``t_min``/``t_max`` the fitted range, C; ``bias_var_extra`` (n,) what the terms add
+    to the bias variance at ``T_ref``; ``details`` the solver's diagnostics (members of the
+    section's :class:`~imucal_cli.model.parts.TemperatureModel`).
+    """
+
+    temperature_ref: float
+    tempco: np.ndarray
+    tempco_std: np.ndarray
+    degree: np.ndarray
+    t_min: float
+    t_max: float
+    source: str
+    bias_var_extra: np.ndarray
+    details: dict = field(default_factory=dict)
+
+    def change(self, temperature: np.ndarray) -> np.ndarray:
+        """Bias change from ``T_ref`` at each temperature, (N, n) raw units."""
+        dt = np.asarray(temperature, float) - self.temperature_ref
+        return (dt[:, None] ** np.arange(1, len(self.tempco) + 1)[None, :]) @ self.tempco
+
+
+def sample_temperature(session: Session) -> np.ndarray | None:
+    """The session's temperature per sample, gaps (NaN) filled from the neighbours in time;
+    None without readings."""
+    t = session.temperature
+    if t is None:
+        return None
+    t = np.asarray(t, float)
+    ok = np.isfinite(t)
+    if not ok.any():
+        return None
+    return t if ok.all() else np.interp(session.time, session.time[ok], t[ok])
+
+
+def still_blocks(session: Session, block_s: float) -> list[tuple[int, int, int]]:
+    """``(start, stop, still period)`` of blocks of about ``block_s`` in each still period."""
+    rate = 1.0 / float(np.median(np.diff(session.time))) if len(session.time) > 1 else 1.0
+    n = max(int(round(block_s * rate)), 2)
+    out = []
+    for k, s in enumerate(session.static_segments()):
+        m = max((s.stop - s.start) // n, 1)
+        edges = np.linspace(s.start, s.stop, m + 1).astype(int)
+        out += [(int(a), int(b), k) for a, b in zip(edges[:-1], edges[1:], strict=True)
+                if b - a >= 2]  # fmt: skip
+    return out
+
+
+def _points(session: Session, name: str, block_s: float):
+    """Block means of sensor ``name`` with their temperature, noise and still period."""
+    data = getattr(session, name)
+    temp = sample_temperature(session)
+    blocks = still_blocks(session, block_s)
+    if data is None or temp is None or not blocks:
+        return None
+    values = np.array([data[a:b].mean(axis=0) for a, b, _ in blocks])
+    temps = np.array([temp[a:b].mean() for a, b, _ in blocks])
+    sigma = np.array([data[a:b].std(axis=0, ddof=1) / np.sqrt(b - a) for a, b, _ in blocks])
+    groups = np.array([k for _, _, k in blocks])
+    return values, temps, np.maximum(sigma, 1e-12), groups
+
+
+def _from_fit(fit: TempcoFit, t_ref: float, source: str, extra_var=None) -> TemperatureModel:
+    _, tempco = reexpand(fit.tempco, fit.temperature_ref, t_ref)
+    n = len(fit.channels)
+    details = {"points": fit.n_points,
+               "selection": [[build(SelectionRow, **t) for t in c.tests] for c in fit.channels],
+               "noise_scale": [c.noise_scale for c in fit.channels],
+               "correlation": [c.correlation for c in fit.channels]}  # fmt: skip
+    std = fit.tempco_std if abs(t_ref - fit.temperature_ref) < 1e-9 else _moved_std(fit, t_ref)
+    return TemperatureModel(t_ref, tempco, std, fit.degree, fit.t_min, fit.t_max, source,
+                            np.zeros(n) if extra_var is None else extra_var, details)  # fmt: skip
+
+
+def _moved_std(fit: TempcoFit, t_ref: float) -> np.ndarray:
+    """Standard deviations of the coefficients re-expanded about ``t_ref`` (linear map)."""
+    out = np.zeros((fit.K, len(fit.channels)))
+    for i, c in enumerate(fit.channels):
+        if not c.degree:
+            continue
+        A = np.zeros((c.degree, c.degree))  # column k: the re-expansion of (T - T_old)^k
+        for k in range(1, c.degree + 1):
+            unit = np.zeros((k, 1))
+            unit[-1] = 1.0
+            _, col = reexpand(unit, fit.temperature_ref, t_ref)
+            A[:k, k - 1] = col[:, 0]
+        out[: c.degree, i] = np.sqrt(np.clip(np.diag(A @ c.tempco_cov @ A.T), 0, None))
+    return out
+
+
+def warmup_models(warmups: list[Session], cfg: Config, t_ref: float) -> dict:
+    """Each sensor's model from still warm-up recordings: block means, a level per still
+    period and recording, the curve shared, serial correlation allowed for."""
+    opt = cfg.temperature
+    models = {}
+    for name in ("accel", "gyro"):
+        pts = [_points(with_segments(w)[0], name, BLOCK_S) for w in warmups]
+        if any(p is None for p in pts):
+            continue
+        values = np.vstack([p[0] for p in pts])
+        temps = np.concatenate([p[1] for p in pts])
+        sigma = np.vstack([p[2] for p in pts])
+        groups = np.concatenate([p[3] + 1000 * i for i, p in enumerate(pts)])
+        names = ", ".join(session_name(w) for w in warmups)
+        fit = fit_tempco(temps, values, sigma=sigma, groups=groups, max_degree=opt.max_degree,
+                         min_span_c=opt.min_span_c, serial=True,
+                         what=f"warm-up {names} ({name})")  # fmt: skip
+        models[name] = _from_fit(fit, t_ref, f"still warm-up recording(s) {names}")
+    if not models:
+        raise DesignError("the warm-up recordings have no still periods with temperature "
+                          "readings and accelerometer or gyro data")  # fmt: skip
+    return models
+
+
+def _joint_accel(session: Session, cfg: Config, t_ref: float) -> TemperatureModel | None:
+    """The accelerometer's model fitted jointly with its gravity-magnitude model."""
+
+    pts = _points(session, "accel", BLOCK_S)
+    if pts is None or session.accel.shape[1] != 3:
+        return None
+    opt = cfg.temperature
+    values, temps, sigma, _ = pts
+    g = cfg.gravity or session.gravity
+    start = fit_gravity(values, g)
+    cov = np.array([np.diag(s**2) for s in sigma])
+    joint = fit_gravity_tempco(values, temps, g, (start.bias, start.M), cov_mean=cov,
+                               temperature_ref=t_ref, max_degree=opt.max_degree,
+                               min_span_c=opt.min_span_c,
+                               what=f"{session_name(session)} (accel)")  # fmt: skip
+    return TemperatureModel(
+        t_ref, joint.tempco, joint.tempco_std, joint.degree, joint.t_min, joint.t_max,
+        "the session's still periods, jointly with the gravity-magnitude model",
+        joint.bias_var_extra,
+        {"points": len(temps), "selection": [build(SelectionRow, **t) for t in joint.tests],
+         "noise_scale": joint.noise_scale,
+         "chi2": joint.chi2, "dof": joint.dof},
+    )  # fmt: skip
+
+
+def _joint_gyro(session: Session, cfg: Config, t_ref: float) -> TemperatureModel | None:
+    """The gyroscope's model from its still periods (each reads the bias at its temperature)."""
+    pts = _points(session, "gyro", BLOCK_S)
+    if pts is None:
+        return None
+    opt = cfg.temperature
+    values, temps, sigma, _ = pts
+    fit = fit_tempco(temps, values, sigma=sigma, temperature_ref=t_ref,
+                     max_degree=opt.max_degree, min_span_c=opt.min_span_c, serial=True,
+                     what=f"{session_name(session)} (gyro still periods)")  # fmt: skip
+    return _from_fit(fit, t_ref, "the session's still periods (gyro bias read at each "
+                     "temperature)")  # fmt: skip
+
+
+def joint_models(
+    session: Session, cfg: Config, t_ref: float, strict: bool
+) -> tuple[dict, list[str]]:  # fmt: skip
+    """Each sensor's model from the session's own still periods. ``strict`` (``model =
+    "on"``): a sensor whose data cannot give one is refused; else it is left without, with a
+    note why."""
+    models, notes = {}, []
+    for name, fit in (("accel", _joint_accel), ("gyro", _joint_gyro)):
+        try:
+            model = fit(session, cfg, t_ref)
+        except DesignError as exc:
+            if strict:
+                raise
+            notes.append(f"no {name} temperature model: {exc}")
+            continue
+        if model is not None:
+            models[name] = model
+    return models, notes
+
+
+def still_span(session: Session) -> float | None:
+    """Span of the still periods' mean temperatures, C (None without readings)."""
+    temp = sample_temperature(session)
+    segs = session.static_segments()
+    if temp is None or not segs:
+        return None
+    t = np.array([temp[s.start : s.stop].mean() for s in segs])
+    return float(t.max() - t.min())
+
+
+def temperature_models(
+    session: Session, cfg: Config, warmup: list[Session] | None = None
+) -> tuple[dict, str | None]:
+    """Decide whether the calibration gets temperature models, and fit them.
+
+    Returns ``(models, note)``: ``models`` per sensor (empty: none), ``note`` why not where a
+    user would want to know (readings present but a span too small).
+
+    Raises
+    ------
+    DesignError
+        ``model = "on"`` or ``--warmup`` and the data cannot give a model: no temperature
+        readings, or a span under ``min_span_c`` (the message says why).
+    """
+    opt = cfg.temperature
+    where = session_name(session)
+    temp = sample_temperature(session)
+    if warmup:
+        if temp is None:
+            raise DesignError(
+                f"{where}: records no temperature (/raw/temperature): the bias it measures "
+                "cannot be placed on the warm-up's curve; capture it with the temperature field"
+            )
+        return warmup_models(warmup, cfg, float(np.mean(temp))), None
+    if opt.model == "off":
+        return {}, None
+    span = still_span(session)
+    if opt.model == "on":
+        if span is None:
+            raise DesignError(f"{where}: [temperature] model = \"on\" but the session has no "
+                              "temperature readings in its still periods")  # fmt: skip
+        segs = session.static_segments()
+        check_span(np.array([temp[s.start : s.stop].mean() for s in segs]),
+                   f"{where}: [temperature] model = \"on\"", opt.min_span_c)  # fmt: skip
+    elif span is None:
+        return {}, None
+    elif span < opt.min_span_c:
+        return {}, (f"no temperature model: the still periods span {span:.1f} C, and a bias "
+                    f"model needs at least {opt.min_span_c:g} C")  # fmt: skip
+    models, notes = joint_models(session, cfg, float(np.mean(temp)), opt.model == "on")
+    return models, "; ".join(notes) or None
+
+
+def compensate(session: Session, models: dict) -> Session:
+    """The session with each modelled sensor's raw data moved to ``T_ref``."""
+    temp = sample_temperature(session)
+    changes = {}
+    for name, model in models.items():
+        data = getattr(session, name)
+        if data is not None:
+            changes[name] = np.asarray(data, float) - model.change(temp)
+    return replace(session, **changes)
+
+
+def given_accel(session: Session, accel: SensorCalibration) -> tuple[Session, SensorCalibration]:
+    """An earlier accelerometer calibration (``--accel``) with temperature terms: the session's
+    accelerometer data moved to its ``temperature_ref`` and a copy of it without the terms,
+    for the gyro solvers that apply it to those data."""
+
+    terms = accel.temperature_terms
+    if terms is None or session.accel is None:
+        return session, accel
+    temp = sample_temperature(session)
+    if temp is None:
+        raise DesignError(
+            f"{session_name(session)}: records no temperature, but the given accelerometer "
+            "calibration's bias depends on it (bias_tempco)"
+        )
+    moved = session.accel - (accel.bias_at(temp) - accel.bias)
+    plain = copy_with(accel, temperature_ref=None, bias_tempco=None)
+    return replace(session, accel=moved), plain
+
+
+def attach(sec: SensorCalibration | None, model: TemperatureModel | None) -> None:
+    """Write the model into the section: the spec's terms, the diagnostics, parameter rows,
+    and bias standard deviations that include the terms' uncertainty."""
+    if sec is None or model is None:
+        return
+    n = sec.bias.shape[0]
+    if model.tempco.shape[1] != n:
+        return
+    sec.temperature_ref = float(model.temperature_ref)
+    sec.bias_tempco = np.asarray(model.tempco, float)
+    sec.temperature_range_c = [float(model.t_min), float(model.t_max)]
+    unit = sec.units_in or "raw units"
+    sec.temperature_model = build(
+        TemperatureModelRecord, source=model.source, degree=model.degree.tolist(),
+        bias_tempco_std=model.tempco_std.tolist(), unit=f"{unit} per C^k",
+        range_c=[float(model.t_min), float(model.t_max)], **model.details,
+    )  # fmt: skip
+    if sec.parameters is None:
+        sec.parameters = []
+    rows = sec.parameters
+    names = channel_names(n)
+    for k in range(len(model.tempco)):
+        for i in range(n):
+            if k < model.degree[i]:
+                rows.append(Parameter(f"tc{k + 1}_{names[i]}", float(model.tempco[k, i]),
+                                      float(model.tempco_std[k, i]),
+                                      f"{unit} {UNITS_PER_C[k + 1]}"))  # fmt: skip
+    for row in rows:
+        nm = row.name or ""
+        if nm.startswith("b_") and nm[2:] in names and row.std is not None:
+            i = names.index(nm[2:])
+            row.std = float(np.sqrt(row.std ** 2 + model.bias_var_extra[i]))
+
+
+def merge_sessions(sessions: list[Session]) -> Session:
+    """Several sessions of one unit as one: each segmented (if it was not), then their samples
+    and segments one after the other in time. Refused when they differ in channels or units.
+    Host arrival times are dropped (each session's clock would need its own estimate)."""
+    parts = [with_segments(s)[0] for s in sessions]
+    first = parts[0]
+    for p in parts[1:]:
+        for name in ("accel", "gyro"):
+            a, b = getattr(first, name), getattr(p, name)
+            if (a is None) != (b is None) or (a is not None and a.shape[1] != b.shape[1]) or \
+                    getattr(first, f"{name}_units") != getattr(p, f"{name}_units"):  # fmt: skip
+                raise DesignError(f"{session_name(p)}: its {name} data differ from "
+                                  f"{session_name(first)}'s (channels or units): not the same "
+                                  "unit's sessions")  # fmt: skip
+    times, segs, offset, t0 = [], [], 0, 0.0
+    for p in parts:
+        dt = float(np.median(np.diff(p.time))) if len(p.time) > 1 else 0.01
+        times.append(p.time - p.time[0] + t0)
+        t0 = float(times[-1][-1]) + max(dt, 1e-3)
+        segs += [replace(s, name=f"{len(segs) + i:04d}", start=s.start + offset,
+                         stop=s.stop + offset) for i, s in enumerate(p.segments)]  # fmt: skip
+        offset += len(p.time)
+
+    def cat(name):
+        vals = [getattr(p, name) for p in parts]
+        return None if any(v is None for v in vals) else np.concatenate(vals)
+
+    return replace(first, time=np.concatenate(times), accel=cat("accel"), gyro=cat("gyro"),
+                   temperature=cat("temperature"), mag=cat("mag"), segments=segs,
+                   host_time=None)  # fmt: skip
+

@@ -1,0 +1,829 @@
+"""Labelled-pose accelerometer calibration: bias and full 3x3 matrix from static poses whose
+``up`` labels are known up to how well the unit was placed (issue 9.1).
+
+The six-face procedure of PX4, ArduPilot and Ferraris et al. (the start of Qureshi &
+Golnaraghi's section III-A, eqs. 13-14) knows which face is up in each pose, but a block on a
+table is never exactly level. This solver treats each pose's true gravity direction as a
+nuisance parameter with a prior around its label, and fits everything by maximum likelihood.
+
+Model
+-----
+Pose k (k = 1..N) is held still with true unit gravity direction ``u_k`` (pointing away from
+the earth, fixture frame). Its label ``up_k`` is where it should be; the placement error is a
+small rotation of the label, two tangent angles ``delta_k`` (rad)::
+
+    u_k = Exp(T_k delta_k) up_k,     delta_k ~ N(0, sigma_p^2 I_2),               (L1)
+
+``T_k`` (3x2) an orthonormal basis of the plane perpendicular to ``up_k``, ``Exp`` the
+exponential map of the sphere, and ``sigma_p = placement_deg / sqrt(2)`` per angle, so
+``placement_deg`` is the RMS angle between the true and the labelled up. The mean raw reading
+of pose k, ``n_k`` samples, is (Qureshi eq. 4 with a full matrix)::
+
+    a_k = B + g S u_k + e_k,         e_k ~ N(0, Sigma / n_k),                       (L2)
+
+``S = M^-1`` the 3x3 sensitivity (raw units per m/s^2), ``B`` the bias (raw units) and
+``Sigma`` the per-sample noise pooled over all holds. The calibration is
+``calibrated = M (raw - B)``; unlike the gravity-magnitude model (Qureshi eq. 3, upper
+triangular) the labels fix the rotation, so ``M`` is a full matrix in the fixture frame.
+Poses without a label get a free direction (no prior): they add one magnitude equation each,
+exactly as in the gravity solver.
+
+Estimate
+--------
+Maximum a posteriori over ``theta = (B, S)`` and all ``delta_k`` (the maximum-likelihood
+estimate of ``theta`` with the labels as a Gaussian prior), Levenberg-Marquardt on::
+
+    sum_k |Sigma_k^-1/2 (a_k - B - g S u_k(delta_k))|^2 + sum_k |delta_k|^2 / sigma_p^2.  (L3)
+
+Start: ``delta = 0`` makes (L2) linear in ``(B, S)``: one least-squares solve over the
+labelled poses (needs no nominal sensitivity; issue 10.1). ``sigma_p`` is estimated from the
+data where the degrees of freedom allow (Helmert variance-component estimation: the prior
+rows' residual sum of squares over their redundancy ``r_p = sum (1 - h_ii)``), else taken from
+the config.
+
+Cramér-Rao bound with the labels as a prior
+-------------------------------------------
+The hybrid information matrix of ``phi = (theta, delta_1..delta_N)`` is::
+
+    J = sum_k G_k^T Sigma_k^-1 G_k + diag(0_12, sigma_p^-2 I_2N),                   (L4)
+    G_k = d a_k / d phi = [ I_3 | g (I_3 kron u_k^T) | 0 .. g S T_k .. 0 ],
+
+and ``Cov(theta_hat) >= [J^-1]_theta``. Each pose's angles enter only its own block, so
+``J = [[A, C], [C^T, D]]`` with ``D`` block diagonal (``D_k = g^2 T_k^T S^T Sigma_k^-1 S T_k +
+I / sigma_p^2``) and the bound is the Schur complement::
+
+    CRB(theta) = (A - sum_k C_k D_k^-1 C_k^T)^-1.                                   (L5)
+
+Limits: ``sigma_p -> 0`` (a perfect fixture) gives the bound of the linear fit with known
+directions; ``sigma_p -> infinity`` drops the labels and leaves the gravity-magnitude bound
+(Qureshi III-A, see :mod:`.crb`), singular along the rotation that magnitude cannot see.
+The solver's parameters are ``theta = (B, K, r)`` with ``M = R(r) K``, ``K`` upper triangular
+(Qureshi eq. 3) and ``r`` a rotation vector: the rotation separates what the labels determine
+(the frame) from what gravity magnitude determines (``K``), so neither carries the other's
+error at second order. The estimator's covariance is (L4) evaluated at the estimate, so it
+includes the placement error.
+
+Second order
+------------
+Where the labels, not the data, fix a direction (six faces: bias, cross-axis terms and each
+pose's tilt are confounded), the Gaussian approximation at the estimate misses two effects of
+size ``sigma_p^2``: the reading along a tilted pose is ``g cos|delta|``, shorter on average by
+``E|delta|^2 / 2``, and ``K`` is a curved function of the label-limited cross-axis terms. The
+fit marginalises the first (each prediction's mean and variance over ``delta_k``'s remaining
+uncertainty, :meth:`.labelled_model.Problem.marginalise`) and corrects the second (the
+second-order bias and variance of ``K`` over the covariance of ``S``).
+
+Placement beyond first order (the joint covariance)
+---------------------------------------------------
+(L4) at the estimate is the first-order covariance. Along the directions of the placement
+that the data leave to the labels (six faces: the three strains of the faces' frame besides
+its rotation), the fit moves on a curved set of equally good solutions: the gravity
+magnitudes fix some combinations of gains, angles and biases to the noise, but only given
+the strains, and to second order in them. Relative to the estimate's tangent the truth lies
+off by a relative ``~ sigma_p^2`` (6e-4 at 2 degrees RMS), up to 30 times the noise that
+(L4) states for those combinations: each parameter's variance is right, their joint
+covariance is not (normalised error squared 60-1000 for 12 parameters on six faces at 2
+degrees; 16 at 0.5, 1560 at 5). So the placement's label-limited directions are propagated
+through the fit itself::
+
+    Cov(theta) = [J^-1]_theta + E_z[(p(z) - p_hat)(p(z) - p_hat)^T] - G G^T,       (L6)
+
+``z`` the placement's posterior (the labelled ``delta`` ~ ``N(delta_hat, P_delta)``) in the
+``m`` directions whose variance is above :data:`LABEL_LIMITED` of the prior's, less the
+frame's rotation (the gauge: it turns the frame and every direction together, which (L4)
+holds exactly); ``p(z)`` the parameters refitted to the measurements with those placements
+held, ``G`` its first-order part (already in (L4)). The expectation is a fully symmetric
+fifth-degree rule (exact for a quadratic ``p``: ``2 m^2 + 1`` refits; six faces m = 3,
+qureshi18 m = 0). The expectation is over the placement given the data, so where a
+parameter's error is the product of a label-limited quantity and an unknown one (a gain's
+error is its axis's true misalignment times the error of its angle) the stated std is that
+of a sensor of unknown misalignment: for nearly orthogonal axes the gains' std is
+conservative, up to twice the error on six faces.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+from scipy.special import chdtri, stdtrit
+from scipy.stats import chi2 as chi2_dist
+from scipy.stats import f as f_dist
+
+from imucal_cli.design.outliers import Deletion, deletion
+from imucal_cli.errors import DesignError, SolverError
+from imucal_cli.estimators.accel.gravity import _UPPER, triangular_and_rotation
+from imucal_cli.estimators.accel.labelled_model import (
+    Problem,
+    axes,
+    jacobian,
+    public_from_theta,
+    public_params,  # noqa: F401 (re-exported: the truth in these parameters)
+    second_order,
+    sphere_exp,
+    theta_floor,
+)
+
+#: Parameters: bias (raw units), the sensitivity of each axis (raw units per m/s^2, the
+#: norms of the rows of ``S = M^-1``), the angles between the sensitivity axes minus 90 deg,
+#: and the rotation vector (deg) turning the sensor's frame (``M = R(r) K``, K upper
+#: triangular, Qureshi eq. 3) onto the labelled fixture frame.
+PARAM_NAMES = [
+    "b_x",
+    "b_y",
+    "b_z",
+    "s_x",
+    "s_y",
+    "s_z",
+    "a_xy",
+    "a_xz",
+    "a_yz",
+    "r_x",
+    "r_y",
+    "r_z",
+]
+
+#: Placement error (RMS angle, degrees) assumed when the data cannot estimate it.
+DEFAULT_PLACEMENT_DEG = 2.0
+#: Redundancy of the prior rows needed to estimate the placement error from the data.
+MIN_PLACEMENT_DOF = 2.0
+#: The placement estimate never goes below this (a perfect fixture), degrees.
+MIN_PLACEMENT_DEG = 1e-3
+#: Above this many poses the Jacobian is handed to the solver as a sparse matrix (and the
+#: placement is propagated to first order only).
+DENSE_MAX_POSES = 150
+#: A placement direction is label-limited (propagated beyond first order, eq. L6) where the
+#: fit leaves it more than this fraction of the prior's variance.
+LABEL_LIMITED = 0.01
+#: Up to this many label-limited directions the fifth-degree rule (2 m^2 + 1 refits), above
+#: it the third-degree one (2 m refits: the mean of a quadratic, not all of its variance).
+MAX_FIFTH_DEGREE = 8
+#: The gauge of the placements: a rotation of the frame and every direction together.
+GAUGE_MODES = 3
+
+
+@dataclass
+class LabelledResult:
+    """Result of :func:`fit_labelled`.
+
+    Attributes
+    ----------
+    bias : ndarray, shape (3,)
+        ``B``, raw units.
+    matrix : ndarray, shape (3, 3)
+        ``M = S^-1``: ``calibrated = matrix @ (raw - bias)``, m/s^2 per raw unit, fixture frame.
+    param_names, params, cov
+        :data:`PARAM_NAMES`: bias, sensitivities, angles between the axes and the rotation
+        onto the labels; their covariance (12, 12) includes the placement error, beyond
+        first order where the labels limit it (eq. L6).
+    t_dof : ndarray, shape (12,)
+        Effective degrees of freedom of each parameter's variance (Satterthwaite: the
+        placement part is estimated from ``placement_dof`` equations); ``inf`` when the
+        variance is known.
+    ci95 : ndarray, shape (12,)
+        Half-width of each parameter's 95 % interval, ``t_0.975(t_dof) * std``.
+    residuals : ndarray, shape (N,)
+        ``|M (a_k - B)| - g`` per pose, m/s^2.
+    residual_vectors : ndarray, shape (N, 3)
+        ``M (a_k - B) - g u_k``, m/s^2 (what (L2) leaves unexplained, calibrated units).
+    directions : ndarray, shape (N, 3)
+        Estimated true gravity direction ``u_k`` of each pose, fixture frame.
+    up_angle_deg : ndarray, shape (N,)
+        Angle between ``u_k`` and the label, degrees (the placement error; NaN unlabelled).
+    placement_deg : float
+        RMS placement angle used in the prior, degrees.
+    placement_source : str
+        ``"estimated"`` (from the data), ``"config"`` (given), or ``"default"``
+        (:data:`DEFAULT_PLACEMENT_DEG`, too few equations to estimate it).
+    placement_dof : float
+        Redundancy of the prior equations (what the placement estimate rests on).
+    chi2, dof : float, int
+        Weighted sum of squares of (L3) and its degrees of freedom ``N + 2 L - 12``
+        (L labelled poses).
+    noise_scale : float
+        Factor on the measurement variance: 1 when the residuals agree with the measured
+        noise, the excess otherwise (significant at 1 %).
+    residual_loo : ndarray, shape (N,)
+        Held-out residual ``|M_(-k) (a_k - B_(-k))| - g`` of each pose, m/s^2: the fit
+        without the pose (its rows deleted, first order; :mod:`.outliers`).
+    deletion : Deletion
+        Deletion diagnostics of every pose (studentized statistic for the outlier test).
+    init : str
+        ``"linear"``: the closed-form start with every ``delta = 0``.
+    iterations, nfev : int
+    converged : bool
+    message : str
+    cov_parts : dict
+        ``cov`` by where it comes from, (12, 12) each, summing to it: ``"measurement"`` (the
+        noise), ``"placement"`` (first order, scales with ``placement_deg^2``) and
+        ``"placement_second_order"`` (eq. L6, scales with ``placement_deg^4``); with
+        ``"label_limited"``, the number ``m`` of placement directions propagated.
+    """
+
+    bias: np.ndarray
+    matrix: np.ndarray
+    param_names: list[str]
+    params: np.ndarray
+    cov: np.ndarray
+    t_dof: np.ndarray
+    ci95: np.ndarray
+    residuals: np.ndarray
+    residual_vectors: np.ndarray
+    directions: np.ndarray
+    up_angle_deg: np.ndarray
+    placement_deg: float
+    placement_source: str
+    placement_dof: float
+    chi2: float
+    dof: int
+    noise_scale: float
+    residual_loo: np.ndarray
+    deletion: Deletion
+    init: str
+    iterations: int
+    nfev: int
+    converged: bool
+    message: str
+    cov_parts: dict = field(default_factory=dict)
+    placement_sq: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    placement_redundancy: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    placement_tied: list = field(default_factory=list)
+
+    @property
+    def std(self) -> np.ndarray:
+        """Standard deviations of ``params``."""
+        return np.sqrt(np.clip(np.diag(self.cov), 0, None))
+
+
+# --------------------------------------------------------------------------- start
+
+
+def init_linear(a_mean: np.ndarray, up: np.ndarray, g: float) -> tuple[np.ndarray, np.ndarray]:
+    """Closed-form start: (L2) with every ``delta = 0`` is linear in ``(B, S)``.
+
+    Parameters
+    ----------
+    a_mean : ndarray, shape (N, 3)
+        Pose means, raw units.
+    up : ndarray, shape (N, 3)
+        Labels (NaN rows where unlabelled; those poses are not used).
+    g : float
+        Gravity, m/s^2.
+
+    Returns
+    -------
+    B : ndarray, shape (3,)
+    S : ndarray, shape (3, 3)
+        Raw units per m/s^2.
+
+    Raises
+    ------
+    DesignError
+        The labelled directions do not span the affine space ``[1, up]`` (fewer than four
+        labels not in one plane): bias and sensitivity cannot be told apart.
+    """
+    lab = np.isfinite(up).all(axis=1)
+    X = np.column_stack([np.ones(lab.sum()), g * up[lab]])  # a_k^T = [1, g up_k^T] [B; S^T]
+    if np.linalg.matrix_rank(X, tol=1e-6 * g) < 4:
+        raise DesignError(
+            f"{int(lab.sum())} labelled poses whose up directions lie in one plane cannot tell "
+            "bias from sensitivity"
+        )
+    sol, *_ = np.linalg.lstsq(X, a_mean[lab], rcond=None)
+    return sol[0], sol[1:].T
+
+
+def contradicted_labels(
+    a_mean: np.ndarray, up: np.ndarray, g: float, limit_deg: float = 20.0, max_fraction=0.25
+) -> list[tuple[int, float]]:
+    """Labelled poses whose reading contradicts their label (issue 10.6: a pose labelled with
+    the wrong face): each labelled pose is predicted by the linear start (:func:`init_linear`)
+    of the others; the pose furthest from its label, if further than ``limit_deg``, is taken
+    out and the test repeated (at most ``max_fraction`` of the labels).
+
+    Returns
+    -------
+    list of (index, angle_deg)
+        The contradicted poses and the angle between their measured and labelled up.
+    """
+    up = np.array(up, dtype=float)
+    found: list[tuple[int, float]] = []
+    n_lab = int(np.isfinite(up).all(axis=1).sum())
+    while len(found) < max(1, int(max_fraction * n_lab)):
+        lab = np.flatnonzero(np.isfinite(up).all(axis=1))
+        worst, worst_angle = -1, limit_deg
+        for k in lab:
+            others = up.copy()
+            others[k] = np.nan
+            try:
+                B, S = init_linear(a_mean, others, g)
+                u = np.linalg.solve(S, a_mean[k] - B)
+            except (DesignError, np.linalg.LinAlgError):
+                continue
+            cos = float(u @ up[k] / max(np.linalg.norm(u), 1e-300))
+            angle = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+            if angle > worst_angle:
+                worst, worst_angle = int(k), angle
+        if worst < 0:
+            break
+        found.append((worst, worst_angle))
+        up[worst] = np.nan
+    return found
+
+
+# --------------------------------------------------------------------------- the fit
+
+
+def _solve(prob: Problem, x0, max_iterations):
+    sparse = prob.N > DENSE_MAX_POSES
+    if sparse:  # hundreds of placement parameters: scipy's sparse trust region (lsmr)
+        return least_squares(
+            prob.residuals, x0, jac=lambda x: prob.jacobian(x, sparse=True), method="trf",
+            tr_solver="lsmr", x_scale=1.0, xtol=1e-12, ftol=1e-12, gtol=1e-12,
+            max_nfev=max_iterations,
+        )  # fmt: skip
+    return least_squares(
+        prob.residuals,
+        x0,
+        jac=prob.jacobian,
+        method="lm",
+        x_scale=1.0,
+        xtol=1e-12,
+        ftol=1e-12,
+        gtol=1e-12,
+        max_nfev=max_iterations,
+    )
+
+
+def _hat_diag(J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Diagonal of the hat matrix ``J (J^T J)^-1 J^T`` and ``(J^T J)^-1``."""
+    Q, R = np.linalg.qr(J)
+    P = np.linalg.inv(R)
+    return np.sum(Q * Q, axis=1), P @ P.T
+
+
+@dataclass
+class _State:
+    sol: object
+    prob: Problem
+    placement_dof: float
+    meas_dof: float
+    chi2_meas: float
+    hat: np.ndarray
+    P: np.ndarray
+    J: np.ndarray
+    r: np.ndarray
+
+
+def _evaluate(prob: Problem, sol) -> _State:
+    if isinstance(sol.jac, np.ndarray):  # least_squares' residuals and Jacobian at sol.x
+        J, r = sol.jac, sol.fun
+    else:  # scipy's sparse solve
+        J, r = prob.jacobian(sol.x), prob.residuals(sol.x)
+    h, P = _hat_diag(J)
+    n_meas = 3 * prob.N
+    return _State(
+        sol,
+        prob,
+        float(np.sum(1 - h[n_meas:])),
+        float(np.sum(1 - h[:n_meas])),
+        float(r[:n_meas] @ r[:n_meas]),
+        h,
+        P,
+        J,
+        r,
+    )
+
+
+def _variance_components(prob, x0, max_iterations, estimate_placement, n_iter=30):
+    """Fit (L3), re-estimating ``sigma_p`` (Helmert) and the measurement scale until stable."""
+    sol = _solve(prob, x0, max_iterations)
+    st = _evaluate(prob, sol)
+    for _ in range(n_iter):
+        old = (prob.sigma_p, prob.meas_scale)
+        prob.marginalise(sol.x, st.P)
+        if estimate_placement and st.placement_dof >= MIN_PLACEMENT_DOF:
+            d = prob.split(sol.x)[3][prob.lab]
+            sp2 = float(np.sum(d * d)) / st.placement_dof
+            prob.sigma_p = max(np.sqrt(sp2), np.radians(MIN_PLACEMENT_DEG) / np.sqrt(2))
+        chi2_m = st.chi2_meas * prob.meas_scale**2  # in units of the measured noise
+        if st.meas_dof >= 1 and chi2_m > chdtri(st.meas_dof, 0.01):
+            prob.meas_scale = np.sqrt(chi2_m / st.meas_dof)
+        else:
+            prob.meas_scale = 1.0
+        sol = _solve(prob, sol.x, max_iterations)
+        st = _evaluate(prob, sol)
+        if abs(prob.sigma_p / old[0] - 1) < 1e-3 and abs(prob.meas_scale / old[1] - 1) < 1e-3:
+            break
+    return st
+
+
+def fit_labelled(
+    a_mean: np.ndarray,
+    up: np.ndarray,
+    g: float,
+    cov_mean: np.ndarray,
+    *,
+    placement_deg: float | None = None,
+    noise_dof: float = np.inf,
+    max_iterations: int = 200,
+) -> LabelledResult:
+    """Calibrate a triad accelerometer from labelled static poses (module docstring).
+
+    Parameters
+    ----------
+    a_mean : ndarray, shape (N, 3)
+        Mean raw reading of each pose, raw units.
+    up : ndarray, shape (N, 3)
+        Labelled up direction of each pose, fixture frame (NaN rows where unlabelled).
+    g : float
+        Local gravity, m/s^2.
+    cov_mean : ndarray, shape (N, 3, 3)
+        Covariance of each pose mean, raw units^2 (pooled noise / samples).
+    placement_deg : float, optional
+        RMS placement error of the poses, degrees. Omitted: estimated from the data when the
+        prior equations have at least :data:`MIN_PLACEMENT_DOF` of redundancy, else
+        :data:`DEFAULT_PLACEMENT_DEG`.
+    noise_dof : float
+        Degrees of freedom of the pooled noise estimate (for the parameters' t intervals).
+    max_iterations : int
+        Function evaluations of each Levenberg-Marquardt run.
+
+    Returns
+    -------
+    LabelledResult
+
+    Raises
+    ------
+    DesignError
+        Fewer than four labelled poses spanning 3-D, or a design the fit cannot determine.
+    SolverError
+        No convergence.
+    """
+    a_mean = np.asarray(a_mean, float)
+    up = np.asarray(up, float)
+    N = len(a_mean)
+    labelled = np.isfinite(up).all(axis=1)
+    B0, S0 = init_linear(a_mean, up, g)
+    # Normalised raw coordinates: every parameter O(1).
+    offset = B0.copy()
+    scale = float(np.mean(np.abs(np.diag(S0)))) * g or 1.0
+    a_n = (a_mean - offset) / scale
+    cov_n = np.asarray(cov_mean, float) / scale**2
+    K0, Q0 = triangular_and_rotation(np.linalg.inv(S0))
+    u0 = np.where(labelled[:, None], up, 0.0)
+    if not labelled.all():  # unlabelled poses start at their measured direction
+        est = (a_mean[~labelled] - B0) @ np.linalg.inv(S0).T
+        u0[~labelled] = est / np.linalg.norm(est, axis=1, keepdims=True)
+    u0 = u0 / np.linalg.norm(u0, axis=1, keepdims=True)
+    source = "config" if placement_deg is not None else "estimated"
+    sigma_p = np.radians(placement_deg if placement_deg is not None else DEFAULT_PLACEMENT_DEG)
+    prob = Problem(a_n, cov_n, u0, labelled, g, max(sigma_p, 1e-9) / np.sqrt(2))
+    phi0 = Rotation.from_matrix(Q0).as_rotvec()
+    x0 = np.concatenate([np.zeros(3), (K0 * scale)[_UPPER], phi0, np.zeros(2 * N)])
+    st = _variance_components(prob, x0, max_iterations, placement_deg is None)
+    if source == "estimated" and st.placement_dof < MIN_PLACEMENT_DOF:
+        source = "default"
+    if st.sol.status <= 0:
+        raise SolverError(
+            f"the labelled-pose fit did not converge in {max_iterations} iterations "
+            f"({st.sol.message}); check that the unit was still during each hold and that the "
+            "labels name the face that was up"
+        )
+    return _result(st, offset, scale, a_mean, up, labelled, g, source, noise_dof)
+
+
+def _result(st: _State, offset, scale, a_mean, up, labelled, g, source, noise_dof):
+    prob = st.prob
+    if _undetermined(st):
+        raise DesignError(
+            "the poses and labels leave the matrix undetermined; label more poses (each face up)"
+        )
+    x12 = st.sol.x[:12]
+
+    def public(v):  # public parameters of normalised x (n, 12): (B raw, K raw, r deg) first
+        v = np.atleast_2d(v)
+        return public_from_theta(
+            np.concatenate([offset + scale * v[:, :3], v[:, 3:9] / scale,
+                            np.degrees(v[:, 9:12])], axis=1)
+        )  # fmt: skip
+
+    T = jacobian(public, x12, floor=theta_floor(x12), many=True)
+    n_meas = 3 * prob.N
+    Pt = st.P[:, :12]
+    Jm, Jp = st.J[:n_meas], st.J[n_meas:]
+    parts = {
+        "measurement": T @ (Pt.T @ Jm.T @ Jm @ Pt) @ T.T,
+        "placement": T @ (Pt.T @ Jp.T @ Jp @ Pt) @ T.T,  # the two sum to T P T^T
+    }
+    # Second order: the sensitivities and angles are curved functions of K, whose cross-axis
+    # terms the labels (not the data) fix on six faces: remove that bias, add that variance
+    # (unless the placement's propagation (L6) below, which includes it, runs).
+    axes_of = lambda k: axes(_matrices(k))  # noqa: E731
+    bias2, extra2 = second_order(axes_of, x12[3:9], st.P[3:9, 3:9], many=True)
+    params = public(x12)[0]
+    params[3:9] -= bias2
+    extra, m = _placement_beyond_first_order(st, public, params)
+    if m == 0:
+        extra[3:9, 3:9] += extra2
+    parts["placement_second_order"] = extra
+    cov = parts["measurement"] + parts["placement"] + extra
+    Kn = np.zeros((3, 3))
+    Kn[_UPPER] = x12[3:9] - np.linalg.solve(jacobian(axes_of, x12[3:9], many=True), bias2)
+    B = offset + scale * x12[:3]
+    M = Rotation.from_rotvec(x12[9:12]).as_matrix() @ Kn / scale
+    t_dof = _t_dof(parts, st.placement_dof, source, noise_dof)
+    std = np.sqrt(np.clip(np.diag(cov), 0, None))
+    q = np.where(np.isfinite(t_dof), stdtrit(np.minimum(t_dof, 1e6), 0.975), 1.959964)
+    u, _ = sphere_exp(prob.u0, prob.T, prob.split(st.sol.x)[3])
+    h = (a_mean - B) @ M.T
+    mag = np.linalg.norm(h, axis=1)
+    up_angle = np.full(prob.N, np.nan)
+    cosang = np.clip(np.sum(u[labelled] * up[labelled], axis=1), -1, 1)
+    up_angle[labelled] = np.degrees(np.arccos(cosang))
+    dele = deletion(st.J, st.r, prob.groups(), st.P)
+    return LabelledResult(
+        bias=B,
+        matrix=M,
+        param_names=list(PARAM_NAMES),
+        params=params,
+        cov=cov,
+        t_dof=t_dof,
+        ci95=q * std,
+        residuals=mag - g,
+        residual_vectors=h - g * u,
+        directions=u,
+        up_angle_deg=up_angle,
+        placement_deg=float(np.degrees(prob.sigma_p) * np.sqrt(2)),
+        placement_source=source,
+        placement_dof=st.placement_dof,
+        chi2=float(st.r @ st.r),
+        dof=prob.N + 2 * int(labelled.sum()) - 12,
+        noise_scale=float(prob.meas_scale**2),
+        residual_loo=_held_out(prob, st, dele, offset, scale, a_mean, g),
+        deletion=dele,
+        init="linear",
+        iterations=int(st.sol.njev or 0),
+        nfev=int(st.sol.nfev),
+        converged=True,
+        message=str(st.sol.message),
+        cov_parts={**parts, "label_limited": m},
+        **_placement_rows(st, labelled),
+    )
+
+
+def _matrices(k: np.ndarray) -> np.ndarray:
+    """``K^-1`` of each row of upper-triangle entries ``k`` (n, 6): (n, 3, 3)."""
+    K = np.zeros((len(k), 3, 3))
+    K[:, _UPPER[0], _UPPER[1]] = k
+    return np.linalg.inv(K)
+
+
+def _undetermined(st: _State) -> bool:
+    """Whether the Jacobian's condition number is at least 1e10. ``tr(J^T J) tr(P)`` bounds its
+    square from above: where that bound is below 1e18 the singular values are not needed."""
+    bound = float(np.sum(st.J * st.J)) * float(np.trace(st.P))
+    if np.isfinite(bound) and bound < 1e18:
+        return False
+    svals = np.linalg.svd(st.J, compute_uv=False)
+    return bool(svals[-1] <= 1e-10 * svals[0])
+
+
+def _held_out(prob: Problem, st: _State, dele: Deletion, offset, scale, a_mean, g):
+    """Gravity-magnitude residual of each pose under the fit without it, m/s^2."""
+    X = st.sol.x[:12] + dele.dx[:, :12]  # (B, K, phi) without each pose
+    Kn = np.zeros((prob.N, 3, 3))
+    Kn[:, _UPPER[0], _UPPER[1]] = X[:, 3:9]
+    M = Rotation.from_rotvec(X[:, 9:12]).as_matrix() @ Kn / scale
+    h = np.einsum("nij,nj->ni", M, a_mean - offset - scale * X[:, :3])
+    return np.where(dele.rank > 0, np.linalg.norm(h, axis=1) - g, np.nan)
+
+
+def _t_dof(parts: dict, placement_dof: float, source: str, noise_dof: float):
+    """Effective degrees of freedom of each parameter's variance (Satterthwaite): the
+    measurement part rests on ``noise_dof``, the placement part on the prior's redundancy."""
+    v_meas = np.diag(parts["measurement"])
+    v_place = np.diag(parts["placement"]) + np.diag(parts["placement_second_order"])
+    nu_p = placement_dof if source == "estimated" else np.inf
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_dof = (v_meas + v_place) ** 2 / (v_place**2 / nu_p + v_meas**2 / noise_dof)
+    return np.where(np.isfinite(t_dof), np.maximum(t_dof, 1.0), np.inf)
+
+
+# --------------------------------------------------------------------------- (L6)
+
+
+def symmetric_rule(m: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """Nodes (n, m) and weights (n,) of a fully symmetric rule for ``N(0, I_m)``, and the
+    distance ``a`` of its axis nodes ``+-a e_i`` (nodes 1..2m, in the order +e_1, -e_1, ...).
+
+    Up to :data:`MAX_FIFTH_DEGREE` dimensions the fifth-degree rule (exact for polynomials of
+    degree 5, so for the mean and covariance of a quadratic): the centre, ``+-sqrt(3) e_i``
+    and ``+-sqrt(3) e_i +- sqrt(3) e_j`` (i < j), weights ``1 + (m^2 - 7 m) / 18``,
+    ``(4 - m) / 18`` and ``1 / 36`` (for m = 1 Gauss-Hermite's three points); above, the
+    third-degree one (``+-sqrt(m) e_i``, weights ``1 / 2m``)."""
+    if m > MAX_FIFTH_DEGREE:
+        a = np.sqrt(m)
+        nodes = np.vstack([np.zeros(m), *[s * a * np.eye(m)[i] for i in range(m) for s in (1, -1)]])
+        return nodes, np.r_[0.0, np.full(2 * m, 0.5 / m)], a
+    a = np.sqrt(3.0)
+    nodes, weights = [np.zeros(m)], [1.0 + (m * m - 7 * m) / 18.0]
+    for i in range(m):
+        for s in (1, -1):
+            nodes.append(s * a * np.eye(m)[i])
+            weights.append((4 - m) / 18.0)
+    for i in range(m):
+        for j in range(i + 1, m):
+            for si in (1, -1):
+                for sj in (1, -1):
+                    nodes.append(a * (si * np.eye(m)[i] + sj * np.eye(m)[j]))
+                    weights.append(1.0 / 36.0)
+    return np.array(nodes), np.array(weights), a
+
+
+def _label_limited(st: _State) -> tuple[np.ndarray, np.ndarray]:
+    """Columns of ``x`` of the labelled placements and the label-limited directions of their
+    posterior, less the gauge (eq. L6): ``(cols, V)`` with ``delta = delta_hat + V xi``,
+    ``xi ~ N(0, I_m)``."""
+    prob, x = st.prob, st.sol.x
+    cols = (12 + 2 * prob.lab[:, None] + np.arange(2)).ravel()
+    lam, V = np.linalg.eigh(st.P[np.ix_(cols, cols)])
+    big = lam > LABEL_LIMITED * prob.sigma_p**2
+    if big.sum() <= GAUGE_MODES:  # nothing beyond the gauge (qureshi18-like designs)
+        return cols, np.zeros((len(cols), 0))
+    Vb = V[:, big] * np.sqrt(lam[big])
+    # The gauge (a rotation of the frame and every direction together) in these whitened
+    # coordinates; (L4) holds it exactly, so it is left out.
+    gauge = (V[:, big] / np.sqrt(lam[big])).T @ prob.gauge_modes(x)[cols]
+    Q, _ = np.linalg.qr(gauge, mode="complete")
+    return cols, Vb @ Q[:, gauge.shape[1] :]
+
+
+def _refit_iterative(prob: Problem, x: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """``x`` with its ``free`` coordinates refitted to the measurements (the others held), by
+    Levenberg-Marquardt from ``x``."""
+    n_meas = 3 * prob.N
+
+    def whole(v):
+        y = x.copy()
+        y[free] = v
+        return y
+
+    sol = least_squares(
+        lambda v: prob.residuals(whole(v))[:n_meas],
+        x[free],
+        jac=lambda v: prob.jacobian(whole(v))[:n_meas][:, free],
+        method="lm",
+        x_scale=1.0,
+        xtol=1e-10,
+        ftol=1e-10,
+        gtol=1e-10,
+        max_nfev=50,
+    )
+    return whole(sol.x)
+
+
+def _refit_linear(prob: Problem, X: np.ndarray) -> np.ndarray:
+    """:func:`_refit_iterative` of ``(B, K, phi)`` with every direction held, at each row of ``X``
+    (n, len(x)). The prediction (L2) is then linear in ``B`` and ``M' = g K^-1 R(phi)^T``::
+
+        W_k (a_k - o_k) = W_k B + W_k M' u_k,      (o_k: the marginalisation's offset)
+
+    one weighted linear least-squares solve (QR) per row; ``R K = g M'^-1`` gives ``K`` and
+    ``phi`` back (as :func:`triangular_and_rotation`). NaN rows where that lands on another
+    branch than the row (signs of ``K``'s diagonal, the rotation vector's wrap): those are
+    for the iterative refit."""
+    n, N = len(X), prob.N
+    u, _ = sphere_exp(np.tile(prob.u0, (n, 1)), np.tile(prob.T, (n, 1, 1)),
+                      X[:, 12:].reshape(n * N, 2))  # fmt: skip
+    D = np.zeros((n, N, 3, 12))  # d prediction / d [B | M' row-major], per pose
+    D[..., :3] = np.eye(3)
+    for i in range(3):
+        D[:, :, i, 3 + 3 * i : 6 + 3 * i] = u.reshape(n, N, 3)
+    A = np.einsum("kij,nkjc->nkic", prob.W, D).reshape(n, 3 * N, 12)
+    y = np.einsum("kij,kj->ki", prob.W, prob.a_n - prob.offset).ravel()
+    Q, R = np.linalg.qr(A)
+    sol = np.linalg.solve(R, np.swapaxes(Q, 1, 2) @ y[:, None])[..., 0]
+    K, Qm = triangular_and_rotation(prob.g * np.linalg.inv(sol[:, 3:].reshape(n, 3, 3)))
+    phi = Rotation.from_matrix(Qm).as_rotvec()
+    out = X.copy()
+    out[:, :3], out[:, 3:9], out[:, 9:12] = sol[:, :3], K[:, _UPPER[0], _UPPER[1]], phi
+    other = np.any(np.sign(out[:, 3:6]) != np.sign(X[:, 3:6]), axis=1)  # K's diagonal
+    other |= np.linalg.norm(phi - X[:, 9:12], axis=1) > 1
+    out[other] = np.nan
+    return out
+
+
+def _placement_beyond_first_order(st: _State, public, p_hat: np.ndarray):
+    """Eq. (L6): the parameters' covariance from the label-limited placement beyond (L4)'s
+    first order, (12, 12), and the number of directions propagated. Each node of
+    :func:`symmetric_rule` holds the labelled placements there and refits the rest (bias,
+    matrix and the unlabelled poses' directions) to the measurements."""
+    prob, x = st.prob, st.sol.x
+    if prob.N > DENSE_MAX_POSES:
+        return np.zeros((12, 12)), 0
+    cols, V = _label_limited(st)
+    m = V.shape[1]
+    if m == 0:
+        return np.zeros((12, 12)), 0
+    held = np.zeros(len(x), bool)
+    held[cols] = True
+    free = np.flatnonzero(~held)
+    nodes, w, a = symmetric_rule(m)
+    X = np.tile(x, (len(nodes), 1))
+    X[:, cols] += nodes @ V.T
+    Y = _refit_linear(prob, X) if len(free) == 12 else np.full(X.shape, np.nan)
+    for i in np.flatnonzero(~np.isfinite(Y).all(axis=1)):  # not linear: iteratively
+        Y[i] = _refit_iterative(prob, X[i], free)
+    Y = public(Y[:, :12]) - p_hat
+    G = (Y[1 : 2 * m + 1 : 2] - Y[2 : 2 * m + 1 : 2]) / (2 * a)  # first order, (m, 12)
+    extra = (Y * w[:, None]).T @ Y - G.T @ G
+    ev, U = np.linalg.eigh((extra + extra.T) / 2)
+    return (U * np.clip(ev, 0, None)) @ U.T, m
+
+
+def _placement_rows(st: _State, labelled: np.ndarray) -> dict:
+    """Each labelled pose's prior rows (L3): their squared residuals ``|delta_k|^2 /
+    sigma_p^2`` and redundancy (``1 - h`` summed over its two rows: 0 where the labels alone
+    fix the pose's direction, 2 where the data do), and the poses whose placement residuals
+    are tied to its own (the correlation of the rows' residuals, ``I - H``, at least
+    :data:`TIED`: opposite faces of six, whose disagreement the fit shares between them);
+    NaN or empty for unlabelled poses."""
+    N = st.prob.N
+    e = st.r[3 * N :].reshape(-1, 2)
+    Q, _ = np.linalg.qr(st.J)
+    Qp = Q[3 * N :]
+    C = np.eye(len(Qp)) - Qp @ Qp.T  # covariance of the prior rows' residuals (unit noise)
+    L = len(e)
+    sq = np.full(N, np.nan)
+    red = np.full(N, np.nan)
+    lab = np.flatnonzero(labelled)
+    sq[lab] = np.sum(e**2, axis=1)
+    red[lab] = np.clip(np.diag(C), 0, 1).reshape(L, 2).sum(axis=1)
+    d = np.sqrt(np.clip(np.diag(C), 1e-300, None))
+    R = np.abs(C / np.outer(d, d)).reshape(L, 2, L, 2).max(axis=(1, 3))
+    tied = [[] for _ in range(N)]
+    for i, k in enumerate(lab):
+        tied[k] = [int(lab[j]) for j in np.flatnonzero(R[i] >= TIED) if j != i]
+    return {"placement_sq": sq, "placement_redundancy": red, "placement_tied": tied}
+
+
+#: Placement residuals of two poses correlated at least this much are one group: the fit
+#: cannot tell which of them is off.
+TIED = 0.5
+#: A group whose placement test against the rest's spread reaches only this family-wise
+#: p-value is named when it also sits off by more than a hand placement allows.
+MARGINAL = 0.05
+
+
+def placement_outliers(res: LabelledResult, *, alpha: float = 0.01,
+                       min_redundancy: float = 0.3,
+                       min_deg: float = 3.0) -> list[tuple[list[int], float]]:
+    """Groups of poses whose placement disagrees with the others' (a label off by degrees:
+    the unit on a wedge, the wrong face named), worst first, with their family-wise p-values.
+
+    A labelled pose and the poses tied to it (:data:`TIED`; one pose where the design can
+    attribute the disagreement, both faces of a pair on six faces) are tested against the
+    placement spread of the rest (Helmert, without the group's rows): ``F = (S_G / R_G) /
+    (S_rest / R_rest)`` with ``S`` the squared prior residuals and ``R`` their redundancy,
+    against ``F(R_G, R_rest)``, Bonferroni over the groups; where that test is marginal (the
+    rest's spread rests on few equations: 4 on six faces), up to :data:`MARGINAL`, the group
+    is also named when it sits off its labels by more than a hand placement
+    (:data:`DEFAULT_PLACEMENT_DEG` RMS) allows at ``alpha``. Where the config states the
+    placement (``[accel.labelled] placement_deg``) it is trusted: ``S_G`` against
+    ``chi^2(R_G)``. A group whose rows are nearly all
+    leverage (redundancy below ``min_redundancy``) cannot be judged: the design cannot
+    tell. A group whose placement comes to less than ``min_deg`` (the root sum of its poses'
+    squared angles to their labels) is not named however well the rest sits: a degree is a
+    hand's placement, not a wrong label (MaD Lab's session B: its +-Z faces 0.7 deg off where
+    the others sit within 0.1)."""
+    sq, red, tied = res.placement_sq, res.placement_redundancy, res.placement_tied
+    lab = np.flatnonzero(np.isfinite(sq))
+    if len(lab) < 3 or res.placement_dof < 2:
+        return []
+    S, R = float(np.nansum(sq)), res.placement_dof
+    given = res.placement_source == "config"  # the stated placement: trusted, a chi^2 test
+    groups = sorted({tuple(sorted({int(k), *tied[k]})) for k in lab})
+    out = []
+    for grp in groups:
+        idx = list(grp)
+        S_G, R_G = float(np.sum(sq[idx])), float(np.sum(red[idx]))
+        R_rest = R - R_G
+        if R_G < min_redundancy or (not given and (R_rest < 1 or S - S_G <= 0)):
+            continue
+        n = len(groups)
+        if given:
+            p = min(float(chi2_dist.sf(S_G, R_G)) * n, 1.0)
+        else:
+            p = min(float(f_dist.sf((S_G / R_G) / ((S - S_G) / R_rest), R_G, R_rest)) * n, 1.0)
+            # the rest's spread rests on few equations (six faces: 4): a group off by more
+            # than a hand placement allows (DEFAULT_PLACEMENT_DEG) is named at MARGINAL
+            hand = S_G * (res.placement_deg / DEFAULT_PLACEMENT_DEG) ** 2
+            if p >= alpha and p < MARGINAL and float(chi2_dist.sf(hand, R_G)) * n < alpha:
+                p = alpha * 0.999
+        size = float(np.sqrt(np.nansum(res.up_angle_deg[idx] ** 2)))
+        if p < alpha and size >= min_deg:
+            out.append((idx, p))
+    return sorted(out, key=lambda gp: gp[1])

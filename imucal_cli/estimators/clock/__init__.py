@@ -1,0 +1,1 @@
+"""The device's sample clock against the host's arrival times."""

@@ -1,0 +1,785 @@
+"""Magnetometer calibration: hard iron, soft iron and the rotation onto the accelerometer frame.
+
+Model
+-----
+A magnetometer reading ``m`` (raw units) of the local field ``h`` (a fixed vector in the world,
+magnitude ``F``) seen in the sensor frame is
+
+    m = W^-1 h + b + e,            calibrated  h = W (m - b),                          (1)
+
+with ``b`` the hard-iron offset (raw units: the sensor's own offset plus fields of magnetised
+parts on the board) and ``W`` the soft-iron correction (output units per raw unit: gains, axes
+that are not orthogonal, and the distortion of the field by soft-magnetic parts), ``e`` white
+noise of covariance ``Sigma`` (raw units^2).  Wherever the unit points,
+
+    |W (m - b)| = F.                                                                    (2)
+
+Magnitude alone fixes ``W`` only up to a rotation (``|Q W d| = |W d|``).  With a static pose
+``k`` the calibrated accelerometer gives the up direction ``u_k`` in the accelerometer frame,
+and the angle between gravity and the field (90 degrees plus the inclination ``I``) is the
+same in every pose:
+
+    u_k . W (m_k - b) / |W (m_k - b)| = s = -sin I.                                     (3)
+
+Eq. (3) fixes the rotation, so ``W`` maps raw readings into the accelerometer frame.
+
+Estimator
+---------
+Maximum likelihood to first order (the radial and the dip component of each reading's error
+are what the parameters see; the direction of each sample along the sphere is a nuisance):
+weighted least squares over
+
+- eq. (2) for every sample of the motion and every static pose mean, each residual divided by
+  its standard deviation ``sqrt(h^T W Sigma W^T h) / |h|`` and less the mean the noise gives it
+  (the part of the noise across the sphere lengthens every reading by ``tr(P W Sigma W^T) /
+  (2 |h|)``, ``P`` the projection across ``h``: left in, it shrinks ``W`` and, for a
+  magnetometer whose soft iron is not round, distorts its shape); the remaining second-order
+  bias (the Jacobian of a reading moves with its own noise) is taken out after the fit by one
+  step, ``(J^T J)^-1 sum_i w_i^2 cov(J_i, r_i)``;
+- eq. (3) for every static pose with an up direction, divided by the standard deviation that
+  the pose's magnetometer and accelerometer noise give it.
+
+Levenberg-Marquardt (``scipy.optimize.least_squares``) on ``(b, W, s)``, started from an
+algebraic ellipsoid fit (:func:`imucal_cli.estimators.ellipsoid.fit_ellipsoid`; the symmetric
+soft-iron matrix of that fit is what the hobby tools stop at) and from the rotation that best
+satisfies eq. (3) (multi-start over the 24 axis permutations plus a linear solution, so that a
+magnetometer mounted at any angle to the accelerometer, e.g. the AK8963's swapped axes in an
+MPU-9250, is found).  Without up directions the gauge is fixed by a symmetric ``W`` (the frame
+closest to the magnetometer's own axes).
+
+The field magnitude ``F`` is given (microtesla) or, when unknown, 1: the calibrated output is
+then in units of the local field.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+from scipy.special import chdtri
+
+from imucal_cli.errors import DesignError, SolverError
+from imucal_cli.estimators.mag.start import ellipsoid_start, polar, rotation_start
+
+__all__ = [
+    "PARAM_NAMES_ALIGNED",
+    "PARAM_NAMES_SYMMETRIC",
+    "MagData",
+    "MagResult",
+    "fit_magnetometer",
+    "fit_plain_ellipsoid",
+    "held_out_residuals",
+    "polar",
+    "residual_sigmas",
+]
+
+_AXES = "xyz"
+#: Symmetric soft iron: (row, column) of the 6 free entries, in parameter order.
+SYM_INDEX = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
+PARAM_NAMES_SYMMETRIC = ["b_x", "b_y", "b_z"] + [f"w_{_AXES[i]}{_AXES[j]}" for i, j in SYM_INDEX]
+PARAM_NAMES_ALIGNED = (
+    ["b_x", "b_y", "b_z"] + [f"w_{r}{c}" for r in _AXES for c in _AXES] + ["s"]
+)
+#: Fewest static poses with an up direction that can fix the rotation and the dip (4 unknowns).
+MIN_ALIGN_POSES = 4
+#: Up directions all within this angle of each other leave the rotation about them free.
+MIN_UP_SPREAD_DEG = 15.0
+
+
+def _max_angle_deg(u: np.ndarray) -> float:
+    """Largest angle between any two unit vectors (rows), degrees."""
+    if len(u) < 2:
+        return 0.0
+    return float(np.degrees(np.arccos(np.clip((u @ u.T).min(), -1.0, 1.0))))
+
+
+@dataclass
+class MagData:
+    """What the magnetometer fit sees.
+
+    Attributes
+    ----------
+    samples : ndarray, shape (N, 3)
+        Raw readings taken while the unit moved (any attitude), raw units.  N may be 0.
+    pose_mean : ndarray, shape (K, 3)
+        Mean raw reading of each static pose.  K may be 0.
+    sample_cov : ndarray, shape (3, 3), or None
+        Noise covariance of one sample, raw units^2.  None: every reading weighs the same and
+        the noise is estimated from the residuals.
+    pose_cov : ndarray, shape (K, 3, 3), or None
+        Covariance of each pose mean, raw units^2 (needed with ``sample_cov``).
+    up : ndarray, shape (K, 3), or None
+        Up direction of each pose (unit; rows of NaN where unknown) in the accelerometer's
+        calibrated frame: what fixes the rotation, eq. (3).
+    up_cov : ndarray, shape (K, 3, 3), or None
+        Covariance of each ``up`` (unit-vector perturbation, rad^2); None: exact.
+    """
+
+    samples: np.ndarray
+    pose_mean: np.ndarray
+    sample_cov: np.ndarray | None = None
+    pose_cov: np.ndarray | None = None
+    up: np.ndarray | None = None
+    up_cov: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        self.samples = np.asarray(self.samples, float).reshape(-1, 3)
+        self.pose_mean = np.asarray(self.pose_mean, float).reshape(-1, 3)
+
+    @property
+    def points(self) -> np.ndarray:
+        """Every reading eq. (2) uses: motion samples, then pose means, shape (N + K, 3)."""
+        return np.concatenate([self.samples, self.pose_mean])
+
+    def point_covs(self) -> np.ndarray | None:
+        """Covariance of each of :attr:`points`, shape (N + K, 3, 3), or None (equal weights)."""
+        if self.sample_cov is None:
+            return None
+        n, k = len(self.samples), len(self.pose_mean)
+        out = np.empty((n + k, 3, 3))
+        out[:n] = self.sample_cov
+        if k:
+            out[n:] = self.pose_cov if self.pose_cov is not None else self.sample_cov
+        return out
+
+    def labelled(self) -> np.ndarray:
+        """Boolean mask of the poses with an up direction, shape (K,)."""
+        if self.up is None or not len(self.pose_mean):
+            return np.zeros(len(self.pose_mean), bool)
+        return np.isfinite(np.asarray(self.up, float)).all(axis=1)
+
+    def subset(self, samples: np.ndarray, poses: np.ndarray) -> MagData:
+        """The data restricted to the motion samples and poses selected (masks or indices)."""
+
+        def pick(a, idx):
+            return None if a is None else np.asarray(a)[idx]
+
+        return MagData(
+            self.samples[samples], self.pose_mean[poses], self.sample_cov,
+            pick(self.pose_cov, poses), pick(self.up, poses), pick(self.up_cov, poses),
+        )  # fmt: skip
+
+
+@dataclass
+class MagResult:
+    """Result of :func:`fit_magnetometer` (or :func:`fit_plain_ellipsoid`).
+
+    Attributes
+    ----------
+    bias : ndarray, shape (3,)
+        Hard-iron offset ``b``, raw units.
+    matrix : ndarray, shape (3, 3)
+        Soft-iron correction ``W``: ``calibrated = matrix @ (raw - bias)``, output units (``field``
+        units) per raw unit.  Aligned: output in the accelerometer frame; else symmetric.
+    field : float
+        ``F``, the magnitude every calibrated reading should have (uT, or 1: local field).
+    aligned : bool
+        Whether eq. (3) fixed the rotation (output in the accelerometer frame).
+    param_names, params, cov
+        ``b`` (raw units), the entries of ``W`` (9 row-major when aligned, else the 6 of a
+        symmetric matrix), and ``s`` (aligned only); their covariance.
+    inclination_deg, inclination_std_deg : float or None
+        Inclination of the field below the horizontal (positive: pointing down), degrees.
+    rotation : ndarray, shape (3, 3)
+        ``R`` of the polar decomposition ``W = R P`` (``P`` symmetric positive definite): maps
+        the magnetometer's own axes into the output frame.  Identity when not aligned.
+    rotation_std_deg : float or None
+        One-sigma uncertainty of ``R``, RMS over its three small-angle components, degrees.
+    residuals : ndarray, shape (N + K,)
+        ``|W (m - b)| - F`` of each motion sample, then each pose mean, output units.
+    dip_residuals_deg : ndarray, shape (K,)
+        Angle of each pose's field to gravity minus the fitted one, degrees (NaN unlabelled).
+    chi2, dof, noise_scale, weighting
+        Weighted residual sum of squares, degrees of freedom, the factor applied to ``cov``
+        (1 when the residuals agree with the noise, else ``chi2 / dof``), ``"noise"`` or
+        ``"equal"``.
+    init : str
+        ``"ellipsoid"`` or ``"sphere"`` (the algebraic start).
+    iterations, nfev, converged, message
+        Of the final Levenberg-Marquardt run.
+    notes : list of str
+        What the fit decided (e.g. why it did not align).
+    """
+
+    bias: np.ndarray
+    matrix: np.ndarray
+    field: float
+    aligned: bool
+    param_names: list[str]
+    params: np.ndarray
+    cov: np.ndarray
+    inclination_deg: float | None
+    inclination_std_deg: float | None
+    rotation: np.ndarray
+    rotation_std_deg: float | None
+    residuals: np.ndarray
+    dip_residuals_deg: np.ndarray
+    chi2: float
+    dof: int
+    noise_scale: float
+    weighting: str
+    init: str
+    iterations: int
+    nfev: int
+    converged: bool
+    message: str
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def std(self) -> np.ndarray:
+        """Standard deviations of ``params``."""
+        return np.sqrt(np.clip(np.diag(self.cov), 0, None))
+
+    def calibrate(self, raw: np.ndarray) -> np.ndarray:
+        """``matrix @ (raw - bias)`` for raw readings (..., 3)."""
+        return (np.asarray(raw, float) - self.bias) @ self.matrix.T
+
+
+# --------------------------------------------------------------------------------------------
+# Small helpers
+# --------------------------------------------------------------------------------------------
+
+
+def _sym(w: np.ndarray) -> np.ndarray:
+    W = np.empty((3, 3))
+    for value, (i, j) in zip(w, SYM_INDEX, strict=True):
+        W[i, j] = W[j, i] = value
+    return W
+
+
+def _sym_params(W: np.ndarray) -> np.ndarray:
+    return np.array([W[i, j] for i, j in SYM_INDEX])
+
+
+# --------------------------------------------------------------------------------------------
+# Residuals of eqs. (2) and (3) and their Jacobians, in normalised coordinates
+# --------------------------------------------------------------------------------------------
+
+
+class _Problem:
+    """Whitened residuals of eq. (2) over ``points`` and of eqs. (2) and (3) over the poses.
+
+    Coordinates are normalised: raw ``m`` -> ``(m - c0) / rho`` and the field to 1, so that
+    every parameter is of order one.  ``aligned`` selects the 9-entry ``W`` plus ``s``;
+    otherwise ``W`` is symmetric (6 entries) and there are no poses.  Each pose gives the pair
+    (eq. 2, eq. 3), whitened by ``white`` (K, 2, 2): both residuals come from the same mean
+    reading, so their errors correlate.
+    """
+
+    def __init__(self, points, w_mag, poses=None, up=None, white=None, shift=None,
+                 pose_shift=None, covs=None):  # fmt: skip
+        self.points, self.w_mag, self.covs = points, w_mag, covs
+        self.aligned = poses is not None
+        self.poses, self.up, self.white = poses, up, white
+        self.n_w = 9 if self.aligned else 6
+        # the mean the noise adds to each eq.-(2) residual (second order), held fixed
+        self.shift = np.zeros(len(points)) if shift is None else shift
+        self.pose_shift = (np.zeros(0 if poses is None else len(poses)) if pose_shift is None
+                           else pose_shift)  # fmt: skip
+
+    def unpack(self, x):
+        b = x[:3]
+        if self.aligned:
+            return b, x[3:12].reshape(3, 3), float(x[12])
+        return b, _sym(x[3:9]), None
+
+    def pack(self, b, W, s=None):
+        if self.aligned:
+            return np.concatenate([b, W.ravel(), [s]])
+        return np.concatenate([b, _sym_params(W)])
+
+    def _dW(self, a, d):
+        """d(a . W d)/d(params of W) for rows a (n, 3), d (n, 3): ``a_i d_j`` per entry."""
+        full = a[:, :, None] * d[:, None, :]  # (n, 3, 3)
+        if self.aligned:
+            return full.reshape(len(a), 9)
+        cols = [
+            full[:, i, j] if i == j else full[:, i, j] + full[:, j, i] for i, j in SYM_INDEX
+        ]
+        return np.column_stack(cols)
+
+    def _magnitude(self, pts, b, W, n_par):
+        d = pts - b
+        h = d @ W.T
+        r = np.linalg.norm(h, axis=1)
+        hu = h / r[:, None]
+        J = np.zeros((len(d), n_par))
+        J[:, :3] = -(hu @ W)
+        J[:, 3 : 3 + self.n_w] = self._dW(hu, d)
+        return r - 1.0, J, d, h, r, hu
+
+    def evaluate(self, x):
+        b, W, s = self.unpack(x)
+        n_par = len(x)
+        r, J1, *_ = self._magnitude(self.points, b, W, n_par)
+        res = [(r - self.shift) * self.w_mag]
+        jac = [J1 * self.w_mag[:, None]]
+        if self.aligned and len(self.poses):
+            rm, Jm, dk, _, rk, hku = self._magnitude(self.poses, b, W, n_par)
+            c = np.sum(self.up * hku, axis=1)
+            g = (self.up - c[:, None] * hku) / rk[:, None]  # d(u . h/|h|)/dh
+            Jd = np.zeros((len(dk), n_par))
+            Jd[:, :3] = -(g @ W)
+            Jd[:, 3:12] = self._dW(g, dk)
+            Jd[:, 12] = -1.0
+            pair = np.stack([rm - self.pose_shift, c - s], axis=1)  # (K, 2)
+            Jpair = np.stack([Jm, Jd], axis=1)  # (K, 2, p)
+            res.append(np.einsum("kij,kj->ki", self.white, pair).ravel())
+            jac.append((self.white @ Jpair).reshape(-1, n_par))
+        return np.concatenate(res), np.concatenate(jac)
+
+    def solve(self, x0, max_nfev):
+        cache = {}
+
+        def both(x):
+            key = x.tobytes()
+            if key not in cache:
+                cache.clear()
+                cache[key] = self.evaluate(x)
+            return cache[key]
+
+        return least_squares(
+            lambda x: both(x)[0], x0, jac=lambda x: both(x)[1], method="lm", x_scale="jac",
+            xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=max_nfev,
+        )  # fmt: skip
+
+
+def _magnitude_sigma(points, covs, b, W):
+    """Standard deviation of each point's eq.-(2) residual, normalised units."""
+    h = (points - b) @ W.T
+    r = np.linalg.norm(h, axis=1)
+    v = (h / r[:, None]) @ W
+    return np.sqrt(np.clip(np.einsum("ni,nij,nj->n", v, covs, v), 0, None))
+
+
+def _magnitude_shift(points, covs, b, W) -> np.ndarray:
+    """Mean of each point's eq.-(2) residual from its noise alone, to second order:
+    ``tr(P W Sigma W^T) / (2 |h|)`` with ``P`` the projection across ``h``."""
+    if covs is None:
+        return np.zeros(len(points))
+    h = (points - b) @ W.T
+    r = np.linalg.norm(h, axis=1)
+    hu = h / r[:, None]
+    C = W[None] @ covs @ W.T[None]  # (n, 3, 3) output covariance
+    across = np.trace(C, axis1=1, axis2=2) - np.einsum("ni,nij,nj->n", hu, C, hu)
+    return across / (2.0 * r)
+
+
+def _pose_pair_cov(poses, covs, up, up_cov, b, W):
+    """Covariance (K, 2, 2) of each pose's residual pair (eq. 2, eq. 3).
+
+    Covariance of the pair: the mean reading's noise through both gradients (correlated), plus
+    the accelerometer direction's noise on eq. (3).  ``covs`` None: unit variance, no
+    correlation (equal weighting).
+    """
+    K = len(poses)
+    if covs is None:
+        return np.broadcast_to(np.eye(2), (K, 2, 2)).copy()
+    h = (poses - b) @ W.T
+    r = np.linalg.norm(h, axis=1)
+    hu = h / r[:, None]
+    c = np.sum(up * hu, axis=1)
+    g = (up - c[:, None] * hu) / r[:, None]
+    G = np.stack([hu @ W, g @ W], axis=1)  # (K, 2, 3) gradients by the raw mean
+    C = G @ covs @ np.swapaxes(G, 1, 2)
+    if up_cov is not None:
+        q = hu - c[:, None] * up  # d(u . h/|h|)/du along the sphere of u
+        C[:, 1, 1] += np.einsum("ni,nij,nj->n", q, up_cov, q)
+    # floor: a pose whose readings never changed would get an infinite weight
+    scale = np.median(np.trace(C, axis1=1, axis2=2)) if K else 1.0
+    return C + 1e-6 * max(scale, 1e-300) * np.eye(2)
+
+
+def _whiten(C: np.ndarray) -> np.ndarray:
+    """``L^-1`` with ``C = L L^T``, per pose."""
+    return np.linalg.inv(np.linalg.cholesky(C))
+
+
+def _weights(sig: np.ndarray) -> np.ndarray:
+    # A reading whose noise is zero would get an infinite weight: floor each sigma at a
+    # thousandth of the median.
+    positive = sig[sig > 0]
+    floor = 1e-3 * np.median(positive) if len(positive) else 1.0
+    return 1.0 / np.maximum(sig, floor)
+
+
+# --------------------------------------------------------------------------------------------
+# The fit
+# --------------------------------------------------------------------------------------------
+
+
+def fit_plain_ellipsoid(data: MagData, field: float = 1.0) -> MagResult:
+    """The algebraic ellipsoid fit alone (what the hobby tools do): symmetric ``W``, no weights,
+    no alignment.  Standard deviations from the Jacobian of eq. (2) at that solution."""
+    points = data.points
+    _check_points(points)
+    c, P, kind = ellipsoid_start(points)
+    n = len(points)
+    prob = _Problem(points, np.ones(n))
+    x = prob.pack(c, P)
+    r, J = prob.evaluate(x)
+    return _result(
+        prob, x, r, J, field, weighting="equal", init=kind, sol=None, data=data, notes=[]
+    )
+
+
+#: Readings whose thinnest principal spread is below this fraction of the widest lie in one
+#: plane (turns about one axis only): hard and soft iron across that plane are not seen.
+MIN_FLATNESS = 0.05
+
+
+def _check_points(points: np.ndarray) -> None:
+    if len(points) < 9:
+        raise DesignError(
+            f"{len(points)} magnetometer readings cannot determine the 9 parameters of hard and "
+            "soft iron; record the unit turning through every direction"
+        )
+    spread = np.sqrt(np.clip(np.linalg.eigvalsh(np.cov(points, rowvar=False)), 0, None))
+    if spread[-1] == 0:
+        raise DesignError(
+            "every magnetometer reading is the same: the sensor is stuck or not connected"
+        )
+    if spread[0] < MIN_FLATNESS * spread[-1]:
+        raise DesignError(
+            "the magnetometer readings lie in one plane (the unit was turned about one axis "
+            "only, e.g. flat on a table), which leaves hard and soft iron across it "
+            "undetermined; turn the unit through every direction: a slow figure-eight, then "
+            "each face up"
+        )
+
+
+def fit_magnetometer(
+    data: MagData, field: float = 1.0, *, align: bool = True, max_iterations: int = 100
+) -> MagResult:
+    """Calibrate a magnetometer triad by maximum likelihood on eqs. (2) and (3).
+
+    Parameters
+    ----------
+    data : MagData
+        Readings of the motion and of the static poses, their noise, and the up directions.
+    field : float
+        ``F``: the local field magnitude the output should have (uT), or 1 when unknown (the
+        output is then in units of the local field).
+    align : bool
+        Use eq. (3) to rotate the output onto the accelerometer frame (needs at least
+        :data:`MIN_ALIGN_POSES` poses with up directions that are not all parallel).
+    max_iterations : int
+        Function evaluations of each Levenberg-Marquardt run.
+
+    Returns
+    -------
+    MagResult
+
+    Raises
+    ------
+    DesignError
+        Fewer than 9 readings, or readings that leave hard and soft iron undetermined (they
+        cover too little of the sphere).
+    SolverError
+        No convergence within ``max_iterations``.
+    """
+    points = data.points
+    _check_points(points)
+    if not field > 0:
+        raise ValueError("field must be positive")
+    c, P, kind = ellipsoid_start(points)
+    rho = 1.0 / float(np.cbrt(abs(np.linalg.det(P))))  # mean radius, raw units
+    notes: list[str] = []
+
+    pts_n = (points - c) / rho
+    covs = data.point_covs()
+    covs_n = None if covs is None else covs / rho**2
+    weighting = "equal" if covs is None else "noise"
+    b0, W0 = np.zeros(3), P * rho
+
+    # ---- magnitude only, symmetric gauge (eq. 2)
+    w_mag = np.ones(len(points))
+    if covs_n is not None:
+        w_mag = _weights(_magnitude_sigma(pts_n, covs_n, b0, W0))
+    prob = _Problem(pts_n, w_mag, shift=_magnitude_shift(pts_n, covs_n, b0, W0))
+    sol = prob.solve(prob.pack(b0, W0), max_iterations)
+    _check_converged(sol, max_iterations)
+    b1, W1, _ = prob.unpack(sol.x)
+
+    # ---- rotation onto the accelerometer frame (eq. 3)
+    fit = _aligned(data, pts_n, covs_n, rho, b1, W1, max_iterations, notes) if align else None
+    aligned = fit is not None
+    if aligned:
+        prob, sol = fit
+    if not aligned and covs_n is not None:  # second pass, weights at the solution
+        w_mag = _weights(_magnitude_sigma(pts_n, covs_n, b1, W1))
+        prob = _Problem(pts_n, w_mag, shift=_magnitude_shift(pts_n, covs_n, b1, W1),
+                        covs=covs_n)  # fmt: skip
+        sol2 = prob.solve(sol.x, max_iterations)
+        sol = sol2 if sol2.status > 0 else sol
+    x = sol.x
+    r, J = prob.evaluate(x)
+    if prob.covs is not None:
+        x = x + _bias_step(prob, x, J)
+        r, J = prob.evaluate(x)
+    if _conditioning(J) <= 1e-6:
+        raise DesignError(
+            "the magnetometer readings leave hard and soft iron undetermined (they lie in one "
+            "plane or cone of directions, e.g. turned flat on a table); turn the unit through "
+            "every direction: a slow figure-eight, then each face up"
+        )
+    return _result(  # back to raw units
+        prob, x, r, J, field, weighting=weighting, init=kind, sol=sol, data=data, notes=notes,
+        scale=(c, rho),
+    )  # fmt: skip
+
+
+def _can_align(data: MagData, notes: list[str]) -> bool:
+    """Whether the poses can fix the rotation by eq. (3): at least :data:`MIN_ALIGN_POSES`
+    with an up direction, not all parallel; else a note says why not."""
+    labelled = data.labelled()
+    if labelled.sum() < MIN_ALIGN_POSES:
+        notes.append(
+            f"not aligned to the accelerometer: {int(labelled.sum())} static poses with an "
+            f"accelerometer direction, at least {MIN_ALIGN_POSES} needed"
+        )
+        return False
+    if _max_angle_deg(np.asarray(data.up, float)[labelled]) < MIN_UP_SPREAD_DEG:
+        notes.append(
+            "not aligned to the accelerometer: the static poses share one gravity direction "
+            "(the rotation about it is free); hold the unit with different faces up"
+        )
+        return False
+    return True
+
+
+def _aligned(data: MagData, pts_n, covs_n, rho, b1, W1, max_iterations, notes):
+    """The joint fit of eqs. (2) and (3) in normalised coordinates, started from the symmetric
+    solution ``(b1, W1)``: ``(problem, solution)``, or None (a note says why not)."""
+    if not _can_align(data, notes):
+        return None
+    labelled = data.labelled()
+    n = len(data.samples)
+    rest = np.r_[np.ones(n, bool), ~labelled]  # magnitude-only readings
+    pose_covs_n = (
+        None if covs_n is None or data.pose_cov is None
+        else np.asarray(data.pose_cov, float)[labelled] / rho**2
+    )  # fmt: skip
+    up_cov = None if data.up_cov is None else np.asarray(data.up_cov, float)[labelled]
+    fit = _aligned_fit(
+        pts_n[rest], None if covs_n is None else covs_n[rest], pts_n[n:][labelled],
+        pose_covs_n, np.asarray(data.up, float)[labelled], up_cov, b1, W1, max_iterations,
+    )  # fmt: skip
+    if isinstance(fit, str):
+        notes.append(fit)
+        return None
+    return fit
+
+
+def _bias_step(prob: _Problem, x: np.ndarray, J: np.ndarray) -> np.ndarray:
+    """The step that takes out the second-order bias of eq. (2)'s estimating equation.
+
+    At the truth ``E[sum w^2 J_i r_i] = sum w^2 cov(J_i, r_i)`` is not zero, because a
+    reading's Jacobian row moves with its own noise.  With ``g = W^T h^`` (``r``'s gradient by
+    the reading) and ``A = (I - h^ h^T) W / |h|`` (``h^``'s), ``cov(J_b, r) = -W^T A Sigma g``
+    and ``cov(J_W_ij, r) = (A Sigma g)_i d_j + h^_i (Sigma g)_j``.  The estimate is biased by
+    ``-(J^T J)^-1`` times their weighted sum; this returns the opposite.
+    """
+    b, W, _ = prob.unpack(x)
+    d = prob.points - b
+    h = d @ W.T
+    r = np.linalg.norm(h, axis=1)
+    hu = h / r[:, None]
+    Sg = np.einsum("nij,nj->ni", prob.covs, hu @ W)  # Sigma g
+    v = Sg @ W.T
+    ASg = (v - np.sum(v * hu, axis=1, keepdims=True) * hu) / r[:, None]
+    w2 = prob.w_mag**2
+    c = np.zeros(J.shape[1])
+    c[:3] = -(w2 @ (ASg @ W))
+    c[3 : 3 + prob.n_w] = w2 @ (prob._dW(ASg, d) + prob._dW(hu, Sg))
+    return np.linalg.solve(J.T @ J, c)
+
+
+def _conditioning(J: np.ndarray) -> float:
+    """Smallest over largest singular value of ``J`` with unit columns (cheap for tall J)."""
+    norms = np.linalg.norm(J, axis=0)
+    Jn = J / np.where(norms > 0, norms, 1.0)
+    lam = np.linalg.eigvalsh(Jn.T @ Jn)
+    return float(np.sqrt(max(lam[0], 0.0) / lam[-1])) if lam[-1] > 0 else 0.0
+
+
+def _check_converged(sol, max_iterations: int) -> None:
+    if sol.status <= 0:
+        raise SolverError(
+            f"the magnetometer fit did not converge in {max_iterations} iterations "
+            f"({sol.message}); turn the unit slowly through every direction, away from steel "
+            "and magnets"
+        )
+
+
+def _aligned_fit(pts_n, covs_n, poses_n, pose_covs_n, up, up_cov, b1, W1, max_iter):
+    """Joint fit of eqs. (2) and (3): ``(problem, solution)``, or why it could not align."""
+
+    def problem(b, W):
+        w = np.ones(len(pts_n)) if covs_n is None else _weights(
+            _magnitude_sigma(pts_n, covs_n, b, W))
+        C = _pose_pair_cov(poses_n, pose_covs_n, up, up_cov, b, W)
+        shifts = (_magnitude_shift(pts_n, covs_n, b, W),
+                  _magnitude_shift(poses_n, pose_covs_n, b, W))  # fmt: skip
+        return _Problem(pts_n, w, poses_n, up, _whiten(C), *shifts, covs=covs_n), C
+
+    h = (poses_n - b1) @ W1.T
+    n_dir = h / np.linalg.norm(h, axis=1, keepdims=True)
+    prob, C = problem(b1, W1)
+    R0, s0 = rotation_start(n_dir, up, 1.0 / np.sqrt(C[:, 1, 1]))
+    sol = prob.solve(prob.pack(b1, R0 @ W1, s0), max_iter)
+    if sol.status <= 0:
+        return (
+            f"not aligned to the accelerometer: the joint fit with the static poses did not "
+            f"converge in {max_iter} iterations ({sol.message})"
+        )
+    if covs_n is not None:  # second pass, weights at the solution
+        b, W, _ = prob.unpack(sol.x)
+        prob, _ = problem(b, W)
+        sol2 = prob.solve(sol.x, max_iter)
+        sol = sol2 if sol2.status > 0 else sol
+    _, J = prob.evaluate(sol.x)
+    if _conditioning(J[:, 3:]) <= 1e-6:
+        return (
+            "not aligned to the accelerometer: the static poses leave the rotation undetermined; "
+            "hold the unit with different faces up"
+        )
+    return prob, sol
+
+
+def _result(prob, x, r, J, field, *, weighting, init, sol, data, notes, scale=None):
+    """Assemble a :class:`MagResult` in raw units from the normalised solution."""
+    if scale is None:  # the plain fit works in raw units with field 1
+        c, rho = np.zeros(3), 1.0
+    else:
+        c, rho = scale
+    b_n, W_n, s = prob.unpack(x)
+    bias = c + rho * b_n
+    matrix = field * W_n / rho
+    n_res = len(r)
+    n_par = len(x)
+    dof = n_res - n_par
+    chi2 = float(r @ r)
+    JtJ = J.T @ J
+    cov_n = np.linalg.pinv(JtJ, hermitian=True)
+    if weighting == "noise":
+        noise_scale = 1.0
+        if dof > 0 and chi2 > chdtri(dof, 0.01):
+            noise_scale = chi2 / dof
+    else:
+        noise_scale = chi2 / dof if dof > 0 else float("nan")
+    T = np.r_[np.full(3, rho), np.full(prob.n_w, field / rho), np.ones(n_par - 3 - prob.n_w)]
+    cov = noise_scale * (T[:, None] * cov_n * T[None, :])
+    params = np.r_[bias, W_n.ravel() * field / rho if prob.aligned else _sym_params(matrix)]
+    if prob.aligned:
+        params = np.r_[params, s]
+        names = list(PARAM_NAMES_ALIGNED)
+    else:
+        names = list(PARAM_NAMES_SYMMETRIC)
+
+    residuals = np.linalg.norm((data.points - bias) @ matrix.T, axis=1) - field
+    dip = np.full(len(data.pose_mean), np.nan)
+    inc = inc_std = rot_std = None
+    R = np.eye(3)
+    if prob.aligned:
+        labelled = data.labelled()
+        h = (data.pose_mean[labelled] - bias) @ matrix.T
+        up = np.asarray(data.up, float)[labelled]
+        ang = np.degrees(np.arccos(np.clip(np.sum(up * h, axis=1) / np.linalg.norm(h, axis=1),
+                                           -1, 1)))  # fmt: skip
+        dip[labelled] = ang - np.degrees(np.arccos(np.clip(s, -1, 1)))
+        inc = float(np.degrees(np.arcsin(np.clip(-s, -1, 1))))
+        inc_std = float(np.degrees(np.sqrt(cov[-1, -1]) / max(np.sqrt(1 - s * s), 1e-9)))
+        R, _ = polar(matrix)
+        rot_std = _rotation_std_deg(matrix, cov[3:12, 3:12])
+    return MagResult(
+        bias=bias,
+        matrix=matrix,
+        field=float(field),
+        aligned=bool(prob.aligned),
+        param_names=names,
+        params=params,
+        cov=cov,
+        inclination_deg=inc,
+        inclination_std_deg=inc_std,
+        rotation=R,
+        rotation_std_deg=rot_std,
+        residuals=residuals,
+        dip_residuals_deg=dip,
+        chi2=chi2,
+        dof=int(dof),
+        noise_scale=float(noise_scale),
+        weighting=weighting,
+        init=init,
+        iterations=0 if sol is None else int(sol.njev or 0),
+        nfev=0 if sol is None else int(sol.nfev),
+        converged=True if sol is None else bool(sol.status > 0),
+        message="algebraic fit" if sol is None else str(sol.message),
+        notes=list(notes),
+    )
+
+
+def _rotation_std_deg(W: np.ndarray, cov_W: np.ndarray) -> float:
+    """RMS one-sigma of the small-angle rotation of ``R`` in ``W = R P`` (delta method)."""
+    R0, _ = polar(W)
+    J = np.empty((3, 9))
+    eps = 1e-7 * max(np.abs(W).max(), 1e-300)
+    for k in range(9):
+        dW = np.zeros(9)
+        dW[k] = eps
+        Rp, _ = polar(W + dW.reshape(3, 3))
+        Rm, _ = polar(W - dW.reshape(3, 3))
+        J[:, k] = (Rotation.from_matrix(Rp @ R0.T).as_rotvec()
+                   - Rotation.from_matrix(Rm @ R0.T).as_rotvec()) / (2 * eps)  # fmt: skip
+    cov_phi = J @ cov_W @ J.T
+    return float(np.degrees(np.sqrt(max(np.trace(cov_phi), 0.0) / 3)))
+
+
+def held_out_residuals(
+    data: MagData,
+    folds_samples: np.ndarray,
+    folds_poses: np.ndarray,
+    field: float = 1.0,
+    *,
+    align: bool = True,
+    max_iterations: int = 100,
+) -> np.ndarray:
+    """Eq.-(2) residual of every reading predicted by a fit that did not see it (k-fold).
+
+    Parameters
+    ----------
+    folds_samples, folds_poses : ndarray of int, shapes (N,), (K,)
+        Fold number of each motion sample and pose (0 .. k-1).
+
+    Returns
+    -------
+    ndarray, shape (N + K,)
+        ``|W_(-f) (m - b_(-f))| - F`` per reading, NaN where its fold could not be fitted.
+    """
+    out = np.full(len(data.samples) + len(data.pose_mean), np.nan)
+    n = len(data.samples)
+    for f in np.unique(np.r_[folds_samples, folds_poses]):
+        train = data.subset(folds_samples != f, folds_poses != f)
+        try:
+            res = fit_magnetometer(train, field, align=align, max_iterations=max_iterations)
+        except (DesignError, SolverError):
+            continue
+        test_s, test_p = folds_samples == f, folds_poses == f
+        for idx, pts in ((np.flatnonzero(test_s), data.samples[test_s]),
+                         (n + np.flatnonzero(test_p), data.pose_mean[test_p])):  # fmt: skip
+            if len(pts):
+                out[idx] = np.linalg.norm(res.calibrate(pts), axis=1) - field
+    return out
+
+
+def residual_sigmas(result: MagResult, data: MagData) -> np.ndarray:
+    """Standard deviation the noise alone gives each reading's eq.-(2) residual, output units.
+
+    Shape (N + K,) in the order of :attr:`MagData.points`; NaN without a noise model.
+    """
+    covs = data.point_covs()
+    if covs is None:
+        return np.full(len(data.points), np.nan)
+    return _magnitude_sigma(data.points, covs, result.bias, result.matrix)

@@ -1,0 +1,336 @@
+"""The accelerometer's bias temperature model fitted jointly with its gravity-magnitude model.
+
+Qureshi & Golnaraghi's static model (eq. 8) with a bias that follows the temperature of each
+pose (the formats page's ``bias_tempco``)::
+
+    h_k = M (a_k - B - sum_j c_j (T_k - T_ref)^j),        |h_k| = g              (8), (11)
+
+``M`` upper triangular (eq. 3), ``B`` the bias at ``T_ref``, ``c_j`` (3,) the coefficients of
+degree ``j`` per channel (raw units per C^j). Poses held at different temperatures during a
+warm-up or a hair-dryer ramp separate the temperature terms from the bias: a bias error
+changes ``|h|`` differently in different orientations, so each channel's bias is observable at
+every temperature the poses visit.
+
+The minimised quantity is eq. (11)'s, ``(|h_k|^2 - g^2) / (2 g)`` in m/s^2, weighted by each
+pose mean's noise (as :mod:`imucal_cli.estimators.accel.gravity` does), by Levenberg-Marquardt with
+the analytic Jacobian: the temperature columns are the bias columns times ``(T_k -
+T_ref)^j``. Each channel's degree (at most 3) is chosen by backward elimination: the least
+significant top term of any channel is dropped while the F-test of its drop in chi^2 is not
+significant (:data:`imucal_cli.estimators.thermal.temperature.SELECT_P`).
+
+The fit gives the temperature terms and their covariance; the calibration itself (any
+accelerometer solver) is then run on the pose means with the temperature terms taken out.
+:attr:`JointResult.bias_var_extra` is what the temperature terms' uncertainty adds to the
+bias variance (joint minus conditional), for the solver's bias standard deviations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.stats import chi2 as chi2_dist
+
+from imucal_cli.errors import DesignError, SolverError
+from imucal_cli.estimators.accel.gravity import model_to_params, params_to_model
+from imucal_cli.estimators.thermal.temperature import (
+    MAX_DEGREE,
+    MIN_SPAN_C,
+    SELECT_P,
+    check_span,
+    f1_pvalue,
+)
+
+__all__ = ["JointResult", "fit_gravity_tempco"]
+
+#: A Jacobian with a singular value below this fraction of the largest leaves the model
+#: undetermined.
+UNDETERMINED = 1e-9
+
+
+@dataclass
+class JointResult:
+    """Result of :func:`fit_gravity_tempco`.
+
+    Attributes
+    ----------
+    bias : ndarray (3,)
+        ``B`` at ``temperature_ref``, raw units.
+    M : ndarray (3, 3)
+        Upper-triangular matrix, m/s^2 per raw unit.
+    temperature_ref, t_min, t_max : float
+        ``T_ref`` and the range of the poses' temperatures, degrees C.
+    degree : ndarray of int (3,)
+        Chosen degree per channel.
+    tempco, tempco_std : ndarray (K, 3)
+        ``bias_tempco`` and its standard deviations (0 above a channel's degree), raw units
+        per C^k.
+    bias_var_extra : ndarray (3,)
+        Variance the temperature terms add to each bias (joint minus conditional on them).
+    residuals : ndarray (N,)
+        ``|h_k| - g`` per pose, m/s^2.
+    chi2, dof, noise_scale
+        Weighted residual sum of squares, its degrees of freedom, and the covariance factor
+        (``chi2/dof`` when beyond the 99th percentile of chi^2, else 1).
+    tests : list of dict
+        The backward elimination: each dropped or kept top term's ``channel``, ``degree``,
+        ``F``, ``dof``, ``p_value`` and ``kept``.
+    nfev : int
+        Function evaluations of all fits.
+    """
+
+    bias: np.ndarray
+    M: np.ndarray
+    temperature_ref: float
+    t_min: float
+    t_max: float
+    degree: np.ndarray
+    tempco: np.ndarray
+    tempco_std: np.ndarray
+    bias_var_extra: np.ndarray
+    residuals: np.ndarray
+    chi2: float
+    dof: int
+    noise_scale: float
+    tests: list[dict] = field(default_factory=list)
+    nfev: int = 0
+
+
+class _Model:
+    """Residuals and Jacobian of eq. (11) with the temperature terms, in normalised units:
+    ``a_n = (a - offset) / scale`` and ``tau = (T - T_ref) / t_scale``."""
+
+    def __init__(self, a_mean, T, t_ref, g, w, B0, M0):
+        self.offset = np.asarray(B0, float).copy()
+        d = np.abs(np.diag(M0))
+        self.scale = 1.0 / float(np.mean(d)) if np.all(d > 0) else 1.0
+        self.a_n = (a_mean - self.offset) / self.scale
+        self.t_scale = max(float(np.max(np.abs(T - t_ref))), 1e-9)
+        self.tau = (T - t_ref) / self.t_scale
+        self.g, self.w, self.t_ref = g, w, t_ref
+
+    def columns(self, degree):
+        """The (power, channel) of each temperature parameter, in order."""
+        return [(j, c) for c in range(3) for j in range(1, degree[c] + 1)]
+
+    def start(self, B, M, degree):
+        x = model_to_params((B - self.offset) / self.scale, M * self.scale)
+        return np.r_[x, np.zeros(len(self.columns(degree)))]
+
+    def residuals_and_jacobian(self, x, degree):
+        cols = self.columns(degree)
+        B, M = params_to_model(x[:9])
+        shift = np.zeros_like(self.a_n)
+        for (j, c), v in zip(cols, x[9:], strict=True):
+            shift[:, c] += v * self.tau**j
+        d = self.a_n - B - shift
+        h = d @ M.T  # eq. (8)
+        g = self.g
+        r = (np.sum(h * h, axis=1) - g * g) / (2 * g)  # eq. (11)
+        J = np.empty((len(d), 9 + len(cols)))
+        J[:, :3] = -(h @ M) / g
+        up = (np.array([0, 1, 2, 0, 0, 1]), np.array([0, 1, 2, 1, 2, 2]))
+        J[:, 3:9] = (h[:, up[0]] * d[:, up[1]]) / g
+        for i, (j, c) in enumerate(cols):
+            J[:, 9 + i] = J[:, c] * self.tau**j
+        return r * self.w, J * self.w[:, None]
+
+    def raw(self, x, degree):
+        """``(B, M, tempco (K, 3))`` in raw units from a normalised parameter vector."""
+        Bn, Mn = params_to_model(x[:9])
+        K = int(max(degree, default=0))
+        tc = np.zeros((K, 3))
+        for (j, c), v in zip(self.columns(degree), x[9:], strict=True):
+            tc[j - 1, c] = v * self.scale / self.t_scale**j
+        return self.offset + self.scale * Bn, Mn / self.scale, tc
+
+    def to_raw_jacobian(self, degree) -> np.ndarray:
+        """Diagonal factors from normalised to raw parameters (B, upper M, tempco)."""
+        t = [self.scale / self.t_scale**j for j, _ in self.columns(degree)]
+        return np.r_[np.full(3, self.scale), np.full(6, 1.0 / self.scale), t]
+
+
+@dataclass
+class _Fit:
+    x: np.ndarray
+    f: np.ndarray
+    J: np.ndarray
+    nfev: int
+
+    @property
+    def chi2(self) -> float:
+        return float(self.f @ self.f)
+
+
+def _solve(model: _Model, x0: np.ndarray, degree, max_iterations: int) -> _Fit | None:
+    """Levenberg-Marquardt from ``x0`` for the temperature terms of ``degree``; None where the
+    poses do not determine them (or it does not converge)."""
+
+    def fun(v):
+        return model.residuals_and_jacobian(v, degree)[0]
+
+    def jac(v):
+        return model.residuals_and_jacobian(v, degree)[1]
+
+    if len(fun(x0)) <= len(x0):
+        return None
+    sol = least_squares(fun, x0, jac=jac, method="lm", x_scale="jac", xtol=1e-12, ftol=1e-12,
+                        gtol=1e-12, max_nfev=max_iterations)  # fmt: skip
+    if not sol.success or not np.all(np.isfinite(sol.x)):
+        return None
+    f, J = model.residuals_and_jacobian(sol.x, degree)
+    sv = np.linalg.svd(J, compute_uv=False)
+    if sv[-1] <= UNDETERMINED * sv[0]:
+        return None
+    return _Fit(sol.x, f, J, int(sol.nfev))
+
+
+def _pose_weights(a_mean, cov_mean, B, M) -> np.ndarray:
+    """1 / the standard deviation of each pose's eq.-(11) residual (floored as gravity's)."""
+    if cov_mean is None:
+        return np.ones(len(a_mean))
+    h = (a_mean - B) @ M.T
+    u = h / np.linalg.norm(h, axis=1, keepdims=True)
+    v = u @ M
+    sig = np.sqrt(np.clip(np.einsum("ni,nij,nj->n", v, cov_mean, v), 0, None))
+    floor = 0.1 * np.median(sig[sig > 0]) if np.any(sig > 0) else 1.0
+    return 1.0 / np.maximum(sig, floor)
+
+
+def fit_gravity_tempco(
+    a_mean: np.ndarray,
+    temperature: np.ndarray,
+    g: float,
+    start: tuple[np.ndarray, np.ndarray],
+    *,
+    cov_mean: np.ndarray | None = None,
+    temperature_ref: float | None = None,
+    max_degree: int = MAX_DEGREE,
+    min_span_c: float = MIN_SPAN_C,
+    select_p: float = SELECT_P,
+    max_iterations: int = 400,
+    what: str = "the poses",
+) -> JointResult:
+    """Fit the gravity-magnitude model with a temperature-dependent bias.
+
+    Parameters
+    ----------
+    a_mean : ndarray, shape (N, 3)
+        Mean raw accelerometer reading of each static pose, raw units.
+    temperature : ndarray, shape (N,)
+        Mean temperature of each pose, degrees C.
+    g : float
+        Local gravity, m/s^2.
+    start : (B, M)
+        A calibration to start from (bias (3,) raw units, matrix (3, 3)): an ordinary fit of
+        the same poses.
+    cov_mean : ndarray, shape (N, 3, 3), optional
+        Covariance of each pose mean, raw units^2 (weights; absolute covariance).
+    temperature_ref : float, optional
+        ``T_ref``; default the mean pose temperature.
+    max_degree, min_span_c, select_p
+        As :func:`imucal_cli.estimators.thermal.temperature.fit_tempco`.
+    max_iterations : int
+        Function evaluations of each Levenberg-Marquardt run.
+
+    Raises
+    ------
+    DesignError
+        A span under ``min_span_c``, or poses that cannot determine even a linear term with
+        the 9 parameters.
+    SolverError
+        No convergence.
+    """
+    a_mean = np.asarray(a_mean, float)
+    T = np.asarray(temperature, float)
+    if a_mean.ndim != 2 or a_mean.shape[1] != 3 or len(T) != len(a_mean):
+        raise DesignError(f"{what}: the joint temperature fit needs a 3-channel accelerometer "
+                          "and one temperature per pose")  # fmt: skip
+    if not np.isfinite(T).all():
+        raise DesignError(f"{what}: a pose without a temperature reading")
+    check_span(T, what, min_span_c)
+    t_ref = float(np.mean(T)) if temperature_ref is None else float(temperature_ref)
+    B0, M0 = (np.asarray(v, float) for v in start)
+    w = _pose_weights(a_mean, None if cov_mean is None else np.asarray(cov_mean, float), B0, M0)
+    model = _Model(a_mean, T, t_ref, g, w, B0, M0)
+    nfev = 0
+    fit, degree = None, None
+    for d in range(max_degree, 0, -1):  # the highest degree the poses determine
+        degree = [d, d, d]
+        fit = _solve(model, model.start(B0, M0, degree), degree, max_iterations)
+        if fit is not None:
+            nfev += fit.nfev
+            break
+    if fit is None:
+        raise DesignError(
+            f"{what}: {len(T)} poses cannot determine the gravity-magnitude model with a "
+            "temperature-dependent bias: capture more poses (faces and 45-degree edges) while "
+            "the temperature changes, or record a still warm-up (plan warmup:MINUTES)"
+        )
+    fit, degree, tests, n = _eliminate(model, fit, degree, select_p, max_iterations)
+    return _package(model, fit, degree, T, tests, nfev + n, cov_mean is not None)
+
+
+def _eliminate(model, fit, degree, select_p, max_iterations):
+    """Backward elimination of top terms over the three channels."""
+    tests, nfev = [], 0
+    while any(degree):
+        dof = len(fit.f) - len(fit.x)
+        candidates = []
+        for c in range(3):
+            if degree[c] == 0:
+                continue
+            smaller = list(degree)
+            smaller[c] -= 1
+            prev = dict(zip(model.columns(degree), fit.x[9:], strict=True))
+            x0 = np.r_[fit.x[:9], [prev[jc] for jc in model.columns(smaller)]]
+            sub = _solve(model, x0, smaller, max_iterations)
+            if sub is None:
+                continue
+            nfev += sub.nfev
+            F = max(sub.chi2 - fit.chi2, 0.0) / max(fit.chi2 / dof, 1e-300)
+            p = f1_pvalue(F, dof)
+            candidates.append((p, c, F, dof, sub, smaller))
+        if not candidates:
+            break
+        p, c, F, dof, sub, smaller = max(candidates, key=lambda t: t[0])
+        kept = p < select_p
+        tests.append({"channel": "xyz"[c], "degree": degree[c], "F": float(F),
+                      "dof": [1, int(dof)], "p_value": p, "kept": kept})  # fmt: skip
+        if kept:
+            break
+        fit, degree = sub, smaller
+    return fit, degree, tests, nfev
+
+
+def _package(model, fit, degree, T, tests, nfev, weighted) -> JointResult:
+    dof = len(fit.f) - len(fit.x)
+    chi2 = fit.chi2
+    if weighted:
+        noise_scale = chi2 / dof if dof > 0 and chi2 > chi2_dist.isf(0.01, dof) else 1.0
+    else:
+        noise_scale = chi2 / dof
+    D = model.to_raw_jacobian(degree)
+    JtJ = fit.J.T @ fit.J
+    cov = noise_scale * np.linalg.inv(JtJ) * np.outer(D, D)
+    cond = noise_scale * np.linalg.inv(JtJ[:9, :9]) * np.outer(D[:9], D[:9])
+    B, M, tc = model.raw(fit.x, degree)
+    if not np.all(np.isfinite(B)):
+        raise SolverError("the joint temperature fit did not converge")
+    K = tc.shape[0]
+    std = np.zeros((K, 3))
+    for i, (j, c) in enumerate(model.columns(degree)):
+        std[j - 1, c] = np.sqrt(max(cov[9 + i, 9 + i], 0.0))
+    shift = np.zeros_like(model.a_n)
+    for (j, c), v in zip(model.columns(degree), fit.x[9:], strict=True):
+        shift[:, c] += v * model.tau**j
+    Bn, Mn = params_to_model(fit.x[:9])
+    h = (model.a_n - Bn - shift) @ Mn.T
+    extra = np.clip(np.diag(cov)[:3] - np.diag(cond)[:3], 0, None)
+    return JointResult(
+        bias=B, M=M, temperature_ref=model.t_ref,
+        t_min=float(T.min()), t_max=float(T.max()), degree=np.array(degree, int), tempco=tc,
+        tempco_std=std, bias_var_extra=extra, residuals=np.linalg.norm(h, axis=1) - model.g,
+        chi2=chi2, dof=int(dof), noise_scale=float(noise_scale), tests=tests, nfev=nfev,
+    )  # fmt: skip

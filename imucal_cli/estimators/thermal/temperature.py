@@ -1,0 +1,429 @@
+"""Temperature dependence of a sensor's bias: each channel's bias a polynomial in temperature.
+
+Model (the formats page's ``temperature_ref`` and ``bias_tempco``)::
+
+    bias(T) = bias + sum_{k=1..K} c_k (T - T_ref)^k          raw units, per channel
+
+This module fits the polynomial to points ``(T_i, y_i)`` of one channel or several: the means
+of a still warm-up recording over short blocks of time (the level is gravity's projection
+plus the bias, or the gyro's bias itself), or the means of still periods at different
+temperatures (gyro, several sessions). Each point may have its own level (``groups``: a unit
+put down in another orientation keeps the same temperature curve). The joint fit inside the
+accelerometer's gravity-magnitude model is :mod:`imucal_cli.estimators.thermal.joint`.
+
+**Degree** (at most :data:`MAX_DEGREE`): backward elimination, per channel. The highest term
+is dropped while an F-test of the drop in the residual sum of squares, against the residual
+variance of the larger model, is not significant at :data:`SELECT_P`; degree 0 means no
+significant dependence. A polynomial is only fitted where the design can determine it (more
+distinct temperatures than terms, residual degrees of freedom left).
+
+**Correlated residuals.** The points of a recording follow each other in time, and what the
+polynomial leaves (bias instability, flicker, the temperature sensor's lag) is correlated
+from one point to the next. With ``serial=True`` the lag-1 autocorrelation ``rho`` of the
+residuals inflates the covariance and deflates the F-test's degrees of freedom by
+``(1 + rho) / (1 - rho)`` (an AR(1) noise's effective sample size), so that the standard
+deviations stay honest and correlated wander does not pass for a cubic.
+
+**Span.** A fit over less than :data:`MIN_SPAN_C` is refused (:func:`check_span`): the bias
+change across a narrow span is of the order of the noise and of run-to-run drift, and a
+polynomial extrapolated outside its span grows as ``(distance / span)^degree``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from math import comb
+
+import numpy as np
+from scipy.special import fdtrc
+from scipy.stats import chi2 as chi2_dist
+
+from imucal_cli.errors import DesignError
+
+__all__ = [
+    "MAX_DEGREE",
+    "MIN_SPAN_C",
+    "SELECT_P",
+    "ChannelFit",
+    "TempcoFit",
+    "check_span",
+    "f1_pvalue",
+    "fit_tempco",
+    "polynomial_bound",
+    "powers",
+    "reexpand",
+]
+
+#: Highest degree of the bias polynomial.
+MAX_DEGREE = 3
+#: Smallest temperature span a temperature model is fitted over, degrees C.
+MIN_SPAN_C = 10.0
+#: A polynomial term is kept when the F-test of dropping it gives a p-value below this.
+SELECT_P = 0.01
+
+
+def f1_pvalue(F: float, dof: float) -> float:
+    """Upper tail ``P(F(1, dof) > F)`` of Fisher's F with one numerator degree of freedom
+    (``dof`` may be fractional)."""
+    return float(fdtrc(1.0, dof, max(F, 0.0)))
+
+
+def check_span(temperature: np.ndarray, what: str, min_span_c: float = MIN_SPAN_C) -> float:
+    """The span of ``temperature`` (degrees C); refused below ``min_span_c``, saying why.
+
+    Raises
+    ------
+    DesignError
+        No finite temperature, or a span under ``min_span_c``.
+    """
+    t = np.asarray(temperature, float)
+    t = t[np.isfinite(t)]
+    if len(t) == 0:
+        raise DesignError(f"{what}: no temperature readings (/raw/temperature): a temperature "
+                          "model needs the sensor's temperature with every sample")  # fmt: skip
+    lo, hi = float(t.min()), float(t.max())
+    span = hi - lo
+    if span < min_span_c:
+        raise DesignError(
+            f"{what}: the temperature spans only {span:.1f} C ({lo:.1f} .. {hi:.1f} C); a bias "
+            f"model fitted over less than {min_span_c:g} C is swamped by noise and run-to-run "
+            "drift and grows wrong fast outside its span: record through at least "
+            f"{min_span_c:g} C (a cold start or a hair-dryer ramp, see docs/temperature.md)"
+        )
+    return span
+
+
+def powers(temperature: np.ndarray, temperature_ref: float, degree: int) -> np.ndarray:
+    """``(T - T_ref)^k`` for ``k = 1 .. degree``, shape (N, degree)."""
+    dt = np.asarray(temperature, float) - temperature_ref
+    return dt[:, None] ** np.arange(1, degree + 1)[None, :]
+
+
+def reexpand(tempco: np.ndarray, old_ref: float, new_ref: float) -> tuple[np.ndarray, np.ndarray]:
+    """The same polynomial about another reference temperature.
+
+    ``sum_k c_k (T - old_ref)^k = d_0 + sum_k d_k (T - new_ref)^k``.
+
+    Parameters
+    ----------
+    tempco : ndarray, shape (K, n)
+        ``c_1 .. c_K`` per channel.
+
+    Returns
+    -------
+    d0 : ndarray (n,)
+        The polynomial's value at ``new_ref`` (the bias change from ``old_ref`` to it).
+    d : ndarray (K, n)
+        The coefficients about ``new_ref``.
+    """
+    c = np.vstack([np.zeros((1, tempco.shape[1])), np.asarray(tempco, float)])  # c_0 = 0
+    K = c.shape[0] - 1
+    s = new_ref - old_ref
+    out = np.zeros_like(c)
+    for k in range(K + 1):  # (x + s)^k = sum_j comb(k, j) s^(k-j) x^j
+        for j in range(k + 1):
+            out[j] += comb(k, j) * s ** (k - j) * c[k]
+    return out[0], out[1:]
+
+
+@dataclass
+class ChannelFit:
+    """One channel's polynomial.
+
+    Attributes
+    ----------
+    degree : int
+        Chosen degree (0: no significant dependence).
+    level : ndarray (G,)
+        Value at ``T_ref`` of each group's curve, raw units.
+    tempco : ndarray (degree,)
+        ``c_1 .. c_degree``, raw units per C^k.
+    cov : ndarray (G + degree, G + degree)
+        Covariance of ``(level, tempco)`` (after ``noise_scale`` and the correlation factor).
+    residual_rms : float
+        RMS of the residuals (unweighted), raw units.
+    noise_scale : float
+        Factor on the covariance from the residuals: ``chi2/dof`` (unknown or exceeded noise)
+        or 1 (the given noise explains them).
+    correlation : float
+        Lag-1 autocorrelation of the residuals used for the inflation (0 unless serial).
+    tests : list of dict
+        The backward elimination: per degree tried, ``F``, ``dof`` and ``p`` of its top term.
+    """
+
+    degree: int
+    level: np.ndarray
+    tempco: np.ndarray
+    cov: np.ndarray
+    residual_rms: float
+    noise_scale: float
+    correlation: float
+    tests: list[dict] = field(default_factory=list)
+
+    @property
+    def tempco_cov(self) -> np.ndarray:
+        G = len(self.level)
+        return self.cov[G:, G:]
+
+
+@dataclass
+class TempcoFit:
+    """Result of :func:`fit_tempco`: every channel's polynomial about one reference.
+
+    Attributes
+    ----------
+    temperature_ref : float
+        ``T_ref``, degrees C.
+    t_min, t_max : float
+        Temperature range of the data, degrees C (the model's valid range).
+    channels : list of ChannelFit
+    n_points : int
+    """
+
+    temperature_ref: float
+    t_min: float
+    t_max: float
+    channels: list[ChannelFit]
+    n_points: int
+
+    @property
+    def degree(self) -> np.ndarray:
+        """Chosen degree per channel, (n,)."""
+        return np.array([c.degree for c in self.channels], dtype=int)
+
+    @property
+    def K(self) -> int:
+        """Number of ``bias_tempco`` vectors: the highest degree of any channel."""
+        return int(self.degree.max(initial=0))
+
+    @property
+    def tempco(self) -> np.ndarray:
+        """``bias_tempco`` (K, n): zero above a channel's degree, raw units per C^k."""
+        out = np.zeros((self.K, len(self.channels)))
+        for i, c in enumerate(self.channels):
+            out[: c.degree, i] = c.tempco
+        return out
+
+    @property
+    def tempco_std(self) -> np.ndarray:
+        """Standard deviations of :attr:`tempco` (0 where a term is not in the model)."""
+        out = np.zeros((self.K, len(self.channels)))
+        for i, c in enumerate(self.channels):
+            out[: c.degree, i] = np.sqrt(np.clip(np.diag(c.tempco_cov), 0, None))
+        return out
+
+    @property
+    def level(self) -> np.ndarray:
+        """Each group's value at ``T_ref`` (G, n), raw units."""
+        return np.column_stack([c.level for c in self.channels])
+
+    @property
+    def level_std(self) -> np.ndarray:
+        return np.column_stack(
+            [np.sqrt(np.clip(np.diag(c.cov)[: len(c.level)], 0, None)) for c in self.channels]
+        )
+
+    def change(self, temperature: np.ndarray) -> np.ndarray:
+        """Bias change from ``T_ref`` at each temperature, (N, n) raw units."""
+        return powers(temperature, self.temperature_ref, self.K) @ self.tempco
+
+    def change_std(self, temperature: np.ndarray) -> np.ndarray:
+        """Standard deviation of :meth:`change` (the curve's shape, level excluded), (N, n)."""
+        t = np.asarray(temperature, float)
+        out = np.zeros((len(t), len(self.channels)))
+        for i, c in enumerate(self.channels):
+            if c.degree:
+                X = powers(t, self.temperature_ref, c.degree)
+                out[:, i] = np.sqrt(np.clip(np.einsum("nj,jk,nk->n", X, c.tempco_cov, X), 0,
+                                            None))  # fmt: skip
+        return out
+
+
+def _lag1(r: np.ndarray) -> float:
+    """Lag-1 autocorrelation of a residual series, clipped to [0, 0.95]."""
+    r = r - r.mean()
+    den = float(r @ r)
+    if len(r) < 3 or den <= 0:
+        return 0.0
+    return float(np.clip((r[1:] @ r[:-1]) / den, 0.0, 0.95))
+
+
+def _design(dt: np.ndarray, groups: np.ndarray, n_groups: int, degree: int) -> np.ndarray:
+    """Columns: one indicator per group (its level), then ``dt^1 .. dt^degree``."""
+    X = np.zeros((len(dt), n_groups + degree))
+    X[np.arange(len(dt)), groups] = 1.0
+    X[:, n_groups:] = dt[:, None] ** np.arange(1, degree + 1)[None, :]
+    return X
+
+
+@dataclass
+class _Solved:
+    beta: np.ndarray
+    XtX_inv: np.ndarray
+    chi2: float
+    dof: int
+    r: np.ndarray  # unweighted residuals
+
+
+def _wls(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> _Solved | None:
+    """Weighted least squares; None when ``X`` does not determine the coefficients."""
+    Xw = X * w[:, None]
+    yw = y * w
+    sv = np.linalg.svd(Xw, compute_uv=False)
+    if len(sv) < X.shape[1] or sv[-1] <= 1e-10 * sv[0]:
+        return None
+    beta, *_ = np.linalg.lstsq(Xw, yw, rcond=None)
+    rw = yw - Xw @ beta
+    return _Solved(beta, np.linalg.inv(Xw.T @ Xw), float(rw @ rw), len(y) - X.shape[1],
+                   y - X @ beta)  # fmt: skip
+
+
+def _fit_channel(dt, y, w, groups, n_groups, max_degree, known_sigma, serial, select_p):
+    """Backward elimination from the highest degree the design determines."""
+    fits: dict[int, _Solved] = {}
+    for d in range(max_degree, -1, -1):
+        s = _wls(_design(dt, groups, n_groups, d), y, w)
+        if s is not None and s.dof >= 1:
+            fits[d] = s
+    if not fits:
+        raise DesignError("the points cannot determine even a constant per group")
+    d = max(fits)
+    tests = []
+    while d > 0 and d - 1 in fits:
+        big, small = fits[d], fits[d - 1]
+        rho = _lag1(big.r) if serial else 0.0
+        infl = (1 + rho) / (1 - rho)
+        dof = max(big.dof / infl, 1.0)
+        F = max(small.chi2 - big.chi2, 0.0) / max(big.chi2 / big.dof, 1e-300) / infl
+        p = f1_pvalue(F, dof)
+        tests.append({"degree": d, "F": float(F), "dof": [1, float(dof)], "p_value": p})
+        if p < select_p:
+            break
+        d -= 1
+    s = fits[d]
+    rho = _lag1(s.r) if serial else 0.0
+    infl = (1 + rho) / (1 - rho)
+    if known_sigma:
+        scale = s.chi2 / s.dof if s.dof > 0 and s.chi2 > chi2_dist.isf(0.01, s.dof) else 1.0
+    else:
+        scale = s.chi2 / s.dof
+    cov = s.XtX_inv * scale * infl
+    return ChannelFit(
+        degree=d, level=s.beta[:n_groups].copy(), tempco=s.beta[n_groups:].copy(), cov=cov,
+        residual_rms=float(np.sqrt(np.mean(s.r**2))), noise_scale=float(scale),
+        correlation=float(rho), tests=tests,
+    )  # fmt: skip
+
+
+def _clean(temperature, values, sigma, groups, max_degree):
+    """Validated ``(T (N,), Y (N, n), groups (N,), sigma (N, n) or None)``, non-finite rows
+    left out."""
+    T = np.asarray(temperature, float)
+    Y = np.asarray(values, float)
+    Y = Y[:, None] if Y.ndim == 1 else Y
+    if not 1 <= max_degree <= MAX_DEGREE:
+        raise ValueError(f"max_degree must be 1 .. {MAX_DEGREE}, not {max_degree}")
+    if T.ndim != 1 or len(T) != len(Y):
+        raise ValueError("temperature must be (N,) and values (N, n)")
+    ok = np.isfinite(T) & np.isfinite(Y).all(axis=1)
+    g = np.zeros(len(T), int) if groups is None else np.asarray(groups, int)
+    sig = None
+    if sigma is not None:
+        sig = np.asarray(sigma, float)
+        sig = np.broadcast_to(sig[:, None] if sig.ndim == 1 else sig, Y.shape)
+        ok &= np.isfinite(sig).all(axis=1) & (sig > 0).all(axis=1)
+        sig = sig[ok]
+    return T[ok], Y[ok], g[ok], sig
+
+
+def fit_tempco(
+    temperature: np.ndarray,
+    values: np.ndarray,
+    *,
+    sigma: np.ndarray | None = None,
+    groups: np.ndarray | None = None,
+    temperature_ref: float | None = None,
+    max_degree: int = MAX_DEGREE,
+    min_span_c: float = MIN_SPAN_C,
+    serial: bool = False,
+    select_p: float = SELECT_P,
+    what: str = "the data",
+) -> TempcoFit:
+    """Fit each channel's bias as a polynomial in temperature, its degree chosen by the data.
+
+    Parameters
+    ----------
+    temperature : ndarray, shape (N,)
+        Temperature of each point, degrees C.
+    values : ndarray, shape (N, n) or (N,)
+        The channels at each point, raw units (a mean over a block of a still recording, or
+        over a still period).
+    sigma : ndarray, shape (N,) or (N, n), optional
+        Standard deviation of each point, raw units: the weights, and the noise the
+        covariance assumes unless the residuals exceed it (chi-square test at 1 %). Omitted:
+        equal weights, noise from the residuals.
+    groups : ndarray of int, shape (N,), optional
+        Group of each point (0 .. G-1): each group has its own level (an orientation of the
+        unit, a session); the temperature terms are shared. Default: one group.
+    temperature_ref : float, optional
+        ``T_ref``; default the mean temperature of the points.
+    max_degree : int
+        Highest degree tried (1 .. 3).
+    min_span_c : float
+        Refuse a temperature span below this, degrees C.
+    serial : bool
+        The points are a time series: inflate for the residuals' lag-1 correlation.
+    select_p : float
+        Significance level of the backward elimination.
+    what : str
+        Names the data in messages.
+
+    Returns
+    -------
+    TempcoFit
+
+    Raises
+    ------
+    DesignError
+        Fewer than 3 points, a span under ``min_span_c``, or points that determine no
+        polynomial.
+    """
+    T, Y, g, sig = _clean(temperature, values, sigma, groups, max_degree)
+    if len(T) < 3:
+        raise DesignError(f"{what}: {len(T)} points with a temperature cannot determine a "
+                          "temperature model")  # fmt: skip
+    check_span(T, what, min_span_c)
+    _, g = np.unique(g, return_inverse=True)
+    G = int(g.max()) + 1
+    t_ref = float(np.mean(T)) if temperature_ref is None else float(temperature_ref)
+    dt = T - t_ref
+    channels = []
+    for i in range(Y.shape[1]):
+        w = np.ones(len(T)) if sig is None else 1.0 / sig[:, i]
+        try:
+            channels.append(_fit_channel(dt, Y[:, i], w, g, G, max_degree, sigma is not None,
+                                         serial, select_p))  # fmt: skip
+        except DesignError:
+            raise DesignError(
+                f"{what}: {len(T)} points at {len(np.unique(np.round(T, 3)))} temperatures in "
+                f"{G} group(s) cannot determine a temperature model: record more of the ramp"
+            ) from None
+    return TempcoFit(t_ref, float(T.min()), float(T.max()), channels, len(T))
+
+
+def polynomial_bound(
+    temperature: np.ndarray, sigma: float | np.ndarray, degree: int, temperature_ref: float,
+    groups: np.ndarray | None = None,
+) -> np.ndarray:  # fmt: skip
+    """Cramér-Rao bound of ``(levels, c_1 .. c_degree)`` for independent Gaussian points.
+
+    ``sigma^2 (X^T X)^-1`` with ``X`` the design of :func:`fit_tempco` (per-point ``sigma``
+    weights the rows): what no unbiased estimator of a degree-``degree`` polynomial can beat
+    on these temperatures with white noise.
+    """
+    T = np.asarray(temperature, float)
+    g = np.zeros(len(T), int) if groups is None else np.unique(groups, return_inverse=True)[1]
+    X = _design(T - temperature_ref, g, int(g.max()) + 1, degree)
+    w = 1.0 / np.broadcast_to(np.asarray(sigma, float), T.shape)
+    Xw = X * w[:, None]
+    return np.linalg.inv(Xw.T @ Xw)
