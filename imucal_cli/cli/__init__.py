@@ -23,10 +23,12 @@ from imucal_cli.errors import ImucalError, ImucalWarning
 from . import apply as _apply  # noqa: E402,F401
 from . import calibrate as _calibrate  # noqa: E402,F401
 from . import capture as _capture  # noqa: E402,F401
+from . import certificate as _certificate  # noqa: E402,F401
 from . import export as _export  # noqa: E402,F401
 from . import import_ as _import  # noqa: E402,F401
 from . import label as _label  # noqa: E402,F401
 from . import noise as _noise  # noqa: E402,F401
+from . import registry as _registry  # noqa: E402,F401
 from . import report as _report  # noqa: E402,F401
 from . import simulate as _simulate  # noqa: E402,F401
 from .app import app

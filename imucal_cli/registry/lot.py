@@ -37,7 +37,8 @@ from imucal_cli.use.report.history import DRIFT_SIGMAS, compare_with_reference
 from .schema import calibrations, figures, sections, units
 from .store import Registry, RegistryError
 
-__all__ = ["LOT_FORMAT", "OUTLIER_TEST", "OUTLIER_Z", "cpk", "lot_statistics", "outliers"]
+__all__ = ["LOT_FORMAT", "OUTLIER_TEST", "OUTLIER_Z", "cpk", "drop_values", "lot_statistics",
+           "outliers"]
 
 LOT_FORMAT = "imucal-registry-lot"
 OUTLIER_Z = 3.5
@@ -237,3 +238,9 @@ def _drift(by_unit: dict[str, list[int]], per_cal: dict) -> dict[str, Any]:
     return {"test": f"change from the reference calibration of the same basis beyond "
                     f"{DRIFT_SIGMAS:g} combined std (imucal report's history)",
             "units_checked": checked, "alarms": alarms}  # fmt: skip
+
+
+def drop_values(stats: dict[str, Any]) -> None:
+    """Remove the per-unit ``values`` that :func:`lot_statistics` added for a plot."""
+    for p in stats["parameters"]:
+        p.pop("values", None)

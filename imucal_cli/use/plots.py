@@ -25,7 +25,7 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 
-__all__ = ["PLOT_HINT", "noise_figure", "report_figure"]
+__all__ = ["PLOT_HINT", "draw_report", "noise_figure", "report_figure"]
 
 PLOT_HINT = "plots need matplotlib: pip install 'imucal-cli[plot]'"
 
@@ -180,6 +180,18 @@ def report_figure(
     InputError
         matplotlib missing (:data:`PLOT_HINT`), nothing to plot, or the file cannot be written.
     """
+    return _save(draw_report(report, where=str(path)), path, force, inputs)
+
+
+def draw_report(report: dict[str, Any], where: str = "the report"):
+    """The report figure (see the module notes) as a matplotlib ``Figure`` (the caller saves
+    and closes it); ``where`` names it in the error when there is nothing to plot.
+
+    Raises
+    ------
+    InputError
+        matplotlib missing (:data:`PLOT_HINT`) or nothing to plot.
+    """
     panels = []
     for kind, section in report["sensors"].items():
         poses = section["poses"]
@@ -194,7 +206,7 @@ def report_figure(
             panels.append(("3d", lambda ax, s=section: _sphere_panel(ax, s)))
     if not panels:
         raise InputError(
-            f"{path}: nothing to plot: the calibration carries no per-pose or per-rotation data"
+            f"{where}: nothing to plot: the calibration carries no per-pose or per-rotation data"
         )
     plt = _pyplot()
     cols = 1 if len(panels) == 1 else 2
@@ -209,7 +221,7 @@ def report_figure(
         if report.get(key):
             title += f" | {report[key]}"
     fig.suptitle(title)
-    return _save(fig, path, force, inputs)
+    return fig
 
 
 def noise_figure(result, path: str | os.PathLike[str], *, force: bool = False, inputs=()) -> Path:
