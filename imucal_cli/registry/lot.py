@@ -18,7 +18,8 @@ each unit of the lot:
   :data:`~imucal_cli.use.report.history.DRIFT_SIGMAS` combined std); accel, gyro and mag.
 
 The limits are the ones given (``--limits``), else those the lot's latest calibrations were
-judged against.  Everything is read from the ``figures`` rows: no calibration JSON is parsed.
+judged against.  Everything is read from the sections' packed figures (one row per sensor of a
+calibration): no calibration JSON is parsed.
 """
 
 from __future__ import annotations
@@ -28,13 +29,12 @@ from collections import defaultdict
 from typing import Any
 
 import numpy as np
-from scipy.stats import median_abs_deviation
 from sqlalchemy import select
 
-from imucal_cli.use.limits import ProductLimits, gain_error_rows, limits_from_dict
+from imucal_cli.use.limits import ProductLimits, limits_from_dict
 from imucal_cli.use.report.history import DRIFT_SIGMAS, compare_with_reference
 
-from .schema import calibrations, figures, sections, units
+from .schema import calibrations, sections, units
 from .store import Registry, RegistryError
 
 __all__ = ["LOT_FORMAT", "OUTLIER_TEST", "OUTLIER_Z", "cpk", "drop_values", "lot_statistics",
@@ -62,37 +62,50 @@ def cpk(values: np.ndarray, maximum: float, two_sided: bool) -> float | None:
     return min(upper, (mean + maximum) / (3 * std)) if two_sided else upper
 
 
+MAD_TO_STD = 1.482602218505602
+"""1 / Phi^-1(3/4): the MAD of normal data times this is its std."""
+
+
 def outliers(values: np.ndarray) -> tuple[np.ndarray, float]:
-    """The modified z-score of each value (NaN where the MAD is 0) and the MAD (normal-scaled:
-    an estimate of the std)."""
+    """The modified z-score of each value, ``(x - median) / (1.4826 MAD)`` (NaN where the MAD
+    is 0), and the normal-scaled MAD (an estimate of the std)."""
     values = np.asarray(values, dtype=float)
-    mad = float(median_abs_deviation(values, scale="normal", nan_policy="omit"))
+    median = float(np.median(values))
+    mad = MAD_TO_STD * float(np.median(np.abs(values - median)))
     if not mad > 0:
         return np.full(values.shape, np.nan), mad
-    return (values - np.nanmedian(values)) / mad, mad
+    return (values - median) / mad, mad
 
 
 def _rows(registry: Registry, lot: str) -> tuple[list, dict[int, tuple]]:
-    """Every figure row of the lot's calibrations, and per calibration (serial, created,
-    verdict, limits JSON)."""
+    """The sections (figures packed) of the lot's calibrations, and per calibration (serial,
+    created, verdict, limits JSON)."""
+    in_lot = units.c.lot == lot
     cal_query = (
         select(calibrations.c.id, units.c.serial, calibrations.c.created, calibrations.c.verdict,
                calibrations.c.limits)
-        .join(units, units.c.id == calibrations.c.unit_id).where(units.c.lot == lot)
+        .join(units, units.c.id == calibrations.c.unit_id).where(in_lot)
     )  # fmt: skip
-    fig_query = (
-        select(sections.c.calibration_id, sections.c.sensor, sections.c.units,
-               sections.c.basis, figures.c.name, figures.c.unit, figures.c.value,
-               figures.c.std, figures.c.tracked)
-        .join(sections, sections.c.id == figures.c.section_id)
+    sec_query = (
+        select(sections.c.calibration_id, sections.c.sensor, sections.c.units, sections.c.basis,
+               sections.c.layout, sections.c["values"], sections.c.stds)
         .join(calibrations, calibrations.c.id == sections.c.calibration_id)
-        .join(units, units.c.id == calibrations.c.unit_id)
-        .where(units.c.lot == lot)
+        .join(units, units.c.id == calibrations.c.unit_id).where(in_lot)
     )  # fmt: skip
     with registry.read() as conn:
         cals = {r[0]: tuple(r[1:]) for r in conn.execute(cal_query)}
-        rows = conn.execute(fig_query).all()
+        rows = conn.execute(sec_query).all()
     return rows, cals
+
+
+class _Layout:
+    """A packed section's figure names, units and tracked flags (one per distinct layout)."""
+
+    def __init__(self, text: str) -> None:
+        items = json.loads(text)
+        self.names = [i[0] for i in items]
+        self.units = [i[1] for i in items]
+        self.tracked = [bool(i[2]) for i in items]
 
 
 def lot_statistics(registry: Registry, lot: str, *, limits: ProductLimits | None = None,
@@ -108,14 +121,15 @@ def lot_statistics(registry: Registry, lot: str, *, limits: ProductLimits | None
     rows, cals = _rows(registry, lot)
     if not cals:
         raise RegistryError(f"registry {registry.name}: no unit in lot {lot!r}")
-    # per calibration: {sensor: {"units", "basis", "rows": [...]}}
-    per_cal: dict[int, dict[str, dict[str, Any]]] = defaultdict(dict)
-    for cal_id, sensor, sec_units, basis, name, unit, value, std, tracked in rows:
-        sec = per_cal[cal_id].get(sensor)
-        if sec is None:
-            sec = per_cal[cal_id][sensor] = {"units": sec_units, "basis": basis, "rows": []}
-        sec["rows"].append({"name": name, "unit": unit, "value": value, "std": std,
-                            "tracked": bool(tracked)})  # fmt: skip
+    layouts: dict[str, _Layout] = {}
+    # per calibration: {sensor: (layout, basis, values, stds)}
+    per_cal: dict[int, dict[str, tuple]] = defaultdict(dict)
+    for cal_id, sensor, _units, basis, layout, vals, stds in rows:
+        shape = layouts.get(layout)
+        if shape is None:
+            shape = layouts[layout] = _Layout(layout)
+        per_cal[cal_id][sensor] = (shape, basis, np.frombuffer(vals, "<f8"),
+                                   np.frombuffer(stds, "<f8"))  # fmt: skip
     by_unit: dict[str, list[int]] = defaultdict(list)
     for cal_id, (serial, _created, _verdict, _stored) in sorted(
         cals.items(), key=lambda kv: (kv[1][1], kv[0])
@@ -159,22 +173,49 @@ def _limits(given: ProductLimits | None, latest: list[tuple]) -> tuple[ProductLi
     return limits_from_dict(json.loads(text), "registry"), note
 
 
+def _columns(latest: dict[str, int], per_cal: dict, limits: ProductLimits | None) -> dict:
+    """``{(sensor, name, unit): (serials, values)}`` over the latest calibrations: each
+    layout's values stacked into a matrix, a column per figure (gain errors added from the
+    sensitivities when the limits give a nominal)."""
+    groups: dict[tuple, tuple[list[str], list[np.ndarray]]] = {}
+    for serial, cal_id in latest.items():
+        for sensor, (layout, _basis, vals, _stds) in per_cal.get(cal_id, {}).items():
+            serials, rows = groups.setdefault((sensor, id(layout)), ([], []))
+            serials.append(serial)
+            rows.append(vals)
+            groups[(sensor, id(layout))] = (serials, rows)
+    by_id = {id(layout): layout for sections in per_cal.values()
+             for layout, *_ in sections.values()}  # fmt: skip
+    columns: dict[tuple, tuple[list[str], list[np.ndarray]]] = {}
+    for (sensor, key), (serials, rows) in groups.items():
+        layout = by_id[key]
+        matrix = np.vstack(rows)
+        names, unit_of = list(layout.names), list(layout.units)
+        if limits is not None and sensor in limits.nominal:
+            nominal = limits.nominal[sensor]
+            sens = [j for j, n in enumerate(names) if n.startswith("sensitivity ")]
+            for i, j in enumerate(sens):
+                s0 = nominal[0] if len(nominal) == 1 else nominal[min(i, len(nominal) - 1)]
+                matrix = np.column_stack([matrix, 100.0 * (matrix[:, j] / s0 - 1.0)])
+                names.append("gain error " + names[j][len("sensitivity ") :])
+                unit_of.append("%")
+        for j, (name, unit) in enumerate(zip(names, unit_of, strict=True)):
+            who, parts = columns.setdefault((sensor, name, unit), ([], []))
+            who.extend(serials)
+            parts.append(matrix[:, j])
+    return {k: (who, np.concatenate(parts)) for k, (who, parts) in columns.items()}
+
+
 def _distribution(latest: dict[str, int], per_cal: dict, limits: ProductLimits | None,
                   keep: bool) -> list:  # fmt: skip
     """One entry per (sensor, figure, unit) over the units' latest calibrations."""
-    values: dict[tuple, list[tuple[str, float]]] = defaultdict(list)
-    for serial, cal_id in latest.items():
-        for sensor, sec in per_cal.get(cal_id, {}).items():
-            rows = sec["rows"]
-            if limits is not None and sensor in limits.nominal:
-                rows = rows + gain_error_rows(rows, limits.nominal[sensor])
-            for r in rows:
-                if r["value"] is not None and np.isfinite(r["value"]):
-                    values[(sensor, r["name"], r["unit"])].append((serial, float(r["value"])))
     out = []
-    for (sensor, name, unit), pairs in values.items():
-        serials = [s for s, _ in pairs]
-        x = np.array([v for _, v in pairs])
+    for (sensor, name, unit), (who, column) in _columns(latest, per_cal, limits).items():
+        finite = np.isfinite(column)
+        if not finite.any():
+            continue
+        x = column[finite]
+        serials = [s for s, f in zip(who, finite, strict=True) if f] if not finite.all() else who
         z, mad = outliers(x)
         apart = np.flatnonzero(np.abs(z) > OUTLIER_Z)
         entry = {
@@ -206,29 +247,41 @@ def _limit_of(limits: ProductLimits | None, sensor: str, name: str):
     return next((lim for lim in limits.for_sensor(sensor) if lim.bounds(name)), None)
 
 
+def _tracked(section: tuple | None) -> dict[str, tuple[float | None, float | None]]:
+    """``{name: (value, std)}`` of a packed section's tracked figures (NaN read as None)."""
+    if section is None:
+        return {}
+    layout, _basis, vals, stds = section
+    return {n: (_number(v), _number(s))
+            for n, t, v, s in zip(layout.names, layout.tracked, vals, stds, strict=True)
+            if t}  # fmt: skip
+
+
+def _number(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
 def _drift(by_unit: dict[str, list[int]], per_cal: dict) -> dict[str, Any]:
     """The history's drift test on every unit of the lot calibrated more than once."""
     alarms = []
     checked = 0
+    order = ("accel", "gyro", "mag")
     for serial, ids in by_unit.items():
         if len(ids) < 2:
             continue
         checked += 1
         drifted = []
         sensors = {s for i in ids for s in per_cal.get(i, {})}
-        for sensor in sorted(sensors, key=lambda s: ("accel", "gyro", "mag").index(s)):
+        for sensor in sorted(sensors, key=lambda s: order.index(s) if s in order else 9):
             secs = [per_cal.get(i, {}).get(sensor) for i in ids]
-            bases = [None if s is None else s["basis"] for s in secs]
-            tables = [{} if s is None else {r["name"]: r for r in s["rows"] if r["tracked"]}
-                      for s in secs]  # fmt: skip
-            names = list(dict.fromkeys(n for t in tables for n in t))
-            for name in names:
-                found = [t.get(name) for t in tables]
-                values = [None if r is None else r["value"] for r in found]
-                stds = [None if r is None else r["std"] for r in found]
+            bases = [None if s is None else s[1] for s in secs]
+            tables = [_tracked(s) for s in secs]
+            for name in dict.fromkeys(n for t in tables for n in t):
+                found = [t.get(name, (None, None)) for t in tables]
+                values = [v for v, _ in found]
                 if all(v is None for v in values):
                     continue
-                result = compare_with_reference(values, stds, bases)
+                result = compare_with_reference(values, [s for _, s in found], bases)
                 flagged = [z for z, f in zip(result["z"], result["drifted"], strict=True) if f]
                 if flagged:
                     worst = max(flagged, key=abs)

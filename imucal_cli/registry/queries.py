@@ -11,7 +11,7 @@ from sqlalchemy import func, select
 from imucal_cli.formats.calibration import Calibration, calibration_from_json
 from imucal_cli.use.report.history import build_history
 
-from .schema import calibrations, units
+from .schema import calibrations, documents, units
 from .store import Registry, RegistryError
 
 __all__ = ["LIST_FORMAT", "UNIT_FORMAT", "calibration_of", "iter_records", "list_units",
@@ -68,8 +68,9 @@ def list_units(registry: Registry, *, product: str | None = None,
 
 def _unit_rows(conn, serial: str) -> list:
     query = (
-        select(*_META, calibrations.c.document)
+        select(*_META, documents.c.document)
         .join(units, units.c.id == calibrations.c.unit_id)
+        .join(documents, documents.c.calibration_id == calibrations.c.id)
         .where(units.c.serial == serial)
         .order_by(calibrations.c.created, calibrations.c.id)
     )  # fmt: skip
@@ -137,8 +138,9 @@ def iter_records(registry: Registry, *, serials: list[str] | None = None,
     last = 0
     while True:
         query = (
-            select(*_META, calibrations.c.document)
+            select(*_META, documents.c.document)
             .join(units, units.c.id == calibrations.c.unit_id)
+            .join(documents, documents.c.calibration_id == calibrations.c.id)
             .where(calibrations.c.id > last)
             .order_by(calibrations.c.id).limit(batch)
         )  # fmt: skip

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
 
+import numpy as np
 from sqlalchemy import and_, or_, select, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.engine import Connection
@@ -19,7 +20,7 @@ from imucal_cli.formats.calibration import Calibration, calibration_to_json
 from imucal_cli.formats.text import clean_text
 from imucal_cli.use.limits import Acceptance, ProductLimits, unit_figures
 
-from .schema import calibrations, figures, sections, units
+from .schema import calibrations, documents, figures, sections, units
 from .store import Registry, RegistryError
 
 __all__ = ["Recorded", "UnitInfo", "check_serial", "now_iso", "record_calibration"]
@@ -130,7 +131,7 @@ def record_calibration(
         "created": cal.created, "recorded_at": when, "session": cal.session,
         "session_sha256": session_sha256,
         "toolkit_version": _text(cal.extra.get("toolkit_version")),
-        "document_sha256": sha, "document": document,
+        "document_sha256": sha,
         "verdict": None if acceptance is None else acceptance.verdict,
         "failed": None if acceptance is None else json.dumps(acceptance.failed),
         "limits": None if limits is None else json.dumps(limits.to_dict()),
@@ -153,6 +154,7 @@ def record_calibration(
             if old is None:  # pragma: no cover - a conflict is one of the two
                 raise RegistryError(f"calibration {uid} of {serial} was not recorded")
             return Recorded(old.uid, old.id, serial, old.recorded_at, old.verdict, new=False)
+        conn.execute(documents.insert().values(calibration_id=cal_id, document=document))
         _figures(conn, cal_id, figs)
     return Recorded(uid, cal_id, serial, when, row["verdict"], new=True)
 
@@ -185,13 +187,24 @@ def _unit(conn: Connection, dialect: str, serial: str, product: str | None, lot:
     return unit_id
 
 
+def pack(rows: list[dict[str, Any]]) -> tuple[str, bytes, bytes]:
+    """A section's figure rows packed as the ``sections`` table keeps them: the layout (JSON
+    ``[[name, unit, tracked], ...]``), values and stds (float64 little-endian, NaN for None)."""
+    layout = json.dumps([[r["name"], r["unit"], bool(r["tracked"])] for r in rows])
+    values = np.array([np.nan if r["value"] is None else r["value"] for r in rows], "<f8")
+    stds = np.array([np.nan if r["std"] is None else r["std"] for r in rows], "<f8")
+    return layout, values.tobytes(), stds.tobytes()
+
+
 def _figures(conn: Connection, cal_id: int, figs: dict[str, dict[str, Any]]) -> None:
-    """A section row per sensor and its figure rows."""
+    """A section row per sensor (its figures packed) and its figure rows."""
     for sensor, sec in figs.items():
+        layout, values, stds = pack(sec["rows"])
         section_id = conn.execute(
             sections.insert().values(calibration_id=cal_id, sensor=sensor, solver=sec["solver"],
                                      units=sec["units"], units_in=sec["units_in"],
-                                     basis=sec["basis"])
+                                     basis=sec["basis"], layout=layout, values=values,
+                                     stds=stds)
             .returning(sections.c.id)
         ).scalar_one()  # fmt: skip
         rows = [{"section_id": section_id, "name": r["name"][:80],

@@ -4,16 +4,18 @@
   first and last recorded.
 - ``calibrations``: one row per recorded calibration: who, where and when (``station``,
   ``operator``, ``created`` by the calibration, ``recorded_at`` by the registry), the session's
-  content hash, the whole calibration JSON (``document``) and its SHA-256, the acceptance
-  ``verdict`` (``pass``/``fail``, NULL when no limits were given), the ``failed`` checks (a JSON
-  list of lines) and the ``limits`` judged against (the product file as JSON).
+  content hash, the SHA-256 of the calibration JSON, the acceptance ``verdict`` (``pass``/
+  ``fail``, NULL when no limits were given), the ``failed`` checks (a JSON list of lines) and
+  the ``limits`` judged against (the product file as JSON).
+- ``documents``: the whole calibration JSON of each (apart, so that the rows a lot's query
+  reads stay small).
 - ``sections``: one row per calibrated sensor of a calibration: solver, units and the history's
   *basis* (what makes two calibrations comparable: :func:`~imucal_cli.use.report.history.
-  section_basis`).
-- ``figures``: the numbers of a section, one row each (``name``, ``unit``, ``value``, ``std``):
+  section_basis`), and its figures packed for a lot's statistics: ``layout`` (JSON ``[[name,
+  unit, tracked], ...]``), ``values`` and ``stds`` (float64 little-endian, NaN for none).
+- ``figures``: the same numbers, one row each (``name``, ``unit``, ``value``, ``std``), for SQL:
   the history's tracked parameters (``tracked``) and the acceptance figures
-  (:func:`~imucal_cli.use.limits.section_figures`), so that a lot's statistics and drift read
-  rows, not documents.
+  (:func:`~imucal_cli.use.limits.section_figures`).
 
 Times are ISO 8601 UTC text (``2026-11-28T13:42:00.123456Z``): they sort as text on every
 database.  A change of these tables is a new migration in ``migrations/versions`` (the test
@@ -29,6 +31,7 @@ from sqlalchemy import (
     ForeignKey,
     Index,
     Integer,
+    LargeBinary,
     MetaData,
     String,
     Table,
@@ -72,7 +75,6 @@ calibrations = Table(
     Column("session_sha256", String(64)),
     Column("toolkit_version", String(40)),
     Column("document_sha256", String(64), nullable=False),
-    Column("document", Text, nullable=False),
     # revision 0002: acceptance
     Column("verdict", String(8)),
     Column("failed", Text),
@@ -80,6 +82,13 @@ calibrations = Table(
     UniqueConstraint("unit_id", "document_sha256", name="uq_calibrations_unit_document"),
 )  # fmt: skip
 Index("ix_calibrations_unit_id", calibrations.c.unit_id)
+
+documents = Table(
+    "documents", metadata,
+    Column("calibration_id", Integer, ForeignKey("calibrations.id", ondelete="CASCADE"),
+           primary_key=True),
+    Column("document", Text, nullable=False),
+)  # fmt: skip
 
 sections = Table(
     "sections", metadata,
@@ -91,6 +100,9 @@ sections = Table(
     Column("units", String(40), nullable=False),
     Column("units_in", String(80)),
     Column("basis", Text, nullable=False),
+    Column("layout", Text, nullable=False),
+    Column("values", LargeBinary, nullable=False),
+    Column("stds", LargeBinary, nullable=False),
 )  # fmt: skip
 Index("ix_sections_calibration_id", sections.c.calibration_id)
 

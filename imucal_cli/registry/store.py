@@ -2,11 +2,14 @@
 the newest schema on open, and the transactions every write goes through.
 
 SQLite: the file is put in write-ahead-log mode (``journal_mode=WAL``: readers never wait for a
-writer), every connection waits up to :data:`BUSY_TIMEOUT_S` for a lock (``busy_timeout``), and
-a write transaction takes the write lock when it begins (``BEGIN IMMEDIATE``), so that several
-processes writing at once queue instead of failing, and a transaction is never half there: a
-process killed in the middle of one leaves the file as it was before it (SQLite's journal),
-``synchronous=FULL``: a committed calibration survives a power cut too.
+writer), a write transaction takes the write lock when it begins (``BEGIN IMMEDIATE``), and
+writers queue on an advisory lock of ``PATH.lock`` (``flock``: a waiting process is woken the
+moment the lock is free, where SQLite's own busy handler sleeps up to 100 ms between tries; the
+kernel releases it when a process dies), with SQLite's ``busy_timeout`` of
+:data:`BUSY_TIMEOUT_S` behind it for other programs.  Several processes writing at once queue
+instead of failing, and a transaction is never half there: a process killed in the middle of
+one leaves the file as it was before it (the write-ahead log), ``synchronous=FULL``: a
+committed calibration survives a power cut too.
 
 PostgreSQL (``postgresql+psycopg://user@host/db``; ``postgresql://`` is taken to mean psycopg 3):
 each write is one transaction; the migrations run under a transaction-scoped advisory lock, so
@@ -18,8 +21,10 @@ imucal: a registry written by an older one is brought up to date, its records ke
 
 from __future__ import annotations
 
+import fcntl
 import os
 import stat
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -80,19 +85,49 @@ class Registry:
         ``"sqlite"`` or ``"postgresql"``.
     """
 
-    def __init__(self, engine: Engine, name: str) -> None:
+    def __init__(self, engine: Engine, name: str, lock_path: Path | None = None) -> None:
         self.engine = engine
         self.name = name
         self.dialect = engine.dialect.name
+        self._lock_path = lock_path
+        self._lock_fd: int | None = None
 
     @contextmanager
     def write(self) -> Iterator[Connection]:
         """A connection in a write transaction: committed when the block ends, rolled back on
         an exception; database errors become :class:`RegistryError`."""
-        with self._errors(), self.engine.connect() as conn:
+        with self._errors(), self._writer_lock(), self.engine.connect() as conn:
             conn = conn.execution_options(sqlite_begin="IMMEDIATE")
             with conn.begin():
                 yield conn
+
+    @contextmanager
+    def _writer_lock(self) -> Iterator[None]:
+        """SQLite: hold ``PATH.lock`` exclusively (see the module notes); else nothing."""
+        if self._lock_path is None:
+            yield
+            return
+        if self._lock_fd is None:
+            try:
+                self._lock_fd = os.open(self._lock_path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC,
+                                        0o666)  # fmt: skip
+            except OSError as exc:
+                raise RegistryError(f"registry {self.name}: cannot write "
+                                    f"({exc.strerror or exc})") from None  # fmt: skip
+        deadline = time.monotonic() + BUSY_TIMEOUT_S
+        while True:
+            try:
+                fcntl.flock(self._lock_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if time.monotonic() > deadline:
+                    raise RegistryError(f"registry {self.name}: another process has held it for "
+                                        f"{BUSY_TIMEOUT_S:g} s") from None  # fmt: skip
+                time.sleep(0.001)
+        try:
+            yield
+        finally:
+            fcntl.flock(self._lock_fd, fcntl.LOCK_UN)
 
     @contextmanager
     def read(self) -> Iterator[Connection]:
@@ -111,6 +146,9 @@ class Registry:
 
     def close(self) -> None:
         self.engine.dispose()
+        if self._lock_fd is not None:
+            os.close(self._lock_fd)
+            self._lock_fd = None
 
     def __enter__(self) -> Registry:
         return self
@@ -145,9 +183,13 @@ def open_registry(target: str | os.PathLike, *, create: bool = True) -> Registry
     except ArgumentError:
         raise RegistryError(f"registry {target}: not a path or a database URL") from None
     name = target if "://" not in target else parsed.render_as_string(hide_password=True)
+    lock = None
     if parsed.get_backend_name() == "sqlite":
-        _check_sqlite_path(Path(parsed.database or ""), name, create)
+        if not parsed.database or parsed.database == ":memory:":
+            raise RegistryError(f"registry {name}: a SQLite registry is a file")
+        _check_sqlite_path(Path(parsed.database), name, create)
         engine = _sqlite_engine(url)
+        lock = Path(parsed.database + ".lock")
     elif parsed.get_backend_name() == "postgresql":
         try:
             engine = create_engine(url, pool_pre_ping=True)
@@ -157,7 +199,7 @@ def open_registry(target: str | os.PathLike, *, create: bool = True) -> Registry
     else:
         raise RegistryError(f"registry {name}: only SQLite files and PostgreSQL URLs "
                             "(postgresql+psycopg://...) are supported")  # fmt: skip
-    registry = Registry(engine, name)
+    registry = Registry(engine, name, lock)
     try:
         _migrate(registry)
     except BaseException:

@@ -1,4 +1,4 @@
-"""The first registry: units, their calibrations, each calibration's sections and figures.
+"""The first registry: units, their calibrations (and documents), sections and figures.
 
 Revision ID: 0001
 Revises:
@@ -44,7 +44,6 @@ def upgrade() -> None:
         sa.Column("session_sha256", sa.String(64)),
         sa.Column("toolkit_version", sa.String(40)),
         sa.Column("document_sha256", sa.String(64), nullable=False),
-        sa.Column("document", sa.Text, nullable=False),
         sa.PrimaryKeyConstraint("id", name="pk_calibrations"),
         sa.UniqueConstraint("uid", name="uq_calibrations_uid"),
         sa.UniqueConstraint("unit_id", "document_sha256", name="uq_calibrations_unit_document"),
@@ -52,6 +51,14 @@ def upgrade() -> None:
                                 name="fk_calibrations_unit_id_units"),
     )  # fmt: skip
     op.create_index("ix_calibrations_unit_id", "calibrations", ["unit_id"])
+    op.create_table(
+        "documents",
+        sa.Column("calibration_id", sa.Integer, nullable=False),
+        sa.Column("document", sa.Text, nullable=False),
+        sa.PrimaryKeyConstraint("calibration_id", name="pk_documents"),
+        sa.ForeignKeyConstraint(["calibration_id"], ["calibrations.id"], ondelete="CASCADE",
+                                name="fk_documents_calibration_id_calibrations"),
+    )  # fmt: skip
     op.create_table(
         "sections",
         sa.Column("id", sa.Integer, primary_key=True),
@@ -61,6 +68,9 @@ def upgrade() -> None:
         sa.Column("units", sa.String(40), nullable=False),
         sa.Column("units_in", sa.String(80)),
         sa.Column("basis", sa.Text, nullable=False),
+        sa.Column("layout", sa.Text, nullable=False),
+        sa.Column("values", sa.LargeBinary, nullable=False),
+        sa.Column("stds", sa.LargeBinary, nullable=False),
         sa.PrimaryKeyConstraint("id", name="pk_sections"),
         sa.ForeignKeyConstraint(["calibration_id"], ["calibrations.id"], ondelete="CASCADE",
                                 name="fk_sections_calibration_id_calibrations"),
@@ -83,5 +93,5 @@ def upgrade() -> None:
 
 
 def downgrade() -> None:
-    for table in ("figures", "sections", "calibrations", "units"):
+    for table in ("figures", "sections", "documents", "calibrations", "units"):
         op.drop_table(table)
