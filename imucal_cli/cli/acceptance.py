@@ -86,10 +86,11 @@ class Unit:
                                "error": str(exc)}  # fmt: skip
             lines.append(f"[bold red]not recorded[/]: {escape(str(exc))}")
             return code or 1, doc, lines
-        doc["registry"] = {"registry": self.registry.name, "recorded": True, "serial": serial,
-                           "uid": done.uid, "recorded_at": done.recorded_at,
+        doc["registry"] = {"registry": self.registry.name, "recorded": True, "new": done.new,
+                           "serial": serial, "uid": done.uid, "recorded_at": done.recorded_at,
                            "session_sha256": digest}  # fmt: skip
-        lines.append(f"recorded {escape(serial)} in {escape(self.registry.name)} "
+        what = "recorded" if done.new else "already recorded (the same calibration):"
+        lines.append(f"{what} {escape(serial)} in {escape(self.registry.name)} "
                      f"(calibration {done.uid}, session sha256 {digest[:16]}...)")  # fmt: skip
         return code, doc, lines
 

@@ -54,7 +54,7 @@ def certificate(
 ) -> None:
     """Write a unit's calibration certificate: identity (serial, product, lot, station,
     operator, times), the session's content hash, the verdict and every limit check, each
-    sensor's parameters with their std and residuals, and the plots (inline SVG: the file
+    sensor's parameters with their std and residuals, and the plots (inline PNG: the file
     stands alone). A CAL.json's session hash is computed when its session file is at hand.
 
     Exit status: 0 written; 2 bad input (no such unit or file, bad product file, OUTPUT exists

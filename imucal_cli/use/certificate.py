@@ -4,12 +4,13 @@
 What it shows: the unit's identity (serial, product, lot, station, operator, times, registry
 record), the session's content hash and the calibration's SHA-256, the verdict and every check
 against the limits, each sensor's parameters with their std and its residuals, and the plots
-(the report's figure, and each limited figure as a fraction of its limit) inline as SVG, so the
-file stands alone.  Every string from a file is escaped by the template (autoescape).
+(the report's figure, and each limited figure as a fraction of its limit) inline as PNG data, so
+the file stands alone.  Every string from a file is escaped by the template (autoescape).
 """
 
 from __future__ import annotations
 
+import base64
 import hashlib
 import io
 import math
@@ -123,16 +124,17 @@ def _acceptance(acceptance: Acceptance) -> dict[str, Any]:
     return doc
 
 
-def _svg(fig) -> str:
+def _png(fig) -> str:
+    """The figure as a PNG data URI (inline: the certificate is one file; a PNG, not SVG, so
+    that a browser or WeasyPrint lays out the page in a second, not tens of them)."""
     import matplotlib.pyplot as plt
 
-    buffer = io.StringIO()
+    buffer = io.BytesIO()
     try:
-        fig.savefig(buffer, format="svg")
+        fig.savefig(buffer, format="png", dpi=90)
     finally:
         plt.close(fig)
-    text = buffer.getvalue()
-    return text[text.index("<svg") :]  # the element alone, inline in the HTML
+    return "data:image/png;base64," + base64.b64encode(buffer.getvalue()).decode("ascii")
 
 
 def _plots(report: dict[str, Any], acceptance: Acceptance | None) -> list[dict[str, str]]:
@@ -141,7 +143,7 @@ def _plots(report: dict[str, Any], acceptance: Acceptance | None) -> list[dict[s
     plots = []
     if acceptance is not None and acceptance.checks:
         plots.append({"title": "Each limited figure as a fraction of its limit",
-                      "svg": _svg(_limits_figure(acceptance))})  # fmt: skip
+                      "png": _png(_limits_figure(acceptance))})  # fmt: skip
     try:
         fig = draw_report(report, where="the certificate")
     except InputError as exc:
@@ -149,7 +151,7 @@ def _plots(report: dict[str, Any], acceptance: Acceptance | None) -> list[dict[s
             raise
     else:
         plots.append({"title": "Residuals, rotations and directions (imucal report --plot)",
-                      "svg": _svg(fig)})  # fmt: skip
+                      "png": _png(fig)})  # fmt: skip
     return plots
 
 
