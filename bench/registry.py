@@ -135,8 +135,9 @@ def writer_main(argv: list[str]) -> int:
     """One writer process (see the module notes)."""
     url, template_path, first, count, lot = argv[:5]
     hang_after = int(argv[argv.index("--hang-after") + 1]) if "--hang-after" in argv else None
-    from imucal_cli.registry import UnitInfo, open_registry, record_calibration
     from imucal_cli.registry import record as record_module
+    from imucal_cli.registry.record import UnitInfo, record_calibration
+    from imucal_cli.registry.store import open_registry
     from imucal_cli.use.limits import judge_calibration, limits_from_dict
 
     template = json.loads(Path(template_path).read_text())
@@ -215,8 +216,8 @@ def verify(url: str, recorded: dict[str, tuple[str, str]]) -> tuple[bool, str]:
     figures."""
     from sqlalchemy import func, select
 
-    from imucal_cli.registry import open_registry
     from imucal_cli.registry.schema import calibrations, documents, figures, sections, units
+    from imucal_cli.registry.store import open_registry
 
     with open_registry(url, create=False) as reg, reg.read() as conn:
         rows = conn.execute(select(calibrations.c.uid, documents.c.document,

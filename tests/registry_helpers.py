@@ -13,8 +13,8 @@ from pathlib import Path
 from sqlalchemy import func, select
 
 from bench.registry import serial_of, variant
-from imucal_cli.registry import open_registry
 from imucal_cli.registry.schema import calibrations, documents, figures, sections
+from imucal_cli.registry.store import open_registry
 
 from .cli_helpers import LineReader, run, spawn
 

@@ -19,20 +19,13 @@ from sqlalchemy import create_engine, func, select, text
 
 from imucal_cli.errors import ConfigError
 from imucal_cli.formats.calibration import calibration_to_json
-from imucal_cli.registry import (
-    RegistryError,
-    UnitInfo,
-    export_records,
-    import_files,
-    list_units,
-    lot_statistics,
-    open_registry,
-    record_calibration,
-    unit_report,
-)
 from imucal_cli.registry import store as store_module
-from imucal_cli.registry.lot import OUTLIER_Z, cpk
+from imucal_cli.registry.lot import OUTLIER_Z, cpk, lot_statistics
+from imucal_cli.registry.queries import list_units, unit_report
+from imucal_cli.registry.record import UnitInfo, record_calibration
 from imucal_cli.registry.schema import figures, metadata
+from imucal_cli.registry.store import RegistryError, open_registry
+from imucal_cli.registry.transfer import export_records, import_files
 from imucal_cli.use.limits import judge_calibration, limits_from_dict, unit_figures
 from imucal_cli.use.report.history import build_history
 
@@ -87,7 +80,7 @@ def test_a_record_is_kept_whole_and_read_back(tmp_path, template):
 
 
 def _records(reg):
-    from imucal_cli.registry import iter_records
+    from imucal_cli.registry.queries import iter_records
 
     return iter_records(reg)
 
@@ -107,6 +100,16 @@ def test_bad_names_and_missing_registries_are_one_line_errors(tmp_path, template
         open_registry(tmp_path / "junk.db")
     with pytest.raises(RegistryError, match="only SQLite files and PostgreSQL"):
         open_registry("mysql://u@h/db")
+
+
+def test_a_registry_of_a_newer_imucal_is_refused(tmp_path):
+    open_registry(tmp_path / "r.db").close()
+    engine = create_engine(f"sqlite:///{tmp_path / 'r.db'}")
+    with engine.begin() as conn:
+        conn.execute(text("UPDATE alembic_version SET version_num = '0099'"))
+    engine.dispose()
+    with pytest.raises(RegistryError, match="revision 0099 is newer than this imucal knows"):
+        open_registry(tmp_path / "r.db")
 
 
 def test_migrations_match_the_schema(tmp_path):

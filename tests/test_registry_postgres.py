@@ -14,15 +14,11 @@ from alembic.runtime.migration import MigrationContext
 from sqlalchemy import create_engine, text
 
 from bench import pg_server
-from imucal_cli.registry import (
-    UnitInfo,
-    list_units,
-    lot_statistics,
-    open_registry,
-    record_calibration,
-    unit_report,
-)
 from imucal_cli.registry import store as store_module
+from imucal_cli.registry.lot import lot_statistics
+from imucal_cli.registry.queries import list_units, unit_report
+from imucal_cli.registry.record import UnitInfo, record_calibration
+from imucal_cli.registry.store import open_registry
 from imucal_cli.use.limits import judge_calibration, limits_from_dict
 
 from .cli_helpers import run

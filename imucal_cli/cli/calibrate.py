@@ -78,18 +78,22 @@ def calibrate(
         "session's content hash, the verdict and the whole calibration."
     ),
     serial: str | None = typer.Option(
-        None, "--serial", help="--registry: the unit's serial [default: the session's sensor]."
+        None, "--serial", metavar="SERIAL",
+        help="--registry: the unit's serial [default: the session's sensor].",
     ),
     product: str | None = typer.Option(
-        None, "--product", help="--registry: the unit's product [default: the --limits file's]."
+        None, "--product", metavar="NAME",
+        help="--registry: the unit's product [default: the --limits file's].",
     ),
-    lot: str | None = typer.Option(None, "--lot", help="--registry: the unit's lot."),
+    lot: str | None = typer.Option(
+        None, "--lot", metavar="LOT", help="--registry: the unit's lot."
+    ),
     station: str | None = typer.Option(
-        None, "--station", envvar="IMUCAL_STATION",
+        None, "--station", envvar="IMUCAL_STATION", metavar="NAME",
         help="--registry: the calibration station (or $IMUCAL_STATION).",
     ),  # fmt: skip
     operator: str | None = typer.Option(
-        None, "--operator", envvar="IMUCAL_OPERATOR",
+        None, "--operator", envvar="IMUCAL_OPERATOR", metavar="NAME",
         help="--registry: who calibrated (or $IMUCAL_OPERATOR).",
     ),  # fmt: skip
 ) -> None:

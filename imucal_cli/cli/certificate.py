@@ -6,15 +6,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import typer
-from rich.markup import escape
 
-from imucal_cli.errors import InputError, SessionError
-from imucal_cli.formats.calibration import read_calibration
-from imucal_cli.formats.output import check_output
-from imucal_cli.formats.session.digest import session_digest
-from imucal_cli.registry import REGISTRY_ENV, calibration_of, open_registry
-from imucal_cli.use.certificate import build_certificate, write_certificate
-from imucal_cli.use.limits import judge_calibration, limits_from_dict, load_limits
+from imucal_cli.errors import InputError
+from imucal_cli.registry import REGISTRY_ENV
 
 from .acceptance import registry_option
 from .app import app
@@ -28,7 +22,7 @@ def certificate(
         help="A serial number (its latest calibration in --registry) or a calibration JSON.",
     ),  # fmt: skip
     output: Path = typer.Option(
-        ..., "--output", "-o", metavar="CERT.html|CERT.pdf",
+        ..., "--output", "-o", metavar="CERT.html|.pdf",
         help="The certificate to write: HTML, or PDF when it ends in .pdf (WeasyPrint: "
         "pip install 'imucal-cli[pdf]').",
     ),  # fmt: skip
@@ -46,10 +40,13 @@ def certificate(
         "the latest].",
     ),  # fmt: skip
     serial: str | None = typer.Option(
-        None, "--serial", help="CAL.json: the unit's serial [default: its sensor]."
+        None, "--serial", metavar="SERIAL",
+        help="CAL.json: the unit's serial [default: its sensor].",
     ),
-    product: str | None = typer.Option(None, "--product", help="CAL.json: the product."),
-    lot: str | None = typer.Option(None, "--lot", help="CAL.json: the lot."),
+    product: str | None = typer.Option(
+        None, "--product", metavar="NAME", help="CAL.json: the product."
+    ),
+    lot: str | None = typer.Option(None, "--lot", metavar="LOT", help="CAL.json: the lot."),
     force: bool = typer.Option(False, "--force", help="Replace an existing OUTPUT."),
 ) -> None:
     """Write a unit's calibration certificate: identity (serial, product, lot, station,
@@ -60,6 +57,16 @@ def certificate(
     Exit status: 0 written; 2 bad input (no such unit or file, bad product file, OUTPUT exists
     without --force, matplotlib or WeasyPrint missing).
     """
+    # Imported here: every command module is imported for any command (cli/__init__.py).
+    from rich.markup import escape
+
+    from imucal_cli.formats.calibration import read_calibration
+    from imucal_cli.formats.output import check_output
+    from imucal_cli.registry.queries import calibration_of
+    from imucal_cli.registry.store import open_registry
+    from imucal_cli.use.certificate import build_certificate, write_certificate
+    from imucal_cli.use.limits import judge_calibration, limits_from_dict, load_limits
+
     as_file = Path(unit)
     check_output(output, force=force, inputs=[as_file] if as_file.exists() else [])
     product_limits = None if limits is None else load_limits(limits)
@@ -94,6 +101,9 @@ def certificate(
 def _digest(session: str | None, cal_path: Path) -> str | None:
     """The content hash of the calibration's session, when the file is at hand (as written,
     or beside the calibration)."""
+    from imucal_cli.errors import SessionError
+    from imucal_cli.formats.session.digest import session_digest
+
     if not session:
         return None
     for candidate in (Path(session), cal_path.parent / Path(session).name):

@@ -1,5 +1,6 @@
 """``imucal registry list|show|export|import|lot``: the calibrations of every unit, kept by
-serial number (issue 29; docs/registry.md)."""
+serial number (issue 29; docs/registry.md).  The tables are drawn by :mod:`.registry_render`;
+the library is imported by each command (every command module is imported for any command)."""
 
 from __future__ import annotations
 
@@ -8,26 +9,9 @@ import sys
 from pathlib import Path
 
 import typer
-from rich import box
-from rich.markup import escape
-from rich.table import Table
-from rich.text import Text
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.output import check_output, safe_output
-from imucal_cli.registry import (
-    REGISTRY_ENV,
-    UnitInfo,
-    export_records,
-    import_files,
-    list_units,
-    lot_statistics,
-    open_registry,
-    unit_report,
-)
-from imucal_cli.registry.lot import drop_values
-from imucal_cli.use.limits import load_limits
-from imucal_cli.use.report import render_history
+from imucal_cli.registry import REGISTRY_ENV
 
 from .acceptance import registry_option
 from .app import app, help_width
@@ -51,6 +35,8 @@ _REGISTRY_HELP = "The registry: a SQLite file or postgresql+psycopg://user@host/
 
 
 def _open(registry: str | None, *, create: bool = False):
+    from imucal_cli.registry.store import open_registry
+
     if not registry:
         raise InputError(f"no registry: give --registry PATH|URL (or set {REGISTRY_ENV})")
     return open_registry(registry, create=create)
@@ -63,8 +49,12 @@ def _echo_json(document) -> None:
 @registry_app.command("list")
 def list_(
     registry: str | None = registry_option(_REGISTRY_HELP),
-    product: str | None = typer.Option(None, "--product", help="Only the units of this product."),
-    lot: str | None = typer.Option(None, "--lot", help="Only the units of this lot."),
+    product: str | None = typer.Option(
+        None, "--product", metavar="NAME", help="Only the units of this product."
+    ),
+    lot: str | None = typer.Option(
+        None, "--lot", metavar="LOT", help="Only the units of this lot."
+    ),
     json_output: bool = json_option("Print the units as JSON (imucal-registry-list)."),
 ) -> None:
     """List the units: serial, product, lot, calibrations, the latest one's time, station and
@@ -72,6 +62,8 @@ def list_(
 
     Exit status: 0 listed; 2 bad input (no such registry, not a registry).
     """
+    from imucal_cli.registry.queries import list_units
+
     with _open(registry) as reg:
         rows = list_units(reg, product=product, lot=lot)
         name = reg.name
@@ -79,29 +71,9 @@ def list_(
         _echo_json({"format": "imucal-registry-list", "format_version": 1, "registry": name,
                     "units": rows})  # fmt: skip
         return
-    console = make_console()
-    table = Table(title=Text(f"{len(rows)} units in {name}"), box=box.SIMPLE,
-                  title_justify="left")  # fmt: skip
-    for col in ("serial", "product", "lot", "calibrations", "last calibrated (UTC)", "station",
-                "verdict"):  # fmt: skip
-        table.add_column(col, justify="right" if col == "calibrations" else "left")
-    for r in rows:
-        table.add_row(Text(r["serial"]), Text(r["product"] or ""), Text(r["lot"] or ""),
-                      str(r["calibrations"]), _when(r["last_created"]),
-                      Text(r["last_station"] or ""), _verdict(r["last_verdict"]))  # fmt: skip
-    console.print(table)
+    from .registry_render import render_units
 
-
-def _when(iso: str | None) -> str:
-    return (iso or "")[:19].replace("T", " ")
-
-
-def _verdict(verdict: str | None) -> Text:
-    if verdict == "pass":
-        return Text("pass", style="green")
-    if verdict == "fail":
-        return Text("FAIL", style="bold red")
-    return Text("-", style="dim")
+    render_units(rows, name, make_console())
 
 
 @registry_app.command("show")
@@ -118,28 +90,16 @@ def show(
 
     Exit status: 0 shown; 2 bad input (no such registry or unit).
     """
+    from imucal_cli.registry.queries import unit_report
+
     with _open(registry) as reg:
         record = unit_report(reg, serial)
     if json_output:
         _echo_json(record)
         return
-    console = make_console()
-    where = f"product {record['product'] or '-'}, lot {record['lot'] or '-'}"
-    console.print(Text(f"unit {record['serial']}", style="bold"), Text(where))
-    table = Table(box=box.SIMPLE, title=Text("calibrations (oldest first)"), title_justify="left")
-    for col in ("calibrated (UTC)", "station", "operator", "verdict", "session sha256",
-                "calibration"):  # fmt: skip
-        table.add_column(col, no_wrap=col in ("calibrated (UTC)", "verdict", "calibration"))
-    for c in record["calibrations"]:
-        table.add_row(_when(c["created"])[:16], Text(c["station"] or ""),
-                      Text(c["operator"] or ""), _verdict(c["verdict"]),
-                      (c["session_sha256"] or "-")[:12], c["uid"])  # fmt: skip
-    console.print(table)
-    for c in record["calibrations"]:
-        for line in c["failed"] or []:
-            console.print(f"[red]failed[/] ({_when(c['created'])}): {escape(line)}",
-                          soft_wrap=True)  # fmt: skip
-    render_history(record["history"], console)
+    from .registry_render import render_unit
+
+    render_unit(record, make_console())
 
 
 @registry_app.command("export")
@@ -150,9 +110,11 @@ def export(
         help="Write here (JSON Lines: a header, then one record per line) [default: stdout].",
     ),  # fmt: skip
     serial: list[str] | None = typer.Option(
-        None, "--serial", help="Only this unit (repeatable)."
+        None, "--serial", metavar="SERIAL", help="Only this unit (repeatable)."
     ),
-    lot: str | None = typer.Option(None, "--lot", help="Only the units of this lot."),
+    lot: str | None = typer.Option(
+        None, "--lot", metavar="LOT", help="Only the units of this lot."
+    ),
     force: bool = typer.Option(False, "--force", help="Replace an existing OUTPUT."),
 ) -> None:
     """Export records: each calibration with its metadata (serial, product, lot, station,
@@ -161,6 +123,9 @@ def export(
 
     Exit status: 0 written; 2 bad input (no such registry, OUTPUT exists without --force).
     """
+    from imucal_cli.formats.output import check_output, safe_output
+    from imucal_cli.registry.transfer import export_records
+
     if output is not None:
         check_output(output, force=force)
     with _open(registry) as reg:
@@ -169,8 +134,7 @@ def export(
             return
         with safe_output(output, force=force) as out, out.open("w") as handle:
             n = export_records(reg, handle, serials=serial or None, lot=lot)
-    make_console(stderr=True).print(f"wrote {n} records to {escape(str(output))}",
-                                    soft_wrap=True)  # fmt: skip
+    typer.echo(f"wrote {n} records to {output}", err=True)
 
 
 @registry_app.command("import")
@@ -182,12 +146,19 @@ def import_(
     ),  # fmt: skip
     registry: str | None = registry_option(_REGISTRY_HELP + " Made if missing."),
     serial: str | None = typer.Option(
-        None, "--serial", help="The unit of a calibration file [default: its sensor]."
+        None, "--serial", metavar="SERIAL",
+        help="The unit of a calibration file [default: its sensor].",
     ),
-    product: str | None = typer.Option(None, "--product", help="Calibration files: product."),
-    lot: str | None = typer.Option(None, "--lot", help="Calibration files: lot."),
-    station: str | None = typer.Option(None, "--station", help="Calibration files: station."),
-    operator: str | None = typer.Option(None, "--operator", help="Calibration files: operator."),
+    product: str | None = typer.Option(
+        None, "--product", metavar="NAME", help="Calibration files: product."
+    ),
+    lot: str | None = typer.Option(None, "--lot", metavar="LOT", help="Calibration files: lot."),
+    station: str | None = typer.Option(
+        None, "--station", metavar="NAME", help="Calibration files: station."
+    ),
+    operator: str | None = typer.Option(
+        None, "--operator", metavar="NAME", help="Calibration files: operator."
+    ),
     limits: Path | None = typer.Option(
         None, "--limits", metavar="PRODUCT.toml",
         help="Judge each calibration file against these limits (the verdict is recorded).",
@@ -201,6 +172,10 @@ def import_(
     Exit status: 0 recorded; 2 bad input (unreadable file, a calibration naming no sensor
     without --serial, a bad product file; the files before it are recorded).
     """
+    from imucal_cli.registry.record import UnitInfo
+    from imucal_cli.registry.transfer import import_files
+    from imucal_cli.use.limits import load_limits
+
     if serial is not None and len(files) > 1:
         raise InputError("--serial names one unit: give one calibration file with it")
     product_limits = None if limits is None else load_limits(limits)
@@ -213,10 +188,8 @@ def import_(
                     "recorded": [_done(r) for r in result.recorded],
                     "skipped": [_done(r) for r in result.skipped]})  # fmt: skip
         return
-    console = make_console()
-    console.print(f"recorded {len(result.recorded)} calibrations in {escape(name)}"
-                  + (f", {len(result.skipped)} already there" if result.skipped else ""),
-                  soft_wrap=True)  # fmt: skip
+    typer.echo(f"recorded {len(result.recorded)} calibrations in {name}"
+               + (f", {len(result.skipped)} already there" if result.skipped else ""))
 
 
 def _done(r) -> dict:
@@ -249,6 +222,10 @@ def lot(
     Exit status: 0 shown; 2 bad input (no such registry or lot, bad product file, --plot exists
     without --force or matplotlib missing).
     """
+    from imucal_cli.formats.output import check_output
+    from imucal_cli.registry.lot import drop_values, lot_statistics
+    from imucal_cli.use.limits import load_limits
+
     product_limits = None if limits is None else load_limits(limits)
     if plot is not None:
         check_output(plot, force=force)
@@ -262,58 +239,8 @@ def lot(
     if json_output:
         _echo_json(stats)
         return
-    _render_lot(stats)
+    from .registry_render import render_lot
+
+    render_lot(stats, make_console())
     if plot is not None:
         typer.echo(f"wrote {plot}")
-
-
-def _lot_table(sensor: str, params: list[dict]) -> Table:
-    """One sensor's parameters across the lot: distribution, limit, Cpk, units beyond, apart."""
-    table = Table(title=Text(sensor), title_justify="left", box=box.SIMPLE, pad_edge=False)
-    for col in ("parameter", "unit", "n", "mean", "std", "limit", "Cpk", "beyond", "apart"):
-        table.add_column(col, justify="left" if col in ("parameter", "unit") else "right",
-                         no_wrap=col != "unit", max_width=18 if col == "unit" else None,
-                         overflow="fold")  # fmt: skip
-    for p in params:
-        lim = p["limit"]
-        limit = "" if lim is None else ("±" if lim["two_sided"] else "<= ") + f"{lim['maximum']:g}"
-        cpk = "" if p["cpk"] is None else f"{p['cpk']:.2f}"
-        low = p["cpk"] is not None and p["cpk"] < 1.33
-        table.add_row(Text(p["name"]), Text(p["unit"] or ""), str(p["n"]), f"{p['mean']:.5g}",
-                      "" if p["std"] is None else f"{p['std']:.3g}", limit,
-                      Text(cpk, style="red" if low else ""),
-                      "" if p["beyond_limit"] is None else str(p["beyond_limit"]),
-                      str(len(p["outliers"])) if p["outliers"] else "")  # fmt: skip
-    return table
-
-
-def _render_lot(stats: dict) -> None:
-    console = make_console()
-    v = stats["verdicts"]
-    console.print(Text(f"lot {stats['lot']}: {stats['units']} units, {stats['calibrations']} "
-                       f"calibrations; pass {v['pass']}, fail {v['fail']}, not judged "
-                       f"{v['not judged']}", style="bold"))  # fmt: skip
-    console.print(Text(f"limits: {stats['limits_source']}"), soft_wrap=True)
-    for sensor in dict.fromkeys(p["sensor"] for p in stats["parameters"]):
-        console.print(_lot_table(sensor, [p for p in stats["parameters"] if p["sensor"] == sensor]))
-    console.print(Text("Cpk: min(limit - mean, mean + limit) / (3 std), upper limits (limit - "
-                       "mean) / (3 std); below 1.33 in red. apart: units by the "
-                       f"{stats['outlier_test']}", style="dim"), soft_wrap=True)  # fmt: skip
-    apart = stats["units_apart"]
-    if apart:
-        console.print(Text(f"{len(apart)} units stand apart from the lot:", style="bold yellow"))
-        for u in apart[:50]:
-            console.print(f"  {escape(u['serial'])}: {escape(', '.join(u['parameters']))}",
-                          soft_wrap=True)  # fmt: skip
-        if len(apart) > 50:
-            console.print(f"  ... and {len(apart) - 50} more (--json lists them all)")
-    drift = stats["drift"]
-    alarms = drift["alarms"]
-    head = (f"drift alarm: {len(alarms)} of {drift['units_checked']} re-calibrated units "
-            f"({drift['test']})")  # fmt: skip
-    console.print(Text(head, style="bold red" if alarms else ""), soft_wrap=True)
-    for a in alarms[:50]:
-        console.print(f"  {escape(a['serial'])} ({a['calibrations']} calibrations): "
-                      f"{escape(', '.join(a['drifted']))}", soft_wrap=True)  # fmt: skip
-    if len(alarms) > 50:
-        console.print(f"  ... and {len(alarms) - 50} more (--json lists them all)")

@@ -7,16 +7,11 @@ Modules: :mod:`.store` (opening a SQLite file or a PostgreSQL URL, migrating it,
 calibration), :mod:`.queries` (units, a unit's history, records), :mod:`.transfer` (export and
 import), :mod:`.lot` (a lot's distributions, Cpk, outliers, drift), :mod:`.lot_plot` (its
 figure).
+
+Import from the modules (``from imucal_cli.registry.store import open_registry``): the package
+itself loads nothing: a command imports only what it uses (``calibrate`` without ``--registry``
+loads neither the history's tables nor the lot's statistics).
 """
 
-from .lot import lot_statistics
-from .queries import calibration_of, iter_records, list_units, unit_report
-from .record import Recorded, UnitInfo, record_calibration
-from .store import REGISTRY_ENV, Registry, RegistryError, open_registry, registry_url
-from .transfer import export_records, import_files
-
-__all__ = [
-    "REGISTRY_ENV", "Recorded", "Registry", "RegistryError", "UnitInfo", "calibration_of",
-    "export_records", "import_files", "iter_records", "list_units", "lot_statistics",
-    "open_registry", "record_calibration", "registry_url", "unit_report",
-]  # fmt: skip
+REGISTRY_ENV = "IMUCAL_REGISTRY"
+"""The environment variable naming the registry when ``--registry`` is not given."""

@@ -35,11 +35,10 @@ from sqlalchemy.exc import ArgumentError, DBAPIError, NoSuchModuleError, SQLAlch
 
 from imucal_cli.errors import InputError
 
+from . import REGISTRY_ENV
+
 __all__ = ["BUSY_TIMEOUT_S", "REGISTRY_ENV", "Registry", "RegistryError", "open_registry",
            "registry_url"]  # fmt: skip
-
-REGISTRY_ENV = "IMUCAL_REGISTRY"
-"""The environment variable naming the registry when ``--registry`` is not given."""
 
 BUSY_TIMEOUT_S = 60.0
 """How long a SQLite connection waits for another process's write lock."""
