@@ -44,9 +44,13 @@ def line(tmp_path_factory):
     common = ["--registry", db, "--lot", "LOT-7", "--operator", "ann", "--force"]
     ok = run("calibrate", session, "-o", folder / "a.json", "--limits", folder / "loose.toml",
              "--station", "st-1", *common)  # fmt: skip
-    bad = run("calibrate", session, "-o", folder / "b.json", "--limits", folder / "strict.toml",
+    # The same unit's data under other names: each calibration a document of its own (the same
+    # session calibrated twice within a second gives the same document, recorded once).
+    second = folder / "unit-b.h5"
+    shutil.copy(SESSION, second)
+    bad = run("calibrate", second, "-o", folder / "b.json", "--limits", folder / "strict.toml",
               "--station", "st-2", *common)  # fmt: skip
-    again = folder / "unit-again.h5"  # the same unit's data under another name: a new document
+    again = folder / "unit-c.h5"
     shutil.copy(SESSION, again)
     js = run("calibrate", again, "-o", folder / "c.json", "--limits", folder / "strict.toml",
              "--station", "st-2", "--json", *common)  # fmt: skip

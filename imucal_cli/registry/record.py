@@ -182,8 +182,6 @@ def _unit(conn: Connection, dialect: str, serial: str, product: str | None, lot:
     if lot is not None:
         changes["lot"] = lot
     conn.execute(update(units).where(units.c.id == unit_id).values(**changes))
-    if unit_id is None:  # pragma: no cover - scalar_one raised
-        raise RegistryError(f"unit {serial} was not recorded")
     return unit_id
 
 
