@@ -175,3 +175,34 @@ def test_several_sessions_are_each_judged_and_recorded(tmp_path):
     rows = json.loads(proc.stdout)["results"]
     assert [r["exit_code"] for r in rows] == [4, 4]
     assert {r["registry"]["serial"] for r in rows} == {"sim-16bit seed 1", "unit-B"}
+
+
+@pytest.mark.slow
+def test_the_production_line_path_from_a_serial_device(tmp_path):
+    """The user's path: a unit on a serial port (``imucal simulate --serve``), captured
+    unattended, calibrated with its product's limits into the registry, shown, certified."""
+    from .test_partial_capture import serve
+    from .test_virtual import start_capture
+
+    server, port = serve("--plan", "six", "--hold", "1.5", "--move", "0.8", "--seed", "4")
+    out = tmp_path / "unit.h5"
+    try:
+        cap = start_capture(port, out, "--plan", "six")
+        stdout, stderr = cap.communicate(timeout=240)
+    finally:
+        server.kill()
+        server.communicate()
+    assert cap.returncode == 0, (stdout, stderr)
+    (tmp_path / "p.toml").write_text("[product]\nname = \"SIM-16\"\n[limits.accel]\n"
+                                      "bias_max = 0.8\nresidual_rms_max = 0.05\n")  # fmt: skip
+    db = tmp_path / "line.db"
+    proc = run("calibrate", out, "--registry", db, "--limits", tmp_path / "p.toml", "--serial",
+               "SN-LINE-1", "--lot", "L", "--station", "st-9", "--json")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads(proc.stdout)
+    assert doc["acceptance"]["verdict"] == "pass" and doc["registry"]["serial"] == "SN-LINE-1"
+    shown = json.loads(run("registry", "show", "SN-LINE-1", "--registry", db, "--json").stdout)
+    assert [(c["station"], c["verdict"]) for c in shown["calibrations"]] == [("st-9", "pass")]
+    cert = tmp_path / "cert.html"
+    assert run("certificate", "SN-LINE-1", "--registry", db, "-o", cert).returncode == 0
+    assert "SN-LINE-1" in cert.read_text() and doc["registry"]["session_sha256"] in cert.read_text()
