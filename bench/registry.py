@@ -29,6 +29,7 @@ import copy
 import hashlib
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -38,6 +39,15 @@ from pathlib import Path
 import numpy as np
 from rich.console import Console
 from rich.table import Table
+from sqlalchemy import func, select
+
+from bench import pg_server
+from imucal_cli.formats.calibration import Calibration, calibration_to_json
+from imucal_cli.registry import record as record_module
+from imucal_cli.registry.record import UnitInfo, record_calibration
+from imucal_cli.registry.schema import calibrations, documents, figures, sections, units
+from imucal_cli.registry.store import open_registry
+from imucal_cli.use.limits import judge_calibration, limits_from_dict
 
 ROOT = Path(__file__).resolve().parents[1]
 UNITS = 10_000
@@ -63,8 +73,6 @@ PRODUCT_LIMITS = {
 
 def make_template(folder: Path) -> Path:
     """Calibrate a copy of the shipped qureshi18 session; the calibration JSON's path."""
-    import shutil
-
     session = folder / "template.h5"
     shutil.copy(ROOT / "sessions" / "qureshi18-seed1.h5", session)
     out = folder / "template.cal.json"
@@ -85,8 +93,6 @@ def variant(template: dict, serial: str, index: int, *, apart: bool = False,
     -------
     Calibration
     """
-    from imucal_cli.formats.calibration import Calibration
-
     rng = np.random.default_rng(index)
     again = np.random.default_rng(index + 1_000_000) if created else None  # a re-calibration
     doc = copy.deepcopy(template)
@@ -135,11 +141,6 @@ def writer_main(argv: list[str]) -> int:
     """One writer process (see the module notes)."""
     url, template_path, first, count, lot = argv[:5]
     hang_after = int(argv[argv.index("--hang-after") + 1]) if "--hang-after" in argv else None
-    from imucal_cli.registry import record as record_module
-    from imucal_cli.registry.record import UnitInfo, record_calibration
-    from imucal_cli.registry.store import open_registry
-    from imucal_cli.use.limits import judge_calibration, limits_from_dict
-
     template = json.loads(Path(template_path).read_text())
     limits = limits_from_dict(PRODUCT_LIMITS, "bench")
     registry = open_registry(url)
@@ -149,22 +150,21 @@ def writer_main(argv: list[str]) -> int:
             _hang_in_the_middle(record_module)
         todo = plan(index)
         cal = variant(template, serial_of(index), index, apart=todo["apart"])
-        _record(registry, cal, lot, limits, judge_calibration, record_calibration, UnitInfo)
+        _record(registry, cal, lot, limits)
         if todo["recalibrated"]:
             again = variant(template, serial_of(index), index, apart=todo["apart"],
                             drift=todo["drift"], created="2026-06-01T00:00:00Z")  # fmt: skip
-            _record(registry, again, lot, limits, judge_calibration, record_calibration,
-                    UnitInfo)  # fmt: skip
+            _record(registry, again, lot, limits)
     registry.close()
     return 0
 
 
-def _record(registry, cal, lot, limits, judge, record, unit_info) -> None:
-    from imucal_cli.formats.calibration import calibration_to_json
-
-    acceptance = judge(cal, limits)
-    done = record(registry, cal, unit_info(cal.extra["sensor"], "SIM-16", lot, "bench", "w"),
-                  session_sha256="0" * 64, acceptance=acceptance, limits=limits)  # fmt: skip
+def _record(registry, cal, lot, limits) -> None:
+    acceptance = judge_calibration(cal, limits)
+    done = record_calibration(registry, cal,
+                              UnitInfo(cal.extra["sensor"], "SIM-16", lot, "bench", "w"),
+                              session_sha256="0" * 64, acceptance=acceptance,
+                              limits=limits)  # fmt: skip
     sha = hashlib.sha256(calibration_to_json(cal).encode()).hexdigest()
     print(f"recorded {done.uid} {sha} {done.serial}", flush=True)
 
@@ -214,11 +214,6 @@ def verify(url: str, recorded: dict[str, tuple[str, str]]) -> tuple[bool, str]:
     """Whether the registry holds exactly ``recorded``: same uids, each document's SHA-256 as
     its writer computed it (recomputed from the stored text), each with its sections and
     figures."""
-    from sqlalchemy import func, select
-
-    from imucal_cli.registry.schema import calibrations, documents, figures, sections, units
-    from imucal_cli.registry.store import open_registry
-
     with open_registry(url, create=False) as reg, reg.read() as conn:
         rows = conn.execute(select(calibrations.c.uid, documents.c.document,
                                    calibrations.c.document_sha256, units.c.serial)
@@ -290,8 +285,6 @@ def _one(console: Console, table: Table, name: str, url: str, template: Path) ->
 
 def run(console: Console) -> bool:
     """Both databases (PostgreSQL when a server starts here); True when every row passes."""
-    from bench import pg_server
-
     title = (f"registry: {UNITS:,} units by {WRITERS} concurrent writer processes, then "
              f"imucal registry lot (target < {LOT_TARGET_S:g} s, fresh process)")  # fmt: skip
     table = Table(title=title)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from sqlalchemy import func, select
 
-from bench.registry import serial_of, variant
+from bench.registry import serial_of, variant, verify
 from imucal_cli.registry.schema import calibrations, documents, figures, sections
 from imucal_cli.registry.store import open_registry
 
@@ -68,8 +68,6 @@ def recorded_lines(lines: list[str]) -> dict[str, tuple[str, str]]:
 def assert_whole(url: str, expected: dict[str, tuple[str, str]]) -> None:
     """The registry holds exactly ``expected`` (uids, document hashes, serials), every
     calibration with its document, sections and figures, no orphan row."""
-    from bench.registry import verify
-
     ok, what = verify(url, expected)
     assert ok, what
     with open_registry(url, create=False) as reg, reg.read() as conn:

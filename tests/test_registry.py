@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from alembic import command
+from alembic.autogenerate import compare_metadata
 from alembic.config import Config
 from alembic.runtime.migration import MigrationContext
 from alembic.script import ScriptDirectory
@@ -21,7 +22,7 @@ from imucal_cli.errors import ConfigError
 from imucal_cli.formats.calibration import calibration_to_json
 from imucal_cli.registry import store as store_module
 from imucal_cli.registry.lot import OUTLIER_Z, cpk, lot_statistics
-from imucal_cli.registry.queries import list_units, unit_report
+from imucal_cli.registry.queries import iter_records, list_units, unit_report
 from imucal_cli.registry.record import UnitInfo, record_calibration
 from imucal_cli.registry.schema import figures, metadata
 from imucal_cli.registry.store import RegistryError, open_registry
@@ -70,19 +71,13 @@ def test_a_record_is_kept_whole_and_read_back(tmp_path, template):
         assert meta["session_sha256"] == "ab" * 32 and meta["operator"] == "ann"
         assert meta["verdict"] == judge_calibration(cals[1], limits).verdict
         assert meta["limits"] == limits.to_dict()
-        exported = list(_records(reg))
+        exported = list(iter_records(reg))
         assert json.dumps(exported[1]["calibration"], indent=2) == calibration_to_json(cals[1])
         assert exported[1]["document_sha256"] == hashlib.sha256(
             calibration_to_json(cals[1]).encode()).hexdigest()  # fmt: skip
         with reg.read() as conn:  # every figure of the calibration, one row each
             n = conn.execute(select(func.count()).select_from(figures)).scalar_one()
         assert n == 3 * sum(len(s["rows"]) for s in unit_figures(cals[0]).values())
-
-
-def _records(reg):
-    from imucal_cli.registry.queries import iter_records
-
-    return iter_records(reg)
 
 
 def test_bad_names_and_missing_registries_are_one_line_errors(tmp_path, template):
@@ -115,8 +110,6 @@ def test_a_registry_of_a_newer_imucal_is_refused(tmp_path):
 def test_migrations_match_the_schema(tmp_path):
     """The tables the migrations make are those schema.py declares (nothing missing, nothing
     different), and store.HEAD is the newest revision."""
-    from alembic.autogenerate import compare_metadata
-
     assert ScriptDirectory.from_config(_script_config()).get_current_head() == store_module.HEAD
     open_registry(tmp_path / "r.db").close()
     engine = create_engine(f"sqlite:///{tmp_path / 'r.db'}")
@@ -228,11 +221,11 @@ def test_export_then_import_into_another_registry_recreates_every_record(tmp_pat
         out = tmp_path / "a.jsonl"
         with open(out, "w") as handle:
             assert export_records(a, handle) == 4
-        original = list(_records(a))
+        original = list(iter_records(a))
     with open_registry(tmp_path / "b.db") as b:
         result = import_files(b, [out], UnitInfo(""))
         assert len(result.recorded) == 4 and not result.skipped
-        assert list(_records(b)) == original  # uids, times, verdicts, limits, documents
+        assert list(iter_records(b)) == original  # uids, times, verdicts, limits, documents
         again = import_files(b, [out], UnitInfo(""))
         assert len(again.skipped) == 4 and not again.recorded
 

@@ -10,8 +10,12 @@ import shutil
 import h5py
 import pytest
 
+from imucal_cli.formats.session.digest import session_digest
+
 from .cli_helpers import assert_one_line_error, run
 from .registry_helpers import SESSION
+from .test_partial_capture import serve
+from .test_virtual import start_capture
 
 LOOSE = """
 [product]
@@ -75,8 +79,6 @@ def test_a_unit_outside_its_limits_exits_4_naming_the_figure(line):
     assert doc["acceptance"]["verdict"] == "fail"
     assert any(f.startswith("accel residual rms") for f in doc["acceptance"]["failed"])
     assert doc["registry"]["recorded"] and doc["registry"]["serial"] == "sim-16bit seed 1"
-    from imucal_cli.formats.session.digest import session_digest
-
     assert doc["registry"]["session_sha256"] == session_digest(line["session"])
     assert doc["registry"]["new"]
 
@@ -181,9 +183,6 @@ def test_several_sessions_are_each_judged_and_recorded(tmp_path):
 def test_the_production_line_path_from_a_serial_device(tmp_path):
     """The user's path: a unit on a serial port (``imucal simulate --serve``), captured
     unattended, calibrated with its product's limits into the registry, shown, certified."""
-    from .test_partial_capture import serve
-    from .test_virtual import start_capture
-
     server, port = serve("--plan", "six", "--hold", "1.5", "--move", "0.8", "--seed", "4")
     out = tmp_path / "unit.h5"
     try:

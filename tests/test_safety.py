@@ -390,6 +390,7 @@ def test_capture_on_a_really_full_disk(tmp_path, monkeypatch):
         rec.close()
         received = rec.protocol.stats["samples"]
         assert rec.end_kind == "disk-full", rec.end_reason
+        assert rec.samples_lost == 0 and "stopped in time" in rec.end_reason  # issue 24.3
         session = read_session(mount / "r.h5")
         assert session.time.size == received - rec.samples_lost > 0
         # every sample the session holds is one received, none a hole of NaN (HDF5's fill

@@ -2,10 +2,11 @@
 
 The capture pipeline has three replaceable parts:
 
-- a **source** delivers bytes: :class:`SerialSource` reads a serial port with pyserial (a
-  pseudo-terminal of ``imucal simulate --serve`` is one too).  Anything with ``read() -> bytes``
-  (empty after a short wait with no data; :class:`DeviceGone` when the device disappears),
-  ``close()``, ``describe() -> str`` and ``uri -> str`` can stand in for it.
+- a **source** delivers bytes: :class:`~imucal_cli.capture.serial_port.SerialSource` reads a
+  serial port with pyserial (a pseudo-terminal of ``imucal simulate --serve`` is one too).
+  Anything with ``read() -> bytes`` (empty after a short wait with no data;
+  :class:`DeviceGone` when the device disappears), ``close()``, ``describe() -> str`` and
+  ``uri -> str`` can stand in for it.
 - a **protocol** turns bytes into samples: :class:`LineProtocol` parses text lines of numbers,
   :class:`PrefixedLineProtocol` MotionCal's ``Raw:`` and i2cdevlib's ``a/g:`` lines (with the
   importer's own line parser), :class:`AutoLineProtocol` tells which of the two a device
@@ -18,9 +19,7 @@ The capture pipeline has three replaceable parts:
 
 from __future__ import annotations
 
-import errno
 import re
-import time as _time
 
 import numpy as np
 
@@ -28,6 +27,7 @@ from imucal_cli.errors import InputError
 from imucal_cli.formats.columns import ColumnSpec, SampleBlock
 from imucal_cli.formats.importers.serial_lines import LINE_FORMATS, line_format, parse_line
 from imucal_cli.formats.importers.text import BLANK, NUMBER
+from imucal_cli.formats.importers.witmotion import WitMotionDecoder
 
 __all__ = [
     "AutoLineProtocol",
@@ -37,7 +37,6 @@ __all__ = [
     "MAX_LINE_BYTES",
     "RESYNC_SAMPLES",
     "SampleBlock",
-    "SerialSource",
     "WitMotionProtocol",
     "host_stamps",
 ]
@@ -129,6 +128,12 @@ class LineProtocol:
         self._offset = 0.0  # added to device times after a wrap/restart
         self._behind = 0  # consecutive samples not after the last kept one
         self._dt = 0.0  # recent sample interval, s (for a resync)
+
+    def set_origin(self, host_time: float) -> None:
+        """When the stream could start (the port opened), host clock, s: the first lines,
+        host-stamped, are spread from there to their arrival (not crowded before it)."""
+        if self._last_host is None:
+            self._last_host = float(host_time)
 
     def feed(self, data: bytes, host_time: float) -> SampleBlock:
         """Parse the complete lines of ``data`` (after what was left over by the last call).
@@ -293,6 +298,12 @@ class PrefixedLineProtocol:
         self._last_host: float | None = None
         self._last_time: float | None = None
 
+    def set_origin(self, host_time: float) -> None:
+        """When the stream could start (the port opened), host clock, s: the first lines,
+        host-stamped, are spread from there to their arrival (not crowded before it)."""
+        if self._last_host is None:
+            self._last_host = float(host_time)
+
     @property
     def units(self) -> dict[str, str]:
         """The raw units the format fixes: counts (the magnetometer's only where it has one)."""
@@ -360,6 +371,11 @@ class AutoLineProtocol:
         self._chosen: LineProtocol | PrefixedLineProtocol | None = None
         self._held = bytearray()
         self._own = dict.fromkeys(_COUNTERS, 0)
+        self._origin: float | None = None
+
+    def set_origin(self, host_time: float) -> None:
+        """As :meth:`LineProtocol.set_origin` (passed on to the protocol chosen)."""
+        self._origin = float(host_time)
 
     @property
     def stats(self) -> dict:
@@ -388,6 +404,8 @@ class AutoLineProtocol:
         else:
             self._chosen = PrefixedLineProtocol()
         held, self._held = bytes(self._held), bytearray()
+        if self._origin is not None:
+            self._chosen.set_origin(self._origin)
         block = self._chosen.feed(held, host_time)
         if self._on_choice is not None and kind != "numbers":
             self._on_choice(f"recognised {LINE_FORMATS[kind][2]} lines (host-clock time; "
@@ -418,22 +436,12 @@ class AutoLineProtocol:
 
 
 # --------------------------------------------------------------------------------------------
-# Serial ports
+# The source
 # --------------------------------------------------------------------------------------------
 
 
 class DeviceGone(Exception):
     """The source cannot be read any more (unplugged, closed pseudo-terminal)."""
-
-
-def available_ports() -> list[str]:
-    """Device paths of the serial ports the system lists (USB adapters, built-in UARTs)."""
-    try:
-        from serial.tools import list_ports
-
-        return sorted(p.device for p in list_ports.comports())
-    except Exception:  # noqa: BLE001 - listing is a courtesy in an error message
-        return []
 
 
 # --------------------------------------------------------------------------------------------
@@ -460,13 +468,17 @@ class WitMotionProtocol:
     """
 
     def __init__(self) -> None:
-        from imucal_cli.formats.importers.witmotion import WitMotionDecoder
-
         self._decoder = WitMotionDecoder()
         self.stats = {"lines": 0, "samples": 0, "comments": 0, "malformed": 0, "bytes": 0}
         self._incomplete = 0
         self._last_host: float | None = None
         self._last_time: float | None = None
+
+    def set_origin(self, host_time: float) -> None:
+        """When the stream could start (the port opened), host clock, s: the first lines,
+        host-stamped, are spread from there to their arrival (not crowded before it)."""
+        if self._last_host is None:
+            self._last_host = float(host_time)
 
     def feed(self, data: bytes, host_time: float) -> SampleBlock:
         """Decode the frames of ``data``; return the samples they complete."""
@@ -489,94 +501,3 @@ class WitMotionProtocol:
             gyro=np.array([s.gyro for s in full], np.float64),
             temperature=np.array([s.temperature for s in full], np.float64),
         )
-
-
-class SerialSource:
-    """A serial port read with pyserial, in batches.
-
-    Parameters
-    ----------
-    port : str
-        Device path (``/dev/ttyUSB0``, ``/dev/ttyACM0``, ``COM3``, a pseudo-terminal).
-    baud : int
-        Baud rate.
-    timeout_s : float
-        Longest a :meth:`read` waits for a first byte.
-    batch_s : float
-        After a first byte, wait this long for more before returning, so that a fast stream
-        is read in batches of a few milliseconds (few system calls, low CPU).
-
-    Raises
-    ------
-    InputError
-        No such port (the message lists the available ones), permission denied, or the port
-        cannot be opened or configured.
-    """
-
-    def __init__(self, port: str, baud: int, timeout_s: float = 0.05, batch_s: float = 0.005):
-        import serial
-
-        if not isinstance(baud, int) or baud <= 0:
-            raise InputError(f"baud rate must be a positive integer, got {baud!r}")
-        self.port, self.baud, self.batch_s = str(port), int(baud), float(batch_s)
-        try:
-            self._serial = serial.Serial(self.port, self.baud, timeout=timeout_s)
-        except (serial.SerialException, OSError, ValueError) as exc:
-            raise _open_error(self.port, self.baud, exc) from None
-
-    @property
-    def uri(self) -> str:
-        """The session's ``source`` attribute: ``serial:/dev/ttyUSB0@115200``."""
-        return f"serial:{self.port}@{self.baud}"
-
-    def describe(self) -> str:
-        """``"/dev/ttyUSB0 at 115200 baud"`` for messages."""
-        return f"{self.port} at {self.baud} baud"
-
-    def read(self) -> bytes:
-        """Bytes received so far, or b"" after ``timeout_s`` with none.
-
-        Raises
-        ------
-        DeviceGone
-            The port cannot be read any more (unplugged, pseudo-terminal closed).
-        """
-        ser = self._serial
-        try:
-            waiting = ser.in_waiting
-            if waiting:
-                return ser.read(waiting)
-            first = ser.read(1)
-            if not first:
-                return b""
-            _time.sleep(self.batch_s)
-            waiting = ser.in_waiting
-            return first + ser.read(waiting) if waiting else first
-        except (OSError, TypeError, AttributeError) as exc:  # SerialException is an OSError
-            raise DeviceGone(" ".join(str(exc).split()) or type(exc).__name__) from None
-
-    def close(self) -> None:
-        """Close the port (never raises)."""
-        try:
-            self._serial.close()
-        except Exception:  # noqa: BLE001 - the device may be gone already
-            pass
-
-
-def _open_error(port: str, baud: int, exc: BaseException) -> InputError:
-    code = getattr(exc, "errno", None)
-    text = " ".join(str(exc).split())
-    if code == errno.ENOENT or "No such file" in text or "FileNotFoundError" in text:
-        ports = available_ports()
-        listed = ", ".join(ports) if ports else "none found"
-        return InputError(f"{port}: no such serial port (available: {listed})")
-    if code in (errno.EACCES, errno.EPERM) or "Permission denied" in text:
-        return InputError(
-            f"{port}: permission denied: add your user to the group that owns the port "
-            "(often 'dialout': sudo usermod -aG dialout $USER, then log in again)"
-        )
-    if code == errno.EBUSY or "busy" in text.lower():
-        return InputError(f"{port}: the port is busy (another program has it open)")
-    if isinstance(exc, ValueError):
-        return InputError(f"{port}: cannot use baud rate {baud} ({text})")
-    return InputError(f"{port}: cannot open the serial port ({text})")

@@ -41,8 +41,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from imucal_cli.errors import InputError
 from imucal_cli.formats.columns import SampleBlock
 from imucal_cli.plans import CaptureSummary, Plan, Step
+from imucal_cli.solvers.segmentation import find_rotations, find_static
 
 __all__ = [
     "FINAL_HOLD_EXTRA_S",
@@ -294,8 +296,6 @@ def segment_recording(
     done, missing : list of str
         Labels of the plan's steps seen and not seen (empty without a plan).
     """
-    from imucal_cli.solvers.segmentation import find_rotations, find_static
-
     if len(time) < 2:
         return [], [], [] if plan is None else [s.label for s in plan.steps]
     static = find_static(time, accel, gyro, min_still_s=min_still_s)
@@ -345,9 +345,6 @@ class _PlanWatcher:
         self.missing = [s.label for s in plan.steps]
 
     def update(self, buffer: _Buffer) -> bool:
-        from imucal_cli.errors import InputError
-        from imucal_cli.solvers.segmentation import find_static
-
         time, accel, gyro = buffer.get("time"), buffer.get("accel"), buffer.get("gyro")
         n = len(time)
         base = self.closed[-1].start if self.closed else 0
@@ -464,9 +461,9 @@ def _left_to_do(plan: Plan, before: list[str], say) -> tuple[list[str], Plan]:
 
 
 def _record(recorder, plan: Plan | None, duration_s: float | None, min_still_s: float, say):
-    """Record until ``duration_s`` after the first sample, or until every step of ``plan`` is
-    seen (checked every :data:`CHECK_EVERY_S`), or the recorder ends; returns the samples and
-    whether the duration was reached."""
+    """Record until ``duration_s`` of device time after the first sample, or until every step
+    of ``plan`` is seen (checked every :data:`CHECK_EVERY_S`), or the recorder ends; returns
+    the samples and whether the duration was reached."""
     buffer = _Buffer()
     watcher = None if plan is None else _PlanWatcher(plan, min_still_s)
     first = None
@@ -478,10 +475,12 @@ def _record(recorder, plan: Plan | None, duration_s: float | None, min_still_s: 
         if len(block):
             buffer.add(block)
             if first is None:
-                first = now
+                first = float(block.time[0])
         if first is None:
             continue
-        if duration_s is not None and now - first >= duration_s and not reached_duration:
+        # the duration in device time: a backlog read at once or a busy host cuts nothing short
+        recorded = float(buffer.get("time")[-1]) - first
+        if duration_s is not None and recorded >= duration_s and not reached_duration:
             reached_duration = True
             say(f"{duration_s:g} s recorded")
             recorder.stop()

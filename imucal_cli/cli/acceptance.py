@@ -11,22 +11,21 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import typer
+from rich.markup import escape
 
 from imucal_cli.errors import ImucalError, InputError
+from imucal_cli.formats.calibration import Calibration, read_calibration
+from imucal_cli.formats.session import open_samples
+from imucal_cli.formats.session.digest import session_digest
 from imucal_cli.registry import REGISTRY_ENV
+from imucal_cli.registry.record import UnitInfo, check_serial, record_calibration
+from imucal_cli.registry.store import Registry, open_registry
+from imucal_cli.use.limits import Acceptance, ProductLimits, judge_calibration, load_limits
 
 from .console import make_console
-
-if TYPE_CHECKING:
-    from imucal_cli.formats.calibration import Calibration
-    from imucal_cli.registry.store import Registry
-    from imucal_cli.use.limits import Acceptance, ProductLimits
-
-# The figures, the limits and rich are imported where they are used: ``calibrate`` without
-# --limits or --registry prints its summary without loading rich (tests/test_cli_conformance).
 
 __all__ = ["REJECTED", "Unit", "prepare", "registry_option", "worst"]
 
@@ -64,12 +63,6 @@ class Unit:
         lines : list of str
             What to print (rich markup, escaped).
         """
-        from rich.markup import escape
-
-        from imucal_cli.formats.session.digest import session_digest
-        from imucal_cli.registry.record import UnitInfo, record_calibration
-        from imucal_cli.use.limits import judge_calibration
-
         doc: dict[str, Any] = {}
         lines: list[str] = []
         acceptance: Acceptance | None = None
@@ -105,10 +98,6 @@ class Unit:
     def finish_saved(self, session: Path, output: Path) -> tuple[int, dict[str, Any], list[str]]:
         """:meth:`finish` for a calibration ``calibrate`` wrote to ``output`` (several
         sessions: read back from its JSON)."""
-        from rich.markup import escape
-
-        from imucal_cli.formats.calibration import read_calibration
-
         try:
             cal = read_calibration(output)
         except ImucalError as exc:
@@ -122,8 +111,6 @@ class Unit:
 
 def verdict_lines(acceptance: Acceptance) -> list[str]:
     """``accepted``/``REJECTED`` and each failed check (rich markup)."""
-    from rich.markup import escape
-
     product = f" ({escape(acceptance.product)})" if acceptance.product else ""
     if acceptance.passed:
         n = len(acceptance.checks)
@@ -165,9 +152,6 @@ def prepare(
                              f"(or set {REGISTRY_ENV})")  # fmt: skip
         if limits is None:
             return None
-    from imucal_cli.registry.record import check_serial
-    from imucal_cli.use.limits import load_limits
-
     if serial is not None and len(sessions) > 1:
         raise InputError("--serial names one unit: with several sessions each is recorded under "
                          "its session's sensor")  # fmt: skip
@@ -181,16 +165,12 @@ def prepare(
             serials[str(session)] = check_serial(serial or _sensor_of(session), "serial")
     unit = Unit(None, product_limits, serials, product, lot, station, operator)
     if registry is not None:
-        from imucal_cli.registry.store import open_registry
-
         unit.registry = open_registry(registry, create=True)
     return unit
 
 
 def _sensor_of(session: Path) -> str:
     """The session's ``sensor`` attribute (its serial), or the error that asks for --serial."""
-    from imucal_cli.formats.session import open_samples
-
     with open_samples(session) as samples:
         sensor = samples.sensor
     if not sensor:

@@ -6,9 +6,17 @@ from __future__ import annotations
 from pathlib import Path
 
 import typer
+from rich.markup import escape
 
-from imucal_cli.errors import InputError
+from imucal_cli.errors import InputError, SessionError
+from imucal_cli.formats.calibration import read_calibration
+from imucal_cli.formats.output import check_output
+from imucal_cli.formats.session.digest import session_digest
 from imucal_cli.registry import REGISTRY_ENV
+from imucal_cli.registry.queries import calibration_of
+from imucal_cli.registry.store import open_registry
+from imucal_cli.use.certificate import build_certificate, write_certificate
+from imucal_cli.use.limits import judge_calibration, limits_from_dict, load_limits
 
 from .acceptance import registry_option
 from .app import app
@@ -57,16 +65,6 @@ def certificate(
     Exit status: 0 written; 2 bad input (no such unit or file, bad product file, OUTPUT exists
     without --force, matplotlib or WeasyPrint missing).
     """
-    # Imported here: every command module is imported for any command (cli/__init__.py).
-    from rich.markup import escape
-
-    from imucal_cli.formats.calibration import read_calibration
-    from imucal_cli.formats.output import check_output
-    from imucal_cli.registry.queries import calibration_of
-    from imucal_cli.registry.store import open_registry
-    from imucal_cli.use.certificate import build_certificate, write_certificate
-    from imucal_cli.use.limits import judge_calibration, limits_from_dict, load_limits
-
     as_file = Path(unit)
     check_output(output, force=force, inputs=[as_file] if as_file.exists() else [])
     product_limits = None if limits is None else load_limits(limits)
@@ -101,9 +99,6 @@ def certificate(
 def _digest(session: str | None, cal_path: Path) -> str | None:
     """The content hash of the calibration's session, when the file is at hand (as written,
     or beside the calibration)."""
-    from imucal_cli.errors import SessionError
-    from imucal_cli.formats.session.digest import session_digest
-
     if not session:
         return None
     for candidate in (Path(session), cal_path.parent / Path(session).name):

@@ -1,6 +1,5 @@
 """``imucal registry list|show|export|import|lot``: the calibrations of every unit, kept by
-serial number (issue 29; docs/registry.md).  The tables are drawn by :mod:`.registry_render`;
-the library is imported by each command (every command module is imported for any command)."""
+serial number (docs/registry.md).  The tables are drawn by :mod:`.registry_render`."""
 
 from __future__ import annotations
 
@@ -11,12 +10,21 @@ from pathlib import Path
 import typer
 
 from imucal_cli.errors import InputError
+from imucal_cli.formats.output import check_output, safe_output
 from imucal_cli.registry import REGISTRY_ENV
+from imucal_cli.registry.lot import drop_values, lot_statistics
+from imucal_cli.registry.lot_plot import lot_figure
+from imucal_cli.registry.queries import list_units, unit_report
+from imucal_cli.registry.record import UnitInfo
+from imucal_cli.registry.store import open_registry
+from imucal_cli.registry.transfer import export_records, import_files
+from imucal_cli.use.limits import load_limits
 
 from .acceptance import registry_option
 from .app import app, help_width
 from .console import make_console
 from .options import json_option
+from .registry_render import render_lot, render_unit, render_units
 
 registry_app = typer.Typer(
     name="registry",
@@ -35,8 +43,6 @@ _REGISTRY_HELP = "The registry: a SQLite file or postgresql+psycopg://user@host/
 
 
 def _open(registry: str | None, *, create: bool = False):
-    from imucal_cli.registry.store import open_registry
-
     if not registry:
         raise InputError(f"no registry: give --registry PATH|URL (or set {REGISTRY_ENV})")
     return open_registry(registry, create=create)
@@ -62,8 +68,6 @@ def list_(
 
     Exit status: 0 listed; 2 bad input (no such registry, not a registry).
     """
-    from imucal_cli.registry.queries import list_units
-
     with _open(registry) as reg:
         rows = list_units(reg, product=product, lot=lot)
         name = reg.name
@@ -71,8 +75,6 @@ def list_(
         _echo_json({"format": "imucal-registry-list", "format_version": 1, "registry": name,
                     "units": rows})  # fmt: skip
         return
-    from .registry_render import render_units
-
     render_units(rows, name, make_console())
 
 
@@ -90,15 +92,11 @@ def show(
 
     Exit status: 0 shown; 2 bad input (no such registry or unit).
     """
-    from imucal_cli.registry.queries import unit_report
-
     with _open(registry) as reg:
         record = unit_report(reg, serial)
     if json_output:
         _echo_json(record)
         return
-    from .registry_render import render_unit
-
     render_unit(record, make_console())
 
 
@@ -123,9 +121,6 @@ def export(
 
     Exit status: 0 written; 2 bad input (no such registry, OUTPUT exists without --force).
     """
-    from imucal_cli.formats.output import check_output, safe_output
-    from imucal_cli.registry.transfer import export_records
-
     if output is not None:
         check_output(output, force=force)
     with _open(registry) as reg:
@@ -172,10 +167,6 @@ def import_(
     Exit status: 0 recorded; 2 bad input (unreadable file, a calibration naming no sensor
     without --serial, a bad product file; the files before it are recorded).
     """
-    from imucal_cli.registry.record import UnitInfo
-    from imucal_cli.registry.transfer import import_files
-    from imucal_cli.use.limits import load_limits
-
     if serial is not None and len(files) > 1:
         raise InputError("--serial names one unit: give one calibration file with it")
     product_limits = None if limits is None else load_limits(limits)
@@ -222,25 +213,17 @@ def lot(
     Exit status: 0 shown; 2 bad input (no such registry or lot, bad product file, --plot exists
     without --force or matplotlib missing).
     """
-    from imucal_cli.formats.output import check_output
-    from imucal_cli.registry.lot import drop_values, lot_statistics
-    from imucal_cli.use.limits import load_limits
-
     product_limits = None if limits is None else load_limits(limits)
     if plot is not None:
         check_output(plot, force=force)
     with _open(registry) as reg:
         stats = lot_statistics(reg, lot_name, limits=product_limits, values=plot is not None)
     if plot is not None:
-        from imucal_cli.registry.lot_plot import lot_figure
-
         lot_figure(stats, plot, force=force)
         drop_values(stats)  # the values were for the plot only
     if json_output:
         _echo_json(stats)
         return
-    from .registry_render import render_lot
-
     render_lot(stats, make_console())
     if plot is not None:
         typer.echo(f"wrote {plot}")

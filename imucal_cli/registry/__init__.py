@@ -8,9 +8,7 @@ calibration), :mod:`.queries` (units, a unit's history, records), :mod:`.transfe
 import), :mod:`.lot` (a lot's distributions, Cpk, outliers, drift), :mod:`.lot_plot` (its
 figure).
 
-Import from the modules (``from imucal_cli.registry.store import open_registry``): the package
-itself loads nothing: a command imports only what it uses (``calibrate`` without ``--registry``
-loads neither the history's tables nor the lot's statistics).
+Import from the modules (``from imucal_cli.registry.store import open_registry``).
 """
 
 REGISTRY_ENV = "IMUCAL_REGISTRY"

@@ -15,11 +15,11 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 from imucal_cli.formats.output import safe_output
+from imucal_cli.use.plots import pyplot
 
 __all__ = ["MAX_PANELS", "lot_figure"]
 
 MAX_PANELS = 24
-PLOT_HINT = "plots need matplotlib: pip install 'imucal-cli[plot]'"
 
 
 def _panels(stats: dict[str, Any]) -> list[dict[str, Any]]:
@@ -42,13 +42,7 @@ def lot_figure(stats: dict[str, Any], path: str | os.PathLike, *, force: bool = 
     panels = _panels(stats)
     if not panels:
         raise InputError(f"{path}: nothing to plot: the lot has no parameter with values")
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        raise InputError(PLOT_HINT) from None
+    plt = pyplot()
     cols = min(4, len(panels))
     rows = (len(panels) + cols - 1) // cols
     fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.0 * rows), squeeze=False,

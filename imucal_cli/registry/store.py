@@ -29,6 +29,9 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from alembic import command
+from alembic.config import Config
+from alembic.script import ScriptDirectory
 from sqlalchemy import create_engine, event, inspect, text
 from sqlalchemy.engine import Connection, Engine, make_url
 from sqlalchemy.exc import ArgumentError, DBAPIError, NoSuchModuleError, SQLAlchemyError
@@ -246,8 +249,8 @@ def _sqlite_engine(url: str) -> Engine:
 
 
 def _current(conn: Connection) -> str | None:
-    """The schema revision Alembic recorded (``alembic_version``), None for a new database;
-    read with plain SQL, so that opening an up-to-date registry does not load Alembic."""
+    """The schema revision Alembic recorded (``alembic_version``), None for a new database
+    (read with plain SQL: Alembic's own context is set up only to migrate)."""
     if not inspect(conn).has_table("alembic_version"):
         return None
     return conn.execute(text("SELECT version_num FROM alembic_version")).scalar()
@@ -255,9 +258,6 @@ def _current(conn: Connection) -> str | None:
 
 def _migrate(registry: Registry) -> None:
     """Bring the schema to :data:`HEAD` (nothing when it is there already)."""
-    from alembic import command
-    from alembic.config import Config
-
     try:
         with registry.read() as conn:
             current = _current(conn)
@@ -285,8 +285,6 @@ def _migrate(registry: Registry) -> None:
 
 def _check_known(config, current: str | None, name: str) -> None:
     """Refuse a registry migrated by a newer imucal (a revision this one does not have)."""
-    from alembic.script import ScriptDirectory
-
     known = {s.revision for s in ScriptDirectory.from_config(config).walk_revisions()}
     if current is not None and current not in known:
         raise RegistryError(f"registry {name}: schema revision {current} is newer than this "

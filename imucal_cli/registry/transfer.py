@@ -135,8 +135,6 @@ class _Stored:
 
 
 def _export_records(path: Path) -> Iterator[tuple[Calibration, UnitInfo, dict[str, Any]]]:
-    from imucal_cli.formats.calibration import Calibration
-
     with open(path, encoding="utf-8") as handle:
         next(handle)  # the header
         for number, line in enumerate(handle, start=2):

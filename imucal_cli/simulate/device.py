@@ -52,7 +52,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from imucal_cli.errors import InputError
-from imucal_cli.plans import Plan
+from imucal_cli.plans import Plan, find_plan, load_plan
+from imucal_cli.simulate.play import simulate_plan
+from imucal_cli.simulate.steps import simulate_steps
 
 __all__ = [
     "HARD_IRON_COUNTS",
@@ -75,6 +77,8 @@ FLUSH_WAIT_S = 2.0
 
 DRAIN_MAX_S = 10.0
 """Longest wait, at the end, for the reader to read what was sent, s."""
+DRAIN_QUIET_S = 0.3
+"""How long the reader's input queue must stay empty before everything sent counts as read, s."""
 
 SERVE_PROTOCOLS = ("lines", "motioncal", "i2cdevlib")
 """What the virtual IMU can print: numbers (``t,ax,...``), MotionCal or i2cdevlib lines."""
@@ -134,9 +138,6 @@ def plan_motion(
     :class:`~imucal_cli.plans.Plan`: a registry plan (by its name) as ``imucal simulate`` plays
     it, any other step by step (:func:`imucal_cli.simulate.steps.simulate_steps`).
     """
-    from imucal_cli.plans import find_plan, load_plan
-    from imucal_cli.simulate.steps import simulate_steps
-
     try:
         spec, _ = find_plan(plan.name)
     except InputError:
@@ -176,11 +177,15 @@ def stream_with_holds(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, list[Hold]]:  # fmt: skip
     """As :func:`stream_arrays`, plus the still poses (:class:`Hold`, in time order): the
     session's static segments, a still run across two of them one hold, the lead the first."""
-    from imucal_cli.simulate.play import simulate_plan
+    session, holds = _served_session(plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s,
+                                     units=units, move_s=move_s, **options)  # fmt: skip
+    return session.time, session.accel, session.gyro, holds
 
-    session, _ = simulate_plan(
-        plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s, **options
-    )
+
+def _served_session(plan: str, **options):
+    """The session :func:`~imucal_cli.simulate.play.simulate_plan` simulates for ``plan``
+    (its device times, and temperatures where a ramp was asked for), and its holds."""
+    session, _ = simulate_plan(plan, **options)
     holds: list[Hold] = []
     for i, seg in enumerate(session.static_segments()):
         start, label = seg.start, seg.label or f"pose {i + 1}"
@@ -189,7 +194,7 @@ def stream_with_holds(
         holds.append(Hold(start, seg.stop, label))
     if holds:  # the lead is the first pose held a little longer
         holds[0] = Hold(0, holds[0].stop, holds[0].label)
-    return session.time, session.accel, session.gyro, holds
+    return session, holds
 
 
 def _columns(accel: np.ndarray, gyro: np.ndarray | None, temperature: bool) -> str:
@@ -201,15 +206,19 @@ def _columns(accel: np.ndarray, gyro: np.ndarray | None, temperature: bool) -> s
 
 
 def _format(
-    time: np.ndarray, accel: np.ndarray, gyro: np.ndarray | None, temperature: bool,
+    time: np.ndarray, accel: np.ndarray, gyro: np.ndarray | None, temperature,
     counts: bool,
 ) -> list[bytes]:  # fmt: skip
+    """The data lines; ``temperature``: False (no field), the session's temperatures (N,),
+    or True (a part at room temperature, warming a little: 25 C plus 0.01 C/s)."""
     columns = [time, accel] + ([] if gyro is None else [gyro])
     n_values = sum(c.shape[1] for c in columns[1:])
     value = "%.0f" if counts else "%.6f"
-    fmt = ",".join(["%.4f"] + [value] * n_values + (["%.2f"] if temperature else []))
-    if temperature:
-        columns.append((25.0 + 0.01 * time)[:, None])
+    with_temp = temperature is not None and temperature is not False
+    fmt = ",".join(["%.4f"] + [value] * n_values + (["%.2f"] if with_temp else []))
+    if with_temp:
+        own = not isinstance(temperature, bool)
+        columns.append((np.asarray(temperature, float) if own else 25.0 + 0.01 * time)[:, None])
     rows = np.column_stack(columns).tolist()
     return [(fmt % tuple(r) + "\n").encode() for r in rows]
 
@@ -295,7 +304,10 @@ def serve(
         Duration of each move between poses, s.
     plan_options : dict, optional
         More options of :func:`imucal_cli.simulate.play.simulate_plan` (``still_s``,
-        ``rotations_per_axis``, ``mountings``, ...).
+        ``rotations_per_axis``, ``mountings``, ...; ``temperature``, a
+        :class:`~imucal_cli.simulate.temperature.Ramp`: the printed temperature follows it, a
+        warm-up; ``clock_scale``: the part's clock runs fast or slow, its time stamps say so
+        while the lines go out in true time).
     temperature : bool
         Print the temperature field (the last field of a line).
     loop : bool
@@ -345,6 +357,7 @@ def serve(
                 duration_s=duration_s, garbage=garbage, stall_after_s=stall_after_s,
                 vanish_after_s=vanish_after_s, malformed_every=malformed_every,
                 rng=np.random.default_rng(seed + 1), timed=protocol == "lines",
+                clock_scale=(plan_options or {}).get("clock_scale") or 1.0,
             )  # fmt: skip
             return _stream(port, line, header, stop, wait_reader_s, say)
         finally:
@@ -354,17 +367,21 @@ def serve(
 def _plan_lines(plan: str, protocol: str, *, seed: int, rate_hz: float, hold_s: float | None,
                 units: str, move_s: float, plan_options: dict, temperature: bool, loop: bool,
                 step: bool, next_pose, say) -> tuple[list[bytes], _Schedule, str]:  # fmt: skip
-    """The plan's data lines, the schedule that hands them out, and what a line holds."""
-    time, accel, gyro, holds = stream_with_holds(
+    """The plan's data lines, the schedule that hands them out, and what a line holds.  A
+    temperature ramp (``plan_options["temperature"]``: a warm-up) is printed as the part's
+    temperature; a clock error (``clock_scale``) as the device's own time stamps."""
+    session, holds = _served_session(
         plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s,
         **plan_options,
     )  # fmt: skip
+    time, accel, gyro = session.time, session.accel, session.gyro
+    if temperature and session.temperature is not None:
+        temperature = session.temperature
     lines = _lines(protocol, time, accel, gyro, temperature, units)
-    if hold_s is None:  # the plan's own hold: as its first pose is held
-        hold_s = (holds[0].stop - holds[0].start) / rate_hz if holds else 0.0
     schedule = _Schedule(len(lines), holds, loop=loop, step=step, next_pose=next_pose, say=say,
-                         hold_s=hold_s)  # fmt: skip
-    fields = _columns(accel, gyro, temperature) if protocol == "lines" else f"{protocol} lines"
+                         rate_hz=rate_hz)  # fmt: skip
+    with_temp = temperature is not None and temperature is not False
+    fields = _columns(accel, gyro, with_temp) if protocol == "lines" else f"{protocol} lines"
     return lines, schedule, fields
 
 
@@ -458,12 +475,23 @@ class _Port:
 
     def drain(self, limit_s: float) -> int:
         """Wait until the reader has read every byte written (at most ``limit_s``, or until it
-        closes the port); the number of bytes it has not read (lost when the port closes)."""
+        closes the port); the number of bytes it has not read (lost when the port closes).
+
+        The reader's input queue (FIONREAD) holds at most 4 KiB: a slow reader's backlog waits
+        in the kernel's buffers behind it and refills it as it is read, so the queue must stay
+        empty for :data:`DRAIN_QUIET_S` before everything counts as read."""
         end = _time.monotonic() + limit_s
+        empty_since = None
         while True:
             unread = self._unread()
+            now = _time.monotonic()
             gone = any(ev & select.POLLHUP for _, ev in self.poller.poll(0))
-            if not unread or gone or _time.monotonic() >= end:
+            if unread:
+                empty_since = None
+            elif empty_since is None:
+                empty_since = now
+            if gone or now >= end or (empty_since is not None
+                                      and now - empty_since >= DRAIN_QUIET_S):  # fmt: skip
                 return unread
             _time.sleep(0.01)
 
@@ -513,10 +541,10 @@ class _Schedule:
     samples; the time of every line is ``k / rate`` for the k-th line sent."""
 
     def __init__(self, n: int, holds: list[Hold], *, loop: bool, step: bool, next_pose,
-                 say, hold_s: float) -> None:  # fmt: skip
+                 say, rate_hz: float) -> None:  # fmt: skip
         self.n, self.holds, self.loop, self.step = n, holds, loop, step
         self.next_pose = next_pose or (lambda: False)
-        self.say, self.hold_s = say, hold_s
+        self.say, self.rate_hz = say, rate_hz
         self.i = 0  # next sample of the pass
         self.k = 0  # lines handed out
         self.replay = 0  # samples replayed in the current paused hold
@@ -559,8 +587,9 @@ class _Schedule:
 
     def _announce(self, h: Hold) -> None:
         n = self.holds.index(h) + 1
+        held_s = (h.stop - h.start) / self.rate_hz  # the first: with the lead before it
         until = ("until Enter here" if self.step
-                 else f"{self.hold_s:g} s, then the next (Enter here: now)")  # fmt: skip
+                 else f"{held_s:.3g} s, then the next (Enter here: now)")  # fmt: skip
         self.say(f"pose {n}/{len(self.holds)}: {h.label}: held {until}")
 
 
@@ -572,12 +601,14 @@ class _Line:
         self, master: int, poller, stop: dict, lines: list[bytes], rate_hz: float, baud: int,
         *, schedule: _Schedule, duration_s, garbage: bool, stall_after_s, vanish_after_s,
         malformed_every, rng: np.random.Generator, timed: bool = True,
+        clock_scale: float = 1.0,
     ) -> None:  # fmt: skip
         self.master, self.poller, self.stop, self.lines = master, poller, stop, lines
         self.rate_hz, self.baud, self.schedule, self.garbage = rate_hz, baud, schedule, garbage
         self.duration_s, self.stall_after_s = duration_s, stall_after_s
         self.vanish_after_s, self.malformed_every, self.rng = vanish_after_s, malformed_every, rng
         self.timed = timed  # a line starts with its time (rewritten for a replayed sample)
+        self.clock_scale = clock_scale  # device seconds per true second of the part's clock
         self.out = bytearray()
         self.queued_bytes = 0  # bytes put into `out` (paced by the baud rate)
         self.line_ends: list[tuple[int, bool]] = []  # (byte offset after the line, malformed)
@@ -617,7 +648,8 @@ class _Line:
             self.schedule.k += 1
             line = self.lines[i]
             if i != k and self.timed:  # a later pass, a cut or a paused hold: time goes on
-                line = b"%.4f," % (k / self.rate_hz) + line.split(b",", 1)[1]
+                stamp = k * self.clock_scale / self.rate_hz  # the part's clock
+                line = b"%.4f," % stamp + line.split(b",", 1)[1]
             every = self.malformed_every
             bad = every is not None and k % every == every - 1
             if bad:

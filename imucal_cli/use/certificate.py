@@ -29,6 +29,7 @@ from imucal_cli.formats.session.digest import DIGEST_NAME
 from imucal_cli.formats.text import clean_text
 
 from .limits import LIMIT_KEYS, Acceptance
+from .plots import draw_report, pyplot
 from .report import build_report
 
 __all__ = ["PDF_HINT", "build_certificate", "render_html", "render_pdf", "write_certificate"]
@@ -127,19 +128,15 @@ def _acceptance(acceptance: Acceptance) -> dict[str, Any]:
 def _png(fig) -> str:
     """The figure as a PNG data URI (inline: the certificate is one file; a PNG, not SVG, so
     that a browser or WeasyPrint lays out the page in a second, not tens of them)."""
-    import matplotlib.pyplot as plt
-
     buffer = io.BytesIO()
     try:
         fig.savefig(buffer, format="png", dpi=90)
     finally:
-        plt.close(fig)
+        pyplot().close(fig)
     return "data:image/png;base64," + base64.b64encode(buffer.getvalue()).decode("ascii")
 
 
 def _plots(report: dict[str, Any], acceptance: Acceptance | None) -> list[dict[str, str]]:
-    from .plots import draw_report
-
     plots = []
     if acceptance is not None and acceptance.checks:
         plots.append({"title": "Each limited figure as a fraction of its limit",
@@ -156,9 +153,7 @@ def _plots(report: dict[str, Any], acceptance: Acceptance | None) -> list[dict[s
 
 
 def _limits_figure(acceptance: Acceptance):
-    from .plots import _pyplot
-
-    plt = _pyplot()
+    plt = pyplot()
     checks = [c for c in acceptance.checks if c.value is not None]
     names = [f"{c.sensor} {c.figure}" for c in checks]
     ratios = [abs(c.value) / c.maximum if LIMIT_KEYS[c.key].two_sided else c.value / c.maximum

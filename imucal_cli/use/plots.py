@@ -24,13 +24,14 @@ from typing import Any
 import numpy as np
 
 from imucal_cli.errors import InputError
+from imucal_cli.formats.output import safe_output
 
-__all__ = ["PLOT_HINT", "draw_report", "noise_figure", "report_figure"]
+__all__ = ["PLOT_HINT", "draw_report", "noise_figure", "pyplot", "report_figure"]
 
 PLOT_HINT = "plots need matplotlib: pip install 'imucal-cli[plot]'"
 
 
-def _pyplot():
+def pyplot():
     """matplotlib.pyplot on the Agg backend, or the one-line hint."""
     try:
         import matplotlib
@@ -44,8 +45,6 @@ def _pyplot():
 
 def _save(fig, path: str | os.PathLike[str], force: bool = False, inputs=()) -> Path:
     """Write the figure as PNG through the safe-output helper (see formats/output.py)."""
-    from imucal_cli.formats.output import safe_output
-
     path = Path(path)
     try:
         with safe_output(path, force=force, inputs=inputs) as out, out.open("wb") as handle:
@@ -208,7 +207,7 @@ def draw_report(report: dict[str, Any], where: str = "the report"):
         raise InputError(
             f"{where}: nothing to plot: the calibration carries no per-pose or per-rotation data"
         )
-    plt = _pyplot()
+    plt = pyplot()
     cols = 1 if len(panels) == 1 else 2
     rows = (len(panels) + cols - 1) // cols
     fig = plt.figure(figsize=(6.5 * cols, 4.6 * rows), layout="constrained")
@@ -237,7 +236,7 @@ def noise_figure(result, path: str | os.PathLike[str], *, force: bool = False, i
     -------
     Path
     """
-    plt = _pyplot()
+    plt = pyplot()
     n = len(result.sensors)
     fig, axes = plt.subplots(1, n, figsize=(6.5 * n, 5), layout="constrained", squeeze=False)
     colors = ("tab:red", "tab:green", "tab:blue", "tab:purple", "tab:orange", "tab:brown")
