@@ -83,12 +83,46 @@ class Server:
     def _pg_ctl(self, *args: str) -> subprocess.CompletedProcess:
         return _run([str(bindir() / "pg_ctl"), "-D", str(self.data), *args], self.user)
 
+    def cpu_s(self) -> float | None:
+        """CPU seconds (user + system) the server has used so far: the postmaster's, its
+        finished backends' and those running now (Linux ``/proc``); None where unreadable."""
+        try:
+            pid = int((self.data / "postmaster.pid").read_text().split()[0])
+            ticks = _ticks(pid, children=True)
+        except (OSError, ValueError, IndexError):
+            return None
+        for entry in Path("/proc").iterdir():
+            if entry.name.isdigit() and _parent(entry) == pid:
+                try:
+                    ticks += _ticks(int(entry.name))
+                except (OSError, ValueError, IndexError):  # it has just ended
+                    continue
+        return ticks / os.sysconf("SC_CLK_TCK")
+
     def stop(self) -> None:
         """Stop the server (immediately) and remove its folder."""
         try:
             self._pg_ctl("-m", "immediate", "-w", "stop")
         finally:
             shutil.rmtree(self.folder, ignore_errors=True)
+
+
+def _stat(pid: int) -> list[str]:
+    """The fields of ``/proc/PID/stat`` after the command name (the first is the state)."""
+    return Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()
+
+
+def _ticks(pid: int, children: bool = False) -> int:
+    """utime + stime of a process (and with ``children``, of its children it has waited for)."""
+    fields = _stat(pid)
+    return sum(int(f) for f in fields[11 : 15 if children else 13])
+
+
+def _parent(entry: Path) -> int | None:
+    try:
+        return int(_stat(int(entry.name))[1])
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 def _run(cmd: list[str], user: str | None, timeout: float = 120) -> subprocess.CompletedProcess:

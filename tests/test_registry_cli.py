@@ -14,7 +14,7 @@ from imucal_cli.formats.session.digest import session_digest
 
 from .cli_helpers import assert_one_line_error, run
 from .registry_helpers import SESSION
-from .test_partial_capture import serve
+from .test_partial_capture import capture_guided, serve
 from .test_virtual import start_capture
 
 LOOSE = """
@@ -180,18 +180,26 @@ def test_several_sessions_are_each_judged_and_recorded(tmp_path):
 
 
 @pytest.mark.slow
-def test_the_production_line_path_from_a_serial_device(tmp_path):
+@pytest.mark.parametrize("mode", ["unattended", "guided"])
+def test_the_production_line_path_from_a_serial_device(tmp_path, mode):
     """The user's path: a unit on a serial port (``imucal simulate --serve``), captured
-    unattended, calibrated with its product's limits into the registry, shown, certified."""
-    server, port = serve("--plan", "six", "--hold", "1.5", "--move", "0.8", "--seed", "4")
+    (unattended, or guided as an operator would), calibrated with its product's limits into the
+    registry, shown, certified."""
+    # a guided capture holds each pose 2 s from when it sees the unit still: longer holds
+    hold = "4" if mode == "guided" else "1.5"
+    server, port = serve("--plan", "six", "--hold", hold, "--move", "0.8", "--seed", "4")
     out = tmp_path / "unit.h5"
     try:
-        cap = start_capture(port, out, "--plan", "six")
-        stdout, stderr = cap.communicate(timeout=240)
+        if mode == "guided":
+            code, said = capture_guided(port, out, "six")
+        else:
+            cap = start_capture(port, out, "--plan", "six")
+            stdout, stderr = cap.communicate(timeout=240)
+            code, said = cap.returncode, stdout + stderr
     finally:
         server.kill()
         server.communicate()
-    assert cap.returncode == 0, (stdout, stderr)
+    assert code == 0, said
     (tmp_path / "p.toml").write_text("[product]\nname = \"SIM-16\"\n[limits.accel]\n"
                                       "bias_max = 0.8\nresidual_rms_max = 0.05\n")  # fmt: skip
     db = tmp_path / "line.db"
@@ -200,6 +208,7 @@ def test_the_production_line_path_from_a_serial_device(tmp_path):
     assert proc.returncode == 0, proc.stderr
     doc = json.loads(proc.stdout)
     assert doc["acceptance"]["verdict"] == "pass" and doc["registry"]["serial"] == "SN-LINE-1"
+    assert doc["registry"]["session_sha256"] == session_digest(out)
     shown = json.loads(run("registry", "show", "SN-LINE-1", "--registry", db, "--json").stdout)
     assert [(c["station"], c["verdict"]) for c in shown["calibrations"]] == [("st-9", "pass")]
     cert = tmp_path / "cert.html"

@@ -35,7 +35,8 @@ registry_app = typer.Typer(
     help="The calibrations of every unit by serial number: list, show a unit's history and "
     "drift, export and import records, a lot's statistics. The registry is a SQLite file or "
     f"a PostgreSQL URL (--registry, or ${REGISTRY_ENV}); imucal calibrate --registry records "
-    "into it.",
+    "into it. Each command's options: imucal registry COMMAND --help; the limits file, the "
+    "statistics and the certificate: docs/registry.md.",
 )
 app.add_typer(registry_app, name="registry")
 
@@ -135,7 +136,7 @@ def export(
 @registry_app.command("import")
 def import_(
     files: list[Path] = typer.Argument(
-        ..., metavar="CAL.json|EXPORT.jsonl...",
+        ..., metavar="CAL.json|EXPORT.jsonl",
         help="Calibration files (recorded under their sensor, or --serial) and registry "
         "exports (every record kept as it was).",
     ),  # fmt: skip

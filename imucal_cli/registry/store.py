@@ -46,6 +46,10 @@ __all__ = ["BUSY_TIMEOUT_S", "REGISTRY_ENV", "Registry", "RegistryError", "open_
 BUSY_TIMEOUT_S = 60.0
 """How long a SQLite connection waits for another process's write lock."""
 
+CONNECT_TIMEOUT_S = 10
+"""How long a PostgreSQL connection is tried before the station says it cannot connect (unless
+the URL gives ``connect_timeout``)."""
+
 MIGRATION_LOCK = 72_290_029
 """PostgreSQL advisory lock key held while the schema is migrated."""
 
@@ -193,8 +197,9 @@ def open_registry(target: str | os.PathLike, *, create: bool = True) -> Registry
         engine = _sqlite_engine(url)
         lock = Path(parsed.database + ".lock")
     elif parsed.get_backend_name() == "postgresql":
+        timeout = {} if "connect_timeout" in parsed.query else {"connect_timeout": CONNECT_TIMEOUT_S}
         try:
-            engine = create_engine(url, pool_pre_ping=True)
+            engine = create_engine(url, pool_pre_ping=True, connect_args=timeout)
         except (NoSuchModuleError, ImportError):
             raise RegistryError(f"registry {name}: PostgreSQL needs psycopg 3: pip install "
                                 "'imucal-cli[postgresql]'") from None  # fmt: skip
@@ -203,6 +208,7 @@ def open_registry(target: str | os.PathLike, *, create: bool = True) -> Registry
                             "(postgresql+psycopg://...) are supported")  # fmt: skip
     registry = Registry(engine, name, lock)
     try:
+        _connect(registry)
         _migrate(registry)
     except BaseException:
         engine.dispose()
@@ -254,6 +260,20 @@ def _current(conn: Connection) -> str | None:
     if not inspect(conn).has_table("alembic_version"):
         return None
     return conn.execute(text("SELECT version_num FROM alembic_version")).scalar()
+
+
+def _connect(registry: Registry) -> None:
+    """Connect once, so that a server that does not answer (or a file that is not a
+    database) is said as such, before anything is read."""
+    try:
+        with registry.engine.connect():
+            pass
+    except SQLAlchemyError as exc:
+        if registry.dialect == "sqlite":
+            raise RegistryError(f"registry {registry.name}: {_one_line(exc)} (not an imucal "
+                                "registry?)") from None  # fmt: skip
+        raise RegistryError(f"registry {registry.name}: cannot connect ({_one_line(exc)})"
+                            ) from None  # fmt: skip
 
 
 def _migrate(registry: Registry) -> None:
