@@ -92,6 +92,7 @@ def test_the_certificate_in_a_headless_browser(unit, tmp_path):
     assert dom.count('src="data:image/png;base64,') == 2
 
 
+@pytest.mark.slow  # WeasyPrint's rendering: make test-all
 def test_a_pdf_certificate_from_a_calibration_file(unit, tmp_path):
     pytest.importorskip("weasyprint", reason="WeasyPrint not installed (the pdf extra)")
     (tmp_path / "loose.toml").write_text(LIMITS.replace("0.0001", "0.01"))

@@ -241,6 +241,59 @@ def test_import_of_calibration_files_judges_them(tmp_path, template):
         assert list_units(reg)[0]["lot"] == "L9"
 
 
+def _largest_figures(doc: dict, sensor: str, nominal: float) -> dict[str, float]:
+    """Each limited figure's largest value over the axes, computed here from the calibration
+    JSON as the product file's comments define it (the limit's key -> value)."""
+    sec = doc[sensor]
+    m, b = np.asarray(sec["matrix"]), np.asarray(sec["bias"])
+    if sensor == "accel":
+        sigma = np.asarray(sec["noise"]["per_sample_std"])
+    else:
+        sigma = np.full(3, sec["gyro_noise_raw"])
+    out = {
+        "bias_max": np.abs(m @ b).max(),  # the reading at zero input, output units
+        "gain_error_max_pct": 100 * np.abs(np.asarray(sec["sensitivity"]) / nominal - 1).max(),
+        "misalignment_max_deg": max(abs(v) for v in sec["misalignment_deg"].values()),
+        "noise_max": np.sqrt((m**2) @ sigma**2).max(),  # raw white noise through the matrix
+        "residual_rms_max": sec["residual_rms"],
+    }
+    if sec.get("rms_loo") is not None:
+        out["held_out_rms_max"] = sec["rms_loo"]
+    return out
+
+
+@pytest.mark.parametrize("sensor, nominal", [("accel", 835.0), ("gyro", 939.7)])
+def test_every_limit_bounds_its_figure(template, sensor, nominal):
+    """Each key of a [limits.SENSOR] table, 1 % above the unit's figure (computed here) passes,
+    1 % below fails naming the figure; a limit whose figure the calibration does not state
+    (the gyro's held-out RMS) fails saying so."""
+    cal = unit(template, 0)
+    doc = json.loads(calibration_to_json(cal))
+    figures = _largest_figures(doc, sensor, nominal)
+    names = {"bias_max": "bias", "gain_error_max_pct": "gain error",
+             "misalignment_max_deg": "misalignment", "noise_max": "noise",
+             "residual_rms_max": "residual rms", "held_out_rms_max": "held-out rms"}  # fmt: skip
+    for key, value in figures.items():
+        for factor, passes in ((1.01, True), (0.99, False)):
+            table = {key: value * factor, "nominal_sensitivity": nominal}
+            limits = limits_from_dict({"limits": {sensor: table}}, "p.toml")
+            verdict = judge_calibration(cal, limits)
+            assert verdict.passed is passes, (key, factor, verdict.failed)
+            largest = max(verdict.checks, key=lambda c: abs(c.value))
+            assert largest.value is not None
+            assert abs(largest.value) == pytest.approx(value, rel=1e-9), key
+            if not passes:
+                assert len(verdict.failed) >= 1
+                assert all(line.startswith(f"{sensor} ") for line in verdict.failed)
+                assert names[key] in verdict.failed[0], (key, verdict.failed)
+    if sensor == "gyro":
+        limits = limits_from_dict({"limits": {"gyro": {"held_out_rms_max": 1.0}}}, "p.toml")
+        verdict = judge_calibration(cal, limits)
+        assert not verdict.passed and "not stated" in verdict.failed[0]
+    limits = limits_from_dict({"limits": {"mag": {"bias_max": 1.0}}}, "p.toml")
+    assert judge_calibration(cal, limits).failed == ["mag bias: not calibrated (limit 1)"]
+
+
 def test_limits_files_are_checked():
     for bad, words in [({"limits": {}}, "no limits"),
                        ({"limits": {"accel": {"bias_max": -1}}}, "positive"),

@@ -80,6 +80,7 @@ def test_record_list_show_and_lot_on_postgresql(url, template):
         assert stats["units"] == 5 and stats["verdicts"]["pass"] + stats["verdicts"]["fail"] == 5
 
 
+@pytest.mark.slow  # make test has the SQLite case; make test-all this one
 def test_four_writer_processes_on_postgresql_lose_nothing(url, template):
     """They also create and migrate the new database at once (the advisory lock)."""
     procs = [writer(url, template["path"], 6 * i, 6) for i in range(4)]
@@ -91,6 +92,7 @@ def test_four_writer_processes_on_postgresql_lose_nothing(url, template):
     assert_whole(url, expected)
 
 
+@pytest.mark.slow  # make test has the SQLite case; make test-all this one
 def test_a_writer_killed_mid_transaction_on_postgresql(url, template):
     open_registry(url).close()
     proc, lines = writer(url, template["path"], 10, 10, "L", "--hang-after", "3")

@@ -197,7 +197,9 @@ def open_registry(target: str | os.PathLike, *, create: bool = True) -> Registry
         engine = _sqlite_engine(url)
         lock = Path(parsed.database + ".lock")
     elif parsed.get_backend_name() == "postgresql":
-        timeout = {} if "connect_timeout" in parsed.query else {"connect_timeout": CONNECT_TIMEOUT_S}
+        timeout = {"connect_timeout": CONNECT_TIMEOUT_S}
+        if "connect_timeout" in parsed.query:  # the URL's own
+            timeout = {}
         try:
             engine = create_engine(url, pool_pre_ping=True, connect_args=timeout)
         except (NoSuchModuleError, ImportError):
