@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
+import sys
 
 import h5py
 import numpy as np
@@ -107,6 +108,13 @@ def test_a_pdf_certificate_from_a_calibration_file(unit, tmp_path):
     assert f"b_x {value} {std} counts" in text
     # the session is beside the calibration: its content hash is computed and shown
     assert session_digest(unit["session"]) in text.replace(" ", "")
+
+
+def test_without_weasyprint_a_pdf_is_one_line_naming_the_extra(unit, tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "weasyprint", None)  # import weasyprint -> ImportError
+    proc = run("certificate", unit["folder"] / "unit.cal.json", "-o", tmp_path / "c.pdf")
+    assert_one_line_error(proc, "WeasyPrint", "imucal-cli[pdf]")
+    assert not (tmp_path / "c.pdf").exists()
 
 
 def test_certificate_refusals(unit, tmp_path):

@@ -109,7 +109,6 @@ def test_every_page_is_in_the_site_navigation():
 def _commands():
     """Every command by its name after ``imucal``: a group's sub-commands as ``GROUP SUB``
     (``registry list``) beside the group itself."""
-    import click
     import typer
 
     from imucal_cli.cli import app
@@ -117,7 +116,7 @@ def _commands():
     out = {}
     for name, command in typer.main.get_command(app).commands.items():
         out[name] = command
-        if isinstance(command, click.Group):
+        if hasattr(command, "commands"):  # a group (typer's own click)
             out.update({f"{name} {sub}": c for sub, c in command.commands.items()})
     return out
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import hashlib
 import json
 import signal
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -95,6 +96,12 @@ def test_bad_names_and_missing_registries_are_one_line_errors(tmp_path, template
         open_registry(tmp_path / "junk.db")
     with pytest.raises(RegistryError, match="only SQLite files and PostgreSQL"):
         open_registry("mysql://u@h/db")
+
+
+def test_without_psycopg_a_postgresql_registry_says_which_extra(monkeypatch):
+    monkeypatch.setitem(sys.modules, "psycopg", None)  # import psycopg -> ImportError
+    with pytest.raises(RegistryError, match=r"psycopg 3: pip install 'imucal-cli\[postgresql\]'"):
+        open_registry("postgresql://u@127.0.0.1:1/db")
 
 
 def test_a_registry_of_a_newer_imucal_is_refused(tmp_path):

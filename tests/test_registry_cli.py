@@ -146,6 +146,11 @@ def test_bad_input_is_refused_before_anything_is_solved(tmp_path):
     assert_one_line_error(run("calibrate", session, "-o", out, "--serial", "X"), "--registry")
     assert_one_line_error(run("calibrate", session, "-o", out, "--registry",
                               tmp_path / "no" / "reg.db"), "no such folder")  # fmt: skip
+    assert_one_line_error(run("calibrate", session, "-o", out, "--registry", "mysql://u@h/db"),
+                          "only SQLite files and PostgreSQL URLs")  # fmt: skip
+    # a PostgreSQL server that does not answer (nothing listens on port 1)
+    assert_one_line_error(run("calibrate", session, "-o", out, "--registry",
+                              "postgresql://u@127.0.0.1:1/db"), "cannot connect")  # fmt: skip
     with h5py.File(session, "r+") as f:
         del f.attrs["sensor"]
     assert_one_line_error(run("calibrate", session, "-o", out, "--registry", tmp_path / "r.db"),
