@@ -107,3 +107,13 @@ def test_the_check_sees_lazy_and_relative_imports():
                    "imucal_cli.pipeline.calibrate.calibrate_session", "imucal_cli.formats.session",
                    "imucal_cli.formats.session.Session"]  # fmt: skip
     assert "pipeline" not in _allowed(layer_table())["formats"]
+
+
+def test_the_registry_is_a_layer_of_its_own():
+    """Issue 29: the registry sits above ``use`` (it judges and compares units with use's limits
+    and history) and below the CLI: no layer under it knows a database, so a report, an export
+    or a certificate from a file works without one."""
+    allowed = _allowed(layer_table())
+    assert allowed["registry"] == {"formats", "use"}
+    below = ("solvers", "formats", "plans", "simulate", "pipeline", "use", "capture")
+    assert not [name for name in below if "registry" in allowed[name]]
