@@ -37,7 +37,7 @@ from .gyro import (
     turns_between,
 )
 from .gyro_full import (
-    accel_derivative,
+    accel_directions,
     design_warning,
     gain_std,
     parameter_rows,
@@ -282,7 +282,7 @@ def calibrate_gyro_known(
         full = gyro_full.fit_full(rot, st, data.noise, b0)
         x0 = np.r_[full.b, full.M.ravel()]
 
-    accel_dirs = _accel_dirs(data)
+    accel_dirs = accel_directions(data)
 
     def fitter(rot_, tau_fixed=None):
         def fit(with_g, tau=None, known_=known):
@@ -345,19 +345,6 @@ def _choose(cfg, data, known, used, st, rot, b0, fitter, vertical_known, accel_d
                            fitter(None) if rot_used is None else rot_fit, g_test,
                            vertical_known, accel_dirs, why_out)  # fmt: skip
     return verdict, rot_used
-
-
-def _accel_dirs(data: GyroData) -> np.ndarray | None:
-    """(P, 3, m): the still periods' calibrated gravity vectors moved along each square-root
-    direction of the accelerometer calibration's covariance (None without one)."""
-    cal = data.accel_cal
-    cov = None if cal is None else cal.extra.get("covariance")
-    dg = None if cov is None else accel_derivative(data.stills, cal)
-    if dg is None:
-        return None
-    C = np.asarray(cov["values"], float)
-    lam, V = np.linalg.eigh((C + C.T) / 2)
-    return dg @ (V * np.sqrt(np.clip(lam, 0, None)))
 
 
 def _without_known_turns(session, cfg, accel_cal, data, segs) -> SensorCalibration:
