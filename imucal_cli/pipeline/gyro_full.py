@@ -257,9 +257,11 @@ def nonlinear_warning(ratios: dict, prop) -> str | None:
             "more times about different axes (plan free:N)")
 
 
-def design_warning(data: GyroData, uncertainty: dict, n_turns: int | None = None) -> str | None:
+def design_warning(data: GyroData, uncertainty: dict, n_turns: int | None = None,
+                   why: str | None = None) -> str | None:
     """A warning when the turns do not determine the gyro to ``[gyro] max_rate_std``, naming
-    the cause and what would work."""
+    the cause and what would work (``why``: the caller's, where it knows better than the
+    number of turns, e.g. turns of known angle whose labelled axes limit it)."""
     limit = data.cfg.gyro.max_rate_std
     total, acc = uncertainty["total"], uncertainty["accel_calibration"] or 0.0
     if total <= limit:
@@ -275,6 +277,8 @@ def design_warning(data: GyroData, uncertainty: dict, n_turns: int | None = None
                 f"({100 * acc:.2g} %{axes}); use a better one: --accel CAL.json from a "
                 "session with more poses (plan qureshi18 or random:N), or turn the unit 10 or "
                 "more times about different axes (plan free:N)")  # fmt: skip
+    if why is not None:
+        return f"{head}: {why}"
     return (f"{head}: too few or too small turns for the 12 parameters; turn the unit 10 or "
             "more times, about different axes, still before and after each (plan free:N)")
 
