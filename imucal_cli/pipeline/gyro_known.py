@@ -37,7 +37,7 @@ from .gyro import (
     turns_between,
 )
 from .gyro_full import (
-    accel_derivative,
+    accel_directions,
     design_warning,
     gain_std,
     parameter_rows,
@@ -282,7 +282,7 @@ def calibrate_gyro_known(
         full = gyro_full.fit_full(rot, st, data.noise, b0)
         x0 = np.r_[full.b, full.M.ravel()]
 
-    accel_dirs = _accel_dirs(data)
+    accel_dirs = accel_directions(data)
 
     def fitter(rot_, tau_fixed=None):
         def fit(with_g, tau=None, known_=known):
@@ -345,19 +345,6 @@ def _choose(cfg, data, known, used, st, rot, b0, fitter, vertical_known, accel_d
                            fitter(None) if rot_used is None else rot_fit, g_test,
                            vertical_known, accel_dirs, why_out)  # fmt: skip
     return verdict, rot_used
-
-
-def _accel_dirs(data: GyroData) -> np.ndarray | None:
-    """(P, 3, m): the still periods' calibrated gravity vectors moved along each square-root
-    direction of the accelerometer calibration's covariance (None without one)."""
-    cal = data.accel_cal
-    cov = None if cal is None else cal.extra.get("covariance")
-    dg = None if cov is None else accel_derivative(data.stills, cal)
-    if dg is None:
-        return None
-    C = np.asarray(cov["values"], float)
-    lam, V = np.linalg.eigh((C + C.T) / 2)
-    return dg @ (V * np.sqrt(np.clip(lam, 0, None)))
 
 
 def _without_known_turns(session, cfg, accel_cal, data, segs) -> SensorCalibration:
@@ -440,6 +427,45 @@ def _refit(session, cfg, accel_cal, segs, statics, res, data, rot, x, known0,
     return np.r_[fit.b, fit.M.ravel(), [] if fit.G is None else fit.G.ravel()]
 
 
+def _axes_limit(res, known, notes) -> str | None:
+    """Why turns of known angle alone leave the gyro's rates uncertain, when their axes do it
+    (issue 24.5: a Ferraris session's 3 full turns fix the gains to a fraction of a percent,
+    its axes only as well as their labels were placed, 2-3 degrees by hand): the rate std
+    the axes alone leave (each axis moved by its std across it, the turns' closed form
+    refitted), said with the gains' std and what would tie the axes better. None where the
+    axes are not what limits it."""
+    if len(known.t) < 3 or not any("axis labelled" in n for n in notes):
+        return None
+    n = known.axis
+    cov = np.zeros((9, 9))
+    try:
+        M0 = gyro_known.closed_form(known, res.b)
+        for k in range(len(n)):
+            t1 = np.cross(n[k], np.eye(3)[np.argmin(np.abs(n[k]))])
+            t1 /= np.linalg.norm(t1)
+            for t in (t1, np.cross(n[k], t1)):
+                axis = n.copy()
+                axis[k] = n[k] + known.axis_sigma[k] * t
+                axis[k] /= np.linalg.norm(axis[k])
+                dM = gyro_known.closed_form(replace(known, axis=axis), res.b) - M0
+                cov += np.outer(dM.ravel(), dM.ravel())
+    except DesignError:
+        return None
+    axes = rate_std(res.M, cov)
+    total = rate_std(res.M, res.cov[3:12, 3:12])
+    if axes < 0.5 * total:
+        return None
+    gains = np.linalg.norm(np.linalg.inv(res.M), axis=1)
+    g_std = float(np.max(gain_std(res.M, res.cov[3:12, 3:12]) / gains))
+    placed = float(np.degrees(np.sqrt(2) * np.max(known.axis_sigma)))
+    return (f"the turns of known angle fix its gains to {100 * g_std:.2g} %, but its axes only "
+            f"as well as their labels sit on the unit ({placed:.2g} deg RMS, as the "
+            f"accelerometer's labelled poses measured the placement), which alone leaves "
+            f"{100 * axes:.2g} %: place the unit square on each face (a square block against a "
+            "ruler, a jig), or keep the moves between the faces as turns (imucal capture and "
+            "imucal import without --sections segment them): gravity then ties the axes")
+
+
 #: Fewer spare equations than this in the known turns alone: they cannot check each other.
 MIN_SPARE = 3
 
@@ -482,14 +508,16 @@ def _section(data: GyroData, res, known, used, g_test, uncertainty, assumed: boo
     ] + verdict.gravity_rows  # fmt: skip
     data.warnings += verdict.blocking
     data.notes += verdict.notes
-    undetermined = design_warning(data, uncertainty, len(used) + len(data.turns))
+    with_gravity = verdict.comparison.get("turns_between_still_periods") == "used"
+    undetermined = design_warning(data, uncertainty, len(used) + len(data.turns),
+                                  why=None if with_gravity else _axes_limit(res, known, notes=
+                                                                            data.notes))
     S = np.linalg.inv(res.M)
     gains = np.linalg.norm(S, axis=1)
     data.warnings += gyro_checks(data.session, data.cfg, gains, units)
     if undetermined:
         data.warnings.append(undetermined)
     blocking = list(data.warnings)  # the rest are said, not refused (issue 10.3)
-    with_gravity = verdict.comparison.get("turns_between_still_periods") == "used"
     spare = _spare_text(data, known, used, assumed, with_gravity)
     if spare and not assumed:  # std measured (the accelerometer's placement, the vertical)
         data.notes.append(spare)
