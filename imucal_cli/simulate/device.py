@@ -11,6 +11,9 @@ through the real tty layer.
   samples as ``imucal simulate`` writes to a file; its static segments are the holds.
 - A pseudo-terminal has no baud rate: the bytes are paced to ``baud / 10`` bytes per second
   (8N1), so a stream too fast for the baud rate falls behind as it would on a real line.
+- With a magnetometer (``plan_options["mag"]``, ``imucal simulate --serve --mag``) a pose
+  plan is played as ``imucal simulate --mag`` writes it (tumbles between the holds) and each
+  line carries ``mx,my,mz`` after the gyro: the same part, samples and truth as the file.
 - The first line is a comment ``# imucal virtual IMU ...``; then data lines: numbers
   (``protocol="lines"``), or as the Arduino sketches print them (:data:`SERVE_PROTOCOLS`):
   MotionCal's ``Raw:ax,ay,az,gx,gy,gz,mx,my,mz`` (the magnetometer: a 48 uT field at 60
@@ -176,11 +179,26 @@ def stream_with_holds(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, list[Hold]]:  # fmt: skip
     """As :func:`stream_arrays`, plus the still poses (:class:`Hold`, in time order): the
     session's static segments, a still run across two of them one hold, the lead the first."""
-    from imucal_cli.simulate.play import simulate_plan
+    session, holds = _served_session(plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s,
+                                     units=units, move_s=move_s, **options)  # fmt: skip
+    return session.time, session.accel, session.gyro, holds
 
-    session, _ = simulate_plan(
-        plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s, **options
-    )
+
+def _served_session(plan: str, *, mag: dict | None = None, **options):
+    """The session :func:`~imucal_cli.simulate.play.simulate_plan` simulates for ``plan``
+    (with ``mag``, the options of :func:`~imucal_cli.simulate.magnetometer.simulate_mag`:
+    the pose plan with a magnetometer, tumbling between the holds, as ``imucal simulate
+    --mag`` writes it), and its holds."""
+    if mag is None:
+        from imucal_cli.simulate.play import simulate_plan
+
+        session, _ = simulate_plan(plan, **options)
+    else:
+        from imucal_cli.simulate.magnetometer import simulate_mag
+
+        keep = ("seed", "rate_hz", "hold_s", "units", "move_s", "accel_noise", "jitter_deg")
+        given = {k: v for k, v in options.items() if k in keep and v is not None}
+        session, _ = simulate_mag(plan, **mag, **given)
     holds: list[Hold] = []
     for i, seg in enumerate(session.static_segments()):
         start, label = seg.start, seg.label or f"pose {i + 1}"
@@ -189,25 +207,32 @@ def stream_with_holds(
         holds.append(Hold(start, seg.stop, label))
     if holds:  # the lead is the first pose held a little longer
         holds[0] = Hold(0, holds[0].stop, holds[0].label)
-    return session.time, session.accel, session.gyro, holds
+    return session, holds
 
 
-def _columns(accel: np.ndarray, gyro: np.ndarray | None, temperature: bool) -> str:
-    """The field names of a line: ``t,ax,ay,az[,a4..],gx,gy,gz[,temp]``."""
+def _columns(accel: np.ndarray, gyro: np.ndarray | None, temperature: bool,
+             mag: np.ndarray | None = None) -> str:  # fmt: skip
+    """The field names of a line: ``t,ax,ay,az[,a4..],gx,gy,gz[,mx,my,mz][,temp]``."""
     names = ["t", "ax", "ay", "az"] + [f"a{k}" for k in range(4, accel.shape[1] + 1)]
     if gyro is not None:
         names += ["gx", "gy", "gz"] + [f"g{k}" for k in range(4, gyro.shape[1] + 1)]
+    if mag is not None:
+        names += ["mx", "my", "mz"]
     return ",".join(names + (["temp"] if temperature else []))
 
 
 def _format(
     time: np.ndarray, accel: np.ndarray, gyro: np.ndarray | None, temperature: bool,
-    counts: bool,
+    counts: bool, mag: np.ndarray | None = None, mag_counts: bool = True,
 ) -> list[bytes]:  # fmt: skip
     columns = [time, accel] + ([] if gyro is None else [gyro])
     n_values = sum(c.shape[1] for c in columns[1:])
     value = "%.0f" if counts else "%.6f"
-    fmt = ",".join(["%.4f"] + [value] * n_values + (["%.2f"] if temperature else []))
+    fields = ["%.4f"] + [value] * n_values
+    if mag is not None:
+        columns.append(mag)
+        fields += ["%.0f" if mag_counts else "%.4f"] * mag.shape[1]
+    fmt = ",".join(fields + (["%.2f"] if temperature else []))
     if temperature:
         columns.append((25.0 + 0.01 * time)[:, None])
     rows = np.column_stack(columns).tolist()
@@ -247,14 +272,19 @@ def _format_sketch(protocol: str, accel: np.ndarray, gyro: np.ndarray | None) ->
     return [(fmt % tuple(r) + "\n").encode() for r in rows]
 
 
-def _lines(protocol: str, time, accel, gyro, temperature: bool, units: str) -> list[bytes]:
+def _lines(protocol: str, time, accel, gyro, temperature: bool, units: str, mag=None,
+           mag_units: str = "counts") -> list[bytes]:  # fmt: skip
     """The data lines of ``protocol`` (:data:`SERVE_PROTOCOLS`)."""
     if protocol == "lines":
-        return _format(time, accel, gyro, temperature, units == "counts")
+        return _format(time, accel, gyro, temperature, units == "counts", mag,
+                       mag_units == "counts")  # fmt: skip
     if protocol not in SERVE_PROTOCOLS:
         raise InputError(f"--protocol {protocol!r}: use {', '.join(SERVE_PROTOCOLS)}")
     if units != "counts":
         raise InputError(f"--protocol {protocol} prints counts: leave out --units {units}")
+    if mag is not None:
+        raise InputError(f"--protocol {protocol} prints its own magnetometer (or none): "
+                         "leave out --mag")  # fmt: skip
     return _format_sketch(protocol, accel, gyro)
 
 
@@ -295,7 +325,9 @@ def serve(
         Duration of each move between poses, s.
     plan_options : dict, optional
         More options of :func:`imucal_cli.simulate.play.simulate_plan` (``still_s``,
-        ``rotations_per_axis``, ``mountings``, ...).
+        ``rotations_per_axis``, ``mountings``, ...); ``mag``: the options of
+        :func:`imucal_cli.simulate.magnetometer.simulate_mag` (a pose plan with a
+        magnetometer, tumbling between the holds: ``mx,my,mz`` after the gyro).
     temperature : bool
         Print the temperature field (the last field of a line).
     loop : bool
@@ -355,16 +387,18 @@ def _plan_lines(plan: str, protocol: str, *, seed: int, rate_hz: float, hold_s: 
                 units: str, move_s: float, plan_options: dict, temperature: bool, loop: bool,
                 step: bool, next_pose, say) -> tuple[list[bytes], _Schedule, str]:  # fmt: skip
     """The plan's data lines, the schedule that hands them out, and what a line holds."""
-    time, accel, gyro, holds = stream_with_holds(
+    session, holds = _served_session(
         plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s,
         **plan_options,
     )  # fmt: skip
-    lines = _lines(protocol, time, accel, gyro, temperature, units)
+    time, accel, gyro, mag = session.time, session.accel, session.gyro, session.mag
+    lines = _lines(protocol, time, accel, gyro, temperature, units, mag, session.mag_units)
     if hold_s is None:  # the plan's own hold: as its first pose is held
         hold_s = (holds[0].stop - holds[0].start) / rate_hz if holds else 0.0
     schedule = _Schedule(len(lines), holds, loop=loop, step=step, next_pose=next_pose, say=say,
                          hold_s=hold_s)  # fmt: skip
-    fields = _columns(accel, gyro, temperature) if protocol == "lines" else f"{protocol} lines"
+    fields = (_columns(accel, gyro, temperature, mag) if protocol == "lines"
+              else f"{protocol} lines")  # fmt: skip
     return lines, schedule, fields
 
 
