@@ -199,24 +199,29 @@ def run_jobs(plans, seeds, modes, *, jobs: int, n_burners: int, folder: Path,
     done_s = 0.0
     lock = threading.Lock()
     burners = live_run.burners(n_burners)
+    pool = cf.ThreadPoolExecutor(max_workers=jobs)
     try:
-        with cf.ThreadPoolExecutor(max_workers=jobs) as pool:
-            futures = {pool.submit(_run_job, j, folder, holds[j.plan.name]): j for j in work}
-            for k, fut in enumerate(cf.as_completed(futures), 1):
-                job = fut.result()
-                with lock:
-                    done_s += job.expected_s
-                    elapsed = time.monotonic() - t0
-                    eta = elapsed * (total - done_s) / max(done_s, 1e-9)
-                    c, cal = job.capture, job.calibrate
-                    say(f"  [{k}/{len(work)}] {job.plan.name} seed {job.seed} {job.mode}: "
-                        f"capture exit {c.exit_code} in {c.wall_s:.0f} s"
-                        + (f" ({c.error})" if c.error else "")
-                        + (f", calibrate exit {cal.exit_code}" if cal else ", nothing saved")
-                        + f"; {elapsed / 60:.1f} min gone, about {eta / 60:.0f} min to go")
+        futures = {pool.submit(_run_job, j, folder, holds[j.plan.name]): j for j in work}
+        for k, fut in enumerate(cf.as_completed(futures), 1):
+            job = fut.result()
+            with lock:
+                done_s += job.expected_s
+                elapsed = time.monotonic() - t0
+                eta = elapsed * (total - done_s) / max(done_s, 1e-9)
+                c, cal = job.capture, job.calibrate
+                say(f"  [{k}/{len(work)}] {job.plan.name} seed {job.seed} {job.mode}: "
+                    f"capture exit {c.exit_code} in {c.wall_s:.0f} s"
+                    + (f" ({c.error})" if c.error else "")
+                    + (f", calibrate exit {cal.exit_code}" if cal else ", nothing saved")
+                    + f"; {elapsed / 60:.1f} min gone, about {eta / 60:.0f} min to go")
+    except BaseException:  # Ctrl-C: the processes first, then the threads waiting on them
+        pool.shutdown(wait=False, cancel_futures=True)
+        live_run.kill_all()
+        raise
     finally:
         for proc in burners:
             live_run._stop(proc)
+        pool.shutdown(wait=True)
         live_run.kill_all()
     return work
 
