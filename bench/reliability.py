@@ -8,9 +8,18 @@ Rows:
   CRLF, a BOM, a cut, a duplicated or swapped line, an extra or missing field, a long line),
   read in-process (one in ten imported whole, with segmentation); the first 10 also through
   ``imucal import`` for the real exit status;
+* every other importer (issue 26): 400 damaged copies per format (60 with ``--quick``) of a
+  file its own writer library made (ROS 1/2 bags, MCAP of ROS 1 and 2 with and without a
+  summary, ULog raw and FIFO topics, telemetry logs, DataFlash IMU, ACC/GYR, ISBH/ISBD and text
+  logs, MotionCal and i2cdevlib lines, WitMotion frames, imu_tk pairs, EuRoC CSV): bits
+  flipped, bytes set, lengths set to 0x7fffffff, blocks zeroed or copied, cuts; each accepted
+  file's rows checked against the values and times written (``tests/format_fuzz.py``): a row
+  that is not the file's own is silently wrong, unless the format has no checksum over it and
+  the damage hit that sample's bytes (counted as "read as damaged");
 * capture faults through the virtual serial port (``imucal simulate --serve`` ->
   ``imucal capture``): clean, garbage, malformed lines, a stall, the device vanishing, Ctrl-C,
-  SIGTERM, SIGHUP, ``kill -9``;
+  SIGTERM, SIGHUP, ``kill -9``; a busy host (two CPU burners beside, and a start-up starved
+  for seconds: the capture stopped from the device's first pose to its fourth);
 * a full disk: a capture into a small tmpfs (root), else an injected ENOSPC in-process;
 * concurrent calibrations of one session.
 
@@ -367,6 +376,79 @@ def _cli_import(path: Path, columns: str | None, kind: str) -> str:
 
 
 # --------------------------------------------------------------------------------------------
+# Every other importer: damaged files of each format (tests/format_fuzz.py), judged by the oracle
+# --------------------------------------------------------------------------------------------
+
+
+def fuzz_formats(folder: Path, n_files: int, seed: int = 26) -> list[Row]:
+    """Per format (:data:`tests.format_fuzz.MAKERS`), ``n_files`` damaged copies of a file its
+    writer library made, each read by ``imucal import``'s reader in-process (the first two
+    also through ``imucal import`` for the real exit status) and judged: a one-line error with
+    exit 2, or values that are the file's own (:func:`tests.format_fuzz.judge`; rows read from
+    bytes the damage hit, in a format without a checksum, are counted as read as damaged)."""
+    from imucal_cli.formats.importers import read_recording
+    from tests.format_fuzz import MAKERS, judge, mutate, place
+
+    rows = []
+    for name, make in MAKERS.items():
+        work = folder / f"fmt-{name}"
+        (work / "base").mkdir(parents=True)
+        base = make(work / "base")
+        row = Row(f"damaged {base.name}")
+        kind, value, took = _timed(lambda b=base: read_recording(b.paths, b.fmt, **b.options))
+        if kind != "ok" or judge(base, value, []).verdict != "handled":
+            row.add("silent wrong" if kind == "ok" else "traceback", f"the undamaged file: {value}")
+        original = base.target.read_bytes()
+        rng = np.random.default_rng(seed)
+        damaged_rows = wrong_rows = 0
+        for n in range(n_files):
+            data, ranges, what = mutate(original, rng)
+            paths = place(base, data, work)
+            kind, value, took = _timed(
+                lambda p=paths, b=base: read_recording(p, b.fmt, **b.options))
+            where = f"file {n} ({what}, {took}): {str(value)[:100]}"
+            if kind == "ok":
+                verdict = judge(base, value, ranges)
+                damaged_rows += verdict.damaged
+                wrong_rows += verdict.wrong
+                if verdict.verdict != "handled":
+                    row.add(verdict.verdict, f"{where}: {verdict.detail}", took)
+                    continue
+            if kind == "error" and getattr(value, "exit_code", 2) != 2:
+                row.add("wrong exit", where, took)
+                continue
+            verdict = _verdict(kind, value, took, "either")
+            if verdict == "handled" and n < 2:
+                verdict = _cli_format(paths, base, kind)
+            row.add(verdict, where, took)
+        row.name += f" ({damaged_rows} rows read as damaged, {wrong_rows} silently wrong)"
+        rows.append(row)
+    return rows
+
+
+def _cli_format(paths: list[Path], base, kind: str) -> str:
+    """``imucal import`` of a damaged file: exit 0 when the reader accepted it (or 2 when the
+    segmentation finds no still period in what is left), else exit 2 with one line."""
+    args = [*CLI, "import", *map(str, paths), "-o", str(paths[0].with_suffix(".h5")), "--force",
+            "--format", base.fmt]  # fmt: skip
+    if "rate_hz" in base.options:
+        args += ["--rate", str(base.options["rate_hz"])]
+    if "topic" in base.options:
+        args += ["--topic", base.options["topic"]]
+    try:
+        proc = subprocess.run(args, capture_output=True, text=True, timeout=120)
+    except subprocess.TimeoutExpired:
+        return "hang"
+    if "Traceback" in proc.stderr:
+        return "traceback"
+    if proc.returncode not in ((0, 2) if kind == "ok" else (2,)):
+        return "wrong exit"
+    if proc.returncode == 2 and len(proc.stderr.strip().splitlines()) != 1:
+        return "wrong exit"
+    return "handled"
+
+
+# --------------------------------------------------------------------------------------------
 # Capture faults through the virtual serial port
 # --------------------------------------------------------------------------------------------
 
@@ -468,7 +550,72 @@ def capture_rows(folder: Path) -> list[Row]:
     for name, args, signum in cases:
         verdict, detail = _capture_case(folder, name.replace(" ", ""), args, signum)
         row.add(verdict, detail)
-    return [row]
+    busy = Row("busy host (two CPU burners; virtual port)")
+    for k, stall in enumerate((None, None, ("pose 1/6", "pose 4/6"), ("pose 1/6", "pose 4/6"))):
+        busy.add(*_busy_case(folder, f"busy{k}", stall))
+    return [row, busy]
+
+
+def _busy_case(folder: Path, name: str, stall) -> tuple[str, str]:
+    """Plan six captured unattended beside two CPU burners; with ``stall`` the capture gets no
+    CPU from the device's first status line to its second (a start-up at load 40: seconds of
+    samples wait).  Handled: complete (exit 0), every line sent in the session, the summary's
+    rate the device's (issue 24.3: 'advanced 9.17 s in 3 s of host time', exit 2, before)."""
+    import json
+
+    out = folder / f"{name}.h5"
+    burners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
+    try:
+        server, port = _server("--plan", "six", "--hold", "2", "--move", "1")
+        args = ["--port", port, "--output", str(out), "--no-prompt", "--plan", "six", "--json"]
+        cap = subprocess.Popen([*CLI, "capture", *args], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)  # fmt: skip
+        said = _stall(server, cap, stall)
+        try:
+            stdout, stderr = cap.communicate(timeout=120)
+        except subprocess.TimeoutExpired:
+            cap.kill()
+            server.kill()
+            return "hang", f"{name}: capture did not end"
+        said.join(timeout=60)
+        out_text, _ = server.communicate(timeout=60)
+    finally:
+        for b in burners:
+            b.kill()
+    m = re.search(r"# sent (\d+) lines, (\d+) malformed", out_text)
+    if "Traceback" in stderr:
+        return "traceback", f"{name}: {stderr.strip()[-120:]}"
+    if cap.returncode != 0:
+        return "wrong exit", f"{name}: exit {cap.returncode}: {stderr.strip()[-120:]}"
+    summary = json.loads(stdout)
+    n = len(_held(out).time)
+    if m is None or n != int(m[1]) - int(m[2]) or summary["samples"] != n:
+        return "data lost", f"{name}: sent {m and m[1]}, file {n}, said {summary['samples']}"
+    if abs(summary["rate_hz"] - 200.0) > 0.2:
+        return "silent wrong", f"{name}: {summary['rate_hz']:.1f} Hz said for a 200 Hz stream"
+    return "handled", f"{name}: {n} samples, {summary['rate_hz']:.1f} Hz"
+
+
+def _stall(server: subprocess.Popen, cap: subprocess.Popen, stall):
+    """Read the server's status lines in a thread; SIGSTOP the capture at ``stall[0]`` and
+    SIGCONT it at ``stall[1]`` (None: no stall).  Returns the thread."""
+    import threading
+
+    def follow():
+        stopped = False
+        for line in server.stderr:
+            if stall and not stopped and stall[0] in line:
+                cap.send_signal(signal.SIGSTOP)
+                stopped = True
+            elif stall and stopped and stall[1] in line:
+                cap.send_signal(signal.SIGCONT)
+                stopped = False
+        if stopped:
+            cap.send_signal(signal.SIGCONT)
+
+    thread = threading.Thread(target=follow, daemon=True)
+    thread.start()
+    return thread
 
 
 # --------------------------------------------------------------------------------------------
@@ -487,61 +634,101 @@ def _mount_tmpfs(path: Path, size: str) -> bool:
 
 def disk_full_rows(folder: Path) -> list[Row]:
     """Captures into a tmpfs too small for them (or with ENOSPC injected when it cannot be
-    mounted): the capture must stop, exit 3, keep every sample it says it saved, and count
-    the ones it could not write."""
-    import h5py
+    mounted).  A capture that fills the disk must stop in time (issue 24.3): exit 3 with
+    ``ended: disk-full``, the file closed cleanly (plain HDF5 opens it) holding every sample
+    it received and every segment it reported, and ``capture --resume`` must continue it once
+    there is space (the tmpfs grown).  Injected write failures (another program filling the
+    disk) must lose nothing when freeing the reserve is enough, and otherwise keep every
+    sample written before and say how many were lost."""
+    mount = folder / "small"
+    row = Row("disk full")
+    for k, (size, rate) in enumerate((("96k", 200), ("256k", 500), ("2m", 1000))):
+        real = _mount_tmpfs(mount, size)
+        if not real:
+            break
+        row.name = "disk full (tmpfs 96 KiB .. 2 MiB, resumed; injected ENOSPC)"
+        try:
+            row.add(*_tmpfs_disk_full(mount, k, size, rate))
+        finally:
+            subprocess.run(["umount", str(mount)], check=False)
+    if row.counts["cases"] == 0:
+        row.name = "disk full (injected ENOSPC; tmpfs needs root)"
+    for k, mode in enumerate(("transient", "permanent", "permanent")):
+        row.add(*_injected_disk_full(folder, k, mode))
+    return [row]
 
+
+def _tmpfs_disk_full(mount: Path, k: int, size: str, rate: int) -> tuple[str, str]:
+    """One capture of a ``rate`` Hz stream into a ``size`` tmpfs, then resumed (run 0).  The
+    rate lets a start-up backlog of a few seconds fit the disk (samples that reached the host
+    and could never fit are counted as lost, which this row counts as data lost)."""
+    out = mount / f"full{k}.h5"
+    cap = _serve_and_capture(out, "--duration", "120", rate=rate)
+    detail = f"{size}: exit {cap.returncode}: {cap.stdout.strip()[-160:]}"
+    if "Traceback" in cap.stderr:
+        return "traceback", cap.stderr[-160:]
+    if cap.returncode != 3 or "disk-full" not in cap.stdout:
+        return "wrong exit", detail
+    found = _session_as_said(out, cap.stdout)
+    if found is not None:
+        _keep_for_study(out, mount.parent)
+        return "data lost", f"{size}: {found}; {detail}"
+    if k == 0:  # space freed: the capture goes on in the same file
+        before = _held(out).time.size
+        subprocess.run(["mount", "-o", "remount,size=8m", str(mount)], check=False)
+        more = _serve_and_capture(out, "--duration", "3", resume=True)
+        if more.returncode not in (0, 3) or "Traceback" in more.stderr:
+            return "wrong exit", f"{size}: resumed: exit {more.returncode}: {more.stderr[-160:]}"
+        after = _held(out).time.size
+        if after <= before:
+            return "data lost", f"{size}: resumed: {before} -> {after} samples"
+        detail += f"; resumed: {before} -> {after} samples"
+    return "handled", detail
+
+
+def _serve_and_capture(out: Path, *args: str, resume: bool = False, rate: int = 1000):
+    server, port = _server("--plan", "six", "--loop", "--rate", str(rate), "--baud", "921600")
+    target = ["--resume", str(out)] if resume else ["--output", str(out)]
+    try:
+        return subprocess.run([*CLI, "capture", "--port", port, "--baud", "921600", *target,
+                               "--no-prompt", *args, "--columns", "t,ax,ay,az,gx,gy,gz,temp"],
+                              capture_output=True, text=True, timeout=180)  # fmt: skip
+    finally:
+        server.kill()
+        server.communicate()
+
+
+def _held(path: Path):
     from imucal_cli.formats.session import read_session
 
-    mount = folder / "small"
-    real = _mount_tmpfs(mount, "2m")
-    row = Row("disk full (" + ("2 MiB tmpfs" if real else "injected ENOSPC") + ")")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return read_session(path)
+
+
+def _session_as_said(out: Path, stdout: str) -> str | None:
+    """What is wrong with a session against the capture's summary (None: nothing): closed
+    cleanly, every sample received in it, no NaN row, the segments it reported."""
+    import h5py
+
     try:
-        for k in range(3):
-            if not real:
-                row.add(*_injected_disk_full(folder, k))
-                continue
-            out = mount / f"full{k}.h5"
-            server, port = _server("--plan", "six", "--loop", "--rate", "1000",
-                                   "--baud", "921600")  # fmt: skip
-            cap = subprocess.run([*CLI, "capture", "--port", port, "--baud", "921600",
-                                  "--output", str(out), "--no-prompt", "--duration", "120",
-                                  "--columns", "t,ax,ay,az,gx,gy,gz,temp"],
-                                 capture_output=True, text=True, timeout=180)  # fmt: skip
-            server.kill()
-            server.communicate()
-            detail = f"run {k}: exit {cap.returncode}: {cap.stdout.strip()[-160:]}"
-            if "Traceback" in cap.stderr:
-                row.add("traceback", cap.stderr[-160:])
-                continue
-            if cap.returncode != 3 or "disk-full" not in cap.stdout:
-                row.add("wrong exit", detail)
-                continue
-            try:
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")
-                    held = read_session(out)
-                n = held.time.size
-                with h5py.File(out, "r"):
-                    pass
-            except Exception as exc:  # noqa: BLE001 - a session that cannot be read is lost
-                row.add("data lost", f"run {k}: unreadable after the capture: {exc}")
-                _keep_for_study(out, folder)
-                continue
-            saved = re.search(r"saved (\d+) samples", cap.stdout)
-            lines = re.search(r"lines (\d+), comments (\d+), malformed (\d+)", cap.stdout)
-            lost = re.search(r"(\d+) received samples could not be written", cap.stdout)
-            received = int(lines[1]) - int(lines[2]) - int(lines[3])
-            lost_n = int(lost[1]) if lost else 0
-            holes = int((~np.isfinite(held.accel)).any(axis=1).sum())  # NaN: fill, not data
-            ok = saved and int(saved[1]) == n and received - lost_n == n and holes == 0
-            detail += f"; {holes} NaN rows" if holes else ""
-            row.add("handled" if ok else "data lost", detail)
-            out.unlink()
-    finally:
-        if real:
-            subprocess.run(["umount", str(mount)], check=False)
-    return [row]
+        held = _held(out)
+        with h5py.File(out, "r"):
+            pass  # closed cleanly: plain HDF5 opens it
+    except Exception as exc:  # noqa: BLE001 - a session that cannot be read is lost
+        return f"unreadable after the capture: {exc}"
+    n = held.time.size
+    saved = re.search(r"saved (\d+) samples", stdout)
+    lines = re.search(r"lines (\d+), comments (\d+), malformed (\d+)", stdout)
+    segments = re.search(r"(\d+) static and (\d+) rotation segments", stdout)
+    received = int(lines[1]) - int(lines[2]) - int(lines[3])
+    holes = int((~np.isfinite(held.accel)).any(axis=1).sum())  # NaN: fill, not data
+    said_segments = int(segments[1]) + int(segments[2])
+    if not saved or int(saved[1]) != n or received != n or holes:
+        return f"received {received}, said {saved and saved[1]}, file {n}, {holes} NaN rows"
+    if len(held.segments) != said_segments or "could not be written" in stdout:
+        return f"{said_segments} segments said, {len(held.segments)} in the file"
+    return None
 
 
 def _keep_for_study(path: Path, folder: Path) -> None:
@@ -552,19 +739,23 @@ def _keep_for_study(path: Path, folder: Path) -> None:
     print(f"  kept {keep}", file=sys.stderr)
 
 
-def _injected_disk_full(folder: Path, k: int) -> tuple[str, str]:
+def _injected_disk_full(folder: Path, k: int, mode: str) -> tuple[str, str]:
+    """ENOSPC from the ``/raw`` writes after 40 reads: ``transient`` fails once (freeing the
+    reserve makes room: nothing may be lost), ``permanent`` always (what was written before
+    stays, the rest is counted as lost, a segment over it is left out, none raises)."""
     import h5py
 
     from imucal_cli.capture.recorder import Recorder
     from imucal_cli.capture.stream import LineProtocol
     from imucal_cli.formats.columns import ColumnSpec
-    from imucal_cli.formats.session import read_session
 
-    state = {"reads": 0}
+    state = {"reads": 0, "failures": 0}
     original = h5py.Dataset.__setitem__
 
     def setitem(ds, key, value):
-        if state["reads"] > 20 + 10 * k and ds.name.startswith("/raw"):
+        failing = mode == "permanent" or state["failures"] == 0
+        if state["reads"] > 40 + 10 * k and ds.name.startswith("/raw") and failing:
+            state["failures"] += 1
             raise OSError(28, "No space left on device")
         return original(ds, key, value)
 
@@ -573,6 +764,7 @@ def _injected_disk_full(folder: Path, k: int) -> tuple[str, str]:
 
         def read(self):
             state["reads"] += 1
+            time.sleep(0.02)  # 50 lines at 1 kHz every 20 ms or more: flushed as it goes
             n0 = state["reads"] * 50
             return b"".join(f"{(n0 + i) * 0.001:.3f},0,0,9.8,0,0,0\n".encode() for i in range(50))
 
@@ -587,17 +779,25 @@ def _injected_disk_full(folder: Path, k: int) -> tuple[str, str]:
     try:
         rec = Recorder(out, Source(), LineProtocol(ColumnSpec.parse("t,ax,ay,az,gx,gy,gz")))
         for _ in rec.blocks():
-            if state["reads"] > 200:
+            if state["reads"] > 80:
                 rec.stop()
+        rec.add_segment("static", 0, 50, label="before")
+        rec.add_segment("static", rec.n_samples - 50 + rec.samples_lost, rec.n_samples
+                        + rec.samples_lost, label="after")  # fmt: skip
         rec.close()
+    except Exception as exc:  # noqa: BLE001 - counted as a traceback
+        return "traceback", f"injected {k} ({mode}): {type(exc).__name__}: {exc}"[:160]
     finally:
         h5py.Dataset.__setitem__ = original
     received = rec.protocol.stats["samples"]
-    n = read_session(out).time.size
+    held = _held(out)
+    n = held.time.size
+    detail = f"injected {k} ({mode}): {n} of {received}, {len(held.segments)} segments"
     if rec.end_kind != "disk-full":
-        return "wrong exit", f"injected {k}: ended {rec.end_kind}"
-    ok = n == received - rec.samples_lost
-    return ("handled" if ok else "data lost"), f"injected {k}: {n} of {received}"
+        return "wrong exit", f"{detail}: ended {rec.end_kind}"
+    lost_ok = rec.samples_lost == 0 if mode == "transient" else n > 0
+    ok = n == received - rec.samples_lost and lost_ok and len(held.segments) >= 1
+    return ("handled" if ok else "data lost"), detail
 
 
 # --------------------------------------------------------------------------------------------
@@ -652,6 +852,7 @@ def run(console: Console, quick: bool = False) -> bool:
         for name, part in [
             ("hostile files", lambda: hostile_rows(folder)),
             ("import fuzzer", lambda: [fuzz_imports(folder, n_files)]),
+            ("format fuzzer", lambda: fuzz_formats(folder, 60 if quick else 400)),
             ("capture faults", lambda: capture_rows(folder)),
             ("disk full", lambda: disk_full_rows(folder)),
             ("concurrent", lambda: concurrent_rows(folder)),

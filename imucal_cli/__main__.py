@@ -1,3 +1,33 @@
-from imucal_cli.cli import run
+"""The ``imucal`` program: ``python -m imucal_cli`` and the console script (``program``).
 
-run()
+Ctrl-C may come at any moment, also while the command-line layer is still being imported
+(typer, rich: a good part of a second on a busy machine): it ends the program with
+``imucal: interrupted`` and status 130, never with a traceback.
+"""
+
+import os
+import sys
+
+
+def _interrupted() -> None:
+    try:
+        print("imucal: interrupted", file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
+    os._exit(130)
+
+
+def program() -> None:
+    """Import the command-line layer and run the command (:func:`imucal_cli.cli.run`)."""
+    try:
+        from imucal_cli.cli import run
+    except KeyboardInterrupt:
+        _interrupted()
+    try:
+        run()
+    except KeyboardInterrupt:  # before the command took Ctrl-C over, or after it returned
+        _interrupted()
+
+
+if __name__ == "__main__":
+    program()

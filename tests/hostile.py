@@ -211,7 +211,8 @@ def session_cases() -> list[Case]:
         ("created", 20260101), ("sensor", 5),
         ("source", np.zeros(3)), ("sample_rate_hz", -100.0), ("sample_rate_hz", 0.0),
         ("sample_rate_hz", np.nan), ("sample_rate_hz", np.inf), ("sample_rate_hz", "fast"),
-        ("gravity", -9.8), ("gravity", np.inf), ("accel_units", 3),
+        ("gravity", -9.8), ("gravity", np.inf), ("gravity", 1e308), ("gravity", 0.5),
+        ("accel_units", 3),
     ]:  # fmt: skip
         add(f"root {name} = {value!r}", _set_attr("/", name, value))
     add("root sensor with ANSI escapes", _set_attr("/", "sensor", "\x1b[2J\x1b[31mred"), "ok")
@@ -325,6 +326,10 @@ def config_cases() -> list[tuple[str, bytes, str]]:
     cases.append(
         ("huge integer", b"[accel.gravity]\nmax_iterations = " + b"9" * 400 + b"\n", "error")
     )
+    cases.append(  # past Python's 4300-digit limit of int() (issue 26)
+        ("20,000-digit integer", b"[accel.gravity]\nmax_iterations = " + b"9" * 20_000 + b"\n",
+         "error")
+    )
     assert len(cases) > 100, len(cases)
     return cases
 
@@ -381,6 +386,11 @@ def calibration_cases(valid: str) -> list[tuple[str, bytes, str]]:
     with_("accel", _DELETE, "ok" if "gyro" in doc else "error")
     with_("accel", [1, 2])
     with_("gyro", 3)
+    with_("accel.bias", [1e200, 0.0, 0.0])  # no sensor has it (issue 26)
+    with_("sample_clock_scale", 1.0001)  # the spec: only in the gyro section
+    with_("accel.sample_clock_scale", 1.0001)
+    if "gyro" in doc:
+        with_("gyro.g_sensitivity", [[0.1, 0.0]] * 3)
     with_("sensor", "\x1b[31mred\x1b[0m", "ok")
     with_("accel.solver", "gravity\u202e", "ok")
     with_("accel.warnings", ["line\nbreak", "\x07bell"], "ok")

@@ -28,6 +28,8 @@ DF_FORMATS = {
     "GYR": ("QBQfff", "TimeUS,I,SampleUS,GyrX,GyrY,GyrZ"),
     "MAG": ("QBhhhhhhhhhBI", "TimeUS,I,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOX,MOY,MOZ,Health,S"),
     "MSG": ("QZ", "TimeUS,Message"),
+    "ISBH": ("QHBBHHQf", "TimeUS,N,type,instance,mul,smp_cnt,SampleUS,smp_rate"),
+    "ISBD": ("QHHaaa", "TimeUS,N,seqno,x,y,z"),
 }
 
 
@@ -74,6 +76,7 @@ class DataFlashWriter:
         self.types: dict[str, object] = {}
         self.data = bytearray(self._pack(self.fmt, [0x80, 89, "FMT", "BBnNZ",
                                                     "Type,Length,Name,Format,Columns"]))
+        self.lines = ["FMT, 128, 89, FMT, BBnNZ, Type,Length,Name,Format,Columns"]
 
     def _pack(self, fmt, values) -> bytes:
         buf = self.DFReader.DFMessage(fmt, list(values), False, None).get_msgbuf()
@@ -89,15 +92,27 @@ class DataFlashWriter:
         self.types[name] = fmt
         self.data += self._pack(self.fmt, [kind, true_length if length is None else length,
                                            name, form, columns])  # fmt: skip
+        self.lines.append(f"FMT, {kind}, {true_length}, {name}, {form}, {columns}")
 
     def add(self, name: str, values) -> None:
         if name not in self.types:
             self.declare(name, *DF_FORMATS[name])
         self.data += self._pack(self.types[name], values)
+        self.lines.append(", ".join([name, *(_text(v) for v in values)]))
+
+    def text(self) -> str:
+        """The same log as text (``.log``): FMT lines then one message per line, fields
+        separated by ``", "``, as Mission Planner converts a ``.bin`` (and pymavlink's
+        ``DFReader_text`` reads it)."""
+        return "\n".join(self.lines) + "\n"
 
     def write(self, path: Path) -> Path:
         path.write_bytes(bytes(self.data))
         return path
+
+
+def _text(value) -> str:
+    return repr(float(value)) if isinstance(value, float) else str(value)
 
 
 def imu_row(time_us: int, instance: int | None, accel, gyro, temp: float) -> list:

@@ -27,7 +27,7 @@ def _run(schedule: _Schedule, presses: set[int], limit: int = 200) -> list[int]:
 
 def _schedule(step: bool, said: list[str]) -> _Schedule:
     return _Schedule(40, HOLDS, loop=False, step=step, next_pose=None, say=said.append,
-                     hold_s=1.0)  # fmt: skip
+                     rate_hz=10.0)  # fmt: skip
 
 
 def test_timer_plays_the_plan_in_order_and_says_each_pose():
@@ -35,6 +35,7 @@ def test_timer_plays_the_plan_in_order_and_says_each_pose():
     sent = _run(_schedule(False, said), set())
     assert sent == list(range(40))
     assert len(said) == 3 and "pose 1/3: face +Z up" in said[0] and "Enter here: now" in said[0]
+    assert "held 1 s" in said[1]  # 10 samples at 10 Hz
 
 
 def test_enter_cuts_the_current_hold_short():

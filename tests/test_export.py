@@ -3,7 +3,9 @@ numpy does in float32; imu_calib YAML; compact JSON; the CLI."""
 
 from __future__ import annotations
 
+import copy
 import json
+import math
 import shutil
 import subprocess
 from pathlib import Path
@@ -19,6 +21,8 @@ from imucal_cli.formats.calibration import (
     calibration_from_json,
     write_calibration,
 )
+from imucal_cli.formats.exporters import ExportOptions
+from imucal_cli.formats.session import write_session
 from imucal_cli.simulate.redundant import simulate_redundant_accel
 from imucal_cli.simulate.triad import simulate
 from imucal_cli.use.export import export, export_c_header, export_json, export_yaml
@@ -160,6 +164,38 @@ def test_header_compiles_and_applies_like_numpy_float32(sim, tmp_path):
 
 
 @needs_gcc
+def test_header_carries_the_gyro_g_sensitivity(sim, tmp_path):
+    """Issue 26: the header ignored g_sensitivity (0.0225 rad/s off imucal apply); now the gyro's
+    apply takes the calibrated accelerometer vector, and gives what imucal apply gives."""
+    session, truth = sim
+    truth = copy.deepcopy(truth)
+    truth.gyro.extra["g_sensitivity"] = [[2.0, -0.5, 0.3], [0.4, 1.0, -0.2], [0.1, 0.6, 0.5]]
+    header = export_c_header(truth)
+    assert "IMUCAL_GYRO_G_SENSITIVITY[IMUCAL_GYRO_CHANNELS][3]" in header
+    assert ("imucal_gyro_apply(const float raw[IMUCAL_GYRO_CHANNELS], const float accel[3], "
+            "float out[3])") in header  # fmt: skip
+    body = (
+        "    float a[3], g[3], ca[3], cg[3];\n"
+        '    while (scanf("%f %f %f %f %f %f", &a[0], &a[1], &a[2], &g[0], &g[1], &g[2]) == 6) {\n'
+        "        imucal_accel_apply(a, ca);\n        imucal_gyro_apply(g, ca, cg);\n"
+        '        printf("%.9g %.9g %.9g\\n", (double)cg[0], (double)cg[1], (double)cg[2]);\n'
+        "    }\n    return 0;"
+    )
+    exe = compile_program(tmp_path, {"cal.h": header}, body)
+    path, cal = tmp_path / "s.h5", tmp_path / "cal.json"
+    write_session(path, session)
+    write_calibration(cal, truth)
+    out = tmp_path / "applied.csv"
+    assert run("apply", cal, path, "-o", out).returncode == 0
+    want = np.loadtxt(out, delimiter=",", skiprows=2)[:, 4:7]
+    got = run_program(exe, np.hstack([session.accel, session.gyro]))
+    without = (session.gyro - truth.gyro.bias) @ truth.gyro.matrix.T
+    assert np.abs(want - without).max() > 0.01  # the term matters: over 0.01 rad/s
+    # float32: relative 1e-6 of the terms summed (raw counts to 3e4, times 1e-3 rad/s)
+    np.testing.assert_allclose(got, want, rtol=0, atol=3e4 * 1.1e-3 * 8 * 2.0**-24 * 4)
+
+
+@needs_gcc
 def test_redundant_four_channel_header(redundant, tmp_path):
     session, truth = redundant
     assert truth.accel.bias.shape == (4,) and truth.gyro is None
@@ -230,27 +266,54 @@ def test_comment_text_cannot_end_the_comment(sim):
 # --------------------------------------------------------------------------------------------
 
 
+#: The driver's scales of the simulated 16-bit part (8192 LSB/g, 16.4 LSB per deg/s), SI per count.
+SCALES = {"accel": 9.80665 / 8192, "gyro": math.radians(1 / 16.4)}
+
+
 def test_yaml_imu_calib_layout(sim):
     session, truth = sim
-    text = export_yaml(truth)
+    text = export_yaml(truth, ExportOptions(scale=SCALES))
     doc = yaml.safe_load(text)
     assert set(doc) == {"SM", "bias", "gyro"}
     assert len(doc["SM"]) == 9 and len(doc["bias"]) == 3
     assert all(isinstance(v, float) for v in doc["SM"] + doc["bias"])
-    np.testing.assert_array_equal(doc["SM"], truth.accel.matrix.ravel())  # row-major
-    np.testing.assert_array_equal(doc["bias"], truth.accel.matrix @ truth.accel.bias)
-    np.testing.assert_array_equal(doc["gyro"]["SM"], truth.gyro.matrix.ravel())
-    np.testing.assert_array_equal(doc["gyro"]["bias"], truth.gyro.matrix @ truth.gyro.bias)
-    # imu_calib's apply: corrected = SM * raw - bias, which is our model.
-    sm = np.reshape(doc["SM"], (3, 3))
-    raw = session.accel[:50]
-    np.testing.assert_allclose(raw @ sm.T - doc["bias"], truth.accel.apply(raw), atol=1e-12)
+    # imu_calib's apply on what the driver publishes, p = scale * counts:
+    # corrected = SM * p - bias, which is our model on the counts.
+    for name, raw in (("accel", session.accel[:50]), ("gyro", session.gyro[:50])):
+        d = doc if name == "accel" else doc["gyro"]
+        sm, p = np.reshape(d["SM"], (3, 3)), SCALES[name] * raw
+        want = getattr(truth, name).apply(raw, accel=truth.accel.apply(session.accel[:50]))
+        np.testing.assert_allclose(p @ sm.T - d["bias"], want, rtol=1e-12,
+                                   atol=1e-12 * np.abs(want).max())  # fmt: skip
     assert "calibrated = SM @ raw - bias" in text
     assert "calibrated = matrix @ (raw - bias)" in text
+    assert "p = raw (counts) x 0.001197100830078125 m/s^2 per raw unit (--accel-scale)" in text
+
+
+def test_yaml_honours_the_scale_and_refuses_counts_without_it(sim):
+    _, truth = sim  # issue 26: the counts calibration was written as if the driver sent counts
+    with pytest.raises(InputError, match="imu_calib reads accel in m/s\\^2.*--accel-scale"):
+        export_yaml(truth)
+    half = yaml.safe_load(export_yaml(truth, ExportOptions(scale={k: v / 2 for k, v in
+                                                                  SCALES.items()})))  # fmt: skip
+    full = yaml.safe_load(export_yaml(truth, ExportOptions(scale=SCALES)))
+    np.testing.assert_allclose(half["SM"], 2 * np.asarray(full["SM"]), rtol=1e-15)
+    np.testing.assert_allclose(half["bias"], full["bias"], rtol=1e-12)
+
+
+def test_yaml_refuses_a_g_sensitivity_it_cannot_hold(sim):
+    truth = copy.deepcopy(sim[1])
+    truth.gyro.extra["g_sensitivity"] = [[2.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.5]]
+    with pytest.raises(InputError, match="g_sensitivity .* --format yaml cannot hold"):
+        export(truth, "yaml", options=ExportOptions(scale=SCALES))
+    text = export(truth, "yaml", options=ExportOptions(scale=SCALES,
+                                                      drop=frozenset({"g-sensitivity"})))
+    assert "gyro g-sensitivity dropped (imu_calib has none" in text
 
 
 def test_yaml_small_numbers_read_as_floats():
-    sec = SensorCalibration("x", "m/s^2", [1e-5, 0.0, 2.0], [[1e-5, 0, 0], [0, 1e20, 0], [0, 0, 1]])
+    sec = SensorCalibration("x", "m/s^2", [1e-5, 0.0, 2.0], [[1e-5, 0, 0], [0, 1e20, 0], [0, 0, 1]],
+                            extra={"units_in": "m/s^2"})  # fmt: skip
     doc = yaml.safe_load(export_yaml(Calibration(accel=sec)))
     assert all(isinstance(v, float) for v in doc["SM"] + doc["bias"])
     np.testing.assert_array_equal(doc["SM"], sec.matrix.ravel())
@@ -305,10 +368,12 @@ def test_cli(sim, redundant, tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout == export(truth, "c-header", prefix="BOARD")
 
-    proc = run("export", cal, "-o", tmp_path / "imu.yaml")  # format from the suffix
+    proc = run("export", cal, "-o", tmp_path / "imu.yaml", "--accel-scale", "9.80665/8192",
+               "--gyro-scale", str(SCALES["gyro"]))  # format from the suffix
     assert proc.returncode == 0 and proc.stdout == "", proc.stderr
     assert "wrote" in proc.stderr and "yaml" in proc.stderr
-    assert (tmp_path / "imu.yaml").read_text() == export_yaml(truth)
+    scales = {"accel": 9.80665 / 8192, "gyro": float(str(SCALES["gyro"]))}
+    assert (tmp_path / "imu.yaml").read_text() == export_yaml(truth, ExportOptions(scale=scales))
 
     proc = run("export", cal, "--format", "json", "-o", tmp_path / "c.txt")
     assert proc.returncode == 0, proc.stderr

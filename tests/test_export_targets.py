@@ -11,7 +11,6 @@ import json
 import math
 import re
 import shutil
-import subprocess
 
 import numpy as np
 import pytest
@@ -226,13 +225,14 @@ def test_openvins_needs_noise(cal):
 # --------------------------------------------------------------------------------------------
 
 
-def test_basalt_reader_reproduces_apply(cal, raw):
+def test_basalt_reader_reproduces_apply(cal, raw, noise):
     no_gs = Calibration(accel=cal.accel, gyro=SensorCalibration(
         cal.gyro.solver, "rad/s", cal.gyro.bias, cal.gyro.matrix, None,
         {"units_in": "deg/s"}), created=cal.created)  # fmt: skip
     a_true, w_true = raw
     raw_a, raw_w = raw_from_truth(no_gs, a_true, w_true)
-    doc = json.loads(export(no_gs, "basalt", options=ExportOptions(scale={"accel": ACCEL_SCALE})))
+    doc = json.loads(export(no_gs, "basalt", options=ExportOptions(scale={"accel": ACCEL_SCALE},
+                                                                noise=noise)))  # fmt: skip
     ab, gb = np.array(doc["value0"]["calib_accel_bias"]), np.array(doc["value0"]["calib_gyro_bias"])
     assert ab.shape == (9,) and gb.shape == (12,)
     # Basalt (calib_bias.hpp): a = (I + S_a) p - b, S_a lower [s1 0 0; s2 s4 0; s3 s5 s6];
@@ -249,8 +249,11 @@ def test_basalt_reader_reproduces_apply(cal, raw):
     assert not any("g-sensitivity dropped" in n for n in doc["value0"]["imucal_notes"])
 
 
-def test_basalt_states_the_dropped_g_sensitivity(cal):
-    doc = json.loads(export(cal, "basalt", options=ExportOptions(scale={"accel": ACCEL_SCALE})))
+def test_basalt_refuses_or_states_the_dropped_g_sensitivity(cal, noise):
+    with pytest.raises(InputError, match="g_sensitivity .* --format basalt cannot hold"):
+        export(cal, "basalt", options=ExportOptions(scale={"accel": ACCEL_SCALE}, noise=noise))
+    doc = json.loads(export(cal, "basalt", options=ExportOptions(
+        scale={"accel": ACCEL_SCALE}, drop=frozenset({"g-sensitivity"}), noise=noise)))  # fmt: skip
     note = [n for n in doc["value0"]["imucal_notes"] if "g-sensitivity dropped" in n]
     G = np.asarray(cal.gyro.extra["g_sensitivity"]) * D2R
     assert note and f"{np.linalg.norm(G, 2) * G0:.4g} rad/s" in note[0]
@@ -344,8 +347,10 @@ def test_px4_device_id_and_units_refusal(cal):
     text = export(si_cal([0, 0, 0]), "px4", options=ExportOptions(device_id=1310988))
     p = px4_params(text)
     assert p["CAL_ACC0_ID"] == 1310988 and p["CAL_GYRO0_ID"] == 1310988
-    with pytest.raises(InputError, match="--accel-scale"):
-        export(cal, "px4")  # counts without the driver's scale
+    with pytest.raises(InputError, match="--accel-scale"):  # counts without the driver's scale
+        export(cal, "px4", options=ExportOptions(drop=frozenset({"g-sensitivity"})))
+    with pytest.raises(InputError, match="--drop g-sensitivity"):  # PX4 has no g-sensitivity
+        export(cal, "px4", options=ExportOptions(scale={"accel": ACCEL_SCALE}))
 
 
 def test_diagonal_fit_scale_is_the_inverse_axis_gain():
@@ -356,65 +361,8 @@ def test_diagonal_fit_scale_is_the_inverse_axis_gain():
 
 
 # --------------------------------------------------------------------------------------------
-# Fusion: compiled with gcc against Fusion's documented model
+# Fusion: compiled with gcc against Fusion's own sources in tests/test_fusion_export.py
 # --------------------------------------------------------------------------------------------
-
-FUSION_STUB = """
-#ifndef FUSION_H
-#define FUSION_H
-/* Fusion's types and FusionCalibrationInertial as its documentation gives them. */
-typedef union { float array[3]; struct { float x; float y; float z; } axis; } FusionVector;
-typedef union { float array[3][3]; struct { float xx; float xy; float xz; float yx; float yy;
-  float yz; float zx; float zy; float zz; } element; } FusionMatrix;
-static inline FusionVector FusionCalibrationInertial(const FusionVector u, const FusionMatrix m,
-    const FusionVector s, const FusionVector o) {
-  FusionVector d, r;
-  int i, j;
-  for (i = 0; i < 3; ++i) { d.array[i] = (u.array[i] - o.array[i]) * s.array[i]; }
-  for (i = 0; i < 3; ++i) {
-    r.array[i] = 0.0f;
-    for (j = 0; j < 3; ++j) { r.array[i] += m.array[i][j] * d.array[j]; }
-  }
-  return r;
-}
-#endif
-"""
-
-
-@pytest.mark.skipif(GCC is None, reason="gcc not installed")
-def test_fusion_header_compiles_and_applies(cal, raw, tmp_path):
-    no_gs = Calibration(accel=cal.accel, gyro=SensorCalibration(
-        cal.gyro.solver, "rad/s", cal.gyro.bias, cal.gyro.matrix, None,
-        {"units_in": "deg/s"}), created=cal.created)  # fmt: skip
-    raw_a, raw_w = raw_from_truth(no_gs, *raw)
-    (tmp_path / "Fusion.h").write_text(FUSION_STUB)
-    (tmp_path / "cal.h").write_text(export(no_gs, "fusion"))
-    (tmp_path / "main.c").write_text(
-        '#include <stdio.h>\n#include "cal.h"\nint main(void) {\n'
-        "  FusionVector a, g, ca, cg;\n"
-        '  while (scanf("%f %f %f %f %f %f", &a.array[0], &a.array[1], &a.array[2], '
-        "&g.array[0], &g.array[1], &g.array[2]) == 6) {\n"
-        "    ca = FusionCalibrationInertial(a, accelerometerMisalignment, "
-        "accelerometerSensitivity, accelerometerOffset);\n"
-        "    cg = FusionCalibrationInertial(g, gyroscopeMisalignment, gyroscopeSensitivity, "
-        "gyroscopeOffset);\n"
-        '    printf("%.9g %.9g %.9g %.9g %.9g %.9g\\n", (double)ca.array[0], (double)ca.array[1],'
-        " (double)ca.array[2], (double)cg.array[0], (double)cg.array[1], (double)cg.array[2]);\n"
-        "  }\n  return 0;\n}\n"
-    )
-    exe = tmp_path / "main"
-    cmd = [GCC, "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-o", str(exe), "main.c"]
-    proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True)
-    assert proc.returncode == 0, proc.stderr
-    raw32_a, raw32_w = raw_a.astype(np.float32), raw_w.astype(np.float32)
-    stdin = "\n".join(" ".join(f"{v:.9g}" for v in row)
-                      for row in np.hstack([raw32_a, raw32_w])) + "\n"  # fmt: skip
-    out = np.loadtxt(subprocess.run([str(exe)], input=stdin, capture_output=True, text=True,
-                                    check=True).stdout.splitlines(), ndmin=2)  # fmt: skip
-    a_ref, w_ref = truth(no_gs, raw32_a.astype(float), raw32_w.astype(float))
-    # Fusion's units: g and deg/s; float32 arithmetic on values of a few hundred counts
-    np.testing.assert_allclose(out[:, :3], a_ref / G0, atol=2e-6 * 13)
-    np.testing.assert_allclose(out[:, 3:], np.degrees(w_ref), atol=2e-6 * 200)
 
 
 # --------------------------------------------------------------------------------------------
@@ -463,9 +411,13 @@ def test_cli_export_targets(cal, tmp_path, noise):
     assert "wrote" in proc.stderr and kalibr_yaml(out.read_text())["imu0"]["update_rate"] == 100.0
     proc = run("export", noise_path, "--format", "kalibr-imu")
     assert proc.returncode == 0 and "gyroscope_random_walk" in proc.stdout
-    proc = run("export", path, "-o", tmp_path / "x.params", "--accel-scale", "0.000598")
+    proc = run("export", path, "-o", tmp_path / "x.params", "--accel-scale", "0.000598",
+               "--drop", "g-sensitivity")  # fmt: skip
     assert proc.returncode == 0 and "CAL_ACC0_XSCALE" in (tmp_path / "x.params").read_text()
-    assert_one_line_error(run("export", path, "--format", "px4"), "--accel-scale")
+    assert_one_line_error(run("export", path, "--format", "px4", "--drop", "g-sensitivity"),
+                          "--accel-scale")  # fmt: skip
+    assert_one_line_error(run("export", path, "--format", "px4", "--accel-scale", "0.0006"),
+                          "--drop g-sensitivity")  # fmt: skip
     assert_one_line_error(run("export", path, "--format", "kalibr-imu"), "--noise")
     assert_one_line_error(run("export", noise_path, "--format", "px4"), "needs a calibration")
     assert_one_line_error(run("export", path, "--format", "px4", "--accel-scale", "x/2"),
@@ -479,6 +431,7 @@ def test_cli_export_output_is_safe(cal, tmp_path):
     out = tmp_path / "cal.h"
     assert run("export", path, "-o", out).returncode == 0
     assert_one_line_error(run("export", path, "-o", out), "--force")
-    proc = run("export", path, "-o", out, "--force", "--format", "fusion")
-    assert proc.returncode == 0 and "FusionCalibrationInertial" in out.read_text()
+    proc = run("export", path, "-o", out, "--force", "--format", "fusion", "--drop",
+               "g-sensitivity")  # fmt: skip
+    assert proc.returncode == 0 and "FusionModelInertial" in out.read_text()
     assert_one_line_error(run("export", path, "-o", path, "--force", "--format", "json"), "input")

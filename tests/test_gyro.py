@@ -115,8 +115,9 @@ def test_a_session_without_rotations_is_refused():
     session, _ = simulate(plan="qureshi18", seed=1, created=CREATED)
     session.segments = [s for s in session.segments if s.kind == "static"]
     # Found in the stream instead: the simulator's moves between poses are rotations with still
-    # data around them, so this calibrates; remove the moves' samples' gyro signal to refuse.
-    session.gyro = np.zeros_like(session.gyro)
+    # data around them, so this calibrates; remove the moves' samples' gyro signal to refuse
+    # (noise only: an exactly constant gyro is a stuck sensor, refused as such, issue 24.6).
+    session.gyro = np.random.default_rng(0).normal(0.0, 3.0, session.gyro.shape)
     with pytest.raises(DesignError, match="rotation"):
         calibrate_session(session, cfg("full"))
 

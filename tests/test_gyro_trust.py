@@ -197,7 +197,8 @@ def test_auto_leaves_the_gyro_out_when_nothing_can_calibrate_it():
     no_gyro = replace(session, gyro=None, gyro_units=None)
     cal = calibrate_session(no_gyro, config_from_dict({}))
     assert cal.gyro is None and "no /raw/gyro" in cal.extra["gyro_note"]
-    still = replace(session, gyro=np.zeros_like(session.gyro) + 7.0,
+    rng = np.random.default_rng(0)  # a still gyro: its noise (a constant one is stuck)
+    still = replace(session, gyro=7.0 + rng.normal(0.0, 3.0, session.gyro.shape),
                     segments=[s for s in session.segments if s.kind == "static"])  # fmt: skip
     cal = calibrate_session(still, config_from_dict({}))
     assert cal.gyro is None and "no usable rotations" in cal.extra["gyro_note"]

@@ -253,7 +253,7 @@ def test_a_format_of_length_zero_does_not_hang(tmp_path, capfd):
 @pytest.mark.parametrize(
     ("content", "words"),
     [(b"", "empty file"),
-     (b"\xa3\x95\x80" + bytes(30), "no IMU or ACC/GYR messages"),
+     (b"\xa3\x95\x80" + bytes(30), "no IMU, ACC/GYR or ISBH/ISBD messages"),
      (np.random.default_rng(7).integers(0, 0xFD, 5000, dtype=np.uint8).tobytes(),
       "no RAW_IMU, SCALED_IMU or HIGHRES_IMU messages")],
 )  # fmt: skip

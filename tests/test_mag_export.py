@@ -5,7 +5,6 @@ written from the target's own equations; imucal apply's /calibrated/mag and mx,m
 from __future__ import annotations
 
 import shutil
-import subprocess
 
 import h5py
 import numpy as np
@@ -26,7 +25,7 @@ from imucal_cli.simulate.magnetometer import simulate_mag
 from imucal_cli.use.apply import apply_calibration
 from imucal_cli.use.export import export
 from tests.cli_helpers import assert_one_line_error, run
-from tests.test_export_targets import FUSION_STUB, parm_params, px4_params
+from tests.test_export_targets import parm_params, px4_params
 
 GCC = shutil.which("gcc")
 
@@ -118,39 +117,8 @@ def _far_offset() -> Calibration:
     return cal
 
 
-@pytest.mark.skipif(GCC is None, reason="gcc not installed")
-def test_fusion_magnetic_constants_compile_and_apply(tmp_path):
+def test_fusion_prefixed_magnetic_constants():  # compiled and applied: test_fusion_export.py
     cal = mag_cal("uT", turn_deg=20.0)
-    raw = raw_readings(cal, 50).astype(np.float32)
-    stub = FUSION_STUB.replace("#endif", """static inline FusionVector FusionCalibrationMagnetic(
-    const FusionVector u, const FusionMatrix s, const FusionVector h) {
-  FusionVector d, r;
-  int i, j;
-  for (i = 0; i < 3; ++i) { d.array[i] = u.array[i] - h.array[i]; }
-  for (i = 0; i < 3; ++i) {
-    r.array[i] = 0.0f;
-    for (j = 0; j < 3; ++j) { r.array[i] += s.array[i][j] * d.array[j]; }
-  }
-  return r;
-}
-#endif""")  # Fusion's documented model: softIronMatrix * (uncalibrated - hardIronOffset)
-    (tmp_path / "Fusion.h").write_text(stub)
-    (tmp_path / "cal.h").write_text(export(cal, "fusion"))
-    (tmp_path / "main.c").write_text(
-        '#include <stdio.h>\n#include "cal.h"\nint main(void) {\n  FusionVector m, c;\n'
-        '  while (scanf("%f %f %f", &m.array[0], &m.array[1], &m.array[2]) == 3) {\n'
-        "    c = FusionCalibrationMagnetic(m, softIronMatrix, hardIronOffset);\n"
-        '    printf("%.9g %.9g %.9g\\n", (double)c.array[0], (double)c.array[1], '
-        "(double)c.array[2]);\n  }\n  return 0;\n}\n"
-    )
-    exe = tmp_path / "main"
-    cmd = [GCC, "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-o", str(exe), "main.c"]
-    proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True)
-    assert proc.returncode == 0, proc.stderr
-    stdin = "\n".join(" ".join(f"{v:.9g}" for v in row) for row in raw) + "\n"
-    out = np.loadtxt(subprocess.run([str(exe)], input=stdin, capture_output=True, text=True,
-                                    check=True).stdout.splitlines(), ndmin=2)  # fmt: skip
-    np.testing.assert_allclose(out, cal.mag.apply(raw.astype(float)), atol=1e-4)  # float32, uT
     prefixed = export(cal, "fusion", options=ExportOptions(prefix="imu0"))
     assert "imu0SoftIronMatrix" in prefixed and "imu0HardIronOffset" in prefixed
 

@@ -390,6 +390,7 @@ def test_capture_on_a_really_full_disk(tmp_path, monkeypatch):
         rec.close()
         received = rec.protocol.stats["samples"]
         assert rec.end_kind == "disk-full", rec.end_reason
+        assert rec.samples_lost == 0 and "stopped in time" in rec.end_reason  # issue 24.3
         session = read_session(mount / "r.h5")
         assert session.time.size == received - rec.samples_lost > 0
         # every sample the session holds is one received, none a hole of NaN (HDF5's fill
@@ -554,7 +555,9 @@ def test_escapes_in_a_sensor_name_reach_neither_terminal_nor_export(session, tmp
     proc = run("calibrate", session, "-o", out, "--no-store")
     assert proc.returncode == 0, proc.stderr
     report = run("report", out)
-    yaml = run("export", out, "-f", "yaml")
+    yaml = run("export", out, "-f", "yaml", "--accel-scale", "9.80665/8192", "--gyro-scale",
+               "0.00106")  # counts: imu_calib reads the published m/s^2 (issue 26)
+    assert yaml.returncode == 0, yaml.stderr
     for text in (proc.stdout, report.stdout, yaml.stdout):
         assert "\x1b" not in text and "\u202e" not in text and "\x07" not in text
     import yaml as pyyaml
@@ -569,10 +572,15 @@ def test_exports_refuse_non_finite_and_overflowing_numbers(tmp_path):
     doc["accel"]["bias"] = [1e200, 0.0, 0.0]
     path = tmp_path / "big.json"
     path.write_text(json.dumps(doc))
-    for fmt, word in (("yaml", "not a finite number"), ("c-header", "does not fit")):
+    for fmt in ("yaml", "c-header"):  # matrix @ bias overflows: refused when read (issue 26)
         proc = run("export", path, "-f", fmt)
-        assert_one_line_error(proc, word)
+        assert_one_line_error(proc, "beyond any sensor")
         assert "inf" not in proc.stdout
+    doc["accel"]["bias"] = [0.0, 0.0, 0.0]  # a finite offset: the exporter's own check
+    path.write_text(json.dumps(doc))
+    proc = run("export", path, "-f", "c-header")
+    assert_one_line_error(proc, "does not fit")
+    assert "inf" not in proc.stdout
 
 
 def test_write_calibration_keeps_the_force_rule(tmp_path):

@@ -5,16 +5,25 @@
 counts the data show) and hands the blocks to the user interface through :meth:`Recorder.blocks`.
 The capture ends, always with a valid session holding every sample received, on:
 
-- Ctrl-C (SIGINT), SIGTERM or SIGHUP (the terminal closed): handlers installed while recording
-  set a flag (the previous handlers are restored afterwards); ``end_kind`` ``"interrupted"`` /
-  ``"terminated"`` / ``"hangup"``;
-- the disk full (or any write error): the capture stops, the file is closed cleanly with every
-  sample written so far (space set aside at the start, :data:`RESERVE_BYTES`, is freed to let
-  the last samples and the segments reach the file); ``"disk-full"``, and
-  :attr:`Recorder.samples_lost` says how many received samples could not be written;
+- Ctrl-C (SIGINT), SIGTERM or SIGHUP (the terminal closed): handlers installed from the start
+  of the recording until :meth:`Recorder.close` set a flag (the previous handlers are restored
+  then), so a signal while the segments are being added ends nothing half-way; ``end_kind``
+  ``"interrupted"`` / ``"terminated"`` / ``"hangup"``;
+- the disk nearly full: the free space is checked with every block against what the rest of
+  the capture needs (:func:`~imucal_cli.capture.checks.headroom`: the next seconds of samples,
+  the segments still to come, closing the file); below it the capture stops, and the file is
+  closed cleanly with every sample received and every segment (``"disk-full"``).  A write that
+  fails all the same (another program filled the disk) frees the space set aside at the start
+  (:data:`RESERVE_BYTES`) and tries again; :attr:`Recorder.samples_lost` says how many received
+  samples could still not be written, and segments over them are left out
+  (:attr:`Recorder.segments_left_out`);
+- time stamps in the wrong unit (:func:`~imucal_cli.capture.checks.clock_problem`, checked once
+  after :data:`CLOCK_CHECK_S`): ``"clock"``; the caller discards what this capture wrote
+  (:meth:`Recorder.discard`);
 - the device disappearing (unplugged, pseudo-terminal closed): ``"device-gone"``;
 - no valid line for ``wait_timeout_s`` at the start, or for ``read_timeout_s`` once data
-  flowed: ``"timeout"``;
+  flowed, judged after a read that found nothing (a host away longer reads what waited):
+  ``"timeout"``;
 - :meth:`Recorder.stop` (the UI is done): ``"done"``.
 
 Samples reach the file at least every :data:`FLUSH_INTERVAL_S` (the writer flushes on append;
@@ -31,12 +40,15 @@ import time as _time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+import numpy as np
+
+from imucal_cli.capture.checks import CLOCK_CHECK_S, DiskRoom, clock_problem, no_data_reason
 from imucal_cli.capture.stream import DeviceGone
 from imucal_cli.errors import InputError, SessionError, WriteFailed
 from imucal_cli.formats.columns import SampleBlock
 from imucal_cli.formats.output import check_output
 
-__all__ = ["END_KINDS", "FLUSH_INTERVAL_S", "CaptureEnded", "Recorder"]
+__all__ = ["CLOCK_CHECK_S", "END_KINDS", "FLUSH_INTERVAL_S", "CaptureEnded", "Recorder"]
 
 FLUSH_INTERVAL_S = 0.5
 """Longest time a received sample stays in memory before it is written and flushed."""
@@ -46,7 +58,8 @@ END_KINDS = (
 )  # fmt: skip
 
 RESERVE_BYTES = 4 << 20
-"""Disk space set aside next to the session while recording, freed when a write fails."""
+"""Disk space set aside next to the session while recording (at most a sixteenth of the free
+space), freed when the disk is nearly full or a write fails."""
 
 _SIGNALS = {
     signal.SIGINT: ("interrupted", "Ctrl-C"),
@@ -56,13 +69,8 @@ _SIGNALS = {
     ),
 }
 
-CLOCK_CHECK_S = 3.0
-"""After this much host time with data, the device's time stamps are compared with the host
-clock (issue 10.5): a time unit off by a factor (ms stamps read as s) ends the capture."""
-
-CLOCK_TOLERANCE = 3.0
-"""Device and host elapsed times may differ by this factor (serial buffering); time units
-differ by 1000."""
+NOTE_MIN_BYTES = 512
+"""Bytes without a complete line before a capture that ended says what they were."""
 
 STATUS_REPEAT_S = 5.0
 """While waiting for data, the waiting message is repeated this often."""
@@ -119,6 +127,11 @@ class Recorder:
         Why :meth:`blocks` ended: one of :data:`END_KINDS` (None while recording).
     end_reason : str
         The same for the user, one line.
+    samples_lost : int
+        Samples received but not written (a write failed on a disk filled by another
+        program; 0 when the recorder stopped in time).
+    segments_left_out : int
+        Segments not added because their samples could not be written.
     """
 
     def __init__(
@@ -159,6 +172,8 @@ class Recorder:
         self.end_kind: str | None = None
         self.end_reason = ""
         self._t0: float | None = None
+        opened = getattr(source, "opened_at", None)  # the port's open: the device's stream
+        self._t_open = float(opened) if isinstance(opened, int | float) else _time.monotonic()
         self._t_first: float | None = None
         self._t_last_sample: float | None = None
         self._device_first: float | None = None  # time stamp of the first sample, s
@@ -167,6 +182,10 @@ class Recorder:
         self._t_end: float | None = None
         self._closed = False
         self.samples_lost = 0  #: samples received but not written (disk full)
+        self.segments_left_out = 0  #: segments over samples that could not be written
+        self._room = DiskRoom()
+        self._device_at_segment: float | None = None  # device time of the last segment added
+        self._discarded = False
         self.resumed_from = 0  #: samples the session held before this capture (``resume``)
         self._time_offset: float | None = None  # added to this capture's time stamps (resume)
         self._host_offset: float | None = None  # the same for host arrival times (resume)
@@ -203,18 +222,43 @@ class Recorder:
         return self._t0 is not None and self.end_kind is None
 
     @property
+    def samples_received(self) -> int:
+        """Samples this capture received (written, still buffered, or lost)."""
+        return self.n_samples - self.resumed_from + self.samples_lost
+
+    @property
+    def samples_written(self) -> int:
+        """Samples of this capture in the file."""
+        return 0 if self._writer is None else self._writer.n_written - self.resumed_from
+
+    @property
+    def device_span_s(self) -> float:
+        """Device time from this capture's first sample to its last, s (0 before two)."""
+        if self._device_first is None or self._device_last is None:
+            return 0.0
+        return max(self._device_last - self._device_first, 0.0)
+
+    @property
+    def rate_hz(self) -> float:
+        """Mean sample rate in device time, Hz (0 before two samples)."""
+        n, span = self.n_samples - self.resumed_from, self.device_span_s
+        return (n - 1) / span if span > 0 and n > 1 else 0.0
+
+    @property
     def stats(self) -> dict:
-        """Protocol counters plus ``samples`` (appended), ``duration_s`` (wall clock since the
-        start) and ``rate_hz`` (mean sample rate while data flowed)."""
+        """Protocol counters plus ``samples`` (appended), ``duration_s`` (device time the
+        samples span: a backlog read at once or a busy host changes nothing), ``rate_hz``
+        (samples per device second), ``wall_s`` (host time since the start), and this
+        capture's ``received``, ``written`` and ``lost`` samples."""
         out = dict(self.protocol.stats)
         out["samples"] = self.n_samples
         end = self._t_end if self._t_end is not None else _time.monotonic()
-        out["duration_s"] = 0.0 if self._t0 is None else end - self._t0
-        span = 0.0
-        if self._t_first is not None and self._t_last_sample is not None:
-            span = self._t_last_sample - self._t_first
-        new = self.n_samples - self.resumed_from
-        out["rate_hz"] = (new - 1) / span if span > 0 and new > 1 else 0.0
+        out["wall_s"] = 0.0 if self._t0 is None else end - self._t0
+        out["duration_s"] = self.device_span_s
+        out["rate_hz"] = self.rate_hz
+        out["received"] = self.samples_received
+        out["written"] = self.samples_written
+        out["lost"] = self.samples_lost
         return out
 
     # signals -----------------------------------------------------------------------------------
@@ -223,7 +267,11 @@ class Recorder:
             return
 
         def handler(signum, frame):  # noqa: ARG001
-            self._signal_kind = signum
+            if self._signal_kind is None:
+                self._signal_kind = signum
+            if self.end_kind == "done":  # the recording was ending anyway: say it was cut
+                kind, name = _SIGNALS[signum]
+                self.end_kind, self.end_reason = kind, f"stopped by {name}"
 
         for signum in _SIGNALS:
             try:
@@ -269,8 +317,22 @@ class Recorder:
         )
 
     def _append(self, block: SampleBlock) -> CaptureEnded | None:
+        """Append a block; returns why the capture ends (the disk full, or nearly) or None.
+        The free space is checked before each block: a block that still fits is appended
+        and written when the capture ends."""
         if self._writer is None:
             self._open_writer(block)
+        nearly_full, short = None, self._room_problem(len(block))
+        if short is not None:
+            nearly_full, fits = short
+            if fits < len(block):  # no room for all of them: the first are kept
+                self.samples_lost += len(block) - fits
+                nearly_full.reason = nearly_full.reason.replace(
+                    "every sample received is written",
+                    f"{self.samples_lost} received samples could not be written (no room)")
+                block = block.take(np.arange(len(block)) < fits)
+                if not fits:
+                    return nearly_full
         time, host = block.time, block.host_time
         if not self._writer.records_host_time:
             host = None  # a resumed session recorded without host arrival times
@@ -292,8 +354,9 @@ class Recorder:
             return self._write_failed(exc)
         if self._device_first is None:
             self._device_first = float(block.time[0])
+            self._device_at_segment = self._device_first
         self._device_last = float(block.time[-1])
-        return None
+        return nearly_full
 
     def _flush(self) -> CaptureEnded | None:
         try:
@@ -301,6 +364,30 @@ class Recorder:
         except WriteFailed as exc:
             return self._write_failed(exc)
         return None
+
+    def _room_problem(self, arriving: int) -> tuple[CaptureEnded, int] | None:
+        """Whether to end the capture now, while the disk still holds the ``arriving``
+        samples, those not written yet, and what closing needs (the module notes): why, and
+        how many of the ``arriving`` still fit."""
+        writer = self._writer
+        since = 0.0
+        if self._device_last is not None and self._device_at_segment is not None:
+            since = self._device_last - self._device_at_segment
+        short = self._room.short(writer.room(), written=writer.n_written,
+                                 pending=writer.n_samples - writer.n_written, arriving=arriving,
+                                 device_rate_hz=self.rate_hz, chunk_rows=writer.chunk_rows,
+                                 chunk_bytes=writer.chunk_bytes,
+                                 since_segment_s=since)  # fmt: skip
+        if short is None:
+            return None
+        room, fits = short
+        writer.release_reserve()
+        ended = CaptureEnded(
+            "disk-full",
+            f"the disk is nearly full ({room // 1024} KiB left where {self.path.name} is): "
+            "stopped in time, every sample received is written",
+        )
+        return ended, fits
 
     def _write_failed(self, exc: WriteFailed) -> CaptureEnded:
         """Free the reserve and try once more; else give up the samples not written."""
@@ -320,13 +407,18 @@ class Recorder:
             f"cannot write ({exc.reason}): stopped; {lost}, the session holds {writer.n_written}",
         )
 
-    def _check_end(self, now: float) -> CaptureEnded | None:
+    def _check_end(self, now: float, idle: bool) -> CaptureEnded | None:
+        """Why the recording ends now, or None.  The timeouts are judged only after a read
+        that brought no sample (``idle``): a host that did not read for a while (busy,
+        suspended) finds the samples waiting, not a stalled device."""
         what = self.source.describe()
         if self._signal_kind is not None:
             kind, name = _SIGNALS[self._signal_kind]
             return CaptureEnded(kind, f"stopped by {name}")
         if self._stop:
             return CaptureEnded("done", "done")
+        if not idle:
+            return None
         if self._t_last_sample is None:
             if now - self._t0 >= self.wait_timeout_s:
                 return CaptureEnded("timeout", self._no_data_reason(what))
@@ -340,32 +432,19 @@ class Recorder:
 
     def _no_data_reason(self, what: str, within: str | None = None) -> str:
         """Why no sample came from ``what`` (``within``: " in 10 s", the wait by default)."""
-        stats = self.protocol.stats
         within = f" in {self.wait_timeout_s:g} s" if within is None else within
-        if stats.get("bytes", 0) == 0:
-            return (
-                f"no data from {what}{within}: check the port, the baud rate and that "
-                "the sketch prints lines"
-            )
-        if stats.get("lines", 0) == stats.get("comments", 0) and stats.get("malformed", 0) == 0:
-            return (
-                f"received {stats['bytes']} bytes from {what}{within} but no data line "
-                f"({stats.get('comments', 0)} comment lines): check that the sketch prints "
-                "numbers"
-            )
         columns = getattr(self.protocol, "columns", None)
-        expected = f", {columns.n_fields} fields per line expected" if columns else ""
-        return (
-            f"received {stats['bytes']} bytes from {what}{within} but no valid line "
-            f"({stats.get('malformed', 0)} malformed{expected}): wrong baud rate? "
-            "(or check --columns)"
-        )
+        return no_data_reason(self.protocol.stats, what + within,
+                              None if columns is None else columns.n_fields)  # fmt: skip
 
     def received_note(self) -> str:
         """For a capture that ended before its first sample: what did arrive and why none of
         it was a sample ("" when nothing arrived)."""
-        if self.n_samples > self.resumed_from or self.protocol.stats.get("bytes", 0) == 0:
+        stats = self.protocol.stats
+        if self.n_samples > self.resumed_from or stats.get("bytes", 0) == 0:
             return ""
+        if stats.get("lines", 0) == 0 and stats.get("bytes", 0) < NOTE_MIN_BYTES:
+            return ""  # the first bytes of a first line: too early to tell anything
         return self._no_data_reason(self.source.describe(), within="")
 
     def blocks(self, tick_s: float = 0.1) -> Iterator[SampleBlock]:
@@ -374,8 +453,9 @@ class Recorder:
         Yields an empty block at least every ``tick_s`` seconds when nothing arrived, so that a
         user interface stays live.  Ends (no exception) on Ctrl-C, SIGTERM, the device gone, a
         timeout or :meth:`stop`, with :attr:`end_kind` and :attr:`end_reason` set; the source
-        is closed then (segments can still be added until :meth:`close`).  SIGINT and
-        SIGTERM are handled (by setting a flag) only while this generator runs.
+        is closed then (segments can still be added until :meth:`close`).  SIGINT, SIGTERM
+        and SIGHUP are handled (by setting a flag) from the start of this generator until
+        :meth:`close`.
 
         Parameters
         ----------
@@ -391,14 +471,17 @@ class Recorder:
             raise RuntimeError("Recorder.blocks() runs once")
         self._t0 = now = _time.monotonic()
         what = self.source.describe()
+        set_origin = getattr(self.protocol, "set_origin", None)
+        if set_origin is not None:  # host-stamped lines: none was sent before the port opened
+            set_origin(min(self._t_open - self._t0, 0.0))
         self._install_signals()
         self._status(f"waiting for data on {what}")
         last_yield = last_status = now
         last_flush = now
-        dirty = False
+        dirty, idle = False, True
         try:
             while True:
-                ended = self._check_end(now)
+                ended = self._check_end(now, idle)
                 if ended is not None:
                     self.end_kind, self.end_reason = ended.kind, ended.reason
                     break
@@ -410,6 +493,7 @@ class Recorder:
                     break
                 now = _time.monotonic()
                 block = self.protocol.feed(data, now - self._t0) if data else SampleBlock.empty()
+                idle = not len(block)
                 if len(block):
                     ended = self._received(block, now, what)
                     if ended is not None:
@@ -447,7 +531,7 @@ class Recorder:
             return ended
         if not self._clock_checked and now - self._t_first >= CLOCK_CHECK_S:
             self._clock_checked = True
-            problem = self._clock_problem(now - self._t_first)
+            problem = self._clock_problem(now)
             if problem is not None:
                 return CaptureEnded("clock", problem)
         return None
@@ -458,7 +542,6 @@ class Recorder:
         self._t_end = _time.monotonic()
         if self.end_kind is None:  # the consumer closed the generator
             self.end_kind, self.end_reason = "done", "done"
-        self._restore_signals()
         self.source.close()  # nothing more is read: let the device see it at once
         if self._writer is not None and self._writer.n_samples > self._writer.n_written:
             ended = self._flush()
@@ -466,13 +549,15 @@ class Recorder:
                 self.end_kind, self.end_reason = ended.kind, ended.reason
 
     # segments and closing ----------------------------------------------------------------------
-    def add_segment(self, kind: str, start: int, stop: int, **attributes) -> str:
+    def add_segment(self, kind: str, start: int, stop: int, **attributes) -> str | None:
         """Mark samples ``[start, stop)`` as a segment; return its name.  ``attributes``
         (``label``, ``up``, ``axis``, ``angle_deg``, ``extra``) and the rules are those of
         :meth:`imucal_cli.formats.session.SessionWriter.add_segment`.
 
         Segments are added in time order.  While recording they are logged in the file at the
-        next flush; :meth:`close` writes them as ``/segments`` groups.
+        next flush; :meth:`close` writes them as ``/segments`` groups.  A segment over samples
+        that could not be written (a disk filled by another program) is left out: None, and
+        :attr:`segments_left_out` counts it.
 
         Raises
         ------
@@ -481,6 +566,11 @@ class Recorder:
         """
         if self._writer is None:
             raise SessionError(f"{self.path}: no samples recorded, so no segment can be added")
+        if self.samples_lost and stop > self._writer.n_samples:
+            self.segments_left_out += 1
+            return None
+        if self._device_last is not None:
+            self._device_at_segment = self._device_last
         try:
             return self._writer.add_segment(kind, start, stop, **attributes)
         except WriteFailed as exc:
@@ -511,19 +601,29 @@ class Recorder:
         if self._closed:
             return
         self._closed = True
-        self._restore_signals()
         try:
             if self._writer is not None:
                 try:
-                    self._writer.close()
+                    self._writer.close(attrs=self._rate_attrs())
                 except WriteFailed as exc:
                     self._close_failed(exc)
-                try:
-                    self._write_rate()
-                except SessionError:
-                    pass  # the nominal rate is optional; the samples are what matter
         finally:
+            self._restore_signals()
             self.source.close()
+
+    def discard(self) -> None:
+        """Close, leaving no trace of this capture: a new session is removed, a continued one
+        keeps only what it held before (time stamps in the wrong unit are no session)."""
+        if self._writer is not None and not self._closed:
+            self._writer.truncate(self.resumed_from)
+            self.samples_lost = 0
+        self._discarded = True  # a continued session keeps its own rate
+        self.close()
+        if self._writer is not None and not self.resumed_from:
+            try:
+                self.path.unlink()
+            except OSError:
+                pass
 
     def _close_failed(self, exc: WriteFailed) -> None:
         was_full = self.end_kind == "disk-full"
@@ -538,47 +638,21 @@ class Recorder:
                 f"written, the session holds {self._writer.n_written}"
             )
 
-    def _clock_problem(self, host_s: float) -> str | None:
-        """Why the device's time stamps cannot be right (None: they agree with the host clock
-        within :data:`CLOCK_TOLERANCE`, at a rate of 1 Hz to 10 kHz); the message names the
-        ``--time-unit`` that fits when a unit factor explains it."""
+    def _clock_problem(self, now: float) -> str | None:
+        """Why the device's time stamps cannot be right (None: they can); see
+        :func:`~imucal_cli.capture.checks.clock_problem`."""
         columns = getattr(self.protocol, "columns", None)
         if getattr(columns, "time", None) is None or self._device_first is None:
             return None  # host-stamped: nothing to compare
-        from imucal_cli.formats.columns import TIME_UNITS
+        return clock_problem(self.device_span_s, self.n_samples - self.resumed_from,
+                             now - self._t_open, now - self._t_first,
+                             columns.time_unit)  # fmt: skip
 
-        device_s = self._device_last - self._device_first
-        rate = (self.n_samples - self.resumed_from - 1) / device_s if device_s > 0 else float("inf")
-        ratio = device_s / host_s
-        if 1 / CLOCK_TOLERANCE <= ratio <= CLOCK_TOLERANCE and 1.0 <= rate <= 10_000.0:
-            return None
-        unit = columns.time_unit
-        said = (
-            f"the device's time stamps (read in {unit}) advanced {device_s:.4g} s in "
-            f"{host_s:.3g} s of host time ({rate:.4g} Hz)"
-        )
-        stamps = device_s / TIME_UNITS[unit]
-        fits = [
-            u
-            for u, f in TIME_UNITS.items()
-            if u != unit and 1 / CLOCK_TOLERANCE <= stamps * f / host_s <= CLOCK_TOLERANCE
-        ]
-        if fits:
-            return f"{said}: they look like {fits[0]}; capture again with --time-unit {fits[0]}"
-        return f"{said}: check the t column (--columns) and --time-unit"
-
-    def _write_rate(self) -> None:
+    def _rate_attrs(self) -> dict:
         """``sample_rate_hz`` from the samples' own time stamps (the device clock where the
         protocol has one), not from when the host received them (issue 10.5)."""
-        if self._device_first is None or self.n_samples < 2:
-            return
-        span = self._device_last - self._device_first
-        if not span > 0:
-            return
-        from imucal_cli.formats.session.h5open import open_for_update
-
-        with open_for_update(self.path, str(self.path)) as file:
-            file.attrs["sample_rate_hz"] = (self.n_samples - self.resumed_from - 1) / span
+        rate = self.rate_hz
+        return {"sample_rate_hz": rate} if rate > 0 and not self._discarded else {}
 
     def __enter__(self) -> Recorder:
         return self

@@ -2,10 +2,11 @@
 
 The capture pipeline has three replaceable parts:
 
-- a **source** delivers bytes: :class:`SerialSource` reads a serial port with pyserial (a
-  pseudo-terminal of ``imucal simulate --serve`` is one too).  Anything with ``read() -> bytes``
-  (empty after a short wait with no data; :class:`DeviceGone` when the device disappears),
-  ``close()``, ``describe() -> str`` and ``uri -> str`` can stand in for it.
+- a **source** delivers bytes: :class:`~imucal_cli.capture.serial_port.SerialSource` reads a
+  serial port with pyserial (a pseudo-terminal of ``imucal simulate --serve`` is one too).
+  Anything with ``read() -> bytes`` (empty after a short wait with no data;
+  :class:`DeviceGone` when the device disappears), ``close()``, ``describe() -> str`` and
+  ``uri -> str`` can stand in for it.
 - a **protocol** turns bytes into samples: :class:`LineProtocol` parses text lines of numbers,
   :class:`PrefixedLineProtocol` MotionCal's ``Raw:`` and i2cdevlib's ``a/g:`` lines (with the
   importer's own line parser), :class:`AutoLineProtocol` tells which of the two a device
@@ -18,8 +19,7 @@ The capture pipeline has three replaceable parts:
 
 from __future__ import annotations
 
-import errno
-import time as _time
+import re
 
 import numpy as np
 
@@ -36,7 +36,6 @@ __all__ = [
     "MAX_LINE_BYTES",
     "RESYNC_SAMPLES",
     "SampleBlock",
-    "SerialSource",
     "WitMotionProtocol",
     "host_stamps",
 ]
@@ -71,10 +70,25 @@ def host_stamps(
 _SEPARATORS = bytes.maketrans(b",;\t", b"   ")
 
 
+#: Two separators around an empty field: a comma or semicolon, blanks, another one; or two
+#: tabs with only spaces between (issue 26: ``1,,3`` must not become the fields 1 and 3).
+_EMPTY_FIELD = re.compile(rb"[,;][ \t]*[,;]|\t *\t")
+
+
+def _lines_with_empty_fields(text: bytes) -> frozenset[int]:
+    """Indices of the ``\n``-separated lines of ``text`` that hold an empty field."""
+    found = [m.start() for m in _EMPTY_FIELD.finditer(text)]
+    if not found:
+        return frozenset()
+    breaks = np.flatnonzero(np.frombuffer(text, np.uint8) == ord("\n"))
+    return frozenset(np.searchsorted(breaks, found).tolist())
+
+
 class LineProtocol:
     """Text lines of numbers, as Arduino and ESP32 sketches print them.
 
-    A line is numbers separated by commas, semicolons, spaces or tabs (any mix), ended by
+    A line is numbers separated by commas, semicolons, spaces or tabs (any mix; two separators
+    around an empty field make it malformed), ended by
     ``\\n``, ``\\r\\n`` or ``\\r``; :class:`~imucal_cli.formats.columns.ColumnSpec` says which
     number is which channel.  Nothing in a line is ever fatal:
 
@@ -114,6 +128,12 @@ class LineProtocol:
         self._behind = 0  # consecutive samples not after the last kept one
         self._dt = 0.0  # recent sample interval, s (for a resync)
 
+    def set_origin(self, host_time: float) -> None:
+        """When the stream could start (the port opened), host clock, s: the first lines,
+        host-stamped, are spread from there to their arrival (not crowded before it)."""
+        if self._last_host is None:
+            self._last_host = float(host_time)
+
     def feed(self, data: bytes, host_time: float) -> SampleBlock:
         """Parse the complete lines of ``data`` (after what was left over by the last call).
 
@@ -135,18 +155,19 @@ class LineProtocol:
                                              stats)  # fmt: skip
         if text is None:
             return SampleBlock.empty()
+        empty = _lines_with_empty_fields(text)
         text = text.translate(_SEPARATORS)
         n_fields = self.columns.n_fields
         tokens: list[bytes] = []
         n_good = 0
-        for line in text.split(b"\n"):
+        for k, line in enumerate(text.split(b"\n")):
             fields = line.split()
             if not fields:
                 continue
             stats["lines"] += 1
             if fields[0][:1] == b"#":
                 stats["comments"] += 1
-            elif len(fields) != n_fields:
+            elif len(fields) != n_fields or k in empty:
                 stats["malformed"] += 1
             else:
                 if self._skipped:  # `_` fields may hold anything (a text tag): read as 0
@@ -276,6 +297,12 @@ class PrefixedLineProtocol:
         self._last_host: float | None = None
         self._last_time: float | None = None
 
+    def set_origin(self, host_time: float) -> None:
+        """When the stream could start (the port opened), host clock, s: the first lines,
+        host-stamped, are spread from there to their arrival (not crowded before it)."""
+        if self._last_host is None:
+            self._last_host = float(host_time)
+
     @property
     def units(self) -> dict[str, str]:
         """The raw units the format fixes: counts (the magnetometer's only where it has one)."""
@@ -343,6 +370,11 @@ class AutoLineProtocol:
         self._chosen: LineProtocol | PrefixedLineProtocol | None = None
         self._held = bytearray()
         self._own = dict.fromkeys(_COUNTERS, 0)
+        self._origin: float | None = None
+
+    def set_origin(self, host_time: float) -> None:
+        """As :meth:`LineProtocol.set_origin` (passed on to the protocol chosen)."""
+        self._origin = float(host_time)
 
     @property
     def stats(self) -> dict:
@@ -371,6 +403,8 @@ class AutoLineProtocol:
         else:
             self._chosen = PrefixedLineProtocol()
         held, self._held = bytes(self._held), bytearray()
+        if self._origin is not None:
+            self._chosen.set_origin(self._origin)
         block = self._chosen.feed(held, host_time)
         if self._on_choice is not None and kind != "numbers":
             self._on_choice(f"recognised {LINE_FORMATS[kind][2]} lines (host-clock time; "
@@ -401,22 +435,12 @@ class AutoLineProtocol:
 
 
 # --------------------------------------------------------------------------------------------
-# Serial ports
+# The source
 # --------------------------------------------------------------------------------------------
 
 
 class DeviceGone(Exception):
     """The source cannot be read any more (unplugged, closed pseudo-terminal)."""
-
-
-def available_ports() -> list[str]:
-    """Device paths of the serial ports the system lists (USB adapters, built-in UARTs)."""
-    try:
-        from serial.tools import list_ports
-
-        return sorted(p.device for p in list_ports.comports())
-    except Exception:  # noqa: BLE001 - listing is a courtesy in an error message
-        return []
 
 
 # --------------------------------------------------------------------------------------------
@@ -451,6 +475,12 @@ class WitMotionProtocol:
         self._last_host: float | None = None
         self._last_time: float | None = None
 
+    def set_origin(self, host_time: float) -> None:
+        """When the stream could start (the port opened), host clock, s: the first lines,
+        host-stamped, are spread from there to their arrival (not crowded before it)."""
+        if self._last_host is None:
+            self._last_host = float(host_time)
+
     def feed(self, data: bytes, host_time: float) -> SampleBlock:
         """Decode the frames of ``data``; return the samples they complete."""
         dec = self._decoder
@@ -472,94 +502,3 @@ class WitMotionProtocol:
             gyro=np.array([s.gyro for s in full], np.float64),
             temperature=np.array([s.temperature for s in full], np.float64),
         )
-
-
-class SerialSource:
-    """A serial port read with pyserial, in batches.
-
-    Parameters
-    ----------
-    port : str
-        Device path (``/dev/ttyUSB0``, ``/dev/ttyACM0``, ``COM3``, a pseudo-terminal).
-    baud : int
-        Baud rate.
-    timeout_s : float
-        Longest a :meth:`read` waits for a first byte.
-    batch_s : float
-        After a first byte, wait this long for more before returning, so that a fast stream
-        is read in batches of a few milliseconds (few system calls, low CPU).
-
-    Raises
-    ------
-    InputError
-        No such port (the message lists the available ones), permission denied, or the port
-        cannot be opened or configured.
-    """
-
-    def __init__(self, port: str, baud: int, timeout_s: float = 0.05, batch_s: float = 0.005):
-        import serial
-
-        if not isinstance(baud, int) or baud <= 0:
-            raise InputError(f"baud rate must be a positive integer, got {baud!r}")
-        self.port, self.baud, self.batch_s = str(port), int(baud), float(batch_s)
-        try:
-            self._serial = serial.Serial(self.port, self.baud, timeout=timeout_s)
-        except (serial.SerialException, OSError, ValueError) as exc:
-            raise _open_error(self.port, self.baud, exc) from None
-
-    @property
-    def uri(self) -> str:
-        """The session's ``source`` attribute: ``serial:/dev/ttyUSB0@115200``."""
-        return f"serial:{self.port}@{self.baud}"
-
-    def describe(self) -> str:
-        """``"/dev/ttyUSB0 at 115200 baud"`` for messages."""
-        return f"{self.port} at {self.baud} baud"
-
-    def read(self) -> bytes:
-        """Bytes received so far, or b"" after ``timeout_s`` with none.
-
-        Raises
-        ------
-        DeviceGone
-            The port cannot be read any more (unplugged, pseudo-terminal closed).
-        """
-        ser = self._serial
-        try:
-            waiting = ser.in_waiting
-            if waiting:
-                return ser.read(waiting)
-            first = ser.read(1)
-            if not first:
-                return b""
-            _time.sleep(self.batch_s)
-            waiting = ser.in_waiting
-            return first + ser.read(waiting) if waiting else first
-        except (OSError, TypeError, AttributeError) as exc:  # SerialException is an OSError
-            raise DeviceGone(" ".join(str(exc).split()) or type(exc).__name__) from None
-
-    def close(self) -> None:
-        """Close the port (never raises)."""
-        try:
-            self._serial.close()
-        except Exception:  # noqa: BLE001 - the device may be gone already
-            pass
-
-
-def _open_error(port: str, baud: int, exc: BaseException) -> InputError:
-    code = getattr(exc, "errno", None)
-    text = " ".join(str(exc).split())
-    if code == errno.ENOENT or "No such file" in text or "FileNotFoundError" in text:
-        ports = available_ports()
-        listed = ", ".join(ports) if ports else "none found"
-        return InputError(f"{port}: no such serial port (available: {listed})")
-    if code in (errno.EACCES, errno.EPERM) or "Permission denied" in text:
-        return InputError(
-            f"{port}: permission denied: add your user to the group that owns the port "
-            "(often 'dialout': sudo usermod -aG dialout $USER, then log in again)"
-        )
-    if code == errno.EBUSY or "busy" in text.lower():
-        return InputError(f"{port}: the port is busy (another program has it open)")
-    if isinstance(exc, ValueError):
-        return InputError(f"{port}: cannot use baud rate {baud} ({text})")
-    return InputError(f"{port}: cannot open the serial port ({text})")

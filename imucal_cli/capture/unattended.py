@@ -464,9 +464,9 @@ def _left_to_do(plan: Plan, before: list[str], say) -> tuple[list[str], Plan]:
 
 
 def _record(recorder, plan: Plan | None, duration_s: float | None, min_still_s: float, say):
-    """Record until ``duration_s`` after the first sample, or until every step of ``plan`` is
-    seen (checked every :data:`CHECK_EVERY_S`), or the recorder ends; returns the samples and
-    whether the duration was reached."""
+    """Record until ``duration_s`` of device time after the first sample, or until every step
+    of ``plan`` is seen (checked every :data:`CHECK_EVERY_S`), or the recorder ends; returns
+    the samples and whether the duration was reached."""
     buffer = _Buffer()
     watcher = None if plan is None else _PlanWatcher(plan, min_still_s)
     first = None
@@ -478,10 +478,12 @@ def _record(recorder, plan: Plan | None, duration_s: float | None, min_still_s: 
         if len(block):
             buffer.add(block)
             if first is None:
-                first = now
+                first = float(block.time[0])
         if first is None:
             continue
-        if duration_s is not None and now - first >= duration_s and not reached_duration:
+        # the duration in device time: a backlog read at once or a busy host cuts nothing short
+        recorded = float(buffer.get("time")[-1]) - first
+        if duration_s is not None and recorded >= duration_s and not reached_duration:
             reached_duration = True
             say(f"{duration_s:g} s recorded")
             recorder.stop()

@@ -111,14 +111,42 @@ def _reuse_freed_memory() -> None:
     mallopt(m_trim_threshold, 64 << 20)
 
 
+_CTRL_C: list[int] = []
+"""Ctrl-C presses that reached :func:`main`'s handler (typer turns the KeyboardInterrupt of
+one into a silent status 130: :func:`_run` then says ``imucal: interrupted``)."""
+
+
+def _on_ctrl_c(signum, frame):  # noqa: ARG001
+    _CTRL_C.append(signum)
+    raise KeyboardInterrupt
+
+
+@contextmanager
+def _ctrl_c_counted():
+    """While a command runs, Ctrl-C raises KeyboardInterrupt as usual and is counted; not
+    where Ctrl-C is ignored (a background job) or handled by someone else."""
+    import signal
+
+    mine = signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    if mine:
+        signal.signal(signal.SIGINT, _on_ctrl_c)
+    try:
+        yield
+    finally:
+        if mine:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
 def main() -> None:
     """Console-script entry point (``imucal``): run, then exit with the command's status."""
     _reuse_freed_memory()
+    _CTRL_C.clear()
     warnings.showwarning = _show_warning
     warnings.simplefilter("always", ImucalWarning)
     original = _guard_stdout()
     try:
-        code = _run()
+        with _ctrl_c_counted():
+            code = _run()
     finally:
         if original is not None:
             try:
@@ -149,6 +177,7 @@ def run() -> None:
         code = exc.code
     else:
         code = 0
+    _ignore_ctrl_c()  # the command is over: leaving is not interrupted
     if type(code) is not int or _threads_running() or sys.getprofile() or sys.gettrace():
         sys.exit(code)
     import atexit
@@ -163,6 +192,13 @@ def run() -> None:
     except (OSError, ValueError):
         sys.exit(code)  # as Python reports a failed flush at exit
     os._exit(code)
+
+
+def _ignore_ctrl_c() -> None:
+    import signal
+
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _threads_running() -> bool:
@@ -219,6 +255,19 @@ def _command_name(info) -> str:
 
 
 def _run() -> int:
+    code = _run_app()
+    if code == 130 and _CTRL_C:  # typer's status for a KeyboardInterrupt: nothing was said
+        _print_error("imucal: interrupted")
+    return code
+
+
+def _interrupted() -> int:
+    _print_error("imucal: interrupted")
+    _CTRL_C.clear()  # said
+    return 130
+
+
+def _run_app() -> int:
     import typer
 
     try:
@@ -229,8 +278,7 @@ def _run() -> int:
     except typer.Exit as exc:
         return exc.exit_code
     except typer.Abort:
-        print("imucal: interrupted", file=sys.stderr)
-        return 130
+        return _interrupted()
     except typer.TyperException as exc:  # usage errors: bad option, missing argument, ...
         ctx = getattr(exc, "ctx", None)
         if type(exc).__name__ == "NoArgsIsHelpError" and ctx is not None:
@@ -249,8 +297,7 @@ def _run() -> int:
         _print_error("imucal: error: not enough memory for this input")
         return 1
     except KeyboardInterrupt:
-        print("imucal: interrupted", file=sys.stderr)
-        return 130
+        return _interrupted()
     except BrokenPipeError:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0

@@ -297,10 +297,12 @@ def _summary(line: Lines, cal, where: str) -> None:
         line(("temperature", BOLD), f": {cal.extra['temperature_note']}")
     clock = cal.extra.get("sample_clock") or {}
     if "ppm" in clock:
+        within = f"within {clock.get('threshold_ppm', 0.0):.3g} ppm of none: not corrected"
+        done = "gyro corrected" if clock.get("applied", True) else within
         line(
             ("sample clock", BOLD),
             f": {clock['ppm']:+.1f} ± {clock['ppm_std']:.1f} ppm (device s per true s - 1, "
-            f"over {clock['duration_s']:.0f} s; gyro corrected)",
+            f"over {clock['duration_s']:.0f} s; {done})",
         )
     elif clock.get("note"):
         line(("sample clock", BOLD), f": {clock['note']}")

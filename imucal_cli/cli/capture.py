@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from imucal_cli.errors import InputError
+from imucal_cli.errors import ImucalError, InputError
 from imucal_cli.formats.output import check_output
 
 from . import completion
@@ -150,8 +150,9 @@ def capture(
     taken from the segments already there.
 
     Exit status: 0 the session is complete; 3 the session is saved but incomplete (steps of
-    the plan not seen, interrupted, device gone, data stopped); 2 bad input (no such port,
-    bad --columns or plan, no data at all: nothing saved).
+    the plan not seen, interrupted, device gone, data stopped, the disk full: stopped in time
+    with every sample); 2 bad input (no such port, bad --columns or plan, time stamps in the
+    wrong --time-unit, no data at all: nothing saved); 130 Ctrl-C before any data.
     """
     from imucal_cli.formats.columns import ColumnSpec
 
@@ -179,10 +180,19 @@ def capture(
                          magnetic_field_uT=field_ut, overwrite=force, wait_timeout_s=wait_timeout,
                          read_timeout_s=read_timeout, resume=resume is not None)  # fmt: skip
     try:
-        summary = _record(recorder, plan_obj, guided, console, status, duration=duration,
-                          min_still_s=min_still, hold_s=hold, done_before=done_before)
+        try:
+            summary = _record(recorder, plan_obj, guided, console, status, duration=duration,
+                              min_still_s=min_still, hold_s=hold, done_before=done_before)
+        except ImucalError as exc:  # a saved session is never "nothing saved" (exit 2)
+            if not recorder.file_written:
+                raise
+            summary = _cut_short(recorder, plan_obj, exc, status)
     finally:
-        recorder.close()
+        if recorder.end_kind == "clock":  # stamps in the wrong unit: no session (exit 2)
+            recorder.discard()
+        else:
+            recorder.close()
+        _saved_stays_saved(recorder)
     _nothing_saved(recorder, out, err)
     _warn_absent_channels(out, {"--accel-units": ("accel", accel_units),
                                 "--gyro-units": ("gyro", gyro_units),
@@ -193,7 +203,7 @@ def capture(
     else:
         _print_summary(console, out, recorder, summary)
     sys.stdout.flush()
-    if not summary.complete:
+    if not _complete(recorder, summary):
         raise typer.Exit(EXIT_INCOMPLETE)
 
 
@@ -240,7 +250,7 @@ def _recorder(port: str, baud: int, out: Path, stream_protocol, status, **option
     accelerometer units, when not stated, said once the port opened (issue 10.4: errors stay
     one line)."""
     from imucal_cli.capture.recorder import Recorder
-    from imucal_cli.capture.stream import SerialSource
+    from imucal_cli.capture.serial_port import SerialSource
 
     source = SerialSource(port, baud)
     try:
@@ -269,14 +279,38 @@ def _record(recorder, plan, guided, console: Console, status, *, duration: float
                              hold_s=hold_s, done_before=done_before)  # fmt: skip
 
 
+def _cut_short(recorder, plan, exc: Exception, status):
+    """The summary of a capture whose mode failed after samples were saved (a segment it
+    could not add): said as a warning, the session kept, incomplete (exit 3)."""
+    from imucal_cli.plans import CaptureSummary
+
+    status(f"warning: {exc}")
+    missing = [] if plan is None else [s.label for s in plan.steps]
+    return CaptureSummary(complete=False, done=[], skipped=[], missing=missing,
+                          end_reason=str(exc), samples=recorder.n_samples,
+                          stats=recorder.stats)  # fmt: skip
+
+
+def _saved_stays_saved(recorder) -> None:
+    """Once the session is saved and closed, Ctrl-C no longer changes the outcome: the
+    summary is printed and the status is the README's for what was saved (never 130)."""
+    import signal
+    import threading
+
+    if recorder.file_written and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, lambda signum, frame: None)
+
+
 def _nothing_saved(recorder, out: Path, err: Console) -> None:
-    """End a capture that has no session to show: time stamps off by a unit (the file keeps
-    its samples), or no sample came at all (no file: exit 2, as for bad input, or 130 after
+    """End a capture that has no session to show: time stamps off by a unit (what it recorded
+    was discarded), or no sample came at all (no file: exit 2, as for bad input, or 130 after
     Ctrl-C, the README's statuses for nothing saved)."""
     from rich.markup import escape
 
     if recorder.end_kind == "clock":  # issue 10.5: a time unit off by a factor
-        raise InputError(f"{recorder.end_reason} ({out} keeps the {recorder.n_samples} samples)")
+        kept = (f"{out} keeps only its {recorder.resumed_from} earlier samples"
+                if recorder.resumed_from else "nothing saved")  # fmt: skip
+        raise InputError(f"{recorder.end_reason} ({kept})")
     if recorder.file_written:
         return
     if recorder.end_kind == "timeout":
@@ -341,22 +375,31 @@ def _done_before(path: Path, guided: bool) -> list:
 
 
 def _summary_json(out: Path, recorder, summary) -> dict:
+    """The summary for scripts and benches: rates and durations in device time, how the
+    capture ended, and this capture's samples received, written and lost."""
     segs = recorder.segments
     n_static = sum(1 for s in segs if s["kind"] == "static")
-    st = summary.stats
+    st = recorder.stats
     return {
         "format": "imucal-capture", "format_version": 1, "output": str(out),
-        "complete": bool(summary.complete), "done": list(summary.done),
+        "complete": _complete(recorder, summary), "done": list(summary.done),
         "skipped": list(summary.skipped), "missing": list(summary.missing),
-        "end": recorder.end_kind, "end_reason": summary.end_reason,
-        "samples": int(summary.samples), "static_segments": n_static,
+        "end": recorder.end_kind, "end_reason": recorder.end_reason or summary.end_reason,
+        "samples": int(recorder.n_samples), "static_segments": n_static,
         "rotation_segments": len(segs) - n_static,
         "labelled_segments": sum(1 for s in segs if "label" in s),
         "lines": int(st.get("lines", 0)), "comments": int(st.get("comments", 0)),
-        "malformed": int(st.get("malformed", 0)), "duration_s": float(st.get("duration_s", 0.0)),
-        "rate_hz": float(st.get("rate_hz", 0.0)),
+        "malformed": int(st.get("malformed", 0)), "duration_s": float(st["duration_s"]),
+        "rate_hz": float(st["rate_hz"]), "wall_s": float(st["wall_s"]),
+        "samples_received": int(st["received"]), "samples_written": int(st["written"]),
+        "samples_lost": int(st["lost"]), "segments_left_out": int(recorder.segments_left_out),
         "resumed_from": int(recorder.resumed_from),
     }  # fmt: skip
+
+
+def _complete(recorder, summary) -> bool:
+    """Complete: every step seen, and nothing of it lost to a full disk."""
+    return bool(summary.complete) and not recorder.samples_lost and not recorder.segments_left_out
 
 
 def _warn_absent_channels(out: Path, options: dict[str, tuple[str, object]]) -> None:
@@ -394,16 +437,16 @@ def check_mag_options(mag_units: str | None, field_ut: float | None) -> None:
 def _print_summary(console: Console, out: Path, recorder, summary) -> None:
     from rich.markup import escape
 
-    st = summary.stats
+    st = recorder.stats  # after closing: what the file holds
     segs = recorder.segments
     n_static = sum(1 for s in segs if s["kind"] == "static")
     n_rot = len(segs) - n_static
     n_labelled = sum(1 for s in segs if "label" in s)
     kind = recorder.end_kind
-    why = "" if kind == "done" else f": {summary.end_reason}"
+    why = "" if kind == "done" else f": {recorder.end_reason or summary.end_reason}"
     new = " new" if recorder.resumed_from else ""
     console.print(
-        f"saved {summary.samples} samples to {escape(str(out))}: {n_static}{new} static and "
+        f"saved {recorder.n_samples} samples to {escape(str(out))}: {n_static}{new} static and "
         f"{n_rot}{new} rotation segments ({n_labelled} labelled)",
         highlight=False,
         soft_wrap=True,
@@ -418,7 +461,10 @@ def _print_summary(console: Console, out: Path, recorder, summary) -> None:
         highlight=False,
         soft_wrap=True,
     )
-    if summary.complete:
+    if recorder.segments_left_out:
+        console.print(f"  {recorder.segments_left_out} segments left out: their samples could "
+                      "not be written", highlight=False, soft_wrap=True)  # fmt: skip
+    if _complete(recorder, summary):
         done = f" ({len(summary.done)} steps seen)" if summary.done else ""
         console.print(f"  complete{done}", highlight=False, soft_wrap=True)
     else:

@@ -28,7 +28,8 @@ def export(
     ),
     fmt: str | None = format_option(
         "c-header, yaml (ROS imu_calib), json, kalibr-imu (noise imu.yaml), kalibr "
-        "(M, A, C_gyro_i), openvins, basalt, px4, ardupilot, fusion, ros-imu (covariances) "
+        "(M, A, C_gyro_i), openvins, basalt, px4, ardupilot, fusion, vins, orbslam3, ros-imu "
+        "(covariances) "
         "[default: from OUTPUT's suffix .h/.yaml/.json/.params/.parm].",
         completion.export_formats,
     ),
@@ -36,7 +37,7 @@ def export(
     noise: Path | None = typer.Option(
         None, "--noise", metavar="NOISE.json",
         help="Noise figures from imucal noise SESSION --json (kalibr-imu, kalibr, openvins, "
-        "ros-imu).",
+        "basalt, vins, orbslam3, ros-imu).",
     ),  # fmt: skip
     rate: float | None = rate_option(
         "Rate the target runs at, Hz [default: the noise recording's]."
@@ -65,6 +66,16 @@ def export(
         None, "--prefix", metavar="NAME",
         help="c-header / fusion: name prefix, a C identifier [default: IMUCAL; fusion none].",
     ),  # fmt: skip
+    fusion_version: str = typer.Option(
+        "1.3", "--fusion-version", metavar="1.3|1.2",
+        help="fusion: the Fusion release compiled against (1.3: FusionMatrix a flat array of "
+        "9; 1.2: 3x3 nested).",
+    ),  # fmt: skip
+    drop: list[str] = typer.Option(
+        [], "--drop", metavar="TERM",
+        help="Export without a term the format cannot hold, said in the file: g-sensitivity "
+        "(refused otherwise).",
+    ),  # fmt: skip
     force: Force = False,
 ) -> None:
     """Export a calibration for firmware, ROS, estimators or scripts.
@@ -91,14 +102,23 @@ def export(
     cal, noise_in = load_input(calibration)
     if noise is not None:
         noise_in = read_noise(noise)
+    unknown = sorted(set(drop) - DROPPABLE)
+    if unknown:
+        raise InputError(f"--drop {unknown[0]}: the terms that can be dropped are "
+                         f"{', '.join(sorted(DROPPABLE))}")  # fmt: skip
     opts = ExportOptions(noise=noise_in, rate_hz=rate, topic=topic, scale=scale,
-                         device_id=device_id, prefix=prefix)  # fmt: skip
+                         device_id=device_id, prefix=prefix, fusion_version=fusion_version,
+                         drop=frozenset(drop))  # fmt: skip
     text = export_text(cal, fmt, options=opts)
     if output is None:
         typer.echo(text, nl=False)
         return
     write_output(output, text, force=force, inputs=[calibration, noise])
     make_console(stderr=True).print(f"wrote {output} ({fmt}: {_what(cal)})", markup=False)
+
+
+DROPPABLE = frozenset({"g-sensitivity"})
+"""Terms ``--drop`` names (a format that cannot hold one refuses it otherwise)."""
 
 
 def _what(cal) -> str:

@@ -38,16 +38,24 @@ def import_(
         "gyroscope file.",
     ),  # fmt: skip
     fmt: str | None = format_option(
-        "csv, imu_tk, ros (.bag, ROS 2 bag folder, .mcap), ulog (.ulg), mavlink (.tlog, "
-        "ArduPilot DataFlash .bin), lines (MotionCal Raw:, i2cdevlib a/g:) or witmotion (0x55 "
-        "frames) [default: recognised from the file].",
+        "csv (also EuRoC / TUM-VI imu0/data.csv), imu_tk, ros (.bag, ROS 2 bag folder, .mcap "
+        "of ROS 2 or ROS 1 messages), ulog (.ulg), mavlink (.tlog, ArduPilot DataFlash .bin or "
+        "its text .log), lines (MotionCal Raw:, i2cdevlib a/g:) or witmotion (0x55 frames) "
+        "[default: recognised from the file].",
         completion.import_formats,
     ),
     topic: str | None = typer.Option(
         None, "--topic", metavar="TOPIC",
-        help="ros: the sensor_msgs/Imu topic (listed when several); ulog: the IMU instance N; "
-        "mavlink: the message and instance (RAW_IMU.0, SCALED_IMU2, HIGHRES_IMU, IMU.1, ACC.0; "
-        "listed when several).",
+        help="ros: the sensor_msgs/Imu topic (listed when several); ulog: the topic and "
+        "instance (sensor_accel_fifo, sensor_accel, vehicle_imu, sensor_combined; .N or N alone "
+        "for an instance); mavlink: the message and instance (RAW_IMU.0, SCALED_IMU2, "
+        "HIGHRES_IMU, IMU.1, ACC.0, ISB.0 for batch samples; listed when several).",
+    ),  # fmt: skip
+    mag_topic: str | None = typer.Option(
+        None, "--mag-topic", metavar="TOPIC",
+        help="The magnetometer to read with the IMU when the log has several: ros: a "
+        "sensor_msgs/MagneticField topic; ulog: the sensor_mag instance N; mavlink: MAG.N "
+        "[default: the one in the IMU's namespace or of its instance].",
     ),  # fmt: skip
     columns: str | None = columns_option(
         "Fields of a line, e.g. t,ax,ay,az,gx,gy,gz,mx,my,mz or _,ax,ay,az (_ skips a field) "
@@ -106,6 +114,7 @@ def import_(
         files, fmt, columns, time_unit=time_unit, rate_hz=rate, skip_rows=skip_rows,
         accel_units=accel_units, gyro_units=gyro_units, sensor=sensor, sections=sections,
         turn_angle_deg=turn_angle, mag_units=mag_units, magnetic_field_uT=field_ut, topic=topic,
+        mag_topic=mag_topic,
     )  # fmt: skip
     write_session(out, session, overwrite=force, inputs=files)
     _print_result(_result_json(out, files, session), json_output)
@@ -116,7 +125,8 @@ def _result_json(out: Path, files: list[Path], session) -> dict:
     stats = session.import_stats
     static = session.static_segments()
     skipped = {"header": stats.header, "comments": stats.comments, "malformed": stats.malformed,
-               "first_malformed": stats.first_malformed, "unmatched": stats.unmatched}  # fmt: skip
+               "first_malformed": stats.first_malformed, "unmatched": stats.unmatched,
+               "unpaired": stats.unpaired, "dropped": stats.dropped}  # fmt: skip
     return {
         "format": "imucal-import", "format_version": 1, "output": str(out),
         "files": [str(f) for f in files], "samples": int(stats.samples),
@@ -127,8 +137,8 @@ def _result_json(out: Path, files: list[Path], session) -> dict:
         "skipped_lines": skipped, "notes": list(getattr(session, "import_notes", [])),
         "mag_channels": None if session.mag is None else int(session.mag.shape[1]),
         "mag_units": session.mag_units,
-        "warnings": [UNITS_WARNING] if session.accel is not None and not session.accel_units
-        else [],
+        "warnings": list(getattr(session, "import_warnings", []))
+        + ([UNITS_WARNING] if session.accel is not None and not session.accel_units else []),
     }  # fmt: skip
 
 
@@ -162,6 +172,15 @@ def _print_result(result: dict, json_output: bool) -> None:
         skipped.append(f"{s['unmatched']} unmatched (no sample of that time in the other file)")
     if skipped:
         line("  skipped lines: " + ", ".join(skipped))
+    left = []
+    if s["unpaired"]:
+        left.append(f"{s['unpaired']} unpaired (an accelerometer or gyroscope sample with no "
+                    "sample of the other sensor at its time)")  # fmt: skip
+    if s["dropped"]:
+        left.append(f"{s['dropped']} whose time did not follow the previous sample's or whose "
+                    "values were not finite")  # fmt: skip
+    if left:
+        line("  samples left out: " + ", ".join(left))
     line(
         f"  {result['static_segments']} static segments ({result['still_s']:.1f} s still), "
         f"{result['rotation_segments']} rotation segments"

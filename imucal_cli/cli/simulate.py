@@ -53,15 +53,15 @@ def _enter_presses():
     return lambda: keys.get() is not None
 
 
-def _written_poses_or_turns(flag: str, plan: str, serve: bool) -> None:
-    """Refuse ``flag`` (a temperature ramp, a clock error) but for written sessions of the pose
-    and hand-rotation plans, the experiments that model it."""
+def _poses_or_turns(flag: str, plan: str) -> None:
+    """Refuse ``flag`` (a temperature ramp, a clock error) but for the pose and hand-rotation
+    plans, the experiments that model it (written or served)."""
     from imucal_cli.plans import find_plan
 
     spec = find_plan(plan)[0]
-    if serve or spec is None or spec.simulator not in ("poses", "rotations"):
-        raise InputError(f"{flag} works for written sessions of plans six, qureshi18, "
-                         "random:N, warmup:MINUTES, qureshi-axes and free:N")  # fmt: skip
+    if spec is None or spec.simulator not in ("poses", "rotations"):
+        raise InputError(f"{flag} works for plans six, qureshi18, random:N, warmup:MINUTES, "
+                         "qureshi-axes and free:N")  # fmt: skip
 
 
 def _mag_plan(plan: str, thermal_or_clock: bool) -> None:
@@ -185,12 +185,18 @@ Ramp = Annotated[str | None, typer.Option(
     "--ramp", metavar="FROM:TO[:linear]",
     help="The part's temperature runs from FROM to TO degrees C through the session (a "
     "warm-up, or :linear for a hair-dryer or chamber ramp); its biases follow it and the "
-    "truth holds temperature_ref and bias_tempco.",
+    "truth holds temperature_ref and bias_tempco. With --serve the temp field follows it.",
 )]  # fmt: skip
 ClockPpm = Annotated[float | None, typer.Option(
     "--clock-ppm", metavar="PPM",
     help="The part's sample clock runs PPM parts per million fast (negative: slow): the "
-    "session records its device times and the host's arrival times (/raw/host_time).",
+    "session records its device times and the host's arrival times (/raw/host_time); with "
+    "--serve the lines carry its time stamps.",
+)]  # fmt: skip
+GSensitivity = Annotated[float | None, typer.Option(
+    "--g-sensitivity", metavar="LEVEL",
+    help="A g-sensitive gyro: each entry of its g-sensitivity matrix drawn within +-this (rad/s "
+    "per m/s^2 of specific force, e.g. 5e-4); the truth holds g_sensitivity.",
 )]  # fmt: skip
 Temp = Annotated[bool, typer.Option(
     "--temp/--no-temp", help="--serve: print the temperature field (8 or 7 fields)."
@@ -283,6 +289,7 @@ def simulate(
     duration: Duration = None,
     ramp: Ramp = None,
     clock_ppm: ClockPpm = None,
+    g_sensitivity: GSensitivity = None,
     temp: Temp = True,
     mag: Mag = False,
     field_ut: FieldUt = 48.0,
@@ -319,6 +326,10 @@ def simulate(
         "peak_rate_dps": peak_rate, "sigma_counts": sigma_counts, "orientations": orientations,
         "samples": samples, "labelled": labelled, "mountings": mountings,
     }  # fmt: skip
+    if g_sensitivity is not None:
+        if not 0 < g_sensitivity <= 0.1 or mag:
+            raise InputError("--g-sensitivity must be in (0, 0.1] rad/s per m/s^2, without --mag")
+        options["g_sensitivity"] = g_sensitivity
     if serve:
         if mag:  # the same part and samples as --mag writes; the hold is the device's
             if protocol != "lines":
@@ -329,6 +340,8 @@ def simulate(
                 "mag_noise": mag_noise, "layout": mag_layout, "field_known": not field_unknown,
                 "tumble_s": tumble,
             }  # fmt: skip
+        extras = {"temperature": thermal, "clock_scale": clock}
+        options.update({k: v for k, v in extras.items() if v is not None})
         _serve(plan, rate, baud, json_output, seed=seed, units=units, move_s=move, step=step,
                hold_s=SERVE_HOLD_S if hold is None else hold, plan_options=options,
                temperature=temp, loop=loop, duration_s=duration, garbage=garbage,
@@ -369,13 +382,13 @@ def _checked(plan: str, serve: bool, ramp: str | None, clock_ppm: float | None, 
     if ramp is not None:
         from imucal_cli.simulate.temperature import parse_ramp
 
-        _written_poses_or_turns("--ramp", plan, serve)
+        _poses_or_turns("--ramp", plan)
         thermal = parse_ramp(ramp)
     clock = None
     if clock_ppm is not None:
         from imucal_cli.simulate.clock import check_ppm
 
-        _written_poses_or_turns("--clock-ppm", plan, serve)
+        _poses_or_turns("--clock-ppm", plan)
         clock = check_ppm(clock_ppm)
     if mag:
         _mag_plan(plan, thermal is not None or clock is not None)

@@ -298,6 +298,14 @@ class Calibration:
         }
         if not sections:
             raise fail("holds no 'accel', 'gyro' or 'mag' calibration")
+        misplaced = ["the root" if "sample_clock_scale" in d else None] + [
+            f"the {name} section" for name in ("accel", "mag")
+            if isinstance(d.get(name), dict) and "sample_clock_scale" in d[name]
+        ]  # fmt: skip
+        if any(misplaced):  # the spec: it lives in the gyro section, refused anywhere else
+            where = " and ".join(w for w in misplaced if w)
+            raise fail(f"sample_clock_scale in {where}: it belongs in the gyro section (the "
+                       "one whose values depend on time); move it there")  # fmt: skip
         return cls(
             accel=sections.get("accel"),
             mag=sections.get("mag"),
@@ -337,6 +345,25 @@ def _temperature_terms(extra: dict, n: int) -> tuple[float, np.ndarray] | None:
     return float(ref), np.array(tempco, dtype=np.float64).reshape(len(tempco), n)
 
 
+#: The largest calibrated offset ``|matrix @ bias|`` a sensor can have, in its output units:
+#: 1000 g for an accelerometer (MEMS parts span 2 to 400 g), 1000 rad/s for a gyroscope (parts
+#: span up to 70 rad/s), 1 T for a magnetometer (the earth's field is 25-65 uT, hard iron a few
+#: thousand at most), 10,000 local fields.  Past them the numbers are no calibration: a bias of
+#: 1e200 made ``apply`` write 1e197 m/s^2 for every sample with exit 0 (issue 26).
+OFFSET_LIMIT = {"m/s^2": 1e4, "rad/s": 1e3, "uT": 1e6, LOCAL_FIELD: 1e4}
+
+
+def _check_offset(name: str, units: str, bias: list, matrix: list, fail) -> None:
+    """Refuse a section whose bias, through its matrix, is beyond what the sensor can read."""
+    with np.errstate(all="ignore"):
+        offset = np.abs(np.asarray(matrix, np.float64) @ np.asarray(bias, np.float64))
+    limit = OFFSET_LIMIT[units]
+    worst = float(np.max(offset))
+    if not worst <= limit:
+        raise fail(f"{name}.bias through {name}.matrix is an offset of {worst:.3g} {units}, "
+                   f"beyond any sensor (at most {limit:g} {units}): not a calibration")  # fmt: skip
+
+
 def _parse_section(section: Any, name: str, fail) -> SensorCalibration:
     if not isinstance(section, dict):
         raise fail(f"{name!r} must be an object, got {type(section).__name__}")
@@ -358,6 +385,7 @@ def _parse_section(section: Any, name: str, fail) -> SensorCalibration:
         or not all(_is_finite_list(row) and len(row) == n for row in matrix)
     ):
         raise fail(f"{name}.matrix must be 3 rows of {n} finite numbers (one per bias entry)")
+    _check_offset(name, section["units"], bias, matrix, fail)
     rms = section.get("residual_rms")
     if rms is not None and not (_is_number(rms) and math.isfinite(rms)):
         raise fail(f"{name}.residual_rms must be a finite number or null, got {rms!r}")
@@ -369,9 +397,13 @@ def _parse_section(section: Any, name: str, fail) -> SensorCalibration:
         residual_rms=None if rms is None else float(rms),
         extra={k: v for k, v in section.items() if k not in _SECTION_FIELDS},
     )
+    if name != "gyro" and "g_sensitivity" in section:  # nothing would apply it
+        raise fail(f"g_sensitivity in the {name} section: the term is the gyro's (its response "
+                   f"to specific force); no reader applies it to the {name}")  # fmt: skip
     try:  # the optional terms of the spec: refused here when malformed
         sec.temperature_terms  # noqa: B018
         sec.sample_clock_scale  # noqa: B018
+        sec.g_sensitivity  # noqa: B018 - of the wrong shape: refused, not ignored (issue 26)
     except CalibrationFileError as exc:
         raise fail(f"{name}.{exc}") from None
     return sec

@@ -114,6 +114,10 @@ from typing import Any
 from imucal_cli.errors import ConfigError
 from imucal_cli.formats.inputs import read_text_input
 
+#: Local gravity a config or a session (its ``gravity`` attribute) may state, m/s^2, exclusive:
+#: 9.78 at the equator to 9.83 at the poles, with room for altitude and a rounded value.
+GRAVITY_RANGE = (9.0, 10.5)
+
 ACCEL_SOLVERS = ("auto", "gravity", "labelled", "factorization", "none")
 GYRO_SOLVERS = ("auto", "none", "static", "dynamic", "full", "known", "factorization")
 MAG_SOLVERS = ("magnitude", "ellipsoid", "none")
@@ -434,7 +438,8 @@ class ClockConfig:
 class Config:
     """The whole configuration."""
 
-    gravity: float | None = setting(None, "number", gt=9.0, lt=10.5, unit="m/s^2")
+    gravity: float | None = setting(None, "number", gt=GRAVITY_RANGE[0], lt=GRAVITY_RANGE[1],
+                                    unit="m/s^2")
     accel: AccelConfig = field(default_factory=AccelConfig)
     gyro: GyroConfig = field(default_factory=GyroConfig)
     mag: MagConfig = field(default_factory=MagConfig)
@@ -523,4 +528,8 @@ def load_config(path: str | Path | None) -> Config:
         raise ConfigError(f"{path}: not valid TOML ({' '.join(str(exc).split())})") from None
     except RecursionError:
         raise ConfigError(f"{path}: not valid TOML (nested too deeply)") from None
+    except ValueError as exc:  # an integer past Python's 4300-digit limit (issue 26)
+        said = "an integer of more than 4300 digits" if "digits" in str(exc) else \
+            " ".join(str(exc).split())[:120]  # fmt: skip
+        raise ConfigError(f"{path}: not a valid config ({said})") from None
     return config_from_dict(data, str(path))

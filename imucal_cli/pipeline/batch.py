@@ -14,7 +14,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from imucal_cli.errors import ImucalError
+import numpy as np
+
+from imucal_cli.errors import ImucalError, SolverError
 from imucal_cli.formats.calibration import Calibration, calibration_to_json, write_calibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.output import check_output
@@ -101,7 +103,13 @@ def calibrate_file(
 
         session = merge_sessions([session, *(read_session(p) for p in also)])
     warm = [read_session(p) for p in warmup] if warmup else None
-    cal = calibrate_session(session, cfg, name=path.name, accel=accel, warmup=warm)
+    try:
+        cal = calibrate_session(session, cfg, name=path.name, accel=accel, warmup=warm)
+    except np.linalg.LinAlgError as exc:  # issue 24.6: a one-line refusal, never a traceback
+        raise SolverError(
+            f"{path.name}: a solver met a singular system ({exc}): the data do not determine "
+            "the model; check each sensor's readings (an axis that barely moves) and the poses"
+        ) from None
     if also:
         cal.extra["sessions"] = [path.name, *(p.name for p in also)]
     problem = suspect_error(cal)

@@ -367,6 +367,9 @@ def calibrate_session(
     with_mag = session.mag is not None and cfg.mag.solver != "none"
     if cfg.accel.solver == "none" and cfg.gyro.solver == "none" and accel is None and not with_mag:
         raise ConfigError("the config calibrates nothing: [accel] and [gyro] solver are both none")
+    from imucal_cli.pipeline.channels import check_channels
+
+    check_channels(session, cfg, skip=("accel",) if accel is not None else ())  # issue 24.6
     session, segmented = with_segments(session)
     session, models, root = _prepare(session, cfg, warmup)
     given, refusal = accel, None
@@ -385,7 +388,7 @@ def calibrate_session(
             sec.extra.setdefault("notes", []).insert(0, segmented)
     attach(accel if segmented_accel else None, models.get("accel"))
     attach(gyro, models.get("gyro"))
-    if gyro is not None and "scale" in root.get("sample_clock", {}):
+    if gyro is not None and root.get("sample_clock", {}).get("applied"):
         gyro.extra["sample_clock_scale"] = root["sample_clock"]["scale"]
         gyro.extra["sample_clock"] = root["sample_clock"]
     extra = {"toolkit_version": __version__, "config": cfg.to_dict(), **root}

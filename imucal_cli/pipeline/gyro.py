@@ -247,6 +247,32 @@ def bridged_note(session, turns: list[Segment], usable: list[Turn]) -> list[str]
             "or paused before turning) and integrated whole"]  # fmt: skip
 
 
+def _without_gaps(session: Session, turns: list[Turn], data) -> list[Turn]:
+    """The turns whose samples have no gap (the rotation during missing samples is unknown:
+    such a turn cannot be integrated); a warning names the others."""
+    from imucal_cli.solvers.gaps import find_gaps, gaps_within
+
+    gaps = find_gaps(session.time)
+    if not gaps:
+        return turns
+    kept, broken = [], []
+    for t in turns:
+        inside = gaps_within(gaps, t.segment.start, t.segment.stop)
+        if inside:
+            broken.append((t, max(inside, key=lambda g: g.length_s)))
+        else:
+            kept.append(t)
+    if broken:
+        said = ", ".join(f"{t.segment.name} ({g.length_s:.3g} s at {g.time_s:.6g} s)"
+                         for t, g in broken[:5])  # fmt: skip
+        text = (f"{len(broken)} rotation(s) have a gap in their samples, the turn unknown "
+                f"across it: left out: {said}{' ...' if len(broken) > 5 else ''}")  # fmt: skip
+        data.warnings.append(text)
+        data.said.append(text)  # the fit of the other turns stands: said, not refused
+    data.turns = kept
+    return kept
+
+
 def _clipped(session: Session, turns: list[Turn], limit: tuple[float, float] | None
              ) -> np.ndarray:  # fmt: skip
     """Whether each turn reaches ``limit`` (the gyro's clipping levels) in any channel."""
@@ -260,8 +286,11 @@ def _clipped(session: Session, turns: list[Turn], limit: tuple[float, float] | N
 
 
 def _saturation_limit(session: Session, cfg: Config) -> tuple[float, float] | None:
-    """Raw levels at which the gyro clips: the configured range, else a counts gyro's ADC word,
-    less 0.5 % of the span at both ends."""
+    """Raw levels at which the gyro clips: the configured range less 0.5 % of the span at
+    both ends, else the ends of a counts gyro's ADC word themselves (the word is the smallest
+    that holds the data: a 16-bit gyro whose turns stay within +-2047 counts would otherwise
+    be taken for a 12-bit one clipping at its 0.5 % margin; a clipped reading sits on the
+    end, issue 24.6)."""
     if cfg.gyro.range is not None:
         lo, hi = cfg.gyro.range
         margin = 0.005 * (hi - lo)
@@ -273,10 +302,7 @@ def _saturation_limit(session: Session, cfg: Config) -> tuple[float, float] | No
     gyro = session.gyro
     finite = gyro if np.isfinite(gyro).all() else gyro[np.isfinite(gyro).all(axis=1)]
     rng = adc_range(float(finite.min()), float(finite.max()))
-    if rng is None:
-        return None
-    margin = 0.005 * (rng[1] - rng[0])
-    return rng[0] + margin, rng[1] - margin
+    return rng
 
 
 @dataclass
@@ -296,6 +322,7 @@ class GyroData:
     units_in: str
     notes: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    said: list[str] = field(default_factory=list)  # warnings said, not refused (turns left out)
 
 
 @dataclass
@@ -312,18 +339,23 @@ class GyroFit:
 
 
 def gyro_data(session: Session, cfg: Config, accel_cal: SensorCalibration) -> GyroData:
-    """Turns with still data around them, clipped turns left out (with a warning)."""
+    """Turns with still data around them; clipped turns, and turns with a gap in their
+    samples, left out (with a warning)."""
     where = session_name(session)
     if session.gyro is None:
         raise DesignError(f"{where}: no /raw/gyro in this session")
+    from .turn_windows import settle_turns
+
+    session, settled = settle_turns(session)  # issue 24.5: each turn from rest to rest
     stills, turns, skipped, source, noise = _stills_and_turns(session, accel_cal, cfg, where)
     data = GyroData(session, cfg, where, accel_cal, stills, turns, max(noise, 1e-12),
                     np.zeros(3), 0.0, session.gyro_units or "unknown",
-                    notes=[f"rotations: {source}"])  # fmt: skip
+                    notes=[f"rotations: {source}"] + ([settled] if settled else []))  # fmt: skip
     data.notes += bridged_note(session, session.rotation_segments(), turns)
     if skipped:
         data.notes.append(f"{len(skipped)} rotation(s) without still data before and after: "
                           "skipped")  # fmt: skip
+    turns = _without_gaps(session, turns, data)
     limit = _saturation_limit(session, cfg)
     is_clipped = _clipped(session, turns, limit)
     clipped = [t for t, c in zip(turns, is_clipped.tolist(), strict=True) if c]
@@ -334,7 +366,10 @@ def gyro_data(session: Session, cfg: Config, accel_cal: SensorCalibration) -> Gy
         )
         data.turns = [t for t, c in zip(turns, is_clipped.tolist(), strict=True) if not c]
     if not data.turns:
-        raise DesignError(f"{where}: every rotation is clipped: turn the unit more slowly")
+        why = "clipped" if clipped else "interrupted by a gap in the samples"
+        raise DesignError(f"{where}: every rotation is {why}: "
+                          + ("turn the unit more slowly" if clipped else
+                             "record again without losing samples"))  # fmt: skip
     n = sum(s.segment.stop - s.segment.start for s in stills)
     data.bias_still = np.sum([s.z_mean * (s.segment.stop - s.segment.start) for s in stills],
                              axis=0) / n  # fmt: skip
@@ -380,6 +415,8 @@ def calibrate_gyro_rotations(session: Session, cfg: Config, accel_cal: SensorCal
         "notes": data.notes,
         "warnings": data.warnings,
     })  # fmt: skip
+    if data.said:
+        extra["blocking"] = [w for w in data.warnings if w not in data.said]
     return SensorCalibration(
         solver=f"gyro-{solver}",
         units="rad/s",

@@ -15,6 +15,8 @@ gravity-measured turn is fitted.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from imucal_cli.errors import DesignError
@@ -23,6 +25,7 @@ from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
 from imucal_cli.solvers import gyro_full, gyro_known
 
+from . import gyro_known_checks as checks
 from .common import rms, session_name, with_segments
 from .gyro import (
     AXES,
@@ -35,6 +38,7 @@ from .gyro import (
     turns_between,
 )
 from .gyro_full import (
+    accel_derivative,
     design_warning,
     gain_std,
     parameter_rows,
@@ -42,9 +46,14 @@ from .gyro_full import (
     rotations_and_stills,
 )
 
-#: A turn whose measured gravity direction stays within this RMS angle of its mean (deg) is
-#: about the vertical: its axis is measured.
+#: A turn whose measured gravity direction stays within this RMS angle of its mean (deg), and
+#: within VERTICAL_SHARE of its angle, is about the vertical: its axis is measured.
 VERTICAL_DEG = 25.0
+#: A turn by ``theta`` about a horizontal axis sweeps gravity through ``theta`` (RMS about a
+#: third of it from the mean): a turn of 60 degrees about x with +Z up stays within 21 deg
+#: RMS, and was taken for a turn about the vertical (issue 24.5). About the vertical, only the
+#: hand's acceleration moves it, whatever the angle.
+VERTICAL_SHARE = 0.1
 #: Least std of a measured vertical axis (deg): the centripetal acceleration of a unit held
 #: a few cm off the axis tilts the vertical it reads by about this much, and its magnitude
 #: barely shows it.
@@ -81,7 +90,7 @@ def _placement(cfg: Config, accel_cal: SensorCalibration | None) -> float:
     return float(np.radians(deg) / np.sqrt(2))
 
 
-def _turn_axis(seg, acc, raw, tt, g, cfg, accel_cal):
+def _turn_axis(seg, acc, raw, tt, g, cfg, accel_cal, vertical_first: bool = False):
     """A known turn's unit axis, its std (rad), how it was found, and whether that std is
     assumed (no accelerometer: the config's or the default placement, nothing measured it;
     with one, its labelled poses measured the placement, or the vertical is measured).
@@ -94,9 +103,13 @@ def _turn_axis(seg, acc, raw, tt, g, cfg, accel_cal):
         return lab, _placement(cfg, None), "labelled (the frame of the labels)", True
     mag = np.linalg.norm(acc, axis=1)
     u, spread, sigma = _vertical_axis(acc / mag[:, None], mag, g, tt[-1] - tt[0])
-    vertical = spread < VERTICAL_DEG
+    vertical = spread < min(VERTICAL_DEG, VERTICAL_SHARE * abs(seg.angle_deg))
     off = None if lab is None else float(np.degrees(np.arccos(min(abs(u @ lab), 1.0))))
-    if lab is not None and _labels_frame(accel_cal) and (not vertical or off < MAX_LABEL_OFF_DEG):
+    if vertical_first and vertical:  # the alternative a check tries: the measured vertical
+        lab_ok = False
+    else:
+        lab_ok = not vertical or (off is not None and off < MAX_LABEL_OFF_DEG)
+    if lab is not None and _labels_frame(accel_cal) and lab_ok:
         return lab, _placement(cfg, accel_cal), "labelled", False
     if not vertical:
         return None
@@ -108,7 +121,7 @@ def _turn_axis(seg, acc, raw, tt, g, cfg, accel_cal):
 
 
 def known_turns(session: Session, cfg: Config, accel_cal: SensorCalibration | None, segments,
-                b0):  # fmt: skip
+                b0, vertical_first: bool = False):  # fmt: skip
     """The solver's view of the known-angle turns, and notes on how each axis was found.
 
     A labelled axis is used where the accelerometer's frame is the labels' and the turn is
@@ -124,7 +137,8 @@ def known_turns(session: Session, cfg: Config, accel_cal: SensorCalibration | No
         sl = slice(seg.start, seg.stop)
         acc = None if accel_cal is None else accel_cal.apply(session.accel[sl])
         tt = session.time[sl]
-        found = _turn_axis(seg, acc, session.gyro[sl] - b0, tt, g, cfg, accel_cal)
+        found = _turn_axis(seg, acc, session.gyro[sl] - b0, tt, g, cfg, accel_cal,
+                           vertical_first)  # fmt: skip
         name = seg.label or f"turn {seg.name}"
         if found is None:
             why = ("no labelled axis, and no accelerometer calibration to measure the vertical"
@@ -151,13 +165,16 @@ def known_turns(session: Session, cfg: Config, accel_cal: SensorCalibration | No
 
 
 def _g_choice(cfg, fit):
-    """The fit with or without g-sensitivity per ``[gyro.full] g_sensitivity``."""
+    """The fit with or without g-sensitivity per ``[gyro.full] g_sensitivity``. ``fit(with_g,
+    tau)``: the F-test weighs the turns measured by gravity with the excess ``tau`` estimated
+    without g-sensitivity in both fits, so that their chi^2 compare; the model kept has its
+    own excess (a g-sensitivity left out shows as excess)."""
     mode = cfg.gyro.full.g_sensitivity
-    base = fit(False)
+    base = fit(False, None)
     if mode == "off":
         return base, None
     try:
-        with_g = fit(True)
+        with_g = fit(True, base.tau)
     except DesignError:
         if mode == "on":
             raise
@@ -168,7 +185,11 @@ def _g_choice(cfg, fit):
     p = float(gyro_full.fdtrc(9, dof, F))
     test = {"included": mode == "on" or p < gyro_full.G_SELECT_P, "observable": True, "F": F,
             "dof": [9, dof], "p_value": p}  # fmt: skip
-    return (with_g if test["included"] else base), test
+    if not test["included"]:
+        return base, test
+    if base.tau > 0:  # the excess of the model with g-sensitivity: what it leaves unexplained
+        with_g = fit(True, None)
+    return with_g, test
 
 
 def _g_choice_without_accel(cfg, fit, data):
@@ -178,7 +199,7 @@ def _g_choice_without_accel(cfg, fit, data):
         raise DesignError(f"{data.where}: [gyro.full] g_sensitivity = \"on\" needs the "
                           "accelerometer calibrated (an [accel] solver, or --accel CAL.json)")
     data.notes.append("g-sensitivity: not estimated (no accelerometer calibration)")
-    return fit(False), None
+    return fit(False, None), None
 
 
 def _stills(stills) -> gyro_full.Stills:
@@ -195,6 +216,9 @@ def _known_data(session, cfg, accel_cal, where):
     if session.gyro is None or (accel_cal is not None and session.accel is None):
         raise DesignError(f"{where}: turns of known angle need /raw/gyro"
                           + ("" if accel_cal is None else " and /raw/accel"))  # fmt: skip
+    from .turn_windows import settle_turns
+
+    session, settled = settle_turns(session)  # each turn integrated from rest to rest
     segs = [s for s in session.rotation_segments() if s.angle_deg is not None]
     if not segs:
         raise DesignError(f"{where}: no rotation segment states its angle (angle_deg)")
@@ -226,7 +250,8 @@ def _known_data(session, cfg, accel_cal, where):
     data = GyroData(session, cfg, where, accel_cal, stills, turns, max(noise, 1e-12), b0,
                     noise / np.sqrt(n), session.gyro_units or "unknown",
                     notes=[f"{len(known.t)} turn(s) of known angle, {len(turns)} between still "
-                           "periods measured by gravity"] + notes)  # fmt: skip
+                           "periods measured by gravity"] + ([settled] if settled else [])
+                    + notes)  # fmt: skip
     limit = _saturation_limit(session, cfg)
     if limit is not None and any(np.any((z <= limit[0]) | (z >= limit[1])) for z in known.z):
         data.warnings.append("a turn of known angle reaches the end of the gyro's range: its "
@@ -241,6 +266,12 @@ def calibrate_gyro_known(
     still periods in the same fit. Without an accelerometer calibration (``accel_cal``
     None) the turns' labelled axes give the frame and the still periods the bias.
 
+    The turns between still periods are weighed with the excess scatter they show
+    (:mod:`imucal_cli.solvers.gyro_known`), and left out where they miss the model by more than
+    ``[gyro] max_residual_ratio`` times their noise and the known turns determine the gyro
+    alone (the full model refuses such turns); the known turns are then checked against what
+    remains (:mod:`.gyro_known_checks`).
+
     Raises
     ------
     DesignError
@@ -249,6 +280,8 @@ def calibrate_gyro_known(
     where = session_name(session)
     session, _ = with_segments(session)
     data, known, used, segs, statics, assumed = _known_data(session, cfg, accel_cal, where)
+    if not used:
+        return _without_known_turns(session, cfg, accel_cal, data, segs)
     turns, b0 = data.turns, data.bias_still
     rot, st = rotations_and_stills(data) if turns else (None, _stills(data.stills))
     x0 = None
@@ -256,33 +289,129 @@ def calibrate_gyro_known(
         full = gyro_full.fit_full(rot, st, data.noise, b0)
         x0 = np.r_[full.b, full.M.ravel()]
 
-    def fit(with_g):
-        return gyro_known.fit_known(known, st, data.noise, b0, rot=rot, x0=x0,
-                                    g_sensitivity=with_g)  # fmt: skip
+    accel_dirs = _accel_dirs(data)
 
+    def fitter(rot_, tau_fixed=None):
+        def fit(with_g, tau=None, known_=known):
+            return gyro_known.fit_known(known_, st, data.noise, b0, rot=rot_, x0=x0,
+                                        g_sensitivity=with_g,
+                                        tau=tau_fixed if tau is None else tau,
+                                        accel_dirs=accel_dirs)  # fmt: skip
+        return fit
+
+    def vertical_known():  # the axis a check tries: the measured vertical of each such turn
+        if accel_cal is None:
+            return None
+        alt, alt_used, _, _ = known_turns(session, cfg, accel_cal, segs, b0, vertical_first=True)
+        if [s.name for s in alt_used] != [s.name for s in used] or np.allclose(alt.axis,
+                                                                              known.axis):
+            return None
+        return alt
+
+    verdict, rot = _choose(cfg, data, known, used, st, rot, b0, fitter, vertical_known,
+                           accel_dirs)  # fmt: skip
+    res, g_test = verdict.result, verdict.g_test
     if accel_cal is None:
-        res, g_test = _g_choice_without_accel(cfg, fit, data)
         cov_a = np.zeros_like(res.cov)
     else:
-        res, g_test = _g_choice(cfg, fit)
-        cov_a = _accel_part(session, cfg, accel_cal, segs, statics, res, data, rot)
+        cov_a = _accel_part(session, cfg, accel_cal, segs, statics, res, data, rot,
+                            verdict.known, in_weights=accel_dirs is not None and rot is not None)
     noise_total = rate_std(res.M, res.cov[3:12, 3:12])
     res.cov = res.cov + cov_a
     uncertainty = {"total": rate_std(res.M, res.cov[3:12, 3:12]), "noise": noise_total,
                    "accel_calibration": None if accel_cal is None
                    else rate_std(res.M, cov_a[3:12, 3:12]),
                    "meaning": "relative std of a calibrated rate in its worst direction"}
-    return _section(data, res, known, used, g_test, uncertainty, assumed)
+    return _section(data, res, verdict.known, used, g_test, uncertainty, assumed, verdict)
 
 
-def _accel_part(session, cfg, accel_cal, segs, statics, res, data, rot) -> np.ndarray:
+def _choose(cfg, data, known, used, st, rot, b0, fitter, vertical_known, accel_dirs):
+    """The fit kept and its checks (:mod:`.gyro_known_checks`): the turns between still
+    periods weighed with their own excess, or left out; returns the verdict and the turns
+    between still periods in the fit kept (None: none)."""
+    joint, rot_used, why_out, rot_fit = None, rot, None, None
+    if data.accel_cal is None:
+        res, g_test = _g_choice_without_accel(cfg, fitter(None), data)
+    else:
+        res, g_test = _g_choice(cfg, fitter(rot))
+        own = None if rot is None else checks.own_excess(st, data.noise, rot, res, accel_dirs)
+        if own is not None:  # their excess from themselves: a wrong known turn cannot raise it
+            res, g_test = _g_choice(cfg, fitter(rot, own.tau))
+            rot_fit = fitter(rot, own.tau)
+        else:
+            rot_fit = fitter(rot)
+        level = res.gravity_level if own is None else own.gravity_level
+        if rot is not None and res.tau > 0 and checks.known_alone(known, b0):
+            alone, g_alone = _g_choice(cfg, fitter(None))
+            why_out = checks.leave_out(cfg, known, st, data.noise, rot, res, alone, accel_dirs,
+                                       level)  # fmt: skip
+            if why_out:
+                joint, rot_used = res, None  # the turns between still periods: left out
+                res, g_test = alone, g_alone
+    verdict = checks.judge(data, res, known, used, joint, rot, rot_used,
+                           fitter(None) if rot_used is None else rot_fit, g_test,
+                           vertical_known, accel_dirs, why_out)  # fmt: skip
+    return verdict, rot_used
+
+
+def _accel_dirs(data: GyroData) -> np.ndarray | None:
+    """(P, 3, m): the still periods' calibrated gravity vectors moved along each square-root
+    direction of the accelerometer calibration's covariance (None without one)."""
+    cal = data.accel_cal
+    cov = None if cal is None else cal.extra.get("covariance")
+    dg = None if cov is None else accel_derivative(data.stills, cal)
+    if dg is None:
+        return None
+    C = np.asarray(cov["values"], float)
+    lam, V = np.linalg.eigh((C + C.T) / 2)
+    return dg @ (V * np.sqrt(np.clip(lam, 0, None)))
+
+
+def _without_known_turns(session, cfg, accel_cal, data, segs) -> SensorCalibration:
+    """No turn of known angle can be used (each one's reason is in the notes): the turns
+    between still periods alone (the full model) when there are enough of them, else a
+    one-line refusal naming why."""
+    reasons = [n for n in data.notes if "known angle but" in n]
+    why = "; ".join(reasons[:3]) + (f" (and {len(reasons) - 3} more)" if len(reasons) > 3
+                                    else "")  # fmt: skip
+    if accel_cal is not None and 2 * len(data.turns) >= 9:
+        from dataclasses import replace
+
+        from .gyro import calibrate_gyro_rotations
+
+        sec = calibrate_gyro_rotations(session, replace(cfg, gyro=replace(cfg.gyro,
+                                                                          solver="full")),
+                                       accel_cal)  # fmt: skip
+        sec.extra.setdefault("notes", []).insert(
+            0, f"none of the {len(segs)} turns of known angle could be used ({why}): the gyro "
+               f"is calibrated by the full model from the {len(data.turns)} turns between still "
+               "periods")  # fmt: skip
+        return sec
+    raise DesignError(
+        f"{data.where}: none of the {len(segs)} turns of known angle can be used ({why}), and "
+        f"{len(data.turns)} turns between still periods cannot determine the gyro alone: label "
+        "each turn's axis in the accelerometer's frame (imucal label SESSION --segment NAME "
+        "--axis X,Y,Z, with an accelerometer solved from labelled poses), or turn about the "
+        "vertical, flat on a table"
+    )
+
+
+def _accel_part(session, cfg, accel_cal, segs, statics, res, data, rot, known,
+                in_weights: bool = False) -> np.ndarray:  # fmt: skip
     """Covariance from the accelerometer calibration (it measures the axes and the still
-    directions): refits with its parameters moved by one std along each eigenvector."""
+    directions): refits with its parameters moved by one std along each eigenvector.
+
+    ``in_weights``: the fit already weighed the turns between still periods with the
+    accelerometer calibration's part of their noise (its covariance then holds that part);
+    only the axes the accelerometer measures (turns about the vertical) are moved, the still
+    periods' gravity held (nothing at all when every axis is a label)."""
     cov = accel_cal.extra.get("covariance")
     n = len(res.cov)
     if cov is None or np.shape(accel_cal.matrix) != (3, 3):
         data.notes.append("the accelerometer calibration states no covariance: the gyro's std "
                           "leave out its uncertainty")  # fmt: skip
+        return np.zeros((n, n))
+    if in_weights and not any("measured vertical" in note for note in data.notes):
         return np.zeros((n, n))
     C = np.asarray(cov["values"], float)
     lam, V = np.linalg.eigh((C + C.T) / 2)
@@ -298,18 +427,27 @@ def _accel_part(session, cfg, accel_cal, segs, statics, res, data, rot) -> np.nd
             moved = SensorCalibration(solver=accel_cal.solver, units=accel_cal.units,
                                       bias=th[:3], matrix=th[3:].reshape(3, 3),
                                       extra={"gauge": accel_cal.extra.get("gauge")})  # fmt: skip
-            d.append(_refit(session, cfg, moved, segs, statics, res, data, rot, x))
+            d.append(_refit(session, cfg, moved, segs, statics, res, data, rot, x, known,
+                            in_weights))  # fmt: skip
         dx = (d[0] - d[1]) / 2
         out += np.outer(dx, dx)
     return out
 
 
-def _refit(session, cfg, accel_cal, segs, statics, res, data, rot, x) -> np.ndarray:
-    stills, _ = still_periods(session, accel_cal, cfg, statics)
+def _refit(session, cfg, accel_cal, segs, statics, res, data, rot, x, known0,
+           axes_only: bool = False) -> np.ndarray:  # fmt: skip
+    """The fit again with another accelerometer calibration: the same turns, axes' sources
+    and excess ``tau`` (the stills' gravity, unless ``axes_only``, and the measured axes move
+    with it)."""
+    stills, _ = still_periods(session, data.accel_cal if axes_only else accel_cal, cfg, statics)
     known, _, _, _ = known_turns(session, cfg, accel_cal, segs, data.bias_still)
+    if len(known.t) != len(known0.t):  # a turn's axis source changed: keep the first one's
+        known = known0
+    else:
+        known = replace(known, angle_sigma=known0.angle_sigma)
     st = _stills(stills)
     fit = gyro_known.fit_known(known, st, data.noise, data.bias_still, rot=rot, x0=x[:12],
-                               g_sensitivity=res.G is not None)  # fmt: skip
+                               g_sensitivity=res.G is not None, tau=res.tau)  # fmt: skip
     return np.r_[fit.b, fit.M.ravel(), [] if fit.G is None else fit.G.ravel()]
 
 
@@ -317,13 +455,14 @@ def _refit(session, cfg, accel_cal, segs, statics, res, data, rot, x) -> np.ndar
 MIN_SPARE = 3
 
 
-def _spare_text(data: GyroData, known, used, assumed: bool) -> str | None:
+def _spare_text(data: GyroData, known, used, assumed: bool, with_gravity: bool
+                ) -> str | None:  # fmt: skip
     """Issue 10.3: known turns alone (no turns measured by gravity) with too few spare
     equations (3 per turn, 9 terms of the matrix; the still periods give the bias): their
     residuals cannot show a wrong angle or axis. A warning where the axes' std are assumed
     (no accelerometer): then nothing in the data checks the stated std; a note where the
     accelerometer measured them."""
-    if data.turns:
+    if with_gravity:
         return None
     spare = 3 * len(used) - 9
     if spare >= MIN_SPARE:
@@ -339,27 +478,21 @@ def _spare_text(data: GyroData, known, used, assumed: bool) -> str | None:
             "about each axis once more (or add turns between still periods) to check them")
 
 
-def _section(data: GyroData, res, known, used, g_test, uncertainty, assumed: bool
+def _section(data: GyroData, res, known, used, g_test, uncertainty, assumed: bool, verdict
              ) -> SensorCalibration:  # fmt: skip
     units, n = data.units_in, len(res.std)
     parameters = parameter_rows(res, units)
-    sigma = np.degrees(np.sqrt(known.angle_sigma**2 + (known.axis_sigma * known.angle) ** 2))
+    across = np.degrees(known.axis_sigma * np.abs(known.angle))
     rotations = [
         {"segment": s.name, "label": s.label, "known_angle_deg": float(s.angle_deg),
          "measured_angle_deg": float(m), "angle_error_deg": float(e),
-         "axis_error_deg": float(ax), "noise_deg": float(sg)}
-        for s, m, e, ax, sg in zip(used, res.measured_angle_deg, res.angle_error_deg,
-                                   res.axis_error_deg, sigma, strict=True)
-    ]  # fmt: skip
-    level = float(np.sqrt(np.median(res.known_chi2) / 2.366))  # chi^2_3 median
-    if level > data.cfg.gyro.max_residual_ratio:
-        worst = int(np.argmax(res.known_chi2))
-        data.warnings.append(
-            f"the turns of known angle miss their angles by {level:.0f} times what the noise "
-            f"predicts (worst: {rotations[worst]['label'] or rotations[worst]['segment']}, "
-            f"{rotations[worst]['angle_error_deg']:+.2f} deg): check each turn's angle and "
-            "sign (angle_deg), and that the unit was still before and after"
-        )
+         "axis_error_deg": float(ax), "noise_deg": float(sg), "axis_noise_deg": float(ac)}
+        for s, m, e, ax, sg, ac in zip(used, res.measured_angle_deg, res.angle_error_deg,
+                                       res.axis_error_deg, res.angle_sigma_deg, across,
+                                       strict=True)
+    ] + verdict.gravity_rows  # fmt: skip
+    data.warnings += verdict.blocking
+    data.notes += verdict.notes
     undetermined = design_warning(data, uncertainty, len(used) + len(data.turns))
     S = np.linalg.inv(res.M)
     gains = np.linalg.norm(S, axis=1)
@@ -367,18 +500,19 @@ def _section(data: GyroData, res, known, used, g_test, uncertainty, assumed: boo
     if undetermined:
         data.warnings.append(undetermined)
     blocking = list(data.warnings)  # the rest are said, not refused (issue 10.3)
-    spare = _spare_text(data, known, used, assumed)
+    with_gravity = verdict.comparison.get("turns_between_still_periods") == "used"
+    spare = _spare_text(data, known, used, assumed, with_gravity)
     if spare and not assumed:  # std measured (the accelerometer's placement, the vertical)
         data.notes.append(spare)
         spare = None
     s_axes = S / gains[:, None]
     extra = {
-        "approach": "known-angle turns" + (" and turns between still periods" if data.turns
+        "approach": "known-angle turns" + (" and turns between still periods" if with_gravity
                                            else ""),
         "model": MODEL_EQUATION if res.G is None else MODEL_EQUATION_G,
         "units_in": units,
         "variant": f"{n} parameters from turns of known angle"
-                   + (" and turns measured by gravity" if data.turns else ""),
+                   + (" and turns measured by gravity" if with_gravity else ""),
         "frame": _frame(data.accel_cal),
         "parameters": parameters,
         "sensitivity": gains.tolist(),
@@ -392,11 +526,13 @@ def _section(data: GyroData, res, known, used, g_test, uncertainty, assumed: boo
         "rotation_rms_deg": float(rms(res.angle_error_deg)),
         "iterations": res.iterations, "chi2": res.chi2, "dof": res.dof,
         "noise_scale": res.noise_scale,
+        "turn_excess_deg": float(np.degrees(res.tau)),
+        "known_turn_check": verdict.comparison,
         "rate_std": uncertainty,
         "gyro_noise_raw": data.noise,
         "noise_basis": "pooled over the still periods",
         "notes": data.notes,
-        "warnings": data.warnings + ([spare] if spare else []),
+        "warnings": data.warnings + verdict.said + ([spare] if spare else []),
         "blocking": blocking,
     }  # fmt: skip
     if undetermined:
@@ -409,4 +545,3 @@ def _section(data: GyroData, res, known, used, g_test, uncertainty, assumed: boo
     return SensorCalibration(solver="gyro-known", units="rad/s", bias=np.asarray(res.b, float),
                              matrix=np.asarray(res.M, float), residual_rms=rms(np.radians(
                                  res.angle_error_deg)), extra=extra)  # fmt: skip
-

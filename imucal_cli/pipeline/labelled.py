@@ -4,6 +4,8 @@ prior around its label (:mod:`imucal_cli.solvers.labelled`)."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from imucal_cli.errors import DesignError, SolverError
@@ -105,7 +107,10 @@ def labelled_section(
     res, used, outliers = robust_fit(
         lambda p: fit_poses(p, g, cfg), screened, cfg.accel.outliers, design_ok, labelled=True
     )
-    outliers = wrong + screen + outliers
+    res, used, misplaced, tied = misplaced_labels(res, used, g, cfg)
+    misplaced = [replace(o, index=poses.segments.index(used.segments[o.index]))
+                 for o in misplaced]  # fmt: skip
+    outliers = wrong + screen + outliers + misplaced
     used_index = np.array([poses.segments.index(s) for s in used.segments])
     summary = (res.params[3:9], res.std[3:9])  # sensitivities and angles are parameters
     fit = with_excluded(
@@ -138,6 +143,9 @@ def labelled_section(
             **check_fields(q, outliers, physical, [units_note] if units_note else []),
         }
     )
+    if tied:  # issue 24.6: named, and not saved without --force (the design cannot say which)
+        extra["warnings"].insert(0, tied)
+        extra["blocking"].insert(0, tied)
     return SensorCalibration(
         solver="labelled",
         units="m/s^2",
@@ -146,6 +154,67 @@ def labelled_section(
         residual_rms=rms(res.residuals),
         extra=extra,
     )
+
+
+#: At most this many labels are ignored for their placement.
+MAX_MISPLACED = 3
+
+
+def misplaced_labels(res, poses: StaticPoses, g: float, cfg: Config):
+    """Labels whose pose sat off them by more than the others' placement spread allows
+    (:func:`imucal_cli.solvers.labelled.placement_outliers`; issue 24.6: a label 5-20 degrees
+    wrong used to inflate the placement estimate, and every std with it, instead of being
+    named). A pose the design can single out loses its label (its magnitude still counts) and
+    the fit is redone; a group it cannot tell apart (opposite faces of six, whose
+    disagreement the fit shares) is named in a warning that stops the save.
+
+    Returns the result, the poses used, the outliers (action ``"label ignored"``) and the
+    warning for a group (None when there is none)."""
+    from .accel_checks import Outlier
+
+    if cfg.accel.outliers == "keep":
+        return res, poses, [], None
+    found = []
+    for _ in range(MAX_MISPLACED):
+        groups = labelled_solver.placement_outliers(res)
+        if not groups:
+            return res, poses, found, None
+        idx, p = groups[0]
+        names = [_pose_name(poses, k) for k in idx]
+        angles = [float(res.up_angle_deg[k]) for k in idx]
+        others = np.delete(res.up_angle_deg, idx)
+        spread = float(np.sqrt(np.nanmean(others**2))) if np.isfinite(others).any() else 0.0
+        if len(idx) > 1:
+            return res, poses, found, (
+                f"{' and '.join(names)} disagree with each other: their placements come to "
+                f"{', '.join(f'{a:.1f}' for a in angles)} deg off their labels where the other "
+                f"poses sit within {spread:.1f} deg RMS (p = {p:.2g}): one of their labels is "
+                "wrong, or the unit did not sit flat on one of them, and these poses cannot tell "
+                "which; check them and re-capture (the 12 edges of plan qureshi18 tell each "
+                "pose apart)"
+            )  # fmt: skip
+        k = idx[0]
+        up = poses.up.copy()
+        up[k] = np.nan
+        trial = replace(poses, up=up)
+        if not design_ok(trial):
+            return res, poses, found, None
+        try:
+            new = fit_poses(trial, g, cfg)
+        except (DesignError, SolverError):
+            return res, poses, found, None
+        seg = poses.segments[k]
+        cause = (f"it sat {angles[0]:.1f} deg off its label where the other poses sit within "
+                 f"{spread:.1f} deg RMS (p = {p:.2g}): its label is wrong, or it rested on "
+                 "something")  # fmt: skip
+        found.append(Outlier(k, seg.name, seg.label, float("nan"), p, cause, "label ignored"))
+        res, poses = new, trial
+    return res, poses, found, None
+
+
+def _pose_name(poses: StaticPoses, k: int) -> str:
+    seg = poses.segments[k]
+    return f"segment {seg.name}" + (f" ({seg.label})" if seg.label else "")
 
 
 def solver_fields(res: labelled_solver.LabelledResult, units: list[str]) -> dict:

@@ -17,7 +17,7 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 
-__all__ = ["BATCH_S", "JITTER_S", "clocked", "host_arrivals", "with_clock"]
+__all__ = ["BATCH_S", "JITTER_S", "busy_arrivals", "clocked", "host_arrivals", "with_clock"]
 
 #: Host delivery batches, s (a USB full-speed frame is 1 ms; serial drivers deliver ~10 ms).
 BATCH_S = 0.01
@@ -35,6 +35,24 @@ def host_arrivals(true_time: np.ndarray, seed: int, batch_s: float = BATCH_S,
     arrive = np.ceil((t - t[0]) / batch_s + 1e-9) * batch_s + t[0]
     arrive = arrive + np.abs(jitter_s * rng.standard_normal(len(t)))
     return np.maximum.accumulate(arrive)
+
+
+def busy_arrivals(true_time: np.ndarray, seed: int, *, backlog_s: float = 5.0,
+                  drift: bool = True) -> np.ndarray:  # fmt: skip
+    """Host arrival times as a capture on a busy host sees them (issue 24.4): the host reads
+    every 5-15 ms and sometimes not for 0.1-0.4 s (a burst follows), more often so as the
+    load grows through the recording (``drift``), and starts reading only ``backlog_s`` after
+    the first sample (the capture starting up); each read takes every line sent before it,
+    all stamped with the read's time (true seconds, never decreasing)."""
+    rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(SPAWN_KEY, 1)))
+    t = np.asarray(true_time, float)
+    reads, now, end = [], t[0] + backlog_s, t[-1] + 1.0
+    while now < end:
+        reads.append(now)
+        busy = 0.02 + (0.1 * (now - t[0]) / (end - t[0]) if drift else 0.0)
+        now += rng.uniform(0.1, 0.4) if rng.random() < busy else rng.uniform(0.005, 0.015)
+    reads = np.asarray(reads)
+    return reads[np.searchsorted(reads, t + 1e-4)]  # the first read after each line
 
 
 def check_ppm(ppm: float) -> float:

@@ -186,9 +186,10 @@ def stream_with_holds(
 
 def _served_session(plan: str, *, mag: dict | None = None, **options):
     """The session :func:`~imucal_cli.simulate.play.simulate_plan` simulates for ``plan``
-    (with ``mag``, the options of :func:`~imucal_cli.simulate.magnetometer.simulate_mag`:
-    the pose plan with a magnetometer, tumbling between the holds, as ``imucal simulate
-    --mag`` writes it), and its holds."""
+    (its device times, and temperatures where a ramp was asked for; with ``mag``, the options
+    of :func:`~imucal_cli.simulate.magnetometer.simulate_mag`: the pose plan with a
+    magnetometer, tumbling between the holds, as ``imucal simulate --mag`` writes it), and its
+    holds."""
     if mag is None:
         from imucal_cli.simulate.play import simulate_plan
 
@@ -222,9 +223,11 @@ def _columns(accel: np.ndarray, gyro: np.ndarray | None, temperature: bool,
 
 
 def _format(
-    time: np.ndarray, accel: np.ndarray, gyro: np.ndarray | None, temperature: bool,
+    time: np.ndarray, accel: np.ndarray, gyro: np.ndarray | None, temperature,
     counts: bool, mag: np.ndarray | None = None, mag_counts: bool = True,
 ) -> list[bytes]:  # fmt: skip
+    """The data lines; ``temperature``: False (no field), the session's temperatures (N,),
+    or True (a part at room temperature, warming a little: 25 C plus 0.01 C/s)."""
     columns = [time, accel] + ([] if gyro is None else [gyro])
     n_values = sum(c.shape[1] for c in columns[1:])
     value = "%.0f" if counts else "%.6f"
@@ -232,9 +235,11 @@ def _format(
     if mag is not None:
         columns.append(mag)
         fields += ["%.0f" if mag_counts else "%.4f"] * mag.shape[1]
-    fmt = ",".join(fields + (["%.2f"] if temperature else []))
-    if temperature:
-        columns.append((25.0 + 0.01 * time)[:, None])
+    with_temp = temperature is not None and temperature is not False
+    fmt = ",".join(fields + (["%.2f"] if with_temp else []))
+    if with_temp:
+        own = not isinstance(temperature, bool)
+        columns.append((np.asarray(temperature, float) if own else 25.0 + 0.01 * time)[:, None])
     rows = np.column_stack(columns).tolist()
     return [(fmt % tuple(r) + "\n").encode() for r in rows]
 
@@ -325,7 +330,10 @@ def serve(
         Duration of each move between poses, s.
     plan_options : dict, optional
         More options of :func:`imucal_cli.simulate.play.simulate_plan` (``still_s``,
-        ``rotations_per_axis``, ``mountings``, ...); ``mag``: the options of
+        ``rotations_per_axis``, ``mountings``, ...; ``temperature``, a
+        :class:`~imucal_cli.simulate.temperature.Ramp`: the printed temperature follows it, a
+        warm-up; ``clock_scale``: the part's clock runs fast or slow, its time stamps say so
+        while the lines go out in true time; ``mag``: the options of
         :func:`imucal_cli.simulate.magnetometer.simulate_mag` (a pose plan with a
         magnetometer, tumbling between the holds: ``mx,my,mz`` after the gyro).
     temperature : bool
@@ -377,6 +385,7 @@ def serve(
                 duration_s=duration_s, garbage=garbage, stall_after_s=stall_after_s,
                 vanish_after_s=vanish_after_s, malformed_every=malformed_every,
                 rng=np.random.default_rng(seed + 1), timed=protocol == "lines",
+                clock_scale=(plan_options or {}).get("clock_scale") or 1.0,
             )  # fmt: skip
             return _stream(port, line, header, stop, wait_reader_s, say)
         finally:
@@ -386,18 +395,22 @@ def serve(
 def _plan_lines(plan: str, protocol: str, *, seed: int, rate_hz: float, hold_s: float | None,
                 units: str, move_s: float, plan_options: dict, temperature: bool, loop: bool,
                 step: bool, next_pose, say) -> tuple[list[bytes], _Schedule, str]:  # fmt: skip
-    """The plan's data lines, the schedule that hands them out, and what a line holds."""
+    """The plan's data lines, the schedule that hands them out, and what a line holds.  A
+    temperature ramp (``plan_options["temperature"]``: a warm-up) is printed as the part's
+    temperature; a clock error (``clock_scale``) as the device's own time stamps; a
+    magnetometer (``plan_options["mag"]``) as ``mx,my,mz`` after the gyro."""
     session, holds = _served_session(
         plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s,
         **plan_options,
     )  # fmt: skip
     time, accel, gyro, mag = session.time, session.accel, session.gyro, session.mag
+    if temperature and session.temperature is not None:
+        temperature = session.temperature
     lines = _lines(protocol, time, accel, gyro, temperature, units, mag, session.mag_units)
-    if hold_s is None:  # the plan's own hold: as its first pose is held
-        hold_s = (holds[0].stop - holds[0].start) / rate_hz if holds else 0.0
     schedule = _Schedule(len(lines), holds, loop=loop, step=step, next_pose=next_pose, say=say,
-                         hold_s=hold_s)  # fmt: skip
-    fields = (_columns(accel, gyro, temperature, mag) if protocol == "lines"
+                         rate_hz=rate_hz)  # fmt: skip
+    with_temp = temperature is not None and temperature is not False
+    fields = (_columns(accel, gyro, with_temp, mag) if protocol == "lines"
               else f"{protocol} lines")  # fmt: skip
     return lines, schedule, fields
 
@@ -547,10 +560,10 @@ class _Schedule:
     samples; the time of every line is ``k / rate`` for the k-th line sent."""
 
     def __init__(self, n: int, holds: list[Hold], *, loop: bool, step: bool, next_pose,
-                 say, hold_s: float) -> None:  # fmt: skip
+                 say, rate_hz: float) -> None:  # fmt: skip
         self.n, self.holds, self.loop, self.step = n, holds, loop, step
         self.next_pose = next_pose or (lambda: False)
-        self.say, self.hold_s = say, hold_s
+        self.say, self.rate_hz = say, rate_hz
         self.i = 0  # next sample of the pass
         self.k = 0  # lines handed out
         self.replay = 0  # samples replayed in the current paused hold
@@ -593,8 +606,9 @@ class _Schedule:
 
     def _announce(self, h: Hold) -> None:
         n = self.holds.index(h) + 1
+        held_s = (h.stop - h.start) / self.rate_hz  # the first: with the lead before it
         until = ("until Enter here" if self.step
-                 else f"{self.hold_s:g} s, then the next (Enter here: now)")  # fmt: skip
+                 else f"{held_s:.3g} s, then the next (Enter here: now)")  # fmt: skip
         self.say(f"pose {n}/{len(self.holds)}: {h.label}: held {until}")
 
 
@@ -606,12 +620,14 @@ class _Line:
         self, master: int, poller, stop: dict, lines: list[bytes], rate_hz: float, baud: int,
         *, schedule: _Schedule, duration_s, garbage: bool, stall_after_s, vanish_after_s,
         malformed_every, rng: np.random.Generator, timed: bool = True,
+        clock_scale: float = 1.0,
     ) -> None:  # fmt: skip
         self.master, self.poller, self.stop, self.lines = master, poller, stop, lines
         self.rate_hz, self.baud, self.schedule, self.garbage = rate_hz, baud, schedule, garbage
         self.duration_s, self.stall_after_s = duration_s, stall_after_s
         self.vanish_after_s, self.malformed_every, self.rng = vanish_after_s, malformed_every, rng
         self.timed = timed  # a line starts with its time (rewritten for a replayed sample)
+        self.clock_scale = clock_scale  # device seconds per true second of the part's clock
         self.out = bytearray()
         self.queued_bytes = 0  # bytes put into `out` (paced by the baud rate)
         self.line_ends: list[tuple[int, bool]] = []  # (byte offset after the line, malformed)
@@ -651,7 +667,8 @@ class _Line:
             self.schedule.k += 1
             line = self.lines[i]
             if i != k and self.timed:  # a later pass, a cut or a paused hold: time goes on
-                line = b"%.4f," % (k / self.rate_hz) + line.split(b",", 1)[1]
+                stamp = k * self.clock_scale / self.rate_hz  # the part's clock
+                line = b"%.4f," % stamp + line.split(b",", 1)[1]
             every = self.malformed_every
             bad = every is not None and k % every == every - 1
             if bad:

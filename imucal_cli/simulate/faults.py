@@ -107,3 +107,34 @@ def inject(session: Session, truth: Calibration, fault: str, k: int, size: float
     if fault == "wrong-label":
         return wrong_label(session, k, 178.0 if size is None else size)
     raise ValueError(f"fault must be one of {FAULTS}, not {fault!r}")
+
+
+def g_sensitive(session: Session, truth: Calibration, level: float, seed: int = 0
+                ) -> tuple[Session, Calibration]:  # fmt: skip
+    """A g-sensitive gyro (issue 24.6): each entry of ``C`` (rad/s per m/s^2 of specific
+    force) drawn uniformly in +-``level`` from ``seed``, so that the gyro reads
+    ``S (omega + C f) + b`` (rounded and clipped as the part's counts are). The specific force
+    ``f`` is the session's accelerometer through its true calibration (the true force plus
+    the accelerometer's own noise, which ``C`` scales to nothing). The truth's gyro section
+    gains ``g_sensitivity`` (``S C``, raw units per m/s^2, the spec's term:
+    ``calibrated = matrix @ (raw - bias - g_sensitivity @ a)``) and
+    ``g_sensitivity_physical`` (``C``)."""
+    if session.accel is None or session.gyro is None or truth.gyro is None:
+        return session, truth
+    C = level * np.random.default_rng([int(seed), 24, 6]).uniform(-1.0, 1.0, (3, 3))
+    S = np.linalg.inv(np.asarray(truth.gyro.matrix, float))
+    G = S @ C
+    f = truth.accel.apply(session.accel)
+    gyro = session.gyro + f @ G.T
+    if np.issubdtype(np.asarray(session.gyro).dtype, np.integer) or (
+            session.gyro_units == "counts"):  # fmt: skip
+        # The counts are already rounded: rounding again would shift a still period by the
+        # same fraction of a count in every sample (its rate is constant there). The part
+        # rounds with its noise before it, which a dither of one count restores.
+        dither = np.random.default_rng([int(seed), 24, 7]).uniform(-0.5, 0.5, gyro.shape)
+        gyro = np.clip(np.rint(gyro + dither), -32768, 32767)
+    gyro = gyro.astype(np.asarray(session.gyro).dtype, copy=False)
+    sec = replace(truth.gyro, extra={**truth.gyro.extra, "g_sensitivity": G.tolist(),
+                                     "g_sensitivity_physical": C.tolist(),
+                                     "g_sensitivity_unit": f"{session.gyro_units} per m/s^2"})
+    return replace(session, gyro=gyro), replace(truth, gyro=sec)

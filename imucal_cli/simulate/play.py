@@ -53,9 +53,12 @@ def simulate_plan(
     created: str | None = None,
     temperature=None,
     clock_scale: float | None = None,
+    g_sensitivity: float | None = None,
 ) -> tuple[Session, Calibration]:
     """Simulate ``plan`` (a registry name or a TOML plan file); return the session and truth.
 
+    ``g_sensitivity`` (rad/s per m/s^2): a g-sensitive gyro, each entry of its matrix drawn
+    within +-that (:func:`imucal_cli.simulate.faults.g_sensitive`).
     Options a plan's experiment does not use are ignored.  ``rate_hz`` defaults to 100 Hz
     (hk-redundant: 50 Hz); ``hold_s``, the hold per pose, to 2 s (the iron plans' still periods:
     3 s; the hand-rotation plans use ``still_s``).  See the simulators for the others.
@@ -65,6 +68,25 @@ def simulate_plan(
     InputError
         Unknown plan, or a bad option.
     """
+    session, truth = _played(
+        plan, seed=seed, units=units, rate_hz=rate_hz, hold_s=hold_s, move_s=move_s,
+        accel_noise=accel_noise, jitter_deg=jitter_deg, gravity=gravity,
+        rotations_per_axis=rotations_per_axis, peak_rate_dps=peak_rate_dps, still_s=still_s,
+        sigma_counts=sigma_counts, orientations=orientations, samples=samples,
+        labelled=labelled, mountings=mountings, created=created, temperature=temperature,
+        clock_scale=clock_scale,
+    )  # fmt: skip
+    if g_sensitivity:
+        from imucal_cli.simulate.faults import g_sensitive
+
+        session, truth = g_sensitive(session, truth, float(g_sensitivity), seed)
+    return session, truth
+
+
+def _played(plan, *, seed, units, rate_hz, hold_s, move_s, accel_noise, jitter_deg, gravity,
+            rotations_per_axis, peak_rate_dps, still_s, sigma_counts, orientations, samples,
+            labelled, mountings, created, temperature, clock_scale):  # fmt: skip
+    """The plan played by its experiment (:func:`simulate_plan`)."""
     spec, arg = find_plan(plan)
     extras = {k: v for k, v in (("temperature", temperature), ("clock_scale", clock_scale))
               if v is not None}  # fmt: skip

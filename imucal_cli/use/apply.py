@@ -81,6 +81,7 @@ from imucal_cli.formats.importers.text import (
     BLANK,
     check_time,
     header_columns,
+    is_delimited,
     parse_columns,
     parse_numbers,
     skipped_fields,
@@ -398,7 +399,7 @@ class _CsvBlocks:
             if not line or line.startswith("#"):
                 continue
             if comma is None:
-                comma = "," in line
+                comma = is_delimited(line)
             parts = split_fields(line, comma)
             values = parse_numbers(parts, skipped_fields(self.spec))
             if values is None and not seen_data:
@@ -538,6 +539,14 @@ def _write_block(writer, block: _Block, sections, summary: ApplySummary, output_
         for x in inputs:
             bad |= ~np.isfinite(x).reshape(len(x), -1).all(axis=1)
         summary.nonfinite += int(bad.sum())
+    else:
+        bad = np.zeros(len(block.time), dtype=bool)
+    for name, out in values.items():  # finite in, not finite out: the numbers overflowed
+        over = ~np.isfinite(out).all(axis=1) & ~bad
+        if over.any():
+            raise InputError(f"{summary.input}: the {name} calibration turns sample "
+                             f"{summary.samples + int(np.argmax(over))} into a number past the "
+                             "float range (its bias or matrix is no calibration)")  # fmt: skip
     if summary._first_time is None:
         summary._first_time = float(block.time[0])
     time = block.time

@@ -4,8 +4,10 @@ a calibration tool loads.  One exporter module per format in
 
 Every file states the equation the target applies, its direction (what is subtracted, before
 or after which matrix) and the units.  Targets that hold less than imucal's model (PX4 and
-ArduPilot: offset and diagonal scale) say what is lost, in degrees; a g-sensitivity the target
-cannot hold is reported, never silently dropped.
+ArduPilot: offset and diagonal scale) say what is lost, in degrees; a term the target cannot
+hold (a temperature-dependent bias, a gyro g-sensitivity) is refused, never silently dropped
+(a g-sensitivity is left out only with ``--drop g-sensitivity``, and the file says how large it
+was).
 """
 
 from __future__ import annotations
@@ -16,12 +18,15 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import Calibration
-from imucal_cli.formats.exporters import ExportOptions
+from imucal_cli.formats.exporters import STANDARD_GRAVITY, ExportOptions
 from imucal_cli.formats.exporters.ardupilot import export_ardupilot
 from imucal_cli.formats.exporters.basalt import export_basalt
 from imucal_cli.formats.exporters.c_header import export_c_header
+from imucal_cli.formats.exporters.estimators import export_orbslam3, export_vins
 from imucal_cli.formats.exporters.fusion import export_fusion
 from imucal_cli.formats.exporters.imu_calib import export_yaml
 from imucal_cli.formats.exporters.imucal_json import export_json
@@ -55,6 +60,7 @@ class ExportFormat:
     needs_calibration: bool = True
     uses_prefix: bool = False
     holds_tempco: bool = False
+    holds_g_sensitivity: bool = False
 
 
 FORMATS: dict[str, ExportFormat] = {
@@ -62,19 +68,22 @@ FORMATS: dict[str, ExportFormat] = {
     for f in (
         ExportFormat("c-header", lambda c, o: export_c_header(c, prefix=o.prefix or "IMUCAL"),
                      "C99 constants and inline apply functions", uses_prefix=True,
-                     holds_tempco=True),
-        ExportFormat("yaml", lambda c, o: export_yaml(c), "ROS imu_calib: SM, bias"),
+                     holds_tempco=True, holds_g_sensitivity=True),
+        ExportFormat("yaml", export_yaml, "ROS imu_calib: SM, bias (of the published m/s^2)"),
         ExportFormat("json", lambda c, o: export_json(c), "imucal's standard fields, one line",
-                     holds_tempco=True),
+                     holds_tempco=True, holds_g_sensitivity=True),
         ExportFormat("kalibr-imu", export_kalibr_imu,
                      "Kalibr imu.yaml: noise densities and random walks (needs --noise)",
                      needs_calibration=False),
         ExportFormat("kalibr", export_kalibr,
-                     "Kalibr scale-misalignment intrinsics M, A, C_gyro_i and biases"),
+                     "Kalibr scale-misalignment intrinsics M, A, C_gyro_i and biases",
+                     holds_g_sensitivity=True),
         ExportFormat("openvins", export_openvins,
                      "OpenVINS kalibr_imu_chain.yaml: Tw, Ta, R_IMUtoGYRO, R_IMUtoACC, Tg "
-                     "(needs --noise)"),
-        ExportFormat("basalt", export_basalt, "Basalt calib_accel_bias, calib_gyro_bias"),
+                     "(needs --noise)", holds_g_sensitivity=True),
+        ExportFormat("basalt", export_basalt,
+                     "Basalt calibration.json, complete: calib_accel_bias, calib_gyro_bias, "
+                     "noise, rate, no camera (needs --noise)"),
         ExportFormat("px4", export_px4, "PX4 CAL_ACC0_*, CAL_GYRO0_* (offset, diagonal scale), "
                      "CAL_MAG0_* (offset, symmetric scale), TC_* (temperature)",
                      holds_tempco=True),
@@ -86,6 +95,12 @@ FORMATS: dict[str, ExportFormat] = {
                      "x-io Fusion: misalignment, sensitivity, offset per sensor; softIronMatrix, "
                      "hardIronOffset (C)",
                      uses_prefix=True),
+        ExportFormat("vins", export_vins,
+                     "VINS-Mono / VINS-Fusion IMU keys acc_n, gyr_n, acc_w, gyr_w, g_norm "
+                     "(needs --noise)", needs_calibration=False),
+        ExportFormat("orbslam3", export_orbslam3,
+                     "ORB-SLAM3 settings IMU.NoiseGyro, NoiseAcc, GyroWalk, AccWalk, Frequency "
+                     "(needs --noise)", needs_calibration=False),
         ExportFormat("ros-imu", export_ros_imu,
                      "sensor_msgs/Imu covariances from the noise (needs --noise)",
                      needs_calibration=False),
@@ -127,6 +142,8 @@ def export(
                          "not only noise figures")  # fmt: skip
     if cal is not None and target.needs_calibration and not target.holds_tempco:
         refuse_tempco(cal, fmt)
+    if cal is not None and target.needs_calibration and not target.holds_g_sensitivity:
+        refuse_g_sensitivity(cal, fmt, opts.drop)
     text = target.write(cal, opts)
     if has_control(text):  # belt and braces (issue 11.5): strings were cleaned when read
         raise InputError(f"the {fmt} export would hold control characters; refusing it")
@@ -145,6 +162,23 @@ def refuse_tempco(cal: Calibration, fmt: str) -> None:
             f"(bias_tempco) that --format {fmt} cannot hold: export to {holders}, or calibrate "
             "again with [temperature] model = \"off\" for a bias at one temperature"
         )
+
+
+def refuse_g_sensitivity(cal: Calibration, fmt: str, drop: frozenset[str]) -> None:
+    """Refuse a gyro ``g_sensitivity`` that ``fmt`` cannot hold, unless the user accepts to
+    lose it (``--drop g-sensitivity``; the file then says how large it was).  The formats
+    page: a reader that cannot apply a term refuses rather than ignores it (issue 26: the
+    imu_calib YAML and the C header ignored it, 0.0225 rad/s off ``imucal apply``)."""
+    gs = None if cal.gyro is None else cal.gyro.g_sensitivity
+    if gs is None or "g-sensitivity" in drop:
+        return
+    worst = float(np.linalg.norm(cal.gyro.matrix @ gs, 2) * STANDARD_GRAVITY)
+    holders = ", ".join(f.name for f in FORMATS.values() if f.holds_g_sensitivity)
+    raise InputError(
+        f"the gyro calibration has a g_sensitivity (up to {worst:.3g} rad/s at 1 g) that "
+        f"--format {fmt} cannot hold: export to {holders}, or pass --drop g-sensitivity to "
+        "export without it"
+    )
 
 
 def load_input(path: str | os.PathLike) -> tuple[Calibration | None, NoiseFigures | None]:

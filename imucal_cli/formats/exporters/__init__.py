@@ -56,6 +56,11 @@ class ExportOptions:
         PX4's ``CAL_ACC0_ID``/``CAL_GYRO0_ID``, ArduPilot's ``INS_ACC_ID``/``INS_GYR_ID``.
     prefix : str or None
         Name prefix of C identifiers (c-header, fusion).
+    fusion_version : str
+        The Fusion release whose ``FusionMatrix`` layout to write: "1.3" (flat) or "1.2".
+    drop : frozenset of str
+        Terms the user accepts to lose in a format that cannot hold them (``"g-sensitivity"``):
+        without it such a calibration is refused, never silently cut.
     """
 
     noise: NoiseFigures | None = None
@@ -64,6 +69,8 @@ class ExportOptions:
     scale: dict[str, float] = field(default_factory=dict)
     device_id: int | None = None
     prefix: str | None = None
+    fusion_version: str = "1.3"
+    drop: frozenset[str] = frozenset()
 
 
 def sections(cal: Calibration) -> list[tuple[str, SensorCalibration]]:

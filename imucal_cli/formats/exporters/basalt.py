@@ -1,5 +1,12 @@
-"""Basalt (VladyslavUsenko/basalt): ``calib_accel_bias`` and ``calib_gyro_bias`` of its
-calibration JSON (cereal, under ``value0``).
+"""Basalt (VladyslavUsenko/basalt): a complete ``calibration.json`` (cereal JSON, under
+``value0``), every key Basalt's loader reads (``basalt-headers``,
+``serialization/headers_serialization.h``, ``serialize(Archive&, Calibration&)``):
+``T_imu_cam``, ``intrinsics``, ``resolution`` (one entry per camera: none here), the IMU's
+``calib_accel_bias`` (9) and ``calib_gyro_bias`` (12), ``imu_update_rate`` (Hz),
+``accel_noise_std``, ``gyro_noise_std`` (3 each: continuous-time white noise, m/s^2/sqrt(Hz),
+rad/s/sqrt(Hz); Basalt multiplies by sqrt(imu_update_rate) itself), ``accel_bias_std``,
+``gyro_bias_std`` (3 each: bias random walk), ``cam_time_offset_ns`` and ``vignette``.  Add the
+cameras (``basalt_calibrate`` writes them) to the same file; the IMU keys stand as they are.
 
 Basalt's static IMU calibration (``calib_bias.hpp``, ``CalibAccelBias``/``CalibGyroBias``)::
 
@@ -10,7 +17,8 @@ Basalt's static IMU calibration (``calib_bias.hpp``, ``CalibAccelBias``/``CalibG
 subtracted **after** the matrix, in calibrated units (m/s^2, rad/s), and ``p`` is what the
 driver publishes.  The lower-triangular ``S_a`` fixes Basalt's IMU frame the way Kalibr's is
 fixed: ``(I + S_a) = C_i_b @ matrix``, ``b_a = (I + S_a) @ bias``.  Basalt has no g-sensitivity:
-a gyro calibration that holds one is exported without it, and the file says how large it was.
+a gyro calibration that holds one is refused unless ``--drop g-sensitivity``, and the file
+then says how large it was.
 """
 
 from __future__ import annotations
@@ -20,6 +28,7 @@ import math
 
 import numpy as np
 
+from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.exporters import (
     STANDARD_GRAVITY,
@@ -34,10 +43,15 @@ __all__ = ["export_basalt"]
 
 
 def export_basalt(cal: Calibration, opts: ExportOptions) -> str:
-    """Basalt's ``calib_accel_bias`` (9) and ``calib_gyro_bias`` (12) as a JSON document.
+    """A complete Basalt ``calibration.json`` (module notes): the calibration and the noise.
 
-    The numbers sit under ``value0`` as in Basalt's ``calibration.json``; merge the two keys
-    into the camera calibration Basalt already has.  ``imucal_notes`` states the equations.
+    ``imucal_notes`` (a key Basalt's loader ignores) states the equations.
+
+    Raises
+    ------
+    InputError
+        No noise figures, or what the published calibration refuses (raw units without the
+        driver's scale).
     """
     target = "Basalt"
     frame = frame_for(cal, opts, target)
@@ -64,8 +78,38 @@ def export_basalt(cal: Calibration, opts: ExportOptions) -> str:
             f"gyro g-sensitivity dropped (Basalt has none): up to {worst:.4g} rad/s "
             f"({math.degrees(worst):.4g} deg/s) at 1 g"
         )
-    value0 = {"imucal_notes": notes, "calib_accel_bias": accel, "calib_gyro_bias": gyro}
-    if opts.rate_hz is not None or opts.noise is not None:
-        value0["imu_update_rate"] = opts.rate_hz or opts.noise.rate_hz
+    noise = opts.noise
+    if noise is None or noise.accel is None or noise.gyro is None:
+        raise InputError("a complete Basalt calibration holds the IMU's noise (accel_noise_std "
+                         "... gyro_bias_std): pass --noise NOISE.json (from imucal noise SESSION "
+                         "--json) with both sensors")  # fmt: skip
+    rate = opts.rate_hz or noise.rate_hz
+    notes += [f"noise from {noise.source}: continuous-time densities per axis (Allan deviation of "
+              f"{noise.duration_s:.0f} s at {noise.rate_hz:.6g} Hz)",
+              "no camera: T_imu_cam, intrinsics, resolution and vignette are empty; add the "
+              "cameras (basalt_calibrate) to this file"]  # fmt: skip
+    value0 = {
+        "T_imu_cam": [],
+        "intrinsics": [],
+        "resolution": [],
+        "calib_accel_bias": accel,
+        "calib_gyro_bias": gyro,
+        "imu_update_rate": float(rate),
+        "accel_noise_std": _per_axis(noise.accel.white),
+        "gyro_noise_std": _per_axis(noise.gyro.white),
+        "accel_bias_std": _per_axis(noise.accel.random_walk),
+        "gyro_bias_std": _per_axis(noise.gyro.random_walk),
+        "cam_time_offset_ns": 0,
+        "vignette": [],
+        "imucal_notes": notes,
+    }
     doc = {"value0": value0}
     return json.dumps(doc, indent=4, allow_nan=False) + "\n"
+
+
+def _per_axis(values) -> list[float]:
+    """Three numbers (Basalt's ``Eigen::Vector3d``); a redundant unit's noise is refused."""
+    values = [float(v) for v in values]
+    if len(values) != 3:
+        raise InputError(f"the noise figures have {len(values)} axes; Basalt holds 3")
+    return values

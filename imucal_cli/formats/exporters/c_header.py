@@ -10,6 +10,12 @@ apply function takes the temperature: ``<p>_accel_apply(raw, temperature_c, out)
 arithmetic is plain float: subtract the bias, then for each output axis sum
 ``M[i][j] * d[j]`` for j = 0..N-1 in order, so a compiler that does not contract to FMA
 gives exactly what numpy does in float32 in the same order.
+
+A gyro section with a ``g_sensitivity`` (the spec: ``raw - bias - g_sensitivity @ a``, ``a``
+the calibrated accelerometer vector of the same sample) also gets ``<P>_GYRO_G_SENSITIVITY[N][3]``
+(raw units per m/s^2), and its apply function takes the calibrated accelerometer vector:
+``<p>_gyro_apply(raw, accel, out)`` (``raw, temperature_c, accel, out`` with temperature
+terms); apply the accelerometer first.
 """
 
 from __future__ import annotations
@@ -148,6 +154,7 @@ def _section_lines(name: str, sec: SensorCalibration, upper: str, lower: str) ->
     ]
     bias = ", ".join(c_float(v, f"{name}.bias[{j}]") for j, v in enumerate(sec.bias))
     terms = temperature_terms(sec)
+    gs = sec.g_sensitivity if name == "gyro" else None
     lines = [
         f"/* {name}: {n} raw channels ({c_comment(units_in(sec))}) -> {sec.units} */",
         f"#define {channels} {n}",
@@ -159,10 +166,16 @@ def _section_lines(name: str, sec: SensorCalibration, upper: str, lower: str) ->
         f"static const float {const}_BIAS[{channels}] = {{ {bias} }};",
         "",
     ]
+    if gs is not None:
+        lines += _g_sensitivity_lines(const, channels, gs)
+    accel_arg = ", const float accel[3]" if gs is not None else ""
     if terms is None:
+        said = f"raw - {const}_BIAS" + (f" - {const}_G_SENSITIVITY accel" if gs is not None
+                                        else "")  # fmt: skip
         lines += [
-            f"/* out = {const}_MATRIX (raw - {const}_BIAS), in {sec.units}. */",
-            f"static inline void {lower}_{name}_apply(const float raw[{channels}], float out[3])",
+            f"/* out = {const}_MATRIX ({said}), in {sec.units}. */",
+            f"static inline void {lower}_{name}_apply(const float raw[{channels}]{accel_arg}, "
+            "float out[3])",
             "{",
             f"    float d[{channels}];",
             "    int i;",
@@ -172,7 +185,15 @@ def _section_lines(name: str, sec: SensorCalibration, upper: str, lower: str) ->
             "    }",
         ]
     else:
-        lines += _tempco_lines(name, const, channels, lower, terms, sec.units)
+        lines += _tempco_lines(name, const, channels, lower, terms, sec.units, accel_arg)
+    if gs is not None:
+        lines += [
+            f"    for (j = 0; j < {channels}; ++j) {{",
+            f"        d[j] -= {const}_G_SENSITIVITY[j][0] * accel[0] + "
+            f"{const}_G_SENSITIVITY[j][1] * accel[1]",
+            f"                + {const}_G_SENSITIVITY[j][2] * accel[2];",
+            "    }",
+        ]
     return lines + [
         "    for (i = 0; i < 3; ++i) {",
         "        float sum = 0.0f;",
@@ -186,7 +207,25 @@ def _section_lines(name: str, sec: SensorCalibration, upper: str, lower: str) ->
     ]
 
 
-def _tempco_lines(name, const, channels, lower, terms: TemperatureTerms, units) -> list[str]:
+def _g_sensitivity_lines(const: str, channels: str, gs: np.ndarray) -> list[str]:
+    """The gyro's response to specific force, ``G`` (N x 3, raw units per m/s^2)."""
+    rows = ",\n".join(
+        "    { " + ", ".join(c_float(v, f"gyro.g_sensitivity[{j}][{k}]") for k, v in
+                         enumerate(row)) + " }"
+        for j, row in enumerate(gs.tolist())
+    )  # fmt: skip
+    return [
+        f"/* Gyro g-sensitivity, raw units per m/s^2: subtracted as {const}_G_SENSITIVITY a, a the",
+        " * calibrated accelerometer vector of the same sample (m/s^2). */",
+        f"static const float {const}_G_SENSITIVITY[{channels}][3] = {{",
+        rows,
+        "};",
+        "",
+    ]
+
+
+def _tempco_lines(name, const, channels, lower, terms: TemperatureTerms, units,
+                  accel_arg: str = "") -> list[str]:  # fmt: skip
     """The temperature terms' constants and the head of the apply function that takes the
     temperature: ``b(T) = b + sum_k TEMPCO[k-1] (T - TREF)^k`` (Horner, in float)."""
     K = terms.tempco.shape[0]
@@ -212,7 +251,7 @@ def _tempco_lines(name, const, channels, lower, terms: TemperatureTerms, units) 
         "",
         f"/* out = {const}_MATRIX (raw - b(temperature_c)), in {units}. */",
         f"static inline void {lower}_{name}_apply(const float raw[{channels}], "
-        "float temperature_c, float out[3])",
+        f"float temperature_c{accel_arg}, float out[3])",
         "{",
         f"    float d[{channels}];",
         f"    const float dt = temperature_c - {const}_TEMPERATURE_REF_C;",

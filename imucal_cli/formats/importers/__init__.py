@@ -144,11 +144,11 @@ def detect_format(paths: Sequence[str | os.PathLike]) -> str:
         return "ulog"
     if head.startswith((b"#ROSBAG", b"\x89MCAP")):
         return "ros"
-    from .mavlink import looks_like_dataflash, looks_like_tlog
+    from .mavlink import looks_like_dataflash, looks_like_dataflash_text, looks_like_tlog
     from .serial_lines import detect_line_format
     from .witmotion import looks_like_witmotion
 
-    if looks_like_dataflash(head) or looks_like_tlog(head):
+    if looks_like_dataflash(head) or looks_like_tlog(head) or looks_like_dataflash_text(head):
         return "mavlink"
     if looks_like_witmotion(head):
         return "witmotion"
@@ -166,6 +166,7 @@ def read_recording(
     rate_hz: float | None = None,
     skip_rows: int = 0,
     topic: str | None = None,
+    mag_topic: str | None = None,
 ) -> Recording:
     """Read the samples of a recording in format ``fmt``.
 
@@ -202,16 +203,18 @@ def read_recording(
     for p in paths:
         if not (p.exists() or p.is_symlink()):  # before a reader library's own wording
             raise InputError(f"{p}: no such file")
-    read = reader(detect_format(paths) if fmt is None else fmt).read
+    fmt = detect_format(paths) if fmt is None else fmt
+    read = reader(fmt).read
+    if mag_topic is not None and FORMATS[fmt] not in ("ros", "ulog", "mavlink"):
+        raise InputError(f"--mag-topic applies to ros, ulog and mavlink logs, not --format {fmt}")
     if time_unit not in TIME_UNITS:
         raise InputError(f"unknown time unit {time_unit!r}: use {', '.join(TIME_UNITS)}")
     if rate_hz is not None and not (np.isfinite(rate_hz) and rate_hz > 0):
         raise InputError(f"--rate must be a positive number of Hz, got {rate_hz:g}")
     if skip_rows < 0:
         raise InputError(f"--skip-rows must be >= 0, got {skip_rows}")
-    options = ReadOptions(
-        columns=columns, time_unit=time_unit, rate_hz=rate_hz, skip_rows=skip_rows, topic=topic
-    )
+    options = ReadOptions(columns=columns, time_unit=time_unit, rate_hz=rate_hz,
+                          skip_rows=skip_rows, topic=topic, mag_topic=mag_topic)  # fmt: skip
     rec = read(paths, options, ImportStats())
     time = np.asarray(rec.time, np.float64)
     rec.time = time
@@ -368,6 +371,7 @@ def import_files(
     mag_units: str | None = None,
     magnetic_field_uT: float | None = None,
     topic: str | None = None,
+    mag_topic: str | None = None,
 ) -> Session:
     """Read recorded text files and segment them into a session (not yet written).
 
@@ -394,7 +398,7 @@ def import_files(
     _check_units(accel_units, gyro_units, mag_units, magnetic_field_uT)
     rec = read_recording(
         paths, fmt, columns, time_unit=time_unit, rate_hz=rate_hz, skip_rows=skip_rows,
-        topic=topic,
+        topic=topic, mag_topic=mag_topic,
     )
     accel_units = accel_units or rec.accel_units
     gyro_units = gyro_units or rec.gyro_units
@@ -419,7 +423,30 @@ def import_files(
     )
     session.import_stats = rec.stats  # type: ignore[attr-defined]
     session.import_notes = notes  # type: ignore[attr-defined]
+    session.import_warnings = rec.warnings + _gap_warnings(rec, segments)  # type: ignore[attr-defined]
     return session
+
+
+def _gap_warnings(rec: Recording, segments: list[Segment]) -> list[str]:
+    """Gaps in the sample times (:func:`~imucal_cli.solvers.gaps.find_gaps`), said at import:
+    inside a rotation segment the turn cannot be integrated (calibrate leaves it out)."""
+    from imucal_cli.solvers.gaps import find_gaps, gaps_within
+
+    gaps = find_gaps(rec.time)
+    if not gaps:
+        return []
+    step = float(np.median(np.diff(rec.time)))
+    worst = max(gaps, key=lambda g: g.length_s)
+    out = [f"{len(gaps)} gap(s) in the sample times longer than 5 sample intervals "
+           f"({step * 1e3:.3g} ms); the longest {worst.length_s:.3g} s after {worst.time_s:.6g} s"]
+    for seg in segments:
+        inside = gaps_within(gaps, seg.start, seg.stop) if seg.kind == "rotation" else []
+        if inside:
+            g = max(inside, key=lambda g: g.length_s)
+            out.append(f"rotation segment {seg.name} has a gap of {g.length_s:.3g} s after "
+                       f"{g.time_s:.6g} s: the turn is unknown across it (calibrate leaves it "
+                       "out); turn again without losing samples")  # fmt: skip
+    return out
 
 
 def _check_units(accel_units: str | None, gyro_units: str | None, mag_units: str | None,

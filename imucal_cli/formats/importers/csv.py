@@ -4,16 +4,23 @@ per file).
 The fields are named by a column spec (:func:`~.text.parse_columns`) or, when none is given, by
 a header line (``acc_x``/``ax``/``accel_x``, ``gyr_x``/``gx``/``gyro_x``, ``mag_x``/``mx``,
 ``t``/``time``/``timestamp``, ...).  Without a ``t`` column, time is ``row / rate``.
+
+The IMU files of the EuRoC MAV and TUM-VI datasets (``mav0/imu0/data.csv``, Burri et al. 2016;
+Schubert et al. 2018) are recognised by their header, a comment line
+``#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y ...,a_RS_S_x [m s^-2],...``: the time unit comes
+from its ``[ns]`` and the units are rad/s and m/s^2.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from imucal_cli.errors import InputError
+from imucal_cli.formats.inputs import read_head
 
 from .recording import TIME_UNITS, ImportStats, ReadOptions, Recording
 from .text import (
@@ -21,10 +28,13 @@ from .text import (
     first_fields,
     header_columns,
     infer_columns,
+    is_delimited,
     parse_columns,
     parse_numbers,
     read_table,
     skipped_fields,
+    split_fields,
+    split_lines,
 )
 
 NAME = "csv"
@@ -45,6 +55,10 @@ def read(paths: Sequence[Path], options: ReadOptions, stats: ImportStats) -> Rec
     path = paths[0]
     columns = options.columns
     spec = parse_columns(columns) if isinstance(columns, str) else columns
+    dataset = euroc_header(path, options.skip_rows) if spec is None else None
+    if dataset is not None:
+        spec, unit = dataset
+        options = replace(options, time_unit=unit)
     if spec is None:  # a header naming the axes also says which fields to skip (text labels)
         first = first_fields(path, options.skip_rows)
         if first is not None and parse_numbers(first) is None:
@@ -81,7 +95,7 @@ def read(paths: Sequence[Path], options: ReadOptions, stats: ImportStats) -> Rec
     gyro = data[:, [col(g) for g in ("gx", "gy", "gz")]] if "gx" in used else None
     mag = data[:, [col(m) for m in ("mx", "my", "mz")]] if "mx" in used else None
     temp = data[:, col("temp")] if "temp" in used else None
-    return Recording(
+    rec = Recording(
         time=time,
         accel=accel,
         gyro=gyro,
@@ -94,3 +108,32 @@ def read(paths: Sequence[Path], options: ReadOptions, stats: ImportStats) -> Rec
         header=header,
         mag=mag,
     )
+    if dataset is not None:
+        rec.accel_units, rec.gyro_units = "m/s^2", "rad/s"
+        rec.notes.append(f"EuRoC / TUM-VI IMU file: time in {options.time_unit} (the header's "
+                         "#timestamp), w_RS_S_* rad/s, a_RS_S_* m/s^2")  # fmt: skip
+    return rec
+
+
+_HEADER_UNITS = {"[ns]": "ns", "[us]": "us", "[ms]": "ms", "[s]": "s"}
+
+
+def euroc_header(path: Path, skip_rows: int = 0) -> tuple[list[str | None], str] | None:
+    """The column spec and time unit of an EuRoC / TUM-VI IMU file (its first line, a comment
+    naming ``#timestamp [ns]``, ``w_RS_S_*`` and ``a_RS_S_*``), else None."""
+    try:
+        head = read_head(path, 4096, what="recording")
+    except InputError:
+        return None
+    lines = split_lines(head.decode("utf-8", errors="replace").lstrip("\ufeff"))[skip_rows:]
+    first = next((line.strip() for line in lines if line.strip()), "")
+    if not first.startswith("#"):
+        return None
+    fields = split_fields(first[1:], is_delimited(first))
+    names = [f.strip().lower() for f in fields]
+    if not (names and names[0].startswith("timestamp") and any("w_rs_s_x" in n for n in names)
+            and any("a_rs_s_x" in n for n in names)):  # fmt: skip
+        return None
+    spec = infer_columns(fields)
+    unit = next((u for tag, u in _HEADER_UNITS.items() if tag in names[0].replace(" ", "")), "s")
+    return spec, unit

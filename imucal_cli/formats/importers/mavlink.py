@@ -15,7 +15,23 @@ DataFlash: IMU     ``AccX..`` m/s^2, ``GyrX..`` rad/s        ``TimeUS``; ``T`` (
 DataFlash: ACC +   ``AccX..`` m/s^2, ``GyrX..`` rad/s,       ``SampleUS``; the IMU's ``T``
 GYR                paired by ``SampleUS``
 DataFlash: MAG     ``MagX..`` mGauss, stored as gauss        ``TimeUS``, latest per sample
+DataFlash: ISBH +  the batch sampler's raw samples: int16     ``SampleUS`` of the batch + k /
+ISBD               ``x y z[32]`` / ``mul`` (m/s^2, rad/s),    ``smp_rate``
+                   ``type`` 0 accel, 1 gyro
 =================  =======================================  =====================================
+
+The batch sampler (``INS_LOG_BAT_MASK``, ArduPilot's ``AP_InertialSensor_Logging``: ISBH
+``TimeUS,N,type,instance,mul,smp_cnt,SampleUS,smp_rate``, ISBD ``TimeUS,N,seqno,x,y,z``)
+logs a batch of ``smp_cnt`` samples of one sensor at a time, 32 per ISBD, sample ``32 seqno +
+k`` at ``SampleUS + (32 seqno + k) / smp_rate``; the values are the sensor's raw samples
+(before ArduPilot's filters, and before its calibration unless ``INS_LOG_BAT_OPT`` says
+post-filter) times ``mul``.  Accelerometer and gyroscope batches are paired by time where they
+overlap; where they do not (the sampler takes one sensor at a time) the accelerometer is read
+alone and the note says so (``--topic ISB.N``).
+
+A DataFlash log converted to text (``.log``: ``FMT, 128, 89, FMT, BBnNZ, ...`` then one
+message per line, as Mission Planner writes it) is read with pymavlink's text reader, the same
+messages; arrays (ISBD) are not in text logs.
 
 A temperature of 0 in RAW_IMU/SCALED_IMU means "not sent" (MAVLink's definition) and is NaN;
 a magnetometer reading of exactly (0, 0, 0) is no reading (NaN).  Telemetry logs: time from the
@@ -34,8 +50,6 @@ or hostile file); :class:`_Guarded` stops it at the first message that does not 
 
 from __future__ import annotations
 
-import contextlib
-import io
 import os
 import re
 import struct
@@ -46,12 +60,14 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 
+from .library import one_line_reason, quiet
+from .recording import STAMPS_KEPT, choose_time, increasing
 from .ros import Channels, hold_latest
 
 __all__ = ["choose_stream", "looks_like_dataflash", "looks_like_tlog", "read_mavlink"]
 
 NAME = "mavlink"
-FILES = "one MAVLink telemetry log (.tlog) or ArduPilot DataFlash log (.bin)"
+FILES = "one MAVLink telemetry log (.tlog) or ArduPilot DataFlash log (.bin, or text .log)"
 DATAFLASH_HEAD = b"\xa3\x95\x80"  # the first message of a DataFlash log: FMT (type 128)
 
 
@@ -79,7 +95,8 @@ TLOG_MESSAGES = {
 }  # fmt: skip
 TLOG_MESSAGES["SCALED_IMU2"] = TLOG_MESSAGES["SCALED_IMU3"] = TLOG_MESSAGES["SCALED_IMU"]
 _WITH_ID = ("RAW_IMU", "HIGHRES_IMU")  # messages with an instance field `id`
-_DF_NAME = re.compile(r"(IMU|ACC|GYR|MAG)([1-3]?)")
+_DF_NAME = re.compile(r"(IMU|ACC|GYR|MAG|ISBH|ISBD)([1-3]?)")
+DATAFLASH_TEXT_HEAD = (b"FMT, ", b"FMT,")
 
 
 # --------------------------------------------------------------------------------------------
@@ -90,6 +107,11 @@ _DF_NAME = re.compile(r"(IMU|ACC|GYR|MAG)([1-3]?)")
 def looks_like_dataflash(head: bytes) -> bool:
     """True when ``head`` starts as a DataFlash log does: an FMT message (0xA3 0x95 0x80)."""
     return head.startswith(DATAFLASH_HEAD)
+
+
+def looks_like_dataflash_text(head: bytes) -> bool:
+    """True when ``head`` starts as a DataFlash log converted to text does: an FMT line."""
+    return head.lstrip(b"\xef\xbb\xbf \r\n").startswith(DATAFLASH_TEXT_HEAD)
 
 
 def looks_like_tlog(head: bytes, need: int = 3) -> bool:
@@ -141,13 +163,6 @@ def choose_stream(labels: list[str], wanted: str | None, src: str, what: str) ->
     raise InputError(f"{src}: --topic {wanted} {said}; IMU streams: {listed}")
 
 
-def _increasing(time: np.ndarray, finite: np.ndarray) -> np.ndarray:
-    """Rows to keep: finite, and later than every row before them."""
-    t = np.where(finite, time, -np.inf)
-    before = np.maximum.accumulate(np.concatenate([[-np.inf], t[:-1]]))
-    return finite & (t > before)
-
-
 def _zero_is_none(values: np.ndarray) -> np.ndarray | None:
     """Rows of exactly 0 become NaN (not sent); None when no row holds a value."""
     values = np.asarray(values, np.float64)
@@ -170,26 +185,6 @@ def _pymavlink():
         raise InputError("reading a MAVLink log needs pymavlink: pip install "
                          "'imucal-cli[mavlink]'") from None  # fmt: skip
     return mavutil, DFReader
-
-
-@contextlib.contextmanager
-def _quiet():
-    """pymavlink prints what it skips, in Python and (its compiled DataFlash indexer) on file
-    descriptor 2; library code never prints (errors are one line, --json owns stdout)."""
-    import sys
-    import tempfile
-
-    sys.stderr.flush()
-    saved = os.dup(2)
-    try:
-        with tempfile.TemporaryFile() as sink:
-            os.dup2(sink.fileno(), 2)
-            with contextlib.redirect_stdout(io.StringIO()), \
-                    contextlib.redirect_stderr(io.StringIO()):  # fmt: skip
-                yield
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
 
 
 class _Stuck(Exception):
@@ -259,16 +254,19 @@ def _tlog_channels(label: str, name: str, rows: list) -> Channels:
     spec = TLOG_MESSAGES[name]
     data = np.asarray(rows, np.float64)
     received, device = data[:, 0], data[:, 1] * spec.time_scale
-    use_device = bool(np.all(device > 0) and np.all(np.diff(device) > 0))
-    time = device if use_device else received
     values = data[:, 2:11] * spec.scale
-    keep = _increasing(time, np.isfinite(values[:, :6]).all(axis=1))
+    finite = np.isfinite(values[:, :6]).all(axis=1)
+    time, use_device, out_of_order = choose_time(device, received, finite)
+    keep = increasing(time, finite)
     a_units, g_units, m_units = spec.units
     notes = [
         f"{label}: {spec.sent}" + (f", stored as {a_units}, {g_units}, {m_units}"
                                     if spec.scale != 1 else ""),
-        f"time from {spec.time_field}" if use_device else
-        f"time from the log's receive stamps ({spec.time_field} unset or not increasing)",
+        (f"time from {spec.time_field}" + (f" ({out_of_order} messages whose {spec.time_field} "
+                                           "did not follow the previous one left out)"
+                                           if out_of_order else "")) if use_device else
+        f"time from the log's receive stamps ({spec.time_field} unset, or not increasing for "
+        f"{100 * STAMPS_KEPT:g} % of the messages)",
     ]  # fmt: skip
     ch = Channels(time=time[keep], accel=values[keep, 0:3], gyro=values[keep, 3:6],
                   accel_units=a_units, gyro_units=g_units, notes=notes,
@@ -301,7 +299,7 @@ def read_tlog(path: str | os.PathLike, topic: str | None = None) -> Channels:
     mavutil, _ = _pymavlink()
     src = str(path)
     try:
-        with _quiet():
+        with quiet():
             rows, bad = _tlog_rows(Path(path), mavutil)
     except Exception as exc:  # noqa: BLE001 - pymavlink raises plain exceptions
         raise InputError(f"{src}: not a readable MAVLink telemetry log "
@@ -341,15 +339,25 @@ def _df_temperature(message) -> float:
     return float("nan")
 
 
-def _df_rows(path: Path, DFReader) -> dict[tuple[str, int], list]:  # noqa: N803
+def _df_rows(path: Path, DFReader, text: bool = False) -> dict[tuple[str, int], list]:  # noqa: N803
     """Rows per ``(kind, instance)``: IMU ``(us, ax..az, gx..gz, temp)``, ACC/GYR ``(sample
-    us, x, y, z)``, MAG ``(us, x, y, z)``."""
-    log = _guarded(DFReader)(str(path))
+    us, x, y, z)``, MAG ``(us, x, y, z)``; the batch sampler's under ``("ISBH", N)`` (its
+    header) and ``("ISBD", N)`` (its data messages), N the batch number."""
+    log = DFReader.DFReader_text(str(path)) if text else _guarded(DFReader)(str(path))
     names = [n for n in log.name_to_id if _DF_NAME.fullmatch(n)]
     rows: dict[tuple[str, int], list] = {}
     try:
         while names and (m := log.recv_match(type=names)) is not None:
             kind, digit = _DF_NAME.fullmatch(m.get_type()).groups()
+            if kind == "ISBH":
+                rows.setdefault(("ISBH", int(m.N)), []).append(
+                    (int(m.type), int(m.instance), float(m.mul), int(m.smp_cnt),
+                     float(m.SampleUS), float(m.smp_rate), float(m.TimeUS)))  # fmt: skip
+                continue
+            if kind == "ISBD":
+                rows.setdefault(("ISBD", int(m.N)), []).append(
+                    (int(m.seqno), list(m.x), list(m.y), list(m.z)))  # fmt: skip
+                continue
             key = (kind, _df_instance(m, kind, digit))
             if kind == "IMU":
                 row = (_df_time_us(m, "TimeUS", "TimeMS"), m.AccX, m.AccY, m.AccZ, m.GyrX,
@@ -370,7 +378,7 @@ def _df_series(rows: list, n_values: int = 3) -> tuple[np.ndarray, np.ndarray, i
     """Time (s) and values of one DataFlash series, strictly increasing, the first
     ``n_values`` values finite (the temperature may be NaN); dropped rows."""
     data = np.asarray(rows, np.float64)
-    keep = _increasing(data[:, 0] * 1e-6, np.isfinite(data[:, : 1 + n_values]).all(axis=1))
+    keep = increasing(data[:, 0] * 1e-6, np.isfinite(data[:, : 1 + n_values]).all(axis=1))
     return data[keep, 0] * 1e-6, data[keep, 1:], int((~keep).sum())
 
 
@@ -397,7 +405,8 @@ def _df_acc_gyr(rows: dict, instance: int) -> Channels:
         raise InputError(f"ACC and GYR instance {instance} share no SampleUS")
     time = t_a[ia] if np.median(np.diff(t_a)) >= np.median(np.diff(t_g)) else t_g[ig]
     ch = Channels(time=time, accel=acc[ia], gyro=gyr[ig], accel_units="m/s^2",
-                  gyro_units="rad/s", dropped=drop_a + drop_g + len(t_a) + len(t_g) - 2 * len(ia),
+                  gyro_units="rad/s", dropped=drop_a + drop_g,
+                  unpaired=len(t_a) + len(t_g) - 2 * len(ia),
                   notes=[f"DataFlash ACC and GYR instance {instance} (m/s^2, rad/s) paired by "
                          f"SampleUS: {len(ia)} of {len(t_a)} and {len(t_g)} samples"])  # fmt: skip
     if ("IMU", instance) in rows:
@@ -408,7 +417,79 @@ def _df_acc_gyr(rows: dict, instance: int) -> Channels:
     return ch
 
 
-def read_dataflash(path: str | os.PathLike, topic: str | None = None) -> Channels:
+#: The batch sampler's sensor types (AP_InertialSensor: IMU_SENSOR_TYPE_ACCEL, ..._GYRO).
+_ISB_TYPES = {0: "accel", 1: "gyro"}
+
+
+def _plausible_batch(count: int, sample_us: float, rate: float, logged_us: float) -> bool:
+    """A batch header whose numbers can be: a sample rate an IMU has, and a batch sampled
+    before its header was logged (ArduPilot logs the header when the batch is complete) and
+    less than ten minutes before; a damaged header (no checksum) mostly fails this."""
+    if not (10.0 <= rate <= 1e5 and 0 < count <= 1 << 16):
+        return False
+    end_us = sample_us + (count - 1) / rate * 1e6
+    return end_us <= logged_us + 1.0 and logged_us - sample_us <= 600e6
+
+
+def _isb_series(rows: dict) -> dict[tuple[str, int], tuple[np.ndarray, np.ndarray]]:
+    """The batch sampler's samples per ``(sensor, instance)``: times (s) and values (SI), from
+    every batch whose header is in the log and plausible (:func:`_plausible_batch`); a batch's
+    samples past its ``smp_cnt`` or not finite, and data messages of a lost header, are left
+    out."""
+    parts: dict[tuple[str, int], list] = {}
+    for (kind, number), heads in rows.items():
+        if kind != "ISBH" or ("ISBD", number) not in rows:
+            continue
+        sensor_type, instance, mul, count, sample_us, rate, logged_us = heads[0]
+        if sensor_type not in _ISB_TYPES or not mul > 0 or \
+                not _plausible_batch(count, sample_us, rate, logged_us):  # fmt: skip
+            continue
+        t_list, v_list = [], []
+        for seqno, x, y, z in rows[("ISBD", number)]:
+            k = 32 * seqno + np.arange(len(x))
+            ok = k < count
+            t_list.append((sample_us * 1e-6 + k / rate)[ok])
+            v_list.append(np.column_stack([x, y, z]).astype(np.float64)[ok] / mul)
+        if t_list:
+            parts.setdefault((_ISB_TYPES[sensor_type], instance), []).append(
+                (np.concatenate(t_list), np.concatenate(v_list)))  # fmt: skip
+    out = {}
+    for key, pieces in parts.items():
+        t = np.concatenate([p[0] for p in pieces])
+        v = np.concatenate([p[1] for p in pieces])
+        order = np.argsort(t, kind="stable")
+        t, v = t[order], v[order]
+        keep = increasing(t, np.isfinite(v).all(axis=1))
+        out[key] = (t[keep], v[keep])
+    return out
+
+
+def _df_isb(series: dict, instance: int) -> Channels:
+    """The batch sampler's samples of one IMU: paired accelerometer and gyroscope where their
+    batches overlap in time, else the accelerometer alone."""
+    from .ulog import pair_by_time
+
+    t_a, acc = series[("accel", instance)]
+    if len(t_a) < 2:
+        raise InputError(f"ISB.{instance}: too few batch samples ({len(t_a)})")
+    notes = [f"DataFlash ISBH/ISBD batch samples of IMU {instance} (int16 / mul: m/s^2, rad/s)"]
+    gyro = series.get(("gyro", instance))
+    if gyro is not None and len(gyro[0]) >= 2:
+        ia, ig = pair_by_time(t_a, gyro[0])
+        if len(ia) >= 0.5 * len(t_a):
+            time = t_a[ia]
+            return Channels(time=time, accel=acc[ia], gyro=gyro[1][ig], accel_units="m/s^2",
+                            gyro_units="rad/s", unpaired=len(t_a) + len(gyro[0]) - 2 * len(ia),
+                            notes=notes + [f"{len(ia)} accel and gyro batch samples paired by "
+                                           "time"])  # fmt: skip
+    notes.append("the batches of the accelerometer and the gyroscope do not overlap in time (the "
+                 "sampler logs one sensor at a time): the accelerometer alone is read")
+    return Channels(time=t_a, accel=acc, gyro=None, accel_units="m/s^2", gyro_units="rad/s",
+                    notes=notes)  # fmt: skip
+
+
+def read_dataflash(path: str | os.PathLike, topic: str | None = None,
+                   mag_topic: str | None = None, text: bool = False) -> Channels:  # fmt: skip
     """Accelerometer, gyroscope, magnetometer and temperature of an ArduPilot DataFlash log.
 
     Raises
@@ -419,24 +500,38 @@ def read_dataflash(path: str | os.PathLike, topic: str | None = None) -> Channel
     """
     _, DFReader = _pymavlink()  # noqa: N806
     src = str(path)
+    what = "DataFlash text log" if text else "DataFlash log"
     try:
-        with _quiet():
-            rows = _df_rows(Path(path), DFReader)
+        with quiet():
+            rows = _df_rows(Path(path), DFReader, text)
+            isb = _isb_series(rows)
+    except MemoryError:
+        raise InputError(f"{src}: damaged {what} (a message asks for more memory than there "
+                         "is)") from None  # fmt: skip
     except Exception as exc:  # noqa: BLE001 - pymavlink raises plain exceptions
-        raise InputError(f"{src}: not a readable DataFlash log "
-                         f"({' '.join(str(exc).split())[:200]})") from None  # fmt: skip
+        why = str(exc) if isinstance(exc, _Stuck) else one_line_reason(exc, 200)
+        raise InputError(f"{src}: not a readable {what} ({why})") from None
     imu = sorted(i for kind, i in rows if kind == "IMU")
     acc = sorted(i for kind, i in rows if kind == "ACC" and ("GYR", i) in rows)
-    labels = [f"IMU.{i}" for i in imu] + [f"ACC.{i}" for i in acc]
-    label = choose_stream(labels, topic, src, "IMU or ACC/GYR")
+    batches = sorted(i for sensor, i in isb if sensor == "accel")
+    labels = [f"IMU.{i}" for i in imu] + [f"ACC.{i}" for i in acc] + [f"ISB.{i}" for i in batches]
+    label = choose_stream(labels, topic, src, "IMU, ACC/GYR or ISBH/ISBD")
     kind, instance = label.split(".")[0], int(label.split(".")[1])
     try:
-        ch = _df_imu(rows, instance) if kind == "IMU" else _df_acc_gyr(rows, instance)
+        ch = _df_imu(rows, instance) if kind == "IMU" else _df_acc_gyr(rows, instance) \
+            if kind == "ACC" else _df_isb(isb, instance)  # fmt: skip
     except InputError as exc:
         raise InputError(f"{src}: {exc}") from None
-    ch.notes.append("ArduPilot logs IMU, ACC and GYR after its own offsets and scales "
-                    "(INS_ACCOFFS, INS_ACCSCAL, INS_GYROFFS) and board rotation")  # fmt: skip
+    if kind != "ISB":
+        ch.notes.append("ArduPilot logs IMU, ACC and GYR after its own offsets and scales "
+                        "(INS_ACCOFFS, INS_ACCSCAL, INS_GYROFFS) and board rotation")  # fmt: skip
     mags = sorted(i for k, i in rows if k == "MAG")
+    if mag_topic is not None:
+        number = mag_topic.rpartition(".")[2]
+        if not number.isdigit() or int(number) not in mags:
+            raise InputError(f"{src}: --mag-topic {mag_topic}: MAG instances in the log: "
+                             f"{', '.join(f'MAG.{i}' for i in mags) or 'none'}")  # fmt: skip
+        mags = [int(number)]
     if mags:
         m = instance if instance in mags else mags[0]
         t_m, values, _ = _df_series(rows[("MAG", m)])
@@ -453,7 +548,8 @@ def read_dataflash(path: str | os.PathLike, topic: str | None = None) -> Channel
 # --------------------------------------------------------------------------------------------
 
 
-def read_mavlink(path: str | os.PathLike, topic: str | None = None) -> Channels:
+def read_mavlink(path: str | os.PathLike, topic: str | None = None,
+                 mag_topic: str | None = None) -> Channels:  # fmt: skip
     """A DataFlash log (by its first bytes) with :func:`read_dataflash`, anything else with
     :func:`read_tlog`.
 
@@ -468,7 +564,12 @@ def read_mavlink(path: str | os.PathLike, topic: str | None = None) -> Channels:
     if not head:
         raise InputError(f"{path}: empty file, not a MAVLink log")
     if looks_like_dataflash(head):
-        return read_dataflash(path, topic)
+        return read_dataflash(path, topic, mag_topic)
+    if looks_like_dataflash_text(head):
+        return read_dataflash(path, topic, mag_topic, text=True)
+    if mag_topic is not None:
+        raise InputError(f"{path}: --mag-topic applies to DataFlash logs (MAG.N); a telemetry "
+                         "log's magnetometer is that of the IMU message")  # fmt: skip
     return read_tlog(path, topic)
 
 
@@ -477,4 +578,4 @@ def read(paths, options, stats):
     from .ros import one_file, to_recording
 
     path = one_file(paths, options, NAME, FILES)
-    return to_recording(read_mavlink(path, options.topic), paths, stats)
+    return to_recording(read_mavlink(path, options.topic, options.mag_topic), paths, stats)

@@ -11,8 +11,8 @@ import numpy as np
 from imucal_cli.formats.columns import TIME_UNITS as COLUMN_TIME_UNITS
 
 __all__ = [
-    "ACCEL_UNITS", "GYRO_UNITS", "MAG_UNITS", "TIME_UNITS", "ImportStats", "ReadOptions",
-    "Recording",
+    "ACCEL_UNITS", "GYRO_UNITS", "MAG_UNITS", "STAMPS_KEPT", "TIME_UNITS", "ImportStats",
+    "ReadOptions", "Recording", "choose_time", "increasing",
 ]  # fmt: skip
 
 TIME_UNITS = COLUMN_TIME_UNITS  # one table for capture, import and apply (s, ms, us, ns)
@@ -38,6 +38,9 @@ class ReadOptions:
         Text formats: lines skipped at the top of each file.
     topic : str, optional
         Logs of several streams: the one to read (ROS topic, ULog instance).
+    mag_topic : str, optional
+        Logs of several magnetometers: the one to read with the IMU (ROS topic, ULog
+        ``sensor_mag`` instance, DataFlash ``MAG`` instance).
     """
 
     columns: str | list[str | None] | None = None
@@ -45,6 +48,7 @@ class ReadOptions:
     rate_hz: float | None = None
     skip_rows: int = 0
     topic: str | None = None
+    mag_topic: str | None = None
 
 
 @dataclass
@@ -69,6 +73,12 @@ class ImportStats:
         ``file:line`` of the first malformed line.
     unmatched : int
         imu_tk: samples of one file with no sample of the same time in the other.
+    unpaired : int
+        Logs with separate accelerometer and gyroscope messages (ULog, DataFlash ACC/GYR,
+        batch samples): samples with no sample of the other sensor at their time.
+    dropped : int
+        Binary formats: samples left out because their time did not follow the previous
+        sample's (a repeated or earlier stamp), or a value was not a finite number.
     """
 
     lines: int = 0
@@ -79,6 +89,8 @@ class ImportStats:
     malformed: int = 0
     first_malformed: str | None = None
     unmatched: int = 0
+    unpaired: int = 0
+    dropped: int = 0
 
 
 @dataclass
@@ -115,6 +127,9 @@ class Recording:
         When the host received each sample, s of its clock, where the format records it beside
         the device's own time (a MAVLink telemetry log's receive stamps): the session's
         ``/raw/host_time``.
+    warnings : list of str
+        What the user should know about the data kept (samples left out of a sensor, a log
+        rate too low to calibrate from, gaps inside turns): ``--json``'s ``warnings``.
     """
 
     time: np.ndarray
@@ -133,3 +148,72 @@ class Recording:
     mag_units: str | None = None
     notes: list[str] = field(default_factory=list)
     host_time: np.ndarray | None = None
+    warnings: list[str] = field(default_factory=list)
+
+
+def increasing(time: np.ndarray, finite: np.ndarray) -> np.ndarray:
+    """Rows to keep: ``finite``, and later than every finite row before them."""
+    t = np.where(finite, time, -np.inf)
+    before = np.maximum.accumulate(np.concatenate([[-np.inf], t[:-1]]))
+    return finite & (t > before)
+
+
+STAMPS_KEPT = 0.99
+"""The device's own time stamps are used when they are all set and keep this share of the
+samples in increasing order (or all but two, in a short log); the few that repeat or go back
+are left out (counted).  One repeated stamp switched a whole recording to receive time before
+(issue 26)."""
+
+
+def _spikes(t: np.ndarray, k: int = 2) -> np.ndarray:
+    """Stamps out of order with a neighbour and far from the median of their ``2 k``
+    neighbours (more than 100 median steps): a damaged stamp far ahead would otherwise leave
+    out every sample after it."""
+    n = len(t)
+    if n < 2 * k + 1:
+        return np.zeros(n, bool)
+    step = float(np.median(np.abs(np.diff(t))))
+    padded = np.pad(t, k, mode="reflect")
+    windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * k + 1)
+    around = np.median(np.delete(windows, k, axis=1), axis=1)
+    far = np.abs(t - around) > 100.0 * max(step, 1e-12) + 1e-9 * np.abs(around)
+    out_of_order = np.zeros(n, bool)  # a gap in a recording is in order: its edges are kept
+    out_of_order[:-1] |= t[:-1] >= t[1:]
+    out_of_order[1:] |= t[1:] <= t[:-1]
+    return far & out_of_order
+
+
+def choose_time(device: np.ndarray, received: np.ndarray | None,
+                finite: np.ndarray) -> tuple[np.ndarray, bool, int]:  # fmt: skip
+    """The time base of a log that records both the device's stamps and when each message was
+    received.
+
+    Parameters
+    ----------
+    device : ndarray (N,)
+        The device's stamps, s (0 where unset).
+    received : ndarray (N,) or None
+        When the log received each message, s (None: none recorded).
+    finite : ndarray of bool (N,)
+        Rows whose values are finite numbers (the others are left out anyway).
+
+    Returns
+    -------
+    time : ndarray (N,)
+        ``device`` (unset stamps and lone spikes as -inf, so that they are left out) when its
+        stamps are set
+        and increasing for :data:`STAMPS_KEPT` of the finite rows (all but two at least), else
+        ``received`` (``device`` when there is none).
+    use_device : bool
+    out_of_order : int
+        Finite rows whose device stamp is unset or does not follow the previous one (left
+        out), when the device's time is used.
+    """
+    n = int(np.count_nonzero(finite))
+    if n > 0:  # unset stamps (0) and lone spikes are left out like repeated ones, when as few
+        usable = (device > 0) & ~_spikes(device)
+        keep = increasing(device, finite & usable)
+        kept = int(np.count_nonzero(keep))
+        if received is None or n - kept <= max((1.0 - STAMPS_KEPT) * n, 2):
+            return np.where(usable, device, -np.inf), True, n - kept
+    return (device, True, 0) if received is None else (received, False, 0)

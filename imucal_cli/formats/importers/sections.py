@@ -33,7 +33,7 @@ from imucal_cli.formats.session import Segment
 from imucal_cli.solvers.segmentation import estimate_noise, find_steps
 
 from .recording import Recording
-from .text import split_fields
+from .text import is_delimited, split_fields
 
 __all__ = ["FERRARIS", "TURN_DEG", "labelled_segments", "read_section_list", "sections_of_column"]
 
@@ -105,7 +105,7 @@ def sections_of_column(rec: Recording, path: Path, column: str) -> list[tuple[st
         raise InputError(f"{path}: --sections {column} needs a text file")
     index = header.index(column)
     lines = Path(path).read_bytes().decode("utf-8", errors="replace").splitlines()
-    comma = "," in lines[int(rec.lines[0]) - 1]
+    comma = is_delimited(lines[int(rec.lines[0]) - 1])
     labels = []
     for number in rec.lines:
         fields = split_fields(lines[int(number) - 1].strip(), comma)

@@ -19,7 +19,6 @@ lines, so ``imucal import`` needs no ``--format`` for them; :func:`line_format` 
 from __future__ import annotations
 
 import os
-import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -27,7 +26,7 @@ import numpy as np
 from imucal_cli.errors import InputError
 from imucal_cli.formats.inputs import read_input
 
-from .text import BLANK, MAX_RECORDING_BYTES, NUMBER, split_lines
+from .text import BLANK, MAX_RECORDING_BYTES, NUMBER, is_delimited, split_fields, split_lines
 
 __all__ = [
     "LINE_FORMATS", "LineRecording", "detect_line_format", "line_format", "parse_line",
@@ -40,7 +39,6 @@ LINE_FORMATS = {
     "i2cdevlib": ("a/g:", 6, "i2cdevlib a/g: accel, gyro counts"),
     "i2cdevlib-mag": ("a/g/m:", 9, "i2cdevlib a/g/m: accel, gyro, mag counts"),
 }
-_SPLIT = re.compile(r"[ \t,;]+")
 _LONGEST_FIRST = sorted(LINE_FORMATS, key=lambda name: -len(LINE_FORMATS[name][0]))
 
 
@@ -66,13 +64,18 @@ def detect_line_format(head: str) -> str | None:
 def parse_line(fmt: str, line: str) -> list[float] | None:
     """The values of one line of format ``fmt``: a list of its count of finite numbers; None
     for a line of the format that does not hold them (malformed: cut, a field that is not a
-    number, a control character).  Call it on lines whose :func:`line_format` is ``fmt``.
+    number or is empty, a control character).  Call it on lines whose :func:`line_format` is
+    ``fmt``.
 
     Shared by the importer (:func:`read_serial_lines`) and ``imucal capture`` (its MotionCal
     and i2cdevlib protocol), so that a line means the same live and from a file.
     """
     prefix, count, _ = LINE_FORMATS[fmt]
-    fields = [f for f in _SPLIT.split(line.strip(BLANK)[len(prefix) :].strip(BLANK)) if f]
+    rest = line.strip(BLANK)[len(prefix) :].strip(BLANK)
+    # MotionCal's sketches separate by commas, i2cdevlib's by tabs: one kind of separator per
+    # line, and an empty field between two is malformed (issue 26: ``a/g:\t179\t8673\t,392``
+    # kept az = +392), as is a carriage return inside the line.
+    fields = split_fields(rest, is_delimited(rest))
     if len(fields) != count or not all(NUMBER.match(f) for f in fields):
         return None
     values = [float(f) for f in fields]
@@ -116,7 +119,8 @@ def read_serial_lines(
                          "(the sketch's sample rate, Hz)")  # fmt: skip
     prefix, count, what = LINE_FORMATS[fmt]
     rec = LineRecording(np.empty(0), np.empty((0, 3)), np.empty((0, 3)), None, fmt)
-    rows = []
+    rows, slots = [], []
+    slot = 0  # each line of the format is one sample period, a malformed one too
     for number, line in enumerate(split_lines(text), 1):
         if not line.strip(BLANK):
             continue
@@ -125,18 +129,21 @@ def read_serial_lines(
             rec.skipped += 1
             continue
         values = parse_line(fmt, line)
+        slot += 1
         if values is None:
             rec.malformed += 1
             rec.first_malformed = rec.first_malformed or f"{src}:{number}"
             continue
         rows.append(values)
+        slots.append(slot - 1)
     if not rows:
         raise InputError(f"{src}: no complete {prefix} line ({count} numbers)")
     data = np.asarray(rows, np.float64)
-    rec.time = np.arange(len(data)) / float(rate_hz)
+    rec.time = np.asarray(slots, np.float64) / float(rate_hz)  # a malformed line leaves a gap
     rec.accel, rec.gyro = data[:, 0:3], data[:, 3:6]
     rec.mag = data[:, 6:9] if count == 9 else None
-    rec.notes.append(f"{what}; time = sample / {rate_hz:g} Hz")
+    rec.notes.append(f"{what}; time = line of the format / {rate_hz:g} Hz (a malformed line "
+                     "leaves its gap)")
     if fmt == "motioncal":
         rec.notes.append("MotionCal's sketches scale to 8192 counts per g, 16 per deg/s, 10 per "
                          "uT")  # fmt: skip

@@ -34,6 +34,7 @@ __all__ = [
     "parse_numbers",
     "read_table",
     "skipped_fields",
+    "is_delimited",
     "split_fields",
     "split_lines",
 ]
@@ -50,6 +51,9 @@ for _field, _names in {
     for _name in _names:
         HEADER_ALIASES[_name] = _field
 for _axis in "xyz":
+    # EuRoC MAV / TUM-VI imu0/data.csv: w_RS_S_x [rad s^-1], a_RS_S_x [m s^-2]
+    HEADER_ALIASES[f"a_rs_s_{_axis}"] = "a" + _axis
+    HEADER_ALIASES[f"w_rs_s_{_axis}"] = "g" + _axis
     for _name in ("a{}", "acc_{}", "acc{}", "accel_{}", "accel{}", "acceleration_{}", "acc_{}_raw"):
         HEADER_ALIASES[_name.format(_axis)] = "a" + _axis
     for _name in ("g{}", "gyr_{}", "gyr{}", "gyro_{}", "gyro{}", "gyroscope_{}", "gyr_{}_raw"):
@@ -162,17 +166,36 @@ def header_columns(header: Sequence[str] | None, src: str) -> list[str | None]:
 #: point are matched only after a point: ``[0-9]+\.?[0-9]*`` splits a run of n digits n ways
 #: before it fails on what follows, so a 200,000-digit field ending in a stray byte took
 #: minutes (found by the 10,000-file fuzzer); this form fails in one pass.
-_BLANKS = re.compile(r"[ \t]+")
-#: What may surround a line or a field: ASCII blanks only (a vertical tab, U+2028 or another
+#: What may surround a line: ASCII blanks and the line break (a vertical tab, U+2028 or another
 #: control character inside a line makes it malformed, never two lines or a cut number).
 BLANK = " \t\r\n"
+#: What may surround a field inside a line: spaces and tabs.  A carriage return inside a line
+#: is no blank: ``-305,-4,\r19`` lost a character where the CR stands (issue 26), never a
+#: field of 19.
+FIELD_BLANK = " \t"
+#: The separators of a delimited line: a comma or a semicolon (as ``capture`` reads them).
+DELIMITERS = ",;"
+_DELIMITER = re.compile(r"[,;]")
+#: Blank-separated fields: a run of spaces, or one tab with spaces around it.  Two tabs with
+#: only spaces between are two separators around an empty field (issue 26), so the line is
+#: malformed instead of losing a column.
+_BLANK_SEPARATOR = re.compile(r" *\t *| +")
+_TWO_TABS = re.compile(rb"\t *\t")
+
+
+def is_delimited(line: str) -> bool:
+    """Whether a line's fields are separated by commas or semicolons (else by blanks)."""
+    return "," in line or ";" in line
 
 
 def split_fields(line: str, comma: bool) -> list[str]:
-    """The fields of a line: comma-separated, or separated by spaces and tabs."""
+    """The fields of a line: separated by commas or semicolons (``comma``), spaces and tabs
+    around them ignored, or else by blanks (:data:`_BLANK_SEPARATOR`).  An empty field (two
+    separators in a row) is kept as ``""``, so that the line is malformed, never one of its
+    numbers taken for the next column's."""
     if comma:
-        return [p.strip(BLANK) for p in line.split(",")]
-    return [p for p in _BLANKS.split(line.strip(BLANK)) if p]
+        return [p.strip(FIELD_BLANK) for p in _DELIMITER.split(line)]
+    return _BLANK_SEPARATOR.split(line.strip(FIELD_BLANK))
 
 
 def split_lines(text: str) -> list[str]:
@@ -229,7 +252,7 @@ def first_fields(path: Path, skip_rows: int = 0) -> list[str] | None:
     for line in lines[skip_rows:-1] if len(head) == 65536 else lines[skip_rows:]:
         line = line.strip(BLANK)
         if line and not line.startswith("#"):
-            return split_fields(line, "," in line)
+            return split_fields(line, is_delimited(line))
     return None
 
 
@@ -350,7 +373,7 @@ def _scan_lines(
             comments += 1
             continue
         if comma is None:
-            comma = "," in line
+            comma = is_delimited(line)
         parts = split_fields(line, comma)
         values = parse_numbers(parts, skip)
         if values is None:
@@ -388,7 +411,7 @@ _CLASS[32:127] = _OTHER
 _CLASS[[ord(" "), ord("\t")]] = _SPACE
 _CLASS[ord("\n")] = _LF
 _CLASS[ord("\r")] = _CR
-_CLASS[ord(",")] = _COMMA
+_CLASS[[ord(","), ord(";")]] = _COMMA  # a semicolon delimits as a comma does (as capture)
 _CLASS[np.frombuffer(b"0123456789+-.eE", np.uint8)] = _DIGIT
 _CLASS[ord("#")] = _HASH
 _BOM = b"\xef\xbb\xbf"
@@ -545,9 +568,14 @@ def _scan_piece(
     cand_lines = np.flatnonzero(candidate)
     if comma is None and len(cand_lines):
         j = cand_lines[0]
-        comma = raw.find(b",", lines.start[j], lines.end[j]) >= 0
+        comma = bool(np.any(cls[lines.start[j] : lines.end[j]] == _COMMA))
     tokens = _tokens(cls, content, lines, (rs, re_, r_line), comma)
     ok, keep_tok = _numeric_lines(cls, content, tokens, candidate, comma, skip)
+    if not comma and b"\t" in raw:  # two tabs around an empty field: the line is malformed
+        empty = [m.start() for m in _TWO_TABS.finditer(raw)]
+        if empty:
+            ok[np.searchsorted(lines.breaks, empty)] = False
+            keep_tok &= ok[tokens.line]
     values = _parse_values(raw, tokens, keep_tok, comma)
     if values is None:
         return None
@@ -647,7 +675,7 @@ def _parse_values(raw: bytes, tokens: _Tokens, keep: np.ndarray, comma: bool) ->
     parser does not read one number per kept token."""
     if not keep.any():
         return np.zeros(0)
-    text = raw.replace(b",", b" ") if comma else raw
+    text = raw.replace(b",", b" ").replace(b";", b" ") if comma else raw
     drop = np.flatnonzero(~keep)
     if len(drop):
         blanked = np.frombuffer(text, dtype=np.uint8).copy()

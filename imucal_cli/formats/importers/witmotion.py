@@ -14,7 +14,11 @@ The raw int16 counts are kept (never rescaled: the session's units are ``counts`
 scales above are what a calibration should find).  Frames of other types (angles,
 quaternions, pressure ...) are counted and skipped; a frame whose checksum fails is counted as
 malformed and the decoder resynchronises on the next ``0x55``.  A sample is one ``0x51`` frame
-with the ``0x52`` (and ``0x54``, ``0x50``) frames that follow it before the next ``0x51``.
+with the ``0x52`` (and ``0x54``, ``0x50``) frames that follow it before the next ``0x51``.  A
+sample whose ``0x52`` frame was lost (a damaged frame, a log cut mid-frame) is left out, its
+accelerometer too, and counted with a warning; the gyro is left out only when most samples lack
+it (a device set not to send it).  A sample without its ``0x54`` frame has NaN magnetometer
+values.
 :class:`WitMotionDecoder` is shared by the importer and by ``capture``'s binary protocol
 (:class:`imucal_cli.capture.stream.WitMotionProtocol`).
 """
@@ -142,6 +146,7 @@ class WitRecording:
     mag: np.ndarray | None
     notes: list[str]
     stats: dict
+    warnings: list[str] = field(default_factory=list)
 
 
 def read_witmotion(path: str | os.PathLike, rate_hz: float | None = None) -> WitRecording:
@@ -166,13 +171,7 @@ def read_witmotion(path: str | os.PathLike, rate_hz: float | None = None) -> Wit
         raise InputError(f"{src}: no WitMotion acceleration frame (0x55 0x51) found")
     notes = [f"WitMotion frames: {dec.stats['frames']} good, {dec.stats['malformed']} "
              f"malformed, {dec.stats['skipped']} of other types"]  # fmt: skip
-    accel = np.array([s.accel for s in samples], np.float64)
-    gyro_ok = all(s.gyro is not None for s in samples)
-    gyro = np.array([s.gyro for s in samples], np.float64) if gyro_ok else None
-    if not gyro_ok and any(s.gyro is not None for s in samples):
-        notes.append("some samples lack an angular-velocity frame: the gyro is left out")
-    mag_ok = all(s.mag is not None for s in samples)
-    mag = np.array([s.mag for s in samples], np.float64) if mag_ok else None
+    warnings: list[str] = []
     times = [s.device_time for s in samples]
     dev = None
     if all(t is not None for t in times):
@@ -188,8 +187,34 @@ def read_witmotion(path: str | os.PathLike, rate_hz: float | None = None) -> Wit
     else:
         raise InputError(f"{src}: the frames carry no increasing device time: pass --rate "
                          "(the output rate set on the device)")  # fmt: skip
-    return WitRecording(time, accel, gyro, np.array([s.temperature for s in samples]), mag,
-                        notes, dec.stats)  # fmt: skip
+    accel = np.array([s.accel for s in samples], np.float64)
+    temperature = np.array([s.temperature for s in samples])
+    has_gyro = np.array([s.gyro is not None for s in samples])
+    gyro = mag = None
+    if has_gyro.sum() >= 0.5 * len(samples):  # a frame lost here and there: those samples go
+        gyro = np.array([s.gyro or (0, 0, 0) for s in samples], np.float64)
+        missing = int((~has_gyro).sum())
+        if missing:  # their times stay those of their frames: the gap shows, nothing shifts
+            time, accel, gyro = time[has_gyro], accel[has_gyro], gyro[has_gyro]
+            temperature = temperature[has_gyro]
+            samples = [s for s, ok in zip(samples, has_gyro, strict=True) if ok]
+            warnings.append(f"{missing} of {len(has_gyro)} samples had no angular-velocity frame "
+                            "(0x52; a frame lost or the log cut): left out, accelerometer too")
+            dec.stats["malformed"] += missing
+    elif has_gyro.any():
+        warnings.append(f"only {int(has_gyro.sum())} of {len(has_gyro)} samples have an "
+                        "angular-velocity frame (0x52): the gyro is left out")  # fmt: skip
+    has_mag = np.array([s.mag is not None for s in samples])
+    if has_mag.sum() >= 0.5 * len(samples):  # missing readings are NaN (left out by calibrate)
+        mag = np.array([s.mag if s.mag is not None else (np.nan,) * 3 for s in samples],
+                       np.float64)  # fmt: skip
+        if not has_mag.all():
+            notes.append(f"{int((~has_mag).sum())} samples had no magnetic-field frame (0x54): "
+                         "their magnetometer values are NaN")  # fmt: skip
+    elif has_mag.any():
+        notes.append("few samples have a magnetic-field frame (0x54): the magnetometer is left "
+                     "out")  # fmt: skip
+    return WitRecording(time, accel, gyro, temperature, mag, notes, dec.stats, warnings)
 
 
 NAME = "witmotion"
@@ -207,5 +232,5 @@ def read(paths, options, stats):
     stats.comments = rec.stats["skipped"]
     ch = Channels(rec.time, rec.accel, rec.gyro, "counts", "counts", temperature=rec.temperature,
                   mag=rec.mag, mag_units=None if rec.mag is None else "counts",
-                  notes=rec.notes)  # fmt: skip
+                  notes=rec.notes, warnings=rec.warnings)  # fmt: skip
     return to_recording(ch, paths, stats)

@@ -14,6 +14,7 @@ import h5py
 import numpy as np
 
 from imucal_cli.errors import ImucalWarning, SessionError
+from imucal_cli.formats.config import GRAVITY_RANGE
 from imucal_cli.formats.text import clean_text, clean_tree
 
 from .h5open import (
@@ -148,6 +149,11 @@ def _root_attributes(file: h5py.File, src: str) -> tuple[str, dict, dict]:
             raise SessionError(
                 f"{src}: root attribute {name!r} must be a positive number, got {show(root[name])}"
             )
+    g = numbers["gravity"]
+    lo, hi = GRAVITY_RANGE
+    if g is not None and not lo < g < hi:  # 1e308 broke the solvers' SVD (issue 26)
+        raise SessionError(f"{src}: root attribute 'gravity' is {g:.6g} m/s^2; local gravity "
+                           f"is between {lo:g} and {hi:g} m/s^2 (9.80665 standard)")  # fmt: skip
 
     return created, text, numbers
 
@@ -163,6 +169,15 @@ RAW_NAMES = tuple(RAW_CHANNELS)
 
 
 def raw_datasets(file: h5py.File, src: str, unclosed: bool) -> tuple[dict[str, h5py.Dataset], int]:
+    """:func:`_raw_datasets`, a read that fails (a chunk whose Fletcher-32 checksum does not
+    match, a damaged B-tree) given as the one-line "damaged HDF5 file" every command says."""
+    try:
+        return _raw_datasets(file, src, unclosed)
+    except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
+        raise SessionError(f"{src}: damaged HDF5 file ({one_line(exc)})") from None
+
+
+def _raw_datasets(file: h5py.File, src: str, unclosed: bool) -> tuple[dict[str, h5py.Dataset], int]:
     """Validate the ``/raw`` datasets present (of :data:`RAW_NAMES`); return them and the
     number of samples N to read.
 
@@ -300,8 +315,10 @@ def _read_segments(
     log_group = member(file, LOG_GROUP, src)
     log = member(log_group, "segments", src) if isinstance(log_group, h5py.Group) else None
     if not segments and isinstance(log, h5py.Dataset):
-        # The writer was killed before it wrote the segment groups: use its SWMR-safe log.
-        check_dataset(log, src, limit=file_size(file), complete=not unclosed)
+        # The writer was killed before it wrote the segment groups (or the disk was full):
+        # use its SWMR-safe log.  A row whose chunk was never written reads as empty bytes
+        # and is skipped below, so the log is never refused for it.
+        check_dataset(log, src, limit=file_size(file), complete=False)
         if log.dtype.kind != "S" or log.ndim != 1:
             raise SessionError(f"{src}: /{LOG_DATASET} is not a list of JSON strings")
         for row, item in enumerate(log[()]):

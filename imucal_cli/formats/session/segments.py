@@ -116,15 +116,18 @@ class SegmentLog:
         one a killed writer left.
     entries : iterable of dict
         Segments the session holds already (a continued capture): kept, and logged again.
+    small : bool
+        A nearly full disk: the log grows one row (segment) at a time, not 16.
     """
 
-    def __init__(self, file: h5py.File, entries=()) -> None:
+    def __init__(self, file: h5py.File, entries=(), *, small: bool = False) -> None:
         if LOG_GROUP in file:
             del file[LOG_GROUP]
         group = file.create_group(LOG_GROUP)
         group.attrs.update(writer_identity())
         self.dataset = group.create_dataset(
-            "segments", shape=(0,), maxshape=(None,), chunks=(16,), dtype=f"S{LOG_ITEM_BYTES}"
+            "segments", shape=(0,), maxshape=(None,), chunks=(1 if small else 16,),
+            dtype=f"S{LOG_ITEM_BYTES}",
         )
         self.entries: list[dict[str, Any]] = []  # every segment, as stored
         self._pending: list[bytes] = []  # log rows not written yet
@@ -187,10 +190,11 @@ class SegmentLog:
             raise SessionError(f"{src}: /calibrations/{name} already exists")
         self.calibrations[name] = json_text
 
-    def write(self, path: Path) -> None:
-        """Into the closed file at ``path``: the segment groups and the calibrations; the log
-        removed."""
+    def write(self, path: Path, attrs: dict[str, Any] | None = None) -> None:
+        """Into the closed file at ``path``: the segment groups, the calibrations and the
+        root ``attrs``; the log removed."""
         with h5py.File(path, "r+") as file:
+            file.attrs.update(attrs or {})
             group = file["segments"]
             for entry in self.entries:
                 attrs = group.create_group(entry["name"]).attrs

@@ -40,7 +40,8 @@ class Superblock:
     version : int
         Superblock version, 0 to 3.
     eof : int
-        Absolute end of the HDF5 data the header declares, bytes.
+        End of the HDF5 data the header declares, bytes from the start of the file (a user
+        block included).
     flags : int
         Status flags (version 2/3; 0 for older versions).
     size : int
@@ -156,8 +157,11 @@ def read_superblock(fd: int) -> tuple[Superblock, bytes]:
             raw[first + k * sizeof_addr : first + (k + 1) * sizeof_addr], "little"
         )
 
-    base = address(0)
-    eof = base + address(2)
+    # The end-of-file address counts from the start of the file, user block included: HDF5
+    # itself (H5F__super_read) refuses a file as truncated when its size is below the stored
+    # address, whatever the base address (the user block's size) is.  Adding the base to it
+    # refused every valid file with a user block (issue 26).
+    eof = address(2)
     if eof > size:
         raise SuperblockError(
             f"truncated: the file has {size} bytes, its HDF5 header says {eof} "

@@ -37,6 +37,8 @@ from .model import (
 from .segments import SegmentLog, entry_of, segment_entry
 
 _CHUNK_ROWS = 1024  # samples per HDF5 chunk of the /raw datasets
+_MIN_CHUNK_ROWS = 64  # on a nearly full disk: a chunk takes no more space than it must
+_CHUNKS_IN_FREE_SPACE = 256  # chunks are at most this fraction of the free space
 _MAX_PENDING_ROWS = 65536  # the writer writes out earlier than its flush interval past this
 _WRITE_ERRORS = (OSError, RuntimeError)  # h5py raises RuntimeError for some ENOSPC failures
 
@@ -210,6 +212,7 @@ class SessionWriter:
         raw = file.create_group("raw")
         # Written in this order at each flush; time last, so it is never longer than data.
         self._datasets: dict[str, h5py.Dataset] = {}
+        self.chunk_rows = chunk_rows(free_bytes(self.path), self._row_bytes(temperature, host_time))
         shapes = {
             "accel": self._widths["accel"],
             "gyro": self._widths["gyro"],
@@ -223,11 +226,31 @@ class SessionWriter:
                 continue
             tail = (width,) if width else ()
             self._datasets[name] = raw.create_dataset(
-                name, shape=(0, *tail), maxshape=(None, *tail), chunks=(_CHUNK_ROWS, *tail),
+                name, shape=(0, *tail), maxshape=(None, *tail), chunks=(self.chunk_rows, *tail),
                 dtype="f8", fillvalue=np.nan, fletcher32=True,
             )  # fmt: skip
         file.create_group("segments")
-        self._log = SegmentLog(file)
+        self._log = SegmentLog(file, small=self.chunk_rows < _CHUNK_ROWS)
+
+    def _row_bytes(self, temperature: bool, host_time: bool) -> int:
+        """Bytes one sample takes in ``/raw`` (float64 values)."""
+        values = sum(w for w in self._widths.values() if w) + 1 + temperature + host_time
+        return 8 * values
+
+    @property
+    def bytes_per_sample(self) -> int:
+        """Bytes one sample takes in the file's ``/raw`` datasets."""
+        return 8 * sum(int(np.prod(ds.shape[1:])) for ds in self._datasets.values())
+
+    @property
+    def chunk_bytes(self) -> int:
+        """Bytes the file grows by when a new chunk of every ``/raw`` dataset is allocated."""
+        return self.chunk_rows * self.bytes_per_sample + 4 * len(self._datasets)
+
+    def room(self) -> int | None:
+        """Bytes still free on the file's file system for this writer (the space it set aside
+        itself not counted as free), or None when the system does not say."""
+        return free_bytes(self.path)
 
     def _abandon(self) -> None:
         """Close and remove a file that never became a session (a failed start)."""
@@ -321,6 +344,7 @@ class SessionWriter:
             self._datasets[name] = ds
         self._widths = {name: self._datasets[name].shape[1] if name in self._datasets else None
                         for name in ("accel", "gyro", "mag")}  # fmt: skip
+        self.chunk_rows = int(self._datasets["time"].chunks[0])
 
     def _reopen_segments(self, session: Session) -> None:
         """Keep the session's segments: in memory and, until :meth:`close`, in the log."""
@@ -328,7 +352,8 @@ class SessionWriter:
         for name in list(group):
             del group[name]
         self._log = SegmentLog(self._file, [entry_of(seg, f"{i:04d}")
-                                            for i, seg in enumerate(session.segments)])  # fmt: skip
+                                            for i, seg in enumerate(session.segments)],
+                               small=self.chunk_rows < _CHUNK_ROWS)  # fmt: skip
 
     # context manager ---------------------------------------------------------------------
     def __enter__(self) -> SessionWriter:
@@ -531,13 +556,31 @@ class SessionWriter:
         self._log.drop_beyond(kept)
         return dropped
 
+    def truncate(self, n: int) -> None:
+        """Forget every sample from the ``n``-th on, written or not, and the segments that
+        reach past it (a capture whose samples turned out unusable: its own are dropped, a
+        continued session's earlier ones stay)."""
+        self._pending, self._n_pending = [], 0
+        n = max(min(int(n), self._n_written), 0)
+        for dataset in self._datasets.values():
+            try:
+                dataset.resize(n, axis=0)
+            except _WRITE_ERRORS:
+                pass
+        self._n_written = n
+        self._last_time = float(self._datasets["time"][n - 1]) if n else None
+        self._last_written_time = self._last_time
+        self._nonfinite = {name: [rows[rows < n] for rows in found]
+                           for name, found in self._nonfinite.items()}  # fmt: skip
+        self._log.drop_beyond(n)
+
     def _salvage(self) -> None:
         if not self._pending:
             return
         rows = {name: np.concatenate([b[name] for b in self._pending]) for name in self._datasets}
         done = 0
-        for start in range(0, self._n_pending, _CHUNK_ROWS):
-            stop = min(start + _CHUNK_ROWS, self._n_pending)
+        for start in range(0, self._n_pending, self.chunk_rows):
+            stop = min(start + self.chunk_rows, self._n_pending)
             part = {name: rows[name][start:stop] for name in rows}
             self._pending, n_before = [part], self._n_pending
             self._n_pending = stop - start
@@ -622,11 +665,13 @@ class SessionWriter:
         return name
 
     # closing -------------------------------------------------------------------------------
-    def close(self) -> None:
+    def close(self, attrs: dict[str, Any] | None = None) -> None:
         """Flush, end SWMR mode, write the segment groups and give the file its name.
 
         Closing twice does nothing.  Samples that cannot be written stay out (a
         :class:`WriteFailed` is raised after the file was closed with what was written).
+        ``attrs``: root attributes known only at the end (``sample_rate_hz``), written with
+        the segment groups (no attribute can be created in SWMR mode).
         """
         if self._file is None:
             return
@@ -646,7 +691,7 @@ class SessionWriter:
         finally:
             self._file = None
         try:
-            self._write_segment_groups()
+            self._write_segment_groups(attrs or {})
         except _WRITE_ERRORS as exc:  # the log stays; readers use it
             failed = failed or self._write_failed(exc, 0, "write the segments")
         self._reserve.release()
@@ -654,8 +699,8 @@ class SessionWriter:
         if failed is not None:
             raise failed
 
-    def _write_segment_groups(self) -> None:
-        self._log.write(self._out.tmp if not self._out.published else self.path)
+    def _write_segment_groups(self, attrs: dict[str, Any]) -> None:
+        self._log.write(self._out.tmp if not self._out.published else self.path, attrs)
 
     def add_calibration(self, name: str, json_text: str) -> None:
         """Store a calibration JSON as ``/calibrations/<name>`` when the file is closed.
@@ -666,6 +711,29 @@ class SessionWriter:
             ``json_text`` is not JSON, or ``name`` is taken or not a valid name.
         """
         self._log.add_calibration(self._src, name, json_text)
+
+
+def free_bytes(path: Path) -> int | None:
+    """Bytes an unprivileged writer may still use on the file system of ``path`` (its folder),
+    or None when the system does not say."""
+    try:
+        st = os.statvfs(Path(path).parent)
+    except (OSError, AttributeError):
+        return None
+    return st.f_bavail * st.f_frsize
+
+
+def chunk_rows(free: int | None, row_bytes: int) -> int:
+    """Rows per chunk of the ``/raw`` datasets: :data:`_CHUNK_ROWS`, or fewer (a power of two,
+    at least :data:`_MIN_CHUNK_ROWS`) where a chunk of every dataset would take more than
+    1/:data:`_CHUNKS_IN_FREE_SPACE` of the free space: HDF5 allocates a chunk whole, so on a
+    nearly full disk a large one would fail where the samples themselves still fit."""
+    if free is None:
+        return _CHUNK_ROWS
+    rows = _CHUNK_ROWS
+    while rows > _MIN_CHUNK_ROWS and rows * row_bytes * _CHUNKS_IN_FREE_SPACE > free:
+        rows //= 2
+    return rows
 
 
 class _InPlace:
@@ -691,7 +759,7 @@ class _Reserve:
         self._path: Path | None = None
         try:
             st = os.statvfs(path.parent)
-            nbytes = min(nbytes, st.f_bavail * st.f_frsize // 4)  # never most of what is left
+            nbytes = min(nbytes, st.f_bavail * st.f_frsize // 16)  # a little of what is left
         except OSError:
             pass
         if nbytes <= 0:

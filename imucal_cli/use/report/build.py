@@ -289,8 +289,11 @@ def _terms_tables(report: dict[str, Any], extra: dict[str, Any]) -> None:
                     1000 * float(clock.get("jitter_s") or 0.0), clock.get("duration_s")]],
                   caption=f"the device's sample clock runs {clock['ppm']:+.1f} ± "
                   f"{clock.get('ppm_std', float('nan')):.2g} ppm against the host's arrival "
-                  "times (error and std in ppm, jitter in ms, recording in s); the gyro was "
-                  "calibrated in true seconds (corrected by it)")  # fmt: skip
+                  "times (error and std in ppm, jitter in ms, recording in s); "
+                  + ("the gyro was calibrated in true seconds (corrected by it)"
+                     if clock.get("applied", True) else "not corrected: within "
+                     f"{float(clock.get('threshold_ppm') or 0.0):.3g} ppm (3 std) of a clock "
+                     "that is right"))  # fmt: skip
 
 
 def add_table(

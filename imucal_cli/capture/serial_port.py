@@ -1,0 +1,181 @@
+"""The serial port a capture reads (pyserial): :class:`SerialSource`.
+
+It reads in batches (a first byte, then what came within a few milliseconds), and a backlog
+whole: after a host that did not read for a while (busy, starting up, suspended) the kernel
+hands the waiting bytes out a tty buffer (4 KiB) at a time, and a drain cut into reads would
+give lines without a time of their own arrival times far closer together than they were sent
+(issue 24.3/24.7: a MotionCal stream's holds ran ten times too fast and the guided capture
+took none of them).
+"""
+
+from __future__ import annotations
+
+import errno
+import time as _time
+
+from imucal_cli.capture.stream import DeviceGone
+from imucal_cli.errors import InputError
+
+__all__ = ["DRAIN_MAX_BYTES", "DRAIN_MAX_S", "DRAIN_WAIT_S", "SerialSource", "available_ports"]
+
+DRAIN_MAX_S = 0.5
+"""Longest a read keeps reading a backlog, s (the capture's screen stays live)."""
+
+DRAIN_MAX_BYTES = 4 << 20
+"""Most bytes a read returns while it drains a backlog."""
+
+DRAIN_WAIT_S = 0.1
+"""After a read that filled the tty buffer, how long the next part of a backlog may take, s."""
+
+TTY_BUFFER_BYTES = 4000
+"""A read this long found the kernel's tty buffer (4 KiB) full: more of a backlog follows."""
+
+
+class SerialSource:
+    """A serial port read with pyserial, in batches.
+
+    Parameters
+    ----------
+    port : str
+        Device path (``/dev/ttyUSB0``, ``/dev/ttyACM0``, ``COM3``, a pseudo-terminal).
+    baud : int
+        Baud rate.
+    timeout_s : float
+        Longest a :meth:`read` waits for a first byte.
+    batch_s : float
+        After a first byte, wait this long for more before returning, so that a fast stream
+        is read in batches of a few milliseconds (few system calls, low CPU).
+
+    Raises
+    ------
+    InputError
+        No such port (the message lists the available ones), permission denied, or the port
+        cannot be opened or configured.
+    """
+
+    def __init__(self, port: str, baud: int, timeout_s: float = 0.05, batch_s: float = 0.005):
+        import serial
+
+        if not isinstance(baud, int) or baud <= 0:
+            raise InputError(f"baud rate must be a positive integer, got {baud!r}")
+        self.port, self.baud, self.batch_s = str(port), int(baud), float(batch_s)
+        try:
+            self._serial = serial.Serial(self.port, self.baud, timeout=timeout_s)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise _open_error(self.port, self.baud, exc) from None
+        self.opened_at = _time.monotonic()  #: when the port opened (host monotonic clock), s
+        self._gone: DeviceGone | None = None  # the device went after the last bytes returned
+
+    @property
+    def uri(self) -> str:
+        """The session's ``source`` attribute: ``serial:/dev/ttyUSB0@115200``."""
+        return f"serial:{self.port}@{self.baud}"
+
+    def describe(self) -> str:
+        """``"/dev/ttyUSB0 at 115200 baud"`` for messages."""
+        return f"{self.port} at {self.baud} baud"
+
+    def read(self) -> bytes:
+        """Bytes received so far, or b"" after ``timeout_s`` with none.
+
+        A backlog (the host did not read for a while) is read whole, up to
+        :data:`DRAIN_MAX_S`: the serial buffer hands out a few kilobytes a read, and a drain
+        cut into reads would give its lines arrival times far closer together than they were
+        sent (host-clock stamps, the sample clock's estimate).
+
+        Raises
+        ------
+        DeviceGone
+            The port cannot be read any more (unplugged, pseudo-terminal closed); bytes read
+            before it went are returned first, this is raised at the next read.
+        """
+        if self._gone is not None:
+            raise self._gone
+        ser, got = self._serial, b""
+        try:
+            waiting = ser.in_waiting
+            if waiting:
+                got = ser.read(waiting)
+                return self._drain(got)
+            got = ser.read(1)
+            if not got:
+                return b""
+            _time.sleep(self.batch_s)
+            waiting = ser.in_waiting
+            if waiting:
+                got += ser.read(waiting)
+            return self._drain(got)
+        except (OSError, TypeError, AttributeError) as exc:  # SerialException is an OSError
+            self._gone = DeviceGone(" ".join(str(exc).split()) or type(exc).__name__)
+            if got:
+                return got
+            raise self._gone from None
+
+    def _drain(self, data: bytes) -> bytes:
+        """``data`` and, when it filled the kernel's tty buffer (a backlog), the rest of the
+        backlog: read until no more comes within :data:`DRAIN_WAIT_S` (the next part comes a
+        moment after a read: the kernel's flip buffers, a sender blocked on the full line) or
+        only the trickle of a stream read as it comes; at most :data:`DRAIN_MAX_S`,
+        :data:`DRAIN_MAX_BYTES`."""
+        if len(data) < TTY_BUFFER_BYTES:
+            return data
+        ser, end = self._serial, _time.monotonic() + DRAIN_MAX_S
+        parts, size = [data], len(data)
+        try:
+            while size < DRAIN_MAX_BYTES and _time.monotonic() < end:
+                waiting = self._wait_waiting(DRAIN_WAIT_S)
+                if not waiting:
+                    break
+                more = ser.read(waiting)
+                parts.append(more)
+                size += len(more)
+                if len(more) < TTY_BUFFER_BYTES // 4 and not self._wait_waiting(self.batch_s):
+                    break  # caught up
+        except (OSError, TypeError, AttributeError):
+            pass  # the device went while draining: what was read is kept, the next read says
+        return b"".join(parts)
+
+    def _wait_waiting(self, limit_s: float) -> int:
+        """Bytes waiting, polled for up to ``limit_s`` until there are some (0: none came)."""
+        end = _time.monotonic() + limit_s
+        while True:
+            waiting = self._serial.in_waiting
+            if waiting or _time.monotonic() >= end:
+                return waiting
+            _time.sleep(0.001)
+
+    def close(self) -> None:
+        """Close the port (never raises)."""
+        try:
+            self._serial.close()
+        except Exception:  # noqa: BLE001 - the device may be gone already
+            pass
+
+
+def _open_error(port: str, baud: int, exc: BaseException) -> InputError:
+    code = getattr(exc, "errno", None)
+    text = " ".join(str(exc).split())
+    if code == errno.ENOENT or "No such file" in text or "FileNotFoundError" in text:
+        ports = available_ports()
+        listed = ", ".join(ports) if ports else "none found"
+        return InputError(f"{port}: no such serial port (available: {listed})")
+    if code in (errno.EACCES, errno.EPERM) or "Permission denied" in text:
+        return InputError(
+            f"{port}: permission denied: add your user to the group that owns the port "
+            "(often 'dialout': sudo usermod -aG dialout $USER, then log in again)"
+        )
+    if code == errno.EBUSY or "busy" in text.lower():
+        return InputError(f"{port}: the port is busy (another program has it open)")
+    if isinstance(exc, ValueError):
+        return InputError(f"{port}: cannot use baud rate {baud} ({text})")
+    return InputError(f"{port}: cannot open the serial port ({text})")
+
+
+def available_ports() -> list[str]:
+    """Device paths of the serial ports the system lists (USB adapters, built-in UARTs)."""
+    try:
+        from serial.tools import list_ports
+
+        return sorted(p.device for p in list_ports.comports())
+    except Exception:  # noqa: BLE001 - listing is a courtesy in an error message
+        return []
