@@ -40,13 +40,16 @@ from rich.console import Console
 from rich.table import Table
 
 from bench import live_run
-from bench.live_grade import Graded, grade
+from bench.live_grade import Graded, grade, grade_warmup
 
 #: The hold per pose of ``simulate --serve`` without ``--hold`` (cli/simulate.py SERVE_HOLD_S).
 SERVE_HOLD_S = 4.0
 #: The simulated magnetometer's field (simulate --mag's default), uT: what the user gives
 #: capture with --field-uT (from a geomagnetic model).
 MAG_FIELD_UT = 48.0
+#: The warm-up's temperature ramp (``--ramp``), and the room session's (bench temperature's).
+WARMUP_RAMP = "5:40"
+ROOM_RAMP = (24.0, 26.0, "linear")
 #: The accuracy target: live error/bound within this fraction of the file's.
 TARGET = 0.10
 MODES = ("guided", "unattended")
@@ -63,6 +66,10 @@ class LivePlan:
     hold_s, move_s : float
         The device's hold per pose and move between poses (``--hold``, ``--move``; given only
         when not the defaults), s; the file reference is simulated with the same.
+    warmup : bool
+        A warm-up (``warmup:MINUTES`` served with ``--ramp``): the capture is given to
+        ``imucal calibrate ROOM --warmup WARM``, ROOM a qureshi18 session of the same part at
+        24-26 C simulated to a file, and only the temperature terms are graded.
     mag : bool
         With a magnetometer (``simulate --serve --mag``, tumbles between the holds; captured
         with its columns, units and the field), as ``simulate --mag`` writes the file.
@@ -76,6 +83,7 @@ class LivePlan:
     hold_s: float = SERVE_HOLD_S
     move_s: float = 1.5
     mag: bool = False
+    warmup: bool = False
     serve: tuple[str, ...] = ()
     capture: tuple[str, ...] = ()
     blocked: str = ""
@@ -108,9 +116,10 @@ PLANS = (
     LivePlan("qureshi-axes:6"),
     LivePlan("free:12"),
     LivePlan("hwangbo-iron"),
-    LivePlan("six", mag=True),
+    LivePlan("qureshi18", mag=True),
+    LivePlan("warmup:2", warmup=True, serve=("--ramp", WARMUP_RAMP)),
 )
-QUICK_PLANS = ("six", "qureshi18", "ferraris")
+QUICK_PLANS = ("six", "random:12", "ferraris")
 
 
 def simulated(plan: LivePlan, seed: int):
@@ -123,7 +132,20 @@ def simulated(plan: LivePlan, seed: int):
                             field_uT=MAG_FIELD_UT)  # fmt: skip
     from imucal_cli.simulate.play import simulate_plan
 
+    if plan.warmup:
+        from imucal_cli.simulate.temperature import parse_ramp
+
+        return simulate_plan(plan.plan, seed=seed, hold_s=plan.hold_s, move_s=plan.move_s,
+                             temperature=parse_ramp(WARMUP_RAMP))  # fmt: skip
     return simulate_plan(plan.plan, seed=seed, hold_s=plan.hold_s, move_s=plan.move_s)
+
+
+def room(seed: int):
+    """The ordinary session a warm-up goes with: qureshi18 of the same part at 24-26 C."""
+    from imucal_cli.simulate.play import simulate_plan
+    from imucal_cli.simulate.temperature import Ramp
+
+    return simulate_plan("qureshi18", seed=seed, temperature=Ramp(*ROOM_RAMP))[0]
 
 
 def n_holds(plan: LivePlan, seed: int = 0) -> int:
@@ -132,7 +154,7 @@ def n_holds(plan: LivePlan, seed: int = 0) -> int:
 
     mag = {"field_uT": MAG_FIELD_UT} if plan.mag else None
     return len(stream_with_holds(plan.plan, seed=seed, hold_s=plan.hold_s, move_s=plan.move_s,
-                                 mag=mag)[3])
+                                 mag=mag)[3])  # a ramp changes the temperature, not the holds
 
 
 # --------------------------------------------------------------------------------------------
@@ -169,7 +191,13 @@ def _run_job(job: Job, folder: Path, holds: int) -> Job:
             job.plan.plan, job.seed, out, timeout_s=timeout, serve_extra=job.plan.serve_args,
             capture_extra=job.plan.capture_args,
         )  # fmt: skip
-    if out.exists():
+    if out.exists() and job.plan.warmup:  # the warm-up goes with an ordinary session
+        from imucal_cli.formats.session import write_session
+
+        ordinary = folder / f"room-s{job.seed}-{job.mode}.h5"
+        write_session(ordinary, room(job.seed))
+        job.calibrate = live_run.calibrate(ordinary, warmup=out)
+    elif out.exists():
         job.calibrate = live_run.calibrate(out)
     return job
 
@@ -272,6 +300,10 @@ def grade_jobs(work: list[Job], file_seeds: list[int], say=print) -> dict:
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
+                    if plan.warmup:
+                        cal = calibrate_session(room(seed), Config(), warmup=[session])
+                        files[name][seed] = grade_warmup(session, cal, truth)
+                        continue
                     cal = calibrate_session(session, Config())
                 files[name][seed] = grade(session, cal, truth)
             except Exception as exc:  # noqa: BLE001 - counted as a failed file calibration
@@ -286,7 +318,8 @@ def grade_jobs(work: list[Job], file_seeds: list[int], say=print) -> dict:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             live = read_session(job.capture.session)
-            job.graded = grade(live, read_calibration(cal.output), truth)
+            grader = grade_warmup if job.plan.warmup else grade
+            job.graded = grader(live, read_calibration(cal.output), truth)
         if job.mode == "unattended":
             job.served_equal = _served_equal(live, session)
     return files

@@ -266,6 +266,47 @@ def grade_mag(session: Session, cal: Calibration, truth: Calibration) -> Graded:
     return Graded("mag", str(sec.solver), wanted, est - x_true, sd, hw, crb, "aligned model")
 
 
+def grade_warmup(warm: Session, cal: Calibration, truth: Calibration) -> dict[str, Graded | str]:
+    """The temperature terms a warm-up recording gave (``calibrate SESSION --warmup WARM``):
+    each channel's bias polynomial coefficients ``bias_tempco`` (counts per C^k, k = 1..3)
+    against the truth's cubic, over the Cramér-Rao bound of a cubic fitted to the warm-up's
+    still blocks with white noise (:func:`polynomial_bound`, as ``bench/temperature.py``
+    bounds the curve's shape; each channel's own noise)."""
+    from imucal_cli.pipeline.temperature import BLOCK_S, still_blocks
+    from imucal_cli.solvers.temperature import polynomial_bound
+
+    out: dict[str, Graded | str] = {}
+    blocks = still_blocks(warm, BLOCK_S)
+    temp = np.array([warm.temperature[a:b].mean() for a, b, _ in blocks])
+    groups = np.array([k for _, _, k in blocks])
+    for name in ("accel", "gyro"):
+        sec, true = getattr(cal, name), getattr(truth, name)
+        if sec is None or true is None or sec.temperature_terms is None:
+            out[name] = "no temperature terms"
+            continue
+        ref, tc = sec.temperature_terms
+        tc_true = np.asarray(true.extra["bias_tempco"], float)
+        K, n = tc_true.shape
+        est = np.zeros((K, n))
+        est[: min(K, tc.shape[0])] = tc[:K]
+        std = np.zeros((K, n))
+        given = np.asarray(sec.extra["temperature_model"]["bias_tempco_std"], float)
+        std[: min(K, given.shape[0])] = given[:K]
+        data = getattr(warm, name)
+        crb = np.zeros((K, n))
+        for c in range(n):
+            resid = np.vstack([np.diff(data[s.start : s.stop, c]) / np.sqrt(2)
+                               for s in warm.static_segments()])  # fmt: skip
+            sig = np.array([float(np.std(resid)) / np.sqrt(b - a) for a, b, _ in blocks])
+            cov = polynomial_bound(temp, sig, K, float(ref), groups)
+            crb[:, c] = np.diag(cov)[-K:]
+        names = [f"tc{k}_{a}" for k in range(1, K + 1) for a in "xyz"[:n]]
+        out[name] = Graded(name, "temperature (warm-up)", names, (est - tc_true).ravel(),
+                           std.ravel(), 1.96 * std.ravel(), crb.ravel(),
+                           "bias_tempco against the bound of a cubic on the warm-up's blocks")
+    return out
+
+
 GRADERS = {"accel": grade_accel, "gyro": grade_gyro, "mag": grade_mag}
 
 

@@ -43,6 +43,8 @@ _ANSI = re.compile(
 )
 #: The guided capture's message for a pose taken: "recorded LABEL [(measured up ...)] (k of n)".
 _POSE_TAKEN = re.compile(r"recorded [^\n]*?\((\d+) of (\d+)\)")
+#: The guided capture asking for more field directions once every step is done.
+_MORE_FIELD = "Keep turning the unit slowly"
 
 _LOCK = threading.Lock()
 _STARTED: list[subprocess.Popen] = []
@@ -135,6 +137,7 @@ class _Screen:
         self.text = ""
         self.tail = ""
         self.poses = 0
+        self.more_field = False
 
     def feed(self, data: bytes) -> None:
         self.pending += data
@@ -148,6 +151,7 @@ class _Screen:
         for m in _POSE_TAKEN.finditer(self.text):
             self.poses += 1
             end = m.end()
+        self.more_field = self.more_field or _MORE_FIELD in self.text
         # what follows the last message may be the start of the next one (at most a line)
         self.text = self.text[max(end, len(self.text) - 400):]
         self.tail = (self.tail + clean(head))[-self.KEEP:]
@@ -213,9 +217,11 @@ def capture_guided(plan: str, seed: int, out: Path, *, n_poses: int, timeout_s: 
     (``--step``); the guided capture in another terminal.  After the capture says a pose is
     recorded, the person waits a reaction time and presses Enter at the device (the unit turns
     to the next pose, or through the plan's turn to the still period after it), except after
-    the last of the ``n_poses`` holds.  A capture that takes no pose for ``timeout_s`` / 4 is
-    given up on with Ctrl-C, as a person would; one that does not end in ``timeout_s`` is
-    killed."""
+    the last of the ``n_poses`` holds.  When every step is done and the capture asks for more
+    field directions (a magnetometer that has not seen 90 % of them), the device has nothing
+    more to show: the person finishes with ``q``.  A capture that takes no pose for
+    ``timeout_s`` / 4 is given up on with Ctrl-C, as a person would; one that does not end in
+    ``timeout_s`` is killed."""
     rng = rng or np.random.default_rng(seed)
     run = CaptureRun("guided", out)
     server, sfd = _pty_spawn(_serve_args(plan, seed, ["--step", *serve_extra]))
@@ -229,6 +235,7 @@ def capture_guided(plan: str, seed: int, out: Path, *, n_poses: int, timeout_s: 
         screen, device = _Screen(), bytearray()
         seen = 0
         enter_at: float | None = None
+        finish_at: float | None = None
         last_progress = t0
         stalled = timeout_s / 4
         interrupted = False
@@ -246,6 +253,12 @@ def capture_guided(plan: str, seed: int, out: Path, *, n_poses: int, timeout_s: 
                 run.events.append(f"{now - t0:.1f} s: pose {seen} taken")
                 if seen < n_poses:
                     enter_at = now + rng.uniform(*REACTION_S)
+            if screen.more_field and finish_at is None:
+                finish_at = now + rng.uniform(*REACTION_S)
+            if finish_at is not None and finish_at > 0 and now >= finish_at:
+                os.write(cfd, b"q\n")
+                finish_at = -1.0
+                run.events.append(f"{now - t0:.1f} s: more field directions asked for: q")
             if enter_at is not None and now >= enter_at:
                 os.write(sfd, b"\n")
                 enter_at = None
@@ -359,11 +372,14 @@ class CalibrateRun:
     stderr: str = ""
 
 
-def calibrate(session: Path, timeout_s: float = 600.0) -> CalibrateRun:
-    """``imucal calibrate SESSION`` (the default output beside it, stored in the session)."""
-    proc = _register(subprocess.Popen([*CLI, "calibrate", str(session)], stdout=subprocess.PIPE,
-                                      stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
-                                      env=ENV, text=True))  # fmt: skip
+def calibrate(session: Path, timeout_s: float = 600.0, warmup: Path | None = None
+              ) -> CalibrateRun:  # fmt: skip
+    """``imucal calibrate SESSION [--warmup WARMUP]`` (the default output beside it, stored in
+    the session)."""
+    args = [*CLI, "calibrate", str(session)] + ([] if warmup is None else
+                                                ["--warmup", str(warmup)])  # fmt: skip
+    proc = _register(subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                      stdin=subprocess.DEVNULL, env=ENV, text=True))  # fmt: skip
     try:
         _, err = proc.communicate(timeout=timeout_s)
     except subprocess.TimeoutExpired:
