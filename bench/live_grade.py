@@ -300,10 +300,14 @@ def grade_warmup(warm: Session, cal: Calibration, truth: Calibration) -> dict[st
             sig = np.array([float(np.std(resid)) / np.sqrt(b - a) for a, b, _ in blocks])
             cov = polynomial_bound(temp, sig, K, float(ref), groups)
             crb[:, c] = np.diag(cov)[-K:]
-        names = [f"tc{k}_{a}" for k in range(1, K + 1) for a in "xyz"[:n]]
-        out[name] = Graded(name, "temperature (warm-up)", names, (est - tc_true).ravel(),
-                           std.ravel(), 1.96 * std.ravel(), crb.ravel(),
-                           "bias_tempco against the bound of a cubic on the warm-up's blocks")
+        names = np.array([f"tc{k}_{a}" for k in range(1, K + 1) for a in "xyz"[:n]])
+        fitted = std.ravel() > 0  # a degree the F-tests left out states no interval
+        out[name] = Graded(name, "temperature (warm-up)", list(names[fitted]),
+                           (est - tc_true).ravel()[fitted], std.ravel()[fitted],
+                           1.96 * std.ravel()[fitted], crb.ravel()[fitted],
+                           f"bias_tempco of the fitted degrees ({int((~fitted).sum())} left "
+                           "out by the degree's F-test), against the bound of a cubic on the "
+                           "warm-up's blocks")  # fmt: skip
     return out
 
 

@@ -142,7 +142,8 @@ class _Screen:
     def feed(self, data: bytes) -> None:
         self.pending += data
         cut = self.pending.rfind(b"\x1b")
-        if cut >= 0 and len(self.pending) - cut < 64:
+        whole = cut >= 0 and _ANSI.match(self.pending, cut) is not None
+        if cut >= 0 and not whole and len(self.pending) - cut < 64:  # a sequence cut short
             head, self.pending = self.pending[:cut], self.pending[cut:]
         else:
             head, self.pending = self.pending, b""

@@ -59,6 +59,22 @@ def test_live_six_guided_and_unattended_beside_burners(tmp_path):
     assert session.exists() and session.with_suffix(".cal.json").exists()
 
 
+def test_the_person_reads_a_live_screen():
+    """What the scripted person reads: the capture's messages between rich's cursor moves,
+    a control sequence split between two reads, a pose taken counted once."""
+    from bench.live_run import _Screen
+
+    frame = b"\x1b[?25l\r\x1b[2K[step 2/6] Turn the unit\r\n\x1b[2Kdone 1/6\x1b[1A\x1b[2K"
+    taken = b"\x1b[1mrecorded face -Z up (measured up -Z) (2 of 6)\x1b[0m\r\n"
+    turn = b"recorded turn about +X (4.1 s, 359 deg measured)\r\n"
+    stream = frame + taken + frame + turn + frame + b"every step done; Keep turning the unit slowly"
+    screen = _Screen()
+    for i in range(0, len(stream), 7):  # arriving in pieces, sequences cut anywhere
+        screen.feed(stream[i : i + 7])
+    assert screen.poses == 1 and screen.more_field
+    assert "\x1b" not in screen.tail and "recorded face -Z up" in screen.tail
+
+
 def test_grading_finds_a_wrong_truth(tmp_path):
     """The grading is not blind: the file reference graded against another seed's part is
     far outside its bound."""
