@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test test-all bench lint clean
+.PHONY: demo test test-all bench docs lint clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -36,8 +36,17 @@ $(VENV)/.bench: $(STAMP)
 bench: $(VENV)/.bench
 	$(BIN)/python -m bench
 
+# The user documentation (README.md links into docs/) as a website in site/; --strict fails on a
+# broken link or anchor, or a page left out of mkdocs.yml's nav.
+$(VENV)/.docs: $(STAMP)
+	$(BIN)/pip install --quiet -e '.[docs]'
+	touch $(VENV)/.docs
+
+docs: $(VENV)/.docs
+	$(BIN)/mkdocs build --strict --site-dir site
+
 lint: $(STAMP)
 	$(BIN)/ruff check imucal_cli tests bench
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache out
+	rm -rf $(VENV) build *.egg-info .pytest_cache out site

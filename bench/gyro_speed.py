@@ -50,8 +50,6 @@ CONFIG = {"gyro": {"solver": "full"}}
 #: One calibrate's full gyro step on a session, timed inside a fresh process (argv: session).
 _ONE_STEP = """
 import sys, time
-from imucal_cli.cli import _reuse_freed_memory
-_reuse_freed_memory()  # the allocator as the imucal process tunes it
 from imucal_cli.formats.config import config_from_dict
 from imucal_cli.formats.session import read_session
 from imucal_cli.pipeline.calibrate import calibrate_accel, with_segments

@@ -9,8 +9,10 @@ resident memory are printed beside it.
   in total, peak memory under 75 MiB);
 * in-process: parsing the 51k lines of ``xsens_acc.mat`` (target under 0.1 s) and segmenting
   the recording (target under 0.05 s);
-* start-up: ``imucal --help`` (0.15 s), ``imucal report CAL.json`` (0.3 s), ``imucal
-  calibrate`` of the demo session (0.5 s);
+* start-up: ``imucal --help``, ``imucal report CAL.json``, ``imucal calibrate`` of the demo
+  session: informational rows, CPU shown without a verdict (their targets, 0.15, 0.3 and 0.5 s,
+  are withdrawn by issue 25: typer, rich and SciPy are used as they are, without start-up
+  hacks); only a command that fails is a FAIL there;
 * scale: a simulated 1-hour 100 Hz session calibrated (0.5 s);
 * 24 hours at 100 Hz still (8.64 M samples): ``imucal apply`` to HDF5 and ``imucal noise``,
   samples per CPU second (5 M) and peak memory (200 MiB);
@@ -123,12 +125,7 @@ def run_process(
 
 
 def run_inprocess(fn, runs: int) -> Timing:
-    """Median CPU (process time) and wall of ``fn()`` over ``runs`` calls (after one warm-up),
-    with the allocator tuned as the ``imucal`` process tunes it (freed arrays reused, not
-    returned to the system and faulted in again: 53 -> 39 ms of the Xsens segmentation)."""
-    from imucal_cli.cli import _reuse_freed_memory
-
-    _reuse_freed_memory()
+    """Median CPU (process time) and wall of ``fn()`` over ``runs`` calls (after one warm-up)."""
     fn()
     cpu, wall = [], []
     for _ in range(runs):
@@ -152,6 +149,13 @@ def _row(table: Table, what: str, t: Timing, target: float | None, mem: float | 
     return passed
 
 
+def _withdrawn(t: Timing, target_s: float) -> Timing:
+    """A start-up row: its former target in the note, for the record (no verdict on time)."""
+    if t.ok:
+        t.note = f"informational: start-up target {target_s:g} s withdrawn (issue 25)"
+    return t
+
+
 def run(console: Console, runs: int = 5, n_sessions: int = 500) -> bool:
     """Run the benchmark, print its table; return whether every target is met."""
     console.rule("[bold]Speed: CPU s per process (median of runs), wall and peak memory beside")
@@ -169,15 +173,16 @@ def run(console: Console, runs: int = 5, n_sessions: int = 500) -> bool:
             [*CLI, "calibrate", str(demo), "-o", str(tmp / "demo.cal.json"), "--no-store"],
             check=True, capture_output=True,
         )  # fmt: skip
-        ok &= _row(table, "imucal --help", run_process([*CLI, "--help"], runs, tmp), 0.15)
+        t = run_process([*CLI, "--help"], runs, tmp)
+        ok &= _row(table, "imucal --help", _withdrawn(t, 0.15), None)
         t = run_process([*CLI, "report", str(tmp / "demo.cal.json")], runs, tmp)
-        ok &= _row(table, "imucal report demo.cal.json", t, 0.3)
+        ok &= _row(table, "imucal report demo.cal.json", _withdrawn(t, 0.3), None)
         t = run_process(
             [*CLI, "calibrate", str(demo), "-o", str(tmp / "d2.json"), "--no-store", "--force"],
             runs,
             tmp,
         )
-        ok &= _row(table, "imucal calibrate demo (qureshi18, 18 poses)", t, 0.5)
+        ok &= _row(table, "imucal calibrate demo (qureshi18, 18 poses)", _withdrawn(t, 0.5), None)
         ok &= _xsens(table, tmp, config, runs)
         ok &= _hour(table, tmp, runs)
         ok &= _day(table, tmp, tmp / "demo.cal.json", runs)

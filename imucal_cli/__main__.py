@@ -18,13 +18,13 @@ def _interrupted() -> None:
 
 
 def program() -> None:
-    """Import the command-line layer and run the command (:func:`imucal_cli.cli.run`)."""
+    """Import the command-line layer and run the command (:func:`imucal_cli.cli.main`)."""
     try:
-        from imucal_cli.cli import run
+        from imucal_cli.cli import main
     except KeyboardInterrupt:
         _interrupted()
     try:
-        run()
+        main()
     except KeyboardInterrupt:  # before the command took Ctrl-C over, or after it returned
         _interrupted()
 

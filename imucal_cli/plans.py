@@ -67,15 +67,12 @@ import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
+
+import numpy as np
 
 from imucal_cli.errors import InputError
-
-if TYPE_CHECKING:
-    import numpy as np
-
-# numpy is imported where arrays are made, not with the module: the registry's names and
-# summaries serve `imucal --help`, which must not wait for numpy.
+from imucal_cli.formats.inputs import read_text_input
 
 __all__ = [
     "BUILTIN_PLANS",
@@ -129,8 +126,6 @@ class Step:
     def segment_attrs(self) -> dict[str, Any]:
         """The attributes of the segment that records this step: ``label``, ``up`` (static)
         or ``axis`` and ``angle_deg`` (rotation), and ``extra`` (``{"mounting": m}``)."""
-        import numpy as np
-
         out: dict[str, Any] = {"label": self.label}
         if self.kind == "static":
             out["up"] = None if self.up is None else np.asarray(self.up, float)
@@ -284,7 +279,6 @@ def _frozen(v) -> np.ndarray | None:
     """A read-only copy of a built-in unit vector (exact as written: not re-normalised)."""
     if v is None:
         return None
-    import numpy as np
 
     out = np.array(v, dtype=np.float64).reshape(3)
     out.flags.writeable = False
@@ -555,7 +549,6 @@ def needs_temperature(plan: Plan) -> bool:
 def _unit_or_none(v) -> np.ndarray | None:
     if v is None:
         return None
-    import numpy as np
 
     v = np.asarray(v, dtype=np.float64).reshape(3)
     out = v / np.linalg.norm(v)
@@ -595,7 +588,6 @@ def _load_file(path: Path) -> Plan:
     src = str(path)
     if not path.is_file():
         raise InputError(f"{src}: no such plan file")
-    from imucal_cli.formats.inputs import read_text_input
 
     text = read_text_input(path, what="plan file", max_bytes=1 << 20)
     try:
@@ -663,8 +655,6 @@ def _vector(where: str, key: str, value) -> np.ndarray:
     ok = isinstance(value, list) and len(value) == 3
     ok = ok and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
     if ok:
-        import numpy as np
-
         v = np.asarray(value, dtype=np.float64)
         if np.isfinite(v).all() and np.linalg.norm(v) > 0:
             return _unit_or_none(v)

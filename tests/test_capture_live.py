@@ -321,10 +321,12 @@ def test_a_served_warm_up_is_captured_as_simulated(tmp_path):
         device.stop()
     assert cap.returncode == 0
     got, want = read_session(out), read_session(written)
-    assert len(got.time) == len(want.time) and len(got.static_segments()) == 1
-    np.testing.assert_allclose(got.time, want.time, atol=5e-5)  # printed to 0.1 ms
-    np.testing.assert_array_equal(got.accel, np.round(want.accel))  # counts
-    np.testing.assert_allclose(got.temperature, want.temperature, atol=0.005 + 1e-9)
+    # the capture ends once its plan step is seen, possibly a few lines before the stream does
+    n = len(got.time)
+    assert len(want.time) - 100 <= n <= len(want.time) and len(got.static_segments()) == 1
+    np.testing.assert_allclose(got.time, want.time[:n], atol=5e-5)  # printed to 0.1 ms
+    np.testing.assert_array_equal(got.accel, np.round(want.accel[:n]))  # counts
+    np.testing.assert_allclose(got.temperature, want.temperature[:n], atol=0.005 + 1e-9)
     assert got.temperature.max() - got.temperature.min() > 30
 
 

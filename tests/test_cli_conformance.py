@@ -26,7 +26,9 @@ pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX pipes")
 
 COMMANDS = sorted(c.name or c.callback.__name__ for c in app.registered_commands)
 ENV = {**os.environ, "NO_COLOR": "1", "COLUMNS": "80"}
-README = Path(__file__).resolve().parents[1] / "README.md"
+DOCS = Path(__file__).resolve().parents[1] / "docs"
+COMMANDS_PAGE = DOCS / "commands.md"  # the exit statuses and the --json schemas
+CAPTURE_PAGE = DOCS / "capture.md"  # the columns of a line and their time units
 
 
 def _help(*args: str) -> subprocess.CompletedProcess:
@@ -73,7 +75,7 @@ def test_help_keeps_square_brackets_and_shows_what_the_readme_says():
     assert "[[step]]" in capture
     assert "[default: capture-<date>-<time>.h5]" in capture
     assert "[default: 115200]" in capture and "[default: t,ax,ay,az,gx,gy,gz,temp]" in capture
-    assert "semicolons" in capture  # the separators the README names
+    assert "semicolons" in capture  # the separators docs/capture.md names
     assert "pip install 'imucal-cli[plot]'" in _help("report", "--help").stdout
     simulate = _help("simulate", "--help").stdout
     for fault in ("--garbage", "--stall-after SECONDS", "--vanish-after SECONDS",
@@ -83,13 +85,13 @@ def test_help_keeps_square_brackets_and_shows_what_the_readme_says():
         assert "Exit status" in _help(command, "--help").stdout, command
 
 
-def test_every_command_names_the_same_time_units_as_the_readme():
+def test_every_command_names_the_same_time_units_as_the_docs():
     from imucal_cli.formats.columns import TIME_UNITS
 
     for command in ("capture", "import", "apply"):
         assert f"--time-unit {'|'.join(TIME_UNITS)} " in _help(command, "--help").stdout, command
     listed = "(" + ", ".join(f"`{u}`" for u in TIME_UNITS) + ")"
-    assert f"`--time-unit` {listed}" in " ".join(README.read_text(encoding="utf-8").split())
+    assert f"`--time-unit` {listed}" in " ".join(CAPTURE_PAGE.read_text(encoding="utf-8").split())
 
 
 def test_version_and_exit_status_table():
@@ -97,10 +99,10 @@ def test_version_and_exit_status_table():
         proc = run(flag)
         assert proc.returncode == 0 and proc.stdout.strip() == f"imucal {__version__}"
     root = _help("--help").stdout
-    readme = README.read_text(encoding="utf-8")
+    page = COMMANDS_PAGE.read_text(encoding="utf-8")
     for code, what in EXIT_CODES:
         assert re.search(rf"^\s*{code}\s+{re.escape(what)}$", root, re.M), (code, root)
-        assert f"| {code} | {what} |" in readme, (code, "README exit-status table")
+        assert f"| {code} | {what} |" in page, (code, "docs/commands.md exit-status table")
 
 
 @pytest.mark.parametrize(
@@ -159,7 +161,8 @@ def test_output_into_a_pipe_is_not_hard_wrapped(calibrated):
 
 
 def test_every_command_that_prints_results_has_json(calibrated, tmp_path):
-    """--json: one JSON document on stdout, nothing else, with a format name (README schemas)."""
+    """--json: one JSON document on stdout, nothing else, with a format name (schemas in
+    docs/commands.md)."""
     csv = tmp_path / "raw.csv"
     csv.write_text("t,ax,ay,az\n" + "".join(f"{i / 100},0,0,{9.8 + (i % 3) * 1e-3}\n"
                                              for i in range(600)))  # fmt: skip
@@ -184,7 +187,7 @@ def test_every_command_that_prints_results_has_json(calibrated, tmp_path):
         assert proc.returncode == 0, (name, proc.stderr)
         document = json.loads(proc.stdout)
         assert document["format"] == name and document["format_version"] >= 1, name
-        assert f"`{name}`" in README.read_text(encoding="utf-8"), f"{name}: schema in the README"
+        assert f"`{name}`" in COMMANDS_PAGE.read_text(encoding="utf-8"), f"{name}: schema in docs"
     calibrate = json.loads(run(*cases["imucal-calibrate"][:-1], "--force", "--json").stdout)
     assert calibrate["calibration"]["accel"]["solver"] == "gravity"
 
@@ -213,7 +216,7 @@ def test_shell_completion_of_commands_options_plans_and_values():
     assert _complete("imucal export --format y") == ["yaml"]
     # a path: nothing offered, so the shell completes file names (complete -o default)
     assert _complete("imucal calibrate ") == []
-    # The script for a named shell, as the README shows (no detection of the calling shell,
+    # The script for a named shell, as docs/commands.md shows (no detection of the calling shell,
     # which fails where the test runs under no shell: "Shell not supported")
     for shell, words in (("bash", "complete -o default"), ("zsh", "compdef"),
                          ("fish", "complete --command imucal")):  # fmt: skip
@@ -222,142 +225,19 @@ def test_shell_completion_of_commands_options_plans_and_values():
         assert script.returncode == 0 and words in script.stdout, (shell, script.stdout)
 
 
-@pytest.mark.parametrize(
-    "args", [["calibrate", "--help"], ["report", "--bogus"], ["import"], ["calibrat", "x"]]
-)
-def test_running_only_the_named_command_changes_no_output(args, monkeypatch):
-    """The process builds only the command its command line names (start-up, issue 14.4):
-    help and usage errors read as those of the whole app, and ``app`` keeps every command."""
-    from typer.testing import CliRunner
-
-    from imucal_cli.cli import _only_the_named_command
-
-    monkeypatch.setenv("COLUMNS", "100")
-    monkeypatch.setenv("NO_COLOR", "1")
-    before = list(app.registered_commands)
-    whole = CliRunner().invoke(app, args, prog_name="imucal")
-    with _only_the_named_command(["imucal", *args]):
-        assert len(app.registered_commands) == (len(before) if args[0] == "calibrat" else 1)
-        only = CliRunner().invoke(app, args, prog_name="imucal")
-    assert app.registered_commands == before
-    assert only.exit_code == whole.exit_code == (0 if args[-1] == "--help" else 2)
-    assert only.output == whole.output and "Usage: imucal" in only.output
-
-
-def _python(code: str, tmp_path: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          cwd=tmp_path, timeout=120)  # fmt: skip
-
-
-def test_run_leaves_quickly_yet_flushes_output_and_runs_exit_handlers(tmp_path):
-    """``imucal`` (cli.run) skips the interpreter's teardown (issue 14): the output still
-    arrives whole through a pipe, exit handlers still run, the status is the command's."""
-    code = (
-        "import atexit, pathlib, sys\n"
-        "atexit.register(lambda: pathlib.Path('handler-ran').write_text('yes'))\n"
-        "from imucal_cli.cli import run\n"
-        "sys.argv = ['imucal', *sys.argv[1:]]\n"
-    )
-    ok = _python(code + "sys.argv = ['imucal', '--help']\nrun()\n", tmp_path)
-    assert ok.returncode == 0 and "calibrate" in ok.stdout and ok.stdout.endswith("\n")
-    assert (tmp_path / "handler-ran").read_text() == "yes"
-    (tmp_path / "handler-ran").unlink()
-    bad = _python(code + "sys.argv = ['imucal', 'report', 'missing.json']\nrun()\n", tmp_path)
-    assert bad.returncode == 2 and bad.stderr.startswith("imucal: error: ")
-    assert (tmp_path / "handler-ran").exists()
-
-
-def test_run_exits_as_usual_while_an_hdf5_file_is_open(tmp_path):
-    """A file still open for writing at exit is flushed by the HDF5 library's own exit: the
-    quick exit is not taken then, and the file reads back whole."""
-    code = (
-        "import sys, h5py, numpy as np\n"
-        "f = h5py.File('open.h5', 'w')\n"
-        "f.create_dataset('x', data=np.arange(1000.0))\n"
-        "from imucal_cli.cli import run\n"
-        "sys.argv = ['imucal', '--version']\n"
-        "run()\n"
-    )
-    proc = _python(code, tmp_path)
-    assert proc.returncode == 0, proc.stderr
-    import h5py
-
-    with h5py.File(tmp_path / "open.h5", "r") as f:
-        assert f["x"][-1] == 999.0
-    # The same when only a dataset of the file is kept (its File object dropped).
-    kept = code.replace(
-        "f = h5py.File('open.h5', 'w')\nf.create_dataset('x', data=np.arange(1000.0))\n",
-        "def make():\n    return h5py.File('kept.h5', 'w').create_dataset('x', "
-        "data=np.arange(1000.0))\nkeep = make()\n",
-    )
-    assert "kept.h5" in kept
-    proc = _python(kept, tmp_path)
-    assert proc.returncode == 0, proc.stderr
-    with h5py.File(tmp_path / "kept.h5", "r") as f:
-        assert f["x"][-1] == 999.0
-
-
-def test_summaries_off_a_terminal_do_not_load_rich(calibrated, tmp_path):
-    """``calibrate`` and ``import`` print their summary lines off a terminal without importing
-    rich (0.02 s of start-up, issue 14), and the lines read as before."""
+def test_calibrate_summary_off_a_terminal_is_plain_lines(calibrated, tmp_path):
+    """``calibrate``'s summary into a pipe: plain lines (no colour codes, no style tags),
+    the first what ran, the last where it was written."""
     session = calibrated / "s.h5"
-    code = (
-        "import sys\n"
-        "from imucal_cli.cli import main\n"
-        f"sys.argv = ['imucal', 'calibrate', {str(session)!r}, '-o', 'out.json', '--no-store']\n"
-        "try:\n"
-        "    main()\n"
-        "except SystemExit as exc:\n"
-        "    assert exc.code == 0, exc.code\n"
-        "sys.stderr.write(f'RICH={\"rich\" in sys.modules}')\n"
-    )
     env = {k: v for k, v in ENV.items() if k not in ("FORCE_COLOR", "TTY_COMPATIBLE")}
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          cwd=tmp_path, env=env, timeout=120)  # fmt: skip
+    proc = subprocess.run([IMUCAL, "calibrate", session, "-o", "out.json", "--no-store"],
+                          capture_output=True, text=True, cwd=tmp_path, env=env,
+                          timeout=120)  # fmt: skip
     assert proc.returncode == 0, proc.stderr
-    assert "RICH=False" in proc.stderr
     lines = proc.stdout.splitlines()
     assert lines[0].startswith("accel: gravity (9-parameter), 18 poses")
     assert lines[-1] == "wrote out.json" and "[" not in proc.stdout.replace("[mag]", "")
-
-
-def test_lines_go_through_rich_where_rich_would_style_them(monkeypatch, capsys):
-    from imucal_cli.cli.console import Lines
-
-    monkeypatch.delenv("FORCE_COLOR", raising=False)
-    monkeypatch.setenv("TTY_COMPATIBLE", "0")
-    plain = Lines()
-    assert plain._console is None
-    plain(("accel", "bold"), ": [not a tag] 1.5 m/s^2")
-    assert capsys.readouterr().out == "accel: [not a tag] 1.5 m/s^2\n"
-    plain("a\tb\rc\x07d\x08e\x0bf\x0cg")  # as rich prints it: controls out, tabs expanded
-    assert capsys.readouterr().out == "a       bcdefg\n"
-    monkeypatch.setenv("TTY_COMPATIBLE", "1")
-    monkeypatch.setenv("NO_COLOR", "1")
-    styled = Lines()
-    assert styled._console is not None
-    styled(("accel", "bold"), ": [not a tag] 1.5 m/s^2")
-    out = capsys.readouterr().out
-    assert out.startswith("\x1b[1maccel")  # bold, by rich
-    assert re.sub(r"\x1b\[[0-9;]*m", "", out) == "accel: [not a tag] 1.5 m/s^2\n"
-
-
-def test_run_waits_for_a_running_thread_as_python_does(tmp_path):
-    """A non-daemon thread still working when the command returns finishes its work (the
-    quick exit is not taken then)."""
-    code = (
-        "import pathlib, sys, threading, time\n"
-        "def work():\n"
-        "    time.sleep(0.5)\n"
-        "    pathlib.Path('thread-done').write_text('yes')\n"
-        "threading.Thread(target=work).start()\n"
-        "from imucal_cli.cli import run\n"
-        "sys.argv = ['imucal', '--version']\n"
-        "run()\n"
-    )
-    proc = _python(code, tmp_path)
-    assert proc.returncode == 0, proc.stderr
-    assert (tmp_path / "thread-done").read_text() == "yes"
+    assert "\x1b[" not in proc.stdout
 
 
 def test_several_sessions_table_prints_bracketed_names_as_they_are(calibrated, tmp_path):

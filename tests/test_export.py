@@ -294,6 +294,15 @@ def test_yaml_honours_the_scale_and_refuses_counts_without_it(sim):
     _, truth = sim  # issue 26: the counts calibration was written as if the driver sent counts
     with pytest.raises(InputError, match="imu_calib reads accel in m/s\\^2.*--accel-scale"):
         export_yaml(truth)
+    # the gyro's example is a gyro's, and unstated units are said as such (not "raw raw units")
+    accel_only = ExportOptions(scale={"accel": SCALES["accel"]})
+    with pytest.raises(InputError, match=r"--gyro-scale .*0\.0174533/131 for a 16-bit \+-250"):
+        export_yaml(truth, accel_only)
+    unstated = copy.deepcopy(truth)
+    unstated.gyro.extra.pop("units_in", None)
+    with pytest.raises(InputError, match="takes raw units it does not state") as err:
+        export_yaml(unstated, accel_only)
+    assert "raw raw" not in str(err.value)
     half = yaml.safe_load(export_yaml(truth, ExportOptions(scale={k: v / 2 for k, v in
                                                                   SCALES.items()})))  # fmt: skip
     full = yaml.safe_load(export_yaml(truth, ExportOptions(scale=SCALES)))

@@ -169,36 +169,6 @@ def test_information_is_linear_in_the_number_of_turns_structure():
     assert widths[0] == widths[1] <= 3
 
 
-def test_numpy_sparse_gram_and_ordering_match_scipy():
-    """banded.Coo's C C^T equals scipy.sparse's; the numpy reverse Cuthill-McKee finds a band
-    no wider than scipy's on a shuffled banded pattern."""
-    from scipy.sparse.csgraph import reverse_cuthill_mckee as scipy_rcm
-
-    from imucal_cli.solvers.banded import Coo, reverse_cuthill_mckee
-
-    rng = np.random.default_rng(3)
-    C = sparse.random(50, 70, density=0.04, random_state=rng).tocoo()
-    ours = Coo(C.row, C.col, C.data, C.shape).gram()
-    np.testing.assert_allclose(ours.toarray(), (C @ C.T).toarray(), atol=1e-15)
-    for k in (0, 1, -2):
-        np.testing.assert_allclose(ours.diagonal(k), (C @ C.T).diagonal(k), atol=1e-15)
-    n = 120
-    i = np.arange(n - 3)
-    band = sparse.coo_matrix((np.ones(3 * len(i)), (np.r_[i, i, i], np.r_[i + 1, i + 2, i + 3])),
-                             shape=(n, n))  # fmt: skip
-    perm = rng.permutation(n)
-    A = (band + band.T + sparse.identity(n)).tocsr()[perm][:, perm].tocoo()
-
-    def width(order):
-        where = np.empty(n, int)
-        where[order] = np.arange(n)
-        return np.abs(where[A.row] - where[A.col]).max()
-
-    assert width(reverse_cuthill_mckee(A.row, A.col, n)) <= width(
-        scipy_rcm(A.tocsr(), symmetric_mode=True))
-    assert width(reverse_cuthill_mckee(A.row, A.col, n)) < width(np.arange(n)) / 10
-
-
 def test_kept_jacobian_and_covariance_equal_fresh_ones(problem):
     """The residuals, Jacobian and noise covariance kept with an integration are what a fresh
     problem computes, read-only, and not handed to a problem with other still periods."""

@@ -7,8 +7,8 @@ import pytest
 
 from imucal_cli.formats.calibration import SensorCalibration
 from imucal_cli.formats.session import Segment
+from imucal_cli.numerics.segmented import segment_moments, stacked_rows
 from imucal_cli.pipeline.gyro import still_periods
-from imucal_cli.solvers.segmented import segment_moments, stacked_rows
 
 
 def _reference_moments(x, start, stop):
@@ -91,9 +91,9 @@ def test_no_segments_and_empty_segments():
 @pytest.mark.parametrize("chunk", [1 << 16, 30, 1])  # one chunk; several; a segment each
 @pytest.mark.parametrize("case", ["unequal", "single", "unordered, overlapping"])
 def test_still_periods_match_the_per_period_loop(monkeypatch, case, chunk):
-    import imucal_cli.solvers.segmented
+    import imucal_cli.numerics.segmented
 
-    monkeypatch.setattr(imucal_cli.solvers.segmented, "CHUNK_ROWS", chunk)
+    monkeypatch.setattr(imucal_cli.numerics.segmented, "CHUNK_ROWS", chunk)
     rng = np.random.default_rng(3)
     n = 60
     session = SimpleNamespace(gyro=rng.normal(30.0, 4.0, (n, 3)),
@@ -280,7 +280,7 @@ def test_rotvec_quaternions_match_sin_and_cos(size):
 @pytest.mark.parametrize("chunk", [1 << 16, 25, 1])
 @pytest.mark.parametrize("case", CASES)
 def test_moments_in_chunks_equal_the_whole(monkeypatch, case, chunk):
-    import imucal_cli.solvers.segmented as pg
+    import imucal_cli.numerics.segmented as pg
 
     rng = np.random.default_rng(2)
     x = rng.normal(0, 1, (60, 3))

@@ -6,52 +6,6 @@ import pytest
 from imucal_cli.solvers import holds
 
 
-def _blocks(rng, k, odd_even):
-    blocks = []
-    for _ in range(k):
-        if odd_even is None:
-            n = int(rng.integers(1, 60))
-        else:
-            n = int(2 * rng.integers(1, 30) + odd_even)
-        scale = rng.choice([0.3, 3.0, 100.0])
-        decimals = int(rng.integers(0, 3))
-        blocks.append(np.round(rng.normal(size=(n, 3)) * scale + [0, 0, 8192], decimals))
-    return blocks
-
-
-@pytest.mark.parametrize("odd_even", [None, 0, 1])
-def test_medians_and_spread_equal_numpy_median(odd_even):
-    rng = np.random.default_rng(7)
-    for _ in range(100):
-        blocks = _blocks(rng, int(rng.integers(1, 8)), odd_even)
-        median, mad = holds.medians_and_spread(blocks)
-        ref = np.array([np.median(b, axis=0) for b in blocks])
-        pairs = zip(blocks, ref, strict=True)
-        ref_mad = np.array([np.median(np.abs(b - m), axis=0) for b, m in pairs])
-        assert np.array_equal(median, ref)  # bit for bit: the accuracy benches read the same
-        assert np.array_equal(mad, ref_mad)
-        assert median.shape == (len(blocks), 3)
-
-
-def test_medians_and_spread_nan_hold_is_nan_others_unchanged():
-    rng = np.random.default_rng(3)
-    blocks = _blocks(rng, 3, None)
-    blocks[1] = blocks[1].copy()
-    blocks[1][0, 2] = np.nan
-    median, mad = holds.medians_and_spread(blocks)
-    assert np.isnan(median[1, 2]) and np.isnan(mad[1, 2])
-    for k in (0, 2):
-        assert np.array_equal(median[k], np.median(blocks[k], axis=0))
-
-
-def test_medians_and_spread_leaves_blocks_untouched():
-    rng = np.random.default_rng(5)
-    data = np.round(rng.normal(size=(500, 3)) * 4)
-    before = data.copy()
-    holds.medians_and_spread([data[:200], data[250:431]])
-    assert np.array_equal(data, before)
-
-
 def _reference_trend(t, b, cov, limit):
     """The trend test written out for one hold (the definition in solvers/holds.py)."""
     if len(t) < 3 or t[-1] <= t[0]:
@@ -86,14 +40,3 @@ def test_trends_of_many_holds_equal_each_hold_alone():
         assert holds.trend(t, b, cov, len(blocks)).moved == is_moved
         moved += is_moved
     assert 0 < moved < len(blocks)  # both outcomes exercised
-
-
-def test_medians_and_spread_of_integer_and_signed_zero_holds_as_numpy():
-    blocks = [np.array([[3, -2, 7], [1, 5, -7], [2, 2, 0], [9, -1, 4]], dtype=np.int16),
-              np.array([[-0.0, 1.0, -0.0], [-0.0, -3.0, 2.0]])]  # fmt: skip
-    median, mad = holds.medians_and_spread(blocks)
-    for k, b in enumerate(blocks):
-        ref = np.median(b, axis=0)
-        assert np.array_equal(median[k], ref)
-        assert np.array_equal(np.signbit(median[k]), np.signbit(ref))
-        assert np.array_equal(mad[k], np.median(np.abs(b - ref), axis=0))

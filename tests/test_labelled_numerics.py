@@ -8,28 +8,15 @@ import pytest
 
 from imucal_cli.pipeline.calibrate import static_poses
 from imucal_cli.simulate.triad import simulate
-from imucal_cli.solvers import labelled, lsq
+from imucal_cli.solvers import labelled
 from imucal_cli.solvers.labelled_model import (
     jacobian,
     public_from_theta,
-    rotation_matrices,
-    rotation_matrix,
     second_order,
 )
 
 CREATED = "2026-01-01T00:00:00Z"
 G0 = 9.80665
-
-
-def test_rotation_matrices_are_rodrigues_of_each_row():
-    from scipy.spatial.transform import Rotation
-
-    rng = np.random.default_rng(1)
-    phi = rng.normal(size=(500, 3)) * 10.0 ** rng.uniform(-10, 0.5, size=(500, 1))
-    phi[0] = 0.0
-    stacked = rotation_matrices(phi)
-    np.testing.assert_allclose(stacked, Rotation.from_rotvec(phi).as_matrix(), atol=2e-15)
-    assert np.array_equal(rotation_matrix(phi[7]), stacked[7])  # one is the stack of one
 
 
 def _public_reference(t):
@@ -71,64 +58,6 @@ def test_batched_differences_equal_the_pointwise_ones():
     # against the analytic Hessian of the first output: d2/dx0^2 = -sin(x0) x1^2
     bias, _ = second_order(f, x, np.diag([1e-4, 0.0, 0.0]))
     assert bias[0] == pytest.approx(0.5 * 1e-4 * -np.sin(0.3) * 1.7**2, rel=1e-6)
-
-
-def _arrow(rng, n0=5, nb=7, b=2, rows=4):
-    """A random Jacobian whose columns after n0 come in groups of b sharing no row."""
-    A = np.zeros((nb * rows, n0 + nb * b))
-    for k in range(nb):
-        A[k * rows : (k + 1) * rows, :n0] = rng.normal(size=(rows, n0))
-        A[k * rows : (k + 1) * rows, n0 + k * b : n0 + (k + 1) * b] = rng.normal(size=(rows, b))
-    return A, rng.normal(size=len(A))
-
-
-def test_block_steps_are_the_svd_steps():
-    rng = np.random.default_rng(3)
-    A, f = _arrow(rng)
-    svd, block = lsq._SvdSteps(A, f), lsq._BlockSteps(A, f, (5, 2))
-    assert block.usable()
-    for lam in (0.0, 1e-3, 0.7, 50.0):
-        np.testing.assert_allclose(block.step(lam), svd.step(lam), rtol=1e-10, atol=1e-12)
-        np.testing.assert_allclose(
-            block.norm_and_derivative(lam), svd.norm_and_derivative(lam), rtol=1e-10
-        )
-    q_b, n_b, full = block.gauss_newton()
-    q_s, n_s, _ = svd.gauss_newton()
-    np.testing.assert_allclose(q_b, q_s, rtol=1e-10, atol=1e-12)
-    assert full and n_b == pytest.approx(n_s, rel=1e-12)
-
-
-def test_block_steps_leave_rank_deficient_jacobians_to_the_svd():
-    rng = np.random.default_rng(4)
-    A, f = _arrow(rng)
-    A[:, 1] = A[:, 0]  # two equal columns
-    assert not lsq._BlockSteps(A, f, (5, 2)).usable()
-    assert isinstance(lsq._steps(A, f, (5, 2)), lsq._SvdSteps)
-
-
-def test_least_squares_by_blocks_converges_to_the_same_point():
-    rng = np.random.default_rng(5)
-    A, y = _arrow(rng)
-
-    def fun2(x):
-        return A @ (x + 0.05 * x**3) - y
-
-    def jac2(x):
-        return A * (1 + 0.15 * x**2)[None, :]
-
-    kw = dict(x_scale=1.0, xtol=1e-14, ftol=1e-14, gtol=1e-14)
-    x0 = np.zeros(A.shape[1])
-    plain = lsq.least_squares(fun2, x0, jac2, **kw)
-    blocks = lsq.least_squares(fun2, x0, jac2, blocks=(5, 2), **kw)
-    assert plain.success and blocks.success
-    # Both stop by the same rules, not at the same bits: within the stopping tolerance of the
-    # minimum, ftol * cost in the cost, so ||J dx|| <= 2 sqrt(2 ftol cost) between the two
-    # points (another CPU's arithmetic stops them 6e-9 apart in x; the bound here is 4e-7)
-    np.testing.assert_allclose(blocks.cost, plain.cost, rtol=1e-12)
-    J = jac2(plain.x)
-    assert np.linalg.norm(J @ (blocks.x - plain.x)) <= 2 * np.sqrt(2 * kw["ftol"] * plain.cost)
-    # and a real difference is seen: a point off by 1e-5 is outside that bound
-    assert np.linalg.norm(J @ np.full_like(x0, 1e-5)) > 2 * np.sqrt(2 * kw["ftol"] * plain.cost)
 
 
 def test_linear_refit_is_the_iterative_refit(monkeypatch):
@@ -197,7 +126,10 @@ def test_deletion_of_groups_of_two_sizes_is_the_per_group_formula():
 
 def test_held_out_residuals_are_the_per_pose_formula():
     """``|M_(-k) (a_k - B_(-k))| - g`` with each pose's deletion step, pose by pose."""
-    from imucal_cli.solvers.labelled_model import rotation_matrix as R
+    from scipy.spatial.transform import Rotation
+
+    def R(phi):
+        return Rotation.from_rotvec(phi).as_matrix()
 
     six, _ = simulate(plan="six", seed=6, created=CREATED)
     rnd, _ = simulate(plan="random:9", seed=6, created=CREATED)

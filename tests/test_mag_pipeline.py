@@ -280,10 +280,12 @@ def test_a_ros_import_without_magnetometer_values_before_its_first_message():
     assert any(f"{first} of {len(t)} rows have no magnetometer value" in n
                and "all before its first value" in n for n in cal.mag.extra["notes"])
     assert cal.mag.extra["quality"]["verdict"] == "pass"
-    from imucal_cli.cli.calibrate import mag_summary
-    from imucal_cli.cli.console import plain_text
+    from rich.text import Text
 
-    assert f"({first} rows without a value left out)" in plain_text(mag_summary(cal.mag)[0])
+    from imucal_cli.cli.calibrate import mag_summary
+
+    line = Text.assemble(*mag_summary(cal.mag)[0]).plain
+    assert f"({first} rows without a value left out)" in line
     none = dataclasses.replace(session, mag=np.full_like(mag, np.nan))
     assert "no reading with a value" in _left_out_mag(none, Config())
 
@@ -314,13 +316,11 @@ def test_command_line_mag_without_hold_takes_the_default_hold(tmp_path):
 
 def test_calibrate_summary_prints_the_config_section_name_in_brackets(monkeypatch, capsys):
     """``[mag]`` in a summary line is text, not a rich style tag that would vanish: on a
-    terminal (rich) as off it (plain text)."""
+    terminal (styled by rich) as off it."""
     from types import SimpleNamespace
 
-    from rich.console import Console
-
     from imucal_cli.cli.calibrate import mag_summary
-    from imucal_cli.cli.console import Lines, plain_text
+    from imucal_cli.cli.console import make_console, print_line
 
     sec = SimpleNamespace(
         solver="ellipsoid", bias=[1.0, 2.0, 3.0],
@@ -328,11 +328,15 @@ def test_calibrate_summary_prints_the_config_section_name_in_brackets(monkeypatc
                "field_estimate_uT": 48.0, "units_in": "counts"},
     )  # fmt: skip
     lines = mag_summary(sec)
-    assert any("give [mag] field_uT for uT" in plain_text(line) for line in lines)
-    monkeypatch.setenv("TTY_COMPATIBLE", "1")  # as on a terminal: through rich
-    monkeypatch.setenv("NO_COLOR", "1")
-    styled = Lines()
-    assert isinstance(styled._console, Console)
-    for line in lines:
-        styled(*line)
-    assert "give [mag] field_uT for uT" in capsys.readouterr().out
+    monkeypatch.delenv("FORCE_COLOR", raising=False)
+    monkeypatch.delenv("NO_COLOR", raising=False)
+    monkeypatch.setenv("TERM", "xterm")
+    for terminal in ("0", "1"):
+        monkeypatch.setenv("TTY_COMPATIBLE", terminal)
+        console = make_console()
+        assert console.is_terminal == (terminal == "1")
+        for line in lines:
+            print_line(console, *line)
+        out = capsys.readouterr().out
+        assert "give [mag] field_uT for uT" in out
+        assert ("\x1b[" in out) == (terminal == "1")  # styles on a terminal only

@@ -10,8 +10,8 @@ import pytest
 
 from imucal_cli.errors import InputError
 from imucal_cli.formats.session import open_samples, read_session, write_session
+from imucal_cli.numerics.allan import MAX_TERMS, AllanAccumulator, allan_deviation, log_taus
 from imucal_cli.simulate.triad import simulate
-from imucal_cli.solvers.allan import MAX_TERMS, AllanAccumulator, allan_deviation, log_taus
 from imucal_cli.solvers.segmentation import StaticStream, estimate_noise, find_static
 from imucal_cli.use.noise import analyse_noise
 

@@ -145,17 +145,3 @@ def test_threshold_is_a_chi_square_quantile():
     var = window_variance(rng.normal(0, 1, (200_000, 3)), 50)
     rate = np.mean(var.mean(axis=1) > still_threshold(50, 3, 0.01))
     assert 0.007 < rate < 0.013
-
-
-def test_chi2_quantiles_match_scipy():
-    """segmentation's own chi-square quantiles (no scipy.special import at start-up) agree with
-    scipy.stats to 1e-12 over the degrees of freedom and tails it uses."""
-    from scipy import stats
-
-    from imucal_cli.solvers.segmentation import chi2_isf, chi2_ppf
-
-    for dof in (1, 2, 3, 6, 24, 49, 99, 147, 297, 1000):
-        for q in (1e-6, 0.01, 0.05, 0.5, 0.95):
-            assert chi2_ppf(q, dof) == pytest.approx(stats.chi2.ppf(q, dof), rel=1e-12)
-        for p in (1e-12, 1e-9, 1e-7, 1e-4, 0.05):
-            assert chi2_isf(p, dof) == pytest.approx(stats.chi2.isf(p, dof), rel=1e-12)

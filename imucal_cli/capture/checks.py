@@ -32,6 +32,8 @@ from __future__ import annotations
 import math
 import time as _time
 
+from imucal_cli.formats.columns import TIME_UNITS
+
 __all__ = [
     "CLOCK_CHECK_S",
     "CLOCK_TOLERANCE",
@@ -100,8 +102,6 @@ def clock_problem(
     str or None
         One line naming the ``--time-unit`` that fits when a unit factor explains it.
     """
-    from imucal_cli.formats.columns import TIME_UNITS
-
     if _fits(device_s, samples, since_open_s, since_first_s):
         return None
     rate = (samples - 1) / device_s if device_s > 0 else math.inf

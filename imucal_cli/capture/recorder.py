@@ -47,6 +47,7 @@ from imucal_cli.capture.stream import DeviceGone
 from imucal_cli.errors import InputError, SessionError, WriteFailed
 from imucal_cli.formats.columns import SampleBlock
 from imucal_cli.formats.output import check_output
+from imucal_cli.formats.session import SessionWriter
 
 __all__ = ["CLOCK_CHECK_S", "END_KINDS", "FLUSH_INTERVAL_S", "CaptureEnded", "Recorder"]
 
@@ -196,8 +197,6 @@ class Recorder:
 
     def _reopen(self) -> None:
         """``resume``: continue the session; its samples and segments stay, new ones follow."""
-        from imucal_cli.formats.session import SessionWriter
-
         if not self.path.is_file():
             raise InputError(f"{self.path}: no such session to resume")
         gap_s = max(_time.time() - self.path.stat().st_mtime, 0.0)  # since its last flush
@@ -295,8 +294,6 @@ class Recorder:
     def _open_writer(self, block: SampleBlock) -> None:
         """The session, at the first block: its units those given, else those the protocol's
         format fixes (MotionCal and i2cdevlib lines: counts)."""
-        from imucal_cli.formats.session import SessionWriter
-
         meta = dict(self._meta)
         for key, unit in getattr(self.protocol, "units", {}).items():
             if meta.get(key) is None:

@@ -13,6 +13,9 @@ from __future__ import annotations
 import errno
 import time as _time
 
+import serial
+from serial.tools import list_ports
+
 from imucal_cli.capture.stream import DeviceGone
 from imucal_cli.errors import InputError
 
@@ -54,8 +57,6 @@ class SerialSource:
     """
 
     def __init__(self, port: str, baud: int, timeout_s: float = 0.05, batch_s: float = 0.005):
-        import serial
-
         if not isinstance(baud, int) or baud <= 0:
             raise InputError(f"baud rate must be a positive integer, got {baud!r}")
         self.port, self.baud, self.batch_s = str(port), int(baud), float(batch_s)
@@ -174,8 +175,6 @@ def _open_error(port: str, baud: int, exc: BaseException) -> InputError:
 def available_ports() -> list[str]:
     """Device paths of the serial ports the system lists (USB adapters, built-in UARTs)."""
     try:
-        from serial.tools import list_ports
-
         return sorted(p.device for p in list_ports.comports())
     except Exception:  # noqa: BLE001 - listing is a courtesy in an error message
         return []

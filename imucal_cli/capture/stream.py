@@ -27,6 +27,7 @@ from imucal_cli.errors import InputError
 from imucal_cli.formats.columns import ColumnSpec, SampleBlock
 from imucal_cli.formats.importers.serial_lines import LINE_FORMATS, line_format, parse_line
 from imucal_cli.formats.importers.text import BLANK, NUMBER
+from imucal_cli.formats.importers.witmotion import WitMotionDecoder
 
 __all__ = [
     "AutoLineProtocol",
@@ -467,8 +468,6 @@ class WitMotionProtocol:
     """
 
     def __init__(self) -> None:
-        from imucal_cli.formats.importers.witmotion import WitMotionDecoder
-
         self._decoder = WitMotionDecoder()
         self.stats = {"lines": 0, "samples": 0, "comments": 0, "malformed": 0, "bytes": 0}
         self._incomplete = 0

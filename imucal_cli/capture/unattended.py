@@ -41,8 +41,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from imucal_cli.errors import InputError
 from imucal_cli.formats.columns import SampleBlock
 from imucal_cli.plans import CaptureSummary, Plan, Step
+from imucal_cli.solvers.segmentation import find_rotations, find_static
 
 __all__ = [
     "FINAL_HOLD_EXTRA_S",
@@ -294,8 +296,6 @@ def segment_recording(
     done, missing : list of str
         Labels of the plan's steps seen and not seen (empty without a plan).
     """
-    from imucal_cli.solvers.segmentation import find_rotations, find_static
-
     if len(time) < 2:
         return [], [], [] if plan is None else [s.label for s in plan.steps]
     static = find_static(time, accel, gyro, min_still_s=min_still_s)
@@ -345,9 +345,6 @@ class _PlanWatcher:
         self.missing = [s.label for s in plan.steps]
 
     def update(self, buffer: _Buffer) -> bool:
-        from imucal_cli.errors import InputError
-        from imucal_cli.solvers.segmentation import find_static
-
         time, accel, gyro = buffer.get("time"), buffer.get("accel"), buffer.get("gyro")
         n = len(time)
         base = self.closed[-1].start if self.closed else 0

@@ -15,8 +15,6 @@ import typer
 
 from imucal_cli import __version__
 
-from .coercion import install as install_plain_coercion
-
 NO_WRAP_WIDTH = 100_000
 """Help width when stdout is not a terminal: nothing is wrapped."""
 
@@ -39,7 +37,7 @@ EXIT_CODES = (
     ),
     (130, "interrupted (Ctrl-C) before anything was saved"),
 )
-"""The exit statuses of every command (the same table is in the README)."""
+"""The exit statuses of every command (the same table is in docs/commands.md)."""
 
 
 def exit_codes_help() -> str:
@@ -83,7 +81,6 @@ def _metavar_only(argument_class) -> None:
 
 
 _metavar_only(getattr(typer.core, "TyperArgument", object))
-install_plain_coercion()
 
 
 def _version(value: bool) -> None:
@@ -110,7 +107,7 @@ ROOT_HELP = (
     "Calibrate MEMS accelerometers and gyroscopes with no rate table: simulate or capture a "
     "session, calibrate it, report the result.\n\n"
     "Commands print results for people; those that print results take --json for scripts "
-    "(schemas in the README). Shell completion: imucal --install-completion.\n\n"
+    "(schemas: docs/commands.md). Shell completion: imucal --install-completion.\n\n"
     + exit_codes_help()
 )
 

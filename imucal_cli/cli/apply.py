@@ -4,6 +4,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+from imucal_cli.formats.calibration import read_calibration
+from imucal_cli.use.apply import apply_calibration
+
 from . import completion
 from .app import app
 from .console import make_console, print_json
@@ -47,9 +53,6 @@ def apply_(
     any length needs the same memory. Exit status: 0 written; 2 bad input (missing file, missing
     sensor, channel count or units that differ, time not increasing, OUTPUT exists).
     """
-    from imucal_cli.formats.calibration import read_calibration
-    from imucal_cli.use.apply import apply_calibration
-
     cal = read_calibration(calibration)
     with _ProgressBar() as bar:
         summary = apply_calibration(
@@ -74,8 +77,6 @@ class _ProgressBar:
     ``update(done, total)`` is :func:`~imucal_cli.use.apply.apply_calibration`'s ``progress``."""
 
     def __init__(self) -> None:
-        from rich.console import Console
-
         self.err = Console(stderr=True)
         self.bar = None
         self.task = None
@@ -84,7 +85,6 @@ class _ProgressBar:
         if self.bar is None:
             if not self.err.is_terminal or done >= total:
                 return
-            from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
             self.bar = Progress(
                 TextColumn("applying"),

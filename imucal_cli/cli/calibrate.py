@@ -3,12 +3,24 @@
 from __future__ import annotations
 
 import json
+import resource
+import time
+from functools import partial
 from pathlib import Path
 
 import typer
+from rich.markup import escape
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
+from rich.table import Table
+
+from imucal_cli.errors import InputError
+from imucal_cli.formats.calibration import calibration_to_json
+from imucal_cli.formats.config import load_config, validate
+from imucal_cli.pipeline.batch import NOT_STORED, calibrate_file, calibrate_many
+from imucal_cli.pipeline.calibrate import load_accel
 
 from .app import app
-from .console import Lines, Piece, make_console, print_json
+from .console import Piece, make_console, print_json, print_line
 from .options import gravity_option, json_option, output_option, session_argument
 
 
@@ -20,7 +32,7 @@ def calibrate(
     ),
     config: Path | None = typer.Option(
         None, "--config", "-c", metavar="FILE.toml",
-        help="TOML config choosing solvers and options (see README, Config reference).",
+        help="TOML config choosing solvers and options (every key: docs/config.md).",
     ),  # fmt: skip
     output: Path | None = output_option(
         "FILE.json", "Calibration JSON to write [default: SESSION with .cal.json]."
@@ -63,7 +75,7 @@ def calibrate(
     ),
     json_output: bool = json_option(
         "Print the result as JSON on stdout (nothing else): where it was written and the "
-        "calibration itself; several sessions: one entry each (schema in the README)."
+        "calibration itself; several sessions: one entry each (schemas: docs/commands.md)."
     ),
 ) -> None:
     """Calibrate the sensors of SESSION the config asks for and write a calibration JSON.
@@ -82,8 +94,6 @@ def calibrate(
     cfg = _config(config, model, gravity)
     accel_cal = None
     if accel is not None:
-        from imucal_cli.pipeline.calibrate import load_accel
-
         accel_cal = load_accel(accel)
     if len(sessions) > 1:
         _one_file_options(output, warmup, also)
@@ -95,8 +105,6 @@ def calibrate(
 
 def _one_file_options(output: Path | None, warmup, also) -> None:
     """Refuse the options that go with one SESSION when several are given."""
-    from imucal_cli.errors import InputError
-
     if warmup or also:
         raise InputError("--warmup and --with go with one SESSION (give the other sessions of "
                          "the unit with --with)")  # fmt: skip
@@ -108,8 +116,6 @@ def _one_file_options(output: Path | None, warmup, also) -> None:
 def _one(session: Path, cfg, output: Path | None, force: bool, store: bool, json_output: bool,
          accel, *, inputs: list, warmup, also) -> None:  # fmt: skip
     """Calibrate one session, write (and store) it, and say what came out."""
-    from imucal_cli.pipeline.batch import NOT_STORED, calibrate_file
-
     cal, out, stored = calibrate_file(
         session, cfg, output=output, force=force, store=store, inputs=inputs, accel=accel,
         warmup=warmup, also=also,
@@ -118,9 +124,10 @@ def _one(session: Path, cfg, output: Path | None, force: bool, store: bool, json
     if json_output:
         print_json(_result_json(cal, out, stored))
     else:
-        _summary(Lines(), cal, f"{out}{stored}")
+        _summary(partial(print_line, make_console()), cal, f"{out}{stored}")
     if stored.startswith(NOT_STORED):
-        Lines(stderr=True)(
+        print_line(
+            make_console(stderr=True),
             f"imucal: error: saved {out} but could not store it in the session "
             f"({stored[len(NOT_STORED) : -1]}); pass --no-store not to store it"
         )
@@ -129,8 +136,6 @@ def _one(session: Path, cfg, output: Path | None, force: bool, store: bool, json
 
 def _config(config: Path | None, model: str | None, gravity: float | None):
     """The config file (or the defaults) with ``--model`` and ``--gravity`` over it, checked."""
-    from imucal_cli.formats.config import load_config, validate
-
     cfg = load_config(config)
     if model is not None:
         cfg.accel.gravity.model = model
@@ -143,8 +148,6 @@ def _config(config: Path | None, model: str | None, gravity: float | None):
 def _result_json(cal, out: Path, stored: str) -> dict:
     """The ``imucal-calibrate`` document (README); ``stored`` as :func:`calibrate_file` says it:
     `` and SESSION:/calibrations/N``, `` (not stored in the session: why)`` or ``""``."""
-    from imucal_cli.formats.calibration import calibration_to_json
-
     where, why = None, None
     if stored.startswith(" and "):
         where = stored[len(" and ") :]
@@ -165,15 +168,6 @@ def _many(
     accel=None,
 ) -> int:
     """Calibrate several sessions with a progress bar; one table; the worst exit status."""
-    import resource
-    import time
-
-    from rich.markup import escape
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
-    from rich.table import Table
-
-    from imucal_cli.pipeline.batch import calibrate_many
-
     console = make_console(stderr=json_output)
     usage = resource.getrusage(resource.RUSAGE_CHILDREN)
     c_children = usage.ru_utime + usage.ru_stime
@@ -235,8 +229,9 @@ def _many(
 BOLD, WARN = "bold", "bold yellow"
 
 
-def _summary(line: Lines, cal, where: str) -> None:
-    """A few lines per calibrated sensor: what ran, the residuals, bias and sensitivity."""
+def _summary(line, cal, where: str) -> None:
+    """A few lines per calibrated sensor: what ran, the residuals, bias and sensitivity;
+    ``line(*pieces)`` prints a line (:func:`.console.print_line`)."""
     for name, sec in (("accel", cal.accel), ("gyro", cal.gyro)):
         if sec is None:
             continue
@@ -359,7 +354,7 @@ def mag_summary(sec) -> list[tuple[Piece, ...]]:
     return lines
 
 
-def _temperature_line(line: Lines, x: dict, units: str) -> None:
+def _temperature_line(line, x: dict, units: str) -> None:
     """The bias temperature model of a section, when it has one."""
     model = x.get("temperature_model")
     if not model or "bias_tempco" not in x:

@@ -2,15 +2,27 @@
 
 from __future__ import annotations
 
+import signal
 import sys
+import threading
+import warnings
 from datetime import datetime
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import Annotated
 
 import typer
+from rich.console import Console
+from rich.markup import escape
 
-from imucal_cli.errors import ImucalError, InputError
+from imucal_cli.capture import guided, stream
+from imucal_cli.capture.recorder import Recorder
+from imucal_cli.capture.serial_port import SerialSource
+from imucal_cli.capture.unattended import run_unattended
+from imucal_cli.errors import ImucalError, ImucalWarning, InputError
+from imucal_cli.formats.columns import ColumnSpec
 from imucal_cli.formats.output import check_output
+from imucal_cli.formats.session import MAG_UNITS, open_samples, read_session
+from imucal_cli.plans import CaptureSummary, load_plan, needs_temperature
 
 from . import completion
 from .app import app
@@ -32,9 +44,6 @@ from .options import (
     time_unit_option,
     units_option,
 )
-
-if TYPE_CHECKING:
-    from rich.console import Console
 
 EXIT_COMPLETE, EXIT_INCOMPLETE, EXIT_INTERRUPTED = 0, 3, 130
 """Exit statuses of the README's table: the session is complete; saved but incomplete; Ctrl-C
@@ -154,14 +163,10 @@ def capture(
     with every sample); 2 bad input (no such port, bad --columns or plan, time stamps in the
     wrong --time-unit, no data at all: nothing saved); 130 Ctrl-C before any data.
     """
-    from imucal_cli.formats.columns import ColumnSpec
-
     console = make_console(stderr=json_output)  # with --json, stdout holds the JSON alone
     err = make_console(stderr=True)
 
     def status(message: str) -> None:
-        from rich.markup import escape
-
         err.print(f"imucal: {escape(message)}", soft_wrap=True)
 
     check_mag_options(mag_units, field_ut)
@@ -217,24 +222,15 @@ def _check_limits(limits: dict[str, float | None]) -> None:
 def _plan_and_mode(plan: str | None, no_prompt: bool, duration: float | None):
     """The plan (None: an unattended capture for a duration) and the guided mode's package
     (None: unattended)."""
-    from imucal_cli.plans import load_plan
-
     if no_prompt:
         if plan is None and duration is None:
             raise InputError("--no-prompt needs --duration SECONDS or --plan NAME (or both)")
         return (None if plan is None else load_plan(plan)), None
-    plan_obj = load_plan(plan or "qureshi18")
-    try:
-        from imucal_cli.capture import guided
-    except ImportError:
-        raise InputError("guided mode not available yet: use --no-prompt") from None
-    return plan_obj, guided
+    return load_plan(plan or "qureshi18"), guided
 
 
 def _check_temperature(plan, protocol: str, stream_protocol) -> None:
     """Refuse a plan that records the temperature (a warm-up) with a stream that has none."""
-    from imucal_cli.plans import needs_temperature
-
     if plan is None or not needs_temperature(plan):
         return
     if protocol in ("motioncal", "i2cdevlib"):
@@ -249,9 +245,6 @@ def _recorder(port: str, baud: int, out: Path, stream_protocol, status, **option
     """The port opened and a recorder on it (the port closed again when that fails); the
     accelerometer units, when not stated, said once the port opened (issue 10.4: errors stay
     one line)."""
-    from imucal_cli.capture.recorder import Recorder
-    from imucal_cli.capture.serial_port import SerialSource
-
     source = SerialSource(port, baud)
     try:
         recorder = Recorder(out, source, stream_protocol, on_status=status, **options)
@@ -271,8 +264,6 @@ def _record(recorder, plan, guided, console: Console, status, *, duration: float
             min_still_s: float, hold_s: float, done_before):  # fmt: skip
     """Run the capture: guided (the guided package given) or unattended."""
     if guided is None:
-        from imucal_cli.capture.unattended import run_unattended
-
         return run_unattended(recorder, plan, duration, min_still_s=min_still_s,
                               on_status=status, done_before=done_before)  # fmt: skip
     return guided.run_guided(recorder, plan, console=console, keys=guided.StdinKeys(),
@@ -282,8 +273,6 @@ def _record(recorder, plan, guided, console: Console, status, *, duration: float
 def _cut_short(recorder, plan, exc: Exception, status):
     """The summary of a capture whose mode failed after samples were saved (a segment it
     could not add): said as a warning, the session kept, incomplete (exit 3)."""
-    from imucal_cli.plans import CaptureSummary
-
     status(f"warning: {exc}")
     missing = [] if plan is None else [s.label for s in plan.steps]
     return CaptureSummary(complete=False, done=[], skipped=[], missing=missing,
@@ -294,9 +283,6 @@ def _cut_short(recorder, plan, exc: Exception, status):
 def _saved_stays_saved(recorder) -> None:
     """Once the session is saved and closed, Ctrl-C no longer changes the outcome: the
     summary is printed and the status is the README's for what was saved (never 130)."""
-    import signal
-    import threading
-
     if recorder.file_written and threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, lambda signum, frame: None)
 
@@ -305,8 +291,6 @@ def _nothing_saved(recorder, out: Path, err: Console) -> None:
     """End a capture that has no session to show: time stamps off by a unit (what it recorded
     was discarded), or no sample came at all (no file: exit 2, as for bad input, or 130 after
     Ctrl-C, the README's statuses for nothing saved)."""
-    from rich.markup import escape
-
     if recorder.end_kind == "clock":  # issue 10.5: a time unit off by a factor
         kept = (f"{out} keeps only its {recorder.resumed_from} earlier samples"
                 if recorder.resumed_from else "nothing saved")  # fmt: skip
@@ -330,8 +314,6 @@ PROTOCOLS = completion.CAPTURE_PROTOCOLS
 def _stream_protocol(protocol: str, columns, status):
     """The capture protocol of ``--protocol`` (``columns()``: the --columns spec, parsed only
     for lines of numbers)."""
-    from imucal_cli.capture import stream
-
     if protocol == "lines":
         return stream.AutoLineProtocol(columns(), on_choice=status)
     if protocol == "motioncal":
@@ -363,8 +345,6 @@ def _output_path(output: Path | None, resume: Path | None, force: bool) -> Path:
 def _done_before(path: Path, guided: bool) -> list:
     """What an interrupted session already holds: for the guided mode ``(kind, label, mean raw
     accel of a static segment or None)`` per segment, for the unattended mode the labels."""
-    from imucal_cli.formats.session import read_session
-
     session = read_session(path)
     if not guided:
         return [s.label for s in session.segments if s.label]
@@ -408,10 +388,6 @@ def _warn_absent_channels(out: Path, options: dict[str, tuple[str, object]]) -> 
     given = {flag: raw for flag, (raw, value) in options.items() if value is not None}
     if not given:
         return
-    import warnings
-
-    from imucal_cli.errors import ImucalWarning
-    from imucal_cli.formats.session import open_samples
 
     with open_samples(out) as samples:
         present = set(samples.channels)
@@ -426,8 +402,6 @@ def _warn_absent_channels(out: Path, options: dict[str, tuple[str, object]]) -> 
 
 def check_mag_options(mag_units: str | None, field_ut: float | None) -> None:
     """Refuse unknown magnetometer units or a field that is not a positive number."""
-    from imucal_cli.formats.session import MAG_UNITS
-
     if mag_units is not None and mag_units not in MAG_UNITS:
         raise InputError(f"--mag-units {mag_units!r}: use {', '.join(MAG_UNITS)}")
     if field_ut is not None and not (field_ut > 0 and field_ut < 1e4):
@@ -435,8 +409,6 @@ def check_mag_options(mag_units: str | None, field_ut: float | None) -> None:
 
 
 def _print_summary(console: Console, out: Path, recorder, summary) -> None:
-    from rich.markup import escape
-
     st = recorder.stats  # after closing: what the file holds
     segs = recorder.segments
     n_static = sum(1 for s in segs if s["kind"] == "static")

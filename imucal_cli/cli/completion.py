@@ -3,11 +3,17 @@
 ``imucal --install-completion`` installs typer's completion script for the current shell; these
 functions give it the values of the options it cannot guess (typer completes commands and
 option names by itself).  Where a function offers nothing (a path, a TOML plan file), the
-shell completes file names (bash ``complete -o default``, zsh ``_files``).  They must be fast and
-import nothing heavy: they run on every Tab.
+shell completes file names (bash ``complete -o default``, zsh ``_files``).  The plans and the
+formats come from their registries, so a new plan or reader is completed without a change here.
 """
 
 from __future__ import annotations
+
+import glob
+
+from imucal_cli.formats.importers import FORMATS
+from imucal_cli.plans import PLANS
+from imucal_cli.use.export import EXPORT_FORMATS
 
 ACCEL_UNITS = ("counts", "V", "g", "m/s^2")
 GYRO_UNITS = ("counts", "V", "rad/s", "deg/s")
@@ -23,49 +29,32 @@ def _matching(values, incomplete: str) -> list[str]:
 def plans(incomplete: str) -> list[str]:
     """Plan names of the registry as the person types them (``random:N`` completes to
     ``random:``); capture and simulate know the same plans."""
-    from imucal_cli.plans import PLANS  # the registry; no numpy at its import
-
     names = [p.key + (":" if p.arg in ("count", "minutes") else "") for p in PLANS]
     return _matching(names, incomplete)
 
 
 def _choices(values):
-    """The completion of one option's values: ``values``, or what ``values()`` returns (a
-    registry, imported only when Tab is pressed)."""
+    """The completion of one option's ``values``."""
 
     def complete(incomplete: str) -> list[str]:
-        return _matching(values() if callable(values) else values, incomplete)
+        return _matching(values, incomplete)
 
     return complete
-
-
-def _import_formats():
-    from imucal_cli.formats.importers import FORMATS  # the registry: new readers appear here
-
-    return FORMATS
-
-
-def _export_formats():
-    from imucal_cli.use.export import EXPORT_FORMATS  # the registry
-
-    return EXPORT_FORMATS
 
 
 accel_units = _choices(ACCEL_UNITS)
 gyro_units = _choices(GYRO_UNITS)
 time_units = _choices(TIME_UNITS)
 simulate_units = _choices(("counts", "m/s^2"))
-import_formats = _choices(_import_formats)
+import_formats = _choices(FORMATS)
 capture_protocols = _choices(CAPTURE_PROTOCOLS)
 serve_protocols = _choices(SERVE_PROTOCOLS)
 apply_formats = _choices(("h5", "csv"))
-export_formats = _choices(_export_formats)
+export_formats = _choices(EXPORT_FORMATS)
 
 
 def ports(incomplete: str) -> list[str]:
     """Serial ports that exist (``/dev/ttyUSB*``, ``/dev/ttyACM*``, ...); else file names."""
-    import glob
-
     found = []
     for pattern in ("/dev/ttyUSB*", "/dev/ttyACM*", "/dev/tty.usb*", "/dev/cu.usb*", "/dev/pts/*"):
         found += [p for p in sorted(glob.glob(pattern)) if p.startswith(incomplete)]

@@ -8,6 +8,11 @@ from pathlib import Path
 import typer
 
 from imucal_cli.errors import InputError
+from imucal_cli.formats.exporters import ExportOptions, parse_scale
+from imucal_cli.formats.noise import read_noise
+from imucal_cli.formats.output import check_output, write_output
+from imucal_cli.use.export import FORMATS, format_for_suffix, load_input
+from imucal_cli.use.export import export as export_text
 
 from . import completion
 from .app import app
@@ -87,12 +92,6 @@ def export(
     uT, nT or gauss, or --mag-scale).
     An existing OUTPUT is replaced only with --force. Exit status: 0 written; 2 bad input.
     """
-    from imucal_cli.formats.exporters import ExportOptions
-    from imucal_cli.formats.noise import read_noise
-    from imucal_cli.formats.output import check_output, write_output
-    from imucal_cli.use.export import export as export_text
-    from imucal_cli.use.export import load_input
-
     fmt = _format(fmt, output)
     if rate is not None and not rate > 0:
         raise InputError(f"--rate {rate}: must be a positive number of Hz")
@@ -134,8 +133,6 @@ def _what(cal) -> str:
 
 def _format(fmt: str | None, output: Path | None) -> str:
     """``--format``, else the one ``output``'s suffix names; refused when neither says."""
-    from imucal_cli.use.export import FORMATS, format_for_suffix
-
     if fmt is None:
         fmt = format_for_suffix(output) if output is not None else None
         if fmt is None:
@@ -145,8 +142,6 @@ def _format(fmt: str | None, output: Path | None) -> str:
 
 def _scales(accel_scale: str | None, gyro_scale: str | None, mag_scale: str | None) -> dict:
     """The drivers' scales given (``--accel-scale`` ...), per sensor, parsed."""
-    from imucal_cli.formats.exporters import parse_scale
-
     scale = {}
     for name, text in (("accel", accel_scale), ("gyro", gyro_scale), ("mag", mag_scale)):
         if text is not None:

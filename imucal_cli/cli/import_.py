@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+from functools import partial
 from pathlib import Path
 
 import typer
 
+from imucal_cli.formats.importers import import_files
+from imucal_cli.formats.output import check_output
+from imucal_cli.formats.session import write_session
+
 from . import completion
 from .app import app
-from .console import Lines, print_json
+from .console import make_console, print_json, print_line
 from .options import (
     AccelUnits,
     Force,
@@ -105,10 +110,6 @@ def import_(
     Exit status: 0 written; 2 bad input (missing or empty file, columns that do not fit,
     no time and no --rate, time that does not increase, no still period).
     """
-    from imucal_cli.formats.importers import import_files
-    from imucal_cli.formats.output import check_output
-    from imucal_cli.formats.session import write_session
-
     out = check_output(output or default_output(files[0]), force=force, inputs=files)
     session = import_files(
         files, fmt, columns, time_unit=time_unit, rate_hz=rate, skip_rows=skip_rows,
@@ -154,7 +155,7 @@ def _print_result(result: dict, json_output: bool) -> None:
     if json_output:
         print_json(result)
         return
-    line = Lines()
+    line = partial(print_line, make_console())
     files = ", ".join(result["files"])
     line(
         f"read {result['samples']} samples ({result['duration_s']:.1f} s at "

@@ -4,9 +4,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import typer
 
 from imucal_cli.errors import InputError
+from imucal_cli.formats.calibration import calibration_from_json, read_calibration
+from imucal_cli.formats.importers import ACCEL_UNITS, GYRO_UNITS
+from imucal_cli.formats.labels import call_faces, face_label, set_segment
+from imucal_cli.formats.session import read_session, rewrite_labels
 
 from .app import app
 from .console import make_console, print_json
@@ -23,7 +28,6 @@ from .options import (
 def _vector(text: str | None, option: str):
     if text is None:
         return None
-    import numpy as np
 
     try:
         v = np.array([float(p) for p in text.replace(" ", "").split(",")])
@@ -81,9 +85,6 @@ def label(
     Only /segments and root attributes change; /raw is never rewritten.
     Exit status: 0 written (or shown with --dry-run); 2 bad input.
     """
-    from imucal_cli.formats.labels import set_segment
-    from imucal_cli.formats.session import read_session, rewrite_labels
-
     attrs = _root_attributes(sensor, accel_units, gyro_units, gravity)
     if segment is None and any(v is not None for v in (text, up, axis, angle)):
         raise InputError("--label, --up, --axis and --angle change one segment: pass --segment")
@@ -122,8 +123,6 @@ def _say(console, session: Path, json_output: bool, dry_run: bool, found: list[d
 
 def _root_attributes(sensor, accel_units, gyro_units, gravity) -> dict:
     """The root attributes to set (those given), each checked."""
-    from imucal_cli.formats.importers import ACCEL_UNITS, GYRO_UNITS
-
     for name, value, allowed in (("--accel-units", accel_units, ACCEL_UNITS),
                                  ("--gyro-units", gyro_units, GYRO_UNITS)):  # fmt: skip
         if value is not None and value not in allowed:
@@ -139,9 +138,6 @@ def _faces(s, session: Path, segments: list, tolerance: float, calibration: Path
     """``--faces``: each static segment within ``tolerance`` of an axis labelled as that
     face (directions through ``calibration``, else the session's last stored one, else the raw
     units); prints each call. Returns the segments and what was found."""
-    from imucal_cli.formats.calibration import calibration_from_json, read_calibration
-    from imucal_cli.formats.labels import call_faces, face_label, set_segment
-
     cal = None
     if calibration is not None:
         cal = read_calibration(calibration).accel

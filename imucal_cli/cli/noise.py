@@ -4,16 +4,22 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import typer
+from rich import box
+from rich.console import Console
+from rich.table import Table
+from rich.text import Text
+
+from imucal_cli.formats.output import check_output
+from imucal_cli.formats.session import open_samples
+from imucal_cli.use.noise import analyse_noise, figures, load_calibration
+from imucal_cli.use.plots import noise_figure
+from imucal_cli.use.report.out import show_table
 
 from .app import app
 from .console import make_console
 from .options import ForcePlot, calibration_option, json_option, plot_option, session_argument
-
-if TYPE_CHECKING:
-    from rich.console import Console
 
 
 @app.command()
@@ -38,20 +44,13 @@ def noise(
     segment of SESSION, or the whole recording when it has none.  Exit status: 0 done; 2 bad
     input (raw units without --calibration, a recording too short or not still).
     """
-    from imucal_cli.formats.session import open_samples
-    from imucal_cli.use.noise import analyse_noise, load_calibration
-
     inputs = [session, calibration]
     if plot is not None:
-        from imucal_cli.formats.output import check_output
-
         check_output(plot, force=force, inputs=inputs)
     with open_samples(session) as samples:
         cal = None if calibration is None else load_calibration(calibration)
         result = analyse_noise(samples, cal)
     if plot is not None:
-        from imucal_cli.use.plots import noise_figure
-
         noise_figure(result, plot, force=force, inputs=inputs)
     if json_output:
         typer.echo(json.dumps(result.to_dict(), indent=2))
@@ -77,13 +76,6 @@ _HOW = {
 
 def _render(console: Console, result) -> None:
     """One table per sensor: a row per axis, a column per figure with its unit."""
-    from rich import box
-    from rich.table import Table
-    from rich.text import Text
-
-    from imucal_cli.use.noise import figures
-    from imucal_cli.use.report.out import show_table
-
     sensor = f" ({result.sensor})" if result.sensor else ""
     console.print(
         Text(f"{result.session}{sensor}: {result.span}, {result.limits()}"), soft_wrap=True

@@ -7,6 +7,18 @@ from pathlib import Path
 
 import typer
 
+from imucal_cli.errors import InputError
+from imucal_cli.formats.output import check_output
+from imucal_cli.use.plots import report_figure
+from imucal_cli.use.report import (
+    build_history,
+    build_report,
+    load_all_for_history,
+    load_for_report,
+    render_history,
+    render_report,
+)
+
 from .app import app
 from .console import make_console
 from .options import ForcePlot, argument, json_option, plot_option
@@ -50,15 +62,6 @@ def report(
     calibration, --plot with several calibrations or without matplotlib).
     """
     # Imported here so the other commands and `imucal --help` do not load the report stack.
-    from imucal_cli.errors import InputError
-    from imucal_cli.use.report import (
-        build_history,
-        build_report,
-        load_all_for_history,
-        load_for_report,
-        render_history,
-        render_report,
-    )
 
     if history or len(paths) > 1:
         if plot is not None:
@@ -66,14 +69,10 @@ def report(
         _show(build_history(load_all_for_history(paths)), json_output, render_history)
         return
     if plot is not None:
-        from imucal_cli.formats.output import check_output
-
         check_output(plot, force=force, inputs=paths)
     cal = load_for_report(paths[0])
     result = build_report(cal)
     if plot is not None:
-        from imucal_cli.use.plots import report_figure
-
         report_figure(result, plot, force=force, inputs=paths)
     _show(result, json_output, render_report)
     if plot is not None and not json_output:

@@ -4,12 +4,25 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import sys
+import warnings
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from imucal_cli.errors import InputError
+from imucal_cli.capture.guided.keys import StdinKeys
+from imucal_cli.errors import ImucalWarning, InputError
+from imucal_cli.formats.calibration import write_calibration
+from imucal_cli.formats.output import check_output
+from imucal_cli.formats.session import write_session
+from imucal_cli.plans import find_plan, load_plan
+from imucal_cli.simulate.clock import check_ppm
+from imucal_cli.simulate.device import serve
+from imucal_cli.simulate.magnetometer import simulate_mag
+from imucal_cli.simulate.play import simulate_plan
+from imucal_cli.simulate.temperature import parse_ramp
 
 from . import completion
 from .app import app
@@ -37,9 +50,6 @@ the stillness detector to see the unit settle after a turn."""
 def _enter_presses():
     """A poll ``() -> bool`` that is True once per Enter typed on stdin, or None when stdin cannot
     be read without stopping the process (a terminal of a background job: SIGTTIN)."""
-    import os
-    import sys
-
     try:
         if sys.stdin is None or sys.stdin.closed:
             return None
@@ -47,7 +57,6 @@ def _enter_presses():
             return None
     except (OSError, ValueError, AttributeError):
         return None
-    from imucal_cli.capture.guided.keys import StdinKeys
 
     keys = StdinKeys()
     return lambda: keys.get() is not None
@@ -56,8 +65,6 @@ def _enter_presses():
 def _poses_or_turns(flag: str, plan: str) -> None:
     """Refuse ``flag`` (a temperature ramp, a clock error) but for the pose and hand-rotation
     plans, the experiments that model it (written or served)."""
-    from imucal_cli.plans import find_plan
-
     spec = find_plan(plan)[0]
     if spec is None or spec.simulator not in ("poses", "rotations"):
         raise InputError(f"{flag} works for plans six, qureshi18, random:N, warmup:MINUTES, "
@@ -66,8 +73,6 @@ def _poses_or_turns(flag: str, plan: str) -> None:
 
 def _mag_plan(plan: str, thermal_or_clock: bool) -> None:
     """Refuse --mag but for the pose plans (six, qureshi18, random:N), written or served."""
-    from imucal_cli.plans import find_plan
-
     spec = find_plan(plan)[0]
     if spec is None or spec.simulator != "poses" or spec.key == "warmup":
         raise InputError("--mag simulates pose plans (six, qureshi18, random:N), written or "
@@ -375,19 +380,13 @@ def _checked(plan: str, serve: bool, ramp: str | None, clock_ppm: float | None, 
              protocol: bool):  # fmt: skip
     """Refuse what does not go together, an unknown plan first (with the list of plans);
     return the temperature ramp and the clock scale asked for (None: not asked)."""
-    from imucal_cli.plans import load_plan
-
     load_plan(plan)
     thermal = None
     if ramp is not None:
-        from imucal_cli.simulate.temperature import parse_ramp
-
         _poses_or_turns("--ramp", plan)
         thermal = parse_ramp(ramp)
     clock = None
     if clock_ppm is not None:
-        from imucal_cli.simulate.clock import check_ppm
-
         _poses_or_turns("--clock-ppm", plan)
         clock = check_ppm(clock_ppm)
     if mag:
@@ -409,18 +408,12 @@ def _warn_without_mag(mag: bool, given) -> None:
     24.7)."""
     unused = [flag for name, flag in MAG_OPTIONS.items() if given(name)]
     if unused and not mag:
-        import warnings
-
-        from imucal_cli.errors import ImucalWarning
-
         warnings.warn(f"{', '.join(unused)} go with --mag (a simulated magnetometer): ignored "
                       "without it", ImucalWarning, stacklevel=2)  # fmt: skip
 
 
 def _outputs(output: Path | None, plan: str, seed: int, force: bool) -> tuple[Path, Path]:
     """The session and its truth beside it, both checked before anything is simulated."""
-    from imucal_cli.formats.output import check_output
-
     out = output if output is not None else default_output(plan, seed)
     truth_out = truth_path(out)
     if out.resolve() == truth_out.resolve():
@@ -433,8 +426,6 @@ def _outputs(output: Path | None, plan: str, seed: int, force: bool) -> tuple[Pa
 def _simulate_mag(plan: str, seed: int, units: str, rate: float, hold: float | None,
                   accel_noise: float, jitter_deg: float, **mag):  # fmt: skip
     """A pose plan with a magnetometer (``--mag``); without --hold the simulator's own hold."""
-    from imucal_cli.simulate.magnetometer import simulate_mag
-
     held = {} if hold is None else {"hold_s": hold}
     return simulate_mag(plan, seed, **mag, rate_hz=rate, accel_noise=accel_noise,
                         jitter_deg=jitter_deg, units=units, **held)  # fmt: skip
@@ -443,8 +434,6 @@ def _simulate_mag(plan: str, seed: int, units: str, rate: float, hold: float | N
 def _simulate_plan(plan: str, seed: int, units: str, rate: float | None, hold: float | None,
                    move: float, thermal, clock, options: dict):  # fmt: skip
     """Any plan, by the experiment that plays it."""
-    from imucal_cli.simulate.play import simulate_plan
-
     return simulate_plan(plan, seed=seed, units=units, rate_hz=rate, hold_s=hold, move_s=move,
                          temperature=thermal, clock_scale=clock, **options)  # fmt: skip
 
@@ -452,9 +441,6 @@ def _simulate_plan(plan: str, seed: int, units: str, rate: float | None, hold: f
 def _write(out: Path, truth_out: Path, session, truth, force: bool, plan: str, seed: int,
            json_output: bool) -> None:  # fmt: skip
     """Write the session and its truth, and say what was written."""
-    from imucal_cli.formats.calibration import write_calibration
-    from imucal_cli.formats.session import write_session
-
     rate = float(session.sample_rate_hz)
     truth = dataclasses.replace(truth, session=out.name)
     write_session(out, session, overwrite=force)
@@ -479,10 +465,6 @@ def _write(out: Path, truth_out: Path, session, truth, force: bool, plan: str, s
 
 
 def _serve(plan: str, rate: float, baud: int, json_output: bool, **options) -> None:
-    import sys
-
-    from imucal_cli.simulate.device import serve
-
     def announce(path: str) -> None:
         print(path, flush=True)
 

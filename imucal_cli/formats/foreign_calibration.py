@@ -2,7 +2,8 @@
 ``export`` and the history work with them (issue 15.3).
 
 :func:`~imucal_cli.formats.calibration.calibration_from_json` (so ``read_calibration`` and
-every reader of calibrations) calls :func:`foreign_calibration` first.  Two formats:
+every reader of calibrations) calls :func:`foreign_calibration` first; both build the
+model of :mod:`~imucal_cli.formats.calibration_model`.  Two formats:
 
 **Kalibr results YAML** (``imu0:`` with ``model: scale-misalignment``; ``IccSensors.py``)::
 
@@ -46,9 +47,10 @@ from datetime import UTC, datetime
 from typing import Any
 
 import numpy as np
+import yaml
 
 from imucal_cli.errors import CalibrationFileError
-from imucal_cli.formats.calibration import MODEL_EQUATION, Calibration, SensorCalibration
+from imucal_cli.formats.calibration_model import MODEL_EQUATION, Calibration, SensorCalibration
 
 __all__ = ["foreign_calibration", "from_kalibr", "from_mad_lab"]
 
@@ -261,8 +263,6 @@ def foreign_calibration(text: str, source: str, path=None) -> Calibration | None
         if stripped.startswith("%YAML:1.0"):  # OpenCV's header (OpenVINS's copy of the file)
             stripped = stripped.split("\n", 1)[1] if "\n" in stripped else ""
         try:
-            import yaml
-
             doc = yaml.safe_load(stripped)
         except Exception:  # noqa: BLE001 - not YAML either: not ours to read
             return None

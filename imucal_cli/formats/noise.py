@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from imucal_cli.errors import InputError
+from imucal_cli.formats.inputs import read_text_input
 
 __all__ = ["NOISE_FORMAT", "NoiseFigures", "SensorFigures", "noise_from_dict", "read_noise"]
 
@@ -221,8 +222,6 @@ def read_noise(path: str | os.PathLike) -> NoiseFigures:
     InputError
         Missing or unreadable file, invalid JSON, or not a noise document.
     """
-    from imucal_cli.formats.inputs import read_text_input
-
     src = str(path)
     text = read_text_input(path, what="noise file")
     try:

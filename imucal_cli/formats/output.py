@@ -44,6 +44,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Any
 
+import h5py
+
 from imucal_cli.errors import InputError
 
 __all__ = [
@@ -204,8 +206,6 @@ class OutputFile:
 
     def h5(self, **kwargs: Any):
         """``h5py.File`` on the temporary file in mode ``"w"`` (checked to be that very file)."""
-        import h5py
-
         file = h5py.File(self.tmp, "w", **kwargs)
         try:
             handle = file.id.get_vfd_handle()

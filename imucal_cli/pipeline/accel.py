@@ -13,7 +13,6 @@ from imucal_cli.errors import DesignError
 from imucal_cli.formats.calibration import MODEL_EQUATION
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
-from imucal_cli.solvers.order import median, nanmedian
 from imucal_cli.solvers.poses import count_distinct, coverage
 
 from .common import (
@@ -52,7 +51,7 @@ def magnitude_before(poses: StaticPoses, nominal: Nominal, g: float) -> np.ndarr
     raw = np.linalg.norm(poses.a_mean - nominal.bias, axis=1)
     if nominal.sensitivity is not None:
         return raw / nominal.sensitivity
-    return raw * (g / median(raw))
+    return raw * (g / np.median(raw))
 
 
 def axes_summary(matrix: np.ndarray) -> np.ndarray:
@@ -232,14 +231,14 @@ def label_warnings(fit: PoseFit, poses: StaticPoses, limit_deg: float = 20.0) ->
     ang = fit.up_angle_deg
     if ang is None or not np.isfinite(ang).any():
         return []
-    limit = max(limit_deg, 5 * float(nanmedian(ang)))
+    limit = max(limit_deg, 5 * float(np.nanmedian(ang)))
     out = []
     for k in np.flatnonzero(np.nan_to_num(ang, nan=0.0) > limit):
         s = poses.segments[k]
         name = f"segment {s.name}" + (f" ({s.label})" if s.label else "")
         out.append(
             f"{name}: the measured up is {ang[k]:.0f} deg from its label, the others are within "
-            f"{float(nanmedian(ang)):.1f} deg: the label is wrong (relabel with `imucal label "
+            f"{float(np.nanmedian(ang)):.1f} deg: the label is wrong (relabel with `imucal label "
             "SESSION --faces`)"
         )
     return out

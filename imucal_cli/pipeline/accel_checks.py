@@ -21,7 +21,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from imucal_cli.solvers import outliers as out
-from imucal_cli.solvers.order import nanmedian
+from imucal_cli.solvers.labelled import contradicted_labels
 
 from .common import StaticPoses
 
@@ -159,7 +159,6 @@ def robust_fit(
 def drop_wrong_labels(poses: StaticPoses, g: float) -> tuple[StaticPoses, list[Outlier]]:
     """Labels the readings contradict (a pose labelled with the wrong face) dropped before the
     labelled-pose fit, which they would spoil or stop: the pose keeps its magnitude."""
-    from imucal_cli.solvers.labelled import contradicted_labels
 
     found = []
     up = poses.up.copy()
@@ -188,7 +187,7 @@ def _describe(res, poses: StaticPoses, k: int, index: np.ndarray) -> Outlier:
     p = out.significance(d, k)
     up_angle = None if res.up_angle_deg is None else float(res.up_angle_deg[k])
     finite = res.up_angle_deg is not None and np.isfinite(res.up_angle_deg).any()
-    placement = float(nanmedian(res.up_angle_deg)) if finite else 0.0
+    placement = float(np.nanmedian(res.up_angle_deg)) if finite else 0.0
     seg = poses.segments[k]
     return Outlier(
         int(index[k]), seg.name, seg.label, excess, p, _cause(poses, k, up_angle, placement), ""

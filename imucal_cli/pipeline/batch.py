@@ -9,18 +9,21 @@ so no worker pays the import again).
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from imucal_cli.errors import ImucalError, SolverError
+from imucal_cli.errors import ImucalError, InputError, SolverError
 from imucal_cli.formats.calibration import Calibration, calibration_to_json, write_calibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.output import check_output
 from imucal_cli.formats.session import read_session, store_calibration
+from imucal_cli.pipeline.temperature import merge_sessions
 
 from .calibrate import calibrate_session, default_output, suspect_error
 
@@ -99,8 +102,6 @@ def calibrate_file(
     check_output(out, force=force, inputs=inputs)  # refuse before solving, not after
     session = read_session(path)
     if also:
-        from imucal_cli.pipeline.temperature import merge_sessions
-
         session = merge_sessions([session, *(read_session(p) for p in also)])
     warm = [read_session(p) for p in warmup] if warmup else None
     try:
@@ -207,7 +208,6 @@ def calibrate_many(
     InputError
         ``jobs`` < 0.
     """
-    from imucal_cli.errors import InputError
 
     if jobs < 0:
         raise InputError(f"--jobs must be 0 (one per CPU) or more, got {jobs}")
@@ -216,10 +216,7 @@ def calibrate_many(
     if jobs == 1 or len(tasks) == 1:
         results = map(_one, tasks)
         pool = None
-    else:  # imported here: a calibrate of one session does not need them (about 11 ms)
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
+    else:
         method = "fork" if "fork" in multiprocessing.get_all_start_methods() else None
         context = multiprocessing.get_context(method)
         pool = ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=context)

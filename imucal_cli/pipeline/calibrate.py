@@ -6,13 +6,39 @@ the sensor's section of the calibration JSON (layout in DEVELOPERS.md). Nothing 
 
 from __future__ import annotations
 
+import warnings
+from dataclasses import fields, is_dataclass, replace
 from pathlib import Path
 
+import numpy as np
+
 from imucal_cli import __version__
-from imucal_cli.errors import ConfigError, DesignError, SolverError
-from imucal_cli.formats.calibration import Calibration, SensorCalibration
-from imucal_cli.formats.config import Config
-from imucal_cli.formats.session import Session, utc_now_iso
+from imucal_cli.errors import (
+    ConfigError,
+    DesignError,
+    ImucalError,
+    ImucalWarning,
+    InputError,
+    SolverError,
+)
+from imucal_cli.formats.calibration import (
+    Calibration,
+    SensorCalibration,
+    calibration_from_json,
+    read_calibration,
+)
+from imucal_cli.formats.config import (
+    AccelConfig,
+    Config,
+    GyroConfig,
+    MagConfig,
+    TemperatureConfig,
+)
+from imucal_cli.formats.session import Session, read_session, utc_now_iso
+from imucal_cli.pipeline import magnetometer
+from imucal_cli.pipeline.channels import check_channels
+from imucal_cli.pipeline.choose import auto_accel
+from imucal_cli.pipeline.clock import correct_clock
 from imucal_cli.pipeline.common import (  # noqa: F401 (re-exported for callers)
     StaticPoses,
     check_design,
@@ -22,6 +48,16 @@ from imucal_cli.pipeline.common import (  # noqa: F401 (re-exported for callers)
     stored_accel_hint,
     with_segments,
 )
+from imucal_cli.pipeline.factorization import (
+    calibrate_accel_factorization,
+    calibrate_gyro_factorization,
+    independent_constraints,
+)
+from imucal_cli.pipeline.gravity import calibrate_accel_gravity
+from imucal_cli.pipeline.gyro import calibrate_gyro_rotations, gyro_alternatives
+from imucal_cli.pipeline.gyro_known import calibrate_gyro_known
+from imucal_cli.pipeline.labelled import calibrate_accel_labelled
+from imucal_cli.pipeline.temperature import attach, compensate, given_accel, temperature_models
 
 
 def calibrate_accel(session: Session, cfg: Config) -> SensorCalibration | None:
@@ -39,20 +75,12 @@ def calibrate_accel(session: Session, cfg: Config) -> SensorCalibration | None:
 def _run_accel(session: Session, cfg: Config) -> SensorCalibration | None:
     solver = cfg.accel.solver
     if solver == "auto":
-        from imucal_cli.pipeline.choose import auto_accel
-
         return auto_accel(session, cfg)
     if solver == "factorization":
-        from imucal_cli.pipeline.factorization import calibrate_accel_factorization
-
         sec = calibrate_accel_factorization(session, cfg)
     elif solver == "labelled":
-        from imucal_cli.pipeline.labelled import calibrate_accel_labelled
-
         sec = calibrate_accel_labelled(session, cfg)
     else:
-        from imucal_cli.pipeline.gravity import calibrate_accel_gravity
-
         sec = calibrate_accel_gravity(session, cfg)
     sec.extra["choice"] = {"solver": sec.solver, "by": "config", "reason": "[accel] solver"}
     return sec
@@ -71,8 +99,6 @@ def calibrate_gyro(
     if solver == "auto":
         return calibrate_gyro_auto(session, cfg, accel)[0]
     if solver == "factorization":
-        from imucal_cli.pipeline.factorization import calibrate_gyro_factorization
-
         return calibrate_gyro_factorization(session, cfg)
     if solver in ("static", "dynamic", "full", "known"):
         if accel is None and solver != "known":  # known: labelled axes need no accelerometer
@@ -80,12 +106,9 @@ def calibrate_gyro(
                 f"[gyro] solver = {solver!r} measures each rotation with the calibrated "
                 "accelerometer: set an [accel] solver too"
             )
-        from imucal_cli.pipeline.gyro import calibrate_gyro_rotations, gyro_alternatives
 
         try:
             if solver == "known":
-                from imucal_cli.pipeline.gyro_known import calibrate_gyro_known
-
                 return calibrate_gyro_known(session, cfg, accel)
             return calibrate_gyro_rotations(session, cfg, accel)
         except DesignError as exc:  # issue 9.6: what would work with what the session has
@@ -104,9 +127,8 @@ def calibrate_mag(
     ``solver = "none"``); the accelerometer of the same run aligns it."""
     if session.mag is None or cfg.mag.solver == "none":
         return None
-    from imucal_cli.pipeline.magnetometer import calibrate_mag as run
 
-    return run(session, cfg, accel)
+    return magnetometer.calibrate_mag(session, cfg, accel)
 
 
 def _hk_design(turns) -> bool:
@@ -115,7 +137,6 @@ def _hk_design(turns) -> bool:
     them for the scale (eq. 31). Sweeps about the vertical there: gravity cannot see them."""
     if not any(s.angle_deg is not None and s.axis is not None for s in turns):
         return False
-    from imucal_cli.pipeline.factorization import independent_constraints
 
     return independent_constraints(turns) >= 5
 
@@ -123,7 +144,6 @@ def _hk_design(turns) -> bool:
 def _known_axes(turns) -> bool:
     """Turns of known angle about labelled axes that span three dimensions (the Ferraris
     360-degree turns flat on each face): they determine the matrix without an accelerometer."""
-    import numpy as np
 
     axes = [s.axis for s in turns if s.angle_deg is not None and s.axis is not None]
     return len(axes) >= 3 and np.linalg.matrix_rank(np.array(axes, float), tol=1e-3) == 3
@@ -170,9 +190,6 @@ def calibrate_gyro_auto(
     note : str or None
         Why the gyro was left uncalibrated (None when it was calibrated).
     """
-    from dataclasses import replace
-
-    from imucal_cli.errors import ImucalError
 
     if session.gyro is None:
         return None, "gyro not calibrated: the session has no /raw/gyro"
@@ -204,13 +221,9 @@ def load_accel(path: str | Path) -> SensorCalibration:
     InputError
         Unreadable file, or no accelerometer section in it.
     """
-    from imucal_cli.errors import InputError
-    from imucal_cli.formats.calibration import calibration_from_json, read_calibration
 
     path = Path(path)
     if path.suffix.lower() in (".h5", ".hdf5"):
-        from imucal_cli.formats.session import read_session
-
         stored = read_session(path).calibrations
         found = [calibration_from_json(stored[k], f"{path}:/calibrations/{k}").accel
                  for k in sorted(stored)]  # fmt: skip
@@ -254,7 +267,6 @@ def _gyro_without_accel(session: Session, cfg: Config, refusal):
     section (None when it cannot do without the accelerometer either: the facade then raises
     the accelerometer's refusal) and the note that says why the accelerometer was left out
     and what would determine it (issue 9.6)."""
-    from imucal_cli.errors import ImucalError
 
     exc, _ = refusal
     try:
@@ -334,8 +346,6 @@ def _prepare(
     """The session the solvers see: the sample clock corrected (issue 17.2) and the raw data
     compensated to the temperature model's reference (issue 17.1). Returns it, the
     temperature models per sensor, and root fields (the clock estimate, notes)."""
-    from imucal_cli.pipeline.clock import correct_clock
-    from imucal_cli.pipeline.temperature import compensate, temperature_models
 
     session, clock = correct_clock(session, cfg)
     models, note = temperature_models(session, cfg, warmup)
@@ -361,13 +371,11 @@ def calibrate_session(
     ``warmup``: still warm-up recordings of the same unit that give the bias temperature
     model (:mod:`imucal_cli.pipeline.temperature`).
     """
-    from imucal_cli.pipeline.temperature import attach
 
     warn_absent_sensors(session, cfg, accel_given=accel is not None, warmup=bool(warmup))
     with_mag = session.mag is not None and cfg.mag.solver != "none"
     if cfg.accel.solver == "none" and cfg.gyro.solver == "none" and accel is None and not with_mag:
         raise ConfigError("the config calibrates nothing: [accel] and [gyro] solver are both none")
-    from imucal_cli.pipeline.channels import check_channels
 
     check_channels(session, cfg, skip=("accel",) if accel is not None else ())  # issue 24.6
     session, segmented = with_segments(session)
@@ -378,8 +386,6 @@ def calibrate_session(
         accel, refusal = _accel_or_refusal(session, cfg) if run_accel else (None, None)
         segmented_accel = True
     else:
-        from imucal_cli.pipeline.temperature import given_accel
-
         session, accel = given_accel(session, accel)
         segmented_accel = False
     gyro, mag, notes = _gyro_and_mag(session, cfg, accel, refusal, with_mag)
@@ -413,7 +419,6 @@ def calibrate_session(
 
 def _changed(value, default, path: str = "") -> list[str]:
     """The dotted keys where a config (a dataclass) differs from its defaults."""
-    from dataclasses import fields, is_dataclass
 
     if is_dataclass(value):
         return [k for f in fields(value)
@@ -430,15 +435,6 @@ def warn_absent_sensors(session: Session, cfg: Config, *, accel_given: bool = Fa
     an accelerometer, ``--accel CAL.json`` for a session with neither a gyro nor a
     magnetometer (nothing uses it). They change nothing; the user should know. With
     ``warmup`` recordings the ``[temperature]`` options shape their model: not warned."""
-    import warnings
-
-    from imucal_cli.errors import ImucalWarning
-    from imucal_cli.formats.config import (
-        AccelConfig,
-        GyroConfig,
-        MagConfig,
-        TemperatureConfig,
-    )
 
     where = session_name(session)
     checks = [("accel", session.accel, cfg.accel, AccelConfig(), "accelerometer"),
@@ -477,16 +473,16 @@ def suspect_error(cal: Calibration) -> SolverError | None:
     fit far above the noise), or None when clean. A section that lists ``blocking`` warnings
     stops on those only (its other warnings are said, not refused); otherwise every warning
     stops it."""
-    warnings = [
+    blocking = [
         w
         for sec in cal.sections().values()
         for w in sec.extra.get("blocking", sec.extra.get("warnings", []))
     ]
-    if not warnings:
+    if not blocking:
         return None
-    more = f" (and {len(warnings) - 1} more)" if len(warnings) > 1 else ""
+    more = f" (and {len(blocking) - 1} more)" if len(blocking) > 1 else ""
     return SolverError(
-        f"result outside physical sense, not saved: {warnings[0]}{more}; "
+        f"result outside physical sense, not saved: {blocking[0]}{more}; "
         "check the units and the capture, or pass --force to save it with these warnings"
     )
 

@@ -25,6 +25,7 @@ from imucal_cli.formats.calibration import SensorCalibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
 from imucal_cli.solvers.crb import gravity_crb, labelled_crb
+from imucal_cli.solvers.gravity import params_to_model
 from imucal_cli.solvers.labelled_model import jacobian, public_from_theta
 from imucal_cli.solvers.poses import count_distinct, unit
 
@@ -36,6 +37,9 @@ from .common import (
     session_name,
     static_poses,
 )
+from .factorization import calibrate_accel_factorization
+from .gravity import gravity_section
+from .labelled import labelled_section
 
 #: The labelled solver replaces the gravity solver only when its predicted variance of the
 #: gauge-free parameters (bias and K) is below this fraction of the gravity solver's.
@@ -48,8 +52,6 @@ def auto_accel(session: Session, cfg: Config) -> SensorCalibration | None:
         return None
     na = session.accel.shape[1]
     if na >= 4:
-        from .factorization import calibrate_accel_factorization
-
         sec = calibrate_accel_factorization(session, cfg)
         reason = (
             f"a redundant unit of {na} channels: the factorization finds its biases without "
@@ -67,14 +69,11 @@ def auto_accel(session: Session, cfg: Config) -> SensorCalibration | None:
         gravity_ok = exc
     n_lab = int(np.isfinite(poses.up).all(axis=1).sum())
     if gravity_ok is None:
-        from .gravity import gravity_section
-
         sec = gravity_section(session, cfg, poses, g, nominal)
         better = _labels_worth_it(sec, poses, g) if labels_determine(poses.up) else None
         if better is None:
             return _annotate(sec, "gravity", _gravity_reason(sec, n_lab))
         ratios, placement = better
-        from .labelled import labelled_section
 
         lab = labelled_section(session, cfg, poses, g, nominal)
         some = "" if n_lab == len(poses.segments) else (
@@ -88,8 +87,6 @@ def auto_accel(session: Session, cfg: Config) -> SensorCalibration | None:
         )
         return _annotate(lab, "labelled", reason)
     if labels_determine(poses.up):
-        from .labelled import labelled_section
-
         sec = labelled_section(session, cfg, poses, g, nominal)
         distinct = sec.extra["coverage"]["n_distinct"]
         reason = (
@@ -146,7 +143,6 @@ def _labels_worth_it(sec: SensorCalibration, poses: StaticPoses, g: float):
         return None
     placement = float(np.sqrt(np.nanmean(angles[lab] ** 2)))
     # Both bounds at the gravity solution, directions in its (triangular) frame.
-    from imucal_cli.solvers.gravity import params_to_model
 
     if x["variant"] != "9-parameter":
         return None

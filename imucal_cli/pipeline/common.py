@@ -3,7 +3,8 @@ uncalibrated user would assume, design checks and physical-sense checks."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import json
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -12,8 +13,8 @@ from imucal_cli.formats.config import Config, per_channel
 from imucal_cli.formats.session import Segment, Session
 from imucal_cli.solvers import holds
 from imucal_cli.solvers.holds import PooledNoise
-from imucal_cli.solvers.order import median
 from imucal_cli.solvers.poses import count_distinct, describe_direction, spread_deg, unit
+from imucal_cli.solvers.segmentation import find_rotations, find_static
 
 #: Every pose within this angle of one direction cannot separate bias from scale.
 MIN_SPREAD_DEG = 20.0
@@ -94,7 +95,7 @@ def static_poses(session: Session) -> StaticPoses:
     # Robust per-sample sigma (median absolute deviation, pooled by the median over holds)
     # to find spikes before the covariance is pooled.
     medians, mad = holds.medians_and_spread(blocks)
-    sigma0 = np.maximum(1.4826 * median(mad, axis=0), max(step, 1e-12))
+    sigma0 = np.maximum(1.4826 * np.median(mad, axis=0), max(step, 1e-12))
     n_total = sum(len(b) for b in blocks)
     masks = [holds.spike_mask(b, sigma0, n_total, m) for b, m in zip(blocks, medians, strict=True)]
     # A hold that drifts (the unit tilting slowly) puts its ends far from its median: those
@@ -157,7 +158,7 @@ def infer_accel_units(accel: np.ndarray, g: float) -> str | None:
     finite = accel[np.isfinite(accel).all(axis=1)]
     if not len(finite) or accel.shape[1] != 3:
         return None
-    mag = float(median(np.linalg.norm(finite, axis=1)))
+    mag = float(np.median(np.linalg.norm(finite, axis=1)))
     if 0.7 * g < mag < 1.3 * g:
         return "m/s^2"
     if 0.7 < mag < 1.3:
@@ -181,7 +182,7 @@ def accel_units(session: Session, g: float) -> tuple[str, str | None]:
     if guess is None:
         return "raw units", f"the session does not state the accelerometer units; {how}"
     finite = session.accel[np.isfinite(session.accel).all(axis=1)]
-    mag = float(median(np.linalg.norm(finite, axis=1)))
+    mag = float(np.median(np.linalg.norm(finite, axis=1)))
     return guess, (
         f"the session does not state the accelerometer units: |a| at rest is about {mag:.4g}, "
         f"so they are taken as {guess}; {how}"
@@ -292,7 +293,6 @@ def _what_would_work(poses: StaticPoses, directions: np.ndarray) -> str:
 
 def stored_accel_hint(session: Session) -> str:
     """A pointer to an accelerometer calibration already stored in the session, or ''."""
-    import json
 
     for name in sorted(session.calibrations, reverse=True):
         try:
@@ -325,7 +325,7 @@ def physical_checks(
     if nominal.sensitivity is not None:
         ref, what = np.full(len(gains), nominal.sensitivity), "nominal"
     else:
-        ref, what = np.full(len(gains), median(gains)), "the median of the channels"
+        ref, what = np.full(len(gains), np.median(gains)), "the median of the channels"
     for axis, gain, r in zip(names, gains, ref, strict=True):
         if abs(gain / r - 1) > limit:
             warnings.append(
@@ -374,10 +374,6 @@ def with_segments(session: Session) -> tuple[Session, str | None]:
     thresholds from the data's own noise. Returns a note saying so, or None."""
     if session.segments or session.accel is None:
         return session, None
-    from dataclasses import replace
-
-    from imucal_cli.formats.session import Segment
-    from imucal_cli.solvers.segmentation import find_rotations, find_static
 
     still = find_static(session.time, session.accel, session.gyro)
     segs = [Segment(f"{i:04d}", "static", iv.start, iv.stop) for i, iv in enumerate(still)]

@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from imucal_cli.errors import DesignError
 from imucal_cli.formats.calibration import MODEL_EQUATION, SensorCalibration
@@ -21,7 +22,6 @@ from imucal_cli.formats.session import Segment, Session
 from imucal_cli.solvers import factorization as fz
 from imucal_cli.solvers.crb import invariant_summary, propagate
 from imucal_cli.solvers.poses import angle_deg, count_distinct
-from imucal_cli.solvers.rotation import Rotation
 
 from .accel import coverage_dict
 from .common import (

@@ -19,7 +19,8 @@ Rotation segments come from the session; where it has none, they are found in th
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -27,34 +28,16 @@ from imucal_cli.errors import DesignError
 from imucal_cli.formats.calibration import MODEL_EQUATION, SensorCalibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Segment, Session
-from imucal_cli.solvers.order import median
+from imucal_cli.numerics.segmented import moments_in_chunks, stacked_rows
+from imucal_cli.solvers.gaps import find_gaps, gaps_within
+from imucal_cli.solvers.gyro_full import accel_sensitivity, full_information
 from imucal_cli.solvers.segmentation import find_rotations, find_static
-from imucal_cli.solvers.segmented import moments_in_chunks, stacked_rows
 
-from .common import rms, session_name, with_segments
-
-AXES = "xyz"
-
-
-@dataclass
-class Turn:
-    """One rotation with the still periods around it (indices into the still list)."""
-
-    segment: Segment
-    before: int
-    after: int
-
-
-@dataclass
-class Still:
-    """One still period: its calibrated accelerometer mean and its raw gyro mean."""
-
-    segment: Segment
-    g: np.ndarray  # calibrated accel mean, m/s^2
-    g_sigma: float  # direction noise of the mean, rad
-    z_mean: np.ndarray  # raw gyro mean
-    z_sigma: float  # noise of the raw gyro mean, per channel
-    a_raw: np.ndarray  # raw accel mean (what the accelerometer calibration turned into g)
+from .common import adc_range, rms, session_name, with_segments
+from .gyro_axes import fit_per_axis
+from .gyro_full import accel_derivative, fit_full_model, rotations_and_stills
+from .gyro_turns import AXES, MODEL_EQUATION_G, GyroData, Still, Turn
+from .turn_windows import settle_turns
 
 
 def _segments(session: Session, where: str) -> tuple[list[Segment], list[Segment], str]:
@@ -176,7 +159,7 @@ def _mean_period(time: np.ndarray) -> float:
     w = min(PERIOD_WINDOW, len(time) - 1)
     if w < 1:
         return 0.0
-    return float(median((time[w:] - time[:-w]) / w))
+    return float(np.median((time[w:] - time[:-w]) / w))
 
 
 def _continuous(time: np.ndarray, a, b, period: float) -> np.ndarray:
@@ -240,7 +223,7 @@ def bridged_note(session, turns: list[Segment], usable: list[Turn]) -> list[str]
     added = [(a, b) for a, b in added if a or b]
     if not added:
         return []
-    rate = session.sample_rate_hz or 1.0 / float(median(np.diff(session.time)))
+    rate = session.sample_rate_hz or 1.0 / float(np.median(np.diff(session.time)))
     longest = max(a + b for a, b in added) / rate
     return [f"{len(added)} turn(s) extended through continuous samples to the still periods "
             f"around them (up to {longest:.1f} s: the unit held a pose longer than its segment, "
@@ -250,7 +233,6 @@ def bridged_note(session, turns: list[Segment], usable: list[Turn]) -> list[str]
 def _without_gaps(session: Session, turns: list[Turn], data) -> list[Turn]:
     """The turns whose samples have no gap (the rotation during missing samples is unknown:
     such a turn cannot be integrated); a warning names the others."""
-    from imucal_cli.solvers.gaps import find_gaps, gaps_within
 
     gaps = find_gaps(session.time)
     if not gaps:
@@ -297,45 +279,11 @@ def _saturation_limit(session: Session, cfg: Config) -> tuple[float, float] | No
         return lo + margin, hi - margin
     if session.gyro_units != "counts":
         return None
-    from .common import adc_range
 
     gyro = session.gyro
     finite = gyro if np.isfinite(gyro).all() else gyro[np.isfinite(gyro).all(axis=1)]
     rng = adc_range(float(finite.min()), float(finite.max()))
     return rng
-
-
-@dataclass
-class GyroData:
-    """What every rotation solver starts from: the usable turns, the still periods around
-    them, the pooled gyro noise and bias, and the notes and warnings so far."""
-
-    session: Session
-    cfg: Config
-    where: str
-    accel_cal: SensorCalibration | None  # None: the known-angle solver on labelled axes only
-    stills: list[Still]
-    turns: list[Turn]
-    noise: float  # per-sample gyro noise pooled over the still periods, raw units
-    bias_still: np.ndarray  # mean of every still sample, raw units
-    b_still_std: float
-    units_in: str
-    notes: list[str] = field(default_factory=list)
-    warnings: list[str] = field(default_factory=list)
-    said: list[str] = field(default_factory=list)  # warnings said, not refused (turns left out)
-
-
-@dataclass
-class GyroFit:
-    """A rotation solver's result, before it becomes the gyro section."""
-
-    bias: np.ndarray
-    matrix: np.ndarray
-    parameters: list[dict]
-    rotations: list[dict]
-    residual_rad: np.ndarray
-    gains: np.ndarray  # raw units per rad/s of each axis, for the physical-sense checks
-    extra: dict
 
 
 def gyro_data(session: Session, cfg: Config, accel_cal: SensorCalibration) -> GyroData:
@@ -344,7 +292,6 @@ def gyro_data(session: Session, cfg: Config, accel_cal: SensorCalibration) -> Gy
     where = session_name(session)
     if session.gyro is None:
         raise DesignError(f"{where}: no /raw/gyro in this session")
-    from .turn_windows import settle_turns
 
     session, settled = settle_turns(session)  # issue 24.5: each turn from rest to rest
     stills, turns, skipped, source, noise = _stills_and_turns(session, accel_cal, cfg, where)
@@ -390,12 +337,8 @@ def calibrate_gyro_rotations(session: Session, cfg: Config, accel_cal: SensorCal
     data = gyro_data(session, cfg, accel_cal)
     solver = cfg.gyro.solver
     if solver in ("static", "dynamic"):
-        from .gyro_axes import fit_per_axis
-
         fit = fit_per_axis(data, solver)
     else:
-        from .gyro_full import fit_full_model
-
         fit = fit_full_model(data)
     data.warnings += gyro_checks(session, cfg, fit.gains, data.units_in)
     extra = dict(fit.extra)
@@ -437,14 +380,9 @@ def _frame(accel: SensorCalibration | None) -> str:
     return f"the calibrated accelerometer's frame ({how})"
 
 
-#: The model equation of a gyro section with g-sensitivity (spec: optional term).
-MODEL_EQUATION_G = "calibrated = matrix @ (raw - bias - g_sensitivity @ a)"
-
-
 def full_problem(session: Session, cfg: Config, accel_cal: SensorCalibration):
     """The full model's data for a session, as :func:`calibrate_gyro_rotations` builds it:
     ``(Rotations, Stills, per-sample gyro noise)`` (for the Cramér-Rao bound of a design)."""
-    from .gyro_full import rotations_and_stills
 
     session, _ = with_segments(session)
     data = gyro_data(session, cfg, accel_cal)
@@ -461,11 +399,6 @@ def full_bound(session: Session, cfg: Config, accel_cal: SensorCalibration,
     measured against when the accelerometer is calibrated from the same session: its own
     error moves the gyro's too). Both (n, n); the second equals the first without an
     accelerometer covariance."""
-    from types import SimpleNamespace
-
-    from imucal_cli.solvers.gyro_full import accel_sensitivity, full_information
-
-    from .gyro_full import accel_derivative, rotations_and_stills
 
     session, _ = with_segments(session)
     data = gyro_data(session, cfg, accel_cal)
@@ -506,7 +439,7 @@ def gyro_checks(session, cfg, gains, units) -> list[str]:
         session.gyro_units or ""
     )
     if nominal is None:
-        ref, what = median(gains), "the median of the three axes"
+        ref, what = np.median(gains), "the median of the three axes"
     else:
         ref, what = nominal, "nominal"
     out = []

@@ -16,7 +16,8 @@ from imucal_cli.formats.session import Segment, Session
 from imucal_cli.solvers import gyro_axes
 
 from .common import num, rms
-from .gyro import AXES, GyroData, GyroFit, Turn
+from .gyro_full import fit_full_model
+from .gyro_turns import AXES, GyroData, GyroFit, Turn
 
 #: A turn whose axis is further than this from the sensor axis it is attributed to is left out
 #: (the full model takes any turn).
@@ -60,7 +61,6 @@ def fit_per_axis(data: GyroData, solver: str) -> GyroFit:
 def _ignored_misalignment(data: GyroData, k: np.ndarray, k_std: np.ndarray) -> dict:
     """The full model on the same turns: the gyro axes' angles from the accelerometer's, and
     the shift of each per-axis gain that ignoring them causes (note; warning when large)."""
-    from .gyro_full import fit_full_model
 
     try:
         full = fit_full_model(GyroData(**{**vars(data), "notes": [], "warnings": []}),

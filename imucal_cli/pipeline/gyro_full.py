@@ -15,12 +15,11 @@ from dataclasses import replace
 import numpy as np
 
 from imucal_cli.errors import ImucalError
+from imucal_cli.numerics.segmented import stacked_rows
 from imucal_cli.solvers import gyro_full, gyro_sigma
-from imucal_cli.solvers.order import median
-from imucal_cli.solvers.segmented import stacked_rows
 
 from .common import num
-from .gyro import AXES, GyroData, GyroFit
+from .gyro_turns import AXES, GyroData, GyroFit, Still
 
 #: Medians of the chi-square distribution with 2 (a turn's two residuals) and 3 (a still
 #: period's gyro mean) degrees of freedom.
@@ -41,13 +40,18 @@ def rotations_and_stills(data: GyroData) -> tuple[gyro_full.Rotations, gyro_full
         after=np.array([t.after for t in turns]),
         a=np.split(a, np.cumsum(counts)[:-1]),
     )
-    st = gyro_full.Stills(
-        g=np.array([s.g for s in data.stills]),
-        g_sigma=np.array([s.g_sigma for s in data.stills]),
-        z_mean=np.array([s.z_mean for s in data.stills]),
-        z_sigma=np.array([max(s.z_sigma, 1e-12) for s in data.stills]),
+    return rot, solver_stills(data.stills)
+
+
+def solver_stills(stills: list[Still]) -> gyro_full.Stills:
+    """The solver's view of the still periods: calibrated gravity and its direction noise,
+    the raw gyro mean and its noise (floored at 1e-12: a quantised gyro can read constant)."""
+    return gyro_full.Stills(
+        g=np.array([s.g for s in stills]),
+        g_sigma=np.array([s.g_sigma for s in stills]),
+        z_mean=np.array([s.z_mean for s in stills]),
+        z_sigma=np.array([max(s.z_sigma, 1e-12) for s in stills]),
     )
-    return rot, st
 
 
 def fit_full_model(data: GyroData, g_sensitivity: str | None = None) -> GyroFit:
@@ -313,7 +317,7 @@ def residual_warnings(data: GyroData, res, rot, st) -> list[str]:
             "level even when fitted without them: the unit moved during the still before or "
             "after, or the turn was clipped; re-capture or remove those segments"
         ]
-    still_level = float(np.sqrt(median(res.still_chi2) / CHI2_3_MEDIAN))
+    still_level = float(np.sqrt(np.median(res.still_chi2) / CHI2_3_MEDIAN))
     if still_level > limit:
         hint = ("the bias drifted between them" if tested else
                 'the gyro is g-sensitive ([gyro.full] g_sensitivity = "on"), or the bias drifted')
@@ -330,7 +334,7 @@ CANDIDATE_SHARE, MAX_CANDIDATES = 0.3, 3
 
 
 def _level(chi2: np.ndarray) -> float:
-    return float(np.sqrt(median(chi2) / CHI2_2_MEDIAN))
+    return float(np.sqrt(np.median(chi2) / CHI2_2_MEDIAN))
 
 
 def _outliers(data, res, rot, st, level, limit) -> tuple[list[int], np.ndarray]:

@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+from scipy.special import fdtrc
 
 from imucal_cli.errors import DesignError
 from imucal_cli.formats.calibration import MODEL_EQUATION, SensorCalibration
@@ -28,11 +29,9 @@ from imucal_cli.solvers import gyro_full, gyro_known
 from . import gyro_known_checks as checks
 from .common import rms, session_name, with_segments
 from .gyro import (
-    AXES,
-    MODEL_EQUATION_G,
-    GyroData,
     _frame,
     _saturation_limit,
+    calibrate_gyro_rotations,
     gyro_checks,
     still_periods,
     turns_between,
@@ -44,7 +43,10 @@ from .gyro_full import (
     parameter_rows,
     rate_std,
     rotations_and_stills,
+    solver_stills,
 )
+from .gyro_turns import AXES, MODEL_EQUATION_G, GyroData
+from .turn_windows import settle_turns
 
 #: A turn whose measured gravity direction stays within this RMS angle of its mean (deg), and
 #: within VERTICAL_SHARE of its angle, is about the vertical: its axis is measured.
@@ -182,7 +184,7 @@ def _g_choice(cfg, fit):
     dof = with_g.dof
     drop = max(base.chi2 - with_g.chi2, 0.0)
     F = float(drop / 9 / (with_g.chi2 / dof))
-    p = float(gyro_full.fdtrc(9, dof, F))
+    p = float(fdtrc(9, dof, F))
     test = {"included": mode == "on" or p < gyro_full.G_SELECT_P, "observable": True, "F": F,
             "dof": [9, dof], "p_value": p}  # fmt: skip
     if not test["included"]:
@@ -202,21 +204,12 @@ def _g_choice_without_accel(cfg, fit, data):
     return fit(False, None), None
 
 
-def _stills(stills) -> gyro_full.Stills:
-    return gyro_full.Stills(
-        g=np.array([s.g for s in stills]), g_sigma=np.array([s.g_sigma for s in stills]),
-        z_mean=np.array([s.z_mean for s in stills]),
-        z_sigma=np.array([max(s.z_sigma, 1e-12) for s in stills]),
-    )  # fmt: skip
-
-
 def _known_data(session, cfg, accel_cal, where):
     """The known-angle turns, the still periods and the other turns between still periods
     (measured by gravity; only with an accelerometer calibration)."""
     if session.gyro is None or (accel_cal is not None and session.accel is None):
         raise DesignError(f"{where}: turns of known angle need /raw/gyro"
                           + ("" if accel_cal is None else " and /raw/accel"))  # fmt: skip
-    from .turn_windows import settle_turns
 
     session, settled = settle_turns(session)  # each turn integrated from rest to rest
     segs = [s for s in session.rotation_segments() if s.angle_deg is not None]
@@ -283,7 +276,7 @@ def calibrate_gyro_known(
     if not used:
         return _without_known_turns(session, cfg, accel_cal, data, segs)
     turns, b0 = data.turns, data.bias_still
-    rot, st = rotations_and_stills(data) if turns else (None, _stills(data.stills))
+    rot, st = rotations_and_stills(data) if turns else (None, solver_stills(data.stills))
     x0 = None
     if len(known.t) < 3 and rot is not None and 2 * len(turns) >= 9:
         full = gyro_full.fit_full(rot, st, data.noise, b0)
@@ -375,10 +368,6 @@ def _without_known_turns(session, cfg, accel_cal, data, segs) -> SensorCalibrati
     why = "; ".join(reasons[:3]) + (f" (and {len(reasons) - 3} more)" if len(reasons) > 3
                                     else "")  # fmt: skip
     if accel_cal is not None and 2 * len(data.turns) >= 9:
-        from dataclasses import replace
-
-        from .gyro import calibrate_gyro_rotations
-
         sec = calibrate_gyro_rotations(session, replace(cfg, gyro=replace(cfg.gyro,
                                                                           solver="full")),
                                        accel_cal)  # fmt: skip
@@ -445,7 +434,7 @@ def _refit(session, cfg, accel_cal, segs, statics, res, data, rot, x, known0,
         known = known0
     else:
         known = replace(known, angle_sigma=known0.angle_sigma)
-    st = _stills(stills)
+    st = solver_stills(stills)
     fit = gyro_known.fit_known(known, st, data.noise, data.bias_still, rot=rot, x0=x[:12],
                                g_sensitivity=res.G is not None, tau=res.tau)  # fmt: skip
     return np.r_[fit.b, fit.M.ravel(), [] if fit.G is None else fit.G.ravel()]

@@ -25,6 +25,7 @@ import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
 from imucal_cli.errors import DesignError, SolverError
+from imucal_cli.pipeline.gyro_full import solver_stills
 from imucal_cli.solvers import gyro_known
 
 #: The known turns disagree with the rest of the fit below this p-value of their chi^2.
@@ -165,9 +166,8 @@ def _worst(names, values, unit="deg", n=3) -> str:
 def _left_out(v: Verdict, data, joint, rot, names, why, n_known, accel_dirs) -> None:
     """The turns between still periods were left out (:func:`leave_out`): said, with how the
     known turns alone predict them."""
-    from imucal_cli.pipeline.gyro_known import _stills
 
-    st = _stills(data.stills)
+    st = solver_stills(data.stills)
     pred = gyro_known.predict_gravity(rot, st, data.noise, v.result, accel_dirs)
     v.gravity_rows = _gravity_rows(names, [t.segment for t in data.turns], pred, used=False)
     miss = pred["gravity_residual_deg"]

@@ -26,7 +26,7 @@ from .accel import (
     triad_poses,
     with_excluded,
 )
-from .accel_checks import drop_wrong_labels, pose_sigmas, quality, robust_fit
+from .accel_checks import Outlier, drop_wrong_labels, pose_sigmas, quality, robust_fit
 from .common import (
     StaticPoses,
     check_design,
@@ -170,7 +170,6 @@ def misplaced_labels(res, poses: StaticPoses, g: float, cfg: Config):
 
     Returns the result, the poses used, the outliers (action ``"label ignored"``) and the
     warning for a group (None when there is none)."""
-    from .accel_checks import Outlier
 
     if cfg.accel.outliers == "keep":
         return res, poses, [], None

@@ -24,6 +24,7 @@ per term, and bias standard deviations that include the temperature terms' uncer
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from dataclasses import replace as copy_with
 
 import numpy as np
 
@@ -31,7 +32,9 @@ from imucal_cli.errors import DesignError
 from imucal_cli.formats.calibration import SensorCalibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
+from imucal_cli.solvers.gravity import fit_gravity
 from imucal_cli.solvers.temperature import TempcoFit, check_span, fit_tempco, reexpand
+from imucal_cli.solvers.temperature_joint import fit_gravity_tempco
 
 from .common import channel_names, session_name, with_segments
 
@@ -163,8 +166,6 @@ def warmup_models(warmups: list[Session], cfg: Config, t_ref: float) -> dict:
 
 def _joint_accel(session: Session, cfg: Config, t_ref: float) -> TemperatureModel | None:
     """The accelerometer's model fitted jointly with its gravity-magnitude model."""
-    from imucal_cli.solvers.gravity import fit_gravity
-    from imucal_cli.solvers.temperature_joint import fit_gravity_tempco
 
     pts = _points(session, "accel", BLOCK_S)
     if pts is None or session.accel.shape[1] != 3:
@@ -289,7 +290,6 @@ def given_accel(session: Session, accel: SensorCalibration) -> tuple[Session, Se
     """An earlier accelerometer calibration (``--accel``) with temperature terms: the session's
     accelerometer data moved to its ``temperature_ref`` and a copy of it without the terms,
     for the gyro solvers that apply it to those data."""
-    from dataclasses import replace as copy_with
 
     terms = accel.temperature_terms
     if terms is None or session.accel is None:

@@ -55,7 +55,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from imucal_cli.errors import InputError
-from imucal_cli.plans import Plan
+from imucal_cli.plans import Plan, find_plan, load_plan
+from imucal_cli.simulate.magnetometer import simulate_mag
+from imucal_cli.simulate.play import simulate_plan
+from imucal_cli.simulate.steps import simulate_steps
 
 __all__ = [
     "HARD_IRON_COUNTS",
@@ -78,6 +81,8 @@ FLUSH_WAIT_S = 2.0
 
 DRAIN_MAX_S = 10.0
 """Longest wait, at the end, for the reader to read what was sent, s."""
+DRAIN_QUIET_S = 0.3
+"""How long the reader's input queue must stay empty before everything sent counts as read, s."""
 
 SERVE_PROTOCOLS = ("lines", "motioncal", "i2cdevlib")
 """What the virtual IMU can print: numbers (``t,ax,...``), MotionCal or i2cdevlib lines."""
@@ -137,9 +142,6 @@ def plan_motion(
     :class:`~imucal_cli.plans.Plan`: a registry plan (by its name) as ``imucal simulate`` plays
     it, any other step by step (:func:`imucal_cli.simulate.steps.simulate_steps`).
     """
-    from imucal_cli.plans import find_plan, load_plan
-    from imucal_cli.simulate.steps import simulate_steps
-
     try:
         spec, _ = find_plan(plan.name)
     except InputError:
@@ -191,12 +193,8 @@ def _served_session(plan: str, *, mag: dict | None = None, **options):
     magnetometer, tumbling between the holds, as ``imucal simulate --mag`` writes it), and its
     holds."""
     if mag is None:
-        from imucal_cli.simulate.play import simulate_plan
-
         session, _ = simulate_plan(plan, **options)
     else:
-        from imucal_cli.simulate.magnetometer import simulate_mag
-
         keep = ("seed", "rate_hz", "hold_s", "units", "move_s", "accel_noise", "jitter_deg")
         given = {k: v for k, v in options.items() if k in keep and v is not None}
         session, _ = simulate_mag(plan, **mag, **given)
@@ -505,12 +503,23 @@ class _Port:
 
     def drain(self, limit_s: float) -> int:
         """Wait until the reader has read every byte written (at most ``limit_s``, or until it
-        closes the port); the number of bytes it has not read (lost when the port closes)."""
+        closes the port); the number of bytes it has not read (lost when the port closes).
+
+        The reader's input queue (FIONREAD) holds at most 4 KiB: a slow reader's backlog waits
+        in the kernel's buffers behind it and refills it as it is read, so the queue must stay
+        empty for :data:`DRAIN_QUIET_S` before everything counts as read."""
         end = _time.monotonic() + limit_s
+        empty_since = None
         while True:
             unread = self._unread()
+            now = _time.monotonic()
             gone = any(ev & select.POLLHUP for _, ev in self.poller.poll(0))
-            if not unread or gone or _time.monotonic() >= end:
+            if unread:
+                empty_since = None
+            elif empty_since is None:
+                empty_since = now
+            if gone or now >= end or (empty_since is not None
+                                      and now - empty_since >= DRAIN_QUIET_S):  # fmt: skip
                 return unread
             _time.sleep(0.01)
 

@@ -40,6 +40,7 @@ from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.session import MAG_UNITS, UT_PER_MAG_UNIT, Session
 from imucal_cli.simulate.motion import check_positive
 from imucal_cli.simulate.sensor import ChannelGroup, tilted_axes
+from imucal_cli.simulate.triad import simulate_stream, stream_session, truth_calibration
 
 __all__ = [
     "LAYOUTS",
@@ -177,8 +178,6 @@ def simulate_mag(
         The triad's truth plus a ``mag`` section: ``matrix = S^-1``, ``bias = b``, and the
         field, inclination, hard iron (uT), soft iron and layout.
     """
-    from imucal_cli.simulate.triad import simulate_stream, stream_session, truth_calibration
-
     field_uT = check_positive("field", field_uT, "uT")
     if not 1.0 <= field_uT <= 1000.0:
         raise InputError(f"field must be within 1..1000 uT (Earth: 20..70), got {field_uT:g}")

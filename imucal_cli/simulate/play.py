@@ -20,7 +20,12 @@ from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.session import Session
 from imucal_cli.plans import find_plan, load_plan
+from imucal_cli.simulate.faults import g_sensitive
+from imucal_cli.simulate.redundant import simulate_hk_gyro, simulate_redundant_accel
+from imucal_cli.simulate.rotations import simulate_gyro_rotations
 from imucal_cli.simulate.sensor import G0
+from imucal_cli.simulate.steps import simulate_steps
+from imucal_cli.simulate.triad import simulate
 
 __all__ = ["simulate_plan"]
 
@@ -77,8 +82,6 @@ def simulate_plan(
         clock_scale=clock_scale,
     )  # fmt: skip
     if g_sensitivity:
-        from imucal_cli.simulate.faults import g_sensitive
-
         session, truth = g_sensitive(session, truth, float(g_sensitivity), seed)
     return session, truth
 
@@ -96,8 +99,6 @@ def _played(plan, *, seed, units, rate_hz, hold_s, move_s, accel_noise, jitter_d
     rate = 100.0 if rate_hz is None else rate_hz
     common = {"seed": seed, "units": units, "accel_noise": accel_noise, "created": created}
     if spec is None or spec.simulator == "steps":
-        from imucal_cli.simulate.steps import simulate_steps
-
         return simulate_steps(load_plan(plan), rate_hz=rate, hold_s=2.0 if hold_s is None
                               else hold_s, move_s=move_s, jitter_deg=jitter_deg,
                               gravity=gravity, **common)  # fmt: skip
@@ -105,8 +106,6 @@ def _played(plan, *, seed, units, rate_hz, hold_s, move_s, accel_noise, jitter_d
         return _poses(spec.build(arg), hold_s, rate_hz=rate, move_s=move_s,
                       jitter_deg=jitter_deg, gravity=gravity, **extras, **common)  # fmt: skip
     if spec.simulator == "rotations":
-        from imucal_cli.simulate.rotations import simulate_gyro_rotations
-
         rpa = _rotations_per_axis(arg, rotations_per_axis) if spec.key != "free" else 18
         return simulate_gyro_rotations(
             plan=spec.key if spec.key != "free" else f"free:{arg}", rate_hz=rate,
@@ -114,8 +113,6 @@ def _played(plan, *, seed, units, rate_hz, hold_s, move_s, accel_noise, jitter_d
             jitter_deg=jitter_deg, gravity=gravity, **extras, **common,
         )  # fmt: skip
     if spec.simulator == "iron":
-        from imucal_cli.simulate.redundant import simulate_hk_gyro
-
         return simulate_hk_gyro(
             mountings=mountings, rate_hz=rate, still_s=3.0 if hold_s is None else hold_s,
             gravity=gravity, faces=spec.key == "hwangbo-iron", **common,
@@ -128,8 +125,6 @@ def _played(plan, *, seed, units, rate_hz, hold_s, move_s, accel_noise, jitter_d
 def _poses(built, hold_s: float | None, **options) -> tuple[Session, Calibration]:
     """A pose plan (:func:`imucal_cli.simulate.triad.simulate`); a plan's own hold wins over
     ``hold_s``, as in the steps (default 2 s)."""
-    from imucal_cli.simulate.triad import simulate
-
     own = {step.hold_s for step in built.steps}
     if len(own) == 1 and None not in own:
         hold_s = own.pop()
@@ -139,8 +134,6 @@ def _poses(built, hold_s: float | None, **options) -> tuple[Session, Calibration
 def _redundant(units: str, **options) -> tuple[Session, Calibration]:
     """Plan hk-redundant (:func:`imucal_cli.simulate.redundant.simulate_redundant_accel`):
     11-bit ADC codes, so ``units`` must be counts."""
-    from imucal_cli.simulate.redundant import simulate_redundant_accel
-
     if units != "counts":
         raise InputError(
             f"plan hk-redundant records 11-bit ADC codes: units must be counts, not {units!r}"

@@ -16,8 +16,15 @@ directions through the Schur complement).
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
-from .gravity import _UPPER
+from .gravity import _UPPER, triangular_and_rotation
+from .labelled_model import (
+    design_jacobian,
+    jacobian,
+    public_from_theta,
+    theta_floor,
+)
 
 
 def _tangent_basis(u: np.ndarray) -> np.ndarray:
@@ -177,14 +184,6 @@ def labelled_crb(
         Bound on the covariance of the solver's parameters (:data:`.labelled.PARAM_NAMES`:
         bias, sensitivities, angles between the axes minus 90 deg, rotation r in degrees).
     """
-    from .labelled_model import (
-        design_jacobian,
-        jacobian,
-        public_from_theta,
-        theta_floor,
-        triangular_and_rotation,
-    )
-    from .rotation import Rotation
 
     Gt, Gd = design_jacobian(M, u, g)
     placement = np.broadcast_to(np.asarray(placement_deg, float), (len(u),))

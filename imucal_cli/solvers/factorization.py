@@ -30,11 +30,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.linalg import eigvals
+from scipy.optimize import least_squares
+from scipy.special import chdtri
 
 from imucal_cli.errors import DesignError
-from imucal_cli.solvers.quantiles import chdtri
 
-from .lsq import least_squares
+from .ellipsoid import fit_ellipsoid
 
 
 @dataclass(frozen=True)
@@ -170,17 +172,6 @@ def _ell(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.where(r == c, x[:, r] * y[:, c], x[:, r] * y[:, c] + x[:, c] * y[:, r])
 
 
-def _pencil_roots(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """The ``alpha`` with ``det(A + alpha B) = 0`` (eigenvalues of the pencil ``(A, -B)``):
-    from the better conditioned of ``B`` and ``A`` (``1/alpha`` from ``A``); roots at
-    infinity (singular ``B``) come out as ``inf``."""
-    if np.linalg.cond(B) <= np.linalg.cond(A):
-        return np.linalg.eigvals(-np.linalg.solve(B, A)).astype(complex)
-    beta = np.linalg.eigvals(-np.linalg.solve(A, B)).astype(complex)  # beta = 1 / alpha
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(np.abs(beta) > 1e-300, 1.0 / np.where(beta == 0, 1, beta), np.inf)
-
-
 def _sym(q: np.ndarray, p: int) -> np.ndarray:
     Q = np.zeros((p, p))
     r, c = np.triu_indices(p)
@@ -208,7 +199,7 @@ def _solve_q(L: np.ndarray, h: np.ndarray, case: str, p: int) -> tuple[np.ndarra
         q_p = Vt[:keep].T @ ((U[:, :keep].T @ h) / sv[:keep])
         q_n = Vt[-1]
         Qp, Qn = _sym(q_p, p), _sym(q_n, p)
-        alphas = _pencil_roots(Qp, Qn)  # (Qp + alpha Qn) v = 0
+        alphas = eigvals(Qp, -Qn)  # (Qp + alpha Qn) v = 0; inf where Qn is singular
         best = None
         for a in alphas:
             if not np.isfinite(a) or abs(a.imag) > 1e-9 * max(1.0, abs(a.real)):
@@ -409,7 +400,6 @@ def _factorize_triad(Z: np.ndarray, constraints: Constraints, bias):
 
 def _factorize_subspace(Z, constraints, bias, scale_reference) -> FactorizationResult:
     """Redundant unit: the affine 3-D subspace first, then the triad method inside it."""
-    from .ellipsoid import fit_ellipsoid
 
     z_bar = Z.mean(axis=0)
     _, sv, Vt = np.linalg.svd(Z - z_bar, full_matrices=False)
@@ -602,8 +592,8 @@ def _solve(prob: _Refinement, initial: FactorizationResult, max_iterations: int)
     x_scale = np.concatenate(
         [np.full(n, np.std(prob.Z) + 1e-12), np.full(3 * n, np.abs(initial.T).max())]
     )
-    return least_squares(prob.residuals, x0, x_scale=x_scale, xtol=1e-12, ftol=1e-12,
-                         gtol=1e-12, max_nfev=max_iterations)  # fmt: skip
+    return least_squares(prob.residuals, x0, method="lm", x_scale=x_scale, xtol=1e-12,
+                         ftol=1e-12, gtol=1e-12, max_nfev=max_iterations)  # fmt: skip
 
 
 def _handed(x: np.ndarray, n: int, cov: np.ndarray):

@@ -29,14 +29,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+from scipy.special import chdtri  # inverse survival function of chi^2
 
 from imucal_cli.errors import DesignError, SolverError
-from imucal_cli.solvers.quantiles import chdtri  # inverse survival function of chi^2
-from imucal_cli.solvers.rotation import Rotation
 
 from .ellipsoid import fit_ellipsoid
-from .lsq import least_squares
-from .order import median
 from .outliers import Deletion, deletion
 from .poses import angle_deg
 
@@ -46,6 +45,20 @@ PARAM_NAMES_9 = ["b_x", "b_y", "b_z", "k_x", "k_y", "k_z", "k_xy", "k_xz", "k_yz
 PARAM_NAMES_12 = ["b_x", "b_y", "b_z"] + [f"m_{r}{c}" for r in "xyz" for c in "xyz"]
 
 _UPPER = (np.array([0, 1, 2, 0, 0, 1]), np.array([0, 1, 2, 1, 2, 2]))  # k_x k_y k_z k_xy k_xz k_yz
+
+
+def triangular_and_rotation(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``M = Q K`` with ``K`` upper triangular (positive diagonal where ``det M > 0``) and
+    ``Q`` a rotation, for one matrix (3, 3) or a stack (..., 3, 3). A mirrored matrix
+    (``det M < 0``: labels in a left-handed frame relative to the sensor) keeps ``Q`` proper
+    and gives ``K`` a negative ``k_z``."""
+    Q, K = np.linalg.qr(M)
+    sign = np.sign(np.diagonal(K, axis1=-2, axis2=-1))
+    Q, K = Q * sign[..., None, :], K * sign[..., :, None]
+    flip = np.where(np.linalg.det(Q) < 0, -1.0, 1.0)
+    Q[..., :, 2] *= flip[..., None]
+    K[..., 2, :] *= flip[..., None]
+    return K, Q
 
 
 def params_to_model(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -212,6 +225,8 @@ def _solve(a_n, g, w, x0, max_iterations):
         fun,
         x0,
         jac=jac,
+        method="lm",
+        x_scale="jac",
         xtol=1e-12,
         ftol=1e-12,
         gtol=1e-12,
@@ -348,7 +363,6 @@ def _starts(a_mean, g, up, init) -> dict[str, tuple[np.ndarray, np.ndarray]]:
 
 def _labels_start(a_mean, up, g):
     """``a_k = B + g S up_k`` solved linearly over the labelled poses, as ``(B, M upper)``."""
-    from .labelled_model import triangular_and_rotation
 
     lab = np.isfinite(up).all(axis=1)
     X = np.column_stack([np.ones(lab.sum()), g * up[lab]])
@@ -480,7 +494,7 @@ def _align_to_labels(directions, up, variant):
     for _ in range(3):
         rot, _ = Rotation.align_vectors(up[use], directions[use])
         ang = angle_deg(directions @ rot.as_matrix().T, np.where(labelled[:, None], up, 1.0))
-        keep = labelled & (ang <= max(LABEL_OUTLIER_DEG, 5 * median(ang[labelled])))
+        keep = labelled & (ang <= max(LABEL_OUTLIER_DEG, 5 * np.median(ang[labelled])))
         if keep.sum() < 2 or np.linalg.matrix_rank(up[keep], tol=0.1) < 2 or (keep == use).all():
             break
         use = keep
@@ -493,7 +507,7 @@ def _align_to_labels(directions, up, variant):
 def _weights_from_sigmas(sig: np.ndarray) -> np.ndarray:
     # A pose whose samples never changed (noise below one quantisation step) would get an
     # infinite weight: floor each sigma at a tenth of the median.
-    floor = 0.1 * median(sig[sig > 0]) if np.any(sig > 0) else 1.0
+    floor = 0.1 * np.median(sig[sig > 0]) if np.any(sig > 0) else 1.0
     return 1.0 / np.maximum(sig, floor)
 
 

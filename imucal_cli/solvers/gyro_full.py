@@ -34,14 +34,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.optimize import least_squares
+from scipy.special import chdtri, fdtrc
 
 from imucal_cli.errors import DesignError, SolverError
 from imucal_cli.solvers.gyro_integration import integrate_rotations
 from imucal_cli.solvers.gyro_model import Problem, Rotations, Stills
 from imucal_cli.solvers.gyro_start import Start, start_values
-from imucal_cli.solvers.lsq import least_squares
-from imucal_cli.solvers.order import median
-from imucal_cli.solvers.quantiles import chdtri, fdtrc
 
 #: A fit leaving a turn's gravity direction further off than this did not find the turns'
 #: minimum: the next start is tried.
@@ -171,7 +170,7 @@ def _solve(prob: Problem, x0: np.ndarray, max_iterations: int, start: str) -> _S
         return jac_at[key]
 
     def run(x_start):
-        return least_squares(fun, x_start, jac=jac, x_scale=scale, xtol=1e-12,
+        return least_squares(fun, x_start, jac=jac, method="lm", x_scale=scale, xtol=1e-12,
                              ftol=1e-12, gtol=1e-12, max_nfev=max_iterations)  # fmt: skip
 
     first = run(x0)
@@ -494,7 +493,7 @@ def accel_sensitivity(
     J = W(prob.residuals_and_jacobian(x)[1])
     m = dg.shape[2]
     F = np.empty((len(J), m))
-    g_norm = float(median(np.linalg.norm(still.g, axis=1)))
+    g_norm = float(np.median(np.linalg.norm(still.g, axis=1)))
     for j in range(m):
         size = np.abs(dg[:, :, j]).max()
         if size == 0:

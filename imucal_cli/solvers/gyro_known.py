@@ -23,7 +23,7 @@ The still periods tie the bias (and the g-sensitivity ``G`` when asked: still pe
 opposite faces up see it as a bias that changes sign). Turns between still periods whose
 angle is not known (:mod:`.gyro_model`) join the same fit: their whitened residuals and
 Jacobian are stacked with these, so that a session with both uses all of its turns in one
-maximum-likelihood estimate (Gauss-Newton; the residuals of known turns are bilinear in
+maximum-likelihood estimate (Levenberg-Marquardt; the residuals of known turns are bilinear in
 ``b`` and ``M``, and the start is their closed-form least-squares solution).
 
 **Excess scatter of the turns measured by gravity** (issue 24.5). Their stated noise (the
@@ -44,11 +44,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import brentq
+from scipy import sparse
+from scipy.optimize import brentq, least_squares
 from scipy.stats import chi2 as chi2_dist
 
 from imucal_cli.errors import DesignError, SolverError
-from imucal_cli.solvers.banded import BandedWhitener, Coo
+from imucal_cli.solvers.banded import BandedWhitener
 from imucal_cli.solvers.gyro_full import _diagonal_blocks
 from imucal_cli.solvers.gyro_known_turns import (
     _DenseWhitener,
@@ -274,14 +275,12 @@ class _Stacked:
         self.L = None if self.kp is None else self.kp.whitening(x)
         self.W = None if self.gp is None else self._gravity_whitener(x)
 
-    def gravity_covariance(self, x) -> Coo:
+    def gravity_covariance(self, x) -> sparse.csr_array:
         """Covariance of the gravity-referenced turns' residuals with the excess ``tau``."""
         C = self.gp.rotation_covariance(x)
         if self.tau <= 0:
             return C
-        d = np.arange(C.shape[0])
-        return Coo(np.r_[C.row, d], np.r_[C.col, d], np.r_[C.data, np.full(len(d), self.tau**2)],
-                   C.shape)  # fmt: skip
+        return C + self.tau**2 * sparse.eye_array(C.shape[0], format="csr")
 
     def _gravity_whitener(self, x) -> Whitener:
         if self.accel_dirs is None:
@@ -347,28 +346,26 @@ class _Stacked:
         return float(np.sqrt(brentq(excess, 0.0, hi, xtol=1e-30, rtol=1e-10)))
 
 
-def _gauss_newton(prob: _Stacked, x: np.ndarray, max_iterations: int) -> tuple[np.ndarray, int]:
-    """Damped Gauss-Newton (step halving) on the stacked whitened residuals."""
+def _solve_frozen(prob: _Stacked, x: np.ndarray, max_iterations: int) -> tuple[np.ndarray, int]:
+    """Levenberg-Marquardt on the stacked whitened residuals, the noise model held at ``x``;
+    the solution and the Jacobians evaluated."""
     prob.freeze(x)
-    f, J = prob.f_and_J(x)
-    it = 0
-    while it < max_iterations:
-        it += 1
-        step = np.linalg.lstsq(J, -f, rcond=None)[0]
-        cost = f @ f
-        for _ in range(30):
-            x_new = x + step
-            f_new, J_new = prob.f_and_J(x_new)
-            if np.all(np.isfinite(f_new)) and f_new @ f_new <= cost:
-                break
-            step = step / 2
-        else:
-            break
-        x, f, J = x_new, f_new, J_new
-        if np.linalg.norm(step) <= 1e-12 * max(np.linalg.norm(x), 1e-300) or cost - f @ f \
-                <= 1e-14 * max(cost, 1e-300):  # fmt: skip
-            break
-    return x, it
+    last: dict = {}
+
+    def both(v):
+        key = v.tobytes()
+        if key not in last:
+            last.clear()
+            last[key] = prob.f_and_J(v)
+        return last[key]
+
+    f, J = both(x)
+    if len(f) < len(x):  # fewer equations than parameters
+        _check_determined(np.vstack([J, np.zeros((len(x) - len(f), len(x)))]), prob.with_g)
+    sol = least_squares(lambda v: both(v)[0], x, jac=lambda v: both(v)[1], method="lm",
+                        x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12,
+                        max_nfev=max_iterations)  # fmt: skip
+    return sol.x, int(sol.njev or 0)
 
 
 def fit_known(
@@ -447,10 +444,10 @@ TAU_ITERATIONS = 8
 
 
 def _solve(prob: _Stacked, x: np.ndarray, max_iterations: int, estimate_tau: bool):
-    """Gauss-Newton twice (the noise model at the solution), then, with ``estimate_tau``,
-    the excess of the turns between still periods and the fit in turn until they agree."""
-    x, it = _gauss_newton(prob, x, max_iterations)  # solve: the whitened e_k and still rows
-    x, it2 = _gauss_newton(prob, x, max_iterations)  # the noise model at the solution
+    """Solved twice (the noise model at the solution), then, with ``estimate_tau``, the
+    excess of the turns between still periods and the fit in turn until they agree."""
+    x, it = _solve_frozen(prob, x, max_iterations)  # solve: the whitened e_k and still rows
+    x, it2 = _solve_frozen(prob, x, max_iterations)  # the noise model at the solution
     it += it2
     if not estimate_tau or not np.all(np.isfinite(x)):
         return x, it
@@ -460,7 +457,7 @@ def _solve(prob: _Stacked, x: np.ndarray, max_iterations: int, estimate_tau: boo
         prob.tau = new
         if done:
             break
-        x, it2 = _gauss_newton(prob, x, max_iterations)
+        x, it2 = _solve_frozen(prob, x, max_iterations)
         it += it2
     return x, it
 

@@ -17,8 +17,9 @@ import copy
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import sparse
 
-from imucal_cli.solvers.banded import BandedWhitener, Coo
+from imucal_cli.solvers.banded import BandedWhitener
 from imucal_cli.solvers.gyro_integration import (
     Stack,
     attitudes,
@@ -267,7 +268,7 @@ class Problem:
         J.setflags(write=False)
         return r, J
 
-    def rotation_covariance(self, x) -> Coo:
+    def rotation_covariance(self, x) -> sparse.csr_array:
         """Covariance of the rotation residuals (2K x 2K, sparse): each rotation's from the
         gravity directions before and after it (shared with its neighbours) and its
         integrated gyro noise. Kept with the integration at ``x`` (the fit's statistics and
@@ -275,7 +276,7 @@ class Problem:
         return self._derived(x, "covariance", (self.gyro_sigma, self.clock),
                              lambda: self._rotation_covariance(x))  # fmt: skip
 
-    def _rotation_covariance(self, x) -> Coo:
+    def _rotation_covariance(self, x) -> sparse.csr_array:
         p, R = self.predicted(x)
         M = x[3:12].reshape(3, 3)
         K, P = self.K, self.P
@@ -297,9 +298,9 @@ class Problem:
             data.append(c.ravel())
             rr.append(np.broadcast_to(rows, c.shape).ravel())
             cc.append(np.broadcast_to(cols, c.shape).ravel())
-        C = Coo(np.concatenate(rr), np.concatenate(cc), np.concatenate(data),
-                (2 * K, 2 * P + 3 * K))  # fmt: skip
-        return C.gram()
+        C = sparse.csr_array((np.concatenate(data), (np.concatenate(rr), np.concatenate(cc))),
+                             shape=(2 * K, 2 * P + 3 * K))  # fmt: skip
+        return C @ C.T
 
     def whitener(self, x) -> Whitener:
         # The covariance's sparsity depends on the turns' still periods only: its ordering is

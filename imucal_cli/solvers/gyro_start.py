@@ -29,11 +29,10 @@ from dataclasses import dataclass
 from itertools import permutations, product
 
 import numpy as np
+from scipy.optimize import minimize_scalar
 
 from imucal_cli.errors import DesignError
 from imucal_cli.solvers.gyro_integration import Stack, compose_ends, quat_to_matrix
-from imucal_cli.solvers.order import median, quantile
-from imucal_cli.solvers.scalar_min import minimize_bounded
 
 #: Turns that gravity sees by less than this carry no scale information for the start.
 MIN_SEEN_DEG = 10.0
@@ -98,7 +97,7 @@ class _Turns:
         full = Stack.of(t)  # every turn's samples end to end
         h = clock * np.diff(full.t)
         inside = full.pos[1:] > 0  # the interval from row i to i + 1 lies within a turn
-        dt = median(np.diff(full.t)[inside])
+        dt = np.median(np.diff(full.t)[inside])
         m = max(1, int(round(1 / (COARSE_RATE_HZ * max(clock * dt, 1e-12)))))
         # Each interval's trapezoid integral of the bias-free rate (zero across two turns).
         d = np.concatenate(z).astype(float) - np.asarray(b0, float)
@@ -159,7 +158,7 @@ def first_scale(turns: _Turns) -> float:
             f"no rotation turns the gravity direction by {MIN_SEEN_DEG:g} degrees or more: the "
             "accelerometer cannot see the turns; turn the unit about horizontal axes"
         )
-    return float(quantile(seen[ok] / raw[ok], SCALE_QUANTILE))
+    return float(np.quantile(seen[ok] / raw[ok], SCALE_QUANTILE))
 
 
 def start_values(
@@ -220,6 +219,6 @@ def _refine_scale(turns: _Turns, O: np.ndarray, lam: float) -> tuple[float, floa
     values = [float(turns.mismatch(Rg, O[None])[0]) for Rg in R]
     i = int(np.argmin(values))
     a, b = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
-    x, fx, _ = minimize_bounded(cost, a, b, xatol=2e-3)
-    best = (x, fx) if fx <= values[i] else (grid[i], values[i])
+    sol = minimize_scalar(cost, bounds=(a, b), method="bounded", options={"xatol": 2e-3})
+    best = (sol.x, sol.fun) if sol.fun <= values[i] else (grid[i], values[i])
     return float(np.exp(best[0])), float(best[1])

@@ -20,9 +20,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-
-from imucal_cli.solvers import order
-from imucal_cli.solvers.quantiles import chdtri, ndtri
+from scipy.special import chdtri, ndtri
 
 #: Family-wise false-alarm probability of the spike test over a whole session.
 SPIKE_ALPHA = 1e-3
@@ -57,7 +55,7 @@ def quantum(values: np.ndarray) -> float:
     values of a channel (0 when the data look continuous)."""
     steps = []
     for col in np.atleast_2d(np.asarray(values, float).T):
-        v = _distinct(col[np.isfinite(col)])
+        v = np.unique(col[np.isfinite(col)])
         if len(v) < 2:
             continue
         d = np.diff(v)
@@ -70,24 +68,9 @@ def quantum(values: np.ndarray) -> float:
     return float(min(steps)) if steps else 0.0
 
 
-def _distinct(v: np.ndarray) -> np.ndarray:
-    """``np.unique(v)``: for whole numbers over a moderate range (counts) by counting them,
-    a pass instead of a sort."""
-    if len(v) > 64:
-        lo, hi = v.min(), v.max()
-        if hi - lo < 4 * len(v) + 1024 and np.array_equal(v, np.round(v)):
-            counts = np.bincount((v - lo).astype(np.int64))
-            return np.flatnonzero(counts) + lo
-    return order.distinct(v)
-
-
 def medians_and_spread(blocks: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """Each hold's median and its median absolute deviation about that median, per channel.
-
-    Equal to ``np.median(b, axis=0)`` and ``np.median(np.abs(b - median), axis=0)`` for each
-    block ``b`` (a hold with NaN gives NaN), a third faster: each channel is selected in one
-    contiguous copy, and the deviations, whose median does not depend on their order, are
-    taken from the same copy in place.
+    """Each hold's median and its median absolute deviation about that median, per channel
+    (a hold with NaN gives NaN).
 
     Parameters
     ----------
@@ -100,15 +83,8 @@ def medians_and_spread(blocks: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray
     n = blocks[0].shape[1] if blocks else 0
     median, mad = np.empty((len(blocks), n)), np.empty((len(blocks), n))
     for k, b in enumerate(blocks):
-        work = b.T.astype(np.float64)  # a copy (n, n_k), each channel contiguous
-        if not np.isfinite(work).all():
-            median[k] = order.median(b, axis=0)  # NaN where a NaN is
-            mad[k] = order.median(np.abs(b - median[k]), axis=0)
-            continue
-        median[k] = order.middle_in_place(work)
-        work -= median[k][:, None]
-        np.abs(work, out=work)
-        mad[k] = order.middle_in_place(work)
+        median[k] = np.median(b, axis=0)
+        mad[k] = np.median(np.abs(b - median[k]), axis=0)
     return median, mad
 
 

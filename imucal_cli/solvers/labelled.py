@@ -106,28 +106,25 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+from scipy.special import chdtri, stdtrit
 from scipy.stats import chi2 as chi2_dist
 from scipy.stats import f as f_dist
 
 from imucal_cli.errors import DesignError, SolverError
-from imucal_cli.solvers.quantiles import chdtri, stdtrit
-from imucal_cli.solvers.rotation import Rotation
 
-from .gravity import _UPPER
+from .gravity import _UPPER, triangular_and_rotation
 from .labelled_model import (
     Problem,
     axes,
     jacobian,
     public_from_theta,
     public_params,  # noqa: F401 (re-exported: the truth in these parameters)
-    rotation_matrices,
-    rotation_matrix,
     second_order,
     sphere_exp,
     theta_floor,
-    triangular_and_rotation,
 )
-from .lsq import least_squares
 from .outliers import Deletion, deletion
 
 #: Parameters: bias (raw units), the sensitivity of each axis (raw units per m/s^2, the
@@ -343,9 +340,7 @@ def contradicted_labels(
 def _solve(prob: Problem, x0, max_iterations):
     sparse = prob.N > DENSE_MAX_POSES
     if sparse:  # hundreds of placement parameters: scipy's sparse trust region (lsmr)
-        from scipy.optimize import least_squares as sparse_least_squares
-
-        return sparse_least_squares(
+        return least_squares(
             prob.residuals, x0, jac=lambda x: prob.jacobian(x, sparse=True), method="trf",
             tr_solver="lsmr", x_scale=1.0, xtol=1e-12, ftol=1e-12, gtol=1e-12,
             max_nfev=max_iterations,
@@ -354,12 +349,12 @@ def _solve(prob: Problem, x0, max_iterations):
         prob.residuals,
         x0,
         jac=prob.jacobian,
+        method="lm",
         x_scale=1.0,
         xtol=1e-12,
         ftol=1e-12,
         gtol=1e-12,
         max_nfev=max_iterations,
-        blocks=(12, 2),  # each pose's two angles enter only its own rows
     )
 
 
@@ -539,7 +534,7 @@ def _result(st: _State, offset, scale, a_mean, up, labelled, g, source, noise_do
     Kn = np.zeros((3, 3))
     Kn[_UPPER] = x12[3:9] - np.linalg.solve(jacobian(axes_of, x12[3:9], many=True), bias2)
     B = offset + scale * x12[:3]
-    M = rotation_matrix(x12[9:12]) @ Kn / scale
+    M = Rotation.from_rotvec(x12[9:12]).as_matrix() @ Kn / scale
     t_dof = _t_dof(parts, st.placement_dof, source, noise_dof)
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
     q = np.where(np.isfinite(t_dof), stdtrit(np.minimum(t_dof, 1e6), 0.975), 1.959964)
@@ -602,7 +597,7 @@ def _held_out(prob: Problem, st: _State, dele: Deletion, offset, scale, a_mean, 
     X = st.sol.x[:12] + dele.dx[:, :12]  # (B, K, phi) without each pose
     Kn = np.zeros((prob.N, 3, 3))
     Kn[:, _UPPER[0], _UPPER[1]] = X[:, 3:9]
-    M = rotation_matrices(X[:, 9:12]) @ Kn / scale
+    M = Rotation.from_rotvec(X[:, 9:12]).as_matrix() @ Kn / scale
     h = np.einsum("nij,nj->ni", M, a_mean - offset - scale * X[:, :3])
     return np.where(dele.rank > 0, np.linalg.norm(h, axis=1) - g, np.nan)
 
@@ -681,6 +676,7 @@ def _refit_iterative(prob: Problem, x: np.ndarray, free: np.ndarray) -> np.ndarr
         lambda v: prob.residuals(whole(v))[:n_meas],
         x[free],
         jac=lambda v: prob.jacobian(whole(v))[:n_meas][:, free],
+        method="lm",
         x_scale=1.0,
         xtol=1e-10,
         ftol=1e-10,

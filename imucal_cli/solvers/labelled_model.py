@@ -5,10 +5,10 @@ second-order marginalisation over the placement."""
 from __future__ import annotations
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.spatial.transform import Rotation
 
-from imucal_cli.solvers.rotation import Rotation
-
-from .gravity import _UPPER
+from .gravity import _UPPER, triangular_and_rotation
 
 PAIRS = ((0, 1), (0, 2), (1, 2))
 
@@ -37,41 +37,6 @@ def sphere_exp(u0: np.ndarray, T: np.ndarray, d: np.ndarray) -> tuple[np.ndarray
         + dsinc[:, None, None] * v[:, :, None] * d[:, None, :]
     )
     return u, du
-
-
-def rotation_matrix(phi: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a rotation vector (Rodrigues), rad: :func:`rotation_matrices` of one."""
-    return rotation_matrices(np.asarray(phi, float)[None])[0]
-
-
-def rotation_matrices(phi: np.ndarray) -> np.ndarray:
-    """Rotation matrix of each rotation vector (Rodrigues, rad), a row of ``phi`` (n, 3):
-    (n, 3, 3); second order in ``phi`` below 1e-8 rad."""
-    phi = np.asarray(phi, float)
-    th = [float(np.sqrt(p.dot(p))) for p in phi]
-    X = np.zeros((len(phi), 3, 3))
-    X[:, 0, 1], X[:, 0, 2], X[:, 1, 2] = -phi[:, 2], phi[:, 1], -phi[:, 0]
-    X[:, 1, 0], X[:, 2, 0], X[:, 2, 1] = phi[:, 2], -phi[:, 1], phi[:, 0]
-    sin, cos = np.sin(th), np.cos(th)
-    # Python's float power, as the single matrix's formula (numpy's square can differ in the
-    # last bit)
-    a = np.array([1.0 if t < 1e-8 else sin[k] / t for k, t in enumerate(th)])[:, None, None]
-    b = np.array([0.5 if t < 1e-8 else (1 - cos[k]) / t**2 for k, t in enumerate(th)])
-    return np.eye(3) + a * X + (b[:, None, None] * X) @ X
-
-
-def triangular_and_rotation(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``M = Q K`` with ``K`` upper triangular (positive diagonal where ``det M > 0``) and
-    ``Q`` a rotation, for one matrix (3, 3) or a stack (..., 3, 3). A mirrored matrix
-    (``det M < 0``: labels in a left-handed frame relative to the sensor) keeps ``Q`` proper
-    and gives ``K`` a negative ``k_z``."""
-    Q, K = np.linalg.qr(M)
-    sign = np.sign(np.diagonal(K, axis1=-2, axis2=-1))
-    Q, K = Q * sign[..., None, :], K * sign[..., :, None]
-    flip = np.where(np.linalg.det(Q) < 0, -1.0, 1.0)
-    Q[..., :, 2] *= flip[..., None]
-    K[..., 2, :] *= flip[..., None]
-    return K, Q
 
 
 def axes(S: np.ndarray) -> np.ndarray:
@@ -244,11 +209,11 @@ class Problem:
         list of three 3x3), cached for the last ``phi``."""
         key = phi.tobytes()
         if self._rot is None or self._rot[0] != key:
-            self._rot = (key, rotation_matrix(phi), None)
+            self._rot = (key, Rotation.from_rotvec(phi).as_matrix(), None)
         if derivative and self._rot[2] is None:
             h = 1e-6
             steps = np.repeat(h * np.eye(3), 2, axis=0) * np.array([1.0, -1.0] * 3)[:, None]
-            Rs = rotation_matrices(phi + steps)  # phi + h e_c, phi - h e_c for c = 0, 1, 2
+            Rs = Rotation.from_rotvec(phi + steps).as_matrix()  # phi +- h e_c, c = 0, 1, 2
             dR = [(Rs[2 * c] - Rs[2 * c + 1]) / (2 * h) for c in range(3)]
             self._rot = (key, self._rot[1], dR)
         return self._rot[1], self._rot[2]
@@ -285,8 +250,6 @@ class Problem:
         Jd = -np.einsum("nij,njc->nic", W, D[:, :, 9:])
         rows_d, cols_d, pr_rows, pr_cols = self.layout()
         if sparse:
-            from scipy.sparse import coo_matrix
-
             r = np.concatenate([np.repeat(np.arange(3 * N), 12), rows_d.ravel(), pr_rows])
             c = np.concatenate([np.tile(np.arange(12), 3 * N), cols_d.ravel(), pr_cols])
             v = np.concatenate([Jt.ravel(), Jd.ravel(), np.full(2 * L, 1.0 / self.sigma_p)])

@@ -39,7 +39,7 @@ weighted least squares over
 - eq. (3) for every static pose with an up direction, divided by the standard deviation that
   the pose's magnetometer and accelerometer noise give it.
 
-Levenberg-Marquardt (:func:`imucal_cli.solvers.lsq.least_squares`) on ``(b, W, s)``, started from an
+Levenberg-Marquardt (``scipy.optimize.least_squares``) on ``(b, W, s)``, started from an
 algebraic ellipsoid fit (:func:`imucal_cli.solvers.ellipsoid.fit_ellipsoid`; the symmetric
 soft-iron matrix of that fit is what the hobby tools stop at) and from the rotation that best
 satisfies eq. (3) (multi-start over the 24 axis permutations plus a linear solution, so that a
@@ -56,12 +56,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+from scipy.special import chdtri
 
 from imucal_cli.errors import DesignError, SolverError
-from imucal_cli.solvers.quantiles import chdtri
-from imucal_cli.solvers.rotation import Rotation
 
-from .lsq import least_squares
 from .magnetometer_start import ellipsoid_start, polar, rotation_start
 
 __all__ = [
@@ -342,7 +342,7 @@ class _Problem:
             return cache[key]
 
         return least_squares(
-            lambda x: both(x)[0], x0, jac=lambda x: both(x)[1],
+            lambda x: both(x)[0], x0, jac=lambda x: both(x)[1], method="lm", x_scale="jac",
             xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=max_nfev,
         )  # fmt: skip
 

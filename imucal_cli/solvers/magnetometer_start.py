@@ -7,9 +7,9 @@ ellipsoid, then the rotation onto the accelerometer frame from eq. (3) of that m
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from imucal_cli.errors import DesignError
-from imucal_cli.solvers.rotation import Rotation
 
 from .ellipsoid import fit_ellipsoid
 

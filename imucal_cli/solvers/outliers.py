@@ -25,10 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-
-from imucal_cli.solvers.quantiles import chdtri
-
-from .order import median
+from scipy.special import chdtrc, chdtri
 
 #: Family-wise probability of flagging a pose of a good session.
 OUTLIER_ALPHA = 1e-3
@@ -104,7 +101,7 @@ def noise_excess(d: Deletion) -> float:
     if ok.sum() < 3:
         return 1.0
     medians = chdtri(rank[ok].astype(float), 0.5)
-    s2 = float(median(T[ok]) / median(medians))
+    s2 = float(np.median(T[ok]) / np.median(medians))
     worst = int(np.argmax(np.where(ok, T, -np.inf)))
     rest_dof = d.dof - int(rank[worst])
     if np.isfinite(d.chi2) and rest_dof > 0:
@@ -128,8 +125,6 @@ def significance(d: Deletion, k: int) -> float:
     """Family-wise p-value of pose ``k``'s statistic among the poses that can be checked
     (Bonferroni), against the noise scaled by :func:`noise_excess`; a pose that cannot be
     checked (rank 0: flagged for another reason) is tested as one degree of freedom."""
-    from .quantiles import chdtrc
-
     n = int(np.sum(d.rank > 0)) or 1
     rank = max(int(d.rank[k]), 1)
     return float(min(1.0, n * chdtrc(rank, d.T[k] / noise_excess(d))))

@@ -25,11 +25,10 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import chi2 as chi2_dist
 
 from imucal_cli.errors import InputError
-
-from .blocks import check_all_given, check_not_more
-from .quantiles import chi2_isf, chi2_ppf  # noqa: F401 (chi2_* also imported from here)
+from imucal_cli.numerics.blocks import check_all_given, check_not_more
 
 __all__ = [
     "DEFAULT_ALPHA",
@@ -250,7 +249,7 @@ def _noise_of(
         var = window_variance(x, n)
     dof = n - 1
     # E.g. the 5 % quantile of chi2(dof)/dof: the low quantile of still-window variances.
-    q_factor = chi2_ppf(quantile, dof) / dof
+    q_factor = chi2_dist.ppf(quantile, dof) / dof
     sigma2_window = _quantile(var, quantile) / q_factor
     # First differences: mean square of the differences in each window, over 2.
     if len(x) > n:
@@ -357,7 +356,7 @@ def still_threshold(n: int, channels: int, alpha: float = DEFAULT_ALPHA) -> floa
     if not 0 < alpha < 1:
         raise InputError(f"alpha must be in (0, 1), got {alpha:g}")
     dof = channels * (n - 1)
-    return float(chi2_isf(alpha, dof) / dof)
+    return float(chi2_dist.isf(alpha, dof) / dof)
 
 
 def _runs(mask: np.ndarray) -> np.ndarray:
@@ -780,7 +779,7 @@ def find_rotations(
         peaks.append(np.nanmax(d2))
     if not gaps:
         return []
-    limits = [chi2_isf(alpha / (b - a), g.shape[1]) for a, b in gaps]
+    limits = [chi2_dist.isf(alpha / (b - a), g.shape[1]) for a, b in gaps]
     return [
         Interval(int(a), int(b))
         for (a, b), peak, limit in zip(gaps, peaks, limits, strict=True)

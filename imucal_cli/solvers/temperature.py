@@ -35,10 +35,10 @@ from dataclasses import dataclass, field
 from math import comb
 
 import numpy as np
+from scipy.special import fdtrc
+from scipy.stats import chi2 as chi2_dist
 
 from imucal_cli.errors import DesignError
-
-from .quantiles import betainc, chi2_isf
 
 __all__ = [
     "MAX_DEGREE",
@@ -63,11 +63,9 @@ SELECT_P = 0.01
 
 
 def f1_pvalue(F: float, dof: float) -> float:
-    """Upper tail ``P(F(1, dof) > F)`` of Fisher's F with one numerator degree of freedom:
-    ``I_{dof / (dof + F)}(dof / 2, 1 / 2)`` (``dof`` may be fractional)."""
-    if F <= 0.0:
-        return 1.0
-    return betainc(dof / 2.0, 0.5, dof / (dof + F))
+    """Upper tail ``P(F(1, dof) > F)`` of Fisher's F with one numerator degree of freedom
+    (``dof`` may be fractional)."""
+    return float(fdtrc(1.0, dof, max(F, 0.0)))
 
 
 def check_span(temperature: np.ndarray, what: str, min_span_c: float = MIN_SPAN_C) -> float:
@@ -90,7 +88,7 @@ def check_span(temperature: np.ndarray, what: str, min_span_c: float = MIN_SPAN_
             f"{what}: the temperature spans only {span:.1f} C ({lo:.1f} .. {hi:.1f} C); a bias "
             f"model fitted over less than {min_span_c:g} C is swamped by noise and run-to-run "
             "drift and grows wrong fast outside its span: record through at least "
-            f"{min_span_c:g} C (a cold start or a hair-dryer ramp, see the README)"
+            f"{min_span_c:g} C (a cold start or a hair-dryer ramp, see docs/temperature.md)"
         )
     return span
 
@@ -306,7 +304,7 @@ def _fit_channel(dt, y, w, groups, n_groups, max_degree, known_sigma, serial, se
     rho = _lag1(s.r) if serial else 0.0
     infl = (1 + rho) / (1 - rho)
     if known_sigma:
-        scale = s.chi2 / s.dof if s.dof > 0 and s.chi2 > chi2_isf(0.01, s.dof) else 1.0
+        scale = s.chi2 / s.dof if s.dof > 0 and s.chi2 > chi2_dist.isf(0.01, s.dof) else 1.0
     else:
         scale = s.chi2 / s.dof
     cov = s.XtX_inv * scale * infl

@@ -29,11 +29,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.optimize import least_squares
+from scipy.stats import chi2 as chi2_dist
 
 from imucal_cli.errors import DesignError, SolverError
 
 from .gravity import model_to_params, params_to_model
-from .segmentation import chi2_isf
 from .temperature import MAX_DEGREE, MIN_SPAN_C, SELECT_P, check_span, f1_pvalue
 
 __all__ = ["JointResult", "fit_gravity_tempco"]
@@ -157,46 +158,27 @@ class _Fit:
         return float(self.f @ self.f)
 
 
-def _levenberg_marquardt(fun_jac, x0: np.ndarray, max_nfev: int) -> tuple[np.ndarray, int, bool]:
-    """Minimise ``|f(x)|^2`` by Levenberg-Marquardt (Marquardt's diagonal scaling); returns
-    ``(x, evaluations, converged)``. ``fun_jac(x) -> (f, J)``."""
-    x = np.asarray(x0, float).copy()
-    f, J = fun_jac(x)
-    cost, lam, nfev = float(f @ f), 1e-3, 1
-    while nfev < max_nfev:
-        A, g = J.T @ J, J.T @ f
-        D = np.maximum(np.diag(A), 1e-300)
-        try:
-            step = -np.linalg.solve(A + lam * np.diag(D), g)
-        except np.linalg.LinAlgError:
-            return x, nfev, False
-        f_new, J_new = fun_jac(x + step)
-        nfev += 1
-        cost_new = float(f_new @ f_new)
-        if np.isfinite(cost_new) and cost_new <= cost:
-            small = np.linalg.norm(step) <= 1e-12 * (np.linalg.norm(x) + 1e-12)
-            x, f, J = x + step, f_new, J_new
-            done = small or cost - cost_new <= 1e-14 * max(cost, 1e-300)
-            cost, lam = cost_new, max(lam / 10.0, 1e-12)
-            if done:
-                return x, nfev, True
-        else:
-            lam *= 10.0
-            if lam > 1e12:
-                return x, nfev, True  # no step lowers the cost: a minimum to precision
-    return x, nfev, False
-
-
 def _solve(model: _Model, x0: np.ndarray, degree, max_iterations: int) -> _Fit | None:
-    x, nfev, ok = _levenberg_marquardt(lambda v: model.residuals_and_jacobian(v, degree), x0,
-                                       max_iterations)  # fmt: skip
-    if not ok or not np.all(np.isfinite(x)):
+    """Levenberg-Marquardt from ``x0`` for the temperature terms of ``degree``; None where the
+    poses do not determine them (or it does not converge)."""
+
+    def fun(v):
+        return model.residuals_and_jacobian(v, degree)[0]
+
+    def jac(v):
+        return model.residuals_and_jacobian(v, degree)[1]
+
+    if len(fun(x0)) <= len(x0):
         return None
-    f, J = model.residuals_and_jacobian(x, degree)
+    sol = least_squares(fun, x0, jac=jac, method="lm", x_scale="jac", xtol=1e-12, ftol=1e-12,
+                        gtol=1e-12, max_nfev=max_iterations)  # fmt: skip
+    if not sol.success or not np.all(np.isfinite(sol.x)):
+        return None
+    f, J = model.residuals_and_jacobian(sol.x, degree)
     sv = np.linalg.svd(J, compute_uv=False)
-    if sv[-1] <= UNDETERMINED * sv[0] or len(f) <= len(x):
+    if sv[-1] <= UNDETERMINED * sv[0]:
         return None
-    return _Fit(x, f, J, nfev)
+    return _Fit(sol.x, f, J, int(sol.nfev))
 
 
 def _pose_weights(a_mean, cov_mean, B, M) -> np.ndarray:
@@ -321,7 +303,7 @@ def _package(model, fit, degree, T, tests, nfev, weighted) -> JointResult:
     dof = len(fit.f) - len(fit.x)
     chi2 = fit.chi2
     if weighted:
-        noise_scale = chi2 / dof if dof > 0 and chi2 > chi2_isf(0.01, dof) else 1.0
+        noise_scale = chi2 / dof if dof > 0 and chi2 > chi2_dist.isf(0.01, dof) else 1.0
     else:
         noise_scale = chi2 / dof
     D = model.to_raw_jacobian(degree)

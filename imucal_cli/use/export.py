@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from imucal_cli.errors import InputError
-from imucal_cli.formats.calibration import Calibration
+from imucal_cli.errors import CalibrationFileError, InputError
+from imucal_cli.formats.calibration import Calibration, calibration_from_json
 from imucal_cli.formats.exporters import STANDARD_GRAVITY, ExportOptions
 from imucal_cli.formats.exporters.ardupilot import export_ardupilot
 from imucal_cli.formats.exporters.basalt import export_basalt
@@ -34,6 +34,7 @@ from imucal_cli.formats.exporters.kalibr import export_kalibr, export_kalibr_imu
 from imucal_cli.formats.exporters.openvins import export_openvins
 from imucal_cli.formats.exporters.px4 import export_px4
 from imucal_cli.formats.exporters.ros_imu import export_ros_imu
+from imucal_cli.formats.inputs import read_text_input
 from imucal_cli.formats.noise import NOISE_FORMAT, NoiseFigures, noise_from_dict
 from imucal_cli.formats.text import has_control
 
@@ -189,10 +190,6 @@ def load_input(path: str | os.PathLike) -> tuple[Calibration | None, NoiseFigure
     CalibrationFileError, InputError
         Neither, or a file that does not follow its format.
     """
-    from imucal_cli.errors import CalibrationFileError
-    from imucal_cli.formats.calibration import calibration_from_json
-    from imucal_cli.formats.inputs import read_text_input
-
     src = str(path)
     text = read_text_input(path, what="calibration file", error=CalibrationFileError)
     try:

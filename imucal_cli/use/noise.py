@@ -13,7 +13,7 @@
    need a calibration: such a sensor is skipped with a warning, and when no sensor is left the
    step refuses with advice.
 3. Per axis: the overlapping Allan deviation summed block by block
-   (:class:`imucal_cli.solvers.allan.AllanAccumulator`), and the random walk, bias instability
+   (:class:`imucal_cli.numerics.allan.AllanAccumulator`), and the random walk, bias instability
    and rate random walk read from it (:func:`~imucal_cli.solvers.allan.noise_from_curve`),
    converted to the units people put in their filters.
 
@@ -36,7 +36,10 @@ from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import Calibration, SensorCalibration
 from imucal_cli.formats.noise import NOISE_FORMAT
 from imucal_cli.formats.session import Session, SessionSamples, samples_of
-from imucal_cli.solvers.allan import AllanAccumulator, AxisNoise, noise_from_curve
+from imucal_cli.numerics.allan import AllanAccumulator
+from imucal_cli.solvers.allan import AxisNoise, noise_from_curve
+from imucal_cli.solvers.segmentation import StaticStream, estimate_noise
+from imucal_cli.use.report import load_for_report
 
 __all__ = [
     "MIN_DURATION_S",
@@ -386,8 +389,6 @@ def _one_pass(samples: SessionSamples, sensors_in: tuple[str, ...], analysed: di
     """The still test's noise first (find_static's, from the span or pieces of it), then one
     pass over the samples: the still test, the Allan sums and the longest time step.  Returns
     the still test, the longest step and the steps of the noise sample."""
-    from imucal_cli.solvers.segmentation import StaticStream, estimate_noise
-
     n = stop - start
     sample = _noise_sample(samples, ("time", *sensors_in), start, stop)
     noise = estimate_noise(*_by_sensor(sample[0], sensors_in, sample[1:]))
@@ -445,6 +446,4 @@ def _by_sensor(time: np.ndarray, kinds: tuple[str, ...], arrays: list[np.ndarray
 
 def load_calibration(path: str | os.PathLike[str]) -> Calibration:
     """A calibration JSON or the last one stored in a session (as ``imucal report`` reads)."""
-    from imucal_cli.use.report import load_for_report
-
     return load_for_report(path)

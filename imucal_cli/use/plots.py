@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from imucal_cli.errors import InputError
+from imucal_cli.formats.output import safe_output
 
 __all__ = ["PLOT_HINT", "noise_figure", "report_figure"]
 
@@ -44,8 +45,6 @@ def _pyplot():
 
 def _save(fig, path: str | os.PathLike[str], force: bool = False, inputs=()) -> Path:
     """Write the figure as PNG through the safe-output helper (see formats/output.py)."""
-    from imucal_cli.formats.output import safe_output
-
     path = Path(path)
     try:
         with safe_output(path, force=force, inputs=inputs) as out, out.open("wb") as handle:

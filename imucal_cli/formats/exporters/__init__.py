@@ -26,6 +26,7 @@ from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import MODEL_EQUATION, Calibration, SensorCalibration
 from imucal_cli.formats.noise import NoiseFigures
 from imucal_cli.formats.text import clean_text
+from imucal_cli.solvers.temperature import reexpand
 
 SENSORS = ("accel", "gyro")
 STANDARD_GRAVITY = 9.80665
@@ -34,6 +35,12 @@ STANDARD_GRAVITY = 9.80665
 SI_UNITS = {"accel": "m/s^2", "gyro": "rad/s"}
 _NOMINAL = {"accel": {"m/s^2": 1.0, "g": STANDARD_GRAVITY},
             "gyro": {"rad/s": 1.0, "deg/s": math.pi / 180.0}}  # fmt: skip
+
+#: An example of ``--accel-scale`` / ``--gyro-scale`` for a common part, per sensor.
+_SCALE_EXAMPLE = {
+    "accel": "9.80665/16384 for a 16-bit +-2 g part",
+    "gyro": "0.0174533/131 for a 16-bit +-250 deg/s part",
+}
 
 
 @dataclass
@@ -177,8 +184,6 @@ class TemperatureTerms:
 
     def about(self, t_new: float) -> tuple[np.ndarray, np.ndarray]:
         """``(d0, d)``: the same polynomial about ``t_new``, ``d0`` its value there."""
-        from imucal_cli.solvers.temperature import reexpand
-
         return reexpand(self.tempco, self.t_ref, t_new)
 
     def range_text(self) -> str:
@@ -268,10 +273,11 @@ def published(
         basis = (f"raw, already in {raw_units}" if factor == 1.0
                  else f"raw ({raw_units}) x {factor:.9g} {SI_UNITS[name]} per {raw_units}")
     else:
+        raw = "units it does not state" if raw_units == "raw units" else raw_units
         raise InputError(
-            f"the {name} calibration takes raw {raw_units}; {target} reads {name} in "
+            f"the {name} calibration takes raw {raw}; {target} reads {name} in "
             f"{SI_UNITS[name]} as the driver publishes it: pass --{name}-scale (the driver's "
-            f"{SI_UNITS[name]} per raw unit, e.g. 9.80665/16384 for a 16-bit +-2 g part)"
+            f"{SI_UNITS[name]} per raw unit, e.g. {_SCALE_EXAMPLE[name]})"
         )
     if abs(np.linalg.det(sec.matrix)) < 1e-300 or not np.isfinite(np.linalg.cond(sec.matrix)):
         raise InputError(f"the {name} matrix is singular: it cannot be inverted for {target}")

@@ -8,8 +8,8 @@ are, for messages) and ``read(paths, options, stats) -> Recording``
   a header line.
 - ``imu_tk`` (:mod:`.imu_tk`): imu_tk's pair of files (accelerometer, then gyroscope).
 
-A new format is a new module plus one line in :data:`FORMATS`; modules are imported only when
-their format is used (a heavy reader library costs nothing to the other formats).  The shared
+A new format is a new module plus one line in :data:`FORMATS`; a module whose reader library
+is an optional extra (rosbags, mcap, pyulog, pymavlink) imports it when it reads.  The shared
 text reader is :mod:`.text`.  Raw values are stored as read (never rescaled); the units given
 become the session's ``accel_units``/``gyro_units``.
 
@@ -22,7 +22,6 @@ there is gyro data) from ``find_rotations``.
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import os
 from collections.abc import Sequence
 from datetime import UTC, datetime
@@ -32,6 +31,7 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 from imucal_cli.formats.session import Segment, Session
+from imucal_cli.solvers.gaps import find_gaps, gaps_within
 from imucal_cli.solvers.segmentation import (
     Interval,
     NoiseEstimate,
@@ -41,6 +41,8 @@ from imucal_cli.solvers.segmentation import (
     find_steps,
 )
 
+from . import csv, imu_tk, mavlink, ros, serial_lines, ulog, witmotion
+from .mavlink import looks_like_dataflash, looks_like_dataflash_text, looks_like_tlog
 from .recording import (
     ACCEL_UNITS,
     GYRO_UNITS,
@@ -50,6 +52,8 @@ from .recording import (
     ReadOptions,
     Recording,
 )
+from .sections import labelled_segments, read_section_list, sections_of_column
+from .serial_lines import detect_line_format
 from .text import (
     FIELDS,
     check_time,
@@ -59,6 +63,7 @@ from .text import (
     skipped_fields,
     split_fields,
 )
+from .witmotion import looks_like_witmotion
 
 __all__ = [
     "ACCEL_UNITS",
@@ -86,18 +91,18 @@ __all__ = [
     "split_fields",
 ]
 
-FORMATS: dict[str, str] = {
-    "csv": "csv",
-    "imu_tk": "imu_tk",
-    "ros": "ros",
-    "ulog": "ulog",
-    "lines": "serial_lines",
-    "motioncal": "serial_lines",
-    "i2cdevlib": "serial_lines",
-    "witmotion": "witmotion",
-    "mavlink": "mavlink",
-    "tlog": "mavlink",
-    "dataflash": "mavlink",
+FORMATS = {
+    "csv": csv,
+    "imu_tk": imu_tk,
+    "ros": ros,
+    "ulog": ulog,
+    "lines": serial_lines,
+    "motioncal": serial_lines,
+    "i2cdevlib": serial_lines,
+    "witmotion": witmotion,
+    "mavlink": mavlink,
+    "tlog": mavlink,
+    "dataflash": mavlink,
 }
 """``--format`` names and the sibling module that reads each."""
 
@@ -105,7 +110,7 @@ _MIN_STILL_S = 1.0
 
 
 def reader(fmt: str):
-    """The module reading format ``fmt`` (imported on first use).
+    """The module reading format ``fmt``.
 
     Raises
     ------
@@ -114,7 +119,7 @@ def reader(fmt: str):
     """
     if fmt not in FORMATS:
         raise InputError(f"unknown format {fmt!r}: use {' or '.join(FORMATS)}")
-    return importlib.import_module(f"{__name__}.{FORMATS[fmt]}")
+    return FORMATS[fmt]
 
 
 def detect_format(paths: Sequence[str | os.PathLike]) -> str:
@@ -144,9 +149,6 @@ def detect_format(paths: Sequence[str | os.PathLike]) -> str:
         return "ulog"
     if head.startswith((b"#ROSBAG", b"\x89MCAP")):
         return "ros"
-    from .mavlink import looks_like_dataflash, looks_like_dataflash_text, looks_like_tlog
-    from .serial_lines import detect_line_format
-    from .witmotion import looks_like_witmotion
 
     if looks_like_dataflash(head) or looks_like_tlog(head) or looks_like_dataflash_text(head):
         return "mavlink"
@@ -205,7 +207,7 @@ def read_recording(
             raise InputError(f"{p}: no such file")
     fmt = detect_format(paths) if fmt is None else fmt
     read = reader(fmt).read
-    if mag_topic is not None and FORMATS[fmt] not in ("ros", "ulog", "mavlink"):
+    if mag_topic is not None and FORMATS[fmt] not in (ros, ulog, mavlink):
         raise InputError(f"--mag-topic applies to ros, ulog and mavlink logs, not --format {fmt}")
     if time_unit not in TIME_UNITS:
         raise InputError(f"unknown time unit {time_unit!r}: use {', '.join(TIME_UNITS)}")
@@ -430,8 +432,6 @@ def import_files(
 def _gap_warnings(rec: Recording, segments: list[Segment]) -> list[str]:
     """Gaps in the sample times (:func:`~imucal_cli.solvers.gaps.find_gaps`), said at import:
     inside a rotation segment the turn cannot be integrated (calibrate leaves it out)."""
-    from imucal_cli.solvers.gaps import find_gaps, gaps_within
-
     gaps = find_gaps(rec.time)
     if not gaps:
         return []
@@ -472,8 +472,6 @@ def _segments(
     (:mod:`.sections`), none for a magnetometer alone, else found by the data itself."""
     notes: list[str] = list(rec.notes)
     if sections is not None:
-        from .sections import labelled_segments, read_section_list, sections_of_column
-
         where = " and ".join(rec.names)
         spec = Path(sections)
         if spec.suffix.lower() == ".json" or spec.is_file():

@@ -8,6 +8,8 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import sys
+import tempfile
 from collections.abc import Iterable, Iterator
 
 from imucal_cli.errors import InputError
@@ -42,9 +44,6 @@ def damaged_as_input_error(items: Iterable, source: str) -> Iterator:
 def quiet():
     """Silence a library that prints what it skips, in Python and (compiled code: pymavlink's
     DataFlash indexer) on file descriptor 2; restored on the way out."""
-    import sys
-    import tempfile
-
     sys.stderr.flush()
     saved = os.dup(2)
     try:

@@ -59,10 +59,12 @@ from pathlib import Path
 import numpy as np
 
 from imucal_cli.errors import InputError
+from imucal_cli.formats.inputs import read_head
 
 from .library import one_line_reason, quiet
 from .recording import STAMPS_KEPT, choose_time, increasing
-from .ros import Channels, hold_latest
+from .ros import Channels, hold_latest, one_file, to_recording
+from .ulog import pair_by_time
 
 __all__ = ["choose_stream", "looks_like_dataflash", "looks_like_tlog", "read_mavlink"]
 
@@ -393,8 +395,6 @@ def _df_imu(rows: dict, instance: int) -> Channels:
 
 
 def _df_acc_gyr(rows: dict, instance: int) -> Channels:
-    from .ulog import pair_by_time
-
     t_a, acc, drop_a = _df_series(rows[("ACC", instance)])
     t_g, gyr, drop_g = _df_series(rows[("GYR", instance)])
     if min(len(t_a), len(t_g)) < 2:
@@ -467,8 +467,6 @@ def _isb_series(rows: dict) -> dict[tuple[str, int], tuple[np.ndarray, np.ndarra
 def _df_isb(series: dict, instance: int) -> Channels:
     """The batch sampler's samples of one IMU: paired accelerometer and gyroscope where their
     batches overlap in time, else the accelerometer alone."""
-    from .ulog import pair_by_time
-
     t_a, acc = series[("accel", instance)]
     if len(t_a) < 2:
         raise InputError(f"ISB.{instance}: too few batch samples ({len(t_a)})")
@@ -558,8 +556,6 @@ def read_mavlink(path: str | os.PathLike, topic: str | None = None,
     InputError
         Not a regular file, empty, or what the reader refuses.
     """
-    from imucal_cli.formats.inputs import read_head
-
     head = read_head(path, 64, what="MAVLink log")
     if not head:
         raise InputError(f"{path}: empty file, not a MAVLink log")
@@ -575,7 +571,5 @@ def read_mavlink(path: str | os.PathLike, topic: str | None = None,
 
 def read(paths, options, stats):
     """``imucal import --format mavlink``: :func:`read_mavlink` of the one path, ``--topic``."""
-    from .ros import one_file, to_recording
-
     path = one_file(paths, options, NAME, FILES)
     return to_recording(read_mavlink(path, options.topic, options.mag_topic), paths, stats)

@@ -17,6 +17,7 @@ What is read:
 
 from __future__ import annotations
 
+import importlib
 import os
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
@@ -28,7 +29,7 @@ import numpy as np
 from imucal_cli.errors import InputError
 
 from .library import damaged_as_input_error, quiet
-from .recording import STAMPS_KEPT, choose_time, increasing
+from .recording import STAMPS_KEPT, Recording, choose_time, increasing
 
 __all__ = ["Channels", "choose_topic", "hold_latest", "read_mcap", "read_ros", "read_rosbag"]
 
@@ -283,8 +284,6 @@ def _decoder_factories() -> dict[str, Any]:
     """MCAP decoders of ROS 2 (CDR, ``mcap-ros2-support``) and ROS 1 messages (``ros1msg``
     schemas, what ``mcap convert x.bag`` and ``mcap-ros1-support`` write), by encoding: the
     ones installed."""
-    import importlib
-
     factories = {}
     for encoding, (module, _) in MCAP_DECODERS.items():
         try:
@@ -417,8 +416,6 @@ def one_file(paths, options, name: str, files: str) -> Path:
 
 def to_recording(ch: Channels, paths, stats, columns: list[str] | None = None):
     """A :class:`~.recording.Recording` of ``ch`` (the importers' common return)."""
-    from .recording import Recording
-
     stats.samples = len(ch.time)
     stats.dropped += ch.dropped
     stats.unpaired += ch.unpaired

@@ -26,6 +26,7 @@ import numpy as np
 from imucal_cli.errors import InputError
 from imucal_cli.formats.inputs import read_input
 
+from .ros import Channels, one_file, to_recording
 from .text import BLANK, MAX_RECORDING_BYTES, NUMBER, is_delimited, split_fields, split_lines
 
 __all__ = [
@@ -157,8 +158,6 @@ FILES = "one MotionCal (Raw:) or i2cdevlib (a/g:) serial log"
 def read(paths, options, stats):
     """``imucal import --format lines`` (or ``motioncal``, ``i2cdevlib``): the format of the
     lines is detected; the rate is ``--rate``."""
-    from .ros import Channels, one_file, to_recording
-
     path = one_file(paths, options, NAME, FILES)
     rec = read_serial_lines(path, options.rate_hz)
     stats.lines, stats.malformed = rec.lines, rec.malformed

@@ -18,8 +18,7 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 from imucal_cli.formats.inputs import read_head, read_input
-from imucal_cli.formats.number import NUMBER
-from imucal_cli.solvers.segmented import stacked_rows
+from imucal_cli.numerics.segmented import stacked_rows
 
 from .recording import ImportStats
 
@@ -166,6 +165,7 @@ def header_columns(header: Sequence[str] | None, src: str) -> list[str | None]:
 #: point are matched only after a point: ``[0-9]+\.?[0-9]*`` splits a run of n digits n ways
 #: before it fails on what follows, so a 200,000-digit field ending in a stray byte took
 #: minutes (found by the 10,000-file fuzzer); this form fails in one pass.
+NUMBER = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?\Z")
 #: What may surround a line: ASCII blanks and the line break (a vertical tab, U+2028 or another
 #: control character inside a line makes it malformed, never two lines or a cut number).
 BLANK = " \t\r\n"

@@ -48,7 +48,7 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 from imucal_cli.formats.importers.library import one_line_reason, quiet
-from imucal_cli.formats.importers.ros import Channels, hold_latest
+from imucal_cli.formats.importers.ros import Channels, hold_latest, one_file, to_recording
 
 __all__ = ["KINDS", "pair_by_time", "read_ulog"]
 
@@ -370,7 +370,5 @@ FILES = "one PX4 ULog (.ulg)"
 def read(paths, options, stats):
     """``imucal import --format ulog``: :func:`read_ulog` of the one path, ``--topic``,
     ``--mag-topic``."""
-    from .ros import one_file, to_recording
-
     path = one_file(paths, options, NAME, FILES)
     return to_recording(read_ulog(path, options.topic, options.mag_topic), paths, stats)

@@ -34,6 +34,8 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 
+from .ros import Channels, one_file, to_recording
+
 __all__ = ["FRAME", "WitMotionDecoder", "WitSample", "looks_like_witmotion", "read_witmotion"]
 
 FRAME = 11
@@ -224,8 +226,6 @@ FILES = "one file of WitMotion 0x55 frames (a serial dump)"
 def read(paths, options, stats):
     """``imucal import --format witmotion``: :func:`read_witmotion`; ``--rate`` when the
     frames carry no time."""
-    from .ros import Channels, one_file, to_recording
-
     path = one_file(paths, options, NAME, FILES)
     rec = read_witmotion(path, options.rate_hz)
     stats.lines, stats.malformed = rec.stats["frames"], rec.stats["malformed"]

@@ -21,16 +21,14 @@ import errno
 import fcntl
 import math
 import os
+import socket
 import stat
 import time
 import warnings
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import h5py
-import numpy as np
-from h5py._objects import ObjectID as _ObjectID  # the base of h5py's low-level ids
 
 from imucal_cli.errors import ImucalWarning, SessionError
 
@@ -75,14 +73,9 @@ def boot_id() -> str:
         return ""
 
 
-def _hostname() -> str:
-    """This machine's name (``socket.gethostname()`` on Unix, without importing socket)."""
-    return os.uname().nodename
-
-
 def writer_identity() -> dict[str, Any]:
     """The attributes a writer stores so that a reader can tell whether it is still running."""
-    return {WRITER_PID: os.getpid(), WRITER_HOST: _hostname(), WRITER_BOOT: boot_id()}
+    return {WRITER_PID: os.getpid(), WRITER_HOST: socket.gethostname(), WRITER_BOOT: boot_id()}
 
 
 def _writer_state(file: h5py.File) -> str:
@@ -96,7 +89,7 @@ def _writer_state(file: h5py.File) -> str:
         host, boot = as_str(attrs.get(WRITER_HOST)), as_str(attrs.get(WRITER_BOOT))
     except (OSError, KeyError, RuntimeError, ValueError, TypeError):
         return "unknown"
-    if pid is None or host != _hostname():
+    if pid is None or host != socket.gethostname():
         return "unknown"
     if boot and boot_id() and boot != boot_id():
         return "gone"  # written before this machine restarted
@@ -335,20 +328,6 @@ def member(group: h5py.Group, name: str, src: str) -> h5py.Group | h5py.Dataset 
         raise SessionError(f"{src}: {where} cannot be read ({one_line(exc)})") from None
 
 
-def member_id(group: h5py.Group, name: str, src: str):
-    """:func:`member` through the low-level API (a hard link opened as an ``h5o.ObjectID``:
-    ``h5g.GroupID``, ``h5d.DatasetID``...), or None when absent; anything else (a soft or
-    external link, an unreadable entry) goes through :func:`member`, which refuses it."""
-    try:
-        key = name.encode("utf8") if isinstance(name, str) else name
-        info = group.id.links.get_info(key)
-        if info.type == h5py.h5l.TYPE_HARD:
-            return h5py.h5o.open(group.id, key)
-    except (OSError, KeyError, RuntimeError, ValueError, TypeError):
-        pass
-    return member(group, name, src)
-
-
 def check_dataset(ds: h5py.Dataset, src: str, *, limit: int, complete: bool = True) -> None:
     """Refuse a dataset whose data is outside the file, or larger than the file can hold.
 
@@ -410,124 +389,6 @@ MAX_ATTRIBUTE_BYTES = 1 << 26
 """An attribute declaring more bytes than this is refused (not read)."""
 
 
-class Attributes:
-    """The attributes of one HDF5 object, each opened once through h5py's low-level API.
-
-    ``get(name)`` returns what :func:`get_attr` returns (the value as ``obj.attrs[name]``
-    reads it, None when absent), with the same checks and messages; iterating gives the names
-    in the order ``obj.attrs`` does, :attr:`names` the same names unordered (without asking the
-    object whether it tracks creation order). ``obj.attrs`` checks, opens and reads each
-    attribute through several calls (``name in attrs``, ``get_id``, ``attrs[name]``: about
-    0.2 ms per attribute); here the names are listed once, each is read from the handle that
-    listed it, and the numpy type of an HDF5 type already seen is reused (about 0.04 ms). An
-    object whose attributes cannot be listed falls back to ``obj.attrs`` (its messages name
-    the attribute)."""
-
-    def __init__(self, obj, src: str, where: str):
-        self.src, self.where = src, where
-        self._attrs = None
-        self._obj = obj if isinstance(obj, _ObjectID) else obj.id
-        try:
-            ids = {}
-            for i in range(h5py.h5a.get_num_attrs(self._obj)):
-                aid = h5py.h5a.open(self._obj, index=i)  # by name, as obj.attrs lists them
-                ids[_decode_name(aid.name)] = aid
-            self._ids = ids
-        except (OSError, TypeError, ValueError, KeyError, RuntimeError):
-            self._attrs = _attribute_manager(self._obj)  # as h5py's high-level API reads them
-
-    @property
-    def names(self) -> set:
-        return set(self._attrs if self._attrs is not None else self._ids)
-
-    def __iter__(self):
-        if self._attrs is not None:
-            return iter(self._attrs)
-        try:  # obj.attrs lists by creation order where the object tracks it
-            tracked = self._obj.get_create_plist().get_attr_creation_order()
-        except (OSError, TypeError, ValueError, KeyError, RuntimeError):
-            return iter(_attribute_manager(self._obj))
-        if not tracked & h5py.h5p.CRT_ORDER_TRACKED or len(self._ids) < 2:
-            return iter(list(self._ids))
-        opened = (h5py.h5a.open(self._obj, index=i, index_type=h5py.h5.INDEX_CRT_ORDER)
-                  for i in range(len(self._ids)))  # fmt: skip
-        return iter([_decode_name(aid.name) for aid in opened])
-
-    def get(self, name: str) -> Any:
-        if self._attrs is not None:
-            return get_attr(self._attrs, name, self.src, self.where)
-        aid = self._ids.get(name)
-        if aid is None:
-            return None
-        try:
-            shape = aid.shape
-            dtype, htype = _types(aid.get_type())
-            _check_declared(shape, dtype, name, self.src, self.where)
-            return _read_attribute(aid, shape, dtype, htype)
-        except (OSError, TypeError, ValueError, KeyError, RuntimeError) as exc:
-            raise SessionError(
-                f"{self.src}: {self.where}attribute {name!r} cannot be read ({one_line(exc)})"
-            ) from None
-
-
-def _attribute_manager(oid) -> h5py.AttributeManager:
-    """h5py's ``obj.attrs`` of a low-level id (it keeps only its parent's ``id``)."""
-    return h5py.AttributeManager(SimpleNamespace(id=oid))
-
-
-#: HDF5 types seen, with their numpy dtype and h5py's memory type for it (a session holds a
-#: handful: a variable-length string, 64-bit integers and floats...).
-_TYPES: list = []
-
-
-def _types(tid) -> tuple[np.dtype, Any]:
-    """``(dtype, py_create(dtype))`` of an HDF5 type (``attr.dtype`` and the memory type h5py
-    reads it as), reused for a type equal to one seen before."""
-    for known, dtype, htype in _TYPES:
-        if tid.equal(known):
-            return dtype, htype
-    dtype = tid.dtype
-    htype = h5py.h5t.py_create(dtype)
-    if len(_TYPES) < 16:
-        _TYPES.append((tid.copy(), dtype, htype))  # a copy: not tied to this file
-    return dtype, htype
-
-
-def _decode_name(name: bytes) -> str | bytes:
-    """An attribute's name as h5py gives it: UTF-8 decoded, else the bytes."""
-    try:
-        return name.decode("utf8")
-    except UnicodeDecodeError:
-        return name
-
-
-def _check_declared(shape, dtype, name: str, src: str, where: str) -> None:
-    declared = math.prod(shape or ()) * dtype.itemsize
-    if declared > MAX_ATTRIBUTE_BYTES:
-        raise SessionError(f"{src}: {where}attribute {name!r} declares {declared} bytes; refused")
-
-
-def _read_attribute(attr, shape, dtype, htype) -> Any:
-    """An attribute's value from its low-level handle (and its ``shape``, ``dtype`` and
-    ``htype = py_create(dtype)``), exactly as h5py's ``AttributeManager.__getitem__``
-    (h5py 3) makes it."""
-    if shape is None:  # an empty dataspace
-        return h5py.Empty(dtype)
-    if dtype.subdtype is not None:  # numpy has no top-level array types: fold into the shape
-        subdtype, subshape = dtype.subdtype
-        shape = attr.shape + subshape
-        dtype = subdtype
-    arr = np.zeros(shape, dtype=dtype, order="C")
-    attr.read(arr, mtype=htype)
-    string_info = h5py.h5t.check_string_dtype(dtype)
-    if string_info and string_info.length is None:  # variable-length strings: str
-        arr = np.array([b.decode("utf-8", "surrogateescape") for b in arr.flat],
-                       dtype=dtype).reshape(arr.shape)  # fmt: skip
-    if arr.ndim == 0:
-        return arr[()]
-    return arr
-
-
 def get_attr(attrs: h5py.AttributeManager, name: str, src: str, where: str) -> Any:
     """Return attribute ``name`` or None when absent; an unreadable or oversized value is an
     error (``where`` prefixes the message, e.g. ``"root "`` or ``"/segments/0001: "``)."""
@@ -535,7 +396,11 @@ def get_attr(attrs: h5py.AttributeManager, name: str, src: str, where: str) -> A
         if name not in attrs:
             return None
         aid = attrs.get_id(name)
-        _check_declared(aid.shape, aid.dtype, name, src, where)
+        declared = math.prod(aid.shape or ()) * aid.dtype.itemsize
+        if declared > MAX_ATTRIBUTE_BYTES:
+            raise SessionError(
+                f"{src}: {where}attribute {name!r} declares {declared} bytes; refused"
+            )
         return attrs[name]
     except (OSError, TypeError, ValueError, KeyError, RuntimeError) as exc:
         raise SessionError(

@@ -7,6 +7,7 @@ import json
 import os
 import warnings
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -17,15 +18,7 @@ from imucal_cli.errors import ImucalWarning, SessionError
 from imucal_cli.formats.config import GRAVITY_RANGE
 from imucal_cli.formats.text import clean_text, clean_tree
 
-from .h5open import (
-    Attributes,
-    check_dataset,
-    file_size,
-    get_attr,
-    member,
-    member_id,
-    open_for_reading,
-)
+from .h5open import check_dataset, file_size, get_attr, member, open_for_reading
 from .model import (
     FORMAT,
     FORMAT_VERSION,
@@ -102,9 +95,8 @@ def _read_open_file(file: h5py.File, src: str, unclosed: bool) -> Session:
 
 def _root_attributes(file: h5py.File, src: str) -> tuple[str, dict, dict]:
     """The root attributes, checked: ``created``, the texts (cleaned) and the numbers."""
-    attrs = Attributes(file, src, "root ")
     root = {
-        name: attrs.get(name)
+        name: get_attr(file.attrs, name, src, "root ")
         for name in (
             "format", "format_version", "created", "sensor", "source", "sample_rate_hz",
             "gravity", "accel_units", "gyro_units", "mag_units", "magnetic_field_uT",
@@ -302,14 +294,12 @@ def _read_segments(
     group = member(file, "segments", src)
     if isinstance(group, h5py.Group):
         for name in group:
-            obj = member_id(group, name, src)
-            if isinstance(obj, (h5py.Group, h5py.h5g.GroupID)):
+            obj = member(group, name, src)
+            if isinstance(obj, h5py.Group):
                 where = f"/segments/{name}"
-                attrs = Attributes(obj, src, f"{where}: ")
-                segment = _parse_segment(name, attrs.get, src, where, n, accel, gyro)
-                others = attrs.names - SEGMENT_ATTRS  # in order, asked only when there are
-                extra = ((key, attrs.get(key)) for key in (attrs if others else ())
-                         if key in others)  # fmt: skip
+                attr = partial(get_attr, obj.attrs, src=src, where=f"{where}: ")
+                segment = _parse_segment(name, attr, src, where, n, accel, gyro)
+                extra = ((key, attr(key)) for key in obj.attrs if key not in SEGMENT_ATTRS)
                 segment.extra.update(_extra_attrs(extra))
                 segments.append(segment)
     log_group = member(file, LOG_GROUP, src)

@@ -19,6 +19,8 @@ from typing import Any
 import h5py
 import numpy as np
 
+from imucal_cli.errors import SessionError
+
 from .h5open import writer_identity
 from .model import (
     LOG_GROUP,
@@ -183,8 +185,6 @@ class SegmentLog:
         SessionError
             ``json_text`` is not JSON, or ``name`` is taken or not a valid name.
         """
-        from imucal_cli.errors import SessionError
-
         check_calibration_entry(src, json_text, name)
         if name in self.calibrations:
             raise SessionError(f"{src}: /calibrations/{name} already exists")

@@ -34,6 +34,7 @@ from .model import (
     io_reason,
     utc_now_iso,
 )
+from .reader import read_session
 from .segments import SegmentLog, entry_of, segment_entry
 
 _CHUNK_ROWS = 1024  # samples per HDF5 chunk of the /raw datasets
@@ -278,8 +279,6 @@ class SessionWriter:
         InputError
             Not a session, or one with fixed-size datasets (not written by a capture).
         """
-        from .reader import read_session
-
         session = read_session(path)
         self = cls.__new__(cls)
         self.path, self._src = Path(path), str(path)

@@ -8,15 +8,7 @@ from pathlib import Path
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import Calibration, calibration_from_json
 from imucal_cli.formats.inputs import is_hdf5_file, read_input
-
-
-def read_session(path):
-    """:func:`imucal_cli.formats.session.read_session`, imported when a session is read (a
-    report of a JSON file does not load h5py: start-up time)."""
-    from imucal_cli.formats.session import read_session as read
-
-    return read(path)
-
+from imucal_cli.formats.session import read_session
 
 _WHAT = "calibration JSON or session .h5"
 

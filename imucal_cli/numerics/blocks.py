@@ -1,6 +1,7 @@
 """What the block-by-block accumulators share (:class:`~.allan.AllanAccumulator`,
-:class:`~.segmentation.StaticStream`): a recording is announced by its length, then given a
-block at a time, and its result exists only once every sample announced was given."""
+:class:`imucal_cli.solvers.segmentation.StaticStream`): a recording is announced by its
+length, then given a block at a time, and its result exists only once every sample announced
+was given."""
 
 from __future__ import annotations
 
