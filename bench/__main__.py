@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from rich.console import Console
 
@@ -59,6 +60,9 @@ def main() -> None:
         "--jobs", type=int, default=3,
         help="live: captures at a time (each a device and a capture process, mostly waiting)",
     )  # fmt: skip
+    parser.add_argument("--plans", help="live: only these plans (comma-separated --plan names)")
+    parser.add_argument("--keep", type=Path, metavar="DIR",
+                        help="live: keep the sessions, calibrations and capture logs in DIR")
     parser.add_argument("--runs", type=int, default=5, help="speed: runs per figure (median)")
     parser.add_argument("--sessions", type=int, default=500, help="speed: production-line size")
     args = parser.parse_args()
@@ -93,7 +97,8 @@ def main() -> None:
     if args.only in (None, "temperature"):
         ok = temperature.run(console, n_seeds=max(2, args.seeds // 50)) and ok
     if args.only in (None, "live"):  # real time: about an hour at 8 seeds
-        ok = live.run(console, n_seeds=live_seeds, quick=args.quick, jobs=args.jobs) and ok
+        ok = live.run(console, n_seeds=live_seeds, quick=args.quick, jobs=args.jobs,
+                      only=args.plans, keep=args.keep) and ok
     raise SystemExit(0 if ok else 1)
 
 

@@ -41,6 +41,14 @@ from rich.table import Table
 
 from bench import live_run
 from bench.live_grade import Graded, grade, grade_warmup
+from imucal_cli.formats.calibration import read_calibration
+from imucal_cli.formats.config import Config
+from imucal_cli.formats.session import read_session, write_session
+from imucal_cli.pipeline.calibrate import calibrate_session
+from imucal_cli.simulate.device import stream_with_holds
+from imucal_cli.simulate.magnetometer import simulate_mag
+from imucal_cli.simulate.play import simulate_plan
+from imucal_cli.simulate.temperature import Ramp, parse_ramp
 
 #: The hold per pose of ``simulate --serve`` without ``--hold`` (cli/simulate.py SERVE_HOLD_S).
 SERVE_HOLD_S = 4.0
@@ -126,15 +134,9 @@ def simulated(plan: LivePlan, seed: int):
     """The session and truth the device streams for ``plan`` and ``seed`` (its timer's
     pass: the unattended capture's samples), simulated straight to memory."""
     if plan.mag:
-        from imucal_cli.simulate.magnetometer import simulate_mag
-
         return simulate_mag(plan.plan, seed, hold_s=plan.hold_s, move_s=plan.move_s,
                             field_uT=MAG_FIELD_UT)  # fmt: skip
-    from imucal_cli.simulate.play import simulate_plan
-
     if plan.warmup:
-        from imucal_cli.simulate.temperature import parse_ramp
-
         return simulate_plan(plan.plan, seed=seed, hold_s=plan.hold_s, move_s=plan.move_s,
                              temperature=parse_ramp(WARMUP_RAMP))  # fmt: skip
     return simulate_plan(plan.plan, seed=seed, hold_s=plan.hold_s, move_s=plan.move_s)
@@ -142,16 +144,11 @@ def simulated(plan: LivePlan, seed: int):
 
 def room(seed: int):
     """The ordinary session a warm-up goes with: qureshi18 of the same part at 24-26 C."""
-    from imucal_cli.simulate.play import simulate_plan
-    from imucal_cli.simulate.temperature import Ramp
-
     return simulate_plan("qureshi18", seed=seed, temperature=Ramp(*ROOM_RAMP))[0]
 
 
 def n_holds(plan: LivePlan, seed: int = 0) -> int:
     """Holds of the served pass (the static steps a guided person takes one by one)."""
-    from imucal_cli.simulate.device import stream_with_holds
-
     mag = {"field_uT": MAG_FIELD_UT} if plan.mag else None
     return len(stream_with_holds(plan.plan, seed=seed, hold_s=plan.hold_s, move_s=plan.move_s,
                                  mag=mag)[3])  # a ramp changes the temperature, not the holds
@@ -174,11 +171,41 @@ class Job:
     calibrate: live_run.CalibrateRun | None = None
     graded: dict = field(default_factory=dict)
     served_equal: float | None = None
+    grade_error: str = ""
+
+    @property
+    def stem(self) -> str:
+        """The file name of its session, without ``.h5``."""
+        plan = self.plan.plan.replace(":", "-") + ("-mag" if self.plan.mag else "")
+        return f"{plan}-s{self.seed}-{self.mode}"
+
+    def what_went_wrong(self) -> str:
+        """The capture's or calibration's own last words when either did not succeed ("" when
+        both did)."""
+        c, cal = self.capture, self.calibrate
+        if c is not None and (c.exit_code != 0 or c.error):
+            ended = [ln.strip() for ln in c.text.splitlines() if "ended:" in ln or
+                     "imucal: error" in ln or "Traceback" in ln]  # fmt: skip
+            return c.error or (ended[-1] if ended else c.text.strip()[-200:])
+        if cal is not None and cal.exit_code != 0:
+            errors = [ln for ln in cal.stderr.splitlines() if ln.startswith("imucal: error")]
+            return errors[-1] if errors else cal.stderr.strip()[-200:]
+        return self.grade_error
+
+    def log(self) -> str:
+        """Everything the job's processes said, for ``STEM.log`` beside the session."""
+        c, cal = self.capture, self.calibrate
+        parts = [f"{self.plan.name} seed {self.seed} {self.mode}"]
+        if c is not None:
+            parts += [f"capture exit {c.exit_code} in {c.wall_s:.1f} s {c.error}",
+                      "device: " + c.served, *c.events, c.text]  # fmt: skip
+        if cal is not None:
+            parts += [f"calibrate exit {cal.exit_code}", cal.stderr]
+        return "\n".join(parts) + "\n"
 
 
 def _run_job(job: Job, folder: Path, holds: int) -> Job:
-    stem = job.plan.plan.replace(":", "-") + ("-mag" if job.plan.mag else "")
-    out = folder / f"{stem}-s{job.seed}-{job.mode}.h5"
+    out = folder / f"{job.stem}.h5"
     timeout = 3 * job.expected_s + 120
     if job.mode == "guided":
         job.capture = live_run.capture_guided(
@@ -192,13 +219,12 @@ def _run_job(job: Job, folder: Path, holds: int) -> Job:
             capture_extra=job.plan.capture_args,
         )  # fmt: skip
     if out.exists() and job.plan.warmup:  # the warm-up goes with an ordinary session
-        from imucal_cli.formats.session import write_session
-
         ordinary = folder / f"room-s{job.seed}-{job.mode}.h5"
         write_session(ordinary, room(job.seed))
         job.calibrate = live_run.calibrate(ordinary, warmup=out)
     elif out.exists():
         job.calibrate = live_run.calibrate(out)
+    (folder / f"{job.stem}.log").write_text(job.log())
     return job
 
 
@@ -283,11 +309,6 @@ def _served_equal(live, file) -> float | None:
 def grade_jobs(work: list[Job], file_seeds: list[int], say=print) -> dict:
     """Grade the captures, and the file reference of every plan over ``file_seeds`` (which
     hold the live seeds); returns ``{plan name: {seed: graded file sections}}``."""
-    from imucal_cli.formats.calibration import read_calibration
-    from imucal_cli.formats.config import Config
-    from imucal_cli.formats.session import read_session
-    from imucal_cli.pipeline.calibrate import calibrate_session
-
     files: dict[str, dict[int, dict]] = {}
     sessions: dict[tuple[str, int], object] = {}
     plans = {j.plan.name: j.plan for j in work}
@@ -315,13 +336,17 @@ def grade_jobs(work: list[Job], file_seeds: list[int], say=print) -> dict:
         cal = job.calibrate
         if cal is None or cal.exit_code != 0 or not cal.output.exists():
             continue
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            live = read_session(job.capture.session)
-            grader = grade_warmup if job.plan.warmup else grade
-            job.graded = grader(live, read_calibration(cal.output), truth)
-        if job.mode == "unattended":
-            job.served_equal = _served_equal(live, session)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                live = read_session(job.capture.session)
+                grader = grade_warmup if job.plan.warmup else grade
+                job.graded = grader(live, read_calibration(cal.output), truth)
+            if job.mode == "unattended":
+                job.served_equal = _served_equal(live, session)
+        except Exception as exc:  # noqa: BLE001 - the row says so; the others are graded
+            job.graded = {}
+            job.grade_error = f"{type(exc).__name__}: {exc}"
     return files
 
 
@@ -372,6 +397,7 @@ class Row:
     wall: str = ""
     served: str = ""
     why: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
     sections: dict = field(default_factory=dict)
 
     @property
@@ -409,6 +435,18 @@ def make_row(plan: LivePlan, mode: str, jobs: list[Job], files: dict, rng) -> Ro
                         for j in jobs if not (j.calibrate and j.calibrate.exit_code == 0)})
         row.why.append(f"{row.attempted - row.calibrated} calibration(s) failed (exit "
                        f"{', '.join(codes)})")  # fmt: skip
+    for j in jobs:  # each failure in its own words (the whole log: STEM.log beside it)
+        if said := j.what_went_wrong():
+            row.why.append(f"seed {j.seed}: {said}")
+    for j in jobs:
+        for name, sec in j.graded.items():
+            if isinstance(sec, str) and sec.startswith("not graded"):
+                row.why.append(f"seed {j.seed} {name} {sec}")
+    failed = {s: f["error"] for s, f in files[plan.name].items() if "error" in f}
+    if failed:
+        first = next(iter(failed.values()))
+        row.notes.append(f"file reference: {len(failed)} of {len(files[plan.name])} seeds "
+                         f"not calibrated (e.g. {first})")  # fmt: skip
     pairs = [(j, files[plan.name].get(j.seed, {})) for j in jobs if j.graded]
     fewer = [j.seed for j, f in pairs if _sensors(j.graded) < _sensors(f)]
     if fewer:
@@ -527,15 +565,26 @@ def print_rows(console: Console, rows: list[Row], n_seeds: int) -> None:
                       _fmt(100 * hf, ".1f"))  # fmt: skip
     console.print(s)
     for r in rows:
-        if r.why:
-            console.print(f"  {r.plan} {r.mode}: " + "; ".join(r.why))
+        if r.why or r.notes:
+            console.print(f"  {r.plan} {r.mode}: " + "; ".join(r.why + r.notes), highlight=False)
 
 
 def run(console: Console, n_seeds: int = 8, quick: bool = False, jobs: int = 3,
-        file_seeds: int = 40) -> bool:  # fmt: skip
-    """``python -m bench --only live``: the table; False when a row fails."""
+        file_seeds: int = 40, only: str | None = None,
+        keep: Path | None = None) -> bool:  # fmt: skip
+    """``python -m bench --only live``: the table; False when a row fails.  ``only``: plan
+    names (``--plan``, comma-separated) to run instead of all; ``keep``: a folder for the
+    sessions, calibrations and each capture's log (``STEM.log``)."""
     console.rule("[bold]Live path: simulate --serve, capture (guided and unattended), calibrate")
     plans = [p for p in PLANS if not quick or p.plan in QUICK_PLANS]
+    if only:
+        wanted = only.split(",")
+        plans = [p for p in plans if p.plan in wanted or p.name in wanted]
+        if not plans:
+            raise SystemExit(f"bench live: no plan {only!r}; plans: "
+                             + ", ".join(p.name for p in PLANS))  # fmt: skip
+    if keep is not None:
+        keep.mkdir(parents=True, exist_ok=True)
     seeds = list(range(n_seeds))
     console.print(
         f"{len(plans)} plans x {len(MODES)} modes x {n_seeds} seeds; file reference over "
@@ -550,7 +599,7 @@ def run(console: Console, n_seeds: int = 8, quick: bool = False, jobs: int = 3,
         console.print(msg, highlight=False)
 
     rows = run_live(plans, seeds, jobs=jobs, file_seeds=range(0 if quick else file_seeds),
-                    say=say)  # fmt: skip
+                    folder=keep, say=say)  # fmt: skip
     print_rows(console, rows, n_seeds)
     console.print(f"bench live: {(time.monotonic() - t0) / 60:.1f} min")
     return all(r.ok or r.why[0].startswith("blocked") for r in rows)

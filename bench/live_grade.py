@@ -34,6 +34,18 @@ import numpy as np
 from imucal_cli.formats.calibration import Calibration, SensorCalibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
+from imucal_cli.pipeline import gyro_known as pk
+from imucal_cli.pipeline.common import static_poses
+from imucal_cli.pipeline.gyro import full_bound, with_segments
+from imucal_cli.pipeline.gyro_full import rotations_and_stills
+from imucal_cli.pipeline.magnetometer import mag_readings
+from imucal_cli.pipeline.temperature import BLOCK_S, still_blocks
+from imucal_cli.solvers.crb import gravity_crb, labelled_crb
+from imucal_cli.solvers.gravity import model_to_params
+from imucal_cli.solvers.gyro_known import _Stacked
+from imucal_cli.solvers.labelled_model import public_params
+from imucal_cli.solvers.magnetometer_crb import magnetometer_crb
+from imucal_cli.solvers.temperature import polynomial_bound
 
 G0 = 9.80665
 
@@ -101,8 +113,6 @@ def _pose_design(session: Session, truth: Calibration):
     """The static poses the accelerometer solvers use (:func:`static_poses`), each pose's true
     up direction in the fixture frame, and the covariance of each pose's mean from the true
     noise (raw units^2)."""
-    from imucal_cli.pipeline.common import static_poses
-
     poses = static_poses(session)
     T, b = truth.accel.matrix, truth.accel.bias
     u = _unit((poses.a_mean - b) @ T.T)
@@ -122,10 +132,6 @@ def _gauge(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def grade_accel(session: Session, cal: Calibration, truth: Calibration) -> Graded:
     """The accelerometer section: gravity-magnitude (9) or labelled-pose (12) parameters."""
-    from imucal_cli.solvers.crb import gravity_crb, labelled_crb
-    from imucal_cli.solvers.gravity import model_to_params
-    from imucal_cli.solvers.labelled_model import public_params
-
     sec = cal.accel
     names, value, std, half = _params(sec)
     poses, u, cov = _pose_design(session, truth)
@@ -186,8 +192,6 @@ def _gyro_bound(session: Session, cal: Calibration, solver: str, x: np.ndarray):
     try:
         if solver in ("known", "gyro-known"):
             return np.diag(_known_bound(session, cfg, cal.accel, x)), "known-angle model"
-        from imucal_cli.pipeline.gyro import full_bound
-
         return np.diag(full_bound(session, cfg, cal.accel, x)[1]), "full model"
     except Exception as exc:  # noqa: BLE001 - the row says why it has no bound
         return None, f"no bound: {type(exc).__name__}: {exc}"
@@ -199,11 +203,6 @@ def _known_bound(session: Session, cfg: Config, accel: SensorCalibration | None,
     stacked whitened problem (known turns, still periods, turns gravity measures) at the
     truth, plus the accelerometer calibration's covariance carried through (the pipeline's
     own refits, :func:`imucal_cli.pipeline.gyro_known._accel_part`)."""
-    from imucal_cli.pipeline import gyro_known as pk
-    from imucal_cli.pipeline.gyro import with_segments
-    from imucal_cli.pipeline.gyro_full import rotations_and_stills
-    from imucal_cli.solvers.gyro_known import _Stacked
-
     session, _ = with_segments(session)
     data, known, used, segs, statics, _ = pk._known_data(session, cfg, accel, "bench")
     rot, st = rotations_and_stills(data) if data.turns else (None, pk._stills(data.stills))
@@ -224,9 +223,6 @@ def _known_bound(session: Session, cfg: Config, accel: SensorCalibration | None,
 def grade_mag(session: Session, cal: Calibration, truth: Calibration) -> Graded:
     """The magnetometer section (aligned model: hard iron, ``W`` in the accelerometer's
     calibrated frame, the dip) against :func:`magnetometer_crb`, as ``bench/mag.py``."""
-    from imucal_cli.pipeline.magnetometer import mag_readings
-    from imucal_cli.solvers.magnetometer_crb import magnetometer_crb
-
     sec = cal.mag
     names, value, std, half = _params(sec)
     R = _truth_in_accel_frame(cal, truth)
@@ -272,11 +268,11 @@ def grade_warmup(warm: Session, cal: Calibration, truth: Calibration) -> dict[st
     against the truth's cubic, over the Cramér-Rao bound of a cubic fitted to the warm-up's
     still blocks with white noise (:func:`polynomial_bound`, as ``bench/temperature.py``
     bounds the curve's shape; each channel's own noise)."""
-    from imucal_cli.pipeline.temperature import BLOCK_S, still_blocks
-    from imucal_cli.solvers.temperature import polynomial_bound
-
     out: dict[str, Graded | str] = {}
+    warm = with_segments(warm)[0]  # as calibrate --warmup finds its still periods
     blocks = still_blocks(warm, BLOCK_S)
+    if not blocks:
+        raise ValueError("the warm-up holds no still period")
     temp = np.array([warm.temperature[a:b].mean() for a, b, _ in blocks])
     groups = np.array([k for _, _, k in blocks])
     for name in ("accel", "gyro"):
@@ -295,8 +291,7 @@ def grade_warmup(warm: Session, cal: Calibration, truth: Calibration) -> dict[st
         data = getattr(warm, name)
         crb = np.zeros((K, n))
         for c in range(n):
-            resid = np.vstack([np.diff(data[s.start : s.stop, c]) / np.sqrt(2)
-                               for s in warm.static_segments()])  # fmt: skip
+            resid = np.concatenate([np.diff(data[a:b, c]) / np.sqrt(2) for a, b, _ in blocks])
             sig = np.array([float(np.std(resid)) / np.sqrt(b - a) for a, b, _ in blocks])
             cov = polynomial_bound(temp, sig, K, float(ref), groups)
             crb[:, c] = np.diag(cov)[-K:]
