@@ -301,48 +301,84 @@ def _last_sent(text: str) -> str:
     return lines[-1] if lines else ""
 
 
+class _TimedLines:
+    """The lines a pipe gives, each with the time it came (s since ``t0``), read by a thread
+    until the pipe ends."""
+
+    def __init__(self, pipe, name: str, t0: float, lines: list) -> None:
+        self.thread = threading.Thread(target=self._read, args=(pipe, name, t0, lines),
+                                       daemon=True)  # fmt: skip
+        self.thread.start()
+
+    @staticmethod
+    def _read(pipe, name: str, t0: float, lines: list) -> None:
+        try:
+            for raw in iter(pipe.readline, b""):
+                line = raw.decode(errors="replace").rstrip("\n")
+                with _LOCK:
+                    lines.append((time.monotonic() - t0, name, line))
+        except (OSError, ValueError):
+            pass
+
+    def join(self, timeout: float) -> None:
+        self.thread.join(timeout)
+
+
 def capture_unattended(plan: str, seed: int, out: Path, *, timeout_s: float,
                        serve_extra: list[str] = (),
                        capture_extra: list[str] = ()) -> CaptureRun:  # fmt: skip
     """The device on its timer (each pose held ``--hold`` s, 4 by default), ``imucal capture
-    --no-prompt`` until every step of the plan was seen (or the device ends)."""
+    --no-prompt`` until every step of the plan was seen (or the device ends).  What both say
+    is kept with the time it came (``events``: when the device started streaming, when the
+    capture saw each step and ended)."""
     run = CaptureRun("unattended", out)
+    t_start = time.monotonic()
     server = _register(subprocess.Popen(
         _serve_args(plan, seed, list(serve_extra)), stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=ENV,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=ENV,
     ))  # fmt: skip
     cap = None
+    lines: list[tuple[float, str, str]] = []
+    readers = [_TimedLines(server.stderr, "device", t_start, lines)]
     try:
         fd = server.stdout.fileno()
         path, _ = _device_path(lambda: _read(fd, 0.5), time.monotonic() + 60)
         t0 = time.monotonic()
+        with _LOCK:
+            lines.append((t0 - t_start, "bench", f"device at {path}: capture started"))
         cap = _register(subprocess.Popen(
             [*CLI, "capture", "--port", path, "--plan", plan, "--no-prompt", "--output",
              str(out), *capture_extra],
-            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-            env=ENV, text=True,
+            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=ENV,
         ))  # fmt: skip
+        readers.append(_TimedLines(cap.stdout, "capture", t_start, lines))
+        readers.append(_TimedLines(server.stdout, "device", t_start, lines))
         try:
-            text, _ = cap.communicate(timeout=timeout_s)
+            cap.wait(timeout=timeout_s)
         except subprocess.TimeoutExpired:
             run.error = f"no end after {timeout_s:.0f} s: killed"
             cap.kill()
-            text, _ = cap.communicate(timeout=30)
+            cap.wait(timeout=30)
         run.wall_s = time.monotonic() - t0
         run.exit_code = None if run.error else cap.returncode
-        run.text = text[-4000:]
         try:
-            served, _ = server.communicate(timeout=30)
+            server.wait(timeout=30)
         except subprocess.TimeoutExpired:
             server.kill()
-            served, _ = server.communicate(timeout=10)
-        run.served = _last_sent(served.decode(errors="replace"))
+            server.wait(timeout=10)
     except Exception as exc:  # noqa: BLE001 - the row says what broke
         run.error = run.error or f"{type(exc).__name__}: {exc}"
     finally:
         for proc in (cap, server):
             if proc is not None:
                 _stop(proc, signal.SIGKILL, 10)
+        for r in readers:
+            r.join(10)
+    with _LOCK:
+        got = sorted(lines)
+    run.text = "\n".join(line for _, who, line in got if who == "capture")[-4000:]
+    run.served = _last_sent("\n".join(line for _, who, line in got if who == "device"))
+    run.events = [f"{t:.1f} s {who}: {line}" for t, who, line in got]
     return run
 
 

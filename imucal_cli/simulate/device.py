@@ -563,10 +563,22 @@ def _flushed(master: int) -> bool:
     return bool(packet) and packet[0] != 0 and bool(packet[0] & flush)
 
 
+def _mirrored(h: Hold, r: int) -> int:
+    """The ``r``-th sample (from 0) of a paused hold replayed: backwards from its last sample
+    to its first, then forwards, and so on, so that what drifts in a hold (a warm-up's
+    temperature and biases) turns back smoothly instead of jumping to its start."""
+    n = h.stop - h.start
+    if n < 2:
+        return h.start
+    m = r % (2 * (n - 1))
+    return h.stop - 2 - m if m < n - 1 else h.start + 1 + m - (n - 1)
+
+
 class _Schedule:
     """Which sample of the pass goes out next: the plan in order, holds cut short when
     ``next_pose()`` says so, or (``step``) extended until it does by replaying the hold's own
-    samples; the time of every line is ``k / rate`` for the k-th line sent."""
+    samples (mirrored, :func:`_mirrored`); the time of every line is ``k / rate`` for the k-th
+    line sent."""
 
     def __init__(self, n: int, holds: list[Hold], *, loop: bool, step: bool, next_pose,
                  say, rate_hz: float) -> None:  # fmt: skip
@@ -587,9 +599,8 @@ class _Schedule:
         if self.next_pose():
             self._advance()
         if self.paused is not None:
-            h = self.paused
             self.replay += 1
-            return h.start + (self.replay - 1) % (h.stop - h.start)
+            return _mirrored(self.paused, self.replay - 1)
         if self.i >= self.n:
             if not self.loop:
                 self.done = True
