@@ -103,4 +103,8 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except KeyboardInterrupt:  # the benches' own processes are ended by then (bench live)
+        print("bench: interrupted", flush=True)
+        raise SystemExit(130) from None

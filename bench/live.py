@@ -28,6 +28,8 @@ its spread over the seeds (bootstrap) is printed beside it.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import multiprocessing as mp
+import signal
 import tempfile
 import threading
 import time
@@ -45,6 +47,7 @@ from imucal_cli.formats.calibration import read_calibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import read_session, write_session
 from imucal_cli.pipeline.calibrate import calibrate_session
+from imucal_cli.plans import load_plan
 from imucal_cli.simulate.device import stream_with_holds
 from imucal_cli.simulate.magnetometer import simulate_mag
 from imucal_cli.simulate.play import simulate_plan
@@ -154,6 +157,12 @@ def n_holds(plan: LivePlan, seed: int = 0) -> int:
                                  mag=mag)[3])  # a ramp changes the temperature, not the holds
 
 
+def longest_hold_s(plan: LivePlan) -> float:
+    """The longest hold the guided capture asks for: a step's own (a warm-up's minutes) or
+    capture's 2 s."""
+    return max([2.0, *(s.hold_s or 0.0 for s in load_plan(plan.plan).static_steps)])
+
+
 # --------------------------------------------------------------------------------------------
 # Running
 # --------------------------------------------------------------------------------------------
@@ -211,7 +220,7 @@ def _run_job(job: Job, folder: Path, holds: int) -> Job:
         job.capture = live_run.capture_guided(
             job.plan.plan, job.seed, out, n_poses=holds, timeout_s=timeout,
             serve_extra=job.plan.serve_args, capture_extra=job.plan.capture_args,
-            rng=np.random.default_rng([job.seed, 24]),
+            rng=np.random.default_rng([job.seed, 24]), longest_hold_s=longest_hold_s(job.plan),
         )  # fmt: skip
     else:
         job.capture = live_run.capture_unattended(
@@ -306,31 +315,59 @@ def _served_equal(live, file) -> float | None:
     return float(same.sum() / len(live.time))
 
 
-def grade_jobs(work: list[Job], file_seeds: list[int], say=print) -> dict:
-    """Grade the captures, and the file reference of every plan over ``file_seeds`` (which
-    hold the live seeds); returns ``{plan name: {seed: graded file sections}}``."""
-    files: dict[str, dict[int, dict]] = {}
-    sessions: dict[tuple[str, int], object] = {}
-    plans = {j.plan.name: j.plan for j in work}
-    for name, plan in plans.items():
-        t0 = time.monotonic()
-        files[name] = {}
-        for seed in file_seeds:
-            session, truth = simulated(plan, seed)
-            sessions[(name, seed)] = (session, truth)
-            try:
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")
-                    if plan.warmup:
-                        cal = calibrate_session(room(seed), Config(), warmup=[session])
-                        files[name][seed] = grade_warmup(session, cal, truth)
-                        continue
-                    cal = calibrate_session(session, Config())
-                files[name][seed] = grade(session, cal, truth)
-            except Exception as exc:  # noqa: BLE001 - counted as a failed file calibration
-                files[name][seed] = {"error": f"{type(exc).__name__}: {exc}"}
-        say(f"  file reference {name}: {len(file_seeds)} seeds in "
-            f"{time.monotonic() - t0:.0f} s")
+def file_reference(plan: LivePlan, seeds: list[int]) -> tuple[dict[int, dict], float]:
+    """The same plan simulated to a file for each seed, calibrated with no config and graded
+    (a seed whose calibration fails: ``{"error": ...}``); and the wall time it took, s."""
+    t0 = time.monotonic()
+    out: dict[int, dict] = {}
+    for seed in seeds:
+        session, truth = simulated(plan, seed)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                if plan.warmup:
+                    cal = calibrate_session(room(seed), Config(), warmup=[session])
+                    out[seed] = grade_warmup(session, cal, truth)
+                    continue
+                cal = calibrate_session(session, Config())
+                out[seed] = grade(session, cal, truth)
+        except Exception as exc:  # noqa: BLE001 - counted as a failed file calibration
+            out[seed] = {"error": f"{type(exc).__name__}: {exc}"}
+    return out, time.monotonic() - t0
+
+
+def _quiet() -> None:  # pragma: no cover - runs in the reference's process
+    """The reference's process leaves Ctrl-C to the bench, which ends it."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def start_references(plans, seeds: list[int]):
+    """The file references of ``plans``, computed in another process while the captures run:
+    the pool and ``{plan name: pending result}``."""
+    pool = mp.get_context("spawn").Pool(1, initializer=_quiet)
+    return pool, {p.name: pool.apply_async(file_reference, (p, seeds)) for p in plans
+                  if not p.blocked}  # fmt: skip
+
+
+def _references_beside(plans, seeds: list[int], say, captures) -> dict:
+    """The file references computed in another process while ``captures()`` runs:
+    ``{plan name: graded seeds}``, and under ``None`` what ``captures()`` returned."""
+    pool, pending = start_references(plans, seeds)
+    try:
+        out = {None: captures()}
+        for name, result in pending.items():
+            out[name], wall = result.get()
+            say(f"  file reference {name}: {len(seeds)} seeds ({wall:.0f} s, beside the "
+                "captures)")  # fmt: skip
+        return out
+    finally:
+        pool.terminate()
+        pool.join()
+
+
+def grade_jobs(work: list[Job]) -> None:
+    """Grade each capture against the truth of its plan and seed."""
+    sessions = {(j.plan.name, j.seed): simulated(j.plan, j.seed) for j in work}
     for job in work:
         session, truth = sessions[(job.plan.name, job.seed)]
         cal = job.calibrate
@@ -347,7 +384,6 @@ def grade_jobs(work: list[Job], file_seeds: list[int], say=print) -> dict:
         except Exception as exc:  # noqa: BLE001 - the row says so; the others are graded
             job.graded = {}
             job.grade_error = f"{type(exc).__name__}: {exc}"
-    return files
 
 
 # --------------------------------------------------------------------------------------------
@@ -514,9 +550,15 @@ def run_live(plans=PLANS, seeds=(0,), modes=MODES, *, jobs: int = 3, n_burners: 
     file_seeds = sorted(set(seeds) | set(file_seeds or []))
     with tempfile.TemporaryDirectory(prefix="bench-live-") as tmp:
         where = Path(folder or tmp)
-        work = run_jobs(plans, seeds, modes, jobs=jobs, n_burners=n_burners, folder=where,
-                        say=say)  # fmt: skip
-        files = grade_jobs(work, file_seeds, say=say)
+        if file_seeds == seeds:  # only the live seeds: no process of its own
+            work = run_jobs(plans, seeds, modes, jobs=jobs, n_burners=n_burners, folder=where,
+                            say=say)  # fmt: skip
+            files = {p.name: file_reference(p, seeds)[0] for p in plans if not p.blocked}
+        else:
+            files = _references_beside(plans, file_seeds, say, lambda: run_jobs(
+                plans, seeds, modes, jobs=jobs, n_burners=n_burners, folder=where, say=say))
+            work = files.pop(None)
+        grade_jobs(work)
     rng = np.random.default_rng(24)
     rows = []
     for plan in plans:

@@ -35,6 +35,9 @@ import numpy as np
 
 CLI = [sys.executable, "-m", "imucal_cli"]
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1", "COLUMNS": "160"}
+#: How long the device may take to start and say its port, s (a Python start-up: seconds on a
+#: quiet machine, a minute at load 20 on 2 cores).
+START_S = 300.0
 #: What a person takes to react to the screen, s (uniform).
 REACTION_S = (0.4, 1.2)
 #: Control sequences of a terminal (CSI, OSC) and carriage returns, removed before reading.
@@ -45,6 +48,8 @@ _ANSI = re.compile(
 _POSE_TAKEN = re.compile(r"recorded [^\n]*?\((\d+) of (\d+)\)")
 #: The guided capture asking for more field directions once every step is done.
 _MORE_FIELD = "Keep turning the unit slowly"
+#: The guided capture restarting a hold the unit moved in.
+_MOVED = "the unit moved during the hold"
 
 _LOCK = threading.Lock()
 _STARTED: list[subprocess.Popen] = []
@@ -137,6 +142,7 @@ class _Screen:
         self.text = ""
         self.tail = ""
         self.poses = 0
+        self.moved = 0
         self.more_field = False
 
     def feed(self, data: bytes) -> None:
@@ -152,6 +158,9 @@ class _Screen:
         for m in _POSE_TAKEN.finditer(self.text):
             self.poses += 1
             end = m.end()
+        for m in re.finditer(_MOVED, self.text):
+            self.moved += 1
+            end = max(end, m.end())
         self.more_field = self.more_field or _MORE_FIELD in self.text
         # what follows the last message may be the start of the next one (at most a line)
         self.text = self.text[max(end, len(self.text) - 400):]
@@ -213,7 +222,8 @@ def _device_path(read_more, deadline: float) -> tuple[str, bytes]:
 
 def capture_guided(plan: str, seed: int, out: Path, *, n_poses: int, timeout_s: float,
                    serve_extra: list[str] = (), capture_extra: list[str] = (),
-                   rng: np.random.Generator | None = None) -> CaptureRun:  # fmt: skip
+                   rng: np.random.Generator | None = None,
+                   longest_hold_s: float = 2.0) -> CaptureRun:  # fmt: skip
     """A person at the bench: the device held still in each pose until Enter in its terminal
     (``--step``); the guided capture in another terminal.  After the capture says a pose is
     recorded, the person waits a reaction time and presses Enter at the device (the unit turns
@@ -221,7 +231,8 @@ def capture_guided(plan: str, seed: int, out: Path, *, n_poses: int, timeout_s: 
     the last of the ``n_poses`` holds.  When every step is done and the capture asks for more
     field directions (a magnetometer that has not seen 90 % of them), the device has nothing
     more to show: the person finishes with ``q``.  A capture that takes no pose for
-    ``timeout_s`` / 4 is given up on with Ctrl-C, as a person would; one that does not end in
+    ``timeout_s`` / 4 (or 2.5 times the plan's longest hold, ``longest_hold_s``, and
+    30 s) is given up on with Ctrl-C, as a person would; one that does not end in
     ``timeout_s`` is killed."""
     rng = rng or np.random.default_rng(seed)
     run = CaptureRun("guided", out)
@@ -229,16 +240,17 @@ def capture_guided(plan: str, seed: int, out: Path, *, n_poses: int, timeout_s: 
     cap = None
     cfd = -1
     try:
-        path, _ = _device_path(lambda: _read(sfd, 0.5), time.monotonic() + 60)
+        path, _ = _device_path(lambda: _read(sfd, 0.5), time.monotonic() + START_S)
         t0 = time.monotonic()
         cap, cfd = _pty_spawn([*CLI, "capture", "--port", path, "--plan", plan, "--output",
                                str(out), *capture_extra])  # fmt: skip
         screen, device = _Screen(), bytearray()
-        seen = 0
+        seen = moved = 0
         enter_at: float | None = None
         finish_at: float | None = None
         last_progress = t0
-        stalled = timeout_s / 4
+        # a person waits for a pose a while, longer when the plan's hold is long (a warm-up)
+        stalled = max(timeout_s / 4, 2.5 * longest_hold_s + 30.0)
         interrupted = False
         while True:
             now = time.monotonic()
@@ -248,6 +260,9 @@ def capture_guided(plan: str, seed: int, out: Path, *, n_poses: int, timeout_s: 
             extra = _read(sfd, 0)
             if extra and len(device) < 1_000_000:
                 device += extra
+            if screen.moved > moved:
+                moved = screen.moved
+                run.events.append(f"{now - t0:.1f} s: the capture says the unit moved in a hold")
             if screen.poses > seen:  # a new pose taken
                 seen = screen.poses
                 last_progress = now
@@ -342,7 +357,7 @@ def capture_unattended(plan: str, seed: int, out: Path, *, timeout_s: float,
     readers = [_TimedLines(server.stderr, "device", t_start, lines)]
     try:
         fd = server.stdout.fileno()
-        path, _ = _device_path(lambda: _read(fd, 0.5), time.monotonic() + 60)
+        path, _ = _device_path(lambda: _read(fd, 0.5), time.monotonic() + START_S)
         t0 = time.monotonic()
         with _LOCK:
             lines.append((t0 - t_start, "bench", f"device at {path}: capture started"))
