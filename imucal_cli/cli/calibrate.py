@@ -353,8 +353,7 @@ def _summary(line, cal, where: str) -> None:
         line(("temperature", BOLD), f": {cal.extra['temperature_note']}")
     clock = cal.extra.get("sample_clock") or {}
     if "ppm" in clock:
-        within = f"within {clock.get('threshold_ppm', 0.0):.3g} ppm of none: not corrected"
-        done = "gyro corrected" if clock.get("applied", True) else within
+        done = _clock_done(clock, gyro_saved=cal.gyro is not None)
         line(
             ("sample clock", BOLD),
             f": {clock['ppm']:+.1f} ± {clock['ppm_std']:.1f} ppm (device s per true s - 1, "
@@ -366,6 +365,14 @@ def _summary(line, cal, where: str) -> None:
     if left_out:  # issue 24.2: saved, but not every sensor of the session is in it
         where += f" (partial: {', '.join(left_out)} left out, see above)"
     line(f"wrote {where}")
+
+
+def _clock_done(clock: dict, *, gyro_saved: bool) -> str:
+    """What the sample clock's estimate changed: the gyro only when it was applied and a
+    gyro was calibrated (issue 24.4: nothing is said about a correction that did not act)."""
+    if not clock.get("applied", True):
+        return f"within {clock.get('threshold_ppm', 0.0):.3g} ppm of none: not corrected"
+    return "gyro corrected" if gyro_saved else "no gyro calibrated, so nothing corrected"
 
 
 def mag_summary(sec) -> list[tuple[Piece, ...]]:

@@ -71,14 +71,12 @@ def _poses_or_turns(flag: str, plan: str) -> None:
                          "qureshi-axes and free:N")  # fmt: skip
 
 
-def _mag_plan(plan: str, serve: bool, thermal_or_clock: bool) -> None:
-    """Refuse --mag but for written sessions of the pose plans (six, qureshi18, random:N)."""
+def _mag_plan(plan: str, thermal_or_clock: bool) -> None:
+    """Refuse --mag but for the pose plans (six, qureshi18, random:N), written or served."""
     spec = find_plan(plan)[0]
-    if serve or spec is None or spec.simulator != "poses" or spec.key == "warmup":
-        raise InputError(
-            "--mag simulates pose plans written to a file (six, qureshi18, random:N), not "
-            f"{'--serve' if serve else repr(plan)}"
-        )
+    if spec is None or spec.simulator != "poses" or spec.key == "warmup":
+        raise InputError("--mag simulates pose plans (six, qureshi18, random:N), written or "
+                         f"served, not {plan!r}")  # fmt: skip
     if thermal_or_clock:
         raise InputError("--mag does not combine with --ramp or --clock-ppm")
 
@@ -214,7 +212,8 @@ Mag = Annotated[bool, typer.Option(
     "--mag",
     help="Pose plans (six, qureshi18, random:N): add a magnetometer (an AK8963-like part: hard "
     "and soft iron, axes x/y swapped and z reversed relative to the accelerometer) and tumble "
-    "the unit through random attitudes between the holds (--tumble).",
+    "the unit through random attitudes between the holds (--tumble); with --serve each line "
+    "carries mx,my,mz after the gyro (capture --columns t,ax,ay,az,gx,gy,gz,mx,my,mz,temp).",
 )]  # fmt: skip
 FieldUt = alias(float, field_ut_option("--mag: local field magnitude, microtesla."))
 Inclination = Annotated[float, typer.Option(
@@ -337,6 +336,15 @@ def simulate(
             raise InputError("--g-sensitivity must be in (0, 0.1] rad/s per m/s^2, without --mag")
         options["g_sensitivity"] = g_sensitivity
     if serve:
+        if mag:  # the same part and samples as --mag writes; the hold is the device's
+            if protocol != "lines":
+                raise InputError(f"--protocol {protocol} prints its own magnetometer (or none): "
+                                 "leave out --mag")  # fmt: skip
+            options["mag"] = {
+                "field_uT": field_ut, "inclination_deg": inclination, "mag_units": mag_units,
+                "mag_noise": mag_noise, "layout": mag_layout, "field_known": not field_unknown,
+                "tumble_s": tumble,
+            }  # fmt: skip
         extras = {"temperature": thermal, "clock_scale": clock}
         options.update({k: v for k, v in extras.items() if v is not None})
         _serve(plan, rate, baud, json_output, seed=seed, units=units, move_s=move, step=step,
@@ -382,7 +390,7 @@ def _checked(plan: str, serve: bool, ramp: str | None, clock_ppm: float | None, 
         _poses_or_turns("--clock-ppm", plan)
         clock = check_ppm(clock_ppm)
     if mag:
-        _mag_plan(plan, serve, thermal is not None or clock is not None)
+        _mag_plan(plan, thermal is not None or clock is not None)
     if protocol and not serve:
         raise InputError("--protocol is what --serve prints: add --serve")
     return thermal, clock
