@@ -7,6 +7,7 @@ import argparse
 from rich.console import Console
 
 from bench import (
+    adaptive,
     capture,
     factorization,
     gravity,
@@ -36,6 +37,7 @@ BENCHMARKS = (
     "mag",
     "reliability",
     "temperature",
+    "adaptive",
 )
 
 
@@ -46,7 +48,8 @@ def main() -> None:
     parser.add_argument(
         "--quick",
         action="store_true",
-        help="capture: 10 s instead of 60 s; reliability: 1,000 fuzzed import files, not 10,000",
+        help="capture: 10 s instead of 60 s; reliability: 1,000 fuzzed import files, not "
+        "10,000; adaptive: 5 parts, not 20",
     )
     parser.add_argument("--runs", type=int, default=5, help="speed: runs per figure (median)")
     parser.add_argument("--sessions", type=int, default=500, help="speed: production-line size")
@@ -79,6 +82,8 @@ def main() -> None:
         ok = reliability.run(console, quick=args.quick) and ok
     if args.only in (None, "temperature"):
         ok = temperature.run(console, n_seeds=max(2, args.seeds // 50)) and ok
+    if args.only in (None, "adaptive"):
+        ok = adaptive.run(console, n_seeds=max(20, args.seeds // 10), quick=args.quick) and ok
     raise SystemExit(0 if ok else 1)
 
 

@@ -60,22 +60,26 @@ class Outcome:
     poses: int
     turns: int
     refit_s: float
+    unit: LiveUnit | None = None
 
 
 def follow(seed: int, targets: Targets | str = ISSUE_TARGETS, *, rate_hz: float = 100.0,
            plan: Plan | None = None, min_hold_s: float = 1.0, max_s: float = 240.0,
            chunk_s: float = 0.05, cfg: Config | None = None,
-           person: dict | None = None, stamp: bool = False) -> Outcome:  # fmt: skip
-    """Run a capture with ``targets`` by the simulated person on part ``seed``."""
+           person: dict | None = None, stamp: bool = False, propose: bool = True,
+           keep: bool = False) -> Outcome:  # fmt: skip
+    """Run a capture with ``targets`` by the simulated person on part ``seed`` (``plan``:
+    its steps first; ``propose``: then the guide's proposals, else the capture ends with the
+    plan; ``keep``: the outcome keeps the part's true inputs)."""
     if isinstance(targets, str):
         targets = parse_until(targets)
     cfg = cfg or Config()
-    unit = LiveUnit(seed, rate_hz=rate_hz)
+    unit = LiveUnit(seed, rate_hz=rate_hz, keep=keep)
     who = Person(unit, np.random.default_rng([seed, 27]), **(person or {}))
     rec = _Recorder()
     opt = GuidedOptions(hold_s=min_hold_s, accel_units="counts", gyro_units="counts")
     adaptive = AdaptiveOptions(targets, refit=lambda s: Refit(*refit(s, cfg)),
-                               min_hold_s=min_hold_s)  # fmt: skip
+                               min_hold_s=min_hold_s, propose=propose)  # fmt: skip
     state = AdaptiveState(plan, opt, 0, rec.add_segment, adaptive)
     out = io.StringIO()
     screen = Screen(Console(file=out, width=200, force_terminal=False, color_system=None))
@@ -108,4 +112,4 @@ def follow(seed: int, targets: Targets | str = ISSUE_TARGETS, *, rate_hz: float 
     seconds = (state.done_time - state.first_time) if summary.complete else None
     poses = sum(1 for x in state.taken if x.kind == "static")
     turns = sum(1 for x in state.taken if x.turn is not None)
-    return Outcome(seconds, session, unit.truth(), lines, poses, turns, state.refit_s)
+    return Outcome(seconds, session, unit.truth(), lines, poses, turns, state.refit_s, unit)

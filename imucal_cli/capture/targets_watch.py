@@ -31,7 +31,8 @@ class TargetWatcher:
         ``refit(session)`` -> an object with ``calibration`` and ``notes`` (the guided
         capture's :class:`~imucal_cli.capture.guided.Refit`).
     segment : callable
-        ``segment(time, accel, gyro)`` -> the segments' ``(kind, start, stop)``.
+        ``segment(time, accel, gyro)`` -> the segments: ``(kind, start, stop, attrs)``, the
+        attributes of the plan step each matches (``{}`` when none).
     units : tuple of str or None
         The raw accel and gyro units.
     gravity : float
@@ -56,12 +57,12 @@ class TargetWatcher:
         if accel is None or len(time) < 10:
             return False
         spans = self.segment(time, accel, gyro)
-        n_still = sum(1 for kind, _, _ in spans if kind == "static")
+        n_still = sum(1 for kind, *_ in spans if kind == "static")
         if n_still <= self.n_still:
             return False
         self.n_still = n_still
-        segments = [Segment(f"{k:04d}", kind, int(a), int(b)) for k, (kind, a, b)
-                    in enumerate(spans)]  # fmt: skip
+        segments = [Segment(f"{k:04d}", kind, int(a), int(b), **attrs)
+                    for k, (kind, a, b, attrs) in enumerate(spans)]  # fmt: skip
         rate = (len(time) - 1) / float(time[-1] - time[0]) if time[-1] > time[0] else None
         session = Session(time=time.copy(), accel=accel.copy(),
                           gyro=None if gyro is None else gyro.copy(), temperature=None,

@@ -439,8 +439,8 @@ def run_unattended(
     watcher = None
     if targets:
         watcher = TargetWatcher(targets, refit, lambda t, a, g: [
-            (e.kind, e.start, e.stop) for e in segment_recording(t, a, g, None,
-                                                                 min_still_s=min_still_s)[0]],
+            (e.kind, e.start, e.stop, _attrs(e.step)) for e in segment_recording(
+                t, a, g, plan, min_still_s=min_still_s)[0]],
             units=(getattr(recorder, "accel_units", None), getattr(recorder, "gyro_units", None)),
             gravity=gravity)  # fmt: skip
     buffer, reached_duration = _record(recorder, plan, duration_s, min_still_s, say, watcher)
@@ -469,6 +469,15 @@ def run_unattended(
         stats=recorder.stats,
         targets=[] if watcher is None else list(watcher.statuses),
     )
+
+
+def _attrs(step: Step | None) -> dict:
+    """A segment's attributes from the plan step it matches (none: ``{}``)."""
+    if step is None:
+        return {}
+    attrs = step.segment_attrs()
+    attrs.pop("extra", None)
+    return attrs
 
 
 def _left_to_do(plan: Plan, before: list[str], say) -> tuple[list[str], Plan]:

@@ -12,13 +12,16 @@ instruction) and does it as a person would:
 
 - ``step N: Turn about +X by 90 degrees ...``: a turn about the unit's own axis by that angle;
 - ``step N: Put face -Y up ...`` / ``Put edge +X-Z up ...``: the smallest turn that puts it up;
+- ``Put the unit in a new orientation ...`` (unlabelled poses, ``random:N``): a turn of 45 to
+  180 degrees about a random axis;
 - after a **reaction time** (uniform in ``reaction_s``), in a **move** of uniform
   ``move_s`` seconds, ending with a **placement error**: the unit comes to rest tilted from
   the intended pose by a random horizontal rotation of RMS ``jitter_deg`` (2 degrees by hand);
 - the person reads the first instruction after each pose the guide recorded (``recorded
   ...``): the guide's ``next: ...`` proposal, a ``step N: ...`` line, or a plan's ``left:
   ...`` list (its first pose); other lines, and instructions repeated before the next
-  recorded pose, are ignored.
+  recorded pose, are ignored; when the guide refuses a hold (too close to a pose taken,
+  matching no step), the person does the last instruction again.
 
 The person starts with the unit on face +Z (placed with the same error and a random heading).
 Words a person follows are the contract: :func:`parse_instruction` reads exactly what
@@ -46,15 +49,19 @@ from imucal_cli.simulate.sensor import G0, Imu, draw_part
 __all__ = ["Instruction", "LiveLines", "LiveUnit", "Person", "follow_stdin", "format_lines",
            "parse_instruction"]
 
-_TURN = re.compile(r"Turn about ([+-])([XYZ]) by (\d+(?:\.\d+)?) degrees")
+_TURN = re.compile(r"Turn about ([+-])([XYZ]) by (-?\d+(?:\.\d+)?) degrees")
 _PUT = re.compile(r"Put (?:face|edge) ([+-][XYZ](?:[+-][XYZ])?) up")
+_NEW = re.compile(r"Put the unit in a new orientation")
+_REFUSED = ("turn the unit to another face or edge", "put the unit on one of the poses left")
+"""The guide's words when it did not take a hold: the person tries again."""
 _STEP = re.compile(r"^\s*(?:\[)?(?:step (\d+)|next:|left:)")
 
 
 @dataclass(frozen=True)
 class Instruction:
-    """What the guide asked: a ``turn`` about the unit's ``axis`` by ``angle_deg``, or to
-    ``put`` the unit with ``up`` (its frame) up; ``step`` its number."""
+    """What the guide asked: a ``turn`` about the unit's ``axis`` by ``angle_deg``, to
+    ``put`` the unit with ``up`` (its frame) up, or a ``random`` new orientation; ``step``
+    its number (0: a ``next:`` or ``left:`` line)."""
 
     step: int
     kind: str
@@ -70,12 +77,16 @@ def parse_instruction(line: str) -> Instruction | None:
         return None
     step = int(m.group(1) or 0)
     if line.lstrip().startswith("left:"):  # a plan's steps left: the first is next
-        line = "Put " + line.split(":", 1)[1].split(",")[0].strip()
+        first = line.split(":", 1)[1].split(",")[0].strip()
+        line = ("Put the unit in a new orientation" if re.match(r"pose \d+$", first)
+                else "Put " + first)
     turn = _TURN.search(line)
     if turn:
         axis = np.zeros(3)
         axis["XYZ".index(turn.group(2))] = 1.0 if turn.group(1) == "+" else -1.0
         return Instruction(step, "turn", axis=axis, angle_deg=float(turn.group(3)))
+    if _NEW.search(line):
+        return Instruction(step, "random")
     put = _PUT.search(line)
     if put:
         up = np.zeros(3)
@@ -97,11 +108,15 @@ class LiveUnit:
         As ``imucal simulate``.
     jitter_deg : float
         RMS placement error of the first pose.
+    keep : bool
+        Keep the true inputs handed out (:attr:`inputs`: specific force and rate, for tests
+        that draw the noise again over the same motion).
     """
 
     def __init__(self, seed: int, *, rate_hz: float = 100.0, units: str = "counts",
                  accel_noise: float = 0.01, gyro_noise: float = 0.005,
-                 gravity: float = G0, jitter_deg: float = 2.0) -> None:  # fmt: skip
+                 gravity: float = G0, jitter_deg: float = 2.0,
+                 keep: bool = False) -> None:  # fmt: skip
         self.imu: Imu
         self.imu, pose_ss, noise_ss = draw_part(seed, units, accel_noise, gyro_noise)
         self.prng = np.random.default_rng(pose_ss)
@@ -113,6 +128,8 @@ class LiveUnit:
         self._force = np.empty((0, 3))
         self._rate = np.empty((0, 3))
         self._end_att = self.att  # attitude after the queued true inputs
+        self.keep = keep
+        self._kept: list[tuple[np.ndarray, np.ndarray]] = []
 
     @property
     def up(self) -> np.ndarray:
@@ -120,10 +137,19 @@ class LiveUnit:
         return self.att.inv().apply(EZ)
 
     def move_to(self, start: int, target: Rotation, seconds: float) -> None:
-        """Turn to ``target`` (body -> world) starting at sample ``start``, in ``seconds``."""
+        """Turn to ``target`` (body -> world) starting at sample ``start``, in ``seconds``
+        (about the fixed axis of the smallest rotation)."""
         n = max(2, int(round(seconds * self.rate_hz)) - 1)
         self.moves.append((max(int(start), self.k), target, n))
         self.att = target
+
+    def turn(self, start: int, axis: np.ndarray, angle: float, seconds: float) -> None:
+        """Turn about the body ``axis`` (unit) by ``angle`` rad (any, a full turn too),
+        starting at sample ``start``, in ``seconds``."""
+        n = max(2, int(round(seconds * self.rate_hz)) - 1)
+        axis = np.asarray(axis, float) / np.linalg.norm(axis)
+        self.moves.append((max(int(start), self.k), (axis, float(angle)), n))
+        self.att = self.att * Rotation.from_rotvec(angle * axis)
 
     def _extend(self, need: int) -> None:
         """Make the true inputs up to ``need`` samples past those handed out."""
@@ -132,9 +158,12 @@ class LiveUnit:
             if self.moves and self.moves[0][0] <= at:
                 _, target, n = self.moves.popleft()
                 tl = Timeline(self.rate_hz, self.gravity, self._end_att)
-                tl.move(target, n)
+                if isinstance(target, Rotation):
+                    tl.move(target, n)
+                else:  # (axis, angle): a turn by that angle, whole turns included
+                    tl.smooth_turn(target[0], target[1], n)
                 force, rate = tl.arrays()
-                self._end_att = target
+                self._end_att = tl.att
             else:
                 until = self.moves[0][0] if self.moves else at + need
                 m = max(1, min(until, self.k + need) - at)
@@ -148,10 +177,20 @@ class LiveUnit:
         self._extend(n)
         force, self._force = self._force[:n], self._force[n:]
         rate, self._rate = self._rate[:n], self._rate[n:]
+        if self.keep:
+            self._kept.append((force, rate))
         raw = self.imu.sample({"accel": force, "gyro": rate}, self.nrng)
         t = (self.k + np.arange(n)) / self.rate_hz
         self.k += n
         return t, raw["accel"], raw["gyro"]
+
+    @property
+    def inputs(self) -> dict[str, np.ndarray]:
+        """The true specific force (m/s^2) and rate (rad/s) handed out (``keep``)."""
+        if not self._kept:
+            return {"accel": np.empty((0, 3)), "gyro": np.empty((0, 3))}
+        return {"accel": np.concatenate([f for f, _ in self._kept]),
+                "gyro": np.concatenate([r for _, r in self._kept])}  # fmt: skip
 
     def truth(self) -> Calibration:
         """The part's true calibration (its accel and gyro sections)."""
@@ -180,6 +219,7 @@ class Person:
         self.unit, self.rng = unit, rng
         self.reaction_s, self.move_s, self.jitter_deg = reaction_s, move_s, jitter_deg
         self.ready = True  # the next instruction is to be done (after a pose was recorded)
+        self.last: Instruction | None = None
         self.moves = 0
 
     def read(self, line: str, at: int | None = None) -> Instruction | None:
@@ -188,25 +228,38 @@ class Person:
         if line.lstrip().startswith("recorded "):
             self.ready = True
             return None
-        ins = parse_instruction(line) if self.ready else None
+        refused = any(words in line for words in _REFUSED)
+        ins = self.last if refused else (parse_instruction(line) if self.ready else None)
         if ins is None:
             return None
         self.ready = False
+        self.last = ins
         at = self.unit.k if at is None else at
         target = self.target(ins)
         if target is None:
             return ins
         start = at + int(round(self.rng.uniform(*self.reaction_s) * self.unit.rate_hz))
-        self.unit.move_to(start, target, float(self.rng.uniform(*self.move_s)))
+        seconds = float(self.rng.uniform(*self.move_s))
+        if isinstance(target, Rotation):
+            self.unit.move_to(start, target, seconds)
+        else:  # a whole turn (or more) about an axis: it ends where it began
+            self.unit.turn(start, *target, seconds=seconds * abs(target[1]) / np.pi)
         self.moves += 1
         return ins
 
-    def target(self, ins: Instruction) -> Rotation | None:
+    def target(self, ins: Instruction):
         """Where the unit should end (body -> world), the placement error included; None:
-        it is there already."""
+        it is there already; ``(axis, angle)``: a turn of a whole turn or more about the body
+        axis, back onto the same face (against the ruler: no new placement)."""
         att = self.unit.att
+        if ins.kind == "turn" and abs(ins.angle_deg) >= 270.0:  # back where it began
+            return ins.axis, np.radians(ins.angle_deg)
         if ins.kind == "turn":
             ideal = att * Rotation.from_rotvec(np.radians(ins.angle_deg) * ins.axis)
+        elif ins.kind == "random":
+            axis = self.rng.standard_normal(3)
+            angle = np.radians(self.rng.uniform(45.0, 180.0))
+            ideal = att * Rotation.from_rotvec(angle * axis / np.linalg.norm(axis))
         else:
             now = att.inv().apply(EZ)
             if np.degrees(np.arccos(np.clip(now @ ins.up, -1.0, 1.0))) < 3 * self.jitter_deg:

@@ -9,11 +9,18 @@ shortest hold (the accelerometer's, with the label's placement error, and the gy
 :func:`propose` ranks them by the design's predicted std against the targets: the worst
 target's ratio first, then the sum of the squared ratios of the targets not yet met.
 
+Before the design determines every target, no candidate's worst target is finite: the ranking
+is then by the information gained overall (D-optimality: the log-determinant of both sensors'
+information over a prior of a consumer part's spread, :data:`PRIOR`: biases of 50 mg and 3
+deg/s, gains 3 %, axes 1 degree, the frame 2 degrees), so that the first poses are chosen for
+all they will determine.  The prior only ranks: what the capture states is its refit.
+
 How long to hold (:func:`hold_length`): holding longer shrinks what this pose's samples
 determine (its mean, the gyro's bias, the directions of the turns beside it) with diminishing
 returns, while the next pose costs a move.  The hold ends at the first length where a further
 :data:`HOLD_STEP_S` shrinks the worst target, per second, less than the best next step would
-(its improvement over the step's cost, reaction and move and the shortest hold).
+(its improvement over the step's cost, reaction and move and the shortest hold), or less than
+:data:`MIN_SHRINK_PER_S`.
 """
 
 from __future__ import annotations
@@ -59,7 +66,31 @@ MIN_TILT_DEG = 30.0
 HOLD_STEP_S = 0.25
 """The hold's length is judged in steps of this, s."""
 
+MIN_SHRINK_PER_S = 0.02
+"""A hold goes on only while it shrinks the worst target by at least this much per second (a
+fraction; below it, more samples no longer help whatever the next step would do)."""
+
 TERMS = ("gain", "bias", "misalignment")
+
+PRIOR = {"accel_bias_g": 0.05, "gain": 0.03, "axes_deg": 1.0, "frame_deg": 2.0,
+         "gyro_bias_dps": 3.0}
+"""The spread of a consumer part (1 std) the ranking assumes before the data tell."""
+
+
+def _prior(fit: Fit) -> tuple[np.ndarray, np.ndarray]:
+    """Diagonal prior information on the accelerometer's ``theta = (B, K, r)`` and the gyro's
+    ``(b, vec M)`` (:data:`PRIOR`)."""
+    theta = fit.theta()
+    k = np.abs(theta[3:6])  # K's diagonal, raw -> m/s^2 per raw unit
+    sa = 1.0 / k  # raw units per m/s^2
+    std_a = np.r_[PRIOR["accel_bias_g"] * fit.gravity * sa, PRIOR["gain"] * k,
+                  np.radians(PRIOR["axes_deg"]) * k[[0, 0, 1]], np.full(3, PRIOR["frame_deg"])]
+    M = np.asarray(fit.gyro_matrix, float)
+    scale = float(np.mean(np.abs(np.diag(M))))
+    std_g = np.r_[np.full(3, np.radians(PRIOR["gyro_bias_dps"]) / scale),
+                  np.where(np.eye(3).ravel() > 0, PRIOR["gain"] * scale,
+                           np.radians(PRIOR["axes_deg"]) * scale)]  # fmt: skip
+    return np.diag(1.0 / std_a**2), np.diag(1.0 / std_g**2)
 
 
 @dataclass(frozen=True)
@@ -133,6 +164,7 @@ class _Base:
         self.A = self.P.sum(axis=0) if poses else np.zeros((12, 12))
         self.I, self.X = design_turns(fit, poses, turns, noise).information()
         self.n_still = sum(p.n for p in poses)
+        self.prior = _prior(fit)
 
     def std(self, A: np.ndarray, info: np.ndarray, cross: np.ndarray, n_turns: int,
             n_still: int) -> DesignStd:  # fmt: skip
@@ -145,6 +177,17 @@ class _Base:
             info[:3, :3] += n_still / self.noise.gyro_raw**2 * np.eye(3)
             gyro = gyro_terms(self.fit, info, cross, cov)
         return DesignStd(accel, gyro)
+
+    def gained(self, A: np.ndarray, info: np.ndarray, n_still: int) -> float:
+        """The information over the prior, both sensors: ``log det(I + P) - log det(P)``."""
+        prior_a, prior_g = self.prior
+        info = info.copy()
+        info[:3, :3] += n_still / self.noise.gyro_raw**2 * np.eye(3)
+        out = 0.0
+        for I, P in ((A, prior_a), (info, prior_g)):
+            d = 1.0 / np.sqrt(np.diag(P))
+            out += float(np.linalg.slogdet(d[:, None] * (I + P) * d)[1])
+        return out
 
     def now(self) -> DesignStd:
         return self.std(self.A, self.I, self.X, len(self.turns), self.n_still)
@@ -164,8 +207,9 @@ class _Base:
         return self.std(A, info, cross, len(self.turns), self.n_still - last.n + int(n))
 
     def with_steps(self, cands: list[Candidate], hold_n: int, move_s: float,
-                   placement_deg: float) -> list[DesignStd]:  # fmt: skip
-        """The design after each candidate: the turn, then a new pose held ``hold_n``."""
+                   placement_deg: float) -> list[tuple[DesignStd, float]]:  # fmt: skip
+        """The design after each candidate (the turn, then a new pose held ``hold_n``): its
+        std and its information gained (:meth:`gained`)."""
         if not cands:
             return []
         last = self.poses[-1]
@@ -178,8 +222,9 @@ class _Base:
         JW = np.einsum("kai,kab->kib", rows.J, rows.W)
         dI = np.einsum("kib,kbj->kij", JW, rows.J)
         dX = np.einsum("kib,kbj->kij", JW, rows.F)
-        return [self.std(self.A + P[i], self.I + dI[i], self.X + dX[i], len(self.turns) + 1,
-                         self.n_still + hold_n) for i in range(k)]  # fmt: skip
+        n = self.n_still + hold_n
+        return [(self.std(self.A + P[i], self.I + dI[i], self.X + dX[i], len(self.turns) + 1, n),
+                 self.gained(self.A + P[i], self.I + dI[i], n)) for i in range(k)]  # fmt: skip
 
 
 def propose(fit: Fit, poses: list[Pose], turns: list[Turn], noise: Noise,
@@ -203,10 +248,14 @@ def propose(fit: Fit, poses: list[Pose], turns: list[Turn], noise: Noise,
     if not poses:
         return []
     base = _Base(fit, poses, turns, noise)
+    determined = np.isfinite(score(ratios(base.now(), limits))[0])
     cands = candidates(poses[-1].up)
-    out = [Proposal(c, p, score(ratios(p, limits)))
-           for c, p in zip(cands, base.with_steps(cands, hold_n, move_s, placement_deg),
-                           strict=True)]  # fmt: skip
+    out = []
+    for c, (std, gained) in zip(cands, base.with_steps(cands, hold_n, move_s, placement_deg),
+                                strict=True):  # fmt: skip
+        worst, rest = score(ratios(std, limits))
+        key = (worst, rest) if determined or np.isfinite(worst) else (np.inf, -gained)
+        out.append(Proposal(c, std, key))
     out.sort(key=lambda p: p.score)
     return out
 
@@ -222,7 +271,7 @@ def hold_length(fit: Fit, poses: list[Pose], turns: list[Turn], noise: Noise,
     and stops at once when every target is met.
     """
     dn = max(1, int(round(HOLD_STEP_S * noise.rate_hz)))
-    per_s = max(step_gain, 0.0) / max(step_s, 1e-9)
+    per_s = max(max(step_gain, 0.0) / max(step_s, 1e-9), MIN_SHRINK_PER_S)
     n = int(min_n)
     base = _Base(fit, poses, turns, noise)
     worst = score(ratios(base.with_last_held(n), limits))[0]

@@ -83,6 +83,10 @@ class AdaptiveOptions:
         accelerometer's solver uses labels).
     gravity : float
         Local gravity, m/s^2.
+    propose : bool
+        Once the plan's steps are done (or without a plan), propose the next pose, and plan
+        each hold's length; False: a fixed plan, each hold ``min_hold_s``, ending with its last
+        step, targets met or not (or earlier, when they are met).
     """
 
     targets: Targets
@@ -93,6 +97,7 @@ class AdaptiveOptions:
     step_s: float = 4.0
     placement_deg: float = 2.0
     gravity: float = 9.80665
+    propose: bool = True
 
 
 def first_step() -> Step:
@@ -187,6 +192,8 @@ class AdaptiveState(GuidedState):
         own = None if cur is None else self.steps[cur].hold_s
         if own:
             return float(own)
+        if not self.a.propose and self.given_plan is not None:
+            return self.a.min_hold_s
         if self.holding and self.state is not None and self.state.still_start is not None:
             if self.hold_plan is None:
                 self.hold_plan = self._plan_hold()
@@ -252,7 +259,7 @@ class AdaptiveState(GuidedState):
         self.hold_plan = None
         if self.met:
             return
-        if self.current() is None:
+        if self.current() is None and (self.a.propose or self.given_plan is None):
             self.add_proposal()
         super().after_step()
 
