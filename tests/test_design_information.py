@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from imucal_cli.simulate.motion import Timeline
+from imucal_cli.simulate.sensor import draw_part
 from imucal_cli.solvers import design_information as di
 from imucal_cli.solvers.crb import labelled_crb
 from imucal_cli.solvers.gyro_full import Rotations, Stills, full_information
 from imucal_cli.solvers.labelled_model import design_jacobian
-from imucal_cli.simulate.motion import Timeline
-from imucal_cli.simulate.sensor import draw_part
 
 G = 9.80665
 RATE = 100.0

@@ -200,6 +200,9 @@ def capture(
     _check_limits({"--duration": duration, "--min-still": min_still,
                    "--wait-timeout": wait_timeout, "--read-timeout": read_timeout})  # fmt: skip
     targets, cfg = targets_of(until, config)
+    if targets and resume is not None:
+        raise InputError("--resume continues a plan; a capture with targets starts afresh: "
+                         "leave out --resume (or --until and [targets])")
     plan_obj, guided = _plan_and_mode(plan, no_prompt, duration, targets)
     _check_temperature(plan_obj, protocol, stream_protocol)
     out = _output_path(output, resume, force)

@@ -20,8 +20,9 @@ instruction) and does it as a person would:
 - the person reads the first instruction after each pose the guide recorded (``recorded
   ...``): the guide's ``next: ...`` proposal, a ``step N: ...`` line, or a plan's ``left:
   ...`` list (its first pose); other lines, and instructions repeated before the next
-  recorded pose, are ignored; when the guide refuses a hold (too close to a pose taken,
-  matching no step), the person does the last instruction again.
+  recorded pose, are ignored (a terminal's live view shows the current step again and
+  again, the step just recorded among them); when the guide refuses a hold (too close to a
+  pose taken, matching no step), the person does the last instruction again.
 
 The person starts with the unit on face +Z (placed with the same error and a random heading).
 Words a person follows are the contract: :func:`parse_instruction` reads exactly what
@@ -220,6 +221,8 @@ class Person:
         self.reaction_s, self.move_s, self.jitter_deg = reaction_s, move_s, jitter_deg
         self.ready = True  # the next instruction is to be done (after a pose was recorded)
         self.last: Instruction | None = None
+        self.step = 0  # the step number of the latest instruction read
+        self.recorded_step = -1  # the step that was current when a pose was recorded
         self.moves = 0
 
     def read(self, line: str, at: int | None = None) -> Instruction | None:
@@ -227,11 +230,16 @@ class Person:
         (default: now); an instruction is done (a move queued), other lines ignored."""
         if line.lstrip().startswith("recorded "):
             self.ready = True
+            self.recorded_step = self.step
             return None
         refused = any(words in line for words in _REFUSED)
-        ins = self.last if refused else (parse_instruction(line) if self.ready else None)
+        ins = self.last if refused else parse_instruction(line)
         if ins is None:
             return None
+        if ins.step:
+            self.step = ins.step
+        if not (self.ready or refused) or (ins.step and ins.step == self.recorded_step):
+            return None  # not the next instruction: one done, or the step just recorded
         self.ready = False
         self.last = ins
         at = self.unit.k if at is None else at

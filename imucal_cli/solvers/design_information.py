@@ -243,21 +243,39 @@ def accel_information(fit: Fit, poses: list[Pose], noise: Noise) -> np.ndarray:
     return pose_information(fit, poses, noise).sum(axis=0)
 
 
-def accel_covariance(info: np.ndarray) -> np.ndarray | None:
-    """The covariance of ``theta`` from its information: the equilibrated pseudo-inverse
-    (a rotation the design cannot see gets no variance, as a gauge); None when the bias or
-    ``K`` are undetermined (a direction of no information touches them)."""
-    diag = np.diag(info)
-    if np.any(diag[:9] <= 0):
+FRAME_SEEN = 1e-6
+"""Information on the frame's rotation ``r`` below this (deg^-2: known to worse than 1000
+degrees) is none: gravity magnitude alone, the rotation is a gauge."""
+
+
+def _inverse(A: np.ndarray) -> np.ndarray | None:
+    """Equilibrated inverse of a symmetric information matrix; None when it is singular
+    (an eigenvalue below 1e-10 of the largest, after equilibration)."""
+    diag = np.diag(A)
+    if np.any(diag <= 0):
         return None
-    d = 1.0 / np.sqrt(np.where(diag > 0, diag, 1.0))
-    E = d[:, None] * info * d
+    d = 1.0 / np.sqrt(diag)
+    E = d[:, None] * A * d
     w, V = np.linalg.eigh((E + E.T) / 2)
-    small = w <= 1e-10 * max(w[-1], 1e-300)
-    if small.any() and np.max(np.linalg.norm(V[:9, small], axis=0)) > 1e-3:
+    if not w[0] > 1e-10 * w[-1]:
         return None
-    inv_w = np.where(small, 0.0, 1.0 / np.where(small, 1.0, w))
-    return d[:, None] * ((V * inv_w) @ V.T) * d
+    return d[:, None] * ((V / w) @ V.T) * d
+
+
+def accel_covariance(info: np.ndarray) -> np.ndarray | None:
+    """The covariance of ``theta = (B, K, r)`` from its information; None when the bias or
+    ``K`` are undetermined.  Without labels the rotation ``r`` is a gauge (gravity magnitude
+    cannot see it, :data:`FRAME_SEEN`): it is held, and gets no variance."""
+    BK, r = slice(0, 9), slice(9, 12)
+    inv_bk = _inverse(info[BK, BK])
+    if inv_bk is None:
+        return None
+    schur = info[r, r] - info[r, BK] @ inv_bk @ info[BK, r]
+    if np.linalg.eigvalsh((schur + schur.T) / 2)[-1] < FRAME_SEEN:
+        cov = np.zeros((12, 12))
+        cov[BK, BK] = inv_bk
+        return cov
+    return _inverse(info)
 
 
 def accel_terms(fit: Fit, info: np.ndarray, cov: np.ndarray | None = None) -> TermStd | None:
