@@ -64,7 +64,7 @@ class Outcome:
 
 
 def follow(seed: int, targets: Targets | str = ISSUE_TARGETS, *, rate_hz: float = 100.0,
-           plan: Plan | None = None, min_hold_s: float = 1.0, max_s: float = 240.0,
+           plan: Plan | None = None, min_hold_s: float = 0.5, max_s: float = 240.0,
            chunk_s: float = 0.05, cfg: Config | None = None,
            person: dict | None = None, stamp: bool = False, propose: bool = True,
            keep: bool = False) -> Outcome:  # fmt: skip

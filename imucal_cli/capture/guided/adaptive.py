@@ -183,6 +183,8 @@ class AdaptiveState(GuidedState):
         return f"std/target: {brief(self.statuses)}"
 
     def prompt(self) -> Prompt:
+        if self.met:  # done: nothing more to do (a proposal made meanwhile is void)
+            return Prompt(None, 0, "done", "", 0.0, 0.0, self.serial)
         p = super().prompt()
         return Prompt(p.step, 0, p.phase, p.text, p.hold_s, p.held_s, p.serial)
 
