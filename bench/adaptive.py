@@ -163,11 +163,21 @@ def through_port(seed: int, folder: Path, targets: str = ISSUE_TARGETS,
 
         reader = threading.Thread(target=relay, daemon=True)
         reader.start()
-        summary = json.loads(capture.communicate(timeout=timeout_s)[0])
+        watchdog = threading.Timer(timeout_s, capture.kill)  # a capture that never ends
+        watchdog.start()
+        try:
+            summary = json.loads(capture.stdout.read() or "null")
+            capture.wait()
+        finally:
+            watchdog.cancel()
         reader.join(10)
+        if summary is None:
+            raise RuntimeError(f"seed {seed}: the capture ended without a summary:\n"
+                               + "".join(lines[-20:]))
     finally:
-        if device.poll() is None:
-            device.kill()
+        for proc in (device, locals().get("capture")):
+            if proc is not None and proc.poll() is None:
+                proc.kill()
         device.communicate()
     return {"summary": summary, "session": out, "lines": lines}
 
@@ -218,44 +228,95 @@ def _stats(seconds: list[float | None]) -> tuple[str, str, str]:
     return fmt(median), fmt(p90), f"{len(reached)}/{len(seconds)}"
 
 
-def run(console: Console, n_seeds: int = SEEDS, quick: bool = False) -> bool:
-    """Print the table; PASS or FAIL (see the module notes)."""
-    n = 5 if quick else max(n_seeds, SEEDS)
-    seeds = range(2700, 2700 + n)
-    rows, ok = [], True
-    adaptive_s, hits, lost = [], [], 0
+def _adaptive(console: Console, seeds) -> tuple[list, list, int]:
+    """The adaptive capture of each part through the port: its seconds (None: targets not
+    met), whether each of its 18 intervals covers the truth, how many did not calibrate."""
+    seconds, hits, lost = [], [], 0
     with tempfile.TemporaryDirectory() as tmp:
         for seed in seeds:
             started = time.monotonic()
             res = through_port(seed, Path(tmp))
             summary = res["summary"]
-            adaptive_s.append(summary["duration_s"] if summary["complete"] else None)
-            truth = LiveUnit(seed).truth()
+            seconds.append(summary["duration_s"] if summary["complete"] else None)
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
                     cal = calibrate_session(read_session(res["session"]), Config())
-                hits.append(covered(cal, truth))
-            except Exception:  # noqa: BLE001  counted as a capture that did not calibrate
+                hits.append(covered(cal, LiveUnit(seed).truth()))
+            except Exception:  # noqa: BLE001  counted: a capture that did not calibrate
                 lost += 1
-            console.print(f"  adaptive seed {seed}: {summary['duration_s']:.1f} s, complete "
+            console.print(f"  adaptive, part {seed}: {summary['duration_s']:.1f} s, complete "
                           f"{summary['complete']} ({time.monotonic() - started:.0f} s wall)",
                           highlight=False)  # fmt: skip
-    cover = float(np.mean(hits)) if hits else float("nan")
-    rows.append(("adaptive (guide, via --serve --person)", *_stats(adaptive_s),
-                 f"{100 * cover:.1f} % of {np.size(hits)}"))  # fmt: skip
+    return seconds, hits, lost
+
+
+def _fixed(console: Console, name: str, plan: Plan, seeds) -> tuple[list, list]:
+    """A fixed plan by the person on each part: seconds until the targets (None: never) and
+    the coverage of the intervals of its whole session."""
+    seconds, hits = [], []
+    for seed in seeds:
+        s, length, cal, truth = fixed_run(seed, plan)
+        seconds.append(s)
+        if cal is not None and cal.accel is not None and cal.gyro is not None:
+            try:
+                hits.append(covered(cal, truth))
+            except KeyError:  # a solver that states no misalignment std
+                pass
+        console.print(f"  {name}, part {seed}: " + ("never" if s is None else f"{s:.1f} s")
+                      + f" (the plan: {length:.0f} s)", highlight=False)  # fmt: skip
+    return seconds, hits
+
+
+def log_designs(console: Console) -> None:
+    """What logs recorded for another reason determine (issue 27.3, the information's null
+    space, :mod:`imucal_cli.solvers.determined`): a vehicle's still periods on flat ground with
+    turns about the vertical, a robot pitching about y.  Their fits, with the rest held at
+    nominal values, are not made yet."""
+    from scipy.spatial.transform import Rotation
+
+    from imucal_cli.solvers.determined import accel_determination, gyro_determination
+
+    unit = LiveUnit(2700)
+    truth = unit.truth()
+    fit = di.Fit(truth.accel.matrix, truth.accel.bias, truth.gyro.matrix, truth.gyro.bias)
+    noise = di.Noise(8.4, 4.7, 100.0)
+    z = np.array([0.0, 0.0, 1.0])
+    pitch = [Rotation.from_rotvec([0, t, 0]).apply(z) for t in np.radians([0, 30, -30, 60])]
+    designs = {
+        "vehicle: 4 still periods on flat ground, 3 turns about the vertical":
+            ([di.Pose(z, 500) for _ in range(4)],
+             [di.Turn(k, k + 1, z, np.radians(90), 3.0) for k in range(3)]),
+        "robot: 4 still periods pitched about y, 3 pitch turns":
+            ([di.Pose(u, 300) for u in pitch],
+             [di.Turn(k, k + 1, np.array([0, 1.0, 0]), np.radians(a), 1.5)
+              for k, a in enumerate((30, -60, 90))]),
+    }  # fmt: skip
+    table = Table(title="What a log determines (the Fisher information's null space)")
+    for col in ("log", "sensor", "determined", "combinations of the rest"):
+        table.add_column(col)
+    for name, (poses, turns) in designs.items():
+        for sensor, d in (("accel", accel_determination(fit, poses, noise)),
+                          ("gyro", gyro_determination(fit, poses, turns, noise))):  # fmt: skip
+            combos = "; ".join(" + ".join(f"{v:.2g} {k}" for k, v in c.items() if abs(v) > 0.1)
+                               for c in d.combinations) or "-"  # fmt: skip
+            table.add_row(name, sensor, ", ".join(d.determined) or "-", combos)
+    console.print(table)
+
+
+def _coverage_cell(hits: list) -> str:
+    return f"{100 * np.mean(hits):.1f} % of {np.size(hits)}" if hits else "-"
+
+
+def run(console: Console, n_seeds: int = SEEDS, quick: bool = False) -> bool:
+    """Print the table; PASS or FAIL (see the module notes)."""
+    n = 5 if quick else max(n_seeds, SEEDS)
+    seeds = range(2700, 2700 + n)
+    adaptive_s, hits, lost = _adaptive(console, seeds)
+    rows = [("adaptive (guide, via --serve --person)", *_stats(adaptive_s), _coverage_cell(hits))]
     for name, plan in fixed_plans().items():
-        seconds, fixed_hits = [], []
-        for seed in seeds:
-            s, length, cal, truth = fixed_run(seed, plan)
-            seconds.append(s)
-            if cal is not None and cal.accel is not None and cal.gyro is not None:
-                try:
-                    fixed_hits.append(covered(cal, truth))
-                except KeyError:  # a solver that states no misalignment std
-                    pass
-        c = f"{100 * np.mean(fixed_hits):.1f} % of {np.size(fixed_hits)}" if fixed_hits else "-"
-        rows.append((name, *_stats(seconds), c))
+        seconds, fixed_hits = _fixed(console, name, plan, seeds)
+        rows.append((name, *_stats(seconds), _coverage_cell(fixed_hits)))
     table = Table(title=f"Seconds at the bench until accel and gyro meet the targets "
                         f"({ISSUE_TARGETS.replace(',', ', ')}), {n} parts, a person with 2 deg "
                         "placement error, 1-2 s moves, 0.5-1 s reactions")  # fmt: skip
@@ -265,14 +326,16 @@ def run(console: Console, n_seeds: int = SEEDS, quick: bool = False) -> bool:
         table.add_row(*r)
     console.print(table)
     median = float(np.median([np.inf if s is None else s for s in adaptive_s]))
+    cover = float(np.mean(hits)) if hits else float("nan")
     checks = {
         f"adaptive median {median:.1f} s < {TARGET_MEDIAN_S:g} s": median < TARGET_MEDIAN_S,
-        f"every seed reached the targets ({sum(s is not None for s in adaptive_s)}/{n})":
+        f"every part reached the targets ({sum(s is not None for s in adaptive_s)}/{n})":
             all(s is not None for s in adaptive_s) and not lost,
         f"coverage {100 * cover:.1f} % within 93-97 %": COVERAGE[0] <= cover <= COVERAGE[1],
     }  # fmt: skip
     for what, good in checks.items():
         console.print(f"  {'ok' if good else 'FAIL'}: {what}", highlight=False)
-        ok = ok and good
+    ok = all(checks.values())
+    log_designs(console)
     console.print("adaptive: PASS" if ok else "adaptive: FAIL", highlight=False)
     return ok
