@@ -209,3 +209,18 @@ def test_many_parts_time_and_coverage():
     assert np.median(seconds) < 60
     cover = float(np.mean(hits))
     assert abs(cover - 0.95) < 3 * np.sqrt(0.95 * 0.05 / np.size(hits)), cover
+
+
+def test_a_solver_failing_on_a_partial_session_does_not_end_the_capture(monkeypatch):
+    """A numerical error inside a solver on the session so far (a bug of that solver, which
+    should refuse the design in one line) is the refit's note, not the end of the capture."""
+    import imucal_cli.pipeline.refit as refit_module
+
+    def broken(*args, **kwargs):
+        raise np.linalg.LinAlgError("Matrix is not positive definite")
+
+    monkeypatch.setattr(refit_module, "calibrate_session", broken)
+    session = read_session(__import__("pathlib").Path(__file__).resolve().parents[1]
+                           / "sessions" / "six-seed3.h5")  # fmt: skip
+    cal, notes = refit_module.refit(session, Config())
+    assert cal is None and "a solver failed" in notes["accel"] and "LinAlgError" in notes["gyro"]

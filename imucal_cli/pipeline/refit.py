@@ -6,6 +6,11 @@ that does not determine a sensor yet: it returns what calibrated (None when noth
 per sensor, why it did not.  Warnings are the capture's to give at the end, not after every
 hold: they are kept out.
 
+A solver that fails on a design it should refuse (a numerical error instead of a one-line
+refusal) does not end the capture: the refit says so as that sensor's note, the capture goes on
+with the next hold, and the saved session keeps every sample for ``imucal calibrate`` (where the
+failure is the solver's to fix, and said as it is).
+
 The gyroscope's turns are measured with the accelerometer calibration: while its axes are
 known only to worse than :data:`GYRO_WAITS_DEG` (the first poses, fitted with their labels'
 2-degree placement), the gyro could not come out better than that either, and its fit (which
@@ -19,7 +24,9 @@ from __future__ import annotations
 import warnings
 from dataclasses import replace
 
-from imucal_cli.errors import ImucalError
+import numpy as np
+
+from imucal_cli.errors import ImucalError, SolverError
 from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
@@ -35,7 +42,13 @@ GYRO_WAITS_DEG = 0.5
 def _quiet(session: Session, cfg: Config, accel=None) -> Calibration:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return calibrate_session(session, cfg, name="capture so far", accel=accel)
+        try:
+            return calibrate_session(session, cfg, name="capture so far", accel=accel)
+        except ImucalError:
+            raise
+        except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:  # a solver's bug
+            raise SolverError(f"a solver failed on the session so far ({type(exc).__name__}: "
+                              f"{exc}); the next hold is refitted anew") from exc
 
 
 def refit(session: Session, cfg: Config) -> tuple[Calibration | None, dict[str, str]]:
