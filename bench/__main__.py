@@ -8,6 +8,7 @@ from pathlib import Path
 from rich.console import Console
 
 from bench import (
+    adaptive,
     capture,
     factorization,
     gravity,
@@ -41,6 +42,7 @@ BENCHMARKS = (
     "temperature",
     "registry",
     "live",
+    "adaptive",
 )
 
 
@@ -56,7 +58,7 @@ def main() -> None:
         "--quick",
         action="store_true",
         help="capture: 10 s instead of 60 s; reliability: 1,000 fuzzed import files, not 10,000; "
-        "live: 3 plans, no file reference beyond the live seeds",
+        "live: 3 plans, no file reference beyond the live seeds; adaptive: 5 parts, not 20",
     )
     parser.add_argument(
         "--jobs", type=int, default=3,
@@ -103,6 +105,8 @@ def main() -> None:
     if args.only in (None, "live"):  # real time: about an hour at 8 seeds
         ok = live.run(console, n_seeds=live_seeds, quick=args.quick, jobs=args.jobs,
                       only=args.plans, keep=args.keep) and ok
+    if args.only in (None, "adaptive"):
+        ok = adaptive.run(console, n_seeds=max(20, args.seeds // 10), quick=args.quick) and ok
     raise SystemExit(0 if ok else 1)
 
 

@@ -52,6 +52,8 @@ from imucal_cli.formats.columns import SampleBlock
 from imucal_cli.plans import CaptureSummary, Plan, Step
 from imucal_cli.solvers.segmentation import find_rotations, find_static
 
+from .targets_watch import TargetWatcher
+
 __all__ = [
     "FINAL_HOLD_EXTRA_S",
     "MATCH_DEG",
@@ -477,6 +479,9 @@ def run_unattended(
     min_still_s: float = 1.0,
     on_status: Callable[[str], None] | None = None,
     done_before: list[str] | None = None,
+    targets=None,
+    refit: Callable | None = None,
+    gravity: float = 9.80665,
 ) -> CaptureSummary:
     """Record without a keyboard, then segment the recording; see the module notes.
 
@@ -496,6 +501,10 @@ def run_unattended(
         Continuing a capture (``recorder.resumed_from`` samples already in the session): the
         labels of the steps its segments already hold; only the other steps are looked for,
         and the new segments follow the old samples.
+    targets, refit, gravity
+        Accuracy targets (:class:`~imucal_cli.formats.targets.Targets`) and the refit of the
+        recording so far (:class:`~imucal_cli.capture.targets_watch.TargetWatcher`): the
+        recording stops once every target is met, which is then what ``complete`` means.
 
     Returns
     -------
@@ -503,8 +512,8 @@ def run_unattended(
         ``complete``: with a plan, every step seen in the segmented recording; without one,
         the recording ran for ``duration_s``.
     """
-    if plan is None and duration_s is None:
-        raise ValueError("run_unattended needs a plan or a duration")
+    if plan is None and duration_s is None and not targets:
+        raise ValueError("run_unattended needs a plan, a duration or targets")
     say = on_status or (lambda message: None)
     before = list(done_before or [])
     if plan is not None and before:
@@ -514,7 +523,14 @@ def run_unattended(
                                   end_reason="every step of the plan was already in the session",
                                   samples=recorder.n_samples, stats=recorder.stats)  # fmt: skip
     base = int(getattr(recorder, "resumed_from", 0))  # the new segments follow the old
-    buffer, reached_duration = _record(recorder, plan, duration_s, min_still_s, say)
+    watcher = None
+    if targets:
+        watcher = TargetWatcher(targets, refit, lambda t, a, g: [
+            (e.kind, e.start, e.stop, _attrs(e.step)) for e in segment_recording(
+                t, a, g, plan, min_still_s=min_still_s)[0]],
+            units=(getattr(recorder, "accel_units", None), getattr(recorder, "gyro_units", None)),
+            gravity=gravity)  # fmt: skip
+    buffer, reached_duration = _record(recorder, plan, duration_s, min_still_s, say, watcher)
     done: list[str] = []
     missing: list[str] = [] if plan is None else [s.label for s in plan.steps]
     time, accel, gyro = buffer.get("time"), buffer.get("accel"), buffer.get("gyro")
@@ -524,6 +540,12 @@ def run_unattended(
             attrs = {} if e.step is None else e.step.segment_attrs()
             recorder.add_segment(e.kind, base + e.start, base + e.stop, **attrs)
     complete = not missing if plan is not None else reached_duration
+    if watcher is not None:  # with targets: every target met (the plan, if any, aside)
+        if time is not None and len(time) >= 10:
+            watcher.n_still = -1  # the whole recording, once more, as it is segmented
+            watcher.update(time, accel, gyro, say)
+        complete = watcher.met
+        missing = [s.describe() for s in watcher.statuses if not s.met]
     return CaptureSummary(
         complete=complete,
         done=[label for label in before if plan is None or label not in missing] + done,
@@ -532,7 +554,17 @@ def run_unattended(
         end_reason=recorder.end_reason,
         samples=recorder.n_samples,
         stats=recorder.stats,
+        targets=[] if watcher is None else list(watcher.statuses),
     )
+
+
+def _attrs(step: Step | None) -> dict:
+    """A segment's attributes from the plan step it matches (none: ``{}``)."""
+    if step is None:
+        return {}
+    attrs = step.segment_attrs()
+    attrs.pop("extra", None)
+    return attrs
 
 
 def _left_to_do(plan: Plan, before: list[str], say) -> tuple[list[str], Plan]:
@@ -547,7 +579,8 @@ def _left_to_do(plan: Plan, before: list[str], say) -> tuple[list[str], Plan]:
     return matched, Plan(plan.name, tuple(left))
 
 
-def _record(recorder, plan: Plan | None, duration_s: float | None, min_still_s: float, say):
+def _record(recorder, plan: Plan | None, duration_s: float | None, min_still_s: float, say,
+            targets: TargetWatcher | None = None):  # fmt: skip
     """Record until ``duration_s`` of device time after the first sample, or until every step
     of ``plan`` is seen (checked every :data:`CHECK_EVERY_S`), or the recorder ends; returns
     the samples and whether the duration was reached."""
@@ -557,6 +590,7 @@ def _record(recorder, plan: Plan | None, duration_s: float | None, min_still_s: 
     last_check = _time.monotonic()
     reached_duration = False
     reported: list[str] | None = None
+    met = False
     for block in recorder.blocks():
         now = _time.monotonic()
         if len(block):
@@ -571,8 +605,15 @@ def _record(recorder, plan: Plan | None, duration_s: float | None, min_still_s: 
             reached_duration = True
             say(f"{duration_s:g} s recorded")
             recorder.stop()
-        if watcher is not None and now - last_check >= CHECK_EVERY_S:
+        due = now - last_check >= CHECK_EVERY_S
+        if due:
             last_check = now
+        if targets is not None and due and not met:
+            if targets.update(buffer.get("time"), buffer.get("accel"), buffer.get("gyro"), say):
+                met = True
+                say("every target met")
+                recorder.stop()
+        if watcher is not None and due:
             if watcher.update(buffer):
                 say("every step of the plan was seen")
                 recorder.stop()

@@ -20,6 +20,7 @@ from imucal_cli.formats.session import write_session
 from imucal_cli.plans import find_plan, load_plan
 from imucal_cli.simulate.clock import check_ppm
 from imucal_cli.simulate.device import serve
+from imucal_cli.simulate.live import serve_person
 from imucal_cli.simulate.magnetometer import simulate_mag
 from imucal_cli.simulate.play import simulate_plan
 from imucal_cli.simulate.temperature import parse_ramp
@@ -184,6 +185,12 @@ Step = Annotated[bool, typer.Option(
     "plan runs on a timer, --hold per pose, and Enter moves to the next pose early).",
 )]  # fmt: skip
 Duration = alias(float | None, duration_option("--serve: stop streaming after this long."))
+PersonOpt = Annotated[bool, typer.Option(
+    "--person",
+    help="--serve: instead of a plan, a simulated person holds the unit and follows the guide "
+    "of 'imucal capture' read on stdin (pipe the capture's output in): a reaction time of "
+    "0.5-1 s, turns of 1-2 s, each pose placed with --jitter-deg RMS error; the part of --seed.",
+)]  # fmt: skip
 
 # a temperature ramp, a clock error
 Ramp = Annotated[str | None, typer.Option(
@@ -292,6 +299,7 @@ def simulate(
     loop: Loop = False,
     step: Step = False,
     duration: Duration = None,
+    person: PersonOpt = False,
     ramp: Ramp = None,
     clock_ppm: ClockPpm = None,
     g_sensitivity: GSensitivity = None,
@@ -323,6 +331,12 @@ def simulate(
     output without --force).
     """
     given = _given(ctx)
+    if person:
+        _check_person(serve, given)
+        _serve_person(seed=seed, rate_hz=rate, baud=baud, units=units, accel_noise=accel_noise,
+                      jitter_deg=jitter_deg, temperature=temp, duration_s=duration,
+                      json_output=json_output)  # fmt: skip
+        return
     thermal, clock = _checked(plan, serve, ramp, clock_ppm, mag, given("protocol"))
     _warn_without_mag(mag, given)
     options = {
@@ -364,6 +378,34 @@ def simulate(
         session, truth = _simulate_plan(plan, seed, units, rate if given("rate") else None,
                                         hold, move, thermal, clock, options)  # fmt: skip
     _write(out, truth_out, session, truth, force, plan, seed, json_output)
+
+
+#: What --person does not combine with: the plan's options and the test faults.
+NOT_WITH_PERSON = ("plan", "hold", "output", "loop", "step", "ramp", "clock_ppm",
+                   "g_sensitivity", "mag", "protocol", "move", "garbage", "stall_after",
+                   "vanish_after", "malformed_every")  # fmt: skip
+
+
+def _check_person(serve: bool, given) -> None:
+    """--person streams live, following the guide: refuse what belongs to a plan or a file."""
+    if not serve:
+        raise InputError("--person holds a live unit: add --serve")
+    for name in NOT_WITH_PERSON:
+        if given(name):
+            flag = "--" + name.replace("_", "-")
+            raise InputError(f"--person follows the guide, not a plan: leave out {flag}")
+
+
+def _serve_person(json_output: bool, **options) -> None:
+    """``--serve --person``: the device path on stdout, then the stream until the reader
+    closes the port; what was sent (as --serve says it)."""
+
+    def status(message: str) -> None:
+        print(f"imucal: {message}", file=sys.stderr, flush=True)
+
+    result = serve_person(announce=lambda path: print(path, flush=True), status=status,
+                          **options)  # fmt: skip
+    _sent(result, json_output)
 
 
 def _given(ctx: typer.Context):
@@ -480,6 +522,11 @@ def _serve(plan: str, rate: float, baud: int, json_output: bool, **options) -> N
     status(how)
     result = serve(plan, rate, baud, announce=announce, status=status, next_pose=enter,
                    **options)  # fmt: skip
+    _sent(result, json_output)
+
+
+def _sent(result, json_output: bool) -> None:
+    """What the virtual port sent: JSON or the ``# sent ...`` line."""
     if json_output:
         document = {"format": "imucal-serve", "format_version": 1, "path": result.path,
                     "lines": result.lines, "malformed": result.malformed,

@@ -17,6 +17,7 @@ import numpy as np
 from imucal_cli.errors import ImucalError
 from imucal_cli.numerics.segmented import stacked_rows
 from imucal_cli.solvers import gyro_full, gyro_sigma
+from imucal_cli.solvers.design_information import axes_std
 from imucal_cli.solvers.gyro_known_turns import accel_factor
 
 from .common import num
@@ -94,6 +95,9 @@ def fit_full_model(data: GyroData, g_sensitivity: str | None = None) -> GyroFit:
         "noise_scale": res.noise_scale,
         "rate_std": uncertainty,
         "sensitivity_std": gain_std(res.M, res.cov[3:12, 3:12]).tolist(),
+        # std of misalignment_deg (delta method), for targets (capture --until)
+        "misalignment_std_deg": dict(zip(("xy", "xz", "yz"), map(float, axes_std(
+            res.M, res.cov[3:12, 3:12])[2]), strict=True)),
     }  # fmt: skip
     undetermined = design_warning(data, uncertainty)
     nonlinear = (uncertainty.get("accel_propagation") or {}).get("warning")

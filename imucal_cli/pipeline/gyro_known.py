@@ -25,6 +25,7 @@ from imucal_cli.formats.calibration import MODEL_EQUATION, SensorCalibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
 from imucal_cli.solvers import gyro_full, gyro_known
+from imucal_cli.solvers.design_information import axes_std
 
 from . import gyro_known_checks as checks
 from .common import rms, session_name, with_segments
@@ -539,6 +540,9 @@ def _section(data: GyroData, res, known, used, g_test, uncertainty, assumed: boo
             f"{AXES[i]}{AXES[j]}": float(np.degrees(np.arccos(s_axes[i] @ s_axes[j])) - 90)
             for i, j in ((0, 1), (0, 2), (1, 2))
         },
+        # std of misalignment_deg (delta method), for targets (capture --until)
+        "misalignment_std_deg": dict(zip(("xy", "xz", "yz"), map(float, axes_std(
+            res.M, res.cov[3:12, 3:12])[2]), strict=True)),
         "rotations": rotations,
         "rotation_rms_deg": float(rms(res.angle_error_deg)),
         "iterations": res.iterations, "chi2": res.chi2, "dof": res.dof,

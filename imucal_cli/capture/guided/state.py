@@ -556,11 +556,7 @@ class GuidedState:
             self.say("this session has no accelerometer: static steps cannot be taken", "red")
             return
         direction = self.direction_of(accel)
-        index, refusal = match_hold(
-            direction, self.current(), self.candidates(), self.steps, self.taken_poses(),
-            min_separation_deg=self.o.min_separation_deg,
-            match_tolerance_deg=self.o.match_tolerance_deg, is_pose=self.is_pose,
-        )  # fmt: skip
+        index, refusal = self.match_pose(direction)
         if refusal:
             self.say(refusal, "bold red")
             return
@@ -569,17 +565,29 @@ class GuidedState:
             turn = (self.turn_from, s0)
         self.turn_from = None
         self.take(Taken(index, "static", s0, stop, direction, turn=turn))
-        n_done = sum(st == "done" for st in self.status)
         where = "" if direction is None else f" (measured up {describe_direction(direction)})"
-        self.say(
-            f"recorded {self.steps[index].label}{where} ({n_done} of {len(self.steps)})",
-            "bold green",
-        )
+        self.say(f"recorded {self.steps[index].label}{where}{self.count_text()}", "bold green")
         self.tell_coverage()
         self.tell_left()
         self.after_step()
         if self.current() is not None and self.steps[self.current()].kind == "static":
             self.say("turn the unit to the next pose")
+
+    def match_pose(self, direction: np.ndarray | None) -> tuple[int, str | None]:
+        """The step a finished hold fulfils, and a refusal (None: accepted)."""
+        return match_hold(
+            direction, self.current(), self.candidates(), self.steps, self.taken_poses(),
+            min_separation_deg=self.o.min_separation_deg,
+            match_tolerance_deg=self.o.match_tolerance_deg, is_pose=self.is_pose,
+        )  # fmt: skip
+
+    def count_text(self) -> str:
+        """`` (3 of 6)``: the steps done of the plan's."""
+        return f" ({sum(st == 'done' for st in self.status)} of {len(self.steps)})"
+
+    def view_rows(self) -> list:
+        """More rows of the live view (rich renderables; none here)."""
+        return []
 
     def direction_of(self, accel: np.ndarray) -> np.ndarray | None:
         direction = estimate_direction(
