@@ -5,6 +5,44 @@ from __future__ import annotations
 
 import numpy as np
 
+from imucal_cli.capture.imu_set import PortSet, PortsProtocol, SetLineProtocol, set_protocol
+from imucal_cli.capture.serial_port import SerialSource
+from imucal_cli.errors import InputError
+from imucal_cli.formats.columns import ColumnSpec
+
+
+def capture_set(ports: list[str], columns: str, time_unit: str, protocol: str,
+                resume: bool):  # fmt: skip
+    """The line protocol of a capture of several IMUs (one port with ``.N`` fields, or
+    several ports), or None for one IMU; refuses what a set does not take."""
+    specs = set_protocol(columns, time_unit, len(ports))
+    if specs is None and len(ports) == 1:
+        return None
+    if protocol != "lines":
+        raise InputError("several IMUs are captured as lines of numbers (--protocol lines)")
+    if resume:
+        raise InputError("a capture of several IMUs cannot be resumed (--resume)")
+    if len(set(ports)) != len(ports):
+        raise InputError("--port names the same port twice")
+    if specs is not None:
+        return SetLineProtocol(specs)
+    return ColumnSpec.parse(columns, time_unit)
+
+
+def open_ports(ports: list[str], baud: int, spec: ColumnSpec):
+    """Several ports as one source (the first the reference, the others read without
+    waiting) and their protocol; a port that fails closes those already open."""
+    sources = []
+    try:
+        for k, port in enumerate(ports):
+            sources.append(SerialSource(port, baud, timeout_s=0.05 if k == 0 else 0.0))
+    except BaseException:
+        for s in sources:
+            s.close()
+        raise
+    group = PortSet(sources)
+    return group, PortsProtocol(group, spec)
+
 
 def set_lines(cal) -> list[str]:
     """Lines for the ``imus`` of a calibration (none for one IMU)."""

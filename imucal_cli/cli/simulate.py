@@ -41,7 +41,15 @@ from .options import (
     protocol_option,
     rate_option,
 )
-from .simulate_set import ImuOffset, ImuRotation, Imus, check_set_options, simulate_imus
+from .simulate_set import (
+    ImuOffset,
+    ImuRotation,
+    Imus,
+    ServeImu,
+    check_set_options,
+    serve_options,
+    simulate_imus,
+)
 
 SERVE_HOLD_S = 4.0
 """--serve's hold per pose when --hold is not given, s: capture's default hold (2 s) plus time for
@@ -315,6 +323,7 @@ def simulate(
     imus: Imus = 1,
     imu_rotation: ImuRotation = 5.0,
     imu_offset: ImuOffset = 10.0,
+    serve_imu: ServeImu = None,
 ) -> None:
     """Simulate a calibration session of a cheap 16-bit MEMS IMU with known truth.
 
@@ -344,6 +353,7 @@ def simulate(
     if serve:
         extras = {"temperature": thermal, "clock_scale": clock}
         options.update({k: v for k, v in extras.items() if v is not None})
+        options.update(serve_options(imus, imu_rotation, imu_offset, serve_imu))
         _serve(plan, rate, baud, json_output, seed=seed, units=units, move_s=move, step=step,
                hold_s=SERVE_HOLD_S if hold is None else hold, plan_options=options,
                temperature=temp, loop=loop, duration_s=duration, garbage=garbage,

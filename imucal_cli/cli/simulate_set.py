@@ -30,6 +30,12 @@ ImuOffset = Annotated[float, typer.Option(
     help="--imus: each other IMU's time offset is uniform within +-this, milliseconds.",
 )]  # fmt: skip
 
+ServeImu = Annotated[int | None, typer.Option(
+    "--serve-imu", metavar="K",
+    help="--serve --imus N: stream IMU K of the set alone (0 the reference), one port per IMU: "
+    "start one --serve per IMU with the same --seed, and capture them with --port A --port B.",
+)]  # fmt: skip
+
 #: Options that do not combine with --imus, as --help names them.
 NOT_WITH_IMUS = {"mag": "--mag", "ramp": "--ramp", "clock_ppm": "--clock-ppm",
                  "g_sensitivity": "--g-sensitivity"}  # fmt: skip
@@ -37,11 +43,12 @@ NOT_WITH_IMUS = {"mag": "--mag", "ramp": "--ramp", "clock_ppm": "--clock-ppm",
 
 def check_set_options(imus: int, plan: str, given) -> None:
     """Refuse ``--imus`` with what it does not simulate: plans that are not pose plans, a
-    magnetometer, a temperature ramp, a clock error, a g-sensitive gyro."""
+    magnetometer, a temperature ramp, a clock error, a g-sensitive gyro, another line
+    protocol than numbers."""
     if not 1 <= imus <= MAX_IMUS:
         raise InputError(f"--imus must be from 1 to {MAX_IMUS}, got {imus}")
     if imus == 1:
-        for name in ("imu_rotation", "imu_offset"):
+        for name in ("imu_rotation", "imu_offset", "serve_imu"):
             if given(name):
                 raise InputError(f"--{name.replace('_', '-')} goes with --imus N (N >= 2)")
         return
@@ -50,8 +57,19 @@ def check_set_options(imus: int, plan: str, given) -> None:
         raise InputError(f"--imus simulates the pose plans (six, qureshi18, random:N), not "
                          f"{plan!r}")  # fmt: skip
     bad = [flag for name, flag in NOT_WITH_IMUS.items() if given(name)]
+    if given("protocol"):
+        bad.append("--protocol (a set is served as lines of numbers)")
     if bad:
         raise InputError(f"--imus does not combine with {', '.join(bad)}")
+
+
+def serve_options(imus: int, rotation_deg: float, offset_ms: float,
+                  member: int | None) -> dict:  # fmt: skip
+    """What ``--serve`` passes to the device for a set (nothing for one IMU)."""
+    if imus <= 1:
+        return {}
+    return {"imus": imus, "max_rotation_deg": rotation_deg, "max_offset_s": offset_ms / 1e3,
+            "serve_imu": member}
 
 
 def simulate_imus(imus: int, plan: str, seed: int, *, rate: float, hold: float | None,

@@ -53,6 +53,7 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 from imucal_cli.plans import Plan, find_plan, load_plan
+from imucal_cli.simulate.imu_set import served_set, set_columns, set_lines
 from imucal_cli.simulate.play import simulate_plan
 from imucal_cli.simulate.steps import simulate_steps
 
@@ -185,7 +186,11 @@ def stream_with_holds(
 def _served_session(plan: str, **options):
     """The session :func:`~imucal_cli.simulate.play.simulate_plan` simulates for ``plan``
     (its device times, and temperatures where a ramp was asked for), and its holds."""
-    session, _ = simulate_plan(plan, **options)
+    imus, member = options.pop("imus", None), options.pop("serve_imu", None)
+    if imus is not None and imus > 1:  # several IMUs (issue 28): a set, or one of its IMUs
+        session, _ = served_set(plan, imus, member, **options)
+    else:
+        session, _ = simulate_plan(plan, **options)
     holds: list[Hold] = []
     for i, seg in enumerate(session.static_segments()):
         start, label = seg.start, seg.label or f"pose {i + 1}"
@@ -378,10 +383,14 @@ def _plan_lines(plan: str, protocol: str, *, seed: int, rate_hz: float, hold_s: 
     if temperature and session.temperature is not None:
         temperature = session.temperature
     lines = _lines(protocol, time, accel, gyro, temperature, units)
+    if session.imus:  # several IMUs on one line (issue 28)
+        lines = set_lines(session, temperature, units == "counts")
     schedule = _Schedule(len(lines), holds, loop=loop, step=step, next_pose=next_pose, say=say,
                          rate_hz=rate_hz)  # fmt: skip
     with_temp = temperature is not None and temperature is not False
     fields = _columns(accel, gyro, with_temp) if protocol == "lines" else f"{protocol} lines"
+    if session.imus:
+        fields = set_columns(session, with_temp)
     return lines, schedule, fields
 
 

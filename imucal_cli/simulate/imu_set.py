@@ -371,3 +371,62 @@ def gauge_rotation(matrix: np.ndarray) -> np.ndarray:
     true calibration's frame into the gravity solver's (upper-triangular) one is ``Q^T``."""
     Q, U = np.linalg.qr(np.asarray(matrix, float))
     return Q @ np.diag(np.sign(np.diag(U)))
+
+
+# --------------------------------------------------------------------------------------------
+# The set through the virtual serial port (``simulate --serve --imus N``)
+# --------------------------------------------------------------------------------------------
+
+#: The options of :func:`simulate_set` that ``--serve`` passes on (the rest are the plans').
+SERVED_OPTIONS = ("seed", "rate_hz", "hold_s", "accel_noise", "jitter_deg", "units", "gravity",
+                  "move_s", "max_rotation_deg", "max_offset_s", "created")  # fmt: skip
+
+
+def served_set(plan: str, imus: int, member: int | None = None,
+               **options) -> tuple[Session, Calibration]:  # fmt: skip
+    """The set ``--serve --imus N`` streams: every IMU sampled at the reference's ticks
+    (``synchronous``: one device reading them all, each line every IMU's triads), each still
+    with its own offset.  ``member``: only IMU ``member`` (0 the reference), as a session of
+    its own on the reference's segments (one port per IMU)."""
+    kept = {k: v for k, v in options.items() if k in SERVED_OPTIONS and v is not None}
+    session, truth = simulate_set(imus, plan, synchronous=True, **kept)
+    if member is None:
+        return session, truth
+    if not 0 <= member < imus:
+        raise InputError(f"--serve-imu must be from 0 to {imus - 1}, got {member}")
+    if member == 0:
+        return Session(**{**session.__dict__, "imus": {}}), truth
+    imu = session.imus[imu_name(member)]
+    return Session(time=imu.time, accel=imu.accel, gyro=imu.gyro, temperature=None,
+                   segments=session.segments, created=session.created, sensor=imu.sensor,
+                   source="simulator", sample_rate_hz=imu.sample_rate_hz,
+                   gravity=session.gravity, accel_units=imu.accel_units,
+                   gyro_units=imu.gyro_units), truth  # fmt: skip
+
+
+def set_columns(session: Session, temperature: bool) -> str:
+    """The fields of a served set's line: the reference's ``t,ax,ay,az,gx,gy,gz[,temp]``, then
+    each other IMU's ``ax.K,ay.K,az.K,gx.K,gy.K,gz.K``."""
+    names = ["t", "ax", "ay", "az", "gx", "gy", "gz"] + (["temp"] if temperature else [])
+    for k in range(1, len(session.imus) + 1):
+        names += [f"{f}.{k}" for f in ("ax", "ay", "az", "gx", "gy", "gz")]
+    return ",".join(names)
+
+
+def set_lines(session: Session, temperature, counts: bool) -> list[bytes]:
+    """The data lines of a served set (:func:`set_columns`); ``temperature`` as the device's
+    ``_format`` takes it (False, True or the session's temperatures)."""
+    with_temp = temperature is not None and temperature is not False
+    columns = [session.time[:, None], session.accel, session.gyro]
+    if with_temp:
+        own = not isinstance(temperature, bool)
+        columns.append((np.asarray(temperature, float) if own
+                        else 25.0 + 0.01 * session.time)[:, None])  # fmt: skip
+    for imu in session.imus.values():
+        columns += [imu.accel, imu.gyro]
+    value = "%.0f" if counts else "%.6f"
+    n_values = sum(c.shape[1] for c in columns) - 1 - with_temp
+    fmt = ",".join(["%.4f"] + [value] * 6 + (["%.2f"] if with_temp else [])
+                   + [value] * (n_values - 6))  # fmt: skip
+    rows = np.column_stack(columns).tolist()
+    return [(fmt % tuple(r) + "\n").encode() for r in rows]
