@@ -15,6 +15,7 @@ from bench import (
     labelled,
     mad,
     mag,
+    multi,
     reliability,
     speed,
     temperature,
@@ -36,6 +37,7 @@ BENCHMARKS = (
     "mag",
     "reliability",
     "temperature",
+    "multi",
 )
 
 
@@ -79,6 +81,8 @@ def main() -> None:
         ok = reliability.run(console, quick=args.quick) and ok
     if args.only in (None, "temperature"):
         ok = temperature.run(console, n_seeds=max(2, args.seeds // 50)) and ok
+    if args.only in (None, "multi"):
+        ok = multi.run(console, n_seeds=max(20, args.seeds // 2)) and ok
     raise SystemExit(0 if ok else 1)
 
 

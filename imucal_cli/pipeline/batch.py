@@ -107,7 +107,7 @@ def calibrate_file(
     warm = [read_session(p) for p in warmup] if warmup else None
     if session.imus and (accel is not None or warm or also):  # several IMUs (issue 28)
         raise InputError(f"{path}: a session of several IMUs takes no --accel, --warmup or "
-                         "--also (each IMU is calibrated from the session itself)")
+                         "--with (each IMU is calibrated from the session itself)")
     try:
         if session.imus:
             cal = calibrate_set(session, cfg, name=path.name)
