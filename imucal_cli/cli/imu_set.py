@@ -10,6 +10,8 @@ from imucal_cli.capture.serial_port import SerialSource
 from imucal_cli.errors import InputError
 from imucal_cli.formats.columns import ColumnSpec
 
+from .console import make_console, print_json
+
 
 def capture_set(ports: list[str], columns: str, time_unit: str, protocol: str,
                 resume: bool):  # fmt: skip
@@ -75,3 +77,19 @@ def set_warnings(cal) -> list[str]:
             out += [f"{key} {sensor}: {w}" for w in (entry.get(sensor) or {}).get("warnings", [])]
         out += [f"{key}: {w}" for w in entry.get("warnings", [])]
     return out
+
+
+def set_summary(summary, input_file, calibration, output, json_output: bool) -> None:
+    """What ``imucal apply`` wrote of a set: JSON (``imucal-apply`` with ``imus``) or a line."""
+    if json_output:
+        print_json({"format": "imucal-apply", "format_version": 1, "output": str(output),
+                    "output_format": summary.output_format, "input": str(input_file),
+                    "calibration": str(calibration), "imus": summary.imus,
+                    "samples": summary.samples, "sensors": summary.sensors,
+                    "frame": summary.frame})  # fmt: skip
+        return
+    counts = ", ".join(f"{n} {k}" for n, k in summary.samples.items())
+    make_console().print(f"calibrated {counts} samples ({', '.join(summary.sensors)}; "
+                         f"{summary.frame} frame) from {input_file} with {calibration} -> "
+                         f"{output} ({summary.output_format})", markup=False, highlight=False,
+                         soft_wrap=True)  # fmt: skip
