@@ -16,7 +16,8 @@ the others) and returns one calibration: the reference's sections at the top lev
    precise than each alone, and each IMU's rotation to the reference with its covariance
    comes with it; each gyro is then calibrated again with its joint accelerometer.
    Otherwise each rotation is fitted in two steps from the IMUs' own calibrations
-   (:mod:`imucal_cli.solvers.set_rotation`: shared poses and turns).
+   (:mod:`imucal_cli.solvers.set_rotation`): the shared poses, and the turns too when the
+   poses all point one way.
 4. Each time offset is fitted to the gyro signals (:mod:`imucal_cli.solvers.set_time`).
 """
 
@@ -155,7 +156,7 @@ def _two_steps(subs, cals, poses, ref_key: str, key: str, offset_s: float) -> Ro
             z_r, c_r = pose_means(poses[ref_key], shared)
             z_i, c_i = pose_means(poses[key], shared)
             groups.append(pose_pairs((z_r, c_r, ref_cal.accel), (z_i, c_i, cal.accel)))
-    if ref_cal.gyro is not None and cal.gyro is not None:
+    if ref_cal.gyro is not None and cal.gyro is not None and not _spans(groups):
         var = (still_noise(subs[ref_key], ref_cal.gyro), still_noise(subs[key], cal.gyro))
         turns = turn_pairs(subs[ref_key], subs[key], ref_cal.gyro, cal.gyro, offset_s, var,
                            turn_windows(subs[ref_key])) if np.isfinite(var).all() else None
@@ -165,6 +166,16 @@ def _two_steps(subs, cals, poses, ref_key: str, key: str, offset_s: float) -> Ro
         return relative_rotation(groups)
     except DesignError as exc:
         return f"rotation to the reference not determined: {exc}"
+
+
+def _spans(groups) -> bool:
+    """Whether the shared poses point two ways at least (they determine the rotation alone:
+    the turns, whose gyro frame is tied to the accelerometer's, then add errors correlated
+    with the poses' and are left out)."""
+    if not groups:
+        return False
+    a = groups[0].ref / np.linalg.norm(groups[0].ref, axis=1, keepdims=True)
+    return len(a) >= 2 and np.linalg.matrix_rank(a, tol=0.05) >= 2
 
 
 def _with_joint(subs, cals, joint, kept, cfg, name, note) -> dict:
@@ -255,7 +266,7 @@ def _angle_deg(R: np.ndarray) -> float:
 
 def _diagnostics(rot, off, coarse_s: float, joint) -> dict:
     d: dict = {"rotation_method": "joint maximum likelihood (poses)" if joint is not None
-               else "two steps (each IMU's own calibration; poses and turns)",
+               else "two steps (each IMU's own calibration)",
                "coarse_offset_s": coarse_s}  # fmt: skip
     if isinstance(rot, RotationFit):
         d["rotation_pairs"] = rot.pairs
