@@ -197,7 +197,7 @@ def split_covariance(N: np.ndarray, cov_N: np.ndarray) -> tuple[np.ndarray, np.n
     return (C + C.T) / 2, J
 
 
-def _start(z, Linv, g, bias0, matrix0, rotation0):
+def _start(z, bias0, matrix0, rotation0):
     """The starting vector from each triad's own fit and rotation, and the directions' mean."""
     K = len(bias0)
     N0 = np.array([rotation0[k] @ matrix0[k] for k in range(K)])
@@ -240,7 +240,7 @@ def fit_set_accel(
     if K < 2 or 3 * K * P <= lay.n:
         raise DesignError(f"{K} triads in {P} shared poses do not determine a joint fit")
     Linv = np.linalg.inv(np.linalg.cholesky(cov))
-    x0, u0 = _start(z, Linv, g, bias0, matrix0, rotation0)
+    x0, u0 = _start(z, bias0, matrix0, rotation0)
     basis = np.array([_tangent(u) for u in u0])
 
     def fun(x):
