@@ -19,6 +19,7 @@ from bench import (
     mad,
     mag,
     registry,
+    multi,
     reliability,
     speed,
     temperature,
@@ -43,6 +44,7 @@ BENCHMARKS = (
     "registry",
     "live",
     "adaptive",
+    "multi",
 )
 
 
@@ -107,6 +109,8 @@ def main() -> None:
                       only=args.plans, keep=args.keep) and ok
     if args.only in (None, "adaptive"):
         ok = adaptive.run(console, n_seeds=max(20, args.seeds // 10), quick=args.quick) and ok
+    if args.only in (None, "multi"):
+        ok = multi.run(console, n_seeds=max(20, args.seeds // 2)) and ok
     raise SystemExit(0 if ok else 1)
 
 

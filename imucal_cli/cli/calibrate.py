@@ -22,6 +22,7 @@ from imucal_cli.pipeline.calibrate import load_accel
 from .acceptance import REJECTED, prepare, print_lines, registry_option, worst
 from .app import app
 from .console import Piece, make_console, print_json, print_line
+from .imu_set import set_lines, set_warnings
 from .options import gravity_option, json_option, output_option, session_argument
 
 
@@ -206,6 +207,7 @@ def _result_json(cal, out: Path, stored: str) -> dict:
         why = stored[len(" (not stored in the session: ") : -1]
     warnings = [w for s in (cal.accel, cal.gyro, cal.mag) if s
                 for w in s.extra.get("warnings", [])]  # fmt: skip
+    warnings += set_warnings(cal)
     left_out = dict(cal.extra.get("left_out") or {})
     warnings += list(left_out.values())
     return {"format": "imucal-calibrate", "format_version": 1, "output": str(out),
@@ -361,6 +363,8 @@ def _summary(line, cal, where: str) -> None:
         )
     elif clock.get("note"):
         line(("sample clock", BOLD), f": {clock['note']}")
+    for text in set_lines(cal):  # several IMUs (issue 28)
+        line(text)
     left_out = cal.extra.get("left_out") or {}
     if left_out:  # issue 24.2: saved, but not every sensor of the session is in it
         where += f" (partial: {', '.join(left_out)} left out, see above)"

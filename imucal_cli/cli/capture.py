@@ -15,6 +15,7 @@ from rich.console import Console
 from rich.markup import escape
 
 from imucal_cli.capture import guided, stream
+from imucal_cli.capture.imu_set import SetLineProtocol
 from imucal_cli.capture.recorder import Recorder
 from imucal_cli.capture.serial_port import SerialSource
 from imucal_cli.capture.unattended import run_unattended
@@ -27,6 +28,7 @@ from imucal_cli.plans import CaptureSummary, load_plan, needs_temperature
 from . import completion
 from .app import app
 from .console import make_console, print_json
+from .imu_set import capture_set, open_ports
 from .options import (
     Force,
     SensorText,
@@ -59,8 +61,9 @@ def default_output() -> Path:
 
 # The options, in the order --help lists them -------------------------------------------------
 
-Port = Annotated[str, typer.Option(
-    "--port", "-p", metavar="PORT", help="Serial port (/dev/ttyUSB0, COM3, a pty).",
+Port = Annotated[list[str], typer.Option(
+    "--port", "-p", metavar="PORT", help="Serial port (/dev/ttyUSB0, COM3, a pty); several "
+    "(--port A --port B): one IMU each, the first the reference, all in one session.",
     autocompletion=completion.ports,
 )]  # fmt: skip
 Baud = alias(int, baud_option("Baud rate.", "-b"))
@@ -193,8 +196,9 @@ def capture(
         err.print(f"imucal: {escape(message)}", soft_wrap=True)
 
     check_mag_options(mag_units, field_ut)
-    stream_protocol = _stream_protocol(protocol, lambda: ColumnSpec.parse(columns, time_unit),
-                                       status)  # fmt: skip
+    several = capture_set(port, columns, time_unit, protocol, resume is not None)  # issue 28
+    stream_protocol = several if isinstance(several, SetLineProtocol) else _stream_protocol(
+        protocol, lambda: ColumnSpec.parse(columns, time_unit), status)  # fmt: skip
     if protocol != "lines":  # the format fixes the units (counts)
         accel_units, gyro_units = accel_units or "counts", gyro_units or "counts"
     _check_limits({"--duration": duration, "--min-still": min_still,
@@ -207,7 +211,7 @@ def capture(
     _check_temperature(plan_obj, protocol, stream_protocol)
     out = _output_path(output, resume, force)
     done_before = None if resume is None else _done_before(resume, guided is not None)
-    recorder = _recorder(port, baud, out, stream_protocol, status, sensor=sensor,
+    recorder = _recorder(port, baud, out, stream_protocol, status, several, sensor=sensor,
                          accel_units=accel_units, gyro_units=gyro_units, mag_units=mag_units,
                          magnetic_field_uT=field_ut, overwrite=force, wait_timeout_s=wait_timeout,
                          read_timeout_s=read_timeout, resume=resume is not None)  # fmt: skip
@@ -272,11 +276,15 @@ def _check_temperature(plan, protocol: str, stream_protocol) -> None:
                          "add temp to --columns (e.g. t,ax,ay,az,gx,gy,gz,temp)")  # fmt: skip
 
 
-def _recorder(port: str, baud: int, out: Path, stream_protocol, status, **options):
-    """The port opened and a recorder on it (the port closed again when that fails); the
+def _recorder(ports: list[str], baud: int, out: Path, stream_protocol, status, several,
+              **options):  # fmt: skip
+    """The port(s) opened and a recorder on it (closed again when that fails); the
     accelerometer units, when not stated, said once the port opened (issue 10.4: errors stay
-    one line)."""
-    source = SerialSource(port, baud)
+    one line).  Several ports: one IMU each (``several``: the lines' spec)."""
+    if len(ports) > 1:
+        source, stream_protocol = open_ports(ports, baud, several)
+    else:
+        source = SerialSource(ports[0], baud)
     try:
         recorder = Recorder(out, source, stream_protocol, on_status=status, **options)
     except BaseException:

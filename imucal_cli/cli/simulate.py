@@ -42,6 +42,15 @@ from .options import (
     protocol_option,
     rate_option,
 )
+from .simulate_set import (
+    ImuOffset,
+    ImuRotation,
+    Imus,
+    ServeImu,
+    check_set_options,
+    serve_options,
+    simulate_imus,
+)
 
 SERVE_HOLD_S = 4.0
 """--serve's hold per pose when --hold is not given, s: capture's default hold (2 s) plus time for
@@ -318,6 +327,10 @@ def simulate(
     vanish_after: VanishAfter = None,
     malformed_every: MalformedEvery = None,
     json_output: JsonOutput = False,
+    imus: Imus = 1,
+    imu_rotation: ImuRotation = 5.0,
+    imu_offset: ImuOffset = 10.0,
+    serve_imu: ServeImu = None,
 ) -> None:
     """Simulate a calibration session of a cheap 16-bit MEMS IMU with known truth.
 
@@ -338,6 +351,7 @@ def simulate(
                       json_output=json_output)  # fmt: skip
         return
     thermal, clock = _checked(plan, serve, ramp, clock_ppm, mag, given("protocol"))
+    check_set_options(imus, plan, given)  # several IMUs (issue 28)
     _warn_without_mag(mag, given)
     options = {
         "accel_noise": accel_noise, "jitter_deg": jitter_deg, "still_s": still,
@@ -361,6 +375,7 @@ def simulate(
             }  # fmt: skip
         extras = {"temperature": thermal, "clock_scale": clock}
         options.update({k: v for k, v in extras.items() if v is not None})
+        options.update(serve_options(imus, imu_rotation, imu_offset, serve_imu))
         _serve(plan, rate, baud, json_output, seed=seed, units=units, move_s=move, step=step,
                hold_s=SERVE_HOLD_S if hold is None else hold, plan_options=options,
                temperature=temp, loop=loop, duration_s=duration, garbage=garbage,
@@ -368,7 +383,13 @@ def simulate(
                malformed_every=malformed_every, protocol=protocol)  # fmt: skip
         return
     out, truth_out = _outputs(output, plan, seed, force)
-    if mag:
+    if imus > 1:
+        session, truth = simulate_imus(
+            imus, plan, seed, rate=rate, hold=hold, accel_noise=accel_noise,
+            jitter_deg=jitter_deg, units=units, move=move, rotation_deg=imu_rotation,
+            offset_ms=imu_offset,
+        )  # fmt: skip
+    elif mag:
         session, truth = _simulate_mag(
             plan, seed, units, rate, hold, accel_noise, jitter_deg, field_uT=field_ut,
             inclination_deg=inclination, mag_units=mag_units, mag_noise=mag_noise,
@@ -495,13 +516,16 @@ def _write(out: Path, truth_out: Path, session, truth, force: bool, plan: str, s
              "truth": str(truth_out), "plan": plan, "seed": seed, "sensor": session.sensor,
              "samples": n, "duration_s": n / rate, "sample_rate_hz": rate,
              "static_segments": n_static, "rotation_segments": len(session.segments) - n_static,
-             "accel_units": session.accel_units, "gyro_units": session.gyro_units}
+             "accel_units": session.accel_units, "gyro_units": session.gyro_units,
+             "imus": [session.reference_name, *session.imus]}
         )  # fmt: skip
         return
     typer.echo(
         f"wrote {out}: {n_static} poses, {n} samples ({n / rate:.1f} s at {rate:g} Hz), "
         f"{session.accel_units}"
         + (f"; magnetometer in {session.mag_units}" if session.mag is not None else "")
+        + (f"; {len(session.imus) + 1} IMUs ({session.reference_name} in /raw, "
+           f"{', '.join(session.imus)} in /imus)" if session.imus else "")
     )
     typer.echo(f"wrote {truth_out}: true calibration of {session.sensor}")
 

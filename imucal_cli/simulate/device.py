@@ -57,6 +57,7 @@ import numpy as np
 from imucal_cli.errors import InputError
 from imucal_cli.plans import Plan, find_plan, load_plan
 from imucal_cli.simulate.magnetometer import simulate_mag
+from imucal_cli.simulate.imu_set import served_set, set_columns, set_lines
 from imucal_cli.simulate.play import simulate_plan
 from imucal_cli.simulate.steps import simulate_steps
 
@@ -190,9 +191,12 @@ def _served_session(plan: str, *, mag: dict | None = None, **options):
     """The session :func:`~imucal_cli.simulate.play.simulate_plan` simulates for ``plan``
     (its device times, and temperatures where a ramp was asked for; with ``mag``, the options
     of :func:`~imucal_cli.simulate.magnetometer.simulate_mag`: the pose plan with a
-    magnetometer, tumbling between the holds, as ``imucal simulate --mag`` writes it), and its
-    holds."""
-    if mag is None:
+    magnetometer, tumbling between the holds, as ``imucal simulate --mag`` writes it; with
+    ``imus`` > 1, a set of several IMUs or one of its IMUs), and its holds."""
+    imus, member = options.pop("imus", None), options.pop("serve_imu", None)
+    if imus is not None and imus > 1:  # several IMUs (issue 28): a set, or one of its IMUs
+        session, _ = served_set(plan, imus, member, **options)
+    elif mag is None:
         session, _ = simulate_plan(plan, **options)
     else:
         keep = ("seed", "rate_hz", "hold_s", "units", "move_s", "accel_noise", "jitter_deg")
@@ -405,11 +409,15 @@ def _plan_lines(plan: str, protocol: str, *, seed: int, rate_hz: float, hold_s: 
     if temperature and session.temperature is not None:
         temperature = session.temperature
     lines = _lines(protocol, time, accel, gyro, temperature, units, mag, session.mag_units)
+    if session.imus:  # several IMUs on one line (issue 28)
+        lines = set_lines(session, temperature, units == "counts")
     schedule = _Schedule(len(lines), holds, loop=loop, step=step, next_pose=next_pose, say=say,
                          rate_hz=rate_hz)  # fmt: skip
     with_temp = temperature is not None and temperature is not False
     fields = (_columns(accel, gyro, with_temp, mag) if protocol == "lines"
               else f"{protocol} lines")  # fmt: skip
+    if session.imus:
+        fields = set_columns(session, with_temp)
     return lines, schedule, fields
 
 

@@ -36,7 +36,9 @@ through :mod:`imucal_cli.formats.output`.
 Modules: :mod:`.model` (``Session``, ``Segment``, constants, attribute values), :mod:`.h5open`
 (opening a file for reading), :mod:`.superblock`, :mod:`.reader`, :mod:`.writer` (the samples),
 :mod:`.segments` (the segments and calibrations a writer keeps until it closes, and their log),
-:mod:`.store`, :mod:`.stream` (a session read block by block: ``open_samples``).  Import the
+:mod:`.store`, :mod:`.stream` (a session read block by block: ``open_samples``); several IMUs
+(issue 28): :mod:`.imu_stream` (``ImuStream``), :mod:`.imus` (reading ``/imus``, one IMU of a
+set as a session), :mod:`.imu_writer` (``/imus`` beside ``/raw``).  Import the
 public names from here (``from imucal_cli.formats.session import
 read_session``).
 """
@@ -44,6 +46,9 @@ read_session``).
 from __future__ import annotations
 
 from .h5open import check_session_file, open_for_reading
+from .imu_stream import REFERENCE_NAME, ImuStream
+from .imu_writer import ImuLayout
+from .imus import imu_session, map_segments, set_names
 from .model import (
     FORMAT,
     FORMAT_VERSION,
@@ -71,6 +76,9 @@ __all__ = [
     "FORMAT",
     "FORMAT_VERSION",
     "GRAVITY_DEFAULT",
+    "ImuLayout",
+    "ImuStream",
+    "REFERENCE_NAME",
     "MAG_UNITS",
     "ROOT_LABELS",
     "SEGMENT_KINDS",
@@ -83,12 +91,15 @@ __all__ = [
     "as_str",
     "as_unit_vector",
     "check_session_file",
+    "imu_session",
+    "map_segments",
     "one_line",
     "open_for_reading",
     "open_samples",
     "read_session",
     "rewrite_labels",
     "samples_of",
+    "set_names",
     "show",
     "store_calibration",
     "UT_PER_MAG_UNIT",
