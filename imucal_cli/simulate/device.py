@@ -56,8 +56,8 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 from imucal_cli.plans import Plan, find_plan, load_plan
-from imucal_cli.simulate.magnetometer import simulate_mag
 from imucal_cli.simulate.imu_set import served_set, set_columns, set_lines
+from imucal_cli.simulate.magnetometer import simulate_mag
 from imucal_cli.simulate.play import simulate_plan
 from imucal_cli.simulate.steps import simulate_steps
 
