@@ -48,6 +48,8 @@ _ANSI = re.compile(
 _POSE_TAKEN = re.compile(r"recorded [^\n]*?\((\d+) of (\d+)\)")
 #: The guided capture asking for more field directions once every step is done.
 _MORE_FIELD = "Keep turning the unit slowly"
+#: The capture saying the stream has started (its start-up is over).
+_RECEIVING = "receiving data from"
 #: The guided capture restarting a hold the unit moved in.
 _MOVED = "the unit moved during the hold"
 
@@ -143,6 +145,7 @@ class _Screen:
         self.tail = ""
         self.poses = 0
         self.moved = 0
+        self.receiving = False
         self.more_field = False
 
     def feed(self, data: bytes) -> None:
@@ -162,6 +165,7 @@ class _Screen:
             self.moved += 1
             end = max(end, m.end())
         self.more_field = self.more_field or _MORE_FIELD in self.text
+        self.receiving = self.receiving or _RECEIVING in self.text
         # what follows the last message may be the start of the next one (at most a line)
         self.text = self.text[max(end, len(self.text) - 400):]
         self.tail = (self.tail + clean(head))[-self.KEEP:]
@@ -230,7 +234,8 @@ def capture_guided(plan: str, seed: int, out: Path, *, n_poses: int, timeout_s: 
     to the next pose, or through the plan's turn to the still period after it), except after
     the last of the ``n_poses`` holds.  When every step is done and the capture asks for more
     field directions (a magnetometer that has not seen 90 % of them), the device has nothing
-    more to show: the person finishes with ``q``.  A capture that takes no pose for
+    more to show: the person finishes with ``q``.  A capture that takes no pose (counted from
+    when it says it receives data: a start-up at load takes a minute) for
     ``timeout_s`` / 4 (or 2.5 times the plan's longest hold, ``longest_hold_s``, and
     30 s) is given up on with Ctrl-C, as a person would; one that does not end in
     ``timeout_s`` is killed."""
@@ -246,6 +251,7 @@ def capture_guided(plan: str, seed: int, out: Path, *, n_poses: int, timeout_s: 
                                str(out), *capture_extra])  # fmt: skip
         screen, device = _Screen(), bytearray()
         seen = moved = 0
+        receiving = False
         enter_at: float | None = None
         finish_at: float | None = None
         last_progress = t0
@@ -260,6 +266,9 @@ def capture_guided(plan: str, seed: int, out: Path, *, n_poses: int, timeout_s: 
             extra = _read(sfd, 0)
             if extra and len(device) < 1_000_000:
                 device += extra
+            if screen.receiving and not receiving:  # the wait for a pose starts now
+                receiving, last_progress = True, now
+                run.events.append(f"{now - t0:.1f} s: the capture receives data")
             if screen.moved > moved:
                 moved = screen.moved
                 run.events.append(f"{now - t0:.1f} s: the capture says the unit moved in a hold")
@@ -281,7 +290,7 @@ def capture_guided(plan: str, seed: int, out: Path, *, n_poses: int, timeout_s: 
                 run.events.append(f"{now - t0:.1f} s: Enter at the device")
             if data is None or cap.poll() is not None:
                 break
-            if not interrupted and now - last_progress > stalled:
+            if not interrupted and now - last_progress > (stalled if receiving else timeout_s / 2):
                 run.events.append(f"{now - t0:.1f} s: no pose for {stalled:.0f} s: Ctrl-C")
                 cap.send_signal(signal.SIGINT)
                 interrupted = True
