@@ -58,6 +58,7 @@ from imucal_cli.pipeline.gyro import calibrate_gyro_rotations, gyro_alternatives
 from imucal_cli.pipeline.gyro_known import calibrate_gyro_known
 from imucal_cli.pipeline.labelled import calibrate_accel_labelled
 from imucal_cli.pipeline.temperature import attach, compensate, given_accel, temperature_models
+from imucal_cli.solvers.poses import count_distinct, unit
 
 
 def calibrate_accel(session: Session, cfg: Config) -> SensorCalibration | None:
@@ -330,6 +331,8 @@ def _gyro_and_mag(session: Session, cfg: Config, accel, refusal, with_mag: bool)
         gyro, gyro_note, gyro_refusal = _gyro_or_note(session, cfg, accel)
     mag, mag_note, mag_refusal = _mag_or_note(session, cfg, accel) if with_mag else (None,) * 3
     if accel is None and gyro is None and mag is None:
+        if refusal is not None and cfg.gyro.solver != "none":
+            _refuse_turn_session(session, cfg, _reason(session, refusal[0]))
         for failed in (refusal and refusal[1], gyro_refusal, mag_refusal):
             if failed is not None:
                 raise failed from None
@@ -338,6 +341,30 @@ def _gyro_and_mag(session: Session, cfg: Config, accel, refusal, with_mag: bool)
             f"data, and the gyro was not calibrated ({gyro_note or '[gyro] solver is none'})"
         )
     return gyro, mag, {"accel": accel_note, "gyro": gyro_note, "mag": mag_note}
+
+
+def _refuse_turn_session(session: Session, cfg: Config, why: str) -> None:
+    """A session of turns between still periods (qureshi-axes, free:N: a gyro procedure,
+    Qureshi & Golnaraghi Fig. 2, with the accelerometer calibrated first) whose still periods
+    do not determine the accelerometer, so that nothing calibrates: refused with what the
+    turns are for and what would calibrate them (issue 24.7d: the accelerometer's refusal
+    spoke of poses and plan random:12 alone; ``why`` is that refusal, kept at the end).
+    Returns where the session is not such."""
+    turns = session.rotation_segments()
+    statics = session.static_segments()
+    if 2 * len(turns) < 9 or session.accel is None or not statics:
+        return
+    means = np.array([session.accel[s.start : s.stop].mean(axis=0) for s in statics])
+    distinct = count_distinct(unit(means), cfg.accel.min_separation_deg)
+    raise DesignError(
+        f"{session_name(session)}: its {len(turns)} turns between still periods calibrate the "
+        "gyro against an accelerometer calibration, which this session cannot give (its "
+        f"{len(statics)} still periods point in {distinct} distinct directions, the "
+        "gravity-magnitude model needs 9): pass an earlier calibration of this unit's "
+        "accelerometer, --accel CAL.json (plan six or qureshi18), or capture turns whose still "
+        "periods point in 9 or more directions, which calibrate both (plan qureshi-axes:3 or "
+        f"more, free:12 or more). The accelerometer: {why}"
+    )
 
 
 def _prepare(
