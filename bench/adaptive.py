@@ -114,7 +114,9 @@ def design_of_session(out):
             continue
         rotvec = inputs["gyro"][seg.start : seg.stop].sum(0) / rate
         angle = float(np.linalg.norm(rotvec))
-        duration = max(seg.n_samples / rate - di.TURN_MARGIN_S, 0.2)
+        # the calibrate step integrates a turn from hold to hold (the reaction time too)
+        span = statics[after].start - statics[before].stop
+        duration = max(span / rate - di.TURN_MARGIN_S, 0.2)
         turns.append(di.Turn(before, after, rotvec / angle, angle, duration))
     noise = di.Noise(unit.imu.accel.noise_in[0] * np.linalg.norm(unit.imu.accel.S, axis=1).mean(),
                      unit.imu.gyro.noise_in[0] * np.linalg.norm(unit.imu.gyro.S, axis=1).mean(),
