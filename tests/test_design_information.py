@@ -143,7 +143,7 @@ def test_predicted_std_is_the_scatter_of_fits():
     from imucal_cli.formats.config import Config
     from imucal_cli.pipeline.calibrate import calibrate_session
 
-    out = follow(7, max_s=120, min_hold_s=0.5)
+    out = follow(7, max_s=120, min_hold_s=0.5, keep=True)
     fit, poses, turns, noise, redo = design_of_session(out)
     predicted = di.design_std(fit, poses, turns, noise)
     errors = []

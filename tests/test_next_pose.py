@@ -78,9 +78,10 @@ def test_a_person_follows_a_plans_words(plan):
     """A plan's static steps ("Put face -X up ...") bring the unit's up onto the label."""
     unit = LiveUnit(2, jitter_deg=0.0)
     person = Person(unit, np.random.default_rng(0), jitter_deg=0.0)
-    for step in load_plan(plan).steps[1:5]:
+    for k, step in enumerate(load_plan(plan).steps[1:5], start=2):
         person.read("recorded something")
-        person.read(f"step 2: {instruction(step)} for 2 s")
+        person.read(f"step {k - 1}: {instruction(step)} for 2 s")  # the live view, stale
+        person.read(f"step {k}: {instruction(step)} for 2 s")
         unit.samples(400)
         assert unit.up == pytest.approx(step.up / np.linalg.norm(step.up), abs=1e-9)
 

@@ -201,7 +201,7 @@ def capture(
         protocol, lambda: ColumnSpec.parse(columns, time_unit), status)  # fmt: skip
     if protocol != "lines":  # the format fixes the units (counts)
         accel_units, gyro_units = accel_units or "counts", gyro_units or "counts"
-    _check_limits({"--duration": duration, "--min-still": min_still,
+    _check_limits({"--duration": duration, "--min-still": min_still, "--hold": hold,
                    "--wait-timeout": wait_timeout, "--read-timeout": read_timeout})  # fmt: skip
     targets, cfg = targets_of(until, config)
     if targets and resume is not None:
@@ -309,8 +309,8 @@ def _record(recorder, plan, guided, console: Console, status, *, duration: float
                               gravity=cfg.gravity or 9.80665)  # fmt: skip
     adaptive = adaptive_options(targets, cfg, hold_s) if targets else None
     return guided.run_guided(recorder, plan, console=console, keys=guided.StdinKeys(),
-                             hold_s=(hold_s or 2.0) if adaptive is None else
-                             adaptive.min_hold_s, done_before=done_before,
+                             hold_s=(2.0 if hold_s is None else hold_s) if adaptive is None
+                             else adaptive.min_hold_s, done_before=done_before,
                              adaptive=adaptive)  # fmt: skip
 
 

@@ -75,7 +75,8 @@ class AdaptiveOptions:
     min_hold_s, max_hold_s : float
         The shortest and the longest hold, s.
     move_s : float
-        How long a proposed turn takes the person, s (the turn's information).
+        How long a proposed turn takes, s, from the end of a hold to the start of the next
+        (reading, turning, settling: the window the calibrate step integrates the turn over).
     step_s : float
         What one more step costs: reading, turning, settling and the shortest hold, s.
     placement_deg : float
@@ -93,7 +94,7 @@ class AdaptiveOptions:
     refit: Callable[[Session], Refit]
     min_hold_s: float = 1.0
     max_hold_s: float = 30.0
-    move_s: float = 1.5
+    move_s: float = 2.5
     step_s: float = 4.0
     placement_deg: float = 2.0
     gravity: float = 9.80665

@@ -13,7 +13,8 @@ The capture keeps its samples (:class:`~.samples.SampleHistory`) and the steps i
   placement error when the accelerometer solver uses labels;
 - **turns**: the motion between two holds, its rotation vector from the integrated gyro at
   the fit (``M int (z - b) dt``: the axis and angle of a turn about a fixed axis), and its
-  duration;
+  duration from the end of one hold to the start of the next (the calibrate step integrates
+  the whole of it, the person's pause before turning too: its noise counts);
 - the **noise**: the holds' pooled scatter per sample, raw units.
 
 It also builds the session so far (:func:`session_so_far`) that the capture refits after every
@@ -29,7 +30,7 @@ import numpy as np
 from imucal_cli.formats.calibration import Calibration
 from imucal_cli.formats.session import Segment, Session, utc_now_iso
 from imucal_cli.formats.targets import STANDARD_GRAVITY, Targets
-from imucal_cli.solvers.design_information import Fit, Noise, Pose, Turn
+from imucal_cli.solvers.design_information import TURN_MARGIN_S, Fit, Noise, Pose, Turn
 
 from .matching import Taken
 from .samples import SampleHistory
@@ -145,8 +146,8 @@ def design(hist: SampleHistory, taken: list[Taken], cal: Calibration | None, *,
         angle = float(np.linalg.norm(rotvec))
         if math.degrees(angle) < MIN_TURN_DEG:
             continue
-        duration = hist.t(span[1]) - hist.t(span[0])
-        turns.append(Turn(k - 1, k, rotvec / angle, angle, max(duration, 0.2)))
+        gap = hist.t(spans[k][0]) - hist.t(spans[k - 1][1])  # hold to hold
+        turns.append(Turn(k - 1, k, rotvec / angle, angle, max(gap - TURN_MARGIN_S, 0.2)))
     return Design(fit, poses, turns, noise, index)
 
 
