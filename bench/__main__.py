@@ -46,7 +46,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(prog="python -m bench", description=__doc__)
     parser.add_argument(
         "--seeds", type=int, default=None,
-        help="Monte-Carlo seeds per benchmark [default: 200; live: 8 (--quick: 2) seeds per plan "
+        help="Monte-Carlo seeds per benchmark [default: 200; live: 3 (--quick: 2) seeds per plan "
         "and mode, each captured in real time]",
     )  # fmt: skip
     parser.add_argument("--only", choices=BENCHMARKS, help="run only this benchmark")
@@ -60,6 +60,8 @@ def main() -> None:
         "--jobs", type=int, default=3,
         help="live: captures at a time (each a device and a capture process, mostly waiting)",
     )  # fmt: skip
+    parser.add_argument("--guided-seeds", type=int, default=None,
+                        help="live: seeds of the guided captures [default: twice --seeds]")
     parser.add_argument("--plans", help="live: only these plans (comma-separated --plan names)")
     parser.add_argument("--keep", type=Path, metavar="DIR",
                         help="live: keep the sessions, calibrations and capture logs in DIR")
@@ -67,7 +69,7 @@ def main() -> None:
     parser.add_argument("--sessions", type=int, default=500, help="speed: production-line size")
     args = parser.parse_args()
     console = Console(width=160)
-    live_seeds = args.seeds if args.seeds is not None else (2 if args.quick else 8)
+    live_seeds = args.seeds if args.seeds is not None else (2 if args.quick else 3)
     args.seeds = 200 if args.seeds is None else args.seeds
     ok = True
     if args.only in (None, "gravity"):
@@ -98,7 +100,7 @@ def main() -> None:
         ok = temperature.run(console, n_seeds=max(2, args.seeds // 50)) and ok
     if args.only in (None, "live"):  # real time: about an hour at 8 seeds
         ok = live.run(console, n_seeds=live_seeds, quick=args.quick, jobs=args.jobs,
-                      only=args.plans, keep=args.keep) and ok
+                      only=args.plans, keep=args.keep, guided_seeds=args.guided_seeds) and ok
     raise SystemExit(0 if ok else 1)
 
 
