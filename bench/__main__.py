@@ -52,7 +52,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(prog="python -m bench", description=__doc__)
     parser.add_argument(
         "--seeds", type=int, default=None,
-        help="Monte-Carlo seeds per benchmark [default: 200; live: 8 (--quick: 2) seeds per plan "
+        help="Monte-Carlo seeds per benchmark [default: 200; live: 3 (--quick: 2) seeds per plan "
         "and mode, each captured in real time]",
     )  # fmt: skip
     parser.add_argument("--only", choices=BENCHMARKS, help="run only this benchmark")
@@ -66,6 +66,8 @@ def main() -> None:
         "--jobs", type=int, default=3,
         help="live: captures at a time (each a device and a capture process, mostly waiting)",
     )  # fmt: skip
+    parser.add_argument("--guided-seeds", type=int, default=None,
+                        help="live: seeds of the guided captures [default: twice --seeds]")
     parser.add_argument("--plans", help="live: only these plans (comma-separated --plan names)")
     parser.add_argument("--keep", type=Path, metavar="DIR",
                         help="live: keep the sessions, calibrations and capture logs in DIR")
@@ -73,7 +75,7 @@ def main() -> None:
     parser.add_argument("--sessions", type=int, default=500, help="speed: production-line size")
     args = parser.parse_args()
     console = Console(width=160)
-    live_seeds = args.seeds if args.seeds is not None else (2 if args.quick else 8)
+    live_seeds = args.seeds if args.seeds is not None else (2 if args.quick else 3)
     args.seeds = 200 if args.seeds is None else args.seeds
     ok = True
     if args.only in (None, "gravity"):
@@ -106,7 +108,7 @@ def main() -> None:
         ok = registry.run(console) and ok
     if args.only in (None, "live"):  # real time: about an hour at 8 seeds
         ok = live.run(console, n_seeds=live_seeds, quick=args.quick, jobs=args.jobs,
-                      only=args.plans, keep=args.keep) and ok
+                      only=args.plans, keep=args.keep, guided_seeds=args.guided_seeds) and ok
     if args.only in (None, "adaptive"):
         ok = adaptive.run(console, n_seeds=max(20, args.seeds // 10), quick=args.quick) and ok
     if args.only in (None, "multi"):

@@ -37,7 +37,7 @@ from imucal_cli.formats.session import Session
 from imucal_cli.pipeline import gyro_known as pk
 from imucal_cli.pipeline.common import static_poses
 from imucal_cli.pipeline.gyro import full_bound, with_segments
-from imucal_cli.pipeline.gyro_full import rotations_and_stills
+from imucal_cli.pipeline.gyro_full import rotations_and_stills, solver_stills
 from imucal_cli.pipeline.magnetometer import mag_readings
 from imucal_cli.pipeline.temperature import BLOCK_S, still_blocks
 from imucal_cli.solvers.crb import gravity_crb, labelled_crb
@@ -143,7 +143,9 @@ def grade_accel(session: Session, cal: Calibration, truth: Calibration) -> Grade
         solver = "gravity, 9"
     elif len(names) == 12 and names[-1] == "r_z":  # labelled poses
         x_true = public_params(b, np.linalg.inv(T))
-        jitter = float(truth.accel.extra.get("jitter_deg", 2.0))
+        # the placement error of the labels; none stated (an exactly square iron): exact
+        # labels, a tiny prior keeping the bound finite
+        jitter = float(truth.accel.extra.get("jitter_deg") or 0.01)
         placement = np.where([up is not None for up in poses.up], jitter, np.inf)
         crb = np.diag(labelled_crb(T, b, u, G0, cov, placement))
         solver = "labelled, 12"
@@ -200,24 +202,27 @@ def _gyro_bound(session: Session, cal: Calibration, solver: str, x: np.ndarray):
 def _known_bound(session: Session, cfg: Config, accel: SensorCalibration | None,
                  x: np.ndarray) -> np.ndarray:  # fmt: skip
     """The known-angle gyro fit's bound at ``x``: the inverse information of the solver's
-    stacked whitened problem (known turns, still periods, turns gravity measures) at the
-    truth, plus the accelerometer calibration's covariance carried through (the pipeline's
-    own refits, :func:`imucal_cli.pipeline.gyro_known._accel_part`)."""
+    stacked whitened problem (known turns, still periods, turns gravity measures weighed with
+    the accelerometer calibration's part, no excess scatter) at the truth, plus the
+    accelerometer calibration's covariance carried through (the pipeline's own refits,
+    :func:`imucal_cli.pipeline.gyro_known._accel_part`)."""
     session, _ = with_segments(session)
     data, known, used, segs, statics, _ = pk._known_data(session, cfg, accel, "bench")
-    rot, st = rotations_and_stills(data) if data.turns else (None, pk._stills(data.stills))
+    rot, st = rotations_and_stills(data) if data.turns else (None, solver_stills(data.stills))
+    accel_dirs = pk._accel_dirs(data)
     with_g = len(x) > 12
-    prob = _Stacked(known, st, data.noise, rot, with_g)
+    prob = _Stacked(known, st, data.noise, rot, with_g, accel_dirs=accel_dirs)
     prob.freeze(x)
     _, J = prob.f_and_J(x)
     crb = np.linalg.inv(J.T @ J)
     if accel is None:
         return crb
-    at = SimpleNamespace(b=x[:3], M=x[3:12].reshape(3, 3),
+    at = SimpleNamespace(b=x[:3], M=x[3:12].reshape(3, 3), tau=0.0,
                          G=x[12:21].reshape(3, 3) if with_g else None, cov=crb)  # fmt: skip
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return crb + pk._accel_part(session, cfg, accel, segs, statics, at, data, rot)
+        return crb + pk._accel_part(session, cfg, accel, segs, statics, at, data, rot, known,
+                                    in_weights=accel_dirs is not None and rot is not None)
 
 
 def grade_mag(session: Session, cal: Calibration, truth: Calibration) -> Graded:

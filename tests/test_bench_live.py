@@ -1,9 +1,9 @@
 """``bench live`` in short (issue 24.1): the user's path, served, captured and calibrated.
 
 ``imucal simulate --serve`` as the device, ``imucal capture`` guided (a scripted person in a
-pseudo-terminal, Enter at the device after each recorded pose) and unattended, beside two
-CPU-burning processes, then ``imucal calibrate SESSION`` with no config, graded against the
-truth of the served part (the bench's own code: :mod:`bench.live`).
+pseudo-terminal, Enter at the device after each recorded pose) and unattended, then
+``imucal calibrate SESSION`` with no config, graded against the truth of the served part (the
+bench's own code: :mod:`bench.live`; the slow test and the bench add two CPU burners).
 
 What one seed can show is checked against what the noise allows: every capture complete and
 calibrated, the same sensors as from the file, the device's samples those of the simulated
@@ -44,12 +44,15 @@ def _check(rows, plans) -> None:
             assert row.served == "100.0 %", (row.plan, row.served)
 
 
-def test_live_six_guided_and_unattended_beside_burners(tmp_path):
-    """Six faces, a pose held 2.5 s on the device's timer (1 s moves): both captures at
-    once, beside two CPU burners."""
-    plans = [live.LivePlan("six", hold_s=2.5, move_s=1.0)]
+def test_live_six_guided_and_unattended(tmp_path):
+    """Six faces, a pose held 1.6 s on the device's timer (0.7 s moves), 1 s by the guided
+    capture (--hold 1): both captures at once.  Nothing waits a fixed time: the person and
+    the harness act on what the processes print, so a loaded machine only makes it slower
+    (about 30 s of CPU in all; the CPU burners are the bench's and the slow test's: in
+    ``make test`` the suite's other worker loads the second core)."""
+    plans = [live.LivePlan("six", hold_s=1.6, move_s=0.7, capture=("--hold", "1"))]
     lines: list[str] = []
-    rows = live.run_live(plans, seeds=[3], jobs=2, n_burners=2, folder=tmp_path,
+    rows = live.run_live(plans, seeds=[3], jobs=2, n_burners=0, folder=tmp_path,
                          say=lines.append)  # fmt: skip
     _check(rows, plans)
     accel = [r.sections["accel"] for r in rows]
@@ -100,3 +103,44 @@ def test_live_plans_slow(tmp_path):
     rows = live.run_live(plans, seeds=[5], jobs=3, n_burners=2, folder=tmp_path,
                          say=lambda _: None)  # fmt: skip
     _check(rows, plans)
+
+
+def _graded(rng, scale=1.0, half=1.96, p=12):
+    err = rng.standard_normal(p) * scale
+    return {"accel": Graded("accel", "gravity, 9", [f"p{i}" for i in range(p)], err,
+                            np.ones(p), np.full(p, half), np.ones(p))}
+
+
+class _Job:
+    def __init__(self, seed, graded, cal_exit=0):
+        from types import SimpleNamespace
+
+        self.seed, self.graded = seed, graded
+        self.capture = SimpleNamespace(exit_code=0, wall_s=10.0)
+        self.calibrate = SimpleNamespace(exit_code=cal_exit, left_out={}, sections=["accel"])
+        self.served_equal = None
+
+    def what_went_wrong(self):
+        return "" if self.calibrate.exit_code == 0 else "imucal: error: refused"
+
+
+def test_the_verdict_names_what_fails_and_whose_it_is():
+    """The table is not blind: live errors twice the file's fail on error/bound; intervals
+    that hold the truth half as often as stated fail on coverage, and are the solver's when
+    the file's own intervals miss 95 % over all its seeds; a calibration the file of the
+    same seed refuses too is the solver's."""
+    from bench.live_table import make_row
+
+    rng = np.random.default_rng(0)
+    seeds = range(30)
+    files = {s: _graded(rng) for s in seeds}
+    same = make_row("p", "guided", [_Job(s, files[s]) for s in seeds], files, rng)
+    assert same.ok and abs(same.ratio - 1) < 1e-12
+    worse = make_row("p", "guided", [_Job(s, _graded(rng, 2.0)) for s in seeds], files, rng)
+    assert not worse.ok and any("error/bound" in w for w in worse.why)
+    narrow = {s: _graded(rng, half=0.7) for s in seeds}  # about 52 % coverage
+    row = make_row("p", "unattended", [_Job(s, narrow[s]) for s in seeds], narrow, rng)
+    assert any("does not hold 95 %" in w and "[solver" in w for w in row.why), row.why
+    files[3] = {"error": "DesignError: refused"}
+    row = make_row("p", "guided", [_Job(3, {}, cal_exit=1)], files, rng)
+    assert any("seed 3" in w and "[solver" in w for w in row.why), row.why
