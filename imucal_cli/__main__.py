@@ -2,7 +2,11 @@
 
 Ctrl-C may come at any moment, also while the command-line layer is still being imported
 (typer, rich: a good part of a second on a busy machine): it ends the program with
-``imucal: interrupted`` and status 130, never with a traceback.
+``imucal: interrupted`` and status 130, never with a traceback.  Only what happens before the
+first line of this package runs is out of reach: a Ctrl-C during the interpreter's own
+start-up, or while the import system is still looking for ``imucal_cli``, ends the program as
+Python does (status 130, silently or with Python's ``KeyboardInterrupt`` traceback; see
+DEVELOPERS.md).
 """
 
 import os

@@ -178,6 +178,10 @@ class CaptureSummary:
         Samples in the session.
     stats : dict
         The recorder's counters (lines, samples, comments, malformed, bytes, duration_s, ...).
+    targets : list
+        With accuracy targets (``capture --until``): each target's last status (a
+        :class:`~imucal_cli.formats.targets.TargetStatus`); ``complete`` then means every
+        target was met.
     """
 
     complete: bool
@@ -187,6 +191,7 @@ class CaptureSummary:
     end_reason: str
     samples: int
     stats: dict
+    targets: list = field(default_factory=list)
 
 
 # --------------------------------------------------------------------------------------------

@@ -40,8 +40,10 @@ IMPORTS = (
         ("test_import.py::test_csv_round_trip_segments_and_calibrates_to_truth",
          "test_line_fields.py::test_csv_counts_an_empty_field_as_malformed",
          "test_line_fields.py::test_semicolons_separate_fields_in_import",
-         "test_import_euroc.py::test_euroc_and_tum_vi_imu_files_are_recognised"),
-        "t, accel, gyro, mag, temperature as written; EuRoC's time unit and SI units",
+         "test_import_euroc.py::test_euroc_and_tum_vi_imu_files_are_recognised",
+         "test_imu_set_import.py::test_csv_with_several_triads_per_line"),
+        "t, accel, gyro, mag, temperature as written; EuRoC's time unit and SI units; several "
+        "IMUs' triads per line (.N fields, t.N their own time)",
         "a line with an empty field, a CR inside, or a non-number: left out, counted"),
     Row("import", "imu_tk", "imu_tk's accelerometer and gyroscope files (t x y z)",
         (("numpy", "2.0"),),
@@ -55,9 +57,11 @@ IMPORTS = (
         ("test_import_formats.py::test_bags_read_back",
          "test_import_stamps.py::test_one_repeated_header_stamp_keeps_the_device_time",
          "test_import_ros.py::test_damaged_recordings_give_one_line_or_the_file_own_values",
-         "test_import_px4.py::test_mag_topic_picks_a_ros_magnetometer_outside_the_imu_namespace"),
+         "test_import_px4.py::test_mag_topic_picks_a_ros_magnetometer_outside_the_imu_namespace",
+         "test_imu_set_import.py::test_ros_imu_topics_become_one_session"),
         "linear_acceleration (m/s^2), angular_velocity (rad/s), header.stamp (receive time when "
-        "unset or mostly out of order), magnetic field (T -> uT) and temperature held per sample",
+        "unset or mostly out of order), magnetic field (T -> uT) and temperature held per "
+        "sample; several Imu topics into one session",
         "orientation and the covariances; a damaged bag has no checksum: a hit value is read "
         "as it stands"),
     Row("import", "ros", "MCAP of ROS 2 (CDR) or ROS 1 (ros1msg) messages, with or without a "
@@ -75,19 +79,21 @@ IMPORTS = (
          "test_import_px4.py::test_vehicle_imu_and_sensor_combined_are_read_and_said_calibrated",
          "test_import_px4.py::test_a_1_hz_log_is_imported_with_a_warning_and_unpaired_samples_said",
          "test_import_px4.py::test_mag_topic_picks_the_ulog_magnetometer",
-         "test_import_formats.py::test_ulog_instances"),
+         "test_import_formats.py::test_ulog_instances",
+         "test_imu_set_import.py::test_ulog_instances_become_one_session_and_calibrate_as_a_set"),
         "FIFO samples times scale (m/s^2, rad/s) at full rate; device_id; temperature; sensor_mag "
-        "(gauss) held per sample",
+        "(gauss) held per sample; every instance of several IMUs into one session",
         "PX4's own calibration in vehicle_imu and sensor_combined (a calibration of them is what "
-        "remains); clipping counters; several IMUs at once (one instance per session)"),
+        "remains); clipping counters"),
     Row("import", "mavlink", "MAVLink telemetry log (.tlog): RAW_IMU, SCALED_IMU(2,3), "
         "HIGHRES_IMU",
         (("pymavlink", "2.4"),),
         ("test_import_mavlink.py::test_telemetry_log_streams_units_and_choice",
          "test_import_mavlink.py::test_telemetry_log_receive_stamps_are_the_host_time",
-         "test_import_stamps.py::test_one_repeated_time_usec_keeps_the_device_time_and_host_time"),
+         "test_import_stamps.py::test_one_repeated_time_usec_keeps_the_device_time_and_host_time",
+         "test_imu_set_import.py::test_telemetry_raw_imu_and_scaled_imu2_3_become_one_session"),
         "accel, gyro, mag, temperature in each message's units; the receive stamps as "
-        "/raw/host_time",
+        "/raw/host_time; one stream per IMU of several into one session",
         "ArduPilot's RAW_IMU holds its calibrated values (said in the notes)"),
     Row("import", "mavlink", "ArduPilot DataFlash (.bin, and text .log): IMU, ACC/GYR, MAG, "
         "ISBH/ISBD batch samples",
@@ -96,8 +102,10 @@ IMPORTS = (
          "test_import_mavlink.py::test_dataflash_acc_and_gyr_paired_by_sample_time",
          "test_import_ardupilot.py::test_batch_samples_paired_where_they_overlap",
          "test_import_ardupilot.py::test_batches_that_do_not_overlap_give_the_accelerometer_alone",
-         "test_import_ardupilot.py::test_a_text_log_reads_as_its_binary_log"),
-        "m/s^2, rad/s, mGauss -> gauss, T; batch samples int16 / mul at SampleUS + k / smp_rate",
+         "test_import_ardupilot.py::test_a_text_log_reads_as_its_binary_log",
+         "test_imu_set_import.py::test_dataflash_imu_instances_become_one_session"),
+        "m/s^2, rad/s, mGauss -> gauss, T; batch samples int16 / mul at SampleUS + k / smp_rate; "
+        "IMU instances of several IMUs into one session",
         "ArduPilot's own offsets and scales in IMU/ACC/GYR (said); ISBD arrays in text logs; "
         "a gyro whose batches do not overlap the accelerometer's"),
     Row("import", "lines", "MotionCal Raw: and i2cdevlib a/g:, a/g/m: serial lines",
@@ -136,11 +144,15 @@ EXPORTS = (
         ("test_export_targets.py::test_kalibr_imu_noise_file",),
         "the four noise densities (worst axis), rate, topic", "per-axis noise (in comments)"),
     Row("export", "kalibr", "Kalibr scale-misalignment intrinsics", (("PyYAML", "6.0"),),
-        ("test_export_targets.py::test_kalibr_reader_reproduces_apply",),
-        "M, A (g-sensitivity), C_gyro_i, biases", "bias_tempco (refused)"),
+        ("test_export_targets.py::test_kalibr_reader_reproduces_apply",
+         "test_imu_set_use.py::test_imu_chain_puts_each_imu_where_the_reference_sees_it"),
+        "M, A (g-sensitivity), C_gyro_i, biases; several IMUs: a chain with T_i_b, time_offset",
+        "bias_tempco (refused); the IMUs' translations (zero)"),
     Row("export", "openvins", "OpenVINS kalibr_imu_chain.yaml", (("PyYAML", "6.0"),),
-        ("test_export_targets.py::test_openvins_reader_reproduces_apply",),
-        "Tw, Ta, R_IMUtoGYRO, Tg, noise, biases", "bias_tempco (refused)"),
+        ("test_export_targets.py::test_openvins_reader_reproduces_apply",
+         "test_imu_set_use.py::test_imu_chain_puts_each_imu_where_the_reference_sees_it"),
+        "Tw, Ta, R_IMUtoGYRO, Tg, noise, biases; several IMUs: a chain with T_i_b, time_offset",
+        "bias_tempco (refused); the IMUs' translations (zero)"),
     Row("export", "basalt", "Basalt calibration.json, complete (no camera)",
         (("basalt-headers schema", "headers_serialization.h"),),
         ("test_export_targets.py::test_basalt_reader_reproduces_apply",
@@ -149,14 +161,18 @@ EXPORTS = (
         "g_sensitivity (refused unless --drop), bias_tempco (refused)"),
     Row("export", "px4", "PX4 .params CAL_ACC0/GYRO0/MAG0, TC_*", (("QGC .params", "text"),),
         ("test_export_targets.py::test_offset_scale_targets_exact_without_misalignment",
-         "test_mag_export.py::test_px4_and_ardupilot_apply_the_symmetric_part_exactly"),
-        "offsets, accel diagonal scale, mag offset and symmetric scale, temperature terms",
+         "test_mag_export.py::test_px4_and_ardupilot_apply_the_symmetric_part_exactly",
+         "test_imu_set_use.py::test_px4_parameters_per_imu"),
+        "offsets, accel diagonal scale, mag offset and symmetric scale, temperature terms; "
+        "several IMUs as CAL_ACC0..3, CAL_GYRO0..3",
         "misalignment (in degrees in the file), gyro scale, g_sensitivity (refused unless "
         "--drop)"),
     Row("export", "ardupilot", "ArduPilot .parm INS_*, COMPASS_*", (("ArduPilot .parm", "text"),),
         ("test_export_targets.py::test_offset_scale_targets_exact_without_misalignment",
-         "test_mag_export.py::test_px4_and_ardupilot_apply_the_symmetric_part_exactly"),
-        "offsets, accel diagonal scale, temperature terms, COMPASS_OFS/DIA/ODI",
+         "test_mag_export.py::test_px4_and_ardupilot_apply_the_symmetric_part_exactly",
+         "test_imu_set_use.py::test_ardupilot_parameters_per_imu_read_by_pymavlink"),
+        "offsets, accel diagonal scale, temperature terms, COMPASS_OFS/DIA/ODI; several IMUs as "
+        "INS_ACC/ACC2/ACC3 and INS_GYR/GYR2/GYR3",
         "misalignment (in degrees in the file), gyro scale, g_sensitivity (refused unless "
         "--drop)"),
     Row("export", "fusion", "x-io Fusion C constants: 1.3 (flat FusionMatrix) by default, 1.2 "

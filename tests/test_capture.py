@@ -411,6 +411,28 @@ def test_segment_recording_rotation_plans(name):
     assert all(s.up is not None for s in statics)  # labelled stills only by their direction
 
 
+@pytest.mark.parametrize("seed", [0, 1, 4])
+def test_a_turn_plan_is_matched_in_its_order(seed):
+    """Issue 24.1 (bench live, qureshi-axes:6 unattended: "missing turn 6 about y", exit 3):
+    a still period between two hand turns that happens to face +X up was taken for "still
+    before z turn 1, +X up", and the move to the next block's face for "turn 1 about z";
+    every later turn was labelled one step off.  The plan's order decides now: every step
+    seen, every labelled turn on the turn the simulator made (seeds 0, 1, 4 failed before)."""
+    from imucal_cli.simulate.play import simulate_plan
+
+    plan = load_plan("qureshi-axes:6")
+    s, _ = simulate_plan("qureshi-axes:6", seed=seed, hold_s=4.0, move_s=1.5)
+    entries, done, missing = segment_recording(s.time, s.accel, s.gyro, plan)
+    assert not missing and len(done) == len(plan.steps)
+    truth = {seg.label: (seg.start, seg.stop) for seg in s.rotation_segments()}
+    turns = [e for e in entries if e.kind == "rotation" and e.step is not None]
+    assert [e.step.label for e in turns] == [st.label for st in plan.rotation_steps]
+    for e in turns:
+        start, stop = truth[e.step.label]
+        assert e.start < stop and start < e.stop, (e.step.label, e.start, e.stop, start, stop)
+    ups = [e.step.label for e in entries if e.kind == "static" and e.step is not None]
+    assert ups == [st.label for st in plan.steps if st.up is not None]
+
 def test_segment_recording_unlabelled_when_not_centred():
     t, a, g = stream_arrays("six", rate_hz=100, hold_s=1.5, move_s=1.0)
     entries, done, missing = segment_recording(t, a + 30000.0, g, load_plan("six"))

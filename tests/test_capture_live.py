@@ -387,7 +387,7 @@ def test_the_clock_fit_of_a_capture_beside_two_burners(tmp_path, burners, ppm):
 def test_a_mode_that_fails_after_saving_exits_3_not_2(tmp_path, monkeypatch, capsys):
     """The README's table holds in every case: a segment the mode cannot add (here: made to
     fail) after samples were saved is a warning, the session kept, exit 3 (never 2)."""
-    from imucal_cli.capture import unattended
+    from imucal_cli.cli import capture as capture_command
     from imucal_cli.cli import main
     from imucal_cli.errors import SessionError
 
@@ -397,7 +397,7 @@ def test_a_mode_that_fails_after_saving_exits_3_not_2(tmp_path, monkeypatch, cap
                 recorder.stop()
         raise SessionError(f"{recorder.path}: segment 0000: made to fail")
 
-    monkeypatch.setattr(unattended, "run_unattended", failing)
+    monkeypatch.setattr(capture_command, "run_unattended", failing)
     device = Device("--plan", "six", "--loop")
     try:
         out = tmp_path / "f.h5"

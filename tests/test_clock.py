@@ -1,6 +1,8 @@
 """Issue 17.2: the device's sample clock against the host's arrival times, recorded by capture,
 estimated with its uncertainty, corrected in the gyro calibration and shown in ppm."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -128,6 +130,20 @@ def test_cli_reports_the_clock_in_ppm(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "sample clock" in proc.stdout and "ppm" in proc.stdout
 
+
+
+def test_cli_says_no_correction_when_the_gyro_is_left_out(tmp_path):
+    """Issue 24.4: a significant clock error in a six-face session, whose 5 turns cannot
+    determine the gyro: the estimate is shown, but no "gyro corrected" (no gyro was)."""
+    out = tmp_path / "six.h5"
+    proc = run("simulate", "--plan", "six", "--seed", "4", "--clock-ppm", "5000", "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    proc = run("calibrate", out, "--no-store")
+    assert proc.returncode == 0, proc.stderr
+    line = next(ln for ln in proc.stdout.splitlines() if ln.startswith("sample clock"))
+    ppm, std = (float(v) for v in re.search(r"([-+][\d.]+) ± ([\d.]+) ppm", line).groups())
+    assert abs(ppm - 5000.0) < 4.5 * std, line  # significant: the time was corrected
+    assert "gyro corrected" not in line and "no gyro calibrated, so nothing corrected" in line
 
 # --------------------------------------------------------------------------------------------
 # Issue 24.4: the fit is honest about a busy host's arrivals

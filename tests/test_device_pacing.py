@@ -55,6 +55,17 @@ def test_step_holds_each_pose_until_enter_replaying_its_samples():
     assert "held until Enter here" in said[0]
 
 
+def test_a_paused_hold_is_replayed_mirrored():
+    """Issue 24.1/24.7 (bench live, warm-up guided: exit 3): a paused hold replayed from its
+    start made a warm-up's temperature and biases jump back from 40 to 5 C, a motion to the
+    capture, and its 2-minute hold never completed.  Replayed backwards and forwards, the
+    stream goes on from the last sample without a jump."""
+    sent = _run(_schedule(True, []), {60})
+    assert sent[:10] == list(range(10))
+    assert sent[10:28] == [*range(8, -1, -1), *range(1, 10)]  # back to the start, forwards
+    assert sent[28:30] == [8, 7]
+    assert max(abs(a - b) for a, b in zip(sent[:59], sent[1:60], strict=True)) == 1
+
 def test_holds_of_the_streams():
     _, _, _, holds = stream_with_holds("six", hold_s=2.0)
     assert [h.label for h in holds] == ["face +Z up", "face -Z up", "face +X up", "face -X up",

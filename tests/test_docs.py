@@ -107,11 +107,18 @@ def test_every_page_is_in_the_site_navigation():
 
 
 def _commands():
+    """Every command by its name after ``imucal``: a group's sub-commands as ``GROUP SUB``
+    (``registry list``) beside the group itself."""
     import typer
 
     from imucal_cli.cli import app
 
-    return typer.main.get_command(app).commands
+    out = {}
+    for name, command in typer.main.get_command(app).commands.items():
+        out[name] = command
+        if hasattr(command, "commands"):  # a group (typer's own click)
+            out.update({f"{name} {sub}": c for sub, c in command.commands.items()})
+    return out
 
 
 def test_every_command_and_option_has_its_section_in_commands_page():
@@ -209,14 +216,16 @@ def test_every_command_line_shown_uses_real_commands_and_options(page):
     commands = _commands()
     wrong = []
     for words in _command_lines(page.read_text(encoding="utf-8")):
-        name = words[1]
+        name, rest = words[1], words[2:]
         if name.startswith("-"):  # imucal --install-completion, --version
             continue
+        if rest and f"{name} {rest[0]}" in commands:  # a group's sub-command
+            name, rest = f"{name} {rest[0]}", rest[1:]
         command = commands.get(name)
         if command is None:
             wrong.append(f"imucal {name}: no such command")
             continue
         known = {o for p in command.params for o in p.opts + p.secondary_opts}
-        wrong += [f"imucal {name} {w}" for w in words[2:]
+        wrong += [f"imucal {name} {w}" for w in rest
                   if w.startswith("-") and w.split("=")[0] not in known]  # fmt: skip
     assert not wrong, wrong

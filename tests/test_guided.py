@@ -4,6 +4,7 @@ scripted keys stand in for the person."""
 from __future__ import annotations
 
 import io
+import re
 
 import numpy as np
 import pytest
@@ -502,3 +503,23 @@ def test_screen_says_how_long_to_hold_and_counts_down():
     assert "still: holding 2.5 s ..." in out and "  2 s left" in out and "  1 s left" in out
     assert [countdown_tick(x, 2.5) for x in (2.5, 2.2, 1.5, 0.4, 0.0)] == [None, None, 2, 1, None]
     assert [countdown_tick(x, 600) for x in (599, 300.5, 59)] == [None, 360, 60]
+
+
+def test_a_warm_up_is_held_two_minutes_without_a_false_restart():
+    """Issue 24.1 (bench live, warm-up guided): the 2-minute hold of ``warmup:2`` is 1,900
+    windows; at the 2-s hold's false-alarm rate per window, the served warm-up of seed 0 was
+    called moving twice (at 91 s and 151 s) and its hold restarted.  A plan with longer holds
+    tests each window at a smaller false-alarm rate: held from the first sample, no restart
+    (the windows are judged on a grid whatever the blocks: tests/test_stillness.py)."""
+    from imucal_cli.simulate.play import simulate_plan
+    from imucal_cli.simulate.temperature import parse_ramp
+
+    plan = load_plan("warmup:2")
+    s, _ = simulate_plan("warmup:2", seed=0, temperature=parse_ramp("5:40"))
+    rec, console = FakeRecorder(s), _console()
+    summary = run_guided(rec, plan, console=console, keys=ScriptedKeys([]))
+    out = console.export_text()
+    assert summary.complete and "moved during the hold" not in out
+    (seg,) = rec.segments
+    assert seg["start"] == 0 and seg["stop"] == 12000  # 120 s at 100 Hz
+    assert re.search(r"false alarm\s+1\.66667e-06\s+per window", out)  # 1e-4 x 2 s / 120 s

@@ -406,15 +406,20 @@ def test_import_detects_the_format_and_segments(kind, units, extra, tmp_path, si
 
 
 def test_import_topic_option_and_refusals(tmp_path, six):
+    from imucal_cli.formats.session import read_session
+
     from .cli_helpers import assert_one_line_error, run
 
     t, a, g = six
     path = tmp_path / "two.bag"
     write_bag(path, "ros1", topics=("/a/imu", "/b/imu"), mag=False, temp=False,
               data=(t, a / 835.0, g / 939.7))  # fmt: skip
-    assert_one_line_error(run("import", path, "-o", tmp_path / "x.h5"), "--topic", "/a/imu")
+    proc = run("import", path, "-o", tmp_path / "x.h5")  # issue 28: both IMUs, one session
+    assert proc.returncode == 0, proc.stderr
+    assert list(read_session(tmp_path / "x.h5").imus) == ["b_imu"]
     proc = run("import", path, "--topic", "/b/imu", "-o", tmp_path / "b.h5")
     assert proc.returncode == 0, proc.stderr
+    assert read_session(tmp_path / "b.h5").imus == {}
     assert_one_line_error(run("import", path, "--columns", "t,ax,ay,az", "-o",
                               tmp_path / "y.h5"), "--columns does not apply")  # fmt: skip
     motion = write_format("motioncal", tmp_path, six)

@@ -112,10 +112,14 @@ def test_the_check_sees_lazy_and_relative_imports():
 #: What is not a sensor's in ``estimators/``: the estimators two sensors share.
 SHARED_ESTIMATORS = {"factorization", "ellipsoid"}
 SENSOR_FOLDERS = {"accel", "gyro", "mag", "thermal", "clock"}
+#: The estimators of a set of several IMUs (its accelerometers jointly, the rotations, the time
+#: offsets): the set's, not one sensor's.
+SET_FOLDER = "imu_set"
 
 
 def test_estimators_are_grouped_by_sensor():
-    """Issue 25.4: an estimator lives in its sensor's folder (or is one two sensors share);
+    """Issue 25.4: an estimator lives in its sensor's folder (or is one two sensors share, or
+    the several-IMU set's);
     the design analysis, apart, imports no estimator (the layers above)."""
     root = PACKAGE / "estimators"
     stray = []
@@ -125,11 +129,11 @@ def test_estimators_are_grouped_by_sensor():
             continue
         if len(rel.parts) == 1 and rel.stem not in SHARED_ESTIMATORS:
             stray.append(str(rel))
-        if len(rel.parts) > 1 and rel.parts[0] not in SENSOR_FOLDERS:
+        if len(rel.parts) > 1 and rel.parts[0] not in SENSOR_FOLDERS | {SET_FOLDER}:
             stray.append(str(rel))
     assert not stray, stray
     assert {p.name for p in root.iterdir() if p.is_dir() and p.name != "__pycache__"} == (
-        SENSOR_FOLDERS)  # fmt: skip
+        SENSOR_FOLDERS | {SET_FOLDER})  # fmt: skip
 
 
 def test_one_session_reader():
@@ -149,3 +153,14 @@ def test_one_session_reader():
         if "h5py.File(" in text and rel.parts[0] != "formats":
             wrong.append(f"{rel}: opens an HDF5 file itself")
     assert not wrong, wrong
+
+
+def test_the_registry_is_a_layer_of_its_own():
+    """Issue 29: the registry sits above ``use`` (it judges and compares units with use's limits
+    and history) and below the CLI: no layer under it knows a database, so a report, an export
+    or a certificate from a file works without one."""
+    allowed = _allowed(layer_table())
+    assert allowed["registry"] == {"model", "formats", "use"}
+    below = ("numerics", "design", "estimators", "planning", "model", "formats", "plans",
+             "simulate", "calibrate", "use", "capture")
+    assert not [name for name in below if "registry" in allowed[name]]

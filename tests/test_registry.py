@@ -1,161 +1,384 @@
-"""Issue 25.3: one solver interface and one registry for every sensor; ``choose()`` reads the
-design (the estimators' assessments), never a fitted section; status travels as values."""
+"""The registry on SQLite (issue 29.1, 29.4, 29.5): records whole, migrations from an older
+schema, several writer processes at once, a writer killed mid-transaction, export/import, and
+a lot's statistics against an independent computation."""
 
 from __future__ import annotations
 
+import hashlib
+import json
+import signal
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
+from alembic import command
+from alembic.autogenerate import compare_metadata
+from alembic.config import Config
+from alembic.runtime.migration import MigrationContext
+from alembic.script import ScriptDirectory
+from sqlalchemy import create_engine, func, select, text
 
-from imucal_cli.calibrate.accel import estimators as accel_estimators
-from imucal_cli.calibrate.accel.estimators import AccelDesign
-from imucal_cli.calibrate.gyro import estimators as gyro_estimators
-from imucal_cli.calibrate.gyro.estimators import GyroDesign
-from imucal_cli.calibrate.registry import (
-    REGISTRY,
-    WORTH,
-    Bound,
-    By,
-    Chosen,
-    Determined,
-    Needs,
-    NotChosen,
-    Refusal,
-    choose,
-    register,
-)
-from imucal_cli.calibrate.session import calibrate_accel, calibrate_gyro_auto
-from imucal_cli.formats.config import ACCEL_SOLVERS, GYRO_SOLVERS, MAG_SOLVERS, Config
-from imucal_cli.simulate.play import simulate_plan
+from imucal_cli.errors import ConfigError
+from imucal_cli.formats.calibration import calibration_to_json
+from imucal_cli.registry import store as store_module
+from imucal_cli.registry.lot import OUTLIER_Z, cpk, lot_statistics
+from imucal_cli.registry.queries import iter_records, list_units, unit_report
+from imucal_cli.registry.record import UnitInfo, record_calibration
+from imucal_cli.registry.schema import figures, metadata
+from imucal_cli.registry.store import RegistryError, open_registry
+from imucal_cli.registry.transfer import export_records, import_files
+from imucal_cli.use.limits import judge_calibration, limits_from_dict, unit_figures
+from imucal_cli.use.report.history import build_history
 
-CREATED = "2026-01-01T00:00:00Z"
+from .registry_helpers import assert_whole, make_template, recorded_lines, unit, writer
 
-
-def test_every_solver_the_config_names_is_registered_once():
-    names = {(s, n) for s, n in REGISTRY}
-    for sensor, solvers in (("accel", ACCEL_SOLVERS), ("gyro", GYRO_SOLVERS),
-                            ("mag", MAG_SOLVERS)):  # fmt: skip
-        for name in solvers:
-            if name not in ("auto", "none"):
-                assert (sensor, name) in names, (sensor, name)
-    for (sensor, name), est in REGISTRY.items():
-        assert est.sensor == sensor and est.name == name
-        assert isinstance(est.needs, Needs)
-        assert callable(est.assess) and callable(est.fit)
+LIMITS = {"product": {"name": "P"},
+          "limits": {"accel": {"bias_max": 0.5, "misalignment_max_deg": 1.0,
+                               "nominal_sensitivity": 835.0,
+                               "gain_error_max_pct": 4.0}}}  # fmt: skip
 
 
-def _session(plan: str, seed: int = 1, **options):
-    session, _ = simulate_plan(plan, seed=seed, created=CREATED, **options)
-    return session
+@pytest.fixture(scope="module")
+def template(tmp_path_factory) -> dict:
+    return make_template(tmp_path_factory)
 
 
-@pytest.mark.parametrize(("plan", "solver", "words"), [
-    ("six", "labelled", "too few for the gravity-magnitude model"),
-    ("qureshi18", "gravity", "which needs no labels"),
-    ("random:12", "gravity", "which needs no labels"),
-    ("hk-redundant", "factorization", "a redundant unit of"),
-])  # fmt: skip
-def test_auto_reads_the_design_without_building_a_section(plan, solver, words, monkeypatch):
-    """The choice is made from the assessments; no section of any solver is built for it."""
-
-    def no_section(*_args, **_kwargs):
-        raise AssertionError("choose() built a section")
-
-    for name in ("gravity_section", "labelled_section", "calibrate_accel_factorization"):
-        monkeypatch.setattr(accel_estimators, name, no_section)
-    chosen = choose("accel", AccelDesign(_session(plan), Config()), "auto")
-    assert isinstance(chosen, Chosen)
-    assert chosen.choice.solver == solver and chosen.choice.by is By.AUTO
-    assert words in chosen.choice.reason
+def _script_config() -> Config:
+    config = Config()
+    folder = Path(store_module.__file__).parent / "migrations"
+    config.set_main_option("script_location", str(folder))
+    return config
 
 
-def test_labels_replace_gravity_only_when_their_bound_is_measurably_smaller():
-    """qureshi18's labels are placed within 2 deg: the labelled bound on bias and K is not
-    below WORTH of the gravity bound (its 18 poses determine the model); on hwangbo-iron's 9
-    directions the labels decide the axes (the labelled bound is far below)."""
-    design = AccelDesign(_session("qureshi18"), Config())
-    grav = REGISTRY[("accel", "gravity")].assess(design)
-    lab = REGISTRY[("accel", "labelled")].assess(design)
-    assert isinstance(grav, Determined) and isinstance(lab, Determined)
-    assert lab.tier > grav.tier and grav.bound.of == lab.bound.of
-    assert np.mean(lab.bound.variance / grav.bound.variance) >= WORTH
-    iron = AccelDesign(_session("hwangbo-iron"), Config())
-    grav = REGISTRY[("accel", "gravity")].assess(iron)
-    lab = REGISTRY[("accel", "labelled")].assess(iron)
-    assert np.mean(lab.bound.variance / grav.bound.variance) < WORTH
-    chosen = choose("accel", iron, "auto")
-    assert chosen.choice.solver == "labelled"
-    assert "more precise than gravity magnitude alone" in chosen.choice.reason
+def test_a_record_is_kept_whole_and_read_back(tmp_path, template):
+    limits = limits_from_dict(LIMITS, "test")
+    with open_registry(tmp_path / "r.db") as reg:
+        cals = [unit(template, i) for i in range(3)]
+        for i, cal in enumerate(cals):
+            done = record_calibration(reg, cal, UnitInfo(cal.extra["sensor"], "P", "L1", "st",
+                                                         "ann"),
+                                      session_sha256="ab" * 32,
+                                      acceptance=judge_calibration(cal, limits),
+                                      limits=limits)  # fmt: skip
+            assert done.new and done.serial == f"SN{i:06d}"
+        again = record_calibration(reg, cals[0], UnitInfo(cals[0].extra["sensor"]))
+        assert not again.new  # the same calibration of the same unit: kept once
+        rows = list_units(reg, lot="L1")
+        assert [r["serial"] for r in rows] == ["SN000000", "SN000001", "SN000002"]
+        assert all(r["calibrations"] == 1 and r["last_station"] == "st" for r in rows)
+        record = unit_report(reg, "SN000001")
+        meta = record["calibrations"][0]
+        assert meta["session_sha256"] == "ab" * 32 and meta["operator"] == "ann"
+        assert meta["verdict"] == judge_calibration(cals[1], limits).verdict
+        assert meta["limits"] == limits.to_dict()
+        exported = list(iter_records(reg))
+        assert json.dumps(exported[1]["calibration"], indent=2) == calibration_to_json(cals[1])
+        assert exported[1]["document_sha256"] == hashlib.sha256(
+            calibration_to_json(cals[1]).encode()).hexdigest()  # fmt: skip
+        with reg.read() as conn:  # every figure of the calibration, one row each
+            n = conn.execute(select(func.count()).select_from(figures)).scalar_one()
+        assert n == 3 * sum(len(s["rows"]) for s in unit_figures(cals[0]).values())
 
 
-def test_the_rule_of_auto_on_made_up_estimators():
-    """Tier first, then registration order; a later one replaces the first only with a bound
-    on the same parameters whose mean variance ratio is below WORTH."""
-
-    class Made:
-        def __init__(self, name, found):
-            self.name, self.sensor, self.needs, self.found = name, "test", Needs(), found
-
-        def assess(self, design):
-            return self.found
-
-        def fit(self, design):
-            raise AssertionError("not fitted by choose")
-
-    one = Bound(np.ones(3), "x", (("the lot", slice(0, 3)),))
-    try:
-        register(Made("a", Determined("a fits", one, tier=1, compared_with="a")))
-        register(Made("b", Determined("b fits", Bound(np.full(3, 0.9), "x"), tier=2)))
-        register(Made("c", Refusal("c cannot", "capture more")))
-        chosen = choose("test", None, "auto")
-        assert chosen.estimator.name == "a" and chosen.choice.reason == "a fits"
-        register(Made("b", Determined("b fits", Bound(np.full(3, 0.5), "x", one.groups), 2)))
-        chosen = choose("test", None, "auto")
-        assert chosen.estimator.name == "b"
-        assert chosen.choice.reason == ("b fits: using them makes the lot 1.4x more precise "
-                                        "than a (Cramer-Rao bounds of both designs)")  # fmt: skip
-        register(Made("b", Determined("b fits", Bound(np.full(3, 0.5), "y"), tier=2)))
-        assert choose("test", None, "auto").estimator.name == "a"  # not of the same
-        register(Made("b", Determined("b first", tier=0)))
-        assert choose("test", None, "auto").estimator.name == "b"  # a lower tier
-        for name in ("a", "b"):
-            register(Made(name, Refusal(f"{name} cannot")))
-        found = choose("test", None, "auto")
-        assert isinstance(found, NotChosen)
-        assert found.refusals["c"] == Refusal("c cannot", "capture more")
-        chosen = choose("test", None, "c", config_reason="[test] solver")
-        assert chosen.choice.by is By.CONFIG and chosen.choice.reason == "[test] solver"
-    finally:
-        for key in [k for k in REGISTRY if k[0] == "test"]:
-            del REGISTRY[key]
+def test_bad_names_and_missing_registries_are_one_line_errors(tmp_path, template):
+    cal = unit(template, 0)
+    with open_registry(tmp_path / "r.db") as reg:
+        for bad in ("", "a\x1b[31mb", "x" * 201):
+            with pytest.raises(RegistryError):
+                record_calibration(reg, cal, UnitInfo(bad))
+        with pytest.raises(RegistryError, match="no unit"):
+            unit_report(reg, "nobody")
+    with pytest.raises(RegistryError, match="no such file"):
+        open_registry(tmp_path / "missing.db", create=False)
+    (tmp_path / "junk.db").write_bytes(b"not a database at all" * 100)
+    with pytest.raises(RegistryError, match="not an imucal registry"):
+        open_registry(tmp_path / "junk.db")
+    with pytest.raises(RegistryError, match="only SQLite files and PostgreSQL"):
+        open_registry("mysql://u@h/db")
 
 
-@pytest.mark.parametrize(("plan", "with_accel", "solver"), [
-    ("gyro-axes", False, "known"),      # known angles about labelled axes spanning 3-D
-    ("ferraris", True, "known"),        # known angles, accelerometer calibrated
-    ("qureshi-axes", True, "full"),     # hand turns between still periods
-    ("hk-gyro", False, "factorization"),  # sweeps in mountings (Hwangbo & Kanade IV-B)
-])  # fmt: skip
-def test_gyro_auto_reads_the_turns(plan, with_accel, solver, monkeypatch):
-    session = _session(plan)
-    accel = calibrate_accel(session, Config()) if with_accel else None
-
-    def no_fit(*_args, **_kwargs):
-        raise AssertionError("choose() fitted the gyro")
-
-    for name in ("calibrate_gyro_factorization", "calibrate_gyro_known",
-                 "calibrate_gyro_rotations"):  # fmt: skip
-        monkeypatch.setattr(gyro_estimators, name, no_fit)
-    chosen = choose("gyro", GyroDesign(session, Config(), accel), "auto")
-    assert chosen.choice.solver == solver and chosen.choice.by is By.AUTO
+def test_without_psycopg_a_postgresql_registry_says_which_extra(monkeypatch):
+    monkeypatch.setitem(sys.modules, "psycopg", None)  # import psycopg -> ImportError
+    with pytest.raises(RegistryError, match=r"psycopg 3: pip install 'imucal-cli\[postgresql\]'"):
+        open_registry("postgresql://u@127.0.0.1:1/db")
 
 
-def test_gyro_without_accelerometer_or_labels_is_left_out_with_the_reason():
-    """No accelerometer and no labelled axes: every gyro estimator refuses; the outcome is a
-    value (no section, the note saying why and what would add it), not an error."""
-    session = _session("free:8")  # turns about any axes, none labelled
-    found = choose("gyro", GyroDesign(session, Config(), None), "auto")
-    assert isinstance(found, NotChosen) and set(found.refusals) >= {"full", "known"}
-    outcome = calibrate_gyro_auto(session, Config(), None)
-    assert outcome.section is None and outcome.refusal is None
-    assert outcome.note == ("gyro not calibrated: the full gyro model needs the accelerometer "
-                            "calibrated (an [accel] solver, or --accel CAL.json)")  # fmt: skip
+def test_a_registry_of_a_newer_imucal_is_refused(tmp_path):
+    open_registry(tmp_path / "r.db").close()
+    engine = create_engine(f"sqlite:///{tmp_path / 'r.db'}")
+    with engine.begin() as conn:
+        conn.execute(text("UPDATE alembic_version SET version_num = '0099'"))
+    engine.dispose()
+    with pytest.raises(RegistryError, match="revision 0099 is newer than this imucal knows"):
+        open_registry(tmp_path / "r.db")
+
+
+def test_migrations_match_the_schema(tmp_path):
+    """The tables the migrations make are those schema.py declares (nothing missing, nothing
+    different), and store.HEAD is the newest revision."""
+    assert ScriptDirectory.from_config(_script_config()).get_current_head() == store_module.HEAD
+    open_registry(tmp_path / "r.db").close()
+    engine = create_engine(f"sqlite:///{tmp_path / 'r.db'}")
+    with engine.connect() as conn:
+        diff = compare_metadata(MigrationContext.configure(conn), metadata)
+    engine.dispose()
+    assert diff == [], diff
+
+
+def test_a_registry_of_the_older_schema_is_migrated_with_its_records(tmp_path, template):
+    """A registry written at revision 0001 (no acceptance columns), with a unit in it, is
+    brought to the newest schema when opened: the unit and its calibration are still there,
+    read as not judged, and new records carry verdicts."""
+    path = tmp_path / "old.db"
+    engine = create_engine(f"sqlite:///{path}")
+    cal = unit(template, 7)
+    doc = calibration_to_json(cal)
+    with engine.begin() as conn:
+        config = _script_config()
+        config.attributes["connection"] = conn
+        command.upgrade(config, "0001")
+        columns = {r[1] for r in conn.exec_driver_sql("PRAGMA table_info(calibrations)")}
+        assert "verdict" not in columns  # really the old schema
+        conn.execute(text("INSERT INTO units (id, serial, product, lot, first_recorded, "
+                          "last_recorded) VALUES (1, 'OLD-1', 'P', 'L0', '2025-01-01T00:00:00Z', "
+                          "'2025-01-01T00:00:00Z')"))  # fmt: skip
+        conn.execute(text("INSERT INTO calibrations (id, uid, unit_id, created, recorded_at, "
+                          "document_sha256) VALUES (1, 'u1', 1, :c, '2025-01-01T00:00:00Z', "
+                          ":sha)"), {"c": cal.created, "sha": hashlib.sha256(doc.encode())
+                                     .hexdigest()})  # fmt: skip
+        conn.execute(text("INSERT INTO documents (calibration_id, document) VALUES (1, :d)"),
+                     {"d": doc})  # fmt: skip
+    engine.dispose()
+    with open_registry(path) as reg:
+        with reg.read() as conn:
+            assert MigrationContext.configure(conn).get_current_revision() == store_module.HEAD
+        rows = list_units(reg)
+        assert [(r["serial"], r["last_verdict"]) for r in rows] == [("OLD-1", None)]
+        assert unit_report(reg, "OLD-1")["calibrations"][0]["uid"] == "u1"
+        limits = limits_from_dict(LIMITS, "test")
+        new = unit(template, 8)
+        verdict = judge_calibration(new, limits)
+        done = record_calibration(reg, new, UnitInfo("NEW-1", lot="L0"), acceptance=verdict,
+                                  limits=limits)  # fmt: skip
+        assert done.verdict in ("pass", "fail")
+        assert {r["serial"]: r["last_verdict"] for r in list_units(reg)}["NEW-1"] == done.verdict
+
+
+def _writers_at_once(url: str, template: dict, per: int, make_first: bool) -> None:
+    """4 writer processes of ``per`` units each at once: everything they recorded is there."""
+    if make_first:
+        open_registry(url).close()
+    procs = [writer(url, template["path"], per * i, per) for i in range(4)]
+    expected = {}
+    for proc, lines in procs:
+        assert proc.wait(timeout=600) == 0
+        expected.update(recorded_lines(lines.text().splitlines()))
+    recal = sum(1 for i in range(4 * per) if i % 50 == 1)  # bench.registry.plan: twice
+    assert len(expected) == 4 * per + recal
+    assert_whole(url, expected)
+
+
+def test_four_writer_processes_at_once_lose_nothing(tmp_path, template):
+    """Also when none of them finds the registry made: they create and migrate it at once."""
+    _writers_at_once(str(tmp_path / "r.db"), template, 6, make_first=False)
+
+
+@pytest.mark.slow
+def test_four_writer_processes_at_once_lose_nothing_many(tmp_path, template):
+    _writers_at_once(str(tmp_path / "r.db"), template, 100, make_first=True)
+
+
+@pytest.mark.parametrize("make_first", [True, pytest.param(False, marks=pytest.mark.slow)])
+def test_a_writer_killed_mid_transaction_leaves_the_registry_whole(tmp_path, template,
+                                                                   make_first):  # fmt: skip
+    """SIGKILL while a record is half written (its calibration row in, its figures not): the
+    half record is not there, the ones before are whole, the file passes SQLite's integrity
+    check, and the next writer writes (the lock died with the process)."""
+    url = str(tmp_path / "r.db")
+    if make_first:
+        open_registry(url).close()
+    proc, lines = writer(url, template["path"], 10, 10, "L", "--hang-after", "4")  # no re-cal
+    lines.wait_for(lambda line: line.startswith("mid-write"))
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=30)
+    before = recorded_lines(lines.text().splitlines())
+    assert len(before) == 4
+    assert_whole(url, before)
+    engine = create_engine(f"sqlite:///{url}")
+    with engine.connect() as conn:
+        assert conn.exec_driver_sql("PRAGMA integrity_check").scalar() == "ok"
+    engine.dispose()
+    proc, lines = writer(url, template["path"], 110, 3)
+    assert proc.wait(timeout=120) == 0
+    after = recorded_lines(lines.text().splitlines())
+    assert len(after) == 3
+    assert_whole(url, {**before, **after})
+
+
+def test_export_then_import_into_another_registry_recreates_every_record(tmp_path, template):
+    limits = limits_from_dict(LIMITS, "test")
+    with open_registry(tmp_path / "a.db") as a:
+        for i in range(4):
+            cal = unit(template, i)
+            record_calibration(a, cal, UnitInfo(cal.extra["sensor"], "P", "L1", "s1", "o"),
+                               session_sha256=f"{i:064d}",
+                               acceptance=judge_calibration(cal, limits),
+                               limits=limits)  # fmt: skip
+        out = tmp_path / "a.jsonl"
+        with open(out, "w") as handle:
+            assert export_records(a, handle) == 4
+        original = list(iter_records(a))
+    with open_registry(tmp_path / "b.db") as b:
+        result = import_files(b, [out], UnitInfo(""))
+        assert len(result.recorded) == 4 and not result.skipped
+        assert list(iter_records(b)) == original  # uids, times, verdicts, limits, documents
+        again = import_files(b, [out], UnitInfo(""))
+        assert len(again.skipped) == 4 and not again.recorded
+
+
+def test_import_of_calibration_files_judges_them(tmp_path, template):
+    cal = unit(template, 3)
+    path = tmp_path / "c.json"
+    path.write_text(calibration_to_json(cal))
+    strict = limits_from_dict({"limits": {"accel": {"residual_rms_max": 1e-9}}}, "strict")
+    with open_registry(tmp_path / "r.db") as reg:
+        result = import_files(reg, [path], UnitInfo("", lot="L9", station="old"), limits=strict)
+        assert [(r.serial, r.verdict) for r in result.recorded] == [("SN000003", "fail")]
+        assert list_units(reg)[0]["lot"] == "L9"
+
+
+def _largest_figures(doc: dict, sensor: str, nominal: float) -> dict[str, float]:
+    """Each limited figure's largest value over the axes, computed here from the calibration
+    JSON as the product file's comments define it (the limit's key -> value)."""
+    sec = doc[sensor]
+    m, b = np.asarray(sec["matrix"]), np.asarray(sec["bias"])
+    if sensor == "accel":
+        sigma = np.asarray(sec["noise"]["per_sample_std"])
+    else:
+        sigma = np.full(3, sec["gyro_noise_raw"])
+    out = {
+        "bias_max": np.abs(m @ b).max(),  # the reading at zero input, output units
+        "gain_error_max_pct": 100 * np.abs(np.asarray(sec["sensitivity"]) / nominal - 1).max(),
+        "misalignment_max_deg": max(abs(v) for v in sec["misalignment_deg"].values()),
+        "noise_max": np.sqrt((m**2) @ sigma**2).max(),  # raw white noise through the matrix
+        "residual_rms_max": sec["residual_rms"],
+    }
+    if sec.get("rms_loo") is not None:
+        out["held_out_rms_max"] = sec["rms_loo"]
+    return out
+
+
+@pytest.mark.parametrize("sensor, nominal", [("accel", 835.0), ("gyro", 939.7)])
+def test_every_limit_bounds_its_figure(template, sensor, nominal):
+    """Each key of a [limits.SENSOR] table, 1 % above the unit's figure (computed here) passes,
+    1 % below fails naming the figure; a limit whose figure the calibration does not state
+    (the gyro's held-out RMS) fails saying so."""
+    cal = unit(template, 0)
+    doc = json.loads(calibration_to_json(cal))
+    figures = _largest_figures(doc, sensor, nominal)
+    names = {"bias_max": "bias", "gain_error_max_pct": "gain error",
+             "misalignment_max_deg": "misalignment", "noise_max": "noise",
+             "residual_rms_max": "residual rms", "held_out_rms_max": "held-out rms"}  # fmt: skip
+    for key, value in figures.items():
+        for factor, passes in ((1.01, True), (0.99, False)):
+            table = {key: value * factor, "nominal_sensitivity": nominal}
+            limits = limits_from_dict({"limits": {sensor: table}}, "p.toml")
+            verdict = judge_calibration(cal, limits)
+            assert verdict.passed is passes, (key, factor, verdict.failed)
+            largest = max(verdict.checks, key=lambda c: abs(c.value))
+            assert largest.value is not None
+            assert abs(largest.value) == pytest.approx(value, rel=1e-9), key
+            if not passes:
+                assert len(verdict.failed) >= 1
+                assert all(line.startswith(f"{sensor} ") for line in verdict.failed)
+                assert names[key] in verdict.failed[0], (key, verdict.failed)
+    if sensor == "gyro":
+        limits = limits_from_dict({"limits": {"gyro": {"held_out_rms_max": 1.0}}}, "p.toml")
+        verdict = judge_calibration(cal, limits)
+        assert not verdict.passed and "not stated" in verdict.failed[0]
+    limits = limits_from_dict({"limits": {"mag": {"bias_max": 1.0}}}, "p.toml")
+    assert judge_calibration(cal, limits).failed == ["mag bias: not calibrated (limit 1)"]
+
+
+def test_limits_files_are_checked():
+    for bad, words in [({"limits": {}}, "no limits"),
+                       ({"limits": {"accel": {"bias_max": -1}}}, "positive"),
+                       ({"limits": {"accel": {"bias_maximum": 1}}}, "unknown key"),
+                       ({"limits": {"baro": {"bias_max": 1}}}, "unknown sensor"),
+                       ({"limits": {"accel": {"gain_error_max_pct": 1}}}, "nominal_sensitivity"),
+                       ({"product": {"name": 3}, "limits": {"accel": {"bias_max": 1}}},
+                        "text")]:  # fmt: skip
+        with pytest.raises(ConfigError, match=words):
+            limits_from_dict(bad, "f.toml")
+
+
+# --------------------------------------------------------------------------------------------
+# A lot
+
+
+def _lot(tmp_path, template, n=40):
+    """A lot of ``n`` units: unit 3 stands apart (accel bias x), units 1 and 2 re-calibrated,
+    unit 1 drifted (12 std), unit 2 not."""
+    limits = limits_from_dict(LIMITS, "test")
+    reg = open_registry(tmp_path / "lot.db")
+    cals = {}
+    for i in range(n):
+        cal = unit(template, i, apart=i == 3)
+        cals[i] = [cal]
+        record_calibration(reg, cal, UnitInfo(cal.extra["sensor"], "P", "LOT"),
+                           acceptance=judge_calibration(cal, limits), limits=limits)  # fmt: skip
+    for i, drift in ((1, 12.0), (2, 0.0)):
+        cal = unit(template, i, drift=drift, created="2026-06-01T00:00:00Z")
+        cals[i].append(cal)
+        record_calibration(reg, cal, UnitInfo(cal.extra["sensor"], "P", "LOT"),
+                           acceptance=judge_calibration(cal, limits), limits=limits)  # fmt: skip
+    return reg, cals, limits
+
+
+def test_lot_statistics_against_an_independent_computation(tmp_path, template):
+    reg, cals, limits = _lot(tmp_path, template)
+    with reg:
+        stats = lot_statistics(reg, "LOT")
+    assert stats["units"] == 40 and stats["calibrations"] == 42
+    assert stats["limits"] == limits.to_dict()  # the recorded limits by default
+    latest = [c[-1] for _, c in sorted(cals.items())]
+    by_name = {(p["sensor"], p["name"]): p for p in stats["parameters"]}
+    # bias x in m/s^2: matrix @ bias of each unit's latest calibration, computed here
+    x = np.array([(np.asarray(c.accel.matrix) @ np.asarray(c.accel.bias))[0] for c in latest])
+    p = by_name[("accel", "bias x")]
+    assert p["n"] == 40 and p["mean"] == pytest.approx(x.mean(), rel=1e-12)
+    assert p["std"] == pytest.approx(x.std(ddof=1), rel=1e-9)
+    mu, sd = x.mean(), x.std(ddof=1)
+    assert p["cpk"] == pytest.approx(min(0.5 - mu, mu + 0.5) / (3 * sd), rel=1e-9)
+    assert p["beyond_limit"] == int((np.abs(x) > 0.5).sum())
+    # the unit planted 40 lot-std away stands apart, by the modified z-score, and only it
+    mad = 1.4826 * np.median(np.abs(x - np.median(x)))
+    expected = {f"SN{i:06d}" for i in np.flatnonzero(np.abs(x - np.median(x)) / mad > OUTLIER_Z)}
+    assert {o["serial"] for o in p["outliers"]} == expected == {"SN000003"}
+    # gain error from the sensitivities and the limits' nominal, % per axis
+    g = np.array([100 * (c.accel.extra["sensitivity"][1] / 835.0 - 1) for c in latest])
+    assert by_name[("accel", "gain error y")]["mean"] == pytest.approx(g.mean(), rel=1e-9)
+    # drift: the history's own test on each re-calibrated unit gives the same alarms
+    alarms = {a["serial"]: a for a in stats["drift"]["alarms"]}
+    assert stats["drift"]["units_checked"] == 2 and set(alarms) == {"SN000001"}
+    history = build_history(cals[1])
+    assert history["sensors"][0]["drifted"] == ["accel b_x"]
+    assert alarms["SN000001"]["drifted"][0].startswith("accel b_x (z = +")
+    assert build_history(cals[2])["sensors"][0]["drifted"] == []
+
+
+def test_cpk_of_one_sided_and_two_sided_limits():
+    x = np.array([1.0, 2.0, 3.0])
+    assert cpk(x, 5.0, two_sided=False) == pytest.approx((5 - 2) / 3)
+    assert cpk(x, 5.0, two_sided=True) == pytest.approx((5 - 2) / 3)
+    assert cpk(-x, 5.0, two_sided=True) == pytest.approx((5 - 2) / 3)
+    assert cpk(x + 10, 5.0, two_sided=True) < 0  # the mean beyond the limit
+    assert cpk(np.array([1.0]), 5.0, True) is None
+
+
+def test_no_such_lot(tmp_path, template):
+    reg, _, _ = _lot(tmp_path, template, n=3)
+    with reg, pytest.raises(RegistryError, match="no unit in lot"):
+        lot_statistics(reg, "other")
+

@@ -99,13 +99,19 @@ def _array(value: np.ndarray) -> dict:
     return out
 
 
+def _one_imu_default(value, name: str) -> bool:
+    """A one-IMU session's fields for several IMUs (no ``imus``, the default reference name):
+    left out, so that the recorded one-IMU sessions read as they were recorded."""
+    return name in ("imus", "reference_name") and not getattr(value, "imus", None)
+
+
 def fingerprint(value):
     """A JSON-ready fingerprint of ``value`` (a session, a segment, an array, ...)."""
     if isinstance(value, np.ndarray):
         return _array(value)
     if dataclasses.is_dataclass(value):
         return {f.name: fingerprint(getattr(value, f.name)) for f in dataclasses.fields(value)
-                if f.name != "path"}  # fmt: skip
+                if f.name != "path" and not _one_imu_default(value, f.name)}  # fmt: skip
     if isinstance(value, dict):
         return {str(k): fingerprint(v) for k, v in value.items()}
     if isinstance(value, list | tuple):

@@ -55,6 +55,21 @@ def test_pure_noise_learns_sigma_and_rarely_moves(minutes):
     assert 0.8 < np.median([s.level for s in ready]) < 1.2
 
 
+def test_the_verdict_does_not_depend_on_the_blocks():
+    """Windows are judged on a fixed grid: a host that reads one sample at a time tests no
+    more windows (so no more false alarms) than one reading ten (before, every block's last
+    sample was judged too: up to a quarter window's samples more tests)."""
+    rng = np.random.default_rng(5)
+    n = 6000
+    t = np.arange(n) / 100.0
+    a = 1000.0 + rng.standard_normal((n, 3)) * 5.0
+    a[3000:3050] += 200.0  # a bump
+    runs = {}
+    for block in (1, 3, 10):
+        states = _feed(StillnessDetector(), t, a, block=block)
+        runs[block] = [r for _, _, st in states for r in st.ended_runs]
+    assert runs[1] == runs[3] == runs[10] and len(runs[1]) >= 1
+
 def test_quantised_quiet_data_is_still():
     rng = np.random.default_rng(1)
     n = 20_000

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from imucal_cli.calibrate.imu_set import calibrate_set, set_suspect_error
 from imucal_cli.calibrate.session import calibrate_session, default_output, suspect_error
 from imucal_cli.calibrate.thermal import merge_sessions
 from imucal_cli.errors import ImucalError, InputError, SolverError
@@ -188,8 +189,14 @@ def calibrate_file(
     if also:
         session = merge_sessions([session, *(read_session(p) for p in also)])
     warm = [read_session(p) for p in warmup] if warmup else None
+    if session.imus and (accel is not None or warm or also):  # several IMUs (issue 28)
+        raise InputError(f"{path}: a session of several IMUs takes no --accel, --warmup or "
+                         "--with (each IMU is calibrated from the session itself)")
     try:
-        cal = calibrate_session(session, cfg, name=path.name, accel=accel, warmup=warm)
+        if session.imus:
+            cal = calibrate_set(session, cfg, name=path.name)
+        else:
+            cal = calibrate_session(session, cfg, name=path.name, accel=accel, warmup=warm)
     except np.linalg.LinAlgError as exc:  # issue 24.6: a one-line refusal, never a traceback
         raise SolverError(
             f"{path.name}: a solver met a singular system ({exc}): the data do not determine "
@@ -197,7 +204,7 @@ def calibrate_file(
         ) from None
     if also:
         cal.sessions = [path.name, *(p.name for p in also)]
-    problem = suspect_error(cal)
+    problem = set_suspect_error(cal) if session.imus else suspect_error(cal)
     if problem is not None and not force:
         raise problem
     write_calibration(out, cal, force=force, inputs=inputs)

@@ -10,6 +10,8 @@ import warnings
 from dataclasses import dataclass, fields, is_dataclass
 from pathlib import Path
 
+import numpy as np
+
 from imucal_cli import __version__
 from imucal_cli.calibrate.accel.estimators import AccelDesign
 from imucal_cli.calibrate.channels import check_channels
@@ -27,6 +29,7 @@ from imucal_cli.calibrate.gyro.estimators import GyroDesign
 from imucal_cli.calibrate.mag import MagDesign
 from imucal_cli.calibrate.registry import NotChosen, choose
 from imucal_cli.calibrate.thermal import attach, compensate, given_accel, temperature_models
+from imucal_cli.design.poses import count_distinct, unit
 from imucal_cli.errors import (
     ConfigError,
     DesignError,
@@ -267,6 +270,7 @@ def _outcomes(session: Session, cfg: Config, accel: Outcome, with_mag: bool
     """Every sensor's outcome (``{"accel", "gyro", "mag"}``: its section, or why it was left
     out), given the accelerometer's; the most telling refusal raised when nothing at all
     calibrates (issue 24.2: otherwise what calibrates is saved)."""
+    accel_why = accel.note if accel.refusal is not None else None  # the accelerometer's own
     if accel.refusal is not None:
         accel, gyro = _gyro_without_accel(session, cfg, accel)
     else:
@@ -274,6 +278,8 @@ def _outcomes(session: Session, cfg: Config, accel: Outcome, with_mag: bool
     mag = _mag_outcome(session, cfg, accel.section) if with_mag else Outcome()
     found = {"accel": accel, "gyro": gyro, "mag": mag}
     if all(o.section is None for o in found.values()):
+        if accel_why is not None and cfg.gyro.solver != "none":
+            _refuse_turn_session(session, cfg, accel_why)
         for o in found.values():
             if o.refusal is not None:
                 raise o.refusal from None
@@ -282,6 +288,30 @@ def _outcomes(session: Session, cfg: Config, accel: Outcome, with_mag: bool
             f"data, and the gyro was not calibrated ({gyro.note or '[gyro] solver is none'})"
         )
     return found
+
+
+def _refuse_turn_session(session: Session, cfg: Config, why: str) -> None:
+    """A session of turns between still periods (qureshi-axes, free:N: a gyro procedure,
+    Qureshi & Golnaraghi Fig. 2, with the accelerometer calibrated first) whose still periods
+    do not determine the accelerometer, so that nothing calibrates: refused with what the
+    turns are for and what would calibrate them (issue 24.7d: the accelerometer's refusal
+    spoke of poses and plan random:12 alone; ``why`` is that refusal, kept at the end).
+    Returns where the session is not such."""
+    turns = session.rotation_segments()
+    statics = session.static_segments()
+    if 2 * len(turns) < 9 or session.accel is None or not statics:
+        return
+    means = np.array([session.accel[s.start : s.stop].mean(axis=0) for s in statics])
+    distinct = count_distinct(unit(means), cfg.accel.min_separation_deg)
+    raise DesignError(
+        f"{session_name(session)}: its {len(turns)} turns between still periods calibrate the "
+        "gyro against an accelerometer calibration, which this session cannot give (its "
+        f"{len(statics)} still periods point in {distinct} distinct directions, the "
+        "gravity-magnitude model needs 9): pass an earlier calibration of this unit's "
+        "accelerometer, --accel CAL.json (plan six or qureshi18), or capture turns whose still "
+        "periods point in 9 or more directions, which calibrate both (plan qureshi-axes:3 or "
+        f"more, free:12 or more). The accelerometer: {why}"
+    )
 
 
 def _prepare(

@@ -310,6 +310,7 @@ class Recorder:
             overwrite=self._overwrite,
             publish_early=True,
             reserve_bytes=RESERVE_BYTES,
+            imus=self.protocol.imu_layouts() if hasattr(self.protocol, "imu_layouts") else None,
             **meta,
         )
 
@@ -347,6 +348,11 @@ class Recorder:
         try:
             self._writer.append(time, block.accel, block.gyro, block.temperature, block.mag,
                                 host_time=host)  # fmt: skip
+            for name, other in getattr(block, "others", {}).items():  # several IMUs (issue 28)
+                if len(other):
+                    self._writer.append_imu(name, other.time, accel=other.accel,
+                                            gyro=other.gyro, mag=other.mag,
+                                            temperature=other.temperature)  # fmt: skip
         except WriteFailed as exc:
             return self._write_failed(exc)
         if self._device_first is None:

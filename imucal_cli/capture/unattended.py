@@ -28,6 +28,12 @@ Every second the still periods since the last confirmed one are searched again.
   direction before onto the one after within :data:`MATCH_DEG`.  Without a gyroscope, rotation
   steps are counted as motions between still periods.
 
+A plan with rotation steps is performed in its order (each turn starts from the pose before
+it): the still periods and the motions between them are aligned with the steps in plan order
+(:func:`_match_in_order`, an edit distance that sees as many steps as possible; a pause within
+a turn or the move to the next block's face is passed over), with the fits above; a pose plan
+is matched in any order as above.
+
 The segments written are the offline result; their labels, ``up``, ``axis`` and ``angle_deg``
 come from the step they match unambiguously as above, else they are left unlabelled.
 """
@@ -45,6 +51,8 @@ from imucal_cli.design.segmentation import find_rotations, find_static
 from imucal_cli.errors import InputError
 from imucal_cli.formats.columns import SampleBlock
 from imucal_cli.plans import CaptureSummary, Plan, Step
+
+from .targets_watch import TargetWatcher
 
 __all__ = [
     "FINAL_HOLD_EXTRA_S",
@@ -130,6 +138,8 @@ class _Matches:
     still: list[int | None]
     motion: list[int | None]  # motion i is between still i and i + 1
     directions_used: bool
+    ordered: bool = False  # aligned in plan order: every step seen is matched
+    checked: set | None = None  # ordered: (0 still / 1 motion, index) the data checked
 
 
 def _directions_usable(stills: list[_Still]) -> bool:
@@ -176,38 +186,109 @@ def _axis_checkable(step: Step) -> bool:
     return step.axis is not None and (step.mounting or 1) == 1
 
 
+def _motion_fits(step: Step, motion: tuple[np.ndarray, np.ndarray], before: _Still,
+                 after: _Still, use_directions: bool) -> bool:  # fmt: skip
+    """Whether a motion between two still periods is the rotation ``step`` (its axis checkable):
+    its axis within :data:`MATCH_DEG` (either sign for a turn of any angle or a sweep: the
+    principal axis of the rate), and a turn of known angle taking the direction before onto
+    the one after."""
+    rotvec, principal = motion
+    if step.angle_deg is None:  # a turn of any angle, or a sweep back and forth
+        angle = _angle_deg(principal, step.axis)
+        return min(angle, 180.0 - angle) <= MATCH_DEG
+    ok = _angle_deg(rotvec * np.sign(step.angle_deg), step.axis) <= MATCH_DEG
+    if ok and use_directions and before.mean_accel is not None:
+        turn = Rotation.from_rotvec(np.radians(step.angle_deg) * np.asarray(step.axis))
+        predicted = turn.inv().apply(before.mean_accel)
+        ok = _angle_deg(predicted, after.mean_accel) <= MATCH_DEG
+    return ok
+
+
 def _match_motion(
     steps: list[tuple[int, Step]], motion: tuple[np.ndarray, np.ndarray], before: _Still,
     after: _Still, use_directions: bool, used: set[int], after_step: int | None,
 ) -> int | None:  # fmt: skip
     """The first rotation step in plan order, not matched yet, that the motion fits; right
     after a still matched to step j, only step j + 1 (the plan's turn after that pose)."""
-    rotvec, principal = motion
     close = []
     for i, step in steps:
         if i in used or not _axis_checkable(step):
             continue
         if after_step is not None and i != after_step + 1:
             continue
-        if step.angle_deg is None:  # a turn of any angle, or a sweep back and forth
-            angle = _angle_deg(principal, step.axis)
-            ok = min(angle, 180.0 - angle) <= MATCH_DEG
-        else:
-            ok = _angle_deg(rotvec * np.sign(step.angle_deg), step.axis) <= MATCH_DEG
-            if ok and use_directions and before.mean_accel is not None:
-                turn = Rotation.from_rotvec(np.radians(step.angle_deg) * np.asarray(step.axis))
-                predicted = turn.inv().apply(before.mean_accel)
-                ok = _angle_deg(predicted, after.mean_accel) <= MATCH_DEG
-        if ok:
+        if _motion_fits(step, motion, before, after, use_directions):
             close.append(i)
     if close:
         used.add(close[0])
     return close[0] if close else None
 
 
+#: A match the data check (a still's direction on a step's ``up``, a motion's axis on a step's
+#: ``axis``) outweighs one that is only counted, when both see as many steps.
+_CHECKED = 1.001
+
+
+def _match_in_order(plan: Plan, stills: list[_Still], time: np.ndarray,
+                    gyro: np.ndarray | None, use_directions: bool) -> _Matches:  # fmt: skip
+    """A plan with turns, performed in its order (each turn starts from the pose before it):
+    the still periods and the motions between them, in time order, aligned with the steps in
+    plan order so that as many steps as possible are seen (dynamic programming, as in an edit
+    distance).  A still period fits a static step with ``up`` when its direction is within
+    :data:`MATCH_DEG` of it (any still when directions are not usable: counted), and any
+    static step without ``up``; a motion fits a rotation step whose axis it matches
+    (:func:`_motion_fits`), or any rotation step the gyro cannot check.  A still period or a
+    motion the plan has no step for (a pause within a turn, the move to the next block's
+    face) is passed over, and so is a step not seen."""
+    steps = plan.steps
+    n, m = len(stills), len(steps)
+    n_items = 2 * n - 1  # still 0, motion 0, still 1, ..., still n - 1
+    fit = np.zeros((max(n_items, 0), m))
+    static = np.array([s.kind == "static" for s in steps], bool)
+    if n and static.any():
+        fit[0::2, static] = 1.0  # counted
+        ups = [j for j, s in enumerate(steps) if s.kind == "static" and s.up is not None]
+        means = [st.mean_accel for st in stills]
+        if ups and use_directions and all(a is not None for a in means):
+            d = np.array(means) / np.linalg.norm(means, axis=1, keepdims=True)
+            u = np.array([steps[j].up for j in ups], float)
+            cos = d @ (u / np.linalg.norm(u, axis=1, keepdims=True)).T
+            near = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) <= MATCH_DEG
+            fit[0::2, ups] = np.where(near, _CHECKED, 0.0)
+    turns = [j for j, s in enumerate(steps) if s.kind == "rotation"]
+    for k, (before, after) in enumerate(zip(stills[:-1], stills[1:], strict=True)):
+        mv = None if gyro is None else _motion_rotvec(time, gyro, before, after)
+        for j in turns:
+            if gyro is None or not _axis_checkable(steps[j]):
+                fit[2 * k + 1, j] = 1.0
+            elif mv is not None and _motion_fits(steps[j], mv, before, after, use_directions):
+                fit[2 * k + 1, j] = _CHECKED
+    best = np.zeros((n_items + 1, m + 1))
+    for t in range(1, n_items + 1):  # best[t, j] = max(skip item, skip step, match)
+        pair = np.where(fit[t - 1] > 0, best[t - 1, :-1] + fit[t - 1], -1.0)
+        best[t, 1:] = np.maximum.accumulate(np.maximum(best[t - 1, 1:], pair))
+    still: list[int | None] = [None] * n
+    motion: list[int | None] = [None] * max(n - 1, 0)
+    checked: set[tuple[int, int]] = set()
+    t, j = n_items, m
+    while t > 0 and j > 0:  # back from the end: a match where it made the score
+        f = fit[t - 1, j - 1]
+        if f and best[t, j] == best[t - 1, j - 1] + f:
+            (still if (t - 1) % 2 == 0 else motion)[(t - 1) // 2] = j - 1
+            if f == _CHECKED:
+                checked.add(((t - 1) % 2, (t - 1) // 2))
+            t, j = t - 1, j - 1
+        elif best[t, j] == best[t - 1, j]:
+            t -= 1
+        else:
+            j -= 1
+    return _Matches(still, motion, use_directions, ordered=True, checked=checked)
+
+
 def _match(plan: Plan, stills: list[_Still], time: np.ndarray, gyro: np.ndarray | None) -> _Matches:
     use_directions = _directions_usable(stills)
     steps = plan.steps
+    if any(s.kind == "rotation" for s in steps):
+        return _match_in_order(plan, stills, time, gyro, use_directions)
     step_ups = [(i, s.up) for i, s in enumerate(steps) if s.kind == "static" and s.up is not None]
     used: set[int] = set()
     still = [
@@ -232,6 +313,9 @@ def _match(plan: Plan, stills: list[_Still], time: np.ndarray, gyro: np.ndarray 
 def _progress(plan: Plan, stills: list[_Still], matches: _Matches, has_gyro: bool):
     """Return (done, missing): step labels of the plan seen and not seen, in plan order."""
     seen = set(i for i in matches.still + matches.motion if i is not None)
+    if matches.ordered:
+        done = [s.label for i, s in enumerate(plan.steps) if i in seen]
+        return done, [s.label for i, s in enumerate(plan.steps) if i not in seen]
     statics = [i for i, s in enumerate(plan.steps) if s.kind == "static"]
     rotations = [i for i, s in enumerate(plan.steps) if s.kind == "rotation"]
     # Steps that can only be counted: static steps without up (or when directions are not
@@ -312,9 +396,14 @@ def segment_recording(
     if plan is not None:
         matches = _match(plan, stills, time, gyro)
         done, missing = _progress(plan, stills, matches, gyro is not None)
-        still_steps = [None if i is None else plan.steps[i] for i in matches.still]
-        for before, m in zip(stills[:-1], matches.motion, strict=True):
-            motion_by_start[before.stop] = None if m is None else plan.steps[m]
+        # a segment is labelled by the step the data checked (a direction, an axis); a step
+        # only counted leaves its segment unlabelled
+        told = (lambda kind, k: True) if not matches.ordered else (
+            lambda kind, k: (kind, k) in matches.checked)  # fmt: skip
+        still_steps = [None if i is None or not told(0, k) else plan.steps[i]
+                       for k, i in enumerate(matches.still)]  # fmt: skip
+        for k, (before, m) in enumerate(zip(stills[:-1], matches.motion, strict=True)):
+            motion_by_start[before.stop] = None if m is None or not told(1, k) else plan.steps[m]
     entries = [
         SegmentPlanEntry("static", s.start, s.stop, step)
         for s, step in zip(stills, still_steps, strict=True)
@@ -390,6 +479,9 @@ def run_unattended(
     min_still_s: float = 1.0,
     on_status: Callable[[str], None] | None = None,
     done_before: list[str] | None = None,
+    targets=None,
+    refit: Callable | None = None,
+    gravity: float = 9.80665,
 ) -> CaptureSummary:
     """Record without a keyboard, then segment the recording; see the module notes.
 
@@ -409,6 +501,10 @@ def run_unattended(
         Continuing a capture (``recorder.resumed_from`` samples already in the session): the
         labels of the steps its segments already hold; only the other steps are looked for,
         and the new segments follow the old samples.
+    targets, refit, gravity
+        Accuracy targets (:class:`~imucal_cli.formats.targets.Targets`) and the refit of the
+        recording so far (:class:`~imucal_cli.capture.targets_watch.TargetWatcher`): the
+        recording stops once every target is met, which is then what ``complete`` means.
 
     Returns
     -------
@@ -416,8 +512,8 @@ def run_unattended(
         ``complete``: with a plan, every step seen in the segmented recording; without one,
         the recording ran for ``duration_s``.
     """
-    if plan is None and duration_s is None:
-        raise ValueError("run_unattended needs a plan or a duration")
+    if plan is None and duration_s is None and not targets:
+        raise ValueError("run_unattended needs a plan, a duration or targets")
     say = on_status or (lambda message: None)
     before = list(done_before or [])
     if plan is not None and before:
@@ -427,7 +523,14 @@ def run_unattended(
                                   end_reason="every step of the plan was already in the session",
                                   samples=recorder.n_samples, stats=recorder.stats)  # fmt: skip
     base = int(getattr(recorder, "resumed_from", 0))  # the new segments follow the old
-    buffer, reached_duration = _record(recorder, plan, duration_s, min_still_s, say)
+    watcher = None
+    if targets:
+        watcher = TargetWatcher(targets, refit, lambda t, a, g: [
+            (e.kind, e.start, e.stop, _attrs(e.step)) for e in segment_recording(
+                t, a, g, plan, min_still_s=min_still_s)[0]],
+            units=(getattr(recorder, "accel_units", None), getattr(recorder, "gyro_units", None)),
+            gravity=gravity)  # fmt: skip
+    buffer, reached_duration = _record(recorder, plan, duration_s, min_still_s, say, watcher)
     done: list[str] = []
     missing: list[str] = [] if plan is None else [s.label for s in plan.steps]
     time, accel, gyro = buffer.get("time"), buffer.get("accel"), buffer.get("gyro")
@@ -437,6 +540,12 @@ def run_unattended(
             attrs = {} if e.step is None else e.step.segment_attrs()
             recorder.add_segment(e.kind, base + e.start, base + e.stop, **attrs)
     complete = not missing if plan is not None else reached_duration
+    if watcher is not None:  # with targets: every target met (the plan, if any, aside)
+        if time is not None and len(time) >= 10:
+            watcher.n_still = -1  # the whole recording, once more, as it is segmented
+            watcher.update(time, accel, gyro, say)
+        complete = watcher.met
+        missing = [s.describe() for s in watcher.statuses if not s.met]
     return CaptureSummary(
         complete=complete,
         done=[label for label in before if plan is None or label not in missing] + done,
@@ -445,7 +554,17 @@ def run_unattended(
         end_reason=recorder.end_reason,
         samples=recorder.n_samples,
         stats=recorder.stats,
+        targets=[] if watcher is None else list(watcher.statuses),
     )
+
+
+def _attrs(step: Step | None) -> dict:
+    """A segment's attributes from the plan step it matches (none: ``{}``)."""
+    if step is None:
+        return {}
+    attrs = step.segment_attrs()
+    attrs.pop("extra", None)
+    return attrs
 
 
 def _left_to_do(plan: Plan, before: list[str], say) -> tuple[list[str], Plan]:
@@ -460,7 +579,8 @@ def _left_to_do(plan: Plan, before: list[str], say) -> tuple[list[str], Plan]:
     return matched, Plan(plan.name, tuple(left))
 
 
-def _record(recorder, plan: Plan | None, duration_s: float | None, min_still_s: float, say):
+def _record(recorder, plan: Plan | None, duration_s: float | None, min_still_s: float, say,
+            targets: TargetWatcher | None = None):  # fmt: skip
     """Record until ``duration_s`` of device time after the first sample, or until every step
     of ``plan`` is seen (checked every :data:`CHECK_EVERY_S`), or the recorder ends; returns
     the samples and whether the duration was reached."""
@@ -470,6 +590,7 @@ def _record(recorder, plan: Plan | None, duration_s: float | None, min_still_s: 
     last_check = _time.monotonic()
     reached_duration = False
     reported: list[str] | None = None
+    met = False
     for block in recorder.blocks():
         now = _time.monotonic()
         if len(block):
@@ -484,8 +605,15 @@ def _record(recorder, plan: Plan | None, duration_s: float | None, min_still_s: 
             reached_duration = True
             say(f"{duration_s:g} s recorded")
             recorder.stop()
-        if watcher is not None and now - last_check >= CHECK_EVERY_S:
+        due = now - last_check >= CHECK_EVERY_S
+        if due:
             last_check = now
+        if targets is not None and due and not met:
+            if targets.update(buffer.get("time"), buffer.get("accel"), buffer.get("gyro"), say):
+                met = True
+                say("every target met")
+                recorder.stop()
+        if watcher is not None and due:
             if watcher.update(buffer):
                 say("every step of the plan was seen")
                 recorder.stop()

@@ -27,10 +27,12 @@ from imucal_cli.formats.text import clean_text
 from . import apply as _apply  # noqa: F401
 from . import calibrate as _calibrate  # noqa: F401
 from . import capture as _capture  # noqa: F401
+from . import certificate as _certificate  # noqa: F401
 from . import export as _export  # noqa: F401
 from . import import_ as _import  # noqa: F401
 from . import label as _label  # noqa: F401
 from . import noise as _noise  # noqa: F401
+from . import registry as _registry  # noqa: F401
 from . import report as _report  # noqa: F401
 from . import simulate as _simulate  # noqa: F401
 from .app import app

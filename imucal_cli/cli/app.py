@@ -35,6 +35,11 @@ EXIT_CODES = (
         "capture: the session is saved but incomplete (steps missing, interrupted, device "
         "gone, data stopped)",
     ),
+    (
+        4,
+        "calibrate --limits: saved, but the unit is outside its product's limits (rejected; "
+        "the failed figures are named)",
+    ),
     (130, "interrupted (Ctrl-C) before anything was saved"),
 )
 """The exit statuses of every command (the same table is in docs/commands.md)."""

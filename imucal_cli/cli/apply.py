@@ -4,15 +4,18 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import typer
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from imucal_cli.formats.calibration import read_calibration
 from imucal_cli.use.apply import apply_calibration
+from imucal_cli.use.apply_set import apply_set
 
 from . import completion
 from .app import app
 from .console import make_console, print_json
+from .imu_set import set_summary
 from .options import (
     argument,
     calibration_argument,
@@ -45,6 +48,16 @@ def apply_(
     rate: float | None = rate_option("CSV input without a t column: sample rate in Hz."),
     force: bool = force_option("Overwrite OUTPUT."),
     json_output: bool = json_option("Print what was written as JSON on stdout (nothing else)."),
+    imu: str | None = typer.Option(
+        None, "--imu", metavar="NAME",
+        help="A session of several IMUs: calibrate IMU NAME alone (h5 or csv); without it "
+        "every IMU goes to the .h5 (/calibrated and /calibrated_imus/NAME).",
+    ),
+    reference_frame: bool = typer.Option(
+        False, "--reference-frame",
+        help="Several IMUs: each IMU rotated into the reference IMU's calibrated frame and its "
+        "times shifted onto the reference's (rotation_to_reference, time_offset_s).",
+    ),
 ) -> None:
     """Apply a calibration to every sample: calibrated = matrix @ (raw - bias).
 
@@ -54,6 +67,11 @@ def apply_(
     sensor, channel count or units that differ, time not increasing, OUTPUT exists).
     """
     cal = read_calibration(calibration)
+    if imu is not None or reference_frame or cal.imus:  # several IMUs (issue 28)
+        summary = apply_set(cal, input_file, output, cal_source=str(calibration), imu=imu,
+                            reference_frame=reference_frame, fmt=fmt, overwrite=force)
+        set_summary(summary, input_file, calibration, output, json_output)
+        return
     with _ProgressBar() as bar:
         summary = apply_calibration(
             cal, input_file, output, cal_source=str(calibration), fmt=fmt, columns=columns,

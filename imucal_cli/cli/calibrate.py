@@ -23,8 +23,10 @@ from imucal_cli.model.gyro import GyroCalibration
 from imucal_cli.model.mag import Readings
 from imucal_cli.model.parts import By
 
+from .acceptance import REJECTED, prepare, print_lines, registry_option, worst
 from .app import app
 from .console import Piece, make_console, print_json, print_line
+from .imu_set import set_lines, set_warnings
 from .options import gravity_option, json_option, output_option, session_argument
 
 
@@ -81,6 +83,36 @@ def calibrate(
         "Print the result as JSON on stdout (nothing else): where it was written and the "
         "calibration itself; several sessions: one entry each (schemas: docs/commands.md)."
     ),
+    limits: Path | None = typer.Option(
+        None, "--limits", metavar="PRODUCT.toml",
+        help="Judge the unit against its product's acceptance limits ([limits.accel] bias_max, "
+        "gain_error_max_pct, misalignment_max_deg, noise_max, residual_rms_max, "
+        f"held_out_rms_max; docs/registry.md): pass, or fail naming the figures (exit {REJECTED})."
+    ),  # fmt: skip
+    registry: str | None = registry_option(
+        "Also record the calibration in this registry (a SQLite file, made if missing, or "
+        "postgresql+psycopg://user@host/db): serial, product, lot, station, operator, the "
+        "session's content hash, the verdict and the whole calibration."
+    ),
+    serial: str | None = typer.Option(
+        None, "--serial", metavar="SERIAL",
+        help="--registry: the unit's serial [default: the session's sensor].",
+    ),
+    product: str | None = typer.Option(
+        None, "--product", metavar="NAME",
+        help="--registry: the unit's product [default: the --limits file's].",
+    ),
+    lot: str | None = typer.Option(
+        None, "--lot", metavar="LOT", help="--registry: the unit's lot."
+    ),
+    station: str | None = typer.Option(
+        None, "--station", envvar="IMUCAL_STATION", metavar="NAME",
+        help="--registry: the calibration station (or $IMUCAL_STATION).",
+    ),  # fmt: skip
+    operator: str | None = typer.Option(
+        None, "--operator", envvar="IMUCAL_OPERATOR", metavar="NAME",
+        help="--registry: who calibrated (or $IMUCAL_OPERATOR).",
+    ),  # fmt: skip
 ) -> None:
     """Calibrate the sensors of SESSION the config asks for and write a calibration JSON.
 
@@ -93,18 +125,33 @@ def calibrate(
     bad config, a session that cannot determine any sensor, or a required one; OUTPUT exists
     without --force or is the session); 1 the solver did not converge or the result is outside
     physical sense (not saved unless --force), or saved but not stored in the session (the
-    reason is printed).  Several sessions: the worst of theirs.
+    reason is printed; or, with --registry, not recorded); 4 saved, and outside the limits of
+    --limits (the unit is rejected: the failed figures are named; recorded with --registry).
+    Several sessions: the worst of theirs (2, then 1, then 4).
     """
     cfg = _config(config, model, gravity)
+    unit = prepare(sessions, registry=registry, limits=limits, serial=serial, product=product,
+                   lot=lot, station=station, operator=operator)  # fmt: skip
+    try:
+        _calibrate(sessions, cfg, config, output, force, store, accel, warmup, also, jobs,
+                   json_output, unit)  # fmt: skip
+    finally:
+        if unit is not None:
+            unit.close()
+
+
+def _calibrate(sessions, cfg, config, output, force, store, accel, warmup, also, jobs,
+               json_output, unit) -> None:  # fmt: skip
+    """``calibrate`` once the options are checked (``unit``: the limits and the registry)."""
     accel_cal = None
     if accel is not None:
         accel_cal = load_accel(accel)
     if len(sessions) > 1:
         _one_file_options(output, warmup, also)
-        raise typer.Exit(_many(sessions, cfg, jobs, force, store, json_output, accel_cal))
+        raise typer.Exit(_many(sessions, cfg, jobs, force, store, json_output, accel_cal, unit))
     inputs = [config, accel, *(warmup or []), *(also or [])]
     _one(sessions[0], cfg, output, force, store, json_output, accel_cal, inputs=inputs,
-         warmup=warmup, also=also)  # fmt: skip
+         warmup=warmup, also=also, unit=unit)  # fmt: skip
 
 
 def _one_file_options(output: Path | None, warmup, also) -> None:
@@ -118,24 +165,29 @@ def _one_file_options(output: Path | None, warmup, also) -> None:
 
 
 def _one(session: Path, cfg, output: Path | None, force: bool, store: bool, json_output: bool,
-         accel, *, inputs: list, warmup, also) -> None:  # fmt: skip
-    """Calibrate one session, write (and store) it, and say what came out."""
+         accel, *, inputs: list, warmup, also, unit=None) -> None:  # fmt: skip
+    """Calibrate one session, write (and store) it, judge and record it (``unit``), and say
+    what came out."""
     cal, out, stored = calibrate_file(
         session, cfg, output=output, force=force, store=store, inputs=inputs, accel=accel,
         warmup=warmup, also=also,
     )  # fmt: skip
-    # Saved: from here on the exit status is 0, or 1 with the reason (never 2).
+    # Saved: from here on the exit status is 0, 4 (rejected) or 1 with the reason (never 2).
+    code, doc, lines = (0, {}, []) if unit is None else unit.finish(cal, session)
     if json_output:
-        print_json(_result_json(cal, out, stored))
+        print_json({**_result_json(cal, out, stored), **doc})
     else:
         _summary(partial(print_line, make_console()), cal, f"{out}{stored.words()}")
+        print_lines(lines)
     if stored.failed:
         print_line(
             make_console(stderr=True),
             f"imucal: error: saved {out} but could not store it in the session "
             f"({stored.why_not}); pass --no-store not to store it"
         )
-        raise typer.Exit(1)
+        code = code or 1
+    if code:
+        raise typer.Exit(code)
 
 
 def _config(config: Path | None, model: str | None, gravity: float | None):
@@ -153,6 +205,7 @@ def _result_json(cal, out: Path, stored: Stored) -> dict:
     """The ``imucal-calibrate`` document (docs/commands.md)."""
     warnings = [w for s in (cal.accel, cal.gyro, cal.mag) if s
                 for w in s.warnings or []]  # fmt: skip
+    warnings += set_warnings(cal)
     left_out = dict(cal.left_out or {})
     warnings += list(left_out.values())
     return {"format": "imucal-calibrate", "format_version": 1, "output": str(out),
@@ -163,7 +216,7 @@ def _result_json(cal, out: Path, stored: Stored) -> dict:
 
 def _many(
     sessions: list[Path], cfg, jobs: int, force: bool, store: bool, json_output: bool = False,
-    accel=None,
+    accel=None, unit=None,
 ) -> int:
     """Calibrate several sessions with a progress bar; one table; the worst exit status."""
     console = make_console(stderr=json_output)
@@ -184,12 +237,18 @@ def _many(
             progress=lambda _r: bar.advance(task),
         )  # fmt: skip
     wall = time.perf_counter() - t0
+    after = {}  # session -> (code, doc, lines): judged and recorded (--limits, --registry)
+    if unit is not None:
+        after = {r.session: unit.finish_saved(Path(r.session), Path(r.output))
+                 for r in results if r.exit_code == 0 and r.output}  # fmt: skip
+    codes = [after[r.session][0] if r.session in after else r.exit_code for r in results]
     if json_output:
-        rows = [{"session": r.session, "exit_code": r.exit_code, "error": r.error,
-                 "figures": r.figures.to_dict() if r.figures else {}}
-                for r in results]  # fmt: skip
+        rows = [{"session": r.session, "exit_code": code, "error": r.error,
+                 "figures": r.figures.to_dict() if r.figures else {},
+                 **after.get(r.session, (0, {}, []))[1]}
+                for r, code in zip(results, codes, strict=True)]  # fmt: skip
         print_json({"format": "imucal-calibrate-many", "format_version": 1, "results": rows})
-        return max((r.exit_code for r in results), default=0)
+        return worst(codes)
     table = Table(title=f"{len(sessions)} sessions")
     with_mag = any(r.figures and "mag" in r.figures.solvers for r in results)
     columns = ["session", "result", "accel |a|-g RMS, m/s^2", "gyro turn RMS, deg"]
@@ -222,7 +281,11 @@ def _many(
         f"{len(results) - len(failed)} saved, {len(failed)} failed in {wall:.1f} s, "
         f"{cpu:.1f} s CPU ({len(results) / max(cpu, 1e-9):.1f} sessions per CPU second)"
     )
-    return max((r.exit_code for r in failed), default=0)
+    for session, (_code, _doc, lines) in after.items():
+        console.print(f"[bold]{escape(session)}[/]", soft_wrap=True)
+        for line in lines:
+            console.print(f"  {line}", soft_wrap=True)
+    return worst(codes)
 
 
 BOLD, WARN = "bold", "bold yellow"
@@ -247,8 +310,7 @@ def _summary(line, cal, where: str) -> None:
         line(("temperature", BOLD), f": {cal.temperature_note}")
     clock = cal.sample_clock
     if clock is not None and clock.ppm is not None:
-        within = f"within {clock.threshold_ppm or 0.0:.3g} ppm of none: not corrected"
-        done = "gyro corrected" if clock.applied in (None, True) else within
+        done = _clock_done(clock, gyro_saved=cal.gyro is not None)
         line(
             ("sample clock", BOLD),
             f": {clock.ppm:+.1f} ± {clock.ppm_std:.1f} ppm (device s per true s - 1, "
@@ -256,9 +318,19 @@ def _summary(line, cal, where: str) -> None:
         )
     elif clock is not None and clock.note:
         line(("sample clock", BOLD), f": {clock.note}")
+    for text in set_lines(cal):  # several IMUs (issue 28)
+        line(text)
     if cal.left_out:  # issue 24.2: saved, but not every sensor of the session is in it
         where += f" (partial: {', '.join(cal.left_out)} left out, see above)"
     line(f"wrote {where}")
+
+
+def _clock_done(clock, *, gyro_saved: bool) -> str:
+    """What the sample clock's estimate changed: the gyro only when it was applied and a
+    gyro was calibrated (issue 24.4: nothing is said about a correction that did not act)."""
+    if clock.applied is False:
+        return f"within {clock.threshold_ppm or 0.0:.3g} ppm of none: not corrected"
+    return "gyro corrected" if gyro_saved else "no gyro calibrated, so nothing corrected"
 
 
 def _section_lines(line, name: str, sec) -> None:

@@ -15,6 +15,7 @@ from rich.console import Console
 from rich.markup import escape
 
 from imucal_cli.capture import guided, stream
+from imucal_cli.capture.imu_set import SetLineProtocol
 from imucal_cli.capture.recorder import Recorder
 from imucal_cli.capture.serial_port import SerialSource
 from imucal_cli.capture.unattended import run_unattended
@@ -27,6 +28,7 @@ from imucal_cli.plans import CaptureSummary, load_plan, needs_temperature
 from . import completion
 from .app import app
 from .console import make_console, print_json
+from .imu_set import capture_set, open_ports
 from .options import (
     Force,
     SensorText,
@@ -44,6 +46,7 @@ from .options import (
     time_unit_option,
     units_option,
 )
+from .until import adaptive_options, refit_with, summary_rows, targets_of
 
 EXIT_COMPLETE, EXIT_INCOMPLETE, EXIT_INTERRUPTED = 0, 3, 130
 """Exit statuses of the README's table: the session is complete; saved but incomplete; Ctrl-C
@@ -58,8 +61,9 @@ def default_output() -> Path:
 
 # The options, in the order --help lists them -------------------------------------------------
 
-Port = Annotated[str, typer.Option(
-    "--port", "-p", metavar="PORT", help="Serial port (/dev/ttyUSB0, COM3, a pty).",
+Port = Annotated[list[str], typer.Option(
+    "--port", "-p", metavar="PORT", help="Serial port (/dev/ttyUSB0, COM3, a pty); several "
+    "(--port A --port B): one IMU each, the first the reference, all in one session.",
     autocompletion=completion.ports,
 )]  # fmt: skip
 Baud = alias(int, baud_option("Baud rate.", "-b"))
@@ -112,7 +116,23 @@ WaitTimeout = Annotated[float, typer.Option(
 ReadTimeout = Annotated[float, typer.Option(
     "--read-timeout", metavar="SECONDS", help="End the capture when the data stops this long."
 )]  # fmt: skip
-Hold = alias(float, hold_option("Guided mode: seconds to hold each pose still.", 2.0))
+Hold = alias(float | None, hold_option(
+    "Guided mode: seconds to hold each pose still [default: 2; with --until the shortest hold, "
+    "0.5: each hold then ends by itself once more samples no longer help].", None,
+))  # fmt: skip
+Until = Annotated[str | None, typer.Option(
+    "--until", metavar="TARGETS",
+    help="Capture until the calibration is this good (1 std, worst axis), e.g. "
+    "accel=0.05%,gyro=0.05% or accel.bias=0.5mg,gyro.bias=0.01deg/s,gyro.misalignment=0.05deg "
+    "(terms gain, bias, misalignment): after every hold the session so far is calibrated and "
+    "each target's std shown; the guide proposes the pose that helps most (without --plan) and "
+    "says done when every target is met; --no-prompt stops there too.",
+)]  # fmt: skip
+ConfigFile = Annotated[Path | None, typer.Option(
+    "--config", "-c", metavar="FILE.toml",
+    help="With targets: the calibrate config the refits use, and its [targets] (--until "
+    "overrides them term by term).",
+)]  # fmt: skip
 Resume = Annotated[Path | None, typer.Option(
     "--resume", metavar="SESSION.h5",
     help="Continue an interrupted capture into SESSION (give the same --plan): new samples are "
@@ -142,7 +162,9 @@ def capture(
     min_still: MinStill = 1.0,
     wait_timeout: WaitTimeout = 10.0,
     read_timeout: ReadTimeout = 5.0,
-    hold: Hold = 2.0,
+    hold: Hold = None,
+    until: Until = None,
+    config: ConfigFile = None,
     force: Force = False,
     resume: Resume = None,
     json_output: JsonOutput = False,
@@ -158,10 +180,14 @@ def capture(
     An interrupted capture goes on with --resume SESSION: the same file, the plan's progress
     taken from the segments already there.
 
+    With --until (or a config's [targets]) the capture goes on until the calibration of what
+    it recorded meets every target: complete then means every target met.
+
     Exit status: 0 the session is complete; 3 the session is saved but incomplete (steps of
-    the plan not seen, interrupted, device gone, data stopped, the disk full: stopped in time
-    with every sample); 2 bad input (no such port, bad --columns or plan, time stamps in the
-    wrong --time-unit, no data at all: nothing saved); 130 Ctrl-C before any data.
+    the plan not seen, targets not met, interrupted, device gone, data stopped, the disk full:
+    stopped in time with every sample); 2 bad input (no such port, bad --columns or plan,
+    time stamps in the wrong --time-unit, no data at all: nothing saved); 130 Ctrl-C before
+    any data.
     """
     console = make_console(stderr=json_output)  # with --json, stdout holds the JSON alone
     err = make_console(stderr=True)
@@ -170,24 +196,30 @@ def capture(
         err.print(f"imucal: {escape(message)}", soft_wrap=True)
 
     check_mag_options(mag_units, field_ut)
-    stream_protocol = _stream_protocol(protocol, lambda: ColumnSpec.parse(columns, time_unit),
-                                       status)  # fmt: skip
+    several = capture_set(port, columns, time_unit, protocol, resume is not None)  # issue 28
+    stream_protocol = several if isinstance(several, SetLineProtocol) else _stream_protocol(
+        protocol, lambda: ColumnSpec.parse(columns, time_unit), status)  # fmt: skip
     if protocol != "lines":  # the format fixes the units (counts)
         accel_units, gyro_units = accel_units or "counts", gyro_units or "counts"
-    _check_limits({"--duration": duration, "--min-still": min_still,
+    _check_limits({"--duration": duration, "--min-still": min_still, "--hold": hold,
                    "--wait-timeout": wait_timeout, "--read-timeout": read_timeout})  # fmt: skip
-    plan_obj, guided = _plan_and_mode(plan, no_prompt, duration)
+    targets, cfg = targets_of(until, config)
+    if targets and resume is not None:
+        raise InputError("--resume continues a plan; a capture with targets starts afresh: "
+                         "leave out --resume (or --until and [targets])")
+    plan_obj, guided = _plan_and_mode(plan, no_prompt, duration, targets)
     _check_temperature(plan_obj, protocol, stream_protocol)
     out = _output_path(output, resume, force)
     done_before = None if resume is None else _done_before(resume, guided is not None)
-    recorder = _recorder(port, baud, out, stream_protocol, status, sensor=sensor,
+    recorder = _recorder(port, baud, out, stream_protocol, status, several, sensor=sensor,
                          accel_units=accel_units, gyro_units=gyro_units, mag_units=mag_units,
                          magnetic_field_uT=field_ut, overwrite=force, wait_timeout_s=wait_timeout,
                          read_timeout_s=read_timeout, resume=resume is not None)  # fmt: skip
     try:
         try:
             summary = _record(recorder, plan_obj, guided, console, status, duration=duration,
-                              min_still_s=min_still, hold_s=hold, done_before=done_before)
+                              min_still_s=min_still, hold_s=hold, done_before=done_before,
+                              targets=targets, cfg=cfg)  # fmt: skip
         except ImucalError as exc:  # a saved session is never "nothing saved" (exit 2)
             if not recorder.file_written:
                 raise
@@ -219,13 +251,16 @@ def _check_limits(limits: dict[str, float | None]) -> None:
             raise InputError(f"{name} must be > 0 s, got {value:g}")
 
 
-def _plan_and_mode(plan: str | None, no_prompt: bool, duration: float | None):
-    """The plan (None: an unattended capture for a duration) and the guided mode's package
-    (None: unattended)."""
+def _plan_and_mode(plan: str | None, no_prompt: bool, duration: float | None, targets):
+    """The plan (None: an unattended capture for a duration or until targets, or a guided one
+    whose every pose the guide proposes) and the guided mode's package (None: unattended)."""
     if no_prompt:
-        if plan is None and duration is None:
-            raise InputError("--no-prompt needs --duration SECONDS or --plan NAME (or both)")
+        if plan is None and duration is None and not targets:
+            raise InputError("--no-prompt needs --duration SECONDS, --plan NAME or --until "
+                             "TARGETS")  # fmt: skip
         return (None if plan is None else load_plan(plan)), None
+    if targets:
+        return (None if plan is None else load_plan(plan)), guided
     return load_plan(plan or "qureshi18"), guided
 
 
@@ -241,11 +276,15 @@ def _check_temperature(plan, protocol: str, stream_protocol) -> None:
                          "add temp to --columns (e.g. t,ax,ay,az,gx,gy,gz,temp)")  # fmt: skip
 
 
-def _recorder(port: str, baud: int, out: Path, stream_protocol, status, **options):
-    """The port opened and a recorder on it (the port closed again when that fails); the
+def _recorder(ports: list[str], baud: int, out: Path, stream_protocol, status, several,
+              **options):  # fmt: skip
+    """The port(s) opened and a recorder on it (closed again when that fails); the
     accelerometer units, when not stated, said once the port opened (issue 10.4: errors stay
-    one line)."""
-    source = SerialSource(port, baud)
+    one line).  Several ports: one IMU each (``several``: the lines' spec)."""
+    if len(ports) > 1:
+        source, stream_protocol = open_ports(ports, baud, several)
+    else:
+        source = SerialSource(ports[0], baud)
     try:
         recorder = Recorder(out, source, stream_protocol, on_status=status, **options)
     except BaseException:
@@ -261,13 +300,18 @@ def _recorder(port: str, baud: int, out: Path, stream_protocol, status, **option
 
 
 def _record(recorder, plan, guided, console: Console, status, *, duration: float | None,
-            min_still_s: float, hold_s: float, done_before):  # fmt: skip
+            min_still_s: float, hold_s: float | None, done_before, targets, cfg):  # fmt: skip
     """Run the capture: guided (the guided package given) or unattended."""
     if guided is None:
         return run_unattended(recorder, plan, duration, min_still_s=min_still_s,
-                              on_status=status, done_before=done_before)  # fmt: skip
+                              on_status=status, done_before=done_before, targets=targets,
+                              refit=refit_with(cfg) if targets else None,
+                              gravity=cfg.gravity or 9.80665)  # fmt: skip
+    adaptive = adaptive_options(targets, cfg, hold_s) if targets else None
     return guided.run_guided(recorder, plan, console=console, keys=guided.StdinKeys(),
-                             hold_s=hold_s, done_before=done_before)  # fmt: skip
+                             hold_s=(2.0 if hold_s is None else hold_s) if adaptive is None
+                             else adaptive.min_hold_s, done_before=done_before,
+                             adaptive=adaptive)  # fmt: skip
 
 
 def _cut_short(recorder, plan, exc: Exception, status):
@@ -374,6 +418,7 @@ def _summary_json(out: Path, recorder, summary) -> dict:
         "samples_received": int(st["received"]), "samples_written": int(st["written"]),
         "samples_lost": int(st["lost"]), "segments_left_out": int(recorder.segments_left_out),
         "resumed_from": int(recorder.resumed_from),
+        "targets": summary_rows(summary.targets),
     }  # fmt: skip
 
 
@@ -436,9 +481,14 @@ def _print_summary(console: Console, out: Path, recorder, summary) -> None:
     if recorder.segments_left_out:
         console.print(f"  {recorder.segments_left_out} segments left out: their samples could "
                       "not be written", highlight=False, soft_wrap=True)  # fmt: skip
+    if summary.targets:
+        for row in summary.targets:
+            console.print(f"  target {escape(row.describe())}", highlight=False, soft_wrap=True)
     if _complete(recorder, summary):
-        done = f" ({len(summary.done)} steps seen)" if summary.done else ""
-        console.print(f"  complete{done}", highlight=False, soft_wrap=True)
+        done = f" ({len(summary.done)} steps seen)" if summary.done and not summary.targets \
+            else ""  # fmt: skip
+        what = " (every target met)" if summary.targets else done
+        console.print(f"  complete{what}", highlight=False, soft_wrap=True)
     else:
         missing = ", ".join(summary.missing)
         text = f"  incomplete: missing {missing}" if missing else "  incomplete"

@@ -13,6 +13,7 @@ from imucal_cli.formats.noise import read_noise
 from imucal_cli.formats.output import check_output, write_output
 from imucal_cli.use.export import FORMATS, format_for_suffix, load_input
 from imucal_cli.use.export import export as export_text
+from imucal_cli.use.export_set import pick_imu
 
 from . import completion
 from .app import app
@@ -82,6 +83,12 @@ def export(
         "(refused otherwise).",
     ),  # fmt: skip
     force: Force = False,
+    imu: str | None = typer.Option(
+        None, "--imu", metavar="NAME",
+        help="A calibration of several IMUs: export IMU NAME alone (reference for the "
+        "reference). Without it px4, ardupilot, kalibr and openvins hold every IMU (kalibr, "
+        "openvins: an IMU chain with T_i_b and time_offset); other formats need it.",
+    ),
 ) -> None:
     """Export a calibration for firmware, ROS, estimators or scripts.
 
@@ -99,6 +106,10 @@ def export(
     if output is not None:
         check_output(output, force=force, inputs=[calibration, noise])
     cal, noise_in = load_input(calibration)
+    if imu is not None:  # one IMU of a set (issue 28)
+        if cal is None:
+            raise InputError("--imu picks an IMU of a calibration, not of noise figures")
+        cal = pick_imu(cal, imu)
     if noise is not None:
         noise_in = read_noise(noise)
     unknown = sorted(set(drop) - DROPPABLE)

@@ -20,6 +20,7 @@ from imucal_cli.formats.session import write_session
 from imucal_cli.plans import find_plan, load_plan
 from imucal_cli.simulate.clock import check_ppm
 from imucal_cli.simulate.device import serve
+from imucal_cli.simulate.live import serve_person
 from imucal_cli.simulate.magnetometer import simulate_mag
 from imucal_cli.simulate.play import simulate_plan
 from imucal_cli.simulate.temperature import parse_ramp
@@ -40,6 +41,15 @@ from .options import (
     plan_option,
     protocol_option,
     rate_option,
+)
+from .simulate_set import (
+    ImuOffset,
+    ImuRotation,
+    Imus,
+    ServeImu,
+    check_set_options,
+    serve_options,
+    simulate_imus,
 )
 
 SERVE_HOLD_S = 4.0
@@ -71,14 +81,12 @@ def _poses_or_turns(flag: str, plan: str) -> None:
                          "qureshi-axes and free:N")  # fmt: skip
 
 
-def _mag_plan(plan: str, serve: bool, thermal_or_clock: bool) -> None:
-    """Refuse --mag but for written sessions of the pose plans (six, qureshi18, random:N)."""
+def _mag_plan(plan: str, thermal_or_clock: bool) -> None:
+    """Refuse --mag but for the pose plans (six, qureshi18, random:N), written or served."""
     spec = find_plan(plan)[0]
-    if serve or spec is None or spec.simulator != "poses" or spec.key == "warmup":
-        raise InputError(
-            "--mag simulates pose plans written to a file (six, qureshi18, random:N), not "
-            f"{'--serve' if serve else repr(plan)}"
-        )
+    if spec is None or spec.simulator != "poses" or spec.key == "warmup":
+        raise InputError("--mag simulates pose plans (six, qureshi18, random:N), written or "
+                         f"served, not {plan!r}")  # fmt: skip
     if thermal_or_clock:
         raise InputError("--mag does not combine with --ramp or --clock-ppm")
 
@@ -186,6 +194,12 @@ Step = Annotated[bool, typer.Option(
     "plan runs on a timer, --hold per pose, and Enter moves to the next pose early).",
 )]  # fmt: skip
 Duration = alias(float | None, duration_option("--serve: stop streaming after this long."))
+PersonOpt = Annotated[bool, typer.Option(
+    "--person",
+    help="--serve: instead of a plan, a simulated person holds the unit and follows the guide "
+    "of 'imucal capture' read on stdin (pipe the capture's output in): a reaction time of "
+    "0.5-1 s, turns of 1-2 s, each pose placed with --jitter-deg RMS error; the part of --seed.",
+)]  # fmt: skip
 
 # a temperature ramp, a clock error
 Ramp = Annotated[str | None, typer.Option(
@@ -214,7 +228,8 @@ Mag = Annotated[bool, typer.Option(
     "--mag",
     help="Pose plans (six, qureshi18, random:N): add a magnetometer (an AK8963-like part: hard "
     "and soft iron, axes x/y swapped and z reversed relative to the accelerometer) and tumble "
-    "the unit through random attitudes between the holds (--tumble).",
+    "the unit through random attitudes between the holds (--tumble); with --serve each line "
+    "carries mx,my,mz after the gyro (capture --columns t,ax,ay,az,gx,gy,gz,mx,my,mz,temp).",
 )]  # fmt: skip
 FieldUt = alias(float, field_ut_option("--mag: local field magnitude, microtesla."))
 Inclination = Annotated[float, typer.Option(
@@ -293,6 +308,7 @@ def simulate(
     loop: Loop = False,
     step: Step = False,
     duration: Duration = None,
+    person: PersonOpt = False,
     ramp: Ramp = None,
     clock_ppm: ClockPpm = None,
     g_sensitivity: GSensitivity = None,
@@ -311,6 +327,10 @@ def simulate(
     vanish_after: VanishAfter = None,
     malformed_every: MalformedEvery = None,
     json_output: JsonOutput = False,
+    imus: Imus = 1,
+    imu_rotation: ImuRotation = 5.0,
+    imu_offset: ImuOffset = 10.0,
+    serve_imu: ServeImu = None,
 ) -> None:
     """Simulate a calibration session of a cheap 16-bit MEMS IMU with known truth.
 
@@ -324,7 +344,14 @@ def simulate(
     output without --force).
     """
     given = _given(ctx)
+    if person:
+        _check_person(serve, given)
+        _serve_person(seed=seed, rate_hz=rate, baud=baud, units=units, accel_noise=accel_noise,
+                      jitter_deg=jitter_deg, temperature=temp, duration_s=duration,
+                      json_output=json_output)  # fmt: skip
+        return
     thermal, clock = _checked(plan, serve, ramp, clock_ppm, mag, given("protocol"))
+    check_set_options(imus, plan, given)  # several IMUs (issue 28)
     _warn_without_mag(mag, given)
     options = {
         "accel_noise": accel_noise, "jitter_deg": jitter_deg, "still_s": still,
@@ -337,8 +364,18 @@ def simulate(
             raise InputError("--g-sensitivity must be in (0, 0.1] rad/s per m/s^2, without --mag")
         options["g_sensitivity"] = g_sensitivity
     if serve:
+        if mag:  # the same part and samples as --mag writes; the hold is the device's
+            if protocol != "lines":
+                raise InputError(f"--protocol {protocol} prints its own magnetometer (or none): "
+                                 "leave out --mag")  # fmt: skip
+            options["mag"] = {
+                "field_uT": field_ut, "inclination_deg": inclination, "mag_units": mag_units,
+                "mag_noise": mag_noise, "layout": mag_layout, "field_known": not field_unknown,
+                "tumble_s": tumble,
+            }  # fmt: skip
         extras = {"temperature": thermal, "clock_scale": clock}
         options.update({k: v for k, v in extras.items() if v is not None})
+        options.update(serve_options(imus, imu_rotation, imu_offset, serve_imu))
         _serve(plan, rate, baud, json_output, seed=seed, units=units, move_s=move, step=step,
                hold_s=SERVE_HOLD_S if hold is None else hold, plan_options=options,
                temperature=temp, loop=loop, duration_s=duration, garbage=garbage,
@@ -346,7 +383,13 @@ def simulate(
                malformed_every=malformed_every, protocol=protocol)  # fmt: skip
         return
     out, truth_out = _outputs(output, plan, seed, force)
-    if mag:
+    if imus > 1:
+        session, truth = simulate_imus(
+            imus, plan, seed, rate=rate, hold=hold, accel_noise=accel_noise,
+            jitter_deg=jitter_deg, units=units, move=move, rotation_deg=imu_rotation,
+            offset_ms=imu_offset,
+        )  # fmt: skip
+    elif mag:
         session, truth = _simulate_mag(
             plan, seed, units, rate, hold, accel_noise, jitter_deg, field_uT=field_ut,
             inclination_deg=inclination, mag_units=mag_units, mag_noise=mag_noise,
@@ -356,6 +399,34 @@ def simulate(
         session, truth = _simulate_plan(plan, seed, units, rate if given("rate") else None,
                                         hold, move, thermal, clock, options)  # fmt: skip
     _write(out, truth_out, session, truth, force, plan, seed, json_output)
+
+
+#: What --person does not combine with: the plan's options and the test faults.
+NOT_WITH_PERSON = ("plan", "hold", "output", "loop", "step", "ramp", "clock_ppm",
+                   "g_sensitivity", "mag", "protocol", "move", "garbage", "stall_after",
+                   "vanish_after", "malformed_every")  # fmt: skip
+
+
+def _check_person(serve: bool, given) -> None:
+    """--person streams live, following the guide: refuse what belongs to a plan or a file."""
+    if not serve:
+        raise InputError("--person holds a live unit: add --serve")
+    for name in NOT_WITH_PERSON:
+        if given(name):
+            flag = "--" + name.replace("_", "-")
+            raise InputError(f"--person follows the guide, not a plan: leave out {flag}")
+
+
+def _serve_person(json_output: bool, **options) -> None:
+    """``--serve --person``: the device path on stdout, then the stream until the reader
+    closes the port; what was sent (as --serve says it)."""
+
+    def status(message: str) -> None:
+        print(f"imucal: {message}", file=sys.stderr, flush=True)
+
+    result = serve_person(announce=lambda path: print(path, flush=True), status=status,
+                          **options)  # fmt: skip
+    _sent(result, json_output)
 
 
 def _given(ctx: typer.Context):
@@ -382,7 +453,7 @@ def _checked(plan: str, serve: bool, ramp: str | None, clock_ppm: float | None, 
         _poses_or_turns("--clock-ppm", plan)
         clock = check_ppm(clock_ppm)
     if mag:
-        _mag_plan(plan, serve, thermal is not None or clock is not None)
+        _mag_plan(plan, thermal is not None or clock is not None)
     if protocol and not serve:
         raise InputError("--protocol is what --serve prints: add --serve")
     return thermal, clock
@@ -445,13 +516,16 @@ def _write(out: Path, truth_out: Path, session, truth, force: bool, plan: str, s
              "truth": str(truth_out), "plan": plan, "seed": seed, "sensor": session.sensor,
              "samples": n, "duration_s": n / rate, "sample_rate_hz": rate,
              "static_segments": n_static, "rotation_segments": len(session.segments) - n_static,
-             "accel_units": session.accel_units, "gyro_units": session.gyro_units}
+             "accel_units": session.accel_units, "gyro_units": session.gyro_units,
+             "imus": [session.reference_name, *session.imus]}
         )  # fmt: skip
         return
     typer.echo(
         f"wrote {out}: {n_static} poses, {n} samples ({n / rate:.1f} s at {rate:g} Hz), "
         f"{session.accel_units}"
         + (f"; magnetometer in {session.mag_units}" if session.mag is not None else "")
+        + (f"; {len(session.imus) + 1} IMUs ({session.reference_name} in /raw, "
+           f"{', '.join(session.imus)} in /imus)" if session.imus else "")
     )
     typer.echo(f"wrote {truth_out}: true calibration of {session.sensor}")
 
@@ -472,6 +546,11 @@ def _serve(plan: str, rate: float, baud: int, json_output: bool, **options) -> N
     status(how)
     result = serve(plan, rate, baud, announce=announce, status=status, next_pose=enter,
                    **options)  # fmt: skip
+    _sent(result, json_output)
+
+
+def _sent(result, json_output: bool) -> None:
+    """What the virtual port sent: JSON or the ``# sent ...`` line."""
     if json_output:
         document = {"format": "imucal-serve", "format_version": 1, "path": result.path,
                     "lines": result.lines, "malformed": result.malformed,

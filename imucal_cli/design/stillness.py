@@ -373,10 +373,10 @@ class StillnessDetector:
         ended: list[tuple[int, int]] = []
         if self._next_eval < max(n, self._buf.first + n):
             self._next_eval = max(n, self._buf.first + n)
+        # windows end on a fixed grid, whatever the blocks: the false-alarm rate is ``alpha``
+        # per grid window (judging every block's last sample too tested up to ``stride``
+        # times more windows when blocks are small, a sample each on a host that keeps up)
         points = list(range(self._next_eval, end + 1, self._stride))
-        last = points[-1] if points else self._next_eval - self._stride
-        if end > last and end >= n:
-            points.append(end)  # every new sample is judged in this update
         dof = len(self._var) * (n - 1)
         for p in points:
             i0 = p - n - self._buf.first
@@ -399,6 +399,9 @@ class StillnessDetector:
                 self._still = True
         if points:
             self._next_eval = points[-1] + self._stride
+        if end >= n and (not points or points[-1] != end):  # the newest level, shown only
+            w = self._buf.x[end - n - self._buf.first : end - self._buf.first]
+            self._level = float(np.sqrt(np.sum((n - 1) * w.var(axis=0, ddof=1) / self._var) / dof))
         return moved, ended
 
     def _state(self, moved: bool, ended: tuple[tuple[int, int], ...]) -> StillState:

@@ -98,6 +98,16 @@ Example (every key optional; these are the defaults)::
     model = "auto"               # "auto": estimated and corrected when the session records host
                                  # arrival times (/raw/host_time); "off"
 
+    [targets.accel]              # imucal capture --config: capture until each std is below
+    # gain_pct = 0.05            # (1 std, worst axis; unset: no target); --until overrides
+    # bias_mg = 0.5
+    # misalignment_deg = 0.05
+
+    [targets.gyro]
+    # gain_pct = 0.05
+    # bias_dps = 0.01
+    # misalignment_deg = 0.05
+
 Unknown keys and wrong types are errors (a typo must not silently fall back to a default).
 Every value is checked against the rule of its key (:func:`setting`: finite, within bounds, one
 of the choices, the right length) and a mistake is one line naming the key.
@@ -435,6 +445,34 @@ class ClockConfig:
 
 
 @dataclass
+class AccelTargets:
+    """``[targets.accel]``: the largest std a capture with targets stops at (1 std, the worst
+    axis; None: no target), :mod:`imucal_cli.formats.targets`."""
+
+    gain_pct: float | None = setting(None, "number", gt=0, le=100, unit="%")
+    bias_mg: float | None = setting(None, "number", gt=0, le=1000, unit="mg")
+    misalignment_deg: float | None = setting(None, "number", gt=0, le=45, unit=_DEG)
+
+
+@dataclass
+class GyroTargets:
+    """``[targets.gyro]``: as :class:`AccelTargets`, the bias in deg/s."""
+
+    gain_pct: float | None = setting(None, "number", gt=0, le=100, unit="%")
+    bias_dps: float | None = setting(None, "number", gt=0, le=100, unit="deg/s")
+    misalignment_deg: float | None = setting(None, "number", gt=0, le=45, unit=_DEG)
+
+
+@dataclass
+class TargetsConfig:
+    """``[targets]``: what ``imucal capture --config`` captures until (``--until`` overrides
+    it term by term)."""
+
+    accel: AccelTargets = field(default_factory=AccelTargets)
+    gyro: GyroTargets = field(default_factory=GyroTargets)
+
+
+@dataclass
 class Config:
     """The whole configuration."""
 
@@ -445,6 +483,7 @@ class Config:
     mag: MagConfig = field(default_factory=MagConfig)
     temperature: TemperatureConfig = field(default_factory=TemperatureConfig)
     clock: ClockConfig = field(default_factory=ClockConfig)
+    targets: TargetsConfig = field(default_factory=TargetsConfig)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict (for recording in the calibration JSON); None values dropped."""

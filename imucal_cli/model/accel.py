@@ -91,6 +91,33 @@ class Placement(Record):
     source: str | None = None
     dof: float | None = None
     meaning: str | None = None
+    face_deg: float | None = None  # a face's normal off its label, shared by its poses
+    hold_deg: float | None = None  # each hold's own part
+    parts: str | None = None
+
+
+@dataclass
+class OwnFit(Record):
+    """An IMU's own accelerometer fit, kept beside the set's joint one."""
+
+    bias: list[float] | None = None
+    matrix: list[list[float]] | None = None
+    residual_rms: float | None = item(always=True)
+
+
+@dataclass
+class SetFit(Record):
+    """A set of IMUs' joint accelerometer fit (issue 28; docs/imu-set.md, eq. S1) that gave
+    this section's bias and matrix: its own fit's, its method and statistics."""
+
+    own_fit: OwnFit | None = None
+    method: str | None = None
+    imus: int | None = None
+    poses: int | None = None
+    chi2: float | None = None
+    dof: int | None = None
+    noise_scale: float | None = None
+    converged: bool | None = None
 
 
 @dataclass
@@ -121,6 +148,8 @@ class AccelCalibration(SensorCalibration):
         ``sqrt(chi^2 / dof)`` against the measured noise.
     rms_after_below_noise : bool or None
         The fit RMS is below what the noise allows (an exact fit: no improvement factor).
+    set_fit : SetFit or None
+        An IMU of a set whose bias and matrix are the set's joint fit (its own fit kept).
     factorization : Factorization or None
         Hwangbo & Kanade's fields (members of the section).
     """
@@ -141,4 +170,5 @@ class AccelCalibration(SensorCalibration):
     rms_expected: float | None = None
     noise_excess: float | None = None
     rms_after_below_noise: bool | None = None
+    set_fit: SetFit | None = None
     factorization: Factorization | None = item(flat=True)

@@ -29,7 +29,7 @@ from .truth import AccelTruth, GyroTruth, MagTruth
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "LOCAL_FIELD", "MODEL_EQUATION", "MODEL_EQUATION_G",
            "SENSORS", "SENSOR_UNITS", "Calibration", "ImuEntry", "SensorCalibration",
-           "section_class"]  # fmt: skip
+           "SetDiagnostics", "section_class"]  # fmt: skip
 
 FORMAT = "imucal-calibration"
 FORMAT_VERSION = 1
@@ -55,6 +55,21 @@ def _utc_now_iso() -> str:
 
 
 @dataclass
+class SetDiagnostics(Record):
+    """How an IMU's place in the set was found (the ``set`` member of an ``imus`` entry)."""
+
+    rotation_method: str | None = None
+    coarse_offset_s: float | None = None
+    rotation_pairs: dict[str, int] | None = None
+    rotation_residual_deg: dict[str, float] | None = None
+    rotation_cov_rad2: list[list[float]] | None = None
+    offset_samples: int | None = None
+    offset_rms: float | None = None
+    offset_rms_expected: float | None = None
+    offset_iterations: int | None = None
+
+
+@dataclass
 class ImuEntry(Record):
     """One more IMU of a session with several (spec: "Several IMUs"): its own sections and
     its place in the set.
@@ -67,6 +82,15 @@ class ImuEntry(Record):
     rotation_std_deg : list of float
     time_offset_s, time_offset_std_s : float
         Added to this IMU's time stamps, it puts them on the reference's time.
+    set : SetDiagnostics or None
+        How the rotation and the time offset were found.
+    rotation_deg : float or None
+        The rotation's angle (null when it was not determined).
+    left_out : dict or None
+        ``{sensor: why}`` of this IMU's sensors left out.
+    warnings : list of str or None
+        Its place in the set's warnings (a rotation or offset not determined, gyros that
+        disagree).
     """
 
     accel: AccelCalibration | AccelTruth | None = item(own=True)
@@ -76,6 +100,10 @@ class ImuEntry(Record):
     rotation_std_deg: list[float] | None = None
     time_offset_s: float | None = None
     time_offset_std_s: float | None = None
+    set: SetDiagnostics | None = None
+    rotation_deg: float | None = None
+    left_out: dict[str, str] | None = None
+    warnings: list[str] | None = None
 
     def sections(self) -> dict[str, SensorCalibration]:
         return {n: getattr(self, n) for n in SENSORS if getattr(self, n) is not None}
@@ -119,6 +147,8 @@ class Calibration(Record):
         A calibration read from another tool's file: which, and what ``created`` is.
     seed, plan, jitter_deg, simulator
         The simulator's truth: its options.
+    reference_name : str or None
+        The reference IMU's name in a session with several (default ``reference``).
     imus : dict of ImuEntry or None
         The other IMUs of a session with several.
     """
@@ -147,6 +177,7 @@ class Calibration(Record):
     imported_from: ImportedFrom | None = None
     created_basis: str | None = None
     comment: str | None = None
+    reference_name: str | None = None
     imus: dict[str, ImuEntry] | None = item(own=True)
 
     def sections(self) -> dict[str, SensorCalibration]:

@@ -13,6 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from .imu_stream import REFERENCE_NAME, ImuStream
+
 FORMAT = "imucal-session"
 FORMAT_VERSION = 1
 GRAVITY_DEFAULT = 9.80665
@@ -153,6 +155,11 @@ class Session:
         beside the device's ``time``, it measures the device's sample clock (issue 17.2).
     calibrations : dict of str to str
         ``/calibrations/<name>`` -> its calibration JSON text.
+    imus : dict of str to ImuStream
+        The other IMUs of a set (``/imus/<name>``, issue 28), in the order of the root
+        attribute ``imus``; empty for one IMU.
+    reference_name : str
+        The name of the IMU in ``/raw`` (the first of the root attribute ``imus``).
     """
 
     time: np.ndarray
@@ -173,6 +180,8 @@ class Session:
     mag_units: str | None = None
     magnetic_field_uT: float | None = None
     host_time: np.ndarray | None = None
+    imus: dict[str, ImuStream] = field(default_factory=dict)
+    reference_name: str = REFERENCE_NAME
 
     def static_segments(self) -> list[Segment]:
         """Return the static segments, in time order."""

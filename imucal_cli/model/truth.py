@@ -33,6 +33,8 @@ class TruthCalibration(SensorCalibration):
     """
 
     quantised: bool | None = None
+    noise_factor: float | None = None  # a set's IMU: its noise over the part's (issue 28)
+    sample_rate_hz: float | None = None  # a set's IMU: its own rate
     noise: float | list[float] | None = None
     noise_unit: str | None = None
     nominal_sensitivity: float | None = None

@@ -11,6 +11,9 @@ through the real tty layer.
   samples as ``imucal simulate`` writes to a file; its static segments are the holds.
 - A pseudo-terminal has no baud rate: the bytes are paced to ``baud / 10`` bytes per second
   (8N1), so a stream too fast for the baud rate falls behind as it would on a real line.
+- With a magnetometer (``plan_options["mag"]``, ``imucal simulate --serve --mag``) a pose
+  plan is played as ``imucal simulate --mag`` writes it (tumbles between the holds) and each
+  line carries ``mx,my,mz`` after the gyro: the same part, samples and truth as the file.
 - The first line is a comment ``# imucal virtual IMU ...``; then data lines: numbers
   (``protocol="lines"``), or as the Arduino sketches print them (:data:`SERVE_PROTOCOLS`):
   MotionCal's ``Raw:ax,ay,az,gx,gy,gz,mx,my,mz`` (the magnetometer: a 48 uT field at 60
@@ -53,6 +56,8 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 from imucal_cli.plans import Plan, find_plan, load_plan
+from imucal_cli.simulate.imu_set import served_set, set_columns, set_lines
+from imucal_cli.simulate.magnetometer import simulate_mag
 from imucal_cli.simulate.play import simulate_plan
 from imucal_cli.simulate.steps import simulate_steps
 
@@ -182,10 +187,21 @@ def stream_with_holds(
     return session.time, session.accel, session.gyro, holds
 
 
-def _served_session(plan: str, **options):
+def _served_session(plan: str, *, mag: dict | None = None, **options):
     """The session :func:`~imucal_cli.simulate.play.simulate_plan` simulates for ``plan``
-    (its device times, and temperatures where a ramp was asked for), and its holds."""
-    session, _ = simulate_plan(plan, **options)
+    (its device times, and temperatures where a ramp was asked for; with ``mag``, the options
+    of :func:`~imucal_cli.simulate.magnetometer.simulate_mag`: the pose plan with a
+    magnetometer, tumbling between the holds, as ``imucal simulate --mag`` writes it; with
+    ``imus`` > 1, a set of several IMUs or one of its IMUs), and its holds."""
+    imus, member = options.pop("imus", None), options.pop("serve_imu", None)
+    if imus is not None and imus > 1:  # several IMUs (issue 28): a set, or one of its IMUs
+        session, _ = served_set(plan, imus, member, **options)
+    elif mag is None:
+        session, _ = simulate_plan(plan, **options)
+    else:
+        keep = ("seed", "rate_hz", "hold_s", "units", "move_s", "accel_noise", "jitter_deg")
+        given = {k: v for k, v in options.items() if k in keep and v is not None}
+        session, _ = simulate_mag(plan, **mag, **given)
     holds: list[Hold] = []
     for i, seg in enumerate(session.static_segments()):
         start, label = seg.start, seg.label or f"pose {i + 1}"
@@ -197,25 +213,32 @@ def _served_session(plan: str, **options):
     return session, holds
 
 
-def _columns(accel: np.ndarray, gyro: np.ndarray | None, temperature: bool) -> str:
-    """The field names of a line: ``t,ax,ay,az[,a4..],gx,gy,gz[,temp]``."""
+def _columns(accel: np.ndarray, gyro: np.ndarray | None, temperature: bool,
+             mag: np.ndarray | None = None) -> str:  # fmt: skip
+    """The field names of a line: ``t,ax,ay,az[,a4..],gx,gy,gz[,mx,my,mz][,temp]``."""
     names = ["t", "ax", "ay", "az"] + [f"a{k}" for k in range(4, accel.shape[1] + 1)]
     if gyro is not None:
         names += ["gx", "gy", "gz"] + [f"g{k}" for k in range(4, gyro.shape[1] + 1)]
+    if mag is not None:
+        names += ["mx", "my", "mz"]
     return ",".join(names + (["temp"] if temperature else []))
 
 
 def _format(
     time: np.ndarray, accel: np.ndarray, gyro: np.ndarray | None, temperature,
-    counts: bool,
+    counts: bool, mag: np.ndarray | None = None, mag_counts: bool = True,
 ) -> list[bytes]:  # fmt: skip
     """The data lines; ``temperature``: False (no field), the session's temperatures (N,),
     or True (a part at room temperature, warming a little: 25 C plus 0.01 C/s)."""
     columns = [time, accel] + ([] if gyro is None else [gyro])
     n_values = sum(c.shape[1] for c in columns[1:])
     value = "%.0f" if counts else "%.6f"
+    fields = ["%.4f"] + [value] * n_values
+    if mag is not None:
+        columns.append(mag)
+        fields += ["%.0f" if mag_counts else "%.4f"] * mag.shape[1]
     with_temp = temperature is not None and temperature is not False
-    fmt = ",".join(["%.4f"] + [value] * n_values + (["%.2f"] if with_temp else []))
+    fmt = ",".join(fields + (["%.2f"] if with_temp else []))
     if with_temp:
         own = not isinstance(temperature, bool)
         columns.append((np.asarray(temperature, float) if own else 25.0 + 0.01 * time)[:, None])
@@ -256,14 +279,19 @@ def _format_sketch(protocol: str, accel: np.ndarray, gyro: np.ndarray | None) ->
     return [(fmt % tuple(r) + "\n").encode() for r in rows]
 
 
-def _lines(protocol: str, time, accel, gyro, temperature: bool, units: str) -> list[bytes]:
+def _lines(protocol: str, time, accel, gyro, temperature: bool, units: str, mag=None,
+           mag_units: str = "counts") -> list[bytes]:  # fmt: skip
     """The data lines of ``protocol`` (:data:`SERVE_PROTOCOLS`)."""
     if protocol == "lines":
-        return _format(time, accel, gyro, temperature, units == "counts")
+        return _format(time, accel, gyro, temperature, units == "counts", mag,
+                       mag_units == "counts")  # fmt: skip
     if protocol not in SERVE_PROTOCOLS:
         raise InputError(f"--protocol {protocol!r}: use {', '.join(SERVE_PROTOCOLS)}")
     if units != "counts":
         raise InputError(f"--protocol {protocol} prints counts: leave out --units {units}")
+    if mag is not None:
+        raise InputError(f"--protocol {protocol} prints its own magnetometer (or none): "
+                         "leave out --mag")  # fmt: skip
     return _format_sketch(protocol, accel, gyro)
 
 
@@ -307,7 +335,9 @@ def serve(
         ``rotations_per_axis``, ``mountings``, ...; ``temperature``, a
         :class:`~imucal_cli.simulate.temperature.Ramp`: the printed temperature follows it, a
         warm-up; ``clock_scale``: the part's clock runs fast or slow, its time stamps say so
-        while the lines go out in true time).
+        while the lines go out in true time; ``mag``: the options of
+        :func:`imucal_cli.simulate.magnetometer.simulate_mag` (a pose plan with a
+        magnetometer, tumbling between the holds: ``mx,my,mz`` after the gyro).
     temperature : bool
         Print the temperature field (the last field of a line).
     loop : bool
@@ -369,19 +399,25 @@ def _plan_lines(plan: str, protocol: str, *, seed: int, rate_hz: float, hold_s: 
                 step: bool, next_pose, say) -> tuple[list[bytes], _Schedule, str]:  # fmt: skip
     """The plan's data lines, the schedule that hands them out, and what a line holds.  A
     temperature ramp (``plan_options["temperature"]``: a warm-up) is printed as the part's
-    temperature; a clock error (``clock_scale``) as the device's own time stamps."""
+    temperature; a clock error (``clock_scale``) as the device's own time stamps; a
+    magnetometer (``plan_options["mag"]``) as ``mx,my,mz`` after the gyro."""
     session, holds = _served_session(
         plan, seed=seed, rate_hz=rate_hz, hold_s=hold_s, units=units, move_s=move_s,
         **plan_options,
     )  # fmt: skip
-    time, accel, gyro = session.time, session.accel, session.gyro
+    time, accel, gyro, mag = session.time, session.accel, session.gyro, session.mag
     if temperature and session.temperature is not None:
         temperature = session.temperature
-    lines = _lines(protocol, time, accel, gyro, temperature, units)
+    lines = _lines(protocol, time, accel, gyro, temperature, units, mag, session.mag_units)
+    if session.imus:  # several IMUs on one line (issue 28)
+        lines = set_lines(session, temperature, units == "counts")
     schedule = _Schedule(len(lines), holds, loop=loop, step=step, next_pose=next_pose, say=say,
                          rate_hz=rate_hz)  # fmt: skip
     with_temp = temperature is not None and temperature is not False
-    fields = _columns(accel, gyro, with_temp) if protocol == "lines" else f"{protocol} lines"
+    fields = (_columns(accel, gyro, with_temp, mag) if protocol == "lines"
+              else f"{protocol} lines")  # fmt: skip
+    if session.imus:
+        fields = set_columns(session, with_temp)
     return lines, schedule, fields
 
 
@@ -535,10 +571,22 @@ def _flushed(master: int) -> bool:
     return bool(packet) and packet[0] != 0 and bool(packet[0] & flush)
 
 
+def _mirrored(h: Hold, r: int) -> int:
+    """The ``r``-th sample (from 0) of a paused hold replayed: backwards from its last sample
+    to its first, then forwards, and so on, so that what drifts in a hold (a warm-up's
+    temperature and biases) turns back smoothly instead of jumping to its start."""
+    n = h.stop - h.start
+    if n < 2:
+        return h.start
+    m = r % (2 * (n - 1))
+    return h.stop - 2 - m if m < n - 1 else h.start + 1 + m - (n - 1)
+
+
 class _Schedule:
     """Which sample of the pass goes out next: the plan in order, holds cut short when
     ``next_pose()`` says so, or (``step``) extended until it does by replaying the hold's own
-    samples; the time of every line is ``k / rate`` for the k-th line sent."""
+    samples (mirrored, :func:`_mirrored`); the time of every line is ``k / rate`` for the k-th
+    line sent."""
 
     def __init__(self, n: int, holds: list[Hold], *, loop: bool, step: bool, next_pose,
                  say, rate_hz: float) -> None:  # fmt: skip
@@ -559,9 +607,8 @@ class _Schedule:
         if self.next_pose():
             self._advance()
         if self.paused is not None:
-            h = self.paused
             self.replay += 1
-            return h.start + (self.replay - 1) % (h.stop - h.start)
+            return _mirrored(self.paused, self.replay - 1)
         if self.i >= self.n:
             if not self.loop:
                 self.done = True

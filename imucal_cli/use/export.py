@@ -39,6 +39,8 @@ from imucal_cli.formats.noise import NOISE_FORMAT, NoiseFigures, noise_from_dict
 from imucal_cli.formats.text import has_control
 from imucal_cli.model.calibration import Calibration
 
+from .export_set import export_set
+
 __all__ = [
     "EXPORT_FORMATS",
     "FORMATS",
@@ -142,6 +144,14 @@ def export(
     if cal is None and target.needs_calibration:
         raise InputError(f"--format {fmt} needs a calibration (imucal calibrate's JSON), "
                          "not only noise figures")  # fmt: skip
+    if cal is not None and target.needs_calibration and cal.imus:
+        return export_set(cal, fmt, opts, _export_one)  # several IMUs (issue 28)
+    return _export_one(cal, fmt, opts)
+
+
+def _export_one(cal: Calibration | None, fmt: str, opts: ExportOptions) -> str:
+    """One IMU's calibration (or the noise figures) in ``fmt``: its terms checked, written."""
+    target = FORMATS[fmt]
     if cal is not None and target.needs_calibration and not target.holds_tempco:
         refuse_tempco(cal, fmt)
     if cal is not None and target.needs_calibration and not target.holds_g_sensitivity:

@@ -26,12 +26,12 @@ import numpy as np
 from imucal_cli.errors import InputError
 from imucal_cli.formats.output import safe_output
 
-__all__ = ["PLOT_HINT", "noise_figure", "report_figure"]
+__all__ = ["PLOT_HINT", "draw_report", "noise_figure", "pyplot", "report_figure"]
 
 PLOT_HINT = "plots need matplotlib: pip install 'imucal-cli[plot]'"
 
 
-def _pyplot():
+def pyplot():
     """matplotlib.pyplot on the Agg backend, or the one-line hint."""
     try:
         import matplotlib
@@ -179,6 +179,18 @@ def report_figure(
     InputError
         matplotlib missing (:data:`PLOT_HINT`), nothing to plot, or the file cannot be written.
     """
+    return _save(draw_report(report, where=str(path)), path, force, inputs)
+
+
+def draw_report(report: dict[str, Any], where: str = "the report"):
+    """The report figure (see the module notes) as a matplotlib ``Figure`` (the caller saves
+    and closes it); ``where`` names it in the error when there is nothing to plot.
+
+    Raises
+    ------
+    InputError
+        matplotlib missing (:data:`PLOT_HINT`) or nothing to plot.
+    """
     panels = []
     for kind, section in report["sensors"].items():
         poses = section["poses"]
@@ -193,9 +205,9 @@ def report_figure(
             panels.append(("3d", lambda ax, s=section: _sphere_panel(ax, s)))
     if not panels:
         raise InputError(
-            f"{path}: nothing to plot: the calibration carries no per-pose or per-rotation data"
+            f"{where}: nothing to plot: the calibration carries no per-pose or per-rotation data"
         )
-    plt = _pyplot()
+    plt = pyplot()
     cols = 1 if len(panels) == 1 else 2
     rows = (len(panels) + cols - 1) // cols
     fig = plt.figure(figsize=(6.5 * cols, 4.6 * rows), layout="constrained")
@@ -208,7 +220,7 @@ def report_figure(
         if report.get(key):
             title += f" | {report[key]}"
     fig.suptitle(title)
-    return _save(fig, path, force, inputs)
+    return fig
 
 
 def noise_figure(result, path: str | os.PathLike[str], *, force: bool = False, inputs=()) -> Path:
@@ -224,7 +236,7 @@ def noise_figure(result, path: str | os.PathLike[str], *, force: bool = False, i
     -------
     Path
     """
-    plt = _pyplot()
+    plt = pyplot()
     n = len(result.sensors)
     fig, axes = plt.subplots(1, n, figsize=(6.5 * n, 5), layout="constrained", squeeze=False)
     colors = ("tab:red", "tab:green", "tab:blue", "tab:purple", "tab:orange", "tab:brown")

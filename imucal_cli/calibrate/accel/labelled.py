@@ -229,6 +229,10 @@ def solver_fields(res: labelled_solver.LabelledResult, units: list[str]) -> dict
             source=res.placement_source,
             dof=res.placement_dof,
             meaning="RMS angle between each pose's true up and its label",
+            **({} if res.placement_face_deg is None else {
+                "face_deg": res.placement_face_deg, "hold_deg": res.placement_hold_deg,
+                "parts": "face_deg: each face's normal off its label, shared by every pose on "
+                         "it; hold_deg: each hold's own (the table's tilt, how it sat)"}),
         ),
         **fit_fields(res, "noise"),
         "rotation_std_deg": float(np.sqrt(np.mean(r_std**2))),

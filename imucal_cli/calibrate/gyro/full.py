@@ -19,6 +19,7 @@ from imucal_cli.calibrate.gyro.turns import AXES, GyroData, GyroFit, Still
 from imucal_cli.errors import ImucalError
 from imucal_cli.estimators.gyro import full as gyro_full
 from imucal_cli.estimators.gyro import sigma as gyro_sigma
+from imucal_cli.estimators.gyro.known_turns import accel_factor
 from imucal_cli.model.codec import build
 from imucal_cli.model.gyro import (
     AccelPropagation,
@@ -29,6 +30,7 @@ from imucal_cli.model.gyro import (
 )
 from imucal_cli.model.parts import Parameter
 from imucal_cli.numerics.segmented import stacked_rows
+from imucal_cli.planning.information import axes_std
 
 #: Medians of the chi-square distribution with 2 (a turn's two residuals) and 3 (a still
 #: period's gyro mean) degrees of freedom.
@@ -102,6 +104,9 @@ def fit_full_model(data: GyroData, g_sensitivity: str | None = None) -> GyroFit:
         "noise_scale": res.noise_scale,
         "rate_std": uncertainty,
         "sensitivity_std": gain_std(res.M, res.cov[3:12, 3:12]).tolist(),
+        # std of misalignment_deg (delta method), for targets (capture --until)
+        "misalignment_std_deg": dict(zip(("xy", "xz", "yz"), map(float, axes_std(
+            res.M, res.cov[3:12, 3:12])[2]), strict=True)),
     }  # fmt: skip
     undetermined = design_warning(data, uncertainty)
     nonlinear = None if uncertainty.accel_propagation is None else (
@@ -267,10 +272,11 @@ def nonlinear_warning(ratios: dict, prop) -> str | None:
             "more times about different axes (plan free:N)")
 
 
-def design_warning(data: GyroData, uncertainty: RateStd, n_turns: int | None = None
-                   ) -> str | None:  # fmt: skip
+def design_warning(data: GyroData, uncertainty: RateStd, n_turns: int | None = None,
+                   why: str | None = None) -> str | None:
     """A warning when the turns do not determine the gyro to ``[gyro] max_rate_std``, naming
-    the cause and what would work."""
+    the cause and what would work (``why``: the caller's, where it knows better than the
+    number of turns, e.g. turns of known angle whose labelled axes limit it)."""
     limit = data.cfg.gyro.max_rate_std
     total, acc = uncertainty.total, uncertainty.accel_calibration or 0.0
     if total <= limit:
@@ -286,6 +292,8 @@ def design_warning(data: GyroData, uncertainty: RateStd, n_turns: int | None = N
                 f"({100 * acc:.2g} %{axes}); use a better one: --accel CAL.json from a "
                 "session with more poses (plan qureshi18 or random:N), or turn the unit 10 or "
                 "more times about different axes (plan free:N)")  # fmt: skip
+    if why is not None:
+        return f"{head}: {why}"
     return (f"{head}: too few or too small turns for the 12 parameters; turn the unit 10 or "
             "more times, about different axes, still before and after each (plan free:N)")
 
@@ -299,29 +307,68 @@ def _g_note(test: dict) -> str:
             f"{test['dof'][1]} dof, p = {test['p_value']:.2g})")  # fmt: skip
 
 
+def accel_directions(data: GyroData) -> np.ndarray | None:
+    """(P, 3, m): the still periods' calibrated gravity vectors moved along each square-root
+    direction of the accelerometer calibration's covariance (None without one)."""
+    cal = data.accel_cal
+    cov = None if cal is None or cal.covariance is None else cal.covariance.values
+    dg = None if cov is None else accel_derivative(data.stills, cal)
+    if dg is None:
+        return None
+    C = np.asarray(cov, float)
+    lam, V = np.linalg.eigh((C + C.T) / 2)
+    return dg @ (V * np.sqrt(np.clip(lam, 0, None)))
+
+
+def turn_chi2(res, x=None, dirs=None, cov=None) -> np.ndarray:
+    """Each turn's chi^2 (2 dof) at ``x`` (default ``res``'s solution) in the noise the model
+    predicts for it: the still periods' and the gyro's (``res.turn_chi2``'s), the
+    accelerometer calibration's part (``dirs``, :func:`accel_directions`: its error moves the
+    gravity before and after every turn; issue 24.7c: a random:9 session's accelerometer,
+    9 poses for its 9 parameters, put turns 2-17 times their stated noise off where the true
+    accelerometer left them within it), and, for a turn the parameters ``x`` were fitted
+    without, their uncertainty ``cov`` carried to its residual (a prediction, not a fit)."""
+    gp = res.problem
+    x = np.r_[res.b, res.M.ravel(), [] if res.G is None else res.G.ravel()] if x is None else x
+    blocks = gyro_full._diagonal_blocks(gp.rotation_covariance(x), gp.K)
+    if dirs is not None:
+        F = accel_factor(gp, x, dirs)
+        blocks = blocks + np.einsum("kam,kbm->kab", F, F)
+    if cov is not None:
+        _, J = gp.residuals_and_jacobian(x)
+        Jk = J[: 2 * gp.K].reshape(gp.K, 2, -1)
+        blocks = blocks + np.einsum("kai,ij,kbj->kab", Jk, cov, Jk)
+    r = gp.raw_residuals(x)[: 2 * gp.K].reshape(gp.K, 2)
+    return np.einsum("ki,ki->k", r, np.linalg.solve(blocks, r[:, :, None])[:, :, 0])
+
+
 def residual_warnings(data: GyroData, res, rot, st) -> list[str]:
     """Turns whose gravity residual is far above what the noise predicts (issue 10.2).
 
     The level of the fit is the turns' robust RMS ratio to their predicted noise
-    (``sqrt(median chi^2 / median of chi^2_2)``); the fit is refused when that level exceeds
-    ``[gyro] max_residual_ratio`` (the model does not match the sensor), or when turns exceed
-    that ratio times the level of the others. A bad turn pulls the fit towards itself and
-    raises the others' residuals, so the worst turns are also checked out of sample: refitted
-    without them, do they still disagree by that much?
+    (``sqrt(median chi^2 / median of chi^2_2)``, :func:`turn_chi2`: with the accelerometer
+    calibration's part); the fit is refused when that level exceeds ``[gyro]
+    max_residual_ratio`` (the model does not match the sensor), or when turns exceed that
+    ratio times the level of the others. A bad turn pulls the fit towards itself and raises
+    the others' residuals, so the worst turns are also checked out of sample: refitted
+    without them, do they still disagree by that much (their prediction's uncertainty
+    included)?
     """
     limit = data.cfg.gyro.max_residual_ratio
-    level = _level(res.turn_chi2)
+    dirs = accel_directions(data)
+    chi2 = res.turn_chi2 if dirs is None or res.problem is None else turn_chi2(res, dirs=dirs)
+    level = _level(chi2)
     names = [t.segment.label or t.segment.name for t in data.turns]
     tested = res.G is not None or (res.g_test or {}).get("observable")
     if level > limit:
         g = "" if tested else 'g-sensitivity ([gyro.full] g_sensitivity = "on"), '
-        worst = _describe(np.argsort(-res.turn_chi2), names, res.angle_residual_deg, res)
+        worst = _describe(np.argsort(-chi2), names, res.angle_residual_deg, res)
         return [
             f"the turns' gravity residuals are {level:.0f} times what the noise predicts "
             f"(worst: {worst}): the model does not match this sensor or these turns ({g}a "
             "wrong time base, motion during the still periods)"
         ]
-    outliers, resid = _outliers(data, res, rot, st, level, limit)
+    outliers, resid = _outliers(data, res, rot, st, level, limit, chi2, dirs)
     if outliers:
         return [
             f"{len(outliers)} turn(s) disagree with the others: "
@@ -349,9 +396,11 @@ def _level(chi2: np.ndarray) -> float:
     return float(np.sqrt(np.median(chi2) / CHI2_2_MEDIAN))
 
 
-def _outliers(data, res, rot, st, level, limit) -> tuple[list[int], np.ndarray]:
-    """Turns that disagree with the rest out of sample (refit without them)."""
-    ratio = np.sqrt(res.turn_chi2 / 2)
+def _outliers(data, res, rot, st, level, limit, chi2_fit, dirs) -> tuple[list[int], np.ndarray]:
+    """Turns that disagree with the rest out of sample (refit without them: each one's
+    residual against its noise, the accelerometer calibration's part and the refit's
+    uncertainty carried to it, :func:`turn_chi2`)."""
+    ratio = np.sqrt(chi2_fit / 2)
     order = np.argsort(-ratio)
     candidates = [int(k) for k in order[:MAX_CANDIDATES]
                   if ratio[k] > CANDIDATE_SHARE * limit * max(level, 1.0)]  # fmt: skip
@@ -363,6 +412,10 @@ def _outliers(data, res, rot, st, level, limit) -> tuple[list[int], np.ndarray]:
         )
     except ImucalError:
         return [], res.angle_residual_deg
+    if res.problem is not None:
+        x = np.r_[refit.b, refit.M.ravel(), [] if refit.G is None else refit.G.ravel()]
+        chi2 = turn_chi2(res, x, dirs)
+        chi2[candidates] = turn_chi2(res, x, dirs, refit.cov)[candidates]
     others = _level(np.delete(chi2, candidates))
     out = [k for k in candidates if np.sqrt(chi2[k] / 2) > limit * max(others, 1.0)]
     return out, resid

@@ -24,7 +24,7 @@ from scipy.special import fdtrc
 from imucal_cli.calibrate.common import rms, session_name, with_segments
 from imucal_cli.calibrate.gyro import known_checks as checks
 from imucal_cli.calibrate.gyro.full import (
-    accel_derivative,
+    accel_directions,
     design_warning,
     gain_std,
     parameter_rows,
@@ -56,6 +56,7 @@ from imucal_cli.model.gyro import (
     RateStd,
     RotationRow,
 )
+from imucal_cli.planning.information import axes_std
 
 #: A turn whose measured gravity direction stays within this RMS angle of its mean (deg), and
 #: within VERTICAL_SHARE of its angle, is about the vertical: its axis is measured.
@@ -292,7 +293,7 @@ def calibrate_gyro_known(
         full = gyro_full.fit_full(rot, st, data.noise, b0)
         x0 = np.r_[full.b, full.M.ravel()]
 
-    accel_dirs = _accel_dirs(data)
+    accel_dirs = accel_directions(data)
 
     def fitter(rot_, tau_fixed=None):
         def fit(with_g, tau=None, known_=known):
@@ -355,19 +356,6 @@ def _choose(cfg, data, known, used, st, rot, b0, fitter, vertical_known, accel_d
                            fitter(None) if rot_used is None else rot_fit, g_test,
                            vertical_known, accel_dirs, why_out)  # fmt: skip
     return verdict, rot_used
-
-
-def _accel_dirs(data: GyroData) -> np.ndarray | None:
-    """(P, 3, m): the still periods' calibrated gravity vectors moved along each square-root
-    direction of the accelerometer calibration's covariance (None without one)."""
-    cal = data.accel_cal
-    cov = None if cal is None or cal.covariance is None else cal.covariance.values
-    dg = None if cov is None else accel_derivative(data.stills, cal)
-    if dg is None:
-        return None
-    C = np.asarray(cov, float)
-    lam, V = np.linalg.eigh((C + C.T) / 2)
-    return dg @ (V * np.sqrt(np.clip(lam, 0, None)))
 
 
 def _without_known_turns(session, cfg, accel_cal, data, segs) -> SensorCalibration:
@@ -451,6 +439,45 @@ def _refit(session, cfg, accel_cal, segs, statics, res, data, rot, x, known0,
     return np.r_[fit.b, fit.M.ravel(), [] if fit.G is None else fit.G.ravel()]
 
 
+def _axes_limit(res, known, notes) -> str | None:
+    """Why turns of known angle alone leave the gyro's rates uncertain, when their axes do it
+    (issue 24.5: a Ferraris session's 3 full turns fix the gains to a fraction of a percent,
+    its axes only as well as their labels were placed, 2-3 degrees by hand): the rate std
+    the axes alone leave (each axis moved by its std across it, the turns' closed form
+    refitted), said with the gains' std and what would tie the axes better. None where the
+    axes are not what limits it."""
+    if len(known.t) < 3 or not any("axis labelled" in n for n in notes):
+        return None
+    n = known.axis
+    cov = np.zeros((9, 9))
+    try:
+        M0 = gyro_known.closed_form(known, res.b)
+        for k in range(len(n)):
+            t1 = np.cross(n[k], np.eye(3)[np.argmin(np.abs(n[k]))])
+            t1 /= np.linalg.norm(t1)
+            for t in (t1, np.cross(n[k], t1)):
+                axis = n.copy()
+                axis[k] = n[k] + known.axis_sigma[k] * t
+                axis[k] /= np.linalg.norm(axis[k])
+                dM = gyro_known.closed_form(replace(known, axis=axis), res.b) - M0
+                cov += np.outer(dM.ravel(), dM.ravel())
+    except DesignError:
+        return None
+    axes = rate_std(res.M, cov)
+    total = rate_std(res.M, res.cov[3:12, 3:12])
+    if axes < 0.5 * total:
+        return None
+    gains = np.linalg.norm(np.linalg.inv(res.M), axis=1)
+    g_std = float(np.max(gain_std(res.M, res.cov[3:12, 3:12]) / gains))
+    placed = float(np.degrees(np.sqrt(2) * np.max(known.axis_sigma)))
+    return (f"the turns of known angle fix its gains to {100 * g_std:.2g} %, but its axes only "
+            f"as well as their labels sit on the unit ({placed:.2g} deg RMS, as the "
+            f"accelerometer's labelled poses measured the placement), which alone leaves "
+            f"{100 * axes:.2g} %: place the unit square on each face (a square block against a "
+            "ruler, a jig), or keep the moves between the faces as turns (imucal capture and "
+            "imucal import without --sections segment them): gravity then ties the axes")
+
+
 #: Fewer spare equations than this in the known turns alone: they cannot check each other.
 MIN_SPARE = 3
 
@@ -493,14 +520,16 @@ def _section(data: GyroData, res, known, used, g_test, uncertainty, assumed: boo
     ] + verdict.gravity_rows  # fmt: skip
     data.warnings += verdict.blocking
     data.notes += verdict.notes
-    undetermined = design_warning(data, uncertainty, len(used) + len(data.turns))
+    with_gravity = verdict.comparison.turns_between_still_periods == "used"
+    undetermined = design_warning(data, uncertainty, len(used) + len(data.turns),
+                                  why=None if with_gravity else _axes_limit(res, known, notes=
+                                                                            data.notes))
     S = np.linalg.inv(res.M)
     gains = np.linalg.norm(S, axis=1)
     data.warnings += gyro_checks(data.session, data.cfg, gains, units)
     if undetermined:
         data.warnings.append(undetermined)
     blocking = list(data.warnings)  # the rest are said, not refused (issue 10.3)
-    with_gravity = verdict.comparison.turns_between_still_periods == "used"
     spare = _spare_text(data, known, used, assumed, with_gravity)
     if spare and not assumed:  # std measured (the accelerometer's placement, the vertical)
         data.notes.append(spare)
@@ -522,6 +551,9 @@ def _section(data: GyroData, res, known, used, g_test, uncertainty, assumed: boo
             f"{AXES[i]}{AXES[j]}": float(np.degrees(np.arccos(s_axes[i] @ s_axes[j])) - 90)
             for i, j in ((0, 1), (0, 2), (1, 2))
         },
+        # std of misalignment_deg (delta method), for targets (capture --until)
+        "misalignment_std_deg": dict(zip(("xy", "xz", "yz"), map(float, axes_std(
+            res.M, res.cov[3:12, 3:12])[2]), strict=True)),
         "rotations": rotations,
         "rotation_rms_deg": float(rms(res.angle_error_deg)),
         "iterations": res.iterations, "chi2": res.chi2, "dof": res.dof,

@@ -43,6 +43,7 @@ from rich.console import Console
 from imucal_cli.design.stillness import StillnessDetector
 from imucal_cli.plans import CaptureSummary, Plan
 
+from .adaptive import AdaptiveOptions, AdaptiveState, Refit
 from .direction import estimate_direction
 from .keys import Command, KeySource, ScriptedKeys, StdinKeys, parse_command
 from .screen import Screen
@@ -50,12 +51,15 @@ from .state import GuidedOptions, GuidedState, Message, Prompt
 from .words import instruction
 
 __all__ = [
+    "AdaptiveOptions",
+    "AdaptiveState",
     "Command",
     "GuidedOptions",
     "GuidedState",
     "KeySource",
     "Message",
     "Prompt",
+    "Refit",
     "ScriptedKeys",
     "StdinKeys",
     "estimate_direction",
@@ -67,7 +71,7 @@ __all__ = [
 
 def run_guided(
     recorder,
-    plan: Plan,
+    plan: Plan | None,
     *,
     console: Console,
     keys: KeySource,
@@ -88,6 +92,7 @@ def run_guided(
     tick_s: float = 0.1,
     mag_goal: float = 0.9,
     done_before: list | None = None,
+    adaptive: AdaptiveOptions | None = None,
 ) -> CaptureSummary:
     """Guide a person through ``plan`` while ``recorder`` records; return what was done.
 
@@ -97,8 +102,8 @@ def run_guided(
         Provides ``blocks(tick_s)``, ``n_samples``, ``add_segment(...)``, ``stop()``,
         ``end_reason``, ``stats`` and, optionally, ``accel_units``/``gyro_units``.  Blocks must
         be yielded after they were appended (segment indices count the recorder's samples).
-    plan : Plan
-        The steps (static and rotation).
+    plan : Plan or None
+        The steps (static and rotation); None only with ``adaptive`` (every pose proposed).
     console : rich.console.Console
         Where to talk.  A terminal gets a live display; anything else plain lines.
     keys : KeySource
@@ -111,6 +116,9 @@ def run_guided(
     done_before : list, optional
         Continuing a capture: the session's segments, ``(kind, label, mean raw accel or
         None)`` in time order; the steps they fulfil are done (see :meth:`GuidedState.resume`).
+    adaptive : AdaptiveOptions, optional
+        Capture until accuracy targets are met (:class:`AdaptiveState`): refits, proposals,
+        holds that end by themselves; ``complete`` then means every target was met.
 
     Returns
     -------
@@ -131,7 +139,11 @@ def run_guided(
         axis_tolerance_deg=float(axis_tolerance_deg), tick_s=float(tick_s),
         mag_goal=float(mag_goal),
     )  # fmt: skip
-    state = GuidedState(plan, opt, int(recorder.n_samples), recorder.add_segment)
+    if adaptive is not None:
+        state = AdaptiveState(plan, opt, int(recorder.n_samples), recorder.add_segment,
+                              adaptive)  # fmt: skip
+    else:
+        state = GuidedState(plan, opt, int(recorder.n_samples), recorder.add_segment)
     if done_before:
         state.resume(done_before)
     return drive(state, Screen(console, opt.refresh_hz), recorder, keys, opt.tick_s)

@@ -94,7 +94,8 @@ class Screen:
             return
         if p.phase not in ("move", "mag") and (p.step, p.serial) != self.told:
             self.told = (p.step, p.serial)
-            self.line(f"step {p.step + 1}/{p.n_steps}: {p.text}", "bold")
+            of = f"/{p.n_steps}" if p.n_steps else ""  # 0: open-ended (capture --until)
+            self.line(f"step {p.step + 1}{of}: {p.text}", "bold")
         if p.phase == "hold":
             if self.phase != "hold":
                 self.line(f"still: holding {p.hold_s:g} s ...")
@@ -116,7 +117,8 @@ class Screen:
         rows = Table.grid(padding=(0, 1))
         rows.add_column()
         if p.step is not None:
-            rows.add_row(Text(f"[step {p.step + 1}/{p.n_steps}] {p.text}", style="bold"))
+            of = f"/{p.n_steps}" if p.n_steps else ""
+            rows.add_row(Text(f"[step {p.step + 1}{of}] {p.text}", style="bold"))
         elif p.phase == "mag":
             rows.add_row(Text(p.text, style="bold"))
         signal = Text()
@@ -136,6 +138,8 @@ class Screen:
             if state.mag.ready:
                 rows.add_row(Text("\n".join(coverage_map(state.mag.map_directions())[:-1]),
                                   style="cyan"))  # fmt: skip
+        for row in state.view_rows():
+            rows.add_row(row)
         rows.add_row(Text(state.progress_text(), style="dim"))
         rows.add_row(Text(COMMANDS, style="dim"))
         return Group(rows)

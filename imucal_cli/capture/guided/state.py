@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from imucal_cli.design.poses import coverage, describe_direction
-from imucal_cli.design.stillness import StillnessDetector, StillState
+from imucal_cli.design.stillness import DEFAULT_ALPHA, StillnessDetector, StillState
 from imucal_cli.plans import CaptureSummary, Plan
 
 from .direction import estimate_direction
@@ -50,7 +50,8 @@ class GuidedOptions:
     gyro_scale : float, optional
         Raw gyro units per rad/s, to show measured turn angles for ``counts``/``V``.
     detector : StillnessDetector, optional
-        Default ``StillnessDetector()`` (0.25 s windows, false alarm 1e-4 per window).
+        Default: 0.25 s windows, false alarm 1e-4 per window, less for a plan with longer
+        holds (:func:`_detector_for`).
     warn_after_s : float
         A hold interrupted by motion after this long is reported ("moved during the hold");
         shorter still moments are handling.
@@ -87,6 +88,21 @@ class GuidedOptions:
     def __post_init__(self) -> None:
         if not self.hold_s > 0:
             raise ValueError(f"hold_s must be > 0, got {self.hold_s!r}")
+
+
+#: The hold the default false-alarm rate is made for (capture's --hold), s.
+REFERENCE_HOLD_S = 2.0
+
+
+def _detector_for(plan: Plan) -> StillnessDetector:
+    """The stillness detector of a guided capture of ``plan``.  A false alarm restarts a hold
+    with a probability of about ``alpha`` times the windows it spans: a plan with a longer
+    hold (``warmup:MINUTES``, ``still:MINUTES``) tests each window at a proportionally smaller
+    ``alpha``, so that its hold restarts no more often than a 2 s one (the served warm-up of
+    seed 0 restarted twice in its 2 minutes at ``DEFAULT_ALPHA``; a real motion is still far
+    above the threshold, 1.22 -> 1.28 x the noise for 2 minutes)."""
+    longest = max([REFERENCE_HOLD_S, *(s.hold_s or 0.0 for s in plan.static_steps)])
+    return StillnessDetector(alpha=DEFAULT_ALPHA * REFERENCE_HOLD_S / longest)
 
 
 def _duration(seconds: float) -> str:
@@ -162,7 +178,7 @@ class GuidedState:
         self.uncommitted: Taken | None = None
         self.committed_start = -1
         self.focus: int | None = None
-        self.detector = opt.detector or StillnessDetector()
+        self.detector = opt.detector or _detector_for(plan)
         self.base = int(base)
         longest = max((s.hold_s or 0.0 for s in self.steps), default=0.0)
         self.hist = SampleHistory(self.base, keep_s=longest + 10.0 if longest else 0.0)
@@ -556,11 +572,7 @@ class GuidedState:
             self.say("this session has no accelerometer: static steps cannot be taken", "red")
             return
         direction = self.direction_of(accel)
-        index, refusal = match_hold(
-            direction, self.current(), self.candidates(), self.steps, self.taken_poses(),
-            min_separation_deg=self.o.min_separation_deg,
-            match_tolerance_deg=self.o.match_tolerance_deg, is_pose=self.is_pose,
-        )  # fmt: skip
+        index, refusal = self.match_pose(direction)
         if refusal:
             self.say(refusal, "bold red")
             return
@@ -569,17 +581,29 @@ class GuidedState:
             turn = (self.turn_from, s0)
         self.turn_from = None
         self.take(Taken(index, "static", s0, stop, direction, turn=turn))
-        n_done = sum(st == "done" for st in self.status)
         where = "" if direction is None else f" (measured up {describe_direction(direction)})"
-        self.say(
-            f"recorded {self.steps[index].label}{where} ({n_done} of {len(self.steps)})",
-            "bold green",
-        )
+        self.say(f"recorded {self.steps[index].label}{where}{self.count_text()}", "bold green")
         self.tell_coverage()
         self.tell_left()
         self.after_step()
         if self.current() is not None and self.steps[self.current()].kind == "static":
             self.say("turn the unit to the next pose")
+
+    def match_pose(self, direction: np.ndarray | None) -> tuple[int, str | None]:
+        """The step a finished hold fulfils, and a refusal (None: accepted)."""
+        return match_hold(
+            direction, self.current(), self.candidates(), self.steps, self.taken_poses(),
+            min_separation_deg=self.o.min_separation_deg,
+            match_tolerance_deg=self.o.match_tolerance_deg, is_pose=self.is_pose,
+        )  # fmt: skip
+
+    def count_text(self) -> str:
+        """`` (3 of 6)``: the steps done of the plan's."""
+        return f" ({sum(st == 'done' for st in self.status)} of {len(self.steps)})"
+
+    def view_rows(self) -> list:
+        """More rows of the live view (rich renderables; none here)."""
+        return []
 
     def direction_of(self, accel: np.ndarray) -> np.ndarray | None:
         direction = estimate_direction(

@@ -127,6 +127,17 @@ def second_order(f, x: np.ndarray, cov: np.ndarray, rel: float = 1e-4, many=Fals
     return 0.5 * np.einsum("iab,ba->i", H, cov), 0.5 * np.einsum("iab,jba->ij", HC, HC)
 
 
+def faces_of(up: np.ndarray) -> np.ndarray:
+    """The face of each pose: poses with the same label share one index (unlabelled poses
+    their own), shape (N,)."""
+    keys: dict = {}
+    out = np.empty(len(up), dtype=int)
+    for k, u in enumerate(np.asarray(up, float)):
+        key = tuple(np.round(u, 9)) if np.isfinite(u).all() else ("unlabelled", k)
+        out[k] = keys.setdefault(key, len(keys))
+    return out
+
+
 def whitening(cov_mean: np.ndarray) -> np.ndarray:
     """``W_k`` with ``W_k^T W_k = Sigma_k^-1``, shape (N, 3, 3)."""
     L = np.linalg.cholesky(np.linalg.inv(cov_mean))
@@ -143,13 +154,16 @@ class Problem:
     (label-limited) frame on the (noise-limited) gains.
     """
 
-    def __init__(self, a_n, cov_n, u0, labelled, g, sigma_p, meas_scale=1.0):
+    def __init__(self, a_n, cov_n, u0, labelled, g, sigma_p, meas_scale=1.0, faces=None):
         self.a_n, self.cov_n, self.u0, self.g = a_n, cov_n, u0, g
         self.W = whitening(cov_n)
         self.offset = np.zeros_like(a_n)  # second-order mean of each prediction (marginalise)
         self.T = tangent_bases(u0)
         self.lab = np.flatnonzero(labelled)
         self.N = len(a_n)
+        # Face of each labelled pose (its label, :func:`faces_of`): the poses on one face
+        # share that face's part of their placement (L1b). None: every pose its own face.
+        self.faces = None if faces is None else np.asarray(faces)[self.lab]
         self.sigma_p = sigma_p
         self.meas_scale = meas_scale  # measurement sigma multiplier (noise_scale ** 0.5)
         # The last prediction and where it was made: a Levenberg-Marquardt step evaluates
@@ -161,6 +175,49 @@ class Problem:
         self._dirs: tuple[bytes, tuple[np.ndarray, np.ndarray]] | None = None
         self._rot: tuple[bytes, np.ndarray, list | None] | None = None
         self._layout: tuple | None = None
+
+    @property
+    def sigma_p(self) -> float:
+        """Prior std of each placement angle, rad: ``sqrt(sigma_f^2 + sigma_h^2)`` (L1b)."""
+        return float(np.hypot(self.sigma_f, self.sigma_h))
+
+    @sigma_p.setter
+    def sigma_p(self, value: float) -> None:  # one component: every pose placed on its own
+        self.set_placement(0.0, value)
+
+    @property
+    def repeated(self) -> bool:
+        """Whether some face holds more than one labelled pose (the two parts separate)."""
+        return self.faces is not None and len(np.unique(self.faces)) < len(self.faces)
+
+    def set_placement(self, sigma_f: float, sigma_h: float) -> None:
+        """The placement's two parts (L1b), rad per angle, and the prior rows' whitening
+        ``C^-1/2`` (symmetric, so that each pose keeps its own two rows): per face of ``m``
+        poses ``C = sigma_f^2 1 1^T + sigma_h^2 I``, whose inverse square root is
+        ``(I - 1 1^T / m) / sigma_h + 1 1^T / m / sqrt(sigma_h^2 + m sigma_f^2)``."""
+        self.sigma_f, self.sigma_h = float(sigma_f), float(sigma_h)
+        L = len(self.lab)
+        if self.sigma_f == 0.0 or not self.repeated:
+            self.Wp = np.eye(L) / self.sigma_p
+        else:
+            Wl = np.zeros((L, L))
+            for f in np.unique(self.faces):
+                idx = np.flatnonzero(self.faces == f)
+                m = len(idx)
+                mean = np.full((m, m), 1.0 / m)
+                Wl[np.ix_(idx, idx)] = ((np.eye(m) - mean) / self.sigma_h
+                                        + mean / np.sqrt(self.sigma_h**2 + m * self.sigma_f**2))
+            self.Wp = Wl
+        self.Wp2 = np.kron(self.Wp, np.eye(2))  # on the rows (delta_k1, delta_k2) per pose
+
+    def placement_covariance(self) -> tuple[np.ndarray, np.ndarray]:
+        """The placement's prior covariance (2L, 2L) and its face part per unit
+        ``sigma_f^2`` (the face indicator), for the variance components (L1b)."""
+        L = len(self.lab)
+        same = (np.eye(L) if self.faces is None
+                else (self.faces[:, None] == self.faces[None, :]).astype(float))
+        Vf = np.kron(same, np.eye(2))
+        return self.sigma_f**2 * Vf + self.sigma_h**2 * np.eye(2 * L), Vf
 
     @property
     def n_rows(self) -> int:
@@ -238,11 +295,11 @@ class Problem:
         f = self.values(x)
         e = self.a_n - B - f - self.offset
         r_meas = np.einsum("nij,nj->ni", self.W, e).ravel() / self.meas_scale
-        return np.concatenate([r_meas, d[self.lab].ravel() / self.sigma_p])
+        return np.concatenate([r_meas, self.Wp2 @ d[self.lab].ravel()])
 
     def jacobian(self, x, sparse=False):
         _, D = self.predict(x)
-        N, L = self.N, len(self.lab)
+        N = self.N
         W = self.W / self.meas_scale
         Jt = np.empty((N, 3, 12))
         Jt[:, :, :3] = -W
@@ -250,14 +307,15 @@ class Problem:
         Jd = -np.einsum("nij,njc->nic", W, D[:, :, 9:])
         rows_d, cols_d, pr_rows, pr_cols = self.layout()
         if sparse:
-            r = np.concatenate([np.repeat(np.arange(3 * N), 12), rows_d.ravel(), pr_rows])
-            c = np.concatenate([np.tile(np.arange(12), 3 * N), cols_d.ravel(), pr_cols])
-            v = np.concatenate([Jt.ravel(), Jd.ravel(), np.full(2 * L, 1.0 / self.sigma_p)])
+            pi, pj = np.nonzero(self.Wp2)
+            r = np.concatenate([np.repeat(np.arange(3 * N), 12), rows_d.ravel(), pr_rows[pi]])
+            c = np.concatenate([np.tile(np.arange(12), 3 * N), cols_d.ravel(), pr_cols[pj]])
+            v = np.concatenate([Jt.ravel(), Jd.ravel(), self.Wp2[pi, pj]])
             return coo_matrix((v, (r, c)), shape=(self.n_rows, 12 + 2 * N)).tocsr()
         J = np.zeros((self.n_rows, 12 + 2 * N))
         J[: 3 * N, :12] = Jt.reshape(3 * N, 12)
         J[rows_d.ravel(), cols_d.ravel()] = Jd.ravel()
-        J[pr_rows, pr_cols] = 1.0 / self.sigma_p
+        J[np.ix_(pr_rows, pr_cols)] = self.Wp2
         return J
 
     def layout(self):

@@ -45,6 +45,8 @@ from imucal_cli.model.calibration import Calibration
 __all__ = [
     "export_kalibr",
     "export_kalibr_imu",
+    "kalibr_block",
+    "kalibr_header",
     "frame_comments",
     "frame_for",
     "noise_lines",
@@ -160,9 +162,17 @@ def export_kalibr(cal: Calibration, opts: ExportOptions) -> str:
     """
     target = "Kalibr"
     frame = frame_for(cal, opts, target)
+    lines = kalibr_header(cal) + ["# " + line for line in frame_comments(frame, cal, opts,
+                                                                          target)]  # fmt: skip
+    lines += kalibr_block(frame, opts)
+    return "\n".join(lines) + "\n"
+
+
+def kalibr_header(cal: Calibration) -> list[str]:
+    """The comment lines of a Kalibr intrinsics file: provenance and the model."""
     lines = ["# " + line for line in provenance(cal, "Kalibr IMU intrinsics, model "
                                                 "scale-misalignment")]  # fmt: skip
-    lines += [
+    return lines + [
         "# Kalibr's model (IccScaledMisalignedImu), p what the driver publishes (m/s^2, rad/s):",
         "#   p_a = M_accel @ a_i + accelerometer_bias",
         "#   p_w = M_gyro @ C_gyro_i @ w_i + A @ C_gyro_i @ a_i + gyroscope_bias",
@@ -170,14 +180,24 @@ def export_kalibr(cal: Calibration, opts: ExportOptions) -> str:
         "#   w_i = C_gyro_i^T @ inv(M_gyro) @ (p_w - gyroscope_bias - A @ C_gyro_i @ a_i).",
         "# a_i in m/s^2, w_i in rad/s, A in (rad/s)/(m/s^2). The bias keys are imucal's fixed",
         "# biases (Kalibr itself estimates time-varying biases and does not read them).",
-        *("# " + line for line in frame_comments(frame, cal, opts, target)),
-        "imu0:",
+    ]
+
+
+def kalibr_block(frame: KalibrFrame, opts: ExportOptions, name: str = "imu0",
+                 T_i_b: np.ndarray | None = None, time_offset: float = 0.0,
+                 topic: str | None = None) -> list[str]:  # fmt: skip
+    """One IMU's entry: ``T_i_b`` (4 x 4; default the rotation into Kalibr's frame),
+    ``time_offset`` (s, Kalibr's: the time added to this IMU's stamps), the noise keys when
+    given, and the intrinsics."""
+    if T_i_b is None:
+        T_i_b = np.block([[frame.C_i_b, np.zeros((3, 1))], [np.zeros((1, 3)), 1.0]])
+    lines = [
+        f"{name}:",
         "  T_i_b:",
-        *yaml_matrix(np.block([[frame.C_i_b, np.zeros((3, 1))], [np.zeros((1, 3)), 1.0]]),
-                     "    "),  # fmt: skip
+        *yaml_matrix(T_i_b, "    "),
         "  model: scale-misalignment",
-        f"  rostopic: {opts.topic}",
-        "  time_offset: 0.0",
+        f"  rostopic: {topic or opts.topic}",
+        f"  time_offset: {fmt(time_offset) if time_offset else '0.0'}",
     ]
     if opts.noise is not None:
         lines += noise_lines(opts.noise, "  ", opts.rate_hz or opts.noise.rate_hz)
@@ -197,4 +217,4 @@ def export_kalibr(cal: Calibration, opts: ExportOptions) -> str:
         f"  accelerometer_bias: {yaml_vector(frame.b_accel)}  # m/s^2",
         f"  gyroscope_bias: {yaml_vector(frame.b_gyro)}  # rad/s",
     ]
-    return "\n".join(lines) + "\n"
+    return lines

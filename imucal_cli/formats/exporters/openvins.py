@@ -31,7 +31,7 @@ from imucal_cli.formats.exporters.kalibr import (
 )
 from imucal_cli.model.calibration import Calibration
 
-__all__ = ["export_openvins"]
+__all__ = ["export_openvins", "openvins_block", "openvins_header"]
 
 
 def export_openvins(cal: Calibration, opts: ExportOptions) -> str:
@@ -47,25 +47,42 @@ def export_openvins(cal: Calibration, opts: ExportOptions) -> str:
         raise InputError("OpenVINS needs the noise keys in kalibr_imu_chain.yaml: pass --noise "
                          "NOISE.json (from imucal noise SESSION --json)")  # fmt: skip
     frame = frame_for(cal, opts, target)
+    lines = openvins_header(cal) + [
+        *("# " + line for line in frame_comments(frame, cal, opts, target)),
+        "",
+    ]
+    lines += openvins_block(frame, opts)
+    return "\n".join(lines) + "\n"
+
+
+def openvins_header(cal: Calibration) -> list[str]:
+    """The first lines of the chain file: the YAML version, provenance and the model."""
     lines = ["%YAML:1.0"]
     lines += ["# " + line for line in provenance(cal, "OpenVINS kalibr_imu_chain.yaml, model "
                                                  "kalibr")]  # fmt: skip
-    lines += [
+    return lines + [
         "# OpenVINS's model, p what the driver publishes (m/s^2, rad/s), I the IMU frame:",
         "#   a_I = R_IMUtoACC^T @ inv(Ta) @ (p_a - b_a)",
         "#   w_I = R_IMUtoGYRO^T @ inv(Tw) @ (p_w - Tg @ a_I - b_w)",
         "# Tw, Ta lower triangular (model kalibr); Tg in (rad/s)/(m/s^2). OpenVINS estimates",
         "# b_a, b_w online; imucal's fixed biases are accelerometer_bias, gyroscope_bias below.",
-        *("# " + line for line in frame_comments(frame, cal, opts, target)),
-        "",
-        "imu0:",
+    ]
+
+
+def openvins_block(frame, opts: ExportOptions, name: str = "imu0",
+                   T_i_b: np.ndarray | None = None, time_offset: float = 0.0,
+                   topic: str | None = None) -> list[str]:  # fmt: skip
+    """One IMU's entry of the chain (``T_i_b`` 4 x 4, identity by default; ``time_offset``
+    s)."""
+    lines = [
+        f"{name}:",
         "  T_i_b:",
-        *yaml_matrix(np.eye(4), "    "),
+        *yaml_matrix(np.eye(4) if T_i_b is None else T_i_b, "    "),
     ]
     lines += noise_lines(opts.noise, "  ", opts.rate_hz or opts.noise.rate_hz)
     lines += [
-        f"  rostopic: {opts.topic}",
-        "  time_offset: 0.0",
+        f"  rostopic: {topic or opts.topic}",
+        f"  time_offset: {repr(float(time_offset)) if time_offset else '0.0'}",
         '  model: "kalibr"',
         "  Tw:",
         *yaml_matrix(frame.M_gyro, "    "),
@@ -80,4 +97,4 @@ def export_openvins(cal: Calibration, opts: ExportOptions) -> str:
         f"  accelerometer_bias: {yaml_vector(frame.b_accel)}",
         f"  gyroscope_bias: {yaml_vector(frame.b_gyro)}",
     ]
-    return "\n".join(lines) + "\n"
+    return lines

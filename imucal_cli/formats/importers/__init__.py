@@ -40,8 +40,10 @@ from imucal_cli.design.segmentation import (
 )
 from imucal_cli.errors import InputError
 from imucal_cli.formats.session import Segment, Session
+from imucal_cli.formats.set_columns import imu_number_name, split_columns, split_header
 
 from . import csv, imu_tk, mavlink, ros, serial_lines, ulog, witmotion
+from .imu_set import imu_name, imu_stream, set_streams
 from .mavlink import looks_like_dataflash, looks_like_dataflash_text, looks_like_tlog
 from .recording import (
     ACCEL_UNITS,
@@ -51,12 +53,14 @@ from .recording import (
     ImportStats,
     ReadOptions,
     Recording,
+    SeveralStreams,
 )
 from .sections import labelled_segments, read_section_list, sections_of_column
 from .serial_lines import detect_line_format
 from .text import (
     FIELDS,
     check_time,
+    first_fields,
     infer_columns,
     parse_columns,
     parse_numbers,
@@ -398,10 +402,13 @@ def import_files(
         See :func:`read_recording` and :func:`segment_recording`; unknown units.
     """
     _check_units(accel_units, gyro_units, mag_units, magnetic_field_uT)
-    rec = read_recording(
+    given_units = (accel_units, gyro_units, mag_units)
+    recs = _read_set(
         paths, fmt, columns, time_unit=time_unit, rate_hz=rate_hz, skip_rows=skip_rows,
         topic=topic, mag_topic=mag_topic,
-    )
+    )  # one recording per IMU, the reference first (several IMUs: issue 28)
+    names = list(recs)
+    rec = recs[names[0]]
     accel_units = accel_units or rec.accel_units
     gyro_units = gyro_units or rec.gyro_units
     mag_units = mag_units or rec.mag_units
@@ -423,10 +430,57 @@ def import_files(
         magnetic_field_uT=magnetic_field_uT,
         host_time=rec.host_time,
     )
+    if len(names) > 1:
+        session.imus = {n: imu_stream(recs[n], given_units) for n in names[1:]}
+        session.reference_name = names[0]
+        notes.append(f"{len(names)} IMUs: {names[0]} (the reference, /raw), "
+                     f"{', '.join(names[1:])} (/imus), each with its own time stamps")
     session.import_stats = rec.stats  # type: ignore[attr-defined]
     session.import_notes = notes  # type: ignore[attr-defined]
     session.import_warnings = rec.warnings + _gap_warnings(rec, segments)  # type: ignore[attr-defined]
     return session
+
+
+def _read_set(paths, fmt, columns, **options) -> dict[str, Recording]:
+    """Each IMU's recording, the reference first: one for a single IMU; every IMU of a log
+    whose reader found several streams and none was chosen (:func:`.imu_set.set_streams`),
+    or of a CSV whose columns name several (``ax.1``, :mod:`imucal_cli.formats.set_columns`)."""
+    used = detect_format(paths) if fmt is None else fmt
+    if used == "csv" and len(paths) == 1:
+        specs = _csv_specs(Path(paths[0]), columns, options["skip_rows"])
+        if specs is not None:
+            return {imu_number_name(k): read_recording(paths, used, spec, **options)
+                    for k, spec in specs.items()}  # fmt: skip
+    try:
+        return {"reference": read_recording(paths, fmt, columns, **options)}
+    except SeveralStreams as exc:
+        streams = set_streams(exc.labels) if options["topic"] is None else []
+        if len(streams) < 2:
+            raise
+        recs = {}
+        for label in streams:
+            name = imu_name(label)
+            if name in recs:
+                raise InputError(f"{paths[0]}: two streams would be IMU {name!r}") from None
+            recs[name] = read_recording(paths, fmt, columns, **{**options, "topic": label})
+        return recs
+
+
+def _csv_specs(path: Path, columns, skip_rows: int) -> dict[int, object] | None:
+    """Per IMU number the column spec of a CSV naming several IMUs: from ``--columns``, else
+    from its header line; None for one IMU."""
+    if isinstance(columns, str):
+        return split_columns(columns)
+    if columns is not None:
+        return None
+    first = first_fields(path, skip_rows) if path.is_file() else None
+    if first is None or parse_numbers(first) is not None:
+        return None
+    split = split_header(first)
+    if split is None:
+        return None
+    specs = {k: infer_columns(v) for k, v in split.items()}
+    return specs if all(s is not None for s in specs.values()) else None
 
 
 def _gap_warnings(rec: Recording, segments: list[Segment]) -> list[str]:

@@ -62,7 +62,7 @@ from imucal_cli.errors import InputError
 from imucal_cli.formats.inputs import read_head
 
 from .library import one_line_reason, quiet
-from .recording import STAMPS_KEPT, choose_time, increasing
+from .recording import STAMPS_KEPT, SeveralStreams, choose_time, increasing
 from .ros import Channels, hold_latest, one_file, to_recording
 from .ulog import pair_by_time
 
@@ -152,7 +152,8 @@ def choose_stream(labels: list[str], wanted: str | None, src: str, what: str) ->
     if wanted is None:
         if len(labels) == 1:
             return labels[0]
-        raise InputError(f"{src}: several IMU streams: {listed}; choose one with --topic")
+        raise SeveralStreams(f"{src}: several IMU streams: {listed}; choose one with --topic",
+                             labels)
     matches = [
         label for label in labels
         if wanted in (label, label.partition("@")[0], label.partition("@")[0].partition(".")[0])

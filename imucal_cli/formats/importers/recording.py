@@ -8,17 +8,34 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from imucal_cli.errors import InputError
 from imucal_cli.formats.columns import TIME_UNITS as COLUMN_TIME_UNITS
 
 __all__ = [
     "ACCEL_UNITS", "GYRO_UNITS", "MAG_UNITS", "STAMPS_KEPT", "TIME_UNITS", "ImportStats",
-    "ReadOptions", "Recording", "choose_time", "increasing",
+    "ReadOptions", "Recording", "SeveralStreams", "choose_time", "increasing",
 ]  # fmt: skip
 
 TIME_UNITS = COLUMN_TIME_UNITS  # one table for capture, import and apply (s, ms, us, ns)
 ACCEL_UNITS = ("counts", "V", "g", "m/s^2")
 GYRO_UNITS = ("counts", "V", "rad/s", "deg/s")
 MAG_UNITS = ("counts", "uT", "nT", "gauss")
+
+
+class SeveralStreams(InputError):
+    """A log holds several IMU streams and none was chosen (``--topic``): the refusal a single
+    IMU gets, carrying the streams, so that ``import`` can bring them all into one session of
+    several IMUs (issue 28).
+
+    Attributes
+    ----------
+    labels : list of str
+        Every stream, as ``--topic`` names it.
+    """
+
+    def __init__(self, message: str, labels: list[str]) -> None:
+        super().__init__(message)
+        self.labels = list(labels)
 
 
 @dataclass(frozen=True)

@@ -29,7 +29,7 @@ import numpy as np
 from imucal_cli.errors import InputError
 
 from .library import damaged_as_input_error, quiet
-from .recording import STAMPS_KEPT, Recording, choose_time, increasing
+from .recording import STAMPS_KEPT, Recording, SeveralStreams, choose_time, increasing
 
 __all__ = ["Channels", "choose_topic", "hold_latest", "read_mcap", "read_ros", "read_rosbag"]
 
@@ -110,8 +110,8 @@ def choose_topic(topics: dict[str, str], wanted: str | None, source: str) -> str
     if not imu:
         others = ", ".join(f"{t} ({ty})" for t, ty in sorted(topics.items())) or "none"
         raise InputError(f"{source}: no sensor_msgs/Imu topic; topics: {others}")
-    raise InputError(f"{source}: several sensor_msgs/Imu topics: {', '.join(imu)}; choose one "
-                     "with --topic")  # fmt: skip
+    raise SeveralStreams(f"{source}: several sensor_msgs/Imu topics: {', '.join(imu)}; choose "
+                         "one with --topic", imu)  # fmt: skip
 
 
 def _companion(topics: dict[str, str], kind: str, imu_topic: str,

@@ -48,6 +48,7 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 from imucal_cli.formats.importers.library import one_line_reason, quiet
+from imucal_cli.formats.importers.recording import SeveralStreams
 from imucal_cli.formats.importers.ros import Channels, hold_latest, one_file, to_recording
 
 __all__ = ["KINDS", "pair_by_time", "read_ulog"]
@@ -228,8 +229,9 @@ def _choose(found: dict, wanted: str | None, src: str) -> tuple[Kind, int, list[
         if len(instances) > 1:
             listed = ", ".join(f"{kind.name}.{i} (device_id {_device_id(found, kind, i)})"
                                for i in instances)  # fmt: skip
-            raise InputError(f"{src}: several IMU instances: {listed}; choose one with --topic "
-                             "N or --topic TOPIC.N")  # fmt: skip
+            raise SeveralStreams(f"{src}: several IMU instances: {listed}; choose one with "
+                                 "--topic N or --topic TOPIC.N",
+                                 [f"{kind.name}.{i}" for i in instances])  # fmt: skip
         instance = instances[0]
     if instance not in instances:
         raise InputError(f"{src}: no {kind.accel} and {kind.gyro} instance {instance}; "

@@ -36,19 +36,16 @@ through :mod:`imucal_cli.formats.output`.
 Modules: :mod:`.model` (``Session``, ``Segment``, constants, attribute values), :mod:`.h5open`
 (opening a file for reading), :mod:`.superblock`, :mod:`.reader`, :mod:`.writer` (the samples),
 :mod:`.segments` (the segments and calibrations a writer keeps until it closes, and their log),
-:mod:`.store`, :mod:`.stream` (a session read block by block: ``open_samples``).  Import the
+:mod:`.store`, :mod:`.stream` (a session read block by block: ``open_samples``); several IMUs
+(issue 28): :mod:`.imu_stream` (``ImuStream``), :mod:`.imus` (reading ``/imus``, one IMU of a
+set as a session), :mod:`.imu_writer` (``/imus`` beside ``/raw``).  Import the
 public names from here (``from imucal_cli.formats.session import
 read_session``).
 """
 
 from __future__ import annotations
 
-from imucal_cli.formats.session.h5open import check_session_file, open_for_reading
-from imucal_cli.formats.session.reader import read_session
-from imucal_cli.formats.session.relabel import ROOT_LABELS, rewrite_labels
-from imucal_cli.formats.session.store import store_calibration
-from imucal_cli.formats.session.stream import SessionSamples, open_samples, samples_of
-from imucal_cli.formats.session.writer import SessionWriter, write_session
+from imucal_cli.model.imu_stream import REFERENCE_NAME, ImuStream
 from imucal_cli.model.session import (
     FORMAT,
     FORMAT_VERSION,
@@ -67,10 +64,22 @@ from imucal_cli.model.session import (
     utc_now_iso,
 )
 
+from .h5open import check_session_file, open_for_reading
+from .imu_writer import ImuLayout
+from .imus import imu_session, map_segments, set_names
+from .reader import read_session
+from .relabel import ROOT_LABELS, rewrite_labels
+from .store import store_calibration
+from .stream import SessionSamples, open_samples, samples_of
+from .writer import SessionWriter, write_session
+
 __all__ = [
     "FORMAT",
     "FORMAT_VERSION",
     "GRAVITY_DEFAULT",
+    "ImuLayout",
+    "ImuStream",
+    "REFERENCE_NAME",
     "MAG_UNITS",
     "ROOT_LABELS",
     "SEGMENT_KINDS",
@@ -83,12 +92,15 @@ __all__ = [
     "as_str",
     "as_unit_vector",
     "check_session_file",
+    "imu_session",
+    "map_segments",
     "one_line",
     "open_for_reading",
     "open_samples",
     "read_session",
     "rewrite_labels",
     "samples_of",
+    "set_names",
     "show",
     "store_calibration",
     "UT_PER_MAG_UNIT",

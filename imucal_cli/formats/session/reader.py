@@ -16,13 +16,6 @@ import numpy as np
 
 from imucal_cli.errors import ImucalWarning, SessionError
 from imucal_cli.formats.config import GRAVITY_RANGE
-from imucal_cli.formats.session.h5open import (
-    check_dataset,
-    file_size,
-    get_attr,
-    member,
-    open_for_reading,
-)
 from imucal_cli.formats.text import clean_text, clean_tree
 from imucal_cli.model.session import (
     FORMAT,
@@ -42,6 +35,9 @@ from imucal_cli.model.session import (
     one_line,
     show,
 )
+
+from .h5open import check_dataset, file_size, get_attr, member, open_for_reading
+from .imus import read_imus
 
 
 def read_session(path: str | os.PathLike) -> Session:
@@ -82,6 +78,7 @@ def _read_open_file(file: h5py.File, src: str, unclosed: bool) -> Session:
     created, text, numbers = _root_attributes(file, src)
     raw = _read_raw(file, src, unclosed)
     segments = _read_segments(file, src, len(raw["time"]), raw["accel"], raw["gyro"], unclosed)
+    reference_name, imus = read_imus(file, src, unclosed)  # several IMUs (issue 28)
     return Session(
         **raw,
         segments=segments,
@@ -95,6 +92,8 @@ def _read_open_file(file: h5py.File, src: str, unclosed: bool) -> Session:
         calibrations=_read_calibrations(file, src),
         mag_units=text["mag_units"],
         magnetic_field_uT=numbers["magnetic_field_uT"],
+        imus=imus,
+        reference_name=reference_name,
     )
 
 

@@ -23,9 +23,7 @@ import h5py
 import numpy as np
 
 from imucal_cli.errors import InputError, SessionError, WriteFailed
-from imucal_cli.formats.output import OutputFile
-from imucal_cli.formats.session.reader import read_session
-from imucal_cli.formats.session.segments import SegmentLog, entry_of, segment_entry
+from imucal_cli.model.imu_stream import REFERENCE_NAME
 from imucal_cli.model.session import (
     FORMAT,
     FORMAT_VERSION,
@@ -35,6 +33,11 @@ from imucal_cli.model.session import (
     io_reason,
     utc_now_iso,
 )
+
+from ..output import OutputFile
+from .imu_writer import ImuDatasets, ImuLayout
+from .reader import read_session
+from .segments import SegmentLog, entry_of, segment_entry
 
 _CHUNK_ROWS = 1024  # samples per HDF5 chunk of the /raw datasets
 _MIN_CHUNK_ROWS = 64  # on a nearly full disk: a chunk takes no more space than it must
@@ -117,6 +120,9 @@ class SessionWriter:
     reserve_bytes : int
         Disk space set aside next to the file at the start and freed when a write fails, so
         that the file can still be closed cleanly on a full disk.
+    imus : dict of str to ImuLayout, optional
+        The other IMUs of a set (``/imus/<name>``, issue 28), appended with
+        :meth:`append_imu`; ``reference_name`` names the IMU of ``/raw``.
 
     Raises
     ------
@@ -148,7 +154,10 @@ class SessionWriter:
         inputs=(),
         publish_early: bool = False,
         reserve_bytes: int = 0,
+        imus: dict[str, ImuLayout] | None = None,
+        reference_name: str = REFERENCE_NAME,
     ) -> None:
+        self._imu_layouts = (dict(imus or {}), reference_name)
         self.path = Path(path)
         self._src = str(path)
         _check_options(
@@ -231,6 +240,9 @@ class SessionWriter:
             )  # fmt: skip
         file.create_group("segments")
         self._log = SegmentLog(file, small=self.chunk_rows < _CHUNK_ROWS)
+        layouts, reference = self._imu_layouts
+        if layouts:  # several IMUs (issue 28): created before SWMR mode, like /raw
+            self._imus = ImuDatasets(file, layouts, reference, self.chunk_rows, self._src)
 
     def _row_bytes(self, temperature: bool, host_time: bool) -> int:
         """Bytes one sample takes in ``/raw`` (float64 values)."""
@@ -286,6 +298,8 @@ class SessionWriter:
         except OSError as exc:
             raise InputError(f"{path}: cannot open it to continue ({io_reason(exc)})") from None
         try:
+            if session.imus:
+                raise InputError(f"{path}: a session of several IMUs cannot be continued")
             self._reopen_datasets(len(session.time))
             self._reopen_segments(session)
             self._file.attrs["resumed"] = int(self._file.attrs.get("resumed", 0)) + 1
@@ -313,6 +327,19 @@ class SessionWriter:
 
     resumed_host_time: float | None = None
     """A reopened session's last ``/raw/host_time``, s (None: new, or not recorded)."""
+
+    _imus: ImuDatasets | None = None
+    """The other IMUs of a set (``/imus``), None for one IMU."""
+
+    def append_imu(self, name: str, time, **values) -> None:
+        """Append a block of the other IMU ``name``'s samples (its own times, on the clock of
+        :meth:`append`'s): ``time`` (k,), ``accel=``/``gyro=``/``mag=`` (k, n),
+        ``temperature=`` (k,) as its layout records (:class:`ImuDatasets.append`)."""
+        self._check_open()
+        if self._imus is None:
+            raise self._fail(f"append: no IMU {name!r} (this writer records one IMU)")
+        self._imus.append(name, time, **values)
+        self._flush_if_due()
 
     @property
     def records_host_time(self) -> bool:
@@ -487,7 +514,8 @@ class SessionWriter:
 
     def _flush_if_due(self) -> None:
         due = _time.monotonic() - self._last_flush >= self._flush_interval_s
-        if due or self._n_pending >= _MAX_PENDING_ROWS:
+        pending = self._n_pending + (self._imus.n_pending if self._imus is not None else 0)
+        if due or pending >= _MAX_PENDING_ROWS:
             self.flush()
 
     def flush(self) -> None:
@@ -508,6 +536,8 @@ class SessionWriter:
                 for name, dataset in self._datasets.items():
                     dataset.resize(stop, axis=0)
                     dataset[start:stop] = np.concatenate([block[name] for block in self._pending])
+            if self._imus is not None:
+                self._imus.write()
             self._log.flush()
             file.flush()
         except _WRITE_ERRORS as exc:
@@ -515,6 +545,8 @@ class SessionWriter:
             raise self._write_failed(exc, self._n_pending) from None
         if self._pending:
             self._last_written_time = float(self._pending[-1]["time"][-1])
+        if self._imus is not None:
+            self._imus.written()
         self._pending = []
         self._n_written += self._n_pending
         self._n_pending = 0
@@ -532,6 +564,8 @@ class SessionWriter:
             except _WRITE_ERRORS:
                 pass
         self._log.roll_back(log_rows)
+        if self._imus is not None:
+            self._imus.roll_back()
 
     def release_reserve(self) -> bool:
         """Free the disk space set aside at the start; return whether there was any."""
@@ -542,6 +576,8 @@ class SessionWriter:
         rest: shrink ``/raw`` back to what was written and drop segments that reach past it.
         Returns the number of samples given up."""
         self._salvage()
+        if self._imus is not None:
+            self._imus.drop_pending()
         dropped = self._n_pending
         self._pending, self._n_pending = [], 0
         for dataset in self._datasets.values():
@@ -571,6 +607,8 @@ class SessionWriter:
         self._nonfinite = {name: [rows[rows < n] for rows in found]
                            for name, found in self._nonfinite.items()}  # fmt: skip
         self._log.drop_beyond(n)
+        if self._imus is not None:
+            self._imus.truncate_after(self._last_time)
 
     def _salvage(self) -> None:
         if not self._pending:
@@ -832,10 +870,15 @@ def write_session(
         host_time=session.host_time is not None,
         overwrite=overwrite,
         inputs=inputs,
+        imus={name: ImuLayout.of(imu) for name, imu in session.imus.items()},
+        reference_name=session.reference_name,
     )
     with writer:
         writer.append(session.time, accel, gyro, session.temperature, mag,
                       host_time=session.host_time)  # fmt: skip
+        for name, imu in session.imus.items():  # several IMUs (issue 28)
+            writer.append_imu(name, imu.time, accel=imu.accel, gyro=imu.gyro, mag=imu.mag,
+                              temperature=imu.temperature)  # fmt: skip
         for segment in sorted(session.segments, key=lambda s: s.start):
             writer.add_segment(
                 segment.kind,

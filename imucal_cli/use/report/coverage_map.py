@@ -9,7 +9,8 @@ import numpy as np
 
 
 def coverage_map(
-    directions: list[list[float]], radius_cols: int = 11, radius_rows: int = 5
+    directions: list[list[float]], radius_cols: int = 11, radius_rows: int = 5,
+    marks: list | tuple = (),
 ) -> list[str]:
     """Text map of unit directions on the sphere: two hemispheres side by side.
 
@@ -24,6 +25,8 @@ def coverage_map(
         Unit vectors (normalised here); z >= 0 goes to the +Z map.
     radius_cols, radius_rows
         Disc radius in character columns and rows (characters are about twice as tall as wide).
+    marks
+        More unit directions, drawn as ``*`` over the poses (the guide's next pose).
 
     Returns
     -------
@@ -31,6 +34,7 @@ def coverage_map(
         Lines of text, the first a caption.
     """
     upper, lower = [], []
+    marked_upper, marked_lower = [], []
     for d in directions:
         norm = np.linalg.norm(d)
         if not norm > 0:
@@ -42,8 +46,12 @@ def coverage_map(
         rho = math.hypot(x, y)
         point = (r * x / rho, r * y / rho) if rho > 0 else (0.0, 0.0)
         (upper if z >= 0 else lower).append(point)
-    left = _hemisphere(upper, radius_cols, radius_rows)
-    right = _hemisphere(lower, radius_cols, radius_rows)
+    for d in marks:
+        point, z = _projected(d)
+        if point is not None:
+            (marked_upper if z >= 0 else marked_lower).append(point)
+    left = _hemisphere(upper, radius_cols, radius_rows, marked_upper)
+    right = _hemisphere(lower, radius_cols, radius_rows, marked_lower)
     width = 2 * radius_cols + 1
     gap = " " * 4
     caption = f"{'+Z side (z >= 0)':^{width}}{gap}{'-Z side (z < 0)':^{width}}"
@@ -52,7 +60,19 @@ def coverage_map(
     return [caption, *rows, note]
 
 
-def _hemisphere(points: list[tuple[float, float]], radius_cols: int, radius_rows: int) -> list[str]:
+def _projected(d) -> tuple[tuple[float, float] | None, float]:
+    """A direction's point on its hemisphere's disc (as :func:`coverage_map` draws it)."""
+    norm = np.linalg.norm(d)
+    if not norm > 0:
+        return None, 0.0
+    x, y, z = np.asarray(d, dtype=float) / norm
+    r = math.sqrt(max(0.0, 1.0 - abs(z)))
+    rho = math.hypot(x, y)
+    return ((r * x / rho, r * y / rho) if rho > 0 else (0.0, 0.0)), float(z)
+
+
+def _hemisphere(points: list[tuple[float, float]], radius_cols: int, radius_rows: int,
+                marks: list[tuple[float, float]] = ()) -> list[str]:  # fmt: skip
     """One disc of the coverage map with the projected points marked."""
     height, width = 2 * radius_rows + 1, 2 * radius_cols + 1
     grid = [[" "] * width for _ in range(height)]
@@ -72,6 +92,8 @@ def _hemisphere(points: list[tuple[float, float]], radius_cols: int, radius_rows
     )
     for (i, j), n in counts.items():
         grid[i][j] = "o" if n == 1 else (str(n) if n < 10 else "#")
+    for px, py in marks:
+        grid[round(radius_rows - radius_rows * py)][round(radius_cols + radius_cols * px)] = "*"
     return ["".join(row) for row in grid]
 
 

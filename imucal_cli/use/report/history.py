@@ -60,7 +60,7 @@ def _axis_names(sec: SensorCalibration) -> list[str]:
     return list("xyz") if n == 3 else [str(i + 1) for i in range(n)]
 
 
-def _history_rows(sec: SensorCalibration) -> list[dict[str, Any]]:
+def tracked_rows(sec: SensorCalibration) -> list[dict[str, Any]]:
     """``name``, ``unit``, ``value``, ``std`` of each tracked figure of one section (see the
     module notes for the names); without named parameters, the bias and matrix elements."""
     rows = [
@@ -121,7 +121,7 @@ def _misalignment_rows(sec: SensorCalibration) -> list[dict[str, Any]]:
     return rows
 
 
-def _basis(kind: str, sec: SensorCalibration) -> str:
+def section_basis(kind: str, sec: SensorCalibration) -> str:
     """What makes two calibrations of a section comparable: solver, model, units, gravity."""
     parts = [sec.solver]
     if sec.variant:
@@ -209,8 +209,8 @@ def _section_history(
 ) -> dict[str, Any]:
     """``solvers``, ``bases``, ``not_compared`` and ``rows`` of one section kind across the
     calibrations of one sensor."""
-    bases = [None if s is None else _basis(kind, s) for s in secs]
-    per_cal = [{} if s is None else {r["name"]: r for r in _history_rows(s)} for s in secs]
+    bases = [None if s is None else section_basis(kind, s) for s in secs]
+    per_cal = [{} if s is None else {r["name"]: r for r in tracked_rows(s)} for s in secs]
     names: list[str] = []
     for table in per_cal:
         names += [n for n in table if n not in names]
@@ -221,7 +221,7 @@ def _section_history(
         values = [None if r is None else r["value"] for r in found]
         stds = [None if r is None else r["std"] for r in found]
         rows.append({"name": name, "unit": unit, "values": values, "std": stds,
-                     **_compare(values, stds, bases)})  # fmt: skip
+                     **compare_with_reference(values, stds, bases)})  # fmt: skip
     return {
         "solvers": [None if s is None else s.solver for s in secs],
         "bases": bases,
@@ -230,7 +230,7 @@ def _section_history(
     }
 
 
-def _compare(
+def compare_with_reference(
     values: list[float | None], stds: list[float | None], bases: list[str | None]
 ) -> dict[str, Any]:
     """Per calibration: its reference (``compared_with``: the first calibration of the same

@@ -1,0 +1,357 @@
+"""Benchmark ``adaptive`` (issue 27.4): how long at the bench until the calibration is good
+enough, when a person follows the guide, against the fixed plans on the same parts.
+
+The adaptive capture runs on the user's path: ``imucal simulate --serve --person`` (a
+simulated person: reaction 0.5-1 s, turns of 1-2 s, every pose placed with a 2-degree RMS
+error, :mod:`imucal_cli.simulate.live`) reads what ``imucal capture --until TARGETS`` prints
+and does it, through the pseudo-terminal, in real time; the seconds are the capture's own
+(device time from the first sample to the end of the capture, after "done").  The fixed plans
+(``six + turns``: MaD Lab's Ferraris protocol, the six faces and a 360-degree turn on the table
+about each axis; ``qureshi18``; an imu_tk-style 50 s rest and 36 poses in new orientations)
+are done by the same person on the same parts, in this process (:mod:`bench.person`, the same
+guided state machine and screen: the capture with targets and ``--plan``, stopped when the
+targets are met, each hold 2 s), and take the time until their session first meets the
+targets (the plan's whole length when it never does).
+
+Targets (the issue's): gains 0.05 %, biases 0.5 mg and 0.01 deg/s, misalignments 0.05 deg, for
+the accelerometer and the gyroscope (the 12-parameter models, their gains, biases and the
+angles between their axes).  Coverage: each of these 18 terms' 95 % interval (1.96 std as the
+calibration states it, ``imucal calibrate`` on the saved session) against the part's truth.
+
+PASS: the adaptive capture's median under 60 s for both sensors together, every seed reaching
+the targets, and its intervals covering 93-97 %.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from bench.person import ISSUE_TARGETS, follow
+from imucal_cli.calibrate.session import calibrate_session
+from imucal_cli.estimators.accel.labelled_model import axes
+from imucal_cli.formats.config import Config
+from imucal_cli.formats.session import Session, read_session
+from imucal_cli.planning import information as di
+from imucal_cli.plans import Plan, Step, load_plan
+from imucal_cli.simulate.live import LiveUnit
+
+SEEDS = 20
+TERMS = [f"{sensor} {term} {axis}" for sensor in ("accel", "gyro")
+         for term, axes in (("bias", "xyz"), ("gain", "xyz"), ("misalignment", ("xy", "xz", "yz")))
+         for axis in axes]  # fmt: skip
+"""The 18 terms of :func:`terms_of`, in order."""
+TARGET_MEDIAN_S = 60.0
+COVERAGE = (0.93, 0.97)
+CLI = [sys.executable, "-m", "imucal_cli"]
+
+
+# --------------------------------------------------------------------------------------------
+# Truth against the calibration: the 18 terms the targets name
+# --------------------------------------------------------------------------------------------
+
+
+def _section_terms(sec, S_true: np.ndarray, b_true: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Errors and std of a section's bias (SI), gains (relative) and axis angles (deg)."""
+    x = sec.extra
+    rows = {p["name"]: p for p in x["parameters"]}
+    b = np.array([rows[f"b_{a}"]["value"] for a in "xyz"])
+    b_std = np.array([rows[f"b_{a}"]["std"] for a in "xyz"])
+    s, s_std = np.array(x["sensitivity"]), np.array(x["sensitivity_std"])
+    m = np.array(list(x["misalignment_deg"].values()))
+    m_std = np.array(list(x["misalignment_std_deg"].values()))
+    t = axes(S_true)
+    err = np.r_[(b - b_true) / t[:3], (s - t[:3]) / t[:3], m - t[3:]]
+    return err, np.r_[b_std / s, s_std / s, m_std]
+
+
+def terms_of(cal, truth) -> tuple[np.ndarray, np.ndarray]:
+    """The 18 terms' errors against the truth and their std (accel then gyro: bias in SI
+    units, gains relative, axis angles in degrees), as :class:`~imucal_cli.planning.
+    information.TermStd` orders them."""
+    parts = [_section_terms(getattr(cal, k), np.linalg.inv(getattr(truth, k).matrix),
+                            getattr(truth, k).bias) for k in ("accel", "gyro")]  # fmt: skip
+    return np.r_[parts[0][0], parts[1][0]], np.r_[parts[0][1], parts[1][1]]
+
+
+def covered(cal, truth) -> np.ndarray:
+    """Whether each of the 18 terms' 95 % interval holds the truth."""
+    err, std = terms_of(cal, truth)
+    return np.abs(err) <= 1.96 * std
+
+
+# --------------------------------------------------------------------------------------------
+# A design by the person, its noise drawn again (the slow test of the information)
+# --------------------------------------------------------------------------------------------
+
+
+def design_of_session(out):
+    """The design of a capture by the person (``follow(..., keep=True)``) at its truth, and
+    ``redo(seed)``: the same motion with the noise drawn again, as a session."""
+    unit: LiveUnit = out.unit
+    inputs = unit.inputs
+    session: Session = out.session
+    truth = out.truth
+    fit = di.Fit(truth.accel.matrix, truth.accel.bias, truth.gyro.matrix, truth.gyro.bias,
+                 session.gravity)  # fmt: skip
+    rate = float(session.sample_rate_hz)
+    statics = session.static_segments()
+    poses = [di.Pose(inputs["accel"][s.start : s.stop].mean(0)
+                     / np.linalg.norm(inputs["accel"][s.start : s.stop].mean(0)), s.n_samples)
+             for s in statics]  # fmt: skip
+    turns = []
+    for seg in session.rotation_segments():
+        before = max((k for k, s in enumerate(statics) if s.stop <= seg.start), default=None)
+        after = min((k for k, s in enumerate(statics) if s.start >= seg.stop), default=None)
+        if before is None or after is None or after != before + 1:
+            continue
+        rotvec = inputs["gyro"][seg.start : seg.stop].sum(0) / rate
+        angle = float(np.linalg.norm(rotvec))
+        # the calibrate step integrates a turn from hold to hold (the reaction time too)
+        span = statics[after].start - statics[before].stop
+        duration = max(span / rate - di.TURN_MARGIN_S, 0.2)
+        turns.append(di.Turn(before, after, rotvec / angle, angle, duration))
+    noise = di.Noise(unit.imu.accel.noise_in[0] * np.linalg.norm(unit.imu.accel.S, axis=1).mean(),
+                     unit.imu.gyro.noise_in[0] * np.linalg.norm(unit.imu.gyro.S, axis=1).mean(),
+                     rate)  # fmt: skip
+
+    def redo(seed: int) -> Session:
+        raw = unit.imu.sample(inputs, np.random.default_rng(seed))
+        return Session(time=session.time, accel=raw["accel"], gyro=raw["gyro"],
+                       temperature=None, segments=session.segments, created=session.created,
+                       source="simulator", sample_rate_hz=rate, accel_units="counts",
+                       gyro_units="counts")  # fmt: skip
+
+    return fit, poses, turns, noise, redo
+
+
+# --------------------------------------------------------------------------------------------
+# The adaptive capture through the virtual port
+# --------------------------------------------------------------------------------------------
+
+
+def through_port(seed: int, folder: Path, targets: str = ISSUE_TARGETS,
+                 timeout_s: float = 300.0) -> dict:  # fmt: skip
+    """``imucal simulate --serve --person`` and ``imucal capture --until`` on part ``seed``:
+    the capture's summary (its JSON), the session, the guide's lines."""
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "COLUMNS": "200"}
+    device = subprocess.Popen([*CLI, "simulate", "--serve", "--person", "--seed", str(seed)],
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                              stderr=subprocess.DEVNULL, text=True, env=env)  # fmt: skip
+    out = folder / f"adaptive-{seed}.h5"
+    lines: list[str] = []
+    try:
+        path = device.stdout.readline().strip()
+        capture = subprocess.Popen(
+            [*CLI, "capture", "--port", path, "--output", str(out), "--force", "--until",
+             targets, "--json"], stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE, text=True, env=env)  # fmt: skip
+
+        def relay() -> None:  # the person reads what the guide says
+            for line in capture.stderr:
+                lines.append(line)
+                try:
+                    device.stdin.write(line)
+                    device.stdin.flush()
+                except OSError:
+                    pass
+
+        reader = threading.Thread(target=relay, daemon=True)
+        reader.start()
+        watchdog = threading.Timer(timeout_s, capture.kill)  # a capture that never ends
+        watchdog.start()
+        try:
+            summary = json.loads(capture.stdout.read() or "null")
+            capture.wait()
+        finally:
+            watchdog.cancel()
+        reader.join(10)
+        if summary is None:
+            raise RuntimeError(f"seed {seed}: the capture ended without a summary:\n"
+                               + "".join(lines[-20:]))
+    finally:
+        for proc in (device, locals().get("capture")):
+            if proc is not None and proc.poll() is None:
+                proc.kill()
+        device.communicate()
+    return {"summary": summary, "session": out, "lines": lines}
+
+
+# --------------------------------------------------------------------------------------------
+# The fixed plans, by the same person in this process
+# --------------------------------------------------------------------------------------------
+
+
+def imu_tk_plan(poses: int = 36, rest_s: float = 50.0) -> Plan:
+    """imu_tk's procedure: a rest of ``rest_s`` (its gyro bias), then ``poses`` static poses
+    in new orientations."""
+    steps = [Step("static", "rest, then turn the unit to many orientations",
+                  up=np.array([0.0, 0.0, 1.0]), hold_s=rest_s)]  # fmt: skip
+    steps += [Step("static", f"pose {k + 1}") for k in range(poses)]
+    return Plan(f"imu_tk-{poses}", tuple(steps))
+
+
+def fixed_plans() -> dict[str, Plan]:
+    return {"six + turns (ferraris)": load_plan("ferraris"), "qureshi18": load_plan("qureshi18"),
+            "imu_tk-style 36 poses": imu_tk_plan()}  # fmt: skip
+
+
+def fixed_run(seed: int, plan: Plan) -> tuple[float | None, float, object, object]:
+    """The person through a fixed plan (2 s holds): seconds until the targets are met (None:
+    not within the plan), the plan's length, the session's calibration and the truth."""
+    out = follow(seed, plan=plan, propose=False, min_hold_s=2.0, max_s=600)
+    length = float(out.session.time[-1]) if len(out.session.time) else 0.0
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            cal = calibrate_session(out.session, Config())
+    except Exception:  # noqa: BLE001  a plan that cannot calibrate a sensor: no coverage row
+        cal = None
+    return out.seconds, length, cal, out.truth
+
+
+# --------------------------------------------------------------------------------------------
+# The table
+# --------------------------------------------------------------------------------------------
+
+
+def _stats(seconds: list[float | None]) -> tuple[str, str, str]:
+    """Median and 90th percentile (a part that never reached the targets counts as the
+    slowest), and how many reached them."""
+    reached = [s for s in seconds if s is not None]
+    ranked = sorted(np.inf if s is None else s for s in seconds)
+
+    def shown(v: float) -> str:
+        return "never" if not np.isfinite(v) else f"{v:.1f}"
+
+    p90 = ranked[min(int(np.ceil(0.9 * len(ranked))) - 1, len(ranked) - 1)] if ranked else np.inf
+    return shown(float(np.median(ranked))), shown(p90), f"{len(reached)}/{len(seconds)}"
+
+
+def _adaptive(console: Console, seeds) -> tuple[list, list, int]:
+    """The adaptive capture of each part through the port: its seconds (None: targets not
+    met), whether each of its 18 intervals covers the truth, how many did not calibrate."""
+    seconds, hits, lost = [], [], 0
+    with tempfile.TemporaryDirectory() as tmp:
+        for seed in seeds:
+            started = time.monotonic()
+            res = through_port(seed, Path(tmp))
+            summary = res["summary"]
+            seconds.append(summary["duration_s"] if summary["complete"] else None)
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    cal = calibrate_session(read_session(res["session"]), Config())
+                hits.append(covered(cal, LiveUnit(seed).truth()))
+            except Exception:  # noqa: BLE001  counted: a capture that did not calibrate
+                lost += 1
+            console.print(f"  adaptive, part {seed}: {summary['duration_s']:.1f} s, complete "
+                          f"{summary['complete']} ({time.monotonic() - started:.0f} s wall)",
+                          highlight=False)  # fmt: skip
+    return seconds, hits, lost
+
+
+def _fixed(console: Console, name: str, plan: Plan, seeds) -> tuple[list, list]:
+    """A fixed plan by the person on each part: seconds until the targets (None: never) and
+    the coverage of the intervals of its whole session."""
+    seconds, hits = [], []
+    for seed in seeds:
+        s, length, cal, truth = fixed_run(seed, plan)
+        seconds.append(s)
+        if cal is not None and cal.accel is not None and cal.gyro is not None:
+            try:
+                hits.append(covered(cal, truth))
+            except KeyError:  # a solver that states no misalignment std
+                pass
+        console.print(f"  {name}, part {seed}: " + ("never" if s is None else f"{s:.1f} s")
+                      + f" (the plan: {length:.0f} s)", highlight=False)  # fmt: skip
+    return seconds, hits
+
+
+def log_designs(console: Console) -> None:
+    """What logs recorded for another reason determine (issue 27.3, the information's null
+    space, :mod:`imucal_cli.planning.determined`): a vehicle's still periods on flat ground with
+    turns about the vertical, a robot pitching about y.  Their fits, with the rest held at
+    nominal values, are not made yet."""
+    from scipy.spatial.transform import Rotation
+
+    from imucal_cli.planning.determined import accel_determination, gyro_determination
+
+    unit = LiveUnit(2700)
+    truth = unit.truth()
+    fit = di.Fit(truth.accel.matrix, truth.accel.bias, truth.gyro.matrix, truth.gyro.bias)
+    noise = di.Noise(8.4, 4.7, 100.0)
+    z = np.array([0.0, 0.0, 1.0])
+    pitch = [Rotation.from_rotvec([0, t, 0]).apply(z) for t in np.radians([0, 30, -30, 60])]
+    designs = {
+        "vehicle: 4 still periods on flat ground, 3 turns about the vertical":
+            ([di.Pose(z, 500) for _ in range(4)],
+             [di.Turn(k, k + 1, z, np.radians(90), 3.0) for k in range(3)]),
+        "robot: 4 still periods pitched about y, 3 pitch turns":
+            ([di.Pose(u, 300) for u in pitch],
+             [di.Turn(k, k + 1, np.array([0, 1.0, 0]), np.radians(a), 1.5)
+              for k, a in enumerate((30, -60, 90))]),
+    }  # fmt: skip
+    table = Table(title="What a log determines (the Fisher information's null space)")
+    for col in ("log", "sensor", "determined", "combinations of the rest"):
+        table.add_column(col)
+    for name, (poses, turns) in designs.items():
+        for sensor, d in (("accel", accel_determination(fit, poses, noise)),
+                          ("gyro", gyro_determination(fit, poses, turns, noise))):  # fmt: skip
+            combos = "; ".join(" + ".join(f"{v:.2g} {k}" for k, v in c.items() if abs(v) > 0.1)
+                               for c in d.combinations) or "-"  # fmt: skip
+            table.add_row(name, sensor, ", ".join(d.determined) or "-", combos)
+    console.print(table)
+
+
+def _coverage_cell(hits: list) -> str:
+    return f"{100 * np.mean(hits):.1f} % of {np.size(hits)}" if hits else "-"
+
+
+def run(console: Console, n_seeds: int = SEEDS, quick: bool = False) -> bool:
+    """Print the table; PASS or FAIL (see the module notes)."""
+    n = 5 if quick else max(n_seeds, SEEDS)
+    seeds = range(2700, 2700 + n)
+    adaptive_s, hits, lost = _adaptive(console, seeds)
+    rows = [("adaptive (guide, via --serve --person)", *_stats(adaptive_s), _coverage_cell(hits))]
+    for name, plan in fixed_plans().items():
+        seconds, fixed_hits = _fixed(console, name, plan, seeds)
+        rows.append((name, *_stats(seconds), _coverage_cell(fixed_hits)))
+    table = Table(title=f"Seconds at the bench until accel and gyro meet the targets "
+                        f"({ISSUE_TARGETS.replace(',', ', ')}), {n} parts, a person with 2 deg "
+                        "placement error, 1-2 s moves, 0.5-1 s reactions")  # fmt: skip
+    for col in ("capture", "median s", "90 % s", "reached", "95 % intervals covering"):
+        table.add_column(col, justify="left" if col == "capture" else "right")
+    for r in rows:
+        table.add_row(*r)
+    console.print(table)
+    median = float(np.median([np.inf if s is None else s for s in adaptive_s]))
+    cover = float(np.mean(hits)) if hits else float("nan")
+    checks = {
+        f"adaptive median {median:.1f} s < {TARGET_MEDIAN_S:g} s": median < TARGET_MEDIAN_S,
+        f"every part reached the targets ({sum(s is not None for s in adaptive_s)}/{n})":
+            all(s is not None for s in adaptive_s) and not lost,
+        f"coverage {100 * cover:.1f} % within 93-97 %": COVERAGE[0] <= cover <= COVERAGE[1],
+    }  # fmt: skip
+    if hits:
+        per = np.mean(hits, axis=0)
+        console.print("  adaptive coverage per term: " + ", ".join(
+            f"{name} {100 * c:.0f} %" for name, c in zip(TERMS, per, strict=True)),
+            highlight=False)  # fmt: skip
+    for what, good in checks.items():
+        console.print(f"  {'ok' if good else 'FAIL'}: {what}", highlight=False)
+    ok = all(checks.values())
+    log_designs(console)
+    console.print("adaptive: PASS" if ok else "adaptive: FAIL", highlight=False)
+    return ok

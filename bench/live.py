@@ -1,0 +1,466 @@
+"""The live path (issue 24.1): what a user captures must calibrate as well as what the simulator
+writes.
+
+Every plan is served by ``imucal simulate --serve --seed S`` (the user's defaults: each pose
+held 4 s, 1.5 s moves, 115200 baud) and captured twice, beside two CPU-burning processes:
+
+- **guided**: a scripted person (:func:`bench.live_run.capture_guided`): ``imucal capture`` in
+  a pseudo-terminal, the device (``--step``) in another; after the capture says a pose is
+  recorded, a reaction time later, Enter at the device moves the unit on;
+- **unattended**: the device on its timer, ``imucal capture --no-prompt``.
+
+Each capture is calibrated with ``imucal calibrate SESSION`` (no config) and graded against
+the truth of the served part (:mod:`bench.live_grade`): each fitted parameter's error over its
+Cramér-Rao bound at the design the session holds, pooled as an RMS over parameters and seeds,
+and how often the reported 95 % intervals hold the truth.  The reference is the same plan, seed
+and options simulated straight to a file (:func:`simulate_plan`: the same part, and the same
+samples the device streams on its timer) and calibrated the same way.
+
+Verdict per plan and mode: every capture complete (exit 0) and calibrated (exit 0), the same
+sensors saved as from the file, the pooled error/bound within 10 % of the file's on the same
+seeds, the coverage the file's within its binomial sampling error (1.96 std of the
+difference).  The pooled RMS of k squared ratios has a sampling error of about
+``1 / sqrt(2 k)`` (k = seeds x parameters; 5 % at 200): the live and file figures of one seed
+share the part and, unattended, the very samples, so their ratio is far steadier than either;
+its spread over the seeds (bootstrap) is printed beside it.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import multiprocessing as mp
+import signal
+import tempfile
+import threading
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from rich.console import Console
+
+from bench import live_run
+from bench.live_grade import grade, grade_warmup
+from bench.live_table import Row, make_row, print_rows
+from imucal_cli.calibrate.session import calibrate_session
+from imucal_cli.formats.calibration import read_calibration
+from imucal_cli.formats.config import Config
+from imucal_cli.formats.session import read_session, write_session
+from imucal_cli.plans import load_plan
+from imucal_cli.simulate.device import stream_with_holds
+from imucal_cli.simulate.magnetometer import simulate_mag
+from imucal_cli.simulate.play import simulate_plan
+from imucal_cli.simulate.temperature import Ramp, parse_ramp
+
+#: The hold per pose of ``simulate --serve`` without ``--hold`` (cli/simulate.py SERVE_HOLD_S).
+SERVE_HOLD_S = 4.0
+#: The simulated magnetometer's field (simulate --mag's default), uT: what the user gives
+#: capture with --field-uT (from a geomagnetic model).
+MAG_FIELD_UT = 48.0
+#: The warm-up's temperature ramp (``--ramp``), and the room session's (bench temperature's).
+WARMUP_RAMP = "5:40"
+ROOM_RAMP = (24.0, 26.0, "linear")
+MODES = ("guided", "unattended")
+
+
+@dataclass(frozen=True)
+class LivePlan:
+    """A plan as the bench serves, captures and simulates it.
+
+    Attributes
+    ----------
+    plan : str
+        ``--plan`` of ``simulate --serve`` and ``capture``.
+    hold_s, move_s : float
+        The device's hold per pose and move between poses (``--hold``, ``--move``; given only
+        when not the defaults), s; the file reference is simulated with the same.
+    warmup : bool
+        A warm-up (``warmup:MINUTES`` served with ``--ramp``): the capture is given to
+        ``imucal calibrate ROOM --warmup WARM``, ROOM a qureshi18 session of the same part at
+        24-26 C simulated to a file, and only the temperature terms are graded.
+    mag : bool
+        With a magnetometer (``simulate --serve --mag``, tumbles between the holds; captured
+        with its columns, units and the field), as ``simulate --mag`` writes the file.
+    serve, capture : tuple of str
+        More options of ``simulate --serve`` and of ``capture``.
+    blocked : str
+        Why the plan cannot run (""): the row says so.
+    """
+
+    plan: str
+    hold_s: float = SERVE_HOLD_S
+    move_s: float = 1.5
+    mag: bool = False
+    warmup: bool = False
+    serve: tuple[str, ...] = ()
+    capture: tuple[str, ...] = ()
+    blocked: str = ""
+
+    @property
+    def serve_args(self) -> list[str]:
+        """The device's options beyond the plan and the seed."""
+        out = [] if self.hold_s == SERVE_HOLD_S else ["--hold", f"{self.hold_s:g}"]
+        out += [] if self.move_s == 1.5 else ["--move", f"{self.move_s:g}"]
+        return out + (["--mag"] if self.mag else []) + list(self.serve)
+
+    @property
+    def capture_args(self) -> list[str]:
+        """The capture's options beyond the port, the plan and the output."""
+        mag = ["--columns", "t,ax,ay,az,gx,gy,gz,mx,my,mz,temp", "--mag-units", "counts",
+               "--field-uT", f"{MAG_FIELD_UT:g}"]  # fmt: skip
+        return (mag if self.mag else []) + list(self.capture)
+
+    @property
+    def name(self) -> str:
+        return " ".join([self.plan, *self.serve_args])
+
+
+PLANS = (
+    LivePlan("six"),
+    LivePlan("qureshi18"),
+    LivePlan("random:12"),
+    LivePlan("random:9"),
+    LivePlan("ferraris"),
+    LivePlan("gyro-axes"),
+    LivePlan("qureshi-axes:6"),
+    LivePlan("free:12"),
+    LivePlan("hwangbo-iron"),
+    LivePlan("qureshi18", mag=True),
+    LivePlan("warmup:2", warmup=True, serve=("--ramp", WARMUP_RAMP)),
+)
+QUICK_PLANS = ("six", "random:12", "ferraris")
+
+
+def simulated(plan: LivePlan, seed: int):
+    """The session and truth the device streams for ``plan`` and ``seed`` (its timer's
+    pass: the unattended capture's samples), simulated straight to memory."""
+    if plan.mag:
+        return simulate_mag(plan.plan, seed, hold_s=plan.hold_s, move_s=plan.move_s,
+                            field_uT=MAG_FIELD_UT)  # fmt: skip
+    if plan.warmup:
+        return simulate_plan(plan.plan, seed=seed, hold_s=plan.hold_s, move_s=plan.move_s,
+                             temperature=parse_ramp(WARMUP_RAMP))  # fmt: skip
+    return simulate_plan(plan.plan, seed=seed, hold_s=plan.hold_s, move_s=plan.move_s)
+
+
+def room(seed: int):
+    """The ordinary session a warm-up goes with: qureshi18 of the same part at 24-26 C."""
+    return simulate_plan("qureshi18", seed=seed, temperature=Ramp(*ROOM_RAMP))[0]
+
+
+def n_holds(plan: LivePlan, seed: int = 0) -> int:
+    """Holds of the served pass (the static steps a guided person takes one by one)."""
+    mag = {"field_uT": MAG_FIELD_UT} if plan.mag else None
+    return len(stream_with_holds(plan.plan, seed=seed, hold_s=plan.hold_s, move_s=plan.move_s,
+                                 mag=mag)[3])  # a ramp changes the temperature, not the holds
+
+
+def longest_hold_s(plan: LivePlan) -> float:
+    """The longest hold the guided capture asks for: a step's own (a warm-up's minutes) or
+    capture's 2 s."""
+    return max([2.0, *(s.hold_s or 0.0 for s in load_plan(plan.plan).static_steps)])
+
+
+# --------------------------------------------------------------------------------------------
+# Running
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Job:
+    """One capture of one plan and seed in one mode, and its calibration."""
+
+    plan: LivePlan
+    seed: int
+    mode: str
+    expected_s: float
+    capture: live_run.CaptureRun | None = None
+    calibrate: live_run.CalibrateRun | None = None
+    graded: dict = field(default_factory=dict)
+    served_equal: float | None = None
+    grade_error: str = ""
+
+    @property
+    def stem(self) -> str:
+        """The file name of its session, without ``.h5``."""
+        plan = self.plan.plan.replace(":", "-") + ("-mag" if self.plan.mag else "")
+        return f"{plan}-s{self.seed}-{self.mode}"
+
+    def what_went_wrong(self) -> str:
+        """The capture's or calibration's own last words when either did not succeed ("" when
+        both did)."""
+        c, cal = self.capture, self.calibrate
+        if c is not None and (c.exit_code != 0 or c.error):
+            ended = [ln.strip() for ln in c.text.splitlines() if "ended:" in ln or
+                     "imucal: error" in ln or "Traceback" in ln]  # fmt: skip
+            return c.error or (ended[-1] if ended else c.text.strip()[-200:])
+        if cal is not None and cal.exit_code != 0:
+            errors = [ln for ln in cal.stderr.splitlines() if ln.startswith("imucal: error")]
+            return errors[-1] if errors else cal.stderr.strip()[-200:]
+        return self.grade_error
+
+    def log(self) -> str:
+        """Everything the job's processes said, for ``STEM.log`` beside the session."""
+        c, cal = self.capture, self.calibrate
+        parts = [f"{self.plan.name} seed {self.seed} {self.mode}"]
+        if c is not None:
+            parts += [f"capture exit {c.exit_code} in {c.wall_s:.1f} s {c.error}",
+                      "device: " + c.served, *c.events, c.text]  # fmt: skip
+        if cal is not None:
+            parts += [f"calibrate exit {cal.exit_code}", cal.stderr]
+        return "\n".join(parts) + "\n"
+
+
+def _run_job(job: Job, folder: Path, holds: int) -> Job:
+    out = folder / f"{job.stem}.h5"
+    timeout = 3 * job.expected_s + 120
+    if job.mode == "guided":
+        job.capture = live_run.capture_guided(
+            job.plan.plan, job.seed, out, n_poses=holds, timeout_s=timeout,
+            serve_extra=job.plan.serve_args, capture_extra=job.plan.capture_args,
+            rng=np.random.default_rng([job.seed, 24]), longest_hold_s=longest_hold_s(job.plan),
+        )  # fmt: skip
+    else:
+        job.capture = live_run.capture_unattended(
+            job.plan.plan, job.seed, out, timeout_s=timeout, serve_extra=job.plan.serve_args,
+            capture_extra=job.plan.capture_args,
+        )  # fmt: skip
+    if out.exists() and job.plan.warmup:  # the warm-up goes with an ordinary session
+        ordinary = folder / f"room-s{job.seed}-{job.mode}.h5"
+        write_session(ordinary, room(job.seed))
+        job.calibrate = live_run.calibrate(ordinary, warmup=out)
+    elif out.exists():
+        job.calibrate = live_run.calibrate(out)
+    (folder / f"{job.stem}.log").write_text(job.log())
+    return job
+
+
+def run_jobs(plans, seeds: dict, *, jobs: int, n_burners: int, folder: Path,
+             say=print) -> list[Job]:  # fmt: skip
+    """Capture and calibrate every plan, and every mode with its seeds (``{mode: seeds}``),
+    ``jobs`` at a time, beside ``n_burners`` CPU burners; progress through ``say``."""
+    work: list[Job] = []
+    holds: dict[str, int] = {}
+    for plan in plans:
+        if plan.blocked:
+            continue
+        session, _ = simulated(plan, 0)
+        span = float(session.time[-1] - session.time[0])
+        holds[plan.name] = n_holds(plan, 0)
+        for mode, mine in seeds.items():
+            for seed in mine:
+                # guided: each hold until the capture took its pose, plus a reaction
+                extra = 2.5 * holds[plan.name] if mode == "guided" else 0.0
+                work.append(Job(plan, seed, mode, span + extra))
+    work.sort(key=lambda j: -j.expected_s)  # the longest first: the pool ends together
+    total = sum(j.expected_s for j in work)
+    say(f"live: {len(work)} captures, {total / 60:.0f} min of served plans, {jobs} at a time "
+        f"(about {total / 60 / max(jobs, 1):.0f} min), beside {n_burners} CPU burners")
+    t0 = time.monotonic()
+    done_s = 0.0
+    lock = threading.Lock()
+    burners = live_run.burners(n_burners)
+    pool = cf.ThreadPoolExecutor(max_workers=jobs)
+    try:
+        futures = {pool.submit(_run_job, j, folder, holds[j.plan.name]): j for j in work}
+        for k, fut in enumerate(cf.as_completed(futures), 1):
+            job = fut.result()
+            with lock:
+                done_s += job.expected_s
+                elapsed = time.monotonic() - t0
+                eta = elapsed * (total - done_s) / max(done_s, 1e-9)
+                c, cal = job.capture, job.calibrate
+                say(f"  [{k}/{len(work)}] {job.plan.name} seed {job.seed} {job.mode}: "
+                    f"capture exit {c.exit_code} in {c.wall_s:.0f} s"
+                    + (f" ({c.error})" if c.error else "")
+                    + (f", calibrate exit {cal.exit_code}" if cal else ", nothing saved")
+                    + f"; {elapsed / 60:.1f} min gone, about {eta / 60:.0f} min to go")
+    except BaseException:  # Ctrl-C: the processes first, then the threads waiting on them
+        pool.shutdown(wait=False, cancel_futures=True)
+        live_run.kill_all()
+        raise
+    finally:
+        for proc in burners:
+            live_run._stop(proc)
+        pool.shutdown(wait=True)
+        live_run.kill_all()
+    return work
+
+
+# --------------------------------------------------------------------------------------------
+# Grading
+# --------------------------------------------------------------------------------------------
+
+
+def _served_equal(live, file) -> float | None:
+    """Fraction of the captured samples equal to the simulated pass's at the same device time
+    (the device on its timer streams that pass: a different part or a shifted stream shows
+    here)."""
+    if live.accel is None or len(live.time) == 0:
+        return None
+    rate = float(file.sample_rate_hz or 100.0)
+    idx = np.rint((live.time - file.time[0]) * rate).astype(int)
+    ok = (idx >= 0) & (idx < len(file.time))
+    if not ok.any():
+        return 0.0
+    same = np.all(live.accel[ok] == file.accel[idx[ok]], axis=1)
+    for name in ("gyro", "mag"):
+        a, b = getattr(live, name), getattr(file, name)
+        if (a is None) != (b is None):
+            return 0.0
+        if a is not None:
+            same &= np.all(a[ok] == b[idx[ok]], axis=1)
+    return float(same.sum() / len(live.time))
+
+
+def file_reference(plan: LivePlan, seeds: list[int]) -> tuple[dict[int, dict], float]:
+    """The same plan simulated to a file for each seed, calibrated with no config and graded
+    (a seed whose calibration fails: ``{"error": ...}``); and the wall time it took, s."""
+    t0 = time.monotonic()
+    out: dict[int, dict] = {}
+    for seed in seeds:
+        session, truth = simulated(plan, seed)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                if plan.warmup:
+                    cal = calibrate_session(room(seed), Config(), warmup=[session])
+                    out[seed] = grade_warmup(session, cal, truth)
+                    continue
+                cal = calibrate_session(session, Config())
+                out[seed] = grade(session, cal, truth)
+        except Exception as exc:  # noqa: BLE001 - counted as a failed file calibration
+            out[seed] = {"error": f"{type(exc).__name__}: {exc}"}
+    return out, time.monotonic() - t0
+
+
+def _quiet() -> None:  # pragma: no cover - runs in the reference's process
+    """The reference's process leaves Ctrl-C to the bench, which ends it."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def start_references(plans, seeds: list[int]):
+    """The file references of ``plans``, computed in another process while the captures run:
+    the pool and ``{plan name: pending result}``."""
+    pool = mp.get_context("spawn").Pool(1, initializer=_quiet)
+    return pool, {p.name: pool.apply_async(file_reference, (p, seeds)) for p in plans
+                  if not p.blocked}  # fmt: skip
+
+
+def _references_beside(plans, seeds: list[int], say, captures) -> dict:
+    """The file references computed in another process while ``captures()`` runs:
+    ``{plan name: graded seeds}``, and under ``None`` what ``captures()`` returned."""
+    pool, pending = start_references(plans, seeds)
+    try:
+        out = {None: captures()}
+        for name, result in pending.items():
+            out[name], wall = result.get()
+            say(f"  file reference {name}: {len(seeds)} seeds ({wall:.0f} s, beside the "
+                "captures)")  # fmt: skip
+        return out
+    finally:
+        pool.terminate()
+        pool.join()
+
+
+def grade_jobs(work: list[Job]) -> None:
+    """Grade each capture against the truth of its plan and seed."""
+    sessions = {(j.plan.name, j.seed): simulated(j.plan, j.seed) for j in work}
+    for job in work:
+        session, truth = sessions[(job.plan.name, job.seed)]
+        cal = job.calibrate
+        if cal is None or cal.exit_code != 0 or not cal.output.exists():
+            continue
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                live = read_session(job.capture.session)
+                grader = grade_warmup if job.plan.warmup else grade
+                job.graded = grader(live, read_calibration(cal.output), truth)
+            if job.mode == "unattended":
+                job.served_equal = _served_equal(live, session)
+        except Exception as exc:  # noqa: BLE001 - the row says so; the others are graded
+            job.graded = {}
+            job.grade_error = f"{type(exc).__name__}: {exc}"
+
+
+# --------------------------------------------------------------------------------------------
+# The benchmark
+# --------------------------------------------------------------------------------------------
+
+
+def run_live(plans=PLANS, seeds=(0,), modes=MODES, *, jobs: int = 3, n_burners: int = 2,
+             file_seeds=None, folder: Path | None = None, say=print,
+             mode_seeds: dict | None = None) -> list[Row]:  # fmt: skip
+    """Capture, calibrate and grade; the rows (blocked plans get a row that says why).
+    ``mode_seeds``: the seeds of a mode, where not ``seeds``."""
+    each = {m: list((mode_seeds or {}).get(m, seeds)) for m in modes}
+    live_seeds = sorted(set().union(*each.values()))
+    file_seeds = sorted(set(live_seeds) | set(file_seeds or []))
+    with tempfile.TemporaryDirectory(prefix="bench-live-") as tmp:
+        where = Path(folder or tmp)
+
+        def captures():
+            return run_jobs(plans, each, jobs=jobs, n_burners=n_burners, folder=where, say=say)
+
+        if file_seeds == live_seeds:  # only the live seeds: no process of its own
+            work = captures()
+            files = {p.name: file_reference(p, file_seeds)[0] for p in plans if not p.blocked}
+        else:
+            files = _references_beside(plans, file_seeds, say, captures)
+            work = files.pop(None)
+        grade_jobs(work)
+    rng = np.random.default_rng(24)
+    rows = []
+    for plan in plans:
+        for mode in modes:
+            if plan.blocked:
+                rows.append(Row(plan.name, mode, why=[plan.blocked]))
+                continue
+            mine = [j for j in work if j.plan is plan and j.mode == mode]
+            rows.append(make_row(plan.name, mode, mine, files[plan.name], rng))
+    return rows
+
+
+def run(console: Console, n_seeds: int = 3, quick: bool = False, jobs: int = 3,
+        file_seeds: int = 40, only: str | None = None, keep: Path | None = None,
+        guided_seeds: int | None = None) -> bool:  # fmt: skip
+    """``python -m bench --only live``: the table; False when a row fails.  ``n_seeds`` per
+    plan and mode (``guided_seeds`` for the guided captures, where given: their samples are
+    not the file's, so their ratio to it needs more seeds); ``only``: plan names (``--plan``,
+    comma-separated) to run instead of all; ``keep``: a folder for the sessions,
+    calibrations and each capture's log (``STEM.log``)."""
+    console.rule("[bold]Live path: simulate --serve, capture (guided and unattended), calibrate")
+    plans = [p for p in PLANS if not quick or p.plan in QUICK_PLANS]
+    if only:
+        wanted = only.split(",")
+        plans = [p for p in plans if p.plan in wanted or p.name in wanted]
+        if not plans:
+            raise SystemExit(f"bench live: no plan {only!r}; plans: "
+                             + ", ".join(p.name for p in PLANS))  # fmt: skip
+    if keep is not None:
+        keep.mkdir(parents=True, exist_ok=True)
+    guided_seeds = guided_seeds or (n_seeds if quick else 2 * n_seeds)
+    each = {"guided": list(range(guided_seeds)), "unattended": list(range(n_seeds))}
+    n_file = max(n_seeds, guided_seeds, 0 if quick else file_seeds)
+    console.print(
+        f"{len(plans)} plans; seeds {len(each['guided'])} guided, {n_seeds} unattended; the "
+        f"file reference over {n_file} seeds. The pooled RMS of k squared error/bound ratios "
+        "has a sampling error of about 1/sqrt(2k); live and file share each seed's part (and, "
+        "unattended, its samples), so their ratio is steadier: its 95 % interval over the "
+        "seeds drawn again is beside it."
+    )  # fmt: skip
+    t0 = time.monotonic()
+
+    def say(msg: str) -> None:
+        console.print(msg, highlight=False)
+
+    rows = run_live(plans, mode_seeds=each, jobs=jobs, file_seeds=range(n_file), folder=keep,
+                    say=say)  # fmt: skip
+    minutes = (time.monotonic() - t0) / 60
+    print_rows(console, rows, f"bench live: served, captured beside 2 CPU burners, calibrated "
+                              f"with no config; error/bound pooled RMS, live vs the same seeds "
+                              f"simulated to a file ({minutes:.0f} min)")  # fmt: skip
+    console.print(f"bench live: {minutes:.1f} min, {jobs} captures at a time")
+    return all(r.ok or r.blocked for r in rows)

@@ -1,0 +1,330 @@
+"""Grading a calibration against the simulated part's truth (``bench live``, issue 24.1).
+
+Each fitted section is turned into the same four arrays, whatever its solver: the error of
+every parameter against the truth (in the solver's own parameters and frame), the reported
+std, the reported 95 % half-width (the section's ``ci95`` when it states one, else 1.96 std),
+and the Cramér-Rao bound of the design the session actually holds (variance, per parameter),
+or None where no bench computes one.  The bounds are those of the other benches:
+
+- accelerometer, gravity magnitude (9 parameters, upper-triangular ``M``): :func:`gravity_crb`
+  as in ``bench/gravity.py``;
+- accelerometer, labelled poses (12): :func:`labelled_crb` as in ``bench/labelled.py``, the
+  labels a prior of the simulated placement error;
+- gyro, full model from turns between still periods (12): :func:`full_bound` as in
+  ``bench/gyro.py`` (the accelerometer calibration's covariance propagated through the turns);
+- gyro, turns of known angle (12): the information of the solver's own stacked problem at
+  the truth (:class:`imucal_cli.estimators.gyro.known._Stacked`, with the still periods and the
+  turns gravity measures), as ``full_bound`` does for the full model;
+- magnetometer (13, aligned): :func:`magnetometer_crb` as in ``bench/mag.py``.
+
+A pose's true direction is what the truth makes of the pose's mean reading (``T (a - b)``,
+normalised): a captured session's holds are not the simulator's segments, and the direction
+found so is within the noise of the mean (1e-4 rad), which changes the bound by far less
+than its own sampling error.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from types import SimpleNamespace
+
+import numpy as np
+
+from imucal_cli.calibrate.common import static_poses
+from imucal_cli.calibrate.gyro import known as pk
+from imucal_cli.calibrate.gyro.full import rotations_and_stills, solver_stills
+from imucal_cli.calibrate.gyro.rotations import full_bound, with_segments
+from imucal_cli.calibrate.mag import mag_readings
+from imucal_cli.calibrate.thermal import BLOCK_S, still_blocks
+from imucal_cli.estimators.accel.crb import gravity_crb, labelled_crb
+from imucal_cli.estimators.accel.gravity import model_to_params
+from imucal_cli.estimators.accel.labelled_model import public_params
+from imucal_cli.estimators.gyro.known import _Stacked
+from imucal_cli.estimators.mag.crb import magnetometer_crb
+from imucal_cli.estimators.thermal.temperature import polynomial_bound
+from imucal_cli.formats.config import Config
+from imucal_cli.formats.session import Session
+from imucal_cli.model.calibration import Calibration, SensorCalibration
+
+G0 = 9.80665
+
+
+@dataclass
+class Graded:
+    """One calibrated section against the truth.
+
+    Attributes
+    ----------
+    section : str
+        ``"accel"``, ``"gyro"`` or ``"mag"``.
+    solver : str
+        The section's solver (and variant).
+    names : list of str
+        Parameter names, as the calibration JSON lists them.
+    err : ndarray (p,)
+        Estimate minus truth, the parameters' units.
+    std : ndarray (p,)
+        Reported standard deviation.
+    half : ndarray (p,)
+        Reported 95 % interval half-width.
+    crb : ndarray (p,) or None
+        Cramér-Rao bound (variance) at the session's design; None: no bound for this solver.
+    note : str
+        Why there is no bound, or how it was made.
+    """
+
+    section: str
+    solver: str
+    names: list[str]
+    err: np.ndarray
+    std: np.ndarray
+    half: np.ndarray
+    crb: np.ndarray | None
+    note: str = ""
+
+    @property
+    def hits(self) -> np.ndarray:
+        """Whether each reported 95 % interval holds the truth."""
+        return np.abs(self.err) <= self.half
+
+    @property
+    def z2(self) -> np.ndarray | None:
+        """``err^2 / crb`` per parameter (None without a bound)."""
+        return None if self.crb is None else self.err**2 / self.crb
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _params(sec: SensorCalibration) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
+    """Names, values, std and 95 % half-widths of a section's ``parameters``."""
+    rows = sec.extra.get("parameters") or []
+    names = [r["name"] for r in rows]
+    value = np.array([float(r["value"]) for r in rows])
+    std = np.array([float(r.get("std") or np.nan) for r in rows])
+    half = np.array([float(r["ci95"]) if r.get("ci95") is not None else 1.96 * s
+                     for r, s in zip(rows, std, strict=True)])  # fmt: skip
+    return names, value, std, half
+
+
+def _pose_design(session: Session, truth: Calibration):
+    """The static poses the accelerometer solvers use (:func:`static_poses`), each pose's true
+    up direction in the fixture frame, and the covariance of each pose's mean from the true
+    noise (raw units^2)."""
+    poses = static_poses(session)
+    T, b = truth.accel.matrix, truth.accel.bias
+    u = _unit((poses.a_mean - b) @ T.T)
+    S = np.linalg.inv(T)
+    sigma = float(truth.accel.extra["noise"])
+    quant = np.eye(3) / 12.0 if session.accel_units == "counts" else np.zeros((3, 3))
+    cov = np.array([(sigma**2 * S @ S.T + quant) / n for n in poses.samples])
+    return poses, u, cov
+
+
+def _gauge(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Upper-triangular ``M`` (positive diagonal) and rotation ``Q`` with ``T = Q M``."""
+    Q, R = np.linalg.qr(T)
+    D = np.diag(np.sign(np.diag(R)))
+    return D @ R, Q @ D
+
+
+def grade_accel(session: Session, cal: Calibration, truth: Calibration) -> Graded:
+    """The accelerometer section: gravity-magnitude (9) or labelled-pose (12) parameters."""
+    sec = cal.accel
+    names, value, std, half = _params(sec)
+    poses, u, cov = _pose_design(session, truth)
+    T, b = truth.accel.matrix, truth.accel.bias
+    if len(names) == 9:  # gravity magnitude: the solver's gauge, M upper triangular
+        M, Q = _gauge(T)
+        x_true = model_to_params(b, M)
+        crb = np.diag(gravity_crb(M, b, u @ Q, G0, cov))
+        solver = "gravity, 9"
+    elif len(names) == 12 and names[-1] == "r_z":  # labelled poses
+        x_true = public_params(b, np.linalg.inv(T))
+        # the placement error of the labels; none stated (an exactly square iron): exact
+        # labels, a tiny prior keeping the bound finite
+        jitter = float(truth.accel.extra.get("jitter_deg") or 0.01)
+        placement = np.where([up is not None for up in poses.up], jitter, np.inf)
+        crb = np.diag(labelled_crb(T, b, u, G0, cov, placement))
+        solver = "labelled, 12"
+    else:
+        raise ValueError(f"accel parameters {names} are not graded")
+    return Graded("accel", solver, names, value - x_true, std, half, crb)
+
+
+def _truth_in_accel_frame(cal: Calibration, truth: Calibration) -> np.ndarray:
+    """The rotation from the truth's (fixture) frame into the frame the calibrated
+    accelerometer reports in (identity without an accelerometer: the labels' frame)."""
+    if cal.accel is None or truth.accel is None:
+        return np.eye(3)
+    U, _, Vt = np.linalg.svd(cal.accel.matrix @ np.linalg.inv(truth.accel.matrix))
+    return U @ Vt
+
+
+def grade_gyro(session: Session, cal: Calibration, truth: Calibration) -> Graded:
+    """The gyro section: ``(b, vec M)`` of the full or known-angle model against its bound;
+    other gyro solvers are graded without a bound."""
+    sec = cal.gyro
+    names, value, std, half = _params(sec)
+    R = _truth_in_accel_frame(cal, truth)
+    solver = str(sec.solver)
+    if names[:3] == ["b_x", "b_y", "b_z"] and names[3:12] == [f"m_{a}{c}" for a in "xyz"
+                                                              for c in "xyz"]:  # fmt: skip
+        x_true = np.r_[truth.gyro.bias, (R @ truth.gyro.matrix).ravel()]
+        n = len(names)
+        if n > 12:  # g-sensitivity fitted: the truth has none
+            x_true = np.r_[x_true, np.zeros(n - 12)]
+        err = value - x_true
+        crb, note = _gyro_bound(session, cal, solver, x_true)
+        return Graded("gyro", solver, names, err, std, half, crb, note)
+    if names[:3] == ["b_x", "b_y", "b_z"] and names[3:6] == ["gain_x", "gain_y", "gain_z"]:
+        # the factorization's gains are the rows' norms of S = M^-1 (raw units per rad/s)
+        S_true = np.linalg.inv(truth.gyro.matrix)
+        x_true = np.r_[truth.gyro.bias, np.linalg.norm(S_true, axis=1)]
+        return Graded("gyro", solver, names[:6], value[:6] - x_true, std[:6], half[:6], None,
+                      "no bench bounds the factorization gyro")  # fmt: skip
+    raise ValueError(f"gyro parameters {names} are not graded")
+
+
+def _gyro_bound(session: Session, cal: Calibration, solver: str, x: np.ndarray):
+    """The bound of the full or known-angle gyro model at ``x`` (variance per parameter)."""
+    cfg = Config()
+    try:
+        if solver in ("known", "gyro-known"):
+            return np.diag(_known_bound(session, cfg, cal.accel, x)), "known-angle model"
+        return np.diag(full_bound(session, cfg, cal.accel, x)[1]), "full model"
+    except Exception as exc:  # noqa: BLE001 - the row says why it has no bound
+        return None, f"no bound: {type(exc).__name__}: {exc}"
+
+
+def _known_bound(session: Session, cfg: Config, accel: SensorCalibration | None,
+                 x: np.ndarray) -> np.ndarray:  # fmt: skip
+    """The known-angle gyro fit's bound at ``x``: the inverse information of the solver's
+    stacked whitened problem (known turns, still periods, turns gravity measures weighed with
+    the accelerometer calibration's part, no excess scatter) at the truth, plus the
+    accelerometer calibration's covariance carried through (the pipeline's own refits,
+    :func:`imucal_cli.calibrate.gyro.known._accel_part`)."""
+    session, _ = with_segments(session)
+    data, known, used, segs, statics, _ = pk._known_data(session, cfg, accel, "bench")
+    rot, st = rotations_and_stills(data) if data.turns else (None, solver_stills(data.stills))
+    accel_dirs = pk._accel_dirs(data)
+    with_g = len(x) > 12
+    prob = _Stacked(known, st, data.noise, rot, with_g, accel_dirs=accel_dirs)
+    prob.freeze(x)
+    _, J = prob.f_and_J(x)
+    crb = np.linalg.inv(J.T @ J)
+    if accel is None:
+        return crb
+    at = SimpleNamespace(b=x[:3], M=x[3:12].reshape(3, 3), tau=0.0,
+                         G=x[12:21].reshape(3, 3) if with_g else None, cov=crb)  # fmt: skip
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return crb + pk._accel_part(session, cfg, accel, segs, statics, at, data, rot, known,
+                                    in_weights=accel_dirs is not None and rot is not None)
+
+
+def grade_mag(session: Session, cal: Calibration, truth: Calibration) -> Graded:
+    """The magnetometer section (aligned model: hard iron, ``W`` in the accelerometer's
+    calibrated frame, the dip) against :func:`magnetometer_crb`, as ``bench/mag.py``."""
+    sec = cal.mag
+    names, value, std, half = _params(sec)
+    R = _truth_in_accel_frame(cal, truth)
+    W_true = R @ truth.mag.matrix
+    field = float(truth.mag.extra.get("field_uT", sec.extra.get("field_uT") or 48.0))
+    incl = float(truth.mag.extra.get("inclination_deg", 60.0))
+    by_name = dict(zip(names, zip(value, std, half, strict=True), strict=True))
+    wanted = [f"b_{a}" for a in "xyz"] + [f"w_{r}{c}" for r in "xyz" for c in "xyz"]
+    if not all(n in by_name for n in wanted):
+        raise ValueError(f"mag parameters {names} are not graded (not the aligned model)")
+    est = np.array([by_name[n][0] for n in wanted])
+    sd = np.array([by_name[n][1] for n in wanted])
+    hw = np.array([by_name[n][2] for n in wanted])
+    x_true = np.r_[truth.mag.bias, W_true.ravel()]
+    readings = mag_readings(session, Config().mag, cal.accel, "bench")
+    S = np.linalg.inv(truth.mag.matrix)
+    noise = float(truth.mag.extra["noise"])
+    cov = noise**2 * S @ S.T + (np.eye(3) / 12.0 if session.mag_units == "counts" else 0.0)
+    data = readings.data
+    dirs = _unit((data.samples - truth.mag.bias) @ W_true.T)
+    pose_dirs = _unit((data.pose_mean - truth.mag.bias) @ W_true.T)
+    n = readings.pose_samples
+    # each pose's up: what the truth makes of its mean accelerometer reading (accel frame)
+    T, b = truth.accel.matrix, truth.accel.bias
+    ups = []
+    for seg in readings.segments:
+        a = session.accel[seg.start : seg.stop].mean(axis=0)
+        ups.append(R @ _unit(T @ (a - b)))
+    ups = np.array(ups)
+    sigma_a = float(truth.accel.extra["noise"]) / G0
+    up_cov = np.array([(np.eye(3) - np.outer(u, u)) * sigma_a**2 / k
+                       for u, k in zip(ups, n, strict=True)])  # fmt: skip
+    crb = np.diag(magnetometer_crb(W_true, field, dirs, cov, pose_up=ups, pose_dirs=pose_dirs,
+                                   pose_cov=np.array([cov / k for k in n]), up_cov=up_cov))
+    crb = crb[: len(wanted)]
+    del incl
+    return Graded("mag", str(sec.solver), wanted, est - x_true, sd, hw, crb, "aligned model")
+
+
+def grade_warmup(warm: Session, cal: Calibration, truth: Calibration) -> dict[str, Graded | str]:
+    """The temperature terms a warm-up recording gave (``calibrate SESSION --warmup WARM``):
+    each channel's bias polynomial coefficients ``bias_tempco`` (counts per C^k, k = 1..3)
+    against the truth's cubic, over the Cramér-Rao bound of a cubic fitted to the warm-up's
+    still blocks with white noise (:func:`polynomial_bound`, as ``bench/temperature.py``
+    bounds the curve's shape; each channel's own noise)."""
+    out: dict[str, Graded | str] = {}
+    warm = with_segments(warm)[0]  # as calibrate --warmup finds its still periods
+    blocks = still_blocks(warm, BLOCK_S)
+    if not blocks:
+        raise ValueError("the warm-up holds no still period")
+    temp = np.array([warm.temperature[a:b].mean() for a, b, _ in blocks])
+    groups = np.array([k for _, _, k in blocks])
+    for name in ("accel", "gyro"):
+        sec, true = getattr(cal, name), getattr(truth, name)
+        if sec is None or true is None or sec.temperature_terms is None:
+            out[name] = "no temperature terms"
+            continue
+        ref, tc = sec.temperature_terms
+        tc_true = np.asarray(true.extra["bias_tempco"], float)
+        K, n = tc_true.shape
+        est = np.zeros((K, n))
+        est[: min(K, tc.shape[0])] = tc[:K]
+        std = np.zeros((K, n))
+        given = np.asarray(sec.extra["temperature_model"]["bias_tempco_std"], float)
+        std[: min(K, given.shape[0])] = given[:K]
+        data = getattr(warm, name)
+        crb = np.zeros((K, n))
+        for c in range(n):
+            resid = np.concatenate([np.diff(data[a:b, c]) / np.sqrt(2) for a, b, _ in blocks])
+            sig = np.array([float(np.std(resid)) / np.sqrt(b - a) for a, b, _ in blocks])
+            cov = polynomial_bound(temp, sig, K, float(ref), groups)
+            crb[:, c] = np.diag(cov)[-K:]
+        names = np.array([f"tc{k}_{a}" for k in range(1, K + 1) for a in "xyz"[:n]])
+        fitted = std.ravel() > 0  # a degree the F-tests left out states no interval
+        out[name] = Graded(name, "temperature (warm-up)", list(names[fitted]),
+                           (est - tc_true).ravel()[fitted], std.ravel()[fitted],
+                           1.96 * std.ravel()[fitted], crb.ravel()[fitted],
+                           f"bias_tempco of the fitted degrees ({int((~fitted).sum())} left "
+                           "out by the degree's F-test), against the bound of a cubic on the "
+                           "warm-up's blocks")  # fmt: skip
+    return out
+
+
+GRADERS = {"accel": grade_accel, "gyro": grade_gyro, "mag": grade_mag}
+
+
+def grade(session: Session, cal: Calibration, truth: Calibration) -> dict[str, Graded | str]:
+    """Every section of ``cal`` graded against ``truth`` (a section that cannot be graded:
+    the reason, as text)."""
+    out: dict[str, Graded | str] = {}
+    for name, sec in cal.sections().items():
+        if getattr(truth, name, None) is None:
+            out[name] = "no truth for this sensor"
+            continue
+        try:
+            out[name] = GRADERS[name](session, cal, truth)
+        except Exception as exc:  # noqa: BLE001 - reported in the table
+            out[name] = f"not graded: {type(exc).__name__}: {exc}"
+        del sec
+    return out

@@ -1,0 +1,297 @@
+"""``bench live``'s figures and verdicts (issue 24.1): one row per plan and mode.
+
+A row pools the graded parameters of its seeds (:mod:`bench.live_grade`): the RMS of their
+error over the Cramér-Rao bound, live and for the same seeds simulated to a file, and the
+fraction of reported 95 % intervals that hold the truth.  Its verdict:
+
+- **exit**: every capture complete and calibrated (exit 0), with the sensors the file gives;
+- **error/bound**: live within :data:`TARGET` (10 %) of the file's; the ratio's 95 % interval
+  from the seeds drawn again (bootstrap) says how far the seeds can tell;
+- **coverage**: live not further from the file's than their binomial sampling allows (1.96
+  std of the difference), and holding 95 % in its own 95 % (Wilson) interval.  The intervals
+  of one seed's parameters are not independent, so these intervals are somewhat too narrow.
+
+A failure is stated with what caused it where the figures can tell: a live result that the
+file of the same seed shares (a calibration refused, a coverage the file misses over all its
+seeds) is the solver's, not the capture's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from bench.live_grade import Graded
+
+#: The accuracy target: live error/bound within this fraction of the file's.
+TARGET = 0.10
+#: The nominal coverage of the reported intervals.
+NOMINAL = 0.95
+
+
+def pool(graded: list[dict], sections: list[set]) -> tuple[np.ndarray, np.ndarray]:
+    """Squared error/bound ratios and interval hits of the ``sections`` of each seed."""
+    z2, hits = [], []
+    for g, keep in zip(graded, sections, strict=True):
+        for name in sorted(keep):
+            sec = g.get(name)
+            if not isinstance(sec, Graded):
+                continue
+            if sec.z2 is not None:
+                z2.append(sec.z2)
+            hits.append(sec.hits)
+    cat = lambda xs: np.concatenate(xs) if xs else np.zeros(0)  # noqa: E731
+    return cat(z2), cat(hits).astype(bool)
+
+
+def rms(z2: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(z2))) if len(z2) else float("nan")
+
+
+def wilson(hits: np.ndarray, z: float = 1.96) -> tuple[float, float]:
+    """The 95 % (Wilson) interval of a fraction of ``hits``."""
+    n = len(hits)
+    if n == 0:
+        return float("nan"), float("nan")
+    p = float(hits.mean())
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return centre - half, centre + half
+
+
+def sensors(g: dict) -> set:
+    """The graded sections of one seed."""
+    return {k for k, v in g.items() if isinstance(v, Graded)}
+
+
+@dataclass
+class Row:
+    """The figures of one plan and mode (seeds: ``attempted``)."""
+
+    plan: str
+    mode: str
+    attempted: int = 0
+    complete: int = 0
+    calibrated: int = 0
+    saved: str = ""
+    live: float = float("nan")
+    file_same: float = float("nan")
+    ratio: float = float("nan")
+    ratio_ci: tuple[float, float] = (float("nan"), float("nan"))
+    cover_live: float = float("nan")
+    cover_ci: tuple[float, float] = (float("nan"), float("nan"))
+    n_intervals: int = 0
+    cover_file: float = float("nan")
+    cover_tol: float = float("nan")
+    file_all: float = float("nan")
+    cover_all: float = float("nan")
+    cover_all_ci: tuple[float, float] = (float("nan"), float("nan"))
+    file_n: int = 0
+    wall: str = ""
+    served: str = ""
+    why: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    sections: dict = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return not self.why
+
+    @property
+    def blocked(self) -> bool:
+        return bool(self.why) and self.why[0].startswith("blocked")
+
+
+# --------------------------------------------------------------------------------------------
+# One row
+# --------------------------------------------------------------------------------------------
+
+
+def _exits(row: Row, jobs: list, file_of: dict) -> None:
+    """Captures complete, calibrations saved, the sensors the file gives; each failure in
+    its own words, and the solver's where the file of the same seed fails the same way."""
+    row.complete = sum(j.capture.exit_code == 0 for j in jobs)
+    row.calibrated = sum(j.calibrate is not None and j.calibrate.exit_code == 0 for j in jobs)
+    walls = [j.capture.wall_s for j in jobs]
+    row.wall = f"{np.median(walls):.0f} ({max(walls):.0f})" if walls else ""
+    left: dict[str, int] = {}
+    for j in jobs:
+        for sensor in (j.calibrate.left_out if j.calibrate else {}):
+            left[sensor] = left.get(sensor, 0) + 1
+    saved = {s for j in jobs if j.calibrate for s in j.calibrate.sections}
+    row.saved = "+".join(s for s in ("accel", "gyro", "mag") if s in saved) or "-"
+    if left:
+        row.saved += "; left out: " + ", ".join(f"{s} {n}/{len(jobs)}" for s, n in left.items())
+    equal = [j.served_equal for j in jobs if j.served_equal is not None]
+    row.served = f"{100 * min(equal):.1f} %" if equal else "-"
+    for j in jobs:  # each failure in its own words (the whole log: STEM.log beside it)
+        said = j.what_went_wrong()
+        if not said:
+            continue
+        same = "error" in file_of.get(j.seed, {}) and j.capture.exit_code == 0
+        row.why.append(f"seed {j.seed}: {said}" + (" [solver: the file of this seed fails "
+                       "too]" if same else ""))  # fmt: skip
+    for j in jobs:
+        f = file_of.get(j.seed, {})
+        fewer = sorted(sensors(f) - sensors(j.graded)) if j.graded else []
+        for name in fewer:
+            why = (j.calibrate.left_out or {}).get(name, "") if j.calibrate else ""
+            row.why.append(f"seed {j.seed}: {name} left out, the file calibrates it"
+                           + (f" ({_short(why)})" if why else ""))  # fmt: skip
+        for name, sec in j.graded.items():
+            if isinstance(sec, str) and sec.startswith("not graded"):
+                row.why.append(f"seed {j.seed} {name} {sec}")
+    failed = {s: f["error"] for s, f in file_of.items() if "error" in f}
+    if failed:
+        row.notes.append(f"file reference: {len(failed)} of {len(file_of)} seeds not "
+                         f"calibrated (e.g. {_short(next(iter(failed.values())))})")  # fmt: skip
+
+
+def _short(text: str, n: int = 160) -> str:
+    text = " ".join(str(text).split())
+    return text if len(text) <= n else text[: n - 3] + "..."
+
+
+def _figures(row: Row, pairs: list, file_of: dict, rng) -> list[set]:
+    """Error/bound and coverage, live and file, pooled over the seeds both graded."""
+    both = [sensors(j.graded) & sensors(f) for j, f in pairs]
+    z_live, h_live = pool([j.graded for j, _ in pairs], both)
+    z_file, h_file = pool([f for _, f in pairs], both)
+    row.live, row.file_same = rms(z_live), rms(z_file)
+    row.ratio = row.live / row.file_same
+    row.ratio_ci = _bootstrap(pairs, both, rng)
+    row.cover_live, row.cover_file = float(h_live.mean()), float(h_file.mean())
+    row.cover_ci, row.n_intervals = wilson(h_live), len(h_live)
+    p = (h_live.sum() + h_file.sum()) / (len(h_live) + len(h_file))
+    row.cover_tol = 1.96 * float(np.sqrt(p * (1 - p) * (1 / len(h_live) + 1 / len(h_file))))
+    every = [f for f in file_of.values() if sensors(f)]
+    z_all, h_all = pool(every, [sensors(f) for f in every])
+    row.file_all, row.cover_all, row.file_n = rms(z_all), float(h_all.mean()), len(every)
+    row.cover_all_ci = wilson(h_all)
+    for name in sorted(set().union(*both)):
+        keep = [{name} if name in b else set() for b in both]
+        zl, hl = pool([j.graded for j, _ in pairs], keep)
+        zf, hf = pool([f for _, f in pairs], keep)
+        _, ha = pool(every, [{name} for _ in every])
+        solvers = [(j.graded[name].solver, f[name].solver) for (j, f), b in
+                   zip(pairs, both, strict=True) if name in b]  # fmt: skip
+        live_s = "/".join(sorted({s for s, _ in solvers}))
+        file_s = "/".join(sorted({s for _, s in solvers}))
+        row.sections[name] = (live_s, file_s, rms(zl), rms(zf), float(hl.mean()),
+                              float(hf.mean()), float(ha.mean()) if len(ha) else float("nan"))
+        if live_s != file_s:
+            row.notes.append(f"{name}: solver {live_s} where the file's is {file_s}")
+    return both
+
+
+def _verdict(row: Row) -> None:
+    """Error/bound within the target, coverage as the file's and holding 95 %."""
+    lo, hi = row.ratio_ci
+    seeds = f"{row.attempted} seed(s)"
+    if not np.isfinite(row.ratio):
+        row.why.append("no bound for any graded parameter")
+    elif abs(row.ratio - 1) > TARGET:
+        tell = ("" if not np.isfinite(lo) else f"; 95 % over the seeds {lo:.2f}-{hi:.2f}"
+                + (": the seeds cannot tell it from 1" if lo <= 1 <= hi else ""))  # fmt: skip
+        row.why.append(f"error/bound {row.live:.3f} vs the file's {row.file_same:.3f} "
+                       f"({100 * (row.ratio - 1):+.0f} %, target within {100 * TARGET:.0f} %"
+                       f"{tell}, {seeds})")  # fmt: skip
+    if abs(row.cover_live - row.cover_file) > row.cover_tol:
+        row.why.append(f"coverage {100 * row.cover_live:.1f} % vs the file's "
+                       f"{100 * row.cover_file:.1f} % on the same seeds (more than "
+                       f"{100 * row.cover_tol:.1f} points apart)")  # fmt: skip
+    clo, chi = row.cover_ci
+    if np.isfinite(clo) and not clo <= NOMINAL <= chi:
+        alo, ahi = row.cover_all_ci
+        solver = np.isfinite(alo) and not alo <= NOMINAL <= ahi
+        row.why.append(
+            f"coverage {100 * row.cover_live:.1f} % ({100 * clo:.0f}-{100 * chi:.0f} %, "
+            f"{row.n_intervals} intervals) does not hold {100 * NOMINAL:.0f} %"
+            + (f" [solver: the file's over {row.file_n} seeds is {100 * row.cover_all:.1f} % "
+               f"({100 * alo:.0f}-{100 * ahi:.0f} %)]" if solver else "")
+        )  # fmt: skip
+
+
+def make_row(name: str, mode: str, jobs: list, file_of: dict, rng) -> Row:
+    """The figures and verdict of plan ``name`` in ``mode``: its jobs (:class:`bench.live.Job`)
+    and the file reference of every seed (``{seed: graded sections}``)."""
+    row = Row(name, mode, attempted=len(jobs))
+    _exits(row, jobs, file_of)
+    pairs = [(j, file_of.get(j.seed, {})) for j in jobs if j.graded]
+    pairs = [(j, f) for j, f in pairs if sensors(j.graded) & sensors(f)]
+    if not pairs:
+        row.why.append("nothing to grade")
+        return row
+    _figures(row, pairs, file_of, rng)
+    _verdict(row)
+    return row
+
+
+def _bootstrap(pairs, both, rng, draws: int = 1000) -> tuple[float, float]:
+    """95 % interval of the live/file ratio when the seeds are drawn again (with
+    replacement); NaN with fewer than 3 seeds."""
+    per = []
+    for (j, f), keep in zip(pairs, both, strict=True):
+        zl, _ = pool([j.graded], [keep])
+        zf, _ = pool([f], [keep])
+        per.append((zl.sum(), zf.sum()))
+    if len(per) < 3:
+        return float("nan"), float("nan")
+    a = np.array(per)
+    idx = rng.integers(0, len(a), (draws, len(a)))
+    sums = a[idx].sum(axis=1)
+    ok = sums[:, 1] > 0
+    ratio = np.sqrt(sums[ok, 0] / sums[ok, 1])
+    return float(np.quantile(ratio, 0.025)), float(np.quantile(ratio, 0.975))
+
+
+# --------------------------------------------------------------------------------------------
+# Printing
+# --------------------------------------------------------------------------------------------
+
+
+def _fmt(x: float, spec: str = ".3f") -> str:
+    return "-" if not np.isfinite(x) else format(x, spec)
+
+
+def _pct(ci: tuple[float, float]) -> str:
+    return "-" if not np.isfinite(ci[0]) else f"{100 * ci[0]:.0f}-{100 * ci[1]:.0f}"
+
+
+def print_rows(console: Console, rows: list[Row], title: str) -> None:
+    """The table, the per-sensor table and every failure's reasons."""
+    t = Table(title=title)
+    for col in ("plan", "mode", "seeds: tried/complete/calibrated", "sensors saved",
+                "err/bound live", "file", "live/file (95 %)", "coverage live (95 %)",
+                "file, same seeds", "file, all seeds: err/bound, coverage (95 %)",
+                "served = simulated", "capture wall s, median (max)", ""):  # fmt: skip
+        t.add_column(col, justify="right")
+    for r in rows:
+        ci = "" if not np.isfinite(r.ratio_ci[0]) else f" ({_fmt(r.ratio_ci[0], '.2f')}-" \
+             f"{_fmt(r.ratio_ci[1], '.2f')})"  # fmt: skip
+        t.add_row(
+            r.plan, r.mode, f"{r.attempted}/{r.complete}/{r.calibrated}", r.saved,
+            _fmt(r.live), _fmt(r.file_same), _fmt(r.ratio) + ci,
+            f"{_fmt(100 * r.cover_live, '.1f')} ({_pct(r.cover_ci)}, n={r.n_intervals})",
+            f"{_fmt(100 * r.cover_file, '.1f')} (± {_fmt(100 * r.cover_tol, '.1f')})",
+            f"{_fmt(r.file_all)}, {_fmt(100 * r.cover_all, '.1f')} ({_pct(r.cover_all_ci)}; "
+            f"{r.file_n} seeds)", r.served, r.wall,
+            "[yellow]BLOCKED[/]" if r.blocked else "[green]PASS[/]" if r.ok else "[red]FAIL[/]",
+        )  # fmt: skip
+    console.print(t)
+    s = Table(title="per sensor: solver live / file; error/bound live / file; coverage live / "
+                    "file (same seeds) / file (all seeds)")  # fmt: skip
+    for col in ("plan", "mode", "sensor", "solver", "file's", "err/bound live", "file",
+                "coverage live", "file", "file, all"):  # fmt: skip
+        s.add_column(col, justify="right")
+    for r in rows:
+        for name, (sl, sf, zl, zf, hl, hf, ha) in r.sections.items():
+            s.add_row(r.plan, r.mode, name, sl, sf if sf != sl else "same", _fmt(zl), _fmt(zf),
+                      _fmt(100 * hl, ".1f"), _fmt(100 * hf, ".1f"), _fmt(100 * ha, ".1f"))
+    console.print(s)
+    for r in rows:
+        if r.why or r.notes:
+            console.print(f"  {r.plan} {r.mode}: " + "; ".join(r.why + r.notes), highlight=False)

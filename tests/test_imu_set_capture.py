@@ -1,0 +1,100 @@
+"""Issue 28.1/28.3: capturing several IMUs through the virtual serial port: ``simulate --serve
+--imus N`` (every IMU's triads on each line) into ``capture --columns ...,ax.1,...``, and one
+port per IMU (``--serve-imu K``) into ``capture --port A --port B``; the sessions calibrate to
+the simulated set's rotations (and, on one line, its time offsets)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from imucal_cli.formats.session import read_session
+from imucal_cli.simulate.imu_set import gauge_rotation, served_set
+
+from .cli_helpers import run
+from .test_virtual import CLI, RATE, saved_samples, server_factory, start_capture  # noqa: F401
+
+pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminals are POSIX")
+
+SET = ("--plan", "random:9", "--seed", "4", "--hold", "1.6", "--move", "0.7",
+       "--imu-offset", "8")  # fmt: skip
+COLUMNS = ("t,ax,ay,az,gx,gy,gz,temp,ax.1,ay.1,az.1,gx.1,gy.1,gz.1,"
+           "ax.2,ay.2,az.2,gx.2,gy.2,gz.2")  # fmt: skip
+
+
+def _truth(imus: int):
+    _, truth = served_set("random:9", imus, seed=4, rate_hz=RATE, hold_s=1.6, move_s=0.7,
+                          max_offset_s=0.008)  # fmt: skip
+    return truth
+
+
+def _rotation_error(truth, key, entry) -> np.ndarray:
+    q0 = gauge_rotation(np.array(truth.accel.matrix))
+    want = truth.extra["imus"][key]
+    true_r = q0.T @ np.array(want["rotation_to_reference"]) @ gauge_rotation(
+        np.array(want["accel"]["matrix"]))  # fmt: skip
+    return Rotation.from_matrix(np.array(entry["rotation_to_reference"]) @ true_r.T).as_rotvec()
+
+
+def test_one_port_several_triads_per_line(tmp_path, server_factory):  # noqa: F811
+    server = server_factory("--imus", "3", *SET)
+    out = tmp_path / "array.h5"
+    cap = start_capture(server.path, out, "--plan", "random:9", "--columns", COLUMNS,
+                        "--accel-units", "counts", "--gyro-units", "counts")  # fmt: skip
+    stdout, stderr = cap.communicate(timeout=300)
+    sent = server.finish()
+    assert cap.returncode == 0, stderr
+    session = read_session(out)
+    assert list(session.imus) == ["imu1", "imu2"]
+    n = saved_samples(stdout)
+    assert len(session.time) == n and sent["lines"] >= n
+    for imu in session.imus.values():
+        np.testing.assert_array_equal(imu.time, session.time)  # one line, one time stamp
+        assert imu.accel_units == "counts" or imu.accel_units is None
+    proc = run("calibrate", out, "--json", "--no-store")
+    assert proc.returncode == 0, proc.stderr
+    cal = json.loads(proc.stdout)["calibration"]
+    truth = _truth(3)
+    for key, entry in cal["imus"].items():
+        err = _rotation_error(truth, key, entry)
+        assert np.all(np.abs(err) <= 4.5 * np.radians(entry["rotation_std_deg"])), (key, err)
+        dt = entry["time_offset_s"] - truth.extra["imus"][key]["time_offset_s"]
+        assert abs(dt) <= 4.5 * entry["time_offset_std_s"], (key, dt, entry)
+
+
+def test_one_port_per_imu(tmp_path, server_factory):  # noqa: F811
+    servers = [server_factory("--imus", "2", "--serve-imu", str(k), *SET) for k in (0, 1)]
+    out = tmp_path / "two.h5"
+    cap = subprocess.Popen(
+        [*CLI, "capture", "--port", servers[0].path, "--port", servers[1].path, "--output",
+         str(out), "--no-prompt", "--plan", "random:9", "--json"],
+        stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    stdout, stderr = cap.communicate(timeout=300)
+    for s in servers:
+        s.finish()
+    assert cap.returncode == 0, stderr
+    session = read_session(out)
+    assert list(session.imus) == ["imu1"]
+    assert session.imus["imu1"].sensor == f"serial:{servers[1].path}@115200"
+    assert abs(len(session.imus["imu1"].time) - len(session.time)) < 0.05 * len(session.time)
+    proc = run("calibrate", out, "--json", "--no-store")
+    assert proc.returncode == 0, proc.stderr
+    entry = json.loads(proc.stdout)["calibration"]["imus"]["imu1"]
+    err = _rotation_error(_truth(2), "imu1", entry)  # the frames do not depend on the clocks
+    assert np.all(np.abs(err) <= 4.5 * np.radians(entry["rotation_std_deg"])), err
+    # two devices, two clocks: put on one by their first arrival, the rest measured
+    assert abs(entry["time_offset_s"]) < 0.2
+
+
+def test_capture_refuses_what_a_set_does_not_take(tmp_path):
+    proc = run("capture", "--port", "/dev/null", "--port", "/dev/null", "--no-prompt",
+               "--duration", "1", "-o", tmp_path / "x.h5")  # fmt: skip
+    assert proc.returncode == 2 and "same port twice" in proc.stderr
+    proc = run("capture", "--port", "/dev/null", "--no-prompt", "--duration", "1", "--columns",
+               "t,ax,ay,az,ax.1,ay.1,az.1", "--protocol", "witmotion", "-o", tmp_path / "x.h5")
+    assert proc.returncode == 2 and "lines of numbers" in proc.stderr

@@ -1,0 +1,154 @@
+"""Issue 28.3 (exports and apply per IMU): a set's calibration exported where the target holds
+several IMUs (PX4 CAL_ACC0..3, ArduPilot INS_ACC/ACC2/ACC3, a Kalibr and an OpenVINS IMU chain
+with T_i_b and time_offset), read back by the readers (pymavlink's parameter loader, YAML), and
+applied per IMU in its own frame or the reference's."""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+
+from imucal_cli.calibrate.common import static_poses
+from imucal_cli.calibrate.imu_set import calibrate_set
+from imucal_cli.errors import InputError
+from imucal_cli.formats.calibration import write_calibration
+from imucal_cli.formats.config import Config
+from imucal_cli.formats.exporters import ExportOptions
+from imucal_cli.formats.session import imu_session, write_session
+from imucal_cli.simulate.imu_set import simulate_set
+from imucal_cli.use.export import export
+from imucal_cli.use.export_set import pick_imu
+
+from .cli_helpers import run
+from .test_export_targets import kalibr_yaml, noise, px4_params  # noqa: F401
+
+CREATED = "2026-01-01T00:00:00Z"
+
+
+@pytest.fixture(scope="module")
+def calibrated(tmp_path_factory):
+    """A set of 3 IMUs in SI raw units (the drivers' m/s^2 and rad/s), calibrated."""
+    session, truth = simulate_set(3, seed=8, units="m/s^2", created=CREATED)
+    cal = calibrate_set(session, Config(), name="set.h5")
+    folder = tmp_path_factory.mktemp("set")
+    write_session(folder / "set.h5", session)
+    write_calibration(folder / "set.cal.json", cal)
+    return session, cal, folder
+
+
+def test_ardupilot_parameters_per_imu_read_by_pymavlink(calibrated, tmp_path):
+    from pymavlink import mavparm
+
+    session, cal, _ = calibrated
+    path = tmp_path / "set.parm"
+    path.write_text(export(cal, "ardupilot"))
+    params = mavparm.MAVParmDict()
+    assert params.load(str(path), use_excludes=False)
+    for n, name in ((1, "reference"), (2, "imu1"), (3, "imu2")):
+        one = {k: float(v) for k, v in (ln.split(",") for ln in
+               export(pick_imu(cal, name), "ardupilot").splitlines() if not ln.startswith("#"))}
+        acc = "INS_ACC" if n == 1 else f"INS_ACC{n}"
+        gyr = "INS_GYR" if n == 1 else f"INS_GYR{n}"
+        for axis in "XYZ":
+            assert params[f"{acc}OFFS_{axis}"] == pytest.approx(one[f"INS_ACCOFFS_{axis}"])
+            assert params[f"{acc}SCAL_{axis}"] == pytest.approx(one[f"INS_ACCSCAL_{axis}"])
+            assert params[f"{gyr}OFFS_{axis}"] == pytest.approx(one[f"INS_GYROFFS_{axis}"])
+
+
+def test_px4_parameters_per_imu(calibrated):
+    _, cal, _ = calibrated
+    text = export(cal, "px4")
+    p = px4_params(text)
+    for k, name in enumerate(("reference", "imu1", "imu2")):
+        one = px4_params(export(pick_imu(cal, name), "px4"))
+        for axis in "XYZ":
+            assert p[f"CAL_ACC{k}_{axis}OFF"] == one[f"CAL_ACC0_{axis}OFF"]
+            assert p[f"CAL_ACC{k}_{axis}SCALE"] == one[f"CAL_ACC0_{axis}SCALE"]
+            assert p[f"CAL_GYRO{k}_{axis}OFF"] == one[f"CAL_GYRO0_{axis}OFF"]
+    assert "[imu1] in CAL_ACC1_*, CAL_GYRO1_*; measured" in text
+    with pytest.raises(InputError, match="--device-id names one device"):
+        export(cal, "px4", options=ExportOptions(device_id=3))
+
+
+def _still_means(session, cal, name):
+    """Each shared pose's mean raw accel (the driver's m/s^2) of IMU ``name``."""
+    entry = cal.extra["imus"].get(name, {})
+    sub = imu_session(session, name, entry.get("set", {}).get("coarse_offset_s", 0.0))
+    poses = static_poses(sub)
+    return {s.name: poses.a_mean[k] for k, s in enumerate(poses.segments)}
+
+
+@pytest.mark.parametrize("fmt", ["kalibr", "openvins"])
+def test_imu_chain_puts_each_imu_where_the_reference_sees_it(calibrated, fmt, noise):  # noqa: F811
+    """Read back with YAML, the chain's numbers reproduce each IMU's still readings from the
+    reference's: a_i = T_i_b a_b, each IMU calibrated with its own intrinsics as the target's
+    model says (Kalibr: inv(M_accel) (p - b); OpenVINS: the same with R_IMUtoACC = I)."""
+    session, cal, _ = calibrated
+    opts = ExportOptions(noise=noise)
+    chain = kalibr_yaml(export(cal, fmt, options=opts))
+    assert list(chain) == ["imu0", "imu1", "imu2"]
+    assert chain["imu1"]["rostopic"] == "/imu1"
+
+    def own(block, p):
+        M = np.array(block["accelerometers"]["M"] if fmt == "kalibr" else block["Ta"])
+        return np.linalg.solve(M, p - np.array(block["accelerometer_bias"]))
+
+    ref = _still_means(session, cal, "reference")
+    for k, name in ((1, "imu1"), (2, "imu2")):
+        block = chain[f"imu{k}"]
+        assert block["time_offset"] == pytest.approx(cal.extra["imus"][name]["time_offset_s"])
+        T_k, T_0 = np.array(block["T_i_b"]), np.array(chain["imu0"]["T_i_b"])
+        mine = _still_means(session, cal, name)
+        for seg, p_k in mine.items():
+            a_body = np.linalg.solve(T_0[:3, :3], own(chain["imu0"], ref[seg]))
+            a_k = own(block, p_k)
+            # the poses' means agree to their noise (0.01 m/s^2 per sample, 200 samples)
+            assert np.linalg.norm(T_k[:3, :3] @ a_body - a_k) < 0.01, (name, seg)
+
+
+def test_one_imu_formats_need_imu(calibrated, tmp_path):
+    _, _, folder = calibrated
+    proc = run("export", folder / "set.cal.json", "--format", "json")
+    assert proc.returncode == 2 and "--imu NAME (reference, imu1, imu2)" in proc.stderr
+    proc = run("export", folder / "set.cal.json", "--format", "json", "--imu", "imu2")
+    assert proc.returncode == 0, proc.stderr
+    proc = run("export", folder / "set.cal.json", "--format", "json", "--imu", "imu9")
+    assert proc.returncode == 2 and "--imu imu9" in proc.stderr
+
+
+def test_apply_each_imu_in_its_frame_or_the_reference(calibrated, tmp_path):
+    """In the reference's frame and time, each IMU's gyro is the reference's, up to their
+    noise: the rotation and the offset put it there (in its own frame it is not)."""
+    session, cal, folder = calibrated
+    out = tmp_path / "ref.h5"
+    proc = run("apply", folder / "set.cal.json", folder / "set.h5", "-o", out,
+               "--reference-frame")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    own = tmp_path / "own.h5"
+    assert run("apply", folder / "set.cal.json", folder / "set.h5", "-o", own).returncode == 0
+    with h5py.File(out, "r") as f, h5py.File(own, "r") as g:
+        assert f.attrs["frame"] == "reference" and list(f.attrs["imus"]) == [
+            "reference", "imu1", "imu2"]  # fmt: skip
+        t_r, w_r = f["calibrated/time"][()], f["calibrated/gyro"][()]
+        for name in ("imu1", "imu2"):
+            t, w = f[f"calibrated_imus/{name}/time"][()], f[f"calibrated_imus/{name}/gyro"][()]
+            t_own, w_own = g[f"calibrated_imus/{name}/time"][()], g[
+                f"calibrated_imus/{name}/gyro"][()]  # fmt: skip
+            assert len(t) == len(session.imus[name].time)  # every sample, none resampled
+            moving = np.linalg.norm(w, axis=1) > 0.3
+            inside = moving & (t > t_r[0]) & (t < t_r[-1])
+
+            def gap(times, values, rows=inside):
+                ref = np.column_stack([np.interp(times, t_r, w_r[:, i]) for i in range(3)])
+                return float(np.sqrt(np.mean((values[rows] - ref[rows]) ** 2)))
+
+            noise = 0.005 * 2 * 2  # rad/s: each IMU's noise up to twice the reference's
+            assert gap(t, w) < noise, name
+            assert gap(t_own, w_own) > 2 * gap(t, w), name
+    one = tmp_path / "imu1.csv"
+    proc = run("apply", folder / "set.cal.json", folder / "set.h5", "-o", one, "--imu", "imu1")
+    assert proc.returncode == 0, proc.stderr
+    assert one.read_text().splitlines()[0] == "t,ax,ay,az,gx,gy,gz"
+    proc = run("apply", folder / "set.cal.json", folder / "set.h5", "-o", tmp_path / "x.csv")
+    assert proc.returncode == 2 and "a CSV holds one IMU" in proc.stderr
