@@ -64,7 +64,7 @@ CLI = [sys.executable, "-m", "imucal_cli"]
 
 def _section_terms(sec, S_true: np.ndarray, b_true: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Errors and std of a section's bias (SI), gains (relative) and axis angles (deg)."""
-    x = sec.extra
+    x = sec.to_dict()
     rows = {p["name"]: p for p in x["parameters"]}
     b = np.array([rows[f"b_{a}"]["value"] for a in "xyz"])
     b_std = np.array([rows[f"b_{a}"]["std"] for a in "xyz"])

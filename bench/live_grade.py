@@ -100,7 +100,7 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 def _params(sec: SensorCalibration) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
     """Names, values, std and 95 % half-widths of a section's ``parameters``."""
-    rows = sec.extra.get("parameters") or []
+    rows = sec.to_dict().get("parameters") or []
     names = [r["name"] for r in rows]
     value = np.array([float(r["value"]) for r in rows])
     std = np.array([float(r.get("std") or np.nan) for r in rows])
@@ -117,7 +117,7 @@ def _pose_design(session: Session, truth: Calibration):
     T, b = truth.accel.matrix, truth.accel.bias
     u = _unit((poses.a_mean - b) @ T.T)
     S = np.linalg.inv(T)
-    sigma = float(truth.accel.extra["noise"])
+    sigma = float(truth.accel.to_dict()["noise"])
     quant = np.eye(3) / 12.0 if session.accel_units == "counts" else np.zeros((3, 3))
     cov = np.array([(sigma**2 * S @ S.T + quant) / n for n in poses.samples])
     return poses, u, cov
@@ -145,7 +145,7 @@ def grade_accel(session: Session, cal: Calibration, truth: Calibration) -> Grade
         x_true = public_params(b, np.linalg.inv(T))
         # the placement error of the labels; none stated (an exactly square iron): exact
         # labels, a tiny prior keeping the bound finite
-        jitter = float(truth.accel.extra.get("jitter_deg") or 0.01)
+        jitter = float(truth.accel.to_dict().get("jitter_deg") or 0.01)
         placement = np.where([up is not None for up in poses.up], jitter, np.inf)
         crb = np.diag(labelled_crb(T, b, u, G0, cov, placement))
         solver = "labelled, 12"
@@ -232,8 +232,8 @@ def grade_mag(session: Session, cal: Calibration, truth: Calibration) -> Graded:
     names, value, std, half = _params(sec)
     R = _truth_in_accel_frame(cal, truth)
     W_true = R @ truth.mag.matrix
-    field = float(truth.mag.extra.get("field_uT", sec.extra.get("field_uT") or 48.0))
-    incl = float(truth.mag.extra.get("inclination_deg", 60.0))
+    field = float(truth.mag.to_dict().get("field_uT", sec.to_dict().get("field_uT") or 48.0))
+    incl = float(truth.mag.to_dict().get("inclination_deg", 60.0))
     by_name = dict(zip(names, zip(value, std, half, strict=True), strict=True))
     wanted = [f"b_{a}" for a in "xyz"] + [f"w_{r}{c}" for r in "xyz" for c in "xyz"]
     if not all(n in by_name for n in wanted):
@@ -244,7 +244,7 @@ def grade_mag(session: Session, cal: Calibration, truth: Calibration) -> Graded:
     x_true = np.r_[truth.mag.bias, W_true.ravel()]
     readings = mag_readings(session, Config().mag, cal.accel, "bench")
     S = np.linalg.inv(truth.mag.matrix)
-    noise = float(truth.mag.extra["noise"])
+    noise = float(truth.mag.to_dict()["noise"])
     cov = noise**2 * S @ S.T + (np.eye(3) / 12.0 if session.mag_units == "counts" else 0.0)
     data = readings.data
     dirs = _unit((data.samples - truth.mag.bias) @ W_true.T)
@@ -257,7 +257,7 @@ def grade_mag(session: Session, cal: Calibration, truth: Calibration) -> Graded:
         a = session.accel[seg.start : seg.stop].mean(axis=0)
         ups.append(R @ _unit(T @ (a - b)))
     ups = np.array(ups)
-    sigma_a = float(truth.accel.extra["noise"]) / G0
+    sigma_a = float(truth.accel.to_dict()["noise"]) / G0
     up_cov = np.array([(np.eye(3) - np.outer(u, u)) * sigma_a**2 / k
                        for u, k in zip(ups, n, strict=True)])  # fmt: skip
     crb = np.diag(magnetometer_crb(W_true, field, dirs, cov, pose_up=ups, pose_dirs=pose_dirs,
@@ -286,12 +286,12 @@ def grade_warmup(warm: Session, cal: Calibration, truth: Calibration) -> dict[st
             out[name] = "no temperature terms"
             continue
         ref, tc = sec.temperature_terms
-        tc_true = np.asarray(true.extra["bias_tempco"], float)
+        tc_true = np.asarray(true.to_dict()["bias_tempco"], float)
         K, n = tc_true.shape
         est = np.zeros((K, n))
         est[: min(K, tc.shape[0])] = tc[:K]
         std = np.zeros((K, n))
-        given = np.asarray(sec.extra["temperature_model"]["bias_tempco_std"], float)
+        given = np.asarray(sec.to_dict()["temperature_model"]["bias_tempco_std"], float)
         std[: min(K, given.shape[0])] = given[:K]
         data = getattr(warm, name)
         crb = np.zeros((K, n))

@@ -50,7 +50,7 @@ def _truth_frames(truth, names):
         if k == names[0]:
             acc, gyr, R = truth.accel.to_dict(), truth.gyro.to_dict(), np.eye(3)
         else:
-            e = truth.extra["imus"][k]
+            e = truth.to_dict()["imus"][k]
             acc, gyr, R = e["accel"], e["gyro"], np.array(e["rotation_to_reference"])
         T = np.array(acc["matrix"])
         Qk = gauge_rotation(T)
@@ -65,9 +65,9 @@ def _truth_frames(truth, names):
 
 def _bounds(session, truth, names, frames, Q0, cal):
     """The joint model's bound per IMU (own 9 parameters, rotation) and each IMU alone."""
-    up = Q0.T @ np.array(truth.accel.extra["true_up"]).T  # (3, P) reference gauge frame
+    up = Q0.T @ np.array(truth.accel.to_dict()["true_up"]).T  # (3, P) reference gauge frame
     segs = [s.name for s in session.static_segments()]
-    poses = {k: static_poses(imu_session(session, k, cal.extra["imus"][k]["set"]
+    poses = {k: static_poses(imu_session(session, k, cal.to_dict()["imus"][k]["set"]
                                          ["coarse_offset_s"] if k != names[0] else 0.0))
              for k in names}  # fmt: skip
     common = [n for n in segs if all(n in {s.name for s in poses[k].segments} for k in names)]
@@ -119,7 +119,7 @@ def one_seed(n_imus: int, seed: int) -> dict:
            "p_alone": []}  # fmt: skip
     for i, k in enumerate(names):
         sec = cal.accel if i == 0 else None
-        entry = cal.extra["imus"].get(k) if i else None
+        entry = cal.to_dict()["imus"].get(k) if i else None
         acc = sec.to_dict() if i == 0 else entry["accel"]
         x = np.array([p["value"] for p in acc["parameters"]])
         out["p_err"].append(x - model_to_params(frames[k]["bias"], frames[k]["U"]))
@@ -132,7 +132,7 @@ def one_seed(n_imus: int, seed: int) -> dict:
         out["rot_err"].append(Rotation.from_matrix(R @ frames[k]["R"].T).as_rotvec())
         out["rot_std"].append(np.radians(entry["rotation_std_deg"]))
         out["rot_bound"].append(np.sqrt(np.diag(rot_bound[i])))
-        out["dt_err"].append(entry["time_offset_s"] - truth.extra["imus"][k]["time_offset_s"])
+        out["dt_err"].append(entry["time_offset_s"] - truth.to_dict()["imus"][k]["time_offset_s"])
         out["dt_std"].append(entry["time_offset_std_s"])
         out["dt_bound"].append(_offset_bound(session, truth, frames, k, names))
     return {k: np.array(v) if isinstance(v, list) else v for k, v in out.items()}

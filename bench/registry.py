@@ -170,7 +170,7 @@ def writer_main(argv: list[str]) -> int:
 def _record(registry, cal, lot, limits) -> None:
     acceptance = judge_calibration(cal, limits)
     done = record_calibration(registry, cal,
-                              UnitInfo(cal.extra["sensor"], "SIM-16", lot, "bench", "w"),
+                              UnitInfo(cal.sensor, "SIM-16", lot, "bench", "w"),
                               session_sha256="0" * 64, acceptance=acceptance,
                               limits=limits)  # fmt: skip
     sha = hashlib.sha256(calibration_to_json(cal).encode()).hexdigest()

@@ -51,7 +51,7 @@ def unit(tmp_path_factory):
 
 def _shown_parameter(cal) -> tuple[str, str]:
     """b_x of the accelerometer as the certificate prints it: value and '± std'."""
-    p = next(p for p in cal.accel.extra["parameters"] if p["name"] == "b_x")
+    p = next(p for p in cal.accel.to_dict()["parameters"] if p["name"] == "b_x")
     return f"{p['value']:.6g}", f"± {p['std']:.6g}"
 
 

@@ -22,12 +22,12 @@ from imucal_cli.simulate.play import simulate_plan
 def test_the_left_out_gyro_names_the_labelled_axes_and_what_ties_them():
     session, _ = simulate_plan("ferraris", seed=7, hold_s=4.0, rate_hz=100.0)
     cal = calibrate_session(session, Config())
-    note = cal.extra["left_out"]["gyro"]
+    note = cal.left_out["gyro"]
     assert cal.gyro is None and "max_rate_std" in note
     assert "fix its gains to" in note and "axes only as well as their labels" in note
     assert "keep the moves between the faces as turns" in note
     assert "too few or too small turns" not in note
     captured = calibrate_session(as_captured(session, "ferraris"), Config())
-    assert captured.gyro is not None and not captured.extra["left_out"]
-    rate = captured.gyro.extra["rate_std"]["total"]
+    assert captured.gyro is not None and not captured.left_out
+    rate = captured.gyro.to_dict()["rate_std"]["total"]
     assert rate < Config().gyro.max_rate_std, rate

@@ -48,7 +48,7 @@ def test_the_turns_noise_holds_the_accelerometer_calibration(monkeypatch):
     session, truth = _session(54, monkeypatch)
     own = calibrate_session(session, Config())
     assert own.accel.solver == "gravity" and own.gyro is not None
-    assert not own.gyro.extra.get("warnings")
+    assert not own.gyro.warnings
     stated, with_accel = _levels(session, own.accel)
     true_stated, _ = _levels(session, truth.accel)
     assert true_stated < 2.0  # the model holds: the turns sit within their noise
@@ -64,6 +64,6 @@ def test_random_9_at_15_degrees_is_never_refused_by_the_gyro_check(monkeypatch):
     for seed in range(100):
         session, _ = _session(seed, monkeypatch)
         cal = calibrate_session(session, Config())
-        assert cal.gyro is not None and not cal.gyro.extra.get("warnings"), seed
+        assert cal.gyro is not None and not cal.gyro.warnings, seed
         levels.append(_levels(session, cal.accel)[1])
     assert np.quantile(levels, 0.98) < 3.0, np.sort(levels)[-5:]

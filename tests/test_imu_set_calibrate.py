@@ -46,7 +46,7 @@ def test_the_cli_calibrates_a_one_imu_session_as_before(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "set:" not in proc.stdout
     got = read_calibration(tmp_path / "one.cal.json")
-    assert "imus" not in got.extra
+    assert got.imus is None and "imus" not in got.to_dict()
     assert _same(got, calibrate_session(session, Config(), name="one.h5"))
 
 
@@ -58,7 +58,7 @@ def calibrated():
 
 def _true_rotation(truth, key):
     q0 = gauge_rotation(np.array(truth.accel.matrix))
-    entry = truth.extra["imus"][key]
+    entry = truth.to_dict()["imus"][key]
     return q0.T @ np.array(entry["rotation_to_reference"]) @ gauge_rotation(
         np.array(entry["accel"]["matrix"]))  # fmt: skip
 
@@ -77,17 +77,17 @@ def test_imus_in_the_json_as_the_spec_shows(calibrated, tmp_path):
         assert isinstance(entry["time_offset_s"], float) and entry["time_offset_std_s"] > 0
     path = tmp_path / "set.cal.json"
     path.write_text(calibration_to_json(cal))
-    assert read_calibration(path).extra["imus"] == doc["imus"]
+    assert json.loads(calibration_to_json(read_calibration(path)))["imus"] == doc["imus"]
 
 
 def test_rotations_and_offsets_against_the_truth(calibrated):
     """Each within 4.5 std of the truth (a false alarm once in ~10^4 tests per value)."""
     session, truth, cal = calibrated
-    for key, entry in cal.extra["imus"].items():
+    for key, entry in cal.to_dict()["imus"].items():
         err = Rotation.from_matrix(np.array(entry["rotation_to_reference"])
                                    @ _true_rotation(truth, key).T).as_rotvec()  # fmt: skip
         assert np.all(np.abs(err) <= 4.5 * np.radians(entry["rotation_std_deg"])), (key, err)
-        dt = entry["time_offset_s"] - truth.extra["imus"][key]["time_offset_s"]
+        dt = entry["time_offset_s"] - truth.to_dict()["imus"][key]["time_offset_s"]
         assert abs(dt) <= 4.5 * entry["time_offset_std_s"], (key, dt)
         assert entry["time_offset_std_s"] < 1e-3  # turns of 1.5 s: tens of microseconds
         assert entry["warnings"] == []
@@ -99,7 +99,7 @@ def test_each_imu_is_calibrated_like_a_single_imu(calibrated):
     the IMU alone."""
     session, _, cal = calibrated
     for key in session.imus:
-        entry = cal.extra["imus"][key]
+        entry = cal.to_dict()["imus"][key]
         sec = entry["accel"]
         assert sec["set_fit"]["method"].startswith("joint maximum likelihood")
         sub = imu_session(session, key, entry["set"]["coarse_offset_s"])
@@ -109,7 +109,7 @@ def test_each_imu_is_calibrated_like_a_single_imu(calibrated):
             assert abs(np.linalg.norm(a) - session.gravity) < 0.01
         alone = calibrate_session(sub, Config())
         std_joint = np.array([p["std"] for p in sec["parameters"]])
-        std_alone = np.array([p["std"] for p in alone.accel.extra["parameters"]])
+        std_alone = np.array([p["std"] for p in alone.accel.to_dict()["parameters"]])
         assert np.all(std_joint <= std_alone * 1.001)
         assert entry["gyro"]["solver"] == alone.gyro.solver
 

@@ -35,7 +35,7 @@ def _truth(imus: int):
 
 def _rotation_error(truth, key, entry) -> np.ndarray:
     q0 = gauge_rotation(np.array(truth.accel.matrix))
-    want = truth.extra["imus"][key]
+    want = truth.to_dict()["imus"][key]
     true_r = q0.T @ np.array(want["rotation_to_reference"]) @ gauge_rotation(
         np.array(want["accel"]["matrix"]))  # fmt: skip
     return Rotation.from_matrix(np.array(entry["rotation_to_reference"]) @ true_r.T).as_rotvec()
@@ -63,7 +63,7 @@ def test_one_port_several_triads_per_line(tmp_path, server_factory):  # noqa: F8
     for key, entry in cal["imus"].items():
         err = _rotation_error(truth, key, entry)
         assert np.all(np.abs(err) <= 4.5 * np.radians(entry["rotation_std_deg"])), (key, err)
-        dt = entry["time_offset_s"] - truth.extra["imus"][key]["time_offset_s"]
+        dt = entry["time_offset_s"] - truth.to_dict()["imus"][key]["time_offset_s"]
         assert abs(dt) <= 4.5 * entry["time_offset_std_s"], (key, dt, entry)
 
 

@@ -82,7 +82,7 @@ def test_ulog_instances_become_one_session_and_calibrate_as_a_set(three, tmp_pat
     assert proc.returncode == 0, proc.stderr
     cal = json.loads(proc.stdout)["calibration"]
     for name, true_name in (("sensor_accel.1", "imu1"), ("sensor_accel.2", "imu2")):
-        entry, want = cal["imus"][name], truth.extra["imus"][true_name]
+        entry, want = cal["imus"][name], truth.to_dict()["imus"][true_name]
         err = entry["time_offset_s"] - want["time_offset_s"]
         # the float32 values round the signal by ~1e-7 relative: far below the noise
         assert abs(err) <= 4.5 * entry["time_offset_std_s"], (name, err, entry)

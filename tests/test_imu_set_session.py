@@ -60,9 +60,9 @@ def test_each_imu_keeps_its_own_rate_and_stamps(set3):
     for name, imu in session.imus.items():
         assert rates[name] == pytest.approx(imu.sample_rate_hz, rel=1e-6)
         assert not np.array_equal(imu.time[: len(session.time)], session.time[: len(imu.time)])
-    offsets = [truth.extra["imus"][n]["time_offset_s"] for n in session.imus]
+    offsets = [truth.to_dict()["imus"][n]["time_offset_s"] for n in session.imus]
     assert all(abs(o) <= 0.010 for o in offsets) and len(set(offsets)) == 2
-    angles = [truth.extra["imus"][n]["rotation_deg"] for n in session.imus]
+    angles = [truth.to_dict()["imus"][n]["rotation_deg"] for n in session.imus]
     assert all(0 < a <= 5.0 for a in angles)
 
 

@@ -137,8 +137,8 @@ def test_two_step_path_of_a_simulated_set_covers(monkeypatch):
         session, truth = simulate_set(3, seed=700 + seed, created="2026-01-01T00:00:00Z")
         cal = imu_set.calibrate_set(session, Config(), name="x")
         q0 = gauge_rotation(np.array(truth.accel.matrix))
-        for key, entry in cal.extra["imus"].items():
-            want = truth.extra["imus"][key]
+        for key, entry in cal.to_dict()["imus"].items():
+            want = truth.to_dict()["imus"][key]
             r = q0.T @ np.array(want["rotation_to_reference"]) @ gauge_rotation(
                 np.array(want["accel"]["matrix"]))  # fmt: skip
             err = Rotation.from_matrix(np.array(entry["rotation_to_reference"]) @ r.T)

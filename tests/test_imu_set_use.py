@@ -73,7 +73,7 @@ def test_px4_parameters_per_imu(calibrated):
 
 def _still_means(session, cal, name):
     """Each shared pose's mean raw accel (the driver's m/s^2) of IMU ``name``."""
-    entry = cal.extra["imus"].get(name, {})
+    entry = cal.to_dict()["imus"].get(name, {})
     sub = imu_session(session, name, entry.get("set", {}).get("coarse_offset_s", 0.0))
     poses = static_poses(sub)
     return {s.name: poses.a_mean[k] for k, s in enumerate(poses.segments)}
@@ -97,7 +97,7 @@ def test_imu_chain_puts_each_imu_where_the_reference_sees_it(calibrated, fmt, no
     ref = _still_means(session, cal, "reference")
     for k, name in ((1, "imu1"), (2, "imu2")):
         block = chain[f"imu{k}"]
-        assert block["time_offset"] == pytest.approx(cal.extra["imus"][name]["time_offset_s"])
+        assert block["time_offset"] == pytest.approx(cal.to_dict()["imus"][name]["time_offset_s"])
         T_k, T_0 = np.array(block["T_i_b"]), np.array(chain["imu0"]["T_i_b"])
         mine = _still_means(session, cal, name)
         for seg, p_k in mine.items():

@@ -113,6 +113,6 @@ def test_mad_lab_session_repeats_agree_within_their_face(tmp_path):
     from imucal_cli.formats.session import read_session
 
     cal = calibrate_session(read_session(labelled_session(tmp_path)), Config())
-    placement = cal.accel.extra["placement"]
+    placement = cal.accel.to_dict()["placement"]
     assert placement["face_deg"] > 1.5 * placement["hold_deg"], placement
     assert placement["rms_deg"] < 0.5

@@ -56,13 +56,13 @@ def test_a_record_is_kept_whole_and_read_back(tmp_path, template):
     with open_registry(tmp_path / "r.db") as reg:
         cals = [unit(template, i) for i in range(3)]
         for i, cal in enumerate(cals):
-            done = record_calibration(reg, cal, UnitInfo(cal.extra["sensor"], "P", "L1", "st",
+            done = record_calibration(reg, cal, UnitInfo(cal.sensor, "P", "L1", "st",
                                                          "ann"),
                                       session_sha256="ab" * 32,
                                       acceptance=judge_calibration(cal, limits),
                                       limits=limits)  # fmt: skip
             assert done.new and done.serial == f"SN{i:06d}"
-        again = record_calibration(reg, cals[0], UnitInfo(cals[0].extra["sensor"]))
+        again = record_calibration(reg, cals[0], UnitInfo(cals[0].sensor))
         assert not again.new  # the same calibration of the same unit: kept once
         rows = list_units(reg, lot="L1")
         assert [r["serial"] for r in rows] == ["SN000000", "SN000001", "SN000002"]
@@ -221,7 +221,7 @@ def test_export_then_import_into_another_registry_recreates_every_record(tmp_pat
     with open_registry(tmp_path / "a.db") as a:
         for i in range(4):
             cal = unit(template, i)
-            record_calibration(a, cal, UnitInfo(cal.extra["sensor"], "P", "L1", "s1", "o"),
+            record_calibration(a, cal, UnitInfo(cal.sensor, "P", "L1", "s1", "o"),
                                session_sha256=f"{i:064d}",
                                acceptance=judge_calibration(cal, limits),
                                limits=limits)  # fmt: skip
@@ -326,12 +326,12 @@ def _lot(tmp_path, template, n=40):
     for i in range(n):
         cal = unit(template, i, apart=i == 3)
         cals[i] = [cal]
-        record_calibration(reg, cal, UnitInfo(cal.extra["sensor"], "P", "LOT"),
+        record_calibration(reg, cal, UnitInfo(cal.sensor, "P", "LOT"),
                            acceptance=judge_calibration(cal, limits), limits=limits)  # fmt: skip
     for i, drift in ((1, 12.0), (2, 0.0)):
         cal = unit(template, i, drift=drift, created="2026-06-01T00:00:00Z")
         cals[i].append(cal)
-        record_calibration(reg, cal, UnitInfo(cal.extra["sensor"], "P", "LOT"),
+        record_calibration(reg, cal, UnitInfo(cal.sensor, "P", "LOT"),
                            acceptance=judge_calibration(cal, limits), limits=limits)  # fmt: skip
     return reg, cals, limits
 
@@ -357,7 +357,7 @@ def test_lot_statistics_against_an_independent_computation(tmp_path, template):
     expected = {f"SN{i:06d}" for i in np.flatnonzero(np.abs(x - np.median(x)) / mad > OUTLIER_Z)}
     assert {o["serial"] for o in p["outliers"]} == expected == {"SN000003"}
     # gain error from the sensitivities and the limits' nominal, % per axis
-    g = np.array([100 * (c.accel.extra["sensitivity"][1] / 835.0 - 1) for c in latest])
+    g = np.array([100 * (c.accel.to_dict()["sensitivity"][1] / 835.0 - 1) for c in latest])
     assert by_name[("accel", "gain error y")]["mean"] == pytest.approx(g.mean(), rel=1e-9)
     # drift: the history's own test on each re-calibrated unit gives the same alarms
     alarms = {a["serial"]: a for a in stats["drift"]["alarms"]}

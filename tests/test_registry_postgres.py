@@ -72,7 +72,7 @@ def test_record_list_show_and_lot_on_postgresql(url, template):
         for i in range(5):
             cal = unit(template, i)
             verdict = judge_calibration(cal, limits)
-            record_calibration(reg, cal, UnitInfo(cal.extra["sensor"], "P", "L"),
+            record_calibration(reg, cal, UnitInfo(cal.sensor, "P", "L"),
                                acceptance=verdict, limits=limits)  # fmt: skip
         assert [r["serial"] for r in list_units(reg, lot="L")] == [f"SN{i:06d}" for i in range(5)]
         assert unit_report(reg, "SN000002")["calibrations"][0]["limits"] == limits.to_dict()

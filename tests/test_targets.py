@@ -98,7 +98,7 @@ def test_measure_reads_the_std_the_calibration_states():
     targets = parse_until("accel=0.05%,gyro=0.05%")
     got = {(s.target.sensor, s.target.term): s for s in measure(cal, targets)}
     for sensor in ("accel", "gyro"):
-        sec = getattr(cal, sensor).extra
+        sec = getattr(cal, sensor).to_dict()
         s, s_std = np.array(sec["sensitivity"]), np.array(sec["sensitivity_std"])
         assert got[(sensor, "gain")].std == pytest.approx(np.max(100 * s_std / s))
         b_std = np.array([p["std"] for p in sec["parameters"][:3]])

@@ -29,7 +29,7 @@ def test_three_turns_per_axis_calibrate_both():
     session, _ = simulate_plan("qureshi-axes:3", seed=0, created=CREATED)
     cal = calibrate_session(session, Config())
     assert cal.accel.solver == "gravity" and cal.gyro.solver == "gyro-full"
-    assert cal.extra["complete"] is True and not cal.extra["left_out"]
+    assert cal.complete is True and not cal.left_out
 
 
 def test_two_per_axis_calibrate_the_gyro_with_an_earlier_accelerometer(tmp_path):
@@ -42,7 +42,7 @@ def test_two_per_axis_calibrate_the_gyro_with_an_earlier_accelerometer(tmp_path)
     assert "qureshi-axes:3 or more" in text
     cal = calibrate_session(session, Config(), accel=truth.accel)
     assert cal.gyro.solver == "gyro-full"
-    assert cal.extra["complete"] is True and not cal.extra["left_out"]
+    assert cal.complete is True and not cal.left_out
     # the user's path: the session file, calibrate alone (exit 2), then with --accel (exit 0)
     from imucal_cli.formats.session import write_session
 
