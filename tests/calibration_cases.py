@@ -42,6 +42,7 @@ CASES: dict[str, tuple[list[str], list[str]]] = {
     "mag-unknown-random12": (["--plan", "random:12", "--mag", "--field-unknown"], []),
     "given-accel": (["--plan", "qureshi-axes"], ["--accel", "{a}"]),
     "config-labelled-known": (["--plan", "ferraris"], ["--config", "{c}"]),
+    "imus3-random12": (["--plan", "random:12", "--imus", "3"], []),  # the root's imus
 }
 #: The config of the case ``config-*``.
 CONFIG = '[accel]\nsolver = "labelled"\n[gyro]\nsolver = "known"\n'
