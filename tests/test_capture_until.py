@@ -173,6 +173,11 @@ def test_no_prompt_needs_a_duration_a_plan_or_targets(tmp_path):
     from .cli_helpers import assert_one_line_error, run
 
     assert_one_line_error(run("capture", "--port", "/dev/null/x", "--no-prompt"), "--until")
+    assert_one_line_error(run("capture", "--port", "/dev/null/x", "--hold", "0"), "--hold")
+    plain = tmp_path / "plain.toml"
+    plain.write_text('[accel]\nsolver = "gravity"\n')
+    assert_one_line_error(run("capture", "--port", "/dev/null/x", "--config", plain),
+                          "no [targets]")  # fmt: skip
     assert_one_line_error(run("capture", "--port", "/dev/null/x", "--until", "accel=1%",
                               "--resume", tmp_path / "x.h5"), "--resume")  # fmt: skip
 

@@ -1,8 +1,11 @@
 """CLI conformance (issue 12): every command's --help without a terminal, piped into a reader
 that goes away, and with NO_COLOR; --version, -h, one-line errors, the exit-status table.
 
-Each command runs as the installed ``imucal`` in a subprocess, so the streams, pipes and exit
-codes are the real ones a shell script sees.
+What only a process shows (a closed pipe, the program's exit path, the streams a shell script
+sees) runs the installed ``imucal`` in a subprocess; help texts and completions, which are the
+same text in or out of a process (each command's help is compared once with the process's, and
+a completion once through the shell's protocol), run :func:`imucal_cli.cli.main` in this
+process, without the seconds of a new interpreter per call.
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ import os
 import re
 import subprocess
 import sys
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -31,8 +35,29 @@ COMMANDS_PAGE = DOCS / "commands.md"  # the exit statuses and the --json schemas
 CAPTURE_PAGE = DOCS / "capture.md"  # the columns of a line and their time units
 
 
+@contextmanager
+def _environment(**values: str):
+    """``os.environ`` with ``values`` set, restored afterwards."""
+    saved = {k: os.environ.get(k) for k in values}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
 def _help(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([IMUCAL, *args], capture_output=True, text=True, env=ENV, timeout=60)
+    """``imucal ARGS`` in this process, as a shell script without a terminal runs it."""
+    with _environment(NO_COLOR="1", COLUMNS="80"):
+        return run(*args)
+
+
+def _help_process(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([IMUCAL, *args], capture_output=True, text=True, env=ENV, timeout=120)
 
 
 def _closed_pipe(*args: str, cwd: Path) -> subprocess.CompletedProcess:
@@ -65,7 +90,16 @@ def test_help_without_a_terminal(command):
         options.append(line)
     for line in options:
         assert not line or line.startswith("  -"), f"wrapped: {line!r}"
-    # the reader going away after the first line is no error
+
+
+@pytest.mark.parametrize("command", ["", "calibrate", "capture"])
+def test_help_as_a_process(command):
+    """The program's help is the text the in-process tests examine, and the reader going away
+    after the first line is no error (one case per kind: the program, a command, a long one)."""
+    args = [command] if command else []
+    proc = _help_process(*args, "--help")
+    assert proc.returncode == 0 and proc.stderr == "", proc.stderr
+    assert proc.stdout == _help(*args, "--help").stdout
     piped = _closed_pipe(*args, "--help", cwd=Path.cwd())
     assert piped.returncode == 0 and piped.stderr == "", piped.stderr
 
@@ -192,12 +226,18 @@ def test_every_command_that_prints_results_has_json(calibrated, tmp_path):
     assert calibrate["calibration"]["accel"]["solver"] == "gravity"
 
 
-def _complete(line: str) -> list[str]:
-    """What bash completion offers for ``line`` (the word after the last space)."""
+def _completion_env(line: str) -> dict[str, str]:
+    """The variables bash's completion function sets for ``line`` (the word after the last
+    space is completed)."""
     words = line.split()
     cword = len(words) if line.endswith(" ") else len(words) - 1
-    env = {**ENV, "COMP_WORDS": line, "COMP_CWORD": str(cword), "_IMUCAL_COMPLETE": "complete_bash"}
-    proc = subprocess.run([IMUCAL], capture_output=True, text=True, env=env, timeout=60)
+    return {"COMP_WORDS": line, "COMP_CWORD": str(cword), "_IMUCAL_COMPLETE": "complete_bash"}
+
+
+def _complete(line: str) -> list[str]:
+    """What bash completion offers for ``line``, asked in this process."""
+    with _environment(**_completion_env(line)):
+        proc = run()
     assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr
     return proc.stdout.split()
 
@@ -220,9 +260,17 @@ def test_shell_completion_of_commands_options_plans_and_values():
     # which fails where the test runs under no shell: "Shell not supported")
     for shell, words in (("bash", "complete -o default"), ("zsh", "compdef"),
                          ("fish", "complete --command imucal")):  # fmt: skip
-        script = subprocess.run([IMUCAL], capture_output=True, text=True, timeout=60,
-                                env={**ENV, "_IMUCAL_COMPLETE": f"source_{shell}"})  # fmt: skip
+        with _environment(_IMUCAL_COMPLETE=f"source_{shell}"):
+            script = run()
         assert script.returncode == 0 and words in script.stdout, (shell, script.stdout)
+
+
+def test_shell_completion_through_the_program():
+    """The installed program answers bash's completion protocol as the in-process cases do."""
+    proc = subprocess.run([IMUCAL], capture_output=True, text=True, timeout=120,
+                          env={**ENV, **_completion_env("imucal capture --plan q")})  # fmt: skip
+    assert proc.returncode == 0 and proc.stderr == "", proc.stderr
+    assert proc.stdout.split() == ["qureshi18", "qureshi-axes"]
 
 
 def test_calibrate_summary_off_a_terminal_is_plain_lines(calibrated, tmp_path):

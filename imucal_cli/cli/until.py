@@ -25,6 +25,9 @@ def targets_of(until: str | None, config: Path | None) -> tuple[Targets | None, 
     given = parse_until(until) if until is not None else Targets()
     targets = merged(base, given)
     if not targets:
+        if config is not None:
+            raise InputError(f"--config {config}: a capture reads only [targets] and the "
+                             "solvers for them, and it has no [targets] (or give --until)")
         return None, cfg
     for t in targets:
         solver = getattr(cfg, t.sensor).solver
