@@ -434,11 +434,16 @@ def _check_line(rate_hz: float, baud: int, malformed_every: int | None) -> None:
 @contextlib.contextmanager
 def _stop_on_signals(stop: dict):
     """While serving (in the main thread), SIGINT and SIGTERM set ``stop["kind"]`` to
-    ``"signal"``; the previous handlers are restored after."""
+    ``"signal"``, so the serve ends at its next step and says what it sent; a second signal
+    ends the process at once (the default action), whatever it is waiting for. The previous
+    handlers are restored after."""
     old_handlers = {}
     if threading.current_thread() is threading.main_thread():
 
         def handler(signum, frame):  # noqa: ARG001
+            if stop["kind"] == "signal":  # asked twice: no more waiting
+                signal.signal(signum, signal.SIG_DFL)
+                os.kill(os.getpid(), signum)
             stop["kind"] = "signal"
 
         for signum in (signal.SIGINT, signal.SIGTERM):
