@@ -244,6 +244,8 @@ def _bootstrap(pairs, both, rng, draws: int = 1000) -> tuple[float, float]:
     idx = rng.integers(0, len(a), (draws, len(a)))
     sums = a[idx].sum(axis=1)
     ok = sums[:, 1] > 0
+    if not ok.any():  # no parameter graded in both (no sensor saved from both): no ratio
+        return float("nan"), float("nan")
     ratio = np.sqrt(sums[ok, 0] / sums[ok, 1])
     return float(np.quantile(ratio, 0.025)), float(np.quantile(ratio, 0.975))
 

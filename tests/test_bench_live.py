@@ -144,3 +144,16 @@ def test_the_verdict_names_what_fails_and_whose_it_is():
     files[3] = {"error": "DesignError: refused"}
     row = make_row("p", "guided", [_Job(3, {}, cal_exit=1)], files, rng)
     assert any("seed 3" in w and "[solver" in w for w in row.why), row.why
+
+
+def test_the_ratio_interval_of_seeds_with_nothing_graded_in_both_is_nan():
+    """Seeds whose live and file calibrations share no graded sensor (a plan saved only in
+    part on one side) give no ratio interval, not a crash of the whole table (the bench's
+    run of 99 captures ended in numpy's quantile of an empty array)."""
+    from types import SimpleNamespace
+
+    from bench.live_table import _bootstrap
+
+    pairs = [(SimpleNamespace(graded={}), {}) for _ in range(4)]
+    lo, hi = _bootstrap(pairs, [set()] * 4, np.random.default_rng(0))
+    assert np.isnan(lo) and np.isnan(hi)
