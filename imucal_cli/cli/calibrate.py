@@ -375,8 +375,28 @@ def _section_lines(line, name: str, sec) -> None:
         + f" {units} per {per}"
     )
     _temperature_line(line, sec, units)
+    _partial_lines(line, sec)
     for w in sec.warnings or []:
         line("  ", ("warning", WARN), f": {w}")
+
+
+def _partial_lines(line, sec) -> None:
+    """Which parameters the session measured and which are assumed (issue 27.3): never a
+    prior's value said as a measurement."""
+    part = sec.partial
+    if part is None:
+        return
+    rows = {p.name: p for p in sec.parameters or []}
+
+    def said(names):
+        return ", ".join(f"{n} {rows[n].value:.5g} ± {rows[n].std:.3g} {rows[n].unit}"
+                         if n in rows else n for n in names) or "none"  # fmt: skip
+
+    line("  ", ("measured", BOLD), f" by this session: {said(part.measured or [])}")
+    line("  ", ("assumed", WARN), f" (not measured: the prior's value and std): "
+         f"{said(part.assumed or [])}; prior: {part.prior}")  # fmt: skip
+    if part.capture:
+        line(f"  to measure the rest: {part.capture}")
 
 
 def mag_summary(sec) -> list[tuple[Piece, ...]]:

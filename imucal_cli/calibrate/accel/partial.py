@@ -1,0 +1,241 @@
+"""The accelerometer of a design that cannot fix the whole model (issue 27.3): a vehicle's or
+robot's log (a few still periods tilted about one axis), poses on one or two faces.  The
+gravity-magnitude equations are fitted with a prior on every parameter
+(:mod:`imucal_cli.estimators.accel.partial`): what the poses determine is measured, the rest
+held at the prior (nominal values, or an earlier calibration given with ``--prior``) with the
+prior's std, and the section says which are which (``"partial"``, each parameter's
+``status``) and which poses would determine the rest.
+
+The nominal prior (docs/solvers.md, "Partial designs"): gains the nominal sensitivity +- 3 %,
+bias the nominal offset +- 60 mg, angles between the axes 90 deg +- 2 deg (1 std each): the
+initial tolerances of consumer 6-axis parts' datasheets (sensitivity +-3 %, zero-g offset
++-50 to +-80 mg, cross-axis sensitivity +-2 %, about 1.1 deg), so that a part within its
+datasheet lies within 1-2 std of it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats
+
+from imucal_cli.calibrate.accel.section import (
+    COVARIANCE_OF,
+    PoseFit,
+    common_members,
+    parameter_rows,
+)
+from imucal_cli.calibrate.common import Nominal, StaticPoses, accel_units, rms
+from imucal_cli.errors import DesignError
+from imucal_cli.estimators.accel import partial as map_fit
+from imucal_cli.formats.config import Config
+from imucal_cli.model.accel import AccelCalibration
+from imucal_cli.model.codec import build
+from imucal_cli.model.parts import Combination, Covariance, Partial
+from imucal_cli.model.section import SensorCalibration
+
+#: The nominal prior's std: relative gain, bias in g, angles between the axes in degrees.
+GAIN_STD = 0.03
+BIAS_STD_G = 0.06
+ANGLE_STD_DEG = 2.0
+
+RULE = (f"measured: posterior std below {map_fit.MEASURED_RATIO:g} of the prior std (the "
+        "data carry 3 times the prior's information or more); assumed: the prior's value, "
+        "within its std")  # fmt: skip
+
+#: A fit whose data misfit has this small a probability under the noise is refused a save.
+MISFIT_P = 1e-3
+
+#: Candidate poses for the suggestion: the faces and the 45-degree edges (calibrated frame).
+_AXES = {"+X": (1, 0, 0), "-X": (-1, 0, 0), "+Y": (0, 1, 0), "-Y": (0, -1, 0),
+         "+Z": (0, 0, 1), "-Z": (0, 0, -1)}  # fmt: skip
+
+
+def _candidates() -> dict[str, np.ndarray]:
+    out = {f"{k} up": np.array(v, float) for k, v in _AXES.items()}
+    names = list(_AXES)
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            u = np.add(_AXES[a], _AXES[b])
+            if np.linalg.norm(u) > 1.0:
+                out[f"the {a}{b} edge up (45 deg between {a} and {b} up)"] = u / np.sqrt(2)
+    return out
+
+
+#: The full scales (g) of consumer accelerometers, for a nominal gain in counts.
+FULL_SCALES_G = (2.0, 4.0, 8.0, 16.0)
+
+
+def nominal_gain(nominal: Nominal, a_mean: np.ndarray, g: float) -> tuple[float, str] | None:
+    """The nominal sensitivity (raw units per m/s^2) and its basis in words: the config's or
+    the units' (``nominal.sensitivity``); for counts without one, the datasheet gain of the
+    standard full scale (+-2/4/8/16 g over the ADC's range) nearest the poses' magnitude,
+    when one is within 10 % of it; else None."""
+    if nominal.sensitivity is not None:
+        return float(nominal.sensitivity), nominal.basis
+    if nominal.range is None or not len(a_mean):
+        return None
+    seen = float(np.median(np.linalg.norm(a_mean - nominal.bias, axis=1))) / g
+    span = nominal.range[1] - nominal.range[0] + 1
+    gains = np.array([span / (2 * fs * g) for fs in FULL_SCALES_G])
+    k = int(np.argmin(np.abs(np.log(gains / seen))))
+    if abs(gains[k] / seen - 1) > 0.1:
+        return None
+    return float(gains[k]), (f"{span / (2 * FULL_SCALES_G[k]):.6g} counts per g: the "
+                             f"+-{FULL_SCALES_G[k]:g} g full scale of the ADC's range, nearest "
+                             "the poses' magnitude; offset "
+                             f"{', '.join(f'{b:.6g}' for b in nominal.bias[:3])} counts")
+
+
+def nominal_prior(nominal: Nominal, a_mean: np.ndarray, g: float) -> map_fit.Prior:
+    """The documented nominal prior (module notes); a :class:`DesignError` when no nominal
+    sensitivity is known (nothing to hold the gains at)."""
+    found = nominal_gain(nominal, a_mean, g)
+    if found is None:
+        raise DesignError("the nominal sensitivity is unknown (raw units and full scale not "
+                          "stated), so the gains the poses do not determine have no value to "
+                          "be held at: set [accel] nominal_sensitivity, or pass an earlier "
+                          "calibration (--prior CAL.json)")  # fmt: skip
+    s, basis = found
+    mean = np.r_[np.asarray(nominal.bias, float)[:3], [s] * 3, [0.0] * 3]
+    std = np.r_[[BIAS_STD_G * g * s] * 3, [GAIN_STD * s] * 3, [ANGLE_STD_DEG] * 3]
+    return map_fit.Prior(mean, std, f"nominal ({basis}): gains +-{GAIN_STD:.0%}, bias "
+                         f"+-{BIAS_STD_G * 1000:.0f} mg, angles between the axes 90 +-"
+                         f"{ANGLE_STD_DEG:g} deg (1 std, consumer datasheet tolerances)")
+
+
+def calibration_prior(sec: SensorCalibration, path: str) -> map_fit.Prior:
+    """The prior of an earlier accelerometer calibration of the unit: its bias,
+    sensitivities and angles between the axes, with their std (its ``parameters``' ``b_*``
+    std, ``sensitivity_std``, ``misalignment_std_deg``)."""
+    std_of = {p.name: p.std for p in sec.parameters or []}
+    keys = ("xy", "xz", "yz")
+    try:
+        mean = np.r_[sec.bias[:3], sec.sensitivity[:3],
+                     [sec.misalignment_deg[k] for k in keys]]  # fmt: skip
+        std = np.r_[[std_of[f"b_{c}"] for c in "xyz"], sec.sensitivity_std[:3],
+                    [sec.misalignment_std_deg[k] for k in keys]]  # fmt: skip
+    except (KeyError, TypeError, IndexError):
+        raise DesignError(f"{path}: its accelerometer section does not state the bias, "
+                          "sensitivities and angles between the axes with their std, which a "
+                          "prior needs") from None  # fmt: skip
+    mean, std = np.asarray(mean, float), np.asarray(std, float)
+    if not (np.isfinite(mean).all() and np.isfinite(std).all() and (std > 0).all()):
+        raise DesignError(f"{path}: its accelerometer std are not all positive and finite")
+    return map_fit.Prior(mean, std, f"an earlier calibration, {path} (its values and std)")
+
+
+def partial_section(poses: StaticPoses, session, cfg: Config, g: float, nominal: Nominal,
+                    prior: map_fit.Prior) -> AccelCalibration:  # fmt: skip
+    """The accel section of the fit with ``prior`` (module notes)."""
+    res = map_fit.fit_partial(poses.a_mean, poses.cov_mean, g, prior,
+                              cfg.accel.gravity.max_iterations)  # fmt: skip
+    if not res.converged:
+        raise DesignError(f"the fit with a prior did not converge ({res.message})")
+    units_in, units_note = accel_units(session, g)
+    h = (poses.a_mean - res.bias) @ res.matrix.T
+    dirs = h / np.linalg.norm(h, axis=1, keepdims=True)
+    std = res.std
+    summary = (res.params[3:], std[3:])
+    fit = PoseFit(res.residuals, dirs)
+    members = common_members(units_in=units_in, g=g, summary=summary, poses=poses, fit=fit,
+                             nominal=nominal,
+                             min_separation_deg=cfg.accel.min_separation_deg)  # fmt: skip
+    members["rms_loo"] = None
+    units = [units_in] * 3 + [f"{units_in} per m/s^2"] * 3 + ["deg"] * 3
+    rows = parameter_rows(list(map_fit.NAMES), res.params, std, units)
+    for row, m, s0 in zip(rows, res.measured, prior.std, strict=True):
+        row.status = "measured" if m else "assumed"
+        row.prior_std = float(s0)
+    measured = [n for n, m in zip(map_fit.NAMES, res.measured, strict=True) if m]
+    assumed = [n for n, m in zip(map_fit.NAMES, res.measured, strict=True) if not m]
+    sigma = float(np.median(res.sigmas))
+    picks = map_fit.suggest(res, g, _candidates(), sigma) if assumed else []
+    capture = _capture_words(picks, assumed)
+    combos = [_combination(c, value, cstd, prior.std) for c, value, cstd in res.combinations]
+    warnings, blocking = _misfit(res, len(poses.a_mean))
+    if units_note:
+        warnings.append(units_note)
+    notes = list(members.pop("notes", []) or [])
+    notes.insert(0, _summary(measured, assumed, prior.source, capture))
+    return build(
+        AccelCalibration, solver="partial", units="m/s^2", bias=res.bias, matrix=res.matrix,
+        residual_rms=rms(res.residuals), **members,
+        variant="9-parameter with a prior (maximum a posteriori)",
+        gauge=("upper-triangular matrix: calibrated z is the z sensitivity axis, y lies in the "
+               "plane of the y and z axes (Qureshi eq. 3); rotate it to your body frame if you "
+               "need one"),
+        parameters=rows,
+        covariance=_model_covariance(res),
+        init="prior mean", weighting="noise", iterations=res.iterations,
+        function_evaluations=res.nfev, converged=res.converged, message=res.message,
+        chi2=res.chi2, dof=len(poses.a_mean), notes=notes, warnings=warnings,
+        blocking=blocking,
+        partial=Partial(rule=RULE, prior=prior.source, measured=measured, assumed=assumed,
+                        combinations=combos, capture=capture),
+    )  # fmt: skip
+
+
+def _model_covariance(res: map_fit.PartialResult) -> Covariance:
+    """The posterior covariance of ``(bias, matrix row-major)`` (the ``covariance`` member
+    every accel section has, :data:`.section.COVARIANCE_OF`): ``J C J^T``, ``J`` the
+    Jacobian of ``(bias, matrix_of(p))`` by the parameters (central differences)."""
+    p = res.params
+
+    def f(x):
+        return np.r_[x[:3], map_fit.matrix_of(x).ravel()]
+
+    step = 1e-6 * np.maximum(np.abs(p), 1.0)
+    J = np.empty((12, 9))
+    for i in range(9):
+        e = np.zeros(9)
+        e[i] = step[i]
+        J[:, i] = (f(p + e) - f(p - e)) / (2 * step[i])
+    C = J @ res.cov @ J.T
+    return Covariance(COVARIANCE_OF, (C + C.T) / 2)
+
+
+def _combination(c: np.ndarray, value: float, std: float, prior_std: np.ndarray
+                 ) -> Combination:  # fmt: skip
+    """A determined combination, its negligible terms (under 2 % of the leading one, in
+    prior units) left out of the words, not of the value."""
+    weight = np.abs(c * prior_std)
+    keep = weight > 0.02 * weight.max()
+    return Combination({n: float(f"{v:.6g}") for n, v, k in zip(map_fit.NAMES, c, keep,
+                                                                 strict=True) if k},
+                       float(value), float(std))  # fmt: skip
+
+
+def _capture_words(picks: list[str], assumed: list[str]) -> str:
+    """What capture would measure the assumed parameters (the greedy picks), in words."""
+    if not assumed:
+        return ""
+    if not picks:
+        return "no single pose adds enough: capture the six faces (plan six)"
+    return (f"hold the unit still with {', then '.join(picks)} (the poses that measure "
+            f"{', '.join(assumed)} most, one after the other), or capture the six faces and "
+            "12 edges (plan qureshi18)")  # fmt: skip
+
+
+def _summary(measured: list[str], assumed: list[str], source: str, capture: str) -> str:
+    text = (f"these poses determine only part of the model: measured {', '.join(measured) or 'none'}"
+            f"; assumed (held at the prior, with its std) {', '.join(assumed) or 'none'}; prior: "
+            f"{source}")  # fmt: skip
+    return f"{text}; to measure the rest: {capture}" if capture else text
+
+
+def _misfit(res: map_fit.PartialResult, n: int) -> tuple[list[str], list[str]]:
+    """The data's misfit against the noise: the chi-square of the magnitudes on the degrees
+    of freedom the prior leaves (``n`` minus the parameters the data determine, the trace of
+    the data's share of the posterior)."""
+    s0 = res.prior.std
+    share = np.trace(np.eye(9) - res.cov / np.outer(s0, s0))  # effective parameters fitted
+    dof = n - share
+    if dof < 0.5:
+        return [], []
+    p = float(stats.chi2.sf(res.chi2, dof))
+    if p >= MISFIT_P:
+        return [], []
+    text = (f"the poses' magnitudes miss gravity by {np.sqrt(res.chi2 / dof):.1f} times their "
+            f"noise (chi^2 {res.chi2:.3g} on {dof:.1f} degrees of freedom, p = {p:.2g}): the "
+            "unit moved during a hold, or the prior is far from this part")  # fmt: skip
+    return [text], [text]
