@@ -61,29 +61,25 @@ def _candidates() -> dict[str, np.ndarray]:
     return out
 
 
-#: The full scales (g) of consumer accelerometers, for a nominal gain in counts.
-FULL_SCALES_G = (2.0, 4.0, 8.0, 16.0)
-
-
 def nominal_gain(nominal: Nominal, a_mean: np.ndarray, g: float) -> tuple[float, str] | None:
     """The nominal sensitivity (raw units per m/s^2) and its basis in words: the config's or
-    the units' (``nominal.sensitivity``); for counts without one, the datasheet gain of the
-    standard full scale (+-2/4/8/16 g over the ADC's range) nearest the poses' magnitude,
-    when one is within 10 % of it; else None."""
+    the units' (``nominal.sensitivity``); for counts without one, the power of two counts per
+    g nearest the poses' magnitude (the datasheet gains of consumer parts: 16384, 8192, 4096,
+    2048 LSB/g of the MPU-6050, ICM-20948, BMI160 and LSM6 families at +-2..16 g, 256 of the
+    ADXL345), when it is within 10 % of it; else None."""
     if nominal.sensitivity is not None:
         return float(nominal.sensitivity), nominal.basis
-    if nominal.range is None or not len(a_mean):
+    if not len(a_mean):
         return None
-    seen = float(np.median(np.linalg.norm(a_mean - nominal.bias, axis=1))) / g
-    span = nominal.range[1] - nominal.range[0] + 1
-    gains = np.array([span / (2 * fs * g) for fs in FULL_SCALES_G])
-    k = int(np.argmin(np.abs(np.log(gains / seen))))
-    if abs(gains[k] / seen - 1) > 0.1:
+    seen = float(np.median(np.linalg.norm(a_mean - nominal.bias, axis=1)))  # counts per g
+    if not np.isfinite(seen) or seen <= 0:
         return None
-    return float(gains[k]), (f"{span / (2 * FULL_SCALES_G[k]):.6g} counts per g: the "
-                             f"+-{FULL_SCALES_G[k]:g} g full scale of the ADC's range, nearest "
-                             "the poses' magnitude; offset "
-                             f"{', '.join(f'{b:.6g}' for b in nominal.bias[:3])} counts")
+    lsb = 2.0 ** round(np.log2(seen))
+    if abs(lsb / seen - 1) > 0.1:
+        return None
+    return lsb / g, (f"{lsb:.0f} counts per g, the power of two nearest the poses' magnitude "
+                     "(a consumer part's datasheet gain); offset "
+                     f"{', '.join(f'{b:.6g}' for b in nominal.bias[:3])} counts")
 
 
 def nominal_prior(nominal: Nominal, a_mean: np.ndarray, g: float) -> map_fit.Prior:
@@ -153,6 +149,8 @@ def partial_section(poses: StaticPoses, session, cfg: Config, g: float, nominal:
     capture = _capture_words(picks, assumed)
     combos = [_combination(c, value, cstd, prior.std) for c, value, cstd in res.combinations]
     warnings, blocking = _misfit(res, len(poses.a_mean))
+    dof = _dof(res, len(poses.a_mean))
+    expected = float(np.sqrt(np.mean(res.sigmas**2) * max(dof, 0.0) / len(res.sigmas)))
     if units_note:
         warnings.append(units_note)
     notes = list(members.pop("notes", []) or [])
@@ -168,8 +166,9 @@ def partial_section(poses: StaticPoses, session, cfg: Config, g: float, nominal:
         covariance=_model_covariance(res),
         init="prior mean", weighting="noise", iterations=res.iterations,
         function_evaluations=res.nfev, converged=res.converged, message=res.message,
-        chi2=res.chi2, dof=len(poses.a_mean), notes=notes, warnings=warnings,
-        blocking=blocking,
+        chi2=res.chi2, dof=int(round(dof)), notes=notes, warnings=warnings,
+        blocking=blocking, rms_expected=expected,
+        rms_after_below_noise=bool(dof < 0.5 or rms(res.residuals) < 0.5 * expected),
         partial=Partial(rule=RULE, prior=prior.source, measured=measured, assumed=assumed,
                         combinations=combos, capture=capture),
     )  # fmt: skip
@@ -223,13 +222,19 @@ def _summary(measured: list[str], assumed: list[str], source: str, capture: str)
     return f"{text}; to measure the rest: {capture}" if capture else text
 
 
+def _dof(res: map_fit.PartialResult, n: int) -> float:
+    """The magnitudes' degrees of freedom the prior leaves: ``n`` minus the parameters the
+    data determine (the trace of the data's share of the posterior, ``sum lambda / (1 +
+    lambda)``)."""
+    s0 = res.prior.std
+    return float(n - np.trace(np.eye(9) - res.cov / np.outer(s0, s0)))
+
+
 def _misfit(res: map_fit.PartialResult, n: int) -> tuple[list[str], list[str]]:
     """The data's misfit against the noise: the chi-square of the magnitudes on the degrees
     of freedom the prior leaves (``n`` minus the parameters the data determine, the trace of
     the data's share of the posterior)."""
-    s0 = res.prior.std
-    share = np.trace(np.eye(9) - res.cov / np.outer(s0, s0))  # effective parameters fitted
-    dof = n - share
+    dof = _dof(res, n)
     if dof < 0.5:
         return [], []
     p = float(stats.chi2.sf(res.chi2, dof))
