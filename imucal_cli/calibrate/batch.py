@@ -160,6 +160,7 @@ def calibrate_file(
     accel=None,
     warmup: list[Path] | None = None,
     also: list[Path] | None = None,
+    prior=None,
 ) -> tuple[Calibration, Path, str]:
     """Calibrate one session file, write its JSON and store it in the session.
 
@@ -167,7 +168,8 @@ def calibrate_file(
     the session or one of ``inputs``; it is written through
     :func:`imucal_cli.formats.output.write_output`.  ``warmup``: still warm-up recordings of
     the unit (the bias temperature model); ``also``: more sessions of the unit, merged with this
-    one (:func:`~imucal_cli.calibrate.thermal.merge_sessions`).
+    one (:func:`~imucal_cli.calibrate.thermal.merge_sessions`); ``prior``: an earlier
+    accelerometer calibration's prior (``--prior``) for a design that cannot fix the model.
 
     Returns
     -------
@@ -189,14 +191,15 @@ def calibrate_file(
     if also:
         session = merge_sessions([session, *(read_session(p) for p in also)])
     warm = [read_session(p) for p in warmup] if warmup else None
-    if session.imus and (accel is not None or warm or also):  # several IMUs (issue 28)
-        raise InputError(f"{path}: a session of several IMUs takes no --accel, --warmup or "
-                         "--with (each IMU is calibrated from the session itself)")
+    if session.imus and (accel is not None or warm or also or prior is not None):  # issue 28
+        raise InputError(f"{path}: a session of several IMUs takes no --accel, --prior, "
+                         "--warmup or --with (each IMU is calibrated from the session itself)")
     try:
         if session.imus:
             cal = calibrate_set(session, cfg, name=path.name)
         else:
-            cal = calibrate_session(session, cfg, name=path.name, accel=accel, warmup=warm)
+            cal = calibrate_session(session, cfg, name=path.name, accel=accel, warmup=warm,
+                                    prior=prior)  # fmt: skip
     except np.linalg.LinAlgError as exc:  # issue 24.6: a one-line refusal, never a traceback
         raise SolverError(
             f"{path.name}: a solver met a singular system ({exc}): the data do not determine "

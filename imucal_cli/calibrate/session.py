@@ -51,12 +51,12 @@ from imucal_cli.model.calibration import Calibration, SensorCalibration
 from imucal_cli.model.codec import build
 
 
-def calibrate_accel(session: Session, cfg: Config) -> SensorCalibration | None:
+def calibrate_accel(session: Session, cfg: Config, prior=None) -> SensorCalibration | None:
     """Run the configured accelerometer solver (``[accel] solver``) on a session; ``"auto"``
     chooses (:func:`~imucal_cli.calibrate.registry.choose`) and may find nothing to calibrate
-    (None)."""
+    (None). ``prior``: an earlier calibration's prior (``--prior``) for the partial fit."""
     try:
-        return _run_accel(session, cfg)
+        return _run_accel(session, cfg, prior)
     except DesignError as exc:  # name what the user already has (issue 9.6)
         hint = stored_accel_hint(session)
         if not hint:
@@ -64,11 +64,11 @@ def calibrate_accel(session: Session, cfg: Config) -> SensorCalibration | None:
         raise DesignError(f"{exc}{hint}") from None
 
 
-def _run_accel(session: Session, cfg: Config) -> SensorCalibration | None:
+def _run_accel(session: Session, cfg: Config, prior=None) -> SensorCalibration | None:
     solver = cfg.accel.solver
     if solver == "auto" and (session.accel is None or not session.static_segments()):
         return None
-    design = AccelDesign(session, cfg)
+    design = AccelDesign(session, cfg, prior)
     chosen = choose("accel", design, solver, config_reason="[accel] solver")
     if isinstance(chosen, NotChosen):
         raise DesignError(design.refusal())
@@ -184,7 +184,7 @@ def load_accel(path: str | Path) -> SensorCalibration:
     return accel
 
 
-def _accel_outcome(session: Session, cfg: Config) -> Outcome:
+def _accel_outcome(session: Session, cfg: Config, prior=None) -> Outcome:
     """The accelerometer calibrated here; or, when ``[accel] solver = "auto"`` finds the poses
     cannot determine it but the gyro may calibrate without it (the facade calibrates what the
     session determines, issue 9.4), no section, the reason as its note and the refusal (raised
@@ -192,7 +192,7 @@ def _accel_outcome(session: Session, cfg: Config) -> Outcome:
     if cfg.accel.solver == "none":
         return Outcome()
     try:
-        return Outcome(calibrate_accel(session, cfg))
+        return Outcome(calibrate_accel(session, cfg, prior))
     except DesignError as exc:
         if session.gyro is None or cfg.gyro.solver == "none" or not (
             session.rotation_segments() or cfg.gyro.solver in ("full", "static", "dynamic")
@@ -335,6 +335,7 @@ def _prepare(
 def calibrate_session(
     session: Session, cfg: Config, *, name: str | None = None,
     accel: SensorCalibration | None = None, warmup: list[Session] | None = None,
+    prior=None,
 ) -> Calibration:  # fmt: skip
     """Calibrate every sensor the config asks for; returns the calibration (not yet saved).
 
@@ -345,6 +346,10 @@ def calibrate_session(
     into the result, instead of calibrating the accelerometer from this session.
     ``warmup``: still warm-up recordings of the same unit that give the bias temperature
     model (:mod:`imucal_cli.calibrate.thermal`).
+    ``prior``: an earlier accelerometer calibration of the unit as a prior
+    (:func:`~imucal_cli.calibrate.accel.partial.calibration_prior`, ``--prior``): where the
+    poses cannot fix the whole model, what they do not determine is held at its values and
+    std instead of the nominal ones (issue 27.3); unused (a warning) where they can.
     """
 
     warn_absent_sensors(session, cfg, accel_given=accel is not None, warmup=bool(warmup))
@@ -358,8 +363,12 @@ def calibrate_session(
     given = accel
     if accel is None:
         run_accel = cfg.accel.solver != "none" and not (session.accel is None and with_mag)
-        found = _accel_outcome(session, cfg) if run_accel else Outcome()
+        found = _accel_outcome(session, cfg, prior) if run_accel else Outcome()
         segmented_accel = True
+        if prior is not None and found.section is not None and found.section.partial is None:
+            warnings.warn(f"{session_name(session)}: its poses determine the whole "
+                          "accelerometer model, so --prior was not used", ImucalWarning,
+                          stacklevel=2)  # fmt: skip
     else:
         session, accel = given_accel(session, accel)
         found, segmented_accel = Outcome(accel), False

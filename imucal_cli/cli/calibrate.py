@@ -14,6 +14,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemaining
 from rich.table import Table
 
 from imucal_cli.calibrate.batch import Figures, Stored, calibrate_file, calibrate_many
+from imucal_cli.calibrate.accel.partial import calibration_prior
 from imucal_cli.calibrate.session import load_accel
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import calibration_to_json
@@ -64,6 +65,13 @@ def calibrate(
         None, "--accel", metavar="CAL.json",
         help="Use this earlier accelerometer calibration (a calibration JSON, or a session .h5 "
         "with a stored one) instead of calibrating the accelerometer: a gyro-only session.",
+    ),  # fmt: skip
+    prior: Path | None = typer.Option(
+        None, "--prior", metavar="CAL.json",
+        help="An earlier accelerometer calibration of this unit (a calibration JSON, or a "
+        "session .h5 with a stored one) as the prior of a session whose poses cannot fix the "
+        "whole model (a vehicle's log, poses on one or two faces): what they do not determine "
+        "is held at its values and std instead of the nominal ones, and marked assumed.",
     ),  # fmt: skip
     warmup: list[Path] | None = typer.Option(
         None, "--warmup", metavar="WARMUP.h5",
@@ -134,28 +142,37 @@ def calibrate(
                    lot=lot, station=station, operator=operator)  # fmt: skip
     try:
         _calibrate(sessions, cfg, config, output, force, store, accel, warmup, also, jobs,
-                   json_output, unit)  # fmt: skip
+                   json_output, unit, prior)  # fmt: skip
     finally:
         if unit is not None:
             unit.close()
 
 
 def _calibrate(sessions, cfg, config, output, force, store, accel, warmup, also, jobs,
-               json_output, unit) -> None:  # fmt: skip
+               json_output, unit, prior_path=None) -> None:  # fmt: skip
     """``calibrate`` once the options are checked (``unit``: the limits and the registry)."""
     accel_cal = None
     if accel is not None:
         accel_cal = load_accel(accel)
+    prior = None
+    if prior_path is not None:
+        if accel is not None:
+            raise InputError("--prior and --accel exclude each other: --accel uses an earlier "
+                             "calibration as it is, --prior lets this session's poses refine it")
+        prior = calibration_prior(load_accel(prior_path), str(prior_path))
     if len(sessions) > 1:
-        _one_file_options(output, warmup, also)
+        _one_file_options(output, warmup, also, prior_path)
         raise typer.Exit(_many(sessions, cfg, jobs, force, store, json_output, accel_cal, unit))
-    inputs = [config, accel, *(warmup or []), *(also or [])]
+    inputs = [config, accel, prior_path, *(warmup or []), *(also or [])]
     _one(sessions[0], cfg, output, force, store, json_output, accel_cal, inputs=inputs,
-         warmup=warmup, also=also, unit=unit)  # fmt: skip
+         warmup=warmup, also=also, unit=unit, prior=prior)  # fmt: skip
 
 
-def _one_file_options(output: Path | None, warmup, also) -> None:
+def _one_file_options(output: Path | None, warmup, also, prior=None) -> None:
     """Refuse the options that go with one SESSION when several are given."""
+    if prior is not None:
+        raise InputError("--prior goes with one SESSION (calibrate each log of the unit on "
+                         "its own)")  # fmt: skip
     if warmup or also:
         raise InputError("--warmup and --with go with one SESSION (give the other sessions of "
                          "the unit with --with)")  # fmt: skip
@@ -165,12 +182,12 @@ def _one_file_options(output: Path | None, warmup, also) -> None:
 
 
 def _one(session: Path, cfg, output: Path | None, force: bool, store: bool, json_output: bool,
-         accel, *, inputs: list, warmup, also, unit=None) -> None:  # fmt: skip
+         accel, *, inputs: list, warmup, also, unit=None, prior=None) -> None:  # fmt: skip
     """Calibrate one session, write (and store) it, judge and record it (``unit``), and say
     what came out."""
     cal, out, stored = calibrate_file(
         session, cfg, output=output, force=force, store=store, inputs=inputs, accel=accel,
-        warmup=warmup, also=also,
+        warmup=warmup, also=also, prior=prior,
     )  # fmt: skip
     # Saved: from here on the exit status is 0, 4 (rejected) or 1 with the reason (never 2).
     code, doc, lines = (0, {}, []) if unit is None else unit.finish(cal, session)
