@@ -238,6 +238,20 @@ def _gyro_without_accel(session: Session, cfg: Config, accel: Outcome
     return Outcome(note=note, refusal=accel.refusal), Outcome(gyro)
 
 
+def _gyro_beside_partial(session: Session, cfg: Config) -> Outcome:
+    """The gyro of a session whose accelerometer is calibrated only in part (issue 27.3):
+    calibrated as without an accelerometer (:func:`_gyro_without_accel`), since the assumed
+    terms are not measurements to measure its turns with: the gyro comes out as it did before
+    the partial fit existed."""
+    why = "its poses determine the accelerometer only in part"
+    _, gyro = _gyro_without_accel(session, cfg, Outcome(note=why, refusal=DesignError(why)))
+    if gyro.section is None and gyro.note:
+        return Outcome(note=gyro.note.replace(
+            "which this session does not determine (see accel)",
+            "which this session determines only in part (see accel)"))  # fmt: skip
+    return gyro
+
+
 def _reason(session: Session, exc: Exception) -> str:
     """A refusal's message without the session's name in front."""
     return str(exc).removeprefix(f"{session_name(session)}: ")
@@ -273,6 +287,8 @@ def _outcomes(session: Session, cfg: Config, accel: Outcome, with_mag: bool
     accel_why = accel.note if accel.refusal is not None else None  # the accelerometer's own
     if accel.refusal is not None:
         accel, gyro = _gyro_without_accel(session, cfg, accel)
+    elif accel.section is not None and accel.section.partial is not None:
+        gyro = _gyro_beside_partial(session, cfg)
     else:
         gyro = _gyro_outcome(session, cfg, accel.section)
     mag = _mag_outcome(session, cfg, accel.section) if with_mag else Outcome()
@@ -446,11 +462,13 @@ def completeness(session: Session, sections: dict, notes: dict) -> dict:
     """``{"complete": bool, "left_out": {sensor: note}}`` (issue 24.2): a sensor the session
     has data for (``/raw/accel``, ``/raw/gyro``, ``/raw/mag``) that was asked for (its solver
     is not ``"none"``) and is not in the calibration is left out, with the note that says why
-    and which capture would add it. ``complete`` is true when none is."""
+    and which capture would add it. ``complete`` is true when none is, and no section holds
+    assumed parameters (``partial``, issue 27.3: a design that determines part of a model)."""
     has = {"accel": session.accel, "gyro": session.gyro, "mag": session.mag}
     left = {kind: note for kind, note in notes.items()
             if note and sections.get(kind) is None and has[kind] is not None}  # fmt: skip
-    return {"complete": not left, "left_out": left}
+    partly = any(getattr(sec, "partial", None) is not None for sec in sections.values())
+    return {"complete": not left and not partly, "left_out": left}
 
 
 def suspect_error(cal: Calibration) -> SolverError | None:

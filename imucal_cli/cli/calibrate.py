@@ -337,8 +337,12 @@ def _summary(line, cal, where: str) -> None:
         line(("sample clock", BOLD), f": {clock.note}")
     for text in set_lines(cal):  # several IMUs (issue 28)
         line(text)
-    if cal.left_out:  # issue 24.2: saved, but not every sensor of the session is in it
-        where += f" (partial: {', '.join(cal.left_out)} left out, see above)"
+    assumed = [name for name, sec in cal.sections().items()
+               if sec is not None and sec.partial is not None]  # issue 27.3
+    if cal.left_out or assumed:  # issue 24.2: saved, but not every sensor of the session is in it
+        said = [f"{', '.join(cal.left_out)} left out"] if cal.left_out else []
+        said += [f"{', '.join(assumed)} in part assumed"] if assumed else []
+        where += f" (partial: {'; '.join(said)}, see above)"
     line(f"wrote {where}")
 
 
