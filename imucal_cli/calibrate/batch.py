@@ -87,7 +87,10 @@ class Figures:
     accel_note : str or None
         Why the accelerometer was left out (issue 9.4).
     left_out : tuple of str
-        Sensors of the session left out (issue 24.2); ``complete`` when none.
+        Sensors of the session left out (issue 24.2); ``complete`` when none, and none
+        ``assumed``.
+    assumed : tuple of str
+        Sensors calibrated only in part (issue 27.3: a section with ``partial``).
     """
 
     solvers: dict[str, str] = field(default_factory=dict)
@@ -99,10 +102,11 @@ class Figures:
     warnings: int = 0
     accel_note: str | None = None
     left_out: tuple[str, ...] = ()
+    assumed: tuple[str, ...] = ()
 
     @property
     def complete(self) -> bool:
-        return not self.left_out
+        return not self.left_out and not self.assumed
 
     def to_dict(self) -> dict:
         """The JSON figures (docs/commands.md): ``accel_solver``, ... where present."""
@@ -244,8 +248,10 @@ def _figures(cal: Calibration) -> Figures:
     if note:  # the accel left out (issue 9.4): one more warning
         warnings += 1
     left_out = cal.left_out or {}
+    assumed = tuple(name for name, sec in cal.sections().items()
+                    if sec is not None and sec.partial is not None)  # fmt: skip
     return Figures(solvers, warnings=warnings, accel_note=note,
-                   left_out=tuple(sorted(left_out)), **found)  # fmt: skip
+                   left_out=tuple(sorted(left_out)), assumed=assumed, **found)  # fmt: skip
 
 
 def _one(args: tuple) -> SessionResult:

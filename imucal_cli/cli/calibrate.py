@@ -226,7 +226,8 @@ def _result_json(cal, out: Path, stored: Stored) -> dict:
     left_out = dict(cal.left_out or {})
     warnings += list(left_out.values())
     return {"format": "imucal-calibrate", "format_version": 1, "output": str(out),
-            "stored": stored.where, "not_stored": stored.why_not, "complete": not left_out,
+            "stored": stored.where, "not_stored": stored.why_not,
+            "complete": not left_out and cal.complete is not False,
             "left_out": left_out, "warnings": warnings,
             "calibration": json.loads(calibration_to_json(cal))}  # fmt: skip
 

@@ -264,8 +264,11 @@ class PartialFit:
                 prior = nominal_prior(design.nominal, poses.a_mean, design.g)
             except DesignError as exc:
                 raise DesignError(f"{design.where}: {exc}") from None
-        return partial_section(poses, design.session, design.cfg, design.g, design.nominal,
-                               prior)  # fmt: skip
+        sec = partial_section(poses, design.session, design.cfg, design.g, design.nominal,
+                              prior)  # fmt: skip
+        why = _reason(DesignError(design.refusal()), design.where)
+        sec.notes = [sec.notes[0], f"why not the whole model: {why}", *sec.notes[1:]]
+        return sec
 
 
 for _estimator in (Factorization(), Gravity(), Labelled(), PartialFit()):

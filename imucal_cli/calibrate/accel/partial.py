@@ -24,6 +24,7 @@ from imucal_cli.calibrate.accel.section import (
     common_members,
     parameter_rows,
 )
+from imucal_cli.calibrate.accel.checks import MISFIT_FLOOR_MG, MISFIT_SIGMAS
 from imucal_cli.calibrate.common import Nominal, StaticPoses, accel_units, rms
 from imucal_cli.errors import DesignError
 from imucal_cli.estimators.accel import partial as map_fit
@@ -125,6 +126,15 @@ def partial_section(poses: StaticPoses, session, cfg: Config, g: float, nominal:
     """The accel section of the fit with ``prior`` (module notes)."""
     res = map_fit.fit_partial(poses.a_mean, poses.cov_mean, g, prior,
                               cfg.accel.gravity.max_iterations)  # fmt: skip
+    scale = 1.0
+    first = (res.chi2, _dof(res, len(poses.a_mean)))
+    if first[1] >= 1.0 and first[0] > first[1]:
+        # the magnitudes scatter beyond the still holds' own noise (vibration, a slow tilt):
+        # the data weighed by the scatter they show against the prior (the gravity fit's
+        # noise_scale), so that the prior is not overruled by an overconfident noise
+        scale = first[0] / first[1]
+        res = map_fit.fit_partial(poses.a_mean, poses.cov_mean * scale, g, prior,
+                                  cfg.accel.gravity.max_iterations)  # fmt: skip
     if not res.converged:
         raise DesignError(f"the fit with a prior did not converge ({res.message})")
     units_in, units_note = accel_units(session, g)
@@ -148,9 +158,9 @@ def partial_section(poses: StaticPoses, session, cfg: Config, g: float, nominal:
     picks = map_fit.suggest(res, g, _candidates(), sigma) if assumed else []
     capture = _capture_words(picks, assumed)
     combos = [_combination(c, value, cstd, prior.std) for c, value, cstd in res.combinations]
-    warnings, blocking = _misfit(res, len(poses.a_mean))
+    warnings, blocking = _misfit(first, scale, rms(res.residuals), g)
     dof = _dof(res, len(poses.a_mean))
-    expected = float(np.sqrt(np.mean(res.sigmas**2) * max(dof, 0.0) / len(res.sigmas)))
+    expected = float(np.sqrt(np.mean(res.sigmas**2) / scale * max(dof, 0.0) / len(res.sigmas)))
     if units_note:
         warnings.append(units_note)
     notes = list(members.pop("notes", []) or [])
@@ -166,7 +176,8 @@ def partial_section(poses: StaticPoses, session, cfg: Config, g: float, nominal:
         covariance=_model_covariance(res),
         init="prior mean", weighting="noise", iterations=res.iterations,
         function_evaluations=res.nfev, converged=res.converged, message=res.message,
-        chi2=res.chi2, dof=int(round(dof)), notes=notes, warnings=warnings,
+        chi2=first[0], dof=int(round(first[1])), noise_scale=scale, notes=notes,
+        warnings=warnings,
         blocking=blocking, rms_expected=expected,
         rms_after_below_noise=bool(dof < 0.5 or rms(res.residuals) < 0.5 * expected),
         partial=Partial(rule=RULE, prior=prior.source, measured=measured, assumed=assumed,
@@ -212,7 +223,8 @@ def _capture_words(picks: list[str], assumed: list[str]) -> str:
         return "no single pose adds enough: capture the six faces (plan six)"
     return (f"hold the unit still with {', then '.join(picks)} (the poses that measure "
             f"{', '.join(assumed)} most, one after the other), or capture the six faces and "
-            "12 edges (plan qureshi18)")  # fmt: skip
+            "12 edges (plan qureshi18); or hold them at an earlier calibration of this unit "
+            "instead of nominal values: --prior CAL.json")  # fmt: skip
 
 
 def _summary(measured: list[str], assumed: list[str], source: str, capture: str) -> str:
@@ -230,17 +242,23 @@ def _dof(res: map_fit.PartialResult, n: int) -> float:
     return float(n - np.trace(np.eye(9) - res.cov / np.outer(s0, s0)))
 
 
-def _misfit(res: map_fit.PartialResult, n: int) -> tuple[list[str], list[str]]:
-    """The data's misfit against the noise: the chi-square of the magnitudes on the degrees
-    of freedom the prior leaves (``n`` minus the parameters the data determine, the trace of
-    the data's share of the posterior)."""
-    dof = _dof(res, n)
+def _misfit(first: tuple[float, float], scale: float, rms_after: float, g: float
+            ) -> tuple[list[str], list[str]]:  # fmt: skip
+    """The data's misfit against the still holds' noise (``first``: chi-square and the
+    degrees of freedom the prior leaves, before any ``scale``): said when improbable (p below
+    :data:`MISFIT_P`; the std are then scaled by it), and blocking a save as the other accel
+    fits do, beyond :data:`.checks.MISFIT_SIGMAS` times the noise and
+    :data:`.checks.MISFIT_FLOOR_MG`."""
+    chi2, dof = first
     if dof < 0.5:
         return [], []
-    p = float(stats.chi2.sf(res.chi2, dof))
+    p = float(stats.chi2.sf(chi2, dof))
     if p >= MISFIT_P:
         return [], []
-    text = (f"the poses' magnitudes miss gravity by {np.sqrt(res.chi2 / dof):.1f} times their "
-            f"noise (chi^2 {res.chi2:.3g} on {dof:.1f} degrees of freedom, p = {p:.2g}): the "
-            "unit moved during a hold, or the prior is far from this part")  # fmt: skip
-    return [text], [text]
+    excess = float(np.sqrt(chi2 / dof))
+    text = (f"the poses' magnitudes scatter {excess:.1f} times more than the still holds' noise "
+            f"(chi^2 {chi2:.3g} on {dof:.1f} degrees of freedom, p = {p:.2g}): vibration or a "
+            f"slow tilt in a hold, or the prior is far from this part; the std are scaled by "
+            f"it (noise_scale {scale:.3g})")  # fmt: skip
+    block = excess > MISFIT_SIGMAS and 1000 * rms_after / g > MISFIT_FLOOR_MG
+    return [text], [text] if block else []
