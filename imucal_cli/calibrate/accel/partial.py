@@ -62,25 +62,29 @@ def _candidates() -> dict[str, np.ndarray]:
     return out
 
 
-def nominal_gain(nominal: Nominal, a_mean: np.ndarray, g: float) -> tuple[float, str] | None:
-    """The nominal sensitivity (raw units per m/s^2) and its basis in words: the config's or
-    the units' (``nominal.sensitivity``); for counts without one, the power of two counts per
-    g nearest the poses' magnitude (the datasheet gains of consumer parts: 16384, 8192, 4096,
-    2048 LSB/g of the MPU-6050, ICM-20948, BMI160 and LSM6 families at +-2..16 g, 256 of the
-    ADXL345), when it is within 10 % of it; else None."""
+def nominal_gain(nominal: Nominal, a_mean: np.ndarray, g: float
+                 ) -> tuple[float, np.ndarray, str] | None:  # fmt: skip
+    """The nominal sensitivity (raw units per m/s^2), offset (raw) and their basis in words:
+    the config's or the units' (``nominal.sensitivity``); for counts without one, the power of
+    two counts per g nearest the poses' magnitude (the datasheet gains of consumer parts:
+    16384, 8192, 4096, 2048 LSB/g of the MPU-6050, ICM-20948, BMI160 and LSM6 families at
+    +-2..16 g, 256 of the ADXL345), when it is within 10 % of it, about the nominal offset or
+    else zero (a signed ADC: the offset a range read from few poses guesses at mid-scale
+    can be wrong); else None."""
+    bias = np.asarray(nominal.bias, float)[:3]
     if nominal.sensitivity is not None:
-        return float(nominal.sensitivity), nominal.basis
-    if not len(a_mean):
-        return None
-    seen = float(np.median(np.linalg.norm(a_mean - nominal.bias, axis=1)))  # counts per g
-    if not np.isfinite(seen) or seen <= 0:
-        return None
-    lsb = 2.0 ** round(np.log2(seen))
-    if abs(lsb / seen - 1) > 0.1:
-        return None
-    return lsb / g, (f"{lsb:.0f} counts per g, the power of two nearest the poses' magnitude "
-                     "(a consumer part's datasheet gain); offset "
-                     f"{', '.join(f'{b:.6g}' for b in nominal.bias[:3])} counts")
+        return float(nominal.sensitivity), bias, nominal.basis
+    for offset in (bias, np.zeros(3)):
+        seen = float(np.median(np.linalg.norm(a_mean - offset, axis=1))) if len(a_mean) else 0.0
+        if not np.isfinite(seen) or seen <= 0:
+            continue
+        lsb = 2.0 ** round(np.log2(seen))  # counts per g
+        if abs(lsb / seen - 1) <= 0.1:
+            return lsb / g, offset, (
+                f"{lsb:.0f} counts per g, the power of two nearest the poses' magnitude (a "
+                f"consumer part's datasheet gain); offset {', '.join(f'{b:.6g}' for b in offset)}"
+                " counts")  # fmt: skip
+    return None
 
 
 def nominal_prior(nominal: Nominal, a_mean: np.ndarray, g: float) -> map_fit.Prior:
@@ -92,8 +96,8 @@ def nominal_prior(nominal: Nominal, a_mean: np.ndarray, g: float) -> map_fit.Pri
                           "stated), so the gains the poses do not determine have no value to "
                           "be held at: set [accel] nominal_sensitivity, or pass an earlier "
                           "calibration (--prior CAL.json)")  # fmt: skip
-    s, basis = found
-    mean = np.r_[np.asarray(nominal.bias, float)[:3], [s] * 3, [0.0] * 3]
+    s, offset, basis = found
+    mean = np.r_[offset, [s] * 3, [0.0] * 3]
     std = np.r_[[BIAS_STD_G * g * s] * 3, [GAIN_STD * s] * 3, [ANGLE_STD_DEG] * 3]
     return map_fit.Prior(mean, std, f"nominal ({basis}): gains +-{GAIN_STD:.0%}, bias "
                          f"+-{BIAS_STD_G * 1000:.0f} mg, angles between the axes 90 +-"
