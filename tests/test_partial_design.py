@@ -191,6 +191,11 @@ def test_cli_says_which_are_measured_and_which_assumed(tmp_path):
     table = [t for t in json.loads(rep.stdout)["sensors"]["accel"]["tables"]
              if t["title"] == "measured and assumed"]  # fmt: skip
     assert len(table) == 1 and len(table[0]["rows"]) == 9
+    # an export holds the whole model: it says which terms are assumed
+    exp = run("export", out, "--format", "c-header", "-o", tmp_path / "cal.h")
+    assert exp.returncode == 0, exp.stderr
+    assert "warning: the accel calibration is partial: " in exp.stderr
+    assert ", ".join(acc["partial"]["assumed"]) + " are assumed" in exp.stderr
 
 
 def test_an_earlier_calibration_is_the_prior(tmp_path):
