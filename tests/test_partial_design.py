@@ -166,9 +166,11 @@ def test_a_full_plan_is_not_partial():
 
 
 def test_cli_says_which_are_measured_and_which_assumed(tmp_path):
-    session, _ = _simulate(tmp_path, VEHICLE, seed=1)
+    plan = tmp_path / "vehicle.toml"
+    plan.write_text(VEHICLE)
     path = tmp_path / "log.h5"
-    write_session(path, session)
+    sim = run("simulate", "--plan", plan, "--seed", 1, "-o", path)
+    assert sim.returncode == 0, sim.stderr
     out = tmp_path / "log.cal.json"
     proc = run("calibrate", path, "--no-store", "-o", out)
     assert proc.returncode == 0, proc.stderr
