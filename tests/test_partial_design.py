@@ -211,7 +211,8 @@ def test_an_earlier_calibration_is_the_prior(tmp_path):
     before = json.loads(cal_path.read_text())["accel"]
     std_of = {p["name"]: p["std"] for p in before["parameters"]}
     keys = ("xy", "xz", "yz")
-    mean = np.r_[before["bias"], before["sensitivity"], [before["misalignment_deg"][k] for k in keys]]
+    mean = np.r_[before["bias"], before["sensitivity"],
+                 [before["misalignment_deg"][k] for k in keys]]  # fmt: skip
     std = np.r_[[std_of[f"b_{c}"] for c in "xyz"], before["sensitivity_std"],
                 [before["misalignment_std_deg"][k] for k in keys]]  # fmt: skip
     session, truth = _simulate(tmp_path, VEHICLE, seed=7)

@@ -13,8 +13,8 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
 from rich.table import Table
 
-from imucal_cli.calibrate.batch import Figures, Stored, calibrate_file, calibrate_many
 from imucal_cli.calibrate.accel.partial import calibration_prior
+from imucal_cli.calibrate.batch import Figures, Stored, calibrate_file, calibrate_many
 from imucal_cli.calibrate.session import load_accel
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import calibration_to_json

@@ -18,13 +18,14 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
+from imucal_cli.calibrate.accel.checks import MISFIT_FLOOR_MG, MISFIT_SIGMAS
+from imucal_cli.calibrate.accel.gravity import GAUGE_9
 from imucal_cli.calibrate.accel.section import (
     COVARIANCE_OF,
     PoseFit,
     common_members,
     parameter_rows,
 )
-from imucal_cli.calibrate.accel.checks import MISFIT_FLOOR_MG, MISFIT_SIGMAS
 from imucal_cli.calibrate.common import Nominal, StaticPoses, accel_units, rms
 from imucal_cli.errors import DesignError
 from imucal_cli.estimators.accel import partial as map_fit
@@ -128,65 +129,71 @@ def calibration_prior(sec: SensorCalibration, path: str) -> map_fit.Prior:
 def partial_section(poses: StaticPoses, session, cfg: Config, g: float, nominal: Nominal,
                     prior: map_fit.Prior) -> AccelCalibration:  # fmt: skip
     """The accel section of the fit with ``prior`` (module notes)."""
-    res = map_fit.fit_partial(poses.a_mean, poses.cov_mean, g, prior,
-                              cfg.accel.gravity.max_iterations)  # fmt: skip
-    scale = 1.0
-    first = (res.chi2, _dof(res, len(poses.a_mean)))
-    if first[1] >= 1.0 and first[0] > first[1]:
-        # the magnitudes scatter beyond the still holds' own noise (vibration, a slow tilt):
-        # the data weighed by the scatter they show against the prior (the gravity fit's
-        # noise_scale), so that the prior is not overruled by an overconfident noise
-        scale = first[0] / first[1]
-        res = map_fit.fit_partial(poses.a_mean, poses.cov_mean * scale, g, prior,
-                                  cfg.accel.gravity.max_iterations)  # fmt: skip
-    if not res.converged:
-        raise DesignError(f"the fit with a prior did not converge ({res.message})")
+    res, first, scale = _fit(poses, g, prior, cfg.accel.gravity.max_iterations)
     units_in, units_note = accel_units(session, g)
     h = (poses.a_mean - res.bias) @ res.matrix.T
-    dirs = h / np.linalg.norm(h, axis=1, keepdims=True)
-    std = res.std
-    summary = (res.params[3:], std[3:])
-    fit = PoseFit(res.residuals, dirs)
-    members = common_members(units_in=units_in, g=g, summary=summary, poses=poses, fit=fit,
+    summary = (res.params[3:], res.std[3:])
+    members = common_members(units_in=units_in, g=g, summary=summary, poses=poses,
+                             fit=PoseFit(res.residuals, h / np.linalg.norm(h, axis=1,
+                                                                           keepdims=True)),
                              nominal=nominal,
                              min_separation_deg=cfg.accel.min_separation_deg)  # fmt: skip
     members["rms_loo"] = None
     units = [units_in] * 3 + [f"{units_in} per m/s^2"] * 3 + ["deg"] * 3
-    rows = parameter_rows(list(map_fit.NAMES), res.params, std, units)
+    rows = parameter_rows(list(map_fit.NAMES), res.params, res.std, units)
     for row, m, s0 in zip(rows, res.measured, prior.std, strict=True):
         row.status = "measured" if m else "assumed"
         row.prior_std = float(s0)
+    part = _partial(res, g)
+    warnings, blocking = _misfit(first, scale, rms(res.residuals), g)
+    dof = _dof(res, len(poses.a_mean))
+    expected = float(np.sqrt(np.mean(res.sigmas**2) / scale * max(dof, 0.0) / len(res.sigmas)))
+    notes = [_summary(part.measured, part.assumed, prior.source, part.capture),
+             *(members.pop("notes", None) or [])]  # fmt: skip
+    return build(
+        AccelCalibration, solver="partial", units="m/s^2", bias=res.bias, matrix=res.matrix,
+        residual_rms=rms(res.residuals), **members,
+        variant="9-parameter with a prior (maximum a posteriori)", gauge=GAUGE_9,
+        parameters=rows, covariance=_model_covariance(res),
+        init="prior mean", weighting="noise", iterations=res.iterations,
+        function_evaluations=res.nfev, converged=res.converged, message=res.message,
+        chi2=first[0], dof=int(round(first[1])), noise_scale=scale, notes=notes,
+        warnings=warnings + ([units_note] if units_note else []), blocking=blocking,
+        rms_expected=expected,
+        rms_after_below_noise=bool(dof < 0.5 or rms(res.residuals) < 0.5 * expected),
+        partial=part,
+    )  # fmt: skip
+
+
+def _fit(poses: StaticPoses, g: float, prior: map_fit.Prior, max_iterations: int
+         ) -> tuple[map_fit.PartialResult, tuple[float, float], float]:  # fmt: skip
+    """The fit, and again with the noise scaled when the magnitudes scatter beyond the still
+    holds' own noise (vibration, a slow tilt: the data weighed by the scatter they show
+    against the prior, the gravity fit's ``noise_scale``, so that an overconfident noise does
+    not overrule the prior). Returns it, the first fit's ``(chi2, dof)`` and the scale."""
+    res = map_fit.fit_partial(poses.a_mean, poses.cov_mean, g, prior, max_iterations)
+    scale = 1.0
+    first = (res.chi2, _dof(res, len(poses.a_mean)))
+    if first[1] >= 1.0 and first[0] > first[1]:
+        scale = first[0] / first[1]
+        res = map_fit.fit_partial(poses.a_mean, poses.cov_mean * scale, g, prior,
+                                  max_iterations)  # fmt: skip
+    if not res.converged:
+        raise DesignError(f"the fit with a prior did not converge ({res.message})")
+    return res, first, scale
+
+
+def _partial(res: map_fit.PartialResult, g: float) -> Partial:
+    """The section's ``partial`` member: the rule, the prior, which are measured and which
+    assumed, the determined combinations and the poses that would measure the rest."""
     measured = [n for n, m in zip(map_fit.NAMES, res.measured, strict=True) if m]
     assumed = [n for n, m in zip(map_fit.NAMES, res.measured, strict=True) if not m]
     sigma = float(np.median(res.sigmas))
     picks = map_fit.suggest(res, g, _candidates(), sigma) if assumed else []
-    capture = _capture_words(picks, assumed)
-    combos = [_combination(c, value, cstd, prior.std) for c, value, cstd in res.combinations]
-    warnings, blocking = _misfit(first, scale, rms(res.residuals), g)
-    dof = _dof(res, len(poses.a_mean))
-    expected = float(np.sqrt(np.mean(res.sigmas**2) / scale * max(dof, 0.0) / len(res.sigmas)))
-    if units_note:
-        warnings.append(units_note)
-    notes = list(members.pop("notes", []) or [])
-    notes.insert(0, _summary(measured, assumed, prior.source, capture))
-    return build(
-        AccelCalibration, solver="partial", units="m/s^2", bias=res.bias, matrix=res.matrix,
-        residual_rms=rms(res.residuals), **members,
-        variant="9-parameter with a prior (maximum a posteriori)",
-        gauge=("upper-triangular matrix: calibrated z is the z sensitivity axis, y lies in the "
-               "plane of the y and z axes (Qureshi eq. 3); rotate it to your body frame if you "
-               "need one"),
-        parameters=rows,
-        covariance=_model_covariance(res),
-        init="prior mean", weighting="noise", iterations=res.iterations,
-        function_evaluations=res.nfev, converged=res.converged, message=res.message,
-        chi2=first[0], dof=int(round(first[1])), noise_scale=scale, notes=notes,
-        warnings=warnings,
-        blocking=blocking, rms_expected=expected,
-        rms_after_below_noise=bool(dof < 0.5 or rms(res.residuals) < 0.5 * expected),
-        partial=Partial(rule=RULE, prior=prior.source, measured=measured, assumed=assumed,
-                        combinations=combos, capture=capture),
-    )  # fmt: skip
+    combos = [_combination(c, value, cstd, res.prior.std)
+              for c, value, cstd in res.combinations]  # fmt: skip
+    return Partial(rule=RULE, prior=res.prior.source, measured=measured, assumed=assumed,
+                   combinations=combos, capture=_capture_words(picks, assumed))
 
 
 def _model_covariance(res: map_fit.PartialResult) -> Covariance:
@@ -232,7 +239,8 @@ def _capture_words(picks: list[str], assumed: list[str]) -> str:
 
 
 def _summary(measured: list[str], assumed: list[str], source: str, capture: str) -> str:
-    text = (f"these poses determine only part of the model: measured {', '.join(measured) or 'none'}"
+    text = (f"these poses determine only part of the model: measured "
+            f"{', '.join(measured) or 'none'}"
             f"; assumed (held at the prior, with its std) {', '.join(assumed) or 'none'}; prior: "
             f"{source}")  # fmt: skip
     return f"{text}; to measure the rest: {capture}" if capture else text
