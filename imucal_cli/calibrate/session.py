@@ -245,11 +245,16 @@ def _gyro_beside_partial(session: Session, cfg: Config) -> Outcome:
     the partial fit existed."""
     why = "its poses determine the accelerometer only in part"
     _, gyro = _gyro_without_accel(session, cfg, Outcome(note=why, refusal=DesignError(why)))
-    if gyro.section is None and gyro.note:
-        return Outcome(note=gyro.note.replace(
-            "which this session does not determine (see accel)",
-            "which this session determines only in part (see accel)"))  # fmt: skip
-    return gyro
+    if gyro.section is not None or not gyro.note:
+        return gyro
+    if cfg.gyro.solver != "none":
+        try:  # a session of turns between still periods: what they are for (issue 24.7d)
+            _refuse_turn_session(session, cfg, why)
+        except DesignError as exc:
+            return Outcome(note=f"gyro not calibrated: {_reason(session, exc)}")
+    return Outcome(note=gyro.note.replace(
+        "which this session does not determine (see accel)",
+        "which this session determines only in part (see accel)"))  # fmt: skip
 
 
 def _reason(session: Session, exc: Exception) -> str:

@@ -38,6 +38,7 @@ from imucal_cli.calibrate.common import (
     nominal_sensor,
     session_name,
     static_poses,
+    stored_accel_hint,
 )
 from imucal_cli.calibrate.factorization import calibrate_accel_factorization
 from imucal_cli.calibrate.registry import Bound, Determined, Needs, Refusal, register
@@ -267,7 +268,10 @@ class PartialFit:
         sec = partial_section(poses, design.session, design.cfg, design.g, design.nominal,
                               prior)  # fmt: skip
         why = _reason(DesignError(design.refusal()), design.where)
-        sec.notes = [sec.notes[0], f"why not the whole model: {why}", *sec.notes[1:]]
+        stored = stored_accel_hint(design.session)
+        if stored:
+            stored += " (--prior SESSION.h5 holds the assumed terms at it)"
+        sec.notes = [sec.notes[0], f"why not the whole model: {why}{stored}", *sec.notes[1:]]
         return sec
 
 
