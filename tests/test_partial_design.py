@@ -19,11 +19,12 @@ from scipy import stats
 
 from imucal_cli.calibrate.session import calibrate_session
 from imucal_cli.estimators.accel.partial import MEASURED_RATIO, NAMES, Prior
+from imucal_cli.formats.calibration import write_calibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import write_session
 from imucal_cli.simulate.play import simulate_plan
 
-from .cli_helpers import run
+from .cli_helpers import assert_one_line_error, run
 
 CREATED = "2026-01-01T00:00:00Z"
 G0 = 9.80665
@@ -236,6 +237,13 @@ def test_an_earlier_calibration_is_the_prior(tmp_path):
     assert both.returncode == 2 and "--prior and --accel exclude each other" in both.stderr
     full = run("calibrate", earlier, "--no-store", "--prior", cal_path, "-o", tmp_path / "y.json")
     assert full.returncode == 0 and "--prior was not used" in full.stderr
+    # a calibration without std cannot be a prior; --prior goes with one session
+    bare = tmp_path / "truth.json"
+    write_calibration(bare, truth)
+    assert_one_line_error(run("calibrate", log, "--no-store", "--prior", bare, "-o",
+                              tmp_path / "z.json"), "which a prior needs")  # fmt: skip
+    assert_one_line_error(run("calibrate", log, earlier, "--no-store", "--prior", cal_path),
+                          "--prior goes with one SESSION")  # fmt: skip
 
 
 def _population_prior() -> Prior:
