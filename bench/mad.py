@@ -53,6 +53,10 @@ SESSIONS = {
     "B": ("annotated_session.csv", "part", 204.8, ("a.u.", "a.u.")),
 }  # fmt: skip
 MIN_MOVE_S = 0.3  # a face-to-face move takes longer than this
+#: MaD Lab imucal 2.6.0's held-out gravity-direction error over the 12 face-to-face transitions
+#: of session A, each left out in turn (RMS, deg), measured by :func:`leave_one_out`: the
+#: verdict's reference where the package is not installed (never a pass by default).
+MAD_LOO_RMS_DEG = 0.6716
 MAD_EXPECTED_ANGLE = -360.0  # MaD's default ("clockwise"); our import is told the same
 
 
@@ -284,9 +288,13 @@ def _loo_table(console, r: dict) -> bool:
     chk = r["check"]
     t.add_row("turns between still periods", str(chk.turns_between_still_periods),
               "not used")  # fmt: skip
+    if hm is None:  # MaD's package not installed: its figure as measured here with it
+        t.caption = (f"MaD: {MAD_LOO_RMS_DEG} deg RMS recorded with imucal (MaD Lab) 2.6.0 "
+                     "(pip install -e '.[bench]' measures it again)")  # fmt: skip
     console.print(t)
     within = all(abs(m - k) <= 2 * n for _, m, k, n in r["turns"])
-    return within and (hm is None or rms(ho) <= rms(hm))
+    reference = MAD_LOO_RMS_DEG if hm is None else rms(hm)
+    return within and rms(ho) <= reference
 
 
 def run(console) -> bool:

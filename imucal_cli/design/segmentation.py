@@ -25,7 +25,7 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
+from scipy.special import chdtri, gammaincinv
 
 from imucal_cli.errors import InputError
 from imucal_cli.numerics.blocks import check_all_given, check_not_more
@@ -249,7 +249,7 @@ def _noise_of(
         var = window_variance(x, n)
     dof = n - 1
     # E.g. the 5 % quantile of chi2(dof)/dof: the low quantile of still-window variances.
-    q_factor = chi2_dist.ppf(quantile, dof) / dof
+    q_factor = 2 * gammaincinv(dof / 2, quantile) / dof
     sigma2_window = _quantile(var, quantile) / q_factor
     # First differences: mean square of the differences in each window, over 2.
     if len(x) > n:
@@ -356,7 +356,7 @@ def still_threshold(n: int, channels: int, alpha: float = DEFAULT_ALPHA) -> floa
     if not 0 < alpha < 1:
         raise InputError(f"alpha must be in (0, 1), got {alpha:g}")
     dof = channels * (n - 1)
-    return float(chi2_dist.isf(alpha, dof) / dof)
+    return float(chdtri(dof, alpha) / dof)
 
 
 def _runs(mask: np.ndarray) -> np.ndarray:
@@ -779,7 +779,7 @@ def find_rotations(
         peaks.append(np.nanmax(d2))
     if not gaps:
         return []
-    limits = [chi2_dist.isf(alpha / (b - a), g.shape[1]) for a, b in gaps]
+    limits = [chdtri(g.shape[1], alpha / (b - a)) for a, b in gaps]
     return [
         Interval(int(a), int(b))
         for (a, b), peak, limit in zip(gaps, peaks, limits, strict=True)

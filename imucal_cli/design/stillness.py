@@ -48,7 +48,7 @@ from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
+from scipy.special import chdtri, gammaincinv
 
 __all__ = [
     "DEFAULT_ALPHA",
@@ -82,7 +82,7 @@ def still_level_threshold(n: int, channels: int, alpha: float = DEFAULT_ALPHA) -
         ``sqrt(chi2.ppf(1 - alpha, dof) / dof)`` with ``dof = channels * (n - 1)``.
     """
     dof = channels * (n - 1)
-    return float(np.sqrt(chi2_dist.isf(alpha, dof) / dof))
+    return float(np.sqrt(chdtri(dof, alpha) / dof))
 
 
 @dataclass(frozen=True)
@@ -346,10 +346,11 @@ class StillnessDetector:
             h = np.array(self._history)
             step = np.where(np.isfinite(self._step), self._step, 0.0)
             floor = np.maximum(step**2 / 12.0, 1e-24)
-            v = np.maximum(np.quantile(h, q, axis=0) / (chi2_dist.ppf(q, n - 1) / (n - 1)), floor)
+            chi2_q = 2 * gammaincinv((n - 1) / 2, q)  # chi^2(n - 1)'s q quantile
+            v = np.maximum(np.quantile(h, q, axis=0) / (chi2_q / (n - 1)), floor)
             # The quantile is biased up by the moving windows among those seen; refine with
             # the mean variance of the windows the test calls still (truncated at alpha).
-            crit = chi2_dist.isf(self.alpha, h.shape[1] * (n - 1)) / (n - 1)
+            crit = chdtri(h.shape[1] * (n - 1), self.alpha) / (n - 1)
             for _ in range(2):
                 still = np.sum(h / v, axis=1) <= crit
                 if still.sum() < self.min_noise_windows:
@@ -363,7 +364,7 @@ class StillnessDetector:
     def _set_threshold(self) -> None:
         channels = len(self._var)
         dof = channels * (self._n - 1)
-        self._t_crit = float(chi2_dist.isf(self.alpha, dof))
+        self._t_crit = float(chdtri(dof, self.alpha))
         self._threshold = float(np.sqrt(self._t_crit / dof))
 
     def _evaluate(self) -> tuple[bool, list[tuple[int, int]]]:
@@ -461,8 +462,8 @@ def motion_span(
     sd = np.maximum(np.asarray(noise_std, dtype=float), 1e-300)
     z2 = np.sum(((g - np.asarray(rest, float)) / sd) ** 2, axis=1)
     c = g.shape[1]
-    high = chi2_dist.isf(alpha, c)
-    low = chi2_dist.ppf(extend_quantile, c)
+    high = chdtri(c, alpha)
+    low = 2 * gammaincinv(c / 2, extend_quantile)
     idx = np.flatnonzero(z2 > high)
     if len(idx) == 0:
         return None

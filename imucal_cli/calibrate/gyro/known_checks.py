@@ -22,7 +22,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
+from scipy.special import chdtrc
 
 from imucal_cli.calibrate.gyro.full import solver_stills
 from imucal_cli.errors import DesignError, SolverError
@@ -217,7 +217,7 @@ def _weighed(v: Verdict, data, res, names, limit) -> None:
 def _known_p(res) -> tuple[float, float, float]:
     chi2 = float(np.sum(res.known_chi2))
     r = res.known_redundancy
-    return chi2, r, float(chi2_dist.sf(chi2, r)) if r > 0.5 else 1.0
+    return chi2, r, float(chdtrc(r, chi2)) if r > 0.5 else 1.0
 
 
 def _known_check(v: Verdict, data, used, fit: Callable, vertical_known: Callable, limit) -> None:

@@ -116,9 +116,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
-from scipy.special import chdtri, stdtrit
-from scipy.stats import chi2 as chi2_dist
-from scipy.stats import f as f_dist
+from scipy.special import chdtrc, chdtri, fdtrc, stdtrit
 
 from imucal_cli.design.outliers import Deletion, deletion
 from imucal_cli.errors import DesignError, SolverError
@@ -856,13 +854,13 @@ def placement_outliers(res: LabelledResult, *, alpha: float = 0.01,
             continue
         n = len(groups)
         if given:
-            p = min(float(chi2_dist.sf(S_G, R_G)) * n, 1.0)
+            p = min(float(chdtrc(R_G, S_G)) * n, 1.0)
         else:
-            p = min(float(f_dist.sf((S_G / R_G) / ((S - S_G) / R_rest), R_G, R_rest)) * n, 1.0)
+            p = min(float(fdtrc(R_G, R_rest, (S_G / R_G) / ((S - S_G) / R_rest))) * n, 1.0)
             # the rest's spread rests on few equations (six faces: 4): a group off by more
             # than a hand placement allows (DEFAULT_PLACEMENT_DEG) is named at MARGINAL
             hand = S_G * (res.placement_deg / DEFAULT_PLACEMENT_DEG) ** 2
-            if p >= alpha and p < MARGINAL and float(chi2_dist.sf(hand, R_G)) * n < alpha:
+            if p >= alpha and p < MARGINAL and float(chdtrc(R_G, hand)) * n < alpha:
                 p = alpha * 0.999
         size = float(np.sqrt(np.nansum(res.up_angle_deg[idx] ** 2)))
         if p < alpha and size >= min_deg:

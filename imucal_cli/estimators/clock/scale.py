@@ -46,6 +46,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.special import ndtr, stdtrit
 
 from imucal_cli.errors import DesignError
 
@@ -145,7 +146,7 @@ def _check_units(d: np.ndarray, h: np.ndarray) -> None:
     """Refuse host times that do not follow the device's at all (device time in the wrong
     unit, clock resets): the slope of the reads of the recording's second half (a backlog
     is at its start), a median of pairwise slopes (bursts cannot move it)."""
-    from scipy.stats import theilslopes
+    from scipy.stats import theilslopes  # start-up: see DEVELOPERS.md
 
     late = d >= d[-1] / 2
     if late.sum() < 3:
@@ -190,7 +191,7 @@ def _robust_line(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     pairwise slopes: up to 29 % of the points may be anything), then least squares on the
     points within :data:`OUTLIER_MAD` MADs of it, repeated on the new line; returns the
     coefficients (intercept, slope), the residuals of every point and which were kept."""
-    from scipy.stats import theilslopes
+    from scipy.stats import theilslopes  # start-up: see DEVELOPERS.md
 
     slope, intercept = theilslopes(y, x)[:2]
     coef = np.array([intercept, slope])
@@ -275,9 +276,7 @@ def estimate_clock_scale(
     scale_std = slope_std / slope**2
     ppm, ppm_std = (scale - 1.0) * 1e6, scale_std * 1e6
     above = h - (coef[0] + coef[1] * d)  # every sample's latency above the envelope
-    from scipy.stats import norm, t
-
-    quantile = float(t.ppf(norm.cdf(SIGNIFICANT), dof))  # few windows: a wider margin
+    quantile = float(stdtrit(dof, ndtr(SIGNIFICANT)))  # few windows: a wider margin
     threshold = quantile * float(np.hypot(ppm_std, HOST_CLOCK_PPM))
     return ClockEstimate(scale, scale_std, ppm, ppm_std, float(np.std(above)),
                          float(np.max(above)), span, int(keep.sum()), int((~keep).sum()),

@@ -46,7 +46,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import sparse
 from scipy.optimize import brentq, least_squares
-from scipy.stats import chi2 as chi2_dist
+from scipy.special import chdtri, gammaincinv
 
 from imucal_cli.errors import DesignError, SolverError
 from imucal_cli.estimators.gyro.full import _diagonal_blocks
@@ -248,8 +248,8 @@ class KnownResult:
 
 
 #: Median of chi^2 with 2 and 3 degrees of freedom.
-CHI2_2_MEDIAN = float(chi2_dist.median(2))
-CHI2_3_MEDIAN = float(chi2_dist.median(3))
+CHI2_2_MEDIAN = float(2 * gammaincinv(1.0, 0.5))  # chi^2(k)'s median: 2 P^-1(k/2, 1/2)
+CHI2_3_MEDIAN = float(2 * gammaincinv(1.5, 0.5))
 
 
 class _Stacked:
@@ -492,7 +492,7 @@ def _covariance(f: np.ndarray, J: np.ndarray, n_known: int):
     for sl in groups:
         d = _redundancy(J, sl)
         c = float(f[sl] @ f[sl])
-        s_ = c / d if d > 0.5 and c > chi2_dist.isf(0.01, d) else 1.0
+        s_ = c / d if d > 0.5 and c > chdtri(d, 0.01) else 1.0
         row_scale[sl] = s_
         scales.append(s_)
         redundancy.append(d)

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
-from scipy.stats import chi2 as chi2_dist
+from scipy.special import chdtrc
 
 from imucal_cli.errors import DesignError
 from imucal_cli.estimators.accel.gravity import model_to_params, params_to_model
@@ -253,7 +253,7 @@ def fit_set_accel(
     r, J = _residuals_and_jacobian(res.x, lay, z, Linv, g, u0, basis)
     chi2 = float(r @ r)
     dof = 3 * K * P - lay.n
-    scale = chi2 / dof if chi2_dist.sf(chi2, dof) < 1e-3 and chi2 > dof else 1.0
+    scale = chi2 / dof if chdtrc(dof, chi2) < 1e-3 and chi2 > dof else 1.0
     cov_all = np.linalg.pinv(J.T @ J) * scale
     return _result(res, lay, cov_all, z, g, u0, basis, chi2, dof, scale)
 

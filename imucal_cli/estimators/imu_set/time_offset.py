@@ -27,7 +27,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import correlate, correlation_lags, savgol_filter
 
 from imucal_cli.errors import DesignError
 
@@ -75,6 +74,8 @@ def coarse_offset(t_ref: np.ndarray, w_ref: np.ndarray, t_imu: np.ndarray, w_imu
     x_i = np.interp(grid, t_imu, _speed(t_imu, w_imu))
     if not (np.std(x_r) > 0 and np.std(x_i) > 0):
         raise DesignError("a gyro does not move: no turn to line the IMUs' clocks up with")
+    from scipy.signal import correlate, correlation_lags  # start-up: see DEVELOPERS.md
+
     c = correlate(x_r, x_i, mode="full", method="fft")  # c[L] = sum_l x_r[l] x_i[l - L]
     lags = correlation_lags(len(x_r), len(x_i), mode="full")
     inside = np.abs(lags) <= max_offset_s / h
@@ -94,6 +95,8 @@ def rate_derivative(time: np.ndarray, rate: np.ndarray, window_s: float = 0.05) 
     n = max(5, int(round(window_s / dt)) | 1)
     if n > len(time):
         return np.gradient(rate, time, axis=0)
+    from scipy.signal import savgol_filter  # start-up: see DEVELOPERS.md
+
     return savgol_filter(rate, n, 3, deriv=1, delta=dt, axis=0)
 
 

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.stats import chi2 as chi2_dist
+from scipy.special import chdtri
 
 from imucal_cli.errors import DesignError, SolverError
 from imucal_cli.estimators.accel.gravity import model_to_params, params_to_model
@@ -308,7 +308,7 @@ def _package(model, fit, degree, T, tests, nfev, weighted) -> JointResult:
     dof = len(fit.f) - len(fit.x)
     chi2 = fit.chi2
     if weighted:
-        noise_scale = chi2 / dof if dof > 0 and chi2 > chi2_dist.isf(0.01, dof) else 1.0
+        noise_scale = chi2 / dof if dof > 0 and chi2 > chdtri(dof, 0.01) else 1.0
     else:
         noise_scale = chi2 / dof
     D = model.to_raw_jacobian(degree)

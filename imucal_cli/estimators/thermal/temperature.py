@@ -35,8 +35,7 @@ from dataclasses import dataclass, field
 from math import comb
 
 import numpy as np
-from scipy.special import fdtrc
-from scipy.stats import chi2 as chi2_dist
+from scipy.special import chdtri, fdtrc
 
 from imucal_cli.errors import DesignError
 
@@ -304,7 +303,7 @@ def _fit_channel(dt, y, w, groups, n_groups, max_degree, known_sigma, serial, se
     rho = _lag1(s.r) if serial else 0.0
     infl = (1 + rho) / (1 - rho)
     if known_sigma:
-        scale = s.chi2 / s.dof if s.dof > 0 and s.chi2 > chi2_dist.isf(0.01, s.dof) else 1.0
+        scale = s.chi2 / s.dof if s.dof > 0 and s.chi2 > chdtri(s.dof, 0.01) else 1.0
     else:
         scale = s.chi2 / s.dof
     cov = s.XtX_inv * scale * infl
