@@ -25,6 +25,7 @@ from imucal_cli.calibrate.common import (  # noqa: F401 (re-exported for callers
     stored_accel_hint,
     with_segments,
 )
+from imucal_cli.calibrate.gyro import partial as gyro_partial
 from imucal_cli.calibrate.gyro.estimators import GyroDesign
 from imucal_cli.calibrate.mag import MagDesign
 from imucal_cli.calibrate.registry import NotChosen, choose
@@ -49,6 +50,7 @@ from imucal_cli.formats.config import (
 from imucal_cli.formats.session import Session, read_session, utc_now_iso
 from imucal_cli.model.calibration import Calibration, SensorCalibration
 from imucal_cli.model.codec import build
+from imucal_cli.model.parts import By, Choice
 
 
 def calibrate_accel(session: Session, cfg: Config, prior=None) -> SensorCalibration | None:
@@ -125,12 +127,14 @@ class Outcome:
 
 
 def calibrate_gyro_auto(
-    session: Session, cfg: Config, accel: SensorCalibration | None
+    session: Session, cfg: Config, accel: SensorCalibration | None, gyro_prior=None
 ) -> Outcome:
     """``[gyro] solver = "auto"``: the most accurate solver the session supports
     (:mod:`imucal_cli.calibrate.gyro.estimators`); no section when the session has no gyro, or
     no rotations that it did not capture on purpose (the note says why). A session with
-    rotation segments that no solver can use is refused with the chosen solver's reason."""
+    rotation segments that no solver can use is refused with the chosen solver's reason.
+    Still periods without usable rotations: the bias measured, the matrix assumed
+    (:func:`partial_gyro`, ``gyro_prior``: ``--prior``'s gyro)."""
 
     if session.gyro is None:
         return Outcome(note="gyro not calibrated: the session has no /raw/gyro")
@@ -145,14 +149,37 @@ def calibrate_gyro_auto(
     except ImucalError:
         if session.rotation_segments():
             raise  # turns captured on purpose: say why they cannot calibrate
-        return Outcome(note="gyro not calibrated: no usable rotations (the gyro needs turns "
-                            "between still periods)")  # fmt: skip
+        return partial_gyro(session, cfg, gyro_prior, "no usable rotations (the gyro needs "
+                            "turns between still periods)")  # fmt: skip
     if sec.undetermined:  # issue 10.2: not saved silently
         return Outcome(note=f"gyro not calibrated: {sec.undetermined} (to save it with "
                             f'these std: [gyro] solver = "{solver}" and --force)')  # fmt: skip
     sec.notes = [f'solver "{solver}" chosen by [gyro] solver = "auto": {why}',
                  *(sec.notes or [])]  # fmt: skip
     sec.choice = chosen.choice
+    return Outcome(sec)
+
+
+def partial_gyro(session: Session, cfg: Config, gyro_prior, why: str,
+                 extra: str | None = None) -> Outcome:  # fmt: skip
+    """The gyro of a session whose turns cannot determine its model (issue 27.3,
+    :mod:`imucal_cli.calibrate.gyro.partial`): the bias measured by the still periods, the
+    matrix held at ``gyro_prior`` (``--prior``'s gyro) or at nominal values; left out (the
+    note: ``why``, the bias measured and what would save it) where no nominal sensitivity is
+    known, or with no still period. ``extra``: what the turns are for (capture words)."""
+    note = f"gyro not calibrated: {why}"
+    if session.gyro is None or cfg.gyro.solver != "auto" or not session.static_segments():
+        return Outcome(note=note)
+    prior = gyro_prior
+    if prior is None:
+        s = gyro_partial.nominal_sensitivity(session, cfg)
+        if s is None:
+            words = gyro_partial.bias_words(session, cfg)
+            return Outcome(note=f"{note}; {words}" if words else note)
+        prior = gyro_partial.nominal_prior(s)
+    sec = gyro_partial.partial_gyro_section(session, cfg, prior, why, extra)
+    sec.choice = Choice("partial", By.AUTO, f"the turns cannot determine the gyro's model "
+                        f"({why}): the still periods' bias measured, the matrix assumed")  # fmt: skip
     return Outcome(sec)
 
 
@@ -238,23 +265,27 @@ def _gyro_without_accel(session: Session, cfg: Config, accel: Outcome
     return Outcome(note=note, refusal=accel.refusal), Outcome(gyro)
 
 
-def _gyro_beside_partial(session: Session, cfg: Config) -> Outcome:
+def _gyro_beside_partial(session: Session, cfg: Config, gyro_prior=None) -> Outcome:
     """The gyro of a session whose accelerometer is calibrated only in part (issue 27.3):
     calibrated as without an accelerometer (:func:`_gyro_without_accel`), since the assumed
     terms are not measurements to measure its turns with: the gyro comes out as it did before
-    the partial fit existed."""
+    the partial fit existed; where that leaves it out, its bias measured by the still periods
+    and its matrix assumed (:func:`partial_gyro`), the words of what its turns are for (a
+    turn session, issue 24.7d) in what would determine the rest."""
     why = "its poses determine the accelerometer only in part"
     _, gyro = _gyro_without_accel(session, cfg, Outcome(note=why, refusal=DesignError(why)))
     if gyro.section is not None or not gyro.note:
         return gyro
+    turns_for = None
     if cfg.gyro.solver != "none":
         try:  # a session of turns between still periods: what they are for (issue 24.7d)
             _refuse_turn_session(session, cfg, why)
         except DesignError as exc:
-            return Outcome(note=f"gyro not calibrated: {_reason(session, exc)}")
-    return Outcome(note=gyro.note.replace(
+            turns_for = _reason(session, exc)
+    reason = turns_for or gyro.note.removeprefix("gyro not calibrated: ").replace(
         "which this session does not determine (see accel)",
-        "which this session determines only in part (see accel)"))  # fmt: skip
+        "which this session determines only in part (see accel)")  # fmt: skip
+    return partial_gyro(session, cfg, gyro_prior, reason, turns_for)
 
 
 def _reason(session: Session, exc: Exception) -> str:
@@ -262,14 +293,15 @@ def _reason(session: Session, exc: Exception) -> str:
     return str(exc).removeprefix(f"{session_name(session)}: ")
 
 
-def _gyro_outcome(session: Session, cfg: Config, accel: SensorCalibration | None) -> Outcome:
+def _gyro_outcome(session: Session, cfg: Config, accel: SensorCalibration | None,
+                  gyro_prior=None) -> Outcome:
     """The gyro (``[gyro] solver``), or, with ``"auto"``, no section, a note and the refusal
     when the session's turns cannot determine it (issue 24.2: the other sensors are still
     saved; the note says why and which capture would add it)."""
     if cfg.gyro.solver != "auto":
         return Outcome(calibrate_gyro(session, cfg, accel))
     try:
-        return calibrate_gyro_auto(session, cfg, accel)
+        return calibrate_gyro_auto(session, cfg, accel, gyro_prior)
     except DesignError as exc:
         return Outcome(note=f"gyro not calibrated: {_reason(session, exc)}", refusal=exc)
 
@@ -284,8 +316,8 @@ def _mag_outcome(session: Session, cfg: Config, accel: SensorCalibration | None)
         return Outcome(note=f"mag not calibrated: {_reason(session, exc)}", refusal=exc)
 
 
-def _outcomes(session: Session, cfg: Config, accel: Outcome, with_mag: bool
-              ) -> dict[str, Outcome]:  # fmt: skip
+def _outcomes(session: Session, cfg: Config, accel: Outcome, with_mag: bool,
+              gyro_prior=None) -> dict[str, Outcome]:  # fmt: skip
     """Every sensor's outcome (``{"accel", "gyro", "mag"}``: its section, or why it was left
     out), given the accelerometer's; the most telling refusal raised when nothing at all
     calibrates (issue 24.2: otherwise what calibrates is saved)."""
@@ -293,9 +325,9 @@ def _outcomes(session: Session, cfg: Config, accel: Outcome, with_mag: bool
     if accel.refusal is not None:
         accel, gyro = _gyro_without_accel(session, cfg, accel)
     elif accel.section is not None and accel.section.partial is not None:
-        gyro = _gyro_beside_partial(session, cfg)
+        gyro = _gyro_beside_partial(session, cfg, gyro_prior)
     else:
-        gyro = _gyro_outcome(session, cfg, accel.section)
+        gyro = _gyro_outcome(session, cfg, accel.section, gyro_prior)
     mag = _mag_outcome(session, cfg, accel.section) if with_mag else Outcome()
     found = {"accel": accel, "gyro": gyro, "mag": mag}
     if all(o.section is None for o in found.values()):
@@ -356,7 +388,7 @@ def _prepare(
 def calibrate_session(
     session: Session, cfg: Config, *, name: str | None = None,
     accel: SensorCalibration | None = None, warmup: list[Session] | None = None,
-    prior=None,
+    prior=None, gyro_prior=None,
 ) -> Calibration:  # fmt: skip
     """Calibrate every sensor the config asks for; returns the calibration (not yet saved).
 
@@ -371,6 +403,9 @@ def calibrate_session(
     (:func:`~imucal_cli.calibrate.accel.partial.calibration_prior`, ``--prior``): where the
     poses cannot fix the whole model, what they do not determine is held at its values and
     std instead of the nominal ones (issue 27.3); unused (a warning) where they can.
+    ``gyro_prior``: an earlier gyro calibration's matrix as the prior
+    (:func:`~imucal_cli.calibrate.gyro.partial.calibration_prior`, ``--prior``) of a gyro
+    whose turns cannot determine it: the matrix held there instead of nominal values.
     """
 
     warn_absent_sensors(session, cfg, accel_given=accel is not None, warmup=bool(warmup))
@@ -393,7 +428,7 @@ def calibrate_session(
     else:
         session, accel = given_accel(session, accel)
         found, segmented_accel = Outcome(accel), False
-    outcomes = _outcomes(session, cfg, found, with_mag)
+    outcomes = _outcomes(session, cfg, found, with_mag, gyro_prior)
     accel, gyro, mag = (outcomes[k].section for k in ("accel", "gyro", "mag"))
     notes = {kind: o.note for kind, o in outcomes.items()}
     for sec in (accel if segmented_accel else None, gyro, mag):
