@@ -165,6 +165,7 @@ def calibrate_file(
     warmup: list[Path] | None = None,
     also: list[Path] | None = None,
     prior=None,
+    gyro_prior=None,
 ) -> tuple[Calibration, Path, str]:
     """Calibrate one session file, write its JSON and store it in the session.
 
@@ -173,7 +174,8 @@ def calibrate_file(
     :func:`imucal_cli.formats.output.write_output`.  ``warmup``: still warm-up recordings of
     the unit (the bias temperature model); ``also``: more sessions of the unit, merged with this
     one (:func:`~imucal_cli.calibrate.thermal.merge_sessions`); ``prior``: an earlier
-    accelerometer calibration's prior (``--prior``) for a design that cannot fix the model.
+    accelerometer calibration's prior (``--prior``) for a design that cannot fix the model;
+    ``gyro_prior``: its gyro's matrix, for a gyro whose turns cannot determine it.
 
     Returns
     -------
@@ -195,7 +197,8 @@ def calibrate_file(
     if also:
         session = merge_sessions([session, *(read_session(p) for p in also)])
     warm = [read_session(p) for p in warmup] if warmup else None
-    if session.imus and (accel is not None or warm or also or prior is not None):  # issue 28
+    if session.imus and (accel is not None or warm or also or prior is not None
+                         or gyro_prior is not None):  # issue 28
         raise InputError(f"{path}: a session of several IMUs takes no --accel, --prior, "
                          "--warmup or --with (each IMU is calibrated from the session itself)")
     try:
@@ -203,7 +206,7 @@ def calibrate_file(
             cal = calibrate_set(session, cfg, name=path.name)
         else:
             cal = calibrate_session(session, cfg, name=path.name, accel=accel, warmup=warm,
-                                    prior=prior)  # fmt: skip
+                                    prior=prior, gyro_prior=gyro_prior)  # fmt: skip
     except np.linalg.LinAlgError as exc:  # issue 24.6: a one-line refusal, never a traceback
         raise SolverError(
             f"{path.name}: a solver met a singular system ({exc}): the data do not determine "

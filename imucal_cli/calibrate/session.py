@@ -211,6 +211,20 @@ def load_accel(path: str | Path) -> SensorCalibration:
     return accel
 
 
+def load_gyro(path: str | Path) -> SensorCalibration | None:
+    """The gyro section of an earlier calibration (``--prior``: its matrix the prior of a gyro
+    whose turns cannot determine it), or None where it has none: a calibration JSON, or a
+    session file's newest stored calibration with one."""
+    path = Path(path)
+    if path.suffix.lower() in (".h5", ".hdf5"):
+        stored = read_session(path).calibrations
+        found = [calibration_from_json(stored[k], f"{path}:/calibrations/{k}").gyro
+                 for k in sorted(stored)]  # fmt: skip
+        found = [g for g in found if g is not None]
+        return found[-1] if found else None
+    return read_calibration(path).gyro
+
+
 def _accel_outcome(session: Session, cfg: Config, prior=None) -> Outcome:
     """The accelerometer calibrated here; or, when ``[accel] solver = "auto"`` finds the poses
     cannot determine it but the gyro may calibrate without it (the facade calibrates what the

@@ -14,8 +14,9 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemaining
 from rich.table import Table
 
 from imucal_cli.calibrate.accel.partial import calibration_prior
+from imucal_cli.calibrate.gyro.partial import calibration_prior as gyro_calibration_prior
 from imucal_cli.calibrate.batch import Figures, Stored, calibrate_file, calibrate_many
-from imucal_cli.calibrate.session import load_accel
+from imucal_cli.calibrate.session import load_accel, load_gyro
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import calibration_to_json
 from imucal_cli.formats.config import load_config, validate
@@ -71,7 +72,9 @@ def calibrate(
         help="An earlier accelerometer calibration of this unit (a calibration JSON, or a "
         "session .h5 with a stored one) as the prior of a session whose poses cannot fix the "
         "whole model (a vehicle's log, poses on one or two faces): what they do not determine "
-        "is held at its values and std instead of the nominal ones, and marked assumed.",
+        "is held at its values and std instead of the nominal ones, and marked assumed; its "
+        "gyro's matrix likewise, for a gyro whose turns cannot determine it (the bias is "
+        "measured by the still periods).",
     ),  # fmt: skip
     warmup: list[Path] | None = typer.Option(
         None, "--warmup", metavar="WARMUP.h5",
@@ -154,18 +157,21 @@ def _calibrate(sessions, cfg, config, output, force, store, accel, warmup, also,
     accel_cal = None
     if accel is not None:
         accel_cal = load_accel(accel)
-    prior = None
+    prior = gyro_prior = None
     if prior_path is not None:
         if accel is not None:
             raise InputError("--prior and --accel exclude each other: --accel uses an earlier "
                              "calibration as it is, --prior lets this session's poses refine it")
         prior = calibration_prior(load_accel(prior_path), str(prior_path))
+        gyro = load_gyro(prior_path)
+        if gyro is not None:
+            gyro_prior = gyro_calibration_prior(gyro, str(prior_path))
     if len(sessions) > 1:
         _one_file_options(output, warmup, also, prior_path)
         raise typer.Exit(_many(sessions, cfg, jobs, force, store, json_output, accel_cal, unit))
     inputs = [config, accel, prior_path, *(warmup or []), *(also or [])]
     _one(sessions[0], cfg, output, force, store, json_output, accel_cal, inputs=inputs,
-         warmup=warmup, also=also, unit=unit, prior=prior)  # fmt: skip
+         warmup=warmup, also=also, unit=unit, prior=prior, gyro_prior=gyro_prior)  # fmt: skip
 
 
 def _one_file_options(output: Path | None, warmup, also, prior=None) -> None:
@@ -182,12 +188,13 @@ def _one_file_options(output: Path | None, warmup, also, prior=None) -> None:
 
 
 def _one(session: Path, cfg, output: Path | None, force: bool, store: bool, json_output: bool,
-         accel, *, inputs: list, warmup, also, unit=None, prior=None) -> None:  # fmt: skip
+         accel, *, inputs: list, warmup, also, unit=None, prior=None,
+         gyro_prior=None) -> None:  # fmt: skip
     """Calibrate one session, write (and store) it, judge and record it (``unit``), and say
     what came out."""
     cal, out, stored = calibrate_file(
         session, cfg, output=output, force=force, store=store, inputs=inputs, accel=accel,
-        warmup=warmup, also=also, prior=prior,
+        warmup=warmup, also=also, prior=prior, gyro_prior=gyro_prior,
     )  # fmt: skip
     # Saved: from here on the exit status is 0, 4 (rejected) or 1 with the reason (never 2).
     code, doc, lines = (0, {}, []) if unit is None else unit.finish(cal, session)

@@ -75,11 +75,14 @@ class GyroPrior:
         Each term's std, rad/s per raw unit.
     source : str
         Where it comes from, in words.
+    frame : str
+        The frame its matrix calibrates into.
     """
 
     matrix: np.ndarray
     std: np.ndarray
     source: str
+    frame: str = "the gyro's own axes (nominal: the chip's; its angles to them assumed)"
 
 
 def nominal_sensitivity(session: Session, cfg: Config) -> float | None:
@@ -108,7 +111,8 @@ def calibration_prior(sec: SensorCalibration, path: str) -> GyroPrior:
                           "m_zz with their std, which a prior needs") from None  # fmt: skip
     if not (np.isfinite(matrix).all() and np.isfinite(std).all() and (std > 0).all()):
         raise DesignError(f"{path}: its gyro matrix std are not all positive and finite")
-    return GyroPrior(matrix, std, f"an earlier calibration, {path} (its gyro matrix and std)")
+    return GyroPrior(matrix, std, f"an earlier calibration, {path} (its gyro matrix and std)",
+                     sec.frame or GyroPrior.frame)  # fmt: skip
 
 
 def stills_bias(session: Session, cfg: Config) -> tuple[np.ndarray, np.ndarray, float, str | None]:
@@ -177,7 +181,7 @@ def partial_gyro_section(session: Session, cfg: Config, prior: GyroPrior, why: s
         GyroCalibration, solver="gyro-partial", units="rad/s", bias=bias, matrix=M,
         residual_rms=0.0, model=MODEL_EQUATION, units_in=units,
         variant="bias from the still periods, matrix held at the prior",
-        frame="the gyro's own axes (nominal: the chip's; its angles to them assumed)",
+        frame=prior.frame,
         approach="partial", parameters=rows,
         sensitivity=[float(x) for x in gains], sensitivity_unit=f"{units} per rad/s",
         sensitivity_std=[float(x) for x in gain_std(M, cov_M)],
