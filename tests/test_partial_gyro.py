@@ -213,3 +213,27 @@ def test_the_bias_covers_the_truth_over_50_seeds(tmp_path):
         z.extend(_bias_z(calibrate_session(session, config_from_dict(CFG)).gyro, truth))
     inside = float(np.mean(np.abs(np.array(z)) < 1.959964))
     assert 0.93 <= inside <= 0.97, (inside, len(z))
+
+
+def test_still_poses_beside_a_determined_accelerometer(tmp_path):
+    """Poses that determine the accelerometer and a gyro that never turned (rad/s: nominal 1):
+    the gyro's bias measured, its matrix assumed; a capture's refit counts it as not yet
+    determined (its targets are not the prior's)."""
+    from dataclasses import replace
+
+    from imucal_cli.calibrate.refit import refit
+
+    session, truth = simulate_plan("qureshi18", seed=3, created=CREATED, units="m/s^2")
+    rng = np.random.default_rng(5)
+    still = replace(session, gyro=truth.gyro.bias + rng.normal(0.0, 0.005, session.gyro.shape),
+                    segments=[s for s in session.segments if s.kind == "static"])  # fmt: skip
+    cal = calibrate_session(still, Config())
+    assert cal.accel.partial is None and cal.accel.solver == "gravity"
+    std = np.full((3, 3), np.radians(ANGLE_STD_DEG))
+    np.fill_diagonal(std, GAIN_STD)
+    _check_partial(cal.gyro, np.eye(3), std)
+    assert "no usable rotations" in cal.gyro.choice.reason
+    assert np.all(np.abs(_bias_z(cal.gyro, truth)) < 4)
+    so_far, notes = refit(still, Config())
+    assert so_far.gyro is None and "determined only in part" in notes["gyro"]
+    assert so_far.accel is not None

@@ -86,6 +86,11 @@ def refit(session: Session, cfg: Config) -> tuple[Calibration | None, dict[str, 
         else:
             notes["gyro"] = (f"waits for the accelerometer's axes to be known to "
                              f"{GYRO_WAITS_DEG:g} deg (now {worst:.2g} deg)")
+    if cal.gyro is not None and cal.gyro.partial is not None:
+        # still periods without turns so far: the bias measured, the matrix assumed (issue
+        # 27.3); to a capture the gyro is not determined yet, as a partial accelerometer
+        notes["gyro"] = "determined only in part (the bias; the matrix needs turns)"
+        cal = replace(cal, gyro=None)
     for sensor in ("accel", "gyro"):
         note = cal.note(sensor) or (cal.left_out or {}).get(sensor)
         if note and sensor not in notes:

@@ -179,7 +179,8 @@ def partial_gyro(session: Session, cfg: Config, gyro_prior, why: str,
         prior = gyro_partial.nominal_prior(s)
     sec = gyro_partial.partial_gyro_section(session, cfg, prior, why, extra)
     sec.choice = Choice("partial", By.AUTO, f"the turns cannot determine the gyro's model "
-                        f"({why}): the still periods' bias measured, the matrix assumed")  # fmt: skip
+                        f"({why}): the still periods' bias measured, the matrix "
+                        "assumed")  # fmt: skip
     return Outcome(sec)
 
 

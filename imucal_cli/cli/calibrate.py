@@ -14,8 +14,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemaining
 from rich.table import Table
 
 from imucal_cli.calibrate.accel.partial import calibration_prior
-from imucal_cli.calibrate.gyro.partial import calibration_prior as gyro_calibration_prior
 from imucal_cli.calibrate.batch import Figures, Stored, calibrate_file, calibrate_many
+from imucal_cli.calibrate.gyro.partial import calibration_prior as gyro_calibration_prior
 from imucal_cli.calibrate.session import load_accel, load_gyro
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import calibration_to_json

@@ -58,9 +58,10 @@ CAPTURE = ("turns about each axis: 3 or more turns of a known angle about each o
            "(a full turn flat on a table on three faces: plan gyro-axes or ferraris), or 10 or "
            "more turns between still periods with the accelerometer calibrated (plan free:12 "
            "or qureshi18, or these turns with --accel CAL.json); or hold the matrix at an "
-           "earlier calibration of this unit instead of nominal values: --prior CAL.json")  # fmt: skip
+           "earlier calibration of this unit instead of nominal values: "
+           "--prior CAL.json")  # fmt: skip
 
-_CAUSE = {"rad/s": 1.0, "deg/s": 180.0 / np.pi}
+_UNITS = {"rad/s": 1.0, "deg/s": 180.0 / np.pi}
 
 
 @dataclass(frozen=True)
@@ -87,7 +88,7 @@ class GyroPrior:
 
 def nominal_sensitivity(session: Session, cfg: Config) -> float | None:
     """Raw units per rad/s: the config's, else the units' (rad/s, deg/s), else None."""
-    return cfg.gyro.nominal_sensitivity or _CAUSE.get(session.gyro_units or "")
+    return cfg.gyro.nominal_sensitivity or _UNITS.get(session.gyro_units or "")
 
 
 def nominal_prior(s: float) -> GyroPrior:
