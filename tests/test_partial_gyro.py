@@ -13,6 +13,7 @@ test, 93-97 %; the figure in docs/accuracy.md).
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -237,3 +238,33 @@ def test_still_poses_beside_a_determined_accelerometer(tmp_path):
     so_far, notes = refit(still, Config())
     assert so_far.gyro is None and "determined only in part" in notes["gyro"]
     assert so_far.accel is not None
+
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+@pytest.mark.skipif(not DATA.is_dir(), reason="shared/data recordings not present")
+def test_a_real_still_recording_measures_the_bias_and_says_it_drifted(tmp_path):
+    """tomisuarez2's MPU-6050 still recording (100 s, +-250 deg/s: 131 LSB per deg/s): the
+    gyro saved in part, and its z bias, which drifts by about 1 count between the halves (4
+    times the white noise's std of a half's mean), found drifting: its std scaled."""
+    out = tmp_path / "still.h5"
+    proc = run("import", DATA / "tomisuarez2_mpu6050/imu_static_test.csv", "--rate", 100,
+               "--accel-units", "counts", "--gyro-units", "counts", "-o", out)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    config = tmp_path / "gyro.toml"
+    config.write_text(f"[gyro]\nnominal_sensitivity = {131 * 180 / np.pi!r}\n")
+    cal_path = tmp_path / "still.cal.json"
+    proc = run("calibrate", out, "--no-store", "--config", config, "-o", cal_path)
+    assert proc.returncode == 0, proc.stderr
+    gyro = json.loads(cal_path.read_text())["gyro"]
+    assert gyro["solver"] == "gyro-partial"
+    rows = {p["name"]: p for p in gyro["parameters"]}
+    raw = np.loadtxt(DATA / "tomisuarez2_mpu6050/imu_static_test.csv", delimiter=",",
+                     skiprows=5)[:, 3:6]  # fmt: skip
+    white = raw.std(axis=0) / np.sqrt(len(raw))
+    for k, a in enumerate("xyz"):  # the mean rate of the still data (the MAP prior: nil)
+        assert abs(rows[f"b_{a}"]["value"] - raw[:, k].mean()) < 0.5 * white[k]
+    (warning,) = [w for w in gyro["warnings"] if "drifted" in w]
+    assert rows["b_z"]["std"] > 1.5 * white[2]  # scaled by the scatter
+    assert rows["b_x"]["std"] == pytest.approx(white[0], rel=0.05)  # x: white

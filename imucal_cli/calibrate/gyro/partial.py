@@ -44,9 +44,15 @@ GAIN_STD = 0.03
 ANGLE_STD_DEG = 2.0
 BIAS_STD_DPS = 20.0
 
-#: The still periods' means scattering beyond their noise with this small a probability:
-#: the bias drifted between them (temperature, bias instability); its std is scaled by it.
+#: The still data's batch means scattering beyond their noise with this small a probability:
+#: the bias drifted (temperature, bias instability) or the noise is correlated; its std is
+#: scaled by it.
 SCATTER_P = 1e-3
+
+#: Batches of a still period (at most, each at least ``BATCH_MIN`` samples) whose means
+#: test the scatter.
+BATCHES = 8
+BATCH_MIN = 50
 
 NAMES = tuple([f"b_{a}" for a in AXES] + [f"m_{r}{c}" for r in AXES for c in AXES])
 
@@ -116,31 +122,49 @@ def calibration_prior(sec: SensorCalibration, path: str) -> GyroPrior:
                      sec.frame or GyroPrior.frame)  # fmt: skip
 
 
+def _batches(statics) -> tuple[np.ndarray, np.ndarray]:
+    """Each still period cut into up to :data:`BATCHES` batches of at least
+    :data:`BATCH_MIN` samples (a shorter period: one): their starts and stops."""
+    start, stop = [], []
+    for seg in statics:
+        n = seg.stop - seg.start
+        edges = np.linspace(seg.start, seg.stop, min(max(n // BATCH_MIN, 1), BATCHES) + 1)
+        edges = edges.round().astype(np.int64)
+        start.extend(edges[:-1])
+        stop.extend(edges[1:])
+    return np.array(start, np.int64), np.array(stop, np.int64)
+
+
 def stills_bias(session: Session, cfg: Config) -> tuple[np.ndarray, np.ndarray, float, str | None]:
     """The bias (raw units, 3) from every still period: the mean of their samples, std the
-    pooled per-sample noise over the root of their number; scaled by the scatter of the
-    periods' means when it exceeds their noise (:data:`SCATTER_P`). Returns it, its std, the
-    per-sample noise and the warning of a scaled std (or None)."""
+    per-sample noise (per channel, pooled within batches of the periods) over the root of
+    their number; per channel scaled by the scatter of the batches' means when it exceeds
+    their noise (:data:`SCATTER_P`; the batch-means estimate of a mean's variance: a bias that
+    drifts within or between the periods, correlated noise). Returns it, its std, the
+    per-sample noise (RMS over the channels) and the warning of a scaled std (or None)."""
     statics = session.static_segments()
     if not statics:
         raise DesignError(f"{session_name(session)}: no still period to measure the gyro's bias")
-    start = np.array([s.start for s in statics], dtype=np.int64)
-    stop = np.array([s.stop for s in statics], dtype=np.int64)
+    start, stop = _batches(statics)
     means, ss = moments_in_chunks(session.gyro, start, stop)
     n = (stop - start).astype(float)
-    dof_noise = max(float(np.sum(n - 1)), 1.0)
-    noise = np.sqrt(ss.sum(axis=0) / dof_noise)  # per channel, pooled within the periods
+    noise = np.sqrt(ss.sum(axis=0) / max(float(np.sum(n - 1)), 1.0))
+    noise = np.maximum(noise, 1e-12)
     bias = n @ means / n.sum()
     std = noise / np.sqrt(n.sum())
-    chi2 = float(np.sum((means - bias) ** 2 * n[:, None] / noise**2))
-    dof = 3 * (len(statics) - 1)
+    chi2 = np.sum((means - bias) ** 2 * n[:, None], axis=0) / noise**2  # per channel
+    dof = len(n) - 1
     warning = None
-    if dof > 0 and stats.chi2.sf(chi2, dof) < SCATTER_P:
-        scale = np.sqrt(chi2 / dof)
-        std = std * scale
-        warning = (f"the still periods' mean rates scatter {scale:.1f} times more than their "
-                   f"noise (chi^2 {chi2:.3g} on {dof} degrees of freedom): the bias drifted "
-                   "between them (warm-up, bias instability); its std is scaled by it")  # fmt: skip
+    if dof > 0:
+        scatter = stats.chi2.sf(chi2, dof) < SCATTER_P
+        if scatter.any():
+            scale = np.where(scatter, np.sqrt(chi2 / dof), 1.0)
+            std = std * scale
+            warning = (f"the still data's means over {len(n)} stretches scatter "
+                       f"{', '.join(f'{x:.1f}' for x in scale)} times (x, y, z) more than "
+                       f"their noise (chi^2 on {dof} degrees of freedom each, p below "
+                       f"{SCATTER_P:g}): the bias drifted (warm-up, bias instability) or the "
+                       "noise is correlated; the bias std is scaled by it")  # fmt: skip
     return bias, std, float(np.sqrt(np.mean(noise**2))), warning
 
 
