@@ -145,6 +145,10 @@ def test_cli_and_report_say_which_are_measured_and_which_assumed(tmp_path):
     rep = json.loads(run("report", out, "--json").stdout)
     tables = [t for t in rep["sensors"]["gyro"]["tables"] if t["title"] == "measured and assumed"]
     assert len(tables) == 1 and len(tables[0]["rows"]) == 12
+    # an export holds the whole model: it says which gyro terms are assumed
+    exp = run("export", out, "--format", "c-header", "-o", tmp_path / "cal.h")
+    assert exp.returncode == 0, exp.stderr
+    assert "warning: the gyro calibration is partial: m_xx, m_xy" in exp.stderr
 
 
 def test_an_earlier_calibration_is_the_gyro_prior(tmp_path):
