@@ -170,7 +170,7 @@ def _run_app() -> int:
     try:
         # Not standalone: usage errors come back here, to be told on one line like every
         # other mistake (the default is a framed, multi-line box).
-        code = app(standalone_mode=False)
+        code = app(prog_name="imucal", standalone_mode=False)  # also under `python -m`
     except typer.Exit as exc:
         return exc.exit_code
     except typer.Abort:
