@@ -236,8 +236,11 @@ def test_refusals_name_the_model_that_refused_and_what_would_work():
     with pytest.raises(DesignError, match="9-parameter") as exc:
         calibrate_session(_unlabelled(six), cfg9)
     assert "imucal label SESSION --faces" in str(exc.value)  # poses near faces, no labels
-    with pytest.raises(DesignError, match="imucal label SESSION --faces"):
-        calibrate_session(_unlabelled(six), Config())
+    # issue 27.3: auto calibrates them in part, and says what would determine the whole model
+    sec = calibrate_session(_unlabelled(six), Config()).accel
+    assert sec.solver == "partial"
+    assert "why not the whole model: " in sec.notes[1]
+    assert "imucal label SESSION --faces" in sec.notes[1]
 
 
 def test_refusal_points_to_a_calibration_already_stored_in_the_session():
@@ -248,7 +251,11 @@ def test_refusal_points_to_a_calibration_already_stored_in_the_session():
     stored = json.dumps({"accel": {"solver": "labelled", "bias": [0, 0, 0]}})
     session = replace(_unlabelled(six), calibrations={"0000": stored})
     with pytest.raises(DesignError, match=r"/calibrations/0000, labelled solver"):
-        calibrate_session(session, Config())
+        calibrate_session(session, config_from_dict({"accel": {"solver": "gravity"}}))
+    # issue 27.3: auto calibrates in part and names it, with --prior
+    sec = calibrate_session(session, Config()).accel
+    assert sec.solver == "partial" and "/calibrations/0000, labelled solver" in sec.notes[1]
+    assert "--prior SESSION.h5" in sec.notes[1]
 
 
 def test_a_redundant_unit_is_refused_by_the_triad_solvers_naming_the_factorization():

@@ -82,16 +82,17 @@ def test_known_angle_gyro_without_accelerometer_refuses_unlabelled_axes():
         calibrate_session(replace(session, segments=segs), _cfg("none", "known"))
 
 
-def test_gyro_axes_calibrates_the_gyro_and_says_why_the_accel_is_left_out():
+def test_gyro_axes_calibrates_the_gyro_and_says_why_the_accel_is_partial():
     session, _ = simulate_plan("gyro-axes", seed=3, created=CREATED)
     cal = calibrate_session(session, Config())
-    assert cal.accel is None
+    # issue 27.3: the 3 faces calibrate the accelerometer in part (it was left out before)
+    assert cal.accel.solver == "partial" and cal.complete is False
     assert (cal.gyro.choice.solver, cal.gyro.choice.by) == ("known", By.AUTO)
-    note = cal.accel_note
+    note = " ".join(cal.accel.notes)
     # what the user has (an earlier calibration) before a new capture (9.6)
-    assert note.index("--accel CAL.json") < note.index("plan six")
+    assert note.index("--prior CAL.json") < note.index("plan six")
     assert "3 faces" in note and "3 of them labelled" in note
-    assert build_report(cal)["left_out"] == {"accel": note}
+    assert build_report(cal)["left_out"] == {}
     # an accel solver asked for by name still refuses, naming --accel
     with pytest.raises(DesignError, match="--accel CAL.json"):
         calibrate_session(session, _cfg("gravity", "auto"))
@@ -100,7 +101,7 @@ def test_gyro_axes_calibrates_the_gyro_and_says_why_the_accel_is_left_out():
 def test_hk_gyro_auto_uses_the_factorization_with_or_without_the_accel():
     session, truth = simulate_plan("hk-gyro", seed=4, created=CREATED)
     cal = calibrate_session(session, Config())
-    assert cal.accel is None and "accel not calibrated" in cal.accel_note
+    assert cal.accel.solver == "partial" and cal.accel_note is None  # issue 27.3
     assert cal.gyro.choice.solver == "factorization"
     given = calibrate_session(session, Config(), accel=truth.accel)
     assert given.gyro.choice.solver == "factorization"
@@ -129,13 +130,15 @@ def test_cli_says_the_accel_was_left_out(tmp_path):
     session = tmp_path / "s.h5"
     sim = run("simulate", "--plan", "gyro-axes", "--seed", 2, "-o", session)
     assert sim.returncode == 0, sim.stderr
+    # issue 27.3: calibrated in part, said so (not left out any more)
     proc = run("calibrate", session, "-o", tmp_path / "s.cal.json")
     assert proc.returncode == 0, proc.stderr
-    assert "warning: accel not calibrated" in proc.stdout
+    assert "accel: partial" in proc.stdout and "(partial: accel in part assumed" in proc.stdout
     proc = run("calibrate", session, "-o", tmp_path / "j.cal.json", "--json", "--no-store")
     assert proc.returncode == 0, proc.stderr
     doc = json.loads(proc.stdout)
-    assert any(w.startswith("accel not calibrated") for w in doc["warnings"])
+    assert doc["complete"] is False and doc["left_out"] == {}
+    assert doc["calibration"]["accel"]["partial"]["assumed"]
     report = run("report", tmp_path / "s.cal.json", "--json")
     assert report.returncode == 0, report.stderr
-    assert "accel" in json.loads(report.stdout)["left_out"]
+    assert json.loads(report.stdout)["left_out"] == {}

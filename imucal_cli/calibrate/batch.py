@@ -87,7 +87,10 @@ class Figures:
     accel_note : str or None
         Why the accelerometer was left out (issue 9.4).
     left_out : tuple of str
-        Sensors of the session left out (issue 24.2); ``complete`` when none.
+        Sensors of the session left out (issue 24.2); ``complete`` when none, and none
+        ``assumed``.
+    assumed : tuple of str
+        Sensors calibrated only in part (issue 27.3: a section with ``partial``).
     """
 
     solvers: dict[str, str] = field(default_factory=dict)
@@ -99,10 +102,11 @@ class Figures:
     warnings: int = 0
     accel_note: str | None = None
     left_out: tuple[str, ...] = ()
+    assumed: tuple[str, ...] = ()
 
     @property
     def complete(self) -> bool:
-        return not self.left_out
+        return not self.left_out and not self.assumed
 
     def to_dict(self) -> dict:
         """The JSON figures (docs/commands.md): ``accel_solver``, ... where present."""
@@ -160,6 +164,8 @@ def calibrate_file(
     accel=None,
     warmup: list[Path] | None = None,
     also: list[Path] | None = None,
+    prior=None,
+    gyro_prior=None,
 ) -> tuple[Calibration, Path, str]:
     """Calibrate one session file, write its JSON and store it in the session.
 
@@ -167,7 +173,9 @@ def calibrate_file(
     the session or one of ``inputs``; it is written through
     :func:`imucal_cli.formats.output.write_output`.  ``warmup``: still warm-up recordings of
     the unit (the bias temperature model); ``also``: more sessions of the unit, merged with this
-    one (:func:`~imucal_cli.calibrate.thermal.merge_sessions`).
+    one (:func:`~imucal_cli.calibrate.thermal.merge_sessions`); ``prior``: an earlier
+    accelerometer calibration's prior (``--prior``) for a design that cannot fix the model;
+    ``gyro_prior``: its gyro's matrix, for a gyro whose turns cannot determine it.
 
     Returns
     -------
@@ -189,14 +197,16 @@ def calibrate_file(
     if also:
         session = merge_sessions([session, *(read_session(p) for p in also)])
     warm = [read_session(p) for p in warmup] if warmup else None
-    if session.imus and (accel is not None or warm or also):  # several IMUs (issue 28)
-        raise InputError(f"{path}: a session of several IMUs takes no --accel, --warmup or "
-                         "--with (each IMU is calibrated from the session itself)")
+    if session.imus and (accel is not None or warm or also or prior is not None
+                         or gyro_prior is not None):  # issue 28
+        raise InputError(f"{path}: a session of several IMUs takes no --accel, --prior, "
+                         "--warmup or --with (each IMU is calibrated from the session itself)")
     try:
         if session.imus:
             cal = calibrate_set(session, cfg, name=path.name)
         else:
-            cal = calibrate_session(session, cfg, name=path.name, accel=accel, warmup=warm)
+            cal = calibrate_session(session, cfg, name=path.name, accel=accel, warmup=warm,
+                                    prior=prior, gyro_prior=gyro_prior)  # fmt: skip
     except np.linalg.LinAlgError as exc:  # issue 24.6: a one-line refusal, never a traceback
         raise SolverError(
             f"{path.name}: a solver met a singular system ({exc}): the data do not determine "
@@ -241,8 +251,10 @@ def _figures(cal: Calibration) -> Figures:
     if note:  # the accel left out (issue 9.4): one more warning
         warnings += 1
     left_out = cal.left_out or {}
+    assumed = tuple(name for name, sec in cal.sections().items()
+                    if sec is not None and sec.partial is not None)  # fmt: skip
     return Figures(solvers, warnings=warnings, accel_note=note,
-                   left_out=tuple(sorted(left_out)), **found)  # fmt: skip
+                   left_out=tuple(sorted(left_out)), assumed=assumed, **found)  # fmt: skip
 
 
 def _one(args: tuple) -> SessionResult:

@@ -63,7 +63,18 @@ def refit(session: Session, cfg: Config) -> tuple[Calibration | None, dict[str, 
     except ImucalError as exc:
         why = str(exc).removeprefix("session: ")
         return None, {"accel": why, "gyro": why}
-    notes = {}
+    if cal.accel is not None and cal.accel.partial is not None:
+        # a design that determines the accelerometer only in part (issue 27.3): to a capture
+        # it is not determined yet (its proposals and targets read the labelled model)
+        why = next((n.removeprefix("why not the whole model: ") for n in cal.accel.notes or []
+                    if n.startswith("why not the whole model: ")), "determined only in part")
+        cal = replace(cal, accel=None)
+        if not cal.sections():
+            return None, {"accel": why, "gyro": why}
+        notes_early = {"accel": why}
+    else:
+        notes_early = {}
+    notes = dict(notes_early)
     if wants_gyro:
         worst = max((cal.accel.misalignment_std_deg or {}).values(),
                     default=float("inf")) if cal.accel is not None else float("inf")
@@ -75,6 +86,11 @@ def refit(session: Session, cfg: Config) -> tuple[Calibration | None, dict[str, 
         else:
             notes["gyro"] = (f"waits for the accelerometer's axes to be known to "
                              f"{GYRO_WAITS_DEG:g} deg (now {worst:.2g} deg)")
+    if cal.gyro is not None and cal.gyro.partial is not None:
+        # still periods without turns so far: the bias measured, the matrix assumed (issue
+        # 27.3); to a capture the gyro is not determined yet, as a partial accelerometer
+        notes["gyro"] = "determined only in part (the bias; the matrix needs turns)"
+        cal = replace(cal, gyro=None)
     for sensor in ("accel", "gyro"):
         note = cal.note(sensor) or (cal.left_out or {}).get(sensor)
         if note and sensor not in notes:

@@ -25,6 +25,7 @@ from imucal_cli.calibrate.common import (  # noqa: F401 (re-exported for callers
     stored_accel_hint,
     with_segments,
 )
+from imucal_cli.calibrate.gyro import partial as gyro_partial
 from imucal_cli.calibrate.gyro.estimators import GyroDesign
 from imucal_cli.calibrate.mag import MagDesign
 from imucal_cli.calibrate.registry import NotChosen, choose
@@ -49,14 +50,15 @@ from imucal_cli.formats.config import (
 from imucal_cli.formats.session import Session, read_session, utc_now_iso
 from imucal_cli.model.calibration import Calibration, SensorCalibration
 from imucal_cli.model.codec import build
+from imucal_cli.model.parts import By, Choice
 
 
-def calibrate_accel(session: Session, cfg: Config) -> SensorCalibration | None:
+def calibrate_accel(session: Session, cfg: Config, prior=None) -> SensorCalibration | None:
     """Run the configured accelerometer solver (``[accel] solver``) on a session; ``"auto"``
     chooses (:func:`~imucal_cli.calibrate.registry.choose`) and may find nothing to calibrate
-    (None)."""
+    (None). ``prior``: an earlier calibration's prior (``--prior``) for the partial fit."""
     try:
-        return _run_accel(session, cfg)
+        return _run_accel(session, cfg, prior)
     except DesignError as exc:  # name what the user already has (issue 9.6)
         hint = stored_accel_hint(session)
         if not hint:
@@ -64,11 +66,11 @@ def calibrate_accel(session: Session, cfg: Config) -> SensorCalibration | None:
         raise DesignError(f"{exc}{hint}") from None
 
 
-def _run_accel(session: Session, cfg: Config) -> SensorCalibration | None:
+def _run_accel(session: Session, cfg: Config, prior=None) -> SensorCalibration | None:
     solver = cfg.accel.solver
     if solver == "auto" and (session.accel is None or not session.static_segments()):
         return None
-    design = AccelDesign(session, cfg)
+    design = AccelDesign(session, cfg, prior)
     chosen = choose("accel", design, solver, config_reason="[accel] solver")
     if isinstance(chosen, NotChosen):
         raise DesignError(design.refusal())
@@ -125,12 +127,14 @@ class Outcome:
 
 
 def calibrate_gyro_auto(
-    session: Session, cfg: Config, accel: SensorCalibration | None
+    session: Session, cfg: Config, accel: SensorCalibration | None, gyro_prior=None
 ) -> Outcome:
     """``[gyro] solver = "auto"``: the most accurate solver the session supports
     (:mod:`imucal_cli.calibrate.gyro.estimators`); no section when the session has no gyro, or
     no rotations that it did not capture on purpose (the note says why). A session with
-    rotation segments that no solver can use is refused with the chosen solver's reason."""
+    rotation segments that no solver can use is refused with the chosen solver's reason.
+    Still periods without usable rotations: the bias measured, the matrix assumed
+    (:func:`partial_gyro`, ``gyro_prior``: ``--prior``'s gyro)."""
 
     if session.gyro is None:
         return Outcome(note="gyro not calibrated: the session has no /raw/gyro")
@@ -145,14 +149,38 @@ def calibrate_gyro_auto(
     except ImucalError:
         if session.rotation_segments():
             raise  # turns captured on purpose: say why they cannot calibrate
-        return Outcome(note="gyro not calibrated: no usable rotations (the gyro needs turns "
-                            "between still periods)")  # fmt: skip
+        return partial_gyro(session, cfg, gyro_prior, "no usable rotations (the gyro needs "
+                            "turns between still periods)")  # fmt: skip
     if sec.undetermined:  # issue 10.2: not saved silently
         return Outcome(note=f"gyro not calibrated: {sec.undetermined} (to save it with "
                             f'these std: [gyro] solver = "{solver}" and --force)')  # fmt: skip
     sec.notes = [f'solver "{solver}" chosen by [gyro] solver = "auto": {why}',
                  *(sec.notes or [])]  # fmt: skip
     sec.choice = chosen.choice
+    return Outcome(sec)
+
+
+def partial_gyro(session: Session, cfg: Config, gyro_prior, why: str,
+                 extra: str | None = None) -> Outcome:  # fmt: skip
+    """The gyro of a session whose turns cannot determine its model (issue 27.3,
+    :mod:`imucal_cli.calibrate.gyro.partial`): the bias measured by the still periods, the
+    matrix held at ``gyro_prior`` (``--prior``'s gyro) or at nominal values; left out (the
+    note: ``why``, the bias measured and what would save it) where no nominal sensitivity is
+    known, or with no still period. ``extra``: what the turns are for (capture words)."""
+    note = f"gyro not calibrated: {why}"
+    if session.gyro is None or cfg.gyro.solver != "auto" or not session.static_segments():
+        return Outcome(note=note)
+    prior = gyro_prior
+    if prior is None:
+        s = gyro_partial.nominal_sensitivity(session, cfg)
+        if s is None:
+            words = gyro_partial.bias_words(session, cfg)
+            return Outcome(note=f"{note}; {words}" if words else note)
+        prior = gyro_partial.nominal_prior(s)
+    sec = gyro_partial.partial_gyro_section(session, cfg, prior, why, extra)
+    sec.choice = Choice("partial", By.AUTO, f"the turns cannot determine the gyro's model "
+                        f"({why}): the still periods' bias measured, the matrix "
+                        "assumed")  # fmt: skip
     return Outcome(sec)
 
 
@@ -184,7 +212,21 @@ def load_accel(path: str | Path) -> SensorCalibration:
     return accel
 
 
-def _accel_outcome(session: Session, cfg: Config) -> Outcome:
+def load_gyro(path: str | Path) -> SensorCalibration | None:
+    """The gyro section of an earlier calibration (``--prior``: its matrix the prior of a gyro
+    whose turns cannot determine it), or None where it has none: a calibration JSON, or a
+    session file's newest stored calibration with one."""
+    path = Path(path)
+    if path.suffix.lower() in (".h5", ".hdf5"):
+        stored = read_session(path).calibrations
+        found = [calibration_from_json(stored[k], f"{path}:/calibrations/{k}").gyro
+                 for k in sorted(stored)]  # fmt: skip
+        found = [g for g in found if g is not None]
+        return found[-1] if found else None
+    return read_calibration(path).gyro
+
+
+def _accel_outcome(session: Session, cfg: Config, prior=None) -> Outcome:
     """The accelerometer calibrated here; or, when ``[accel] solver = "auto"`` finds the poses
     cannot determine it but the gyro may calibrate without it (the facade calibrates what the
     session determines, issue 9.4), no section, the reason as its note and the refusal (raised
@@ -192,7 +234,7 @@ def _accel_outcome(session: Session, cfg: Config) -> Outcome:
     if cfg.accel.solver == "none":
         return Outcome()
     try:
-        return Outcome(calibrate_accel(session, cfg))
+        return Outcome(calibrate_accel(session, cfg, prior))
     except DesignError as exc:
         if session.gyro is None or cfg.gyro.solver == "none" or not (
             session.rotation_segments() or cfg.gyro.solver in ("full", "static", "dynamic")
@@ -238,19 +280,43 @@ def _gyro_without_accel(session: Session, cfg: Config, accel: Outcome
     return Outcome(note=note, refusal=accel.refusal), Outcome(gyro)
 
 
+def _gyro_beside_partial(session: Session, cfg: Config, gyro_prior=None) -> Outcome:
+    """The gyro of a session whose accelerometer is calibrated only in part (issue 27.3):
+    calibrated as without an accelerometer (:func:`_gyro_without_accel`), since the assumed
+    terms are not measurements to measure its turns with: the gyro comes out as it did before
+    the partial fit existed; where that leaves it out, its bias measured by the still periods
+    and its matrix assumed (:func:`partial_gyro`), the words of what its turns are for (a
+    turn session, issue 24.7d) in what would determine the rest."""
+    why = "its poses determine the accelerometer only in part"
+    _, gyro = _gyro_without_accel(session, cfg, Outcome(note=why, refusal=DesignError(why)))
+    if gyro.section is not None or not gyro.note:
+        return gyro
+    turns_for = None
+    if cfg.gyro.solver != "none":
+        try:  # a session of turns between still periods: what they are for (issue 24.7d)
+            _refuse_turn_session(session, cfg, why)
+        except DesignError as exc:
+            turns_for = _reason(session, exc)
+    reason = turns_for or gyro.note.removeprefix("gyro not calibrated: ").replace(
+        "which this session does not determine (see accel)",
+        "which this session determines only in part (see accel)")  # fmt: skip
+    return partial_gyro(session, cfg, gyro_prior, reason, turns_for)
+
+
 def _reason(session: Session, exc: Exception) -> str:
     """A refusal's message without the session's name in front."""
     return str(exc).removeprefix(f"{session_name(session)}: ")
 
 
-def _gyro_outcome(session: Session, cfg: Config, accel: SensorCalibration | None) -> Outcome:
+def _gyro_outcome(session: Session, cfg: Config, accel: SensorCalibration | None,
+                  gyro_prior=None) -> Outcome:
     """The gyro (``[gyro] solver``), or, with ``"auto"``, no section, a note and the refusal
     when the session's turns cannot determine it (issue 24.2: the other sensors are still
     saved; the note says why and which capture would add it)."""
     if cfg.gyro.solver != "auto":
         return Outcome(calibrate_gyro(session, cfg, accel))
     try:
-        return calibrate_gyro_auto(session, cfg, accel)
+        return calibrate_gyro_auto(session, cfg, accel, gyro_prior)
     except DesignError as exc:
         return Outcome(note=f"gyro not calibrated: {_reason(session, exc)}", refusal=exc)
 
@@ -265,16 +331,18 @@ def _mag_outcome(session: Session, cfg: Config, accel: SensorCalibration | None)
         return Outcome(note=f"mag not calibrated: {_reason(session, exc)}", refusal=exc)
 
 
-def _outcomes(session: Session, cfg: Config, accel: Outcome, with_mag: bool
-              ) -> dict[str, Outcome]:  # fmt: skip
+def _outcomes(session: Session, cfg: Config, accel: Outcome, with_mag: bool,
+              gyro_prior=None) -> dict[str, Outcome]:  # fmt: skip
     """Every sensor's outcome (``{"accel", "gyro", "mag"}``: its section, or why it was left
     out), given the accelerometer's; the most telling refusal raised when nothing at all
     calibrates (issue 24.2: otherwise what calibrates is saved)."""
     accel_why = accel.note if accel.refusal is not None else None  # the accelerometer's own
     if accel.refusal is not None:
         accel, gyro = _gyro_without_accel(session, cfg, accel)
+    elif accel.section is not None and accel.section.partial is not None:
+        gyro = _gyro_beside_partial(session, cfg, gyro_prior)
     else:
-        gyro = _gyro_outcome(session, cfg, accel.section)
+        gyro = _gyro_outcome(session, cfg, accel.section, gyro_prior)
     mag = _mag_outcome(session, cfg, accel.section) if with_mag else Outcome()
     found = {"accel": accel, "gyro": gyro, "mag": mag}
     if all(o.section is None for o in found.values()):
@@ -335,6 +403,7 @@ def _prepare(
 def calibrate_session(
     session: Session, cfg: Config, *, name: str | None = None,
     accel: SensorCalibration | None = None, warmup: list[Session] | None = None,
+    prior=None, gyro_prior=None,
 ) -> Calibration:  # fmt: skip
     """Calibrate every sensor the config asks for; returns the calibration (not yet saved).
 
@@ -345,6 +414,13 @@ def calibrate_session(
     into the result, instead of calibrating the accelerometer from this session.
     ``warmup``: still warm-up recordings of the same unit that give the bias temperature
     model (:mod:`imucal_cli.calibrate.thermal`).
+    ``prior``: an earlier accelerometer calibration of the unit as a prior
+    (:func:`~imucal_cli.calibrate.accel.partial.calibration_prior`, ``--prior``): where the
+    poses cannot fix the whole model, what they do not determine is held at its values and
+    std instead of the nominal ones (issue 27.3); unused (a warning) where they can.
+    ``gyro_prior``: an earlier gyro calibration's matrix as the prior
+    (:func:`~imucal_cli.calibrate.gyro.partial.calibration_prior`, ``--prior``) of a gyro
+    whose turns cannot determine it: the matrix held there instead of nominal values.
     """
 
     warn_absent_sensors(session, cfg, accel_given=accel is not None, warmup=bool(warmup))
@@ -358,12 +434,16 @@ def calibrate_session(
     given = accel
     if accel is None:
         run_accel = cfg.accel.solver != "none" and not (session.accel is None and with_mag)
-        found = _accel_outcome(session, cfg) if run_accel else Outcome()
+        found = _accel_outcome(session, cfg, prior) if run_accel else Outcome()
         segmented_accel = True
+        if prior is not None and found.section is not None and found.section.partial is None:
+            warnings.warn(f"{session_name(session)}: its poses determine the whole "
+                          "accelerometer model, so --prior was not used", ImucalWarning,
+                          stacklevel=2)  # fmt: skip
     else:
         session, accel = given_accel(session, accel)
         found, segmented_accel = Outcome(accel), False
-    outcomes = _outcomes(session, cfg, found, with_mag)
+    outcomes = _outcomes(session, cfg, found, with_mag, gyro_prior)
     accel, gyro, mag = (outcomes[k].section for k in ("accel", "gyro", "mag"))
     notes = {kind: o.note for kind, o in outcomes.items()}
     for sec in (accel if segmented_accel else None, gyro, mag):
@@ -437,11 +517,13 @@ def completeness(session: Session, sections: dict, notes: dict) -> dict:
     """``{"complete": bool, "left_out": {sensor: note}}`` (issue 24.2): a sensor the session
     has data for (``/raw/accel``, ``/raw/gyro``, ``/raw/mag``) that was asked for (its solver
     is not ``"none"``) and is not in the calibration is left out, with the note that says why
-    and which capture would add it. ``complete`` is true when none is."""
+    and which capture would add it. ``complete`` is true when none is, and no section holds
+    assumed parameters (``partial``, issue 27.3: a design that determines part of a model)."""
     has = {"accel": session.accel, "gyro": session.gyro, "mag": session.mag}
     left = {kind: note for kind, note in notes.items()
             if note and sections.get(kind) is None and has[kind] is not None}  # fmt: skip
-    return {"complete": not left, "left_out": left}
+    partly = any(getattr(sec, "partial", None) is not None for sec in sections.values())
+    return {"complete": not left and not partly, "left_out": left}
 
 
 def suspect_error(cal: Calibration) -> SolverError | None:

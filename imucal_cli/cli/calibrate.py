@@ -13,8 +13,10 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
 from rich.table import Table
 
+from imucal_cli.calibrate.accel.partial import calibration_prior
 from imucal_cli.calibrate.batch import Figures, Stored, calibrate_file, calibrate_many
-from imucal_cli.calibrate.session import load_accel
+from imucal_cli.calibrate.gyro.partial import calibration_prior as gyro_calibration_prior
+from imucal_cli.calibrate.session import load_accel, load_gyro
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import calibration_to_json
 from imucal_cli.formats.config import load_config, validate
@@ -64,6 +66,15 @@ def calibrate(
         None, "--accel", metavar="CAL.json",
         help="Use this earlier accelerometer calibration (a calibration JSON, or a session .h5 "
         "with a stored one) instead of calibrating the accelerometer: a gyro-only session.",
+    ),  # fmt: skip
+    prior: Path | None = typer.Option(
+        None, "--prior", metavar="CAL.json",
+        help="An earlier accelerometer calibration of this unit (a calibration JSON, or a "
+        "session .h5 with a stored one) as the prior of a session whose poses cannot fix the "
+        "whole model (a vehicle's log, poses on one or two faces): what they do not determine "
+        "is held at its values and std instead of the nominal ones, and marked assumed; its "
+        "gyro's matrix likewise, for a gyro whose turns cannot determine it (the bias is "
+        "measured by the still periods).",
     ),  # fmt: skip
     warmup: list[Path] | None = typer.Option(
         None, "--warmup", metavar="WARMUP.h5",
@@ -134,28 +145,40 @@ def calibrate(
                    lot=lot, station=station, operator=operator)  # fmt: skip
     try:
         _calibrate(sessions, cfg, config, output, force, store, accel, warmup, also, jobs,
-                   json_output, unit)  # fmt: skip
+                   json_output, unit, prior)  # fmt: skip
     finally:
         if unit is not None:
             unit.close()
 
 
 def _calibrate(sessions, cfg, config, output, force, store, accel, warmup, also, jobs,
-               json_output, unit) -> None:  # fmt: skip
+               json_output, unit, prior_path=None) -> None:  # fmt: skip
     """``calibrate`` once the options are checked (``unit``: the limits and the registry)."""
     accel_cal = None
     if accel is not None:
         accel_cal = load_accel(accel)
+    prior = gyro_prior = None
+    if prior_path is not None:
+        if accel is not None:
+            raise InputError("--prior and --accel exclude each other: --accel uses an earlier "
+                             "calibration as it is, --prior lets this session's poses refine it")
+        prior = calibration_prior(load_accel(prior_path), str(prior_path))
+        gyro = load_gyro(prior_path)
+        if gyro is not None:
+            gyro_prior = gyro_calibration_prior(gyro, str(prior_path))
     if len(sessions) > 1:
-        _one_file_options(output, warmup, also)
+        _one_file_options(output, warmup, also, prior_path)
         raise typer.Exit(_many(sessions, cfg, jobs, force, store, json_output, accel_cal, unit))
-    inputs = [config, accel, *(warmup or []), *(also or [])]
+    inputs = [config, accel, prior_path, *(warmup or []), *(also or [])]
     _one(sessions[0], cfg, output, force, store, json_output, accel_cal, inputs=inputs,
-         warmup=warmup, also=also, unit=unit)  # fmt: skip
+         warmup=warmup, also=also, unit=unit, prior=prior, gyro_prior=gyro_prior)  # fmt: skip
 
 
-def _one_file_options(output: Path | None, warmup, also) -> None:
+def _one_file_options(output: Path | None, warmup, also, prior=None) -> None:
     """Refuse the options that go with one SESSION when several are given."""
+    if prior is not None:
+        raise InputError("--prior goes with one SESSION (calibrate each log of the unit on "
+                         "its own)")  # fmt: skip
     if warmup or also:
         raise InputError("--warmup and --with go with one SESSION (give the other sessions of "
                          "the unit with --with)")  # fmt: skip
@@ -165,12 +188,13 @@ def _one_file_options(output: Path | None, warmup, also) -> None:
 
 
 def _one(session: Path, cfg, output: Path | None, force: bool, store: bool, json_output: bool,
-         accel, *, inputs: list, warmup, also, unit=None) -> None:  # fmt: skip
+         accel, *, inputs: list, warmup, also, unit=None, prior=None,
+         gyro_prior=None) -> None:  # fmt: skip
     """Calibrate one session, write (and store) it, judge and record it (``unit``), and say
     what came out."""
     cal, out, stored = calibrate_file(
         session, cfg, output=output, force=force, store=store, inputs=inputs, accel=accel,
-        warmup=warmup, also=also,
+        warmup=warmup, also=also, prior=prior, gyro_prior=gyro_prior,
     )  # fmt: skip
     # Saved: from here on the exit status is 0, 4 (rejected) or 1 with the reason (never 2).
     code, doc, lines = (0, {}, []) if unit is None else unit.finish(cal, session)
@@ -209,7 +233,8 @@ def _result_json(cal, out: Path, stored: Stored) -> dict:
     left_out = dict(cal.left_out or {})
     warnings += list(left_out.values())
     return {"format": "imucal-calibrate", "format_version": 1, "output": str(out),
-            "stored": stored.where, "not_stored": stored.why_not, "complete": not left_out,
+            "stored": stored.where, "not_stored": stored.why_not,
+            "complete": not left_out and cal.complete is not False,
             "left_out": left_out, "warnings": warnings,
             "calibration": json.loads(calibration_to_json(cal))}  # fmt: skip
 
@@ -320,8 +345,12 @@ def _summary(line, cal, where: str) -> None:
         line(("sample clock", BOLD), f": {clock.note}")
     for text in set_lines(cal):  # several IMUs (issue 28)
         line(text)
-    if cal.left_out:  # issue 24.2: saved, but not every sensor of the session is in it
-        where += f" (partial: {', '.join(cal.left_out)} left out, see above)"
+    assumed = [name for name, sec in cal.sections().items()
+               if sec is not None and sec.partial is not None]  # issue 27.3
+    if cal.left_out or assumed:  # issue 24.2: saved, but not every sensor of the session is in it
+        said = [f"{', '.join(cal.left_out)} left out"] if cal.left_out else []
+        said += [f"{', '.join(assumed)} in part assumed"] if assumed else []
+        where += f" (partial: {'; '.join(said)}, see above)"
     line(f"wrote {where}")
 
 
@@ -375,8 +404,28 @@ def _section_lines(line, name: str, sec) -> None:
         + f" {units} per {per}"
     )
     _temperature_line(line, sec, units)
+    _partial_lines(line, sec)
     for w in sec.warnings or []:
         line("  ", ("warning", WARN), f": {w}")
+
+
+def _partial_lines(line, sec) -> None:
+    """Which parameters the session measured and which are assumed (issue 27.3): never a
+    prior's value said as a measurement."""
+    part = sec.partial
+    if part is None:
+        return
+    rows = {p.name: p for p in sec.parameters or []}
+
+    def said(names):
+        return ", ".join(f"{n} {rows[n].value:.5g} ± {rows[n].std:.3g} {rows[n].unit}"
+                         if n in rows else n for n in names) or "none"  # fmt: skip
+
+    line("  ", ("measured", BOLD), f" by this session: {said(part.measured or [])}")
+    line("  ", ("assumed", WARN), f" (not measured: the prior's value and std): "
+         f"{said(part.assumed or [])}; prior: {part.prior}")  # fmt: skip
+    if part.capture:
+        line(f"  to measure the rest: {part.capture}")
 
 
 def mag_summary(sec) -> list[tuple[Piece, ...]]:

@@ -128,7 +128,7 @@ from imucal_cli.formats.inputs import read_text_input
 #: 9.78 at the equator to 9.83 at the poles, with room for altitude and a rounded value.
 GRAVITY_RANGE = (9.0, 10.5)
 
-ACCEL_SOLVERS = ("auto", "gravity", "labelled", "factorization", "none")
+ACCEL_SOLVERS = ("auto", "gravity", "labelled", "factorization", "partial", "none")
 GYRO_SOLVERS = ("auto", "none", "static", "dynamic", "full", "known", "factorization")
 MAG_SOLVERS = ("magnitude", "ellipsoid", "none")
 

@@ -27,6 +27,12 @@ class Parameter(Record):
     unit : str
     ci95 : float or None
         Half-width of the 95 % interval (Student t), where the solver gives it.
+    status : str or None
+        ``"measured"`` (the data determine it) or ``"assumed"`` (held at its prior, within
+        the prior's std): written by a fit with a prior (``"solver": "partial"``, issue
+        27.3); absent: measured (the solvers that determine the whole model).
+    prior_std : float or None
+        The prior's std of the parameter, with ``status``.
     """
 
     name: str = ""
@@ -34,6 +40,46 @@ class Parameter(Record):
     std: float | None = item(always=True)
     unit: str | None = None
     ci95: float | None = None
+    status: str | None = None
+    prior_std: float | None = None
+
+
+@dataclass
+class Combination(Record):
+    """A combination of parameters a design determines although some of its parameters it
+    does not: ``sum(terms[name] * parameter) = value +- std``."""
+
+    terms: dict[str, float] | None = None
+    value: float | None = None
+    std: float | None = None
+
+
+@dataclass
+class Partial(Record):
+    """What a design determines of a sensor's model, and what is assumed (issue 27.3; the
+    section member ``"partial"``, written only where something is assumed).
+
+    Attributes
+    ----------
+    rule : str
+        When a parameter counts as measured.
+    prior : str
+        Where the assumed values and their std come from (nominal, or an earlier
+        calibration).
+    measured, assumed : list of str
+        The parameters' names (``parameters``), each in one of the two.
+    combinations : list of Combination
+        Determined combinations that involve assumed parameters.
+    capture : str
+        What capture would determine the rest.
+    """
+
+    rule: str | None = None
+    prior: str | None = None
+    measured: list[str] | None = None
+    assumed: list[str] | None = None
+    combinations: list[Combination] | None = None
+    capture: str | None = None
 
 
 @dataclass

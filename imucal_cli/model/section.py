@@ -20,7 +20,7 @@ import numpy as np
 from imucal_cli.errors import CalibrationFileError
 
 from .codec import Record, encode, item
-from .parts import Choice, Covariance, FitStatistics, Parameter, TemperatureModel
+from .parts import Choice, Covariance, FitStatistics, Parameter, Partial, TemperatureModel
 
 MODEL_EQUATION = "calibrated = matrix @ (raw - bias)"
 #: The model equation of a gyro section with g-sensitivity (spec: optional term).
@@ -79,6 +79,9 @@ class SensorCalibration(Record):
     blocking : list of str or None
     choice : Choice or None
         Who chose the solver, and why.
+    partial : Partial or None
+        Which parameters the data measured and which are assumed (a design that cannot fix
+        the whole model, issue 27.3); absent: every parameter measured.
     """
 
     solver: str = ""
@@ -110,6 +113,7 @@ class SensorCalibration(Record):
     warnings: list[str] | None = None
     blocking: list[str] | None = None
     choice: Choice | None = None
+    partial: Partial | None = None
 
     def __post_init__(self) -> None:
         self.bias = np.asarray(self.bias, dtype=np.float64)

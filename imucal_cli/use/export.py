@@ -14,13 +14,14 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from imucal_cli.errors import CalibrationFileError, InputError
+from imucal_cli.errors import CalibrationFileError, ImucalWarning, InputError
 from imucal_cli.formats.calibration import calibration_from_json
 from imucal_cli.formats.exporters import STANDARD_GRAVITY, ExportOptions
 from imucal_cli.formats.exporters.ardupilot import export_ardupilot
@@ -156,10 +157,24 @@ def _export_one(cal: Calibration | None, fmt: str, opts: ExportOptions) -> str:
         refuse_tempco(cal, fmt)
     if cal is not None and target.needs_calibration and not target.holds_g_sensitivity:
         refuse_g_sensitivity(cal, fmt, opts.drop)
+    if cal is not None and target.needs_calibration:
+        warn_assumed(cal, fmt)
     text = target.write(cal, opts)
     if has_control(text):  # belt and braces (issue 11.5): strings were cleaned when read
         raise InputError(f"the {fmt} export would hold control characters; refusing it")
     return text
+
+
+def warn_assumed(cal: Calibration, fmt: str) -> None:
+    """An export cannot say which terms are assumed (issue 27.3: a section with ``partial``):
+    it holds the whole model, so the user is told which terms are the prior's, not measured
+    (:class:`ImucalWarning`)."""
+    for name, sec in cal.sections().items():
+        part = sec.partial
+        if part is not None and part.assumed:
+            warnings.warn(f"the {name} calibration is partial: {', '.join(part.assumed)} are "
+                          f"assumed (the prior's values, not measured), and the {fmt} export "
+                          "holds them as any other term", ImucalWarning, stacklevel=2)  # fmt: skip
 
 
 def refuse_tempco(cal: Calibration, fmt: str) -> None:

@@ -29,6 +29,7 @@ import numpy as np
 
 from imucal_cli.calibrate.accel.gravity import GravityFit, gravity_fit, gravity_section
 from imucal_cli.calibrate.accel.labelled import labelled_section
+from imucal_cli.calibrate.accel.partial import nominal_gain, nominal_prior, partial_section
 from imucal_cli.calibrate.common import (
     Nominal,
     StaticPoses,
@@ -37,6 +38,7 @@ from imucal_cli.calibrate.common import (
     nominal_sensor,
     session_name,
     static_poses,
+    stored_accel_hint,
 )
 from imucal_cli.calibrate.factorization import calibrate_accel_factorization
 from imucal_cli.calibrate.registry import Bound, Determined, Needs, Refusal, register
@@ -63,6 +65,7 @@ class AccelDesign:
 
     session: Session
     cfg: Config
+    prior: object | None = None  # an earlier calibration's Prior (--prior), else nominal
 
     @cached_property
     def where(self) -> str:
@@ -228,7 +231,51 @@ class Labelled:
         return labelled_section(design.session, design.cfg, poses, design.g, design.nominal)
 
 
-for _estimator in (Factorization(), Gravity(), Labelled()):
+@dataclass(frozen=True)
+class PartialFit:
+    """A triad whose poses cannot determine the whole model (issue 27.3): the
+    gravity-magnitude equations with a prior on every parameter
+    (:mod:`imucal_cli.calibrate.accel.partial`); the last resort of ``auto``."""
+
+    name: str = "partial"
+    sensor: str = "accel"
+    needs: Needs = Needs()
+
+    def assess(self, design: AccelDesign) -> Determined | Refusal:
+        if design.channels != 3:
+            return Refusal(f"a redundant unit of {design.channels} channels")
+        if design.gravity_refusal is None or labels_determine(design.poses.up):
+            return Refusal("the poses determine the whole model (gravity or labelled fit)")
+        if design.prior is None and nominal_gain(design.nominal, design.poses.a_mean,
+                                                 design.g) is None:  # fmt: skip
+            return Refusal("the nominal sensitivity is unknown, so no parameter can be held "
+                           "at a prior", "set [accel] nominal_sensitivity, or pass --prior "
+                           "CAL.json")  # fmt: skip
+        return Determined(
+            f"{design.distinct} distinct directions cannot determine the 9 parameters: the "
+            "poses measure what they determine, the rest is held at "
+            f"{'the earlier calibration' if design.prior is not None else 'nominal values'} "
+            "with its std", tier=2)  # fmt: skip
+
+    def fit(self, design: AccelDesign) -> SensorCalibration:
+        poses = design.triad("partial fit")
+        prior = design.prior
+        if prior is None:
+            try:
+                prior = nominal_prior(design.nominal, poses.a_mean, design.g)
+            except DesignError as exc:
+                raise DesignError(f"{design.where}: {exc}") from None
+        sec = partial_section(poses, design.session, design.cfg, design.g, design.nominal,
+                              prior)  # fmt: skip
+        why = _reason(DesignError(design.refusal()), design.where)
+        stored = stored_accel_hint(design.session)
+        if stored:
+            stored += " (--prior SESSION.h5 holds the assumed terms at it)"
+        sec.notes = [sec.notes[0], f"why not the whole model: {why}{stored}", *sec.notes[1:]]
+        return sec
+
+
+for _estimator in (Factorization(), Gravity(), Labelled(), PartialFit()):
     register(_estimator)
 
 

@@ -228,8 +228,29 @@ def _section_report(kind: str, sec: SensorCalibration) -> dict[str, Any]:
                   rows, caption="raw - bias - g_sensitivity @ a, with a the calibrated "
                   "acceleration in m/s^2")  # fmt: skip
     _terms_tables(report, sec)
+    _partial_table(report, sec)
     report["unavailable"] = _unavailable(kind, report)
     return report
+
+
+def _partial_table(report: dict[str, Any], sec: SensorCalibration) -> None:
+    """Which parameters the session measured and which are assumed (issue 27.3: a design
+    that cannot fix the whole model), with the prior and what capture would measure the
+    rest, as a table."""
+    part = sec.partial
+    if part is None:
+        return
+    rows = []
+    for p in sec.parameters or []:
+        if p.status is None:
+            continue
+        rows.append([p.name, p.status, as_number(p.value), as_number(p.std),
+                     as_number(p.prior_std), p.unit])  # fmt: skip
+    caption = f"prior: {part.prior}. {part.rule}."
+    if part.capture:
+        caption += f" To measure the rest: {part.capture}."
+    add_table(report, "measured and assumed", ["parameter", "status", "value", "std",
+                                               "prior std", "unit"], rows, caption)  # fmt: skip
 
 
 def _g_sensitivity(sec: SensorCalibration, units_in: str | None) -> dict[str, Any] | None:

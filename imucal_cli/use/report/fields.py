@@ -65,9 +65,18 @@ def ratio(num: float | None, den: float | None) -> float | None:
 
 
 def read_parameters(parameters: list | None) -> list[dict[str, Any]]:
-    """A section's named parameters (finite numbers, else None)."""
-    return [{"name": p.name, "value": as_number(p.value), "std": as_number(p.std),
-             "unit": p.unit} for p in parameters or [] if p.name is not None]  # fmt: skip
+    """A section's named parameters (finite numbers, else None); ``status`` ("measured" or
+    "assumed", issue 27.3) where the section states it."""
+    rows = []
+    for p in parameters or []:
+        if p.name is None:
+            continue
+        row = {"name": p.name, "value": as_number(p.value), "std": as_number(p.std),
+               "unit": p.unit}  # fmt: skip
+        if getattr(p, "status", None) is not None:
+            row["status"] = p.status
+        rows.append(row)
+    return rows
 
 
 def read_misalignment(angles: Any, stds: Any) -> list[dict[str, Any]]:

@@ -252,7 +252,8 @@ def _value_table(
 
 
 def _parameter_table(parameters: list[dict[str, Any]]) -> Table:
-    rows = [(p["name"], p["value"], p["std"], p["unit"]) for p in parameters]
+    rows = [(p["name"] + (" (assumed)" if p.get("status") == "assumed" else ""), p["value"],
+             p["std"], p["unit"]) for p in parameters]  # fmt: skip
     return _value_table("parameters", "name", rows)
 
 
