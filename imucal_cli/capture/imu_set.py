@@ -53,15 +53,11 @@ def _layout(spec: ColumnSpec, sensor: str | None = None) -> ImuLayout:
                      attrs={} if sensor is None else {"sensor": sensor})  # fmt: skip
 
 
-class SetLineProtocol:
-    """Lines carrying several IMUs' triads (module notes): one :class:`LineProtocol` per IMU
-    over the same bytes; ``stats`` are the reference's (every line is every IMU's)."""
+class _Protocols:
+    """What a capture asks of a set's line protocols: the first one's line counts, and one
+    time origin for all."""
 
-    def __init__(self, specs: dict[int, ColumnSpec]) -> None:
-        self.names = [imu_number_name(k) for k in specs]
-        self._protocols = [LineProtocol(spec) for spec in specs.values()]
-        self._specs = list(specs.values())
-        self.columns = self._specs[0]
+    _protocols: list[LineProtocol]
 
     @property
     def stats(self) -> dict:
@@ -70,6 +66,17 @@ class SetLineProtocol:
     def set_origin(self, host_time: float) -> None:
         for p in self._protocols:
             p.set_origin(host_time)
+
+
+class SetLineProtocol(_Protocols):
+    """Lines carrying several IMUs' triads (module notes): one :class:`LineProtocol` per IMU
+    over the same bytes; ``stats`` are the reference's (every line is every IMU's)."""
+
+    def __init__(self, specs: dict[int, ColumnSpec]) -> None:
+        self.names = [imu_number_name(k) for k in specs]
+        self._protocols = [LineProtocol(spec) for spec in specs.values()]
+        self._specs = list(specs.values())
+        self.columns = self._specs[0]
 
     def imu_layouts(self) -> dict[str, ImuLayout]:
         """The other IMUs' datasets (:class:`~imucal_cli.formats.session.ImuLayout`)."""
@@ -118,7 +125,7 @@ class PortSet:
             s.close()
 
 
-class PortsProtocol:
+class PortsProtocol(_Protocols):
     """The lines of a :class:`PortSet`, one IMU per port, each port's lines as ``spec`` says;
     each other IMU's time put on the reference's clock (module notes)."""
 
@@ -130,14 +137,6 @@ class PortsProtocol:
         self._first_host: list[float | None] = [None] * len(ports.sources)
         self._first_time: list[float | None] = [None] * len(ports.sources)
         self._held: dict[str, list[SampleBlock]] = {n: [] for n in self.names[1:]}
-
-    @property
-    def stats(self) -> dict:
-        return self._protocols[0].stats
-
-    def set_origin(self, host_time: float) -> None:
-        for p in self._protocols:
-            p.set_origin(host_time)
 
     def imu_layouts(self) -> dict[str, ImuLayout]:
         return {n: _layout(self.columns, s.uri)
