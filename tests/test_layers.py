@@ -164,3 +164,18 @@ def test_the_registry_is_a_layer_of_its_own():
     below = ("numerics", "design", "estimators", "planning", "model", "formats", "plans",
              "simulate", "calibrate", "use", "capture")
     assert not [name for name in below if "registry" in allowed[name]]
+
+
+def test_the_program_starts_without_scipy_stats_and_signal():
+    """DEVELOPERS.md "Imports": scipy.stats and scipy.signal cost every ``imucal`` process
+    0.6-0.9 s of CPU at start-up, so only the two functions that need them import them; a
+    module-level ``from scipy import stats`` (a chi-square tail comes from scipy.special's
+    ``chdtrc``) brings the cost back to every command and every test through the device."""
+    import subprocess
+    import sys
+
+    code = "import sys, imucal_cli.cli; print(sorted(m for m in sys.modules if m in " \
+           "('scipy.stats', 'scipy.signal')))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, timeout=120).stdout  # fmt: skip
+    assert out.strip() == "[]", out

@@ -16,7 +16,7 @@ datasheet lies within 1-2 std of it.
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
+from scipy.special import chdtrc
 
 from imucal_cli.calibrate.accel.checks import MISFIT_FLOOR_MG, MISFIT_SIGMAS
 from imucal_cli.calibrate.accel.gravity import GAUGE_9
@@ -264,7 +264,7 @@ def _misfit(first: tuple[float, float], scale: float, rms_after: float, g: float
     chi2, dof = first
     if dof < 0.5:
         return [], []
-    p = float(stats.chi2.sf(chi2, dof))
+    p = float(chdtrc(dof, chi2))  # chi-square survival function
     if p >= MISFIT_P:
         return [], []
     excess = float(np.sqrt(chi2 / dof))

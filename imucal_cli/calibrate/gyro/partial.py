@@ -23,7 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+from scipy.special import chdtrc
 
 from imucal_cli.calibrate.common import session_name
 from imucal_cli.calibrate.gyro.full import gain_std
@@ -156,7 +156,7 @@ def stills_bias(session: Session, cfg: Config) -> tuple[np.ndarray, np.ndarray, 
     dof = len(n) - 1
     warning = None
     if dof > 0:
-        scatter = stats.chi2.sf(chi2, dof) < SCATTER_P
+        scatter = chdtrc(dof, chi2) < SCATTER_P
         if scatter.any():
             scale = np.where(scatter, np.sqrt(chi2 / dof), 1.0)
             std = std * scale
