@@ -177,6 +177,15 @@ def test_time_stamps_in_the_wrong_unit_leave_no_file(tmp_path):
 # --------------------------------------------------------------------------------------------
 
 
+def _signal_mask(pid: int) -> str:
+    """The process's blocked and ignored signals (Linux), for a failure's message."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text().splitlines()
+    except OSError:
+        return "-"
+    return " ".join(line for line in status if line.startswith(("SigBlk", "SigIgn")))
+
+
 @pytest.mark.parametrize("when", [
     "typer",                      # the command-line layer is being imported
     "imucal_cli.capture.recorder",  # the port about to open, the recording not started
@@ -198,21 +207,25 @@ def test_ctrl_c_while_the_capture_starts(tmp_path, when):
         for line in cap.stderr:
             said.append(line)
             if re.search(rf"\|\s*{re.escape(when)}$", line.rstrip()):
+                mask = _signal_mask(cap.pid)  # shown if the signal has no effect
                 cap.send_signal(signal.SIGINT)
                 break
+        else:
+            mask = f"the import of {when} was never reported"
         stdout, rest = finished(cap)
     finally:
         device.stop()
     said = [ln for ln in "".join(said).splitlines() + rest.splitlines()
             if not ln.startswith("import time:")]  # fmt: skip
     if when == "typer" or cap.returncode == 130 and said[-1] == "imucal: interrupted":
-        assert cap.returncode == 130 and said[-1] == "imucal: interrupted", said
+        assert cap.returncode == 130 and said[-1] == "imucal: interrupted", (said, mask)
         assert not out.exists()
     elif cap.returncode == 130:  # the recording had started: no sample yet
         assert said[-1].endswith("stopped by Ctrl-C before any data: no file written"), said
         assert not out.exists()
     else:
-        assert cap.returncode == 3 and "ended: interrupted: stopped by Ctrl-C" in stdout
+        assert cap.returncode == 3 and "ended: interrupted: stopped by Ctrl-C" in stdout, \
+            (stdout, said, mask)
         assert len(read_session(out).time) > 0
 
 
