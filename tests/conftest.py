@@ -10,7 +10,16 @@ import os
 for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
+import signal  # noqa: E402
+
 import pytest  # noqa: E402
+
+# Tests that press Ctrl-C in a process they start need SIGINT's default action there. A shell
+# starts a background job (`make test &`, a CI step run in the background) with SIGINT ignored,
+# every process inherits that, and Python then leaves Ctrl-C ignored, as `imucal` rightly does in
+# a background job: those tests would see a capture that cannot be interrupted.
+if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 from .cli_helpers import reap  # noqa: E402
 

@@ -26,6 +26,7 @@ import pytest
 from imucal_cli.formats.session import read_session
 
 from .cli_helpers import IMUCAL, spawn
+from .served import ThreadServer
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminals are POSIX")
 
@@ -33,9 +34,13 @@ CLI = [sys.executable, "-m", "imucal_cli"]
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1", "COLUMNS": "200"}
 
 
-class Device:
+Device = ThreadServer
+"""The device of a test that examines the capture (tests/served.py: in a thread)."""
+
+
+class ProcessDevice:
     """``imucal simulate --serve ARGS`` in the background; its status lines are collected as
-    they come (``wait_for``)."""
+    they come (``wait_for``): where the served session is compared with ``simulate -o``."""
 
     def __init__(self, *args: str) -> None:
         self.proc = spawn([*CLI, "simulate", "--serve", *args], stdin=subprocess.DEVNULL,
@@ -325,7 +330,7 @@ def test_a_served_warm_up_is_captured_as_simulated(tmp_path):
     proc = subprocess.run([*CLI, "simulate", *opts, "-o", str(written)], capture_output=True,
                           text=True, timeout=120)  # fmt: skip
     assert proc.returncode == 0, proc.stderr
-    device = Device(*opts)
+    device = ProcessDevice(*opts)
     try:
         out = tmp_path / "served.h5"
         cap = capture(device.path, out, "--plan", "warmup:0.02")
@@ -365,7 +370,7 @@ def test_the_clock_fit_of_a_capture_beside_two_burners(tmp_path, burners, ppm):
     assert subprocess.run([*CLI, "simulate", *opts, "-o", str(written)],
                           capture_output=True, timeout=120).returncode == 0  # fmt: skip
     truth = read_calibration(tmp_path / "w.truth.json")
-    device = Device(*opts)
+    device = ProcessDevice(*opts)
     try:
         out = tmp_path / "c.h5"
         cap = capture(device.path, out, "--plan", "qureshi-axes:2")

@@ -29,6 +29,7 @@ from imucal_cli.formats.targets import measure, parse_until
 from imucal_cli.simulate.live import parse_instruction
 
 from .cli_helpers import spawn
+from .served import ThreadServer
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminals are POSIX")
 
@@ -148,12 +149,9 @@ def test_unattended_capture_stops_when_the_targets_are_met(tmp_path):
     """--no-prompt --until: a plan played on a timer; the capture refits after each still
     period it sees and stops once every target is met, before the plan ends."""
     targets = "accel.bias=5mg"
-    server = spawn([*CLI, "simulate", "--serve", "--plan", "qureshi18", "--seed", "5",
-                    "--hold", "1.5", "--move", "1"], stdin=subprocess.DEVNULL,
-                   stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)  # fmt: skip
-    path = server.stdout.readline().strip()
+    server = ThreadServer("--plan", "qureshi18", "--seed", "5", "--hold", "1.5", "--move", "1")
     out = tmp_path / "unattended.h5"
-    proc = subprocess.run([*CLI, "capture", "--port", path, "--output", str(out),
+    proc = subprocess.run([*CLI, "capture", "--port", server.path, "--output", str(out),
                            "--no-prompt", "--plan", "qureshi18", "--until", targets, "--json"],
                           stdin=subprocess.DEVNULL, capture_output=True, text=True, env=ENV,
                           timeout=300)  # fmt: skip

@@ -23,6 +23,7 @@ import pytest
 from imucal_cli.formats.session import read_session
 
 from .cli_helpers import run, spawn
+from .served import ThreadServer
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminals are POSIX")
 
@@ -132,17 +133,16 @@ def test_guided_ferraris_capture_calibrates(tmp_path):
 
 
 def test_capture_warns_about_options_for_a_sensor_the_device_does_not_send(tmp_path):
-    server, port = serve("--plan", "six", "--loop")  # streams until killed below
+    """The device in a thread and the capture in this process (what is examined is the
+    capture's exit status and stderr, the same in a process)."""
+    server = ThreadServer("--rate", "100", "--plan", "six", "--loop")  # until stopped below
     out = tmp_path / "w.h5"
     try:
-        proc = spawn([*CLI, "capture", "--port", port, "--no-prompt", "--duration", "1",
-                      "--mag-units", "uT", "--field-uT", "48", "--output", str(out)],
-                     stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                     text=True, env=ENV)  # fmt: skip
-        stdout, stderr = proc.communicate(timeout=60)
+        proc = run("capture", "--port", server.path, "--no-prompt", "--duration", "1",
+                   "--mag-units", "uT", "--field-uT", "48", "--output", out)  # fmt: skip
     finally:
-        server.kill()
-        server.communicate()
+        server.stop()
+    stdout, stderr = proc.stdout, proc.stderr
     assert proc.returncode == 0, (stdout, stderr)
     assert ("imucal: warning: --mag-units, --field-uT: the device sent no magnetometer data "
             "(the session has no /raw/mag): ignored") in stderr  # fmt: skip

@@ -20,6 +20,7 @@ import pytest
 from imucal_cli.formats.session import read_session
 
 from .cli_helpers import LineReader, spawn
+from .served import ThreadServer
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminals are POSIX")
 
@@ -111,6 +112,23 @@ def saved_samples(stdout: str) -> int:
 
 @pytest.fixture
 def server_factory():
+    """The device for a test that examines the capture: served in a thread of this process
+    (tests/served.py, the same device without an interpreter of its own)."""
+    servers = []
+
+    def make(*args: str) -> ThreadServer:
+        servers.append(ThreadServer("--rate", str(RATE), *args))
+        return servers[-1]
+
+    yield make
+    for s in servers:
+        s.kill()
+
+
+@pytest.fixture
+def process_factory():
+    """The device as ``imucal simulate --serve``, a process: where its own output is examined,
+    and the one whole session end to end."""
     servers = []
 
     def make(*args: str) -> Server:
@@ -122,8 +140,8 @@ def server_factory():
         s.kill()
 
 
-def test_unattended_complete_session(tmp_path, server_factory):
-    server = server_factory("--plan", "six", "--hold", "1.5", "--move", "0.8",
+def test_unattended_complete_session(tmp_path, process_factory):
+    server = process_factory("--plan", "six", "--hold", "1.5", "--move", "0.8",
                             "--malformed-every", "97")  # fmt: skip
     out = tmp_path / "six.h5"
     cap = start_capture(server.path, out, "--plan", "six")
@@ -180,12 +198,12 @@ def test_device_vanishes(tmp_path, server_factory):
     assert len(read_session(out).time) == saved_samples(stdout) == sent["lines"]
 
 
-def test_device_vanishes_json_on_both_sides(tmp_path, server_factory):
+def test_device_vanishes_json_on_both_sides(tmp_path, process_factory):
     """--json (README schemas): the server's device path first, then one JSON line; the
     capture's stdout one JSON document."""
     import json
 
-    server = server_factory("--plan", "six", "--vanish-after", "2.5", "--json")
+    server = process_factory("--plan", "six", "--vanish-after", "2.5", "--json")
     out = tmp_path / "gone.h5"
     cap = start_capture(server.path, out, "--duration", "60", "--json")
     stdout, stderr = cap.communicate(timeout=120)

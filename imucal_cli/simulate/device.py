@@ -118,8 +118,8 @@ class ServeResult:
     seconds : float
         Streaming time.
     end : str
-        ``"plan"``, ``"duration"``, ``"signal"``, ``"reader-closed"``, ``"vanished"``,
-        ``"no-reader"``.
+        ``"plan"``, ``"duration"``, ``"signal"``, ``"cancelled"``, ``"reader-closed"``,
+        ``"vanished"``, ``"no-reader"``.
     """
 
     path: str
@@ -315,6 +315,7 @@ def serve(
     malformed_every: int | None = None, step: bool = False,
     next_pose: Callable[[], bool] | None = None, announce: Callable[[str], None] = print,
     status: Callable[[str], None] | None = None, protocol: str = "lines",
+    cancel: threading.Event | None = None,
 ) -> ServeResult:  # fmt: skip
     """Stream a simulated IMU on a new pseudo-terminal until the plan ends; see the module notes.
 
@@ -361,6 +362,9 @@ def serve(
     protocol : str
         What a data line is (:data:`SERVE_PROTOCOLS`): ``lines`` (``t,ax,...``), ``motioncal``
         or ``i2cdevlib`` (see the module notes; ``temperature`` does not apply).
+    cancel : threading.Event, optional
+        Set by the caller (serving in another thread, where no signal reaches it): the serve
+        ends at its next step, ``end`` ``"cancelled"``, having counted what the reader got.
 
     Returns
     -------
@@ -375,7 +379,7 @@ def serve(
     )  # fmt: skip
     header = (f"# imucal virtual IMU: plan {plan}, {rate_hz:g} Hz, {units}, "
               f"columns {fields}, seed {seed}\n").encode()  # fmt: skip
-    stop = {"kind": None}
+    stop = {"kind": None, "cancel": cancel}
     with _stop_on_signals(stop):
         port = _Port()
         try:
@@ -455,6 +459,15 @@ def _stop_on_signals(stop: dict):
             signal.signal(signum, old)
 
 
+def _asked_to_stop(stop: dict) -> str:
+    """``"signal"`` (SIGINT or SIGTERM, :func:`_stop_on_signals`), ``"cancelled"`` (the
+    caller's ``cancel`` event) or ``""``."""
+    if stop["kind"] is not None:
+        return stop["kind"]
+    cancel = stop.get("cancel")
+    return "cancelled" if cancel is not None and cancel.is_set() else ""
+
+
 def _stream(port: _Port, line: _Line, header: bytes, stop: dict, wait_reader_s: float | None,
             say: Callable[[str], None]) -> ServeResult:  # fmt: skip
     """Wait for a reader, then run the line until it ends; count what the reader got."""
@@ -463,7 +476,7 @@ def _stream(port: _Port, line: _Line, header: bytes, stop: dict, wait_reader_s: 
     if result.end:
         return result
     line.run(header, result)
-    if result.end in ("plan", "duration", "signal", "vanished"):
+    if result.end in ("plan", "duration", "signal", "cancelled", "vanished"):
         line.tally(result, unread=port.drain(DRAIN_MAX_S))
     say(
         f"sent {result.lines} lines ({result.malformed} malformed) in "
@@ -495,8 +508,8 @@ class _Port:
         """Wait until a reader opened the port and flushed its input; "" or why it gave up."""
         waited = _time.monotonic()
         while any(ev & select.POLLHUP for _, ev in self.poller.poll(50)):
-            if stop["kind"] is not None:
-                return "signal"
+            if _asked_to_stop(stop):
+                return _asked_to_stop(stop)
             if wait_reader_s is not None and _time.monotonic() - waited > wait_reader_s:
                 return "no-reader"
         if not self.packets:
@@ -505,7 +518,7 @@ class _Port:
         status = select.poll()
         status.register(self.master, select.POLLPRI | select.POLLIN)
         end = _time.monotonic() + FLUSH_WAIT_S
-        while _time.monotonic() < end and stop["kind"] is None:
+        while _time.monotonic() < end and not _asked_to_stop(stop):
             events = status.poll(50)
             if any(ev & select.POLLHUP for _, ev in events):
                 break  # the reader closed again: the stream sees it at once
@@ -669,8 +682,8 @@ class _Line:
 
     def why_end(self, now: float) -> str:
         """Why streaming ends now, or ""."""
-        if self.stop["kind"] is not None:
-            return "signal"
+        if _asked_to_stop(self.stop):
+            return _asked_to_stop(self.stop)
         if any(ev & select.POLLHUP for _, ev in self.poller.poll(0)):
             return "reader-closed"
         if self.vanish_after_s is not None and now >= self.vanish_after_s:

@@ -1,0 +1,109 @@
+"""The virtual device served in a thread of the test process.
+
+``imucal simulate --serve ARGS`` is :func:`imucal_cli.simulate.device.serve` behind typer's
+option parsing.  A test that examines the capture (its process, signals, file and output) and
+not the device's process serves the same pseudo-terminal, lines and faults from a thread here:
+no interpreter is started for the device (2-3 s of CPU each on a loaded 2-core machine).  The
+command itself (its options, output, signals, Enter at its terminal) is tested as a process:
+``test_simulator``, ``test_serve_signals``, ``test_guided_e2e`` and one case of each file that
+uses this module.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+
+from imucal_cli.cli.simulate import SERVE_HOLD_S
+from imucal_cli.simulate.device import ServeResult, serve
+
+#: ``simulate`` options with a value: the keyword of :func:`serve` and its type.
+VALUES = {
+    "--plan": ("plan", str), "--rate": ("rate_hz", float), "--baud": ("baud", int),
+    "--seed": ("seed", int), "--hold": ("hold_s", float), "--move": ("move_s", float),
+    "--units": ("units", str), "--protocol": ("protocol", str),
+    "--duration": ("duration_s", float), "--stall-after": ("stall_after_s", float),
+    "--vanish-after": ("vanish_after_s", float), "--malformed-every": ("malformed_every", int),
+}  # fmt: skip
+#: ``simulate`` switches: the keyword of :func:`serve` and its value.
+SWITCHES = {"--loop": ("loop", True), "--garbage": ("garbage", True),
+            "--no-temp": ("temperature", False)}  # fmt: skip
+
+
+def serve_options(args) -> dict:
+    """:func:`serve`'s keywords for ``imucal simulate --serve ARGS`` (the command's defaults:
+    plan qureshi18, holds of ``SERVE_HOLD_S``); an option not listed here is an error, so a
+    test that needs it serves through the process."""
+    options = {"plan": "qureshi18", "hold_s": SERVE_HOLD_S}
+    args = [str(a) for a in args]
+    while args:
+        flag = args.pop(0)
+        if flag in SWITCHES:
+            key, value = SWITCHES[flag]
+            options[key] = value
+        elif flag in VALUES and args:
+            key, kind = VALUES[flag]
+            options[key] = kind(args.pop(0))
+        else:
+            raise ValueError(f"tests/served.py does not serve {flag!r}: use the process")
+    return options
+
+
+class ThreadServer:
+    """``imucal simulate --serve ARGS`` in a thread: :attr:`path` is its device, :attr:`lines`
+    its status messages (what the command prints on stderr), waited for with
+    :meth:`wait_for`."""
+
+    def __init__(self, *args) -> None:
+        self._cancel = threading.Event()
+        self.result: ServeResult | None = None
+        self.error: BaseException | None = None
+        self.lines: list[str] = []
+        self._said = threading.Condition()
+        paths: queue.Queue = queue.Queue()
+        options = serve_options(args)
+
+        def run() -> None:
+            try:
+                self.result = serve(announce=paths.put, cancel=self._cancel, status=self._say,
+                                    **options)  # fmt: skip
+            except BaseException as exc:  # noqa: BLE001 - shown by the test that waits
+                self.error = exc
+                paths.put(None)
+            finally:
+                self._say(None)
+
+        self._thread = threading.Thread(target=run, daemon=True)
+        self._thread.start()
+        self.path = paths.get(timeout=120)
+        assert self.path is not None, f"the device did not start: {self.error!r}"
+
+    def _say(self, message: str | None) -> None:
+        with self._said:
+            self.lines.append("" if message is None else f"imucal: {message}\n")  # "": the end
+            self._said.notify_all()
+
+    def wait_for(self, words: str, timeout: float = 120.0) -> None:
+        """Until the device says ``words`` (a pose it started, ...)."""
+        with self._said:
+            ok = self._said.wait_for(lambda: any(words in line for line in self.lines)
+                                     or "" in self.lines, timeout)  # fmt: skip
+        assert ok and any(words in line for line in self.lines), (words, self.lines)
+
+    def finish(self, timeout: float = 120.0) -> dict:
+        """Wait for the serve to end (the plan, its duration, or the reader closing the port);
+        what it sent, as ``simulate --serve`` reports it."""
+        self._thread.join(timeout)
+        if self._thread.is_alive():
+            self.kill()
+            raise AssertionError(f"the device did not end within {timeout} s")
+        assert self.error is None and self.result is not None, repr(self.error)
+        r = self.result
+        return {"lines": r.lines, "malformed": r.malformed, "garbage": r.garbage_bytes}
+
+    def kill(self) -> None:
+        """End the serve now (as a signal ends the process) and wait for the thread."""
+        self._cancel.set()
+        self._thread.join(60)
+
+    stop = kill
