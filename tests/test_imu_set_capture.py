@@ -17,7 +17,7 @@ from imucal_cli.formats.session import read_session
 from imucal_cli.simulate.imu_set import gauge_rotation, served_set
 
 from .cli_helpers import run
-from .test_virtual import CLI, RATE, saved_samples, server_factory, start_capture  # noqa: F401
+from .test_virtual import CLI, RATE, process_factory, saved_samples, start_capture  # noqa: F401
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminals are POSIX")
 
@@ -41,8 +41,8 @@ def _rotation_error(truth, key, entry) -> np.ndarray:
     return Rotation.from_matrix(np.array(entry["rotation_to_reference"]) @ true_r.T).as_rotvec()
 
 
-def test_one_port_several_triads_per_line(tmp_path, server_factory):  # noqa: F811
-    server = server_factory("--imus", "3", *SET)
+def test_one_port_several_triads_per_line(tmp_path, process_factory):  # noqa: F811
+    server = process_factory("--imus", "3", *SET)
     out = tmp_path / "array.h5"
     cap = start_capture(server.path, out, "--plan", "random:9", "--columns", COLUMNS,
                         "--accel-units", "counts", "--gyro-units", "counts")  # fmt: skip
@@ -67,8 +67,8 @@ def test_one_port_several_triads_per_line(tmp_path, server_factory):  # noqa: F8
         assert abs(dt) <= 4.5 * entry["time_offset_std_s"], (key, dt, entry)
 
 
-def test_one_port_per_imu(tmp_path, server_factory):  # noqa: F811
-    servers = [server_factory("--imus", "2", "--serve-imu", str(k), *SET) for k in (0, 1)]
+def test_one_port_per_imu(tmp_path, process_factory):  # noqa: F811
+    servers = [process_factory("--imus", "2", "--serve-imu", str(k), *SET) for k in (0, 1)]
     out = tmp_path / "two.h5"
     cap = subprocess.Popen(
         [*CLI, "capture", "--port", servers[0].path, "--port", servers[1].path, "--output",
