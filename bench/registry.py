@@ -7,15 +7,13 @@ whole calibration kept), into a SQLite file and, when a server can start here
 - nothing lost: the registry holds exactly the 10,000 calibrations the writers said they
   recorded, each document's SHA-256 the one its writer computed, each with its sections and
   figures (count and content check);
-- ``imucal registry lot LOT`` over all 10,000 units, in a fresh process: its CPU beyond the
-  start-up every ``imucal`` command has (``imucal --version`` measured the same way) under
-  :data:`LOT_TARGET_S` (plus on PostgreSQL the server's part) (PASS/FAIL), with the whole
-  process's CPU, its wall time (on a shared machine mostly the wait for a CPU) and the
-  statistics' own CPU in this process beside it; and that it finds the units planted to stand
-  apart and to drift (a check of the statistics, not only of their speed).  The start-up (the
-  interpreter importing NumPy, SciPy, h5py, rich, typer and SQLAlchemy) is the same for every
-  command and has no target of its own: a calibration tool's commands are judged in seconds of
-  work, not in milliseconds of import.
+- ``imucal registry lot LOT`` over all 10,000 units, in a fresh process, under
+  :data:`LOT_TARGET_S` of CPU (the command's own, start-up included, plus on PostgreSQL the
+  server's) (PASS/FAIL), with its breakdown beside it: the start-up every ``imucal`` command
+  has (``imucal --version`` measured the same way), the CPU beyond it, the statistics' own CPU
+  in this process, and the wall time (on a shared machine mostly the wait for a CPU); and that
+  it finds the units planted to stand apart and to drift (a check of the statistics, not only
+  of their speed).
 
 The units are variants of one real calibration (``sessions/qureshi18-seed1.h5`` calibrated once):
 every bias, gain and angle drawn anew per unit around it, with the std it states
@@ -62,9 +60,9 @@ UNITS = 10_000
 WRITERS = 4
 LOT = "LOT-A"
 LOT_TARGET_S = 2.0
-"""``imucal registry lot`` over the 10,000 units: CPU seconds beyond the start-up, client and
-server (the issue's "in under 2 s": on a shared machine the wall time is mostly the wait for a
-CPU; it is shown beside)."""
+"""``imucal registry lot`` over the 10,000 units: CPU seconds, client and server, start-up
+included (the issue's "in under 2 s": on a shared machine the wall time is mostly the wait for
+a CPU; it is shown beside)."""
 LOT_RUNS = 3
 APART = 10
 """Units whose accel bias x is drawn 40 of the lot's std away (they must stand apart)."""
@@ -336,22 +334,21 @@ def _one(console: Console, table: Table, name: str, url: str, template: Path,
         name, f"{UNITS:,} + {RECALIBRATED} re-cal", f"{wall:.1f} s",
         f"{expected_records / wall:.0f}/s",
         ("PASS " if ok else "FAIL ") + what + (f"; errors: {errors[:2]}" if errors else ""),
-        f"{own_s:.2f} s CPU beyond start-up ({lot_s:.2f} s in all, imucal --version "
-        f"{start_s:.2f} s)" + (f", {server_s:.2f} s of it the server's" if server is not None
-                               else "")
-        + f", {lot_wall:.2f} s wall; the statistics alone {work_s:.2f} s CPU "
-        + ("PASS" if own_s < LOT_TARGET_S else "FAIL"),
+        f"{lot_s:.2f} s CPU" + (f" ({server_s:.2f} server)" if server is not None else "")
+        + f" = start-up (imucal --version) {start_s:.2f} s + {own_s:.2f} s; {lot_wall:.2f} s "
+        f"wall; the statistics alone {work_s:.2f} s CPU "
+        + ("PASS" if lot_s < LOT_TARGET_S else "FAIL"),
         f"apart {len(found_apart & apart)}/{len(apart)}, drift {len(found_drift & drifted)}/"
         f"{len(drifted)} (+{len(found_drift - drifted)} false) " + ("PASS" if right else "FAIL"),
     )  # fmt: skip
-    return ok and own_s < LOT_TARGET_S and right
+    return ok and lot_s < LOT_TARGET_S and right
 
 
 def run(console: Console) -> bool:
     """Both databases (PostgreSQL when a server starts here); True when every row passes."""
     title = (f"registry: {UNITS:,} units by {WRITERS} concurrent writer processes, then "
              f"imucal registry lot in a fresh process (median of {LOT_RUNS}; target < "
-             f"{LOT_TARGET_S:g} s CPU beyond the start-up, client and server)")  # fmt: skip
+             f"{LOT_TARGET_S:g} s CPU, start-up included, client and server)")  # fmt: skip
     table = Table(title=title)
     for col in ("database", "records", "write wall", "throughput", "nothing lost",
                 "registry lot", "lot finds"):  # fmt: skip
