@@ -22,10 +22,13 @@ if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
 from .cli_helpers import reap  # noqa: E402
+from .served import stop_all  # noqa: E402
 
 
 @pytest.fixture(autouse=True)
 def _reap_background_processes():
-    """No process a test started with ``cli_helpers.spawn`` outlives the test."""
+    """No process a test started with ``cli_helpers.spawn``, and no device a test served
+    in a thread (``served.ThreadServer``), outlives the test."""
     yield
     reap()
+    stop_all()

@@ -5,8 +5,11 @@ option parsing.  A test that examines the capture (its process, signals, file an
 not the device's process serves the same pseudo-terminal, lines and faults from a thread here:
 no interpreter is started for the device (2-3 s of CPU each on a loaded 2-core machine).  The
 command itself (its options, output, signals, Enter at its terminal) is tested as a process:
-``test_simulator``, ``test_serve_signals``, ``test_guided_e2e`` and one case of each file that
-uses this module.
+``test_simulator``, ``test_serve_signals``, ``test_guided_e2e``, ``test_imu_set_capture``,
+``test_capture_until`` (the person), ``test_registry_cli``, and in ``test_virtual`` and
+``test_capture_live`` the whole session end to end, the command's JSON and the served
+warm-up and clock error.  ``tests/test_served.py`` checks that :func:`serve_options` gives
+:func:`serve` what the command gives it.
 """
 
 from __future__ import annotations
@@ -16,6 +19,9 @@ import threading
 
 from imucal_cli.cli.simulate import SERVE_HOLD_S
 from imucal_cli.simulate.device import ServeResult, serve
+
+_RUNNING: list[ThreadServer] = []
+"""Servers started and not yet stopped: :func:`stop_all` (conftest, after every test)."""
 
 #: ``simulate`` options with a value: the keyword of :func:`serve` and its type.
 VALUES = {
@@ -75,7 +81,12 @@ class ThreadServer:
 
         self._thread = threading.Thread(target=run, daemon=True)
         self._thread.start()
-        self.path = paths.get(timeout=120)
+        _RUNNING.append(self)
+        try:
+            self.path = paths.get(timeout=120)
+        except queue.Empty:
+            self.kill()
+            raise AssertionError("the device gave no path within 120 s") from None
         assert self.path is not None, f"the device did not start: {self.error!r}"
 
     def _say(self, message: str | None) -> None:
@@ -97,6 +108,8 @@ class ThreadServer:
         if self._thread.is_alive():
             self.kill()
             raise AssertionError(f"the device did not end within {timeout} s")
+        if self in _RUNNING:
+            _RUNNING.remove(self)
         assert self.error is None and self.result is not None, repr(self.error)
         r = self.result
         return {"lines": r.lines, "malformed": r.malformed, "garbage": r.garbage_bytes}
@@ -105,5 +118,14 @@ class ThreadServer:
         """End the serve now (as a signal ends the process) and wait for the thread."""
         self._cancel.set()
         self._thread.join(60)
+        if self in _RUNNING:
+            _RUNNING.remove(self)
+        assert not self._thread.is_alive(), "the device did not end within 60 s of cancel"
 
     stop = kill
+
+
+def stop_all() -> None:
+    """End every server a test started and left running (a failed test, a forgotten stop)."""
+    for server in list(_RUNNING):
+        server.kill()

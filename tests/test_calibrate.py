@@ -23,8 +23,6 @@ from .cli_helpers import run, run_process
 CREATED = "2026-01-01T00:00:00Z"
 
 
-
-
 def assert_one_line_error(proc: subprocess.CompletedProcess, code: int, *words: str) -> None:
     assert proc.returncode == code, (proc.returncode, proc.stdout, proc.stderr)
     err = proc.stderr.strip()

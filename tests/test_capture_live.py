@@ -40,14 +40,15 @@ Device = ThreadServer
 class ProcessDevice:
     """``imucal simulate --serve ARGS`` in the background, where the served session is
     compared with what ``simulate -o`` writes (the command's own options: a ramp, a clock
-    error); its status lines are not read (stderr to /dev/null)."""
+    error); its status lines (a few per pose) wait in the pipe, read only to show why it did
+    not start."""
 
     def __init__(self, *args: str) -> None:
         self.proc = spawn([*CLI, "simulate", "--serve", *args], stdin=subprocess.DEVNULL,
-                          stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                           env=ENV)  # fmt: skip
         self.path = self.proc.stdout.readline().strip()
-        assert self.path.startswith("/dev/"), f"no device path: {self.path!r}"
+        assert self.path.startswith("/dev/"), self.proc.stderr.read()
 
     def stop(self) -> None:
         if self.proc.poll() is None:

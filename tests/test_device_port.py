@@ -78,3 +78,26 @@ def test_a_reader_that_never_flushes_is_not_kept_waiting_long():
     lines = data.decode().splitlines()
     assert lines[0].startswith("# imucal virtual IMU") and result["served"].end == "duration"
     assert result["served"].lines == len(lines) - 1 > 0
+
+
+def test_a_caller_in_another_thread_ends_the_serve():
+    """``serve(cancel=...)`` (tests/served.py serves so): a looping serve, which would stream
+    for ever, ends when the event is set, says so, and counts every line the reader got."""
+    cancel = threading.Event()
+    path, thread, result = _serve_in_thread(cancel=cancel, loop=True)
+    fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
+    data = bytearray()
+    try:
+        end = time.monotonic() + 60
+        while data.count(b"\n") < 50 and time.monotonic() < end:  # streaming: then cancel
+            select.select([fd], [], [], 1.0)
+            data += os.read(fd, 65536)
+        cancel.set()
+        data += _read_all(fd, pause_s=0.0)  # the rest, until the serve closes the port
+    finally:
+        os.close(fd)
+    thread.join(timeout=60)
+    assert not thread.is_alive()
+    served, lines = result["served"], data.decode().splitlines()
+    assert served.end == "cancelled" and len(lines) >= 50
+    assert served.lines == len(lines) - 1 and all(line.count(",") == 7 for line in lines[1:])

@@ -1,0 +1,57 @@
+"""tests/served.py serves the virtual device in a thread with the keywords
+``imucal simulate --serve ARGS`` gives :func:`serve`: what the thread sets is what the command
+sets, and what it leaves out the command leaves at :func:`serve`'s and ``simulate_plan``'s
+defaults (so the two cannot drift apart unseen)."""
+
+from __future__ import annotations
+
+import inspect
+
+import pytest
+
+from imucal_cli.cli import simulate as command
+from imucal_cli.simulate.device import ServeResult, serve
+from imucal_cli.simulate.play import simulate_plan
+
+from .cli_helpers import run
+from .served import serve_options
+
+ARGS = [
+    [],
+    ["--plan", "six", "--rate", "200", "--hold", "1.5", "--move", "0.8", "--malformed-every",
+     "97"],
+    ["--garbage", "--vanish-after", "2"],
+    ["--plan", "six", "--loop", "--stall-after", "0", "--baud", "460800", "--protocol",
+     "motioncal", "--seed", "3", "--no-temp", "--duration", "5"],
+]  # fmt: skip
+CALLBACKS = {"announce", "status", "next_pose", "plan_options"}
+
+
+def _defaults(function) -> dict:
+    return {k: p.default for k, p in inspect.signature(function).parameters.items()}
+
+
+@pytest.mark.parametrize("args", ARGS, ids=lambda a: " ".join(a) or "defaults")
+def test_the_thread_serves_what_the_command_serves(monkeypatch, args):
+    seen: dict = {}
+
+    def fake(plan, rate_hz, baud, **kw):
+        seen.update(plan=plan, rate_hz=rate_hz, baud=baud, **kw)
+        return ServeResult(path="/dev/null")
+
+    monkeypatch.setattr(command, "serve", fake)
+    proc = run("simulate", "--serve", *args)
+    assert proc.returncode == 0, proc.stderr
+    mine = serve_options(args)
+    assert {k: seen[k] for k in mine} == mine
+    defaults = _defaults(serve)
+    left = {k: v for k, v in seen.items() if k not in mine and k not in CALLBACKS}
+    assert left == {k: defaults[k] for k in left}
+    plan_defaults = _defaults(simulate_plan)
+    for key, value in seen["plan_options"].items():
+        assert value is None or value == plan_defaults[key], (key, value)
+
+
+def test_an_option_the_thread_does_not_know_is_refused():
+    with pytest.raises(ValueError, match="--imus"):
+        serve_options(["--imus", "3"])
