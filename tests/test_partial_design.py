@@ -11,12 +11,12 @@ here, 50 in the slow test; the figures in docs/accuracy.md).
 from __future__ import annotations
 
 import json
-from dataclasses import replace
 
 import numpy as np
 import pytest
 from scipy import stats
 
+from bench.partial_logs import CREATED, VEHICLE, simulate_log, truth_values
 from imucal_cli.calibrate.session import calibrate_session
 from imucal_cli.estimators.accel.partial import MEASURED_RATIO, NAMES, Prior
 from imucal_cli.formats.calibration import write_calibration
@@ -26,34 +26,7 @@ from imucal_cli.simulate.play import simulate_plan
 
 from .cli_helpers import assert_one_line_error, run
 
-CREATED = "2026-01-01T00:00:00Z"
 G0 = 9.80665
-
-#: A vehicle's log: still on ground pitched 0, +15, -10 and +25 degrees (about y), turns
-#: (driving) between them.  Labels are stripped after the simulation (a log has none).
-VEHICLE = """name = "vehicle"
-[[step]]
-kind = "static"
-up = [0, 0, 1]
-[[step]]
-kind = "rotation"
-axis = [0, 0, 1]
-[[step]]
-kind = "static"
-up = [0.2588, 0, 0.9659]
-[[step]]
-kind = "rotation"
-axis = [0, 0, 1]
-[[step]]
-kind = "static"
-up = [-0.1736, 0, 0.9848]
-[[step]]
-kind = "rotation"
-axis = [0, 1, 0]
-[[step]]
-kind = "static"
-up = [0.4226, 0, 0.9063]
-"""
 
 #: 8 poses on one face (+Z up, turned about the vertical between them), labelled.
 ONE_FACE = 'name = "one face"\n' + "".join(
@@ -61,18 +34,11 @@ ONE_FACE = 'name = "one face"\n' + "".join(
 
 
 def _simulate(tmp_path, text: str, seed: int, labels: bool = False):
-    plan = tmp_path / f"plan{abs(hash(text)) % 1000}.toml"
-    if not plan.exists():
-        plan.write_text(text)
-    session, truth = simulate_plan(str(plan), seed=seed, created=CREATED)
-    if not labels:
-        session = replace(session, segments=[replace(s, up=None) for s in session.segments])
-    return session, truth
+    return simulate_log(tmp_path, text, seed, labels=labels)
 
 
 def _truth_params(truth) -> np.ndarray:
-    a = truth.accel
-    return np.r_[a.bias, a.sensitivity, [a.misalignment_deg[k] for k in ("xy", "xz", "yz")]]
+    return np.array(list(truth_values("accel", truth).values()))
 
 
 def _prior_std(nominal_gain: float) -> np.ndarray:
