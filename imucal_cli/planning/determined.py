@@ -22,9 +22,11 @@ rotation ``r_*`` (degrees: known only from labels); the gyroscope's are the full
 and ``m_*``, the accelerometer taken as known (a calibration given with ``--accel``, or the
 nominal one).
 
-What is not here yet (the estimation's second half, which needs the typed calibration model):
-fitting the determined parameters with the others held at nominal values or at an earlier
-calibration, and marking each parameter of the calibration JSON as measured or assumed.
+The fits that use it (the determined parameters measured, the others held at nominal values
+or at an earlier calibration, each marked measured or assumed in the calibration JSON) are
+``calibrate/accel/partial.py`` and ``calibrate/gyro/partial.py``.  A parameter counts as
+determined here only when it is free of every null direction (to 1e-6): one that is itself a
+null combination's only member is listed with the combinations.
 """
 
 from __future__ import annotations
