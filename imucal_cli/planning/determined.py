@@ -25,8 +25,9 @@ nominal one).
 The fits that use it (the determined parameters measured, the others held at nominal values
 or at an earlier calibration, each marked measured or assumed in the calibration JSON) are
 ``calibrate/accel/partial.py`` and ``calibrate/gyro/partial.py``.  A parameter counts as
-determined here only when it is free of every null direction (to 1e-6): one that is itself a
-null combination's only member is listed with the combinations.
+determined here only when it is free of every null direction (to 1e-6): one tied to them only
+weakly shows as a determined combination whose other coefficients are small (``1 b_x``, the
+others under 0.1, in the bench's table).
 """
 
 from __future__ import annotations
