@@ -6,7 +6,8 @@ STAMP  := $(VENV)/.installed
 # Python keeps compiled modules in __pycache__ unless PYTHONDONTWRITEBYTECODE is set, as some CI
 # images and containers do; then every `imucal` process compiles the package's 55,000 lines
 # again (0.7-0.9 s of CPU each), and the tests start about 150 of them. An empty value is
-# Python's default (the cache on), for the commands below and every process they start.
+# Python's default (the cache on), for the commands below and every process they start; the
+# tests compile the package once before the workers start (not in every early process at once).
 CACHED := PYTHONDONTWRITEBYTECODE=
 
 .PHONY: demo test test-all bench docs lint clean
@@ -29,10 +30,12 @@ demo: $(STAMP)
 # 4 workers on 2 cores, work stealing: the tests through the virtual device spend most of their
 # time waiting for a stream served in real time, and the others run meanwhile.
 test: $(STAMP)
+	$(CACHED) $(BIN)/python -m compileall -q imucal_cli tests bench
 	$(CACHED) $(BIN)/python -m pytest -n 4 --dist worksteal -q -m "not slow"
 
 # Everything, the slow cases too.
 test-all: $(STAMP)
+	$(CACHED) $(BIN)/python -m compileall -q imucal_cli tests bench
 	$(CACHED) $(BIN)/python -m pytest -n 4 --dist worksteal -q
 
 # The benchmarks also compare with MaD Lab's `imucal` package (the `bench` extra).
