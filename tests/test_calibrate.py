@@ -290,3 +290,13 @@ def test_reported_intervals_are_honest_over_simulated_seeds(n_seeds, band):
         hits.append(np.abs(x - x_true) <= 1.96 * std)
     covered = np.mean(hits)
     assert band[0] <= covered <= band[1], covered
+
+
+def test_accel_from_a_session_without_a_stored_calibration_is_one_line(tmp_path, sim18):
+    """``--accel SESSION.h5`` takes the newest stored accelerometer section; a session with
+    none is a one-line error naming the file."""
+    src, _ = sim18
+    bare = tmp_path / "bare.h5"
+    write_session(bare, simulate(plan="six", seed=2, created=CREATED)[0])  # nothing stored
+    assert_one_line_error(run("calibrate", src, "--accel", bare, "--no-store"), 2, "bare.h5",
+                          "no stored calibration with an accelerometer section")  # fmt: skip

@@ -195,18 +195,11 @@ def load_accel(path: str | Path) -> SensorCalibration:
     """
 
     path = Path(path)
-    if path.suffix.lower() in (".h5", ".hdf5"):
-        stored = read_session(path).calibrations
-        found = [calibration_from_json(stored[k], f"{path}:/calibrations/{k}").accel
-                 for k in sorted(stored)]  # fmt: skip
-        found = [a for a in found if a is not None]
-        if not found:
-            raise InputError(f"{path}: no stored calibration with an accelerometer section")
-        accel = found[-1]
-    else:
-        accel = read_calibration(path).accel
-        if accel is None:
-            raise InputError(f"{path}: this calibration has no accelerometer section")
+    accel = _earlier_section(path, "accel")
+    if accel is None:
+        raise InputError(f"{path}: no stored calibration with an accelerometer section"
+                         if _is_session(path) else
+                         f"{path}: this calibration has no accelerometer section")  # fmt: skip
     accel.notes = [f"from {path} (not re-calibrated here)", *(accel.notes or [])]
     accel.warnings = []
     return accel
@@ -216,14 +209,23 @@ def load_gyro(path: str | Path) -> SensorCalibration | None:
     """The gyro section of an earlier calibration (``--prior``: its matrix the prior of a gyro
     whose turns cannot determine it), or None where it has none: a calibration JSON, or a
     session file's newest stored calibration with one."""
-    path = Path(path)
-    if path.suffix.lower() in (".h5", ".hdf5"):
-        stored = read_session(path).calibrations
-        found = [calibration_from_json(stored[k], f"{path}:/calibrations/{k}").gyro
-                 for k in sorted(stored)]  # fmt: skip
-        found = [g for g in found if g is not None]
-        return found[-1] if found else None
-    return read_calibration(path).gyro
+    return _earlier_section(Path(path), "gyro")
+
+
+def _is_session(path: Path) -> bool:
+    return path.suffix.lower() in (".h5", ".hdf5")
+
+
+def _earlier_section(path: Path, sensor: str) -> SensorCalibration | None:
+    """Section ``sensor`` of a calibration JSON, or of the newest calibration stored in a
+    session file that has one; None where there is none."""
+    if not _is_session(path):
+        return getattr(read_calibration(path), sensor)
+    stored = read_session(path).calibrations
+    found = [getattr(calibration_from_json(stored[k], f"{path}:/calibrations/{k}"), sensor)
+             for k in sorted(stored)]  # fmt: skip
+    found = [sec for sec in found if sec is not None]
+    return found[-1] if found else None
 
 
 def _accel_outcome(session: Session, cfg: Config, prior=None) -> Outcome:
