@@ -12,10 +12,18 @@ CACHED := PYTHONDONTWRITEBYTECODE=
 
 .PHONY: demo test test-all bench docs lint clean
 
+# Installs with uv (from PyPI into the venv; it resolves and unpacks the ~90 packages of `.[dev]`
+# in about 12 s where pip takes about 50 s, the same versions), or with pip where uv cannot be
+# had. uv writes no bytecode: the dependencies (not their own tests) are compiled once, on all
+# cores, here rather than by each test worker at once on its first import.
+INSTALL = if [ -x $(BIN)/uv ]; then $(BIN)/uv pip install --quiet --python $(BIN)/python $(1); \
+	else $(BIN)/pip install --quiet $(1); fi
+
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[dev]'
+	$(BIN)/pip install --quiet uv || echo "uv not available: installing with pip"
+	$(call INSTALL,-e '.[dev]')
+	$(CACHED) $(BIN)/python -m compileall -q -j 0 -x '/tests?/' $(VENV)/lib
 	touch $(STAMP)
 
 # The demo works on a copy, so the shipped session is never modified.
@@ -40,7 +48,7 @@ test-all: $(STAMP)
 
 # The benchmarks also compare with MaD Lab's `imucal` package (the `bench` extra).
 $(VENV)/.bench: $(STAMP)
-	$(BIN)/pip install --quiet -e '.[dev,bench]'
+	$(call INSTALL,-e '.[dev,bench]')
 	touch $(VENV)/.bench
 
 bench: $(VENV)/.bench
@@ -49,7 +57,7 @@ bench: $(VENV)/.bench
 # The user documentation (README.md links into docs/) as a website in site/; --strict fails on a
 # broken link or anchor, or a page left out of mkdocs.yml's nav.
 $(VENV)/.docs: $(STAMP)
-	$(BIN)/pip install --quiet -e '.[docs]'
+	$(call INSTALL,-e '.[docs]')
 	touch $(VENV)/.docs
 
 docs: $(VENV)/.docs
