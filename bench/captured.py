@@ -44,8 +44,7 @@ def as_captured(session: Session, plan: str) -> Session:
                                       load_plan(plan))  # fmt: skip
     segments = [
         Segment(f"{i:04d}", e.kind, e.start, e.stop,
-                **{k: v for k, v in ({} if e.step is None else e.step.segment_attrs()).items()
-                   if k in ("label", "up", "axis", "angle_deg")})
+                **({} if e.step is None else e.step.segment_attrs()))
         for i, e in enumerate(entries)
     ]  # fmt: skip
     return replace(session, segments=segments)

@@ -123,7 +123,11 @@ def test_unattended_capture_of_a_mounting_plan_stores_the_mounting(tmp_path):
     assert summary.complete, summary.missing
     session = read_session(tmp_path / "iron.h5")
     labelled = [s for s in session.segments if s.label]
-    assert labelled and all(s.extra.get("mounting") == 1 for s in labelled)
+    steps = {st.label: st for st in load_plan("hk-gyro").steps}
+    # mounting 1 by the data (directions, axes), mounting 2 by the order between them
+    assert {s.extra.get("mounting") for s in labelled} == {1, 2}
+    assert all(s.extra.get("mounting") == steps[s.label].mounting for s in labelled)
+    assert len(labelled) == len(steps)
     ruler = [s for s in labelled if s.angle_deg == 90.0]
     assert len(ruler) == 1 and ruler[0].kind == "rotation"
 
