@@ -173,7 +173,8 @@ def grade_accel(session: Session, cal: Calibration, truth: Calibration) -> Grade
         prior_std = np.array([float(r["prior_std"]) for r in rows])
         crb = np.diag(_partial_bound(x_true, poses.a_mean, cov, G0, prior_std))
         return Graded("accel", "partial, 9 with a prior", names, value - x_true, std, half, crb,
-                      "Bayesian bound: the magnitudes' information and the section's prior")
+                      "Bayesian bound: the magnitudes' information and the section's "
+                      "prior")  # fmt: skip
     if len(names) == 9:  # gravity magnitude: the solver's gauge, M upper triangular
         M, Q = _gauge(T)
         x_true = model_to_params(b, M)
