@@ -15,7 +15,10 @@ accelerometer's gravity-magnitude model is :mod:`imucal_cli.estimators.thermal.j
 is dropped while an F-test of the drop in the residual sum of squares, against the residual
 variance of the larger model, is not significant at :data:`SELECT_P`; degree 0 means no
 significant dependence. A polynomial is only fitted where the design can determine it (more
-distinct temperatures than terms, residual degrees of freedom left).
+distinct temperatures than terms, residual degrees of freedom left). The dropped terms are
+held at zero, not known to be zero: their spread is in the kept terms' covariance
+(:func:`_held_terms`), so a term too small for the test does not make the others' intervals
+short.
 
 **Correlated residuals.** The points of a recording follow each other in time, and what the
 polynomial leaves (bias instability, flicker, the temperature sensor's lag) is correlated
