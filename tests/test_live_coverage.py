@@ -7,6 +7,7 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
+import pytest
 
 from bench import live
 from bench.live_grade import Graded, grade, partial_truth
@@ -70,3 +71,23 @@ def test_warmup_gyro_intervals_hold_the_truth():
         hits += list(gyro.hits)
     assert len(hits) >= 40
     assert np.mean(hits) >= 0.87, np.mean(hits)
+
+
+def test_the_coverage_interval_takes_the_seeds_design_effect():
+    """One seed's intervals share its poses and noise: the verdict's coverage interval counts
+    ``n / deff`` intervals.  Independent hits give a design effect near 1 (its estimate from
+    40 seeds has a relative std of about sqrt(2 / 39) = 23 %), hits that come a whole seed at a
+    time give the seed's count (20), and no seed-to-seed variation none at all."""
+    from bench.live_table import design_effect, wilson
+
+    rng = np.random.default_rng(24)
+    independent = [rng.random(20) < 0.95 for _ in range(40)]
+    assert design_effect(independent) < 1.0 + 3 * np.sqrt(2 / 39)
+    clustered = [np.full(20, rng.random() < 0.9) for _ in range(40)]
+    assert design_effect(clustered) > 10
+    assert design_effect([np.ones(20, bool)] * 5) == 1.0
+    hits = np.r_[np.ones(50, bool), np.zeros(10, bool)]
+    lo, hi = wilson(hits, deff=5.0)
+    lo5, hi5 = wilson(np.r_[np.ones(10, bool), np.zeros(2, bool)])  # 60 / 5 = 12, same p
+    assert (lo, hi) == pytest.approx((lo5, hi5), rel=1e-9)
+    assert wilson(hits)[0] > lo  # narrower without it
