@@ -10,6 +10,10 @@ or None where no bench computes one.  The bounds are those of the other benches:
   as in ``bench/gravity.py``;
 - accelerometer, labelled poses (12): :func:`labelled_crb` as in ``bench/labelled.py``, the
   labels a prior of the simulated placement error;
+- accelerometer, partial (9 with a prior: a design of too few directions, e.g. ``gyro-axes``):
+  the report's parameters (bias, the sensitivity axes' lengths, their angles minus 90 deg)
+  against the Bayesian bound ``(F + P^-1)^-1`` at the truth (:func:`_partial_bound`: the
+  magnitudes' information and the section's own prior);
 - gyro, full model from turns between still periods (12): :func:`full_bound` as in
   ``bench/gyro.py`` (the accelerometer calibration's covariance propagated through the turns);
 - gyro, turns of known angle (12): the information of the solver's own stacked problem at
@@ -33,10 +37,11 @@ import numpy as np
 
 from imucal_cli.calibrate.common import static_poses
 from imucal_cli.calibrate.gyro import known as pk
-from imucal_cli.calibrate.gyro.full import rotations_and_stills, solver_stills
+from imucal_cli.calibrate.gyro.full import accel_directions, rotations_and_stills, solver_stills
 from imucal_cli.calibrate.gyro.rotations import full_bound, with_segments
 from imucal_cli.calibrate.mag import mag_readings
 from imucal_cli.calibrate.thermal import BLOCK_S, still_blocks
+from imucal_cli.estimators.accel import partial as map_fit
 from imucal_cli.estimators.accel.crb import gravity_crb, labelled_crb
 from imucal_cli.estimators.accel.gravity import model_to_params
 from imucal_cli.estimators.accel.labelled_model import public_params
@@ -130,12 +135,46 @@ def _gauge(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return D @ R, Q @ D
 
 
+def partial_truth(T: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The partial fit's parameters (:data:`map_fit.NAMES`) of a part ``T``, ``b``: the bias,
+    the lengths of the sensitivity axes (the rows of ``S = T^-1``) and the angles between them
+    minus 90 deg (``G = S S^T``, ``G_ij = s_i s_j cos(90 deg + a_ij)``)."""
+    S = np.linalg.inv(T)
+    s = np.linalg.norm(S, axis=1)
+    a = [np.degrees(np.arccos(S[i] @ S[j] / (s[i] * s[j]))) - 90.0 for i, j in map_fit.PAIRS]
+    return np.r_[b, s, a]
+
+
+def _partial_bound(p: np.ndarray, a_mean: np.ndarray, cov: np.ndarray, g: float,
+                   prior_std: np.ndarray) -> np.ndarray:  # fmt: skip
+    """The Bayesian Cramér-Rao bound (van Trees) of the partial fit at ``p``: the inverse of
+    the magnitudes' Fisher information (``|h_k| - g`` over its noise, eq. 4, differentiated
+    centrally) plus the prior's ``diag(prior_std^-2)``, (9, 9)."""
+    sig = map_fit._sigmas(p, a_mean, cov)
+    J = np.empty((len(a_mean), 9))
+    for i in range(9):
+        step = np.zeros(9)
+        step[i] = 1e-6 * prior_std[i]
+        J[:, i] = (map_fit._magnitudes(p + step, a_mean)
+                   - map_fit._magnitudes(p - step, a_mean)) / (2 * step[i] * sig)  # fmt: skip
+    return np.linalg.inv(J.T @ J + np.diag(prior_std**-2.0))
+
+
 def grade_accel(session: Session, cal: Calibration, truth: Calibration) -> Graded:
-    """The accelerometer section: gravity-magnitude (9) or labelled-pose (12) parameters."""
+    """The accelerometer section: gravity-magnitude (9), partial (9 with a prior) or
+    labelled-pose (12) parameters."""
     sec = cal.accel
     names, value, std, half = _params(sec)
     poses, u, cov = _pose_design(session, truth)
     T, b = truth.accel.matrix, truth.accel.bias
+    if tuple(names) == map_fit.NAMES:  # partial: the report's parameters, the section's prior
+        x_true = partial_truth(T, b)
+        rows = sec.to_dict()["parameters"]
+        prior_std = np.array([float(r["prior_std"]) for r in rows])
+        crb = np.diag(_partial_bound(x_true, poses.a_mean, cov, G0, prior_std))
+        return Graded("accel", "partial, 9 with a prior", names, value - x_true, std, half, crb,
+                      "Bayesian bound: the magnitudes' information and the section's "
+                      "prior")  # fmt: skip
     if len(names) == 9:  # gravity magnitude: the solver's gauge, M upper triangular
         M, Q = _gauge(T)
         x_true = model_to_params(b, M)
@@ -209,7 +248,7 @@ def _known_bound(session: Session, cfg: Config, accel: SensorCalibration | None,
     session, _ = with_segments(session)
     data, known, used, segs, statics, _ = pk._known_data(session, cfg, accel, "bench")
     rot, st = rotations_and_stills(data) if data.turns else (None, solver_stills(data.stills))
-    accel_dirs = pk._accel_dirs(data)
+    accel_dirs = accel_directions(data)
     with_g = len(x) > 12
     prob = _Stacked(known, st, data.noise, rot, with_g, accel_dirs=accel_dirs)
     prob.freeze(x)

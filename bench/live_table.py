@@ -7,9 +7,12 @@ fraction of reported 95 % intervals that hold the truth.  Its verdict:
 - **exit**: every capture complete and calibrated (exit 0), with the sensors the file gives;
 - **error/bound**: live within :data:`TARGET` (10 %) of the file's; the ratio's 95 % interval
   from the seeds drawn again (bootstrap) says how far the seeds can tell;
-- **coverage**: live not further from the file's than their binomial sampling allows (1.96
-  std of the difference), and holding 95 % in its own 95 % (Wilson) interval.  The intervals
-  of one seed's parameters are not independent, so these intervals are somewhat too narrow.
+- **coverage**: live not further from the file's than their sampling allows (1.96 std of the
+  difference), and holding 95 % in its own 95 % (Wilson) interval.  The intervals of one
+  seed's parameters are not independent (one seed's errors share its poses and noise: a seed
+  that misses tends to miss several terms), so both take the plan's design effect
+  (:func:`design_effect`, Kish: the variance of the pooled fraction between seeds over the
+  binomial one, from the file's seeds): the number of intervals counts as ``n / deff``.
 
 A failure is stated with what caused it where the figures can tell: a live result that the
 file of the same seed shares (a calibration refused, a coverage the file misses over all its
@@ -51,15 +54,32 @@ def rms(z2: np.ndarray) -> float:
     return float(np.sqrt(np.mean(z2))) if len(z2) else float("nan")
 
 
-def wilson(hits: np.ndarray, z: float = 1.96) -> tuple[float, float]:
-    """The 95 % (Wilson) interval of a fraction of ``hits``."""
-    n = len(hits)
+def wilson(hits: np.ndarray, z: float = 1.96, deff: float = 1.0) -> tuple[float, float]:
+    """The 95 % (Wilson) interval of a fraction of ``hits``, the hits counting as
+    ``len(hits) / deff`` independent ones (``deff``: :func:`design_effect`)."""
+    n = len(hits) / deff
     if n == 0:
         return float("nan"), float("nan")
     p = float(hits.mean())
     centre = (p + z * z / (2 * n)) / (1 + z * z / n)
     half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
     return centre - half, centre + half
+
+
+def design_effect(per_seed: list[np.ndarray]) -> float:
+    """Kish's design effect of interval hits clustered by seed (``per_seed``: each seed's
+    hits): the between-seed (cluster-robust) variance of the pooled fraction,
+    ``k / (k - 1) sum_i (h_i - p m_i)^2 / (sum_i m_i)^2`` (seed ``i``: ``h_i`` of ``m_i``
+    intervals held), over the binomial ``p (1 - p) / sum_i m_i``; 1 where it cannot be told
+    (fewer than 2 seeds, every or no interval held) and never below 1."""
+    m = np.array([len(h) for h in per_seed], float)
+    h = np.array([np.sum(x) for x in per_seed], float)
+    k, n = len(m), float(m.sum()) if len(m) else 0.0
+    p = h.sum() / n if n else 0.0
+    if k < 2 or p <= 0.0 or p >= 1.0:
+        return 1.0
+    between = k / (k - 1) * float(np.sum((h - p * m) ** 2)) / n**2
+    return max(between / (p * (1 - p) / n), 1.0)
 
 
 def sensors(g: dict) -> set:
@@ -89,6 +109,7 @@ class Row:
     file_all: float = float("nan")
     cover_all: float = float("nan")
     cover_all_ci: tuple[float, float] = (float("nan"), float("nan"))
+    deff: float = 1.0
     file_n: int = 0
     wall: str = ""
     served: str = ""
@@ -163,14 +184,16 @@ def _figures(row: Row, pairs: list, file_of: dict, rng) -> list[set]:
     row.live, row.file_same = rms(z_live), rms(z_file)
     row.ratio = row.live / row.file_same
     row.ratio_ci = _bootstrap(pairs, both, rng)
-    row.cover_live, row.cover_file = float(h_live.mean()), float(h_file.mean())
-    row.cover_ci, row.n_intervals = wilson(h_live), len(h_live)
-    p = (h_live.sum() + h_file.sum()) / (len(h_live) + len(h_file))
-    row.cover_tol = 1.96 * float(np.sqrt(p * (1 - p) * (1 / len(h_live) + 1 / len(h_file))))
     every = [f for f in file_of.values() if sensors(f)]
     z_all, h_all = pool(every, [sensors(f) for f in every])
+    row.deff = design_effect([pool([f], [sensors(f)])[1] for f in every])
+    row.cover_live, row.cover_file = float(h_live.mean()), float(h_file.mean())
+    row.cover_ci, row.n_intervals = wilson(h_live, deff=row.deff), len(h_live)
+    p = (h_live.sum() + h_file.sum()) / (len(h_live) + len(h_file))
+    row.cover_tol = 1.96 * float(np.sqrt(p * (1 - p) * row.deff
+                                         * (1 / len(h_live) + 1 / len(h_file))))  # fmt: skip
     row.file_all, row.cover_all, row.file_n = rms(z_all), float(h_all.mean()), len(every)
-    row.cover_all_ci = wilson(h_all)
+    row.cover_all_ci = wilson(h_all, deff=row.deff)
     for name in sorted(set().union(*both)):
         keep = [{name} if name in b else set() for b in both]
         zl, hl = pool([j.graded for j, _ in pairs], keep)
@@ -209,7 +232,8 @@ def _verdict(row: Row) -> None:
         solver = np.isfinite(alo) and not alo <= NOMINAL <= ahi
         row.why.append(
             f"coverage {100 * row.cover_live:.1f} % ({100 * clo:.0f}-{100 * chi:.0f} %, "
-            f"{row.n_intervals} intervals) does not hold {100 * NOMINAL:.0f} %"
+            f"{row.n_intervals} intervals, design effect {row.deff:.1f}) does not hold "
+            f"{100 * NOMINAL:.0f} %"
             + (f" [solver: the file's over {row.file_n} seeds is {100 * row.cover_all:.1f} % "
                f"({100 * alo:.0f}-{100 * ahi:.0f} %)]" if solver else "")
         )  # fmt: skip
@@ -277,7 +301,8 @@ def print_rows(console: Console, rows: list[Row], title: str) -> None:
         t.add_row(
             r.plan, r.mode, f"{r.attempted}/{r.complete}/{r.calibrated}", r.saved,
             _fmt(r.live), _fmt(r.file_same), _fmt(r.ratio) + ci,
-            f"{_fmt(100 * r.cover_live, '.1f')} ({_pct(r.cover_ci)}, n={r.n_intervals})",
+            f"{_fmt(100 * r.cover_live, '.1f')} ({_pct(r.cover_ci)}, n={r.n_intervals}, "
+            f"deff {r.deff:.1f})",
             f"{_fmt(100 * r.cover_file, '.1f')} (± {_fmt(100 * r.cover_tol, '.1f')})",
             f"{_fmt(r.file_all)}, {_fmt(100 * r.cover_all, '.1f')} ({_pct(r.cover_all_ci)}; "
             f"{r.file_n} seeds)", r.served, r.wall,

@@ -204,7 +204,20 @@ def _joint_gyro(session: Session, cfg: Config, t_ref: float) -> TemperatureModel
                      max_degree=opt.max_degree, min_span_c=opt.min_span_c, serial=True,
                      what=f"{session_name(session)} (gyro still periods)")  # fmt: skip
     return _from_fit(fit, t_ref, "the session's still periods (gyro bias read at each "
-                     "temperature)")  # fmt: skip
+                     "temperature)", _level_extra(fit))  # fmt: skip
+
+
+def _level_extra(fit: TempcoFit) -> np.ndarray:
+    """What the temperature terms' uncertainty adds to each channel's bias variance at
+    ``T_ref`` (n,): the level's variance in the fit minus its variance were the terms known
+    (``1 / (C^-1)_00``, the conditional), as the accelerometer's joint fit states it.  The
+    gyro solver measures its bias on the same still periods, compensated with the terms: their
+    error moves it by ``sum_k dc_k mean((T - T_ref)^k)``, which its own std leaves out."""
+    out = np.zeros(len(fit.channels))
+    for i, c in enumerate(fit.channels):
+        if c.degree and len(c.level) == 1:
+            out[i] = max(float(c.cov[0, 0] - 1.0 / np.linalg.inv(c.cov)[0, 0]), 0.0)
+    return out
 
 
 def joint_models(

@@ -16,7 +16,9 @@ pose mean's noise (as :mod:`imucal_cli.estimators.accel.gravity` does), by Leven
 the analytic Jacobian: the temperature columns are the bias columns times ``(T_k -
 T_ref)^j``. Each channel's degree (at most 3) is chosen by backward elimination: the least
 significant top term of any channel is dropped while the F-test of its drop in chi^2 is not
-significant (:data:`imucal_cli.estimators.thermal.temperature.SELECT_P`).
+significant (:data:`imucal_cli.estimators.thermal.temperature.SELECT_P`); the dropped terms'
+spread (the highest degree's estimate and covariance) stays in the kept parameters'
+covariance (:func:`_held_terms`).
 
 The fit gives the temperature terms and their covariance; the calibration itself (any
 accelerometer solver) is then run on the pose means with the temperature terms taken out.
@@ -268,8 +270,42 @@ def fit_gravity_tempco(
             "temperature-dependent bias: capture more poses (faces and 45-degree edges) while "
             "the temperature changes, or record a still warm-up (plan warmup:MINUTES)"
         )
+    top, top_degree = fit, degree
     fit, degree, tests, n = _eliminate(model, fit, degree, select_p, max_iterations)
-    return _package(model, fit, degree, T, tests, nfev + n, cov_mean is not None)
+    held = _held_terms(model, fit, degree, top, top_degree, cov_mean is not None)
+    return _package(model, fit, degree, T, tests, nfev + n, cov_mean is not None, held)
+
+
+def _noise_scale(chi2: float, dof: int, weighted: bool) -> float:
+    """``chi2/dof`` where the noise is unknown or the residuals exceed it (99th percentile of
+    chi^2), else 1."""
+    if weighted:
+        return chi2 / dof if dof > 0 and chi2 > chdtri(dof, 0.01) else 1.0
+    return chi2 / dof
+
+
+def _held_terms(model, fit, degree, top, top_degree, weighted) -> np.ndarray:
+    """What the temperature terms the eliminations dropped add to the covariance of the kept
+    parameters (normalised units): held at zero, not known to be zero, they shift the kept
+    ones by ``A delta`` (``A = (J_k^T J_k)^-1 J_k^T J_drop`` at the kept fit, the alias
+    matrix of the linearised eq. (11)), ``delta`` known as the highest-degree fit's estimate
+    with its covariance: the consider covariance ``A (delta delta^T + C_delta) A^T`` (as
+    :func:`imucal_cli.estimators.thermal.temperature._held_terms`)."""
+    n = 9 + len(model.columns(degree))
+    cols_top, cols = model.columns(top_degree), model.columns(degree)
+    drop = [9 + i for i, jc in enumerate(cols_top) if jc not in cols]
+    if not drop:
+        return np.zeros((n, n))
+    kept = list(range(9)) + [9 + cols_top.index(jc) for jc in cols]
+    x = np.zeros(9 + len(cols_top))
+    x[kept] = fit.x
+    _, J = model.residuals_and_jacobian(x, top_degree)
+    Jk = J[:, kept]
+    A = np.linalg.solve(Jk.T @ Jk, Jk.T @ J[:, drop])
+    dof = len(top.f) - len(top.x)
+    C = _noise_scale(top.chi2, dof, weighted) * np.linalg.inv(top.J.T @ top.J)
+    delta = top.x[drop]
+    return A @ (np.outer(delta, delta) + C[np.ix_(drop, drop)]) @ A.T
 
 
 def _eliminate(model, fit, degree, select_p, max_iterations):
@@ -304,16 +340,13 @@ def _eliminate(model, fit, degree, select_p, max_iterations):
     return fit, degree, tests, nfev
 
 
-def _package(model, fit, degree, T, tests, nfev, weighted) -> JointResult:
+def _package(model, fit, degree, T, tests, nfev, weighted, held) -> JointResult:
     dof = len(fit.f) - len(fit.x)
     chi2 = fit.chi2
-    if weighted:
-        noise_scale = chi2 / dof if dof > 0 and chi2 > chdtri(dof, 0.01) else 1.0
-    else:
-        noise_scale = chi2 / dof
+    noise_scale = _noise_scale(chi2, dof, weighted)
     D = model.to_raw_jacobian(degree)
     JtJ = fit.J.T @ fit.J
-    cov = noise_scale * np.linalg.inv(JtJ) * np.outer(D, D)
+    cov = (noise_scale * np.linalg.inv(JtJ) + held) * np.outer(D, D)
     cond = noise_scale * np.linalg.inv(JtJ[:9, :9]) * np.outer(D[:9], D[:9])
     B, M, tc = model.raw(fit.x, degree)
     if not np.all(np.isfinite(B)):

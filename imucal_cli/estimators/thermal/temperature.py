@@ -15,7 +15,10 @@ accelerometer's gravity-magnitude model is :mod:`imucal_cli.estimators.thermal.j
 is dropped while an F-test of the drop in the residual sum of squares, against the residual
 variance of the larger model, is not significant at :data:`SELECT_P`; degree 0 means no
 significant dependence. A polynomial is only fitted where the design can determine it (more
-distinct temperatures than terms, residual degrees of freedom left).
+distinct temperatures than terms, residual degrees of freedom left). The dropped terms are
+held at zero, not known to be zero: their spread is in the kept terms' covariance
+(:func:`_held_terms`), so a term too small for the test does not make the others' intervals
+short.
 
 **Correlated residuals.** The points of a recording follow each other in time, and what the
 polynomial leaves (bias instability, flicker, the temperature sensor's lag) is correlated
@@ -277,6 +280,36 @@ def _wls(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> _Solved | None:
                    y - X @ beta)  # fmt: skip
 
 
+def _scaled_cov(s: _Solved, known_sigma: bool, serial: bool) -> tuple[np.ndarray, float, float]:
+    """A fit's covariance with the residuals' scale (chi-square test at 1 % against a known
+    noise) and the AR(1) inflation ``(1 + rho) / (1 - rho)``; the scale and ``rho``."""
+    rho = _lag1(s.r) if serial else 0.0
+    infl = (1 + rho) / (1 - rho)
+    if known_sigma:
+        scale = s.chi2 / s.dof if s.dof > 0 and s.chi2 > chdtri(s.dof, 0.01) else 1.0
+    else:
+        scale = s.chi2 / s.dof
+    return s.XtX_inv * scale * infl, float(scale), float(rho)
+
+
+def _held_terms(dt, w, groups, n_groups, d, top, small: _Solved, big: _Solved,
+                known_sigma: bool, serial: bool) -> np.ndarray:  # fmt: skip
+    """What the terms of degree ``d+1 .. top`` the F-tests dropped add to the covariance of
+    the degree-``d`` fit: held at zero, they shift the kept coefficients by ``A delta``
+    (omitted-variable bias; ``A = (X_d^T W X_d)^-1 X_d^T W X_drop``, the alias matrix), and
+    the data know ``delta`` only as the degree-``top`` fit's ``delta_hat`` with covariance
+    ``C_delta``: a consider covariance (Schmidt) ``A (delta_hat delta_hat^T + C_delta) A^T``,
+    the held value's mean squared error.  A cubic a 1 % test cannot tell from zero still moves
+    the linear term over a 30 C span by several of its std (``bench live``'s warm-up gyro:
+    67.5 % of its intervals held the truth)."""
+    X = _design(dt, groups, n_groups, top) * w[:, None]
+    kept, drop = X[:, : n_groups + d], X[:, n_groups + d :]
+    A = small.XtX_inv @ (kept.T @ drop)
+    cov_big, _, _ = _scaled_cov(big, known_sigma, serial)
+    delta = big.beta[n_groups + d :]
+    return A @ (np.outer(delta, delta) + cov_big[n_groups + d :, n_groups + d :]) @ A.T
+
+
 def _fit_channel(dt, y, w, groups, n_groups, max_degree, known_sigma, serial, select_p):
     """Backward elimination from the highest degree the design determines."""
     fits: dict[int, _Solved] = {}
@@ -300,13 +333,11 @@ def _fit_channel(dt, y, w, groups, n_groups, max_degree, known_sigma, serial, se
             break
         d -= 1
     s = fits[d]
-    rho = _lag1(s.r) if serial else 0.0
-    infl = (1 + rho) / (1 - rho)
-    if known_sigma:
-        scale = s.chi2 / s.dof if s.dof > 0 and s.chi2 > chdtri(s.dof, 0.01) else 1.0
-    else:
-        scale = s.chi2 / s.dof
-    cov = s.XtX_inv * scale * infl
+    cov, scale, rho = _scaled_cov(s, known_sigma, serial)
+    top = max(fits)
+    if d < top:  # the terms the F-tests dropped are held at zero, not known to be zero
+        cov = cov + _held_terms(dt, w, groups, n_groups, d, top, s, fits[top], known_sigma,
+                                serial)  # fmt: skip
     return ChannelFit(
         degree=d, level=s.beta[:n_groups].copy(), tempco=s.beta[n_groups:].copy(), cov=cov,
         residual_rms=float(np.sqrt(np.mean(s.r**2))), noise_scale=float(scale),
