@@ -22,12 +22,13 @@ import pytest
 
 from imucal_cli import __version__
 from imucal_cli.cli import app
-from imucal_cli.cli.app import EXIT_CODES
+from imucal_cli.cli.app import EXIT_CODES, load_commands
 
 from .cli_helpers import IMUCAL, run
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX pipes")
 
+load_commands()  # a command's module is otherwise imported when a command line names it
 COMMANDS = sorted(c.name or c.callback.__name__ for c in app.registered_commands)
 ENV = {**os.environ, "NO_COLOR": "1", "COLUMNS": "80"}
 DOCS = Path(__file__).resolve().parents[1] / "docs"

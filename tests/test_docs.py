@@ -113,8 +113,11 @@ def _commands():
 
     from imucal_cli.cli import app
 
+    group = typer.main.get_command(app)
+    ctx = typer.Context(group)
     out = {}
-    for name, command in typer.main.get_command(app).commands.items():
+    for name in group.list_commands(ctx):  # click's contract: the commands load when asked for
+        command = group.get_command(ctx, name)
         out[name] = command
         if hasattr(command, "commands"):  # a group (typer's own click)
             out.update({f"{name} {sub}": c for sub, c in command.commands.items()})

@@ -21,7 +21,7 @@ from imucal_cli.model.calibration import LOCAL_FIELD
 from imucal_cli.model.mag import MagCalibration, Readings
 from imucal_cli.simulate.magnetometer import earth_field, simulate_mag
 from imucal_cli.simulate.triad import simulate
-from imucal_cli.use.report import build_report
+from imucal_cli.use.report.build import build_report
 from tests.cli_helpers import assert_one_line_error, run
 
 FAST = {"hold_s": 1.0, "tumble_s": 3.0}

@@ -50,7 +50,7 @@ def test_gyro_rotation_panel(tmp_path):
     import matplotlib.pyplot as plt
 
     from imucal_cli.formats.calibration import calibration_from_json
-    from imucal_cli.use.report import build_report
+    from imucal_cli.use.report.build import build_report
 
     document = full_calibration()
     document["gyro"] = {
@@ -116,7 +116,7 @@ def test_factorization_magnitude_panel_has_no_empty_series_and_shows_g(tmp_path)
     import matplotlib.pyplot as plt
 
     from imucal_cli.formats.calibration import calibration_from_json
-    from imucal_cli.use.report import STANDARD_GRAVITY, build_report
+    from imucal_cli.use.report.build import STANDARD_GRAVITY, build_report
 
     document = full_calibration()
     accel = document["accel"]

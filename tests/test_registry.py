@@ -19,13 +19,15 @@ from alembic.runtime.migration import MigrationContext
 from alembic.script import ScriptDirectory
 from sqlalchemy import create_engine, func, select, text
 
+from bench.registry import serial_of
 from imucal_cli.errors import ConfigError
 from imucal_cli.formats.calibration import calibration_to_json
+from imucal_cli.model.calibration import Calibration
 from imucal_cli.registry import store as store_module
 from imucal_cli.registry.lot import OUTLIER_Z, cpk, lot_statistics
 from imucal_cli.registry.queries import iter_records, list_units, unit_report
 from imucal_cli.registry.record import UnitInfo, record_calibration
-from imucal_cli.registry.schema import figures, metadata
+from imucal_cli.registry.schema import calibrations, figures, metadata, sections, units
 from imucal_cli.registry.store import RegistryError, open_registry
 from imucal_cli.registry.transfer import export_records, import_files
 from imucal_cli.use.limits import judge_calibration, limits_from_dict, unit_figures
@@ -366,6 +368,84 @@ def test_lot_statistics_against_an_independent_computation(tmp_path, template):
     assert history["sensors"][0]["drifted"] == ["accel b_x"]
     assert alarms["SN000001"]["drifted"][0].startswith("accel b_x (z = +")
     assert build_history(cals[2])["sensors"][0]["drifted"] == []
+
+
+def _without(cal, *, gyro: bool = True, accel_parameter: str | None = None):
+    """``cal`` without its gyro section, or without one of its accel parameters: a section
+    of another layout (other figures packed)."""
+    doc = cal.to_dict()
+    if not gyro:
+        doc.pop("gyro")
+    if accel_parameter is not None:
+        doc["accel"]["parameters"] = [p for p in doc["accel"]["parameters"]
+                                      if p["name"] != accel_parameter]  # fmt: skip
+    return Calibration.from_dict(doc, source=cal.sensor)
+
+
+def test_lot_of_several_layouts_against_the_figures_table(tmp_path, template):
+    """The lot unpacks the sections' packed figures a matrix per sensor and layout: in a lot
+    whose units have different figures (some without a gyro section, some whose accel
+    section lacks b_z, a unit re-calibrated into another layout, one calibrated before its
+    first record's time), every parameter is over exactly the units whose latest calibration
+    has it, the same as the ``figures`` table (one row per figure) gives, read here on its own
+    with SQL."""
+    reg = open_registry(tmp_path / "mixed.db")
+    for i in range(30):
+        cal = unit(template, i, apart=i == 3)
+        if i % 5 == 1:
+            cal = _without(cal, gyro=False)
+        elif i % 7 == 2:
+            cal = _without(cal, accel_parameter="b_z")
+        record_calibration(reg, cal, UnitInfo(cal.sensor, "P", "MIX"))
+    for i, created, change in ((4, "2026-06-01T00:00:00Z", {"accel_parameter": "b_z"}),
+                               (7, "2026-06-01T00:00:00Z", {"gyro": False}),
+                               (8, "2025-01-01T00:00:00Z", {}),  # older: not the latest
+                               (9, "2026-06-01T00:00:00Z", {})):  # fmt: skip
+        record_calibration(reg, _without(unit(template, i, created=created), **change),
+                           UnitInfo(serial_of(i), "P", "MIX"))  # fmt: skip
+    with reg:
+        stats = lot_statistics(reg, "MIX")
+        with reg.read() as conn:
+            cal_rows = conn.execute(
+                select(calibrations.c.id, units.c.serial, calibrations.c.created)
+                .join(units, units.c.id == calibrations.c.unit_id).where(units.c.lot == "MIX")
+            ).all()  # fmt: skip
+            latest = {}
+            for cal_id, serial, _ in sorted(cal_rows, key=lambda r: (r[2], r[0])):
+                latest[serial] = cal_id
+            rows = conn.execute(
+                select(sections.c.calibration_id, sections.c.sensor, figures.c.name,
+                       figures.c.unit, figures.c.value)
+                .join(sections, sections.c.id == figures.c.section_id)
+                .where(sections.c.calibration_id.in_(list(latest.values())))
+            ).all()  # fmt: skip
+    serial_of_cal = {cal_id: serial for serial, cal_id in latest.items()}
+    expected: dict[tuple, dict[str, float]] = {}
+    for cal_id, sensor, name, unit_, value in rows:
+        if value is not None and np.isfinite(value):
+            expected.setdefault((sensor, name, unit_), {})[serial_of_cal[cal_id]] = value
+    got = {(p["sensor"], p["name"], p["unit"]): p for p in stats["parameters"]}
+    assert set(got) == set(expected)
+    assert stats["units"] == 30 and stats["calibrations"] == 34
+    n_of = {key[:2]: p["n"] for key, p in got.items()}
+    # latest without b_z: units 2 and 23 (i % 7 == 2), 4 (re-calibrated so); 9 re-calibrated
+    # with it; without a gyro: 1, 6, 11, 16, 21, 26 (i % 5 == 1), 7 (re-calibrated so)
+    assert n_of[("accel", "b_z")] == 27 and n_of[("accel", "b_x")] == 30
+    assert n_of[("gyro", "b_x")] == 23
+    for key, by_serial in expected.items():
+        x = np.array([by_serial[s] for s in latest if s in by_serial])  # the units' order
+        p = got[key]
+        assert p["n"] == x.size, key
+        assert p["mean"] == pytest.approx(x.mean(), rel=1e-12, abs=1e-15), key
+        assert p["median"] == pytest.approx(np.median(x), rel=1e-12, abs=1e-15), key
+        assert (p["min"], p["max"]) == (x.min(), x.max()), key
+        if x.size > 1:
+            assert p["std"] == pytest.approx(x.std(ddof=1), rel=1e-9, abs=1e-15), key
+        for o in p["outliers"]:
+            assert by_serial[o["serial"]] == o["value"], key
+    assert {o["serial"] for o in got[next(k for k in got if k[:2] == ("accel", "bias x"))][
+        "outliers"]} == {"SN000003"}  # fmt: skip
+    assert stats["drift"]["units_checked"] == 4
 
 
 def test_cpk_of_one_sided_and_two_sided_limits():

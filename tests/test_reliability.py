@@ -138,7 +138,8 @@ def test_malformed_calibration_json(tmp_path, name, content, expect):
 
     from imucal_cli.formats.calibration import read_calibration
     from imucal_cli.use.export import export
-    from imucal_cli.use.report import build_report, render_report
+    from imucal_cli.use.report.build import build_report
+    from imucal_cli.use.report.render import render_report
 
     def rendered(cal) -> str:
         console = Console(record=True, width=100, file=open(os.devnull, "w"))  # noqa: SIM115

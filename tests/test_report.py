@@ -20,14 +20,10 @@ from rich.console import Console
 
 from imucal_cli.cli import main
 from imucal_cli.formats.calibration import calibration_from_json, calibration_to_json
-from imucal_cli.use.report import (
-    STANDARD_GRAVITY,
-    add_table,
-    build_report,
-    coverage_map,
-    load_for_report,
-    render_report,
-)
+from imucal_cli.use.report.build import STANDARD_GRAVITY, add_table, build_report
+from imucal_cli.use.report.coverage_map import coverage_map
+from imucal_cli.use.report.load import load_for_report
+from imucal_cli.use.report.render import render_report
 
 G = STANDARD_GRAVITY
 UPS = [
@@ -816,7 +812,8 @@ def test_history_from_a_session_with_several_stored_calibrations(
 
 
 def test_history_groups_by_sensor_and_says_what_it_leaves_out(two_calibrations, tmp_path):
-    from imucal_cli.use.report import build_history, load_all_for_history
+    from imucal_cli.use.report.history import build_history
+    from imucal_cli.use.report.load import load_all_for_history
 
     other = json.loads(two_calibrations[0].read_text())
     other["sensor"] = "another part"
@@ -827,7 +824,7 @@ def test_history_groups_by_sensor_and_says_what_it_leaves_out(two_calibrations, 
     assert [e["sensor"] for e in history["sensors"]] == ["sim-16bit seed 4"]
     assert history["single"] == ["another part"] and history["without_sensor"] == 1
     console = Console(record=True, width=100)
-    from imucal_cli.use.report import render_history
+    from imucal_cli.use.report.history import render_history
 
     render_history(history, console)
     text = console.export_text()
@@ -849,7 +846,7 @@ def test_history_compares_a_section_from_its_first_appearance():
     from imucal_cli.calibrate.session import calibrate_session
     from imucal_cli.formats.config import config_from_dict
     from imucal_cli.simulate.rotations import simulate_gyro_rotations
-    from imucal_cli.use.report import build_history
+    from imucal_cli.use.report.history import build_history
 
     session, _ = simulate_gyro_rotations(plan="qureshi-axes", seed=5, rotations_per_axis=6,
                                          created="2026-01-01T00:00:00Z")  # fmt: skip
@@ -891,7 +888,7 @@ def one_session_three_ways():
 
 
 def test_history_does_not_report_another_gravity_as_drift(one_session_three_ways):
-    from imucal_cli.use.report import build_history
+    from imucal_cli.use.report.history import build_history
 
     standard, g981, _ = one_session_three_ways
     history = build_history([standard, g981])
@@ -913,7 +910,7 @@ def test_history_does_not_report_another_gravity_as_drift(one_session_three_ways
 
 
 def test_history_does_not_compare_solvers_and_names_quantities_alike(one_session_three_ways):
-    from imucal_cli.use.report import build_history, render_history
+    from imucal_cli.use.report.history import build_history, render_history
 
     standard, _, factorization = one_session_three_ways
     history = build_history([standard, factorization])

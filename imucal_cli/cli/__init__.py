@@ -1,6 +1,7 @@
 """Command-line interface: thin typer commands that parse, call the library and print.
 
-Each command lives in its own module and registers itself on :data:`app`.
+Each command lives in its own module and registers itself on :data:`app`; the module is
+imported when a command line names its command (:data:`~imucal_cli.cli.app.COMMANDS`).
 :func:`main` turns an :class:`~imucal_cli.errors.ImucalError` into one line on stderr and its
 exit code, so a user mistake never shows a traceback.  When stdout is a pipe whose reader has
 gone (``imucal report X | head``), the rest of the output is dropped quietly and the command
@@ -23,18 +24,8 @@ import typer
 from imucal_cli.errors import ImucalError, ImucalWarning
 from imucal_cli.formats.text import clean_text
 
-# Importing the command modules registers their commands on ``app``.
-from . import apply as _apply  # noqa: F401
-from . import calibrate as _calibrate  # noqa: F401
-from . import capture as _capture  # noqa: F401
-from . import certificate as _certificate  # noqa: F401
-from . import export as _export  # noqa: F401
-from . import import_ as _import  # noqa: F401
-from . import label as _label  # noqa: F401
-from . import noise as _noise  # noqa: F401
-from . import registry as _registry  # noqa: F401
-from . import report as _report  # noqa: F401
-from . import simulate as _simulate  # noqa: F401
+# The command modules register their commands on ``app`` when a command line names them
+# (``COMMANDS`` in ``app.py``).
 from .app import app
 
 

@@ -13,7 +13,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import typer
 from rich.markup import escape
 
 from imucal_cli.errors import ImucalError, InputError
@@ -28,15 +27,10 @@ from imucal_cli.use.limits import Acceptance, ProductLimits, judge_calibration, 
 
 from .console import make_console
 
-__all__ = ["REJECTED", "Unit", "prepare", "registry_option", "worst"]
+__all__ = ["REJECTED", "Unit", "prepare", "worst"]
 
 REJECTED = 4
 """Exit status of a unit saved and judged outside its product's limits (``--limits``)."""
-
-
-def registry_option(help: str):
-    """``--registry PATH|URL`` (or ``$IMUCAL_REGISTRY``)."""
-    return typer.Option(None, "--registry", metavar="PATH|URL", envvar=REGISTRY_ENV, help=help)
 
 
 @dataclass

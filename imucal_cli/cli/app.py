@@ -8,10 +8,12 @@ wrapped at all, so every option's help is one line for grep.
 
 from __future__ import annotations
 
+import importlib
 import shutil
 import sys
 
 import typer
+from typer.core import TyperGroup
 
 from imucal_cli import __version__
 
@@ -94,8 +96,61 @@ def _version(value: bool) -> None:
         raise typer.Exit(0)
 
 
+COMMANDS = {
+    "apply": "apply", "calibrate": "calibrate", "capture": "capture",
+    "certificate": "certificate", "export": "export", "import": "import_", "label": "label",
+    "noise": "noise", "report": "report", "simulate": "simulate", "registry": "registry",
+}  # fmt: skip
+"""Every command of ``imucal`` (in the order ``--help`` lists them) and the module of this
+package that registers it on :data:`app`."""
+
+
+class Commands(TyperGroup):
+    """The root's commands, each command's module imported when a command line names it
+    (click's "lazily loading subcommands"): ``imucal registry lot`` loads the registry's
+    libraries, not also those of calibrate, capture and simulate. ``--help``, completion and
+    a misspelt command (typer's "Did you mean") load them all."""
+
+    def list_commands(self, ctx) -> list[str]:
+        return list(COMMANDS)
+
+    def get_command(self, ctx, cmd_name: str):
+        if cmd_name not in self.commands and cmd_name in COMMANDS:
+            self.load([cmd_name])
+        return super().get_command(ctx, cmd_name)
+
+    def resolve_command(self, ctx, args: list[str]):
+        if args and args[0] not in COMMANDS:
+            self.load(COMMANDS)  # typer suggests a name among those loaded
+        return super().resolve_command(ctx, args)
+
+    def format_commands(self, ctx, formatter) -> None:
+        self.load(COMMANDS)
+        super().format_commands(ctx, formatter)
+
+    def load(self, names) -> None:
+        """Import the modules of the commands ``names`` and add what they registered."""
+        missing = [n for n in names if n not in self.commands]
+        if not missing:
+            return
+        for name in missing:
+            importlib.import_module(f"{__package__}.{COMMANDS[name]}")
+        built = typer.main.get_command(app).commands  # typer's own build of what is registered
+        for name in COMMANDS:
+            if name not in self.commands and name in built:
+                self.commands[name] = built[name]
+
+
+def load_commands() -> None:
+    """Import every command's module (what ``app.registered_commands`` and
+    ``typer.main.get_command(app)`` then hold: all of them)."""
+    for module in COMMANDS.values():
+        importlib.import_module(f"{__package__}.{module}")
+
+
 app = typer.Typer(
     name="imucal",
+    cls=Commands,
     no_args_is_help=True,
     add_completion=True,
     pretty_exceptions_enable=False,

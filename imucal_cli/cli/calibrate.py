@@ -25,11 +25,11 @@ from imucal_cli.model.gyro import GyroCalibration
 from imucal_cli.model.mag import Readings
 from imucal_cli.model.parts import By
 
-from .acceptance import REJECTED, prepare, print_lines, registry_option, worst
+from .acceptance import REJECTED, prepare, print_lines, worst
 from .app import app
 from .console import Piece, make_console, print_json, print_line
 from .imu_set import set_lines, set_warnings
-from .options import gravity_option, json_option, output_option, session_argument
+from .options import gravity_option, json_option, output_option, registry_option, session_argument
 
 
 @app.command()

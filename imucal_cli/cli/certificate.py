@@ -18,9 +18,9 @@ from imucal_cli.registry.store import open_registry
 from imucal_cli.use.certificate import build_certificate, write_certificate
 from imucal_cli.use.limits import judge_calibration, limits_from_dict, load_limits
 
-from .acceptance import registry_option
 from .app import app
 from .console import make_console
+from .options import registry_option
 
 
 @app.command()

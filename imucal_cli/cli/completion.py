@@ -4,16 +4,16 @@
 functions give it the values of the options it cannot guess (typer completes commands and
 option names by itself).  Where a function offers nothing (a path, a TOML plan file), the
 shell completes file names (bash ``complete -o default``, zsh ``_files``).  The plans and the
-formats come from their registries, so a new plan or reader is completed without a change here.
+formats come from their registries, so a new plan or reader is completed without a change here;
+the formats' completions are made by :func:`choices` in the command that imports their
+registry (``import``, ``export``), so that the options every command shares load no reader.
 """
 
 from __future__ import annotations
 
 import glob
 
-from imucal_cli.formats.importers import FORMATS
 from imucal_cli.plans import PLANS
-from imucal_cli.use.export import EXPORT_FORMATS
 
 ACCEL_UNITS = ("counts", "V", "g", "m/s^2")
 GYRO_UNITS = ("counts", "V", "rad/s", "deg/s")
@@ -33,7 +33,7 @@ def plans(incomplete: str) -> list[str]:
     return _matching(names, incomplete)
 
 
-def _choices(values):
+def choices(values):
     """The completion of one option's ``values``."""
 
     def complete(incomplete: str) -> list[str]:
@@ -42,15 +42,13 @@ def _choices(values):
     return complete
 
 
-accel_units = _choices(ACCEL_UNITS)
-gyro_units = _choices(GYRO_UNITS)
-time_units = _choices(TIME_UNITS)
-simulate_units = _choices(("counts", "m/s^2"))
-import_formats = _choices(FORMATS)
-capture_protocols = _choices(CAPTURE_PROTOCOLS)
-serve_protocols = _choices(SERVE_PROTOCOLS)
-apply_formats = _choices(("h5", "csv"))
-export_formats = _choices(EXPORT_FORMATS)
+accel_units = choices(ACCEL_UNITS)
+gyro_units = choices(GYRO_UNITS)
+time_units = choices(TIME_UNITS)
+simulate_units = choices(("counts", "m/s^2"))
+capture_protocols = choices(CAPTURE_PROTOCOLS)
+serve_protocols = choices(SERVE_PROTOCOLS)
+apply_formats = choices(("h5", "csv"))
 
 
 def ports(incomplete: str) -> list[str]:

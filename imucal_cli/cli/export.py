@@ -11,7 +11,7 @@ from imucal_cli.errors import InputError
 from imucal_cli.formats.exporters import ExportOptions, parse_scale
 from imucal_cli.formats.noise import read_noise
 from imucal_cli.formats.output import check_output, write_output
-from imucal_cli.use.export import FORMATS, format_for_suffix, load_input
+from imucal_cli.use.export import EXPORT_FORMATS, FORMATS, format_for_suffix, load_input
 from imucal_cli.use.export import export as export_text
 from imucal_cli.use.export_set import pick_imu
 
@@ -37,7 +37,7 @@ def export(
         "(M, A, C_gyro_i), openvins, basalt, px4, ardupilot, fusion, vins, orbslam3, ros-imu "
         "(covariances) "
         "[default: from OUTPUT's suffix .h/.yaml/.json/.params/.parm].",
-        completion.export_formats,
+        completion.choices(EXPORT_FORMATS),
     ),
     output: Path | None = output_option("FILE", "File to write [default: standard output]."),
     noise: Path | None = typer.Option(

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from imucal_cli.formats.importers import import_files
+from imucal_cli.formats.importers import FORMATS, import_files
 from imucal_cli.formats.output import check_output
 from imucal_cli.formats.session import write_session
 
@@ -47,7 +47,7 @@ def import_(
         "of ROS 2 or ROS 1 messages), ulog (.ulg), mavlink (.tlog, ArduPilot DataFlash .bin or "
         "its text .log), lines (MotionCal Raw:, i2cdevlib a/g:) or witmotion (0x55 frames) "
         "[default: recognised from the file].",
-        completion.import_formats,
+        completion.choices(FORMATS),
     ),
     topic: str | None = typer.Option(
         None, "--topic", metavar="TOPIC",

@@ -23,6 +23,7 @@ from typing import Annotated
 import typer
 
 from imucal_cli.plans import plan_help
+from imucal_cli.registry import REGISTRY_ENV
 
 from . import completion
 
@@ -51,6 +52,7 @@ __all__ = [
     "plot_option",
     "protocol_option",
     "rate_option",
+    "registry_option",
     "session_argument",
     "time_unit_option",
     "units_option",
@@ -112,6 +114,11 @@ def plan_option(default: str | None, lead: str):
         help=f"{lead} {plan_help()}",
         autocompletion=completion.plans,
     )
+
+
+def registry_option(help: str):
+    """``--registry PATH|URL`` (or ``$IMUCAL_REGISTRY``)."""
+    return typer.Option(None, "--registry", metavar="PATH|URL", envvar=REGISTRY_ENV, help=help)
 
 
 def json_option(help: str):

@@ -20,10 +20,9 @@ from imucal_cli.registry.store import open_registry
 from imucal_cli.registry.transfer import export_records, import_files
 from imucal_cli.use.limits import load_limits
 
-from .acceptance import registry_option
 from .app import app, help_width
 from .console import make_console
-from .options import json_option
+from .options import json_option, registry_option
 from .registry_render import render_lot, render_unit, render_units
 
 registry_app = typer.Typer(

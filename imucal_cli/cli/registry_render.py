@@ -8,7 +8,7 @@ from rich.markup import escape
 from rich.table import Table
 from rich.text import Text
 
-from imucal_cli.use.report import render_history
+from imucal_cli.use.report.history import render_history
 
 __all__ = ["render_lot", "render_unit", "render_units"]
 

@@ -10,14 +10,10 @@ import typer
 from imucal_cli.errors import InputError
 from imucal_cli.formats.output import check_output
 from imucal_cli.use.plots import report_figure
-from imucal_cli.use.report import (
-    build_history,
-    build_report,
-    load_all_for_history,
-    load_for_report,
-    render_history,
-    render_report,
-)
+from imucal_cli.use.report.build import build_report
+from imucal_cli.use.report.history import build_history, render_history
+from imucal_cli.use.report.load import load_all_for_history, load_for_report
+from imucal_cli.use.report.render import render_report
 
 from .app import app
 from .console import make_console

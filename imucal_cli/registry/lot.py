@@ -19,13 +19,18 @@ each unit of the lot:
 
 The limits are the ones given (``--limits``), else those the lot's latest calibrations were
 judged against.  Everything is read from the sections' packed figures (one row per sensor of a
-calibration): no calibration JSON is parsed.
+calibration): no calibration JSON is parsed.  The sections of one sensor that share a layout
+(the same figures) are unpacked at once, a matrix with a row per section; a lot's parameters
+are columns of the rows that are its units' latest calibrations, in the order of the units'
+first calibrations (so that the result does not depend on how the rows were grouped).
 """
 
 from __future__ import annotations
 
 import json
-from collections import defaultdict
+import math
+from collections import Counter, defaultdict
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -77,9 +82,8 @@ def outliers(values: np.ndarray) -> tuple[np.ndarray, float]:
     return (values - median) / mad, mad
 
 
-def _rows(registry: Registry, lot: str) -> tuple[list, dict[int, tuple]]:
-    """The sections (figures packed) of the lot's calibrations, and per calibration (serial,
-    created, verdict, limits JSON)."""
+def _read(registry: Registry, lot: str) -> tuple[_Calibrations, list[_Sections]]:
+    """The lot's calibrations and their sections (:func:`_unpack`)."""
     in_lot = units.c.lot == lot
     cal_query = (
         select(calibrations.c.id, units.c.serial, calibrations.c.created, calibrations.c.verdict,
@@ -87,15 +91,57 @@ def _rows(registry: Registry, lot: str) -> tuple[list, dict[int, tuple]]:
         .join(units, units.c.id == calibrations.c.unit_id).where(in_lot)
     )  # fmt: skip
     sec_query = (
-        select(sections.c.calibration_id, sections.c.sensor, sections.c.units, sections.c.basis,
+        select(sections.c.calibration_id, sections.c.sensor, sections.c.basis,
                sections.c.layout, sections.c["values"], sections.c.stds)
         .join(calibrations, calibrations.c.id == sections.c.calibration_id)
         .join(units, units.c.id == calibrations.c.unit_id).where(in_lot)
     )  # fmt: skip
     with registry.read() as conn:
-        cals = {r[0]: tuple(r[1:]) for r in conn.execute(cal_query)}
-        rows = conn.execute(sec_query).all()
-    return rows, cals
+        cals = _Calibrations([], [], [], [], [])
+        for row in conn.execute(cal_query):
+            for column, value in zip(cals.columns(), row, strict=True):
+                column.append(value)
+        return cals, _unpack(conn.execute(sec_query), registry)
+
+
+def _unpack(rows, registry: Registry) -> list[_Sections]:
+    """Sections' rows ``(calibration id, sensor, basis, layout JSON, values, stds)`` grouped by
+    sensor and layout, each group's packed figures unpacked at once into a matrix (rows
+    streamed: nothing is kept per row but what the matrices are made of)."""
+    packed: dict[str, dict[str, tuple[list, ...]]] = {}  # sensor -> layout -> lists
+    for index, (cal_id, sensor, basis, layout, vals, stds) in enumerate(rows):
+        of_sensor = packed.get(sensor)
+        if of_sensor is None:
+            of_sensor = packed[sensor] = {}
+        lists = of_sensor.get(layout)
+        if lists is None:
+            lists = of_sensor[layout] = ([], [], [], [], [])
+        ids, order, bases, blobs, std_blobs = lists
+        ids.append(cal_id)
+        order.append(index)
+        bases.append(basis)
+        blobs.append(vals)
+        std_blobs.append(stds)
+    layouts: dict[str, _Layout] = {}
+    groups = []
+    for sensor, of_sensor in packed.items():
+        for layout, (ids, order, bases, blobs, std_blobs) in of_sensor.items():
+            shape = layouts.get(layout)
+            if shape is None:
+                shape = layouts[layout] = _Layout(layout)
+            width = len(shape.names)
+            groups.append(_Sections(sensor, shape, ids, order, bases,
+                                    _matrix(blobs, width, registry),
+                                    _matrix(std_blobs, width, registry)))  # fmt: skip
+    return groups
+
+
+def _matrix(blobs: list[bytes], width: int, registry: Registry) -> np.ndarray:
+    """Packed figures (float64 little-endian, ``width`` each) as a matrix, a row per blob."""
+    if any(len(b) != 8 * width for b in blobs):
+        raise RegistryError(f"registry {registry.name}: a section's packed figures do not "
+                            "match its layout")  # fmt: skip
+    return np.frombuffer(b"".join(blobs), "<f8").reshape(len(blobs), width)
 
 
 class _Layout:
@@ -106,6 +152,51 @@ class _Layout:
         self.names = [i[0] for i in items]
         self.units = [i[1] for i in items]
         self.tracked = [bool(i[2]) for i in items]
+        self.tracked_at = [j for j, t in enumerate(self.tracked) if t]
+        self.tracked_names = [self.names[j] for j in self.tracked_at]
+
+
+@dataclass(frozen=True)
+class _Calibrations:
+    """The lot's calibrations, a list per column (in the query's order)."""
+
+    ids: list[int]
+    serials: list[str]
+    created: list[str]  #: ISO 8601 UTC: they sort as text
+    verdicts: list[str | None]
+    limits: list[str | None]  #: the product file judged against, JSON
+
+    def columns(self) -> tuple[list, ...]:
+        return self.ids, self.serials, self.created, self.verdicts, self.limits
+
+    def by_unit(self) -> tuple[dict[str, int], dict[str, list[int]]]:
+        """Each unit's latest calibration ``{serial: index}`` (the units in the order of their
+        first calibration) and the calibration ids of each unit calibrated more than once
+        ``{serial: [id, ...]}``, oldest first: by ``created``, then by id."""
+        order = np.lexsort((np.asarray(self.ids), np.asarray(self.created))).tolist()
+        latest: dict[str, int] = {}
+        for k in order:
+            latest[self.serials[k]] = k  # a later one replaces it, in the first one's place
+        again: dict[str, list[int]] = {}
+        if len(latest) < len(order):
+            counts = Counter(self.serials)
+            for k in order:
+                if counts[self.serials[k]] > 1:
+                    again.setdefault(self.serials[k], []).append(self.ids[k])
+        return latest, again
+
+
+@dataclass(frozen=True)
+class _Sections:
+    """The sections of one sensor that share a layout, a row per section."""
+
+    sensor: str
+    layout: _Layout
+    cal_ids: list[int]  #: each section's calibration
+    order: list[int]  #: each section's place among the rows the query returned
+    bases: list[str]  #: each section's history basis
+    values: np.ndarray  #: (rows, figures), NaN for none
+    stds: np.ndarray  #: (rows, figures), NaN for none
 
 
 def lot_statistics(registry: Registry, lot: str, *, limits: ProductLimits | None = None,
@@ -118,49 +209,38 @@ def lot_statistics(registry: Registry, lot: str, *, limits: ProductLimits | None
     RegistryError
         No unit in that lot.
     """
-    rows, cals = _rows(registry, lot)
-    if not cals:
+    cals, groups = _read(registry, lot)
+    if not cals.ids:
         raise RegistryError(f"registry {registry.name}: no unit in lot {lot!r}")
-    layouts: dict[str, _Layout] = {}
-    # per calibration: {sensor: (layout, basis, values, stds)}
-    per_cal: dict[int, dict[str, tuple]] = defaultdict(dict)
-    for cal_id, sensor, _units, basis, layout, vals, stds in rows:
-        shape = layouts.get(layout)
-        if shape is None:
-            shape = layouts[layout] = _Layout(layout)
-        per_cal[cal_id][sensor] = (shape, basis, np.frombuffer(vals, "<f8"),
-                                   np.frombuffer(stds, "<f8"))  # fmt: skip
-    by_unit: dict[str, list[int]] = defaultdict(list)
-    for cal_id, (serial, _created, _verdict, _stored) in sorted(
-        cals.items(), key=lambda kv: (kv[1][1], kv[0])
-    ):
-        by_unit[serial].append(cal_id)
-    latest = {serial: ids[-1] for serial, ids in by_unit.items()}
-    limits, limits_note = _limits(limits, [cals[i] for i in latest.values()])
-    parameters = _distribution(latest, per_cal, limits, values)
+    latest, again = cals.by_unit()
+    limits, limits_note = _limits(limits, [cals.limits[k] for k in latest.values()])
+    latest_ids = {serial: cals.ids[k] for serial, k in latest.items()}
+    parameters = _distribution(_columns(latest_ids, groups, limits), limits, values)
     verdicts = {"pass": 0, "fail": 0, "not judged": 0}
-    for cal_id in latest.values():
-        verdicts[cals[cal_id][2] or "not judged"] += 1
+    for k in latest.values():
+        verdicts[cals.verdicts[k] or "not judged"] += 1
     apart: dict[str, list[str]] = defaultdict(list)
     for p in parameters:
         for o in p["outliers"]:
             apart[o["serial"]].append(f"{p['sensor']} {p['name']} ({o['score']:+.1f})")
     return {
         "format": LOT_FORMAT, "format_version": 1, "lot": lot,
-        "units": len(by_unit), "calibrations": len(cals), "verdicts": verdicts,
+        "units": len(latest), "calibrations": len(cals.ids), "verdicts": verdicts,
         "limits": None if limits is None else limits.to_dict(), "limits_source": limits_note,
         "outlier_test": OUTLIER_TEST,
         "parameters": parameters,
         "units_apart": [{"serial": s, "parameters": apart[s]} for s in sorted(apart)],
-        "drift": _drift(by_unit, per_cal),
+        "drift": _drift(again, groups),
     }  # fmt: skip
 
 
-def _limits(given: ProductLimits | None, latest: list[tuple]) -> tuple[ProductLimits | None, str]:
-    """The limits to judge the lot by, and where they come from."""
+def _limits(given: ProductLimits | None,
+            latest: list[str | None]) -> tuple[ProductLimits | None, str]:  # fmt: skip
+    """The limits to judge the lot by, and where they come from; ``latest``: the limits (JSON)
+    the units' latest calibrations were judged against."""
     if given is not None:
         return given, given.source
-    stored = [meta[3] for meta in latest if meta[3]]
+    stored = [text for text in latest if text]
     if not stored:
         return None, "none (no --limits, and no unit of the lot was judged)"
     counts: dict[str, int] = defaultdict(int)
@@ -173,23 +253,35 @@ def _limits(given: ProductLimits | None, latest: list[tuple]) -> tuple[ProductLi
     return limits_from_dict(json.loads(text), "registry"), note
 
 
-def _columns(latest: dict[str, int], per_cal: dict, limits: ProductLimits | None) -> dict:
-    """``{(sensor, name, unit): (serials, values)}`` over the latest calibrations: each
-    layout's values stacked into a matrix, a column per figure (gain errors added from the
-    sensitivities when the limits give a nominal)."""
-    groups: dict[tuple, tuple[list[str], list[np.ndarray]]] = {}
-    for serial, cal_id in latest.items():
-        for sensor, (layout, _basis, vals, _stds) in per_cal.get(cal_id, {}).items():
-            serials, rows = groups.setdefault((sensor, id(layout)), ([], []))
-            serials.append(serial)
-            rows.append(vals)
-            groups[(sensor, id(layout))] = (serials, rows)
-    by_id = {id(layout): layout for sections in per_cal.values()
-             for layout, *_ in sections.values()}  # fmt: skip
+def _latest_rows(latest: dict[str, int], groups: list[_Sections]) -> list[tuple]:
+    """Per group with a unit's latest calibration: ``(group, rows, serials)``, the rows of
+    those sections in the order of ``latest``; the groups in the order the units first have
+    them (a unit's sections in the query's order)."""
+    rank = {cal_id: r for r, cal_id in enumerate(latest.values())}
+    serial_at = list(latest)
+    found = []
+    for group in groups:
+        ranks = np.fromiter((rank.get(c, -1) for c in group.cal_ids), dtype=np.intp,
+                            count=len(group.cal_ids))  # fmt: skip
+        rows = np.flatnonzero(ranks >= 0)
+        if not rows.size:
+            continue
+        rows = rows[np.argsort(ranks[rows], kind="stable")]
+        first = (int(ranks[rows[0]]), group.order[rows[0]])
+        found.append((first, group, rows, [serial_at[r] for r in ranks[rows]]))
+    found.sort(key=lambda f: f[0])
+    return [f[1:] for f in found]
+
+
+def _columns(latest: dict[str, int], groups: list[_Sections],
+             limits: ProductLimits | None) -> dict:  # fmt: skip
+    """``{(sensor, name, unit): (serials, values)}`` over the latest calibrations: the rows of
+    each layout's matrix that are a unit's latest, a column per figure (gain errors added from
+    the sensitivities when the limits give a nominal)."""
     columns: dict[tuple, tuple[list[str], list[np.ndarray]]] = {}
-    for (sensor, key), (serials, rows) in groups.items():
-        layout = by_id[key]
-        matrix = np.vstack(rows)
+    for group, rows, serials in _latest_rows(latest, groups):
+        sensor, layout = group.sensor, group.layout
+        matrix = group.values[rows]
         names, unit_of = list(layout.names), list(layout.units)
         if limits is not None and sensor in limits.nominal:
             nominal = limits.nominal[sensor]
@@ -206,11 +298,10 @@ def _columns(latest: dict[str, int], per_cal: dict, limits: ProductLimits | None
     return {k: (who, np.concatenate(parts)) for k, (who, parts) in columns.items()}
 
 
-def _distribution(latest: dict[str, int], per_cal: dict, limits: ProductLimits | None,
-                  keep: bool) -> list:  # fmt: skip
-    """One entry per (sensor, figure, unit) over the units' latest calibrations."""
+def _distribution(columns: dict, limits: ProductLimits | None, keep: bool) -> list:
+    """One entry per (sensor, figure, unit) of ``columns`` (:func:`_columns`)."""
     out = []
-    for (sensor, name, unit), (who, column) in _columns(latest, per_cal, limits).items():
+    for (sensor, name, unit), (who, column) in columns.items():
         finite = np.isfinite(column)
         if not finite.any():
             continue
@@ -247,41 +338,42 @@ def _limit_of(limits: ProductLimits | None, sensor: str, name: str):
     return next((lim for lim in limits.for_sensor(sensor) if lim.bounds(name)), None)
 
 
-def _tracked(section: tuple | None) -> dict[str, tuple[float | None, float | None]]:
-    """``{name: (value, std)}`` of a packed section's tracked figures (NaN read as None)."""
-    if section is None:
+def _tracked(found: tuple | None) -> dict[str, tuple[float | None, float | None]]:
+    """``{name: (value, std)}`` of a section's tracked figures (NaN read as None); ``found``
+    is where the section is, ``(group, row)``."""
+    if found is None:
         return {}
-    layout, _basis, vals, stds = section
+    group, row = found
+    at = group.layout.tracked_at
+    values = group.values[row, at].tolist()
+    stds = group.stds[row, at].tolist()
     return {n: (_number(v), _number(s))
-            for n, t, v, s in zip(layout.names, layout.tracked, vals, stds, strict=True)
-            if t}  # fmt: skip
+            for n, v, s in zip(group.layout.tracked_names, values, stds, strict=True)}  # fmt: skip
 
 
 def _number(x: float) -> float | None:
-    return float(x) if np.isfinite(x) else None
+    return x if math.isfinite(x) else None
 
 
-def _drift(by_unit: dict[str, list[int]], per_cal: dict) -> dict[str, Any]:
-    """The history's drift test on every unit of the lot calibrated more than once."""
+def _drift(again: dict[str, list[int]], groups: list[_Sections]) -> dict[str, Any]:
+    """The history's drift test on every unit of the lot calibrated more than once (``again``:
+    their calibration ids, oldest first)."""
+    where = _where({cal_id for ids in again.values() for cal_id in ids}, groups)
     alarms = []
-    checked = 0
     order = ("accel", "gyro", "mag")
-    for serial, ids in by_unit.items():
-        if len(ids) < 2:
-            continue
-        checked += 1
+    for serial, ids in again.items():
         drifted = []
-        sensors = {s for i in ids for s in per_cal.get(i, {})}
+        sensors = {s for i in ids for s in where.get(i, {})}
         for sensor in sorted(sensors, key=lambda s: order.index(s) if s in order else 9):
-            secs = [per_cal.get(i, {}).get(sensor) for i in ids]
-            bases = [None if s is None else s[1] for s in secs]
-            tables = [_tracked(s) for s in secs]
+            found = [where.get(i, {}).get(sensor) for i in ids]
+            bases = [None if f is None else f[0].bases[f[1]] for f in found]
+            tables = [_tracked(f) for f in found]
             for name in dict.fromkeys(n for t in tables for n in t):
-                found = [t.get(name, (None, None)) for t in tables]
-                values = [v for v, _ in found]
+                pairs = [t.get(name, (None, None)) for t in tables]
+                values = [v for v, _ in pairs]
                 if all(v is None for v in values):
                     continue
-                result = compare_with_reference(values, [s for _, s in found], bases)
+                result = compare_with_reference(values, [s for _, s in pairs], bases)
                 flagged = [z for z, f in zip(result["z"], result["drifted"], strict=True) if f]
                 if flagged:
                     worst = max(flagged, key=abs)
@@ -290,7 +382,18 @@ def _drift(by_unit: dict[str, list[int]], per_cal: dict) -> dict[str, Any]:
             alarms.append({"serial": serial, "calibrations": len(ids), "drifted": drifted})
     return {"test": f"change from the reference calibration of the same basis beyond "
                     f"{DRIFT_SIGMAS:g} combined std (imucal report's history)",
-            "units_checked": checked, "alarms": alarms}  # fmt: skip
+            "units_checked": len(again), "alarms": alarms}  # fmt: skip
+
+
+def _where(cal_ids: set[int], groups: list[_Sections]) -> dict[int, dict[str, tuple]]:
+    """Where the sections of the calibrations ``cal_ids`` are: ``{id: {sensor: (group,
+    row)}}``."""
+    where: dict[int, dict[str, tuple]] = defaultdict(dict)
+    for group in groups:
+        for row, cal_id in enumerate(group.cal_ids):
+            if cal_id in cal_ids:
+                where[cal_id][group.sensor] = (group, row)
+    return where
 
 
 def drop_values(stats: dict[str, Any]) -> None:

@@ -31,7 +31,7 @@ from imucal_cli.model.calibration import Calibration
 
 from .limits import LIMIT_KEYS, Acceptance
 from .plots import draw_report, pyplot
-from .report import build_report
+from .report.build import build_report
 
 __all__ = ["PDF_HINT", "build_certificate", "render_html", "render_pdf", "write_certificate"]
 

@@ -39,7 +39,7 @@ from imucal_cli.formats.noise import NOISE_FORMAT
 from imucal_cli.formats.session import Session, SessionSamples, samples_of
 from imucal_cli.model.calibration import Calibration, SensorCalibration
 from imucal_cli.numerics.allan import AllanAccumulator
-from imucal_cli.use.report import load_for_report
+from imucal_cli.use.report.load import load_for_report
 
 __all__ = [
     "MIN_DURATION_S",

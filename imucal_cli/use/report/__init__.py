@@ -23,34 +23,8 @@ The package is split by concern:
 - :mod:`.history`: :func:`build_history` / :func:`render_history`, drift across calibrations;
 - :mod:`.fields`, :mod:`.fmt`, :mod:`.coverage_map`: tolerant field readers, number formatting
   and the text map of gravity directions.
+
+Import from the modules (``from imucal_cli.use.report.build import build_report``): the package
+itself imports none of them, so that what needs one (the acceptance limits and a lot's drift
+test need :mod:`.history`) does not load them all (:mod:`.load` reads sessions: h5py).
 """
-
-from .build import (
-    PAPER_REFERENCE,
-    REPORT_FORMAT,
-    REPORT_FORMAT_VERSION,
-    STANDARD_GRAVITY,
-    add_table,
-    build_report,
-)
-from .coverage_map import coverage_map
-from .history import DRIFT_SIGMAS, HISTORY_FORMAT, build_history, render_history
-from .load import load_all_for_history, load_for_report
-from .render import render_report
-
-__all__ = [
-    "DRIFT_SIGMAS",
-    "HISTORY_FORMAT",
-    "PAPER_REFERENCE",
-    "REPORT_FORMAT",
-    "REPORT_FORMAT_VERSION",
-    "STANDARD_GRAVITY",
-    "add_table",
-    "build_history",
-    "build_report",
-    "coverage_map",
-    "load_all_for_history",
-    "load_for_report",
-    "render_history",
-    "render_report",
-]
