@@ -208,6 +208,8 @@ def _labelled_table(console: Console, n_seeds: int) -> bool:
                   f"{100 * r['coverage']:.1f}%")  # fmt: skip
         ok &= 0.8 <= r["z_rms"] <= 1.2 and 0.93 <= r["coverage"] <= 0.97
     console.print(t)
+    console.print(f"labelled sets: RMS error/std 0.8-1.2 and coverage 93-97 %: "
+                  f"{'[green]PASS' if ok else '[red]FAIL'}[/]")  # fmt: skip
     return ok
 
 
