@@ -13,7 +13,10 @@ time offsets within +-10 ms) calibrated by :func:`imucal_cli.calibrate.imu_set.c
   derivative) and coverage;
 * each IMU's 9 accelerometer parameters against the joint bound (and the single-IMU bound, the
   gain of fitting the set jointly) and coverage;
-* CPU time of a 32-IMU set (target < 10 s).
+* CPU time of a 32-IMU set (target < 10 s);
+* sets whose accelerometers are labelled fits (``qureshi18`` with the labelled solver: each
+  IMU in the fixture's frame, the rotation's truth the identity; ``docs/imu-set.md``, eq. R3):
+  each rotation's error against its stated std, and coverage.
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ from imucal_cli.estimators.accel.crb import gravity_crb
 from imucal_cli.estimators.accel.gravity import model_to_params
 from imucal_cli.estimators.imu_set.accel import bound_blocks, set_information
 from imucal_cli.estimators.imu_set.time_offset import time_offset_bound
-from imucal_cli.formats.config import Config
+from imucal_cli.formats.config import Config, config_from_dict
 from imucal_cli.formats.session import imu_session, set_names
 from imucal_cli.simulate.imu_set import gauge_rotation, simulate_set, true_motion
 
@@ -157,6 +160,59 @@ def summary(rows: list[dict]) -> dict:
     return res
 
 
+LABELLED = {"plan": "qureshi18", "rate_hz": 100.0, "hold_s": 2.0}
+LABELLED_SEEDS = 40
+
+
+def labelled_seed(n_imus: int, seed: int) -> dict:
+    """A set calibrated by the labelled solver: each rotation's error (its truth the
+    identity: both IMUs in the fixture's frame) and stated std, rad; each time offset's."""
+    session, truth = simulate_set(n_imus, seed=seed, created="2026-01-01T00:00:00Z", **LABELLED)
+    cal = calibrate_set(session, config_from_dict({"accel": {"solver": "labelled"}}),
+                        name="bench.h5")  # fmt: skip
+    out: dict = {"rot_err": [], "rot_std": [], "dt_err": [], "dt_std": []}
+    for k, entry in cal.imus.items():
+        if entry.rotation_to_reference is not None:
+            out["rot_err"].append(Rotation.from_matrix(entry.rotation_to_reference).as_rotvec())
+            out["rot_std"].append(np.radians(entry.rotation_std_deg))
+        if entry.time_offset_s is not None:
+            out["dt_err"].append(entry.time_offset_s - truth.imus[k].time_offset_s)
+            out["dt_std"].append(entry.time_offset_std_s)
+    return {k: np.array(v, float) for k, v in out.items()}
+
+
+def labelled_summary(rows: list[dict]) -> dict:
+    """RMS error over RMS stated std, RMS of error/std and coverage, per quantity."""
+    res = {}
+    for name, e, s in (("rotation", "rot_err", "rot_std"), ("time offset", "dt_err", "dt_std")):
+        err = np.concatenate([np.ravel(r[e]) for r in rows])
+        std = np.concatenate([np.ravel(r[s]) for r in rows])
+        res[name] = {"rms_err": float(np.sqrt(np.mean(err**2))),
+                     "rms_std": float(np.sqrt(np.mean(std**2))),
+                     "z_rms": float(np.sqrt(np.mean((err / std) ** 2))),
+                     "coverage": float(np.mean(np.abs(err) <= Z95 * std)), "n": int(err.size)}
+    return res
+
+
+def _labelled_table(console: Console, n_seeds: int) -> bool:
+    res = labelled_summary([labelled_seed(3, s) for s in range(n_seeds)])
+    t = Table(title=f"3 IMUs, labelled solver, {n_seeds} seeds ({LABELLED}; truth: identity)")
+    for col in ("quantity", "values", "RMS error", "RMS stated std", "RMS error/std",
+                "95% coverage"):  # fmt: skip
+        t.add_column(col, justify="right")
+    ok = True
+    for name, (unit, f) in (("rotation", ("deg", np.degrees(1.0))), ("time offset", ("ms", 1e3))):
+        r = res[name]
+        t.add_row(name, str(r["n"]), f"{r['rms_err'] * f:.3g} {unit}",
+                  f"{r['rms_std'] * f:.3g} {unit}", f"{r['z_rms']:.3f}",
+                  f"{100 * r['coverage']:.1f}%")  # fmt: skip
+        ok &= 0.8 <= r["z_rms"] <= 1.2 and 0.93 <= r["coverage"] <= 0.97
+    console.print(t)
+    console.print(f"labelled sets: RMS error/std 0.8-1.2 and coverage 93-97 %: "
+                  f"{'[green]PASS' if ok else '[red]FAIL'}[/]")  # fmt: skip
+    return ok
+
+
 def run(console: Console, n_seeds: int = 100) -> bool:
     console.rule("[bold]Several IMUs on one body: rotations, time offsets, joint accelerometers")
     ok = True
@@ -182,6 +238,7 @@ def run(console: Console, n_seeds: int = 100) -> bool:
         cpu = np.median([r["cpu_s"] for r in rows])
         console.print(f"  accel bound of one IMU alone / of the set (RMS over parameters): "
                       f"{res['joint gain']:.2f}; calibrate CPU median {cpu:.2f} s")  # fmt: skip
+    ok &= _labelled_table(console, LABELLED_SEEDS)
     session, _ = simulate_set(32, seed=0, created="2026-01-01T00:00:00Z", **DESIGN)
     t0 = time.process_time()
     calibrate_set(session, Config(), name="bench32.h5")

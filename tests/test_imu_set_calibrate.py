@@ -162,3 +162,60 @@ def test_coverage_and_efficiency_over_seeds():
         assert 0.93 <= r["coverage"] <= 0.97, (name, r)
         assert r["ratio"] <= 1.2, (name, r)
     assert res["joint gain"] > 1.2  # fitting the set jointly beats each IMU alone
+
+
+def test_labelled_response_is_the_fits_derivative():
+    """The labelled fit's response to a pose's mean (what a set's rotations take its
+    covariance with the pairs from, eq. R3) is the derivative of its estimate: a refit with one
+    pose's mean moved by +-0.3 of its std (central differences) agrees to 1 % of the largest
+    parameter change, in the frame's rotation too, where Gauss-Newton's response did not (the
+    residuals' curvature along the frame's rotation, 6 deg placement)."""
+    from imucal_cli.calibrate.common import static_poses
+    from imucal_cli.estimators.accel.labelled import fit_labelled
+
+    session, _ = simulate_set(3, plan="qureshi18", seed=2, created=CREATED, jitter_deg=6.0)
+    p = static_poses(session)
+    res = fit_labelled(p.a_mean, p.up, session.gravity, p.cov_mean)
+    for k, j in ((3, 1), (7, 0), (12, 2)):
+        h = 0.3 * np.sqrt(p.cov_mean[k, j, j])
+        moved = []
+        for sign in (1, -1):
+            a = p.a_mean.copy()
+            a[k, j] += sign * h
+            moved.append(fit_labelled(a, p.up, session.gravity, p.cov_mean,
+                                      placement_deg=res.placement_deg).params)  # fmt: skip
+        fd = (moved[0] - moved[1]) / (2 * h)
+        scale = np.abs(fd).max()
+        np.testing.assert_allclose(res.pose_response[:, k, j], fd, atol=0.01 * scale)
+        # the rotation's rows on their own scale (they are 10-1000 times smaller)
+        np.testing.assert_allclose(res.pose_response[9:, k, j], fd[9:],
+                                   atol=0.01 * np.abs(fd[9:]).max())  # fmt: skip
+
+
+def _labelled_set_z(seeds) -> np.ndarray:
+    from bench.multi import labelled_seed
+
+    rows = [labelled_seed(3, s) for s in seeds]
+    return np.concatenate([(r["rot_err"] / r["rot_std"]).ravel() for r in rows])
+
+
+def test_labelled_set_rotations_std_matches_their_error():
+    """Three 3-IMU qureshi18 sets calibrated by the labelled solver: each rotation's stated std
+    is its error's (eq. R3). The placement, shared by the IMUs and counted once per IMU, made
+    the std 10^3 times the error (mean (err/std)^2 1e-6); the calibrations' covariance with
+    the pose means left out, 30 times (1e-3). 18 components (two IMUs share the reference):
+    mean (err/std)^2 within [0.2, 3], chi^2_18 / 18's 99.9 % range widened for the sharing."""
+    z = _labelled_set_z((0, 1, 2))
+    assert 0.2 <= float(np.mean(z**2)) <= 3.0, z
+    assert np.all(np.abs(z) <= 4.5), z
+
+
+@pytest.mark.slow
+def test_labelled_set_rotations_cover_over_seeds():
+    """40 sets as above: the 95 % intervals of the rotations cover the truth (the identity)
+    88-99 % of the time (240 components, correlated in pairs: about 2.5 binomial std on each
+    side of 95 %, with room for the 92.5 % these seeds give), mean (err/std)^2 within
+    [0.7, 1.5] (``bench --only multi`` prints the figures)."""
+    z = _labelled_set_z(range(40))
+    assert 0.88 <= float(np.mean(np.abs(z) <= 1.959964)) <= 0.99
+    assert 0.7 <= float(np.mean(z**2)) <= 1.5

@@ -157,7 +157,8 @@ def _two_steps(subs, cals, poses, ref_key: str, key: str, offset_s: float) -> Ro
         if shared and ref_cal.accel.bias.shape == cal.accel.bias.shape == (3,):
             z_r, c_r = pose_means(poses[ref_key], shared)
             z_i, c_i = pose_means(poses[key], shared)
-            groups.append(pose_pairs((z_r, c_r, ref_cal.accel), (z_i, c_i, cal.accel)))
+            groups.append(pose_pairs((z_r, c_r, ref_cal.accel), (z_i, c_i, cal.accel),
+                                     shared))  # fmt: skip
     if ref_cal.gyro is not None and cal.gyro is not None and not _spans(groups):
         var = (still_noise(subs[ref_key], ref_cal.gyro), still_noise(subs[key], cal.gyro))
         turns = turn_pairs(subs[ref_key], subs[key], ref_cal.gyro, cal.gyro, offset_s, var,

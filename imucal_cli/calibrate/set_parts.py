@@ -61,16 +61,32 @@ def pose_means(poses: StaticPoses, names: list[str]) -> tuple[np.ndarray, np.nda
     return poses.a_mean[rows, :3], poses.cov_mean[rows, :3, :3]
 
 
-def pose_pairs(ref: tuple, imu: tuple) -> PairGroup:
-    """The pairs of the shared poses: each IMU's calibrated mean (``(z, cov, section)``)."""
-    def side(z, cov, sec):
-        d = z - sec.bias
-        return (d @ sec.matrix.T, np.einsum("ij,pjk,lk->pil", sec.matrix, cov, sec.matrix),
-                calibration_derivative(sec.matrix, d), section_covariance(sec))  # fmt: skip
+def pose_pairs(ref: tuple, imu: tuple, names: list[str] | None = None) -> PairGroup:
+    """The pairs of the shared poses ``names``: each IMU's calibrated mean (``(z, cov,
+    section)``).
 
-    a, ca, da, sa = side(*ref)
-    b, cb, db, sb = side(*imu)
-    return PairGroup(a, b, ca, cb, da, db, sa, sb, name="poses")
+    Where both sections are fits onto the poses' labels (the labelled solver's
+    ``given_placement``), each calibration enters by its errors given the placement, which
+    the set shares and which cancels from the rotation, and by its covariance with the pose
+    means it was fitted to (``docs/imu-set.md``, eq. R3); otherwise by its ``covariance``,
+    independent of the pairs (eq. R2)."""
+    given = [getattr(sec, "given_placement", None) for sec in (ref[2], imu[2])]
+    labelled = names is not None and all(
+        gp is not None and set(names) <= set(gp.segments) for gp in given)  # fmt: skip
+
+    def side(z, cov, sec, gp):
+        d = z - sec.bias
+        out = [d @ sec.matrix.T, np.einsum("ij,pjk,lk->pil", sec.matrix, cov, sec.matrix),
+               calibration_derivative(sec.matrix, d), section_covariance(sec), None]
+        if labelled:  # eq. R3: Sigma_c given the placement; X_cp = L_cp cov_p M^T
+            rows = [gp.segments.index(n) for n in names]
+            out[3] = gp.covariance
+            out[4] = np.einsum("inj,njk,lk->nil", gp.response[:, rows], cov, sec.matrix)
+        return out
+
+    a, ca, da, sa, xa = side(*ref, given[0])
+    b, cb, db, sb, xb = side(*imu, given[1])
+    return PairGroup(a, b, ca, cb, da, db, sa, sb, name="poses", cross_ref=xa, cross_imu=xb)
 
 
 def still_noise(session: Session, sec: SensorCalibration) -> float:

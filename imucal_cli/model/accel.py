@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from .codec import Record, item
 from .parts import Factorization
 from .section import SensorCalibration
@@ -97,6 +99,26 @@ class Placement(Record):
 
 
 @dataclass
+class GivenPlacement:
+    """A labelled fit's errors given its poses' true placement (the measurement noise's part:
+    eq. L4 without the labels' rows), kept in memory for a set's rotations, never written.
+
+    Attributes
+    ----------
+    segments : list of str
+        The poses the fit used, in ``response``'s order.
+    covariance : ndarray, shape (12, 12)
+        Of ``(bias, matrix row-major)`` given the placement.
+    response : ndarray, shape (12, P, 3)
+        ``d (bias, matrix row-major) / d`` each pose's mean raw reading, first order.
+    """
+
+    segments: list[str]
+    covariance: np.ndarray
+    response: np.ndarray
+
+
+@dataclass
 class OwnFit(Record):
     """An IMU's own accelerometer fit, kept beside the set's joint one."""
 
@@ -152,6 +174,9 @@ class AccelCalibration(SensorCalibration):
         An IMU of a set whose bias and matrix are the set's joint fit (its own fit kept).
     factorization : Factorization or None
         Hwangbo & Kanade's fields (members of the section).
+    given_placement : GivenPlacement or None
+        The labelled fit's errors given the poses' true placement. Not written (transient):
+        what a set of IMUs on one body needs for their rotations (``docs/imu-set.md``, eq. R3).
     """
 
     gravity: float | None = None
@@ -172,3 +197,4 @@ class AccelCalibration(SensorCalibration):
     rms_after_below_noise: bool | None = None
     set_fit: SetFit | None = None
     factorization: Factorization | None = item(flat=True)
+    given_placement: GivenPlacement | None = item(transient=True)

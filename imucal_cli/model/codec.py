@@ -58,12 +58,15 @@ class Record:
 
 
 def item(default: Any = None, *, key: str | None = None, flat: bool = False,
-         always: bool = False, factory: Any = None, own: bool = False) -> Any:  # fmt: skip
+         always: bool = False, factory: Any = None, own: bool = False,
+         transient: bool = False) -> Any:  # fmt: skip
     """A record field: its JSON ``key`` (default: the field's name); ``flat``: a record whose
     members are its parent's; ``always``: written as ``null`` when None; ``own``: read and
     written by the record's own methods, not here (the sections of a calibration, whose class
-    depends on their solver)."""
-    meta = {"key": key, "flat": flat, "always": always, "own": own}
+    depends on their solver); ``transient``: no member of the JSON at all, neither read nor
+    written (what a later step of the same run uses: a section's covariance given its poses'
+    placement, for a set's rotations)."""
+    meta = {"key": key, "flat": flat, "always": always, "own": own, "transient": transient}
     if factory is not None:
         return dataclasses.field(default_factory=factory, metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
@@ -84,7 +87,8 @@ def build(cls: type, **members: Any) -> Any:
     direct, flat = {}, {}
     by_key = {f.key: f for f in _fields(cls)}
     owners = {key: f for f in _fields(cls) if f.flat for key in _keys(_record_type(f.kind))}
-    own = {f.name for f in dataclasses.fields(cls) if f.metadata.get("own")}
+    own = {f.name for f in dataclasses.fields(cls)
+           if f.metadata.get("own") or f.metadata.get("transient")}  # fmt: skip
     null = set()
     for key, value in members.items():
         if key in by_key and not by_key[key].flat:
@@ -125,7 +129,7 @@ def _fields(cls: type) -> tuple[_Field, ...]:
     hints = typing.get_type_hints(cls)
     out = []
     for f in dataclasses.fields(cls):
-        if f.name in ("unknown", "nulls") or f.metadata.get("own"):
+        if f.name in ("unknown", "nulls") or f.metadata.get("own") or f.metadata.get("transient"):
             continue
         meta = f.metadata
         out.append(_Field(f.name, meta.get("key") or f.name, hints[f.name],

@@ -20,6 +20,7 @@ from imucal_cli.calibrate.accel.section import (
     check_fields,
     fit_fields,
     model_covariance,
+    model_map,
     parameter_rows,
     triad_members,
     with_excluded,
@@ -36,7 +37,7 @@ from imucal_cli.estimators.accel import labelled as labelled_solver
 from imucal_cli.estimators.accel.labelled_model import public_params
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
-from imucal_cli.model.accel import AccelCalibration, Placement
+from imucal_cli.model.accel import AccelCalibration, GivenPlacement, Placement
 from imucal_cli.model.codec import build
 
 GAUGE = (
@@ -144,6 +145,7 @@ def labelled_section(
     members.update(
         {
             **solver_fields(res, units),
+            "given_placement": given_placement(res, used),
             **check_fields(q, outliers, physical, [units_note] if units_note else []),
         }
     )
@@ -214,6 +216,20 @@ def _pose_name(poses: StaticPoses, k: int) -> str:
     return f"segment {seg.name}" + (f" ({seg.label})" if seg.label else "")
 
 
+def _params_of(B: np.ndarray, M: np.ndarray) -> np.ndarray:
+    return public_params(B, np.linalg.inv(M))
+
+
+def given_placement(res: labelled_solver.LabelledResult, used: StaticPoses) -> GivenPlacement:
+    """The fit's errors given the poses' placement, in ``(bias, matrix row-major)``: its
+    response to each used pose's mean and the covariance that gives at the measured noise, as
+    the pose pairs of a set's rotations take it (``docs/imu-set.md``, eq. R3)."""
+    L = np.einsum("ij,jnk->ink", model_map(_params_of, res.bias, res.matrix), res.pose_response)
+    C = np.einsum("inj,njk,lnk->il", L, used.cov_mean[:, :3, :3], L)
+    return GivenPlacement(segments=[seg.name for seg in used.segments],
+                          covariance=(C + C.T) / 2, response=L)  # fmt: skip
+
+
 def solver_fields(res: labelled_solver.LabelledResult, units: list[str]) -> dict:
     """The fields of the section that describe the labelled solver's fit."""
     r_std = res.std[9:12]
@@ -221,9 +237,7 @@ def solver_fields(res: labelled_solver.LabelledResult, units: list[str]) -> dict
         "variant": "12-parameter (labelled poses)",
         "gauge": GAUGE,
         "parameters": parameter_rows(res.param_names, res.params, res.std, units, res.ci95),
-        "covariance": model_covariance(
-            lambda B, M: public_params(B, np.linalg.inv(M)), res.bias, res.matrix, res.cov
-        ),
+        "covariance": model_covariance(_params_of, res.bias, res.matrix, res.cov),
         "placement": Placement(
             rms_deg=res.placement_deg,
             source=res.placement_source,

@@ -76,6 +76,15 @@ def model_covariance(
     parameters (delta method through the pseudo-inverse of that map's Jacobian: a gauge the
     solver fixes, such as an upper-triangular matrix, has no variance). What uses the
     calibration's directions (the gyro's turns) propagates it (issue 10.2)."""
+    Ji = model_map(params_of, bias, matrix)
+    C = Ji @ cov @ Ji.T
+    return Covariance(COVARIANCE_OF, (C + C.T) / 2)
+
+
+def model_map(params_of: Callable[[np.ndarray, np.ndarray], np.ndarray], bias: np.ndarray,
+              matrix: np.ndarray) -> np.ndarray:  # fmt: skip
+    """``d (bias, matrix row-major) / d params`` (12, n): the pseudo-inverse of the Jacobian
+    of ``params_of`` (:func:`model_covariance`)."""
     x0 = np.r_[bias, np.ravel(matrix)].astype(float)
     step = np.r_[np.full(3, 1e-6 * max(np.abs(bias).max(), 1.0)),
                  np.full(9, 1e-6 * np.abs(matrix).max())]  # fmt: skip
@@ -88,9 +97,7 @@ def model_covariance(
         e = np.zeros(12)
         e[i] = step[i]
         J[:, i] = (f(x0 + e) - f(x0 - e)) / (2 * step[i])
-    Ji = np.linalg.pinv(J)
-    C = Ji @ cov @ Ji.T
-    return Covariance(COVARIANCE_OF, (C + C.T) / 2)
+    return np.linalg.pinv(J)
 
 
 def parameter_rows(

@@ -236,6 +236,13 @@ class LabelledResult:
         noise), ``"placement"`` (first order, scales with ``placement_deg^2``) and
         ``"placement_second_order"`` (eq. L6, scales with ``placement_deg^4``); with
         ``"label_limited"``, the number ``m`` of placement directions propagated.
+    pose_response : ndarray, shape (12, N, 3)
+        ``d params / d a_k``: each parameter's first-order change per raw unit of each pose's
+        mean reading, the placement held (eq. L4's estimate moved by the measurement rows
+        alone): ``sum_k R_k cov_k R_k^T`` is ``cov_parts["measurement"]`` (times
+        ``noise_scale``), and ``R_k cov_k`` the covariance of the parameters with pose k's
+        mean (what a rotation between two IMUs fitted to the same poses needs,
+        ``docs/imu-set.md``, eq. R3).
     """
 
     bias: np.ndarray
@@ -263,6 +270,7 @@ class LabelledResult:
     converged: bool
     message: str
     cov_parts: dict = field(default_factory=dict)
+    pose_response: np.ndarray = field(default_factory=lambda: np.zeros((12, 0, 3)))
     placement_face_deg: float | None = None
     placement_hold_deg: float | None = None
     placement_sq: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -601,8 +609,38 @@ def _result(st: _State, offset, scale, a_mean, up, labelled, g, source, noise_do
         converged=True,
         message=str(st.sol.message),
         cov_parts={**parts, "label_limited": m},
+        pose_response=_pose_response(prob, st, T, scale),
         **_placement_rows(st, labelled),
     )
+
+
+def _pose_response(prob: Problem, st: _State, T: np.ndarray, scale: float) -> np.ndarray:
+    """``d params / d a_k`` (12, N, 3), first order at the estimate, the placement's prior held
+    (:class:`LabelledResult`): the measurement rows ``r_k = W_k (a_k - ...) / (scale s)`` (``s``
+    the measurement scale) move the optimum of ``|r|^2 / 2`` by ``-(J^T J + sum_i r_i
+    d^2 r_i)^-1 J^T dr/da``. The residuals' curvature (``d J / dx`` at ``r``, central
+    differences) is not Gauss-Newton's to leave out here: along the frame's rotation only the
+    labels hold the fit, as weakly as the curvature of the predictions times residuals of the
+    noise's size, so leaving it out misstates how the frame follows the noise by a part that
+    grows with the placement (issue 28: the rotations of a labelled set)."""
+    x, r = st.sol.x, st.r
+    if prob.N > DENSE_MAX_POSES:
+        hess = st.J.T @ st.J
+    else:
+        curv = np.empty((len(x), len(x)))
+        h = 1e-6
+        for j in range(len(x)):
+            xp, xm = x.copy(), x.copy()
+            xp[j] += h
+            xm[j] -= h
+            curv[:, j] = (prob.jacobian(xp) - prob.jacobian(xm)).T @ r / (2 * h)
+        hess = st.J.T @ st.J + (curv + curv.T) / 2
+    n_meas = 3 * prob.N
+    JmW = st.J[:n_meas].reshape(prob.N, 3, -1)  # rows of pose k
+    dr_da = prob.W / (prob.meas_scale * scale)  # (N, 3, 3): d r_k / d a_k, raw units
+    g = np.einsum("nrc,nrj->cnj", JmW, dr_da).reshape(len(x), -1)
+    dx_da = -np.linalg.solve(hess, g)[:12].reshape(12, prob.N, 3)
+    return np.einsum("pk,knj->pnj", T, dx_da)
 
 
 def _matrices(k: np.ndarray) -> np.ndarray:

@@ -72,6 +72,10 @@ class PairGroup:
         The covariance of that calibration's ``(bias, matrix row-major)`` (None: taken exact).
     name : str
         ``"poses"`` or ``"turns"``.
+    cross_ref, cross_imu : ndarray, shape (P, 12, 3), or None
+        The covariance of that calibration's error with each vector's noise (None: taken
+        independent, eq. R2): a calibration fitted to these very poses whose frame the labels
+        pin (eq. R3).
     """
 
     ref: np.ndarray
@@ -83,15 +87,22 @@ class PairGroup:
     cal_ref: np.ndarray | None = None
     cal_imu: np.ndarray | None = None
     name: str = "poses"
+    cross_ref: np.ndarray | None = None
+    cross_imu: np.ndarray | None = None
 
-    def calibration_terms(self, R: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
-        """``(D (P, 3, 12), Sigma (12, 12))`` of each calibration the residuals
-        ``a_p - R b_p`` depend on."""
+    def calibration_terms(self, R: np.ndarray
+                          ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:  # fmt: skip
+        """``(D (P, 3, 12), Sigma (12, 12), X (P, 12, 3))`` of each calibration the residuals
+        ``a_p - R b_p`` depend on: ``D`` its reach into them, ``X`` the covariance of its
+        error with their noise ``nu_p`` (zeros where independent)."""
         out = []
+        zero = np.zeros((len(self.ref), 12, 3))
         if self.d_ref is not None and self.cal_ref is not None:
-            out.append((self.d_ref, self.cal_ref))
+            out.append((self.d_ref, self.cal_ref,
+                        zero if self.cross_ref is None else self.cross_ref))  # fmt: skip
         if self.d_imu is not None and self.cal_imu is not None:
-            out.append((-np.einsum("ij,pjk->pik", R, self.d_imu), self.cal_imu))
+            X = zero if self.cross_imu is None else -self.cross_imu @ R.T  # nu_p = a_p - R b_p
+            out.append((-np.einsum("ij,pjk->pik", R, self.d_imu), self.cal_imu, X))
         return out
 
 
@@ -127,8 +138,9 @@ def _weights(group: PairGroup, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each pair's noise covariance ``C_p`` and weight ``W_p`` (its whole error's inverse)."""
     C = group.cov_ref + np.einsum("ij,pjk,lk->pil", R, group.cov_imu, R)
     total = C.copy()
-    for D, S in group.calibration_terms(R):
-        total += np.einsum("pij,jk,plk->pil", D, S, D)
+    for D, S, X in group.calibration_terms(R):
+        DX = np.einsum("pij,pjk->pik", D, X)
+        total += np.einsum("pij,jk,plk->pil", D, S, D) + DX + np.swapaxes(DX, 1, 2)
     return C, np.linalg.inv(total)
 
 
@@ -178,14 +190,17 @@ def _covariance(groups: list[PairGroup], R: np.ndarray) -> RotationFit:
         JW = np.einsum("pji,pjk->pik", J, W)  # J^T W, (P, 3, 3)
         H += np.einsum("pij,pjk->ik", JW, J)
         middle += np.einsum("pij,pjk,plk->il", JW, C, JW)
-        reach += [(np.einsum("pij,pjk->ik", JW, D), S) for D, S in g.calibration_terms(R)]
+        # each calibration's reach G_c, Sigma_c, and its covariance with sum_p J^T W nu_p
+        reach += [(np.einsum("pij,pjk->ik", JW, D), S, np.einsum("pkj,pij->ki", X, JW))
+                  for D, S, X in g.calibration_terms(R)]  # fmt: skip
         cosang = np.einsum("pi,pi->p", g.ref, Rb) / (np.linalg.norm(g.ref, axis=1)
                                                      * np.linalg.norm(Rb, axis=1))  # fmt: skip
         angle = np.degrees(np.arccos(np.clip(cosang, -1.0, 1.0)))
         fit.residual_deg[g.name] = float(np.sqrt(np.mean(angle**2)))
         fit.pairs[g.name] = len(g.ref)
-    for G, S in reach:
-        middle += G @ S @ G.T
+    for G, S, X in reach:  # eqs. R2, R3
+        GX = G @ X
+        middle += G @ S @ G.T + GX + GX.T
     Hi = np.linalg.inv(H)
     fit.cov = Hi @ middle @ Hi
     fit.cov = (fit.cov + fit.cov.T) / 2
