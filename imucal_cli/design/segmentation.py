@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import chdtri, gammaincinv
 
+from imucal_cli.design.steady_turns import turning_windows
 from imucal_cli.errors import InputError
 from imucal_cli.numerics.blocks import check_all_given, check_not_more
 
@@ -383,6 +384,7 @@ def find_static(
     alpha: float = DEFAULT_ALPHA,
     margin_s: float | None = None,
     noise: NoiseEstimate | None = None,
+    mean_rate: bool = True,
 ) -> list[Interval]:
     """Find the still periods of a continuous recording.
 
@@ -391,7 +393,10 @@ def find_static(
        of the window variance divided by the noise variance is at most that sensor's threshold:
        ``k`` for the accelerometer (default ``HOLD_TOLERANCE`` times the chi-square multiple of
        :func:`still_threshold` at false-alarm probability ``alpha``) and ``gyro_k`` for the
-       gyroscope (default ``GYRO_TOLERANCE`` times it).
+       gyroscope (default ``GYRO_TOLERANCE`` times it).  With the gyro (and ``mean_rate``),
+       a still window whose mean rate differs from the still periods' common bias by more
+       than its noise allows is a turn the variance cannot see (a steady turn about the
+       vertical), not still (:mod:`imucal_cli.design.steady_turns`).
     3. A sample is still when a still window covers it; runs of still samples separated by at
        most a quarter window (a single noise spike) are merged.
     4. Each run is trimmed by ``margin_s`` at both ends (not at the ends of the recording), so a
@@ -420,6 +425,9 @@ def find_static(
         Trimmed from both ends of each still run, s; default ``window_s / 2``.
     noise : NoiseEstimate, optional
         Use this noise instead of estimating it (its ``window`` is ignored).
+    mean_rate : bool
+        Test the still windows' mean gyro rate too (step 2); False: the variance alone, as
+        :class:`StaticStream` tests it.
 
     Returns
     -------
@@ -449,6 +457,10 @@ def find_static(
     margin, min_n = _trim(rate, window_s, margin_s, min_still_s)
     still_window = _still_windows(var / (sigma * sigma), na, accel is not None, gyro is not None,
                                   k, gyro_k, n, alpha)  # fmt: skip
+    if gyro is not None and mean_rate:
+        g = slice(na, x.shape[1])
+        still_window &= ~turning_windows(x[:, g], var[:, g], sigma[g], still_window, n, min_n,
+                                         alpha)  # fmt: skip
     return _still_periods(_runs(_covered(still_window, N, n)), N, n, margin, min_n)
 
 
@@ -531,8 +543,10 @@ class StaticStream:
     tested as :func:`find_static` tests it (the mean over a sensor's channels of the window
     variance over the noise variance, against the same thresholds) and the still samples are
     merged, trimmed and kept by the same rules.  Given the noise :func:`find_static` would
-    estimate, the periods are those of :func:`find_static` (up to rounding: a window's channel
-    variances are summed before their small negative rounding errors are cut at zero).
+    estimate, the periods are those of ``find_static(..., mean_rate=False)`` (up to rounding: a
+    window's channel variances are summed before their small negative rounding errors are cut
+    at zero).  The mean-rate test of :func:`find_static` (a steady turn about the vertical) is
+    not made: it needs the common bias of every still period, a pass over the whole recording.
 
     Parameters
     ----------
