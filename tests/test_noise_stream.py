@@ -8,7 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from imucal_cli.design.segmentation import StaticStream, estimate_noise, find_static
+from imucal_cli.design.segmentation import estimate_noise, find_static
+from imucal_cli.design.static_stream import StaticStream
 from imucal_cli.errors import InputError
 from imucal_cli.formats.session import open_samples, read_session, write_session
 from imucal_cli.numerics.allan import MAX_TERMS, AllanAccumulator, allan_deviation, log_taus
