@@ -1,7 +1,7 @@
 """Benchmark ``adaptive``, its logs (issue 27.4): logs recorded for another reason calibrate
 what they determine (issue 27.3).
 
-Three simulated logs (the first on the adaptive capture's parts, the others on as many parts
+Four simulated logs (the first on the adaptive capture's parts, the others on as many parts
 of their own: :data:`SEED_STRIDE`), with 2-degree placement error and no labels and no
 segments (a real log has neither: ``imucal calibrate`` finds the still periods itself):
 
@@ -11,6 +11,9 @@ segments (a real log has neither: ``imucal calibrate`` finds the still periods i
   pitched 0, +15, -10 and +25 degrees, two turns about z and one about y between them;
 - a robot pitching about y: 5 still periods of 3 s, each reached by a pitch turn from the last
   (+20, -45, +70 and -30 degrees: pitched 0, 20, -25, 45 and 15 degrees).
+- a vehicle yawing slowly on flat ground (issue 27): 3 stops of 10 s, between them turns about
+  the vertical of +30 and -25 degrees over 10 s each (3 deg/s on average, 5.6 at the peak): a
+  variance alone takes them for still periods, and their rate for the gyro's bias.
 
 Each is written as a session file and calibrated on the product's path
 (:func:`~imucal_cli.calibrate.batch.calibrate_file`, what ``imucal calibrate`` calls, with the
@@ -128,18 +131,26 @@ ROBOT = plan_toml("robot pitching about y", [
                              for s in (("rotation", (0, 1, 0), a), ("static", None))]])  # fmt: skip
 
 
+SLOW_YAW = plan_toml("vehicle yawing slowly", [
+    ("static", (0, 0, 1)), ("rotation", (0, 0, 1), 30), ("static", None),
+    ("rotation", (0, 0, 1), -25), ("static", None)])  # fmt: skip
+
+
 @dataclass(frozen=True)
 class Log:
-    """A simulated log: its name in the tables, TOML plan and still periods' length (s)."""
+    """A simulated log: its name in the tables, TOML plan, still periods' length (s) and the
+    length of each move or turn (s; the simulator's ``move_s``, a turn's least)."""
 
     name: str
     plan: str
     hold_s: float
+    move_s: float = 1.5
 
 
 LOGS = (Log("vehicle, flat (0/+3/-2/+5 deg)", VEHICLE_FLAT, 10.0),
         Log("vehicle, hills (0/+15/-10/+25 deg)", VEHICLE, 10.0),
-        Log("robot, pitching about y", ROBOT, 3.0))  # fmt: skip
+        Log("robot, pitching about y", ROBOT, 3.0),
+        Log("vehicle, slow yaw (10 s turns)", SLOW_YAW, 10.0, move_s=10.0))  # fmt: skip
 
 
 def simulate_log(folder: Path, text: str, seed: int, *, labels: bool = False,
@@ -244,9 +255,10 @@ def run_logs(seeds, folder: Path, say: Callable[[str], None] = lambda _: None
     for k, log in enumerate(LOGS):
         for seed in (s + SEED_STRIDE * k for s in seeds):
             session, truth = simulate_log(folder, log.plan, seed, segments=False,
-                                          hold_s=log.hold_s)  # fmt: skip
+                                          hold_s=log.hold_s, move_s=log.move_s)  # fmt: skip
             if log.name not in designs:
-                labelled, _ = simulate_log(folder, log.plan, seed, hold_s=log.hold_s)
+                labelled, _ = simulate_log(folder, log.plan, seed, hold_s=log.hold_s,
+                                           move_s=log.move_s)  # fmt: skip
                 designs[log.name] = design_of_log(labelled, truth)
             try:
                 cal = calibrate_log(session, folder, f"log{k}-{seed}")

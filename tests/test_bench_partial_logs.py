@@ -87,3 +87,26 @@ def test_logs_tables(tmp_path):
     assert checks["every log calibrated both sensors (0 failures)"]
     said = [k for k in checks if k.startswith("logs, gyro: measured intervals cover")]
     assert said and f"of {3 * len(pl.LOGS) * 2} " in said[0]
+
+
+def test_a_slow_yaw_is_not_read_as_the_gyro_bias(tmp_path):
+    """Issue 27: a vehicle's log yawing slowly (:data:`bench.partial_logs.SLOW_YAW`: three still
+    periods of 10 s on flat ground, between them turns about the vertical of 30 and -25 degrees
+    over 10 s each, 3 deg/s on average, 5.6 at the peak), without segments, calibrated as
+    ``imucal calibrate`` does: the gyro's bias is the still periods' (within 4 std of the mean
+    of their samples' noise, and of its own stated std), not the turns' rate (before: the whole
+    log was one still period, b_z off by 0.1 deg/s, 17 of those std)."""
+    log = pl.LOGS[-1]
+    assert log.plan == pl.SLOW_YAW
+    for seed in SEEDS[:2]:
+        session, truth = pl.simulate_log(tmp_path, log.plan, seed, segments=False,
+                                         hold_s=log.hold_s, move_s=log.move_s)  # fmt: skip
+        cal = pl.calibrate_log(session, tmp_path, f"slow-yaw-{seed}")
+        measured = [g for g in pl.grade("slow yaw", seed, cal, truth)
+                    if g.sensor == "gyro" and g.measured]  # fmt: skip
+        assert sorted(g.name for g in measured) == ["b_x", "b_y", "b_z"], measured
+        # the still samples' mean: noise over the root of their number (the holds less the
+        # segmentation's trims at the turns' gentle ends: at least 80 % of 3 x 10 s at 100 Hz)
+        std = np.degrees(GYRO_NOISE) / np.sqrt(0.8 * 3 * 10.0 * 100.0)
+        for g in measured:
+            assert abs(g.error) < 4 * min(std, g.std), (seed, g)  # and within its own std

@@ -51,19 +51,41 @@ def _turn_integrals(session, truth, turns) -> tuple[np.ndarray, np.ndarray]:
     return angles, noise
 
 
+def _cut_late(session, samples: int):
+    """The session with each known turn started ``samples`` late and ended as many early, the
+    still periods beside it stretched to meet it (a segmentation that takes a smooth turn's
+    gentle ends for still, as the variance alone did before issue 27)."""
+    segs = sorted(session.segments, key=lambda s: s.start)
+    out = list(segs)
+    for k, turn in enumerate(segs):
+        if turn.kind != "rotation" or turn.angle_deg is None:
+            continue
+        out[k] = replace(turn, start=turn.start + samples, stop=turn.stop - samples)
+        if k > 0 and out[k - 1].kind == "static" and out[k - 1].stop == turn.start:
+            out[k - 1] = replace(out[k - 1], stop=turn.start + samples)
+        if k + 1 < len(segs) and segs[k + 1].kind == "static" and segs[k + 1].start == turn.stop:
+            out[k + 1] = replace(segs[k + 1], start=turn.stop - samples)
+    return replace(session, segments=out)
+
+
 def test_a_turn_is_integrated_from_rest_to_rest(plan):
-    """The capture's segments start a smooth full turn late and end it early: the known
-    turns then read short. Given back the edges of the still periods that already move, each
-    integrates to a full turn within its noise (4 std, plus the gyro's quantisation)."""
-    session, truth = _captured(plan, seed=4)
-    known = [s for s in session.rotation_segments() if s.angle_deg is not None]
+    """The capture's segments integrate each smooth full turn within its noise (4 std, plus the
+    gyro's quantisation; issue 27: the still periods no longer take its gentle ends). Segments
+    that start it 0.2 s late and end it as early read short; given back the edges of the still
+    periods that already move, each integrates to a full turn within its noise."""
+    captured, truth = _captured(plan, seed=4)
+    known = [s for s in captured.rotation_segments() if s.angle_deg is not None]
     assert len(known) == 3
+    quantum = 4 * float(np.max(np.abs(truth.gyro.matrix)))  # 4 counts' worth of rate x 1 s
+    angles, noise = _turn_integrals(captured, truth, known)
+    assert np.all(np.abs(angles - 2 * np.pi) < 4 * noise + quantum), np.degrees(angles)
+    session = _cut_late(captured, 20)
+    known = [s for s in session.rotation_segments() if s.angle_deg is not None]
     cut, noise = _turn_integrals(session, truth, known)
     settled, note = settle_turns(session)
     assert note is not None and "integrated with the turn" in note
     whole, noise2 = _turn_integrals(
         session, truth, [s for s in settled.rotation_segments() if s.angle_deg is not None])
-    quantum = 4 * float(np.max(np.abs(truth.gyro.matrix)))  # 4 counts' worth of rate x 1 s
     assert np.all(np.abs(whole - 2 * np.pi) < 4 * noise2 + quantum), np.degrees(whole)
     assert np.any(np.abs(cut - 2 * np.pi) > 4 * noise + quantum), np.degrees(cut)
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import stats
 
 from imucal_cli.design.segmentation import (
     Interval,
@@ -11,7 +12,9 @@ from imucal_cli.design.segmentation import (
     find_rotations,
     find_static,
     still_threshold,
+    window_variance,
 )
+from imucal_cli.design.steady_turns import RATE_TOLERANCE, mean_rate_statistic, window_means
 from imucal_cli.simulate.triad import simulate_stream
 
 
@@ -145,3 +148,70 @@ def test_threshold_is_a_chi_square_quantile():
     var = window_variance(rng.normal(0, 1, (200_000, 3)), 50)
     rate = np.mean(var.mean(axis=1) > still_threshold(50, 3, 0.01))
     assert 0.007 < rate < 0.013
+
+
+def _steady_turn_log(rate_dps: float, seed: int = 7):
+    """A vehicle's log in SI units at 100 Hz, with the simulator's noise (0.01 m/s^2, 0.005
+    rad/s per sample): three still periods of 10 s, between them a turn about the vertical at a
+    steady ``rate_dps`` for 10 s (either way), reached and left by 0.5 s ramps (1 - cos) / 2.
+    Gravity stays on z and the gyro's variance within a window is its noise (the ramps add
+    (rate / noise)^2 / 12 at most, under the tolerance): the variance test alone calls it still.
+    Returns time, accel, gyro, the true bias (rad/s) and a mask of the still samples."""
+    rng = np.random.default_rng(seed)
+    still, steady, ramp = 1000, 1000, 50
+    up = (1 - np.cos(np.pi * np.arange(1, ramp + 1) / (ramp + 1))) / 2
+    turn = np.r_[up, np.ones(steady), up[::-1]]
+    parts, mask = [np.zeros(still)], [np.ones(still, bool)]
+    for sign in (1.0, -1.0):
+        parts += [sign * np.radians(rate_dps) * turn, np.zeros(still)]
+        mask += [np.zeros(len(turn), bool), np.ones(still, bool)]
+    rate_z, is_still = np.concatenate(parts), np.concatenate(mask)
+    n = len(rate_z)
+    bias = np.array([0.02, -0.01, 0.03])  # rad/s, about 1 deg/s
+    gyro = bias + np.c_[np.zeros((n, 2)), rate_z] + rng.normal(0, 0.005, (n, 3))
+    accel = np.array([0.0, 0.0, 9.81]) + rng.normal(0, 0.01, (n, 3))
+    return np.arange(n) / 100.0, accel, gyro, bias, is_still
+
+
+@pytest.mark.parametrize("rate_dps", [2.0, 5.0])
+def test_a_slow_steady_turn_about_the_vertical_is_not_still(rate_dps):
+    """Issue 27: a slow steady yaw (2-5 deg/s for 10 s) between still periods is a turn, not a
+    still period whose mean the calibration would read as the gyro's bias."""
+    time, accel, gyro, bias, is_still = _steady_turn_log(rate_dps)
+    window = 50
+    # the premise: the window variance alone takes the whole log for one still period
+    assert find_static(time, accel, gyro, mean_rate=False) == [Interval(0, len(time))]
+    found = find_static(time, accel, gyro)
+    truth = [Interval(a, b) for a, b in _runs_of(is_still)]
+    assert len(found) == len(truth) == 3, found
+    for f, t in zip(found, truth, strict=True):
+        # each still period kept but for its trims (a window and its margin at a turn's end),
+        # never into the steady part of the turn (past the 0.5 s ramp)
+        assert f.start <= t.start + 2 * window and f.stop >= t.stop - 2 * window, (f, t)
+        assert f.start >= t.start - window and f.stop <= t.stop + window, (f, t)
+    # the bias from the still samples found: within 4 std of the mean of N samples of noise
+    # (the turn's rate, 2-5 deg/s = 0.035-0.087 rad/s, would be 50-130 std)
+    samples = np.concatenate([gyro[f.start : f.stop] for f in found])
+    std = 0.005 / np.sqrt(len(samples))
+    np.testing.assert_array_less(np.abs(samples.mean(axis=0) - bias), 4 * std)
+
+
+def _runs_of(mask: np.ndarray) -> list[tuple[int, int]]:
+    edges = np.flatnonzero(np.diff(np.r_[0, mask.astype(np.int8), 0]))
+    return [(int(a), int(b)) for a, b in edges.reshape(-1, 2)]
+
+
+def test_steady_turn_statistic_against_the_noise():
+    """The mean-rate statistic of :mod:`imucal_cli.design.steady_turns` on still white noise
+    exceeds its chi-square bound with about the probability it states, and a 2 deg/s turn on
+    the same noise exceeds the bound (with its tolerance) many times over."""
+    rng = np.random.default_rng(8)
+    n, sigma = 50, np.full(3, 0.005)
+    x = rng.normal(0, 0.005, (100_000, 3))
+    still = np.ones(len(x) - n + 1, bool)
+    D = mean_rate_statistic(window_means(x, n), window_variance(x, n), sigma, still, n, 100)
+    rate = np.mean(D > stats.chi2.isf(0.01, 3))
+    # overlapping windows: about 2000 independent ones, so 1 % +- 3 binomial std of 2000
+    assert 0.01 - 3 * np.sqrt(0.01 * 0.99 / 2000) < rate < 0.01 + 3 * np.sqrt(0.01 * 0.99 / 2000)
+    z = np.radians(2.0) / (0.005 / np.sqrt(n))  # a window's mean rate in its std
+    assert z**2 > 20 * RATE_TOLERANCE * stats.chi2.isf(1e-4, 3)

@@ -27,8 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import chdtri, gammaincinv
 
+from imucal_cli.design.steady_turns import turning_windows
 from imucal_cli.errors import InputError
-from imucal_cli.numerics.blocks import check_all_given, check_not_more
 
 __all__ = [
     "DEFAULT_ALPHA",
@@ -36,7 +36,6 @@ __all__ = [
     "HOLD_TOLERANCE",
     "Interval",
     "NoiseEstimate",
-    "StaticStream",
     "estimate_noise",
     "find_rotations",
     "find_static",
@@ -383,6 +382,7 @@ def find_static(
     alpha: float = DEFAULT_ALPHA,
     margin_s: float | None = None,
     noise: NoiseEstimate | None = None,
+    mean_rate: bool = True,
 ) -> list[Interval]:
     """Find the still periods of a continuous recording.
 
@@ -391,7 +391,10 @@ def find_static(
        of the window variance divided by the noise variance is at most that sensor's threshold:
        ``k`` for the accelerometer (default ``HOLD_TOLERANCE`` times the chi-square multiple of
        :func:`still_threshold` at false-alarm probability ``alpha``) and ``gyro_k`` for the
-       gyroscope (default ``GYRO_TOLERANCE`` times it).
+       gyroscope (default ``GYRO_TOLERANCE`` times it).  With the gyro (and ``mean_rate``),
+       a still window whose mean rate differs from the still periods' common bias by more
+       than its noise allows is a turn the variance cannot see (a steady turn about the
+       vertical), not still (:mod:`imucal_cli.design.steady_turns`).
     3. A sample is still when a still window covers it; runs of still samples separated by at
        most a quarter window (a single noise spike) are merged.
     4. Each run is trimmed by ``margin_s`` at both ends (not at the ends of the recording), so a
@@ -420,6 +423,9 @@ def find_static(
         Trimmed from both ends of each still run, s; default ``window_s / 2``.
     noise : NoiseEstimate, optional
         Use this noise instead of estimating it (its ``window`` is ignored).
+    mean_rate : bool
+        Test the still windows' mean gyro rate too (step 2); False: the variance alone, as
+        :class:`~imucal_cli.design.static_stream.StaticStream` tests it.
 
     Returns
     -------
@@ -449,6 +455,10 @@ def find_static(
     margin, min_n = _trim(rate, window_s, margin_s, min_still_s)
     still_window = _still_windows(var / (sigma * sigma), na, accel is not None, gyro is not None,
                                   k, gyro_k, n, alpha)  # fmt: skip
+    if gyro is not None and mean_rate:
+        g = slice(na, x.shape[1])
+        still_window &= ~turning_windows(x[:, g], var[:, g], sigma[g], still_window, n, min_n,
+                                         alpha)  # fmt: skip
     return _still_periods(_runs(_covered(still_window, N, n)), N, n, margin, min_n)
 
 
@@ -521,153 +531,6 @@ def _still_periods(runs, N: int, n: int, margin: int, min_n: int) -> list[Interv
         if b2 - a2 >= max(min_n, 2):
             out.append(Interval(int(a2), int(b2)))
     return out
-
-
-class StaticStream:
-    """:func:`find_static` over a recording given block by block, in constant memory.
-
-    The noise comes from :func:`estimate_noise` beforehand (of the whole recording when it
-    fits in memory, else of evenly spread parts of it); then every ``window_s`` window is
-    tested as :func:`find_static` tests it (the mean over a sensor's channels of the window
-    variance over the noise variance, against the same thresholds) and the still samples are
-    merged, trimmed and kept by the same rules.  Given the noise :func:`find_static` would
-    estimate, the periods are those of :func:`find_static` (up to rounding: a window's channel
-    variances are summed before their small negative rounding errors are cut at zero).
-
-    Parameters
-    ----------
-    n_samples : int
-        Samples that will be given.
-    noise : NoiseEstimate
-        Noise per channel and the sample rate (``rate_hz``) that sets the window and margins.
-    accel, gyro : bool
-        Which sensors :meth:`add` gets.
-    min_still_s, window_s, alpha, margin_s
-        As :func:`find_static`.
-    """
-
-    def __init__(
-        self, n_samples: int, noise: NoiseEstimate, *, accel: bool = True, gyro: bool = True,
-        min_still_s: float = 1.0, window_s: float = 0.5, alpha: float = DEFAULT_ALPHA,
-        margin_s: float | None = None,
-    ) -> None:  # fmt: skip
-        rate = noise.rate_hz
-        self.N = int(n_samples)
-        self.n = _window_samples(window_s, rate)
-        self.margin, self.min_n = _trim(rate, window_s, margin_s, min_still_s)
-        self.groups = []  # (weights per channel, threshold) per sensor given
-        for given, sigma, tolerance in ((accel, noise.accel, HOLD_TOLERANCE),
-                                        (gyro, noise.gyro, GYRO_TOLERANCE)):  # fmt: skip
-            if not given:
-                continue
-            if sigma is None:
-                raise InputError("the noise estimate lacks a sensor that is given")
-            sigma = np.asarray(sigma, dtype=np.float64)
-            limit = tolerance * still_threshold(self.n, len(sigma), alpha)
-            # mean_c var_c / sigma_c^2 = sum_c w_c (S2_c - S1_c^2 / n), w_c as below.
-            weights = 1.0 / (len(sigma) * (self.n - 1) * sigma * sigma)
-            self.groups.append((weights, limit))
-        if not self.groups:
-            raise InputError("segmentation needs accel or gyro data")
-        self._centre: list[np.ndarray] | None = None
-        self._carry: list[np.ndarray] = []  # per sensor, the last n - 1 samples given
-        self._seen = 0
-        self._runs: list[list[int]] = []  # still samples so far: [start, stop) in order
-
-    def add(self, *blocks: np.ndarray) -> None:
-        """The next samples of each sensor given (accel first), each shape (k, channels)."""
-        if len(blocks) != len(self.groups):
-            raise InputError(f"expected {len(self.groups)} sensors, got {len(blocks)}")
-        k = len(blocks[0])
-        if any(len(b) != k for b in blocks):
-            raise InputError("the sensors' blocks differ in length")
-        check_not_more(self._seen, k, self.N)
-        if k == 0:
-            return
-        if self._centre is None:  # any constant; a typical value keeps the sums small
-            self._centre = [np.nan_to_num(np.median(b[:: max(1, k // 1024)], axis=0))
-                            for b in blocks]  # fmt: skip
-            self._carry = [np.zeros((0, b.shape[1])) for b in blocks]
-        first = self._seen - len(self._carry[0])  # sample index of the first row of x below
-        self._seen += k
-        xs = [np.concatenate([carry, block]) for carry, block in zip(self._carry, blocks,
-                                                                       strict=True)]  # fmt: skip
-        self._carry = [x[-(self.n - 1) :].copy() for x in xs]  # windows ending in the next block
-        if len(xs[0]) < self.n:
-            return
-        still = None
-        for (weights, limit), x, centre in zip(self.groups, xs, self._centre, strict=True):
-            x -= centre
-            if self._surely_still(x, weights, limit):
-                continue
-            ok = self._window_statistic(x, weights) <= limit  # NaN: not still
-            still = ok if still is None else still & ok
-        if still is None:  # every window of this block is still
-            runs = [(0, len(x) - self.n + 1)]
-        else:
-            runs = _runs(still)
-        for a, b in runs:  # still window starts -> the samples they cover
-            a, b = first + int(a), first + int(b) - 1 + self.n
-            if self._runs and a <= self._runs[-1][1]:
-                self._runs[-1][1] = max(self._runs[-1][1], b)
-            else:
-                self._runs.append([a, b])
-
-    def _surely_still(self, x: np.ndarray, weights: np.ndarray, limit: float) -> bool:
-        """True when every window of ``x`` is still, by a bound that costs a fraction of the
-        windows themselves: a window lies inside a pair of consecutive n-sample chunks, and its
-        sum of squared deviations from its own mean is at most the pair's from the pair's mean,
-        so the pair's statistic bounds the window's."""
-        n = self.n
-        chunks = len(x) // n
-        if chunks < 2:
-            return False
-        head = x[: chunks * n].reshape(chunks, n, x.shape[1])
-        ones = np.ones(n)
-        s1 = ones @ head  # chunk sums (a matrix product: numpy's fastest loop here)
-        s2 = ones @ (head * head)
-        # Pairs of chunks (b, b + 1) hold the windows starting in chunk b; the last chunk's
-        # windows lie in [(chunks - 1) n, len(x)).
-        tail = x[(chunks - 1) * n :]
-        p1 = np.vstack([s1[:-1] + s1[1:], tail.sum(axis=0)])
-        p2 = np.vstack([s2[:-1] + s2[1:], (tail * tail).sum(axis=0)])
-        counts = np.full((chunks, 1), 2.0 * n)
-        counts[-1] = len(tail)
-        with np.errstate(invalid="ignore", over="ignore"):
-            bound = (p2 - p1 * p1 / counts) @ weights
-        return bool(np.all(bound <= limit))  # NaN (a non-finite sample): not sure
-
-    def _window_statistic(self, x: np.ndarray, weights: np.ndarray) -> np.ndarray:
-        """For every window of ``x`` (rows, centred): the mean over channels of the window
-        variance over the noise variance (the statistic :func:`find_static` thresholds); NaN
-        for a window holding a non-finite sample."""
-        n = self.n
-        xt = np.ascontiguousarray(x.T)
-        bad = ~np.isfinite(xt).all(axis=0)
-        if bad.any():
-            xt[:, bad] = 0.0
-        s1 = np.zeros((xt.shape[0], xt.shape[1] + 1))
-        np.cumsum(xt, axis=1, out=s1[:, 1:])
-        q = np.zeros(xt.shape[1] + 1)
-        np.cumsum(weights @ (xt * xt), out=q[1:])
-        sum1 = s1[:, n:] - s1[:, :-n]
-        stat = q[n:] - q[:-n] - weights @ (sum1 * sum1) / n
-        if bad.any():
-            count = np.concatenate([[0], np.cumsum(bad)])
-            stat[(count[n:] - count[:-n]) > 0] = np.nan
-        return stat
-
-    def intervals(self) -> list[Interval]:
-        """The still periods, as :func:`find_static` returns them.
-
-        Raises
-        ------
-        InputError
-            Fewer samples were given than announced.
-        """
-        check_all_given(self._seen, self.N)
-        runs = [(a, min(b, self.N)) for a, b in self._runs]
-        return _still_periods(runs, self.N, self.n, self.margin, self.min_n)
 
 
 STEP_SIGMAS = 20.0

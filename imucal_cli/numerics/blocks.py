@@ -1,5 +1,5 @@
 """What the block-by-block accumulators share (:class:`~.allan.AllanAccumulator`,
-:class:`imucal_cli.design.segmentation.StaticStream`): a recording is announced by its
+:class:`imucal_cli.design.static_stream.StaticStream`): a recording is announced by its
 length, then given a block at a time, and its result exists only once every sample announced
 was given."""
 

@@ -2,7 +2,7 @@
 
 1. The samples: the longest static segment of the session, or the whole recording when the
    session has no segments, read once, block by block (memory stays constant: a day at 100 Hz
-   in under 200 MiB).  :class:`~imucal_cli.design.segmentation.StaticStream` checks that they
+   in under 200 MiB).  :class:`~imucal_cli.design.static_stream.StaticStream` checks that they
    are still as :func:`~imucal_cli.design.segmentation.find_static` does (thresholds from the
    data's own noise, estimated from the span, or from :data:`NOISE_PIECES` pieces of it when
    it is longer than :data:`NOISE_SAMPLES`): a recording mostly moving is refused, one that
@@ -33,7 +33,8 @@ from typing import Any
 import numpy as np
 
 from imucal_cli.design.allan import AxisNoise, noise_from_curve
-from imucal_cli.design.segmentation import StaticStream, estimate_noise
+from imucal_cli.design.segmentation import estimate_noise
+from imucal_cli.design.static_stream import StaticStream
 from imucal_cli.errors import InputError
 from imucal_cli.formats.noise import NOISE_FORMAT
 from imucal_cli.formats.session import Session, SessionSamples, samples_of
