@@ -12,18 +12,20 @@ CACHED := PYTHONDONTWRITEBYTECODE=
 
 .PHONY: demo test test-all bench docs lint clean
 
-# Installs with uv (from PyPI into the venv; it resolves and unpacks the ~90 packages of `.[dev]`
-# in about 12 s where pip takes about 50 s, the same versions), or with pip where uv cannot be
-# had. uv writes no bytecode: the dependencies (not their own tests) are compiled once, on all
-# cores, here rather than by each test worker at once on its first import.
-INSTALL = if [ -x $(BIN)/uv ]; then $(BIN)/uv pip install --quiet --python $(BIN)/python $(1); \
-	else $(BIN)/pip install --quiet $(1); fi
+# Installs with uv (from PyPI into the venv, a wheel only; it resolves and unpacks the ~90
+# packages of `.[dev]` in about 12 s where pip takes about 50 s, the same versions), or with pip
+# where uv cannot be had or fails (uv reads none of pip's settings: a mirror or proxy only pip
+# is told of). uv writes no bytecode: the dependencies (not their own tests) are compiled once,
+# on all cores, here rather than by each test worker at once on its first import (a file of a
+# dependency that does not compile is that package's, as pip ignores it: `-`).
+INSTALL = { [ -x $(BIN)/uv ] && $(BIN)/uv pip install --quiet --python $(BIN)/python $(1); } \
+	|| $(BIN)/pip install --quiet $(1)
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/pip install --quiet uv || echo "uv not available: installing with pip"
+	$(BIN)/pip install --quiet --only-binary=:all: uv || echo "uv not available: installing with pip"
 	$(call INSTALL,-e '.[dev]')
-	$(CACHED) $(BIN)/python -m compileall -q -j 0 -x '/tests?/' $(VENV)/lib
+	-$(CACHED) $(BIN)/python -m compileall -q -j 0 -x '/tests?/' $(VENV)/lib
 	touch $(STAMP)
 
 # The demo works on a copy, so the shipped session is never modified.

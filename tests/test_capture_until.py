@@ -69,7 +69,8 @@ def test_the_person_follows_the_guide_until_done():
         warnings.simplefilter("ignore")
         cal = calibrate_session(out.session, Config())
     statuses = measure(cal, parse_until(targets))
-    assert all(s.met for s in statuses), [s.describe() for s in statuses]
+    assert all(s.met for s in statuses), ([s.describe() for s in statuses], cal.note("gyro"),
+                                          cal.left_out, out.lines[-12:])  # fmt: skip
     # the session holds the holds and the turns between them, labelled as told
     session = out.session
     assert len(session.static_segments()) == out.poses

@@ -35,6 +35,13 @@ def test_one_still_period_more_fixes_nothing_there():
     assert order_fixed(PLAN, m) == set()
 
 
+def test_nothing_is_fixed_without_a_checked_still_period():
+    # directions not usable (an unsigned ADC): every still period only counted
+    m = Matches(still=[0, 2, 4, 5], motion=[1, 3, None], directions_used=False, ordered=True,
+                checked=set())  # fmt: skip
+    assert order_fixed(PLAN, m) == set()
+
+
 def test_a_pose_plan_matched_in_any_order_is_never_fixed_by_order():
     m = Matches(still=[0, 2], motion=[None], directions_used=True)
     assert order_fixed(PLAN, m) == set()

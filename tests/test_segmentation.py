@@ -213,5 +213,33 @@ def test_steady_turn_statistic_against_the_noise():
     rate = np.mean(D > stats.chi2.isf(0.01, 3))
     # overlapping windows: about 2000 independent ones, so 1 % +- 3 binomial std of 2000
     assert 0.01 - 3 * np.sqrt(0.01 * 0.99 / 2000) < rate < 0.01 + 3 * np.sqrt(0.01 * 0.99 / 2000)
-    z = np.radians(2.0) / (0.005 / np.sqrt(n))  # a window's mean rate in its std
-    assert z**2 > 20 * RATE_TOLERANCE * stats.chi2.isf(1e-4, 3)
+    # the same noise turning at 2 deg/s about z for its last 30 %, which the variance test
+    # alone calls still too: every one of those windows is past the splitting bound
+    turning = x.copy()
+    turning[70_000:, 2] += np.radians(2.0)
+    D2 = mean_rate_statistic(window_means(turning, n), window_variance(turning, n), sigma,
+                             still, n, 100)  # fmt: skip
+    bound = RATE_TOLERANCE * stats.chi2.isf(1e-4, 3)
+    assert np.min(D2[70_000:]) > bound
+    assert np.mean(D2[: 70_000 - n] > bound) < 0.01
+
+
+def test_a_gyro_quantised_below_its_noise_keeps_every_still_period():
+    """A gyro whose noise is under one count reads a constant at rest, and its bias may change
+    by a count between poses: a window's mean is then off by up to half a count however long
+    (second reader, 2026-11-29: 5 still periods became 2). Every one stays whole."""
+    rng = np.random.default_rng(3)
+    rate, n_still, n_move = 100.0, 300, 150
+    parts, truth = [], []
+    for k in range(5):
+        level = np.array([3.0, -2.0, 1.0]) + (k % 2)  # counts; a count's shift between poses
+        still = np.round(level + rng.normal(0, 0.2, (n_still, 3)))
+        move = np.round(level + 400 * np.sin(np.linspace(0, np.pi, n_move))[:, None]
+                        * np.array([0.3, 1.0, 0.2]) + rng.normal(0, 0.2, (n_move, 3)))
+        parts += [still, move]
+    gyro = np.concatenate(parts[:-1])
+    accel = np.tile([0.0, 0.0, 4096.0], (len(gyro), 1)) + np.round(rng.normal(0, 2, (len(gyro), 3)))
+    t = np.arange(len(gyro)) / rate
+    found = find_static(t, accel, gyro, min_still_s=1.0)
+    assert len(found) == 5
+    assert all(iv.stop - iv.start > 0.8 * n_still for iv in found)

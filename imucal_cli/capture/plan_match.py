@@ -296,6 +296,8 @@ def order_fixed(plan: Plan, matches: Matches) -> set[tuple[int, int]]:
         return set()
     n = len(matches.still)
     anchors = [k for k in range(n) if (0, k) in (matches.checked or set())]
+    if not anchors:  # nothing the data checked to count from (directions not usable)
+        return set()
     static = [j for j, s in enumerate(plan.steps) if s.kind == "static"]
     fixed: set[tuple[int, int]] = set()
     for a, b in zip([-1, *anchors], [*anchors, n], strict=True):

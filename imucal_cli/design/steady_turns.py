@@ -115,8 +115,19 @@ def _robust_spread(dev: np.ndarray) -> np.ndarray:
     return MAD_TO_STD * np.median(np.abs(dev), axis=0)
 
 
+def resolution(gyro: np.ndarray) -> np.ndarray:
+    """Each channel's smallest step between two values it takes (raw units, shape (C,)): the
+    quantisation of an integer ADC, or of counts converted to units; 0 for a constant channel."""
+    out = np.zeros(gyro.shape[1])
+    for c in range(gyro.shape[1]):
+        steps = np.diff(np.unique(gyro[np.isfinite(gyro[:, c]), c]))
+        out[c] = steps.min() if len(steps) else 0.0
+    return out
+
+
 def mean_rate_statistic(means: np.ndarray, var: np.ndarray, sigma: np.ndarray,
-                        still: np.ndarray, n: int, min_n: int) -> np.ndarray | None:  # fmt: skip
+                        still: np.ndarray, n: int, min_n: int,
+                        q: np.ndarray | float = 0.0) -> np.ndarray | None:  # fmt: skip
     """``D_j`` of every window (module notes); None when no run of still windows votes.
 
     Parameters
@@ -130,13 +141,18 @@ def mean_rate_statistic(means: np.ndarray, var: np.ndarray, sigma: np.ndarray,
         votes).
     n, min_n : int
         Window length and the fewest samples a still period keeps.
+    q : ndarray, shape (C,), or float
+        The channels' quantisation step (:func:`resolution`): with noise below a step the
+        readings do not dither, and a window's mean is off its rate by up to ``q / 2`` however
+        long the window (variance ``q^2 / 12``, not divided by ``n``).
 
     Returns
     -------
     ndarray, shape (W,), or None
         NaN where a window holds a non-finite sample.
     """
-    noise2 = np.maximum(var, sigma * sigma) / n  # the variance of one window's mean
+    # the variance of one window's mean: the noise's, and the rounding's that does not average
+    noise2 = np.maximum(var, sigma * sigma) / n + np.square(q) / 12.0
     finite = np.isfinite(means).all(axis=1) & np.isfinite(noise2).all(axis=1)
     runs = _voting_runs(still & finite, n, min_n)
     if not runs:
@@ -201,11 +217,11 @@ def turning_windows(gyro: np.ndarray, var: np.ndarray, sigma: np.ndarray, still:
     ndarray of bool, shape (N - n + 1,)
         True where a window the variance calls still turns (never where it is not still).
     """
-    means = window_means(gyro, n)
+    means, q = window_means(gyro, n), resolution(gyro)
     bound = chdtri(gyro.shape[1], alpha)  # chi2.isf(alpha, C)
     left = still.copy()
     for k in range(PASSES + 1):
-        D = mean_rate_statistic(means, var, sigma, left, n, min_n)
+        D = mean_rate_statistic(means, var, sigma, left, n, min_n, q)
         if D is None:
             return still & ~left
         turning = left & ~(D <= RATE_TOLERANCE * bound)  # NaN: not still already
