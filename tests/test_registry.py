@@ -446,6 +446,10 @@ def test_lot_of_several_layouts_against_the_figures_table(tmp_path, template):
     assert {o["serial"] for o in got[next(k for k in got if k[:2] == ("accel", "bias x"))][
         "outliers"]} == {"SN000003"}  # fmt: skip
     assert stats["drift"]["units_checked"] == 4
+    # the re-calibrations measure the same part again (the same draw), into another layout
+    # (4: no b_z; 7: no gyro), or the same (8, 9): the parameters both calibrations hold are
+    # compared and none moved
+    assert stats["drift"]["alarms"] == []
 
 
 def test_cpk_of_one_sided_and_two_sided_limits():
