@@ -97,29 +97,10 @@ def plan_toml(name: str, steps: list[tuple]) -> str:
 
 #: A vehicle's log on a hilly road: still on ground pitched 0, +15, -10 and +25 degrees
 #: (about y), turns (driving) between them.
-VEHICLE = """name = "vehicle"
-[[step]]
-kind = "static"
-up = [0, 0, 1]
-[[step]]
-kind = "rotation"
-axis = [0, 0, 1]
-[[step]]
-kind = "static"
-up = [0.2588, 0, 0.9659]
-[[step]]
-kind = "rotation"
-axis = [0, 0, 1]
-[[step]]
-kind = "static"
-up = [-0.1736, 0, 0.9848]
-[[step]]
-kind = "rotation"
-axis = [0, 1, 0]
-[[step]]
-kind = "static"
-up = [0.4226, 0, 0.9063]
-"""
+VEHICLE = plan_toml("vehicle", [
+    ("static", pitched(0)), ("rotation", (0, 0, 1), None), ("static", pitched(15)),
+    ("rotation", (0, 0, 1), None), ("static", pitched(-10)), ("rotation", (0, 1, 0), None),
+    ("static", pitched(25))])  # fmt: skip
 
 VEHICLE_FLAT = plan_toml("vehicle on flat-ish ground", [
     ("static", pitched(0)), ("rotation", (0, 0, 1), None), ("static", pitched(3)),
