@@ -230,7 +230,7 @@ def test_a_gyro_quantised_below_its_noise_keeps_every_still_period():
     (second reader, 2026-11-29: 5 still periods became 2). Every one stays whole."""
     rng = np.random.default_rng(3)
     rate, n_still, n_move = 100.0, 300, 150
-    parts, truth = [], []
+    parts = []
     for k in range(5):
         level = np.array([3.0, -2.0, 1.0]) + (k % 2)  # counts; a count's shift between poses
         still = np.round(level + rng.normal(0, 0.2, (n_still, 3)))
