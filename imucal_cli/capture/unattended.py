@@ -144,7 +144,8 @@ def segment_recording(
         # a segment is labelled by the step the data checked (a direction, an axis) or the
         # order fixed; a step only counted leaves its segment unlabelled
         sure = (matches.checked or set()) | order_fixed(plan, matches)
-        told = (lambda kind, k: True) if not matches.ordered else (lambda kind, k: (kind, k) in sure)
+        told = (lambda kind, k: True) if not matches.ordered else (
+            lambda kind, k: (kind, k) in sure)  # fmt: skip
         still_steps = [None if i is None or not told(0, k) else plan.steps[i]
                        for k, i in enumerate(matches.still)]  # fmt: skip
         for k, (before, m) in enumerate(zip(stills[:-1], matches.motion, strict=True)):
