@@ -144,6 +144,7 @@ class AdaptiveState(GuidedState):
         self.hold_plan: float | None = None
         self.factors: dict[tuple[str, str], float] = {}
         self.met = False
+        self.checking = False  # targets met on a refit without the last steps: refit them
         self.fresh = False
         self.pool: ThreadPoolExecutor | None = None
         self.pending: Future | None = None
@@ -260,7 +261,7 @@ class AdaptiveState(GuidedState):
             self.fresh = False
             self.request_refit()
         self.hold_plan = None
-        if self.met:
+        if self.met or self.checking:
             return
         if self.current() is None and (self.a.propose or self.given_plan is None):
             self.add_proposal()
@@ -281,38 +282,53 @@ class AdaptiveState(GuidedState):
         session = session_so_far(self.hist, self.taken, self.steps,
                                  accel_units=self.o.accel_units, gyro_units=self.o.gyro_units,
                                  gravity=self.a.gravity)  # fmt: skip
+        job = (session, len(self.taken))
         if self.pending is not None:
-            self.queued = session  # the newest waits; an older one waiting is dropped
+            self.queued = job  # the newest waits; an older one waiting is dropped
             return
         if self.pool is None:
             self.pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="imucal-refit")
-        self.pending = self.pool.submit(self._timed_refit, session)
+        self.pending = self.pool.submit(self._timed_refit, *job)
 
-    def _timed_refit(self, session: Session) -> tuple[Refit, float, float]:
+    def _timed_refit(self, session: Session, n_taken: int) -> tuple[Refit, float, float, int]:
         started = _time.perf_counter()
         result = self.a.refit(session)
-        return result, _time.perf_counter() - started, float(session.time[-1])
+        return result, _time.perf_counter() - started, float(session.time[-1]), n_taken
 
     def poll_refit(self, wait: bool = False) -> None:
         """Take a finished refit's result (``wait``: every refit asked for)."""
         while self.pending is not None and (wait or self.pending.done()):
-            result, took, last = self.pending.result()
+            result, took, last, n_taken = self.pending.result()
             self.pending = None
             if self.queued is not None:
-                session, self.queued = self.queued, None
-                self.pending = self.pool.submit(self._timed_refit, session)
+                job, self.queued = self.queued, None
+                self.pending = self.pool.submit(self._timed_refit, *job)
             self.refit_s += took
             self.refits += 1
-            self.apply_refit(result, last)
+            self.apply_refit(result, last, n_taken)
 
-    def apply_refit(self, result: Refit, last: float) -> None:
-        """Tell each target's std against it; "done" when every one is met."""
+    def apply_refit(self, result: Refit, last: float, n_taken: int | None = None) -> None:
+        """Tell each target's std against it; "done" when every one is met on a refit of
+        every step taken (``n_taken``: the steps the refitted session holds). Targets met
+        on a refit without the steps taken since (the person goes on while it runs) are
+        checked first: the session saved, every step in it, is the one that must meet them
+        (no new proposal meanwhile; if they are not met, the guide goes on)."""
         if self.met:
             return
         self.refit_result = result
         self.statuses = measure(result.calibration, self.a.targets, result.notes)
-        self.met = all(s.met for s in self.statuses)
+        met = all(s.met for s in self.statuses)
         self._update_factors()
+        behind = n_taken is not None and n_taken < len(self.taken)
+        if met and behind:
+            if not self.checking:
+                self.say(f"every target met on the first {n_taken} steps; checking with the "
+                         f"{len(self.taken) - n_taken} since (hold still)", "dim")
+            self.checking = True
+            if self.pending is None and self.queued is None:
+                self.request_refit()
+            return
+        self.met = met
         if self.met:
             self.done_time = last
             took = "" if self.first_time is None else \
@@ -323,8 +339,17 @@ class AdaptiveState(GuidedState):
                 self.holding = False
                 self.serial += 1
                 self.end_reason = "every target met"
-        else:
-            self.say(f"std/target now: {brief(self.statuses)}", "dim")
+            return
+        self.say(f"std/target now: {brief(self.statuses)}", "dim")
+        if not self.checking:
+            return
+        if behind:  # the steps since are refitted next
+            if self.pending is None and self.queued is None:
+                self.request_refit()
+            return
+        self.checking = False  # the check failed: the guide goes on
+        if self.current() is None and (self.a.propose or self.given_plan is None):
+            self.add_proposal()
 
     def on_block(self, block) -> None:
         if self.first_time is None and len(block):
