@@ -368,7 +368,7 @@ def _loo_table(console, r: dict) -> bool:
                  f"{len(ho)} transitions; ours leaves each out in turn")  # fmt: skip
     if r["mad"] is None:  # MaD's package not installed: its figures as measured here with it
         t.caption += ("; MaD's figures recorded with imucal (MaD Lab) 2.6.0 (pip install -e "
-                      "'.[bench]' measures them again)")  # fmt: skip
+                      "'.\\[bench]' measures them again)")  # fmt: skip
     console.print(t)
     within = all(abs(m - k) <= 2 * n for _, m, k, n in r["turns"])
     return within and rms(ho) <= rms(hm)

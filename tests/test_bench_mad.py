@@ -71,3 +71,17 @@ def test_the_labelled_table_says_how_many_transitions_each_predicts_better():
     rms = np.sqrt(np.mean(ours**2)), np.sqrt(np.mean(theirs**2))
     assert f"{rms[0]:.4f}; {rms[1]:.4f}" in text
     assert ok == (rms[0] <= rms[1])
+
+
+def test_without_mad_labs_package_the_table_says_how_to_install_it():
+    """The caption names the extra as typed (rich markup would swallow ``[bench]``)."""
+    from rich.console import Console
+
+    from bench.mad import _loo_table
+    from imucal_cli.model.gyro import KnownTurnCheck
+
+    console = Console(record=True, width=400)
+    r = {"ours": np.asarray(MAD_LOO_DEG), "mad": None, "known": [False] * 12, "turns": [],
+         "check": KnownTurnCheck()}  # fmt: skip
+    _loo_table(console, r)
+    assert "pip install -e '.[bench]'" in console.export_text()
