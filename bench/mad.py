@@ -29,8 +29,8 @@ MaD's result for (B) (``imucal_snapshot_example_cal.json``) stands in, and the t
   Where the two differ (with MaD's package, the table says it): each calibration's
   accelerometer beside the other's gyro, and how far the two accelerometers put gravity at the
   same still periods apart (at most 0.106 deg, of which a common rotation of the frame, which
-  the labels choose, is 0.068: ours weighs all 13 holds, 7 of them later repeats whose gravity
-  sits up to 0.26 deg from the first hold of the same face, MaD's takes its six first sections
+  the labels choose, is 0.068: ours weighs all 13 holds, 7 of them repeats of a face whose
+  gravity sits up to 0.26 deg from that face's first hold, MaD's takes its six first sections
   as exact; within the frame 0.049 deg apart). Turned into MaD's frame our accelerometer
   predicts the move from -Y to +Z (segment 0009, where MaD's does best against ours) to 0.588
   deg instead of 0.660 (MaD 0.515), and the 12 to 0.659 instead of 0.672: the frame, within
