@@ -187,6 +187,9 @@ class AdaptiveState(GuidedState):
     def prompt(self) -> Prompt:
         if self.met:  # done: nothing more to do (a proposal made meanwhile is void)
             return Prompt(None, 0, "done", "", 0.0, 0.0, self.serial)
+        if self.checking and self.current() is None:
+            return Prompt(None, 0, "check", "Hold still: the targets are checked with the last "
+                          "steps", 0.0, 0.0, self.serial)  # fmt: skip
         p = super().prompt()
         return Prompt(p.step, 0, p.phase, p.text, p.hold_s, p.held_s, p.serial)
 

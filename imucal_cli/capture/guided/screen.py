@@ -119,7 +119,7 @@ class Screen:
         if p.step is not None:
             of = f"/{p.n_steps}" if p.n_steps else ""
             rows.add_row(Text(f"[step {p.step + 1}{of}] {p.text}", style="bold"))
-        elif p.phase == "mag":
+        elif p.phase in ("mag", "check"):
             rows.add_row(Text(p.text, style="bold"))
         signal = Text()
         for text, style in state.signal_line():

@@ -131,7 +131,8 @@ class Prompt:
     phase : str
         ``"wait"`` (waiting for the unit to be still), ``"hold"`` (holding), ``"move"`` (turn
         the unit to the next pose), ``"pre"``/``"turning"`` (a rotation step), ``"mag"``
-        (every step done, the magnetometer still needs field directions), ``"done"``.
+        (every step done, the magnetometer still needs field directions), ``"check"`` (with
+        targets: met on a refit without the last steps, refitted with them), ``"done"``.
     text : str
         The instruction line (a static step says how long to hold).
     hold_s : float
