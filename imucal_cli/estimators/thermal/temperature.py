@@ -78,8 +78,9 @@ SELECT_P = 0.01
 #: A term the F-test cannot find is still kept when dropping it would take more than this
 #: fraction off a kept coefficient's variance (:func:`alias_inflation`). At 0.1, a dropped
 #: term's largest undetected shift (2.6 of its std, the 1 % test's edge) moves a kept one by
-#: 0.8 of its std: with :func:`consider_cov`, 93 % of the intervals or more still cover there
-#: (one term, a normal model), and the kept ones lose at most 5 % of their std.
+#: 0.8 of its std: with :func:`consider_cov`, 93.1 % of the 95 % intervals or more cover,
+#: whatever the term's size (one term, a normal model, drops and keeps together; worst at 2.5
+#: of its std), and the kept ones lose at most 5 % of their std.
 ALIAS_MAX = 0.1
 
 
