@@ -54,9 +54,10 @@ def test_warmup_gyro_intervals_hold_the_truth():
     """``bench live``'s warm-up (``warmup:2 --ramp 5:40`` with a qureshi18 session at room
     temperature, calibrated with ``--warmup``): the gyro's temperature terms' 95 % intervals
     held the truth 67.5 % of the time, because the cubic (and quadratic) the F-tests left out
-    moved the lower terms by several of their std.  With the held terms' spread in the std
-    (:func:`imucal_cli.estimators.thermal.temperature._held_terms`) they hold it about 95 %
-    of the time; over 12 parts (about 70 intervals, binomial std 2.6 %) at least 87 %."""
+    moved the lower terms by several of their std.  Terms aliased with the kept ones are now
+    kept (:data:`imucal_cli.estimators.thermal.temperature.ALIAS_MAX`): the intervals hold it
+    about 95 % of the time; over 12 parts (about 100 intervals, binomial std 2.2 %) at least
+    87 %."""
     from bench.live_grade import grade_warmup
 
     plan = live.LivePlan("warmup:2", warmup=True, serve=("--ramp", live.WARMUP_RAMP))

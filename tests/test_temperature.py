@@ -7,12 +7,18 @@ import pytest
 
 from imucal_cli.errors import DesignError, InputError
 from imucal_cli.estimators.accel.gravity import fit_gravity
+from imucal_cli.estimators.thermal import joint
 from imucal_cli.estimators.thermal.joint import fit_gravity_tempco
 from imucal_cli.estimators.thermal.temperature import (
+    ALIAS_MAX,
     MIN_SPAN_C,
+    SELECT_P,
+    alias_inflation,
     check_span,
+    consider_cov,
     f1_pvalue,
     fit_tempco,
+    noise_scale,
     polynomial_bound,
     reexpand,
 )
@@ -92,52 +98,114 @@ def _points(coef, n=200, sigma=0.5, seed=0, span=(0.0, 40.0)):
     return T, y
 
 
-@pytest.mark.parametrize("coef,degree", [
-    ([3.0, 0.0], 0),
-    ([3.0, 0.4], 1),
-    ([3.0, 0.4, 0.01], 2),
-    ([3.0, 0.4, 0.01, 0.0008], 3),
-])  # fmt: skip
-def test_degree_is_chosen_by_the_data(coef, degree):
+@pytest.mark.parametrize("coef", [[3.0, 0.0], [3.0, 0.4], [3.0, 0.4, 0.01],
+                                  [3.0, 0.4, 0.01, 0.0008]])  # fmt: skip
+def test_a_term_aliased_with_the_kept_ones_is_kept(coef):
+    """Over 0-40 C, ``(T - 20)^3`` is so like ``T - 20`` that dropping the cubic would take
+    about 5/6 off the linear term's variance: whatever the F-test says, the cubic stays (held
+    at zero, a cubic the test cannot find moves the linear term by up to 2.6 sqrt(5) of its
+    std).  The fit is then the cubic's own: its std the bound's, its estimates within it."""
     T, y = _points(np.array(coef))
     fit = fit_tempco(T, y, sigma=np.full(len(T), 0.5), temperature_ref=20.0)
-    assert fit.channels[0].degree == degree
-    if degree:
-        est, std = fit.tempco[:, 0], fit.tempco_std[:, 0]
-        assert np.all(np.abs(est - coef[1 : degree + 1]) < 4.5 * std)
-        # with the noise given, the standard deviations are the bound's, plus what the terms
-        # the F-tests dropped (held at zero) add: A (delta delta^T + C_delta) A^T
-        crb = polynomial_bound(T, 0.5, degree, 20.0)
-        full = fit_tempco(T, y, sigma=np.full(len(T), 0.5), temperature_ref=20.0,
-                          select_p=1.0).channels[0]  # fmt: skip
-        X = (T - 20.0)[:, None] ** np.arange(4)[None, :]
-        A = np.linalg.solve(X[:, : degree + 1].T @ X[:, : degree + 1],
-                            X[:, : degree + 1].T @ X[:, degree + 1 :])  # fmt: skip
-        delta = full.tempco[degree:]
-        held = A @ (np.outer(delta, delta) + full.tempco_cov[degree:, degree:]) @ A.T
-        np.testing.assert_allclose(std, np.sqrt(np.diag(crb + held)[1:]), rtol=1e-9)
-    assert fit.channels[0].level[0] == pytest.approx(3.0, abs=0.3)
+    c = fit.channels[0]
+    assert c.degree == 3
+    top = c.tests[0]
+    assert top["degree"] == 3 and top["kept"] and top["alias"] > ALIAS_MAX
+    if len(coef) < 4:
+        assert top["p_value"] > SELECT_P  # kept for its aliasing, not its significance
+    truth = np.r_[coef, np.zeros(4 - len(coef))][1:]
+    std = fit.tempco_std[:, 0]
+    assert np.all(np.abs(fit.tempco[:, 0] - truth) < 4.5 * std)
+    crb = polynomial_bound(T, 0.5, 3, 20.0)
+    np.testing.assert_allclose(std, np.sqrt(np.diag(crb)[1:]), rtol=1e-9)
+    assert c.level[0] == pytest.approx(3.0, abs=0.3)
 
 
-def test_a_dropped_term_is_carried_in_the_kept_ones_std():
-    """A cubic the 1 % F-test cannot tell from zero (1-2 of its std) still moves the linear
-    term of the lower-degree fit by several of that fit's std (a warm-up's 8-40 C, most of it
-    warm).  Held at zero, its spread is in the linear term's std: the 95 % intervals hold the
-    truth 95 % of the time (without it: 32 % and 66 %).  200 draws each: binomial std 1.5 %,
-    so at least 90 %."""
+def test_consider_cov_estimates_the_held_terms_shift_without_double_counting():
+    """``A max(d d^T - C_d, 0) A^T``: ``E[d d^T] = delta delta^T + C_d``, so the rule is an
+    unbiased estimate of the shift's square ``A delta delta^T A^T`` wherever the clip does not
+    bite; adding ``C_d`` on top (as before) counted it twice."""
+    A = np.array([[0.5, -0.2], [1.5, 0.3], [0.0, 2.0]])
+    C = np.array([[0.04, 0.01], [0.01, 0.09]])
+    delta = np.array([3.0, -2.0])
+    # one estimate: the matrix difference's positive part (here of full rank 1 plus a negative)
+    d = np.array([2.5, -1.5])
+    w, V = np.linalg.eigh(np.outer(d, d) - C)
+    expect = A @ V @ np.diag(np.clip(w, 0, None)) @ V.T @ A.T
+    np.testing.assert_allclose(consider_cov(A, d, C), expect, rtol=1e-12, atol=1e-15)
+    assert np.linalg.eigvalsh(consider_cov(A, d, C)).min() > -1e-12
+    assert not consider_cov(A, np.zeros(2), C).any()  # nothing seen: nothing added
+    # over draws of d ~ N(delta, C), its mean is A delta delta^T A^T (MC std of the mean
+    # about 0.5 % of the entries at 20,000 draws; 2 % allowed)
+    rng = np.random.default_rng(3)
+    L = np.linalg.cholesky(C)
+    draws = delta + rng.standard_normal((20000, 2)) @ L.T
+    mean = np.mean([consider_cov(A, x, C) for x in draws], axis=0)
+    target = A @ np.outer(delta, delta) @ A.T
+    np.testing.assert_allclose(mean, target, rtol=0.02, atol=0.02 * np.abs(target).max())
+    assert alias_inflation(np.diag([2.0, 1.1, 9.0]), np.diag([1.0, 1.0])) == pytest.approx(1.0)
+
+
+def test_an_unaliased_term_is_dropped_with_its_shift_carried():
+    """A linear model about a reference near the points' mean temperature: the slope hardly
+    moves the level (alias under ``ALIAS_MAX``), so a slope the F-test cannot find is
+    dropped, and the level's variance is the constant fit's plus ``consider_cov`` of the slope
+    (what it still adds), computed here on its own."""
+    T = np.linspace(0.0, 40.0, 41)
+    rng = np.random.default_rng(5)
+    ref = 21.0  # the mean is 20: dropping the slope takes 0.2 % off the level's variance
+    sig = np.full(len(T), 0.5)
+    X = np.column_stack([np.ones(len(T)), T - ref]) / 0.5
+    big = np.linalg.inv(X.T @ X)
+    y = 3.0 + 0.5 * rng.standard_normal(len(T))
+    # a slope of 2 of its std: not significant at 1 %, and d^2 - C_d = 3 C_d > 0
+    y += (2.0 * np.sqrt(big[1, 1]) - (big @ X.T @ (y / 0.5))[1]) * (T - ref)
+    fit = fit_tempco(T, y, sigma=sig, temperature_ref=ref, max_degree=1)
+    c = fit.channels[0]
+    assert c.degree == 0 and not c.tests[0]["kept"] and c.tests[0]["alias"] < ALIAS_MAX
+    beta = big @ X.T @ (y / 0.5)
+    A = np.array([[np.sum(X[:, 0] * X[:, 1]) / np.sum(X[:, 0] ** 2)]])  # (X_0'X_0)^-1 X_0'X_1
+    held = consider_cov(A, beta[1:], big[1:, 1:])
+    np.testing.assert_allclose(held, 3.0 * A**2 * big[1, 1], rtol=1e-9)
+    chi2 = float(np.sum(((y - y.mean()) / 0.5) ** 2))
+    scale = noise_scale(chi2, len(T) - 1, True)
+    np.testing.assert_allclose(c.cov, scale * 0.25 / len(T) + held, rtol=1e-9)
+    # the same slope about a reference at the span's end: the level is the slope's alias
+    off = fit_tempco(T, y, sigma=sig, temperature_ref=0.0, max_degree=1).channels[0]
+    assert off.degree == 1 and off.tests[0]["alias"] > ALIAS_MAX
+
+
+def test_noise_scale_is_one_rule():
+    """``chi2/dof`` when the noise is unknown; with it given, only past the 99th percentile of
+    ``chi^2(dof)`` (the joint fit and the polynomial share the function)."""
+    from scipy.stats import chi2 as chi2_dist
+
+    assert noise_scale(30.0, 10, False) == pytest.approx(3.0)
+    edge = float(chi2_dist.ppf(0.99, 10))
+    assert noise_scale(0.99 * edge, 10, True) == 1.0
+    assert noise_scale(1.01 * edge, 10, True) == pytest.approx(1.01 * edge / 10)
+    assert joint.noise_scale is noise_scale
+
+
+def test_a_cubic_the_test_cannot_find_leaves_the_linear_term_s_intervals_honest():
+    """A cubic the 1 % F-test cannot tell from zero (1-2 of its std) moves the linear term of
+    a lower-degree fit by several of that fit's std (a warm-up's 8-40 C, most of it warm): it
+    is kept, and the linear term's 95 % intervals hold the truth 95 % of the time (were it
+    dropped: 32 % and 66 %).  200 draws each: binomial std 1.5 %, so at least 90 %."""
     x = np.linspace(0.0, 1.0, 24)
     T = 8.0 + 32.0 * (1.0 - np.exp(-3.0 * x)) / (1.0 - np.exp(-3.0))
     ref = float(T.mean())
     s3 = float(np.sqrt(polynomial_bound(T, 1.0, 3, ref)[-1, -1]))
     rng = np.random.default_rng(24)
     for k in (1.0, 2.0):
-        hits, dropped = [], 0
+        hits, unfound = [], 0
         for _ in range(200):
             y = 50.0 + (T - ref) + k * s3 * (T - ref) ** 3 + rng.standard_normal(len(T))
             c = fit_tempco(T, y, sigma=np.ones(len(T))).channels[0]
-            dropped += c.degree < 3
+            assert c.degree == 3
+            unfound += c.tests[0]["p_value"] >= SELECT_P
             hits.append(abs(c.tempco[0] - 1.0) <= 1.96 * np.sqrt(c.tempco_cov[0, 0]))
-        assert dropped > 50  # the case at stake: the cubic often left out
+        assert unfound > 50  # the case at stake: a cubic the test does not find
         assert np.mean(hits) >= 0.90, (k, np.mean(hits))
 
 
@@ -160,7 +228,8 @@ def test_serial_correlation_inflates_the_standard_deviation():
     y = 0.2 * (T - 15) + e
     red = fit_tempco(T, y, serial=True)
     assert red.channels[0].correlation > 0.7
-    assert red.degree[0] == 1  # the wander does not pass for a higher degree
+    # the wander does not pass for a cubic (kept for its aliasing with the slope, not found)
+    assert red.channels[0].tests[0]["p_value"] > SELECT_P
     white = fit_tempco(T, y, max_degree=1)
     assert red.tempco_std[0, 0] > 3 * white.tempco_std[0, 0]  # sqrt((1 + rho) / (1 - rho))
     assert abs(red.tempco[0, 0] - 0.2) < 3 * red.tempco_std[0, 0]

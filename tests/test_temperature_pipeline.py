@@ -35,12 +35,21 @@ def test_joint_model_by_default_when_the_session_spans_10_c(ramp_cal):
     acc = cal.accel
     assert acc.temperature_terms is not None
     model = acc.temperature_model
-    assert "gravity-magnitude" in model.source and max(model.degree) <= 3
+    assert "gravity-magnitude" in model.source
+    # each 2-s pose gives two blocks (JOINT_BLOCKS): 36 points determine the cubic's 18
+    # parameters, and over 5-40 C it is aliased with the linear term: kept
+    assert list(model.degree) == [3, 3, 3] and model.points == 36
     assert np.array(model.bias_tempco_std).shape == np.array(acc.bias_tempco).shape
     lo, hi = acc.temperature_range_c
     assert lo < 7 and hi > 38
-    np.testing.assert_allclose(_change(acc, lo, hi), _change(truth.accel, lo, hi), rtol=0.2,
-                               atol=5.0)  # fmt: skip
+    # the change over the span within 3 of its stated std (bounded by the terms' std: the
+    # section keeps no covariance between them), a std well under the change itself
+    k = np.arange(1, len(acc.bias_tempco) + 1)
+    reach = np.abs((hi - acc.temperature_ref) ** k - (lo - acc.temperature_ref) ** k)
+    std = reach @ np.array(model.bias_tempco_std)
+    err = _change(acc, lo, hi) - _change(truth.accel, lo, hi)
+    assert np.all(np.abs(err) <= 3.0 * std + 1.0), (err, std)
+    assert np.all(std < 0.5 * np.abs(_change(truth.accel, lo, hi)).max()), std
     # the bias at the reference is the truth's there (a few counts: the noise of 18 poses)
     t_ref = acc.temperature_ref
     np.testing.assert_allclose(acc.bias, truth.accel.bias_at(t_ref)[0], atol=4.0)
@@ -152,14 +161,13 @@ def test_given_accel_with_temperature_terms_calibrates_the_gyro(ramp_cal, tmp_pa
 
 def test_temperature_intervals_hold_the_truth_through_a_ramp():
     """qureshi18 through a warm-up of 10-40 C: the accelerometer's temperature terms fitted
-    jointly with its gravity-magnitude model, the gyro's from its still periods.  The terms
-    the eliminations drop are held at zero with their spread in the kept terms' and the bias's
-    std (the consider covariance of ``joint._held_terms``), and the gyro's bias std carries
-    what the terms' error moves it by (``thermal._level_extra``).  Before, 60 % of the
-    accelerometer's terms' and biases' 95 % intervals and 67 % of the gyro biases' held the
-    truth on these parts; now 94 % and 92 % (over 60 other parts the gyro biases' 90 %: its
-    solver's own bias error on a compensated ramp is about 1.2 times its std, not explained
-    yet).  16 parts:
+    jointly with its gravity-magnitude model, the gyro's from its still periods.  Terms
+    aliased with the kept ones are kept (``temperature.ALIAS_MAX``), and the gyro's bias std
+    carries what the terms' error moves it by (``thermal._level_extra``).  Before any of
+    this, 60 % of the accelerometer's terms' and biases' 95 % intervals and 67 % of the gyro
+    biases' held the truth on these parts; over seeds 0-199 now 90 % for the accelerometer
+    (its quadratic fit cannot hold the part's cubic: 18 poses, 18 parameters with it) and
+    96 % for the gyro biases.  16 parts:
     accel about 100 intervals (binomial std 2.2 %), at least 88 %; gyro biases 48, at least
     78 % (3 std of 48 at 89 %)."""
     from imucal_cli.estimators.thermal.temperature import reexpand
@@ -189,3 +197,27 @@ def test_temperature_intervals_hold_the_truth_through_a_ramp():
     assert len(accel) >= 80 and len(gyro) == 48
     assert np.mean(accel) >= 0.88, np.mean(accel)
     assert np.mean(gyro) >= 0.78, np.mean(gyro)
+
+
+@pytest.mark.slow
+def test_every_temperature_term_s_intervals_cover_over_100_parts():
+    """Issue 24.6 for the temperature models (``bench.temperature_coverage``, the bench's
+    table): over 100 parts (seeds 300-399) the 95 % intervals of every term, per design
+    (``bench live``'s warm-up with a room session; a qureshi18 ramp 10-40 C), sensor and term
+    (bias at ``T_ref``, ``tc1 .. tc3``), hold the truth 93-97 % of the time, here within
+    90.5-99 % (300 intervals a term: binomial std 1.3 %, 1.5 % with the axes of one part
+    sharing its noise; 3 of it).  Every term of a cubic is stated on every part (300 intervals):
+    the aliased terms are kept.  Measured (seeds 300-399): 92.0-97.7 %; before (the dropped
+    terms' A (d d^T + C_d) A^T, a quadratic ramp accelerometer) 47-99.3 %."""
+    from bench.temperature_coverage import coverage, intervals
+
+    found = []
+    for seed in range(300, 400):
+        found += intervals(seed)
+    table = coverage(found)
+    expected = {(d, s, t) for d in ("warm-up", "ramp") for s in ("accel", "gyro")
+                for t in ("b", "tc1", "tc2", "tc3")}  # fmt: skip
+    assert set(table) == expected, set(table) ^ expected
+    for key, c in table.items():
+        assert c.intervals == 300 and c.seeds == 100, (key, c)
+        assert 90.5 <= c.percent <= 99.0 and c.ok, (key, c)

@@ -47,6 +47,12 @@ __all__ = ["TemperatureModel", "attach", "compensate", "given_accel", "merge_ses
 BLOCK_S = 5.0
 #: Fewest blocks a warm-up recording's still time is cut into (shorter blocks when short).
 MIN_BLOCKS = 30
+#: Blocks each still period gives the accelerometer's joint fit at least (shorter than
+#: :data:`BLOCK_S` when the period is short): each pose then reads its bias at two
+#: temperatures, so that qureshi18's 18 two-second poses determine the 18 parameters of a cubic
+#: (with one block each they cannot, and the quadratic fitted instead cannot hold a part's
+#: cubic: its intervals covered 84-90 %).
+JOINT_BLOCKS = 2
 UNITS_PER_C = {1: "per C", 2: "per C^2", 3: "per C^3"}
 
 
@@ -89,24 +95,26 @@ def sample_temperature(session: Session) -> np.ndarray | None:
     return t if ok.all() else np.interp(session.time, session.time[ok], t[ok])
 
 
-def still_blocks(session: Session, block_s: float) -> list[tuple[int, int, int]]:
-    """``(start, stop, still period)`` of blocks of about ``block_s`` in each still period."""
+def still_blocks(session: Session, block_s: float,
+                 per_period: int = 1) -> list[tuple[int, int, int]]:  # fmt: skip
+    """``(start, stop, still period)`` of blocks of about ``block_s`` in each still period, at
+    least ``per_period`` of them in each (shorter then; never under 2 samples)."""
     rate = 1.0 / float(np.median(np.diff(session.time))) if len(session.time) > 1 else 1.0
     n = max(int(round(block_s * rate)), 2)
     out = []
     for k, s in enumerate(session.static_segments()):
-        m = max((s.stop - s.start) // n, 1)
+        m = min(max((s.stop - s.start) // n, per_period), max((s.stop - s.start) // 2, 1))
         edges = np.linspace(s.start, s.stop, m + 1).astype(int)
         out += [(int(a), int(b), k) for a, b in zip(edges[:-1], edges[1:], strict=True)
                 if b - a >= 2]  # fmt: skip
     return out
 
 
-def _points(session: Session, name: str, block_s: float):
+def _points(session: Session, name: str, block_s: float, per_period: int = 1):
     """Block means of sensor ``name`` with their temperature, noise and still period."""
     data = getattr(session, name)
     temp = sample_temperature(session)
-    blocks = still_blocks(session, block_s)
+    blocks = still_blocks(session, block_s, per_period)
     if data is None or temp is None or not blocks:
         return None
     values = np.array([data[a:b].mean(axis=0) for a, b, _ in blocks])
@@ -171,7 +179,7 @@ def warmup_models(warmups: list[Session], cfg: Config, t_ref: float) -> dict:
 def _joint_accel(session: Session, cfg: Config, t_ref: float) -> TemperatureModel | None:
     """The accelerometer's model fitted jointly with its gravity-magnitude model."""
 
-    pts = _points(session, "accel", BLOCK_S)
+    pts = _points(session, "accel", BLOCK_S, JOINT_BLOCKS)
     if pts is None or session.accel.shape[1] != 3:
         return None
     opt = cfg.temperature

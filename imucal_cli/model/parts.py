@@ -139,13 +139,16 @@ class FitStatistics(Record):
 
 @dataclass
 class SelectionRow(Record):
-    """One F-test of the degree of a channel's bias polynomial in temperature."""
+    """One F-test of the degree of a channel's bias polynomial in temperature; ``alias``: the
+    largest fraction of a kept coefficient's variance dropping the term would take off (the
+    term is kept above ``ALIAS_MAX``, significant or not)."""
 
     channel: str | None = None
     degree: int | None = None
     F: float | None = None
     dof: list[float] | None = None
     p_value: float | None = None
+    alias: float | None = None
     kept: bool | None = None
 
 

@@ -16,9 +16,12 @@ pose mean's noise (as :mod:`imucal_cli.estimators.accel.gravity` does), by Leven
 the analytic Jacobian: the temperature columns are the bias columns times ``(T_k -
 T_ref)^j``. Each channel's degree (at most 3) is chosen by backward elimination: the least
 significant top term of any channel is dropped while the F-test of its drop in chi^2 is not
-significant (:data:`imucal_cli.estimators.thermal.temperature.SELECT_P`); the dropped terms'
-spread (the highest degree's estimate and covariance) stays in the kept parameters'
-covariance (:func:`_held_terms`).
+significant (:data:`imucal_cli.estimators.thermal.temperature.SELECT_P`) and dropping it
+narrows no kept parameter by more than
+:data:`~imucal_cli.estimators.thermal.temperature.ALIAS_MAX` of its variance (a term aliased
+with the kept ones is kept: see that module's notes); what a dropped term still adds (the
+highest degree's estimate and covariance) stays in the kept parameters' covariance
+(:func:`_held_terms`).
 
 The fit gives the temperature terms and their covariance; the calibration itself (any
 accelerometer solver) is then run on the pose means with the temperature terms taken out.
@@ -32,16 +35,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.special import chdtri
 
 from imucal_cli.errors import DesignError, SolverError
 from imucal_cli.estimators.accel.gravity import model_to_params, params_to_model
 from imucal_cli.estimators.thermal.temperature import (
+    ALIAS_MAX,
     MAX_DEGREE,
     MIN_SPAN_C,
     SELECT_P,
+    alias_inflation,
     check_span,
+    consider_cov,
     f1_pvalue,
+    noise_scale,
 )
 
 __all__ = ["JointResult", "fit_gravity_tempco"]
@@ -276,21 +282,12 @@ def fit_gravity_tempco(
     return _package(model, fit, degree, T, tests, nfev + n, cov_mean is not None, held)
 
 
-def _noise_scale(chi2: float, dof: int, weighted: bool) -> float:
-    """``chi2/dof`` where the noise is unknown or the residuals exceed it (99th percentile of
-    chi^2), else 1."""
-    if weighted:
-        return chi2 / dof if dof > 0 and chi2 > chdtri(dof, 0.01) else 1.0
-    return chi2 / dof
-
-
 def _held_terms(model, fit, degree, top, top_degree, weighted) -> np.ndarray:
     """What the temperature terms the eliminations dropped add to the covariance of the kept
     parameters (normalised units): held at zero, not known to be zero, they shift the kept
     ones by ``A delta`` (``A = (J_k^T J_k)^-1 J_k^T J_drop`` at the kept fit, the alias
     matrix of the linearised eq. (11)), ``delta`` known as the highest-degree fit's estimate
-    with its covariance: the consider covariance ``A (delta delta^T + C_delta) A^T`` (as
-    :func:`imucal_cli.estimators.thermal.temperature._held_terms`)."""
+    with its covariance (:func:`~imucal_cli.estimators.thermal.temperature.consider_cov`)."""
     n = 9 + len(model.columns(degree))
     cols_top, cols = model.columns(top_degree), model.columns(degree)
     drop = [9 + i for i, jc in enumerate(cols_top) if jc not in cols]
@@ -303,9 +300,17 @@ def _held_terms(model, fit, degree, top, top_degree, weighted) -> np.ndarray:
     Jk = J[:, kept]
     A = np.linalg.solve(Jk.T @ Jk, Jk.T @ J[:, drop])
     dof = len(top.f) - len(top.x)
-    C = _noise_scale(top.chi2, dof, weighted) * np.linalg.inv(top.J.T @ top.J)
-    delta = top.x[drop]
-    return A @ (np.outer(delta, delta) + C[np.ix_(drop, drop)]) @ A.T
+    C = noise_scale(top.chi2, dof, weighted) * np.linalg.inv(top.J.T @ top.J)
+    return consider_cov(A, top.x[drop], C[np.ix_(drop, drop)])
+
+
+def _alias(model, fit, degree, sub, smaller) -> float:
+    """:func:`~imucal_cli.estimators.thermal.temperature.alias_inflation` of dropping the
+    term ``sub`` leaves out of ``fit`` (the linearised eq. (11) at each fit)."""
+    cols, cols_small = model.columns(degree), model.columns(smaller)
+    kept = list(range(9)) + [9 + cols.index(jc) for jc in cols_small]
+    C = np.linalg.inv(fit.J.T @ fit.J)
+    return alias_inflation(C[np.ix_(kept, kept)], np.linalg.inv(sub.J.T @ sub.J))
 
 
 def _eliminate(model, fit, degree, select_p, max_iterations):
@@ -327,13 +332,16 @@ def _eliminate(model, fit, degree, select_p, max_iterations):
             nfev += sub.nfev
             F = max(sub.chi2 - fit.chi2, 0.0) / max(fit.chi2 / dof, 1e-300)
             p = f1_pvalue(F, dof)
-            candidates.append((p, c, F, dof, sub, smaller))
+            lam = _alias(model, fit, degree, sub, smaller)
+            candidates.append((lam <= ALIAS_MAX, p, c, F, dof, lam, sub, smaller))
         if not candidates:
             break
-        p, c, F, dof, sub, smaller = max(candidates, key=lambda t: t[0])
-        kept = p < select_p
+        # the least significant of the terms that may go (not aliased with the kept ones)
+        free, p, c, F, dof, lam, sub, smaller = max(candidates, key=lambda t: t[:2])
+        kept = p < select_p or not free
         tests.append({"channel": "xyz"[c], "degree": degree[c], "F": float(F),
-                      "dof": [1, int(dof)], "p_value": p, "kept": kept})  # fmt: skip
+                      "dof": [1, int(dof)], "p_value": p, "alias": lam,
+                      "kept": kept})  # fmt: skip
         if kept:
             break
         fit, degree = sub, smaller
@@ -343,11 +351,11 @@ def _eliminate(model, fit, degree, select_p, max_iterations):
 def _package(model, fit, degree, T, tests, nfev, weighted, held) -> JointResult:
     dof = len(fit.f) - len(fit.x)
     chi2 = fit.chi2
-    noise_scale = _noise_scale(chi2, dof, weighted)
+    scale = noise_scale(chi2, dof, weighted)
     D = model.to_raw_jacobian(degree)
     JtJ = fit.J.T @ fit.J
-    cov = (noise_scale * np.linalg.inv(JtJ) + held) * np.outer(D, D)
-    cond = noise_scale * np.linalg.inv(JtJ[:9, :9]) * np.outer(D[:9], D[:9])
+    cov = (scale * np.linalg.inv(JtJ) + held) * np.outer(D, D)
+    cond = scale * np.linalg.inv(JtJ[:9, :9]) * np.outer(D[:9], D[:9])
     B, M, tc = model.raw(fit.x, degree)
     if not np.all(np.isfinite(B)):
         raise SolverError("the joint temperature fit did not converge")
@@ -365,5 +373,5 @@ def _package(model, fit, degree, T, tests, nfev, weighted, held) -> JointResult:
         bias=B, M=M, temperature_ref=model.t_ref,
         t_min=float(T.min()), t_max=float(T.max()), degree=np.array(degree, int), tempco=tc,
         tempco_std=std, bias_var_extra=extra, residuals=np.linalg.norm(h, axis=1) - model.g,
-        chi2=chi2, dof=int(dof), noise_scale=float(noise_scale), tests=tests, nfev=nfev,
+        chi2=chi2, dof=int(dof), noise_scale=float(scale), tests=tests, nfev=nfev,
     )  # fmt: skip

@@ -15,10 +15,19 @@ accelerometer's gravity-magnitude model is :mod:`imucal_cli.estimators.thermal.j
 is dropped while an F-test of the drop in the residual sum of squares, against the residual
 variance of the larger model, is not significant at :data:`SELECT_P`; degree 0 means no
 significant dependence. A polynomial is only fitted where the design can determine it (more
-distinct temperatures than terms, residual degrees of freedom left). The dropped terms are
-held at zero, not known to be zero: their spread is in the kept terms' covariance
-(:func:`_held_terms`), so a term too small for the test does not make the others' intervals
-short.
+distinct temperatures than terms, residual degrees of freedom left).
+
+**Aliased terms are kept.** A term the test cannot find is dropped only when holding it at
+zero cannot move the kept coefficients: the variance its uncertainty adds to each of them
+(through the alias matrix, :func:`alias_inflation`) is at most :data:`ALIAS_MAX` of that
+coefficient's variance without it. Held at zero, a term of ``u`` of its std (``|u| < 2.6``,
+undetected at 1 %) shifts a kept coefficient by ``sqrt(lambda) u`` of that coefficient's std
+(``lambda`` its inflation); over 5-40 C, ``(T - T_ref)^3`` and ``T - T_ref`` are so alike that
+``lambda`` is 2-4, and no interval about the smaller fit's estimate covers such shifts without
+being wider than the larger fit's own (the pre-test estimator's coverage; Leeb & Poetscher
+2005, Econometric Theory 21). So on such spans the degree stays the highest the design
+determines, and its intervals are the fit's own. What a dropped term still adds (at most
+``ALIAS_MAX``) is carried by :func:`consider_cov`.
 
 **Correlated residuals.** The points of a recording follow each other in time, and what the
 polynomial leaves (bias instability, flicker, the temperature sensor's lag) is correlated
@@ -43,14 +52,18 @@ from scipy.special import chdtri, fdtrc
 from imucal_cli.errors import DesignError
 
 __all__ = [
+    "ALIAS_MAX",
     "MAX_DEGREE",
     "MIN_SPAN_C",
     "SELECT_P",
     "ChannelFit",
     "TempcoFit",
+    "alias_inflation",
     "check_span",
+    "consider_cov",
     "f1_pvalue",
     "fit_tempco",
+    "noise_scale",
     "polynomial_bound",
     "powers",
     "reexpand",
@@ -62,6 +75,50 @@ MAX_DEGREE = 3
 MIN_SPAN_C = 10.0
 #: A polynomial term is kept when the F-test of dropping it gives a p-value below this.
 SELECT_P = 0.01
+#: A term the F-test cannot find is still kept when dropping it would take more than this
+#: fraction off a kept coefficient's variance (:func:`alias_inflation`). At 0.1, a dropped
+#: term's largest undetected shift (2.6 of its std, the 1 % test's edge) moves a kept one by
+#: 0.8 of its std: with :func:`consider_cov`, 93.1 % of the 95 % intervals or more cover,
+#: whatever the term's size (one term, a normal model, drops and keeps together; worst at 2.5
+#: of its std), and the kept ones lose at most 5 % of their std.
+ALIAS_MAX = 0.1
+
+
+def noise_scale(chi2: float, dof: float, known_sigma: bool) -> float:
+    """The factor on a least-squares covariance from its residuals: ``chi2/dof`` where the
+    noise is unknown, or given but exceeded (``chi2`` beyond the 99th percentile of
+    ``chi^2(dof)``), else 1 (the given noise explains the residuals)."""
+    if not known_sigma:
+        return chi2 / dof
+    return chi2 / dof if dof > 0 and chi2 > chdtri(dof, 0.01) else 1.0
+
+
+def alias_inflation(cov_big: np.ndarray, cov_small: np.ndarray) -> float:
+    """How much dropping terms narrows the coefficients kept: the largest
+    ``var_big / var_small - 1`` over them (``lambda``: ``A C_drop A^T``'s diagonal over the
+    smaller fit's variance, as ``C_big,kept = C_small + A C_drop A^T`` for nested least squares).
+
+    Parameters
+    ----------
+    cov_big : ndarray, shape (p, p)
+        The larger fit's covariance, its first ``k`` coefficients the kept ones (same scale).
+    cov_small : ndarray, shape (k, k)
+        The smaller fit's covariance (same weights and scale).
+    """
+    k = cov_small.shape[0]
+    small = np.diag(cov_small)
+    ok = small > 0
+    return float(np.max(np.diag(cov_big)[:k][ok] / small[ok] - 1.0, initial=0.0))
+
+
+def consider_cov(A: np.ndarray, delta: np.ndarray, cov_delta: np.ndarray) -> np.ndarray:
+    """What terms held at zero add to the kept coefficients' covariance: they shift them by
+    ``A delta`` (omitted-variable bias, ``A`` the alias matrix), and ``delta_hat delta_hat^T
+    - C_delta`` estimates ``delta delta^T`` without bias (``E[delta_hat delta_hat^T] = delta
+    delta^T + C_delta``); clipped to positive semi-definite (an estimate cannot take variance
+    away): ``A max(delta_hat delta_hat^T - C_delta, 0) A^T``, shape (k, k)."""
+    w, V = np.linalg.eigh(np.outer(delta, delta) - cov_delta)
+    return A @ (V * np.clip(w, 0.0, None)) @ V.T @ A.T
 
 
 def f1_pvalue(F: float, dof: float) -> float:
@@ -150,7 +207,8 @@ class ChannelFit:
     correlation : float
         Lag-1 autocorrelation of the residuals used for the inflation (0 unless serial).
     tests : list of dict
-        The backward elimination: per degree tried, ``F``, ``dof`` and ``p`` of its top term.
+        The backward elimination: per degree tried, ``F``, ``dof``, ``p_value`` of its top
+        term, ``alias`` (:func:`alias_inflation` of dropping it) and ``kept``.
     """
 
     degree: int
@@ -281,14 +339,11 @@ def _wls(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> _Solved | None:
 
 
 def _scaled_cov(s: _Solved, known_sigma: bool, serial: bool) -> tuple[np.ndarray, float, float]:
-    """A fit's covariance with the residuals' scale (chi-square test at 1 % against a known
-    noise) and the AR(1) inflation ``(1 + rho) / (1 - rho)``; the scale and ``rho``."""
+    """A fit's covariance with the residuals' scale (:func:`noise_scale`) and the AR(1)
+    inflation ``(1 + rho) / (1 - rho)``; the scale and ``rho``."""
     rho = _lag1(s.r) if serial else 0.0
     infl = (1 + rho) / (1 - rho)
-    if known_sigma:
-        scale = s.chi2 / s.dof if s.dof > 0 and s.chi2 > chdtri(s.dof, 0.01) else 1.0
-    else:
-        scale = s.chi2 / s.dof
+    scale = noise_scale(s.chi2, s.dof, known_sigma)
     return s.XtX_inv * scale * infl, float(scale), float(rho)
 
 
@@ -296,18 +351,14 @@ def _held_terms(dt, w, groups, n_groups, d, top, small: _Solved, big: _Solved,
                 known_sigma: bool, serial: bool) -> np.ndarray:  # fmt: skip
     """What the terms of degree ``d+1 .. top`` the F-tests dropped add to the covariance of
     the degree-``d`` fit: held at zero, they shift the kept coefficients by ``A delta``
-    (omitted-variable bias; ``A = (X_d^T W X_d)^-1 X_d^T W X_drop``, the alias matrix), and
-    the data know ``delta`` only as the degree-``top`` fit's ``delta_hat`` with covariance
-    ``C_delta``: a consider covariance (Schmidt) ``A (delta_hat delta_hat^T + C_delta) A^T``,
-    the held value's mean squared error.  A cubic a 1 % test cannot tell from zero still moves
-    the linear term over a 30 C span by several of its std (``bench live``'s warm-up gyro:
-    67.5 % of its intervals held the truth)."""
+    (``A = (X_d^T W X_d)^-1 X_d^T W X_drop``, the alias matrix), ``delta`` known as the
+    degree-``top`` fit's estimate with its covariance (:func:`consider_cov`)."""
     X = _design(dt, groups, n_groups, top) * w[:, None]
     kept, drop = X[:, : n_groups + d], X[:, n_groups + d :]
     A = small.XtX_inv @ (kept.T @ drop)
     cov_big, _, _ = _scaled_cov(big, known_sigma, serial)
     delta = big.beta[n_groups + d :]
-    return A @ (np.outer(delta, delta) + cov_big[n_groups + d :, n_groups + d :]) @ A.T
+    return consider_cov(A, delta, cov_big[n_groups + d :, n_groups + d :])
 
 
 def _fit_channel(dt, y, w, groups, n_groups, max_degree, known_sigma, serial, select_p):
@@ -328,8 +379,10 @@ def _fit_channel(dt, y, w, groups, n_groups, max_degree, known_sigma, serial, se
         dof = max(big.dof / infl, 1.0)
         F = max(small.chi2 - big.chi2, 0.0) / max(big.chi2 / big.dof, 1e-300) / infl
         p = f1_pvalue(F, dof)
-        tests.append({"degree": d, "F": float(F), "dof": [1, float(dof)], "p_value": p})
-        if p < select_p:
+        lam = alias_inflation(big.XtX_inv, small.XtX_inv)
+        tests.append({"degree": d, "F": float(F), "dof": [1, float(dof)], "p_value": p,
+                      "alias": lam, "kept": bool(p < select_p or lam > ALIAS_MAX)})  # fmt: skip
+        if tests[-1]["kept"]:
             break
         d -= 1
     s = fits[d]
