@@ -13,6 +13,7 @@ from imucal_cli.estimators.imu_set.rotation import (
     PairGroup,
     calibration_derivative,
     relative_rotation,
+    tangent_weights,
 )
 from imucal_cli.estimators.imu_set.time_offset import (
     coarse_offset,
@@ -91,6 +92,42 @@ def _turn(t, t0=1.0, dur=1.2, angle=1.5):
     tau = np.clip((t - t0) / dur, 0, 1)
     rate = angle * 30 * tau**2 * (1 - tau) ** 2 / dur
     return np.outer(rate, [0.6, 0.0, 0.8])
+
+
+def test_pairs_fitted_by_their_calibrations_are_weighed_across_only():
+    """Eq. R3's weights: the inverse of each pair's error covariance within the plane across
+    ``a_p``, nothing along it. A pair whose calibrations put both vectors on the gravity sphere
+    (six faces' labelled fits) has almost no first-order variance along ``a_p``; with the whole
+    inverse, its part along ``a_p`` (second order in the errors: here 1e-6 of g) moved the
+    rotation by the tangential errors it is correlated with, divided by that variance (tens of
+    its std on six faces). Across only, it moves the rotation by nothing."""
+    rng = np.random.default_rng(5)
+    u = rng.normal(size=(6, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    a, b = 9.8 * u @ R_TRUE.T, 9.8 * u
+    # covariances of 1e-3^2 across, nearly nothing along a_p, the two strongly correlated
+    V = []
+    for n in u @ R_TRUE.T:
+        t = np.linalg.svd(n[:, None])[0][:, 1:]
+        basis = np.column_stack([n, t])
+        inner = np.array([[1e-12, 0.9e-9, 0.0], [0.9e-9, 1e-6, 0.0], [0.0, 0.0, 1e-6]])
+        V.append(basis @ inner @ basis.T)
+    V = np.array(V)
+    W = tangent_weights(V, a)
+    np.testing.assert_allclose(np.einsum("pij,pj->pi", W, a), 0.0, atol=1e-14 * 9.8 * 1e6)
+    for p in range(len(a)):
+        t = np.linalg.svd(a[p][:, None])[0][:, 1:]
+        np.testing.assert_allclose(t.T @ W[p] @ t, np.linalg.inv(t.T @ V[p] @ t), rtol=1e-9,
+                                   atol=1e-9 * 1e6)  # fmt: skip
+    zero = np.zeros((len(a), 12, 3))
+
+    def fit(ref):
+        group = PairGroup(ref, b, V, np.zeros_like(V), cross_ref=zero, cross_imu=zero)
+        return relative_rotation([group]).matrix
+
+    radial = a * (1 + 1e-6 * rng.normal(size=(len(a), 1)))  # second-order errors along a_p
+    moved = Rotation.from_matrix(fit(radial) @ fit(a).T).magnitude()
+    assert moved < 1e-9  # rad; the whole inverse moved it by 4e-4
 
 
 def test_time_offset_reaches_its_bound_and_covers():

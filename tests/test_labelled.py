@@ -304,7 +304,7 @@ def test_no_label_limited_placement_left_on_qureshi18():
 
 @pytest.mark.parametrize("m", [1, 2, 3, 5, 8])
 def test_symmetric_rule_is_exact_to_fifth_degree(m):
-    from imucal_cli.estimators.accel.labelled import symmetric_rule
+    from imucal_cli.estimators.accel.labelled_beyond import symmetric_rule
 
     nodes, w, a = symmetric_rule(m)
     assert len(nodes) == 2 * m * m + 1 and a == pytest.approx(np.sqrt(3))

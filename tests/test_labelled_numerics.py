@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from imucal_cli.calibrate.session import static_poses
-from imucal_cli.estimators.accel import labelled
+from imucal_cli.estimators.accel import labelled, labelled_beyond
 from imucal_cli.estimators.accel.labelled_model import (
     jacobian,
     public_from_theta,
@@ -64,13 +64,13 @@ def test_linear_refit_is_the_iterative_refit(monkeypatch):
     """Six faces (every direction labelled): each node's refit of (B, K, phi) by the linear
     solve equals Levenberg-Marquardt's from the node."""
     calls = []
-    original = labelled._refit_linear
+    original = labelled_beyond._refit_linear
 
     def record(prob, X):
         calls.append((prob, X.copy()))
         return original(prob, X)
 
-    monkeypatch.setattr(labelled, "_refit_linear", record)
+    monkeypatch.setattr(labelled_beyond, "_refit_linear", record)
     session, _ = simulate(plan="six", seed=2, created=CREATED)
     p = static_poses(session)
     res = labelled.fit_labelled(p.a_mean, p.up, G0, p.cov_mean, placement_deg=2.0)
@@ -79,7 +79,7 @@ def test_linear_refit_is_the_iterative_refit(monkeypatch):
     assert len(X) == 2 * 3**2 + 1
     linear = original(prob, X)
     for x, lin in zip(X, linear, strict=True):
-        iterative = labelled._refit_iterative(prob, x, np.arange(12))
+        iterative = labelled_beyond._refit_iterative(prob, x, np.arange(12))
         np.testing.assert_allclose(lin[:12], iterative[:12], rtol=1e-9, atol=1e-12)
         np.testing.assert_array_equal(lin[12:], x[12:])  # the directions held
 

@@ -3,7 +3,7 @@
 The labelled-pose solver estimated the placement error from all poses: one pose far off its
 label inflated it (2 to 4 degrees) and every std with it, so that the wrong label was hidden
 (named in 2 of 10 six-face sessions, errors up to 20 times the bound). Each pose's placement
-is now judged against the spread of the others (:func:`imucal_cli.estimators.accel.labelled.
+is now judged against the spread of the others (:func:`imucal_cli.estimators.accel.labelled_checks.
 placement_outliers`)."""
 
 from __future__ import annotations

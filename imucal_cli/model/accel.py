@@ -4,7 +4,8 @@ factorization of a unit, with their per-pose table, coverage, noise and checks (
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -101,12 +102,15 @@ class Placement(Record):
 @dataclass
 class GivenPlacement:
     """A labelled fit's errors given its poses' true placement (the measurement noise's part:
-    eq. L4 without the labels' rows), kept in memory for a set's rotations, never written.
+    eq. L4 without the labels' rows), kept in memory for a set's rotations, never written;
+    computed when first asked for (a calibration of one IMU never asks).
 
     Attributes
     ----------
     segments : list of str
         The poses the fit used, in ``response``'s order.
+    compute : callable
+        ``() -> (covariance, response)``, called once, on the first access to either.
     covariance : ndarray, shape (12, 12)
         Of ``(bias, matrix row-major)`` given the placement.
     response : ndarray, shape (12, P, 3)
@@ -114,8 +118,22 @@ class GivenPlacement:
     """
 
     segments: list[str]
-    covariance: np.ndarray
-    response: np.ndarray
+    compute: Callable[[], tuple[np.ndarray, np.ndarray]] = field(repr=False, compare=False)
+    _value: tuple[np.ndarray, np.ndarray] | None = field(default=None, init=False, repr=False,
+                                                          compare=False)  # fmt: skip
+
+    def _computed(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._value is None:
+            self._value = self.compute()
+        return self._value
+
+    @property
+    def covariance(self) -> np.ndarray:
+        return self._computed()[0]
+
+    @property
+    def response(self) -> np.ndarray:
+        return self._computed()[1]
 
 
 @dataclass

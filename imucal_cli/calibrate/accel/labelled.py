@@ -34,7 +34,9 @@ from imucal_cli.calibrate.common import (
 from imucal_cli.errors import DesignError, SolverError
 from imucal_cli.estimators.accel import gravity as gravity_solver
 from imucal_cli.estimators.accel import labelled as labelled_solver
+from imucal_cli.estimators.accel.labelled_checks import placement_outliers
 from imucal_cli.estimators.accel.labelled_model import public_params
+from imucal_cli.estimators.accel.labelled_response import pose_response
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
 from imucal_cli.model.accel import AccelCalibration, GivenPlacement, Placement
@@ -162,10 +164,10 @@ MAX_MISPLACED = 3
 
 def misplaced_labels(res, poses: StaticPoses, g: float, cfg: Config):
     """Labels whose pose sat off them by more than the others' placement spread allows
-    (:func:`imucal_cli.estimators.accel.labelled.placement_outliers`; issue 24.6: a label 5-20
-    degrees wrong used to inflate the placement estimate, and every std with it, instead of being
-    named). A pose the design can single out loses its label (its magnitude still counts) and
-    the fit is redone; a group it cannot tell apart (opposite faces of six, whose
+    (:func:`imucal_cli.estimators.accel.labelled_checks.placement_outliers`; issue 24.6: a
+    label 5-20 degrees wrong used to inflate the placement estimate, and every std with it,
+    instead of being named). A pose the design can single out loses its label (its magnitude
+    still counts) and the fit is redone; a group it cannot tell apart (opposite faces of six, whose
     disagreement the fit shares) is named in a warning that stops the save.
 
     Returns the result, the poses used, the outliers (action ``"label ignored"``) and the
@@ -175,7 +177,7 @@ def misplaced_labels(res, poses: StaticPoses, g: float, cfg: Config):
         return res, poses, [], None
     found = []
     for _ in range(MAX_MISPLACED):
-        groups = labelled_solver.placement_outliers(res)
+        groups = placement_outliers(res)
         if not groups:
             return res, poses, found, None
         idx, p = groups[0]
@@ -222,12 +224,18 @@ def _params_of(B: np.ndarray, M: np.ndarray) -> np.ndarray:
 
 def given_placement(res: labelled_solver.LabelledResult, used: StaticPoses) -> GivenPlacement:
     """The fit's errors given the poses' placement, in ``(bias, matrix row-major)``: its
-    response to each used pose's mean and the covariance that gives at the measured noise, as
-    the pose pairs of a set's rotations take it (``docs/imu-set.md``, eq. R3)."""
-    L = np.einsum("ij,jnk->ink", model_map(_params_of, res.bias, res.matrix), res.pose_response)
-    C = np.einsum("inj,njk,lnk->il", L, used.cov_mean[:, :3, :3], L)
-    return GivenPlacement(segments=[seg.name for seg in used.segments],
-                          covariance=(C + C.T) / 2, response=L)  # fmt: skip
+    response to each used pose's mean (eq. L7, :func:`.labelled_response.pose_response`) and
+    the covariance that gives at the measured noise, as the pose pairs of a set's rotations
+    take it (``docs/imu-set.md``, eq. R3). Computed when first asked for (only a set of IMUs
+    asks): a calibration of one IMU never computes it."""
+
+    def compute() -> tuple[np.ndarray, np.ndarray]:
+        L = np.einsum("ij,jnk->ink", model_map(_params_of, res.bias, res.matrix),
+                      pose_response(res))  # fmt: skip
+        C = np.einsum("inj,njk,lnk->il", L, used.cov_mean[:, :3, :3], L)
+        return (C + C.T) / 2, L
+
+    return GivenPlacement(segments=[seg.name for seg in used.segments], compute=compute)
 
 
 def solver_fields(res: labelled_solver.LabelledResult, units: list[str]) -> dict:

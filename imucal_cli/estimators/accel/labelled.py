@@ -97,16 +97,25 @@ through the fit itself::
     Cov(theta) = [J^-1]_theta + E_z[(p(z) - p_hat)(p(z) - p_hat)^T] - G G^T,       (L6)
 
 ``z`` the placement's posterior (the labelled ``delta`` ~ ``N(delta_hat, P_delta)``) in the
-``m`` directions whose variance is above :data:`LABEL_LIMITED` of the prior's, less the
-frame's rotation (the gauge: it turns the frame and every direction together, which (L4)
-holds exactly); ``p(z)`` the parameters refitted to the measurements with those placements
+``m`` directions whose variance is above :data:`.labelled_beyond.LABEL_LIMITED` of the prior's,
+less the frame's rotation (the gauge: it turns the frame and every direction together, which
+(L4) holds exactly); ``p(z)`` the parameters refitted to the measurements with those placements
 held, ``G`` its first-order part (already in (L4)). The expectation is a fully symmetric
 fifth-degree rule (exact for a quadratic ``p``: ``2 m^2 + 1`` refits; six faces m = 3,
-qureshi18 m = 0). The expectation is over the placement given the data, so where a
-parameter's error is the product of a label-limited quantity and an unknown one (a gain's
-error is its axis's true misalignment times the error of its angle) the stated std is that
-of a sensor of unknown misalignment: for nearly orthogonal axes the gains' std is
-conservative, up to twice the error on six faces.
+qureshi18 m = 0). The expectation is over the placement given the data, so where a parameter's
+error is the product of a label-limited quantity and an unknown one (a gain's error is its
+axis's true misalignment times the error of its angle) the stated std is that of a sensor of
+unknown misalignment: for nearly orthogonal axes the gains' std is conservative, up to twice
+the error on six faces.
+
+Modules
+-------
+This module fits (L3) and states (L4)-(L5); the model's predictions and Jacobian are
+:mod:`.labelled_model`'s, the placement's two parts (L1b) :mod:`.labelled_placement`'s, (L6)
+:mod:`.labelled_beyond`'s, each label's prior rows and the misplaced labels
+:mod:`.labelled_checks`'. The fit's response to each pose's mean (eq. L7, what a set of IMUs
+held in the same poses needs for its rotations) is :mod:`.labelled_response`'s, computed from
+:attr:`LabelledResult.fit` only where a set asks for it.
 """
 
 from __future__ import annotations
@@ -116,11 +125,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
-from scipy.special import chdtrc, chdtri, fdtrc, stdtrit
+from scipy.special import chdtri, stdtrit
 
 from imucal_cli.design.outliers import Deletion, deletion
 from imucal_cli.errors import DesignError, SolverError
 from imucal_cli.estimators.accel.gravity import _UPPER, triangular_and_rotation
+from imucal_cli.estimators.accel.labelled_beyond import placement_beyond_first_order
+from imucal_cli.estimators.accel.labelled_checks import placement_rows
 from imucal_cli.estimators.accel.labelled_model import (
     Problem,
     axes,
@@ -133,6 +144,7 @@ from imucal_cli.estimators.accel.labelled_model import (
     theta_floor,
 )
 from imucal_cli.estimators.accel.labelled_placement import (
+    DEFAULT_PLACEMENT_DEG,
     MIN_PLACEMENT_DEG,
     part_deg,
     placement_parts,
@@ -158,21 +170,11 @@ PARAM_NAMES = [
     "r_z",
 ]
 
-#: Placement error (RMS angle, degrees) assumed when the data cannot estimate it.
-DEFAULT_PLACEMENT_DEG = 2.0
 #: Redundancy of the prior rows needed to estimate the placement error from the data.
 MIN_PLACEMENT_DOF = 2.0
 #: Above this many poses the Jacobian is handed to the solver as a sparse matrix (and the
 #: placement is propagated to first order only).
 DENSE_MAX_POSES = 150
-#: A placement direction is label-limited (propagated beyond first order, eq. L6) where the
-#: fit leaves it more than this fraction of the prior's variance.
-LABEL_LIMITED = 0.01
-#: Up to this many label-limited directions the fifth-degree rule (2 m^2 + 1 refits), above
-#: it the third-degree one (2 m refits: the mean of a quadratic, not all of its variance).
-MAX_FIFTH_DEGREE = 8
-#: The gauge of the placements: a rotation of the frame and every direction together.
-GAUGE_MODES = 3
 
 
 @dataclass
@@ -236,13 +238,10 @@ class LabelledResult:
         noise), ``"placement"`` (first order, scales with ``placement_deg^2``) and
         ``"placement_second_order"`` (eq. L6, scales with ``placement_deg^4``); with
         ``"label_limited"``, the number ``m`` of placement directions propagated.
-    pose_response : ndarray, shape (12, N, 3)
-        ``d params / d a_k``: each parameter's first-order change per raw unit of each pose's
-        mean reading, the placement held (eq. L4's estimate moved by the measurement rows
-        alone): ``sum_k R_k cov_k R_k^T`` is ``cov_parts["measurement"]`` (times
-        ``noise_scale``), and ``R_k cov_k`` the covariance of the parameters with pose k's
-        mean (what a rotation between two IMUs fitted to the same poses needs,
-        ``docs/imu-set.md``, eq. R3).
+    fit : FitPoint or None
+        Where the fit ended (its problem, Jacobian, residuals, the parameters' map): what
+        :func:`.labelled_response.pose_response` needs, computed only where a set of IMUs asks
+        for it. Not part of the result's value (no repr, no comparison).
     """
 
     bias: np.ndarray
@@ -270,12 +269,12 @@ class LabelledResult:
     converged: bool
     message: str
     cov_parts: dict = field(default_factory=dict)
-    pose_response: np.ndarray = field(default_factory=lambda: np.zeros((12, 0, 3)))
     placement_face_deg: float | None = None
     placement_hold_deg: float | None = None
     placement_sq: np.ndarray = field(default_factory=lambda: np.zeros(0))
     placement_redundancy: np.ndarray = field(default_factory=lambda: np.zeros(0))
     placement_tied: list = field(default_factory=list)
+    fit: FitPoint | None = field(default=None, repr=False, compare=False)
 
     @property
     def std(self) -> np.ndarray:
@@ -401,6 +400,17 @@ class _State:
     P: np.ndarray
     J: np.ndarray
     r: np.ndarray
+
+
+@dataclass(frozen=True)
+class FitPoint:
+    """Where a labelled fit ended: its state (the problem, Jacobian ``J``, residuals ``r``,
+    ``(J^T J)^-1``), ``T`` (12, 12) the map from its normalised ``theta`` to
+    :data:`PARAM_NAMES` and the raw scale of the normalised coordinates."""
+
+    state: _State
+    T: np.ndarray
+    scale: float
 
 
 def _evaluate(prob: Problem, sol) -> _State:
@@ -560,7 +570,8 @@ def _result(st: _State, offset, scale, a_mean, up, labelled, g, source, noise_do
     axes_of = lambda k: axes(_matrices(k))  # noqa: E731
     _, extra2 = second_order(axes_of, x12[3:9], st.P[3:9, 3:9], many=True)
     params = public(x12)[0]
-    extra, m = _placement_beyond_first_order(st, public, params)
+    extra, m = (placement_beyond_first_order(st, public, params) if prob.N <= DENSE_MAX_POSES
+                else (np.zeros((12, 12)), 0))  # fmt: skip
     if m == 0:
         extra[3:9, 3:9] += extra2
     parts["placement_second_order"] = extra
@@ -609,38 +620,9 @@ def _result(st: _State, offset, scale, a_mean, up, labelled, g, source, noise_do
         converged=True,
         message=str(st.sol.message),
         cov_parts={**parts, "label_limited": m},
-        pose_response=_pose_response(prob, st, T, scale),
-        **_placement_rows(st, labelled),
+        fit=FitPoint(st, T, scale),
+        **placement_rows(st.J, st.r, st.prob.N, labelled),
     )
-
-
-def _pose_response(prob: Problem, st: _State, T: np.ndarray, scale: float) -> np.ndarray:
-    """``d params / d a_k`` (12, N, 3), first order at the estimate, the placement's prior held
-    (:class:`LabelledResult`): the measurement rows ``r_k = W_k (a_k - ...) / (scale s)`` (``s``
-    the measurement scale) move the optimum of ``|r|^2 / 2`` by ``-(J^T J + sum_i r_i
-    d^2 r_i)^-1 J^T dr/da``. The residuals' curvature (``d J / dx`` at ``r``, central
-    differences) is not Gauss-Newton's to leave out here: along the frame's rotation only the
-    labels hold the fit, as weakly as the curvature of the predictions times residuals of the
-    noise's size, so leaving it out misstates how the frame follows the noise by a part that
-    grows with the placement (issue 28: the rotations of a labelled set)."""
-    x, r = st.sol.x, st.r
-    if prob.N > DENSE_MAX_POSES:
-        hess = st.J.T @ st.J
-    else:
-        curv = np.empty((len(x), len(x)))
-        h = 1e-6
-        for j in range(len(x)):
-            xp, xm = x.copy(), x.copy()
-            xp[j] += h
-            xm[j] -= h
-            curv[:, j] = (prob.jacobian(xp) - prob.jacobian(xm)).T @ r / (2 * h)
-        hess = st.J.T @ st.J + (curv + curv.T) / 2
-    n_meas = 3 * prob.N
-    JmW = st.J[:n_meas].reshape(prob.N, 3, -1)  # rows of pose k
-    dr_da = prob.W / (prob.meas_scale * scale)  # (N, 3, 3): d r_k / d a_k, raw units
-    g = np.einsum("nrc,nrj->cnj", JmW, dr_da).reshape(len(x), -1)
-    dx_da = -np.linalg.solve(hess, g)[:12].reshape(12, prob.N, 3)
-    return np.einsum("pk,knj->pnj", T, dx_da)
 
 
 def _matrices(k: np.ndarray) -> np.ndarray:
@@ -687,220 +669,3 @@ def _t_dof(parts: dict, placement_dof: float, source: str, noise_dof: float, spl
             spread = (k * v_f) ** 2 / nu_f + (k * v_h) ** 2 / nu_h
         t_dof = (v_meas + v_place) ** 2 / (spread + v_meas**2 / noise_dof)
     return np.where(np.isfinite(t_dof), np.maximum(t_dof, 1.0), np.inf)
-
-
-# --------------------------------------------------------------------------- (L6)
-
-
-def symmetric_rule(m: int) -> tuple[np.ndarray, np.ndarray, float]:
-    """Nodes (n, m) and weights (n,) of a fully symmetric rule for ``N(0, I_m)``, and the
-    distance ``a`` of its axis nodes ``+-a e_i`` (nodes 1..2m, in the order +e_1, -e_1, ...).
-
-    Up to :data:`MAX_FIFTH_DEGREE` dimensions the fifth-degree rule (exact for polynomials of
-    degree 5, so for the mean and covariance of a quadratic): the centre, ``+-sqrt(3) e_i``
-    and ``+-sqrt(3) e_i +- sqrt(3) e_j`` (i < j), weights ``1 + (m^2 - 7 m) / 18``,
-    ``(4 - m) / 18`` and ``1 / 36`` (for m = 1 Gauss-Hermite's three points); above, the
-    third-degree one (``+-sqrt(m) e_i``, weights ``1 / 2m``)."""
-    if m > MAX_FIFTH_DEGREE:
-        a = np.sqrt(m)
-        nodes = np.vstack([np.zeros(m), *[s * a * np.eye(m)[i] for i in range(m) for s in (1, -1)]])
-        return nodes, np.r_[0.0, np.full(2 * m, 0.5 / m)], a
-    a = np.sqrt(3.0)
-    nodes, weights = [np.zeros(m)], [1.0 + (m * m - 7 * m) / 18.0]
-    for i in range(m):
-        for s in (1, -1):
-            nodes.append(s * a * np.eye(m)[i])
-            weights.append((4 - m) / 18.0)
-    for i in range(m):
-        for j in range(i + 1, m):
-            for si in (1, -1):
-                for sj in (1, -1):
-                    nodes.append(a * (si * np.eye(m)[i] + sj * np.eye(m)[j]))
-                    weights.append(1.0 / 36.0)
-    return np.array(nodes), np.array(weights), a
-
-
-def _label_limited(st: _State) -> tuple[np.ndarray, np.ndarray]:
-    """Columns of ``x`` of the labelled placements and the label-limited directions of their
-    posterior, less the gauge (eq. L6): ``(cols, V)`` with ``delta = delta_hat + V xi``,
-    ``xi ~ N(0, I_m)``."""
-    prob, x = st.prob, st.sol.x
-    cols = (12 + 2 * prob.lab[:, None] + np.arange(2)).ravel()
-    lam, V = np.linalg.eigh(st.P[np.ix_(cols, cols)])
-    big = lam > LABEL_LIMITED * prob.sigma_p**2
-    if big.sum() <= GAUGE_MODES:  # nothing beyond the gauge (qureshi18-like designs)
-        return cols, np.zeros((len(cols), 0))
-    Vb = V[:, big] * np.sqrt(lam[big])
-    # The gauge (a rotation of the frame and every direction together) in these whitened
-    # coordinates; (L4) holds it exactly, so it is left out.
-    gauge = (V[:, big] / np.sqrt(lam[big])).T @ prob.gauge_modes(x)[cols]
-    Q, _ = np.linalg.qr(gauge, mode="complete")
-    return cols, Vb @ Q[:, gauge.shape[1] :]
-
-
-def _refit_iterative(prob: Problem, x: np.ndarray, free: np.ndarray) -> np.ndarray:
-    """``x`` with its ``free`` coordinates refitted to the measurements (the others held), by
-    Levenberg-Marquardt from ``x``."""
-    n_meas = 3 * prob.N
-
-    def whole(v):
-        y = x.copy()
-        y[free] = v
-        return y
-
-    sol = least_squares(
-        lambda v: prob.residuals(whole(v))[:n_meas],
-        x[free],
-        jac=lambda v: prob.jacobian(whole(v))[:n_meas][:, free],
-        method="lm",
-        x_scale=1.0,
-        xtol=1e-10,
-        ftol=1e-10,
-        gtol=1e-10,
-        max_nfev=50,
-    )
-    return whole(sol.x)
-
-
-def _refit_linear(prob: Problem, X: np.ndarray) -> np.ndarray:
-    """:func:`_refit_iterative` of ``(B, K, phi)`` with every direction held, at each row of ``X``
-    (n, len(x)). The prediction (L2) is then linear in ``B`` and ``M' = g K^-1 R(phi)^T``::
-
-        W_k (a_k - o_k) = W_k B + W_k M' u_k,      (o_k: the marginalisation's offset)
-
-    one weighted linear least-squares solve (QR) per row; ``R K = g M'^-1`` gives ``K`` and
-    ``phi`` back (as :func:`triangular_and_rotation`). NaN rows where that lands on another
-    branch than the row (signs of ``K``'s diagonal, the rotation vector's wrap): those are
-    for the iterative refit."""
-    n, N = len(X), prob.N
-    u, _ = sphere_exp(np.tile(prob.u0, (n, 1)), np.tile(prob.T, (n, 1, 1)),
-                      X[:, 12:].reshape(n * N, 2))  # fmt: skip
-    D = np.zeros((n, N, 3, 12))  # d prediction / d [B | M' row-major], per pose
-    D[..., :3] = np.eye(3)
-    for i in range(3):
-        D[:, :, i, 3 + 3 * i : 6 + 3 * i] = u.reshape(n, N, 3)
-    A = np.einsum("kij,nkjc->nkic", prob.W, D).reshape(n, 3 * N, 12)
-    y = np.einsum("kij,kj->ki", prob.W, prob.a_n - prob.offset).ravel()
-    Q, R = np.linalg.qr(A)
-    sol = np.linalg.solve(R, np.swapaxes(Q, 1, 2) @ y[:, None])[..., 0]
-    K, Qm = triangular_and_rotation(prob.g * np.linalg.inv(sol[:, 3:].reshape(n, 3, 3)))
-    phi = Rotation.from_matrix(Qm).as_rotvec()
-    out = X.copy()
-    out[:, :3], out[:, 3:9], out[:, 9:12] = sol[:, :3], K[:, _UPPER[0], _UPPER[1]], phi
-    other = np.any(np.sign(out[:, 3:6]) != np.sign(X[:, 3:6]), axis=1)  # K's diagonal
-    other |= np.linalg.norm(phi - X[:, 9:12], axis=1) > 1
-    out[other] = np.nan
-    return out
-
-
-def _placement_beyond_first_order(st: _State, public, p_hat: np.ndarray):
-    """Eq. (L6): the parameters' covariance from the label-limited placement beyond (L4)'s
-    first order, (12, 12), and the number of directions propagated. Each node of
-    :func:`symmetric_rule` holds the labelled placements there and refits the rest (bias,
-    matrix and the unlabelled poses' directions) to the measurements."""
-    prob, x = st.prob, st.sol.x
-    if prob.N > DENSE_MAX_POSES:
-        return np.zeros((12, 12)), 0
-    cols, V = _label_limited(st)
-    m = V.shape[1]
-    if m == 0:
-        return np.zeros((12, 12)), 0
-    held = np.zeros(len(x), bool)
-    held[cols] = True
-    free = np.flatnonzero(~held)
-    nodes, w, a = symmetric_rule(m)
-    X = np.tile(x, (len(nodes), 1))
-    X[:, cols] += nodes @ V.T
-    Y = _refit_linear(prob, X) if len(free) == 12 else np.full(X.shape, np.nan)
-    for i in np.flatnonzero(~np.isfinite(Y).all(axis=1)):  # not linear: iteratively
-        Y[i] = _refit_iterative(prob, X[i], free)
-    Y = public(Y[:, :12]) - p_hat
-    G = (Y[1 : 2 * m + 1 : 2] - Y[2 : 2 * m + 1 : 2]) / (2 * a)  # first order, (m, 12)
-    extra = (Y * w[:, None]).T @ Y - G.T @ G
-    ev, U = np.linalg.eigh((extra + extra.T) / 2)
-    return (U * np.clip(ev, 0, None)) @ U.T, m
-
-
-def _placement_rows(st: _State, labelled: np.ndarray) -> dict:
-    """Each labelled pose's prior rows (L3): their squared residuals ``|delta_k|^2 /
-    sigma_p^2`` and redundancy (``1 - h`` summed over its two rows: 0 where the labels alone
-    fix the pose's direction, 2 where the data do), and the poses whose placement residuals
-    are tied to its own (the correlation of the rows' residuals, ``I - H``, at least
-    :data:`TIED`: opposite faces of six, whose disagreement the fit shares between them);
-    NaN or empty for unlabelled poses."""
-    N = st.prob.N
-    e = st.r[3 * N :].reshape(-1, 2)
-    Q, _ = np.linalg.qr(st.J)
-    Qp = Q[3 * N :]
-    C = np.eye(len(Qp)) - Qp @ Qp.T  # covariance of the prior rows' residuals (unit noise)
-    L = len(e)
-    sq = np.full(N, np.nan)
-    red = np.full(N, np.nan)
-    lab = np.flatnonzero(labelled)
-    sq[lab] = np.sum(e**2, axis=1)
-    red[lab] = np.clip(np.diag(C), 0, 1).reshape(L, 2).sum(axis=1)
-    d = np.sqrt(np.clip(np.diag(C), 1e-300, None))
-    R = np.abs(C / np.outer(d, d)).reshape(L, 2, L, 2).max(axis=(1, 3))
-    tied = [[] for _ in range(N)]
-    for i, k in enumerate(lab):
-        tied[k] = [int(lab[j]) for j in np.flatnonzero(R[i] >= TIED) if j != i]
-    return {"placement_sq": sq, "placement_redundancy": red, "placement_tied": tied}
-
-
-#: Placement residuals of two poses correlated at least this much are one group: the fit
-#: cannot tell which of them is off.
-TIED = 0.5
-#: A group whose placement test against the rest's spread reaches only this family-wise
-#: p-value is named when it also sits off by more than a hand placement allows.
-MARGINAL = 0.05
-
-
-def placement_outliers(res: LabelledResult, *, alpha: float = 0.01,
-                       min_redundancy: float = 0.3,
-                       min_deg: float = 3.0) -> list[tuple[list[int], float]]:
-    """Groups of poses whose placement disagrees with the others' (a label off by degrees:
-    the unit on a wedge, the wrong face named), worst first, with their family-wise p-values.
-
-    A labelled pose and the poses tied to it (:data:`TIED`; one pose where the design can
-    attribute the disagreement, both faces of a pair on six faces) are tested against the
-    placement spread of the rest (Helmert, without the group's rows): ``F = (S_G / R_G) /
-    (S_rest / R_rest)`` with ``S`` the squared prior residuals and ``R`` their redundancy,
-    against ``F(R_G, R_rest)``, Bonferroni over the groups; where that test is marginal (the
-    rest's spread rests on few equations: 4 on six faces), up to :data:`MARGINAL`, the group
-    is also named when it sits off its labels by more than a hand placement
-    (:data:`DEFAULT_PLACEMENT_DEG` RMS) allows at ``alpha``. Where the config states the
-    placement (``[accel.labelled] placement_deg``) it is trusted: ``S_G`` against
-    ``chi^2(R_G)``. A group whose rows are nearly all
-    leverage (redundancy below ``min_redundancy``) cannot be judged: the design cannot
-    tell. A group whose placement comes to less than ``min_deg`` (the root sum of its poses'
-    squared angles to their labels) is not named however well the rest sits: a degree is a
-    hand's placement, not a wrong label (MaD Lab's session B: its +-Z faces 0.7 deg off where
-    the others sit within 0.1)."""
-    sq, red, tied = res.placement_sq, res.placement_redundancy, res.placement_tied
-    lab = np.flatnonzero(np.isfinite(sq))
-    if len(lab) < 3 or res.placement_dof < 2:
-        return []
-    S, R = float(np.nansum(sq)), res.placement_dof
-    given = res.placement_source == "config"  # the stated placement: trusted, a chi^2 test
-    groups = sorted({tuple(sorted({int(k), *tied[k]})) for k in lab})
-    out = []
-    for grp in groups:
-        idx = list(grp)
-        S_G, R_G = float(np.sum(sq[idx])), float(np.sum(red[idx]))
-        R_rest = R - R_G
-        if R_G < min_redundancy or (not given and (R_rest < 1 or S - S_G <= 0)):
-            continue
-        n = len(groups)
-        if given:
-            p = min(float(chdtrc(R_G, S_G)) * n, 1.0)
-        else:
-            p = min(float(fdtrc(R_G, R_rest, (S_G / R_G) / ((S - S_G) / R_rest))) * n, 1.0)
-            # the rest's spread rests on few equations (six faces: 4): a group off by more
-            # than a hand placement allows (DEFAULT_PLACEMENT_DEG) is named at MARGINAL
-            hand = S_G * (res.placement_deg / DEFAULT_PLACEMENT_DEG) ** 2
-            if p >= alpha and p < MARGINAL and float(chdtrc(R_G, hand)) * n < alpha:
-                p = alpha * 0.999
-        size = float(np.sqrt(np.nansum(res.up_angle_deg[idx] ** 2)))
-        if p < alpha and size >= min_deg:
-            out.append((idx, p))
-    return sorted(out, key=lambda gp: gp[1])

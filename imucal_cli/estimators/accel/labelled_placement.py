@@ -27,6 +27,8 @@ import numpy as np
 
 from .labelled_model import Problem
 
+#: Placement error (RMS angle, degrees) assumed when the data cannot estimate it.
+DEFAULT_PLACEMENT_DEG = 2.0
 #: The placement estimate never goes below this (a perfect fixture), degrees.
 MIN_PLACEMENT_DEG = 1e-3
 
