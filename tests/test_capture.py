@@ -16,7 +16,8 @@ from imucal_cli.errors import InputError
 from imucal_cli.formats.columns import ColumnSpec, SampleBlock
 from imucal_cli.formats.session import read_session
 from imucal_cli.plans import load_plan
-from imucal_cli.simulate.device import _format, plan_motion, stream_arrays
+from imucal_cli.simulate.device import plan_motion, stream_arrays
+from imucal_cli.simulate.served_lines import format_lines as _format
 
 # --------------------------------------------------------------------------------------------
 # Column specs

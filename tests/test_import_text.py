@@ -9,7 +9,9 @@ import pytest
 
 from imucal_cli.errors import InputError
 from imucal_cli.formats.importers.recording import ImportStats
-from imucal_cli.formats.importers.text import _scan_ascii, _scan_lines, read_table
+from imucal_cli.formats.importers.text import read_table
+from imucal_cli.formats.importers.text_scan import scan_ascii as _scan_ascii
+from imucal_cli.formats.importers.text_scan import scan_lines as _scan_lines
 
 TOKENS = ["abc", "1.2.3", "-", "nan", "1e999", "1,,2", " ,", "1 2,3", "+5", ".5", "5.", "1e5",
           "e", "x#", "a b", "-.5", "1E-3", "#"]  # fmt: skip
@@ -144,7 +146,7 @@ def test_a_long_run_of_digits_fails_in_one_pass(tmp_path):
     assert NUMBER.match("9" * 20_000) and NUMBER.match("12.5e-3") and not NUMBER.match("1.2.3")
 
 
-# The array scanner reads a file in pieces (text.SCAN_PIECE bytes, each ending after a line
+# The array scanner reads a file in pieces (text_scan.SCAN_PIECE bytes, each ending after a line
 # break): any piece size must give exactly what one scan of the whole file gives.  Tiny pieces
 # cut a file at nearly every line: headers, comments and malformed lines before and after the
 # first numeric line, skipped rows, the separator decided by a line in an earlier piece.
@@ -163,9 +165,9 @@ def read_result(path, piece, monkeypatch, *args):
     raises, with the given piece size."""
     import dataclasses
 
-    from imucal_cli.formats.importers import text
+    from imucal_cli.formats.importers import text_scan
 
-    monkeypatch.setattr(text, "SCAN_PIECE", piece)
+    monkeypatch.setattr(text_scan, "SCAN_PIECE", piece)
     stats = ImportStats()
     try:
         data, lines, header = read_table(path, *args[:2], stats, *args[2:])

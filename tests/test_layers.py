@@ -110,7 +110,8 @@ def test_the_check_sees_lazy_and_relative_imports():
 
 
 #: What is not a sensor's in ``estimators/``: the estimators two sensors share.
-SHARED_ESTIMATORS = {"factorization", "ellipsoid"}
+SHARED_ESTIMATORS = {"factorization", "factorization_model", "factorization_refine",
+                     "ellipsoid"}
 SENSOR_FOLDERS = {"accel", "gyro", "mag", "thermal", "clock"}
 #: The estimators of a set of several IMUs (its accelerometers jointly, the rotations, the time
 #: offsets): the set's, not one sensor's.

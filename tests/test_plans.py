@@ -11,8 +11,10 @@ from imucal_cli.capture.unattended import run_unattended
 from imucal_cli.errors import ImucalError, InputError
 from imucal_cli.formats.session import read_session
 from imucal_cli.plans import BUILTIN_PLANS, PLANS, find_plan, load_plan, plan_help
-from imucal_cli.simulate.device import _columns, _format, stream_arrays
+from imucal_cli.simulate.device import stream_arrays
 from imucal_cli.simulate.play import simulate_plan
+from imucal_cli.simulate.served_lines import format_lines as _format
+from imucal_cli.simulate.served_lines import line_columns as _columns
 from tests.test_capture import ScriptedSource, proto
 
 CREATED = "2026-01-01T00:00:00Z"

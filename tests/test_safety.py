@@ -23,6 +23,7 @@ from imucal_cli.capture.recorder import Recorder
 from imucal_cli.errors import ConfigError, SessionError
 from imucal_cli.formats.calibration import read_calibration, write_calibration
 from imucal_cli.formats.config import config_from_dict
+from imucal_cli.formats.session import disk as disk_module
 from imucal_cli.formats.session import read_session
 from imucal_cli.formats.session import writer as writer_module
 from tests.cli_helpers import assert_one_line_error, run
@@ -320,7 +321,7 @@ class FullDisk:
     def __init__(self, monkeypatch, reserve_frees: bool) -> None:
         self.full = False
         original_set = h5py.Dataset.__setitem__
-        original_release = writer_module._Reserve.release
+        original_release = disk_module.Reserve.release
 
         def setitem(ds, key, value):
             if self.full and ds.name.startswith("/raw"):
@@ -335,7 +336,7 @@ class FullDisk:
             return had
 
         monkeypatch.setattr(h5py.Dataset, "__setitem__", setitem)
-        monkeypatch.setattr(writer_module._Reserve, "release", release)
+        monkeypatch.setattr(disk_module.Reserve, "release", release)
 
 
 @pytest.mark.parametrize("reserve_frees", [True, False])

@@ -14,9 +14,9 @@ pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 
 _CHILD = """
 import os, signal, sys, time
-from imucal_cli.simulate.device import _stop_on_signals
+from imucal_cli.simulate.pseudo_terminal import stop_on_signals
 stop = {"kind": None}
-with _stop_on_signals(stop):
+with stop_on_signals(stop):
     os.kill(os.getpid(), signal.SIGTERM)
     print("first:", stop["kind"], flush=True)
     os.kill(os.getpid(), signal.SIGTERM)

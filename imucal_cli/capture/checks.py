@@ -36,6 +36,7 @@ from imucal_cli.formats.columns import TIME_UNITS
 
 __all__ = [
     "CLOCK_CHECK_S",
+    "CaptureEnded",
     "CLOCK_TOLERANCE",
     "CLOSE_BYTES",
     "DiskRoom",
@@ -46,6 +47,24 @@ __all__ = [
     "headroom",
     "no_data_reason",
 ]
+
+class CaptureEnded(Exception):
+    """Why a capture ended (used inside the recorder;
+    :meth:`~imucal_cli.capture.recorder.Recorder.blocks` just stops).
+
+    Attributes
+    ----------
+    kind : str
+        One of :data:`~imucal_cli.capture.recorder.END_KINDS`.
+    reason : str
+        One line for the user.
+    """
+
+    def __init__(self, kind: str, reason: str) -> None:
+        super().__init__(reason)
+        self.kind = kind
+        self.reason = reason
+
 
 CLOCK_CHECK_S = 3.0
 """After this much host time with data, the device's time stamps are compared with the host

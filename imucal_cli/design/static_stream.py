@@ -8,18 +8,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from imucal_cli.design.segmentation import (
+from imucal_cli.design.still_periods import (
     DEFAULT_ALPHA,
     GYRO_TOLERANCE,
     HOLD_TOLERANCE,
     Interval,
-    NoiseEstimate,
-    _runs,
-    _still_periods,
-    _trim,
-    _window_samples,
+    still_periods,
+    still_runs,
     still_threshold,
+    trim,
+    window_samples,
 )
+from imucal_cli.design.window_noise import NoiseEstimate
 from imucal_cli.errors import InputError
 from imucal_cli.numerics.blocks import check_all_given, check_not_more
 
@@ -58,8 +58,8 @@ class StaticStream:
     ) -> None:  # fmt: skip
         rate = noise.rate_hz
         self.N = int(n_samples)
-        self.n = _window_samples(window_s, rate)
-        self.margin, self.min_n = _trim(rate, window_s, margin_s, min_still_s)
+        self.n = window_samples(window_s, rate)
+        self.margin, self.min_n = trim(rate, window_s, margin_s, min_still_s)
         self.groups = []  # (weights per channel, threshold) per sensor given
         for given, sigma, tolerance in ((accel, noise.accel, HOLD_TOLERANCE),
                                         (gyro, noise.gyro, GYRO_TOLERANCE)):  # fmt: skip
@@ -110,7 +110,7 @@ class StaticStream:
         if still is None:  # every window of this block is still
             runs = [(0, len(x) - self.n + 1)]
         else:
-            runs = _runs(still)
+            runs = still_runs(still)
         for a, b in runs:  # still window starts -> the samples they cover
             a, b = first + int(a), first + int(b) - 1 + self.n
             if self._runs and a <= self._runs[-1][1]:
@@ -172,4 +172,4 @@ class StaticStream:
         """
         check_all_given(self._seen, self.N)
         runs = [(a, min(b, self.N)) for a, b in self._runs]
-        return _still_periods(runs, self.N, self.n, self.margin, self.min_n)
+        return still_periods(runs, self.N, self.n, self.margin, self.min_n)

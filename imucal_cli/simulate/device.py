@@ -26,8 +26,9 @@ through the real tty layer.
 
 The stream starts when a reader opens the port and has flushed its input (pyserial does when it
 configures the port: the pseudo-terminal's packet mode shows it; a reader that never flushes
-waits at most :data:`FLUSH_WAIT_S`), and ends after the plan (or after ``duration_s``, with
-``loop`` repeating the plan), when the reader closes the port, or on SIGINT/SIGTERM.  Before the
+waits at most :data:`.pseudo_terminal.FLUSH_WAIT_S`), and ends after the plan (or after
+``duration_s``, with ``loop`` repeating the plan), when the reader closes the port, or on
+SIGINT/SIGTERM.  Before the
 port closes the reader is given time to read every byte sent (at most :data:`DRAIN_MAX_S`), and
 what it did not read is not counted as sent: the count is right however loaded the machine.
 
@@ -35,20 +36,17 @@ Pacing: by default the device walks its plan on a timer (each pose held ``hold_s
 next).  ``next_pose`` (a callable, e.g. Enter typed in the device's own terminal) moves on at
 once, cutting the current hold short; with ``step`` every hold lasts until ``next_pose`` says
 so (the still samples keep coming, the time keeps increasing), as a person at the bench would.
+
+The lines themselves are :mod:`.served_lines`'s; the pseudo-terminal and the signals that stop a
+serve, :mod:`.pseudo_terminal`'s.
 """
 
 from __future__ import annotations
 
-import contextlib
-import fcntl
 import os
 import select
-import signal
-import struct
-import termios
 import threading
 import time as _time
-import tty
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -59,6 +57,14 @@ from imucal_cli.plans import Plan, find_plan, load_plan
 from imucal_cli.simulate.imu_set import served_set, set_columns, set_lines
 from imucal_cli.simulate.magnetometer import simulate_mag
 from imucal_cli.simulate.play import simulate_plan
+from imucal_cli.simulate.pseudo_terminal import SETTLE_S, Port, asked_to_stop, stop_on_signals
+from imucal_cli.simulate.served_lines import (
+    HARD_IRON_COUNTS,
+    SERVE_PROTOCOLS,
+    damaged,
+    line_columns,
+    protocol_lines,
+)
 from imucal_cli.simulate.steps import simulate_steps
 
 __all__ = [
@@ -73,24 +79,8 @@ __all__ = [
     "stream_with_holds",
 ]
 
-SETTLE_S = 0.3
-"""Wait after a reader opened the port before the first byte, where the reader's flush of its
-input cannot be seen (no packet mode)."""
-
-FLUSH_WAIT_S = 2.0
-"""Longest wait for a new reader to flush its input before the first byte, s."""
-
 DRAIN_MAX_S = 10.0
 """Longest wait, at the end, for the reader to read what was sent, s."""
-DRAIN_QUIET_S = 0.3
-"""How long the reader's input queue must stay empty before everything sent counts as read, s."""
-
-SERVE_PROTOCOLS = ("lines", "motioncal", "i2cdevlib")
-"""What the virtual IMU can print: numbers (``t,ax,...``), MotionCal or i2cdevlib lines."""
-
-HARD_IRON_COUNTS = (150.0, -90.0, 60.0)
-"""The offset of the virtual magnetometer of MotionCal lines, counts."""
-
 
 @dataclass(frozen=True)
 class Hold:
@@ -213,94 +203,6 @@ def _served_session(plan: str, *, mag: dict | None = None, **options):
     return session, holds
 
 
-def _columns(accel: np.ndarray, gyro: np.ndarray | None, temperature: bool,
-             mag: np.ndarray | None = None) -> str:  # fmt: skip
-    """The field names of a line: ``t,ax,ay,az[,a4..],gx,gy,gz[,mx,my,mz][,temp]``."""
-    names = ["t", "ax", "ay", "az"] + [f"a{k}" for k in range(4, accel.shape[1] + 1)]
-    if gyro is not None:
-        names += ["gx", "gy", "gz"] + [f"g{k}" for k in range(4, gyro.shape[1] + 1)]
-    if mag is not None:
-        names += ["mx", "my", "mz"]
-    return ",".join(names + (["temp"] if temperature else []))
-
-
-def _format(
-    time: np.ndarray, accel: np.ndarray, gyro: np.ndarray | None, temperature,
-    counts: bool, mag: np.ndarray | None = None, mag_counts: bool = True,
-) -> list[bytes]:  # fmt: skip
-    """The data lines; ``temperature``: False (no field), the session's temperatures (N,),
-    or True (a part at room temperature, warming a little: 25 C plus 0.01 C/s)."""
-    columns = [time, accel] + ([] if gyro is None else [gyro])
-    n_values = sum(c.shape[1] for c in columns[1:])
-    value = "%.0f" if counts else "%.6f"
-    fields = ["%.4f"] + [value] * n_values
-    if mag is not None:
-        columns.append(mag)
-        fields += ["%.0f" if mag_counts else "%.4f"] * mag.shape[1]
-    with_temp = temperature is not None and temperature is not False
-    fmt = ",".join(fields + (["%.2f"] if with_temp else []))
-    if with_temp:
-        own = not isinstance(temperature, bool)
-        columns.append((np.asarray(temperature, float) if own else 25.0 + 0.01 * time)[:, None])
-    rows = np.column_stack(columns).tolist()
-    return [(fmt % tuple(r) + "\n").encode() for r in rows]
-
-
-def _tilted_field(accel: np.ndarray, field_uT: float = 48.0,
-                  inclination_deg: float = 60.0) -> np.ndarray:  # fmt: skip
-    """The earth's field (north along world x, ``inclination_deg`` below the horizontal) read
-    by a unit whose accelerometer points along ``accel`` (world up), its heading fixed: the
-    smallest rotation taking world up (z) to the measured up, applied to the field, uT."""
-    inc = np.radians(inclination_deg)
-    h = field_uT * np.array([np.cos(inc), 0.0, -np.sin(inc)])
-    up = accel / np.linalg.norm(accel, axis=1, keepdims=True)
-    v = np.cross([0.0, 0.0, 1.0], up)  # axis * sin(angle)
-    c = up[:, 2]  # cos(angle)
-    flipped = c < -1 + 1e-9  # upside down: a half turn about x
-    scale = np.where(flipped, 0.0, 1.0 / np.where(flipped, 1.0, 1.0 + c))
-    vxh = np.cross(v, h)
-    out = h + vxh + np.cross(v, vxh) * scale[:, None]
-    out[flipped] = h * [1.0, -1.0, -1.0]
-    return out
-
-
-def _format_sketch(protocol: str, accel: np.ndarray, gyro: np.ndarray | None) -> list[bytes]:
-    """Lines as MotionCal's or i2cdevlib's sketches print them (integer counts, no time)."""
-    if accel.shape[1] != 3 or gyro is None:
-        raise InputError(f"--protocol {protocol} prints a 3-axis accelerometer and gyroscope "
-                         "(not a redundant unit)")  # fmt: skip
-    values = [np.round(accel), np.round(gyro)]
-    if protocol == "motioncal":
-        values.append(np.round(_tilted_field(accel) * 10.0 + HARD_IRON_COUNTS))
-        fmt = "Raw:" + ",".join(["%d"] * 9)
-    else:
-        fmt = "a/g:\t" + "\t".join(["%d"] * 6)
-    rows = np.column_stack(values).astype(np.int64).tolist()
-    return [(fmt % tuple(r) + "\n").encode() for r in rows]
-
-
-def _lines(protocol: str, time, accel, gyro, temperature: bool, units: str, mag=None,
-           mag_units: str = "counts") -> list[bytes]:  # fmt: skip
-    """The data lines of ``protocol`` (:data:`SERVE_PROTOCOLS`)."""
-    if protocol == "lines":
-        return _format(time, accel, gyro, temperature, units == "counts", mag,
-                       mag_units == "counts")  # fmt: skip
-    if protocol not in SERVE_PROTOCOLS:
-        raise InputError(f"--protocol {protocol!r}: use {', '.join(SERVE_PROTOCOLS)}")
-    if units != "counts":
-        raise InputError(f"--protocol {protocol} prints counts: leave out --units {units}")
-    if mag is not None:
-        raise InputError(f"--protocol {protocol} prints its own magnetometer (or none): "
-                         "leave out --mag")  # fmt: skip
-    return _format_sketch(protocol, accel, gyro)
-
-
-def _damage(line: bytes) -> bytes:
-    """A malformed version of a data line: its last two fields are lost."""
-    sep = b"\t" if b"\t" in line else b","
-    return sep.join(line.rstrip(b"\n").split(sep)[:-2]) + b"\n"
-
-
 # --------------------------------------------------------------------------------------------
 # Serving
 # --------------------------------------------------------------------------------------------
@@ -380,8 +282,8 @@ def serve(
     header = (f"# imucal virtual IMU: plan {plan}, {rate_hz:g} Hz, {units}, "
               f"columns {fields}, seed {seed}\n").encode()  # fmt: skip
     stop = {"kind": None, "cancel": cancel}
-    with _stop_on_signals(stop):
-        port = _Port()
+    with stop_on_signals(stop):
+        port = Port()
         try:
             announce(port.path)
             say(f"serving plan {plan} at {rate_hz:g} Hz, {baud} baud on {port.path}; "
@@ -412,13 +314,13 @@ def _plan_lines(plan: str, protocol: str, *, seed: int, rate_hz: float, hold_s: 
     time, accel, gyro, mag = session.time, session.accel, session.gyro, session.mag
     if temperature and session.temperature is not None:
         temperature = session.temperature
-    lines = _lines(protocol, time, accel, gyro, temperature, units, mag, session.mag_units)
+    lines = protocol_lines(protocol, time, accel, gyro, temperature, units, mag, session.mag_units)
     if session.imus:  # several IMUs on one line (issue 28)
         lines = set_lines(session, temperature, units == "counts")
     schedule = _Schedule(len(lines), holds, loop=loop, step=step, next_pose=next_pose, say=say,
                          rate_hz=rate_hz)  # fmt: skip
     with_temp = temperature is not None and temperature is not False
-    fields = (_columns(accel, gyro, with_temp, mag) if protocol == "lines"
+    fields = (line_columns(accel, gyro, with_temp, mag) if protocol == "lines"
               else f"{protocol} lines")  # fmt: skip
     if session.imus:
         fields = set_columns(session, with_temp)
@@ -435,40 +337,7 @@ def _check_line(rate_hz: float, baud: int, malformed_every: int | None) -> None:
         raise InputError(f"--malformed-every must be >= 1, got {malformed_every}")
 
 
-@contextlib.contextmanager
-def _stop_on_signals(stop: dict):
-    """While serving (in the main thread), SIGINT and SIGTERM set ``stop["kind"]`` to
-    ``"signal"``, so the serve ends at its next step and says what it sent; a second signal
-    ends the process at once (the default action), whatever it is waiting for. The previous
-    handlers are restored after."""
-    old_handlers = {}
-    if threading.current_thread() is threading.main_thread():
-
-        def handler(signum, frame):  # noqa: ARG001
-            if stop["kind"] == "signal":  # asked twice: no more waiting
-                signal.signal(signum, signal.SIG_DFL)
-                os.kill(os.getpid(), signum)
-            stop["kind"] = "signal"
-
-        for signum in (signal.SIGINT, signal.SIGTERM):
-            old_handlers[signum] = signal.signal(signum, handler)
-    try:
-        yield
-    finally:
-        for signum, old in old_handlers.items():
-            signal.signal(signum, old)
-
-
-def _asked_to_stop(stop: dict) -> str:
-    """``"signal"`` (SIGINT or SIGTERM, :func:`_stop_on_signals`), ``"cancelled"`` (the
-    caller's ``cancel`` event) or ``""``."""
-    if stop["kind"] is not None:
-        return stop["kind"]
-    cancel = stop.get("cancel")
-    return "cancelled" if cancel is not None and cancel.is_set() else ""
-
-
-def _stream(port: _Port, line: _Line, header: bytes, stop: dict, wait_reader_s: float | None,
+def _stream(port: Port, line: _Line, header: bytes, stop: dict, wait_reader_s: float | None,
             say: Callable[[str], None]) -> ServeResult:  # fmt: skip
     """Wait for a reader, then run the line until it ends; count what the reader got."""
     result = ServeResult(path=port.path)
@@ -483,110 +352,6 @@ def _stream(port: _Port, line: _Line, header: bytes, stop: dict, wait_reader_s: 
         f"{result.seconds:.1f} s; end: {result.end}"
     )
     return result
-
-
-def _int_ioctl(fd: int, request: int, value: int = 0) -> int:
-    return struct.unpack("i", fcntl.ioctl(fd, request, struct.pack("i", value)))[0]
-
-
-class _Port:
-    """The pseudo-terminal: its master side (ours) and the path of its slave side (the
-    reader's).  The slave is closed at once: a reader's open is seen as the end of the master's
-    POLLHUP, its close as POLLHUP again.  In packet mode (while waiting for the reader) a flush of
-    the reader's input shows on the master as a ``TIOCPKT_FLUSHREAD`` status byte."""
-
-    def __init__(self) -> None:
-        self.master, slave = os.openpty()
-        tty.setraw(slave)  # flushes: before packet mode, so that flush is not the reader's
-        self.path = os.ttyname(slave)
-        os.close(slave)
-        self.poller = select.poll()
-        self.poller.register(self.master, select.POLLHUP)
-        self.packets = _packet_mode(self.master, True)
-
-    def wait_for_reader(self, stop: dict, wait_reader_s: float | None) -> str:
-        """Wait until a reader opened the port and flushed its input; "" or why it gave up."""
-        waited = _time.monotonic()
-        while any(ev & select.POLLHUP for _, ev in self.poller.poll(50)):
-            if _asked_to_stop(stop):
-                return _asked_to_stop(stop)
-            if wait_reader_s is not None and _time.monotonic() - waited > wait_reader_s:
-                return "no-reader"
-        if not self.packets:
-            _time.sleep(SETTLE_S)
-            return ""
-        status = select.poll()
-        status.register(self.master, select.POLLPRI | select.POLLIN)
-        end = _time.monotonic() + FLUSH_WAIT_S
-        while _time.monotonic() < end and not _asked_to_stop(stop):
-            events = status.poll(50)
-            if any(ev & select.POLLHUP for _, ev in events):
-                break  # the reader closed again: the stream sees it at once
-            if events and _flushed(self.master):
-                break
-        self.packets = _packet_mode(self.master, False)
-        return ""
-
-    def drain(self, limit_s: float) -> int:
-        """Wait until the reader has read every byte written (at most ``limit_s``, or until it
-        closes the port); the number of bytes it has not read (lost when the port closes).
-
-        The reader's input queue (FIONREAD) holds at most 4 KiB: a slow reader's backlog waits
-        in the kernel's buffers behind it and refills it as it is read, so the queue must stay
-        empty for :data:`DRAIN_QUIET_S` before everything counts as read."""
-        end = _time.monotonic() + limit_s
-        empty_since = None
-        while True:
-            unread = self._unread()
-            now = _time.monotonic()
-            gone = any(ev & select.POLLHUP for _, ev in self.poller.poll(0))
-            if unread:
-                empty_since = None
-            elif empty_since is None:
-                empty_since = now
-            if gone or now >= end or (empty_since is not None
-                                      and now - empty_since >= DRAIN_QUIET_S):  # fmt: skip
-                return unread
-            _time.sleep(0.01)
-
-    def _unread(self) -> int:
-        """Bytes waiting in the reader's input queue.  The slave is opened only for the query:
-        held open, it would hide the reader's close (POLLHUP)."""
-        try:
-            fd = os.open(self.path, os.O_RDONLY | os.O_NOCTTY | os.O_NONBLOCK)
-        except OSError:
-            return 0
-        try:
-            return _int_ioctl(fd, termios.FIONREAD)
-        except OSError:
-            return 0
-        finally:
-            os.close(fd)
-
-    def close(self) -> None:
-        os.close(self.master)
-
-
-def _packet_mode(master: int, on: bool) -> bool:
-    """Switch the master's packet mode; whether it is on."""
-    request = getattr(termios, "TIOCPKT", None)
-    if request is None:
-        return False
-    try:
-        _int_ioctl(master, request, int(on))
-    except OSError:
-        return False
-    return on
-
-
-def _flushed(master: int) -> bool:
-    """Read the master's pending packets: did one say the reader flushed its input?"""
-    flush = getattr(termios, "TIOCPKT_FLUSHREAD", 1)
-    try:
-        packet = os.read(master, 4096)
-    except OSError:
-        return False
-    return bool(packet) and packet[0] != 0 and bool(packet[0] & flush)
 
 
 def _mirrored(h: Hold, r: int) -> int:
@@ -682,8 +447,8 @@ class _Line:
 
     def why_end(self, now: float) -> str:
         """Why streaming ends now, or ""."""
-        if _asked_to_stop(self.stop):
-            return _asked_to_stop(self.stop)
+        if asked_to_stop(self.stop):
+            return asked_to_stop(self.stop)
         if any(ev & select.POLLHUP for _, ev in self.poller.poll(0)):
             return "reader-closed"
         if self.vanish_after_s is not None and now >= self.vanish_after_s:
@@ -718,7 +483,7 @@ class _Line:
             every = self.malformed_every
             bad = every is not None and k % every == every - 1
             if bad:
-                line = _damage(line)
+                line = damaged(line)
             self.out += line
             self.queued_bytes += len(line)
             budget -= len(line)

@@ -42,10 +42,10 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from imucal_cli.model.calibration import Calibration
-from imucal_cli.simulate import device
-from imucal_cli.simulate.device import _format as device_format
+from imucal_cli.simulate import device, pseudo_terminal
 from imucal_cli.simulate.motion import EZ, Timeline, place, placement_tilts
 from imucal_cli.simulate.sensor import G0, Imu, draw_part
+from imucal_cli.simulate.served_lines import format_lines as device_format
 
 __all__ = ["Instruction", "LiveLines", "LiveUnit", "Person", "follow_stdin", "format_lines",
            "parse_instruction"]
@@ -369,8 +369,8 @@ def serve_person(*, seed: int = 0, rate_hz: float = 100.0, baud: int = 115200,
     schedule = device._Schedule(len(lines), [], loop=False, step=False, next_pose=None,
                                 say=say, rate_hz=rate_hz)  # fmt: skip
     stop = {"kind": None}
-    with device._stop_on_signals(stop):
-        port = device._Port()
+    with pseudo_terminal.stop_on_signals(stop):
+        port = pseudo_terminal.Port()
         try:
             announce(port.path)
             say(f"a person holds the unit (part of seed {seed}) at {rate_hz:g} Hz, {baud} baud "

@@ -56,15 +56,16 @@ Output: CSV
 The header ``t,ax,ay,az,gx,gy,gz,mx,my,mz`` (the columns of the calibrated sensors only), then a
 comment line (``#``, no commas) naming the model, the calibration and the units, then one line
 per sample: time as Python's shortest round-trip repr, values with 10 significant digits.
+
+The input, read block by block and checked against the calibration: :mod:`.apply_input`.
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO
 
 import numpy as np
 
@@ -72,20 +73,11 @@ from imucal_cli import __version__
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import calibration_to_json
 from imucal_cli.formats.importers.recording import TIME_UNITS
-from imucal_cli.formats.importers.text import (
-    BLANK,
-    check_time,
-    header_columns,
-    is_delimited,
-    parse_columns,
-    parse_numbers,
-    skipped_fields,
-    split_fields,
-)
 from imucal_cli.formats.inputs import is_hdf5_file
 from imucal_cli.formats.output import OutputFile, check_output
-from imucal_cli.formats.session import one_line, open_samples, utc_now_iso
+from imucal_cli.formats.session import one_line, utc_now_iso
 from imucal_cli.model.calibration import MODEL_EQUATION, Calibration, SensorCalibration
+from imucal_cli.use.apply_input import CSV_NAMES, Block, CsvBlocks, csv_input, session_input
 
 __all__ = [
     "DEFAULT_CHUNK_ROWS",
@@ -102,7 +94,6 @@ FORMAT_VERSION = 1
 DEFAULT_CHUNK_ROWS = 65536
 OUTPUT_FORMATS = ("h5", "csv")
 SENSORS = ("accel", "gyro", "mag")
-CSV_NAMES = {"accel": ("ax", "ay", "az"), "gyro": ("gx", "gy", "gz"), "mag": ("mx", "my", "mz")}
 
 _SUFFIXES = {".h5": "h5", ".hdf5": "h5", ".hdf": "h5", ".csv": "csv", ".txt": "csv"}
 _H5_CHUNK_ROWS = 8192  # rows per HDF5 chunk of the output datasets
@@ -157,32 +148,12 @@ class ApplySummary:
     _first_time: float | None = field(default=None, repr=False)
 
 
-@dataclass
-class _Block:
-    time: np.ndarray
-    raw: dict[str, np.ndarray]
-    done: int  # progress units consumed up to the end of this block
-    temperature: np.ndarray | None = None  # degrees C, when a section's bias depends on it
-
-
-def _needs_temperature(sections: dict[str, SensorCalibration]) -> list[str]:
-    """The sensors whose calibration holds ``bias_tempco`` (issue 17.1)."""
-    return [name for name, sec in sections.items() if sec.temperature_terms is not None]
-
-
 def _clock_scale(sections: dict[str, SensorCalibration]) -> float | None:
     """``sample_clock_scale`` of the calibration (the gyro's first), or None."""
     for sec in sections.values():
         if sec.sample_clock_scale is not None:
             return sec.sample_clock_scale
     return None
-
-
-def _no_temperature(src: str, cal_src: str, names: list[str], where: str) -> InputError:
-    return InputError(
-        f"{src} has no temperature ({where}), but {cal_src} holds a temperature-dependent "
-        f"{' and '.join(names)} bias (bias_tempco) that needs the temperature of each sample"
-    )
 
 
 def output_format(path: str | os.PathLike, fmt: str | None = None) -> str:
@@ -209,187 +180,6 @@ def output_format(path: str | os.PathLike, fmt: str | None = None) -> str:
 
 def _sections(cal: Calibration) -> dict[str, SensorCalibration]:
     return {name: getattr(cal, name) for name in SENSORS if getattr(cal, name) is not None}
-
-
-def _chunk_bounds(n: int, chunk_rows: int) -> list[tuple[int, int]]:
-    """Half-open blocks of ``chunk_rows``; a last block of one row joins the one before.
-
-    ``SensorCalibration.apply`` on one row takes numpy's matrix-vector path, which may round
-    differently from the matrix-matrix path of longer blocks; joining keeps the output equal
-    bit for bit to applying the calibration to the whole array at once.
-    """
-    bounds = [(start, min(start + chunk_rows, n)) for start in range(0, n, chunk_rows)]
-    if len(bounds) >= 2 and bounds[-1][1] - bounds[-1][0] == 1:
-        bounds[-2:] = [(bounds[-2][0], n)]
-    return bounds
-
-
-# --------------------------------------------------------------------------------------------
-# Readers: iterators of blocks
-# --------------------------------------------------------------------------------------------
-
-
-def _session_blocks(
-    path: Path, sections: dict[str, SensorCalibration], cal_src: str, chunk_rows: int
-) -> tuple[Iterator[_Block], int, dict[str, str | None], Callable[[], None]]:
-    """Open a session (:func:`~imucal_cli.formats.session.open_samples`, the one reader of
-    sessions block by block); return its block iterator, row count, raw units and a closer."""
-    src = str(path)
-    samples = open_samples(path)
-    try:
-        names = list(sections)
-        for name, sec in sections.items():
-            width = samples.channels.get(name)
-            if width is None:
-                raise InputError(
-                    f"{src} has no {name} data (/raw/{name}), but {cal_src} calibrates the {name}"
-                )
-            n_cal = sec.bias.shape[0]
-            if width != n_cal:
-                raise InputError(
-                    f"{cal_src} calibrates {n_cal} {name} channels but {src} has "
-                    f"{width} (/raw/{name} shape {(samples.n, width)})"
-                )
-        if _needs_temperature(sections):
-            if "temperature" not in samples.channels:
-                raise _no_temperature(src, cal_src, _needs_temperature(sections),
-                                      "/raw/temperature")  # fmt: skip
-            names.append("temperature")
-        units = {name: samples.units(name) for name in sections}
-    except BaseException:
-        samples.close()
-        raise
-
-    def blocks() -> Iterator[_Block]:
-        for start, stop in _chunk_bounds(samples.n, chunk_rows):
-            block = next(samples.blocks(("time", *names), start, stop, rows=stop - start))
-            values = dict(zip(names, block[1:], strict=True))
-            temp = values.pop("temperature", None)
-            yield _Block(time=block[0], raw=values, done=stop, temperature=temp)
-
-    return blocks(), samples.n, units, samples.close
-
-
-class _CsvBlocks:
-    """Blocks of a CSV read line by line (the ``imucal import`` column rules); iterate once.
-
-    ``malformed`` and ``first_malformed`` count the lines skipped so far."""
-
-    def __init__(self, path: Path, handle: IO[bytes], sections: dict[str, SensorCalibration],
-                 cal_src: str, columns: str | None, time_unit: str, rate_hz: float | None,
-                 chunk_rows: int) -> None:  # fmt: skip
-        self.path, self.src, self.handle = path, str(path), handle
-        self.sections, self.cal_src = sections, cal_src
-        self.time_unit, self.rate_hz, self.chunk_rows = time_unit, rate_hz, chunk_rows
-        self.spec = None if columns is None else parse_columns(columns)
-        self.spec_from_header = False
-        self.header: list[str] | None = None
-        self.rows: list[list[float]] = []
-        self.lines: list[int] = []
-        self.done = 0  # bytes read
-        self.n_kept = 0
-        self.last_time: float | None = None
-        self.last_line = 0
-        self.malformed = 0
-        self.first_malformed: str | None = None
-
-    def _col(self, name: str) -> int | None:
-        return self.spec.index(name) if name in self.spec else None
-
-    def _check_spec(self) -> None:
-        """At the first numeric row: the columns (from the header unless given) hold every
-        sensor the calibration needs, the temperature it needs, and a time or a rate."""
-        src, cal_src = self.src, self.cal_src
-        if self.spec is None:
-            self.spec = header_columns(self.header, src)
-            self.spec_from_header = True
-        for name, sec in self.sections.items():
-            axes = CSV_NAMES[name]
-            if axes[0] not in self.spec:
-                how = "--columns" if not self.spec_from_header else "the header"
-                raise InputError(
-                    f"{src} has no {name} columns ({','.join(axes)} in {how}), but {cal_src} "
-                    f"calibrates the {name}"
-                )
-            if sec.bias.shape[0] != 3:
-                raise InputError(
-                    f"{cal_src} calibrates {sec.bias.shape[0]} {name} channels but {src} has 3 "
-                    f"({','.join(axes)})"
-                )
-        if _needs_temperature(self.sections) and self._col("temp") is None:
-            raise _no_temperature(src, cal_src, _needs_temperature(self.sections),
-                                  "no temp column")  # fmt: skip
-        if self._col("t") is None and self.rate_hz is None:
-            raise InputError(
-                f"{src}: no time column (t) in the columns: pass --rate HZ to stamp row i "
-                "at i / rate"
-            )
-
-    def _block(self, k: int) -> _Block:
-        """The first ``k`` rows kept, as a block (times checked against the block before)."""
-        data = np.array(self.rows[:k], dtype=np.float64)
-        numbers = np.array(self.lines[:k])
-        del self.rows[:k], self.lines[:k]
-        t_col = self._col("t")
-        if t_col is not None:
-            t = data[:, t_col] * TIME_UNITS[self.time_unit]
-            if self.last_time is None:
-                check_time(t, numbers, self.src)
-            else:
-                check_time(np.r_[self.last_time, t], np.r_[self.last_line, numbers], self.src)
-        else:
-            t = np.arange(self.n_kept, self.n_kept + k) / self.rate_hz
-        self.n_kept += k
-        self.last_time, self.last_line = float(t[-1]), int(numbers[-1])
-        raw = {name: data[:, [self._col(a) for a in CSV_NAMES[name]]] for name in self.sections}
-        temp = data[:, self._col("temp")] if _needs_temperature(self.sections) else None
-        return _Block(time=t, raw=raw, done=self.done, temperature=temp)
-
-    def _skip(self, number: int) -> None:
-        self.malformed += 1
-        if self.first_malformed is None:
-            self.first_malformed = f"{self.path.name}:{number}"
-
-    def __iter__(self) -> Iterator[_Block]:
-        comma: bool | None = None
-        seen_data = False
-        for number, raw_line in enumerate(self.handle, start=1):
-            self.done += len(raw_line)
-            line = raw_line.decode("utf-8", errors="replace").lstrip("\ufeff").strip(BLANK)
-            if not line or line.startswith("#"):
-                continue
-            if comma is None:
-                comma = is_delimited(line)
-            parts = split_fields(line, comma)
-            values = parse_numbers(parts, skipped_fields(self.spec))
-            if values is None and not seen_data:
-                self.header = parts
-                continue
-            if not seen_data and values is not None:
-                seen_data = True
-                self._check_spec()
-                if self.spec_from_header and len(values) != len(self.spec):
-                    raise InputError(
-                        f"{self.src}: the header names {len(self.spec)} fields but rows have "
-                        f"{len(values)}: pass --columns"
-                    )
-            if values is None or len(values) != len(self.spec):
-                self._skip(number)
-                continue
-            self.rows.append(values)
-            self.lines.append(number)
-            # Keep at least 2 rows back so that the last block never has a single row.
-            if len(self.rows) >= self.chunk_rows + 2:
-                yield self._block(self.chunk_rows)
-        if not seen_data:
-            raise InputError(f"{self.src}: no numeric rows (only header or text lines)")
-        if self.n_kept == 0 and not self.rows:
-            raise InputError(
-                f"{self.src}: no row has the {len(self.spec)} fields the columns name; fix "
-                "--columns"
-            )
-        if self.rows:
-            yield self._block(len(self.rows))
 
 
 # --------------------------------------------------------------------------------------------
@@ -488,7 +278,7 @@ class _CsvWriter:
 # --------------------------------------------------------------------------------------------
 
 
-def _write_block(writer, block: _Block, sections, summary: ApplySummary, output_path) -> None:
+def _write_block(writer, block: Block, sections, summary: ApplySummary, output_path) -> None:
     values: dict[str, np.ndarray] = {}
     for name, sec in sections.items():  # accel first: the gyro's g_sensitivity needs it
         values[name] = sec.apply(block.raw[name], accel=values.get("accel"),
@@ -583,7 +373,8 @@ def apply_calibration(
     summary, sections = _prepare(cal, input_path, output_path, cal_source, fmt, chunk_rows,
                                  time_unit, rate_hz, overwrite)  # fmt: skip
     # Blocks of one row take numpy's matrix-vector path, which may round differently from
-    # the matrix-matrix path of longer blocks (see _chunk_bounds): at least 2 rows per block.
+    # the matrix-matrix path of longer blocks (see apply_input.chunk_bounds): at least 2 rows
+    # per block.
     chunk_rows = max(chunk_rows, 2)
     blocks, total, units_in, close_input = _open_input(summary, sections, cal_source, columns,
                                                        time_unit, rate_hz, chunk_rows)  # fmt: skip
@@ -592,7 +383,7 @@ def apply_calibration(
                    progress)  # fmt: skip
     finally:
         close_input()
-    if isinstance(blocks, _CsvBlocks):
+    if isinstance(blocks, CsvBlocks):
         summary.malformed, summary.first_malformed = blocks.malformed, blocks.first_malformed
     return summary
 
@@ -633,8 +424,8 @@ def _open_input(summary: ApplySummary, sections: dict[str, SensorCalibration], c
     if summary.input_kind == "session":
         if columns is not None:
             raise InputError(f"{summary.input}: --columns applies to CSV input, not to a session")
-        return _session_input(summary.input, sections, cal_source, chunk_rows)
-    blocks, total, close = _csv_input(summary.input, sections, cal_source, columns, time_unit,
+        return session_input(summary.input, sections, cal_source, chunk_rows)
+    blocks, total, close = csv_input(summary.input, sections, cal_source, columns, time_unit,
                                       rate_hz, chunk_rows)  # fmt: skip
     return blocks, total, {}, close
 
@@ -652,43 +443,6 @@ def _check_options(chunk_rows, time_unit: str, rate_hz: float | None, input_path
         raise InputError(f"{src}: no such file")
     if input_path.is_dir():
         raise InputError(f"{src}: is a directory, not a session or CSV file")
-
-
-def _session_input(path: Path, sections: dict[str, SensorCalibration], cal_source: str,
-                   chunk_rows: int):  # fmt: skip
-    """A session's blocks, rows, raw units and closer; refused when a sensor's raw units
-    differ from those the calibration was made for."""
-    blocks, total, units_in, close_input = _session_blocks(path, sections, cal_source, chunk_rows)
-    for name, sec in sections.items():
-        want = sec.units_in
-        have = units_in.get(name)
-        if (
-            isinstance(want, str)
-            and have is not None
-            and "unknown" not in (want, have)
-            and want != have
-        ):
-            close_input()
-            raise InputError(
-                f"{path} records the {name} in {have} but {cal_source} was made for {want}"
-            )
-    return blocks, total, units_in, close_input
-
-
-def _csv_input(path: Path, sections: dict[str, SensorCalibration], cal_source: str,
-               columns: str | None, time_unit: str, rate_hz: float | None, chunk_rows: int):
-    """A CSV's blocks (:class:`_CsvBlocks`), its size in bytes and its closer."""  # fmt: skip
-    try:
-        handle = open(path, "rb")
-        total = os.fstat(handle.fileno()).st_size
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    if total == 0:
-        handle.close()
-        raise InputError(f"{path}: empty file")
-    blocks = _CsvBlocks(path, handle, sections, cal_source, columns, time_unit, rate_hz,
-                        chunk_rows)  # fmt: skip
-    return blocks, total, handle.close
 
 
 def _write_all(blocks, total: int, summary: ApplySummary, sections, cal: Calibration,

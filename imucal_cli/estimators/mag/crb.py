@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from imucal_cli.estimators.mag.magnetometer import SYM_INDEX
+from imucal_cli.estimators.mag.residuals import SYM_INDEX
 
 __all__ = ["magnetometer_crb"]
 

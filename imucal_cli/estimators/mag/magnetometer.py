@@ -49,6 +49,8 @@ closest to the magnetometer's own axes).
 
 The field magnitude ``F`` is given (microtesla) or, when unknown, 1: the calibrated output is
 then in units of the local field.
+
+The residuals of eqs. (2) and (3), their Jacobians and noise weights: :mod:`.residuals`.
 """
 
 from __future__ import annotations
@@ -56,11 +58,21 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 from scipy.special import chdtri
 
 from imucal_cli.errors import DesignError, SolverError
+from imucal_cli.estimators.mag.residuals import (
+    SYM_INDEX,
+    Problem,
+    magnitude_shift,
+    magnitude_sigma,
+    noise_weights,
+    pose_pair_cov,
+    residual_sigmas,
+    sym_params,
+    whiten,
+)
 from imucal_cli.estimators.mag.start import ellipsoid_start, polar, rotation_start
 
 __all__ = [
@@ -76,8 +88,6 @@ __all__ = [
 ]
 
 _AXES = "xyz"
-#: Symmetric soft iron: (row, column) of the 6 free entries, in parameter order.
-SYM_INDEX = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
 PARAM_NAMES_SYMMETRIC = ["b_x", "b_y", "b_z"] + [f"w_{_AXES[i]}{_AXES[j]}" for i, j in SYM_INDEX]
 PARAM_NAMES_ALIGNED = (
     ["b_x", "b_y", "b_z"] + [f"w_{r}{c}" for r in _AXES for c in _AXES] + ["s"]
@@ -238,174 +248,6 @@ class MagResult:
 
 
 # --------------------------------------------------------------------------------------------
-# Small helpers
-# --------------------------------------------------------------------------------------------
-
-
-def _sym(w: np.ndarray) -> np.ndarray:
-    W = np.empty((3, 3))
-    for value, (i, j) in zip(w, SYM_INDEX, strict=True):
-        W[i, j] = W[j, i] = value
-    return W
-
-
-def _sym_params(W: np.ndarray) -> np.ndarray:
-    return np.array([W[i, j] for i, j in SYM_INDEX])
-
-
-# --------------------------------------------------------------------------------------------
-# Residuals of eqs. (2) and (3) and their Jacobians, in normalised coordinates
-# --------------------------------------------------------------------------------------------
-
-
-class _Problem:
-    """Whitened residuals of eq. (2) over ``points`` and of eqs. (2) and (3) over the poses.
-
-    Coordinates are normalised: raw ``m`` -> ``(m - c0) / rho`` and the field to 1, so that
-    every parameter is of order one.  ``aligned`` selects the 9-entry ``W`` plus ``s``;
-    otherwise ``W`` is symmetric (6 entries) and there are no poses.  Each pose gives the pair
-    (eq. 2, eq. 3), whitened by ``white`` (K, 2, 2): both residuals come from the same mean
-    reading, so their errors correlate.
-    """
-
-    def __init__(self, points, w_mag, poses=None, up=None, white=None, shift=None,
-                 pose_shift=None, covs=None):  # fmt: skip
-        self.points, self.w_mag, self.covs = points, w_mag, covs
-        self.aligned = poses is not None
-        self.poses, self.up, self.white = poses, up, white
-        self.n_w = 9 if self.aligned else 6
-        # the mean the noise adds to each eq.-(2) residual (second order), held fixed
-        self.shift = np.zeros(len(points)) if shift is None else shift
-        self.pose_shift = (np.zeros(0 if poses is None else len(poses)) if pose_shift is None
-                           else pose_shift)  # fmt: skip
-
-    def unpack(self, x):
-        b = x[:3]
-        if self.aligned:
-            return b, x[3:12].reshape(3, 3), float(x[12])
-        return b, _sym(x[3:9]), None
-
-    def pack(self, b, W, s=None):
-        if self.aligned:
-            return np.concatenate([b, W.ravel(), [s]])
-        return np.concatenate([b, _sym_params(W)])
-
-    def _dW(self, a, d):
-        """d(a . W d)/d(params of W) for rows a (n, 3), d (n, 3): ``a_i d_j`` per entry."""
-        full = a[:, :, None] * d[:, None, :]  # (n, 3, 3)
-        if self.aligned:
-            return full.reshape(len(a), 9)
-        cols = [
-            full[:, i, j] if i == j else full[:, i, j] + full[:, j, i] for i, j in SYM_INDEX
-        ]
-        return np.column_stack(cols)
-
-    def _magnitude(self, pts, b, W, n_par):
-        d = pts - b
-        h = d @ W.T
-        r = np.linalg.norm(h, axis=1)
-        hu = h / r[:, None]
-        J = np.zeros((len(d), n_par))
-        J[:, :3] = -(hu @ W)
-        J[:, 3 : 3 + self.n_w] = self._dW(hu, d)
-        return r - 1.0, J, d, h, r, hu
-
-    def evaluate(self, x):
-        b, W, s = self.unpack(x)
-        n_par = len(x)
-        r, J1, *_ = self._magnitude(self.points, b, W, n_par)
-        res = [(r - self.shift) * self.w_mag]
-        jac = [J1 * self.w_mag[:, None]]
-        if self.aligned and len(self.poses):
-            rm, Jm, dk, _, rk, hku = self._magnitude(self.poses, b, W, n_par)
-            c = np.sum(self.up * hku, axis=1)
-            g = (self.up - c[:, None] * hku) / rk[:, None]  # d(u . h/|h|)/dh
-            Jd = np.zeros((len(dk), n_par))
-            Jd[:, :3] = -(g @ W)
-            Jd[:, 3:12] = self._dW(g, dk)
-            Jd[:, 12] = -1.0
-            pair = np.stack([rm - self.pose_shift, c - s], axis=1)  # (K, 2)
-            Jpair = np.stack([Jm, Jd], axis=1)  # (K, 2, p)
-            res.append(np.einsum("kij,kj->ki", self.white, pair).ravel())
-            jac.append((self.white @ Jpair).reshape(-1, n_par))
-        return np.concatenate(res), np.concatenate(jac)
-
-    def solve(self, x0, max_nfev):
-        cache = {}
-
-        def both(x):
-            key = x.tobytes()
-            if key not in cache:
-                cache.clear()
-                cache[key] = self.evaluate(x)
-            return cache[key]
-
-        return least_squares(
-            lambda x: both(x)[0], x0, jac=lambda x: both(x)[1], method="lm", x_scale="jac",
-            xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=max_nfev,
-        )  # fmt: skip
-
-
-def _magnitude_sigma(points, covs, b, W):
-    """Standard deviation of each point's eq.-(2) residual, normalised units."""
-    h = (points - b) @ W.T
-    r = np.linalg.norm(h, axis=1)
-    v = (h / r[:, None]) @ W
-    return np.sqrt(np.clip(np.einsum("ni,nij,nj->n", v, covs, v), 0, None))
-
-
-def _magnitude_shift(points, covs, b, W) -> np.ndarray:
-    """Mean of each point's eq.-(2) residual from its noise alone, to second order:
-    ``tr(P W Sigma W^T) / (2 |h|)`` with ``P`` the projection across ``h``."""
-    if covs is None:
-        return np.zeros(len(points))
-    h = (points - b) @ W.T
-    r = np.linalg.norm(h, axis=1)
-    hu = h / r[:, None]
-    C = W[None] @ covs @ W.T[None]  # (n, 3, 3) output covariance
-    across = np.trace(C, axis1=1, axis2=2) - np.einsum("ni,nij,nj->n", hu, C, hu)
-    return across / (2.0 * r)
-
-
-def _pose_pair_cov(poses, covs, up, up_cov, b, W):
-    """Covariance (K, 2, 2) of each pose's residual pair (eq. 2, eq. 3).
-
-    Covariance of the pair: the mean reading's noise through both gradients (correlated), plus
-    the accelerometer direction's noise on eq. (3).  ``covs`` None: unit variance, no
-    correlation (equal weighting).
-    """
-    K = len(poses)
-    if covs is None:
-        return np.broadcast_to(np.eye(2), (K, 2, 2)).copy()
-    h = (poses - b) @ W.T
-    r = np.linalg.norm(h, axis=1)
-    hu = h / r[:, None]
-    c = np.sum(up * hu, axis=1)
-    g = (up - c[:, None] * hu) / r[:, None]
-    G = np.stack([hu @ W, g @ W], axis=1)  # (K, 2, 3) gradients by the raw mean
-    C = G @ covs @ np.swapaxes(G, 1, 2)
-    if up_cov is not None:
-        q = hu - c[:, None] * up  # d(u . h/|h|)/du along the sphere of u
-        C[:, 1, 1] += np.einsum("ni,nij,nj->n", q, up_cov, q)
-    # floor: a pose whose readings never changed would get an infinite weight
-    scale = np.median(np.trace(C, axis1=1, axis2=2)) if K else 1.0
-    return C + 1e-6 * max(scale, 1e-300) * np.eye(2)
-
-
-def _whiten(C: np.ndarray) -> np.ndarray:
-    """``L^-1`` with ``C = L L^T``, per pose."""
-    return np.linalg.inv(np.linalg.cholesky(C))
-
-
-def _weights(sig: np.ndarray) -> np.ndarray:
-    # A reading whose noise is zero would get an infinite weight: floor each sigma at a
-    # thousandth of the median.
-    positive = sig[sig > 0]
-    floor = 1e-3 * np.median(positive) if len(positive) else 1.0
-    return 1.0 / np.maximum(sig, floor)
-
-
-# --------------------------------------------------------------------------------------------
 # The fit
 # --------------------------------------------------------------------------------------------
 
@@ -417,7 +259,7 @@ def fit_plain_ellipsoid(data: MagData, field: float = 1.0) -> MagResult:
     _check_points(points)
     c, P, kind = ellipsoid_start(points)
     n = len(points)
-    prob = _Problem(points, np.ones(n))
+    prob = Problem(points, np.ones(n))
     x = prob.pack(c, P)
     r, J = prob.evaluate(x)
     return _result(
@@ -497,8 +339,8 @@ def fit_magnetometer(
     # ---- magnitude only, symmetric gauge (eq. 2)
     w_mag = np.ones(len(points))
     if covs_n is not None:
-        w_mag = _weights(_magnitude_sigma(pts_n, covs_n, b0, W0))
-    prob = _Problem(pts_n, w_mag, shift=_magnitude_shift(pts_n, covs_n, b0, W0))
+        w_mag = noise_weights(magnitude_sigma(pts_n, covs_n, b0, W0))
+    prob = Problem(pts_n, w_mag, shift=magnitude_shift(pts_n, covs_n, b0, W0))
     sol = prob.solve(prob.pack(b0, W0), max_iterations)
     _check_converged(sol, max_iterations)
     b1, W1, _ = prob.unpack(sol.x)
@@ -509,8 +351,8 @@ def fit_magnetometer(
     if aligned:
         prob, sol = fit
     if not aligned and covs_n is not None:  # second pass, weights at the solution
-        w_mag = _weights(_magnitude_sigma(pts_n, covs_n, b1, W1))
-        prob = _Problem(pts_n, w_mag, shift=_magnitude_shift(pts_n, covs_n, b1, W1),
+        w_mag = noise_weights(magnitude_sigma(pts_n, covs_n, b1, W1))
+        prob = Problem(pts_n, w_mag, shift=magnitude_shift(pts_n, covs_n, b1, W1),
                         covs=covs_n)  # fmt: skip
         sol2 = prob.solve(sol.x, max_iterations)
         sol = sol2 if sol2.status > 0 else sol
@@ -573,7 +415,7 @@ def _aligned(data: MagData, pts_n, covs_n, rho, b1, W1, max_iterations, notes):
     return fit
 
 
-def _bias_step(prob: _Problem, x: np.ndarray, J: np.ndarray) -> np.ndarray:
+def _bias_step(prob: Problem, x: np.ndarray, J: np.ndarray) -> np.ndarray:
     """The step that takes out the second-order bias of eq. (2)'s estimating equation.
 
     At the truth ``E[sum w^2 J_i r_i] = sum w^2 cov(J_i, r_i)`` is not zero, because a
@@ -618,12 +460,12 @@ def _aligned_fit(pts_n, covs_n, poses_n, pose_covs_n, up, up_cov, b1, W1, max_it
     """Joint fit of eqs. (2) and (3): ``(problem, solution)``, or why it could not align."""
 
     def problem(b, W):
-        w = np.ones(len(pts_n)) if covs_n is None else _weights(
-            _magnitude_sigma(pts_n, covs_n, b, W))
-        C = _pose_pair_cov(poses_n, pose_covs_n, up, up_cov, b, W)
-        shifts = (_magnitude_shift(pts_n, covs_n, b, W),
-                  _magnitude_shift(poses_n, pose_covs_n, b, W))  # fmt: skip
-        return _Problem(pts_n, w, poses_n, up, _whiten(C), *shifts, covs=covs_n), C
+        w = np.ones(len(pts_n)) if covs_n is None else noise_weights(
+            magnitude_sigma(pts_n, covs_n, b, W))
+        C = pose_pair_cov(poses_n, pose_covs_n, up, up_cov, b, W)
+        shifts = (magnitude_shift(pts_n, covs_n, b, W),
+                  magnitude_shift(poses_n, pose_covs_n, b, W))  # fmt: skip
+        return Problem(pts_n, w, poses_n, up, whiten(C), *shifts, covs=covs_n), C
 
     h = (poses_n - b1) @ W1.T
     n_dir = h / np.linalg.norm(h, axis=1, keepdims=True)
@@ -672,7 +514,7 @@ def _result(prob, x, r, J, field, *, weighting, init, sol, data, notes, scale=No
         noise_scale = chi2 / dof if dof > 0 else float("nan")
     T = np.r_[np.full(3, rho), np.full(prob.n_w, field / rho), np.ones(n_par - 3 - prob.n_w)]
     cov = noise_scale * (T[:, None] * cov_n * T[None, :])
-    params = np.r_[bias, W_n.ravel() * field / rho if prob.aligned else _sym_params(matrix)]
+    params = np.r_[bias, W_n.ravel() * field / rho if prob.aligned else sym_params(matrix)]
     if prob.aligned:
         params = np.r_[params, s]
         names = list(PARAM_NAMES_ALIGNED)
@@ -772,14 +614,3 @@ def held_out_residuals(
             if len(pts):
                 out[idx] = np.linalg.norm(res.calibrate(pts), axis=1) - field
     return out
-
-
-def residual_sigmas(result: MagResult, data: MagData) -> np.ndarray:
-    """Standard deviation the noise alone gives each reading's eq.-(2) residual, output units.
-
-    Shape (N + K,) in the order of :attr:`MagData.points`; NaN without a noise model.
-    """
-    covs = data.point_covs()
-    if covs is None:
-        return np.full(len(data.points), np.nan)
-    return _magnitude_sigma(data.points, covs, result.bias, result.matrix)

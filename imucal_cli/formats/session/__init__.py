@@ -35,6 +35,8 @@ through :mod:`imucal_cli.formats.output`.
 
 Modules: :mod:`.model` (``Session``, ``Segment``, constants, attribute values), :mod:`.h5open`
 (opening a file for reading), :mod:`.superblock`, :mod:`.reader`, :mod:`.writer` (the samples),
+:mod:`.resume` (a capture's session continued), :mod:`.disk` (its room, a failed write),
+:mod:`.complete` (``write_session``),
 :mod:`.segments` (the segments and calibrations a writer keeps until it closes, and their log),
 :mod:`.store`, :mod:`.stream` (a session read block by block: ``open_samples``); several IMUs
 (issue 28): :mod:`.imu_stream` (``ImuStream``), :mod:`.imus` (reading ``/imus``, one IMU of a
@@ -64,6 +66,7 @@ from imucal_cli.model.session import (
     utc_now_iso,
 )
 
+from .complete import write_session
 from .h5open import check_session_file, open_for_reading
 from .imu_writer import ImuLayout
 from .imus import imu_session, map_segments, set_names
@@ -71,7 +74,7 @@ from .reader import read_session
 from .relabel import ROOT_LABELS, rewrite_labels
 from .store import store_calibration
 from .stream import SessionSamples, open_samples, samples_of
-from .writer import SessionWriter, write_session
+from .writer import SessionWriter
 
 __all__ = [
     "FORMAT",

@@ -1,5 +1,7 @@
 """Writing sessions: :class:`SessionWriter` records one while it is captured; :func:`write_session`
-writes a complete :class:`~.model.Session` in one go (through the writer).
+(in :mod:`.complete`) writes a complete :class:`~.model.Session` in one go (through the writer).
+Continuing a capture's session is :mod:`.resume`'s; the disk's room and a write that failed are
+:mod:`.disk`'s.
 
 Safety (issue 11): the file is created through :class:`~imucal_cli.formats.output.OutputFile`
 (a fresh temporary file in the target's folder, renamed into place: at once for a capture,
@@ -28,23 +30,18 @@ from imucal_cli.model.session import (
     FORMAT,
     FORMAT_VERSION,
     MAG_UNITS,
-    Session,
     as_float,
     io_reason,
     utc_now_iso,
 )
 
 from ..output import OutputFile
+from .disk import CHUNK_ROWS, WRITE_ERRORS, FailedWrites, Reserve, chunk_rows, free_bytes
 from .imu_writer import ImuDatasets, ImuLayout
-from .reader import read_session
-from .segments import SegmentLog, entry_of, segment_entry
+from .resume import Resumable
+from .segments import SegmentLog, segment_entry
 
-_CHUNK_ROWS = 1024  # samples per HDF5 chunk of the /raw datasets
-_MIN_CHUNK_ROWS = 64  # on a nearly full disk: a chunk takes no more space than it must
-_CHUNKS_IN_FREE_SPACE = 256  # chunks are at most this fraction of the free space
 _MAX_PENDING_ROWS = 65536  # the writer writes out earlier than its flush interval past this
-_WRITE_ERRORS = (OSError, RuntimeError)  # h5py raises RuntimeError for some ENOSPC failures
-
 
 def _check_options(
     src: str, channels: dict[str, Any], numbers: dict[str, Any], mag_units: str | None
@@ -77,7 +74,7 @@ def _root_attrs(created: str | None, **optional: Any) -> dict[str, Any]:
     return attrs
 
 
-class SessionWriter:
+class SessionWriter(Resumable, FailedWrites):
     """Write a session while it is recorded; a context manager.
 
     Samples are buffered and written to chunked, resizable ``/raw`` datasets, followed by an
@@ -193,7 +190,7 @@ class SessionWriter:
         self._nonfinite: dict[str, list[np.ndarray]] = {"accel": [], "gyro": []}
         self._file: h5py.File | None = None
         self._out = OutputFile(self.path, force=overwrite, inputs=inputs)
-        self._reserve = _Reserve(self.path, 0)
+        self._reserve = Reserve(self.path, 0)
         self._open(attrs, (temperature, host_time), publish_early, reserve_bytes)
         self._last_flush = _time.monotonic()
 
@@ -206,10 +203,10 @@ class SessionWriter:
             self._file.swmr_mode = True
             if publish_early:
                 self._out.publish()
-            self._reserve = _Reserve(self.path, reserve_bytes)
+            self._reserve = Reserve(self.path, reserve_bytes)
         except BaseException as exc:
             self._abandon()
-            if isinstance(exc, _WRITE_ERRORS):
+            if isinstance(exc, WRITE_ERRORS):
                 raise InputError(f"{self._src}: cannot write ({io_reason(exc)})") from None
             raise
 
@@ -239,7 +236,7 @@ class SessionWriter:
                 dtype="f8", fillvalue=np.nan, fletcher32=True,
             )  # fmt: skip
         file.create_group("segments")
-        self._log = SegmentLog(file, small=self.chunk_rows < _CHUNK_ROWS)
+        self._log = SegmentLog(file, small=self.chunk_rows < CHUNK_ROWS)
         layouts, reference = self._imu_layouts
         if layouts:  # several IMUs (issue 28): created before SWMR mode, like /raw
             self._imus = ImuDatasets(file, layouts, reference, self.chunk_rows, self._src)
@@ -269,64 +266,11 @@ class SessionWriter:
         if self._file is not None:
             try:
                 self._file.close()
-            except _WRITE_ERRORS:
+            except WRITE_ERRORS:
                 pass
             self._file = None
         self._out.discard()
         self._reserve.release()
-
-    # continuing a capture ------------------------------------------------------------------
-    @classmethod
-    def reopen(cls, path: str | os.PathLike, *, flush_interval_s: float = 1.0) -> SessionWriter:
-        """Continue a session a capture wrote (``imucal capture --resume``): samples and
-        segments are appended after those already there, as if the capture had not stopped.
-
-        The session is read and checked first (a capture killed before it wrote its segment
-        groups has them in its log).  Its segments are kept and written again, with the new ones,
-        at :meth:`close`; until then they are in the log, so a crash loses none.
-
-        Raises
-        ------
-        InputError
-            Not a session, or one with fixed-size datasets (not written by a capture).
-        """
-        session = read_session(path)
-        self = cls.__new__(cls)
-        self.path, self._src = Path(path), str(path)
-        try:
-            self._file = h5py.File(self.path, "r+", libver="latest")
-        except OSError as exc:
-            raise InputError(f"{path}: cannot open it to continue ({io_reason(exc)})") from None
-        try:
-            if session.imus:
-                raise InputError(f"{path}: a session of several IMUs cannot be continued")
-            self._reopen_datasets(len(session.time))
-            self._reopen_segments(session)
-            self._file.attrs["resumed"] = int(self._file.attrs.get("resumed", 0)) + 1
-            self._file.swmr_mode = True
-        except (OSError, InputError) as exc:
-            self._file.close()
-            if isinstance(exc, InputError):
-                raise
-            raise InputError(f"{path}: cannot continue it ({io_reason(exc)})") from None
-        self._flush_interval_s = float(flush_interval_s)
-        self._n_written, self._pending, self._n_pending = len(session.time), [], 0
-        self._last_time = float(session.time[-1]) if len(session.time) else None
-        self._last_written_time = self._last_time
-        host = session.host_time
-        self.resumed_host_time = float(host[-1]) if host is not None and len(host) else None
-        self._out = _InPlace(self.path)  # the file keeps its name: nothing to publish
-        self._reserve = _Reserve(self.path, 0)
-        self._nonfinite = {
-            name: [np.flatnonzero(~np.isfinite(data).all(axis=1))] if data is not None else []
-            for name, data in (("accel", session.accel), ("gyro", session.gyro))
-        }
-        self._last_flush = _time.monotonic()
-        self.flush()
-        return self
-
-    resumed_host_time: float | None = None
-    """A reopened session's last ``/raw/host_time``, s (None: new, or not recorded)."""
 
     _imus: ImuDatasets | None = None
     """The other IMUs of a set (``/imus``), None for one IMU."""
@@ -350,35 +294,6 @@ class SessionWriter:
     def last_time(self) -> float | None:
         """Time of the last sample appended (or already in a reopened session), s."""
         return self._last_time
-
-    def _reopen_datasets(self, n: int) -> None:
-        """The /raw datasets of a reopened file, cut to the ``n`` samples it holds whole."""
-        raw = self._file["raw"]
-        self._datasets = {}
-        for name in ("accel", "gyro", "mag", "temperature", "host_time", "time"):  # time last
-            ds = raw.get(name)
-            if ds is None:
-                continue
-            if ds.maxshape[0] is not None:
-                raise InputError(
-                    f"{self._src}: /raw/{name} has a fixed size (the session was not written by "
-                    "imucal capture): it cannot be continued"
-                )
-            if ds.shape[0] != n:  # a killed writer may have written data beyond the last time
-                ds.resize(n, axis=0)
-            self._datasets[name] = ds
-        self._widths = {name: self._datasets[name].shape[1] if name in self._datasets else None
-                        for name in ("accel", "gyro", "mag")}  # fmt: skip
-        self.chunk_rows = int(self._datasets["time"].chunks[0])
-
-    def _reopen_segments(self, session: Session) -> None:
-        """Keep the session's segments: in memory and, until :meth:`close`, in the log."""
-        group = self._file.require_group("segments")
-        for name in list(group):
-            del group[name]
-        self._log = SegmentLog(self._file, [entry_of(seg, f"{i:04d}")
-                                            for i, seg in enumerate(session.segments)],
-                               small=self.chunk_rows < _CHUNK_ROWS)  # fmt: skip
 
     # context manager ---------------------------------------------------------------------
     def __enter__(self) -> SessionWriter:
@@ -540,7 +455,7 @@ class SessionWriter:
                 self._imus.write()
             self._log.flush()
             file.flush()
-        except _WRITE_ERRORS as exc:
+        except WRITE_ERRORS as exc:
             self._roll_back(log_rows)
             raise self._write_failed(exc, self._n_pending) from None
         if self._pending:
@@ -553,43 +468,6 @@ class SessionWriter:
         self._log.flushed()
         self._last_flush = _time.monotonic()
 
-    def _roll_back(self, log_rows: int) -> None:
-        """After a failed write, shrink ``/raw`` and the log back to what was written.  HDF5
-        keeps a chunk it could not allocate (a full disk) as if it were written: rows written
-        into it again on a retry were lost when the file closed (read back as the NaN fill
-        value).  Shrinking drops that chunk, so the retry writes fresh ones."""
-        for dataset in self._datasets.values():
-            try:
-                dataset.resize(self._n_written, axis=0)
-            except _WRITE_ERRORS:
-                pass
-        self._log.roll_back(log_rows)
-        if self._imus is not None:
-            self._imus.roll_back()
-
-    def release_reserve(self) -> bool:
-        """Free the disk space set aside at the start; return whether there was any."""
-        return self._reserve.release()
-
-    def drop_pending(self) -> int:
-        """Write what still fits of the samples not written, chunk by chunk, then give up the
-        rest: shrink ``/raw`` back to what was written and drop segments that reach past it.
-        Returns the number of samples given up."""
-        self._salvage()
-        if self._imus is not None:
-            self._imus.drop_pending()
-        dropped = self._n_pending
-        self._pending, self._n_pending = [], 0
-        for dataset in self._datasets.values():
-            try:
-                dataset.resize(self._n_written, axis=0)
-            except _WRITE_ERRORS:
-                pass
-        self._last_time = self._last_written_time
-        kept = self._n_written
-        self._log.drop_beyond(kept)
-        return dropped
-
     def truncate(self, n: int) -> None:
         """Forget every sample from the ``n``-th on, written or not, and the segments that
         reach past it (a capture whose samples turned out unusable: its own are dropped, a
@@ -599,7 +477,7 @@ class SessionWriter:
         for dataset in self._datasets.values():
             try:
                 dataset.resize(n, axis=0)
-            except _WRITE_ERRORS:
+            except WRITE_ERRORS:
                 pass
         self._n_written = n
         self._last_time = float(self._datasets["time"][n - 1]) if n else None
@@ -610,26 +488,6 @@ class SessionWriter:
         if self._imus is not None:
             self._imus.truncate_after(self._last_time)
 
-    def _salvage(self) -> None:
-        if not self._pending:
-            return
-        rows = {name: np.concatenate([b[name] for b in self._pending]) for name in self._datasets}
-        done = 0
-        for start in range(0, self._n_pending, self.chunk_rows):
-            stop = min(start + self.chunk_rows, self._n_pending)
-            part = {name: rows[name][start:stop] for name in rows}
-            self._pending, n_before = [part], self._n_pending
-            self._n_pending = stop - start
-            try:
-                self.flush()
-            except WriteFailed:
-                self._n_pending = n_before - done
-                break
-            done = stop
-            self._n_pending = n_before - done
-        self._pending = [{name: rows[name][done:] for name in rows}] if self._n_pending else []
-
-    # segments ------------------------------------------------------------------------------
     def add_segment(
         self,
         kind: str,
@@ -722,13 +580,13 @@ class SessionWriter:
                 failed = WriteFailed(str(exc), self.drop_pending(), exc.reason)
         try:
             self._file.close()
-        except _WRITE_ERRORS as exc:
+        except WRITE_ERRORS as exc:
             failed = failed or self._write_failed(exc, 0, "close")
         finally:
             self._file = None
         try:
             self._write_segment_groups(attrs or {})
-        except _WRITE_ERRORS as exc:  # the log stays; readers use it
+        except WRITE_ERRORS as exc:  # the log stays; readers use it
             failed = failed or self._write_failed(exc, 0, "write the segments")
         self._reserve.release()
         self._out.commit()
@@ -747,148 +605,3 @@ class SessionWriter:
             ``json_text`` is not JSON, or ``name`` is taken or not a valid name.
         """
         self._log.add_calibration(self._src, name, json_text)
-
-
-def free_bytes(path: Path) -> int | None:
-    """Bytes an unprivileged writer may still use on the file system of ``path`` (its folder),
-    or None when the system does not say."""
-    try:
-        st = os.statvfs(Path(path).parent)
-    except (OSError, AttributeError):
-        return None
-    return st.f_bavail * st.f_frsize
-
-
-def chunk_rows(free: int | None, row_bytes: int) -> int:
-    """Rows per chunk of the ``/raw`` datasets: :data:`_CHUNK_ROWS`, or fewer (a power of two,
-    at least :data:`_MIN_CHUNK_ROWS`) where a chunk of every dataset would take more than
-    1/:data:`_CHUNKS_IN_FREE_SPACE` of the free space: HDF5 allocates a chunk whole, so on a
-    nearly full disk a large one would fail where the samples themselves still fit."""
-    if free is None:
-        return _CHUNK_ROWS
-    rows = _CHUNK_ROWS
-    while rows > _MIN_CHUNK_ROWS and rows * row_bytes * _CHUNKS_IN_FREE_SPACE > free:
-        rows //= 2
-    return rows
-
-
-class _InPlace:
-    """The output of a reopened session (``SessionWriter.reopen``): the file is updated where it
-    is, so there is no temporary file to publish, commit or discard."""
-
-    published = True
-
-    def __init__(self, path: Path) -> None:
-        self.tmp = path
-
-    def commit(self) -> None:
-        pass
-
-    def discard(self) -> None:
-        pass
-
-
-class _Reserve:
-    """Disk space held in a hidden file next to the session, freed when a write fails."""
-
-    def __init__(self, path: Path, nbytes: int) -> None:
-        self._path: Path | None = None
-        try:
-            st = os.statvfs(path.parent)
-            nbytes = min(nbytes, st.f_bavail * st.f_frsize // 16)  # a little of what is left
-        except OSError:
-            pass
-        if nbytes <= 0:
-            return
-        reserve = path.with_name(f".{path.name}.{os.getpid()}.reserve.tmp")
-        try:
-            fd = os.open(reserve, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
-        except OSError:
-            return
-        self._path = reserve
-        try:
-            os.posix_fallocate(fd, 0, nbytes)
-        except (OSError, AttributeError):
-            try:
-                os.write(fd, bytes(nbytes))
-            except OSError:
-                pass
-        finally:
-            os.close(fd)
-
-    def release(self) -> bool:
-        if self._path is None:
-            return False
-        try:
-            os.unlink(self._path)
-        except OSError:
-            pass
-        self._path = None
-        return True
-
-
-def write_session(
-    path: str | os.PathLike, session: Session, *, overwrite: bool = False, inputs=()
-) -> None:
-    """Write a complete session file, including ``session.calibrations``.
-
-    The file appears at ``path`` only when complete (see :mod:`imucal_cli.formats.output`).
-
-    Parameters
-    ----------
-    path : str or path-like
-        The file to create.
-    session : Session
-        What to write.  Segments are written in order of ``start`` and renamed
-        ``0000``, ``0001``, ...; ``up``/``axis`` are stored scaled to unit length.
-    overwrite : bool
-        Replace an existing file instead of refusing.
-    inputs : iterable of path-like
-        Files never to replace (the command's inputs).
-
-    Raises
-    ------
-    InputError
-        The file exists or cannot be written, or the session breaks the format (SessionError).
-    """
-    accel, gyro, mag = session.accel, session.gyro, session.mag
-    writer = SessionWriter(
-        path,
-        created=session.created,
-        sensor=session.sensor,
-        source=session.source,
-        sample_rate_hz=session.sample_rate_hz,
-        gravity=session.gravity,
-        accel_units=session.accel_units,
-        gyro_units=session.gyro_units,
-        accel_channels=None if accel is None else np.shape(accel)[1],
-        gyro_channels=None if gyro is None else np.shape(gyro)[1],
-        mag_channels=None if mag is None else np.shape(mag)[1],
-        mag_units=session.mag_units,
-        magnetic_field_uT=session.magnetic_field_uT,
-        temperature=session.temperature is not None,
-        host_time=session.host_time is not None,
-        overwrite=overwrite,
-        inputs=inputs,
-        imus={name: ImuLayout.of(imu) for name, imu in session.imus.items()},
-        reference_name=session.reference_name,
-    )
-    with writer:
-        writer.append(session.time, accel, gyro, session.temperature, mag,
-                      host_time=session.host_time)  # fmt: skip
-        for name, imu in session.imus.items():  # several IMUs (issue 28)
-            writer.append_imu(name, imu.time, accel=imu.accel, gyro=imu.gyro, mag=imu.mag,
-                              temperature=imu.temperature)  # fmt: skip
-        for segment in sorted(session.segments, key=lambda s: s.start):
-            writer.add_segment(
-                segment.kind,
-                segment.start,
-                segment.stop,
-                label=segment.label,
-                up=segment.up,
-                axis=segment.axis,
-                angle_deg=segment.angle_deg,
-                extra=segment.extra,
-            )
-        for name, text in session.calibrations.items():
-            writer.add_calibration(name, text)

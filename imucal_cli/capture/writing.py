@@ -1,0 +1,128 @@
+"""The recorder's writes to its session (:mod:`.recorder`): a block appended (a continued
+session's time stamps shifted after its own; the disk's room checked first, against
+:func:`~imucal_cli.capture.checks.headroom`), a flush, and a write that failed (the reserve
+freed, the samples that cannot be written given up and counted): each returns why the capture
+ends, or None.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from imucal_cli.capture.checks import CaptureEnded
+from imucal_cli.errors import WriteFailed
+from imucal_cli.formats.columns import SampleBlock
+
+
+class SessionWrites:
+    """:class:`~.recorder.Recorder`'s part that writes: its ``_writer``, ``samples_lost``,
+    the resume offsets and the disk's room are the recorder's."""
+
+    def _append(self, block: SampleBlock) -> CaptureEnded | None:
+        """Append a block; returns why the capture ends (the disk full, or nearly) or None.
+        The free space is checked before each block: a block that still fits is appended
+        and written when the capture ends."""
+        if self._writer is None:
+            self._open_writer(block)
+        nearly_full, short = None, self._room_problem(len(block))
+        if short is not None:
+            nearly_full, fits = short
+            if fits < len(block):  # no room for all of them: the first are kept
+                self.samples_lost += len(block) - fits
+                nearly_full.reason = nearly_full.reason.replace(
+                    "every sample received is written",
+                    f"{self.samples_lost} received samples could not be written (no room)")
+                block = block.take(np.arange(len(block)) < fits)
+                if not fits:
+                    return nearly_full
+        time, host = block.time, block.host_time
+        if not self._writer.records_host_time:
+            host = None  # a resumed session recorded without host arrival times
+        if self.resumed_from:
+            gap = max(self._resume_gap_s, 1e-3)
+            if self._time_offset is None:
+                # The device's clock restarts: the new samples follow the old ones after the
+                # time the capture was stopped (the file's last flush), on the old time axis.
+                self._time_offset = self._writer.last_time + gap - float(time[0])
+            time = time + self._time_offset
+            if host is not None and self._writer.resumed_host_time is not None:
+                if self._host_offset is None:  # the host clock too: after the same gap
+                    self._host_offset = self._writer.resumed_host_time + gap - float(host[0])
+                host = host + self._host_offset
+        try:
+            self._writer.append(time, block.accel, block.gyro, block.temperature, block.mag,
+                                host_time=host)  # fmt: skip
+            for name, other in getattr(block, "others", {}).items():  # several IMUs (issue 28)
+                if len(other):
+                    self._writer.append_imu(name, other.time, accel=other.accel,
+                                            gyro=other.gyro, mag=other.mag,
+                                            temperature=other.temperature)  # fmt: skip
+        except WriteFailed as exc:
+            return self._write_failed(exc)
+        if self._device_first is None:
+            self._device_first = float(block.time[0])
+            self._device_at_segment = self._device_first
+        self._device_last = float(block.time[-1])
+        return nearly_full
+
+    def _flush(self) -> CaptureEnded | None:
+        try:
+            self._writer.flush()
+        except WriteFailed as exc:
+            return self._write_failed(exc)
+        return None
+
+    def _room_problem(self, arriving: int) -> tuple[CaptureEnded, int] | None:
+        """Whether to end the capture now, while the disk still holds the ``arriving``
+        samples, those not written yet, and what closing needs (the module notes): why, and
+        how many of the ``arriving`` still fit."""
+        writer = self._writer
+        since = 0.0
+        if self._device_last is not None and self._device_at_segment is not None:
+            since = self._device_last - self._device_at_segment
+        short = self._room.short(writer.room(), written=writer.n_written,
+                                 pending=writer.n_samples - writer.n_written, arriving=arriving,
+                                 device_rate_hz=self.rate_hz, chunk_rows=writer.chunk_rows,
+                                 chunk_bytes=writer.chunk_bytes,
+                                 since_segment_s=since)  # fmt: skip
+        if short is None:
+            return None
+        room, fits = short
+        writer.release_reserve()
+        ended = CaptureEnded(
+            "disk-full",
+            f"the disk is nearly full ({room // 1024} KiB left where {self.path.name} is): "
+            "stopped in time, every sample received is written",
+        )
+        return ended, fits
+
+    def _write_failed(self, exc: WriteFailed) -> CaptureEnded:
+        """Free the reserve and try once more; else give up the samples not written."""
+        writer = self._writer
+        writer.release_reserve()
+        try:
+            writer.flush()
+        except WriteFailed:
+            self.samples_lost += writer.drop_pending()
+        lost = (
+            f"{self.samples_lost} received samples could not be written"
+            if self.samples_lost
+            else "every sample received was written"
+        )
+        return CaptureEnded(
+            "disk-full",
+            f"cannot write ({exc.reason}): stopped; {lost}, the session holds {writer.n_written}",
+        )
+
+    def _close_failed(self, exc: WriteFailed) -> None:
+        was_full = self.end_kind == "disk-full"
+        self.samples_lost += exc.pending
+        self.end_kind = "disk-full"
+        more = f", {exc.pending} more samples not written" if exc.pending else ""
+        if was_full:
+            self.end_reason += f"; closing: cannot write ({exc.reason}){more}"
+        else:
+            self.end_reason = (
+                f"cannot write ({exc.reason}) when closing: {exc.pending} samples could not be "
+                f"written, the session holds {self._writer.n_written}"
+            )
