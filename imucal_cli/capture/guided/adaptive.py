@@ -145,10 +145,11 @@ class AdaptiveState(GuidedState):
         self.factors: dict[tuple[str, str], float] = {}
         self.met = False
         self.checking = False  # targets met on a refit without the last steps: refit them
+        self.version = 0  # of the steps taken: a take or a redo changes it
         self.fresh = False
         self.pool: ThreadPoolExecutor | None = None
         self.pending: Future | None = None
-        self.queued: Session | None = None
+        self.queued: tuple[Session, int] | None = None  # the session and its version
         self.refits = 0
         self.refit_s = 0.0
         self.first_time: float | None = None
@@ -255,8 +256,15 @@ class AdaptiveState(GuidedState):
 
     def take(self, t: Taken) -> None:
         super().take(t)
+        self.version += 1
         self.fresh = True
         self.skipped_here.clear()
+
+    def redo(self) -> None:
+        n = len(self.taken)
+        super().redo()
+        if len(self.taken) < n:  # a step removed: refits of the session with it are stale
+            self.version += 1
 
     # ------------------------------------------------------------------------ after a step
     def after_step(self) -> None:
@@ -264,7 +272,10 @@ class AdaptiveState(GuidedState):
             self.fresh = False
             self.request_refit()
         self.hold_plan = None
-        if self.met or self.checking:
+        if self.met:
+            return
+        if self.checking and self.current() is None:  # no proposal, no end while checking
+            self.next_step()
             return
         if self.current() is None and (self.a.propose or self.given_plan is None):
             self.add_proposal()
@@ -285,7 +296,7 @@ class AdaptiveState(GuidedState):
         session = session_so_far(self.hist, self.taken, self.steps,
                                  accel_units=self.o.accel_units, gyro_units=self.o.gyro_units,
                                  gravity=self.a.gravity)  # fmt: skip
-        job = (session, len(self.taken))
+        job = (session, self.version)
         if self.pending is not None:
             self.queued = job  # the newest waits; an older one waiting is dropped
             return
@@ -293,66 +304,75 @@ class AdaptiveState(GuidedState):
             self.pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="imucal-refit")
         self.pending = self.pool.submit(self._timed_refit, *job)
 
-    def _timed_refit(self, session: Session, n_taken: int) -> tuple[Refit, float, float, int]:
+    def _timed_refit(self, session: Session, version: int) -> tuple[Refit, float, float, int]:
         started = _time.perf_counter()
         result = self.a.refit(session)
-        return result, _time.perf_counter() - started, float(session.time[-1]), n_taken
+        return result, _time.perf_counter() - started, float(session.time[-1]), version
 
     def poll_refit(self, wait: bool = False) -> None:
         """Take a finished refit's result (``wait``: every refit asked for)."""
         while self.pending is not None and (wait or self.pending.done()):
-            result, took, last, n_taken = self.pending.result()
+            result, took, last, version = self.pending.result()
             self.pending = None
             if self.queued is not None:
                 job, self.queued = self.queued, None
                 self.pending = self.pool.submit(self._timed_refit, *job)
             self.refit_s += took
             self.refits += 1
-            self.apply_refit(result, last, n_taken)
+            self.apply_refit(result, last, version)
 
-    def apply_refit(self, result: Refit, last: float, n_taken: int | None = None) -> None:
+    def apply_refit(self, result: Refit, last: float, version: int | None = None) -> None:
         """Tell each target's std against it; "done" when every one is met on a refit of
-        every step taken (``n_taken``: the steps the refitted session holds). Targets met
-        on a refit without the steps taken since (the person goes on while it runs) are
-        checked first: the session saved, every step in it, is the one that must meet them
-        (no new proposal meanwhile; if they are not met, the guide goes on)."""
+        the steps as they are now (``version``: of the steps the refitted session holds;
+        None: as now). Targets met on a refit of other steps (the person goes on while a refit
+        runs, or redid a step) are checked first: the session saved, every step in it, is
+        the one that must meet them (no new proposal meanwhile; if it misses one, the guide
+        goes on)."""
         if self.met:
             return
         self.refit_result = result
         self.statuses = measure(result.calibration, self.a.targets, result.notes)
         met = all(s.met for s in self.statuses)
         self._update_factors()
-        behind = n_taken is not None and n_taken < len(self.taken)
-        if met and behind:
+        stale = version is not None and version != self.version
+        if met and stale:
             if not self.checking:
-                self.say(f"every target met on the first {n_taken} steps; checking with the "
-                         f"{len(self.taken) - n_taken} since (hold still)", "dim")
+                self.say("every target met without the last steps; refitting with them", "dim")
             self.checking = True
-            if self.pending is None and self.queued is None:
-                self.request_refit()
+            self._refit_now()
             return
         self.met = met
-        if self.met:
-            self.done_time = last
-            took = "" if self.first_time is None else \
-                f" after {self.done_time - self.first_time:.1f} s"  # fmt: skip
-            self.say(f"done: every target met{took} (std/target: {brief(self.statuses)})",
-                     "bold green")
-            if self.end_reason is None:
-                self.holding = False
-                self.serial += 1
-                self.end_reason = "every target met"
+        if met:
+            self._done(last)
             return
         self.say(f"std/target now: {brief(self.statuses)}", "dim")
         if not self.checking:
             return
-        if behind:  # the steps since are refitted next
-            if self.pending is None and self.queued is None:
-                self.request_refit()
+        if stale:  # the steps as they are now are refitted next
+            self._refit_now()
             return
         self.checking = False  # the check failed: the guide goes on
-        if self.current() is None and (self.a.propose or self.given_plan is None):
-            self.add_proposal()
+        if self.end_reason is None and self.current() is None:
+            if self.a.propose or self.given_plan is None:
+                self.add_proposal()
+            else:  # a fixed plan's steps all taken: it ends as without targets
+                GuidedState.after_step(self)
+
+    def _refit_now(self) -> None:
+        """A refit of the steps as they are now, unless one is running or waiting."""
+        if self.pending is None and self.queued is None:
+            self.request_refit()
+
+    def _done(self, last: float) -> None:
+        self.done_time = last
+        took = "" if self.first_time is None else \
+            f" after {self.done_time - self.first_time:.1f} s"  # fmt: skip
+        self.say(f"done: every target met{took} (std/target: {brief(self.statuses)})",
+                 "bold green")
+        if self.end_reason is None:
+            self.holding = False
+            self.serial += 1
+            self.end_reason = "every target met"
 
     def on_block(self, block) -> None:
         if self.first_time is None and len(block):

@@ -413,10 +413,7 @@ class GuidedState:
         self.serial += 1
 
     def after_step(self) -> None:
-        self.holding = False
-        self.rot_phase = "pre"
-        self.pre_run = None
-        self.serial += 1
+        self.next_step()
         if self.current() is None:
             if self.mag is not None and not self.mag.done:
                 self.mag_pending = True
@@ -427,6 +424,13 @@ class GuidedState:
                 )
                 return
             self.end_reason = "every step of the plan done or skipped" + self.mag_done_text()
+
+    def next_step(self) -> None:
+        """A step was taken: the hold and the turn's tracking start again."""
+        self.holding = False
+        self.rot_phase = "pre"
+        self.pre_run = None
+        self.serial += 1
 
     # ------------------------------------------------------------------------ segments
     def take(self, t: Taken) -> None:
