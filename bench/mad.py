@@ -354,7 +354,9 @@ def _loo_table(console, r: dict) -> bool:
                   f"{rms(sw[:, 0]):.4f}; {rms(sw[:, 1]):.4f}", "-")  # fmt: skip
     if r.get("frame") is not None:
         worst, frame, within = r["frame"]
-        std = "" if r.get("frame_std") is None else f" (our frame's std {r['frame_std']:.2g})"
+        fs = r.get("frame_std")  # per axis; a 3-D rotation of that std is sqrt(3) as large
+        std = "" if fs is None else (f" (our frame's std {fs:.2g} per axis, "
+                                     f"{fs * 3**0.5:.2g} in 3-D)")  # fmt: skip
         t.add_row("accelerometers' gravity at the still periods: largest angle apart; the "
                   "frame between them; apart within it, deg",
                   f"{worst:.3f}; {frame:.3f}{std}; {within:.3f}", "-")  # fmt: skip
