@@ -67,7 +67,7 @@ def test_the_labelled_table_says_how_many_transitions_each_predicts_better():
     ok = _loo_table(console, r)
     text = console.export_text()
     assert "7 of 12" in text and "5 of 12" in text
-    assert "0.068 (our frame's std 0.12 per axis, 0.21 in 3-D)" in text
+    assert "0.068 (our frame's std 0.12 per axis, 0.2 in 3-D)" in text
     rms = np.sqrt(np.mean(ours**2)), np.sqrt(np.mean(theirs**2))
     assert f"{rms[0]:.4f}; {rms[1]:.4f}" in text
     assert ok == (rms[0] <= rms[1])
