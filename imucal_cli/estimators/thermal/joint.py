@@ -14,7 +14,10 @@ every temperature the poses visit.
 The minimised quantity is eq. (11)'s, ``(|h_k|^2 - g^2) / (2 g)`` in m/s^2, weighted by each
 pose mean's noise (as :mod:`imucal_cli.estimators.accel.gravity` does), by Levenberg-Marquardt with
 the analytic Jacobian: the temperature columns are the bias columns times ``(T_k -
-T_ref)^j``. Each channel's degree (at most 3) is chosen by backward elimination: the least
+T_ref)^j``. The elimination starts from the highest degree the distinct poses determine (more
+poses than parameters: points of one pose, blocks of a long still period, differ by a fraction
+of a degree and count once, ``groups``); :attr:`JointResult.design_degree` says which. Each
+channel's degree (at most 3) is then chosen by backward elimination: the least
 significant top term of any channel is dropped while the F-test of its drop in chi^2 is not
 significant (:data:`imucal_cli.estimators.thermal.temperature.SELECT_P`) and dropping it
 narrows no kept parameter by more than
