@@ -13,11 +13,15 @@ Two designs, each part a seed of the simulator (its biases a cubic in temperatur
 
 Per design, sensor and term (``b``: the bias at the section's ``temperature_ref``; ``tcK``:
 ``bias_tempco``'s degree-K coefficients, the truth's re-expanded about that reference), over the
-three axes: how many intervals were stated, the fraction of ``value +- 1.96 std`` that hold the
-truth with its 95 % (Wilson) interval, the three axes of one part counting as fewer
-independent intervals by the seeds' design effect (:func:`bench.live_table.design_effect`),
-and the RMS of ``error / std``. A term the model left out states no interval. Verdict per
-term: the coverage's interval reaches into 93-97 % (100 parts cannot tell 92.7 % from 93 %).
+three axes (``matrix``: the ramp design's accelerometer ``k_*`` rows of its gravity-magnitude
+model, in the solver's gauge, and the gyro's ``m_*`` rows, the truth's in the calibrated
+accelerometer's frame, as ``bench live`` grades them: a temperature model whose error no std
+states moves the compensated poses both solvers read), how many intervals were stated, the
+fraction of ``value +- 1.96 std`` that hold the truth with its 95 % (Wilson) interval, the
+three axes of one part counting as fewer independent intervals by the seeds' design effect
+(:func:`bench.live_table.design_effect`), and the RMS of ``error / std``. A term the model left
+out states no interval. Verdict per term: the coverage's interval reaches into 93-97 % (100
+parts cannot tell 92.7 % from 93 %).
 """
 
 from __future__ import annotations
@@ -32,8 +36,10 @@ from rich.console import Console
 from rich.table import Table
 
 from bench import live
+from bench.live_grade import _gauge, _params, _truth_in_accel_frame
 from bench.live_table import design_effect, wilson
 from imucal_cli.calibrate.session import calibrate_session
+from imucal_cli.estimators.accel.gravity import model_to_params
 from imucal_cli.estimators.thermal.temperature import reexpand
 from imucal_cli.formats.config import Config
 from imucal_cli.simulate.play import simulate_plan
@@ -82,6 +88,27 @@ def _section(sec, true, design: str, name: str, seed: int) -> list[Interval]:
     return out
 
 
+def _matrices(cal, truth, seed: int) -> list[Interval]:
+    """The ramp design's matrix intervals: the accelerometer's ``k_*`` (gravity-magnitude
+    model, M upper triangular: the truth in that gauge) and the gyro's ``m_*`` (the truth
+    rotated into the calibrated accelerometer's frame)."""
+    out = []
+    if cal.accel is not None:
+        names, value, std, _ = _params(cal.accel)
+        if names[3:9] == ["k_x", "k_y", "k_z", "k_xy", "k_xz", "k_yz"]:
+            x_true = model_to_params(truth.accel.bias, _gauge(truth.accel.matrix)[0])
+            out += [Interval("ramp", "accel", "matrix", names[i], seed,
+                             (value[i] - x_true[i]) / std[i]) for i in range(3, 9)]  # fmt: skip
+    if cal.gyro is not None:
+        names, value, std, _ = _params(cal.gyro)
+        if names[3:12] == [f"m_{a}{c}" for a in "xyz" for c in "xyz"]:
+            m_true = (_truth_in_accel_frame(cal, truth) @ truth.gyro.matrix).ravel()
+            z = (value[3:12] - m_true) / std[3:12]
+            out += [Interval("ramp", "gyro", "matrix", names[3 + i], seed, float(z[i]))
+                    for i in range(9)]  # fmt: skip
+    return out
+
+
 def intervals(seed: int, designs: tuple[str, ...] = DESIGNS) -> list[Interval]:
     """Every temperature-model interval of one part (seed) in ``designs``."""
     out: list[Interval] = []
@@ -97,6 +124,7 @@ def intervals(seed: int, designs: tuple[str, ...] = DESIGNS) -> list[Interval]:
             cal = calibrate_session(session, Config())
             for name in ("accel", "gyro"):
                 out += _section(getattr(cal, name), getattr(truth, name), "ramp", name, seed)
+            out += _matrices(cal, truth, seed)
     return out
 
 

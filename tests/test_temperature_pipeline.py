@@ -36,19 +36,21 @@ def test_joint_model_by_default_when_the_session_spans_10_c(ramp_cal):
     assert acc.temperature_terms is not None
     model = acc.temperature_model
     assert "gravity-magnitude" in model.source
-    # each 2-s pose gives two blocks (JOINT_BLOCKS): 36 points determine the cubic's 18
-    # parameters, and over 5-40 C it is aliased with the linear term: kept
-    assert list(model.degree) == [3, 3, 3] and model.points == 36
+    # one block per 2-s pose: 18 poses cannot determine the cubic's 18 parameters with a
+    # residual to check them, so the quadratic is the design's limit, and the notes say so
+    assert list(model.degree) == [2, 2, 2] and model.points == 18
+    assert any("determine at most degree 2 (of 3)" in n for n in acc.notes), acc.notes
     assert np.array(model.bias_tempco_std).shape == np.array(acc.bias_tempco).shape
     lo, hi = acc.temperature_range_c
     assert lo < 7 and hi > 38
-    # the change over the span within 3 of its stated std (bounded by the terms' std: the
-    # section keeps no covariance between them), a std well under the change itself
+    # the change over the span: a quadratic cannot hold the part's cubic, and its std does not
+    # say how far it is off (the notes say so): within 20 % of the truth's (10.6 counts of
+    # 101 on y here, 6 of its std); a std well under the change itself
+    np.testing.assert_allclose(_change(acc, lo, hi), _change(truth.accel, lo, hi), rtol=0.2,
+                               atol=5.0)  # fmt: skip
     k = np.arange(1, len(acc.bias_tempco) + 1)
     reach = np.abs((hi - acc.temperature_ref) ** k - (lo - acc.temperature_ref) ** k)
     std = reach @ np.array(model.bias_tempco_std)
-    err = _change(acc, lo, hi) - _change(truth.accel, lo, hi)
-    assert np.all(np.abs(err) <= 3.0 * std + 1.0), (err, std)
     assert np.all(std < 0.5 * np.abs(_change(truth.accel, lo, hi)).max()), std
     # the bias at the reference is the truth's there (a few counts: the noise of 18 poses)
     t_ref = acc.temperature_ref
@@ -199,6 +201,56 @@ def test_temperature_intervals_hold_the_truth_through_a_ramp():
     assert np.mean(gyro) >= 0.78, np.mean(gyro)
 
 
+def _ramp_points(blocks_per_pose):
+    from imucal_cli.calibrate.thermal import BLOCK_S, _points
+    from imucal_cli.simulate.play import simulate_plan
+    from imucal_cli.simulate.temperature import parse_ramp
+
+    session, _ = simulate_plan("qureshi18", seed=1, temperature=parse_ramp("10:40"))
+    return _points(session, "accel", BLOCK_S, blocks_per_pose)
+
+
+def test_joint_fit_counts_poses_not_blocks():
+    """Blocks of one pose differ by a fraction of a degree (a median 0.33 C of a 28 C ramp):
+    a term only they would fix is not fitted.  Two blocks per qureshi18 pose (36 points)
+    determine a cubic (18 parameters) only as points; counted as 18 poses, the quadratic is
+    the limit, as with one block each."""
+    from imucal_cli.estimators.accel.gravity import fit_gravity
+    from imucal_cli.estimators.thermal.joint import fit_gravity_tempco
+
+    for per, groups, top in ((1, False, 2), (2, True, 2), (2, False, 3)):
+        values, temps, sigma, poses = _ramp_points(per)
+        start = fit_gravity(values, 9.80665)
+        fit = fit_gravity_tempco(values, temps, 9.80665, (start.bias, start.M),
+                                 cov_mean=np.array([np.diag(s**2) for s in sigma]),
+                                 groups=poses if groups else None)  # fmt: skip
+        assert len(temps) == 18 * per and fit.design_degree == top, (per, groups, fit)
+        assert max(fit.degree) <= top
+
+
+def test_ramp_session_s_gyro_holds_its_std_without_a_false_turn_warning():
+    """The ``ramp-qureshi18`` case (``tests/calibration_cases.py``, seed 1): with a cubic fixed
+    by within-pose blocks, its temperature error moved the compensated poses the gyro reads
+    and no std stated it: a false warning (a turn 0.75 deg off where the noise predicts 0.05),
+    turn RMS 0.155 deg, gyro matrix errors to 6 std over seeds 0-11.  Now no warning, the
+    turns at their noise (0.043 deg; the noise's 0.05 bound), and every matrix term (the
+    accelerometer's, whose std includes the temperature terms' uncertainty, and the gyro's)
+    within 3 of its std (9 + 6 intervals: 4 % chance of one beyond 3 std if honest; the
+    seed's largest is 2.4)."""
+    from bench.temperature_coverage import _matrices
+    from imucal_cli.simulate.play import simulate_plan
+    from imucal_cli.simulate.temperature import parse_ramp
+
+    session, truth = simulate_plan("qureshi18", seed=1, temperature=parse_ramp("10:40"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        cal = calibrate_session(session, Config())
+    assert not cal.gyro.warnings, cal.gyro.warnings
+    assert cal.gyro.rotation_rms_deg < 0.08, cal.gyro.rotation_rms_deg
+    z = {(iv.sensor, iv.axis): iv.z for iv in _matrices(cal, truth, 1)}
+    assert len(z) == 15 and max(abs(v) for v in z.values()) <= 3.0, z
+
+
 @pytest.mark.slow
 def test_every_temperature_term_s_intervals_cover_over_100_parts():
     """Issue 24.6 for the temperature models (``bench.temperature_coverage``, the bench's
@@ -207,8 +259,12 @@ def test_every_temperature_term_s_intervals_cover_over_100_parts():
     (bias at ``T_ref``, ``tc1 .. tc3``), hold the truth 93-97 % of the time, here within
     90.5-99 % (300 intervals a term: binomial std 1.3 %, 1.5 % with the axes of one part
     sharing its noise; 3 of it).  Every term of a cubic is stated on every part (300 intervals):
-    the aliased terms are kept.  Measured (seeds 300-399): 92.0-97.7 %; before (the dropped
-    terms' A (d d^T + C_d) A^T, a quadratic ramp accelerometer) 47-99.3 %."""
+    the aliased terms are kept; except the ramp's accelerometer: its 18 poses determine at
+    most a quadratic (its notes say so), whose tc1 and tc2 cannot hold the part's cubic
+    (88.3 and 80.7 %, at least 78 % here).  The ramp's matrices (the accelerometer's ``k_*``,
+    the gyro's ``m_*``: what the temperature model's error does to the calibration): 92.7 and
+    90.4 % (at least 88 %; with a cubic fixed by within-pose blocks 81.8 and 83.0 %, with a
+    quadratic and the accelerometer's std without its temperature terms 88.2 and 89.8 %)."""
     from bench.temperature_coverage import coverage, intervals
 
     found = []
@@ -216,8 +272,16 @@ def test_every_temperature_term_s_intervals_cover_over_100_parts():
         found += intervals(seed)
     table = coverage(found)
     expected = {(d, s, t) for d in ("warm-up", "ramp") for s in ("accel", "gyro")
-                for t in ("b", "tc1", "tc2", "tc3")}  # fmt: skip
+                for t in ("b", "tc1", "tc2", "tc3")} - {("ramp", "accel", "tc3")}  # fmt: skip
+    expected |= {("ramp", "accel", "matrix"), ("ramp", "gyro", "matrix")}
     assert set(table) == expected, set(table) ^ expected
+    limited = {("ramp", "accel", "tc1"), ("ramp", "accel", "tc2")}
     for key, c in table.items():
-        assert c.intervals == 300 and c.seeds == 100, (key, c)
-        assert 90.5 <= c.percent <= 99.0 and c.ok, (key, c)
+        n = {"accel": 600, "gyro": 900}[key[1]] if key[2] == "matrix" else 300
+        assert c.intervals == n and c.seeds == 100, (key, c)
+        if key in limited:  # a quadratic (said in the notes) cannot hold the part's cubic
+            assert c.percent >= 78.0, (key, c)
+        elif key[2] == "matrix":  # not yet in the band (gyro); before: 81.8 and 83.0 %
+            assert c.percent >= 88.0, (key, c)
+        else:
+            assert 90.5 <= c.percent <= 99.0 and c.ok, (key, c)

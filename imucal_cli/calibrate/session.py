@@ -29,7 +29,13 @@ from imucal_cli.calibrate.gyro import partial as gyro_partial
 from imucal_cli.calibrate.gyro.estimators import GyroDesign
 from imucal_cli.calibrate.mag import MagDesign
 from imucal_cli.calibrate.registry import NotChosen, choose
-from imucal_cli.calibrate.thermal import attach, compensate, given_accel, temperature_models
+from imucal_cli.calibrate.thermal import (
+    attach,
+    compensate,
+    given_accel,
+    temperature_models,
+    widen_accel,
+)
 from imucal_cli.design.poses import count_distinct, unit
 from imucal_cli.errors import (
     ConfigError,
@@ -437,6 +443,7 @@ def calibrate_session(
     if accel is None:
         run_accel = cfg.accel.solver != "none" and not (session.accel is None and with_mag)
         found = _accel_outcome(session, cfg, prior) if run_accel else Outcome()
+        widen_accel(found.section, models.get("accel"))  # before the gyro reads it
         segmented_accel = True
         if prior is not None and found.section is not None and found.section.partial is None:
             warnings.warn(f"{session_name(session)}: its poses determine the whole "

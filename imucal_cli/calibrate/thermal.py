@@ -28,9 +28,10 @@ from dataclasses import replace as copy_with
 
 import numpy as np
 
+from imucal_cli.calibrate.accel.section import model_map
 from imucal_cli.calibrate.common import channel_names, session_name, with_segments
 from imucal_cli.errors import DesignError
-from imucal_cli.estimators.accel.gravity import fit_gravity
+from imucal_cli.estimators.accel.gravity import fit_gravity, model_to_params
 from imucal_cli.estimators.thermal.joint import fit_gravity_tempco
 from imucal_cli.estimators.thermal.temperature import TempcoFit, check_span, fit_tempco, reexpand
 from imucal_cli.formats.config import Config
@@ -41,18 +42,19 @@ from imucal_cli.model.parts import Parameter, SelectionRow
 from imucal_cli.model.parts import TemperatureModel as TemperatureModelRecord
 
 __all__ = ["TemperatureModel", "attach", "compensate", "given_accel", "merge_sessions",
-           "temperature_models"]
+           "temperature_models", "widen_accel"]
 
 #: Length of the blocks each still period is averaged over, s.
 BLOCK_S = 5.0
 #: Fewest blocks a warm-up recording's still time is cut into (shorter blocks when short).
 MIN_BLOCKS = 30
-#: Blocks each still period gives the accelerometer's joint fit at least (shorter than
-#: :data:`BLOCK_S` when the period is short): each pose then reads its bias at two
-#: temperatures, so that qureshi18's 18 two-second poses determine the 18 parameters of a cubic
-#: (with one block each they cannot, and the quadratic fitted instead cannot hold a part's
-#: cubic: its intervals covered 84-90 %).
-JOINT_BLOCKS = 2
+#: Blocks each still period gives the accelerometer's joint fit at least. One: the blocks of a
+#: pose differ by a fraction of a degree (qureshi18 through 10 -> 40 C: a median 0.33 C of a
+#: 28 C span), so a term only they would fix is fitted to within-pose differences; its error
+#: then moves the compensated poses the gyro solver reads, which no std states (two blocks
+#: took the gyro matrix's coverage on that ramp from 94 % to 84 %). The joint fit counts
+#: distinct poses, not blocks (:func:`fit_gravity_tempco`'s ``groups``).
+JOINT_BLOCKS = 1
 UNITS_PER_C = {1: "per C", 2: "per C^2", 3: "per C^3"}
 
 
@@ -63,7 +65,9 @@ class TemperatureModel:
     ``tempco``/``tempco_std`` (K, n) raw units per C^k about ``temperature_ref``; ``degree``
     (n,); ``t_min``/``t_max`` the fitted range, C; ``bias_var_extra`` (n,) what the terms add
     to the bias variance at ``T_ref``; ``details`` the solver's diagnostics (members of the
-    section's :class:`~imucal_cli.model.parts.TemperatureModel`).
+    section's :class:`~imucal_cli.model.parts.TemperatureModel`); ``note`` for the section's
+    notes (a degree the poses limited); ``model_cov_extra`` (9, 9) what the terms add to the
+    gravity-magnitude model's ``(B, M upper)`` covariance (:func:`widen_accel`).
     """
 
     temperature_ref: float
@@ -75,6 +79,8 @@ class TemperatureModel:
     source: str
     bias_var_extra: np.ndarray
     details: dict = field(default_factory=dict)
+    note: str | None = None
+    model_cov_extra: np.ndarray | None = None
 
     def change(self, temperature: np.ndarray) -> np.ndarray:
         """Bias change from ``T_ref`` at each temperature, (N, n) raw units."""
@@ -183,14 +189,21 @@ def _joint_accel(session: Session, cfg: Config, t_ref: float) -> TemperatureMode
     if pts is None or session.accel.shape[1] != 3:
         return None
     opt = cfg.temperature
-    values, temps, sigma, _ = pts
+    values, temps, sigma, groups = pts
     g = cfg.gravity or session.gravity
     start = fit_gravity(values, g)
     cov = np.array([np.diag(s**2) for s in sigma])
     joint = fit_gravity_tempco(values, temps, g, (start.bias, start.M), cov_mean=cov,
-                               temperature_ref=t_ref, max_degree=opt.max_degree,
+                               temperature_ref=t_ref, groups=groups, max_degree=opt.max_degree,
                                min_span_c=opt.min_span_c,
                                what=f"{session_name(session)} (accel)")  # fmt: skip
+    note = None
+    if joint.design_degree < opt.max_degree:
+        n = len(np.unique(groups))
+        note = (f"temperature model: the {n} poses determine at most degree "
+                f"{joint.design_degree} (of {opt.max_degree}) with the gravity-magnitude model; a "
+                "higher-degree part of the bias is not fitted and its effect on the terms is "
+                "not in their std: capture more poses (or a still warm-up) for a higher degree")
     return TemperatureModel(
         t_ref, joint.tempco, joint.tempco_std, joint.degree, joint.t_min, joint.t_max,
         "the session's still periods, jointly with the gravity-magnitude model",
@@ -198,6 +211,7 @@ def _joint_accel(session: Session, cfg: Config, t_ref: float) -> TemperatureMode
         {"points": len(temps), "selection": [build(SelectionRow, **t) for t in joint.tests],
          "noise_scale": joint.noise_scale,
          "chi2": joint.chi2, "dof": joint.dof},
+        note, joint.model_cov_extra,
     )  # fmt: skip
 
 
@@ -331,6 +345,26 @@ def given_accel(session: Session, accel: SensorCalibration) -> tuple[Session, Se
     return replace(session, accel=moved), plain
 
 
+def widen_accel(sec: SensorCalibration | None, model: TemperatureModel | None) -> None:
+    """A gravity-magnitude (9-parameter) accelerometer section fitted to the compensated poses
+    takes the temperature terms as known: add what their uncertainty adds to its model
+    (``model_cov_extra``, joint minus conditional) to its ``covariance``, which the gyro
+    solver propagates into its turns (issue 10.2), and to its ``k_*`` rows' std (the ``b_*``
+    rows get theirs in :func:`attach`). Before this, the gyro matrix's intervals through a
+    10 -> 40 C ramp covered 92 %, or 81 % with a cubic fixed by within-pose blocks."""
+    extra = None if model is None else model.model_cov_extra
+    if sec is None or extra is None or sec.variant != "9-parameter" or \
+            sec.covariance is None or sec.covariance.values is None:  # fmt: skip
+        return
+    Ji = model_map(model_to_params, sec.bias, sec.matrix)
+    sec.covariance.values = np.asarray(sec.covariance.values, float) + Ji @ extra @ Ji.T
+    names = [f"k_{a}" for a in ("x", "y", "z", "xy", "xz", "yz")]
+    for row in sec.parameters or []:
+        if row.name in names and row.std is not None:
+            i = 3 + names.index(row.name)
+            row.std = float(np.sqrt(row.std**2 + max(extra[i, i], 0.0)))
+
+
 def attach(sec: SensorCalibration | None, model: TemperatureModel | None) -> None:
     """Write the model into the section: the spec's terms, the diagnostics, parameter rows,
     and bias standard deviations that include the terms' uncertainty."""
@@ -343,6 +377,8 @@ def attach(sec: SensorCalibration | None, model: TemperatureModel | None) -> Non
     sec.bias_tempco = np.asarray(model.tempco, float)
     sec.temperature_range_c = [float(model.t_min), float(model.t_max)]
     unit = sec.units_in or "raw units"
+    if model.note:
+        sec.notes = [*(sec.notes or []), model.note]
     sec.temperature_model = build(
         TemperatureModelRecord, source=model.source, degree=model.degree.tolist(),
         bias_tempco_std=model.tempco_std.tolist(), unit=f"{unit} per C^k",

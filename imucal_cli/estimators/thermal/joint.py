@@ -14,7 +14,10 @@ every temperature the poses visit.
 The minimised quantity is eq. (11)'s, ``(|h_k|^2 - g^2) / (2 g)`` in m/s^2, weighted by each
 pose mean's noise (as :mod:`imucal_cli.estimators.accel.gravity` does), by Levenberg-Marquardt with
 the analytic Jacobian: the temperature columns are the bias columns times ``(T_k -
-T_ref)^j``. Each channel's degree (at most 3) is chosen by backward elimination: the least
+T_ref)^j``. The elimination starts from the highest degree the distinct poses determine (more
+poses than parameters: points of one pose, blocks of a long still period, differ by a fraction
+of a degree and count once, ``groups``); :attr:`JointResult.design_degree` says which. Each
+channel's degree (at most 3) is then chosen by backward elimination: the least
 significant top term of any channel is dropped while the F-test of its drop in chi^2 is not
 significant (:data:`imucal_cli.estimators.thermal.temperature.SELECT_P`) and dropping it
 narrows no kept parameter by more than
@@ -86,6 +89,14 @@ class JointResult:
         ``F``, ``dof``, ``p_value`` and ``kept``.
     nfev : int
         Function evaluations of all fits.
+    model_cov_extra : ndarray (9, 9)
+        What the temperature terms' uncertainty adds to the covariance of ``(B, M's upper
+        triangle)`` (:func:`~imucal_cli.estimators.accel.gravity.model_to_params`'s order, raw
+        units): joint minus conditional, for a solver that takes the terms as known.
+    design_degree : int
+        The highest degree the poses determined (the elimination's start); under
+        ``max_degree`` a higher term of the part's bias is not fitted, and what it would do to
+        the kept terms is not in their std (the caller says so).
     """
 
     bias: np.ndarray
@@ -103,13 +114,16 @@ class JointResult:
     noise_scale: float
     tests: list[dict] = field(default_factory=list)
     nfev: int = 0
+    model_cov_extra: np.ndarray = field(default_factory=lambda: np.zeros((9, 9)))
+    design_degree: int = 0
 
 
 class _Model:
     """Residuals and Jacobian of eq. (11) with the temperature terms, in normalised units:
     ``a_n = (a - offset) / scale`` and ``tau = (T - T_ref) / t_scale``."""
 
-    def __init__(self, a_mean, T, t_ref, g, w, B0, M0):
+    def __init__(self, a_mean, T, t_ref, g, w, B0, M0, n_poses=None):
+        self.n_poses = len(a_mean) if n_poses is None else int(n_poses)
         self.offset = np.asarray(B0, float).copy()
         d = np.abs(np.diag(M0))
         self.scale = 1.0 / float(np.mean(d)) if np.all(d > 0) else 1.0
@@ -173,7 +187,9 @@ class _Fit:
 
 def _solve(model: _Model, x0: np.ndarray, degree, max_iterations: int) -> _Fit | None:
     """Levenberg-Marquardt from ``x0`` for the temperature terms of ``degree``; None where the
-    poses do not determine them (or it does not converge)."""
+    poses do not determine them (fewer distinct poses than parameters plus one: points of one
+    pose differ by a fraction of a degree, and a term only they fix is fitted to within-pose
+    differences the chi-square cannot check), or it does not converge."""
 
     def fun(v):
         return model.residuals_and_jacobian(v, degree)[0]
@@ -181,7 +197,7 @@ def _solve(model: _Model, x0: np.ndarray, degree, max_iterations: int) -> _Fit |
     def jac(v):
         return model.residuals_and_jacobian(v, degree)[1]
 
-    if len(fun(x0)) <= len(x0):
+    if model.n_poses <= len(x0):
         return None
     sol = least_squares(fun, x0, jac=jac, method="lm", x_scale="jac", xtol=1e-12, ftol=1e-12,
                         gtol=1e-12, max_nfev=max_iterations)  # fmt: skip
@@ -214,6 +230,7 @@ def fit_gravity_tempco(
     *,
     cov_mean: np.ndarray | None = None,
     temperature_ref: float | None = None,
+    groups: np.ndarray | None = None,
     max_degree: int = MAX_DEGREE,
     min_span_c: float = MIN_SPAN_C,
     select_p: float = SELECT_P,
@@ -237,6 +254,10 @@ def fit_gravity_tempco(
         Covariance of each pose mean, raw units^2 (weights; absolute covariance).
     temperature_ref : float, optional
         ``T_ref``; default the mean pose temperature.
+    groups : ndarray of int, shape (N,), optional
+        The still period (pose) of each point, when a pose gives several (blocks of a long
+        one); default each point its own pose. The degrees fitted are those the distinct poses
+        determine (more poses than parameters), not the points.
     max_degree, min_span_c, select_p
         As :func:`imucal_cli.estimators.thermal.temperature.fit_tempco`.
     max_iterations : int
@@ -261,7 +282,8 @@ def fit_gravity_tempco(
     t_ref = float(np.mean(T)) if temperature_ref is None else float(temperature_ref)
     B0, M0 = (np.asarray(v, float) for v in start)
     w = _pose_weights(a_mean, None if cov_mean is None else np.asarray(cov_mean, float), B0, M0)
-    model = _Model(a_mean, T, t_ref, g, w, B0, M0)
+    n_poses = len(T) if groups is None else len(np.unique(np.asarray(groups)))
+    model = _Model(a_mean, T, t_ref, g, w, B0, M0, n_poses)
     nfev = 0
     fit, degree = None, None
     for d in range(max_degree, 0, -1):  # the highest degree the poses determine
@@ -279,7 +301,9 @@ def fit_gravity_tempco(
     top, top_degree = fit, degree
     fit, degree, tests, n = _eliminate(model, fit, degree, select_p, max_iterations)
     held = _held_terms(model, fit, degree, top, top_degree, cov_mean is not None)
-    return _package(model, fit, degree, T, tests, nfev + n, cov_mean is not None, held)
+    out = _package(model, fit, degree, T, tests, nfev + n, cov_mean is not None, held)
+    out.design_degree = top_degree[0]
+    return out
 
 
 def _held_terms(model, fit, degree, top, top_degree, weighted) -> np.ndarray:
@@ -369,9 +393,13 @@ def _package(model, fit, degree, T, tests, nfev, weighted, held) -> JointResult:
     Bn, Mn = params_to_model(fit.x[:9])
     h = (model.a_n - Bn - shift) @ Mn.T
     extra = np.clip(np.diag(cov)[:3] - np.diag(cond)[:3], 0, None)
+    model_extra = cov[:9, :9] - cond
+    w, V = np.linalg.eigh((model_extra + model_extra.T) / 2)  # PSD (a Schur complement)
+    model_extra = (V * np.clip(w, 0.0, None)) @ V.T
     return JointResult(
         bias=B, M=M, temperature_ref=model.t_ref,
         t_min=float(T.min()), t_max=float(T.max()), degree=np.array(degree, int), tempco=tc,
         tempco_std=std, bias_var_extra=extra, residuals=np.linalg.norm(h, axis=1) - model.g,
         chi2=chi2, dof=int(dof), noise_scale=float(scale), tests=tests, nfev=nfev,
+        model_cov_extra=model_extra,
     )  # fmt: skip
