@@ -266,6 +266,33 @@ def test_six_face_set_gets_time_offsets_without_calibrated_gyros():
         assert not entry.warnings
 
 
+def test_a_gyro_calibrated_in_part_only_gets_its_offset_from_the_raw_rates(monkeypatch):
+    """A gyro whose matrix is held at a prior (a partial section: approach "partial") is not
+    calibrated in full: its time offset comes from the raw rates (eq. T5), within 3 std of the
+    truth, while the fully calibrated IMU's keeps eq. T4 (no ``offset_method``). Here imu1's
+    gyro section is marked partial after its own calibration."""
+    from imucal_cli.calibrate import imu_set as set_module
+
+    original = set_module.calibrate_session
+
+    def marked(session, cfg, **kw):
+        cal = original(session, cfg, **kw)
+        if str(kw.get("name", "")).endswith(":imu1") and cal.gyro is not None:
+            cal.gyro.approach = "partial"
+        return cal
+
+    monkeypatch.setattr(set_module, "calibrate_session", marked)
+    session, truth = simulate_set(3, plan="qureshi18", seed=0, created=CREATED, rate_hz=100.0,
+                                  hold_s=2.0)  # fmt: skip
+    cal = calibrate_set(session, config_from_dict({"accel": {"solver": "labelled"}}))
+    one, two = cal.imus["imu1"], cal.imus["imu2"]
+    assert one.gyro.approach == "partial" and two.gyro.approach != "partial"
+    assert "eq. T5" in one.set.offset_method and two.set.offset_method is None
+    for key, entry in cal.imus.items():
+        err = entry.time_offset_s - truth.imus[key].time_offset_s
+        assert abs(err) <= 3 * entry.time_offset_std_s, (key, err, entry.time_offset_std_s)
+
+
 def _six_face_offset_z(seeds) -> list[np.ndarray]:
     """Each seed's time offsets' errors over their std (3-IMU six-face sets, labelled)."""
     from bench.multi import labelled_seed
