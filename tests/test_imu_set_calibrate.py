@@ -127,6 +127,22 @@ def test_the_cli_prints_the_set(tmp_path):
     assert proc.returncode == 2 and "several IMUs takes no --accel" in proc.stderr
 
 
+def test_the_cli_says_a_time_offset_came_from_the_raw_rates(tmp_path):
+    """Six faces, 2 IMUs in counts: neither gyro is calibrated (five turns), and the summary
+    gives imu1's time offset, saying it came from the raw rates (eq. T5)."""
+    proc = run("simulate", "--imus", "2", "--plan", "six", "--seed", "0", "-o",
+               tmp_path / "s.h5")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    (tmp_path / "c.toml").write_text('[accel]\nsolver = "labelled"\n', encoding="utf-8")
+    proc = run("calibrate", tmp_path / "s.h5", "--no-store", "--config", tmp_path / "c.toml",
+               "-o", tmp_path / "s.json")  # fmt: skip
+    assert proc.returncode in (0, 1), proc.stderr
+    line = next(x for x in proc.stdout.splitlines() if x.strip().startswith("imu1: rotated"))
+    assert "time offset" in line and "(from the raw rates: a gyro not calibrated" in line, line
+    entry = json.loads((tmp_path / "s.json").read_text(encoding="utf-8"))["imus"]["imu1"]
+    assert entry["time_offset_std_s"] > 0 and "eq. T5" in entry["set"]["offset_method"]
+
+
 def test_simulate_imus_refuses_what_it_does_not_simulate(tmp_path):
     for args, words in ((["--plan", "qureshi-axes"], "pose plans"),
                         (["--mag"], "does not combine with --mag"),
