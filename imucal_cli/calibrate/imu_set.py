@@ -20,7 +20,10 @@ the others) and returns one calibration: the reference's sections at the top lev
    (:mod:`imucal_cli.estimators.imu_set.rotation`): the shared poses, and the turns too when the
    poses all point one way.
 4. Each time offset is fitted to the gyro signals
-   (:mod:`imucal_cli.estimators.imu_set.time_offset`).
+   (:mod:`imucal_cli.estimators.imu_set.time_offset`): the calibrated rates where both gyros
+   are calibrated in full (eq. T4), else the raw rates with the matrix between the gyros
+   fitted too (eq. T5: a gyro calibrated in part, its matrix held at nominal values, or not
+   at all).
 """
 
 from __future__ import annotations
@@ -33,7 +36,12 @@ import numpy as np
 from imucal_cli.errors import DesignError, ImucalWarning, InputError, SolverError
 from imucal_cli.estimators.imu_set.accel import fit_set_accel
 from imucal_cli.estimators.imu_set.rotation import RotationFit, relative_rotation
-from imucal_cli.estimators.imu_set.time_offset import TimeOffset, coarse_offset, fit_time_offset
+from imucal_cli.estimators.imu_set.time_offset import (
+    TimeOffset,
+    coarse_offset,
+    fit_time_offset,
+    fit_time_offset_gains,
+)
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session, imu_session, set_names
 from imucal_cli.model.calibration import SENSORS, Calibration, ImuEntry, SetDiagnostics
@@ -46,6 +54,7 @@ from .set_parts import (
     pose_pairs,
     shared_poses,
     still_noise,
+    still_raw,
     turn_pairs,
     turn_windows,
     used_segments,
@@ -215,22 +224,41 @@ def _keep_root(cal: Calibration, own: Calibration) -> None:
 
 
 def _offset(subs, cals, key, rotations, coarse_s) -> TimeOffset | str:
+    """The IMU's time offset: from the calibrated rates (eq. T4) where both gyros are
+    calibrated in full and the rotation is known, else from the raw rates with the matrix
+    between them fitted too (eq. T5)."""
     ref_key = next(iter(subs))
     ref, imu = subs[ref_key], subs[key]
     g_r, g_i = cals[ref_key].gyro, cals[key].gyro
     rot = rotations.get(key)
-    if g_r is None or g_i is None or not isinstance(rot, RotationFit):
-        return "time offset not determined: " + ("both gyros must be calibrated"
-                                                  if g_r is None or g_i is None else str(rot))
     windows = [(t0, t1) for t0, t1 in _windows(ref)]
     if not windows:
         return "time offset not determined: the reference has no turns"
+    if not (_full(g_r) and _full(g_i) and isinstance(rot, RotationFit)):
+        return _offset_raw(ref, imu, windows, coarse_s)
     w_r = g_r.apply(ref.gyro[:, : g_r.bias.shape[0]])
     w_i = g_i.apply(imu.gyro[:, : g_i.bias.shape[0]]) @ rot.matrix.T
     var = (still_noise(ref, g_r), still_noise(imu, g_i))
     try:
         return fit_time_offset(ref.time, w_r, imu.time, w_i, windows, var[0], var[1], coarse_s)
     except DesignError as exc:
+        return f"time offset not determined: {exc}"
+
+
+def _full(sec) -> bool:
+    """A gyro calibrated in full (not absent, not a partial fit's matrix held at a prior)."""
+    return sec is not None and sec.approach != "partial" and sec.bias.shape == (3,)
+
+
+def _offset_raw(ref: Session, imu: Session, windows, coarse_s: float) -> TimeOffset | str:
+    """Eq. T5 on both IMUs' raw rates, each one's bias and noise from its still periods."""
+    if ref.gyro is None or imu.gyro is None:
+        return "time offset not determined: an IMU has no gyro"
+    (b_r, v_r), (b_i, v_i) = still_raw(ref), still_raw(imu)
+    try:
+        return fit_time_offset_gains(ref.time, ref.gyro[:, :3] - b_r, imu.time,
+                                     imu.gyro[:, :3] - b_i, windows, v_r, v_i, coarse_s)
+    except (DesignError, np.linalg.LinAlgError) as exc:
         return f"time offset not determined: {exc}"
 
 
@@ -256,7 +284,7 @@ def _assemble(cals, kept, rotations, offsets, coarse, joint, left_out) -> Calibr
         if isinstance(off, TimeOffset):
             entry.time_offset_s, entry.time_offset_std_s = off.value_s, off.std_s
             if off.rms > OFFSET_RMS_RATIO * off.rms_expected:
-                warn.append(f"the gyros disagree in the turns by {off.rms:.3g} rad/s RMS, "
+                warn.append(f"the gyros disagree in the turns by {off.rms:.3g} {off.units} RMS, "
                             f"{off.rms / off.rms_expected:.2g} times their noise: is {key} "
                             "rigidly mounted with the reference?")  # fmt: skip
         else:
@@ -289,6 +317,8 @@ def _diagnostics(rot, off, coarse_s: float, joint) -> SetDiagnostics:
     if isinstance(off, TimeOffset):
         d.offset_samples, d.offset_rms = off.samples, off.rms
         d.offset_rms_expected, d.offset_iterations = off.rms_expected, off.iterations
+        if off.method is not None:  # eq. T5 (T4, both gyros calibrated, says nothing: as before)
+            d.offset_method, d.offset_rms_units = off.method, off.units
     return d
 
 

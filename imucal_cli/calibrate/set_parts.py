@@ -101,6 +101,22 @@ def still_noise(session: Session, sec: SensorCalibration) -> float:
     return total / dof if dof else float("nan")
 
 
+def still_raw(session: Session) -> tuple[np.ndarray, np.ndarray]:
+    """A gyro's raw bias (the mean of its still periods' samples) and white noise variance
+    per channel per sample (the within-period scatter pooled over them), raw units: NaN
+    without a still period."""
+    total, ss, n, dof = np.zeros(3), np.zeros(3), 0, 0
+    for s in session.static_segments():
+        w = session.gyro[s.start:s.stop, :3]
+        if len(w) > 1:
+            total += w.sum(axis=0)
+            ss += np.sum((w - w.mean(axis=0)) ** 2, axis=0)
+            n, dof = n + len(w), dof + len(w) - 1
+    if not dof:
+        return np.full(3, np.nan), np.full(3, np.nan)
+    return total / n, ss / dof
+
+
 def turn_windows(session: Session) -> list[tuple[float, float]]:
     """Each rotation segment of the reference from rest to rest: its times plus
     :data:`TURN_MARGIN_S` on each side, s."""

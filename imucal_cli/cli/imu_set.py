@@ -60,8 +60,11 @@ def set_lines(cal) -> list[str]:
             parts.append(f"rotated {entry.rotation_deg or 0.0:.3f} deg "
                          f"(std {', '.join(f'{s:.2g}' for s in std)} deg)")
         if entry.time_offset_s is not None:
+            raw = entry.set is not None and entry.set.offset_method is not None  # eq. T5
             parts.append(f"time offset {1e3 * entry.time_offset_s:+.3f} ± "
-                         f"{1e3 * (entry.time_offset_std_s or 0.0):.3f} ms")
+                         f"{1e3 * (entry.time_offset_std_s or 0.0):.3f} ms"
+                         + (" (from the raw rates: a gyro not calibrated in full)" if raw
+                            else ""))  # fmt: skip
         sensors = list(entry.sections())
         parts.append(f"calibrated: {', '.join(sensors) or 'nothing'}")
         out.append(f"  {key}: " + "; ".join(parts))

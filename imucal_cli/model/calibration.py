@@ -67,6 +67,8 @@ class SetDiagnostics(Record):
     offset_rms: float | None = None
     offset_rms_expected: float | None = None
     offset_iterations: int | None = None
+    offset_method: str | None = None
+    offset_rms_units: str | None = None
 
 
 @dataclass

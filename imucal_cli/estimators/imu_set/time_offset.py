@@ -20,6 +20,10 @@ of variance ``var_r``, ``var_i`` per axis per sample.
       var(delta) >= 1 / sum_a [ int s_a'(t)^2 dt / (var_r,a / f_r + var_i,a / f_i) ]
 
   for white noise of densities ``var / f`` (``f`` the sample rates).
+- :func:`fit_time_offset_gains`: the same fit where a gyro is not calibrated in full (eq.
+  T5): each IMU's raw rate, its bias from the still periods removed, and the matrix ``A``
+  that maps the reference's into the other's (gains, misalignment, rotation, units) fitted
+  jointly with ``delta``; the offset's variance holds what ``A``'s uncertainty adds.
 """
 
 from __future__ import annotations
@@ -30,8 +34,8 @@ import numpy as np
 
 from imucal_cli.errors import DesignError
 
-__all__ = ["TimeOffset", "coarse_offset", "fit_time_offset", "rate_derivative",
-           "time_offset_bound"]  # fmt: skip
+__all__ = ["TimeOffset", "coarse_offset", "fit_time_offset", "fit_time_offset_gains",
+           "rate_derivative", "time_offset_bound"]  # fmt: skip
 
 MAX_OFFSET_S = 1.0
 """The largest time offset :func:`coarse_offset` looks for, s."""
@@ -113,8 +117,13 @@ class TimeOffset:
     samples : int
         The IMU's samples in the turns the fit used.
     rms, rms_expected : float
-        The residual RMS per axis and what the noise predicts, rad/s.
+        The residual RMS per axis and what the noise predicts, ``units``.
     iterations : int
+    method : str or None
+        How it was found, in words; None: both gyros calibrated (eq. T4, the calibrated
+        rates, the IMU's rotated into the reference's frame).
+    units : str
+        The units of ``rms``: rad/s (calibrated rates), or the IMU's raw gyro units.
     """
 
     value_s: float
@@ -124,6 +133,8 @@ class TimeOffset:
     rms: float
     rms_expected: float
     iterations: int
+    method: str | None = None
+    units: str = "rad/s"
 
 
 def _interp_weights(t_ref: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -191,6 +202,101 @@ def fit_time_offset(
     return TimeOffset(value_s=delta, std_s=float(np.sqrt(var)), start_s=float(start_s),
                       samples=int(k.size), rms=float(np.sqrt(np.mean(r * r))),
                       rms_expected=float(expected), iterations=iterations)  # fmt: skip
+
+
+#: The method of :func:`fit_time_offset_gains`, in words.
+GAINS_METHOD = ("a gyro not calibrated in full: raw rates, biases from the still periods, the "
+                "matrix between the gyros fitted with the offset (docs/imu-set.md, eq. T5)")
+
+
+def fit_time_offset_gains(
+    t_ref: np.ndarray, w_ref: np.ndarray, t_imu: np.ndarray, w_imu: np.ndarray,
+    windows: list[tuple[float, float]], var_ref: np.ndarray, var_imu: np.ndarray,
+    start_s: float, max_iterations: int = 30,
+) -> TimeOffset:  # fmt: skip
+    """Fit ``delta`` jointly with the matrix ``A`` of (T5) ``w_imu(tau_k) = A w_ref(tau_k +
+    delta) + e`` over the IMU's samples within ``windows`` (Gauss-Newton on the 9 terms of
+    ``A`` and ``delta``, the IMU's channels weighed by their noise).  Its covariance is the
+    sandwich of both IMUs' noise (the reference's through the interpolation weights, as T4),
+    so ``delta``'s variance holds what the unknown ``A`` adds to it.
+
+    Parameters
+    ----------
+    t_ref, w_ref : ndarray, shape (N,), (N, 3)
+        The reference's times (s) and bias-free rate (any units, any frame).
+    t_imu, w_imu : ndarray, shape (M,), (M, 3)
+        The IMU's times (its own stamps, s) and bias-free rate (any units, any frame).
+    windows : list of (float, float)
+        The turns, reference time, s.
+    var_ref, var_imu : ndarray, shape (3,)
+        White noise variance per channel per sample of each, its units squared.
+    start_s : float
+        The starting value (:func:`coarse_offset`), s.
+
+    Raises
+    ------
+    DesignError
+        No sample of the IMU in a turn, or turns that do not determine the offset.
+    """
+    sig = np.sqrt(np.asarray(var_imu, float))
+    var_ref = np.asarray(var_ref, float)
+    if not (np.all(sig > 0) and np.all(np.isfinite(sig)) and np.all(np.isfinite(var_ref))):
+        raise DesignError("the gyros' noise is not measured (no still period): no time offset")
+    d_ref = rate_derivative(t_ref, w_ref)
+    delta, A, iterations = float(start_s), None, 0
+    for iterations in range(1, max_iterations + 1):  # noqa: B007 (reported)
+        k, j, a, m, g = _at(t_ref, w_ref, d_ref, t_imu + delta, windows)
+        if A is None:
+            A = np.linalg.lstsq(m, w_imu[k], rcond=None)[0].T
+        J = _gains_jacobian(m, g, A, sig)
+        r = ((w_imu[k] - m @ A.T) / sig).ravel()
+        step = np.linalg.lstsq(J.reshape(-1, 10), r, rcond=None)[0]
+        A = A + step[:9].reshape(3, 3)
+        delta += float(step[9])
+        if abs(step[9]) < 1e-9:
+            break
+    k, j, a, m, g = _at(t_ref, w_ref, d_ref, t_imu + delta, windows)
+    J = _gains_jacobian(m, g, A, sig)
+    H = np.einsum("kcp,kcq->pq", J, J)
+    # the reference's noise e_r reaches J^T e through -A times its interpolation (eq. T4)
+    v = np.einsum("kcp,c,cd->kpd", J, 1.0 / sig, A)
+    back = np.zeros((len(t_ref), 10, 3))
+    np.add.at(back, j, (1 - a)[:, None, None] * v)
+    np.add.at(back, j + 1, a[:, None, None] * v)
+    Hi = np.linalg.pinv(H, rcond=1e-12)
+    cov = Hi @ (H + np.einsum("npd,d,nqd->pq", back, var_ref, back)) @ Hi
+    if not (np.isfinite(cov[9, 9]) and cov[9, 9] > 0 and np.isfinite(delta)):
+        raise DesignError("the turns do not determine the offset with the gyros' matrix "
+                          "unknown: no time offset")  # fmt: skip
+    r = w_imu[k] - m @ A.T
+    expected = np.mean(var_imu + (A**2 @ var_ref) * float(np.mean((1 - a) ** 2 + a**2)))
+    return TimeOffset(value_s=delta, std_s=float(np.sqrt(cov[9, 9])), start_s=float(start_s),
+                      samples=int(k.size), rms=float(np.sqrt(np.mean(r * r))),
+                      rms_expected=float(np.sqrt(expected)), iterations=iterations,
+                      method=GAINS_METHOD, units="raw")  # fmt: skip
+
+
+def _at(t_ref, w_ref, d_ref, t, windows):
+    """The IMU's samples at times ``t`` inside the turns: their indices, the interpolation's
+    left indices and weights, the reference's rate and derivative there."""
+    k = _inside(t, windows, t_ref)
+    if k.size < 12:
+        raise DesignError("too few samples of the IMU inside the turns: no time offset")
+    j, a = _interp_weights(t_ref, t[k])
+    m = (1 - a)[:, None] * w_ref[j] + a[:, None] * w_ref[j + 1]
+    g = (1 - a)[:, None] * d_ref[j] + a[:, None] * d_ref[j + 1]
+    return k, j, a, m, g
+
+
+def _gains_jacobian(m: np.ndarray, g: np.ndarray, A: np.ndarray, sig: np.ndarray) -> np.ndarray:
+    """The model's derivative (K, 3, 10) by ``A`` (row-major) and ``delta``, each channel
+    divided by its noise ``sig``."""
+    K = len(m)
+    J = np.zeros((K, 3, 10))
+    for c in range(3):
+        J[:, c, 3 * c : 3 * c + 3] = m / sig[c]
+    J[:, :, 9] = (g @ A.T) / sig
+    return J
 
 
 def _inside(t: np.ndarray, windows: list[tuple[float, float]], t_ref: np.ndarray) -> np.ndarray:
