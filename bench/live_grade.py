@@ -18,7 +18,9 @@ or None where no bench computes one.  The bounds are those of the other benches:
   ``bench/gyro.py`` (the accelerometer calibration's covariance propagated through the turns);
 - gyro, turns of known angle (12): the information of the solver's own stacked problem at
   the truth (:class:`imucal_cli.estimators.gyro.known._Stacked`, with the still periods and the
-  turns gravity measures), as ``full_bound`` does for the full model;
+  turns gravity measures), as ``full_bound`` does for the full model; both with the
+  accelerometer calibration the gyro solver used (:func:`gyro_accel`: none beside a partial
+  one, the gyro then in the labels' frame);
 - magnetometer (13, aligned): :func:`magnetometer_crb` as in ``bench/mag.py``.
 
 A pose's true direction is what the truth makes of the pose's mean reading (``T (a - b)``,
@@ -193,6 +195,14 @@ def grade_accel(session: Session, cal: Calibration, truth: Calibration) -> Grade
     return Graded("accel", solver, names, value - x_true, std, half, crb)
 
 
+def gyro_accel(cal: Calibration) -> SensorCalibration | None:
+    """The accelerometer calibration the gyro solver used: None beside a partial one (the
+    pipeline calibrates that gyro as without an accelerometer, in the labels' frame:
+    :func:`imucal_cli.calibrate.session._gyro_beside_partial`), so that its bound is that of
+    the problem the solver solved, not one with turns gravity measures that it left out."""
+    return None if cal.accel is None or cal.accel.partial is not None else cal.accel
+
+
 def _truth_in_accel_frame(cal: Calibration, truth: Calibration) -> np.ndarray:
     """The rotation from the truth's (fixture) frame into the frame the calibrated
     accelerometer reports in (identity without an accelerometer: the labels' frame)."""
@@ -207,7 +217,9 @@ def grade_gyro(session: Session, cal: Calibration, truth: Calibration) -> Graded
     other gyro solvers are graded without a bound."""
     sec = cal.gyro
     names, value, std, half = _params(sec)
-    R = _truth_in_accel_frame(cal, truth)
+    # the frame the gyro was calibrated in: the accelerometer's it used (the labels' beside
+    # a partial one, :func:`gyro_accel`)
+    R = _truth_in_accel_frame(cal, truth) if gyro_accel(cal) is not None else np.eye(3)
     solver = str(sec.solver)
     if names[:3] == ["b_x", "b_y", "b_z"] and names[3:12] == [f"m_{a}{c}" for a in "xyz"
                                                               for c in "xyz"]:  # fmt: skip
@@ -232,8 +244,8 @@ def _gyro_bound(session: Session, cal: Calibration, solver: str, x: np.ndarray):
     cfg = Config()
     try:
         if solver in ("known", "gyro-known"):
-            return np.diag(_known_bound(session, cfg, cal.accel, x)), "known-angle model"
-        return np.diag(full_bound(session, cfg, cal.accel, x)[1]), "full model"
+            return np.diag(_known_bound(session, cfg, gyro_accel(cal), x)), "known-angle model"
+        return np.diag(full_bound(session, cfg, gyro_accel(cal), x)[1]), "full model"
     except Exception as exc:  # noqa: BLE001 - the row says why it has no bound
         return None, f"no bound: {type(exc).__name__}: {exc}"
 
