@@ -46,8 +46,9 @@ from imucal_cli.plans import CaptureSummary, Plan
 from .adaptive import AdaptiveOptions, AdaptiveState, Refit
 from .direction import estimate_direction
 from .keys import Command, KeySource, ScriptedKeys, StdinKeys, parse_command
+from .options import GuidedOptions, Message, Prompt
 from .screen import Screen
-from .state import GuidedOptions, GuidedState, Message, Prompt
+from .state import GuidedState
 from .words import instruction
 
 __all__ = [

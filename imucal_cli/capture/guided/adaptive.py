@@ -47,7 +47,8 @@ from imucal_cli.use.report.coverage_map import coverage_map
 
 from .design import Design, design, limits, session_so_far
 from .matching import Taken
-from .state import GuidedOptions, GuidedState, Prompt
+from .options import GuidedOptions, Prompt
+from .state import GuidedState
 from .words import NAMED_WITHIN_DEG, instruction, pose_name, turn_instruction
 
 __all__ = ["AdaptiveOptions", "AdaptiveState", "Refit", "first_step"]
