@@ -46,9 +46,9 @@ from imucal_cli.formats.session import Session
 from imucal_cli.model.accel import Compensation
 from imucal_cli.model.calibration import SensorCalibration
 from imucal_cli.model.codec import build
-from imucal_cli.model.session import GRAVITY_DEFAULT as G0
 from imucal_cli.model.parts import Parameter, SelectionRow
 from imucal_cli.model.parts import TemperatureModel as TemperatureModelRecord
+from imucal_cli.model.session import GRAVITY_DEFAULT as G0
 
 __all__ = ["TemperatureModel", "attach", "compensate", "given_accel", "merge_sessions",
            "temperature_models", "widen_accel"]

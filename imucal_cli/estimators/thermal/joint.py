@@ -275,7 +275,8 @@ def fit_gravity_tempco(
     unfitted_std : dict, optional
         ``{degree: std}``, m/s^2 per C^degree: the prior of a term up to the cubic the poses
         cannot determine (above :attr:`JointResult.design_degree`), carried in the covariance
-        (:func:`_unfitted_terms`; :func:`~imucal_cli.estimators.thermal.temperature.unfitted_prior`).
+        (:func:`_unfitted_terms`; from
+        :func:`~imucal_cli.estimators.thermal.temperature.unfitted_prior`).
         None: such a term is left out of the std (the caller says so).
 
     Raises
@@ -360,8 +361,9 @@ def _held_terms(model, fit, degree, top, top_degree, weighted) -> np.ndarray:
 
 
 def _unfitted_terms(model, fit, degree, design_degree, prior):
-    """``(A, p, columns)``: the terms above ``design_degree`` (up to the cubic), which no fit of these poses can
-    determine, add to the kept parameters' covariance (normalised units): held at zero they
+    """``(A, p, columns)``: the terms above ``design_degree`` (up to the cubic), which no fit
+    of these poses can determine, add to the kept parameters' covariance (normalised units):
+    held at zero they
     shift them by ``A c`` (``A = (J_k^T J_k)^-1 J_k^T J_u``, the alias matrix of the
     linearised eq. (11) at the kept fit), ``c`` known only by its prior (``prior[j]``, m/s^2
     per C^j, i.e. ``p = prior[j] t_scale^j`` normalised): they add ``A P A^T`` (``P =
