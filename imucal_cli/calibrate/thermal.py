@@ -33,13 +33,22 @@ from imucal_cli.calibrate.common import channel_names, session_name, with_segmen
 from imucal_cli.errors import DesignError
 from imucal_cli.estimators.accel.gravity import fit_gravity, model_to_params
 from imucal_cli.estimators.thermal.joint import fit_gravity_tempco
-from imucal_cli.estimators.thermal.temperature import TempcoFit, check_span, fit_tempco, reexpand
+from imucal_cli.estimators.thermal.temperature import (
+    MAX_DEGREE,
+    TempcoFit,
+    check_span,
+    fit_tempco,
+    reexpand,
+    unfitted_prior,
+)
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
+from imucal_cli.model.accel import Compensation
 from imucal_cli.model.calibration import SensorCalibration
 from imucal_cli.model.codec import build
 from imucal_cli.model.parts import Parameter, SelectionRow
 from imucal_cli.model.parts import TemperatureModel as TemperatureModelRecord
+from imucal_cli.model.session import GRAVITY_DEFAULT as G0
 
 __all__ = ["TemperatureModel", "attach", "compensate", "given_accel", "merge_sessions",
            "temperature_models", "widen_accel"]
@@ -67,7 +76,9 @@ class TemperatureModel:
     to the bias variance at ``T_ref``; ``details`` the solver's diagnostics (members of the
     section's :class:`~imucal_cli.model.parts.TemperatureModel`); ``note`` for the section's
     notes (a degree the poses limited); ``model_cov_extra`` (9, 9) what the terms add to the
-    gravity-magnitude model's ``(B, M upper)`` covariance (:func:`widen_accel`).
+    gravity-magnitude model's ``(B, M upper)`` covariance (:func:`widen_accel`);
+    ``terms_columns``/``terms_cov`` the joint fit's covariance of ``(B, M upper, the terms)``
+    with the terms the poses could not fit (:attr:`JointResult.terms_cov`).
     """
 
     temperature_ref: float
@@ -81,6 +92,8 @@ class TemperatureModel:
     details: dict = field(default_factory=dict)
     note: str | None = None
     model_cov_extra: np.ndarray | None = None
+    terms_columns: list | None = None
+    terms_cov: np.ndarray | None = None
 
     def change(self, temperature: np.ndarray) -> np.ndarray:
         """Bias change from ``T_ref`` at each temperature, (N, n) raw units."""
@@ -193,17 +206,21 @@ def _joint_accel(session: Session, cfg: Config, t_ref: float) -> TemperatureMode
     g = cfg.gravity or session.gravity
     start = fit_gravity(values, g)
     cov = np.array([np.diag(s**2) for s in sigma])
+    # the terms the poses cannot fit, carried with a prior (the datasheet's tempco, G0 m/s^2 per g)
+    prior = unfitted_prior(opt.accel_tempco_mg_per_c * G0 / 1000.0, (2, 3))
     joint = fit_gravity_tempco(values, temps, g, (start.bias, start.M), cov_mean=cov,
                                temperature_ref=t_ref, groups=groups, max_degree=opt.max_degree,
-                               min_span_c=opt.min_span_c,
+                               min_span_c=opt.min_span_c, unfitted_std=prior,
                                what=f"{session_name(session)} (accel)")  # fmt: skip
     note = None
-    if joint.design_degree < opt.max_degree:
+    if joint.design_degree < MAX_DEGREE:
         n = len(np.unique(groups))
         note = (f"temperature model: the {n} poses determine at most degree "
-                f"{joint.design_degree} (of {opt.max_degree}) with the gravity-magnitude model; a "
-                "higher-degree part of the bias is not fitted and its effect on the terms is "
-                "not in their std: capture more poses (or a still warm-up) for a higher degree")
+                f"{joint.design_degree} (of {MAX_DEGREE}) with the gravity-magnitude model; "
+                "the higher-degree part of the bias is not fitted, its effect on the terms is in "
+                "their std from a prior ([temperature] accel_tempco_mg_per_c = "
+                f"{opt.accel_tempco_mg_per_c:g} mg/C): capture more poses (or a still warm-up) "
+                "to fit it")
     return TemperatureModel(
         t_ref, joint.tempco, joint.tempco_std, joint.degree, joint.t_min, joint.t_max,
         "the session's still periods, jointly with the gravity-magnitude model",
@@ -211,7 +228,7 @@ def _joint_accel(session: Session, cfg: Config, t_ref: float) -> TemperatureMode
         {"points": len(temps), "selection": [build(SelectionRow, **t) for t in joint.tests],
          "noise_scale": joint.noise_scale,
          "chi2": joint.chi2, "dof": joint.dof},
-        note, joint.model_cov_extra,
+        note, joint.model_cov_extra, joint.terms_columns, joint.terms_cov,
     )  # fmt: skip
 
 
@@ -363,6 +380,21 @@ def widen_accel(sec: SensorCalibration | None, model: TemperatureModel | None) -
         if row.name in names and row.std is not None:
             i = 3 + names.index(row.name)
             row.std = float(np.sqrt(row.std**2 + max(extra[i, i], 0.0)))
+    if model.terms_cov is not None and hasattr(sec, "compensation"):
+        sec.compensation = _compensation(sec, model, Ji)
+
+
+def _compensation(sec: SensorCalibration, model: TemperatureModel, Ji: np.ndarray) -> Compensation:
+    """The terms' error jointly with the section's ``(B, A)``: each compensated pose is off by
+    ``-X(T) dc`` as well as by the calibration's error, and both come from one fit, so the gyro
+    solver that reads the poses moves them together
+    (:func:`imucal_cli.calibrate.gyro.full.accel_uncertainty`)."""
+    C = model.terms_cov
+    cross = Ji @ C[:9, 9:]
+    full = np.block([[np.asarray(sec.covariance.values, float), cross], [cross.T, C[9:, 9:]]])
+    w, V = np.linalg.eigh((full + full.T) / 2)  # the (B, A) block is the solver's, not the fit's
+    return Compensation(model.temperature_ref, [tuple(c) for c in model.terms_columns],
+                        (V * np.clip(w, 0.0, None)) @ V.T)  # fmt: skip
 
 
 def attach(sec: SensorCalibration | None, model: TemperatureModel | None) -> None:

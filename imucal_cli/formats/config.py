@@ -435,6 +435,7 @@ class TemperatureConfig:
     model: str = setting("auto", "text", choices=("auto", "on", "off"))
     max_degree: int = setting(3, "count", ge=1, le=3)
     min_span_c: float = setting(10.0, "number", ge=10.0, le=200.0, unit="C")
+    accel_tempco_mg_per_c: float = setting(0.5, "number", gt=0.0, le=100.0, unit="mg/C")
 
 
 @dataclass

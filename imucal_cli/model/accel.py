@@ -100,6 +100,29 @@ class Placement(Record):
 
 
 @dataclass
+class Compensation:
+    """The temperature compensation a gravity-magnitude fit's poses were moved with, and the
+    error it leaves in them, kept in memory for the gyro solver that reads those poses (never
+    written; ``docs/temperature.md``).
+
+    Attributes
+    ----------
+    temperature_ref : float
+        ``T_ref``, degrees C.
+    columns : list of (int, int)
+        ``(degree, channel)`` of each term: the fitted ones, then those the poses could not
+        fit (held at zero, known by a prior).
+    covariance : ndarray, shape (12 + T, 12 + T)
+        Of the errors of ``(bias, matrix row-major, the terms)``, raw units: a pose at ``T``
+        is off by ``-sum (T - T_ref)^j dc_(j, channel)`` in its channel.
+    """
+
+    temperature_ref: float
+    columns: list[tuple[int, int]]
+    covariance: np.ndarray = field(repr=False)
+
+
+@dataclass
 class GivenPlacement:
     """A labelled fit's errors given its poses' true placement (the measurement noise's part:
     eq. L4 without the labels' rows), kept in memory for a set's rotations, never written;
@@ -195,6 +218,9 @@ class AccelCalibration(SensorCalibration):
     given_placement : GivenPlacement or None
         The labelled fit's errors given the poses' true placement. Not written (transient):
         what a set of IMUs on one body needs for their rotations (``docs/imu-set.md``, eq. R3).
+    compensation : Compensation or None
+        The temperature compensation its poses were moved with and its error. Not written
+        (transient): what the gyro solver that reads those poses needs.
     """
 
     gravity: float | None = None
@@ -216,3 +242,4 @@ class AccelCalibration(SensorCalibration):
     set_fit: SetFit | None = None
     factorization: Factorization | None = item(flat=True)
     given_placement: GivenPlacement | None = item(transient=True)
+    compensation: Compensation | None = item(transient=True)

@@ -16,6 +16,7 @@ import numpy as np
 
 from imucal_cli.calibrate.common import num
 from imucal_cli.calibrate.gyro.turns import AXES, GyroData, GyroFit, Still
+from imucal_cli.calibrate.thermal import sample_temperature
 from imucal_cli.errors import ImucalError
 from imucal_cli.estimators.gyro import full as gyro_full
 from imucal_cli.estimators.gyro import sigma as gyro_sigma
@@ -152,6 +153,36 @@ def accel_derivative(stills, accel_cal) -> np.ndarray | None:
     return out
 
 
+def accel_uncertainty(data: GyroData):
+    """``(dg, C, shift)``: :func:`accel_derivative` and the accelerometer calibration's
+    covariance, with the columns of its temperature terms where its poses were compensated
+    (the section's ``compensation``): a term's error ``dc`` moves still period k's raw mean by
+    ``-(T_k - T_ref)^j dc`` in its channel, jointly with the calibration's own error (one fit
+    gave both; docs/temperature.md). ``shift(d, T)`` is that move, (N, 3), at temperatures
+    ``T``, or None without terms; None without a covariance or a triad."""
+    cal = data.accel_cal
+    cov = None if cal is None or cal.covariance is None else cal.covariance.values
+    dg = None if cov is None else accel_derivative(data.stills, cal)
+    if dg is None:
+        return None
+    comp = getattr(cal, "compensation", None)
+    temp = sample_temperature(data.session)
+    if comp is None or temp is None:
+        return dg, np.asarray(cov, float), None
+    Am = np.asarray(cal.matrix, float)
+
+    def shift(d: np.ndarray, T: np.ndarray) -> np.ndarray:
+        out = np.zeros((len(T), 3))
+        for v, (j, c) in zip(d, comp.columns, strict=True):
+            out[:, c] -= v * (T - comp.temperature_ref) ** j
+        return out
+
+    T = np.array([temp[s.segment.start : s.segment.stop].mean() for s in data.stills])
+    eye = np.eye(len(comp.columns))
+    extra = np.stack([shift(e, T) @ Am.T for e in eye], axis=2)  # (P, 3, terms)
+    return np.concatenate([dg, extra], axis=2), np.asarray(comp.covariance, float), shift
+
+
 def gain_std(M: np.ndarray, cov_M: np.ndarray) -> np.ndarray:
     """Std of the gains (row norms of ``M^-1``, raw units per rad/s): delta method."""
     S = np.linalg.inv(M)
@@ -179,17 +210,16 @@ def add_accel_uncertainty(data: GyroData, rot, st, res) -> RateStd:
     dominates: ignoring it stated the gains 20 times too precise. Returns the rate std
     (relative, worst direction) in total, from the noise and from the accelerometer."""
     noise_only = rate_std(res.M, res.cov[3:12, 3:12])
-    cov = data.accel_cal.covariance
-    dg = accel_derivative(data.stills, data.accel_cal)
+    found = accel_uncertainty(data)
     out = RateStd(total=noise_only, noise=noise_only, accel_calibration=None,
                   meaning="relative std of a calibrated rate in its worst direction")
-    if cov is None or cov.values is None or dg is None:
+    if found is None:
         data.notes.append("the accelerometer calibration states no covariance: the gyro's std "
                           "leave out its uncertainty")  # fmt: skip
         return out
-    C = np.asarray(cov.values, float)
+    dg, C, shift = found
     A = gyro_full.accel_sensitivity(rot, st, data.noise, res, dg)
-    prop = accel_propagation(data, rot, st, res, C, A)
+    prop = accel_propagation(data, rot, st, res, C, A, shift)
     cov_a = prop.cov
     own = res.cov
     linear_total = rate_std(res.M, (own + prop.linear)[3:12, 3:12])
@@ -220,22 +250,33 @@ def add_accel_uncertainty(data: GyroData, rot, st, res) -> RateStd:
     return out
 
 
-def accel_propagation(data: GyroData, rot, st, res, C: np.ndarray, A: np.ndarray):
+def accel_propagation(data: GyroData, rot, st, res, C: np.ndarray, A: np.ndarray,
+                      shift=None):  # fmt: skip
     """The accelerometer calibration's part of the gyro covariance: first order, or by
-    refitting the gyro at sigma points of the accelerometer's parameters where the first
-    order is doubtful (:func:`imucal_cli.estimators.gyro.sigma.propagate`)."""
+    refitting the gyro at sigma points of the accelerometer's parameters (and of its
+    temperature terms, ``shift``: :func:`accel_uncertainty`) where the first order is
+    doubtful (:func:`imucal_cli.estimators.gyro.sigma.propagate`)."""
     acc = data.accel_cal
     a_raw = np.array([s.a_raw for s in data.stills])
     with_g = res.G is not None
     turn_raw = ([data.session.accel[t.segment.start : t.segment.stop] for t in data.turns]
                 if with_g else None)  # fmt: skip
     x_hat = np.r_[res.b, res.M.ravel(), res.G.ravel() if with_g else []]
-    theta_hat = np.r_[np.asarray(acc.bias, float), np.ravel(acc.matrix)]
+    theta_hat = np.r_[np.asarray(acc.bias, float), np.ravel(acc.matrix), np.zeros(len(C) - 12)]
+    temp = None if shift is None else sample_temperature(data.session)
+    t_still = None if temp is None else np.array(
+        [temp[s.segment.start : s.segment.stop].mean() for s in data.stills])  # fmt: skip
 
     def moved(theta: np.ndarray):
-        B, Am = theta[:3], theta[3:].reshape(3, 3)
-        moved_st = replace(st, g=(a_raw - B) @ Am.T)
-        moved_rot = rot if not with_g else replace(rot, a=[(r - B) @ Am.T for r in turn_raw])
+        B, Am, d = theta[:3], theta[3:12].reshape(3, 3), theta[12:]
+        a_st, turns = a_raw, turn_raw
+        if temp is not None and d.any():
+            a_st = a_raw + shift(d, t_still)
+            turns = None if not with_g else [
+                r + shift(d, temp[t.segment.start : t.segment.stop])
+                for r, t in zip(turn_raw, data.turns, strict=True)]  # fmt: skip
+        moved_st = replace(st, g=(a_st - B) @ Am.T)
+        moved_rot = rot if not with_g else replace(rot, a=[(r - B) @ Am.T for r in turns])
         return moved_rot, moved_st
 
     def refit(theta: np.ndarray, x_start: np.ndarray) -> np.ndarray | None:
@@ -310,12 +351,10 @@ def _g_note(test: dict) -> str:
 def accel_directions(data: GyroData) -> np.ndarray | None:
     """(P, 3, m): the still periods' calibrated gravity vectors moved along each square-root
     direction of the accelerometer calibration's covariance (None without one)."""
-    cal = data.accel_cal
-    cov = None if cal is None or cal.covariance is None else cal.covariance.values
-    dg = None if cov is None else accel_derivative(data.stills, cal)
-    if dg is None:
+    found = accel_uncertainty(data)
+    if found is None:
         return None
-    C = np.asarray(cov, float)
+    dg, C, _ = found
     lam, V = np.linalg.eigh((C + C.T) / 2)
     return dg @ (V * np.sqrt(np.clip(lam, 0, None)))
 

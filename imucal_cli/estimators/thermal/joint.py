@@ -94,9 +94,16 @@ class JointResult:
         triangle)`` (:func:`~imucal_cli.estimators.accel.gravity.model_to_params`'s order, raw
         units): joint minus conditional, for a solver that takes the terms as known.
     design_degree : int
-        The highest degree the poses determined (the elimination's start); under
-        ``max_degree`` a higher term of the part's bias is not fitted, and what it would do to
-        the kept terms is not in their std (the caller says so).
+        The highest degree the poses determined (the elimination's start); a higher term of
+        the part's bias (up to the cubic) is not fitted, and what it does to the kept terms is
+        in their std only with ``unfitted_std`` (the caller says which).
+    terms_columns : list of (int, int)
+        ``(degree, channel)`` of each temperature term in :attr:`terms_cov`: the fitted ones,
+        then the unfitted ones carried with their prior (held at zero).
+    terms_cov : ndarray (9 + T, 9 + T)
+        Covariance of the errors of ``(B, M's upper triangle, the terms_columns)`` (raw units):
+        what the compensated poses' error is made of, for a solver that reads them (the gyro's:
+        :func:`imucal_cli.calibrate.thermal.widen_accel`).
     """
 
     bias: np.ndarray
@@ -116,6 +123,8 @@ class JointResult:
     nfev: int = 0
     model_cov_extra: np.ndarray = field(default_factory=lambda: np.zeros((9, 9)))
     design_degree: int = 0
+    terms_columns: list = field(default_factory=list)
+    terms_cov: np.ndarray | None = None
 
 
 class _Model:
@@ -235,6 +244,7 @@ def fit_gravity_tempco(
     min_span_c: float = MIN_SPAN_C,
     select_p: float = SELECT_P,
     max_iterations: int = 400,
+    unfitted_std: dict[int, float] | None = None,
     what: str = "the poses",
 ) -> JointResult:
     """Fit the gravity-magnitude model with a temperature-dependent bias.
@@ -262,6 +272,12 @@ def fit_gravity_tempco(
         As :func:`imucal_cli.estimators.thermal.temperature.fit_tempco`.
     max_iterations : int
         Function evaluations of each Levenberg-Marquardt run.
+    unfitted_std : dict, optional
+        ``{degree: std}``, m/s^2 per C^degree: the prior of a term up to the cubic the poses
+        cannot determine (above :attr:`JointResult.design_degree`), carried in the covariance
+        (:func:`_unfitted_terms`; from
+        :func:`~imucal_cli.estimators.thermal.temperature.unfitted_prior`).
+        None: such a term is left out of the std (the caller says so).
 
     Raises
     ------
@@ -301,9 +317,25 @@ def fit_gravity_tempco(
     top, top_degree = fit, degree
     fit, degree, tests, n = _eliminate(model, fit, degree, select_p, max_iterations)
     held = _held_terms(model, fit, degree, top, top_degree, cov_mean is not None)
-    out = _package(model, fit, degree, T, tests, nfev + n, cov_mean is not None, held)
+    A_u, p_u, cols_u = _unfitted_terms(model, fit, degree, top_degree[0], unfitted_std or {})
+    out = _package(model, fit, degree, T, tests, nfev + n, cov_mean is not None,
+                   held + (A_u * p_u**2) @ A_u.T)  # fmt: skip
     out.design_degree = top_degree[0]
+    _terms_cov(out, model, fit, degree, held, A_u, p_u, cols_u, cov_mean is not None)
     return out
+
+
+def _terms_cov(out, model, fit, degree, held, A_u, p_u, cols_u, weighted) -> None:
+    """:attr:`JointResult.terms_cov`: the kept parameters' covariance with the unfitted terms
+    appended (their error is ``-c``, the kept ones' shift ``A c``: cross-covariance ``-A P``)."""
+    scale = noise_scale(fit.chi2, len(fit.f) - len(fit.x), weighted)
+    P = np.diag(p_u**2)
+    K = scale * np.linalg.inv(fit.J.T @ fit.J) + held + A_u @ P @ A_u.T
+    full = np.block([[K, -A_u @ P], [-P @ A_u.T, P]])
+    D = np.r_[model.to_raw_jacobian(degree),
+              [model.scale / model.t_scale**j for j, _ in cols_u]]  # fmt: skip
+    out.terms_columns = model.columns(degree) + cols_u
+    out.terms_cov = full * np.outer(D, D)
 
 
 def _held_terms(model, fit, degree, top, top_degree, weighted) -> np.ndarray:
@@ -326,6 +358,29 @@ def _held_terms(model, fit, degree, top, top_degree, weighted) -> np.ndarray:
     dof = len(top.f) - len(top.x)
     C = noise_scale(top.chi2, dof, weighted) * np.linalg.inv(top.J.T @ top.J)
     return consider_cov(A, top.x[drop], C[np.ix_(drop, drop)])
+
+
+def _unfitted_terms(model, fit, degree, design_degree, prior):
+    """``(A, p, columns)``: the terms above ``design_degree`` (up to the cubic), which no fit
+    of these poses can determine, add to the kept parameters' covariance (normalised units):
+    held at zero they
+    shift them by ``A c`` (``A = (J_k^T J_k)^-1 J_k^T J_u``, the alias matrix of the
+    linearised eq. (11) at the kept fit), ``c`` known only by its prior (``prior[j]``, m/s^2
+    per C^j, i.e. ``p = prior[j] t_scale^j`` normalised): they add ``A P A^T`` (``P =
+    diag(p^2)``), a Schmidt consider covariance with a zero-mean prior."""
+    n = 9 + len(model.columns(degree))
+    full = [MAX_DEGREE] * 3
+    cols_full, cols = model.columns(full), model.columns(degree)
+    unfit = [i for i, (j, _) in enumerate(cols_full) if j > design_degree and j in prior]
+    if not unfit:
+        return np.zeros((n, 0)), np.zeros(0), []
+    x = np.zeros(9 + len(cols_full))
+    x[:9] = fit.x[:9]
+    x[[9 + cols_full.index(jc) for jc in cols]] = fit.x[9:]
+    _, J = model.residuals_and_jacobian(x, full)
+    A = np.linalg.solve(fit.J.T @ fit.J, fit.J.T @ J[:, [9 + i for i in unfit]])
+    p = np.array([prior[cols_full[i][0]] * model.t_scale ** cols_full[i][0] for i in unfit])
+    return A, p, [cols_full[i] for i in unfit]
 
 
 def _alias(model, fit, degree, sub, smaller) -> float:

@@ -56,6 +56,8 @@ __all__ = [
     "MAX_DEGREE",
     "MIN_SPAN_C",
     "SELECT_P",
+    "UNFITTED_FRACTION",
+    "UNFITTED_HALF_SPAN_C",
     "ChannelFit",
     "TempcoFit",
     "alias_inflation",
@@ -67,6 +69,7 @@ __all__ = [
     "polynomial_bound",
     "powers",
     "reexpand",
+    "unfitted_prior",
 ]
 
 #: Highest degree of the bias polynomial.
@@ -82,6 +85,13 @@ SELECT_P = 0.01
 #: whatever the term's size (one term, a normal model, drops and keeps together; worst at 2.5
 #: of its std), and the kept ones lose at most 5 % of their std.
 ALIAS_MAX = 0.1
+#: The prior of a term the design cannot fit (:func:`unfitted_prior`): its largest bias change
+#: at :data:`UNFITTED_HALF_SPAN_C` from ``T_ref``, as a fraction of the linear term's at the
+#: sensor's datasheet tempco: a quadratic 30 %, a cubic 10 % (MEMS bias curves are fitted with
+#: cubics, PX4's ``TC_*_X3`` and ArduPilot's ``INS_TCAL``; their higher terms are smaller).
+UNFITTED_FRACTION = {2: 0.3, 3: 0.1}
+#: Half the span over which :data:`UNFITTED_FRACTION` holds, degrees C.
+UNFITTED_HALF_SPAN_C = 15.0
 
 
 def noise_scale(chi2: float, dof: float, known_sigma: bool) -> float:
@@ -91,6 +101,33 @@ def noise_scale(chi2: float, dof: float, known_sigma: bool) -> float:
     if not known_sigma:
         return chi2 / dof
     return chi2 / dof if dof > 0 and chi2 > chdtri(dof, 0.01) else 1.0
+
+
+def unfitted_prior(linear_max: float, degrees) -> dict[int, float]:
+    """Prior standard deviation of each polynomial term a design cannot fit, per degree.
+
+    A term the poses cannot determine is still in the part's bias; held at zero it shifts the
+    fitted ones by ``A c`` (``A`` the alias matrix), which no fit of those poses can see. With
+    ``c`` drawn from a prior of variance ``P`` that shift has covariance ``A P A^T`` (a Schmidt
+    consider parameter, the truncation error in the std): uniform within
+    ``UNFITTED_FRACTION[k] linear_max h / h^k`` (``h`` = :data:`UNFITTED_HALF_SPAN_C`), so
+    ``std = that / sqrt(3)``.
+
+    Parameters
+    ----------
+    linear_max : float
+        The sensor's largest linear bias coefficient (its datasheet's tempco), units per C.
+    degrees : iterable of int
+        The degrees not fitted (2 or 3).
+
+    Returns
+    -------
+    dict
+        ``{degree: std}``, units per C^degree.
+    """
+    h = UNFITTED_HALF_SPAN_C
+    return {int(k): UNFITTED_FRACTION[int(k)] * linear_max * h / h ** int(k) / np.sqrt(3.0)
+            for k in degrees}  # fmt: skip
 
 
 def alias_inflation(cov_big: np.ndarray, cov_small: np.ndarray) -> float:
