@@ -50,6 +50,7 @@ import concurrent.futures as cf
 import dataclasses
 import inspect
 import multiprocessing as mp
+import re
 import signal
 import tempfile
 import threading
@@ -499,6 +500,61 @@ def run_live(plans=PLANS, seeds=(0,), modes=MODES, *, jobs: int = 3, n_burners: 
             files = _references_beside(plans, file_seeds, say, captures, guided)
             work = files.pop(None)
         grade_jobs(work)
+    return _rows(plans, modes, work, files)
+
+
+_CAPTURED = re.compile(r"^capture exit (\S+) in ([0-9.]+) s")
+
+
+def kept_jobs(folder: Path, plans, seeds: dict, jobs: int = 2) -> list[Job]:
+    """The captures a ``--keep`` folder holds (``STEM.h5`` and ``STEM.log``), each
+    calibrated again with this checkout's ``imucal calibrate`` (``jobs`` at a time): the
+    capture is what was live; the calibration is a function of the session alone
+    (``--regrade``)."""
+    work = []
+    for plan in plans:
+        for mode, mine in seeds.items():
+            for seed in mine:
+                job = Job(plan, seed, mode, 0.0)
+                log = folder / f"{job.stem}.log"
+                if not log.exists():
+                    continue
+                got = _CAPTURED.match((log.read_text().splitlines() + ["", ""])[1])
+                code = None if got is None or got[1] == "None" else int(got[1])
+                job.capture = live_run.CaptureRun(mode, folder / f"{job.stem}.h5", exit_code=code,
+                                                  wall_s=float(got[2]) if got else 0.0)  # fmt: skip
+                work.append(job)
+
+    def again(job: Job) -> None:
+        h5 = job.capture.session
+        if not h5.exists():
+            return
+        session = folder / f"room-s{job.seed}-{job.mode}.h5" if job.plan.warmup else h5
+        session.with_suffix(".cal.json").unlink(missing_ok=True)  # the earlier checkout's
+        job.calibrate = live_run.calibrate(session, warmup=h5 if job.plan.warmup else None)
+
+    with cf.ThreadPoolExecutor(max_workers=jobs) as pool:
+        list(pool.map(again, work))
+    return work
+
+
+def regrade(folder: Path, plans=PLANS, mode_seeds: dict | None = None, file_seeds=range(40),
+            say=print) -> list[Row]:  # fmt: skip
+    """The rows of the captures kept in ``folder`` (:func:`kept_jobs`), against the file
+    references computed now (as :func:`run_live`, without capturing)."""
+    each = {m: list((mode_seeds or {}).get(m, range(3))) for m in MODES}
+    t0 = time.monotonic()
+    work = kept_jobs(folder, plans, each)
+    say(f"  {len(work)} kept captures calibrated again ({time.monotonic() - t0:.0f} s)")
+    grade_jobs(work)
+    seeds = sorted(set(file_seeds) | set().union(*each.values()))
+    files = _references_beside(plans, seeds, say, lambda: work, each.get("guided", []))
+    files.pop(None)
+    return _rows(plans, MODES, work, files)
+
+
+def _rows(plans, modes, work: list[Job], files: dict) -> list[Row]:
+    """One row per plan and mode (blocked plans get a row that says why)."""
     rng = np.random.default_rng(24)
     rows = []
     for plan in plans:
@@ -515,12 +571,13 @@ def run_live(plans=PLANS, seeds=(0,), modes=MODES, *, jobs: int = 3, n_burners: 
 
 def run(console: Console, n_seeds: int = 3, quick: bool = False, jobs: int = 3,
         file_seeds: int = 40, only: str | None = None, keep: Path | None = None,
-        guided_seeds: int | None = None) -> bool:  # fmt: skip
+        guided_seeds: int | None = None, regrade_dir: Path | None = None) -> bool:  # fmt: skip
     """``python -m bench --only live``: the table; False when a row fails.  ``n_seeds`` per
     plan and mode (``guided_seeds`` for the guided captures, where given: their samples are
     not the file's, so their ratio to it needs more seeds); ``only``: plan names (``--plan``,
     comma-separated) to run instead of all; ``keep``: a folder for the sessions,
-    calibrations and each capture's log (``STEM.log``)."""
+    calibrations and each capture's log (``STEM.log``); ``regrade_dir``: such a folder,
+    whose captures are calibrated again and graded instead of capturing (:func:`regrade`)."""
     console.rule("[bold]Live path: simulate --serve, capture (guided and unattended), calibrate")
     plans = [p for p in PLANS if not quick or p.plan in QUICK_PLANS]
     if only:
@@ -548,8 +605,12 @@ def run(console: Console, n_seeds: int = 3, quick: bool = False, jobs: int = 3,
     def say(msg: str) -> None:
         console.print(msg, highlight=False)
 
-    rows = run_live(plans, mode_seeds=each, jobs=jobs, file_seeds=range(n_file), folder=keep,
-                    say=say)  # fmt: skip
+    if regrade_dir is not None:
+        say(f"the captures kept in {regrade_dir}, calibrated again by this checkout")
+        rows = regrade(regrade_dir, plans, each, range(n_file), say=say)
+    else:
+        rows = run_live(plans, mode_seeds=each, jobs=jobs, file_seeds=range(n_file),
+                        folder=keep, say=say)  # fmt: skip
     minutes = (time.monotonic() - t0) / 60
     print_rows(console, rows, f"bench live: served, captured beside 2 CPU burners, calibrated "
                               f"with no config; error/bound pooled RMS, live vs the same seeds "

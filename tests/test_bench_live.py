@@ -60,6 +60,15 @@ def test_live_six_guided_and_unattended(tmp_path):
     assert any("[2/2]" in line for line in lines)  # progress said per capture
     session = tmp_path / "six-s3-guided.h5"
     assert session.exists() and session.with_suffix(".cal.json").exists()
+    # --regrade: the kept captures calibrated again give the rows the run gave
+    again = live.regrade(tmp_path, plans, {"guided": [3], "unattended": [3]}, file_seeds=[3],
+                         say=lines.append)  # fmt: skip
+    _check(again, plans)
+    assert any("2 kept captures calibrated again" in line for line in lines)
+    for first, second in zip(rows, again, strict=True):
+        assert (first.plan, first.mode) == (second.plan, second.mode)
+        assert second.live == pytest.approx(first.live, rel=1e-6)
+        assert second.cover_live == first.cover_live
 
 
 def test_the_person_reads_a_live_screen():
