@@ -71,6 +71,9 @@ def main() -> None:
     parser.add_argument("--plans", help="live: only these plans (comma-separated --plan names)")
     parser.add_argument("--keep", type=Path, metavar="DIR",
                         help="live: keep the sessions, calibrations and capture logs in DIR")
+    parser.add_argument("--regrade", type=Path, metavar="DIR",
+                        help="live: calibrate again and grade the captures a --keep DIR holds, "
+                        "instead of capturing")  # fmt: skip
     parser.add_argument("--runs", type=int, default=5, help="speed: runs per figure (median)")
     parser.add_argument("--sessions", type=int, default=500, help="speed: production-line size")
     args = parser.parse_args()
@@ -108,7 +111,8 @@ def main() -> None:
         ok = registry.run(console) and ok
     if args.only in (None, "live"):  # real time: about an hour at 8 seeds
         ok = live.run(console, n_seeds=live_seeds, quick=args.quick, jobs=args.jobs,
-                      only=args.plans, keep=args.keep, guided_seeds=args.guided_seeds) and ok
+                      only=args.plans, keep=args.keep, guided_seeds=args.guided_seeds,
+                      regrade_dir=args.regrade) and ok
     if args.only in (None, "adaptive"):
         ok = adaptive.run(console, n_seeds=max(20, args.seeds // 10), quick=args.quick) and ok
     if args.only in (None, "multi"):

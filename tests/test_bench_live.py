@@ -60,6 +60,15 @@ def test_live_six_guided_and_unattended(tmp_path):
     assert any("[2/2]" in line for line in lines)  # progress said per capture
     session = tmp_path / "six-s3-guided.h5"
     assert session.exists() and session.with_suffix(".cal.json").exists()
+    # --regrade: the kept captures calibrated again give the rows the run gave
+    again = live.regrade(tmp_path, plans, {"guided": [3], "unattended": [3]}, file_seeds=[3],
+                         say=lines.append)  # fmt: skip
+    _check(again, plans)
+    assert any("2 kept captures calibrated again" in line for line in lines)
+    for first, second in zip(rows, again, strict=True):
+        assert (first.plan, first.mode) == (second.plan, second.mode)
+        assert second.live == pytest.approx(first.live, rel=1e-6)
+        assert second.cover_live == first.cover_live
 
 
 def test_the_person_reads_a_live_screen():
@@ -157,3 +166,67 @@ def test_the_ratio_interval_of_seeds_with_nothing_graded_in_both_is_nan():
     pairs = [(SimpleNamespace(graded={}), {}) for _ in range(4)]
     lo, hi = _bootstrap(pairs, [set()] * 4, np.random.default_rng(0))
     assert np.isnan(lo) and np.isnan(hi)
+
+
+def _guided_stream(session, hold_s: float, settle: int = 16, reaction: int = 85):
+    """What the device streams to a guided person who holds each pose ``hold_s`` and moves on
+    ``reaction`` samples after the capture took it (``bench.live_run.capture_guided``), with
+    the segments a capture writes: each pose's ``hold_s`` from ``settle`` samples into the
+    hold, the rest of the hold never streamed (the stream compacted, the clock continuous),
+    the move between two poses a rotation segment; no capture, so nothing lost."""
+    import dataclasses
+
+    from imucal_cli.model.session import Segment
+
+    rate = float(session.sample_rate_hz)
+    pose = int(round(hold_s * rate))
+    segs = sorted(session.segments, key=lambda s: s.start)
+    keep = np.ones(len(session.time), bool)
+    for s in segs:
+        if s.kind == "static":
+            keep[s.start + (settle if s.start else 0) + pose + reaction : s.stop] = False
+    at = np.cumsum(keep) - 1
+    out: list = []
+    for s in segs:
+        first = s.start + (settle if s.kind == "static" and s.start else 0)
+        last = first + pose - 1 if s.kind == "static" else s.stop - 1
+        new = dataclasses.replace(s, start=int(at[first]), stop=int(at[last]) + 1)
+        if s.kind == "static" and out and out[-1].kind == "static":
+            out.append(Segment(f"m{s.name}", "rotation", out[-1].stop + reaction // 2, new.start,
+                               label=f"turn to {s.label}"))  # fmt: skip
+        out.append(new)
+    return dataclasses.replace(session, time=np.arange(keep.sum()) / rate,
+                               accel=session.accel[keep], gyro=session.gyro[keep],
+                               temperature=None, segments=out)  # fmt: skip
+
+
+def test_a_guided_capture_is_paired_with_the_file_held_as_it_holds():
+    """qureshi-axes:6, seeds 1 and 3 of those where the bench's guided row failed (+11 %,
+    issue 24.1): a guided stream that loses nothing (the file's own samples, each pose held
+    the capture's 2 s, no capture) fails the 10 % target against the file of the same seeds
+    as simulated (4 s holds: another noise draw, whose own sampling error the ratio then
+    carries: +20 % here), and meets it paired with the file held as the guided capture holds
+    (the hold's own part, :func:`held_factor`, said in a note).  Over 40 seeds the three
+    designs' error/bound are 1.009 (stream), 0.996 (held) and 1.000 (file)."""
+    from bench.live_table import held_factor, make_row
+
+    plan = live.LivePlan("qureshi-axes:6")
+    seeds, every = [1, 3], list(range(12))
+    hold = live.guided_hold_s(plan)
+    assert hold == 2.0
+    files = live.file_reference(plan, every)[0]
+    held = live.file_reference(plan, every, hold)[0]
+    assert abs(held_factor(files, held) - 1) < 0.10  # the same expectation, within 12 seeds'
+    jobs = []
+    for s in seeds:
+        session, truth = live.simulated(plan, s)
+        streamed = _guided_stream(session, hold)
+        cal = live.calibrate_session(streamed, live.Config())
+        jobs.append(_Job(s, live.grade(streamed, cal, truth)))
+    rng = np.random.default_rng(0)
+    old = make_row("qureshi-axes:6", "guided", jobs, files, rng)
+    assert old.ratio > 1.10 and not old.ok, old.ratio
+    paired = make_row("qureshi-axes:6", "guided", jobs, files, rng, same_of=held)
+    assert abs(paired.ratio - 1) <= 0.10, paired.ratio
+    assert paired.ok, paired.why
+    assert any("the hold's part" in n for n in paired.notes), paired.notes
