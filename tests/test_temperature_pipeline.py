@@ -335,6 +335,12 @@ def test_the_degree_note_names_its_cause_max_degree_or_the_poses():
     assert "capped by [temperature] max_degree = 2" in note, note
     assert "would determine degree 3" in note and "capture more poses" not in note, note
     assert "cubic from a prior, accel_tempco_mg_per_c = 0.5 mg/C" in _summary(cal.accel)
+    # 14 poses: a linear term only (9 + 6 parameters need 16), the poses are the cause
+    _, cal = _ramp_with(plan="random:14")
+    note = " ".join(n for n in cal.accel.notes if n.startswith("temperature model"))
+    assert "the 14 poses determine at most degree 1 (of 3)" in note and "capped" not in note
+    assert "quadratic and cubic from a prior" in _summary(cal.accel)
+    assert cal.accel.temperature_model.prior_degrees == [2, 3]
 
 
 def test_the_tempco_key_reaches_the_fit_and_the_data_check_widens_a_prior_too_small():
