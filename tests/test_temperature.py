@@ -342,3 +342,45 @@ def test_a_cubic_the_poses_cannot_fit_is_in_the_kept_terms_std_through_its_prior
                 assert fit.terms_cov.shape == (9 + 9, 9 + 9)
     assert np.mean(hits[True]) >= 0.88, np.mean(hits[True])
     assert np.mean(hits[False]) < 0.80, np.mean(hits[False])
+
+
+def test_a_known_cubic_moves_tc1_by_the_alias_the_consider_term_states():
+    """Issue 24.6, noise-free: a cubic put into a qureshi18 ramp's poses moves the fitted
+    terms by ``A c3``; the consider term states ``A`` in its cross-covariance (``-A P``, so
+    ``A = -terms_cov[:, cubic] / P``) and ``P`` is the prior's: ``0.1 x 0.5 mg/C x 15 C /
+    15^3 / sqrt(3)`` per C^3, in raw units.  The shift is the linearised one within 1 %."""
+    from imucal_cli.estimators.thermal.temperature import unfitted_prior
+
+    session, _ = simulate(seed=5, plan="qureshi18", temperature=Ramp(10.0, 40.0, "linear"))
+    a, T, cov = _pose_means(session)
+    plain = fit_gravity(a, G0)
+    raw_per_si = 1.0 / np.mean(np.diag(plain.M))
+    u = (a - plain.bias) @ plain.M.T
+    level = plain.bias + (G0 * u / np.linalg.norm(u, axis=1, keepdims=True)) @ np.linalg.inv(
+        plain.M).T  # the poses without the temperature: gravity exactly  # fmt: skip
+    prior = unfitted_prior(0.5 * G0 / 1000.0, (2, 3))
+    per_mg = G0 / 1000.0 * raw_per_si  # raw units per mg
+    c1 = np.array([0.3, -0.2, 0.4]) * per_mg
+    c3 = np.array([1.0, -1.0, 0.5]) * 0.5 / 2500.0 * per_mg  # the simulator's largest cubic
+    t_ref = float(np.mean(T))
+    dt = (T - t_ref)[:, None]
+
+    def fit(cubic):
+        return fit_gravity_tempco(level + dt * c1 + dt**3 * cubic, T, G0, (plain.bias, plain.M),
+                                  cov_mean=cov, temperature_ref=t_ref, select_p=1.0,
+                                  unfitted_std=prior)  # fmt: skip
+
+    base, moved = fit(0 * c3), fit(c3)
+    assert list(moved.degree) == [2, 2, 2] and moved.design_degree == 2
+    np.testing.assert_allclose(base.tempco[0], c1, rtol=1e-6)  # no cubic: exact
+    cols = moved.terms_columns
+    cub = [cols.index((3, c)) + 9 for c in range(3)]
+    lin = [cols.index((1, c)) + 9 for c in range(3)]
+    C = moved.terms_cov
+    P = np.diag(C[np.ix_(cub, cub)])
+    want = 0.1 * 0.5 * 15.0 / 15.0**3 / np.sqrt(3.0) * per_mg  # the prior's std, raw per C^3
+    np.testing.assert_allclose(np.sqrt(P), want, rtol=1e-9)
+    A = -C[np.ix_(lin, cub)] / P
+    shift = moved.tempco[0] - base.tempco[0]
+    assert np.all(np.abs(shift) > 0.2 * np.abs(c1) * 0.01)  # a shift worth checking
+    np.testing.assert_allclose(shift, A @ c3, rtol=0.01)

@@ -44,7 +44,9 @@ def test_the_gyro_s_std_hold_the_accelerometer_s_temperature_terms(ramp_cal, mon
     assert comp.columns[-3:] == [(3, 0), (3, 1), (3, 2)]  # the cubic, known by its prior
     n = 12 + len(comp.columns)
     assert comp.covariance.shape == (n, n)
-    assert np.linalg.eigvalsh(comp.covariance).min() > -1e-9 * np.abs(comp.covariance).max()
+    # positive semi-definite as assembled (the clipping after it only takes rounding off)
+    lo, hi = comp.eigenvalue_range
+    assert hi > 0 and lo > -1e-9 * hi, (lo, hi)
     assert "compensation" not in cal.accel.to_dict()  # never written
     monkeypatch.setattr(thermal, "_compensation", lambda *args: None)
     without = calibrate_session(session, Config())
@@ -304,3 +306,79 @@ def test_every_temperature_term_s_intervals_cover_over_100_parts():
         n = {"accel": 600, "gyro": 900}[key[1]] if key[2] == "matrix" else 300
         assert c.intervals == n and c.seeds == 100, (key, c)
         assert 90.5 <= c.percent <= 99.0 and c.ok, (key, c)
+
+
+G0 = 9.80665
+
+
+def _ramp_with(mg_per_c=None, plan="qureshi18", seed=5, **temperature):
+    session, truth = simulate(seed=seed, plan=plan, temperature=Ramp(5.0, 40.0, "linear"))
+    if mg_per_c is not None:
+        temperature["accel_tempco_mg_per_c"] = mg_per_c
+    return truth, calibrate_session(session, config_from_dict({"temperature": temperature}))
+
+
+def _summary(sec):
+    from imucal_cli.cli.calibrate import _temperature_line
+
+    lines = []
+    _temperature_line(lines.append, sec, "counts")
+    return lines[0]
+
+
+def test_the_degree_note_names_its_cause_max_degree_or_the_poses():
+    """30 poses through a ramp determine the cubic (30 > 9 + 9 parameters); with
+    ``[temperature] max_degree = 2`` the note says the key capped it, not that more poses are
+    needed (it did, before: false advice)."""
+    _, cal = _ramp_with(plan="random:30", max_degree=2)
+    note = " ".join(n for n in cal.accel.notes if n.startswith("temperature model"))
+    assert "capped by [temperature] max_degree = 2" in note, note
+    assert "would determine degree 3" in note and "capture more poses" not in note, note
+    assert "cubic from a prior, accel_tempco_mg_per_c = 0.5 mg/C" in _summary(cal.accel)
+    # 14 poses: a linear term only (9 + 6 parameters need 16), the poses are the cause
+    _, cal = _ramp_with(plan="random:14")
+    note = " ".join(n for n in cal.accel.notes if n.startswith("temperature model"))
+    assert "the 14 poses determine at most degree 1 (of 3)" in note and "capped" not in note
+    assert "quadratic and cubic from a prior" in _summary(cal.accel)
+    assert cal.accel.temperature_model.prior_degrees == [2, 3]
+
+
+def test_the_tempco_key_reaches_the_fit_and_the_data_check_widens_a_prior_too_small():
+    """``[temperature] accel_tempco_mg_per_c`` sets the prior of the cubic an 18-pose ramp
+    cannot fit: 1.0 mg/C widens tc1's std over 0.5 mg/C's and the notes and the summary name
+    it.  A value the part's own linear term exceeds by more than 2 std (0.05 mg/C; this part
+    is drawn within 0.5) is checked against the data: that axis's prior is widened to the
+    fitted tempco and a note says so; the model records how much of each std is the prior's."""
+    _, half = _ramp_with()
+    _, one = _ramp_with(1.0)
+    _, tiny = _ramp_with(0.05)
+    std = {k: np.array(c.accel.temperature_model.bias_tempco_std)[0]
+           for k, c in (("half", half), ("one", one), ("tiny", tiny))}  # fmt: skip
+    assert np.all(std["one"] > 1.2 * std["half"]), std
+    assert any("accel_tempco_mg_per_c = 1 mg/C" in n for n in one.accel.notes), one.accel.notes
+    assert "accel_tempco_mg_per_c = 1 mg/C" in _summary(one.accel)
+    m = half.accel.temperature_model
+    assert m.prior_tempco_mg_per_c == [0.5, 0.5, 0.5] and m.prior_degrees == [3]
+    noise2 = np.array(m.bias_tempco_std) ** 2 - np.array(m.bias_tempco_std_prior) ** 2
+    assert np.all(noise2[0] > 0) and np.all(np.array(m.bias_tempco_std_prior)[0] > 0)
+    assert not any("exceeds" in n for n in half.accel.notes)
+    from imucal_cli.use.report.build import build_report
+
+    table = [t for t in build_report(half)["sensors"]["accel"]["tables"]
+             if t["title"] == "temperature terms' std from the prior"][0]  # fmt: skip
+    assert [r[:2] for r in table["rows"]] == [["x", 0.5], ["y", 0.5], ["z", 0.5]]
+    np.testing.assert_allclose([r[2] for r in table["rows"]], m.bias_tempco_std_prior[0])
+    # 0.05 mg/C: the fitted linear terms are larger, the prior follows them
+    acc = tiny.accel
+    used = np.array(acc.temperature_model.prior_tempco_mg_per_c)
+    fitted = np.abs(np.array(acc.bias_tempco)[0]) * np.abs(np.diag(acc.matrix)) * 1000.0 / G0
+    wide = used > 0.05
+    assert wide.any() and any("exceeds [temperature] accel_tempco_mg_per_c = 0.05" in n
+                              for n in acc.notes), acc.notes  # fmt: skip
+    np.testing.assert_allclose(used[wide], fitted[wide], rtol=0.05)
+    # the same fit (a prior moves no estimate): the prior's part of the std follows the bound,
+    # above the tenth of 0.5 mg/C's it would be unwidened
+    prior_tiny = np.array(acc.temperature_model.bias_tempco_std_prior)[0]
+    prior_half = np.array(m.bias_tempco_std_prior)[0]
+    np.testing.assert_allclose(acc.bias_tempco, half.accel.bias_tempco, rtol=1e-9)
+    assert np.all(prior_tiny[wide] > 1.5 * 0.1 * prior_half[wide]), (prior_tiny, prior_half)

@@ -75,7 +75,8 @@ class TemperatureModel:
     (n,); ``t_min``/``t_max`` the fitted range, C; ``bias_var_extra`` (n,) what the terms add
     to the bias variance at ``T_ref``; ``details`` the solver's diagnostics (members of the
     section's :class:`~imucal_cli.model.parts.TemperatureModel`); ``note`` for the section's
-    notes (a degree the poses limited); ``model_cov_extra`` (9, 9) what the terms add to the
+    notes (a degree the poses or ``max_degree`` limited, a prior widened: one or a list);
+    ``model_cov_extra`` (9, 9) what the terms add to the
     gravity-magnitude model's ``(B, M upper)`` covariance (:func:`widen_accel`);
     ``terms_columns``/``terms_cov`` the joint fit's covariance of ``(B, M upper, the terms)``
     with the terms the poses could not fit (:attr:`JointResult.terms_cov`).
@@ -90,7 +91,7 @@ class TemperatureModel:
     source: str
     bias_var_extra: np.ndarray
     details: dict = field(default_factory=dict)
-    note: str | None = None
+    note: str | list[str] | None = None
     model_cov_extra: np.ndarray | None = None
     terms_columns: list | None = None
     terms_cov: np.ndarray | None = None
@@ -207,29 +208,57 @@ def _joint_accel(session: Session, cfg: Config, t_ref: float) -> TemperatureMode
     start = fit_gravity(values, g)
     cov = np.array([np.diag(s**2) for s in sigma])
     # the terms the poses cannot fit, carried with a prior (the datasheet's tempco, G0 m/s^2 per g)
-    prior = unfitted_prior(opt.accel_tempco_mg_per_c * G0 / 1000.0, (2, 3))
+    tempco_max = opt.accel_tempco_mg_per_c * G0 / 1000.0
+    prior = unfitted_prior(tempco_max, (2, 3))
     joint = fit_gravity_tempco(values, temps, g, (start.bias, start.M), cov_mean=cov,
                                temperature_ref=t_ref, groups=groups, max_degree=opt.max_degree,
                                min_span_c=opt.min_span_c, unfitted_std=prior,
+                               tempco_max=tempco_max,
                                what=f"{session_name(session)} (accel)")  # fmt: skip
-    note = None
+    details = {"points": len(temps), "selection": [build(SelectionRow, **t) for t in joint.tests],
+               "noise_scale": joint.noise_scale, "chi2": joint.chi2, "dof": joint.dof}
+    notes = []
     if joint.design_degree < MAX_DEGREE:
-        n = len(np.unique(groups))
-        note = (f"temperature model: the {n} poses determine at most degree "
-                f"{joint.design_degree} (of {MAX_DEGREE}) with the gravity-magnitude model; "
-                "the higher-degree part of the bias is not fitted, its effect on the terms is in "
-                "their std from a prior ([temperature] accel_tempco_mg_per_c = "
-                f"{opt.accel_tempco_mg_per_c:g} mg/C): capture more poses (or a still warm-up) "
-                "to fit it")
+        notes.append(_degree_note(joint, len(np.unique(groups)), opt))
+        used = opt.accel_tempco_mg_per_c * joint.prior_scale
+        details["prior_tempco_mg_per_c"] = [float(v) for v in used]
+        details["bias_tempco_std_prior"] = joint.tempco_std_prior.tolist()
+        details["prior_degrees"] = list(range(joint.design_degree + 1, MAX_DEGREE + 1))
+        wide = [f"{'xyz'[c]} {used[c]:.2g} mg/C" for c in range(3) if joint.prior_scale[c] > 1]
+        if wide:
+            notes.append(
+                "temperature model: the part's fitted linear tempco (" + ", ".join(wide) + ") "
+                f"exceeds [temperature] accel_tempco_mg_per_c = {opt.accel_tempco_mg_per_c:g} "
+                "mg/C by more than 2 std: the prior of the terms the poses cannot fit was "
+                f"widened to the fitted value on {'that axis' if len(wide) == 1 else 'those axes'}"
+                "; set the key from your part's datasheet (its largest axis), or record a still "
+                "warm-up, which fits the cubic")
     return TemperatureModel(
         t_ref, joint.tempco, joint.tempco_std, joint.degree, joint.t_min, joint.t_max,
         "the session's still periods, jointly with the gravity-magnitude model",
-        joint.bias_var_extra,
-        {"points": len(temps), "selection": [build(SelectionRow, **t) for t in joint.tests],
-         "noise_scale": joint.noise_scale,
-         "chi2": joint.chi2, "dof": joint.dof},
-        note, joint.model_cov_extra, joint.terms_columns, joint.terms_cov,
+        joint.bias_var_extra, details, notes or None, joint.model_cov_extra,
+        joint.terms_columns, joint.terms_cov,
     )  # fmt: skip
+
+
+def _degree_note(joint, n_poses: int, opt) -> str:
+    """Why the joint fit stops below the cubic, by cause: ``[temperature] max_degree`` or the
+    number of poses (or their layout), and what carries the rest."""
+    d = joint.design_degree
+    rest = "the cubic is" if d == MAX_DEGREE - 1 else "the terms above it are"
+    prior = (f"{rest} carried in the std from a prior ([temperature] accel_tempco_mg_per_c = "
+             f"{opt.accel_tempco_mg_per_c:g} mg/C)")
+    if d == opt.max_degree and joint.pose_degree > d:
+        return (f"temperature model: degree capped by [temperature] max_degree = "
+                f"{opt.max_degree} (the {n_poses} poses would determine degree "
+                f"{joint.pose_degree}); {prior}")
+    if joint.pose_degree <= d:
+        return (f"temperature model: the {n_poses} poses determine at most degree {d} (of "
+                f"{MAX_DEGREE}) with the gravity-magnitude model; {prior}: capture more poses "
+                "or a still warm-up to fit it")
+    return (f"temperature model: the {n_poses} poses' orientations determine at most degree "
+            f"{d} (of {MAX_DEGREE}) with the gravity-magnitude model; {prior}: capture poses "
+            "on more faces and edges, or a still warm-up, to fit it")
 
 
 def _joint_gyro(session: Session, cfg: Config, t_ref: float) -> TemperatureModel | None:
@@ -394,7 +423,8 @@ def _compensation(sec: SensorCalibration, model: TemperatureModel, Ji: np.ndarra
     full = np.block([[np.asarray(sec.covariance.values, float), cross], [cross.T, C[9:, 9:]]])
     w, V = np.linalg.eigh((full + full.T) / 2)  # the (B, A) block is the solver's, not the fit's
     return Compensation(model.temperature_ref, [tuple(c) for c in model.terms_columns],
-                        (V * np.clip(w, 0.0, None)) @ V.T)  # fmt: skip
+                        (V * np.clip(w, 0.0, None)) @ V.T,
+                        (float(w.min()), float(w.max())))  # fmt: skip
 
 
 def attach(sec: SensorCalibration | None, model: TemperatureModel | None) -> None:
@@ -410,7 +440,8 @@ def attach(sec: SensorCalibration | None, model: TemperatureModel | None) -> Non
     sec.temperature_range_c = [float(model.t_min), float(model.t_max)]
     unit = sec.units_in or "raw units"
     if model.note:
-        sec.notes = [*(sec.notes or []), model.note]
+        more = [model.note] if isinstance(model.note, str) else list(model.note)
+        sec.notes = [*(sec.notes or []), *more]
     sec.temperature_model = build(
         TemperatureModelRecord, source=model.source, degree=model.degree.tolist(),
         bias_tempco_std=model.tempco_std.tolist(), unit=f"{unit} per C^k",

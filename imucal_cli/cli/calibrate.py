@@ -483,5 +483,15 @@ def _temperature_line(line, sec, units: str) -> None:
     line(
         f"  temperature: bias polynomial of degree {', '.join(map(str, model.degree))} per "
         f"channel about {sec.temperature_ref:.1f} C, fitted over {lo:.1f} .. {hi:.1f} C "
-        f"({model.source}); {units} per C^k"
+        f"({model.source}); {units} per C^k" + _prior_words(model)
     )
+
+
+def _prior_words(model) -> str:
+    """Where the joint fit carries the terms the poses cannot fit from a prior, say so."""
+    used = model.prior_tempco_mg_per_c
+    if not used:
+        return ""
+    what = " and ".join({2: "quadratic", 3: "cubic"}[d] for d in model.prior_degrees or [3])
+    value = "/".join(f"{v:.2g}" for v in used) if len(set(used)) > 1 else f"{used[0]:g}"
+    return f"; {what} from a prior, accel_tempco_mg_per_c = {value} mg/C"

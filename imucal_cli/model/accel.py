@@ -115,11 +115,17 @@ class Compensation:
     covariance : ndarray, shape (12 + T, 12 + T)
         Of the errors of ``(bias, matrix row-major, the terms)``, raw units: a pose at ``T``
         is off by ``-sum (T - T_ref)^j dc_(j, channel)`` in its channel.
+    eigenvalue_range : tuple of float
+        ``(smallest, largest)`` eigenvalue of the covariance as assembled, before its negative
+        eigenvalues (rounding: the ``(bias, matrix)`` block is the solver's, the rest the
+        fit's) were clipped to zero; a smallest one far below zero would be an inconsistent
+        assembly, not rounding.
     """
 
     temperature_ref: float
     columns: list[tuple[int, int]]
     covariance: np.ndarray = field(repr=False)
+    eigenvalue_range: tuple[float, float] = (0.0, 0.0)
 
 
 @dataclass

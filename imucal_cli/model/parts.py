@@ -179,6 +179,15 @@ class TemperatureModel(Record):
         Of the joint fit.
     correlation : list of float
         Lag-1 autocorrelation of each channel's residuals (allowed for in the std).
+    prior_tempco_mg_per_c : list of float
+        The joint fit's terms the poses cannot fit are carried from a prior: the linear tempco
+        it was drawn for per channel, mg/C (``[temperature] accel_tempco_mg_per_c``, or the
+        fitted value where the part exceeds it).
+    bias_tempco_std_prior : list of list of float
+        The part of ``bias_tempco_std`` that prior gives (K x n; ``std^2 = noise^2 +
+        prior^2``).
+    prior_degrees : list of int
+        The degrees carried from that prior (above what the poses determine).
     """
 
     source: str | None = None
@@ -192,6 +201,9 @@ class TemperatureModel(Record):
     chi2: float | None = None
     dof: int | None = None
     correlation: list[float] | None = None
+    prior_tempco_mg_per_c: list[float] | None = None
+    bias_tempco_std_prior: list[list[float]] | None = None
+    prior_degrees: list[int] | None = None
 
 
 @dataclass

@@ -24,7 +24,10 @@ narrows no kept parameter by more than
 :data:`~imucal_cli.estimators.thermal.temperature.ALIAS_MAX` of its variance (a term aliased
 with the kept ones is kept: see that module's notes); what a dropped term still adds (the
 highest degree's estimate and covariance) stays in the kept parameters' covariance
-(:func:`_held_terms`).
+(:func:`_held_terms`). The terms above the design degree (a ramp's cubic) are carried from a
+prior (:func:`_unfitted_terms`), checked against the data where it can be: a channel whose
+fitted linear term exceeds the prior's ``tempco_max`` by more than 2 of its std gets its prior
+widened to it (:func:`_prior_check`).
 
 The fit gives the temperature terms and their covariance; the calibration itself (any
 accelerometer solver) is then run on the pose means with the temperature terms taken out.
@@ -104,6 +107,16 @@ class JointResult:
         Covariance of the errors of ``(B, M's upper triangle, the terms_columns)`` (raw units):
         what the compensated poses' error is made of, for a solver that reads them (the gyro's:
         :func:`imucal_cli.calibrate.thermal.widen_accel`).
+    pose_degree : int
+        The highest degree the number of distinct poses allows (more poses than the 9 + 3
+        degree parameters), whatever ``max_degree``: :attr:`design_degree` below it is a cap.
+    prior_scale : ndarray (3,)
+        Factor each channel's prior of the unfitted terms was widened by (1: as given): a
+        fitted linear term beyond ``tempco_max`` by more than 2 of its std (noise only) scales
+        that channel's prior up to it (:func:`_prior_check`).
+    tempco_std_prior : ndarray (K, 3)
+        The part of :attr:`tempco_std` that comes from the prior of the unfitted terms
+        (``tempco_std^2 = noise^2 + prior^2``), raw units per C^k.
     """
 
     bias: np.ndarray
@@ -125,6 +138,9 @@ class JointResult:
     design_degree: int = 0
     terms_columns: list = field(default_factory=list)
     terms_cov: np.ndarray | None = None
+    pose_degree: int = 0
+    prior_scale: np.ndarray = field(default_factory=lambda: np.ones(3))
+    tempco_std_prior: np.ndarray | None = None
 
 
 class _Model:
@@ -245,6 +261,7 @@ def fit_gravity_tempco(
     select_p: float = SELECT_P,
     max_iterations: int = 400,
     unfitted_std: dict[int, float] | None = None,
+    tempco_max: float | None = None,
     what: str = "the poses",
 ) -> JointResult:
     """Fit the gravity-magnitude model with a temperature-dependent bias.
@@ -278,6 +295,11 @@ def fit_gravity_tempco(
         (:func:`_unfitted_terms`; from
         :func:`~imucal_cli.estimators.thermal.temperature.unfitted_prior`).
         None: such a term is left out of the std (the caller says so).
+    tempco_max : float, optional
+        m/s^2 per C: the largest linear term ``unfitted_std`` was drawn for (the datasheet's
+        tempco). A channel whose fitted linear term exceeds it by more than 2 of its std (the
+        noise's) gets its prior scaled up to the fitted value (:attr:`JointResult.prior_scale`):
+        the prior is checked against the data it can be.
 
     Raises
     ------
@@ -300,28 +322,65 @@ def fit_gravity_tempco(
     w = _pose_weights(a_mean, None if cov_mean is None else np.asarray(cov_mean, float), B0, M0)
     n_poses = len(T) if groups is None else len(np.unique(np.asarray(groups)))
     model = _Model(a_mean, T, t_ref, g, w, B0, M0, n_poses)
-    nfev = 0
-    fit, degree = None, None
-    for d in range(max_degree, 0, -1):  # the highest degree the poses determine
+    top, top_degree, nfev = _design_fit(model, B0, M0, max_degree, max_iterations, what)
+    fit, degree, tests, n = _eliminate(model, top, top_degree, select_p, max_iterations)
+    weighted = cov_mean is not None
+    held = _held_terms(model, fit, degree, top, top_degree, weighted)
+    widen = np.ones(3)
+    if unfitted_std and tempco_max:
+        widen = _prior_check(model, fit, degree, held, weighted, tempco_max)
+    A_u, p_u, cols_u = _unfitted_terms(model, fit, degree, top_degree[0], unfitted_std or {},
+                                       widen)  # fmt: skip
+    prior_part = (A_u * p_u**2) @ A_u.T
+    out = _package(model, fit, degree, T, tests, nfev + n, weighted, held + prior_part)
+    out.design_degree = top_degree[0]
+    out.pose_degree = max(d for d in range(MAX_DEGREE + 1) if n_poses > 9 + 3 * d or d == 0)
+    out.prior_scale = widen
+    out.tempco_std_prior = _prior_std(model, degree, prior_part, out.tempco_std.shape)
+    _terms_cov(out, model, fit, degree, held, A_u, p_u, cols_u, weighted)
+    return out
+
+
+def _prior_std(model, degree, prior_part, shape) -> np.ndarray:
+    """The part of each kept term's std the unfitted terms' prior gives (``shape`` (K, 3)),
+    raw units per C^k, from its covariance ``prior_part`` (normalised units)."""
+    D = model.to_raw_jacobian(degree)
+    out = np.zeros(shape)
+    for i, (j, c) in enumerate(model.columns(degree)):
+        out[j - 1, c] = np.sqrt(max(prior_part[9 + i, 9 + i], 0.0)) * D[9 + i]
+    return out
+
+
+def _design_fit(model, B0, M0, max_degree, max_iterations, what):
+    """``(fit, degree, nfev)``: the fit of the highest degree (up to ``max_degree``) the poses
+    determine, the backward elimination's start."""
+    for d in range(max_degree, 0, -1):
         degree = [d, d, d]
         fit = _solve(model, model.start(B0, M0, degree), degree, max_iterations)
         if fit is not None:
-            nfev += fit.nfev
-            break
-    if fit is None:
-        raise DesignError(
-            f"{what}: {len(T)} poses cannot determine the gravity-magnitude model with a "
-            "temperature-dependent bias: capture more poses (faces and 45-degree edges) while "
-            "the temperature changes, or record a still warm-up (plan warmup:MINUTES)"
-        )
-    top, top_degree = fit, degree
-    fit, degree, tests, n = _eliminate(model, fit, degree, select_p, max_iterations)
-    held = _held_terms(model, fit, degree, top, top_degree, cov_mean is not None)
-    A_u, p_u, cols_u = _unfitted_terms(model, fit, degree, top_degree[0], unfitted_std or {})
-    out = _package(model, fit, degree, T, tests, nfev + n, cov_mean is not None,
-                   held + (A_u * p_u**2) @ A_u.T)  # fmt: skip
-    out.design_degree = top_degree[0]
-    _terms_cov(out, model, fit, degree, held, A_u, p_u, cols_u, cov_mean is not None)
+            return fit, degree, fit.nfev
+    raise DesignError(
+        f"{what}: {model.n_poses} poses cannot determine the gravity-magnitude model with a "
+        "temperature-dependent bias: capture more poses (faces and 45-degree edges) while "
+        "the temperature changes, or record a still warm-up (plan warmup:MINUTES)"
+    )
+
+
+def _prior_check(model, fit, degree, held, weighted, tempco_max) -> np.ndarray:
+    """Per channel, the factor the unfitted terms' prior is widened by (3,): where the fitted
+    linear term exceeds ``tempco_max`` (m/s^2 per C) by more than 2 of its std (the fit's
+    noise and the dropped terms', without the prior's), the prior, drawn for a part within
+    ``tempco_max``, is not this part's: its bound is scaled up to the fitted value."""
+    C = noise_scale(fit.chi2, len(fit.f) - len(fit.x), weighted) * \
+        np.linalg.inv(fit.J.T @ fit.J) + held  # fmt: skip
+    out = np.ones(3)
+    for i, (j, c) in enumerate(model.columns(degree)):
+        if j != 1:
+            continue
+        tc = abs(fit.x[9 + i]) / model.t_scale  # normalised units (m/s^2) per C
+        std = np.sqrt(max(C[9 + i, 9 + i], 0.0)) / model.t_scale
+        if tc > tempco_max + 2.0 * std:
+            out[c] = tc / tempco_max
     return out
 
 
@@ -360,14 +419,15 @@ def _held_terms(model, fit, degree, top, top_degree, weighted) -> np.ndarray:
     return consider_cov(A, top.x[drop], C[np.ix_(drop, drop)])
 
 
-def _unfitted_terms(model, fit, degree, design_degree, prior):
+def _unfitted_terms(model, fit, degree, design_degree, prior, widen=None):
     """``(A, p, columns)``: the terms above ``design_degree`` (up to the cubic), which no fit
     of these poses can determine, add to the kept parameters' covariance (normalised units):
     held at zero they
     shift them by ``A c`` (``A = (J_k^T J_k)^-1 J_k^T J_u``, the alias matrix of the
     linearised eq. (11) at the kept fit), ``c`` known only by its prior (``prior[j]``, m/s^2
     per C^j, i.e. ``p = prior[j] t_scale^j`` normalised): they add ``A P A^T`` (``P =
-    diag(p^2)``), a Schmidt consider covariance with a zero-mean prior."""
+    diag(p^2)``), a Schmidt consider covariance with a zero-mean prior; ``widen`` (3,) scales
+    each channel's (:func:`_prior_check`)."""
     n = 9 + len(model.columns(degree))
     full = [MAX_DEGREE] * 3
     cols_full, cols = model.columns(full), model.columns(degree)
@@ -379,7 +439,8 @@ def _unfitted_terms(model, fit, degree, design_degree, prior):
     x[[9 + cols_full.index(jc) for jc in cols]] = fit.x[9:]
     _, J = model.residuals_and_jacobian(x, full)
     A = np.linalg.solve(fit.J.T @ fit.J, fit.J.T @ J[:, [9 + i for i in unfit]])
-    p = np.array([prior[cols_full[i][0]] * model.t_scale ** cols_full[i][0] for i in unfit])
+    widen = np.ones(3) if widen is None else widen
+    p = np.array([prior[j] * widen[c] * model.t_scale**j for j, c in (cols_full[i] for i in unfit)])
     return A, p, [cols_full[i] for i in unfit]
 
 

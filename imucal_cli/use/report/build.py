@@ -266,6 +266,22 @@ def _g_sensitivity(sec: SensorCalibration, units_in: str | None) -> dict[str, An
     return {"matrix": np.asarray(matrix, dtype=float).tolist(), "unit": unit}
 
 
+def _prior_table(report: dict[str, Any], model, names, unit: str) -> None:
+    """How much of each temperature term's std comes from the prior of the terms the poses
+    cannot fit (a ramp's cubic), when the fit carried one."""
+    used, part = model.prior_tempco_mg_per_c, model.bias_tempco_std_prior
+    if used is None or part is None:
+        return
+    part = np.asarray(part, dtype=float)
+    rows = [[names[i], float(used[i])] + [float(part[k, i]) if k < len(part) else None
+                                          for k in range(2)] for i in range(len(used))]
+    add_table(report, "temperature terms' std from the prior", ["channel",
+              "prior tempco [mg/C]", "c1 std from prior", "c2 std from prior"], rows,
+              caption=f"{unit}; each std^2 = noise^2 + prior^2: the terms the poses cannot fit "
+              "(the cubic) are carried from a prior within the linear tempco shown "
+              "([temperature] accel_tempco_mg_per_c, or the fitted one where it is larger)")
+
+
 def _terms_tables(report: dict[str, Any], sec: SensorCalibration) -> None:
     """Tables of the optional terms (issue 17): the bias temperature model and the sample
     clock, when the section has them."""
@@ -290,6 +306,7 @@ def _terms_tables(report: dict[str, Any], sec: SensorCalibration) -> None:
                   caption=f"bias(T) = bias + sum_k c_k (T - {float(sec.temperature_ref):.2f}"
                   f" C)^k, {unit}; fitted over {float(lo):.1f} .. {float(hi):.1f} C from "
                   f"{model.source}")  # fmt: skip
+        _prior_table(report, model, names, unit)
     clock = member(sec, "sample_clock")
     if clock is not None and clock.ppm is not None:
         ppm_std = float("nan") if clock.ppm_std is None else clock.ppm_std
