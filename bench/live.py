@@ -185,26 +185,43 @@ def guided_hold_s(plan: LivePlan) -> float | None:
     return float(args[args.index("--hold") + 1]) if "--hold" in args else GUIDED_HOLD_S
 
 
-def held_as_guided(session, hold_s: float, reaction_s: float | None = None):
-    """The file as the bench's guided person streams it: each static segment cut to its first
-    ``hold_s`` seconds (the capture records that much of each pose), and the rest of each hold
-    from ``hold_s + reaction_s`` on never streamed (the person presses Enter a reaction time
-    after the capture took the pose and the device moves on, ``--step``), the clock continuous
-    as the device's; the samples streamed, the turns and the truth those of the file.
-    ``reaction_s``: the scripted person's mean (:data:`bench.live_run.REACTION_S`)."""
+#: How long after the device's hold begins the guided capture's window starts, s: its
+#: stillness detector's delay after a move (captured windows against the file's samples, six,
+#: qureshi18, qureshi-axes:6, hwangbo-iron and free:12, seeds 0 and 3: 7-24 samples at 100 Hz,
+#: mean 17).  The first pose has none: the device streams the unit still from its first
+#: sample, and the capture's window starts there (before the file's segment when it starts
+#: at 1 s).
+DETECT_S = 0.17
+
+
+def held_as_guided(session, hold_s: float, reaction_s: float | None = None,
+                   detect_s: float = DETECT_S):  # fmt: skip
+    """The file as the bench's guided person streams it: each static segment's window the
+    ``hold_s`` seconds the capture records of it, from ``detect_s`` after the hold begins
+    (:data:`DETECT_S`; the first pose from the stream's first sample), and the rest of each
+    hold from a reaction time after the window on never streamed (the person presses Enter
+    a reaction time after the capture took the pose and the device moves on, ``--step``),
+    the clock continuous as the device's; the samples streamed, the turns and the truth those
+    of the file.  ``reaction_s``: the scripted person's mean
+    (:data:`bench.live_run.REACTION_S`)."""
     if session.imus:
         raise ValueError("a set of IMUs is not held as a guided capture holds it")
     reaction_s = float(np.mean(live_run.REACTION_S)) if reaction_s is None else reaction_s
     rate = float(session.sample_rate_hz or 1.0 / np.median(np.diff(session.time)))
     n, late = max(int(round(hold_s * rate)), 2), int(round(reaction_s * rate))
+    first = session.segments[0] if session.segments else None
+    window = {}
+    for seg in session.static_segments():
+        w0 = 0 if seg is first else min(seg.start + int(round(detect_s * rate)), seg.stop - 2)
+        window[id(seg)] = (w0, min(w0 + n, seg.stop))
     keep = np.ones(len(session.time), bool)
     for seg in session.static_segments():
-        keep[seg.start + n + late : seg.stop] = False
+        keep[window[id(seg)][1] + late : seg.stop] = False
     at = np.cumsum(keep) - 1  # each kept sample's index in the stream
     segments = []
     for seg in session.segments:
-        stop = min(seg.stop, seg.start + n) if seg.kind == "static" else seg.stop
-        segments.append(dataclasses.replace(seg, start=int(at[seg.start]),
+        start, stop = window.get(id(seg), (seg.start, seg.stop))
+        segments.append(dataclasses.replace(seg, start=int(at[start]),
                                             stop=int(at[stop - 1]) + 1))  # fmt: skip
     cut = {name: None if getattr(session, name) is None else getattr(session, name)[keep]
            for name in ("accel", "gyro", "mag", "temperature", "host_time")}  # fmt: skip
