@@ -159,3 +159,23 @@ def test_gyro_without_accelerometer_or_labels_is_left_out_with_the_reason():
     assert outcome.section is None and outcome.refusal is None
     assert outcome.note == ("gyro not calibrated: the full gyro model needs the accelerometer "
                             "calibrated (an [accel] solver, or --accel CAL.json)")  # fmt: skip
+
+
+def test_a_gravity_fit_that_does_not_converge_leaves_the_labelled_fit_to_be_chosen():
+    """hwangbo-iron held 2 s per pose (as a guided capture holds it), seed 19: its 9
+    directions leave the gravity-magnitude fit no spare equation and it does not converge.
+    Assessing it ended the whole calibration ("the gravity fit did not converge"); now the
+    gravity solver is refused with that reason and the labelled fit is chosen."""
+    from bench.live import PLANS, held_as_guided, simulated
+    from imucal_cli.calibrate.session import calibrate_session
+
+    plan = next(p for p in PLANS if p.plan == "hwangbo-iron")
+    session = held_as_guided(simulated(plan, 19)[0], 2.0)
+    design = AccelDesign(session, Config())
+    assert design.gravity_failure is not None  # the case this test is about
+    assert "did not converge" in str(design.gravity_failure)
+    refusal = accel_estimators.Gravity().assess(design)
+    assert isinstance(refusal, Refusal) and "did not converge" in refusal.reason
+    cal = calibrate_session(session, Config())
+    assert cal.accel is not None and cal.accel.solver == "labelled"
+    assert "did not converge" in cal.accel.choice.reason

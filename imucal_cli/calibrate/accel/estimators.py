@@ -43,7 +43,7 @@ from imucal_cli.calibrate.common import (
 from imucal_cli.calibrate.factorization import calibrate_accel_factorization
 from imucal_cli.calibrate.registry import Bound, Determined, Needs, Refusal, register
 from imucal_cli.design.poses import count_distinct, unit
-from imucal_cli.errors import DesignError
+from imucal_cli.errors import DesignError, SolverError
 from imucal_cli.estimators.accel.crb import gravity_crb, labelled_crb
 from imucal_cli.estimators.accel.gravity import params_to_model
 from imucal_cli.estimators.accel.labelled_model import jacobian, public_from_theta
@@ -113,6 +113,18 @@ class AccelDesign:
         section."""
         return gravity_fit(self.session, self.cfg, self.poses, self.g, self.nominal)
 
+    @cached_property
+    def gravity_failure(self) -> SolverError | None:
+        """Why the gravity solver's fit failed on poses that determine its model (it did not
+        converge: 9 directions for 9 parameters leave no spare equation), None when it did
+        not.  Assessing it must not end the calibration: the labelled fit may still be
+        chosen."""
+        try:
+            _ = self.gravity  # computed once, kept for the assessments
+        except SolverError as exc:
+            return exc
+        return None
+
     def triad(self, solver: str) -> StaticPoses:
         """The poses, for a triad ``solver`` (its name as the refusal says it); a redundant
         unit is refused naming the factorization."""
@@ -174,6 +186,8 @@ class Gravity:
             return Refusal(f"a redundant unit of {design.channels} channels")
         if design.gravity_refusal is not None:
             return Refusal(_reason(design.gravity_refusal, design.where))
+        if design.gravity_failure is not None:
+            return Refusal(_reason(design.gravity_failure, design.where))
         gf = design.gravity
         return Determined(_gravity_reason(gf, design), _gravity_bound(gf, design),
                           compared_with="gravity magnitude alone")  # fmt: skip
@@ -208,6 +222,9 @@ class Labelled:
                 f"{design.distinct} distinct directions are too few for the gravity-magnitude "
                 f"model (9 parameters), but the {n_lab} labelled poses determine bias and the "
                 "full matrix, each pose's placement a nuisance parameter", tier=1)  # fmt: skip
+        if design.gravity_failure is not None:  # no fit to linearise the bound about
+            return Determined("the labels determine the labelled-pose model (the gravity fit "
+                              "did not converge)", tier=1)  # fmt: skip
         found = _labelled_bound(design.gravity, design)
         if found is None:
             return Determined("the labels determine the labelled-pose model", tier=1)
