@@ -115,13 +115,17 @@ class AccelDesign:
 
     @cached_property
     def gravity_failure(self) -> SolverError | None:
-        """Why the gravity solver's fit failed on poses that determine its model (it did not
-        converge: 9 directions for 9 parameters leave no spare equation), None when it did
-        not.  Assessing it must not end the calibration: the labelled fit may still be
-        chosen."""
+        """Why the gravity solver's fit failed where its poses leave it no spare equation
+        (9 distinct directions for 9 parameters: an exactly determined fit can fail to
+        converge on the noise alone), None when it did not.  Assessing it then refuses the
+        gravity solver instead of ending the calibration, and the labels may still decide.
+        With spare equations a fit that does not converge says the data are wrong, and that
+        is raised."""
         try:
             _ = self.gravity  # computed once, kept for the assessments
         except SolverError as exc:
+            if self.distinct > 9:
+                raise
             return exc
         return None
 
