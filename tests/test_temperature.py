@@ -304,6 +304,19 @@ def test_cli_simulate_ramp_writes_temperature_and_truth(tmp_path):
     assert_one_line_error(run("simulate", "--ramp", "20", "-o", tmp_path / "x.h5"), "--ramp")
 
 
+def _level_ramp():
+    """A qureshi18 ramp's pose temperatures and mean covariances (seed 5, 10 -> 40 C), its
+    gravity fit without temperature, raw units per m/s^2, and its poses' means moved to read
+    gravity exactly (no temperature term): the level a test adds its temperature terms to."""
+    session, _ = simulate(seed=5, plan="qureshi18", temperature=Ramp(10.0, 40.0, "linear"))
+    a, T, cov = _pose_means(session)
+    plain = fit_gravity(a, G0)
+    u = (a - plain.bias) @ plain.M.T
+    level = plain.bias + (G0 * u / np.linalg.norm(u, axis=1, keepdims=True)) @ np.linalg.inv(
+        plain.M).T  # fmt: skip
+    return T, cov, plain, 1.0 / np.mean(np.diag(plain.M)), level
+
+
 def test_a_cubic_the_poses_cannot_fit_is_in_the_kept_terms_std_through_its_prior():
     """Issue 24.6: 18 poses through a ramp determine a quadratic with the gravity-magnitude
     model; the part's cubic, held at zero, shifts tc1 and tc2 by ``A c3``.  Carried as a
@@ -312,13 +325,7 @@ def test_a_cubic_the_poses_cannot_fit_is_in_the_kept_terms_std_through_its_prior
     here, at least 88 %); without it, 57 % (the cubic is aliased with the linear term)."""
     from imucal_cli.estimators.thermal.temperature import unfitted_prior
 
-    session, _ = simulate(seed=5, plan="qureshi18", temperature=Ramp(10.0, 40.0, "linear"))
-    a, T, cov = _pose_means(session)
-    plain = fit_gravity(a, G0)
-    raw_per_si = 1.0 / np.mean(np.diag(plain.M))
-    u = (a - plain.bias) @ plain.M.T
-    level = plain.bias + (G0 * u / np.linalg.norm(u, axis=1, keepdims=True)) @ np.linalg.inv(
-        plain.M).T  # the poses without the temperature: gravity exactly  # fmt: skip
+    T, cov, plain, raw_per_si, level = _level_ramp()
     prior = unfitted_prior(0.5 * G0 / 1000.0, (2, 3))
     assert prior[3] == pytest.approx(0.1 * 0.5 * G0 / 1000.0 / 15.0**2 / np.sqrt(3.0))
     rng = np.random.default_rng(11)
@@ -351,13 +358,7 @@ def test_a_known_cubic_moves_tc1_by_the_alias_the_consider_term_states():
     15^3 / sqrt(3)`` per C^3, in raw units.  The shift is the linearised one within 1 %."""
     from imucal_cli.estimators.thermal.temperature import unfitted_prior
 
-    session, _ = simulate(seed=5, plan="qureshi18", temperature=Ramp(10.0, 40.0, "linear"))
-    a, T, cov = _pose_means(session)
-    plain = fit_gravity(a, G0)
-    raw_per_si = 1.0 / np.mean(np.diag(plain.M))
-    u = (a - plain.bias) @ plain.M.T
-    level = plain.bias + (G0 * u / np.linalg.norm(u, axis=1, keepdims=True)) @ np.linalg.inv(
-        plain.M).T  # the poses without the temperature: gravity exactly  # fmt: skip
+    T, cov, plain, raw_per_si, level = _level_ramp()
     prior = unfitted_prior(0.5 * G0 / 1000.0, (2, 3))
     per_mg = G0 / 1000.0 * raw_per_si  # raw units per mg
     c1 = np.array([0.3, -0.2, 0.4]) * per_mg
