@@ -185,3 +185,6 @@ def test_a_gravity_fit_that_does_not_converge_leaves_the_labelled_fit_to_be_chos
     spare, _ = simulate_plan("qureshi18", seed=19)
     with pytest.raises(SolverError, match="converge"):
         calibrate_session(spare, Config())
+    unlabelled, _ = simulate_plan("random:9", seed=19)  # 9 directions, no labels: no fallback
+    with pytest.raises(SolverError, match="converge"):
+        calibrate_session(unlabelled, Config())

@@ -117,15 +117,16 @@ class AccelDesign:
     def gravity_failure(self) -> SolverError | None:
         """Why the gravity solver's fit failed where its poses leave it no spare equation
         (9 distinct directions for 9 parameters: an exactly determined fit can fail to
-        converge on the noise alone), None when it did not.  Assessing it then refuses the
-        gravity solver instead of ending the calibration, and the labels may still decide.
-        With spare equations a fit that does not converge says the data are wrong, and that
-        is raised."""
+        converge on the noise alone) and the labels determine the labelled-pose model, None
+        when it did not.  Assessing it then refuses the gravity solver instead of ending the
+        calibration, and the labels decide.  With spare equations a fit that does not
+        converge says the data are wrong, and without labels nothing else can calibrate the
+        poses: both are raised."""
         try:
             _ = self.gravity  # computed once, kept for the assessments
         except SolverError as exc:
-            if self.distinct > 9:
-                raise
+            if self.distinct > 9 or not labels_determine(self.poses.up):
+                raise  # the data are wrong, or nothing else can calibrate these poses
             return exc
         return None
 
@@ -227,8 +228,9 @@ class Labelled:
                 f"model (9 parameters), but the {n_lab} labelled poses determine bias and the "
                 "full matrix, each pose's placement a nuisance parameter", tier=1)  # fmt: skip
         if design.gravity_failure is not None:  # no fit to linearise the bound about
-            return Determined("the labels determine the labelled-pose model (the gravity fit "
-                              "did not converge)", tier=1)  # fmt: skip
+            return Determined("the gravity-magnitude fit of these 9 directions (no spare "
+                              "equation) did not converge; the labels determine the "
+                              "labelled-pose model", tier=1)  # fmt: skip
         found = _labelled_bound(design.gravity, design)
         if found is None:
             return Determined("the labels determine the labelled-pose model", tier=1)
