@@ -524,35 +524,56 @@ def run_live(plans=PLANS, seeds=(0,), modes=MODES, *, jobs: int = 3, n_burners: 
     return _rows(plans, modes, work, files)
 
 
-_CAPTURED = re.compile(r"^capture exit (\S+) in ([0-9.]+) s")
+_CAPTURED = re.compile(r"^capture exit (\S+) in ([0-9.]+) s ?(.*)$")
 
 
-def kept_jobs(folder: Path, plans, seeds: dict, jobs: int = 2) -> list[Job]:
+def kept_capture(mode: str, session: Path, log: Path) -> live_run.CaptureRun:
+    """What ``STEM.log`` (:meth:`Job.log`) says of its capture: exit status, wall time, the
+    harness's error and the capture's own output (its last words name what went wrong)."""
+    lines = log.read_text().splitlines() + ["", ""]
+    got = _CAPTURED.match(lines[1])
+    code = None if got is None or got[1] == "None" else int(got[1])
+    end = next((k for k, ln in enumerate(lines) if ln.startswith("calibrate exit")), len(lines))
+    return live_run.CaptureRun(mode, session, exit_code=code,
+                               wall_s=float(got[2]) if got else 0.0,
+                               error=got[3].strip() if got else "unreadable log",
+                               text="\n".join(lines[2:end]))  # fmt: skip
+
+
+def kept_jobs(folder: Path, plans, seeds: dict, jobs: int = 2, say=print) -> list[Job]:
     """The captures a ``--keep`` folder holds (``STEM.h5`` and ``STEM.log``), each
-    calibrated again with this checkout's ``imucal calibrate`` (``jobs`` at a time): the
-    capture is what was live; the calibration is a function of the session alone
-    (``--regrade``)."""
+    calibrated again with this checkout's ``imucal calibrate`` (``jobs`` at a time) into
+    ``STEM.regrade.cal.json``, nothing stored in the session and the earlier calibration
+    left as it was: the capture is what was live; the calibration is a function of the
+    session alone (``--regrade``)."""
     work = []
     for plan in plans:
         for mode, mine in seeds.items():
             for seed in mine:
                 job = Job(plan, seed, mode, 0.0)
                 log = folder / f"{job.stem}.log"
-                if not log.exists():
-                    continue
-                got = _CAPTURED.match((log.read_text().splitlines() + ["", ""])[1])
-                code = None if got is None or got[1] == "None" else int(got[1])
-                job.capture = live_run.CaptureRun(mode, folder / f"{job.stem}.h5", exit_code=code,
-                                                  wall_s=float(got[2]) if got else 0.0)  # fmt: skip
-                work.append(job)
+                if log.exists():
+                    job.capture = kept_capture(mode, folder / f"{job.stem}.h5", log)
+                    work.append(job)
+    if not work:
+        raise SystemExit(f"bench live: no kept captures in {folder} (STEM.log and STEM.h5 "
+                         "of bench live --keep)")  # fmt: skip
 
     def again(job: Job) -> None:
         h5 = job.capture.session
         if not h5.exists():
             return
-        session = folder / f"room-s{job.seed}-{job.mode}.h5" if job.plan.warmup else h5
-        session.with_suffix(".cal.json").unlink(missing_ok=True)  # the earlier checkout's
-        job.calibrate = live_run.calibrate(session, warmup=h5 if job.plan.warmup else None)
+        out = h5.with_suffix(".regrade.cal.json")
+        out.unlink(missing_ok=True)  # an earlier regrade's
+        if job.plan.warmup:  # the warm-up goes with its ordinary session, made as the run did
+            ordinary = folder / f"room-s{job.seed}-{job.mode}.h5"
+            if not ordinary.exists():
+                write_session(ordinary, room(job.seed))
+            job.calibrate = live_run.calibrate(ordinary, warmup=h5, output=out)
+        else:
+            job.calibrate = live_run.calibrate(h5, output=out)
+        say(f"  {job.plan.name} seed {job.seed} {job.mode}: calibrate exit "
+            f"{job.calibrate.exit_code}")  # fmt: skip
 
     with cf.ThreadPoolExecutor(max_workers=jobs) as pool:
         list(pool.map(again, work))
@@ -564,13 +585,17 @@ def regrade(folder: Path, plans=PLANS, mode_seeds: dict | None = None, file_seed
     """The rows of the captures kept in ``folder`` (:func:`kept_jobs`), against the file
     references computed now (as :func:`run_live`, without capturing)."""
     each = {m: list((mode_seeds or {}).get(m, range(3))) for m in MODES}
-    t0 = time.monotonic()
-    work = kept_jobs(folder, plans, each)
-    say(f"  {len(work)} kept captures calibrated again ({time.monotonic() - t0:.0f} s)")
-    grade_jobs(work)
+
+    def calibrations() -> list[Job]:
+        t0 = time.monotonic()
+        work = kept_jobs(folder, plans, each, say=say)
+        say(f"  {len(work)} kept captures calibrated again ({time.monotonic() - t0:.0f} s)")
+        return work
+
     seeds = sorted(set(file_seeds) | set().union(*each.values()))
-    files = _references_beside(plans, seeds, say, lambda: work, each.get("guided", []))
-    files.pop(None)
+    files = _references_beside(plans, seeds, say, calibrations, each.get("guided", []))
+    work = files.pop(None)
+    grade_jobs(work)
     return _rows(plans, MODES, work, files)
 
 
@@ -633,8 +658,10 @@ def run(console: Console, n_seeds: int = 3, quick: bool = False, jobs: int = 3,
         rows = run_live(plans, mode_seeds=each, jobs=jobs, file_seeds=range(n_file),
                         folder=keep, say=say)  # fmt: skip
     minutes = (time.monotonic() - t0) / 60
-    print_rows(console, rows, f"bench live: served, captured beside 2 CPU burners, calibrated "
-                              f"with no config; error/bound pooled RMS, live vs the same seeds "
-                              f"simulated to a file ({minutes:.0f} min)")  # fmt: skip
+    how = ("captured earlier beside 2 CPU burners (kept), calibrated again by this checkout"
+           if regrade_dir is not None else "captured beside 2 CPU burners, calibrated")
+    print_rows(console, rows, f"bench live: served, {how} with no config; error/bound pooled "
+                              f"RMS, live vs the same seeds simulated to a file "
+                              f"({minutes:.0f} min)")  # fmt: skip
     console.print(f"bench live: {minutes:.1f} min, {jobs} captures at a time")
     return all(r.ok or r.blocked for r in rows)

@@ -433,12 +433,14 @@ class CalibrateRun:
     stderr: str = ""
 
 
-def calibrate(session: Path, timeout_s: float = 600.0, warmup: Path | None = None
-              ) -> CalibrateRun:  # fmt: skip
-    """``imucal calibrate SESSION [--warmup WARMUP]`` (the default output beside it, stored in
-    the session)."""
+def calibrate(session: Path, timeout_s: float = 600.0, warmup: Path | None = None,
+              output: Path | None = None) -> CalibrateRun:  # fmt: skip
+    """``imucal calibrate SESSION [--warmup WARMUP]``: the default output beside it, stored in
+    the session; with ``output``, that file and nothing stored (``--no-store``)."""
     args = [*CLI, "calibrate", str(session)] + ([] if warmup is None else
                                                 ["--warmup", str(warmup)])  # fmt: skip
+    if output is not None:
+        args += ["--output", str(output), "--no-store"]
     proc = _register(subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                       stdin=subprocess.DEVNULL, env=ENV, text=True))  # fmt: skip
     try:
@@ -447,7 +449,7 @@ def calibrate(session: Path, timeout_s: float = 600.0, warmup: Path | None = Non
         proc.kill()
         _, err = proc.communicate(timeout=30)
         err += f"\n(bench: killed after {timeout_s:.0f} s)"
-    out = session.with_suffix(".cal.json")
+    out = session.with_suffix(".cal.json") if output is None else output
     run = CalibrateRun(proc.returncode, out, stderr=err)
     if out.exists():
         doc = json.loads(out.read_text())

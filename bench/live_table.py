@@ -275,8 +275,8 @@ def make_row(name: str, mode: str, jobs: list, file_of: dict, rng,
     the same seeds as ``file_of``; :func:`held_factor` in a note); the all-seeds figures
     stay ``file_of``'s."""
     row = Row(name, mode, attempted=len(jobs))
-    _exits(row, jobs, file_of)
     same_of = file_of if same_of is None else same_of
+    _exits(row, jobs, same_of)  # whose failures a live one shares: the reference it is paired with
     pairs = [(j, same_of.get(j.seed, {})) for j in jobs if j.graded]
     pairs = [(j, f) for j, f in pairs if sensors(j.graded) & sensors(f)]
     if not pairs:

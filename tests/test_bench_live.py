@@ -241,3 +241,29 @@ def test_a_guided_capture_is_paired_with_the_file_held_as_it_holds():
     assert abs(paired.ratio - 1) <= 0.10, paired.ratio
     assert paired.ok, paired.why
     assert any("the hold's part" in n for n in paired.notes), paired.notes
+
+
+def test_a_kept_capture_that_failed_says_so_when_graded_again(tmp_path):
+    """``--regrade`` reads each capture from its log as the run wrote it (:meth:`Job.log`): a
+    killed capture and one that exited 1 keep their own words, and a folder with nothing
+    kept is refused in one line."""
+    plan = live.LivePlan("six")
+    killed = live.Job(plan, 0, "guided", 10.0)
+    killed.capture = live.live_run.CaptureRun("guided", tmp_path / "a.h5", exit_code=None,
+                                              wall_s=300.0, error="killed after 300 s")  # fmt: skip
+    failed = live.Job(plan, 1, "unattended", 10.0)
+    failed.capture = live.live_run.CaptureRun(
+        "unattended", tmp_path / "b.h5", exit_code=1, wall_s=5.0,
+        text="reading /dev/pts/9\nimucal: error: the device stopped sending (ended: stalled)")
+    for job, name in ((killed, "a"), (failed, "b")):
+        (tmp_path / f"{name}.log").write_text(job.log())
+        again = live.Job(plan, job.seed, job.mode, 0.0)
+        again.capture = live.kept_capture(job.mode, tmp_path / f"{name}.h5",
+                                          tmp_path / f"{name}.log")  # fmt: skip
+        assert again.capture.exit_code == job.capture.exit_code
+        assert again.capture.wall_s == pytest.approx(job.capture.wall_s)
+        assert again.what_went_wrong() == job.what_went_wrong() != ""
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(SystemExit, match="no kept captures"):
+        live.kept_jobs(empty, [plan], {"guided": [0]})
