@@ -3,6 +3,8 @@ design (the estimators' assessments), never a fitted section; status travels as 
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -188,3 +190,30 @@ def test_a_gravity_fit_that_does_not_converge_leaves_the_labelled_fit_to_be_chos
     unlabelled, _ = simulate_plan("random:9", seed=19)  # 9 directions, no labels: no fallback
     with pytest.raises(SolverError, match="converge"):
         calibrate_session(unlabelled, Config())
+
+
+def test_a_refit_without_an_outlier_that_does_not_converge_keeps_the_pose():
+    """The outlier screen refits without the pose it flags; where that refit fails (10
+    directions less one leave 9, an exactly determined fit that may not converge) the pose
+    is kept and said so, and the calibration goes on with the fit it had, instead of ending
+    on a refit of fewer poses than the design was counted on."""
+    from imucal_cli.calibrate.accel.checks import robust_fit
+    from imucal_cli.calibrate.accel.gravity import fit_poses
+    from imucal_cli.errors import SolverError
+
+    session, _ = simulate_plan("random:12", seed=3)
+    design = AccelDesign(session, Config())
+    poses = design.poses
+    a = poses.a_mean.copy()
+    a[4] *= 1.05  # one pose 5 % off gravity: flagged
+    poses = dataclasses.replace(poses, a_mean=a)
+
+    def fit(p):
+        if len(p.segments) < 12:  # as an exactly determined refit may
+            raise SolverError("the gravity fit did not converge in 200 iterations")
+        return fit_poses(p, design.g, design.cfg)
+
+    res, used, found = robust_fit(fit, poses, "exclude", lambda p: True)
+    assert len(used.segments) == 12 and res is not None
+    assert found[0].index == 4  # the worst first; the others it spoils are flagged after it
+    assert all(o.action == "kept" and "does not converge" in o.cause for o in found)

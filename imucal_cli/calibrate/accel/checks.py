@@ -22,6 +22,7 @@ import numpy as np
 
 from imucal_cli.calibrate.common import StaticPoses
 from imucal_cli.design import outliers as out
+from imucal_cli.errors import SolverError
 from imucal_cli.estimators.accel.labelled import contradicted_labels
 from imucal_cli.model.accel import Coverage, OutlierRow
 
@@ -149,11 +150,16 @@ def robust_fit(
             cause = o.cause + " (the other poses cannot do without it)"
             found.append(replace(o, action="kept", cause=cause))
             continue
+        try:
+            refit = fit(trial)
+        except SolverError:  # e.g. 9 directions left for 9 parameters, and no convergence
+            cause = o.cause + " (without it the fit does not converge)"
+            found.append(replace(o, action="kept", cause=cause))
+            continue
         found.append(replace(o, action=action))
-        poses = trial
+        poses, res = trial, refit
         if action == "left out":
             index = index[np.arange(len(index)) != k]
-        res = fit(poses)
     return res, poses, found
 
 
