@@ -212,7 +212,8 @@ def held_as_guided(session, hold_s: float, reaction_s: float | None = None,
     first = session.segments[0] if session.segments else None
     window = {}
     for seg in session.static_segments():
-        w0 = 0 if seg is first else min(seg.start + int(round(detect_s * rate)), seg.stop - 2)
+        w0 = 0 if seg is first else max(seg.start, min(seg.start + int(round(detect_s * rate)),
+                                                        seg.stop - 2))  # fmt: skip
         window[id(seg)] = (w0, min(w0 + n, seg.stop))
     keep = np.ones(len(session.time), bool)
     for seg in session.static_segments():
