@@ -176,16 +176,15 @@ def _short(text: str, n: int = 160) -> str:
     return text if len(text) <= n else text[: n - 3] + "..."
 
 
-def held_factor(file_of: dict, held_of: dict | None, names: set | None = None) -> float:
+def held_factor(file_of: dict, held_of: dict | None) -> float:
     """``sqrt(sum z^2 of the file / sum z^2 of the held reference)`` over the seeds both
-    graded (their shared sections, only ``names`` where given): what turns the held
+    graded (their shared sections): what turns the held
     reference's error/bound into the file's as simulated (1 without a held reference).  Its
     own sampling error is that of the seeds' paired difference (40 seeds: 1.5-3 %)."""
     if held_of is None or held_of is file_of:
         return 1.0
     seeds = [s for s in file_of if s in held_of]
-    keep = [sensors(file_of[s]) & sensors(held_of[s]) & (names or {"accel", "gyro", "mag"})
-            for s in seeds]  # fmt: skip
+    keep = [sensors(file_of[s]) & sensors(held_of[s]) for s in seeds]
     z_file, _ = pool([file_of[s] for s in seeds], keep)
     z_held, _ = pool([held_of[s] for s in seeds], keep)
     return float(np.sqrt(z_file.sum() / z_held.sum())) if z_held.sum() > 0 else float("nan")
