@@ -52,7 +52,6 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import dataclasses
-import inspect
 import multiprocessing as mp
 import re
 import signal
@@ -70,7 +69,7 @@ from bench import live_run
 from bench.live_grade import grade, grade_warmup
 from bench.live_table import Row, make_row, print_rows
 from imucal_cli.calibrate.session import calibrate_session
-from imucal_cli.capture.guided import run_guided
+from imucal_cli.capture.guided import DEFAULT_HOLD_S
 from imucal_cli.formats.calibration import read_calibration
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import read_session, write_session
@@ -157,9 +156,9 @@ PLANS = (
     LivePlan("warmup:2", warmup=True, serve=("--ramp", WARMUP_RAMP)),
 )
 QUICK_PLANS = ("six", "random:12", "ferraris")
-#: How long the guided capture holds each pose without ``--hold``, s (``run_guided``'s
-#: default, as ``imucal capture`` passes it).
-GUIDED_HOLD_S = float(inspect.signature(run_guided).parameters["hold_s"].default)
+#: How long the guided capture holds each pose without ``--hold``, s (the one default
+#: ``run_guided`` and ``imucal capture`` share).
+GUIDED_HOLD_S = DEFAULT_HOLD_S
 
 
 def simulated(plan: LivePlan, seed: int):

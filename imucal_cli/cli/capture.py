@@ -117,7 +117,8 @@ ReadTimeout = Annotated[float, typer.Option(
     "--read-timeout", metavar="SECONDS", help="End the capture when the data stops this long."
 )]  # fmt: skip
 Hold = alias(float | None, hold_option(
-    "Guided mode: seconds to hold each pose still [default: 2; with --until the shortest hold, "
+    f"Guided mode: seconds to hold each pose still [default: {guided.DEFAULT_HOLD_S:g}; with "
+    "--until the shortest hold, "
     "0.5: each hold then ends by itself once more samples no longer help].", None,
 ))  # fmt: skip
 Until = Annotated[str | None, typer.Option(
@@ -308,10 +309,10 @@ def _record(recorder, plan, guided, console: Console, status, *, duration: float
                               refit=refit_with(cfg) if targets else None,
                               gravity=cfg.gravity or 9.80665)  # fmt: skip
     adaptive = adaptive_options(targets, cfg, hold_s) if targets else None
+    hold = guided.DEFAULT_HOLD_S if hold_s is None else hold_s
     return guided.run_guided(recorder, plan, console=console, keys=guided.StdinKeys(),
-                             hold_s=(2.0 if hold_s is None else hold_s) if adaptive is None
-                             else adaptive.min_hold_s, done_before=done_before,
-                             adaptive=adaptive)  # fmt: skip
+                             hold_s=hold if adaptive is None else adaptive.min_hold_s,
+                             done_before=done_before, adaptive=adaptive)  # fmt: skip
 
 
 def _cut_short(recorder, plan, exc: Exception, status):

@@ -46,12 +46,13 @@ from imucal_cli.plans import CaptureSummary, Plan
 from .adaptive import AdaptiveOptions, AdaptiveState, Refit
 from .direction import estimate_direction
 from .keys import Command, KeySource, ScriptedKeys, StdinKeys, parse_command
-from .options import GuidedOptions, Message, Prompt
+from .options import DEFAULT_HOLD_S, GuidedOptions, Message, Prompt
 from .screen import Screen
 from .state import GuidedState
 from .words import instruction
 
 __all__ = [
+    "DEFAULT_HOLD_S",
     "AdaptiveOptions",
     "AdaptiveState",
     "Command",
@@ -76,7 +77,7 @@ def run_guided(
     *,
     console: Console,
     keys: KeySource,
-    hold_s: float = 2.0,
+    hold_s: float = DEFAULT_HOLD_S,
     min_separation_deg: float = 15.0,
     nominal_bias=None,
     nominal_scale=None,

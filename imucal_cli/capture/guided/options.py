@@ -12,6 +12,10 @@ from dataclasses import dataclass
 from imucal_cli.design.stillness import DEFAULT_ALPHA, StillnessDetector
 from imucal_cli.plans import Plan
 
+#: The hold a guided capture takes of each pose unless told (``imucal capture --hold``), s;
+#: the stillness detector's default false-alarm rate is made for it.
+DEFAULT_HOLD_S = 2.0
+
 
 @dataclass(frozen=True)
 class GuidedOptions:
@@ -55,7 +59,7 @@ class GuidedOptions:
         on, showing where to point the unit, until it has (or ``q``).
     """
 
-    hold_s: float = 2.0
+    hold_s: float = DEFAULT_HOLD_S
     min_separation_deg: float = 15.0
     nominal_bias: object = None
     nominal_scale: object = None
@@ -77,8 +81,6 @@ class GuidedOptions:
             raise ValueError(f"hold_s must be > 0, got {self.hold_s!r}")
 
 
-#: The hold the default false-alarm rate is made for (capture's --hold), s.
-REFERENCE_HOLD_S = 2.0
 
 
 def detector_for(plan: Plan) -> StillnessDetector:
@@ -88,8 +90,8 @@ def detector_for(plan: Plan) -> StillnessDetector:
     ``alpha``, so that its hold restarts no more often than a 2 s one (the served warm-up of
     seed 0 restarted twice in its 2 minutes at ``DEFAULT_ALPHA``; a real motion is still far
     above the threshold, 1.22 -> 1.28 x the noise for 2 minutes)."""
-    longest = max([REFERENCE_HOLD_S, *(s.hold_s or 0.0 for s in plan.static_steps)])
-    return StillnessDetector(alpha=DEFAULT_ALPHA * REFERENCE_HOLD_S / longest)
+    longest = max([DEFAULT_HOLD_S, *(s.hold_s or 0.0 for s in plan.static_steps)])
+    return StillnessDetector(alpha=DEFAULT_ALPHA * DEFAULT_HOLD_S / longest)
 
 
 def duration_text(seconds: float) -> str:
