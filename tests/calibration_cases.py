@@ -2,10 +2,37 @@
 in ``tests/data/calibrations/`` so that a change of the calibration model (issue 25.2) or of
 the solver choice (25.3) that changes a file is seen (``tests/test_calibration_cases.py``).
 
-Each case simulates a session with a fixed seed and calibrates it through the command line, as
-a user would; the stored calibrations (``sessions/*.truth.json``, the ones a session stores)
-are read and written back.  ``python -m tests.calibration_cases`` writes the fixtures anew
-(only after a change that is meant to change the files: say why in the commit).
+How each fixture is made (this module is the only writer: never edit a fixture by hand)
+
+- ``NAME.cal.json`` and ``NAME.truth.json`` for each entry of :data:`CASES`: ``imucal
+  simulate`` with the case's options and ``--seed 1`` (after a warm-up session for ``{w}``,
+  the ``qureshi18`` case's calibration for ``{a}``, :data:`CONFIG` for ``{c}``), then
+  ``imucal calibrate --no-store`` through the command line as a user would; the calibration
+  written (or ``{"exit": N}`` when none is) and the truth the simulator writes beside the
+  session.
+- ``sessions-*.json``: every calibration stored in ``sessions/`` (the ``*.truth.json`` files
+  and the calibrations an ``.h5`` session stores), read and written back (:func:`stored`).
+- Every document: the root's :data:`VOLATILE` members left out, the work folder's path as
+  ``TMP``, members sorted by name (a JSON object's members have no order, and the writer's
+  order is no contract: sorted, a change of that order changes no fixture), one space of
+  indent, a final newline (:func:`fixture_text`).
+
+Regenerating, from the repository's root with its venv::
+
+    .venv/bin/python -m tests.calibration_cases            # every fixture
+    .venv/bin/python -m tests.calibration_cases warmup six # these cases ("stored": sessions-*)
+    .venv/bin/python -m tests.calibration_cases --check    # compare, write nothing
+
+Regenerate only after a change that is meant to change the files, regenerate the whole file
+(not the fields you expect to move: others move within the tolerance unseen, and the next
+regeneration shows them as unrelated changes), and say in the commit what changed and why.
+On a clean checkout a regeneration leaves ``git status`` clean on a machine of the recording
+one's arithmetic; on another CPU it may rewrite numbers in their last digits (within
+:data:`RTOL`, see there), which is not a change: ``--check`` tells them apart (it prints what
+differs beyond the tolerance, and names a fixture no case writes, or a case with no fixture).
+``tests/test_calibration_cases.py`` runs this writer into a temporary folder for every case
+and compares its files with the committed ones (the same members, texts and integers; numbers
+within :data:`RTOL`), and checks every committed file is in :func:`fixture_text`'s form.
 """
 
 from __future__ import annotations
@@ -186,22 +213,99 @@ def _diff(a, b, path, rel, out, scale: float = 0.0) -> None:
         out.append(f"{path}: {a!r} != {b!r}")
 
 
-def write_fixtures(folder: Path) -> None:
-    FIXTURES.mkdir(parents=True, exist_ok=True)
-    for name in CASES:
-        cal, truth = simulated(name, folder)
-        for kind, doc in (("cal", cal), ("truth", truth)):
-            (FIXTURES / f"{name}.{kind}.json").write_text(
-                json.dumps(strip(doc), indent=1) + "\n", encoding="utf-8"
-            )
-        print(name, file=sys.stderr)
+def fixture_text(doc) -> str:
+    """The text of a fixture holding ``doc``: without the :data:`VOLATILE` root members,
+    members sorted by name, one space of indent, a final newline."""
+    return json.dumps(strip(doc), indent=1, sort_keys=True) + "\n"
+
+
+def write_case(name: str, work: Path, out: Path) -> list[Path]:
+    """Simulate and calibrate case ``name`` in ``work`` and write its two fixtures into
+    ``out``: the paths written."""
+    cal, truth = simulated(name, work)
+    paths = []
+    for kind, doc in (("cal", cal), ("truth", truth)):
+        paths.append(out / f"{name}.{kind}.json")
+        paths[-1].write_text(fixture_text(doc), encoding="utf-8")
+    return paths
+
+
+def write_stored(out: Path) -> list[Path]:
+    """Write the fixture of every :func:`stored` calibration into ``out``: the paths."""
+    paths = []
     for name, doc in stored().items():
-        (FIXTURES / f"{name}.json").write_text(json.dumps(strip(doc), indent=1) + "\n",
-                                               encoding="utf-8")  # fmt: skip
+        paths.append(out / f"{name}.json")
+        paths[-1].write_text(fixture_text(doc), encoding="utf-8")
+    return paths
+
+
+#: The name that regenerates the stored calibrations' fixtures (``sessions-*.json``).
+STORED = "stored"
+
+
+def write_fixtures(work: Path, out: Path, names=None) -> list[Path]:
+    """Write the fixtures of ``names`` (cases of :data:`CASES`, or :data:`STORED`; all when
+    None) into ``out``, computing in ``work``: the paths written."""
+    names = [*CASES, STORED] if names is None else list(names)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for name in names:
+        if name == STORED:
+            paths += write_stored(out)
+        else:
+            case = work / name  # each case in a folder of its own (a session's name is the case's)
+            case.mkdir(parents=True, exist_ok=True)
+            paths += write_case(name, case, out)
+        print(name, file=sys.stderr)
+    return paths
+
+
+def compare(written: list[Path], committed: Path | None = None) -> list[str]:
+    """What differs between the fixtures ``written`` and the same-named ones in ``committed``
+    (:data:`FIXTURES` when None) beyond the tolerance (:func:`differences`): one line each."""
+    committed = FIXTURES if committed is None else committed
+    out = []
+    for path in written:
+        old = committed / path.name
+        if not old.exists():
+            out.append(f"{path.name}: no committed fixture")
+            continue
+        new_doc = json.loads(path.read_text(encoding="utf-8"))
+        old_doc = json.loads(old.read_text(encoding="utf-8"))
+        out += [f"{path.name}: {d}" for d in differences(new_doc, old_doc)]
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    import argparse
+    import tempfile
+
+    parser = argparse.ArgumentParser(
+        prog="python -m tests.calibration_cases",
+        description="Write the fixtures of tests/data/calibrations anew (see the module's "
+        "docstring).",
+    )
+    names = f"cases to write (default: all): {', '.join(CASES)}, {STORED}"
+    parser.add_argument("names", nargs="*", metavar="NAME", help=names)
+    check = f"write nothing: compare with the committed fixtures (numbers within {RTOL:g})"
+    parser.add_argument("--check", action="store_true", help=check + ", exit 1 if they differ")
+    args = parser.parse_args(argv)
+    unknown = sorted(set(args.names) - {*CASES, STORED})
+    if unknown:
+        parser.error(f"no case {', '.join(unknown)}")
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "fixtures" if args.check else FIXTURES
+        written = write_fixtures(Path(tmp) / "work", out, args.names or None)
+        if not args.check:
+            return 0
+        found = compare(written)
+    if not args.names:
+        names = {p.name for p in written}
+        found += [f"{p.name}: no case writes it" for p in sorted(FIXTURES.glob("*.json"))
+                  if p.name not in names]  # fmt: skip
+    print("\n".join(found) or "the fixtures agree within the tolerance")
+    return 1 if found else 0
 
 
 if __name__ == "__main__":
-    import tempfile
-
-    with tempfile.TemporaryDirectory() as tmp:
-        write_fixtures(Path(tmp))
+    sys.exit(main())
