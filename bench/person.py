@@ -3,10 +3,16 @@
 The same :class:`~imucal_cli.simulate.live.LiveUnit` and :class:`~imucal_cli.simulate.live.
 Person` as ``imucal simulate --serve --person``, and the same guided state machine and screen
 as ``imucal capture --until`` (plain lines), joined without the pseudo-terminal: blocks of
-samples go to the state, the lines the screen prints go to the person.  Time is the device's;
-the capture's own computing (its refits, its planning) delays what it prints by the time it
-took, as it would at the bench.  Tests of many seeds and the tuning of the bench use it; the
-bench itself measures through the virtual port (:mod:`bench.adaptive`).
+samples go to the state, the lines the screen prints go to the person.  Time is the device's,
+and the capture's own computing takes as long in it as it does on this computer, as at the
+bench: its planning delays what it prints by the time it took, and a refit answers as many
+seconds of device time after it was asked as it ran (:class:`_Refits`; the capture runs it in
+a thread beside the stream).  The stream itself runs 50-300 times faster than the device's
+clock, so a refit left in a thread here answered 5-30 s of device time later instead of a
+tenth of a second: with a pose every 4 s each answer was about steps already redone, and how
+long a fixed plan took depended on the machine's load.  Tests of many seeds and the tuning
+of the bench use it; the bench itself measures through the virtual port
+(:mod:`bench.adaptive`).
 """
 
 from __future__ import annotations
@@ -61,6 +67,47 @@ class Outcome:
     turns: int
     refit_s: float
     unit: LiveUnit | None = None
+    refits: list[tuple[float, float]] = field(default_factory=list)
+    """Each refit's device time asked and answered, s."""
+
+
+class _Answer:
+    """A refit's result, ready ``at`` seconds of device time (``clock()``)."""
+
+    def __init__(self, clock, at: float, value) -> None:
+        self.clock, self.at, self.value = clock, at, value
+
+    def done(self) -> bool:
+        return self.clock() >= self.at
+
+    def result(self):
+        return self.value
+
+
+class _Refits:
+    """The capture's refit worker on the device's clock (what the guided state needs of its
+    thread pool: ``submit`` and ``shutdown``): a refit runs at once, in this thread, and its
+    answer is ready as many seconds of device time after it was asked as it took on this
+    computer.  Without it, the stream, simulated much faster than real time, ran on while a
+    refit ran in its thread, and every refit seemed to take 50-300 times longer than it does
+    at the bench."""
+
+    def __init__(self, clock) -> None:
+        self.clock = clock
+        self.spent = 0.0  # s of computing in refits, not the screen's (the person's lag)
+        self.log: list[tuple[float, _Answer]] = []
+
+    def submit(self, fn, *args) -> _Answer:
+        tic = time.perf_counter()
+        value = fn(*args)
+        took = time.perf_counter() - tic
+        self.spent += took
+        answer = _Answer(self.clock, self.clock() + took, value)
+        self.log.append((self.clock(), answer))
+        return answer
+
+    def shutdown(self, wait: bool = True) -> None:
+        pass
 
 
 def follow(seed: int, targets: Targets | str = ISSUE_TARGETS, *, rate_hz: float = 100.0,
@@ -81,6 +128,7 @@ def follow(seed: int, targets: Targets | str = ISSUE_TARGETS, *, rate_hz: float 
     adaptive = AdaptiveOptions(targets, refit=lambda s: Refit(*refit(s, cfg)),
                                min_hold_s=min_hold_s, propose=propose)  # fmt: skip
     state = AdaptiveState(plan, opt, 0, rec.add_segment, adaptive)
+    refits = state.pool = _Refits(lambda: unit.k / rate_hz)
     out = io.StringIO()
     screen = Screen(Console(file=out, width=200, force_terminal=False, color_system=None))
     screen.start(state)
@@ -90,10 +138,10 @@ def follow(seed: int, targets: Targets | str = ISSUE_TARGETS, *, rate_hz: float 
     while unit.k < max_s * rate_hz and state.end_reason is None:
         t, a, g = unit.samples(chunk)
         rec.n_samples += chunk
-        tic = time.perf_counter()
+        tic, spent = time.perf_counter(), refits.spent
         state.on_block(SampleBlock(time=t, accel=a, gyro=g))
         screen.show(state)
-        lag = int((time.perf_counter() - tic) * rate_hz)
+        lag = int((time.perf_counter() - tic - (refits.spent - spent)) * rate_hz)
         text = out.getvalue()
         new = text[seen:].splitlines()
         seen = len(text)
@@ -112,4 +160,5 @@ def follow(seed: int, targets: Targets | str = ISSUE_TARGETS, *, rate_hz: float 
     seconds = (state.done_time - state.first_time) if summary.complete else None
     poses = sum(1 for x in state.taken if x.kind == "static")
     turns = sum(1 for x in state.taken if x.turn is not None)
-    return Outcome(seconds, session, unit.truth(), lines, poses, turns, state.refit_s, unit)
+    asked = [(at, answer.at) for at, answer in refits.log]
+    return Outcome(seconds, session, unit.truth(), lines, poses, turns, state.refit_s, unit, asked)
