@@ -60,11 +60,12 @@ def main() -> None:
         "--quick",
         action="store_true",
         help="capture: 10 s instead of 60 s; reliability: 1,000 fuzzed import files, not 10,000; "
-        "live: 3 plans, no file reference beyond the live seeds; adaptive: 5 parts, not 20",
+        "live: 3 plans, no file reference beyond the live seeds; adaptive: 5 parts, not 60",
     )
     parser.add_argument(
         "--jobs", type=int, default=3,
-        help="live: captures at a time (each a device and a capture process, mostly waiting)",
+        help="live, adaptive: captures at a time (each a device and a capture process, mostly "
+        "waiting)",
     )  # fmt: skip
     parser.add_argument("--guided-seeds", type=int, default=None,
                         help="live: seeds of the guided captures [default: twice --seeds]")
@@ -114,7 +115,8 @@ def main() -> None:
                       only=args.plans, keep=args.keep, guided_seeds=args.guided_seeds,
                       regrade_dir=args.regrade) and ok
     if args.only in (None, "adaptive"):
-        ok = adaptive.run(console, n_seeds=max(20, args.seeds // 10), quick=args.quick) and ok
+        ok = adaptive.run(console, n_seeds=max(adaptive.SEEDS, args.seeds // 10),
+                          quick=args.quick, jobs=args.jobs) and ok
     if args.only in (None, "multi"):
         ok = multi.run(console, n_seeds=max(20, args.seeds // 2)) and ok
     raise SystemExit(0 if ok else 1)

@@ -1,7 +1,7 @@
 """``bench adaptive``'s logs in short (issue 27.4): a vehicle's and a robot's logs (a few still
 periods around one axis, free turns, no labels, no segments) on 3 parts, calibrated as
 ``imucal calibrate`` does and graded against the truth (the bench's own code:
-:mod:`bench.partial_logs`; 20 parts in ``python -m bench --only adaptive``).
+:mod:`bench.partial_logs`; 60 parts in ``python -m bench --only adaptive``).
 
 What 3 parts can show is checked against what the noise allows: every log saves both sensors
 in part, the gyro's bias measured by the still periods in every part with the std of the
