@@ -48,11 +48,15 @@ import tempfile
 import threading
 import time
 import warnings
+from collections import deque
+from contextlib import closing
+from itertools import islice
 from pathlib import Path
 
 import numpy as np
 from rich.console import Console
 from rich.table import Table
+from scipy.stats import t as student_t
 
 from bench import partial_logs
 from bench.person import ISSUE_TARGETS, follow
@@ -265,15 +269,44 @@ def _captured(seed: int, folder: Path) -> tuple[dict, float]:
     return res, time.monotonic() - started
 
 
+def _in_order(fn, items, jobs: int):
+    """``fn(item)`` for each of ``items``, ``jobs`` at a time: the futures, yielded in the
+    items' order, each once it has ended.  The next item starts when the earliest running one
+    has ended, and none once the caller stops taking them (an error, Ctrl-C: closed, the
+    generator cancels what has not started; the running ones end with their processes, which
+    get the same Ctrl-C)."""
+    items = iter(items)
+    with cf.ThreadPoolExecutor(max(1, jobs)) as pool:
+        pending = deque(pool.submit(fn, item) for item in islice(items, max(1, jobs)))
+        try:
+            while pending:
+                done = pending.popleft()
+                error = done.exception()  # waits: its result or its error, a slot is free
+                if error is None or isinstance(error, Exception):  # not an interrupt
+                    pending.extend(pool.submit(fn, item) for item in islice(items, 1))
+                yield done
+        finally:
+            for fut in pending:
+                fut.cancel()
+
+
 def _adaptive(console: Console, seeds, jobs: int = JOBS) -> tuple[list, list, int]:
     """The adaptive capture of each part through the port, ``jobs`` at a time: its seconds
     (None: targets not met), whether each of its 18 intervals covers the truth, how many did
-    not calibrate (in the order of ``seeds``)."""
+    not calibrate or ended without a summary (in the order of ``seeds``)."""
     seconds, hits, lost = [], [], 0
-    with tempfile.TemporaryDirectory() as tmp, cf.ThreadPoolExecutor(max(1, jobs)) as pool:
-        runs = [pool.submit(_captured, seed, Path(tmp)) for seed in seeds]
+    with (
+        tempfile.TemporaryDirectory() as tmp,
+        closing(_in_order(lambda seed: _captured(seed, Path(tmp)), seeds, jobs)) as runs,
+    ):
         for seed, run_ in zip(seeds, runs, strict=True):
-            res, wall = run_.result()
+            try:
+                res, wall = run_.result()
+            except Exception as exc:  # noqa: BLE001  counted and said; the other parts go on
+                seconds.append(None)
+                lost += 1
+                console.print(f"  adaptive, part {seed}: failed: {exc}", highlight=False)
+                continue
             summary = res["summary"]
             seconds.append(summary["duration_s"] if summary["complete"] else None)
             try:
@@ -307,14 +340,17 @@ def _fixed(console: Console, name: str, plan: Plan, seeds) -> tuple[list, list]:
 
 def coverage_interval(hits) -> tuple[float, float, float]:
     """The coverage of ``hits`` (parts x terms, whether each interval holds the truth) and its
-    95 % interval with the parts as clusters: the mean of the parts' own coverages +- 1.96
-    times their standard error (a part's terms share its noise and design, so they are not
-    independent trials: the binomial interval of all terms together is too narrow)."""
+    95 % interval with the parts as clusters: the mean of the parts' own coverages +- Student's
+    t (n - 1 degrees of freedom) times their standard error (a part's terms share its noise
+    and design, so they are not independent trials: the binomial interval of all terms
+    together is too narrow).  Where every part covers the same fraction (every term of every
+    part covered, say) the parts' scatter, and so the interval, is zero: the data then say
+    nothing about its width."""
     per_part = np.asarray(hits, float).reshape(len(hits), -1).mean(axis=1)
-    mean = float(per_part.mean())
-    if len(per_part) < 2:
+    mean, n = float(per_part.mean()), len(per_part)
+    if n < 2:
         return mean, 0.0, 1.0
-    half = 1.96 * float(per_part.std(ddof=1)) / np.sqrt(len(per_part))
+    half = float(student_t.ppf(0.975, n - 1)) * float(per_part.std(ddof=1)) / np.sqrt(n)
     return mean, max(mean - half, 0.0), min(mean + half, 1.0)
 
 

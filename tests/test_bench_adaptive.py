@@ -10,6 +10,7 @@ import threading
 import numpy as np
 import pytest
 from rich.console import Console
+from scipy.stats import t as student_t
 
 from bench import adaptive
 
@@ -26,7 +27,8 @@ def test_coverage_interval_takes_the_parts_as_clusters():
         mean, low, high = adaptive.coverage_interval(hits)
         assert mean == pytest.approx(np.mean(hits))
         per = hits.mean(axis=1)
-        half = 1.96 * per.std(ddof=1) / np.sqrt(len(per))  # the arithmetic, not a tolerance
+        t = student_t.ppf(0.975, len(per) - 1)  # 2.09 for 20 parts
+        half = t * per.std(ddof=1) / np.sqrt(len(per))  # the arithmetic, not a tolerance
         assert (low, high) == pytest.approx((mean - half, min(mean + half, 1.0)))
     binomial = 1.96 * np.sqrt(0.9 * 0.1 / together.size)
     mean, low, _ = adaptive.coverage_interval(together)
@@ -41,20 +43,51 @@ def test_coverage_interval_clipped_and_single_part():
 
 
 def test_captures_at_a_time_keep_the_parts_order(monkeypatch):
-    """Three captures run together (``jobs`` at a time: each waits for the other two) and each
-    part's seconds stay in its place."""
-    seeds = [7, 8, 9]
-    started, gate = [], threading.Barrier(3, timeout=30)
+    """``jobs`` captures run together, never more (each of the first three waits for the
+    other two; a fourth is not started while they wait), and each part's seconds stay in its
+    place; a capture that ends without a summary is counted and the others go on."""
+    seeds = list(range(6))
+    lock, running, peak, started = threading.Lock(), [0], [0], []
+    gate = threading.Barrier(3, timeout=30)
+
+    def fake(seed, folder):
+        with lock:
+            started.append(seed)
+            running[0] += 1
+            peak[0] = max(peak[0], running[0])
+        try:
+            if seed < 3:
+                gate.wait()  # the first three together, or this times out
+            if seed == 4:
+                raise RuntimeError("the capture ended without a summary")
+            return {"summary": {"duration_s": float(seed), "complete": True},
+                    "session": folder / "absent.h5"}, 0.0  # fmt: skip
+        finally:
+            with lock:
+                running[0] -= 1
+
+    monkeypatch.setattr(adaptive, "_captured", fake)
+    out = io.StringIO()
+    seconds, hits, lost = adaptive._adaptive(Console(file=out, width=200), seeds, jobs=3)
+    assert peak[0] == 3 and sorted(started) == seeds
+    assert seconds == [0.0, 1.0, 2.0, 3.0, None, 5.0]
+    assert hits == [] and lost == 6  # no session file: not calibrated; part 4 failed
+    assert "part 4: failed: the capture ended without a summary" in out.getvalue()
+
+
+def test_an_interrupt_starts_no_more_captures(monkeypatch):
+    """Ctrl-C (here: raised by the first part) ends the bench without starting the parts
+    still queued (before, every queued part ran first: 10 minutes of captures)."""
+    started = []
 
     def fake(seed, folder):
         started.append(seed)
-        gate.wait()  # all three running together, or this times out
-        return {"summary": {"duration_s": float(seed), "complete": True},
+        if seed == 0:
+            raise KeyboardInterrupt
+        return {"summary": {"duration_s": 1.0, "complete": True},
                 "session": folder / "absent.h5"}, 0.0  # fmt: skip
 
     monkeypatch.setattr(adaptive, "_captured", fake)
-    console = Console(file=io.StringIO(), width=200)
-    seconds, hits, lost = adaptive._adaptive(console, seeds, jobs=3)
-    assert seconds == [7.0, 8.0, 9.0]
-    assert sorted(started) == seeds
-    assert hits == [] and lost == 3  # no session file: counted as not calibrated
+    with pytest.raises(KeyboardInterrupt):
+        adaptive._adaptive(Console(file=io.StringIO(), width=200), range(9), jobs=3)
+    assert sorted(started) == [0, 1, 2]

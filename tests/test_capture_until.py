@@ -55,8 +55,8 @@ def test_the_person_follows_the_guide_until_done():
     """Both sensors: the guide proposes turns, the person does them, the capture says done
     when the refit of the session meets every target; calibrating the session says the same;
     every proposal the guide made reads back as the turn it asked for. The refit that says
-    done saw every pose the session saves (the person goes on while a refit runs: one that
-    met the targets without the last steps is checked with them first)."""
+    done saw every pose the session saves (a refit that met the targets without the last
+    steps is checked with them first: ``tests/test_until_check.py``)."""
     from bench.person import follow
 
     targets = "accel=0.5%,gyro=1%"

@@ -81,8 +81,6 @@ class GuidedOptions:
             raise ValueError(f"hold_s must be > 0, got {self.hold_s!r}")
 
 
-
-
 def detector_for(plan: Plan) -> StillnessDetector:
     """The stillness detector of a guided capture of ``plan``.  A false alarm restarts a hold
     with a probability of about ``alpha`` times the windows it spans: a plan with a longer
