@@ -32,7 +32,8 @@ one's arithmetic; on another CPU it may rewrite numbers in their last digits (wi
 differs beyond the tolerance, and names a fixture no case writes, or a case with no fixture).
 ``tests/test_calibration_cases.py`` runs this writer into a temporary folder for every case
 and compares its files with the committed ones (the same members and integers, texts word for
-word; numbers, also those in texts, within :data:`RTOL`; :data:`SOLVER_PATH` aside), and checks every committed file is in :func:`fixture_text`'s form.
+word; numbers, also those in texts, within :data:`RTOL`; :data:`SOLVER_PATH` aside), and
+checks every committed file is in :func:`fixture_text`'s form.
 """
 
 from __future__ import annotations
