@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -12,6 +13,8 @@ from rich.console import Console
 from scipy.spatial.transform import Rotation
 
 from imucal_cli.capture.guided import (
+    GuidedOptions,
+    GuidedState,
     ScriptedKeys,
     StdinKeys,
     estimate_direction,
@@ -401,7 +404,6 @@ def test_block_sizes(block):
 
 
 def test_state_machine_without_a_screen():
-    from imucal_cli.capture.guided import GuidedOptions, GuidedState
 
     order = ["face +Z up", "face -Y up"]
     stream = poses([FACES[k] for k in order])
@@ -438,7 +440,6 @@ def test_state_machine_without_a_screen():
 
 
 def test_state_machine_redo_and_skip_by_command():
-    from imucal_cli.capture.guided import GuidedOptions, GuidedState
 
     state = GuidedState(load_plan("six"), GuidedOptions(), 0, lambda *a, **k: None)
     state.on_command("s")
@@ -523,3 +524,29 @@ def test_a_warm_up_is_held_two_minutes_without_a_false_restart():
     (seg,) = rec.segments
     assert seg["start"] == 0 and seg["stop"] == 12000  # 120 s at 100 Hz
     assert re.search(r"false alarm\s+1\.66667e-06\s+per window", out)  # 1e-4 x 2 s / 120 s
+
+
+def test_options_have_one_set_of_defaults_and_a_wrong_name_is_refused():
+    """``run_guided`` takes :class:`GuidedOptions` (and any of its fields by name), so its
+    defaults are the dataclass's, never a second copy that can drift; a misspelt option is a
+    TypeError, not silently ignored; units left unset become the recorder's."""
+    stream = poses([FACES[k] for k in ["face +Z up", "face -Z up"]])
+    with pytest.raises(TypeError, match="hold_sec"):
+        run_guided(FakeRecorder(stream), load_plan("six"), console=_console(),
+                   keys=ScriptedKeys([]), hold_sec=3.0)  # fmt: skip
+    seen = {}
+
+    class Spy(GuidedState):
+        def __init__(self, plan, opt, *args):
+            seen["opt"] = opt
+            super().__init__(plan, opt, *args)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr("imucal_cli.capture.guided.GuidedState", Spy)
+        run_guided(FakeRecorder(stream, units=("g", "deg/s")), load_plan("six"),
+                   console=_console(), keys=ScriptedKeys(["q"]),
+                   options=GuidedOptions(settle_s=0.7), hold_s=3)  # fmt: skip
+    opt = seen["opt"]
+    expected = replace(GuidedOptions(), settle_s=0.7, hold_s=3.0, accel_units="g",
+                       gyro_units="deg/s")  # fmt: skip
+    assert opt == expected and isinstance(opt.hold_s, float)

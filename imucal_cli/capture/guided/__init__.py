@@ -38,9 +38,10 @@ change of instruction, nothing per block).
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 from rich.console import Console
 
-from imucal_cli.design.stillness import StillnessDetector
 from imucal_cli.plans import CaptureSummary, Plan
 
 from .adaptive import AdaptiveOptions, AdaptiveState, Refit
@@ -77,24 +78,10 @@ def run_guided(
     *,
     console: Console,
     keys: KeySource,
-    hold_s: float = DEFAULT_HOLD_S,
-    min_separation_deg: float = 15.0,
-    nominal_bias=None,
-    nominal_scale=None,
-    refresh_hz: float = 10.0,
-    match_tolerance_deg: float = 20.0,
-    accel_units: str | None = None,
-    gyro_units: str | None = None,
-    gyro_scale: float | None = None,
-    detector: StillnessDetector | None = None,
-    warn_after_s: float = 0.5,
-    pre_still_s: float = 0.5,
-    settle_s: float = 0.5,
-    axis_tolerance_deg: float = 30.0,
-    tick_s: float = 0.1,
-    mag_goal: float = 0.9,
+    options: GuidedOptions | None = None,
     done_before: list | None = None,
     adaptive: AdaptiveOptions | None = None,
+    **fields,
 ) -> CaptureSummary:
     """Guide a person through ``plan`` while ``recorder`` records; return what was done.
 
@@ -110,37 +97,28 @@ def run_guided(
         Where to talk.  A terminal gets a live display; anything else plain lines.
     keys : KeySource
         Commands: ``r`` redo, ``s`` skip, ``q`` finish, Enter continue, a step number or label.
-    hold_s, min_separation_deg, nominal_bias, nominal_scale, refresh_hz, match_tolerance_deg,
-    accel_units, gyro_units, gyro_scale, detector, warn_after_s, pre_still_s, settle_s,
-    axis_tolerance_deg, tick_s, mag_goal
-        The options of the capture (:class:`GuidedOptions`); ``accel_units`` and
-        ``gyro_units`` default to the recorder's.
+    options : GuidedOptions, optional
+        The options of the capture (its defaults where not given); ``accel_units`` and
+        ``gyro_units`` left None become the recorder's.
     done_before : list, optional
         Continuing a capture: the session's segments, ``(kind, label, mean raw accel or
         None)`` in time order; the steps they fulfil are done (see :meth:`GuidedState.resume`).
     adaptive : AdaptiveOptions, optional
         Capture until accuracy targets are met (:class:`AdaptiveState`): refits, proposals,
         holds that end by themselves; ``complete`` then means every target was met.
+    **fields
+        Any of :class:`GuidedOptions`' fields (``hold_s=2.5``), replacing ``options``' value;
+        a name that is not one raises ``TypeError``.
 
     Returns
     -------
     CaptureSummary
         ``complete`` iff no step is missing or skipped; ``done`` in the order taken.
     """
-    if accel_units is None:
-        accel_units = getattr(recorder, "accel_units", None)
-    if gyro_units is None:
-        gyro_units = getattr(recorder, "gyro_units", None)
-    opt = GuidedOptions(
-        hold_s=float(hold_s), min_separation_deg=float(min_separation_deg),
-        nominal_bias=nominal_bias, nominal_scale=nominal_scale,
-        refresh_hz=max(float(refresh_hz), 0.1), match_tolerance_deg=float(match_tolerance_deg),
-        accel_units=accel_units, gyro_units=gyro_units,
-        gyro_scale=gyro_scale, detector=detector, warn_after_s=float(warn_after_s),
-        pre_still_s=float(pre_still_s), settle_s=float(settle_s),
-        axis_tolerance_deg=float(axis_tolerance_deg), tick_s=float(tick_s),
-        mag_goal=float(mag_goal),
-    )  # fmt: skip
+    opt = replace(options or GuidedOptions(), **fields)
+    units = {k: getattr(recorder, k, None) for k in ("accel_units", "gyro_units")
+             if getattr(opt, k) is None}  # fmt: skip
+    opt = replace(opt, **units) if units else opt
     if adaptive is not None:
         state = AdaptiveState(plan, opt, int(recorder.n_samples), recorder.add_segment,
                               adaptive)  # fmt: skip

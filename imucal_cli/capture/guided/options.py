@@ -77,8 +77,15 @@ class GuidedOptions:
     mag_goal: float = 0.9
 
     def __post_init__(self) -> None:
+        for name in _FLOATS:  # given as ints or numpy scalars: plain floats from here on
+            object.__setattr__(self, name, float(getattr(self, name)))
+        object.__setattr__(self, "refresh_hz", max(self.refresh_hz, 0.1))
         if not self.hold_s > 0:
             raise ValueError(f"hold_s must be > 0, got {self.hold_s!r}")
+
+
+_FLOATS = ("hold_s", "min_separation_deg", "refresh_hz", "match_tolerance_deg", "warn_after_s",
+           "pre_still_s", "settle_s", "axis_tolerance_deg", "tick_s", "mag_goal")  # fmt: skip
 
 
 def detector_for(plan: Plan) -> StillnessDetector:
