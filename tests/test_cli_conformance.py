@@ -298,3 +298,20 @@ def test_several_sessions_table_prints_bracketed_names_as_they_are(calibrated, t
                           capture_output=True, text=True, env=ENV, timeout=120)  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     assert "│ [red]a.h5 │" in proc.stdout  # the name, not a style tag
+
+
+def test_one_process_runs_command_after_command_from_one_group():
+    """The click group is built once per process (building it anew for each command line
+    read every command's signature again: 60 ms a call); a command named after the first
+    line ran is still loaded into it, and each line gets its own outcome."""
+    from imucal_cli.cli import _command
+
+    _command.cache_clear()
+    first = run("--version")
+    group = _command()
+    for name in ("label", "noise", "report"):
+        assert run(name, "--help").returncode == 0 and name in group.commands
+    bad = run("report", "--no-such-option")
+    assert bad.returncode == 2 and bad.stderr.startswith("imucal: error: ")
+    assert first.returncode == 0 and run("--version").stdout == first.stdout
+    assert _command.cache_info().misses == 1 and _command() is group

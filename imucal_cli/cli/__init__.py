@@ -11,6 +11,7 @@ still finishes and exits with its own status.
 from __future__ import annotations
 
 import errno
+import functools
 import io
 import os
 import signal
@@ -157,11 +158,20 @@ def _interrupted() -> int:
     return 130
 
 
+@functools.cache
+def _command() -> typer.core.TyperGroup:
+    """``app`` as a click group, built once per process: calling ``app`` builds it again
+    each time, every registered command's signature read anew (60 ms each call once every
+    command is loaded, as in a process that runs many commands: the tests). The group loads
+    commands into itself when a command line names them (:class:`~.app.Commands`)."""
+    return typer.main.get_command(app)
+
+
 def _run_app() -> int:
     try:
         # Not standalone: usage errors come back here, to be told on one line like every
         # other mistake (the default is a framed, multi-line box).
-        code = app(prog_name="imucal", standalone_mode=False)  # also under `python -m`
+        code = _command()(prog_name="imucal", standalone_mode=False)  # also `python -m`
     except typer.Exit as exc:
         return exc.exit_code
     except typer.Abort:
