@@ -161,7 +161,7 @@ def _interrupted() -> int:
 @functools.cache
 def _command() -> typer.core.TyperGroup:
     """``app`` as a click group, built once per process: calling ``app`` builds it again
-    each time, every registered command's signature read anew (60 ms each call once every
+    each time, every registered command's signature read anew (28 ms each call once every
     command is loaded, as in a process that runs many commands: the tests). The group loads
     commands into itself when a command line names them (:class:`~.app.Commands`)."""
     return typer.main.get_command(app)
