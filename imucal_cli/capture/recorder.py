@@ -169,6 +169,7 @@ class Recorder(SessionWrites):
         self._t_first: float | None = None
         self._t_last_sample: float | None = None
         self._device_first: float | None = None  # time stamp of the first sample, s
+        self._first_times = None  # the first block's time stamps, s
         self._device_last: float | None = None
         self._clock_checked = False
         self._t_end: float | None = None
@@ -445,6 +446,7 @@ class Recorder(SessionWrites):
             ended = self._flush()
             if ended is not None and self.end_kind != "disk-full":
                 self.end_kind, self.end_reason = ended.kind, ended.reason
+        self._retime_first_read()  # host-stamped: at the rate the stream showed
 
     # segments and closing ----------------------------------------------------------------------
     def add_segment(self, kind: str, start: int, stop: int, **attributes) -> str | None:
