@@ -5,7 +5,11 @@ whole: after a host that did not read for a while (busy, starting up, suspended)
 hands the waiting bytes out a tty buffer (4 KiB) at a time, and a drain cut into reads would
 give lines without a time of their own arrival times far closer together than they were sent
 (issue 24.3/24.7: a MotionCal stream's holds ran ten times too fast and the guided capture
-took none of them).
+took none of them).  A backlog that takes longer than :data:`DRAIN_MAX_S` to read (each part
+of it waits for a CPU on a loaded host) is read over several calls, which return nothing until
+the whole of it has come: the capture's screen stays live, and the backlog is still one read
+(a drain cut after its first part, as on a host at load 10, stamped that part over the time
+the host was away and the rest as if it had come at once: poses 2 and 3 of six were lost).
 """
 
 from __future__ import annotations
@@ -22,13 +26,16 @@ from imucal_cli.errors import InputError
 __all__ = ["DRAIN_MAX_BYTES", "DRAIN_MAX_S", "DRAIN_WAIT_S", "SerialSource", "available_ports"]
 
 DRAIN_MAX_S = 0.5
-"""Longest a read keeps reading a backlog, s (the capture's screen stays live)."""
+"""Longest a read keeps reading a backlog, s (the capture's screen stays live); the next reads
+go on with it."""
 
 DRAIN_MAX_BYTES = 4 << 20
 """Most bytes a read returns while it drains a backlog."""
 
-DRAIN_WAIT_S = 0.1
-"""After a read that filled the tty buffer, how long the next part of a backlog may take, s."""
+DRAIN_WAIT_S = 0.5
+"""After a read that filled the tty buffer, how long the next part of a backlog may take, s
+(the kernel's flip buffers or a sender blocked on the full line refill it when they get a
+CPU: 15-30 ms at load 16 on 2 cores, longer with disk I/O)."""
 
 TTY_BUFFER_BYTES = 4000
 """A read this long found the kernel's tty buffer (4 KiB) full: more of a backlog follows."""
@@ -66,6 +73,8 @@ class SerialSource:
             raise _open_error(self.port, self.baud, exc) from None
         self.opened_at = _time.monotonic()  #: when the port opened (host monotonic clock), s
         self._gone: DeviceGone | None = None  # the device went after the last bytes returned
+        self._backlog: list[bytes] = []  # a backlog read so far, returned once it is whole
+        self._refill_since: float | None = None  # waiting for the next part of it since, s
 
     @property
     def uri(self) -> str:
@@ -94,6 +103,8 @@ class SerialSource:
             raise self._gone
         ser, got = self._serial, b""
         try:
+            if self._backlog:  # a backlog being read: go on with it
+                return self._drain(b"")
             waiting = ser.in_waiting
             if waiting:
                 got = ser.read(waiting)
@@ -108,6 +119,7 @@ class SerialSource:
             return self._drain(got)
         except (OSError, TypeError, AttributeError) as exc:  # SerialException is an OSError
             self._gone = DeviceGone(" ".join(str(exc).split()) or type(exc).__name__)
+            got, self._backlog = b"".join(self._backlog) + got, []
             if got:
                 return got
             raise self._gone from None
@@ -116,24 +128,38 @@ class SerialSource:
         """``data`` and, when it filled the kernel's tty buffer (a backlog), the rest of the
         backlog: read until no more comes within :data:`DRAIN_WAIT_S` (the next part comes a
         moment after a read: the kernel's flip buffers, a sender blocked on the full line) or
-        only the trickle of a stream read as it comes; at most :data:`DRAIN_MAX_S`,
-        :data:`DRAIN_MAX_BYTES`."""
-        if len(data) < TTY_BUFFER_BYTES:
+        only the trickle of a stream read as it comes; at most :data:`DRAIN_MAX_BYTES`.  After
+        :data:`DRAIN_MAX_S` the backlog is kept for the next call and b"" returned."""
+        if len(data) < TTY_BUFFER_BYTES and not self._backlog:
             return data
         ser, end = self._serial, _time.monotonic() + DRAIN_MAX_S
-        parts, size = [data], len(data)
+        parts = [*self._backlog, data]
+        size, cut = sum(len(p) for p in parts), False
         try:
-            while size < DRAIN_MAX_BYTES and _time.monotonic() < end:
-                waiting = self._wait_waiting(DRAIN_WAIT_S)
-                if not waiting:
+            while size < DRAIN_MAX_BYTES:
+                now = _time.monotonic()
+                if now >= end:
+                    cut = True  # the screen's turn: the next call goes on
                     break
+                if self._refill_since is None:
+                    self._refill_since = now
+                patience = self._refill_since + DRAIN_WAIT_S - now
+                waiting = self._wait_waiting(min(patience, end - now))
+                if not waiting:
+                    cut = _time.monotonic() < self._refill_since + DRAIN_WAIT_S
+                    break  # the backlog ended (no next part in time), or go on next call
+                self._refill_since = None
                 more = ser.read(waiting)
                 parts.append(more)
                 size += len(more)
                 if len(more) < TTY_BUFFER_BYTES // 4 and not self._wait_waiting(self.batch_s):
                     break  # caught up
         except (OSError, TypeError, AttributeError):
-            pass  # the device went while draining: what was read is kept, the next read says
+            cut = False  # the device went while draining: what was read is kept, next read says
+        if cut:
+            self._backlog = parts
+            return b""
+        self._backlog, self._refill_since = [], None
         return b"".join(parts)
 
     def _wait_waiting(self, limit_s: float) -> int:
