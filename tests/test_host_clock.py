@@ -84,6 +84,24 @@ def test_a_pause_stays_a_gap():
     assert np.median(after) == pytest.approx(1 / RATE, rel=0.02)
 
 
+@pytest.mark.parametrize("after_hz", [50.0, 80.0, 200.0])
+def test_a_stream_whose_rate_changes_is_followed_without_a_gap(after_hz):
+    """A sketch that slows down (or speeds up) after 10 s: the stamps follow its new rate,
+    and the lag this builds is caught up before it could read as a pause."""
+    rng = np.random.default_rng(7)
+    sent = np.concatenate([np.arange(1000) / RATE, 10 + np.arange(1, 1000) / after_hz])
+    reads, now, done = [], 0.0, 0
+    while done < sent.size:
+        now += rng.uniform(0.01, 0.03)
+        k = int((sent <= now).sum()) - done
+        if k:
+            reads.append((k, now))
+            done += k
+    t, arrived = stamp(reads)
+    assert not find_gaps(t) and (t <= arrived + 1e-12).all()
+    assert np.median(np.diff(t[-500:])) == pytest.approx(1 / after_hz, rel=0.03)
+
+
 def test_a_backlog_keeps_the_stream_rate():
     """The reader was away 5 s (the lines waited in the kernel): the 500 lines are stamped
     at the rate, ending at their arrival, and meet the lines before without a gap."""
