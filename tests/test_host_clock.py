@@ -67,6 +67,7 @@ def test_bursts_that_waited_on_a_busy_host_leave_no_gap(seed):
     t, arrived = stamp(reads)
     assert (np.diff(t) > 0).all() and (t <= arrived + 1e-12).all()
     assert not find_gaps(t), find_gaps(t)[:3]
+    assert np.median(np.diff(t)) == pytest.approx(1 / RATE, rel=0.002)  # the period's steps
     # the stamps keep the rate: within the 0.12 s the bursts waited, over 30 s
     assert (t[-1] - t[0]) * RATE / (len(t) - 1) == pytest.approx(1.0, abs=0.15 / 30)
 

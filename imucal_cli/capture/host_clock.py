@@ -15,8 +15,8 @@ each read's samples one period apart after the last stamp, never after they arri
 
 - samples that came sooner than the period says are spread up to their arrival (a burst that
   catches up; a backlog);
-- samples that came later, by less than :data:`PAUSE_S`, keep the period, and the stamps catch
-  up with the arrivals over :data:`TRACK_S` of samples (a late burst is no gap);
+- samples that came later, by less than :data:`PAUSE_S`, keep the period (a late burst is no
+  gap), and a lag that lasts (the rate changed) is caught up over :data:`TRACK_S`;
 - later by more (the device paused, or lost samples), the read's samples end at their arrival
   one period apart, after a gap as long as the pause.
 
@@ -40,10 +40,12 @@ PAUSE_S = 0.3
 """Samples later than the period says by more than this, s, follow a pause (a gap); later by
 less, a burst that waited on a busy host (no gap)."""
 
-TRACK_S = 0.3
-"""Stamps that lag their arrivals catch up over this many seconds of samples, s (soon enough
-that a stream whose rate halves is followed without a lag past :data:`PAUSE_S`; a burst that
-waited 0.12 s makes a step of 1.5-1.8 periods, far from the 5 of a gap)."""
+TRACK_S = 0.2
+"""A lag of the stamps behind their arrivals that every read of the last this many seconds
+showed (not a burst that waited: the reads after it come early) is caught up over this many
+seconds of samples, s: soon enough that a stream whose rate halves is followed without a lag
+past :data:`PAUSE_S`; a burst that waited 0.12 s leaves steps of at most 1.5-1.8 periods, far
+from the 5 of a gap, and the steps' median the period."""
 
 PERIOD_WINDOW_S = 5.0
 """The sample interval is fitted to the arrivals of the last this many seconds, s (a bias of
@@ -79,6 +81,7 @@ class HostClock:
         self._count = 0  # samples stamped
         self._arrivals: deque[tuple[int, float]] = deque()  # (count, arrival) after the first
         self._fitted_at = -np.inf
+        self._lags: deque[tuple[float, float]] = deque()  # (arrival, lag) of the last TRACK_S
 
     def set_origin(self, host_time: float) -> None:
         """When the stream could start (the port opened), host clock, s: the first read's
@@ -117,9 +120,15 @@ class HostClock:
         if lag > PAUSE_S:  # a pause: the samples end at their arrival, a period apart
             self._arrivals.clear()  # the pause is no part of the rate
             return a - (k - steps) * self.period
-        end = last + span + lag * min(1.0, span / TRACK_S) if lag > 0 else a
-        end = max(end, floor)
-        return last + (end - last) * steps / k
+        lags = self._lags
+        lags.append((a, lag))
+        while a - lags[0][0] > TRACK_S:
+            lags.popleft()
+        if lag <= 0:  # sooner than the period says: up to the arrival
+            return last + (max(a, floor) - last) * steps / k
+        persistent = min(lag for _, lag in lags)  # a burst that waited is not
+        end = last + span + max(persistent, 0.0) * min(1.0, span / TRACK_S)
+        return last + (max(end, floor) - last) * steps / k
 
     def _arrived(self, a: float) -> None:
         """Record an arrival; refit the sample interval when due."""
