@@ -14,7 +14,8 @@ from imucal_cli.capture.host_clock import HostClock, first_read_times
 from imucal_cli.capture.recorder import Recorder
 from imucal_cli.capture.stream import DeviceGone, PrefixedLineProtocol
 from imucal_cli.design.gaps import GAP_FACTOR, find_gaps
-from imucal_cli.formats.session import read_session
+from imucal_cli.errors import SessionError
+from imucal_cli.formats.session import SessionWriter, read_session
 
 RATE = 100.0
 LINE = b"Raw:1,2,8000,3,4,5,100,200,300\n"
@@ -184,3 +185,19 @@ def test_a_capture_after_a_busy_start_has_the_streams_rate(tmp_path, monkeypatch
     assert step[:1700].mean() == pytest.approx(1 / RATE, rel=1e-3)  # the first read's too
     assert session.time[0] >= -0.05  # not before the port opened
 
+
+
+def test_the_writer_re_times_written_samples_in_order_only(tmp_path):
+    w = SessionWriter(tmp_path / "w.h5", accel_channels=3, gyro_channels=None)
+    w.append(np.arange(5.0), np.zeros((5, 3)))
+    w.flush()
+    with pytest.raises(SessionError, match="out of order"):
+        w.retime(0, [0.0, 1.0, 2.0, 4.0])  # would meet the next sample (4 s)
+    with pytest.raises(SessionError, match="out of order"):
+        w.retime(0, [0.0, 2.0, 1.0])
+    w.append(5.0, np.zeros(3))  # buffered, not written yet
+    with pytest.raises(SessionError, match="unwritten"):
+        w.retime(3, [3.5, 4.5, 4.8])
+    w.retime(0, [0.5, 1.5, 2.5])
+    w.close()
+    np.testing.assert_array_equal(read_session(tmp_path / "w.h5").time, [0.5, 1.5, 2.5, 3, 4, 5])

@@ -11,7 +11,7 @@ import numpy as np
 
 from imucal_cli.capture.checks import CaptureEnded
 from imucal_cli.capture.host_clock import first_read_times
-from imucal_cli.errors import WriteFailed
+from imucal_cli.errors import SessionError, WriteFailed
 from imucal_cli.formats.columns import SampleBlock
 
 
@@ -87,7 +87,7 @@ class SessionWrites:
             return
         try:
             writer.retime(0, times)
-        except WriteFailed:
+        except SessionError:  # the write failed (or the times would not stay in order)
             return
         self._device_first = float(times[0])
 
