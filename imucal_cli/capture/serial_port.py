@@ -88,10 +88,11 @@ class SerialSource:
     def read(self) -> bytes:
         """Bytes received so far, or b"" after ``timeout_s`` with none.
 
-        A backlog (the host did not read for a while) is read whole, up to
-        :data:`DRAIN_MAX_S`: the serial buffer hands out a few kilobytes a read, and a drain
-        cut into reads would give its lines arrival times far closer together than they were
-        sent (host-clock stamps, the sample clock's estimate).
+        A backlog (the host did not read for a while) is returned whole: the serial buffer
+        hands out a few kilobytes a read, and a drain cut into reads would give its lines
+        arrival times far closer together than they were sent (host-clock stamps, the sample
+        clock's estimate).  A read takes at most about :data:`DRAIN_MAX_S` of it and returns
+        b"" while more of it is still coming; the next reads go on with it.
 
         Raises
         ------
