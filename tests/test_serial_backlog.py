@@ -4,6 +4,7 @@ then return nothing until the whole backlog has come, and it is one read (stampe
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from imucal_cli.capture import serial_port
@@ -101,3 +102,68 @@ def test_a_backlog_ends_when_no_next_part_comes(monkeypatch):
     while not got:
         got = src.read()
     assert got == backlog and clock.now <= DRAIN_WAIT_S + DRAIN_MAX_S
+
+
+class SlowTty:
+    """A 100 Hz MotionCal device on a tty: line ``i`` sent at ``i / 100`` s; a backlog over
+    the kernel's buffer is handed out :data:`PART` bytes at a time, each ``refill_s`` after
+    the last was read; the host goes away for ``away_s`` at ``away_at`` s (its first read
+    after)."""
+
+    LINE = b"Raw:1,2,8000,3,4,5,100,200,300\n"
+
+    def __init__(self, clock: FakeTime, n: int, refill_s: float, away_at: float, away_s: float):
+        self.clock, self.n, self.refill_s = clock, n, refill_s
+        self.away_at, self.away_s = away_at, away_s
+        self.pos, self.refill_at, self.timeout = 0, 0.0, 0.05
+
+    def _sent(self) -> int:
+        return min(int(self.clock.now * 100) + 1, self.n) * len(self.LINE)
+
+    @property
+    def in_waiting(self) -> int:
+        waiting = self._sent() - self.pos
+        if waiting > PART:
+            return PART if self.clock.now >= self.refill_at else 0
+        return waiting
+
+    def read(self, k: int) -> bytes:
+        if self.away_s and self.clock.now >= self.away_at:
+            self.clock.now, self.away_s = self.clock.now + self.away_s, 0.0
+        if not self.in_waiting:
+            self.clock.sleep(self.timeout)
+        k = min(k, self.in_waiting)
+        if k == PART:
+            self.refill_at = self.clock.now + self.refill_s
+        data = (self.LINE * self.n)[self.pos : self.pos + k]
+        self.pos += k
+        return data
+
+    def close(self) -> None:
+        pass
+
+
+def test_a_capture_reading_a_slow_backlog_does_not_time_out(tmp_path, monkeypatch):
+    """The host went away for 8 s (past the 5 s read timeout) inside a read that had got a
+    few lines, and the backlog's parts then came 0.2 s apart.  That read takes the backlog
+    with it (before: its few lines were stamped at the host's return, after an 8 s gap, and
+    the backlog crowded after them); the reads that return nothing while the backlog comes
+    are no silent device (before: the capture ended); every line is kept, at the rate."""
+    from imucal_cli.capture import recorder
+    from imucal_cli.capture.stream import PrefixedLineProtocol
+    from imucal_cli.formats.session import read_session
+
+    clock = FakeTime()
+    tty = SlowTty(clock, n=1500, refill_s=0.2, away_at=1.0, away_s=8.0)
+    monkeypatch.setattr(serial_port, "_time", clock)
+    monkeypatch.setattr(recorder, "_time", clock)
+    monkeypatch.setattr(serial_port.serial, "Serial", lambda *a, **k: tty)
+    rec = recorder.Recorder(tmp_path / "s.h5", SerialSource("/dev/fake", 115200),
+                            PrefixedLineProtocol(("motioncal",)), read_timeout_s=5.0)  # fmt: skip
+    for _ in rec.blocks():
+        pass
+    rec.close()
+    assert rec.end_kind == "timeout" and rec.n_samples == 1500, rec.end_reason
+    assert clock.now > 15.0 + 5.0  # it ended 5 s after the device's last line, not before
+    steps = read_session(tmp_path / "s.h5").time
+    assert abs(np.diff(steps)).max() < 5 / 100  # no gap, no burst: the rate throughout

@@ -392,7 +392,8 @@ class Recorder(SessionWrites):
                     break
                 now = _time.monotonic()
                 block = self.protocol.feed(data, now - self._t0) if data else SampleBlock.empty()
-                idle = not len(block)
+                # a backlog still being read (its first parts came) is no idle read
+                idle = not len(block) and not getattr(self.source, "reading_backlog", False)
                 if len(block):
                     ended = self._received(block, now, what)
                     if ended is not None:

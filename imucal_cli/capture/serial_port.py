@@ -37,6 +37,12 @@ DRAIN_WAIT_S = 0.5
 (the kernel's flip buffers or a sender blocked on the full line refill it when they get a
 CPU: 15-30 ms at load 16 on 2 cores, longer with disk I/O)."""
 
+AWAY_S = 0.25
+"""A read that took this much longer than its own waits was stopped or starved inside it (a
+busy host, SIGSTOP): the bytes it got are as old as those that came meanwhile, so what waits
+is read with them, a backlog of any size (else the few lines it got would be stamped at the
+host's return and the backlog after them crowded into the next read)."""
+
 TTY_BUFFER_BYTES = 4000
 """A read this long found the kernel's tty buffer (4 KiB) full: more of a backlog follows."""
 
@@ -67,6 +73,7 @@ class SerialSource:
         if not isinstance(baud, int) or baud <= 0:
             raise InputError(f"baud rate must be a positive integer, got {baud!r}")
         self.port, self.baud, self.batch_s = str(port), int(baud), float(batch_s)
+        self.timeout_s = float(timeout_s)
         try:
             self._serial = serial.Serial(self.port, self.baud, timeout=timeout_s)
         except (serial.SerialException, OSError, ValueError) as exc:
@@ -85,6 +92,11 @@ class SerialSource:
         """``"/dev/ttyUSB0 at 115200 baud"`` for messages."""
         return f"{self.port} at {self.baud} baud"
 
+    @property
+    def reading_backlog(self) -> bool:
+        """Whether a backlog is being read (the last read returned b"" with part of it)."""
+        return bool(self._backlog)
+
     def read(self) -> bytes:
         """Bytes received so far, or b"" after ``timeout_s`` with none.
 
@@ -102,14 +114,14 @@ class SerialSource:
         """
         if self._gone is not None:
             raise self._gone
-        ser, got = self._serial, b""
+        ser, got, entered = self._serial, b"", _time.monotonic()
         try:
             if self._backlog:  # a backlog being read: go on with it
                 return self._drain(b"")
             waiting = ser.in_waiting
             if waiting:
                 got = ser.read(waiting)
-                return self._drain(got)
+                return self._drain(got, entered)
             got = ser.read(1)
             if not got:
                 return b""
@@ -117,7 +129,7 @@ class SerialSource:
             waiting = ser.in_waiting
             if waiting:
                 got += ser.read(waiting)
-            return self._drain(got)
+            return self._drain(got, entered)
         except (OSError, TypeError, AttributeError) as exc:  # SerialException is an OSError
             self._gone = DeviceGone(" ".join(str(exc).split()) or type(exc).__name__)
             got, self._backlog = b"".join(self._backlog) + got, []
@@ -125,13 +137,14 @@ class SerialSource:
                 return got
             raise self._gone from None
 
-    def _drain(self, data: bytes) -> bytes:
-        """``data`` and, when it filled the kernel's tty buffer (a backlog), the rest of the
-        backlog: read until no more comes within :data:`DRAIN_WAIT_S` (the next part comes a
-        moment after a read: the kernel's flip buffers, a sender blocked on the full line) or
-        only the trickle of a stream read as it comes; at most :data:`DRAIN_MAX_BYTES`.  After
+    def _drain(self, data: bytes, entered: float | None = None) -> bytes:
+        """``data`` and, when it filled the kernel's tty buffer (a backlog) or the read that
+        got it (begun at ``entered``) was away (:data:`AWAY_S`), the rest of the backlog: read
+        until no more comes within :data:`DRAIN_WAIT_S` (the next part comes a moment after a
+        read: the kernel's flip buffers, a sender blocked on the full line) or only the
+        trickle of a stream read as it comes; at most :data:`DRAIN_MAX_BYTES`.  After
         :data:`DRAIN_MAX_S` the backlog is kept for the next call and b"" returned."""
-        if len(data) < TTY_BUFFER_BYTES and not self._backlog:
+        if len(data) < TTY_BUFFER_BYTES and not self._backlog and not self._was_away(entered):
             return data
         ser, end = self._serial, _time.monotonic() + DRAIN_MAX_S
         parts = [*self._backlog, data]
@@ -162,6 +175,14 @@ class SerialSource:
             return b""
         self._backlog, self._refill_since = [], None
         return b"".join(parts)
+
+    def _was_away(self, entered: float | None) -> bool:
+        """Whether the read begun at ``entered`` took :data:`AWAY_S` past its own waits and
+        more bytes wait now."""
+        if entered is None:
+            return False
+        waits = self.timeout_s + self.batch_s
+        return _time.monotonic() - entered > waits + AWAY_S and bool(self._serial.in_waiting)
 
     def _wait_waiting(self, limit_s: float) -> int:
         """Bytes waiting, polled for up to ``limit_s`` until there are some (0: none came)."""
