@@ -302,6 +302,7 @@ def _port(parts: list[bytes]):
 
     source = SerialSource.__new__(SerialSource)
     source._serial, source.batch_s, source._gone = FakeSerial(parts), 0.001, None
+    source._backlog, source._refill_since, source.timeout_s = [], None, 0.05
     return source
 
 

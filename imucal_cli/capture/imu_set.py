@@ -105,6 +105,11 @@ class PortSet:
     def describe(self) -> str:
         return " and ".join(s.describe() for s in self.sources)
 
+    @property
+    def reading_backlog(self) -> bool:
+        """Whether the reference port is reading a backlog (:class:`SerialSource`)."""
+        return bool(getattr(self.sources[0], "reading_backlog", False))
+
     def read(self) -> bytes:
         """The reference's bytes (waiting up to its timeout), after the others' waiting bytes
         were taken; raises :class:`DeviceGone` naming the port when any one is gone."""

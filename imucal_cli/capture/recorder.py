@@ -169,6 +169,7 @@ class Recorder(SessionWrites):
         self._t_first: float | None = None
         self._t_last_sample: float | None = None
         self._device_first: float | None = None  # time stamp of the first sample, s
+        self._first_times = None  # the first block's time stamps, s
         self._device_last: float | None = None
         self._clock_checked = False
         self._t_end: float | None = None
@@ -391,7 +392,8 @@ class Recorder(SessionWrites):
                     break
                 now = _time.monotonic()
                 block = self.protocol.feed(data, now - self._t0) if data else SampleBlock.empty()
-                idle = not len(block)
+                # a backlog still being read (its first parts came) is no idle read
+                idle = not len(block) and not getattr(self.source, "reading_backlog", False)
                 if len(block):
                     ended = self._received(block, now, what)
                     if ended is not None:
@@ -445,6 +447,7 @@ class Recorder(SessionWrites):
             ended = self._flush()
             if ended is not None and self.end_kind != "disk-full":
                 self.end_kind, self.end_reason = ended.kind, ended.reason
+        self._retime_first_read()  # host-stamped: at the rate the stream showed
 
     # segments and closing ----------------------------------------------------------------------
     def add_segment(self, kind: str, start: int, stop: int, **attributes) -> str | None:

@@ -23,6 +23,7 @@ import re
 
 import numpy as np
 
+from imucal_cli.capture.host_clock import HostClock
 from imucal_cli.errors import InputError
 from imucal_cli.formats.columns import ColumnSpec, SampleBlock
 from imucal_cli.formats.importers.serial_lines import LINE_FORMATS, line_format, parse_line
@@ -38,7 +39,6 @@ __all__ = [
     "RESYNC_SAMPLES",
     "SampleBlock",
     "WitMotionProtocol",
-    "host_stamps",
 ]
 
 MAX_LINE_BYTES = 4096
@@ -48,20 +48,6 @@ counted as malformed, so garbage never grows memory."""
 RESYNC_SAMPLES = 10
 """After this many consecutive samples whose device time is not after the last kept one, the
 device clock is taken to have wrapped or restarted and the time base is shifted to continue."""
-
-
-def host_stamps(
-    k: int, host_time: float, last_host: float | None, last_time: float | None
-) -> tuple[np.ndarray, float]:
-    """Host-clock times for ``k`` samples that arrived by ``host_time``: spread evenly after
-    the previous batch's ``last_host`` (and after ``last_time``, the last sample kept), so that
-    times stay strictly increasing whatever the batching.  Returns the times and the new
-    ``last_host``."""
-    start = host_time - 1e-3 * k if last_host is None else last_host
-    if last_time is not None:
-        start = max(start, last_time)
-    end = max(host_time, start + 1e-6 * k)
-    return start + (end - start) * np.arange(1, k + 1) / k, end
 
 
 # --------------------------------------------------------------------------------------------
@@ -102,9 +88,9 @@ class LineProtocol:
       samples cannot be kept; after :data:`RESYNC_SAMPLES` such samples in a row the clock is
       taken to have wrapped or restarted and later samples are shifted to follow on.
 
-    Without a ``t`` column the host clock stamps the lines: the lines completed by one
-    :meth:`feed` are spread evenly between the previous call's ``host_time`` and this one's,
-    so that times stay strictly increasing whatever the batching.
+    Without a ``t`` column the host clock stamps the lines
+    (:class:`~imucal_cli.capture.host_clock.HostClock`: at the stream's rate, never after
+    they arrived), strictly increasing whatever the batching.
 
     Parameters
     ----------
@@ -124,7 +110,7 @@ class LineProtocol:
         self.stats = {"lines": 0, "samples": 0, "comments": 0, "malformed": 0, "bytes": 0}
         self._partial = b""
         self._last_time: float | None = None  # last kept sample time, s
-        self._last_host: float | None = None
+        self.host_clock = HostClock()  # stamps lines without a ``t`` column
         self._offset = 0.0  # added to device times after a wrap/restart
         self._behind = 0  # consecutive samples not after the last kept one
         self._dt = 0.0  # recent sample interval, s (for a resync)
@@ -132,8 +118,7 @@ class LineProtocol:
     def set_origin(self, host_time: float) -> None:
         """When the stream could start (the port opened), host clock, s: the first lines,
         host-stamped, are spread from there to their arrival (not crowded before it)."""
-        if self._last_host is None:
-            self._last_host = float(host_time)
+        self.host_clock.set_origin(host_time)
 
     def feed(self, data: bytes, host_time: float) -> SampleBlock:
         """Parse the complete lines of ``data`` (after what was left over by the last call).
@@ -211,8 +196,7 @@ class LineProtocol:
         return np.array(rows, dtype=np.float64).reshape(-1, n_fields)
 
     def _host_stamps(self, k: int, host_time: float) -> np.ndarray:
-        stamps, self._last_host = host_stamps(k, host_time, self._last_host, self._last_time)
-        return stamps
+        return self.host_clock.stamps(k, host_time, after=self._last_time)
 
     def _accept_device_times(self, t: np.ndarray) -> np.ndarray | None:
         """Shift ``t`` in place by the resync offset; return the mask of samples to keep, or
@@ -295,14 +279,12 @@ class PrefixedLineProtocol:
         self.fmt: str | None = None
         self.stats = dict.fromkeys(_COUNTERS, 0)
         self._partial = b""
-        self._last_host: float | None = None
-        self._last_time: float | None = None
+        self.host_clock = HostClock()
 
     def set_origin(self, host_time: float) -> None:
         """When the stream could start (the port opened), host clock, s: the first lines,
         host-stamped, are spread from there to their arrival (not crowded before it)."""
-        if self._last_host is None:
-            self._last_host = float(host_time)
+        self.host_clock.set_origin(host_time)
 
     @property
     def units(self) -> dict[str, str]:
@@ -336,9 +318,7 @@ class PrefixedLineProtocol:
         if not rows:
             return SampleBlock.empty()
         values = np.array(rows, dtype=np.float64)
-        time, self._last_host = host_stamps(len(rows), host_time, self._last_host,
-                                            self._last_time)  # fmt: skip
-        self._last_time = float(time[-1])
+        time = self.host_clock.stamps(len(rows), host_time)
         stats["samples"] += len(rows)
         return SampleBlock(time=time, accel=values[:, 0:3], gyro=values[:, 3:6],
                            mag=values[:, 6:9] if values.shape[1] == 9 else None)  # fmt: skip
@@ -389,6 +369,12 @@ class AutoLineProtocol:
     @property
     def units(self) -> dict[str, str]:
         return getattr(self._chosen, "units", {})
+
+    @property
+    def host_clock(self):
+        """The chosen protocol's :class:`~imucal_cli.capture.host_clock.HostClock` (None
+        before the choice)."""
+        return getattr(self._chosen, "host_clock", None)
 
     def feed(self, data: bytes, host_time: float) -> SampleBlock:
         """As the chosen protocol's ``feed`` (nothing while the first lines are told apart)."""
@@ -471,14 +457,12 @@ class WitMotionProtocol:
         self._decoder = WitMotionDecoder()
         self.stats = {"lines": 0, "samples": 0, "comments": 0, "malformed": 0, "bytes": 0}
         self._incomplete = 0
-        self._last_host: float | None = None
-        self._last_time: float | None = None
+        self.host_clock = HostClock()
 
     def set_origin(self, host_time: float) -> None:
         """When the stream could start (the port opened), host clock, s: the first lines,
         host-stamped, are spread from there to their arrival (not crowded before it)."""
-        if self._last_host is None:
-            self._last_host = float(host_time)
+        self.host_clock.set_origin(host_time)
 
     def feed(self, data: bytes, host_time: float) -> SampleBlock:
         """Decode the frames of ``data``; return the samples they complete."""
@@ -491,9 +475,7 @@ class WitMotionProtocol:
                           bytes=dec.stats["bytes"])  # fmt: skip
         if not full:
             return SampleBlock.empty()
-        time, self._last_host = host_stamps(len(full), host_time, self._last_host,
-                                            self._last_time)  # fmt: skip
-        self._last_time = float(time[-1])
+        time = self.host_clock.stamps(len(full), host_time)
         self.stats["samples"] += len(full)
         return SampleBlock(
             time=time,

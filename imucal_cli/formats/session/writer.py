@@ -558,6 +558,21 @@ class SessionWriter(Resumable, FailedWrites):
         self._flush_if_due()
         return name
 
+    def retime(self, start: int, time: np.ndarray) -> None:
+        """Replace the times of written samples ``[start, start + k)`` by ``time`` (host-clock
+        stamps known better later), s; SessionError unless they stay strictly increasing with
+        the samples around them; WriteFailed when the write fails."""
+        dataset, t = self._datasets["time"], np.asarray(time, np.float64)
+        stop = start + t.size
+        around = np.concatenate([dataset[max(start - 1, 0):start], t, dataset[stop:stop + 1]])
+        if stop > self._n_written or not (np.diff(around) > 0).all() or not np.isfinite(t).all():
+            raise self._fail(f"retime: samples {start}-{stop} unwritten or out of order")
+        try:
+            dataset[start:stop] = t
+            self._check_open().flush()
+        except WRITE_ERRORS as exc:
+            raise self._write_failed(exc, 0) from None
+
     # closing -------------------------------------------------------------------------------
     def close(self, attrs: dict[str, Any] | None = None) -> None:
         """Flush, end SWMR mode, write the segment groups and give the file its name.

@@ -1,0 +1,203 @@
+"""Host-clock stamps of a steady stream without device time (MotionCal lines) on a busy host:
+bursts that waited are no gap, a pause is, a backlog keeps the rate, and a first backlog from
+a device that started after the port opened is re-timed at the stream's rate when the capture
+ends (module notes of imucal_cli.capture.host_clock)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from imucal_cli.capture.host_clock import HostClock, first_read_times
+from imucal_cli.capture.recorder import Recorder
+from imucal_cli.capture.stream import DeviceGone, PrefixedLineProtocol
+from imucal_cli.design.gaps import GAP_FACTOR, find_gaps
+from imucal_cli.errors import SessionError
+from imucal_cli.formats.session import SessionWriter, read_session
+
+RATE = 100.0
+LINE = b"Raw:1,2,8000,3,4,5,100,200,300\n"
+
+
+def arrivals(n: int, seed: int, *, burst_every: int = 40) -> list[tuple[int, float]]:
+    """Reads of a 100 Hz stream (line ``i`` sent at ``i / RATE``): (lines, host time) a read,
+    as the capture logged them on a loaded host: reads every 10-30 ms, and every
+    ``burst_every`` reads the bytes wait 120 ms in the kernel, two lines come, then the rest
+    in one burst 80 ms later."""
+    rng = np.random.default_rng(seed)
+    sent = np.arange(n) / RATE
+    reads, now, done, r = [], 0.0, 0, 0
+    while done < n:
+        r += 1
+        if r % burst_every == 0:
+            k = min(2, int((sent <= now + 0.12).sum()) - done)
+            now += 0.12
+            reads.append((max(k, 0), now))
+            done += max(k, 0)
+            now += 0.08
+        else:
+            now += rng.uniform(0.01, 0.03)
+        k = int((sent <= now).sum()) - done
+        reads.append((k, now))
+        done += k
+    return [(k, t) for k, t in reads if k > 0]
+
+
+def stamp(reads, clock: HostClock | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The stamps of every line and the arrival of its read."""
+    clock = HostClock() if clock is None else clock
+    times = [clock.stamps(k, t) for k, t in reads]
+    return np.concatenate(times), np.concatenate([np.full(k, t) for k, t in reads])
+
+
+def even_spread(reads) -> np.ndarray:
+    """Each read's lines spread evenly since the last read (the stamps before the clock)."""
+    out, last = [], reads[0][1] - reads[0][0] / RATE
+    for k, t in reads:
+        out.append(last + (t - last) * np.arange(1, k + 1) / k)
+        last = t
+    return np.concatenate(out)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_bursts_that_waited_on_a_busy_host_leave_no_gap(seed):
+    reads = arrivals(3000, seed)
+    assert find_gaps(even_spread(reads))  # the pattern gave gaps spread evenly (before)
+    t, arrived = stamp(reads)
+    assert (np.diff(t) > 0).all() and (t <= arrived + 1e-12).all()
+    assert not find_gaps(t), find_gaps(t)[:3]
+    assert np.median(np.diff(t)) == pytest.approx(1 / RATE, rel=0.002)  # the period's steps
+    # the stamps keep the rate: within the 0.12 s the bursts waited, over 30 s
+    assert (t[-1] - t[0]) * RATE / (len(t) - 1) == pytest.approx(1.0, abs=0.15 / 30)
+
+
+def test_a_pause_stays_a_gap():
+    """The device stopped for 1 s (no line lost in transit: none sent): the gap is kept, at
+    the pause, not spread over the lines after it."""
+    reads = arrivals(1000, 4, burst_every=10**6)
+    pause = [(k, t + 1.0 if t > 5.0 else t) for k, t in reads]
+    t, _ = stamp(pause)
+    gaps = find_gaps(t)
+    assert len(gaps) == 1 and gaps[0].length_s == pytest.approx(1.0, abs=0.04)
+    assert 4.9 < gaps[0].time_s < 5.1
+    after = np.diff(t[gaps[0].index + 1 :])
+    assert np.median(after) == pytest.approx(1 / RATE, rel=0.02)
+
+
+@pytest.mark.parametrize("after_hz", [50.0, 80.0, 200.0])
+def test_a_stream_whose_rate_changes_is_followed_without_a_gap(after_hz):
+    """A sketch that slows down (or speeds up) after 10 s: the stamps follow its new rate,
+    and the lag this builds is caught up before it could read as a pause."""
+    rng = np.random.default_rng(7)
+    sent = np.concatenate([np.arange(1000) / RATE, 10 + np.arange(1, 1000) / after_hz])
+    reads, now, done = [], 0.0, 0
+    while done < sent.size:
+        now += rng.uniform(0.01, 0.03)
+        k = int((sent <= now).sum()) - done
+        if k:
+            reads.append((k, now))
+            done += k
+    t, arrived = stamp(reads)
+    assert not find_gaps(t) and (t <= arrived + 1e-12).all()
+    assert np.median(np.diff(t[-500:])) == pytest.approx(1 / after_hz, rel=0.03)
+
+
+def test_a_backlog_keeps_the_stream_rate():
+    """The reader was away 5 s (the lines waited in the kernel): the 500 lines are stamped
+    at the rate, ending at their arrival, and meet the lines before without a gap."""
+    reads = arrivals(1500, 5, burst_every=10**6)
+    cut = next(i for i, (_, t) in enumerate(reads) if t > 5.0)
+    end = next(i for i, (_, t) in enumerate(reads) if t > 10.0)
+    backlog = [(sum(k for k, _ in reads[cut:end]), reads[end - 1][1])]
+    t, _ = stamp(reads[:cut] + backlog + reads[end:])
+    assert not find_gaps(t)
+    lines = slice(sum(k for k, _ in reads[:cut]), sum(k for k, _ in reads[:end]))
+    assert np.diff(t[lines]).mean() == pytest.approx(1 / RATE, rel=0.01)
+
+
+def test_the_first_read_is_re_timed_at_the_rate_never_before_the_origin():
+    """1750 lines from a device that started 1 s after the port opened, read 18.5 s after
+    the open: spread from the open they run 5.7 % slow; at the rate they end at their arrival
+    and start 1 s after the open.  A spread tighter than the rate (the rate misjudged) stays."""
+    spread = -0.0 + 18.5 * np.arange(1, 1751) / 1750
+    again = first_read_times(spread, 0.0, 1 / RATE)
+    assert again[-1] == spread[-1] and np.diff(again) == pytest.approx(1 / RATE)
+    assert again[0] == pytest.approx(1.0 + 1 / RATE)
+    assert first_read_times(spread, 0.0, 0.02) is spread  # would start before the open
+
+
+class _Clock:
+    """The host's monotonic clock, set by the source as its reads arrive."""
+
+    def __init__(self) -> None:
+        self.now = 0.05
+
+    def __call__(self) -> float:
+        return self.now
+
+
+class _BusyStart:
+    """A 100 Hz MotionCal device that started ``late_s`` after the port opened, read first
+    ``first_s`` after the open (a busy host), then every 20 ms for ``after_s``."""
+
+    uri = "serial:/dev/fake@115200"
+
+    def __init__(self, clock: _Clock, late_s: float, first_s: float, after_s: float):
+        self.clock, self.opened_at = clock, 0.0
+        self.reads = [first_s, *np.arange(first_s + 0.02, first_s + after_s, 0.02)]
+        self.sent = 0
+        self.late_s = late_s
+
+    def describe(self) -> str:
+        return "/dev/fake at 115200 baud"
+
+    def read(self) -> bytes:
+        if not self.reads:
+            raise DeviceGone("[Errno 5] Input/output error")
+        self.clock.now = float(self.reads.pop(0))
+        due = int((self.clock.now - self.late_s) * RATE + 1e-9) + 1
+        k, self.sent = due - self.sent, due
+        return LINE * k
+
+    def close(self) -> None:
+        pass
+
+
+def test_a_capture_after_a_busy_start_has_the_streams_rate(tmp_path, monkeypatch):
+    """Issue 24.7's busy start with a device that starts 1 s after the open (an Arduino
+    resetting, the virtual device waiting for the flush): the first 17.5 s of lines, read at
+    once, were spread over 18.5 s, and the capture's rate came out 97 Hz.  Now the session's
+    times and rate are the stream's (the arrivals here are exact: to 0.1 %)."""
+    clock = _Clock()
+    monkeypatch.setattr(time, "monotonic", clock)
+    source = _BusyStart(clock, late_s=1.0, first_s=18.5, after_s=15.0)
+    rec = Recorder(tmp_path / "busy.h5", source, PrefixedLineProtocol(("motioncal",)))
+    n = sum(len(b) for b in rec.blocks())
+    rec.close()
+    assert rec.end_kind == "device-gone" and n == source.sent
+    assert rec.stats["rate_hz"] == pytest.approx(RATE, rel=1e-3)
+    session = read_session(tmp_path / "busy.h5")
+    assert session.sample_rate_hz == pytest.approx(RATE, rel=1e-3)
+    step = np.diff(session.time)
+    assert step.max() < GAP_FACTOR / RATE and step.min() > 0
+    assert step[:1700].mean() == pytest.approx(1 / RATE, rel=1e-3)  # the first read's too
+    assert session.time[0] >= -0.05  # not before the port opened
+
+
+
+def test_the_writer_re_times_written_samples_in_order_only(tmp_path):
+    w = SessionWriter(tmp_path / "w.h5", accel_channels=3, gyro_channels=None)
+    w.append(np.arange(5.0), np.zeros((5, 3)))
+    w.flush()
+    with pytest.raises(SessionError, match="out of order"):
+        w.retime(0, [0.0, 1.0, 2.0, 4.0])  # would meet the next sample (4 s)
+    with pytest.raises(SessionError, match="out of order"):
+        w.retime(0, [0.0, 2.0, 1.0])
+    w.append(5.0, np.zeros(3))  # buffered, not written yet
+    with pytest.raises(SessionError, match="unwritten"):
+        w.retime(3, [3.5, 4.5, 4.8])
+    w.retime(0, [0.5, 1.5, 2.5])
+    w.close()
+    np.testing.assert_array_equal(read_session(tmp_path / "w.h5").time, [0.5, 1.5, 2.5, 3, 4, 5])
