@@ -153,6 +153,8 @@ PLANS = (
     LivePlan("free:12"),
     LivePlan("hwangbo-iron"),
     LivePlan("qureshi18", mag=True),
+    # i2cdevlib's MPU6050_raw lines carry no time: the host stamps them (HostClock)
+    LivePlan("qureshi18", serve=("--protocol", "i2cdevlib"), capture=("--protocol", "i2cdevlib")),
     LivePlan("warmup:2", warmup=True, serve=("--ramp", WARMUP_RAMP)),
 )
 QUICK_PLANS = ("six", "random:12", "ferraris")

@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from imucal_cli.capture.host_clock import HostClock, first_read_times
+from imucal_cli.capture.host_clock import HostClock, first_read_times, steady_times
 from imucal_cli.capture.recorder import Recorder
 from imucal_cli.capture.stream import DeviceGone, PrefixedLineProtocol
 from imucal_cli.design.gaps import GAP_FACTOR, find_gaps
@@ -102,6 +102,45 @@ def test_a_stream_whose_rate_changes_is_followed_without_a_gap(after_hz):
     t, arrived = stamp(reads)
     assert not find_gaps(t) and (t <= arrived + 1e-12).all()
     assert np.median(np.diff(t[-500:])) == pytest.approx(1 / after_hz, rel=0.03)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_at_the_end_each_run_between_pauses_is_on_the_devices_steady_clock(seed):
+    """The live stamps carry the host's read jitter (here 1-3 ms RMS about the lines' true
+    times: the gyro integrates over it, 2.6-3.3 times its bound on captured i2cdevlib lines);
+    :func:`steady_times` puts each run between pauses on one line: a fifth of it at most (0.2 ms),
+    the 1 s pause kept where it was."""
+    reads = arrivals(3000, seed)
+    pause = [(k, t + 1.0 if t > 12.0 else t) for k, t in reads]
+    live, _ = stamp(pause)
+    sent = np.arange(live.size) / RATE
+    cut = int(np.argmax(np.diff(live) > 0.5)) + 1
+    sent[cut:] += 1.0  # the device's own pause
+    steady = steady_times(live)
+
+    def jitter(t):  # RMS about the true times, each run's offset removed, s
+        parts = [t[:cut] - sent[:cut], t[cut:] - sent[cut:]]
+        return float(np.sqrt(np.mean(np.concatenate([p - p.mean() for p in parts]) ** 2)))
+
+    assert jitter(live) > 1e-3 and jitter(steady) < 0.2 * jitter(live), (jitter(live),
+                                                                         jitter(steady))
+    assert (np.diff(steady) > 0).all() and len(find_gaps(steady)) == 1
+    assert steady[cut] - steady[cut - 1] == pytest.approx(1.0 + 1 / RATE, abs=0.03)
+
+
+def test_a_run_whose_rate_changed_keeps_its_live_stamps():
+    """A sketch that slows to 80 Hz after 10 s is no steady clock: its run keeps its stamps;
+    so does a run too short to fit, and the first read does not pull the line before the
+    port's open."""
+    t = np.concatenate([np.arange(1000) / RATE, 10 + np.arange(1, 1000) / 80.0])
+    np.testing.assert_array_equal(steady_times(t), t)
+    short = np.concatenate([np.arange(2000) / RATE, 30 + np.arange(20) / RATE])
+    np.testing.assert_array_equal(steady_times(short)[2000:], short[2000:])
+    late = np.arange(500) / RATE
+    late[:100] = np.linspace(-0.5, late[99], 100)  # spread from an open 0.5 s earlier
+    assert steady_times(late, first_read=100, origin=-0.5)[0] == pytest.approx(0.0, abs=1e-9)
+    np.testing.assert_array_equal(steady_times(late, first_read=100, origin=0.5)[:100],
+                                  late[:100])  # fmt: skip
 
 
 def test_a_backlog_keeps_the_stream_rate():

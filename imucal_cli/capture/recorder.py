@@ -447,7 +447,7 @@ class Recorder(SessionWrites):
             ended = self._flush()
             if ended is not None and self.end_kind != "disk-full":
                 self.end_kind, self.end_reason = ended.kind, ended.reason
-        self._retime_first_read()  # host-stamped: at the rate the stream showed
+        self._retime_host_stamps()  # host-stamped: on the stream's steady clock
 
     # segments and closing ----------------------------------------------------------------------
     def add_segment(self, kind: str, start: int, stop: int, **attributes) -> str | None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from imucal_cli.capture.checks import CaptureEnded
-from imucal_cli.capture.host_clock import first_read_times
+from imucal_cli.capture.host_clock import first_read_times, steady_times
 from imucal_cli.errors import SessionError, WriteFailed
 from imucal_cli.formats.columns import SampleBlock
 
@@ -67,29 +67,34 @@ class SessionWrites:
         self._device_last = float(block.time[-1])
         return nearly_full
 
-    def _retime_first_read(self) -> None:
-        """Host-stamped samples: the first read's times again at the rate the rest of the
-        stream showed (:func:`~imucal_cli.capture.host_clock.first_read_times`), once the
-        capture ended.  Only for a new session with every sample written (a continued one's
-        times follow its own); a write that fails leaves the first stamps as they were."""
+    def _retime_host_stamps(self) -> None:
+        """Host-stamped samples, once the capture ended: the first read's times again at the
+        rate the rest of the stream showed (:func:`~imucal_cli.capture.host_clock.
+        first_read_times`), then every run between pauses on the device's steady clock
+        (:func:`~imucal_cli.capture.host_clock.steady_times`).  Only for a new session with
+        every sample written (a continued one's times follow its own); a write that fails
+        leaves the stamps as they were."""
         clock = getattr(self.protocol, "host_clock", None)
         writer = self._writer
         k = 0 if clock is None else clock.first_read
-        if (k < 2 or writer is None or self.resumed_from or self.samples_lost
+        if (k < 1 or writer is None or self.resumed_from or self.samples_lost
                 or clock.period is None or writer.n_written != writer.n_samples
                 or writer.n_written <= k):  # fmt: skip
             return
         first = self._first_times
         if first is None or len(first) != k:
             return
-        times = first_read_times(first, clock.origin, clock.period)
-        if times is first:
+        stamps = writer.written_times()
+        times = stamps.copy()
+        times[:k] = first_read_times(first, clock.origin, clock.period)
+        times = steady_times(times, k, clock.origin)
+        if np.array_equal(times, stamps):
             return
         try:
             writer.retime(0, times)
         except SessionError:  # the write failed (or the times would not stay in order)
             return
-        self._device_first = float(times[0])
+        self._device_first, self._device_last = float(times[0]), float(times[-1])
 
     def _flush(self) -> CaptureEnded | None:
         try:

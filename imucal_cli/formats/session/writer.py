@@ -558,6 +558,10 @@ class SessionWriter(Resumable, FailedWrites):
         self._flush_if_due()
         return name
 
+    def written_times(self) -> np.ndarray:
+        """The times of the samples written so far, s, shape (n_written,)."""
+        return np.asarray(self._datasets["time"][: self._n_written], np.float64)
+
     def retime(self, start: int, time: np.ndarray) -> None:
         """Replace the times of written samples ``[start, start + k)`` by ``time`` (host-clock
         stamps known better later), s; SessionError unless they stay strictly increasing with
