@@ -340,6 +340,13 @@ def test_sketch_lines_captured_end_to_end(tmp_path, server_factory, protocol, ca
     np.testing.assert_array_equal(session.gyro, np.round(gyro[kept]))
     assert session.accel_units == session.gyro_units == "counts"
     assert len(session.static_segments()) == 6 and "complete (6 steps seen)" in stdout
+    # the host's stamps, once the capture ended: each run between pauses on the device's
+    # steady clock, without the read jitter (which the gyro's turns integrate over)
+    from imucal_cli.capture.host_clock import PAUSE_S
+
+    for run in np.split(session.time, np.flatnonzero(np.diff(session.time) > PAUSE_S) + 1):
+        i = np.arange(len(run))
+        assert np.abs(run - np.polyval(np.polyfit(i, run, 1), i)).max() < 1e-6
     if protocol == "motioncal":
         assert "recognised MotionCal Raw:" in stderr and session.mag_units == "counts"
         field_uT = np.linalg.norm(session.mag - HARD_IRON_COUNTS, axis=1) / 10.0

@@ -169,7 +169,6 @@ class Recorder(SessionWrites):
         self._t_first: float | None = None
         self._t_last_sample: float | None = None
         self._device_first: float | None = None  # time stamp of the first sample, s
-        self._first_times = None  # the first block's time stamps, s
         self._device_last: float | None = None
         self._clock_checked = False
         self._t_end: float | None = None

@@ -61,7 +61,6 @@ class SessionWrites:
         except WriteFailed as exc:
             return self._write_failed(exc)
         if self._device_first is None:
-            self._first_times = np.array(block.time, np.float64)  # (re-timed at the end)
             self._device_first = float(block.time[0])
             self._device_at_segment = self._device_first
         self._device_last = float(block.time[-1])
@@ -81,12 +80,9 @@ class SessionWrites:
                 or clock.period is None or writer.n_written != writer.n_samples
                 or writer.n_written <= k):  # fmt: skip
             return
-        first = self._first_times
-        if first is None or len(first) != k:
-            return
-        stamps = writer.written_times()
+        stamps = writer.written_times()  # the first k are the first read's (in any blocks)
         times = stamps.copy()
-        times[:k] = first_read_times(first, clock.origin, clock.period)
+        times[:k] = first_read_times(stamps[:k], clock.origin, clock.period)
         times = steady_times(times, k, clock.origin)
         if np.array_equal(times, stamps):
             return
