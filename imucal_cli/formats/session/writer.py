@@ -39,6 +39,7 @@ from ..output import OutputFile
 from .disk import CHUNK_ROWS, WRITE_ERRORS, FailedWrites, Reserve, chunk_rows, free_bytes
 from .imu_writer import ImuDatasets, ImuLayout
 from .resume import Resumable
+from .rewrite import Rewritable
 from .segments import SegmentLog, segment_entry
 
 _MAX_PENDING_ROWS = 65536  # the writer writes out earlier than its flush interval past this
@@ -74,7 +75,7 @@ def _root_attrs(created: str | None, **optional: Any) -> dict[str, Any]:
     return attrs
 
 
-class SessionWriter(Resumable, FailedWrites):
+class SessionWriter(Resumable, Rewritable, FailedWrites):
     """Write a session while it is recorded; a context manager.
 
     Samples are buffered and written to chunked, resizable ``/raw`` datasets, followed by an
@@ -468,26 +469,6 @@ class SessionWriter(Resumable, FailedWrites):
         self._log.flushed()
         self._last_flush = _time.monotonic()
 
-    def truncate(self, n: int) -> None:
-        """Forget every sample from the ``n``-th on, written or not, and the segments that
-        reach past it (a capture whose samples turned out unusable: its own are dropped, a
-        continued session's earlier ones stay)."""
-        self._pending, self._n_pending = [], 0
-        n = max(min(int(n), self._n_written), 0)
-        for dataset in self._datasets.values():
-            try:
-                dataset.resize(n, axis=0)
-            except WRITE_ERRORS:
-                pass
-        self._n_written = n
-        self._last_time = float(self._datasets["time"][n - 1]) if n else None
-        self._last_written_time = self._last_time
-        self._nonfinite = {name: [rows[rows < n] for rows in found]
-                           for name, found in self._nonfinite.items()}  # fmt: skip
-        self._log.drop_beyond(n)
-        if self._imus is not None:
-            self._imus.truncate_after(self._last_time)
-
     def add_segment(
         self,
         kind: str,
@@ -557,25 +538,6 @@ class SessionWriter(Resumable, FailedWrites):
             raise fail(f"label too long ({len(label or '')} characters)") from None
         self._flush_if_due()
         return name
-
-    def written_times(self) -> np.ndarray:
-        """The times of the samples written so far, s, shape (n_written,)."""
-        return np.asarray(self._datasets["time"][: self._n_written], np.float64)
-
-    def retime(self, start: int, time: np.ndarray) -> None:
-        """Replace the times of written samples ``[start, start + k)`` by ``time`` (host-clock
-        stamps known better later), s; SessionError unless they stay strictly increasing with
-        the samples around them; WriteFailed when the write fails."""
-        dataset, t = self._datasets["time"], np.asarray(time, np.float64)
-        stop = start + t.size
-        around = np.concatenate([dataset[max(start - 1, 0):start], t, dataset[stop:stop + 1]])
-        if stop > self._n_written or not (np.diff(around) > 0).all() or not np.isfinite(t).all():
-            raise self._fail(f"retime: samples {start}-{stop} unwritten or out of order")
-        try:
-            dataset[start:stop] = t
-            self._check_open().flush()
-        except WRITE_ERRORS as exc:
-            raise self._write_failed(exc, 0) from None
 
     # closing -------------------------------------------------------------------------------
     def close(self, attrs: dict[str, Any] | None = None) -> None:

@@ -1,0 +1,54 @@
+"""Changing samples a session writer has already written: :class:`Rewritable`, the part of
+:class:`~.writer.SessionWriter` that forgets samples from some point on (a capture whose samples
+turned out unusable) and replaces written time stamps known better later (host-clock stamps put
+on the device's steady clock when a capture ends).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .disk import WRITE_ERRORS
+
+
+class Rewritable:
+    """Mixed into :class:`~.writer.SessionWriter` (its datasets, counts, segment log)."""
+
+    def truncate(self, n: int) -> None:
+        """Forget every sample from the ``n``-th on, written or not, and the segments that
+        reach past it (a capture whose samples turned out unusable: its own are dropped, a
+        continued session's earlier ones stay)."""
+        self._pending, self._n_pending = [], 0
+        n = max(min(int(n), self._n_written), 0)
+        for dataset in self._datasets.values():
+            try:
+                dataset.resize(n, axis=0)
+            except WRITE_ERRORS:
+                pass
+        self._n_written = n
+        self._last_time = float(self._datasets["time"][n - 1]) if n else None
+        self._last_written_time = self._last_time
+        self._nonfinite = {name: [rows[rows < n] for rows in found]
+                           for name, found in self._nonfinite.items()}  # fmt: skip
+        self._log.drop_beyond(n)
+        if self._imus is not None:
+            self._imus.truncate_after(self._last_time)
+
+    def written_times(self) -> np.ndarray:
+        """The times of the samples written so far, s, shape (n_written,)."""
+        return np.asarray(self._datasets["time"][: self._n_written], np.float64)
+
+    def retime(self, start: int, time: np.ndarray) -> None:
+        """Replace the times of written samples ``[start, start + k)`` by ``time`` (host-clock
+        stamps known better later), s; SessionError unless they stay strictly increasing with
+        the samples around them; WriteFailed when the write fails."""
+        dataset, t = self._datasets["time"], np.asarray(time, np.float64)
+        stop = start + t.size
+        around = np.concatenate([dataset[max(start - 1, 0):start], t, dataset[stop:stop + 1]])
+        if stop > self._n_written or not (np.diff(around) > 0).all() or not np.isfinite(t).all():
+            raise self._fail(f"retime: samples {start}-{stop} unwritten or out of order")
+        try:
+            dataset[start:stop] = t
+            self._check_open().flush()
+        except WRITE_ERRORS as exc:
+            raise self._write_failed(exc, 0) from None
