@@ -33,7 +33,7 @@ turn's angle then carries the jitter times the angular acceleration, far above t
 noise (gyro error 2.6-3.3 times its bound on qureshi18 captured as i2cdevlib lines, 0.91-1.0
 with the jitter gone). When the capture ends, :func:`steady_times` puts each run of samples
 between pauses on one line (a steady device clock: one offset, one interval), where the line
-explains the stamps to well within a pause.
+explains the stamps to within a few sample intervals (:data:`STEADY_MISS`).
 """
 
 from __future__ import annotations
@@ -173,6 +173,11 @@ def first_read_times(times: np.ndarray, origin: float | None, period: float) -> 
 
 #: A run of samples between pauses needs this many, after the first read, to be put on a line.
 MIN_STEADY = 50
+#: The line must pass within this many sample intervals of every live stamp in its run (the
+#: host's read jitter: at most 2.3 beside two CPU burners); missed by more, the run is no
+#: steady clock (its rate changed, or samples were lost for less than a pause, which the line
+#: would spread over the whole run as an interval error) and keeps its live stamps.
+STEADY_MISS = 5.0
 
 
 def steady_times(times: np.ndarray, first_read: int = 0,
@@ -181,8 +186,9 @@ def steady_times(times: np.ndarray, first_read: int = 0,
     put on its least-squares line against the sample count: a device's steady clock, without
     the host's read jitter.  The first ``first_read`` samples (spread from the port's open)
     take no part in the fit; the line extends over them unless that would start before
-    ``origin``.  A run the line misses by more than half a pause anywhere (the device's rate
-    changed), or shorter than :data:`MIN_STEADY`, keeps its stamps; so does every run when the
+    ``origin``.  A run the line misses anywhere by more than :data:`STEADY_MISS` intervals
+    (the device's rate changed, samples lost), or shorter than :data:`MIN_STEADY`, keeps its
+    stamps; so does every run when the
     result would not increase strictly."""
     t = np.asarray(times, np.float64)
     out = t.copy()
@@ -193,7 +199,7 @@ def steady_times(times: np.ndarray, first_read: int = 0,
             continue
         slope, offset = np.polyfit(np.arange(hi - fit_lo), t[fit_lo:hi], 1)
         line = offset + slope * np.arange(lo - fit_lo, hi - fit_lo)
-        if not slope > 0 or np.abs(line[fit_lo - lo:] - t[fit_lo:hi]).max() > PAUSE_S / 2:
+        if not slope > 0 or np.abs(line[fit_lo - lo:] - t[fit_lo:hi]).max() > STEADY_MISS * slope:
             continue
         if origin is not None and line[0] < origin:  # the first read stays as it was
             line[: fit_lo - lo] = t[lo:fit_lo]

@@ -110,6 +110,13 @@ class PortSet:
         """Whether the reference port is reading a backlog (:class:`SerialSource`)."""
         return bool(getattr(self.sources[0], "reading_backlog", False))
 
+    def take_backlog(self) -> bytes:
+        """Every port's backlog still held (:meth:`SerialSource.take_backlog`): the others'
+        to be taken as their bytes are, the reference's returned."""
+        for k, source in enumerate(self.sources[1:]):
+            self._waiting[k] += getattr(source, "take_backlog", bytes)()
+        return getattr(self.sources[0], "take_backlog", bytes)()
+
     def read(self) -> bytes:
         """The reference's bytes (waiting up to its timeout), after the others' waiting bytes
         were taken; raises :class:`DeviceGone` naming the port when any one is gone."""

@@ -435,12 +435,28 @@ class Recorder(SessionWrites):
                 return CaptureEnded("clock", problem)
         return None
 
+    def _take_held(self) -> None:
+        """What the source read but still holds (a backlog being read when the capture
+        ended: Ctrl-C, ``q``, the plan done): into the session like any read, so that nothing
+        read from the port is lost."""
+        take = getattr(self.source, "take_backlog", None)
+        data = take() if take is not None else b""
+        if not data:
+            return
+        now = _time.monotonic()
+        block = self.protocol.feed(data, now - self._t0)
+        if len(block):
+            ended = self._append(block)
+            if ended is not None and ended.kind == "disk-full":
+                self.end_kind, self.end_reason = ended.kind, ended.reason
+
     def _finish(self) -> None:
         """After the recording loop, however it ended: restore the signals, close the source
         and flush what is still pending (a full disk keeps its reason)."""
         self._t_end = _time.monotonic()
         if self.end_kind is None:  # the consumer closed the generator
             self.end_kind, self.end_reason = "done", "done"
+        self._take_held()
         self.source.close()  # nothing more is read: let the device see it at once
         if self._writer is not None and self._writer.n_samples > self._writer.n_written:
             ended = self._flush()

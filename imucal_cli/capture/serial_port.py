@@ -97,6 +97,12 @@ class SerialSource:
         """Whether a backlog is being read (the last read returned b"" with part of it)."""
         return bool(self._backlog)
 
+    def take_backlog(self) -> bytes:
+        """The part of a backlog read so far and still held (the capture ends while it is
+        read): returned, so that nothing read from the port is lost."""
+        held, self._backlog, self._refill_since = b"".join(self._backlog), [], None
+        return held
+
     def read(self) -> bytes:
         """Bytes received so far, or b"" after ``timeout_s`` with none.
 
@@ -166,8 +172,9 @@ class SerialSource:
                 more = ser.read(waiting)
                 parts.append(more)
                 size += len(more)
-                if len(more) < TTY_BUFFER_BYTES // 4 and not self._wait_waiting(self.batch_s):
-                    break  # caught up
+                if len(more) < TTY_BUFFER_BYTES // 4:
+                    break  # caught up: the backlog's full parts ended, the stream as it comes
+                    # (a fast stream's next bytes come sooner than any wait: never held back)
         except (OSError, TypeError, AttributeError):
             cut = False  # the device went while draining: what was read is kept, next read says
         if cut:
