@@ -258,3 +258,32 @@ def test_samples_lost_for_less_than_a_pause_keep_the_live_stamps(lost):
             done += k
     live, _ = stamp(reads)
     np.testing.assert_array_equal(steady_times(live), live)
+
+
+@pytest.mark.parametrize(("resumed_from", "samples_lost", "retimed"),
+                         [(0, 0, True), (100, 0, False), (0, 3, False)])  # fmt: skip
+def test_the_end_re_time_touches_only_a_new_whole_session(tmp_path, resumed_from,
+                                                           samples_lost, retimed):
+    """A continued session (its earlier samples' times are its own) and a capture that lost
+    samples (the disk filled) keep their stamps; a new whole one is put on its steady clock."""
+    from types import SimpleNamespace
+
+    from imucal_cli.capture.writing import SessionWrites
+
+    rng = np.random.default_rng(3)
+    t = np.arange(600) / RATE + rng.uniform(0, 3e-3, 600)
+    w = SessionWriter(tmp_path / "w.h5", accel_channels=3, gyro_channels=None)
+    w.append(t, np.zeros((600, 3)))
+    w.flush()
+    clock = HostClock()
+    clock.first_read, clock.period = 1, 1 / RATE
+    owner = SimpleNamespace(protocol=SimpleNamespace(host_clock=clock), _writer=w,
+                            resumed_from=resumed_from, samples_lost=samples_lost,
+                            _device_first=None, _device_last=None)  # fmt: skip
+    SessionWrites._retime_host_stamps(owner)
+    after = w.written_times()
+    w.close()
+    assert (not np.array_equal(after, t)) == retimed
+    if retimed:
+        i = np.arange(600)
+        assert np.abs(after - np.polyval(np.polyfit(i, after, 1), i)).max() < 1e-9

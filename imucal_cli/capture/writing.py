@@ -80,7 +80,10 @@ class SessionWrites:
                 or clock.period is None or writer.n_written != writer.n_samples
                 or writer.n_written <= k):  # fmt: skip
             return
-        stamps = writer.written_times()  # the first k are the first read's (in any blocks)
+        try:
+            stamps = writer.written_times()  # the first k are the first read's (in any blocks)
+        except OSError:  # the file cannot be read back (a failing disk): the stamps stay
+            return
         times = stamps.copy()
         times[:k] = first_read_times(stamps[:k], clock.origin, clock.period)
         times = steady_times(times, k, clock.origin)
