@@ -441,11 +441,14 @@ class Recorder(SessionWrites):
         read from the port is lost."""
         take = getattr(self.source, "take_backlog", None)
         data = take() if take is not None else b""
-        if not data:
+        if not data or self.end_kind in ("disk-full", "clock"):  # no room; or no session kept
             return
         now = _time.monotonic()
         block = self.protocol.feed(data, now - self._t0)
         if len(block):
+            if self._t_first is None:
+                self._t_first = now
+            self._t_last_sample = now
             ended = self._append(block)
             if ended is not None and ended.kind == "disk-full":
                 self.end_kind, self.end_reason = ended.kind, ended.reason
