@@ -43,6 +43,10 @@ from imucal_cli.model.session import FORMAT, LOG_GROUP, as_int, as_str, one_line
 SWMR_READ_ATTEMPTS = 8
 #: How long a reader waits for a lock held by another process (storing a calibration).
 LOCK_WAIT_S = 10.0
+#: How long a file marked open for writing but not locked is looked at again before it is
+#: called a killed writer's, s: another process storing a calibration marks it a moment before
+#: it takes the lock (one of three concurrent calibrations failed to store on a fresh clone).
+UNLOCKED_WRITER_WAIT_S = 1.0
 #: A dataset may declare at most this many bytes per byte of file (deflate's limit is ~1032).
 MAX_EXPANSION = 1100
 
@@ -233,6 +237,10 @@ def open_for_update(path: str | os.PathLike, src: str | None = None) -> h5py.Fil
     block = _superblock(path, src)
     if not os.access(path, os.W_OK):
         raise SessionError(f"{src}: is read-only")
+    deadline = time.monotonic() + UNLOCKED_WRITER_WAIT_S
+    while block.open_for_write and not locked_by_other(path) and time.monotonic() < deadline:
+        time.sleep(0.05)  # another calibrate between opening the file and locking it
+        block = _superblock(path, src)
     if block.open_for_write and not locked_by_other(path):
         raise SessionError(
             f"{src}: its writer has not closed it (a capture still running, or killed: "
