@@ -20,6 +20,8 @@ CACHED := PYTHONDONTWRITEBYTECODE=
 # dependency that does not compile is that package's, as pip ignores it: `-`).
 INSTALL = { [ -x $(BIN)/uv ] && $(BIN)/uv pip install --quiet --python $(BIN)/python $(1); } \
 	|| $(BIN)/pip install --quiet $(1)
+# $(call) splits its arguments at commas: a list of extras names them through $(COMMA).
+COMMA := ,
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -50,7 +52,7 @@ test-all: $(STAMP)
 
 # The benchmarks also compare with MaD Lab's `imucal` package (the `bench` extra).
 $(VENV)/.bench: $(STAMP)
-	$(call INSTALL,-e '.[dev,bench]')
+	$(call INSTALL,-e '.[dev$(COMMA)bench]')
 	touch $(VENV)/.bench
 
 bench: $(VENV)/.bench
