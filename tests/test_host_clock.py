@@ -287,3 +287,51 @@ def test_the_end_re_time_touches_only_a_new_whole_session(tmp_path, resumed_from
     if retimed:
         i = np.arange(600)
         assert np.abs(after - np.polyval(np.polyfit(i, after, 1), i)).max() < 1e-9
+
+
+class _SetStream:
+    """A 100 Hz sketch printing two IMUs' triads on each line (no time column), read in the
+    bursts of :func:`arrivals` (a loaded host)."""
+
+    uri = "serial:/dev/fake@115200"
+
+    def __init__(self, clock: _Clock, reads) -> None:
+        self.clock, self.opened_at, self.reads = clock, 0.0, list(reads)
+
+    def describe(self) -> str:
+        return "/dev/fake at 115200 baud"
+
+    def read(self) -> bytes:
+        if not self.reads:
+            raise DeviceGone("[Errno 5] Input/output error")
+        k, self.clock.now = self.reads.pop(0)
+        return b"1,2,8000,3,4,5,7,8,8001,9,10,11\n" * k
+
+    def close(self) -> None:
+        pass
+
+
+def test_several_imus_on_a_line_are_re_timed_together(tmp_path, monkeypatch):
+    """Several IMUs on each host-stamped line: the end of the capture puts ``/raw`` on the
+    stream's steady clock and every other IMU's times with it (one line, one time), so their
+    time offsets and turns are on the same clock as the reference's."""
+    from imucal_cli.capture.imu_set import SetLineProtocol, set_protocol
+
+    clock = _Clock()
+    monkeypatch.setattr(time, "monotonic", clock)
+    reads = arrivals(2000, 7)
+    specs = set_protocol("ax,ay,az,gx,gy,gz,ax.1,ay.1,az.1,gx.1,gy.1,gz.1", "s", 1)
+    rec = Recorder(tmp_path / "set.h5", _SetStream(clock, reads), SetLineProtocol(specs))
+    n = sum(len(b) for b in rec.blocks())
+    rec.close()
+    assert rec.end_kind == "device-gone" and n == 2000
+    session = read_session(tmp_path / "set.h5")
+    live, _ = stamp(reads)
+    i = np.arange(n)
+    line = np.polyval(np.polyfit(i, session.time, 1), i)
+    assert np.abs(session.time - line).max() < 1e-6 < np.abs(live - line).max()
+    other = session.imus["imu1"]
+    np.testing.assert_allclose(other.time, session.time, rtol=0, atol=1e-9)
+    own = SetLineProtocol(set_protocol("ax,ay,az,gx,gy,gz,ax.1,ay.1,az.1,gx.1,gy.1,gz.1,t.1",
+                                       "s", 1))  # fmt: skip
+    assert own.host_clock is None  # imu1's own device times are not the line's host stamps

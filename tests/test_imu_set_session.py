@@ -175,3 +175,31 @@ def test_session_model_defaults_keep_one_imu():
                 created=CREATED)  # fmt: skip
     assert s.imus == {} and set_names(s) == ["reference"]
     assert ImuStream(time=np.arange(2.0)).channels().keys() == {"time"}
+
+
+def test_retime_moves_the_other_imus_with_the_reference(tmp_path):
+    """``retime`` of ``/raw``'s samples 100-199 (host stamps known better later) moves the
+    other IMU's times with them: where it sampled between two reference samples it stays
+    between them, in the same proportion; before and after the re-timed run nothing moves
+    (past the last, it follows the last); samples not written yet are refused."""
+    path = tmp_path / "re.h5"
+    layout = ImuLayout(accel=3, gyro=3, attrs={"sample_rate_hz": 200.0})
+    with SessionWriter(path, imus={"imu1": layout}) as w:
+        t = np.arange(300) / 100
+        w.append(t, np.ones((300, 3)), np.zeros((300, 3)))
+        t2 = 0.003 + np.arange(600) / 200
+        w.append_imu("imu1", t2, accel=np.ones((600, 3)), gyro=np.zeros((600, 3)))
+        w.flush()
+        w.append_imu("imu1", [3.5], accel=np.ones((1, 3)), gyro=np.zeros((1, 3)))
+        with pytest.raises(SessionError, match="not written yet"):
+            w.retime(100, t[100:200] + 0.002)
+        w.flush()
+        w.retime(100, t[100:200] + 0.002)
+    t2 = np.r_[t2, 3.5]
+    back = read_session(path)
+    moved = back.imus["imu1"].time - t2
+    inside = (t2 >= t[100]) & (t2 <= t[199])
+    np.testing.assert_allclose(moved[inside], 0.002, atol=1e-12)
+    np.testing.assert_allclose(moved[t2 < t[99]], 0.0, atol=1e-12)
+    np.testing.assert_allclose(moved[t2 > t[200]], 0.0, atol=1e-12)
+    assert np.all(np.diff(back.imus["imu1"].time) > 0)

@@ -82,6 +82,16 @@ class SetLineProtocol(_Protocols):
         """The other IMUs' datasets (:class:`~imucal_cli.formats.session.ImuLayout`)."""
         return {n: _layout(s) for n, s in zip(self.names[1:], self._specs[1:], strict=True)}
 
+    @property
+    def host_clock(self):
+        """The reference's :class:`~imucal_cli.capture.host_clock.HostClock` when no IMU has
+        a time field (each has the line's host stamp, so the end of the capture re-times them
+        together: :meth:`~imucal_cli.formats.session.SessionWriter.retime`); None when one
+        has its own ``t.N`` (its stamps are not the line's)."""
+        if any(spec.time is not None for spec in self._specs):
+            return None
+        return getattr(self._protocols[0], "host_clock", None)
+
     def feed(self, data: bytes, host_time: float) -> SetBlock:
         blocks = [p.feed(data, host_time) for p in self._protocols]
         ref = blocks[0]

@@ -171,6 +171,25 @@ class ImuDatasets:
         self._last_time = dict(self._last_written_time)
         return dropped
 
+    def remap_times(self, old: np.ndarray, new: np.ndarray) -> None:
+        """Move every written time of every IMU as ``/raw``'s moved from ``old`` to ``new``
+        (both (n,), s, strictly increasing): piecewise linear between ``/raw``'s samples,
+        shifted as its first or last sample was outside them (so they stay in order: the
+        map is strictly increasing).  Raises what h5py raises; SessionError while blocks
+        wait to be written (their times would not move)."""
+        if self.n_pending:
+            raise SessionError(f"{self._src}: retime: other IMUs' samples not written yet")
+        for name, sets in self.datasets.items():
+            n = self.n_written[name]
+            if not n:
+                continue
+            t = np.asarray(sets["time"][:n], np.float64)
+            moved = np.interp(t, old, new)
+            moved[t < old[0]] = t[t < old[0]] + (new[0] - old[0])
+            moved[t > old[-1]] = t[t > old[-1]] + (new[-1] - old[-1])
+            sets["time"][:n] = moved
+            self._last_time[name] = self._last_written_time[name] = float(moved[-1])
+
     def truncate_after(self, t_last: float | None) -> None:
         """Forget every sample later than ``t_last`` (None: all), written or not (the writer
         cut ``/raw`` there)."""

@@ -40,15 +40,28 @@ class Rewritable:
 
     def retime(self, start: int, time: np.ndarray) -> None:
         """Replace the times of written samples ``[start, start + k)`` by ``time`` (host-clock
-        stamps known better later), s; SessionError unless they stay strictly increasing with
-        the samples around them; WriteFailed when the write fails."""
+        stamps known better later), s, and the other IMUs' times with them (:meth:`~.imu_writer.
+        ImuDatasets.remap_times`); SessionError unless they stay strictly increasing with the
+        samples around them; WriteFailed when the write fails."""
         dataset, t = self._datasets["time"], np.asarray(time, np.float64)
         stop = start + t.size
         around = np.concatenate([dataset[max(start - 1, 0):start], t, dataset[stop:stop + 1]])
         if stop > self._n_written or not (np.diff(around) > 0).all() or not np.isfinite(t).all():
             raise self._fail(f"retime: samples {start}-{stop} unwritten or out of order")
+        imus = self._imus
+        if imus is not None and imus.n_pending:
+            raise self._fail("retime: other IMUs' samples not written yet")
+        before = np.asarray(dataset[: self._n_written], np.float64)
         try:
             dataset[start:stop] = t
+            if imus is not None:  # several IMUs on one clock: theirs move with /raw's
+                after = before.copy()
+                after[start:stop] = t
+                imus.remap_times(before, after)
             self._check_open().flush()
         except WRITE_ERRORS as exc:
             raise self._write_failed(exc, 0) from None
+        if stop == self._n_written:  # the last written sample moved
+            self._last_written_time = float(t[-1])
+            if not self._n_pending:
+                self._last_time = self._last_written_time
