@@ -261,11 +261,12 @@ def test_samples_lost_for_less_than_a_pause_keep_the_live_stamps(lost):
 
 
 @pytest.mark.parametrize(("resumed_from", "samples_lost", "retimed"),
-                         [(0, 0, True), (100, 0, False), (0, 3, False)])  # fmt: skip
-def test_the_end_re_time_touches_only_a_new_whole_session(tmp_path, resumed_from,
-                                                           samples_lost, retimed):
-    """A continued session (its earlier samples' times are its own) and a capture that lost
-    samples (the disk filled) keep their stamps; a new whole one is put on its steady clock."""
+                         [(0, 0, True), (100, 0, True), (0, 3, False)])  # fmt: skip
+def test_the_end_re_time_touches_only_this_captures_whole_samples(tmp_path, resumed_from,
+                                                                   samples_lost, retimed):
+    """A capture that lost samples (the disk filled) keeps its stamps; a whole one is put on
+    its steady clock, in a continued session only its own samples (the earlier ones are
+    another capture's, on another run of the device), never before them."""
     from types import SimpleNamespace
 
     from imucal_cli.capture.writing import SessionWrites
@@ -276,27 +277,32 @@ def test_the_end_re_time_touches_only_a_new_whole_session(tmp_path, resumed_from
     w.append(t, np.zeros((600, 3)))
     w.flush()
     clock = HostClock()
-    clock.first_read, clock.period = 1, 1 / RATE
+    clock.first_read, clock.period, clock.origin = 1, 1 / RATE, -0.1
     owner = SimpleNamespace(protocol=SimpleNamespace(host_clock=clock), _writer=w,
                             resumed_from=resumed_from, samples_lost=samples_lost,
+                            _time_offset=0.9 if resumed_from else None,
                             _device_first=None, _device_last=None)  # fmt: skip
     SessionWrites._retime_host_stamps(owner)
     after = w.written_times()
     w.close()
+    np.testing.assert_array_equal(after[:resumed_from], t[:resumed_from])
     assert (not np.array_equal(after, t)) == retimed
     if retimed:
-        i = np.arange(600)
-        assert np.abs(after - np.polyval(np.polyfit(i, after, 1), i)).max() < 1e-9
+        i = np.arange(resumed_from, 600)
+        own = after[resumed_from:]
+        assert np.abs(own - np.polyval(np.polyfit(i, own, 1), i)).max() < 1e-9
+        assert own[0] > t[resumed_from - 1] if resumed_from else True
+        assert owner._device_last == pytest.approx(own[-1] - (owner._time_offset or 0.0))
 
 
 class _SetStream:
-    """A 100 Hz sketch printing two IMUs' triads on each line (no time column), read in the
-    bursts of :func:`arrivals` (a loaded host)."""
+    """A 100 Hz sketch printing ``line`` (default: two IMUs' triads, no time column), read in
+    the bursts of :func:`arrivals` (a loaded host)."""
 
     uri = "serial:/dev/fake@115200"
 
-    def __init__(self, clock: _Clock, reads) -> None:
-        self.clock, self.opened_at, self.reads = clock, 0.0, list(reads)
+    def __init__(self, clock: _Clock, reads, line: bytes = b"1,2,8000,3,4,5,7,8,8001,9,10,11\n"):
+        self.clock, self.opened_at, self.reads, self.line = clock, 0.0, list(reads), line
 
     def describe(self) -> str:
         return "/dev/fake at 115200 baud"
@@ -305,7 +311,7 @@ class _SetStream:
         if not self.reads:
             raise DeviceGone("[Errno 5] Input/output error")
         k, self.clock.now = self.reads.pop(0)
-        return b"1,2,8000,3,4,5,7,8,8001,9,10,11\n" * k
+        return self.line * k
 
     def close(self) -> None:
         pass
@@ -335,3 +341,26 @@ def test_several_imus_on_a_line_are_re_timed_together(tmp_path, monkeypatch):
     own = SetLineProtocol(set_protocol("ax,ay,az,gx,gy,gz,ax.1,ay.1,az.1,gx.1,gy.1,gz.1,t.1",
                                        "s", 1))  # fmt: skip
     assert own.host_clock is None  # imu1's own device times are not the line's host stamps
+
+
+def test_a_continued_host_stamped_capture_is_re_timed_after_the_first(tmp_path, monkeypatch):
+    """``capture --resume`` of a MotionCal stream on a loaded host: the second capture's own
+    samples are put on their steady clock, after the first capture's, which keep theirs."""
+    clock = _Clock()
+    monkeypatch.setattr(time, "monotonic", clock)
+    path = tmp_path / "two.h5"
+    parts = []
+    for resume, seed in ((False, 8), (True, 9)):
+        clock.now = 0.05
+        reads = arrivals(1500, seed)
+        rec = Recorder(path, _SetStream(clock, reads, LINE), PrefixedLineProtocol(("motioncal",)),
+                       resume=resume)  # fmt: skip
+        n = sum(len(b) for b in rec.blocks())
+        rec.close()
+        assert rec.end_kind == "device-gone" and n == 1500
+        parts.append(read_session(path).time.copy())
+    first, both = parts
+    np.testing.assert_array_equal(both[:1500], first)
+    own = both[1500:]
+    i = np.arange(own.size)
+    assert own[0] > first[-1] and np.abs(own - np.polyval(np.polyfit(i, own, 1), i)).max() < 1e-6

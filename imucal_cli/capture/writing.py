@@ -70,30 +70,35 @@ class SessionWrites:
         """Host-stamped samples, once the capture ended: the first read's times again at the
         rate the rest of the stream showed (:func:`~imucal_cli.capture.host_clock.
         first_read_times`), then every run between pauses on the device's steady clock
-        (:func:`~imucal_cli.capture.host_clock.steady_times`).  Only for a new session with
-        every sample written (a continued one's times follow its own); a write that fails
-        leaves the stamps as they were."""
+        (:func:`~imucal_cli.capture.host_clock.steady_times`).  Only this capture's samples
+        (a continued session's earlier ones keep theirs, and this capture's never move before
+        them), and only with every one of them written; a write that fails leaves the stamps
+        as they were."""
         clock = getattr(self.protocol, "host_clock", None)
-        writer = self._writer
+        writer, base = self._writer, int(self.resumed_from)
         k = 0 if clock is None else clock.first_read
-        if (k < 1 or writer is None or self.resumed_from or self.samples_lost
-                or clock.period is None or writer.n_written != writer.n_samples
-                or writer.n_written <= k):  # fmt: skip
+        if (k < 1 or writer is None or self.samples_lost or clock.period is None
+                or writer.n_written != writer.n_samples
+                or writer.n_written <= base + k):  # fmt: skip
             return
-        try:
-            stamps = writer.written_times()  # the first k are the first read's (in any blocks)
+        try:  # the first k are the first read's (in any blocks)
+            stamps = writer.written_times()
         except OSError:  # the file cannot be read back (a failing disk): the stamps stay
             return
+        origin, shift = clock.origin, (self._time_offset or 0.0) if base else 0.0
+        if base:  # on the continued session's axis (:meth:`_append`), after its samples
+            origin = max(float(stamps[base - 1]), -np.inf if origin is None else origin + shift)
+        stamps = stamps[base:]
         times = stamps.copy()
-        times[:k] = first_read_times(stamps[:k], clock.origin, clock.period)
-        times = steady_times(times, k, clock.origin)
+        times[:k] = first_read_times(stamps[:k], origin, clock.period)
+        times = steady_times(times, k, origin)
         if np.array_equal(times, stamps):
             return
         try:
-            writer.retime(0, times)
+            writer.retime(base, times)
         except SessionError:  # the write failed (or the times would not stay in order)
             return
-        self._device_first, self._device_last = float(times[0]), float(times[-1])
+        self._device_first, self._device_last = float(times[0]) - shift, float(times[-1]) - shift
 
     def _flush(self) -> CaptureEnded | None:
         try:
