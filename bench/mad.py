@@ -265,7 +265,14 @@ def leave_one_out(h5: Path, mad: MadCal | None) -> dict:
 
     session = read_session(h5)
     full = calibrate_session(session, Config())
-    ours, theirs, swapped = [], [], []
+    ours, theirs, swapped, framed = [], [], [], []
+    frame, to_theirs = None, None
+    if mad is not None:  # the two accelerometers' gravity directions at every still period
+        still = session.static_segments()
+        mine, their = (_hold_directions(session, still, full.accel.apply),
+                       _hold_directions(session, still, mad.accel))  # fmt: skip
+        frame = accel_frames(mine, their)
+        to_theirs, _ = Rotation.align_vectors(their, mine)
     for turn in session.rotation_segments():
         held = replace(session, segments=[s for s in session.segments if s is not turn])
         cal = calibrate_session(held, Config())
@@ -275,14 +282,12 @@ def leave_one_out(h5: Path, mad: MadCal | None) -> dict:
             theirs.append(_transition(session, turn, mad.accel, mad.gyro))
             swapped.append((_transition(session, turn, cal.accel.apply, mad.gyro),
                             _transition(session, turn, mad.accel, gyro)))  # fmt: skip
+            turned = lambda z, c=cal.accel: to_theirs.apply(c.apply(z))  # noqa: E731
+            framed.append(_transition(session, turn, turned, gyro))
     known = [r for r in full.gyro.rotations if r.known_angle_deg is not None]
-    frame = None
-    if mad is not None:  # the two accelerometers' gravity directions at every still period
-        still = session.static_segments()
-        frame = accel_frames(_hold_directions(session, still, full.accel.apply),
-                             _hold_directions(session, still, mad.accel))  # fmt: skip
     return {"ours": np.array(ours), "mad": np.array(theirs) if theirs else None,
             "swapped": np.array(swapped) if swapped else None, "frame": frame,
+            "framed": np.array(framed) if framed else None,
             "frame_std": full.accel.rotation_std_deg,
             "known": [turn.angle_deg is not None for turn in session.rotation_segments()],
             "turns": [(r.label or r.segment, r.measured_angle_deg,
@@ -360,6 +365,10 @@ def _loo_table(console, r: dict) -> bool:
         t.add_row("accelerometers' gravity at the still periods: largest angle apart; the "
                   "frame between them; apart within it, deg",
                   f"{worst:.3f}; {frame:.3f}{std}; {within:.3f}", "-")  # fmt: skip
+    if r.get("framed") is not None:  # how much of the difference that frame makes
+        t.add_row("ours, our accelerometer turned by that frame onto MaD's (each fit's frame "
+                  "is the labels' within its std; the gyro's known turns are labelled), RMS, "
+                  "deg", f"{rms(r['framed']):.4f}", "-")  # fmt: skip
     for name, measured, known, noise in r["turns"]:
         t.add_row(f"known turn {name}: integrated, deg (its std; before: y +3.8 off)",
                   f"{measured:+.2f} for {known:+.0f} ({noise:.2g})", "-")  # fmt: skip
