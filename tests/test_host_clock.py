@@ -278,11 +278,12 @@ def test_the_end_re_time_touches_only_this_captures_whole_samples(tmp_path, resu
     w.flush()
     clock = HostClock()
     clock.first_read, clock.period, clock.origin = 1, 1 / RATE, -0.1
-    owner = SimpleNamespace(protocol=SimpleNamespace(host_clock=clock), _writer=w,
-                            resumed_from=resumed_from, samples_lost=samples_lost,
-                            _time_offset=0.9 if resumed_from else None,
-                            _device_first=None, _device_last=None)  # fmt: skip
-    SessionWrites._retime_host_stamps(owner)
+    owner = SessionWrites()  # the recorder's writing part, with the recorder's fields
+    owner.__dict__.update(protocol=SimpleNamespace(host_clock=clock), _writer=w,
+                          resumed_from=resumed_from, samples_lost=samples_lost,
+                          _time_offset=0.9 if resumed_from else None,
+                          _device_first=None, _device_last=None)  # fmt: skip
+    owner._retime_host_stamps()
     after = w.written_times()
     w.close()
     np.testing.assert_array_equal(after[:resumed_from], t[:resumed_from])
@@ -364,3 +365,47 @@ def test_a_continued_host_stamped_capture_is_re_timed_after_the_first(tmp_path, 
     own = both[1500:]
     i = np.arange(own.size)
     assert own[0] > first[-1] and np.abs(own - np.polyval(np.polyfit(i, own, 1), i)).max() < 1e-6
+
+
+class _OtherPort:
+    """A second 100 Hz device on a port of its own (no time column), started 0.3 s after the
+    first: its lines reach the host 0-25 ms late, at random."""
+
+    uri = "serial:/dev/fake2@115200"
+
+    def __init__(self, clock: _Clock, seed: int) -> None:
+        self.clock, self.sent, self.rng = clock, 0, np.random.default_rng(seed)
+
+    def describe(self) -> str:
+        return "/dev/fake2 at 115200 baud"
+
+    def read(self) -> bytes:
+        due = max(int((self.clock.now - 0.3 - self.rng.uniform(0, 0.025)) * RATE) + 1, 0)
+        k, self.sent = max(due - self.sent, 0), max(due, self.sent)
+        return b"7,8,8001,9,10,11\n" * k
+
+    def close(self) -> None:
+        pass
+
+
+def test_each_port_of_a_set_is_re_timed_on_its_own_clock(tmp_path, monkeypatch):
+    """One IMU per port, lines without time on a loaded host: each port's samples are put on
+    their own steady clock (its jitter is its own, not the reference's)."""
+    from imucal_cli.capture.imu_set import PortSet, PortsProtocol
+    from imucal_cli.formats.columns import ColumnSpec
+
+    clock = _Clock()
+    monkeypatch.setattr(time, "monotonic", clock)
+    ref = _SetStream(clock, arrivals(2000, 5), b"1,2,8000,3,4,5\n")
+    ports = PortSet([ref, _OtherPort(clock, 6)])
+    protocol = PortsProtocol(ports, ColumnSpec.parse("ax,ay,az,gx,gy,gz", "s"))
+    rec = Recorder(tmp_path / "ports.h5", ports, protocol)
+    n = sum(len(b) for b in rec.blocks())
+    rec.close()
+    assert rec.end_kind == "device-gone" and n == 2000
+    session = read_session(tmp_path / "ports.h5")
+    for t in (session.time, session.imus["imu1"].time):
+        i = np.arange(t.size)
+        assert t.size > 1500
+        assert np.abs(t - np.polyval(np.polyfit(i, t, 1), i)).max() < 1e-6
+        assert np.diff(t).mean() == pytest.approx(1 / RATE, rel=0.01)

@@ -159,10 +159,33 @@ class PortsProtocol(_Protocols):
         self._first_host: list[float | None] = [None] * len(ports.sources)
         self._first_time: list[float | None] = [None] * len(ports.sources)
         self._held: dict[str, list[SampleBlock]] = {n: [] for n in self.names[1:]}
+        self._first_kept = [True] * len(ports.sources)  # the port's first read is in the file
 
     def imu_layouts(self) -> dict[str, ImuLayout]:
         return {n: _layout(self.columns, s.uri)
                 for n, s in zip(self.names[1:], self._ports.sources[1:], strict=True)}  # fmt: skip
+
+    @property
+    def host_clock(self):
+        """The reference port's :class:`~imucal_cli.capture.host_clock.HostClock` (lines
+        without a time field), or None."""
+        return None if self.columns.time is not None else self._protocols[0].host_clock
+
+    def other_clocks(self) -> dict[str, tuple]:
+        """Each other port's host clock, the shift its stamps were given onto the reference's
+        clock (s), and whether its first read is in the session (lines without a time field;
+        a port that sent nothing is left out): each port's stamps have their own jitter and
+        are re-timed on their own (:meth:`~imucal_cli.capture.writing.SessionWrites.
+        _retime_host_stamps`)."""
+        if self.columns.time is not None or self._first_time[0] is None:
+            return {}
+        out = {}
+        for k, name in enumerate(self.names[1:], start=1):
+            if self._first_time[k] is not None:
+                shift = (self._first_host[k] - self._first_host[0]) \
+                    - (self._first_time[k] - self._first_time[0])  # fmt: skip
+                out[name] = (self._protocols[k].host_clock, shift, self._first_kept[k])
+        return out
 
     def _on_reference_clock(self, k: int, block: SampleBlock, host_time: float) -> SampleBlock:
         if not len(block):
@@ -184,6 +207,8 @@ class PortsProtocol(_Protocols):
             block = self._protocols[k].feed(self._ports.taken(k), host_time)
             if len(block) and self._first_time[0] is not None:  # before: no clock to use
                 self._held[self.names[k]].append(self._on_reference_clock(k, block, host_time))
+            elif len(block):
+                self._first_kept[k] = False
         others = {}
         if len(ref):
             others = {n: SampleBlock.concatenate(b) for n, b in self._held.items() if b}

@@ -68,12 +68,12 @@ class SessionWrites:
 
     def _retime_host_stamps(self) -> None:
         """Host-stamped samples, once the capture ended: the first read's times again at the
-        rate the rest of the stream showed (:func:`~imucal_cli.capture.host_clock.
-        first_read_times`), then every run between pauses on the device's steady clock
-        (:func:`~imucal_cli.capture.host_clock.steady_times`).  Only this capture's samples
-        (a continued session's earlier ones keep theirs, and this capture's never move before
-        them), and only with every one of them written; a write that fails leaves the stamps
-        as they were."""
+        rate the rest of the stream showed, then every run between pauses on the device's
+        steady clock (:func:`_on_steady_clock`).  Only this capture's samples (a continued
+        session's earlier ones keep theirs, and this capture's never move before them), and
+        only with every one of them written; a write that fails leaves the stamps as they
+        were.  Other IMUs on the same lines move with them; those on ports of their own
+        (``other_clocks``) are re-timed on their own clocks."""
         clock = getattr(self.protocol, "host_clock", None)
         writer, base = self._writer, int(self.resumed_from)
         k = 0 if clock is None else clock.first_read
@@ -89,16 +89,36 @@ class SessionWrites:
         if base:  # on the continued session's axis (:meth:`_append`), after its samples
             origin = max(float(stamps[base - 1]), -np.inf if origin is None else origin + shift)
         stamps = stamps[base:]
-        times = stamps.copy()
-        times[:k] = first_read_times(stamps[:k], origin, clock.period)
-        times = steady_times(times, k, origin)
-        if np.array_equal(times, stamps):
-            return
-        try:
-            writer.retime(base, times)
-        except SessionError:  # the write failed (or the times would not stay in order)
-            return
-        self._device_first, self._device_last = float(times[0]) - shift, float(times[-1]) - shift
+        others = getattr(self.protocol, "other_clocks", dict)()
+        times = _on_steady_clock(stamps, k, origin, clock.period)
+        if not np.array_equal(times, stamps):
+            try:
+                writer.retime(base, times, others=not others)
+            except SessionError:  # the write failed (or the times would not stay in order)
+                return
+            self._device_first, self._device_last = (float(times[0]) - shift,
+                                                     float(times[-1]) - shift)  # fmt: skip
+        if not base:  # a continued session's other IMUs: where its samples begin is unknown
+            self._retime_other_ports(others)
+
+    def _retime_other_ports(self, others: dict[str, tuple]) -> None:
+        """Each other port's samples on its own steady clock (``others``: name to its
+        HostClock, the shift onto the reference's clock, whether its first read is kept)."""
+        for name, (clock, shift, first_kept) in others.items():
+            if clock.period is None:
+                continue
+            try:
+                stamps = self._writer.imu_written_times(name)
+            except OSError:
+                return
+            k = clock.first_read if first_kept else 0
+            origin = None if clock.origin is None else clock.origin + shift
+            times = _on_steady_clock(stamps, k, origin, clock.period)
+            if stamps.size > k and not np.array_equal(times, stamps):
+                try:
+                    self._writer.retime_imu(name, times)
+                except SessionError:
+                    continue
 
     def _flush(self) -> CaptureEnded | None:
         try:
@@ -161,3 +181,15 @@ class SessionWrites:
                 f"cannot write ({exc.reason}) when closing: {exc.pending} samples could not be "
                 f"written, the session holds {self._writer.n_written}"
             )
+
+
+def _on_steady_clock(stamps: np.ndarray, first_read: int, origin: float | None,
+                     period: float) -> np.ndarray:  # fmt: skip
+    """Host stamps (n,), s, with the first read's ``first_read`` again at ``period`` (s)
+    apart (:func:`~imucal_cli.capture.host_clock.first_read_times`) and every run between
+    pauses on its steady line (:func:`~imucal_cli.capture.host_clock.steady_times`), never
+    before ``origin``."""
+    times = np.asarray(stamps, np.float64).copy()
+    if first_read >= 1:
+        times[:first_read] = first_read_times(times[:first_read], origin, period)
+    return steady_times(times, first_read, origin)

@@ -190,6 +190,23 @@ class ImuDatasets:
             sets["time"][:n] = moved
             self._last_time[name] = self._last_written_time[name] = float(moved[-1])
 
+    def written_times(self, name: str) -> np.ndarray:
+        """IMU ``name``'s times written so far, s, shape (n,)."""
+        return np.asarray(self.datasets[name]["time"][: self.n_written[name]], np.float64)
+
+    def retime(self, name: str, time: np.ndarray) -> None:
+        """Replace every written time of IMU ``name`` (its own clock's stamps known better
+        later), s, shape (n_written,); SessionError unless finite and strictly increasing, or
+        while its samples wait to be written.  Raises what h5py raises."""
+        t = np.asarray(time, np.float64)
+        if self._pending[name] or t.shape != (self.n_written[name],) or not (
+                np.isfinite(t).all() and (np.diff(t) > 0).all()):  # fmt: skip
+            raise SessionError(f"{self._src}: retime of IMU {name}: {t.size} times for "
+                               f"{self.n_written[name]} written, or out of order")  # fmt: skip
+        if t.size:
+            self.datasets[name]["time"][: t.size] = t
+            self._last_time[name] = self._last_written_time[name] = float(t[-1])
+
     def truncate_after(self, t_last: float | None) -> None:
         """Forget every sample later than ``t_last`` (None: all), written or not (the writer
         cut ``/raw`` there)."""

@@ -38,17 +38,18 @@ class Rewritable:
         """The times of the samples written so far, s, shape (n_written,)."""
         return np.asarray(self._datasets["time"][: self._n_written], np.float64)
 
-    def retime(self, start: int, time: np.ndarray) -> None:
+    def retime(self, start: int, time: np.ndarray, *, others: bool = True) -> None:
         """Replace the times of written samples ``[start, start + k)`` by ``time`` (host-clock
         stamps known better later), s, and the other IMUs' times with them (:meth:`~.imu_writer.
-        ImuDatasets.remap_times`); SessionError unless they stay strictly increasing with the
+        ImuDatasets.remap_times`) unless ``others`` is False (each has its own clock:
+        :meth:`retime_imu`); SessionError unless they stay strictly increasing with the
         samples around them; WriteFailed when the write fails."""
         dataset, t = self._datasets["time"], np.asarray(time, np.float64)
         stop = start + t.size
         around = np.concatenate([dataset[max(start - 1, 0):start], t, dataset[stop:stop + 1]])
         if stop > self._n_written or not (np.diff(around) > 0).all() or not np.isfinite(t).all():
             raise self._fail(f"retime: samples {start}-{stop} unwritten or out of order")
-        imus = self._imus
+        imus = self._imus if others else None
         if imus is not None and imus.n_pending:
             raise self._fail("retime: other IMUs' samples not written yet")
         before = np.asarray(dataset[: self._n_written], np.float64)
@@ -65,3 +66,17 @@ class Rewritable:
             self._last_written_time = float(t[-1])
             if not self._n_pending:
                 self._last_time = self._last_written_time
+
+    def imu_written_times(self, name: str) -> np.ndarray:
+        """Other IMU ``name``'s times written so far, s, shape (n,)."""
+        return self._imus.written_times(name)
+
+    def retime_imu(self, name: str, time: np.ndarray) -> None:
+        """Replace every written time of other IMU ``name`` (stamped by its own port's host
+        clock), s; SessionError unless they stay strictly increasing (or while its samples
+        wait); WriteFailed when the write fails."""
+        try:
+            self._imus.retime(name, time)
+            self._check_open().flush()
+        except WRITE_ERRORS as exc:
+            raise self._write_failed(exc, 0) from None
