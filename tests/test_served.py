@@ -55,3 +55,25 @@ def test_the_thread_serves_what_the_command_serves(monkeypatch, args):
 def test_an_option_the_thread_does_not_know_is_refused():
     with pytest.raises(ValueError, match="--imus"):
         serve_options(["--imus", "3"])
+
+
+@pytest.mark.parametrize(("rate", "baud", "warned"),
+                         [(400.0, 115200, "--baud 230400"), (100.0, 115200, None)])  # fmt: skip
+def test_a_stream_too_fast_for_its_baud_rate_is_said(rate, baud, warned):
+    """Lines that need more than the baud rate carries fall behind the plan; a capture
+    without a time column would stamp them at the slower pace they arrive (issue 28's
+    three-IMU lines at 200 Hz ran at 60 % on 115200 baud), so the server says so and what
+    baud rate would carry them."""
+    import threading
+
+    said = []
+    cancel = threading.Event()
+    cancel.set()  # said before the port opens; the serve then ends at once
+    serve("six", rate, baud, announce=lambda path: None, status=said.append, cancel=cancel,
+          wait_reader_s=0.1)  # fmt: skip
+    warnings = [m for m in said if m.startswith("warning: lines of")]
+    if warned is None:
+        assert not warnings, said
+    else:
+        assert len(warnings) == 1 and warned in warnings[0], said
+        assert "% of the plan's pace" in warnings[0]

@@ -279,6 +279,7 @@ def serve(
         plan_options=plan_options or {}, temperature=temperature, loop=loop, step=step,
         next_pose=next_pose, say=say,
     )  # fmt: skip
+    _warn_if_too_fast(lines, rate_hz, baud, say)
     header = (f"# imucal virtual IMU: plan {plan}, {rate_hz:g} Hz, {units}, "
               f"columns {fields}, seed {seed}\n").encode()  # fmt: skip
     stop = {"kind": None, "cancel": cancel}
@@ -325,6 +326,26 @@ def _plan_lines(plan: str, protocol: str, *, seed: int, rate_hz: float, hold_s: 
     if session.imus:
         fields = set_columns(session, with_temp)
     return lines, schedule, fields
+
+
+#: Baud rates serial ports and USB bridges commonly offer, 8N1.
+STANDARD_BAUDS = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600, 1000000, 2000000)
+
+
+def _warn_if_too_fast(lines: list[bytes], rate_hz: float, baud: int, say) -> None:
+    """Say so when the lines need more bytes per second than ``baud`` carries (8N1: a tenth
+    of it): the stream then falls behind the plan as the queue grows, and a capture without
+    a time column would stamp the samples at the slower rate they arrive."""
+    if not lines:
+        return
+    size = float(np.mean([len(x) for x in lines[:2000]]))
+    need = size * rate_hz * 10.0
+    if need > baud:
+        enough = next((b for b in STANDARD_BAUDS if b >= need), None)
+        fix = f"--baud {enough}" if enough else "a faster line"
+        say(f"warning: lines of {size:.0f} bytes at {rate_hz:g} Hz need {need:,.0f} baud; at "
+            f"{baud} the stream runs at {100 * baud / need:.0f} % of the plan's pace and falls "
+            f"behind: pass {fix}, or a lower --rate")  # fmt: skip
 
 
 def _check_line(rate_hz: float, baud: int, malformed_every: int | None) -> None:
