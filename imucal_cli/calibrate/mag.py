@@ -132,6 +132,33 @@ def mag_readings(
     held = len(all_motion) > 0 and 1.0 - len(motion) / len(all_motion) > HOLD_REPEATS
     if not held:
         motion = all_motion
+    data, segments, counts = _pose_data(session, mag, motion, usable, held, accel)
+    dropped = {
+        "nonfinite": int((~finite).sum()),
+        "before_first": int(np.argmax(finite)),
+        "clipped": int(clipped.sum()),
+        "repeated": int(len(all_motion) - len(motion)),
+    }
+    return MagReadings(data, motion, segments, counts, dropped, limits)
+
+
+
+def _pose_data(session: Session, mag: np.ndarray, motion: np.ndarray, usable: np.ndarray,
+               held: bool, accel: SensorCalibration | None):
+    """What the solver sees: the ``motion`` rows, and each static segment's mean over its
+    ``usable`` rows (``held``: repeats of a held reading left out), with the noise pooled over
+    the segments and the accelerometer's up direction.
+
+    Returns
+    -------
+    data : MagData
+        ``sample_cov`` (raw units^2) pooled where the segments give at least 10 degrees of
+        freedom, else None (and no ``pose_cov``); ``up`` only with ``accel``.
+    segments : list of Segment
+        The static segments with at least 3 usable rows, in order.
+    counts : ndarray of int, shape (K,)
+        Rows averaged in each.
+    """
     segments, means, covs, counts, ups, up_covs = [], [], [], [], [], []
     pooled, pooled_dof = np.zeros((3, 3)), 0
     for seg in session.static_segments():
@@ -160,13 +187,7 @@ def mag_readings(
         up=np.array(ups).reshape(K, 3) if accel is not None else None,
         up_cov=np.array(up_covs).reshape(K, 3, 3) if accel is not None else None,
     )
-    dropped = {
-        "nonfinite": int((~finite).sum()),
-        "before_first": int(np.argmax(finite)),
-        "clipped": int(clipped.sum()),
-        "repeated": int(len(all_motion) - len(motion)),
-    }
-    return MagReadings(data, motion, segments, np.array(counts, int), dropped, limits)
+    return data, segments, np.array(counts, int)
 
 
 def _up_direction(session: Session, seg, accel: SensorCalibration | None):
@@ -516,8 +537,15 @@ def _section_members(session, readings: MagReadings, res, units_in, field, units
         )
     if readings.clip_limits is not None:
         members["range"] = list(readings.clip_limits)
-    n = len(data.samples)
-    members["poses"] = [
+    members["poses"] = _pose_rows(readings, res)
+    return members
+
+
+def _pose_rows(readings: MagReadings, res) -> list[MagPoseRow]:
+    """Each static pose's row: samples averaged, its calibrated magnitude and residual (output
+    units) and its dip residual (degrees)."""
+    n = len(readings.data.samples)
+    return [
         MagPoseRow(
             segment=seg.name,
             label=seg.label,
@@ -528,7 +556,6 @@ def _section_members(session, readings: MagReadings, res, units_in, field, units
         )
         for k, seg in enumerate(readings.segments)
     ]
-    return members
 
 
 def _thinned(directions: np.ndarray) -> list[list[float]]:

@@ -274,7 +274,28 @@ def _many(
                 for r, code in zip(results, codes, strict=True)]  # fmt: skip
         print_json({"format": "imucal-calibrate-many", "format_version": 1, "results": rows})
         return worst(codes)
-    table = Table(title=f"{len(sessions)} sessions")
+    console.print(_results_table(len(sessions), results))
+    failed = [r for r in results if r.exit_code]
+    for r in failed:
+        console.print(f"[red]failed[/]: {escape(r.error or '')}", soft_wrap=True)
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = time.process_time() - c0 + usage.ru_utime + usage.ru_stime - c_children
+    console.print(
+        f"{len(results) - len(failed)} saved, {len(failed)} failed in {wall:.1f} s, "
+        f"{cpu:.1f} s CPU ({len(results) / max(cpu, 1e-9):.1f} sessions per CPU second)"
+    )
+    for session, (_code, _doc, lines) in after.items():
+        console.print(f"[bold]{escape(session)}[/]", soft_wrap=True)
+        for line in lines:
+            console.print(f"  {line}", soft_wrap=True)
+    return worst(codes)
+
+
+
+def _results_table(n_sessions: int, results) -> Table:
+    """One row per calibrated session: saved, partly saved or failed, the accel and gyro RMS
+    residuals, the magnetometer's where any session has one, and the warnings counted."""
+    table = Table(title=f"{n_sessions} sessions")
     with_mag = any(r.figures and "mag" in r.figures.solvers for r in results)
     columns = ["session", "result", "accel |a|-g RMS, m/s^2", "gyro turn RMS, deg"]
     columns += ["mag |B| RMS", "mag quality"] if with_mag else []
@@ -296,21 +317,7 @@ def _many(
                 f.mag_quality or "",
             ]
         table.add_row(*cells, "" if r.figures is None else str(f.warnings))
-    console.print(table)
-    failed = [r for r in results if r.exit_code]
-    for r in failed:
-        console.print(f"[red]failed[/]: {escape(r.error or '')}", soft_wrap=True)
-    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
-    cpu = time.process_time() - c0 + usage.ru_utime + usage.ru_stime - c_children
-    console.print(
-        f"{len(results) - len(failed)} saved, {len(failed)} failed in {wall:.1f} s, "
-        f"{cpu:.1f} s CPU ({len(results) / max(cpu, 1e-9):.1f} sessions per CPU second)"
-    )
-    for session, (_code, _doc, lines) in after.items():
-        console.print(f"[bold]{escape(session)}[/]", soft_wrap=True)
-        for line in lines:
-            console.print(f"  {line}", soft_wrap=True)
-    return worst(codes)
+    return table
 
 
 BOLD, WARN = "bold", "bold yellow"

@@ -92,9 +92,24 @@ def _ignored_misalignment(data: GyroData, k: np.ndarray, k_std: np.ndarray
 def _per_axis(data: GyroData, solver: str, notes: list[str], first):
     """Per-axis fits (static or dynamic) of every axis; ``first`` = (k, b) of a previous pass
     whose calibration gives each turn's actual axis."""
-    session, turns, stills, cfg, where = data.session, data.turns, data.stills, data.cfg, data.where
-    bias_still, b_still_std = data.bias_still, data.b_still_std
-    k, b, k_std, b_std = np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)
+    per_axis, oblique = _turns_by_axis(data, notes, first)
+    return _fit_axes(data, solver, per_axis, oblique)
+
+
+def _turns_by_axis(data: GyroData, notes: list[str], first):
+    """Each usable turn under the sensor axis it is about, with gravity's reading of its angle.
+
+    Returns
+    -------
+    per_axis : dict of int to list
+        Per axis ``i``: ``(turn, x_i, T, angle)``, the raw integral of channel ``i`` (raw
+        units s), the turn's duration (s) and the angle channel ``i`` sees (rad).
+    oblique : int
+        Turns left out for being further than :data:`MAX_AXIS_ERROR_DEG` from every axis (a
+        note each in ``notes``, as for turns about the vertical).
+    """
+    session, turns, stills, cfg = data.session, data.turns, data.stills, data.cfg
+    bias_still = data.bias_still
     min_lev = np.sin(np.radians(cfg.gyro.rotations.min_tilt_deg)) ** 2
     per_axis = {i: [] for i in range(3)}
     oblique = 0
@@ -130,6 +145,21 @@ def _per_axis(data: GyroData, solver: str, notes: list[str], first):
         # Channel i sees the rotation vector's component along i: the angle times the axis's
         # i-th component (1 for a turn exactly about the axis; the paper assumes that).
         per_axis[i].append((turn, x[i], T, sign * angle * abs(axis[i])))
+    return per_axis, oblique
+
+
+def _fit_axes(data: GyroData, solver: str, per_axis: dict, oblique: int):
+    """Qureshi & Golnaraghi's static (eq. 18) or dynamic (eqs. 19-21) fit of each axis's
+    turns (:func:`_turns_by_axis`): ``(k, b, k_std, b_std, rotations)``, scale (rad/s per raw
+    unit), bias (raw units), their std, (3,) each, and the rotation rows.
+
+    Raises
+    ------
+    DesignError
+        An axis with fewer usable turns than the solver needs (2 static, 3 dynamic).
+    """
+    where, bias_still, b_still_std = data.where, data.bias_still, data.b_still_std
+    k, b, k_std, b_std = np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)
     rotations = []
     for i in range(3):
         rows = per_axis[i]

@@ -509,15 +509,7 @@ def _section(data: GyroData, res, known, used, g_test, uncertainty, assumed: boo
              ) -> SensorCalibration:  # fmt: skip
     units, n = data.units_in, len(res.std)
     parameters = parameter_rows(res, units)
-    across = np.degrees(known.axis_sigma * np.abs(known.angle))
-    rotations = [
-        RotationRow(segment=s.name, label=s.label, known_angle_deg=float(s.angle_deg),
-                    measured_angle_deg=float(m), angle_error_deg=float(e),
-                    axis_error_deg=float(ax), noise_deg=float(sg), axis_noise_deg=float(ac))
-        for s, m, e, ax, sg, ac in zip(used, res.measured_angle_deg, res.angle_error_deg,
-                                       res.axis_error_deg, res.angle_sigma_deg, across,
-                                       strict=True)
-    ] + verdict.gravity_rows  # fmt: skip
+    rotations = _rotation_rows(res, known, used, verdict)
     data.warnings += verdict.blocking
     data.notes += verdict.notes
     with_gravity = verdict.comparison.turns_between_still_periods == "used"
@@ -534,7 +526,6 @@ def _section(data: GyroData, res, known, used, g_test, uncertainty, assumed: boo
     if spare and not assumed:  # std measured (the accelerometer's placement, the vertical)
         data.notes.append(spare)
         spare = None
-    s_axes = S / gains[:, None]
     members = {
         "approach": "known-angle turns" + (" and turns between still periods" if with_gravity
                                            else ""),
@@ -544,16 +535,7 @@ def _section(data: GyroData, res, known, used, g_test, uncertainty, assumed: boo
                    + (" and turns measured by gravity" if with_gravity else ""),
         "frame": _frame(data.accel_cal),
         "parameters": parameters,
-        "sensitivity": gains.tolist(),
-        "sensitivity_std": gain_std(res.M, res.cov[3:12, 3:12]).tolist(),
-        "sensitivity_unit": f"{units} per rad/s",
-        "misalignment_deg": {
-            f"{AXES[i]}{AXES[j]}": float(np.degrees(np.arccos(s_axes[i] @ s_axes[j])) - 90)
-            for i, j in ((0, 1), (0, 2), (1, 2))
-        },
-        # std of misalignment_deg (delta method), for targets (capture --until)
-        "misalignment_std_deg": dict(zip(("xy", "xz", "yz"), map(float, axes_std(
-            res.M, res.cov[3:12, 3:12])[2]), strict=True)),
+        **_axes_members(res, S, gains, units),
         "rotations": rotations,
         "rotation_rms_deg": float(rms(res.angle_error_deg)),
         "iterations": res.iterations, "chi2": res.chi2, "dof": res.dof,
@@ -577,3 +559,35 @@ def _section(data: GyroData, res, known, used, g_test, uncertainty, assumed: boo
     return build(GyroCalibration, solver="gyro-known", units="rad/s",
                  bias=np.asarray(res.b, float), matrix=np.asarray(res.M, float),
                  residual_rms=rms(np.radians(res.angle_error_deg)), **members)  # fmt: skip
+
+
+def _rotation_rows(res, known, used, verdict) -> list[RotationRow]:
+    """Each known-angle turn's row (its known and measured angle, their difference, how far its
+    axis is from the fitted one, the noise of both, degrees), then the gravity-measured turns'."""
+    across = np.degrees(known.axis_sigma * np.abs(known.angle))
+    return [
+        RotationRow(segment=s.name, label=s.label, known_angle_deg=float(s.angle_deg),
+                    measured_angle_deg=float(m), angle_error_deg=float(e),
+                    axis_error_deg=float(ax), noise_deg=float(sg), axis_noise_deg=float(ac))
+        for s, m, e, ax, sg, ac in zip(used, res.measured_angle_deg, res.angle_error_deg,
+                                       res.axis_error_deg, res.angle_sigma_deg, across,
+                                       strict=True)
+    ] + verdict.gravity_rows  # fmt: skip
+
+
+def _axes_members(res, S: np.ndarray, gains: np.ndarray, units: str) -> dict:
+    """The section's sensitivity axes: ``gains`` (row norms of ``S = M^-1``, raw ``units`` per
+    rad/s) and their std, the angles between the axes minus 90 degrees and their std (delta
+    method, for targets: capture --until)."""
+    s_axes = S / gains[:, None]
+    return {
+        "sensitivity": gains.tolist(),
+        "sensitivity_std": gain_std(res.M, res.cov[3:12, 3:12]).tolist(),
+        "sensitivity_unit": f"{units} per rad/s",
+        "misalignment_deg": {
+            f"{AXES[i]}{AXES[j]}": float(np.degrees(np.arccos(s_axes[i] @ s_axes[j])) - 90)
+            for i, j in ((0, 1), (0, 2), (1, 2))
+        },
+        "misalignment_std_deg": dict(zip(("xy", "xz", "yz"), map(float, axes_std(
+            res.M, res.cov[3:12, 3:12])[2]), strict=True)),
+    }  # fmt: skip

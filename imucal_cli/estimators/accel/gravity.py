@@ -21,7 +21,8 @@ from an algebraic ellipsoid fit; both are tried when both are possible.
 
 The 12-parameter variant keeps the 9-parameter solution and adds the rotation that gravity
 magnitude cannot see: the one that best aligns the calibrated directions with the labelled
-``up`` directions (Wahba's problem), so that ``matrix = R M`` is a full 3x3 matrix.
+``up`` directions (Wahba's problem), so that ``matrix = R M`` is a full 3x3 matrix
+(:mod:`.gravity_labels`).
 """
 
 from __future__ import annotations
@@ -30,12 +31,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
 from scipy.special import chdtri  # inverse survival function of chi^2
 
 from imucal_cli.design.outliers import Deletion, deletion
 from imucal_cli.design.poses import angle_deg
 from imucal_cli.errors import DesignError, SolverError
+from imucal_cli.estimators.accel.gravity_labels import align_to_labels
 from imucal_cli.estimators.ellipsoid import fit_ellipsoid
 
 #: Names of the 9 parameters of eq. (7), in order.
@@ -410,21 +411,7 @@ def _package(a_mean, g, up, variant, norm, x, w, cov_mean, init_used, sol) -> Gr
     B, M = norm.model(x)
     dof = N - 9
     chi2 = float(r_w @ r_w)
-    svals = np.linalg.svd(J, compute_uv=False)
-    if svals[-1] <= 1e-9 * svals[0]:
-        raise DesignError(
-            "the poses leave the 9-parameter model undetermined (they lie close to one plane "
-            "or cone of gravity directions); capture poses with each face and 45-degree edge up"
-        )
-    cov_n = np.linalg.inv(J.T @ J)
-    if weighting == "noise":
-        noise_scale = 1.0
-        if dof > 0 and chi2 > chdtri(dof, 0.01):  # beyond the 99th percentile of chi^2(dof)
-            noise_scale = chi2 / dof
-    else:
-        noise_scale = chi2 / dof if dof > 0 else float("nan")
-    T = np.diag(np.r_[np.full(3, norm.scale), np.full(6, 1.0 / norm.scale)])
-    cov = noise_scale * (T @ cov_n @ T)
+    cov_n, cov, noise_scale = _covariance(J, chi2, dof, weighting, norm.scale)
     dele = deletion(J, r_w, [np.array([k]) for k in range(N)], cov_n)
     loo = np.full(N, np.nan)
     for k in np.flatnonzero(dele.rank):
@@ -433,7 +420,7 @@ def _package(a_mean, g, up, variant, norm, x, w, cov_mean, init_used, sol) -> Gr
     h = (a_mean - B) @ M.T
     mag = np.linalg.norm(h, axis=1)
     directions = h / mag[:, None]
-    R, R_cov, up_angle = _align_to_labels(directions, up, variant)
+    R, R_cov, up_angle = align_to_labels(directions, up, variant)
     if variant == "9":
         params, names, matrix = model_to_params(B, M), list(PARAM_NAMES_9), M
     else:
@@ -470,37 +457,31 @@ def _package(a_mean, g, up, variant, norm, x, w, cov_mean, init_used, sol) -> Gr
     )
 
 
-#: A labelled pose further than this from its label (after the alignment) is left out of the
-#: alignment: the label is wrong, not the placement.
-LABEL_OUTLIER_DEG = 20.0
+def _covariance(J: np.ndarray, chi2: float, dof: int, weighting: str, scale: float):
+    """``(J^T J)^-1`` in the normalised coordinates, the covariance of ``(B, upper(M))`` in raw
+    units and m/s^2 per raw unit (normalisation ``scale``), and the factor on it: 1 with noise
+    weights unless ``chi2`` is beyond the 99th percentile of chi^2(dof), else ``chi2 / dof``.
 
-
-def _align_to_labels(directions, up, variant):
-    """Rotation (Wahba) of the calibrated directions onto the labels, its covariance and the
-    angle of each pose to its label. Labels far from their pose (a wrong label) are left out
-    of the alignment, so one bad label cannot rotate the frame."""
-    N = len(directions)
-    up_angle = np.full(N, np.nan)
-    labelled = np.zeros(N, bool) if up is None else np.isfinite(up).all(axis=1)
-    if labelled.sum() < 2 or np.linalg.matrix_rank(up[labelled], tol=0.1) < 2:
-        if variant == "12":
-            raise DesignError(
-                "the 12-parameter variant needs at least two labelled poses with different `up` "
-                'directions; label the poses or use model = "9"'
-            )
-        return np.eye(3), None, up_angle
-    use = labelled.copy()
-    for _ in range(3):
-        rot, _ = Rotation.align_vectors(up[use], directions[use])
-        ang = angle_deg(directions @ rot.as_matrix().T, np.where(labelled[:, None], up, 1.0))
-        keep = labelled & (ang <= max(LABEL_OUTLIER_DEG, 5 * np.median(ang[labelled])))
-        if keep.sum() < 2 or np.linalg.matrix_rank(up[keep], tol=0.1) < 2 or (keep == use).all():
-            break
-        use = keep
-    R = rot.as_matrix()
-    aligned = directions @ R.T
-    up_angle[labelled] = angle_deg(aligned[labelled], up[labelled])
-    return R, _rotation_cov(aligned[use], up[use]), up_angle
+    Raises
+    ------
+    DesignError
+        ``J`` (N, 9) is numerically rank-deficient: the poses leave the model undetermined.
+    """
+    svals = np.linalg.svd(J, compute_uv=False)
+    if svals[-1] <= 1e-9 * svals[0]:
+        raise DesignError(
+            "the poses leave the 9-parameter model undetermined (they lie close to one plane "
+            "or cone of gravity directions); capture poses with each face and 45-degree edge up"
+        )
+    cov_n = np.linalg.inv(J.T @ J)
+    if weighting == "noise":
+        noise_scale = 1.0
+        if dof > 0 and chi2 > chdtri(dof, 0.01):  # beyond the 99th percentile of chi^2(dof)
+            noise_scale = chi2 / dof
+    else:
+        noise_scale = chi2 / dof if dof > 0 else float("nan")
+    T = np.diag(np.r_[np.full(3, scale), np.full(6, 1.0 / scale)])
+    return cov_n, noise_scale * (T @ cov_n @ T), noise_scale
 
 
 def _weights_from_sigmas(sig: np.ndarray) -> np.ndarray:
@@ -508,20 +489,6 @@ def _weights_from_sigmas(sig: np.ndarray) -> np.ndarray:
     # infinite weight: floor each sigma at a tenth of the median.
     floor = 0.1 * np.median(sig[sig > 0]) if np.any(sig > 0) else 1.0
     return 1.0 / np.maximum(sig, floor)
-
-
-def _rotation_cov(aligned: np.ndarray, up: np.ndarray) -> np.ndarray:
-    """Covariance (rad^2) of the small rotation aligning calibrated directions to labels.
-
-    Each pose constrains the rotation in the two directions perpendicular to it; the scatter
-    of the residual angles (placement errors) gives the per-pose variance.
-    """
-    e = np.cross(aligned, up)  # small-angle residual rotation vectors
-    n = len(up)
-    dof = max(2 * n - 3, 1)
-    var = float(np.sum(e * e)) / dof
-    info = sum(np.eye(3) - np.outer(u, u) for u in up)
-    return var * np.linalg.pinv(info)
 
 
 def _cov_12(cov9: np.ndarray, M: np.ndarray, R: np.ndarray, R_cov: np.ndarray) -> np.ndarray:

@@ -110,12 +110,15 @@ the error on six faces.
 
 Modules
 -------
-This module fits (L3) and states (L4)-(L5); the model's predictions and Jacobian are
-:mod:`.labelled_model`'s, the placement's two parts (L1b) :mod:`.labelled_placement`'s, (L6)
-:mod:`.labelled_beyond`'s, each label's prior rows and the misplaced labels
-:mod:`.labelled_checks`'. The fit's response to each pose's mean (eq. L7, what a set of IMUs
-held in the same poses needs for its rotations) is :mod:`.labelled_response`'s, computed from
-:attr:`LabelledResult.fit` only where a set asks for it.
+This module fits (L3) and states (L4)-(L5); its start (``delta = 0``) and the labels that
+start contradicts are :mod:`.labelled_start`'s, the model's predictions and Jacobian
+:mod:`.labelled_model`'s, the parameters' covariance by part :mod:`.labelled_covariance`'s,
+the placement's two parts (L1b) and the intervals' degrees of freedom
+:mod:`.labelled_placement`'s, (L6) :mod:`.labelled_beyond`'s, each label's prior rows and the
+misplaced labels :mod:`.labelled_checks`'. The fit's response to each pose's mean (eq. L7,
+what a set of IMUs held in the same poses needs for its rotations) is
+:mod:`.labelled_response`'s, computed from :attr:`LabelledResult.fit` only where a set asks for
+it.
 """
 
 from __future__ import annotations
@@ -130,25 +133,27 @@ from scipy.special import chdtri, stdtrit
 from imucal_cli.design.outliers import Deletion, deletion
 from imucal_cli.errors import DesignError, SolverError
 from imucal_cli.estimators.accel.gravity import _UPPER, triangular_and_rotation
-from imucal_cli.estimators.accel.labelled_beyond import placement_beyond_first_order
 from imucal_cli.estimators.accel.labelled_checks import placement_rows
+from imucal_cli.estimators.accel.labelled_covariance import covariance_parts, public_of_normalised
 from imucal_cli.estimators.accel.labelled_model import (
     Problem,
-    axes,
     faces_of,
     jacobian,
-    public_from_theta,
     public_params,  # noqa: F401 (re-exported: the truth in these parameters)
-    second_order,
     sphere_exp,
     theta_floor,
 )
 from imucal_cli.estimators.accel.labelled_placement import (
     DEFAULT_PLACEMENT_DEG,
     MIN_PLACEMENT_DEG,
+    interval_dof,
     part_deg,
     placement_parts,
     placement_split,
+)
+from imucal_cli.estimators.accel.labelled_start import (
+    contradicted_labels,  # noqa: F401 (re-exported: the checks' import)
+    init_linear,
 )
 
 #: Parameters: bias (raw units), the sensitivity of each axis (raw units per m/s^2, the
@@ -280,82 +285,6 @@ class LabelledResult:
     def std(self) -> np.ndarray:
         """Standard deviations of ``params``."""
         return np.sqrt(np.clip(np.diag(self.cov), 0, None))
-
-
-# --------------------------------------------------------------------------- start
-
-
-def init_linear(a_mean: np.ndarray, up: np.ndarray, g: float) -> tuple[np.ndarray, np.ndarray]:
-    """Closed-form start: (L2) with every ``delta = 0`` is linear in ``(B, S)``.
-
-    Parameters
-    ----------
-    a_mean : ndarray, shape (N, 3)
-        Pose means, raw units.
-    up : ndarray, shape (N, 3)
-        Labels (NaN rows where unlabelled; those poses are not used).
-    g : float
-        Gravity, m/s^2.
-
-    Returns
-    -------
-    B : ndarray, shape (3,)
-    S : ndarray, shape (3, 3)
-        Raw units per m/s^2.
-
-    Raises
-    ------
-    DesignError
-        The labelled directions do not span the affine space ``[1, up]`` (fewer than four
-        labels not in one plane): bias and sensitivity cannot be told apart.
-    """
-    lab = np.isfinite(up).all(axis=1)
-    X = np.column_stack([np.ones(lab.sum()), g * up[lab]])  # a_k^T = [1, g up_k^T] [B; S^T]
-    if np.linalg.matrix_rank(X, tol=1e-6 * g) < 4:
-        raise DesignError(
-            f"{int(lab.sum())} labelled poses whose up directions lie in one plane cannot tell "
-            "bias from sensitivity"
-        )
-    sol, *_ = np.linalg.lstsq(X, a_mean[lab], rcond=None)
-    return sol[0], sol[1:].T
-
-
-def contradicted_labels(
-    a_mean: np.ndarray, up: np.ndarray, g: float, limit_deg: float = 20.0, max_fraction=0.25
-) -> list[tuple[int, float]]:
-    """Labelled poses whose reading contradicts their label (issue 10.6: a pose labelled with
-    the wrong face): each labelled pose is predicted by the linear start (:func:`init_linear`)
-    of the others; the pose furthest from its label, if further than ``limit_deg``, is taken
-    out and the test repeated (at most ``max_fraction`` of the labels).
-
-    Returns
-    -------
-    list of (index, angle_deg)
-        The contradicted poses and the angle between their measured and labelled up.
-    """
-    up = np.array(up, dtype=float)
-    found: list[tuple[int, float]] = []
-    n_lab = int(np.isfinite(up).all(axis=1).sum())
-    while len(found) < max(1, int(max_fraction * n_lab)):
-        lab = np.flatnonzero(np.isfinite(up).all(axis=1))
-        worst, worst_angle = -1, limit_deg
-        for k in lab:
-            others = up.copy()
-            others[k] = np.nan
-            try:
-                B, S = init_linear(a_mean, others, g)
-                u = np.linalg.solve(S, a_mean[k] - B)
-            except (DesignError, np.linalg.LinAlgError):
-                continue
-            cos = float(u @ up[k] / max(np.linalg.norm(u), 1e-300))
-            angle = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
-            if angle > worst_angle:
-                worst, worst_angle = int(k), angle
-        if worst < 0:
-            break
-        found.append((worst, worst_angle))
-        up[worst] = np.nan
-    return found
 
 
 # --------------------------------------------------------------------------- the fit
@@ -541,56 +470,26 @@ def fit_labelled(
 
 
 def _result(st: _State, offset, scale, a_mean, up, labelled, g, source, noise_dof):
+    """The :class:`LabelledResult` of the fit's end ``st``: the parameters and their
+    covariance (L4)-(L6), their t intervals, and what each pose says (``offset``, ``scale``
+    the normalisation of the raw coordinates; ``source`` where ``sigma_p`` came from)."""
     prob = st.prob
     if _undetermined(st):
         raise DesignError(
             "the poses and labels leave the matrix undetermined; label more poses (each face up)"
         )
     x12 = st.sol.x[:12]
-
-    def public(v):  # public parameters of normalised x (n, 12): (B raw, K raw, r deg) first
-        v = np.atleast_2d(v)
-        return public_from_theta(
-            np.concatenate([offset + scale * v[:, :3], v[:, 3:9] / scale,
-                            np.degrees(v[:, 9:12])], axis=1)
-        )  # fmt: skip
-
+    public = public_of_normalised(offset, scale)
     T = jacobian(public, x12, floor=theta_floor(x12), many=True)
-    n_meas = 3 * prob.N
-    Pt = st.P[:, :12]
-    Jm, Jp = st.J[:n_meas], st.J[n_meas:]
-    parts = {
-        "measurement": T @ (Pt.T @ Jm.T @ Jm @ Pt) @ T.T,
-        "placement": T @ (Pt.T @ Jp.T @ Jp @ Pt) @ T.T,  # the two sum to T P T^T
-    }
-    # Second order: the sensitivities and angles are curved functions of K, whose cross-axis
-    # terms the labels (not the data) fix on six faces: add that variance (unless the
-    # placement's propagation (L6) below, which includes it, runs). Its mean is not removed
-    # (module notes: removing it biased the saved gains).
-    axes_of = lambda k: axes(_matrices(k))  # noqa: E731
-    _, extra2 = second_order(axes_of, x12[3:9], st.P[3:9, 3:9], many=True)
-    params = public(x12)[0]
-    extra, m = (placement_beyond_first_order(st, public, params) if prob.N <= DENSE_MAX_POSES
-                else (np.zeros((12, 12)), 0))  # fmt: skip
-    if m == 0:
-        extra[3:9, 3:9] += extra2
-    parts["placement_second_order"] = extra
-    cov = parts["measurement"] + parts["placement"] + extra
-    Kn = np.zeros((3, 3))
-    Kn[_UPPER] = x12[3:9]
-    B = offset + scale * x12[:3]
-    M = Rotation.from_rotvec(x12[9:12]).as_matrix() @ Kn / scale
+    params, parts, m = covariance_parts(st, public, T, prob.N <= DENSE_MAX_POSES)
+    cov = parts["measurement"] + parts["placement"] + parts["placement_second_order"]
+    B, M = _bias_and_matrix(x12, offset, scale)
     split = (placement_split(prob, st.P, T) if source == "estimated" and prob.repeated
              else None)
-    t_dof = _t_dof(parts, st.placement_dof, source, noise_dof, split)
+    t_dof = interval_dof(parts, st.placement_dof, source, noise_dof, split)
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
     q = np.where(np.isfinite(t_dof), stdtrit(np.minimum(t_dof, 1e6), 0.975), 1.959964)
-    u, _ = sphere_exp(prob.u0, prob.T, prob.split(st.sol.x)[3])
-    h = (a_mean - B) @ M.T
-    mag = np.linalg.norm(h, axis=1)
-    up_angle = np.full(prob.N, np.nan)
-    cosang = np.clip(np.sum(u[labelled] * up[labelled], axis=1), -1, 1)
-    up_angle[labelled] = np.degrees(np.arccos(cosang))
+    u, h, up_angle = _poses(st, B, M, a_mean, up, labelled)
     dele = deletion(st.J, st.r, prob.groups(), st.P)
     return LabelledResult(
         bias=B,
@@ -600,7 +499,7 @@ def _result(st: _State, offset, scale, a_mean, up, labelled, g, source, noise_do
         cov=cov,
         t_dof=t_dof,
         ci95=q * std,
-        residuals=mag - g,
+        residuals=np.linalg.norm(h, axis=1) - g,
         residual_vectors=h - g * u,
         directions=u,
         up_angle_deg=up_angle,
@@ -625,11 +524,27 @@ def _result(st: _State, offset, scale, a_mean, up, labelled, g, source, noise_do
     )
 
 
-def _matrices(k: np.ndarray) -> np.ndarray:
-    """``K^-1`` of each row of upper-triangle entries ``k`` (n, 6): (n, 3, 3)."""
-    K = np.zeros((len(k), 3, 3))
-    K[:, _UPPER[0], _UPPER[1]] = k
-    return np.linalg.inv(K)
+def _bias_and_matrix(x12: np.ndarray, offset, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """``B`` (3,), raw units, and ``M = R(r) K`` (3, 3), m/s^2 per raw unit, of normalised
+    ``x12 = (B, K upper, r)``."""
+    Kn = np.zeros((3, 3))
+    Kn[_UPPER] = x12[3:9]
+    B = offset + scale * x12[:3]
+    M = Rotation.from_rotvec(x12[9:12]).as_matrix() @ Kn / scale
+    return B, M
+
+
+def _poses(st: _State, B, M, a_mean, up, labelled):
+    """What the fit says of each pose: its estimated up ``u_k`` (N, 3), its calibrated mean
+    ``h_k = M (a_k - B)`` (N, 3), m/s^2, and the angle between ``u_k`` and its label (N,),
+    degrees (NaN unlabelled)."""
+    prob = st.prob
+    u, _ = sphere_exp(prob.u0, prob.T, prob.split(st.sol.x)[3])
+    h = (a_mean - B) @ M.T
+    up_angle = np.full(prob.N, np.nan)
+    cosang = np.clip(np.sum(u[labelled] * up[labelled], axis=1), -1, 1)
+    up_angle[labelled] = np.degrees(np.arccos(cosang))
+    return u, h, up_angle
 
 
 def _undetermined(st: _State) -> bool:
@@ -650,22 +565,3 @@ def _held_out(prob: Problem, st: _State, dele: Deletion, offset, scale, a_mean, 
     M = Rotation.from_rotvec(X[:, 9:12]).as_matrix() @ Kn / scale
     h = np.einsum("nij,nj->ni", M, a_mean - offset - scale * X[:, :3])
     return np.where(dele.rank > 0, np.linalg.norm(h, axis=1) - g, np.nan)
-
-
-def _t_dof(parts: dict, placement_dof: float, source: str, noise_dof: float, split=None):
-    """Effective degrees of freedom of each parameter's variance (Satterthwaite): the
-    measurement part rests on ``noise_dof``, the placement part on the prior's redundancy, or,
-    split into its face and hold parts (:func:`.placement_split`), each on its own (the
-    second-order part shared in their proportion)."""
-    v_meas = np.diag(parts["measurement"])
-    v_place = np.diag(parts["placement"]) + np.diag(parts["placement_second_order"])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        if split is None:
-            nu_p = placement_dof if source == "estimated" else np.inf
-            spread = v_place**2 / nu_p
-        else:
-            (v_f, nu_f), (v_h, nu_h) = split
-            k = np.where(v_f + v_h > 0, v_place / (v_f + v_h), 1.0)
-            spread = (k * v_f) ** 2 / nu_f + (k * v_h) ** 2 / nu_h
-        t_dof = (v_meas + v_place) ** 2 / (spread + v_meas**2 / noise_dof)
-    return np.where(np.isfinite(t_dof), np.maximum(t_dof, 1.0), np.inf)

@@ -85,3 +85,42 @@ def part_deg(prob: Problem, sigma: float, source: str) -> float | None:
     if source != "estimated" or not prob.repeated or prob.sigma_f == 0.0:
         return None
     return float(np.degrees(sigma) * np.sqrt(2))
+
+
+def interval_dof(parts: dict, placement_dof: float, source: str, noise_dof: float, split=None):
+    """Effective degrees of freedom of each parameter's variance (Satterthwaite): the
+    measurement part rests on ``noise_dof``, the placement part on the prior's redundancy, or,
+    split into its face and hold parts (:func:`placement_split`), each on its own (the
+    second-order part shared in their proportion).
+
+    Parameters
+    ----------
+    parts : dict
+        The covariance by where it comes from (:attr:`.labelled.LabelledResult.cov_parts`):
+        ``"measurement"``, ``"placement"``, ``"placement_second_order"``, (12, 12) each.
+    placement_dof : float
+        Redundancy of the prior rows.
+    source : str
+        Where the placement came from: only an ``"estimated"`` one is uncertain.
+    noise_dof : float
+        Degrees of freedom of the pooled noise estimate.
+    split : tuple, optional
+        :func:`placement_split`'s ``((v_face, nu_face), (v_hold, nu_hold))``.
+
+    Returns
+    -------
+    ndarray, shape (12,)
+        At least 1; ``inf`` where the variance is known.
+    """
+    v_meas = np.diag(parts["measurement"])
+    v_place = np.diag(parts["placement"]) + np.diag(parts["placement_second_order"])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if split is None:
+            nu_p = placement_dof if source == "estimated" else np.inf
+            spread = v_place**2 / nu_p
+        else:
+            (v_f, nu_f), (v_h, nu_h) = split
+            k = np.where(v_f + v_h > 0, v_place / (v_f + v_h), 1.0)
+            spread = (k * v_f) ** 2 / nu_f + (k * v_h) ** 2 / nu_h
+        t_dof = (v_meas + v_place) ** 2 / (spread + v_meas**2 / noise_dof)
+    return np.where(np.isfinite(t_dof), np.maximum(t_dof, 1.0), np.inf)

@@ -50,7 +50,9 @@ closest to the magnetometer's own axes).
 The field magnitude ``F`` is given (microtesla) or, when unknown, 1: the calibrated output is
 then in units of the local field.
 
-The residuals of eqs. (2) and (3), their Jacobians and noise weights: :mod:`.residuals`.
+The residuals of eqs. (2) and (3), their Jacobians and noise weights: :mod:`.residuals`; the
+starts: :mod:`.start`; the rotation onto the accelerometer frame (eq. 3: whether the poses can
+fix it, the joint fit, the dip and inclination it gives): :mod:`.align`.
 """
 
 from __future__ import annotations
@@ -58,24 +60,30 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 from scipy.special import chdtri
 
 from imucal_cli.errors import DesignError, SolverError
+from imucal_cli.estimators.mag.align import (
+    MIN_ALIGN_POSES,
+    MIN_UP_SPREAD_DEG,
+    alignment_figures,
+    fit_aligned,
+)
 from imucal_cli.estimators.mag.residuals import (
     SYM_INDEX,
     Problem,
+    conditioning,
     magnitude_shift,
     magnitude_sigma,
     noise_weights,
-    pose_pair_cov,
     residual_sigmas,
     sym_params,
-    whiten,
 )
-from imucal_cli.estimators.mag.start import ellipsoid_start, polar, rotation_start
+from imucal_cli.estimators.mag.start import ellipsoid_start, polar
 
 __all__ = [
+    "MIN_ALIGN_POSES",
+    "MIN_UP_SPREAD_DEG",
     "PARAM_NAMES_ALIGNED",
     "PARAM_NAMES_SYMMETRIC",
     "MagData",
@@ -92,19 +100,6 @@ PARAM_NAMES_SYMMETRIC = ["b_x", "b_y", "b_z"] + [f"w_{_AXES[i]}{_AXES[j]}" for i
 PARAM_NAMES_ALIGNED = (
     ["b_x", "b_y", "b_z"] + [f"w_{r}{c}" for r in _AXES for c in _AXES] + ["s"]
 )
-#: Fewest static poses with an up direction that can fix the rotation and the dip (4 unknowns).
-MIN_ALIGN_POSES = 4
-#: Up directions all within this angle of each other leave the rotation about them free.
-MIN_UP_SPREAD_DEG = 15.0
-
-
-def _max_angle_deg(u: np.ndarray) -> float:
-    """Largest angle between any two unit vectors (rows), degrees."""
-    if len(u) < 2:
-        return 0.0
-    return float(np.degrees(np.arccos(np.clip((u @ u.T).min(), -1.0, 1.0))))
-
-
 @dataclass
 class MagData:
     """What the magnetometer fit sees.
@@ -346,7 +341,7 @@ def fit_magnetometer(
     b1, W1, _ = prob.unpack(sol.x)
 
     # ---- rotation onto the accelerometer frame (eq. 3)
-    fit = _aligned(data, pts_n, covs_n, rho, b1, W1, max_iterations, notes) if align else None
+    fit = fit_aligned(data, pts_n, covs_n, rho, b1, W1, max_iterations, notes) if align else None
     aligned = fit is not None
     if aligned:
         prob, sol = fit
@@ -361,7 +356,7 @@ def fit_magnetometer(
     if prob.covs is not None:
         x = x + _bias_step(prob, x, J)
         r, J = prob.evaluate(x)
-    if _conditioning(J) <= 1e-6:
+    if conditioning(J) <= 1e-6:
         raise DesignError(
             "the magnetometer readings leave hard and soft iron undetermined (they lie in one "
             "plane or cone of directions, e.g. turned flat on a table); turn the unit through "
@@ -371,48 +366,6 @@ def fit_magnetometer(
         prob, x, r, J, field, weighting=weighting, init=kind, sol=sol, data=data, notes=notes,
         scale=(c, rho),
     )  # fmt: skip
-
-
-def _can_align(data: MagData, notes: list[str]) -> bool:
-    """Whether the poses can fix the rotation by eq. (3): at least :data:`MIN_ALIGN_POSES`
-    with an up direction, not all parallel; else a note says why not."""
-    labelled = data.labelled()
-    if labelled.sum() < MIN_ALIGN_POSES:
-        notes.append(
-            f"not aligned to the accelerometer: {int(labelled.sum())} static poses with an "
-            f"accelerometer direction, at least {MIN_ALIGN_POSES} needed"
-        )
-        return False
-    if _max_angle_deg(np.asarray(data.up, float)[labelled]) < MIN_UP_SPREAD_DEG:
-        notes.append(
-            "not aligned to the accelerometer: the static poses share one gravity direction "
-            "(the rotation about it is free); hold the unit with different faces up"
-        )
-        return False
-    return True
-
-
-def _aligned(data: MagData, pts_n, covs_n, rho, b1, W1, max_iterations, notes):
-    """The joint fit of eqs. (2) and (3) in normalised coordinates, started from the symmetric
-    solution ``(b1, W1)``: ``(problem, solution)``, or None (a note says why not)."""
-    if not _can_align(data, notes):
-        return None
-    labelled = data.labelled()
-    n = len(data.samples)
-    rest = np.r_[np.ones(n, bool), ~labelled]  # magnitude-only readings
-    pose_covs_n = (
-        None if covs_n is None or data.pose_cov is None
-        else np.asarray(data.pose_cov, float)[labelled] / rho**2
-    )  # fmt: skip
-    up_cov = None if data.up_cov is None else np.asarray(data.up_cov, float)[labelled]
-    fit = _aligned_fit(
-        pts_n[rest], None if covs_n is None else covs_n[rest], pts_n[n:][labelled],
-        pose_covs_n, np.asarray(data.up, float)[labelled], up_cov, b1, W1, max_iterations,
-    )  # fmt: skip
-    if isinstance(fit, str):
-        notes.append(fit)
-        return None
-    return fit
 
 
 def _bias_step(prob: Problem, x: np.ndarray, J: np.ndarray) -> np.ndarray:
@@ -439,14 +392,6 @@ def _bias_step(prob: Problem, x: np.ndarray, J: np.ndarray) -> np.ndarray:
     return np.linalg.solve(J.T @ J, c)
 
 
-def _conditioning(J: np.ndarray) -> float:
-    """Smallest over largest singular value of ``J`` with unit columns (cheap for tall J)."""
-    norms = np.linalg.norm(J, axis=0)
-    Jn = J / np.where(norms > 0, norms, 1.0)
-    lam = np.linalg.eigvalsh(Jn.T @ Jn)
-    return float(np.sqrt(max(lam[0], 0.0) / lam[-1])) if lam[-1] > 0 else 0.0
-
-
 def _check_converged(sol, max_iterations: int) -> None:
     if sol.status <= 0:
         raise SolverError(
@@ -456,43 +401,10 @@ def _check_converged(sol, max_iterations: int) -> None:
         )
 
 
-def _aligned_fit(pts_n, covs_n, poses_n, pose_covs_n, up, up_cov, b1, W1, max_iter):
-    """Joint fit of eqs. (2) and (3): ``(problem, solution)``, or why it could not align."""
-
-    def problem(b, W):
-        w = np.ones(len(pts_n)) if covs_n is None else noise_weights(
-            magnitude_sigma(pts_n, covs_n, b, W))
-        C = pose_pair_cov(poses_n, pose_covs_n, up, up_cov, b, W)
-        shifts = (magnitude_shift(pts_n, covs_n, b, W),
-                  magnitude_shift(poses_n, pose_covs_n, b, W))  # fmt: skip
-        return Problem(pts_n, w, poses_n, up, whiten(C), *shifts, covs=covs_n), C
-
-    h = (poses_n - b1) @ W1.T
-    n_dir = h / np.linalg.norm(h, axis=1, keepdims=True)
-    prob, C = problem(b1, W1)
-    R0, s0 = rotation_start(n_dir, up, 1.0 / np.sqrt(C[:, 1, 1]))
-    sol = prob.solve(prob.pack(b1, R0 @ W1, s0), max_iter)
-    if sol.status <= 0:
-        return (
-            f"not aligned to the accelerometer: the joint fit with the static poses did not "
-            f"converge in {max_iter} iterations ({sol.message})"
-        )
-    if covs_n is not None:  # second pass, weights at the solution
-        b, W, _ = prob.unpack(sol.x)
-        prob, _ = problem(b, W)
-        sol2 = prob.solve(sol.x, max_iter)
-        sol = sol2 if sol2.status > 0 else sol
-    _, J = prob.evaluate(sol.x)
-    if _conditioning(J[:, 3:]) <= 1e-6:
-        return (
-            "not aligned to the accelerometer: the static poses leave the rotation undetermined; "
-            "hold the unit with different faces up"
-        )
-    return prob, sol
-
-
 def _result(prob, x, r, J, field, *, weighting, init, sol, data, notes, scale=None):
-    """Assemble a :class:`MagResult` in raw units from the normalised solution."""
+    """Assemble a :class:`MagResult` in raw units from the normalised solution ``x`` (``r``,
+    ``J`` its whitened residuals and Jacobian; ``scale = (c, rho)`` the normalisation, None for
+    the plain fit's raw units with field 1)."""
     if scale is None:  # the plain fit works in raw units with field 1
         c, rho = np.zeros(3), 1.0
     else:
@@ -500,20 +412,7 @@ def _result(prob, x, r, J, field, *, weighting, init, sol, data, notes, scale=No
     b_n, W_n, s = prob.unpack(x)
     bias = c + rho * b_n
     matrix = field * W_n / rho
-    n_res = len(r)
-    n_par = len(x)
-    dof = n_res - n_par
-    chi2 = float(r @ r)
-    JtJ = J.T @ J
-    cov_n = np.linalg.pinv(JtJ, hermitian=True)
-    if weighting == "noise":
-        noise_scale = 1.0
-        if dof > 0 and chi2 > chdtri(dof, 0.01):
-            noise_scale = chi2 / dof
-    else:
-        noise_scale = chi2 / dof if dof > 0 else float("nan")
-    T = np.r_[np.full(3, rho), np.full(prob.n_w, field / rho), np.ones(n_par - 3 - prob.n_w)]
-    cov = noise_scale * (T[:, None] * cov_n * T[None, :])
+    cov, chi2, dof, noise_scale = _covariance(prob, x, r, J, field, rho, weighting)
     params = np.r_[bias, W_n.ravel() * field / rho if prob.aligned else sym_params(matrix)]
     if prob.aligned:
         params = np.r_[params, s]
@@ -526,16 +425,7 @@ def _result(prob, x, r, J, field, *, weighting, init, sol, data, notes, scale=No
     inc = inc_std = rot_std = None
     R = np.eye(3)
     if prob.aligned:
-        labelled = data.labelled()
-        h = (data.pose_mean[labelled] - bias) @ matrix.T
-        up = np.asarray(data.up, float)[labelled]
-        ang = np.degrees(np.arccos(np.clip(np.sum(up * h, axis=1) / np.linalg.norm(h, axis=1),
-                                           -1, 1)))  # fmt: skip
-        dip[labelled] = ang - np.degrees(np.arccos(np.clip(s, -1, 1)))
-        inc = float(np.degrees(np.arcsin(np.clip(-s, -1, 1))))
-        inc_std = float(np.degrees(np.sqrt(cov[-1, -1]) / max(np.sqrt(1 - s * s), 1e-9)))
-        R, _ = polar(matrix)
-        rot_std = _rotation_std_deg(matrix, cov[3:12, 3:12])
+        dip, inc, inc_std, R, rot_std = alignment_figures(data, bias, matrix, s, cov)
     return MagResult(
         bias=bias,
         matrix=matrix,
@@ -563,20 +453,37 @@ def _result(prob, x, r, J, field, *, weighting, init, sol, data, notes, scale=No
     )
 
 
-def _rotation_std_deg(W: np.ndarray, cov_W: np.ndarray) -> float:
-    """RMS one-sigma of the small-angle rotation of ``R`` in ``W = R P`` (delta method)."""
-    R0, _ = polar(W)
-    J = np.empty((3, 9))
-    eps = 1e-7 * max(np.abs(W).max(), 1e-300)
-    for k in range(9):
-        dW = np.zeros(9)
-        dW[k] = eps
-        Rp, _ = polar(W + dW.reshape(3, 3))
-        Rm, _ = polar(W - dW.reshape(3, 3))
-        J[:, k] = (Rotation.from_matrix(Rp @ R0.T).as_rotvec()
-                   - Rotation.from_matrix(Rm @ R0.T).as_rotvec()) / (2 * eps)  # fmt: skip
-    cov_phi = J @ cov_W @ J.T
-    return float(np.degrees(np.sqrt(max(np.trace(cov_phi), 0.0) / 3)))
+def _covariance(prob, x, r, J, field: float, rho: float, weighting: str):
+    """The parameters' covariance in raw and output units from the normalised fit's Jacobian,
+    scaled by the excess of the residuals over the noise.
+
+    Returns
+    -------
+    cov : ndarray, shape (n, n)
+        Of ``(b, W entries[, s])``: raw units, output units per raw unit, 1.
+    chi2 : float
+        Weighted residual sum of squares.
+    dof : int
+        ``len(r) - len(x)``.
+    noise_scale : float
+        Factor applied to ``(J^T J)^-1``: ``"noise"`` weighting, 1 unless ``chi2`` exceeds its
+        99 % point; ``"equal"``, ``chi2 / dof``.
+    """
+    n_res = len(r)
+    n_par = len(x)
+    dof = n_res - n_par
+    chi2 = float(r @ r)
+    JtJ = J.T @ J
+    cov_n = np.linalg.pinv(JtJ, hermitian=True)
+    if weighting == "noise":
+        noise_scale = 1.0
+        if dof > 0 and chi2 > chdtri(dof, 0.01):
+            noise_scale = chi2 / dof
+    else:
+        noise_scale = chi2 / dof if dof > 0 else float("nan")
+    T = np.r_[np.full(3, rho), np.full(prob.n_w, field / rho), np.ones(n_par - 3 - prob.n_w)]
+    cov = noise_scale * (T[:, None] * cov_n * T[None, :])
+    return cov, chi2, dof, noise_scale
 
 
 def held_out_residuals(

@@ -35,6 +35,14 @@ def sym_params(W: np.ndarray) -> np.ndarray:
     return np.array([W[i, j] for i, j in SYM_INDEX])
 
 
+def conditioning(J: np.ndarray) -> float:
+    """Smallest over largest singular value of ``J`` with unit columns (cheap for tall J)."""
+    norms = np.linalg.norm(J, axis=0)
+    Jn = J / np.where(norms > 0, norms, 1.0)
+    lam = np.linalg.eigvalsh(Jn.T @ Jn)
+    return float(np.sqrt(max(lam[0], 0.0) / lam[-1])) if lam[-1] > 0 else 0.0
+
+
 # --------------------------------------------------------------------------------------------
 # Residuals of eqs. (2) and (3) and their Jacobians, in normalised coordinates
 # --------------------------------------------------------------------------------------------

@@ -143,9 +143,20 @@ def export_c_header(cal: Calibration, *, prefix: str = "IMUCAL") -> str:
 
 def _section_lines(name: str, sec: SensorCalibration, upper: str, lower: str) -> list[str]:
     """One sensor's constants and apply function (with the temperature terms, if any)."""
-    n = sec.bias.shape[0]
     const = f"{upper}_{name.upper()}"
     channels = f"{const}_CHANNELS"
+    lines = _constant_lines(name, sec, const, channels)
+    terms = temperature_terms(sec)
+    gs = sec.g_term if name == "gyro" else None
+    if gs is not None:
+        lines += _g_sensitivity_lines(const, channels, gs)
+    return lines + _apply_lines(name, sec, const, channels, lower, terms, gs)
+
+
+def _constant_lines(name: str, sec: SensorCalibration, const: str, channels: str) -> list[str]:
+    """The sensor's channel count, ``matrix`` (3 x channels) and ``bias`` as C constants named
+    from ``const``."""
+    n = sec.bias.shape[0]
     matrix_rows = [
         "    { "
         + ", ".join(c_float(v, f"{name}.matrix[{i}][{j}]") for j, v in enumerate(row))
@@ -153,9 +164,7 @@ def _section_lines(name: str, sec: SensorCalibration, upper: str, lower: str) ->
         for i, row in enumerate(sec.matrix.tolist())
     ]
     bias = ", ".join(c_float(v, f"{name}.bias[{j}]") for j, v in enumerate(sec.bias))
-    terms = temperature_terms(sec)
-    gs = sec.g_term if name == "gyro" else None
-    lines = [
+    return [
         f"/* {name}: {n} raw channels ({c_comment(units_in(sec))}) -> {sec.units} */",
         f"#define {channels} {n}",
         "",
@@ -166,8 +175,13 @@ def _section_lines(name: str, sec: SensorCalibration, upper: str, lower: str) ->
         f"static const float {const}_BIAS[{channels}] = {{ {bias} }};",
         "",
     ]
-    if gs is not None:
-        lines += _g_sensitivity_lines(const, channels, gs)
+
+
+def _apply_lines(name: str, sec: SensorCalibration, const: str, channels: str, lower: str,
+                 terms: TemperatureTerms | None, gs: np.ndarray | None) -> list[str]:
+    """The sensor's apply function ``out = MATRIX (raw - BIAS [- G_SENSITIVITY accel])``, the
+    bias and matrix moved by the temperature ``terms`` where there are some."""
+    lines: list[str] = []
     accel_arg = ", const float accel[3]" if gs is not None else ""
     if terms is None:
         said = f"raw - {const}_BIAS" + (f" - {const}_G_SENSITIVITY accel" if gs is not None

@@ -116,11 +116,26 @@ def export_fusion(cal: Calibration, opts: ExportOptions) -> str:
     version = opts.fusion_version or "1.3"
     if version not in FUSION_VERSIONS:
         raise InputError(f"--fusion-version {version!r}: use {' or '.join(FUSION_VERSIONS)}")
-    inertial, magnetic, header = FUSION_VERSIONS[version]
-    dims, other = ("3][3", "1.3") if version == "1.2" else ("9", "1.2")
     prefix = opts.prefix or ""
     if prefix:
         check_prefix(prefix)
+    lines = _comment(cal, version)
+    lines += [" */", '#include "Fusion.h"', "", *_layout_check(version)]
+    lines += _constants(cal, version, prefix)
+    return "\n".join(lines)
+
+
+def _comment(cal: Calibration, version: str) -> list[str]:
+    """The opening comment's lines up to its close: provenance, the model Fusion ``version``
+    applies against imucal's, and each section's units and solver.
+
+    Raises
+    ------
+    InputError
+        A magnetometer calibration that is not 3-axis.
+    """
+    inertial, magnetic, header = FUSION_VERSIONS[version]
+    dims, other = ("3][3", "1.3") if version == "1.2" else ("9", "1.2")
     lines = ["/*"] + [" * " + c_comment(line) for line in provenance(
         cal, f"Fusion {version} AHRS calibration")]  # fmt: skip
     lines += [
@@ -155,7 +170,20 @@ def export_fusion(cal: Calibration, opts: ExportOptions) -> str:
             f" * mag: raw {c_comment(units_in(mag))} -> {c_comment(mag.units)}, solver "
             f"{c_comment(mag.solver)}; {c_comment(mag.frame or '')}",
         ]
-    lines += [" */", '#include "Fusion.h"', "", *_layout_check(version)]
+    return lines
+
+
+def _constants(cal: Calibration, version: str, prefix: str) -> list[str]:
+    """The ``FusionMatrix`` and ``FusionVector`` constants of each section present
+    (misalignment, sensitivity, offset; soft and hard iron), named with ``prefix``.
+
+    Raises
+    ------
+    InputError
+        A value that does not fit a float.
+    """
+    lines: list[str] = []
+    mag = cal.mag
     for name, sec in sections(cal):
         _, factor = _UNITS[name]
         misalignment, sensitivity = fusion_arrays(sec.matrix, factor)
@@ -180,4 +208,4 @@ def export_fusion(cal: Calibration, opts: ExportOptions) -> str:
             f"static const FusionVector {hard} = {{{{{o}}}}};",
             "",
         ]
-    return "\n".join(lines)
+    return lines

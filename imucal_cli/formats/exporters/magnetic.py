@@ -79,35 +79,8 @@ def mag_for_target(
     if sec.bias.shape[0] != 3:
         raise InputError(f"the mag calibration has {sec.bias.shape[0]} channels; {target} "
                          "holds a 3-axis magnetometer")  # fmt: skip
-    raw_units = sec.units_in or "raw units"
-    if scale_uT is not None:
-        if not (math.isfinite(scale_uT) and scale_uT > 0):
-            raise InputError(f"--mag-scale must be a positive number of uT per raw unit, "
-                             f"got {scale_uT!r}")  # fmt: skip
-        ut_per_raw = float(scale_uT)
-        basis = f"raw ({raw_units}) x {scale_uT:.9g} uT per raw unit (--mag-scale)"
-    elif raw_units in UT_PER_MAG_UNIT:
-        ut_per_raw = UT_PER_MAG_UNIT[raw_units]
-        basis = f"raw, {raw_units} ({ut_per_raw:g} uT each)"
-    else:
-        raise InputError(
-            f"the mag calibration takes raw {raw_units}; {target} reads the field in {unit} as "
-            "the driver publishes it: pass --mag-scale (the driver's uT per raw unit, e.g. "
-            "0.15 for an AK8963 in 16-bit mode)"
-        )
-    W = np.asarray(sec.matrix, float)
-    lines = []
-    if sec.units == LOCAL_FIELD:
-        estimate = sec.field_estimate_uT if isinstance(sec, MagCalibration) else None
-        if not isinstance(estimate, int | float) or not estimate > 0:
-            raise InputError(
-                f"the mag calibration is in units of the local field (no field magnitude was "
-                f"given): {target} needs {unit}; set [mag] field_uT (from a geomagnetic model "
-                "for your place) and calibrate again"
-            )
-        W = W * float(estimate)
-        lines.append(f"mag: calibrated without the field's magnitude; scaled by the estimate "
-                     f"{estimate:.4g} uT from the raw units")  # fmt: skip
+    ut_per_raw, basis = _uT_per_raw(sec, target, unit, scale_uT)
+    W, lines = _matrix_in_uT(sec, target, unit)
     f = ut_per_raw * TARGET_PER_UT[unit]
     M = W / ut_per_raw
     U, sv, Vt = np.linalg.svd(M)
@@ -134,3 +107,56 @@ def mag_for_target(
         )
     return MagForTarget(offset=f * np.asarray(sec.bias, float), symmetric=P,
                         rotation_deg=angle, lines=lines)  # fmt: skip
+
+
+def _uT_per_raw(sec, target: str, unit: str, scale_uT: float | None) -> tuple[float, str]:
+    """Microtesla per raw unit of the section's raw magnetometer (``--mag-scale``, else its
+    known raw units) and the basis of ``p`` as the comment says it.
+
+    Raises
+    ------
+    InputError
+        A ``--mag-scale`` that is not a positive number, or raw units that need one.
+    """
+    raw_units = sec.units_in or "raw units"
+    if scale_uT is not None:
+        if not (math.isfinite(scale_uT) and scale_uT > 0):
+            raise InputError(f"--mag-scale must be a positive number of uT per raw unit, "
+                             f"got {scale_uT!r}")  # fmt: skip
+        ut_per_raw = float(scale_uT)
+        basis = f"raw ({raw_units}) x {scale_uT:.9g} uT per raw unit (--mag-scale)"
+    elif raw_units in UT_PER_MAG_UNIT:
+        ut_per_raw = UT_PER_MAG_UNIT[raw_units]
+        basis = f"raw, {raw_units} ({ut_per_raw:g} uT each)"
+    else:
+        raise InputError(
+            f"the mag calibration takes raw {raw_units}; {target} reads the field in {unit} as "
+            "the driver publishes it: pass --mag-scale (the driver's uT per raw unit, e.g. "
+            "0.15 for an AK8963 in 16-bit mode)"
+        )
+    return ut_per_raw, basis
+
+
+def _matrix_in_uT(sec, target: str, unit: str) -> tuple[np.ndarray, list[str]]:
+    """``W`` (3, 3) in uT per raw unit: a calibration in units of the local field scaled by its
+    field estimate (with a comment line saying so).
+
+    Raises
+    ------
+    InputError
+        A calibration in units of the local field without an estimate of the field.
+    """
+    W = np.asarray(sec.matrix, float)
+    lines = []
+    if sec.units == LOCAL_FIELD:
+        estimate = sec.field_estimate_uT if isinstance(sec, MagCalibration) else None
+        if not isinstance(estimate, int | float) or not estimate > 0:
+            raise InputError(
+                f"the mag calibration is in units of the local field (no field magnitude was "
+                f"given): {target} needs {unit}; set [mag] field_uT (from a geomagnetic model "
+                "for your place) and calibrate again"
+            )
+        W = W * float(estimate)
+        lines.append(f"mag: calibrated without the field's magnitude; scaled by the estimate "
+                     f"{estimate:.4g} uT from the raw units")  # fmt: skip
+    return W, lines

@@ -53,16 +53,7 @@ def read(paths: Sequence[Path], options: ReadOptions, stats: ImportStats) -> Rec
     if len(paths) != 1:
         raise InputError(f"--format csv takes one file, got {len(paths)}")
     path = paths[0]
-    columns = options.columns
-    spec = parse_columns(columns) if isinstance(columns, str) else columns
-    dataset = euroc_header(path, options.skip_rows) if spec is None else None
-    if dataset is not None:
-        spec, unit = dataset
-        options = replace(options, time_unit=unit)
-    if spec is None:  # a header naming the axes also says which fields to skip (text labels)
-        first = first_fields(path, options.skip_rows)
-        if first is not None and parse_numbers(first) is None:
-            spec = infer_columns(first)
+    spec, dataset, options = _spec(path, options)
     data, lines, header = read_table(
         path,
         None if spec is None else len(spec),
@@ -82,15 +73,7 @@ def read(paths: Sequence[Path], options: ReadOptions, stats: ImportStats) -> Rec
     def col(name: str) -> int | None:
         return used.index(name) if name in used else None
 
-    if col("t") is not None:
-        time = data[:, col("t")] * TIME_UNITS[options.time_unit]
-        check_time(time, lines, str(path))
-    elif options.rate_hz is None:
-        raise InputError(
-            f"{path}: no time column (t) in the columns: pass --rate HZ to stamp row i at i / rate"
-        )
-    else:
-        time = np.arange(len(data)) / options.rate_hz
+    time = _time(path, data, col("t"), lines, options)
     accel = data[:, [col(a) for a in ("ax", "ay", "az")]] if "ax" in used else None
     gyro = data[:, [col(g) for g in ("gx", "gy", "gz")]] if "gx" in used else None
     mag = data[:, [col(m) for m in ("mx", "my", "mz")]] if "mx" in used else None
@@ -113,6 +96,53 @@ def read(paths: Sequence[Path], options: ReadOptions, stats: ImportStats) -> Rec
         rec.notes.append(f"EuRoC / TUM-VI IMU file: time in {options.time_unit} (the header's "
                          "#timestamp), w_RS_S_* rad/s, a_RS_S_* m/s^2")  # fmt: skip
     return rec
+
+
+def _spec(path: Path, options: ReadOptions):
+    """The file's column spec before its rows are read: ``--columns``, else an EuRoC / TUM-VI
+    header (which also gives the time unit: ``options`` returned with it), else a header
+    naming the axes (which also says which fields to skip: text labels); None where only the
+    header row read with the table can say.
+
+    Returns
+    -------
+    spec : list of str or None
+    dataset : tuple or None
+        :func:`euroc_header`'s ``(spec, time unit)`` where the file is EuRoC's.
+    options : ReadOptions
+    """
+    columns = options.columns
+    spec = parse_columns(columns) if isinstance(columns, str) else columns
+    dataset = euroc_header(path, options.skip_rows) if spec is None else None
+    if dataset is not None:
+        spec, unit = dataset
+        options = replace(options, time_unit=unit)
+    if spec is None:  # a header naming the axes also says which fields to skip (text labels)
+        first = first_fields(path, options.skip_rows)
+        if first is not None and parse_numbers(first) is None:
+            spec = infer_columns(first)
+    return spec, dataset, options
+
+
+def _time(path: Path, data: np.ndarray, t_col: int | None, lines, options: ReadOptions):
+    """Each row's time, s: column ``t_col`` in ``options.time_unit`` (checked to increase),
+    else row i at ``i / options.rate_hz``.
+
+    Raises
+    ------
+    InputError
+        No time column and no rate, or time that does not increase.
+    """
+    if t_col is not None:
+        time = data[:, t_col] * TIME_UNITS[options.time_unit]
+        check_time(time, lines, str(path))
+    elif options.rate_hz is None:
+        raise InputError(
+            f"{path}: no time column (t) in the columns: pass --rate HZ to stamp row i at i / rate"
+        )
+    else:
+        time = np.arange(len(data)) / options.rate_hz
+    return time
 
 
 _HEADER_UNITS = {"[ns]": "ns", "[us]": "us", "[ms]": "ms", "[s]": "s"}
