@@ -10,6 +10,7 @@ DEVELOPERS.md).
 """
 
 import os
+import signal
 import sys
 
 
@@ -31,6 +32,20 @@ def program() -> None:
         main()
     except KeyboardInterrupt:  # before the command took Ctrl-C over, or after it returned
         _interrupted()
+    except SystemExit:
+        _status_decided()
+        raise
+
+
+def _status_decided() -> None:
+    """The command is done and its status decided: a Ctrl-C from here on changes nothing.
+    Python's shutdown (a second or so on a busy machine: h5py, threads) would otherwise end
+    the process by SIGINT itself: a saved capture or calibration would exit as killed by
+    Ctrl-C (130 in the shell) instead of its own status."""
+    try:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except (ValueError, OSError):  # not the main thread, or no such signal here
+        pass
 
 
 if __name__ == "__main__":

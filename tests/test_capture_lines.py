@@ -123,3 +123,17 @@ def test_capture_protocol_choices_refuse_what_does_not_fit(tmp_path):
     from imucal_cli.simulate.device import SERVE_PROTOCOLS
 
     assert completion.SERVE_PROTOCOLS == SERVE_PROTOCOLS
+
+
+def test_an_axis_that_is_never_a_number_is_named(tmp_path):
+    """Issue 24.6: a sketch that prints ``nan`` for an axis it cannot read (a disconnected
+    sensor) was told "no valid line (60 malformed, 7 fields per line expected): wrong baud
+    rate?", every line having its 7 fields.  The field is named instead."""
+    data = "".join(f"{0.01 * i:.2f},nan,{i},8192,1,2,3\r\n" for i in range(60)).encode()
+    chunks = [data[i : i + 97] for i in range(0, len(data), 97)]
+    rec = Recorder(tmp_path / "nan.h5", ScriptedSource(chunks), AutoLineProtocol(SPEC))
+    assert sum(len(b) for b in rec.blocks()) == 0
+    rec.close()
+    note = rec.received_note()
+    assert "field(s) ax (nan or inf in 60 lines) not a number" in note, note
+    assert "baud rate?" not in note, note

@@ -216,6 +216,35 @@ def test_ctrl_c_while_the_capture_starts(tmp_path, when):
         assert len(read_session(out).time) > 0
 
 
+_LATE_CTRL_C = """
+import os, signal, sys, threading, time
+from imucal_cli.__main__ import program
+def ctrl_c_during_shutdown():
+    while threading.main_thread().is_alive():  # until the program has returned its status
+        time.sleep(0.005)
+    os.kill(os.getpid(), signal.SIGINT)
+threading.Thread(target=ctrl_c_during_shutdown).start()  # not a daemon: Python waits for it
+sys.argv = ["imucal", *sys.argv[1:]]
+program()
+"""
+
+
+def test_ctrl_c_after_the_command_keeps_its_status(tmp_path):
+    """Issue 24.3: a second Ctrl-C (a user pressing twice) after a capture had saved and
+    printed its summary killed the program by SIGINT during Python's shutdown (status -2:
+    130 in the shell, the status of "nothing saved").  Once the command's status is decided
+    a Ctrl-C changes nothing: here a calibration is written and the signal comes while the
+    interpreter shuts down."""
+    sim = tmp_path / "s.h5"
+    subprocess.run([*CLI, "simulate", "--plan", "six", "-o", str(sim)], check=True,
+                   capture_output=True, env=ENV)  # fmt: skip
+    proc = subprocess.run([sys.executable, "-c", _LATE_CTRL_C, "calibrate", str(sim)],
+                          capture_output=True, text=True, env=ENV, timeout=120)  # fmt: skip
+    assert proc.returncode == 0, (proc.returncode, proc.stderr[-2000:])
+    assert "Traceback" not in proc.stderr and "interrupted" not in proc.stderr, proc.stderr
+    assert (tmp_path / "s.cal.json").exists()
+
+
 # --------------------------------------------------------------------------------------------
 # A full disk
 # --------------------------------------------------------------------------------------------

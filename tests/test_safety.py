@@ -367,6 +367,24 @@ def test_capture_survives_a_full_disk(tmp_path, monkeypatch, reserve_frees):
         assert rec.samples_lost > 0 and f"{rec.samples_lost} received samples" in rec.end_reason
 
 
+def test_a_session_a_full_disk_left_empty_is_named_by_calibrate(tmp_path, monkeypatch):
+    """A capture on a disk full from its first write saves a session of 0 samples (exit 3,
+    resumable); calibrate said only "segmentation needs at least 2 samples", naming neither
+    the file nor what to do."""
+    disk = FullDisk(monkeypatch, reserve_frees=False)
+    disk.full = True
+    chunks, _ = lines_of(per_chunk=50)
+    monkeypatch.setattr(recorder_module, "FLUSH_INTERVAL_S", 0.0)
+    rec = Recorder(tmp_path / "e.h5", ScriptedSource(chunks[:4]), proto())
+    for _ in rec.blocks():
+        pass
+    rec.close()
+    monkeypatch.undo()
+    assert rec.end_kind == "disk-full" and read_session(tmp_path / "e.h5").time.size == 0
+    assert_one_line_error(run("calibrate", tmp_path / "e.h5"), "e.h5", "holds 0 samples",
+                          "capture --resume")  # fmt: skip
+
+
 def _mount_tmpfs(folder: Path, size: str) -> bool:
     if os.geteuid() != 0 or shutil.which("mount") is None:
         return False

@@ -194,6 +194,9 @@ def calibrate_file(
     inputs = [path, *inputs]
     check_output(out, force=force, inputs=inputs)  # refuse before solving, not after
     session = read_session(path)
+    if len(session.time) < 2:  # a capture a full disk stopped before its first samples
+        raise InputError(f"{path}: the session holds {len(session.time)} samples: nothing to "
+                         "calibrate; record it (capture --resume continues it)")  # fmt: skip
     if also:
         session = merge_sessions([session, *(read_session(p) for p in also)])
     warm = [read_session(p) for p in warmup] if warmup else None

@@ -240,10 +240,12 @@ class DiskRoom:
         return int(room), int(min(max(rows, 0), arriving))
 
 
-def no_data_reason(stats: dict, where: str, n_fields: int | None) -> str:
+def no_data_reason(stats: dict, where: str, n_fields: int | None,
+                   not_numbers: dict[str, int] | None = None) -> str:
     """Why no sample came, from the protocol's counters (``stats``); ``where``: the source and
     the wait (``"/dev/ttyUSB0 at 115200 baud in 10 s"``); ``n_fields``: the fields a line of
-    ``--columns`` has (None: not lines of numbers)."""
+    ``--columns`` has (None: not lines of numbers); ``not_numbers``: per field, the lines of
+    the right length whose field was ``nan`` or ``inf``."""
     if stats.get("bytes", 0) == 0:
         return (f"no data from {where}: check the port, the baud rate and that the sketch "
                 "prints lines")  # fmt: skip
@@ -252,6 +254,12 @@ def no_data_reason(stats: dict, where: str, n_fields: int | None) -> str:
             f"received {stats['bytes']} bytes from {where} but no data line "
             f"({stats.get('comments', 0)} comment lines): check that the sketch prints numbers"
         )
+    bad = {k: n for k, n in (not_numbers or {}).items() if 2 * n > stats.get("malformed", 0)}
+    if bad:  # lines of the right length, a field nan in most: an axis the sketch cannot read
+        fields = ", ".join(f"{k} (nan or inf in {n} lines)" for k, n in bad.items())
+        return (f"received {stats['bytes']} bytes from {where} but no valid line: field(s) "
+                f"{fields} not a number: a disconnected or unread sensor axis; check the "
+                "sensor's wiring and the sketch")  # fmt: skip
     expected = f", {n_fields} fields per line expected" if n_fields else ""
     return (
         f"received {stats['bytes']} bytes from {where} but no valid line "

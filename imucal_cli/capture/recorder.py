@@ -333,7 +333,8 @@ class Recorder(SessionWrites):
         within = f" in {self.wait_timeout_s:g} s" if within is None else within
         columns = getattr(self.protocol, "columns", None)
         return no_data_reason(self.protocol.stats, what + within,
-                              None if columns is None else columns.n_fields)  # fmt: skip
+                              None if columns is None else columns.n_fields,
+                              getattr(self.protocol, "not_numbers", None))  # fmt: skip
 
     def received_note(self) -> str:
         """For a capture that ended before its first sample: what did arrive and why none of

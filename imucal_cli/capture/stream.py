@@ -102,12 +102,16 @@ class LineProtocol:
     stats : dict
         ``lines`` (complete non-blank lines), ``samples`` (kept), ``comments``, ``malformed``,
         and ``bytes`` (received).
+    not_numbers : dict
+        Per field name, the lines of the right length dropped because that field was not a
+        finite number (``nan``, ``inf``: an axis the sketch could not read).
     """
 
     def __init__(self, columns: ColumnSpec) -> None:
         self.columns = columns
         self._skipped = frozenset(j for j, name in enumerate(columns.names) if name == "_")
         self.stats = {"lines": 0, "samples": 0, "comments": 0, "malformed": 0, "bytes": 0}
+        self.not_numbers: dict[str, int] = {}
         self._partial = b""
         self._last_time: float | None = None  # last kept sample time, s
         self.host_clock = HostClock()  # stamps lines without a ``t`` column
@@ -169,6 +173,10 @@ class LineProtocol:
         finite = np.isfinite(rows).all(axis=1)
         if not finite.all():
             stats["malformed"] += int((~finite).sum())
+            for j, n in enumerate((~np.isfinite(rows[~finite])).sum(axis=0)):
+                if n:
+                    name = self.columns.names[j]
+                    self.not_numbers[name] = self.not_numbers.get(name, 0) + int(n)
             rows = rows[finite]
         if rows.shape[0] == 0:
             return SampleBlock.empty()
@@ -360,6 +368,11 @@ class AutoLineProtocol:
     @property
     def stats(self) -> dict:
         return self._own if self._chosen is None else self._chosen.stats
+
+    @property
+    def not_numbers(self) -> dict[str, int]:
+        """As :attr:`LineProtocol.not_numbers` (empty for the other kinds)."""
+        return getattr(self._chosen, "not_numbers", {})
 
     @property
     def columns(self) -> ColumnSpec | None:
