@@ -27,6 +27,8 @@ from imucal_cli.simulate.redundant import (
 )
 from imucal_cli.simulate.triad import G0
 
+from .test_virtual import process_factory  # noqa: F401
+
 Z_MAX = 4.5
 TABLE_I_ANGLES = {
     "s1s2": 90.0,
@@ -375,3 +377,50 @@ def test_command_refuses_bad_hk_options(tmp_path, monkeypatch, capsys):
         assert code == 2, args
         assert err.startswith("imucal: error: ") and len(err.strip().splitlines()) == 1
         assert not out.exists()
+
+
+def test_the_served_redundant_unit_holds_and_moves_as_a_device_streams():
+    """``simulate --serve --plan hk-redundant``: the paper's 10 readings per orientation with
+    the recorder paused between them were served back to back (the time jumps dropped), one
+    hold of 200 lines for 20 orientations ('pose 1/1'); served, each orientation is held
+    ``hold_s`` and the unit moves to the next in ``move_s``, on one unbroken clock."""
+    from imucal_cli.simulate.device import stream_with_holds
+
+    time, accel, gyro, holds = stream_with_holds("hk-redundant", seed=1, rate_hz=100.0,
+                                                 hold_s=1.2, move_s=0.5)  # fmt: skip
+    assert gyro is None and accel.shape[1] == 4 and len(holds) == 20
+    np.testing.assert_allclose(np.diff(time), 0.01, rtol=1e-9)
+    noise = np.hypot(0.7, QUANTISATION_COUNTS)
+    for h in holds[1:]:  # the lead is the first pose held longer
+        assert 115 <= h.stop - h.start <= 125
+        assert np.all(accel[h.start:h.stop].std(axis=0) < 3 * noise)
+    for a, b in zip(holds, holds[1:], strict=False):  # the moves between: gravity turns
+        move = accel[a.stop:b.start]
+        assert len(move) == 50 and np.ptp(move, axis=0).max() > 20 * noise
+
+
+@pytest.mark.slow
+def test_the_redundant_unit_calibrates_through_the_virtual_port(tmp_path, process_factory):  # noqa: F811
+    """The served unit captured unattended with ``--plan hk-redundant`` and calibrated: every
+    orientation seen, the four channels' gains within the noise of the truth's."""
+    from .cli_helpers import run
+    from .test_virtual import start_capture
+
+    server = process_factory("--plan", "hk-redundant", "--seed", "1", "--hold", "2.6",
+                             "--move", "0.5")  # fmt: skip
+    out = tmp_path / "red.h5"
+    cap = start_capture(server.path, out, "--plan", "hk-redundant", "--columns",
+                        "t,ax,ay,az,a4,temp", "--accel-units", "counts")  # fmt: skip
+    _, stderr = cap.communicate(timeout=300)
+    server.finish()
+    assert cap.returncode == 0, stderr
+    proc = run("calibrate", out, "--json", "--no-store")
+    assert proc.returncode == 0, proc.stderr
+    cal = json.loads(proc.stdout)["calibration"]["accel"]
+    _, truth = simulate_redundant_accel(seed=1, samples=520, rate_hz=200.0, move_s=0.5)
+    # each channel's sensitivity (a row of pinv(matrix), counts per m/s^2): its length does
+    # not depend on the frame, which unlabelled orientations leave free
+    gains = np.linalg.norm(np.linalg.pinv(np.array(cal["matrix"])), axis=1)
+    true = np.linalg.norm(np.linalg.pinv(np.array(truth.accel.matrix)), axis=1)
+    np.testing.assert_allclose(gains, true, rtol=2e-3)  # the paper's worst at 10 readings: 1.3e-3
+    np.testing.assert_allclose(cal["bias"], truth.accel.bias, atol=0.5)  # counts

@@ -5,7 +5,7 @@ file, each played by its virtual experiment (the registry's ``simulator``):
   :func:`imucal_cli.simulate.triad.simulate`;
 - ``rotations`` (qureshi-axes[:N], free:N):
   :func:`imucal_cli.simulate.rotations.simulate_gyro_rotations`;
-- ``iron`` (hwangbo-iron, hk-gyro): :func:`imucal_cli.simulate.redundant.simulate_hk_gyro`;
+- ``iron`` (hwangbo-iron, hk-gyro): :func:`imucal_cli.simulate.hk_gyro.simulate_hk_gyro`;
 - ``redundant`` (hk-redundant): :func:`imucal_cli.simulate.redundant.simulate_redundant_accel`;
 - ``steps`` (gyro-axes, still:MINUTES, plan files):
   :func:`imucal_cli.simulate.steps.simulate_steps`.
@@ -21,7 +21,8 @@ from imucal_cli.formats.session import Session
 from imucal_cli.model.calibration import Calibration
 from imucal_cli.plans import find_plan, load_plan
 from imucal_cli.simulate.faults import g_sensitive
-from imucal_cli.simulate.redundant import simulate_hk_gyro, simulate_redundant_accel
+from imucal_cli.simulate.hk_gyro import simulate_hk_gyro
+from imucal_cli.simulate.redundant import simulate_redundant_accel
 from imucal_cli.simulate.rotations import simulate_gyro_rotations
 from imucal_cli.simulate.sensor import G0
 from imucal_cli.simulate.steps import simulate_steps
@@ -66,7 +67,9 @@ def simulate_plan(
     within +-that (:func:`imucal_cli.simulate.faults.g_sensitive`).
     Options a plan's experiment does not use are ignored.  ``rate_hz`` defaults to 100 Hz
     (hk-redundant: 50 Hz); ``hold_s``, the hold per pose, to 2 s (the iron plans' still periods:
-    3 s; the hand-rotation plans use ``still_s``).  See the simulators for the others.
+    3 s; the hand-rotation plans use ``still_s``; hk-redundant: ``samples`` readings with the
+    recorder paused between orientations, or with ``hold_s`` that long and ``move_s`` moves
+    recorded, as a device streams them).  See the simulators for the others.
 
     Raises
     ------
@@ -117,9 +120,13 @@ def _played(plan, *, seed, units, rate_hz, hold_s, move_s, accel_noise, jitter_d
             mountings=mountings, rate_hz=rate, still_s=3.0 if hold_s is None else hold_s,
             gravity=gravity, faces=spec.key == "hwangbo-iron", **common,
         )  # fmt: skip
-    return _redundant(units, seed=seed, sigma_counts=sigma_counts, orientations=orientations,
-                      samples=samples, rate_hz=50.0 if rate_hz is None else rate_hz,
-                      labelled=labelled, gravity=gravity, created=created)  # fmt: skip
+    rate = 50.0 if rate_hz is None else rate_hz
+    stream = {} if hold_s is None else {  # held and moved as a device streams (--serve)
+        "samples": max(int(round(hold_s * rate)), 1), "move_s": move_s}
+    return _redundant(units, **{"seed": seed, "sigma_counts": sigma_counts,
+                                "orientations": orientations, "samples": samples,
+                                "rate_hz": rate, "labelled": labelled, "gravity": gravity,
+                                "created": created, **stream})  # fmt: skip
 
 
 def _poses(built, hold_s: float | None, **options) -> tuple[Session, Calibration]:
