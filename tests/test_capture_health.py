@@ -319,3 +319,47 @@ def test_a_backlog_is_read_whole_and_nothing_is_lost_when_the_device_goes():
     with pytest.raises(DeviceGone):
         source.read()
 
+
+
+class _SlowLine:
+    """2000 lines of a 100 Hz device arriving over ``pace`` times their device time (a line
+    too slow for them: 20 lines a read, the host clock moved on as they arrive)."""
+
+    uri = "serial:/dev/fake@115200"
+
+    def __init__(self, monkeypatch, pace: float) -> None:
+        self.now, self.lines, self.pace = 100.0, _lines(2000), pace
+        monkeypatch.setattr(time, "monotonic", lambda: self.now)
+
+    def describe(self):
+        return "/dev/fake at 115200 baud"
+
+    def read(self):
+        if not self.lines:
+            from imucal_cli.capture.stream import DeviceGone
+
+            raise DeviceGone("[Errno 5] Input/output error")
+        chunk, self.lines = self.lines[:20], self.lines[20:]
+        self.now += 0.2 * self.pace
+        return b"".join(chunk)
+
+    def close(self):
+        pass
+
+
+@pytest.mark.parametrize(("pace", "said"), [(1.33, True), (1.02, False)])
+def test_a_line_that_falls_behind_its_stream_is_said(tmp_path, monkeypatch, pace, said):
+    """400 Hz at 115200 baud: 20.5 s of device time arrived over 27.2 s, and the capture said
+    only '400.0 Hz'; a real device drops or slows what it cannot send.  The recorder says how
+    far behind the line fell (a small lag is no fall)."""
+    rec = Recorder(tmp_path / "slow.h5", _SlowLine(monkeypatch, pace), _proto())
+    for _ in rec.blocks():
+        pass
+    rec.close()
+    assert rec.n_samples == 2000 and rec.stats["rate_hz"] == pytest.approx(100.0, rel=1e-6)
+    if said:
+        assert "% of the pace" in rec.behind and "raise --baud" in rec.behind
+    else:
+        assert rec.behind is None
+    assert checks.fell_behind(5.0, 9.0, 100.0) is None  # too short to tell
+    assert checks.fell_behind(60.0, 63.0, 100.0) is None  # under 10 %

@@ -211,3 +211,38 @@ def test_a_capture_stopped_while_a_backlog_is_read_keeps_every_line(tmp_path, mo
     assert held > 0  # the stop came while part of the backlog was held
     read_lines = tty.pos // len(SlowTty.LINE)
     assert rec.n_samples == read_lines == len(read_session(tmp_path / "s.h5").time)
+
+
+class _ClosedAtTheOtherEnd:
+    """A tty whose device ended its stream: one line, then pyserial's error for a port that
+    is ready with no bytes."""
+
+    timeout, in_waiting = 0.05, 0
+
+    def __init__(self) -> None:
+        self.sent = False
+
+    def read(self, n: int) -> bytes:
+        if not self.sent:
+            self.sent = True
+            return b"1,2,3\n"
+        raise serial_port.serial.SerialException(
+            "device reports readiness to read but returned no data (device disconnected or "
+            "multiple access on port?)")  # fmt: skip
+
+    def close(self) -> None:
+        pass
+
+
+def test_a_port_closed_at_the_other_end_is_said_plainly(monkeypatch):
+    """A finished plan (or a pulled cable) showed pyserial's 'device disconnected or multiple
+    access on port?'; it is said as what it is, after the bytes that came before."""
+    from imucal_cli.capture.stream import DeviceGone
+
+    monkeypatch.setattr(serial_port, "_time", FakeTime())
+    monkeypatch.setattr(serial_port.serial, "Serial", lambda *a, **k: _ClosedAtTheOtherEnd())
+    src = SerialSource("/dev/fake", 115200)
+    assert src.read() == b"1,2,3\n"
+    with pytest.raises(DeviceGone, match="^the port closed: the device stopped sending") as e:
+        src.read()
+    assert "multiple access" not in str(e.value)

@@ -266,3 +266,29 @@ def no_data_reason(stats: dict, where: str, n_fields: int | None,
         f"({stats.get('malformed', 0)} malformed{expected}): wrong baud rate? "
         "(or check --columns)"
     )
+
+
+#: The line is said to fall behind when the samples took this much longer to arrive than the
+#: device time they span (and at least :data:`BEHIND_MIN_S` longer, over
+#: :data:`BEHIND_SPAN_S` of device time or more).
+BEHIND_RATIO = 1.1
+BEHIND_MIN_S = 2.0
+BEHIND_SPAN_S = 10.0
+
+
+def fell_behind(device_s: float, host_s: float, rate_hz: float | None) -> str | None:
+    """Why the samples arrived slower than the device's clock ran, or None: ``device_s`` of
+    device time (s) arrived over ``host_s`` of host time (first to last arrival, s).  A line
+    that cannot carry the stream (too low a baud rate for the rate and the line's length)
+    queues the samples in the device or the adapter, which in the end drops or slows them;
+    the samples' device times stay right, so the capture is kept."""
+    if not (device_s >= BEHIND_SPAN_S and host_s > BEHIND_RATIO * device_s
+            and host_s - device_s >= BEHIND_MIN_S):  # fmt: skip
+        return None
+    rate = "" if rate_hz is None else f" {rate_hz:.4g} Hz"
+    return (f"the samples of {device_s:.1f} s of device time took {host_s:.1f} s to arrive "
+            f"({100 * device_s / host_s:.0f} % of the pace): the line fell "
+            f"{host_s - device_s:.1f} s behind the{rate} stream (a baud rate too low for its "
+            "lines, or a device that buffers); the device times are kept, but a real device "
+            "drops or slows samples it cannot send: raise --baud (at both ends) or lower "
+            "the rate")  # fmt: skip

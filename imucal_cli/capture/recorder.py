@@ -48,6 +48,7 @@ from imucal_cli.capture.checks import (
     CaptureEnded,
     DiskRoom,
     clock_problem,
+    fell_behind,
     no_data_reason,
 )
 from imucal_cli.capture.stream import DeviceGone
@@ -233,6 +234,15 @@ class Recorder(SessionWrites):
         """Mean sample rate in device time, Hz (0 before two samples)."""
         n, span = self.n_samples - self.resumed_from, self.device_span_s
         return (n - 1) / span if span > 0 and n > 1 else 0.0
+
+    @property
+    def behind(self) -> str | None:
+        """Why the samples arrived slower than the device's clock ran, or None
+        (:func:`~imucal_cli.capture.checks.fell_behind`)."""
+        if self._t_first is None or self._t_last_sample is None:
+            return None
+        return fell_behind(self.device_span_s, self._t_last_sample - self._t_first,
+                           self.rate_hz or None)  # fmt: skip
 
     @property
     def stats(self) -> dict:

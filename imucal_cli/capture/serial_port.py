@@ -137,7 +137,7 @@ class SerialSource:
                 got += ser.read(waiting)
             return self._drain(got, entered)
         except (OSError, TypeError, AttributeError) as exc:  # SerialException is an OSError
-            self._gone = DeviceGone(" ".join(str(exc).split()) or type(exc).__name__)
+            self._gone = DeviceGone(_gone_reason(exc))
             got, self._backlog = b"".join(self._backlog) + got, []
             if got:
                 return got
@@ -233,3 +233,17 @@ def available_ports() -> list[str]:
         return sorted(p.device for p in list_ports.comports())
     except Exception:  # noqa: BLE001 - listing is a courtesy in an error message
         return []
+
+
+#: pyserial's words for a port whose other end closed or was unplugged (a read that found
+#: the port ready but no bytes), and what they mean for a capture.
+_CLOSED_WORDS = "returned no data"
+_CLOSED_SAID = "the port closed: the device stopped sending, was unplugged or was reset"
+
+
+def _gone_reason(exc: BaseException) -> str:
+    """One line for why the port went (pyserial's 'device reports readiness to read but
+    returned no data (device disconnected or multiple access on port?)' is a port closed
+    at its other end: a device that ended its stream, or a cable pulled)."""
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return _CLOSED_SAID if _CLOSED_WORDS in text else text

@@ -232,6 +232,8 @@ def capture(
             recorder.close()
         _saved_stays_saved(recorder)
     _nothing_saved(recorder, out, err)
+    if recorder.behind is not None:
+        warnings.warn(recorder.behind, ImucalWarning, stacklevel=1)
     _warn_absent_channels(out, {"--accel-units": ("accel", accel_units),
                                 "--gyro-units": ("gyro", gyro_units),
                                 "--mag-units": ("mag", mag_units),
