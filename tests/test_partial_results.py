@@ -323,4 +323,4 @@ def test_cli_warns_about_options_for_an_absent_sensor(tmp_path, six):
             "ignored") in proc.stderr  # fmt: skip
     sim = run("simulate", "--plan", "six", "--field-uT", "30", "-o", tmp_path / "x.h5")
     assert sim.returncode == 0
-    assert "imucal: warning: --field-uT go with --mag" in sim.stderr
+    assert "imucal: warning: --field-uT goes with --mag" in sim.stderr

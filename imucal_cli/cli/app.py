@@ -29,7 +29,7 @@ EXIT_CODES = (
     (
         1,
         "calibrate: the solver failed or the result is outside physical sense (not saved "
-        "unless --force)",
+        "unless --force), or saved but not stored in the session or the registry",
     ),
     (2, "bad input or usage: nothing was written"),
     (

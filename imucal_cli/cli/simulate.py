@@ -471,8 +471,9 @@ def _warn_without_mag(mag: bool, given) -> None:
     24.7)."""
     unused = [flag for name, flag in MAG_OPTIONS.items() if given(name)]
     if unused and not mag:
-        warnings.warn(f"{', '.join(unused)} go with --mag (a simulated magnetometer): ignored "
-                      "without it", ImucalWarning, stacklevel=2)  # fmt: skip
+        verb = "goes" if len(unused) == 1 else "go"
+        warnings.warn(f"{', '.join(unused)} {verb} with --mag (a simulated magnetometer): "
+                      "ignored without it", ImucalWarning, stacklevel=2)  # fmt: skip
 
 
 def _outputs(output: Path | None, plan: str, seed: int, force: bool) -> tuple[Path, Path]:
