@@ -31,8 +31,9 @@ class SessionWrites:
             if fits < len(block):  # no room for all of them: the first are kept
                 self.samples_lost += len(block) - fits
                 nearly_full.reason = nearly_full.reason.replace(
-                    "every sample received is written",
-                    f"{self.samples_lost} received samples could not be written (no room)")
+                    "stopped in time, every sample received is written",
+                    f"stopped, {self.samples_lost} received samples could not be written "
+                    "(no room for them)")  # fmt: skip
                 block = block.take(np.arange(len(block)) < fits)
                 if not fits:
                     return nearly_full
