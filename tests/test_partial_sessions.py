@@ -142,3 +142,18 @@ def test_cli_says_the_accel_was_left_out(tmp_path):
     report = run("report", tmp_path / "s.cal.json", "--json")
     assert report.returncode == 0, report.stderr
     assert json.loads(report.stdout)["left_out"] == {}
+
+
+def test_a_prior_no_single_parameter_rests_on_is_not_called_assumed(tmp_path):
+    """qureshi-axes:2: 7 directions for 9 parameters, each parameter narrowed by the data to
+    under half its prior std, yet 2 combinations rest on the prior.  The summary said
+    'assumed: none' and then 'accel in part assumed'; it now says what leans on the prior."""
+    session = tmp_path / "q2.h5"
+    sim = run("simulate", "--plan", "qureshi-axes:2", "--seed", 1, "-o", session)
+    assert sim.returncode == 0, sim.stderr
+    proc = run("calibrate", session, "--no-store", "-o", tmp_path / "q2.cal.json")
+    assert proc.returncode == 0, proc.stderr
+    out = " ".join(proc.stdout.split())
+    assert "accel: partial" in out and "): none;" not in out
+    assert "on the prior: no parameter alone" in out and "accel in part on its prior" in out
+    assert "accel in part assumed" not in out

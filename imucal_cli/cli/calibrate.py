@@ -352,11 +352,14 @@ def _summary(line, cal, where: str) -> None:
         line(("sample clock", BOLD), f": {clock.note}")
     for text in set_lines(cal):  # several IMUs (issue 28)
         line(text)
-    assumed = [name for name, sec in cal.sections().items()
-               if sec is not None and sec.partial is not None]  # issue 27.3
-    if cal.left_out or assumed:  # issue 24.2: saved, but not every sensor of the session is in it
+    partial = {name: sec.partial for name, sec in cal.sections().items()
+               if sec is not None and sec.partial is not None}  # issue 27.3
+    assumed = [name for name, part in partial.items() if part.assumed]
+    leaning = [name for name, part in partial.items() if not part.assumed]
+    if cal.left_out or partial:  # issue 24.2: saved, but not every sensor of the session is in it
         said = [f"{', '.join(cal.left_out)} left out"] if cal.left_out else []
         said += [f"{', '.join(assumed)} in part assumed"] if assumed else []
+        said += [f"{', '.join(leaning)} in part on its prior"] if leaning else []
         where += f" (partial: {'; '.join(said)}, see above)"
     line(f"wrote {where}")
 
@@ -429,8 +432,12 @@ def _partial_lines(line, sec) -> None:
                          if n in rows else n for n in names) or "none"  # fmt: skip
 
     line("  ", ("measured", BOLD), f" by this session: {said(part.measured or [])}")
-    line("  ", ("assumed", WARN), f" (not measured: the prior's value and std): "
-         f"{said(part.assumed or [])}; prior: {part.prior}")  # fmt: skip
+    if part.assumed:
+        line("  ", ("assumed", WARN), f" (not measured: the prior's value and std): "
+             f"{said(part.assumed)}; prior: {part.prior}")  # fmt: skip
+    else:  # each narrowed by the data, but not every combination of them
+        line("  ", ("on the prior", WARN), ": no parameter alone, but the combinations "
+             f"these poses cannot fix (their std include the prior's); prior: {part.prior}")
     if part.capture:
         line(f"  to measure the rest: {part.capture}")
 

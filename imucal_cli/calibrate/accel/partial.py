@@ -239,6 +239,11 @@ def _capture_words(picks: list[str], assumed: list[str]) -> str:
 
 
 def _summary(measured: list[str], assumed: list[str], source: str, capture: str) -> str:
+    if not assumed:  # each parameter narrowed, yet some combinations rest on the prior
+        return (f"these poses determine only part of the model: every parameter is measured "
+                f"(its std under {map_fit.MEASURED_RATIO:g} of the prior's), but too few "
+                f"directions fix every combination of them: the rest lean on the prior "
+                f"({source}), within its std, which theirs include")  # fmt: skip
     text = (f"these poses determine only part of the model: measured "
             f"{', '.join(measured) or 'none'}"
             f"; assumed (held at the prior, with its std) {', '.join(assumed) or 'none'}; prior: "
