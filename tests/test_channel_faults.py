@@ -85,3 +85,20 @@ def test_a_working_channel_is_never_a_fault():
     assert channel_faults(quiet, counts=True, limits=(-32768, 32767)) == []
     touching = np.clip(rng.normal(30000, 3000, (5000, 3)), -32768, 32767)
     assert channel_faults(touching, counts=True, limits=(-32768, 32767)) == []
+
+
+def test_an_axis_nan_in_every_sample_is_named(tmp_path):
+    """A session whose accelerometer y is NaN throughout (a sketch printing nan for an axis
+    it cannot read, imported or captured before 24.6's line check): the one-line error named
+    only 'NaN or inf at sample 0'; it names the dead axis."""
+    import h5py
+
+    session, _ = simulate_plan("six", seed=2)
+    path = tmp_path / "dead.h5"
+    write_session(path, session)
+    with h5py.File(path, "r+") as f:
+        a = f["raw/accel"][...]
+        a[:, 1] = np.nan
+        f["raw/accel"][...] = a
+    proc = run("calibrate", path, "--no-store")
+    assert_one_line_error(proc, "axis y is NaN or inf in every sample")

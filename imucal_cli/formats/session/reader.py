@@ -407,12 +407,27 @@ def _parse_segment(
         raise fail(f"{kind} segment but the file has no {dataset}")
     bad = first_nonfinite_row(data, start, stop)
     if bad is not None:
-        raise fail(f"{dataset} has NaN or inf at sample {bad}, inside the segment")
+        raise fail(f"{dataset} has NaN or inf at sample {bad}, inside the segment"
+                   + _dead_columns(data, start, stop))  # fmt: skip
     return Segment(name, kind, start, stop, label, up, axis, angle_deg)
 
 
 CHECK_ROWS = 1 << 16
 """Rows read at a time where a check of a long range of an HDF5 dataset must not read it all."""
+
+
+def _dead_columns(data, start: int, stop: int) -> str:
+    """Words for the columns NaN or inf in every sample of ``[start, stop)`` (a dead or unread
+    axis: the sketch printed nan for it), or ''."""
+    rows = np.asarray(data[start:stop])
+    if rows.ndim != 2:
+        return ""
+    dead = np.flatnonzero(~np.isfinite(rows).any(axis=0))
+    if not dead.size:
+        return ""
+    names = ", ".join("xyz"[c] if rows.shape[1] == 3 else f"channel {c + 1}" for c in dead)
+    return (f": axis {names} is NaN or inf in every sample of it (a dead or unread axis, or "
+            "a sketch printing nan for it)")
 
 
 def first_nonfinite_row(data, start: int, stop: int) -> int | None:
