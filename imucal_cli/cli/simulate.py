@@ -187,7 +187,8 @@ Protocol = alias(str, protocol_option(
     "(a/g:<TAB>ax...gz), counts without a time, as those Arduino sketches print them.",
     completion.serve_protocols,
 ))  # fmt: skip
-Loop = Annotated[bool, typer.Option("--loop", help="--serve: repeat the plan.")]
+Loop = Annotated[bool, typer.Option("--loop", help="--serve: repeat the plan while its reader "
+                                     "stays (the serve ends when the reader closes the port).")]
 Step = Annotated[bool, typer.Option(
     "--step",
     help="--serve: hold each pose until Enter is pressed in this terminal (without it the "
