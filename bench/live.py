@@ -594,9 +594,16 @@ def regrade(folder: Path, plans=PLANS, mode_seeds: dict | None = None, file_seed
         say(f"  {len(work)} kept captures calibrated again ({time.monotonic() - t0:.0f} s)")
         return work
 
-    seeds = sorted(set(file_seeds) | set().union(*each.values()))
-    files = _references_beside(plans, seeds, say, calibrations, each.get("guided", []))
-    work = files.pop(None)
+    live_seeds = sorted(set().union(*each.values()))
+    seeds = sorted(set(file_seeds) | set(live_seeds))
+    guided = each.get("guided", [])
+    if seeds == live_seeds:  # only the live seeds: no process of its own (as run_live)
+        work = calibrations()
+        files = {key: file_reference(*args)[0] for key, args in
+                 _reference_jobs(plans, seeds, guided).items()}  # fmt: skip
+    else:
+        files = _references_beside(plans, seeds, say, calibrations, guided)
+        work = files.pop(None)
     grade_jobs(work)
     return _rows(plans, MODES, work, files)
 

@@ -24,7 +24,7 @@ import pytest
 
 from imucal_cli.formats.session import read_session
 
-from .cli_helpers import IMUCAL, spawn
+from .cli_helpers import IMUCAL, run, spawn
 from .served import ThreadServer
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminals are POSIX")
@@ -338,8 +338,7 @@ def test_a_served_warm_up_is_captured_as_simulated(tmp_path):
     one: the same samples, the temperature through the warm-up (printed to 0.01 C)."""
     opts = ["--plan", "warmup:0.02", "--ramp", "8:40", "--seed", "2"]
     written = tmp_path / "w.h5"
-    proc = subprocess.run([*CLI, "simulate", *opts, "-o", str(written)], capture_output=True,
-                          text=True, timeout=120)  # fmt: skip
+    proc = run("simulate", *opts, "-o", written)  # the file in this process, the device not
     assert proc.returncode == 0, proc.stderr
     device = ProcessDevice(*opts)
     try:

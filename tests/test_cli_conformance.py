@@ -289,13 +289,16 @@ def test_calibrate_summary_off_a_terminal_is_plain_lines(calibrated, tmp_path):
     assert "\x1b[" not in proc.stdout
 
 
-def test_several_sessions_table_prints_bracketed_names_as_they_are(calibrated, tmp_path):
+def test_several_sessions_table_prints_bracketed_names_as_they_are(calibrated, tmp_path,
+                                                                   monkeypatch):  # fmt: skip
+    """In this process (the table is the same text; calibrate's summary into a pipe from a
+    process is the test above)."""
     import shutil
 
     for name in ("[red]a.h5", "b.h5"):
         shutil.copy(calibrated / "s.h5", tmp_path / name)
-    proc = subprocess.run([IMUCAL, "calibrate", "[red]a.h5", "b.h5", "--no-store"], cwd=tmp_path,
-                          capture_output=True, text=True, env=ENV, timeout=120)  # fmt: skip
+    monkeypatch.chdir(tmp_path)
+    proc = _help("calibrate", "[red]a.h5", "b.h5", "--no-store")
     assert proc.returncode == 0, proc.stderr
     assert "│ [red]a.h5 │" in proc.stdout  # the name, not a style tag
 

@@ -4,10 +4,7 @@ that cannot work refused with what to capture."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,10 +18,11 @@ from imucal_cli.formats.session import write_session
 from imucal_cli.simulate.redundant import simulate_hk_gyro, simulate_redundant_accel
 from imucal_cli.simulate.triad import simulate
 
+from .cli_helpers import run
+
 CREATED = "2026-01-01T00:00:00Z"
 ACCEL = config_from_dict({"accel": {"solver": "factorization"}})
 GYRO = config_from_dict({"accel": {"solver": "none"}, "gyro": {"solver": "factorization"}})
-IMUCAL = str(Path(sys.executable).with_name("imucal"))
 
 
 def invariants_and_std(sec):
@@ -117,9 +115,7 @@ def test_triad_without_an_opposite_pair_is_refused_through_the_cli(tmp_path):
     write_session(path, session)
     cfg = tmp_path / "f.toml"
     cfg.write_text('[accel]\nsolver = "factorization"\n')
-    proc = subprocess.run(
-        [IMUCAL, "calibrate", str(path), "-c", str(cfg)], capture_output=True, text=True
-    )
+    proc = run("calibrate", path, "-c", cfg)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1 and "opposite" in proc.stderr
 
@@ -130,9 +126,7 @@ def test_cli_writes_a_redundant_calibration(tmp_path):
     write_session(path, session)
     cfg = tmp_path / "f.toml"
     cfg.write_text('[accel]\nsolver = "factorization"\n[accel.factorization]\nuse = "samples"\n')
-    proc = subprocess.run(
-        [IMUCAL, "calibrate", str(path), "-c", str(cfg)], capture_output=True, text=True
-    )
+    proc = run("calibrate", path, "-c", cfg)
     assert proc.returncode == 0, proc.stderr
     cal = read_calibration(tmp_path / "r.cal.json")
     assert cal.accel.solver == "factorization" and np.shape(cal.accel.matrix) == (3, 4)

@@ -16,6 +16,7 @@ import pytest
 from imucal_cli.formats.session import read_session
 
 from .cli_helpers import spawn
+from .served import ThreadServer
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminals are POSIX")
 
@@ -42,6 +43,13 @@ def serve(*args: str) -> tuple[subprocess.Popen, str]:
 QUICK = ("--hold", "2.5", "--move", "1")
 """The virtual unit's timer where the defaults are not what a test is about: poses held 2.5 s
 (long enough for a 1 s hold to start once the unit has settled)."""
+
+
+def serve_in_thread(*args: str) -> ThreadServer:
+    """The same unit as :func:`serve`, served in a thread of this process (tests/served.py):
+    for the tests that examine the capture, not the device's process (its output and Enter at
+    its terminal are the two tests above that serve with :func:`serve`)."""
+    return ThreadServer("--plan", "six", "--rate", "100", *args)
 
 
 def capture(port: str, out: Path, *args: str) -> subprocess.Popen:
@@ -123,11 +131,11 @@ def test_serve_stepped_by_enter(tmp_path):
 
 
 def test_scripted_keys_skip_and_quit(tmp_path):
-    server, port = serve(*QUICK)
+    server = serve_in_thread(*QUICK)
     out = tmp_path / "keys.h5"
     lines: list[str] = []
     try:
-        proc = capture(port, out, "--hold", "1")
+        proc = capture(server.path, out, "--hold", "1")
         deadline = time.monotonic() + 60
         sent = []
         for line in proc.stdout:
@@ -145,7 +153,6 @@ def test_scripted_keys_skip_and_quit(tmp_path):
         proc.wait(timeout=30)
     finally:
         server.kill()
-        server.communicate()
     text = "".join(lines)
     assert proc.returncode == 3, text  # saved but incomplete
     assert "skip" in text.lower()
@@ -161,9 +168,9 @@ def test_interrupted_capture_is_resumed_into_the_same_file(tmp_path):
     import signal
 
     out = tmp_path / "resumed.h5"
-    server, port = serve(*QUICK)
+    server = serve_in_thread(*QUICK)
     try:
-        proc = capture(port, out, "--hold", "1")
+        proc = capture(server.path, out, "--hold", "1")
         seen = 0
         for line in proc.stdout:
             seen += line.startswith("recorded face")
@@ -173,22 +180,20 @@ def test_interrupted_capture_is_resumed_into_the_same_file(tmp_path):
         rest, _ = proc.communicate(timeout=30)
     finally:
         server.kill()
-        server.communicate()
     assert proc.returncode == 3, rest
     first = read_session(out)
     assert len(first.static_segments()) == 2
-    server, port = serve(*QUICK)
+    server = serve_in_thread(*QUICK)
     try:
         proc = spawn(
-            [*CLI, "capture", "--port", port, "--plan", "six", "--resume", str(out), "--hold",
-             "1"],
+            [*CLI, "capture", "--port", server.path, "--plan", "six", "--resume", str(out),
+             "--hold", "1"],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
             text=True, env=ENV,
         )  # fmt: skip
         text, _ = proc.communicate(timeout=120)
     finally:
         server.kill()
-        server.communicate()
     assert proc.returncode == 0, text
     assert "resumed: 2 of 6 steps already in the session" in text and "too close" in text
     assert f"continued after the {len(first.time)} samples already there" in text

@@ -19,7 +19,7 @@ import pytest
 
 from imucal_cli.formats.session import read_session
 
-from .cli_helpers import LineReader, spawn
+from .cli_helpers import LineReader, run, spawn
 from .served import ThreadServer
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminals are POSIX")
@@ -157,8 +157,9 @@ def test_unattended_complete_session(tmp_path, process_factory):
                                          "face +Y up", "face -Y up"]  # fmt: skip
     assert all(s.up is not None for s in static) and len(session.rotation_segments()) == 5
     assert session.source == f"serial:{server.path}@115200"
-    # The session is one the calibrator reads.
-    cal = subprocess.run([*CLI, "calibrate", str(out)], capture_output=True, text=True)
+    # The session is one the calibrator reads (in this process: its own process is
+    # test_calibrate's test_bad_inputs_are_exit_2 and test_cli_conformance's)
+    cal = run("calibrate", out)
     # six labelled faces calibrate by default with the labelled-pose solver (issue 9.1)
     assert cal.returncode == 0, cal.stderr
     assert "labelled" in cal.stdout
@@ -304,8 +305,8 @@ def test_no_such_port(tmp_path):
 
 
 def test_no_prompt_needs_a_duration_or_a_plan(tmp_path):
-    r = subprocess.run([*CLI, "capture", "--port", "/dev/null", "--no-prompt"],
-                       capture_output=True, text=True)  # fmt: skip
+    # in this process: the capture's own exit path with a one-line error is test_no_such_port
+    r = run("capture", "--port", "/dev/null", "--no-prompt")
     assert r.returncode == 2 and "--no-prompt needs --duration" in r.stderr
 
 
@@ -344,9 +345,9 @@ def test_sketch_lines_captured_end_to_end(tmp_path, server_factory, protocol, ca
     # steady clock, without the read jitter (which the gyro's turns integrate over)
     from imucal_cli.capture.host_clock import PAUSE_S
 
-    for run in np.split(session.time, np.flatnonzero(np.diff(session.time) > PAUSE_S) + 1):
-        i = np.arange(len(run))
-        assert np.abs(run - np.polyval(np.polyfit(i, run, 1), i)).max() < 1e-6
+    for stamps in np.split(session.time, np.flatnonzero(np.diff(session.time) > PAUSE_S) + 1):
+        i = np.arange(len(stamps))
+        assert np.abs(stamps - np.polyval(np.polyfit(i, stamps, 1), i)).max() < 1e-6
     if protocol == "motioncal":
         assert "recognised MotionCal Raw:" in stderr and session.mag_units == "counts"
         field_uT = np.linalg.norm(session.mag - HARD_IRON_COUNTS, axis=1) / 10.0

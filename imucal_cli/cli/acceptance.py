@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rich.markup import escape
 
@@ -21,11 +21,13 @@ from imucal_cli.formats.session import open_samples
 from imucal_cli.formats.session.digest import session_digest
 from imucal_cli.model.calibration import Calibration
 from imucal_cli.registry import REGISTRY_ENV
-from imucal_cli.registry.record import UnitInfo, check_serial, record_calibration
-from imucal_cli.registry.store import Registry, open_registry
 from imucal_cli.use.limits import Acceptance, ProductLimits, judge_calibration, load_limits
 
 from .console import make_console
+
+if TYPE_CHECKING:  # the registry's modules load SQLAlchemy and Alembic (0.5-0.7 s of CPU): only
+    # where --registry (or IMUCAL_REGISTRY) names one, never for a plain calibrate
+    from imucal_cli.registry.store import Registry
 
 __all__ = ["REJECTED", "Unit", "prepare", "worst"]
 
@@ -68,6 +70,8 @@ class Unit:
         code = REJECTED if acceptance is not None and not acceptance.passed else 0
         if self.registry is None:
             return code, doc, lines
+        from imucal_cli.registry.record import UnitInfo, record_calibration
+
         serial = self.serials[str(session)]
         try:
             digest = session_digest(session)
@@ -153,6 +157,8 @@ def prepare(
     product_limits = None if limits is None else load_limits(limits)
     serials: dict[str, str] = {}
     if registry is not None:
+        from imucal_cli.registry.record import check_serial
+
         for flag, value in names.items():
             if value is not None:
                 check_serial(value, flag.lstrip("-"))
@@ -160,6 +166,8 @@ def prepare(
             serials[str(session)] = check_serial(serial or _sensor_of(session), "serial")
     unit = Unit(None, product_limits, serials, product, lot, station, operator)
     if registry is not None:
+        from imucal_cli.registry.store import open_registry
+
         unit.registry = open_registry(registry, create=True)
     return unit
 

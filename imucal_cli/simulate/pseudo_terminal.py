@@ -27,6 +27,11 @@ FLUSH_WAIT_S = 2.0
 DRAIN_QUIET_S = 0.3
 """How long the reader's input queue must stay empty before everything sent counts as read, s."""
 
+READER_POLL_S = 0.02
+"""Interval at which the master's hang-up is looked at while no reader has the port open, s:
+poll() returns at once while POLLHUP is set (it cannot wait for it to clear), so the wait for
+a reader sleeps between looks rather than spinning a core."""
+
 
 @contextlib.contextmanager
 def stop_on_signals(stop: dict):
@@ -83,11 +88,12 @@ class Port:
     def wait_for_reader(self, stop: dict, wait_reader_s: float | None) -> str:
         """Wait until a reader opened the port and flushed its input; "" or why it gave up."""
         waited = _time.monotonic()
-        while any(ev & select.POLLHUP for _, ev in self.poller.poll(50)):
+        while any(ev & select.POLLHUP for _, ev in self.poller.poll(0)):
             if asked_to_stop(stop):
                 return asked_to_stop(stop)
             if wait_reader_s is not None and _time.monotonic() - waited > wait_reader_s:
                 return "no-reader"
+            _time.sleep(READER_POLL_S)  # POLLHUP set: poll() would not wait
         if not self.packets:
             _time.sleep(SETTLE_S)
             return ""
