@@ -74,11 +74,14 @@ class SerialSource:
             raise InputError(f"baud rate must be a positive integer, got {baud!r}")
         self.port, self.baud, self.batch_s = str(port), int(baud), float(batch_s)
         self.timeout_s = float(timeout_s)
+        # No byte can have been sent to this reader before its open began (a busy host can
+        # take tens of ms between the open and its return, while the device already sends)
+        opening = _time.monotonic()
         try:
             self._serial = serial.Serial(self.port, self.baud, timeout=timeout_s)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise _open_error(self.port, self.baud, exc) from None
-        self.opened_at = _time.monotonic()  #: when the port opened (host monotonic clock), s
+        self.opened_at = opening  #: when the port's open began (host monotonic clock), s
         self._gone: DeviceGone | None = None  # the device went after the last bytes returned
         self._backlog: list[bytes] = []  # a backlog read so far, returned once it is whole
         self._refill_since: float | None = None  # waiting for the next part of it since, s
