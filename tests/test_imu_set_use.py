@@ -152,3 +152,28 @@ def test_apply_each_imu_in_its_frame_or_the_reference(calibrated, tmp_path):
     assert one.read_text().splitlines()[0] == "t,ax,ay,az,gx,gy,gz"
     proc = run("apply", folder / "set.cal.json", folder / "set.h5", "-o", tmp_path / "x.csv")
     assert proc.returncode == 2 and "a CSV holds one IMU" in proc.stderr
+
+
+def test_a_reference_named_by_the_recorder_is_found_by_export_and_apply(tmp_path):
+    """The spec lets the recorder name the reference (``imus`` = ["IMU.0", ...], as imports of
+    PX4, ArduPilot and ROS logs do): the calibration keeps that name, so ``export --imu`` and
+    ``apply --imu`` take it, and ``reference`` too, and both give the same samples."""
+    from dataclasses import replace
+
+    session, _ = simulate_set(2, seed=4, units="m/s^2", created=CREATED)
+    session = replace(session, reference_name="IMU.0")
+    cal = calibrate_set(session, Config(), name="named.h5")
+    assert cal.reference_name == "IMU.0"
+    write_session(tmp_path / "named.h5", session)
+    write_calibration(tmp_path / "named.cal.json", cal)
+    for name in ("IMU.0", "reference"):
+        proc = run("export", tmp_path / "named.cal.json", "--format", "json", "--imu", name)
+        assert proc.returncode == 0, (name, proc.stderr)
+        out = tmp_path / f"{name}.csv"
+        proc = run("apply", tmp_path / "named.cal.json", tmp_path / "named.h5", "-o", out,
+                   "--imu", name)  # fmt: skip
+        assert proc.returncode == 0, (name, proc.stderr)
+    a = np.genfromtxt(tmp_path / "IMU.0.csv", delimiter=",", names=True)
+    b = np.genfromtxt(tmp_path / "reference.csv", delimiter=",", names=True)
+    assert len(a) == len(session.time) and np.array_equal(a["az"], b["az"])
+
