@@ -177,3 +177,23 @@ def test_a_reference_named_by_the_recorder_is_found_by_export_and_apply(tmp_path
     b = np.genfromtxt(tmp_path / "reference.csv", delimiter=",", names=True)
     assert len(a) == len(session.time) and np.array_equal(a["az"], b["az"])
 
+
+def test_report_shows_every_imu_and_its_place(calibrated):
+    """``report`` of a set shows the other IMUs too: each one's rotation and time offset with
+    their std, and its own sections (the JSON's ``imus``), not the reference alone."""
+    import json
+
+    _, cal, folder = calibrated
+    proc = run("report", folder / "set.cal.json", "--json")
+    assert proc.returncode == 0, proc.stderr
+    imus = json.loads(proc.stdout)["imus"]
+    assert list(imus) == ["imu1", "imu2"]
+    for name, shown in imus.items():
+        entry = cal.imus[name]
+        assert shown["rotation_deg"] == pytest.approx(entry.rotation_deg)
+        assert shown["time_offset_s"] == pytest.approx(entry.time_offset_s)
+        assert set(shown["sensors"]) == {"accel", "gyro"}
+        bias = shown["sensors"]["accel"]["bias"]
+        assert bias == pytest.approx(list(entry.accel.bias))
+    text = run("report", folder / "set.cal.json").stdout
+    assert "imu1: rotated" in text and "imu2 gyro:" in text
