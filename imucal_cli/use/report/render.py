@@ -189,7 +189,7 @@ def _section_title(kind: str, section: dict[str, Any]) -> str:
 
 def _model_rows(section: dict[str, Any]) -> list[tuple[str, str]]:
     """Model equation, units in and out, gauge and gravity, one per line."""
-    units_in = section["units_in"] or "raw units (not stated)"
+    units_in = section["units_in"] or "units (not stated)"
     rows = [
         ("model", section["model"]),
         ("units", f"raw {units_in} -> calibrated {section['units_out']}"),
