@@ -67,6 +67,7 @@ def test_px4_parameters_per_imu(calibrated):
             assert p[f"CAL_ACC{k}_{axis}SCALE"] == one[f"CAL_ACC0_{axis}SCALE"]
             assert p[f"CAL_GYRO{k}_{axis}OFF"] == one[f"CAL_GYRO0_{axis}OFF"]
     assert "[imu1] in CAL_ACC1_*, CAL_GYRO1_*; measured" in text
+    assert "[imu2] CAL_ACC2_ID / CAL_GYRO2_ID (and TC_A2_ID / TC_G2_ID) not written" in text
     with pytest.raises(InputError, match="--device-id names one device"):
         export(cal, "px4", options=ExportOptions(device_id=3))
 
