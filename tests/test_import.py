@@ -169,6 +169,8 @@ def test_imu_tk_pair(tmp_path, sim):
     np.testing.assert_array_equal(imported.gyro, session.gyro[3:])
     assert imported.import_stats.unmatched == 3
     assert len(imported.static_segments()) == 18
+    with pytest.raises(InputError, match="--format imu_tk"):  # the pair, the format not given
+        import_files([acc, gyr], None, accel_units="counts", gyro_units="counts")
 
 
 # ------------------------------------------------------------------ errors

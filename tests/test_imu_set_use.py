@@ -67,6 +67,7 @@ def test_px4_parameters_per_imu(calibrated):
             assert p[f"CAL_ACC{k}_{axis}SCALE"] == one[f"CAL_ACC0_{axis}SCALE"]
             assert p[f"CAL_GYRO{k}_{axis}OFF"] == one[f"CAL_GYRO0_{axis}OFF"]
     assert "[imu1] in CAL_ACC1_*, CAL_GYRO1_*; measured" in text
+    assert "[imu2] CAL_ACC2_ID / CAL_GYRO2_ID (and TC_A2_ID / TC_G2_ID) not written" in text
     with pytest.raises(InputError, match="--device-id names one device"):
         export(cal, "px4", options=ExportOptions(device_id=3))
 
@@ -152,3 +153,48 @@ def test_apply_each_imu_in_its_frame_or_the_reference(calibrated, tmp_path):
     assert one.read_text().splitlines()[0] == "t,ax,ay,az,gx,gy,gz"
     proc = run("apply", folder / "set.cal.json", folder / "set.h5", "-o", tmp_path / "x.csv")
     assert proc.returncode == 2 and "a CSV holds one IMU" in proc.stderr
+
+
+def test_a_reference_named_by_the_recorder_is_found_by_export_and_apply(tmp_path):
+    """The spec lets the recorder name the reference (``imus`` = ["IMU.0", ...], as imports of
+    PX4, ArduPilot and ROS logs do): the calibration keeps that name, so ``export --imu`` and
+    ``apply --imu`` take it, and ``reference`` too, and both give the same samples."""
+    from dataclasses import replace
+
+    session, _ = simulate_set(2, seed=4, units="m/s^2", created=CREATED)
+    session = replace(session, reference_name="IMU.0")
+    cal = calibrate_set(session, Config(), name="named.h5")
+    assert cal.reference_name == "IMU.0"
+    write_session(tmp_path / "named.h5", session)
+    write_calibration(tmp_path / "named.cal.json", cal)
+    for name in ("IMU.0", "reference"):
+        proc = run("export", tmp_path / "named.cal.json", "--format", "json", "--imu", name)
+        assert proc.returncode == 0, (name, proc.stderr)
+        out = tmp_path / f"{name}.csv"
+        proc = run("apply", tmp_path / "named.cal.json", tmp_path / "named.h5", "-o", out,
+                   "--imu", name)  # fmt: skip
+        assert proc.returncode == 0, (name, proc.stderr)
+    a = np.genfromtxt(tmp_path / "IMU.0.csv", delimiter=",", names=True)
+    b = np.genfromtxt(tmp_path / "reference.csv", delimiter=",", names=True)
+    assert len(a) == len(session.time) and np.array_equal(a["az"], b["az"])
+
+
+def test_report_shows_every_imu_and_its_place(calibrated):
+    """``report`` of a set shows the other IMUs too: each one's rotation and time offset with
+    their std, and its own sections (the JSON's ``imus``), not the reference alone."""
+    import json
+
+    _, cal, folder = calibrated
+    proc = run("report", folder / "set.cal.json", "--json")
+    assert proc.returncode == 0, proc.stderr
+    imus = json.loads(proc.stdout)["imus"]
+    assert list(imus) == ["imu1", "imu2"]
+    for name, shown in imus.items():
+        entry = cal.imus[name]
+        assert shown["rotation_deg"] == pytest.approx(entry.rotation_deg)
+        assert shown["time_offset_s"] == pytest.approx(entry.time_offset_s)
+        assert set(shown["sensors"]) == {"accel", "gyro"}
+        bias = shown["sensors"]["accel"]["bias"]
+        assert bias == pytest.approx(list(entry.accel.bias))
+    text = run("report", folder / "set.cal.json").stdout
+    assert "imu1: rotated" in text and "imu2 gyro:" in text

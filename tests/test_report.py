@@ -321,7 +321,7 @@ def test_minimal_calibration_renders_and_says_what_is_unavailable():
     text = rendered(minimal_calibration())
     assert "1.006" in text and "0.983" in text  # the matrix
     assert "0.0138 m/s^2" in text  # residual_rms
-    assert "raw units (not stated)" in text
+    assert "raw units (not stated)" in text and "raw raw" not in text
     assert "Not in this calibration" in text
     assert "named parameters with standard deviations" in text
     assert "per-pose residuals" in text

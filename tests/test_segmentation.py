@@ -243,3 +243,24 @@ def test_a_gyro_quantised_below_its_noise_keeps_every_still_period():
     found = find_static(t, accel, gyro, min_still_s=1.0)
     assert len(found) == 5
     assert all(iv.stop - iv.start > 0.8 * n_still for iv in found)
+
+
+@pytest.mark.parametrize("sensor", ["accel", "gyro"])
+def test_one_damaged_huge_value_costs_its_own_hold_only(sensor):
+    """A value no sensor reads (1e308: a flipped exponent bit in a log without checksums)
+    in one hold: that hold is lost, every other one is found as without it, and no numpy
+    overflow warning leaks (its square once overflowed and made every later window NaN)."""
+    import warnings
+
+    stream = simulate_stream(seed=1, units="m/s^2")
+    window = int(round(0.5 * stream.options["rate_hz"]))
+    truth = truth_static(stream)
+    hit = truth[3]
+    damaged = getattr(stream, sensor).copy()
+    damaged[(hit.start + hit.stop) // 2, 0] = 1e308
+    data = {"accel": stream.accel, "gyro": stream.gyro, sensor: damaged}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        found = find_static(stream.time, data["accel"], data["gyro"])
+    assert_matches([f for f in found if f.stop <= hit.start or f.start >= hit.stop],
+                   [t for t in truth if t is not hit], window)  # fmt: skip

@@ -98,7 +98,9 @@ def calibrate_set(session: Session, cfg: Config, *, name: str | None = None) -> 
     if joint is not None:
         cals = _with_joint(subs, cals, joint, kept, cfg, name, note)
     offsets = {key: _offset(subs, cals, key, rotations, coarse[key]) for key in kept[1:]}
-    return _assemble(cals, kept, rotations, offsets, coarse, joint, left_out)
+    out = _assemble(cals, kept, rotations, offsets, coarse, joint, left_out)
+    out.reference_name = names[0]  # export/apply --imu NAME find it by the session's name
+    return out
 
 
 def _coarse(ref: Session, session: Session, key: str) -> float:

@@ -235,9 +235,10 @@ def find_steps(
     N = len(x)
     if N < 2 * n:
         return []
-    s1 = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(x - x[0], axis=0)])
-    means = (s1[n:] - s1[:-n]) / n  # means[j] = mean of x[j:j+n]
-    jump = np.max(np.abs(means[n:] - means[:-n]) / np.maximum(sigma, 1e-300), axis=1)
+    with np.errstate(over="ignore", invalid="ignore"):  # a damaged value: no step near it
+        s1 = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(x - x[0], axis=0)])
+        means = (s1[n:] - s1[:-n]) / n  # means[j] = mean of x[j:j+n]
+        jump = np.max(np.abs(means[n:] - means[:-n]) / np.maximum(sigma, 1e-300), axis=1)
     over = jump > limit  # jump[k] compares x[k:k+n] with x[k+n:k+2n]: a step at k + n
     if not over.any():
         return []

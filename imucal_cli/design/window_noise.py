@@ -25,6 +25,10 @@ recording with no still period the quietest windows are slow motion, whose first
 still show only the noise.  3 leaves room for low-pass filtered (coloured) sensor noise, whose
 first differences are smaller than its standard deviation (MPU-9150 gyro: about 0.45)."""
 
+READING_LIMIT = 1e100
+"""Beyond this magnitude (any unit) a sample is no reading but a damaged value: segmentation
+takes it as non-finite (its square would overflow and turn every later window's sums NaN)."""
+
 
 @dataclass(frozen=True)
 class NoiseEstimate:
@@ -61,7 +65,8 @@ def rate_hz(time: np.ndarray) -> float:
 
 
 def sensor_channels(accel, gyro, n_time: int) -> tuple[np.ndarray, int]:
-    """Stack the present sensors as (N, C) float64; return it and the number of accel columns."""
+    """Stack the present sensors as (N, C) float64 (a sample beyond ``READING_LIMIT`` NaN);
+    return it and the number of accel columns."""
     parts = []
     na = 0
     for name, x in (("accel", accel), ("gyro", gyro)):
@@ -77,7 +82,9 @@ def sensor_channels(accel, gyro, n_time: int) -> tuple[np.ndarray, int]:
         parts.append(x)
     if not parts:
         raise InputError("segmentation needs accel or gyro data")
-    return np.hstack(parts), na
+    x = np.hstack(parts)
+    x[~(np.abs(x) <= READING_LIMIT)] = np.nan  # no reading: as a lost one, not a square of inf
+    return x, na
 
 
 def window_variance(x: np.ndarray, n: int) -> np.ndarray:

@@ -32,6 +32,7 @@ from imucal_cli.formats.calibration import calibration_to_json
 from imucal_cli.formats.output import check_output, safe_output
 from imucal_cli.formats.session import imu_session, read_session, set_names, utc_now_iso
 from imucal_cli.model.calibration import MODEL_EQUATION, Calibration
+from imucal_cli.model.imu_stream import REFERENCE_NAME
 
 from .export_set import SetMember, set_members
 
@@ -107,6 +108,8 @@ def apply_set(cal: Calibration, input_path: str | os.PathLike, output_path: str 
     check_output(output_path, force=overwrite, inputs=[input_path])
     session = read_session(input_path)
     members = set_members(cal, cal_source)
+    if imu == REFERENCE_NAME and imu not in set_names(session):
+        imu = session.reference_name  # ``reference`` names the reference, as for export
     names = [imu] if imu is not None else set_names(session)
     if fmt == "csv" and len(names) > 1:
         raise InputError("a CSV holds one IMU: pass --imu NAME, or write .h5")

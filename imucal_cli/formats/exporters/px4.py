@@ -97,7 +97,7 @@ def export_px4(cal: Calibration, opts: ExportOptions) -> str:
             params.append((f"CAL_MAG0_{axis}ODIAG", float(P[i, j]), _FLOAT))
     comments += clock_lines(cal)
     if opts.device_id is None and (cal.accel is not None or cal.gyro is not None):
-        comments.append("CAL_ACC0_ID / CAL_GYRO0_ID (and TC_*0_ID) not written (no "
+        comments.append("CAL_ACC0_ID / CAL_GYRO0_ID (and TC_A0_ID / TC_G0_ID) not written (no "
                         "--device-id): PX4 uses these values only for the device whose id they "
                         "hold")  # fmt: skip
     lines = ["# " + c for c in comments]

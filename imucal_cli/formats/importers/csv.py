@@ -51,7 +51,9 @@ def read(paths: Sequence[Path], options: ReadOptions, stats: ImportStats) -> Rec
         axes and no spec, no time column and no rate, time that does not increase.
     """
     if len(paths) != 1:
-        raise InputError(f"--format csv takes one file, got {len(paths)}")
+        raise InputError(f"--format csv takes one file, got {len(paths)}" + (
+            " (imu_tk's accelerometer and gyroscope files: --format imu_tk)"
+            if len(paths) == 2 else ""))  # fmt: skip
     path = paths[0]
     spec, dataset, options = _spec(path, options)
     data, lines, header = read_table(

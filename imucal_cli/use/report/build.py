@@ -29,6 +29,7 @@ from .fields import (
     read_sensitivity,
     scaled,
 )
+from .imus import imus_report
 from .mag import add_mag_content
 
 STANDARD_GRAVITY = 9.80665
@@ -119,6 +120,7 @@ def build_report(cal: Calibration) -> dict[str, Any]:
             if cal.note(kind) and sections.get(kind) is None
         },
         "complete": cal.complete,  # None: not recorded (older, or another tool's)
+        "imus": imus_report(cal, _section_report),  # a set's other IMUs ({} for one IMU)
     }
 
 

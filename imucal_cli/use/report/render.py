@@ -19,6 +19,7 @@ from rich.text import Text
 
 from .coverage_map import coverage_map
 from .fmt import MISSING, axis_name, fixed, fmt, fmt_like, fmt_std
+from .imus import place_text
 from .out import show_bullets, show_fields, show_table, show_text
 
 # rms key -> (row name, key of its improvement factor)
@@ -49,6 +50,14 @@ def render_report(report: dict[str, Any], console: Console) -> None:
         _render_section(kind, section, report, console)
     if not report["sensors"]:
         show_text(console, Text("The calibration holds no sensor section.", style="yellow"))
+    for name, imu in (report.get("imus") or {}).items():  # a set's other IMUs
+        console.print(Rule(Text(place_text(name, imu)), style="bold"))
+        notes = [*(imu.get("left_out") or {}).values(), *(imu.get("warnings") or [])]
+        if notes:
+            show_bullets(console, notes, f"{name}: warnings", "bold yellow")
+        for kind, section in imu["sensors"].items():
+            console.print(Rule(Text(f"{name} {_section_title(kind, section)}"), style="bold"))
+            _render_section(kind, section, report, console)
 
 
 def _render_section(kind: str, section: dict[str, Any], report: dict[str, Any], console) -> None:
@@ -180,7 +189,7 @@ def _section_title(kind: str, section: dict[str, Any]) -> str:
 
 def _model_rows(section: dict[str, Any]) -> list[tuple[str, str]]:
     """Model equation, units in and out, gauge and gravity, one per line."""
-    units_in = section["units_in"] or "raw units (not stated)"
+    units_in = section["units_in"] or "units (not stated)"
     rows = [
         ("model", section["model"]),
         ("units", f"raw {units_in} -> calibrated {section['units_out']}"),
