@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+from scipy.special import stdtrit
 
 from imucal_cli.estimators.mag.residuals import (
     Problem,
@@ -18,7 +19,10 @@ from imucal_cli.estimators.mag.residuals import (
     magnitude_shift,
     magnitude_sigma,
     noise_weights,
+    pose_cov,
     pose_pair_cov,
+    shared_dip,
+    shared_rows,
     whiten,
 )
 from imucal_cli.estimators.mag.start import polar, rotation_start
@@ -32,6 +36,7 @@ __all__ = [
     "alignment_figures",
     "can_align",
     "fit_aligned",
+    "t_intervals",
 ]
 
 #: Fewest static poses with an up direction that can fix the rotation and the dip (4 unknowns).
@@ -97,9 +102,12 @@ def fit_aligned(data: MagData, pts_n, covs_n, rho, b1, W1, max_iterations, notes
         else np.asarray(data.pose_cov, float)[labelled] / rho**2
     )  # fmt: skip
     up_cov = None if data.up_cov is None else np.asarray(data.up_cov, float)[labelled]
+    up_shared = (None if covs_n is None or data.up_shared is None
+                 else np.asarray(data.up_shared, float)[labelled])  # fmt: skip
     fit = _joint_fit(
         pts_n[rest], None if covs_n is None else covs_n[rest], pts_n[n:][labelled],
-        pose_covs_n, np.asarray(data.up, float)[labelled], up_cov, b1, W1, max_iterations,
+        pose_covs_n, np.asarray(data.up, float)[labelled], (up_cov, up_shared), b1, W1,
+        max_iterations,
     )  # fmt: skip
     if isinstance(fit, str):
         notes.append(fit)
@@ -107,16 +115,22 @@ def fit_aligned(data: MagData, pts_n, covs_n, rho, b1, W1, max_iterations, notes
     return fit
 
 
-def _joint_fit(pts_n, covs_n, poses_n, pose_covs_n, up, up_cov, b1, W1, max_iter):
-    """Joint fit of eqs. (2) and (3): ``(problem, solution)``, or why it could not align."""
+def _joint_fit(pts_n, covs_n, poses_n, pose_covs_n, up, up_errors, b1, W1, max_iter):
+    """Joint fit of eqs. (2) and (3): ``(problem, solution)``, or why it could not align.
+    ``up_errors``: ``(up_cov, up_shared)`` of the up directions (:class:`.MagData`)."""
+    up_cov, up_shared = up_errors
 
     def problem(b, W):
         w = np.ones(len(pts_n)) if covs_n is None else noise_weights(
             magnitude_sigma(pts_n, covs_n, b, W))
         C = pose_pair_cov(poses_n, pose_covs_n, up, up_cov, b, W)
+        shared = shared_dip(poses_n, up, up_shared, b, W)
+        white = whiten(pose_cov(C, shared))
+        rows = shared_rows(shared, len(C))
         shifts = (magnitude_shift(pts_n, covs_n, b, W),
                   magnitude_shift(poses_n, pose_covs_n, b, W))  # fmt: skip
-        return Problem(pts_n, w, poses_n, up, whiten(C), *shifts, covs=covs_n), C
+        return Problem(pts_n, w, poses_n, up, white, *shifts, covs=covs_n,
+                       shared=None if rows is None else white @ rows), C  # fmt: skip
 
     h = (poses_n - b1) @ W1.T
     n_dir = h / np.linalg.norm(h, axis=1, keepdims=True)
@@ -196,3 +210,18 @@ def _rotation_std_deg(W: np.ndarray, cov_W: np.ndarray) -> float:
                    - Rotation.from_matrix(Rm @ R0.T).as_rotvec()) / (2 * eps)  # fmt: skip
     cov_phi = J @ cov_W @ J.T
     return float(np.degrees(np.sqrt(max(np.trace(cov_phi), 0.0) / 3)))
+
+
+def t_intervals(cov: np.ndarray, cov_shared: np.ndarray | None, shared_dof: float,
+                noise_dof: float) -> np.ndarray:  # fmt: skip
+    """Half-widths of the 95 % intervals of the parameters: Student t on the degrees of
+    freedom of each one's variance (Satterthwaite), its part from the up directions' shared
+    error resting on ``shared_dof`` (an accelerometer placement estimated from six faces: 6),
+    the rest on ``noise_dof``; 1.96 std where both are many."""
+    v = np.clip(np.diag(cov), 0, None)
+    v_a = np.zeros_like(v) if cov_shared is None else np.clip(np.diag(cov_shared), 0, v)
+    v_n = v - v_a
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dof = v**2 / (v_a**2 / shared_dof + v_n**2 / max(noise_dof, 1))
+    dof = np.where(np.isfinite(dof), np.maximum(dof, 1.0), 1e6)
+    return stdtrit(np.minimum(dof, 1e6), 0.975) * np.sqrt(v)
