@@ -108,3 +108,14 @@ def test_six_face_intervals_cover_the_truth_over_seeds():
     assert abs(np.mean(inside) - 0.95) < 3 * sd, np.mean(inside)
     rms_z = np.sqrt(np.mean(np.square(z), axis=0))  # the hard iron's std itself is honest
     assert np.all((rms_z > 0.7) & (rms_z < 1.35)), rms_z
+
+
+def test_a_rotation_the_six_poses_cannot_pin_down_is_a_warning(seed73):
+    """Seed 163: two rotations 40 deg apart fit the six poses equally (chi2 2909 and 2911,
+    inclination 80.7 and 59.2 deg); the stated std describe only one of them, so the section
+    says so (a warning: not saved without --force). Seed 73 has no such rival."""
+    session, _ = simulate_mag("six", 163, created="2026-01-01T00:00:00Z")
+    mag = calibrate_session(session, CONFIG).mag
+    said = [w for w in mag.warnings if "ambiguous" in w]
+    assert len(said) == 1 and "qureshi18" in said[0] and "inclination" in said[0], mag.warnings
+    assert not any("ambiguous" in w for w in seed73[3].mag.warnings)

@@ -220,6 +220,7 @@ def calibrate_mag(
     warnings = _field_checks(session, readings, res, sigmas, mcfg)
     warnings += _gain_check(res, units, units_in, field)
     warnings += _stated_field_check(session, mcfg, field, units, field_source)
+    warnings += [res.ambiguity] if getattr(res, "ambiguity", None) else []
     members = _section_members(session, readings, res, units_in, field, units, field_source)
     members.update({
         "quality": _quality_figures(quality, held, res, mcfg),

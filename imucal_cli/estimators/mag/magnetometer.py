@@ -227,6 +227,9 @@ class MagResult:
         its variance, Satterthwaite: the noise's and ``up_shared_dof``); None: not aligned.
     inclination_ci95_deg : float or None
         The same for the inclination, degrees.
+    ambiguity : str or None
+        Words for another rotation onto the accelerometer frame that fits as well (the poses
+        cannot tell them apart: the stated std hold only near this one); None: none found.
     """
 
     bias: np.ndarray
@@ -255,6 +258,7 @@ class MagResult:
     cov_shared: np.ndarray | None = None
     ci95: np.ndarray | None = None
     inclination_ci95_deg: float | None = None
+    ambiguity: str | None = None
 
     @property
     def std(self) -> np.ndarray:
@@ -368,7 +372,7 @@ def fit_magnetometer(
     fit = fit_aligned(data, pts_n, covs_n, rho, b1, W1, max_iterations, notes) if align else None
     aligned = fit is not None
     if aligned:
-        prob, sol = fit
+        prob, sol, ambiguity = fit
     if not aligned and covs_n is not None:  # second pass, weights at the solution
         w_mag = noise_weights(magnitude_sigma(pts_n, covs_n, b1, W1))
         prob = Problem(pts_n, w_mag, shift=magnitude_shift(pts_n, covs_n, b1, W1),
@@ -386,10 +390,12 @@ def fit_magnetometer(
             "plane or cone of directions, e.g. turned flat on a table); turn the unit through "
             "every direction: a slow figure-eight, then each face up"
         )
-    return _result(  # back to raw units
+    result = _result(  # back to raw units
         prob, x, r, J, field, weighting=weighting, init=kind, sol=sol, data=data, notes=notes,
         scale=(c, rho),
     )  # fmt: skip
+    result.ambiguity = ambiguity if aligned else None
+    return result
 
 
 def _bias_step(prob: Problem, x: np.ndarray, J: np.ndarray) -> np.ndarray:
