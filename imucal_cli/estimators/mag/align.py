@@ -139,7 +139,9 @@ def _joint_fit(pts_n, covs_n, poses_n, pose_covs_n, up, up_errors, b1, W1, max_i
     fits = [_run(problem, prob, b1, W1, starts[0][1:], max_iter, covs_n is not None)]
     if isinstance(fits[0], str):
         return fits[0]
-    for start in _rivals(starts):
+    # rivals only where eq. (3) is weighed with the accelerometer's error: taking the up
+    # directions as exact, a wrong rotation can fit its bent directions better
+    for start in _rivals(starts) if up_shared is not None else []:
         fit = _run(problem, prob, b1, W1, start[1:], max_iter, covs_n is not None)
         if not isinstance(fit, str):
             fits.append(fit)
