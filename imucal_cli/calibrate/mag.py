@@ -13,12 +13,14 @@ other row is a motion reading.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from imucal_cli.calibrate.accel.section import fit_fields, parameter_rows
 from imucal_cli.calibrate.common import num, rms, session_name
+from imucal_cli.calibrate.mag_poses import accel_factor, changed_rows, pose_data
 from imucal_cli.calibrate.registry import Determined, Needs, Refusal, register
 from imucal_cli.design.clipping import clipped_rows
 from imucal_cli.design.poses import describe_direction
@@ -75,6 +77,8 @@ class MagReadings:
         first value, as in a ROS import before its first message), ``clipped``, ``repeated``.
     clip_limits : (low, high) or None
         The range used for clipping, raw units.
+    notes : list of str
+        What the fit should say of its input (an accelerometer without a covariance).
     """
 
     data: mag_solver.MagData
@@ -83,15 +87,7 @@ class MagReadings:
     pose_samples: np.ndarray
     dropped: dict
     clip_limits: tuple[float, float] | None
-
-
-def _changed(rows: np.ndarray, mag: np.ndarray) -> np.ndarray:
-    """Of the session rows ``rows`` (in order), those that differ from the previous one."""
-    if len(rows) == 0:
-        return rows
-    block = mag[rows]
-    keep = np.r_[True, np.any(block[1:] != block[:-1], axis=1)]
-    return rows[keep]
+    notes: list[str] = dataclasses.field(default_factory=list)
 
 
 def mag_readings(
@@ -128,81 +124,20 @@ def mag_readings(
     for seg in session.static_segments():
         in_static[seg.start : seg.stop] = True
     all_motion = np.flatnonzero(usable & ~in_static)
-    motion = _changed(all_motion, mag)
+    motion = changed_rows(all_motion, mag)
     held = len(all_motion) > 0 and 1.0 - len(motion) / len(all_motion) > HOLD_REPEATS
     if not held:
         motion = all_motion
-    data, segments, counts = _pose_data(session, mag, motion, usable, held, accel)
+    notes: list[str] = []
+    factor = accel_factor(accel, notes) if cfg.align else None
+    data, segments, counts = pose_data(session, mag, (motion, usable), held, accel, factor)
     dropped = {
         "nonfinite": int((~finite).sum()),
         "before_first": int(np.argmax(finite)),
         "clipped": int(clipped.sum()),
         "repeated": int(len(all_motion) - len(motion)),
     }
-    return MagReadings(data, motion, segments, counts, dropped, limits)
-
-
-
-def _pose_data(session: Session, mag: np.ndarray, motion: np.ndarray, usable: np.ndarray,
-               held: bool, accel: SensorCalibration | None):
-    """What the solver sees: the ``motion`` rows, and each static segment's mean over its
-    ``usable`` rows (``held``: repeats of a held reading left out), with the noise pooled over
-    the segments and the accelerometer's up direction.
-
-    Returns
-    -------
-    data : MagData
-        ``sample_cov`` (raw units^2) pooled where the segments give at least 10 degrees of
-        freedom, else None (and no ``pose_cov``); ``up`` only with ``accel``.
-    segments : list of Segment
-        The static segments with at least 3 usable rows, in order.
-    counts : ndarray of int, shape (K,)
-        Rows averaged in each.
-    """
-    segments, means, covs, counts, ups, up_covs = [], [], [], [], [], []
-    pooled, pooled_dof = np.zeros((3, 3)), 0
-    for seg in session.static_segments():
-        rows = np.flatnonzero(usable[seg.start : seg.stop]) + seg.start
-        rows = _changed(rows, mag) if held else rows
-        if len(rows) < 3:
-            continue
-        block = mag[rows]
-        cov = np.cov(block, rowvar=False)
-        pooled += cov * (len(rows) - 1)
-        pooled_dof += len(rows) - 1
-        segments.append(seg)
-        means.append(block.mean(axis=0))
-        covs.append(cov / len(rows))
-        counts.append(len(rows))
-        up, up_cov = _up_direction(session, seg, accel)
-        ups.append(up)
-        up_covs.append(up_cov)
-    sample_cov = pooled / pooled_dof if pooled_dof >= 10 else None
-    K = len(segments)
-    data = mag_solver.MagData(
-        samples=mag[motion],
-        pose_mean=np.array(means).reshape(K, 3),
-        sample_cov=sample_cov,
-        pose_cov=np.array(covs).reshape(K, 3, 3) if sample_cov is not None else None,
-        up=np.array(ups).reshape(K, 3) if accel is not None else None,
-        up_cov=np.array(up_covs).reshape(K, 3, 3) if accel is not None else None,
-    )
-    return data, segments, np.array(counts, int)
-
-
-def _up_direction(session: Session, seg, accel: SensorCalibration | None):
-    """Calibrated up direction of a static segment and its covariance (rad^2), or NaN."""
-    if accel is None or session.accel is None:
-        return np.full(3, np.nan), np.full((3, 3), np.nan)
-    block = session.accel[seg.start : seg.stop]
-    block = block[np.isfinite(block).all(axis=1)]
-    if len(block) < 2:
-        return np.full(3, np.nan), np.full((3, 3), np.nan)
-    h = accel.matrix @ (block.mean(axis=0) - accel.bias)
-    norm = np.linalg.norm(h)
-    u = h / norm
-    J = (np.eye(3) - np.outer(u, u)) @ accel.matrix / norm
-    return u, J @ (np.cov(block, rowvar=False) / len(block)) @ J.T
+    return MagReadings(data, motion, segments, counts, dropped, limits, notes)
 
 
 def _saturation_message(mag, clipped, limits, n_finite, cfg, where) -> str:
@@ -275,6 +210,8 @@ def calibrate_mag(
         res.notes.append("not aligned to the accelerometer: no accelerometer calibrated in this "
                          "run (the static poses' gravity directions fix the rotation)")  # fmt: skip
     res.notes += _missing_note(readings.dropped, len(session.mag))
+    if res.aligned:
+        res.notes += readings.notes
     calibrated = res.calibrate(data.points)
     quality = sphere_quality(calibrated)
     _check_coverage(quality, res, mcfg, where)
@@ -283,6 +220,7 @@ def calibrate_mag(
     warnings = _field_checks(session, readings, res, sigmas, mcfg)
     warnings += _gain_check(res, units, units_in, field)
     warnings += _stated_field_check(session, mcfg, field, units, field_source)
+    warnings += [res.ambiguity] if getattr(res, "ambiguity", None) else []
     members = _section_members(session, readings, res, units_in, field, units, field_source)
     members.update({
         "quality": _quality_figures(quality, held, res, mcfg),
@@ -493,7 +431,8 @@ def _section_members(session, readings: MagReadings, res, units_in, field, units
     n_w = len(res.params) - 3 - (1 if res.aligned else 0)  # the dip s is told as an angle
     param_units = [units_in] * 3 + [f"{units} per {units_in}"] * n_w
     parameters = parameter_rows(res.param_names[: 3 + n_w], res.params[: 3 + n_w],
-                                res.std[: 3 + n_w], param_units)  # fmt: skip
+                                res.std[: 3 + n_w], param_units,
+                                None if res.ci95 is None else res.ci95[: 3 + n_w])  # fmt: skip
     R, P = mag_solver.polar(res.matrix)
     axis_gains = np.linalg.eigvalsh(P)
     soft_pct = 100.0 * float(axis_gains[-1] / axis_gains[0] - 1.0)
@@ -513,6 +452,7 @@ def _section_members(session, readings: MagReadings, res, units_in, field, units
         ),
         "inclination_deg": res.inclination_deg,
         "inclination_std_deg": res.inclination_std_deg,
+        "inclination_ci95_deg": res.inclination_ci95_deg,
         "rotation": R.tolist(),
         "rotation_std_deg": res.rotation_std_deg,
         "axes": _axes_words(R) if res.aligned else None,

@@ -86,6 +86,9 @@ class MagCalibration(SensorCalibration):
     aligned : bool or None
         Rotated onto the accelerometer's frame.
     inclination_deg, inclination_std_deg : float or None
+    inclination_ci95_deg : float or None
+        Half-width of its 95 % interval (Student t: the accelerometer's part of its variance
+        rests on the accelerometer's placement where six faces estimated it).
     rotation : list of list of float or None
         Onto the accelerometer's frame (3 x 3); ``rotation_std_deg`` its std.
     rotation_std_deg : float or None
@@ -114,6 +117,7 @@ class MagCalibration(SensorCalibration):
     aligned: bool | None = None
     inclination_deg: float | None = None
     inclination_std_deg: float | None = None
+    inclination_ci95_deg: float | None = None
     rotation: list[list[float]] | None = None
     rotation_std_deg: float | None = None
     axes: list[str] | None = None

@@ -68,6 +68,7 @@ from imucal_cli.estimators.mag.align import (
     MIN_UP_SPREAD_DEG,
     alignment_figures,
     fit_aligned,
+    t_intervals,
 )
 from imucal_cli.estimators.mag.residuals import (
     SYM_INDEX,
@@ -119,7 +120,17 @@ class MagData:
         Up direction of each pose (unit; rows of NaN where unknown) in the accelerometer's
         calibrated frame: what fixes the rotation, eq. (3).
     up_cov : ndarray, shape (K, 3, 3), or None
-        Covariance of each ``up`` (unit-vector perturbation, rad^2); None: exact.
+        Covariance of each ``up`` from its own pose's noise (unit-vector perturbation,
+        rad^2); None: exact.
+    up_shared : ndarray, shape (K, 3, m), or None
+        The error every ``up`` shares (the accelerometer calibration's, which does not average
+        out over poses): ``up[k]`` is off by ``up_shared[k] @ z``, ``z`` standard normal (m),
+        to first order; None: none.  Eq. (3) is weighed with it (correlated over the poses),
+        so the fit's covariance holds it.
+    up_shared_dof : float
+        Degrees of freedom of ``up_shared``'s variance (an accelerometer whose placement was
+        estimated from few equations, e.g. six faces: its placement's); inf: known.  The
+        intervals (:attr:`MagResult.ci95`) are Student t on them.
     """
 
     samples: np.ndarray
@@ -128,6 +139,8 @@ class MagData:
     pose_cov: np.ndarray | None = None
     up: np.ndarray | None = None
     up_cov: np.ndarray | None = None
+    up_shared: np.ndarray | None = None
+    up_shared_dof: float = np.inf
 
     def __post_init__(self) -> None:
         self.samples = np.asarray(self.samples, float).reshape(-1, 3)
@@ -164,6 +177,7 @@ class MagData:
         return MagData(
             self.samples[samples], self.pose_mean[poses], self.sample_cov,
             pick(self.pose_cov, poses), pick(self.up, poses), pick(self.up_cov, poses),
+            pick(self.up_shared, poses), self.up_shared_dof,
         )  # fmt: skip
 
 
@@ -206,6 +220,16 @@ class MagResult:
         Of the final Levenberg-Marquardt run.
     notes : list of str
         What the fit decided (e.g. why it did not align).
+    cov_shared : ndarray or None
+        The part of ``cov`` from the error the up directions share (:attr:`MagData.up_shared`).
+    ci95 : ndarray or None
+        Half-width of each parameter's 95 % interval (Student t on the degrees of freedom of
+        its variance, Satterthwaite: the noise's and ``up_shared_dof``); None: not aligned.
+    inclination_ci95_deg : float or None
+        The same for the inclination, degrees.
+    ambiguity : str or None
+        Words for another rotation onto the accelerometer frame that fits as well (the poses
+        cannot tell them apart: the stated std hold only near this one); None: none found.
     """
 
     bias: np.ndarray
@@ -231,6 +255,10 @@ class MagResult:
     converged: bool
     message: str
     notes: list[str] = field(default_factory=list)
+    cov_shared: np.ndarray | None = None
+    ci95: np.ndarray | None = None
+    inclination_ci95_deg: float | None = None
+    ambiguity: str | None = None
 
     @property
     def std(self) -> np.ndarray:
@@ -344,7 +372,7 @@ def fit_magnetometer(
     fit = fit_aligned(data, pts_n, covs_n, rho, b1, W1, max_iterations, notes) if align else None
     aligned = fit is not None
     if aligned:
-        prob, sol = fit
+        prob, sol, ambiguity = fit
     if not aligned and covs_n is not None:  # second pass, weights at the solution
         w_mag = noise_weights(magnitude_sigma(pts_n, covs_n, b1, W1))
         prob = Problem(pts_n, w_mag, shift=magnitude_shift(pts_n, covs_n, b1, W1),
@@ -362,10 +390,12 @@ def fit_magnetometer(
             "plane or cone of directions, e.g. turned flat on a table); turn the unit through "
             "every direction: a slow figure-eight, then each face up"
         )
-    return _result(  # back to raw units
+    result = _result(  # back to raw units
         prob, x, r, J, field, weighting=weighting, init=kind, sol=sol, data=data, notes=notes,
         scale=(c, rho),
     )  # fmt: skip
+    result.ambiguity = ambiguity if aligned else None
+    return result
 
 
 def _bias_step(prob: Problem, x: np.ndarray, J: np.ndarray) -> np.ndarray:
@@ -412,7 +442,8 @@ def _result(prob, x, r, J, field, *, weighting, init, sol, data, notes, scale=No
     b_n, W_n, s = prob.unpack(x)
     bias = c + rho * b_n
     matrix = field * W_n / rho
-    cov, chi2, dof, noise_scale = _covariance(prob, x, r, J, field, rho, weighting)
+    cov, cov_shared, (chi2, dof, noise_scale) = _covariance(prob, x, r, J, field, rho,
+                                                            weighting)  # fmt: skip
     params = np.r_[bias, W_n.ravel() * field / rho if prob.aligned else sym_params(matrix)]
     if prob.aligned:
         params = np.r_[params, s]
@@ -450,7 +481,16 @@ def _result(prob, x, r, J, field, *, weighting, init, sol, data, notes, scale=No
         converged=True if sol is None else bool(sol.status > 0),
         message="algebraic fit" if sol is None else str(sol.message),
         notes=list(notes),
+        cov_shared=cov_shared,
+        **(_intervals(cov, cov_shared, data.up_shared_dof, dof, s) if prob.aligned else {}),
     )
+
+
+def _intervals(cov, cov_shared, shared_dof: float, noise_dof: float, s: float) -> dict:
+    """:attr:`MagResult.ci95` and ``inclination_ci95_deg`` of an aligned fit."""
+    ci95 = t_intervals(cov, cov_shared, shared_dof, noise_dof)
+    return {"ci95": ci95,
+            "inclination_ci95_deg": float(np.degrees(ci95[-1]) / max(np.sqrt(1 - s * s), 1e-9))}
 
 
 def _covariance(prob, x, r, J, field: float, rho: float, weighting: str):
@@ -461,6 +501,8 @@ def _covariance(prob, x, r, J, field: float, rho: float, weighting: str):
     -------
     cov : ndarray, shape (n, n)
         Of ``(b, W entries[, s])``: raw units, output units per raw unit, 1.
+    cov_shared : ndarray, shape (n, n), or None
+        Its part from the error the up directions share (``prob.shared``; None: none).
     chi2 : float
         Weighted residual sum of squares.
     dof : int
@@ -483,7 +525,11 @@ def _covariance(prob, x, r, J, field: float, rho: float, weighting: str):
         noise_scale = chi2 / dof if dof > 0 else float("nan")
     T = np.r_[np.full(3, rho), np.full(prob.n_w, field / rho), np.ones(n_par - 3 - prob.n_w)]
     cov = noise_scale * (T[:, None] * cov_n * T[None, :])
-    return cov, chi2, dof, noise_scale
+    cov_shared = None
+    if prob.shared is not None:  # x moves by -cov_n J^T (the whitened residuals' move)
+        G = cov_n @ J[len(J) - len(prob.shared) :].T @ prob.shared
+        cov_shared = noise_scale * (T[:, None] * (G @ G.T) * T[None, :])
+    return cov, cov_shared, (chi2, dof, noise_scale)
 
 
 def held_out_residuals(

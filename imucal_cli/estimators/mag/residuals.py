@@ -54,13 +54,16 @@ class Problem:
     Coordinates are normalised: raw ``m`` -> ``(m - c0) / rho`` and the field to 1, so that
     every parameter is of order one.  ``aligned`` selects the 9-entry ``W`` plus ``s``;
     otherwise ``W`` is symmetric (6 entries) and there are no poses.  Each pose gives the pair
-    (eq. 2, eq. 3), whitened by ``white`` (K, 2, 2): both residuals come from the same mean
-    reading, so their errors correlate.
+    (eq. 2, eq. 3); the pairs, stacked ``(eq. 2, eq. 3)`` pose after pose, are whitened by
+    ``white`` (2K, 2K): both residuals of a pose come from the same mean reading, and the
+    accelerometer calibration's error moves every pose's eq. (3) together (:func:`pose_cov`).
     """
 
     def __init__(self, points, w_mag, poses=None, up=None, white=None, shift=None,
-                 pose_shift=None, covs=None):  # fmt: skip
+                 pose_shift=None, covs=None, shared=None):  # fmt: skip
         self.points, self.w_mag, self.covs = points, w_mag, covs
+        # (2K, m): the poses' whitened residuals moved by the error the up directions share
+        self.shared = shared
         self.aligned = poses is not None
         self.poses, self.up, self.white = poses, up, white
         self.n_w = 9 if self.aligned else 6
@@ -116,8 +119,8 @@ class Problem:
             Jd[:, 12] = -1.0
             pair = np.stack([rm - self.pose_shift, c - s], axis=1)  # (K, 2)
             Jpair = np.stack([Jm, Jd], axis=1)  # (K, 2, p)
-            res.append(np.einsum("kij,kj->ki", self.white, pair).ravel())
-            jac.append((self.white @ Jpair).reshape(-1, n_par))
+            res.append(self.white @ pair.ravel())
+            jac.append(self.white @ Jpair.reshape(-1, n_par))
         return np.concatenate(res), np.concatenate(jac)
 
     def solve(self, x0, max_nfev):
@@ -182,8 +185,42 @@ def pose_pair_cov(poses, covs, up, up_cov, b, W):
     return C + 1e-6 * max(scale, 1e-300) * np.eye(2)
 
 
+def shared_dip(poses, up, up_shared, b, W) -> np.ndarray | None:
+    """(K, m): how each pose's eq.-(3) residual moves with the error all the up directions
+    share (``u_k`` moves by ``up_shared[k] @ z``, ``z`` standard normal; the accelerometer
+    calibration's), to first order ``(h^ - c u)^T du``; None without ``up_shared``."""
+    if up_shared is None:
+        return None
+    h = (poses - b) @ W.T
+    hu = h / np.linalg.norm(h, axis=1, keepdims=True)
+    q = hu - np.sum(up * hu, axis=1, keepdims=True) * up  # d(u . h^)/du along the sphere of u
+    return np.einsum("ki,kim->km", q, up_shared)
+
+
+def shared_rows(shared: np.ndarray | None, K: int) -> np.ndarray | None:
+    """(2K, m): :func:`shared_dip`'s rows on the eq.-(3) residuals of the stacked pairs."""
+    if shared is None:
+        return None
+    out = np.zeros((2 * K, shared.shape[1]))
+    out[1::2] = shared
+    return out
+
+
+def pose_cov(blocks: np.ndarray, shared: np.ndarray | None) -> np.ndarray:
+    """Covariance (2K, 2K) of the poses' residual pairs stacked ``(eq. 2, eq. 3)`` pose after
+    pose: each pose's own block (:func:`pose_pair_cov`) plus ``shared shared^T`` on the eq.-(3)
+    rows (``shared`` (K, m) from :func:`shared_dip`, or None)."""
+    K = len(blocks)
+    C = np.zeros((2 * K, 2 * K))
+    for k in range(K):
+        C[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] = blocks[k]
+    if shared is not None:
+        C[1::2, 1::2] += shared @ shared.T
+    return C
+
+
 def whiten(C: np.ndarray) -> np.ndarray:
-    """``L^-1`` with ``C = L L^T``, per pose."""
+    """``L^-1`` with ``C = L L^T`` (one matrix, or a stack of them)."""
     return np.linalg.inv(np.linalg.cholesky(C))
 
 

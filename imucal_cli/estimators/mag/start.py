@@ -12,7 +12,14 @@ from scipy.spatial.transform import Rotation
 from imucal_cli.errors import DesignError
 from imucal_cli.estimators.ellipsoid import fit_ellipsoid
 
-__all__ = ["cube_rotations", "ellipsoid_start", "polar", "refine_rotation", "rotation_start"]
+__all__ = [
+    "cube_rotations",
+    "ellipsoid_start",
+    "polar",
+    "refine_rotation",
+    "rotation_candidates",
+    "rotation_start",
+]
 
 
 def polar(W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -53,8 +60,9 @@ def cube_rotations() -> list[np.ndarray]:
     return out
 
 
-def rotation_start(n: np.ndarray, up: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, float]:
-    """Rotation ``R`` and ``s`` minimising ``sum w^2 (u . R n - s)^2`` (eq. 3), multi-start.
+def rotation_start(n: np.ndarray, up: np.ndarray, w: np.ndarray) -> list[tuple]:
+    """Rotations ``R`` and ``s`` minimising ``sum w^2 (u . R n - s)^2`` (eq. 3), multi-start:
+    the refined best few, ``(cost, R, s)``, lowest cost first (:func:`rotation_candidates`).
 
     ``n`` (K, 3) are the unit field directions in the magnetometer's frame, ``up`` (K, 3) the
     unit up directions in the accelerometer's frame.
@@ -69,20 +77,27 @@ def rotation_start(n: np.ndarray, up: np.ndarray, w: np.ndarray) -> tuple[np.nda
             if np.linalg.det(R_lin) > 0:
                 starts.append(R_lin)
 
+    return rotation_candidates(n, up, w, starts)
+
+
+def rotation_candidates(n: np.ndarray, up: np.ndarray, w: np.ndarray,
+                        starts: list[np.ndarray] | None = None) -> list[tuple]:  # fmt: skip
+    """The best few ``starts`` (default the 24 axis permutations) by ``sum w^2 (u . R n -
+    s)^2``, each refined by Gauss-Newton on ``R <- R Exp(delta)``: ``(cost, R, s)``, lowest
+    cost first."""
+
     def cost(R):
         c = np.einsum("ki,ij,kj->k", up, R, n)
         s_opt = float(np.average(c, weights=w * w))
         return float(np.sum((w * (c - s_opt)) ** 2)), s_opt
 
-    # the best few starts, refined by Gauss-Newton on R <- R Exp(delta)
-    ranked = sorted(starts, key=lambda R: cost(R)[0])[:4]
-    best = None
+    ranked = sorted(cube_rotations() if starts is None else starts,
+                    key=lambda R: cost(R)[0])[:4]  # fmt: skip
+    out = []
     for R in ranked:
         R, s_k = refine_rotation(R, cost(R)[1], n, up, w)
-        value = cost(R)[0]
-        if best is None or value < best[0]:
-            best = (value, R, s_k)
-    return best[1], float(np.clip(best[2], -1.0, 1.0))
+        out.append((cost(R)[0], R, float(np.clip(s_k, -1.0, 1.0))))
+    return sorted(out, key=lambda c: c[0])
 
 
 def refine_rotation(R, s, n, up, w, iterations: int = 30):
