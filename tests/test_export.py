@@ -393,6 +393,9 @@ def test_cli(sim, redundant, tmp_path):
                           "--prefix")  # fmt: skip
     assert_one_line_error(run("export", cal, "--format", "yaml", "--prefix", "X"), "c-header")
     assert_one_line_error(run("export", four, "--format", "yaml"), "4 raw channels")
+    for bad in ("-1", "0", "1/0", "nan"):  # a driver's scale: finite and positive
+        assert_one_line_error(run("export", cal, "-o", tmp_path / "bad.yaml", "--accel-scale",
+                                  bad), "--accel-scale")  # fmt: skip
     assert_one_line_error(run("export", cal, "--format", "xml"), "xml")
     assert_one_line_error(run("export", cal), "--format")
     assert_one_line_error(run("export", tmp_path / "none.json", "--format", "json"), "none.json")

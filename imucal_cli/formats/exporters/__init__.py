@@ -303,8 +303,9 @@ def parse_scale(text: str, option: str) -> float:
         raise InputError(
             f"{option} {text!r}: give a number or a ratio like 9.80665/16384"
         ) from None
-    if not math.isfinite(value) or value == 0:
-        raise InputError(f"{option} {text!r}: must be finite and non-zero")
+    if not math.isfinite(value) or value <= 0:  # a driver's units per raw unit; -1 would mirror
+        raise InputError(f"{option} {text!r}: must be a finite positive number (the driver's "
+                         "units per raw unit)")  # fmt: skip
     return value
 
 
