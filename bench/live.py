@@ -272,7 +272,9 @@ class Job:
     def stem(self) -> str:
         """The file name of its session, without ``.h5``."""
         plan = self.plan.plan.replace(":", "-") + ("-mag" if self.plan.mag else "")
-        return f"{plan}-s{self.seed}-{self.mode}"
+        # the device's own options (a protocol, a ramp) tell two rows of one plan apart
+        extra = re.sub(r"[^A-Za-z0-9.]+", "-", " ".join(self.plan.serve)).strip("-")
+        return f"{plan}{'-' + extra if extra else ''}-s{self.seed}-{self.mode}"
 
     def what_went_wrong(self) -> str:
         """The capture's or calibration's own last words when either did not succeed ("" when
@@ -514,16 +516,24 @@ def run_live(plans=PLANS, seeds=(0,), modes=MODES, *, jobs: int = 3, n_burners: 
         def captures():
             return run_jobs(plans, each, jobs=jobs, n_burners=n_burners, folder=where, say=say)
 
-        guided = each.get("guided", [])
-        if file_seeds == live_seeds:  # only the live seeds: no process of its own
-            work = captures()
-            files = {key: file_reference(*args)[0] for key, args in
-                     _reference_jobs(plans, file_seeds, guided).items()}  # fmt: skip
-        else:
-            files = _references_beside(plans, file_seeds, say, captures, guided)
-            work = files.pop(None)
-        grade_jobs(work)
+        work, files = _graded(plans, file_seeds, live_seeds, each.get("guided", []), say,
+                              captures)  # fmt: skip
     return _rows(plans, modes, work, files)
+
+
+def _graded(plans, file_seeds, live_seeds, guided, say, run) -> tuple[list[Job], dict]:
+    """``run()``'s jobs graded, and the file references of ``file_seeds``: computed here,
+    after the jobs, when they are only the live seeds; otherwise in a process of its own
+    beside them (:func:`_references_beside`)."""
+    if sorted(file_seeds) == sorted(live_seeds):  # only the live seeds: no process of its own
+        work = run()
+        files = {key: file_reference(*args)[0] for key, args in
+                 _reference_jobs(plans, file_seeds, guided).items()}  # fmt: skip
+    else:
+        files = _references_beside(plans, file_seeds, say, run, guided)
+        work = files.pop(None)
+    grade_jobs(work)
+    return work, files
 
 
 _CAPTURED = re.compile(r"^capture exit (\S+) in ([0-9.]+) s ?(.*)$")
@@ -596,15 +606,7 @@ def regrade(folder: Path, plans=PLANS, mode_seeds: dict | None = None, file_seed
 
     live_seeds = sorted(set().union(*each.values()))
     seeds = sorted(set(file_seeds) | set(live_seeds))
-    guided = each.get("guided", [])
-    if seeds == live_seeds:  # only the live seeds: no process of its own (as run_live)
-        work = calibrations()
-        files = {key: file_reference(*args)[0] for key, args in
-                 _reference_jobs(plans, seeds, guided).items()}  # fmt: skip
-    else:
-        files = _references_beside(plans, seeds, say, calibrations, guided)
-        work = files.pop(None)
-    grade_jobs(work)
+    work, files = _graded(plans, seeds, live_seeds, each.get("guided", []), say, calibrations)
     return _rows(plans, MODES, work, files)
 
 

@@ -267,3 +267,11 @@ def test_a_kept_capture_that_failed_says_so_when_graded_again(tmp_path):
     empty.mkdir()
     with pytest.raises(SystemExit, match="no kept captures"):
         live.kept_jobs(empty, [plan], {"guided": [0]})
+
+
+def test_every_row_of_the_bench_has_files_of_its_own():
+    """Two rows of one plan (qureshi18, and qureshi18 with i2cdevlib lines) wrote the same
+    session and calibration: the second capture refused the first's file and its row had
+    nothing to grade.  Each plan, mode and seed has its own file name."""
+    stems = [live.Job(p, 5, m, 1.0).stem for p in live.PLANS for m in live.MODES]
+    assert len(set(stems)) == len(stems), stems
