@@ -32,6 +32,7 @@ from imucal_cli.calibrate.gyro.full import (
     rotations_and_stills,
     solver_stills,
 )
+from imucal_cli.calibrate.gyro.known_gravity import gravity_disagreement
 from imucal_cli.calibrate.gyro.rotations import (
     _frame,
     _saturation_limit,
@@ -519,7 +520,12 @@ def _section(data: GyroData, res, known, used, g_test, uncertainty, assumed: boo
     S = np.linalg.inv(res.M)
     gains = np.linalg.norm(S, axis=1)
     data.warnings += gyro_checks(data.session, data.cfg, gains, units)
-    if undetermined:
+    disagree = gravity_disagreement(data.session, data.accel_cal, used, known.axis, res.M,
+                                    res.b)  # fmt: skip
+    if disagree:  # issue 24.5: named, and the reason auto leaves the gyro out
+        data.warnings.insert(0, disagree)
+        undetermined = disagree if not undetermined else f"{disagree}; also {undetermined}"
+    elif undetermined:
         data.warnings.append(undetermined)
     blocking = list(data.warnings)  # the rest are said, not refused (issue 10.3)
     spare = _spare_text(data, known, used, assumed, with_gravity)
