@@ -123,3 +123,15 @@ def test_flat_tops_of_an_unquantised_stream():
     low, high = flat_top_levels(w, moving, ~moving)
     assert low[1] == -2.0 and high[1] == 2.0
     assert np.isinf(low[[0, 2]]).all() and np.isinf(high[[0, 2]]).all()
+
+
+def test_a_clipped_known_turn_is_named_as_the_cause():
+    """Plan ferraris with the gyro clipped at +-2000 counts (its full turns reach it): the
+    known turns' short integrals make the face-to-face moves disagree with gravity, and the
+    clipping is named first as the cause, with what would add the gyro."""
+    session, _ = simulate_plan("ferraris", seed=1, created=CREATED)
+    cal = calibrate_session(_clipped(session, level=2000.0), Config())
+    assert cal.gyro is None and cal.accel is not None
+    note = cal.left_out["gyro"]
+    assert note.startswith("gyro not calibrated: a turn of known angle reaches the end of the "
+                           "gyro's range") and "more slowly" in note, note

@@ -352,6 +352,19 @@ def _without_clipped(session: Session, turns: list[Turn], data: GyroData) -> str
     return words
 
 
+def clipped_known(session: Session, data: GyroData, known_z: list[np.ndarray]) -> None:
+    """The known-angle solver's clipping: its turns between still periods that reach the
+    gyro's range left out and said (:func:`_without_clipped`); a known turn that does, a
+    warning that stops the save (its angle is the gyro's scale: no fit without it stands)."""
+    if data.turns:
+        _without_clipped(session, data.turns, data)
+    limit = _saturation_limit(session, data.cfg)
+    if limit is not None and any(np.any((z <= limit[0]) | (z >= limit[1])) for z in known_z):
+        data.warnings.append(f"a turn of known angle reaches the end of the gyro's range "
+                             f"({limit_words(limit, session.gyro_units)}): its integral is "
+                             "short; turn more slowly")  # fmt: skip
+
+
 def gyro_data(session: Session, cfg: Config, accel_cal: SensorCalibration) -> GyroData:
     """Turns with still data around them; clipped turns, and turns with a gap in their
     samples, left out (with a warning)."""
