@@ -125,11 +125,15 @@ class Outcome:
         Why the sensor was left out (``"gyro not calibrated: ..."``), or said beside it.
     refusal : ImucalError or None
         The error to raise when nothing at all calibrates (the most telling one).
+    undetermined : bool
+        The solver ran and its result was left out (its std, the known angles against
+        gravity): ``note`` says why, and no other reason replaces it.
     """
 
     section: SensorCalibration | None = None
     note: str | None = None
     refusal: ImucalError | None = None
+    undetermined: bool = False  # the solver ran; its result was left out (``note`` says why)
 
 
 def calibrate_gyro_auto(
@@ -159,7 +163,8 @@ def calibrate_gyro_auto(
                             "turns between still periods)")  # fmt: skip
     if sec.undetermined:  # issue 10.2: not saved silently
         return Outcome(note=f"gyro not calibrated: {sec.undetermined} (to save it with "
-                            f'these std: [gyro] solver = "{solver}" and --force)')  # fmt: skip
+                            f'these std: [gyro] solver = "{solver}" and --force)',
+                       undetermined=True)  # fmt: skip
     sec.notes = [f'solver "{solver}" chosen by [gyro] solver = "auto": {why}',
                  *(sec.notes or [])]  # fmt: skip
     sec.choice = chosen.choice
@@ -264,14 +269,18 @@ def _gyro_without_accel(session: Session, cfg: Config, accel: Outcome
     raises the accelerometer's refusal), and the accelerometer's note saying why it was left
     out and what would determine it (issue 9.6)."""
 
+    left = Outcome()
     try:
         if cfg.gyro.solver == "auto":
-            gyro = calibrate_gyro_auto(session, cfg, None).section
+            left = calibrate_gyro_auto(session, cfg, None)
+            gyro = left.section
         else:
             gyro = calibrate_gyro(session, cfg, None)
     except ImucalError:
         gyro = None
     reason = accel.note
+    if gyro is None and left.undetermined:  # its turns calibrated it, and it was left out
+        return Outcome(note=f"accel not calibrated: {reason}", refusal=accel.refusal), left
     if gyro is None:
         return Outcome(
             note=f"accel not calibrated: {reason}; with an earlier calibration of this unit's "
@@ -299,6 +308,9 @@ def _gyro_beside_partial(session: Session, cfg: Config, gyro_prior=None) -> Outc
     _, gyro = _gyro_without_accel(session, cfg, Outcome(note=why, refusal=DesignError(why)))
     if gyro.section is not None or not gyro.note:
         return gyro
+    if gyro.undetermined:  # the solver's own reason (known angles that gravity contradicts)
+        return partial_gyro(session, cfg, gyro_prior,
+                            gyro.note.removeprefix("gyro not calibrated: "))  # fmt: skip
     turns_for = None
     if cfg.gyro.solver != "none":
         try:  # a session of turns between still periods: what they are for (issue 24.7d)

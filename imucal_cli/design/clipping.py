@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["clipped_rows"]
+__all__ = ["clipped_rows", "flat_top_levels"]
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -67,3 +67,87 @@ def clipped_rows(
                 if np.any(change > need):
                     out[rows[start:stop]] = True
     return out
+
+
+def flat_top_levels(raw: np.ndarray, moving: np.ndarray, still: np.ndarray, *,
+                    min_run: int = 3, away: float = 50.0) -> tuple[np.ndarray, np.ndarray]:
+    """Per channel, the levels at which it is clipped below and above (flat tops while the
+    unit moves), whatever the converter's width.
+
+    A channel is clipped at a level where, while the unit moves (``moving`` rows), it sits
+    on its extreme over those rows for at least ``min_run`` consecutive readings, that
+    extreme being more than ``away`` times its still noise (or its quantum, the smallest step
+    it takes) from its still reading (``still`` rows): a turn's rate goes on changing at
+    that distance, so a reading that does not is held by the part's range. Each sign is
+    judged on its own (a turn one way clips the top only).
+
+    Parameters
+    ----------
+    raw : ndarray, shape (N, n)
+        Raw readings (NaN rows are ignored).
+    moving, still : ndarray of bool, shape (N,)
+        Rows the unit turns in, rows it is still in.
+    min_run : int
+        Consecutive readings at the extreme that make a flat top.
+    away : float
+        Least distance of a flat top from the still reading, in still noise (or quanta).
+
+    Returns
+    -------
+    low, high : ndarray, shape (n,)
+        The clipping levels, raw units; -inf / +inf where a channel shows none.
+    """
+    raw = np.asarray(raw, float)
+    n = raw.shape[1]
+    low, high = np.full(n, -np.inf), np.full(n, np.inf)
+    finite = np.isfinite(raw).all(axis=1)
+    moving, still = moving & finite, still & finite
+    if moving.sum() < min_run or not still.any():
+        return low, high
+    for ch in range(n):
+        x = raw[:, ch]
+        centre, noise, quantum = _still_scale(x[still], x[finite])
+        run = _chance_run(noise, quantum, min_run)
+        for extreme, out in ((x[moving].max(), high), (x[moving].min(), low)):
+            if abs(extreme - centre) <= away * max(noise, quantum, 1e-12):
+                continue
+            if any(b - a >= run for a, b in _runs(moving & (x == extreme))):
+                out[ch] = extreme
+    return low, high
+
+
+#: A flat top is a run of equal readings that noise repeats by chance with less than this
+#: probability (:func:`_chance_run`).
+CHANCE_RUN = 1e-4
+
+
+def _chance_run(noise: float, quantum: float, min_run: int) -> int:
+    """Fewest consecutive equal readings that are not the noise repeating a reading by chance
+    at a turn's peak (where the rate barely changes): two readings of Gaussian noise of
+    ``noise`` rounded to ``quantum`` are equal with probability about
+    ``quantum / (2 sqrt(pi) noise)``; the run must be that unlikely to within
+    :data:`CHANCE_RUN` (a quiet 16-bit gyro at its peak repeats a count 3 times in a few
+    turns in a hundred). Unquantised readings (``quantum`` 0) never repeat by chance."""
+    if quantum <= 0:
+        return min_run
+    p = quantum / (2 * np.sqrt(np.pi) * max(noise, 1e-300))
+    if p >= 0.9:
+        p = 0.9  # quieter than its quantum: only long runs are flat tops
+    return max(min_run, 1 + int(np.ceil(np.log(CHANCE_RUN) / np.log(p))))
+
+
+def _still_scale(still: np.ndarray, everything: np.ndarray) -> tuple[float, float, float]:
+    """A channel's still reading (median), its still noise (std from the MAD) and its
+    quantum (the smallest step between distinct readings, 0 for readings that are not on a
+    grid of that step)."""
+    centre = float(np.median(still))
+    noise = 1.4826 * float(np.median(np.abs(still - centre)))
+    sample = everything[:: max(1, len(everything) // 20000)]
+    values = np.unique(sample)
+    steps = np.diff(values)
+    quantum = float(steps.min()) if len(steps) else 0.0
+    if quantum > 0:
+        k = (values - values[0]) / quantum
+        if np.max(np.abs(k - np.round(k))) > 1e-3:
+            quantum = 0.0  # not on a grid of that step: not quantised
+    return centre, noise, quantum

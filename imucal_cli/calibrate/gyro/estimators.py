@@ -24,6 +24,7 @@ import numpy as np
 from imucal_cli.calibrate.factorization import calibrate_gyro_factorization, independent_constraints
 from imucal_cli.calibrate.gyro.known import calibrate_gyro_known
 from imucal_cli.calibrate.gyro.rotations import calibrate_gyro_rotations, gyro_alternatives
+from imucal_cli.calibrate.gyro.turns import ClippedTurns
 from imucal_cli.calibrate.registry import Determined, Needs, Refusal, register
 from imucal_cli.errors import ConfigError, DesignError
 from imucal_cli.formats.config import Config
@@ -84,6 +85,8 @@ def _with_alternatives(design: GyroDesign, solver: str, fit):
     9.6)."""
     try:
         return fit()
+    except ClippedTurns:
+        raise  # turning more slowly is what would calibrate it
     except DesignError as exc:
         alternatives = gyro_alternatives(design.session, solver)
         if not alternatives:

@@ -333,10 +333,11 @@ def design_warning(data: GyroData, uncertainty: RateStd, n_turns: int | None = N
                 f"({100 * acc:.2g} %{axes}); use a better one: --accel CAL.json from a "
                 "session with more poses (plan qureshi18 or random:N), or turn the unit 10 or "
                 "more times about different axes (plan free:N)")  # fmt: skip
+    more = "".join(f"; {w}" for w in data.left_out)
     if why is not None:
-        return f"{head}: {why}"
+        return f"{head}: {why}{more}"
     return (f"{head}: too few or too small turns for the 12 parameters; turn the unit 10 or "
-            "more times, about different axes, still before and after each (plan free:N)")
+            f"more times, about different axes, still before and after each (plan free:N){more}")
 
 
 def _g_note(test: dict) -> str:

@@ -32,10 +32,11 @@ from imucal_cli.calibrate.gyro.full import (
     rotations_and_stills,
     solver_stills,
 )
+from imucal_cli.calibrate.gyro.known_gravity import gravity_disagreement
 from imucal_cli.calibrate.gyro.rotations import (
     _frame,
-    _saturation_limit,
     calibrate_gyro_rotations,
+    clipped_known,
     gyro_checks,
     still_periods,
     turns_between,
@@ -256,10 +257,7 @@ def _known_data(session, cfg, accel_cal, where):
                     notes=[f"{len(known.t)} turn(s) of known angle, {len(turns)} between still "
                            "periods measured by gravity"] + ([settled] if settled else [])
                     + notes)  # fmt: skip
-    limit = _saturation_limit(session, cfg)
-    if limit is not None and any(np.any((z <= limit[0]) | (z >= limit[1])) for z in known.z):
-        data.warnings.append("a turn of known angle reaches the end of the gyro's range: its "
-                             "integral is wrong; turn more slowly")  # fmt: skip
+    clipped_known(session, data, known.z)  # the turns between still periods too
     return data, known, used, segs, statics, assumed
 
 
@@ -519,7 +517,14 @@ def _section(data: GyroData, res, known, used, g_test, uncertainty, assumed: boo
     S = np.linalg.inv(res.M)
     gains = np.linalg.norm(S, axis=1)
     data.warnings += gyro_checks(data.session, data.cfg, gains, units)
-    if undetermined:
+    disagree = gravity_disagreement(data.session, data.accel_cal, used, known.axis, res.M,
+                                    res.b)  # fmt: skip
+    if disagree:  # issue 24.5: named (a clipped known turn explains it), auto leaves it out
+        clip = [w for w in data.warnings if w.startswith("a turn of known angle reaches")]
+        disagree = f"{clip[0]}; so {disagree}" if clip else disagree
+        data.warnings[:] = [disagree] + [w for w in data.warnings if w not in clip]
+        undetermined = disagree if not undetermined else f"{disagree}; also {undetermined}"
+    elif undetermined:
         data.warnings.append(undetermined)
     blocking = list(data.warnings)  # the rest are said, not refused (issue 10.3)
     spare = _spare_text(data, known, used, assumed, with_gravity)

@@ -28,7 +28,15 @@ from imucal_cli.calibrate.common import adc_range, rms, session_name, with_segme
 from imucal_cli.calibrate.gyro.axes import fit_per_axis
 from imucal_cli.calibrate.gyro.full import accel_derivative, fit_full_model, rotations_and_stills
 from imucal_cli.calibrate.gyro.turn_windows import settle_turns
-from imucal_cli.calibrate.gyro.turns import AXES, MODEL_EQUATION_G, GyroData, Still, Turn
+from imucal_cli.calibrate.gyro.turns import (
+    AXES,
+    MODEL_EQUATION_G,
+    ClippedTurns,
+    GyroData,
+    Still,
+    Turn,
+)
+from imucal_cli.design.clipping import flat_top_levels
 from imucal_cli.design.gaps import find_gaps, gaps_within
 from imucal_cli.design.segmentation import find_rotations, find_static
 from imucal_cli.errors import DesignError
@@ -256,7 +264,7 @@ def _without_gaps(session: Session, turns: list[Turn], data) -> list[Turn]:
     return kept
 
 
-def _clipped(session: Session, turns: list[Turn], limit: tuple[float, float] | None
+def _clipped(session: Session, turns: list[Turn], limit: tuple[np.ndarray, np.ndarray] | None
              ) -> np.ndarray:  # fmt: skip
     """Whether each turn reaches ``limit`` (the gyro's clipping levels) in any channel."""
     if limit is None or not turns:
@@ -268,23 +276,93 @@ def _clipped(session: Session, turns: list[Turn], limit: tuple[float, float] | N
     return np.logical_or.reduceat(hit, np.cumsum(counts) - counts)
 
 
-def _saturation_limit(session: Session, cfg: Config) -> tuple[float, float] | None:
-    """Raw levels at which the gyro clips: the configured range less 0.5 % of the span at
-    both ends, else the ends of a counts gyro's ADC word themselves (the word is the smallest
-    that holds the data: a 16-bit gyro whose turns stay within +-2047 counts would otherwise
-    be taken for a 12-bit one clipping at its 0.5 % margin; a clipped reading sits on the
-    end, issue 24.6)."""
+def _saturation_limit(session: Session, cfg: Config
+                      ) -> tuple[np.ndarray, np.ndarray] | None:  # fmt: skip
+    """Raw levels at which each gyro channel clips, ``(low, high)`` of shape (3,) (-inf/+inf
+    where a channel shows none): the configured range less 0.5 % of the span at both ends;
+    else the ends of a counts gyro's ADC word (the word is the smallest that holds the data:
+    a 16-bit gyro whose turns stay within +-2047 counts would otherwise be taken for a 12-bit
+    one clipping at its 0.5 % margin; a clipped reading sits on the end, issue 24.6), or,
+    nearer, a level a channel sits on for consecutive samples while the unit turns (a part
+    whose range ends within its word, a float stream of a clipped part:
+    :func:`~imucal_cli.design.clipping.flat_top_levels`)."""
+    n = session.gyro.shape[1]
     if cfg.gyro.range is not None:
         lo, hi = cfg.gyro.range
         margin = 0.005 * (hi - lo)
-        return lo + margin, hi - margin
-    if session.gyro_units != "counts":
+        return np.full(n, lo + margin), np.full(n, hi - margin)
+    low, high = _flat_tops(session)
+    if session.gyro_units == "counts":
+        gyro = session.gyro
+        finite = gyro if np.isfinite(gyro).all() else gyro[np.isfinite(gyro).all(axis=1)]
+        rng = adc_range(float(finite.min()), float(finite.max()))
+        if rng is not None:
+            low, high = np.maximum(low, rng[0]), np.minimum(high, rng[1])
+    if np.all(np.isinf(low)) and np.all(np.isinf(high)):
         return None
+    return low, high
 
-    gyro = session.gyro
-    finite = gyro if np.isfinite(gyro).all() else gyro[np.isfinite(gyro).all(axis=1)]
-    rng = adc_range(float(finite.min()), float(finite.max()))
-    return rng
+
+def _flat_tops(session: Session) -> tuple[np.ndarray, np.ndarray]:
+    """The gyro's flat tops while the unit moves (outside the still periods)."""
+    still = np.zeros(len(session.time), bool)
+    for s in session.static_segments():
+        still[s.start : s.stop] = True
+    return flat_top_levels(session.gyro, ~still, still)
+
+
+def limit_words(limit: tuple[np.ndarray, np.ndarray], units: str | None) -> str:
+    """The clipping levels of :func:`_saturation_limit` in words: ``raw -32768 .. 32767``,
+    or per axis where they differ (``x -1500 .. 1500 counts``)."""
+    low, high = np.broadcast_arrays(*limit)
+    unit = f" {units}" if units else ""
+
+    def pair(lo, hi):
+        return f"{lo:.6g} .. {hi:.6g}".replace("-inf", "none").replace("inf", "none")
+
+    if np.all(low == low[0]) and np.all(high == high[0]):
+        return f"raw {pair(low[0], high[0])}{unit}"
+    return ", ".join(f"{AXES[i]} {pair(lo, hi)}"
+                     for i, (lo, hi) in enumerate(zip(low, high, strict=True))
+                     if np.isfinite(lo) or np.isfinite(hi)) + unit  # fmt: skip
+
+
+def _without_clipped(session: Session, turns: list[Turn], data: GyroData) -> str | None:
+    """Leave out the turns that reach the gyro's clipping levels (:func:`_saturation_limit`:
+    the rate beyond them is not measured, the turn's integral is short): said, not refused,
+    the fit of the others stands (issue 24.2); where the others cannot determine the gyro,
+    the design's warning says why (``data.left_out``). Returns the levels in words where a
+    turn reached them."""
+    limit = _saturation_limit(session, data.cfg)
+    is_clipped = _clipped(session, turns, limit)
+    if not is_clipped.any():
+        return None
+    words = limit_words(limit, session.gyro_units)
+    names = [t.segment.label or t.segment.name for t, c in zip(turns, is_clipped, strict=True)
+             if c]  # fmt: skip
+    said = ", ".join(names[:5]) + (" ..." if len(names) > 5 else "")
+    text = (f"{len(names)} rotation(s) reach the end of the gyro's range ({words}): the rate "
+            f"beyond it is not measured, so their integral is short: left out ({said}); turn "
+            "more slowly")  # fmt: skip
+    data.warnings.append(text)
+    data.said.append(text)
+    data.left_out.append(f"{len(names)} more turn(s) were left out as clipped at the gyro's "
+                         f"range ({words}): turn more slowly, still before and after each")
+    data.turns = [t for t, c in zip(turns, is_clipped.tolist(), strict=True) if not c]
+    return words
+
+
+def clipped_known(session: Session, data: GyroData, known_z: list[np.ndarray]) -> None:
+    """The known-angle solver's clipping: its turns between still periods that reach the
+    gyro's range left out and said (:func:`_without_clipped`); a known turn that does, a
+    warning that stops the save (its angle is the gyro's scale: no fit without it stands)."""
+    if data.turns:
+        _without_clipped(session, data.turns, data)
+    limit = _saturation_limit(session, data.cfg)
+    if limit is not None and any(np.any((z <= limit[0]) | (z >= limit[1])) for z in known_z):
+        data.warnings.append(f"a turn of known angle reaches the end of the gyro's range "
+                             f"({limit_words(limit, session.gyro_units)}): its integral is "
+                             "short; turn more slowly")  # fmt: skip
 
 
 def gyro_data(session: Session, cfg: Config, accel_cal: SensorCalibration) -> GyroData:
@@ -304,20 +382,13 @@ def gyro_data(session: Session, cfg: Config, accel_cal: SensorCalibration) -> Gy
         data.notes.append(f"{len(skipped)} rotation(s) without still data before and after: "
                           "skipped")  # fmt: skip
     turns = _without_gaps(session, turns, data)
-    limit = _saturation_limit(session, cfg)
-    is_clipped = _clipped(session, turns, limit)
-    clipped = [t for t, c in zip(turns, is_clipped.tolist(), strict=True) if c]
-    if clipped:
-        data.warnings.append(
-            f"{len(clipped)} rotation(s) reach the end of the gyro's range (raw "
-            f"{limit[0]:.6g} .. {limit[1]:.6g}): left out; turn more slowly"
-        )
-        data.turns = [t for t, c in zip(turns, is_clipped.tolist(), strict=True) if not c]
+    clipped = _without_clipped(session, turns, data)
     if not data.turns:
-        why = "clipped" if clipped else "interrupted by a gap in the samples"
-        raise DesignError(f"{where}: every rotation is {why}: "
-                          + ("turn the unit more slowly" if clipped else
-                             "record again without losing samples"))  # fmt: skip
+        raise (ClippedTurns if clipped else DesignError)(f"{where}: every rotation " + (
+            f"reaches the end of the gyro's range ({clipped}): the rate beyond it is not "
+            "measured, so no turn can be integrated; turn the unit more slowly, still before "
+            "and after each turn" if clipped else "is interrupted by a gap in the samples: "
+            "record again without losing samples"))  # fmt: skip
     n = sum(s.segment.stop - s.segment.start for s in stills)
     data.bias_still = np.sum([s.z_mean * (s.segment.stop - s.segment.start) for s in stills],
                              axis=0) / n  # fmt: skip

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from imucal_cli.errors import DesignError
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Segment, Session
 from imucal_cli.model.calibration import MODEL_EQUATION_G, SensorCalibration
@@ -40,6 +41,11 @@ class Still:
     a_raw: np.ndarray  # raw accel mean (what the accelerometer calibration turned into g)
 
 
+class ClippedTurns(DesignError):
+    """Every turn reaches the gyro's range: what would calibrate it is turning more slowly
+    (no other solver or label helps)."""
+
+
 @dataclass
 class GyroData:
     """What every rotation solver starts from: the usable turns, the still periods around
@@ -58,6 +64,7 @@ class GyroData:
     notes: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     said: list[str] = field(default_factory=list)  # warnings said, not refused (turns left out)
+    left_out: list[str] = field(default_factory=list)  # turns left out, and what would add them
 
 
 @dataclass
