@@ -135,3 +135,16 @@ def test_a_clipped_known_turn_is_named_as_the_cause():
     note = cal.left_out["gyro"]
     assert note.startswith("gyro not calibrated: a turn of known angle reaches the end of the "
                            "gyro's range") and "more slowly" in note, note
+
+
+def test_flat_tops_of_a_session_read_while_it_is_written():
+    """capture --until's refits read the session being written: it held 5 more times than
+    gyro samples (2685 against 2680) and the flat-top search failed to broadcast (a
+    ValueError out of calibrate); the search runs over the gyro's own rows."""
+    from imucal_cli.simulate.play import simulate_plan
+
+    session, _ = simulate_plan("qureshi18", seed=1)
+    cut = replace(session, gyro=session.gyro[:-5])
+    low, high = _flat_tops(cut)
+    assert low.shape == high.shape == (3,)
+    assert np.all(np.isinf(low)) and np.all(np.isinf(high))  # an unclipped session

@@ -409,3 +409,20 @@ def test_each_port_of_a_set_is_re_timed_on_its_own_clock(tmp_path, monkeypatch):
         assert t.size > 1500
         assert np.abs(t - np.polyval(np.polyfit(i, t, 1), i)).max() < 1e-6
         assert np.diff(t).mean() == pytest.approx(1 / RATE, rel=0.01)
+
+
+def test_a_first_read_the_line_puts_a_little_before_the_open_joins_the_line():
+    """A CI run at load: 200 Hz lines whose first read the steady line put 9.6 ms before the
+    port's open; the first read kept its stamps (3.75 ms apart, spread from the open) and the
+    run was no line (10 ms off).  Within ORIGIN_SLACK_S of the open it joins the line; far
+    before it (a misjudged line) it stays."""
+    from imucal_cli.capture.host_clock import ORIGIN_SLACK_S
+
+    rate = 200.0
+    t = -0.0096 + np.arange(3000) / rate
+    t[:4] = np.linspace(0.0004, 0.0004 + 3 * 0.00375, 4)  # spread from the open at 0
+    steady = steady_times(t, first_read=4, origin=0.0)
+    i = np.arange(t.size)
+    assert np.abs(steady - np.polyval(np.polyfit(i, steady, 1), i)).max() < 1e-9
+    far = steady_times(t - 2 * ORIGIN_SLACK_S, first_read=4, origin=-ORIGIN_SLACK_S + 0.0096)
+    np.testing.assert_array_equal(far[:4], (t - 2 * ORIGIN_SLACK_S)[:4])

@@ -180,13 +180,22 @@ MIN_STEADY = 50
 STEADY_MISS = 5.0
 
 
+#: How far before the port's open the line may place the first read, s: the host's own delay
+#: in stamping it (the open's start is taken before pyserial's open returns, but a sender
+#: that bursts its first lines, or a reader descheduled on a busy host, can still put the
+#: line's start a few sample intervals earlier: 9.6 ms at 200 Hz in a CI run at load).  A
+#: first read the line would start farther back is no part of the device's steady run.
+ORIGIN_SLACK_S = 0.05
+
+
 def steady_times(times: np.ndarray, first_read: int = 0,
                  origin: float | None = None) -> np.ndarray:  # fmt: skip
     """Host stamps (shape (n,), s) with each run between pauses (steps over :data:`PAUSE_S`)
     put on its least-squares line against the sample count: a device's steady clock, without
     the host's read jitter.  The first ``first_read`` samples (spread from the port's open)
     take no part in the fit; the line extends over them unless that would start before
-    ``origin``.  A run the line misses anywhere by more than :data:`STEADY_MISS` intervals
+    ``origin`` (by more than :data:`ORIGIN_SLACK_S`).  A run the line misses anywhere by
+    more than :data:`STEADY_MISS` intervals
     (the device's rate changed, samples lost), or shorter than :data:`MIN_STEADY`, keeps its
     stamps; so does every run when the
     result would not increase strictly."""
@@ -201,7 +210,7 @@ def steady_times(times: np.ndarray, first_read: int = 0,
         line = offset + slope * np.arange(lo - fit_lo, hi - fit_lo)
         if not slope > 0 or np.abs(line[fit_lo - lo:] - t[fit_lo:hi]).max() > STEADY_MISS * slope:
             continue
-        if origin is not None and line[0] < origin:  # the first read stays as it was
+        if origin is not None and line[0] < origin - ORIGIN_SLACK_S:  # the first read stays
             line[: fit_lo - lo] = t[lo:fit_lo]
         out[lo:hi] = line
     return out if (np.diff(out) > 0).all() and np.isfinite(out).all() else t

@@ -304,8 +304,10 @@ def _saturation_limit(session: Session, cfg: Config
 
 
 def _flat_tops(session: Session) -> tuple[np.ndarray, np.ndarray]:
-    """The gyro's flat tops while the unit moves (outside the still periods)."""
-    still = np.zeros(len(session.time), bool)
+    """The gyro's flat tops while the unit moves (outside the still periods).  Over the gyro's
+    own rows: a session read while it is written (``capture --until``'s refits) can hold a
+    few more times than gyro samples."""
+    still = np.zeros(len(session.gyro), bool)
     for s in session.static_segments():
         still[s.start : s.stop] = True
     return flat_top_levels(session.gyro, ~still, still)
