@@ -385,22 +385,49 @@ def run_jobs(plans, seeds: dict, *, jobs: int, n_burners: int, folder: Path,
 def _served_equal(live, file) -> float | None:
     """Fraction of the captured samples equal to the simulated pass's at the same device time
     (the device on its timer streams that pass: a different part or a shifted stream shows
-    here)."""
+    here); for lines without a device time (the host stamps them from the port's open), the
+    pass's samples in order from where the first captured one stands in it."""
     if live.accel is None or len(live.time) == 0:
         return None
     rate = float(file.sample_rate_hz or 100.0)
-    idx = np.rint((live.time - file.time[0]) * rate).astype(int)
+    by_time = _equal_at(live, file, np.rint((live.time - file.time[0]) * rate).astype(int))
+    if by_time is None or by_time >= 0.5:
+        return by_time
+    first = _place_in(file, live, 0, int(10 * rate))
+    if first is None:
+        return by_time
+    return max(by_time, _equal_at(live, file, first + np.arange(len(live.time))) or 0.0)
+
+
+def _rows_of(session, idx: np.ndarray) -> list:
+    """The session's sensor rows at ``idx`` (accel, then gyro and mag where recorded)."""
+    return [getattr(session, n)[idx] for n in ("accel", "gyro", "mag")
+            if getattr(session, n) is not None]  # fmt: skip
+
+
+def _equal_at(live, file, idx: np.ndarray) -> float | None:
+    """Fraction of ``live``'s samples equal to ``file``'s rows ``idx`` (one per sample); None
+    when the two record different sensors."""
+    if any((getattr(live, n) is None) != (getattr(file, n) is None) for n in ("gyro", "mag")):
+        return 0.0
     ok = (idx >= 0) & (idx < len(file.time))
     if not ok.any():
         return 0.0
-    same = np.all(live.accel[ok] == file.accel[idx[ok]], axis=1)
-    for name in ("gyro", "mag"):
-        a, b = getattr(live, name), getattr(file, name)
-        if (a is None) != (b is None):
-            return 0.0
-        if a is not None:
-            same &= np.all(a[ok] == b[idx[ok]], axis=1)
+    same = np.ones(int(ok.sum()), bool)
+    for a, b in zip(_rows_of(live, np.flatnonzero(ok)), _rows_of(file, idx[ok]), strict=True):
+        same &= np.all(a == b, axis=1)
     return float(same.sum() / len(live.time))
+
+
+def _place_in(file, live, k: int, within: int) -> int | None:
+    """Where ``live``'s sample ``k`` stands among ``file``'s first ``within`` rows (all its
+    sensors equal), or None."""
+    head = np.arange(min(within, len(file.time)))
+    match = np.ones(head.size, bool)
+    for a, b in zip(_rows_of(live, np.array([k])), _rows_of(file, head), strict=True):
+        match &= np.all(b == a, axis=1)
+    found = np.flatnonzero(match)
+    return int(found[0]) - k if found.size else None
 
 
 def file_reference(plan: LivePlan, seeds: list[int],
