@@ -182,9 +182,7 @@ class PortsProtocol(_Protocols):
         out = {}
         for k, name in enumerate(self.names[1:], start=1):
             if self._first_time[k] is not None:
-                shift = (self._first_host[k] - self._first_host[0]) \
-                    - (self._first_time[k] - self._first_time[0])  # fmt: skip
-                out[name] = (self._protocols[k].host_clock, shift, self._first_kept[k])
+                out[name] = (self._protocols[k].host_clock, self._shift(k), self._first_kept[k])
         return out
 
     def _on_reference_clock(self, k: int, block: SampleBlock, host_time: float) -> SampleBlock:
@@ -194,10 +192,14 @@ class PortsProtocol(_Protocols):
             self._first_time[k], self._first_host[k] = float(block.time[0]), host_time
         if k == 0 or self._first_time[0] is None:
             return block
-        shift = (self._first_host[k] - self._first_host[0]) \
-            - (self._first_time[k] - self._first_time[0])  # fmt: skip
-        block.time = block.time + shift
+        block.time = block.time + self._shift(k)
         return block
+
+    def _shift(self, k: int) -> float:
+        """What port ``k``'s times are given to be on the reference's clock, s: the arrival
+        of its first sample after the reference's, less their time stamps' difference."""
+        return (self._first_host[k] - self._first_host[0]) \
+            - (self._first_time[k] - self._first_time[0])  # fmt: skip
 
     def feed(self, data: bytes, host_time: float) -> SetBlock:
         """The reference's block; the other IMUs' blocks held until a read that has one (the
