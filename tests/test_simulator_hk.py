@@ -424,3 +424,13 @@ def test_the_redundant_unit_calibrates_through_the_virtual_port(tmp_path, proces
     true = np.linalg.norm(np.linalg.pinv(np.array(truth.accel.matrix)), axis=1)
     np.testing.assert_allclose(gains, true, rtol=2e-3)  # the paper's worst at 10 readings: 1.3e-3
     np.testing.assert_allclose(cal["bias"], truth.accel.bias, atol=0.5)  # counts
+
+
+@pytest.mark.parametrize("hold", ["-1", "0", "nan"])
+def test_the_redundant_units_hold_is_checked(tmp_path, hold):
+    """``--hold`` now shapes hk-redundant's holds (served or written): a hold that is no
+    time was taken as one reading per orientation."""
+    from .cli_helpers import assert_one_line_error, run
+
+    assert_one_line_error(run("simulate", "--plan", "hk-redundant", "--hold", hold, "-o",
+                              tmp_path / "r.h5"), "hold")  # fmt: skip

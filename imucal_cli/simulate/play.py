@@ -22,6 +22,7 @@ from imucal_cli.model.calibration import Calibration
 from imucal_cli.plans import find_plan, load_plan
 from imucal_cli.simulate.faults import g_sensitive
 from imucal_cli.simulate.hk_gyro import simulate_hk_gyro
+from imucal_cli.simulate.motion import check_positive
 from imucal_cli.simulate.redundant import simulate_redundant_accel
 from imucal_cli.simulate.rotations import simulate_gyro_rotations
 from imucal_cli.simulate.sensor import G0
@@ -122,7 +123,8 @@ def _played(plan, *, seed, units, rate_hz, hold_s, move_s, accel_noise, jitter_d
         )  # fmt: skip
     rate = 50.0 if rate_hz is None else rate_hz
     stream = {} if hold_s is None else {  # held and moved as a device streams (--serve)
-        "samples": max(int(round(hold_s * rate)), 1), "move_s": move_s}
+        "samples": max(int(round(check_positive("hold", hold_s, "s") * rate)), 1),
+        "move_s": move_s}
     return _redundant(units, **{"seed": seed, "sigma_counts": sigma_counts,
                                 "orientations": orientations, "samples": samples,
                                 "rate_hz": rate, "labelled": labelled, "gravity": gravity,
