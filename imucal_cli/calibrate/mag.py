@@ -24,9 +24,10 @@ from imucal_cli.calibrate.mag_poses import accel_factor, changed_rows, pose_data
 from imucal_cli.calibrate.registry import Determined, Needs, Refusal, register
 from imucal_cli.design.clipping import clipped_rows
 from imucal_cli.design.poses import describe_direction
-from imucal_cli.design.sphere_quality import sphere_quality, suggest_direction
+from imucal_cli.design.sphere_quality import region_centres, sphere_quality, suggest_direction
 from imucal_cli.errors import DesignError, SolverError
 from imucal_cli.estimators.mag import magnetometer as mag_solver
+from imucal_cli.estimators.mag.extrapolation import magnitude_std
 from imucal_cli.formats.config import Config, MagConfig
 from imucal_cli.formats.session import UT_PER_MAG_UNIT, Session
 from imucal_cli.model.calibration import LOCAL_FIELD, MODEL_EQUATION, SensorCalibration
@@ -393,7 +394,11 @@ def _stated_field_check(session: Session, cfg: MagConfig, field: float, units: s
 
 
 def _quality_figures(quality, held: np.ndarray, res, cfg: MagConfig) -> Quality:
-    """MotionCal's four figures (percent), each against its limit, and the verdict."""
+    """MotionCal's four figures (percent), each against its limit, and the verdict. The gaps
+    figure over its limit still passes when the fit states the field magnitude in the missed
+    directions (:func:`_missed_pct`, 2 std) to no worse than the fit error it shows where it
+    has readings: the missed part is then held by the rest (the gravity-aligned poses, or
+    enough of the ellipsoid), not guessed."""
     F = res.field
     fit_error = 100.0 * rms(held) / F if np.isfinite(held).any() else float("nan")
     q = cfg.quality
@@ -408,8 +413,26 @@ def _quality_figures(quality, held: np.ndarray, res, cfg: MagConfig) -> Quality:
                      ok=bool(np.isfinite(v) and v <= lim))
         for n, v, lim, what in rows
     ]  # fmt: skip
+    gaps = checks[0]
+    if not gaps.ok and np.isfinite(quality.gaps_pct) and np.isfinite(fit_error):
+        missed = _missed_pct(quality, res)
+        gaps.held_pct = num(missed)
+        if missed <= fit_error:
+            gaps.ok = True
+            gaps.meaning = (f"of the sphere not covered; the fit holds |B| there to "
+                            f"{missed:.2g} % (2 std), within the fit error")  # fmt: skip
     failed = [c.name for c in checks if not c.ok]
     return Quality(verdict="pass" if not failed else "recapture", failed=failed, checks=checks)
+
+
+def _missed_pct(quality, res) -> float:
+    """The largest 2-std error of the calibrated field magnitude the fit states in the regions
+    of the sphere with fewer than 3 readings (MotionCal's regions, output frame), percent of
+    the field (:func:`~imucal_cli.estimators.mag.extrapolation.magnitude_std`)."""
+    missed = region_centres()[np.asarray(quality.counts) < 3]
+    if not len(missed):
+        return 0.0
+    return float(200.0 * np.max(magnitude_std(res, missed)) / res.field)
 
 
 def _axes_words(R: np.ndarray) -> list[str]:

@@ -478,8 +478,9 @@ def mag_summary(sec) -> list[tuple[Piece, ...]]:
     q = sec.quality
     if q is not None:
         figs = ", ".join(
-            f"{c.name} {c.value_pct:.1f} %" if c.value_pct is not None
-            else f"{c.name} -" for c in q.checks or []
+            (f"{c.name} {c.value_pct:.1f} %" if c.value_pct is not None else f"{c.name} -")
+            + ("" if c.held_pct is None else f" (|B| there held to {c.held_pct:.2g} %)")
+            for c in q.checks or []
         )  # fmt: skip
         verdict: Piece = "pass" if q.verdict == "pass" else ("recapture", WARN)
         lines.append(("  quality: ", verdict, f" ({figs})"))

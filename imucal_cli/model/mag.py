@@ -31,6 +31,9 @@ class QualityCheck(Record):
     limit_pct: float | None = None
     meaning: str | None = None
     ok: bool | None = None
+    #: gaps over its limit: the largest 2-std error of |B| the fit states where it missed the
+    #: sphere, percent of the field (the check passes when it is within the fit error)
+    held_pct: float | None = None
 
 
 @dataclass

@@ -46,7 +46,8 @@ def mag_report(sec: SensorCalibration) -> dict[str, Any]:
             "verdict": quality.verdict,
             "failed": list(quality.failed or []),
             "checks": [{"name": c.name, "value_pct": as_number(c.value_pct),
-                        "limit_pct": as_number(c.limit_pct), "meaning": c.meaning, "ok": c.ok}
+                        "limit_pct": as_number(c.limit_pct), "meaning": c.meaning, "ok": c.ok,
+                        "held_pct": as_number(c.held_pct)}
                        for c in quality.checks or []],
         },
         "coverage": {"fraction": as_number(coverage.fraction),
@@ -89,6 +90,8 @@ def add_mag_content(section: dict[str, Any], sec: SensorCalibration, add_table) 
         if verdict != "pass":
             failed = ", ".join(
                 f"{c['name']} {c['value_pct']:.1f} % > {c['limit_pct']:g} %"
+                + ("" if c.get("held_pct") is None else
+                   f", |B| there held only to {c['held_pct']:.2g} % (2 std)")
                 for c in q["checks"] if not c["ok"] and c["value_pct"] is not None
             )  # fmt: skip
             section["warnings"].append(
