@@ -358,3 +358,26 @@ def test_nan_in_the_input_is_reported_not_hidden(tmp_path):
     assert summary.nonfinite == 3
     with h5py.File(tmp_path / "out.h5") as f:
         assert np.isnan(f["calibrated/accel"][i : i + 3]).all()
+
+
+def test_a_calibration_of_another_unit_is_written_with_a_warning(sim, tmp_path):
+    """The session names its unit (`sensor`) and so does the calibration: another unit's
+    biases and gains would be wrong numbers, so the output says so (a capture or import that
+    names no unit is not warned about)."""
+    import dataclasses
+    import json
+
+    session, _, s_path, cal_path = sim
+    same = run("apply", cal_path, s_path, "-o", tmp_path / "same.h5")
+    assert same.returncode == 0 and "warning" not in same.stdout, same.stdout
+    for sensor, warned in (("BNO055 #18", True), (None, False), ("SIM-16bit seed 7 ", False)):
+        other = tmp_path / f"other-{warned}-{sensor is None}.h5"
+        write_session(other, dataclasses.replace(session, sensor=sensor))
+        proc = run("apply", cal_path, other, "-o", tmp_path / "o.h5", "--force")
+        assert proc.returncode == 0 and (tmp_path / "o.h5").exists()
+        assert ("was made on 'sim-16bit seed 7' but" in proc.stdout
+                and "is from 'BNO055 #18'" in proc.stdout) is warned, (sensor, proc.stdout)
+    proc = run("apply", cal_path, tmp_path / "other-True-False.h5", "-o", tmp_path / "j.h5",
+               "--json")  # fmt: skip
+    warnings = json.loads(proc.stdout)["warnings"]
+    assert len(warnings) == 1 and "belongs to one unit" in warnings[0]

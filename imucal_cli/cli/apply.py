@@ -84,7 +84,7 @@ def apply_(
              "calibration": str(calibration), "samples": int(summary.samples),
              "duration_s": float(summary.duration_s), "sensors": list(summary.sensors),
              "malformed": int(summary.malformed), "first_malformed": summary.first_malformed,
-             "nonfinite": int(summary.nonfinite)}
+             "nonfinite": int(summary.nonfinite), "warnings": list(summary.warnings)}
         )  # fmt: skip
         return
     _print_summary(summary, input_file, calibration, output)
@@ -143,3 +143,5 @@ def _print_summary(summary, input_file: Path, calibration: Path, output: Path) -
         highlight=False,
         soft_wrap=True,
     )
+    for w in summary.warnings:
+        make_console().print(f"warning: {w}", markup=False, highlight=False, soft_wrap=True)

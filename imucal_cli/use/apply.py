@@ -131,6 +131,11 @@ class ApplySummary:
     clock_scale : float or None
         The calibration's ``sample_clock_scale``: output times are true seconds,
         ``t0 + (t - t0) / scale``.
+    input_sensor : str or None
+        A session's ``sensor`` (part, serial), where it names one.
+    warnings : list of str
+        What the output is written despite: a calibration made on a unit whose ``sensor``
+        differs from the input's (:func:`other_unit`).
     """
 
     input: Path
@@ -145,6 +150,8 @@ class ApplySummary:
     chunks: int = 0
     nonfinite: int = 0
     clock_scale: float | None = None
+    input_sensor: str | None = None
+    warnings: list[str] = field(default_factory=list)
     _first_time: float | None = field(default=None, repr=False)
 
 
@@ -385,7 +392,23 @@ def apply_calibration(
         close_input()
     if isinstance(blocks, CsvBlocks):
         summary.malformed, summary.first_malformed = blocks.malformed, blocks.first_malformed
+    summary.warnings += other_unit(cal.sensor, summary.input_sensor, cal_source,
+                                   str(input_path))  # fmt: skip
     return summary
+
+
+def other_unit(cal_sensor: str | None, input_sensor: str | None, cal_source: str,
+               input_source: str) -> list[str]:
+    """A warning when the calibration was made on a unit its ``sensor`` names and the input
+    names another (a calibration belongs to one unit: another's biases and gains give wrong
+    numbers); none when either does not name one (a capture names its port, an import may
+    name nothing)."""  # fmt: skip
+    a, b = ((x or "").strip() for x in (cal_sensor, input_sensor))
+    if not a or not b or a.casefold() == b.casefold():
+        return []
+    return [f"{cal_source} was made on '{a}' but {input_source} is from '{b}': a calibration "
+            "belongs to one unit; apply that unit's calibration (or name both the same with "
+            "capture --sensor, import --sensor or label --sensor)"]  # fmt: skip
 
 
 def _prepare(cal: Calibration, input_path: Path, output_path: Path, cal_source: str,
@@ -424,7 +447,10 @@ def _open_input(summary: ApplySummary, sections: dict[str, SensorCalibration], c
     if summary.input_kind == "session":
         if columns is not None:
             raise InputError(f"{summary.input}: --columns applies to CSV input, not to a session")
-        return session_input(summary.input, sections, cal_source, chunk_rows)
+        blocks, total, units, close, sensor = session_input(summary.input, sections,
+                                                            cal_source, chunk_rows)  # fmt: skip
+        summary.input_sensor = sensor
+        return blocks, total, units, close
     blocks, total, close = csv_input(summary.input, sections, cal_source, columns, time_unit,
                                       rate_hz, chunk_rows)  # fmt: skip
     return blocks, total, {}, close

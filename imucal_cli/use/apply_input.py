@@ -73,9 +73,10 @@ def chunk_bounds(n: int, chunk_rows: int) -> list[tuple[int, int]]:
 
 def session_blocks(
     path: Path, sections: dict[str, SensorCalibration], cal_src: str, chunk_rows: int
-) -> tuple[Iterator[Block], int, dict[str, str | None], Callable[[], None]]:
+) -> tuple[Iterator[Block], int, dict[str, str | None], Callable[[], None], str | None]:
     """Open a session (:func:`~imucal_cli.formats.session.open_samples`, the one reader of
-    sessions block by block); return its block iterator, row count, raw units and a closer."""
+    sessions block by block); return its block iterator, row count, raw units, a closer and
+    the session's ``sensor`` (None: not named)."""
     src = str(path)
     samples = open_samples(path)
     try:
@@ -109,7 +110,7 @@ def session_blocks(
             temp = values.pop("temperature", None)
             yield Block(time=block[0], raw=values, done=stop, temperature=temp)
 
-    return blocks(), samples.n, units, samples.close
+    return blocks(), samples.n, units, samples.close, samples.sensor
 
 
 class CsvBlocks:
@@ -236,9 +237,10 @@ class CsvBlocks:
 
 def session_input(path: Path, sections: dict[str, SensorCalibration], cal_source: str,
                    chunk_rows: int):  # fmt: skip
-    """A session's blocks, rows, raw units and closer; refused when a sensor's raw units
-    differ from those the calibration was made for."""
-    blocks, total, units_in, close_input = session_blocks(path, sections, cal_source, chunk_rows)
+    """A session's blocks, rows, raw units, closer and ``sensor`` name; refused when a
+    sensor's raw units differ from those the calibration was made for."""
+    blocks, total, units_in, close_input, sensor = session_blocks(path, sections, cal_source,
+                                                                  chunk_rows)  # fmt: skip
     for name, sec in sections.items():
         want = sec.units_in
         have = units_in.get(name)
@@ -252,7 +254,7 @@ def session_input(path: Path, sections: dict[str, SensorCalibration], cal_source
             raise InputError(
                 f"{path} records the {name} in {have} but {cal_source} was made for {want}"
             )
-    return blocks, total, units_in, close_input
+    return blocks, total, units_in, close_input, sensor
 
 
 def csv_input(path: Path, sections: dict[str, SensorCalibration], cal_source: str,
