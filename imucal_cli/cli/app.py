@@ -164,8 +164,8 @@ app = typer.Typer(
 
 
 ROOT_HELP = (
-    "Calibrate MEMS accelerometers and gyroscopes with no rate table: simulate or capture a "
-    "session, calibrate it, report the result.\n\n"
+    "Calibrate MEMS accelerometers, gyroscopes and magnetometers with no rate table: simulate "
+    "or capture a session, calibrate it, report the result.\n\n"
     "Commands print results for people; those that print results take --json for scripts "
     "(schemas: docs/commands.md). Shell completion: imucal --install-completion.\n\n"
     + exit_codes_help()
