@@ -162,9 +162,11 @@ EXPORTS = (
     Row("export", "px4", "PX4 .params CAL_ACC0/GYRO0/MAG0, TC_*", (("QGC .params", "text"),),
         ("test_export_targets.py::test_offset_scale_targets_exact_without_misalignment",
          "test_mag_export.py::test_px4_and_ardupilot_apply_the_symmetric_part_exactly",
-         "test_imu_set_use.py::test_px4_parameters_per_imu"),
+         "test_imu_set_use.py::test_px4_parameters_per_imu",
+         "test_imu_set_use.py::test_px4_set_each_imu_at_its_instance_with_its_own_device_id"),
         "offsets, accel diagonal scale, mag offset and symmetric scale, temperature terms; "
-        "several IMUs as CAL_ACC0..3, CAL_GYRO0..3",
+        "several IMUs as CAL_ACC0..3, CAL_GYRO0..3, each with its own device id "
+        "(--device-id NAME=N)",
         "misalignment (in degrees in the file), gyro scale, g_sensitivity (refused unless "
         "--drop)"),
     Row("export", "ardupilot", "ArduPilot .parm INS_*, COMPASS_*", (("ArduPilot .parm", "text"),),

@@ -20,7 +20,7 @@ from imucal_cli.simulate.imu_set import simulate_set
 from imucal_cli.use.export import export
 from imucal_cli.use.export_set import pick_imu
 
-from .cli_helpers import run
+from .cli_helpers import assert_one_line_error, run
 from .test_export_targets import kalibr_yaml, noise, px4_params  # noqa: F401
 
 CREATED = "2026-01-01T00:00:00Z"
@@ -68,8 +68,65 @@ def test_px4_parameters_per_imu(calibrated):
             assert p[f"CAL_GYRO{k}_{axis}OFF"] == one[f"CAL_GYRO0_{axis}OFF"]
     assert "[imu1] in CAL_ACC1_*, CAL_GYRO1_*; measured" in text
     assert "[imu2] CAL_ACC2_ID / CAL_GYRO2_ID (and TC_A2_ID / TC_G2_ID) not written" in text
-    with pytest.raises(InputError, match="--device-id names one device"):
+    with pytest.raises(InputError, match="--device-id N names one device"):
         export(cal, "px4", options=ExportOptions(device_id=3))
+
+
+def test_px4_set_each_imu_at_its_instance_with_its_own_device_id(calibrated):
+    """``--device-id NAME=N`` (repeated or comma-separated): each IMU's values and its own id
+    at its instance, CAL_ACCn_ID = CAL_GYROn_ID = the id given for IMU n (PX4 finds a sensor's
+    calibration by its device id over CAL_ACC0..3_ID); an id of 2^31 or more as PX4's int32."""
+    _, cal, folder = calibrated
+    ids = {"reference": 2818058, "imu1": 3014666, "imu2": 4294967000}
+    proc = run("export", folder / "set.cal.json", "-f", "px4", "--device-id",
+               "reference=2818058,imu1=3014666", "--device-id", "imu2=4294967000")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    p = px4_params(proc.stdout)
+    for k, name in enumerate(ids):
+        for sensor in ("ACC", "GYRO"):
+            assert p[f"CAL_{sensor}{k}_ID"] % (1 << 32) == ids[name]
+        one = px4_params(export(pick_imu(cal, name), "px4"))
+        for axis in "XYZ":
+            assert p[f"CAL_ACC{k}_{axis}OFF"] == one[f"CAL_ACC0_{axis}OFF"]
+            assert p[f"CAL_GYRO{k}_{axis}OFF"] == one[f"CAL_GYRO0_{axis}OFF"]
+    assert p["CAL_ACC2_ID"] == 4294967000 - (1 << 32)  # int32, as PX4 stores it
+    assert not any(n.startswith(("CAL_ACC3", "CAL_GYRO3")) for n in p)
+    # One IMU's id alone: the others' _ID left out, and the file says which option sets them.
+    proc = run("export", folder / "set.cal.json", "-f", "px4", "--device-id", "imu1=77")
+    p = px4_params(proc.stdout)
+    assert p["CAL_ACC1_ID"] == p["CAL_GYRO1_ID"] == 77
+    assert "CAL_ACC0_ID" not in p and "CAL_ACC2_ID" not in p
+    assert "(no --device-id reference=N)" in proc.stdout
+    assert "[imu2] CAL_ACC2_ID / CAL_GYRO2_ID (and TC_A2_ID / TC_G2_ID) not written (no " \
+        "--device-id imu2=N)" in proc.stdout  # fmt: skip
+    # --imu NAME picks that IMU's id among those given, at instance 0.
+    proc = run("export", folder / "set.cal.json", "-f", "px4", "--imu", "imu1",
+               "--device-id", "imu1=77,imu2=78")  # fmt: skip
+    p = px4_params(proc.stdout)
+    assert p["CAL_ACC0_ID"] == p["CAL_GYRO0_ID"] == 77 and "CAL_ACC1_ID" not in p
+    assert p["CAL_ACC0_XOFF"] == px4_params(export(pick_imu(cal, "imu1"), "px4"))["CAL_ACC0_XOFF"]
+    # ArduPilot's set takes the same ids (INS_ACC2_ID for the second IMU).
+    proc = run("export", folder / "set.cal.json", "-f", "ardupilot", "--device-id",
+               "reference=11,imu1=12")  # fmt: skip
+    parm = dict(ln.split(",") for ln in proc.stdout.splitlines() if not ln.startswith("#"))
+    assert (parm["INS_ACC_ID"], parm["INS_ACC2_ID"], parm["INS_GYR2_ID"]) == ("11", "12", "12")
+    assert "INS_ACC3_ID" not in parm
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--device-id", "imu9=5"], ["--device-id imu9=5: the calibration's IMUs are reference, "
+                                 "imu1, imu2"]),
+    (["--device-id", "5"], ["--device-id N names one device", "imu1=N"]),
+    (["--device-id", "imu1=5,imu1=6"], ["IMU imu1 given twice"]),
+    (["--device-id", "reference=5", "--device-id", "7"], ["not both"]),
+    (["--device-id", "imu1=0"], ["non-zero 32-bit integer"]),
+    (["--device-id", "imu1=abc"], ["non-zero 32-bit integer"]),
+    (["--device-id", "=5"], ["no IMU name before '='"]),
+    (["--imu", "imu7", "--device-id", "imu1=5"], ["--imu imu7: the calibration's IMUs are"]),
+])  # fmt: skip
+def test_px4_set_device_id_refusals(calibrated, args, words):
+    _, _, folder = calibrated
+    assert_one_line_error(run("export", folder / "set.cal.json", "-f", "px4", *args), *words)
 
 
 def _still_means(session, cal, name):

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import typer
@@ -13,7 +14,7 @@ from imucal_cli.formats.noise import read_noise
 from imucal_cli.formats.output import check_output, write_output
 from imucal_cli.use.export import EXPORT_FORMATS, FORMATS, format_for_suffix, load_input
 from imucal_cli.use.export import export as export_text
-from imucal_cli.use.export_set import pick_imu
+from imucal_cli.use.export_set import pick_imu, with_device_ids
 
 from . import completion
 from .app import app
@@ -64,9 +65,12 @@ def export(
         "Driver's uT per raw unit, for a magnetometer calibrated in counts exported to px4 "
         "or ardupilot, e.g. 0.15 (AK8963, 16-bit).",
     ),
-    device_id: int | None = typer.Option(
-        None, "--device-id", metavar="N",
-        help="px4: CAL_ACC0_ID/CAL_GYRO0_ID; ardupilot: INS_ACC_ID/INS_GYR_ID.",
+    device_id: list[str] = typer.Option(
+        [], "--device-id", metavar="N|NAME=N",
+        help="px4: CAL_ACC0_ID/CAL_GYRO0_ID; ardupilot: INS_ACC_ID/INS_GYR_ID (the "
+        "sensor_accel device_id of a ULog). Several IMUs: each one's as NAME=N, repeated or "
+        "comma-separated (--device-id reference=2818058,imu1=3014666): px4 writes it at the "
+        "IMU's instance (CAL_ACC1_ID, CAL_GYRO1_ID, ...), ardupilot INS_ACC2_ID, ...",
     ),  # fmt: skip
     prefix: str | None = typer.Option(
         None, "--prefix", metavar="NAME",
@@ -106,6 +110,10 @@ def export(
     if output is not None:
         check_output(output, force=force, inputs=[calibration, noise])
     cal, noise_in = load_input(calibration)
+    single_id, named_ids = _device_ids(device_id)
+    opts = ExportOptions(device_id=single_id, device_ids=named_ids)
+    if cal is not None:
+        opts = with_device_ids(cal, imu, opts)  # each IMU's own (issue 28)
     if imu is not None:  # one IMU of a set (issue 28)
         if cal is None:
             raise InputError("--imu picks an IMU of a calibration, not of noise figures")
@@ -116,9 +124,8 @@ def export(
     if unknown:
         raise InputError(f"--drop {unknown[0]}: the terms that can be dropped are "
                          f"{', '.join(sorted(DROPPABLE))}")  # fmt: skip
-    opts = ExportOptions(noise=noise_in, rate_hz=rate, topic=topic, scale=scale,
-                         device_id=device_id, prefix=prefix, fusion_version=fusion_version,
-                         drop=frozenset(drop))  # fmt: skip
+    opts = replace(opts, noise=noise_in, rate_hz=rate, topic=topic, scale=scale, prefix=prefix,
+                   fusion_version=fusion_version, drop=frozenset(drop))  # fmt: skip
     text = export_text(cal, fmt, options=opts)
     if output is None:
         typer.echo(text, nl=False)
@@ -149,6 +156,31 @@ def _format(fmt: str | None, output: Path | None) -> str:
         if fmt is None:
             raise InputError(f"pass --format ({', '.join(FORMATS)})")
     return fmt
+
+
+def _device_ids(values: list[str]) -> tuple[int | None, dict[str, int]]:
+    """``--device-id`` as given: one id ``N``, or ids by IMU name (``NAME=N``, repeated or
+    comma-separated); an id is an int32 or uint32 (a ULog's ``device_id``), not 0."""
+    single, named = None, {}
+    for item in (part.strip() for value in values for part in value.split(",")):
+        name, eq, number = item.rpartition("=")
+        name = name.strip()
+        try:
+            n = int(number.strip(), 0)
+        except ValueError:
+            n = 0
+        if n == 0 or not -(1 << 31) <= n < 1 << 32:
+            raise InputError(f"--device-id {item}: a device id is a non-zero 32-bit integer "
+                             "(N, or NAME=N for one IMU of a set)")  # fmt: skip
+        if (not eq and single is not None) or (eq and (not name or name in named)):
+            raise InputError(f"--device-id {item}: " + (
+                "one N names one device: with several IMUs give each one's as NAME=N"
+                if not eq else f"IMU {name} given twice" if name else "no IMU name before '='"))
+        if eq:
+            named[name] = n
+        else:
+            single = n
+    return single, named
 
 
 def _scales(accel_scale: str | None, gyro_scale: str | None, mag_scale: str | None) -> dict:

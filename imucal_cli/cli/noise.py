@@ -13,7 +13,7 @@ from rich.text import Text
 
 from imucal_cli.formats.output import check_output
 from imucal_cli.formats.session import open_samples
-from imucal_cli.use.noise import analyse_noise, figures, load_calibration
+from imucal_cli.use.noise import analyse_noise, figures, imu_calibration, load_calibration
 from imucal_cli.use.plots import noise_figure
 from imucal_cli.use.report.out import show_table
 
@@ -35,20 +35,30 @@ def noise(
         "Print the figures and curves as JSON on stdout (nothing else)."
     ),
     force: ForcePlot = False,
+    imu: str | None = typer.Option(
+        None, "--imu", metavar="NAME",
+        help="A session of several IMUs: measure IMU NAME (its /imus/NAME samples; the "
+        "reference also as 'reference') [default: the reference]. A calibration of the set "
+        "gives that IMU's own sections.",
+    ),
 ) -> None:
     """Noise figures of a still recording for your filter: Allan deviation per axis.
 
     Accelerometer: velocity random walk (m/s/sqrt(s), ug/sqrt(Hz)) and bias instability
     (m/s^2, ug); gyroscope: angle random walk (rad/sqrt(s), deg/sqrt(h)) and bias instability
     (deg/h); rate random walk where the curve shows a +1/2 slope.  Uses the longest static
-    segment of SESSION, or the whole recording when it has none.  Exit status: 0 done; 2 bad
-    input (raw units without --calibration, a recording too short or not still).
+    segment of SESSION, or the whole recording when it has none.  A session of several IMUs:
+    the reference, or the IMU --imu names (the output names the IMU measured).  Exit status:
+    0 done; 2 bad input (raw units without --calibration, a recording too short or not still,
+    an IMU the session or the calibration does not hold).
     """
     inputs = [session, calibration]
     if plot is not None:
         check_output(plot, force=force, inputs=inputs)
-    with open_samples(session) as samples:
+    with open_samples(session, imu) as samples:
         cal = None if calibration is None else load_calibration(calibration)
+        if cal is not None:
+            cal = imu_calibration(cal, samples)  # a set's: the IMU measured's (issue 28)
         result = analyse_noise(samples, cal)
     if plot is not None:
         noise_figure(result, plot, force=force, inputs=inputs)
@@ -77,6 +87,9 @@ _HOW = {
 def _render(console: Console, result) -> None:
     """One table per sensor: a row per axis, a column per figure with its unit."""
     sensor = f" ({result.sensor})" if result.sensor else ""
+    if result.imu is not None:  # a set: which of its IMUs
+        sensor = (f" IMU {result.imu}{sensor}, of {len(result.imus)} "
+                  f"({', '.join(result.imus)}; --imu NAME for another)")  # fmt: skip
     console.print(
         Text(f"{result.session}{sensor}: {result.span}, {result.limits()}"), soft_wrap=True
     )

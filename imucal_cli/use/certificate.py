@@ -6,6 +6,12 @@ record), the session's content hash and the calibration's SHA-256, the verdict a
 against the limits, each sensor's parameters with their std and its residuals, and the plots
 (the report's figure, and each limited figure as a fraction of its limit) inline as PNG data, so
 the file stands alone.  Every string from a file is escaped by the template (autoescape).
+
+A unit of several IMUs (a set, issue 28) gets one certificate listing every IMU: the set's
+IMUs with each one's rotation into the reference's calibrated frame and time offset (with
+their std), then each IMU's sensors as the reference's are shown, all as ``imucal report``
+reads them (:func:`~imucal_cli.use.report.imus.imus_report`; nothing is re-solved).  The limits
+judge the reference's sections (as ``calibrate --limits`` does): the certificate says so.
 """
 
 from __future__ import annotations
@@ -83,6 +89,8 @@ def build_certificate(
         "acceptance": None if acceptance is None else _acceptance(acceptance),
         "sensors": sensors,
         "left_out": sorted((report.get("left_out") or {}).items()),
+        "reference_name": (cal.reference_name or "reference") if report.get("imus") else None,
+        "imus": _imus(report),
         "plots": [],
         "plots_note": "no plots: the calibration carries no per-pose or per-rotation data",
     }
@@ -117,6 +125,27 @@ def _sensor(kind: str, sec: dict[str, Any]) -> dict[str, Any]:
         "units_out": sec.get("units_out"), "parameters": params, "residuals": residuals,
         "warnings": [clean_text(str(w)) for w in sec.get("warnings") or []],
     }  # fmt: skip
+
+
+def _imus(report: dict[str, Any]) -> list[dict[str, Any]]:
+    """A set's other IMUs as the report reads them (``imus``; nothing re-solved): each one's
+    place in the set (rotation into the reference's calibrated frame, time offset, with their
+    std) and its sections as the reference's are shown."""
+    out = []
+    for name, imu in (report.get("imus") or {}).items():
+        std = imu.get("rotation_std_deg")
+        offset, offset_std = imu.get("time_offset_s"), imu.get("time_offset_std_s")
+        out.append({
+            "name": clean_text(str(name)),
+            "rotation_deg": imu.get("rotation_deg"),
+            "rotation_std_deg": ", ".join(_fmt(v) for v in std) if std else None,
+            "time_offset_ms": None if offset is None else 1e3 * offset,
+            "time_offset_std_ms": None if offset_std is None else 1e3 * offset_std,
+            "sensors": [_sensor(kind, sec) for kind, sec in imu["sensors"].items()],
+            "left_out": sorted((imu.get("left_out") or {}).items()),
+            "warnings": [clean_text(str(w)) for w in imu.get("warnings") or []],
+        })  # fmt: skip
+    return out
 
 
 def _acceptance(acceptance: Acceptance) -> dict[str, Any]:

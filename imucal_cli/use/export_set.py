@@ -3,9 +3,18 @@ several, or the one ``--imu NAME`` picks.
 
 - ``px4``: ``CAL_ACC0..3_*``, ``CAL_GYRO0..3_*`` (and ``TC_A0..3``/``TC_G0..3``), the reference
   the first; PX4 rotates each sensor by its own ``CAL_ACCn_ROT``/``CAL_GYROn_ROT`` (a board
-  orientation from a fixed list), so the measured rotations are said, not written.
+  orientation from a fixed list), so the measured rotations are said, not written.  Each
+  IMU's device id (``--device-id NAME=N``) goes in its own ``CAL_ACCn_ID``/``CAL_GYROn_ID``
+  (and ``TC_An_ID``/``TC_Gn_ID``): PX4 gives a sensor the calibration whose ``CAL_ACCn_ID``
+  holds its device id, searching n = 0..3 (PX4-Autopilot ``src/lib/sensor_calibration/
+  Utilities.cpp``, ``FindCurrentCalibrationIndex``, ``MAX_SENSOR_COUNT = 4``; the names in
+  ``src/modules/sensors/module.yaml``: ``CAL_ACC${i}_ID``, ``CAL_ACC${i}_[XYZ]OFF``,
+  ``CAL_ACC${i}_[XYZ]SCALE``, ``CAL_GYRO${i}_ID``, ``CAL_GYRO${i}_[XYZ]OFF``), so an IMU
+  without its id gets none of its values.  ``CAL_*_PRIO`` and ``CAL_*_ROT`` are left as the
+  vehicle has them.
 - ``ardupilot``: ``INS_ACCOFFS``/``INS_ACC2OFFS``/``INS_ACC3OFFS`` and their ``SCAL``, gyro
-  (``INS_GYROFFS``, ``INS_GYR2OFFS``, ...), ``_ID``, ``INS_TCAL1..3``, ``CALTEMP`` siblings.
+  (``INS_GYROFFS``, ``INS_GYR2OFFS``, ...), ``_ID`` (``--device-id NAME=N``), ``INS_TCAL1..3``,
+  ``CALTEMP`` siblings.
 - ``kalibr``: an IMU chain (``imu0``, ``imu1``, ...) as Kalibr's multi-IMU calibration writes
   it: each IMU's intrinsics, ``T_i_b`` (the body frame ``b`` is the reference's calibrated frame;
   ``T_i_b`` takes it into IMU i's Kalibr frame: ``C_i @ rotation_to_reference^T``) and
@@ -30,7 +39,7 @@ from imucal_cli.formats.exporters.kalibr import frame_for, kalibr_block, kalibr_
 from imucal_cli.formats.exporters.openvins import openvins_block, openvins_header
 from imucal_cli.model.calibration import Calibration
 
-__all__ = ["SetMember", "export_set", "pick_imu", "set_members"]
+__all__ = ["SetMember", "export_set", "pick_imu", "set_members", "with_device_ids"]
 
 #: How many IMUs each target holds.
 TARGET_IMUS = {"px4": 4, "ardupilot": 3, "kalibr": 64, "openvins": 64}
@@ -80,15 +89,58 @@ def set_members(cal: Calibration, source: str = "calibration") -> list[SetMember
     return out
 
 
+def _member_index(members: list[SetMember], name: str) -> int | None:
+    """Where IMU ``name`` is in ``members``: its name, or ``reference`` for the first."""
+    for k, m in enumerate(members):
+        if m.name == name or (k == 0 and name == "reference"):
+            return k
+    return None
+
+
 def pick_imu(cal: Calibration, name: str) -> Calibration:
     """The calibration of IMU ``name`` of a set (``--imu``); the reference's by its name or
     ``reference``."""
     members = set_members(cal)
-    for m in members:
-        if m.name == name or (m is members[0] and name == "reference"):
-            return m.calibration
-    raise InputError(f"--imu {name}: the calibration's IMUs are "
-                     f"{', '.join(m.name for m in members)}")  # fmt: skip
+    k = _member_index(members, name)
+    if k is None:
+        raise InputError(f"--imu {name}: the calibration's IMUs are "
+                         f"{', '.join(m.name for m in members)}")  # fmt: skip
+    return members[k].calibration
+
+
+def with_device_ids(cal: Calibration, imu: str | None, opts: ExportOptions) -> ExportOptions:
+    """``opts`` with the device id of what is exported: ``device_ids`` (``--device-id
+    NAME=N``, checked against the set's names) become ``device_id`` when one IMU is exported
+    (``--imu NAME``, or a calibration of one IMU), else stay per IMU for :func:`export_set`
+    under the members' own names.
+
+    Raises
+    ------
+    InputError
+        A name the calibration does not have, one IMU named twice, or ``--device-id N``
+        together with ``NAME=N``.
+    """
+    if not opts.device_ids:
+        return opts
+    if opts.device_id is not None:
+        raise InputError("--device-id: give every id as NAME=N, or one N for one IMU, not both")
+    members = set_members(cal)
+    ids: dict[str, int] = {}
+    for key, value in opts.device_ids.items():
+        k = _member_index(members, key)
+        if k is None:
+            raise InputError(f"--device-id {key}={value}: the calibration's IMUs are "
+                             f"{', '.join(m.name for m in members)}")  # fmt: skip
+        if members[k].name in ids:
+            raise InputError(f"--device-id names IMU {members[k].name} twice")
+        ids[members[k].name] = value
+    if imu is None and len(members) > 1:
+        return replace(opts, device_ids=ids)
+    k = 0 if imu is None else _member_index(members, imu)
+    if k is None:
+        raise InputError(f"--imu {imu}: the calibration's IMUs are "
+                         f"{', '.join(m.name for m in members)}")  # fmt: skip
+    return replace(opts, device_id=ids.get(members[k].name), device_ids={})
 
 
 def export_set(cal: Calibration, fmt: str, opts: ExportOptions, export_one) -> str:
@@ -109,8 +161,9 @@ def export_set(cal: Calibration, fmt: str, opts: ExportOptions, export_one) -> s
         raise InputError(f"--format {fmt} holds {TARGET_IMUS[fmt]} IMUs, the calibration has "
                          f"{len(members)}: export them with --imu NAME")  # fmt: skip
     if opts.device_id is not None:
-        raise InputError("--device-id names one device: with several IMUs set each one's id "
-                         "on the vehicle, or export each with --imu NAME --device-id N")
+        raise InputError("--device-id N names one device: with several IMUs give each one's "
+                         f"as NAME=N ({', '.join(f'{m.name}=N' for m in members)}), or "
+                         "export one with --imu NAME --device-id N")  # fmt: skip
     if fmt in ("px4", "ardupilot"):
         return _parameters(members, fmt, opts, export_one)
     return _chain(members, fmt, opts)
@@ -141,8 +194,9 @@ def _parameters(members: list[SetMember], fmt: str, opts: ExportOptions, export_
     comments: list[str] = []
     params: dict[str, str] = {}
     header = None
-    for k, m in enumerate(members):
-        text = export_one(m.calibration, fmt, opts)
+    for k, m in enumerate(members):  # each IMU at instance k, with its own device id
+        one = replace(opts, device_id=opts.device_ids.get(m.name), device_ids={})
+        text = export_one(m.calibration, fmt, one)
         names = _px4_names(k) if fmt == "px4" else _ardupilot_names(k)
         for line in text.splitlines():
             if line.startswith("# Vehicle-Id"):
@@ -151,6 +205,7 @@ def _parameters(members: list[SetMember], fmt: str, opts: ExportOptions, export_
             if line.startswith("#"):
                 for old, new in names:  # the single file's names, as this IMU's
                     line = line.replace(old.rstrip("_"), new.rstrip("_"))
+                line = line.replace("(no --device-id)", f"(no --device-id {m.name}=N)")
                 comments.append(line if k == 0 else f"# [{m.name}] {line[2:]}")
                 continue
             name = _param_name(line, fmt)

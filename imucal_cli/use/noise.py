@@ -40,6 +40,7 @@ from imucal_cli.formats.noise import NOISE_FORMAT
 from imucal_cli.formats.session import Session, SessionSamples, samples_of
 from imucal_cli.model.calibration import Calibration, SensorCalibration
 from imucal_cli.numerics.allan import AllanAccumulator
+from imucal_cli.use.export_set import set_members
 from imucal_cli.use.report.load import load_for_report
 
 __all__ = [
@@ -141,6 +142,10 @@ class NoiseReport:
         Fraction of the samples :func:`find_static` calls still.
     sensors : list of SensorNoise
     warnings : list of str
+    imu : str or None
+        The IMU measured when the session holds several (``imucal noise --imu``), else None.
+    imus : list of str
+        The session's IMUs when it holds several, the reference's first (else empty).
     """
 
     session: str
@@ -153,6 +158,8 @@ class NoiseReport:
     still_fraction: float
     sensors: list[SensorNoise]
     warnings: list[str] = field(default_factory=list)
+    imu: str | None = None
+    imus: list[str] = field(default_factory=list)
 
     @property
     def longest_tau_s(self) -> float:
@@ -201,6 +208,7 @@ class NoiseReport:
             "format_version": 1,
             "session": self.session,
             "sensor": self.sensor,
+            "imu": self.imu,
             "span": self.span,
             "start": self.start,
             "stop": self.stop,
@@ -353,6 +361,8 @@ def analyse_noise(
         still_fraction=float(still_fraction),
         sensors=sensors,
         warnings=warnings,
+        imu=samples.imu,
+        imus=list(samples.imus) if samples.imu is not None else [],
     )
 
 
@@ -448,3 +458,25 @@ def _by_sensor(time: np.ndarray, kinds: tuple[str, ...], arrays: list[np.ndarray
 def load_calibration(path: str | os.PathLike[str]) -> Calibration:
     """A calibration JSON or the last one stored in a session (as ``imucal report`` reads)."""
     return load_for_report(path)
+
+
+def imu_calibration(cal: Calibration, samples: SessionSamples) -> Calibration:
+    """The part of ``cal`` for the IMU ``samples`` holds: of a set's calibration (``imus``),
+    that IMU's own sections (the reference's for the reference); a calibration of one IMU
+    as it is (the user gave it for this IMU).
+
+    Raises
+    ------
+    InputError
+        A set's calibration without that IMU.
+    """
+    if not cal.imus or samples.imu is None:
+        return cal
+    members = set_members(cal)
+    if samples.imu == samples.imus[0]:
+        return members[0].calibration
+    for m in members[1:]:
+        if m.name == samples.imu:
+            return m.calibration
+    raise InputError(f"the calibration has no IMU {samples.imu!r} (it has "
+                     f"{', '.join(m.name for m in members)})")  # fmt: skip

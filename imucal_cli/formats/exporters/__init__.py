@@ -61,6 +61,9 @@ class ExportOptions:
         ``"mag"``: uT per raw unit (PX4, ArduPilot).
     device_id : int or None
         PX4's ``CAL_ACC0_ID``/``CAL_GYRO0_ID``, ArduPilot's ``INS_ACC_ID``/``INS_GYR_ID``.
+    device_ids : dict of str to int
+        Several IMUs exported whole (PX4, ArduPilot): each IMU's device id by its name in the
+        set (``--device-id NAME=N``), written at that IMU's instance (``CAL_ACC1_ID``, ...).
     prefix : str or None
         Name prefix of C identifiers (c-header, fusion).
     fusion_version : str
@@ -75,6 +78,7 @@ class ExportOptions:
     topic: str = "/imu0"
     scale: dict[str, float] = field(default_factory=dict)
     device_id: int | None = None
+    device_ids: dict[str, int] = field(default_factory=dict)
     prefix: str | None = None
     fusion_version: str = "1.3"
     drop: frozenset[str] = frozenset()

@@ -20,7 +20,8 @@ diagonal scale for the accelerometer and an offset only for the gyroscope: the m
 (and for the gyro the scale) of imucal's full calibration is lost.  The file says how much
 (:func:`~imucal_cli.formats.exporters.diagonal_fit`).  PX4 applies a calibration only to the
 device whose id is in ``CAL_ACC0_ID``/``CAL_GYRO0_ID``: pass ``--device-id`` (the
-``device_id`` of ``sensor_accel`` in a ULog) or set it on the vehicle.
+``device_id`` of ``sensor_accel`` in a ULog) or set it on the vehicle.  A set of IMUs goes to
+``CAL_ACC0..3``/``CAL_GYRO0..3``, each with its own id (:mod:`imucal_cli.use.export_set`).
 
 A temperature-dependent bias (``bias_tempco``, issue 17.1) goes into PX4's thermal
 compensation (``src/lib/temperature_compensation``), which subtracts before the offset above::
@@ -51,9 +52,18 @@ from imucal_cli.formats.exporters import (
 from imucal_cli.formats.exporters.magnetic import mag_for_target
 from imucal_cli.model.calibration import Calibration
 
-__all__ = ["export_px4"]
+__all__ = ["export_px4", "px4_int32"]
 
 _FLOAT, _INT32 = 9, 6
+
+
+def px4_int32(device_id: int) -> int:
+    """A device id as PX4's ``CAL_*_ID`` parameter holds it: an int32 that PX4 compares as
+    ``(uint32_t)`` with the sensor's ``device_id`` (PX4-Autopilot
+    ``src/lib/sensor_calibration/Utilities.cpp``, ``FindCurrentCalibrationIndex``), so an id of
+    2^31 or more (as a ULog shows it, unsigned) is written as its two's complement."""
+    value = int(device_id)
+    return value - (1 << 32) if value >= 1 << 31 else value
 
 
 def export_px4(cal: Calibration, opts: ExportOptions) -> str:
@@ -73,7 +83,7 @@ def export_px4(cal: Calibration, opts: ExportOptions) -> str:
     for name, _, fit in fits:
         prefix = "CAL_ACC0" if name == "accel" else "CAL_GYRO0"
         if opts.device_id is not None:
-            params.append((f"{prefix}_ID", int(opts.device_id), _INT32))
+            params.append((f"{prefix}_ID", px4_int32(opts.device_id), _INT32))
         for i, axis in enumerate("XYZ"):
             params.append((f"{prefix}_{axis}OFF", float(fit.offset[i]), _FLOAT))
         if name == "accel":
@@ -124,7 +134,7 @@ def _thermal(name: str, pub: Published, opts: ExportOptions, comments: list[str]
     hi = tt.t_ref + 50.0 if tt.t_max is None else tt.t_max
     out: list[tuple[str, float | int, int]] = [(f"{tc}_ENABLE", 1, _INT32)]
     if opts.device_id is not None:
-        out.append((f"{tc}0_ID", int(opts.device_id), _INT32))
+        out.append((f"{tc}0_ID", px4_int32(opts.device_id), _INT32))
     out += [(f"{tc}0_TREF", tt.t_ref, _FLOAT), (f"{tc}0_TMIN", lo, _FLOAT),
             (f"{tc}0_TMAX", hi, _FLOAT)]  # fmt: skip
     for k in range(3, -1, -1):

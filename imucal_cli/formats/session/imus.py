@@ -12,6 +12,8 @@ root attribute ``imus`` lists every name, the reference's first.
   mapped to its samples by time, as the spec says), so that every single-IMU step (the
   solvers, ``apply``, ``noise``) works on it unchanged.
 - :func:`set_names`: every IMU's name, the reference's first.
+- :func:`imu_group`: one IMU's group checked, to read block by block (``imucal noise --imu``,
+  :func:`~.stream.open_samples`); :func:`listed_names`: the names an open file lists.
 """
 
 from __future__ import annotations
@@ -29,7 +31,8 @@ from imucal_cli.model.session import MAG_UNITS, Segment, Session, as_float, as_s
 
 from .h5open import check_dataset, file_size, get_attr, member
 
-__all__ = ["imu_session", "imu_names_attr", "map_segments", "read_imus", "set_names"]
+__all__ = ["imu_group", "imu_session", "imu_names_attr", "listed_names", "map_segments",
+           "read_imus", "set_names"]
 
 MAX_IMUS = 256
 """The most IMUs one session may hold (an IMU array has 4 to 32)."""
@@ -107,8 +110,10 @@ def read_imus(file: h5py.File, src: str, unclosed: bool) -> tuple[str, dict[str,
     return names[0], imus
 
 
-def _read_group(group: h5py.Group, where: str, src: str, limit: int,
-                unclosed: bool) -> ImuStream:  # fmt: skip
+def _group_datasets(group: h5py.Group, where: str, src: str, limit: int,
+                    unclosed: bool) -> tuple[dict[str, h5py.Dataset], int]:  # fmt: skip
+    """The datasets of an ``/imus/<name>`` group, their shapes checked (none read), and the
+    number of samples to read (a file left open by its writer: its shortest dataset)."""
     datasets = {}
     for name in IMU_CHANNELS:
         obj = member(group, name, src)
@@ -127,7 +132,6 @@ def _read_group(group: h5py.Group, where: str, src: str, limit: int,
     n = datasets["time"].shape[0]
     if unclosed:
         n = min(ds.shape[0] for ds in datasets.values() if ds.ndim >= 1)
-    arrays = {}
     for name, ds in datasets.items():
         width = IMU_CHANNELS[name]
         ok = ds.ndim == 1 if width == 0 else ds.ndim == 2 and ds.shape[1] >= width
@@ -135,15 +139,57 @@ def _read_group(group: h5py.Group, where: str, src: str, limit: int,
             want = f"({n},)" if width == 0 else f"({n}, >={width})"
             raise SessionError(f"{src}: {where}/{name} must have shape {want}, has shape "
                                f"{ds.shape}")  # fmt: skip
-        arrays[name] = np.asarray(ds[:n], dtype=np.float64)
-    time = arrays["time"]
-    if unclosed:  # rows grown but never written read as the NaN fill value
-        written = np.flatnonzero(np.isfinite(time))
-        n = int(written[-1]) + 1 if written.size else 0
-        arrays = {k: v[:n] for k, v in arrays.items()}
-        time = arrays["time"]
-    _check_time(time, src, where)
+    return datasets, n
+
+
+def _written(time: np.ndarray, unclosed: bool) -> int:
+    """Samples written: all, or in a file left open by its writer up to the last finite time
+    (rows grown but never written read as the NaN fill value)."""
+    if not unclosed:
+        return len(time)
+    written = np.flatnonzero(np.isfinite(time))
+    return int(written[-1]) + 1 if written.size else 0
+
+
+def _read_group(group: h5py.Group, where: str, src: str, limit: int,
+                unclosed: bool) -> ImuStream:  # fmt: skip
+    datasets, n = _group_datasets(group, where, src, limit, unclosed)
+    arrays = {name: np.asarray(ds[:n], dtype=np.float64) for name, ds in datasets.items()}
+    n = _written(arrays["time"], unclosed)
+    arrays = {k: v[:n] for k, v in arrays.items()}
+    _check_time(arrays["time"], src, where)
     return ImuStream(**arrays, **_group_attrs(group, where, src))
+
+
+def listed_names(file: h5py.File, src: str) -> list[str]:
+    """Every IMU's name in an open session file, the reference's first (the root attribute
+    ``imus``; ``[reference]`` for a file of one IMU)."""
+    value = get_attr(file.attrs, "imus", src, "root ")
+    return [REFERENCE_NAME] if value is None else _names(value, src)
+
+
+def imu_group(file: h5py.File, src: str, name: str,
+              unclosed: bool) -> tuple[dict[str, h5py.Dataset], np.ndarray, dict]:  # fmt: skip
+    """IMU ``name``'s group ``/imus/<name>`` of an open file, to read block by block
+    (``imucal noise --imu``): its datasets, checked as :func:`read_imus` checks them and not
+    read; its time, read (8 bytes a sample) and checked (finite, strictly increasing; a file
+    left open by its writer up to the last time written); its attributes.
+
+    Raises
+    ------
+    SessionError
+        No such group, or a group :func:`read_imus` refuses.
+    """
+    where = f"/imus/{name}"
+    group = member(file, "imus", src)
+    obj = member(group, name, src) if isinstance(group, h5py.Group) else None
+    if not isinstance(obj, h5py.Group):
+        raise SessionError(f"{src}: {where} is missing (the root attribute 'imus' lists it)")
+    datasets, n = _group_datasets(obj, where, src, file_size(file), unclosed)
+    time = np.asarray(datasets["time"][:n], dtype=np.float64)
+    time = time[: _written(time, unclosed)]
+    _check_time(time, src, where)
+    return datasets, time, _group_attrs(obj, where, src)
 
 
 def _check_time(time: np.ndarray, src: str, where: str) -> None:

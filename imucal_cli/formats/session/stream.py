@@ -14,6 +14,7 @@ import os
 from collections.abc import Iterator
 from pathlib import Path
 
+import h5py
 import numpy as np
 
 from imucal_cli.errors import SessionError
@@ -24,7 +25,10 @@ from imucal_cli.formats.session.reader import (
     check_time,
     raw_datasets,
 )
+from imucal_cli.model.imu_stream import IMU_TEXT_ATTRS, REFERENCE_NAME
 from imucal_cli.model.session import GRAVITY_DEFAULT, Segment, Session, one_line
+
+from .imus import imu_group, listed_names, map_segments, set_names
 
 __all__ = ["BLOCK_ROWS", "SessionSamples", "open_samples", "samples_of"]
 
@@ -46,6 +50,12 @@ class SessionSamples:
     channels : dict of str to int
         The ``/raw`` channels present (``time``, ``accel``, ``gyro``, ...), each with its
         number of columns (0 for one value per sample).
+    imus : list of str
+        Every IMU's name in the session, the reference's first (one name for one IMU).
+    imu : str or None
+        The IMU whose channels these are when the session holds several (``/raw`` for the
+        reference, ``/imus/<name>`` for another; its segments the reference's, mapped by
+        time); None for a session of one IMU.
     """
 
     path: Path | None
@@ -57,6 +67,8 @@ class SessionSamples:
     mag_units: str | None
     gravity: float
     channels: dict[str, int]
+    imus: list[str]
+    imu: str | None
 
     def units(self, name: str) -> str | None:
         """The raw units of channel ``accel``, ``gyro`` or ``mag`` (None: not stated)."""
@@ -100,6 +112,8 @@ class _InMemory(SessionSamples):
         self.gyro_units = session.gyro_units
         self.mag_units = session.mag_units
         self.gravity = session.gravity
+        self.imus = set_names(session)
+        self.imu = session.reference_name if session.imus else None
         self.channels = {}
         for name in ("time", "accel", "gyro", "mag", "temperature"):
             value = getattr(session, name, None)
@@ -116,7 +130,7 @@ class _InMemory(SessionSamples):
 
 
 class _File(SessionSamples):
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, imu: str | None = None) -> None:
         src = str(path)
         file, unclosed = open_for_reading(path, src)
         try:
@@ -124,12 +138,20 @@ class _File(SessionSamples):
             datasets, n = raw_datasets(file, src, unclosed)
             self.segments = _read_segments(file, src, n, datasets.get("accel"),
                                            datasets.get("gyro"), unclosed)  # fmt: skip
+            self.imus = listed_names(file, src)
+            name = _chosen(self.imus, imu, src)
+            if name != self.imus[0]:  # another IMU of the set: /imus/<name>
+                datasets, time, attrs = imu_group(file, src, name, unclosed)
+                self.segments = map_segments(self.segments, _raw_time(file), time)
+                n = len(time)
+                text = {**text, **{k: attrs.get(k) for k in IMU_TEXT_ATTRS}}
         except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
             file.close()
             raise SessionError(f"{src}: damaged HDF5 file ({one_line(exc)})") from None
         except BaseException:
             file.close()
             raise
+        self.imu = name if len(self.imus) > 1 else None
         self.file = file
         self.src = src
         self.datasets = datasets
@@ -181,22 +203,49 @@ class _File(SessionSamples):
         self.file.close()
 
 
+def _raw_time(file) -> h5py.Dataset:
+    """``/raw/time`` of an open file (indexed per segment bound, never read whole)."""
+    return file["raw"]["time"]
+
+
+def _chosen(names: list[str], imu: str | None, src: str) -> str:
+    """The IMU to read: ``imu`` among ``names``, the reference (the first) by its name or as
+    ``reference``, or by default.
+
+    Raises
+    ------
+    SessionError
+        A name the session does not hold (the names listed).
+    """
+    if imu is None or imu == names[0] or (imu == REFERENCE_NAME and imu not in names):
+        return names[0]
+    if imu not in names:
+        raise SessionError(f"{src}: no IMU {imu!r} (IMUs: {', '.join(names)})")
+    return imu
+
+
 def samples_of(session: Session) -> SessionSamples:
     """A session already in memory, read as blocks (no copy)."""
     return _InMemory(session)
 
 
-def open_samples(path: str | os.PathLike) -> SessionSamples:
+def open_samples(path: str | os.PathLike, imu: str | None = None) -> SessionSamples:
     """Open a session file to read block by block (close it, or use it in ``with``).
+
+    ``imu``: in a session of several IMUs, the IMU to read (its name; the reference also as
+    ``reference``) [default: the reference, ``/raw``].  Another IMU's channels are read from
+    ``/imus/<name>`` block by block as ``/raw``'s (its time whole, to map the reference's
+    segments to its samples).
 
     Raises
     ------
     SessionError
-        As :func:`~.reader.read_session`: missing, not a session, damaged.
+        As :func:`~.reader.read_session`: missing, not a session, damaged; an IMU the session
+        does not hold.
     """
     path = Path(path)
     try:
-        return _File(path)
+        return _File(path, imu)
     except MemoryError:
         raise SessionError(f"{path}: too large to read") from None
 
