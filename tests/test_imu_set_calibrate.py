@@ -122,6 +122,7 @@ def test_the_cli_prints_the_set(tmp_path):
     proc = run("calibrate", tmp_path / "s.h5", "--no-store")
     assert proc.returncode == 0, proc.stderr
     assert "imu1: rotated" in proc.stdout and "ms; calibrated: accel, gyro" in proc.stdout
+    assert "frame of the labels" not in proc.stdout  # gravity solver: each IMU's own axes
     proc = run("calibrate", tmp_path / "s.h5", "--accel", tmp_path / "s.cal.json", "-o",
                tmp_path / "x.json")  # fmt: skip
     assert proc.returncode == 2 and "several IMUs takes no --accel" in proc.stderr
@@ -139,6 +140,8 @@ def test_the_cli_says_a_time_offset_came_from_the_raw_rates(tmp_path):
     assert proc.returncode in (0, 1), proc.stderr
     line = next(x for x in proc.stdout.splitlines() if x.strip().startswith("imu1: rotated"))
     assert "time offset" in line and "(from the raw rates: a gyro not calibrated" in line, line
+    # both accelerometers labelled: the rotation is near zero by construction, and said so
+    assert "both accelerometers calibrated into the frame of the labels" in line, line
     entry = json.loads((tmp_path / "s.json").read_text(encoding="utf-8"))["imus"]["imu1"]
     assert entry["time_offset_std_s"] > 0 and "eq. T5" in entry["set"]["offset_method"]
 

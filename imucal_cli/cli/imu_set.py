@@ -58,7 +58,8 @@ def set_lines(cal) -> list[str]:
         if entry.rotation_to_reference is not None:
             std = np.asarray(entry.rotation_std_deg, float)
             parts.append(f"rotated {entry.rotation_deg or 0.0:.3f} deg "
-                         f"(std {', '.join(f'{s:.2g}' for s in std)} deg)")
+                         f"(std {', '.join(f'{s:.2g}' for s in std)} deg)"
+                         + _labels_frame(cal, entry))  # fmt: skip
         if entry.time_offset_s is not None:
             raw = entry.set is not None and entry.set.offset_method is not None  # eq. T5
             parts.append(f"time offset {1e3 * entry.time_offset_s:+.3f} ± "
@@ -70,6 +71,17 @@ def set_lines(cal) -> list[str]:
         out.append(f"  {key}: " + "; ".join(parts))
         out += [f"  {key}: warning: {w}" for w in entry.warnings or []]
     return out
+
+
+def _labels_frame(cal, entry) -> str:
+    """Words for a rotation near zero by construction: both accelerometers calibrated with
+    labelled poses put their output in the frame of the labels, so each one's mounting
+    rotation is inside its own matrix."""
+    ours, theirs = cal.accel, entry.accel
+    if ours is None or theirs is None or not ours.solver == theirs.solver == "labelled":
+        return ""
+    return (" (both accelerometers calibrated into the frame of the labels: each IMU's "
+            "mounting is in its own matrix)")
 
 
 def set_warnings(cal) -> list[str]:
