@@ -80,7 +80,7 @@ def test_a_set_certificate_lists_every_imu_with_its_terms(calibrated, tmp_path):
     assert 'id="judged"' not in html  # not judged: nothing to say about the limits
 
 
-def test_the_limits_judge_the_reference_and_say_so(calibrated, tmp_path):
+def test_the_limits_judge_every_imu_and_say_so(calibrated, tmp_path):
     cal, folder = calibrated
     (tmp_path / "p.toml").write_text(LIMITS)
     cert = tmp_path / "cert.html"
@@ -89,8 +89,28 @@ def test_the_limits_judge_the_reference_and_say_so(calibrated, tmp_path):
     assert proc.returncode == 0, proc.stderr
     html = cert.read_text()
     assert "SET-1: pass" in proc.stdout
-    assert "the limits judge the reference IMU's (reference) sensors" in html
+    assert "the limits judge every IMU's sensors" in html
+    limits = _table(html, "limits")
+    for sensor in ("accel", "imu1 accel", "imu2 accel"):  # 3 bias checks per IMU
+        assert len(re.findall(rf"<td>{sensor}</td><td>bias", limits)) == 3, sensor
     assert _table(html, "parameters-imu2-gyro")
+
+
+def test_a_unit_fails_when_another_imu_is_outside_the_limits(calibrated, tmp_path):
+    """The reference within the limits, another IMU not: the unit fails, naming that IMU's
+    figure (here the accelerometer fit's residual RMS, where the parts differ most)."""
+    cal, folder = calibrated
+    ref = cal.accel.residual_rms
+    name, other = max(((k, e.accel.residual_rms) for k, e in cal.imus.items()),
+                      key=lambda kv: kv[1])  # fmt: skip
+    assert other > 1.2 * ref  # distinct parts (noise 0.5-2 times): a limit falls between
+    limits = LIMITS.replace("bias_max = 5.0", f"residual_rms_max = {(ref + other) / 2:.6g}")
+    (tmp_path / "p.toml").write_text(limits)
+    proc = run("certificate", folder / "set.cal.json", "--serial", "SET-1", "--limits",
+               tmp_path / "p.toml", "-o", tmp_path / "cert.html")  # fmt: skip
+    assert "SET-1: fail" in proc.stdout, proc.stdout
+    bad = re.findall(r'<li class="bad">(.*?)</li>', (tmp_path / "cert.html").read_text())
+    assert len(bad) == 1 and bad[0].startswith(f"{name} accel residual rms"), bad
 
 
 def test_one_imu_has_no_set_section(calibrated, tmp_path):

@@ -11,7 +11,8 @@ A unit of several IMUs (a set, issue 28) gets one certificate listing every IMU:
 IMUs with each one's rotation into the reference's calibrated frame and time offset (with
 their std), then each IMU's sensors as the reference's are shown, all as ``imucal report``
 reads them (:func:`~imucal_cli.use.report.imus.imus_report`; nothing is re-solved).  The limits
-judge the reference's sections (as ``calibrate --limits`` does): the certificate says so.
+judge every IMU's sections (as ``calibrate --limits`` does: the other IMUs' checks named
+``imu1 accel``, ...): the unit passes when every IMU does.
 """
 
 from __future__ import annotations

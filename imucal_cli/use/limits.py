@@ -39,7 +39,7 @@ from __future__ import annotations
 import math
 import os
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -447,5 +447,11 @@ def _missing(lim: Limit, note: str) -> Check:
 
 
 def judge_calibration(cal: Calibration, limits: ProductLimits) -> Acceptance:
-    """:func:`judge` of a calibration as read."""
-    return judge(unit_figures(cal), limits)
+    """:func:`judge` of a calibration as read: the reference IMU's sensors, then, in a set of
+    several IMUs (``imus``), each other IMU's against the same limits (their checks named
+    ``"imu1 accel"``, ...): a unit passes when every IMU on it does."""
+    checks = list(judge(unit_figures(cal), limits).checks)
+    for key, entry in (cal.imus or {}).items():
+        checks += [replace(c, sensor=f"{key} {c.sensor}")
+                   for c in judge(unit_figures(entry), limits).checks]  # fmt: skip
+    return Acceptance(limits.product, tuple(checks), limits.source)
