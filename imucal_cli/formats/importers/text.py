@@ -213,6 +213,16 @@ def read_lines(path: Path, raw: bytes | None = None) -> list[str]:
     return split_lines(text)
 
 
+def whole_lines(raw: bytes, path: Path, stats: ImportStats) -> tuple[bytes, str | None]:
+    """``raw`` without a last line cut short (:func:`cut_line_start`), and that line's
+    ``file:line`` (None: none cut), added to ``stats.cut_lines``."""
+    cut = cut_line_start(raw)
+    if cut is None:
+        return raw, None
+    stats.cut_lines.append(f"{path}:{cut_line_number(raw, cut)}")
+    return raw[:cut], stats.cut_lines[-1]
+
+
 def read_table(
     path: Path,
     n_fields: int | None,
@@ -249,11 +259,7 @@ def read_table(
         Missing, unreadable or empty file, no numeric rows, no row with ``n_fields`` fields.
         ``n_fields`` None: the most common field count of the numeric rows.
     """
-    raw = _read_bytes(path)
-    cut = cut_line_start(raw)
-    if cut is not None:
-        stats.cut_lines.append(f"{path}:{cut_line_number(raw, cut)}")
-        raw = raw[:cut]
+    raw, cut = whole_lines(_read_bytes(path), path, stats)
     scan = scan_ascii(raw, skip_rows, comma, skip)
     if scan is None:
         scan = scan_lines(read_lines(path, raw), skip_rows, comma, skip)
@@ -262,7 +268,7 @@ def read_table(
     stats.blank += scan.blank
     stats.comments += scan.comments
     if not len(scan.numbers):
-        dropped = "" if cut is None else f"; the last line, {stats.cut_lines[-1]}, was cut short"
+        dropped = "" if cut is None else f"; the last line, {cut}, was cut short"
         raise InputError(f"{path}: no numeric rows (only header or text lines{dropped})")
     lengths = scan.lengths
     if n_fields is None:
