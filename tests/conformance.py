@@ -41,16 +41,20 @@ IMPORTS = (
          "test_line_fields.py::test_csv_counts_an_empty_field_as_malformed",
          "test_line_fields.py::test_semicolons_separate_fields_in_import",
          "test_import_euroc.py::test_euroc_and_tum_vi_imu_files_are_recognised",
-         "test_imu_set_import.py::test_csv_with_several_triads_per_line"),
+         "test_imu_set_import.py::test_csv_with_several_triads_per_line",
+         "test_cut_last_line.py::test_csv_cut_inside_its_last_number_drops_that_line"),
         "t, accel, gyro, mag, temperature as written; EuRoC's time unit and SI units; several "
         "IMUs' triads per line (.N fields, t.N their own time)",
-        "a line with an empty field, a CR inside, or a non-number: left out, counted"),
+        "a line with an empty field, a CR inside, or a non-number: left out, counted; a last "
+        "line without its line break (the writer stopped mid-line): dropped, warned"),
     Row("import", "imu_tk", "imu_tk's accelerometer and gyroscope files (t x y z)",
         (("numpy", "2.0"),),
         ("test_import.py::test_imu_tk_pair",
-         "test_line_fields.py::test_imu_tk_counts_an_empty_field_or_inner_cr_as_malformed"),
+         "test_line_fields.py::test_imu_tk_counts_an_empty_field_or_inner_cr_as_malformed",
+         "test_cut_last_line.py::test_imu_tk_pair_with_its_gyro_file_cut"),
         "samples at the times present in both files",
-        "samples of one file only (counted as unmatched)"),
+        "samples of one file only (counted as unmatched); a last line without its line break: "
+        "dropped, warned"),
     Row("import", "ros", "ROS 1 bag, ROS 2 bag (sqlite3 or MCAP storage): sensor_msgs/Imu, "
         "MagneticField, Temperature",
         (("rosbags", "0.11"),),
@@ -103,19 +107,23 @@ IMPORTS = (
          "test_import_ardupilot.py::test_batch_samples_paired_where_they_overlap",
          "test_import_ardupilot.py::test_batches_that_do_not_overlap_give_the_accelerometer_alone",
          "test_import_ardupilot.py::test_a_text_log_reads_as_its_binary_log",
-         "test_imu_set_import.py::test_dataflash_imu_instances_become_one_session"),
+         "test_imu_set_import.py::test_dataflash_imu_instances_become_one_session",
+         "test_cut_last_line.py::test_dataflash_text_log_cut_in_the_last_gyro_value"),
         "m/s^2, rad/s, mGauss -> gauss, T; batch samples int16 / mul at SampleUS + k / smp_rate; "
         "IMU instances of several IMUs into one session",
         "ArduPilot's own offsets and scales in IMU/ACC/GYR (said); ISBD arrays in text logs; "
-        "a gyro whose batches do not overlap the accelerometer's"),
+        "a gyro whose batches do not overlap the accelerometer's; a text log's last line without "
+        "its line break: dropped, warned"),
     Row("import", "lines", "MotionCal Raw: and i2cdevlib a/g:, a/g/m: serial lines",
         (("numpy", "2.0"),),
         ("test_import_formats.py::test_motioncal_and_i2cdevlib_lines",
-         "test_line_fields.py::test_prefixed_lines_count_an_empty_field_as_malformed"),
+         "test_line_fields.py::test_prefixed_lines_count_an_empty_field_as_malformed",
+         "test_cut_last_line.py::test_motioncal_lines_cut_in_the_last_count"),
         "raw counts, time = line of the format / --rate (a malformed line leaves its gap)",
         # the format has no time: lines merged by damage (a lost line break) cannot be told
         "other lines (Uni:, Cal1:, banners); a line with an empty field (counted); no time of "
-        "its own: lines merged by a lost line break shift the later times"),
+        "its own: lines merged by a lost line break shift the later times; a last line without "
+        "its line break: dropped, warned"),
     Row("import", "witmotion", "WitMotion 0x55 frames (0x50 time, 0x51 accel, 0x52 gyro, 0x54 "
         "mag)",
         (("numpy", "2.0"),),

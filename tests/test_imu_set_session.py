@@ -118,7 +118,7 @@ def _two(tmp_path, mutate):
 
 @pytest.mark.parametrize("mutate, message", [
     (lambda f: f["imus/imu1/time"].__setitem__(5, 0.0), "/imus/imu1/time is not strictly"),
-    (lambda f: f.attrs.__setitem__("imus", np.array(["reference", "imu7"],
+    (lambda f: f.attrs.__setitem__("imus", np.array(["reference", "imu1", "imu7"],
                                                     dtype=h5py.string_dtype())),
      "/imus/imu7 is missing"),
     (lambda f: f.attrs.__setitem__("imus", np.array(["reference", "reference"],
@@ -137,10 +137,29 @@ def test_bad_imus_are_refused_with_one_line(tmp_path, mutate, message):
     assert "\n" not in str(err.value) and str(path) in str(err.value)
 
 
-def test_unlisted_groups_are_read_as_one_imu_with_a_warning(tmp_path):
-    path = _two(tmp_path, lambda f: f.attrs.__delitem__("imus"))
-    with pytest.warns(Warning, match="does not list them"):
-        assert read_session(path).imus == {}
+def _unlisted(f: h5py.File, listed: list[str] | None) -> None:
+    """The root attribute ``imus`` set to ``listed`` (None: deleted), the groups left."""
+    if listed is None:
+        del f.attrs["imus"]
+    else:
+        f.attrs["imus"] = np.array(listed, dtype=h5py.string_dtype())
+
+
+@pytest.mark.parametrize(("listed", "said"), [
+    (None, "has no root attribute 'imus'"),
+    (["reference"], "lists only reference in its root attribute 'imus'"),
+])  # fmt: skip
+def test_groups_the_root_attribute_does_not_list_are_refused(tmp_path, listed, said):
+    """The spec: "The root attribute ``imus`` lists every IMU's name": a group of /imus it does
+    not name is a file contradicting itself, refused by every reader (read_session for
+    calibrate, report, export, label; open_samples for noise and apply)."""
+    from imucal_cli.formats.session import open_samples
+
+    path = _two(tmp_path, lambda f: _unlisted(f, listed))
+    for read in (read_session, open_samples):
+        with pytest.raises(SessionError, match="/imus holds imu1 but the file") as err:
+            read(path)
+        assert said in str(err.value) and "\n" not in str(err.value)
 
 
 def test_writer_appends_each_imu_at_its_own_times(tmp_path):

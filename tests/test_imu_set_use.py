@@ -255,3 +255,50 @@ def test_report_shows_every_imu_and_its_place(calibrated):
         assert bias == pytest.approx(list(entry.accel.bias))
     text = run("report", folder / "set.cal.json").stdout
     assert "imu1: rotated" in text and "imu2 gyro:" in text
+
+
+def test_every_command_refuses_a_set_whose_imus_attribute_leaves_a_group_out(calibrated,
+                                                                             tmp_path):
+    """The spec ("Several IMUs"): "The root attribute `imus` lists every IMU's name, the
+    reference's first".  A group of /imus it leaves out makes the file contradict itself:
+    calibrate, report, noise, apply (of the set, and of one IMU, which reads /raw alone) and
+    label all refuse it the same way (export reads calibrations, never a session), exit 2 and
+    one line naming the group; the same file with the attribute whole is read by each (noise
+    then judges its 2 s holds)."""
+    import shutil
+
+    from imucal_cli.formats.calibration import calibration_to_json
+    from imucal_cli.formats.session import store_calibration
+    from imucal_cli.model.calibration import Calibration
+
+    from .cli_helpers import assert_one_line_error
+
+    _, cal, folder = calibrated
+    good, bad = tmp_path / "good.h5", tmp_path / "bad.h5"
+    shutil.copy(folder / "set.h5", good)
+    store_calibration(good, calibration_to_json(cal))
+    shutil.copy(good, bad)
+    with h5py.File(bad, "r+") as f:
+        f.attrs["imus"] = np.array(["reference", "imu1"], dtype=h5py.string_dtype())
+    single = tmp_path / "single.json"  # the reference's own: apply reads /raw alone
+    write_calibration(single, Calibration(accel=cal.accel, gyro=cal.gyro, created=CREATED))
+    commands = {
+        "calibrate": ("calibrate", "{}", "--no-store", "-o", tmp_path / "c.json", "--force"),
+        "report": ("report", "{}"),
+        "noise": ("noise", "{}", "--json"),
+        "apply set": ("apply", folder / "set.cal.json", "{}", "-o", tmp_path / "a.h5",
+                      "--force"),
+        "apply one": ("apply", single, "{}", "-o", tmp_path / "o.h5", "--force"),
+        "label": ("label", "{}", "--faces", "--dry-run"),
+    }  # fmt: skip
+    for name, args in commands.items():
+        proc = run(*(bad if a == "{}" else a for a in args))
+        assert_one_line_error(proc, f"{bad}: /imus holds imu2 but the file lists only "
+                              "reference, imu1 in its root attribute 'imus'")  # fmt: skip
+        if name == "calibrate":  # (a set's calibration: seconds; the refusal is the point)
+            continue
+        proc = run(*(good if a == "{}" else a for a in args))
+        if name == "noise":  # read, and judged on its samples: 2 s holds, no Allan deviation
+            assert_one_line_error(proc, "too short for an Allan deviation")
+        else:
+            assert proc.returncode == 0, (name, proc.stderr)

@@ -73,6 +73,7 @@ from imucal_cli import __version__
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import calibration_to_json
 from imucal_cli.formats.importers.recording import TIME_UNITS
+from imucal_cli.formats.importers.text import cut_line_warning
 from imucal_cli.formats.inputs import is_hdf5_file
 from imucal_cli.formats.output import OutputFile, check_output
 from imucal_cli.formats.session import one_line, utc_now_iso
@@ -123,6 +124,9 @@ class ApplySummary:
         CSV: lines skipped because they did not give the expected numbers.
     first_malformed : str or None
         CSV: ``file:line`` of the first of them.
+    cut_line : str or None
+        CSV: ``file:line`` of its last line, dropped: cut short (no line break after it; one
+        of the ``warnings``).
     chunks : int
         Blocks read and written.
     nonfinite : int
@@ -135,7 +139,7 @@ class ApplySummary:
         A session's ``sensor`` (part, serial), where it names one.
     warnings : list of str
         What the output is written despite: a calibration made on a unit whose ``sensor``
-        differs from the input's (:func:`other_unit`).
+        differs from the input's (:func:`other_unit`); a CSV's last line cut short.
     """
 
     input: Path
@@ -147,6 +151,7 @@ class ApplySummary:
     duration_s: float = 0.0
     malformed: int = 0
     first_malformed: str | None = None
+    cut_line: str | None = None
     chunks: int = 0
     nonfinite: int = 0
     clock_scale: float | None = None
@@ -392,6 +397,8 @@ def apply_calibration(
         close_input()
     if isinstance(blocks, CsvBlocks):
         summary.malformed, summary.first_malformed = blocks.malformed, blocks.first_malformed
+        summary.cut_line = blocks.cut_line
+        summary.warnings += [cut_line_warning(blocks.cut_line)] if blocks.cut_line else []
     summary.warnings += other_unit(cal.sensor, summary.input_sensor, cal_source,
                                    str(input_path))  # fmt: skip
     return summary

@@ -20,6 +20,7 @@ from imucal_cli.formats.importers.recording import TIME_UNITS
 from imucal_cli.formats.importers.text import (
     BLANK,
     check_time,
+    cut_line_start,
     header_columns,
     is_delimited,
     parse_columns,
@@ -116,7 +117,9 @@ def session_blocks(
 class CsvBlocks:
     """Blocks of a CSV read line by line (the ``imucal import`` column rules); iterate once.
 
-    ``malformed`` and ``first_malformed`` count the lines skipped so far."""
+    ``malformed`` and ``first_malformed`` count the lines skipped so far; ``cut_line`` is
+    ``file:line`` of a last line dropped as cut short (:func:`~.text_scan.cut_line_start`:
+    no line break after it, the lines before it ended with one)."""
 
     def __init__(self, path: Path, handle: IO[bytes], sections: dict[str, SensorCalibration],
                  cal_src: str, columns: str | None, time_unit: str, rate_hz: float | None,
@@ -135,6 +138,7 @@ class CsvBlocks:
         self.last_line = 0
         self.malformed = 0
         self.first_malformed: str | None = None
+        self.cut_line: str | None = None
 
     def _col(self, name: str) -> int | None:
         return self.spec.index(name) if name in self.spec else None
@@ -198,6 +202,9 @@ class CsvBlocks:
         seen_data = False
         for number, raw_line in enumerate(self.handle, start=1):
             self.done += len(raw_line)
+            if number > 1 and cut_line_start(b"\n" + raw_line) == 1:  # the last line, cut
+                self.cut_line = f"{self.path.name}:{number}"
+                continue
             line = raw_line.decode("utf-8", errors="replace").lstrip("\ufeff").strip(BLANK)
             if not line or line.startswith("#"):
                 continue

@@ -60,6 +60,7 @@ from .serial_lines import detect_line_format
 from .text import (
     FIELDS,
     check_time,
+    cut_line_warning,
     first_fields,
     infer_columns,
     parse_columns,
@@ -222,6 +223,7 @@ def read_recording(
     options = ReadOptions(columns=columns, time_unit=time_unit, rate_hz=rate_hz,
                           skip_rows=skip_rows, topic=topic, mag_topic=mag_topic)  # fmt: skip
     rec = read(paths, options, ImportStats())
+    rec.warnings += [cut_line_warning(where) for where in rec.stats.cut_lines]
     time = np.asarray(rec.time, np.float64)
     rec.time = time
     rec.stats.samples = len(time)

@@ -64,6 +64,7 @@ from imucal_cli.formats.inputs import read_head
 from .library import one_line_reason, quiet
 from .recording import STAMPS_KEPT, SeveralStreams, choose_time, increasing
 from .ros import Channels, hold_latest, one_file, to_recording
+from .text_scan import cut_line_number, cut_line_start, cut_line_warning
 from .ulog import pair_by_time
 
 __all__ = ["choose_stream", "looks_like_dataflash", "looks_like_tlog", "read_mavlink"]
@@ -342,11 +343,18 @@ def _df_temperature(message) -> float:
     return float("nan")
 
 
-def _df_rows(path: Path, DFReader, text: bool = False) -> dict[tuple[str, int], list]:  # noqa: N803
+def _df_rows(path: Path, DFReader, text: bool = False  # noqa: N803
+             ) -> tuple[dict[tuple[str, int], list], str | None]:  # fmt: skip
     """Rows per ``(kind, instance)``: IMU ``(us, ax..az, gx..gz, temp)``, ACC/GYR ``(sample
     us, x, y, z)``, MAG ``(us, x, y, z)``; the batch sampler's under ``("ISBH", N)`` (its
-    header) and ``("ISBD", N)`` (its data messages), N the batch number."""
+    header) and ``("ISBD", N)`` (its data messages), N the batch number.  A text log's last
+    line cut short (:func:`~.text_scan.cut_line_start`) is not read: its ``file:line`` is
+    returned with the rows (None: none cut)."""
     log = DFReader.DFReader_text(str(path)) if text else _guarded(DFReader)(str(path))
+    cut = cut_line_start(log.data_map) if text else None
+    where = None if cut is None else f"{path}:{cut_line_number(log.data_map, cut)}"
+    if cut is not None:  # pymavlink's text reader reads no line past data_len
+        log.data_len = cut
     names = [n for n in log.name_to_id if _DF_NAME.fullmatch(n)]
     rows: dict[tuple[str, int], list] = {}
     try:
@@ -374,7 +382,7 @@ def _df_rows(path: Path, DFReader, text: bool = False) -> dict[tuple[str, int], 
             rows.setdefault(key, []).append(row)
     finally:
         log.close()
-    return rows
+    return rows, where
 
 
 def _df_series(rows: list, n_values: int = 3) -> tuple[np.ndarray, np.ndarray, int]:
@@ -502,7 +510,7 @@ def read_dataflash(path: str | os.PathLike, topic: str | None = None,
     what = "DataFlash text log" if text else "DataFlash log"
     try:
         with quiet():
-            rows = _df_rows(Path(path), DFReader, text)
+            rows, cut = _df_rows(Path(path), DFReader, text)
             isb = _isb_series(rows)
     except MemoryError:
         raise InputError(f"{src}: damaged {what} (a message asks for more memory than there "
@@ -521,6 +529,7 @@ def read_dataflash(path: str | os.PathLike, topic: str | None = None,
             if kind == "ACC" else _df_isb(isb, instance)  # fmt: skip
     except InputError as exc:
         raise InputError(f"{src}: {exc}") from None
+    ch.warnings += [] if cut is None else [cut_line_warning(cut)]
     if kind != "ISB":
         ch.notes.append("ArduPilot logs IMU, ACC and GYR after its own offsets and scales "
                         "(INS_ACCOFFS, INS_ACCSCAL, INS_GYROFFS) and board rotation")  # fmt: skip

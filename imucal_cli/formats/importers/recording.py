@@ -96,6 +96,9 @@ class ImportStats:
     dropped : int
         Binary formats: samples left out because their time did not follow the previous
         sample's (a repeated or earlier stamp), or a value was not a finite number.
+    cut_lines : list of str
+        Text formats: ``file:line`` of each last line dropped as cut short (no line break
+        after it: :func:`~.text_scan.cut_line_start`), each a warning of the import.
     """
 
     lines: int = 0
@@ -108,6 +111,7 @@ class ImportStats:
     unmatched: int = 0
     unpaired: int = 0
     dropped: int = 0
+    cut_lines: list[str] = field(default_factory=list)
 
 
 @dataclass

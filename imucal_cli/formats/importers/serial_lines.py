@@ -27,7 +27,16 @@ from imucal_cli.errors import InputError
 from imucal_cli.formats.inputs import read_input
 
 from .ros import Channels, one_file, to_recording
-from .text import BLANK, MAX_RECORDING_BYTES, NUMBER, is_delimited, split_fields, split_lines
+from .text import (
+    BLANK,
+    MAX_RECORDING_BYTES,
+    NUMBER,
+    cut_line_number,
+    cut_line_start,
+    is_delimited,
+    split_fields,
+    split_lines,
+)
 
 __all__ = [
     "LINE_FORMATS", "LineRecording", "detect_line_format", "line_format", "parse_line",
@@ -85,7 +94,8 @@ def parse_line(fmt: str, line: str) -> list[float] | None:
 
 @dataclass
 class LineRecording:
-    """Samples of a line-format file, counts."""
+    """Samples of a line-format file, counts; ``cut_line``: ``file:line`` of a last line
+    dropped as cut short (:func:`~.text_scan.cut_line_start`)."""
 
     time: np.ndarray
     accel: np.ndarray
@@ -97,6 +107,7 @@ class LineRecording:
     skipped: int = 0
     malformed: int = 0
     first_malformed: str | None = None
+    cut_line: str | None = None
 
 
 def read_serial_lines(
@@ -111,6 +122,10 @@ def read_serial_lines(
     """
     src = str(path)
     data = read_input(path, what="recording", max_bytes=MAX_RECORDING_BYTES)
+    cut = cut_line_start(data)
+    rec = LineRecording(np.empty(0), np.empty((0, 3)), np.empty((0, 3)), None, fmt or "")
+    if cut is not None:  # the writer stopped mid-line: its numbers may be cut short
+        rec.cut_line, data = f"{src}:{cut_line_number(data, cut)}", data[:cut]
     text = data.decode("utf-8", errors="replace")
     fmt = fmt or detect_line_format(text)
     if fmt is None or fmt not in LINE_FORMATS:
@@ -119,7 +134,7 @@ def read_serial_lines(
         raise InputError(f"{src}: {LINE_FORMATS[fmt][2]} lines carry no time: pass --rate "
                          "(the sketch's sample rate, Hz)")  # fmt: skip
     prefix, count, what = LINE_FORMATS[fmt]
-    rec = LineRecording(np.empty(0), np.empty((0, 3)), np.empty((0, 3)), None, fmt)
+    rec.fmt = fmt
     rows, slots = [], []
     slot = 0  # each line of the format is one sample period, a malformed one too
     for number, line in enumerate(split_lines(text), 1):
@@ -162,6 +177,7 @@ def read(paths, options, stats):
     rec = read_serial_lines(path, options.rate_hz)
     stats.lines, stats.malformed = rec.lines, rec.malformed
     stats.first_malformed, stats.comments = rec.first_malformed, rec.skipped
+    stats.cut_lines += [rec.cut_line] if rec.cut_line else []
     ch = Channels(rec.time, rec.accel, rec.gyro, "counts", "counts", mag=rec.mag,
                   mag_units=None if rec.mag is None else "counts", notes=rec.notes)  # fmt: skip
     return to_recording(ch, paths, stats)

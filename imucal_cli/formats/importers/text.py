@@ -4,7 +4,8 @@
 Column specs name the fields of a line (:func:`parse_columns`, or :func:`infer_columns` from a
 header line).  Lines starting with ``#`` are comments; non-numeric lines before the first sample
 are header lines; any other line that does not give the expected numbers is malformed: skipped
-and counted, never fatal unless nothing is left.
+and counted, never fatal unless nothing is left.  A last line without its line break was cut
+short by the writer: dropped, with a warning (:func:`cut_line_start`).
 
 A line's fields and numbers, and the scanners of a whole file, are :mod:`.text_scan`'s (its
 line-level names importable from here).
@@ -25,6 +26,9 @@ from .recording import ImportStats
 from .text_scan import (
     BLANK,
     NUMBER,
+    cut_line_number,
+    cut_line_start,
+    cut_line_warning,
     is_delimited,
     parse_numbers,
     scan_ascii,
@@ -40,6 +44,9 @@ __all__ = [
     "HEADER_ALIASES",
     "NUMBER",
     "check_time",
+    "cut_line_number",
+    "cut_line_start",
+    "cut_line_warning",
     "first_fields",
     "header_columns",
     "infer_columns",
@@ -206,6 +213,16 @@ def read_lines(path: Path, raw: bytes | None = None) -> list[str]:
     return split_lines(text)
 
 
+def whole_lines(raw: bytes, path: Path, stats: ImportStats) -> tuple[bytes, str | None]:
+    """``raw`` without a last line cut short (:func:`cut_line_start`), and that line's
+    ``file:line`` (None: none cut), added to ``stats.cut_lines``."""
+    cut = cut_line_start(raw)
+    if cut is None:
+        return raw, None
+    stats.cut_lines.append(f"{path}:{cut_line_number(raw, cut)}")
+    return raw[:cut], stats.cut_lines[-1]
+
+
 def read_table(
     path: Path,
     n_fields: int | None,
@@ -219,8 +236,10 @@ def read_table(
     Lines before ``skip_rows`` and non-numeric lines before the first numeric one are header
     lines; blank and ``#`` lines are counted; any later line that does not give ``n_fields``
     finite numbers (fields in ``skip`` may hold anything and read as 0) is malformed: counted,
-    the first one's ``file:line`` kept, and skipped.  ``comma`` None: fields are separated by
-    commas when the first line read has one, else by white space.
+    the first one's ``file:line`` kept, and skipped.  A last line cut short (no line break
+    after it: :func:`cut_line_start`) is dropped, its ``file:line`` in ``stats.cut_lines``.
+    ``comma`` None: fields are separated by commas when the first line read has one, else by
+    white space.
 
     The file is scanned with array operations, in pieces (:func:`scan_ascii`); files that are
     not plain ASCII, or hold a token that is not a number where a number is due, are read line
@@ -240,7 +259,7 @@ def read_table(
         Missing, unreadable or empty file, no numeric rows, no row with ``n_fields`` fields.
         ``n_fields`` None: the most common field count of the numeric rows.
     """
-    raw = _read_bytes(path)
+    raw, cut = whole_lines(_read_bytes(path), path, stats)
     scan = scan_ascii(raw, skip_rows, comma, skip)
     if scan is None:
         scan = scan_lines(read_lines(path, raw), skip_rows, comma, skip)
@@ -249,7 +268,8 @@ def read_table(
     stats.blank += scan.blank
     stats.comments += scan.comments
     if not len(scan.numbers):
-        raise InputError(f"{path}: no numeric rows (only header or text lines)")
+        dropped = "" if cut is None else f"; the last line, {cut}, was cut short"
+        raise InputError(f"{path}: no numeric rows (only header or text lines{dropped})")
     lengths = scan.lengths
     if n_fields is None:
         n_fields = int(np.argmax(np.bincount(lengths)))

@@ -69,6 +69,55 @@ def split_lines(text: str) -> list[str]:
     return [line[:-1] if line.endswith("\r") else line for line in lines]
 
 
+def cut_line_start(raw) -> int | None:
+    """Where the last line of a text recording starts when it was cut short, else None.
+
+    A writer stopped mid-line (the logger killed, power lost, a full disk) leaves a last line
+    without its line break, and the number it stops in still reads as a number (``-9.8`` of
+    ``-9.81234``): nothing in the line itself can tell.  The rule is the file's own: where the
+    lines before it end with a line break (``\\n``, or ``\\r`` in a file without ``\\n``), a
+    last line without one is cut short, and dropped by every text reader (the importers'
+    :func:`~.text.read_table` and :func:`~.serial_lines.read_serial_lines`, the DataFlash text
+    log's, ``imucal apply``'s CSV input), with a warning naming it (:func:`cut_line_warning`).
+    Kept whole: a file of one line (no line before it to say how lines end), a last line of
+    blanks or a ``#`` comment (nothing of it is read), and one ending with ``\\r`` (a CR LF
+    cut between the two: the line itself is whole).
+
+    Parameters
+    ----------
+    raw : bytes or mmap.mmap
+        The file's bytes (anything with ``rfind`` and slicing).
+
+    Returns
+    -------
+    int or None
+        The byte offset of the cut line (the file's complete lines are ``raw[:offset]``).
+    """
+    brk = raw.rfind(b"\n")
+    if brk < 0:
+        brk = raw.rfind(b"\r")  # classic Mac: lines end with CR alone
+    if brk < 0:
+        return None
+    tail = raw[brk + 1 :]
+    text = tail.strip(BLANK.encode())
+    if not text or text.startswith(b"#") or tail.endswith(b"\r"):
+        return None
+    return brk + 1
+
+
+def cut_line_number(raw, start: int) -> int:
+    """The 1-based number of the line that starts at ``start`` (just after a line break)."""
+    head = raw[:start]
+    return (head.count(b"\n") or head.count(b"\r")) + 1
+
+
+def cut_line_warning(where: str) -> str:
+    """The one-line warning for a last line cut short (:func:`cut_line_start`) at ``where``
+    (``file:line``)."""
+    return (f"{where}: the last line has no line break (the writer stopped mid-line): dropped, "
+            "its numbers may be cut short")  # fmt: skip
+
+
 def skipped_fields(spec) -> frozenset[int]:
     """Positions of the ``_`` (skipped) fields of a column spec (None: no spec yet)."""
     if spec is None:

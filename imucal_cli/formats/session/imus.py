@@ -18,21 +18,20 @@ root attribute ``imus`` lists every name, the reference's first.
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import replace
 
 import h5py
 import numpy as np
 
-from imucal_cli.errors import ImucalWarning, SessionError
+from imucal_cli.errors import SessionError
 from imucal_cli.formats.text import clean_text
 from imucal_cli.model.imu_stream import IMU_CHANNELS, IMU_TEXT_ATTRS, REFERENCE_NAME, ImuStream
 from imucal_cli.model.session import MAG_UNITS, Segment, Session, as_float, as_str, show
 
 from .h5open import check_dataset, file_size, get_attr, member
 
-__all__ = ["imu_group", "imu_session", "imu_names_attr", "listed_names", "map_segments",
-           "read_imus", "set_names"]
+__all__ = ["imu_group", "imu_session", "imu_names_attr", "listed_imus", "listed_names",
+           "map_segments", "read_imus", "set_names"]
 
 MAX_IMUS = 256
 """The most IMUs one session may hold (an IMU array has 4 to 32)."""
@@ -73,28 +72,55 @@ def _names(value, src: str) -> list[str]:
     return imu_names_attr(names, src)
 
 
-def read_imus(file: h5py.File, src: str, unclosed: bool) -> tuple[str, dict[str, ImuStream]]:
-    """The reference's name and the other IMUs of an open session file.
-
-    A file without the root attribute ``imus`` holds one IMU (its ``/imus`` groups, if any,
-    are not listed, hence ignored with a warning).  A file left open by its writer (a killed
-    capture) is read up to each group's shortest dataset and last written time.
+def listed_imus(file: h5py.File, src: str) -> list[str] | None:
+    """The root attribute ``imus`` (None: absent, one IMU), checked to name every member of
+    ``/imus``: the spec's "The root attribute ``imus`` lists every IMU's name, the reference's
+    first".  Every reader of a session calls it (:func:`read_imus` for
+    :func:`~.reader.read_session`: ``calibrate``, ``report``, ``label``; and
+    :func:`listed_names` for :func:`~.stream.open_samples`: ``noise``, ``apply``), so that
+    none reads a set the file itself contradicts, whether it reads the other IMUs or ``/raw``
+    alone.
 
     Raises
     ------
     SessionError
-        A listed IMU without its group, a dataset of the wrong shape or type, time that is not
-        finite and strictly increasing, links or data outside the file.
+        A member of ``/imus`` the attribute does not list (or no attribute while ``/imus``
+        holds members): one line naming them.
     """
     value = get_attr(file.attrs, "imus", src, "root ")
+    names = None if value is None else _names(value, src)
     group = member(file, "imus", src)
-    if value is None:
-        if isinstance(group, h5py.Group) and len(group):
-            warnings.warn(f"{src}: /imus holds groups but the root attribute 'imus' does not "
-                          "list them: read as one IMU (/raw)", ImucalWarning,
-                          stacklevel=3)  # fmt: skip
+    others = names[1:] if names else []  # the reference is /raw, never a group of /imus
+    unlisted = [n for n in group if n not in others] if isinstance(group, h5py.Group) else []
+    if unlisted:
+        said = "has no root attribute 'imus'" if names is None else \
+            f"lists only {', '.join(names)} in its root attribute 'imus'"  # fmt: skip
+        raise SessionError(
+            f"{src}: /imus holds {', '.join(clean_text(n) for n in unlisted[:8])}"
+            f"{' ...' if len(unlisted) > 8 else ''} but the file {said}, which lists every "
+            "IMU of a set: list them there, or delete their groups"
+        )
+    return names
+
+
+def read_imus(file: h5py.File, src: str, unclosed: bool) -> tuple[str, dict[str, ImuStream]]:
+    """The reference's name and the other IMUs of an open session file.
+
+    A file without the root attribute ``imus`` holds one IMU; one whose ``/imus`` holds a
+    group the attribute does not list is refused (:func:`listed_imus`).  A file left open by
+    its writer (a killed capture) is read up to each group's shortest dataset and last written
+    time.
+
+    Raises
+    ------
+    SessionError
+        A listed IMU without its group, a group not listed, a dataset of the wrong shape or
+        type, time that is not finite and strictly increasing, links or data outside the file.
+    """
+    names = listed_imus(file, src)
+    if names is None:
         return REFERENCE_NAME, {}
-    names = _names(value, src)
+    group = member(file, "imus", src)
     if len(names) > 1 and not isinstance(group, h5py.Group):
         raise SessionError(f"{src}: root attribute 'imus' lists {', '.join(names[1:])} but the "
                            "file has no /imus group")  # fmt: skip
@@ -163,9 +189,9 @@ def _read_group(group: h5py.Group, where: str, src: str, limit: int,
 
 def listed_names(file: h5py.File, src: str) -> list[str]:
     """Every IMU's name in an open session file, the reference's first (the root attribute
-    ``imus``; ``[reference]`` for a file of one IMU)."""
-    value = get_attr(file.attrs, "imus", src, "root ")
-    return [REFERENCE_NAME] if value is None else _names(value, src)
+    ``imus``, checked by :func:`listed_imus`; ``[reference]`` for a file of one IMU)."""
+    names = listed_imus(file, src)
+    return [REFERENCE_NAME] if names is None else names
 
 
 def imu_group(file: h5py.File, src: str, name: str,
