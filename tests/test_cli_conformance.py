@@ -105,6 +105,23 @@ def test_help_as_a_process(command):
     assert piped.returncode == 0 and piped.stderr == "", piped.stderr
 
 
+def test_the_root_help_lists_a_command_it_has_not_loaded_by_its_own_short_help():
+    """``imucal --help`` imports no command's module: each command's line is made from its
+    sentence in ``cli/app.py``'s ``SUMMARIES``, and is the line the command's own help makes, at
+    any width (the whole text, process against all commands loaded: test_help_as_a_process)."""
+    import typer
+
+    from imucal_cli.cli.app import COMMANDS as TABLE
+    from imucal_cli.cli.app import NO_WRAP_WIDTH, Commands
+
+    group = typer.main.get_command(app)
+    for name in TABLE:
+        command = group.get_command(typer.Context(group), name)
+        for limit in (10, 30, 45, 60, 74, 100, NO_WRAP_WIDTH):
+            assert Commands.stand_in(name).get_short_help_str(limit) == \
+                command.get_short_help_str(limit), (name, limit)
+
+
 def test_help_keeps_square_brackets_and_shows_what_the_readme_says():
     capture = _help("capture", "--help").stdout
     assert "[[step]]" in capture

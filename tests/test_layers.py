@@ -204,8 +204,8 @@ def test_every_command_is_in_the_table_of_commands():
 def test_a_command_loads_its_own_modules_only():
     """Issue 29.5: ``imucal registry lot`` (10,000 units in under 2 s of CPU, start-up
     included) imports the registry's command module and what it needs, not the other
-    commands' (calibrate, capture, simulate: the solvers, scipy); ``imucal --version`` imports
-    no command at all."""
+    commands' (calibrate, capture, simulate: the solvers, scipy); ``imucal --version`` and
+    ``imucal --help`` import no command at all."""
     import subprocess
     import sys
 
@@ -227,6 +227,7 @@ def test_a_command_loads_its_own_modules_only():
     assert others <= {"imucal_cli.cli.app", "imucal_cli.cli.registry",
                       "imucal_cli.cli.registry_render", "imucal_cli.cli.options",
                       "imucal_cli.cli.completion", "imucal_cli.cli.console"}, sorted(others)
-    version = loaded("--version")
-    assert not {m for m in version if m.startswith(("imucal_cli.cli.", "scipy"))} - {
-        "imucal_cli.cli.app"}, sorted(version)
+    for args in (["--version"], ["--help"]):  # the root's help lists the commands unloaded
+        root = loaded(*args)
+        assert not {m for m in root if m.startswith(("imucal_cli.cli.", "scipy"))} - {
+            "imucal_cli.cli.app"}, (args, sorted(root))

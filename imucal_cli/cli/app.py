@@ -13,7 +13,7 @@ import shutil
 import sys
 
 import typer
-from typer.core import TyperGroup
+from typer.core import TyperCommand, TyperGroup
 
 from imucal_cli import __version__
 
@@ -104,12 +104,37 @@ COMMANDS = {
 """Every command of ``imucal`` (in the order ``--help`` lists them) and the module of this
 package that registers it on :data:`app`."""
 
+SUMMARIES = {
+    "apply": "Apply a calibration to every sample: calibrated = matrix @ (raw - bias).",
+    "calibrate": "Calibrate the sensors of SESSION the config asks for and write a calibration "
+                 "JSON.",
+    "capture": "Record a calibration session from an IMU on a serial port.",
+    "certificate": "Write a unit's calibration certificate: identity (serial, product, lot, "
+                   "station, operator, times), the session's content hash, the verdict and every "
+                   "limit check, each sensor's parameters with their std and residuals, and the "
+                   "plots (inline PNG: the file stands alone).",
+    "export": "Export a calibration for firmware, ROS, estimators or scripts.",
+    "import": "Import recorded samples into a session and find its still poses and rotations.",
+    "label": "Set or correct the labels of SESSION: faces from the measured directions, one "
+             "segment by hand, the sensor, units and gravity.",
+    "noise": "Noise figures of a still recording for your filter: Allan deviation per axis.",
+    "report": "Report a calibration: parameters ± std, RMS before/after/held-out, poses, "
+              "coverage.",
+    "simulate": "Simulate a calibration session of a cheap 16-bit MEMS IMU with known truth.",
+    "registry": "The calibrations of every unit by serial number: list, show a unit's history "
+                "and drift, export and import records, a lot's statistics.",
+}  # fmt: skip
+"""The first sentence of each command's help: what the root's ``--help`` lists for a command
+whose module is not loaded (the short help is made from this sentence as from the whole help:
+``tests/test_cli_conformance.py`` compares them)."""
+
 
 class Commands(TyperGroup):
     """The root's commands, each command's module imported when a command line names it
     (click's "lazily loading subcommands"): ``imucal registry lot`` loads the registry's
-    libraries, not also those of calibrate, capture and simulate. ``--help``, completion and
-    a misspelt command (typer's "Did you mean") load them all."""
+    libraries, not also those of calibrate, capture and simulate. The root's ``--help`` lists
+    the commands not loaded by their :data:`SUMMARIES`; completion and a misspelt command
+    (typer's "Did you mean") load them all."""
 
     def list_commands(self, ctx) -> list[str]:
         return list(COMMANDS)
@@ -125,8 +150,22 @@ class Commands(TyperGroup):
         return super().resolve_command(ctx, args)
 
     def format_commands(self, ctx, formatter) -> None:
-        self.load(COMMANDS)
-        super().format_commands(ctx, formatter)
+        """The list of commands as typer writes it, each command's short help made from its
+        :data:`SUMMARIES` sentence where its module is not loaded: ``imucal --help`` imports
+        no command (0.1-0.2 s of CPU, 1.5-2 s when it imported them all)."""
+        commands = [(name, self.commands.get(name) or self.stand_in(name)) for name in COMMANDS]
+        commands = [(name, cmd) for name, cmd in commands if not cmd.hidden]
+        if not commands:
+            return
+        limit = formatter.width - 6 - max(len(name) for name, _ in commands)
+        rows = [(name, cmd.get_short_help_str(limit)) for name, cmd in commands]
+        with formatter.section("Commands"):
+            formatter.write_dl(rows)
+
+    @staticmethod
+    def stand_in(name: str) -> TyperCommand:
+        """Command ``name`` as the root's help lists it, its module not imported."""
+        return TyperCommand(name=name, help=SUMMARIES[name])
 
     def load(self, names) -> None:
         """Import the modules of the commands ``names`` and add what they registered."""
