@@ -229,6 +229,23 @@ def test_writer_blocks_and_single_samples(tmp_path):
     ]
 
 
+def test_writer_bytes_per_sample_is_the_row_of_its_datasets(tmp_path):
+    """What one sample takes in /raw (a capture's disk headroom, at every block): the widths
+    of the writer's datasets, a reopened session's its own."""
+    with SessionWriter(tmp_path / "b.h5", temperature=True) as w:
+        assert w.bytes_per_sample == 8 * (3 + 3 + 1 + 1)
+        w.append(np.arange(5) * 0.01, np.zeros((5, 3)), np.zeros((5, 3)), np.zeros(5))
+        assert w.bytes_per_sample == 8 * (3 + 3 + 1 + 1)
+    with SessionWriter(tmp_path / "a.h5", gyro_channels=None) as w:
+        assert w.bytes_per_sample == 8 * (3 + 1)
+        w.append(np.arange(5) * 0.01, np.zeros((5, 3)))
+    again = SessionWriter.reopen(tmp_path / "a.h5")
+    try:
+        assert again.bytes_per_sample == 8 * (3 + 1)
+    finally:
+        again.close()
+
+
 def test_writer_file_layout(tmp_path):
     path = tmp_path / "w.h5"
     with SessionWriter(path, created="2026-11-21T10:00:00Z", gyro_channels=None) as w:

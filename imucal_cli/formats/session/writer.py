@@ -249,8 +249,16 @@ class SessionWriter(Resumable, Rewritable, FailedWrites):
 
     @property
     def bytes_per_sample(self) -> int:
-        """Bytes one sample takes in the file's ``/raw`` datasets."""
-        return 8 * sum(int(np.prod(ds.shape[1:])) for ds in self._datasets.values())
+        """Bytes one sample takes in the file's ``/raw`` datasets.  Their widths are fixed when
+        they are made: read once per set of datasets, not at every block a capture appends
+        (h5py's ``shape`` is 10-20 us a call; six of them a block were a tenth of a capture's
+        CPU)."""
+        datasets = self._datasets
+        known = getattr(self, "_sample_bytes", None)
+        if known is None or known[0] is not datasets or known[1] != len(datasets):
+            size = 8 * sum(int(np.prod(ds.shape[1:])) for ds in datasets.values())
+            known = self._sample_bytes = (datasets, len(datasets), size)
+        return known[2]
 
     @property
     def chunk_bytes(self) -> int:
