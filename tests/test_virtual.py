@@ -343,11 +343,18 @@ def test_sketch_lines_captured_end_to_end(tmp_path, server_factory, protocol, ca
     assert len(session.static_segments()) == 6 and "complete (6 steps seen)" in stdout
     # the host's stamps, once the capture ended: each run between pauses on the device's
     # steady clock, without the read jitter (which the gyro's turns integrate over)
-    from imucal_cli.capture.host_clock import PAUSE_S
+    from imucal_cli.capture.host_clock import MIN_STEADY, PAUSE_S, STEADY_MISS
 
+    straight = 0
     for stamps in np.split(session.time, np.flatnonzero(np.diff(session.time) > PAUSE_S) + 1):
         i = np.arange(len(stamps))
-        assert np.abs(stamps - np.polyval(np.polyfit(i, stamps, 1), i)).max() < 1e-6
+        miss = np.abs(stamps - np.polyval(np.polyfit(i, stamps, 1), i)).max()
+        if miss < 1e-6:
+            straight += len(stamps)
+        else:  # kept live: only a run too short to fit, or one the line missed by steps of
+            # several intervals (a host far busier than two burners: load 9 on 2 cores)
+            assert len(stamps) < MIN_STEADY or miss > STEADY_MISS / 2 / RATE, miss
+    assert straight >= 0.5 * n, (straight, n)
     if protocol == "motioncal":
         assert "recognised MotionCal Raw:" in stderr and session.mag_units == "counts"
         field_uT = np.linalg.norm(session.mag - HARD_IRON_COUNTS, axis=1) / 10.0
