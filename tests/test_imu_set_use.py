@@ -5,6 +5,9 @@ applied per IMU in its own frame or the reference's."""
 
 from __future__ import annotations
 
+import dataclasses
+import json
+
 import h5py
 import numpy as np
 import pytest
@@ -210,6 +213,22 @@ def test_apply_each_imu_in_its_frame_or_the_reference(calibrated, tmp_path):
     assert one.read_text().splitlines()[0] == "t,ax,ay,az,gx,gy,gz"
     proc = run("apply", folder / "set.cal.json", folder / "set.h5", "-o", tmp_path / "x.csv")
     assert proc.returncode == 2 and "a CSV holds one IMU" in proc.stderr
+
+
+def test_apply_a_set_to_another_unit_warns(calibrated, tmp_path):
+    """The set's own session: no warning; the same IMUs named as another unit: one warning
+    per IMU named otherwise, the output written all the same."""
+    session, _, folder = calibrated
+    same = run("apply", folder / "set.cal.json", folder / "set.h5", "-o", tmp_path / "a.h5",
+               "--json")  # fmt: skip
+    assert same.returncode == 0 and json.loads(same.stdout)["warnings"] == []
+    other = dataclasses.replace(session, sensor="FC-2 #0042")  # the reference's name
+    write_session(tmp_path / "other.h5", other)
+    proc = run("apply", folder / "set.cal.json", tmp_path / "other.h5", "-o",
+               tmp_path / "b.h5", "--json")  # fmt: skip
+    assert proc.returncode == 0 and (tmp_path / "b.h5").exists()
+    (warning,) = json.loads(proc.stdout)["warnings"]
+    assert "(reference)" in warning and "is from 'FC-2 #0042'" in warning
 
 
 def test_a_reference_named_by_the_recorder_is_found_by_export_and_apply(tmp_path):

@@ -101,10 +101,12 @@ def set_summary(summary, input_file, calibration, output, json_output: bool) -> 
                     "output_format": summary.output_format, "input": str(input_file),
                     "calibration": str(calibration), "imus": summary.imus,
                     "samples": summary.samples, "sensors": summary.sensors,
-                    "frame": summary.frame})  # fmt: skip
+                    "frame": summary.frame, "warnings": summary.warnings})  # fmt: skip
         return
     counts = ", ".join(f"{n} {k}" for n, k in summary.samples.items())
     make_console().print(f"calibrated {counts} samples ({', '.join(summary.sensors)}; "
                          f"{summary.frame} frame) from {input_file} with {calibration} -> "
                          f"{output} ({summary.output_format})", markup=False, highlight=False,
                          soft_wrap=True)  # fmt: skip
+    for w in summary.warnings:
+        make_console().print(f"warning: {w}", markup=False, highlight=False, soft_wrap=True)

@@ -33,6 +33,7 @@ from imucal_cli.formats.output import check_output, safe_output
 from imucal_cli.formats.session import imu_session, read_session, set_names, utc_now_iso
 from imucal_cli.model.calibration import MODEL_EQUATION, Calibration
 from imucal_cli.model.imu_stream import REFERENCE_NAME
+from imucal_cli.use.apply import other_unit
 
 from .export_set import SetMember, set_members
 
@@ -50,6 +51,7 @@ class SetApplySummary:
     samples: dict[str, int] = field(default_factory=dict)
     sensors: list[str] = field(default_factory=list)
     frame: str = "own"
+    warnings: list[str] = field(default_factory=list)
 
 
 def _member_for(members: list[SetMember], name: str, reference: str) -> SetMember:
@@ -113,7 +115,7 @@ def apply_set(cal: Calibration, input_path: str | os.PathLike, output_path: str 
     names = [imu] if imu is not None else set_names(session)
     if fmt == "csv" and len(names) > 1:
         raise InputError("a CSV holds one IMU: pass --imu NAME, or write .h5")
-    data = {}
+    data, warnings = {}, []
     for name in names:
         member = _member_for(members, name, session.reference_name)
         sub = imu_session(session, name) if name in set_names(session) else None
@@ -121,9 +123,11 @@ def apply_set(cal: Calibration, input_path: str | os.PathLike, output_path: str 
             raise InputError(f"{input_path}: no IMU {name!r} (IMUs: "
                              f"{', '.join(set_names(session))})")  # fmt: skip
         data[name] = _calibrated(member, sub, reference_frame and name != session.reference_name)
+        warnings += other_unit(member.calibration.sensor, sub.sensor, f"{cal_source} ({name})",
+                               f"{input_path} ({name})")  # fmt: skip
     summary = SetApplySummary(fmt, names, {n: len(d["time"]) for n, d in data.items()},
                               [s for s in _SENSORS if s in data[names[0]]],
-                              "reference" if reference_frame else "own")  # fmt: skip
+                              "reference" if reference_frame else "own", warnings)  # fmt: skip
     if fmt == "csv":
         _write_csv(output_path, data[names[0]], cal_source, overwrite, input_path)
     else:
