@@ -6,11 +6,14 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
+from alembic import command
+from alembic.config import Config
 from alembic.runtime.migration import MigrationContext
-from sqlalchemy import func, select
+from sqlalchemy import create_engine, func, select
 
 from imucal_cli.registry import store as store_module
 from imucal_cli.registry.lot import OUTLIER_Z, lot_statistics
@@ -197,6 +200,30 @@ def test_a_registry_of_revision_0002_with_sets_is_migrated(tmp_path, set_templat
     assert migrated["parameters"] == recorded["parameters"]
     assert any(p.get("imu") == "imu2" and p["n"] == 2 for p in migrated["parameters"])
     assert store_module.HEAD == "0003"
+
+
+def test_migration_0003_downgrades_without_losing_the_reference(tmp_path, set_template):
+    """Down to 0002: the other IMUs' sections go, the reference's stay with every figure row
+    (a batch copy of ``sections`` on SQLite would drop them with the old table); opened again,
+    the registry is what it was."""
+    path = str(tmp_path / "r.db")
+    with open_registry(path) as reg:
+        record_calibration(reg, set_unit(set_template, 0), UnitInfo("A"))
+    before = section_rows(path)
+    with open_registry(path) as reg, reg.write() as conn:
+        config = Config()
+        config.set_main_option("script_location",
+                               str(Path(store_module.__file__).parent / "migrations"))
+        config.attributes["connection"] = conn
+        command.downgrade(config, "0002")
+    engine = create_engine(f"sqlite:///{path}")
+    with engine.connect() as conn:
+        assert conn.exec_driver_sql("SELECT version_num FROM alembic_version").scalar() == "0002"
+        kept = conn.exec_driver_sql("SELECT COUNT(*) FROM figures").scalar()
+        assert conn.exec_driver_sql("SELECT COUNT(*) FROM sections").scalar() == 2
+    engine.dispose()
+    assert kept == sum(len(r[6]) for r in before if r[1] is None)
+    assert section_rows(path) == before  # opened: migrated again, the others derived anew
 
 
 # --------------------------------------------------------------------------------------------
