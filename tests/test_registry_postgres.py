@@ -25,9 +25,13 @@ from .cli_helpers import run
 from .registry_helpers import (
     assert_whole,
     calibrate_copy,
+    make_set_template,
     make_template,
     recorded_lines,
+    section_rows,
+    set_unit,
     unit,
+    write_as_0002,
     writer,
 )
 
@@ -124,6 +128,21 @@ def test_an_older_postgresql_registry_is_migrated(url, template):
         cal = unit(template, 1)
         record_calibration(reg, cal, UnitInfo("OLD"))
         assert [(r["serial"], r["calibrations"]) for r in list_units(reg)] == [("OLD", 1)]
+
+
+def test_sets_of_a_revision_0002_postgresql_registry_are_migrated(url, tmp_path_factory):
+    """A PostgreSQL registry of revision 0002 holding a set (its other IMUs in the document
+    only): migrated, the other IMUs' sections derived; a set recorded after has its own; the
+    lot counts every IMU of both."""
+    template = make_set_template(tmp_path_factory)
+    write_as_0002(url, [("S1", set_unit(template, 0))])
+    with open_registry(url) as reg:
+        record_calibration(reg, set_unit(template, 1), UnitInfo("S2", lot="OLD"))
+        stats = lot_statistics(reg, "OLD")
+    imus = [r[1] for r in section_rows(url)]
+    assert sorted(imus, key=lambda m: m or "") == [None] * 4 + ["imu1"] * 4 + ["imu2"] * 4
+    p = next(p for p in stats["parameters"] if p.get("imu") == "imu2" and p["name"] == "b_x")
+    assert p["n"] == 2
 
 
 def test_calibrate_records_into_postgresql(url, tmp_path):

@@ -8,6 +8,7 @@ from rich.markup import escape
 from rich.table import Table
 from rich.text import Text
 
+from imucal_cli.registry.lot import label
 from imucal_cli.use.report.history import render_history
 
 __all__ = ["render_lot", "render_unit", "render_units"]
@@ -60,7 +61,8 @@ def _verdict(verdict: str | None) -> Text:
 
 
 def _lot_table(sensor: str, params: list[dict]) -> Table:
-    """One sensor's parameters across the lot: distribution, limit, Cpk, units beyond, apart."""
+    """One sensor's parameters across the lot (``sensor``: ``accel``, or ``imu1 accel`` for
+    another IMU of a set): distribution, limit, Cpk, units beyond, apart."""
     table = Table(title=Text(sensor), title_justify="left", box=box.SIMPLE, pad_edge=False)
     for col in ("parameter", "unit", "n", "mean", "std", "limit", "Cpk", "beyond", "apart"):
         table.add_column(col, justify="left" if col in ("parameter", "unit") else "right",
@@ -86,8 +88,8 @@ def render_lot(stats: dict, console: Console) -> None:
                        f"calibrations; pass {v['pass']}, fail {v['fail']}, not judged "
                        f"{v['not judged']}", style="bold"))  # fmt: skip
     console.print(Text(f"limits: {stats['limits_source']}"), soft_wrap=True)
-    for sensor in dict.fromkeys(p["sensor"] for p in stats["parameters"]):
-        console.print(_lot_table(sensor, [p for p in stats["parameters"] if p["sensor"] == sensor]))
+    for shown in dict.fromkeys(label(p) for p in stats["parameters"]):
+        console.print(_lot_table(shown, [p for p in stats["parameters"] if label(p) == shown]))
     console.print(Text("Cpk: min(limit - mean, mean + limit) / (3 std), upper limits (limit - "
                        "mean) / (3 std); below 1.33 in red. apart: units by the "
                        f"{stats['outlier_test']}", style="dim"), soft_wrap=True)  # fmt: skip

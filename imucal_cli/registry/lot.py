@@ -17,18 +17,26 @@ each unit of the lot:
   compare_with_reference`, the test of ``imucal report A B`` (a change beyond
   :data:`~imucal_cli.use.report.history.DRIFT_SIGMAS` combined std); accel, gyro and mag.
 
+A unit of several IMUs (a calibration with ``imus``) has its figures per IMU: the reference
+IMU's are the lot's parameters as a single IMU's (``sensor`` ``accel``, ...), each other IMU's
+are parameters of their own (``imu`` ``imu1``, shown as ``imu1 accel``), with their own
+distribution, outliers, Cpk (against the same limits: every IMU is judged by them) and drift
+test; they come after the reference's, the IMUs in their names' natural order.
+
 The limits are the ones given (``--limits``), else those the lot's latest calibrations were
-judged against.  Everything is read from the sections' packed figures (one row per sensor of a
-calibration): no calibration JSON is parsed.  The sections of one sensor that share a layout
-(the same figures) are unpacked at once, a matrix with a row per section; a lot's parameters
-are columns of the rows that are its units' latest calibrations, in the order of the units'
-first calibrations (so that the result does not depend on how the rows were grouped).
+judged against.  Everything is read from the sections' packed figures (one row per sensor of
+each IMU of a calibration): no calibration JSON is parsed.  The sections of one IMU and sensor
+that share a layout (the same figures) are unpacked at once, a matrix with a row per section;
+a lot's parameters are columns of the rows that are its units' latest calibrations, in the
+order of the units' first calibrations (so that the result does not depend on how the rows
+were grouped).
 """
 
 from __future__ import annotations
 
 import json
 import math
+import re
 from collections import Counter, defaultdict
 from dataclasses import dataclass
 from typing import Any
@@ -42,8 +50,8 @@ from imucal_cli.use.report.history import DRIFT_SIGMAS, compare_with_reference
 from .schema import calibrations, sections, units
 from .store import Registry, RegistryError
 
-__all__ = ["LOT_FORMAT", "OUTLIER_TEST", "OUTLIER_Z", "cpk", "drop_values", "lot_statistics",
-           "outliers"]
+__all__ = ["LOT_FORMAT", "OUTLIER_TEST", "OUTLIER_Z", "cpk", "drop_values", "imu_order", "label",
+           "lot_statistics", "outliers"]  # fmt: skip
 
 LOT_FORMAT = "imucal-registry-lot"
 OUTLIER_Z = 3.5
@@ -91,7 +99,7 @@ def _read(registry: Registry, lot: str) -> tuple[_Calibrations, list[_Sections]]
         .join(units, units.c.id == calibrations.c.unit_id).where(in_lot)
     )  # fmt: skip
     sec_query = (
-        select(sections.c.calibration_id, sections.c.sensor, sections.c.basis,
+        select(sections.c.calibration_id, sections.c.imu, sections.c.sensor, sections.c.basis,
                sections.c.layout, sections.c["values"], sections.c.stds)
         .join(calibrations, calibrations.c.id == sections.c.calibration_id)
         .join(units, units.c.id == calibrations.c.unit_id).where(in_lot)
@@ -105,14 +113,14 @@ def _read(registry: Registry, lot: str) -> tuple[_Calibrations, list[_Sections]]
 
 
 def _unpack(rows, registry: Registry) -> list[_Sections]:
-    """Sections' rows ``(calibration id, sensor, basis, layout JSON, values, stds)`` grouped by
-    sensor and layout, each group's packed figures unpacked at once into a matrix (rows
-    streamed: nothing is kept per row but what the matrices are made of)."""
-    packed: dict[str, dict[str, tuple[list, ...]]] = {}  # sensor -> layout -> lists
-    for index, (cal_id, sensor, basis, layout, vals, stds) in enumerate(rows):
-        of_sensor = packed.get(sensor)
+    """Sections' rows ``(calibration id, imu, sensor, basis, layout JSON, values, stds)``
+    grouped by IMU, sensor and layout, each group's packed figures unpacked at once into a
+    matrix (rows streamed: nothing is kept per row but what the matrices are made of)."""
+    packed: dict[tuple, dict[str, tuple[list, ...]]] = {}  # (imu, sensor) -> layout -> lists
+    for index, (cal_id, imu, sensor, basis, layout, vals, stds) in enumerate(rows):
+        of_sensor = packed.get((imu, sensor))
         if of_sensor is None:
-            of_sensor = packed[sensor] = {}
+            of_sensor = packed[(imu, sensor)] = {}
         lists = of_sensor.get(layout)
         if lists is None:
             lists = of_sensor[layout] = ([], [], [], [], [])
@@ -124,13 +132,13 @@ def _unpack(rows, registry: Registry) -> list[_Sections]:
         std_blobs.append(stds)
     layouts: dict[str, _Layout] = {}
     groups = []
-    for sensor, of_sensor in packed.items():
+    for (imu, sensor), of_sensor in packed.items():
         for layout, (ids, order, bases, blobs, std_blobs) in of_sensor.items():
             shape = layouts.get(layout)
             if shape is None:
                 shape = layouts[layout] = _Layout(layout)
             width = len(shape.names)
-            groups.append(_Sections(sensor, shape, ids, order, bases,
+            groups.append(_Sections(imu, sensor, shape, ids, order, bases,
                                     _matrix(blobs, width, registry),
                                     _matrix(std_blobs, width, registry)))  # fmt: skip
     return groups
@@ -188,8 +196,9 @@ class _Calibrations:
 
 @dataclass(frozen=True)
 class _Sections:
-    """The sections of one sensor that share a layout, a row per section."""
+    """The sections of one IMU's sensor that share a layout, a row per section."""
 
+    imu: str | None  #: the IMU of a set (None: the reference, or the only IMU)
     sensor: str
     layout: _Layout
     cal_ids: list[int]  #: each section's calibration
@@ -222,7 +231,7 @@ def lot_statistics(registry: Registry, lot: str, *, limits: ProductLimits | None
     apart: dict[str, list[str]] = defaultdict(list)
     for p in parameters:
         for o in p["outliers"]:
-            apart[o["serial"]].append(f"{p['sensor']} {p['name']} ({o['score']:+.1f})")
+            apart[o["serial"]].append(f"{label(p)} {p['name']} ({o['score']:+.1f})")
     return {
         "format": LOT_FORMAT, "format_version": 1, "lot": lot,
         "units": len(latest), "calibrations": len(cals.ids), "verdicts": verdicts,
@@ -275,9 +284,9 @@ def _latest_rows(latest: dict[str, int], groups: list[_Sections]) -> list[tuple]
 
 def _columns(latest: dict[str, int], groups: list[_Sections],
              limits: ProductLimits | None) -> dict:  # fmt: skip
-    """``{(sensor, name, unit): (serials, values)}`` over the latest calibrations: the rows of
-    each layout's matrix that are a unit's latest, a column per figure (gain errors added from
-    the sensitivities when the limits give a nominal)."""
+    """``{(imu, sensor, name, unit): (serials, values)}`` over the latest calibrations: the
+    rows of each layout's matrix that are a unit's latest, a column per figure (gain errors
+    added from the sensitivities when the limits give a nominal)."""
     columns: dict[tuple, tuple[list[str], list[np.ndarray]]] = {}
     for group, rows, serials in _latest_rows(latest, groups):
         sensor, layout = group.sensor, group.layout
@@ -292,16 +301,17 @@ def _columns(latest: dict[str, int], groups: list[_Sections],
                 names.append("gain error " + names[j][len("sensitivity ") :])
                 unit_of.append("%")
         for j, (name, unit) in enumerate(zip(names, unit_of, strict=True)):
-            who, parts = columns.setdefault((sensor, name, unit), ([], []))
+            who, parts = columns.setdefault((group.imu, sensor, name, unit), ([], []))
             who.extend(serials)
             parts.append(matrix[:, j])
     return {k: (who, np.concatenate(parts)) for k, (who, parts) in columns.items()}
 
 
 def _distribution(columns: dict, limits: ProductLimits | None, keep: bool) -> list:
-    """One entry per (sensor, figure, unit) of ``columns`` (:func:`_columns`)."""
+    """One entry per (IMU, sensor, figure, unit) of ``columns`` (:func:`_columns`); the other
+    IMUs' entries name theirs (``imu``), the reference's do not (as a single IMU's)."""
     out = []
-    for (sensor, name, unit), (who, column) in columns.items():
+    for (imu, sensor, name, unit), (who, column) in columns.items():
         finite = np.isfinite(column)
         if not finite.any():
             continue
@@ -318,6 +328,8 @@ def _distribution(columns: dict, limits: ProductLimits | None, keep: bool) -> li
                          for i in apart[np.argsort(-np.abs(z[apart]))]],
             "limit": None, "cpk": None, "beyond_limit": None,
         }  # fmt: skip
+        if imu is not None:
+            entry = {"imu": imu, **entry}
         lim = _limit_of(limits, sensor, name)
         if lim is not None:
             two = lim.kind.two_sided
@@ -327,9 +339,26 @@ def _distribution(columns: dict, limits: ProductLimits | None, keep: bool) -> li
         if keep:
             entry["values"] = x.tolist()
         out.append(entry)
-    order = {"accel": 0, "gyro": 1, "mag": 2}
-    out.sort(key=lambda e: (order.get(e["sensor"], 9), e["limit"] is None, e["name"]))
+    out.sort(key=lambda e: (imu_order(e.get("imu")), SENSOR_ORDER.get(e["sensor"], 9),
+                            e["limit"] is None, e["name"]))  # fmt: skip
     return out
+
+
+SENSOR_ORDER = {"accel": 0, "gyro": 1, "mag": 2}
+
+
+def imu_order(imu: str | None) -> tuple:
+    """Sort key of an IMU: the reference (None) first, then the names in natural order
+    (``imu2`` before ``imu10``)."""
+    if imu is None:
+        return (0,)
+    return (1, [(0, int(p), "") if p.isdigit() else (1, 0, p) for p in re.split(r"(\d+)", imu)])
+
+
+def label(entry: dict[str, Any]) -> str:
+    """A parameter's sensor as shown: ``accel``, or ``imu1 accel`` for another IMU of a set."""
+    imu = entry.get("imu")
+    return entry["sensor"] if imu is None else f"{imu} {entry['sensor']}"
 
 
 def _limit_of(limits: ProductLimits | None, sensor: str, name: str):
@@ -360,12 +389,12 @@ def _drift(again: dict[str, list[int]], groups: list[_Sections]) -> dict[str, An
     their calibration ids, oldest first)."""
     where = _where({cal_id for ids in again.values() for cal_id in ids}, groups)
     alarms = []
-    order = ("accel", "gyro", "mag")
     for serial, ids in again.items():
         drifted = []
         sensors = {s for i in ids for s in where.get(i, {})}
-        for sensor in sorted(sensors, key=lambda s: order.index(s) if s in order else 9):
-            found = [where.get(i, {}).get(sensor) for i in ids]
+        for imu, sensor in sorted(sensors, key=lambda k: (imu_order(k[0]),
+                                                          SENSOR_ORDER.get(k[1], 9))):
+            found = [where.get(i, {}).get((imu, sensor)) for i in ids]
             bases = [None if f is None else f[0].bases[f[1]] for f in found]
             tables = [_tracked(f) for f in found]
             for name in dict.fromkeys(n for t in tables for n in t):
@@ -377,7 +406,8 @@ def _drift(again: dict[str, list[int]], groups: list[_Sections]) -> dict[str, An
                 flagged = [z for z, f in zip(result["z"], result["drifted"], strict=True) if f]
                 if flagged:
                     worst = max(flagged, key=abs)
-                    drifted.append(f"{sensor} {name} (z = {worst:+.1f})")
+                    shown = sensor if imu is None else f"{imu} {sensor}"
+                    drifted.append(f"{shown} {name} (z = {worst:+.1f})")
         if drifted:
             alarms.append({"serial": serial, "calibrations": len(ids), "drifted": drifted})
     return {"test": f"change from the reference calibration of the same basis beyond "
@@ -385,14 +415,14 @@ def _drift(again: dict[str, list[int]], groups: list[_Sections]) -> dict[str, An
             "units_checked": len(again), "alarms": alarms}  # fmt: skip
 
 
-def _where(cal_ids: set[int], groups: list[_Sections]) -> dict[int, dict[str, tuple]]:
-    """Where the sections of the calibrations ``cal_ids`` are: ``{id: {sensor: (group,
+def _where(cal_ids: set[int], groups: list[_Sections]) -> dict[int, dict[tuple, tuple]]:
+    """Where the sections of the calibrations ``cal_ids`` are: ``{id: {(imu, sensor): (group,
     row)}}``."""
-    where: dict[int, dict[str, tuple]] = defaultdict(dict)
+    where: dict[int, dict[tuple, tuple]] = defaultdict(dict)
     for group in groups:
         for row, cal_id in enumerate(group.cal_ids):
             if cal_id in cal_ids:
-                where[cal_id][group.sensor] = (group, row)
+                where[cal_id][(group.imu, group.sensor)] = (group, row)
     return where
 
 

@@ -17,6 +17,8 @@ from imucal_cli.errors import InputError
 from imucal_cli.formats.output import safe_output
 from imucal_cli.use.plots import pyplot
 
+from .lot import label
+
 __all__ = ["MAX_PANELS", "lot_figure"]
 
 MAX_PANELS = 24
@@ -60,7 +62,7 @@ def lot_figure(stats: dict[str, Any], path: str | os.PathLike, *, force: bool = 
         if apart:
             ax.plot(apart, np.zeros(len(apart)), "v", color="tab:orange", ms=6)
         cpk = "" if p["cpk"] is None else f", Cpk {p['cpk']:.2f}"
-        ax.set_title(f"{p['sensor']} {p['name']}{cpk}", fontsize=9)
+        ax.set_title(f"{label(p)} {p['name']}{cpk}", fontsize=9)
         ax.set_xlabel(p["unit"] or "", fontsize=8)
         ax.tick_params(labelsize=7)
     for ax in list(axes.flat)[len(panels):]:

@@ -1,6 +1,7 @@
 """Recording a calibration in the registry: one transaction per calibration (its unit, the
 calibration with its whole JSON, its sections and figures), so a record is there whole or not
-at all."""
+at all.  A unit of several IMUs (a calibration with ``imus``) gets the sections of each: the
+reference IMU's with ``imu`` NULL, as a single IMU's, each other IMU's under its name."""
 
 from __future__ import annotations
 
@@ -24,7 +25,8 @@ from imucal_cli.use.limits import Acceptance, ProductLimits, unit_figures
 from .schema import calibrations, documents, figures, sections, units
 from .store import Registry, RegistryError
 
-__all__ = ["Recorded", "UnitInfo", "check_serial", "now_iso", "record_calibration"]
+__all__ = ["Recorded", "UnitInfo", "check_serial", "imu_figures", "now_iso",
+           "record_calibration"]  # fmt: skip
 
 MAX_TEXT = 200
 """Longest serial, product, lot, station or operator name."""
@@ -127,6 +129,7 @@ def record_calibration(
     uid = uid or uuid.uuid4().hex
     when = recorded_at or now_iso()
     figs = unit_figures(cal)
+    others = imu_figures(cal)
     row: dict[str, Any] = {
         "uid": uid, "product": product, "lot": lot, "station": station, "operator": operator,
         "created": cal.created, "recorded_at": when, "session": cal.session,
@@ -157,6 +160,8 @@ def record_calibration(
             return Recorded(old.uid, old.id, serial, old.recorded_at, old.verdict, new=False)
         conn.execute(documents.insert().values(calibration_id=cal_id, document=document))
         _figures(conn, cal_id, figs)
+        for name, of_imu in others.items():
+            _figures(conn, cal_id, of_imu, imu=name)
     return Recorded(uid, cal_id, serial, when, row["verdict"], new=True)
 
 
@@ -195,12 +200,26 @@ def pack(rows: list[dict[str, Any]]) -> tuple[str, bytes, bytes]:
     return layout, values.tobytes(), stds.tobytes()
 
 
-def _figures(conn: Connection, cal_id: int, figs: dict[str, dict[str, Any]]) -> None:
-    """A section row per sensor (its figures packed) and its figure rows."""
+def imu_figures(cal: Calibration) -> dict[str, dict[str, dict[str, Any]]]:
+    """Every figure of each other IMU of a set, ``{name: unit_figures of its sections}`` in the
+    calibration's order (empty for a single IMU); an IMU with no section is left out."""
+    out = {}
+    for name, entry in (cal.imus or {}).items():
+        figs = unit_figures(entry)  # type: ignore[arg-type]  # an ImuEntry has sections()
+        if figs:
+            out[name] = figs
+    return out
+
+
+def _figures(conn: Connection, cal_id: int, figs: dict[str, dict[str, Any]],
+             imu: str | None = None) -> None:  # fmt: skip
+    """A section row per sensor (its figures packed) and its figure rows; ``imu``: the IMU of
+    a set they are of (None: the reference)."""
     for sensor, sec in figs.items():
         layout, values, stds = pack(sec["rows"])
         section_id = conn.execute(
-            sections.insert().values(calibration_id=cal_id, sensor=sensor, solver=sec["solver"],
+            sections.insert().values(calibration_id=cal_id, imu=imu, sensor=sensor,
+                                     solver=sec["solver"],
                                      units=sec["units"], units_in=sec["units_in"],
                                      basis=sec["basis"], layout=layout, values=values,
                                      stds=stds)

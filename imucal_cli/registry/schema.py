@@ -9,7 +9,9 @@
   the ``limits`` judged against (the product file as JSON).
 - ``documents``: the whole calibration JSON of each (apart, so that the rows a lot's query
   reads stay small).
-- ``sections``: one row per calibrated sensor of a calibration: solver, units and the history's
+- ``sections``: one row per calibrated sensor of each IMU of a calibration: ``imu`` (NULL for
+  the reference IMU, the one of a single-IMU unit; else the name of another IMU of a set, a
+  key of the calibration's ``imus``), ``sensor``, solver, units and the history's
   *basis* (what makes two calibrations comparable: :func:`~imucal_cli.use.report.history.
   section_basis`), and its figures packed for a lot's statistics: ``layout`` (JSON ``[[name,
   unit, tracked], ...]``), ``values`` and ``stds`` (float64 little-endian, NaN for none).
@@ -103,6 +105,8 @@ sections = Table(
     Column("layout", Text, nullable=False),
     Column("values", LargeBinary, nullable=False),
     Column("stds", LargeBinary, nullable=False),
+    # revision 0003: several IMUs
+    Column("imu", Text),
 )  # fmt: skip
 Index("ix_sections_calibration_id", sections.c.calibration_id)
 

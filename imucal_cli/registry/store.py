@@ -53,7 +53,7 @@ the URL gives ``connect_timeout``)."""
 MIGRATION_LOCK = 72_290_029
 """PostgreSQL advisory lock key held while the schema is migrated."""
 
-HEAD = "0002"
+HEAD = "0003"
 """The newest schema revision (``migrations/versions``)."""
 
 

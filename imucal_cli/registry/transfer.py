@@ -6,7 +6,9 @@ An export is JSON Lines: a header line ``{"format": "imucal-registry-export",
 ``serial``, ``product``, ``lot``, ``station``, ``operator``, ``created``, ``recorded_at``,
 ``session``, ``session_sha256``, ``verdict``, ``failed``, ``limits``, ...) and the whole
 ``calibration``.  Importing an export into another registry recreates every record with its
-``uid`` and times; a record already there is skipped.  A calibration file (``imucal
+``uid`` and times (its sections and figures, every IMU's of a set, derived anew from its
+``calibration`` as :func:`~imucal_cli.registry.record.record_calibration` derives them); a record
+already there is skipped.  A calibration file (``imucal
 calibrate``'s JSON, or any file :func:`~imucal_cli.formats.calibration.read_calibration`
 reads) is recorded under its ``sensor`` (or ``--serial``).
 """

@@ -159,7 +159,8 @@ def build_history(cals: list[Calibration]) -> dict[str, Any]:
     dict
         ``format`` (``imucal-history``), ``drift_sigmas``, ``sensors`` (one entry per sensor with
         >= 2 calibrations: ``sensor``, ``calibrations`` (``created``, ``session``), ``sections``
-        (``{"accel": {"solvers": [...], "bases": [...], "not_compared": [...], "rows": [...]}}``,
+        (``{"accel": {"solvers": [...], "bases": [...], "not_compared": [...], "rows": [...]}}``;
+        a set of several IMUs adds each other IMU's, ``"imu1 accel"``, ...),
         each row ``name``, ``unit``, ``values``, ``std``, ``reference`` (the first calibration
         that has the figure), ``compared_with`` (per calibration, the index of its reference, or
         None), ``change``, ``z``, ``drifted``), ``drifted`` (``"accel b_x"``...)), ``single``
@@ -190,18 +191,31 @@ def _sensor_history(sensor: str, members: list[Calibration]) -> dict[str, Any]:
     members = sorted(members, key=lambda c: str(c.created))
     sections: dict[str, Any] = {}
     drifted: list[str] = []
-    for kind in ("accel", "gyro"):
-        secs = [getattr(c, kind) for c in members]
-        if all(s is None for s in secs):
-            continue
-        sections[kind] = _section_history(kind, secs, [c.session for c in members])
-        drifted += [f"{kind} {r['name']}" for r in sections[kind]["rows"] if any(r["drifted"])]
+    for key, kind, secs in _series(members):
+        sections[key] = _section_history(kind, secs, [c.session for c in members])
+        drifted += [f"{key} {r['name']}" for r in sections[key]["rows"] if any(r["drifted"])]
     return {
         "sensor": sensor,
         "calibrations": [{"created": c.created, "session": c.session} for c in members],
         "sections": sections,
         "drifted": drifted,
     }
+
+
+def _series(members: list[Calibration]) -> list[tuple[str, str, list]]:
+    """``(key, kind, sections)`` of each section kind the calibrations hold, one section (or
+    None) per calibration: the reference IMU's ``accel`` and ``gyro``, then, in a set of
+    several IMUs (``imus``), each other IMU's (``imu1 accel``, ...), the IMUs in the order the
+    calibrations first name them."""
+    names = list(dict.fromkeys(n for c in members for n in (c.imus or {})))
+    out = []
+    for imu in (None, *names):
+        for kind in ("accel", "gyro"):
+            holders = members if imu is None else [(c.imus or {}).get(imu) for c in members]
+            secs = [None if h is None else getattr(h, kind) for h in holders]
+            if any(s is not None for s in secs):
+                out.append((kind if imu is None else f"{imu} {kind}", kind, secs))
+    return out
 
 
 def _section_history(
