@@ -182,11 +182,37 @@ def test_writer_appends_each_imu_at_its_own_times(tmp_path):
     assert back.imus["imu1"].sensor == "B"
 
 
-def test_a_set_cannot_be_continued(tmp_path, set3):
+def test_a_set_is_continued_with_the_same_imus_only(tmp_path, set3):
+    """``reopen`` continues every IMU's datasets from its own last sample (the capture's
+    IMUs must be the session's: names and channels, refused otherwise, the file unchanged)."""
     path = tmp_path / "set.h5"
     write_session(path, set3[0])
-    with pytest.raises(InputError, match="several IMUs cannot be continued"):
+    before, old = path.read_bytes(), read_session(path)
+    layouts = {n: ImuLayout.of(s) for n, s in old.imus.items()}
+    with pytest.raises(InputError, match="holds the IMUs imu1, imu2 .* this capture none"):
         SessionWriter.reopen(path)
+    with pytest.raises(InputError, match="this capture imu1:"):
+        SessionWriter.reopen(path, imus={"imu1": layouts["imu1"]})
+    narrow = {**layouts, "imu2": ImuLayout(accel=3, gyro=None)}
+    with pytest.raises(InputError, match="IMU imu2 records accel 3, gyro 3"):
+        SessionWriter.reopen(path, imus=narrow)
+    assert path.read_bytes() == before
+    w = SessionWriter.reopen(path, imus=layouts)
+    assert w.imu_counts() == {n: len(s.time) for n, s in old.imus.items()}
+    t0 = max(old.time[-1], *(s.time[-1] for s in old.imus.values())) + 1.0
+    w.append(t0 + np.arange(5) / 100, np.zeros((5, 3)), np.zeros((5, 3)))
+    for name in layouts:
+        w.append_imu(name, t0 + np.arange(4) / 80, accel=np.ones((4, 3)), gyro=np.ones((4, 3)))
+    with pytest.raises(SessionError, match="imu1: time is not finite and strictly"):
+        w.append_imu("imu1", [t0], accel=np.ones((1, 3)), gyro=np.ones((1, 3)))
+    w.close()
+    back = read_session(path)
+    assert len(back.time) == len(old.time) + 5
+    for name, imu in back.imus.items():
+        n = len(old.imus[name].time)
+        assert len(imu.time) == n + 4 and np.all(np.diff(imu.time) > 0)
+        np.testing.assert_array_equal(imu.accel[:n], old.imus[name].accel)
+        assert np.all(imu.accel[n:] == 1.0)
 
 
 def test_session_model_defaults_keep_one_imu():

@@ -49,6 +49,7 @@ from imucal_cli.model.calibration import SENSORS, Calibration, ImuEntry, SetDiag
 from .common import static_poses, with_segments
 from .session import calibrate_session, suspect_error
 from .set_parts import (
+    calibrated_rates,
     joint_section,
     pose_means,
     pose_pairs,
@@ -171,7 +172,8 @@ def _two_steps(subs, cals, poses, ref_key: str, key: str, offset_s: float) -> Ro
             groups.append(pose_pairs((z_r, c_r, ref_cal.accel), (z_i, c_i, cal.accel),
                                      shared))  # fmt: skip
     if ref_cal.gyro is not None and cal.gyro is not None and not _spans(groups):
-        var = (still_noise(subs[ref_key], ref_cal.gyro), still_noise(subs[key], cal.gyro))
+        var = (still_noise(subs[ref_key], ref_cal.gyro, ref_cal.accel),
+               still_noise(subs[key], cal.gyro, cal.accel))
         turns = turn_pairs(subs[ref_key], subs[key], ref_cal.gyro, cal.gyro, offset_s, var,
                            turn_windows(subs[ref_key])) if np.isfinite(var).all() else None
         if turns is not None:
@@ -238,9 +240,10 @@ def _offset(subs, cals, key, rotations, coarse_s) -> TimeOffset | str:
         return "time offset not determined: the reference has no turns"
     if not (_full(g_r) and _full(g_i) and isinstance(rot, RotationFit)):
         return _offset_raw(ref, imu, windows, coarse_s)
-    w_r = g_r.apply(ref.gyro[:, : g_r.bias.shape[0]])
-    w_i = g_i.apply(imu.gyro[:, : g_i.bias.shape[0]]) @ rot.matrix.T
-    var = (still_noise(ref, g_r), still_noise(imu, g_i))
+    a_r, a_i = cals[ref_key].accel, cals[key].accel  # a g-sensitive gyro's g-term
+    w_r = calibrated_rates(ref, g_r, a_r)
+    w_i = calibrated_rates(imu, g_i, a_i) @ rot.matrix.T
+    var = (still_noise(ref, g_r, a_r), still_noise(imu, g_i, a_i))
     try:
         return fit_time_offset(ref.time, w_r, imu.time, w_i, windows, var[0], var[1], coarse_s)
     except DesignError as exc:

@@ -89,12 +89,28 @@ def pose_pairs(ref: tuple, imu: tuple, names: list[str] | None = None) -> PairGr
     return PairGroup(a, b, ca, cb, da, db, sa, sb, name="poses", cross_ref=xa, cross_imu=xb)
 
 
-def still_noise(session: Session, sec: SensorCalibration) -> float:
+def calibrated_rates(session: Session, sec: SensorCalibration,
+                     accel: SensorCalibration | None = None,
+                     rows: slice = slice(None)) -> np.ndarray:  # fmt: skip
+    """A gyro's calibrated rates (k, 3), rad/s, of the samples ``rows``: a gyro calibrated
+    with its g-sensitivity has it taken out with the calibrated accelerometer (``accel``) of
+    the same samples; without one, the g-term is left in (still scatter, a turn's shape)."""
+    raw = session.gyro[rows, : sec.bias.shape[0]]
+    if sec.g_term is None:
+        return sec.apply(raw)
+    if accel is not None and session.accel is not None:
+        return sec.apply(raw, accel=accel.apply(session.accel[rows, : accel.bias.shape[0]]))
+    return (raw - sec.bias) @ sec.matrix.T
+
+
+def still_noise(session: Session, sec: SensorCalibration,
+                accel: SensorCalibration | None = None) -> float:  # fmt: skip
     """A gyro's calibrated white noise variance per axis per sample, (rad/s)^2: the
-    within-segment scatter pooled over the static segments (the mean of the three axes)."""
+    within-segment scatter pooled over the static segments (the mean of the three axes);
+    ``accel``: the IMU's accelerometer calibration (:func:`calibrated_rates`)."""
     total, dof = 0.0, 0
     for s in session.static_segments():
-        w = sec.apply(session.gyro[s.start:s.stop, : sec.bias.shape[0]])
+        w = calibrated_rates(session, sec, accel, slice(s.start, s.stop))
         if len(w) > 1:
             total += float(np.sum((w - w.mean(axis=0)) ** 2)) / 3.0
             dof += len(w) - 1

@@ -184,6 +184,7 @@ class Recorder(SessionWrites):
         self._host_offset: float | None = None  # the same for host arrival times (resume)
         self._resume_gap_s = 0.0
         self._segments_before = 0  # the resumed session's own segments (not this capture's)
+        self._imu_starts: dict[str, int] = {}  # the same per other IMU of a set (resume)
         if resume:
             self._reopen()
 
@@ -192,8 +193,11 @@ class Recorder(SessionWrites):
         if not self.path.is_file():
             raise InputError(f"{self.path}: no such session to resume")
         gap_s = max(_time.time() - self.path.stat().st_mtime, 0.0)  # since its last flush
-        self._writer = SessionWriter.reopen(self.path, flush_interval_s=FLUSH_INTERVAL_S)
+        layouts = getattr(self.protocol, "imu_layouts", None)  # several IMUs: the same
+        self._writer = SessionWriter.reopen(self.path, flush_interval_s=FLUSH_INTERVAL_S,
+                                            imus=None if layouts is None else layouts())
         self.resumed_from = self._writer.n_samples
+        self._imu_starts = self._writer.imu_counts()
         self._segments_before = len(self._writer.segments)
         self._resume_gap_s = gap_s
 

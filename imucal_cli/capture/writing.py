@@ -38,15 +38,16 @@ class SessionWrites:
                 if not fits:
                     return nearly_full
         time, host = block.time, block.host_time
+        others = getattr(block, "others", {})  # several IMUs (issue 28)
         if not self._writer.records_host_time:
             host = None  # a resumed session recorded without host arrival times
+        shift = 0.0
         if self.resumed_from:
             gap = max(self._resume_gap_s, 1e-3)
             if self._time_offset is None:
-                # The device's clock restarts: the new samples follow the old ones after the
-                # time the capture was stopped (the file's last flush), on the old time axis.
-                self._time_offset = self._writer.last_time + gap - float(time[0])
-            time = time + self._time_offset
+                self._time_offset = self._resume_offset(time, others, gap)
+            shift = self._time_offset
+            time = time + shift
             if host is not None and self._writer.resumed_host_time is not None:
                 if self._host_offset is None:  # the host clock too: after the same gap
                     self._host_offset = self._writer.resumed_host_time + gap - float(host[0])
@@ -54,9 +55,9 @@ class SessionWrites:
         try:
             self._writer.append(time, block.accel, block.gyro, block.temperature, block.mag,
                                 host_time=host)  # fmt: skip
-            for name, other in getattr(block, "others", {}).items():  # several IMUs (issue 28)
+            for name, other in others.items():
                 if len(other):
-                    self._writer.append_imu(name, other.time, accel=other.accel,
+                    self._writer.append_imu(name, other.time + shift, accel=other.accel,
                                             gyro=other.gyro, mag=other.mag,
                                             temperature=other.temperature)  # fmt: skip
         except WriteFailed as exc:
@@ -66,6 +67,16 @@ class SessionWrites:
             self._device_at_segment = self._device_first
         self._device_last = float(block.time[-1])
         return nearly_full
+
+    def _resume_offset(self, time: np.ndarray, others: dict, gap: float) -> float:
+        """What a continued session's new samples are given, s: the device's clock restarts,
+        so they follow the old ones after the time the capture was stopped (``gap``, since
+        the file's last flush), on the old time axis.  One offset for every IMU of a set
+        (their times on the reference's clock keep their places among each other), after
+        the latest sample of any IMU and from the earliest new one of any."""
+        last = [self._writer.last_time, *self._writer.imu_last_times().values()]
+        first = [float(time[0]), *(float(o.time[0]) for o in others.values() if len(o))]
+        return max(t for t in last if t is not None) + gap - min(first)
 
     def _retime_host_stamps(self) -> None:
         """Host-stamped samples, once the capture ended: the first read's times again at the
@@ -99,25 +110,31 @@ class SessionWrites:
                 return
             self._device_first, self._device_last = (float(times[0]) - shift,
                                                      float(times[-1]) - shift)  # fmt: skip
-        if not base:  # a continued session's other IMUs: where its samples begin is unknown
-            self._retime_other_ports(others)
+        self._retime_other_ports(others, shift)
 
-    def _retime_other_ports(self, others: dict[str, tuple]) -> None:
-        """Each other port's samples on its own steady clock (``others``: name to its
-        HostClock, the shift onto the reference's clock, whether its first read is kept)."""
+    def _retime_other_ports(self, others: dict[str, tuple], resumed: float) -> None:
+        """Each other port's samples of this capture on its own steady clock (``others``:
+        name to its HostClock, the shift onto the reference's clock, whether its first read
+        is kept; ``resumed``: the continued session's offset, s, 0 for a first capture): a
+        continued session's earlier samples (each IMU's count at the resume) stay, and the
+        new ones never move before them."""
         for name, (clock, shift, first_kept) in others.items():
             if clock.period is None:
                 continue
+            start = self._imu_starts.get(name, 0)
             try:
                 stamps = self._writer.imu_written_times(name)
             except OSError:
                 return
             k = clock.first_read if first_kept else 0
-            origin = None if clock.origin is None else clock.origin + shift
-            times = _on_steady_clock(stamps, k, origin, clock.period)
-            if stamps.size > k and not np.array_equal(times, stamps):
+            origin = None if clock.origin is None else clock.origin + shift + resumed
+            if start:
+                origin = max(float(stamps[start - 1]), -np.inf if origin is None else origin)
+            new = stamps[start:]
+            times = _on_steady_clock(new, k, origin, clock.period)
+            if new.size > k and not np.array_equal(times, new):
                 try:
-                    self._writer.retime_imu(name, times)
+                    self._writer.retime_imu(name, times, start)
                 except SessionError:
                     continue
 

@@ -197,7 +197,7 @@ def capture(
         err.print(f"imucal: {escape(message)}", soft_wrap=True)
 
     check_mag_options(mag_units, field_ut)
-    several = capture_set(port, columns, time_unit, protocol, resume is not None)  # issue 28
+    several = capture_set(port, columns, time_unit, protocol)  # issue 28
     stream_protocol = several if isinstance(several, SetLineProtocol) else _stream_protocol(
         protocol, lambda: ColumnSpec.parse(columns, time_unit), status)  # fmt: skip
     if protocol != "lines":  # the format fixes the units (counts)

@@ -13,17 +13,15 @@ from imucal_cli.formats.columns import ColumnSpec
 from .console import make_console, print_json
 
 
-def capture_set(ports: list[str], columns: str, time_unit: str, protocol: str,
-                resume: bool):  # fmt: skip
+def capture_set(ports: list[str], columns: str, time_unit: str, protocol: str):
     """The line protocol of a capture of several IMUs (one port with ``.N`` fields, or
-    several ports), or None for one IMU; refuses what a set does not take."""
+    several ports), or None for one IMU; refuses what a set does not take.  A set resumed
+    (``--resume``) must be the session's: the writer checks it when it reopens the file."""
     specs = set_protocol(columns, time_unit, len(ports))
     if specs is None and len(ports) == 1:
         return None
     if protocol != "lines":
         raise InputError("several IMUs are captured as lines of numbers (--protocol lines)")
-    if resume:
-        raise InputError("a capture of several IMUs cannot be resumed (--resume)")
     if len(set(ports)) != len(ports):
         raise InputError("--port names the same port twice")
     if specs is not None:

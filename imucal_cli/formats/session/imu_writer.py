@@ -16,7 +16,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from imucal_cli.errors import SessionError
+from imucal_cli.errors import InputError, SessionError
 from imucal_cli.model.imu_stream import ImuStream
 
 from .imus import imu_names_attr
@@ -94,10 +94,57 @@ class ImuDatasets:
         self._last_time: dict[str, float | None] = dict.fromkeys(layouts)
         self._last_written_time: dict[str, float | None] = dict.fromkeys(layouts)
 
+    @classmethod
+    def reopen(cls, file: h5py.File, imus: dict[str, ImuStream], layouts: dict[str, ImuLayout],
+               src: str) -> ImuDatasets:  # fmt: skip
+        """The ``/imus`` datasets of a session continued (``imucal capture --resume``), each
+        IMU's cut to the ``imus[name]`` samples it holds whole (a killed writer may have
+        written data beyond its last time); ``layouts``: what the resumed capture records,
+        which must be what the session holds.
+
+        Raises
+        ------
+        InputError
+            The capture's IMUs (names, sensors, channels) are not the session's, or a
+            dataset has a fixed size (not written by a capture).
+        """
+        held = {name: ImuLayout.of(stream) for name, stream in imus.items()}
+        _check_same_imus(src, held, layouts)
+        self = cls.__new__(cls)
+        self._src, self.layouts, self.datasets = src, dict(layouts), {}
+        for name, layout in layouts.items():
+            n, group = len(imus[name].time), file["imus"][name]
+            self.datasets[name] = {}
+            for ds_name in layout.shapes():
+                ds = group[ds_name]
+                if ds.maxshape[0] is not None:
+                    raise InputError(f"{src}: /imus/{name}/{ds_name} has a fixed size (the "
+                                     "session was not written by imucal capture): it cannot "
+                                     "be continued")  # fmt: skip
+                if ds.shape[0] != n:
+                    ds.resize(n, axis=0)
+                self.datasets[name][ds_name] = ds
+        self._pending = {n: [] for n in layouts}
+        self.n_written = {name: len(imus[name].time) for name in layouts}
+        self._last_time = {name: float(imus[name].time[-1]) if len(imus[name].time) else None
+                           for name in layouts}  # fmt: skip
+        self._last_written_time = dict(self._last_time)
+        return self
+
     @property
     def n_pending(self) -> int:
         """Samples appended and not yet written, all IMUs."""
         return sum(len(b["time"]) for blocks in self._pending.values() for b in blocks)
+
+    def counts(self) -> dict[str, int]:
+        """Each IMU's samples appended so far, written or not."""
+        return {name: n + sum(len(b["time"]) for b in self._pending[name])
+                for name, n in self.n_written.items()}  # fmt: skip
+
+    @property
+    def last_times(self) -> dict[str, float | None]:
+        """Each IMU's last time appended (or held by a continued session), s."""
+        return dict(self._last_time)
 
     def append(self, name: str, time, **values) -> None:
         """Buffer a block of IMU ``name``'s samples: ``time`` (k,) and each recorded dataset
@@ -194,17 +241,21 @@ class ImuDatasets:
         """IMU ``name``'s times written so far, s, shape (n,)."""
         return np.asarray(self.datasets[name]["time"][: self.n_written[name]], np.float64)
 
-    def retime(self, name: str, time: np.ndarray) -> None:
-        """Replace every written time of IMU ``name`` (its own clock's stamps known better
-        later), s, shape (n_written,); SessionError unless finite and strictly increasing, or
-        while its samples wait to be written.  Raises what h5py raises."""
+    def retime(self, name: str, time: np.ndarray, start: int = 0) -> None:
+        """Replace the written times of IMU ``name`` from its ``start``-th sample on (its own
+        clock's stamps known better later; a continued session's earlier ones stay), s, shape
+        (n_written - start,); SessionError unless finite and strictly increasing after the
+        samples before ``start``, or while its samples wait to be written.  Raises what h5py
+        raises."""
         t = np.asarray(time, np.float64)
-        if self._pending[name] or t.shape != (self.n_written[name],) or not (
-                np.isfinite(t).all() and (np.diff(t) > 0).all()):  # fmt: skip
+        ds, n = self.datasets[name]["time"], self.n_written[name]
+        around = np.concatenate([ds[max(start - 1, 0):start] if start > 0 else [], t])
+        if self._pending[name] or not 0 <= start <= n or t.shape != (n - start,) or not (
+                np.isfinite(t).all() and (np.diff(around) > 0).all()):  # fmt: skip
             raise SessionError(f"{self._src}: retime of IMU {name}: {t.size} times for "
-                               f"{self.n_written[name]} written, or out of order")  # fmt: skip
+                               f"{n - start} written, or out of order")  # fmt: skip
         if t.size:
-            self.datasets[name]["time"][: t.size] = t
+            ds[start:n] = t
             self._last_time[name] = self._last_written_time[name] = float(t[-1])
 
     def truncate_after(self, t_last: float | None) -> None:
@@ -222,3 +273,25 @@ class ImuDatasets:
             self.n_written[name] = n
             self._last_time[name] = self._last_written_time[name] = float(time[n - 1]) \
                 if n else None  # fmt: skip
+
+
+def _check_same_imus(src: str, held: dict[str, ImuLayout],
+                     capture: dict[str, ImuLayout]) -> None:  # fmt: skip
+    """Refuse, in one line, a resumed capture whose other IMUs are not the session's: their
+    names (so the number of ports or of triads per line) and each one's sensors, channels and
+    temperature."""
+    if list(held) != list(capture):
+        raise InputError(f"{src}: the session holds the IMUs {', '.join(held) or 'none'} "
+                         f"beside the reference, this capture "
+                         f"{', '.join(capture) or 'none'}: resume with the same ports and "
+                         "--columns as the capture that began it")  # fmt: skip
+    for name, layout in capture.items():
+        if layout.shapes() != held[name].shapes():
+            raise InputError(f"{src}: IMU {name} records {_fields(held[name])} in the session, "
+                             f"{_fields(layout)} in this capture: resume with the --columns "
+                             "of the capture that began it")  # fmt: skip
+
+
+def _fields(layout: ImuLayout) -> str:
+    """``accel 3, gyro 3, temperature`` for a message."""
+    return ", ".join(f"{k} {w}" if w else k for k, w in layout.shapes().items() if k != "time")

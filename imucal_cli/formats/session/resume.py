@@ -17,6 +17,7 @@ from imucal_cli.errors import InputError
 from imucal_cli.model.session import Session, io_reason
 
 from .disk import CHUNK_ROWS, Reserve
+from .imu_writer import ImuDatasets, ImuLayout
 from .reader import read_session
 from .segments import SegmentLog, entry_of
 
@@ -41,7 +42,8 @@ class Resumable:
     """:meth:`reopen`: a :class:`~.writer.SessionWriter` that continues a session."""
 
     @classmethod
-    def reopen(cls, path: str | os.PathLike, *, flush_interval_s: float = 1.0) -> Self:
+    def reopen(cls, path: str | os.PathLike, *, flush_interval_s: float = 1.0,
+               imus: dict[str, ImuLayout] | None = None) -> Self:  # fmt: skip
         """Continue a session a capture wrote (``imucal capture --resume``): samples and
         segments are appended after those already there, as if the capture had not stopped.
 
@@ -49,10 +51,15 @@ class Resumable:
         groups has them in its log).  Its segments are kept and written again, with the new ones,
         at :meth:`close`; until then they are in the log, so a crash loses none.
 
+        ``imus``: the other IMUs the continuing capture records (``/imus/<name>``, issue 28;
+        none for one IMU), which must be those the session holds, each with the same
+        channels; their datasets are continued too, each IMU from its own last sample.
+
         Raises
         ------
         InputError
-            Not a session, or one with fixed-size datasets (not written by a capture).
+            Not a session, one with fixed-size datasets (not written by a capture), or one
+            whose other IMUs are not ``imus``.
         """
         session = read_session(path)
         self = cls.__new__(cls)
@@ -62,8 +69,10 @@ class Resumable:
         except OSError as exc:
             raise InputError(f"{path}: cannot open it to continue ({io_reason(exc)})") from None
         try:
-            if session.imus:
-                raise InputError(f"{path}: a session of several IMUs cannot be continued")
+            self._imus = None
+            if session.imus or imus:  # several IMUs: the same ones, each continued
+                self._imus = ImuDatasets.reopen(self._file, session.imus, dict(imus or {}),
+                                                self._src)  # fmt: skip
             self._reopen_datasets(len(session.time))
             self._reopen_segments(session)
             self._file.attrs["resumed"] = int(self._file.attrs.get("resumed", 0)) + 1

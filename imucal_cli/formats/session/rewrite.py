@@ -71,12 +71,21 @@ class Rewritable:
         """Other IMU ``name``'s times written so far, s, shape (n,)."""
         return self._imus.written_times(name)
 
-    def retime_imu(self, name: str, time: np.ndarray) -> None:
-        """Replace every written time of other IMU ``name`` (stamped by its own port's host
-        clock), s; SessionError unless they stay strictly increasing (or while its samples
-        wait); WriteFailed when the write fails."""
+    def imu_counts(self) -> dict[str, int]:
+        """Each other IMU's samples appended so far (written or not); empty for one IMU."""
+        return {} if self._imus is None else self._imus.counts()
+
+    def imu_last_times(self) -> dict[str, float | None]:
+        """Each other IMU's last time appended (or already in a reopened session), s."""
+        return {} if self._imus is None else dict(self._imus.last_times)
+
+    def retime_imu(self, name: str, time: np.ndarray, start: int = 0) -> None:
+        """Replace the written times of other IMU ``name`` (stamped by its own port's host
+        clock) from its ``start``-th sample on (a continued session's earlier ones stay), s;
+        SessionError unless they stay strictly increasing (or while its samples wait);
+        WriteFailed when the write fails."""
         try:
-            self._imus.retime(name, time)
+            self._imus.retime(name, time, start)
             self._check_open().flush()
         except WRITE_ERRORS as exc:
             raise self._write_failed(exc, 0) from None
