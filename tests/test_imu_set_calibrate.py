@@ -355,3 +355,28 @@ def test_labelled_set_rotations_cover_over_seeds(plan):
         se = np.sqrt(0.95 * 0.05 * deff / len(hits))
         assert abs(float(np.mean(hits)) - 0.95) <= 3 * se, (plan, c, np.mean(hits), deff)
         assert 0.8 <= float(np.sqrt(np.mean(z[:, c] ** 2))) <= 1.2, (plan, c)
+
+
+def test_a_g_sensitive_gyros_rates_take_the_g_term_out_with_its_accelerometer():
+    """The set's time offset and still noise use the calibrated rates: a gyro calibrated with
+    g_sensitivity (a long session of many poses fits one) has it taken out with the calibrated
+    accelerometer of the same samples (it raised "needs the calibrated accelerometer")."""
+    from types import SimpleNamespace
+
+    from imucal_cli.calibrate.set_parts import calibrated_rates, still_noise
+    from imucal_cli.model.section import SensorCalibration
+
+    rng = np.random.default_rng(3)
+    raw = SimpleNamespace(gyro=rng.normal(0, 50, (40, 3)), accel=rng.normal(0, 800, (40, 3)),
+                          static_segments=lambda: [SimpleNamespace(start=0, stop=40)])  # fmt: skip
+    acc = SensorCalibration(solver="gravity", units="m/s^2", bias=np.full(3, 5.0),
+                            matrix=np.eye(3) / 830)  # fmt: skip
+    g = np.array([[0.3, 0.0, 0.1], [0.0, -0.2, 0.0], [0.05, 0.0, 0.4]])  # counts per m/s^2
+    gyr = SensorCalibration(solver="gyro-full", units="rad/s", bias=np.array([18.0, -49, -33]),
+                            matrix=np.eye(3) / 915, g_sensitivity=g)  # fmt: skip
+    a = (raw.accel - acc.bias) @ acc.matrix.T
+    want = (raw.gyro - gyr.bias - a @ g.T) @ gyr.matrix.T
+    np.testing.assert_allclose(calibrated_rates(raw, gyr, acc), want, rtol=1e-12)
+    np.testing.assert_allclose(calibrated_rates(raw, gyr, acc, slice(5, 9)), want[5:9],
+                               rtol=1e-12)  # fmt: skip
+    assert np.isfinite(still_noise(raw, gyr, acc)) and still_noise(raw, gyr, acc) > 0
