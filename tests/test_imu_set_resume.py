@@ -157,8 +157,11 @@ def test_one_port_per_imu_host_stamped_is_resumed(tmp_path, process_factory):  #
     _check_parts(first, session, served)
     imu = session.imus["imu1"]
     k = len(first.imus["imu1"].time)
-    period = np.median(np.diff(imu.time[k:]))  # re-timed: steady, no host jitter
-    assert np.all(np.abs(np.diff(imu.time[k:]) - period) < 0.25 * period)
+    period = np.median(np.diff(imu.time[k:]))
+    off = np.abs(np.diff(imu.time[k:]) - period)
+    # re-timed on its port's steady clock (one line per run between pauses: all but a few
+    # intervals exact); left on its live host stamps, 75 % were within 1 % in one run
+    assert np.mean(off < 0.01 * period) > 0.99, np.mean(off < 0.01 * period)
     assert abs(len(imu.time) - len(session.time)) < 0.05 * len(session.time)
     proc = run("calibrate", out, "--json", "--no-store")
     assert proc.returncode == 0, proc.stderr
