@@ -128,6 +128,9 @@ def test_one_line_of_several_imus_is_resumed(tmp_path, process_factory):  # noqa
         assert abs(dt) <= 4.5 * entry["time_offset_std_s"], (key, dt, entry)
 
 
+# 37 s of a served plan twice over: beside two CPU burners make test took 4 min 41 s with it;
+# the one-line resume above (same writer, same shift) stays in make test, this in test-all
+@pytest.mark.slow
 def test_one_port_per_imu_host_stamped_is_resumed(tmp_path, process_factory):  # noqa: F811
     """Lines without their time field (host-stamped): each port's samples of the resumed
     capture are re-timed on that port's own steady clock, after the session's."""
@@ -160,8 +163,9 @@ def test_one_port_per_imu_host_stamped_is_resumed(tmp_path, process_factory):  #
     period = np.median(np.diff(imu.time[k:]))
     off = np.abs(np.diff(imu.time[k:]) - period)
     # re-timed on its port's steady clock (one line per run between pauses: all but a few
-    # intervals exact); left on its live host stamps, 75 % were within 1 % in one run
-    assert np.mean(off < 0.01 * period) > 0.99, np.mean(off < 0.01 * period)
+    # intervals exact, > 99 % on a quiet host); left on its live host stamps, 75 % were within
+    # 1 % in one run (fewer on a busier host); a run the line cannot hold keeps its live stamps
+    assert np.mean(off < 0.01 * period) > 0.9, np.mean(off < 0.01 * period)
     assert abs(len(imu.time) - len(session.time)) < 0.05 * len(session.time)
     proc = run("calibrate", out, "--json", "--no-store")
     assert proc.returncode == 0, proc.stderr
