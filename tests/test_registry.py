@@ -167,6 +167,43 @@ def test_a_registry_of_the_older_schema_is_migrated_with_its_records(tmp_path, t
         assert {r["serial"]: r["last_verdict"] for r in list_units(reg)}["NEW-1"] == done.verdict
 
 
+def test_downgrade_to_0001_keeps_every_record(tmp_path, template):
+    """Down to 0001 (``alembic downgrade``): the acceptance columns go, every unit, document,
+    section and figure row stays (a batch copy of ``calibrations`` on SQLite, foreign keys on,
+    would drop the old table and cascade to them); opened again, the registry is migrated up
+    and reads as before, its verdicts gone with their columns."""
+    path = tmp_path / "r.db"
+    limits = limits_from_dict(LIMITS, "test")
+    with open_registry(path) as reg:
+        for i in range(2):
+            cal = unit(template, 20 + i)
+            record_calibration(reg, cal, UnitInfo(f"D-{i}", lot="L"),
+                               acceptance=judge_calibration(cal, limits), limits=limits)
+
+    def counts():
+        engine = create_engine(f"sqlite:///{path}")
+        with engine.connect() as conn:
+            out = {t: conn.exec_driver_sql(f"SELECT COUNT(*) FROM {t}").scalar()
+                   for t in ("units", "calibrations", "documents", "sections", "figures")}
+            cols = {r[1] for r in conn.exec_driver_sql("PRAGMA table_info(calibrations)")}
+        engine.dispose()
+        return out, cols
+
+    before, cols = counts()
+    assert before["figures"] > 0 and "verdict" in cols
+    with open_registry(path) as reg, reg.write() as conn:
+        config = _script_config()
+        config.attributes["connection"] = conn
+        command.downgrade(config, "0001")
+    after, cols = counts()
+    assert after == before
+    assert not cols & {"verdict", "failed", "limits"}
+    with open_registry(path) as reg:
+        assert [r["serial"] for r in list_units(reg)] == ["D-0", "D-1"]
+        assert unit_report(reg, "D-1")["calibrations"][0]["uid"]
+    assert counts()[0] == before
+
+
 def _writers_at_once(url: str, template: dict, per: int, make_first: bool) -> None:
     """4 writer processes of ``per`` units each at once: everything they recorded is there."""
     if make_first:

@@ -27,7 +27,12 @@ def upgrade() -> None:
 
 
 def downgrade() -> None:
-    with op.batch_alter_table("calibrations") as batch:
-        batch.drop_column("limits")
-        batch.drop_column("failed")
-        batch.drop_column("verdict")
+    columns = ("limits", "failed", "verdict")
+    if op.get_bind().dialect.name == "sqlite":
+        # SQLite >= 3.35 drops a column in place: a batch copy would drop the old table, and
+        # with it (foreign keys on, as the registry connects) every section and figure row
+        for name in columns:
+            op.execute(f"ALTER TABLE calibrations DROP COLUMN {name}")
+    else:
+        for name in columns:
+            op.drop_column("calibrations", name)
