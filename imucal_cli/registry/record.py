@@ -123,23 +123,11 @@ def record_calibration(
     """
     serial = check_serial(info.serial)
     product, lot = _optional(info.product, "product"), _optional(info.lot, "lot")
-    station, operator = _optional(info.station, "station"), _optional(info.operator, "operator")
     document = calibration_to_json(cal)
     sha = hashlib.sha256(document.encode()).hexdigest()
     uid = uid or uuid.uuid4().hex
     when = recorded_at or now_iso()
-    figs = unit_figures(cal)
-    others = imu_figures(cal)
-    row: dict[str, Any] = {
-        "uid": uid, "product": product, "lot": lot, "station": station, "operator": operator,
-        "created": cal.created, "recorded_at": when, "session": cal.session,
-        "session_sha256": session_sha256,
-        "toolkit_version": _text(cal.toolkit_version),
-        "document_sha256": sha,
-        "verdict": None if acceptance is None else acceptance.verdict,
-        "failed": None if acceptance is None else json.dumps(acceptance.failed),
-        "limits": None if limits is None else json.dumps(limits.to_dict()),
-    }  # fmt: skip
+    row = _calibration_row(cal, info, uid, when, sha, session_sha256, acceptance, limits)
     with registry.write() as conn:
         unit_id = _unit(conn, registry.dialect, serial, product, lot, when)
         row["unit_id"] = unit_id
@@ -148,21 +136,46 @@ def record_calibration(
             .on_conflict_do_nothing().returning(calibrations.c.id)
         ).scalar()  # fmt: skip
         if cal_id is None:  # this unit already has this very calibration
-            old = conn.execute(
-                select(calibrations.c.id, calibrations.c.uid, calibrations.c.recorded_at,
-                       calibrations.c.verdict)
-                .where(or_(calibrations.c.uid == uid,
-                           and_(calibrations.c.unit_id == unit_id,
-                                calibrations.c.document_sha256 == sha)))
-            ).first()  # fmt: skip
-            if old is None:  # pragma: no cover - a conflict is one of the two
-                raise RegistryError(f"calibration {uid} of {serial} was not recorded")
-            return Recorded(old.uid, old.id, serial, old.recorded_at, old.verdict, new=False)
+            return _recorded_before(conn, serial, unit_id, uid, sha)
         conn.execute(documents.insert().values(calibration_id=cal_id, document=document))
-        _figures(conn, cal_id, figs)
-        for name, of_imu in others.items():
+        _figures(conn, cal_id, unit_figures(cal))
+        for name, of_imu in imu_figures(cal).items():
             _figures(conn, cal_id, of_imu, imu=name)
     return Recorded(uid, cal_id, serial, when, row["verdict"], new=True)
+
+
+def _calibration_row(cal: Calibration, info: UnitInfo, uid: str, when: str, sha: str,
+                     session_sha256: str | None, acceptance: Acceptance | None,
+                     limits: ProductLimits | None) -> dict[str, Any]:  # fmt: skip
+    """The ``calibrations`` row of one calibration (its unit's id added by the caller)."""
+    return {
+        "uid": uid, "product": _optional(info.product, "product"),
+        "lot": _optional(info.lot, "lot"), "station": _optional(info.station, "station"),
+        "operator": _optional(info.operator, "operator"),
+        "created": cal.created, "recorded_at": when, "session": cal.session,
+        "session_sha256": session_sha256,
+        "toolkit_version": _text(cal.toolkit_version),
+        "document_sha256": sha,
+        "verdict": None if acceptance is None else acceptance.verdict,
+        "failed": None if acceptance is None else json.dumps(acceptance.failed),
+        "limits": None if limits is None else json.dumps(limits.to_dict()),
+    }  # fmt: skip
+
+
+def _recorded_before(conn: Connection, serial: str, unit_id: int, uid: str,
+                     sha: str) -> Recorded:  # fmt: skip
+    """The calibration already recorded that a new one conflicted with: the same uid, or the
+    same document of the same unit (:class:`Recorded` with ``new=False``)."""
+    old = conn.execute(
+        select(calibrations.c.id, calibrations.c.uid, calibrations.c.recorded_at,
+               calibrations.c.verdict)
+        .where(or_(calibrations.c.uid == uid,
+                   and_(calibrations.c.unit_id == unit_id,
+                        calibrations.c.document_sha256 == sha)))
+    ).first()  # fmt: skip
+    if old is None:  # pragma: no cover - a conflict is one of the two
+        raise RegistryError(f"calibration {uid} of {serial} was not recorded")
+    return Recorded(old.uid, old.id, serial, old.recorded_at, old.verdict, new=False)
 
 
 def _text(value: Any) -> str | None:
