@@ -150,3 +150,31 @@ def test_cli_resume_refusals(tmp_path):
     assert_one_line_error(proc, "--resume keeps what SESSION holds")
     proc = run("capture", "--port", "/dev/null-x", "-o", tmp_path / "s.h5")
     assert_one_line_error(proc, "--resume")  # the advice for an existing file names --resume
+
+
+def test_unattended_resume_of_unlabelled_poses_counts_the_poses_recorded(tmp_path):
+    """``random:N`` unattended: its poses are counted, not identified, so the first capture
+    leaves its still periods unlabelled; resumed, each of them fills a pose, and only the
+    poses left are looked for (before: the whole plan again, every pose recorded twice)."""
+    from imucal_cli.cli.capture import _done_before
+
+    chunks, _ = lines_of(plan="random:9", hold=2.0, move=1.5)
+    path = tmp_path / "r.h5"
+    cut = len(chunks) // 2
+    rec = Recorder(path, ScriptedSource(chunks[:cut], then="gone"), _proto())
+    first = run_unattended(rec, load_plan("random:9"))
+    rec.close()
+    n_first = sum(1 for x in read_session(path).segments if x.kind == "static")
+    assert 2 <= n_first < 9 and not first.complete
+    before = _done_before(path, guided=False)
+    assert before == [None] * n_first  # counted poses, no labels
+    said = []
+    rec = Recorder(path, ScriptedSource(chunks[cut:], then="gone"), _proto(), resume=True)
+    summary = run_unattended(rec, load_plan("random:9"), done_before=before,
+                             on_status=said.append)  # fmt: skip
+    rec.close()
+    assert f"resumed: {n_first} steps already in the session, {9 - n_first} left" in said
+    assert summary.complete and len(summary.done) == 9, summary
+    assert summary.done == [f"pose {k}" for k in range(1, 10)]
+    statics = [x for x in read_session(path).segments if x.kind == "static"]
+    assert len(statics) >= 9 and all(x.label is None for x in statics[:n_first])

@@ -224,7 +224,7 @@ def run_unattended(
     *,
     min_still_s: float = 1.0,
     on_status: Callable[[str], None] | None = None,
-    done_before: list[str] | None = None,
+    done_before: list[str | None] | None = None,
     targets=None,
     refit: Callable | None = None,
     gravity: float = 9.80665,
@@ -243,10 +243,12 @@ def run_unattended(
         Shortest still period that counts, s.
     on_status : callable, optional
         Called with progress messages.
-    done_before : list of str, optional
+    done_before : list of str or None, optional
         Continuing a capture (``recorder.resumed_from`` samples already in the session): the
-        labels of the steps its segments already hold; only the other steps are looked for,
-        and the new segments follow the old samples.
+        labels of the steps its segments already hold, None for each unlabelled static
+        segment (a pose the first capture counted: it fills a pose step without ``up`` of a
+        plan of poses, ``random:N``); only the other steps are looked for, and the new
+        segments follow the old samples.
     targets, refit, gravity
         Accuracy targets (:class:`~imucal_cli.formats.targets.Targets`) and the refit of the
         recording so far (:class:`~imucal_cli.capture.targets_watch.TargetWatcher`): the
@@ -261,9 +263,9 @@ def run_unattended(
     if plan is None and duration_s is None and not targets:
         raise ValueError("run_unattended needs a plan, a duration or targets")
     say = on_status or (lambda message: None)
-    before = list(done_before or [])
-    if plan is not None and before:
-        before, plan = _left_to_do(plan, before, say)
+    before = [label for label in done_before or [] if label is not None]
+    if plan is not None and done_before:
+        before, plan = _left_to_do(plan, list(done_before), say)
         if not plan.steps:
             return CaptureSummary(complete=True, done=before, skipped=[], missing=[],
                                   end_reason="every step of the plan was already in the session",
@@ -313,13 +315,22 @@ def _attrs(step: Step | None) -> dict:
     return attrs
 
 
-def _left_to_do(plan: Plan, before: list[str], say) -> tuple[list[str], Plan]:
+def _left_to_do(plan: Plan, before: list[str | None], say) -> tuple[list[str], Plan]:
     """Continuing a capture: the labels of ``before`` that are steps of ``plan`` (each step
-    once), and the plan of the steps left."""
+    once), and the plan of the steps left.  In a plan of poses (no turns, matched in any
+    order) each unlabelled still period of ``before`` (None) fills a pose step without ``up``,
+    as the capture that recorded it counted it; a plan with turns is matched in its order, so
+    an unlabelled period there is not taken as any step."""
     left, matched = list(plan.steps), []
     for label in before:
-        i = next((i for i, s in enumerate(left) if s.label == label), None)
+        i = next((i for i, s in enumerate(left) if label is not None and s.label == label), None)
         if i is not None:
+            matched.append(left.pop(i).label)
+    if all(s.kind == "static" for s in plan.steps):
+        for _ in range(sum(label is None for label in before)):
+            i = next((i for i, s in enumerate(left) if s.up is None), None)
+            if i is None:
+                break
             matched.append(left.pop(i).label)
     say(f"resumed: {len(matched)} steps already in the session, {len(left)} left")
     return matched, Plan(plan.name, tuple(left))

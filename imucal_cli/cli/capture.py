@@ -391,10 +391,11 @@ def _output_path(output: Path | None, resume: Path | None, force: bool) -> Path:
 
 def _done_before(path: Path, guided: bool) -> list:
     """What an interrupted session already holds: for the guided mode ``(kind, label, mean raw
-    accel of a static segment or None)`` per segment, for the unattended mode the labels."""
+    accel of a static segment or None)`` per segment, for the unattended mode the labels (None
+    for an unlabelled static segment: a pose counted, not identified)."""
     session = read_session(path)
     if not guided:
-        return [s.label for s in session.segments if s.label]
+        return [s.label or None for s in session.segments if s.label or s.kind == "static"]
     return [(s.kind, s.label,
              session.accel[s.start : s.stop].mean(axis=0)
              if s.kind == "static" and session.accel is not None else None)
