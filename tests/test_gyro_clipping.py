@@ -148,3 +148,23 @@ def test_flat_tops_of_a_session_read_while_it_is_written():
     low, high = _flat_tops(cut)
     assert low.shape == high.shape == (3,)
     assert np.all(np.isinf(low)) and np.all(np.isinf(high))  # an unclipped session
+
+
+@pytest.mark.parametrize("gyro_noise", [2e-4, 1e-3])  # about 0.1-0.5 and 1 count per sample
+def test_a_quiet_1khz_gyro_repeats_no_flat_top_and_shows_a_real_one(gyro_noise):
+    """At 1 kHz a turn's peak lasts many readings, and a quiet part (a tenth of a count to a
+    count of noise) repeats counts there by the signal, not the noise: no flat top is taken
+    in clean turns; clipped at 1500 counts within its word (peaks about 2,000), x's flat
+    tops are found at that level."""
+    from imucal_cli.simulate.rotations import simulate_gyro_rotations
+
+    for seed in (0, 1):
+        session, _ = simulate_gyro_rotations("qureshi-axes", seed=seed, rate_hz=1000.0,
+                                             gyro_noise=gyro_noise, rotations_per_axis=4,
+                                             created=CREATED)  # fmt: skip
+        low, high = _flat_tops(with_segments(session)[0])
+        assert np.all(np.isinf(low)) and np.all(np.isinf(high)), (seed, low, high)
+        clipped = _clipped(session, level=1500.0, axes=(0,))
+        low, high = _flat_tops(with_segments(clipped)[0])
+        assert low[0] == -1500.0 and high[0] == 1500.0, (seed, low, high)
+        assert np.all(np.isinf(low[1:])) and np.all(np.isinf(high[1:]))
