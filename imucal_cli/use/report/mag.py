@@ -73,31 +73,7 @@ def add_mag_content(section: dict[str, Any], sec: SensorCalibration, add_table) 
     rms["held_out"] = as_number(member(sec, "rms_held_out"))
     rms["held_out_method"] = "2-fold: alternate 1 s blocks and poses, each fitted without"
     _field_table(section, mag, unit, add_table)
-    q = mag["quality"]
-    if q and q["checks"]:
-        verdict = q["verdict"] or "?"
-        caption = (
-            "verdict: pass" if verdict == "pass"
-            else f"verdict: recapture ({', '.join(q['failed'])} over the limit)"
-        )  # fmt: skip
-        add_table(
-            section, "quality of the fit (MotionCal's figures)",
-            ["figure", "value [%]", "limit [%]", "meaning", "ok"],
-            [[c["name"], c["value_pct"], c["limit_pct"], c["meaning"],
-              "yes" if c["ok"] else "NO"] for c in q["checks"]],
-            caption=caption,
-        )  # fmt: skip
-        if verdict != "pass":
-            failed = ", ".join(
-                f"{c['name']} {c['value_pct']:.1f} % > {c['limit_pct']:g} %"
-                + ("" if c.get("held_pct") is None else
-                   f", |B| there held only to {c['held_pct']:.2g} % (2 std)")
-                for c in q["checks"] if not c["ok"] and c["value_pct"] is not None
-            )  # fmt: skip
-            section["warnings"].append(
-                f"magnetometer quality: recapture ({failed or 'figures missing'}): turn the "
-                "unit through every direction, slowly, away from steel and magnets"
-            )
+    _quality_table(section, mag["quality"], add_table)
     if mag["poses"]:
         add_table(
             section, "static poses (n: distinct readings; dip resid.: angle gravity-field "
@@ -125,6 +101,36 @@ def add_mag_content(section: dict[str, Any], sec: SensorCalibration, add_table) 
         "title": "coverage of measured field directions",
         "directions": mag["directions"], "facts": facts,
     })  # fmt: skip
+
+
+def _quality_table(section: dict[str, Any], q: dict[str, Any] | None, add_table) -> None:
+    """MotionCal's figures of the fit as a table, and a warning when they say recapture."""
+    if not q or not q["checks"]:
+        return
+    verdict = q["verdict"] or "?"
+    caption = (
+        "verdict: pass" if verdict == "pass"
+        else f"verdict: recapture ({', '.join(q['failed'])} over the limit)"
+    )  # fmt: skip
+    add_table(
+        section, "quality of the fit (MotionCal's figures)",
+        ["figure", "value [%]", "limit [%]", "meaning", "ok"],
+        [[c["name"], c["value_pct"], c["limit_pct"], c["meaning"],
+          "yes" if c["ok"] else "NO"] for c in q["checks"]],
+        caption=caption,
+    )  # fmt: skip
+    if verdict == "pass":
+        return
+    failed = ", ".join(
+        f"{c['name']} {c['value_pct']:.1f} % > {c['limit_pct']:g} %"
+        + ("" if c.get("held_pct") is None else
+           f", |B| there held only to {c['held_pct']:.2g} % (2 std)")
+        for c in q["checks"] if not c["ok"] and c["value_pct"] is not None
+    )  # fmt: skip
+    section["warnings"].append(
+        f"magnetometer quality: recapture ({failed or 'figures missing'}): turn the "
+        "unit through every direction, slowly, away from steel and magnets"
+    )
 
 
 def _field_table(section, mag: dict[str, Any], unit: str, add_table) -> None:
