@@ -252,7 +252,7 @@ def loo_rows() -> list[tuple]:
                 continue
             same = [p.name for p in g.parameters] == list(ref)
             z = [abs(p.value - ref[p.name]) / p.std for p in g.parameters
-                 if p["name"] in ref]  # fmt: skip
+                 if p.name in ref]  # fmt: skip
             counts["converged" if same and max(z) < LOO_Z else "saved wrong"] += 1
         if full is None:
             note = calibrate_session(session, DEFAULT).gyro_note or ""
