@@ -37,10 +37,12 @@ def test_stated_std_is_the_bound_with_the_accelerometer_propagated(fitted):
     assert g.fit.noise_scale == 1.0  # residuals within the noise: no inflation
     std = np.array([p.std for p in g.parameters])
     crb, total = (np.sqrt(np.diag(c)) for c in full_bound(session, CFG, cal.accel, x))
-    # The accelerometer's share: none in the bias, up to 1.5 times the gyro's own bound in the
-    # matrix here (13 poses calibrate the accelerometer; without it the std fell below).
+    # The accelerometer's share: none in the bias, up to 1.2 times the gyro's own bound in the
+    # matrix here (13 poses calibrate the accelerometer; without it the std fell below). Its
+    # frame's rotation is not in it (the gyro turns with that frame; errors are measured in
+    # it): with it the share was 1.5 times.
     assert np.all(total >= crb) and np.all(total[3:] > 1.004 * crb[3:])
-    assert np.max(total / crb) > 1.4
+    assert 1.1 < np.max(total / crb) < 1.35
     # std at the estimate, bound at the truth: the same to first order.
     np.testing.assert_allclose(std, total, rtol=0.01)
     assert np.all(np.abs(np.r_[g.bias, g.matrix.ravel()] - x) < 4.5 * total)

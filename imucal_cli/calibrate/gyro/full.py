@@ -18,6 +18,7 @@ from imucal_cli.calibrate.common import num
 from imucal_cli.calibrate.gyro.turns import AXES, GyroData, GyroFit, Still
 from imucal_cli.calibrate.thermal import sample_temperature
 from imucal_cli.errors import ImucalError
+from imucal_cli.estimators.accel.frame import frame_free
 from imucal_cli.estimators.gyro import full as gyro_full
 from imucal_cli.estimators.gyro import sigma as gyro_sigma
 from imucal_cli.estimators.gyro.known_turns import accel_factor
@@ -159,7 +160,9 @@ def accel_uncertainty(data: GyroData):
     (the section's ``compensation``): a term's error ``dc`` moves still period k's raw mean by
     ``-(T_k - T_ref)^j dc`` in its channel, jointly with the calibration's own error (one fit
     gave both; docs/temperature.md). ``shift(d, T)`` is that move, (N, 3), at temperatures
-    ``T``, or None without terms; None without a covariance or a triad."""
+    ``T``, or None without terms; None without a covariance or a triad. ``C`` is without the
+    rotation of the accelerometer's frame (:func:`~imucal_cli.estimators.accel.frame.
+    frame_free`): the gyro reports in that frame and turns with it."""
     cal = data.accel_cal
     cov = None if cal is None or cal.covariance is None else cal.covariance.values
     dg = None if cov is None else accel_derivative(data.stills, cal)
@@ -167,9 +170,9 @@ def accel_uncertainty(data: GyroData):
         return None
     comp = getattr(cal, "compensation", None)
     temp = sample_temperature(data.session)
-    if comp is None or temp is None:
-        return dg, np.asarray(cov, float), None
     Am = np.asarray(cal.matrix, float)
+    if comp is None or temp is None:  # the frame's turn moves the gyro with it: not its error
+        return dg, frame_free(cov, Am), None
 
     def shift(d: np.ndarray, T: np.ndarray) -> np.ndarray:
         out = np.zeros((len(T), 3))
@@ -180,7 +183,8 @@ def accel_uncertainty(data: GyroData):
     T = np.array([temp[s.segment.start : s.segment.stop].mean() for s in data.stills])
     eye = np.eye(len(comp.columns))
     extra = np.stack([shift(e, T) @ Am.T for e in eye], axis=2)  # (P, 3, terms)
-    return np.concatenate([dg, extra], axis=2), np.asarray(comp.covariance, float), shift
+    return (np.concatenate([dg, extra], axis=2), frame_free(comp.covariance, Am),
+            shift)  # fmt: skip
 
 
 def gain_std(M: np.ndarray, cov_M: np.ndarray) -> np.ndarray:

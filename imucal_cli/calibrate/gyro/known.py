@@ -44,6 +44,7 @@ from imucal_cli.calibrate.gyro.rotations import (
 from imucal_cli.calibrate.gyro.turn_windows import settle_turns
 from imucal_cli.calibrate.gyro.turns import AXES, MODEL_EQUATION_G, GyroData
 from imucal_cli.errors import DesignError
+from imucal_cli.estimators.accel.frame import frame_free
 from imucal_cli.estimators.gyro import full as gyro_full
 from imucal_cli.estimators.gyro import known as gyro_known
 from imucal_cli.formats.config import Config
@@ -338,12 +339,14 @@ def _choose(cfg, data, known, used, st, rot, b0, fitter, vertical_known, accel_d
         res, g_test = _g_choice(cfg, fitter(rot))
         own = None if rot is None else checks.own_excess(st, data.noise, rot, res, accel_dirs)
         if own is not None:  # their excess from themselves: a wrong known turn cannot raise it
-            res, g_test = _g_choice(cfg, fitter(rot, own.tau))
-            rot_fit = fitter(rot, own.tau)
+            tau = checks.significant_excess(own)
+            res, g_test = _g_choice(cfg, fitter(rot, tau))
+            rot_fit = fitter(rot, tau)
         else:
             rot_fit = fitter(rot)
         level = res.gravity_level if own is None else own.gravity_level
-        if rot is not None and res.tau > 0 and checks.known_alone(known, b0):
+        if rot is not None and (res.tau > 0 or checks.known_disagree(res)) and \
+                checks.known_alone(known, b0):
             alone, g_alone = _g_choice(cfg, fitter(None))
             why_out = checks.leave_out(cfg, known, st, data.noise, rot, res, alone, accel_dirs,
                                        level)  # fmt: skip
@@ -399,7 +402,7 @@ def _accel_part(session, cfg, accel_cal, segs, statics, res, data, rot, known,
         return np.zeros((n, n))
     if in_weights and not any("measured vertical" in note for note in data.notes):
         return np.zeros((n, n))
-    C = np.asarray(cov, float)
+    C = frame_free(cov, accel_cal.matrix)  # the frame's turn moves the gyro with it
     lam, V = np.linalg.eigh((C + C.T) / 2)
     x = np.r_[res.b, res.M.ravel(), [] if res.G is None else res.G.ravel()]
     th0 = np.r_[accel_cal.bias, np.ravel(accel_cal.matrix)]

@@ -40,6 +40,7 @@ from imucal_cli.design.clipping import flat_top_levels
 from imucal_cli.design.gaps import find_gaps, gaps_within
 from imucal_cli.design.segmentation import find_rotations, find_static
 from imucal_cli.errors import DesignError
+from imucal_cli.estimators.accel.frame import frame_free
 from imucal_cli.estimators.gyro.full import accel_sensitivity, full_information
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Segment, Session
@@ -472,8 +473,9 @@ def full_bound(session: Session, cfg: Config, accel_cal: SensorCalibration,
     accelerometer calibration taken as exact), and with the accelerometer calibration's
     covariance propagated through the turns (what an error against the truth is to be
     measured against when the accelerometer is calibrated from the same session: its own
-    error moves the gyro's too). Both (n, n); the second equals the first without an
-    accelerometer covariance."""
+    error moves the gyro's too; without its frame's rotation, which turns the gyro's frame
+    with it: errors are measured in the calibrated accelerometer's frame). Both (n, n); the
+    second equals the first without an accelerometer covariance."""
 
     session, _ = with_segments(session)
     data = gyro_data(session, cfg, accel_cal)
@@ -486,7 +488,7 @@ def full_bound(session: Session, cfg: Config, accel_cal: SensorCalibration,
     at = SimpleNamespace(b=x[:3], M=x[3:12].reshape(3, 3),
                          G=x[12:21].reshape(3, 3) if len(x) == 21 else None)  # fmt: skip
     A = accel_sensitivity(rot, st, data.noise, at, dg)
-    return crb, crb + A @ np.asarray(cov.values, float) @ A.T
+    return crb, crb + A @ frame_free(cov.values, accel_cal.matrix) @ A.T  # the frame: a gauge
 
 
 def gyro_alternatives(session: Session, solver: str) -> list[str]:
