@@ -261,6 +261,8 @@ def session_cases() -> list[Case]:
     for name in ("kind", "start", "stop"):
         add(f"segment {name} missing", _del_attr(seg, name))
     add("segment label with a bidi override", _set_attr(seg, "label", "evil\u202etxt"), "ok")
+    # a known turn of 1e300 deg overflowed the known-angle fit: a traceback (audit)
+    add("rotation angle_deg = 1e300", _set_attr("segments/0001", "angle_deg", 1e300))
     add("segment is a dataset", lambda f, d: (f.__delitem__(seg), f.__setitem__(seg, 1)), "ok")
     add("no segments group", _delete("segments"), "ok")
     add("capture log with garbage", _log_garbage([b"{", b"not json"]))

@@ -230,6 +230,21 @@ def as_float(value: Any) -> float | None:
     return number if math.isfinite(number) else None
 
 
+MAX_TURN_DEG = 3600.0
+"""The largest known turn a segment or a plan step may state, degrees either way: ten full
+turns (a turntable's or a hand's turn is one or two; 1e300 overflowed the known-angle fit)."""
+
+TURN_ANGLE_RULE = f"a finite number of degrees within +-{MAX_TURN_DEG:g} (ten turns)"
+"""What a turn angle must be, for messages."""
+
+
+def as_turn_angle(value: Any) -> float | None:
+    """Return a known turn angle (degrees, finite, at most :data:`MAX_TURN_DEG` either way)
+    as float, else None."""
+    number = as_float(value)
+    return number if number is not None and abs(number) <= MAX_TURN_DEG else None
+
+
 def as_int(value: Any) -> int | None:
     """Return an integer (also an integral float, as MATLAB writes them) as int, else None."""
     number = as_float(value)

@@ -39,7 +39,7 @@ from imucal_cli.design.segmentation import (
     find_steps,
 )
 from imucal_cli.errors import InputError
-from imucal_cli.formats.session import Segment, Session
+from imucal_cli.formats.session import TURN_ANGLE_RULE, Segment, Session, as_turn_angle
 from imucal_cli.formats.set_columns import imu_number_name, split_columns, split_header
 
 from . import csv, imu_tk, mavlink, ros, serial_lines, ulog, witmotion
@@ -404,6 +404,8 @@ def import_files(
         See :func:`read_recording` and :func:`segment_recording`; unknown units.
     """
     _check_units(accel_units, gyro_units, mag_units, magnetic_field_uT)
+    if turn_angle_deg is not None and as_turn_angle(turn_angle_deg) is None:
+        raise InputError(f"--turn-angle must be {TURN_ANGLE_RULE}, got {turn_angle_deg:g}")
     given_units = (accel_units, gyro_units, mag_units)
     recs = _read_set(
         paths, fmt, columns, time_unit=time_unit, rate_hz=rate_hz, skip_rows=skip_rows,
