@@ -369,7 +369,11 @@ def calibration_cases(valid: str) -> list[tuple[str, bytes, str]]:
                      [True, 0, 0], {"x": 0}],
             "matrix": [[[1, 0, 0]], [[1, 0], [0, 1], [0, 0]], "I", [[1, 0, 0]] * 4, None,
                        [[1, 0, 0], [0, 1, 0], [0, 0, "1"]], [[1, 0, 0], [0, 1, 0], [0, 0, 10**400]],
-                       [[1, 0, 0], [0, 1, 0], None], []],
+                       [[1, 0, 0], [0, 1, 0], None], [],
+                       # no sensor's: apply wrote zeros, or 1e30 m/s^2, exit 0 (audit)
+                       [[0, 0, 0]] * 3, [[1e30, 0, 0], [0, 1e30, 0], [0, 0, 1e30]],
+                       [[1e-300, 0, 0], [0, 1e-300, 0], [0, 0, 1e-300]],
+                       [[1, 2, 3], [2, 4, 6], [1, 1, 1]]],
             "units": ["g", 3, None], "solver": [None, 5],
             "residual_rms": ["small", [1], {"a": 1}],
         }.items():  # fmt: skip
