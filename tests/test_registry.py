@@ -100,6 +100,32 @@ def test_bad_names_and_missing_registries_are_one_line_errors(tmp_path, template
         open_registry("mysql://u@h/db")
 
 
+def test_another_programs_database_is_never_written_into(tmp_path, template):
+    """Audit: a SQLite file of another program (its own tables) was taken for a new registry:
+    even ``registry list`` put it in WAL mode and added imucal's tables to it.  Now every
+    command refuses it, the file byte for byte as it was; an empty file is a registry only for
+    the commands that make one."""
+    import sqlite3
+
+    other = tmp_path / "app.db"
+    with sqlite3.connect(other) as db:
+        db.execute("CREATE TABLE users (name TEXT)")
+    before = other.read_bytes()
+    for create in (False, True):
+        with pytest.raises(RegistryError, match=r"another program \(tables users\)"):
+            open_registry(other, create=create)
+    assert other.read_bytes() == before
+    empty = tmp_path / "empty.db"
+    empty.touch()
+    with pytest.raises(RegistryError, match="an empty database, not an imucal registry"):
+        open_registry(empty, create=False)
+    assert empty.read_bytes() == b""
+    with open_registry(empty) as reg:  # import and calibrate --registry make one in it
+        record_calibration(reg, unit(template, 0), UnitInfo("U1"))
+    with open_registry(empty, create=False) as reg:
+        assert [u["serial"] for u in list_units(reg)] == ["U1"]
+
+
 def test_without_psycopg_a_postgresql_registry_says_which_extra(monkeypatch):
     monkeypatch.setitem(sys.modules, "psycopg", None)  # import psycopg -> ImportError
     with pytest.raises(RegistryError, match=r"psycopg 3: pip install 'imucal-cli\[postgresql\]'"):

@@ -21,8 +21,10 @@ imucal: a registry written by an older one is brought up to date, its records ke
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import os
+import sqlite3
 import stat
 import time
 from collections.abc import Iterator
@@ -194,6 +196,7 @@ def open_registry(target: str | os.PathLike, *, create: bool = True) -> Registry
         if not parsed.database or parsed.database == ":memory:":
             raise RegistryError(f"registry {name}: a SQLite registry is a file")
         _check_sqlite_path(Path(parsed.database), name, create)
+        _check_sqlite_schema(Path(parsed.database), name, create)
         engine = _sqlite_engine(url)
         lock = Path(parsed.database + ".lock")
     elif parsed.get_backend_name() == "postgresql":
@@ -231,6 +234,31 @@ def _check_sqlite_path(path: Path, name: str, create: bool) -> None:
         raise RegistryError(f"registry {name}: cannot open ({exc.strerror or exc})") from None
     if not stat.S_ISREG(st.st_mode):
         raise RegistryError(f"registry {name}: not a regular file")
+
+
+def _check_sqlite_schema(path: Path, name: str, create: bool) -> None:
+    """Refuse, before anything is written (the engine puts the file in WAL mode), a SQLite
+    file without imucal's schema that holds another program's tables, or that is empty when
+    the command makes no registry (``list`` of a path that exists but was never one).  A file
+    that is not SQLite is left to the engine's own error."""
+    if not path.exists():
+        return
+    try:
+        with contextlib.closing(sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro",
+                                                uri=True, timeout=BUSY_TIMEOUT_S)) as db:
+            tables = [row[0] for row in db.execute(
+                "SELECT name FROM sqlite_master WHERE type = 'table'")]  # fmt: skip
+    except sqlite3.Error:
+        return
+    if "alembic_version" in tables:
+        return
+    if tables:
+        shown = ", ".join(sorted(tables)[:5]) + (", ..." if len(tables) > 5 else "")
+        raise RegistryError(f"registry {name}: a database of another program (tables {shown}), "
+                            "not an imucal registry: give a registry, or a new file for one")
+    if not create:
+        raise RegistryError(f"registry {name}: an empty database, not an imucal registry "
+                            "(imucal registry import or calibrate --registry makes one)")
 
 
 def _sqlite_engine(url: str) -> Engine:
