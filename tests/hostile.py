@@ -246,6 +246,9 @@ def session_cases() -> list[Case]:
         "2e9 samples declared in a small file": _huge,
         "chunks never written (would read zeros)": _unwritten_chunks,
         "NaN accel inside a segment": _nan_in_segment,
+        # 1e300 readings: an OverflowError traceback in calibrate, numpy's warnings (audit)
+        "accel of 1e300": lambda f, d: f["raw/accel"].__setitem__(
+            slice(None), f["raw/accel"][()] * 1e300),
     }
     for name, edit in raw_cases.items():
         add(name, edit)

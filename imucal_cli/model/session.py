@@ -230,6 +230,23 @@ def as_float(value: Any) -> float | None:
     return number if math.isfinite(number) else None
 
 
+RAW_LIMIT = 1e12
+"""The largest raw reading (accelerometer, gyroscope, magnetometer, temperature) a sensor can
+give, in any unit: 32-bit counts reach 4.3e9; values of 1e300 overflowed the solvers (a
+traceback) and the noise figures."""
+
+
+def first_beyond_raw_limit(values: np.ndarray) -> int | None:
+    """Index of the first sample (row) of ``values`` holding a number beyond
+    :data:`RAW_LIMIT` (NaN is not), or None."""
+    with np.errstate(invalid="ignore"):
+        big = np.abs(np.asarray(values, dtype=np.float64)) > RAW_LIMIT
+    if big.ndim == 2:
+        big = big.any(axis=1)
+    rows = np.flatnonzero(big)
+    return int(rows[0]) if rows.size else None
+
+
 MAX_TURN_DEG = 3600.0
 """The largest known turn a segment or a plan step may state, degrees either way: ten full
 turns (a turntable's or a hand's turn is one or two; 1e300 overflowed the known-angle fit)."""

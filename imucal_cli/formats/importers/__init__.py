@@ -41,6 +41,7 @@ from imucal_cli.design.segmentation import (
 from imucal_cli.errors import InputError
 from imucal_cli.formats.session import TURN_ANGLE_RULE, Segment, Session, as_turn_angle
 from imucal_cli.formats.set_columns import imu_number_name, split_columns, split_header
+from imucal_cli.model.session import RAW_LIMIT, first_beyond_raw_limit
 
 from . import csv, imu_tk, mavlink, ros, serial_lines, ulog, witmotion
 from .imu_set import imu_name, imu_stream, set_streams
@@ -228,6 +229,7 @@ def read_recording(
     rec.time = time
     rec.stats.samples = len(time)
     where = " and ".join(str(p) for p in paths)
+    _check_readings(rec, where)
     stamped = rate_hz is None or rec.columns.count("t") > 0
     measured = float(1.0 / np.median(np.diff(time))) if len(time) >= 2 else float("nan")
     if stamped and np.isfinite(measured):
@@ -242,6 +244,19 @@ def read_recording(
             )
     rec.rate_hz = float(rate_hz) if rate_hz is not None else measured
     return rec
+
+
+def _check_readings(rec: Recording, where: str) -> None:
+    """Refuse readings no sensor gives (beyond :data:`RAW_LIMIT` in any unit: 1e303 from a
+    damaged line overflowed the still-period search and the solvers)."""
+    for name in ("accel", "gyro", "mag", "temperature"):
+        values = getattr(rec, name, None)
+        row = None if values is None else first_beyond_raw_limit(values)
+        if row is not None:
+            value = float(np.max(np.abs(np.atleast_1d(values[row]))))
+            raise InputError(f"{where}: {name} reads {value:.3g} at sample {row}, beyond "
+                             f"any sensor (at most {RAW_LIMIT:g} in any unit): not raw "
+                             "readings, or a damaged file")  # fmt: skip
 
 
 RATE_RANGE_HZ = (1.0, 10_000.0)

@@ -24,6 +24,7 @@ from imucal_cli.model.session import (
     LOG_DATASET,
     LOG_GROUP,
     MAG_UNITS,
+    RAW_LIMIT,
     SEGMENT_ATTRS,
     SEGMENT_KINDS,
     TURN_ANGLE_RULE,
@@ -34,6 +35,7 @@ from imucal_cli.model.session import (
     as_str,
     as_turn_angle,
     as_unit_vector,
+    first_beyond_raw_limit,
     one_line,
     show,
 )
@@ -285,7 +287,22 @@ def _read_raw(file: h5py.File, src: str, unclosed: bool) -> dict[str, np.ndarray
     raw = {name: None if name not in datasets else
            np.asarray(datasets[name][:n], dtype=np.float64) for name in RAW_CHANNELS}  # fmt: skip
     check_time(raw["time"], src)
+    for name, values in raw.items():
+        check_readings(name, values, src)
     return raw
+
+
+def check_readings(name: str, values: np.ndarray | None, src: str, first: int = 0) -> None:
+    """Raise SessionError where the readings of channel ``name`` (samples ``first`` on) hold a
+    number no sensor gives (beyond :data:`RAW_LIMIT`); times are not readings."""
+    if values is None or name in ("time", "host_time"):
+        return
+    row = first_beyond_raw_limit(values)
+    if row is not None:
+        value = float(np.max(np.abs(np.atleast_1d(values[row]))))
+        raise SessionError(f"{src}: /raw/{name} reads {value:.3g} at sample {first + row}, "
+                           f"beyond any sensor (at most {RAW_LIMIT:g} in any unit): a damaged "
+                           "file, or not raw readings")  # fmt: skip
 
 
 def _read_segments(

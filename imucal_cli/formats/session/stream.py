@@ -22,6 +22,7 @@ from imucal_cli.formats.session.h5open import open_for_reading
 from imucal_cli.formats.session.reader import (
     _read_segments,
     _root_attributes,
+    check_readings,
     check_time,
     raw_datasets,
 )
@@ -171,6 +172,7 @@ class _File(SessionSamples):
             self.datasets[name].read_direct(out, np.s_[start:stop], np.s_[0 : stop - start])
         except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
             raise SessionError(f"{self.src}: damaged HDF5 file ({one_line(exc)})") from None
+        check_readings(name, out, self.src, start)
         return out
 
     def _buffer(self, name: str, rows: int) -> np.ndarray:
