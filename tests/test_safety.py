@@ -655,7 +655,11 @@ def test_exports_refuse_non_finite_and_overflowing_numbers(tmp_path):
         proc = run("export", path, "-f", fmt)
         assert_one_line_error(proc, "beyond any sensor")
         assert "inf" not in proc.stdout
-    doc["accel"]["bias"] = [0.0, 0.0, 0.0]  # a finite offset: the exporter's own check
+    doc["accel"]["bias"] = [0.0, 0.0, 0.0]  # no offset: a gain no sensor has, when read
+    path.write_text(json.dumps(doc))
+    assert_one_line_error(run("export", path, "-f", "c-header"), "outside any sensor's")
+    doc["accel"]["matrix"][0][0] = 1.0  # a term past float32: the exporter's own check
+    doc["accel"]["temperature_ref"], doc["accel"]["bias_tempco"] = 25.0, [[1e300, 0.0, 0.0]]
     path.write_text(json.dumps(doc))
     proc = run("export", path, "-f", "c-header")
     assert_one_line_error(proc, "does not fit")
