@@ -237,10 +237,11 @@ traceback) and the noise figures."""
 
 
 def first_beyond_raw_limit(values: np.ndarray) -> int | None:
-    """Index of the first sample (row) of ``values`` holding a number beyond
-    :data:`RAW_LIMIT` (NaN is not), or None."""
+    """Index of the first sample (row) of ``values`` holding a finite number beyond
+    :data:`RAW_LIMIT` (NaN and inf are not: they mark a reading missing), or None."""
+    values = np.asarray(values, dtype=np.float64)
     with np.errstate(invalid="ignore"):
-        big = np.abs(np.asarray(values, dtype=np.float64)) > RAW_LIMIT
+        big = np.isfinite(values) & (np.abs(values) > RAW_LIMIT)
     if big.ndim == 2:
         big = big.any(axis=1)
     rows = np.flatnonzero(big)

@@ -19,7 +19,6 @@ output (HDF5 or CSV).
 
 from __future__ import annotations
 
-import io
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,7 +29,7 @@ import numpy as np
 from imucal_cli import __version__
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import calibration_to_json
-from imucal_cli.formats.output import check_output, safe_output, write_output
+from imucal_cli.formats.output import check_output, h5_image, safe_output
 from imucal_cli.formats.session import imu_session, read_session, set_names, utc_now_iso
 from imucal_cli.model.calibration import MODEL_EQUATION, Calibration
 from imucal_cli.model.imu_stream import REFERENCE_NAME
@@ -138,9 +137,7 @@ def apply_set(cal: Calibration, input_path: str | os.PathLike, output_path: str 
 
 def _write_h5(path: Path, data: dict, names: list[str], cal: Calibration, cal_source: str,
               summary: SetApplySummary, overwrite: bool, input_path: Path) -> None:  # fmt: skip
-    check_output(path, force=overwrite, inputs=[input_path])
-    image = io.BytesIO()  # built in memory (the data are), written as a whole: a full disk
-    with h5py.File(image, "w") as f:  # fails the plain write, never an HDF5 close (a crash)
+    with h5_image(path, force=overwrite, inputs=[input_path]) as f:  # a full disk: one line
         f.attrs.update({"format": "imucal-calibrated", "format_version": 1,
                         "created": utc_now_iso(), "model": MODEL_EQUATION,
                         "source": str(input_path), "calibration": cal_source,
@@ -153,7 +150,6 @@ def _write_h5(path: Path, data: dict, names: list[str], cal: Calibration, cal_so
             for key, values in data[name].items():
                 ds = group.create_dataset(key, data=values)
                 ds.attrs["units"] = {"time": "s", "accel": "m/s^2", "gyro": "rad/s"}.get(key, "uT")
-    write_output(path, image.getvalue(), force=overwrite, inputs=[input_path])
 
 
 def _write_csv(path: Path, data: dict, cal_source: str, overwrite: bool,
