@@ -24,7 +24,7 @@ from imucal_cli.calibrate.thermal import merge_sessions
 from imucal_cli.errors import ImucalError, InputError, SolverError
 from imucal_cli.formats.calibration import calibration_to_json, write_calibration
 from imucal_cli.formats.config import Config
-from imucal_cli.formats.output import check_output
+from imucal_cli.formats.output import check_output, same_file
 from imucal_cli.formats.session import read_session, store_calibration
 from imucal_cli.model.accel import AccelCalibration
 from imucal_cli.model.calibration import Calibration
@@ -191,6 +191,7 @@ def calibrate_file(
         Whatever reading, calibrating or the physical-sense check (unless ``force``) refuses.
     """
     out = output or default_output(path)
+    refuse_twice([path, *(also or [])])
     inputs = [path, *inputs]
     check_output(out, force=force, inputs=inputs)  # refuse before solving, not after
     session = read_session(path)
@@ -313,6 +314,7 @@ def calibrate_many(
 
     if jobs < 0:
         raise InputError(f"--jobs must be 0 (one per CPU) or more, got {jobs}")
+    refuse_twice(paths)
     jobs = jobs or default_jobs()
     tasks = [(str(p), cfg, force, store, accel) for p in paths]
     if jobs == 1 or len(tasks) == 1:
@@ -334,6 +336,15 @@ def calibrate_many(
         if pool is not None:
             pool.shutdown(cancel_futures=True)
     return out
+
+
+def refuse_twice(paths: Sequence[Path], what: str = "session") -> None:
+    """Refuse a file named twice (``calibrate A A``, ``--with A`` of A itself): calibrated twice,
+    its JSON written twice and stored twice in it, or its data counted twice."""
+    for i, p in enumerate(paths):
+        for q in paths[:i]:
+            if Path(p) == Path(q) or same_file(p, q):
+                raise InputError(f"{p}: the {what} {q} given twice; name each once")
 
 
 def default_jobs() -> int:
