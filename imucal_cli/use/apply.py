@@ -72,6 +72,7 @@ import numpy as np
 from imucal_cli import __version__
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import calibration_to_json
+from imucal_cli.formats.importers import check_sample_rate
 from imucal_cli.formats.importers.recording import TIME_UNITS
 from imucal_cli.formats.importers.text import cut_line_warning
 from imucal_cli.formats.inputs import is_hdf5_file
@@ -494,6 +495,8 @@ def _check_options(chunk_rows, time_unit: str, rate_hz: float | None, input_path
         raise InputError(f"unknown time unit {time_unit!r}: use {', '.join(TIME_UNITS)}")
     if rate_hz is not None and not (np.isfinite(rate_hz) and rate_hz > 0):
         raise InputError(f"--rate must be a positive number of Hz, got {rate_hz:g}")
+    if rate_hz is not None:  # 1e300 Hz stamped every row 1e-300 s apart, exit 0
+        check_sample_rate(rate_hz, None, src)
     if not input_path.exists():
         raise InputError(f"{src}: no such file")
     if input_path.is_dir():
