@@ -230,6 +230,8 @@ def session_cases() -> list[Case]:
         "time infinite": _time_edit(lambda t: np.where(np.arange(t.size) == 10, np.inf, t)),
         "time decreasing": _time_edit(lambda t: t[::-1]),
         "time repeated": _time_edit(lambda t: np.where(np.arange(t.size) == 5, t[4], t)),
+        # stamps 1e10 s apart (another unit): noise gave 1e8 ug/sqrt(Hz), exit 0 (audit)
+        "time in 1e10 s steps": _time_edit(lambda t: t * 1e12),
         "time shorter": _time_edit(lambda t: t[:-7]),
         "time longer": _time_edit(lambda t: np.concatenate([t, t[-1] + 1 + np.arange(3.0)])),
         "accel 1-D": _replace("raw/accel", np.zeros(10)),

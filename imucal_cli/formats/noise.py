@@ -35,9 +35,9 @@ from typing import Any
 import numpy as np
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.importers import RATE_RANGE_HZ
 from imucal_cli.formats.inputs import read_text_input
 from imucal_cli.model.calibration import OFFSET_LIMIT
+from imucal_cli.model.session import RATE_RANGE_HZ
 
 __all__ = ["NOISE_FORMAT", "NoiseFigures", "SensorFigures", "noise_from_dict", "read_noise"]
 

@@ -230,6 +230,9 @@ def as_float(value: Any) -> float | None:
     return number if math.isfinite(number) else None
 
 
+RATE_RANGE_HZ = (1.0, 10_000.0)
+"""Sample rates plausible for an IMU, Hz: outside them, the time unit or ``--rate`` is wrong."""
+
 RAW_LIMIT = 1e12
 """The largest raw reading (accelerometer, gyroscope, magnetometer, temperature) a sensor can
 give, in any unit: 32-bit counts reach 4.3e9; values of 1e300 overflowed the solvers (a

@@ -41,7 +41,7 @@ from imucal_cli.design.segmentation import (
 from imucal_cli.errors import InputError
 from imucal_cli.formats.session import TURN_ANGLE_RULE, Segment, Session, as_turn_angle
 from imucal_cli.formats.set_columns import imu_number_name, split_columns, split_header
-from imucal_cli.model.session import RAW_LIMIT, first_beyond_raw_limit
+from imucal_cli.model.session import RATE_RANGE_HZ, RAW_LIMIT, first_beyond_raw_limit
 
 from . import csv, imu_tk, mavlink, ros, serial_lines, ulog, witmotion
 from .imu_set import imu_name, imu_stream, set_streams
@@ -259,8 +259,6 @@ def _check_readings(rec: Recording, where: str) -> None:
                              "readings, or a damaged file")  # fmt: skip
 
 
-RATE_RANGE_HZ = (1.0, 10_000.0)
-"""Sample rates plausible for an IMU, Hz: outside them, the time unit or ``--rate`` is wrong."""
 
 _UNIT_NAMES = {"s": "seconds", "ms": "milliseconds", "us": "microseconds", "ns": "nanoseconds"}
 

@@ -24,6 +24,7 @@ from imucal_cli.model.session import (
     LOG_DATASET,
     LOG_GROUP,
     MAG_UNITS,
+    RATE_RANGE_HZ,
     RAW_LIMIT,
     SEGMENT_ATTRS,
     SEGMENT_KINDS,
@@ -287,9 +288,24 @@ def _read_raw(file: h5py.File, src: str, unclosed: bool) -> dict[str, np.ndarray
     raw = {name: None if name not in datasets else
            np.asarray(datasets[name][:n], dtype=np.float64) for name in RAW_CHANNELS}  # fmt: skip
     check_time(raw["time"], src)
+    check_rate(raw["time"], src)
     for name, values in raw.items():
         check_readings(name, values, src)
     return raw
+
+
+def check_rate(time: np.ndarray, src: str) -> None:
+    """Raise SessionError where the median step of ``time`` (increasing, s) gives a rate no IMU
+    has (:data:`RATE_RANGE_HZ`): time stamps in another unit (1e10 s apart gave noise figures
+    of 1e8 ug/sqrt(Hz), exit 0)."""
+    if len(time) < 3:
+        return
+    step = float(np.median(np.diff(time)))
+    lo, hi = RATE_RANGE_HZ
+    if not lo <= 1.0 / step <= hi:
+        raise SessionError(f"{src}: /raw/time steps {step:.3g} s, {1.0 / step:.3g} Hz: not an "
+                           f"IMU's rate ({lo:g} Hz to {hi / 1000:g} kHz); are the time stamps "
+                           "in seconds?")  # fmt: skip
 
 
 def check_readings(name: str, values: np.ndarray | None, src: str, first: int = 0) -> None:

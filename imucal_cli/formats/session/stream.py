@@ -22,6 +22,7 @@ from imucal_cli.formats.session.h5open import open_for_reading
 from imucal_cli.formats.session.reader import (
     _read_segments,
     _root_attributes,
+    check_rate,
     check_readings,
     check_time,
     raw_datasets,
@@ -165,6 +166,11 @@ class _File(SessionSamples):
         self.gravity = GRAVITY_DEFAULT if numbers["gravity"] is None else numbers["gravity"]
         self.channels = {name: 0 if ds.ndim == 1 else ds.shape[1]
                          for name, ds in datasets.items()}  # fmt: skip
+        try:
+            check_rate(self.read("time", 0, min(n, BLOCK_ROWS)), src)
+        except BaseException:
+            file.close()
+            raise
 
     def _read_into(self, out: np.ndarray, name: str, start: int, stop: int) -> np.ndarray:
         out = out[: stop - start]
