@@ -171,6 +171,9 @@ def test_imu_tk_pair(tmp_path, sim):
     assert len(imported.static_segments()) == 18
     with pytest.raises(InputError, match="--format imu_tk"):  # the pair, the format not given
         import_files([acc, gyr], None, accel_units="counts", gyro_units="counts")
+    # the accelerometer file given twice became the gyroscope's data too, exit 0 (audit)
+    with pytest.raises(InputError, match="the same numbers twice"):
+        import_files([acc, acc], "imu_tk", accel_units="counts", gyro_units="counts")
 
 
 # ------------------------------------------------------------------ errors
