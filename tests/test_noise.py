@@ -189,6 +189,15 @@ def test_too_short_recording_refused():
         analyse_noise(session)
 
 
+def test_a_stuck_axis_is_named_not_called_too_short():
+    """Audit: an axis reading one value through a minute was refused as 'only 0 averaging
+    times: the recording is too short'."""
+    session, _, _ = still_session(minutes=1.0)
+    session.gyro[:, 1] = 0.0125
+    with pytest.raises(InputError, match="gyro axis y reads one value .* stuck or dead axis"):
+        analyse_noise(session)
+
+
 def test_cli_table_and_plot(tmp_path, monkeypatch, capsys):
     pytest.importorskip("matplotlib")
     session, _, _ = still_session(minutes=2)

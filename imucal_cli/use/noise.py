@@ -444,6 +444,12 @@ def _sensor_noise(analysed: dict[str, tuple]) -> list[SensorNoise]:
     for kind, (_, allan, basis) in analysed.items():
         curves = allan.curves()
         axes = list("xyz") if len(curves) == 3 else [f"ch{i}" for i in range(len(curves))]
+        for axis, curve in zip(axes, curves, strict=True):
+            if len(curve.tau_s) == 0:  # every deviation 0: said as 'only 0 averaging times:
+                raise InputError(  # the recording is too short' of a minute's recording
+                    f"{kind} axis {axis} reads one value through the span analysed (a stuck "
+                    "or dead axis): it has no noise to measure; check the sensor"
+                )
         sensors.append(SensorNoise(kind, "m/s^2" if kind == "accel" else "rad/s", basis,
                                    axes, [noise_from_curve(c) for c in curves]))  # fmt: skip
     return sensors
