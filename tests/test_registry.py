@@ -33,6 +33,7 @@ from imucal_cli.registry.transfer import export_records, import_files
 from imucal_cli.use.limits import judge_calibration, limits_from_dict, unit_figures
 from imucal_cli.use.report.history import build_history
 
+from .cli_helpers import assert_one_line_error
 from .registry_helpers import assert_whole, make_template, recorded_lines, unit, writer
 
 LIMITS = {"product": {"name": "P"},
@@ -124,6 +125,27 @@ def test_another_programs_database_is_never_written_into(tmp_path, template):
         record_calibration(reg, unit(template, 0), UnitInfo("U1"))
     with open_registry(empty, create=False) as reg:
         assert [u["serial"] for u in list_units(reg)] == ["U1"]
+
+
+def test_a_full_disk_is_not_called_another_file(tmp_path):
+    """Audit: on a full disk (here a file-size limit: the WAL's -shm file cannot grow), every
+    registry command said 'disk I/O error (not an imucal registry?)' of a sound registry."""
+    import resource
+    import subprocess
+
+    from .cli_helpers import IMUCAL
+
+    open_registry(tmp_path / "r.db").close()
+    for name in ("r.db-wal", "r.db-shm"):
+        (tmp_path / name).unlink(missing_ok=True)
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (512, 512))
+
+    proc = subprocess.run([IMUCAL, "registry", "list", "--registry", str(tmp_path / "r.db")],
+                          capture_output=True, text=True, timeout=300, preexec_fn=limit)
+    assert_one_line_error(proc, "a full disk")
+    assert "not an imucal registry" not in proc.stderr
 
 
 def test_without_psycopg_a_postgresql_registry_says_which_extra(monkeypatch):

@@ -300,10 +300,20 @@ def _connect(registry: Registry) -> None:
             pass
     except SQLAlchemyError as exc:
         if registry.dialect == "sqlite":
-            raise RegistryError(f"registry {registry.name}: {_one_line(exc)} (not an imucal "
-                                "registry?)") from None  # fmt: skip
+            raise RegistryError(f"registry {registry.name}: {_one_line(exc)} "
+                                f"{_sqlite_hint(exc)}") from None  # fmt: skip
         raise RegistryError(f"registry {registry.name}: cannot connect ({_one_line(exc)})"
                             ) from None  # fmt: skip
+
+
+def _sqlite_hint(exc: BaseException) -> str:
+    """What a SQLite error opening a registry likely means: a disk or permission problem (the
+    registry is opened in WAL mode: its ``-wal`` and ``-shm`` files are written even to read),
+    or a file that is no registry (a full disk was said as 'not an imucal registry?')."""
+    text = _one_line(exc).lower()
+    if any(w in text for w in ("disk i/o", "disk is full", "readonly", "unable to open")):
+        return "(a full disk, or a folder or file this user cannot write?)"
+    return "(not an imucal registry?)"
 
 
 def _migrate(registry: Registry) -> None:
@@ -312,7 +322,7 @@ def _migrate(registry: Registry) -> None:
         with registry.read() as conn:
             current = _current(conn)
     except RegistryError as exc:
-        raise RegistryError(f"{exc} (not an imucal registry?)") from None
+        raise RegistryError(f"{exc} {_sqlite_hint(exc)}") from None
     if current == HEAD:
         return
     config = Config()
