@@ -13,6 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from imucal_cli.errors import SessionError
+
 from .imu_stream import REFERENCE_NAME, ImuStream
 
 FORMAT = "imucal-session"
@@ -249,6 +251,34 @@ def first_beyond_raw_limit(values: np.ndarray) -> int | None:
         big = big.any(axis=1)
     rows = np.flatnonzero(big)
     return int(rows[0]) if rows.size else None
+
+
+def check_readings(name: str, values: np.ndarray | None, src: str, first: int = 0,
+                   where: str = "/raw") -> None:
+    """Raise SessionError where the readings of channel ``where/name`` (samples ``first`` on)
+    hold a number no sensor gives (beyond :data:`RAW_LIMIT`); times are not readings."""
+    if values is None or name in ("time", "host_time"):
+        return
+    row = first_beyond_raw_limit(values)
+    if row is not None:
+        value = float(np.max(np.abs(np.atleast_1d(values[row]))))
+        raise SessionError(f"{src}: {where}/{name} reads {value:.3g} at sample {first + row}, "
+                           f"beyond any sensor (at most {RAW_LIMIT:g} in any unit): a damaged "
+                           "file, or not raw readings")  # fmt: skip
+
+
+def check_rate(time: np.ndarray, src: str, where: str = "/raw") -> None:
+    """Raise SessionError where the median step of ``time`` (increasing, s) gives a rate no IMU
+    has (:data:`RATE_RANGE_HZ`): time stamps in another unit (1e10 s apart gave noise figures
+    of 1e8 ug/sqrt(Hz), exit 0)."""
+    if len(time) < 3:
+        return
+    step = float(np.median(np.diff(time)))
+    lo, hi = RATE_RANGE_HZ
+    if not lo <= 1.0 / step <= hi:
+        raise SessionError(f"{src}: {where}/time steps {step:.3g} s, {1.0 / step:.3g} Hz: not "
+                           f"an IMU's rate ({lo:g} Hz to {hi / 1000:g} kHz); are the time "
+                           "stamps in seconds?")  # fmt: skip
 
 
 MAX_TURN_DEG = 3600.0

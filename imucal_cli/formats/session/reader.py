@@ -24,8 +24,6 @@ from imucal_cli.model.session import (
     LOG_DATASET,
     LOG_GROUP,
     MAG_UNITS,
-    RATE_RANGE_HZ,
-    RAW_LIMIT,
     SEGMENT_ATTRS,
     SEGMENT_KINDS,
     TURN_ANGLE_RULE,
@@ -36,7 +34,8 @@ from imucal_cli.model.session import (
     as_str,
     as_turn_angle,
     as_unit_vector,
-    first_beyond_raw_limit,
+    check_rate,
+    check_readings,
     one_line,
     show,
 )
@@ -292,33 +291,6 @@ def _read_raw(file: h5py.File, src: str, unclosed: bool) -> dict[str, np.ndarray
     for name, values in raw.items():
         check_readings(name, values, src)
     return raw
-
-
-def check_rate(time: np.ndarray, src: str) -> None:
-    """Raise SessionError where the median step of ``time`` (increasing, s) gives a rate no IMU
-    has (:data:`RATE_RANGE_HZ`): time stamps in another unit (1e10 s apart gave noise figures
-    of 1e8 ug/sqrt(Hz), exit 0)."""
-    if len(time) < 3:
-        return
-    step = float(np.median(np.diff(time)))
-    lo, hi = RATE_RANGE_HZ
-    if not lo <= 1.0 / step <= hi:
-        raise SessionError(f"{src}: /raw/time steps {step:.3g} s, {1.0 / step:.3g} Hz: not an "
-                           f"IMU's rate ({lo:g} Hz to {hi / 1000:g} kHz); are the time stamps "
-                           "in seconds?")  # fmt: skip
-
-
-def check_readings(name: str, values: np.ndarray | None, src: str, first: int = 0) -> None:
-    """Raise SessionError where the readings of channel ``name`` (samples ``first`` on) hold a
-    number no sensor gives (beyond :data:`RAW_LIMIT`); times are not readings."""
-    if values is None or name in ("time", "host_time"):
-        return
-    row = first_beyond_raw_limit(values)
-    if row is not None:
-        value = float(np.max(np.abs(np.atleast_1d(values[row]))))
-        raise SessionError(f"{src}: /raw/{name} reads {value:.3g} at sample {first + row}, "
-                           f"beyond any sensor (at most {RAW_LIMIT:g} in any unit): a damaged "
-                           "file, or not raw readings")  # fmt: skip
 
 
 def _read_segments(
