@@ -40,6 +40,7 @@ from imucal_cli.formats.noise import NOISE_FORMAT
 from imucal_cli.formats.session import Session, SessionSamples, samples_of
 from imucal_cli.model.calibration import Calibration, SensorCalibration
 from imucal_cli.numerics.allan import AllanAccumulator
+from imucal_cli.use.apply import other_unit
 from imucal_cli.use.export_set import set_members
 from imucal_cli.use.report.load import load_for_report
 
@@ -350,6 +351,8 @@ def analyse_noise(
         )
     for item in skipped:
         warnings.append(f"{item} skipped: raw units need --calibration CAL.json")
+    if calibration is not None:  # another unit's gains made its figures, said nowhere (audit)
+        warnings += other_unit(calibration.sensor, samples.sensor, "the calibration", where)
     return NoiseReport(
         session=Path(samples.path).name if samples.path else where,
         sensor=samples.sensor,
