@@ -230,6 +230,8 @@ def session_cases() -> list[Case]:
         "time infinite": _time_edit(lambda t: np.where(np.arange(t.size) == 10, np.inf, t)),
         "time decreasing": _time_edit(lambda t: t[::-1]),
         "time repeated": _time_edit(lambda t: np.where(np.arange(t.size) == 5, t[4], t)),
+        # stamps 1e10 s apart (another unit): noise gave 1e8 ug/sqrt(Hz), exit 0 (audit)
+        "time in 1e10 s steps": _time_edit(lambda t: t * 1e12),
         "time shorter": _time_edit(lambda t: t[:-7]),
         "time longer": _time_edit(lambda t: np.concatenate([t, t[-1] + 1 + np.arange(3.0)])),
         "accel 1-D": _replace("raw/accel", np.zeros(10)),
@@ -246,6 +248,9 @@ def session_cases() -> list[Case]:
         "2e9 samples declared in a small file": _huge,
         "chunks never written (would read zeros)": _unwritten_chunks,
         "NaN accel inside a segment": _nan_in_segment,
+        # 1e300 readings: an OverflowError traceback in calibrate, numpy's warnings (audit)
+        "accel of 1e300": lambda f, d: f["raw/accel"].__setitem__(
+            slice(None), f["raw/accel"][()] * 1e300),
     }
     for name, edit in raw_cases.items():
         add(name, edit)
@@ -261,6 +266,8 @@ def session_cases() -> list[Case]:
     for name in ("kind", "start", "stop"):
         add(f"segment {name} missing", _del_attr(seg, name))
     add("segment label with a bidi override", _set_attr(seg, "label", "evil\u202etxt"), "ok")
+    # a known turn of 1e300 deg overflowed the known-angle fit: a traceback (audit)
+    add("rotation angle_deg = 1e300", _set_attr("segments/0001", "angle_deg", 1e300))
     add("segment is a dataset", lambda f, d: (f.__delitem__(seg), f.__setitem__(seg, 1)), "ok")
     add("no segments group", _delete("segments"), "ok")
     add("capture log with garbage", _log_garbage([b"{", b"not json"]))
@@ -367,7 +374,11 @@ def calibration_cases(valid: str) -> list[tuple[str, bytes, str]]:
                      [True, 0, 0], {"x": 0}],
             "matrix": [[[1, 0, 0]], [[1, 0], [0, 1], [0, 0]], "I", [[1, 0, 0]] * 4, None,
                        [[1, 0, 0], [0, 1, 0], [0, 0, "1"]], [[1, 0, 0], [0, 1, 0], [0, 0, 10**400]],
-                       [[1, 0, 0], [0, 1, 0], None], []],
+                       [[1, 0, 0], [0, 1, 0], None], [],
+                       # no sensor's: apply wrote zeros, or 1e30 m/s^2, exit 0 (audit)
+                       [[0, 0, 0]] * 3, [[1e30, 0, 0], [0, 1e30, 0], [0, 0, 1e30]],
+                       [[1e-300, 0, 0], [0, 1e-300, 0], [0, 0, 1e-300]],
+                       [[1, 2, 3], [2, 4, 6], [1, 1, 1]]],
             "units": ["g", 3, None], "solver": [None, 5],
             "residual_rms": ["small", [1], {"a": 1}],
         }.items():  # fmt: skip

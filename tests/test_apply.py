@@ -191,6 +191,10 @@ def test_csv_without_time_uses_rate(sim, tmp_path):
     out = tmp_path / "o.csv"
     assert_one_line_error(run("apply", accel_only, csv, "-o", out, "--columns", "ax,ay,az"),
                           "--rate")  # fmt: skip
+    for implausible in ("1e300", "0.001"):  # rows stamped 1e-300 s apart, exit 0 (audit)
+        assert_one_line_error(run("apply", accel_only, csv, "-o", out, "--columns", "ax,ay,az",
+                                  "--rate", implausible), "--rate", "implausible")  # fmt: skip
+    assert not out.exists()
     proc = run("apply", accel_only, csv, "-o", out, "--columns", "ax,ay,az", "--rate", "50")
     assert proc.returncode == 0, proc.stderr
     data = np.loadtxt(out, delimiter=",", skiprows=2)

@@ -57,3 +57,26 @@ def test_in_process_results_in_order(sessions):
 def test_refusals(tmp_path, sessions):
     assert_one_line_error(run("calibrate", *sessions, "-o", tmp_path / "x.json"), "--output")
     assert_one_line_error(run("calibrate", *sessions, "--jobs", "-1"), "--jobs")
+
+
+def test_a_session_named_twice_is_refused(tmp_path, sessions):
+    """Audit: ``calibrate A A ./A`` calibrated A three times, wrote A.cal.json three times and
+    stored three calibrations in A; ``--with A`` of A itself (or a copy) counted its still
+    periods and turns twice (every std too small by sqrt(2)), exit 0."""
+    a = sessions[0]
+    before = a.read_bytes()
+    assert_one_line_error(run("calibrate", a, a, tmp_path / "." / a.name), "given twice")
+    assert a.read_bytes() == before and not a.with_suffix(".cal.json").exists()
+    copy = Path(shutil.copy(a, tmp_path / "copy.h5"))
+    out = tmp_path / "o.json"
+    assert_one_line_error(run("calibrate", a, "--with", a, "-o", out), "given twice")
+    assert_one_line_error(run("calibrate", a, "--with", copy, "-o", out), "the same recording")
+    assert not out.exists()
+
+
+def test_with_a_session_of_another_unit_warns(tmp_path, sessions):
+    """Sessions naming different units joined by --with: said (they were joined silently)."""
+    proc = run("calibrate", sessions[0], "--with", sessions[1], "-o", tmp_path / "o.json",
+               "--no-store")  # fmt: skip
+    assert "imucal: warning:" in proc.stderr and "joins sessions of one unit" in proc.stderr
+    assert "'sim-16bit seed 2'" in proc.stderr and "'sim-16bit seed 1'" in proc.stderr

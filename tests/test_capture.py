@@ -200,6 +200,8 @@ def test_toml_plan(tmp_path):
         ("[[step]]\nkind = 'static'\ncolour = 1\n", "step 1: unknown key 'colour'"),
         ("name = 'x'\n", "no steps"),
         ("[[step]]\nkind = 'rotation'\nangle_deg = 'ninety'\n", "angle_deg must be"),
+        # 1e300 overflowed simulate's turn (a traceback) and the known-angle fit (audit)
+        ("[[step]]\nkind = 'rotation'\nangle_deg = 1e300\n", "within \\+-3600"),
     ],
 )
 def test_bad_toml_plans(tmp_path, text, problem):

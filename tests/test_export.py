@@ -393,9 +393,12 @@ def test_cli(sim, redundant, tmp_path):
                           "--prefix")  # fmt: skip
     assert_one_line_error(run("export", cal, "--format", "yaml", "--prefix", "X"), "c-header")
     assert_one_line_error(run("export", four, "--format", "yaml"), "4 raw channels")
-    for bad in ("-1", "0", "1/0", "nan"):  # a driver's scale: finite and positive
+    # a driver's scale: finite and positive, and a gain some driver has (1e300 exported offsets
+    # of 1e302 m/s^2 and scales of 0.0, exit 0, before the audit)
+    for bad in ("-1", "0", "1/0", "nan", "1e300", "1e-300"):
         assert_one_line_error(run("export", cal, "-o", tmp_path / "bad.yaml", "--accel-scale",
                                   bad), "--accel-scale")  # fmt: skip
+    assert not (tmp_path / "bad.yaml").exists()
     assert_one_line_error(run("export", cal, "--format", "xml"), "xml")
     assert_one_line_error(run("export", cal), "--format")
     assert_one_line_error(run("export", tmp_path / "none.json", "--format", "json"), "none.json")

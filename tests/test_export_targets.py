@@ -178,6 +178,24 @@ def test_kalibr_imu_noise_file(noise):
         "update_rate: 200.0") == 1  # fmt: skip
 
 
+@pytest.mark.parametrize(
+    ("edit", "words"),
+    [(lambda d: d.__setitem__("rate_hz", 1e300), "rate_hz must be an IMU's sample rate"),
+     (lambda d: [a.__setitem__("vrw_m_s_per_sqrt_s", 1e300)
+                 for a in d["sensors"]["accel"]["axes"]], "beyond any sensor"),
+     (lambda d: d["sensors"]["accel"].__setitem__("axes", d["sensors"]["accel"]["axes"][:2]),
+      "3 or more")],
+)  # fmt: skip
+def test_noise_figures_no_sensor_has_are_refused(edit, words):
+    """Audit: a noise file's rate of 1e300 Hz was written as the filter's rate, a density of
+    1e300 as Kalibr's (and ros-imu printed numpy's overflow warnings), two axes exported as
+    a whole sensor."""
+    doc = noise_doc()
+    edit(doc)
+    with pytest.raises(InputError, match=words):
+        noise_from_dict(doc, "noise.json")
+
+
 def test_random_walk_bound_is_below_the_curve(noise):
     doc = noise_doc()
     for axis, K in zip(doc["sensors"]["gyro"]["axes"], noise.gyro.random_walk, strict=True):
@@ -413,6 +431,9 @@ def test_cli_export_targets(cal, tmp_path, noise):
     assert "wrote" in proc.stderr and kalibr_yaml(out.read_text())["imu0"]["update_rate"] == 100.0
     proc = run("export", noise_path, "--format", "kalibr-imu")
     assert proc.returncode == 0 and "gyroscope_random_walk" in proc.stdout
+    # --rate 1e300 was written as update_rate: 1.0e+300 (audit)
+    assert_one_line_error(run("export", noise_path, "--format", "kalibr-imu", "--rate", "1e300"),
+                          "--rate", "implausible")  # fmt: skip
     proc = run("export", path, "-o", tmp_path / "x.params", "--accel-scale", "0.000598",
                "--drop", "g-sensitivity")  # fmt: skip
     assert proc.returncode == 0 and "CAL_ACC0_XSCALE" in (tmp_path / "x.params").read_text()

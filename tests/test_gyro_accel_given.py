@@ -46,6 +46,7 @@ def test_the_gyro_is_calibrated_with_the_given_accelerometer(files, source):
     out = d / f"gyro-{source}.json"
     proc = run("calibrate", d / "gyro.h5", "--accel", d / source, "--no-store", "-o", out)
     assert proc.returncode == 0, proc.stderr
+    assert "warning" not in proc.stderr  # the same unit
     cal = json.loads(out.read_text())
     given = json.loads((d / "poses.cal.json").read_text())["accel"]
     # The accelerometer is copied as it was (not re-calibrated), and says where it came from.
@@ -71,3 +72,18 @@ def test_accel_from_a_file_without_one_is_refused(files, tmp_path):
     (tmp_path / "g.json").write_text(json.dumps(cal))
     proc = run("calibrate", d / "gyro.h5", "--accel", tmp_path / "g.json", "--no-store")
     assert_one_line_error(proc, "no accelerometer section")
+
+
+@pytest.mark.parametrize("option", ["--accel", "--prior"])
+def test_another_units_calibration_is_said(files, tmp_path, option):
+    """Audit: --accel (or --prior) of another unit's calibration was used silently (the gyro's
+    turns measured with another part's accelerometer: angle residuals 100 times larger)."""
+    d, _ = files
+    other = json.loads((d / "poses.cal.json").read_text())
+    other["sensor"] = "MPU-6050 #99"
+    (tmp_path / "other.json").write_text(json.dumps(other))
+    proc = run("calibrate", d / "gyro.h5", option, tmp_path / "other.json", "--no-store",
+               "-o", tmp_path / "o.json")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert f"imucal: warning: {option} " in proc.stderr
+    assert "was made on 'MPU-6050 #99'" in proc.stderr and "belongs to one unit" in proc.stderr

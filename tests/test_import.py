@@ -171,6 +171,9 @@ def test_imu_tk_pair(tmp_path, sim):
     assert len(imported.static_segments()) == 18
     with pytest.raises(InputError, match="--format imu_tk"):  # the pair, the format not given
         import_files([acc, gyr], None, accel_units="counts", gyro_units="counts")
+    # the accelerometer file given twice became the gyroscope's data too, exit 0 (audit)
+    with pytest.raises(InputError, match="the same numbers twice"):
+        import_files([acc, acc], "imu_tk", accel_units="counts", gyro_units="counts")
 
 
 # ------------------------------------------------------------------ errors
@@ -206,6 +209,9 @@ def test_errors_one_line_exit_2(tmp_path, sim, capsys, monkeypatch):
     tt = np.arange(3000) / 100.0
     rows = np.column_stack([tt, np.sin(tt), np.cos(tt), np.sin(2.1 * tt)])
     moving.write_text("\n".join(",".join(f"{v:.6f}" for v in r) for r in rows))
+    huge = tmp_path / "huge.csv"  # a reading no sensor gives: numpy's warnings, then a wrong
+    huge.write_text("\n".join(",".join(f"{v:.6g}" for v in (r[0], *r[1:] * 1e303))
+                               for r in rows))  # reason (no still period), before the audit
     out = tmp_path / "o.h5"
     cases = [
         ((tmp_path / "nope.csv", "--rate", 100), ["nope.csv", "no such file"]),
@@ -218,6 +224,7 @@ def test_errors_one_line_exit_2(tmp_path, sim, capsys, monkeypatch):
         ((back, "--columns", "t,ax,ay,az"), ["does not increase at line 3"]),
         ((short, "--columns", "t,ax,ay,az"), ["too few samples"]),
         ((moving, "--columns", "t,ax,ay,az"), ["no still period", "held still"]),
+        ((huge, "--columns", "t,ax,ay,az"), ["accel reads", "beyond any sensor"]),
         ((good, "--columns", "t,ax,ay,az,gx,gy,gz", "--accel-units", "furlongs"), ["counts"]),
         ((good, "--format", "imu_tk"), ["two files"]),
         ((good, "--format", "xml"), ["unknown format"]),

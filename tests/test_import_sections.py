@@ -82,6 +82,9 @@ def test_section_list_gives_faces_and_turns(tmp_path, sign):
     stated = import_files([path], "csv", sections=listing, turn_angle_deg=-360.0)
     assert [s.angle_deg for s in stated.rotation_segments()] == [-360.0] * 3
     assert not stated.import_notes
+    for absurd in (1e300, float("nan")):  # 1e300: calibrate's traceback; nan: the output named
+        with pytest.raises(InputError, match="--turn-angle must be .* within"):
+            import_files([path], "csv", sections=listing, turn_angle_deg=absurd)
 
 
 def test_per_row_labels_and_cli(tmp_path):

@@ -129,6 +129,11 @@ def _two(tmp_path, mutate):
      r"/imus/imu1/accel must have shape"),
     (lambda f: f["imus/imu1"].attrs.__setitem__("sample_rate_hz", -3.0),
      "sample_rate_hz' must be a positive number"),
+    # as /raw's (audit): an OverflowError traceback in calibrate; stamps in another unit
+    (lambda f: f["imus/imu1/accel"].__setitem__(slice(None), f["imus/imu1/accel"][()] * 1e300),
+     "/imus/imu1/accel reads .* beyond any sensor"),
+    (lambda f: f["imus/imu1/time"].__setitem__(slice(None), f["imus/imu1/time"][()] * 1e12),
+     "/imus/imu1/time steps .* slower than any IMU"),
 ])  # fmt: skip
 def test_bad_imus_are_refused_with_one_line(tmp_path, mutate, message):
     path = _two(tmp_path, mutate)

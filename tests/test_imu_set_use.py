@@ -231,6 +231,21 @@ def test_apply_a_set_to_another_unit_warns(calibrated, tmp_path):
     assert "(reference)" in warning and "is from 'FC-2 #0042'" in warning
 
 
+@pytest.mark.parametrize("offset", ["1e300", "NaN", '"soon"'])
+def test_apply_refuses_a_time_offset_no_set_has(calibrated, tmp_path, offset):
+    """Audit: an IMU's time_offset_s of 1e300 or NaN shifted every time apply
+    --reference-frame wrote (1e300 or NaN), exit 0; now one line naming the key."""
+    _, cal, folder = calibrated
+    doc = json.loads((folder / "set.cal.json").read_text())
+    doc["imus"]["imu1"]["time_offset_s"] = "@OFFSET@"
+    path = tmp_path / "c.json"
+    path.write_text(json.dumps(doc).replace('"@OFFSET@"', offset))
+    out = tmp_path / "a.h5"
+    proc = run("apply", path, folder / "set.h5", "-o", out, "--reference-frame")
+    assert_one_line_error(proc, "imus.imu1.time_offset_s", "within +-3600")
+    assert not out.exists()
+
+
 def test_a_reference_named_by_the_recorder_is_found_by_export_and_apply(tmp_path):
     """The spec lets the recorder name the reference (``imus`` = ["IMU.0", ...], as imports of
     PX4, ArduPilot and ROS logs do): the calibration keeps that name, so ``export --imu`` and

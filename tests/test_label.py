@@ -98,6 +98,9 @@ def test_one_segment_by_hand_and_root_labels(six):
         (("--up", "0,0,1"), ["pass --segment"]),
         (("--segment", "0000", "--up", "0,0"), ["3 numbers"]),
         (("--segment", "0000", "--angle", "90"), ["static", "not an axis or angle"]),
+        # a known turn of 1e300 deg was stored, and calibrate's known-angle fit then printed a
+        # traceback (audit)
+        (("--segment", "0001", "--angle", "1e300"), ["--angle", "within +-3600"]),
         (("--accel-units", "furlongs"), ["counts"]),
         (("--gravity", "98.1"), ["9.78"]),
         ((), ["nothing to change"]),

@@ -4,6 +4,7 @@ capture plan in the guided and unattended modes."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -159,8 +160,16 @@ def test_counts_need_a_calibration(tmp_path, monkeypatch, capsys):
     assert d["format"] == "imucal-noise" and d["format_version"] == 1  # README schema
     assert list(d["sensors"]) == ["accel"] and "calibration" in d["sensors"]["accel"]["basis"]
     assert any("gyro in counts skipped" in w for w in d["warnings"])
+    assert not any("made on" in w for w in d["warnings"])  # the calibration names no unit
     for row in d["sensors"]["accel"]["axes"]:
         assert row["vrw_m_s_per_sqrt_s"] == pytest.approx(n_acc, rel=0.12)  # + quantisation
+    # another unit's calibration (its sensor not the session's) gave figures silently (audit)
+    write_calibration(tmp_path / "other.json", dataclasses.replace(cal, sensor="MPU-6050 #99"))
+    code, out, err = _cli(["noise", str(path), "-c", str(tmp_path / "other.json"), "--json"],
+                          monkeypatch, capsys)  # fmt: skip
+    assert code == 0, err
+    assert any("was made on 'MPU-6050 #99'" in w and "'synthetic #1'" in w
+               for w in json.loads(out)["warnings"])  # fmt: skip
 
 
 def test_not_still_is_warned_and_mostly_moving_refused():
@@ -186,6 +195,15 @@ def test_not_still_is_warned_and_mostly_moving_refused():
 def test_too_short_recording_refused():
     session, _, _ = still_session(minutes=0.1)
     with pytest.raises(InputError, match="too short"):
+        analyse_noise(session)
+
+
+def test_a_stuck_axis_is_named_not_called_too_short():
+    """Audit: an axis reading one value through a minute was refused as 'only 0 averaging
+    times: the recording is too short'."""
+    session, _, _ = still_session(minutes=1.0)
+    session.gyro[:, 1] = 0.0125
+    with pytest.raises(InputError, match="gyro axis y reads one value .* stuck or dead axis"):
         analyse_noise(session)
 
 

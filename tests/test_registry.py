@@ -33,6 +33,7 @@ from imucal_cli.registry.transfer import export_records, import_files
 from imucal_cli.use.limits import judge_calibration, limits_from_dict, unit_figures
 from imucal_cli.use.report.history import build_history
 
+from .cli_helpers import assert_one_line_error
 from .registry_helpers import assert_whole, make_template, recorded_lines, unit, writer
 
 LIMITS = {"product": {"name": "P"},
@@ -98,6 +99,53 @@ def test_bad_names_and_missing_registries_are_one_line_errors(tmp_path, template
         open_registry(tmp_path / "junk.db")
     with pytest.raises(RegistryError, match="only SQLite files and PostgreSQL"):
         open_registry("mysql://u@h/db")
+
+
+def test_another_programs_database_is_never_written_into(tmp_path, template):
+    """Audit: a SQLite file of another program (its own tables) was taken for a new registry:
+    even ``registry list`` put it in WAL mode and added imucal's tables to it.  Now every
+    command refuses it, the file byte for byte as it was; an empty file is a registry only for
+    the commands that make one."""
+    import sqlite3
+
+    other = tmp_path / "app.db"
+    with sqlite3.connect(other) as db:
+        db.execute("CREATE TABLE users (name TEXT)")
+    before = other.read_bytes()
+    for create in (False, True):
+        with pytest.raises(RegistryError, match=r"another program \(tables users\)"):
+            open_registry(other, create=create)
+    assert other.read_bytes() == before
+    empty = tmp_path / "empty.db"
+    empty.touch()
+    with pytest.raises(RegistryError, match="an empty database, not an imucal registry"):
+        open_registry(empty, create=False)
+    assert empty.read_bytes() == b""
+    with open_registry(empty) as reg:  # import and calibrate --registry make one in it
+        record_calibration(reg, unit(template, 0), UnitInfo("U1"))
+    with open_registry(empty, create=False) as reg:
+        assert [u["serial"] for u in list_units(reg)] == ["U1"]
+
+
+def test_a_full_disk_is_not_called_another_file(tmp_path):
+    """Audit: on a full disk (here a file-size limit: the WAL's -shm file cannot grow), every
+    registry command said 'disk I/O error (not an imucal registry?)' of a sound registry."""
+    import resource
+    import subprocess
+
+    from .cli_helpers import IMUCAL
+
+    open_registry(tmp_path / "r.db").close()
+    for name in ("r.db-wal", "r.db-shm"):
+        (tmp_path / name).unlink(missing_ok=True)
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (512, 512))
+
+    proc = subprocess.run([IMUCAL, "registry", "list", "--registry", str(tmp_path / "r.db")],
+                          capture_output=True, text=True, timeout=300, preexec_fn=limit)
+    assert_one_line_error(proc, "a full disk")
+    assert "not an imucal registry" not in proc.stderr
 
 
 def test_without_psycopg_a_postgresql_registry_says_which_extra(monkeypatch):

@@ -84,7 +84,7 @@ def test_hostile_sessions_through_every_reader(folder, tmp_path):
     """The commands that read sessions give a one-line error, exit 2, within the limit."""
     picks = {"truncated to 1000 bytes", "truncated to 8 bytes", "external storage (another "
              "file's bytes)", "2e9 samples declared in a small file", "virtual dataset, source "
-             "missing"}  # fmt: skip
+             "missing", "accel of 1e300", "time in 1e10 s steps"}  # fmt: skip
     cal = tmp_path / "c.json"
     assert run("calibrate", shutil.copy(BASE_SESSION, tmp_path / "s.h5"), "-o", cal,
                "--no-store", "--model", "12").returncode in (0, 1, 2)  # fmt: skip

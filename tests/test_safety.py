@@ -425,6 +425,65 @@ def test_capture_on_a_really_full_disk(tmp_path, monkeypatch):
         subprocess.run(["umount", str(mount)], check=False)
 
 
+def _file_size_limit(nbytes: int):
+    """``preexec_fn``: files the process writes may grow to ``nbytes`` at most (``ulimit -f``),
+    a full disk for its outputs (Python ignores SIGXFSZ: a write past it fails with EFBIG)."""
+    import resource
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (nbytes, nbytes))
+
+    return limit
+
+
+@pytest.mark.parametrize("limit", [4096, 65536])
+def test_outputs_on_a_full_disk_are_one_line_and_leave_nothing(session, tmp_path, limit):
+    """Audit: a disk that fills while ``import``/``simulate`` wrote a session put half a file in
+    place (the one-go writer committed what it had, then failed); ``apply`` to ``.h5`` printed
+    h5py's traceback and died of a segmentation fault (HDF5 at exit, after the close of a file
+    holding unwritten data failed), its temporary file left behind.  Now: one line, exit 2,
+    no output and no temporary file."""
+    from tests.cli_helpers import IMUCAL
+
+    out = tmp_path / "out"
+    out.mkdir()
+    cal = out.parent / "s.cal.json"
+    assert run("calibrate", session, "-o", cal, "--no-store").returncode == 0
+    csv = tmp_path / "rec.csv"
+    s = read_session(session)
+    np.savetxt(csv, np.column_stack([s.time, s.accel, s.gyro]), delimiter=",",
+               header="t,ax,ay,az,gx,gy,gz", comments="", fmt="%.6f")  # fmt: skip
+    commands = {
+        "import": ["import", csv, "-o", out / "i.h5"],
+        "simulate": ["simulate", "--plan", "six", "-o", out / "sim.h5"],
+        "apply h5": ["apply", cal, session, "-o", out / "a.h5"],
+    }
+    for what, args in commands.items():
+        proc = subprocess.run([IMUCAL, *map(str, args)], capture_output=True, text=True,
+                              timeout=300, preexec_fn=_file_size_limit(limit))  # fmt: skip
+        assert proc.returncode == 2, (what, proc.returncode, proc.stderr[-2000:])
+        assert_one_line_error(proc, "cannot write", "File too large")
+        assert sorted(p.name for p in out.iterdir()) == [], what
+
+
+def test_apply_of_a_set_on_a_full_disk_is_one_line(tmp_path):
+    """The same for ``apply`` of a set of IMUs to ``.h5`` (exit 1 with a traceback, or a
+    segmentation fault, before)."""
+    from tests.cli_helpers import IMUCAL
+
+    set_h5 = tmp_path / "set.h5"
+    assert run("simulate", "--imus", "2", "--plan", "six", "-o", set_h5).returncode == 0
+    cal = tmp_path / "set.cal.json"
+    assert run("calibrate", set_h5, "-o", cal, "--no-store").returncode == 0
+    out = tmp_path / "out"
+    out.mkdir()
+    proc = subprocess.run([IMUCAL, "apply", cal, set_h5, "-o", out / "a.h5"],
+                          capture_output=True, text=True, timeout=300,
+                          preexec_fn=_file_size_limit(65536))  # fmt: skip
+    assert_one_line_error(proc, "cannot write", "File too large")
+    assert list(out.iterdir()) == []
+
+
 @pytest.mark.parametrize("size", ["1m", "2m", "3m"])
 def test_a_write_retried_after_a_full_disk_leaves_no_hole(tmp_path, monkeypatch, size):
     """The disk fills in the middle of a write, the reserve is freed and the write succeeds
@@ -596,7 +655,11 @@ def test_exports_refuse_non_finite_and_overflowing_numbers(tmp_path):
         proc = run("export", path, "-f", fmt)
         assert_one_line_error(proc, "beyond any sensor")
         assert "inf" not in proc.stdout
-    doc["accel"]["bias"] = [0.0, 0.0, 0.0]  # a finite offset: the exporter's own check
+    doc["accel"]["bias"] = [0.0, 0.0, 0.0]  # no offset: a gain no sensor has, when read
+    path.write_text(json.dumps(doc))
+    assert_one_line_error(run("export", path, "-f", "c-header"), "outside any sensor's")
+    doc["accel"]["matrix"][0][0] = 1.0  # a term past float32: the exporter's own check
+    doc["accel"]["temperature_ref"], doc["accel"]["bias_tempco"] = 25.0, [[1e300, 0.0, 0.0]]
     path.write_text(json.dumps(doc))
     proc = run("export", path, "-f", "c-header")
     assert_one_line_error(proc, "does not fit")

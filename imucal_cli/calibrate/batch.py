@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import warnings
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
@@ -21,11 +22,15 @@ import numpy as np
 from imucal_cli.calibrate.imu_set import calibrate_set, set_suspect_error
 from imucal_cli.calibrate.session import calibrate_session, default_output, suspect_error
 from imucal_cli.calibrate.thermal import merge_sessions
-from imucal_cli.errors import ImucalError, InputError, SolverError
-from imucal_cli.formats.calibration import calibration_to_json, write_calibration
+from imucal_cli.errors import ImucalError, ImucalWarning, InputError, SolverError
+from imucal_cli.formats.calibration import (
+    calibration_to_json,
+    read_calibration,
+    write_calibration,
+)
 from imucal_cli.formats.config import Config
-from imucal_cli.formats.output import check_output
-from imucal_cli.formats.session import read_session, store_calibration
+from imucal_cli.formats.output import check_output, same_file
+from imucal_cli.formats.session import open_samples, read_session, store_calibration
 from imucal_cli.model.accel import AccelCalibration
 from imucal_cli.model.calibration import Calibration
 from imucal_cli.model.gyro import GyroCalibration
@@ -191,6 +196,7 @@ def calibrate_file(
         Whatever reading, calibrating or the physical-sense check (unless ``force``) refuses.
     """
     out = output or default_output(path)
+    refuse_twice([path, *(also or [])])
     inputs = [path, *inputs]
     check_output(out, force=force, inputs=inputs)  # refuse before solving, not after
     session = read_session(path)
@@ -313,6 +319,7 @@ def calibrate_many(
 
     if jobs < 0:
         raise InputError(f"--jobs must be 0 (one per CPU) or more, got {jobs}")
+    refuse_twice(paths)
     jobs = jobs or default_jobs()
     tasks = [(str(p), cfg, force, store, accel) for p in paths]
     if jobs == 1 or len(tasks) == 1:
@@ -334,6 +341,43 @@ def calibrate_many(
         if pool is not None:
             pool.shutdown(cancel_futures=True)
     return out
+
+
+def refuse_twice(paths: Sequence[Path], what: str = "session") -> None:
+    """Refuse a file named twice (``calibrate A A``, ``--with A`` of A itself): calibrated twice,
+    its JSON written twice and stored twice in it, or its data counted twice."""
+    for i, p in enumerate(paths):
+        for q in paths[:i]:
+            if Path(p) == Path(q) or same_file(p, q):
+                raise InputError(f"{p}: the {what} {q} given twice; name each once")
+
+
+def warn_other_unit(session: Path, earlier: Path | None, option: str) -> None:
+    """Warn when ``earlier`` (the calibration of ``--accel`` or ``--prior``: a JSON, or a
+    session holding one) names another unit than ``session`` does (their ``sensor``): another
+    unit's accelerometer measures this one's turns wrong (the gyro's angle residuals grew from
+    0.04 to 3.7 deg, exit 0, said nowhere).  Nothing when either names none."""
+    if earlier is None:
+        return
+    mine, theirs = _unit_of(Path(session)), _unit_of(Path(earlier))
+    if mine and theirs and mine.casefold() != theirs.casefold():
+        warnings.warn(f"{option} {earlier} was made on '{theirs}' but {session} is from "
+                      f"'{mine}': a calibration belongs to one unit; give this unit's (or name "
+                      "both the same with label --sensor if they are one)", ImucalWarning,
+                      stacklevel=2)  # fmt: skip
+
+
+def _unit_of(path: Path) -> str | None:
+    """The unit (``sensor``) a session or a calibration JSON names, or None."""
+    try:
+        if path.suffix.lower() in (".h5", ".hdf5"):
+            with open_samples(path) as samples:
+                name = samples.sensor
+        else:
+            name = read_calibration(path).sensor
+    except ImucalError:
+        return None  # said by the command's own read
+    return name.strip() if isinstance(name, str) else None
 
 
 def default_jobs() -> int:

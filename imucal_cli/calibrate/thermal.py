@@ -23,6 +23,7 @@ per term, and bias standard deviations that include the temperature terms' uncer
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field, replace
 from dataclasses import replace as copy_with
 
@@ -30,7 +31,7 @@ import numpy as np
 
 from imucal_cli.calibrate.accel.section import model_map
 from imucal_cli.calibrate.common import channel_names, session_name, with_segments
-from imucal_cli.errors import DesignError
+from imucal_cli.errors import DesignError, ImucalWarning
 from imucal_cli.estimators.accel.gravity import fit_gravity, model_to_params
 from imucal_cli.estimators.thermal.joint import fit_gravity_tempco
 from imucal_cli.estimators.thermal.temperature import (
@@ -464,12 +465,31 @@ def attach(sec: SensorCalibration | None, model: TemperatureModel | None) -> Non
             row.std = float(np.sqrt(row.std ** 2 + model.bias_var_extra[i]))
 
 
+def _same_unit_once_each(parts: list[Session]) -> None:
+    """Refuse a recording given twice (its still periods and turns would count twice: every
+    std too small by sqrt(2)); warn when two sessions name different units (``sensor``)."""
+    for i, p in enumerate(parts):
+        for q in parts[:i]:
+            if len(p.time) == len(q.time) and np.array_equal(p.time, q.time) and all(
+                    np.array_equal(getattr(p, n), getattr(q, n), equal_nan=True)
+                    for n in ("accel", "gyro") if getattr(p, n) is not None):  # fmt: skip
+                raise DesignError(f"{session_name(p)}: the same recording as "
+                                  f"{session_name(q)}: each session once (its data would count "
+                                  "twice)")  # fmt: skip
+            a, b = ((s.sensor or "").strip() for s in (q, p))
+            if a and b and a.casefold() != b.casefold():
+                warnings.warn(f"{session_name(p)} is from '{b}' but {session_name(q)} from "
+                              f"'{a}': --with joins sessions of one unit (name both the same "
+                              "with label --sensor if they are)", ImucalWarning, stacklevel=3)
+
+
 def merge_sessions(sessions: list[Session]) -> Session:
     """Several sessions of one unit as one: each segmented (if it was not), then their samples
     and segments one after the other in time. Refused when they differ in channels or units.
     Host arrival times are dropped (each session's clock would need its own estimate)."""
     parts = [with_segments(s)[0] for s in sessions]
     first = parts[0]
+    _same_unit_once_each(parts)
     for p in parts[1:]:
         for name in ("accel", "gyro"):
             a, b = getattr(first, name), getattr(p, name)

@@ -14,7 +14,13 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemaining
 from rich.table import Table
 
 from imucal_cli.calibrate.accel.partial import calibration_prior
-from imucal_cli.calibrate.batch import Figures, Stored, calibrate_file, calibrate_many
+from imucal_cli.calibrate.batch import (
+    Figures,
+    Stored,
+    calibrate_file,
+    calibrate_many,
+    warn_other_unit,
+)
 from imucal_cli.calibrate.gyro.partial import calibration_prior as gyro_calibration_prior
 from imucal_cli.calibrate.session import load_accel, load_gyro
 from imucal_cli.errors import InputError
@@ -157,6 +163,9 @@ def _calibrate(sessions, cfg, config, output, force, store, accel, warmup, also,
     accel_cal = None
     if accel is not None:
         accel_cal = load_accel(accel)
+    for session in sessions:
+        warn_other_unit(session, accel, "--accel")
+        warn_other_unit(session, prior_path, "--prior")
     prior = gyro_prior = None
     if prior_path is not None:
         if accel is not None:

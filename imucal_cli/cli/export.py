@@ -10,6 +10,7 @@ import typer
 
 from imucal_cli.errors import InputError
 from imucal_cli.formats.exporters import ExportOptions, parse_scale
+from imucal_cli.formats.importers import check_sample_rate
 from imucal_cli.formats.noise import read_noise
 from imucal_cli.formats.output import check_output, write_output
 from imucal_cli.use.export import EXPORT_FORMATS, FORMATS, format_for_suffix, load_input
@@ -106,6 +107,8 @@ def export(
     fmt = _format(fmt, output)
     if rate is not None and not rate > 0:
         raise InputError(f"--rate {rate}: must be a positive number of Hz")
+    if rate is not None:
+        check_sample_rate(rate, None, "export")  # 1e300 Hz was written as the update rate
     scale = _scales(accel_scale, gyro_scale, mag_scale)
     if output is not None:
         check_output(output, force=force, inputs=[calibration, noise])

@@ -36,6 +36,8 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 from imucal_cli.formats.inputs import read_text_input
+from imucal_cli.model.calibration import OFFSET_LIMIT
+from imucal_cli.model.session import RATE_RANGE_HZ
 
 __all__ = ["NOISE_FORMAT", "NoiseFigures", "SensorFigures", "noise_from_dict", "read_noise"]
 
@@ -137,8 +139,8 @@ def _curve(axis: dict, fail) -> tuple[np.ndarray, np.ndarray]:
 
 def _sensor(kind: str, d: Any, fail) -> SensorFigures:
     white_key, walk_key, unit = _KEYS[kind]
-    if not isinstance(d, dict) or not isinstance(d.get("axes"), list) or not d["axes"]:
-        raise fail(f"sensors.{kind} must be an object with a non-empty 'axes' list")
+    if not isinstance(d, dict) or not isinstance(d.get("axes"), list) or len(d["axes"]) < 3:
+        raise fail(f"sensors.{kind} must be an object with an 'axes' list of 3 or more")
     if d.get("units", unit) != unit:
         raise fail(f"sensors.{kind}.units is {d.get('units')!r}, expected {unit!r}")
     names, white, walk, white_bound, walk_bound = [], [], [], [], []
@@ -159,6 +161,10 @@ def _sensor(kind: str, d: Any, fail) -> SensorFigures:
                 w = float(np.min(adev * np.sqrt(tau)))  # sigma = N / sqrt(tau)
             if k is None:
                 k = float(np.min(adev * np.sqrt(3.0 / tau)))  # sigma = K sqrt(tau / 3)
+        if not (w <= OFFSET_LIMIT[unit] and k <= OFFSET_LIMIT[unit]):  # 1e300: an overflow
+            raise axis_fail(f"{white_key} or {walk_key} is beyond any sensor (more than "
+                            f"{OFFSET_LIMIT[unit]:g} {WHITE_UNITS[kind]} or "
+                            f"{WALK_UNITS[kind]})")  # fmt: skip
         names.append(name)
         white.append(w)
         walk.append(k)
@@ -186,8 +192,10 @@ def noise_from_dict(d: Any, source: str = "<dict>") -> NoiseFigures:
     if d.get("format_version") != NOISE_FORMAT_VERSION:
         raise fail(f"unsupported format_version {d.get('format_version')!r}")
     rate, duration = _number(d.get("rate_hz")), _number(d.get("duration_s"))
-    if rate is None or rate <= 0:
-        raise fail(f"rate_hz must be a positive number, got {d.get('rate_hz')!r}")
+    lo, hi = RATE_RANGE_HZ
+    if rate is None or not lo <= rate <= hi:  # 1e300 Hz was written as the filter's rate
+        raise fail(f"rate_hz must be an IMU's sample rate ({lo:g} to {hi:g} Hz), got "
+                   f"{d.get('rate_hz')!r}")  # fmt: skip
     sensors = d.get("sensors")
     if not isinstance(sensors, dict):
         raise fail("'sensors' must be an object")

@@ -37,6 +37,7 @@ same file after the rename.
 from __future__ import annotations
 
 import errno
+import io
 import os
 import stat
 from collections.abc import Iterable, Iterator
@@ -365,3 +366,22 @@ def write_output(
         with out.open("wb") as handle:
             handle.write(data.encode("utf-8") if isinstance(data, str) else data)
     return out.target
+
+
+@contextmanager
+def h5_image(
+    path: str | os.PathLike,
+    *,
+    force: bool = False,
+    inputs: Iterable[str | os.PathLike | None] = (),
+    flag: str = "--force",
+) -> Iterator[h5py.File]:
+    """An HDF5 file built in memory (``h5py.File`` on a buffer), written to ``path`` whole by
+    :func:`write_output` when the block ends; for outputs whose data are in memory anyway.  A
+    full disk then fails a plain write (one line); the close of an HDF5 file that could not
+    write its data raised h5py's RuntimeError and crashed the process at exit."""
+    check_output(path, force=force, inputs=inputs, flag=flag)
+    image = io.BytesIO()
+    with h5py.File(image, "w") as file:
+        yield file
+    write_output(path, image.getvalue(), force=force, inputs=inputs, flag=flag)

@@ -350,6 +350,30 @@ def _check_offset(name: str, units: str, bias: list, matrix: list, fail) -> None
                    f"beyond any sensor (at most {limit:g} {units}): not a calibration")  # fmt: skip
 
 
+#: The smallest gain a matrix may have, output units per raw unit, and the largest spread of
+#: its gains (condition number): a 32-bit reading of a +-0.1 rad/s gyro is 5e-11 rad/s per
+#: count; a matrix of zeros (or a singular one) made ``apply`` write zeros (or one axis's
+#: reading on two) for every sample with exit 0.
+MIN_GAIN, MAX_CONDITION = 1e-15, 1e12
+
+
+def _check_matrix(name: str, units: str, matrix: list, fail) -> None:
+    """Refuse a matrix no sensor has: one raw unit read as more than the sensor's
+    :data:`OFFSET_LIMIT` (a gain of 1e30), or less than :data:`MIN_GAIN`, or a singular one
+    (readings that differ calibrated alike)."""
+    with np.errstate(all="ignore"):
+        gains = np.linalg.svd(np.asarray(matrix, np.float64), compute_uv=False)
+    largest, smallest = float(gains[0]), float(gains[-1])
+    limit = OFFSET_LIMIT[units]
+    if not MIN_GAIN <= largest <= limit:
+        raise fail(f"{name}.matrix gives at most {largest:.3g} {units} per raw unit, outside "
+                   f"any sensor's {MIN_GAIN:g} to {limit:g}: not a calibration")
+    if not smallest * MAX_CONDITION >= largest:
+        raise fail(f"{name}.matrix is singular (its gains span {largest:.3g} to {smallest:.3g} "
+                   f"{units} per raw unit): different readings would calibrate alike; not a "
+                   "calibration")  # fmt: skip
+
+
 def _parse_section(section: Any, where: str, name: str, fail) -> SensorCalibration:
     """A section of the document, the spec's fields checked strictly (``where``: its path in
     the document, for the message; ``name``: the sensor)."""
@@ -374,6 +398,7 @@ def _parse_section(section: Any, where: str, name: str, fail) -> SensorCalibrati
     ):
         raise fail(f"{where}.matrix must be 3 rows of {n} finite numbers (one per bias entry)")
     _check_offset(where, section["units"], bias, matrix, fail)
+    _check_matrix(where, section["units"], matrix, fail)
     rms = section.get("residual_rms")
     if rms is not None and not (_is_number(rms) and math.isfinite(rms)):
         raise fail(f"{where}.residual_rms must be a finite number or null, got {rms!r}")

@@ -13,6 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from imucal_cli.errors import SessionError
+
 from .imu_stream import REFERENCE_NAME, ImuStream
 
 FORMAT = "imucal-session"
@@ -228,6 +230,71 @@ def as_float(value: Any) -> float | None:
         return None
     number = float(value)
     return number if math.isfinite(number) else None
+
+
+RATE_RANGE_HZ = (1.0, 10_000.0)
+"""Sample rates plausible for an IMU, Hz: outside them, the time unit or ``--rate`` is wrong."""
+
+RAW_LIMIT = 1e12
+"""The largest raw reading (accelerometer, gyroscope, magnetometer, temperature) a sensor can
+give, in any unit: 32-bit counts reach 4.3e9; values of 1e300 overflowed the solvers (a
+traceback) and the noise figures."""
+
+
+def first_beyond_raw_limit(values: np.ndarray) -> int | None:
+    """Index of the first sample (row) of ``values`` holding a finite number beyond
+    :data:`RAW_LIMIT` (NaN and inf are not: they mark a reading missing), or None."""
+    values = np.asarray(values, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        big = np.isfinite(values) & (np.abs(values) > RAW_LIMIT)
+    if big.ndim == 2:
+        big = big.any(axis=1)
+    rows = np.flatnonzero(big)
+    return int(rows[0]) if rows.size else None
+
+
+def check_readings(name: str, values: np.ndarray | None, src: str, first: int = 0,
+                   where: str = "/raw") -> None:
+    """Raise SessionError where the readings of channel ``where/name`` (samples ``first`` on)
+    hold a number no sensor gives (beyond :data:`RAW_LIMIT`); times are not readings."""
+    if values is None or name in ("time", "host_time"):
+        return
+    row = first_beyond_raw_limit(values)
+    if row is not None:
+        value = float(np.max(np.abs(np.atleast_1d(values[row]))))
+        raise SessionError(f"{src}: {where}/{name} reads {value:.3g} at sample {first + row}, "
+                           f"beyond any sensor (at most {RAW_LIMIT:g} in any unit): a damaged "
+                           "file, or not raw readings")  # fmt: skip
+
+
+def check_rate(time: np.ndarray, src: str, where: str = "/raw") -> None:
+    """Raise SessionError where the median step of ``time`` (increasing, s) gives a rate slower
+    than any IMU's (:data:`RATE_RANGE_HZ`): time stamps in a smaller unit written as seconds
+    (1e10 s apart gave noise figures of 1e8 ug/sqrt(Hz), exit 0).  Not the fast side: a capture
+    stamps a device that sends no time by the host's clock, whose bursts may be faster."""
+    if len(time) < 3:
+        return
+    step = float(np.median(np.diff(time)))
+    lo = RATE_RANGE_HZ[0]
+    if not 1.0 / step >= lo:
+        raise SessionError(f"{src}: {where}/time steps {step:.3g} s, {1.0 / step:.3g} Hz: "
+                           f"slower than any IMU ({lo:g} Hz); are the time stamps in "
+                           "seconds?")  # fmt: skip
+
+
+MAX_TURN_DEG = 3600.0
+"""The largest known turn a segment or a plan step may state, degrees either way: ten full
+turns (a turntable's or a hand's turn is one or two; 1e300 overflowed the known-angle fit)."""
+
+TURN_ANGLE_RULE = f"a finite number of degrees within +-{MAX_TURN_DEG:g} (ten turns)"
+"""What a turn angle must be, for messages."""
+
+
+def as_turn_angle(value: Any) -> float | None:
+    """Return a known turn angle (degrees, finite, at most :data:`MAX_TURN_DEG` either way)
+    as float, else None."""
+    number = as_float(value)
+    return number if number is not None and abs(number) <= MAX_TURN_DEG else None
 
 
 def as_int(value: Any) -> int | None:

@@ -4,7 +4,6 @@ safely, every step checked, one line naming the file and the step when one is wr
 
 from __future__ import annotations
 
-import math
 import tomllib
 from pathlib import Path
 
@@ -12,6 +11,7 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 from imucal_cli.formats.inputs import read_text_input
+from imucal_cli.formats.session import TURN_ANGLE_RULE, as_turn_angle
 from imucal_cli.plans.model import Plan, Step
 
 
@@ -76,12 +76,8 @@ def _parse_step(src: str, number: int, item) -> Step:
             vectors[key] = _vector(where, key, item[key])
     angle = item.get("angle_deg")
     if angle is not None:
-        if (
-            isinstance(angle, bool)
-            or not isinstance(angle, int | float)
-            or not math.isfinite(angle)
-        ):
-            raise InputError(f"{where}: angle_deg must be a finite number, got {angle!r}")
+        if as_turn_angle(angle) is None:
+            raise InputError(f"{where}: angle_deg must be {TURN_ANGLE_RULE}, got {angle!r}")
         angle = float(angle)
     mounting = item.get("mounting")
     if mounting is not None and (

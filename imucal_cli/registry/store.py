@@ -21,8 +21,10 @@ imucal: a registry written by an older one is brought up to date, its records ke
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import os
+import sqlite3
 import stat
 import time
 from collections.abc import Iterator
@@ -194,6 +196,7 @@ def open_registry(target: str | os.PathLike, *, create: bool = True) -> Registry
         if not parsed.database or parsed.database == ":memory:":
             raise RegistryError(f"registry {name}: a SQLite registry is a file")
         _check_sqlite_path(Path(parsed.database), name, create)
+        _check_sqlite_schema(Path(parsed.database), name, create)
         engine = _sqlite_engine(url)
         lock = Path(parsed.database + ".lock")
     elif parsed.get_backend_name() == "postgresql":
@@ -231,6 +234,31 @@ def _check_sqlite_path(path: Path, name: str, create: bool) -> None:
         raise RegistryError(f"registry {name}: cannot open ({exc.strerror or exc})") from None
     if not stat.S_ISREG(st.st_mode):
         raise RegistryError(f"registry {name}: not a regular file")
+
+
+def _check_sqlite_schema(path: Path, name: str, create: bool) -> None:
+    """Refuse, before anything is written (the engine puts the file in WAL mode), a SQLite
+    file without imucal's schema that holds another program's tables, or that is empty when
+    the command makes no registry (``list`` of a path that exists but was never one).  A file
+    that is not SQLite is left to the engine's own error."""
+    if not path.exists():
+        return
+    try:
+        with contextlib.closing(sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro",
+                                                uri=True, timeout=BUSY_TIMEOUT_S)) as db:
+            tables = [row[0] for row in db.execute(
+                "SELECT name FROM sqlite_master WHERE type = 'table'")]  # fmt: skip
+    except sqlite3.Error:
+        return
+    if "alembic_version" in tables:
+        return
+    if tables:
+        shown = ", ".join(sorted(tables)[:5]) + (", ..." if len(tables) > 5 else "")
+        raise RegistryError(f"registry {name}: a database of another program (tables {shown}), "
+                            "not an imucal registry: give a registry, or a new file for one")
+    if not create:
+        raise RegistryError(f"registry {name}: an empty database, not an imucal registry "
+                            "(imucal registry import or calibrate --registry makes one)")
 
 
 def _sqlite_engine(url: str) -> Engine:
@@ -272,10 +300,20 @@ def _connect(registry: Registry) -> None:
             pass
     except SQLAlchemyError as exc:
         if registry.dialect == "sqlite":
-            raise RegistryError(f"registry {registry.name}: {_one_line(exc)} (not an imucal "
-                                "registry?)") from None  # fmt: skip
+            raise RegistryError(f"registry {registry.name}: {_one_line(exc)} "
+                                f"{_sqlite_hint(exc)}") from None  # fmt: skip
         raise RegistryError(f"registry {registry.name}: cannot connect ({_one_line(exc)})"
                             ) from None  # fmt: skip
+
+
+def _sqlite_hint(exc: BaseException) -> str:
+    """What a SQLite error opening a registry likely means: a disk or permission problem (the
+    registry is opened in WAL mode: its ``-wal`` and ``-shm`` files are written even to read),
+    or a file that is no registry (a full disk was said as 'not an imucal registry?')."""
+    text = _one_line(exc).lower()
+    if any(w in text for w in ("disk i/o", "disk is full", "readonly", "unable to open")):
+        return "(a full disk, or a folder or file this user cannot write?)"
+    return "(not an imucal registry?)"
 
 
 def _migrate(registry: Registry) -> None:
@@ -284,7 +322,7 @@ def _migrate(registry: Registry) -> None:
         with registry.read() as conn:
             current = _current(conn)
     except RegistryError as exc:
-        raise RegistryError(f"{exc} (not an imucal registry?)") from None
+        raise RegistryError(f"{exc} {_sqlite_hint(exc)}") from None
     if current == HEAD:
         return
     config = Config()

@@ -102,7 +102,7 @@ def parse_ramp(text: str) -> Ramp:
         raise InputError(f"--ramp {text!r}: the shape is warmup or linear, not {shape!r}")
     if not (np.isfinite(start) and np.isfinite(end)) or start == end:
         raise InputError(f"--ramp {text!r}: FROM and TO must be different numbers")
-    if not -60 <= min(start, end) and max(start, end) <= 125:
+    if not (-60 <= min(start, end) and max(start, end) <= 125):
         raise InputError(f"--ramp {text!r}: outside -60 .. 125 C")
     return Ramp(start, end, shape)
 

@@ -72,12 +72,15 @@ import numpy as np
 from imucal_cli import __version__
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import calibration_to_json
+from imucal_cli.formats.importers import check_sample_rate
 from imucal_cli.formats.importers.recording import TIME_UNITS
 from imucal_cli.formats.importers.text import cut_line_warning
 from imucal_cli.formats.inputs import is_hdf5_file
 from imucal_cli.formats.output import OutputFile, check_output
 from imucal_cli.formats.session import one_line, utc_now_iso
+from imucal_cli.formats.session.disk import WRITE_ERRORS
 from imucal_cli.model.calibration import MODEL_EQUATION, Calibration, SensorCalibration
+from imucal_cli.model.session import io_reason
 from imucal_cli.use.apply_input import CSV_NAMES, Block, CsvBlocks, csv_input, session_input
 
 __all__ = [
@@ -252,7 +255,27 @@ class _H5Writer:
         self.n = stop
 
     def close(self) -> None:
-        self.file.close()
+        """Flush and close the file, once.  A flush that fails (a full disk) empties the
+        datasets before the file is closed and raises: HDF5 crashed the process at its exit
+        (a segmentation fault) after the close of a file holding unwritten data failed."""
+        file, self.file = self.file, None
+        if file is None:
+            return
+        datasets, self.datasets = self.datasets, {}
+        try:
+            file.flush()
+        except WRITE_ERRORS:
+            for ds in datasets.values():
+                try:
+                    ds.resize(0, axis=0)
+                except WRITE_ERRORS:
+                    pass
+            try:
+                file.close()
+            except WRITE_ERRORS:
+                pass
+            raise
+        file.close()
 
 
 class _CsvWriter:
@@ -472,6 +495,8 @@ def _check_options(chunk_rows, time_unit: str, rate_hz: float | None, input_path
         raise InputError(f"unknown time unit {time_unit!r}: use {', '.join(TIME_UNITS)}")
     if rate_hz is not None and not (np.isfinite(rate_hz) and rate_hz > 0):
         raise InputError(f"--rate must be a positive number of Hz, got {rate_hz:g}")
+    if rate_hz is not None:  # 1e300 Hz stamped every row 1e-300 s apart, exit 0
+        check_sample_rate(rate_hz, None, src)
     if not input_path.exists():
         raise InputError(f"{src}: no such file")
     if input_path.is_dir():
@@ -504,13 +529,13 @@ def _write_all(blocks, total: int, summary: ApplySummary, sections, cal: Calibra
         writer.close()
         writer = None
         out.commit()
-    except OSError as exc:
-        raise InputError(f"{output_path}: cannot write ({one_line(exc)})") from None
+    except WRITE_ERRORS as exc:  # h5py says a full disk as RuntimeError too
+        raise InputError(f"{output_path}: cannot write ({io_reason(exc)})") from None
     finally:
         if writer is not None:
             try:
                 writer.close()
-            except OSError:
+            except WRITE_ERRORS:
                 pass
         if out is not None and not out.published:
             out.discard()

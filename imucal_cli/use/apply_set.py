@@ -29,7 +29,7 @@ import numpy as np
 from imucal_cli import __version__
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import calibration_to_json
-from imucal_cli.formats.output import check_output, safe_output
+from imucal_cli.formats.output import check_output, h5_image, safe_output
 from imucal_cli.formats.session import imu_session, read_session, set_names, utc_now_iso
 from imucal_cli.model.calibration import MODEL_EQUATION, Calibration
 from imucal_cli.model.imu_stream import REFERENCE_NAME
@@ -137,7 +137,7 @@ def apply_set(cal: Calibration, input_path: str | os.PathLike, output_path: str 
 
 def _write_h5(path: Path, data: dict, names: list[str], cal: Calibration, cal_source: str,
               summary: SetApplySummary, overwrite: bool, input_path: Path) -> None:  # fmt: skip
-    with safe_output(path, force=overwrite, inputs=[input_path]) as out, out.h5() as f:
+    with h5_image(path, force=overwrite, inputs=[input_path]) as f:  # a full disk: one line
         f.attrs.update({"format": "imucal-calibrated", "format_version": 1,
                         "created": utc_now_iso(), "model": MODEL_EQUATION,
                         "source": str(input_path), "calibration": cal_source,

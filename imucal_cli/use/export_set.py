@@ -28,6 +28,7 @@ Other formats hold one IMU: ``--imu NAME`` exports that one.
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass, replace
 
@@ -83,10 +84,31 @@ def set_members(cal: Calibration, source: str = "calibration") -> list[SetMember
                     or np.linalg.det(R) < 0:  # fmt: skip
                 raise CalibrationFileError(f"{source}: imus.{name}.rotation_to_reference is "
                                            "not a 3 x 3 rotation")  # fmt: skip
-        offset = entry.time_offset_s
-        out.append(SetMember(str(name), member_cal, R,
-                             None if offset is None else float(offset)))  # fmt: skip
+        offset = _time_offset(entry.unknown.get("time_offset_s", entry.time_offset_s),
+                              f"{source}: imus.{name}")  # not a number: kept in unknown
+        out.append(SetMember(str(name), member_cal, R, offset))
     return out
+
+
+MAX_TIME_OFFSET_S = 3600.0
+"""The largest time offset between two IMUs of a set a calibration may state, s (imucal
+finds them within +-1 s; 1e300 or NaN shifted every time stamp ``apply --reference-frame``
+wrote, exit 0)."""
+
+
+def _time_offset(value, where: str) -> float | None:
+    """``time_offset_s`` of an ``imus`` entry: None (not determined), or a number of seconds
+    within :data:`MAX_TIME_OFFSET_S`."""
+    if value is None:
+        return None
+    try:
+        offset = float(value)
+    except (TypeError, ValueError):
+        offset = math.nan
+    if not abs(offset) <= MAX_TIME_OFFSET_S:
+        raise CalibrationFileError(f"{where}.time_offset_s must be null or a number of seconds "
+                                   f"within +-{MAX_TIME_OFFSET_S:g}, got {value!r}")  # fmt: skip
+    return offset
 
 
 def _member_index(members: list[SetMember], name: str) -> int | None:

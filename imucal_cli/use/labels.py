@@ -18,7 +18,7 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 from imucal_cli.estimators.ellipsoid import fit_ellipsoid
-from imucal_cli.formats.session import Segment, Session
+from imucal_cli.formats.session import TURN_ANGLE_RULE, Segment, Session, as_turn_angle
 from imucal_cli.model.calibration import SensorCalibration
 
 __all__ = ["FACE_TOLERANCE_DEG", "FaceCall", "call_faces", "face_label", "set_segment"]
@@ -144,6 +144,8 @@ def set_segment(
         No such segment, or a field that does not fit its kind (up on a rotation, axis or
         angle on a static segment).
     """
+    if angle_deg is not None and as_turn_angle(angle_deg) is None:
+        raise InputError(f"--angle must be {TURN_ANGLE_RULE}, got {angle_deg:g}")
     names = [s.name for s in segments]
     if name not in names:
         raise InputError(f"no segment {name!r} (the session has {', '.join(names) or 'none'})")

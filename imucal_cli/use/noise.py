@@ -40,6 +40,7 @@ from imucal_cli.formats.noise import NOISE_FORMAT
 from imucal_cli.formats.session import Session, SessionSamples, samples_of
 from imucal_cli.model.calibration import Calibration, SensorCalibration
 from imucal_cli.numerics.allan import AllanAccumulator
+from imucal_cli.use.apply import other_unit
 from imucal_cli.use.export_set import set_members
 from imucal_cli.use.report.load import load_for_report
 
@@ -350,6 +351,8 @@ def analyse_noise(
         )
     for item in skipped:
         warnings.append(f"{item} skipped: raw units need --calibration CAL.json")
+    if calibration is not None:  # another unit's gains made its figures, said nowhere (audit)
+        warnings += other_unit(calibration.sensor, samples.sensor, "the calibration", where)
     return NoiseReport(
         session=Path(samples.path).name if samples.path else where,
         sensor=samples.sensor,
@@ -444,6 +447,12 @@ def _sensor_noise(analysed: dict[str, tuple]) -> list[SensorNoise]:
     for kind, (_, allan, basis) in analysed.items():
         curves = allan.curves()
         axes = list("xyz") if len(curves) == 3 else [f"ch{i}" for i in range(len(curves))]
+        for axis, curve in zip(axes, curves, strict=True):
+            if len(curve.tau_s) == 0:  # every deviation 0: said as 'only 0 averaging times:
+                raise InputError(  # the recording is too short' of a minute's recording
+                    f"{kind} axis {axis} reads one value through the span analysed (a stuck "
+                    "or dead axis): it has no noise to measure; check the sensor"
+                )
         sensors.append(SensorNoise(kind, "m/s^2" if kind == "accel" else "rad/s", basis,
                                    axes, [noise_from_curve(c) for c in curves]))  # fmt: skip
     return sensors

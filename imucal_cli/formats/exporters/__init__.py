@@ -26,7 +26,13 @@ from imucal_cli.errors import InputError
 from imucal_cli.estimators.thermal.temperature import reexpand
 from imucal_cli.formats.noise import NoiseFigures
 from imucal_cli.formats.text import clean_text
-from imucal_cli.model.calibration import MODEL_EQUATION, Calibration, SensorCalibration
+from imucal_cli.model.calibration import (
+    MIN_GAIN,
+    MODEL_EQUATION,
+    OFFSET_LIMIT,
+    Calibration,
+    SensorCalibration,
+)
 
 SENSORS = ("accel", "gyro")
 STANDARD_GRAVITY = 9.80665
@@ -310,6 +316,11 @@ def parse_scale(text: str, option: str) -> float:
     if not math.isfinite(value) or value <= 0:  # a driver's units per raw unit; -1 would mirror
         raise InputError(f"{option} {text!r}: must be a finite positive number (the driver's "
                          "units per raw unit)")  # fmt: skip
+    # 1e300 exported offsets of 1e302 m/s^2 and scales of 0.0, exit 0: bounded as a matrix is
+    unit = {"--accel-scale": "m/s^2", "--gyro-scale": "rad/s", "--mag-scale": "uT"}.get(option)
+    if unit is not None and not MIN_GAIN <= value <= OFFSET_LIMIT[unit]:
+        raise InputError(f"{option} {text!r}: {value:g} {unit} per raw unit is no driver's "
+                         f"({MIN_GAIN:g} to {OFFSET_LIMIT[unit]:g})")  # fmt: skip
     return value
 
 

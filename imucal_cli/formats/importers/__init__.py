@@ -39,8 +39,9 @@ from imucal_cli.design.segmentation import (
     find_steps,
 )
 from imucal_cli.errors import InputError
-from imucal_cli.formats.session import Segment, Session
+from imucal_cli.formats.session import TURN_ANGLE_RULE, Segment, Session, as_turn_angle
 from imucal_cli.formats.set_columns import imu_number_name, split_columns, split_header
+from imucal_cli.model.session import RATE_RANGE_HZ, RAW_LIMIT, first_beyond_raw_limit
 
 from . import csv, imu_tk, mavlink, ros, serial_lines, ulog, witmotion
 from .imu_set import imu_name, imu_stream, set_streams
@@ -228,6 +229,7 @@ def read_recording(
     rec.time = time
     rec.stats.samples = len(time)
     where = " and ".join(str(p) for p in paths)
+    _check_readings(rec, where)
     stamped = rate_hz is None or rec.columns.count("t") > 0
     measured = float(1.0 / np.median(np.diff(time))) if len(time) >= 2 else float("nan")
     if stamped and np.isfinite(measured):
@@ -244,8 +246,19 @@ def read_recording(
     return rec
 
 
-RATE_RANGE_HZ = (1.0, 10_000.0)
-"""Sample rates plausible for an IMU, Hz: outside them, the time unit or ``--rate`` is wrong."""
+def _check_readings(rec: Recording, where: str) -> None:
+    """Refuse readings no sensor gives (beyond :data:`RAW_LIMIT` in any unit: 1e303 from a
+    damaged line overflowed the still-period search and the solvers)."""
+    for name in ("accel", "gyro", "mag", "temperature"):
+        values = getattr(rec, name, None)
+        row = None if values is None else first_beyond_raw_limit(values)
+        if row is not None:
+            value = float(np.max(np.abs(np.atleast_1d(values[row]))))
+            raise InputError(f"{where}: {name} reads {value:.3g} at sample {row}, beyond "
+                             f"any sensor (at most {RAW_LIMIT:g} in any unit): not raw "
+                             "readings, or a damaged file")  # fmt: skip
+
+
 
 _UNIT_NAMES = {"s": "seconds", "ms": "milliseconds", "us": "microseconds", "ns": "nanoseconds"}
 
@@ -404,6 +417,8 @@ def import_files(
         See :func:`read_recording` and :func:`segment_recording`; unknown units.
     """
     _check_units(accel_units, gyro_units, mag_units, magnetic_field_uT)
+    if turn_angle_deg is not None and as_turn_angle(turn_angle_deg) is None:
+        raise InputError(f"--turn-angle must be {TURN_ANGLE_RULE}, got {turn_angle_deg:g}")
     given_units = (accel_units, gyro_units, mag_units)
     recs = _read_set(
         paths, fmt, columns, time_unit=time_unit, rate_hz=rate_hz, skip_rows=skip_rows,

@@ -38,6 +38,11 @@ def read(paths: Sequence[Path], options: ReadOptions, stats: ImportStats) -> Rec
         data[:, 0] *= TIME_UNITS[options.time_unit]
         check_time(data[:, 0], lines, str(p))
     (acc, _, _), (gyr, _, _) = tables
+    if acc.shape == gyr.shape and np.array_equal(acc, gyr, equal_nan=True):
+        raise InputError(  # the accelerometer's numbers were written as the gyroscope's, exit 0
+            f"{paths[0]} and {paths[1]}: the same numbers twice; give the accelerometer file "
+            "then the gyroscope file"
+        )
     common, ia, ig = np.intersect1d(acc[:, 0], gyr[:, 0], return_indices=True)
     stats.unmatched = len(acc) + len(gyr) - 2 * len(common)
     if len(common) == 0:

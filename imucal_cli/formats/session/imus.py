@@ -26,7 +26,16 @@ import numpy as np
 from imucal_cli.errors import SessionError
 from imucal_cli.formats.text import clean_text
 from imucal_cli.model.imu_stream import IMU_CHANNELS, IMU_TEXT_ATTRS, REFERENCE_NAME, ImuStream
-from imucal_cli.model.session import MAG_UNITS, Segment, Session, as_float, as_str, show
+from imucal_cli.model.session import (
+    MAG_UNITS,
+    Segment,
+    Session,
+    as_float,
+    as_str,
+    check_rate,
+    check_readings,
+    show,
+)
 
 from .h5open import check_dataset, file_size, get_attr, member
 
@@ -184,6 +193,9 @@ def _read_group(group: h5py.Group, where: str, src: str, limit: int,
     n = _written(arrays["time"], unclosed)
     arrays = {k: v[:n] for k, v in arrays.items()}
     _check_time(arrays["time"], src, where)
+    check_rate(arrays["time"], src, where)
+    for name, values in arrays.items():
+        check_readings(name, values, src, where=where)
     return ImuStream(**arrays, **_group_attrs(group, where, src))
 
 

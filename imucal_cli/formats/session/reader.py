@@ -26,12 +26,16 @@ from imucal_cli.model.session import (
     MAG_UNITS,
     SEGMENT_ATTRS,
     SEGMENT_KINDS,
+    TURN_ANGLE_RULE,
     Segment,
     Session,
     as_float,
     as_int,
     as_str,
+    as_turn_angle,
     as_unit_vector,
+    check_rate,
+    check_readings,
     one_line,
     show,
 )
@@ -283,6 +287,9 @@ def _read_raw(file: h5py.File, src: str, unclosed: bool) -> dict[str, np.ndarray
     raw = {name: None if name not in datasets else
            np.asarray(datasets[name][:n], dtype=np.float64) for name in RAW_CHANNELS}  # fmt: skip
     check_time(raw["time"], src)
+    check_rate(raw["time"], src)
+    for name, values in raw.items():
+        check_readings(name, values, src)
     return raw
 
 
@@ -399,9 +406,9 @@ def _parse_segment(
                 raise fail(f"'axis' must be 3 finite numbers, not all zero, got {show(raw_axis)}")
         raw_angle = get("angle_deg")
         if raw_angle is not None:
-            angle_deg = as_float(raw_angle)
+            angle_deg = as_turn_angle(raw_angle)
             if angle_deg is None:
-                raise fail(f"'angle_deg' must be a finite number, got {show(raw_angle)}")
+                raise fail(f"'angle_deg' must be {TURN_ANGLE_RULE}, got {show(raw_angle)}")
         data, dataset = gyro, "/raw/gyro"
     if data is None:
         raise fail(f"{kind} segment but the file has no {dataset}")

@@ -27,8 +27,9 @@ from imucal_cli.model.session import (
     LOG_ITEM_BYTES,
     SEGMENT_ATTRS,
     SEGMENT_KINDS,
+    TURN_ANGLE_RULE,
     Segment,
-    as_float,
+    as_turn_angle,
     as_unit_vector,
 )
 
@@ -87,8 +88,8 @@ def segment_entry(
                 )
             entry[option] = vector.tolist()
     if angle_deg is not None:
-        if as_float(angle_deg) is None:
-            raise ValueError(f"'angle_deg' must be a finite number, got {angle_deg!r}")
+        if as_turn_angle(angle_deg) is None:
+            raise ValueError(f"'angle_deg' must be {TURN_ANGLE_RULE}, got {angle_deg!r}")
         entry["angle_deg"] = float(angle_deg)
     return entry
 

@@ -26,7 +26,14 @@ from imucal_cli.formats.session.reader import (
     raw_datasets,
 )
 from imucal_cli.model.imu_stream import IMU_TEXT_ATTRS, REFERENCE_NAME
-from imucal_cli.model.session import GRAVITY_DEFAULT, Segment, Session, one_line
+from imucal_cli.model.session import (
+    GRAVITY_DEFAULT,
+    Segment,
+    Session,
+    check_rate,
+    check_readings,
+    one_line,
+)
 
 from .imus import imu_group, listed_names, map_segments, set_names
 
@@ -152,6 +159,7 @@ class _File(SessionSamples):
             file.close()
             raise
         self.imu = name if len(self.imus) > 1 else None
+        self.where = "/raw" if name == self.imus[0] else f"/imus/{name}"
         self.file = file
         self.src = src
         self.datasets = datasets
@@ -164,6 +172,11 @@ class _File(SessionSamples):
         self.gravity = GRAVITY_DEFAULT if numbers["gravity"] is None else numbers["gravity"]
         self.channels = {name: 0 if ds.ndim == 1 else ds.shape[1]
                          for name, ds in datasets.items()}  # fmt: skip
+        try:
+            check_rate(self.read("time", 0, min(n, BLOCK_ROWS)), src, self.where)
+        except BaseException:
+            file.close()
+            raise
 
     def _read_into(self, out: np.ndarray, name: str, start: int, stop: int) -> np.ndarray:
         out = out[: stop - start]
@@ -171,6 +184,7 @@ class _File(SessionSamples):
             self.datasets[name].read_direct(out, np.s_[start:stop], np.s_[0 : stop - start])
         except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
             raise SessionError(f"{self.src}: damaged HDF5 file ({one_line(exc)})") from None
+        check_readings(name, out, self.src, start, self.where)
         return out
 
     def _buffer(self, name: str, rows: int) -> np.ndarray:

@@ -552,7 +552,9 @@ class SessionWriter(Resumable, Rewritable, FailedWrites):
         """Flush, end SWMR mode, write the segment groups and give the file its name.
 
         Closing twice does nothing.  Samples that cannot be written stay out (a
-        :class:`WriteFailed` is raised after the file was closed with what was written).
+        :class:`WriteFailed` is raised after the file was closed with what was written); a
+        file not yet in place (no ``publish_early``: a session written in one go) is then
+        removed, never put in place half written.
         ``attrs``: root attributes known only at the end (``sample_rate_hz``), written with
         the segment groups (no attribute can be created in SWMR mode).
         """
@@ -578,6 +580,9 @@ class SessionWriter(Resumable, Rewritable, FailedWrites):
         except WRITE_ERRORS as exc:  # the log stays; readers use it
             failed = failed or self._write_failed(exc, 0, "write the segments")
         self._reserve.release()
+        if failed is not None and not self._out.published:
+            self._out.discard()  # a session written in one go: all of it, or none
+            raise failed
         self._out.commit()
         if failed is not None:
             raise failed
