@@ -11,6 +11,7 @@ here, 50 in the slow test; the figures in docs/accuracy.md).
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -123,6 +124,32 @@ def test_poses_on_one_face_keep_the_rest_at_the_prior(tmp_path):
     # what would measure the rest names another face
     assert "up" in part.capture and ("-Z" in part.capture or "+X" in part.capture
                                      or "-X" in part.capture)
+
+
+def test_a_part_outside_the_prior_is_said_and_its_std_widened():
+    """A part whose accelerometer bias lies far outside the nominal prior (0.4 g on x, 6.7
+    prior std): the three faces of ``gyro-axes`` cannot fix the model, so its magnitudes are
+    fitted whatever the prior (the data misfit says nothing) and the parameters move away from
+    the prior together, the assumed ones too. The prior's part of the sum of squares says it:
+    a warning, and std that cover the error. Before: the bias 3.2 std off, no warning (a
+    sweep's part of 0.6 g: 5.8 std)."""
+    session, truth = simulate_plan("gyro-axes", seed=3, created=CREATED)
+    plain = calibrate_session(session, Config()).accel  # within the prior: nothing said
+    assert plain.solver == "partial"
+    assert not [w for w in plain.warnings if "prior disagree" in w]
+    off = np.rint(np.array([0.4, 0.0, 0.0]) * 8192)
+    far = replace(session, accel=(session.accel + off).astype(session.accel.dtype))
+    sec = calibrate_session(far, Config()).accel
+    assert sec.solver == "partial"
+    said = [w for w in sec.warnings if "the poses and the prior disagree" in w]
+    assert said and "b_x +" in said[0] and "--prior CAL.json" in said[0]
+    truth_p = _truth_params(truth)
+    truth_p[:3] += off
+    z = np.array([(p.value - truth_p[k]) / p.std for k, p in enumerate(sec.parameters)])
+    assert np.max(np.abs(z)) < 2.5, z  # 95 % intervals of 9 terms: beyond 2.5 is rare
+    # the covariance the gyro and the report read is widened with the std
+    cov = np.asarray(sec.covariance.values, float)
+    assert np.sqrt(cov[0, 0]) == pytest.approx(sec.parameters[0].std, rel=1e-6)
 
 
 def test_a_full_plan_is_not_partial():

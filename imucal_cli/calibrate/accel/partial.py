@@ -15,6 +15,8 @@ datasheet lies within 1-2 std of it.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from scipy.special import chdtrc
 
@@ -139,13 +141,15 @@ def partial_section(poses: StaticPoses, session, cfg: Config, g: float, nominal:
                              nominal=nominal,
                              min_separation_deg=cfg.accel.min_separation_deg)  # fmt: skip
     members["rms_loo"] = None
+    warnings, blocking = _misfit(first, scale, rms(res.residuals), g)
+    res, conflict = _prior_conflict(res, len(poses.a_mean))
+    warnings += conflict
     units = [units_in] * 3 + [f"{units_in} per m/s^2"] * 3 + ["deg"] * 3
     rows = parameter_rows(list(map_fit.NAMES), res.params, res.std, units)
     for row, m, s0 in zip(rows, res.measured, prior.std, strict=True):
         row.status = "measured" if m else "assumed"
         row.prior_std = float(s0)
     part = _partial(res, g)
-    warnings, blocking = _misfit(first, scale, rms(res.residuals), g)
     dof = _dof(res, len(poses.a_mean))
     expected = float(np.sqrt(np.mean(res.sigmas**2) / scale * max(dof, 0.0) / len(res.sigmas)))
     notes = [_summary(part.measured, part.assumed, prior.source, part.capture),
@@ -279,3 +283,32 @@ def _misfit(first: tuple[float, float], scale: float, rms_after: float, g: float
             f"it (noise_scale {scale:.3g})")  # fmt: skip
     block = excess > MISFIT_SIGMAS and 1000 * rms_after / g > MISFIT_FLOOR_MG
     return [text], [text] if block else []
+
+
+def _prior_conflict(res: map_fit.PartialResult, n: int
+                    ) -> tuple[map_fit.PartialResult, list[str]]:  # fmt: skip
+    """The poses against the prior: the whole weighted sum of squares at the solution (the
+    magnitudes' part, already on the noise scale ``_fit`` chose, and the prior's, ``sum ((p -
+    p0) / sigma0)^2``) is chi-square on ``n`` degrees of freedom (``n`` magnitudes and 9
+    prior rows for 9 parameters) when the part lies within its prior. A design that cannot
+    fix the model fits its magnitudes whatever the prior, so a part outside it (a bias of
+    several prior std) shows only in the prior's part: the parameters moved far from it,
+    the assumed ones with the rest. Improbable (p below :data:`MISFIT_P`): said, and every
+    std scaled by ``sqrt(chi^2 / n)`` (the data's and the prior's weights alike, which
+    leaves the estimate as it is). Returns the result (scaled or not) and the warnings."""
+    z = (res.params - res.prior.mean) / res.prior.std
+    total = res.chi2 + float(z @ z)
+    p = float(chdtrc(n, total)) if n > 0 else 1.0
+    if p >= MISFIT_P:
+        return res, []
+    k = total / n
+    far = np.argsort(-np.abs(z))[:3]
+    moved = ", ".join(f"{map_fit.NAMES[i]} {z[i]:+.1f}" for i in far)
+    text = (f"the poses and the prior disagree: the fit sits {moved} prior std from it "
+            f"(chi^2 {total:.3g} on {n} degrees of freedom with the prior, p = {p:.2g}): this "
+            "part lies outside the prior, so the assumed parameters are not the prior's "
+            f"values; the std are scaled by sqrt({k:.3g}); capture the poses "
+            "that measure them, or give an earlier calibration of this unit (--prior "
+            "CAL.json)")  # fmt: skip
+    combos = [(c, value, std * np.sqrt(k)) for c, value, std in res.combinations]
+    return replace(res, cov=res.cov * k, combinations=combos), [text]

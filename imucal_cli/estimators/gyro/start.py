@@ -8,14 +8,21 @@ scale falls into another minimum. This module finds the start from the data alon
    (between the still directions before and after) turned at least that much, so
    ``lambda >= alpha_k / |x_k|`` with ``x_k`` the bias-free raw integral, with equality for a
    fixed-axis turn about a horizontal axis. Hand turns about many axes put the upper quantile
-   of these ratios near ``lambda``: that is the first estimate.
+   of these ratios near ``lambda``: that is the first estimate. A turn about a fixed axis
+   integrates to its angle, but a tumble through many attitudes (a magnetometer plan's moves)
+   does not: its raw integral can be far shorter than the way it turned, and its ratio far
+   above ``lambda`` (a qureshi18 --mag session, seed 7338: 0.2-5 lambda, the upper quantile 1.8
+   lambda, the search below never reached lambda and the fit ended at 1/30 of the gains).
+   The raw path ``P_k = integral |z - b| dt`` bounds ``lambda`` from below for any turn
+   (``lambda >= alpha_k / P_k``), so the orientations are also scored, and the scale
+   searched, down to that bound.
 3. **Orientation** of the gyro triad in the accelerometer's frame, among the 48 signed
    permutations (a gyro mounted with axes swapped or reversed, or left-handed). For
    ``M = lambda R0`` every rotation is a conjugate, ``R_k(lambda R0) = R0 R_k(+-lambda I) R0^T``
    (``-`` for a reflection), so two integrations score all 48 by the gravity mismatch
    ``sum_k |R_k^T u_before - u_after|^2``.
-4. **Scale refined** for the best orientations: a grid over ``[0.7, 3] lambda`` then a bounded
-   scalar search of the same mismatch.
+4. **Scale refined** for the best orientations: a grid over ``[0.7, 3] lambda`` (from 0.9 of
+   the path's bound where that is lower) then a bounded scalar search of the same mismatch.
 
 Every integration here is coarse (one rotation per block of samples, about 25 per second).
 The starts, best first, go to the Gauss-Newton fit (:func:`imucal_cli.estimators.gyro.full`),
@@ -111,6 +118,8 @@ class _Turns:
         steps[1:] = np.add.reduceat(inc, keep, axis=0)[:-1]
         steps[full.pos[keep] == 0] = 0.0
         self.x = np.add.reduceat(inc, full.start, axis=0)  # (K, 3): each turn's raw integral
+        # each turn's raw path: the length of the way its raw integral went
+        self.path = np.add.reduceat(np.linalg.norm(inc, axis=1), full.start)
         n_kept = np.bincount(full.seg[keep], minlength=len(t))
         coarse_t = np.split(full.t[keep], np.cumsum(n_kept)[:-1])
         self.stack = Stack.of(coarse_t)
@@ -161,6 +170,14 @@ def first_scale(turns: _Turns) -> float:
     return float(np.quantile(seen[ok] / raw[ok], SCALE_QUANTILE))
 
 
+def lowest_scale(turns: _Turns) -> float:
+    """The largest ``alpha_k / P_k`` (module notes, step 2): no scale below it turns every
+    turn by the angle gravity sees (inf when no turn is seen)."""
+    seen = np.arccos(np.clip(np.sum(turns.u0 * turns.u1, axis=1), -1, 1))
+    ok = (seen > np.radians(MIN_SEEN_DEG)) & (turns.path > 0)
+    return float(np.max(seen[ok] / turns.path[ok])) if ok.any() else np.inf
+
+
 def start_values(
     t: list[np.ndarray],
     z: list[np.ndarray],
@@ -194,27 +211,35 @@ def start_values(
     """
     turns = _Turns(t, z, g_before, g_after, b0, clock)
     lam = first_scale(turns)
+    low = min(0.9 * lowest_scale(turns), lam * SCALE_BRACKET[0])  # 0.9: unequal gains, noise
     O = signed_permutations()
     proper = np.linalg.det(O) > 0
     score = np.full(len(O), np.inf)
-    trials = [(sign * f * lam, which) for f in (1.0, 1.4, 2.0)  # the first scale is a lower
-              for sign, which in ((1.0, proper), (-1.0, ~proper))]  # bound: look a little above
+    factors = [1.0, 1.4, 2.0]  # the first scale is about a lower bound: look a little above
+    if low < lam * SCALE_BRACKET[0]:  # tumbles: down to the path's bound, steps of 1.4
+        n = int(np.ceil(np.log(lam * SCALE_BRACKET[0] / low) / np.log(1.4)))
+        factors += list(np.geomspace(low / lam, SCALE_BRACKET[0], n + 1)[:-1])
+    trials = [(sign * f * lam, which) for f in factors
+              for sign, which in ((1.0, proper), (-1.0, ~proper))]  # fmt: skip
     for R, (_, which) in zip(turns.rotations_at([s for s, _ in trials]), trials, strict=True):
         score[which] = np.minimum(score[which], turns.mismatch(R, O[which]))
     for i in np.argsort(score)[:n_best]:
-        scale, mismatch = _refine_scale(turns, O[i], lam)
+        scale, mismatch = _refine_scale(turns, O[i], lam, low)
         yield Start(scale * O[i], scale, O[i], mismatch)
 
 
-def _refine_scale(turns: _Turns, O: np.ndarray, lam: float) -> tuple[float, float]:
-    """Scale minimising the gravity mismatch for orientation ``O`` (step 4)."""
+def _refine_scale(turns: _Turns, O: np.ndarray, lam: float, low: float
+                  ) -> tuple[float, float]:  # fmt: skip
+    """Scale minimising the gravity mismatch for orientation ``O`` (step 4), searched from
+    ``low`` (at most the bracket's lower end) up to the bracket's upper end."""
     sign = np.sign(np.linalg.det(O))
 
     def cost(log_scale):
         return float(turns.mismatch(turns.rotations(sign * np.exp(log_scale)), O[None])[0])
 
-    lo, hi = np.log(lam * SCALE_BRACKET[0]), np.log(lam * SCALE_BRACKET[1])
-    grid = np.linspace(lo, hi, 9)
+    lo, hi = np.log(min(low, lam * SCALE_BRACKET[0])), np.log(lam * SCALE_BRACKET[1])
+    # 9 points over the bracket (steps of 1.2), as many more below it
+    grid = np.linspace(lo, hi, max(9, int(np.ceil((hi - lo) / np.log(1.2))) + 1))
     R = turns.rotations_at(sign * np.exp(grid))  # the grid integrated at once
     values = [float(turns.mismatch(Rg, O[None])[0]) for Rg in R]
     i = int(np.argmin(values))
