@@ -33,6 +33,8 @@ from imucal_cli.formats.session import Segment, Session
 
 #: A miss of gravity beyond this (deg) is a disagreement with the known angles.
 TOLERANCE_DEG = 10.0
+#: ... and beyond this many std of the gyro's prediction (:func:`moves`).
+MISS_STDS = 4.0
 #: Samples at each end of a known turn (integrated from rest to rest) that give the gravity
 #: direction it starts and ends in: the turn's own, so that a still period recorded apart
 #: from it (a session joined from pieces) is not taken for its start.
@@ -73,6 +75,28 @@ def _integrate(session: Session, M: np.ndarray, b: np.ndarray, start: int, stop:
     return out
 
 
+def _miss_std_deg(session: Session, M: np.ndarray, b: np.ndarray, start: int, stop: int,
+                  pred: np.ndarray, cov_M: np.ndarray) -> float:  # fmt: skip
+    """Std (deg) of a move's predicted gravity direction ``pred`` from the uncertainty of
+    ``M`` (``cov_M``, (9, 9), row-major), to first order: an error ``dM`` turns the end
+    attitude by ``dtheta = sum_k C_k^T dM z_k dt_k`` (``C_k`` the attitude change from step k
+    to the end, body frame), and the prediction ``R^T u0`` by ``[pred]_x dtheta``."""
+    z = session.gyro[start:stop] - b
+    w = z @ np.asarray(M, float).T
+    dt = np.diff(session.time[start:stop])
+    zm = 0.5 * (z[1:] + z[:-1])
+    steps = Rotation.from_rotvec(0.5 * (w[1:] + w[:-1]) * dt[:, None]).as_matrix()
+    J = np.zeros((3, 9))
+    C = np.eye(3)  # from after step k to the end, filled backwards
+    for k in range(len(dt) - 1, -1, -1):
+        J += C.T @ np.kron(np.eye(3), zm[k]) * dt[k]  # d(M z_k) / d vec(M), row-major
+        C = steps[k] @ C
+    px = np.array([[0.0, -pred[2], pred[1]], [pred[2], 0.0, -pred[0]],
+                   [-pred[1], pred[0], 0.0]])  # fmt: skip
+    Jp = px @ J
+    return float(np.degrees(np.sqrt(max(np.trace(Jp @ cov_M @ Jp.T), 0.0))))
+
+
 def known_turn_ends(session: Session, accel_cal, used, axes: np.ndarray) -> list[str]:
     """Known turns whose end attitude gravity sees away from where their angle ends them."""
     out = []
@@ -96,11 +120,13 @@ def known_turn_ends(session: Session, accel_cal, used, axes: np.ndarray) -> list
     return out
 
 
-def moves(session: Session, accel_cal, M: np.ndarray, b: np.ndarray, known
-          ) -> tuple[list[str], int]:  # fmt: skip
+def moves(session: Session, accel_cal, M: np.ndarray, b: np.ndarray, known,
+          cov_M: np.ndarray | None = None) -> tuple[list[str], int]:  # fmt: skip
     """The moves between consecutive still periods that hold no known turn, integrated with
     the gyro ``M``, ``b``: those that miss gravity by more than the tolerance (in words), and
-    how many were checked."""
+    how many were checked. With ``cov_M`` (the uncertainty of ``M``, (9, 9)) a miss must
+    also exceed :data:`MISS_STDS` times its own std: labels placed 5 degrees off put a
+    known-turn gyro's axes degrees off, and a 170-degree move 15 degrees from gravity."""
     statics = sorted(session.static_segments(), key=lambda s: s.start)
     gaps = find_gaps(session.time)
     out, checked = [], 0
@@ -116,11 +142,14 @@ def moves(session: Session, accel_cal, M: np.ndarray, b: np.ndarray, known
         checked += 1
         pred = _integrate(session, M, b, s0.stop - 1, s1.start + 1).inv().apply(u0)
         miss = _angle(pred, u1)
-        if miss > TOLERANCE_DEG:
+        std = 0.0 if cov_M is None else _miss_std_deg(session, M, b, s0.stop - 1,
+                                                       s1.start + 1, pred, cov_M)  # fmt: skip
+        if miss > max(TOLERANCE_DEG, MISS_STDS * std):
+            within = "" if cov_M is None else f" (its std {std:.2g} deg)"
             out.append(f"from {s0.label or s0.name} to {s1.label or s1.name} the "
                        f"accelerometer sees gravity turn {_angle(u0, u1):.0f} deg, the gyro "
                        f"turns it {_angle(u0, pred):.0f} deg, to {miss:.0f} deg from "
-                       "there")  # fmt: skip
+                       f"there{within}")  # fmt: skip
     return out, checked
 
 
@@ -138,12 +167,14 @@ def _raw_in_labels(session: Session) -> bool:
 
 
 def gravity_disagreement(session: Session, accel_cal, used, axes: np.ndarray, M: np.ndarray,
-                         b: np.ndarray) -> str | None:  # fmt: skip
-    """A warning where gravity disagrees with the known angles (module notes), else None."""
+                         b: np.ndarray, cov_M: np.ndarray | None = None
+                         ) -> str | None:  # fmt: skip
+    """A warning where gravity disagrees with the known angles (module notes), else None;
+    ``cov_M``: the uncertainty of ``M`` (:func:`moves`)."""
     if session.accel is None or (accel_cal is None and not _raw_in_labels(session)):
         return None
     ends = known_turn_ends(session, accel_cal, used, axes)
-    missed, checked = moves(session, accel_cal, M, b, used)
+    missed, checked = moves(session, accel_cal, M, b, used, cov_M)
     if not ends and not missed:
         return None
     parts = []
