@@ -260,7 +260,7 @@ def _known_bound(session: Session, cfg: Config, accel: SensorCalibration | None,
     session, _ = with_segments(session)
     data, known, used, segs, statics, _ = pk._known_data(session, cfg, accel, "bench")
     rot, st = rotations_and_stills(data) if data.turns else (None, solver_stills(data.stills))
-    accel_dirs = accel_directions(data)
+    accel_dirs = accel_directions(data, with_frame=True)  # as the known-angle solver
     with_g = len(x) > 12
     prob = _Stacked(known, st, data.noise, rot, with_g, accel_dirs=accel_dirs)
     prob.freeze(x)

@@ -10,7 +10,6 @@ import numpy as np
 
 from imucal_cli.calibrate.session import calibrate_session
 from imucal_cli.estimators.accel.frame import frame_free
-from imucal_cli.formats.config import Config
 
 RNG = np.random.default_rng(5)
 A = np.eye(3) + 0.02 * RNG.standard_normal((3, 3))
@@ -49,24 +48,25 @@ def _off_diagonal_std(cal) -> np.ndarray:
     return np.array([std[f"m_{a}{b}"] for a in "xyz" for b in "xyz" if a != b])
 
 
-def test_the_gyro_std_leave_the_frame_to_the_accelerometer(tmp_path, monkeypatch):
-    """The Ferraris protocol (six labelled faces place the frame to tenths of a degree, the
-    known-angle gyro): the gyro's axes are std'd against the accelerometer's frame, without
-    its turn (with it, 100 % of the off-diagonal 95 % intervals held the truth over 50
-    simulated captures, RMS error/std 0.4-0.6); the bias untouched. (The gravity fit's own
-    axes: tests/test_gyro_bound.py.)"""
-    from bench.captured import as_captured, ferraris_plan
-    from imucal_cli.calibrate.gyro import full, known
+def test_the_gyro_std_leave_the_frame_to_the_accelerometer(monkeypatch):
+    """qureshi18 with the 12-parameter accelerometer (a full matrix turned onto the labels:
+    its frame as good as the poses sit, tenths of a degree) and the full gyro model, which
+    the turns between still periods determine in that frame: the gyro's axes are std'd
+    against the accelerometer's frame, without its turn (with it, its calibrated rates were
+    stated to 0.86 %, now 0.004 %); the bias untouched. (A gyro held to the labels by turns
+    of known angle keeps the frame's part: tests/test_known_*.)"""
+    from imucal_cli.calibrate.gyro import full
+    from imucal_cli.formats.config import config_from_dict
     from imucal_cli.simulate.play import simulate_plan
 
-    name = str(ferraris_plan(tmp_path))
-    session, _ = simulate_plan(name, seed=301, created="2026-01-01T00:00:00Z")
-    session = as_captured(session, name)
-    cal = calibrate_session(session, Config())
-    for module in (full, known):
-        monkeypatch.setattr(module, "frame_free", lambda C, A: np.asarray(C, float))
-    with_frame = calibrate_session(session, Config())
+    session, _ = simulate_plan("qureshi18", seed=1, created="2026-01-01T00:00:00Z")
+    cfg = config_from_dict({"accel": {"gravity": {"model": "12"}}})
+    cal = calibrate_session(session, cfg)
+    assert "labelled" in cal.accel.gauge, cal.accel.gauge
+    monkeypatch.setattr(full, "frame_free", lambda C, A: np.asarray(C, float))
+    with_frame = calibrate_session(session, cfg)
     ratio = _off_diagonal_std(with_frame) / _off_diagonal_std(cal)
-    assert np.all(ratio >= 1 - 1e-6) and ratio.max() > 1.05, ratio
+    assert ratio.min() > 3, ratio
+    assert with_frame.gyro.rate_std.total > 10 * cal.gyro.rate_std.total
     bias = np.array([p.std for p in cal.gyro.parameters][:3])
     np.testing.assert_allclose(bias, [p.std for p in with_frame.gyro.parameters][:3], rtol=0.02)

@@ -173,7 +173,7 @@ def accel_derivative(stills, accel_cal) -> np.ndarray | None:
     return out
 
 
-def accel_uncertainty(data: GyroData):
+def accel_uncertainty(data: GyroData, with_frame: bool = False):
     """``(dg, C, shift)``: :func:`accel_derivative` and the accelerometer calibration's
     covariance, with the columns of its temperature terms where its poses were compensated
     (the section's ``compensation``): a term's error ``dc`` moves still period k's raw mean by
@@ -181,7 +181,9 @@ def accel_uncertainty(data: GyroData):
     gave both; docs/temperature.md). ``shift(d, T)`` is that move, (N, 3), at temperatures
     ``T``, or None without terms; None without a covariance or a triad. ``C`` is without the
     rotation of the accelerometer's frame (:func:`~imucal_cli.estimators.accel.frame.
-    frame_free`): the gyro reports in that frame and turns with it."""
+    frame_free`) unless ``with_frame``: a gyro the turns between still periods determine
+    reports in that frame and turns with it wholly; turns about labelled axes hold it to the
+    labels' frame instead (the known-angle solver keeps the frame's part)."""
     cal = data.accel_cal
     cov = None if cal is None or cal.covariance is None else cal.covariance.values
     dg = None if cov is None else accel_derivative(data.stills, cal)
@@ -190,8 +192,12 @@ def accel_uncertainty(data: GyroData):
     comp = getattr(cal, "compensation", None)
     temp = sample_temperature(data.session)
     Am = np.asarray(cal.matrix, float)
-    if comp is None or temp is None:  # the frame's turn moves the gyro with it: not its error
-        return dg, frame_free(cov, Am), None
+
+    def frame(C):  # the frame's turn moves the gyro with it: not its error
+        return np.asarray(C, float) if with_frame else frame_free(C, Am)
+
+    if comp is None or temp is None:
+        return dg, frame(cov), None
 
     def shift(d: np.ndarray, T: np.ndarray) -> np.ndarray:
         out = np.zeros((len(T), 3))
@@ -202,8 +208,7 @@ def accel_uncertainty(data: GyroData):
     T = np.array([temp[s.segment.start : s.segment.stop].mean() for s in data.stills])
     eye = np.eye(len(comp.columns))
     extra = np.stack([shift(e, T) @ Am.T for e in eye], axis=2)  # (P, 3, terms)
-    return (np.concatenate([dg, extra], axis=2), frame_free(comp.covariance, Am),
-            shift)  # fmt: skip
+    return np.concatenate([dg, extra], axis=2), frame(comp.covariance), shift
 
 
 def gain_std(M: np.ndarray, cov_M: np.ndarray) -> np.ndarray:
@@ -371,10 +376,11 @@ def _g_note(test: dict) -> str:
             f"{test['dof'][1]} dof, p = {test['p_value']:.2g})")  # fmt: skip
 
 
-def accel_directions(data: GyroData) -> np.ndarray | None:
+def accel_directions(data: GyroData, with_frame: bool = False) -> np.ndarray | None:
     """(P, 3, m): the still periods' calibrated gravity vectors moved along each square-root
-    direction of the accelerometer calibration's covariance (None without one)."""
-    found = accel_uncertainty(data)
+    direction of the accelerometer calibration's covariance (None without one; its frame's
+    turn as :func:`accel_uncertainty` says)."""
+    found = accel_uncertainty(data, with_frame)
     if found is None:
         return None
     dg, C, _ = found

@@ -44,7 +44,6 @@ from imucal_cli.calibrate.gyro.rotations import (
 from imucal_cli.calibrate.gyro.turn_windows import settle_turns
 from imucal_cli.calibrate.gyro.turns import AXES, MODEL_EQUATION_G, GyroData
 from imucal_cli.errors import DesignError
-from imucal_cli.estimators.accel.frame import frame_free
 from imucal_cli.estimators.gyro import full as gyro_full
 from imucal_cli.estimators.gyro import known as gyro_known
 from imucal_cli.formats.config import Config
@@ -292,7 +291,7 @@ def calibrate_gyro_known(
         full = gyro_full.fit_full(rot, st, data.noise, b0)
         x0 = np.r_[full.b, full.M.ravel()]
 
-    accel_dirs = accel_directions(data)
+    accel_dirs = accel_directions(data, with_frame=True)  # labelled axes: the labels' frame
 
     def fitter(rot_, tau_fixed=None):
         def fit(with_g, tau=None, known_=known):
@@ -402,7 +401,7 @@ def _accel_part(session, cfg, accel_cal, segs, statics, res, data, rot, known,
         return np.zeros((n, n))
     if in_weights and not any("measured vertical" in note for note in data.notes):
         return np.zeros((n, n))
-    C = frame_free(cov, accel_cal.matrix)  # the frame's turn moves the gyro with it
+    C = np.asarray(cov, float)  # with its frame: labelled axes hold the gyro to the labels'
     lam, V = np.linalg.eigh((C + C.T) / 2)
     x = np.r_[res.b, res.M.ravel(), [] if res.G is None else res.G.ravel()]
     th0 = np.r_[accel_cal.bias, np.ravel(accel_cal.matrix)]
