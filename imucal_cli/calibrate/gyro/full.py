@@ -18,7 +18,7 @@ from imucal_cli.calibrate.common import num
 from imucal_cli.calibrate.gyro.turns import AXES, GyroData, GyroFit, Still
 from imucal_cli.calibrate.thermal import sample_temperature
 from imucal_cli.errors import ImucalError
-from imucal_cli.estimators.accel.frame import frame_free
+from imucal_cli.estimators.accel.frame import frame_free, frame_split
 from imucal_cli.estimators.gyro import full as gyro_full
 from imucal_cli.estimators.gyro import sigma as gyro_sigma
 from imucal_cli.estimators.gyro.known_turns import accel_factor
@@ -386,6 +386,23 @@ def accel_directions(data: GyroData, with_frame: bool = False) -> np.ndarray | N
     dg, C, _ = found
     lam, V = np.linalg.eigh((C + C.T) / 2)
     return dg @ (V * np.sqrt(np.clip(lam, 0, None)))
+
+
+def accel_directions_and_frame(data: GyroData) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(dirs, phi)``: :func:`accel_directions` without the frame's turn (P, 3, m), and the
+    turn of the frame along the same square-root directions of the accelerometer
+    calibration's covariance (3, m), rad; None without a covariance. A gyro that turns about
+    labelled axes is held partly to the labels' frame, and ``phi`` is how far the
+    accelerometer's frame, which the rates are reported in, is from it
+    (:attr:`imucal_cli.estimators.gyro.known.KnownTurns.frame`)."""
+    found = accel_uncertainty(data, with_frame=True)
+    if found is None:
+        return None
+    dg, C, _ = found
+    lam, V = np.linalg.eigh((C + C.T) / 2)
+    root = V * np.sqrt(np.clip(lam, 0, None))
+    L, phi = frame_split(data.accel_cal.matrix, len(C))
+    return dg @ (L @ root), phi @ root
 
 
 def turn_chi2(res, x=None, dirs=None, cov=None) -> np.ndarray:

@@ -24,7 +24,7 @@ from scipy.special import fdtrc
 from imucal_cli.calibrate.common import rms, session_name, with_segments
 from imucal_cli.calibrate.gyro import known_checks as checks
 from imucal_cli.calibrate.gyro.full import (
-    accel_directions,
+    accel_directions_and_frame,
     design_warning,
     gain_std,
     parameter_rows,
@@ -44,6 +44,7 @@ from imucal_cli.calibrate.gyro.rotations import (
 from imucal_cli.calibrate.gyro.turn_windows import settle_turns
 from imucal_cli.calibrate.gyro.turns import AXES, MODEL_EQUATION_G, GyroData
 from imucal_cli.errors import DesignError
+from imucal_cli.estimators.accel.frame import frame_free
 from imucal_cli.estimators.gyro import full as gyro_full
 from imucal_cli.estimators.gyro import known as gyro_known
 from imucal_cli.formats.config import Config
@@ -144,7 +145,7 @@ def known_turns(session: Session, cfg: Config, accel_cal: SensorCalibration | No
     the measured vertical of a turn about the vertical. Without an accelerometer calibration
     (``accel_cal`` None) only labelled axes, in the labels' frame: a turn about a body-fixed
     axis integrates to ``angle * axis`` whatever the attitude, so no accelerometer is needed."""
-    keep, t, z, a, ang, axis, ax_sigma, notes = [], [], [], [], [], [], [], []
+    keep, t, z, a, ang, axis, ax_sigma, notes, labelled = [], [], [], [], [], [], [], [], []
     assumed = False
     g = cfg.gravity or session.gravity
     for seg in segments:
@@ -169,13 +170,27 @@ def known_turns(session: Session, cfg: Config, accel_cal: SensorCalibration | No
         ang.append(np.radians(seg.angle_deg))
         axis.append(n)
         ax_sigma.append(max(sigma, 1e-6))
+        labelled.append(how.startswith("labelled"))
         notes.append(f"{name}: {seg.angle_deg:g} deg, axis {how}")
     known = gyro_known.KnownTurns(
         t, z, np.array(ang), np.array(axis).reshape(-1, 3), np.array(ax_sigma),
         np.full(len(t), np.radians(cfg.gyro.known.angle_std_deg)),
-        None if accel_cal is None else a,
+        None if accel_cal is None else a, np.array(labelled, bool),
     )  # fmt: skip
     return known, keep, notes, assumed
+
+
+def in_accel_frame(known: gyro_known.KnownTurns, phi: np.ndarray | None):
+    """``known`` with the frame's part of its labelled axes: seen from the frame the
+    accelerometer estimates, a labelled axis is off by that frame's turn ``phi`` (3, m: along
+    each square-root direction of the accelerometer calibration's covariance,
+    :func:`~imucal_cli.calibrate.gyro.full.accel_directions_and_frame`), so the rates, which
+    are reported in that frame, are held to the labels only as well as it is known. Without
+    ``phi`` or a labelled axis, ``known`` as it is."""
+    if phi is None or known.labelled is None or not known.labelled.any():
+        return known
+    frame = np.cross(phi.T[None], known.axis[:, None, :]).transpose(0, 2, 1)  # phi_j x n_k
+    return replace(known, frame=frame * known.labelled[:, None, None])
 
 
 def _g_choice(cfg, fit):
@@ -291,7 +306,9 @@ def calibrate_gyro_known(
         full = gyro_full.fit_full(rot, st, data.noise, b0)
         x0 = np.r_[full.b, full.M.ravel()]
 
-    accel_dirs = accel_directions(data, with_frame=True)  # labelled axes: the labels' frame
+    # the turns gravity measures in the accelerometer's frame, labelled axes off it by its turn
+    accel_dirs, phi = accel_directions_and_frame(data) or (None, None)
+    known = in_accel_frame(known, phi)
 
     def fitter(rot_, tau_fixed=None):
         def fit(with_g, tau=None, known_=known):
@@ -305,6 +322,7 @@ def calibrate_gyro_known(
         if accel_cal is None:
             return None
         alt, alt_used, _, _ = known_turns(session, cfg, accel_cal, segs, b0, vertical_first=True)
+        alt = in_accel_frame(alt, phi)
         if [s.name for s in alt_used] != [s.name for s in used] or np.allclose(alt.axis,
                                                                               known.axis):
             return None
@@ -401,7 +419,9 @@ def _accel_part(session, cfg, accel_cal, segs, statics, res, data, rot, known,
         return np.zeros((n, n))
     if in_weights and not any("measured vertical" in note for note in data.notes):
         return np.zeros((n, n))
-    C = np.asarray(cov, float)  # with its frame: labelled axes hold the gyro to the labels'
+    # without its frame: the rates are reported in it (the labelled axes' part, off it by its
+    # turn, is in the fit's weights: in_accel_frame)
+    C = frame_free(np.asarray(cov, float), accel_cal.matrix)
     lam, V = np.linalg.eigh((C + C.T) / 2)
     x = np.r_[res.b, res.M.ravel(), [] if res.G is None else res.G.ravel()]
     th0 = np.r_[accel_cal.bias, np.ravel(accel_cal.matrix)]

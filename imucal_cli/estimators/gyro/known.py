@@ -86,6 +86,16 @@ class KnownTurns:
         Std of each known angle, rad.
     a : list of ndarray (n_k, 3), optional
         Calibrated accelerometer samples, m/s^2 (the g-sensitivity term only).
+    labelled : ndarray (K,) of bool, optional
+        Which axes are labels (fixed to the labels' frame) rather than measured by the
+        accelerometer (in its frame). None: none is.
+    frame : ndarray (K, 3, m), optional
+        How each axis, as the calibrated accelerometer's frame sees it, moves along each
+        square-root direction of that calibration's covariance (the columns of the still
+        periods' ``accel_dirs``): a labelled axis is fixed to the labels, and the frame the
+        accelerometer estimates is turned from theirs by its error (``phi_j x n_k``, see
+        :mod:`imucal_cli.estimators.accel.frame`); zero for an axis the accelerometer
+        measures (it turns with the frame). None: no such part.
     """
 
     t: list[np.ndarray]
@@ -95,6 +105,8 @@ class KnownTurns:
     axis_sigma: np.ndarray
     angle_sigma: np.ndarray
     a: list[np.ndarray] | None = None
+    labelled: np.ndarray | None = None
+    frame: np.ndarray | None = None
 
 
 def _integrals(t: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -163,6 +175,22 @@ class KnownProblem:
     def whitening(self, x) -> np.ndarray:
         """(K, 3, 3) ``L_k^-1`` with ``L_k L_k^T`` the covariance of turn k's residual."""
         return np.linalg.inv(np.linalg.cholesky(self.covariance(x)))
+
+    def frame_factor(self) -> np.ndarray | None:
+        """(K, 3, m): each residual's change along each square-root direction of the
+        accelerometer calibration's covariance (the target ``theta_k n_k`` seen from the frame
+        it estimates: ``theta_k dn_k``), None without :attr:`KnownTurns.frame`. Its outer
+        product couples the known turns (one frame for all) and, through the shared columns,
+        the turns gravity measures."""
+        if self.known.frame is None:
+            return None
+        return self.known.angle[:, None, None] * self.known.frame
+
+    def marginal(self, x) -> np.ndarray:
+        """(K, 3, 3) covariance of each turn's residual alone, the frame's part with it."""
+        F = self.frame_factor()
+        C = self.covariance(x)
+        return C if F is None else C + np.einsum("kam,kbm->kab", F, F)
 
 
 def _weights(t: np.ndarray) -> np.ndarray:
@@ -272,8 +300,31 @@ class _Stacked:
 
     def freeze(self, x):
         """The noise model at ``x`` (the whitening is held fixed within one solve)."""
+        self.joint = self._joint_whitener(x)
         self.L = None if self.kp is None else self.kp.whitening(x)
         self.W = None if self.gp is None else self._gravity_whitener(x)
+
+    def _joint_whitener(self, x) -> _DenseWhitener | None:
+        """With labelled axes the frame's part couples every known turn and, through the
+        accelerometer calibration's error they share, the turns gravity measures: their rows
+        are whitened together (known turns first, then the turns between still periods)."""
+        Fk = None if self.kp is None else self.kp.frame_factor()
+        if Fk is None:
+            return None
+        K = self.kp.K
+        Ck = np.zeros((3 * K, 3 * K))
+        for k, block in enumerate(self.kp.covariance(x)):
+            Ck[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = block
+        Fk = Fk.reshape(3 * K, -1)
+        if self.gp is None:
+            return _DenseWhitener(Ck + Fk @ Fk.T)
+        Cg = self.gravity_covariance(x).toarray()
+        Fg = (np.zeros((2 * self.gp.K, Fk.shape[1])) if self.accel_dirs is None
+              else accel_factor(self.gp, x, self.accel_dirs).reshape(2 * self.gp.K, -1))
+        F = np.vstack([Fk, Fg])
+        C = np.zeros((len(F), len(F)))
+        C[: 3 * K, : 3 * K], C[3 * K :, 3 * K :] = Ck, Cg
+        return _DenseWhitener(C + F @ F.T)
 
     def gravity_covariance(self, x) -> sparse.csr_array:
         """Covariance of the gravity-referenced turns' residuals with the excess ``tau``."""
@@ -303,6 +354,8 @@ class _Stacked:
         return r, J
 
     def f_and_J(self, x):
+        if self.joint is not None:
+            return self._joint_f_and_J(x)
         if self.kp is None:
             fk, Jk = np.zeros(0), np.zeros((0, self.n_params))
         else:
@@ -314,6 +367,19 @@ class _Stacked:
             raw, Jraw = self.gp.residuals_and_jacobian(x)
             fs, Js = self.W(raw), self.W(Jraw)
         return np.r_[fk, fs], np.vstack([Jk, Js])
+
+    def _joint_f_and_J(self, x):
+        """:meth:`f_and_J` with the rows :meth:`_joint_whitener` couples."""
+        rk, Jk = self.kp.residuals(x), self.kp.jacobian(x)
+        if self.gp is None:
+            fs, Js = self._still_rows(x)
+            return np.r_[self.joint(rk), fs], np.vstack([self.joint(Jk), Js])
+        raw, Jraw = self.gp.residuals_and_jacobian(x)
+        n = 2 * self.gp.K
+        sigma = np.repeat(self.still.z_sigma, 3)
+        f = np.r_[self.joint(np.r_[rk, raw[:n]]), raw[n:] / sigma]
+        J = np.vstack([self.joint(np.vstack([Jk, Jraw[:n]])), Jraw[n:] / sigma[:, None]])
+        return f, J
 
     def estimate_tau(self, x) -> float:
         """``tau`` from the gravity-referenced turns' scatter at ``x`` (module notes): their
@@ -435,7 +501,7 @@ def fit_known(
         b=b.copy(), M=M.copy(), G=G.copy() if g_sensitivity else None, cov=cov,
         chi2=float(f @ f), dof=max(len(f) - prob.n_params, 1), noise_scale=float(noise_scale),
         iterations=it, known_redundancy=redundancy[0], tau=prob.tau,
-        **_turn_errors(prob, known, x, f), **_gravity_turns(prob, x, J),
+        **_turn_errors(prob, known, x), **_gravity_turns(prob, x, J),
     )  # fmt: skip
 
 
@@ -500,7 +566,7 @@ def _covariance(f: np.ndarray, J: np.ndarray, n_known: int):
     return np.linalg.inv(Jw.T @ Jw), max(scales), redundancy
 
 
-def _turn_errors(prob: _Stacked, known: KnownTurns, x: np.ndarray, f: np.ndarray) -> dict:
+def _turn_errors(prob: _Stacked, known: KnownTurns, x: np.ndarray) -> dict:
     """Diagnostics of each known turn: the integrated angle about (and axis off) the known
     axis, its std along the axis (the stated angle error and the integrated gyro noise), and
     its squared whitened residual (3 dof)."""
@@ -512,14 +578,15 @@ def _turn_errors(prob: _Stacked, known: KnownTurns, x: np.ndarray, f: np.ndarray
     integ = kp.integrated(x)
     along = np.sum(integ * known.axis, axis=1)
     cosang = np.clip(along / np.linalg.norm(integ, axis=1), -1, 1)
-    fk = f[: 3 * kp.K].reshape(kp.K, 3)
+    r = kp.residuals(x).reshape(kp.K, 3)
+    r_white = np.linalg.solve(kp.marginal(x), r[..., None])[..., 0]  # each turn alone
     M = x[3:12].reshape(3, 3)
     gyro_along = kp.int_noise * np.linalg.norm(known.axis @ M, axis=1)
     return {
         "angle_error_deg": np.degrees(along - known.angle),
         "axis_error_deg": np.degrees(np.arccos(np.abs(cosang))),
         "measured_angle_deg": np.degrees(along),
-        "known_chi2": np.sum(fk**2, axis=1),
+        "known_chi2": np.einsum("ki,ki->k", r, r_white),
         "angle_sigma_deg": np.degrees(np.sqrt(known.angle_sigma**2 + gyro_along**2)),
     }
 
