@@ -12,11 +12,11 @@ from __future__ import annotations
 import numpy as np
 
 from imucal_cli.calibrate.common import num, rms
-from imucal_cli.calibrate.gyro.full import fit_full_model
+from imucal_cli.calibrate.gyro.full import fit_full_model, turn_windows
 from imucal_cli.calibrate.gyro.turns import AXES, GyroData, GyroFit, Turn
 from imucal_cli.errors import DesignError, ImucalError
 from imucal_cli.estimators.gyro import axes as gyro_axes
-from imucal_cli.formats.session import Segment, Session
+from imucal_cli.formats.session import Session
 from imucal_cli.model.gyro import IgnoredMisalignment, RotationRow
 from imucal_cli.model.parts import Parameter
 
@@ -113,8 +113,8 @@ def _turns_by_axis(data: GyroData, notes: list[str], first):
     min_lev = np.sin(np.radians(cfg.gyro.rotations.min_tilt_deg)) ** 2
     per_axis = {i: [] for i in range(3)}
     oblique = 0
-    for turn in turns:
-        x, T = _integral(session, turn.segment)
+    for turn, window in zip(turns, turn_windows(data), strict=True):
+        x, T = _integral(session, window)  # from the still period it leaves to the one it reaches
         i = _axis_of(turn, x, bias_still, T)
         sign = np.sign(turn.segment.axis[i]) if turn.segment.axis is not None else 1.0
         axis = np.eye(3)[i] * sign
@@ -204,9 +204,10 @@ def _unwrap(angle: np.ndarray, integral: np.ndarray) -> np.ndarray:
     return angle + 2 * np.pi * np.round((k * integral - angle) / (2 * np.pi))
 
 
-def _integral(session: Session, seg: Segment) -> tuple[np.ndarray, float]:
-    t = session.time[seg.start : seg.stop]
-    return np.trapezoid(session.gyro[seg.start : seg.stop], t, axis=0), float(t[-1] - t[0])
+def _integral(session: Session, window: slice) -> tuple[np.ndarray, float]:
+    """A turn's raw integral over ``window`` (raw units s) and its duration (s)."""
+    t = session.time[window]
+    return np.trapezoid(session.gyro[window], t, axis=0), float(t[-1] - t[0])
 
 
 def _axis_of(turn: Turn, x: np.ndarray, bias: np.ndarray, T: float) -> int:

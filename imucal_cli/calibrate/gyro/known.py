@@ -41,7 +41,7 @@ from imucal_cli.calibrate.gyro.rotations import (
     still_periods,
     turns_between,
 )
-from imucal_cli.calibrate.gyro.turn_windows import settle_turns
+from imucal_cli.calibrate.gyro.turn_windows import rest_to_rest, settle_turns
 from imucal_cli.calibrate.gyro.turns import AXES, MODEL_EQUATION_G, GyroData
 from imucal_cli.errors import DesignError
 from imucal_cli.estimators.accel.frame import frame_free
@@ -149,7 +149,7 @@ def known_turns(session: Session, cfg: Config, accel_cal: SensorCalibration | No
     assumed = False
     g = cfg.gravity or session.gravity
     for seg in segments:
-        sl = slice(seg.start, seg.stop)
+        sl = rest_to_rest(session, seg)  # from the still sample it leaves to the one it reaches
         acc = None if accel_cal is None else accel_cal.apply(session.accel[sl])
         tt = session.time[sl]
         found = _turn_axis(seg, acc, session.gyro[sl] - b0, tt, g, cfg, accel_cal,

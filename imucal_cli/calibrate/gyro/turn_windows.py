@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 
 from imucal_cli.design.turn_windows import settled_bounds, still_noise
-from imucal_cli.formats.session import Session
+from imucal_cli.formats.session import Segment, Session
 
 
 def settle_turns(session: Session) -> tuple[Session, str | None]:
@@ -52,3 +52,20 @@ def settle_turns(session: Session) -> tuple[Session, str | None]:
     note = (f"{moved} still period(s) already moving at an edge next to a turn (up to "
             f"{longest} samples, {longest * dt:.2f} s): those samples integrated with the turn")
     return replace(session, segments=segments), note
+
+
+def rest_to_rest(session: Session, seg: Segment) -> slice:
+    """The samples a known turn ``seg`` is integrated over: its segment, and the still periods'
+    edge samples it touches (the last still sample before it, the first after), as the full
+    model's :func:`~imucal_cli.calibrate.gyro.full.turn_windows`. The unit rests up to the
+    still period's last sample, so the interval from there to the turn's first sample belongs
+    to the turn: integrated from its own first sample, a turn loses ``h/2 (w_first + w_last)``
+    (qureshi-axes at 50 Hz, 400 deg/s turns labelled with their angles: 0.055 % short, the
+    gains 0.055 % large, 8 sem over 19 seeds)."""
+    a, b, n = seg.start, seg.stop, len(session.time)
+    statics = session.static_segments()
+    if a > 0 and any(s.stop == a for s in statics):
+        a -= 1
+    if b < n and any(s.start == b for s in statics):
+        b += 1
+    return slice(a, b)
