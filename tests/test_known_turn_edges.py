@@ -43,7 +43,9 @@ def test_known_turns_at_50_hz_leave_the_gains_unbiased():
     the 24 (within 3 / sqrt(24) of 0 for unit-variance z; the stated std cover them, their
     scatter is 0.5). Integrated from each turn's first moving sample, they came out +2.4 std
     (40 seeds: +2.41 at 50 Hz, +0.29 at 100, 0.00 at 200); now -0.02, -0.03, -0.04."""
-    cfg = config_from_dict({"accel": {"solver": "none"},
+    # the axes are exactly their labels: stated (the default 2 deg placement would shorten
+    # each turn's expected integral along its label by cos|eps|, tests/test_known_axis_error)
+    cfg = config_from_dict({"accel": {"solver": "none", "labelled": {"placement_deg": 0.05}},
                             "gyro": {"known": {"angle_std_deg": 0.05}}})  # fmt: skip
     z = []
     for seed in range(8):

@@ -289,7 +289,7 @@ def _explain(v: Verdict, data, used, fit, vertical_known) -> str | None:
     res = v.result
     tries = []
     mode = data.cfg.gyro.full.g_sensitivity
-    if res.G is None and mode != "off":
+    if res.G is None and mode != "off" and v.known.a is not None:  # needs the accelerometer
         tries.append(("g-sensitivity", lambda: fit(True, res.tau, v.known), None))
     alt = vertical_known()
     if alt is not None:
