@@ -540,7 +540,7 @@ def _section(data: GyroData, res, known, used, g_test, uncertainty, assumed: boo
     gains = np.linalg.norm(S, axis=1)
     data.warnings += gyro_checks(data.session, data.cfg, gains, units)
     disagree = gravity_disagreement(data.session, data.accel_cal, used, known.axis, res.M,
-                                    res.b, res.cov[3:12, 3:12])  # fmt: skip
+                                    res.b, res.cov[3:12, 3:12], known.axis_sigma)  # fmt: skip
     if disagree:  # issue 24.5: named (a clipped known turn explains it), auto leaves it out
         clip = [w for w in data.warnings if w.startswith("a turn of known angle reaches")]
         disagree = f"{clip[0]}; so {disagree}" if clip else disagree
