@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from imucal_cli.calibrate.common import num, rms
-from imucal_cli.calibrate.gyro.full import fit_full_model, turn_windows
+from imucal_cli.calibrate.gyro.full import accel_directions, fit_full_model, turn_windows
 from imucal_cli.calibrate.gyro.turns import AXES, GyroData, GyroFit, Turn
 from imucal_cli.errors import DesignError, ImucalError
 from imucal_cli.estimators.gyro import axes as gyro_axes
@@ -35,14 +35,16 @@ def fit_per_axis(data: GyroData, solver: str) -> GyroFit:
     # rotation vector that the pass-1 calibration integrates (a hand is never exact).
     k = b = None
     for _ in range(2):
-        k, b, k_std, b_std, rotations = _per_axis(
+        k, b, k_std, b_std, rotations, ci = _per_axis(
             data, solver, data.notes if k is None else [], None if k is None else (k, b)
         )
     units = data.units_in
     parameters = [
-        Parameter(f"b_{a}", float(b[i]), num(b_std[i]), units) for i, a in enumerate(AXES)
+        Parameter(f"b_{a}", float(b[i]), num(b_std[i]), units, ci95=num(ci[i, 1]))
+        for i, a in enumerate(AXES)
     ] + [
-        Parameter(f"k_{a}", float(k[i]), num(k_std[i]), f"rad/s per {units}")
+        Parameter(f"k_{a}", float(k[i]), num(k_std[i]), f"rad/s per {units}",
+                  ci95=num(ci[i, 0]))
         for i, a in enumerate(AXES)
     ]  # fmt: skip
     residual = np.radians([r.angle_error_deg for r in rotations])
@@ -113,6 +115,7 @@ def _turns_by_axis(data: GyroData, notes: list[str], first):
     min_lev = np.sin(np.radians(cfg.gyro.rotations.min_tilt_deg)) ** 2
     per_axis = {i: [] for i in range(3)}
     oblique = 0
+    dirs = accel_directions(data)
     for turn, window in zip(turns, turn_windows(data), strict=True):
         x, T = _integral(session, window)  # from the still period it leaves to the one it reaches
         i = _axis_of(turn, x, bias_still, T)
@@ -132,9 +135,8 @@ def _turns_by_axis(data: GyroData, notes: list[str], first):
         if first is not None:
             rotvec = first[0] * (x - first[1] * T)
             axis = rotvec / np.linalg.norm(rotvec) * np.sign(rotvec[i]) * sign
-        angle, lev = gyro_axes.rotation_angle_about_axis(
-            stills[turn.before].g, stills[turn.after].g, axis
-        )
+        g0, g1 = stills[turn.before].g, stills[turn.after].g
+        angle, lev = gyro_axes.rotation_angle_about_axis(g0, g1, axis)
         if lev < min_lev:
             notes.append(
                 f"{turn.segment.label or turn.segment.name}: axis within "
@@ -144,8 +146,24 @@ def _turns_by_axis(data: GyroData, notes: list[str], first):
             continue
         # Channel i sees the rotation vector's component along i: the angle times the axis's
         # i-th component (1 for a turn exactly about the axis; the paper assumes that).
-        per_axis[i].append((turn, x[i], T, sign * angle * abs(axis[i])))
+        moved = _angle_moves(dirs, turn, g0, g1, axis, angle)
+        per_axis[i].append((turn, x[i], T, sign * angle * abs(axis[i]),
+                            sign * abs(axis[i]) * moved))  # fmt: skip
     return per_axis, oblique
+
+
+def _angle_moves(dirs, turn, g0, g1, axis, angle) -> np.ndarray:
+    """How a turn's measured angle moves along each square-root direction of the
+    accelerometer calibration's covariance (rad, (m,); :func:`~.full.accel_directions`, its
+    frame left out: the angles are read about the gyro's own axes); zeros without one."""
+    if dirs is None:
+        return np.zeros(1)
+    out = np.empty(dirs.shape[2])
+    for j in range(dirs.shape[2]):
+        a, _ = gyro_axes.rotation_angle_about_axis(g0 + dirs[turn.before, :, j],
+                                                   g1 + dirs[turn.after, :, j], axis)
+        out[j] = (a - angle + np.pi) % (2 * np.pi) - np.pi
+    return out
 
 
 def _fit_axes(data: GyroData, solver: str, per_axis: dict, oblique: int):
@@ -160,6 +178,7 @@ def _fit_axes(data: GyroData, solver: str, per_axis: dict, oblique: int):
     """
     where, bias_still, b_still_std = data.where, data.bias_still, data.b_still_std
     k, b, k_std, b_std = np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)
+    ci = np.zeros((3, 2))  # 95 % half-widths of k and b
     rotations = []
     for i in range(3):
         rows = per_axis[i]
@@ -178,19 +197,22 @@ def _fit_axes(data: GyroData, solver: str, per_axis: dict, oblique: int):
         x = np.array([r[1] for r in rows])
         T = np.array([r[2] for r in rows])
         ang = _unwrap(np.array([r[3] for r in rows]), x - bias_still[i] * T)
+        D = np.array([r[4] for r in rows])
+        cov = D @ D.T  # the accelerometer's error moves every angle together
         if solver == "static":
-            fit = gyro_axes.fit_axis_static(x, T, ang, bias_still[i], b_still_std)
+            fit = gyro_axes.fit_axis_static(x, T, ang, bias_still[i], b_still_std, cov)
         else:
-            fit = gyro_axes.fit_axis_dynamic(x, T, ang)
+            fit = gyro_axes.fit_axis_dynamic(x, T, ang, cov)
         k[i], b[i], k_std[i], b_std[i] = fit.k, fit.b, fit.k_std, fit.b_std
-        for (turn, xi, Ti, ai), res in zip(rows, fit.residuals_rad, strict=True):
+        ci[i] = (fit.k_ci95, fit.b_ci95)
+        for (turn, xi, Ti, ai, _), res in zip(rows, fit.residuals_rad, strict=True):
             rotations.append(RotationRow(
                 segment=turn.segment.name, label=turn.segment.label, axis=AXES[i],
                 known_angle_deg=float(np.degrees(ai)),
                 measured_angle_deg=float(np.degrees(fit.k * (xi - fit.b * Ti))),
                 angle_error_deg=float(np.degrees(-res)),
             ))  # fmt: skip
-    return k, b, k_std, b_std, rotations
+    return k, b, k_std, b_std, rotations, ci
 
 
 def _unwrap(angle: np.ndarray, integral: np.ndarray) -> np.ndarray:

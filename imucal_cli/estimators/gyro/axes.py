@@ -23,6 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.special import stdtrit
 
 from imucal_cli.errors import DesignError
 
@@ -70,11 +71,16 @@ class AxisFit:
     b : float
         Bias, raw units.
     k_std, b_std : float
-        Standard deviations from the least-squares fit (residual variance).
+        Standard deviations: the least-squares fit's (residual variance) and the
+        accelerometer calibration's part (``angle_cov``), which moves every measured angle
+        together and does not show in the residuals.
     residuals_rad : ndarray, shape (K,)
         Measured minus predicted angle of each rotation, rad.
     approach : str
         ``"static"`` or ``"dynamic"``.
+    k_ci95, b_ci95 : float
+        Half-widths of the 95 % intervals: Student t on the residual variance's degrees of
+        freedom, carried to the sum by Welch-Satterthwaite (the accelerometer's part known).
     """
 
     k: float
@@ -83,11 +89,25 @@ class AxisFit:
     b_std: float
     residuals_rad: np.ndarray
     approach: str
+    k_ci95: float = float("nan")
+    b_ci95: float = float("nan")
+
+
+def _ci95(noise_var: float, known_var: float, dof: int) -> float:
+    """95 % half-width of an error with a variance estimated on ``dof`` degrees of freedom
+    plus one known (Welch-Satterthwaite's effective degrees of freedom)."""
+    total = noise_var + known_var
+    if total <= 0:
+        return 0.0
+    nu = dof * total**2 / noise_var**2 if noise_var > 0 else np.inf
+    q = stdtrit(min(nu, 1e6), 0.975) if np.isfinite(nu) else 1.959964
+    return float(q * np.sqrt(total))
 
 
 def fit_axis_static(
-    x: np.ndarray, T: np.ndarray, angle: np.ndarray, b: float, b_std: float = 0.0
-) -> AxisFit:
+    x: np.ndarray, T: np.ndarray, angle: np.ndarray, b: float, b_std: float = 0.0,
+    angle_cov: np.ndarray | None = None,
+) -> AxisFit:  # fmt: skip
     """Static-bias approach: scale by least squares over the rotations (eq. 18 generalised).
 
     Parameters
@@ -100,6 +120,8 @@ def fit_axis_static(
         Measured angle of each rotation (from the accelerometer), rad.
     b, b_std : float
         Bias from still data and its standard deviation, raw units.
+    angle_cov : ndarray, shape (K, K), optional
+        Covariance of the measured angles from the accelerometer calibration's error, rad^2.
     """
     x, T, angle = map(np.asarray, (x, T, angle))
     if len(x) < 2:
@@ -109,11 +131,16 @@ def fit_axis_static(
     res = angle - k * d
     dof = len(x) - 1
     s2 = float(res @ res) / dof
-    k_var = s2 / float(d @ d) + (k * b_std) ** 2 * float((T @ d) ** 2) / float(d @ d) ** 2
-    return AxisFit(k, b, float(np.sqrt(k_var)), b_std, res, "static")
+    noise = s2 / float(d @ d)
+    known = (k * b_std) ** 2 * float((T @ d) ** 2) / float(d @ d) ** 2
+    if angle_cov is not None:  # dk = d . d(angle) / (d . d)
+        known += float(d @ angle_cov @ d) / float(d @ d) ** 2
+    return AxisFit(k, b, float(np.sqrt(noise + known)), b_std, res, "static",
+                   _ci95(noise, known, dof), 1.959964 * b_std)  # fmt: skip
 
 
-def fit_axis_dynamic(x: np.ndarray, T: np.ndarray, angle: np.ndarray) -> AxisFit:
+def fit_axis_dynamic(x: np.ndarray, T: np.ndarray, angle: np.ndarray,
+                     angle_cov: np.ndarray | None = None) -> AxisFit:  # fmt: skip
     """Dynamic approach: ``k`` and ``k b`` together by least squares (eqs. 19-21).
 
     Parameters as for :func:`fit_axis_static`; needs rotations of different durations or
@@ -128,11 +155,15 @@ def fit_axis_dynamic(x: np.ndarray, T: np.ndarray, angle: np.ndarray) -> AxisFit
     res = angle - A @ sol
     dof = len(x) - 2
     s2 = float(res @ res) / dof
-    cov = s2 * np.linalg.inv(A.T @ A)
+    pinv = np.linalg.pinv(A)
+    cov_noise = s2 * np.linalg.inv(A.T @ A)
+    cov_known = np.zeros((2, 2)) if angle_cov is None else pinv @ angle_cov @ pinv.T
     b = kb / k
-    # Delta method for b = (k b) / k.
-    J = np.array([-kb / k**2, 1 / k])
-    b_var = float(J @ cov @ J)
+    J = np.array([-kb / k**2, 1 / k])  # delta method for b = (k b) / k
+    b_noise, b_known = float(J @ cov_noise @ J), float(J @ cov_known @ J)
     return AxisFit(
-        float(k), float(b), float(np.sqrt(cov[0, 0])), float(np.sqrt(b_var)), res, "dynamic"
-    )
+        float(k), float(b), float(np.sqrt(cov_noise[0, 0] + cov_known[0, 0])),
+        float(np.sqrt(b_noise + b_known)), res, "dynamic",
+        _ci95(float(cov_noise[0, 0]), float(cov_known[0, 0]), dof),
+        _ci95(b_noise, b_known, dof),
+    )  # fmt: skip
