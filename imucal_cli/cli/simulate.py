@@ -42,6 +42,7 @@ from .options import (
     protocol_option,
     rate_option,
 )
+from .simulate_checks import check_numbers
 from .simulate_set import (
     ImuOffset,
     ImuRotation,
@@ -344,6 +345,7 @@ def simulate(
     Exit status: 0 written (or streamed); 2 bad input (unknown plan, bad option, existing
     output without --force).
     """
+    check_numbers(dict(locals()))  # every number in its physical range, before anything runs
     given = _given(ctx)
     if person:
         _check_person(serve, given)
@@ -536,7 +538,11 @@ def _serve(plan: str, rate: float, baud: int, json_output: bool, **options) -> N
     def announce(path: str) -> None:
         print(path, flush=True)
 
+    pending: list[str] = []  # how the plan is paced: said once the serve starts
+
     def status(message: str) -> None:
+        while pending:  # after the plan's checks: a refused plan is one line
+            print(f"imucal: {pending.pop()}", file=sys.stderr, flush=True)
         print(f"imucal: {message}", file=sys.stderr, flush=True)
 
     enter = _enter_presses()
@@ -545,7 +551,7 @@ def _serve(plan: str, rate: float, baud: int, json_output: bool, **options) -> N
     how = ("each pose is held until you press Enter here" if options.get("step") else
            f"the plan runs on a timer, each pose held {options['hold_s']:g} s"
            + ("; Enter here moves to the next pose now" if enter else ""))  # fmt: skip
-    status(how)
+    pending.append(how)
     result = serve(plan, rate, baud, announce=announce, status=status, next_pose=enter,
                    **options)  # fmt: skip
     _sent(result, json_output)
