@@ -21,7 +21,7 @@ from imucal_cli.capture.serial_port import SerialSource
 from imucal_cli.capture.unattended import run_unattended
 from imucal_cli.errors import ImucalError, ImucalWarning, InputError
 from imucal_cli.formats.columns import ColumnSpec
-from imucal_cli.formats.output import check_output
+from imucal_cli.formats.output import check_output, check_session_output
 from imucal_cli.formats.session import MAG_UNITS, open_samples, read_session
 from imucal_cli.plans import CaptureSummary, load_plan, needs_temperature
 
@@ -383,6 +383,7 @@ def _output_path(output: Path | None, resume: Path | None, force: bool) -> Path:
             raise InputError(f"{resume}: no such session to resume")
         return resume
     out = output if output is not None else default_output()
+    check_session_output(out, "imucal capture")
     if out.is_file() and not force:
         raise InputError(f"{out} exists: use --force to overwrite it, or --resume {out} to "
                          "continue it")  # fmt: skip

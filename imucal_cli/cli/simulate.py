@@ -15,7 +15,7 @@ import typer
 from imucal_cli.capture.guided.keys import StdinKeys
 from imucal_cli.errors import ImucalWarning, InputError
 from imucal_cli.formats.calibration import write_calibration
-from imucal_cli.formats.output import check_output
+from imucal_cli.formats.output import check_output, check_session_output
 from imucal_cli.formats.session import write_session
 from imucal_cli.plans import find_plan, load_plan
 from imucal_cli.simulate.clock import check_ppm
@@ -481,7 +481,8 @@ def _warn_without_mag(mag: bool, given) -> None:
 
 def _outputs(output: Path | None, plan: str, seed: int, force: bool) -> tuple[Path, Path]:
     """The session and its truth beside it, both checked before anything is simulated."""
-    out = output if output is not None else default_output(plan, seed)
+    out = check_session_output(output if output is not None else default_output(plan, seed),
+                               "imucal simulate")  # fmt: skip
     truth_out = truth_path(out)
     if out.resolve() == truth_out.resolve():
         raise InputError(f"{out}: the session name must not end in .truth.json")

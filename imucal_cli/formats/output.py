@@ -52,7 +52,9 @@ from imucal_cli.errors import InputError
 __all__ = [
     "OutputError",
     "OutputFile",
+    "SESSION_SUFFIXES",
     "check_output",
+    "check_session_output",
     "same_file",
     "safe_output",
     "write_output",
@@ -134,6 +136,26 @@ def check_output(
     parent = path.parent
     if not parent.is_dir():
         raise OutputError(f"{src}: folder {parent} does not exist")
+    return path
+
+
+SESSION_SUFFIXES = (".h5", ".hdf5")
+"""The names of a session file (any case): what ``calibrate`` and every reader take for one."""
+
+
+def check_session_output(path: str | os.PathLike, command: str) -> Path:
+    """Refuse a session name that promises another format (``x.csv``, ``x``): a session is
+    HDF5, and ``command`` (``imucal import``) writes nothing else; return it as a :class:`Path`.
+
+    Raises
+    ------
+    OutputError
+        ``path`` does not end in one of :data:`SESSION_SUFFIXES`.
+    """
+    path = Path(path)
+    if path.suffix.lower() not in SESSION_SUFFIXES:
+        raise OutputError(f"{path}: {command} writes an HDF5 session: name the output "
+                          f"{' or '.join(SESSION_SUFFIXES)}")  # fmt: skip
     return path
 
 
