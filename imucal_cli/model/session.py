@@ -21,8 +21,13 @@ FORMAT = "imucal-session"
 FORMAT_VERSION = 1
 GRAVITY_DEFAULT = 9.80665
 SEGMENT_KINDS = ("static", "rotation")
+#: Units of ``/raw/accel`` and ``/raw/gyro`` the format names (``accel_units``, ``gyro_units``).
+ACCEL_UNITS = ("counts", "V", "g", "m/s^2")
+GYRO_UNITS = ("counts", "V", "rad/s", "deg/s")
 #: Units of ``/raw/mag`` the format names (root attribute ``mag_units``).
 MAG_UNITS = ("counts", "uT", "nT", "gauss")
+#: Each sensor's raw units (a calibration section's ``units_in``).
+RAW_UNITS = {"accel": ACCEL_UNITS, "gyro": GYRO_UNITS, "mag": MAG_UNITS}
 #: Microtesla per raw unit of each physical ``mag_units``.
 UT_PER_MAG_UNIT = {"uT": 1.0, "nT": 1e-3, "gauss": 100.0}
 
