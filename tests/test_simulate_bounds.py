@@ -104,3 +104,14 @@ def test_serve_refuses_before_it_serves(args, words):
     proc = run_process("simulate", "--serve", *args, stdin=None, timeout=120)
     assert_one_line_error(proc, *words)
     assert proc.stdout == ""
+
+
+@pytest.mark.parametrize("plan", ["still:1e300", "warmup:1e9", "still:20000"])
+def test_a_plans_minutes_are_bounded(tmp_path, plan):
+    """``--plan still:1e300`` was refused with a 300-digit sample count; capture takes the same
+    plans. A week is the longest hold (10080 minutes)."""
+    out = tmp_path / "x.h5"
+    assert_one_line_error(run("simulate", "--plan", plan, "-o", out), "MINUTES", "10080")
+    assert_one_line_error(run("capture", "--port", tmp_path / "nope", "--plan", plan,
+                              "--no-prompt", "-o", out), "MINUTES", "10080")  # fmt: skip
+    assert not out.exists()
