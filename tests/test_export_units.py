@@ -95,3 +95,26 @@ def test_a_known_unit_is_converted_for_an_si_target(truths, tmp_path):
     proc = run("export", cal, "-f", "px4")
     assert proc.returncode == 0, proc.stderr
     assert "9.80665" in proc.stdout
+
+
+@pytest.mark.parametrize(("attr", "unit", "known"), [("accel_units", "furlongs", "counts, V, g"),
+                                                     ("gyro_units", "rpm", "rad/s, deg/s")])
+def test_a_session_of_unknown_units_is_not_calibrated(tmp_path, attr, unit, known):
+    """The unit came from the session: ``calibrate`` wrote a calibration with units_in
+    'furlongs' (exit 0) from a session whose accel_units were 'furlongs'. Refused in one line
+    that says how to state them; ``imucal label`` states them and the session calibrates."""
+    import h5py
+
+    h5 = tmp_path / "s.h5"
+    assert run("simulate", "--plan", "six", "-o", h5).returncode == 0
+    with h5py.File(h5, "r+") as f:
+        f.attrs[attr] = unit
+    out = tmp_path / "cal.json"
+    assert_one_line_error(run("calibrate", h5, "--no-store", "-o", out),
+                          f"{attr} is {unit!r}", known, "imucal label")  # fmt: skip
+    assert not out.exists()
+    sensor = attr.split("_")[0]
+    assert run("label", h5, f"--{sensor}-units", "counts").returncode == 0
+    proc = run("calibrate", h5, "--no-store", "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(out.read_text())["accel"]["units_in"] == "counts"
