@@ -319,10 +319,13 @@ def as_unit_vector(value: Any) -> np.ndarray | None:
     if vector.size != 3 or vector.ndim > 1 and vector.shape != (3, 1):
         return None
     vector = vector.reshape(3)
-    norm = float(np.linalg.norm(vector))
-    if not np.isfinite(vector).all() or norm == 0.0:
+    if not np.isfinite(vector).all():
         return None
-    return vector / norm
+    peak = float(np.max(np.abs(vector)))
+    if peak == 0.0:
+        return None
+    vector = vector / peak  # its norm neither overflows (1e300) nor underflows (1e-200)
+    return vector / float(np.linalg.norm(vector))
 
 
 def show(value: Any) -> str:
