@@ -30,6 +30,9 @@ MAG_UNITS = ("counts", "uT", "nT", "gauss")
 RAW_UNITS = {"accel": ACCEL_UNITS, "gyro": GYRO_UNITS, "mag": MAG_UNITS}
 #: Microtesla per raw unit of each physical ``mag_units``.
 UT_PER_MAG_UNIT = {"uT": 1.0, "nT": 1e-3, "gauss": 100.0}
+#: The largest local field a session may state (``magnetic_field_uT``, ``--field-uT``), uT: the
+#: Earth's is 25-65 uT; a field beyond this is no magnitude a magnetometer is calibrated in.
+MAX_FIELD_UT = 1e4
 
 LOG_GROUP = "capture_log"
 LOG_DATASET = "capture_log/segments"
