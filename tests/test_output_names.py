@@ -81,3 +81,13 @@ def test_the_session_suffixes():
     assert SESSION_SUFFIXES == (".h5", ".hdf5")
     for ok in ("a.h5", "dir.csv/a.hdf5", "A.HDF5"):
         check_session_output(ok, "imucal import")
+
+
+def test_a_session_given_for_the_calibration_is_named_so(recorded, tmp_path):
+    """``apply SESSION CAL.json`` (the arguments swapped) said 'not a text (UTF-8) file'."""
+    _, h5, truth = recorded
+    out = tmp_path / "x.csv"
+    assert_one_line_error(run("apply", h5, truth, "-o", out), "an HDF5 file",
+                          "not a calibration file")  # fmt: skip
+    assert_one_line_error(run("export", h5, "-f", "c-header"), "an HDF5 file")
+    assert not out.exists()
