@@ -91,3 +91,24 @@ def test_a_session_given_for_the_calibration_is_named_so(recorded, tmp_path):
                           "not a calibration file")  # fmt: skip
     assert_one_line_error(run("export", h5, "-f", "c-header"), "an HDF5 file")
     assert not out.exists()
+
+
+def test_plots_and_certificates_are_named_as_written(recorded, tmp_path):
+    """``report --plot r.csv`` and ``noise --plot y.txt`` wrote a PNG, ``certificate -o c.txt``
+    HTML, under those names, exit 0."""
+    _, h5, truth = recorded
+    cal = tmp_path / "cal.json"
+    assert run("calibrate", h5, "--no-store", "-o", cal).returncode == 0
+    for name in ("r.csv", "r", "r.jpg"):
+        out = tmp_path / name
+        assert_one_line_error(run("report", cal, "--plot", out), name, "PNG", ".png")
+        assert_one_line_error(run("noise", h5, "--plot", out), name, "PNG", ".png")
+        assert_one_line_error(run("registry", "lot", "L", "--registry", tmp_path / "r.db",
+                                  "--plot", out), name, ".png")  # fmt: skip
+        assert not out.exists()
+    cert = tmp_path / "c.txt"
+    assert_one_line_error(run("certificate", truth, "-o", cert), "c.txt", ".html or .pdf")
+    assert not cert.exists()
+    ok = tmp_path / "c.HTML"
+    assert run("certificate", truth, "-o", ok).returncode == 0
+    assert ok.read_text().lstrip().lower().startswith("<!doctype html")
