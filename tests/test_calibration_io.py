@@ -245,11 +245,13 @@ def test_from_dict_names_its_source():
 
 
 def test_read_errors_for_files(tmp_path):
-    (tmp_path / "binary.json").write_bytes(b"\x89HDF\r\n\x1a\n\xff\xfe")
+    (tmp_path / "binary.json").write_bytes(b"\x00\xff\xfe\x89")
+    (tmp_path / "session.json").write_bytes(b"\x89HDF\r\n\x1a\n\xff\xfe")
     cases = {
         tmp_path / "missing.json": "no such file",
         tmp_path: "is a directory, not a calibration file",
         tmp_path / "binary.json": "not a text (UTF-8) file",
+        tmp_path / "session.json": "an HDF5 file (a session?), not a calibration file",
     }
     for path, message in cases.items():
         with pytest.raises(CalibrationFileError) as info:

@@ -12,6 +12,7 @@ from imucal_cli.design.channel_faults import channel_faults
 from imucal_cli.errors import InputError
 from imucal_cli.formats.config import Config
 from imucal_cli.formats.session import Session
+from imucal_cli.model.session import RAW_UNITS
 
 #: (session dataset, units attribute, the sensor's name in a message, config section)
 SENSORS = (("accel", "accel_units", "accelerometer", "accel"),
@@ -33,6 +34,16 @@ def _axis(c: int, n: int) -> str:
     return AXES[c] if n == 3 else f"channel {c + 1}"
 
 
+def _check_units(session: Session, name: str, units_attr: str) -> None:
+    """Refuse raw units the session format does not name (``accel_units`` 'furlongs'): the
+    calibration would carry them as its ``units_in`` into every export and report."""
+    unit = getattr(session, units_attr, None)
+    if unit is not None and unit not in RAW_UNITS[name]:
+        raise InputError(f"{session_name(session)}: {units_attr} is {unit!r}, units imucal does "
+                         f"not know ({', '.join(RAW_UNITS[name])}): state them with `imucal "
+                         f"label SESSION --{name}-units UNITS`")  # fmt: skip
+
+
 def check_channels(session: Session, cfg: Config, *, skip: tuple[str, ...] = ()) -> None:
     """Refuse a session whose sensor to be calibrated has a faulty channel.
 
@@ -48,6 +59,7 @@ def check_channels(session: Session, cfg: Config, *, skip: tuple[str, ...] = ())
         x = getattr(session, name, None)
         if x is None or name in skip or getattr(getattr(cfg, section), "solver", None) == "none":
             continue
+        _check_units(session, name, units_attr)
         x = np.asarray(x, float)
         counts = getattr(session, units_attr, None) == "counts"
         configured = getattr(cfg.gyro, "range", None) if name == "gyro" else None

@@ -21,8 +21,9 @@ from imucal_cli.capture.serial_port import SerialSource
 from imucal_cli.capture.unattended import run_unattended
 from imucal_cli.errors import ImucalError, ImucalWarning, InputError
 from imucal_cli.formats.columns import ColumnSpec
-from imucal_cli.formats.output import check_output
+from imucal_cli.formats.output import check_output, check_session_output
 from imucal_cli.formats.session import MAG_UNITS, open_samples, read_session
+from imucal_cli.model.session import MAX_FIELD_UT
 from imucal_cli.plans import CaptureSummary, load_plan, needs_temperature
 
 from . import completion
@@ -383,6 +384,7 @@ def _output_path(output: Path | None, resume: Path | None, force: bool) -> Path:
             raise InputError(f"{resume}: no such session to resume")
         return resume
     out = output if output is not None else default_output()
+    check_session_output(out, "imucal capture")
     if out.is_file() and not force:
         raise InputError(f"{out} exists: use --force to overwrite it, or --resume {out} to "
                          "continue it")  # fmt: skip
@@ -453,8 +455,9 @@ def check_mag_options(mag_units: str | None, field_ut: float | None) -> None:
     """Refuse unknown magnetometer units or a field that is not a positive number."""
     if mag_units is not None and mag_units not in MAG_UNITS:
         raise InputError(f"--mag-units {mag_units!r}: use {', '.join(MAG_UNITS)}")
-    if field_ut is not None and not (field_ut > 0 and field_ut < 1e4):
-        raise InputError(f"--field-uT must be a positive number of microtesla, got {field_ut:g}")
+    if field_ut is not None and not (0 < field_ut <= MAX_FIELD_UT):
+        raise InputError(f"--field-uT must be a positive number of microtesla, at most "
+                         f"{MAX_FIELD_UT:.0f} uT, got {field_ut:g}")  # fmt: skip
 
 
 def _print_summary(console: Console, out: Path, recorder, summary) -> None:

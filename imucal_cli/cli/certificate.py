@@ -10,7 +10,7 @@ from rich.markup import escape
 
 from imucal_cli.errors import InputError, SessionError
 from imucal_cli.formats.calibration import read_calibration
-from imucal_cli.formats.output import check_output
+from imucal_cli.formats.output import check_output, check_suffix
 from imucal_cli.formats.session.digest import session_digest
 from imucal_cli.registry import REGISTRY_ENV
 from imucal_cli.registry.queries import calibration_of
@@ -21,6 +21,9 @@ from imucal_cli.use.limits import judge_calibration, limits_from_dict, load_limi
 from .app import app
 from .console import make_console
 from .options import registry_option
+
+CERTIFICATE_SUFFIXES = (".html", ".pdf")
+"""What a certificate's name ends in (any case): HTML, or PDF (WeasyPrint)."""
 
 
 @app.command()
@@ -66,6 +69,7 @@ def certificate(
     without --force, matplotlib or WeasyPrint missing).
     """
     as_file = Path(unit)
+    check_suffix(output, CERTIFICATE_SUFFIXES, "the certificate is HTML, or PDF")
     check_output(output, force=force, inputs=[as_file] if as_file.exists() else [])
     product_limits = None if limits is None else load_limits(limits)
     if as_file.exists() or unit.endswith(".json"):

@@ -8,7 +8,7 @@ from pathlib import Path
 import typer
 
 from imucal_cli.formats.importers import FORMATS, import_files
-from imucal_cli.formats.output import check_output
+from imucal_cli.formats.output import check_output, check_session_output
 from imucal_cli.formats.session import write_session
 
 from . import completion
@@ -110,7 +110,8 @@ def import_(
     Exit status: 0 written; 2 bad input (missing or empty file, columns that do not fit,
     no time and no --rate, time that does not increase, no still period).
     """
-    out = check_output(output or default_output(files[0]), force=force, inputs=files)
+    out = check_session_output(output or default_output(files[0]), "imucal import")
+    out = check_output(out, force=force, inputs=files)
     session = import_files(
         files, fmt, columns, time_unit=time_unit, rate_hz=rate, skip_rows=skip_rows,
         accel_units=accel_units, gyro_units=gyro_units, sensor=sensor, sections=sections,

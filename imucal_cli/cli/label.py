@@ -10,7 +10,7 @@ import typer
 from imucal_cli.errors import InputError
 from imucal_cli.formats.calibration import calibration_from_json, read_calibration
 from imucal_cli.formats.importers import ACCEL_UNITS, GYRO_UNITS
-from imucal_cli.formats.session import read_session, rewrite_labels
+from imucal_cli.formats.session import as_unit_vector, read_session, rewrite_labels
 from imucal_cli.use.labels import call_faces, face_label, set_segment
 
 from .app import app
@@ -33,9 +33,10 @@ def _vector(text: str | None, option: str):
         v = np.array([float(p) for p in text.replace(" ", "").split(",")])
     except ValueError:
         v = np.zeros(0)
-    if v.shape != (3,) or not np.all(np.isfinite(v)) or not np.any(v):
+    unit = as_unit_vector(v) if v.shape == (3,) else None
+    if unit is None:
         raise InputError(f"{option} {text!r}: give 3 numbers, not all zero, e.g. 0,0,1")
-    return v / np.linalg.norm(v)
+    return unit
 
 
 @app.command("label")

@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.table import Table
 from rich.text import Text
 
-from imucal_cli.formats.output import check_output
+from imucal_cli.formats.output import check_output, check_plot_output
 from imucal_cli.formats.session import open_samples
 from imucal_cli.use.noise import analyse_noise, figures, imu_calibration, load_calibration
 from imucal_cli.use.plots import noise_figure
@@ -54,7 +54,7 @@ def noise(
     """
     inputs = [session, calibration]
     if plot is not None:
-        check_output(plot, force=force, inputs=inputs)
+        check_output(check_plot_output(plot), force=force, inputs=inputs)
     with open_samples(session, imu) as samples:
         cal = None if calibration is None else load_calibration(calibration)
         if cal is not None:

@@ -10,7 +10,7 @@ from pathlib import Path
 import typer
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.output import check_output, safe_output
+from imucal_cli.formats.output import check_output, check_plot_output, safe_output
 from imucal_cli.registry import REGISTRY_ENV
 from imucal_cli.registry.lot import drop_values, lot_statistics
 from imucal_cli.registry.lot_plot import lot_figure
@@ -215,7 +215,7 @@ def lot(
     """
     product_limits = None if limits is None else load_limits(limits)
     if plot is not None:
-        check_output(plot, force=force)
+        check_output(check_plot_output(plot), force=force)
     with _open(registry) as reg:
         stats = lot_statistics(reg, lot_name, limits=product_limits, values=plot is not None)
     if plot is not None:

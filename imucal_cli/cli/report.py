@@ -8,7 +8,7 @@ from pathlib import Path
 import typer
 
 from imucal_cli.errors import InputError
-from imucal_cli.formats.output import check_output
+from imucal_cli.formats.output import check_output, check_plot_output
 from imucal_cli.use.plots import report_figure
 from imucal_cli.use.report.build import build_report
 from imucal_cli.use.report.history import build_history, render_history
@@ -65,7 +65,7 @@ def report(
         _show(build_history(load_all_for_history(paths)), json_output, render_history)
         return
     if plot is not None:
-        check_output(plot, force=force, inputs=paths)
+        check_output(check_plot_output(plot), force=force, inputs=paths)
     cal = load_for_report(paths[0])
     result = build_report(cal)
     if plot is not None:

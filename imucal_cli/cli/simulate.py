@@ -15,7 +15,7 @@ import typer
 from imucal_cli.capture.guided.keys import StdinKeys
 from imucal_cli.errors import ImucalWarning, InputError
 from imucal_cli.formats.calibration import write_calibration
-from imucal_cli.formats.output import check_output
+from imucal_cli.formats.output import check_output, check_session_output
 from imucal_cli.formats.session import write_session
 from imucal_cli.plans import find_plan, load_plan
 from imucal_cli.simulate.clock import check_ppm
@@ -42,6 +42,7 @@ from .options import (
     protocol_option,
     rate_option,
 )
+from .simulate_checks import check_numbers
 from .simulate_set import (
     ImuOffset,
     ImuRotation,
@@ -344,6 +345,7 @@ def simulate(
     Exit status: 0 written (or streamed); 2 bad input (unknown plan, bad option, existing
     output without --force).
     """
+    check_numbers(dict(locals()))  # every number in its physical range, before anything runs
     given = _given(ctx)
     if person:
         _check_person(serve, given)
@@ -479,7 +481,8 @@ def _warn_without_mag(mag: bool, given) -> None:
 
 def _outputs(output: Path | None, plan: str, seed: int, force: bool) -> tuple[Path, Path]:
     """The session and its truth beside it, both checked before anything is simulated."""
-    out = output if output is not None else default_output(plan, seed)
+    out = check_session_output(output if output is not None else default_output(plan, seed),
+                               "imucal simulate")  # fmt: skip
     truth_out = truth_path(out)
     if out.resolve() == truth_out.resolve():
         raise InputError(f"{out}: the session name must not end in .truth.json")
@@ -536,7 +539,11 @@ def _serve(plan: str, rate: float, baud: int, json_output: bool, **options) -> N
     def announce(path: str) -> None:
         print(path, flush=True)
 
+    pending: list[str] = []  # how the plan is paced: said once the serve starts
+
     def status(message: str) -> None:
+        while pending:  # after the plan's checks: a refused plan is one line
+            print(f"imucal: {pending.pop()}", file=sys.stderr, flush=True)
         print(f"imucal: {message}", file=sys.stderr, flush=True)
 
     enter = _enter_presses()
@@ -545,7 +552,7 @@ def _serve(plan: str, rate: float, baud: int, json_output: bool, **options) -> N
     how = ("each pose is held until you press Enter here" if options.get("step") else
            f"the plan runs on a timer, each pose held {options['hold_s']:g} s"
            + ("; Enter here moves to the next pose now" if enter else ""))  # fmt: skip
-    status(how)
+    pending.append(how)
     result = serve(plan, rate, baud, announce=announce, status=status, next_pose=enter,
                    **options)  # fmt: skip
     _sent(result, json_output)

@@ -68,6 +68,8 @@ def serve_options(imus: int, rotation_deg: float, offset_ms: float,
     """What ``--serve`` passes to the device for a set (nothing for one IMU)."""
     if imus <= 1:
         return {}
+    if member is not None and not 0 <= member < imus:  # before the serve says anything
+        raise InputError(f"--serve-imu must be from 0 to {imus - 1}, got {member}")
     return {"imus": imus, "max_rotation_deg": rotation_deg, "max_offset_s": offset_ms / 1e3,
             "serve_imu": member}
 

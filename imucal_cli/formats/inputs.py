@@ -140,6 +140,10 @@ def read_input(
         return b"".join(chunks)
 
 
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+"""The first 8 bytes of an HDF5 file (with no user block): a session, an apply output."""
+
+
 def read_text_input(
     path: str | os.PathLike,
     *,
@@ -158,4 +162,6 @@ def read_text_input(
     try:
         return data.decode("utf-8").removeprefix("\ufeff")
     except UnicodeDecodeError:
+        if data.startswith(HDF5_SIGNATURE):  # a session where a text file goes (arguments swapped)
+            raise error(f"{path}: an HDF5 file (a session?), not a {what}") from None
         raise error(f"{path}: not a text (UTF-8) file") from None

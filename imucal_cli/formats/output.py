@@ -52,7 +52,12 @@ from imucal_cli.errors import InputError
 __all__ = [
     "OutputError",
     "OutputFile",
+    "PLOT_SUFFIXES",
+    "SESSION_SUFFIXES",
     "check_output",
+    "check_plot_output",
+    "check_session_output",
+    "check_suffix",
     "same_file",
     "safe_output",
     "write_output",
@@ -135,6 +140,47 @@ def check_output(
     if not parent.is_dir():
         raise OutputError(f"{src}: folder {parent} does not exist")
     return path
+
+
+SESSION_SUFFIXES = (".h5", ".hdf5")
+"""The names of a session file (any case): what ``calibrate`` and every reader take for one."""
+
+PLOT_SUFFIXES = (".png",)
+"""The name of a ``--plot`` (always PNG)."""
+
+
+def check_suffix(path: str | os.PathLike, suffixes: tuple[str, ...], what: str) -> Path:
+    """Refuse an output whose name promises another format (``x.csv`` for an HDF5 session, a
+    PNG or HTML); return it as a :class:`Path`.
+
+    Parameters
+    ----------
+    path : path-like
+        The file to write.
+    suffixes : tuple of str
+        The names it may end in (any case), ``(".h5", ".hdf5")``.
+    what : str
+        What is written, for the message: ``"imucal import writes an HDF5 session"``.
+
+    Raises
+    ------
+    OutputError
+        ``path`` does not end in one of ``suffixes``.
+    """
+    path = Path(path)
+    if path.suffix.lower() not in suffixes:
+        raise OutputError(f"{path}: {what}: name the output {' or '.join(suffixes)}")
+    return path
+
+
+def check_session_output(path: str | os.PathLike, command: str) -> Path:
+    """:func:`check_suffix` of a session that ``command`` (``imucal import``) writes."""
+    return check_suffix(path, SESSION_SUFFIXES, f"{command} writes an HDF5 session")
+
+
+def check_plot_output(path: str | os.PathLike) -> Path:
+    """:func:`check_suffix` of a ``--plot`` (PNG)."""
+    return check_suffix(path, PLOT_SUFFIXES, "--plot draws a PNG image")
 
 
 class OutputFile:

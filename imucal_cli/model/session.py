@@ -21,10 +21,18 @@ FORMAT = "imucal-session"
 FORMAT_VERSION = 1
 GRAVITY_DEFAULT = 9.80665
 SEGMENT_KINDS = ("static", "rotation")
+#: Units of ``/raw/accel`` and ``/raw/gyro`` the format names (``accel_units``, ``gyro_units``).
+ACCEL_UNITS = ("counts", "V", "g", "m/s^2")
+GYRO_UNITS = ("counts", "V", "rad/s", "deg/s")
 #: Units of ``/raw/mag`` the format names (root attribute ``mag_units``).
 MAG_UNITS = ("counts", "uT", "nT", "gauss")
+#: Each sensor's raw units (a calibration section's ``units_in``).
+RAW_UNITS = {"accel": ACCEL_UNITS, "gyro": GYRO_UNITS, "mag": MAG_UNITS}
 #: Microtesla per raw unit of each physical ``mag_units``.
 UT_PER_MAG_UNIT = {"uT": 1.0, "nT": 1e-3, "gauss": 100.0}
+#: The largest local field a session may state (``magnetic_field_uT``, ``--field-uT``), uT: the
+#: Earth's is 25-65 uT; a field beyond this is no magnitude a magnetometer is calibrated in.
+MAX_FIELD_UT = 1e4
 
 LOG_GROUP = "capture_log"
 LOG_DATASET = "capture_log/segments"
@@ -314,10 +322,13 @@ def as_unit_vector(value: Any) -> np.ndarray | None:
     if vector.size != 3 or vector.ndim > 1 and vector.shape != (3, 1):
         return None
     vector = vector.reshape(3)
-    norm = float(np.linalg.norm(vector))
-    if not np.isfinite(vector).all() or norm == 0.0:
+    if not np.isfinite(vector).all():
         return None
-    return vector / norm
+    peak = float(np.max(np.abs(vector)))
+    if peak == 0.0:
+        return None
+    vector = vector / peak  # its norm neither overflows (1e300) nor underflows (1e-200)
+    return vector / float(np.linalg.norm(vector))
 
 
 def show(value: Any) -> str:

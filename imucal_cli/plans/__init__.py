@@ -112,6 +112,7 @@ __all__ = [
     "HK_MOUNTINGS",
     "HK_ORIENTATIONS",
     "MAX_RANDOM_POSES",
+    "MAX_MINUTES",
     "MAX_TURNS",
     "QURESHI_TURNS_PER_AXIS",
     "RANDOM_MINIMUM",
@@ -215,6 +216,9 @@ PLANS: tuple[PlanSpec, ...] = (
 
 BUILTIN_PLANS = tuple(spec.name for spec in PLANS)
 
+MAX_MINUTES = 7 * 24 * 60
+"""The longest hold of ``still:MINUTES`` and ``warmup:MINUTES``: a week, in minutes."""
+
 
 def plan_list() -> str:
     """The plan names for a message: ``six, qureshi18, random:N, ...``."""
@@ -253,9 +257,9 @@ def find_plan(name: str) -> tuple[PlanSpec | None, Any]:
             minutes = float(arg_text)
         except ValueError:
             minutes = float("nan")
-        if not math.isfinite(minutes) or minutes <= 0:
+        if not (math.isfinite(minutes) and 0 < minutes <= MAX_MINUTES):
             raise InputError(f"plan {spec.key}:{arg_text}: MINUTES must be a positive number, "
-                             f"e.g. {spec.key}:20")  # fmt: skip
+                             f"at most {MAX_MINUTES} (a week), e.g. {spec.key}:20")  # fmt: skip
         return spec, minutes
     high = MAX_RANDOM_POSES if spec.key == "random" else MAX_TURNS
     if not re.fullmatch(r"\d+", arg_text) or not 1 <= int(arg_text) <= high:

@@ -11,7 +11,7 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 from imucal_cli.formats.inputs import read_text_input
-from imucal_cli.formats.session import TURN_ANGLE_RULE, as_turn_angle
+from imucal_cli.formats.session import TURN_ANGLE_RULE, as_turn_angle, as_unit_vector
 from imucal_cli.plans.model import Plan, Step
 
 
@@ -19,8 +19,7 @@ def _unit_or_none(v) -> np.ndarray | None:
     if v is None:
         return None
 
-    v = np.asarray(v, dtype=np.float64).reshape(3)
-    out = v / np.linalg.norm(v)
+    out = as_unit_vector(v)
     out.flags.writeable = False
     return out
 
@@ -92,7 +91,6 @@ def _vector(where: str, key: str, value) -> np.ndarray:
     ok = isinstance(value, list) and len(value) == 3
     ok = ok and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
     if ok:
-        v = np.asarray(value, dtype=np.float64)
-        if np.isfinite(v).all() and np.linalg.norm(v) > 0:
-            return _unit_or_none(v)
+        if as_unit_vector(value) is not None:
+            return _unit_or_none(value)
     raise InputError(f"{where}: {key} must be 3 finite numbers, not all zero, got {value!r}")

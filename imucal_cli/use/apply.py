@@ -100,6 +100,8 @@ OUTPUT_FORMATS = ("h5", "csv")
 SENSORS = ("accel", "gyro", "mag")
 
 _SUFFIXES = {".h5": "h5", ".hdf5": "h5", ".hdf": "h5", ".csv": "csv", ".txt": "csv"}
+_NAMES = {"h5": "HDF5", "csv": "CSV"}
+_EXAMPLE = {"h5": ".h5", "csv": ".csv"}
 _H5_CHUNK_ROWS = 8192  # rows per HDF5 chunk of the output datasets
 _VALUE_FMT = "%.10g"
 
@@ -177,14 +179,18 @@ def output_format(path: str | os.PathLike, fmt: str | None = None) -> str:
     Raises
     ------
     InputError
-        An unknown ``fmt``, or no ``fmt`` and a suffix that is not ``.h5``/``.hdf5``/``.hdf``
-        (HDF5) or ``.csv``/``.txt`` (CSV).
+        An unknown ``fmt``, a ``fmt`` the suffix contradicts (``-f h5 -o x.csv``), or no
+        ``fmt`` and a suffix that is not ``.h5``/``.hdf5``/``.hdf`` (HDF5) or ``.csv``/``.txt``
+        (CSV).
     """
+    suffix = Path(path).suffix.lower()
     if fmt is not None:
         if fmt not in OUTPUT_FORMATS:
             raise InputError(f"--format {fmt!r}: use h5 or csv")
+        if _SUFFIXES.get(suffix, fmt) != fmt:
+            raise InputError(f"{path}: --format {fmt} would write {_NAMES[fmt]} under a "
+                             f"{suffix} name: name it {_EXAMPLE[fmt]}, or leave out --format")
         return fmt
-    suffix = Path(path).suffix.lower()
     if suffix not in _SUFFIXES:
         raise InputError(
             f"{path}: cannot tell the output format from the suffix {suffix or '(none)'!r}: "

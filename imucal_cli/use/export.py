@@ -23,7 +23,7 @@ import numpy as np
 
 from imucal_cli.errors import CalibrationFileError, ImucalWarning, InputError
 from imucal_cli.formats.calibration import calibration_from_json
-from imucal_cli.formats.exporters import STANDARD_GRAVITY, ExportOptions
+from imucal_cli.formats.exporters import STANDARD_GRAVITY, ExportOptions, check_raw_units
 from imucal_cli.formats.exporters.ardupilot import export_ardupilot
 from imucal_cli.formats.exporters.basalt import export_basalt
 from imucal_cli.formats.exporters.c_header import export_c_header
@@ -145,6 +145,8 @@ def export(
     if cal is None and target.needs_calibration:
         raise InputError(f"--format {fmt} needs a calibration (imucal calibrate's JSON), "
                          "not only noise figures")  # fmt: skip
+    if cal is not None and target.needs_calibration:
+        check_raw_units(cal)  # units the file would state and convert by, every IMU's
     if cal is not None and target.needs_calibration and cal.imus:
         return export_set(cal, fmt, opts, _export_one)  # several IMUs (issue 28)
     return _export_one(cal, fmt, opts)

@@ -33,6 +33,7 @@ from imucal_cli.model.calibration import (
     Calibration,
     SensorCalibration,
 )
+from imucal_cli.model.session import RAW_UNITS
 
 SENSORS = ("accel", "gyro")
 STANDARD_GRAVITY = 9.80665
@@ -100,9 +101,36 @@ def all_sections(cal: Calibration) -> list[tuple[str, SensorCalibration]]:
     return list(cal.sections().items())
 
 
+UNSTATED_UNITS = ("raw units", "unknown")
+"""What a calibration's ``units_in`` says when the session did not state its raw units."""
+
+
+def check_raw_units(cal: Calibration) -> None:
+    """Refuse a section (the reference's, or an IMU's of ``imus``) whose raw units
+    (``units_in``) are none of the session format's for that sensor (:data:`RAW_UNITS`) nor
+    unstated: an export states them as the raw units its numbers take, and converts by them.
+
+    Raises
+    ------
+    InputError
+        The first such section, its unit and the known ones named.
+    """
+    places = [("", cal.sections())]
+    places += [(f"imus.{name}.", entry.sections()) for name, entry in (cal.imus or {}).items()]
+    for where, secs in places:
+        for name, sec in secs.items():
+            unit = sec.units_in
+            if unit is None or unit in UNSTATED_UNITS or unit in RAW_UNITS[name]:
+                continue
+            raise InputError(f"{where}{name}.units_in is {unit!r}, raw units imucal does not "
+                             f"know: the {name}'s are {', '.join(RAW_UNITS[name])} (or unstated: "
+                             "\"raw units\"); correct the calibration, or the session's "
+                             f"{name}_units and calibrate again")  # fmt: skip
+
+
 def units_in(sec: SensorCalibration) -> str:
     unit = sec.units_in
-    return unit if isinstance(unit, str) and unit != "unknown" else "raw units"
+    return unit if isinstance(unit, str) and unit not in UNSTATED_UNITS else "raw units"
 
 
 def one_line(text: object) -> str:

@@ -41,7 +41,12 @@ from imucal_cli.design.segmentation import (
 from imucal_cli.errors import InputError
 from imucal_cli.formats.session import TURN_ANGLE_RULE, Segment, Session, as_turn_angle
 from imucal_cli.formats.set_columns import imu_number_name, split_columns, split_header
-from imucal_cli.model.session import RATE_RANGE_HZ, RAW_LIMIT, first_beyond_raw_limit
+from imucal_cli.model.session import (
+    MAX_FIELD_UT,
+    RATE_RANGE_HZ,
+    RAW_LIMIT,
+    first_beyond_raw_limit,
+)
 
 from . import csv, imu_tk, mavlink, ros, serial_lines, ulog, witmotion
 from .imu_set import imu_name, imu_stream, set_streams
@@ -530,9 +535,10 @@ def _check_units(accel_units: str | None, gyro_units: str | None, mag_units: str
     if mag_units is not None and mag_units not in MAG_UNITS:
         raise InputError(f"--mag-units {mag_units!r}: use {', '.join(MAG_UNITS)}")
     if magnetic_field_uT is not None and not (
-        np.isfinite(magnetic_field_uT) and magnetic_field_uT > 0
+        np.isfinite(magnetic_field_uT) and 0 < magnetic_field_uT <= MAX_FIELD_UT
     ):
-        raise InputError(f"--field-uT must be a positive number, got {magnetic_field_uT:g}")
+        raise InputError(f"--field-uT must be a positive number of microtesla, at most "
+                         f"{MAX_FIELD_UT:.0f} uT, got {magnetic_field_uT:g}")  # fmt: skip
 
 
 def _segments(

@@ -10,6 +10,7 @@ import numpy as np
 
 from imucal_cli.errors import InputError
 from imucal_cli.formats.columns import TIME_UNITS as COLUMN_TIME_UNITS
+from imucal_cli.model.session import ACCEL_UNITS, GYRO_UNITS, MAG_UNITS
 
 __all__ = [
     "ACCEL_UNITS", "GYRO_UNITS", "MAG_UNITS", "STAMPS_KEPT", "TIME_UNITS", "ImportStats",
@@ -17,9 +18,6 @@ __all__ = [
 ]  # fmt: skip
 
 TIME_UNITS = COLUMN_TIME_UNITS  # one table for capture, import and apply (s, ms, us, ns)
-ACCEL_UNITS = ("counts", "V", "g", "m/s^2")
-GYRO_UNITS = ("counts", "V", "rad/s", "deg/s")
-MAG_UNITS = ("counts", "uT", "nT", "gauss")
 
 
 class SeveralStreams(InputError):

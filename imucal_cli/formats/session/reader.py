@@ -24,6 +24,7 @@ from imucal_cli.model.session import (
     LOG_DATASET,
     LOG_GROUP,
     MAG_UNITS,
+    MAX_FIELD_UT,
     SEGMENT_ATTRS,
     SEGMENT_KINDS,
     TURN_ANGLE_RULE,
@@ -149,6 +150,11 @@ def _root_attributes(file: h5py.File, src: str) -> tuple[str, dict, dict]:
             raise SessionError(
                 f"{src}: root attribute {name!r} must be a positive number, got {show(root[name])}"
             )
+    field = numbers["magnetic_field_uT"]
+    if field is not None and not field <= MAX_FIELD_UT:  # 1e300: numpy's overflow in the solver
+        raise SessionError(f"{src}: root attribute 'magnetic_field_uT' is {field:.6g} uT; a "
+                           f"local field is at most {MAX_FIELD_UT:.0f} uT (the Earth's: 25 to "
+                           "65)")  # fmt: skip
     g = numbers["gravity"]
     lo, hi = GRAVITY_RANGE
     if g is not None and not lo < g < hi:  # 1e308 broke the solvers' SVD (issue 26)
