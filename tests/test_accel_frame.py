@@ -70,3 +70,28 @@ def test_the_gyro_std_leave_the_frame_to_the_accelerometer(monkeypatch):
     assert with_frame.gyro.rate_std.total > 10 * cal.gyro.rate_std.total
     bias = np.array([p.std for p in cal.gyro.parameters][:3])
     np.testing.assert_allclose(bias, [p.std for p in with_frame.gyro.parameters][:3], rtol=0.02)
+
+
+def test_labelled_known_axes_carry_the_frame_not_all_of_it(tmp_path):
+    """The known-angle gyro on captured Ferraris sessions (labelled axes, the face moves
+    measured by gravity): each labelled axis carries the accelerometer frame's turn in the
+    fit's noise model, the gravity-measured turns the bending only. The off-diagonal entries'
+    RMS error/std over 10 seeds (60 values) was 0.59 with the frame's whole turn counted in
+    their std (over-conservative: the captured Ferraris row of bench trust-gyro at 97.1 %),
+    1.10 now (96.3 % over 50 seeds)."""
+    from bench.captured import as_captured, ferraris_plan
+    from bench.trust_gyro import CREATED, _truth_x
+    from imucal_cli.formats.config import Config
+    from imucal_cli.simulate.play import simulate_plan
+
+    plan = str(ferraris_plan(tmp_path))
+    z = []
+    for seed in range(300, 310):
+        session, truth = simulate_plan(plan, seed=seed, created=CREATED)
+        cal = calibrate_session(as_captured(session, plan), Config())
+        assert cal.gyro is not None and cal.gyro.solver == "gyro-known"
+        est = np.array([p.value for p in cal.gyro.parameters[:12]])
+        std = np.array([p.std for p in cal.gyro.parameters[:12]])
+        z.append(((est - _truth_x(cal, truth)[:12]) / std)[[4, 5, 6, 8, 9, 10]])
+    rms = float(np.sqrt(np.mean(np.square(z))))
+    assert 0.75 < rms < 1.4, rms  # 60 values: the RMS within about 10 % of its expectation
