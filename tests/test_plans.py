@@ -54,10 +54,11 @@ def test_a_simulated_session_is_the_plans_steps(name):
     its attributes (up, axis, angle, mounting): what capture would have written."""
     plan = load_plan(name)
     session, truth = simulate_plan(name, seed=1, created=CREATED, **FAST)
-    if find_plan(name)[0].simulator == "poses":  # the moves between poses are unlabelled turns
-        segments = [s for s in session.segments if s.kind == "static"]
-    else:
-        segments = session.segments
+    # the moves between poses are turns "turn to POSE" as a capture records them, no step
+    turns = {s.label for s in plan.steps if s.kind == "rotation"}
+    segments = [s for s in session.segments if s.kind == "static" or s.label in turns]
+    moves = [s for s in session.segments if s not in segments]
+    assert all(s.label.startswith("turn to ") and s.angle_deg is None for s in moves), moves
     assert len(segments) == len(plan.steps)
     for seg, step in zip(segments, plan.steps, strict=True):
         assert (seg.kind, seg.label, seg.angle_deg) == (step.kind, step.label, step.angle_deg)
@@ -100,8 +101,11 @@ def test_hwangbo_iron_is_the_faces_then_the_gyro_procedure_in_two_mountings():
 
 def test_gyro_axes_turns_are_full_turns_on_the_table_about_each_face_normal():
     session, truth = simulate_plan("gyro-axes", seed=2, created=CREATED)
-    turns = session.rotation_segments()
+    turns = [s for s in session.rotation_segments() if s.angle_deg is not None]
     assert [s.angle_deg for s in turns] == [360.0] * 3
+    # the moves between faces are turns too, as a capture records them (no angle)
+    assert [s.label for s in session.rotation_segments() if s.angle_deg is None] == [
+        "turn to face +X up, against a ruler", "turn to face +Y up, against a ruler"]
     extra = truth.gyro
     np.testing.assert_allclose(extra.true_angle_deg, [360.0] * 3)
     # the true axis is the vertical of the placed unit: its labelled face normal within the
@@ -151,7 +155,8 @@ def test_simulate_command_writes_the_new_plans(tmp_path):
         res = CliRunner().invoke(app, ["simulate", "--plan", name, "-o", str(out)])
         assert res.exit_code == 0, res.output
         session = read_session(out)
-        assert len(session.segments) == len(load_plan(name).steps)
+        moves = [s for s in session.segments if s.label.startswith("turn to ")]
+        assert len(session.segments) - len(moves) == len(load_plan(name).steps)
 
 
 # Names each command must treat alike: every registry plan (with and without its argument,
