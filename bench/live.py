@@ -539,9 +539,12 @@ def run_live(plans=PLANS, seeds=(0,), modes=MODES, *, jobs: int = 3, n_burners: 
 
 def _graded(plans, file_seeds, live_seeds, guided, say, run) -> tuple[list[Job], dict]:
     """``run()``'s jobs graded, and the file references of ``file_seeds``: computed here,
-    after the jobs, when they are only the live seeds; otherwise in a process of its own
-    beside them (:func:`_references_beside`)."""
-    if sorted(file_seeds) == sorted(live_seeds):  # only the live seeds: no process of its own
+    after the jobs, when they are only the live seeds and there are no guided captures;
+    otherwise in a process of its own beside them (:func:`_references_beside`: a guided seed's
+    reference is :data:`bench.live_person.PERSON_DRAWS` calibrations more: --quick's 72, with
+    its 12 other references and the grading, took 1.7 min after the captures beside 4 CPU
+    burners)."""
+    if sorted(file_seeds) == sorted(live_seeds) and not guided:  # no process of its own
         work = run()
         files = {key: file_reference(*args)[0] for key, args in
                  _reference_jobs(plans, file_seeds, guided).items()}  # fmt: skip
