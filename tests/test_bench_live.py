@@ -292,3 +292,120 @@ def test_a_host_stamped_capture_is_matched_to_the_served_pass_in_order():
     assert live._served_equal(live_, file) == 1.0
     other, _ = simulate_plan("six", seed=3)
     assert live._served_equal(replace(live_, accel=other.accel[k:]), file) < 0.5
+
+
+def _fixed(value: float, p: int = 12) -> dict:
+    """One seed graded with every parameter's error/bound ``value`` (an accelerometer)."""
+    names = [f"p{i}" for i in range(p)]
+    ones = np.ones(p)
+    return {"accel": Graded("accel", "gravity, 9", names, value * ones, ones, 1.96 * ones, ones)}
+
+
+def test_a_guided_row_is_judged_within_the_person_spread_only_where_it_is_measured():
+    """The error/bound verdict of a row with the person's draws (``draws_of``): the target
+    band (10 %) stays where the person's timing does not spread the ratio, so a live path 12 %
+    worse than the draws' mean fails and one 8 % worse passes; where the timing spreads it
+    (the draws of a seed 0.8-1.2), the band is that 95 % interval, so a live capture that is
+    one of the draws passes at -17 %, and twice the draws still fails."""
+    from bench.live_table import make_row
+
+    rng = np.random.default_rng(3)
+    seeds = [0, 1]
+    held = {s: _fixed(1.0) for s in seeds}
+    steady = {s: [_fixed(1.0) for _ in range(12)] for s in seeds}
+    for worse, ok in ((1.12, False), (1.08, True), (0.88, False)):
+        jobs = [_Job(s, _fixed(worse)) for s in seeds]
+        row = make_row("p", "guided", jobs, held, rng, same_of=held, draws_of=steady)
+        assert row.band == pytest.approx((0.9, 1.1)), row.band
+        assert row.ratio == pytest.approx(worse) and row.ok is ok, (worse, row.why)
+    values = np.linspace(0.8, 1.2, 12)
+    spread = {s: [_fixed(v) for v in values] for s in seeds}
+    row = make_row("p", "guided", [_Job(s, _fixed(values[1])) for s in seeds], held, rng,
+                   same_of=held, draws_of=spread)  # fmt: skip
+    assert row.band[0] < 0.85 and row.band[1] > 1.1, row.band
+    assert row.ratio < 0.9 and row.ok, row.why  # outside 10 %, inside the person's spread
+    assert any("the person's timing" in n for n in row.notes), row.notes
+    twice = make_row("p", "guided", [_Job(s, _fixed(2.0)) for s in seeds], held, rng,
+                     same_of=held, draws_of=spread)  # fmt: skip
+    assert not twice.ok and any("band" in w for w in twice.why), twice.why
+    # without draws (unattended, a warm-up): the target alone, as before
+    row = make_row("p", "unattended", [_Job(s, _fixed(0.85)) for s in seeds], held, rng)
+    assert row.band == pytest.approx((0.9, 1.1)) and not row.ok
+
+
+#: What the guided captures of random:12 seeds 0 and 1 took (bench live --keep, 2026-11-29,
+#: beside 2 CPU burners): each pose's window start after the hold began and the samples
+#: streamed after the window until the move (the person's reaction), at 100 Hz; the first
+#: pose's window starts at the stream's first sample.
+CAPTURED_TIMING = {
+    0: ([0, 20, 18, 18, 20, 20, 20, 19, 20, 15, 16, 16],
+        [81, 58, 82, 62, 122, 110, 63, 110, 121, 114, 84, 80]),
+    1: ([0, 16, 16, 18, 15, 16, 19, 17, 16, 21, 20, 16],
+        [73, 48, 82, 79, 54, 111, 77, 120, 103, 110, 60, 80]),
+}  # fmt: skip
+
+
+def test_random12_guided_is_judged_against_the_person_drawn_not_one_timing():
+    """random:12 guided failed bench live --quick on seeds 0-1 at -13 % (live 0.899 against the
+    held file's 1.035; gyro 0.87-0.90 against 1.109).  The captures lose nothing: the file's
+    samples cut at the captures' own window starts and reactions (:data:`CAPTURED_TIMING`)
+    give the live figure (0.894).  The difference is the person's timing: the still samples
+    after each window are integrated with the turn, and the held file at the mean timing is
+    one draw of it (seed 0's gyro 1.386, its draws' mean about 1.14).  Against the draws'
+    mean the row is within 10 %; the same stream with every error 1.3 times larger fails."""
+    from dataclasses import replace
+
+    from bench.live_table import make_row
+
+    plan = live.LivePlan("random:12")
+    hold = live.guided_hold_s(plan)
+    jobs, worse = [], []
+    for seed, (detect, reaction) in CAPTURED_TIMING.items():
+        session, truth = live.simulated(plan, seed)
+        streamed = live.held_as_guided(session, hold, reaction_s=np.array(reaction) / 100,
+                                       detect_s=np.array(detect) / 100)  # fmt: skip
+        graded = live._file_graded(plan, seed, streamed, truth)
+        jobs.append(_Job(seed, graded))
+        worse.append(_Job(seed, {k: replace(g, err=1.3 * g.err) for k, g in graded.items()}))
+    seeds = sorted(CAPTURED_TIMING)
+    held = live.file_reference(plan, seeds, hold)[0]
+    draws = live.file_reference(plan, seeds, hold, live.PERSON_DRAWS)[0]
+    assert all(len(draws[s]) == live.PERSON_DRAWS for s in seeds)
+    rng = np.random.default_rng(0)
+    one = make_row("random:12", "guided", jobs, held, rng, same_of=held)
+    assert one.ratio < 0.90 and not one.ok, (one.ratio, one.why)  # the old pairing's FAIL
+    row = make_row("random:12", "guided", jobs, held, rng, same_of=held, draws_of=draws)
+    assert abs(row.ratio - 1) <= 0.10 and row.ok, (row.ratio, row.why)
+    assert row.file_same > row.live  # the draws' mean, not the live figure
+    bad = make_row("random:12", "guided", worse, held, rng, same_of=held, draws_of=draws)
+    assert not bad.ok and bad.ratio > bad.band[1], (bad.ratio, bad.band)
+
+
+def test_the_person_draws_cut_the_file_as_a_guided_capture_does():
+    """Each draw's windows start within the capture's detection delays after each hold
+    (the first at the stream's start), hold ``--hold`` s, and the still samples streamed
+    after each window are the person's reaction plus the stream's latency; the draws differ;
+    one timing per pose given as a list is the same as given once."""
+    from bench import live_person, live_run
+
+    session, _ = live.simulated(live.LivePlan("random:12"), 4)
+    rate = session.sample_rate_hz
+    cuts = live_person.person_draws(session, 2.0, 3, np.random.default_rng(1))
+    lo_r, hi_r = (np.array(live_run.REACTION_S) + live_person.LATENCY_S) * rate
+    lo_d, hi_d = np.array(live_person.DETECT_RANGE_S) * rate
+    starts = []
+    for cut in cuts:
+        stills = cut.static_segments()
+        assert [s.stop - s.start for s in stills] == [200] * 12
+        assert stills[0].start == 0
+        # streamed after a window: its reaction, the skipped rest, then the file's move
+        for a, b, move in zip(stills[:-1], stills[1:], session.rotation_segments(),
+                              strict=False):  # fmt: skip
+            after = b.start - a.stop - (move.stop - move.start)
+            assert lo_r + lo_d - 1 <= after <= hi_r + hi_d + 1, after
+        starts.append([s.start for s in stills])
+    assert starts[0] != starts[1]
+    one = live.held_as_guided(session, 2.0, reaction_s=0.8, detect_s=0.17)
+    each = live.held_as_guided(session, 2.0, reaction_s=[0.8] * 12, detect_s=[0.17] * 12)
+    assert [(s.start, s.stop) for s in one.segments] == [(s.start, s.stop) for s in each.segments]
+    assert np.array_equal(one.gyro, each.gyro)

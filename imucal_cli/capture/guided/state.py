@@ -405,7 +405,10 @@ class GuidedState:
                     self.say("the unit moved during the hold: hold it again", "bold yellow")
             last = self.taken[-1] if self.taken else None
             if last is not None and last.kind == "static" and s <= last.start < e:
-                self.turn_from = e  # the still run of the pose just taken ends: a turn starts
+                # the still run of the pose just taken ends: a turn starts, not before the
+                # pose's window ends (the run ends at the first moving window's start, which
+                # a knock just after the pose was taken can put inside the window)
+                self.turn_from = max(e, last.stop)
             self.holding = False
             self.armed = True  # the unit moved: the next still period is a new pose
             self.min_start = 0
