@@ -334,10 +334,11 @@ def design_of_log(session: Session, truth) -> tuple:
     rate = float(session.sample_rate_hz)
     poses = [di.Pose(np.asarray(u, float), s.n_samples)
              for u, s in zip(truth.accel.true_up, statics, strict=True)]  # fmt: skip
+    by_name = {s.name: s for s in session.rotation_segments()}  # the plan's turns, not moves
+    planned = [by_name[name] for name in truth.gyro.turn_segments]
     turns = [di.Turn(k, k + 1, np.asarray(axis, float), np.radians(angle), seg.n_samples / rate)
              for k, (axis, angle, seg) in enumerate(zip(truth.gyro.true_axis,
-                                                        truth.gyro.true_angle_deg,
-                                                        session.rotation_segments(),
+                                                        truth.gyro.true_angle_deg, planned,
                                                         strict=True))]  # fmt: skip
 
     def still_noise(raw: np.ndarray) -> float:

@@ -103,7 +103,8 @@ def test_gyro_axes_turns_are_full_turns_on_the_table_about_each_face_normal():
     session, truth = simulate_plan("gyro-axes", seed=2, created=CREATED)
     turns = [s for s in session.rotation_segments() if s.angle_deg is not None]
     assert [s.angle_deg for s in turns] == [360.0] * 3
-    # the moves between faces are turns too, as a capture records them (no angle)
+    # the moves between faces (from the still period after each turn) are turns too, as a
+    # capture records them (no angle)
     assert [s.label for s in session.rotation_segments() if s.angle_deg is None] == [
         "turn to face +X up, against a ruler", "turn to face +Y up, against a ruler"]
     extra = truth.gyro

@@ -4,8 +4,9 @@ Plans without a dedicated virtual experiment (``gyro-axes``, ``still:MINUTES``, 
 are played here, one segment per step, labelled and attributed as the step says:
 
 static step with ``up``
-    The unit is moved (a smootherstep slerp of ``move_s``, a rotation segment ``turn to
-    LABEL`` as a capture records it; the first placement has none) to that pose, placed
+    The unit is moved (a smootherstep slerp of ``move_s``; from a still period, a rotation
+    segment ``turn to LABEL`` as a capture records it; after a turn, unsegmented: it continues
+    the turn) to that pose, placed
     with a random heading and a placement error (random horizontal tilt, RMS ``jitter_deg``),
     unless it already stands on that face; then held ``hold_s`` (or the step's own ``hold_s``).
 static step without ``up``
@@ -127,7 +128,8 @@ class _Player:
         ):
             span = tl.move(self.placement(step.up) * self.mounts[self.mounting - 1],
                            self.n_move)  # fmt: skip
-            if tl.segments:  # recorded as a capture records it: a turn between still periods
+            if tl.segments and tl.segments[-1].kind == "static":  # a turn between still
+                # periods, as a capture records it (after a turn, the move continues it)
                 tl.segment("rotation", span, f"turn to {step.label or 'the next face'}")
             self.face = np.asarray(step.up, float)
         n = self.n_hold if not step.hold_s else samples(step.hold_s, self.opt["rate_hz"])
