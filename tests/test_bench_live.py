@@ -44,7 +44,7 @@ def _check(rows, plans) -> None:
             assert row.served == "100.0 %", (row.plan, row.served)
 
 
-def test_live_six_guided_and_unattended(tmp_path):
+def test_live_six_guided_and_unattended(tmp_path, monkeypatch):
     """Six faces, a pose held 1.6 s on the device's timer (0.7 s moves), 1 s by the guided
     capture (--hold 1): both captures at once.  Nothing waits a fixed time: the person and
     the harness act on what the processes print, so a loaded machine only makes it slower
@@ -52,6 +52,7 @@ def test_live_six_guided_and_unattended(tmp_path):
     ``make test`` the suite's other worker loads the second core)."""
     plans = [live.LivePlan("six", hold_s=1.6, move_s=0.7, capture=("--hold", "1"))]
     lines: list[str] = []
+    monkeypatch.setattr(live, "PERSON_DRAWS", 3)  # the guided reference's path, 3 draws not 12
     rows = live.run_live(plans, seeds=[3], jobs=2, n_burners=0, folder=tmp_path,
                          say=lines.append)  # fmt: skip
     _check(rows, plans)
