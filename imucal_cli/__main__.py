@@ -22,12 +22,26 @@ def _interrupted() -> None:
     os._exit(130)
 
 
+def _end_on_ctrl_c(signum, frame) -> None:  # noqa: ARG001 - a signal handler's signature
+    _interrupted()
+
+
 def program() -> None:
-    """Import the command-line layer and run the command (:func:`imucal_cli.cli.main`)."""
+    """Import the command-line layer and run the command (:func:`imucal_cli.cli.main`).
+
+    While it imports, Ctrl-C ends the program from the signal handler itself: raised as
+    ``KeyboardInterrupt`` it may land in the import system's own callbacks, which Python
+    reports ("Exception ignored in ... _get_module_lock") and drops, so the program went on
+    (a fresh clone, with no compiled modules, imports slowly enough to hit it)."""
+    previous = signal.getsignal(signal.SIGINT)
+    if previous is signal.default_int_handler:
+        signal.signal(signal.SIGINT, _end_on_ctrl_c)
     try:
         from imucal_cli.cli import main
     except KeyboardInterrupt:
         _interrupted()
+    if previous is signal.default_int_handler:
+        signal.signal(signal.SIGINT, previous)  # the command takes Ctrl-C over from here
     try:
         main()
     except KeyboardInterrupt:  # before the command took Ctrl-C over, or after it returned
