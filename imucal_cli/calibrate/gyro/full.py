@@ -384,8 +384,7 @@ def accel_directions(data: GyroData, with_frame: bool = False) -> np.ndarray | N
     if found is None:
         return None
     dg, C, _ = found
-    lam, V = np.linalg.eigh((C + C.T) / 2)
-    return dg @ (V * np.sqrt(np.clip(lam, 0, None)))
+    return dg @ _root(C)
 
 
 def accel_directions_and_frame(data: GyroData) -> tuple[np.ndarray, np.ndarray] | None:
@@ -399,10 +398,16 @@ def accel_directions_and_frame(data: GyroData) -> tuple[np.ndarray, np.ndarray] 
     if found is None:
         return None
     dg, C, _ = found
-    lam, V = np.linalg.eigh((C + C.T) / 2)
-    root = V * np.sqrt(np.clip(lam, 0, None))
+    root = _root(C)
     L, phi = frame_split(data.accel_cal.matrix, len(C))
     return dg @ (L @ root), phi @ root
+
+
+def _root(C: np.ndarray) -> np.ndarray:
+    """A square root ``R`` of a covariance, ``R R^T = C`` (eigenvectors times the roots of
+    their eigenvalues, negative rounding clipped)."""
+    lam, V = np.linalg.eigh((C + C.T) / 2)
+    return V * np.sqrt(np.clip(lam, 0, None))
 
 
 def turn_chi2(res, x=None, dirs=None, cov=None) -> np.ndarray:

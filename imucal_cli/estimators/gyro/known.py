@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import sparse
+from scipy.linalg import block_diag
 from scipy.optimize import brentq, least_squares
 from scipy.special import chdtri, gammaincinv
 
@@ -308,8 +309,9 @@ class _Stacked:
     def freeze(self, x):
         """The noise model at ``x`` (the whitening is held fixed within one solve)."""
         self.joint = self._joint_whitener(x)
-        self.L = None if self.kp is None else self.kp.whitening(x)
-        self.W = None if self.gp is None else self._gravity_whitener(x)
+        if self.joint is None:  # known turns and turns between still periods apart
+            self.L = None if self.kp is None else self.kp.whitening(x)
+            self.W = None if self.gp is None else self._gravity_whitener(x)
 
     def _joint_whitener(self, x) -> _DenseWhitener | None:
         """With labelled axes the frame's part couples every known turn and, through the
@@ -318,20 +320,14 @@ class _Stacked:
         Fk = None if self.kp is None else self.kp.frame_factor()
         if Fk is None:
             return None
-        K = self.kp.K
-        Ck = np.zeros((3 * K, 3 * K))
-        for k, block in enumerate(self.kp.covariance(x)):
-            Ck[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = block
-        Fk = Fk.reshape(3 * K, -1)
+        Ck = block_diag(*self.kp.covariance(x))
+        Fk = Fk.reshape(3 * self.kp.K, -1)
         if self.gp is None:
             return _DenseWhitener(Ck + Fk @ Fk.T)
-        Cg = self.gravity_covariance(x).toarray()
         Fg = (np.zeros((2 * self.gp.K, Fk.shape[1])) if self.accel_dirs is None
               else accel_factor(self.gp, x, self.accel_dirs).reshape(2 * self.gp.K, -1))
         F = np.vstack([Fk, Fg])
-        C = np.zeros((len(F), len(F)))
-        C[: 3 * K, : 3 * K], C[3 * K :, 3 * K :] = Ck, Cg
-        return _DenseWhitener(C + F @ F.T)
+        return _DenseWhitener(block_diag(Ck, self.gravity_covariance(x).toarray()) + F @ F.T)
 
     def gravity_covariance(self, x) -> sparse.csr_array:
         """Covariance of the gravity-referenced turns' residuals with the excess ``tau``."""
