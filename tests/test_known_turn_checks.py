@@ -242,10 +242,10 @@ def test_an_excess_only_where_the_turns_scatter_beyond_their_noise():
 def test_clean_captured_ferraris_turns_get_no_excess(plan):
     """No excess simulated: where the turns between still periods scatter as their stated
     noise says (level 0.8-1.0 in the accelerometer's frame), none is applied; seed 301's
-    scatter 2.1 times the noise (the capture's cut of a turn) keeps one. Seed 306 keeps one
-    too (level 1.4): its accelerometer's placement, estimated from 6 degrees of freedom, is
-    1.1 deg against the 2.0 placed, so the still periods' gravity errs beyond the std the
-    turns are weighed with (documented here, asserted below; the rule itself: the test
+    scatter 2.1 times the noise (the capture's cut of a turn) keeps one. Seed 306 keeps a
+    small one (level 1.2; it was 1.4 while its accelerometer's placement came to 1.1 deg
+    against the 2.0 placed: the holds either side of each turn on the table, one placement,
+    counted as two agreeing repeats; now 1.8 deg, asserted below; the rule itself: the test
     above)."""
     for seed in (302, 303, 304, 305, 307, 308):
         session, _ = _captured(plan, seed)
@@ -253,6 +253,6 @@ def test_clean_captured_ferraris_turns_get_no_excess(plan):
         assert check.turns_between_still_periods == "used"
         assert check.their_excess_deg == 0.0, (seed, check)
     cal = calibrate_session(_captured(plan, 306)[0], Config())
-    assert cal.accel.placement.rms_deg < 0.6 * 2.0, cal.accel.placement
+    assert 1.5 < cal.accel.placement.rms_deg < 2.5, cal.accel.placement
     check = calibrate_session(_captured(plan, 301)[0], Config()).gyro.known_turn_check
     assert check.their_level > 1.5 and check.their_excess_deg > 0.1, check

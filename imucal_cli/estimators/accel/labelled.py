@@ -135,6 +135,7 @@ from imucal_cli.errors import DesignError, SolverError
 from imucal_cli.estimators.accel.gravity import _UPPER, triangular_and_rotation
 from imucal_cli.estimators.accel.labelled_checks import placement_rows
 from imucal_cli.estimators.accel.labelled_covariance import covariance_parts, public_of_normalised
+from imucal_cli.estimators.accel.labelled_holds import Runs, expand, one_placement_runs
 from imucal_cli.estimators.accel.labelled_model import (
     Problem,
     faces_of,
@@ -340,6 +341,7 @@ class FitPoint:
     state: _State
     T: np.ndarray
     scale: float
+    runs: Runs | None = None  # holds fitted as one (:mod:`.labelled_holds`)
 
 
 def _evaluate(prob: Problem, sol) -> _State:
@@ -405,6 +407,10 @@ def fit_labelled(
 ) -> LabelledResult:
     """Calibrate a triad accelerometer from labelled static poses (module docstring).
 
+    Consecutive poses with one label whose means agree within their noise (the holds either
+    side of a turn on the table) are fitted as one placement (:mod:`.labelled_holds`); the
+    result still has one row per pose.
+
     Parameters
     ----------
     a_mean : ndarray, shape (N, 3)
@@ -435,6 +441,16 @@ def fit_labelled(
     SolverError
         No convergence.
     """
+    runs = one_placement_runs(a_mean, cov_mean, up)
+    if not runs.merged:
+        return _fit(a_mean, up, g, cov_mean, placement_deg, noise_dof, max_iterations)
+    # holds either side of a turn on the table: one placement (L1b) each run
+    res = _fit(runs.a_mean, runs.up, g, runs.cov_mean, placement_deg, noise_dof, max_iterations)
+    return expand(res, runs, a_mean, g)
+
+
+def _fit(a_mean, up, g, cov_mean, placement_deg, noise_dof, max_iterations) -> LabelledResult:
+    """:func:`fit_labelled` of poses each placed on its own."""
     a_mean = np.asarray(a_mean, float)
     up = np.asarray(up, float)
     N = len(a_mean)

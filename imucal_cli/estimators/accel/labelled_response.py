@@ -59,4 +59,9 @@ def pose_response(res: LabelledResult) -> np.ndarray:
     dr_da = prob.W / (prob.meas_scale * scale)  # (N, 3, 3): d r_k / d a_k, raw units
     g = np.einsum("nrc,nrj->cnj", JmW, dr_da).reshape(len(x), -1)
     dx_da = -np.linalg.solve(hess, g)[:12].reshape(12, prob.N, 3)
-    return np.einsum("pk,knj->pnj", T, dx_da)
+    L = np.einsum("pk,knj->pnj", T, dx_da)
+    runs = res.fit.runs
+    if runs is None:
+        return L
+    # holds fitted as one run (:mod:`.labelled_holds`): d a_run / d a_k = C_run C_k^-1
+    return np.einsum("pnj,njk->pnk", L[:, runs.index], runs.weights)
