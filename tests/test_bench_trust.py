@@ -37,3 +37,11 @@ def test_captured_coverage_rows_of_one_seed():
     rows = trust_gyro.captured_coverage_rows(1)
     assert [r["seeds"] for r in rows] == [1, 1, 1]
     assert all(0.0 <= r["coverage"] <= 1.0 and r["far"] == 0 for r in rows), rows
+
+
+def test_ferraris_rows_of_two_seeds():
+    rows = trust.ferraris_rows(2)
+    assert rows["seeds"] == 2 and rows["refused"] == 0
+    assert [name for name, *_ in rows["groups"]] == [name for name, _ in trust.GROUPS]
+    # two sessions' 24 intervals: an honest 95 % misses at most a few
+    assert rows["coverage"] >= 0.75 and all(0 < z < 3 for *_, z in rows["groups"]), rows
