@@ -27,6 +27,7 @@ from scipy.special import chdtrc, chdtri
 from imucal_cli.calibrate.gyro.full import solver_stills
 from imucal_cli.errors import DesignError, SolverError
 from imucal_cli.estimators.gyro import known as gyro_known
+from imucal_cli.estimators.gyro import known_predict
 from imucal_cli.model.codec import nulls
 from imucal_cli.model.gyro import KnownTurnCheck, RotationRow
 
@@ -121,10 +122,10 @@ def leave_out(cfg, known, still, noise, rot, joint, alone, accel_dirs, level=Non
     if len(rot.t) > MAX_HELD_OUT:
         return None
     try:
-        held = gyro_known.held_out_turns(known, still, noise, rot, joint, accel_dirs=accel_dirs)
+        held = known_predict.held_out_turns(known, still, noise, rot, joint, accel_dirs=accel_dirs)
     except (DesignError, SolverError):
         return None
-    by_known = gyro_known.predict_gravity(rot, still, noise, alone, accel_dirs)
+    by_known = known_predict.predict_gravity(rot, still, noise, alone, accel_dirs)
     rms_held = float(np.sqrt(np.mean(held**2)))
     rms_known = float(np.sqrt(np.mean(by_known["gravity_residual_deg"] ** 2)))
     if rms_held < rms_known:
@@ -192,7 +193,7 @@ def _left_out(v: Verdict, data, joint, rot, names, why, n_known, accel_dirs) -> 
     known turns alone predict them."""
 
     st = solver_stills(data.stills)
-    pred = gyro_known.predict_gravity(rot, st, data.noise, v.result, accel_dirs)
+    pred = known_predict.predict_gravity(rot, st, data.noise, v.result, accel_dirs)
     v.gravity_rows = _gravity_rows(names, [t.segment for t in data.turns], pred, used=False)
     miss = pred["gravity_residual_deg"]
     tau = float(np.degrees(joint.tau))
