@@ -108,3 +108,12 @@ def test_the_frame_covers_its_truth_where_holds_share_a_placement():
         z.append((res.params - truth)[9:] / res.std[9:])
     assert 0.93 <= np.mean(hits) <= 0.97
     assert np.sqrt(np.mean(np.square(z))) < 1.12
+
+
+def test_holds_without_noise_stay_apart_for_the_fit_to_judge():
+    """A dead axis (a covariance with no noise) is the fit's to name, not this step's to
+    crash on."""
+    a, up, cov, _ = draw(4)
+    cov[:, 0, :] = cov[:, :, 0] = 0.0
+    runs = one_placement_runs(a, cov, up)
+    assert not runs.merged and runs.index.tolist() == list(range(12))

@@ -65,7 +65,11 @@ def one_placement_runs(a_mean: np.ndarray, cov_mean: np.ndarray, up: np.ndarray,
     """The runs of ``N`` holds in time order (module docstring): ``a_mean`` (N, 3) raw units,
     ``cov_mean`` (N, 3, 3) raw units^2, ``up`` (N, 3) labels (NaN rows unlabelled)."""
     a_mean, cov_mean, up = (np.asarray(v, float) for v in (a_mean, cov_mean, up))
-    info = np.linalg.inv(cov_mean)
+    try:
+        info = np.linalg.inv(cov_mean)
+    except np.linalg.LinAlgError:  # a noiseless axis: each hold its own (the fit says why)
+        n = len(a_mean)
+        return Runs(np.arange(n), a_mean, cov_mean, up, np.broadcast_to(np.eye(3), (n, 3, 3)))
     index = np.zeros(len(a_mean), dtype=int)
     runs: list[list[int]] = []
     for k in range(len(a_mean)):
