@@ -36,7 +36,7 @@ MAX_GAIN_SHIFT_STD = 3.0
 def fit_per_axis(data: GyroData, solver: str) -> GyroFit:
     """The static or dynamic solver on every axis, and what the misalignment it ignores does."""
     full, why = _full_fit(data)
-    sigma = _misalignment_rms(full)
+    misaligned = _misalignment(full)
     # Pass 1 reads each angle about the nominal axis; pass 2 about the turn's own axis, the
     # rotation vector that the pass-1 calibration integrates (a hand is never exact).
     k = b = None
@@ -44,7 +44,7 @@ def fit_per_axis(data: GyroData, solver: str) -> GyroFit:
         first = None if k is None else (k, b)
         k, b, k_std, b_std, rotations, ci, k_mis = _per_axis(
             data, solver, data.notes if k is None else [], first,
-            None if first is None else sigma,
+            None if first is None else misaligned,
         )
     units = data.units_in
     parameters = [
@@ -77,19 +77,20 @@ def _full_fit(data: GyroData) -> tuple[GyroFit | None, str]:
         return None, str(exc)
 
 
-def _misalignment_rms(full: GyroFit | None) -> tuple[np.ndarray, np.ndarray] | None:
-    """RMS of the gyro's rotation from the accelerometer and of its axes' non-orthogonality
-    (off-diagonal ``M_ij / M_ii``, rad; eq. 6's ``T_s``) as the full model measures them on
-    the same turns, less their estimation noise, and the dof of each square; None without a
-    full fit. The per-axis std carry what such a misalignment does to the gains
-    (:mod:`~imucal_cli.estimators.gyro.axes_misalignment`)."""
+def _misalignment(full: GyroFit | None) -> tuple | None:
+    """``(M, b, sigma, dof)``: the full model on the same turns (matrix, rad/s per raw unit;
+    bias, raw units), which gives the turns' true rotation vectors, and the RMS of the gyro's
+    rotation from the accelerometer and of its axes' non-orthogonality (off-diagonal
+    ``M_ij / M_ii``, rad; eq. 6's ``T_s``) as it measures them, less their estimation noise,
+    with the dof of each square; None without a full fit. The per-axis std carry what such a
+    misalignment does to the gains (:mod:`~imucal_cli.estimators.gyro.axes_misalignment`)."""
     if full is None:
         return None
     M = np.asarray(full.matrix, float)
     std = np.array([p.std for p in full.parameters[3:12]], float).reshape(3, 3)
     diag = np.diag(M)[:, None]
     sigma, dof = misalignment_parts(M / diag - np.eye(3), std / np.abs(diag))
-    return (sigma, dof) if np.any(sigma > 0) else None
+    return (M, np.asarray(full.bias, float), sigma, dof) if np.any(sigma > 0) else None
 
 
 def _ignored_misalignment(data: GyroData, full: GyroFit | None, why: str, k: np.ndarray,
@@ -122,12 +123,12 @@ def _ignored_misalignment(data: GyroData, full: GyroFit | None, why: str, k: np.
                                gain_shift_std=[float(v) for v in in_std])  # fmt: skip
 
 
-def _per_axis(data: GyroData, solver: str, notes: list[str], first, sigma=None):
+def _per_axis(data: GyroData, solver: str, notes: list[str], first, misaligned=None):
     """Per-axis fits (static or dynamic) of every axis; ``first`` = (k, b) of a previous pass
-    whose calibration gives each turn's actual axis; ``sigma`` = (RMS, dof) of the
-    misalignment the fits leave out (:func:`_misalignment_rms`), or None."""
+    whose calibration gives each turn's actual axis; ``misaligned``: what the full model says
+    of the misalignment the fits leave out (:func:`_misalignment`), or None."""
     per_axis, oblique = _turns_by_axis(data, notes, first)
-    return _fit_axes(data, solver, per_axis, oblique, first, sigma)
+    return _fit_axes(data, solver, per_axis, oblique, misaligned)
 
 
 def _turns_by_axis(data: GyroData, notes: list[str], first):
@@ -198,14 +199,13 @@ def _angle_moves(dirs, turn, g0, g1, axis, angle) -> np.ndarray:
     return out
 
 
-def _fit_axes(data: GyroData, solver: str, per_axis: dict, oblique: int, first=None,
-              sigma=None):  # fmt: skip
+def _fit_axes(data: GyroData, solver: str, per_axis: dict, oblique: int, misaligned=None):
     """Qureshi & Golnaraghi's static (eq. 18) or dynamic (eqs. 19-21) fit of each axis's
     turns (:func:`_turns_by_axis`): ``(k, b, k_std, b_std, rotations, ci, k_mis)``, scale
     (rad/s per raw unit), bias (raw units), their std, (3,) each, the rotation rows, the 95 %
     half-widths (3, 2) and the misalignment's share of ``k_std`` (3,). The std carry the
-    turns' noise on its known shape (:func:`_turn_noise`) and, with ``first`` and ``sigma``,
-    the misalignment eq. (15) leaves out (:func:`_model_errors`).
+    turns' noise on its known shape (:func:`_turn_noise`) and, with ``misaligned``, the
+    misalignment eq. (15) leaves out (:func:`_model_errors`).
 
     Raises
     ------
@@ -226,7 +226,7 @@ def _fit_axes(data: GyroData, solver: str, per_axis: dict, oblique: int, first=N
         D = np.array([r[4] for r in rows])
         cov = D @ D.T  # the accelerometer's error moves every angle together
         noise = _turn_noise(data, rows, T)
-        model = None if first is None or sigma is None else _model_errors(rows, i, first, sigma)
+        model = None if misaligned is None else _model_errors(rows, i, misaligned)
         if solver == "static":
             fit = gyro_axes.fit_axis_static(x, T, ang, bias_still[i], b_still_std, cov, noise,
                                             model)  # fmt: skip
@@ -280,16 +280,15 @@ def _turn_noise(data: GyroData, rows: list, T: np.ndarray) -> gyro_axes.TurnNois
     return gyro_axes.TurnNoise(data.noise**2 * dt * T, cov)
 
 
-def _model_errors(rows: list, i: int, first, sigma) -> gyro_axes.ModelErrors:
+def _model_errors(rows: list, i: int, misaligned) -> gyro_axes.ModelErrors:
     """The angle errors of eq. (15) where the gyro has eq. (6)'s misalignment at the RMS the
-    full model measures (``sigma`` = (RMS in rad, dof), per component), on these turns: their
-    rotation vectors as the pass-1 calibration ``first`` = (k, b) integrates them, and
-    gravity before each."""
-    k, b = first
-    rotvec = np.array([k * (r[5] - b * r[2]) for r in rows])
+    full model measures, on these turns: their rotation vectors as the full model integrates
+    them (``misaligned`` = (M, b, sigma, dof), :func:`_misalignment`; the per-axis
+    calibration's own would tilt each by the misalignment once more) and gravity before each."""
+    M, b, sigma, dof = misaligned
+    rotvec = np.array([M @ (r[5] - b * r[2]) for r in rows])
     g0 = np.array([r[7] for r in rows])
-    return misalignment_errors(rotvec, g0, np.array([r[6] for r in rows]), i, sigma[0],
-                               dof=sigma[1])  # fmt: skip
+    return misalignment_errors(rotvec, g0, np.array([r[6] for r in rows]), i, sigma, dof=dof)
 
 
 def _unwrap(angle: np.ndarray, integral: np.ndarray) -> np.ndarray:

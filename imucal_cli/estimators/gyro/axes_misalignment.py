@@ -87,8 +87,9 @@ def misalignment_errors(rotvec: np.ndarray, g_before: np.ndarray, sign: np.ndarr
                         seed: int = 0) -> ModelErrors:  # fmt: skip
     """Angle errors of eq. (15) where the gyro has the misalignment of eq. (6).
 
-    For each draw ``m`` (a rotation and a symmetric non-orthogonality, their off-diagonal
-    entries normal with the RMS ``sigma`` gives, diagonal zero) the gyro is ``M = D (I + m)``
+    For each draw ``m`` (a rotation and a symmetric non-orthogonality, each in a random
+    direction with exactly the RMS of its off-diagonal entries that ``sigma`` gives, diagonal
+    zero) the gyro is ``M = D (I + m)``
     with ``D`` the per-axis gains, so a turn with rotation vector ``r`` (accelerometer frame)
     integrates to ``d = M^-1 r`` and the per-axis calibration turns it into
     ``q = D d = (I + m)^-1 r``. The angle is read as the solver reads it: about ``q``'s
@@ -129,8 +130,12 @@ def misalignment_errors(rotvec: np.ndarray, g_before: np.ndarray, sign: np.ndarr
     z = np.random.default_rng(seed).standard_normal((2, draws, 3, 3))
     rot, sym = (z[0] - z[0].transpose(0, 2, 1)) / 2, (z[1] + z[1].transpose(0, 2, 1)) / 2
     off = ~np.eye(3, dtype=bool)
-    rot, sym = rot / np.sqrt(np.mean(rot[:, off] ** 2)), sym / np.sqrt(np.mean(sym[:, off] ** 2))
     sym[:, ~off] = 0.0
+    # Each draw at exactly the measured RMS, in a random direction: the size is measured, the
+    # direction's effect is averaged (normal draws would add the spread of the size: for an
+    # effect quadratic in it, 5/3 of the mean square over 3 entries).
+    rot = rot / np.sqrt(np.mean(rot[:, off] ** 2, axis=1))[:, None, None]
+    sym = sym / np.sqrt(np.mean(sym[:, off] ** 2, axis=1))[:, None, None]
     sgn = np.asarray(sign, float)
     up = np.sqrt(1 + STEP)
     scales = [(1.0, 1.0), (up, 1.0), (1.0, up)]
