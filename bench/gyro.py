@@ -10,7 +10,9 @@ calibration's covariance propagated through the turns (``pipeline.gyro.full_boun
 is against the truth, and the accelerometer that measures every turn is calibrated from the
 same session (its share is small here, 57 poses: up to 4 % of the variance). Then the real
 recordings in ``../shared/data`` that hold rotations: imported, calibrated with the full model,
-and their per-rotation residuals.
+and their per-rotation residuals. The per-axis solvers (static, dynamic) have their own
+coverage row (issue 24.6: their ``ci95`` against the truth, per term and pooled, with the
+standardized errors' mean and RMS; :func:`per_axis_coverage`).
 
 Each error/bound is an estimate from the seeds, with a sampling error of about
 ``1 / sqrt(2 N)`` (16 % at 20 seeds, 7 % at 100): the table states it (delta method on the

@@ -137,8 +137,11 @@ def _turns_by_axis(data: GyroData, notes: list[str], first):
     Returns
     -------
     per_axis : dict of int to list
-        Per axis ``i``: ``(turn, x_i, T, angle)``, the raw integral of channel ``i`` (raw
-        units s), the turn's duration (s) and the angle channel ``i`` sees (rad).
+        Per axis ``i``: ``(turn, x_i, T, angle, moved, x, sign, g0)``, the raw integral of
+        channel ``i`` (raw units s), the turn's duration (s), the angle channel ``i`` sees
+        (rad), how it moves along the accelerometer's error directions (rad,
+        :func:`_angle_moves`), the raw integrals of all three channels (raw units s), the
+        labelled axis's sign and the calibrated gravity before the turn (m/s^2).
     oblique : int
         Turns left out for being further than :data:`MAX_AXIS_ERROR_DEG` from every axis (a
         note each in ``notes``, as for turns about the vertical).
