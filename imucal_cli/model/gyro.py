@@ -119,7 +119,9 @@ class KnownTurnCheck(Record):
 
 @dataclass
 class IgnoredMisalignment(Record):
-    """What a per-axis solver ignores: the full model's axes on the same turns."""
+    """What a per-axis solver ignores: the full model's axes on the same turns, the shift of
+    each per-axis gain against the full model's (fraction) and that shift in the gain's std
+    without the misalignment's share (``gain_shift_std``; the gain's stated std carries it)."""
 
     measured: bool | None = None
     axis_to_accel_frame_deg: dict[str, float] | None = None
