@@ -40,9 +40,10 @@ def serve(*args: str) -> tuple[subprocess.Popen, str]:
     return proc, path
 
 
-QUICK = ("--hold", "2.5", "--move", "1")
-"""The virtual unit's timer where the defaults are not what a test is about: poses held 2.5 s
-(long enough for a 1 s hold to start once the unit has settled)."""
+QUICK = ("--hold", "2", "--move", "0.6")
+"""The virtual unit's timer where the defaults are not what a test is about: poses held 2 s
+(long enough for a 1 s hold to start once the unit has settled: 0.5 s, and a 0.25 s window of
+the stillness detector), turns of 0.6 s."""
 
 
 def serve_in_thread(*args: str) -> ThreadServer:
@@ -100,8 +101,10 @@ def test_guided_capture_with_the_defaults_on_both_sides(tmp_path):
 
 
 def test_serve_stepped_by_enter(tmp_path):
-    """--step: each pose is held until Enter in the server's terminal (here: its stdin)."""
-    server, port = serve("--step")
+    """--step: each pose is held until Enter in the server's terminal (here: its stdin). Its
+    timer would hold a pose 0.5 s, too short for the capture's 1 s hold: every pose recorded
+    shows that the unit stayed put until told, without waiting a fixed time here."""
+    server, port = serve("--step", "--hold", "0.5", "--move", "0.6")
     out = tmp_path / "stepped.h5"
     lines: list[str] = []
     try:
@@ -114,7 +117,6 @@ def test_serve_stepped_by_enter(tmp_path):
                 recorded += 1
                 if recorded == len(FACES):
                     continue  # the plan is over: the capture closes the port and the unit ends
-                time.sleep(1.0)  # the unit stays put until told: longer than any timer here
                 server.stdin.write("\n")
                 server.stdin.flush()
             if time.monotonic() > deadline:
