@@ -92,6 +92,10 @@ def _served_rows(imus: int, member: int | None = None) -> dict[str, np.ndarray]:
 
 
 def test_one_line_of_several_imus_is_resumed(tmp_path, process_factory):  # noqa: F811
+    """Several IMUs' triads on one line through one port (the capture of
+    ``test_imu_set_capture``'s slow ``test_one_port_several_triads_per_line``), interrupted and
+    resumed to complete: every IMU's samples in order, its rotation and time offset within
+    their bounds."""
     out = tmp_path / "set.h5"
     units = ("--columns", COLUMNS, "--accel-units", "counts", "--gyro-units", "counts")
     server = process_factory("--imus", "3", *SET)
@@ -116,6 +120,7 @@ def test_one_line_of_several_imus_is_resumed(tmp_path, process_factory):  # noqa
     _check_parts(first, session, _served_rows(3))
     for imu in session.imus.values():  # one line, one time stamp, resumed as one
         np.testing.assert_array_equal(imu.time, session.time)
+        assert imu.accel_units == "counts" or imu.accel_units is None
     assert len(session.static_segments()) == STEPS
     proc = run("calibrate", out, "--json", "--no-store")
     assert proc.returncode == 0, proc.stderr
