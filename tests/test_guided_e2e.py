@@ -143,7 +143,12 @@ def test_serve_stepped_by_enter(tmp_path):
     _check_session(out, hold_s=1.0)
 
 
+@pytest.mark.slow
 def test_scripted_keys_skip_and_quit(tmp_path):
+    """``s`` then ``q`` on the capture's stdin: saved, incomplete (exit 3). In make test-all:
+    a key through stdin (``s``) and an incomplete capture saved with exit 3 are
+    ``test_interrupted_capture_is_resumed_into_the_same_file``'s first capture, ``q`` the
+    guided state's (``test_guided.py``, keys s, r and q)."""
     server = serve_in_thread(*QUICK)
     out = tmp_path / "keys.h5"
     lines: list[str] = []
@@ -175,25 +180,34 @@ def test_scripted_keys_skip_and_quit(tmp_path):
 
 
 def test_interrupted_capture_is_resumed_into_the_same_file(tmp_path):
-    """Ctrl-C after two poses (exit 3, saved), then `capture --resume` with the unit served
+    """A key typed on the capture's stdin (``s``: skip the step shown) after the first pose,
+    Ctrl-C after the second (exit 3, saved), then `capture --resume` with the unit served
     again from its first pose: the two poses already there are not taken twice, the other
     four are appended, the session ends complete."""
     import signal
 
     out = tmp_path / "resumed.h5"
     server = serve_in_thread(*QUICK)
+    lines: list[str] = []
     try:
         proc = capture(server.path, out, "--hold", "1")
         seen = 0
         for line in proc.stdout:
+            lines.append(line)
             seen += line.startswith("recorded face")
+            if seen == 1 and line.startswith("recorded face"):
+                proc.stdin.write("s\n")  # skip the step now shown
+                proc.stdin.flush()
             if seen == 2:
                 proc.send_signal(signal.SIGINT)
                 break
         rest, _ = proc.communicate(timeout=30)
     finally:
         server.kill()
-    assert proc.returncode == 3, rest
+    text = "".join(lines) + rest
+    assert proc.returncode == 3, text  # saved but incomplete
+    assert "skipped face -Z up" in text and "missing" in text, text
+    assert "stopped by Ctrl-C" in text, text
     first = read_session(out)
     assert len(first.static_segments()) == 2
     server = serve_in_thread(*QUICK)
