@@ -17,6 +17,7 @@ from imucal_cli.formats.session import read_session
 from imucal_cli.simulate.imu_set import gauge_rotation, served_set
 
 from .cli_helpers import run
+from .served import ThreadServer
 from .test_virtual import CLI, RATE, process_factory, saved_samples, start_capture  # noqa: F401
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminals are POSIX")
@@ -76,8 +77,11 @@ def test_one_port_several_triads_per_line(tmp_path, process_factory):  # noqa: F
         assert abs(dt) <= 4.5 * entry["time_offset_std_s"], (key, dt, entry)
 
 
-def test_one_port_per_imu(tmp_path, process_factory):  # noqa: F811
-    servers = [process_factory("--imus", "2", "--serve-imu", str(k), *SET) for k in (0, 1)]
+def test_one_port_per_imu(tmp_path):
+    """Two devices, one IMU each, served in threads here (tests/served.py: the command's set
+    options; ``simulate --serve --imus`` as a process: test_imu_set_resume)."""
+    servers = [ThreadServer("--rate", str(RATE), "--imus", "2", "--serve-imu", str(k), *SET)
+               for k in (0, 1)]  # fmt: skip
     out = tmp_path / "two.h5"
     cap = subprocess.Popen(
         [*CLI, "capture", "--port", servers[0].path, "--port", servers[1].path, "--output",
