@@ -18,6 +18,7 @@ from imucal_cli.formats.session import read_session
 from imucal_cli.simulate.imu_set import served_set
 
 from .cli_helpers import run, spawn
+from .served import ThreadServer
 from .test_imu_set_capture import COLUMNS, SET, _rotation_error, _truth
 from .test_virtual import CLI, RATE, process_factory  # noqa: F401
 
@@ -106,7 +107,8 @@ def test_one_line_of_several_imus_is_resumed(tmp_path, process_factory):  # noqa
     assert len(first.time) == _saved(text) and list(first.imus) == ["imu1", "imu2"]
     done = len(first.static_segments())
     assert 3 <= done < STEPS
-    server = process_factory("--imus", "3", *SET)
+    # served again from its first pose, in a thread here (tests/served.py): the process above
+    server = ThreadServer("--rate", str(RATE), "--imus", "3", *SET)
     proc = _capture([server.path], "--resume", str(out), *units)
     text, _ = proc.communicate(timeout=300)
     server.kill()
@@ -191,8 +193,6 @@ def test_one_port_per_imu_host_stamped_is_resumed(tmp_path, process_factory):  #
 def test_a_resumed_capture_must_be_the_sessions_set(tmp_path):
     """A capture whose IMUs are not the session's (one port on a set, another number of
     triads) is refused in one line, the session left as it was."""
-    from .served import ThreadServer
-
     session = tmp_path / "set.h5"
     assert run("simulate", "--imus", "3", "--plan", "six", "--hold", "1", "-o",
                session).returncode == 0  # fmt: skip
