@@ -31,6 +31,10 @@ VALUES = {
     "--duration": ("duration_s", float), "--stall-after": ("stall_after_s", float),
     "--vanish-after": ("vanish_after_s", float), "--malformed-every": ("malformed_every", int),
 }  # fmt: skip
+#: ``simulate`` options of a set of IMUs (issue 28): the argument of the command's
+#: :func:`imucal_cli.cli.simulate_set.serve_options`, which puts them in ``plan_options``.
+SET_VALUES = {"--imus": ("imus", int), "--imu-rotation": ("rotation_deg", float),
+              "--imu-offset": ("offset_ms", float), "--serve-imu": ("member", int)}  # fmt: skip
 #: ``simulate`` switches: the keyword of :func:`serve` and its value.
 SWITCHES = {"--loop": ("loop", True), "--garbage": ("garbage", True),
             "--no-temp": ("temperature", False)}  # fmt: skip
@@ -40,7 +44,15 @@ def serve_options(args) -> dict:
     """:func:`serve`'s keywords for ``imucal simulate --serve ARGS`` (the command's defaults:
     plan qureshi18, holds of ``SERVE_HOLD_S``); an option not listed here is an error, so a
     test that needs it serves through the process."""
+    import inspect
+
+    from imucal_cli.cli.simulate import simulate
+    from imucal_cli.cli.simulate_set import serve_options as set_options
+
     options = {"plan": "qureshi18", "hold_s": SERVE_HOLD_S}
+    command = inspect.signature(simulate).parameters  # the set's defaults: the command's
+    members = {"imus": 1, "rotation_deg": command["imu_rotation"].default,
+               "offset_ms": command["imu_offset"].default, "member": None}  # fmt: skip
     args = [str(a) for a in args]
     while args:
         flag = args.pop(0)
@@ -50,8 +62,13 @@ def serve_options(args) -> dict:
         elif flag in VALUES and args:
             key, kind = VALUES[flag]
             options[key] = kind(args.pop(0))
+        elif flag in SET_VALUES and args:
+            key, kind = SET_VALUES[flag]
+            members[key] = kind(args.pop(0))
         else:
             raise ValueError(f"tests/served.py does not serve {flag!r}: use the process")
+    if members["imus"] > 1:
+        options["plan_options"] = set_options(**members)
     return options
 
 

@@ -72,15 +72,18 @@ def test_live_six_guided_and_unattended(tmp_path, monkeypatch):
 
     got, emulated = still_rows(captured), still_rows(held)
     assert len(got & emulated) >= 0.8 * len(got), (len(got & emulated), len(got))
-    # --regrade: the kept captures calibrated again give the rows the run gave
-    again = live.regrade(tmp_path, plans, {"guided": [3], "unattended": [3]}, file_seeds=[3],
+    # --regrade: the kept capture calibrated again gives the row the run gave (the unattended
+    # one: its file reference is computed here, where the guided one's person draws need a
+    # process of their own beside, 10 s more; the guided log is read as that one is, by
+    # test_a_kept_capture_that_failed_says_so_when_graded_again)
+    again = live.regrade(tmp_path, plans, {"guided": [], "unattended": [3]}, file_seeds=[3],
                          say=lines.append)  # fmt: skip
-    _check(again, plans)
-    assert any("2 kept captures calibrated again" in line for line in lines)
-    for first, second in zip(rows, again, strict=True):
-        assert (first.plan, first.mode) == (second.plan, second.mode)
-        assert second.live == pytest.approx(first.live, rel=1e-6)
-        assert second.cover_live == first.cover_live
+    assert any("1 kept captures calibrated again" in line for line in lines), lines
+    first, second = ([r for r in got if r.mode == "unattended"] for got in (rows, again))
+    _check(first + second, plans)  # as many rows: the run's and the regrade's unattended
+    assert second[0].plan == first[0].plan
+    assert second[0].live == pytest.approx(first[0].live, rel=1e-6)
+    assert second[0].cover_live == first[0].cover_live
 
 
 def test_the_person_reads_a_live_screen():

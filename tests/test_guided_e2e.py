@@ -25,10 +25,10 @@ ENV = {**os.environ, "PYTHONUNBUFFERED": "1", "COLUMNS": "200"}
 FACES = sorted(f"face {s}{a} up" for a in "XYZ" for s in "+-")
 
 
-def serve(*args: str) -> tuple[subprocess.Popen, str]:
+def serve(*args: str, plan: str | Path = "six") -> tuple[subprocess.Popen, str]:
     """The virtual unit with the defaults (its timer holds each pose 4 s) unless ``args``."""
     proc = spawn(
-        [*CLI, "simulate", "--serve", "--plan", "six", "--rate", "100", *args],
+        [*CLI, "simulate", "--serve", "--plan", str(plan), "--rate", "100", *args],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -40,9 +40,10 @@ def serve(*args: str) -> tuple[subprocess.Popen, str]:
     return proc, path
 
 
-QUICK = ("--hold", "2.5", "--move", "1")
-"""The virtual unit's timer where the defaults are not what a test is about: poses held 2.5 s
-(long enough for a 1 s hold to start once the unit has settled)."""
+QUICK = ("--hold", "2", "--move", "0.6")
+"""The virtual unit's timer where the defaults are not what a test is about: poses held 2 s
+(long enough for a 1 s hold to start once the unit has settled: 0.5 s, and a 0.25 s window of
+the stillness detector), turns of 0.6 s."""
 
 
 def serve_in_thread(*args: str) -> ThreadServer:
@@ -52,9 +53,9 @@ def serve_in_thread(*args: str) -> ThreadServer:
     return ThreadServer("--plan", "six", "--rate", "100", *args)
 
 
-def capture(port: str, out: Path, *args: str) -> subprocess.Popen:
+def capture(port: str, out: Path, *args: str, plan: str | Path = "six") -> subprocess.Popen:
     return spawn(
-        [*CLI, "capture", "--port", port, "--plan", "six", "--output", str(out), *args],
+        [*CLI, "capture", "--port", port, "--plan", str(plan), "--output", str(out), *args],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
@@ -63,45 +64,58 @@ def capture(port: str, out: Path, *args: str) -> subprocess.Popen:
     )
 
 
-def _check_session(out: Path, hold_s: float = 2.0) -> None:
-    """Every face held ``hold_s`` with its up, and the 5 turns between them as rotation
+def _check_session(out: Path, hold_s: float = 2.0, faces: list[str] = FACES) -> None:
+    """Every face held ``hold_s`` with its up, and the turns between them as rotation
     segments that the gyro saw turn."""
     session = read_session(out)
     static = session.static_segments()
-    assert sorted(s.label for s in static) == FACES
+    assert sorted(s.label for s in static) == sorted(faces)
     for s in static:
         assert s.n_samples >= 95 * hold_s and s.up is not None
     turns = session.rotation_segments()
-    assert len(turns) == 5 and all(t.label.startswith("turn to face") for t in turns)
+    assert len(turns) == len(faces) - 1
+    assert all(t.label.startswith("turn to face") for t in turns)
     rest = session.gyro[static[0].start : static[0].stop].mean(axis=0)
     for turn in turns:
         swing = np.abs(session.gyro[turn.start : turn.stop] - rest).max()
         assert swing > 100  # counts: the unit turned (noise is a few counts)
 
 
+#: The first three poses of plan six, as a plan file: the defaults' test (4 s holds on the
+#: device) takes half the time of the six; the six faces guided: the tests below.
+THREE = "".join(f'[[step]]\nkind = "static"\nlabel = "face {f} up"\nup = {up}\n'
+                for f, up in (("+Z", [0, 0, 1]), ("-Z", [0, 0, -1]), ("+X", [1, 0, 0])))
+
+
 def test_guided_capture_with_the_defaults_on_both_sides(tmp_path):
-    server, port = serve()
+    """The device's timer (4 s a pose) and the capture's hold (2 s) at their defaults: a
+    plan's poses are each held long enough on the timer to be taken."""
+    plan = tmp_path / "three.toml"
+    plan.write_text('name = "three"\n' + THREE)
+    server, port = serve(plan=plan)
     out = tmp_path / "guided.h5"
     try:
-        proc = capture(port, out)
+        proc = capture(port, out, plan=plan)
         text, _ = proc.communicate(timeout=120)
     finally:
         server.kill()
         _, served = server.communicate()
     assert proc.returncode == 0, text
-    assert "6 of 6" in text and "complete" in text
-    assert "plan six: 6 poses; hold each pose still 2 s" in text and "12 s of holding" in text
+    assert "3 of 3" in text and "complete" in text
+    assert "plan three: 3 poses; hold each pose still 2 s" in text and "6 s of holding" in text
     # the first prompt once, with how long to hold; a countdown
     assert text.count("Put face +Z up and hold still for 2 s") == 1, text
     assert "1 s left" in text
-    assert "6 static and 5 rotation segments" in text
+    assert "3 static and 2 rotation segments" in text
     assert "the plan runs on a timer, each pose held 4 s" in served
-    _check_session(out)
+    _check_session(out, faces=["face +Z up", "face -Z up", "face +X up"])
 
 
 def test_serve_stepped_by_enter(tmp_path):
-    """--step: each pose is held until Enter in the server's terminal (here: its stdin)."""
-    server, port = serve("--step")
+    """--step: each pose is held until Enter in the server's terminal (here: its stdin). Its
+    timer would hold a pose 0.5 s, too short for the capture's 1 s hold: every pose recorded
+    shows that the unit stayed put until told, without waiting a fixed time here."""
+    server, port = serve("--step", "--hold", "0.5", "--move", "0.6")
     out = tmp_path / "stepped.h5"
     lines: list[str] = []
     try:
@@ -114,7 +128,6 @@ def test_serve_stepped_by_enter(tmp_path):
                 recorded += 1
                 if recorded == len(FACES):
                     continue  # the plan is over: the capture closes the port and the unit ends
-                time.sleep(1.0)  # the unit stays put until told: longer than any timer here
                 server.stdin.write("\n")
                 server.stdin.flush()
             if time.monotonic() > deadline:
@@ -130,7 +143,12 @@ def test_serve_stepped_by_enter(tmp_path):
     _check_session(out, hold_s=1.0)
 
 
+@pytest.mark.slow
 def test_scripted_keys_skip_and_quit(tmp_path):
+    """``s`` then ``q`` on the capture's stdin: saved, incomplete (exit 3). In make test-all:
+    a key through stdin (``s``) and an incomplete capture saved with exit 3 are
+    ``test_interrupted_capture_is_resumed_into_the_same_file``'s first capture, ``q`` the
+    guided state's (``test_guided.py``, keys s, r and q)."""
     server = serve_in_thread(*QUICK)
     out = tmp_path / "keys.h5"
     lines: list[str] = []
@@ -162,25 +180,34 @@ def test_scripted_keys_skip_and_quit(tmp_path):
 
 
 def test_interrupted_capture_is_resumed_into_the_same_file(tmp_path):
-    """Ctrl-C after two poses (exit 3, saved), then `capture --resume` with the unit served
+    """A key typed on the capture's stdin (``s``: skip the step shown) after the first pose,
+    Ctrl-C after the second (exit 3, saved), then `capture --resume` with the unit served
     again from its first pose: the two poses already there are not taken twice, the other
     four are appended, the session ends complete."""
     import signal
 
     out = tmp_path / "resumed.h5"
     server = serve_in_thread(*QUICK)
+    lines: list[str] = []
     try:
         proc = capture(server.path, out, "--hold", "1")
         seen = 0
         for line in proc.stdout:
+            lines.append(line)
             seen += line.startswith("recorded face")
+            if seen == 1 and line.startswith("recorded face"):
+                proc.stdin.write("s\n")  # skip the step now shown
+                proc.stdin.flush()
             if seen == 2:
                 proc.send_signal(signal.SIGINT)
                 break
         rest, _ = proc.communicate(timeout=30)
     finally:
         server.kill()
-    assert proc.returncode == 3, rest
+    text = "".join(lines) + rest
+    assert proc.returncode == 3, text  # saved but incomplete
+    assert "skipped face -Z up" in text and "missing" in text, text
+    assert "stopped by Ctrl-C" in text, text
     first = read_session(out)
     assert len(first.static_segments()) == 2
     server = serve_in_thread(*QUICK)

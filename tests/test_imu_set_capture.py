@@ -17,6 +17,7 @@ from imucal_cli.formats.session import read_session
 from imucal_cli.simulate.imu_set import gauge_rotation, served_set
 
 from .cli_helpers import run
+from .served import ThreadServer
 from .test_virtual import CLI, RATE, process_factory, saved_samples, start_capture  # noqa: F401
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminals are POSIX")
@@ -42,7 +43,15 @@ def _rotation_error(truth, key, entry) -> np.ndarray:
     return Rotation.from_matrix(np.array(entry["rotation_to_reference"]) @ true_r.T).as_rotvec()
 
 
+# 25 s of CPU and a served plan in make test; its path is the first capture of
+# test_imu_set_resume's test_one_line_of_several_imus_is_resumed (the same served set, columns
+# and units through one port), which checks the same rotations and time offsets, the units and
+# one time stamp per line, after it is resumed to complete: here in make test-all
+@pytest.mark.slow
 def test_one_port_several_triads_per_line(tmp_path, process_factory):  # noqa: F811
+    """Several IMUs' triads on one line, captured uninterrupted: each IMU's rotation and time
+    offset calibrated within their bounds. Redundant in ``make test`` with
+    ``test_imu_set_resume.py::test_one_line_of_several_imus_is_resumed``."""
     server = process_factory("--imus", "3", *SET)
     out = tmp_path / "array.h5"
     cap = start_capture(server.path, out, "--plan", "random:9", "--columns", COLUMNS,
@@ -68,8 +77,11 @@ def test_one_port_several_triads_per_line(tmp_path, process_factory):  # noqa: F
         assert abs(dt) <= 4.5 * entry["time_offset_std_s"], (key, dt, entry)
 
 
-def test_one_port_per_imu(tmp_path, process_factory):  # noqa: F811
-    servers = [process_factory("--imus", "2", "--serve-imu", str(k), *SET) for k in (0, 1)]
+def test_one_port_per_imu(tmp_path):
+    """Two devices, one IMU each, served in threads here (tests/served.py: the command's set
+    options; ``simulate --serve --imus`` as a process: test_imu_set_resume)."""
+    servers = [ThreadServer("--rate", str(RATE), "--imus", "2", "--serve-imu", str(k), *SET)
+               for k in (0, 1)]  # fmt: skip
     out = tmp_path / "two.h5"
     cap = subprocess.Popen(
         [*CLI, "capture", "--port", servers[0].path, "--port", servers[1].path, "--output",

@@ -18,6 +18,7 @@ from imucal_cli.formats.session import read_session
 from imucal_cli.simulate.imu_set import served_set
 
 from .cli_helpers import run, spawn
+from .served import ThreadServer
 from .test_imu_set_capture import COLUMNS, SET, _rotation_error, _truth
 from .test_virtual import CLI, RATE, process_factory  # noqa: F401
 
@@ -92,6 +93,10 @@ def _served_rows(imus: int, member: int | None = None) -> dict[str, np.ndarray]:
 
 
 def test_one_line_of_several_imus_is_resumed(tmp_path, process_factory):  # noqa: F811
+    """Several IMUs' triads on one line through one port (the capture of
+    ``test_imu_set_capture``'s slow ``test_one_port_several_triads_per_line``), interrupted and
+    resumed to complete: every IMU's samples in order, its rotation and time offset within
+    their bounds."""
     out = tmp_path / "set.h5"
     units = ("--columns", COLUMNS, "--accel-units", "counts", "--gyro-units", "counts")
     server = process_factory("--imus", "3", *SET)
@@ -102,7 +107,8 @@ def test_one_line_of_several_imus_is_resumed(tmp_path, process_factory):  # noqa
     assert len(first.time) == _saved(text) and list(first.imus) == ["imu1", "imu2"]
     done = len(first.static_segments())
     assert 3 <= done < STEPS
-    server = process_factory("--imus", "3", *SET)
+    # served again from its first pose, in a thread here (tests/served.py): the process above
+    server = ThreadServer("--rate", str(RATE), "--imus", "3", *SET)
     proc = _capture([server.path], "--resume", str(out), *units)
     text, _ = proc.communicate(timeout=300)
     server.kill()
@@ -116,6 +122,7 @@ def test_one_line_of_several_imus_is_resumed(tmp_path, process_factory):  # noqa
     _check_parts(first, session, _served_rows(3))
     for imu in session.imus.values():  # one line, one time stamp, resumed as one
         np.testing.assert_array_equal(imu.time, session.time)
+        assert imu.accel_units == "counts" or imu.accel_units is None
     assert len(session.static_segments()) == STEPS
     proc = run("calibrate", out, "--json", "--no-store")
     assert proc.returncode == 0, proc.stderr
@@ -186,8 +193,6 @@ def test_one_port_per_imu_host_stamped_is_resumed(tmp_path, process_factory):  #
 def test_a_resumed_capture_must_be_the_sessions_set(tmp_path):
     """A capture whose IMUs are not the session's (one port on a set, another number of
     triads) is refused in one line, the session left as it was."""
-    from .served import ThreadServer
-
     session = tmp_path / "set.h5"
     assert run("simulate", "--imus", "3", "--plan", "six", "--hold", "1", "-o",
                session).returncode == 0  # fmt: skip

@@ -11,14 +11,20 @@ served; ``--serve --person --jitter-deg 1e300`` was a traceback; ``--serve --hol
 from __future__ import annotations
 
 import inspect
+import json
+import subprocess
+import sys
 import types
 import typing
+from pathlib import Path
 
 import pytest
 
 from imucal_cli.cli.simulate_checks import BOUNDS
 
-from .cli_helpers import assert_one_line_error, run, run_process
+from .cli_helpers import assert_one_line_error, run
+
+ROOT = Path(__file__).resolve().parents[1]
 
 #: Integer options with a range of their own (checked by the simulators), and --clock-ppm.
 CHECKED_ELSEWHERE = {"seed", "rotations_per_axis", "orientations", "samples", "mountings",
@@ -83,9 +89,7 @@ def test_absurd_numbers_are_refused_in_one_line(tmp_path, args, words):
     assert not out.exists() and not (tmp_path / "x.truth.json").exists()
 
 
-@pytest.mark.parametrize(
-    ("args", "words"),
-    [
+SERVE_REFUSALS = [
         (["--plan", "six", "--duration", "nan"], ["--duration", "finite"]),
         (["--plan", "six", "--stall-after", "-1"], ["--stall-after", "from 0"]),
         (["--plan", "six", "--vanish-after", "nan"], ["--vanish-after"]),
@@ -96,12 +100,32 @@ def test_absurd_numbers_are_refused_in_one_line(tmp_path, args, words):
         (["--plan", "six", "--imus", "2", "--serve-imu", "5"], ["--serve-imu", "0 to 1"]),
         (["--person", "--accel-noise", "nan"], ["--accel-noise"]),
         (["--person", "--jitter-deg", "1e300"], ["--jitter-deg", "45 deg"]),  # a traceback
-    ],
-)
-def test_serve_refuses_before_it_serves(args, words):
+]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def serve_refusals() -> list[subprocess.CompletedProcess]:
+    """``imucal simulate --serve ARGS`` of every case of :data:`SERVE_REFUSALS`, one after the
+    other in one process of their own (:func:`cli_helpers.run` there: one interpreter, not
+    ten): a serve that started would keep that process until the timeout, failing them all.
+    The program's own exit path with a one-line error is ``test_no_such_port``'s."""
+    script = ("import json, sys\nfrom tests.cli_helpers import run\n"
+              "procs = [run('simulate', '--serve', *a) for a in json.loads(sys.argv[1])]\n"
+              "print(json.dumps([[p.returncode, p.stdout, p.stderr] for p in procs]))\n")
+    cases = json.dumps([args for args, _ in SERVE_REFUSALS])
+    proc = subprocess.run([sys.executable, "-c", script, cases], capture_output=True,
+                          text=True, timeout=120, cwd=ROOT)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    return [subprocess.CompletedProcess(args, code, out, err) for (args, _), (code, out, err)
+            in zip(SERVE_REFUSALS, json.loads(proc.stdout), strict=True)]  # fmt: skip
+
+
+@pytest.mark.parametrize("case", range(len(SERVE_REFUSALS)),
+                         ids=[" ".join(args) for args, _ in SERVE_REFUSALS])  # fmt: skip
+def test_serve_refuses_before_it_serves(serve_refusals, case):
     """A refused --serve never opens its port: one line, nothing on stdout (a serve that
     started would run until the timeout)."""
-    proc = run_process("simulate", "--serve", *args, stdin=None, timeout=120)
+    proc, words = serve_refusals[case], SERVE_REFUSALS[case][1]
     assert_one_line_error(proc, *words)
     assert proc.stdout == ""
 

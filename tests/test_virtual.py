@@ -140,31 +140,6 @@ def process_factory():
         s.kill()
 
 
-def test_unattended_complete_session(tmp_path, process_factory):
-    server = process_factory("--plan", "six", "--hold", "1.5", "--move", "0.8",
-                            "--malformed-every", "97")  # fmt: skip
-    out = tmp_path / "six.h5"
-    cap = start_capture(server.path, out, "--plan", "six")
-    stdout, stderr = cap.communicate(timeout=120)
-    sent = server.finish()
-    assert cap.returncode == 0, (stdout, stderr)
-    assert "complete (6 steps seen)" in stdout
-    session = read_session(out)
-    assert len(session.time) == saved_samples(stdout) == sent["lines"] - sent["malformed"]
-    assert f"malformed {sent['malformed']};" in stdout and sent["malformed"] > 0
-    static = session.static_segments()
-    assert [s.label for s in static] == ["face +Z up", "face -Z up", "face +X up", "face -X up",
-                                         "face +Y up", "face -Y up"]  # fmt: skip
-    assert all(s.up is not None for s in static) and len(session.rotation_segments()) == 5
-    assert session.source == f"serial:{server.path}@115200"
-    # The session is one the calibrator reads (in this process: its own process is
-    # test_calibrate's test_bad_inputs_are_exit_2 and test_cli_conformance's)
-    cal = run("calibrate", out)
-    # six labelled faces calibrate by default with the labelled-pose solver (issue 9.1)
-    assert cal.returncode == 0, cal.stderr
-    assert "labelled" in cal.stdout
-
-
 @pytest.mark.parametrize(("signum", "words"), [(signal.SIGINT, "Ctrl-C"),
                                                (signal.SIGTERM, "SIGTERM")])  # fmt: skip
 def test_signal_saves_every_sample_received(tmp_path, server_factory, signum, words):
@@ -315,17 +290,21 @@ def test_no_prompt_needs_a_duration_or_a_plan(tmp_path):
     # the same path with the other sketch's lines (parsed alike: tests/test_capture_lines.py)
     pytest.param("i2cdevlib", ["--protocol", "i2cdevlib"], marks=pytest.mark.slow),
 ])  # fmt: skip
-def test_sketch_lines_captured_end_to_end(tmp_path, server_factory, protocol, capture_args):
-    """The virtual IMU prints MotionCal's Raw: lines (recognised by themselves) or i2cdevlib's
-    a/g: lines (asked for): every line sent arrives with its counts, the faces are found."""
+def test_sketch_lines_captured_end_to_end(tmp_path, process_factory, protocol, capture_args):
+    """The whole unattended session end to end, the device a process: the virtual IMU prints
+    MotionCal's Raw: lines (recognised by themselves) or i2cdevlib's a/g: lines (asked for):
+    every line sent arrives with its counts, malformed lines counted and left out, the six
+    faces found in the plan's order with the turns between them, and the session calibrates.
+    (The plain t,ax,... lines of a plan, unattended through the device's process:
+    ``test_imu_set_capture``, ``test_capture_until``, ``test_bench_live``.)"""
     import numpy as np
 
     from imucal_cli.simulate.device import HARD_IRON_COUNTS, stream_arrays
 
     # 2 s holds: the host clock stamps these lines, in bursts as they arrive, which leaves a
     # 1.5 s hold's still period at the edge of --min-still 1 s
-    server = server_factory("--plan", "six", "--hold", "2", "--move", "0.8", "--baud",
-                            "460800", "--protocol", protocol, "--malformed-every", "97")
+    server = process_factory("--plan", "six", "--hold", "2", "--move", "0.8", "--baud",
+                             "460800", "--protocol", protocol, "--malformed-every", "97")
     out = tmp_path / f"{protocol}.h5"
     cap = start_capture(server.path, out, "--plan", "six", *capture_args)
     stdout, stderr = cap.communicate(timeout=120)
@@ -340,7 +319,18 @@ def test_sketch_lines_captured_end_to_end(tmp_path, server_factory, protocol, ca
     np.testing.assert_array_equal(session.accel, np.round(accel[kept]))
     np.testing.assert_array_equal(session.gyro, np.round(gyro[kept]))
     assert session.accel_units == session.gyro_units == "counts"
-    assert len(session.static_segments()) == 6 and "complete (6 steps seen)" in stdout
+    assert "complete (6 steps seen)" in stdout
+    static = session.static_segments()
+    assert [s.label for s in static] == ["face +Z up", "face -Z up", "face +X up", "face -X up",
+                                         "face +Y up", "face -Y up"]  # fmt: skip
+    assert all(s.up is not None for s in static) and len(session.rotation_segments()) == 5
+    assert session.source == f"serial:{server.path}@115200"  # the capture's own --baud
+    # The session is one the calibrator reads (in this process: its own process is
+    # test_calibrate's test_bad_inputs_are_exit_2 and test_cli_conformance's)
+    cal = run("calibrate", out)
+    # six labelled faces calibrate by default with the labelled-pose solver (issue 9.1)
+    assert cal.returncode == 0, cal.stderr
+    assert "labelled" in cal.stdout
     # the host's stamps, once the capture ended: each run between pauses on the device's
     # steady clock, without the read jitter (which the gyro's turns integrate over)
     from imucal_cli.capture.host_clock import MIN_STEADY, PAUSE_S, STEADY_MISS
