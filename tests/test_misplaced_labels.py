@@ -88,3 +88,39 @@ def test_detection_rates(plan, angle, jitter, least):
         named += _named(calibrate_session(faults.wrong_label(session, k, angle), CFG), seg)
         false += _false_alarm(calibrate_session(session, CFG))
     assert named >= least and false == 0, (named, false)
+
+
+def test_the_holds_of_one_placement_lose_their_labels_together():
+    """A pose 20 degrees off its label, held twice in a row (a turn on the table between):
+    the two holds are one placement (``labelled_holds``), so both lose their label; it was a
+    warning that stopped the save, 'disagree with each other ... cannot tell which'."""
+    from dataclasses import replace
+
+    from scipy.spatial.transform import Rotation
+
+    from imucal_cli.calibrate.accel.labelled import fit_poses, misplaced_labels
+    from imucal_cli.calibrate.common import static_poses
+
+    session, _ = simulate(plan="qureshi18", seed=101, created=CREATED)
+    P = static_poses(session)
+    k = 7
+    idx = np.r_[np.arange(k + 1), k, np.arange(k + 1, len(P.segments))]
+    B = P.subset(idx)
+    a = B.a_mean.copy()  # the second hold: the same gravity, its own noise
+    a[k + 1] = a[k] + np.random.default_rng(0).standard_normal(3) @ np.linalg.cholesky(
+        B.cov_mean[k]).T
+    segs = list(B.segments)
+    segs[k + 1] = replace(segs[k + 1], name=segs[k + 1].name + "b")
+    axis = np.cross(B.up[k], [1.0, 0, 0] if abs(B.up[k][0]) < 0.9 else [0, 1.0, 0])
+    up = B.up.copy()
+    up[k] = up[k + 1] = Rotation.from_rotvec(np.radians(20) * axis / np.linalg.norm(axis)).apply(
+        B.up[k])
+    B = replace(B, a_mean=a, up=up, segments=segs)
+    res = fit_poses(B, 9.80665, CFG)
+    assert res.fit.runs is not None and res.fit.runs.index[k] == res.fit.runs.index[k + 1]
+    _, used, found, blocking = misplaced_labels(res, B, 9.80665, CFG)
+    assert blocking is None
+    assert sorted(o.segment for o in found) == sorted([segs[k].name, segs[k + 1].name])
+    assert all(o.action == "label ignored" for o in found)
+    assert np.isnan(used.up[[k, k + 1]]).all()
+    assert np.isfinite(np.delete(used.up, [k, k + 1], axis=0)).all()

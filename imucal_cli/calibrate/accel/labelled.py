@@ -167,7 +167,8 @@ def misplaced_labels(res, poses: StaticPoses, g: float, cfg: Config):
     (:func:`imucal_cli.estimators.accel.labelled_checks.placement_outliers`; issue 24.6: a
     label 5-20 degrees wrong used to inflate the placement estimate, and every std with it,
     instead of being named). A pose the design can single out loses its label (its magnitude
-    still counts) and the fit is redone; a group it cannot tell apart (opposite faces of six, whose
+    still counts; the holds of one placement, fitted as one, lose theirs together) and the fit
+    is redone; a group it cannot tell apart (opposite faces of six, whose
     disagreement the fit shares) is named in a warning that stops the save.
 
     Returns the result, the poses used, the outliers (action ``"label ignored"``) and the
@@ -185,7 +186,7 @@ def misplaced_labels(res, poses: StaticPoses, g: float, cfg: Config):
         angles = [float(res.up_angle_deg[k]) for k in idx]
         others = np.delete(res.up_angle_deg, idx)
         spread = float(np.sqrt(np.nanmean(others**2))) if np.isfinite(others).any() else 0.0
-        if len(idx) > 1:
+        if len(idx) > 1 and not _one_placement(res, idx):
             return res, poses, found, (
                 f"{' and '.join(names)} disagree with each other: their placements come to "
                 f"{', '.join(f'{a:.1f}' for a in angles)} deg off their labels where the other "
@@ -194,9 +195,8 @@ def misplaced_labels(res, poses: StaticPoses, g: float, cfg: Config):
                 "which; check them and re-capture (the 12 edges of plan qureshi18 tell each "
                 "pose apart)"
             )  # fmt: skip
-        k = idx[0]
         up = poses.up.copy()
-        up[k] = np.nan
+        up[idx] = np.nan  # one pose, or the holds of one placement (a turn on the table)
         trial = replace(poses, up=up)
         if not design_ok(trial):
             return res, poses, found, None
@@ -204,13 +204,22 @@ def misplaced_labels(res, poses: StaticPoses, g: float, cfg: Config):
             new = fit_poses(trial, g, cfg)
         except (DesignError, SolverError):
             return res, poses, found, None
-        seg = poses.segments[k]
         cause = (f"it sat {angles[0]:.1f} deg off its label where the other poses sit within "
                  f"{spread:.1f} deg RMS (p = {p:.2g}): its label is wrong, or it rested on "
                  "something")  # fmt: skip
-        found.append(Outlier(k, seg.name, seg.label, float("nan"), p, cause, "label ignored"))
+        for k in idx:
+            seg = poses.segments[k]
+            found.append(Outlier(k, seg.name, seg.label, float("nan"), p, cause,
+                                 "label ignored"))  # fmt: skip
         res, poses = new, trial
     return res, poses, found, None
+
+
+def _one_placement(res: labelled_solver.LabelledResult, idx: list[int]) -> bool:
+    """Whether the poses ``idx`` are the holds of one placement, fitted as one
+    (:mod:`imucal_cli.estimators.accel.labelled_holds`): their labels go together."""
+    runs = None if res.fit is None else res.fit.runs
+    return runs is not None and len({int(runs.index[k]) for k in idx}) == 1
 
 
 def _pose_name(poses: StaticPoses, k: int) -> str:
