@@ -33,7 +33,12 @@ from rich.table import Table
 
 from bench.trust_gyro import DATA, REAL
 from imucal_cli.calibrate.common import static_poses
-from imucal_cli.calibrate.session import calibrate_accel, calibrate_session, with_segments
+from imucal_cli.calibrate.session import (
+    calibrate_accel,
+    calibrate_session,
+    suspect_error,
+    with_segments,
+)
 from imucal_cli.errors import ImucalError
 from imucal_cli.estimators.accel.labelled import public_params
 from imucal_cli.formats.config import config_from_dict
@@ -147,17 +152,23 @@ def ferraris_rows(n_seeds: int) -> dict:
         for seed in range(n_seeds):
             session, truth = simulate_plan(plan, seed=1700 + seed, created=CREATED)
             try:
-                sec = calibrate_session(as_captured(session, plan),
-                                        config_from_dict({"gyro": {"solver": "none"}})).accel
+                cal = calibrate_session(as_captured(session, plan),
+                                        config_from_dict({"gyro": {"solver": "none"}}))
             except ImucalError:
                 refused += 1
                 continue
-            p = sec.parameters[:12]
+            if suspect_error(cal) is not None:  # a blocking warning: the CLI saves nothing
+                refused += 1
+                continue
+            p = cal.accel.parameters[:12]
             err = np.array([q.value for q in p]) - public_params(
                 truth.accel.bias, np.linalg.inv(truth.accel.matrix))  # fmt: skip
             hits.append(np.abs(err) <= np.array([q.ci95 or 1.96 * q.std for q in p]))
             z.append(err / np.array([q.std for q in p]))
-    hits, z = np.array(hits), np.array(z)
+    hits, z = np.array(hits).reshape(-1, 12), np.array(z).reshape(-1, 12)
+    if not len(hits):
+        return {"seeds": n_seeds, "refused": refused, "coverage": float("nan"),
+                "groups": [(name, float("nan"), float("nan")) for name, _ in GROUPS]}
     return {"seeds": n_seeds, "refused": refused, "coverage": float(hits.mean()),
             "groups": [(name, float(hits[:, sl].mean()), float(np.sqrt(np.mean(z[:, sl] ** 2))))
                        for name, sl in GROUPS]}  # fmt: skip
