@@ -161,7 +161,7 @@ class _LeastSquares:
     sol: np.ndarray
     res: np.ndarray
     cov_noise: np.ndarray  # residual scale on the noise's shape, P W P^T
-    dof: int
+    dof: float  # of the scale: tr(R W)^2 / tr(R W R W), R = I - H (K - p when W = I)
     P: np.ndarray  # pinv(A): the estimate's response to the angles
     H_res: np.ndarray  # I - A P: the residuals' response
     W: np.ndarray  # noise shape
@@ -178,9 +178,12 @@ def _least_squares(A: np.ndarray, angle: np.ndarray, noise: TurnNoise | None) ->
     res = angle - A @ sol
     H_res = np.eye(len(angle)) - A @ P
     W = np.eye(len(angle)) if noise is None else noise.shape(float(sol[0]))
-    trace = float(np.trace(H_res @ W))
+    RW = H_res @ W
+    trace = float(np.trace(RW))
     s2 = float(res @ res) / trace
-    return _LeastSquares(sol, res, s2 * P @ W @ P.T, len(angle) - A.shape[1], P, H_res, W, trace)
+    # |r|^2 of noise s^2 W has mean s^2 tr(RW) and variance 2 s^4 tr(RWRW): Satterthwaite
+    dof = trace**2 / max(float(np.sum(RW * RW.T)), 1e-300)
+    return _LeastSquares(sol, res, s2 * P @ W @ P.T, dof, P, H_res, W, trace)
 
 
 def _model_part(ls: _LeastSquares, model: ModelErrors | None, J: np.ndarray) -> tuple[float, float]:
