@@ -12,8 +12,14 @@ fraction of reported 95 % intervals that hold the truth.  Its verdict:
   the ratio's :data:`CONFIDENCE` interval when each capture is one of its seed's draws
   (:func:`person_interval`): widened only by that measured sampling error, never below the
   target, so a live path worse than the draws by more than both still fails;
-- **coverage**: live not further from the file's than their sampling allows (1.96 std of the
-  difference), and holding 95 % in its own 95 % (Wilson) interval.  The intervals of one
+- **coverage**: live not further from the file's than their sampling allows, and holding 95 %
+  in its own (Wilson) interval.  Both are tests, one per row, so each is made at the
+  family-wise level of the table (:func:`family_z`, Bonferroni): 24 rows each at 95 % would
+  fail a path that loses nothing 71 % of the time (1 - 0.95^24), at 1 - 0.05 / 24 one time in
+  twenty.  A live coverage whose interval misses 95 % where the file of the same seeds misses
+  alike (unattended: the very samples) while the file over all its seeds holds 95 % is those
+  seeds' draw, not the path's: said in a note, not failed (free:12 seeds 0-2: 82.5 % live and
+  file, the file 93.2 % over seeds 0-59 and 94.9 % over 60-259).  The intervals of one
   seed's parameters are not independent (one seed's errors share its poses and noise: a seed
   that misses tends to miss several terms), so both take the plan's design effect
   (:func:`design_effect`, Kish: the variance of the pooled fraction between seeds over the
@@ -31,6 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from rich.console import Console
 from rich.table import Table
+from scipy.special import ndtri
 
 from bench.live_grade import Graded
 
@@ -62,9 +69,16 @@ def rms(z2: np.ndarray) -> float:
     return float(np.sqrt(np.mean(z2))) if len(z2) else float("nan")
 
 
+def family_z(family: int, level: float = CONFIDENCE) -> float:
+    """The normal quantile of a two-sided test at ``level`` family-wise over ``family`` tests
+    (Bonferroni): 1.96 for one, 3.08 for 24."""
+    return float(ndtri(1.0 - (1.0 - level) / (2 * max(int(family), 1))))
+
+
 def wilson(hits: np.ndarray, z: float = 1.96, deff: float = 1.0) -> tuple[float, float]:
-    """The 95 % (Wilson) interval of a fraction of ``hits``, the hits counting as
-    ``len(hits) / deff`` independent ones (``deff``: :func:`design_effect`)."""
+    """The (Wilson) interval of a fraction of ``hits`` at the normal quantile ``z`` (1.96:
+    95 %), the hits counting as ``len(hits) / deff`` independent ones (``deff``:
+    :func:`design_effect`)."""
     n = len(hits) / deff
     if n == 0:
         return float("nan"), float("nan")
@@ -115,11 +129,13 @@ class Row:
     cover_ci: tuple[float, float] = (float("nan"), float("nan"))
     n_intervals: int = 0
     cover_file: float = float("nan")
+    cover_file_ci: tuple[float, float] = (float("nan"), float("nan"))
     cover_tol: float = float("nan")
     file_all: float = float("nan")
     cover_all: float = float("nan")
     cover_all_ci: tuple[float, float] = (float("nan"), float("nan"))
     deff: float = 1.0
+    z: float = 1.96
     file_n: int = 0
     wall: str = ""
     served: str = ""
@@ -249,12 +265,13 @@ def _figures(row: Row, pairs: list, file_of: dict, rng, held_of: dict | None = N
     z_all, h_all = pool(every, [sensors(f) for f in every])
     row.deff = design_effect([pool([f], [sensors(f)])[1] for f in every])
     row.cover_live, row.cover_file = float(h_live.mean()), float(h_file.mean())
-    row.cover_ci, row.n_intervals = wilson(h_live, deff=row.deff), len(h_live)
+    row.cover_ci, row.n_intervals = wilson(h_live, row.z, row.deff), len(h_live)
+    row.cover_file_ci = wilson(h_file, row.z, row.deff)
     p = (h_live.sum() + h_file.sum()) / (len(h_live) + len(h_file))
-    row.cover_tol = 1.96 * float(np.sqrt(p * (1 - p) * row.deff
+    row.cover_tol = row.z * float(np.sqrt(p * (1 - p) * row.deff
                                          * (1 / len(h_live) + 1 / len(h_file))))  # fmt: skip
     row.file_all, row.cover_all, row.file_n = rms(z_all), float(h_all.mean()), len(every)
-    row.cover_all_ci = wilson(h_all, deff=row.deff)
+    row.cover_all_ci = wilson(h_all, row.z, row.deff)
     _per_sensor(row, pairs, both, every, draws_of if drawn is not None else None)
     return both
 
@@ -346,19 +363,38 @@ def _verdict(row: Row) -> None:
                        f"{100 * row.cover_tol:.1f} points apart)")  # fmt: skip
     clo, chi = row.cover_ci
     if np.isfinite(clo) and not clo <= NOMINAL <= chi:
-        alo, ahi = row.cover_all_ci
-        solver = np.isfinite(alo) and not alo <= NOMINAL <= ahi
-        row.why.append(
-            f"coverage {100 * row.cover_live:.1f} % ({100 * clo:.0f}-{100 * chi:.0f} %, "
-            f"{row.n_intervals} intervals, design effect {row.deff:.1f}) does not hold "
-            f"{100 * NOMINAL:.0f} %"
-            + (f" [solver: the file's over {row.file_n} seeds is {100 * row.cover_all:.1f} % "
-               f"({100 * alo:.0f}-{100 * ahi:.0f} %)]" if solver else "")
-        )  # fmt: skip
+        _short_coverage(row)
+
+
+def _holds(ci: tuple[float, float]) -> bool:
+    return bool(np.isfinite(ci[0]) and ci[0] <= NOMINAL <= ci[1])
+
+
+def _short_coverage(row: Row) -> None:
+    """A live coverage whose interval misses 95 %: the solver's where the file's over all its
+    seeds misses too; the seeds' draw (a note) where the file of the same seeds misses alike
+    and the file over all its seeds holds 95 %; else the path's."""
+    clo, chi = row.cover_ci
+    alo, ahi = row.cover_all_ci
+    said = (f"coverage {100 * row.cover_live:.1f} % ({100 * clo:.0f}-{100 * chi:.0f} %, "
+            f"{row.n_intervals} intervals, design effect {row.deff:.1f}, "
+            f"z {row.z:.2f})")  # fmt: skip
+    over_all = (f"the file's over {row.file_n} seeds is {100 * row.cover_all:.1f} % "
+                f"({100 * alo:.0f}-{100 * ahi:.0f} %)")  # fmt: skip
+    if np.isfinite(alo) and not _holds(row.cover_all_ci):
+        row.why.append(f"{said} does not hold {100 * NOMINAL:.0f} % [solver: {over_all}]")
+    elif (not _holds(row.cover_file_ci) and np.isfinite(row.cover_file_ci[0])
+          and abs(row.cover_live - row.cover_file) <= row.cover_tol):  # fmt: skip
+        row.notes.append(f"{said} misses {100 * NOMINAL:.0f} % as the file of the same seeds "
+                         f"does ({100 * row.cover_file:.1f} %), and {over_all}: these seeds' "
+                         "draw, not the path's")  # fmt: skip
+    else:
+        row.why.append(f"{said} does not hold {100 * NOMINAL:.0f} %")
 
 
 def make_row(name: str, mode: str, jobs: list, file_of: dict, rng,
-             same_of: dict | None = None, draws_of: dict | None = None) -> Row:  # fmt: skip
+             same_of: dict | None = None, draws_of: dict | None = None,
+             family: int = 1) -> Row:  # fmt: skip
     """The figures and verdict of plan ``name`` in ``mode``: its jobs (:class:`bench.live.Job`)
     and the file reference of every seed (``{seed: graded sections}``).  ``same_of``: the
     reference each seed's live figures are paired with where not ``file_of`` (guided

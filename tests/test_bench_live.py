@@ -170,6 +170,31 @@ def test_the_verdict_names_what_fails_and_whose_it_is():
     assert any("seed 3" in w and "[solver" in w for w in row.why), row.why
 
 
+def test_coverage_tests_are_family_wise_and_unlucky_seeds_are_the_seeds():
+    """Each row's coverage tests are made at the table's family-wise 95 % (Bonferroni: z 3.08
+    for 24 rows, 1.96 for one): a path that loses nothing fails a 24-row table by chance one
+    time in twenty, not 71 %.  A live coverage short of 95 % that the file of the same seeds
+    shares, while the file over all its seeds holds 95 %, is a note (those seeds' draw); the
+    same shortfall where the file of the same seeds holds 95 % fails (the path's)."""
+    from bench.live_table import family_z, make_row
+
+    assert family_z(1) == pytest.approx(1.96, abs=1e-3)
+    assert family_z(24) == pytest.approx(3.08, abs=5e-3)
+    rng = np.random.default_rng(3)
+    files = {s: _graded(rng) for s in range(40)}  # 95 % over all seeds
+    unlucky = {s: _graded(rng, half=1.0) for s in range(3)}  # about 68 % on seeds 0-2
+    for s in unlucky:
+        files[s] = unlucky[s]
+    jobs = [_Job(s, unlucky[s]) for s in range(3)]
+    row = make_row("p", "unattended", jobs, files, rng, family=24)
+    assert row.ok, row.why
+    assert any("these seeds' draw" in n for n in row.notes), row.notes
+    held = {s: _graded(rng) for s in range(40)}  # the file of the same seeds holds 95 %
+    row = make_row("p", "guided", jobs, files, rng, same_of=held, family=24)
+    assert not row.ok and any("does not hold 95 %" in w for w in row.why), row.why
+    assert not any("[solver" in w for w in row.why)
+
+
 def test_the_ratio_interval_of_seeds_with_nothing_graded_in_both_is_nan():
     """Seeds whose live and file calibrations share no graded sensor (a plan saved only in
     part on one side) give no ratio interval, not a crash of the whole table (the bench's
