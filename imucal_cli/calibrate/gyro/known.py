@@ -33,6 +33,7 @@ from imucal_cli.calibrate.gyro.known_section import section as _section
 from imucal_cli.calibrate.gyro.rotations import (
     calibrate_gyro_rotations,
     clipped_known,
+    rounding,
     still_periods,
     turns_between,
 )
@@ -262,6 +263,8 @@ def _known_data(session, cfg, accel_cal, where):
                     notes=[f"{len(known.t)} turn(s) of known angle, {len(turns)} between still "
                            "periods measured by gravity"] + ([settled] if settled else [])
                     + notes)  # fmt: skip
+    data.noise, data.common_var = rounding(session, statics, data.noise)
+    data.b_still_std = float(np.sqrt(data.noise**2 / n + data.common_var))
     clipped_known(session, data, known.z)  # the turns between still periods too
     return data, known, used, segs, statics, assumed
 
@@ -290,7 +293,8 @@ def calibrate_gyro_known(
     if not used:
         return _without_known_turns(session, cfg, accel_cal, data, segs)
     turns, b0 = data.turns, data.bias_still
-    rot, st = rotations_and_stills(data) if turns else (None, solver_stills(data.stills))
+    rot, st = (rotations_and_stills(data) if turns
+               else (None, solver_stills(data.stills, data.common_var)))  # fmt: skip
     x0 = None
     if len(known.t) < 3 and rot is not None and 2 * len(turns) >= 9:
         full = gyro_full.fit_full(rot, st, data.noise, b0)

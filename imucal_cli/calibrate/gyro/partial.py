@@ -28,6 +28,7 @@ from scipy.special import chdtrc
 from imucal_cli.calibrate.common import session_name
 from imucal_cli.calibrate.gyro.full import gain_std
 from imucal_cli.calibrate.gyro.turns import AXES
+from imucal_cli.design import holds
 from imucal_cli.errors import DesignError
 from imucal_cli.estimators.accel.partial import MEASURED_RATIO
 from imucal_cli.formats.config import Config
@@ -36,6 +37,7 @@ from imucal_cli.model.calibration import MODEL_EQUATION, SensorCalibration
 from imucal_cli.model.codec import build
 from imucal_cli.model.gyro import GyroCalibration
 from imucal_cli.model.parts import Parameter, Partial
+from imucal_cli.numerics.quantisation import hold_rounding
 from imucal_cli.numerics.segmented import moments_in_chunks
 from imucal_cli.planning.information import axes_std
 
@@ -140,7 +142,9 @@ def stills_bias(session: Session, cfg: Config) -> tuple[np.ndarray, np.ndarray, 
     per-sample noise (per channel, pooled within batches of the periods) over the root of
     their number; per channel scaled by the scatter of the batches' means when it exceeds
     their noise (:data:`SCATTER_P`; the batch-means estimate of a mean's variance: a bias that
-    drifts within or between the periods, correlated noise). Returns it, its std, the
+    drifts within or between the periods, correlated noise); with the variance of the rounding
+    every period shares where a quantised gyro's noise does not dither it
+    (:func:`imucal_cli.numerics.quantisation.rounding_variance`). Returns it, its std, the
     per-sample noise (RMS over the channels) and the warning of a scaled std (or None)."""
     statics = session.static_segments()
     if not statics:
@@ -165,6 +169,10 @@ def stills_bias(session: Session, cfg: Config) -> tuple[np.ndarray, np.ndarray, 
                        f"their noise (chi^2 on {dof} degrees of freedom each, p below "
                        f"{SCATTER_P:g}): the bias drifted (warm-up, bias instability) or the "
                        "noise is correlated; the bias std is scaled by it")  # fmt: skip
+    # a quantised gyro too quiet to dither its rounding: every period errs alike
+    q = holds.quantum(session.gyro[:: max(len(session.gyro) // 20000, 1)])
+    blocks = [session.gyro[s.start : s.stop] for s in statics]
+    std = np.sqrt(std**2 + hold_rounding(blocks, q, float(np.min(noise)))[1])
     return bias, std, float(np.sqrt(np.mean(noise**2))), warning
 
 

@@ -36,6 +36,7 @@ from imucal_cli.calibrate.gyro.turns import (
     Still,
     Turn,
 )
+from imucal_cli.design import holds
 from imucal_cli.design.clipping import flat_top_levels
 from imucal_cli.design.gaps import find_gaps, gaps_within
 from imucal_cli.design.segmentation import find_rotations, find_static
@@ -47,6 +48,7 @@ from imucal_cli.formats.session import Segment, Session
 from imucal_cli.model.calibration import MODEL_EQUATION, SensorCalibration
 from imucal_cli.model.codec import build
 from imucal_cli.model.gyro import GyroCalibration
+from imucal_cli.numerics.quantisation import hold_rounding
 from imucal_cli.numerics.segmented import moments_in_chunks, stacked_rows
 
 
@@ -107,6 +109,23 @@ def still_periods(session, accel_cal, cfg, statics) -> tuple[list[Still], float]
                                     strict=True)  # fmt: skip
     ]
     return stills, float(z_sigma)
+
+
+def rounding(session, statics, noise: float) -> tuple[float, float]:
+    """A quantised gyro's per-sample noise in a turn and the variance, per channel, of the
+    rounding error every still mean shares (raw units, raw units^2).
+
+    A gyro whose noise is below half a step reads nearly the same codes in every still
+    period: each mean errs by the rounding of one true rate (bias plus the Earth's), the
+    same in every period, which no number of samples or periods averages away
+    (:mod:`imucal_cli.numerics.quantisation`): ``rounding_variance`` of the noise before the
+    rounding.  In a turn the rate sweeps the codes and the rounding is white, ``q^2 / 12``
+    per sample beside that noise.  Unquantised or dithered data: ``(noise, 0)``.
+    """
+    blocks = [session.gyro[s.start : s.stop] for s in statics]
+    q = holds.quantum(session.gyro[:: max(len(session.gyro) // 20000, 1)])  # turns sweep codes
+    sigma, common = hold_rounding(blocks, q, noise)
+    return max(noise, float(np.hypot(sigma, q / np.sqrt(12.0)))), common
 
 
 def turns_between(session, stills, turns, gap) -> tuple[list[Turn], list[str]]:
@@ -395,7 +414,8 @@ def gyro_data(session: Session, cfg: Config, accel_cal: SensorCalibration) -> Gy
     n = sum(s.segment.stop - s.segment.start for s in stills)
     data.bias_still = np.sum([s.z_mean * (s.segment.stop - s.segment.start) for s in stills],
                              axis=0) / n  # fmt: skip
-    data.b_still_std = data.noise / np.sqrt(n)
+    data.noise, data.common_var = rounding(session, [s.segment for s in stills], data.noise)
+    data.b_still_std = float(np.sqrt(data.noise**2 / n + data.common_var))
     return data
 
 

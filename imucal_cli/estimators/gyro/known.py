@@ -57,7 +57,13 @@ from imucal_cli.estimators.gyro.known_turns import (
     accel_factor,
     gravity_statistics,
 )
-from imucal_cli.estimators.gyro.model import Problem, Rotations, Stills, Whitener
+from imucal_cli.estimators.gyro.model import (
+    Problem,
+    Rotations,
+    Stills,
+    Whitener,
+    common_offset_covariance,
+)
 from imucal_cli.numerics.banded import BandedWhitener
 
 #: A design whose whitened Jacobian has a singular value below this fraction of the largest
@@ -499,6 +505,7 @@ def fit_known(
     f, J = prob.f_and_J(x)
     _check_determined(J, g_sensitivity)
     cov, noise_scale, redundancy = _covariance(f, J, prob.n_known)
+    cov = cov + common_offset_covariance(J, still)  # the rounding the still means share
     b, M, G = prob.split(x)
     return KnownResult(
         b=b.copy(), M=M.copy(), G=G.copy() if g_sensitivity else None, cov=cov,

@@ -67,12 +67,42 @@ class Stills:
         Raw gyro mean of each still period.
     z_sigma : ndarray (P,)
         Standard deviation of each gyro mean, per channel, raw units.
+    z_common : float
+        Variance of an error every gyro mean shares, per channel, raw units^2: the rounding
+        of a quantised gyro its noise does not dither
+        (:func:`imucal_cli.numerics.quantisation.rounding_variance`).  The fit cannot see it
+        (the bias takes it whole); :func:`common_offset_covariance` adds its part to the
+        parameters' covariance.
     """
 
     g: np.ndarray
     g_sigma: np.ndarray
     z_mean: np.ndarray
     z_sigma: np.ndarray
+    z_common: float = 0.0
+
+
+def common_offset_covariance(J: np.ndarray, still: Stills) -> np.ndarray | float:
+    """The parameters' covariance from an error ``delta`` (3,) shared by every still period's
+    gyro mean, variance ``still.z_common`` per channel (a consider parameter, Schmidt): the
+    still rows are the last ``3 P`` of the whitened residuals, each ``(z_mean - b - G a) /
+    z_sigma``, so ``d f / d delta = D`` there and the estimate moves by ``A = (J^T J)^-1 J^T
+    D``; returns ``z_common A A^T`` (0 without it).
+
+    Parameters
+    ----------
+    J : ndarray (rows, n)
+        The whitened Jacobian at the solution, the still rows last.
+    still : Stills
+    """
+    if not still.z_common > 0:
+        return 0.0
+    P = len(still.z_mean)
+    D = np.zeros((len(J), 3))
+    rows = len(J) - 3 * P + np.arange(3 * P)
+    D[rows, np.tile(np.arange(3), P)] = np.repeat(1.0 / still.z_sigma, 3)
+    A = np.linalg.lstsq(J, D, rcond=None)[0]
+    return still.z_common * (A @ A.T)
 
 
 def tangent(u: np.ndarray) -> np.ndarray:
