@@ -15,6 +15,7 @@ from imucal_cli.design.segmentation import find_rotations, find_static
 from imucal_cli.errors import DesignError
 from imucal_cli.formats.config import Config, per_channel
 from imucal_cli.formats.session import Segment, Session
+from imucal_cli.numerics.quantisation import hold_rounding
 
 #: Every pose within this angle of one direction cannot separate bias from scale.
 MIN_SPREAD_DEG = 20.0
@@ -117,7 +118,8 @@ def static_poses(session: Session) -> StaticPoses:
         noise = holds.pooled_noise([clean[k] for k in still], step, [means[k] for k in still])
     samples = np.array([len(b) for b in clean], dtype=int)
     a_mean = np.array(means).reshape(len(segs), na)
-    cov_mean = noise.cov[None, :, :] / samples[:, None, None]
+    cov_mean = noise.cov[None, :, :] / samples[:, None, None] + np.diag(
+        _rounding(session.accel, clean, noise.cov))[None]
     up = np.full((len(segs), 3), np.nan)
     for k, s in enumerate(segs):
         if s.up is not None:
@@ -125,6 +127,16 @@ def static_poses(session: Session) -> StaticPoses:
     spikes = np.array([len(b) - len(c) for b, c in zip(blocks, clean, strict=True)], dtype=int)
     drift = np.array([tr.change for tr in trends]).reshape(len(segs), na)
     return StaticPoses(segs, a_mean, cov_mean, up, samples, noise, spikes, moved, drift)
+
+
+def _rounding(raw: np.ndarray, clean: list[np.ndarray], cov: np.ndarray) -> np.ndarray:
+    """Per channel, the variance of a hold mean's rounding error that its samples do not
+    average away: a quantised sensor too quiet to dither its rounding (noise below half a
+    count; :mod:`imucal_cli.numerics.quantisation`), 0 otherwise.  The step from the whole
+    record (the moves sweep the codes), the noise from each channel's codes in the holds."""
+    q = holds.quantum(raw[:: max(len(raw) // 20000, 1)])
+    return np.array([hold_rounding([b[:, [c]] for b in clean], q, float(np.sqrt(cov[c, c])))[1]
+                     for c in range(cov.shape[0])])  # fmt: skip
 
 
 # --------------------------------------------------------------------------- nominal sensor
