@@ -19,6 +19,7 @@ from imucal_cli.numerics.quantisation import (
     hold_rounding,
     noise_before_rounding,
     noise_from_codes,
+    rounding_covariance,
     rounding_variance,
 )
 
@@ -63,6 +64,40 @@ def test_the_noise_comes_from_the_codes_wherever_the_input_sits(sigma, rel):
     assert got == pytest.approx(0.5 * sigma, rel=rel)
     assert np.sqrt(v) == pytest.approx(np.sqrt(rounding_variance(got, 0.5)), rel=1e-9)
     assert hold_rounding(blocks, 0.0, s) == (s, 0.0)
+
+
+@pytest.mark.parametrize("sigma", [0.0, 0.15, 0.3])
+def test_the_rounding_errors_of_two_holds_covary_by_how_far_apart_they_sit(sigma):
+    """Two holds whose inputs lie ``d`` apart (anywhere in a step): their rounded means' errors
+    covary as ``rounding_covariance`` says: alike at 0 (and whole steps), opposite half a step
+    apart, within the Monte Carlo's sampling error."""
+    rng = np.random.default_rng(11)
+    mu = rng.random(4000)
+    for d in (0.0, 0.5, 0.25, 2.3):
+        e1 = np.round(mu[:, None] + sigma * rng.standard_normal((4000, 100))).mean(1) - mu
+        e2 = np.round(mu[:, None] + d + sigma * rng.standard_normal((4000, 100))).mean(1) - mu - d
+        c = rounding_covariance(np.array([0.0, d]), sigma, 1.0)
+        se = np.std(e1 * e2) / np.sqrt(len(mu))  # the two holds' noise draws are independent
+        assert abs(np.mean(e1 * e2) - c[0, 1]) < 4 * se + 1e-4, (d, np.mean(e1 * e2), c)
+    assert rounding_covariance(np.array([0.0, 1.0]), sigma, 0.0).sum() == 0.0
+
+
+def test_the_codes_ignore_a_stray_sample_nans_and_constant_holds():
+    """One spike of 3 codes in two of 18 holds does not make the noise (it took 0.10 to
+    0.26-0.32 steps); NaN rows are left out; holds whose codes never change say 0 (nothing
+    tells the noise from none: the whole step's rounding, q^2/12)."""
+    rng = np.random.default_rng(5)
+    blocks = [np.round(rng.random(3) * 40 + 0.1 * rng.standard_normal((200, 3)))
+              for _ in range(18)]  # fmt: skip
+    clean = noise_from_codes(blocks, 1.0)
+    blocks[0][5] += 3
+    blocks[1][7] -= 3
+    blocks[2][9] = np.nan
+    assert noise_from_codes(blocks, 1.0) == pytest.approx(clean, rel=0.05)
+    assert 0.08 < clean < 0.12
+    assert noise_from_codes([np.full((50, 3), 7.0), np.full((20, 3), 2.0)], 1.0) == 0.0
+    assert noise_from_codes([np.full((3, 1), np.nan)], 1.0) == 0.0
+    assert hold_rounding([np.full((50, 1), 7.0)], 1.0, 0.0)[1] == pytest.approx(1 / 12, rel=1e-4)
 
 
 def test_a_quiet_quantised_gyro_states_the_rounding_in_its_bias():

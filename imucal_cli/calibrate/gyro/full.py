@@ -72,19 +72,19 @@ def rotations_and_stills(data: GyroData) -> tuple[gyro_full.Rotations, gyro_full
         after=np.array([t.after for t in data.turns]),
         a=np.split(a, np.cumsum(counts)[:-1]),
     )
-    return rot, solver_stills(data.stills, data.common_var)
+    return rot, solver_stills(data.stills, data.round_cov)
 
 
-def solver_stills(stills: list[Still], common: float = 0.0) -> gyro_full.Stills:
+def solver_stills(stills: list[Still], round_cov: np.ndarray | None = None) -> gyro_full.Stills:
     """The solver's view of the still periods: calibrated gravity and its direction noise,
     the raw gyro mean and its noise (floored at 1e-12: a quantised gyro can read constant),
-    and the variance of the rounding all the means share (``common``, raw units^2)."""
+    and the covariance of the means' rounding errors (``round_cov``, (3, P, P) raw units^2)."""
     return gyro_full.Stills(
         g=np.array([s.g for s in stills]),
         g_sigma=np.array([s.g_sigma for s in stills]),
         z_mean=np.array([s.z_mean for s in stills]),
         z_sigma=np.array([max(s.z_sigma, 1e-12) for s in stills]),
-        z_common=float(common),
+        z_round=round_cov,
     )
 
 

@@ -34,6 +34,7 @@ from imucal_cli.calibrate.gyro.rotations import (
     calibrate_gyro_rotations,
     clipped_known,
     rounding,
+    rounding_of_mean,
     still_periods,
     turns_between,
 )
@@ -263,8 +264,9 @@ def _known_data(session, cfg, accel_cal, where):
                     notes=[f"{len(known.t)} turn(s) of known angle, {len(turns)} between still "
                            "periods measured by gravity"] + ([settled] if settled else [])
                     + notes)  # fmt: skip
-    data.noise, data.common_var = rounding(session, statics, data.noise)
-    data.b_still_std = float(np.sqrt(data.noise**2 / n + data.common_var))
+    data.noise, data.round_cov = rounding(session, stills, data.noise)
+    counts = np.array([s.segment.stop - s.segment.start for s in stills], float)
+    data.b_still_std = float(np.sqrt(data.noise**2 / n + rounding_of_mean(data.round_cov, counts)))
     clipped_known(session, data, known.z)  # the turns between still periods too
     return data, known, used, segs, statics, assumed
 
@@ -294,7 +296,7 @@ def calibrate_gyro_known(
         return _without_known_turns(session, cfg, accel_cal, data, segs)
     turns, b0 = data.turns, data.bias_still
     rot, st = (rotations_and_stills(data) if turns
-               else (None, solver_stills(data.stills, data.common_var)))  # fmt: skip
+               else (None, solver_stills(data.stills, data.round_cov)))  # fmt: skip
     x0 = None
     if len(known.t) < 3 and rot is not None and 2 * len(turns) >= 9:
         full = gyro_full.fit_full(rot, st, data.noise, b0)

@@ -192,7 +192,7 @@ def _left_out(v: Verdict, data, joint, rot, names, why, n_known, accel_dirs) -> 
     """The turns between still periods were left out (:func:`leave_out`): said, with how the
     known turns alone predict them."""
 
-    st = solver_stills(data.stills, data.common_var)
+    st = solver_stills(data.stills, data.round_cov)
     pred = known_predict.predict_gravity(rot, st, data.noise, v.result, accel_dirs)
     v.gravity_rows = _gravity_rows(names, [t.segment for t in data.turns], pred, used=False)
     miss = pred["gravity_residual_deg"]

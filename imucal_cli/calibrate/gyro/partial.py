@@ -37,7 +37,7 @@ from imucal_cli.model.calibration import MODEL_EQUATION, SensorCalibration
 from imucal_cli.model.codec import build
 from imucal_cli.model.gyro import GyroCalibration
 from imucal_cli.model.parts import Parameter, Partial
-from imucal_cli.numerics.quantisation import hold_rounding
+from imucal_cli.numerics.quantisation import hold_rounding, rounding_covariance
 from imucal_cli.numerics.segmented import moments_in_chunks
 from imucal_cli.planning.information import axes_std
 
@@ -172,7 +172,11 @@ def stills_bias(session: Session, cfg: Config) -> tuple[np.ndarray, np.ndarray, 
     # a quantised gyro too quiet to dither its rounding: every period errs alike
     q = holds.quantum(session.gyro[:: max(len(session.gyro) // 20000, 1)])
     blocks = [session.gyro[s.start : s.stop] for s in statics]
-    std = np.sqrt(std**2 + hold_rounding(blocks, q, float(np.min(noise)))[1])
+    w = n / n.sum()
+    sigma, v = hold_rounding(blocks, q, float(np.sqrt(np.mean(noise**2))))  # one for the 3
+    if v > 0:  # the batches' means' rounding, alike where they sit alike in a count
+        for c in range(len(std)):
+            std[c] = np.sqrt(std[c] ** 2 + w @ rounding_covariance(means[:, c], sigma, q) @ w)
     return bias, std, float(np.sqrt(np.mean(noise**2))), warning
 
 

@@ -65,9 +65,9 @@ class GyroData:
     warnings: list[str] = field(default_factory=list)
     said: list[str] = field(default_factory=list)  # warnings said, not refused (turns left out)
     left_out: list[str] = field(default_factory=list)  # turns left out, and what would add them
-    #: variance of the rounding every still mean shares, per channel, raw units^2 (a quantised
-    #: gyro too quiet to dither it: :func:`imucal_cli.calibrate.gyro.rotations.rounding`)
-    common_var: float = 0.0
+    #: covariance of the still means' rounding errors per channel, (3, P, P) raw units^2 (a
+    #: quantised gyro too quiet to dither it: :func:`imucal_cli.calibrate.gyro.rotations.rounding`)
+    round_cov: np.ndarray | None = None
 
 
 @dataclass

@@ -39,7 +39,12 @@ from scipy.special import chdtri, fdtrc
 
 from imucal_cli.errors import DesignError, SolverError
 from imucal_cli.estimators.gyro.integration import integrate_rotations
-from imucal_cli.estimators.gyro.model import Problem, Rotations, Stills, common_offset_covariance
+from imucal_cli.estimators.gyro.model import (
+    Problem,
+    Rotations,
+    Stills,
+    rounding_parameter_covariance,
+)
 from imucal_cli.estimators.gyro.start import Start, start_values
 
 #: A fit leaving a turn's gravity direction further off than this did not find the turns'
@@ -426,7 +431,7 @@ def _result(prob: Problem, solved: _Solved, tried: int) -> FullResult:
     chi2 = solved.chi2
     noise_scale = chi2 / dof if chi2 > chdtri(dof, 0.01) else 1.0
     # the rounding every still mean shares, which no residual shows (Stills.z_common)
-    cov = noise_scale * np.linalg.inv(J.T @ J) + common_offset_covariance(J, prob.still)
+    cov = noise_scale * np.linalg.inv(J.T @ J) + rounding_parameter_covariance(J, prob.still)
     resid, angles, turn_chi2, sigma = _turn_statistics(prob, solved.x)
     b, M, G = prob.split(solved.x)
     notes = [solved.start + (f" (best of {tried} starts)" if tried > 1 else "")]

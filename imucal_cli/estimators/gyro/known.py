@@ -62,7 +62,7 @@ from imucal_cli.estimators.gyro.model import (
     Rotations,
     Stills,
     Whitener,
-    common_offset_covariance,
+    rounding_parameter_covariance,
 )
 from imucal_cli.numerics.banded import BandedWhitener
 
@@ -505,7 +505,7 @@ def fit_known(
     f, J = prob.f_and_J(x)
     _check_determined(J, g_sensitivity)
     cov, noise_scale, redundancy = _covariance(f, J, prob.n_known)
-    cov = cov + common_offset_covariance(J, still)  # the rounding the still means share
+    cov = cov + rounding_parameter_covariance(J, still)  # the rounding the still means share
     b, M, G = prob.split(x)
     return KnownResult(
         b=b.copy(), M=M.copy(), G=G.copy() if g_sensitivity else None, cov=cov,

@@ -67,27 +67,28 @@ class Stills:
         Raw gyro mean of each still period.
     z_sigma : ndarray (P,)
         Standard deviation of each gyro mean, per channel, raw units.
-    z_common : float
-        Variance of an error every gyro mean shares, per channel, raw units^2: the rounding
-        of a quantised gyro its noise does not dither
-        (:func:`imucal_cli.numerics.quantisation.rounding_variance`).  The fit cannot see it
-        (the bias takes it whole); :func:`common_offset_covariance` adds its part to the
-        parameters' covariance.
+    z_round : ndarray (3, P, P), optional
+        Covariance of the gyro means' rounding errors, per channel, raw units^2: a quantised
+        gyro its noise does not dither rounds every still period's rate alike where the
+        rates sit at one place within a count
+        (:func:`imucal_cli.numerics.quantisation.rounding_covariance`).  Not in ``z_sigma``:
+        the fit cannot see the shared part (the bias takes it whole);
+        :func:`rounding_parameter_covariance` adds it to the parameters' covariance.
     """
 
     g: np.ndarray
     g_sigma: np.ndarray
     z_mean: np.ndarray
     z_sigma: np.ndarray
-    z_common: float = 0.0
+    z_round: np.ndarray | None = None
 
 
-def common_offset_covariance(J: np.ndarray, still: Stills) -> np.ndarray | float:
-    """The parameters' covariance from an error ``delta`` (3,) shared by every still period's
-    gyro mean, variance ``still.z_common`` per channel (a consider parameter, Schmidt): the
-    still rows are the last ``3 P`` of the whitened residuals, each ``(z_mean - b - G a) /
-    z_sigma``, so ``d f / d delta = D`` there and the estimate moves by ``A = (J^T J)^-1 J^T
-    D``; returns ``z_common A A^T`` (0 without it).
+def rounding_parameter_covariance(J: np.ndarray, still: Stills) -> np.ndarray | float:
+    """The parameters' covariance from the gyro means' rounding errors ``e_c`` (P,) of each
+    channel ``c``, covariance ``still.z_round[c]`` (consider parameters, Schmidt): the still
+    rows are the last ``3 P`` of the whitened residuals, row ``3 p + c`` of them ``(z_mean -
+    b - G a)_pc / z_sigma_p``, so ``d f / d e_c = D_c`` there and the estimate moves by ``A_c
+    = (J^T J)^-1 J^T D_c``; returns ``sum_c A_c z_round[c] A_c^T`` (0 without it).
 
     Parameters
     ----------
@@ -95,14 +96,16 @@ def common_offset_covariance(J: np.ndarray, still: Stills) -> np.ndarray | float
         The whitened Jacobian at the solution, the still rows last.
     still : Stills
     """
-    if not still.z_common > 0:
+    if still.z_round is None or not np.any(still.z_round):
         return 0.0
     P = len(still.z_mean)
-    D = np.zeros((len(J), 3))
-    rows = len(J) - 3 * P + np.arange(3 * P)
-    D[rows, np.tile(np.arange(3), P)] = np.repeat(1.0 / still.z_sigma, 3)
-    A = np.linalg.lstsq(J, D, rcond=None)[0]
-    return still.z_common * (A @ A.T)
+    out = np.zeros((J.shape[1], J.shape[1]))
+    for c in range(3):
+        D = np.zeros((len(J), P))
+        D[len(J) - 3 * P + 3 * np.arange(P) + c, np.arange(P)] = 1.0 / still.z_sigma
+        A = np.linalg.lstsq(J, D, rcond=None)[0]
+        out += A @ still.z_round[c] @ A.T
+    return out
 
 
 def tangent(u: np.ndarray) -> np.ndarray:
