@@ -19,6 +19,7 @@ from bench import (
     mad,
     mag,
     multi,
+    quantised,
     registry,
     reliability,
     speed,
@@ -35,6 +36,7 @@ BENCHMARKS = (
     "gyro-speed",
     "trust",
     "trust-gyro",
+    "quantised",
     "mad",
     "capture",
     "speed",
@@ -96,6 +98,8 @@ def main() -> None:
         ok = trust.run(console, n_seeds=max(5, args.seeds // 20)) and ok
     if args.only in (None, "trust-gyro"):
         ok = trust_gyro.run(console, n_seeds=max(5, args.seeds // 20)) and ok
+    if args.only in (None, "quantised"):
+        ok = quantised.run(console, n_seeds=max(20, args.seeds // 5)) and ok
     if args.only in (None, "mad"):
         ok = mad.run(console) and ok
     if args.only in (None, "capture"):
