@@ -39,18 +39,19 @@ demo: $(STAMP)
 	$(CACHED) $(BIN)/imucal report out/demo.cal.json
 
 # The suite without its Monte-Carlo and long-session cases (marked `slow`): minutes on 2 cores.
-# 6 workers on 2 cores, work stealing: the tests through the virtual device spend most of their
+# 8 workers on 2 cores, work stealing: the tests through the virtual device spend most of their
 # time waiting for a stream served in real time, and the others run meanwhile; beside two CPU
-# burners, 6 workers hold 3/4 of the CPU where 4 held 2/3 (2,324 tests: 3 min 59 s, not 4 min
-# 55 s).
+# burners, 8 workers hold 4/5 of the CPU where 6 held 3/4 and 4 held 2/3 (2,324 tests: 3 min
+# 59 s with 6, not 4 min 55 s with 4; 2,489 tests on a slower day: 5 min 2 s with 8, 5 min 45 s
+# with 6).
 test: $(STAMP)
 	$(CACHED) $(BIN)/python -m compileall -q imucal_cli tests bench
-	$(CACHED) $(BIN)/python -m pytest -n 6 --dist worksteal -q -m "not slow"
+	$(CACHED) $(BIN)/python -m pytest -n 8 --dist worksteal -q -m "not slow"
 
 # Everything, the slow cases too.
 test-all: $(STAMP)
 	$(CACHED) $(BIN)/python -m compileall -q imucal_cli tests bench
-	$(CACHED) $(BIN)/python -m pytest -n 6 --dist worksteal -q
+	$(CACHED) $(BIN)/python -m pytest -n 8 --dist worksteal -q
 
 # The benchmarks also compare with MaD Lab's `imucal` package (the `bench` extra).
 $(VENV)/.bench: $(STAMP)
