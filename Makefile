@@ -42,8 +42,9 @@ demo: $(STAMP)
 # 8 workers on 2 cores, work stealing: the tests through the virtual device spend most of their
 # time waiting for a stream served in real time, and the others run meanwhile; beside two CPU
 # burners, 8 workers hold 4/5 of the CPU where 6 held 3/4 and 4 held 2/3 (2,324 tests: 3 min
-# 59 s with 6, not 4 min 55 s with 4; 2,489 tests on a slower day: 5 min 2 s with 8, 5 min 45 s
-# with 6).
+# 59 s with 6, not 4 min 55 s with 4; 2,489 tests on a day the host ran the same suite 25 %
+# slower: 5 min 2 s and 5 min 42 s with 8, 5 min 45 s with 6; the CPU, not the workers, is
+# the limit: about 8.5 CPU-minutes, 1 of them the workers' start-up and collection).
 test: $(STAMP)
 	$(CACHED) $(BIN)/python -m compileall -q imucal_cli tests bench
 	$(CACHED) $(BIN)/python -m pytest -n 8 --dist worksteal -q -m "not slow"
