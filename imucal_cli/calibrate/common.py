@@ -134,7 +134,7 @@ def _rounding(raw: np.ndarray, clean: list[np.ndarray], cov: np.ndarray) -> np.n
     average away: a quantised sensor too quiet to dither its rounding (noise below half a
     count; :mod:`imucal_cli.numerics.quantisation`), 0 otherwise.  The step from the whole
     record (the moves sweep the codes), the noise from each channel's codes in the holds."""
-    q = holds.quantum(raw[:: max(len(raw) // 20000, 1)])
+    q = holds.record_quantum(raw)
     return np.array([hold_rounding([b[:, [c]] for b in clean], q, float(np.sqrt(cov[c, c])))[1]
                      for c in range(cov.shape[0])])  # fmt: skip
 

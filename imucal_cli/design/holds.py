@@ -68,6 +68,12 @@ def quantum(values: np.ndarray) -> float:
     return float(min(steps)) if steps else 0.0
 
 
+def record_quantum(raw: np.ndarray, rows: int = 20000) -> float:
+    """The quantisation step of a whole record (:func:`quantum`) from at most about ``rows``
+    rows spread over it: the moves sweep the codes that a quiet sensor's holds do not."""
+    return quantum(raw[:: max(len(raw) // rows, 1)])
+
+
 def medians_and_spread(blocks: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """Each hold's median and its median absolute deviation about that median, per channel
     (a hold with NaN gives NaN).

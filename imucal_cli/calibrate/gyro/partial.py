@@ -170,7 +170,7 @@ def stills_bias(session: Session, cfg: Config) -> tuple[np.ndarray, np.ndarray, 
                        f"{SCATTER_P:g}): the bias drifted (warm-up, bias instability) or the "
                        "noise is correlated; the bias std is scaled by it")  # fmt: skip
     # a quantised gyro too quiet to dither its rounding: every period errs alike
-    q = holds.quantum(session.gyro[:: max(len(session.gyro) // 20000, 1)])
+    q = holds.record_quantum(session.gyro)
     blocks = [session.gyro[s.start : s.stop] for s in statics]
     w = n / n.sum()
     sigma, v = hold_rounding(blocks, q, float(np.sqrt(np.mean(noise**2))))  # one for the 3

@@ -128,7 +128,7 @@ def rounding(session, stills: list[Still], noise: float) -> tuple[float, np.ndar
     the codes and the rounding is white, ``q^2 / 12`` per sample beside that noise.
     Unquantised or dithered data: ``(noise, None)``.
     """
-    q = holds.quantum(session.gyro[:: max(len(session.gyro) // 20000, 1)])  # turns sweep codes
+    q = holds.record_quantum(session.gyro)
     if q <= 0 or not stills:
         return noise, None
     blocks = [session.gyro[s.segment.start : s.segment.stop] for s in stills]
